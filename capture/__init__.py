@@ -1,0 +1,1 @@
+"""Reading stereo recordings (EuRoC/ASL, ROS bags, left/right folders); pairing frames."""

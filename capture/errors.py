@@ -1,0 +1,7 @@
+"""Errors raised by the ``capture`` package."""
+
+from lenspair.errors import LenspairError
+
+
+class CaptureError(LenspairError):
+    """A problem in the capture stage (the message names the file or key)."""

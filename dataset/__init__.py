@@ -1,0 +1,1 @@
+"""Curation, ground-truth side bookkeeping, leak-free splits, and dataset readers."""

@@ -1,0 +1,7 @@
+"""Errors raised by the ``dataset`` package."""
+
+from lenspair.errors import LenspairError
+
+
+class DatasetError(LenspairError):
+    """A problem in the dataset stage (the message names the file or key)."""

@@ -1,0 +1,84 @@
+"""The ``lenspair`` command line: one thin dispatcher over the stage packages.
+
+Each subcommand lives in ``lenspair/commands/<name>.py`` and provides
+``add_arguments(parser)`` and ``run(args) -> int``; its module docstring is
+its ``--help`` description. Only the chosen subcommand's module is imported,
+so ``lenspair simulate`` does not pay for importing torch.
+"""
+
+import argparse
+import importlib
+import logging
+import sys
+from types import ModuleType
+
+from lenspair import __version__
+from lenspair.errors import LenspairError
+
+# name -> (module, one-line summary). A plain table: no registry magic.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("lenspair.commands.simulate", "render a scene spec into a stereo recording"),
+    "calibrate": ("lenspair.commands.calibrate", "calibrate a stereo rig from board views"),
+    "capture-ingest": (
+        "lenspair.commands.capture_ingest",
+        "turn a recording into registered 540x360 (obstructed, clean) pairs",
+    ),
+    "dataset-build": (
+        "lenspair.commands.dataset_build",
+        "curate ingested recordings into train/val/test splits",
+    ),
+    "train": ("lenspair.commands.train", "train the shallow GAN (synthetic or real pairs)"),
+    "eval": ("lenspair.commands.eval", "measure PSNR/SSIM and latency of a checkpoint"),
+    "tradeoff": ("lenspair.commands.tradeoff", "accuracy-versus-time table and plot of variants"),
+    "export": ("lenspair.commands.export", "export a checkpoint to ONNX and TorchScript"),
+    "demo": ("lenspair.commands.demo", "run the whole pipeline on the bundled sample scenes"),
+}
+
+
+def _load(name: str) -> ModuleType:
+    return importlib.import_module(COMMANDS[name][0])
+
+
+def build_parser(selected: str | None) -> argparse.ArgumentParser:
+    """Build the parser; only ``selected``'s module is imported for its arguments."""
+    parser = argparse.ArgumentParser(
+        prog="lenspair",
+        description="Paired camera-anomaly datasets from stereo rigs, and a fast shallow GAN "
+        "that removes raindrops, dust and dirt. Run 'lenspair COMMAND --help' for details.",
+    )
+    parser.add_argument("--version", action="version", version=f"lenspair {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, (_, summary) in COMMANDS.items():
+        if name == selected:
+            module = _load(name)
+            command = sub.add_parser(
+                name,
+                help=summary,
+                description=module.__doc__,
+                formatter_class=argparse.RawDescriptionHelpFormatter,
+            )
+            module.add_arguments(command)
+        else:
+            sub.add_parser(name, help=summary, add_help=False)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the process exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    selected = next((a for a in argv if a in COMMANDS), None)
+    parser = build_parser(selected)
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        return int(_load(args.command).run(args))
+    except LenspairError as exc:
+        print(f"lenspair {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"lenspair {args.command}: interrupted; rerun to resume", file=sys.stderr)
+        return 130

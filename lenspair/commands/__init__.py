@@ -1,0 +1,1 @@
+"""Thin subcommands: each validates its arguments, calls one library entry point, returns a code."""

@@ -1,0 +1,78 @@
+"""Atomic file writes and checksums.
+
+Every output file lenspair writes goes through these helpers: data is written
+to a temporary file in the destination folder and renamed into place, so an
+interrupted run never leaves a half-written file under its final name, and a
+rerun can trust any file that exists.
+"""
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+
+def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str = "") -> None:
+    """Call ``writer(tmp_path)`` and rename the result to ``path`` atomically.
+
+    Args:
+        path: final destination; its parent folder is created when missing.
+        writer: function that writes the complete file at the path it is given.
+        suffix: extension for the temporary name (some writers pick the format
+            from it, e.g. ``.png``).
+
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(
+        prefix=f".{path.name}.", suffix=suffix + ".tmp", dir=path.parent
+    )
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        writer(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically."""
+
+    def _write(tmp: Path) -> None:
+        tmp.write_bytes(data)
+
+    atomic_write(path, _write)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write UTF-8 ``text`` to ``path`` atomically."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_json(path: Path, obj: Any) -> None:
+    """Write ``obj`` as stable, indented JSON (sorted keys, trailing newline)."""
+    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
+
+
+def atomic_write_lines(path: Path, lines: Iterable[str]) -> None:
+    """Write text lines (each without its newline) to ``path`` atomically."""
+    atomic_write_text(path, "".join(line + "\n" for line in lines))
+
+
+def sha256_bytes(data: bytes) -> str:
+    """Hex SHA-256 of ``data``."""
+    return hashlib.sha256(data).hexdigest()
+
+
+def sha256_file(path: Path, chunk_size: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file's content, read in chunks."""
+    digest = hashlib.sha256()
+    with Path(path).open("rb") as handle:
+        while chunk := handle.read(chunk_size):
+            digest.update(chunk)
+    return digest.hexdigest()

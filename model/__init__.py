@@ -1,0 +1,1 @@
+"""The shallow GAN of Fumagalli et al.: networks, losses, metrics, training and evaluation."""

@@ -1,0 +1,7 @@
+"""Errors raised by the ``model`` package."""
+
+from lenspair.errors import LenspairError
+
+
+class ModelError(LenspairError):
+    """A problem in the model stage (the message names the file or key)."""

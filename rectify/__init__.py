@@ -1,0 +1,1 @@
+"""Calibration, stereo rectification, clean-to-obstructed registration and cropping."""

@@ -1,0 +1,7 @@
+"""Errors raised by the ``rectify`` package."""
+
+from lenspair.errors import LenspairError
+
+
+class RectifyError(LenspairError):
+    """A problem in the rectify stage (the message names the file or key)."""

@@ -1,0 +1,208 @@
+"""Camera and stereo-rig models, and Kalibr camchain read/write.
+
+Conventions:
+
+* Intrinsics ``(fx, fy, cx, cy)`` in pixels; ``resolution`` is ``(width, height)``.
+* ``distortion`` follows Kalibr: ``radtan`` -> ``(k1, k2, p1, p2)`` (OpenCV's
+  first four coefficients), ``equidistant`` -> ``(k1, k2, k3, k4)`` (OpenCV's
+  ``cv2.fisheye`` model).
+* ``T_cam1_cam0`` is Kalibr's ``T_cn_cnm1`` for cam1: the 4x4 rigid transform
+  taking a point expressed in cam0's frame to cam1's frame (metres). A cam1
+  mounted rotated by 180 deg about its optical axis shows up here as a
+  rotation; nothing else in lenspair special-cases it.
+"""
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+
+from lenspair.fsutil import atomic_write_text
+from rectify.errors import RectifyError
+
+DistortionModel = Literal["radtan", "equidistant"]
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """A pinhole camera with radtan or equidistant (fisheye) distortion.
+
+    Attributes:
+        intrinsics: ``(fx, fy, cx, cy)`` in pixels.
+        distortion_model: ``"radtan"`` or ``"equidistant"``.
+        distortion: four coefficients, see the module docstring.
+        resolution: ``(width, height)`` in pixels.
+
+    """
+
+    intrinsics: tuple[float, float, float, float]
+    distortion_model: DistortionModel
+    distortion: tuple[float, float, float, float]
+    resolution: tuple[int, int]
+
+    def __post_init__(self) -> None:
+        values = (*self.intrinsics, *self.distortion)
+        if not all(np.isfinite(values)):
+            raise ValueError(f"camera parameters must be finite, got {values}")
+        if self.intrinsics[0] <= 0 or self.intrinsics[1] <= 0:
+            raise ValueError(f"focal lengths must be positive, got {self.intrinsics[:2]}")
+        if self.resolution[0] <= 0 or self.resolution[1] <= 0:
+            raise ValueError(f"resolution must be positive, got {self.resolution}")
+
+    @property
+    def K(self) -> np.ndarray:
+        """3x3 camera matrix, float64."""
+        fx, fy, cx, cy = self.intrinsics
+        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def dist_coeffs(self) -> np.ndarray:
+        """Distortion coefficients in OpenCV's order and shape, float64."""
+        if self.distortion_model == "equidistant":
+            return np.asarray(self.distortion, dtype=np.float64).reshape(4, 1)
+        return np.array([*self.distortion, 0.0], dtype=np.float64).reshape(1, 5)
+
+
+@dataclass(frozen=True)
+class StereoRig:
+    """Two cameras and the rigid transform between them.
+
+    Attributes:
+        cam0: first camera (Kalibr's ``cam0``).
+        cam1: second camera.
+        T_cam1_cam0: 4x4 transform from cam0's frame to cam1's frame.
+        topics: ROS topics of the two cameras, when known.
+
+    """
+
+    cam0: CameraModel
+    cam1: CameraModel
+    T_cam1_cam0: np.ndarray = field(repr=False)
+    topics: tuple[str, str] = ("/cam0/image_raw", "/cam1/image_raw")
+
+    def __post_init__(self) -> None:
+        T = np.asarray(self.T_cam1_cam0, dtype=np.float64)
+        if T.shape != (4, 4):
+            raise ValueError(f"T_cam1_cam0: expected shape (4, 4), got {T.shape}")
+        if not np.all(np.isfinite(T)):
+            raise ValueError("T_cam1_cam0 contains NaN or Inf")
+        R = T[:3, :3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+            raise ValueError("T_cam1_cam0: rotation part is not a proper rotation matrix")
+        object.__setattr__(self, "T_cam1_cam0", T)
+
+    @property
+    def R(self) -> np.ndarray:
+        """Rotation cam0 -> cam1 (3x3)."""
+        return self.T_cam1_cam0[:3, :3].copy()
+
+    @property
+    def t(self) -> np.ndarray:
+        """Translation cam0 -> cam1 (3,), metres."""
+        return self.T_cam1_cam0[:3, 3].copy()
+
+    @property
+    def baseline_m(self) -> float:
+        """Distance between the two optical centres, metres."""
+        return float(np.linalg.norm(self.t))
+
+    def camera(self, name: str) -> CameraModel:
+        """Return ``cam0`` or ``cam1`` by name."""
+        if name not in ("cam0", "cam1"):
+            raise ValueError(f"camera name must be 'cam0' or 'cam1', got {name!r}")
+        return self.cam0 if name == "cam0" else self.cam1
+
+
+def _camera_to_kalibr(cam: CameraModel, topic: str, overlap: int) -> dict[str, Any]:
+    return {
+        "camera_model": "pinhole",
+        "intrinsics": [float(v) for v in cam.intrinsics],
+        "distortion_model": cam.distortion_model,
+        "distortion_coeffs": [float(v) for v in cam.distortion],
+        "resolution": [int(v) for v in cam.resolution],
+        "rostopic": topic,
+        "cam_overlaps": [overlap],
+    }
+
+
+def rig_to_kalibr(rig: StereoRig) -> dict[str, Any]:
+    """The camchain mapping Kalibr writes for a two-camera rig."""
+    cam1 = _camera_to_kalibr(rig.cam1, rig.topics[1], 0)
+    cam1 = {"T_cn_cnm1": [[float(v) for v in row] for row in rig.T_cam1_cam0], **cam1}
+    return {"cam0": _camera_to_kalibr(rig.cam0, rig.topics[0], 1), "cam1": cam1}
+
+
+def write_kalibr(path: Path, rig: StereoRig) -> None:
+    """Write ``rig`` as a Kalibr camchain YAML file (atomically)."""
+    text = yaml.safe_dump(rig_to_kalibr(rig), sort_keys=False, default_flow_style=None)
+    atomic_write_text(Path(path), text)
+
+
+def _kalibr_camera(data: Any, where: str) -> CameraModel:
+    if not isinstance(data, dict):
+        raise RectifyError(f"{where}: expected a mapping")
+    try:
+        model = data.get("camera_model", "pinhole")
+        if model != "pinhole":
+            raise RectifyError(f"{where}.camera_model: only 'pinhole' is supported, got {model!r}")
+        dist_model = data["distortion_model"]
+        if dist_model == "equi":
+            dist_model = "equidistant"
+        if dist_model not in ("radtan", "equidistant"):
+            raise RectifyError(
+                f"{where}.distortion_model: expected radtan or equidistant, got {dist_model!r}"
+            )
+        intrinsics = tuple(float(v) for v in data["intrinsics"])
+        distortion = tuple(float(v) for v in data["distortion_coeffs"])
+        resolution = tuple(int(v) for v in data["resolution"])
+    except KeyError as exc:
+        raise RectifyError(f"{where}: missing key {exc.args[0]!r}") from None
+    except (TypeError, ValueError) as exc:
+        raise RectifyError(f"{where}: {exc}") from None
+    if len(intrinsics) != 4 or len(distortion) != 4 or len(resolution) != 2:
+        raise RectifyError(
+            f"{where}: expected 4 intrinsics, 4 distortion coefficients and 2 resolution values"
+        )
+    try:
+        return CameraModel(intrinsics, dist_model, distortion, resolution)  # type: ignore[arg-type]
+    except ValueError as exc:
+        raise RectifyError(f"{where}: {exc}") from None
+
+
+def rig_from_kalibr(data: Any, source: str = "camchain") -> StereoRig:
+    """Build a :class:`StereoRig` from a parsed Kalibr camchain mapping.
+
+    Raises:
+        RectifyError: missing cameras or keys, NaN values, bad transform; the
+            message starts with ``source``.
+
+    """
+    if not isinstance(data, dict) or "cam0" not in data or "cam1" not in data:
+        raise RectifyError(f"{source}: expected a Kalibr camchain with cam0 and cam1")
+    cam0 = _kalibr_camera(data["cam0"], f"{source}: cam0")
+    cam1 = _kalibr_camera(data["cam1"], f"{source}: cam1")
+    try:
+        T = np.asarray(data["cam1"]["T_cn_cnm1"], dtype=np.float64)
+        topics = (
+            str(data["cam0"].get("rostopic", "/cam0/image_raw")),
+            str(data["cam1"].get("rostopic", "/cam1/image_raw")),
+        )
+        return StereoRig(cam0, cam1, T, topics)
+    except KeyError:
+        raise RectifyError(f"{source}: cam1.T_cn_cnm1 is missing") from None
+    except ValueError as exc:
+        raise RectifyError(f"{source}: cam1.T_cn_cnm1: {exc}") from None
+
+
+def read_kalibr(path: Path) -> StereoRig:
+    """Read a Kalibr camchain YAML file."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise RectifyError(f"{path}: file not found") from None
+    except yaml.YAMLError as exc:
+        raise RectifyError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    return rig_from_kalibr(data, str(path))

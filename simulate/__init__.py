@@ -1,0 +1,1 @@
+"""Scene-driven stereo rig simulator and the anomaly renderer (raindrops, dust, dirt)."""

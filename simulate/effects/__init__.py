@@ -1,0 +1,1 @@
+"""Anomaly effects rendered on the glass of the obstructed camera, one module per effect."""

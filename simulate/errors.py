@@ -1,0 +1,7 @@
+"""Errors raised by the ``simulate`` package."""
+
+from lenspair.errors import LenspairError
+
+
+class SimulateError(LenspairError):
+    """A problem in the simulate stage (the message names the file or key)."""

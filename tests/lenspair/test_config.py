@@ -1,0 +1,66 @@
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import pytest
+
+from lenspair.config import dump_yaml, load_dataclass, load_yaml
+from lenspair.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Inner:
+    depth_m: float
+    texture: str = "brick"
+
+
+@dataclass(frozen=True)
+class Outer:
+    lr: float = 2e-4
+    epochs: int = 10
+    mode: Literal["a", "b"] = "a"
+    size: tuple[int, int] = (720, 540)
+    planes: list[Inner] = field(default_factory=list)
+    extra: Inner | None = None
+
+
+def test_round_trip_through_yaml(tmp_path: Path) -> None:
+    cfg = Outer(lr=1e-3, planes=[Inner(10.0), Inner(3.5, "grass")], extra=Inner(1.0))
+    file = tmp_path / "c.yaml"
+    file.write_text(dump_yaml(cfg))
+    assert load_yaml(Outer, file) == cfg
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"lr": "le-4"}, r"^lr: expected float, got 'le-4'$"),
+        ({"epochs": 1.5}, r"^epochs: expected int"),
+        ({"epochs": True}, r"^epochs: expected int"),
+        ({"mode": "c"}, r"^mode: expected one of 'a', 'b'"),
+        ({"size": [1, 2, 3]}, r"^size: expected 2 values, got 3"),
+        ({"planes": [{"depth_m": 1}, {"depth": 2}]}, r"^planes\[1\]\.depth: unknown key"),
+        ({"planes": [{"texture": "x"}]}, r"^planes\[0\]\.depth_m: required key is missing"),
+        ({"lr": float("nan")}, r"^lr: expected a finite float"),
+        ({"lrr": 1.0}, r"^lrr: unknown key; valid keys: epochs, extra, lr, mode, planes, size"),
+    ],
+)
+def test_errors_name_the_dotted_key(data: dict[str, object], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_dataclass(Outer, data)
+
+
+def test_int_is_accepted_for_float_and_none_enables_defaults() -> None:
+    cfg = load_dataclass(Outer, {"lr": 1, "extra": {"depth_m": 2}})
+    assert isinstance(cfg.lr, float)
+    assert cfg.extra == Inner(2.0)
+    assert load_dataclass(Outer, None) == Outer()
+
+
+def test_yaml_file_errors_name_the_file(tmp_path: Path) -> None:
+    file = tmp_path / "bad.yaml"
+    file.write_text("lr: [1, 2\n")
+    with pytest.raises(ConfigError, match=r"bad\.yaml: not valid YAML"):
+        load_yaml(Outer, file)
+    with pytest.raises(ConfigError, match=r"missing\.yaml: file not found"):
+        load_yaml(Outer, tmp_path / "missing.yaml")

@@ -1,0 +1,66 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from lenspair.errors import ImageIOError
+from lenspair.fsutil import sha256_file
+from lenspair.imageio import from_float, from_linear, read_image, to_float, to_linear, write_image
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+@pytest.mark.parametrize("shape", [(37, 53), (37, 53, 3)])
+@pytest.mark.parametrize("ext", [".png", ".tif"])
+def test_write_read_round_trip_is_lossless(
+    tmp_path: Path, dtype: type, shape: tuple[int, ...], ext: str
+) -> None:
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, np.iinfo(dtype).max, size=shape, endpoint=True).astype(dtype)
+    path = tmp_path / f"img{ext}"
+    write_image(path, image)
+    back = read_image(path)
+    assert back.dtype == image.dtype
+    np.testing.assert_array_equal(back, image)
+
+
+def test_same_pixels_give_same_bytes(tmp_path: Path) -> None:
+    image = (np.arange(540 * 720) % 65536).astype(np.uint16).reshape(540, 720)
+    write_image(tmp_path / "a.png", image)
+    write_image(tmp_path / "b.png", image.copy())
+    assert sha256_file(tmp_path / "a.png") == sha256_file(tmp_path / "b.png")
+    assert not list(tmp_path.glob(".*tmp"))  # no temporary files left behind
+
+
+def test_truncated_and_missing_files_name_the_file(tmp_path: Path) -> None:
+    good = tmp_path / "good.png"
+    write_image(good, np.full((64, 64), 7, np.uint8) + np.eye(64, dtype=np.uint8))
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(good.read_bytes()[: len(good.read_bytes()) // 2])
+    with pytest.raises(ImageIOError, match=r"bad\.png: "):
+        read_image(bad)
+    with pytest.raises(ImageIOError, match=r"nope\.png: file not found"):
+        read_image(tmp_path / "nope.png")
+    (tmp_path / "text.png").write_text("not an image")
+    with pytest.raises(ImageIOError, match=r"text\.png: "):
+        read_image(tmp_path / "text.png")
+
+
+def test_write_rejects_float_images(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="expected dtype uint8 or uint16"):
+        write_image(tmp_path / "f.png", np.zeros((4, 4), np.float32))
+
+
+@given(st.floats(0.0, 1.0, width=32))
+def test_srgb_linear_round_trip(value: float) -> None:
+    x = np.array([value], np.float32)
+    assert abs(float(from_linear(to_linear(x))[0]) - value) < 1e-5
+
+
+def test_float_conversion_is_exact_for_every_code() -> None:
+    codes = np.arange(65536, dtype=np.uint16).reshape(256, 256)
+    np.testing.assert_array_equal(from_float(to_float(codes), np.uint16), codes)
+    assert from_float(np.array([[np.nan, -1.0, 2.0]], np.float32), np.uint8).tolist() == [
+        [0, 0, 255]
+    ]
