@@ -1,0 +1,135 @@
+"""The ingested-recording format: the contract between ``capture-ingest`` and ``dataset-build``.
+
+Layout of ``OUT/<recording_id>/``::
+
+    input/<t_ns>.png    obstructed view, rectified and cropped (540x360), model input
+    target/<t_ns>.png   clean view registered onto the input (same size, dtype)
+    mask/<t_ns>.png     optional; 255 where the pair is NOT trustworthy (parallax,
+                        failed alignment), 0 elsewhere; uint8
+    pairs.jsonl         one PairRecord per input frame of the obstructed camera,
+                        kept or rejected, in timestamp order
+    report.json         IngestReport: counts, calibration, homography, timings
+    qa.png              contact sheet for people
+
+``<t_ns>`` is the obstructed frame's timestamp in nanoseconds.
+"""
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from lenspair.config import load_dataclass, to_plain
+from lenspair.errors import ConfigError
+from lenspair.fsutil import atomic_write_json, atomic_write_lines
+
+PAIRS_FILE = "pairs.jsonl"
+REPORT_FILE = "report.json"
+Status = Literal["kept", "rejected"]
+
+
+@dataclass(frozen=True)
+class PairRecord:
+    """One line of ``pairs.jsonl``: the fate of one obstructed frame.
+
+    Attributes:
+        t_ns: obstructed frame timestamp (ns); the output file stem.
+        t_clean_ns: timestamp of the clean frame it was paired with, if any.
+        status: ``kept`` or ``rejected``.
+        reason: why it was rejected (or a warning for a kept pair), else None.
+        residual_px: geometric registration residual (px), when measured.
+        photometric_residual: mean absolute difference of input and target
+            outside anomaly regions, in [0, 1] units of full scale.
+        inliers: feature matches supporting the homography in this frame.
+        sharpness: variance of the Laplacian of the clean view (motion blur).
+        saturated: fraction of clean-view pixels at full scale.
+        black: fraction of clean-view pixels at zero.
+        mask_fraction: fraction of pixels marked untrustworthy in ``mask/``.
+        files: relative paths of ``input``, ``target`` and ``mask`` outputs.
+        sha256: checksums of those files, same keys.
+    """
+
+    t_ns: int
+    status: Status
+    t_clean_ns: int | None = None
+    reason: str | None = None
+    residual_px: float | None = None
+    photometric_residual: float | None = None
+    inliers: int | None = None
+    sharpness: float | None = None
+    saturated: float | None = None
+    black: float | None = None
+    mask_fraction: float | None = None
+    files: dict[str, str] = field(default_factory=dict)
+    sha256: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class IngestReport:
+    """``report.json``: what an ingest run did.
+
+    Attributes:
+        recording_id: folder name under ``OUT``.
+        source: path of the recording that was read.
+        obstructed: camera behind the anomaly (``cam0``/``cam1``).
+        anomaly: anomaly labels from ``rig.yaml``.
+        calibration_source: file the calibration came from.
+        calibration: the calibration used (Kalibr camchain mapping).
+        homography: 3x3 clean->obstructed homography in cropped output pixels.
+        crop: ``(x, y, width, height)`` of the crop in rectified pixels.
+        counts: frame counts (``frames_cam0``, ``kept``, ``rejected``, ...).
+        rejection_reasons: reason -> count.
+        timings_s: stage -> seconds.
+        side_check: result of checking the declared obstructed side.
+        lenspair_version: version that wrote it.
+    """
+
+    recording_id: str
+    source: str
+    obstructed: str
+    anomaly: tuple[str, ...]
+    calibration_source: str
+    calibration: dict[str, Any]
+    homography: list[list[float]]
+    crop: tuple[int, int, int, int]
+    counts: dict[str, int]
+    rejection_reasons: dict[str, int] = field(default_factory=dict)
+    timings_s: dict[str, float] = field(default_factory=dict)
+    side_check: dict[str, Any] = field(default_factory=dict)
+    lenspair_version: str = ""
+
+
+def write_pairs(path: Path, records: list[PairRecord]) -> None:
+    """Write ``pairs.jsonl`` atomically, one compact JSON object per line."""
+    lines = (json.dumps(to_plain(r), sort_keys=True, separators=(",", ":")) for r in records)
+    atomic_write_lines(Path(path), lines)
+
+
+def read_pairs(path: Path) -> list[PairRecord]:
+    """Read ``pairs.jsonl``; a malformed line raises ``ConfigError`` naming file and line."""
+    path = Path(path)
+    records = []
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            records.append(load_dataclass(PairRecord, json.loads(line)))
+        except (json.JSONDecodeError, ConfigError) as exc:
+            raise ConfigError(f"{path}:{number}: {exc}") from None
+    return records
+
+
+def write_report(path: Path, report: IngestReport) -> None:
+    """Write ``report.json`` atomically."""
+    atomic_write_json(Path(path), to_plain(report))
+
+
+def read_report(path: Path) -> IngestReport:
+    """Read ``report.json``; errors name the file."""
+    path = Path(path)
+    try:
+        return load_dataclass(IngestReport, json.loads(path.read_text(encoding="utf-8")))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except (json.JSONDecodeError, ConfigError) as exc:
+        raise ConfigError(f"{path}: {exc}") from None
