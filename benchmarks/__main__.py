@@ -1,0 +1,45 @@
+"""Run every benchmark: ``python -m benchmarks [--out DIR] [--only NAME ...]``.
+
+Each ``benchmarks/bench_*.py`` module has a ``main(argv) -> int`` that prints a
+Markdown table and, with ``--out``, writes ``<name>.json``. Numbers are
+medians, and speeds are reported as ratios to a floor or peak measured in the
+same run, because shared machines are noisy.
+"""
+
+import argparse
+import importlib
+import pkgutil
+import sys
+import time
+from pathlib import Path
+
+import benchmarks
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the selected benchmarks in turn; returns non-zero if any failed."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__)
+    parser.add_argument("--out", type=Path, default=None, help="folder for JSON results")
+    parser.add_argument("--only", nargs="*", default=None, help="names, e.g. effects model")
+    args = parser.parse_args(argv)
+    names = sorted(
+        m.name for m in pkgutil.iter_modules(benchmarks.__path__) if m.name.startswith("bench_")
+    )
+    if args.only:
+        names = [n for n in names if n.removeprefix("bench_") in args.only]
+    failed = []
+    for name in names:
+        print(f"\n## {name}\n", flush=True)
+        start = time.perf_counter()
+        module = importlib.import_module(f"benchmarks.{name}")
+        code = module.main([] if args.out is None else ["--out", str(args.out)])
+        print(f"\n({name} took {time.perf_counter() - start:.0f} s)", flush=True)
+        if code:
+            failed.append(name)
+    if failed:
+        print(f"failed: {', '.join(failed)}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

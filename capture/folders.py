@@ -1,0 +1,111 @@
+"""``left/`` + ``right/`` image folders with timestamps in the file names.
+
+Layout::
+
+    <rec>/left/1403636579763555584.png     cam0
+    <rec>/right/1403636579763555584.png    cam1
+
+The timestamp is the last group of digits of the file stem, in nanoseconds
+(``left_000017_1403636579763555584.png`` works too), or seconds with a
+fraction when the stem ends in ``<digits>.<digits>`` (``1403636579.7635.png``).
+Hidden files and files that are not images are ignored. Folders have no
+recording order, so frames are taken in time order; two files with the same
+timestamp keep the first by name and record the other.
+"""
+
+import re
+from pathlib import Path
+
+from capture.errors import CaptureError
+from capture.recording import (
+    CAMERAS,
+    FrameProblem,
+    FrameRef,
+    Recording,
+    order_frames,
+    recording_id_for,
+)
+from capture.rigfile import CameraName
+
+IMAGE_SUFFIXES = frozenset({".png", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp"})
+FOLDER_NAMES: dict[CameraName, str] = {"cam0": "left", "cam1": "right"}
+
+_SECONDS = re.compile(r"(\d+)\.(\d{1,9})$")
+_LAST_DIGITS = re.compile(r"(\d+)\D*$")
+
+
+def timestamp_from_name(name: str) -> int | None:
+    """Timestamp (ns) encoded in an image file name, or None when there is none.
+
+    Args:
+        name: file name with extension, e.g. ``1403636579763555584.png``.
+
+    Returns:
+        Nanoseconds: the stem's last digit group, or ``<s>.<fraction>`` read as
+        seconds.
+    """
+    stem = Path(name).stem
+    seconds = _SECONDS.search(stem)
+    if seconds is not None:
+        whole, fraction = seconds.groups()
+        return int(whole) * 1_000_000_000 + int(fraction.ljust(9, "0"))
+    digits = _LAST_DIGITS.search(stem)
+    return int(digits.group(1)) if digits is not None else None
+
+
+def image_files(folder: Path) -> list[Path]:
+    """Visible image files of ``folder`` (not recursive), sorted by name."""
+    return sorted(
+        p
+        for p in folder.iterdir()
+        if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".") and p.is_file()
+    )
+
+
+def list_image_folder(
+    camera: CameraName, folder: Path, problems: list[FrameProblem]
+) -> list[FrameRef]:
+    """Frames of one camera from image file names.
+
+    Args:
+        camera: the camera the folder belongs to.
+        folder: folder of images named by timestamp.
+        problems: appended to: files without a timestamp, duplicate timestamps.
+
+    Returns:
+        Frames sorted by ``t_ns``, unique timestamps.
+    """
+    frames = []
+    for file in image_files(folder):
+        t_ns = timestamp_from_name(file.name)
+        if t_ns is None:
+            problems.append(FrameProblem(camera, None, str(file), "no timestamp in file name"))
+            continue
+        frames.append(FrameRef(camera, t_ns, file))
+    frames.sort(key=lambda f: f.t_ns)  # stable: same timestamps keep name order
+    return order_frames(camera, frames, problems)
+
+
+def is_left_right(path: Path) -> bool:
+    """True when ``path`` holds a ``left/`` or a ``right/`` folder."""
+    return any((Path(path) / name).is_dir() for name in FOLDER_NAMES.values())
+
+
+def read_folders(path: Path) -> Recording:
+    """List a ``left/`` + ``right/`` recording.
+
+    Raises:
+        CaptureError: one of the two folders is missing, or a camera has no
+            frames.
+    """
+    path = Path(path)
+    problems: list[FrameProblem] = []
+    frames: dict[CameraName, list[FrameRef]] = {}
+    for camera in CAMERAS:
+        folder = path / FOLDER_NAMES[camera]
+        if not folder.is_dir():
+            raise CaptureError(
+                f"{folder}: missing camera folder ({camera}); expected left/ and right/"
+            )
+        frames[camera] = list_image_folder(camera, folder, problems)
+    return Recording(path, recording_id_for(path), "folders", frames, problems)

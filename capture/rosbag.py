@@ -1,0 +1,371 @@
+"""ROS1 and ROS2 bags through ``rosbags``: listing image topics and decoding frames.
+
+Accepted: a ROS1 ``.bag`` file, a ROS2 bag folder (``metadata.yaml`` with
+``.db3`` or ``.mcap`` storage) or a bare ``.db3``/``.mcap`` file. Messages of
+type ``sensor_msgs/msg/Image`` (encodings ``mono8``/``8UC1``, ``mono16``/
+``16UC1``, ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``, ``rgb16``, ``bgr16``;
+``step`` row padding and ``is_bigendian`` respected; colour returned as RGB)
+and ``sensor_msgs/msg/CompressedImage`` (JPEG/PNG, decoded with OpenCV) are
+read. A frame's timestamp is ``header.stamp``; the bag's receive (log) time
+is kept in the :class:`FrameRef` to seek back to the message lazily.
+
+Listing reads every message of the two topics once (deserialising only to
+get the header). If reading stops part-way (a truncated ``.db3``), frames read
+so far are kept and the stop is recorded as a problem; ROS1 and MCAP files
+whose index is cut off cannot be opened by ``rosbags`` at all and raise
+:class:`CaptureError` (``rosbag reindex`` / ``mcap recover`` repair them).
+
+Open readers are cached per process (a few at a time) so that loading many
+frames does not reopen the bag; a forked worker opens its own.
+"""
+
+import os
+import re
+import threading
+from collections import Counter, OrderedDict
+from collections.abc import Sequence
+from contextlib import suppress
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from capture.errors import CaptureError
+from capture.recording import (
+    FrameProblem,
+    FrameRef,
+    Layout,
+    Recording,
+    order_frames,
+    recording_id_for,
+)
+from capture.rigfile import CameraName
+
+RAW_IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+IMAGE_TYPES = (RAW_IMAGE, COMPRESSED_IMAGE)
+BAG_SUFFIXES = frozenset({".bag", ".db3", ".mcap"})
+
+# encoding -> (dtype, channels, channel order to RGB or None)
+_ENCODINGS: dict[str, tuple[type[np.unsignedinteger[Any]], int, tuple[int, ...] | None]] = {
+    "mono8": (np.uint8, 1, None),
+    "8uc1": (np.uint8, 1, None),
+    "mono16": (np.uint16, 1, None),
+    "16uc1": (np.uint16, 1, None),
+    "rgb8": (np.uint8, 3, (0, 1, 2)),
+    "bgr8": (np.uint8, 3, (2, 1, 0)),
+    "rgba8": (np.uint8, 4, (0, 1, 2)),
+    "bgra8": (np.uint8, 4, (2, 1, 0)),
+    "rgb16": (np.uint16, 3, (0, 1, 2)),
+    "bgr16": (np.uint16, 3, (2, 1, 0)),
+}
+
+
+def is_bag(path: Path) -> bool:
+    """True for a ``.bag``/``.db3``/``.mcap`` file or a folder with ``metadata.yaml``."""
+    path = Path(path)
+    if path.is_file():
+        return path.suffix.lower() in BAG_SUFFIXES
+    return path.is_dir() and (path / "metadata.yaml").is_file()
+
+
+def select_topics(image_topics: Sequence[str], bag: Path) -> tuple[str, str]:
+    """Choose the ``(cam0, cam1)`` topics among a bag's image topics.
+
+    Topics naming ``cam0``/``cam1`` win, then ``left``/``right`` (left = cam0);
+    otherwise exactly two image topics are taken in sorted order.
+
+    Raises:
+        CaptureError: fewer than two image topics, or more than two with no
+            unambiguous cam0/cam1 or left/right pair; lists the topics found.
+    """
+    found = sorted(set(image_topics))
+    listing = ", ".join(found) or "none"
+    if len(found) < 2:
+        raise CaptureError(
+            f"{bag}: need two image topics (sensor_msgs/Image or CompressedImage), "
+            f"found {len(found)}: {listing}"
+        )
+    for first, second in (("cam0", "cam1"), ("left", "right")):
+        firsts = [t for t in found if _mentions(t, first)]
+        seconds = [t for t in found if _mentions(t, second)]
+        if len(firsts) == 1 and len(seconds) == 1 and firsts != seconds:
+            return firsts[0], seconds[0]
+    if len(found) == 2:
+        return found[0], found[1]
+    raise CaptureError(
+        f"{bag}: cannot tell which of {len(found)} image topics are cam0 and cam1 "
+        f"({listing}); pass topics=(cam0_topic, cam1_topic)"
+    )
+
+
+def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
+    """List the frames of two image topics of a bag.
+
+    Args:
+        path: ``.bag``, ``.db3``/``.mcap`` file, or ROS2 bag folder.
+        topics: ``(cam0_topic, cam1_topic)``; None chooses with
+            :func:`select_topics`.
+
+    Raises:
+        CaptureError: the bag cannot be opened or read at all, a topic is
+            missing or not an image topic, or a camera has no frames.
+    """
+    path = Path(path)
+    reader = _open(path)
+    try:
+        available = {name: info.msgtype for name, info in reader.topics.items()}
+        image_topics = [name for name, msgtype in available.items() if msgtype in IMAGE_TYPES]
+        chosen = select_topics(image_topics, path) if topics is None else tuple(topics)
+        _check_chosen(chosen, image_topics, path)
+        cameras: dict[str, CameraName] = {chosen[0]: "cam0", chosen[1]: "cam1"}
+        problems: list[FrameProblem] = []
+        listed = _list_messages(reader, path, cameras, problems)
+    finally:
+        with suppress(Exception):
+            reader.close()
+    frames = {camera: order_frames(camera, listed[camera], problems) for camera in listed}
+    layout: Layout = "rosbag1" if path.suffix.lower() == ".bag" else "rosbag2"
+    return Recording(
+        path, recording_id_for(path), layout, frames, problems, topics=(chosen[0], chosen[1])
+    )
+
+
+def load_bag_frame(frame: FrameRef) -> np.ndarray:
+    """Read and decode the image message a bag :class:`FrameRef` points to.
+
+    Returns:
+        ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB.
+
+    Raises:
+        CaptureError: the bag, topic or message is gone, or the message is
+            corrupt, truncated or has an unsupported encoding; names bag,
+            topic and t_ns.
+    """
+    if frame.topic is None or frame.log_time_ns is None:
+        raise CaptureError(f"{frame.describe()}: not a bag frame")
+    where = frame.describe()
+    with _CACHE.lock:
+        reader = _CACHE.get(frame.source)
+        connections = [c for c in reader.connections if c.topic == frame.topic]
+        if not connections:
+            raise CaptureError(f"{where}: topic not found in the bag")
+        start = frame.log_time_ns
+        found = None
+        try:
+            same_time = reader.messages(connections, start=start, stop=start + 1)
+            try:
+                for index, item in enumerate(same_time):
+                    if index == frame.occurrence:
+                        found = item
+                        break
+            finally:
+                same_time.close()
+            if found is not None:
+                message: Any = reader.deserialize(found[2], found[0].msgtype)
+        except Exception as exc:  # rosbags and its storage backends raise assorted types
+            raise CaptureError(f"{where}: cannot read message ({_one_line(exc)})") from None
+    if found is None:
+        raise CaptureError(f"{where}: message not found at log time {start} ns")
+    msgtype = found[0].msgtype
+    if _stamp_ns(message) != frame.t_ns:
+        raise CaptureError(f"{where}: message at log time {start} has t_ns={_stamp_ns(message)}")
+    return decode_message(msgtype, message, where)
+
+
+def decode_message(msgtype: str, message: Any, where: str) -> np.ndarray:
+    """Pixels of a deserialised ``Image`` or ``CompressedImage`` message (RGB order)."""
+    if msgtype == COMPRESSED_IMAGE:
+        return decode_compressed(message.format, message.data, where)
+    return decode_raw(
+        message.height,
+        message.width,
+        message.encoding,
+        bool(message.is_bigendian),
+        message.step,
+        message.data,
+        where,
+    )
+
+
+def decode_raw(
+    height: int,
+    width: int,
+    encoding: str,
+    is_bigendian: bool,
+    step: int,
+    data: np.ndarray | bytes,
+    where: str,
+) -> np.ndarray:
+    """Decode ``sensor_msgs/Image`` fields into an array.
+
+    Args:
+        height: rows.
+        width: columns.
+        encoding: ROS image encoding (see module docstring).
+        is_bigendian: byte order of 16-bit samples.
+        step: bytes per row including padding (>= width * bytes per pixel).
+        data: the ``uint8`` payload.
+        where: names the message in errors.
+
+    Returns:
+        ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB, native byte
+        order, C-contiguous.
+
+    Raises:
+        CaptureError: unsupported encoding, zero size, ``step`` too small or
+            payload shorter than ``step * (height - 1) + row bytes``.
+    """
+    key = encoding.lower()
+    if key not in _ENCODINGS:
+        supported = ", ".join(sorted(_ENCODINGS))
+        raise CaptureError(f"{where}: unsupported encoding {encoding!r}; supported: {supported}")
+    dtype, channels, order = _ENCODINGS[key]
+    itemsize = np.dtype(dtype).itemsize
+    row_bytes = width * channels * itemsize
+    if height <= 0 or width <= 0:
+        raise CaptureError(f"{where}: empty image ({height}x{width})")
+    if step < row_bytes:
+        raise CaptureError(f"{where}: step {step} is smaller than a row ({row_bytes} bytes)")
+    payload = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes) else data
+    payload = np.ascontiguousarray(payload, dtype=np.uint8).reshape(-1)
+    needed = step * (height - 1) + row_bytes
+    if payload.size < needed:
+        raise CaptureError(f"{where}: truncated image data ({payload.size} of {needed} bytes)")
+    rows = np.lib.stride_tricks.as_strided(payload, (height, row_bytes), (step, 1))
+    sample = np.dtype(dtype).newbyteorder(">" if is_bigendian else "<")
+    pixels = np.ascontiguousarray(rows).view(sample).astype(dtype)
+    pixels = pixels.reshape(height, width, channels)
+    if order is None:
+        return np.ascontiguousarray(pixels[:, :, 0])
+    return np.ascontiguousarray(pixels[:, :, list(order)])
+
+
+def decode_compressed(fmt: str, data: np.ndarray | bytes, where: str) -> np.ndarray:
+    """Decode a ``sensor_msgs/CompressedImage`` payload (JPEG/PNG) to mono or RGB.
+
+    Raises:
+        CaptureError: the payload cannot be decoded or has an unsupported depth.
+    """
+    payload = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes) else data
+    decoded = cv2.imdecode(np.ascontiguousarray(payload, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if decoded is None:
+        raise CaptureError(f"{where}: cannot decode compressed image (format {fmt!r})")
+    image = np.asarray(decoded)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise CaptureError(f"{where}: unsupported compressed sample type {image.dtype}")
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    elif image.ndim == 3:  # OpenCV decodes colour as BGR(A)
+        image = image[:, :, 2::-1]
+    return np.ascontiguousarray(image)
+
+
+def close_bag_readers() -> None:
+    """Close the bag readers this process keeps open for :func:`load_bag_frame`."""
+    with _CACHE.lock:
+        _CACHE.clear()
+
+
+class _ReaderCache:
+    """A few open readers per process, least recently used closed first."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.lock = threading.Lock()
+        self.readers: OrderedDict[Path, AnyReader] = OrderedDict()
+        self.pid = os.getpid()
+        self.inherited: list[AnyReader] = []
+
+    def get(self, bag: Path) -> AnyReader:
+        if self.pid != os.getpid():
+            # A forked child must not use (or close) its parent's file handles.
+            self.inherited.extend(self.readers.values())
+            self.readers.clear()
+            self.pid = os.getpid()
+        if bag in self.readers:
+            self.readers.move_to_end(bag)
+            return self.readers[bag]
+        reader = _open(bag)
+        self.readers[bag] = reader
+        while len(self.readers) > self.size:
+            _, oldest = self.readers.popitem(last=False)
+            with suppress(Exception):
+                oldest.close()
+        return reader
+
+    def clear(self) -> None:
+        for reader in self.readers.values():
+            with suppress(Exception):
+                reader.close()
+        self.readers.clear()
+
+
+_CACHE = _ReaderCache(size=4)
+
+
+def _open(path: Path) -> AnyReader:
+    store = Stores.ROS1_NOETIC if path.suffix.lower() == ".bag" else Stores.ROS2_HUMBLE
+    try:
+        reader = AnyReader([path], default_typestore=get_typestore(store))
+        reader.open()
+    except Exception as exc:  # rosbags and its storage backends raise assorted types
+        raise CaptureError(
+            f"{path}: cannot open bag ({_one_line(exc)}); if it was cut short, "
+            "repair it first (rosbag reindex / mcap recover)"
+        ) from None
+    return reader
+
+
+def _check_chosen(chosen: tuple[str, ...], image_topics: list[str], bag: Path) -> None:
+    listing = ", ".join(sorted(image_topics)) or "none"
+    if len(chosen) != 2 or chosen[0] == chosen[1]:
+        raise CaptureError(f"{bag}: need two different topics, got {chosen}")
+    for topic in chosen:
+        if topic not in image_topics:
+            raise CaptureError(f"{bag}: {topic} is not an image topic; image topics: {listing}")
+
+
+def _list_messages(
+    reader: AnyReader, bag: Path, cameras: dict[str, CameraName], problems: list[FrameProblem]
+) -> dict[CameraName, list[FrameRef]]:
+    listed: dict[CameraName, list[FrameRef]] = {"cam0": [], "cam1": []}
+    occurrences: Counter[tuple[str, int]] = Counter()
+    connections = [c for c in reader.connections if c.topic in cameras]
+    try:
+        for connection, log_time, raw in reader.messages(connections):
+            topic = connection.topic
+            camera = cameras[topic]
+            occurrence = occurrences[topic, log_time]
+            occurrences[topic, log_time] += 1
+            try:
+                t_ns = _stamp_ns(reader.deserialize(raw, connection.msgtype))
+            except Exception as exc:  # a corrupt message must not end the listing
+                reason = f"cannot deserialise message at log time {log_time} ({_one_line(exc)})"
+                problems.append(FrameProblem(camera, None, f"{bag} {topic}", reason))
+                continue
+            listed[camera].append(FrameRef(camera, t_ns, bag, topic, log_time, occurrence))
+    except Exception as exc:  # storage backends raise assorted types on damaged files
+        if not any(listed.values()):
+            raise CaptureError(f"{bag}: cannot read messages ({_one_line(exc)})") from None
+        read = {camera: len(frames) for camera, frames in listed.items()}
+        reason = f"reading stopped early ({_one_line(exc)}); frames read before: {read}"
+        problems.append(FrameProblem(None, None, str(bag), reason))
+    return listed
+
+
+def _stamp_ns(message: Any) -> int:
+    stamp = message.header.stamp
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def _mentions(topic: str, word: str) -> bool:
+    return re.search(rf"(?<![a-z0-9]){word}(?![0-9])", topic.lower()) is not None
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 200 else text[:197] + "..."

@@ -1,0 +1,118 @@
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from capture.errors import CaptureError
+from capture.pairing import DUPLICATE, TAKEN, PairingResult, estimate_period_ns, pair_frames
+
+MS = 1_000_000
+
+
+def _accounted(result: PairingResult, n0: int, n1: int) -> None:
+    seen0 = [p.index0 for p in result.pairs] + [
+        u.index for u in result.unpaired if u.camera == "cam0"
+    ]
+    seen1 = [p.index1 for p in result.pairs] + [
+        u.index for u in result.unpaired if u.camera == "cam1"
+    ]
+    assert sorted(seen0) == list(range(n0))
+    assert sorted(seen1) == list(range(n1))
+
+
+def test_synchronised_cameras_pair_exactly() -> None:
+    ts = [i * 50 * MS for i in range(10)]
+    result = pair_frames(ts, ts)
+    assert result.period_ns == 50 * MS
+    assert result.tolerance_ns == 25 * MS
+    assert [(p.index0, p.index1) for p in result.pairs] == [(i, i) for i in range(10)]
+    assert result.unpaired == ()
+
+
+def test_offset_and_dropped_frames_are_reported() -> None:
+    ts0 = [i * 50 * MS for i in range(6)]
+    ts1 = [t + 3 * MS for t in ts0 if t != 100 * MS] + [1000 * MS]
+    result = pair_frames(ts0, ts1)
+    assert all(p.dt_ns == 3 * MS for p in result.pairs)
+    assert len(result.pairs) == 5
+    (missing0,) = result.unpaired_of("cam0")
+    assert missing0.t_ns == 100 * MS
+    assert missing0.reason == "no cam1 frame within 25.0 ms"
+    (extra1,) = result.unpaired_of("cam1")
+    assert extra1.reason == "no cam0 frame within 25.0 ms"
+    _accounted(result, len(ts0), len(ts1))
+
+
+def test_conflict_goes_to_the_closer_frame() -> None:
+    # Two cam0 frames both near one cam1 frame: the closer wins, the other is told why.
+    result = pair_frames([0, 100 * MS, 108 * MS], [0, 104 * MS + 1], tolerance_ns=10 * MS)
+    assert [(p.index0, p.index1) for p in result.pairs] == [(0, 0), (2, 1)]
+    (loser,) = result.unpaired
+    assert (loser.camera, loser.index, loser.reason) == ("cam0", 1, TAKEN)
+    assert loser.nearest_dt_ns == 4 * MS + 1
+
+
+def test_duplicates_are_recorded_not_silently_dropped() -> None:
+    result = pair_frames([0, 0, 50 * MS], [0, 50 * MS, 50 * MS], tolerance_ns=5 * MS)
+    assert [(p.index0, p.index1) for p in result.pairs] == [(0, 0), (2, 1)]
+    reasons = {(u.camera, u.index): u.reason for u in result.unpaired}
+    assert reasons == {("cam0", 1): DUPLICATE, ("cam1", 2): DUPLICATE}
+
+
+def test_unsorted_input_keeps_input_indices() -> None:
+    result = pair_frames([100, 0, 50], [51, 101, 1], tolerance_ns=5)
+    assert sorted((p.index0, p.index1) for p in result.pairs) == [(0, 1), (1, 2), (2, 0)]
+    assert [p.t0_ns for p in result.pairs] == [0, 50, 100]
+
+
+def test_period_is_robust_to_gaps() -> None:
+    ts = [0, 50, 100, 150, 200, 1000, 1050, 1100]
+    assert estimate_period_ns(ts, ts) == 50
+
+
+def test_too_few_frames_or_negative_tolerance_raise() -> None:
+    with pytest.raises(CaptureError, match="fewer than two distinct timestamps"):
+        pair_frames([5], [5])
+    assert len(pair_frames([5], [5], tolerance_ns=0).pairs) == 1
+    with pytest.raises(CaptureError, match=">= 0 ns"):
+        pair_frames([0, 1], [0, 1], tolerance_ns=-1)
+
+
+stamps = st.lists(st.integers(min_value=0, max_value=2_000), min_size=0, max_size=25)
+
+
+@given(stamps, stamps, st.integers(min_value=0, max_value=60))
+def test_every_frame_accounted_for_exactly_once(ts0: list[int], ts1: list[int], tol: int) -> None:
+    result = pair_frames(ts0, ts1, tolerance_ns=tol)
+    _accounted(result, len(ts0), len(ts1))
+    for pair in result.pairs:
+        assert abs(pair.dt_ns) <= tol
+        assert (ts0[pair.index0], ts1[pair.index1]) == (pair.t0_ns, pair.t1_ns)
+    # An unmatched frame never has a free partner within tolerance.
+    free0 = {u.t_ns for u in result.unpaired_of("cam0") if u.reason != DUPLICATE}
+    free1 = {u.t_ns for u in result.unpaired_of("cam1") if u.reason != DUPLICATE}
+    assert not any(abs(a - b) <= tol for a in free0 for b in free1)
+
+
+@given(stamps, stamps, st.integers(min_value=0, max_value=60))
+def test_symmetric_under_swapping_cameras(ts0: list[int], ts1: list[int], tol: int) -> None:
+    forward = pair_frames(ts0, ts1, tolerance_ns=tol)
+    backward = pair_frames(ts1, ts0, tolerance_ns=tol)
+    assert {(p.index0, p.index1) for p in forward.pairs} == {
+        (p.index1, p.index0) for p in backward.pairs
+    }
+    swap = {"cam0": "cam1", "cam1": "cam0"}
+
+    def flipped(reason: str) -> str:
+        return reason.replace("cam0", "#").replace("cam1", "cam0").replace("#", "cam1")
+
+    assert {(u.camera, u.index, u.reason, u.nearest_dt_ns) for u in forward.unpaired} == {
+        (swap[u.camera], u.index, flipped(u.reason), u.nearest_dt_ns) for u in backward.unpaired
+    }
+
+
+@given(st.lists(st.integers(min_value=0, max_value=10**12), min_size=2, max_size=30, unique=True))
+def test_default_tolerance_is_half_the_period(ts: list[int]) -> None:
+    result = pair_frames(ts, ts)
+    assert result.period_ns is not None
+    assert result.tolerance_ns == result.period_ns // 2
+    assert len(result.pairs) == len(ts)  # identical clocks: all pair with themselves

@@ -1,0 +1,209 @@
+import multiprocessing
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from capture.errors import CaptureError
+from capture.recording import (
+    FrameRef,
+    load_frame,
+    open_recording,
+    resolve_obstructed,
+)
+from capture.rigfile import RigFile, write_rig_file
+from lenspair.errors import ConfigError, ImageIOError
+from lenspair.imageio import write_image
+
+MS = 1_000_000
+T0 = 1_403_636_579_763_555_584
+
+
+def _image(seed: int, dtype: type = np.uint8, colour: bool = False) -> np.ndarray:
+    shape = (12, 16, 3) if colour else (12, 16)
+    rng = np.random.default_rng(seed)
+    return rng.integers(0, np.iinfo(dtype).max, shape, endpoint=True).astype(dtype)
+
+
+def _write_camera(camera_dir: Path, stamps: list[int], rows: list[str] | None = None) -> None:
+    """EuRoC camera folder; ``rows`` overrides the data.csv body."""
+    (camera_dir / "data").mkdir(parents=True, exist_ok=True)
+    for i, t in enumerate(stamps):
+        write_image(camera_dir / "data" / f"{t}.png", _image(t % 1000 + i))
+    body = rows if rows is not None else [f"{t},{t}.png" for t in stamps]
+    text = "#timestamp [ns],filename\n" + "".join(r + "\n" for r in body)
+    (camera_dir / "data.csv").write_text(text)
+    (camera_dir / "sensor.yaml").write_text("sensor_type: camera\n")
+
+
+def _euroc(root: Path, n: int = 4, offset: int = 2 * MS) -> list[int]:
+    stamps = [T0 + i * 50 * MS for i in range(n)]
+    _write_camera(root / "mav0" / "cam0", stamps)
+    _write_camera(root / "mav0" / "cam1", [t + offset for t in stamps])
+    return stamps
+
+
+def test_euroc_layouts_are_detected(tmp_path: Path) -> None:
+    stamps = _euroc(tmp_path / "MH_01")
+    for given in (tmp_path / "MH_01", tmp_path / "MH_01" / "mav0"):
+        recording = open_recording(given)
+        assert recording.layout == "euroc"
+        assert recording.recording_id == "MH_01"
+        assert recording.timestamps("cam0") == stamps
+        assert recording.timestamps("cam1") == [t + 2 * MS for t in stamps]
+        assert recording.problems == []
+        assert set(recording.sensor_files) == {"cam0", "cam1"}
+    frame = recording.frames["cam0"][1]
+    np.testing.assert_array_equal(recording.load(frame), _image(stamps[1] % 1000 + 1))
+
+
+def test_euroc_header_and_missing_data_csv(tmp_path: Path) -> None:
+    stamps = _euroc(tmp_path)
+    csv = tmp_path / "mav0" / "cam0" / "data.csv"
+    csv.write_text(csv.read_text().lstrip("#"))  # header without '#' is still a header
+    assert open_recording(tmp_path).problems == []
+    for camera in ("cam0", "cam1"):
+        (tmp_path / "mav0" / camera / "data.csv").unlink()
+    assert open_recording(tmp_path).timestamps("cam0") == stamps
+
+
+def test_euroc_problems_are_recorded(tmp_path: Path) -> None:
+    stamps = [T0 + i * 50 * MS for i in range(5)]
+    cam0 = tmp_path / "mav0" / "cam0"
+    _write_camera(cam0, stamps)
+    write_image(cam0 / "data" / "unlisted.png", _image(0))
+    rows = [
+        f"{stamps[0]},{stamps[0]}.png",
+        f"{stamps[2]},{stamps[2]}.png",
+        f"{stamps[1]},{stamps[1]}.png",  # goes back: kept, warned
+        f"{stamps[2]},{stamps[3]}.png",  # duplicate timestamp: dropped
+        f"{stamps[4]},gone.png",  # missing file
+        "not-a-number,x.png",
+        "only-one-field",
+    ]
+    (cam0 / "data.csv").write_text("#timestamp [ns],filename\n" + "\n".join(rows) + "\n")
+    _write_camera(tmp_path / "mav0" / "cam1", stamps)
+    recording = open_recording(tmp_path)
+    assert recording.timestamps("cam0") == stamps[:3]
+    problems = {(p.reason.split(" (")[0].split(":")[0], p.dropped) for p in recording.problems}
+    assert problems == {
+        ("timestamp goes back by 50.000 ms after t_ns=" + str(stamps[2]), False),
+        ("duplicate timestamp", True),
+        ("listed file missing", True),
+        ("timestamp is not a non-negative integer", True),
+        ("expected '<t_ns>,<file>', got 'only-one-field'", True),
+        ("image not listed in " + str(cam0 / "data.csv"), True),
+    }
+    where = {p.reason.split(":")[0]: p.source for p in recording.problems}
+    assert where["listed file missing"] == f"{cam0 / 'data.csv'}:6"
+    assert all(p.camera == "cam0" for p in recording.problems)
+
+
+def test_corrupt_image_lists_but_load_names_the_file(tmp_path: Path) -> None:
+    _euroc(tmp_path)
+    recording = open_recording(tmp_path)
+    frame = recording.frames["cam1"][2]
+    data = frame.source.read_bytes()
+    frame.source.write_bytes(data[: len(data) // 2])
+    assert open_recording(tmp_path).timestamps("cam1") == recording.timestamps("cam1")
+    with pytest.raises(ImageIOError, match=frame.source.name):
+        recording.load(frame)
+
+
+def test_missing_camera_and_empty_recording(tmp_path: Path) -> None:
+    _write_camera(tmp_path / "a" / "mav0" / "cam0", [T0])
+    with pytest.raises(CaptureError, match=r"mav0/cam1: missing camera folder \(cam1\)"):
+        open_recording(tmp_path / "a")
+    _write_camera(tmp_path / "b" / "cam0", [], rows=[])
+    _write_camera(tmp_path / "b" / "cam1", [], rows=[])
+    with pytest.raises(CaptureError, match="no cam0 frames could be listed"):
+        open_recording(tmp_path / "b")
+    _write_camera(tmp_path / "c" / "cam0", [T0])
+    _write_camera(tmp_path / "c" / "cam1", [T0], rows=[f"{T0},gone.png"])
+    with pytest.raises(CaptureError, match=r"no cam1 frames.*listed file missing"):
+        open_recording(tmp_path / "c")
+
+
+def test_unknown_layout_and_bad_arguments(tmp_path: Path) -> None:
+    (tmp_path / "stuff").mkdir()
+    with pytest.raises(CaptureError, match=r"unknown recording layout; expected an EuRoC/ASL"):
+        open_recording(tmp_path / "stuff")
+    (tmp_path / "notes.txt").write_text("hi")
+    with pytest.raises(CaptureError, match=r"notes.txt: unknown recording layout"):
+        open_recording(tmp_path / "notes.txt")
+    with pytest.raises(CaptureError, match="no such file or folder"):
+        open_recording(tmp_path / "nope")
+    _euroc(tmp_path / "rec")
+    with pytest.raises(CaptureError, match="topics can only be chosen for bags"):
+        open_recording(tmp_path / "rec", topics=("/a", "/b"))
+
+
+def test_left_right_folders(tmp_path: Path) -> None:
+    stamps = [T0 + i * 50 * MS for i in range(3)]
+    for i, t in enumerate(stamps):
+        write_image(tmp_path / "left" / f"left_{i:04d}_{t}.png", _image(i, np.uint16))
+        write_image(
+            tmp_path / "right" / f"{t // 10**9}.{t % 10**9:09d}.png", _image(i, colour=True)
+        )
+    write_image(tmp_path / "right" / "nostamp.png", _image(9))
+    write_image(tmp_path / "left" / f"x_{stamps[0]}.tif", _image(9, np.uint16))  # same time
+    (tmp_path / "left" / "notes.txt").write_text("ignored")
+    recording = open_recording(tmp_path)
+    assert recording.layout == "folders" and recording.recording_id == tmp_path.name
+    assert recording.timestamps("cam0") == stamps == recording.timestamps("cam1")
+    reasons = sorted(p.reason.split(" (")[0] for p in recording.problems)
+    assert reasons == ["duplicate timestamp", "no timestamp in file name"]
+    np.testing.assert_array_equal(recording.load(recording.frames["cam0"][0]), _image(0, np.uint16))
+    np.testing.assert_array_equal(
+        recording.load(recording.frames["cam1"][2]), _image(2, colour=True)
+    )
+    (tmp_path / "right" / "nostamp.png").unlink()
+    for file in (tmp_path / "right").iterdir():
+        file.unlink()
+    (tmp_path / "right").rmdir()
+    with pytest.raises(CaptureError, match=r"right: missing camera folder \(cam1\)"):
+        open_recording(tmp_path)
+
+
+def _load_in_worker(frame: FrameRef) -> np.ndarray:
+    return load_frame(pickle.loads(pickle.dumps(frame)))
+
+
+def test_frame_refs_load_in_worker_processes(tmp_path: Path) -> None:
+    _euroc(tmp_path)
+    recording = open_recording(tmp_path)
+    frames = recording.frames["cam0"]
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        images = pool.map(_load_in_worker, frames)
+    for frame, image in zip(frames, images, strict=True):
+        np.testing.assert_array_equal(image, recording.load(frame))
+
+
+def test_resolve_obstructed(tmp_path: Path) -> None:
+    _euroc(tmp_path / "rec")
+    with pytest.raises(CaptureError, match=r"Add rig.yaml .* or pass --obstructed cam0\|cam1"):
+        resolve_obstructed(tmp_path / "rec", None)
+    assert resolve_obstructed(tmp_path / "rec", "cam0") == RigFile("cam0")
+    with pytest.raises(CaptureError, match="--obstructed: expected cam0 or cam1, got 'left'"):
+        resolve_obstructed(tmp_path / "rec", "left")
+    write_rig_file(tmp_path / "rec" / "rig.yaml", RigFile("cam1", ("rain",), "camchain.yaml"))
+    assert resolve_obstructed(tmp_path / "rec", None) == RigFile("cam1", ("rain",), "camchain.yaml")
+    assert resolve_obstructed(tmp_path / "rec", "cam0").obstructed == "cam0"
+    assert resolve_obstructed(tmp_path / "rec", "cam0").anomaly == ("rain",)
+    # Beside a bag file (here any file): rig.yaml in the same folder.
+    bag = tmp_path / "bags" / "run.bag"
+    bag.parent.mkdir()
+    bag.write_bytes(b"")
+    write_rig_file(bag.parent / "rig.yaml", RigFile("cam0", ("dust",)))
+    assert resolve_obstructed(bag, None).anomaly == ("dust",)
+    (bag.parent / "rig.yaml").write_text("obstructed: cam2\n")
+    with pytest.raises(ConfigError, match=r"rig.yaml: obstructed"):
+        resolve_obstructed(bag, None)
+
+
+def test_empty_left_right_folders(tmp_path: Path) -> None:
+    (tmp_path / "left").mkdir()
+    (tmp_path / "right").mkdir()
+    with pytest.raises(CaptureError, match="no cam0 frames could be listed"):
+        open_recording(tmp_path)

@@ -1,0 +1,284 @@
+import multiprocessing
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Writer2
+from rosbags.typesys import Stores, get_typestore
+
+from capture.errors import CaptureError
+from capture.recording import FrameRef, load_frame, open_recording, resolve_obstructed
+from capture.rigfile import RigFile, write_rig_file
+from capture.rosbag import close_bag_readers, decode_raw, select_topics
+
+MS = 1_000_000
+T0 = 1_700_000_000_000_000_000
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED = "sensor_msgs/msg/CompressedImage"
+KINDS = ["ros1", "db3", "mcap"]
+
+# (topic, msgtype, header stamp ns, fields besides the header)
+Message = tuple[str, str, int, dict[str, Any]]
+
+
+def _image(seed: int, dtype: type = np.uint8, colour: bool = False) -> np.ndarray:
+    shape = (6, 5, 3) if colour else (6, 5)
+    rng = np.random.default_rng(seed)
+    return rng.integers(0, np.iinfo(dtype).max, shape, endpoint=True).astype(dtype)
+
+
+def _raw_fields(
+    image: np.ndarray, encoding: str, pad: int = 3, big: bool = False
+) -> dict[str, Any]:
+    """Image message fields with ``pad`` junk bytes at the end of every row."""
+    pixels = image[:, :, ::-1] if encoding.startswith("bgr") else image
+    sample = pixels.dtype.newbyteorder(">") if big else pixels.dtype.newbyteorder("<")
+    rows = np.ascontiguousarray(pixels).astype(sample)
+    row_bytes = rows.reshape(image.shape[0], -1).view(np.uint8)
+    junk = np.full((image.shape[0], pad), 0xAB, np.uint8)
+    data = np.ascontiguousarray(np.hstack([row_bytes, junk])).reshape(-1)
+    return {
+        "height": image.shape[0],
+        "width": image.shape[1],
+        "encoding": encoding,
+        "is_bigendian": int(big),
+        "step": row_bytes.shape[1] + pad,
+        "data": data,
+    }
+
+
+def _write_bag(path: Path, kind: str, messages: Iterable[Message]) -> Path:
+    """Write a bag; log time = stamp + 1 ms unless ``_log_ns`` is given. Returns its path."""
+    store = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
+    types = store.types
+    if kind == "ros1":
+        writer: Any = Writer1(path.with_suffix(".bag"))
+    else:
+        plugin = StoragePlugin.SQLITE3 if kind == "db3" else StoragePlugin.MCAP
+        writer = Writer2(path, version=9, storage_plugin=plugin)
+    connections: dict[str, Any] = {}
+    with writer:
+        for topic, msgtype, t_ns, fields in messages:
+            if topic not in connections:
+                connections[topic] = writer.add_connection(topic, msgtype, typestore=store)
+            stamp = types["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+            extra = {"seq": 0} if kind == "ros1" else {}
+            header = types["std_msgs/msg/Header"](stamp=stamp, frame_id="cam", **extra)
+            log_ns = fields.pop("_log_ns", t_ns + MS)
+            message = types[msgtype](header=header, **fields)
+            if kind == "ros1":
+                raw = store.serialize_ros1(message, msgtype)
+            else:
+                raw = store.serialize_cdr(message, msgtype)
+            writer.write(connections[topic], log_ns, raw)
+    return path.with_suffix(".bag") if kind == "ros1" else path
+
+
+def _stereo(
+    count: int, topics: tuple[str, str] = ("/cam0/image_raw", "/cam1/image_raw")
+) -> list[Message]:
+    messages = []
+    for i in range(count):
+        t = T0 + i * 50 * MS
+        messages.append((topics[0], IMAGE, t, _raw_fields(_image(i), "mono8")))
+        messages.append((topics[1], IMAGE, t + 2 * MS, _raw_fields(_image(100 + i), "mono8")))
+    return messages
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize(
+    ("encoding", "dtype", "colour", "big"),
+    [
+        ("mono8", np.uint8, False, False),
+        ("mono16", np.uint16, False, False),
+        ("mono16", np.uint16, False, True),
+        ("rgb8", np.uint8, True, False),
+        ("bgr8", np.uint8, True, False),
+    ],
+)
+def test_round_trip_pixels(
+    tmp_path: Path, kind: str, encoding: str, dtype: type, colour: bool, big: bool
+) -> None:
+    images = [_image(i, dtype, colour) for i in range(4)]
+    messages = [
+        (
+            f"/cam{i % 2}/image_raw",
+            IMAGE,
+            T0 + (i // 2) * 50 * MS,
+            _raw_fields(im, encoding, big=big),
+        )
+        for i, im in enumerate(images)
+    ]
+    bag = _write_bag(tmp_path / "run", kind, messages)
+    recording = open_recording(bag)
+    assert recording.layout == ("rosbag1" if kind == "ros1" else "rosbag2")
+    assert recording.recording_id == "run"
+    assert recording.topics == ("/cam0/image_raw", "/cam1/image_raw")
+    assert recording.timestamps("cam0") == [T0, T0 + 50 * MS] == recording.timestamps("cam1")
+    assert recording.problems == []
+    for i, image in enumerate(images):
+        loaded = recording.load(recording.frames[f"cam{i % 2}"][i // 2])  # type: ignore[index]
+        assert loaded.dtype == image.dtype and loaded.flags.c_contiguous
+        np.testing.assert_array_equal(loaded, image)
+
+
+@pytest.mark.parametrize("kind", ["db3", "mcap"])
+def test_bare_storage_file_opens_too(tmp_path: Path, kind: str) -> None:
+    folder = _write_bag(tmp_path / "run", kind, _stereo(3))
+    (storage,) = folder.glob(f"*.{kind}")
+    recording = open_recording(storage)
+    assert recording.layout == "rosbag2"
+    np.testing.assert_array_equal(recording.load(recording.frames["cam1"][2]), _image(102))
+
+
+def test_topic_choice_duplicates_and_order(tmp_path: Path) -> None:
+    messages = _stereo(3, ("/stereo/left/image", "/stereo/right/image"))
+    messages.append(("/aux/image", IMAGE, T0, _raw_fields(_image(7), "mono8")))
+    # Received last: a repeated header stamp, and a stamp going back.
+    late = [(T0 + 50 * MS, 8), (T0 + 60 * MS, 9)]
+    for k, (t, seed) in enumerate(late):
+        fields = {**_raw_fields(_image(seed), "mono8"), "_log_ns": T0 + (200 + k) * MS}
+        messages.append(("/stereo/left/image", IMAGE, t, fields))
+    recording = open_recording(_write_bag(tmp_path / "run", "db3", messages))
+    assert recording.topics == ("/stereo/left/image", "/stereo/right/image")
+    assert recording.timestamps("cam0") == [T0, T0 + 50 * MS, T0 + 60 * MS, T0 + 100 * MS]
+    dropped = [(p.reason.split(" (")[0], p.t_ns) for p in recording.problems if p.dropped]
+    assert dropped == [("duplicate timestamp", T0 + 50 * MS)]
+    warned = [p for p in recording.problems if not p.dropped]
+    assert len(warned) == 1 and warned[0].reason.startswith("timestamp goes back by 40.000 ms")
+    frame = recording.frames["cam0"][2]
+    np.testing.assert_array_equal(recording.load(frame), _image(9))
+    assert "/stereo/left/image @ t_ns=" in frame.describe()
+    explicit = open_recording(recording.path, topics=("/aux/image", "/stereo/right/image"))
+    assert explicit.timestamps("cam0") == [T0]
+    with pytest.raises(CaptureError, match=r"/imu is not an image topic; image topics: /aux/image"):
+        open_recording(recording.path, topics=("/imu", "/aux/image"))
+
+
+def test_select_topics() -> None:
+    bag = Path("b.bag")
+    assert select_topics(["/b", "/a"], bag) == ("/a", "/b")
+    assert select_topics(["/cam1/img", "/cam0/img", "/cam2/img"], bag) == ("/cam0/img", "/cam1/img")
+    assert select_topics(["/right", "/left", "/depth"], bag) == ("/left", "/right")
+    with pytest.raises(CaptureError, match=r"b.bag: need two image topics .* found 1: /only"):
+        select_topics(["/only"], bag)
+    with pytest.raises(CaptureError, match=r"cannot tell which of 3 .* pass topics="):
+        select_topics(["/x", "/y", "/z"], bag)
+
+
+def test_one_image_topic_is_a_clear_error(tmp_path: Path) -> None:
+    messages = [m for m in _stereo(2) if m[0] == "/cam0/image_raw"]
+    bag = _write_bag(tmp_path / "run", "ros1", messages)
+    with pytest.raises(CaptureError, match=r"run.bag: need two image topics .* /cam0/image_raw"):
+        open_recording(bag)
+
+
+def test_compressed_images(tmp_path: Path) -> None:
+    images = [_image(i, colour=True) for i in range(2)] + [_image(5, np.uint16)] * 2
+    messages = []
+    for i, image in enumerate(images):
+        encoded = image[:, :, ::-1] if image.ndim == 3 else image
+        ok, png = cv2.imencode(".png", encoded)
+        assert ok
+        fields = {"format": "png", "data": png.reshape(-1)}
+        messages.append((f"/cam{i // 2}/compressed", COMPRESSED, T0 + (i % 2) * MS, fields))
+    recording = open_recording(_write_bag(tmp_path / "run", "mcap", messages))
+    loaded = [recording.load(f) for camera in ("cam0", "cam1") for f in recording.frames[camera]]  # type: ignore[index]
+    for back, image in zip(loaded, images, strict=True):
+        np.testing.assert_array_equal(back, image)
+    bad = [("/cam0/c", COMPRESSED, T0, {"format": "jpeg", "data": np.zeros(9, np.uint8)})]
+    bad.append(("/cam1/c", COMPRESSED, T0, {"format": "jpeg", "data": np.zeros(9, np.uint8)}))
+    broken = open_recording(_write_bag(tmp_path / "bad", "db3", bad))
+    with pytest.raises(CaptureError, match=r"bad /cam0/c @ t_ns=.*cannot decode compressed"):
+        broken.load(broken.frames["cam0"][0])
+
+
+def test_corrupt_messages_fail_on_load_only(tmp_path: Path) -> None:
+    short = _raw_fields(_image(1), "mono8")
+    short["data"] = short["data"][:-10]
+    messages = [
+        ("/cam0/image_raw", IMAGE, T0, _raw_fields(_image(0), "bayer_rggb8")),
+        ("/cam1/image_raw", IMAGE, T0, short),
+    ]
+    recording = open_recording(_write_bag(tmp_path / "run", "ros1", messages))
+    with pytest.raises(
+        CaptureError,
+        match=r"run.bag /cam0/image_raw @ t_ns=\d+: unsupported encoding 'bayer_rggb8'",
+    ):
+        recording.load(recording.frames["cam0"][0])
+    with pytest.raises(
+        CaptureError, match=r"/cam1/image_raw @ t_ns=\d+: truncated image data \(38 of 45 bytes\)"
+    ):
+        recording.load(recording.frames["cam1"][0])
+
+
+def test_decode_raw_checks_step() -> None:
+    with pytest.raises(CaptureError, match="step 4 is smaller than a row"):
+        decode_raw(2, 5, "mono8", False, 4, np.zeros(10, np.uint8), "here")
+    image = decode_raw(2, 2, "mono16", True, 4, bytes([1, 2, 3, 4, 5, 6, 7, 8]), "here")
+    np.testing.assert_array_equal(image, [[0x0102, 0x0304], [0x0506, 0x0708]])
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_truncated_bag_names_the_bag(tmp_path: Path, kind: str) -> None:
+    bag = _write_bag(tmp_path / "run", kind, _stereo(5))
+    storage = bag if kind == "ros1" else next(bag.glob("*.mcap"))
+    data = storage.read_bytes()
+    storage.write_bytes(data[: len(data) * 2 // 3])
+    with pytest.raises(
+        CaptureError, match=rf"{bag.name}: cannot open bag \(.*\); if it was cut short"
+    ):
+        open_recording(bag)
+
+
+def test_truncated_db3_keeps_frames_read_before(tmp_path: Path) -> None:
+    # SQLite reads up to a cut inside its last page; larger cuts fail at open (above).
+    image = _image(3, colour=True).repeat(20, 0).repeat(20, 1)
+    messages = [(t, m, s, _raw_fields(image, "rgb8")) for t, m, s, _ in _stereo(6)]
+    bag = _write_bag(tmp_path / "run", "db3", messages)
+    storage = next(bag.glob("*.db3"))
+    data = storage.read_bytes()
+    storage.write_bytes(data[: len(data) - 100])
+    recording = open_recording(bag)
+    (stopped,) = recording.problems
+    assert stopped.camera is None and stopped.source == str(bag)
+    assert stopped.reason.startswith("reading stopped early (")
+    assert 0 < len(recording.frames["cam0"]) + len(recording.frames["cam1"]) < 12
+    np.testing.assert_array_equal(recording.load(recording.frames["cam0"][0]), image)
+
+
+def _load_shape(frame: FrameRef) -> tuple[int, ...]:
+    return tuple(load_frame(frame).shape)
+
+
+def test_bag_frames_load_in_forked_workers(tmp_path: Path) -> None:
+    recording = open_recording(_write_bag(tmp_path / "run", "db3", _stereo(4)))
+    frames = recording.frames["cam0"] + recording.frames["cam1"]
+    recording.load(frames[0])  # the parent holds an open reader when forking
+    with multiprocessing.get_context("fork").Pool(2) as pool:
+        assert pool.map(_load_shape, frames) == [(6, 5)] * 8
+    np.testing.assert_array_equal(recording.load(frames[-1]), _image(103))
+    close_bag_readers()
+
+
+def test_rig_file_beside_a_bag(tmp_path: Path) -> None:
+    bag = _write_bag(tmp_path / "run", "ros1", _stereo(2))
+    write_rig_file(tmp_path / "rig.yaml", RigFile("cam1", ("rain",)))
+    assert resolve_obstructed(bag).obstructed == "cam1"
+    folder = _write_bag(tmp_path / "ros2" / "run", "db3", _stereo(2))
+    write_rig_file(folder / "rig.yaml", RigFile("cam0"))
+    assert resolve_obstructed(folder).obstructed == "cam0"
+
+
+def test_empty_bag_is_a_clear_error(tmp_path: Path) -> None:
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    with Writer2(tmp_path / "empty", version=9) as writer:
+        for topic in ("/cam0/image_raw", "/cam1/image_raw"):
+            writer.add_connection(topic, IMAGE, typestore=store)
+    with pytest.raises(CaptureError, match=r"empty: no cam0 frames could be listed"):
+        open_recording(tmp_path / "empty")
