@@ -1,0 +1,106 @@
+"""Dust and smudges: low-frequency attenuation and scattering, ``I = I0 a + b``.
+
+The dust's optical depth is a sum of smooth bumps with compact support,
+
+    ``tau(x) = sum_k tau_k (1 - |x - c_k|^2 / r_k^2)^3``  for ``|x - c_k| < r_k``,
+
+each twice continuously differentiable and exactly 0 outside its disc. The
+transmission is ``a = exp(-tau)`` (Beer-Lambert, so overlapping patches
+multiply) and the veil of light scattered towards the camera is
+``b = scatter (1 - a)``. Outside the union of the discs ``a = 1`` and
+``b = 0`` exactly: that union is the dust's footprint. The number of patches
+is chosen so that the expected covered fraction of the image (Poisson
+coverage ``1 - exp(-N E[pi r^2] / (H W))``) equals ``coverage`` (capped
+at 0.99, and at :data:`MAX_PATCHES` patches).
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from simulate.effects.spec import DustSpec
+
+MAX_PATCHES = 4096
+"""Upper bound on the number of dust patches (keeps tiny ``scale_px`` tractable)."""
+
+_MIN_TRANSMISSION = 1e-4
+
+
+@dataclass(frozen=True, eq=False)
+class DustField:
+    """The smooth dust fields of one glass, over the whole image.
+
+    Attributes:
+        transmission: ``float32`` ``(H, W)`` ``a`` in ``(0, 1]``, 1 outside the support.
+        veil: ``float32`` ``(H, W)`` ``b`` in ``[0, scatter]``, 0 outside the support.
+        support: ``bool`` ``(H, W)`` where the optical depth is positive.
+
+    """
+
+    transmission: np.ndarray
+    veil: np.ndarray
+    support: np.ndarray
+
+
+def patch_count(spec: DustSpec, shape: tuple[int, int]) -> int:
+    """Number of patches whose union covers ``spec.coverage`` of the image on average."""
+    if spec.coverage <= 0.0:
+        return 0
+    height, width = shape
+    mean_area = math.pi * spec.scale_px**2 * 7.0 / 12.0  # E[r^2] for r ~ U(0.5, 1) * scale
+    depth = -math.log(1.0 - min(spec.coverage, 0.99))
+    return min(MAX_PATCHES, max(1, math.ceil(depth * height * width / mean_area)))
+
+
+def sample_dust(spec: DustSpec, shape: tuple[int, int], rng: np.random.Generator) -> DustField:
+    """Draw dust patches and evaluate ``a`` and ``b`` over an image of ``shape``.
+
+    Args:
+        spec: the dust spec.
+        shape: image ``(H, W)``.
+        rng: random generator.
+
+    Returns:
+        The dust fields.
+
+    """
+    height, width = shape
+    count = patch_count(spec, shape)
+    x = rng.uniform(-0.5, width - 0.5, count)
+    y = rng.uniform(-0.5, height - 0.5, count)
+    radii = spec.scale_px * rng.uniform(0.5, 1.0, count)
+    lowest = max(spec.attenuation[0], _MIN_TRANSMISSION)
+    depths = -np.log(rng.uniform(lowest, max(spec.attenuation[1], lowest), count))
+    tau = np.zeros(shape, np.float32)
+    for cx, cy, radius, depth in zip(x, y, radii, depths, strict=True):
+        top, bottom = max(0, math.floor(cy - radius)), min(height, math.ceil(cy + radius) + 1)
+        left, right = max(0, math.floor(cx - radius)), min(width, math.ceil(cx + radius) + 1)
+        if bottom <= top or right <= left:
+            continue
+        rows = (((np.arange(top, bottom) - cy) / radius) ** 2).astype(np.float32)
+        cols = (((np.arange(left, right) - cx) / radius) ** 2).astype(np.float32)
+        inside = np.maximum(1.0 - rows[:, None] - cols[None, :], np.float32(0.0))
+        tau[top:bottom, left:right] += np.float32(depth) * inside * inside * inside
+    support = tau > 0
+    transmission = np.ones(shape, np.float32)
+    transmission[support] = np.exp(-tau[support])
+    veil = np.zeros(shape, np.float32)
+    veil[support] = np.float32(spec.scatter) * (1.0 - transmission[support])
+    return DustField(transmission=transmission, veil=veil, support=support)
+
+
+def apply_dust(values: np.ndarray, transmission: np.ndarray, veil: np.ndarray) -> np.ndarray:
+    """``I = I0 a + b`` on a list of pixels.
+
+    Args:
+        values: ``float32`` ``(M, C)`` linear light.
+        transmission: ``float32`` ``(M,)`` ``a`` at those pixels.
+        veil: ``float32`` ``(M,)`` ``b`` at those pixels.
+
+    Returns:
+        ``float32`` ``(M, C)``.
+
+    """
+    result: np.ndarray = (values * transmission[:, None] + veil[:, None]).astype(np.float32)
+    return result

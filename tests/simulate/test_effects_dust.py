@@ -1,0 +1,80 @@
+"""Dust: I = I0 a + b with smooth, compactly supported a and b."""
+
+import numpy as np
+import pytest
+
+from lenspair.imageio import from_float, from_linear
+from simulate.effects import dust
+from simulate.effects.spec import DustSpec, EffectsSpec
+from simulate.render import apply_glass, render_effects, sample_glass
+
+
+def _grey(linear: float, shape: tuple[int, ...]) -> np.ndarray:
+    return from_float(from_linear(np.full(shape, linear, np.float32)), np.uint16)
+
+
+def _linear(image: np.ndarray) -> np.ndarray:
+    encoded = image.astype(np.float64) / 65535
+    return np.where(encoded <= 0.04045, encoded / 12.92, ((encoded + 0.055) / 1.055) ** 2.4)
+
+
+def test_dust_is_an_affine_map_recoverable_from_two_images() -> None:
+    shape = (120, 160)
+    spec = DustSpec(attenuation=(0.3, 0.7), scatter=0.2, scale_px=30.0, coverage=0.6)
+    glass = sample_glass(EffectsSpec(dust=spec), shape, np.random.default_rng(0))
+    assert glass.dust is not None
+    dark, bright = 0.1, 0.6
+    out_dark, mask = apply_glass(_grey(dark, shape), glass)
+    out_bright, _ = apply_glass(_grey(bright, shape), glass)
+    a = (_linear(out_bright) - _linear(out_dark)) / (bright - dark)
+    b = _linear(out_dark) - a * dark
+    np.testing.assert_allclose(a, glass.dust.transmission, atol=2e-4)
+    np.testing.assert_allclose(b, glass.dust.veil, atol=2e-4)
+    # The support is exactly the mask, and outside it nothing happens.
+    np.testing.assert_array_equal(mask == 255, glass.dust.support)
+    assert (glass.dust.transmission[~glass.dust.support] == 1).all()
+    assert (glass.dust.veil[~glass.dust.support] == 0).all()
+    assert glass.dust.transmission.min() < 0.75 and glass.dust.veil.max() > 0.05
+
+
+def test_dust_fields_are_smooth_at_the_patch_scale() -> None:
+    spec = DustSpec(attenuation=(0.5, 0.5), scatter=0.1, scale_px=40.0, coverage=0.5)
+    field = dust.sample_dust(spec, (200, 300), np.random.default_rng(1))
+    a = field.transmission.astype(np.float64)
+    slope = max(np.abs(np.diff(a, axis=0)).max(), np.abs(np.diff(a, axis=1)).max())
+    # One bump changes tau by at most ln 2 * 1.72 / r_min per pixel (r_min = 20 px).
+    assert 0.005 < slope < 3 * np.log(2) * 1.72 / 20
+    curvature = np.abs(np.diff(a, n=2, axis=1)).max()
+    assert curvature < 0.01  # no kinks: the bumps are C2 and vanish smoothly at the edge
+    b = field.veil.astype(np.float64)
+    np.testing.assert_allclose(b, 0.1 * (1 - a), atol=1e-6)
+
+
+@pytest.mark.parametrize("coverage", [0.2, 0.5, 0.8])
+def test_coverage_sets_the_covered_fraction(coverage: float) -> None:
+    spec = DustSpec(scale_px=30.0, coverage=coverage)
+    fractions = [
+        dust.sample_dust(spec, (240, 320), np.random.default_rng(seed)).support.mean()
+        for seed in range(6)
+    ]
+    assert np.mean(fractions) == pytest.approx(coverage, abs=0.12)
+
+
+def test_zero_coverage_is_no_dust() -> None:
+    image = np.full((40, 50, 3), 77, np.uint8)
+    out, mask = render_effects(
+        image, EffectsSpec(dust=DustSpec(coverage=0.0)), np.random.default_rng(0)
+    )
+    assert not mask.any()
+    np.testing.assert_array_equal(out, image)
+
+
+def test_opaque_dust_and_saturated_scene_stay_in_range() -> None:
+    spec = DustSpec(attenuation=(0.0, 0.0), scatter=1.0, scale_px=10.0, coverage=0.9)
+    for value in (0, 65535):
+        image = np.full((30, 40), value, np.uint16)
+        out, mask = render_effects(image, EffectsSpec(dust=spec), np.random.default_rng(2))
+        assert out.dtype == np.uint16 and mask.any()
+        np.testing.assert_array_equal(out[mask == 0], image[mask == 0])
+        if value == 0:
+            assert out.max() > 60000  # the veil lights up a black scene
