@@ -1,0 +1,195 @@
+"""Benchmark of ``dataset-build``: pairs per second against the file I/O floor.
+
+    .venv/bin/python -m benchmarks.bench_dataset [--out DIR] [--pairs 200] [--runs 3]
+
+Writes synthetic ingested recordings (540x360 RGB, both ground-truth sides)
+into a temporary folder, then times, in the same run:
+
+* ``build``: :func:`dataset.build.build_dataset` end to end (read, hash,
+  decode, measure, curate, split, link, manifest, card, contact sheets);
+* ``io floor``: reading and hashing every image and hard-linking it into a
+  fresh folder, which any build must do;
+* ``decode floor``: the I/O floor plus decoding every image (PNG inflate),
+  which a build that measures pixels must also do.
+
+Medians of ``--runs`` interleaved rounds; ratios are medians of the per-round
+ratios of build time over floor time. The
+Markdown table goes to stdout and, with ``--out``, to ``bench_dataset.md``
+beside ``bench_dataset.json``.
+"""
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from capture.ingested import IngestReport, PairRecord, write_pairs, write_report
+from dataset.build import build_dataset
+from dataset.config import DatasetConfig, SplitConfig
+from lenspair.fsutil import sha256_bytes, sha256_file
+from lenspair.imageio import read_image, write_image
+
+HEIGHT, WIDTH = 360, 540
+
+
+def write_recordings(root: Path, pairs: int, recordings: int = 4) -> list[Path]:
+    """Synthetic ingested recordings with ``pairs`` pairs in all; returns their folders."""
+    folders = []
+    per = -(-pairs // recordings)
+    for r in range(recordings):
+        rng = np.random.default_rng(r)
+        coarse = rng.random((HEIGHT // 8, WIDTH // 2, 3)).astype(np.float32)
+        world = cv2.resize(coarse, (WIDTH * 4, HEIGHT), interpolation=cv2.INTER_CUBIC)
+        discs = np.zeros((HEIGHT, WIDTH), np.float32)
+        for _ in range(12):
+            center = (int(rng.integers(20, WIDTH - 20)), int(rng.integers(20, HEIGHT - 20)))
+            cv2.circle(discs, center, int(rng.integers(8, 30)), 1.0, -1)
+        weight = cv2.GaussianBlur(discs, (0, 0), 3.0)[:, :, None]
+        rid = f"bench_{r}"
+        folder = root / rid
+        records = []
+        for i in range(min(per, pairs - r * per)):
+            t_ns = 1_700_000_000_000_000_000 + i * 50_000_000
+            view = world[:, i * 6 : i * 6 + WIDTH]
+            noisy = np.clip(view + rng.normal(0, 0.01, view.shape).astype(np.float32), 0, 1)
+            blurred = cv2.GaussianBlur(noisy, (0, 0), 3.0)
+            obstructed = noisy * (1 - weight) + blurred * 0.6 * weight
+            files = {"input": f"input/{t_ns}.png", "target": f"target/{t_ns}.png"}
+            write_image(folder / files["input"], np.rint(obstructed * 255).astype(np.uint8))
+            write_image(folder / files["target"], np.rint(noisy * 255).astype(np.uint8))
+            sums = {k: sha256_file(folder / v) for k, v in files.items()}
+            records.append(PairRecord(t_ns, "kept", residual_px=0.5, files=files, sha256=sums))
+        write_pairs(folder / "pairs.jsonl", records)
+        write_report(
+            folder / "report.json",
+            IngestReport(
+                recording_id=rid,
+                source="synthetic",
+                obstructed="cam1" if r % 2 else "cam0",
+                anomaly=("rain",),
+                calibration_source="synthetic",
+                calibration={},
+                homography=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+                crop=(0, 0, WIDTH, HEIGHT),
+                counts={"kept": len(records)},
+            ),
+        )
+        folders.append(folder)
+    return folders
+
+
+def _images(folders: list[Path]) -> list[Path]:
+    return sorted(p for f in folders for kind in ("input", "target") for p in (f / kind).glob("*"))
+
+
+def io_floor(images: list[Path], out: Path, decode: bool) -> None:
+    """Read and hash every image (and decode it when asked), hard-link it into ``out``."""
+    out.mkdir()
+    for number, image in enumerate(images):
+        sha256_bytes(image.read_bytes())
+        if decode:
+            read_image(image)
+        os.link(image, out / f"{number}.png")
+
+
+def _once(action: Callable[[Path], object], target: Path) -> float:
+    start = time.perf_counter()
+    action(target)
+    seconds = time.perf_counter() - start
+    shutil.rmtree(target)
+    return seconds
+
+
+def run(pairs: int = 200, runs: int = 3, workers: int | None = None) -> dict[str, object]:
+    """Run the benchmark; returns the figures (seconds, pairs per second, ratios).
+
+    The three measurements are interleaved round by round, and the ratios are
+    medians of per-round ratios, so that load from other processes hits all
+    three alike.
+    """
+    times: dict[str, list[float]] = {"build": [], "io_floor": [], "decode_floor": []}
+    with tempfile.TemporaryDirectory(prefix="bench_dataset_") as tmp:
+        root = Path(tmp)
+        folders = write_recordings(root / "ingested", pairs)
+        images = _images(folders)
+        config = DatasetConfig(split=SplitConfig(segment_frames=10, segment_gap_frames=1))
+        actions: dict[str, Callable[[Path], object]] = {
+            "build": lambda p: build_dataset(folders, p, config, workers=workers),
+            "io_floor": lambda p: io_floor(images, p, decode=False),
+            "decode_floor": lambda p: io_floor(images, p, decode=True),
+        }
+        _once(actions["build"], root / "warmup")  # warm the page cache and imports
+        for number in range(runs):
+            for name, action in actions.items():
+                times[name].append(_once(action, root / f"{name}_{number}"))
+    result: dict[str, object] = {
+        "pairs": pairs,
+        "image_size": [WIDTH, HEIGHT],
+        "runs": runs,
+        "workers": workers or min(4, os.cpu_count() or 1),
+        "cpu_count": os.cpu_count(),
+        "load_average": list(os.getloadavg()),
+        "machine": platform.machine(),
+    }
+    for name, values in times.items():
+        result[f"{name}_s"] = statistics.median(values)
+        result[f"{name}_pairs_per_s"] = pairs / statistics.median(values)
+    for floor in ("io_floor", "decode_floor"):
+        ratios = [b / f for b, f in zip(times["build"], times[floor], strict=True)]
+        result[f"build_over_{floor}"] = statistics.median(ratios)
+    return result
+
+
+def markdown(result: dict[str, object]) -> str:
+    """The figures as a Markdown table."""
+    pairs = result["pairs"]
+    lines = [
+        f"dataset-build, {pairs} pairs of 540x360 RGB PNG, median of {result['runs']} runs, "
+        f"{result['workers']} worker thread(s) on {result['cpu_count']} CPU(s), "
+        f"load average {result['load_average'][0]:.1f}",  # type: ignore[index]
+        "",
+        "| what | seconds | pairs/s | build / this |",
+        "|---|---:|---:|---:|",
+    ]
+    for label, key, ratio in (
+        ("build (end to end)", "build", None),
+        ("I/O floor (read + sha256 + link)", "io_floor", "build_over_io_floor"),
+        ("decode floor (I/O floor + PNG decode)", "decode_floor", "build_over_decode_floor"),
+    ):
+        seconds = float(result[f"{key}_s"])  # type: ignore[arg-type]
+        speed = float(result[f"{key}_pairs_per_s"])  # type: ignore[arg-type]
+        shown = f"{float(result[ratio]):.2f}x" if ratio else ""  # type: ignore[arg-type]
+        lines.append(f"| {label} | {seconds:.3f} | {speed:.1f} | {shown} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: run, print the table, write it and the JSON to ``--out``."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("--out", type=Path, help="folder for bench_dataset.{md,json}")
+    parser.add_argument("--pairs", type=int, default=200)
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--workers", type=int, default=None)
+    args = parser.parse_args(argv)
+    os.environ.setdefault("LENSPAIR_QUIET", "1")
+    result = run(args.pairs, args.runs, args.workers)
+    table = markdown(result)
+    print(table)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "bench_dataset.md").write_text(table)
+        (args.out / "bench_dataset.json").write_text(json.dumps(result, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,427 @@
+"""Build a dataset from ingested recordings: measure, curate, split, write, place.
+
+Entry point :func:`build_dataset`. The output layout::
+
+    DS/{train,val,test}/{input,target[,mask]}/<recording>_<t_ns>.png
+    DS/manifest.jsonl      one ManifestRow per pair (dataset.manifest)
+    DS/dataset.json        the dataset card (dataset.card)
+    DS/removed.jsonl       every pair curation removed, with its rule and reason
+    DS/config.yaml         the resolved configuration
+    DS/contact_<split>.png input | target of a few pairs per split
+
+Images are hard-linked from the ingested folders when on the same file system
+and copied otherwise. The dataset is written into a temporary sibling folder
+and renamed into place, so ``DS`` never holds a half-written dataset. A ``DS``
+that already holds a *different* dataset is only replaced with
+``overwrite=True``; rebuilding the same dataset is always allowed. The same
+sources, configuration and seed give byte-identical files.
+
+Bad input: a folder without ``pairs.jsonl`` or ``report.json`` is an error
+naming it; a missing, corrupt or mismatched (sha256) image only removes its
+pair, which is counted under its rule and logged as a warning.
+"""
+
+import logging
+import os
+import shutil
+import tempfile
+from collections import Counter
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+from capture.ingested import (
+    PAIRS_FILE,
+    REPORT_FILE,
+    IngestReport,
+    PairRecord,
+    read_pairs,
+    read_report,
+)
+from dataset import curation, splits
+from dataset.card import (
+    CARD_FILE,
+    DatasetCard,
+    Grouping,
+    SourceInfo,
+    contact_sheet,
+    make_card,
+    write_card,
+)
+from dataset.config import SPLITS, DatasetConfig
+from dataset.curation import Measured, Removals
+from dataset.errors import DatasetError
+from dataset.manifest import (
+    MANIFEST_FILE,
+    REMOVED_FILE,
+    ManifestRow,
+    RemovedPair,
+    write_manifest,
+    write_removed,
+)
+from dataset.verify import dataset_difference
+from lenspair.config import dump_yaml
+from lenspair.errors import ImageIOError
+from lenspair.fsutil import atomic_write_text, sha256_bytes
+from lenspair.imageio import read_image, write_image
+from lenspair.progress import progress
+
+logger = logging.getLogger(__name__)
+CONFIG_FILE = "config.yaml"
+_FILE_RULES = ("missing_file", "checksum", "bad_image")
+
+
+@dataclass(frozen=True)
+class Source:
+    """One ingested recording, as read from disk.
+
+    Attributes:
+        path: the ingested folder (absolute).
+        report: its ``report.json``.
+        records: its ``pairs.jsonl`` lines, in file order.
+    """
+
+    path: Path
+    report: IngestReport
+    records: tuple[PairRecord, ...]
+
+    @property
+    def clean(self) -> str:
+        """The ground-truth camera (the one that is not obstructed)."""
+        return "cam0" if self.report.obstructed == "cam1" else "cam1"
+
+
+@dataclass(frozen=True)
+class BuildResult:
+    """What :func:`build_dataset` made: the dataset folder, its rows and card."""
+
+    out: Path
+    rows: tuple[ManifestRow, ...]
+    card: DatasetCard
+
+
+def load_source(path: Path) -> Source:
+    """Read an ingested recording's ``report.json`` and ``pairs.jsonl``.
+
+    Raises:
+        DatasetError: the folder or one of the two files is missing, the
+            obstructed camera or recording id is invalid, or a timestamp
+            repeats; the message names the file.
+        ConfigError: a malformed line or key (names the file and line).
+    """
+    path = Path(path).resolve()
+    if not path.is_dir():
+        raise DatasetError(f"{path}: not a folder (expected an ingested recording)")
+    for name in (PAIRS_FILE, REPORT_FILE):
+        if not (path / name).is_file():
+            raise DatasetError(f"{path}: missing {name} (not an ingested recording?)")
+    report = read_report(path / REPORT_FILE)
+    if report.obstructed not in ("cam0", "cam1"):
+        raise DatasetError(
+            f"{path / REPORT_FILE}: obstructed must be cam0 or cam1, got {report.obstructed!r}"
+        )
+    rid = report.recording_id
+    if not rid or rid.startswith(".") or any(c in rid for c in "/\\\0"):
+        raise DatasetError(f"{path / REPORT_FILE}: recording_id {rid!r} is not a file name")
+    records = tuple(read_pairs(path / PAIRS_FILE))
+    seen: set[int] = set()
+    for number, record in enumerate(records, start=1):
+        if record.t_ns in seen:
+            raise DatasetError(f"{path / PAIRS_FILE}:{number}: timestamp {record.t_ns} repeats")
+        seen.add(record.t_ns)
+    return Source(path, report, records)
+
+
+def measure_record(source: Source, position: int, index: int, anomaly_delta: float) -> Measured:
+    """Read, check and measure the images of line ``index`` of ``source``.
+
+    A problem with the pair's files removes the pair (rules ``missing_file``,
+    ``checksum``, ``bad_image``); it is not raised.
+
+    Args:
+        source: the recording.
+        position: its index in the list of sources.
+        index: line index in ``pairs.jsonl``.
+        anomaly_delta: see :class:`dataset.config.CurationConfig`.
+    """
+    record = source.records[index]
+    files = _source_files(source.path, record)
+    base = Measured(position, index, record, files, {})
+    if record.status == "rejected":
+        return _removed(base, "ingest_rejected", record.reason or "unspecified")
+    hashes: dict[str, str] = {}
+    for kind, file in files.items():
+        try:
+            hashes[kind] = sha256_bytes(file.read_bytes())
+        except OSError:
+            return _removed(base, "missing_file", f"{file}: file missing (named in {PAIRS_FILE})")
+        expected = record.sha256.get(kind)
+        if expected is not None and expected != hashes[kind]:
+            found = hashes[kind][:12]
+            reason = f"{file}: sha256 {found}... differs from {PAIRS_FILE} ({expected[:12]}...)"
+            return _removed(base, "checksum", reason)
+    if files["input"].suffix != files["target"].suffix:
+        return _removed(base, "bad_image", f"{files['input']}: input and target file types differ")
+    try:
+        images = {kind: read_image(file) for kind, file in files.items()}
+        stats = curation.measure_pair(
+            images["input"], images["target"], images.get("mask"), anomaly_delta
+        )
+    except ImageIOError as exc:
+        return _removed(base, "bad_image", str(exc))
+    except ValueError as exc:
+        return _removed(base, "bad_image", f"{files['input']}: {exc}")
+    return Measured(position, index, record, files, hashes, stats)
+
+
+def _source_files(folder: Path, record: PairRecord) -> dict[str, Path]:
+    """Image paths of a line: from its ``files``, else the default layout."""
+    files = {
+        kind: folder / record.files.get(kind, f"{kind}/{record.t_ns}.png")
+        for kind in ("input", "target")
+    }
+    default_mask = folder / "mask" / f"{record.t_ns}.png"
+    if "mask" in record.files:
+        files["mask"] = folder / record.files["mask"]
+    elif not record.files and default_mask.is_file():
+        files["mask"] = default_mask
+    return files
+
+
+def _removed(measured: Measured, rule: str, reason: str) -> Measured:
+    m = measured
+    return Measured(m.source, m.index, m.record, m.files, {}, None, rule, reason)
+
+
+def assemble_rows(
+    sources: Sequence[Source],
+    measured: Sequence[Measured],
+    removed: Removals,
+    config: DatasetConfig,
+) -> tuple[list[tuple[ManifestRow, Measured]], splits.SplitPlan]:
+    """Split the surviving pairs (adding ``split_gap`` removals) and make their rows.
+
+    Returns:
+        ``(row, measured pair)`` in manifest order (split, then name), and the plan.
+    """
+    survivors = [m for m in measured if (m.source, m.index) not in removed]
+    items = {
+        (m.source, m.index): splits.SplitItem(
+            sources[m.source].report.recording_id, m.index, sources[m.source].report.obstructed
+        )
+        for m in survivors
+    }
+    plan = splits.plan_splits(items.values(), config.split)
+    gapped = splits.gap_items(items.values(), plan, config.split)
+    pairs: list[tuple[ManifestRow, Measured]] = []
+    for m in survivors:
+        if items[(m.source, m.index)] in gapped:
+            removed[(m.source, m.index)] = ("split_gap", "frame before a split border")
+        else:
+            pairs.append((_row(sources[m.source], m, plan, config), m))
+    pairs.sort(key=lambda pair: (SPLITS.index(pair[0].split), pair[0].name))
+    return pairs, plan
+
+
+def _row(source: Source, m: Measured, plan: splits.SplitPlan, config: DatasetConfig) -> ManifestRow:
+    assert m.stats is not None
+    record, stats, cfg = m.record, m.stats, config.curation
+    recording = source.report.recording_id
+    group = splits.group_id(recording, m.index, plan.mode, config.split.segment_frames)
+    split = plan.assignment[group]
+    name = f"{recording}_{record.t_ns}"
+    tagged = curation.is_clean(stats, cfg)
+    return ManifestRow(
+        split=split,  # type: ignore[arg-type]
+        name=name,
+        recording=recording,
+        group=group,
+        t_ns=record.t_ns,
+        t_clean_ns=record.t_clean_ns,
+        obstructed=source.report.obstructed,
+        clean=source.clean,
+        anomaly=tuple(source.report.anomaly),
+        difficulty="clean" if tagged else curation.difficulty(stats.psnr_db, cfg),
+        psnr_db=stats.psnr_db,
+        anomaly_fraction=stats.anomaly_fraction,
+        residual_px=record.residual_px,
+        photometric_residual=record.photometric_residual,
+        inliers=record.inliers,
+        sharpness=_first(record.sharpness, stats.sharpness),
+        saturated=_first(record.saturated, stats.saturated),
+        black=_first(record.black, stats.black),
+        mask_fraction=_first(record.mask_fraction, stats.mask_fraction),
+        files={kind: f"{split}/{kind}/{name}{file.suffix}" for kind, file in m.files.items()},
+        sha256=dict(m.sha256),
+    )
+
+
+def _first(recorded: float | None, measured: float) -> float:
+    return measured if recorded is None else recorded
+
+
+def _source_info(source: Source, rows: Sequence[ManifestRow]) -> SourceInfo:
+    rid = source.report.recording_id
+    per_split: Counter[str] = Counter(row.split for row in rows if row.recording == rid)
+    return SourceInfo(
+        recording=rid,
+        path=str(source.path),
+        obstructed=source.report.obstructed,
+        clean=source.clean,
+        anomaly=tuple(source.report.anomaly),
+        calibration_source=source.report.calibration_source,
+        ingest_version=source.report.lenspair_version,
+        pairs=len(source.records),
+        kept_at_ingest=sum(1 for r in source.records if r.status == "kept"),
+        in_dataset={name: per_split.get(name, 0) for name in SPLITS},
+    )
+
+
+def write_dataset(
+    folder: Path,
+    pairs: Sequence[tuple[ManifestRow, Measured]],
+    card: DatasetCard,
+    config: DatasetConfig,
+    removed: list[RemovedPair],
+) -> None:
+    """Write the complete dataset into the empty folder ``folder``."""
+    for name in SPLITS:
+        for kind in ("input", "target"):
+            (folder / name / kind).mkdir(parents=True, exist_ok=True)
+    for row, m in progress(pairs, desc="linking", total=len(pairs), unit="pair"):
+        for kind, relative in row.files.items():
+            destination = folder / relative
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            _link_or_copy(m.files[kind], destination)
+    rows = [row for row, _ in pairs]
+    write_manifest(folder / MANIFEST_FILE, rows)
+    write_card(folder / CARD_FILE, card)
+    write_removed(folder / REMOVED_FILE, removed)
+    atomic_write_text(folder / CONFIG_FILE, dump_yaml(config))
+    for name in SPLITS:
+        selected = [row for row in rows if row.split == name]
+        if selected:
+            write_image(folder / f"contact_{name}.png", contact_sheet(folder, name, selected))
+
+
+def _link_or_copy(source: Path, destination: Path) -> None:
+    try:
+        os.link(source, destination)
+    except OSError:  # another file system, or hard links not allowed: copy the bytes
+        shutil.copyfile(source, destination)
+
+
+def build_dataset(
+    sources: Sequence[Path],
+    out: Path,
+    config: DatasetConfig,
+    *,
+    overwrite: bool = False,
+    workers: int | None = None,
+) -> BuildResult:
+    """Curate ingested recordings into a split dataset at ``out``.
+
+    Args:
+        sources: ingested recording folders (``capture-ingest`` outputs).
+        out: dataset folder to create (or replace, see ``overwrite``).
+        config: curation thresholds and split settings.
+        overwrite: replace ``out`` even when it holds a different dataset.
+        workers: threads reading and measuring images (default: up to 4);
+            the output does not depend on it.
+
+    Raises:
+        DatasetError: no sources, a bad source folder, two sources with one
+            recording id, or ``out`` holds something that may not be replaced.
+    """
+    if not sources:
+        raise DatasetError("no ingested recordings given")
+    out = Path(out).resolve()
+    loaded = [load_source(path) for path in sources]
+    _check_paths(loaded, out)
+    _out_state(out)
+    jobs = [(p, i) for p, s in enumerate(loaded) for i in range(len(s.records))]
+    delta = config.curation.anomaly_delta
+    with ThreadPoolExecutor(max_workers=workers or min(4, os.cpu_count() or 1)) as pool:
+        results = pool.map(lambda j: measure_record(loaded[j[0]], j[0], j[1], delta), jobs)
+        measured = list(progress(results, desc="measuring", total=len(jobs), unit="pair"))
+    for m in measured:
+        if m.rule in _FILE_RULES:
+            logger.warning("pair skipped (%s): %s", m.rule, m.reason)
+    removed = curation.curate(measured, config.curation)
+    pairs, plan = assemble_rows(loaded, measured, removed, config)
+    for warning in plan.warnings:
+        logger.warning("split: %s", warning)
+    rows = [row for row, _ in pairs]
+    reasons = Counter(
+        r.reason or "unspecified" for s in loaded for r in s.records if r.status == "rejected"
+    )
+    card = make_card(
+        rows,
+        [_source_info(s, rows) for s in loaded],
+        Counter(rule for rule, _ in removed.values()),
+        reasons,
+        Grouping(plan.mode, plan.moved, plan.warnings),
+        config,
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    temp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".building", dir=out.parent))
+    try:
+        gone = [
+            RemovedPair(loaded[s].report.recording_id, loaded[s].records[i].t_ns, rule, reason)
+            for (s, i), (rule, reason) in removed.items()
+        ]
+        write_dataset(temp, pairs, card, config, gone)
+        _place(temp, out, overwrite)
+    finally:
+        shutil.rmtree(temp, ignore_errors=True)
+    return BuildResult(out, tuple(rows), card)
+
+
+def _check_paths(sources: Sequence[Source], out: Path) -> None:
+    ids: dict[str, Path] = {}
+    for source in sources:
+        rid = source.report.recording_id
+        if rid in ids:
+            raise DatasetError(f"{source.path}: recording id {rid!r} is also that of {ids[rid]}")
+        ids[rid] = source.path
+        if out == source.path or out in source.path.parents or source.path in out.parents:
+            raise DatasetError(f"{out}: the dataset folder overlaps source {source.path}")
+
+
+def _out_state(out: Path) -> Literal["absent", "empty", "dataset"]:
+    """What ``out`` holds now; raise when it is something that must not be replaced."""
+    if not out.exists():
+        return "absent"
+    if not out.is_dir():
+        raise DatasetError(f"{out}: exists and is not a folder")
+    if not any(out.iterdir()):
+        return "empty"
+    if not (out / CARD_FILE).is_file() and not (out / MANIFEST_FILE).is_file():
+        raise DatasetError(f"{out}: not empty and not a lenspair dataset; refusing to replace it")
+    return "dataset"
+
+
+def _place(temp: Path, out: Path, overwrite: bool) -> None:
+    """Rename the finished ``temp`` to ``out``, replacing an old dataset when allowed."""
+    state = _out_state(out)
+    if state == "dataset":
+        difference = dataset_difference(out, temp)
+        if difference is not None and not overwrite:
+            raise DatasetError(
+                f"{out}: holds a different dataset ({difference}); use --overwrite to replace it"
+            )
+    if state == "absent":
+        os.replace(temp, out)
+        return
+    trash = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
+    try:
+        os.replace(out, trash / "dataset")
+        try:
+            os.replace(temp, out)
+        except OSError:
+            os.replace(trash / "dataset", out)  # put the old dataset back
+            raise
+    finally:
+        shutil.rmtree(trash, ignore_errors=True)

@@ -1,0 +1,252 @@
+"""Readers of paired (obstructed, clean) image folders, for ``train`` and ``eval``.
+
+Three layouts, detected automatically by :func:`open_paired`:
+
+* ``lenspair``: a dataset built by ``dataset-build``: ``DS/<split>/input/``,
+  ``DS/<split>/target/`` (and ``mask/``) with identical names, plus
+  ``DS/manifest.jsonl`` for each pair's difficulty. Open the dataset root
+  with a split name, or a split folder.
+* ``paired``: any folder with ``input/`` and ``target/`` (or ``lq/`` and
+  ``gt/``) holding files of identical names (optionally ``mask/``); the
+  convention of restoration toolkits.
+* ``raindrop``: the Raindrop dataset of Qian et al. (DeRaindrop):
+  ``data/N_rain.png`` paired with ``gt/N_clean.png``; ``.jpg`` is accepted
+  too (the released test set mixes them). Open a split folder (``test_a``)
+  or the root with ``split="test_a"``.
+
+Names are matched on the file stem (``.png`` and ``.jpg`` may pair up) and
+listed in natural order (``2`` before ``10``). Images follow
+:mod:`lenspair.imageio`: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB.
+"""
+
+import re
+from collections.abc import Callable, Collection, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from dataset.card import CARD_FILE
+from dataset.errors import DatasetError
+from dataset.manifest import MANIFEST_FILE, read_manifest
+from lenspair.imageio import read_image
+
+Layout = Literal["lenspair", "paired", "raindrop"]
+IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+_FOLDERS: dict[Layout, tuple[str, str]] = {
+    "lenspair": ("input", "target"),
+    "paired": ("input", "target"),
+    "raindrop": ("data", "gt"),
+}
+_RAINDROP_SUFFIX = re.compile(r"_(rain|clean)$")
+
+
+@dataclass(frozen=True)
+class PairEntry:
+    """Where the files of one pair are (nothing read yet).
+
+    Attributes:
+        name: the pair's name (file stem; for Raindrop the number ``N``).
+        input_path: obstructed image.
+        target_path: clean image.
+        mask_path: untrustworthy-pixel mask, when the layout has one.
+        difficulty: ``easy``/``medium``/``hard``/``clean`` from a lenspair
+            manifest, else None.
+    """
+
+    name: str
+    input_path: Path
+    target_path: Path
+    mask_path: Path | None = None
+    difficulty: str | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class PairedItem:
+    """One pair, read.
+
+    Attributes:
+        name: the pair's name.
+        input: obstructed image, ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)``.
+        target: clean image, same shape and dtype.
+        mask: ``uint8`` ``(H, W)``, non-zero where untrustworthy; or None.
+        difficulty: see :class:`PairEntry`.
+    """
+
+    name: str
+    input: np.ndarray
+    target: np.ndarray
+    mask: np.ndarray | None = None
+    difficulty: str | None = None
+
+
+class PairedDataset:
+    """A list of pairs that reads its images on access (map-style, like a torch Dataset)."""
+
+    def __init__(self, root: Path, layout: Layout, entries: Sequence[PairEntry]) -> None:
+        """Wrap ``entries`` found under ``root`` in ``layout``."""
+        self.root = Path(root)
+        self.layout: Layout = layout
+        self.entries: tuple[PairEntry, ...] = tuple(entries)
+
+    def __len__(self) -> int:
+        """Number of pairs."""
+        return len(self.entries)
+
+    def __getitem__(self, index: int) -> PairedItem:
+        """Read pair ``index``.
+
+        Raises:
+            ImageIOError: a file is missing or unreadable (names it).
+            DatasetError: input and target differ in shape or dtype.
+        """
+        entry = self.entries[index]
+        input_image = read_image(entry.input_path)
+        target = read_image(entry.target_path)
+        if input_image.shape != target.shape or input_image.dtype != target.dtype:
+            raise DatasetError(
+                f"{entry.input_path}: {input_image.shape} {input_image.dtype} does not match "
+                f"{entry.target_path.name} {target.shape} {target.dtype}"
+            )
+        mask = None
+        if entry.mask_path is not None:
+            mask = read_image(entry.mask_path)
+            mask = mask if mask.ndim == 2 else mask.max(axis=2)
+        return PairedItem(entry.name, input_image, target, mask, entry.difficulty)
+
+    def __iter__(self) -> Iterator[PairedItem]:
+        """Read the pairs in order."""
+        return (self[i] for i in range(len(self)))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Pair names, in order."""
+        return tuple(entry.name for entry in self.entries)
+
+    def select(self, difficulties: Collection[str]) -> "PairedDataset":
+        """The pairs whose difficulty is in ``difficulties`` (e.g. ``{"easy", "medium"}``)."""
+        kept = [e for e in self.entries if e.difficulty in difficulties]
+        return PairedDataset(self.root, self.layout, kept)
+
+    def __repr__(self) -> str:
+        """Short description."""
+        return f"PairedDataset({str(self.root)!r}, layout={self.layout!r}, pairs={len(self)})"
+
+
+def detect_layout(folder: Path) -> Layout | None:
+    """Layout of a folder that directly holds the paired sub-folders, or None."""
+    folder = Path(folder)
+    if (folder / "input").is_dir() and (folder / "target").is_dir():
+        parent = folder.parent
+        is_lenspair = (parent / MANIFEST_FILE).is_file() or (parent / CARD_FILE).is_file()
+        return "lenspair" if is_lenspair else "paired"
+    if (folder / "lq").is_dir() and (folder / "gt").is_dir():
+        return "paired"
+    if (folder / "data").is_dir() and (folder / "gt").is_dir():
+        return "raindrop"
+    return None
+
+
+def open_paired(path: Path, split: str | None = None) -> PairedDataset:
+    """Open paired images in any supported layout.
+
+    Args:
+        path: a folder holding the paired sub-folders, or a dataset root
+            whose sub-folder ``split`` does.
+        split: split name (``train``, ``val``, ``test``, ``test_a``, ...);
+            required for a dataset root.
+
+    Raises:
+        DatasetError: no folder, no recognised layout, a missing split, a
+            name that appears twice, or files without a partner (the message
+            lists a few).
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise DatasetError(f"{path}: not a folder")
+    folder = path
+    if split is not None and (path / split).is_dir():
+        folder = path / split
+    elif split is not None and path.name != split:
+        found = ", ".join(sorted(p.name for p in path.iterdir() if detect_layout(p))) or "none"
+        raise DatasetError(f"{path}: no split folder {split!r} (splits found: {found})")
+    layout = detect_layout(folder)
+    if layout is None:
+        splits = sorted(p.name for p in path.iterdir() if p.is_dir() and detect_layout(p))
+        if splits:
+            raise DatasetError(f"{path}: holds several splits; choose one of {', '.join(splits)}")
+        raise DatasetError(
+            f"{folder}: no paired images found (expected input/ + target/, lq/ + gt/, "
+            "or Raindrop data/ + gt/)"
+        )
+    input_dir, target_dir = ("lq", "gt") if (folder / "lq").is_dir() else _FOLDERS[layout]
+    key = _raindrop_key if layout == "raindrop" else _stem
+    inputs = _index(folder / input_dir, key)
+    targets = _index(folder / target_dir, key)
+    masks = _index(folder / "mask", key) if (folder / "mask").is_dir() else {}
+    _check_paired(folder, input_dir, target_dir, inputs, targets, masks)
+    if not inputs and layout != "lenspair":  # a lenspair split may be empty (fraction 0)
+        raise DatasetError(f"{folder}: no images in {input_dir}/")
+    difficulty = _difficulties(folder) if layout == "lenspair" else {}
+    entries = [
+        PairEntry(name, inputs[name], targets[name], masks.get(name), difficulty.get(name))
+        for name in sorted(inputs, key=natural_key)
+    ]
+    return PairedDataset(folder, layout, entries)
+
+
+def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
+    """Sort key that orders embedded numbers by value (``2`` before ``10``)."""
+    parts = re.split(r"(\d+)", name)
+    return tuple((0, int(p)) if p.isdigit() else (1, p) for p in parts if p)
+
+
+def _stem(path: Path) -> str:
+    return path.stem
+
+
+def _raindrop_key(path: Path) -> str:
+    return _RAINDROP_SUFFIX.sub("", path.stem)
+
+
+def _index(folder: Path, key: Callable[[Path], str]) -> dict[str, Path]:
+    found: dict[str, Path] = {}
+    for file in sorted(folder.iterdir()):
+        if file.name.startswith(".") or file.suffix.lower() not in IMAGE_SUFFIXES:
+            continue
+        name = key(file)
+        if name in found:
+            raise DatasetError(f"{file}: name {name!r} also used by {found[name].name}")
+        found[name] = file
+    return found
+
+
+def _check_paired(
+    folder: Path,
+    input_dir: str,
+    target_dir: str,
+    inputs: dict[str, Path],
+    targets: dict[str, Path],
+    masks: dict[str, Path],
+) -> None:
+    unpaired = [f"{input_dir}/{inputs[n].name} (no {target_dir})" for n in inputs.keys() - targets]
+    unpaired += [
+        f"{target_dir}/{targets[n].name} (no {input_dir})" for n in targets.keys() - inputs
+    ]
+    unpaired += [f"mask/{masks[n].name} (no pair)" for n in masks.keys() - inputs]
+    if unpaired:
+        unpaired.sort(key=natural_key)
+        listed = ", ".join(unpaired[:5]) + (", ..." if len(unpaired) > 5 else "")
+        raise DatasetError(f"{folder}: {len(unpaired)} unpaired file(s): {listed}")
+
+
+def _difficulties(split_folder: Path) -> dict[str, str]:
+    manifest = split_folder.parent / MANIFEST_FILE
+    if not manifest.is_file():
+        return {}
+    return {
+        row.name: row.difficulty
+        for row in read_manifest(manifest)
+        if row.split == split_folder.name
+    }

@@ -1,0 +1,153 @@
+"""Check a built dataset against its manifest and card (``dataset-build --verify``).
+
+Every problem is one line naming the file: a file the manifest lists but that
+is missing, a sha256 mismatch, a file under a split folder that the manifest
+does not list, a row whose files lie outside its split, a repeated name, a
+malformed manifest line or card, and card counts that differ from the counts
+recomputed from the manifest.
+"""
+
+import os
+from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+from dataset.card import CARD_FILE, compare_counts, count_rows, read_card
+from dataset.config import SPLITS
+from dataset.errors import DatasetError
+from dataset.manifest import MANIFEST_FILE, REMOVED_FILE, ManifestRow, read_manifest
+from lenspair.fsutil import sha256_file
+
+_COMPARED_FILES = (MANIFEST_FILE, CARD_FILE, "config.yaml", REMOVED_FILE)
+
+
+@dataclass(frozen=True)
+class VerifyResult:
+    """Outcome of :func:`verify_dataset`.
+
+    Attributes:
+        root: the dataset folder.
+        pairs: rows in the manifest.
+        files: image files checked.
+        problems: one line per problem; empty when the dataset is intact.
+    """
+
+    root: Path
+    pairs: int
+    files: int
+    problems: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        """True when no problem was found."""
+        return not self.problems
+
+
+def verify_dataset(root: Path, workers: int | None = None) -> VerifyResult:
+    """Re-check every file of a dataset against ``manifest.jsonl`` and ``dataset.json``.
+
+    Args:
+        root: dataset folder (``dataset-build --out``).
+        workers: threads hashing files (default: up to 4).
+
+    Raises:
+        DatasetError: ``root`` is not a folder.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise DatasetError(f"{root}: not a folder")
+    try:
+        rows = read_manifest(root / MANIFEST_FILE)
+    except DatasetError as exc:
+        return VerifyResult(root, 0, 0, (str(exc),))
+    problems = _check_rows(root, rows)
+    expected = {
+        root / relative: row.sha256.get(kind, "")
+        for row in rows
+        for kind, relative in sorted(row.files.items())
+    }
+    with ThreadPoolExecutor(max_workers=workers or min(4, os.cpu_count() or 1)) as pool:
+        problems += [p for p in pool.map(_check_file, expected.items()) if p]
+    for path in sorted(_split_files(root) - set(expected)):
+        problems.append(f"{path}: not listed in {MANIFEST_FILE}")
+    problems += _check_card(root, rows)
+    return VerifyResult(root, len(rows), len(expected), tuple(problems))
+
+
+def _check_rows(root: Path, rows: list[ManifestRow]) -> list[str]:
+    problems = []
+    manifest = root / MANIFEST_FILE
+    names = Counter((row.split, row.name) for row in rows)
+    for (split, name), count in sorted(names.items()):
+        if count > 1:
+            problems.append(f"{manifest}: {split}/{name} is listed {count} times")
+    for number, row in enumerate(rows, start=1):
+        for kind in ("input", "target"):
+            if kind not in row.files or kind not in row.sha256:
+                problems.append(f"{manifest}:{number}: {row.name} has no {kind} file or sha256")
+        for kind, relative in sorted(row.files.items()):
+            parts = Path(relative).parts
+            if parts[:2] != (row.split, kind) or Path(relative).stem != row.name:
+                expected = f"{row.split}/{kind}/{row.name}.*"
+                problems.append(f"{manifest}:{number}: {relative} is not at {expected}")
+    return problems
+
+
+def _check_file(item: tuple[Path, str]) -> str | None:
+    path, expected = item
+    if not path.is_file():
+        return f"{path}: missing (listed in {MANIFEST_FILE})"
+    actual = sha256_file(path)
+    if actual != expected:
+        return f"{path}: sha256 mismatch (manifest {expected[:12]}..., file {actual[:12]}...)"
+    return None
+
+
+def _split_files(root: Path) -> set[Path]:
+    found: set[Path] = set()
+    for split in SPLITS:
+        for folder, _, files in os.walk(root / split):
+            found.update(Path(folder) / name for name in files)
+    return found
+
+
+def _check_card(root: Path, rows: list[ManifestRow]) -> list[str]:
+    try:
+        card = read_card(root / CARD_FILE)
+    except DatasetError as exc:
+        return [str(exc)]
+    where = root / CARD_FILE
+    problems = [f"{where}: {p}" for p in compare_counts(card.counts, count_rows(rows))]
+    tagged = sum(1 for row in rows if row.difficulty == "clean")
+    if card.tagged_clean != tagged:
+        problems.append(f"{where}: tagged_clean: card says {card.tagged_clean}, manifest {tagged}")
+    per_source: Counter[tuple[str, str]] = Counter((row.recording, row.split) for row in rows)
+    for source in card.sources:
+        for split in SPLITS:
+            recorded = source.in_dataset.get(split, 0)
+            actual = per_source.get((source.recording, split), 0)
+            if recorded != actual:
+                problems.append(
+                    f"{where}: sources[{source.recording}].in_dataset.{split}: "
+                    f"card says {recorded}, manifest gives {actual}"
+                )
+    return problems
+
+
+def dataset_difference(existing: Path, new: Path) -> str | None:
+    """Why the dataset at ``existing`` differs from the one at ``new``; None if the same.
+
+    Compares the file lists and the bytes of the manifest, card and config
+    (the manifest holds the sha256 of every image).
+    """
+    for name in _COMPARED_FILES:
+        a, b = existing / name, new / name
+        if not a.is_file() or not b.is_file() or a.read_bytes() != b.read_bytes():
+            return f"{name} differs"
+    old_files = {p.relative_to(existing) for p in _split_files(existing)}
+    new_files = {p.relative_to(new) for p in _split_files(new)}
+    if old_files != new_files:
+        example = sorted(old_files ^ new_files)[0]
+        return f"file lists differ, e.g. {example}"
+    return None

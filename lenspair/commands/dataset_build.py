@@ -1,0 +1,110 @@
+"""Curate ingested recordings into a paired train/val/test dataset, or verify one.
+
+  lenspair dataset-build OUT/rec_a OUT/rec_b --out DS [--splits 0.8,0.1,0.1] [--seed 0]
+                         [--config curation.yaml] [--overwrite]
+  lenspair dataset-build --verify DS
+
+Curation removes, in this order and counting each: pairs rejected at ingest,
+pairs whose images are missing, corrupt or fail their sha256, poor
+registration (residual, photometric residual, inliers, mask fraction),
+motion blur (sharpness of the clean view), bad exposure, near-duplicate
+frames (robot standing still), and, with clean_pairs: exclude, pairs without
+a visible anomaly (by default they are kept and tagged difficulty "clean").
+Kept pairs are tagged easy (PSNR > 25 dB), medium or hard (< 20 dB).
+
+Pairs are split by recording (or, with few recordings, by contiguous segment
+with a gap at the borders) via a seeded hash, so adding a recording later
+does not move existing pairs, and every split sees both ground-truth sides
+when the data allows. Output: DS/{train,val,test}/{input,target[,mask]}/
+<rec>_<t_ns>.png, manifest.jsonl, dataset.json (the card), removed.jsonl (each
+removed pair with its rule and reason), config.yaml and
+contact_<split>.png. Same inputs and seed give byte-identical files.
+
+--verify re-checks every file against the manifest and the card's counts and
+exits with status 1 and a list of problems when anything is off.
+"""
+
+import argparse
+from pathlib import Path
+
+from dataset.build import build_dataset
+from dataset.config import SPLITS, load_dataset_config, parse_fractions, with_overrides
+from dataset.curation import RULE_NAMES
+from dataset.verify import verify_dataset
+from lenspair.errors import ConfigError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``dataset-build``."""
+    parser.add_argument("sources", nargs="*", type=Path, help="ingested recording folders")
+    parser.add_argument("--out", type=Path, help="dataset folder to create")
+    parser.add_argument("--verify", type=Path, metavar="DS", help="check an existing dataset")
+    parser.add_argument("--splits", help="train,val,test fractions of groups (0.8,0.1,0.1)")
+    parser.add_argument("--seed", type=int, help="split seed (default 0)")
+    parser.add_argument("--config", type=Path, help="YAML with curation: and split: sections")
+    parser.add_argument("--overwrite", action="store_true", help="replace a different dataset")
+    parser.add_argument("--workers", type=int, help="threads reading images (default up to 4)")
+    group = parser.add_argument_group("common thresholds (override --config)")
+    group.add_argument("--max-residual-px", type=float, help="registration residual (2.0)")
+    group.add_argument("--min-sharpness", type=float, help="variance of Laplacian (20)")
+    group.add_argument("--duplicate-threshold", type=float, help="thumbnail difference (0.004)")
+    group.add_argument(
+        "--exclude-clean", action="store_true", help="drop pairs without visible anomaly"
+    )
+    group.add_argument(
+        "--group-by", choices=("auto", "recording", "segment"), help="split groups (auto)"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build (or verify) a dataset; returns the exit code."""
+    if args.verify is not None:
+        if args.sources or args.out is not None:
+            raise ConfigError("--verify takes only the dataset folder")
+        return _verify(args.verify, args.workers)
+    if not args.sources or args.out is None:
+        raise ConfigError("give ingested recording folders and --out DS (or --verify DS)")
+    config = load_dataset_config(args.config)
+    try:
+        fractions = parse_fractions(args.splits) if args.splits is not None else None
+        config = with_overrides(
+            config,
+            curation={
+                "max_residual_px": args.max_residual_px,
+                "min_sharpness": args.min_sharpness,
+                "duplicate_threshold": args.duplicate_threshold,
+                "clean_pairs": "exclude" if args.exclude_clean else None,
+            },
+            split={"fractions": fractions, "seed": args.seed, "group_by": args.group_by},
+        )
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    result = build_dataset(
+        args.sources, args.out, config, overwrite=args.overwrite, workers=args.workers
+    )
+    card = result.card
+    print(f"dataset written to {result.out}: {card.counts['all'].pairs} of {card.pairs_in} pairs")
+    for name in SPLITS:
+        counts = card.counts[name]
+        sides = ", ".join(f"{side} {n}" for side, n in counts.clean_side.items())
+        levels = ", ".join(f"{level} {n}" for level, n in counts.difficulty.items() if n)
+        print(f"  {name:5s} {counts.pairs:6d} pairs, {counts.groups} groups; clean side {sides}")
+        if levels:
+            print(f"        {levels}")
+    removed = {rule.rule: rule.removed for rule in card.curation}
+    listed = ", ".join(f"{r} {removed[r]}" for r in RULE_NAMES if removed[r])
+    print(f"  removed: {listed or 'none'}; tagged clean (kept): {card.tagged_clean}")
+    for warning in card.grouping.warnings:
+        print(f"  warning: {warning}")
+    return 0
+
+
+def _verify(root: Path, workers: int | None) -> int:
+    result = verify_dataset(root, workers=workers)
+    if result.ok:
+        print(f"{root}: OK ({result.pairs} pairs, {result.files} files checked)")
+        return 0
+    print(f"{root}: {len(result.problems)} problem(s):")
+    for problem in result.problems:
+        print(f"  {problem}")
+    return 1

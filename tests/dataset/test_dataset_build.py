@@ -1,0 +1,283 @@
+import itertools
+import json
+import logging
+import os
+from pathlib import Path
+
+import pytest
+
+from capture.ingested import read_pairs, write_pairs
+from dataset import build as build_module
+from dataset.build import build_dataset
+from dataset.card import read_card
+from dataset.config import CurationConfig, DatasetConfig, SplitConfig
+from dataset.errors import DatasetError
+from dataset.manifest import read_manifest
+from dataset.verify import verify_dataset
+from lenspair.cli import main
+from lenspair.fsutil import sha256_file
+from lenspair.imageio import read_image
+from tests.dataset.dataset_synth import RecordingFactory
+
+SEGMENTS = DatasetConfig(split=SplitConfig(segment_frames=10, segment_gap_frames=2))
+
+
+def _three(recording: RecordingFactory) -> list[Path]:
+    return [
+        recording("rec_a", n=30, still=(3, 4), blurred=(6,), clean=(12,), rejected=(9,)),
+        recording("rec_b", n=30, obstructed="cam0", seed=1, strength=0.9, masked=True),
+        recording("rec_c", n=30, seed=2, strength=0.15),
+    ]
+
+
+def _tree(root: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(root)): sha256_file(p) for p in sorted(root.rglob("*")) if p.is_file()
+    }
+
+
+def test_build_layout_manifest_card_and_rules(recording: RecordingFactory, tmp_path: Path) -> None:
+    sources = _three(recording)
+    result = build_dataset(sources, tmp_path / "DS", SEGMENTS)
+    ds = result.out
+    rows = read_manifest(ds / "manifest.jsonl")
+    assert len(rows) == len(result.rows) > 40
+    for row in rows:
+        assert Path(row.files["input"]).name == Path(row.files["target"]).name
+        assert row.files["input"] == f"{row.split}/input/{row.recording}_{row.t_ns}.png"
+        assert (row.obstructed, row.clean) in {("cam1", "cam0"), ("cam0", "cam1")}
+        assert ("mask" in row.files) == (row.recording == "rec_b")
+        assert sha256_file(ds / row.files["target"]) == row.sha256["target"]
+    by_recording = {r.recording: r.difficulty for r in rows if r.difficulty != "clean"}
+    assert by_recording == {"rec_a": "medium", "rec_b": "hard", "rec_c": "easy"}
+    card = read_card(ds / "dataset.json")
+    removed = {rule.rule: rule.removed for rule in card.curation}
+    assert removed["ingest_rejected"] == 1
+    assert removed["sharpness"] == 1
+    assert removed["duplicate"] == 2
+    assert sum(removed.values()) + card.counts["all"].pairs == card.pairs_in == 90
+    assert card.ingest_reasons == {"too few matches": 1}
+    assert card.tagged_clean == sum(1 for r in rows if r.difficulty == "clean") == 1
+    assert {s.recording: s.clean for s in card.sources} == {
+        "rec_a": "cam0",
+        "rec_b": "cam1",
+        "rec_c": "cam0",
+    }
+    assert card.sources[0].calibration_source.endswith("rec_a/camchain.yaml")
+    for split in ("train", "val", "test"):
+        assert (
+            card.counts[split].clean_side["cam0"] > 0 and card.counts[split].clean_side["cam1"] > 0
+        )
+        assert read_image(ds / f"contact_{split}.png").shape[2] == 3
+    assert "rain" in card.counts["all"].clean_side_by_anomaly
+    assert (ds / "config.yaml").read_text().startswith("curation:")
+    assert verify_dataset(ds).ok
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp folder left
+
+
+def test_no_group_straddles_two_splits(recording: RecordingFactory, tmp_path: Path) -> None:
+    result = build_dataset(_three(recording), tmp_path / "DS", SEGMENTS)
+    assert result.card.grouping.mode == "segment"
+    split_of: dict[str, str] = {}
+    for row in result.rows:
+        assert split_of.setdefault(row.group, row.split) == row.split
+    by_recording: dict[str, list[tuple[int, str]]] = {}
+    for row in result.rows:
+        index = (row.t_ns - 1_700_000_000_000_000_000) // 50_000_000
+        by_recording.setdefault(row.recording, []).append((index, row.split))
+    for frames in by_recording.values():
+        frames.sort()
+        for (a, split_a), (b, split_b) in itertools.pairwise(frames):
+            assert split_a == split_b or b - a > 2
+
+
+def test_recording_mode_keeps_recordings_whole(recording: RecordingFactory, tmp_path: Path) -> None:
+    config = DatasetConfig(split=SplitConfig(group_by="recording"))
+    result = build_dataset(_three(recording), tmp_path / "DS", config)
+    splits: dict[str, str] = {}
+    for row in result.rows:
+        assert splits.setdefault(row.recording, row.split) == row.split
+    assert result.card.curation[-1].removed == 0  # no split_gap in recording mode
+
+
+def test_same_inputs_and_seed_give_identical_bytes(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    sources = _three(recording)
+    first = build_dataset(sources, tmp_path / "one", SEGMENTS, workers=1).out
+    second = build_dataset(sources, tmp_path / "two", SEGMENTS, workers=3).out
+    assert _tree(first) == _tree(second)
+    assert len(_tree(first)) > 100
+    other = DatasetConfig(split=SplitConfig(segment_frames=10, segment_gap_frames=2, seed=1))
+    third = build_dataset(sources, tmp_path / "three", other).out
+    assert _tree(third) != _tree(first)
+
+
+def test_images_are_hard_linked_or_copied(
+    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source = recording("rec_a", n=4)
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    ds = build_dataset([source], tmp_path / "DS", config).out
+    name = f"{read_pairs(source / 'pairs.jsonl')[0].t_ns}"
+    linked = ds / "train" / "input" / f"rec_a_{name}.png"
+    assert os.path.samefile(linked, source / "input" / f"{name}.png")
+
+    def refuse(*_: object) -> None:
+        raise OSError(18, "Invalid cross-device link")
+
+    monkeypatch.setattr(os, "link", refuse)
+    copied = build_dataset([source], tmp_path / "DS2", config).out
+    copy = copied / "train" / "input" / f"rec_a_{name}.png"
+    assert not os.path.samefile(copy, source / "input" / f"{name}.png")
+    assert copy.read_bytes() == linked.read_bytes()
+    assert verify_dataset(copied).ok
+
+
+def test_missing_image_is_skipped_counted_and_warned(
+    recording: RecordingFactory, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    source = recording("rec_a", n=6)
+    records = read_pairs(source / "pairs.jsonl")
+    (source / records[2].files["target"]).unlink()
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    with caplog.at_level(logging.WARNING):
+        result = build_dataset([source], tmp_path / "DS", config)
+    removed = {rule.rule: rule.removed for rule in result.card.curation}
+    assert removed["missing_file"] == 1
+    assert len(result.rows) == 5
+    assert f"{records[2].t_ns}.png: file missing" in caplog.text
+    lines = [
+        json.loads(line) for line in (tmp_path / "DS" / "removed.jsonl").read_text().splitlines()
+    ]
+    assert lines == [
+        {
+            "recording": "rec_a",
+            "t_ns": records[2].t_ns,
+            "rule": "missing_file",
+            "reason": f"{source / records[2].files['target']}: file missing (named in pairs.jsonl)",
+        }
+    ]
+
+
+def test_checksum_mismatch_rejects_the_pair(recording: RecordingFactory, tmp_path: Path) -> None:
+    source = recording("rec_a", n=5)
+    records = read_pairs(source / "pairs.jsonl")
+    (source / records[1].files["input"]).write_bytes(
+        (source / records[3].files["input"]).read_bytes()
+    )
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    result = build_dataset([source], tmp_path / "DS", config)
+    removed = {rule.rule: rule.removed for rule in result.card.curation}
+    assert removed["checksum"] == 1 and len(result.rows) == 4
+
+
+def test_corrupt_image_is_a_bad_image(recording: RecordingFactory, tmp_path: Path) -> None:
+    source = recording("rec_a", n=4)
+    records = read_pairs(source / "pairs.jsonl")
+    (source / records[0].files["input"]).write_bytes(b"not a png")
+    write_pairs(
+        source / "pairs.jsonl",
+        [r if i else type(r)(**{**r.__dict__, "sha256": {}}) for i, r in enumerate(records)],
+    )
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    result = build_dataset([source], tmp_path / "DS", config)
+    assert {r.rule: r.removed for r in result.card.curation}["bad_image"] == 1
+
+
+@pytest.mark.parametrize("missing", ["pairs.jsonl", "report.json"])
+def test_missing_contract_file_is_an_error_naming_the_folder(
+    recording: RecordingFactory, tmp_path: Path, missing: str
+) -> None:
+    source = recording("rec_a", n=2)
+    (source / missing).unlink()
+    with pytest.raises(DatasetError, match=rf"rec_a: missing {missing}"):
+        build_dataset([source], tmp_path / "DS", DatasetConfig())
+
+
+def test_bad_sources_are_errors(recording: RecordingFactory, tmp_path: Path) -> None:
+    source = recording("rec_a", n=2)
+    with pytest.raises(DatasetError, match="not a folder"):
+        build_dataset([tmp_path / "nope"], tmp_path / "DS", DatasetConfig())
+    with pytest.raises(DatasetError, match="also that of"):
+        build_dataset([source, source], tmp_path / "DS", DatasetConfig())
+    with pytest.raises(DatasetError, match="overlaps"):
+        build_dataset([source], source / "DS", DatasetConfig())
+    report = json.loads((source / "report.json").read_text())
+    (source / "report.json").write_text(json.dumps(report | {"obstructed": "cam2"}))
+    with pytest.raises(DatasetError, match=r"report\.json: obstructed must be cam0 or cam1"):
+        build_dataset([source], tmp_path / "DS", DatasetConfig())
+
+
+def test_existing_output_rules(recording: RecordingFactory, tmp_path: Path) -> None:
+    source = recording("rec_a", n=6)
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    out = tmp_path / "DS"
+    build_dataset([source], out, config)
+    build_dataset([source], out, config)  # the same dataset again: fine
+    other = DatasetConfig(config.curation, SplitConfig(fractions=(1.0, 0.0, 0.0), seed=3))
+    with pytest.raises(DatasetError, match=r"DS: holds a different dataset \(dataset.json"):
+        build_dataset([source], out, other)
+    assert read_card(out / "dataset.json").seed == 0  # untouched
+    build_dataset([source], out, other, overwrite=True)
+    assert read_card(out / "dataset.json").seed == 3
+    stranger = tmp_path / "photos"
+    stranger.mkdir()
+    (stranger / "holiday.jpg").write_bytes(b"x")
+    with pytest.raises(DatasetError, match="photos: not empty and not a lenspair dataset"):
+        build_dataset([source], stranger, config, overwrite=True)
+    (tmp_path / "empty").mkdir()
+    build_dataset([source], tmp_path / "empty", config)
+    assert (tmp_path / "empty" / "manifest.jsonl").is_file()
+
+
+def test_failed_build_leaves_nothing_half_written(
+    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source = recording("rec_a", n=4)
+
+    def explode(*_: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(build_module, "write_card", explode)
+    with pytest.raises(OSError, match="No space"):
+        build_dataset([source], tmp_path / "DS", DatasetConfig())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ingested"]
+
+
+def test_exclude_clean_and_thresholds_from_cli(recording: RecordingFactory, tmp_path: Path) -> None:
+    source = recording("rec_a", n=8, clean=(1, 2, 3, 4, 5))
+    out = tmp_path / "DS"
+    args = [str(source), "--out", str(out), "--splits", "1,0,0", "--seed", "4"]
+    assert main(["dataset-build", *args, "--exclude-clean"]) == 0
+    card = read_card(out / "dataset.json")
+    assert {r.rule: r.removed for r in card.curation}["clean"] == 5
+    assert card.config.curation.clean_pairs == "exclude" and card.seed == 4
+    assert main(["dataset-build", *args, "--min-sharpness", "1e9", "--overwrite"]) == 0
+    assert read_card(out / "dataset.json").counts["all"].pairs == 0
+    assert main(["dataset-build", "--verify", str(out)]) == 0
+
+
+def test_cli_errors_are_one_line(
+    recording: RecordingFactory, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    source = recording("rec_a", n=2)
+    assert main(["dataset-build", str(source), "--out", str(tmp_path / "DS"), "--splits", "1"]) == 2
+    assert "expected three comma-separated fractions" in capsys.readouterr().err
+    assert main(["dataset-build", "--out", str(tmp_path / "DS")]) == 2
+    assert "give ingested recording folders" in capsys.readouterr().err
+    config = tmp_path / "bad.yaml"
+    config.write_text("curation:\n  max_residual: 1\n")
+    code = main(
+        ["dataset-build", str(source), "--out", str(tmp_path / "DS"), "--config", str(config)]
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and "bad.yaml: curation.max_residual: unknown key" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_thresholds_reach_the_card(recording: RecordingFactory, tmp_path: Path) -> None:
+    config = DatasetConfig(CurationConfig(max_residual_px=0.1), SplitConfig(fractions=(1, 0, 0)))
+    result = build_dataset([recording("rec_a", n=3)], tmp_path / "DS", config)
+    assert {r.rule: r.removed for r in result.card.curation}["residual"] == 3
+    assert result.card.config.curation.max_residual_px == 0.1

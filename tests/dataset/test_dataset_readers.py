@@ -1,0 +1,127 @@
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dataset.build import build_dataset
+from dataset.config import DatasetConfig, SplitConfig
+from dataset.errors import DatasetError
+from dataset.manifest import read_manifest
+from dataset.readers import PairedDataset, detect_layout, natural_key, open_paired
+from lenspair.imageio import write_image
+from tests.dataset.dataset_synth import RecordingFactory
+
+
+def _image(value: int, shape: tuple[int, ...] = (8, 12, 3), dtype: type = np.uint8) -> np.ndarray:
+    return np.full(shape, value, dtype)
+
+
+def _write(folder: Path, names: dict[str, int], dtype: type = np.uint8) -> None:
+    for name, value in names.items():
+        write_image(folder / name, _image(value, dtype=dtype))
+
+
+def test_lenspair_layout_root_with_split_and_split_folder(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    sources = [recording("rec_a", n=6, masked=True, clean=(2,)), recording("rec_b", n=6, seed=1)]
+    config = DatasetConfig(split=SplitConfig(fractions=(0.5, 0.5, 0.0), group_by="recording"))
+    ds = build_dataset(sources, tmp_path / "DS", config).out
+    rows = read_manifest(ds / "manifest.jsonl")
+    for split in ("train", "val"):
+        data = open_paired(ds, split)
+        assert data.layout == "lenspair"
+        expected = sorted((r for r in rows if r.split == split), key=lambda r: natural_key(r.name))
+        assert data.names == tuple(r.name for r in expected)
+        item = data[0]
+        assert item.input.dtype == np.uint8 and item.input.shape == (48, 64, 3)
+        assert item.target.shape == item.input.shape
+        assert item.difficulty == expected[0].difficulty
+        assert (item.mask is not None) == (expected[0].recording == "rec_a")
+        if item.mask is not None:
+            assert item.mask.shape == (48, 64)
+        assert open_paired(ds / split).names == data.names
+    everything = [item for split in ("train", "val") for item in open_paired(ds, split)]
+    assert sum(1 for item in everything if item.difficulty == "clean") == 1
+    with pytest.raises(DatasetError, match="choose one of test, train, val"):
+        open_paired(ds)
+    assert len(open_paired(ds, "test")) == 0  # an empty split of a lenspair dataset is fine
+    with pytest.raises(DatasetError, match="no split folder 'dev'"):
+        open_paired(ds, "dev")
+    train = open_paired(ds, "train")
+    assert len(train.select({"clean"})) + len(train.select({"easy", "medium", "hard"})) == len(
+        train
+    )
+
+
+def test_generic_paired_folders(tmp_path: Path) -> None:
+    _write(tmp_path / "a" / "input", {"10.png": 1, "2.png": 2, "1.png": 3})
+    _write(tmp_path / "a" / "target", {"10.png": 4, "2.png": 5, "1.png": 6})
+    data = open_paired(tmp_path / "a")
+    assert data.layout == "paired" and data.names == ("1", "2", "10")
+    assert int(data[1].input[0, 0, 0]) == 2 and int(data[1].target[0, 0, 0]) == 5
+    assert data[0].difficulty is None and data[0].mask is None
+
+    _write(tmp_path / "b" / "lq", {"x.png": 1, "y.png": 2}, np.uint16)
+    _write(tmp_path / "b" / "gt", {"x.png": 3}, np.uint16)
+    _write(tmp_path / "b" / "gt", {"y.jpg": 2})
+    (tmp_path / "b" / "gt" / ".DS_Store").write_bytes(b"junk")
+    data = open_paired(tmp_path / "b")
+    assert data.layout == "paired" and data.names == ("x", "y")
+    assert data[0].input.dtype == data[0].target.dtype == np.uint16
+    with pytest.raises(DatasetError, match="does not match"):
+        data[1]  # uint16 input against a uint8 target
+
+
+def test_unpaired_names_are_listed(tmp_path: Path) -> None:
+    _write(tmp_path / "input", {f"{i}.png": i for i in range(8)})
+    _write(tmp_path / "target", {f"{i}.png": i for i in range(1, 8)} | {"extra.png": 1})
+    with pytest.raises(DatasetError, match=r"2 unpaired file\(s\): input/0.png \(no target\)"):
+        open_paired(tmp_path)
+    with pytest.raises(DatasetError, match=r"target/extra.png \(no input\)"):
+        open_paired(tmp_path)
+
+
+def test_raindrop_layout_with_png_and_jpg(tmp_path: Path) -> None:
+    root = tmp_path / "raindrop"
+    _write(root / "train" / "data", {"0_rain.png": 10, "1_rain.png": 11, "10_rain.png": 12})
+    _write(root / "train" / "gt", {"0_clean.png": 20, "1_clean.png": 21, "10_clean.png": 22})
+    _write(root / "test_a" / "data", {"3_rain.jpg": 30, "4_rain.png": 40})
+    _write(root / "test_a" / "gt", {"3_clean.jpg": 31, "4_clean.jpg": 41})
+    train = open_paired(root, "train")
+    assert train.layout == "raindrop" and train.names == ("0", "1", "10")
+    assert int(train[2].input[0, 0, 0]) == 12 and int(train[2].target[0, 0, 0]) == 22
+    test_a = open_paired(root / "test_a")
+    assert test_a.names == ("3", "4")
+    assert test_a[0].input.dtype == np.uint8 and test_a[0].input.shape == (8, 12, 3)
+    with pytest.raises(DatasetError, match="choose one of test_a, train"):
+        open_paired(root)
+    _write(root / "test_a" / "data", {"5_rain.png": 50})
+    with pytest.raises(DatasetError, match=r"data/5_rain.png \(no gt\)"):
+        open_paired(root, "test_a")
+
+
+def test_layout_detection_and_errors(tmp_path: Path) -> None:
+    (tmp_path / "empty").mkdir()
+    assert detect_layout(tmp_path / "empty") is None
+    with pytest.raises(DatasetError, match="no paired images found"):
+        open_paired(tmp_path / "empty")
+    with pytest.raises(DatasetError, match="not a folder"):
+        open_paired(tmp_path / "missing")
+    (tmp_path / "p" / "input").mkdir(parents=True)
+    (tmp_path / "p" / "target").mkdir()
+    with pytest.raises(DatasetError, match="no images in input/"):
+        open_paired(tmp_path / "p")
+    _write(tmp_path / "d" / "input", {"a.png": 1, "a.jpg": 1})
+    _write(tmp_path / "d" / "target", {"a.png": 1})
+    with pytest.raises(DatasetError, match="name 'a' also used by"):
+        open_paired(tmp_path / "d")
+
+
+def test_dataset_is_map_style(tmp_path: Path) -> None:
+    _write(tmp_path / "input", {"a.png": 1, "b.png": 2})
+    _write(tmp_path / "target", {"a.png": 1, "b.png": 2})
+    data = open_paired(tmp_path)
+    assert isinstance(data, PairedDataset) and len(data) == 2
+    assert [item.name for item in data] == ["a", "b"]
+    assert "pairs=2" in repr(data)
