@@ -1,0 +1,370 @@
+"""Calibration boards: the ``--board`` spec, board geometry, corner detection, synthetic views.
+
+Board specs (``lenspair calibrate --board``)::
+
+    chessboard:COLSxROWS:SQUARE_M                  e.g. chessboard:9x6:0.025
+    charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT]     e.g. charuco:8x6:0.04:0.03:DICT_5X5_100
+
+* ``chessboard`` counts **inner corners** (as OpenCV, ROS and Kalibr do): a
+  ``9x6`` board has 10x7 squares. The first corner and the sense in which
+  the detector walks the grid are not defined by a plain chessboard; the
+  stereo calibration resolves them per view (:meth:`Board.symmetries`).
+* ``charuco`` counts **squares** (as ``cv2.aruco.CharucoBoard`` does); it has
+  ``(COLS-1)*(ROWS-1)`` inner corners, each identified by its id. ``DICT`` is
+  an ArUco dictionary name (``DICT_`` prefix optional, any case), default
+  ``DICT_5X5_100``. Boards follow OpenCV >= 4.6 (not the legacy pattern).
+* Sizes are in metres.
+
+Corner ids are row-major: id ``j * columns + i`` is inner corner ``(i, j)`` at
+board coordinates ``(i, j) * square`` (chessboard) or ``(i + 1, j + 1) * square``
+(ChArUco, whose origin is the outer corner), ``z = 0``. Pixel coordinates
+follow OpenCV: the centre of the top-left pixel is ``(0, 0)``.
+"""
+
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from rectify.errors import RectifyError
+from rectify.rectification import pixel_rays
+from rectify.rig import CameraModel
+
+BoardKind = Literal["chessboard", "charuco"]
+DEFAULT_DICTIONARY = "DICT_5X5_100"
+_MIN_CORNERS = 6
+
+
+def _dictionary_names() -> list[str]:
+    return sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_") and n.upper() == n)
+
+
+@dataclass(frozen=True)
+class Board:
+    """A planar calibration board.
+
+    Attributes:
+        kind: ``chessboard`` or ``charuco``.
+        columns: inner corners (chessboard) or squares (ChArUco) along x.
+        rows: inner corners (chessboard) or squares (ChArUco) along y.
+        square_m: side of one square, metres.
+        marker_m: side of one ArUco marker, metres (ChArUco only).
+        dictionary: ArUco dictionary name such as ``DICT_6X6_250`` (ChArUco only).
+
+    """
+
+    kind: BoardKind
+    columns: int
+    rows: int
+    square_m: float
+    marker_m: float | None = None
+    dictionary: str | None = None
+
+    def __post_init__(self) -> None:
+        minimum = 2 if self.kind == "chessboard" else 3
+        if self.columns < minimum or self.rows < minimum:
+            raise RectifyError(
+                f"board {self.kind}: need at least {minimum}x{minimum} "
+                f"{'inner corners' if self.kind == 'chessboard' else 'squares'}, "
+                f"got {self.columns}x{self.rows}"
+            )
+        if not 0.0 < self.square_m < 1.0:
+            hint = " (sizes are in metres; did you give millimetres?)" if self.square_m else ""
+            raise RectifyError(
+                f"board square size: expected 0 < SQUARE_M < 1, got {self.square_m}{hint}"
+            )
+        if self.kind == "chessboard":
+            return
+        if self.marker_m is None or not 0.0 < self.marker_m < self.square_m:
+            raise RectifyError(
+                f"board marker size: expected 0 < MARKER_M < SQUARE_M = {self.square_m}, "
+                f"got {self.marker_m}"
+            )
+        if self.dictionary not in _dictionary_names():
+            valid = ", ".join(_dictionary_names())
+            raise RectifyError(f"board dictionary: unknown {self.dictionary!r}; valid: {valid}")
+        needed = self.columns * self.rows // 2
+        available = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
+        if needed > available.bytesList.shape[0]:
+            raise RectifyError(
+                f"board: a {self.columns}x{self.rows} ChArUco board needs {needed} markers, "
+                f"{self.dictionary} has {available.bytesList.shape[0]}"
+            )
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        """Inner corners ``(columns, rows)``."""
+        if self.kind == "chessboard":
+            return self.columns, self.rows
+        return self.columns - 1, self.rows - 1
+
+    @property
+    def num_corners(self) -> int:
+        """Number of inner corners."""
+        columns, rows = self.grid
+        return columns * rows
+
+    def object_points(self) -> np.ndarray:
+        """Board coordinates of every inner corner, metres, ``(N, 3)`` float64, row-major ids."""
+        columns, rows = self.grid
+        i, j = np.meshgrid(np.arange(columns), np.arange(rows))
+        offset = 0.0 if self.kind == "chessboard" else 1.0
+        xy = np.stack([i.ravel() + offset, j.ravel() + offset], axis=1) * self.square_m
+        return np.column_stack([xy, np.zeros(len(xy))]).astype(np.float64)
+
+    def symmetries(self) -> list[np.ndarray]:
+        """Permutations of corner ids that map the grid onto itself by an in-plane rotation.
+
+        A plain chessboard looks the same after a 180 deg turn (and after 90 deg
+        turns when square), so a detector may number its corners from any of
+        these starting points. ChArUco ids are unique: identity only.
+
+        Returns:
+            list of ``(N,)`` int arrays ``perm``; ``ids[perm]`` renumbers; the
+            identity comes first.
+
+        """
+        columns, rows = self.grid
+        ids = np.arange(columns * rows).reshape(rows, columns)
+        if self.kind == "charuco":
+            return [ids.ravel()]
+        turns = (0, 1, 2, 3) if columns == rows else (0, 2)
+        return [np.rot90(ids, k).ravel().copy() for k in turns]
+
+    def spec(self) -> str:
+        """The ``--board`` spec string of this board."""
+        size = f"{self.columns}x{self.rows}:{self.square_m:g}"
+        if self.kind == "chessboard":
+            return f"chessboard:{size}"
+        return f"charuco:{size}:{self.marker_m:g}:{self.dictionary}"
+
+    def charuco(self) -> "cv2.aruco.CharucoBoard":
+        """The OpenCV ChArUco board object (ChArUco boards only)."""
+        if self.kind != "charuco" or self.dictionary is None or self.marker_m is None:
+            raise RectifyError(f"board {self.spec()} is not a ChArUco board")
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
+        return cv2.aruco.CharucoBoard(
+            (self.columns, self.rows), self.square_m, self.marker_m, dictionary
+        )
+
+
+def parse_board_spec(text: str) -> Board:
+    """Parse a ``--board`` spec (see the module docstring).
+
+    Raises:
+        RectifyError: with the expected form and what was wrong.
+
+    """
+    forms = {
+        "chessboard": "chessboard:COLSxROWS:SQUARE_M",
+        "charuco": "charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT]",
+    }
+    parts = text.strip().split(":")
+    kind = parts[0].lower()
+    if kind not in forms:
+        raise RectifyError(
+            f"board spec {text!r}: unknown board type {parts[0]!r}; expected "
+            f"{forms['chessboard']} or {forms['charuco']}"
+        )
+    counts = (3,) if kind == "chessboard" else (4, 5)
+    if len(parts) not in counts:
+        raise RectifyError(f"board spec {text!r}: expected {forms[kind]}")
+    size = parts[1].lower().split("x")
+    if len(size) != 2 or not all(s.isdigit() for s in size):
+        raise RectifyError(f"board spec {text!r}: COLSxROWS must look like 9x6, got {parts[1]!r}")
+    lengths = []
+    for name, value in zip(("SQUARE_M", "MARKER_M"), parts[2:4], strict=False):
+        try:
+            lengths.append(float(value))
+        except ValueError:
+            raise RectifyError(
+                f"board spec {text!r}: {name} must be a length in metres, got {value!r}"
+            ) from None
+    dictionary = None
+    if kind == "charuco":
+        name = parts[4].upper() if len(parts) == 5 else DEFAULT_DICTIONARY
+        dictionary = name if name.startswith("DICT_") else f"DICT_{name}"
+    try:
+        return Board(
+            kind,  # type: ignore[arg-type]
+            int(size[0]),
+            int(size[1]),
+            lengths[0],
+            lengths[1] if len(lengths) > 1 else None,
+            dictionary,
+        )
+    except RectifyError as exc:
+        raise RectifyError(f"board spec {text!r}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Inner corners of a board found in one image.
+
+    Attributes:
+        ids: ``(N,)`` int32 corner ids (see the module docstring), ascending.
+        corners: ``(N, 2)`` float32 sub-pixel image coordinates, pixels.
+
+    """
+
+    ids: np.ndarray
+    corners: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+
+def _to_gray(image: np.ndarray) -> np.ndarray:
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+    if image.dtype == np.uint16:
+        image = (image >> 8).astype(np.uint8)
+    if image.dtype != np.uint8 or image.ndim != 2:
+        raise ValueError(
+            f"expected a uint8/uint16 (H, W) or (H, W, 3) image, got {image.dtype} {image.shape}"
+        )
+    return image
+
+
+def _refine(gray: np.ndarray, corners: np.ndarray, board: Board) -> np.ndarray:
+    # The search window must stay clear of neighbouring corners (chessboard) and
+    # of the markers' inner edges (ChArUco), or they pull the corner.
+    points = corners.reshape(-1, 2).astype(np.float64)
+    distances = np.linalg.norm(points[:, None] - points[None], axis=2)
+    np.fill_diagonal(distances, np.inf)
+    spacing = float(np.min(distances))
+    fraction = 0.4
+    if board.marker_m is not None:  # 1.25 x the white gap between corner and marker (measured)
+        fraction = 1.25 * (board.square_m - board.marker_m) / (2 * board.square_m)
+    half = int(np.clip(round(fraction * spacing), 2, 11))
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
+    refined = cv2.cornerSubPix(gray, corners.reshape(-1, 1, 2), (half, half), (-1, -1), criteria)
+    return np.asarray(refined, dtype=np.float32).reshape(-1, 2)
+
+
+def detect_corners(image: np.ndarray, board: Board) -> Detection | None:
+    """Find the board's inner corners in one image, to sub-pixel accuracy.
+
+    Chessboards: ``cv2.findChessboardCorners`` then ``cv2.cornerSubPix`` with a
+    window sized to the squares. ChArUco: OpenCV 5's ``cv2.aruco.CharucoDetector``
+    (markers, missed markers recovered from the board layout, interpolated
+    corners), then ``cv2.cornerSubPix`` with a window that stays clear of the
+    markers.
+
+    Args:
+        image: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB.
+        board: what to look for.
+
+    Returns:
+        The detection, or ``None`` when the board is not found (chessboards
+        must be complete; ChArUco needs at least 6 non-collinear corners).
+
+    """
+    gray = _to_gray(image)
+    if board.kind == "chessboard":
+        flags = (
+            cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+        )
+        found, corners = cv2.findChessboardCorners(gray, board.grid, flags=flags)
+        if not found:
+            return None
+        refined = _refine(gray, corners, board)
+        return Detection(np.arange(board.num_corners, dtype=np.int32), refined)
+    charuco = board.charuco()
+    parameters = cv2.aruco.CharucoParameters()
+    parameters.tryRefineMarkers = True  # find small markers the board layout predicts
+    detector = cv2.aruco.CharucoDetector(charuco, parameters, cv2.aruco.DetectorParameters())
+    corners, ids, _, _ = detector.detectBoard(gray)
+    if ids is None or len(ids) < _MIN_CORNERS:
+        return None
+    ids = np.asarray(ids, dtype=np.int32).reshape(-1)
+    if charuco.checkCharucoCornersCollinear(ids):
+        return None
+    order = np.argsort(ids)
+    refined = _refine(gray, np.asarray(corners, dtype=np.float32).reshape(-1, 2), board)
+    return Detection(ids[order], refined[order])
+
+
+def board_texture(board: Board, pixels_per_square: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """A printable image of the board, with a one-square white margin.
+
+    Returns:
+        ``(texture, board_to_texture)``: ``uint8`` ``(H, W)`` image and the 3x3
+        float64 affine matrix taking board coordinates in metres (``x, y, 1``)
+        to texture pixel coordinates.
+
+    """
+    s = pixels_per_square
+    if board.kind == "chessboard":
+        squares = (board.columns + 1, board.rows + 1)
+        origin = 2.0 * s  # the first inner corner: margin + one square
+        j, i = np.mgrid[0 : squares[1] * s, 0 : squares[0] * s] // s
+        cells = np.where((i + j) % 2 == 0, 0, 255).astype(np.uint8)
+        texture = cv2.copyMakeBorder(cells, s, s, s, s, cv2.BORDER_CONSTANT, value=255)
+    else:
+        squares = (board.columns, board.rows)
+        origin = float(s)
+        size = ((squares[0] + 2) * s, (squares[1] + 2) * s)
+        texture = board.charuco().generateImage(size, marginSize=s)
+    scale = s / board.square_m
+    board_to_texture = np.array([[scale, 0, origin - 0.5], [0, scale, origin - 0.5], [0, 0, 1.0]])
+    return np.asarray(texture, dtype=np.uint8), board_to_texture
+
+
+class BoardRenderer:
+    """Synthetic images of a board seen by a distorted camera (tests, benchmarks).
+
+    Every output pixel is the area average of ``supersample**2`` samples of the
+    board texture, each found by back-projecting the sample through the lens
+    (:func:`rectify.rectification.pixel_rays`) and intersecting it with the
+    board plane, so corners land where the camera model puts them.
+    """
+
+    def __init__(
+        self, board: Board, camera: CameraModel, supersample: int = 2, pixels_per_square: int = 48
+    ) -> None:
+        """Prepare the texture and the per-sample rays of ``camera`` (done once).
+
+        Args:
+            board: the board to draw.
+            camera: the camera that sees it.
+            supersample: samples per output pixel along each axis.
+            pixels_per_square: texture resolution.
+
+        """
+        self.camera = camera
+        self.supersample = supersample
+        self.texture, self.board_to_texture = board_texture(board, pixels_per_square)
+        width, height = camera.resolution
+        s = supersample
+        ys, xs = np.mgrid[0 : height * s, 0 : width * s].astype(np.float64)
+        samples = np.stack([(xs + 0.5) / s - 0.5, (ys + 0.5) / s - 0.5], axis=-1)
+        self.rays = pixel_rays(camera, samples).astype(np.float32)
+
+    def render(self, rvec: np.ndarray, tvec: np.ndarray, background: int = 110) -> np.ndarray:
+        """Render the board at pose ``(rvec, tvec)`` (board -> camera, metres).
+
+        Returns:
+            ``uint8`` ``(H, W)`` image; ``background`` where the board is not seen.
+
+        """
+        rotation = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3))[0]
+        t = np.asarray(tvec, dtype=np.float64).reshape(3)
+        normal = rotation[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            depth = float(normal @ t) / (self.rays @ normal.astype(np.float32))
+            points = self.rays * depth[..., None] - t.astype(np.float32)
+            board_xy = points @ rotation[:, :2].astype(np.float32)  # R^T (p - t), first two axes
+        affine = self.board_to_texture.astype(np.float32)
+        map_x = board_xy[..., 0] * affine[0, 0] + affine[0, 2]
+        map_y = board_xy[..., 1] * affine[1, 1] + affine[1, 2]
+        behind = ~((depth > 0) & np.isfinite(map_x) & np.isfinite(map_y))
+        map_x[behind] = -1e4
+        map_y[behind] = -1e4
+        fine = cv2.remap(
+            self.texture, map_x, map_y, cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT, borderValue=background,
+        )  # fmt: skip
+        width, height = self.camera.resolution
+        return np.asarray(cv2.resize(fine, (width, height), interpolation=cv2.INTER_AREA))

@@ -1,0 +1,386 @@
+"""Reading stereo calibrations in other tools' formats: :func:`load_calibration`.
+
+The format is recognised from the files' contents; the paths' order matters
+only where it says which camera is which (first = cam0, second = cam1).
+
+**Kalibr camchain** (one YAML file with ``cam0`` and ``cam1``): read by
+:func:`rectify.rig.read_kalibr`.
+
+**OpenCV FileStorage** (YAML with ``!!opencv-matrix`` nodes or a ``%YAML:1.0``
+header, or XML; one to
+three files whose keys are merged, e.g. ``intrinsics.yml`` + ``extrinsics.yml``
+from OpenCV's stereo_calib sample). Accepted keys, first match wins:
+
+* cam0 matrix / distortion: ``K1 M1 cameraMatrix1 camera_matrix_1 K_left
+  camera_matrix_left`` / ``D1 distCoeffs1 dist_coeffs_1 D_left
+  distortion_coefficients_left``; cam1 likewise with ``2`` / ``right``.
+* Or one single-camera file per camera (OpenCV's calibration sample):
+  ``camera_matrix`` (or ``cameraMatrix``, ``K``) and
+  ``distortion_coefficients`` (or ``distCoeffs``, ``D``), first file cam0.
+* Extrinsic cam0 -> cam1 (``x1 = R x0 + T``, as ``cv2.stereoCalibrate``):
+  ``R`` (3x3 or a rotation vector) and ``T`` (3, **metres**), or ``T_cam1_cam0`` (4x4).
+* Image size: ``image_size``/``imageSize`` ``[w, h]``, or
+  ``image_width`` + ``image_height``; else the ``resolution`` argument.
+* Model: ``distortion_model`` (``radtan``/``plumb_bob`` or
+  ``equidistant``/``fisheye``) or a non-zero ``fisheye_model``; default radtan.
+
+**ROS camera_info pair** (two YAML files as written by camera_calibration:
+``image_width``, ``image_height``, ``camera_matrix``, ``distortion_model``
+``plumb_bob``/``rational_polynomial``/``equidistant``,
+``distortion_coefficients``, ``rectification_matrix``, ``projection_matrix``;
+first file cam0). The extrinsic comes from a third file when given (plain YAML
+with ``T_cam1_cam0`` 4x4, or ``R`` + ``T``; or a FileStorage with those keys),
+else from the rectified pair: ``R = R1^T R0`` and ``T = R1^T (t1 - t0)`` with
+``t_i = (Tx_i / fx', Ty_i / fy', 0)`` from each ``projection_matrix``
+(``Tx = -fx' * B``).
+
+Radtan models keep four coefficients (Kalibr's ``k1 k2 p1 p2``); a non-zero
+``k3`` or higher term is refused rather than silently dropped. Every value is
+checked: NaN or Inf is a one-line :class:`RectifyError` naming the file.
+"""
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from rectify.errors import RectifyError
+from rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
+
+_CAMERA_KEYS = {
+    "cam0": (("K1", "M1", "cameraMatrix1", "camera_matrix_1", "K_left", "camera_matrix_left"),
+             ("D1", "distCoeffs1", "dist_coeffs_1", "D_left", "distortion_coefficients_left")),
+    "cam1": (("K2", "M2", "cameraMatrix2", "camera_matrix_2", "K_right", "camera_matrix_right"),
+             ("D2", "distCoeffs2", "dist_coeffs_2", "D_right", "distortion_coefficients_right")),
+}  # fmt: skip
+_SINGLE_KEYS = (
+    ("camera_matrix", "cameraMatrix", "K"),
+    ("distortion_coefficients", "distCoeffs", "D"),
+)
+_MODEL_NAMES: dict[str, DistortionModel] = {
+    "radtan": "radtan", "plumb_bob": "radtan", "rational_polynomial": "radtan",
+    "equidistant": "equidistant", "equi": "equidistant", "fisheye": "equidistant",
+}  # fmt: skip
+_MAX_BASELINE_M = 10.0
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8", errors="replace")
+    except FileNotFoundError:
+        raise RectifyError(f"{path}: file not found") from None
+    except OSError as exc:
+        raise RectifyError(f"{path}: cannot read ({exc.strerror})") from None
+
+
+def _is_filestorage(path: Path, text: str) -> bool:
+    # OpenCV 4 writes "%YAML:1.0", OpenCV 5 "%YAML 1.2"; both tag matrices "!!opencv-matrix".
+    head = text.lstrip()[:200]
+    return (
+        head.startswith(("%YAML:1.", "<?xml", "<opencv_storage"))
+        or "!!opencv-matrix" in text
+        or path.suffix.lower() == ".xml"
+    )
+
+
+def _finite(path: Path, key: str, value: np.ndarray) -> np.ndarray:
+    if value.size == 0 or not np.all(np.isfinite(value)):
+        raise RectifyError(f"{path}: {key} is empty or contains NaN or Inf")
+    return value
+
+
+def _read_filestorage(path: Path) -> dict[str, tuple[Any, Path]]:
+    """Top-level FileStorage nodes as numpy arrays, floats or strings (with their file)."""
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    if not storage.isOpened():
+        raise RectifyError(f"{path}: not a readable OpenCV FileStorage file")
+    values: dict[str, tuple[Any, Path]] = {}
+    try:
+        for key in storage.root().keys():  # noqa: SIM118 (a cv2.FileNode, not a dict)
+            node = storage.getNode(key)
+            if node.isString():
+                values[key] = (node.string(), path)
+            elif node.isSeq():
+                values[key] = (np.array([node.at(i).real() for i in range(node.size())]), path)
+            elif node.isInt() or node.isReal():
+                values[key] = (np.array(node.real()), path)
+            elif node.isMap():
+                matrix = node.mat()
+                if matrix is not None:
+                    values[key] = (np.asarray(matrix, dtype=np.float64), path)
+    finally:
+        storage.release()
+    return values
+
+
+def _pick(
+    values: dict[str, tuple[Any, Path]], keys: tuple[str, ...]
+) -> tuple[np.ndarray, Path, str] | None:
+    for key in keys:
+        if key in values and not isinstance(values[key][0], str):
+            array, path = values[key]
+            return _finite(path, key, np.asarray(array, dtype=np.float64)), path, key
+    return None
+
+
+def _camera(
+    K: np.ndarray, D: np.ndarray, model: DistortionModel, size: tuple[int, int], where: str
+) -> CameraModel:
+    if K.size != 9:
+        raise RectifyError(f"{where}: camera matrix must be 3x3, got {K.size} values")
+    K = K.reshape(3, 3)
+    d = D.ravel()
+    if model == "equidistant":
+        if d.size != 4:
+            raise RectifyError(
+                f"{where}: equidistant distortion needs 4 coefficients, got {d.size}"
+            )
+    else:
+        if d.size < 4:
+            raise RectifyError(
+                f"{where}: radtan distortion needs at least 4 coefficients, got {d.size}"
+            )
+        if np.any(np.abs(d[4:]) > 1e-12):
+            raise RectifyError(
+                f"{where}: distortion has k3 or higher-order terms {d[4:].tolist()}; lenspair's "
+                "radtan model (as Kalibr's) has k1 k2 p1 p2 only: recalibrate with k3 fixed to 0"
+            )
+    try:
+        return CameraModel(
+            (float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])),
+            model, tuple(float(v) for v in d[:4]), size,  # type: ignore[arg-type]
+        )  # fmt: skip
+    except ValueError as exc:
+        raise RectifyError(f"{where}: {exc}") from None
+
+
+def _transform(R: np.ndarray, T: np.ndarray, where: str) -> np.ndarray:
+    if R.size == 3:
+        R = cv2.Rodrigues(R.reshape(3))[0]
+    if R.size != 9 or T.size != 3:
+        raise RectifyError(f"{where}: R must be 3x3 (or a rotation vector) and T 3 values")
+    matrix = np.eye(4)
+    matrix[:3, :3] = R.reshape(3, 3)
+    matrix[:3, 3] = T.ravel()
+    return _checked_transform(matrix, where)
+
+
+def _checked_transform(matrix: np.ndarray, where: str) -> np.ndarray:
+    if matrix.shape != (4, 4):
+        raise RectifyError(f"{where}: T_cam1_cam0 must be 4x4, got shape {matrix.shape}")
+    baseline = float(np.linalg.norm(matrix[:3, 3]))
+    if baseline > _MAX_BASELINE_M:
+        raise RectifyError(
+            f"{where}: baseline {baseline:g} is not plausible in metres (millimetres?); "
+            "translations must be in metres"
+        )
+    return matrix
+
+
+def _model(values: dict[str, tuple[Any, Path]]) -> DistortionModel:
+    if "distortion_model" in values:
+        name, path = values["distortion_model"]
+        if str(name).lower() not in _MODEL_NAMES:
+            valid = ", ".join(_MODEL_NAMES)
+            raise RectifyError(f"{path}: distortion_model: unknown {name!r}; valid: {valid}")
+        return _MODEL_NAMES[str(name).lower()]
+    for key in ("fisheye_model", "fisheye"):
+        if key in values and not isinstance(values[key][0], str) and float(values[key][0]) != 0:
+            return "equidistant"
+    return "radtan"
+
+
+def _find_size(values: dict[str, tuple[Any, Path]]) -> tuple[int, int] | None:
+    found = _pick(values, ("image_size", "imageSize"))
+    if found is not None and found[0].size == 2:
+        return int(found[0].ravel()[0]), int(found[0].ravel()[1])
+    width = _pick(values, ("image_width", "width"))
+    height = _pick(values, ("image_height", "height"))
+    if width is not None and height is not None:
+        return int(width[0].ravel()[0]), int(height[0].ravel()[0])
+    return None
+
+
+def _from_filestorage(paths: list[Path], resolution: tuple[int, int] | None) -> StereoRig:
+    where = " + ".join(str(p) for p in paths)
+    per_file = [_read_filestorage(p) for p in paths]
+    merged = {k: v for values in per_file for k, v in values.items()}
+    singles = [v for v in per_file if _pick(v, _SINGLE_KEYS[0]) and _pick(v, _SINGLE_KEYS[1])]
+    cameras = []
+    for index, name in enumerate(("cam0", "cam1")):
+        source = singles[index] if len(singles) >= 2 else merged
+        keys = _SINGLE_KEYS if len(singles) >= 2 else _CAMERA_KEYS[name]
+        K, D = _pick(source, keys[0]), _pick(source, keys[1])
+        if K is None or D is None:
+            raise RectifyError(
+                f"{where}: no {name} intrinsics (keys {'/'.join(keys[0][:3])}..., "
+                f"{'/'.join(keys[1][:3])}...)"
+            )
+        size = _find_size(source) or _find_size(merged) or resolution
+        if size is None:
+            raise RectifyError(f"{K[1]}: no image size (image_size, or image_width/image_height)")
+        cameras.append(_camera(K[0], D[0], _model(source), size, f"{K[1]}: {name}"))
+    transform = _pick(merged, ("T_cam1_cam0",))
+    if transform is not None:
+        matrix = _checked_transform(transform[0].reshape(4, 4), str(transform[1]))
+    else:
+        R = _pick(merged, ("R", "R_cam1_cam0", "rotation"))
+        T = _pick(merged, ("T", "t", "translation"))
+        if R is None or T is None:
+            raise RectifyError(f"{where}: no extrinsic (R and T, or T_cam1_cam0)")
+        matrix = _transform(R[0], T[0], str(R[1]))
+    return _rig(cameras[0], cameras[1], matrix, where)
+
+
+def _rig(cam0: CameraModel, cam1: CameraModel, matrix: np.ndarray, where: str) -> StereoRig:
+    try:
+        return StereoRig(cam0, cam1, matrix)
+    except ValueError as exc:
+        raise RectifyError(f"{where}: {exc}") from None
+
+
+def _ros_matrix(data: dict[str, Any], key: str, shape: tuple[int, int], path: Path) -> np.ndarray:
+    try:
+        node = data[key]
+        values = np.asarray(node["data"] if isinstance(node, dict) else node, dtype=np.float64)
+    except KeyError:
+        raise RectifyError(f"{path}: missing key {key!r}") from None
+    except (TypeError, ValueError):
+        raise RectifyError(f"{path}: {key}: expected a list of numbers") from None
+    _finite(path, key, values)
+    if shape[0] * shape[1] and values.size != shape[0] * shape[1]:
+        raise RectifyError(
+            f"{path}: {key}: expected {shape[0]}x{shape[1]} values, got {values.size}"
+        )
+    return values.reshape(shape) if shape[0] * shape[1] else values.ravel()
+
+
+def _ros_camera(path: Path, data: dict[str, Any]) -> tuple[CameraModel, np.ndarray, np.ndarray]:
+    name = str(data.get("distortion_model", "plumb_bob")).lower()
+    if name not in _MODEL_NAMES:
+        raise RectifyError(
+            f"{path}: distortion_model: unknown {name!r}; valid: {', '.join(_MODEL_NAMES)}"
+        )
+    try:
+        size = (int(data["image_width"]), int(data["image_height"]))
+    except (KeyError, TypeError, ValueError):
+        raise RectifyError(f"{path}: image_width and image_height must be integers") from None
+    K = _ros_matrix(data, "camera_matrix", (3, 3), path)
+    D = _ros_matrix(data, "distortion_coefficients", (0, 0), path)
+    camera = _camera(K, D, _MODEL_NAMES[name], size, str(path))
+    rectification = np.eye(3)
+    if "rectification_matrix" in data:
+        rectification = _ros_matrix(data, "rectification_matrix", (3, 3), path)
+    projection = np.zeros((3, 4))
+    if "projection_matrix" in data:
+        projection = _ros_matrix(data, "projection_matrix", (3, 4), path)
+    return camera, rectification, projection
+
+
+def _extrinsic_file(path: Path, text: str) -> np.ndarray:
+    if _is_filestorage(path, text):
+        values = _read_filestorage(path)
+    else:
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise RectifyError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        if not isinstance(data, dict):
+            raise RectifyError(f"{path}: expected a mapping with T_cam1_cam0, or R and T")
+        values = {}
+        for key, value in data.items():
+            try:
+                values[str(key)] = (np.asarray(value, dtype=np.float64), path)
+            except (TypeError, ValueError):
+                continue
+    if (found := _pick(values, ("T_cam1_cam0", "T_cn_cnm1"))) is not None:
+        return _checked_transform(found[0].reshape(4, 4), str(path))
+    R, T = _pick(values, ("R", "rotation")), _pick(values, ("T", "t", "translation"))
+    if R is None or T is None:
+        raise RectifyError(f"{path}: expected T_cam1_cam0 (4x4), or R and T")
+    return _transform(R[0], T[0], str(path))
+
+
+def _from_ros(paths: list[Path], texts: list[str]) -> tuple[StereoRig, str]:
+    parsed = []
+    for path, text in zip(paths[:2], texts[:2], strict=True):
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise RectifyError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        parsed.append(_ros_camera(path, data))
+    where = f"{paths[0]} + {paths[1]}"
+    (cam0, rect0, proj0), (cam1, rect1, proj1) = parsed
+    if len(paths) == 3:
+        rig = _rig(cam0, cam1, _extrinsic_file(paths[2], texts[2]), where)
+        return rig, f"ROS camera_info {where} (extrinsic from {paths[2]})"
+    offsets = []
+    for path, projection in ((paths[0], proj0), (paths[1], proj1)):
+        if projection[0, 0] <= 0 or projection[1, 1] <= 0:
+            raise RectifyError(
+                f"{path}: projection_matrix is missing or zero; give the extrinsic as a third file"
+            )
+        fx, fy = projection[0, 0], projection[1, 1]
+        offsets.append(np.array([projection[0, 3] / fx, projection[1, 3] / fy, 0.0]))
+    if np.linalg.norm(offsets[1] - offsets[0]) == 0:
+        raise RectifyError(
+            f"{where}: the projection matrices hold no baseline (Tx = Ty = 0); "
+            "give the extrinsic as a third file"
+        )
+    matrix = np.eye(4)
+    matrix[:3, :3] = rect1.T @ rect0
+    matrix[:3, 3] = rect1.T @ (offsets[1] - offsets[0])
+    rig = _rig(cam0, cam1, _checked_transform(matrix, where), where)
+    return rig, f"ROS camera_info {where} (extrinsic from the projection matrices)"
+
+
+def _is_ros(text: str) -> bool:
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return False
+    return isinstance(data, dict) and "camera_matrix" in data and "image_width" in data
+
+
+def load_calibration(
+    paths: Sequence[Path], resolution: tuple[int, int] | None = None
+) -> tuple[StereoRig, str]:
+    """Read a stereo calibration in any supported format (see the module docstring).
+
+    Args:
+        paths: one Kalibr camchain; one to three OpenCV FileStorage files; or
+            two ROS camera_info files (cam0, cam1) plus an optional extrinsic file.
+        resolution: image ``(width, height)`` to use when a FileStorage file
+            holds no image size (OpenCV's stereo_calib sample writes none).
+
+    Returns:
+        ``(rig, description)``: the rig, and a line saying where it came from.
+
+    Raises:
+        RectifyError: unknown format, missing keys, NaN/Inf, implausible values;
+            one line, naming the file.
+
+    """
+    files = [Path(p) for p in paths]
+    if not files:
+        raise RectifyError("calibration: no file given")
+    texts = [_read_text(p) for p in files]
+    if all(_is_filestorage(p, t) for p, t in zip(files, texts, strict=True)) and len(files) <= 3:
+        rig = _from_filestorage(files, resolution)
+        return rig, f"OpenCV FileStorage {' + '.join(str(p) for p in files)}"
+    if len(files) in (2, 3) and _is_ros(texts[0]) and _is_ros(texts[1]):
+        return _from_ros(files, texts)
+    if len(files) == 1:
+        try:
+            data = yaml.safe_load(texts[0])
+        except yaml.YAMLError as exc:
+            raise RectifyError(f"{files[0]}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        if isinstance(data, dict) and "cam0" in data:
+            return read_kalibr(files[0]), f"Kalibr camchain {files[0]}"
+    raise RectifyError(
+        f"{' + '.join(str(p) for p in files)}: not a recognised calibration; expected one Kalibr "
+        "camchain, 1-3 OpenCV FileStorage files, or two ROS camera_info files (cam0, cam1)"
+    )

@@ -1,0 +1,423 @@
+"""Stereo calibration from board views: each camera alone, then the pair with intrinsics fixed.
+
+The procedure (see DESIGN.md, "Geometry notes"):
+
+1. Each camera is calibrated alone from every view where it sees the board:
+   ``cv2.calibrateCamera`` with ``k3`` fixed to 0 for ``pinhole-radtan``
+   (Kalibr's radtan has four coefficients), ``cv2.fisheye.calibrate`` for
+   ``pinhole-equi`` (Kalibr's equidistant model).
+2. Views where both cameras see the board are matched corner by corner
+   (ChArUco: by id; a plain chessboard may be numbered from a different
+   corner in each camera, e.g. when cam1 is mounted upside down, so its
+   numbering is chosen per view to agree with the rig's relative pose).
+3. ``cv2.stereoCalibrate`` / ``cv2.fisheye.stereoCalibrate`` with the
+   intrinsics fixed estimates the rigid transform cam0 -> cam1.
+
+At every step a view whose RMS reprojection error exceeds
+``max(outlier_factor * median, outlier_floor_px)`` is rejected, and the step
+is repeated until none is; each rejection is recorded with its reason.
+Reprojection errors are RMS over corners of the Euclidean pixel residual.
+"""
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal, TypeVar
+
+import cv2
+import numpy as np
+
+from lenspair.progress import progress
+from rectify.boards import Board, Detection, detect_corners
+from rectify.calib_fits import (
+    fit_camera,
+    fit_stereo,
+    match_views,
+    rms,
+    stereo_residuals,
+    view_error,
+)
+from rectify.errors import RectifyError
+from rectify.rectification import StereoRectification, project_rays, row_disagreement
+from rectify.rig import CameraModel, DistortionModel, StereoRig
+
+CalibrationModel = Literal["pinhole-radtan", "pinhole-equi"]
+MODELS: dict[str, DistortionModel] = {"pinhole-radtan": "radtan", "pinhole-equi": "equidistant"}
+T = TypeVar("T")
+_COVERAGE_GRID = np.array([8, 6])
+_LOW_COVERAGE = 0.5
+
+
+def parse_model(name: str) -> CalibrationModel:
+    """Check a ``--model`` name; raises ``RectifyError`` listing the valid ones."""
+    if name not in MODELS:
+        raise RectifyError(f"model: unknown {name!r}; valid: {', '.join(MODELS)}")
+    return name  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """Knobs of :func:`calibrate_stereo`.
+
+    Attributes:
+        outlier_factor: reject views above this multiple of the median view error.
+        outlier_floor_px: never reject a view whose error is below this (pixels).
+        max_rounds: rejection rounds per step.
+        min_views: fewest views a step may be left with.
+        pose_tolerance_deg: a view whose cam0 -> cam1 rotation (from the two
+            board poses) differs more than this from the consensus is rejected.
+        alpha: rectification ``alpha`` used for the row-disagreement figure.
+
+    """
+
+    outlier_factor: float = 3.0
+    outlier_floor_px: float = 0.5
+    max_rounds: int = 10
+    min_views: int = 5
+    pose_tolerance_deg: float = 3.0
+    alpha: float = 0.0
+
+
+@dataclass(frozen=True)
+class RejectedView:
+    """A view left out of the calibration, and why.
+
+    Attributes:
+        view: index in the input sequence.
+        name: the caller's name for it (e.g. timestamps).
+        stage: ``cam0``, ``cam1`` (single-camera step) or ``stereo``.
+        error_px: its RMS reprojection error when rejected, if measured.
+        reason: one line for people.
+
+    """
+
+    view: int
+    name: str
+    stage: str
+    error_px: float | None
+    reason: str
+
+
+@dataclass(frozen=True, eq=False)
+class CameraCalibration:
+    """Result of calibrating one camera alone.
+
+    Attributes:
+        camera: the estimated camera model.
+        rms_px: RMS reprojection error over all corners of the used views.
+        views: indices of the views used.
+        view_errors_px: RMS error of each used view, same order.
+        rvecs: ``(V, 3)`` board -> camera rotation vectors of the used views.
+        tvecs: ``(V, 3)`` board -> camera translations, metres.
+        coverage: fraction of the cells of an 8x6 grid over the image that
+            hold a corner of a used view; where the board never went, the
+            distortion is extrapolated.
+
+    """
+
+    camera: CameraModel
+    rms_px: float
+    views: tuple[int, ...]
+    view_errors_px: tuple[float, ...]
+    rvecs: np.ndarray
+    tvecs: np.ndarray
+    coverage: float
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationResult:
+    """Everything :func:`calibrate_stereo` found out.
+
+    Attributes:
+        rig: the calibrated rig (write it with :func:`rectify.rig.write_kalibr`).
+        board: the board used.
+        model: ``pinhole-radtan`` or ``pinhole-equi``.
+        cameras: the single-camera calibrations of cam0 and cam1.
+        stereo_rms_px: RMS reprojection error of the stereo step, both cameras.
+        stereo_views: indices of the views used by the stereo step.
+        stereo_view_errors_px: RMS error of each of those views.
+        row_disagreement_px: RMS of rectified row differences of matched corners.
+        rejected: views left out, in the order they were rejected.
+        counts: ``views``, ``cam0_detected``, ``cam1_detected``, ``both_detected``.
+
+    """
+
+    rig: StereoRig
+    board: Board
+    model: CalibrationModel
+    cameras: tuple[CameraCalibration, CameraCalibration]
+    stereo_rms_px: float
+    stereo_views: tuple[int, ...]
+    stereo_view_errors_px: tuple[float, ...]
+    row_disagreement_px: float
+    rejected: tuple[RejectedView, ...]
+    counts: dict[str, int]
+
+    def summary(self) -> list[str]:
+        """Lines for people: RMS figures, baseline, row disagreement, rejected views."""
+        lines = [
+            f"views: {self.counts['views']}, board found in cam0 {self.counts['cam0_detected']}, "
+            f"cam1 {self.counts['cam1_detected']}, both {self.counts['both_detected']}"
+        ]
+        for name, cam in zip(("cam0", "cam1"), self.cameras, strict=True):
+            fx, fy, cx, cy = cam.camera.intrinsics
+            lines.append(
+                f"{name}: RMS {cam.rms_px:.3f} px over {len(cam.views)} views; "
+                f"f = ({fx:.2f}, {fy:.2f}), c = ({cx:.2f}, {cy:.2f}); "
+                f"board covered {cam.coverage:.0%} of the image"
+            )
+            if cam.coverage < _LOW_COVERAGE:
+                lines.append(
+                    f"warning: {name}: the board never reached much of the image; show it "
+                    "near the edges and corners too, or the distortion there is a guess"
+                )
+        lines.append(
+            f"stereo: RMS {self.stereo_rms_px:.3f} px over {len(self.stereo_views)} views; "
+            f"baseline {self.rig.baseline_m:.4f} m"
+        )
+        lines.append(f"rectified row disagreement: {self.row_disagreement_px:.3f} px RMS")
+        for r in self.rejected:
+            error = "" if r.error_px is None else f" ({r.error_px:.2f} px)"
+            lines.append(f"rejected {r.name} [{r.stage}]{error}: {r.reason}")
+        return lines
+
+    def report(self) -> dict[str, Any]:
+        """Plain JSON-serialisable report."""
+
+        def camera(cam: CameraCalibration) -> dict[str, Any]:
+            return {
+                "intrinsics": list(cam.camera.intrinsics),
+                "distortion_model": cam.camera.distortion_model,
+                "distortion_coeffs": list(cam.camera.distortion),
+                "resolution": list(cam.camera.resolution),
+                "rms_px": cam.rms_px,
+                "views": list(cam.views),
+                "view_errors_px": list(cam.view_errors_px),
+                "coverage": cam.coverage,
+            }
+
+        return {
+            "board": self.board.spec(),
+            "model": self.model,
+            "counts": dict(self.counts),
+            "cam0": camera(self.cameras[0]),
+            "cam1": camera(self.cameras[1]),
+            "stereo": {
+                "rms_px": self.stereo_rms_px,
+                "views": list(self.stereo_views),
+                "view_errors_px": list(self.stereo_view_errors_px),
+                "T_cam1_cam0": self.rig.T_cam1_cam0.tolist(),
+                "baseline_m": self.rig.baseline_m,
+            },
+            "row_disagreement_px": self.row_disagreement_px,
+            "rejected": [vars(r) for r in self.rejected],
+        }
+
+
+def _reject_outliers(
+    views: list[int],
+    fit: Callable[[list[int]], tuple[T, np.ndarray]],
+    stage: str,
+    names: Sequence[str],
+    options: CalibrationOptions,
+) -> tuple[T, list[int], np.ndarray, list[RejectedView]]:
+    """Fit, drop views far above the median error, refit until none is."""
+    rejected: list[RejectedView] = []
+    rounds = 0
+    while True:
+        if len(views) < options.min_views:
+            raise RectifyError(
+                f"{stage}: only {len(views)} usable board views, need at least {options.min_views}"
+            )
+        result, errors = fit(views)
+        median = float(np.median(errors))
+        threshold = max(options.outlier_factor * median, options.outlier_floor_px)
+        bad = [k for k, e in enumerate(errors) if e > threshold]
+        # most views "bad" means a wrong model or board spec, not bad views: keep them
+        if not bad or len(bad) > len(views) // 2 or rounds == options.max_rounds:
+            return result, views, errors, rejected
+        rounds += 1
+        for k in bad:
+            reason = (
+                f"reprojection error {errors[k]:.2f} px > {threshold:.2f} px "
+                f"({options.outlier_factor:g} x median {median:.3f} px)"
+            )
+            rejected.append(
+                RejectedView(views[k], names[views[k]], stage, float(errors[k]), reason)
+            )
+        views = [v for k, v in enumerate(views) if k not in bad]
+
+
+def calibrate_camera(
+    detections: Sequence[Detection | None],
+    board: Board,
+    model: CalibrationModel,
+    resolution: tuple[int, int],
+    stage: str = "cam0",
+    names: Sequence[str] | None = None,
+    options: CalibrationOptions | None = None,
+) -> tuple[CameraCalibration, list[RejectedView]]:
+    """Calibrate one camera from its detections, rejecting outlier views.
+
+    Args:
+        detections: per view, the corners found or ``None``.
+        board: the board (object points per corner id).
+        model: ``pinhole-radtan`` or ``pinhole-equi``.
+        resolution: image ``(width, height)``, pixels.
+        stage: name used in errors and rejections (``cam0``/``cam1``).
+        names: per-view names for rejections; ``view <i>`` by default.
+        options: rejection settings.
+
+    Raises:
+        RectifyError: too few usable views, or OpenCV failed.
+
+    """
+    options = options or CalibrationOptions()
+    names = names or [f"view {i}" for i in range(len(detections))]
+    distortion_model = MODELS[parse_model(model)]
+    objects = board.object_points()
+    data = {
+        i: (objects[d.ids], d.corners.astype(np.float64))
+        for i, d in enumerate(detections)
+        if d is not None
+    }
+
+    def fit(views: list[int]) -> tuple[tuple[CameraModel, np.ndarray, np.ndarray], np.ndarray]:
+        camera, rvecs, tvecs = fit_camera([data[v] for v in views], distortion_model, resolution)
+        errors = [view_error(camera, *data[v], rvecs[k], tvecs[k]) for k, v in enumerate(views)]
+        return (camera, rvecs, tvecs), np.asarray(errors)
+
+    try:
+        (camera, rvecs, tvecs), views, errors, rejected = _reject_outliers(
+            sorted(data), fit, stage, names, options
+        )
+    except RectifyError as exc:
+        raise RectifyError(
+            f"{stage}: {exc}" if not str(exc).startswith(stage) else str(exc)
+        ) from None
+    residuals = np.concatenate(
+        [project_rays(camera, data[v][0] @ cv2.Rodrigues(rvecs[k])[0].T + tvecs[k]) - data[v][1]
+         for k, v in enumerate(views)]
+    )  # fmt: skip
+    corners = np.concatenate([data[v][1] for v in views])
+    cells = np.floor(corners / resolution * _COVERAGE_GRID).astype(int)
+    inside = np.all((cells >= 0) & (cells < _COVERAGE_GRID), axis=1)
+    coverage = len({tuple(c) for c in cells[inside]}) / (_COVERAGE_GRID[0] * _COVERAGE_GRID[1])
+    calibration = CameraCalibration(
+        camera, rms(residuals), tuple(views), tuple(float(e) for e in errors), rvecs, tvecs,
+        coverage,
+    )  # fmt: skip
+    return calibration, rejected
+
+
+def calibrate_from_detections(
+    detections: Sequence[tuple[Detection | None, Detection | None]],
+    board: Board,
+    model: CalibrationModel,
+    resolutions: tuple[tuple[int, int], tuple[int, int]],
+    names: Sequence[str] | None = None,
+    options: CalibrationOptions | None = None,
+) -> CalibrationResult:
+    """Calibrate a stereo rig from corners already detected (see the module docstring).
+
+    Args:
+        detections: per view, ``(cam0 detection or None, cam1 detection or None)``.
+        board: the board seen.
+        model: ``pinhole-radtan`` or ``pinhole-equi``.
+        resolutions: ``(width, height)`` of cam0 and cam1 images, pixels.
+        names: per-view names used when reporting rejected views.
+        options: outlier rejection and rectification settings.
+
+    Raises:
+        RectifyError: too few usable views, OpenCV failure, implausible result.
+
+    """
+    options = options or CalibrationOptions()
+    names = list(names) if names is not None else [f"view {i}" for i in range(len(detections))]
+    if len(names) != len(detections):
+        raise ValueError(f"names: expected {len(detections)}, got {len(names)}")
+    monos = []
+    rejected: list[RejectedView] = []
+    for index, stage in enumerate(("cam0", "cam1")):
+        per_view = [pair[index] for pair in detections]
+        mono, dropped = calibrate_camera(
+            per_view, board, model, resolutions[index], stage, names, options
+        )
+        monos.append(mono)
+        rejected += dropped
+    cameras = (monos[0].camera, monos[1].camera)
+    usable = set(monos[0].views) & set(monos[1].views)
+    pairs = {v: (d0, d1) for v, (d0, d1) in enumerate(detections) if v in usable and d0 and d1}
+    matched, refused = match_views(pairs, board, cameras, options.pose_tolerance_deg)
+    rejected += [RejectedView(v, names[v], "stereo", None, r) for v, r in refused.items()]
+
+    def fit(views: list[int]) -> tuple[tuple[np.ndarray, list[np.ndarray]], np.ndarray]:
+        transform, rvecs, tvecs = fit_stereo([matched[v] for v in views], cameras)
+        residuals = [
+            stereo_residuals(matched[v], cameras, transform, rvecs[k], tvecs[k])
+            for k, v in enumerate(views)
+        ]
+        return (transform, residuals), np.asarray([rms(r) for r in residuals])
+
+    (transform, residuals), views, errors, dropped = _reject_outliers(
+        sorted(matched), fit, "stereo", names, options
+    )
+    rejected += dropped
+    try:
+        rig = StereoRig(cameras[0], cameras[1], transform)
+    except ValueError as exc:
+        raise RectifyError(f"stereo calibration gave an invalid transform: {exc}") from None
+    rectification = StereoRectification.from_rig(rig, alpha=options.alpha)
+    rows = row_disagreement(
+        rectification,
+        np.concatenate([matched[v][1] for v in views]),
+        np.concatenate([matched[v][2] for v in views]),
+    )
+    counts = {
+        "views": len(detections),
+        "cam0_detected": sum(d0 is not None for d0, _ in detections),
+        "cam1_detected": sum(d1 is not None for _, d1 in detections),
+        "both_detected": sum(d0 is not None and d1 is not None for d0, d1 in detections),
+    }
+    return CalibrationResult(
+        rig, board, model, (monos[0], monos[1]), rms(np.concatenate(residuals)), tuple(views),
+        tuple(float(e) for e in errors), rows, tuple(rejected), counts,
+    )  # fmt: skip
+
+
+def detect_views(
+    views: Sequence[tuple[np.ndarray, np.ndarray]], board: Board
+) -> list[tuple[Detection | None, Detection | None]]:
+    """Detect the board in each image of each stereo view (with a progress bar)."""
+    return [
+        (detect_corners(image0, board), detect_corners(image1, board))
+        for image0, image1 in progress(views, "detecting board", total=len(views), unit="view")
+    ]
+
+
+def calibrate_stereo(
+    views: Sequence[tuple[np.ndarray, np.ndarray]],
+    board: Board,
+    model: CalibrationModel,
+    names: Sequence[str] | None = None,
+    options: CalibrationOptions | None = None,
+) -> CalibrationResult:
+    """Calibrate a stereo rig from board images.
+
+    Args:
+        views: ``(cam0 image, cam1 image)`` pairs taken at the same instant;
+            ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)``.
+        board: the board seen.
+        model: ``pinhole-radtan`` or ``pinhole-equi``.
+        names: per-view names used when reporting rejected views.
+        options: outlier rejection and rectification settings.
+
+    """
+    if not views:
+        raise RectifyError("calibration: no views given")
+    resolutions = (
+        (views[0][0].shape[1], views[0][0].shape[0]),
+        (views[0][1].shape[1], views[0][1].shape[0]),
+    )
+    return calibrate_from_detections(
+        detect_views(views, board), board, model, resolutions, names, options
+    )

@@ -1,0 +1,396 @@
+"""Stereo rectification that composes: rectified pixel coordinates <-> raw pixel coordinates.
+
+A :class:`StereoRectification` is computed once per recording from a
+:class:`~rectify.rig.StereoRig`. It never resamples an image by itself unless
+asked (:meth:`StereoRectification.rectify`): later stages compose the
+rectification with a homography and a crop by mapping *their* output pixel
+grid to rectified coordinates and then calling
+:meth:`StereoRectification.raw_coordinates`, so each image is interpolated
+exactly once (``cv2.remap`` on the raw image).
+
+Conventions:
+
+* Pixel coordinates follow OpenCV: the centre of the top-left pixel is ``(0, 0)``.
+* Both rectified views share one camera matrix ``K`` (square pixels, same
+  principal point: ``cv2.CALIB_ZERO_DISPARITY``); a point at depth ``Z``
+  appears on the same row in both views, at ``x0 - x1 = f * B / Z`` for a
+  cam1 on cam0's right (``B`` = :attr:`StereoRectification.baseline_m`).
+* The rectifying rotations come from ``cv2.stereoRectify`` (they do not depend
+  on the lens distortion, so the same call serves both distortion models).
+  ``cv2.stereoRectify`` splits the relative rotation in two halves, which
+  turns both images by 90 deg when cam1 is mounted upside down; cam1 is
+  therefore first turned by the nearest multiple of 90 deg about its optical
+  axis (:attr:`StereoRectification.cam1_quarter_turns`), so rectified views
+  are upright in cam0's orientation.
+* The rectified camera matrix is chosen here, not by OpenCV, with the meaning
+  of ``cv2.stereoRectify``'s ``alpha`` for both distortion models: ``alpha =
+  0`` (the default) zooms so that every rectified pixel of both views comes
+  from inside its raw image (no black borders; the usable region is the whole
+  image); ``alpha = 1`` keeps every raw pixel (black borders); values between
+  interpolate. ``cv2.fisheye.stereoRectify``'s ``balance`` has no such
+  guarantee, which is why it is not used.
+"""
+
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from rectify.errors import RectifyError
+from rectify.rig import CameraModel, StereoRig
+
+View = Literal["cam0", "cam1"]
+OUTSIDE = -1000.0
+"""Map value for rectified pixels with no raw source (remap then yields the border value)."""
+
+_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+
+
+def _monotonic_limit(camera: CameraModel) -> float:
+    """Largest radius (radtan: ``r``; equidistant: ``theta``) where distortion is monotonic."""
+    k = camera.distortion
+    if camera.distortion_model == "radtan":
+        # d/dr [r (1 + k1 r^2 + k2 r^4)] = 1 + 3 k1 s + 5 k2 s^2, s = r^2
+        coefficients = [5 * k[1], 3 * k[0], 1.0]
+    else:
+        # d/dtheta [theta (1 + k1 t^2 + ... + k4 t^8)], t = theta, in s = theta^2
+        coefficients = [9 * k[3], 7 * k[2], 5 * k[1], 3 * k[0], 1.0]
+    roots = np.roots(np.trim_zeros(np.asarray(coefficients), "f"))
+    positive = [r.real for r in roots if abs(r.imag) < 1e-12 and r.real > 0]
+    limit = float(np.sqrt(min(positive))) if positive else np.inf
+    return min(limit, np.pi / 2) if camera.distortion_model == "equidistant" else limit
+
+
+def project_rays(camera: CameraModel, rays: np.ndarray) -> np.ndarray:
+    """Project camera-frame rays to raw (distorted) pixel coordinates.
+
+    Args:
+        camera: the camera model.
+        rays: ``(..., 3)`` directions (or points) in the camera frame, any scale.
+
+    Returns:
+        ``(..., 2)`` float64 pixel coordinates; NaN for rays at or behind the
+        image plane and beyond the radius where the distortion polynomial
+        stops being monotonic (those would fold back into the image).
+
+    """
+    rays = np.asarray(rays, dtype=np.float64)
+    z = rays[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = np.where(z > 0, rays[..., 0] / z, np.nan)
+        y = np.where(z > 0, rays[..., 1] / z, np.nan)
+    k = camera.distortion
+    r2 = x * x + y * y
+    limit = _monotonic_limit(camera)
+    if camera.distortion_model == "radtan":
+        radial = 1.0 + k[0] * r2 + k[1] * r2 * r2
+        xd = x * radial + 2 * k[2] * x * y + k[3] * (r2 + 2 * x * x)
+        yd = y * radial + k[2] * (r2 + 2 * y * y) + 2 * k[3] * x * y
+        bad = r2 >= limit * limit
+    else:
+        r = np.sqrt(r2)
+        theta = np.arctan(r)
+        t2 = theta * theta
+        theta_d = theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = np.where(r > 1e-12, theta_d / np.maximum(r, 1e-12), 1.0)
+        xd, yd = x * scale, y * scale
+        bad = theta >= limit
+    fx, fy, cx, cy = camera.intrinsics
+    pixels = np.stack([fx * xd + cx, fy * yd + cy], axis=-1)
+    pixels[bad | ~np.isfinite(r2)] = np.nan
+    return pixels
+
+
+def pixel_rays(camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
+    """Back-project raw pixel coordinates to camera-frame rays ``(x, y, 1)``.
+
+    Uses ``cv2.undistortPoints`` / ``cv2.fisheye.undistortPoints`` with tight
+    termination criteria (OpenCV's default of 5 iterations is not enough
+    for strong distortion), and checks each result by projecting it back:
+    a calibration fitted to board views that never reached the image corners
+    may have no ray at all for a corner pixel.
+
+    Args:
+        camera: the camera model.
+        pixels: ``(..., 2)`` raw pixel coordinates.
+
+    Returns:
+        ``(..., 3)`` float64 rays with ``z = 1``; NaN where no ray projects
+        back onto the pixel (within 0.01 px).
+
+    """
+    pixels = np.asarray(pixels, dtype=np.float64)
+    flat = pixels.reshape(-1, 1, 2)
+    if flat.shape[0] == 0:
+        return np.zeros((*pixels.shape[:-1], 3))
+    if camera.distortion_model == "radtan":
+        iterative = getattr(cv2, "undistortPointsIter", None)  # OpenCV 4's name for it
+        if iterative is not None:
+            normalized = iterative(flat, camera.K, camera.dist_coeffs, None, None, _CRITERIA)
+        else:
+            normalized = cv2.undistortPoints(flat, camera.K, camera.dist_coeffs, criteria=_CRITERIA)
+    else:
+        normalized = cv2.fisheye.undistortPoints(
+            flat, camera.K, camera.dist_coeffs, criteria=_CRITERIA
+        )
+    xy = np.asarray(normalized, dtype=np.float64).reshape(*pixels.shape[:-1], 2)
+    rays = np.concatenate([xy, np.ones((*xy.shape[:-1], 1))], axis=-1)
+    with np.errstate(invalid="ignore"):
+        wrong = ~(np.linalg.norm(project_rays(camera, rays) - pixels, axis=-1) < 0.01)
+    rays[wrong] = np.nan
+    return rays
+
+
+def _rotation_z(quarter_turns: int) -> np.ndarray:
+    c, s = [(1, 0), (0, 1), (-1, 0), (0, -1)][quarter_turns % 4]
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _border(resolution: tuple[int, int], per_side: int = 64) -> list[np.ndarray]:
+    """Points along the outermost pixel centres of an image, ``(per_side, 2)`` per edge.
+
+    Pixel centres, not pixel edges, so that bilinear sources stay inside the image.
+    """
+    width, height = resolution
+    xs = np.linspace(0.0, width - 1.0, per_side)
+    ys = np.linspace(0.0, height - 1.0, per_side)
+    return [
+        np.column_stack([np.zeros(per_side), ys]),
+        np.column_stack([np.full(per_side, width - 1.0), ys]),
+        np.column_stack([xs, np.zeros(per_side)]),
+        np.column_stack([xs, np.full(per_side, height - 1.0)]),
+    ]
+
+
+def _regions(camera: CameraModel, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inner and outer rectangles ``(x0, x1, y0, y1)`` of a raw image on the rectified plane."""
+    sides = []
+    for edge in _border(camera.resolution):
+        rays = pixel_rays(camera, edge) @ rotation.T
+        ok = rays[:, 2] > 1e-6  # False for NaN: pixels without a ray are skipped
+        sides.append(rays[ok, :2] / rays[ok, 2:])
+    if any(len(s) == 0 for s in sides):
+        raise RectifyError(
+            "rectification: a whole image edge has no valid ray (behind the rectified plane, "
+            "or outside the range of the distortion model)"
+        )
+    everything = np.concatenate(sides)
+    low, high = everything.min(axis=0), everything.max(axis=0)
+    outer = np.array([low[0], high[0], low[1], high[1]])
+    # Which raw edge ends up on which rectified side depends on cam1's mounting.
+    means = np.array([s.mean(axis=0) for s in sides])
+    left, right = np.argmin(means[:, 0]), np.argmax(means[:, 0])
+    top, bottom = np.argmin(means[:, 1]), np.argmax(means[:, 1])
+    inner = np.array(
+        [
+            sides[left][:, 0].max(),
+            sides[right][:, 0].min(),
+            sides[top][:, 1].max(),
+            sides[bottom][:, 1].min(),
+        ]
+    )
+    return inner, outer
+
+
+def _fit(rectangle: np.ndarray, size: tuple[int, int], fill: bool) -> tuple[float, float, float]:
+    """Focal length and principal point that fit ``rectangle`` to ``size`` (fill or contain)."""
+    x0, x1, y0, y1 = rectangle
+    if x1 <= x0 or y1 <= y0:
+        raise RectifyError("rectification: the two views have no common valid region")
+    scales = (size[0] / (x1 - x0), size[1] / (y1 - y0))
+    f = max(scales) if fill else min(scales)
+    cx = (size[0] - 1) / 2 - f * (x0 + x1) / 2
+    cy = (size[1] - 1) / 2 - f * (y0 + y1) / 2
+    return f, cx, cy
+
+
+@dataclass(frozen=True, eq=False)
+class StereoRectification:
+    """Row-aligned rectification of a stereo rig.
+
+    Attributes:
+        rig: the calibrated rig.
+        rotations: ``(2, 3, 3)`` float64; ``rotations[i]`` takes a direction in
+            raw camera ``i``'s frame to the common rectified frame (OpenCV's
+            ``R1``/``R2``, including cam1's quarter turns).
+        K: ``(3, 3)`` float64 camera matrix shared by both rectified views.
+        size: rectified image ``(width, height)``, pixels.
+        baseline_m: signed rectified baseline: cam1's optical centre lies at
+            ``x = baseline_m`` in the rectified frame of cam0 (metres).
+        cam1_quarter_turns: 90 deg turns of cam1 about its optical axis undone
+            before ``cv2.stereoRectify`` (2 for a cam1 mounted upside down).
+        alpha: 0 = every pixel valid in both views, 1 = every raw pixel kept.
+
+    """
+
+    rig: StereoRig
+    rotations: np.ndarray
+    K: np.ndarray
+    size: tuple[int, int]
+    baseline_m: float
+    cam1_quarter_turns: int
+    alpha: float
+
+    @classmethod
+    def from_rig(
+        cls, rig: StereoRig, alpha: float = 0.0, size: tuple[int, int] | None = None
+    ) -> "StereoRectification":
+        """Compute the rectification of ``rig``.
+
+        Args:
+            rig: calibrated rig, horizontal (baseline mostly along cam0's x).
+            alpha: in ``[0, 1]``, see the module docstring.
+            size: rectified ``(width, height)``; cam0's resolution by default.
+
+        Raises:
+            RectifyError: vertical rig, no common valid region, bad ``alpha``.
+
+        """
+        if not 0.0 <= alpha <= 1.0:
+            raise RectifyError(f"rectification alpha: expected 0..1, got {alpha}")
+        size = size or rig.cam0.resolution
+        # cam1's roll relative to cam0, rounded to quarter turns: trace of Rz(-k) R is largest.
+        turns = int(np.argmax([np.trace(_rotation_z(k) @ rig.R) for k in range(4)]))
+        turn = _rotation_z(turns)
+        r_virtual, t_virtual = turn @ rig.R, turn @ rig.t
+        centre = -rig.R.T @ rig.t  # cam1's optical centre in cam0's frame
+        if abs(centre[0]) < abs(centre[1]):
+            raise RectifyError(
+                f"rectification: the baseline {np.round(centre, 4).tolist()} m is mostly vertical; "
+                "only side-by-side rigs are supported"
+            )
+        zero = np.zeros(5)
+        r0, r1_virtual, *_ = cv2.stereoRectify(
+            rig.cam0.K, zero, rig.cam1.K, zero, size, r_virtual, t_virtual.reshape(3, 1),
+            flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1,
+        )  # fmt: skip
+        rotations = np.stack([np.asarray(r0), np.asarray(r1_virtual) @ turn])
+        inner0, outer0 = _regions(rig.cam0, rotations[0])
+        inner1, outer1 = _regions(rig.cam1, rotations[1])
+        inner = np.array([max(inner0[0], inner1[0]), min(inner0[1], inner1[1]),
+                          max(inner0[2], inner1[2]), min(inner0[3], inner1[3])])  # fmt: skip
+        outer = np.array([min(outer0[0], outer1[0]), max(outer0[1], outer1[1]),
+                          min(outer0[2], outer1[2]), max(outer0[3], outer1[3])])  # fmt: skip
+        fit0, fit1 = _fit(inner, size, fill=True), _fit(outer, size, fill=False)
+        f, cx, cy = ((1 - alpha) * a + alpha * b for a, b in zip(fit0, fit1, strict=True))
+        K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+        baseline = float(-(rotations[1] @ rig.t)[0])
+        return cls(rig, rotations, K, tuple(size), baseline, turns, alpha)  # type: ignore[arg-type]
+
+    def _index(self, view: View) -> int:
+        if view not in ("cam0", "cam1"):
+            raise ValueError(f"view must be 'cam0' or 'cam1', got {view!r}")
+        return 0 if view == "cam0" else 1
+
+    def rotation(self, view: View) -> np.ndarray:
+        """Rectifying rotation of ``view`` (OpenCV's ``R1``/``R2``), ``(3, 3)`` float64."""
+        return np.array(self.rotations[self._index(view)], dtype=np.float64)
+
+    def projection(self, view: View) -> np.ndarray:
+        """Rectified projection matrix (OpenCV's ``P1``/``P2``), ``(3, 4)`` float64."""
+        P = np.zeros((3, 4))
+        P[:, :3] = self.K
+        if view == "cam1":
+            P[0, 3] = -self.K[0, 0] * self.baseline_m
+        return P
+
+    def rectified_to_raw(self, view: View, points_xy: np.ndarray) -> np.ndarray:
+        """Map rectified pixel coordinates of ``view`` to raw (distorted) pixel coordinates.
+
+        Args:
+            view: ``cam0`` or ``cam1``.
+            points_xy: ``(..., 2)`` rectified pixel coordinates, any float dtype.
+
+        Returns:
+            ``(..., 2)`` float32 raw pixel coordinates; NaN where no raw ray exists.
+
+        """
+        points = np.asarray(points_xy, dtype=np.float64)
+        f, cx, cy = self.K[0, 0], self.K[0, 2], self.K[1, 2]
+        rays = np.stack(
+            [(points[..., 0] - cx) / f, (points[..., 1] - cy) / f, np.ones(points.shape[:-1])],
+            axis=-1,
+        )
+        raw = rays @ self.rotations[self._index(view)]  # R^T applied to row vectors
+        return project_rays(self.rig.camera(view), raw).astype(np.float32)
+
+    raw_coordinates = rectified_to_raw
+
+    def raw_to_rectified(self, view: View, points_xy: np.ndarray) -> np.ndarray:
+        """Map raw pixel coordinates of ``view`` to rectified pixel coordinates.
+
+        Args:
+            view: ``cam0`` or ``cam1``.
+            points_xy: ``(..., 2)`` raw pixel coordinates.
+
+        Returns:
+            ``(..., 2)`` float64 rectified pixel coordinates; NaN behind the rectified plane.
+
+        """
+        rays = pixel_rays(self.rig.camera(view), points_xy) @ self.rotations[self._index(view)].T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.where(rays[..., 2:] > 1e-9, rays[..., 2:], np.nan)
+            xy = rays[..., :2] / z
+        return np.asarray(xy * self.K[0, 0] + self.K[[0, 1], [2, 2]], dtype=np.float64)
+
+    def maps(self, view: View) -> tuple[np.ndarray, np.ndarray]:
+        """``cv2.remap`` maps from the rectified image of ``view`` to its raw image.
+
+        Returns:
+            ``(map_x, map_y)``, each ``(H, W)`` float32 raw pixel coordinates
+            for the rectified grid of :attr:`size`; :data:`OUTSIDE` where no
+            raw ray exists.
+
+        """
+        width, height = self.size
+        ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+        raw = self.rectified_to_raw(view, np.stack([xs, ys], axis=-1))
+        raw[~np.isfinite(raw)] = OUTSIDE
+        return np.ascontiguousarray(raw[..., 0]), np.ascontiguousarray(raw[..., 1])
+
+    def valid_region(self, view: View) -> np.ndarray:
+        """Rectified pixels of ``view`` whose bilinear source lies inside the raw image.
+
+        Returns:
+            ``(H, W)`` bool mask over the rectified grid of :attr:`size`.
+
+        """
+        map_x, map_y = self.maps(view)
+        width, height = self.rig.camera(view).resolution
+        return (map_x >= 0) & (map_x <= width - 1) & (map_y >= 0) & (map_y <= height - 1)
+
+    def rectify(self, view: View, image: np.ndarray) -> np.ndarray:
+        """Resample a raw image of ``view`` into its rectified view (bilinear, black outside)."""
+        map_x, map_y = self.maps(view)
+        return np.asarray(cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderValue=0))
+
+
+def row_differences(
+    rectification: StereoRectification, points0: np.ndarray, points1: np.ndarray
+) -> np.ndarray:
+    """Rectified row of each matched point in cam0 minus its row in cam1.
+
+    Args:
+        rectification: the rectification to judge.
+        points0: ``(N, 2)`` raw pixel coordinates in cam0.
+        points1: ``(N, 2)`` raw pixel coordinates of the same points in cam1.
+
+    Returns:
+        ``(N,)`` float64 ``y0 - y1`` in rectified pixels.
+
+    """
+    y0 = rectification.raw_to_rectified("cam0", points0)[..., 1]
+    y1 = rectification.raw_to_rectified("cam1", points1)[..., 1]
+    return np.asarray(y0 - y1, dtype=np.float64)
+
+
+def row_disagreement(
+    rectification: StereoRectification, points0: np.ndarray, points1: np.ndarray
+) -> float:
+    """RMS of :func:`row_differences` (rectified pixels); 0 for perfectly aligned rows."""
+    differences = row_differences(rectification, points0, points1)
+    if differences.size == 0:
+        raise RectifyError("row disagreement: no matched points")
+    return float(np.sqrt(np.mean(differences**2)))

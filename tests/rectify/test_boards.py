@@ -1,0 +1,95 @@
+import cv2
+import numpy as np
+import pytest
+
+from rectify.boards import Board, BoardRenderer, board_texture, detect_corners, parse_board_spec
+from rectify.errors import RectifyError
+from rectify.rectification import project_rays
+from rectify.rig import CameraModel
+
+CAMERA = CameraModel(
+    (350.0, 351.0, 360.0, 270.0), "equidistant", (0.01, -0.002, 0.001, -0.0005), (720, 540)
+)
+
+
+def test_parse_chessboard_and_charuco_specs() -> None:
+    board = parse_board_spec("chessboard:9x6:0.025")
+    assert (board.kind, board.columns, board.rows, board.square_m) == ("chessboard", 9, 6, 0.025)
+    assert board.grid == (9, 6) and board.num_corners == 54
+    charuco = parse_board_spec("ChArUco:8X6:0.04:0.03:5x5_100")
+    assert charuco.dictionary == "DICT_5X5_100" and charuco.marker_m == 0.03
+    assert charuco.grid == (7, 5) and charuco.num_corners == 35
+    assert parse_board_spec("charuco:8x6:0.04:0.03").dictionary == "DICT_5X5_100"
+    assert parse_board_spec(charuco.spec()) == charuco
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("checker:9x6:0.02", r"unknown board type 'checker'; expected chessboard:COLSxROWS"),
+        ("chessboard:9x6", r"expected chessboard:COLSxROWS:SQUARE_M"),
+        ("chessboard:9by6:0.02", r"COLSxROWS must look like 9x6, got '9by6'"),
+        ("chessboard:9x6:abc", r"SQUARE_M must be a length in metres, got 'abc'"),
+        ("chessboard:9x6:25", r"did you give millimetres"),
+        ("chessboard:1x6:0.02", r"at least 2x2 inner corners, got 1x6"),
+        ("charuco:8x6:0.04", r"expected charuco:COLSxROWS:SQUARE_M:MARKER_M\[:DICT\]"),
+        ("charuco:8x6:0.04:0.05", r"expected 0 < MARKER_M < SQUARE_M = 0.04"),
+        ("charuco:8x6:0.04:0.03:DICT_9X9_1", r"unknown 'DICT_9X9_1'; valid: DICT_4X4_100"),
+        ("charuco:20x20:0.04:0.03:DICT_4X4_50", r"needs 200 markers, DICT_4X4_50 has 50"),
+    ],
+)
+def test_bad_board_specs_say_what_is_wrong(spec: str, message: str) -> None:
+    with pytest.raises(RectifyError, match=message):
+        parse_board_spec(spec)
+
+
+def test_chessboard_symmetries_are_rotations_of_the_grid() -> None:
+    board = parse_board_spec("chessboard:4x3:0.1")
+    perms = board.symmetries()
+    assert len(perms) == 2 and list(perms[0]) == list(range(12))
+    assert list(perms[1]) == list(range(11, -1, -1))  # a 180 deg turn reverses the numbering
+    assert len(parse_board_spec("chessboard:5x5:0.1").symmetries()) == 4
+    assert len(parse_board_spec("charuco:5x4:0.1:0.07").symmetries()) == 1
+
+
+def test_detect_chessboard_in_a_warped_image() -> None:
+    board = parse_board_spec("chessboard:7x5:0.03")
+    texture, board_to_texture = board_texture(board, pixels_per_square=40)
+    H = np.array([[0.9, 0.12, 60.0], [-0.05, 0.85, 40.0], [1e-4, 2e-4, 1.0]])
+    image = cv2.warpPerspective(texture, H, (640, 480), flags=cv2.INTER_AREA, borderValue=120)
+    detection = detect_corners(image, board)
+    assert detection is not None and len(detection) == board.num_corners
+    xy = board.object_points()[:, :2] @ board_to_texture[:2, :2].T + board_to_texture[:2, 2]
+    truth = cv2.perspectiveTransform(xy.reshape(-1, 1, 2), H).reshape(-1, 2)
+    error = np.linalg.norm(detection.corners - truth, axis=1)
+    if error.max() > 5:  # the detector may number a chessboard from the opposite corner
+        error = np.linalg.norm(detection.corners[::-1] - truth, axis=1)
+    assert error.max() < 0.25
+
+
+@pytest.mark.parametrize("spec", ["chessboard:9x6:0.05", "charuco:10x7:0.05:0.037"])
+def test_detect_board_seen_through_a_fisheye_lens(spec: str) -> None:
+    board = parse_board_spec(spec)
+    renderer = BoardRenderer(board, CAMERA)
+    rotation = cv2.Rodrigues(np.array([0.25, -0.3, 0.1]))[0]
+    t = np.array([0.05, 0.0, 0.75]) - rotation @ board.object_points().mean(axis=0)
+    image = renderer.render(cv2.Rodrigues(rotation)[0], t)
+    detection = detect_corners(image, board)
+    assert detection is not None and len(detection) >= 0.9 * board.num_corners
+    truth = project_rays(CAMERA, board.object_points() @ rotation.T + t)[detection.ids]
+    error = np.linalg.norm(detection.corners - truth, axis=1)
+    if board.kind == "chessboard" and error.max() > 5:
+        error = np.linalg.norm(detection.corners[::-1] - truth, axis=1)
+    assert np.sqrt(np.mean(error**2)) < 0.2
+    assert detection.corners.dtype == np.float32 and detection.ids.dtype == np.int32
+
+
+def test_no_board_gives_none() -> None:
+    blank = np.full((240, 320), 128, np.uint8)
+    assert detect_corners(blank, parse_board_spec("chessboard:9x6:0.05")) is None
+    assert detect_corners(blank, parse_board_spec("charuco:5x4:0.05:0.04")) is None
+
+
+def test_board_is_validated_on_construction() -> None:
+    with pytest.raises(RectifyError, match="marker size"):
+        Board("charuco", 5, 4, 0.05, None, "DICT_5X5_100")

@@ -1,0 +1,213 @@
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from rectify.calib_io import load_calibration
+from rectify.errors import RectifyError
+from rectify.rectification import StereoRectification
+from rectify.rig import CameraModel, DistortionModel, StereoRig, write_kalibr
+
+
+def make_rig(model: DistortionModel = "radtan", rotated: bool = False) -> StereoRig:
+    radtan = model == "radtan"
+    d0 = (-0.28, 0.07, 0.0005, -0.0003) if radtan else (0.01, -0.002, 0.001, 0.0)
+    d1 = (-0.27, 0.065, -0.0004, 0.0002) if radtan else (0.012, -0.001, 0.0005, -0.0003)
+    cam0 = CameraModel((350.0, 351.0, 360.0, 270.0), model, d0, (720, 540))
+    cam1 = CameraModel((352.0, 352.5, 358.0, 271.0), model, d1, (720, 540))
+    R = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
+    if rotated:
+        R = np.diag([-1.0, -1.0, 1.0]) @ R
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ np.array([0.11, 0.002, -0.001])
+    return StereoRig(cam0, cam1, T)
+
+
+def assert_same_rig(found: StereoRig, expected: StereoRig, atol: float = 1e-9) -> None:
+    for a, b in ((found.cam0, expected.cam0), (found.cam1, expected.cam1)):
+        assert a.distortion_model == b.distortion_model and a.resolution == b.resolution
+        np.testing.assert_allclose(a.intrinsics, b.intrinsics, atol=atol)
+        np.testing.assert_allclose(a.distortion, b.distortion, atol=atol)
+    np.testing.assert_allclose(found.T_cam1_cam0, expected.T_cam1_cam0, atol=atol)
+
+
+def write_storage(path: Path, values: dict[str, Any]) -> Path:
+    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    for key, value in values.items():
+        storage.write(key, value)
+    storage.release()
+    return path
+
+
+def opencv_stereo_keys(rig: StereoRig, naming: str = "K") -> dict[str, Any]:
+    m = "K" if naming == "K" else "M"
+    return {
+        f"{m}1": rig.cam0.K,
+        "D1": rig.cam0.dist_coeffs,
+        f"{m}2": rig.cam1.K,
+        "D2": rig.cam1.dist_coeffs,
+        "R": rig.R,
+        "T": rig.t.reshape(3, 1),
+    }
+
+
+def test_kalibr_camchain(tmp_path: Path) -> None:
+    rig = make_rig("equidistant", rotated=True)
+    write_kalibr(tmp_path / "camchain.yaml", rig)
+    found, source = load_calibration([tmp_path / "camchain.yaml"])
+    assert_same_rig(found, rig)
+    assert source.startswith("Kalibr camchain") and "camchain.yaml" in source
+
+
+@pytest.mark.parametrize("suffix", [".yaml", ".xml"])
+def test_opencv_stereo_file(tmp_path: Path, suffix: str) -> None:
+    rig = make_rig()
+    keys = {**opencv_stereo_keys(rig), "image_size": np.array([720, 540])}
+    path = write_storage(tmp_path / f"stereo{suffix}", keys)
+    found, source = load_calibration([path])
+    assert_same_rig(found, rig)
+    assert source.startswith("OpenCV FileStorage")
+
+
+def test_opencv_sample_intrinsics_and_extrinsics_files(tmp_path: Path) -> None:
+    rig = make_rig()
+    keys = opencv_stereo_keys(rig, naming="M")
+    intrinsics = write_storage(
+        tmp_path / "intrinsics.yml", {k: keys[k] for k in ("M1", "D1", "M2", "D2")}
+    )
+    extrinsics = write_storage(
+        tmp_path / "extrinsics.yml", {"R": keys["R"], "T": keys["T"], "Q": np.eye(4)}
+    )
+    with pytest.raises(RectifyError, match=r"intrinsics\.yml: no image size"):
+        load_calibration([intrinsics, extrinsics])
+    found, _ = load_calibration([intrinsics, extrinsics], resolution=(720, 540))
+    assert_same_rig(found, rig)
+
+
+def test_opencv_single_camera_files_fisheye(tmp_path: Path) -> None:
+    rig = make_rig("equidistant", rotated=True)
+    paths = []
+    for name, camera in (("left", rig.cam0), ("right", rig.cam1)):
+        values = {
+            "image_width": 720,
+            "image_height": 540,
+            "fisheye_model": 1,
+            "camera_matrix": camera.K,
+            "distortion_coefficients": camera.dist_coeffs,
+        }
+        paths.append(write_storage(tmp_path / f"{name}.yml", values))
+    rotation_vector = cv2.Rodrigues(rig.R)[0]
+    paths.append(write_storage(tmp_path / "stereo.yml", {"R": rotation_vector, "T": rig.t}))
+    found, _ = load_calibration(paths)
+    assert_same_rig(found, rig, atol=1e-9)
+
+
+def test_opencv_k3_is_refused_not_dropped(tmp_path: Path) -> None:
+    rig = make_rig()
+    keys = {**opencv_stereo_keys(rig), "image_size": np.array([720, 540])}
+    keys["D2"] = np.array([[-0.28, 0.07, 0.0, 0.0, 0.013]])
+    path = write_storage(tmp_path / "stereo.yml", keys)
+    with pytest.raises(RectifyError, match=r"stereo\.yml: cam1: distortion has k3 .*recalibrate"):
+        load_calibration([path])
+
+
+def test_opencv_baseline_in_millimetres_is_refused(tmp_path: Path) -> None:
+    rig = make_rig()
+    keys = {**opencv_stereo_keys(rig), "image_size": np.array([720, 540])}
+    keys["T"] = keys["T"] * 1000
+    with pytest.raises(RectifyError, match="millimetres"):
+        load_calibration([write_storage(tmp_path / "stereo.yml", keys)])
+
+
+def ros_files(folder: Path, rig: StereoRig) -> tuple[Path, Path]:
+    """camera_info YAML pair as ROS camera_calibration writes it for a rectified pair."""
+    rectification = StereoRectification.from_rig(rig)
+    paths = []
+    for name, camera in (("left", rig.cam0), ("right", rig.cam1)):
+        view = "cam0" if name == "left" else "cam1"
+        model = "plumb_bob" if camera.distortion_model == "radtan" else "equidistant"
+        coefficients = list(camera.distortion) + ([0.0] if model == "plumb_bob" else [])
+
+        def matrix(values: np.ndarray) -> dict[str, Any]:
+            return {
+                "rows": values.shape[0],
+                "cols": values.shape[1],
+                "data": values.ravel().tolist(),
+            }
+
+        data = {
+            "image_width": 720,
+            "image_height": 540,
+            "camera_name": name,
+            "camera_matrix": matrix(camera.K),
+            "distortion_model": model,
+            "distortion_coefficients": {"rows": 1, "cols": len(coefficients), "data": coefficients},
+            "rectification_matrix": matrix(rectification.rotation(view)),
+            "projection_matrix": matrix(rectification.projection(view)),
+        }
+        paths.append(folder / f"{name}.yaml")
+        paths[-1].write_text(yaml.safe_dump(data, sort_keys=False))
+    return paths[0], paths[1]
+
+
+@pytest.mark.parametrize(("model", "rotated"), [("radtan", False), ("equidistant", True)])
+def test_ros_camera_info_pair(tmp_path: Path, model: DistortionModel, rotated: bool) -> None:
+    rig = make_rig(model, rotated)
+    left, right = ros_files(tmp_path, rig)
+    found, source = load_calibration([left, right])
+    assert_same_rig(found, rig, atol=1e-9)
+    assert "extrinsic from the projection matrices" in source
+
+
+def test_ros_pair_with_explicit_extrinsic(tmp_path: Path) -> None:
+    rig = make_rig("equidistant", rotated=True)
+    left, right = ros_files(tmp_path, rig)
+    for name in ("left", "right"):  # unrectified camera_info: no baseline in P
+        data = yaml.safe_load((tmp_path / f"{name}.yaml").read_text())
+        del data["rectification_matrix"], data["projection_matrix"]
+        (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(RectifyError, match="give the extrinsic as a third file"):
+        load_calibration([left, right])
+    extrinsic = tmp_path / "extrinsic.yaml"
+    extrinsic.write_text(yaml.safe_dump({"T_cam1_cam0": rig.T_cam1_cam0.tolist()}))
+    found, source = load_calibration([left, right, extrinsic])
+    assert_same_rig(found, rig)
+    assert "extrinsic from" in source and "extrinsic.yaml" in source
+    extrinsic.write_text(yaml.safe_dump({"R": rig.R.tolist(), "T": rig.t.tolist()}))
+    assert_same_rig(load_calibration([left, right, extrinsic])[0], rig)
+
+
+def test_nan_is_a_one_line_error_naming_the_file(tmp_path: Path) -> None:
+    rig = make_rig()
+    keys = {**opencv_stereo_keys(rig), "image_size": np.array([720, 540])}
+    keys["K2"] = np.array([[np.nan, 0, 360], [0, 350, 270], [0, 0, 1]])
+    path = write_storage(tmp_path / "nan.yml", keys)
+    with pytest.raises(RectifyError, match=r"nan\.yml: K2 is empty or contains NaN") as info:
+        load_calibration([path])
+    assert "\n" not in str(info.value)
+
+    left, right = ros_files(tmp_path, rig)
+    right.write_text(right.read_text().replace("352.0", ".nan", 1))
+    with pytest.raises(RectifyError, match=r"right\.yaml: camera_matrix is empty or contains NaN"):
+        load_calibration([left, right])
+
+    write_kalibr(tmp_path / "camchain.yaml", rig)
+    camchain = tmp_path / "camchain.yaml"
+    camchain.write_text(camchain.read_text().replace("350.0", ".nan", 1))
+    with pytest.raises(
+        RectifyError, match=r"camchain\.yaml: cam0: camera parameters must be finite"
+    ):
+        load_calibration([camchain])
+
+
+def test_unknown_format_lists_the_supported_ones(tmp_path: Path) -> None:
+    path = tmp_path / "other.yaml"
+    path.write_text("hello: world\n")
+    with pytest.raises(RectifyError, match="not a recognised calibration; expected one Kalibr"):
+        load_calibration([path])
+    with pytest.raises(RectifyError, match=r"missing\.yaml: file not found"):
+        load_calibration([tmp_path / "missing.yaml"])

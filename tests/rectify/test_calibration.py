@@ -1,0 +1,220 @@
+import argparse
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from rectify.boards import Board, BoardRenderer, Detection, parse_board_spec
+from rectify.calibration import (
+    CalibrationResult,
+    calibrate_from_detections,
+    calibrate_stereo,
+    parse_model,
+)
+from rectify.errors import RectifyError
+from rectify.rectification import project_rays
+from rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
+
+MODELS = {"radtan": "pinhole-radtan", "equidistant": "pinhole-equi"}
+SIZES = ((720, 540), (720, 540))
+Pose = tuple[np.ndarray, np.ndarray]
+DISTORTION = {
+    "radtan": ((-0.28, 0.07, 0.0005, -0.0003), (-0.27, 0.065, -0.0004, 0.0002)),
+    "equidistant": ((0.01, -0.002, 0.001, -0.0005), (0.012, -0.001, 0.0005, -0.0003)),
+}
+
+
+def make_rig(model: DistortionModel, rotated: bool = False) -> StereoRig:
+    """An Alphasense-like rig: f ~ 350 px, 720x540, B = 0.11 m; cam1 upside down if rotated."""
+    d0, d1 = DISTORTION[model]
+    cam0 = CameraModel((350.0, 351.0, 360.0, 270.0), model, d0, (720, 540))
+    cam1 = CameraModel((352.0, 352.5, 358.0, 271.0), model, d1, (720, 540))
+    R = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
+    if rotated:
+        R = np.diag([-1.0, -1.0, 1.0]) @ R
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ np.array([0.11, 0.002, -0.001])
+    return StereoRig(cam0, cam1, T)
+
+
+def board_poses(board: Board, rig: StereoRig, count: int, seed: int = 0) -> list[Pose]:
+    """Board poses (cam0 frame) with every corner inside both images by 10 px."""
+    rng = np.random.default_rng(seed)
+    objects = board.object_points()
+    poses: list[Pose] = []
+    while len(poses) < count:
+        direction = np.array([*rng.uniform([-0.55, -0.4], [0.55, 0.4]), 1.0])
+        tilt = np.array([*rng.normal(0.0, 0.35, 2), rng.uniform(-0.3, 0.3)])
+        R = cv2.Rodrigues(tilt)[0]
+        t = direction / np.linalg.norm(direction) * rng.uniform(0.6, 1.4) - R @ objects.mean(0)
+        in_cam0 = objects @ R.T + t
+        ok = True
+        for camera, points in ((rig.cam0, in_cam0), (rig.cam1, in_cam0 @ rig.R.T + rig.t)):
+            p = project_rays(camera, points)
+            ok &= bool(np.all(np.isfinite(p)) and p.min() > 10)
+            ok &= bool(p[:, 0].max() < 710 and p[:, 1].max() < 530)
+        if ok:
+            poses.append((R, t))
+    return poses
+
+
+def point_views(
+    board: Board, rig: StereoRig, count: int = 20, noise_px: float = 0.05, seed: int = 0
+) -> list[tuple[Detection | None, Detection | None]]:
+    """Projected corners of both cameras with Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    objects = board.object_points()
+    ids = np.arange(board.num_corners, dtype=np.int32)
+    views: list[tuple[Detection | None, Detection | None]] = []
+    for R, t in board_poses(board, rig, count, seed):
+        in_cam0 = objects @ R.T + t
+        pixels = (
+            project_rays(rig.cam0, in_cam0),
+            project_rays(rig.cam1, in_cam0 @ rig.R.T + rig.t),
+        )
+        noisy = [(p + rng.normal(0.0, noise_px, p.shape)).astype(np.float32) for p in pixels]
+        views.append((Detection(ids, noisy[0]), Detection(ids, noisy[1])))
+    return views
+
+
+def check_accuracy(result: CalibrationResult, truth: StereoRig) -> None:
+    for found, true in zip(result.cameras, (truth.cam0, truth.cam1), strict=True):
+        focal = np.array(found.camera.intrinsics[:2]) / np.array(true.intrinsics[:2])
+        assert np.abs(focal - 1).max() < 0.005  # focal lengths within 0.5 %
+    assert result.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.01)
+    angle = np.linalg.norm(cv2.Rodrigues(result.rig.R @ truth.R.T)[0])
+    assert np.degrees(angle) < 0.2
+    assert result.row_disagreement_px < 0.3
+
+
+@pytest.mark.parametrize("model", ["radtan", "equidistant"])
+@pytest.mark.parametrize("rotated", [False, True])
+def test_known_calibration_is_recovered(model: str, rotated: bool) -> None:
+    truth = make_rig(model, rotated)
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = point_views(board, truth)
+    if rotated:  # an upside-down cam1 sees the board upside down: numbering from the other end
+        views = [(a, Detection(b.ids, b.corners[::-1].copy())) for a, b in views]
+    result = calibrate_from_detections(views, board, MODELS[model], SIZES)
+    check_accuracy(result, truth)
+    assert result.rejected == () and len(result.stereo_views) == len(views)
+    assert result.cameras[0].camera.distortion_model == model
+    assert result.stereo_rms_px < 0.1 and max(c.rms_px for c in result.cameras) < 0.1
+
+
+def test_outlier_views_are_rejected_and_named() -> None:
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = point_views(board, truth, count=20, seed=1)
+    d0, d1 = views[7]
+    assert d0 is not None and d1 is not None
+    corrupt = d1.corners.copy()
+    corrupt[:12] += 4.0  # a false detection in cam1
+    views[7] = (d0, Detection(d1.ids, corrupt))
+    views[12] = (views[12][0], Detection(d1.ids, views[12][1].corners + np.float32([0.0, 2.5])))
+    names = [f"frame-{i:03d}" for i in range(len(views))]
+    result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES, names)
+    rejected = {r.name: r for r in result.rejected}
+    assert set(rejected) == {"frame-007", "frame-012"}
+    assert rejected["frame-007"].stage == "cam1"  # cam1 alone sees it
+    assert rejected["frame-012"].stage == "stereo"  # consistent per camera, not as a pair
+    assert 7 not in result.stereo_views and 12 not in result.stereo_views
+    assert any("frame-007 [cam1]" in line for line in result.summary())
+    check_accuracy(result, truth)
+
+
+def test_partial_charuco_views_with_fisheye_model() -> None:
+    """Views with different corner counts (OpenCV's fisheye stereo needs a workaround)."""
+    truth = make_rig("equidistant", rotated=True)
+    board = parse_board_spec("charuco:10x7:0.05:0.037")
+    rng = np.random.default_rng(2)
+    views = []
+    for d0, d1 in point_views(board, truth, count=20):
+        assert d0 is not None and d1 is not None
+        keep = [
+            np.sort(rng.choice(len(d), rng.integers(20, len(d)), replace=False)) for d in (d0, d1)
+        ]
+        views.append((Detection(d0.ids[keep[0]], d0.corners[keep[0]]),
+                      Detection(d1.ids[keep[1]], d1.corners[keep[1]])))  # fmt: skip
+    views[3] = (None, views[3][1])  # the board not found in cam0
+    result = calibrate_from_detections(views, board, "pinhole-equi", SIZES)
+    check_accuracy(result, truth)
+    assert result.counts == {
+        "views": 20,
+        "cam0_detected": 19,
+        "cam1_detected": 20,
+        "both_detected": 19,
+    }
+    assert 3 not in result.stereo_views
+
+
+def test_too_few_views_is_a_clear_error() -> None:
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = point_views(board, truth, count=3)
+    with pytest.raises(RectifyError, match="cam0: only 3 usable board views, need at least 5"):
+        calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+
+
+def test_unknown_model_lists_the_valid_ones() -> None:
+    with pytest.raises(
+        RectifyError, match="unknown 'kannala'; valid: pinhole-radtan, pinhole-equi"
+    ):
+        parse_model("kannala")
+
+
+def test_calibrate_stereo_from_rendered_images() -> None:
+    truth = make_rig("equidistant")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    renderers = BoardRenderer(board, truth.cam0), BoardRenderer(board, truth.cam1)
+    views = []
+    for R, t in board_poses(board, truth, 10, seed=3):
+        R1, t1 = truth.R @ R, truth.R @ t + truth.t
+        image0 = renderers[0].render(cv2.Rodrigues(R)[0], t)
+        views.append((image0, renderers[1].render(cv2.Rodrigues(R1)[0], t1)))
+    result = calibrate_stereo(views, board, "pinhole-equi")
+    assert result.counts["both_detected"] >= 8
+    check_accuracy(result, truth)
+    report = json.loads(json.dumps(result.report()))
+    assert report["board"] == "chessboard:9x6:0.05" and report["model"] == "pinhole-equi"
+    assert report["stereo"]["baseline_m"] == pytest.approx(result.rig.baseline_m)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", ["chessboard", "charuco"])
+def test_calibrate_command_recovers_simulator_truth(
+    tmp_path: Path, scene: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``lenspair calibrate`` on the simulator's board scenes, against its true camchain."""
+    from lenspair.commands import calibrate
+    from simulate.recording import simulate_recording
+    from simulate.spec import load_scene, with_overrides
+
+    spec_path = Path(__file__).parents[2] / "calib_samples" / f"{scene}.yaml"
+    spec = with_overrides(load_scene(spec_path), frames=12)
+    simulate_recording(spec, tmp_path / "rec", base_dir=spec_path.parent)
+    b = spec.board
+    assert b is not None
+    board = f"chessboard:{b.cols}x{b.rows}:{b.square_m}"
+    if b.kind == "charuco":
+        board = f"charuco:{b.cols}x{b.rows}:{b.square_m}:{b.marker_size_m}:{b.dictionary}"
+    model = "pinhole-equi" if spec.rig.cam0.distortion_model == "equidistant" else "pinhole-radtan"
+    parser = argparse.ArgumentParser()
+    calibrate.add_arguments(parser)
+    out = tmp_path / "out" / "camchain.yaml"
+    args = parser.parse_args(
+        [str(tmp_path / "rec"), "--board", board, "--model", model, "--out", str(out)]
+    )
+    assert calibrate.run(args) == 0
+    found, truth = read_kalibr(out), read_kalibr(tmp_path / "rec" / "camchain.yaml")
+    for a, b_ in ((found.cam0, truth.cam0), (found.cam1, truth.cam1)):
+        focal = np.array(a.intrinsics[:2]) / np.array(b_.intrinsics[:2])
+        assert np.abs(focal - 1).max() < 0.005
+    assert found.baseline_m == pytest.approx(truth.baseline_m, rel=0.01)
+    report = json.loads((tmp_path / "out" / "camchain.report.json").read_text())
+    assert report["row_disagreement_px"] < 0.3 and report["frames"]["paired"] == 12
+    printed = capsys.readouterr().out
+    assert "stereo: RMS" in printed and "rectified row disagreement" in printed

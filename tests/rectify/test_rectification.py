@@ -1,0 +1,150 @@
+import cv2
+import numpy as np
+import pytest
+
+from rectify.errors import RectifyError
+from rectify.rectification import (
+    StereoRectification,
+    pixel_rays,
+    project_rays,
+    row_differences,
+    row_disagreement,
+)
+from rectify.rig import CameraModel, DistortionModel, StereoRig
+
+DISTORTION = {
+    "radtan": ((-0.28, 0.07, 0.0005, -0.0003), (-0.27, 0.065, -0.0004, 0.0002)),
+    "equidistant": ((0.01, -0.002, 0.001, -0.0005), (0.012, -0.001, 0.0005, -0.0003)),
+}
+
+
+def make_rig(model: DistortionModel, rotated: bool = False) -> StereoRig:
+    d0, d1 = DISTORTION[model]
+    cam0 = CameraModel((350.0, 351.0, 360.0, 270.0), model, d0, (720, 540))
+    cam1 = CameraModel((352.0, 352.5, 358.0, 271.0), model, d1, (720, 540))
+    R = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
+    if rotated:  # cam1 mounted upside down
+        R = np.diag([-1.0, -1.0, 1.0]) @ R
+    centre = np.array([0.11, 0.002, -0.001])  # cam1 on cam0's right
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ centre
+    return StereoRig(cam0, cam1, T)
+
+
+def visible_points(rig: StereoRig, count: int = 400) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """3-D points (cam0 frame) seen by both cameras, and their raw pixels."""
+    rng = np.random.default_rng(0)
+    points = rng.uniform([-2.0, -1.5, 1.5], [2.0, 1.5, 8.0], (count, 3))
+    p0 = project_rays(rig.cam0, points)
+    p1 = project_rays(rig.cam1, points @ rig.R.T + rig.t)
+    inside = np.ones(count, bool)
+    for p in (p0, p1):
+        inside &= np.all(np.isfinite(p), axis=1)
+        inside &= (p[:, 0] > 0) & (p[:, 0] < 719) & (p[:, 1] > 0) & (p[:, 1] < 539)
+    assert inside.sum() > 100
+    return points[inside], p0[inside], p1[inside]
+
+
+@pytest.mark.parametrize("model", ["radtan", "equidistant"])
+@pytest.mark.parametrize("rotated", [False, True])
+def test_rectified_rows_agree_and_disparity_is_positive(
+    model: DistortionModel, rotated: bool
+) -> None:
+    rig = make_rig(model, rotated)
+    rectification = StereoRectification.from_rig(rig)
+    assert rectification.cam1_quarter_turns == (2 if rotated else 0)
+    points, p0, p1 = visible_points(rig)
+    assert row_disagreement(rectification, p0, p1) < 1e-6
+    r0 = rectification.raw_to_rectified("cam0", p0)
+    r1 = rectification.raw_to_rectified("cam1", p1)
+    f, baseline = rectification.K[0, 0], rectification.baseline_m
+    depth = (points @ rectification.rotation("cam0").T)[:, 2]  # Z in the rectified frame
+    # upright, not mirrored: cam1 on the right sees points shifted left by f B / Z
+    np.testing.assert_allclose(r0[:, 0] - r1[:, 0], f * baseline / depth, rtol=1e-6)
+    assert baseline == pytest.approx(rig.baseline_m, rel=1e-3)
+
+
+def test_unrectified_rows_disagree() -> None:
+    """The metric is not trivially zero: identity rotations leave rows apart."""
+    rig = make_rig("radtan", rotated=True)
+    rectification = StereoRectification.from_rig(rig)
+    _, p0, p1 = visible_points(rig)
+    skewed = StereoRectification(
+        rig, np.stack([np.eye(3), np.eye(3)]), rectification.K, rectification.size, 0.11, 0, 0.0
+    )
+    assert row_disagreement(skewed, p0, p1) > 50
+    assert np.abs(row_differences(rectification, p0, p1)).max() < 1e-6
+
+
+@pytest.mark.parametrize("model", ["radtan", "equidistant"])
+def test_maps_match_opencv(model: DistortionModel) -> None:
+    rig = make_rig(model)
+    rectification = StereoRectification.from_rig(rig)
+    camera = rig.cam1
+    init = cv2.initUndistortRectifyMap if model == "radtan" else cv2.fisheye.initUndistortRectifyMap
+    expected_x, expected_y = init(
+        camera.K,
+        camera.dist_coeffs,
+        rectification.rotation("cam1"),
+        rectification.projection("cam1"),
+        rectification.size,
+        cv2.CV_32FC1,
+    )
+    map_x, map_y = rectification.maps("cam1")
+    assert map_x.dtype == np.float32 and map_x.shape == (540, 720)
+    np.testing.assert_allclose(map_x, expected_x, atol=2e-3)
+    np.testing.assert_allclose(map_y, expected_y, atol=2e-3)
+
+
+def test_rectified_to_raw_takes_any_shape_and_inverts_raw_to_rectified() -> None:
+    rectification = StereoRectification.from_rig(make_rig("equidistant", rotated=True))
+    grid = np.stack(np.meshgrid(np.linspace(50, 650, 7), np.linspace(40, 500, 5)), axis=-1)
+    raw = rectification.rectified_to_raw("cam1", grid.astype(np.float32))
+    assert raw.shape == (5, 7, 2) and raw.dtype == np.float32
+    assert rectification.raw_coordinates("cam1", grid).shape == (5, 7, 2)
+    back = rectification.raw_to_rectified("cam1", raw)
+    np.testing.assert_allclose(back, grid, atol=1e-3)
+
+
+def test_alpha_zero_keeps_every_pixel_valid_and_alpha_one_keeps_every_raw_pixel() -> None:
+    rig = make_rig("equidistant", rotated=True)
+    tight = StereoRectification.from_rig(rig, alpha=0.0)
+    assert tight.valid_region("cam0").all() and tight.valid_region("cam1").all()
+    loose = StereoRectification.from_rig(rig, alpha=1.0)
+    valid = loose.valid_region("cam1")
+    assert 0.3 < valid.mean() < 1.0
+    assert loose.K[0, 0] < tight.K[0, 0]
+    # the raw image corners land inside the loose rectified image
+    corners = np.array([[0.0, 0.0], [719.0, 0.0], [0.0, 539.0], [719.0, 539.0]])
+    rectified = loose.raw_to_rectified("cam1", corners)
+    assert np.all((rectified >= -1) & (rectified <= [720, 540]))
+
+
+def test_rectify_resamples_a_raw_image() -> None:
+    rig = make_rig("radtan")
+    rectification = StereoRectification.from_rig(rig)
+    image = np.full((540, 720), 200, np.uint8)
+    out = rectification.rectify("cam0", image)
+    assert out.shape == (540, 720) and out.dtype == np.uint8 and (out == 200).all()
+
+
+def test_points_behind_the_camera_have_no_raw_source() -> None:
+    camera = make_rig("equidistant").cam0
+    pixels = project_rays(camera, np.array([[0.0, 0.0, -1.0], [0.1, 0.0, 1.0]]))
+    assert np.isnan(pixels[0]).all() and np.isfinite(pixels[1]).all()
+    rays = pixel_rays(camera, pixels[1:])
+    np.testing.assert_allclose(rays, [[0.1, 0.0, 1.0]], atol=1e-9)
+
+
+def test_vertical_rig_is_refused() -> None:
+    rig = make_rig("radtan")
+    T = np.eye(4)
+    T[:3, 3] = [0.0, -0.1, 0.0]
+    with pytest.raises(RectifyError, match="mostly vertical"):
+        StereoRectification.from_rig(StereoRig(rig.cam0, rig.cam1, T))
+
+
+def test_bad_alpha_is_refused() -> None:
+    with pytest.raises(RectifyError, match="alpha"):
+        StereoRectification.from_rig(make_rig("radtan"), alpha=1.5)
