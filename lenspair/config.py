@@ -47,12 +47,13 @@ def _convert(tp: Any, value: Any, path: str) -> Any:
         if value is None and type(None) in args:
             return None
         options = [a for a in args if a is not type(None)]
-        errors = []
+        if len(options) == 1:  # X | None: the error inside X is the useful one
+            return _convert(options[0], value, path)
         for option in options:
             try:
                 return _convert(option, value, path)
-            except ConfigError as exc:
-                errors.append(str(exc))
+            except ConfigError:
+                continue
         expected = " or ".join(_type_name(a) for a in args)
         raise ConfigError(f"{path}: expected {expected}, got {_describe(value)}")
     if origin is Literal:

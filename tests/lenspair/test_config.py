@@ -42,6 +42,7 @@ def test_round_trip_through_yaml(tmp_path: Path) -> None:
         ({"planes": [{"depth_m": 1}, {"depth": 2}]}, r"^planes\[1\]\.depth: unknown key"),
         ({"planes": [{"texture": "x"}]}, r"^planes\[0\]\.depth_m: required key is missing"),
         ({"lr": float("nan")}, r"^lr: expected a finite float"),
+        ({"extra": {"depth_m": "far"}}, r"^extra\.depth_m: expected float, got 'far'$"),
         ({"lrr": 1.0}, r"^lrr: unknown key; valid keys: epochs, extra, lr, mode, planes, size"),
     ],
 )

@@ -1,0 +1,86 @@
+"""The ``board:`` section of a scene spec: a calibration board and how it is posed.
+
+Kept apart from :mod:`simulate.spec` (which uses it) to keep modules small.
+"""
+
+from dataclasses import dataclass
+from typing import Literal
+
+DICTIONARIES = (
+    "DICT_4X4_50",
+    "DICT_4X4_100",
+    "DICT_4X4_250",
+    "DICT_5X5_50",
+    "DICT_5X5_100",
+    "DICT_5X5_250",
+    "DICT_6X6_50",
+    "DICT_6X6_250",
+)
+"""ArUco dictionaries accepted for ChArUco boards (names of ``cv2.aruco`` constants)."""
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    """A calibration board shown to both cameras in varied poses.
+
+    One pose per frame: the board centre lies on the viewing ray of a target
+    pixel of cam0 (targets cycle through a grid so that the views cover the
+    image including its corners), at a distance drawn from ``distance_m``,
+    facing the camera with a random tilt up to ``max_tilt_deg``; poses are
+    redrawn until the whole board (with its white border) is inside both
+    images by ``margin_px``.
+
+    Attributes:
+        kind: ``chessboard`` or ``charuco``.
+        cols: chessboard: inner corners per row; ChArUco: squares per row.
+        rows: chessboard: inner corners per column; ChArUco: squares per column.
+        square_m: side of one square, metres.
+        marker_m: ChArUco marker side, metres (default 0.75 * square_m).
+        dictionary: ChArUco ArUco dictionary (one of ``DICTIONARIES``).
+        distance_m: ``(min, max)`` distance of the board centre, metres.
+        max_tilt_deg: largest tilt of the board away from facing the camera.
+        margin_px: the board must be this far inside both images, pixels.
+        pixels_per_square: texture resolution of the board.
+        grid: ``(cols, rows)`` of the cam0 target-pixel grid that poses cycle through.
+
+    """
+
+    kind: Literal["chessboard", "charuco"]
+    cols: int
+    rows: int
+    square_m: float
+    marker_m: float | None = None
+    dictionary: str = "DICT_5X5_100"
+    distance_m: tuple[float, float] = (0.6, 1.6)
+    max_tilt_deg: float = 40.0
+    margin_px: float = 12.0
+    pixels_per_square: int = 64
+    grid: tuple[int, int] = (3, 3)
+
+    def __post_init__(self) -> None:
+        if not (2 <= self.cols <= 64 and 2 <= self.rows <= 64):
+            raise ValueError(f"cols, rows: expected 2..64, got {self.cols} x {self.rows}")
+        if not 0.002 <= self.square_m <= 1.0:
+            raise ValueError(f"square_m: expected 0.002..1 m, got {self.square_m}")
+        if self.marker_m is not None and not 0 < self.marker_m < self.square_m:
+            raise ValueError(f"marker_m: expected 0 < marker_m < square_m, got {self.marker_m}")
+        if self.dictionary not in DICTIONARIES:
+            raise ValueError(
+                f"dictionary: unknown {self.dictionary!r}; valid: {', '.join(DICTIONARIES)}"
+            )
+        low, high = self.distance_m
+        if not 0.05 <= low <= high <= 100.0:
+            raise ValueError(
+                f"distance_m: expected 0.05 <= min <= max <= 100, got {self.distance_m}"
+            )
+        if not 0.0 <= self.max_tilt_deg <= 70.0:
+            raise ValueError(f"max_tilt_deg: expected 0..70, got {self.max_tilt_deg}")
+        if not 8 <= self.pixels_per_square <= 512:
+            raise ValueError(f"pixels_per_square: expected 8..512, got {self.pixels_per_square}")
+        if min(self.grid) < 1:
+            raise ValueError(f"grid: expected positive sizes, got {self.grid}")
+
+    @property
+    def marker_size_m(self) -> float:
+        """ChArUco marker side, metres."""
+        return self.marker_m if self.marker_m is not None else 0.75 * self.square_m

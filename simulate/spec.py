@@ -1,0 +1,347 @@
+"""Scene specs: the YAML that ``lenspair simulate`` renders into a stereo recording.
+
+A scene spec is loaded with :func:`load_scene` through the strict loader of
+:mod:`lenspair.config`, so an unknown key, a wrong type or a bad value is
+reported with its dotted path (``planes[1].depth_m: expected float, got 'far'``).
+
+Frames and units. The *world* frame is the rig *body* frame at time 0, and
+the body frame is cam0's frame (x right, y down, z forward, metres). Planes
+are placed in the world frame; ``depth_m`` is the distance along world z.
+Angles are degrees; rotations ``(rx, ry, rz)`` apply about x, then y, then z
+(``R = Rz @ Ry @ Rx``). Times are nanoseconds on the recording clock.
+
+Example (see ``calib_samples/README.md`` for every key)::
+
+    rig:
+      baseline_m: 0.11
+      cam0: {intrinsics: [350.0, 350.0, 359.5, 269.5], distortion_model: equidistant,
+             distortion: [0.01, -0.003, 0.0, 0.0]}
+      cam1: {intrinsics: [352.0, 351.5, 361.0, 268.0], distortion_model: equidistant,
+             distortion: [0.012, -0.002, 0.0, 0.0], gain: 1.04}
+    planes:
+      - {texture: [astronaut, coffee, rocket, brick], depth_m: 60.0, tile_m: [80.0, 80.0]}
+    motion: {velocity_mps: [0.8, 0.0, 0.0], yaw_amplitude_deg: 1.0}
+    recording: {frames: 20, rate_hz: 20.0, jitter_us: 200.0, drop_probability: [0.0, 0.05]}
+    obstructed:
+      camera: cam1
+      effects: {raindrops: {count: 40}, defocus: {}}
+"""
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal, Union, get_args, get_origin
+
+import yaml
+
+from lenspair.config import load_dataclass, load_yaml
+from lenspair.errors import ConfigError
+from simulate.boardspec import BoardSpec
+from simulate.effects.spec import EffectsSpec
+from simulate.rigspec import RigSpec
+from simulate.textures import check_texture
+
+CameraName = Literal["cam0", "cam1"]
+Vector3 = tuple[float, float, float]
+
+
+def _positive(name: str, value: float) -> None:
+    if not value > 0:
+        raise ValueError(f"{name}: expected > 0, got {value}")
+
+
+@dataclass(frozen=True)
+class PlaneSpec:
+    """A textured plane of the scene.
+
+    The plane's centre is at ``(center_xy_m[0], center_xy_m[1], depth_m)`` in
+    the world frame; unrotated it faces the rig (normal along world z), its
+    texture's x axis along world x and y axis along world y (down). A finite
+    plane is a ``size_m`` rectangle with the texture stretched over it
+    (``tile_m`` defaults to ``size_m``); an infinite plane (``size_m: null``)
+    repeats the texture every ``tile_m`` metres (default ``depth_m`` square).
+
+    Attributes:
+        texture: a scikit-image sample name (see ``simulate.textures.NAMES``)
+            or an image path (relative to the spec file); a list makes a
+            near-square mosaic of several images (richer for matching).
+        depth_m: distance of the plane centre along world z, metres.
+        center_xy_m: world ``(x, y)`` of the plane centre, metres.
+        size_m: ``(width, height)`` of a finite plane, metres; ``None`` = infinite.
+        tile_m: ``(width, height)`` covered by one copy of the texture, metres.
+        rotation_deg: orientation of the plane, ``(rx, ry, rz)`` degrees.
+        brightness: linear-light reflectance multiplier of the texture.
+        name: optional label, copied to ``truth/geometry.json``.
+
+    """
+
+    texture: str | tuple[str, ...]
+    depth_m: float
+    center_xy_m: tuple[float, float] = (0.0, 0.0)
+    size_m: tuple[float, float] | None = None
+    tile_m: tuple[float, float] | None = None
+    rotation_deg: Vector3 = (0.0, 0.0, 0.0)
+    brightness: float = 1.0
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if not 0.05 <= self.depth_m <= 1e5:
+            raise ValueError(f"depth_m: expected 0.05..1e5 m, got {self.depth_m}")
+        if isinstance(self.texture, tuple) and not self.texture:
+            raise ValueError("texture: expected a name, a path or a non-empty list")
+        if self.size_m is not None and min(self.size_m) <= 0:
+            raise ValueError(f"size_m: expected positive sizes, got {self.size_m}")
+        if self.tile_m is not None and min(self.tile_m) <= 0:
+            raise ValueError(f"tile_m: expected positive sizes, got {self.tile_m}")
+        _positive("brightness", self.brightness)
+
+    @property
+    def textures(self) -> tuple[str, ...]:
+        """The texture names/paths as a tuple (one element for a single texture)."""
+        return (self.texture,) if isinstance(self.texture, str) else self.texture
+
+    @property
+    def texture_size_m(self) -> tuple[float, float]:
+        """Metres covered by one copy of the texture, ``(width, height)``."""
+        if self.tile_m is not None:
+            return self.tile_m
+        if self.size_m is not None:
+            return self.size_m
+        return (self.depth_m, self.depth_m)
+
+
+@dataclass(frozen=True)
+class MotionSpec:
+    """Rig trajectory: constant velocity plus a small sinusoidal wobble.
+
+    The body pose at time ``s`` seconds after the first frame is
+    ``R = R_yaw(a_y sin(w s)) @ R_pitch(a_p sin(2 w s)) @ R_roll(a_r sin(3 w s))``
+    (yaw about y, pitch about x, roll about z; ``w = 2 pi frequency_hz``)
+    and ``c = start_m + velocity_mps * s``, so the rig starts level. With
+    ``velocity_mps[2] == 0`` the rig translates parallel to a fronto-parallel
+    far plane, so the plane's distance from the body origin (cam0) stays
+    constant; only the wobble turns the plane in the camera frames (and moves
+    cam1 by ``baseline * sin(angle)``, under a millimetre, along the view).
+
+    Attributes:
+        velocity_mps: world-frame velocity, metres per second.
+        start_m: world position of the body origin at the first frame.
+        yaw_amplitude_deg: yaw wobble amplitude, degrees.
+        pitch_amplitude_deg: pitch wobble amplitude, degrees.
+        roll_amplitude_deg: roll wobble amplitude, degrees.
+        frequency_hz: wobble frequency.
+
+    """
+
+    velocity_mps: Vector3 = (0.0, 0.0, 0.0)
+    start_m: Vector3 = (0.0, 0.0, 0.0)
+    yaw_amplitude_deg: float = 0.0
+    pitch_amplitude_deg: float = 0.0
+    roll_amplitude_deg: float = 0.0
+    frequency_hz: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("yaw_amplitude_deg", "pitch_amplitude_deg", "roll_amplitude_deg"):
+            if not 0.0 <= getattr(self, name) <= 30.0:
+                raise ValueError(f"{name}: expected 0..30 degrees, got {getattr(self, name)}")
+        if self.frequency_hz < 0:
+            raise ValueError(f"frequency_hz: expected >= 0, got {self.frequency_hz}")
+
+
+@dataclass(frozen=True)
+class RecordingSpec:
+    """Clock, length and imperfections of the recording.
+
+    Frame ``k`` has the nominal time ``start_ns + round(k * 1e9 / rate_hz)``;
+    each camera adds its own Gaussian jitter (clipped at 3 sigma) and drops
+    the frame with its own probability, which leaves unpaired frames.
+
+    Attributes:
+        frames: number of nominal frames (``--frames`` overrides it).
+        rate_hz: frame rate.
+        start_ns: nominal time of frame 0, nanoseconds.
+        jitter_us: standard deviation of the timestamp jitter, microseconds.
+        drop_probability: per-camera probability ``(cam0, cam1)`` that a
+            frame is missing.
+
+    """
+
+    frames: int = 20
+    rate_hz: float = 20.0
+    start_ns: int = 1_700_000_000_000_000_000
+    jitter_us: float = 0.0
+    drop_probability: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.frames <= 100_000:
+            raise ValueError(f"frames: expected 1..100000, got {self.frames}")
+        if not 0.1 <= self.rate_hz <= 1000.0:
+            raise ValueError(f"rate_hz: expected 0.1..1000, got {self.rate_hz}")
+        if self.start_ns < 0:
+            raise ValueError(f"start_ns: expected >= 0, got {self.start_ns}")
+        period_us = 1e6 / self.rate_hz
+        if not 0.0 <= 3.0 * self.jitter_us < period_us / 4.0:
+            raise ValueError(
+                f"jitter_us: expected 0 <= 3 sigma < a quarter period "
+                f"({period_us / 4.0:.0f} us), got {self.jitter_us}"
+            )
+        if not all(0.0 <= p < 1.0 for p in self.drop_probability):
+            raise ValueError(
+                f"drop_probability: expected values in [0, 1), got {self.drop_probability}"
+            )
+
+
+@dataclass(frozen=True)
+class ObstructionSpec:
+    """Which camera looks through the dirty glass, and what is on it.
+
+    Attributes:
+        camera: the obstructed camera; the other one is the clean reference.
+        effects: the effects on its glass (:class:`EffectsSpec`); none listed
+            means the obstructed frames equal ``truth/clear``.
+
+    """
+
+    camera: CameraName = "cam1"
+    effects: EffectsSpec = field(default_factory=EffectsSpec)
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A complete scene: rig, planes, motion, clock, obstruction, optional board.
+
+    Attributes:
+        rig: the two cameras and their mounting.
+        planes: textured planes; the one with the largest ``depth_m`` is the
+            *far plane* whose homography ``truth/geometry.json`` reports.
+        background: linear-light grey seen where no plane is hit, ``[0, 1]``.
+        motion: rig trajectory.
+        recording: clock, frame count, jitter, drops.
+        obstructed: obstructed camera and its glass effects.
+        board: calibration board (board scenes); ``None`` otherwise.
+        supersample: samples per pixel along each axis. Textures are always
+            mip-mapped (pre-filtered to the pixel footprint); 2 also smooths
+            plane silhouettes and sharpens board corners, at 4x the cost.
+        seed: random seed (``--seed`` overrides it).
+
+    """
+
+    rig: RigSpec
+    planes: tuple[PlaneSpec, ...] = ()
+    background: float = 0.25
+    motion: MotionSpec = field(default_factory=MotionSpec)
+    recording: RecordingSpec = field(default_factory=RecordingSpec)
+    obstructed: ObstructionSpec = field(default_factory=ObstructionSpec)
+    board: BoardSpec | None = None
+    supersample: int = 1
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.background <= 1.0:
+            raise ValueError(f"background: expected 0..1, got {self.background}")
+        if not 1 <= self.supersample <= 4:
+            raise ValueError(f"supersample: expected 1..4, got {self.supersample}")
+        if not 0 <= self.seed < 2**63:
+            raise ValueError(f"seed: expected 0 <= seed < 2**63, got {self.seed}")
+        if not self.planes and self.board is None:
+            raise ValueError("planes: a scene needs at least one plane or a board")
+
+    @property
+    def far_plane_index(self) -> int | None:
+        """Index of the far plane (largest ``depth_m``), ``None`` without planes."""
+        if not self.planes:
+            return None
+        return max(range(len(self.planes)), key=lambda i: self.planes[i].depth_m)
+
+
+def _optional_dataclass(tp: Any) -> type | None:
+    """``X`` for a field typed ``X`` or ``X | None`` where ``X`` is a dataclass."""
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
+        return tp
+    if get_origin(tp) in (Union, types.UnionType):
+        options = [a for a in get_args(tp) if a is not type(None)]
+        if len(options) == 1:
+            return _optional_dataclass(options[0])
+    return None
+
+
+def _check_optional_sections(cls: type, data: Any, prefix: str) -> None:
+    """Load every nested dataclass section of ``data`` alone, deepest first.
+
+    Raises:
+        ConfigError: the first problem found, with its full dotted path.
+
+    """
+    if not isinstance(data, dict):
+        return
+    hints = typing.get_type_hints(cls)
+    for item in dataclasses.fields(cls):
+        if item.name not in data:
+            continue
+        value, path, tp = data[item.name], f"{prefix}{item.name}", hints[item.name]
+        inner = _optional_dataclass(tp)
+        if inner is not None and isinstance(value, dict):
+            _check_optional_sections(inner, value, f"{path}.")
+            load_dataclass(inner, value, path)
+        elif get_origin(tp) is tuple and isinstance(value, list):
+            element = _optional_dataclass(get_args(tp)[0])
+            if element is None:
+                continue
+            for index, entry in enumerate(value):
+                _check_optional_sections(element, entry, f"{path}[{index}].")
+
+
+def load_scene(path: Path) -> SceneSpec:
+    """Load and validate a scene spec YAML file.
+
+    Texture names are checked here too (names of scikit-image samples, or
+    image files relative to the spec's folder), so that a typo fails before
+    any rendering.
+
+    Raises:
+        ConfigError: with the file name and the dotted key, e.g.
+            ``scene.yaml: planes[0].texture: unknown texture 'bricks'; ...``.
+
+    """
+    path = Path(path)
+    try:
+        spec = load_yaml(SceneSpec, path)
+    except ConfigError:
+        # The loader reports a bad optional section (``board:``, an effect) only as
+        # "expected BoardSpec or NoneType"; look inside for the precise key first.
+        try:
+            _check_optional_sections(SceneSpec, yaml.safe_load(path.read_text("utf-8")), "")
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc}") from None
+        raise
+    for index, plane in enumerate(spec.planes):
+        for name in plane.textures:
+            problem = check_texture(name, path.parent)
+            if problem is not None:
+                raise ConfigError(f"{path}: planes[{index}].texture: {problem}")
+    return spec
+
+
+def with_overrides(
+    spec: SceneSpec, frames: int | None = None, seed: int | None = None
+) -> SceneSpec:
+    """``spec`` with the command line's ``--frames`` / ``--seed`` applied (validated).
+
+    Raises:
+        ConfigError: ``recording.frames`` or ``seed`` out of range.
+
+    """
+    if frames is not None:
+        try:
+            recording = replace(spec.recording, frames=frames)
+        except ValueError as exc:
+            raise ConfigError(f"recording.{exc}") from None
+        spec = replace(spec, recording=recording)
+    if seed is not None:
+        try:
+            spec = replace(spec, seed=seed)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+    return spec

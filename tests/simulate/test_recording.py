@@ -1,0 +1,266 @@
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from capture.rigfile import read_rig_file
+from lenspair.cli import main
+from lenspair.imageio import read_image
+from rectify.rig import CameraModel, read_kalibr
+from simulate.camera import undistort_maps
+from simulate.errors import SimulateError
+from simulate.recording import simulate_recording
+from simulate.spec import load_scene
+
+SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
+FISHEYE0 = {
+    "intrinsics": [350.2, 349.8, 361.3, 268.4],
+    "distortion_model": "equidistant",
+    "distortion": [-0.0095, 0.0036, -0.0049, 0.0015],
+}
+FISHEYE1 = {
+    "intrinsics": [351.6, 351.1, 357.9, 271.2],
+    "distortion_model": "equidistant",
+    "distortion": [-0.0089, 0.0029, -0.0042, 0.0012],
+}
+# Half-size cameras for tests that check bookkeeping rather than pixels.
+SMALL0 = {**FISHEYE0, "intrinsics": [175.1, 174.9, 180.4, 134.0], "resolution": [360, 270]}
+SMALL1 = {**FISHEYE1, "intrinsics": [175.8, 175.5, 178.7, 135.4], "resolution": [360, 270]}
+SMALL = {"cam0": SMALL0, "cam1": SMALL1}
+WALL = {"texture": ["astronaut", "gravel", "coffee", "brick"], "depth_m": 60.0, "tile_m": [60, 60]}
+
+
+def _scene(tmp_path: Path, **sections: Any) -> dict[str, Any]:
+    data: dict[str, Any] = {
+        "rig": {"baseline_m": 0.11, "cam1_rotation_deg": [0.3, -0.4, 0.2], "cam0": FISHEYE0,
+                "cam1": FISHEYE1},
+        "planes": [WALL],
+        "motion": {"velocity_mps": [0.8, 0.0, 0.0], "yaw_amplitude_deg": 1.0},
+        "recording": {"frames": 3},
+        "seed": 3,
+    }  # fmt: skip
+    for key, value in sections.items():
+        if isinstance(value, dict) and isinstance(data.get(key), dict):
+            data[key] = {**data[key], **value}
+        else:
+            data[key] = value
+    return data
+
+
+def _render(tmp_path: Path, data: dict[str, Any], name: str = "rec") -> Path:
+    spec_file = tmp_path / f"{name}.yaml"
+    spec_file.write_text(yaml.safe_dump(data))
+    out = tmp_path / name
+    simulate_recording(load_scene(spec_file), out, base_dir=tmp_path)
+    return out
+
+
+def _csv(out: Path, camera: str) -> list[int]:
+    lines = (out / "mav0" / camera / "data.csv").read_text().splitlines()
+    assert lines[0] == "#timestamp [ns],filename"
+    stamps = []
+    for line in lines[1:]:
+        t_ns, name = line.split(",")
+        assert name == f"{t_ns}.png"
+        assert (out / "mav0" / camera / "data" / name).is_file()
+        stamps.append(int(t_ns))
+    assert stamps == sorted(stamps)
+    assert len(list((out / "mav0" / camera / "data").iterdir())) == len(stamps)
+    return stamps
+
+
+def _geometry(out: Path) -> dict[str, Any]:
+    return json.loads((out / "truth" / "geometry.json").read_text())
+
+
+def _tree_digest(root: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_layout_clock_drops_and_jitter(tmp_path: Path) -> None:
+    recording = {"frames": 8, "jitter_us": 300.0, "drop_probability": [0.0, 0.6]}
+    out = _render(tmp_path, _scene(tmp_path, recording=recording, rig=SMALL))
+    cam0, cam1 = _csv(out, "cam0"), _csv(out, "cam1")
+    geometry = _geometry(out)
+    frames = geometry["frames"]
+    assert len(cam0) == 8 and 0 < len(cam1) < 8  # cam1 drops frames: unpaired cam0 frames
+    assert cam1 == [f["cam1"]["t_ns"] for f in frames if not f["cam1"]["dropped"]]
+    jitter = np.array(
+        [[f[c]["t_ns"] - f["t_nominal_ns"] for c in ("cam0", "cam1")] for f in frames]
+    )
+    assert np.all(np.abs(jitter) <= 3 * 300_000) and np.std(jitter) > 50_000
+    assert np.any(jitter[:, 0] != jitter[:, 1])  # independent per camera
+    nominal = [f["t_nominal_ns"] for f in frames]
+    assert np.all(np.diff(nominal) == 50_000_000)  # 20 Hz
+    sensor = yaml.safe_load((out / "mav0" / "cam1" / "sensor.yaml").read_text())
+    assert sensor["sensor_type"] == "camera" and sensor["camera_model"] == "pinhole"
+    assert sensor["rate_hz"] == 20 and sensor["resolution"] == [360, 270]
+    assert sensor["intrinsics"] == SMALL1["intrinsics"]
+    assert sensor["distortion_model"] == "equidistant"
+    assert sensor["distortion_coefficients"] == FISHEYE1["distortion"]
+    assert len(sensor["T_BS"]["data"]) == 16
+    rig = read_rig_file(out / "rig.yaml")
+    assert rig.obstructed == "cam1" and rig.anomaly == () and rig.calibration == "camchain.yaml"
+    assert load_scene(out / "scene.yaml").recording.frames == 8
+
+
+def test_baseline_and_calibration_come_from_the_spec(tmp_path: Path) -> None:
+    out = _render(tmp_path, _scene(tmp_path, rig={"baseline_m": 0.137, **SMALL}))
+    rig = read_kalibr(out / "camchain.yaml")
+    assert rig.baseline_m == pytest.approx(0.137, abs=1e-12)
+    assert rig.cam1.intrinsics == tuple(SMALL1["intrinsics"])
+    assert rig.cam0.distortion_model == "equidistant"
+    T_BS = yaml.safe_load((out / "mav0" / "cam1" / "sensor.yaml").read_text())["T_BS"]["data"]
+    T_body_cam1 = np.array(T_BS).reshape(4, 4)
+    np.testing.assert_allclose(T_body_cam1 @ rig.T_cam1_cam0, np.eye(4), atol=1e-12)
+    assert _geometry(out)["baseline_m"] == pytest.approx(0.137)
+
+
+def test_no_effects_obstructed_frames_equal_clear(tmp_path: Path) -> None:
+    out = _render(tmp_path, _scene(tmp_path))
+    for t_ns in _csv(out, "cam1"):
+        image = read_image(out / "mav0" / "cam1" / "data" / f"{t_ns}.png")
+        clear = read_image(out / "truth" / "clear" / f"{t_ns}.png")
+        mask = read_image(out / "truth" / "mask" / f"{t_ns}.png")
+        assert image.dtype == np.uint8 and image.shape == (540, 720)
+        np.testing.assert_array_equal(image, clear)
+        assert mask.dtype == np.uint8 and not mask.any()
+    assert len(list((out / "truth" / "clear").iterdir())) == len(_csv(out, "cam1"))
+
+
+def test_effects_change_only_pixels_inside_the_mask(tmp_path: Path) -> None:
+    effects = {"raindrops": {"count": 12}, "defocus": {}, "dust": {"coverage": 0.3}}
+    obstructed = {"camera": "cam0", "effects": effects}
+    out = _render(tmp_path, _scene(tmp_path, obstructed=obstructed))
+    assert read_rig_file(out / "rig.yaml").anomaly == ("rain", "dust")
+    changed = 0
+    for t_ns in _csv(out, "cam0"):
+        image = read_image(out / "mav0" / "cam0" / "data" / f"{t_ns}.png")
+        clear = read_image(out / "truth" / "clear" / f"{t_ns}.png")
+        mask = read_image(out / "truth" / "mask" / f"{t_ns}.png") > 0
+        assert 0.0 < mask.mean() < 1.0
+        np.testing.assert_array_equal(image[~mask], clear[~mask])
+        changed += int(np.count_nonzero(image[mask] != clear[mask]))
+    assert changed > 1000
+
+
+def test_sixteen_bit_rgb_recording(tmp_path: Path) -> None:
+    out = _render(tmp_path, _scene(tmp_path, rig={"bit_depth": 16, "color": "rgb", **SMALL}))
+    image = read_image(out / "mav0" / "cam0" / "data" / f"{_csv(out, 'cam0')[0]}.png")
+    assert image.dtype == np.uint16 and image.shape == (270, 360, 3)
+    assert len(np.unique(image)) > 1000  # uses the 16-bit range, not 8-bit steps
+
+
+def test_same_seed_same_bytes_other_seed_differs(tmp_path: Path) -> None:
+    data = _scene(
+        tmp_path,
+        recording={"frames": 3, "jitter_us": 200.0, "drop_probability": [0.2, 0.2]},
+        rig={"cam0": SMALL0, "cam1": {**SMALL1, "noise_std": 0.01}},
+        obstructed={"camera": "cam1", "effects": {"raindrops": {"count": 10}, "dirt": {}}},
+    )
+    first = _tree_digest(_render(tmp_path, data, "a"))
+    second = _tree_digest(_render(tmp_path, data, "b"))
+    assert first == second and len(first) > 10
+    third = _tree_digest(_render(tmp_path, {**data, "seed": 4}, "c"))
+    assert third != first
+    assert third["camchain.yaml"] == first["camchain.yaml"]
+
+
+def test_rotated_cam1_sees_the_scene_upside_down(tmp_path: Path) -> None:
+    # Identical centred pinhole cameras and a wall so far that parallax is ~0:
+    # then cam1's image is cam0's rotated by 180 degrees.
+    pinhole = {"intrinsics": [300.0, 300.0, 159.5, 119.5], "distortion_model": "radtan",
+               "resolution": [320, 240]}  # fmt: skip
+    rig = {"baseline_m": 0.12, "cam1_rotated_180": True, "cam0": pinhole, "cam1": pinhole}
+    wall = {**WALL, "depth_m": 5000.0, "tile_m": [4000.0, 4000.0]}
+    data = _scene(tmp_path, rig=rig, planes=[wall], motion={"velocity_mps": [0, 0, 0]})
+    data["rig"].pop("cam1_rotation_deg")
+    out = _render(tmp_path, data)
+    T = read_kalibr(out / "camchain.yaml").T_cam1_cam0
+    np.testing.assert_allclose(T[:3, :3], np.diag([-1.0, -1.0, 1.0]), atol=1e-12)
+    frame = _geometry(out)["frames"][0]
+    cam0 = read_image(out / "mav0" / "cam0" / "data" / f"{frame['cam0']['t_ns']}.png")
+    cam1 = read_image(out / "mav0" / "cam1" / "data" / f"{frame['cam1']['t_ns']}.png")
+    flipped = np.abs(cam1[::-1, ::-1].astype(int) - cam0).mean()
+    upright = np.abs(cam1.astype(int) - cam0).mean()
+    assert flipped < 1.0 < 10.0 < upright
+
+
+def _undistort(image: np.ndarray, camera: CameraModel) -> np.ndarray:
+    map_x, map_y = undistort_maps(camera)
+    return np.asarray(cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR).astype(np.float32))
+
+
+@pytest.mark.parametrize("obstructed", ["cam1", "cam0"])
+def test_true_homography_registers_the_far_plane(tmp_path: Path, obstructed: str) -> None:
+    data = _scene(tmp_path, recording={"frames": 2}, obstructed={"camera": obstructed})
+    out = _render(tmp_path, data)
+    rig = read_kalibr(out / "camchain.yaml")
+    geometry = _geometry(out)
+    clean = "cam0" if obstructed == "cam1" else "cam1"
+    assert geometry["clean"] == clean and geometry["obstructed"] == obstructed
+    assert geometry["far_plane"]["depth_m"] == 60.0
+    for frame in geometry["frames"]:
+        H = np.array(frame["homography"])
+        # Translation parallel to the wall: only the wobble moves cam1 (0.11 m off the
+        # body origin) by B sin(yaw) along the view direction, well under a millimetre.
+        assert frame["far_plane_clean"]["distance_m"] == pytest.approx(60.0, abs=1e-3)
+        images = {}
+        for name in ("cam0", "cam1"):
+            raw = read_image(out / "mav0" / name / "data" / f"{frame[name]['t_ns']}.png")
+            images[name] = _undistort(raw, rig.camera(name))
+        warped = cv2.warpPerspective(images[clean], H, (720, 540), flags=cv2.INTER_LINEAR)
+        identity = images[clean]
+        target = images[obstructed]
+        centre = (slice(170, 370), slice(210, 510))
+        registered = np.abs(warped[centre] - target[centre]).mean()
+        unregistered = np.abs(identity[centre] - target[centre]).mean()
+        assert registered < 2.5 and unregistered > 4 * registered
+    np.testing.assert_allclose(geometry["homography"], geometry["frames"][0]["homography"])
+
+
+def test_output_folder_must_be_new_or_empty(tmp_path: Path) -> None:
+    (tmp_path / "rec").mkdir()
+    (tmp_path / "rec" / "other.txt").write_text("x")
+    spec_file = tmp_path / "s.yaml"
+    spec_file.write_text(yaml.safe_dump(_scene(tmp_path)))
+    with pytest.raises(SimulateError, match=r"rec: output folder is not empty"):
+        simulate_recording(load_scene(spec_file), tmp_path / "rec")
+
+
+def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "clean"
+    args = ["simulate", str(SAMPLES / "clean.yaml"), "--out", str(out), "--frames", "2"]
+    assert main([*args, "--seed", "9"]) == 0
+    scene = load_scene(out / "scene.yaml")
+    assert scene.recording.frames == 2 and scene.seed == 9
+    assert len(_csv(out, "cam0")) == 2
+    capsys.readouterr()
+    assert main(args) == 2
+    error = capsys.readouterr().err.strip()
+    assert "output folder is not empty" in error and "\n" not in error
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("rig: {baseline_m: 0.11}\nplanes: [{texture: bricks, depth_m: 40}]\n")
+    assert main(["simulate", str(bad), "--out", str(tmp_path / "x")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "planes[0].texture: unknown texture 'bricks'" in error and "\n" not in error
+
+
+def test_user_texture_file_comes_back_exactly(tmp_path: Path) -> None:
+    # A flat sRGB texture survives decode -> linear render -> encode without a code change.
+    from lenspair.imageio import write_image
+
+    write_image(tmp_path / "flat.png", np.full((64, 64), 200, np.uint8))
+    wall = {"texture": "flat.png", "depth_m": 40.0}
+    out = _render(tmp_path, _scene(tmp_path, planes=[wall], rig=SMALL))
+    image = read_image(out / "mav0" / "cam0" / "data" / f"{_csv(out, 'cam0')[0]}.png")
+    assert np.all(image == 200)

@@ -1,0 +1,152 @@
+from pathlib import Path
+
+import pytest
+import yaml
+
+from lenspair.config import dump_yaml, load_yaml
+from lenspair.errors import ConfigError
+from simulate.spec import SceneSpec, load_scene, with_overrides
+
+SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
+SCENES = sorted(p for p in SAMPLES.glob("*.yaml") if p.name != "alphasense_camchain.yaml")
+
+MINIMAL = {
+    "rig": {"baseline_m": 0.12},
+    "planes": [{"texture": "brick", "depth_m": 40.0}],
+}
+
+
+def _write(tmp_path: Path, data: dict) -> Path:
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _with(path: str, value: object) -> dict:
+    """MINIMAL with one dotted key set (list indices as [i])."""
+    data = yaml.safe_load(yaml.safe_dump(MINIMAL))
+    node = data
+    parts = path.replace("[", ".").replace("]", "").split(".")
+    for part in parts[:-1]:
+        node = node[int(part)] if part.isdigit() else node.setdefault(part, {})
+    node[parts[-1]] = value
+    return data
+
+
+def test_samples_exist_and_load() -> None:
+    names = {p.stem for p in SCENES}
+    assert {
+        "rain",
+        "dust_swapped",
+        "parallax",
+        "clean",
+        "chessboard",
+        "charuco",
+        "rotated",
+    } <= names
+    for path in SCENES:
+        spec = load_scene(path)
+        assert 0.11 <= spec.rig.baseline_m <= 0.14
+        assert spec.recording.frames <= 20
+
+
+def test_sample_obstruction_and_rotation() -> None:
+    rain = load_scene(SAMPLES / "rain.yaml")
+    assert rain.obstructed.camera == "cam1"
+    assert rain.obstructed.effects.listed == ("raindrops", "brightness", "defocus")
+    assert not rain.rig.cam1_rotated_180
+    dust = load_scene(SAMPLES / "dust_swapped.yaml")
+    assert dust.obstructed.camera == "cam0" and dust.obstructed.effects.anomaly_kinds == ("dust",)
+    assert load_scene(SAMPLES / "rotated.yaml").rig.cam1_rotated_180
+    assert load_scene(SAMPLES / "clean.yaml").obstructed.effects.listed == ()
+    parallax = load_scene(SAMPLES / "parallax.yaml")
+    assert min(p.depth_m for p in parallax.planes) <= 3.0
+    for name in ("rain", "dust_swapped", "clean", "rotated"):
+        spec = load_scene(SAMPLES / f"{name}.yaml")
+        assert min(p.depth_m for p in spec.planes) >= 40.0
+
+
+def test_minimal_spec_defaults(tmp_path: Path) -> None:
+    spec = load_scene(_write(tmp_path, MINIMAL))
+    assert spec.rig.cam0.resolution == (720, 540)
+    assert spec.rig.baseline_m == 0.12
+    assert spec.obstructed.camera == "cam1"
+    assert spec.far_plane_index == 0
+    assert spec.board is None
+
+
+def test_round_trip_through_dump(tmp_path: Path) -> None:
+    for path in SCENES:
+        spec = load_scene(path)
+        again = tmp_path / f"{path.stem}.yaml"
+        again.write_text(dump_yaml(spec))
+        assert load_yaml(SceneSpec, again) == spec
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"planes": MINIMAL["planes"]}, r"rig: required key is missing"),
+        ({"rig": {}, "planes": MINIMAL["planes"]}, r"rig\.baseline_m: required key is missing"),
+        (_with("rig.baseline_m", "wide"), r"rig\.baseline_m: expected float, got 'wide'"),
+        (_with("rig.baseline_m", 5.0), r"rig: baseline_m: expected 0 < baseline <= 2 m"),
+        (_with("rig.cam0.distortion_model", "fisheye"), r"rig\.cam0\.distortion_model: expected"),
+        (_with("rig.cam1.intrinsics", [350.0, 350.0]), r"rig\.cam1\.intrinsics: expected 4 values"),
+        (_with("rig.bit_depth", 12), r"rig: bit_depth: expected 8 or 16"),
+        (_with("planes[0].depht_m", 3.0), r"planes\[0\]\.depht_m: unknown key"),
+        (_with("planes[0].depth_m", "far"), r"planes\[0\]\.depth_m: expected float"),
+        (_with("planes[0].texture", "bricks"), r"planes\[0\]\.texture: unknown texture 'bricks'"),
+        (_with("recording.jitter_us", 20000.0), r"recording: jitter_us: expected 0 <= 3 sigma"),
+        (_with("recording.drop_probability", [0.0, 1.0]), r"recording: drop_probability"),
+        (_with("obstructed.camera", "cam2"), r"obstructed\.camera: expected one of 'cam0', 'cam1'"),
+        (
+            _with("obstructed.effects", {"raindrops": {"cont": 3}}),
+            r"obstructed\.effects\.raindrops\.cont: unknown key",
+        ),
+        (
+            _with("board", {"kind": "chessboard", "cols": 9, "rows": 6}),
+            r"board\.square_m: required key is missing",
+        ),
+        (
+            _with(
+                "board",
+                {
+                    "kind": "charuco",
+                    "cols": 5,
+                    "rows": 4,
+                    "square_m": 0.1,
+                    "dictionary": "DICT_9X9",
+                },
+            ),
+            r"board: dictionary: unknown 'DICT_9X9'",
+        ),
+        ({"rig": {"baseline_m": 0.11}}, r"planes: a scene needs at least one plane or a board"),
+    ],
+)
+def test_errors_name_the_key(tmp_path: Path, data: dict, message: str) -> None:
+    path = _write(tmp_path, data)
+    with pytest.raises(ConfigError, match=message) as info:
+        load_scene(path)
+    text = str(info.value)
+    assert text.startswith(str(path)) and "\n" not in text
+
+
+def test_texture_path_relative_to_spec(tmp_path: Path) -> None:
+    import numpy as np
+
+    from lenspair.imageio import write_image
+
+    write_image(tmp_path / "wall.png", np.full((64, 64), 128, np.uint8))
+    spec = load_scene(_write(tmp_path, _with("planes[0].texture", "wall.png")))
+    assert spec.planes[0].textures == ("wall.png",)
+
+
+def test_overrides() -> None:
+    spec = load_scene(SAMPLES / "clean.yaml")
+    changed = with_overrides(spec, frames=3, seed=11)
+    assert changed.recording.frames == 3 and changed.seed == 11
+    assert with_overrides(spec) == spec
+    with pytest.raises(ConfigError, match=r"recording\.frames: expected 1\.\.100000, got 0"):
+        with_overrides(spec, frames=0)
+    with pytest.raises(ConfigError, match=r"seed: expected 0 <= seed"):
+        with_overrides(spec, seed=-1)
