@@ -1,0 +1,509 @@
+"""Ingesting a recording: registered (obstructed, clean) pairs, cropped, verified, on disk.
+
+:func:`ingest_recording` is the library entry point of ``lenspair capture-ingest``.
+It writes the ingested-recording layout of :mod:`capture.ingested` under
+``OUT/<recording_id>/``:
+
+1. list both cameras (:mod:`capture.recording`), pair them by timestamp
+   (:mod:`capture.pairing`): every frame ends up paired or unpaired;
+2. load the calibration (``--calib``, else ``rig.yaml``'s ``calibration``,
+   else ``camchain.yaml`` beside the recording) and rectify (once);
+3. estimate the clean -> obstructed homography from features pooled over up
+   to 30 frames (:func:`rectify.registration.estimate_homography`), cached in
+   ``registration.json`` with a fingerprint of what it was computed from;
+4. choose the crop (:func:`rectify.crop.choose_crop`) and compose one map per
+   view (:mod:`rectify.remap`);
+5. check the declared obstructed side against the images
+   (:func:`capture.side_check.check_obstructed_side`);
+6. per frame (:mod:`capture.ingest_frames`, in a process pool with ``workers > 1``):
+   remap, verify, refine, write ``input/``, ``target/``, ``mask/``;
+7. write ``pairs.jsonl``, ``report.json`` and ``qa.png``.
+
+Resuming: each finished frame is appended to ``.journal.jsonl`` with a key
+that hashes everything its outputs depend on; a rerun skips frames whose key
+matches and whose files still have the recorded checksums, so an
+interrupted run (even ``kill -9``) finishes the work and a full rerun leaves
+every file byte-identical (``report.json`` is only rewritten when something
+other than its timings changed).
+"""
+
+import json
+import logging
+import re
+import time
+from collections import Counter
+from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from capture import ingest_frames as frame_work
+from capture.errors import CaptureError
+from capture.ingested import PAIRS_FILE, REPORT_FILE, IngestReport, PairRecord, write_pairs
+from capture.pairing import PairingResult, estimate_period_ns, pair_frames
+from capture.qa import QA_FILE, write_qa_sheet
+from capture.recording import (
+    CAMERAS,
+    FrameRef,
+    Recording,
+    find_rig_file,
+    load_frame,
+    open_recording,
+    resolve_obstructed,
+)
+from capture.rigfile import CameraName, RigFile
+from capture.side_check import check_obstructed_side
+from lenspair import __version__
+from lenspair.config import load_dataclass, to_plain
+from lenspair.errors import LenspairError
+from lenspair.fsutil import atomic_write_json, atomic_write_text, sha256_bytes, sha256_file
+from lenspair.progress import progress
+from rectify.calib_io import load_calibration
+from rectify.crop import CropError, choose_crop
+from rectify.rectification import StereoRectification
+from rectify.registration import EstimationParams, VerifyParams, estimate_homography
+from rectify.remap import target_map, valid_region
+from rectify.rig import StereoRig, rig_to_kalibr
+
+log = logging.getLogger(__name__)
+
+CAMCHAIN_FILE = "camchain.yaml"
+REGISTRATION_FILE = "registration.json"
+JOURNAL_FILE = ".journal.jsonl"
+SIDE_CHECK_FRAMES = 8
+MAX_LOGGED_PROBLEMS = 10
+SINGLE_FRAME_TOLERANCE_NS = 10_000_000
+"""Pairing tolerance when the frame period cannot be estimated (one frame per camera)."""
+
+
+def _fingerprint(obj: Any) -> str:
+    return sha256_bytes(json.dumps(obj, sort_keys=True, default=str).encode("utf-8"))
+
+
+def find_calibration(
+    recording: Recording, rig_file: RigFile, calibration: tuple[Path, ...]
+) -> tuple[StereoRig, str]:
+    """The rig calibration: ``--calib``, else ``rig.yaml``'s key, else ``camchain.yaml``.
+
+    Args:
+        recording: the recording (its folder is searched).
+        rig_file: the recording's ``rig.yaml`` contents.
+        calibration: files given with ``--calib`` (any format of
+            :func:`rectify.calib_io.load_calibration`).
+
+    Returns:
+        ``(rig, description of the source)``.
+
+    Raises:
+        CaptureError: none of the three exists; the message says where it looked.
+        RectifyError: the file is malformed (NaN, missing keys; names the file).
+
+    """
+    if calibration:
+        paths = list(calibration)
+    elif rig_file.calibration is not None:
+        rig_path = find_rig_file(recording.path)
+        base = rig_path.parent if rig_path is not None else recording.path
+        paths = [base / rig_file.calibration]
+        if not paths[0].is_file():
+            raise CaptureError(f"{rig_path}: calibration {rig_file.calibration!r} not found")
+    else:
+        places = [recording.path] if recording.path.is_dir() else []
+        places.append(recording.path.parent)
+        paths = [p / CAMCHAIN_FILE for p in places if (p / CAMCHAIN_FILE).is_file()][:1]
+        if not paths:
+            raise CaptureError(
+                f"{recording.path}: no calibration: pass --calib FILE, set 'calibration:' in "
+                f"rig.yaml, or put {CAMCHAIN_FILE} (Kalibr) beside the recording"
+            )
+    return load_calibration(paths)
+
+
+def _sample(count: int, limit: int) -> list[int]:
+    """Up to ``limit`` indices spread evenly over ``range(count)``."""
+    if count <= limit:
+        return list(range(count))
+    return sorted({round(i * (count - 1) / (limit - 1)) for i in range(limit)})
+
+
+def _map_tasks(
+    function: Any, tasks: list[Any], workers: int, context: frame_work.Context, desc: str
+) -> Iterator[Any]:
+    """Run ``function`` over ``tasks`` in order, in a process pool when ``workers > 1``."""
+    if workers <= 1 or len(tasks) <= 1:
+        frame_work.set_context(context)
+        yield from progress((function(t) for t in tasks), desc=desc, total=len(tasks))
+        return
+    with ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=get_context("spawn"),
+        initializer=frame_work.init_worker,
+        initargs=(context,),
+    ) as pool:
+        results = pool.map(function, tasks, chunksize=max(1, min(8, len(tasks) // (4 * workers))))
+        yield from progress(results, desc=desc, total=len(tasks))
+
+
+def _read_journal(path: Path) -> dict[int, tuple[str, PairRecord]]:
+    entries: dict[int, tuple[str, PairRecord]] = {}
+    if not path.is_file():
+        return entries
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:  # a line cut by a crash is ignored: that frame is simply redone
+            data = json.loads(line)
+            record = load_dataclass(PairRecord, data["record"])
+            entries[record.t_ns] = (str(data["key"]), record)
+        except (ValueError, KeyError, TypeError, LenspairError):
+            continue
+    return entries
+
+
+def _journal_line(key: str, record: PairRecord) -> str:
+    return json.dumps({"key": key, "record": to_plain(record)}, sort_keys=True) + "\n"
+
+
+def _remove_temporaries(out_dir: Path) -> None:
+    """Delete half-written temporary files a killed run left (atomic writes never finished)."""
+    for folder in (out_dir, *(out_dir / kind for kind in frame_work.OUTPUT_KINDS)):
+        for path in sorted(folder.glob(".*.tmp")):
+            path.unlink(missing_ok=True)
+
+
+def _remove_stale_outputs(out_dir: Path, records: list[PairRecord]) -> None:
+    """Delete images under input/, target/, mask/ that no kept record lists (earlier runs)."""
+    listed = {out_dir / name for record in records for name in record.files.values()}
+    for kind in frame_work.OUTPUT_KINDS:
+        for path in sorted((out_dir / kind).glob("*.png")):
+            if path not in listed:
+                path.unlink()
+
+
+def _still_valid(out_dir: Path, record: PairRecord) -> bool:
+    for kind, relative in record.files.items():
+        path = out_dir / relative
+        if not path.is_file() or sha256_file(path) != record.sha256.get(kind):
+            return False
+    return True
+
+
+def _category(reason: str) -> str:
+    """The stable part of a reason, for counting: text before the first ':' or ' ('."""
+    return re.split(r":| \(", reason, maxsplit=1)[0].strip()
+
+
+def _side_check_images(
+    pairs: list[tuple[FrameRef, FrameRef]], context: frame_work.Context, count: int
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Raw cam0 and cam1 images of the first ``count`` readable pairs among ``pairs``."""
+    images: dict[str, list[np.ndarray]] = {"cam0": [], "cam1": []}
+    for pair in pairs:
+        if len(images["cam0"]) == count:
+            break
+        try:
+            loaded = [load_frame(frame) for frame in pair]
+        except LenspairError:
+            continue
+        sizes = [(image.shape[1], image.shape[0]) for image in loaded]
+        if sizes != [context.raw_size(frame.camera) for frame in pair]:
+            continue
+        for frame, image in zip(pair, loaded, strict=True):
+            images[frame.camera].append(image)
+    return images["cam0"], images["cam1"]
+
+
+def _homography(
+    recording: Recording,
+    pairs: list[tuple[FrameRef, FrameRef]],
+    context: frame_work.Context,
+    estimation: EstimationParams,
+    workers: int,
+    out_dir: Path,
+    setup: dict[str, Any],
+) -> dict[str, Any]:
+    """The recording's homography, from the cache when its fingerprint matches.
+
+    The fingerprint hashes the setup (calibration, side, thresholds,
+    version) and the content of the sampled frames, so a rerun reuses the
+    exact same matrix and a changed input recomputes it.
+
+    Returns:
+        The registration record, as written to ``registration.json``.
+
+    """
+    chosen = [pairs[i] for i in _sample(len(pairs), estimation.max_frames)]
+    identity = [[o.t_ns, frame_work.content_id(o), frame_work.content_id(c)] for o, c in chosen]
+    fingerprint = _fingerprint(
+        {"setup": setup, "estimation": to_plain(estimation), "frames": identity}
+    )
+    cache = out_dir / REGISTRATION_FILE
+    try:
+        cached = json.loads(cache.read_text(encoding="utf-8"))
+        if cached.get("fingerprint") == fingerprint:
+            return dict(cached)
+    except (OSError, ValueError):
+        pass
+    tasks = [frame_work.SampleTask(o, c, estimation) for o, c in chosen]
+    samples = list(_map_tasks(frame_work.sample, tasks, workers, context, "features"))
+    usable = [s for s in samples if s.problem is None]
+    if not usable:
+        first = samples[0].problem if samples else "no frame of the two cameras could be paired"
+        raise CaptureError(f"{recording.path}: no usable frame pair to register: {first}")
+    scale = np.float32(1.0 / 255.0)
+    views = [
+        (s.obstructed * scale, s.clean * scale, context.valid_obstructed, context.valid_clean)
+        for s in usable
+    ]
+    estimate = estimate_homography(views, estimation, context.verify, [s.matches for s in usable])
+    registration = {
+        "fingerprint": fingerprint,
+        "matrix": estimate.matrix.tolist(),
+        "inliers": estimate.inliers,
+        "matches": estimate.matches,
+        "rms_px": estimate.rms_px,
+        "frames": {str(s.t_ns): n for s, n in zip(usable, estimate.inliers_per_frame, strict=True)},
+    }
+    atomic_write_json(cache, registration)
+    return registration
+
+
+def _frame_stage(
+    recording: Recording,
+    pairing: PairingResult,
+    rig_file: RigFile,
+    frame_pairs: list[tuple[FrameRef, FrameRef]],
+    context: frame_work.Context,
+    state: str,
+    workers: int,
+) -> list[PairRecord]:
+    """Process every pair not already done (journal), record unpaired frames; in time order."""
+    out_dir = context.out_dir
+    warnings = {
+        p.t_ns: str(p)
+        for p in recording.problems
+        if not p.dropped and p.camera == rig_file.obstructed and p.t_ns is not None
+    }
+    journal_path = out_dir / JOURNAL_FILE
+    journal = _read_journal(journal_path)
+    records: dict[int, PairRecord] = {}
+    tasks = []
+    for obstructed_frame, clean_frame in frame_pairs:
+        task = frame_work.FrameTask(
+            obstructed_frame, clean_frame, state, warnings.get(obstructed_frame.t_ns)
+        )
+        done = journal.get(obstructed_frame.t_ns)
+        if done and done[0] == task.key and _still_valid(out_dir, done[1]):
+            records[obstructed_frame.t_ns] = done[1]
+        else:
+            tasks.append(task)
+    keys = {t.obstructed.t_ns: t.key for t in tasks}
+    keys.update({t: journal[t][0] for t in records})
+    with journal_path.open("a", encoding="utf-8") as handle:
+        results = _map_tasks(frame_work.process, tasks, workers, context, "pairs")
+        for task, record in zip(tasks, results, strict=True):
+            records[record.t_ns] = record
+            handle.write(_journal_line(task.key, record))
+            handle.flush()  # a crash loses at most the frames in flight
+    for unpaired in pairing.unpaired_of(rig_file.obstructed):
+        frame = recording.frames[rig_file.obstructed][unpaired.index]
+        records[frame.t_ns] = PairRecord(t_ns=frame.t_ns, status="rejected", reason=unpaired.reason)
+    ordered = [records[t] for t in sorted(records)]
+    _remove_stale_outputs(out_dir, ordered)
+    write_pairs(out_dir / PAIRS_FILE, ordered)
+    lines = (_journal_line(keys[r.t_ns], r) for r in ordered if r.t_ns in keys)
+    atomic_write_text(journal_path, "".join(lines))  # compacted: one line per frame
+    return ordered
+
+
+def ingest_recording(
+    recording_path: Path,
+    out: Path,
+    *,
+    calibration: tuple[Path, ...] = (),
+    obstructed: str | None = None,
+    topics: tuple[str, str] | None = None,
+    size: tuple[int, int] = (540, 360),
+    workers: int = 1,
+    estimation: EstimationParams | None = None,
+    verify: VerifyParams | None = None,
+) -> IngestReport:
+    """Turn one stereo recording into registered, verified pairs under ``out/<recording_id>/``.
+
+    Args:
+        recording_path: EuRoC/ASL folder, bag, or left/right folders.
+        out: output root; the recording goes to ``out/<recording_id>/``.
+        calibration: calibration files (``--calib``); empty: rig.yaml / camchain.yaml.
+        obstructed: ``cam0``/``cam1`` overriding ``rig.yaml``.
+        topics: bag topics ``(cam0, cam1)``; None picks them.
+        size: crop ``(width, height)``, pixels.
+        workers: processes for the per-frame work (1: in this process).
+        estimation: homography estimation thresholds.
+        verify: per-frame verification thresholds (see :mod:`rectify.registration`).
+
+    Returns:
+        The report also written to ``report.json``.
+
+    Raises:
+        CaptureError: unreadable recording, no calibration, or no usable pair
+            at all (``pairs.jsonl`` and ``report.json`` are still written).
+        RectifyError: bad calibration, registration impossible, crop too large.
+
+    """
+    estimation = estimation or EstimationParams()
+    verify = verify or VerifyParams()
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(stage: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[stage] = round(now - clock, 3)
+        clock = now
+
+    start = clock
+    recording = open_recording(Path(recording_path), topics)
+    rig_file = resolve_obstructed(recording.path, obstructed)
+    clean: CameraName = rig_file.clean
+    rig, calibration_source = find_calibration(recording, rig_file, tuple(calibration))
+    for problem in recording.problems[:MAX_LOGGED_PROBLEMS]:
+        log.warning("%s", problem)
+    if len(recording.problems) > MAX_LOGGED_PROBLEMS:
+        more = len(recording.problems) - MAX_LOGGED_PROBLEMS
+        log.warning("%s: %d more problems (counted in report.json)", recording.path, more)
+    stamps0, stamps1 = recording.timestamps("cam0"), recording.timestamps("cam1")
+    tolerance = None if estimate_period_ns(stamps0, stamps1) else SINGLE_FRAME_TOLERANCE_NS
+    pairing = pair_frames(stamps0, stamps1, tolerance)
+    frame_pairs = []  # (obstructed frame, clean frame)
+    for pair in pairing.pairs:
+        both = (recording.frames["cam0"][pair.index0], recording.frames["cam1"][pair.index1])
+        frame_pairs.append(both if rig_file.obstructed == "cam0" else (both[1], both[0]))
+    out_dir = Path(out) / recording.recording_id
+    out_dir.mkdir(parents=True, exist_ok=True)
+    _remove_temporaries(out_dir)
+    lap("open")
+
+    rectification = StereoRectification.from_rig(rig)
+    context = frame_work.Context.build(out_dir, rig_file.obstructed, rectification, verify)
+    setup = {
+        "calibration": rig_to_kalibr(rig),
+        "obstructed": rig_file.obstructed,
+        "verify": to_plain(verify),
+        "version": __version__,
+    }
+    registration = _homography(recording, frame_pairs, context, estimation, workers, out_dir, setup)
+    lap("homography")
+
+    matrix = np.asarray(registration["matrix"], dtype=np.float64)
+    valid = valid_region(
+        context.rectified_to_raw_obstructed,
+        context.rectified_to_raw_clean,
+        matrix,
+        rectification.size,
+        rig.camera(rig_file.obstructed).resolution,
+        rig.camera(clean).resolution,
+    )
+    try:
+        crop = choose_crop(valid, size)
+    except CropError as exc:
+        raise CropError(f"{recording.path}: cannot crop {size[0]}x{size[1]}: {exc}") from None
+    margin = int(np.ceil(verify.max_shift_px)) + 2
+    context = context.with_maps(
+        crop, target_map(context.rectified_to_raw_clean, matrix, crop, margin)
+    )
+    lap("maps")
+
+    chosen = [frame_pairs[i] for i in _sample(len(frame_pairs), estimation.max_frames)]
+    images0, images1 = _side_check_images(chosen, context, SIDE_CHECK_FRAMES)
+    side_check: dict[str, Any] = {"message": "no readable frame pair to check", "mismatch": False}
+    if images0:
+        side = check_obstructed_side(images0, images1, rig_file.obstructed)
+        side_check = to_plain(side)
+        if side.mismatch:
+            log.warning("%s: %s", recording.path, side.message)
+    lap("side_check")
+
+    state = _fingerprint({**setup, "matrix": registration["matrix"], "crop": crop.as_tuple()})
+    ordered = _frame_stage(recording, pairing, rig_file, frame_pairs, context, state, workers)
+    lap("frames")
+
+    kept = [r for r in ordered if r.status == "kept"]
+    if kept:
+        write_qa_sheet(out_dir / QA_FILE, out_dir, ordered)
+    lap("qa")
+    timings["total"] = round(time.perf_counter() - start, 3)
+
+    counts = _counts(recording, pairing, rig_file, ordered)
+    counts["homography_frames"] = len(registration["frames"])
+    counts["homography_matches"] = int(registration["matches"])
+    counts["homography_inliers"] = int(registration["inliers"])
+    reasons = Counter(_category(r.reason) for r in ordered if r.status == "rejected" and r.reason)
+    for problem in recording.problems:
+        if problem.dropped:
+            reasons[f"{problem.camera or 'recording'} not listed: {_category(problem.reason)}"] += 1
+    homography_out = _in_output_pixels(matrix, crop.x, crop.y)
+    report = IngestReport(
+        recording_id=recording.recording_id,
+        source=str(recording.path),
+        obstructed=rig_file.obstructed,
+        anomaly=rig_file.anomaly,
+        calibration_source=calibration_source,
+        calibration=rig_to_kalibr(rig),
+        homography=homography_out.tolist(),
+        crop=crop.as_tuple(),
+        counts=counts,
+        rejection_reasons=dict(sorted(reasons.items())),
+        timings_s=timings,
+        side_check=side_check,
+        lenspair_version=__version__,
+    )
+    _write_report(out_dir / REPORT_FILE, report)
+    if not kept:
+        raise CaptureError(
+            f"{recording.path}: no usable pairs: all {len(ordered)} {rig_file.obstructed} frames "
+            f"rejected ({', '.join(f'{k}: {v}' for k, v in sorted(reasons.items()))}); "
+            f"see {out_dir / PAIRS_FILE}"
+        )
+    return report
+
+
+def _in_output_pixels(matrix: np.ndarray, x0: int, y0: int) -> np.ndarray:
+    """The rectified-pixel homography in cropped output pixels (both views cropped alike)."""
+    shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+    out = shift @ matrix @ np.linalg.inv(shift)
+    return np.asarray(out / out[2, 2])
+
+
+def _counts(
+    recording: Recording, pairing: PairingResult, rig_file: RigFile, records: list[PairRecord]
+) -> dict[str, int]:
+    """Frame bookkeeping; every frame of both cameras is in exactly one bucket."""
+    counts: dict[str, int] = {}
+    for camera in CAMERAS:
+        listed = len(recording.frames[camera])
+        dropped = sum(1 for p in recording.problems if p.dropped and p.camera == camera)
+        counts[f"frames_{camera}"] = listed + dropped
+        counts[f"listed_{camera}"] = listed
+        counts[f"dropped_{camera}"] = dropped
+        counts[f"unpaired_{camera}"] = len(pairing.unpaired_of(camera))
+    counts["pairs"] = len(pairing.pairs)
+    counts["kept"] = sum(1 for r in records if r.status == "kept")
+    counts["rejected"] = sum(1 for r in records if r.status == "rejected")
+    counts["rejected_paired"] = counts["rejected"] - counts[f"unpaired_{rig_file.obstructed}"]
+    counts["masked"] = sum(1 for r in records if r.status == "kept" and "mask" in r.files)
+    counts["recording_problems"] = sum(1 for p in recording.problems if p.camera is None)
+    return counts
+
+
+def _write_report(path: Path, report: IngestReport) -> None:
+    """Write ``report.json`` unless the existing one differs only in its timings."""
+    plain = to_plain(report)
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text(encoding="utf-8"))
+            if {**old, "timings_s": None} == {**json.loads(json.dumps(plain)), "timings_s": None}:
+                return
+        except ValueError:
+            pass
+    atomic_write_json(path, plain)

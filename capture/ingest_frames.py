@@ -1,0 +1,362 @@
+"""Per-frame work of ``capture-ingest``, runnable in worker processes.
+
+Everything a worker needs travels once, in a picklable :class:`Context`
+(:func:`set_context` is the pool initializer); tasks are small
+(:class:`SampleTask`, :class:`FrameTask`: two frame references each) and
+results are plain values. The work on a frame depends only on its inputs and
+the context, never on which process runs it or in what order, so outputs
+are identical for any number of workers. Per-frame problems (unreadable
+image, wrong size, failed registration) become rejected records, never
+exceptions.
+"""
+
+import json
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from capture.ingested import PairRecord
+from capture.recording import FrameRef, load_frame
+from capture.rigfile import CameraName
+from lenspair.errors import LenspairError
+from lenspair.fsutil import sha256_bytes, sha256_file
+from lenspair.imageio import write_image
+from rectify.crop import Crop
+from rectify.rectification import StereoRectification
+from rectify.registration import (
+    EstimationParams,
+    VerifyParams,
+    match_views,
+    measure_shift,
+    to_gray,
+    to_u8,
+    verify_pair,
+)
+from rectify.remap import RemapGrid, apply, input_map, shifted
+
+OUTPUT_KINDS = ("input", "target", "mask")
+
+
+@dataclass(frozen=True, eq=False)
+class Context:
+    """What every frame's work shares: cameras, rectification, maps, thresholds, output folder.
+
+    Attributes:
+        out_dir: ``OUT/<recording_id>``.
+        obstructed: the obstructed camera; ``clean`` is the other.
+        clean: the clean camera.
+        rectification: the rig's rectification (computed once).
+        verify: per-frame verification thresholds.
+        rectified_maps: full-grid rectification maps ``(map_x, map_y)`` of the
+            obstructed and clean view (for the homography samples only; emptied
+            by :meth:`with_maps`, so that workers of the frame stage do not
+            receive them).
+        valid_obstructed: rectified pixels of the obstructed view with data.
+        valid_clean: rectified pixels of the clean view with data (both emptied
+            by :meth:`with_maps` too).
+        crop: the output crop, once chosen.
+        input_grid: composed map of the obstructed view (rectify + crop).
+        target_grid: composed map of the clean view (rectify + homography +
+            crop), with a margin for per-frame shifts.
+
+    """
+
+    out_dir: Path
+    obstructed: CameraName
+    clean: CameraName
+    rectification: StereoRectification
+    verify: VerifyParams
+    rectified_maps: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+    valid_obstructed: np.ndarray = field(repr=False)
+    valid_clean: np.ndarray = field(repr=False)
+    crop: Crop | None = None
+    input_grid: RemapGrid | None = None
+    target_grid: RemapGrid | None = None
+
+    @classmethod
+    def build(
+        cls,
+        out_dir: Path,
+        obstructed: CameraName,
+        rectification: StereoRectification,
+        verify: VerifyParams,
+    ) -> "Context":
+        """Context before the crop is known (enough for :func:`sample`)."""
+        clean: CameraName = "cam0" if obstructed == "cam1" else "cam1"
+        maps = (rectification.maps(obstructed), rectification.maps(clean))
+
+        def valid(camera: CameraName, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+            width, height = rectification.rig.camera(camera).resolution
+            return np.asarray(
+                (map_x >= 0) & (map_x <= width - 1) & (map_y >= 0) & (map_y <= height - 1)
+            )
+
+        return cls(
+            out_dir,
+            obstructed,
+            clean,
+            rectification,
+            verify,
+            maps,
+            valid(obstructed, *maps[0]),
+            valid(clean, *maps[1]),
+        )
+
+    def rectified_to_raw_obstructed(self, points: np.ndarray) -> np.ndarray:
+        """Rectified -> raw pixel coordinates of the obstructed view, ``(N, 2)`` float64."""
+        return self.rectification.rectified_to_raw(self.obstructed, points).astype(np.float64)
+
+    def rectified_to_raw_clean(self, points: np.ndarray) -> np.ndarray:
+        """Rectified -> raw pixel coordinates of the clean view, ``(N, 2)`` float64."""
+        return self.rectification.rectified_to_raw(self.clean, points).astype(np.float64)
+
+    def with_maps(self, crop: Crop, target_grid: RemapGrid) -> "Context":
+        """The context with the crop and both composed maps."""
+        grid = input_map(self.rectified_to_raw_obstructed, crop)
+        empty = np.zeros((0, 0), np.float32)
+        return replace(  # the full-grid maps serve the samples only: workers need not get them
+            self,
+            rectified_maps=((empty, empty), (empty, empty)),
+            valid_obstructed=empty.astype(bool),
+            valid_clean=empty.astype(bool),
+            crop=crop,
+            input_grid=grid,
+            target_grid=target_grid,
+        )
+
+    def raw_size(self, camera: CameraName) -> tuple[int, int]:
+        """``(width, height)`` of ``camera``'s images according to the calibration."""
+        return self.rectification.rig.camera(camera).resolution
+
+
+_CONTEXT: Context | None = None
+
+
+def set_context(context: Context) -> None:
+    """Install the shared context in this process."""
+    global _CONTEXT
+    _CONTEXT = context
+
+
+def init_worker(context: Context) -> None:
+    """Pool initializer: install the context, and pin OpenCV to one thread per worker.
+
+    The pool already uses every core it was given; OpenCV's own threads
+    would only compete with it.
+    """
+    set_context(context)
+    cv2.setNumThreads(1)
+
+
+def _context() -> Context:
+    if _CONTEXT is None:
+        raise RuntimeError("ingest worker used before set_context()")
+    return _CONTEXT
+
+
+def _size_problem(image: np.ndarray, frame: FrameRef, expected: tuple[int, int]) -> str | None:
+    height, width = image.shape[:2]
+    if (width, height) == tuple(expected):
+        return None
+    return (
+        f"size mismatch: {frame.describe()} is {width}x{height} px, the calibration says "
+        f"{expected[0]}x{expected[1]}"
+    )
+
+
+def _load_pair(
+    obstructed: FrameRef, clean: FrameRef, context: Context
+) -> tuple[np.ndarray, np.ndarray] | str:
+    """Both raw images, or the reason they cannot be used."""
+    images = []
+    for frame, camera, role in (
+        (obstructed, context.obstructed, "input"),
+        (clean, context.clean, "clean"),
+    ):
+        try:
+            image = load_frame(frame)
+        except LenspairError as exc:
+            return f"cannot read {role} frame: {exc}"
+        problem = _size_problem(image, frame, context.raw_size(camera))
+        if problem is not None:
+            return problem
+        images.append(image)
+    first, second = images
+    if first.dtype != second.dtype or first.ndim != second.ndim:
+        return (
+            f"format mismatch: {obstructed.describe()} is {first.dtype} {first.shape}, "
+            f"{clean.describe()} is {second.dtype} {second.shape}"
+        )
+    return first, second
+
+
+@dataclass(frozen=True)
+class SampleTask:
+    """A frame pair sampled for the homography."""
+
+    obstructed: FrameRef
+    clean: FrameRef
+    estimation: EstimationParams
+
+
+@dataclass(frozen=True)
+class SampleResult:
+    """Rectified grey views of a sampled pair and their feature matches.
+
+    Attributes:
+        t_ns: obstructed timestamp.
+        problem: why the pair cannot be used (then everything else is empty).
+        obstructed: rectified grey view, ``uint8 (H, W)``.
+        clean: rectified grey view, ``uint8 (H, W)``.
+        matches: ``(clean_points, obstructed_points)`` in rectified px.
+
+    """
+
+    t_ns: int
+    problem: str | None = None
+    obstructed: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
+    clean: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.uint8))
+    matches: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 2)), np.zeros((0, 2)))
+
+
+def sample(task: SampleTask) -> SampleResult:
+    """Load, rectify and match one sampled pair."""
+    context = _context()
+    loaded = _load_pair(task.obstructed, task.clean, context)
+    if isinstance(loaded, str):
+        return SampleResult(task.obstructed.t_ns, loaded)
+    views = []
+    for raw, (map_x, map_y) in zip(loaded, context.rectified_maps, strict=True):
+        views.append(to_gray(np.asarray(cv2.remap(raw, map_x, map_y, cv2.INTER_LINEAR))))
+    obstructed, clean = views
+    matches = match_views(
+        obstructed, clean, context.valid_obstructed, context.valid_clean, task.estimation
+    )
+    return SampleResult(task.obstructed.t_ns, None, to_u8(obstructed), to_u8(clean), matches)
+
+
+def content_id(frame: FrameRef) -> str:
+    """Checksum of an image file's bytes; for bag frames, the message's location and bag stat."""
+    if frame.in_bag:
+        return json.dumps(_identity(frame))
+    try:
+        return sha256_file(frame.source)
+    except OSError as exc:
+        return f"unreadable: {exc.strerror}"
+
+
+def _identity(frame: FrameRef) -> list[object]:
+    try:
+        stat = frame.source.stat()
+        return [frame.describe(), stat.st_size, stat.st_mtime_ns]
+    except OSError:
+        return [frame.describe(), None, None]
+
+
+@dataclass(frozen=True)
+class FrameTask:
+    """One paired frame to ingest.
+
+    Attributes:
+        obstructed: the obstructed camera's frame (its timestamp names the outputs).
+        clean: the clean camera's frame.
+        state: fingerprint of everything shared that the outputs depend on.
+        warning: a recording problem about this frame that does not stop it.
+
+    """
+
+    obstructed: FrameRef
+    clean: FrameRef
+    state: str
+    warning: str | None = None
+
+    @property
+    def key(self) -> str:
+        """Hash of everything this frame's outputs depend on (resume check)."""
+        content = [self.state, self.warning, _identity(self.obstructed), _identity(self.clean)]
+        return sha256_bytes(json.dumps(content, default=str).encode("utf-8"))
+
+
+def output_paths(out_dir: Path, t_ns: int) -> dict[str, Path]:
+    """``input``/``target``/``mask`` file paths of a frame."""
+    return {kind: out_dir / kind / f"{t_ns}.png" for kind in OUTPUT_KINDS}
+
+
+def remove_outputs(out_dir: Path, t_ns: int, keep: tuple[str, ...] = ()) -> None:
+    """Delete a frame's output files left by an earlier run (except ``keep``)."""
+    for kind, path in output_paths(out_dir, t_ns).items():
+        if kind not in keep:
+            path.unlink(missing_ok=True)
+
+
+def _exposure(image: np.ndarray) -> tuple[float, float]:
+    """Fractions of pixels at full scale (any channel) and at zero (all channels)."""
+    top = np.iinfo(image.dtype).max
+    pixels = image.reshape(image.shape[0], image.shape[1], -1)
+    return float((pixels == top).any(axis=2).mean()), float((pixels == 0).all(axis=2).mean())
+
+
+def _figure(value: float | None) -> float | None:
+    return None if value is None else round(float(value), 6)
+
+
+def process(task: FrameTask) -> PairRecord:
+    """Remap, verify, refine and write one frame pair; returns its record."""
+    context = _context()
+    assert context.input_grid is not None and context.target_grid is not None
+    t_ns, t_clean = task.obstructed.t_ns, task.clean.t_ns
+    base = PairRecord(t_ns=t_ns, status="rejected", t_clean_ns=t_clean)
+    loaded = _load_pair(task.obstructed, task.clean, context)
+    if isinstance(loaded, str):
+        remove_outputs(context.out_dir, t_ns)
+        return replace(base, reason=loaded)
+    raw_obstructed, raw_clean = loaded
+    params = context.verify
+    image_in = apply(raw_obstructed, context.input_grid)
+    image_target = apply(raw_clean, shifted(context.target_grid, 0.0, 0.0))
+    gray_in, gray_target = to_gray(image_in), to_gray(image_target)
+    shift = measure_shift(gray_in, gray_target, params)
+    notes = [task.warning] if task.warning else []
+    if shift.failure is None and shift.magnitude > params.refine_px:
+        image_target = apply(raw_clean, shifted(context.target_grid, shift.dx, shift.dy))
+        gray_target = to_gray(image_target)
+        notes.append(f"refined: target shifted by ({shift.dx:.2f}, {shift.dy:.2f}) px")
+    saturated, black = _exposure(image_target)
+    sharpness = float(cv2.Laplacian(gray_target * np.float32(255.0), cv2.CV_32F).var())
+    figures = replace(
+        base,
+        sharpness=_figure(sharpness),
+        saturated=_figure(saturated),
+        black=_figure(black),
+    )
+    if shift.failure is not None:
+        remove_outputs(context.out_dir, t_ns)
+        residual = shift.magnitude if shift.correlation > 0 else None
+        return replace(figures, reason=shift.failure, residual_px=_figure(residual))
+    verdict = verify_pair(gray_in, gray_target, shift.anomaly, params)
+    figures = replace(
+        figures,
+        residual_px=_figure(verdict.residual_px),
+        photometric_residual=_figure(verdict.photometric_residual),
+        inliers=verdict.inliers,
+        mask_fraction=_figure(verdict.mask_fraction),
+    )
+    if verdict.reason is not None:
+        remove_outputs(context.out_dir, t_ns)
+        return replace(figures, reason=verdict.reason)
+    paths = output_paths(context.out_dir, t_ns)
+    outputs = {"input": image_in, "target": image_target}
+    if verdict.mask.any():
+        outputs["mask"] = np.where(verdict.mask, 255, 0).astype(np.uint8)
+    for kind, image in outputs.items():
+        write_image(paths[kind], image)
+    remove_outputs(context.out_dir, t_ns, keep=tuple(outputs))
+    return replace(
+        figures,
+        status="kept",
+        reason="; ".join(notes) or None,
+        files={kind: f"{kind}/{t_ns}.png" for kind in outputs},
+        sha256={kind: sha256_file(paths[kind]) for kind in outputs},
+    )

@@ -1,0 +1,167 @@
+"""Choosing the output crop inside the region that both registered views cover.
+
+The crop is an axis-aligned ``width x height`` rectangle (540x360 by default)
+in *rectified obstructed* pixels. It must lie entirely in the intersection of
+
+* the rectified obstructed view's valid region (rectified pixels whose source
+  lies inside the raw obstructed image), and
+* the clean view's valid region after the homography (rectified obstructed
+  pixels whose clean source, through the homography and the clean
+  rectification, lies inside the raw clean image).
+
+Among all placements that fit, the one whose centre is closest to the
+centroid of that intersection is chosen (ties: smallest ``y``, then ``x``),
+so the crop is centred in the valid intersection whenever it can be. When no
+placement fits, :class:`CropError` says how large the valid region is and by
+how much it falls short, e.g. ``valid region is 510x380 px; need 540x360:
+30 px too narrow``.
+"""
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from rectify.errors import RectifyError
+
+
+class CropError(RectifyError):
+    """The valid region of the registered views is smaller than the requested crop."""
+
+
+@dataclass(frozen=True)
+class Crop:
+    """An axis-aligned rectangle in rectified obstructed pixels.
+
+    Attributes:
+        x: left column of the crop (inclusive).
+        y: top row of the crop (inclusive).
+        width: columns.
+        height: rows.
+
+    """
+
+    x: int
+    y: int
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"crop size must be positive, got {self.width}x{self.height}")
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)`` in pixels."""
+        return (self.width, self.height)
+
+    def as_tuple(self) -> tuple[int, int, int, int]:
+        """``(x, y, width, height)``, as ``report.json`` stores it."""
+        return (self.x, self.y, self.width, self.height)
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """Parse ``"540x360"`` into ``(540, 360)``.
+
+    Raises:
+        ValueError: not ``WIDTHxHEIGHT`` with positive integers.
+
+    """
+    match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
+    if match is None or int(match.group(1)) <= 0 or int(match.group(2)) <= 0:
+        raise ValueError(
+            f"expected WIDTHxHEIGHT with positive integers (e.g. 540x360), got {text!r}"
+        )
+    return int(match.group(1)), int(match.group(2))
+
+
+def _run_lengths_down(valid: np.ndarray) -> np.ndarray:
+    """Per pixel: number of consecutive valid pixels ending here, counting downwards."""
+    runs = np.zeros(valid.shape, dtype=np.int32)
+    previous = np.zeros(valid.shape[1], dtype=np.int32)
+    for row in range(valid.shape[0]):
+        previous = np.where(valid[row], previous + 1, 0).astype(np.int32)
+        runs[row] = previous
+    return runs
+
+
+def _max_width_at_height(valid: np.ndarray, height: int) -> int:
+    """Widest all-valid rectangle of exactly ``height`` rows (0 when none)."""
+    if height <= 0 or height > valid.shape[0]:
+        return 0
+    tall_enough = _run_lengths_down(valid) >= height
+    return int(_run_lengths_down(tall_enough.T).max(initial=0))
+
+
+def _max_height_at_width(valid: np.ndarray, width: int) -> int:
+    """Tallest all-valid rectangle of exactly ``width`` columns (0 when none)."""
+    return _max_width_at_height(valid.T, width)
+
+
+def _largest_fitting(valid: np.ndarray, width: int, height: int) -> tuple[int, int]:
+    """Size of the valid region, as reported when a crop does not fit.
+
+    The widest valid rectangle at the requested height (or at the tallest
+    height the region has, if less), then the tallest valid rectangle at
+    that width (capped at the requested width).
+    """
+    tallest = int(_run_lengths_down(valid).max(initial=0))
+    found_width = _max_width_at_height(valid, min(height, tallest))
+    found_height = _max_height_at_width(valid, min(width, found_width))
+    return found_width, found_height
+
+
+def _shortfall_message(valid: np.ndarray, width: int, height: int) -> str:
+    found_width, found_height = _largest_fitting(valid, width, height)
+    parts = []
+    if found_width < width:
+        parts.append(f"{width - found_width} px too narrow")
+    if found_height < height:
+        parts.append(f"{height - found_height} px too short")
+    return (
+        f"valid region is {found_width}x{found_height} px; need {width}x{height}: "
+        + " and ".join(parts or ["does not fit"])
+    )
+
+
+def choose_crop(valid: np.ndarray, size: tuple[int, int]) -> Crop:
+    """Place a ``size`` crop in the valid region, centred as well as it can be.
+
+    Args:
+        valid: ``(H, W)`` bool, True where both registered views have data
+            (rectified obstructed pixel grid).
+        size: ``(width, height)`` of the crop in pixels.
+
+    Returns:
+        The crop whose centre is closest to the centroid of ``valid``.
+
+    Raises:
+        CropError: no placement fits; the message gives the size of the valid
+            region and the shortfall.
+        ValueError: ``valid`` is not a 2-D array.
+
+    """
+    valid = np.asarray(valid, dtype=bool)
+    if valid.ndim != 2:
+        raise ValueError(f"valid: expected shape (H, W), got {valid.shape}")
+    width, height = size
+    rows, cols = valid.shape
+    if width > cols or height > rows or not valid.any():
+        raise CropError(_shortfall_message(valid, width, height))
+    integral = np.zeros((rows + 1, cols + 1), dtype=np.int64)
+    integral[1:, 1:] = valid.cumsum(axis=0).cumsum(axis=1)
+    window = (
+        integral[height:, width:]
+        - integral[:-height, width:]
+        - integral[height:, :-width]
+        + integral[:-height, :-width]
+    )
+    fits = window == width * height
+    if not fits.any():
+        raise CropError(_shortfall_message(valid, width, height))
+    ys, xs = np.nonzero(valid)
+    centre_x, centre_y = float(xs.mean()), float(ys.mean())
+    top, left = np.nonzero(fits)  # row-major order: ties resolve to smallest y, then x
+    distance = (left + (width - 1) / 2 - centre_x) ** 2 + (top + (height - 1) / 2 - centre_y) ** 2
+    best = int(np.argmin(distance))
+    return Crop(int(left[best]), int(top[best]), width, height)

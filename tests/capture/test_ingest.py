@@ -1,0 +1,219 @@
+"""capture-ingest on small hand-made recordings: outputs, bookkeeping, bad input."""
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from capture.errors import CaptureError
+from capture.ingest import ingest_recording
+from capture.ingested import IngestReport, PairRecord, read_pairs, read_report
+from lenspair.cli import main
+from lenspair.imageio import read_image, write_image
+from rectify.crop import CropError
+from rectify.errors import RectifyError
+from rectify.registration import VerifyParams
+from tests.capture.ingest_helpers import CROP, DISPARITY, frame_files, make_recording
+
+SIZE = (240, 160)
+
+
+def _ingest(
+    recording: Path, out: Path, **kwargs: Any
+) -> tuple[Path, list[PairRecord], IngestReport]:
+    report = ingest_recording(recording, out, size=SIZE, **kwargs)
+    out_dir = out / report.recording_id
+    return out_dir, read_pairs(out_dir / "pairs.jsonl"), report
+
+
+def _assert_counts_add_up(counts: dict[str, int], obstructed: str = "cam1") -> None:
+    clean = "cam0" if obstructed == "cam1" else "cam1"
+    for camera in ("cam0", "cam1"):
+        assert (
+            counts[f"frames_{camera}"] == counts[f"listed_{camera}"] + counts[f"dropped_{camera}"]
+        )
+        assert counts[f"listed_{camera}"] == counts["pairs"] + counts[f"unpaired_{camera}"]
+    assert counts[f"listed_{obstructed}"] == counts["kept"] + counts["rejected"]
+    assert counts["rejected"] == counts["rejected_paired"] + counts[f"unpaired_{obstructed}"]
+    assert counts[f"listed_{clean}"] >= counts["pairs"]
+
+
+def test_ingest_writes_the_contract(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "rec")
+    out_dir, records, _ = _ingest(recording, tmp_path / "out")
+    assert [r.status for r in records] == ["kept"] * 4
+    assert [r.t_ns for r in records] == [int(p.stem) for p in frame_files(recording, "cam1")]
+    for record in records:
+        image_in = read_image(out_dir / record.files["input"])
+        image_target = read_image(out_dir / record.files["target"])
+        assert image_in.shape == image_target.shape == (160, 240) and image_in.dtype == np.uint8
+        assert record.t_clean_ns is not None and record.inliers and record.inliers > 50
+        assert record.residual_px is not None and record.residual_px < 0.1
+        assert record.sharpness and record.saturated is not None and record.black is not None
+        assert set(record.sha256) == set(record.files)
+        # registered: the target matches the input outside the drops, exposure aside
+        difference = np.abs(image_in.astype(float) - image_target.astype(float) / 0.85)
+        assert np.median(difference) < 3
+    saved = read_report(out_dir / "report.json")
+    assert saved.obstructed == "cam1" and saved.anomaly == ("rain",)
+    assert saved.calibration_source.endswith("camchain.yaml")
+    assert saved.crop[2:] == SIZE
+    assert saved.homography[0][2] == pytest.approx(-DISPARITY, abs=0.05)  # cam0 -> cam1 shift
+    assert saved.counts["kept"] == 4 and saved.rejection_reasons == {}
+    assert set(saved.timings_s) >= {"homography", "frames", "total"}
+    assert (out_dir / "qa.png").is_file() and (out_dir / "registration.json").is_file()
+    _assert_counts_add_up(saved.counts)
+
+
+@pytest.mark.parametrize(("dtype", "colour"), [(np.uint16, False), (np.uint8, True)])
+def test_bit_depth_and_channels_are_kept(tmp_path: Path, dtype: type, colour: bool) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3, dtype=dtype, colour=colour)
+    out_dir, records, _ = _ingest(recording, tmp_path / "out")
+    assert all(r.status == "kept" for r in records)
+    for kind in ("input", "target"):
+        image = read_image(out_dir / records[0].files[kind])
+        assert image.dtype == dtype and image.shape == ((160, 240, 3) if colour else (160, 240))
+    if dtype == np.uint16:
+        assert image.max() > 255
+
+
+def test_bad_frames_are_rejected_and_the_rest_processes(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "rec", frames=6)
+    cam1 = frame_files(recording, "cam1")
+    cam0 = frame_files(recording, "cam0")
+    cam1[1].write_bytes(b"this is not a png")  # corrupt
+    cam0[2].write_bytes(cam0[2].read_bytes()[:300])  # truncated (clean side)
+    write_image(cam1[3], np.zeros((100, 120), np.uint8))  # wrong size
+    out_dir, records, report = _ingest(recording, tmp_path / "out")
+    status = {r.t_ns: r for r in records}
+    bad_input = status[int(cam1[1].stem)]
+    assert bad_input.status == "rejected"
+    assert bad_input.reason is not None and bad_input.reason.startswith("cannot read input frame: ")
+    assert str(cam1[1]) in bad_input.reason
+    truncated = status[int(cam1[2].stem)]
+    assert truncated.reason is not None and str(cam0[2]) in truncated.reason
+    assert truncated.reason.startswith("cannot read clean frame: ")
+    size = status[int(cam1[3].stem)].reason
+    assert size == (f"size mismatch: {cam1[3]} is 120x100 px, the calibration says 320x240")
+    assert [r.status for r in records].count("kept") == 3
+    assert not (out_dir / "input" / f"{cam1[1].stem}.png").exists()
+    assert report.rejection_reasons == {
+        "cannot read clean frame": 1,
+        "cannot read input frame": 1,
+        "size mismatch": 1,
+    }
+    _assert_counts_add_up(report.counts)
+
+
+def test_unpaired_duplicate_and_backward_frames_are_accounted_for(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "rec", frames=6)
+    csv1 = recording / "mav0" / "cam1" / "data.csv"
+    lines = csv1.read_text().splitlines()
+    # cam1: a duplicate row and two rows out of order; cam0: one frame missing
+    csv1.write_text(
+        "\n".join([lines[0], lines[1], lines[3], lines[2], lines[3], *lines[4:]]) + "\n"
+    )
+    csv0 = recording / "mav0" / "cam0" / "data.csv"
+    rows0 = csv0.read_text().splitlines()
+    csv0.write_text("\n".join(rows0[:5] + rows0[6:]) + "\n")  # drop cam0's 5th frame
+    _, records, report = _ingest(recording, tmp_path / "out")
+    counts = report.counts
+    _assert_counts_add_up(counts)
+    assert counts["frames_cam1"] == 7 and counts["dropped_cam1"] == 1
+    assert counts["listed_cam0"] == 5 and counts["unpaired_cam1"] == 1
+    assert len(records) == 6  # one line per listed obstructed frame
+    unpaired = [r for r in records if r.t_clean_ns is None]
+    assert len(unpaired) == 1 and unpaired[0].reason == "no cam0 frame within 25.0 ms"
+    assert report.rejection_reasons["cam1 not listed: duplicate timestamp"] == 1
+    warned = [r for r in records if r.reason and "timestamp goes back" in r.reason]
+    assert len(warned) == 1 and warned[0].status == "kept"
+
+
+def test_all_frames_of_the_wrong_size_is_a_clear_error(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "rec", frames=2)
+    for path in frame_files(recording, "cam0") + frame_files(recording, "cam1"):
+        write_image(path, np.zeros((200, 300), np.uint8))
+    first = frame_files(recording, "cam1")[0]
+    with pytest.raises(
+        CaptureError,
+        match=rf"no usable frame pair to register: size mismatch: {first} is 300x200 px, "
+        r"the calibration says 320x240$",
+    ):
+        _ingest(recording, tmp_path / "out")
+
+
+def test_missing_camera_empty_recording_and_no_calibration(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "a", frames=2)
+    for path in frame_files(recording, "cam0"):
+        path.unlink()
+    (recording / "mav0" / "cam0" / "data.csv").write_text("#timestamp [ns],filename\n")
+    with pytest.raises(CaptureError, match="no cam0 frames could be listed"):
+        _ingest(recording, tmp_path / "out")
+    bare = make_recording(tmp_path / "b", frames=2)
+    import shutil
+
+    shutil.rmtree(bare / "mav0" / "cam1")
+    with pytest.raises(CaptureError, match=r"cam1: missing camera folder \(cam1\)"):
+        _ingest(bare, tmp_path / "out")
+    uncalibrated = make_recording(tmp_path / "c", frames=2, camchain=False)
+    (uncalibrated / "rig.yaml").write_text("obstructed: cam1\n")
+    with pytest.raises(CaptureError, match=r"c: no calibration: pass --calib FILE"):
+        _ingest(uncalibrated, tmp_path / "out")
+
+
+def test_nan_in_calibration_names_the_file(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "rec", frames=2)
+    camchain = recording / "camchain.yaml"
+    camchain.write_text(camchain.read_text().replace("300.0", ".nan", 1))
+    with pytest.raises(RectifyError, match=rf"{camchain}: cam0: camera parameters must be finite"):
+        _ingest(recording, tmp_path / "out")
+
+
+def test_crop_too_large_says_by_how_much(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "rec", frames=2)
+    with pytest.raises(CropError, match=r"need 330x160: 1[0-9] px too narrow"):
+        ingest_recording(recording, tmp_path / "out", size=(330, 160))
+
+
+def test_side_mismatch_is_flagged(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3, drops=60)
+    with caplog.at_level(logging.WARNING):
+        _, _, report = _ingest(recording, tmp_path / "out", obstructed="cam0")
+    side = report.side_check
+    assert side["declared"] == "cam0" and side["inferred"] == "cam1" and side["mismatch"]
+    assert any("images suggest cam1 is obstructed" in m for m in caplog.messages)
+
+
+def test_cli_success_and_one_line_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3)
+    out = tmp_path / "out"
+    assert main(["capture-ingest", str(recording), "--out", str(out), "--size", CROP]) == 0
+    assert "rec: kept 3 of 3 cam1 frames" in capsys.readouterr().out
+    for path in frame_files(recording, "cam1"):
+        path.write_bytes(b"garbage")
+    code = main(["capture-ingest", str(recording), "--out", str(out), "--size", CROP])
+    error = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(error) == 1
+    assert error[0].startswith("lenspair capture-ingest: error: ")
+    assert "no usable frame pair to register: cannot read input frame: " in error[0]
+    with pytest.raises(SystemExit):
+        main(["capture-ingest", str(recording), "--out", str(out), "--size", "big"])
+
+
+def test_nothing_usable_fails_after_writing_the_records(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3)
+    out = tmp_path / "out"
+    _ingest(recording, out)
+    strict = VerifyParams(max_photometric_residual=0.0)  # no pair can pass
+    with pytest.raises(CaptureError, match=r"no usable pairs: all 3 cam1 frames rejected"):
+        _ingest(recording, out, verify=strict)
+    records = read_pairs(out / "rec" / "pairs.jsonl")
+    assert [r.status for r in records] == ["rejected"] * 3
+    assert all(r.reason and r.reason.startswith("photometric residual") for r in records)
+    assert not list((out / "rec" / "input").glob("*.png"))  # no stale outputs stay behind
+    assert json.loads((out / "rec" / "report.json").read_text())["counts"]["kept"] == 0

@@ -1,0 +1,101 @@
+"""Resuming an interrupted ingest: deleted outputs, a cut journal, an exception, kill -9."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from capture import ingest_frames
+from capture.ingest import JOURNAL_FILE, ingest_recording
+from tests.capture.ingest_helpers import simulate, tree_bytes
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, bytes]]:
+    """A simulated rain recording (4 frames) and the files of an uninterrupted ingest."""
+    root = tmp_path_factory.mktemp("resume")
+    recording = simulate("rain", root / "rain", frames=4)
+    ingest_recording(recording, root / "out")
+    return recording, tree_bytes(root / "out" / "rain")
+
+
+def _same_as(reference: dict[str, bytes], out_dir: Path) -> None:
+    files = tree_bytes(out_dir)
+    assert files.keys() == reference.keys()
+    for name, content in reference.items():
+        if name == "report.json":  # rewritten by the resumed run: only its timings differ
+            ours, theirs = json.loads(files[name]), json.loads(content)
+            del ours["timings_s"], theirs["timings_s"]
+            assert ours == theirs
+        else:
+            assert files[name] == content, name
+
+
+def test_resume_after_deleting_outputs_and_cutting_the_journal(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path
+) -> None:
+    recording, files = reference
+    out_dir = tmp_path / "rain"
+    for name, content in files.items():
+        (out_dir / name).parent.mkdir(parents=True, exist_ok=True)
+        (out_dir / name).write_bytes(content)
+    inputs = sorted((out_dir / "input").glob("*.png"))
+    inputs[0].unlink()
+    (out_dir / "target" / inputs[-1].name).write_bytes(b"damaged")
+    (out_dir / "pairs.jsonl").unlink()
+    (out_dir / "report.json").unlink()
+    journal = out_dir / JOURNAL_FILE
+    journal.write_bytes(journal.read_bytes()[: len(journal.read_bytes()) // 2])  # cut mid-line
+    ingest_recording(recording, tmp_path)
+    _same_as(files, out_dir)
+
+
+def test_resume_after_an_exception_mid_run(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    recording, files = reference
+    real = ingest_frames.process
+    calls = []
+
+    def crash_on_second(task: ingest_frames.FrameTask) -> object:
+        calls.append(task)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(task)
+
+    monkeypatch.setattr(ingest_frames, "process", crash_on_second)
+    with pytest.raises(KeyboardInterrupt):
+        ingest_recording(recording, tmp_path)
+    monkeypatch.setattr(ingest_frames, "process", real)
+    assert not (tmp_path / "rain" / "pairs.jsonl").exists()
+    assert len((tmp_path / "rain" / JOURNAL_FILE).read_text().splitlines()) == 1
+    ingest_recording(recording, tmp_path)
+    _same_as(files, tmp_path / "rain")
+
+
+def test_resume_after_kill_9(reference: tuple[Path, dict[str, bytes]], tmp_path: Path) -> None:
+    recording, files = reference
+    journal = tmp_path / "rain" / JOURNAL_FILE
+    command = [sys.executable, "-m", "lenspair", "capture-ingest", str(recording)]
+    process = subprocess.Popen(
+        [*command, "--out", str(tmp_path)],
+        env={**os.environ, "LENSPAIR_QUIET": "1"},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 120
+    while process.poll() is None and time.monotonic() < deadline:
+        if journal.is_file() and journal.read_text():
+            break  # at least one frame is done: kill it in the middle of the rest
+        time.sleep(0.02)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    ingest_recording(recording, tmp_path)
+    _same_as(files, tmp_path / "rain")
+    shutil.rmtree(tmp_path / "rain")

@@ -1,0 +1,185 @@
+"""Registration on synthetic two-view scenes with known truth."""
+
+import cv2
+import numpy as np
+import pytest
+
+from rectify.registration import (
+    EstimationParams,
+    RegistrationError,
+    VerifyParams,
+    compensate_gain,
+    estimate_homography,
+    measure_shift,
+    to_gray,
+    verify_pair,
+)
+from rectify.remap import apply_homography, pixel_grid
+
+PARAMS = VerifyParams()
+
+
+def _texture(shape: tuple[int, int], seed: int) -> np.ndarray:
+    """Multi-scale noise in [0, 1], float32: corners and edges at every scale."""
+    rng = np.random.default_rng(seed)
+    image = np.zeros(shape, np.float32)
+    for sigma, amplitude in [(1.0, 0.25), (3.0, 0.35), (8.0, 0.5), (25.0, 0.6)]:
+        noise = cv2.GaussianBlur(rng.standard_normal(shape).astype(np.float32), (0, 0), sigma)
+        image += amplitude * noise / noise.std()
+    return (image - image.min()) / (image.max() - image.min())
+
+
+def _drops(
+    image: np.ndarray, rng: np.random.Generator, count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Disks showing a flipped, blurred view of the scene (crude raindrops) and their mask."""
+    out, mask = image.copy(), np.zeros(image.shape, bool)
+    h, w = image.shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    for _ in range(count):
+        cx, cy, r = rng.uniform(0, w), rng.uniform(0, h), rng.uniform(6, 22)
+        disk = (xs - cx) ** 2 + (ys - cy) ** 2 < r * r
+        sx = np.clip(cx - 0.5 * (xs - cx), 0, w - 1)
+        sy = np.clip(cy - 0.5 * (ys - cy), 0, h - 1)
+        flipped = cv2.GaussianBlur(cv2.remap(image, sx, sy, cv2.INTER_LINEAR), (0, 0), 2)
+        out[disk] = 0.8 * flipped[disk] + 0.1
+        mask |= disk
+    return out, mask
+
+
+BIG = _texture((420, 620), 3)
+
+
+def _pair(
+    shift: tuple[float, float] = (0.0, 0.0),
+    near: tuple[int, int, int, int, float] | None = None,
+    drops: int = 30,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(obstructed, clean, drop mask): 540x360, clean shifted by ``shift`` and darker."""
+    obstructed, drop_mask = _drops(BIG[30:390, 40:580].copy(), np.random.default_rng(1), drops)
+
+    def view(dx: float, dy: float) -> np.ndarray:
+        M = np.float32([[1, 0, 40 + dx], [0, 1, 30 + dy]])
+        flags = cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP
+        return np.asarray(cv2.warpAffine(BIG, M, (540, 360), flags=flags))
+
+    clean = view(*shift)
+    if near is not None:
+        x, y, w, h, disparity = near
+        clean[y : y + h, x : x + w] = view(disparity, 0.0)[y : y + h, x : x + w]
+    clean = np.clip(clean * 0.8 + 0.05, 0, 1).astype(np.float32)  # another exposure
+    return obstructed.astype(np.float32), clean, drop_mask
+
+
+def test_to_gray_scales_by_bit_depth() -> None:
+    assert to_gray(np.full((2, 2), 65535, np.uint16)).max() == pytest.approx(1.0)
+    rgb = np.zeros((2, 2, 3), np.uint8)
+    rgb[..., 1] = 255
+    assert to_gray(rgb)[0, 0] == pytest.approx(0.587, abs=1e-3)
+
+
+def test_gain_compensation_removes_exposure_difference() -> None:
+    obstructed, clean, _ = _pair(drops=0)
+    before = np.abs(obstructed - clean).mean()
+    after = np.abs(obstructed - compensate_gain(obstructed, clean, PARAMS)).mean()
+    assert after < 0.1 * before
+
+
+def test_homography_recovered_despite_drops_and_exposure() -> None:
+    truth = np.array([[1.003, 0.001, 6.5], [0.0005, 0.999, 0.3], [2e-6, 0.0, 1.0]])
+    big = _texture((520, 800), 7)
+    rng = np.random.default_rng(2)
+    frames = []
+    for i in range(3):
+        scene = np.roll(big, -9 * i, axis=1)[20:500, 20:772].copy()
+        obstructed, _ = _drops(scene, rng, 40)
+        clean = cv2.warpPerspective(scene, np.linalg.inv(truth), (752, 480), flags=cv2.INTER_CUBIC)
+        clean = np.clip(clean * 0.8 + 0.05, 0, 1).astype(np.float32)
+        valid = np.ones(obstructed.shape, bool)
+        frames.append((obstructed.astype(np.float32), clean, valid, valid))
+    estimate = estimate_homography(frames, EstimationParams(max_features=1500))
+    points = pixel_grid(106, 60, 540, 360)
+    error = np.linalg.norm(
+        apply_homography(estimate.matrix, points) - apply_homography(truth, points), axis=1
+    )
+    assert np.median(error) < 0.05 and error.max() < 0.15
+    assert len(estimate.inliers_per_frame) == 3 and min(estimate.inliers_per_frame) > 100
+    assert estimate.rms_px < 0.5
+
+
+def test_homography_from_flat_views_is_a_clear_error() -> None:
+    flat = np.full((120, 160), 0.5, np.float32)
+    valid = np.ones(flat.shape, bool)
+    with pytest.raises(RegistrationError, match=r"only 0 feature matches .*\(need >= 30\)"):
+        estimate_homography([(flat, flat, valid, valid)])
+
+
+def test_aligned_pair_is_kept_without_mask() -> None:
+    obstructed, clean, _ = _pair()
+    shift = measure_shift(obstructed, clean, PARAMS)
+    assert shift.failure is None and shift.magnitude < 0.05 and shift.correlation > 0.95
+    verdict = verify_pair(obstructed, clean, shift.anomaly, PARAMS)
+    assert verdict.reason is None
+    assert verdict.mask_fraction < 0.02
+    assert verdict.residual_px is not None and verdict.residual_px < 0.1
+    assert verdict.inliers > 100 and verdict.photometric_residual < 0.02
+
+
+def test_drops_are_anomalies_not_parallax() -> None:
+    obstructed, clean, drops = _pair(drops=60)
+    shift = measure_shift(obstructed, clean, PARAMS)
+    assert shift.anomaly[drops].mean() > 0.6  # most of the drop area is excluded
+    verdict = verify_pair(obstructed, clean, shift.anomaly, PARAMS)
+    assert verdict.reason is None
+    assert verdict.mask[drops].mean() < 0.1  # drops stay trainable
+
+
+@pytest.mark.parametrize("true_shift", [(0.7, -0.4), (-1.5, 0.0), (0.0, 1.2)])
+def test_global_shift_is_measured(true_shift: tuple[float, float]) -> None:
+    obstructed, clean, _ = _pair(shift=true_shift)
+    shift = measure_shift(obstructed, clean, PARAMS)
+    assert shift.failure is None
+    # target(x + shift) ~ input(x): the clean view sampled at +true_shift needs -true_shift
+    assert shift.dx == pytest.approx(-true_shift[0], abs=0.1)
+    assert shift.dy == pytest.approx(-true_shift[1], abs=0.1)
+
+
+def test_large_shift_is_rejected() -> None:
+    obstructed, clean, _ = _pair(shift=(4.0, 0.0))
+    shift = measure_shift(obstructed, clean, PARAMS)
+    assert shift.failure is not None
+    assert shift.failure.startswith("registration failed: target off by 3.")
+
+
+def test_vertical_misalignment_is_never_kept() -> None:
+    obstructed, clean, _ = _pair(shift=(0.0, 1.2))
+    shift = measure_shift(obstructed, clean, PARAMS)
+    verdict = verify_pair(obstructed, clean, shift.anomaly, PARAMS)  # without refinement
+    assert verdict.reason is not None and "registration" in verdict.reason
+
+
+def test_near_object_is_masked() -> None:
+    x, y, w, h = 200, 100, 120, 100
+    obstructed, clean, _ = _pair(near=(x, y, w, h, 6.0))
+    shift = measure_shift(obstructed, clean, PARAMS)
+    assert shift.failure is None and shift.magnitude < 0.1
+    verdict = verify_pair(obstructed, clean, shift.anomaly, PARAMS)
+    assert verdict.reason is None
+    assert verdict.mask[y : y + h, x : x + w].mean() > 0.9
+    outside = np.ones_like(verdict.mask)
+    outside[y - 20 : y + h + 20, x - 20 : x + w + 20] = False
+    assert verdict.mask[outside].mean() < 0.02
+
+
+def test_mostly_near_frame_is_rejected_and_does_not_bias_the_shift() -> None:
+    obstructed, clean, _ = _pair(near=(0, 0, 400, 300, 6.0))
+    shift = measure_shift(obstructed, clean, PARAMS)
+    assert shift.magnitude < PARAMS.refine_px  # the far part decides
+    verdict = verify_pair(obstructed, clean, shift.anomaly, PARAMS)
+    assert verdict.reason is not None and verdict.reason.startswith("parallax: ")
+
+
+def test_flat_frame_cannot_be_verified() -> None:
+    flat = np.full((360, 540), 0.4, np.float32)
+    shift = measure_shift(flat, flat, PARAMS)
+    assert shift.failure is not None and shift.failure.startswith("registration unverified")
