@@ -1,0 +1,76 @@
+"""Every subcommand on a few frames, chained as a user runs them (``lenspair demo --quick``)."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lenspair.cli import main
+from lenspair.demo import QUICK, plan
+from lenspair.imageio import read_image
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def demo_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("demo")
+    assert main(["demo", "--out", str(out), "--quick"]) == 0
+    return out
+
+
+def test_demo_runs_every_stage_and_writes_the_report(demo_out: Path) -> None:
+    timings = json.loads((demo_out / "timings.json").read_text())
+    assert list(timings) == [stage.name for stage in plan(demo_out, QUICK)]
+    report = (demo_out / "report.md").read_text()
+    for section in ("Calibration", "Ingest", "Dataset", "Evaluation", "Accuracy against time"):
+        assert f"## {section}" in report
+    assert "<table>" in (demo_out / "report.html").read_text()
+    for picture in ("eval/contact_sheet.png", "tradeoff/tradeoff.png"):
+        assert picture in report and (demo_out / picture).is_file()
+
+
+def test_ingested_pairs_are_540x360_and_accounted_for(demo_out: Path) -> None:
+    for name, obstructed in (("rain", "cam1"), ("dust_swapped", "cam0")):
+        folder = demo_out / "ingested" / name
+        report = json.loads((folder / "report.json").read_text())
+        assert report["obstructed"] == obstructed
+        lines = (folder / "pairs.jsonl").read_text().splitlines()
+        frames = len(
+            list((demo_out / "recordings" / name / "mav0" / obstructed / "data").glob("*.png"))
+        )
+        assert len(lines) == frames  # one line per obstructed input frame
+        kept = [json.loads(line) for line in lines if '"kept"' in line]
+        assert kept, f"{name}: no pair kept"
+        image = read_image(folder / kept[0]["files"]["input"])
+        assert image.shape[:2] == (360, 540)
+
+
+def test_dataset_tracks_the_clean_side_of_both_recordings(demo_out: Path) -> None:
+    rows = [
+        json.loads(line)
+        for line in (demo_out / "dataset" / "manifest.jsonl").read_text().splitlines()
+    ]
+    sides = {(row["recording"], row["clean"]) for row in rows}
+    assert sides == {("rain", "cam0"), ("dust_swapped", "cam1")}
+
+
+def test_rerun_reuses_finished_stages(demo_out: Path) -> None:
+    before = (demo_out / "report.md").stat().st_mtime_ns
+    assert main(["demo", "--out", str(demo_out), "--quick"]) == 0
+    timings = json.loads((demo_out / "timings.json").read_text())
+    assert all(entry["reused"] for entry in timings.values())
+    assert (demo_out / "report.md").stat().st_mtime_ns >= before
+
+
+def test_eval_and_export_of_the_fine_tuned_checkpoint(demo_out: Path, tmp_path: Path) -> None:
+    checkpoint = demo_out / "runs" / "finetune" / "checkpoints" / "best.pt"
+    metrics = json.loads((demo_out / "eval" / "metrics.json").read_text())
+    assert "convention" in json.dumps(metrics)
+    assert main(["export", str(checkpoint), "--torchscript", str(tmp_path / "m.pt")]) == 0
+    assert (tmp_path / "m.pt").stat().st_size > 0
+    rows = json.loads((demo_out / "tradeoff" / "tradeoff.json").read_text())["variants"]
+    assert {row["name"] for row in rows} >= {"G", "GE", "GEA", "GEA-w0.5", "GEA-w2", "GEA-b3"}
+    assert {row["precision"] for row in rows if row["name"] == "GEA"} >= {"fp32", "bf16"}
+    assert all(np.isfinite(row["psnr_db"]) and row["cpu_ms"] > 0 for row in rows)
