@@ -294,6 +294,34 @@ def _pyramid(linear: np.ndarray, depth: int) -> list[np.ndarray]:
     return levels
 
 
+_REMAP_WIDTH = 4096
+"""Row length for point lookups: cv2.remap refuses maps of 32767 or more columns."""
+
+
+def _remap_points(image: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """Bilinear samples of ``image`` at the ``(N,)`` float32 points ``xs``, ``ys``.
+
+    The points are laid out as rows of at most :data:`_REMAP_WIDTH` so that any
+    number of drop pixels (large drops on large images) stays within OpenCV's
+    map size limit. Returns ``(N,)`` or ``(N, C)`` like one row of ``image``.
+    """
+    count = xs.shape[0]
+    rows = -(-count // _REMAP_WIDTH)
+    padded = rows * _REMAP_WIDTH
+    map_x = np.zeros(padded, np.float32)
+    map_y = np.zeros(padded, np.float32)
+    map_x[:count], map_y[:count] = xs, ys
+    values = cv2.remap(
+        image,
+        map_x.reshape(rows, _REMAP_WIDTH),
+        map_y.reshape(rows, _REMAP_WIDTH),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REFLECT_101,
+    )
+    flat: np.ndarray = values.reshape(padded, *values.shape[2:])[:count]
+    return flat
+
+
 def shade(linear: np.ndarray, optics: DropOptics, rim_brightness: float) -> np.ndarray:
     """Colour each drop pixel sees: refracted scene, Fresnel loss and dark rim.
 
@@ -314,9 +342,7 @@ def shade(linear: np.ndarray, optics: DropOptics, rim_brightness: float) -> np.n
     depth = max(level for level, _, _, _ in optics.lookups)
     pyramid = _pyramid(linear[..., 0] if channels == 1 else linear, depth)
     for level, pixels, map_x, map_y in optics.lookups:
-        values = cv2.remap(
-            pyramid[level], map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101
-        )
+        values = _remap_points(pyramid[level], map_x.ravel(), map_y.ravel())
         sampled[pixels] = values.reshape(-1, channels)
     owner = optics.sprites.owner
     transmittance = optics.transmittance

@@ -232,3 +232,15 @@ def test_same_drops_whatever_else_is_listed() -> None:
     both = sample_glass(listed, (50, 60), np.random.default_rng(4))
     assert alone.drops is not None and both.drops is not None
     np.testing.assert_array_equal(alone.drops.centers, both.drops.centers)
+
+
+def test_large_drop_layers_beyond_opencv_map_limit() -> None:
+    """Over 32767 drop pixels in one pyramid level (cv2.remap's map limit) still render."""
+    from simulate.effects.spec import EffectsSpec, RaindropsSpec
+    from simulate.render import render_effects
+
+    image = np.random.default_rng(0).integers(0, 256, (540, 720), dtype=np.uint8)
+    spec = EffectsSpec(raindrops=RaindropsSpec(count=60, radius_px=(60.0, 80.0)))
+    out, mask = render_effects(image, spec, np.random.default_rng(1))
+    assert int((mask > 0).sum()) > 32767
+    assert out.dtype == np.uint8 and not np.array_equal(out, image)
