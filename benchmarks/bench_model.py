@@ -1,0 +1,383 @@
+"""CPU latency of the restoration network against the machine's measured peak.
+
+``python -m benchmarks.bench_model [--out DIR]``: GEA, mono, 540x360, batch 1,
+``torch.inference_mode``, after warm-up. Reports
+
+* the fp32 matmul peak measured in the same run, as the best of three
+  GEMM-like kernels: ``torch.mm`` 2048^3 (MKL, which takes a slow path on
+  this AMD CPU), a oneDNN 1x1 convolution (a plain 4096x512x512 GEMM) and a
+  oneDNN 3x3 convolution (an implicit 4096x256x2304 GEMM, the kernel family
+  the network runs on); the roofline is ``FLOPs / best``;
+* the model's FLOPs (2 per MAC, :mod:`model.complexity`);
+* fp32 latency (NCHW and channels-last) and its ratio to the roofline
+  ``FLOPs / peak``;
+* bf16 latency for autocast and for bf16 weights, each NCHW and
+  channels-last, the fastest one named, and the PSNR of its output against
+  the fp32 output;
+* with ``--compile``, also ``torch.compile`` (inductor, offline, C++ code
+  generation with gcc, frozen weights) of the channels-last models;
+* the same with glibc's default allocator, and, as a measure that other
+  processes disturb much less, the CPU time of one forward pass on one
+  thread against a one-thread peak measured the same way.
+
+Allocator: by default glibc serves the large activation tensors with fresh
+``mmap`` calls and returns them on free, so every forward pass page-faults
+all of its memory again (measured 2-3x slower). The main numbers are taken
+after ``mallopt`` raises the mmap threshold to 32 MiB and disables trimming,
+which has the effect of deploying with jemalloc/tcmalloc, as Intel
+recommends for PyTorch on CPU.
+
+Configurations are timed round-robin (interleaved) so that load from other
+processes hits them all alike; medians are quoted, and the load average and
+CPU pressure at the start and end of the run are recorded.
+"""
+
+import argparse
+import contextlib
+import copy
+import ctypes
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from model.complexity import describe
+from model.metrics import psnr
+from model.variants import AnomalyMitigator, build_model
+
+HEIGHT, WIDTH = 360, 540
+LATENCY_TARGET_BF16_MS = 50.0
+ROOFLINE_TARGET = 1.5
+MMAP_THRESHOLD = 32 * 1024 * 1024
+
+Clock = Callable[[], float]
+Context = Callable[[], contextlib.AbstractContextManager[None]]
+
+
+def _round_robin(
+    calls: dict[str, Callable[[], object]], runs: int, warmup: int, clock: Clock
+) -> dict[str, list[float]]:
+    for call in calls.values():
+        for _ in range(warmup):
+            call()
+    times: dict[str, list[float]] = {name: [] for name in calls}
+    for _ in range(runs):
+        for name, call in calls.items():
+            start = clock()
+            call()
+            times[name].append(clock() - start)
+    return times
+
+
+def _median_ms(samples: list[float]) -> float:
+    return statistics.median(samples) * 1e3
+
+
+def _peaks(runs: int, clock: Clock) -> dict[str, float]:
+    """Median fp32 GFLOP/s of three GEMM-like kernels.
+
+    ``torch.mm`` 2048^3 (MKL), a 1x1 convolution 512->512 on 64x64 (a plain
+    4096x512x512 GEMM in oneDNN) and a 3x3 convolution 256->256 on 64x64 (an
+    implicit 4096x256x2304 GEMM in oneDNN, the kernel family the network uses).
+    """
+    generator = torch.Generator().manual_seed(0)
+    n = 2048
+    a = torch.randn(n, n, generator=generator)
+    b = torch.randn(n, n, generator=generator)
+    cl = torch.channels_last
+    side = 64
+    x1 = torch.randn(1, 512, side, side, generator=generator).contiguous(memory_format=cl)
+    w1 = torch.randn(512, 512, 1, 1, generator=generator).contiguous(memory_format=cl)
+    x3 = torch.randn(1, 256, side, side, generator=generator).contiguous(memory_format=cl)
+    w3 = torch.randn(256, 256, 3, 3, generator=generator).contiguous(memory_format=cl)
+    times = _round_robin(
+        {
+            "mm": lambda: torch.mm(a, b),
+            "conv1x1": lambda: F.conv2d(x1, w1),
+            "conv3x3": lambda: F.conv2d(x3, w3, padding=1),
+        },
+        runs,
+        3,
+        clock,
+    )
+    flops = {
+        "mm": 2 * n**3,
+        "conv1x1": 2 * side * side * 512 * 512,
+        "conv3x3": 2 * side * side * 256 * 256 * 9,
+    }
+    return {f"{name}_gflops": flops[name] / statistics.median(times[name]) / 1e9 for name in flops}
+
+
+def _structured_image() -> torch.Tensor:
+    """A deterministic mono test frame: gradients, stripes, a disc, fine noise."""
+    yy, xx = torch.meshgrid(
+        torch.linspace(0, 1, HEIGHT), torch.linspace(0, 1, WIDTH), indexing="ij"
+    )
+    image = 0.4 + 0.3 * xx * yy + 0.15 * torch.sin(40 * xx) * torch.cos(25 * yy)
+    image[((xx - 0.6) ** 2 + (yy - 0.4) ** 2) < 0.02] = 0.95
+    noise = torch.rand(HEIGHT, WIDTH, generator=torch.Generator().manual_seed(0))
+    return (image + 0.03 * noise).clamp(0, 1)[None, None]
+
+
+def _untrained_model() -> AnomalyMitigator:
+    """GEA with its zero-initialised heads randomised, so outputs differ from inputs."""
+    torch.manual_seed(0)
+    model = build_model("GEA", 1)
+    assert model.enhancer is not None
+    with torch.no_grad():
+        for head in (model.generator.head, model.enhancer.fuse):
+            head.weight.normal_(0.0, 0.002)
+    return model.eval()
+
+
+def _channels_last(model: AnomalyMitigator) -> AnomalyMitigator:
+    """Move 4-D weights to channels-last (oneDNN's fast layout on CPU)."""
+    return model.to(memory_format=torch.channels_last)  # type: ignore[call-overload,no-any-return]
+
+
+@contextlib.contextmanager
+def _nothing() -> Iterator[None]:
+    yield
+
+
+def _autocast() -> contextlib.AbstractContextManager[None]:
+    return torch.autocast("cpu", dtype=torch.bfloat16)
+
+
+def _pressure() -> str:
+    try:
+        return Path("/proc/pressure/cpu").read_text().splitlines()[0]
+    except OSError:
+        return "n/a"
+
+
+def _tune_allocator() -> bool:
+    """Keep freed activations in the heap (glibc ``mallopt``); False where unavailable."""
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        m_trim_threshold, m_mmap_threshold = -1, -3
+        ok_mmap = libc.mallopt(m_mmap_threshold, MMAP_THRESHOLD)
+        ok_trim = libc.mallopt(m_trim_threshold, 2**30)
+    except (OSError, AttributeError):
+        return False
+    return bool(ok_mmap and ok_trim)
+
+
+def _configs(
+    model: AnomalyMitigator, compile_models: bool
+) -> dict[str, tuple[Callable[[torch.Tensor], torch.Tensor], torch.Tensor, Context]]:
+    image = _structured_image()
+    image_cl = image.contiguous(memory_format=torch.channels_last)
+    model_cl = _channels_last(copy.deepcopy(model))
+    model_bf16 = copy.deepcopy(model).to(torch.bfloat16)
+    model_bf16_cl = _channels_last(copy.deepcopy(model_bf16))
+    image_bf16 = image.to(torch.bfloat16)
+    image_bf16_cl = image_bf16.contiguous(memory_format=torch.channels_last)
+    configs: dict[str, tuple[Callable[[torch.Tensor], torch.Tensor], torch.Tensor, Context]] = {
+        "fp32 NCHW": (model.restore, image, _nothing),
+        "fp32 channels-last": (model_cl.restore, image_cl, _nothing),
+        "bf16 autocast NCHW": (model.restore, image, _autocast),
+        "bf16 autocast channels-last": (model_cl.restore, image_cl, _autocast),
+        "bf16 weights NCHW": (model_bf16.restore, image_bf16, _nothing),
+        "bf16 weights channels-last": (model_bf16_cl.restore, image_bf16_cl, _nothing),
+    }
+    if compile_models:
+        import torch._inductor.config as inductor_config
+
+        inductor_config.freezing = True
+        configs["fp32 channels-last compiled"] = (
+            torch.compile(model_cl.restore),
+            image_cl,
+            _nothing,
+        )
+        configs["bf16 weights channels-last compiled"] = (
+            torch.compile(model_bf16_cl.restore),
+            image_bf16_cl,
+            _nothing,
+        )
+    return configs
+
+
+def run(runs: int, warmup: int, threads: int, compile_models: bool = False) -> dict[str, object]:
+    """Measure everything; returns the JSON record."""
+    load_start, pressure_start = os.getloadavg(), _pressure()
+    model = _untrained_model()
+    summary = describe(model, (1, HEIGHT, WIDTH))
+    configs = _configs(model, compile_models)
+    outputs: dict[str, torch.Tensor] = {}
+
+    def caller(name: str) -> Callable[[], object]:
+        network, x, context = configs[name]
+
+        def call() -> object:
+            with context():
+                outputs[name] = network(x)
+            return None
+
+        return call
+
+    calls = {name: caller(name) for name in configs}
+    with torch.inference_mode():
+        torch.set_num_threads(threads)
+        default_times = _round_robin(calls, max(5, runs // 2), warmup, time.perf_counter)
+        allocator_tuned = _tune_allocator()
+        peaks = _peaks(max(5, runs // 3), time.perf_counter)
+        times = _round_robin(calls, runs, warmup, time.perf_counter)
+        torch.set_num_threads(1)
+        single_peaks = _peaks(5, time.thread_time)
+        single_times = _round_robin(calls, max(5, runs // 4), 1, time.thread_time)
+        torch.set_num_threads(threads)
+    medians = {name: _median_ms(samples) for name, samples in times.items()}
+    peak = max(peaks.values())
+    single_peak = max(single_peaks.values())
+    roofline_ms = summary.flops / peak / 1e6
+    single_roofline_ms = summary.flops / single_peak / 1e6
+    fp32_name = min((n for n in medians if n.startswith("fp32")), key=medians.__getitem__)
+    bf16_name = min((n for n in medians if n.startswith("bf16")), key=medians.__getitem__)
+    eager_name = min(
+        (n for n in medians if n.startswith("fp32") and "compiled" not in n),
+        key=medians.__getitem__,
+    )
+    gemm_peak = max(peaks["mm_gflops"], peaks["conv1x1_gflops"])
+    reference = outputs[fp32_name].float()
+    bf16_psnr = {
+        name: float(psnr(outputs[name].float(), reference)[0])
+        for name in medians
+        if name.startswith("bf16")
+    }
+    single_ms = {name: _median_ms(samples) for name, samples in single_times.items()}
+    return {
+        "device": platform.processor() or platform.machine(),
+        "torch": torch.__version__,
+        "threads": threads,
+        "runs": runs,
+        "warmup": warmup,
+        "size": [HEIGHT, WIDTH],
+        "variant": "GEA",
+        "channels": 1,
+        "parameters": summary.parameters,
+        "flops": summary.flops,
+        "gflops": summary.gflops,
+        "allocator_tuned": allocator_tuned,
+        "peaks_gflops": peaks,
+        "peak_gflops": peak,
+        "peak_kernel": max(peaks, key=peaks.__getitem__).removesuffix("_gflops"),
+        "roofline_ms": roofline_ms,
+        "medians_ms": medians,
+        "min_ms": {name: min(samples) * 1e3 for name, samples in times.items()},
+        "default_allocator_medians_ms": {
+            name: _median_ms(samples) for name, samples in default_times.items()
+        },
+        "fp32_best": fp32_name,
+        "fp32_ms": medians[fp32_name],
+        "fp32_roofline_ratio": medians[fp32_name] / roofline_ms,
+        "fp32_ratio_to_mm_roofline": medians[fp32_name] * peaks["mm_gflops"] * 1e6 / summary.flops,
+        "gemm_peak_gflops": gemm_peak,
+        "fp32_ratio_to_gemm_roofline": medians[fp32_name] * gemm_peak * 1e6 / summary.flops,
+        "fp32_eager_best": eager_name,
+        "fp32_eager_ms": medians[eager_name],
+        "fp32_eager_roofline_ratio": medians[eager_name] / roofline_ms,
+        "fp32_eager_ratio_to_gemm_roofline": medians[eager_name] * gemm_peak * 1e6 / summary.flops,
+        "bf16_best": bf16_name,
+        "bf16_ms": medians[bf16_name],
+        "bf16_psnr_vs_fp32_db": bf16_psnr,
+        "bf16_target_ms": LATENCY_TARGET_BF16_MS,
+        "roofline_target": ROOFLINE_TARGET,
+        "fp32_target_met": medians[fp32_name] / roofline_ms <= ROOFLINE_TARGET,
+        "bf16_target_met": medians[bf16_name] < LATENCY_TARGET_BF16_MS,
+        "single_thread_peak_gflops": single_peak,
+        "single_thread_roofline_ms": single_roofline_ms,
+        "single_thread_cpu_ms": single_ms,
+        "single_thread_fp32_roofline_ratio": single_ms[fp32_name] / single_roofline_ms,
+        "load_average_start": list(load_start),
+        "load_average_end": list(os.getloadavg()),
+        "cpu_pressure_start": pressure_start,
+        "cpu_pressure_end": _pressure(),
+    }
+
+
+def _table(record: dict[str, object]) -> str:
+    medians = record["medians_ms"]
+    minima = record["min_ms"]
+    default = record["default_allocator_medians_ms"]
+    single = record["single_thread_cpu_ms"]
+    psnrs = record["bf16_psnr_vs_fp32_db"]
+    peaks = record["peaks_gflops"]
+    assert isinstance(peaks, dict)
+    assert isinstance(medians, dict) and isinstance(minima, dict) and isinstance(psnrs, dict)
+    assert isinstance(default, dict) and isinstance(single, dict)
+    roofline = float(record["roofline_ms"])  # type: ignore[arg-type]
+    single_roofline = float(record["single_thread_roofline_ms"])  # type: ignore[arg-type]
+    threads = record["threads"]
+    lines = [
+        f"GEA, mono {WIDTH}x{HEIGHT}, batch 1, {threads} threads, {record['runs']} runs "
+        f"(median), torch {record['torch']}",
+        "",
+        f"- FLOPs: {record['gflops']:.2f} G (2 per MAC); parameters: {record['parameters']:,}",
+        f"- fp32 peak ({threads} threads, GFLOP/s): "
+        + ", ".join(f"{k.removesuffix('_gflops')} {v:.0f}" for k, v in peaks.items())
+        + f"; roofline = FLOPs / best ({record['peak_kernel']}) = {roofline:.1f} ms",
+        f"- one thread, CPU time: peak {record['single_thread_peak_gflops']:.0f} GFLOP/s, "
+        f"roofline {single_roofline:.1f} ms",
+        f"- allocator tuned (mallopt): {record['allocator_tuned']}",
+        "",
+        "| configuration | median ms | min ms | x roofline | default malloc ms "
+        "| 1-thread CPU ms | x 1-thread roofline | PSNR vs fp32 (dB) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for name, value in medians.items():
+        mark = " (best)" if name in (record["fp32_best"], record["bf16_best"]) else ""
+        quality = f"{psnrs[name]:.1f}" if name in psnrs else "reference" if mark else ""
+        lines.append(
+            f"| {name}{mark} | {value:.1f} | {minima[name]:.1f} | {value / roofline:.2f} "
+            f"| {default[name]:.1f} | {single[name]:.1f} | {single[name] / single_roofline:.2f} "
+            f"| {quality} |"
+        )
+    fp32_met = "met" if record["fp32_target_met"] else "MISSED"
+    bf16_met = "met" if record["bf16_target_met"] else "MISSED"
+    lines += [
+        "",
+        f"- fp32 best: {record['fp32_best']}, {record['fp32_ms']:.1f} ms = "
+        f"{record['fp32_roofline_ratio']:.2f}x roofline (target <= {ROOFLINE_TARGET}x: "
+        f"{fp32_met}); {record['fp32_ratio_to_gemm_roofline']:.2f}x the plain-GEMM "
+        f"(mm, conv1x1) roofline; {record['fp32_ratio_to_mm_roofline']:.2f}x the torch.mm "
+        f"roofline; one thread: {record['single_thread_fp32_roofline_ratio']:.2f}x",
+        f"- fp32 eager best: {record['fp32_eager_best']}, {record['fp32_eager_ms']:.1f} ms = "
+        f"{record['fp32_eager_roofline_ratio']:.2f}x roofline, "
+        f"{record['fp32_eager_ratio_to_gemm_roofline']:.2f}x the plain-GEMM roofline",
+        f"- bf16 best: {record['bf16_best']}, {record['bf16_ms']:.1f} ms (target < "
+        f"{LATENCY_TARGET_BF16_MS:.0f} ms: {bf16_met})",
+        f"- load average start/end: {record['load_average_start']} / "
+        f"{record['load_average_end']}; CPU pressure start: {record['cpu_pressure_start']}",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark, print a Markdown table, optionally write ``model.json``."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_model", description=__doc__)
+    parser.add_argument("--out", type=Path, default=None, help="folder for model.json")
+    parser.add_argument("--runs", type=int, default=40, help="timed runs per configuration")
+    parser.add_argument("--warmup", type=int, default=5, help="untimed runs per configuration")
+    parser.add_argument("--threads", type=int, default=torch.get_num_threads())
+    parser.add_argument(
+        "--compile", action="store_true", help="also time torch.compile'd models (slow start)"
+    )
+    args = parser.parse_args(argv)
+    record = run(args.runs, args.warmup, args.threads, compile_models=args.compile)
+    print(_table(record))
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "model.json").write_text(json.dumps(record, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,94 @@
+"""Measure PSNR/SSIM and latency of a checkpoint on paired images.
+
+  lenspair eval CKPT --data DIR [--split test] [--device auto|cpu|cuda]
+                [--convention skimage-gaussian|deraindrop-y] [--out EVAL_DIR]
+  lenspair eval CKPT --describe
+
+DIR is any paired layout lenspair reads (a dataset and its --split, a folder
+with input/ + target/, or a Raindrop split such as test_a). Each whole image
+is restored at batch 1 and scored against its target, after rounding the
+output to the target's bit depth. Writes EVAL_DIR/per_image.csv, metrics.json,
+metrics.md (means, and per difficulty when the dataset manifest has it) and
+contact_sheet.png (input | output | target; easy/medium/hard rows). Every
+table names its metric convention: skimage-gaussian (scikit-image, Gaussian
+SSIM) or deraindrop-y (DeRaindrop's Y-channel, 7x7 window protocol). An
+identical output gives PSNR = inf: kept per image, capped at 100 dB in means.
+
+Latency is measured as deployed: one image of the data's size, batch 1,
+after warm-up, median and p90 of --latency-runs runs, thread count stated;
+on the CPU, and on CUDA when the device is CUDA. EVAL_DIR defaults to
+RUN/eval_<split> for RUN/checkpoints/*.pt. --describe prints the parameter
+count and FLOPs at 540x360 and exits.
+"""
+
+import argparse
+from pathlib import Path
+
+from lenspair.device import resolve_device
+from lenspair.errors import ConfigError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``eval``."""
+    parser.add_argument("checkpoint", type=Path, help="checkpoint (.pt) from lenspair train")
+    parser.add_argument("--data", type=Path, help="paired images to score")
+    parser.add_argument("--split", default="test", help="split of a dataset root (test)")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    parser.add_argument(
+        "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
+    )
+    parser.add_argument("--out", type=Path, metavar="EVAL_DIR", help="report folder")
+    parser.add_argument(
+        "--precision", choices=("fp32", "bf16", "fp16"), default="fp32", help="inference precision"
+    )
+    parser.add_argument("--latency-runs", type=int, default=30, help="timed runs (0: no timing)")
+    parser.add_argument("--describe", action="store_true", help="print params and FLOPs only")
+
+
+def default_out(checkpoint: Path, split: str) -> Path:
+    """``RUN/eval_<split>`` for ``RUN/checkpoints/x.pt``, else ``<stem>_eval_<split>`` beside it."""
+    checkpoint = Path(checkpoint)
+    if checkpoint.parent.name == "checkpoints":
+        return checkpoint.parent.parent / f"eval_{split}"
+    return checkpoint.with_name(f"{checkpoint.stem}_eval_{split}")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Evaluate (or describe) a checkpoint; returns the exit code."""
+    from model.checkpoint import load_model
+    from model.evaluation import evaluate_checkpoint, markdown_report, write_report
+
+    if args.describe:
+        from model.complexity import describe
+
+        loaded = load_model(args.checkpoint, "cpu")
+        channels = loaded.config.model.channels or 1
+        summary = describe(loaded.network, (channels, 360, 540))
+        model = loaded.config.model
+        print(
+            f"{args.checkpoint}: {model.variant}, width {model.width:g}, "
+            f"{model.num_blocks} residual blocks, {channels} channel(s)"
+        )
+        print(f"parameters: {summary.parameters:,}")
+        print(f"FLOPs: {summary.gflops:.3f} GFLOPs at 540x360 (2 FLOPs per multiply-add)")
+        if args.data is None:
+            return 0
+    if args.data is None:
+        raise ConfigError("give --data DIR (paired images), or --describe")
+    if args.latency_runs < 0:
+        raise ConfigError("--latency-runs must be >= 0")
+    device = resolve_device(args.device)
+    result = evaluate_checkpoint(
+        args.checkpoint,
+        args.data,
+        args.split,
+        device,
+        convention=args.convention,
+        precision=args.precision,
+        latency_runs=args.latency_runs,
+    )
+    out = args.out if args.out is not None else default_out(args.checkpoint, args.split)
+    files = write_report(result, out)
+    print(markdown_report(result))
+    print("wrote " + ", ".join(str(path) for path in files.values()))
+    return 0

@@ -1,0 +1,91 @@
+"""Train and compare network variants under one budget: accuracy against inference time.
+
+  lenspair tradeoff DS --out DIR [--budget STEPS_OR_SECONDS] [--device auto|cpu|cuda]
+                    [--config train.yaml] [--crop-size N] [--batch-size N]
+                    [--variants G,GE,GEA,GEA-w0.5,GEA-w2,GEA-b3]
+
+Each variant (G, GE, GEA, GEA at width 0.5 and 2, GEA with 3 residual
+blocks) is trained on DS for the same budget (--budget 60 = 60 steps; 90s,
+5m = wall-clock time; early stopping off), scored on DS's test split (or the
+held-out validation pairs) and timed at batch 1 on the data's frame size.
+Every GEA checkpoint is scored and timed again at bf16 (and fp16 on CUDA).
+
+Writes ONE table, DIR/tradeoff.md, .csv and .json (params, GFLOPs, CPU ms,
+GPU ms on CUDA, PSNR, SSIM, metric convention, Pareto flags), the plot
+DIR/tradeoff.png (PSNR and SSIM against CPU time, Pareto front marked),
+DIR/tradeoff_config.yaml and one run folder per variant in DIR/runs/ (a
+rerun reuses finished runs). The defaults (60 steps, 128 px crops, batch 4,
+bf16 on the CPU: roughly 0.5-1 s per GEA step on two cores, three times that
+for GEA-w2) are sized for a demonstration, not for conclusions; use e.g.
+--budget 30m --crop-size 256 --batch-size 8 on a GPU for a real comparison.
+"""
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+from lenspair.device import resolve_device
+from lenspair.errors import ConfigError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``tradeoff``."""
+    parser.add_argument("dataset", type=Path, help="paired dataset folder (DS)")
+    parser.add_argument("--out", type=Path, required=True, help="output folder (DIR)")
+    parser.add_argument("--budget", default="60", help="per variant: STEPS, or 90s / 5m / 1h")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    parser.add_argument("--config", type=Path, help="base run config (model section ignored)")
+    parser.add_argument("--crop-size", type=int, default=None, help="training crop (128)")
+    parser.add_argument("--batch-size", type=int, default=None, help="training batch (4)")
+    parser.add_argument("--variants", help="comma-separated subset of the variant names")
+    parser.add_argument(
+        "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
+    )
+    parser.add_argument("--split", default="test", help="evaluation split (test)")
+    parser.add_argument("--latency-runs", type=int, default=20, help="timed runs per figure")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the comparison; returns the exit code."""
+    from model.config import load_run_config
+    from model.tradeoff import DEFAULT_VARIANTS, parse_budget, run_tradeoff, tradeoff_markdown
+
+    budget = parse_budget(args.budget)
+    variants = DEFAULT_VARIANTS
+    if args.variants:
+        wanted = [name.strip() for name in args.variants.split(",") if name.strip()]
+        known = {v.name: v for v in DEFAULT_VARIANTS}
+        unknown = [name for name in wanted if name not in known]
+        if unknown:
+            raise ConfigError(
+                f"--variants: unknown {', '.join(unknown)}; valid: {', '.join(known)}"
+            )
+        variants = tuple(known[name] for name in wanted)
+    if args.latency_runs < 1:
+        raise ConfigError("--latency-runs must be >= 1")
+    base = load_run_config(args.config)
+    crop = args.crop_size or (base.data.crop_size if args.config else 128)
+    batch = args.batch_size or (base.train.batch_size if args.config else 4)
+    try:
+        base = dataclasses.replace(
+            base,
+            data=dataclasses.replace(base.data, crop_size=crop),
+            train=dataclasses.replace(base.train, batch_size=batch),
+        )
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    device = resolve_device(args.device)
+    result = run_tradeoff(
+        args.dataset,
+        args.out,
+        device,
+        budget,
+        base,
+        variants,
+        convention=args.convention,
+        split=args.split,
+        latency_runs=args.latency_runs,
+    )
+    print(tradeoff_markdown(result.rows, result.meta))
+    print(f"wrote {args.out / 'tradeoff.md'}, tradeoff.csv, tradeoff.json, tradeoff.png")
+    return 0

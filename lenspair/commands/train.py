@@ -1,0 +1,129 @@
+"""Train the shallow GAN on real pairs, or pretrain it on synthetic drops.
+
+  lenspair train DS --out RUN [--config train.yaml] [--init CKPT] [--resume]
+                 [--device auto|cpu|cuda]
+  lenspair train --synthetic IMAGES_DIR --out RUN [--drops ours|sharp] ...
+
+DS is any paired layout lenspair reads: a dataset from dataset-build (trains
+on train/, validates on val/), a folder with input/ + target/ (or lq/ + gt/),
+or the Raindrop dataset of Qian et al.; without a validation split a
+deterministic tenth of the training pairs is held out.
+
+--synthetic renders drops on the fly on clean images (any folder of PNG/JPG,
+or a dataset's target/ images): 'ours' (lens-like, defocused, some brightened)
+or 'sharp' (Porav et al.'s in-focus drops), holding out a deterministic
+validation subset. This is the paper's synthetic initialisation: fine-tune on
+real pairs with --init RUN/checkpoints/best.pt (network weights only).
+
+Defaults follow the paper: Adam lr 2e-4 (0.5, 0.999), batch 8, up to 200
+epochs, early stopping on validation PSNR (patience 10), random 256 px crops
+and flips, LSGAN + feature matching on the generator output, VGG19
+perceptual + L2 on the enhanced output, bf16 autocast on the CPU and fp16 on
+CUDA. Without VGG19 weights (train.vgg19_weights or LENSPAIR_VGG19_WEIGHTS)
+the perceptual term is disabled, with a warning in the log and in config.yaml.
+
+Run folder: RUN/config.yaml (resolved), RUN/checkpoints/{last,best}.pt,
+RUN/metrics.csv, RUN/train.log, RUN/samples.png. --resume continues exactly
+where the run stopped (a --config given with it may change budgets, not the
+network). Multi-GPU: torchrun --nproc_per_node N -m lenspair train ...
+"""
+
+import argparse
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from lenspair.device import resolve_device
+from lenspair.errors import ConfigError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``train``."""
+    parser.add_argument("dataset", nargs="?", type=Path, help="paired dataset folder (DS)")
+    parser.add_argument("--out", type=Path, required=True, help="run folder (RUN)")
+    parser.add_argument("--config", type=Path, help="YAML with model/data/train/loss sections")
+    parser.add_argument("--init", type=Path, metavar="CKPT", help="start from these weights")
+    parser.add_argument("--resume", action="store_true", help="continue RUN where it stopped")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    parser.add_argument(
+        "--synthetic", type=Path, metavar="IMAGES_DIR", help="pretrain on rendered drops"
+    )
+    parser.add_argument("--drops", choices=("ours", "sharp"), help="synthetic drops (ours)")
+    group = parser.add_argument_group("overrides of the config file")
+    group.add_argument("--epochs", type=int, help="train.epochs (200)")
+    group.add_argument("--max-steps", type=int, help="train.max_steps budget")
+    group.add_argument("--max-seconds", type=float, help="train.max_seconds budget")
+    group.add_argument("--batch-size", type=int, help="train.batch_size (8)")
+    group.add_argument("--crop-size", type=int, help="data.crop_size (256)")
+    group.add_argument("--seed", type=int, help="train.seed (0)")
+    group.add_argument("--no-amp", action="store_true", help="train at fp32 (train.amp: false)")
+    group.add_argument("--vgg19-weights", type=Path, help="train.vgg19_weights")
+
+
+def _overrides(config: Any, args: argparse.Namespace) -> Any:
+    train = {
+        "epochs": args.epochs,
+        "max_steps": args.max_steps,
+        "max_seconds": args.max_seconds,
+        "batch_size": args.batch_size,
+        "seed": args.seed,
+        "vgg19_weights": args.vgg19_weights,
+        "amp": False if args.no_amp else None,
+    }
+    data = {"crop_size": args.crop_size, "drops": args.drops}
+    try:
+        return dataclasses.replace(
+            config,
+            train=dataclasses.replace(
+                config.train, **{k: v for k, v in train.items() if v is not None}
+            ),
+            data=dataclasses.replace(
+                config.data, **{k: v for k, v in data.items() if v is not None}
+            ),
+        )
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    """Train one run; returns the exit code."""
+    from model.config import load_run_config
+    from model.data import paired_training_data, synthetic_training_data
+    from model.training import fit, resolve_config, resume_config
+
+    if (args.dataset is None) == (args.synthetic is None):
+        raise ConfigError("give a dataset DS, or --synthetic IMAGES_DIR (not both)")
+    if args.resume and args.init is not None:
+        raise ConfigError("--resume continues a run; --init starts a new one: choose one")
+    if args.drops is not None and args.synthetic is None:
+        raise ConfigError("--drops applies to --synthetic pretraining only")
+    device = resolve_device(args.device)
+    if args.resume:
+        base = load_run_config(args.config) if args.config else resume_config(args.out, None)
+        config = resume_config(args.out, _overrides(base, args))
+    else:
+        config = _overrides(load_run_config(args.config), args)
+    seed = config.train.seed
+    if args.synthetic is not None:
+        data = synthetic_training_data(args.synthetic, config.data, config.model.channels, seed)
+    else:
+        data = paired_training_data(args.dataset, config.data, config.model.channels, seed)
+    config = resolve_config(config, data.channels)
+    summary = fit(
+        config,
+        data.train,
+        data.val,
+        args.out,
+        device,
+        data_description=data.description,
+        synthetic=data.synthetic,
+        init=args.init,
+        resume=args.resume,
+    )
+    print(
+        f"{summary.run}: {summary.stop_reason}; {summary.epochs} epochs, {summary.steps} steps, "
+        f"best validation PSNR {summary.best_psnr:.2f} dB (epoch {summary.best_epoch}); "
+        f"perceptual loss {summary.perceptual}"
+    )
+    print(f"best checkpoint: {summary.run / 'checkpoints' / 'best.pt'}")
+    return 0

@@ -1,0 +1,166 @@
+"""Checkpoints: CPU state dicts plus the resolved run configuration.
+
+A checkpoint is a plain dict saved with :func:`torch.save` and read back with
+``weights_only=True`` and ``map_location="cpu"``, so loading one never runs
+code and works on a machine without the GPU it was trained on::
+
+    format: "lenspair-checkpoint", version: 1
+    config: the resolved RunConfig as plain data (model section builds the network)
+    model, discriminator, optimizer_g, optimizer_d, scaler: state dicts (CPU tensors)
+    epoch, step, step_in_epoch: progress (epoch = completed epochs)
+    best_metric, best_epoch, stale_validations: early-stopping state
+    rng: {"torch": ByteTensor, "cuda": [ByteTensor, ...]}
+
+Only ``format``, ``version``, ``config`` and ``model`` are required to use a
+checkpoint for inference (``eval``, ``export``) or as ``--init``.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from lenspair.config import to_plain
+from lenspair.errors import ConfigError
+from lenspair.fsutil import atomic_write
+from model.config import ModelConfig, RunConfig, run_config_from_dict
+from model.errors import ModelError
+
+CHECKPOINT_FORMAT = "lenspair-checkpoint"
+CHECKPOINT_VERSION = 1
+
+
+def to_cpu(obj: Any) -> Any:
+    """Copy every tensor inside nested dicts/lists/tuples to the CPU (detached)."""
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().to("cpu", copy=True)
+    if isinstance(obj, dict):
+        return {key: to_cpu(value) for key, value in obj.items()}
+    if isinstance(obj, list):
+        return [to_cpu(value) for value in obj]
+    if isinstance(obj, tuple):
+        return tuple(to_cpu(value) for value in obj)
+    return obj
+
+
+def save_checkpoint(path: Path, payload: dict[str, Any], config: RunConfig) -> None:
+    """Write ``payload`` (plus format, version and config) atomically to ``path``.
+
+    Args:
+        path: destination ``.pt`` file; parent folders are created.
+        payload: state dicts and counters; tensors are copied to the CPU.
+        config: the resolved run configuration, stored as plain data.
+
+    """
+    data = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "config": to_plain(config),
+        **to_cpu(payload),
+    }
+
+    def _write(tmp: Path) -> None:
+        torch.save(data, tmp)
+
+    atomic_write(Path(path), _write, suffix=".pt")
+
+
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    """Read a checkpoint safely (``weights_only=True``) onto the CPU.
+
+    Raises:
+        ModelError: missing file, not a lenspair checkpoint, or unreadable.
+
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"{path}: checkpoint not found")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for corrupt or unsafe files
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ModelError(f"{path}: cannot read checkpoint ({first})") from None
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        raise ModelError(f"{path}: not a lenspair checkpoint")
+    if data.get("version") != CHECKPOINT_VERSION:
+        raise ModelError(
+            f"{path}: checkpoint version {data.get('version')}, expected {CHECKPOINT_VERSION}"
+        )
+    return data
+
+
+def checkpoint_config(data: dict[str, Any], path: Path | str = "checkpoint") -> RunConfig:
+    """The run configuration stored in a loaded checkpoint."""
+    try:
+        return run_config_from_dict(data["config"])
+    except (KeyError, ConfigError) as exc:
+        raise ModelError(f"{path}: invalid stored config ({exc})") from None
+
+
+def build_network(config: ModelConfig) -> nn.Module:
+    """Build the restoration network a model config describes (weights at init).
+
+    Raises:
+        ModelError: ``channels`` is not resolved yet.
+
+    """
+    from model.variants import build_model
+
+    if config.channels is None:
+        raise ModelError("model.channels is unresolved; cannot build the network")
+    return build_model(config.variant, config.channels, config.width, config.num_blocks)
+
+
+@dataclass
+class LoadedModel:
+    """A restoration network restored from a checkpoint, in eval mode on ``device``.
+
+    Attributes:
+        network: forward(x) -> (generator_out, enhanced_out), NCHW float in [0, 1].
+        config: the run configuration it was trained with.
+        path: the checkpoint file.
+        epoch: completed training epochs.
+        step: optimiser steps taken.
+
+    """
+
+    network: nn.Module
+    config: RunConfig
+    path: Path
+    epoch: int
+    step: int
+
+
+def load_model(path: Path, device: torch.device | str = "cpu") -> LoadedModel:
+    """Rebuild the network of a checkpoint and load its weights (strict).
+
+    Raises:
+        ModelError: unreadable checkpoint or weights that do not fit the network.
+
+    """
+    path = Path(path)
+    data = load_checkpoint(path)
+    config = checkpoint_config(data, path)
+    network = build_network(config.model)
+    load_weights(network, data, path)
+    network.to(device).eval()
+    return LoadedModel(
+        network=network,
+        config=config,
+        path=path,
+        epoch=int(data.get("epoch", 0)),
+        step=int(data.get("step", 0)),
+    )
+
+
+def load_weights(network: nn.Module, data: dict[str, Any], path: Path | str) -> None:
+    """Load a checkpoint's ``model`` state dict into ``network`` (strict)."""
+    if "model" not in data:
+        raise ModelError(f"{path}: checkpoint holds no model weights")
+    try:
+        network.load_state_dict(data["model"])
+    except RuntimeError as exc:
+        first = str(exc).strip().splitlines()[0]
+        raise ModelError(f"{path}: weights do not fit the network ({first})") from None

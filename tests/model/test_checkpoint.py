@@ -1,0 +1,103 @@
+from pathlib import Path
+
+import pytest
+import torch
+
+from lenspair.config import to_plain
+from model.checkpoint import (
+    CHECKPOINT_FORMAT,
+    checkpoint_config,
+    load_checkpoint,
+    load_model,
+    save_checkpoint,
+    to_cpu,
+)
+from model.errors import ModelError
+from model.trainer import Trainer
+from tests.model.train_fixtures import make_checkpoint, tiny_config
+
+
+@pytest.fixture(autouse=True)
+def one_thread() -> object:
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def test_round_trip_restores_every_state(tmp_path: Path) -> None:
+    config = tiny_config()
+    trainer = Trainer(config, torch.device("cpu"))
+    batch = {
+        "input": torch.rand(2, 1, 32, 32, generator=torch.Generator().manual_seed(0)),
+        "target": torch.rand(2, 1, 32, 32, generator=torch.Generator().manual_seed(1)),
+        "valid": torch.ones(2, 1, 32, 32),
+    }
+    trainer.train_step(batch)  # non-trivial optimiser state
+    path = tmp_path / "ckpt" / "last.pt"
+    save_checkpoint(path, {**trainer.state_dict(), "epoch": 3, "step": 7}, config)
+
+    data = load_checkpoint(path)
+    assert data["format"] == CHECKPOINT_FORMAT
+    assert data["epoch"] == 3 and data["step"] == 7
+    assert checkpoint_config(data) == config
+    for key, value in trainer.model.state_dict().items():
+        assert torch.equal(data["model"][key], value)
+        assert data["model"][key].device.type == "cpu"
+
+    other = Trainer(config, torch.device("cpu"))
+    other.load_state_dict(data)
+    for mine, theirs in zip(trainer.opt_g.state_dict()["state"].values(),
+                            other.opt_g.state_dict()["state"].values(), strict=True):  # fmt: skip
+        assert torch.equal(mine["exp_avg"], theirs["exp_avg"])
+    for key, value in trainer.discriminator.state_dict().items():
+        assert torch.equal(other.discriminator.state_dict()[key], value)
+
+
+def test_load_model_rebuilds_the_network(tmp_path: Path) -> None:
+    path = make_checkpoint(tmp_path / "a.pt")
+    loaded = load_model(path)
+    assert not loaded.network.training
+    assert loaded.config.model == tiny_config().model
+    x = torch.rand(1, 1, 33, 47)
+    with torch.no_grad():
+        first = loaded.network(x)[1]
+        second = load_model(path).network(x)[1]
+    assert first.shape == x.shape
+    assert torch.equal(first, second)
+
+
+def test_checkpoint_is_plain_data_for_weights_only(tmp_path: Path) -> None:
+    path = make_checkpoint(tmp_path / "a.pt")
+    data = torch.load(path, weights_only=True, map_location="cpu")
+    assert data["config"] == to_plain(tiny_config())
+
+
+def test_to_cpu_copies_nested_tensors() -> None:
+    tensor = torch.ones(2, requires_grad=True)
+    nested = to_cpu({"a": [tensor, (tensor, 3)], "b": "x"})
+    assert nested["b"] == "x"
+    assert not nested["a"][0].requires_grad
+    assert nested["a"][1][1] == 3
+
+
+def test_unreadable_and_foreign_files_raise(tmp_path: Path) -> None:
+    with pytest.raises(ModelError, match="not found"):
+        load_checkpoint(tmp_path / "missing.pt")
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(ModelError, match="cannot read checkpoint"):
+        load_checkpoint(junk)
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"weights": torch.zeros(1)}, foreign)
+    with pytest.raises(ModelError, match="not a lenspair checkpoint"):
+        load_checkpoint(foreign)
+
+
+def test_weights_that_do_not_fit_are_reported(tmp_path: Path) -> None:
+    path = make_checkpoint(tmp_path / "a.pt")
+    data = load_checkpoint(path)
+    data["model"] = {k: v for k, v in list(data["model"].items())[1:]}
+    torch.save(data, path)
+    with pytest.raises(ModelError, match="do not fit"):
+        load_model(path)

@@ -1,0 +1,162 @@
+import csv
+import json
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from dataset.manifest import ManifestRow, write_manifest
+from dataset.readers import open_paired
+from lenspair.cli import main
+from lenspair.imageio import write_image
+from model.checkpoint import load_model
+from model.data import to_tensor
+from model.evaluation import PSNR_CAP_DB, evaluate_checkpoint, summarize, write_report
+from model.latency import measure_latency, percentile
+from model.metrics import MetricConvention, image_metrics
+from model.variants import build_model
+from tests.model.train_fixtures import (
+    clean_image,
+    make_checkpoint,
+    obstruct,
+    write_paired_folder,
+)
+
+CPU = torch.device("cpu")
+
+
+@pytest.fixture(autouse=True)
+def one_thread() -> Iterator[None]:
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def _expected(checkpoint: Path, folder: Path, convention: str) -> list[tuple[float, float]]:
+    """Recompute the scores independently: model output rounded to 8 bits, model.metrics."""
+    network = load_model(checkpoint).network
+    scores = []
+    for item in open_paired(folder):
+        x = to_tensor(item.input, 1)[None]
+        target = to_tensor(item.target, 1)[None]
+        with torch.no_grad():
+            output = network(x)[1]
+        output = torch.round(output.clamp(0, 1) * 255) / 255
+        result = image_metrics(output, target, MetricConvention(convention))
+        scores.append((float(result.psnr[0]), float(result.ssim[0])))
+    return scores
+
+
+@pytest.mark.parametrize("convention", ["skimage-gaussian", "deraindrop-y"])
+def test_eval_cli_writes_reports_that_match_model_metrics(tmp_path: Path, convention: str) -> None:
+    folder = write_paired_folder(tmp_path / "pairs", count=3)
+    checkpoint = make_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")
+    out = tmp_path / "eval"
+    args = ["eval", str(checkpoint), "--data", str(folder), "--out", str(out)]
+    assert main([*args, "--convention", convention, "--latency-runs", "2", "--device", "cpu"]) == 0
+
+    with (out / "per_image.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    expected = _expected(checkpoint, folder, convention)
+    assert [r["name"] for r in rows] == ["000", "001", "002"]
+    for row, (psnr, ssim) in zip(rows, expected, strict=True):
+        assert row["convention"] == convention
+        assert float(row["psnr_db"]) == pytest.approx(psnr, abs=1e-6)
+        assert float(row["ssim"]) == pytest.approx(ssim, abs=1e-8)
+    means = json.loads((out / "metrics.json").read_text())
+    assert means["convention"] == convention
+    assert means["model"]["variant"] == "GEA"
+    assert means["overall"]["pairs"] == 3
+    assert means["overall"]["psnr_db"] == pytest.approx(np.mean([p for p, _ in expected]))
+    assert means["overall"]["ssim"] == pytest.approx(np.mean([s for _, s in expected]))
+    assert means["latency"][0]["device"] == "cpu"
+    assert means["latency"][0]["threads"] == 1
+    assert means["latency"][0]["size"] == "48x32"
+    markdown = (out / "metrics.md").read_text()
+    assert convention in markdown and "Latency" in markdown
+    assert (out / "contact_sheet.png").stat().st_size > 0
+
+
+def test_default_eval_folder_sits_in_the_run(tmp_path: Path) -> None:
+    folder = write_paired_folder(tmp_path / "pairs", count=1)
+    checkpoint = make_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")
+    assert main(["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0"]) == 0
+    assert (tmp_path / "run" / "eval_test" / "metrics.json").is_file()
+
+
+def test_odd_sizes_and_identical_images(tmp_path: Path) -> None:
+    folder = tmp_path / "odd"
+    rng = np.random.default_rng(0)
+    image = clean_image(rng, 33, 47)
+    write_image(folder / "input" / "same.png", image)
+    write_image(folder / "target" / "same.png", image)
+    write_image(folder / "input" / "drops.png", obstruct(image, rng))
+    write_image(folder / "target" / "drops.png", image)
+    # An untrained network is the identity (zero-initialised residual heads).
+    checkpoint = make_checkpoint(tmp_path / "id.pt", perturb=False)
+    result = evaluate_checkpoint(checkpoint, folder, "test", CPU, latency_runs=2)
+    by_name = {s.name: s for s in result.scores}
+    assert (by_name["same"].height, by_name["same"].width) == (33, 47)
+    assert math.isinf(by_name["same"].psnr_db)
+    assert math.isfinite(by_name["drops"].psnr_db)
+    assert result.overall.capped == 1
+    expected = (PSNR_CAP_DB + by_name["drops"].psnr_db) / 2
+    assert result.overall.psnr_db == pytest.approx(expected)
+    assert result.latency[0].size == "47x33"
+    files = write_report(result, tmp_path / "out")
+    assert "inf" in files["csv"].read_text()
+    assert json.loads(files["json"].read_text())["overall"]["capped"] == 1
+    assert f"as {PSNR_CAP_DB:g} dB" in files["markdown"].read_text()
+
+
+def _row(name: str, difficulty: str) -> ManifestRow:
+    return ManifestRow(
+        split="test", name=name, recording="rec", group="rec", t_ns=0, obstructed="cam0",
+        clean="cam1", difficulty=difficulty, psnr_db=20.0, anomaly_fraction=0.1,  # type: ignore[arg-type]
+        sharpness=100.0, saturated=0.0, black=0.0, mask_fraction=0.0,
+    )  # fmt: skip
+
+
+def test_breakdown_by_difficulty_from_the_manifest(tmp_path: Path) -> None:
+    dataset = tmp_path / "ds"
+    difficulties = {"a": "easy", "b": "hard", "c": "medium", "d": "hard"}
+    rng = np.random.default_rng(1)
+    for name in difficulties:
+        image = clean_image(rng)
+        write_image(dataset / "test" / "input" / f"{name}.png", obstruct(image, rng))
+        write_image(dataset / "test" / "target" / f"{name}.png", image)
+    write_manifest(dataset / "manifest.jsonl", [_row(n, d) for n, d in difficulties.items()])
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    result = evaluate_checkpoint(checkpoint, dataset, "test", CPU, latency_runs=0)
+    assert list(result.by_difficulty) == ["easy", "medium", "hard"]
+    assert result.by_difficulty["hard"].pairs == 2
+    hard = [s for s in result.scores if s.difficulty == "hard"]
+    assert result.by_difficulty["hard"] == summarize(hard)
+    assert [row.difficulty for row in result.samples] == ["easy", "medium", "hard", "hard"]
+    markdown = write_report(result, tmp_path / "out")["markdown"].read_text()
+    assert "| hard | 2 |" in markdown
+    assert "skimage-gaussian" in markdown
+
+
+def test_describe_prints_parameters_and_flops(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    assert main(["eval", str(checkpoint), "--describe"]) == 0
+    text = capsys.readouterr().out
+    assert "parameters" in text and "GFLOPs at 540x360" in text
+
+
+def test_latency_is_a_median_of_timed_runs() -> None:
+    latency = measure_latency(build_model("G", 1, 0.25, 1), 1, CPU, (24, 40), runs=5, warmup=1)
+    assert latency.runs == 5 and latency.warmup == 1 and latency.threads == 1
+    assert 0 < latency.median_ms <= latency.p90_ms
+    assert latency.size == "40x24" and latency.precision == "fp32"
+    assert "threads" in latency.summary()
+    assert percentile([1.0, 2.0, 3.0, 4.0, 5.0], 90) == pytest.approx(4.6)
+    bf16 = measure_latency(build_model("GEA", 1, 0.25, 1), 1, CPU, (24, 40), "bf16", 1, 2)
+    assert bf16.precision == "bf16"

@@ -1,0 +1,113 @@
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lenspair.cli import main
+from model.checkpoint import load_model
+from model.errors import ModelError
+from model.export import check_image, export_torchscript, parse_size
+from tests.model.train_fixtures import make_checkpoint
+
+
+@pytest.fixture(autouse=True)
+def one_thread() -> Iterator[None]:
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def test_onnx_export_matches_torch(tmp_path: Path) -> None:
+    pytest.importorskip("onnx")
+    ort = pytest.importorskip("onnxruntime")
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    onnx_file = tmp_path / "model.onnx"
+    script_file = tmp_path / "model.pt"
+    args = ["export", str(checkpoint), "--onnx", str(onnx_file), "--torchscript", str(script_file)]
+    assert main([*args, "--size", "48x32"]) == 0
+    report = json.loads((tmp_path / "model.onnx.export.json").read_text())
+    onnx_check, script_check = report["exports"]
+    assert onnx_check["max_abs_diff"] < 1e-4
+    assert onnx_check["runtime_median_ms"] > 0 and onnx_check["size"] == "48x32"
+    assert script_check["max_abs_diff"] < 1e-4
+
+    # Independently: onnxruntime on a fresh image, batch of two, against torch.
+    network = load_model(checkpoint).network
+    image = torch.rand(2, 1, 32, 48, generator=torch.Generator().manual_seed(5))
+    session = ort.InferenceSession(str(onnx_file), providers=["CPUExecutionProvider"])
+    (restored,) = session.run(None, {"image": image.numpy()})
+    with torch.no_grad():
+        expected = network(image)[1].numpy()
+    assert restored.shape == (2, 1, 32, 48)
+    assert np.abs(restored - expected).max() < 1e-4
+
+
+def test_torchscript_export_reloads_and_matches(tmp_path: Path) -> None:
+    loaded = load_model(make_checkpoint(tmp_path / "c.pt"))
+    check = export_torchscript(loaded.network, 1, tmp_path / "m.pt", (33, 47), runs=2)
+    assert check.max_abs_diff is not None and check.max_abs_diff < 1e-5
+    script = torch.jit.load(str(tmp_path / "m.pt"))
+    image = check_image(1, (33, 47))
+    with torch.no_grad():
+        assert script(image).shape == (1, 1, 33, 47)
+
+
+def test_export_without_onnxruntime_says_so(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("onnx")
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec",
+        lambda name, *a: None if name == "onnxruntime" else real(name, *a),
+    )  # fmt: skip
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    assert (
+        main(["export", str(checkpoint), "--onnx", str(tmp_path / "m.onnx"), "--size", "48x32"])
+        == 0
+    )
+    report = json.loads((tmp_path / "m.onnx.export.json").read_text())
+    assert report["exports"][0]["max_abs_diff"] is None
+    assert "onnxruntime is not installed" in report["exports"][0]["note"]
+
+
+def test_parse_size_and_missing_targets(tmp_path: Path) -> None:
+    assert parse_size("540x360") == (360, 540)
+    for bad in ("540", "ax3", "4x4"):
+        with pytest.raises(ModelError, match="--size"):
+            parse_size(bad)
+    assert main(["export", str(tmp_path / "c.pt")]) == 2
+
+
+def test_failing_dynamo_exporter_falls_back_to_the_legacy_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("onnx")
+    import importlib.util
+
+    from model import export
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(  # pretend onnxscript is installed; the dynamo exporter then fails
+        importlib.util, "find_spec",
+        lambda name, *a: real("json") if name == "onnxscript" else real(name, *a),
+    )  # fmt: skip
+    original = export._onnx_export
+
+    def broken_dynamo(model: torch.nn.Module, image: torch.Tensor, path: Path, *,
+                      exporter: str) -> None:  # fmt: skip
+        if exporter == "dynamo":
+            raise RuntimeError("dynamo exporter unavailable")
+        original(model, image, path, exporter=exporter)
+
+    monkeypatch.setattr(export, "_onnx_export", broken_dynamo)
+    network = load_model(make_checkpoint(tmp_path / "c.pt")).network
+    check = export.export_onnx(network, 1, tmp_path / "m.onnx", (32, 48), runs=1)
+    assert check.exporter == "torch.onnx (TorchScript-based)"
+    assert (tmp_path / "m.onnx").stat().st_size > 0

@@ -1,0 +1,52 @@
+"""PatchGAN discriminator: outputs, features and the 70x70 receptive field."""
+
+import pytest
+import torch
+
+from model.discriminator import PatchDiscriminator
+from model.errors import ModelError
+from model.variants import build_discriminator
+
+
+def test_outputs_and_features() -> None:
+    discriminator = build_discriminator(1, width=0.25)
+    features = discriminator(torch.rand(2, 2, 64, 48))
+    assert len(features) == 5
+    assert [f.shape[1] for f in features] == [16, 32, 64, 128, 1]
+    assert features[-1].shape == (2, 1, 6, 4)
+
+
+def test_receptive_field_is_70_by_computation() -> None:
+    assert PatchDiscriminator(2, num_filters=4).receptive_field() == 70
+    assert PatchDiscriminator(2, num_filters=4, num_layers=1).receptive_field() == 16
+    assert PatchDiscriminator(2, num_filters=4, num_layers=2).receptive_field() == 34
+
+
+def test_receptive_field_is_70_by_gradient_support() -> None:
+    # Without instance norm (which couples all positions) one logit depends
+    # on exactly a 70x70 input patch.
+    torch.manual_seed(0)
+    discriminator = PatchDiscriminator(1, num_filters=4, norm="none")
+    x = torch.rand(1, 1, 160, 160, requires_grad=True)
+    logits = discriminator(x)[-1]
+    row, col = logits.shape[-2] // 2, logits.shape[-1] // 2
+    logits[0, 0, row, col].backward()
+    assert x.grad is not None
+    support = x.grad[0, 0].abs() > 0
+    rows = torch.nonzero(support.any(dim=1)).flatten()
+    cols = torch.nonzero(support.any(dim=0)).flatten()
+    assert int(rows[-1] - rows[0]) + 1 == 70
+    assert int(cols[-1] - cols[0]) + 1 == 70
+    assert int(support.sum()) == 70 * 70
+    # Output (i, j) sees input rows 8i - 23 ... 8i + 46: total stride 8, and
+    # the 1-pixel paddings add up to 1 + 2 + 4 + 8 + 8 = 23 input pixels.
+    assert int(rows[0]) == 8 * row - 23 and int(cols[0]) == 8 * col - 23
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(ModelError, match="positive"):
+        PatchDiscriminator(0)
+    with pytest.raises(ModelError, match="valid names"):
+        PatchDiscriminator(2, norm="batch")
+    with pytest.raises(ModelError, match="1 \\(mono\\) or 3"):
+        build_discriminator(4)

@@ -1,0 +1,188 @@
+"""PSNR/SSIM in torch against scikit-image (and OpenCV's luma), both conventions."""
+
+import math
+import warnings
+
+import cv2
+import numpy as np
+import pytest
+import torch
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+from model.errors import ModelError
+from model.metrics import (
+    PSNR_CAP_DB,
+    MetricConvention,
+    gaussian_window,
+    image_metrics,
+    luma_uint8,
+    mean_psnr,
+    parse_metric_convention,
+    psnr,
+    quantize_uint8,
+    ssim,
+)
+
+SIZES = [(11, 11), (24, 37), (63, 50), (97, 131)]
+
+
+def _structured(channels: int, height: int, width: int, seed: int) -> np.ndarray:
+    """Smooth gradients, a bright disc and mild noise, HWC float64 in [0, 1]."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:height, 0:width] / max(height, width)
+    planes = []
+    for c in range(channels):
+        plane = 0.5 + 0.4 * np.sin(6 * xx + c) * np.cos(4 * yy - c)
+        disc = (yy - 0.4) ** 2 + (xx - 0.5 - 0.1 * c) ** 2 < 0.05
+        plane[disc] = 0.95
+        planes.append(plane + 0.02 * rng.standard_normal((height, width)))
+    return np.clip(np.stack(planes, axis=-1), 0, 1)
+
+
+def _pair(
+    kind: str, channels: int, size: tuple[int, int], seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed + 100)
+    if kind == "random":
+        a = rng.random((*size, channels))
+        b = np.clip(a + 0.2 * rng.standard_normal(a.shape), 0, 1)
+    else:
+        a = _structured(channels, *size, seed)
+        b = np.clip(_structured(channels, *size, seed + 1) * 0.9 + 0.05, 0, 1)
+    return a.astype(np.float32), b.astype(np.float32)
+
+
+def _to_tensor(image: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None]
+
+
+@pytest.mark.parametrize("kind", ["random", "structured"])
+@pytest.mark.parametrize("channels", [1, 3])
+@pytest.mark.parametrize("size", SIZES)
+def test_skimage_gaussian_matches_skimage(kind: str, channels: int, size: tuple[int, int]) -> None:
+    a, b = _pair(kind, channels, size, seed=sum(size) + channels)
+    ours = image_metrics(_to_tensor(b), _to_tensor(a), MetricConvention.SKIMAGE_GAUSSIAN)
+    a64, b64 = a.astype(np.float64), b.astype(np.float64)
+    reference_ssim = structural_similarity(
+        a64 if channels == 3 else a64[..., 0],
+        b64 if channels == 3 else b64[..., 0],
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        data_range=1.0,
+        channel_axis=-1 if channels == 3 else None,
+    )
+    reference_psnr = peak_signal_noise_ratio(a64, b64, data_range=1.0)
+    assert abs(float(ours.ssim[0]) - reference_ssim) < 1e-4
+    assert abs(float(ours.psnr[0]) - reference_psnr) < 1e-4
+    assert ours.convention is MetricConvention.SKIMAGE_GAUSSIAN
+
+
+def _deraindrop_reference(output: np.ndarray, target: np.ndarray) -> tuple[float, float]:
+    """DeRaindrop's metrics.py on uint8 images (theirs are BGR from cv2.imread)."""
+    output_u8 = np.round(np.clip(output, 0, 1) * 255).astype(np.uint8)
+    target_u8 = np.round(np.clip(target, 0, 1) * 255).astype(np.uint8)
+    if output.shape[-1] == 3:
+        output_y = cv2.cvtColor(output_u8[..., ::-1].copy(), cv2.COLOR_BGR2YCR_CB)[:, :, 0]
+        target_y = cv2.cvtColor(target_u8[..., ::-1].copy(), cv2.COLOR_BGR2YCR_CB)[:, :, 0]
+    else:
+        output_y, target_y = output_u8[..., 0], target_u8[..., 0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # divide by zero: identical images
+        value_psnr = peak_signal_noise_ratio(output_y, target_y)
+    return float(value_psnr), float(structural_similarity(output_y, target_y))
+
+
+@pytest.mark.parametrize("kind", ["random", "structured"])
+@pytest.mark.parametrize("channels", [1, 3])
+@pytest.mark.parametrize("size", SIZES[1:])
+def test_deraindrop_y_matches_their_protocol(
+    kind: str, channels: int, size: tuple[int, int]
+) -> None:
+    a, b = _pair(kind, channels, size, seed=3 * sum(size) + channels)
+    ours = image_metrics(_to_tensor(b), _to_tensor(a), MetricConvention.DERAINDROP_Y)
+    reference_psnr, reference_ssim = _deraindrop_reference(b, a)
+    assert abs(float(ours.psnr[0]) - reference_psnr) < 1e-4
+    assert abs(float(ours.ssim[0]) - reference_ssim) < 1e-4
+
+
+def test_luma_is_bit_exact_with_opencv() -> None:
+    rng = np.random.default_rng(7)
+    rgb = rng.integers(0, 256, size=(61, 83, 3), dtype=np.uint8)
+    rgb[0, :8] = [[0, 0, 0], [255, 255, 255], [255, 0, 0], [0, 255, 0], [0, 0, 255], [1, 2, 3],
+                  [128, 128, 128], [254, 1, 127]]  # fmt: skip
+    reference = cv2.cvtColor(rgb[..., ::-1].copy(), cv2.COLOR_BGR2YCR_CB)[:, :, 0]
+    ours = luma_uint8(torch.from_numpy(rgb).permute(2, 0, 1)[None].contiguous())
+    assert np.array_equal(ours[0, 0].numpy(), reference)
+
+
+def test_batches_score_each_image() -> None:
+    a = torch.rand(3, 3, 20, 24, generator=torch.Generator().manual_seed(1))
+    b = (a + 0.05 * torch.randn(3, 3, 20, 24, generator=torch.Generator().manual_seed(2))).clamp(
+        0, 1
+    )
+    together = image_metrics(b, a, MetricConvention.SKIMAGE_GAUSSIAN)
+    for index in range(3):
+        alone = image_metrics(b[index : index + 1], a[index : index + 1], "skimage-gaussian")  # type: ignore[arg-type]
+        assert torch.allclose(together.psnr[index], alone.psnr[0])
+        assert torch.allclose(together.ssim[index], alone.ssim[0])
+
+
+@pytest.mark.parametrize("convention", list(MetricConvention))
+def test_identical_constant_and_zero_images(convention: MetricConvention) -> None:
+    cases = {
+        "identical": torch.rand(1, 3, 16, 16, generator=torch.Generator().manual_seed(3)),
+        "zeros": torch.zeros(1, 3, 16, 16),
+        "ones": torch.ones(1, 3, 16, 16),
+        "constant": torch.full((1, 3, 16, 16), 0.37),
+    }
+    for name, image in cases.items():
+        scores = image_metrics(image, image.clone(), convention)
+        assert math.isinf(float(scores.psnr[0])) and float(scores.psnr[0]) > 0, name
+        assert float(scores.ssim[0]) == pytest.approx(1.0, abs=1e-12), name
+    # Two different constant images: finite, no NaN, below 1.
+    scores = image_metrics(torch.zeros(1, 1, 16, 16), torch.full((1, 1, 16, 16), 0.5), convention)
+    assert math.isfinite(float(scores.psnr[0])) and 0 <= float(scores.ssim[0]) < 1
+    reference_ssim = structural_similarity(
+        np.zeros((16, 16)),
+        np.full((16, 16), 0.5 if convention is MetricConvention.SKIMAGE_GAUSSIAN else 128.0),
+        data_range=1.0 if convention is MetricConvention.SKIMAGE_GAUSSIAN else 255.0,
+        gaussian_weights=convention is MetricConvention.SKIMAGE_GAUSSIAN,
+        use_sample_covariance=convention is MetricConvention.DERAINDROP_Y,
+    )
+    assert abs(float(scores.ssim[0]) - reference_ssim) < 1e-6
+
+
+def test_mean_psnr_caps_infinity() -> None:
+    values = torch.tensor([30.0, math.inf], dtype=torch.float64)
+    assert mean_psnr(values) == pytest.approx((30.0 + PSNR_CAP_DB) / 2)
+    assert mean_psnr(torch.tensor([20.0, 40.0])) == pytest.approx(30.0)
+    with pytest.raises(ModelError, match="no values"):
+        mean_psnr(torch.tensor([]))
+    with pytest.raises(ModelError, match="NaN"):
+        mean_psnr(torch.tensor([math.nan]))
+
+
+def test_gaussian_window_is_normalised_11_taps() -> None:
+    taps = gaussian_window()
+    assert taps.numel() == 11 and float(taps.sum()) == pytest.approx(1.0, abs=1e-15)
+    assert torch.equal(taps, taps.flip(0)) and int(taps.argmax()) == 5
+
+
+def test_quantize_rounds_and_clips() -> None:
+    values = torch.tensor([-0.2, 0.0, 0.4 / 255, 1.6 / 255, 0.999, 1.0, 1.3])
+    assert quantize_uint8(values).tolist() == [0, 0, 0, 2, 255, 255, 255]
+
+
+def test_errors() -> None:
+    with pytest.raises(ModelError, match="valid: skimage-gaussian, deraindrop-y"):
+        parse_metric_convention("matlab")
+    with pytest.raises(ModelError, match="shapes differ"):
+        psnr(torch.rand(1, 1, 8, 8), torch.rand(1, 1, 8, 9))
+    with pytest.raises(ModelError, match="smaller than the 11x11 window"):
+        ssim(torch.rand(1, 1, 10, 30), torch.rand(1, 1, 10, 30))
+    with pytest.raises(ModelError, match="NaN"):
+        psnr(torch.full((1, 1, 8, 8), math.nan), torch.rand(1, 1, 8, 8))
+    with pytest.raises(ModelError, match="odd"):
+        ssim(torch.rand(1, 1, 16, 16), torch.rand(1, 1, 16, 16), gaussian_weights=False, win_size=4)
+    assert str(MetricConvention.DERAINDROP_Y) == "deraindrop-y"

@@ -1,0 +1,115 @@
+import csv
+import json
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+import torch
+
+from lenspair.cli import main
+from lenspair.config import dump_yaml
+from model.errors import ModelError
+from model.tradeoff import (
+    DEFAULT_VARIANTS,
+    Budget,
+    TradeoffRow,
+    mark_pareto,
+    pareto_front,
+    parse_budget,
+    precisions_for,
+    run_tradeoff,
+)
+from tests.model.train_fixtures import tiny_config, write_split_dataset
+
+
+@pytest.fixture(autouse=True)
+def one_thread() -> Iterator[None]:
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def test_pareto_front_on_fixed_points() -> None:
+    times = [1.0, 2.0, 3.0, 2.0, 4.0, 1.5, None]
+    psnr = [20.0, 25.0, 24.0, 22.0, 30.0, 20.0, 99.0]
+    # 2 is dominated by 1 (faster and better), 3 by 1, 5 by 0 (slower, equal score);
+    # the point without a time is never on the front.
+    assert pareto_front(times, psnr) == [0, 1, 4]
+    assert pareto_front([1.0, 1.0], [5.0, 5.0]) == [0, 1]  # exact ties both stay
+    assert pareto_front([], []) == []
+    assert pareto_front([1.0, 2.0], [float("nan"), 3.0]) == [1]
+
+
+def test_mark_pareto_uses_psnr_and_ssim_separately() -> None:
+    def row(name: str, ms: float, psnr: float, ssim: float) -> TradeoffRow:
+        return TradeoffRow(name, "GEA", 1.0, 9, "fp32", 1, 0.1, ms, None, psnr, ssim, "c", 1)
+
+    rows = mark_pareto([row("a", 1, 20, 0.9), row("b", 2, 25, 0.8), row("c", 3, 24, 0.95)])
+    assert [r.pareto_psnr for r in rows] == [True, True, False]
+    assert [r.pareto_ssim for r in rows] == [True, False, True]
+
+
+def test_parse_budget() -> None:
+    assert parse_budget("60") == Budget(steps=60)
+    assert parse_budget("90s") == Budget(seconds=90.0)
+    assert parse_budget("2m") == Budget(seconds=120.0)
+    assert parse_budget("1h").seconds == 3600.0
+    for bad in ("", "0", "abc", "1.5", "-3"):
+        with pytest.raises(ModelError, match="budget"):
+            parse_budget(bad)
+
+
+def test_variant_set_and_precisions() -> None:
+    names = [v.name for v in DEFAULT_VARIANTS]
+    assert {"G", "GE", "GEA"} <= set(names)
+    assert any(v.width == 0.5 for v in DEFAULT_VARIANTS)
+    assert any(v.width == 2.0 for v in DEFAULT_VARIANTS)
+    assert any(v.num_blocks == 3 for v in DEFAULT_VARIANTS)
+    assert precisions_for("G", torch.device("cpu")) == ["fp32"]
+    assert precisions_for("GEA", torch.device("cpu")) == ["fp32", "bf16"]
+    assert precisions_for("GEA", torch.device("cuda")) == ["fp32", "bf16", "fp16"]
+
+
+def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    base = tiny_config()
+    base = replace(base, model=replace(base.model, channels=None))
+    out = tmp_path / "tradeoff"
+    result = run_tradeoff(dataset, out, torch.device("cpu"), Budget(steps=1), base,
+                          latency_runs=2)  # fmt: skip
+    names = [(r.name, r.precision) for r in result.rows]
+    gea_family = [v.name for v in DEFAULT_VARIANTS if v.variant == "GEA"]
+    expected = [(v.name, "fp32") for v in DEFAULT_VARIANTS] + [(n, "bf16") for n in gea_family]
+    assert sorted(names) == sorted(expected)
+    assert all(r.steps == 1 for r in result.rows)
+    assert all(r.cpu_ms is not None and r.cpu_ms > 0 for r in result.rows)
+    assert all(r.gpu_ms is None for r in result.rows)
+    assert any(r.pareto_psnr for r in result.rows)
+    by_name = {(r.name, r.precision): r for r in result.rows}
+    assert by_name[("GEA-w2", "fp32")].params > by_name[("GEA", "fp32")].params
+    assert by_name[("GEA", "fp32")].params > by_name[("GEA-w0.5", "fp32")].params
+    assert by_name[("GEA-b3", "fp32")].gflops < by_name[("GEA", "fp32")].gflops
+
+    markdown = (out / "tradeoff.md").read_text()
+    for name, precision in expected:
+        assert f"| {name} | {precision} |" in markdown
+    assert "skimage-gaussian" in markdown
+    with (out / "tradeoff.csv").open() as handle:
+        assert len(list(csv.DictReader(handle))) == len(expected)
+    payload = json.loads((out / "tradeoff.json").read_text())
+    assert len(payload["rows"]) == len(expected) and payload["budget"] == "1 steps"
+    assert (out / "tradeoff.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (out / "tradeoff_config.yaml").is_file()
+    assert (out / "runs" / "GEA-w2" / "checkpoints" / "best.pt").is_file()
+
+    # A rerun reuses the finished runs (and may select a subset from the CLI).
+    config = tmp_path / "base.yaml"
+    config.write_text(dump_yaml(base))
+    before = (out / "runs" / "G" / "checkpoints" / "last.pt").stat().st_mtime_ns
+    args = ["tradeoff", str(dataset), "--out", str(out), "--budget", "1", "--variants", "G"]
+    assert main([*args, "--config", str(config), "--latency-runs", "1"]) == 0
+    assert [r["name"] for r in json.loads((out / "tradeoff.json").read_text())["rows"]] == ["G"]
+    assert (out / "runs" / "G" / "checkpoints" / "last.pt").stat().st_mtime_ns == before
+    assert main(["tradeoff", str(dataset), "--out", str(out), "--variants", "X"]) == 2

@@ -1,0 +1,315 @@
+import logging
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from lenspair.cli import main
+from lenspair.config import dump_yaml
+from lenspair.errors import ConfigError
+from lenspair.imageio import write_image
+from model.checkpoint import load_checkpoint
+from model.config import RunConfig, load_run_config
+from model.data import (
+    OUR_DROPS,
+    SHARP_DROPS,
+    find_clean_images,
+    holdout_indices,
+    paired_training_data,
+    synthetic_training_data,
+)
+from model.errors import ModelError
+from model.trainer import Trainer, TrainingDivergedError, distributed_from_env, init_distributed
+from model.training import fit, resolve_config
+from model.vgg import VGG19Features
+from tests.model.train_fixtures import (
+    clean_image,
+    tiny_config,
+    write_paired_folder,
+    write_split_dataset,
+)
+
+CPU = torch.device("cpu")
+
+
+@pytest.fixture(autouse=True)
+def one_thread() -> Iterator[None]:
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)  # the machine is shared; more threads only contend
+    yield
+    torch.set_num_threads(before)
+
+
+def _batch(seed: int = 0, size: int = 32) -> dict[str, torch.Tensor]:
+    generator = torch.Generator().manual_seed(seed)
+    target = torch.rand(2, 1, size, size, generator=generator)
+    keep = torch.rand(2, 1, size, size, generator=generator) > 0.2
+    return {"input": target * keep, "target": target, "valid": torch.ones(2, 1, size, size)}
+
+
+def _train(dataset: Path, run: Path, config: RunConfig, resume: bool = False) -> None:
+    data = paired_training_data(dataset, config.data, config.model.channels, config.train.seed)
+    fit(resolve_config(config, data.channels), data.train, data.val, run, CPU, resume=resume)
+
+
+# --- configuration -----------------------------------------------------------------
+
+
+def test_config_rejects_unknown_keys_and_wrong_types(tmp_path: Path) -> None:
+    file = tmp_path / "train.yaml"
+    file.write_text("train: {lr: 1.0e-4, lrr: 3}\n")
+    with pytest.raises(ConfigError, match=r"train\.lrr: unknown key"):
+        load_run_config(file)
+    file.write_text("train: {lr: le-4}\n")
+    with pytest.raises(ConfigError, match=r"train\.lr: expected float, got 'le-4'"):
+        load_run_config(file)
+    file.write_text("model: {variant: GAE}\n")
+    with pytest.raises(ConfigError, match=r"model\.variant"):
+        load_run_config(file)
+
+
+def test_config_round_trips_and_defaults_follow_the_paper(tmp_path: Path) -> None:
+    config = load_run_config(None)
+    assert (config.train.lr, config.train.beta1, config.train.beta2) == (2e-4, 0.5, 0.999)
+    assert (config.train.batch_size, config.train.epochs, config.train.patience) == (8, 200, 10)
+    assert config.loss.perceptual_layers == (1 / 32, 1 / 16, 1 / 8, 1 / 4, 1.0)
+    file = tmp_path / "c.yaml"
+    file.write_text(dump_yaml(tiny_config()))
+    assert load_run_config(file) == tiny_config()
+
+
+# --- the step ----------------------------------------------------------------------
+
+
+def test_one_training_step_lowers_the_loss() -> None:
+    trainer = Trainer(tiny_config(), CPU)
+    batch = _batch()
+    with torch.no_grad():
+        before, _, _ = trainer.generator_terms(batch["input"], batch["target"], batch["valid"])
+    result = trainer.train_step(batch)
+    with torch.no_grad():
+        after, _, _ = trainer.generator_terms(batch["input"], batch["target"], batch["valid"])
+    assert not result.skipped
+    assert float(after) < float(before)
+
+
+def test_bf16_autocast_step_is_finite() -> None:
+    trainer = Trainer(tiny_config(amp=True), CPU)
+    assert trainer.precision == "bf16 autocast"
+    assert not trainer.scaler.is_enabled()  # GradScaler is for fp16 on CUDA only
+    for seed in range(2):
+        result = trainer.train_step(_batch(seed))
+        assert not result.skipped
+        assert all(np.isfinite(v) for v in result.losses.values())
+    assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
+
+
+def test_injected_nan_is_skipped_without_any_update() -> None:
+    trainer = Trainer(tiny_config(), CPU)
+    trainer.train_step(_batch(0))
+    weights = {k: v.clone() for k, v in trainer.model.state_dict().items()}
+    adam_steps = [s["step"].clone() for s in trainer.opt_g.state_dict()["state"].values()]
+    bad = _batch(1)
+    bad["input"][0, 0, 3, 3] = float("nan")
+    result = trainer.train_step(bad)
+    assert result.skipped
+    for key, value in trainer.model.state_dict().items():
+        assert torch.equal(value, weights[key])
+    after = [s["step"] for s in trainer.opt_g.state_dict()["state"].values()]
+    assert all(torch.equal(a, b) for a, b in zip(adam_steps, after, strict=True))
+    assert trainer.guard.consecutive == 1
+    assert not trainer.train_step(_batch(2)).skipped
+    assert trainer.guard.consecutive == 0 and trainer.guard.total == 1
+
+
+def test_learning_rate_spike_stops_with_a_clear_message() -> None:
+    trainer = Trainer(tiny_config(nan_patience=3), CPU)
+    trainer.train_step(_batch(0))
+    for group in trainer.opt_g.param_groups + trainer.opt_d.param_groups:
+        group["lr"] = 1e30
+    with pytest.raises(TrainingDivergedError, match=r"3 consecutive steps.*lower train\.lr"):
+        for seed in range(10):
+            trainer.train_step(_batch(seed))
+    assert trainer.guard.consecutive == 3
+
+
+def test_single_process_never_touches_torch_distributed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    for name in ("WORLD_SIZE", "RANK", "LOCAL_RANK"):
+        monkeypatch.delenv(name, raising=False)
+    info, device = init_distributed(CPU)
+    assert not info.active and info.is_main and device == CPU
+    assert not torch.distributed.is_initialized()
+    monkeypatch.setenv("WORLD_SIZE", "1")
+    assert not distributed_from_env().active
+    trainer = Trainer(tiny_config(), CPU, info)
+    assert trainer.network is trainer.model  # no DistributedDataParallel wrapper
+
+
+# --- the loop, run folder, resume --------------------------------------------------
+
+
+def test_fit_writes_the_run_folder_and_warns_without_vgg(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("LENSPAIR_VGG19_WEIGHTS", raising=False)
+    dataset = write_split_dataset(tmp_path / "ds")
+    run = tmp_path / "run"
+    with caplog.at_level(logging.INFO):
+        _train(dataset, run, tiny_config(epochs=1))
+    for name in ("config.yaml", "metrics.csv", "train.log", "samples.png"):
+        assert (run / name).is_file(), name
+    assert (run / "checkpoints" / "last.pt").is_file()
+    assert (run / "checkpoints" / "best.pt").is_file()
+    saved = yaml.safe_load((run / "config.yaml").read_text())
+    assert saved["model"]["channels"] == 1
+    assert saved["runtime"]["perceptual"].startswith("disabled (no VGG19 weights")
+    assert "LENSPAIR_VGG19_WEIGHTS" in saved["runtime"]["perceptual"]
+    assert saved["runtime"]["precision"] == "fp32"
+    assert load_run_config(run / "config.yaml").model == resolve_config(tiny_config(), 1).model
+    warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
+    assert any("PERCEPTUAL LOSS DISABLED" in r.getMessage() for r in warnings)
+    assert "WARNING" in (run / "train.log").read_text()
+    rows = (run / "metrics.csv").read_text().splitlines()
+    assert rows[0].startswith("epoch,step,")
+    assert len(rows) == 2
+    with pytest.raises(ModelError, match="already holds a run"):
+        _train(dataset, run, tiny_config(epochs=1))
+
+
+def test_perceptual_loss_runs_with_vgg_weights(tmp_path: Path) -> None:
+    weights = tmp_path / "vgg19.pth"
+    torch.save(VGG19Features().state_dict(), weights)
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1})
+    run = tmp_path / "run"
+    _train(dataset, run, tiny_config(epochs=1, vgg19_weights=weights))
+    saved = yaml.safe_load((run / "config.yaml").read_text())
+    assert saved["runtime"]["perceptual"] == f"enabled ({weights})"
+    row = (run / "metrics.csv").read_text().splitlines()[1].split(",")
+    header = (run / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert float(row[header.index("perceptual")]) > 0
+
+
+def _weights(run: Path) -> dict[str, torch.Tensor]:
+    return dict(load_checkpoint(run / "checkpoints" / "last.pt")["model"])
+
+
+@pytest.mark.parametrize("first_leg", [{"epochs": 1}, {"max_steps": 4}])
+def test_resume_continues_exactly(tmp_path: Path, first_leg: dict[str, int]) -> None:
+    dataset = write_split_dataset(tmp_path / "ds")  # 6 pairs, batch 2: 3 steps per epoch
+    config = tiny_config(epochs=2, deterministic=True, seed=3)
+    _train(dataset, tmp_path / "straight", config)
+    _train(dataset, tmp_path / "split", replace(config, train=replace(config.train, **first_leg)))
+    _train(dataset, tmp_path / "split", config, resume=True)
+    straight, split = _weights(tmp_path / "straight"), _weights(tmp_path / "split")
+    assert straight.keys() == split.keys()
+    for key in straight:
+        assert torch.equal(straight[key], split[key]), key
+    rows = (tmp_path / "split" / "metrics.csv").read_text().splitlines()
+    assert [r.split(",")[1] for r in rows[1:]][-1] == "6"
+
+
+def test_init_loads_weights_and_checks_the_network(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1})
+    _train(dataset, tmp_path / "pre", tiny_config(epochs=1))
+    best = tmp_path / "pre" / "checkpoints" / "best.pt"
+    config = resolve_config(tiny_config(max_steps=1), 1)
+    data = paired_training_data(dataset, config.data, 1, 0)
+    fit(config, data.train, data.val, tmp_path / "fine", CPU, init=best)
+    saved = yaml.safe_load((tmp_path / "fine" / "config.yaml").read_text())
+    assert saved["runtime"]["init"] == str(best)
+    wider = replace(config, model=replace(config.model, width=0.5))
+    with pytest.raises(ModelError, match="model sections must match"):
+        fit(wider, data.train, data.val, tmp_path / "bad", CPU, init=best)
+
+
+# --- data ----------------------------------------------------------------------------
+
+
+def test_all_reader_layouts_train(tmp_path: Path) -> None:
+    plain = write_paired_folder(tmp_path / "plain", count=4)
+    lq = tmp_path / "lq_gt"
+    for index, item in enumerate(["000.png", "001.png", "002.png"]):
+        image = clean_image(np.random.default_rng(index))
+        write_image(lq / "lq" / item, image)
+        write_image(lq / "gt" / item, image)
+    raindrop = tmp_path / "raindrop" / "train"
+    for index in range(3):
+        image = clean_image(np.random.default_rng(index))
+        write_image(raindrop / "data" / f"{index}_rain.png", image)
+        write_image(raindrop / "gt" / f"{index}_clean.png", image)
+    config = tiny_config()
+    for folder in (plain, lq, raindrop, tmp_path / "raindrop"):
+        data = paired_training_data(folder, config.data, None, 0)
+        sample = data.train[0]
+        assert sample["input"].shape == (1, 32, 32)
+        assert data.val[0]["target"].shape == (1, 32, 48)
+        assert len(data.train) + len(data.val) >= 3
+
+
+def test_holdout_is_deterministic_and_stable() -> None:
+    names = [f"{i:03d}" for i in range(20)]
+    train, val = holdout_indices(names, 0.1)
+    assert len(val) == 2 and sorted(train + val) == list(range(20))
+    assert holdout_indices(names, 0.1) == (train, val)
+    _, val_more = holdout_indices([*names, "new"], 0.1)
+    assert set(val) & set(val_more)  # adding a name does not reshuffle everything
+
+
+def test_crops_and_flips_depend_on_seed_epoch_and_index(tmp_path: Path) -> None:
+    data = paired_training_data(write_paired_folder(tmp_path / "p", 6), tiny_config().data, 1, 0)
+    first = data.train[0]["input"]
+    assert torch.equal(first, data.train[0]["input"])
+    data.train.set_epoch(1)
+    assert not torch.equal(first, data.train[0]["input"])
+
+
+def test_synthetic_drops_render_on_the_fly(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    for index in range(5):
+        image = clean_image(rng, 40, 56)
+        write_image(tmp_path / "clean" / f"{index}.png", np.stack([image] * 3, axis=2))
+    assert len(find_clean_images(tmp_path / "clean")) == 5
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 3, "val": 1, "test": 2})
+    found = find_clean_images(dataset)  # a dataset root: its training targets only
+    assert [p.relative_to(dataset).parts[:2] for p in found] == [("train", "target")] * 3
+    config = tiny_config().data
+    ours = synthetic_training_data(tmp_path / "clean", config, None, seed=0)
+    assert ours.channels == 3 and ours.synthetic == "ours"
+    assert ours.train.effects == OUR_DROPS  # type: ignore[union-attr]
+    sample = ours.train[0]
+    assert sample["input"].shape == (3, 32, 32)
+    assert not torch.equal(sample["input"], sample["target"])
+    assert torch.equal(ours.val[0]["input"], ours.val[0]["input"])
+    ours.val.set_epoch(5)  # validation drops never change
+    assert torch.equal(ours.val[0]["input"], ours.val[0]["input"])
+    sharp = synthetic_training_data(tmp_path / "clean", replace(config, drops="sharp"), 1, 0)
+    assert sharp.train.effects == SHARP_DROPS  # type: ignore[union-attr]
+    assert sharp.train[0]["input"].shape == (1, 32, 32)
+    assert len(sharp.val) == 1 and len(sharp.train) == 4
+
+
+def test_cli_synthetic_pretraining_then_fine_tune(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 3, "val": 1})
+    config = tmp_path / "train.yaml"
+    config.write_text(
+        dump_yaml(replace(tiny_config(), model=replace(tiny_config().model, channels=None)))
+    )
+    pre = tmp_path / "pre"
+    args = ["train", "--synthetic", str(dataset), "--out", str(pre), "--config", str(config)]
+    assert main([*args, "--drops", "sharp", "--max-steps", "1", "--device", "cpu"]) == 0
+    saved = yaml.safe_load((pre / "config.yaml").read_text())
+    assert saved["runtime"]["synthetic"] == "sharp"
+    assert saved["data"]["drops"] == "sharp"
+    fine = tmp_path / "fine"
+    init = str(pre / "checkpoints" / "best.pt")
+    args = ["train", str(dataset), "--out", str(fine), "--config", str(config), "--init", init]
+    assert main([*args, "--max-steps", "1"]) == 0
+    assert main(["train", str(dataset), "--out", str(fine), "--resume", "--max-steps", "2"]) == 0
+    assert load_checkpoint(fine / "checkpoints" / "last.pt")["step"] == 2
+    assert main(["train", "--out", str(fine)]) == 2  # neither DS nor --synthetic
