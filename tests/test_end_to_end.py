@@ -22,7 +22,7 @@ def demo_out(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_demo_runs_every_stage_and_writes_the_report(demo_out: Path) -> None:
     timings = json.loads((demo_out / "timings.json").read_text())
-    assert list(timings) == [stage.name for stage in plan(demo_out, QUICK)]
+    assert sorted(timings) == sorted(stage.name for stage in plan(demo_out, QUICK))
     report = (demo_out / "report.md").read_text()
     for section in ("Calibration", "Ingest", "Dataset", "Evaluation", "Accuracy against time"):
         assert f"## {section}" in report
@@ -70,7 +70,7 @@ def test_eval_and_export_of_the_fine_tuned_checkpoint(demo_out: Path, tmp_path: 
     assert "convention" in json.dumps(metrics)
     assert main(["export", str(checkpoint), "--torchscript", str(tmp_path / "m.pt")]) == 0
     assert (tmp_path / "m.pt").stat().st_size > 0
-    rows = json.loads((demo_out / "tradeoff" / "tradeoff.json").read_text())["variants"]
+    rows = json.loads((demo_out / "tradeoff" / "tradeoff.json").read_text())["rows"]
     assert {row["name"] for row in rows} >= {"G", "GE", "GEA", "GEA-w0.5", "GEA-w2", "GEA-b3"}
     assert {row["precision"] for row in rows if row["name"] == "GEA"} >= {"fp32", "bf16"}
     assert all(np.isfinite(row["psnr_db"]) and row["cpu_ms"] > 0 for row in rows)
