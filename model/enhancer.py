@@ -18,9 +18,9 @@ output   clamp01(generator output + fuse)  (straight-through clamp)       C
 
 As in EPDN there is no normalisation and the 3x3 convolutions zero-pad.
 EPDN uses 20 refinement filters; we use 16, a multiple of the 16 fp32 lanes
-of an AVX-512 register: on CPU a 20-channel full-resolution convolution is
-padded to 32 channels internally and measured twice as slow as a 16-channel
-one, for 1.6x the FLOPs. Filter counts scale with the width multiplier. The
+of an AVX-512 register (oneDNN blocks channels by 8/16): on the benchmark
+CPU a full-resolution 20->20 convolution measured about twice as slow as a
+16->16 one, for only 1.6x the FLOPs. Filter counts scale with the width multiplier. The
 fuse convolution, with one output channel for mono, is a
 :class:`~model.layers.NarrowConv2d` (same parameters, faster on CPU).
 

@@ -10,7 +10,7 @@ from model.aggregation import Aggregation
 from model.enhancer import Enhancer
 from model.errors import ModelError
 from model.generator import Generator
-from model.layers import InstanceNorm, make_norm, scaled_channels
+from model.layers import InstanceNorm, NarrowConv2d, cat_channels, make_norm, scaled_channels
 from model.padding import crop_to, pad_to_multiple
 from model.variants import VARIANTS, AnomalyMitigator, MitigatorOutput, build_model
 
@@ -206,3 +206,35 @@ def test_mitigator_attributes() -> None:
     model = AnomalyMitigator("GE", 3, width=0.5, num_blocks=3)
     assert (model.variant, model.channels, model.width, model.num_blocks) == ("GE", 3, 0.5, 3)
     assert model.enhancer is not None and model.generator.agg1 is None
+
+
+@pytest.mark.parametrize(
+    ("in_channels", "out_channels", "kernel", "padding_mode"),
+    [(8, 1, 7, "reflect"), (8, 3, 7, "reflect"), (20, 1, 3, "zeros"), (5, 2, 3, "zeros")],
+)
+def test_narrow_conv_equals_conv(
+    in_channels: int, out_channels: int, kernel: int, padding_mode: str
+) -> None:
+    narrow = NarrowConv2d(
+        in_channels, out_channels, kernel, padding=kernel // 2, padding_mode=padding_mode
+    )
+    reference = torch.nn.Conv2d(
+        in_channels, out_channels, kernel, padding=kernel // 2, padding_mode=padding_mode
+    )
+    reference.load_state_dict(narrow.state_dict())
+    x = torch.randn(2, in_channels, 13, 17, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        expected = reference(x)
+        assert torch.allclose(narrow(x), expected, atol=1e-5)
+        assert torch.allclose(
+            narrow(x.contiguous(memory_format=torch.channels_last)), expected, atol=1e-5
+        )
+
+
+def test_cat_channels_matches_torch_cat() -> None:
+    a = torch.randn(2, 3, 5, 6).contiguous(memory_format=torch.channels_last)
+    b = torch.randn(2, 1, 8, 9)[..., :5, :6]  # a strided single-channel view
+    c = torch.randn(2, 4, 5, 6)
+    for tensors in ([a, b], [b, a, c], [c, c]):
+        assert torch.equal(cat_channels(tensors), torch.cat(tensors, dim=1))
+    assert cat_channels([a, b]).is_contiguous(memory_format=torch.channels_last)

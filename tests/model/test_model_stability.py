@@ -68,7 +68,11 @@ def test_bf16_weights_forward_is_finite() -> None:
     x = torch.full((1, 3, 16, 24), 1.0, dtype=torch.bfloat16)
     with torch.inference_mode():
         out = model(x)
-    assert out.enhanced.dtype == torch.bfloat16 and _finite(out.enhanced)
+        assert out.enhanced.dtype == torch.bfloat16 and _finite(out.enhanced)
+        model = model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+        out_cl = model(x.contiguous(memory_format=torch.channels_last))
+    assert _finite(out_cl.enhanced)
+    assert torch.allclose(out_cl.enhanced.float(), out.enhanced.float(), atol=0.05)
 
 
 def test_fp32_gan_training_step_without_nan() -> None:
