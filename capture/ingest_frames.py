@@ -23,6 +23,7 @@ from capture.rigfile import CameraName
 from lenspair.errors import LenspairError
 from lenspair.fsutil import sha256_bytes, sha256_file
 from lenspair.imageio import write_image
+from lenspair.quality import exposure_fractions, laplacian_variance, to_grey
 from rectify.crop import Crop
 from rectify.rectification import StereoRectification
 from rectify.registration import (
@@ -30,7 +31,6 @@ from rectify.registration import (
     VerifyParams,
     match_views,
     measure_shift,
-    to_gray,
     to_u8,
     verify_pair,
 )
@@ -229,7 +229,7 @@ def sample(task: SampleTask) -> SampleResult:
         return SampleResult(task.obstructed.t_ns, loaded)
     views = []
     for raw, (map_x, map_y) in zip(loaded, context.rectified_maps, strict=True):
-        views.append(to_gray(np.asarray(cv2.remap(raw, map_x, map_y, cv2.INTER_LINEAR))))
+        views.append(to_grey(np.asarray(cv2.remap(raw, map_x, map_y, cv2.INTER_LINEAR))))
     obstructed, clean = views
     matches = match_views(
         obstructed, clean, context.valid_obstructed, context.valid_clean, task.estimation
@@ -291,13 +291,6 @@ def remove_outputs(out_dir: Path, t_ns: int, keep: tuple[str, ...] = ()) -> None
             path.unlink(missing_ok=True)
 
 
-def _exposure(image: np.ndarray) -> tuple[float, float]:
-    """Fractions of pixels at full scale (any channel) and at zero (all channels)."""
-    top = np.iinfo(image.dtype).max
-    pixels = image.reshape(image.shape[0], image.shape[1], -1)
-    return float((pixels == top).any(axis=2).mean()), float((pixels == 0).all(axis=2).mean())
-
-
 def _figure(value: float | None) -> float | None:
     return None if value is None else round(float(value), 6)
 
@@ -316,15 +309,15 @@ def process(task: FrameTask) -> PairRecord:
     params = context.verify
     image_in = apply(raw_obstructed, context.input_grid)
     image_target = apply(raw_clean, shifted(context.target_grid, 0.0, 0.0))
-    gray_in, gray_target = to_gray(image_in), to_gray(image_target)
+    gray_in, gray_target = to_grey(image_in), to_grey(image_target)
     shift = measure_shift(gray_in, gray_target, params)
     notes = [task.warning] if task.warning else []
     if shift.failure is None and shift.magnitude > params.refine_px:
         image_target = apply(raw_clean, shifted(context.target_grid, shift.dx, shift.dy))
-        gray_target = to_gray(image_target)
+        gray_target = to_grey(image_target)
         notes.append(f"refined: target shifted by ({shift.dx:.2f}, {shift.dy:.2f}) px")
-    saturated, black = _exposure(image_target)
-    sharpness = float(cv2.Laplacian(gray_target * np.float32(255.0), cv2.CV_32F).var())
+    saturated, black = exposure_fractions(image_target)
+    sharpness = laplacian_variance(gray_target)
     figures = replace(
         base,
         sharpness=_figure(sharpness),

@@ -19,6 +19,7 @@ import numpy as np
 from capture.ingested import PairRecord
 from dataset.config import CurationConfig, Difficulty
 from lenspair.imageio import check_image, max_value
+from lenspair.quality import exposure_fractions, laplacian_variance, to_grey
 
 RULES: tuple[tuple[str, str], ...] = (
     ("ingest_rejected", "rejected by capture-ingest (status 'rejected' in pairs.jsonl)"),
@@ -69,12 +70,6 @@ class PairStats:
     black: float
     mask_fraction: float
     thumbnail: np.ndarray
-
-
-def grey(image: np.ndarray) -> np.ndarray:
-    """Grey ``float32`` ``(H, W)`` image in [0, 1] (Rec. 601 weights for RGB)."""
-    values = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-    return values.astype(np.float32) * np.float32(1.0 / max_value(image.dtype))
 
 
 def channel_max(image: np.ndarray) -> np.ndarray:
@@ -128,15 +123,12 @@ def measure_pair(
     mse = float(np.mean(squared, dtype=np.float64)) / max_value(input.dtype) ** 2
     psnr = PSNR_CAP_DB if mse <= 1e-10 else min(PSNR_CAP_DB, 10.0 * float(np.log10(1.0 / mse)))
 
-    target_grey = grey(target)
-    laplacian = cv2.Laplacian(target_grey * np.float32(255.0), cv2.CV_32F, ksize=1)
-    brightest = channel_max(target)
-    saturated = float(np.count_nonzero(brightest >= max_value(target.dtype))) / brightest.size
-    black = float(np.count_nonzero(brightest == 0)) / brightest.size
+    target_grey = to_grey(target)
+    saturated, black = exposure_fractions(target)
     return PairStats(
         psnr_db=psnr,
-        anomaly_fraction=anomaly_fraction(grey(input), target_grey, valid, anomaly_delta),
-        sharpness=float(np.var(laplacian, dtype=np.float64)),
+        anomaly_fraction=anomaly_fraction(to_grey(input), target_grey, valid, anomaly_delta),
+        sharpness=laplacian_variance(target_grey),
         saturated=saturated,
         black=black,
         mask_fraction=mask_fraction,

@@ -159,15 +159,6 @@ class Verification:
     photometric_residual: float
 
 
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB -> grey ``float32`` in ``[0, 1]``."""
-    scale = np.float32(1.0 / np.iinfo(image.dtype).max)
-    gray = image.astype(np.float32) * scale
-    if gray.ndim == 3:
-        return np.asarray(cv2.cvtColor(gray, cv2.COLOR_RGB2GRAY))
-    return gray
-
-
 def to_u8(gray: np.ndarray, stretch: bool = False) -> np.ndarray:
     """Grey ``float32 [0, 1]`` -> ``uint8``; ``stretch`` maps the 1st-99th percentile to 0-255."""
     if stretch:

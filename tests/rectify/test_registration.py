@@ -4,6 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
+from lenspair.quality import to_grey
 from rectify.registration import (
     EstimationParams,
     RegistrationError,
@@ -11,7 +12,6 @@ from rectify.registration import (
     compensate_gain,
     estimate_homography,
     measure_shift,
-    to_gray,
     verify_pair,
 )
 from rectify.remap import apply_homography, pixel_grid
@@ -71,11 +71,11 @@ def _pair(
     return obstructed.astype(np.float32), clean, drop_mask
 
 
-def test_to_gray_scales_by_bit_depth() -> None:
-    assert to_gray(np.full((2, 2), 65535, np.uint16)).max() == pytest.approx(1.0)
+def test_to_grey_scales_by_bit_depth() -> None:
+    assert to_grey(np.full((2, 2), 65535, np.uint16)).max() == pytest.approx(1.0)
     rgb = np.zeros((2, 2, 3), np.uint8)
     rgb[..., 1] = 255
-    assert to_gray(rgb)[0, 0] == pytest.approx(0.587, abs=1e-3)
+    assert to_grey(rgb)[0, 0] == pytest.approx(0.587, abs=1e-3)
 
 
 def test_gain_compensation_removes_exposure_difference() -> None:

@@ -1,0 +1,25 @@
+import numpy as np
+import pytest
+
+from lenspair.quality import exposure_fractions, laplacian_variance, to_grey
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_exposure_counts_any_channel_saturated_and_all_channels_black(dtype: type) -> None:
+    top = np.iinfo(dtype).max
+    image = np.full((2, 2, 3), 7, dtype)
+    image[0, 0] = (top, 0, 0)  # saturated in one channel
+    image[0, 1] = (0, 0, 0)  # black
+    image[1, 0] = (0, 0, 1)  # not black
+    assert exposure_fractions(image) == (0.25, 0.25)
+    assert exposure_fractions(image[:, :, 2]) == (0.0, 0.5)
+
+
+def test_laplacian_variance_drops_with_blur_and_is_bit_depth_free() -> None:
+    rng = np.random.default_rng(0)
+    sharp = rng.integers(0, 256, (64, 64), dtype=np.uint8)
+    blurred = np.full_like(sharp, int(sharp.mean()))
+    assert laplacian_variance(to_grey(blurred)) == 0.0
+    assert laplacian_variance(to_grey(sharp)) > 1000.0
+    wide = sharp.astype(np.uint16) * 257
+    assert laplacian_variance(to_grey(wide)) == pytest.approx(laplacian_variance(to_grey(sharp)))
