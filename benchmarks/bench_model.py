@@ -35,7 +35,6 @@ CPU pressure at the start and end of the run are recorded.
 import argparse
 import contextlib
 import copy
-import ctypes
 import json
 import os
 import platform
@@ -49,13 +48,13 @@ import torch
 import torch.nn.functional as F
 
 from model.complexity import describe
+from model.latency import tune_allocator
 from model.metrics import psnr
 from model.variants import AnomalyMitigator, build_model
 
 HEIGHT, WIDTH = 360, 540
 LATENCY_TARGET_BF16_MS = 50.0
 ROOFLINE_TARGET = 1.5
-MMAP_THRESHOLD = 32 * 1024 * 1024
 
 Clock = Callable[[], float]
 Context = Callable[[], contextlib.AbstractContextManager[None]]
@@ -158,18 +157,6 @@ def _pressure() -> str:
         return "n/a"
 
 
-def _tune_allocator() -> bool:
-    """Keep freed activations in the heap (glibc ``mallopt``); False where unavailable."""
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        m_trim_threshold, m_mmap_threshold = -1, -3
-        ok_mmap = libc.mallopt(m_mmap_threshold, MMAP_THRESHOLD)
-        ok_trim = libc.mallopt(m_trim_threshold, 2**30)
-    except (OSError, AttributeError):
-        return False
-    return bool(ok_mmap and ok_trim)
-
-
 def _configs(
     model: AnomalyMitigator, compile_models: bool
 ) -> dict[str, tuple[Callable[[torch.Tensor], torch.Tensor], torch.Tensor, Context]]:
@@ -227,7 +214,7 @@ def run(runs: int, warmup: int, threads: int, compile_models: bool = False) -> d
     with torch.inference_mode():
         torch.set_num_threads(threads)
         default_times = _round_robin(calls, max(5, runs // 2), warmup, time.perf_counter)
-        allocator_tuned = _tune_allocator()
+        allocator_tuned = tune_allocator()
         peaks = _peaks(max(5, runs // 3), time.perf_counter)
         times = _round_robin(calls, runs, warmup, time.perf_counter)
         torch.set_num_threads(1)
