@@ -33,7 +33,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -76,7 +76,12 @@ def mean_psnr(values: Sequence[float]) -> float:
 
 @dataclass(frozen=True)
 class ImageScore:
-    """Scores of one pair (PSNR may be ``inf``)."""
+    """Scores of one pair (PSNR may be ``inf``).
+
+    ``psnr_db``/``ssim`` score the network's output against the target;
+    ``input_psnr_db``/``input_ssim`` score the input itself (no restoration),
+    the baseline any restoration has to beat.
+    """
 
     name: str
     difficulty: str | None
@@ -84,6 +89,8 @@ class ImageScore:
     width: int
     psnr_db: float
     ssim: float
+    input_psnr_db: float = math.nan
+    input_ssim: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -104,13 +111,15 @@ class Summary:
     capped: int
 
 
-def summarize(scores: Sequence[ImageScore]) -> Summary:
-    """Means of ``scores`` (see :class:`Summary`)."""
+def summarize(scores: Sequence[ImageScore], of: Literal["output", "input"] = "output") -> Summary:
+    """Means of ``scores`` (see :class:`Summary`): of the outputs, or of the inputs."""
+    psnrs = [s.psnr_db if of == "output" else s.input_psnr_db for s in scores]
+    ssims = [s.ssim if of == "output" else s.input_ssim for s in scores]
     return Summary(
         pairs=len(scores),
-        psnr_db=mean_psnr([s.psnr_db for s in scores]),
-        ssim=float(np.mean([s.ssim for s in scores])) if scores else math.nan,
-        capped=sum(1 for s in scores if math.isinf(s.psnr_db)),
+        psnr_db=mean_psnr(psnrs),
+        ssim=float(np.mean(ssims)) if scores else math.nan,
+        capped=sum(1 for value in psnrs if math.isinf(value)),
     )
 
 
@@ -135,6 +144,8 @@ class EvalResult:
         scores: per-image scores, in dataset order.
         overall: means over all images.
         by_difficulty: means per difficulty (empty when unknown).
+        input_overall: means of the inputs themselves (no restoration).
+        input_by_difficulty: the same per difficulty.
         latency: timings (CPU, and CUDA when present).
         samples: contact-sheet rows (input, output, target).
         model: the checkpoint's ``model`` config section (plain data).
@@ -148,6 +159,8 @@ class EvalResult:
     scores: list[ImageScore]
     overall: Summary
     by_difficulty: dict[str, Summary]
+    input_overall: Summary | None = None
+    input_by_difficulty: dict[str, Summary] = field(default_factory=dict)
     latency: list[Latency] = field(default_factory=list)
     samples: list[SheetRow] = field(default_factory=list)
     model: dict[str, Any] = field(default_factory=dict)
@@ -163,6 +176,10 @@ class EvalResult:
             "psnr_cap_db": PSNR_CAP_DB,
             "overall": asdict(self.overall),
             "by_difficulty": {k: asdict(v) for k, v in self.by_difficulty.items()},
+            "input": {
+                "overall": None if self.input_overall is None else asdict(self.input_overall),
+                "by_difficulty": {k: asdict(v) for k, v in self.input_by_difficulty.items()},
+            },
             "latency": [lat.as_dict() for lat in self.latency],
         }
 
@@ -215,8 +232,13 @@ def score_pairs(
             output = network(x)[1]
         output = _quantize(output.float(), item.target.dtype)
         psnr, ssim = score_tensors(output, target, convention)
+        input_psnr, input_ssim = score_tensors(x.float(), target, convention)
         height, width = item.input.shape[:2]
-        scores.append(ImageScore(item.name, item.difficulty, height, width, psnr, ssim))
+        scores.append(
+            ImageScore(
+                item.name, item.difficulty, height, width, psnr, ssim, input_psnr, input_ssim
+            )
+        )
         key = item.difficulty or ""
         if taken.get(key, 0) < (samples_per_difficulty if key else max_samples):
             taken[key] = taken.get(key, 0) + 1
@@ -233,14 +255,18 @@ def score_pairs(
     return scores, samples
 
 
-def breakdown(scores: Sequence[ImageScore]) -> dict[str, Summary]:
+def breakdown(
+    scores: Sequence[ImageScore], of: Literal["output", "input"] = "output"
+) -> dict[str, Summary]:
     """Means per difficulty, in easy/medium/hard/clean order (empty when unknown)."""
     groups: dict[str, list[ImageScore]] = {}
     for score in scores:
         if score.difficulty:
             groups.setdefault(score.difficulty, []).append(score)
     order = {name: i for i, name in enumerate(DIFFICULTY_ORDER)}
-    return {k: summarize(groups[k]) for k in sorted(groups, key=lambda k: (order.get(k, 99), k))}
+    return {
+        k: summarize(groups[k], of) for k in sorted(groups, key=lambda k: (order.get(k, 99), k))
+    }
 
 
 def convention_note(convention: str) -> str:
@@ -266,19 +292,24 @@ def markdown_report(result: EvalResult) -> str:
         f"- metric convention: {convention_note(result.convention)}",
         f"- inference precision: {result.precision}",
         "",
-        "| subset | pairs | PSNR (dB) | SSIM | convention |",
-        "| --- | ---: | ---: | ---: | --- |",
+        "| subset | pairs | PSNR (dB) | SSIM | input PSNR (dB) | input SSIM | convention |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | --- |",
     ]
     subsets = {"all": result.overall, **result.by_difficulty}
+    inputs = {"all": result.input_overall, **result.input_by_difficulty}
     for name, s in subsets.items():
+        base = inputs.get(name)
+        base_cells = "n/a | n/a" if base is None else f"{_fmt_psnr(base.psnr_db)} | {base.ssim:.4f}"
         lines.append(
-            f"| {name} | {s.pairs} | {_fmt_psnr(s.psnr_db)} | {s.ssim:.4f} | {result.convention} |"
+            f"| {name} | {s.pairs} | {_fmt_psnr(s.psnr_db)} | {s.ssim:.4f} | {base_cells} | "
+            f"{result.convention} |"
         )
     capped = result.overall.capped
     lines += [
         "",
         f"PSNR means count identical images (PSNR = inf) as {PSNR_CAP_DB:g} dB; "
-        f"{capped} image(s) were capped.",
+        f"{capped} image(s) were capped. The input columns score the obstructed input "
+        "itself against the target (no restoration): the baseline to beat.",
     ]
     if result.latency:
         lines += [
@@ -300,7 +331,12 @@ def per_image_csv(result: EvalResult) -> str:
     """Per-image scores as CSV text (a ``convention`` column on every row)."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["name", "difficulty", "height", "width", "psnr_db", "ssim", "convention"])
+    writer.writerow(
+        [
+            "name", "difficulty", "height", "width", "psnr_db", "ssim",
+            "input_psnr_db", "input_ssim", "convention",
+        ]
+    )  # fmt: skip
     for s in result.scores:
         writer.writerow(
             [
@@ -310,6 +346,8 @@ def per_image_csv(result: EvalResult) -> str:
                 s.width,
                 "inf" if math.isinf(s.psnr_db) else f"{s.psnr_db:.6f}",
                 f"{s.ssim:.8f}",
+                "inf" if math.isinf(s.input_psnr_db) else f"{s.input_psnr_db:.6f}",
+                f"{s.input_ssim:.8f}",
                 result.convention,
             ]
         )
@@ -413,6 +451,8 @@ def evaluate_checkpoint(
         scores=scores,
         overall=summarize(scores),
         by_difficulty=breakdown(scores),
+        input_overall=summarize(scores, "input"),
+        input_by_difficulty=breakdown(scores, "input"),
         latency=latency,
         samples=samples,
         model=to_plain(loaded.config.model),

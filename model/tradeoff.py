@@ -215,7 +215,7 @@ def run_tradeoff(
     """
     from model.checkpoint import load_model
     from model.data import open_eval_pairs, paired_training_data
-    from model.evaluation import score_pairs, summarize
+    from model.evaluation import Summary, score_pairs, summarize
     from model.latency import measure_latency
     from model.training import fit, resolve_config
 
@@ -246,6 +246,7 @@ def run_tradeoff(
         dump_yaml({"base": to_plain(resolve_config(base, data.channels)), **meta}),
     )
     rows = []
+    baseline: Summary | None = None
     for variant in variants:
         config = resolve_config(variant_config(base, variant, budget), data.channels)
         run = out_dir / "runs" / variant.name
@@ -267,6 +268,7 @@ def run_tradeoff(
                 loaded.network, pairs, data.channels, device, convention, precision, 0, 0
             )
             means = summarize(scores)
+            baseline = baseline or summarize(scores, "input")
             cpu_ms = gpu_ms = None
             if precision != "fp16":
                 cpu = measure_latency(
@@ -299,6 +301,8 @@ def run_tradeoff(
                 )
             )
             log.info("tradeoff: %s", rows[-1])
+    if baseline is not None:
+        meta["input_baseline"] = {"psnr_db": baseline.psnr_db, "ssim": baseline.ssim}
     rows = mark_pareto(rows)
     write_tradeoff(rows, out_dir, meta)
     return TradeoffResult(rows, meta)
@@ -363,6 +367,13 @@ def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
             f"{_fmt(r.cpu_ms, 2) or 'n/a'} | {_fmt(r.gpu_ms, 2) or 'n/a'} | "
             f"{_fmt(r.psnr_db, 2)} | {_fmt(r.ssim, 4)} | {r.convention} | {mark} |"
         )
+    baseline = meta.get("input_baseline")
+    if baseline:
+        lines += [
+            "",
+            f"Input without restoration (the baseline to beat): PSNR "
+            f"{_fmt(baseline['psnr_db'], 2)} dB, SSIM {_fmt(baseline['ssim'], 4)}.",
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -405,6 +416,11 @@ def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any])
             ys = [min(getattr(r, key), 100.0) for _, r in front]
             axes.plot(xs, ys, color="tab:red", linewidth=1.5, zorder=2, label="Pareto front")
             axes.scatter(xs, ys, s=140, facecolors="none", edgecolors="tab:red", zorder=4)
+            axes.legend(loc="lower right", fontsize=8)
+        baseline = meta.get("input_baseline")
+        if baseline:
+            axes.axhline(min(baseline[key], 100.0), color="grey", linestyle="--", linewidth=1,
+                         label="input, no restoration")  # fmt: skip
             axes.legend(loc="lower right", fontsize=8)
         axes.set_xlabel(f"CPU time per {meta['size']} frame (ms, batch 1)")
         axes.set_ylabel(f"{label}, {meta['convention']}")

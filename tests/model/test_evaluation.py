@@ -1,6 +1,7 @@
 import csv
 import json
 import math
+import platform
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from lenspair.imageio import write_image
 from model.checkpoint import load_model
 from model.data import to_tensor
 from model.evaluation import PSNR_CAP_DB, evaluate_checkpoint, summarize, write_report
-from model.latency import measure_latency, percentile
+from model.latency import measure_latency, percentile, tune_allocator
 from model.metrics import MetricConvention, image_metrics
 from model.variants import build_model
 from tests.model.train_fixtures import (
@@ -107,6 +108,10 @@ def test_odd_sizes_and_identical_images(tmp_path: Path) -> None:
     expected = (PSNR_CAP_DB + by_name["drops"].psnr_db) / 2
     assert result.overall.psnr_db == pytest.approx(expected)
     assert result.latency[0].size == "47x33"
+    # the identity restores nothing: its output scores are the input's own
+    drops = by_name["drops"]
+    assert (drops.psnr_db, drops.ssim) == pytest.approx((drops.input_psnr_db, drops.input_ssim))
+    assert result.input_overall == result.overall
     files = write_report(result, tmp_path / "out")
     assert "inf" in files["csv"].read_text()
     assert json.loads(files["json"].read_text())["overall"]["capped"] == 1
@@ -136,6 +141,11 @@ def test_breakdown_by_difficulty_from_the_manifest(tmp_path: Path) -> None:
     assert result.by_difficulty["hard"].pairs == 2
     hard = [s for s in result.scores if s.difficulty == "hard"]
     assert result.by_difficulty["hard"] == summarize(hard)
+    assert result.input_by_difficulty["hard"] == summarize(hard, "input")
+    assert result.input_by_difficulty["hard"].psnr_db == pytest.approx(
+        float(np.mean([s.input_psnr_db for s in hard]))
+    )
+    assert result.input_by_difficulty["hard"].psnr_db != result.by_difficulty["hard"].psnr_db
     assert [row.difficulty for row in result.samples] == ["easy", "medium", "hard", "hard"]
     markdown = write_report(result, tmp_path / "out")["markdown"].read_text()
     assert "| hard | 2 |" in markdown
@@ -160,3 +170,13 @@ def test_latency_is_a_median_of_timed_runs() -> None:
     assert percentile([1.0, 2.0, 3.0, 4.0, 5.0], 90) == pytest.approx(4.6)
     bf16 = measure_latency(build_model("GEA", 1, 0.25, 1), 1, CPU, (24, 40), "bf16", 1, 2)
     assert bf16.precision == "bf16"
+
+
+def test_cpu_latency_times_a_channels_last_copy_and_leaves_the_network_alone() -> None:
+    network = build_model("GEA", 1, 0.25, 1)
+    first = next(p for p in network.parameters() if p.ndim == 4)
+    latency = measure_latency(network, 1, CPU, (24, 40), runs=2, warmup=1)
+    assert latency.layout == "channels-last"
+    assert "channels-last" in latency.summary()
+    assert first.is_contiguous()  # the caller's weights keep their NCHW layout
+    assert tune_allocator() is (platform.libc_ver()[0] == "glibc")

@@ -9,7 +9,9 @@ import torch
 
 from lenspair.cli import main
 from lenspair.config import dump_yaml
+from model.data import open_eval_pairs, to_tensor
 from model.errors import ModelError
+from model.evaluation import score_tensors
 from model.tradeoff import (
     DEFAULT_VARIANTS,
     Budget,
@@ -100,6 +102,12 @@ def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(tmp_path: Path)
         assert len(list(csv.DictReader(handle))) == len(expected)
     payload = json.loads((out / "tradeoff.json").read_text())
     assert len(payload["rows"]) == len(expected) and payload["budget"] == "1 steps"
+    baseline = payload["input_baseline"]  # the test pair's input scored against its target
+    pair = open_eval_pairs(dataset, "test")[0]
+    psnr, ssim = score_tensors(to_tensor(pair.input, 1)[None], to_tensor(pair.target, 1)[None],
+                               "skimage-gaussian")  # fmt: skip
+    assert (baseline["psnr_db"], baseline["ssim"]) == pytest.approx((psnr, ssim))
+    assert f"PSNR {baseline['psnr_db']:.2f} dB" in markdown
     assert (out / "tradeoff.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "tradeoff_config.yaml").is_file()
     assert (out / "runs" / "GEA-w2" / "checkpoints" / "best.pt").is_file()
