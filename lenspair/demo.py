@@ -4,11 +4,12 @@ Stages, each one a ``lenspair`` subcommand run in-process with the same
 arguments a user would type (printed as it runs, so the demo doubles as a
 tutorial):
 
-1. ``simulate`` a chessboard session and two anomaly recordings: rain with
-   cam1 obstructed and dust with the sides swapped (cam0 obstructed);
+1. ``simulate`` a chessboard session and three anomaly recordings: light
+   and heavy rain with cam1 obstructed, dust with the sides swapped (cam0
+   obstructed);
 2. ``calibrate`` from the board session;
-3. ``capture-ingest`` both recordings with that calibration;
-4. ``dataset-build`` the two ingested recordings into train/val/test;
+3. ``capture-ingest`` each recording with that calibration;
+4. ``dataset-build`` the ingested recordings into train/val/test;
 5. ``train --synthetic``: pretraining on drops rendered over clean frames;
 6. ``train --init``: a short fine-tune on the real (here: simulated) pairs;
 7. ``eval`` on the test split, 8. a small ``tradeoff``;
@@ -29,11 +30,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lenspair.errors import LenspairError
-from lenspair.fsutil import atomic_write_json, atomic_write_text
+from lenspair.fsutil import atomic_write_json, atomic_write_text, sha256_file
 
 log = logging.getLogger(__name__)
 
 SAMPLES = Path(__file__).resolve().parent.parent / "calib_samples"
+RECORDINGS = ("rain", "heavy_rain", "dust_swapped")
+"""The anomaly recordings the demo simulates and ingests (``calib_samples/<name>.yaml``):
+light rain on cam1 (easy pairs), heavy, changing rain on cam1 (medium and hard
+pairs) and dust on cam0, the sides swapped."""
 
 
 class DemoError(LenspairError):
@@ -95,29 +100,20 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
             ("simulate", str(SAMPLES / "chessboard.yaml"), "--out", str(rec / "board")),
             rec / "board",
         ),
-        Stage(
-            "simulate-rain",
-            (
-                "simulate",
-                str(SAMPLES / "rain.yaml"),
-                "--out",
-                str(rec / "rain"),
-                "--frames",
-                frames,
-            ),
-            rec / "rain",
-        ),
-        Stage(
-            "simulate-dust",
-            (
-                "simulate",
-                str(SAMPLES / "dust_swapped.yaml"),
-                "--out",
-                str(rec / "dust_swapped"),
-                "--frames",
-                frames,
-            ),
-            rec / "dust_swapped",
+        *(
+            Stage(
+                f"simulate-{name}",
+                (
+                    "simulate",
+                    str(SAMPLES / f"{name}.yaml"),
+                    "--out",
+                    str(rec / name),
+                    "--frames",
+                    frames,
+                ),
+                rec / name,
+            )
+            for name in RECORDINGS
         ),
         Stage(
             "calibrate",
@@ -134,7 +130,7 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
             calib.parent,
         ),
     ]
-    for name in ("rain", "dust_swapped"):
+    for name in RECORDINGS:
         stages.append(
             Stage(
                 f"ingest-{name}",
@@ -149,12 +145,13 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
             "dataset-build",
             (
                 "dataset-build",
-                str(ing / "rain"),
-                str(ing / "dust_swapped"),
+                *(str(ing / name) for name in RECORDINGS),
                 "--out",
                 str(dataset),
                 "--config",
                 str(out / "dataset_config.yaml"),
+                "--splits",
+                "0.7,0.15,0.15",
             ),
             dataset,
         ),
@@ -225,18 +222,34 @@ def _marker(out: Path, stage: Stage) -> Path:
     return out / ".stages" / f"{stage.name}.json"
 
 
-def run_stage(out: Path, stage: Stage, cli_main: Callable[[list[str]], int]) -> tuple[float, bool]:
-    """Run one stage unless a finished marker with the same arguments exists.
+def _fingerprint(stage: Stage) -> dict[str, str]:
+    """sha256 of the YAML files a stage reads (scene specs, configs), by path."""
+    return {
+        arg: sha256_file(Path(arg))
+        for arg in stage.argv
+        if arg.endswith(".yaml") and Path(arg).is_file()
+    }
+
+
+def run_stage(
+    out: Path, stage: Stage, cli_main: Callable[[list[str]], int], reuse: bool = True
+) -> tuple[float, bool]:
+    """Run one stage unless ``reuse`` and a finished marker with the same arguments and inputs.
+
+    Inputs are the YAML files named in the arguments: editing a sample scene
+    makes its stages run again.
 
     Returns:
         (seconds spent, whether the stage was reused).
     """
     marker = _marker(out, stage)
-    if marker.is_file() and stage.output.exists():
+    if reuse and marker.is_file() and stage.output.exists():
         recorded = json.loads(marker.read_text(encoding="utf-8"))
-        if recorded.get("argv") == list(stage.argv):
+        same_inputs = recorded.get("inputs", {}) == _fingerprint(stage)
+        if recorded.get("argv") == list(stage.argv) and same_inputs:
             return float(recorded.get("seconds", 0.0)), True
-    if stage.output.exists() and not stage.resumable:
+    # A resumable stage picks up where it stopped, unless what it read changed.
+    if stage.output.exists() and not (stage.resumable and reuse):
         shutil.rmtree(stage.output) if stage.output.is_dir() else stage.output.unlink()
     print(f"\n[{stage.name}] lenspair {' '.join(stage.argv)}", file=sys.stderr, flush=True)
     start = time.perf_counter()
@@ -244,8 +257,27 @@ def run_stage(out: Path, stage: Stage, cli_main: Callable[[list[str]], int]) -> 
     seconds = time.perf_counter() - start
     if code != 0:
         raise DemoError(f"stage {stage.name} failed (exit code {code}); rerun to resume")
-    atomic_write_json(marker, {"argv": list(stage.argv), "seconds": round(seconds, 2)})
+    record = {"argv": list(stage.argv), "inputs": _fingerprint(stage), "seconds": round(seconds, 2)}
+    atomic_write_json(marker, record)
     return seconds, False
+
+
+def run_stages(
+    out: Path, stages: list[Stage], cli_main: Callable[[list[str]], int]
+) -> dict[str, dict[str, float | bool]]:
+    """Run ``stages`` in order; once one runs, every later one runs too (its inputs changed).
+
+    Returns:
+        stage name -> ``{"seconds": ..., "reused": ...}``.
+    """
+    timings: dict[str, dict[str, float | bool]] = {}
+    reuse = True
+    for stage in stages:
+        seconds, reused = run_stage(out, stage, cli_main, reuse)
+        reuse = reuse and reused
+        timings[stage.name] = {"seconds": round(seconds, 2), "reused": reused}
+        log.info("%s: %s (%.1f s)", stage.name, "reused" if reused else "done", seconds)
+    return timings
 
 
 def run_demo(out: Path, budget: Budget = Budget()) -> Path:
@@ -255,17 +287,13 @@ def run_demo(out: Path, budget: Budget = Budget()) -> Path:
 
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    # Two short recordings make too few whole-recording groups for three
+    # Three short recordings make too few whole-recording groups for three
     # splits, so the demo splits by time segments (a sixth of a recording).
     segment = max(2, budget.frames // 6)
     atomic_write_text(
         out / "dataset_config.yaml",
         f"split:\n  group_by: segment\n  segment_frames: {segment}\n  segment_gap_frames: 1\n",
     )
-    timings: dict[str, dict[str, float | bool]] = {}
-    for stage in plan(out, budget):
-        seconds, reused = run_stage(out, stage, cli_main)
-        timings[stage.name] = {"seconds": round(seconds, 2), "reused": reused}
-        log.info("%s: %s (%.1f s)", stage.name, "reused" if reused else "done", seconds)
+    timings = run_stages(out, plan(out, budget), cli_main)
     atomic_write_json(out / "timings.json", timings)
     return write_report(out, timings)

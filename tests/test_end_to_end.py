@@ -32,7 +32,7 @@ def test_demo_runs_every_stage_and_writes_the_report(demo_out: Path) -> None:
 
 
 def test_ingested_pairs_are_540x360_and_accounted_for(demo_out: Path) -> None:
-    for name, obstructed in (("rain", "cam1"), ("dust_swapped", "cam0")):
+    for name, obstructed in (("rain", "cam1"), ("heavy_rain", "cam1"), ("dust_swapped", "cam0")):
         folder = demo_out / "ingested" / name
         report = json.loads((folder / "report.json").read_text())
         assert report["obstructed"] == obstructed
@@ -47,13 +47,19 @@ def test_ingested_pairs_are_540x360_and_accounted_for(demo_out: Path) -> None:
         assert image.shape[:2] == (360, 540)
 
 
-def test_dataset_tracks_the_clean_side_of_both_recordings(demo_out: Path) -> None:
+def test_dataset_tracks_the_clean_side_and_spans_the_difficulties(demo_out: Path) -> None:
     rows = [
         json.loads(line)
         for line in (demo_out / "dataset" / "manifest.jsonl").read_text().splitlines()
     ]
     sides = {(row["recording"], row["clean"]) for row in rows}
-    assert sides == {("rain", "cam0"), ("dust_swapped", "cam1")}
+    assert sides == {("rain", "cam0"), ("heavy_rain", "cam0"), ("dust_swapped", "cam1")}
+    # light rain and dust give easy pairs, the heavy rain the harder ones
+    by_recording = {row["recording"]: set() for row in rows}
+    for row in rows:
+        by_recording[row["recording"]].add(row["difficulty"])
+    assert by_recording["rain"] == by_recording["dust_swapped"] == {"easy"}
+    assert by_recording["heavy_rain"] & {"medium", "hard"}
 
 
 def test_rerun_reuses_finished_stages(demo_out: Path) -> None:

@@ -1,0 +1,64 @@
+"""Stage reuse of ``lenspair demo``: what is finished is reused, what changed runs again."""
+
+from pathlib import Path
+
+from lenspair.demo import Stage, run_stages
+
+
+class FakeCli:
+    """Stands in for ``lenspair.cli.main``: writes the stage's output, records the call."""
+
+    def __init__(self, outputs: dict[str, Path]) -> None:
+        self.outputs = outputs
+        self.calls: list[str] = []
+
+    def __call__(self, argv: list[str]) -> int:
+        name = argv[0]
+        self.calls.append(name)
+        self.outputs[name].mkdir(parents=True, exist_ok=True)
+        (self.outputs[name] / "done").write_text(" ".join(argv))
+        return 0
+
+
+def _stages(tmp_path: Path, spec: Path) -> list[Stage]:
+    return [
+        Stage("simulate", ("simulate", str(spec)), tmp_path / "rec"),
+        Stage("ingest", ("ingest", str(tmp_path / "rec")), tmp_path / "ing", resumable=True),
+        Stage("train", ("train", str(tmp_path / "ing")), tmp_path / "run"),
+    ]
+
+
+def test_rerun_reuses_and_an_edited_input_reruns_its_stage_and_all_after(tmp_path: Path) -> None:
+    spec = tmp_path / "scene.yaml"
+    spec.write_text("frames: 10\n")
+    stages = _stages(tmp_path, spec)
+    cli = FakeCli({s.argv[0]: s.output for s in stages})
+    first = run_stages(tmp_path, stages, cli)
+    assert cli.calls == ["simulate", "ingest", "train"]
+    assert not any(t["reused"] for t in first.values())
+
+    second = run_stages(tmp_path, stages, cli)
+    assert cli.calls == ["simulate", "ingest", "train"]  # nothing ran again
+    assert all(t["reused"] for t in second.values())
+
+    # a stale file in the resumable stage's output must not survive a changed input
+    (tmp_path / "ing" / "stale").write_text("from the old recording")
+    spec.write_text("frames: 12\n")
+    third = run_stages(tmp_path, stages, cli)
+    assert cli.calls[3:] == ["simulate", "ingest", "train"]
+    assert not any(t["reused"] for t in third.values())
+    assert not (tmp_path / "ing" / "stale").exists()
+
+
+def test_an_unfinished_resumable_stage_resumes_and_later_stages_run(tmp_path: Path) -> None:
+    spec = tmp_path / "scene.yaml"
+    spec.write_text("frames: 10\n")
+    stages = _stages(tmp_path, spec)
+    cli = FakeCli({s.argv[0]: s.output for s in stages})
+    run_stages(tmp_path, stages, cli)
+    (tmp_path / ".stages" / "ingest.json").unlink()  # as if interrupted during ingest
+    (tmp_path / "ing" / "partial").write_text("pairs so far")
+    timings = run_stages(tmp_path, stages, cli)
+    assert cli.calls[3:] == ["ingest", "train"]
+    assert timings["simulate"]["reused"] and not timings["ingest"]["reused"]
+    assert (tmp_path / "ing" / "partial").is_file()  # resumed, not wiped
