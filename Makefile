@@ -7,7 +7,7 @@ VENV ?= .venv
 TORCH_SPEC ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint typecheck unit bench clean
+.PHONY: demo test lint typecheck unit bench results clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -33,6 +33,11 @@ test: lint typecheck unit
 
 bench: $(VENV)/.installed
 	$(BIN)/python -m benchmarks --out bench_out
+
+# The README's "Measured results" section: demo + benchmarks on this machine,
+# then written from their output files (benchmarks/readme_results.py).
+results: demo bench
+	$(BIN)/python -m benchmarks.readme_results --demo demo_out --bench bench_out --readme README.md
 
 clean:
 	rm -rf $(VENV) demo_out bench_out build *.egg-info

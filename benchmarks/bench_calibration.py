@@ -53,7 +53,7 @@ def render_views(board: Board, rig: StereoRig, count: int) -> list[tuple[np.ndar
     rng = np.random.default_rng(0)
     renderers = BoardRenderer(board, rig.cam0), BoardRenderer(board, rig.cam1)
     objects = board.object_points()
-    views = []
+    views: list[tuple[np.ndarray, np.ndarray]] = []
     while len(views) < count:
         direction = np.array([*rng.uniform([-0.5, -0.35], [0.5, 0.35]), 1.0])
         R = cv2.Rodrigues(np.array([*rng.normal(0, 0.3, 2), rng.uniform(-0.3, 0.3)]))[0]

@@ -14,8 +14,8 @@ into a temporary folder, then times, in the same run:
 
 Medians of ``--runs`` interleaved rounds; ratios are medians of the per-round
 ratios of build time over floor time. The
-Markdown table goes to stdout and, with ``--out``, to ``bench_dataset.md``
-beside ``bench_dataset.json``.
+Markdown table goes to stdout and, with ``--out``, to ``dataset.md``
+beside ``dataset.json``.
 """
 
 import argparse
@@ -186,8 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "bench_dataset.md").write_text(table)
-        (args.out / "bench_dataset.json").write_text(json.dumps(result, indent=2) + "\n")
+        (args.out / "dataset.md").write_text(table)
+        (args.out / "dataset.json").write_text(json.dumps(result, indent=2) + "\n")
     return 0
 
 

@@ -10,8 +10,8 @@ RGB 8-bit, for each effect alone, the paper's rain (50 drops + defocus +
 brightness), everything at once, and no effect at all. The floor is
 ``image.copy()``, which any renderer returning a new image must pay.
 Medians of ``--runs`` runs with a different seed each; the Markdown table
-goes to stdout and, with ``--out``, to ``bench_effects.md`` beside
-``bench_effects.json``. Targets: rain frame < 50 ms, no-effect frame < 10 ms.
+goes to stdout and, with ``--out``, to ``effects.md`` beside
+``effects.json``. Targets: rain frame < 50 ms, no-effect frame < 10 ms.
 """
 
 import argparse
@@ -180,8 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "bench_effects.md").write_text(table)
-        (args.out / "bench_effects.json").write_text(json.dumps(result, indent=2) + "\n")
+        (args.out / "effects.md").write_text(table)
+        (args.out / "effects.json").write_text(json.dumps(result, indent=2) + "\n")
     return 0
 
 

@@ -16,8 +16,8 @@ times, in interleaved rounds:
 The target is ``ingest w1 / io floor <= 2.5``. Medians of ``--runs`` rounds;
 the ratio is the median of the per-round ratios. The one-off per-recording
 setup (homography from pooled features, crop, maps) is reported apart. The
-Markdown table goes to stdout and, with ``--out``, to ``bench_ingest.md``
-beside ``bench_ingest.json``.
+Markdown table goes to stdout and, with ``--out``, to ``ingest.md``
+beside ``ingest.json``.
 """
 
 import argparse
@@ -155,8 +155,8 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "bench_ingest.json").write_text(json.dumps(result, indent=2) + "\n")
-        (args.out / "bench_ingest.md").write_text(table + "\n")
+        (args.out / "ingest.json").write_text(json.dumps(result, indent=2) + "\n")
+        (args.out / "ingest.md").write_text(table + "\n")
     return 0
 
 

@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m benchmarks.bench_training", description=__doc__
     )
-    parser.add_argument("--out", type=Path, default=None, help="folder for bench_training.json")
+    parser.add_argument("--out", type=Path, default=None, help="folder for training.json")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     parser.add_argument("--steps", type=int, default=5, help="timed steps per precision")
     parser.add_argument("--warmup", type=int, default=2, help="untimed steps per precision")
@@ -144,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nload average: start {load_start[0]:.1f}, end {result['load_average_end'][0]:.1f}")
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "bench_training.json").write_text(json.dumps(result, indent=2) + "\n")
+        (args.out / "training.json").write_text(json.dumps(result, indent=2) + "\n")
     return 0
 
 

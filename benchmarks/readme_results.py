@@ -1,0 +1,376 @@
+"""Write the README's "Measured results" section from files the commands wrote.
+
+``python -m benchmarks.readme_results [--demo demo_out] [--bench bench_out]
+[--readme README.md] [--check]`` (``make results`` runs the demo, the
+benchmarks and then this). Every figure in the section is read from
+``lenspair demo``'s outputs (tradeoff table and plot, eval metrics, stage
+timings, calibration against the simulator's truth) and from the benchmarks'
+JSON files; nothing is typed in by hand, so rerunning the commands on
+another machine reproduces the section for that machine. The section lives
+between :data:`BEGIN` and :data:`END`; the rest of the README is left alone.
+The tradeoff plot and the evaluation contact sheet are copied to
+``docs/results/`` so that the README can show them.
+
+A missing input is not an error: its part of the section says which command
+produces it. ``--check`` writes nothing and exits 1 when the README's
+section differs from what the inputs give.
+"""
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from lenspair.demo_report import calibration_blocks
+from lenspair.fsutil import atomic_write_bytes, atomic_write_text
+from lenspair.report import Block, Heading, Image, Paragraph, Table, to_markdown
+
+BEGIN = "<!-- results:begin (written by `make results`; do not edit by hand) -->"
+END = "<!-- results:end -->"
+FIGURES = Path("docs") / "results"
+PAPER = "https://arxiv.org/abs/2109.01889"
+
+
+Copies = list[tuple[Path, Path]]
+"""(source, destination) of the pictures the section shows, copied by :func:`main`."""
+
+
+class ResultsError(Exception):
+    """The README cannot take the section (markers missing or out of order)."""
+
+
+def _load(path: Path) -> Any:
+    return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else None
+
+
+def _num(value: Any, digits: int) -> str:
+    if value is None:
+        return "n/a"
+    value = float(value)
+    if math.isinf(value):
+        return "inf"
+    return f"{value:.{digits}f}"
+
+
+def _missing(what: str, command: str) -> list[Block]:
+    return [Paragraph(f"Not measured yet: {what} comes from `{command}`.")]
+
+
+def tradeoff_blocks(demo: Path, copies: Copies) -> list[Block]:
+    """The paper's G/GE/GEA ablation and the width/depth variants: accuracy with its time."""
+    data = _load(demo / "tradeoff" / "tradeoff.json")
+    if data is None:
+        return _missing("the accuracy-against-time table", "lenspair demo --out demo_out")
+    rows: list[list[str]] = []
+    baseline = data.get("input_baseline")
+    if baseline:
+        rows.append(
+            [
+                "input, no restoration",
+                "-",
+                "0",
+                "0",
+                "0",
+                _num(baseline["psnr_db"], 2),
+                _num(baseline["ssim"], 4),
+                "",
+            ]
+        )
+    for r in data["rows"]:
+        mark = ("PSNR " if r["pareto_psnr"] else "") + ("SSIM" if r["pareto_ssim"] else "")
+        rows.append(
+            [
+                r["name"],
+                r["precision"],
+                f"{r['params']:,}",
+                _num(r["gflops"], 1),
+                _num(r["cpu_ms"], 1),
+                _num(r["psnr_db"], 2),
+                _num(r["ssim"], 4),
+                mark.strip(),
+            ]
+        )
+    blocks: list[Block] = [
+        Paragraph(
+            f"`lenspair tradeoff` as the demo runs it: every network trained for "
+            f"{data['budget']} from scratch on the demo dataset, scored on "
+            f"{Path(str(data['evaluated_on'])).name} with the {data['convention']} convention; "
+            f"CPU time is the median for one {data['size']} frame, batch 1, "
+            f"{data['threads']} threads, channels-last with the allocator tuned "
+            "(model/latency.py). G, GE and GEA are the paper's ablation; the "
+            "w (width) and b (residual blocks) variants trade accuracy for time. "
+            "Pareto marks the PSNR-vs-time and SSIM-vs-time fronts."
+        ),
+        Table(
+            ["network", "precision", "params", "GFLOPs", "CPU ms", "PSNR (dB)", "SSIM", "Pareto"],
+            rows,
+        ),
+    ]
+    blocks += _figure(demo / "tradeoff" / "tradeoff.png", copies, "tradeoff.png",
+                      "accuracy against CPU time per frame; dashed: the input itself")  # fmt: skip
+    return blocks
+
+
+def _figure(source: Path, copies: Copies, name: str, caption: str) -> list[Block]:
+    if not source.is_file():
+        return []
+    copies.append((source, FIGURES / name))
+    return [Image((FIGURES / name).as_posix(), caption)]
+
+
+def eval_blocks(demo: Path, copies: Copies) -> list[Block]:
+    """The fine-tuned GEA on the test split, per difficulty, against the input."""
+    data = _load(demo / "eval" / "metrics.json")
+    if data is None:
+        return _missing("the evaluation", "lenspair demo --out demo_out")
+    inputs = data.get("input", {})
+    subsets = {"all": data["overall"], **data["by_difficulty"]}
+    input_subsets = {"all": inputs.get("overall"), **inputs.get("by_difficulty", {})}
+    rows = []
+    for name, s in subsets.items():
+        base = input_subsets.get(name) or {}
+        rows.append(
+            [
+                name,
+                str(s["pairs"]),
+                _num(base.get("psnr_db"), 2),
+                _num(s["psnr_db"], 2),
+                _num(base.get("ssim"), 4),
+                _num(s["ssim"], 4),
+            ]
+        )
+    blocks: list[Block] = [
+        Paragraph(
+            "`lenspair eval` of the demo's fine-tuned GEA (synthetic pretraining, then "
+            f"fine-tuning on the pairs) on the test split, {data['convention']} convention; "
+            "difficulty is the input-vs-target PSNR band that dataset-build assigned."
+        ),
+        Table(["subset", "pairs", "input PSNR", "output PSNR", "input SSIM", "output SSIM"], rows),
+    ]
+    latency = [
+        [lat["device"], lat["precision"], lat["size"], str(lat["threads"]),
+         _num(lat["median_ms"], 1), _num(lat["p90_ms"], 1)]
+        for lat in data.get("latency", [])
+    ]  # fmt: skip
+    if latency:
+        blocks.append(
+            Table(["device", "precision", "size", "threads", "median ms", "p90 ms"], latency)
+        )
+    blocks += _figure(demo / "eval" / "contact_sheet.png", copies, "contact_sheet.png",
+                      "test pairs per difficulty: input | GEA output | target")  # fmt: skip
+    return blocks
+
+
+def stage_blocks(demo: Path) -> list[Block]:
+    """Wall time of each demo stage."""
+    timings = _load(demo / "timings.json")
+    if timings is None:
+        return _missing("the stage timings", "lenspair demo --out demo_out")
+    rows = [[name, _num(t["seconds"], 1)] for name, t in timings.items()]
+    total = sum(float(t["seconds"]) for t in timings.values())
+    rows.append(["total", _num(total, 1)])
+    reused = ", ".join(name for name, t in timings.items() if t.get("reused"))
+    note = f" Reused from an earlier run, with that run's time: {reused}." if reused else ""
+    return [
+        Paragraph(f"`lenspair demo --out demo_out`, seconds per stage (wall clock).{note}"),
+        Table(["stage", "seconds"], rows),
+    ]
+
+
+def calibration_section(demo: Path) -> list[Block]:
+    """The demo's calibration against the simulator's true camchain."""
+    if not (demo / "calibration" / "camchain.report.json").is_file():
+        return _missing("the calibration", "lenspair demo --out demo_out")
+    return [
+        Paragraph("`lenspair calibrate` on the demo's simulated board session, against truth."),
+        *calibration_blocks(demo),
+    ]
+
+
+def _bench_rows(bench: Path) -> list[list[str]]:
+    rows: list[list[str]] = []
+    model = _load(bench / "model.json")
+    if model:
+        fp32, bf16 = model["fp32_best"], model["bf16_best"]
+        rows += [
+            [
+                f"GEA {model['size'][1]}x{model['size'][0]} batch 1, {fp32}",
+                f"{_num(model['fp32_ms'], 1)} ms",
+                f"roofline {_num(model['roofline_ms'], 1)} ms (peak "
+                f"{_num(model['peak_gflops'], 0)} GFLOP/s, {model['peak_kernel']})",
+                f"{_num(model['fp32_roofline_ratio'], 2)}x",
+            ],
+            [
+                f"GEA {model['size'][1]}x{model['size'][0]} batch 1, {bf16}",
+                f"{_num(model['bf16_ms'], 1)} ms",
+                f"PSNR against fp32 output {_num(model['bf16_psnr_vs_fp32_db'][bf16], 1)} dB",
+                f"{_num(model['fp32_ms'] / model['bf16_ms'], 2)}x faster than fp32",
+            ],
+        ]
+    training = _load(bench / "training.json")
+    if training:
+        steps = training["steps_per_second"]
+        rows.append(
+            [
+                f"GEA training step, batch {training['batch']}, crop {training['crop']}",
+                " / ".join(f"{k} {_num(v, 2)} steps/s" for k, v in steps.items()),
+                "fp32 step",
+                f"{_num(training['mixed_over_fp32_speed'], 2)}x (bf16 / fp32)",
+            ]
+        )
+    effects = _load(bench / "effects.json")
+    if effects:
+        for name, target in effects["targets"].items():
+            rows.append(
+                [
+                    f"simulate {name}, {effects['frame']} frame",
+                    f"{_num(target['worst_render_ms'], 2)} ms",
+                    f"target < {_num(target['target_ms'], 0)} ms",
+                    "met" if target["met"] else "missed",
+                ]
+            )
+    ingest = _load(bench / "ingest.json")
+    if ingest:
+        rows.append(
+            [
+                f"capture-ingest, {ingest['pairs']} pairs, 1 worker",
+                f"{_num(ingest['ingest_w1_ms_per_pair'], 1)} ms/pair",
+                f"decode + remap + encode floor {_num(ingest['io_floor_ms_per_pair'], 1)} ms/pair",
+                f"{_num(ingest['ratio_w1_to_floor'], 2)}x",
+            ]
+        )
+    dataset = _load(bench / "dataset.json")
+    if dataset:
+        rows.append(
+            [
+                f"dataset-build, {dataset['pairs']} pairs",
+                f"{_num(dataset['build_pairs_per_s'], 0)} pairs/s",
+                f"PNG decode floor {_num(dataset['decode_floor_pairs_per_s'], 0)} pairs/s; "
+                f"read + hash + link floor {_num(dataset['io_floor_pairs_per_s'], 0)} pairs/s",
+                f"{_num(dataset['build_over_decode_floor'], 2)}x / "
+                f"{_num(dataset['build_over_io_floor'], 1)}x",
+            ]
+        )
+    calibration = _load(bench / "calibration.json")
+    for case in (calibration or {}).get("cases", []):
+        rows.append(
+            [
+                f"calibrate {case['board'].split(':')[0]} {case['model']}, {case['views']} views",
+                f"{_num(case['detect_ms'] + case['calibrate_ms'], 0)} ms",
+                f"focal error {_num(case['focal_error_pct'], 3)} %, baseline "
+                f"{_num(case['baseline_error_pct'], 3)} %, "
+                f"rows {_num(case['row_disagreement_px'], 3)} px",
+                f"stereo RMS {_num(case['stereo_rms_px'], 3)} px",
+            ]
+        )
+    return rows
+
+
+def bench_blocks(bench: Path) -> list[Block]:
+    """Speeds against a floor or peak measured in the same run (medians)."""
+    rows = _bench_rows(bench)
+    if not rows:
+        return _missing("the benchmarks", "python -m benchmarks --out bench_out")
+    machine = _load(bench / "effects.json") or {}
+    model = _load(bench / "model.json") or {}
+    where = ", ".join(
+        part
+        for part in (
+            str(machine.get("machine", "")),
+            f"{machine['cpu_count']} CPUs" if "cpu_count" in machine else "",
+            f"torch {model['torch']}" if "torch" in model else "",
+        )
+        if part
+    )
+    return [
+        Paragraph(
+            f"`python -m benchmarks --out bench_out` on {where or 'this machine'}; medians, "
+            "each speed next to a floor or peak measured in the same run."
+        ),
+        Table(["what", "median", "measured against", "ratio"], rows),
+    ]
+
+
+def section(demo: Path, bench: Path, copies: Copies) -> str:
+    """The Markdown between the markers (without them); pictures to copy go to ``copies``."""
+    parts: list[tuple[str, Callable[[], list[Block]]]] = [
+        ("Accuracy and its time (demo data)", lambda: tradeoff_blocks(demo, copies)),
+        ("The fine-tuned network per difficulty", lambda: eval_blocks(demo, copies)),
+        ("Pipeline stages", lambda: stage_blocks(demo)),
+        ("Calibration against the simulator's truth", lambda: calibration_section(demo)),
+        ("Speed against the machine", lambda: bench_blocks(bench)),
+    ]
+    blocks: list[Block] = [
+        Paragraph(
+            "Everything below is written by `make results` from the outputs of `lenspair "
+            "demo` and `python -m benchmarks` on the machine that ran them; rerun it to "
+            "measure yours. The demo's data are simulated and its training budget is "
+            "minutes on a CPU, so these figures show the pipeline working and what each "
+            "network costs, not accuracy on real rain."
+        ),
+        Paragraph(
+            f"Beside the paper ({PAPER}): its tables report PSNR/SSIM on the Raindrop test "
+            "set and on the authors' rig data after full training, and GPU times. Those "
+            "figures are not copied here: the comparable rows come from running the Raindrop "
+            "recipe above (`lenspair train`, then `lenspair eval --convention deraindrop-y`, "
+            "the paper's protocol), whose tables have the same columns as the ones below."
+        ),
+    ]
+    for title, make in parts:
+        blocks.append(Heading(title, 3))
+        blocks += make()
+    return to_markdown(blocks).rstrip("\n") + "\n"
+
+
+def replace_section(readme: str, body: str) -> str:
+    """``readme`` with the text between the markers replaced by ``body``."""
+    start, end = readme.find(BEGIN), readme.find(END)
+    if start < 0 or end < 0 or end < start:
+        raise ResultsError(f"README needs the markers {BEGIN!r} and {END!r}, in that order")
+    return readme[: start + len(BEGIN)] + "\n\n" + body + "\n" + readme[end:]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Rewrite (or ``--check``) the README's results section; returns the exit code."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.readme_results",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--demo", type=Path, default=Path("demo_out"), help="lenspair demo output")
+    parser.add_argument("--bench", type=Path, default=Path("bench_out"), help="benchmark JSON")
+    parser.add_argument("--readme", type=Path, default=Path("README.md"), help="file to update")
+    parser.add_argument("--check", action="store_true", help="exit 1 if the README is stale")
+    args = parser.parse_args(argv)
+    text = args.readme.read_text(encoding="utf-8")
+    copies: Copies = []
+    try:
+        updated = replace_section(text, section(args.demo, args.bench, copies))
+    except ResultsError as error:
+        print(f"{args.readme}: {error}", file=sys.stderr)
+        return 2
+    if args.check:
+        pictures_stale = any(
+            not (args.readme.parent / name).is_file()
+            or (args.readme.parent / name).read_bytes() != source.read_bytes()
+            for source, name in copies
+        )
+        if updated != text or pictures_stale:
+            print(f"{args.readme}: results section is stale; run `make results`", file=sys.stderr)
+            return 1
+        return 0
+    for source, name in copies:
+        target = args.readme.parent / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(target, source.read_bytes())
+    if updated != text:
+        atomic_write_text(args.readme, updated)
+    print(f"{args.readme}: results section written from {args.demo} and {args.bench}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,139 @@
+"""The README's results section is written from the commands' own output files."""
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from benchmarks.readme_results import BEGIN, END, main, replace_section
+from lenspair.fsutil import atomic_write_json
+from model.evaluation import EvalResult, ImageScore, breakdown, summarize, write_report
+from model.latency import Latency
+from model.tradeoff import TradeoffRow, mark_pareto, write_tradeoff
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def _row(name: str, precision: str, cpu_ms: float, psnr: float) -> TradeoffRow:
+    return TradeoffRow(
+        name=name, variant=name.split("-")[0], width=1.0, num_blocks=9, precision=precision,
+        params=700_001, gflops=19.71, cpu_ms=cpu_ms, gpu_ms=None, psnr_db=psnr, ssim=0.8765,
+        convention="skimage-gaussian", steps=40,
+    )  # fmt: skip
+
+
+def _demo(root: Path) -> Path:
+    """A demo output folder written by the stages' own writers."""
+    meta = {
+        "dataset": "demo_out/dataset", "evaluated_on": "demo_out/dataset split test",
+        "budget": "40 steps", "device": "cpu", "threads": 2, "size": "540x360",
+        "convention": "skimage-gaussian",
+        "input_baseline": {"psnr_db": 21.234, "ssim": 0.7001},
+    }  # fmt: skip
+    rows = mark_pareto([_row("G", "fp32", 50.0, 24.5), _row("GEA", "bf16", 43.21, 25.678)])
+    write_tradeoff(rows, root / "tradeoff", meta)
+    scores = [
+        ImageScore("a", "easy", 360, 540, 30.0, 0.95, 27.0, 0.9),
+        ImageScore("b", "hard", 360, 540, 22.0, 0.75, 17.5, 0.6),
+    ]
+    result = EvalResult(
+        checkpoint="best.pt", data="ds (split test)", convention="skimage-gaussian",
+        precision="fp32", scores=scores, overall=summarize(scores),
+        by_difficulty=breakdown(scores), input_overall=summarize(scores, "input"),
+        input_by_difficulty=breakdown(scores, "input"),
+        latency=[Latency("cpu", "fp32", "540x360", 2, "channels-last", 30, 5, 61.25, 63.0)],
+    )  # fmt: skip
+    write_report(result, root / "eval")
+    (root / "eval" / "contact_sheet.png").write_bytes(b"\x89PNG sheet")
+    atomic_write_json(
+        root / "timings.json",
+        {"simulate-rain": {"seconds": 7.25, "reused": False},
+         "pretrain": {"seconds": 60.0, "reused": True}},
+    )  # fmt: skip
+    return root
+
+
+def _bench(root: Path) -> Path:
+    root.mkdir(parents=True)
+    (root / "ingest.json").write_text(
+        json.dumps(
+            {"pairs": 38, "ingest_w1_ms_per_pair": 65.05, "io_floor_ms_per_pair": 33.93,
+             "ratio_w1_to_floor": 1.917}
+        )
+    )  # fmt: skip
+    return root
+
+
+def _readme(folder: Path) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    readme = folder / "README.md"
+    readme.write_text(f"# Title\n\nintro\n\n{BEGIN}\nold text\n{END}\n\n## After\n")
+    return readme
+
+
+def test_section_carries_the_figures_of_the_files(tmp_path: Path) -> None:
+    demo, bench = _demo(tmp_path / "demo"), _bench(tmp_path / "bench")
+    readme = _readme(tmp_path / "repo")
+    args = ["--demo", str(demo), "--bench", str(bench), "--readme", str(readme)]
+    assert main(args) == 0
+    text = readme.read_text()
+    assert text.startswith("# Title\n\nintro\n\n") and text.endswith(f"{END}\n\n## After\n")
+    assert "old text" not in text
+    # tradeoff rows, the input baseline first, times and accuracy as measured
+    assert "| input, no restoration | - | 0 | 0 | 0 | 21.23 | 0.7001 |  |" in text
+    assert "| GEA | bf16 | 700,001 | 19.7 | 43.2 | 25.68 | 0.8765 | PSNR SSIM |" in text
+    assert "40 steps" in text and "540x360" in text
+    # eval: input and output per difficulty, and the latency it was measured with
+    assert "| hard | 1 | 17.50 | 22.00 | 0.6000 | 0.7500 |" in text
+    assert "| all | 2 | 22.25 | 26.00 |" in text
+    assert "| cpu | fp32 | 540x360 | 2 | 61.2 | 63.0 |" in text
+    # stage times with their total, reuse said
+    assert "| simulate-rain | 7.2 |" in text and "| total | 67.2 |" in text
+    assert "earlier run, with that run's time: pretrain" in text
+    # benchmark ratio against its floor; absent benchmarks name their command
+    assert "| 65.0 ms/pair |" in text and "| 1.92x |" in text
+    assert "Not measured yet: the calibration comes from `lenspair demo --out demo_out`" in text
+    # pictures are copied beside the README and linked relative to it
+    assert (tmp_path / "repo" / "docs" / "results" / "contact_sheet.png").read_bytes() == (
+        b"\x89PNG sheet"
+    )
+    assert "](docs/results/tradeoff.png)" in text
+    assert (tmp_path / "repo" / "docs" / "results" / "tradeoff.png").is_file()
+    # a second run changes nothing, and --check agrees
+    assert main(args) == 0 and readme.read_text() == text
+    assert main([*args, "--check"]) == 0
+
+
+def test_check_flags_a_stale_section_and_writes_nothing(tmp_path: Path) -> None:
+    demo, bench = _demo(tmp_path / "demo"), _bench(tmp_path / "bench")
+    readme = _readme(tmp_path / "repo")
+    before = readme.read_text()
+    args = ["--demo", str(demo), "--bench", str(bench), "--readme", str(readme), "--check"]
+    assert main(args) == 1
+    assert readme.read_text() == before
+    assert not (tmp_path / "repo" / "docs").exists()
+
+
+def test_missing_markers_are_a_clear_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# Title\n{END}\n{BEGIN}\n")  # out of order
+    assert main(["--readme", str(readme), "--demo", str(tmp_path), "--bench", str(tmp_path)]) == 2
+    assert "README.md" in capsys.readouterr().err
+    with pytest.raises(Exception, match="markers"):
+        replace_section("no markers", "body")
+
+
+# Units of measured figures. A number with one of these outside the generated
+# section was typed by hand and would go stale.
+UNITS = r"ms\b|dB\b|s\b|sec|seconds|minutes?|min\b|px\b|%|GFLOP|pairs/s|steps/s|fps|x faster"
+MEASURED = re.compile(rf"(?<!\w)\d[\d.,]*\s*(?:{UNITS})", re.IGNORECASE)
+
+
+def test_readme_figures_outside_the_generated_section_are_not_measurements() -> None:
+    text = README.read_text(encoding="utf-8")
+    assert text.count(BEGIN) == 1 and text.count(END) == 1
+    outside = text[: text.index(BEGIN)] + text[text.index(END) :]
+    assert MEASURED.findall(outside) == []
