@@ -26,15 +26,9 @@ from lenspair.imageio import write_image
 from lenspair.quality import exposure_fractions, laplacian_variance, to_grey
 from rectify.crop import Crop
 from rectify.rectification import StereoRectification
-from rectify.registration import (
-    EstimationParams,
-    VerifyParams,
-    match_views,
-    measure_shift,
-    to_u8,
-    verify_pair,
-)
+from rectify.registration import EstimationParams, VerifyParams, match_views, to_u8
 from rectify.remap import RemapGrid, apply, input_map, shifted
+from rectify.verification import measure_shift, verify_pair
 
 OUTPUT_KINDS = ("input", "target", "mask")
 

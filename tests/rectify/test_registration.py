@@ -11,10 +11,9 @@ from rectify.registration import (
     VerifyParams,
     compensate_gain,
     estimate_homography,
-    measure_shift,
-    verify_pair,
 )
 from rectify.remap import apply_homography, pixel_grid
+from rectify.verification import measure_shift, verify_pair
 
 PARAMS = VerifyParams()
 
