@@ -6,8 +6,9 @@ It writes the ingested-recording layout of :mod:`capture.ingested` under
 
 1. list both cameras (:mod:`capture.recording`), pair them by timestamp
    (:mod:`capture.pairing`): every frame ends up paired or unpaired;
-2. load the calibration (``--calib``, else ``rig.yaml``'s ``calibration``,
-   else ``camchain.yaml`` beside the recording) and rectify (once);
+2. load the calibration (:mod:`capture.calibration_source`: ``--calib``, else
+   ``rig.yaml``'s ``calibration``, else ``camchain.yaml`` beside the
+   recording) and rectify (once);
 3. estimate the clean -> obstructed homography from features pooled over up
    to 30 frames (:func:`rectify.registration.estimate_homography`), cached in
    ``registration.json`` with a fingerprint of what it was computed from;
@@ -17,21 +18,19 @@ It writes the ingested-recording layout of :mod:`capture.ingested` under
    (:func:`capture.side_check.check_obstructed_side`);
 6. per frame (:mod:`capture.ingest_frames`, in a process pool with ``workers > 1``):
    remap, verify, refine, write ``input/``, ``target/``, ``mask/``;
-7. write ``pairs.jsonl``, ``report.json`` and ``qa.png``.
+7. write ``pairs.jsonl``, ``report.json`` (:mod:`capture.ingest_report`) and ``qa.png``.
 
-Resuming: each finished frame is appended to ``.journal.jsonl`` with a key
-that hashes everything its outputs depend on; a rerun skips frames whose key
-matches and whose files still have the recorded checksums, so an
-interrupted run (even ``kill -9``) finishes the work and a full rerun leaves
-every file byte-identical (``report.json`` is only rewritten when something
-other than its timings changed).
+Resuming (:mod:`capture.journal`): each finished frame is appended to
+``.journal.jsonl`` with a key that hashes everything its outputs depend on;
+a rerun skips frames whose key matches and whose files still have the
+recorded checksums, so an interrupted run (even ``kill -9``) finishes the
+work and a full rerun leaves every file byte-identical (``report.json`` is
+only rewritten when something other than its timings changed).
 """
 
 import json
 import logging
-import re
 import time
-from collections import Counter
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
@@ -41,85 +40,47 @@ from typing import Any
 import numpy as np
 
 from capture import ingest_frames as frame_work
+from capture.calibration_source import find_calibration
 from capture.errors import CaptureError
+from capture.ingest_report import (
+    frame_counts,
+    in_output_pixels,
+    rejection_reasons,
+    write_report_if_changed,
+)
 from capture.ingested import PAIRS_FILE, REPORT_FILE, IngestReport, PairRecord, write_pairs
+from capture.journal import (
+    JOURNAL_FILE,
+    fingerprint,
+    journal_line,
+    read_journal,
+    remove_stale_outputs,
+    remove_temporaries,
+    still_valid,
+)
 from capture.pairing import PairingResult, estimate_period_ns, pair_frames
 from capture.qa import QA_FILE, write_qa_sheet
-from capture.recording import (
-    CAMERAS,
-    FrameRef,
-    Recording,
-    find_rig_file,
-    load_frame,
-    open_recording,
-    resolve_obstructed,
-)
+from capture.recording import FrameRef, Recording, load_frame, open_recording, resolve_obstructed
 from capture.rigfile import CameraName, RigFile
 from capture.side_check import check_obstructed_side
 from lenspair import __version__
-from lenspair.config import load_dataclass, to_plain
+from lenspair.config import to_plain
 from lenspair.errors import LenspairError
-from lenspair.fsutil import atomic_write_json, atomic_write_text, sha256_bytes, sha256_file
+from lenspair.fsutil import atomic_write_json, atomic_write_text
 from lenspair.progress import progress
-from rectify.calib_io import load_calibration
 from rectify.crop import CropError, choose_crop
 from rectify.rectification import StereoRectification
 from rectify.registration import EstimationParams, VerifyParams, estimate_homography
 from rectify.remap import target_map, valid_region
-from rectify.rig import StereoRig, rig_to_kalibr
+from rectify.rig import rig_to_kalibr
 
 log = logging.getLogger(__name__)
 
-CAMCHAIN_FILE = "camchain.yaml"
 REGISTRATION_FILE = "registration.json"
-JOURNAL_FILE = ".journal.jsonl"
 SIDE_CHECK_FRAMES = 8
 MAX_LOGGED_PROBLEMS = 10
 SINGLE_FRAME_TOLERANCE_NS = 10_000_000
 """Pairing tolerance when the frame period cannot be estimated (one frame per camera)."""
-
-
-def _fingerprint(obj: Any) -> str:
-    return sha256_bytes(json.dumps(obj, sort_keys=True, default=str).encode("utf-8"))
-
-
-def find_calibration(
-    recording: Recording, rig_file: RigFile, calibration: tuple[Path, ...]
-) -> tuple[StereoRig, str]:
-    """The rig calibration: ``--calib``, else ``rig.yaml``'s key, else ``camchain.yaml``.
-
-    Args:
-        recording: the recording (its folder is searched).
-        rig_file: the recording's ``rig.yaml`` contents.
-        calibration: files given with ``--calib`` (any format of
-            :func:`rectify.calib_io.load_calibration`).
-
-    Returns:
-        ``(rig, description of the source)``.
-
-    Raises:
-        CaptureError: none of the three exists; the message says where it looked.
-        RectifyError: the file is malformed (NaN, missing keys; names the file).
-
-    """
-    if calibration:
-        paths = list(calibration)
-    elif rig_file.calibration is not None:
-        rig_path = find_rig_file(recording.path)
-        base = rig_path.parent if rig_path is not None else recording.path
-        paths = [base / rig_file.calibration]
-        if not paths[0].is_file():
-            raise CaptureError(f"{rig_path}: calibration {rig_file.calibration!r} not found")
-    else:
-        places = [recording.path] if recording.path.is_dir() else []
-        places.append(recording.path.parent)
-        paths = [p / CAMCHAIN_FILE for p in places if (p / CAMCHAIN_FILE).is_file()][:1]
-        if not paths:
-            raise CaptureError(
-                f"{recording.path}: no calibration: pass --calib FILE, set 'calibration:' in "
-                f"rig.yaml, or put {CAMCHAIN_FILE} (Kalibr) beside the recording"
-            )
-    return load_calibration(paths)
 
 
 def _sample(count: int, limit: int) -> list[int]:
@@ -145,53 +106,6 @@ def _map_tasks(
     ) as pool:
         results = pool.map(function, tasks, chunksize=max(1, min(8, len(tasks) // (4 * workers))))
         yield from progress(results, desc=desc, total=len(tasks))
-
-
-def _read_journal(path: Path) -> dict[int, tuple[str, PairRecord]]:
-    entries: dict[int, tuple[str, PairRecord]] = {}
-    if not path.is_file():
-        return entries
-    for line in path.read_text(encoding="utf-8").splitlines():
-        try:  # a line cut by a crash is ignored: that frame is simply redone
-            data = json.loads(line)
-            record = load_dataclass(PairRecord, data["record"])
-            entries[record.t_ns] = (str(data["key"]), record)
-        except (ValueError, KeyError, TypeError, LenspairError):
-            continue
-    return entries
-
-
-def _journal_line(key: str, record: PairRecord) -> str:
-    return json.dumps({"key": key, "record": to_plain(record)}, sort_keys=True) + "\n"
-
-
-def _remove_temporaries(out_dir: Path) -> None:
-    """Delete half-written temporary files a killed run left (atomic writes never finished)."""
-    for folder in (out_dir, *(out_dir / kind for kind in frame_work.OUTPUT_KINDS)):
-        for path in sorted(folder.glob(".*.tmp")):
-            path.unlink(missing_ok=True)
-
-
-def _remove_stale_outputs(out_dir: Path, records: list[PairRecord]) -> None:
-    """Delete images under input/, target/, mask/ that no kept record lists (earlier runs)."""
-    listed = {out_dir / name for record in records for name in record.files.values()}
-    for kind in frame_work.OUTPUT_KINDS:
-        for path in sorted((out_dir / kind).glob("*.png")):
-            if path not in listed:
-                path.unlink()
-
-
-def _still_valid(out_dir: Path, record: PairRecord) -> bool:
-    for kind, relative in record.files.items():
-        path = out_dir / relative
-        if not path.is_file() or sha256_file(path) != record.sha256.get(kind):
-            return False
-    return True
-
-
-def _category(reason: str) -> str:
-    """The stable part of a reason, for counting: text before the first ':' or ' ('."""
-    return re.split(r":| \(", reason, maxsplit=1)[0].strip()
 
 
 def _side_check_images(
@@ -235,13 +149,13 @@ def _homography(
     """
     chosen = [pairs[i] for i in _sample(len(pairs), estimation.max_frames)]
     identity = [[o.t_ns, frame_work.content_id(o), frame_work.content_id(c)] for o, c in chosen]
-    fingerprint = _fingerprint(
+    cache_key = fingerprint(
         {"setup": setup, "estimation": to_plain(estimation), "frames": identity}
     )
     cache = out_dir / REGISTRATION_FILE
     try:
         cached = json.loads(cache.read_text(encoding="utf-8"))
-        if cached.get("fingerprint") == fingerprint:
+        if cached.get("fingerprint") == cache_key:
             return dict(cached)
     except (OSError, ValueError):
         pass
@@ -258,7 +172,7 @@ def _homography(
     ]
     estimate = estimate_homography(views, estimation, context.verify, [s.matches for s in usable])
     registration = {
-        "fingerprint": fingerprint,
+        "fingerprint": cache_key,
         "matrix": estimate.matrix.tolist(),
         "inliers": estimate.inliers,
         "matches": estimate.matches,
@@ -286,7 +200,7 @@ def _frame_stage(
         if not p.dropped and p.camera == rig_file.obstructed and p.t_ns is not None
     }
     journal_path = out_dir / JOURNAL_FILE
-    journal = _read_journal(journal_path)
+    journal = read_journal(journal_path)
     records: dict[int, PairRecord] = {}
     tasks = []
     for obstructed_frame, clean_frame in frame_pairs:
@@ -294,7 +208,7 @@ def _frame_stage(
             obstructed_frame, clean_frame, state, warnings.get(obstructed_frame.t_ns)
         )
         done = journal.get(obstructed_frame.t_ns)
-        if done and done[0] == task.key and _still_valid(out_dir, done[1]):
+        if done and done[0] == task.key and still_valid(out_dir, done[1]):
             records[obstructed_frame.t_ns] = done[1]
         else:
             tasks.append(task)
@@ -304,15 +218,15 @@ def _frame_stage(
         results = _map_tasks(frame_work.process, tasks, workers, context, "pairs")
         for task, record in zip(tasks, results, strict=True):
             records[record.t_ns] = record
-            handle.write(_journal_line(task.key, record))
+            handle.write(journal_line(task.key, record))
             handle.flush()  # a crash loses at most the frames in flight
     for unpaired in pairing.unpaired_of(rig_file.obstructed):
         frame = recording.frames[rig_file.obstructed][unpaired.index]
         records[frame.t_ns] = PairRecord(t_ns=frame.t_ns, status="rejected", reason=unpaired.reason)
     ordered = [records[t] for t in sorted(records)]
-    _remove_stale_outputs(out_dir, ordered)
+    remove_stale_outputs(out_dir, ordered)
     write_pairs(out_dir / PAIRS_FILE, ordered)
-    lines = (_journal_line(keys[r.t_ns], r) for r in ordered if r.t_ns in keys)
+    lines = (journal_line(keys[r.t_ns], r) for r in ordered if r.t_ns in keys)
     atomic_write_text(journal_path, "".join(lines))  # compacted: one line per frame
     return ordered
 
@@ -381,7 +295,7 @@ def ingest_recording(
         frame_pairs.append(both if rig_file.obstructed == "cam0" else (both[1], both[0]))
     out_dir = Path(out) / recording.recording_id
     out_dir.mkdir(parents=True, exist_ok=True)
-    _remove_temporaries(out_dir)
+    remove_temporaries(out_dir)
     lap("open")
 
     rectification = StereoRectification.from_rig(rig)
@@ -424,7 +338,7 @@ def ingest_recording(
             log.warning("%s: %s", recording.path, side.message)
     lap("side_check")
 
-    state = _fingerprint({**setup, "matrix": registration["matrix"], "crop": crop.as_tuple()})
+    state = fingerprint({**setup, "matrix": registration["matrix"], "crop": crop.as_tuple()})
     ordered = _frame_stage(recording, pairing, rig_file, frame_pairs, context, state, workers)
     lap("frames")
 
@@ -434,15 +348,12 @@ def ingest_recording(
     lap("qa")
     timings["total"] = round(time.perf_counter() - start, 3)
 
-    counts = _counts(recording, pairing, rig_file, ordered)
+    counts = frame_counts(recording, pairing, rig_file, ordered)
     counts["homography_frames"] = len(registration["frames"])
     counts["homography_matches"] = int(registration["matches"])
     counts["homography_inliers"] = int(registration["inliers"])
-    reasons = Counter(_category(r.reason) for r in ordered if r.status == "rejected" and r.reason)
-    for problem in recording.problems:
-        if problem.dropped:
-            reasons[f"{problem.camera or 'recording'} not listed: {_category(problem.reason)}"] += 1
-    homography_out = _in_output_pixels(matrix, crop.x, crop.y)
+    reasons = rejection_reasons(recording, ordered)
+    homography_out = in_output_pixels(matrix, crop.x, crop.y)
     report = IngestReport(
         recording_id=recording.recording_id,
         source=str(recording.path),
@@ -458,7 +369,7 @@ def ingest_recording(
         side_check=side_check,
         lenspair_version=__version__,
     )
-    _write_report(out_dir / REPORT_FILE, report)
+    write_report_if_changed(out_dir / REPORT_FILE, report)
     if not kept:
         raise CaptureError(
             f"{recording.path}: no usable pairs: all {len(ordered)} {rig_file.obstructed} frames "
@@ -466,44 +377,3 @@ def ingest_recording(
             f"see {out_dir / PAIRS_FILE}"
         )
     return report
-
-
-def _in_output_pixels(matrix: np.ndarray, x0: int, y0: int) -> np.ndarray:
-    """The rectified-pixel homography in cropped output pixels (both views cropped alike)."""
-    shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
-    out = shift @ matrix @ np.linalg.inv(shift)
-    return np.asarray(out / out[2, 2])
-
-
-def _counts(
-    recording: Recording, pairing: PairingResult, rig_file: RigFile, records: list[PairRecord]
-) -> dict[str, int]:
-    """Frame bookkeeping; every frame of both cameras is in exactly one bucket."""
-    counts: dict[str, int] = {}
-    for camera in CAMERAS:
-        listed = len(recording.frames[camera])
-        dropped = sum(1 for p in recording.problems if p.dropped and p.camera == camera)
-        counts[f"frames_{camera}"] = listed + dropped
-        counts[f"listed_{camera}"] = listed
-        counts[f"dropped_{camera}"] = dropped
-        counts[f"unpaired_{camera}"] = len(pairing.unpaired_of(camera))
-    counts["pairs"] = len(pairing.pairs)
-    counts["kept"] = sum(1 for r in records if r.status == "kept")
-    counts["rejected"] = sum(1 for r in records if r.status == "rejected")
-    counts["rejected_paired"] = counts["rejected"] - counts[f"unpaired_{rig_file.obstructed}"]
-    counts["masked"] = sum(1 for r in records if r.status == "kept" and "mask" in r.files)
-    counts["recording_problems"] = sum(1 for p in recording.problems if p.camera is None)
-    return counts
-
-
-def _write_report(path: Path, report: IngestReport) -> None:
-    """Write ``report.json`` unless the existing one differs only in its timings."""
-    plain = to_plain(report)
-    if path.is_file():
-        try:
-            old = json.loads(path.read_text(encoding="utf-8"))
-            if {**old, "timings_s": None} == {**json.loads(json.dumps(plain)), "timings_s": None}:
-                return
-        except ValueError:
-            pass
-    atomic_write_json(path, plain)

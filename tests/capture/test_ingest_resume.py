@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from capture import ingest_frames
-from capture.ingest import JOURNAL_FILE, ingest_recording
+from capture.ingest import ingest_recording
+from capture.journal import JOURNAL_FILE
 from tests.capture.ingest_helpers import simulate, tree_bytes
 
 

@@ -1,0 +1,55 @@
+"""Where a recording's rig calibration comes from, for ``capture-ingest``.
+
+In order: the files given with ``--calib``, else the file named by
+``rig.yaml``'s ``calibration`` key (relative to ``rig.yaml``), else a Kalibr
+``camchain.yaml`` in or beside the recording.
+"""
+
+from pathlib import Path
+
+from capture.errors import CaptureError
+from capture.recording import Recording, find_rig_file
+from capture.rigfile import RigFile
+from rectify.calib_io import load_calibration
+from rectify.rig import StereoRig
+
+CAMCHAIN_FILE = "camchain.yaml"
+
+
+def find_calibration(
+    recording: Recording, rig_file: RigFile, calibration: tuple[Path, ...]
+) -> tuple[StereoRig, str]:
+    """The rig calibration: ``--calib``, else ``rig.yaml``'s key, else ``camchain.yaml``.
+
+    Args:
+        recording: the recording (its folder is searched).
+        rig_file: the recording's ``rig.yaml`` contents.
+        calibration: files given with ``--calib`` (any format of
+            :func:`rectify.calib_io.load_calibration`).
+
+    Returns:
+        ``(rig, description of the source)``.
+
+    Raises:
+        CaptureError: none of the three exists; the message says where it looked.
+        RectifyError: the file is malformed (NaN, missing keys; names the file).
+
+    """
+    if calibration:
+        paths = list(calibration)
+    elif rig_file.calibration is not None:
+        rig_path = find_rig_file(recording.path)
+        base = rig_path.parent if rig_path is not None else recording.path
+        paths = [base / rig_file.calibration]
+        if not paths[0].is_file():
+            raise CaptureError(f"{rig_path}: calibration {rig_file.calibration!r} not found")
+    else:
+        places = [recording.path] if recording.path.is_dir() else []
+        places.append(recording.path.parent)
+        paths = [p / CAMCHAIN_FILE for p in places if (p / CAMCHAIN_FILE).is_file()][:1]
+        if not paths:
+            raise CaptureError(
+                f"{recording.path}: no calibration: pass --calib FILE, set 'calibration:' in "
+                f"rig.yaml, or put {CAMCHAIN_FILE} (Kalibr) beside the recording"
+            )
+    return load_calibration(paths)
