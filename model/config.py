@@ -62,7 +62,7 @@ class ModelConfig:
 
 @dataclass(frozen=True)
 class DataConfig:
-    """How training pairs are drawn (``model.data``).
+    """How training pairs are drawn (``model.data``, ``model.training_data``).
 
     Attributes:
         crop_size: side of the square random training crop, pixels.

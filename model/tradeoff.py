@@ -214,10 +214,11 @@ def run_tradeoff(
 
     """
     from model.checkpoint import load_model
-    from model.data import open_eval_pairs, paired_training_data
+    from model.data import open_eval_pairs
     from model.evaluation import Summary, score_pairs, summarize
     from model.latency import measure_latency
     from model.training import fit, resolve_config
+    from model.training_data import paired_training_data
 
     out_dir = Path(out_dir)
     data = paired_training_data(dataset, base.data, base.model.channels, base.train.seed)

@@ -88,8 +88,8 @@ def _overrides(config: Any, args: argparse.Namespace) -> Any:
 def run(args: argparse.Namespace) -> int:
     """Train one run; returns the exit code."""
     from model.config import load_run_config
-    from model.data import paired_training_data, synthetic_training_data
     from model.training import fit, resolve_config, resume_config
+    from model.training_data import paired_training_data, synthetic_training_data
 
     if (args.dataset is None) == (args.synthetic is None):
         raise ConfigError("give a dataset DS, or --synthetic IMAGES_DIR (not both)")

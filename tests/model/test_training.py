@@ -14,18 +14,13 @@ from lenspair.errors import ConfigError
 from lenspair.imageio import write_image
 from model.checkpoint import load_checkpoint
 from model.config import RunConfig, load_run_config
-from model.data import (
-    OUR_DROPS,
-    SHARP_DROPS,
-    find_clean_images,
-    holdout_indices,
-    paired_training_data,
-    synthetic_training_data,
-)
 from model.errors import ModelError
+from model.synthetic_data import OUR_DROPS, find_clean_images
 from model.trainer import Trainer, TrainingDivergedError, distributed_from_env, init_distributed
 from model.training import fit, resolve_config
+from model.training_data import holdout_indices, paired_training_data, synthetic_training_data
 from model.vgg import VGG19Features
+from simulate.effects.spec import SHARP_DROPS
 from tests.model.train_fixtures import (
     clean_image,
     tiny_config,
