@@ -59,8 +59,8 @@ class Budget:
     """
 
     frames: int = 60
-    pretrain_steps: int = 200
-    finetune_steps: int = 200
+    pretrain_steps: int = 300
+    finetune_steps: int = 400
     tradeoff_steps: int = 40
     crop_size: int = 128
     batch_size: int = 4

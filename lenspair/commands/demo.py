@@ -1,11 +1,13 @@
 """Run the whole pipeline on the bundled sample scenes and write a report.
 
-Simulates a chessboard session and two anomaly recordings (rain on cam1,
-dust with the sides swapped), calibrates, ingests, builds a dataset,
-pretrains on synthetic drops, fine-tunes, evaluates and runs a small
-accuracy-versus-time tradeoff, then writes OUT/report.md and OUT/report.html.
-Each stage prints the equivalent `lenspair` command. A rerun reuses finished
-stages. About 10-15 minutes on a 2-core CPU with the default budget.
+Simulates a chessboard session and three anomaly recordings (light and
+heavy rain on cam1, dust with the sides swapped), calibrates, ingests,
+builds a dataset, pretrains on synthetic drops, fine-tunes, evaluates and
+runs a small accuracy-versus-time tradeoff, then writes OUT/report.md and
+OUT/report.html. Each stage prints the equivalent `lenspair` command. A
+rerun reuses finished stages (a stage whose inputs changed runs again, and
+so does every stage after it). The default budget is sized for under a
+quarter of an hour on a 2-core CPU.
 
 Example:
   lenspair demo --out demo_out
@@ -23,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="tiny budget: every stage runs in about a minute, nothing is learnt",
+        help="tiny budget: every stage runs, nothing is learnt (the end-to-end test)",
     )
 
 
