@@ -150,6 +150,17 @@ def _autocast() -> contextlib.AbstractContextManager[None]:
     return torch.autocast("cpu", dtype=torch.bfloat16)
 
 
+def _cpu_model() -> str:
+    """The CPU's marketing name from /proc/cpuinfo (Linux), else the platform's machine."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.machine()
+
+
 def _pressure() -> str:
     try:
         return Path("/proc/pressure/cpu").read_text().splitlines()[0]
@@ -242,6 +253,7 @@ def run(runs: int, warmup: int, threads: int, compile_models: bool = False) -> d
     single_ms = {name: _median_ms(samples) for name, samples in single_times.items()}
     return {
         "device": platform.processor() or platform.machine(),
+        "cpu_model": _cpu_model(),
         "torch": torch.__version__,
         "threads": threads,
         "runs": runs,

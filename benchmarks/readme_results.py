@@ -24,6 +24,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from lenspair.demo import Budget, plan
 from lenspair.demo_report import calibration_blocks
 from lenspair.fsutil import atomic_write_bytes, atomic_write_text
 from lenspair.report import Block, Heading, Image, Paragraph, Table, to_markdown
@@ -169,10 +170,12 @@ def stage_blocks(demo: Path) -> list[Block]:
     timings = _load(demo / "timings.json")
     if timings is None:
         return _missing("the stage timings", "lenspair demo --out demo_out")
-    rows = [[name, _num(t["seconds"], 1)] for name, t in timings.items()]
+    order = [stage.name for stage in plan(demo, Budget())]
+    ranked = sorted(timings, key=lambda n: order.index(n) if n in order else len(order))
+    rows = [[name, _num(timings[name]["seconds"], 1)] for name in ranked]
     total = sum(float(t["seconds"]) for t in timings.values())
     rows.append(["total", _num(total, 1)])
-    reused = ", ".join(name for name, t in timings.items() if t.get("reused"))
+    reused = ", ".join(name for name in ranked if timings[name].get("reused"))
     note = f" Reused from an earlier run, with that run's time: {reused}." if reused else ""
     return [
         Paragraph(f"`lenspair demo --out demo_out`, seconds per stage (wall clock).{note}"),
@@ -279,7 +282,7 @@ def bench_blocks(bench: Path) -> list[Block]:
     where = ", ".join(
         part
         for part in (
-            str(machine.get("machine", "")),
+            str(model.get("cpu_model") or machine.get("machine", "")),
             f"{machine['cpu_count']} CPUs" if "cpu_count" in machine else "",
             f"torch {model['torch']}" if "torch" in model else "",
         )

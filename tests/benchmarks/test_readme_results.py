@@ -90,6 +90,7 @@ def test_section_carries_the_figures_of_the_files(tmp_path: Path) -> None:
     assert "| cpu | fp32 | 540x360 | 2 | 61.2 | 63.0 |" in text
     # stage times with their total, reuse said
     assert "| simulate-rain | 7.2 |" in text and "| total | 67.2 |" in text
+    assert text.index("| simulate-rain |") < text.index("| pretrain |")  # pipeline order
     assert "earlier run, with that run's time: pretrain" in text
     # benchmark ratio against its floor; absent benchmarks name their command
     assert "| 65.0 ms/pair |" in text and "| 1.92x |" in text
