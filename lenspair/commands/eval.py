@@ -56,7 +56,8 @@ def default_out(checkpoint: Path, split: str) -> Path:
 def run(args: argparse.Namespace) -> int:
     """Evaluate (or describe) a checkpoint; returns the exit code."""
     from model.checkpoint import load_model
-    from model.evaluation import evaluate_checkpoint, markdown_report, write_report
+    from model.eval_report import markdown_report, write_report
+    from model.evaluation import evaluate_checkpoint
 
     if args.describe:
         from model.complexity import describe

@@ -8,7 +8,8 @@ import pytest
 
 from benchmarks.readme_results import BEGIN, END, main, replace_section
 from lenspair.fsutil import atomic_write_json
-from model.evaluation import EvalResult, ImageScore, breakdown, summarize, write_report
+from model.eval_report import write_report
+from model.evaluation import EvalResult, ImageScore, breakdown, summarize
 from model.latency import Latency
 from model.tradeoff import TradeoffRow, mark_pareto, write_tradeoff
 

@@ -15,7 +15,8 @@ from lenspair.cli import main
 from lenspair.imageio import write_image
 from model.checkpoint import load_model
 from model.data import to_tensor
-from model.evaluation import PSNR_CAP_DB, evaluate_checkpoint, summarize, write_report
+from model.eval_report import write_report
+from model.evaluation import PSNR_CAP_DB, evaluate_checkpoint, summarize
 from model.latency import measure_latency, percentile, tune_allocator
 from model.metrics import MetricConvention, image_metrics
 from model.variants import build_model
