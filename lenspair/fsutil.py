@@ -3,7 +3,10 @@
 Every output file lenspair writes goes through these helpers: data is written
 to a temporary file in the destination folder and renamed into place, so an
 interrupted run never leaves a half-written file under its final name, and a
-rerun can trust any file that exists.
+rerun can trust any file that exists. Files get the permissions a plain
+``open()`` would give them (``0o666`` less the umask), not the owner-only
+mode of the temporary file, so a dataset built by one user can be read by a
+training job running as another.
 """
 
 import hashlib
@@ -13,6 +16,16 @@ import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
+
+
+def _file_mode() -> int:
+    """``0o666`` less the process umask (read once, at import, before any worker threads)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+FILE_MODE = _file_mode()
 
 
 def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str = "") -> None:
@@ -34,6 +47,7 @@ def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str = "") -
     tmp = Path(tmp_name)
     try:
         writer(tmp)
+        os.chmod(tmp, FILE_MODE)  # mkstemp creates 0o600
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -1,0 +1,37 @@
+"""Atomic writes: all or nothing, and the permissions a plain write would give."""
+
+import stat
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lenspair.fsutil import atomic_write, atomic_write_text
+from lenspair.imageio import write_image
+
+
+def _mode(path: Path) -> int:
+    return stat.S_IMODE(path.stat().st_mode)
+
+
+def test_written_files_get_the_mode_of_a_plain_write(tmp_path: Path) -> None:
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")  # open() applies the umask to 0o666
+    atomic_write_text(tmp_path / "a" / "report.json", "{}\n")
+    write_image(tmp_path / "b" / "frame.png", np.zeros((4, 6), np.uint8))
+    assert _mode(tmp_path / "a" / "report.json") == _mode(plain)
+    assert _mode(tmp_path / "b" / "frame.png") == _mode(plain)
+
+
+def test_a_failing_writer_leaves_neither_file_nor_temporary(tmp_path: Path) -> None:
+    target = tmp_path / "out.bin"
+    target.write_bytes(b"old")
+
+    def broken(tmp: Path) -> None:
+        tmp.write_bytes(b"half")
+        raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        atomic_write(target, broken)
+    assert target.read_bytes() == b"old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bin"]
