@@ -288,8 +288,9 @@ def run_demo(out: Path, budget: Budget = Budget()) -> Path:
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     # Three short recordings make too few whole-recording groups for three
-    # splits, so the demo splits by time segments (a sixth of a recording).
-    segment = max(2, budget.frames // 6)
+    # splits, so the demo splits by time segments; a twelfth of a recording
+    # gives enough groups (36) for hashed splits near the asked fractions.
+    segment = max(2, budget.frames // 12)
     atomic_write_text(
         out / "dataset_config.yaml",
         f"split:\n  group_by: segment\n  segment_frames: {segment}\n  segment_gap_frames: 1\n",

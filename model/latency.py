@@ -9,13 +9,13 @@ precision. CUDA timings synchronise the device around each run.
 
 On the CPU the network runs as it should be deployed there:
 
-* channels-last (NHWC) tensors, which oneDNN's convolutions prefer (measured
-  about 10 % faster than NCHW for GEA; the timed copy of the network is
-  converted, the caller's network is left as it was);
+* channels-last (NHWC) tensors, which oneDNN's convolutions prefer (compare
+  the two layouts with ``python -m benchmarks.bench_model``; the timed copy of
+  the network is converted, the caller's network is left as it was);
 * with glibc's allocator told to keep freed blocks (:func:`tune_allocator`).
   By default glibc hands the large activation tensors back to the kernel on
-  free and page-faults them in again on the next forward pass, which costs
-  2-3x; jemalloc/tcmalloc (what Intel recommends for PyTorch on CPU) behave
+  free and page-faults them in again on the next forward pass (the benchmark
+  reports both allocator settings); jemalloc/tcmalloc (what Intel recommends for PyTorch on CPU) behave
   like the tuned setting. This is a process-wide setting and stays on.
 """
 
