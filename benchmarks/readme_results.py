@@ -17,7 +17,6 @@ section differs from what the inputs give.
 """
 
 import argparse
-import json
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -25,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from lenspair.demo import Budget, plan
-from lenspair.demo_report import calibration_blocks
+from lenspair.demo_report import calibration_blocks, load_json
 from lenspair.fsutil import atomic_write_bytes, atomic_write_text
 from lenspair.report import Block, Heading, Image, Paragraph, Table, to_markdown
 
@@ -43,10 +42,6 @@ class ResultsError(Exception):
     """The README cannot take the section (markers missing or out of order)."""
 
 
-def _load(path: Path) -> Any:
-    return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else None
-
-
 def _num(value: Any, digits: int) -> str:
     if value is None:
         return "n/a"
@@ -62,7 +57,7 @@ def _missing(what: str, command: str) -> list[Block]:
 
 def tradeoff_blocks(demo: Path, copies: Copies) -> list[Block]:
     """The paper's G/GE/GEA ablation and the width/depth variants: accuracy with its time."""
-    data = _load(demo / "tradeoff" / "tradeoff.json")
+    data = load_json(demo / "tradeoff" / "tradeoff.json")
     if data is None:
         return _missing("the accuracy-against-time table", "lenspair demo --out demo_out")
     rows: list[list[str]] = []
@@ -124,7 +119,7 @@ def _figure(source: Path, copies: Copies, name: str, caption: str) -> list[Block
 
 def eval_blocks(demo: Path, copies: Copies) -> list[Block]:
     """The fine-tuned GEA on the test split, per difficulty, against the input."""
-    data = _load(demo / "eval" / "metrics.json")
+    data = load_json(demo / "eval" / "metrics.json")
     if data is None:
         return _missing("the evaluation", "lenspair demo --out demo_out")
     inputs = data.get("input", {})
@@ -167,7 +162,7 @@ def eval_blocks(demo: Path, copies: Copies) -> list[Block]:
 
 def stage_blocks(demo: Path) -> list[Block]:
     """Wall time of each demo stage."""
-    timings = _load(demo / "timings.json")
+    timings = load_json(demo / "timings.json")
     if timings is None:
         return _missing("the stage timings", "lenspair demo --out demo_out")
     order = [stage.name for stage in plan(demo, Budget())]
@@ -195,7 +190,7 @@ def calibration_section(demo: Path) -> list[Block]:
 
 def _bench_rows(bench: Path) -> list[list[str]]:
     rows: list[list[str]] = []
-    model = _load(bench / "model.json")
+    model = load_json(bench / "model.json")
     if model:
         fp32, bf16 = model["fp32_best"], model["bf16_best"]
         rows += [
@@ -213,7 +208,7 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 f"{_num(model['fp32_ms'] / model['bf16_ms'], 2)}x faster than fp32",
             ],
         ]
-    training = _load(bench / "training.json")
+    training = load_json(bench / "training.json")
     if training:
         steps = training["steps_per_second"]
         rows.append(
@@ -224,7 +219,7 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 f"{_num(training['mixed_over_fp32_speed'], 2)}x (bf16 / fp32)",
             ]
         )
-    effects = _load(bench / "effects.json")
+    effects = load_json(bench / "effects.json")
     if effects:
         for name, target in effects["targets"].items():
             rows.append(
@@ -235,7 +230,7 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                     "met" if target["met"] else "missed",
                 ]
             )
-    ingest = _load(bench / "ingest.json")
+    ingest = load_json(bench / "ingest.json")
     if ingest:
         rows.append(
             [
@@ -245,7 +240,7 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 f"{_num(ingest['ratio_w1_to_floor'], 2)}x",
             ]
         )
-    dataset = _load(bench / "dataset.json")
+    dataset = load_json(bench / "dataset.json")
     if dataset:
         rows.append(
             [
@@ -257,7 +252,7 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 f"{_num(dataset['build_over_io_floor'], 1)}x",
             ]
         )
-    calibration = _load(bench / "calibration.json")
+    calibration = load_json(bench / "calibration.json")
     for case in (calibration or {}).get("cases", []):
         rows.append(
             [
@@ -277,8 +272,8 @@ def bench_blocks(bench: Path) -> list[Block]:
     rows = _bench_rows(bench)
     if not rows:
         return _missing("the benchmarks", "python -m benchmarks --out bench_out")
-    machine = _load(bench / "effects.json") or {}
-    model = _load(bench / "model.json") or {}
+    machine = load_json(bench / "effects.json") or {}
+    model = load_json(bench / "model.json") or {}
     where = ", ".join(
         part
         for part in (

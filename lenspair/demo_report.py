@@ -16,7 +16,8 @@ from lenspair.report import Block, Code, Heading, Image, Paragraph, Table, to_ht
 from rectify.rig import read_kalibr
 
 
-def _load_json(path: Path) -> Any:
+def load_json(path: Path) -> Any:
+    """The parsed JSON file at ``path``, or ``None`` when there is no such file."""
     return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else None
 
 
@@ -57,7 +58,7 @@ def _pct(estimate: float, truth: float) -> str:
 
 def calibration_blocks(out: Path) -> list[Block]:
     """Calibration figures against the simulator's true camchain."""
-    report = _load_json(out / "calibration" / "camchain.report.json")
+    report = load_json(out / "calibration" / "camchain.report.json")
     if report is None:
         return [Paragraph("No calibration report found.")]
     estimate = read_kalibr(out / "calibration" / "camchain.yaml")
@@ -99,7 +100,7 @@ def ingest_blocks(out: Path) -> list[Block]:
     """Counts, rejection reasons and QA sheets of each ingested recording."""
     blocks: list[Block] = []
     for folder in sorted((out / "ingested").glob("*/")):
-        report = _load_json(folder / "report.json")
+        report = load_json(folder / "report.json")
         if report is None:
             continue
         blocks.append(Heading(f"Recording {report['recording_id']}", 3))
@@ -132,7 +133,7 @@ def ingest_blocks(out: Path) -> list[Block]:
 
 def dataset_blocks(out: Path) -> list[Block]:
     """The dataset card's counts and the per-split contact sheets."""
-    card = _load_json(out / "dataset" / "dataset.json")
+    card = load_json(out / "dataset" / "dataset.json")
     if card is None:
         return [Paragraph("No dataset card found.")]
     splits = card.get("counts", {})
