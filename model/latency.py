@@ -15,8 +15,9 @@ On the CPU the network runs as it should be deployed there:
 * with glibc's allocator told to keep freed blocks (:func:`tune_allocator`).
   By default glibc hands the large activation tensors back to the kernel on
   free and page-faults them in again on the next forward pass (the benchmark
-  reports both allocator settings); jemalloc/tcmalloc (what Intel recommends for PyTorch on CPU) behave
-  like the tuned setting. This is a process-wide setting and stays on.
+  reports both allocator settings); jemalloc/tcmalloc (what Intel recommends
+  for PyTorch on CPU) behave like the tuned setting. This is a process-wide
+  setting and stays on.
 """
 
 import contextlib

@@ -43,7 +43,7 @@ from lenspair.config import dump_yaml
 from lenspair.fsutil import atomic_write_text
 from lenspair.progress import progress
 from model.checkpoint import checkpoint_config, load_checkpoint, load_weights
-from model.config import RunConfig, RuntimeInfo, config_differences
+from model.config import RunConfig, RuntimeInfo, TrainConfig, config_differences
 from model.data import Sample
 from model.errors import ModelError
 from model.run_files import RunPaths, read_metrics_rows, run_logging, tensorboard_writer
@@ -333,7 +333,7 @@ def _loop(
         )
         sums: dict[str, float] = {}
         counted = 0
-        bar = progress(loader, f"epoch {epoch + 1}/{train.epochs}", total=len(loader), unit="step")
+        bar = progress(loader, _epoch_label(epoch, train), total=len(loader), unit="step")
         for batch in bar if info.is_main else loader:
             result = trainer.train_step(batch)
             state.step += 1
@@ -366,3 +366,12 @@ def _loop(
         if not all_true(reason is None, info, trainer.device):  # stop together
             reason = reason or "stopped with the other processes"
     return reason
+
+
+def _epoch_label(epoch: int, train: TrainConfig) -> str:
+    """Progress label: ``epoch 3/200``, or ``epoch 3 (budget 400 steps)`` when a budget binds."""
+    budgets = [f"{train.max_steps} steps"] if train.max_steps else []
+    budgets += [f"{train.max_seconds:g} s"] if train.max_seconds else []
+    if budgets:
+        return f"epoch {epoch + 1} (budget {' or '.join(budgets)})"
+    return f"epoch {epoch + 1}/{train.epochs}"

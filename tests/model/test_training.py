@@ -308,3 +308,14 @@ def test_cli_synthetic_pretraining_then_fine_tune(tmp_path: Path) -> None:
     assert main(["train", str(dataset), "--out", str(fine), "--resume", "--max-steps", "2"]) == 0
     assert load_checkpoint(fine / "checkpoints" / "last.pt")["step"] == 2
     assert main(["train", "--out", str(fine)]) == 2  # neither DS nor --synthetic
+
+
+def test_progress_label_names_the_budget_that_binds() -> None:
+    from model.config import TrainConfig
+    from model.training import _epoch_label
+
+    assert _epoch_label(2, TrainConfig(epochs=200)) == "epoch 3/200"
+    # a step or time budget stops long before 10**6 epochs: show the budget instead
+    assert _epoch_label(2, TrainConfig(epochs=10**6, max_steps=40)) == "epoch 3 (budget 40 steps)"
+    label = _epoch_label(0, TrainConfig(max_steps=40, max_seconds=90.0))
+    assert label == "epoch 1 (budget 40 steps or 90 s)"
