@@ -409,8 +409,11 @@ def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any])
             y = min(getattr(r, key), 100.0)
             marker = "o" if r.precision == "fp32" else "s"
             axes.scatter([x], [y], marker=marker, color="tab:blue", zorder=3)
+            # fp32 labels above, reduced precision below: the two precisions of
+            # one network score alike and would print over each other
+            below = r.precision != "fp32"
             axes.annotate(f"{r.name} {r.precision}", (x, y), textcoords="offset points",
-                          xytext=(4, 4), fontsize=7)  # fmt: skip
+                          xytext=(4, -11 if below else 4), fontsize=7)  # fmt: skip
         front = sorted(((x, r) for x, r in timed if getattr(r, flag)), key=lambda p: p[0])
         if front:
             xs = [x for x, _ in front]
