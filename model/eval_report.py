@@ -127,14 +127,18 @@ def write_report(result: EvalResult, out_dir: Path) -> dict[str, Path]:
     atomic_write_text(files["markdown"], markdown_report(result))
     if result.samples:
         rows: list[list[np.ndarray | None]] = [list(row.images) for row in result.samples]
-        labels = [[f"input {row.label}", "output", "target"] for row in result.samples]
-        sheet = make_contact_sheet(
-            rows, labels, title=f"{result.checkpoint} on {result.data} ({result.convention})"
-        )
+        labels = [list(row.labels) for row in result.samples]
+        title = f"{_tail(result.checkpoint)} on {_tail(result.data)}, PSNR {result.convention}"
+        sheet = make_contact_sheet(rows, labels, title=title)
         write_image(files["contact_sheet"], sheet)
     else:
         del files["contact_sheet"]
     return files
+
+
+def _tail(path: str, parts: int = 3) -> str:
+    """The last ``parts`` components of a path, for titles that must fit an image."""
+    return "/".join(Path(path).parts[-parts:])
 
 
 def _json_safe(obj: Any) -> Any:

@@ -116,9 +116,9 @@ def summarize(scores: Sequence[ImageScore], of: Literal["output", "input"] = "ou
 
 @dataclass(frozen=True)
 class SheetRow:
-    """One contact-sheet row: float ``(H, W, C)`` input, output and target, and a label."""
+    """One contact-sheet row: float ``(H, W, C)`` input, output and target, a label for each."""
 
-    label: str
+    labels: tuple[str, str, str]
     difficulty: str | None
     images: tuple[np.ndarray, np.ndarray, np.ndarray]
 
@@ -233,10 +233,13 @@ def score_pairs(
         key = item.difficulty or ""
         if taken.get(key, 0) < (samples_per_difficulty if key else max_samples):
             taken[key] = taken.get(key, 0) + 1
-            label = f"{item.name} ({key})" if key else item.name
             samples.append(
                 SheetRow(
-                    f"{label}: {fmt_psnr(psnr)} dB",
+                    (
+                        f"{key or 'input'} input {fmt_psnr(input_psnr)} dB",
+                        f"output {fmt_psnr(psnr)} dB",
+                        f"target {item.name}",
+                    ),
                     item.difficulty,
                     (_to_numpy(x), _to_numpy(output), _to_numpy(target)),
                 )

@@ -148,6 +148,12 @@ def test_breakdown_by_difficulty_from_the_manifest(tmp_path: Path) -> None:
     )
     assert result.input_by_difficulty["hard"].psnr_db != result.by_difficulty["hard"].psnr_db
     assert [row.difficulty for row in result.samples] == ["easy", "medium", "hard", "hard"]
+    # each sheet row names its difficulty and shows input and output PSNR side by side
+    by_name = {s.name: s for s in result.scores}
+    for row in result.samples:
+        score = by_name[row.labels[2].removeprefix("target ")]
+        assert row.labels[0] == f"{score.difficulty} input {score.input_psnr_db:.2f} dB"
+        assert row.labels[1] == f"output {score.psnr_db:.2f} dB"
     markdown = write_report(result, tmp_path / "out")["markdown"].read_text()
     assert "| hard | 2 |" in markdown
     assert "skimage-gaussian" in markdown
