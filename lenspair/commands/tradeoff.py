@@ -48,7 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the comparison; returns the exit code."""
     from model.config import load_run_config
-    from model.tradeoff import DEFAULT_VARIANTS, parse_budget, run_tradeoff, tradeoff_markdown
+    from model.tradeoff import DEFAULT_VARIANTS, parse_budget, run_tradeoff
+    from model.tradeoff_report import tradeoff_markdown
 
     budget = parse_budget(args.budget)
     variants = DEFAULT_VARIANTS

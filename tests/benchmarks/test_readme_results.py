@@ -11,7 +11,8 @@ from lenspair.fsutil import atomic_write_json
 from model.eval_report import write_report
 from model.evaluation import EvalResult, ImageScore, breakdown, summarize
 from model.latency import Latency
-from model.tradeoff import TradeoffRow, mark_pareto, write_tradeoff
+from model.tradeoff import TradeoffRow, mark_pareto
+from model.tradeoff_report import write_tradeoff
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
