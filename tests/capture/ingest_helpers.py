@@ -19,22 +19,13 @@ from lenspair.imageio import write_image
 from rectify.rectification import StereoRectification, pixel_rays, project_rays
 from rectify.remap import apply_homography, pixel_grid
 from rectify.rig import CameraModel, StereoRig, read_kalibr, write_kalibr
+from tests.images import texture
 
 T0 = 1_700_000_000_000_000_000
 PERIOD_NS = 50_000_000
 WIDTH, HEIGHT = 320, 240
 DISPARITY = 2
 CROP = "240x160"
-
-
-def texture(shape: tuple[int, int], seed: int) -> np.ndarray:
-    """Multi-scale noise in [0, 1], float32."""
-    rng = np.random.default_rng(seed)
-    image = np.zeros(shape, np.float32)
-    for sigma, amplitude in [(1.0, 0.25), (3.0, 0.35), (8.0, 0.5), (25.0, 0.6)]:
-        noise = cv2.GaussianBlur(rng.standard_normal(shape).astype(np.float32), (0, 0), sigma)
-        image += amplitude * noise / noise.std()
-    return (image - image.min()) / (image.max() - image.min())
 
 
 def add_drops(image: np.ndarray, rng: np.random.Generator, count: int) -> np.ndarray:

@@ -16,13 +16,7 @@ from model.errors import ModelError
 from model.trainer import Trainer
 from tests.model.train_fixtures import make_checkpoint, tiny_config
 
-
-@pytest.fixture(autouse=True)
-def one_thread() -> object:
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_round_trip_restores_every_state(tmp_path: Path) -> None:

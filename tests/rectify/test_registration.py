@@ -14,18 +14,9 @@ from rectify.registration import (
 )
 from rectify.remap import apply_homography, pixel_grid
 from rectify.verification import measure_shift, verify_pair
+from tests.images import texture
 
 PARAMS = VerifyParams()
-
-
-def _texture(shape: tuple[int, int], seed: int) -> np.ndarray:
-    """Multi-scale noise in [0, 1], float32: corners and edges at every scale."""
-    rng = np.random.default_rng(seed)
-    image = np.zeros(shape, np.float32)
-    for sigma, amplitude in [(1.0, 0.25), (3.0, 0.35), (8.0, 0.5), (25.0, 0.6)]:
-        noise = cv2.GaussianBlur(rng.standard_normal(shape).astype(np.float32), (0, 0), sigma)
-        image += amplitude * noise / noise.std()
-    return (image - image.min()) / (image.max() - image.min())
 
 
 def _drops(
@@ -46,7 +37,7 @@ def _drops(
     return out, mask
 
 
-BIG = _texture((420, 620), 3)
+BIG = texture((420, 620), 3)
 
 
 def _pair(
@@ -86,7 +77,7 @@ def test_gain_compensation_removes_exposure_difference() -> None:
 
 def test_homography_recovered_despite_drops_and_exposure() -> None:
     truth = np.array([[1.003, 0.001, 6.5], [0.0005, 0.999, 0.3], [2e-6, 0.0, 1.0]])
-    big = _texture((520, 800), 7)
+    big = texture((520, 800), 7)
     rng = np.random.default_rng(2)
     frames = []
     for i in range(3):
