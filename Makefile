@@ -23,7 +23,14 @@ lint: $(VENV)/.installed
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 
+# mypy cannot follow setuptools' editable-install finder (which maps the stage
+# folders capture/, rectify/, ... to lenspair.capture, lenspair.rectify, ...), so
+# it checks a tree of symbolic links laid out as the installed package is.
+TYPECHECK_TREE := build/typecheck
 typecheck: $(VENV)/.installed
+	rm -rf $(TYPECHECK_TREE) && mkdir -p $(TYPECHECK_TREE)/lenspair
+	for f in lenspair/*.py lenspair/commands lenspair/core; do ln -s "$(CURDIR)/$$f" $(TYPECHECK_TREE)/lenspair/; done
+	for p in capture rectify dataset model simulate calib_samples; do ln -s "$(CURDIR)/$$p" $(TYPECHECK_TREE)/lenspair/$$p; done
 	$(BIN)/mypy
 
 unit: $(VENV)/.installed

@@ -20,11 +20,10 @@ from typing import Any
 
 import cv2
 import numpy as np
-
-from rectify.boards import Board, BoardRenderer, parse_board_spec
-from rectify.calibration import CalibrationModel, calibrate_from_detections, detect_views
-from rectify.rectification import project_rays
-from rectify.rig import CameraModel, DistortionModel, StereoRig
+from lenspair.rectify.boards import Board, BoardRenderer, parse_board_spec
+from lenspair.rectify.calibration import CalibrationModel, calibrate_from_detections, detect_views
+from lenspair.rectify.rectification import project_rays
+from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
 
 CASES: tuple[tuple[str, CalibrationModel], ...] = (
     ("chessboard:9x6:0.06", "pinhole-equi"),

@@ -25,8 +25,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from simulate.effects.spec import (
+from lenspair.simulate.effects.spec import (
     SHARP_DROPS,
     BrightnessSpec,
     DefocusSpec,
@@ -35,7 +34,7 @@ from simulate.effects.spec import (
     EffectsSpec,
     RaindropsSpec,
 )
-from simulate.render import apply_glass, render_effects, sample_glass
+from lenspair.simulate.render import apply_glass, render_effects, sample_glass
 
 HEIGHT, WIDTH = 540, 720
 RAIN = EffectsSpec(

@@ -8,7 +8,7 @@
   this AMD CPU), a oneDNN 1x1 convolution (a plain 4096x512x512 GEMM) and a
   oneDNN 3x3 convolution (an implicit 4096x256x2304 GEMM, the kernel family
   the network runs on); the roofline is ``FLOPs / best``;
-* the model's FLOPs (2 per MAC, :mod:`model.complexity`);
+* the model's FLOPs (2 per MAC, :mod:`lenspair.model.networks.complexity`);
 * fp32 latency (NCHW and channels-last) and its ratio to the roofline
   ``FLOPs / peak``;
 * bf16 latency for autocast and for bf16 weights, each NCHW and
@@ -46,11 +46,10 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F
-
-from model.complexity import describe
-from model.latency import tune_allocator
-from model.metrics import psnr
-from model.variants import AnomalyMitigator, build_model
+from lenspair.model.evaluation.latency import tune_allocator
+from lenspair.model.metrics import psnr
+from lenspair.model.networks.complexity import describe
+from lenspair.model.networks.variants import AnomalyMitigator, build_model
 
 HEIGHT, WIDTH = 360, 540
 LATENCY_TARGET_BF16_MS = 50.0

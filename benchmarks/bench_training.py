@@ -2,7 +2,7 @@
 
 ``python -m benchmarks.bench_training [--out DIR] [--device cpu|cuda] [--steps N]``:
 GEA (width 1, 9 residual blocks), mono, batch 8, 256 px crops, the whole
-training step of :class:`model.trainer.Trainer` (G/E/A forward, PatchGAN on
+training step of :class:`lenspair.model.training.step.Trainer` (G/E/A forward, PatchGAN on
 real and fake, LSGAN + feature matching + L2 — the perceptual term only if
 VGG19 weights are configured — two Adam updates, the NaN/Inf guard).
 
@@ -10,7 +10,7 @@ fp32 and mixed precision (bf16 autocast on the CPU, fp16 autocast with a
 GradScaler on CUDA) are timed round-robin after warm-up, so a load spike
 from other processes hits both alike; the median step time is quoted as
 steps/s and images/s, with the mixed/fp32 speed ratio. Inference latency as
-deployed (batch 1, 540x360, :mod:`model.latency`) is measured on the same
+deployed (batch 1, 540x360, :mod:`lenspair.model.evaluation.latency`) is measured on the same
 device at every precision. The load average at start and end is recorded.
 """
 
@@ -24,10 +24,9 @@ from pathlib import Path
 from typing import Any
 
 import torch
-
-from model.config import DataConfig, ModelConfig, RunConfig, TrainConfig
-from model.latency import measure_latency
-from model.trainer import Trainer
+from lenspair.model.evaluation.latency import measure_latency
+from lenspair.model.training.config import DataConfig, ModelConfig, RunConfig, TrainConfig
+from lenspair.model.training.step import Trainer
 
 
 def _config(amp: bool, batch: int) -> RunConfig:

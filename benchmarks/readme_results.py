@@ -23,10 +23,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from lenspair.core.fsutil import atomic_write_bytes, atomic_write_text
+from lenspair.core.report import Block, Heading, Image, Paragraph, Table, to_markdown
 from lenspair.demo import Budget, plan
 from lenspair.demo_report import calibration_blocks, load_json
-from lenspair.fsutil import atomic_write_bytes, atomic_write_text
-from lenspair.report import Block, Heading, Image, Paragraph, Table, to_markdown
 
 BEGIN = "<!-- results:begin (written by `make results`; do not edit by hand) -->"
 END = "<!-- results:end -->"

@@ -7,11 +7,11 @@ In order: the files given with ``--calib``, else the file named by
 
 from pathlib import Path
 
-from capture.errors import CaptureError
-from capture.recording import Recording, find_rig_file
-from capture.rigfile import RigFile
-from rectify.calib_io import load_calibration
-from rectify.rig import StereoRig
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.recording import Recording, find_rig_file
+from lenspair.capture.rigfile import RigFile
+from lenspair.rectify.calib_io import load_calibration
+from lenspair.rectify.rig import StereoRig
 
 CAMCHAIN_FILE = "camchain.yaml"
 

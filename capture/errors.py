@@ -1,6 +1,6 @@
 """Errors raised by the ``capture`` package."""
 
-from lenspair.errors import LenspairError
+from lenspair.core.errors import LenspairError
 
 
 class CaptureError(LenspairError):

@@ -14,9 +14,9 @@ the file names give the timestamps.
 
 from pathlib import Path
 
-from capture.errors import CaptureError
-from capture.folders import image_files, list_image_folder
-from capture.recording import (
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.folders import image_files, list_image_folder
+from lenspair.capture.recording import (
     CAMERAS,
     FrameProblem,
     FrameRef,
@@ -24,7 +24,7 @@ from capture.recording import (
     order_frames,
     recording_id_for,
 )
-from capture.rigfile import CameraName
+from lenspair.capture.rigfile import CameraName
 
 DATA_CSV = "data.csv"
 SENSOR_YAML = "sensor.yaml"

@@ -16,8 +16,8 @@ timestamp keep the first by name and record the other.
 import re
 from pathlib import Path
 
-from capture.errors import CaptureError
-from capture.recording import (
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.recording import (
     CAMERAS,
     FrameProblem,
     FrameRef,
@@ -25,7 +25,7 @@ from capture.recording import (
     order_frames,
     recording_id_for,
 )
-from capture.rigfile import CameraName
+from lenspair.capture.rigfile import CameraName
 
 IMAGE_SUFFIXES = frozenset({".png", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp"})
 FOLDER_NAMES: dict[CameraName, str] = {"cam0": "left", "cam1": "right"}

@@ -38,18 +38,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from capture import ingest_frames as frame_work
-from capture.calibration_source import find_calibration
-from capture.errors import CaptureError
-from capture.ingest_report import (
+from lenspair.capture import ingest_frames as frame_work
+from lenspair.capture.calibration_source import find_calibration
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.ingest_report import (
     frame_counts,
     in_output_pixels,
     rejection_reasons,
     write_report_if_changed,
 )
-from capture.ingested import PAIRS_FILE, REPORT_FILE, IngestReport, PairRecord, write_pairs
-from capture.journal import (
+from lenspair.capture.ingested import PAIRS_FILE, REPORT_FILE, IngestReport, PairRecord, write_pairs
+from lenspair.capture.journal import (
     JOURNAL_FILE,
     fingerprint,
     journal_line,
@@ -58,21 +57,28 @@ from capture.journal import (
     remove_temporaries,
     still_valid,
 )
-from capture.pairing import PairingResult, estimate_period_ns, pair_frames
-from capture.qa import QA_FILE, write_qa_sheet
-from capture.recording import FrameRef, Recording, load_frame, open_recording, resolve_obstructed
-from capture.rigfile import CameraName, RigFile
-from capture.side_check import check_obstructed_side
+from lenspair.capture.pairing import PairingResult, estimate_period_ns, pair_frames
+from lenspair.capture.qa import QA_FILE, write_qa_sheet
+from lenspair.capture.recording import (
+    FrameRef,
+    Recording,
+    load_frame,
+    open_recording,
+    resolve_obstructed,
+)
+from lenspair.capture.rigfile import CameraName, RigFile
+from lenspair.capture.side_check import check_obstructed_side
+from lenspair.rectify.crop import CropError, choose_crop
+from lenspair.rectify.rectification import StereoRectification
+from lenspair.rectify.registration import EstimationParams, VerifyParams, estimate_homography
+from lenspair.rectify.remap import target_map, valid_region
+from lenspair.rectify.rig import rig_to_kalibr
+
 from lenspair import __version__
-from lenspair.config import to_plain
-from lenspair.errors import LenspairError
-from lenspair.fsutil import atomic_write_json, atomic_write_text
-from lenspair.progress import progress
-from rectify.crop import CropError, choose_crop
-from rectify.rectification import StereoRectification
-from rectify.registration import EstimationParams, VerifyParams, estimate_homography
-from rectify.remap import target_map, valid_region
-from rectify.rig import rig_to_kalibr
+from lenspair.core.config import to_plain
+from lenspair.core.errors import LenspairError
+from lenspair.core.fsutil import atomic_write_json, atomic_write_text
+from lenspair.core.progress import progress
 
 log = logging.getLogger(__name__)
 

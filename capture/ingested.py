@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from lenspair.config import load_dataclass, to_plain
-from lenspair.errors import ConfigError
-from lenspair.fsutil import atomic_write_json, atomic_write_lines
+from lenspair.core.config import load_dataclass, to_plain
+from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import atomic_write_json, atomic_write_lines
 
 PAIRS_FILE = "pairs.jsonl"
 REPORT_FILE = "report.json"

@@ -14,11 +14,12 @@ import json
 from pathlib import Path
 from typing import Any
 
-from capture.ingest_frames import OUTPUT_KINDS
-from capture.ingested import PairRecord
-from lenspair.config import load_dataclass, to_plain
-from lenspair.errors import LenspairError
-from lenspair.fsutil import sha256_bytes, sha256_file
+from lenspair.capture.ingest_frames import OUTPUT_KINDS
+from lenspair.capture.ingested import PairRecord
+
+from lenspair.core.config import load_dataclass, to_plain
+from lenspair.core.errors import LenspairError
+from lenspair.core.fsutil import sha256_bytes, sha256_file
 
 JOURNAL_FILE = ".journal.jsonl"
 

@@ -25,8 +25,8 @@ import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from capture.errors import CaptureError
-from capture.rigfile import CameraName
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.rigfile import CameraName
 
 DUPLICATE = "duplicate timestamp"
 TAKEN = "closer match taken by another frame"

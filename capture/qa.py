@@ -10,10 +10,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from lenspair.capture.ingested import PairRecord
 
-from capture.ingested import PairRecord
-from lenspair.contact_sheet import make_contact_sheet
-from lenspair.imageio import read_image, to_float, write_image
+from lenspair.core.contact_sheet import make_contact_sheet
+from lenspair.core.imageio import read_image, to_float, write_image
 
 QA_FILE = "qa.png"
 DIFFERENCE_GAIN = 4.0

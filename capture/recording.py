@@ -2,8 +2,8 @@
 
 Usage::
 
-    from capture.recording import open_recording, resolve_obstructed
-    from capture.pairing import pair_frames
+    from lenspair.capture.recording import open_recording, resolve_obstructed
+    from lenspair.capture.pairing import pair_frames
 
     recording = open_recording(Path("runs/rain_01"))            # layout detected
     rig = resolve_obstructed(recording.path, override=None)     # rig.yaml / --obstructed
@@ -39,7 +39,7 @@ Contract of a :class:`Recording`:
   dropped without a record.
 * Pixels are read only by :meth:`Recording.load` / :func:`load_frame`; they
   return ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB arrays (the
-  :mod:`lenspair.imageio` convention) and raise :class:`ImageIOError` or
+  :mod:`lenspair.core.imageio` convention) and raise :class:`ImageIOError` or
   :class:`CaptureError` naming the file (or bag, topic and timestamp) for
   corrupt or truncated data. A :class:`FrameRef` is a small picklable value
   holding all that is needed to reopen its source, so worker processes can call
@@ -55,10 +55,10 @@ from pathlib import Path
 from typing import Literal, get_args
 
 import numpy as np
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.rigfile import RIG_FILE, CameraName, RigFile, read_rig_file
 
-from capture.errors import CaptureError
-from capture.rigfile import RIG_FILE, CameraName, RigFile, read_rig_file
-from lenspair.imageio import read_image
+from lenspair.core.imageio import read_image
 
 CAMERAS: tuple[CameraName, CameraName] = ("cam0", "cam1")
 Layout = Literal["euroc", "rosbag1", "rosbag2", "folders"]
@@ -184,7 +184,7 @@ def load_frame(frame: FrameRef) -> np.ndarray:
     """
     if frame.topic is None:
         return read_image(frame.source)
-    from capture.rosbag import load_bag_frame  # imports rosbags only when needed
+    from lenspair.capture.rosbag import load_bag_frame  # imports rosbags only when needed
 
     return load_bag_frame(frame)
 
@@ -206,7 +206,7 @@ def open_recording(path: Path, topics: tuple[str, str] | None = None) -> Recordi
     """
     # Readers are imported here, not at module level: they import this module's
     # types, and opening folders should not pay for importing rosbags.
-    from capture import euroc, folders, rosbag
+    from lenspair.capture import euroc, folders, rosbag
 
     path = Path(path)
     if not path.exists():

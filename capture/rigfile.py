@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from lenspair.config import dump_yaml, load_yaml
-from lenspair.fsutil import atomic_write_text
+from lenspair.core.config import dump_yaml, load_yaml
+from lenspair.core.fsutil import atomic_write_text
 
 CameraName = Literal["cam0", "cam1"]
 RIG_FILE = "rig.yaml"

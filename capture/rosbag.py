@@ -30,11 +30,8 @@ from typing import Any
 
 import cv2
 import numpy as np
-from rosbags.highlevel import AnyReader
-from rosbags.typesys import Stores, get_typestore
-
-from capture.errors import CaptureError
-from capture.recording import (
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.recording import (
     FrameProblem,
     FrameRef,
     Layout,
@@ -42,7 +39,9 @@ from capture.recording import (
     order_frames,
     recording_id_for,
 )
-from capture.rigfile import CameraName
+from lenspair.capture.rigfile import CameraName
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
 
 RAW_IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"

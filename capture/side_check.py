@@ -23,10 +23,10 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.rigfile import CameraName
 
-from capture.errors import CaptureError
-from capture.rigfile import CameraName
-from lenspair.imageio import check_image, to_float
+from lenspair.core.imageio import check_image, to_float
 
 Inferred = Literal["cam0", "cam1", "undetermined"]
 
@@ -125,7 +125,7 @@ def check_obstructed_side(
 
     Raises:
         CaptureError: no frames, or different numbers of frames per camera.
-        ValueError: an image breaks the :mod:`lenspair.imageio` convention.
+        ValueError: an image breaks the :mod:`lenspair.core.imageio` convention.
     """
     if len(images_cam0) != len(images_cam1) or not images_cam0:
         raise CaptureError(

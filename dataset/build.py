@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from capture.ingested import (
+from lenspair.capture.ingested import (
     PAIRS_FILE,
     REPORT_FILE,
     IngestReport,
@@ -40,8 +40,8 @@ from capture.ingested import (
     read_pairs,
     read_report,
 )
-from dataset import curation, splits
-from dataset.card import (
+from lenspair.dataset import curation, splits
+from lenspair.dataset.card import (
     CARD_FILE,
     DatasetCard,
     Grouping,
@@ -50,10 +50,10 @@ from dataset.card import (
     make_card,
     write_card,
 )
-from dataset.config import SPLITS, DatasetConfig
-from dataset.curation import Measured, Removals
-from dataset.errors import DatasetError
-from dataset.manifest import (
+from lenspair.dataset.config import SPLITS, DatasetConfig
+from lenspair.dataset.curation import Measured, Removals
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.manifest import (
     MANIFEST_FILE,
     REMOVED_FILE,
     ManifestRow,
@@ -61,12 +61,13 @@ from dataset.manifest import (
     write_manifest,
     write_removed,
 )
-from dataset.verify import dataset_difference
-from lenspair.config import dump_yaml
-from lenspair.errors import ImageIOError
-from lenspair.fsutil import atomic_write_text, sha256_bytes
-from lenspair.imageio import read_image, write_image
-from lenspair.progress import progress
+from lenspair.dataset.verify import dataset_difference
+
+from lenspair.core.config import dump_yaml
+from lenspair.core.errors import ImageIOError
+from lenspair.core.fsutil import atomic_write_text, sha256_bytes
+from lenspair.core.imageio import read_image, write_image
+from lenspair.core.progress import progress
 
 logger = logging.getLogger(__name__)
 CONFIG_FILE = "config.yaml"

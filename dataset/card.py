@@ -15,17 +15,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from lenspair.dataset.config import DIFFICULTIES, SPLITS, DatasetConfig
+from lenspair.dataset.curation import RULES
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.manifest import ManifestRow
 
-from dataset.config import DIFFICULTIES, SPLITS, DatasetConfig
-from dataset.curation import RULES
-from dataset.errors import DatasetError
-from dataset.manifest import ManifestRow
 from lenspair import __version__
-from lenspair.config import load_dataclass, to_plain
-from lenspair.contact_sheet import make_contact_sheet
-from lenspair.errors import ConfigError
-from lenspair.fsutil import atomic_write_json
-from lenspair.imageio import read_image
+from lenspair.core.config import load_dataclass, to_plain
+from lenspair.core.contact_sheet import make_contact_sheet
+from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.imageio import read_image
 
 CARD_FILE = "dataset.json"
 CARD_FORMAT = "lenspair-dataset/1"

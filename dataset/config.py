@@ -1,6 +1,6 @@
 """Typed configuration of ``dataset-build``: curation thresholds and split settings.
 
-Loaded from YAML through :func:`lenspair.config.load_yaml` (unknown keys and
+Loaded from YAML through :func:`lenspair.core.config.load_yaml` (unknown keys and
 wrong types are rejected with their dotted path); every key is optional::
 
     curation:
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
-from lenspair.config import load_yaml
+from lenspair.core.config import load_yaml
 
 SPLITS: tuple[str, str, str] = ("train", "val", "test")
 """Split names, in the order of :attr:`SplitConfig.fractions`."""

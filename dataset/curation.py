@@ -1,6 +1,6 @@
 """Curation rules: image figures of one pair, the filters, near-duplicates, difficulty.
 
-Pure functions on arrays (images per :mod:`lenspair.imageio`: ``uint8``/``uint16``,
+Pure functions on arrays (images per :mod:`lenspair.core.imageio`: ``uint8``/``uint16``,
 ``(H, W)`` or ``(H, W, 3)`` RGB) and :class:`capture.ingested.PairRecord`.
 
 Rules run in the order of :data:`RULES`; a pair is removed by the first rule
@@ -15,11 +15,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from lenspair.capture.ingested import PairRecord
+from lenspair.dataset.config import CurationConfig, Difficulty
 
-from capture.ingested import PairRecord
-from dataset.config import CurationConfig, Difficulty
-from lenspair.imageio import check_image, max_value
-from lenspair.quality import exposure_fractions, laplacian_variance, to_grey
+from lenspair.core.imageio import check_image, max_value
+from lenspair.core.quality import exposure_fractions, laplacian_variance, to_grey
 
 RULES: tuple[tuple[str, str], ...] = (
     ("ingest_rejected", "rejected by capture-ingest (status 'rejected' in pairs.jsonl)"),

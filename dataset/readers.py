@@ -16,7 +16,7 @@ Three layouts, detected automatically by :func:`open_paired`:
 
 Names are matched on the file stem (``.png`` and ``.jpg`` may pair up) and
 listed in natural order (``2`` before ``10``). Images follow
-:mod:`lenspair.imageio`: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB.
+:mod:`lenspair.core.imageio`: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB.
 """
 
 import re
@@ -26,11 +26,11 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from lenspair.dataset.card import CARD_FILE
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.manifest import MANIFEST_FILE, read_manifest
 
-from dataset.card import CARD_FILE
-from dataset.errors import DatasetError
-from dataset.manifest import MANIFEST_FILE, read_manifest
-from lenspair.imageio import read_image
+from lenspair.core.imageio import read_image
 
 Layout = Literal["lenspair", "paired", "raindrop"]
 IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".tif", ".tiff")

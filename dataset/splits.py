@@ -28,7 +28,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-from dataset.config import SPLITS, SplitConfig
+from lenspair.dataset.config import SPLITS, SplitConfig
 
 GroupMode = Literal["recording", "segment"]
 

@@ -13,7 +13,7 @@ import sys
 from types import ModuleType
 
 from lenspair import __version__
-from lenspair.errors import LenspairError
+from lenspair.core.errors import LenspairError
 
 # name -> (module, one-line summary). A plain table: no registry magic.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -69,6 +69,16 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     selected = next((a for a in argv if a in COMMANDS), None)
     parser = build_parser(selected)
+    if not argv:
+        parser.print_help(sys.stderr)
+        return 2
+    first = next((a for a in argv if not a.startswith("-")), None)
+    if selected is None and first is not None:
+        print(
+            f"lenspair: unknown command {first!r}; valid commands: {', '.join(COMMANDS)}",
+            file=sys.stderr,
+        )
+        return 2
     args = parser.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,

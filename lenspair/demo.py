@@ -29,12 +29,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from lenspair.errors import LenspairError
-from lenspair.fsutil import atomic_write_json, atomic_write_text, sha256_file
+from lenspair.core.errors import LenspairError
+from lenspair.core.fsutil import atomic_write_json, atomic_write_text, sha256_file
+from lenspair.core.samples import sample_path
 
 log = logging.getLogger(__name__)
 
-SAMPLES = Path(__file__).resolve().parent.parent / "calib_samples"
 RECORDINGS = ("rain", "heavy_rain", "dust_swapped")
 """The anomaly recordings the demo simulates and ingests (``calib_samples/<name>.yaml``):
 light rain on cam1 (easy pairs), heavy, changing rain on cam1 (medium and hard
@@ -97,7 +97,7 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
     stages = [
         Stage(
             "simulate-board",
-            ("simulate", str(SAMPLES / "chessboard.yaml"), "--out", str(rec / "board")),
+            ("simulate", str(sample_path("chessboard.yaml")), "--out", str(rec / "board")),
             rec / "board",
         ),
         *(
@@ -105,7 +105,7 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
                 f"simulate-{name}",
                 (
                     "simulate",
-                    str(SAMPLES / f"{name}.yaml"),
+                    str(sample_path(f"{name}.yaml")),
                     "--out",
                     str(rec / name),
                     "--frames",

@@ -11,9 +11,9 @@ from pathlib import Path
 from typing import Any
 
 from lenspair import __version__
-from lenspair.fsutil import atomic_write_text
-from lenspair.report import Block, Code, Heading, Image, Paragraph, Table, to_html, to_markdown
-from rectify.rig import read_kalibr
+from lenspair.core.fsutil import atomic_write_text
+from lenspair.core.report import Block, Code, Heading, Image, Paragraph, Table, to_html, to_markdown
+from lenspair.rectify.rig import read_kalibr
 
 
 def load_json(path: Path) -> Any:

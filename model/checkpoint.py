@@ -20,13 +20,13 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from lenspair.model.errors import ModelError
+from lenspair.model.training.config import ModelConfig, RunConfig, run_config_from_dict
 from torch import nn
 
-from lenspair.config import to_plain
-from lenspair.errors import ConfigError
-from lenspair.fsutil import atomic_write
-from model.config import ModelConfig, RunConfig, run_config_from_dict
-from model.errors import ModelError
+from lenspair.core.config import to_plain
+from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import atomic_write
 
 CHECKPOINT_FORMAT = "lenspair-checkpoint"
 CHECKPOINT_VERSION = 1
@@ -106,7 +106,7 @@ def build_network(config: ModelConfig) -> nn.Module:
         ModelError: ``channels`` is not resolved yet.
 
     """
-    from model.variants import build_model
+    from lenspair.model.networks.variants import build_model
 
     if config.channels is None:
         raise ModelError("model.channels is unresolved; cannot build the network")

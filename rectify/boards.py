@@ -26,10 +26,9 @@ from typing import Literal
 
 import cv2
 import numpy as np
-
-from rectify.errors import RectifyError
-from rectify.rectification import pixel_rays
-from rectify.rig import CameraModel
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rectification import pixel_rays
+from lenspair.rectify.rig import CameraModel
 
 BoardKind = Literal["chessboard", "charuco"]
 DEFAULT_DICTIONARY = "DICT_5X5_100"

@@ -14,11 +14,10 @@ from typing import Any
 
 import cv2
 import numpy as np
-
-from rectify.boards import Board, Detection
-from rectify.errors import RectifyError
-from rectify.rectification import pixel_rays, project_rays
-from rectify.rig import CameraModel, DistortionModel
+from lenspair.rectify.boards import Board, Detection
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rectification import pixel_rays, project_rays
+from lenspair.rectify.rig import CameraModel, DistortionModel
 
 CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 MIN_COMMON = 6

@@ -46,9 +46,8 @@ from typing import Any
 import cv2
 import numpy as np
 import yaml
-
-from rectify.errors import RectifyError
-from rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
 
 _CAMERA_KEYS = {
     "cam0": (("K1", "M1", "cameraMatrix1", "camera_matrix_1", "K_left", "camera_matrix_left"),

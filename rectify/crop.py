@@ -21,8 +21,7 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
-
-from rectify.errors import RectifyError
+from lenspair.rectify.errors import RectifyError
 
 
 class CropError(RectifyError):

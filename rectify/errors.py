@@ -1,6 +1,6 @@
 """Errors raised by the ``rectify`` package."""
 
-from lenspair.errors import LenspairError
+from lenspair.core.errors import LenspairError
 
 
 class RectifyError(LenspairError):

@@ -36,9 +36,8 @@ from typing import Literal
 
 import cv2
 import numpy as np
-
-from rectify.errors import RectifyError
-from rectify.rig import CameraModel, StereoRig
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rig import CameraModel, StereoRig
 
 View = Literal["cam0", "cam1"]
 OUTSIDE = -1000.0

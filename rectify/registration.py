@@ -37,8 +37,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-
-from rectify.errors import RectifyError
+from lenspair.rectify.errors import RectifyError
 
 
 class RegistrationError(RectifyError):

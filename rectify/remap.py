@@ -22,8 +22,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-
-from rectify.crop import Crop
+from lenspair.rectify.crop import Crop
 
 PointMap = Callable[[np.ndarray], np.ndarray]
 """``(N, 2)`` float64 rectified pixel coordinates -> ``(N, 2)`` float64 raw pixel coordinates."""

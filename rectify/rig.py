@@ -18,9 +18,9 @@ from typing import Any, Literal
 
 import numpy as np
 import yaml
+from lenspair.rectify.errors import RectifyError
 
-from lenspair.fsutil import atomic_write_text
-from rectify.errors import RectifyError
+from lenspair.core.fsutil import atomic_write_text
 
 DistortionModel = Literal["radtan", "equidistant"]
 

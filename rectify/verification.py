@@ -43,8 +43,13 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-
-from rectify.registration import VerifyParams, anomaly_regions, compensate_gain, disk, to_u8
+from lenspair.rectify.registration import (
+    VerifyParams,
+    anomaly_regions,
+    compensate_gain,
+    disk,
+    to_u8,
+)
 
 
 @dataclass(frozen=True)

@@ -18,14 +18,18 @@ detectors need). Reflectances in linear light: black 0.03, white 0.80.
 
 import cv2
 import numpy as np
-
-from rectify.rig import CameraModel
-from simulate.boardspec import BoardSpec
-from simulate.camera import project, unproject
-from simulate.errors import SimulateError
-from simulate.scene import Plane
-from simulate.textures import Texture, build_texture
-from simulate.transforms import axis_angle, invert_transform, make_transform, transform_points
+from lenspair.rectify.rig import CameraModel
+from lenspair.simulate.boardspec import BoardSpec
+from lenspair.simulate.camera import project, unproject
+from lenspair.simulate.errors import SimulateError
+from lenspair.simulate.scene import Plane
+from lenspair.simulate.textures import Texture, build_texture
+from lenspair.simulate.transforms import (
+    axis_angle,
+    invert_transform,
+    make_transform,
+    transform_points,
+)
 
 BLACK = 0.03
 WHITE = 0.80

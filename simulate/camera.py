@@ -19,8 +19,7 @@ once per camera (:func:`ray_map`), never per frame.
 from dataclasses import dataclass
 
 import numpy as np
-
-from rectify.rig import CameraModel
+from lenspair.rectify.rig import CameraModel
 
 _NEWTON_STEPS = 30
 _TOLERANCE = 1e-10

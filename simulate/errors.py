@@ -1,6 +1,6 @@
 """Errors raised by the ``simulate`` package."""
 
-from lenspair.errors import LenspairError
+from lenspair.core.errors import LenspairError
 
 
 class SimulateError(LenspairError):

@@ -8,9 +8,8 @@ offset ``start_m`` (see :class:`simulate.spec.MotionSpec` for the formula).
 from dataclasses import dataclass
 
 import numpy as np
-
-from simulate.spec import MotionSpec, RecordingSpec
-from simulate.transforms import make_transform, rotation_x, rotation_y, rotation_z
+from lenspair.simulate.spec import MotionSpec, RecordingSpec
+from lenspair.simulate.transforms import make_transform, rotation_x, rotation_y, rotation_z
 
 
 def body_pose(motion: MotionSpec, seconds: float) -> np.ndarray:

@@ -29,24 +29,24 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from lenspair.capture.rigfile import RigFile, write_rig_file
+from lenspair.rectify.rig import CameraModel, StereoRig, write_kalibr
+from lenspair.simulate import boards, truth
+from lenspair.simulate.camera import project, ray_map
+from lenspair.simulate.errors import SimulateError
+from lenspair.simulate.euroc import camera_folder, image_name, write_data_csv, write_sensor_yaml
+from lenspair.simulate.motion import body_pose, make_clock
+from lenspair.simulate.render import GlassState, advance_glass, apply_glass, sample_glass
+from lenspair.simulate.scene import Plane, build_planes, render_view
+from lenspair.simulate.sensor import expose
+from lenspair.simulate.spec import SceneSpec
+from lenspair.simulate.stereo import body_from_cameras, rig_from_spec
+from lenspair.simulate.transforms import invert_transform, transform_points
 
-from capture.rigfile import RigFile, write_rig_file
-from lenspair.config import dump_yaml
-from lenspair.fsutil import atomic_write_json, atomic_write_text
-from lenspair.imageio import write_image
-from lenspair.progress import progress
-from rectify.rig import CameraModel, StereoRig, write_kalibr
-from simulate import boards, truth
-from simulate.camera import project, ray_map
-from simulate.errors import SimulateError
-from simulate.euroc import camera_folder, image_name, write_data_csv, write_sensor_yaml
-from simulate.motion import body_pose, make_clock
-from simulate.render import GlassState, advance_glass, apply_glass, sample_glass
-from simulate.scene import Plane, build_planes, render_view
-from simulate.sensor import expose
-from simulate.spec import SceneSpec
-from simulate.stereo import body_from_cameras, rig_from_spec
-from simulate.transforms import invert_transform, transform_points
+from lenspair.core.config import dump_yaml
+from lenspair.core.fsutil import atomic_write_json, atomic_write_text
+from lenspair.core.imageio import write_image
+from lenspair.core.progress import progress
 
 CAMERAS = ("cam0", "cam1")
 _STREAMS = ("clock", "board", "glass", "glass_changes", "noise")

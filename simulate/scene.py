@@ -20,10 +20,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from simulate.camera import RayMap
-from simulate.spec import PlaneSpec
-from simulate.textures import (
+from lenspair.simulate.camera import RayMap
+from lenspair.simulate.spec import PlaneSpec
+from lenspair.simulate.textures import (
     Texture,
     build_texture,
     load_texture_image,
@@ -31,7 +30,7 @@ from simulate.textures import (
     sample_texture,
     to_channels,
 )
-from simulate.transforms import rotation_xyz_deg
+from lenspair.simulate.transforms import rotation_xyz_deg
 
 
 @dataclass(frozen=True)

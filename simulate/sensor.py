@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from lenspair.imageio import from_float, from_linear
+from lenspair.core.imageio import from_float, from_linear
 
 
 def expose(

@@ -1,7 +1,7 @@
 """Scene specs: the YAML that ``lenspair simulate`` renders into a stereo recording.
 
 A scene spec is loaded with :func:`load_scene` through the strict loader of
-:mod:`lenspair.config`, so an unknown key, a wrong type or a bad value is
+:mod:`lenspair.core.config`, so an unknown key, a wrong type or a bad value is
 reported with its dotted path (``planes[1].depth_m: expected float, got 'far'``).
 
 Frames and units. The *world* frame is the rig *body* frame at time 0, and
@@ -35,13 +35,13 @@ from pathlib import Path
 from typing import Any, Literal, Union, get_args, get_origin
 
 import yaml
+from lenspair.simulate.boardspec import BoardSpec
+from lenspair.simulate.effects.spec import EffectsSpec
+from lenspair.simulate.rigspec import RigSpec
+from lenspair.simulate.textures import check_texture
 
-from lenspair.config import load_dataclass, load_yaml
-from lenspair.errors import ConfigError
-from simulate.boardspec import BoardSpec
-from simulate.effects.spec import EffectsSpec
-from simulate.rigspec import RigSpec
-from simulate.textures import check_texture
+from lenspair.core.config import load_dataclass, load_yaml
+from lenspair.core.errors import ConfigError
 
 CameraName = Literal["cam0", "cam1"]
 Vector3 = tuple[float, float, float]

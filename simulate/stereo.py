@@ -6,10 +6,9 @@ when ``cam1_rotated_180`` is set; nothing else special-cases that mounting.
 """
 
 import numpy as np
-
-from rectify.rig import CameraModel, StereoRig
-from simulate.rigspec import CameraSpec, RigSpec
-from simulate.transforms import invert_transform, make_transform, rotation_xyz_deg
+from lenspair.rectify.rig import CameraModel, StereoRig
+from lenspair.simulate.rigspec import CameraSpec, RigSpec
+from lenspair.simulate.transforms import invert_transform, make_transform, rotation_xyz_deg
 
 ROTATED_180 = np.diag([-1.0, -1.0, 1.0])
 """Exact rotation by 180 deg about the optical (z) axis."""

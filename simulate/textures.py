@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 import skimage.data
 
-from lenspair.errors import ConfigError, ImageIOError
-from lenspair.imageio import read_image, to_float, to_linear
+from lenspair.core.errors import ConfigError, ImageIOError
+from lenspair.core.imageio import read_image, to_float, to_linear
 
 NAMES: dict[str, Callable[[], np.ndarray]] = {
     "astronaut": skimage.data.astronaut,

@@ -49,9 +49,8 @@ inner corners in that camera, in ``object_points`` order.
 from typing import Any
 
 import numpy as np
-
-from simulate.scene import Plane
-from simulate.transforms import invert_transform
+from lenspair.simulate.scene import Plane
+from lenspair.simulate.transforms import invert_transform
 
 FORMAT = "lenspair-simulate-truth/1"
 CONVENTION = (

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from lenspair.cli import main
+from lenspair.core.imageio import read_image
 from lenspair.demo import QUICK, plan
-from lenspair.imageio import read_image
 
 pytestmark = pytest.mark.slow
 

@@ -25,18 +25,18 @@ from pathlib import Path
 
 import numpy as np
 
-from lenspair.errors import LenspairError
-from lenspair.fsutil import atomic_write_json
-from lenspair.progress import progress
-from rectify.boards import Detection, detect_corners, parse_board_spec
-from rectify.calibration import (
+from lenspair.core.errors import LenspairError
+from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.progress import progress
+from lenspair.rectify.boards import Detection, detect_corners, parse_board_spec
+from lenspair.rectify.calibration import (
     MODELS,
     CalibrationOptions,
     calibrate_from_detections,
     parse_model,
 )
-from rectify.errors import RectifyError
-from rectify.rig import StereoRig, write_kalibr
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rig import StereoRig, write_kalibr
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -78,8 +78,8 @@ def _spread(count: int, limit: int) -> list[int]:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lenspair calibrate``; returns the exit code."""
-    from capture.pairing import pair_frames  # imported here: only this command needs them
-    from capture.recording import open_recording
+    from lenspair.capture.pairing import pair_frames  # imported here: only this command needs them
+    from lenspair.capture.recording import open_recording
 
     board = parse_board_spec(args.board)
     model = parse_model(args.model)

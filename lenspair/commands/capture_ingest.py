@@ -22,8 +22,8 @@ was kept, 2 on an error or when no usable pair remains.
 import argparse
 from pathlib import Path
 
-from capture.ingest import ingest_recording
-from rectify.crop import parse_size
+from lenspair.capture.ingest import ingest_recording
+from lenspair.rectify.crop import parse_size
 
 
 def _size(text: str) -> tuple[int, int]:

@@ -27,11 +27,11 @@ exits with status 1 and a list of problems when anything is off.
 import argparse
 from pathlib import Path
 
-from dataset.build import build_dataset
-from dataset.config import SPLITS, load_dataset_config, parse_fractions, with_overrides
-from dataset.curation import RULE_NAMES
-from dataset.verify import verify_dataset
-from lenspair.errors import ConfigError
+from lenspair.core.errors import ConfigError
+from lenspair.dataset.build import build_dataset
+from lenspair.dataset.config import SPLITS, load_dataset_config, parse_fractions, with_overrides
+from lenspair.dataset.curation import RULE_NAMES
+from lenspair.dataset.verify import verify_dataset
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -21,7 +21,12 @@ from lenspair.demo import QUICK, Budget, run_demo
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``lenspair demo``."""
-    parser.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("demo_out"),
+        help="output folder (default: demo_out in the current folder)",
+    )
     parser.add_argument(
         "--quick",
         action="store_true",
@@ -31,6 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns 0 on success."""
+    print(f"lenspair demo: writing to {args.out.resolve()}", flush=True)
     report = run_demo(args.out, QUICK if args.quick else Budget())
     print(f"lenspair demo: report written to {report} (and {report.with_suffix('.html')})")
     return 0

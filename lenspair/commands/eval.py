@@ -24,8 +24,8 @@ count and FLOPs at 540x360 and exits.
 import argparse
 from pathlib import Path
 
-from lenspair.device import resolve_device
-from lenspair.errors import ConfigError
+from lenspair.core.device import resolve_device
+from lenspair.core.errors import ConfigError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,12 +55,12 @@ def default_out(checkpoint: Path, split: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate (or describe) a checkpoint; returns the exit code."""
-    from model.checkpoint import load_model
-    from model.eval_report import markdown_report, write_report
-    from model.evaluation import evaluate_checkpoint
+    from lenspair.model.checkpoint import load_model
+    from lenspair.model.evaluation.evaluate import evaluate_checkpoint
+    from lenspair.model.evaluation.report import markdown_report, write_report
 
     if args.describe:
-        from model.complexity import describe
+        from lenspair.model.networks.complexity import describe
 
         loaded = load_model(args.checkpoint, "cpu")
         channels = loaded.config.model.channels or 1

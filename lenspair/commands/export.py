@@ -15,8 +15,8 @@ import argparse
 import json
 from pathlib import Path
 
-from lenspair.errors import ConfigError
-from lenspair.fsutil import atomic_write_text
+from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import atomic_write_text
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Export and check; returns the exit code."""
-    from model.export import export_checkpoint, parse_size
+    from lenspair.model.evaluation.export import export_checkpoint, parse_size
 
     if args.onnx is None and args.torchscript is None:
         raise ConfigError("give --onnx FILE and/or --torchscript FILE")

@@ -17,8 +17,8 @@ import argparse
 import logging
 from pathlib import Path
 
-from simulate.recording import check_output_folder, simulate_recording
-from simulate.spec import load_scene, with_overrides
+from lenspair.simulate.recording import check_output_folder, simulate_recording
+from lenspair.simulate.spec import load_scene, with_overrides
 
 log = logging.getLogger(__name__)
 

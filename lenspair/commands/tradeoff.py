@@ -24,8 +24,8 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from lenspair.device import resolve_device
-from lenspair.errors import ConfigError
+from lenspair.core.device import resolve_device
+from lenspair.core.errors import ConfigError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,9 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the comparison; returns the exit code."""
-    from model.config import load_run_config
-    from model.tradeoff import DEFAULT_VARIANTS, parse_budget, run_tradeoff
-    from model.tradeoff_report import tradeoff_markdown
+    from lenspair.model.evaluation.tradeoff import DEFAULT_VARIANTS, parse_budget, run_tradeoff
+    from lenspair.model.evaluation.tradeoff_report import tradeoff_markdown
+    from lenspair.model.training.config import load_run_config
 
     budget = parse_budget(args.budget)
     variants = DEFAULT_VARIANTS

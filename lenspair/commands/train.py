@@ -33,8 +33,8 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from lenspair.device import resolve_device
-from lenspair.errors import ConfigError
+from lenspair.core.device import resolve_device
+from lenspair.core.errors import ConfigError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -87,9 +87,9 @@ def _overrides(config: Any, args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Train one run; returns the exit code."""
-    from model.config import load_run_config
-    from model.training import fit, resolve_config, resume_config
-    from model.training_data import paired_training_data, synthetic_training_data
+    from lenspair.model.training.config import load_run_config
+    from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
+    from lenspair.model.training.loop import fit, resolve_config, resume_config
 
     if (args.dataset is None) == (args.synthetic is None):
         raise ConfigError("give a dataset DS, or --synthetic IMAGES_DIR (not both)")

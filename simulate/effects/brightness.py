@@ -8,8 +8,7 @@ gain drawn from ``gain``, applied to its colour in linear light. Gains above
 """
 
 import numpy as np
-
-from simulate.effects.spec import BrightnessSpec
+from lenspair.simulate.effects.spec import BrightnessSpec
 
 
 def sample_gains(spec: BrightnessSpec, count: int, rng: np.random.Generator) -> np.ndarray:

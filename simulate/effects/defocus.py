@@ -16,8 +16,7 @@ import math
 
 import cv2
 import numpy as np
-
-from simulate.effects.spec import DefocusSpec
+from lenspair.simulate.effects.spec import DefocusSpec
 
 
 def sample_shifts(spec: DefocusSpec, rng: np.random.Generator) -> np.ndarray:

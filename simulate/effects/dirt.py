@@ -13,9 +13,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-from simulate.effects.layer import Sprites, box_grid, clip_boxes
-from simulate.effects.spec import DirtSpec
+from lenspair.simulate.effects.layer import Sprites, box_grid, clip_boxes
+from lenspair.simulate.effects.spec import DirtSpec
 
 _HARMONICS = np.arange(2, 6)
 

@@ -18,8 +18,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-from simulate.effects.spec import DustSpec
+from lenspair.simulate.effects.spec import DustSpec
 
 MAX_PATCHES = 4096
 """Upper bound on the number of dust patches (keeps tiny ``scale_px`` tractable)."""

@@ -44,9 +44,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-
-from simulate.effects.layer import Sprites, box_grid, clip_boxes
-from simulate.effects.spec import RaindropsSpec
+from lenspair.simulate.effects.layer import Sprites, box_grid, clip_boxes
+from lenspair.simulate.effects.spec import RaindropsSpec
 
 MAX_LEVEL = 5
 """Deepest pyramid level a drop samples from (1/32 resolution)."""

@@ -1,9 +1,14 @@
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-
-from capture.errors import CaptureError
-from capture.pairing import DUPLICATE, TAKEN, PairingResult, estimate_period_ns, pair_frames
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.pairing import (
+    DUPLICATE,
+    TAKEN,
+    PairingResult,
+    estimate_period_ns,
+    pair_frames,
+)
 
 MS = 1_000_000
 

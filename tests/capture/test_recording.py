@@ -4,17 +4,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from capture.errors import CaptureError
-from capture.recording import (
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.recording import (
     FrameRef,
     load_frame,
     open_recording,
     resolve_obstructed,
 )
-from capture.rigfile import RigFile, write_rig_file
-from lenspair.errors import ConfigError, ImageIOError
-from lenspair.imageio import write_image
+from lenspair.capture.rigfile import RigFile, write_rig_file
+
+from lenspair.core.errors import ConfigError, ImageIOError
+from lenspair.core.imageio import write_image
 
 MS = 1_000_000
 T0 = 1_403_636_579_763_555_584

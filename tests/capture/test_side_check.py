@@ -1,9 +1,8 @@
 import cv2
 import numpy as np
 import pytest
-
-from capture.errors import CaptureError
-from capture.side_check import check_obstructed_side, tile_detail
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.side_check import check_obstructed_side, tile_detail
 
 
 def _textured(rng: np.random.Generator, shape: tuple[int, int] = (120, 160)) -> np.ndarray:

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from lenspair.capture.ingested import IngestReport, PairRecord, write_pairs, write_report
 
-from capture.ingested import IngestReport, PairRecord, write_pairs, write_report
-from lenspair.fsutil import sha256_file
-from lenspair.imageio import write_image
+from lenspair.core.fsutil import sha256_file
+from lenspair.core.imageio import write_image
 
 T0_NS = 1_700_000_000_000_000_000
 DT_NS = 50_000_000

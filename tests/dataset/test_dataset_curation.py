@@ -3,9 +3,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
-from capture.ingested import PairRecord
-from dataset.config import (
+from lenspair.capture.ingested import PairRecord
+from lenspair.dataset.config import (
     CurationConfig,
     DatasetConfig,
     SplitConfig,
@@ -13,7 +12,7 @@ from dataset.config import (
     parse_fractions,
     with_overrides,
 )
-from dataset.curation import (
+from lenspair.dataset.curation import (
     PSNR_CAP_DB,
     RULE_NAMES,
     Measured,
@@ -24,7 +23,8 @@ from dataset.curation import (
     measure_pair,
     quality_rule,
 )
-from lenspair.errors import ConfigError
+
+from lenspair.core.errors import ConfigError
 from tests.dataset.dataset_synth import add_drops, scene
 
 

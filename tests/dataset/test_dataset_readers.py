@@ -2,13 +2,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from lenspair.dataset.build import build_dataset
+from lenspair.dataset.config import DatasetConfig, SplitConfig
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.manifest import read_manifest
+from lenspair.dataset.readers import PairedDataset, detect_layout, natural_key, open_paired
 
-from dataset.build import build_dataset
-from dataset.config import DatasetConfig, SplitConfig
-from dataset.errors import DatasetError
-from dataset.manifest import read_manifest
-from dataset.readers import PairedDataset, detect_layout, natural_key, open_paired
-from lenspair.imageio import write_image
+from lenspair.core.imageio import write_image
 from tests.dataset.dataset_synth import RecordingFactory
 
 

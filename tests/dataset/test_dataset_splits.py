@@ -2,9 +2,8 @@ import itertools
 
 from hypothesis import given
 from hypothesis import strategies as st
-
-from dataset.config import SplitConfig
-from dataset.splits import (
+from lenspair.dataset.config import SplitConfig
+from lenspair.dataset.splits import (
     SplitItem,
     choose_mode,
     gap_items,

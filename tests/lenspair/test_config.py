@@ -4,8 +4,8 @@ from typing import Literal
 
 import pytest
 
-from lenspair.config import dump_yaml, load_dataclass, load_yaml
-from lenspair.errors import ConfigError
+from lenspair.core.config import dump_yaml, load_dataclass, load_yaml
+from lenspair.core.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from lenspair.contact_sheet import fit_into, make_contact_sheet, to_display
+from lenspair.core.contact_sheet import fit_into, make_contact_sheet, to_display
 
 
 @pytest.mark.parametrize(

@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lenspair.fsutil import atomic_write, atomic_write_text
-from lenspair.imageio import write_image
+from lenspair.core.fsutil import atomic_write, atomic_write_text
+from lenspair.core.imageio import write_image
 
 
 def _mode(path: Path) -> int:

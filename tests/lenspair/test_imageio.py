@@ -5,9 +5,16 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from lenspair.errors import ImageIOError
-from lenspair.fsutil import sha256_file
-from lenspair.imageio import from_float, from_linear, read_image, to_float, to_linear, write_image
+from lenspair.core.errors import ImageIOError
+from lenspair.core.fsutil import sha256_file
+from lenspair.core.imageio import (
+    from_float,
+    from_linear,
+    read_image,
+    to_float,
+    to_linear,
+    write_image,
+)
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])

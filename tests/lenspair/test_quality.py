@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from lenspair.quality import exposure_fractions, laplacian_variance, to_grey
+from lenspair.core.quality import exposure_fractions, laplacian_variance, to_grey
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])

@@ -2,9 +2,7 @@ from pathlib import Path
 
 import pytest
 import torch
-
-from lenspair.config import to_plain
-from model.checkpoint import (
+from lenspair.model.checkpoint import (
     CHECKPOINT_FORMAT,
     checkpoint_config,
     load_checkpoint,
@@ -12,8 +10,10 @@ from model.checkpoint import (
     save_checkpoint,
     to_cpu,
 )
-from model.errors import ModelError
-from model.trainer import Trainer
+from lenspair.model.errors import ModelError
+from lenspair.model.training.step import Trainer
+
+from lenspair.core.config import to_plain
 from tests.model.train_fixtures import make_checkpoint, tiny_config
 
 pytestmark = pytest.mark.usefixtures("one_thread")

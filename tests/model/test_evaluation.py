@@ -7,18 +7,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from lenspair.dataset.manifest import ManifestRow, write_manifest
+from lenspair.dataset.readers import open_paired
+from lenspair.model.checkpoint import load_model
+from lenspair.model.evaluation.evaluate import PSNR_CAP_DB, evaluate_checkpoint, summarize
+from lenspair.model.evaluation.latency import measure_latency, percentile, tune_allocator
+from lenspair.model.evaluation.report import write_report
+from lenspair.model.metrics import MetricConvention, image_metrics
+from lenspair.model.networks.variants import build_model
+from lenspair.model.training.pairs import to_tensor
 
-from dataset.manifest import ManifestRow, write_manifest
-from dataset.readers import open_paired
 from lenspair.cli import main
-from lenspair.imageio import write_image
-from model.checkpoint import load_model
-from model.data import to_tensor
-from model.eval_report import write_report
-from model.evaluation import PSNR_CAP_DB, evaluate_checkpoint, summarize
-from model.latency import measure_latency, percentile, tune_allocator
-from model.metrics import MetricConvention, image_metrics
-from model.variants import build_model
+from lenspair.core.imageio import write_image
 from tests.model.train_fixtures import (
     clean_image,
     make_checkpoint,

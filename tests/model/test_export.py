@@ -4,11 +4,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from lenspair.model.checkpoint import load_model
+from lenspair.model.errors import ModelError
+from lenspair.model.evaluation.export import check_image, export_torchscript, parse_size
 
 from lenspair.cli import main
-from model.checkpoint import load_model
-from model.errors import ModelError
-from model.export import check_image, export_torchscript, parse_size
 from tests.model.train_fixtures import make_checkpoint
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -84,7 +84,7 @@ def test_failing_dynamo_exporter_falls_back_to_the_legacy_one(
     pytest.importorskip("onnx")
     import importlib.util
 
-    from model import export
+    from lenspair.model.evaluation import export
 
     real = importlib.util.find_spec
     monkeypatch.setattr(  # pretend onnxscript is installed; the dynamo exporter then fails

@@ -2,11 +2,10 @@
 
 import pytest
 import torch
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.complexity import ModelSummary, count_flops, count_parameters, describe
+from lenspair.model.networks.variants import build_model
 from torch import nn
-
-from model.complexity import ModelSummary, count_flops, count_parameters, describe
-from model.errors import ModelError
-from model.variants import build_model
 
 
 def test_conv_flops_are_two_per_mac() -> None:

@@ -2,10 +2,9 @@
 
 import pytest
 import torch
-
-from model.discriminator import PatchDiscriminator
-from model.errors import ModelError
-from model.variants import build_discriminator
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.discriminator import PatchDiscriminator
+from lenspair.model.networks.variants import build_discriminator
 
 
 def test_outputs_and_features() -> None:

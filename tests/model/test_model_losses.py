@@ -2,9 +2,9 @@
 
 import pytest
 import torch
-
-from model.errors import ModelError
-from model.losses import (
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.vgg import VGG19Features
+from lenspair.model.training.losses import (
     VGG_LAYER_WEIGHTS,
     LossWeights,
     PerceptualLoss,
@@ -14,7 +14,6 @@ from model.losses import (
     generator_loss,
     lsgan_loss,
 )
-from model.vgg import VGG19Features
 
 
 def test_lsgan_targets() -> None:

@@ -7,10 +7,8 @@ import cv2
 import numpy as np
 import pytest
 import torch
-from skimage.metrics import peak_signal_noise_ratio, structural_similarity
-
-from model.errors import ModelError
-from model.metrics import (
+from lenspair.model.errors import ModelError
+from lenspair.model.metrics import (
     PSNR_CAP_DB,
     MetricConvention,
     gaussian_window,
@@ -22,6 +20,7 @@ from model.metrics import (
     quantize_uint8,
     ssim,
 )
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 SIZES = [(11, 11), (24, 37), (63, 50), (97, 131)]
 

@@ -5,14 +5,24 @@ import io
 import pytest
 import torch
 import torch.nn.functional as F
-
-from model.aggregation import Aggregation
-from model.enhancer import Enhancer
-from model.errors import ModelError
-from model.generator import Generator
-from model.layers import InstanceNorm, NarrowConv2d, cat_channels, make_norm, scaled_channels
-from model.padding import crop_to, pad_to_multiple
-from model.variants import VARIANTS, AnomalyMitigator, MitigatorOutput, build_model
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.aggregation import Aggregation
+from lenspair.model.networks.enhancer import Enhancer
+from lenspair.model.networks.generator import Generator
+from lenspair.model.networks.layers import (
+    InstanceNorm,
+    NarrowConv2d,
+    cat_channels,
+    make_norm,
+    scaled_channels,
+)
+from lenspair.model.networks.padding import crop_to, pad_to_multiple
+from lenspair.model.networks.variants import (
+    VARIANTS,
+    AnomalyMitigator,
+    MitigatorOutput,
+    build_model,
+)
 
 TINY = {"width": 0.25, "num_blocks": 2}
 

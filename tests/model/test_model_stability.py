@@ -2,10 +2,9 @@
 
 import pytest
 import torch
-
-from model.enhancer import Enhancer
-from model.losses import LossWeights, discriminator_loss, generator_loss
-from model.variants import build_discriminator, build_model
+from lenspair.model.networks.enhancer import Enhancer
+from lenspair.model.networks.variants import build_discriminator, build_model
+from lenspair.model.training.losses import LossWeights, discriminator_loss, generator_loss
 
 TINY = {"width": 0.25, "num_blocks": 2}
 

@@ -4,9 +4,8 @@ from pathlib import Path
 
 import pytest
 import torch
-
-from model.errors import ModelError
-from model.vgg import SLICE_ENDS, VGG19_WEIGHTS_ENV, VGG19Features, load_vgg19
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.vgg import SLICE_ENDS, VGG19_WEIGHTS_ENV, VGG19Features, load_vgg19
 
 # torchvision's vgg19().features: conv layer index -> (out, in) channels.
 TORCHVISION_CONVS = {

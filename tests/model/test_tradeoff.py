@@ -5,13 +5,9 @@ from pathlib import Path
 
 import pytest
 import torch
-
-from lenspair.cli import main
-from lenspair.config import dump_yaml
-from model.data import open_eval_pairs, to_tensor
-from model.errors import ModelError
-from model.evaluation import score_tensors
-from model.tradeoff import (
+from lenspair.model.errors import ModelError
+from lenspair.model.evaluation.evaluate import score_tensors
+from lenspair.model.evaluation.tradeoff import (
     DEFAULT_VARIANTS,
     Budget,
     TradeoffRow,
@@ -21,6 +17,10 @@ from model.tradeoff import (
     precisions_for,
     run_tradeoff,
 )
+from lenspair.model.training.pairs import open_eval_pairs, to_tensor
+
+from lenspair.cli import main
+from lenspair.core.config import dump_yaml
 from tests.model.train_fixtures import tiny_config, write_split_dataset
 
 pytestmark = pytest.mark.usefixtures("one_thread")

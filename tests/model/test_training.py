@@ -6,20 +6,29 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from lenspair.model.checkpoint import load_checkpoint
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.vgg import VGG19Features
+from lenspair.model.training.config import RunConfig, load_run_config
+from lenspair.model.training.datasets import (
+    holdout_indices,
+    paired_training_data,
+    synthetic_training_data,
+)
+from lenspair.model.training.loop import fit, resolve_config
+from lenspair.model.training.step import (
+    Trainer,
+    TrainingDivergedError,
+    distributed_from_env,
+    init_distributed,
+)
+from lenspair.model.training.synthetic import OUR_DROPS, find_clean_images
+from lenspair.simulate.effects.spec import SHARP_DROPS
 
 from lenspair.cli import main
-from lenspair.config import dump_yaml
-from lenspair.errors import ConfigError
-from lenspair.imageio import write_image
-from model.checkpoint import load_checkpoint
-from model.config import RunConfig, load_run_config
-from model.errors import ModelError
-from model.synthetic_data import OUR_DROPS, find_clean_images
-from model.trainer import Trainer, TrainingDivergedError, distributed_from_env, init_distributed
-from model.training import fit, resolve_config
-from model.training_data import holdout_indices, paired_training_data, synthetic_training_data
-from model.vgg import VGG19Features
-from simulate.effects.spec import SHARP_DROPS
+from lenspair.core.config import dump_yaml
+from lenspair.core.errors import ConfigError
+from lenspair.core.imageio import write_image
 from tests.model.train_fixtures import (
     clean_image,
     tiny_config,
@@ -305,8 +314,8 @@ def test_cli_synthetic_pretraining_then_fine_tune(tmp_path: Path) -> None:
 
 
 def test_progress_label_names_the_budget_that_binds() -> None:
-    from model.config import TrainConfig
-    from model.training import _epoch_label
+    from lenspair.model.training.config import TrainConfig
+    from lenspair.model.training.loop import _epoch_label
 
     assert _epoch_label(2, TrainConfig(epochs=200)) == "epoch 3/200"
     # a step or time budget stops long before 10**6 epochs: show the budget instead

@@ -4,9 +4,15 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from lenspair.model.training.config import (
+    DataConfig,
+    LossConfig,
+    ModelConfig,
+    RunConfig,
+    TrainConfig,
+)
 
-from lenspair.imageio import write_image
-from model.config import DataConfig, LossConfig, ModelConfig, RunConfig, TrainConfig
+from lenspair.core.imageio import write_image
 
 HEIGHT, WIDTH = 32, 48
 
@@ -75,9 +81,8 @@ def tiny_config(**train: object) -> RunConfig:
 def make_checkpoint(path: Path, config: RunConfig | None = None, perturb: bool = True) -> Path:
     """Save an untrained checkpoint (weights nudged off the identity when ``perturb``)."""
     import torch
-
-    from model.checkpoint import save_checkpoint
-    from model.trainer import Trainer
+    from lenspair.model.checkpoint import save_checkpoint
+    from lenspair.model.training.step import Trainer
 
     config = config or tiny_config()
     trainer = Trainer(config, torch.device("cpu"))

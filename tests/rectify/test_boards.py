@@ -1,11 +1,16 @@
 import cv2
 import numpy as np
 import pytest
-
-from rectify.boards import Board, BoardRenderer, board_texture, detect_corners, parse_board_spec
-from rectify.errors import RectifyError
-from rectify.rectification import project_rays
-from rectify.rig import CameraModel
+from lenspair.rectify.boards import (
+    Board,
+    BoardRenderer,
+    board_texture,
+    detect_corners,
+    parse_board_spec,
+)
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rectification import project_rays
+from lenspair.rectify.rig import CameraModel
 
 CAMERA = CameraModel(
     (350.0, 351.0, 360.0, 270.0), "equidistant", (0.01, -0.002, 0.001, -0.0005), (720, 540)

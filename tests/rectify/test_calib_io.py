@@ -5,11 +5,10 @@ import cv2
 import numpy as np
 import pytest
 import yaml
-
-from rectify.calib_io import load_calibration
-from rectify.errors import RectifyError
-from rectify.rectification import StereoRectification
-from rectify.rig import CameraModel, DistortionModel, StereoRig, write_kalibr
+from lenspair.rectify.calib_io import load_calibration
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rectification import StereoRectification
+from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, write_kalibr
 
 
 def make_rig(model: DistortionModel = "radtan", rotated: bool = False) -> StereoRig:

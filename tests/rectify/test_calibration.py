@@ -5,17 +5,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
-from rectify.boards import Board, BoardRenderer, Detection, parse_board_spec
-from rectify.calibration import (
+from lenspair.rectify.boards import Board, BoardRenderer, Detection, parse_board_spec
+from lenspair.rectify.calibration import (
     CalibrationResult,
     calibrate_from_detections,
     calibrate_stereo,
     parse_model,
 )
-from rectify.errors import RectifyError
-from rectify.rectification import project_rays
-from rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rectification import project_rays
+from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
 
 MODELS = {"radtan": "pinhole-radtan", "equidistant": "pinhole-equi"}
 SIZES = ((720, 540), (720, 540))
@@ -189,9 +188,10 @@ def test_calibrate_command_recovers_simulator_truth(
     tmp_path: Path, scene: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """``lenspair calibrate`` on the simulator's board scenes, against its true camchain."""
+    from lenspair.simulate.recording import simulate_recording
+    from lenspair.simulate.spec import load_scene, with_overrides
+
     from lenspair.commands import calibrate
-    from simulate.recording import simulate_recording
-    from simulate.spec import load_scene, with_overrides
 
     spec_path = Path(__file__).parents[2] / "calib_samples" / f"{scene}.yaml"
     spec = with_overrides(load_scene(spec_path), frames=12)

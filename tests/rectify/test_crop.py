@@ -1,7 +1,6 @@
 import numpy as np
 import pytest
-
-from rectify.crop import Crop, CropError, choose_crop, parse_size
+from lenspair.rectify.crop import Crop, CropError, choose_crop, parse_size
 
 
 def test_parse_size() -> None:

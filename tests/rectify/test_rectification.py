@@ -1,16 +1,15 @@
 import cv2
 import numpy as np
 import pytest
-
-from rectify.errors import RectifyError
-from rectify.rectification import (
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rectification import (
     StereoRectification,
     pixel_rays,
     project_rays,
     row_differences,
     row_disagreement,
 )
-from rectify.rig import CameraModel, DistortionModel, StereoRig
+from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
 
 DISTORTION = {
     "radtan": ((-0.28, 0.07, 0.0005, -0.0003), (-0.27, 0.065, -0.0004, 0.0002)),

@@ -3,17 +3,17 @@
 import cv2
 import numpy as np
 import pytest
-
-from lenspair.quality import to_grey
-from rectify.registration import (
+from lenspair.rectify.registration import (
     EstimationParams,
     RegistrationError,
     VerifyParams,
     compensate_gain,
     estimate_homography,
 )
-from rectify.remap import apply_homography, pixel_grid
-from rectify.verification import measure_shift, verify_pair
+from lenspair.rectify.remap import apply_homography, pixel_grid
+from lenspair.rectify.verification import measure_shift, verify_pair
+
+from lenspair.core.quality import to_grey
 from tests.images import texture
 
 PARAMS = VerifyParams()

@@ -1,10 +1,9 @@
 import cv2
 import numpy as np
 import pytest
-
-from rectify.crop import Crop
-from rectify.rectification import StereoRectification
-from rectify.remap import (
+from lenspair.rectify.crop import Crop
+from lenspair.rectify.rectification import StereoRectification
+from lenspair.rectify.remap import (
     RemapGrid,
     apply,
     apply_homography,
@@ -15,7 +14,7 @@ from rectify.remap import (
     target_map,
     valid_region,
 )
-from rectify.rig import CameraModel, StereoRig
+from lenspair.rectify.rig import CameraModel, StereoRig
 
 
 def _barrel(points: np.ndarray) -> np.ndarray:

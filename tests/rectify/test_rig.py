@@ -2,9 +2,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from rectify.errors import RectifyError
-from rectify.rig import CameraModel, StereoRig, read_kalibr, write_kalibr
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rig import CameraModel, StereoRig, read_kalibr, write_kalibr
 
 
 def _rig(rotated: bool) -> StereoRig:

@@ -2,9 +2,8 @@ import cv2
 import numpy as np
 from hypothesis import assume, given
 from hypothesis import strategies as st
-
-from rectify.rig import CameraModel
-from simulate.camera import project, ray_map, sample_positions, undistort_maps, unproject
+from lenspair.rectify.rig import CameraModel
+from lenspair.simulate.camera import project, ray_map, sample_positions, undistort_maps, unproject
 
 finite = {"allow_nan": False, "allow_infinity": False}
 

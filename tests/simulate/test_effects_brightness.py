@@ -2,10 +2,9 @@
 
 import numpy as np
 import pytest
-
-from simulate.effects import brightness
-from simulate.effects.spec import BrightnessSpec, EffectsSpec, RaindropsSpec
-from simulate.render import render_effects, sample_glass
+from lenspair.simulate.effects import brightness
+from lenspair.simulate.effects.spec import BrightnessSpec, EffectsSpec, RaindropsSpec
+from lenspair.simulate.render import render_effects, sample_glass
 
 
 def test_gains_follow_fraction_and_range() -> None:

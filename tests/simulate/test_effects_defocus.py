@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-
-from simulate.effects import defocus, raindrops
-from simulate.effects.spec import DefocusSpec, EffectsSpec, RaindropsSpec
-from simulate.render import render_effects, sample_glass
+from lenspair.simulate.effects import defocus, raindrops
+from lenspair.simulate.effects.spec import DefocusSpec, EffectsSpec, RaindropsSpec
+from lenspair.simulate.render import render_effects, sample_glass
 
 
 def _shifted(layer: np.ndarray, dx: int, dy: int) -> np.ndarray:

@@ -2,8 +2,7 @@
 
 import numpy as np
 import pytest
-
-from simulate.effects.layer import (
+from lenspair.simulate.effects.layer import (
     Sprites,
     box_grid,
     clip_boxes,

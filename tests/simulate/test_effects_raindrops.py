@@ -6,12 +6,18 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from lenspair.simulate.effects import raindrops
+from lenspair.simulate.effects.raindrops import Drops, exit_refraction
+from lenspair.simulate.effects.spec import (
+    DefocusSpec,
+    DirtSpec,
+    DustSpec,
+    EffectsSpec,
+    RaindropsSpec,
+)
+from lenspair.simulate.render import render_effects, sample_glass
 
-from lenspair.imageio import from_float, from_linear
-from simulate.effects import raindrops
-from simulate.effects.raindrops import Drops, exit_refraction
-from simulate.effects.spec import DefocusSpec, DirtSpec, DustSpec, EffectsSpec, RaindropsSpec
-from simulate.render import render_effects, sample_glass
+from lenspair.core.imageio import from_float, from_linear
 
 WATER = 1.33
 CRITICAL = math.asin(1 / WATER)
@@ -236,8 +242,8 @@ def test_same_drops_whatever_else_is_listed() -> None:
 
 def test_large_drop_layers_beyond_opencv_map_limit() -> None:
     """Over 32767 drop pixels in one pyramid level (cv2.remap's map limit) still render."""
-    from simulate.effects.spec import EffectsSpec, RaindropsSpec
-    from simulate.render import render_effects
+    from lenspair.simulate.effects.spec import EffectsSpec, RaindropsSpec
+    from lenspair.simulate.render import render_effects
 
     image = np.random.default_rng(0).integers(0, 256, (540, 720), dtype=np.uint8)
     spec = EffectsSpec(raindrops=RaindropsSpec(count=60, radius_px=(60.0, 80.0)))

@@ -7,15 +7,15 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from lenspair.capture.rigfile import read_rig_file
+from lenspair.rectify.rig import CameraModel, read_kalibr
+from lenspair.simulate.camera import undistort_maps
+from lenspair.simulate.errors import SimulateError
+from lenspair.simulate.recording import simulate_recording
+from lenspair.simulate.spec import load_scene
 
-from capture.rigfile import read_rig_file
 from lenspair.cli import main
-from lenspair.imageio import read_image
-from rectify.rig import CameraModel, read_kalibr
-from simulate.camera import undistort_maps
-from simulate.errors import SimulateError
-from simulate.recording import simulate_recording
-from simulate.spec import load_scene
+from lenspair.core.imageio import read_image
 
 SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
 FISHEYE0 = {
@@ -257,7 +257,7 @@ def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_user_texture_file_comes_back_exactly(tmp_path: Path) -> None:
     # A flat sRGB texture survives decode -> linear render -> encode without a code change.
-    from lenspair.imageio import write_image
+    from lenspair.core.imageio import write_image
 
     write_image(tmp_path / "flat.png", np.full((64, 64), 200, np.uint8))
     wall = {"texture": "flat.png", "depth_m": 40.0}

@@ -6,11 +6,9 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-
-from lenspair.errors import LenspairError
-from simulate import render
-from simulate.effects import brightness, defocus, dirt, dust, raindrops
-from simulate.effects.spec import (
+from lenspair.simulate import render
+from lenspair.simulate.effects import brightness, defocus, dirt, dust, raindrops
+from lenspair.simulate.effects.spec import (
     SHARP_DROPS,
     BrightnessSpec,
     DefocusSpec,
@@ -19,7 +17,9 @@ from simulate.effects.spec import (
     EffectsSpec,
     RaindropsSpec,
 )
-from simulate.render import advance_glass, apply_glass, render_effects, sample_glass
+from lenspair.simulate.render import advance_glass, apply_glass, render_effects, sample_glass
+
+from lenspair.core.errors import LenspairError
 
 EFFECTS = {
     "raindrops": RaindropsSpec(count=12, radius_px=(4.0, 14.0)),

@@ -2,10 +2,10 @@ from pathlib import Path
 
 import pytest
 import yaml
+from lenspair.simulate.spec import SceneSpec, load_scene, with_overrides
 
-from lenspair.config import dump_yaml, load_yaml
-from lenspair.errors import ConfigError
-from simulate.spec import SceneSpec, load_scene, with_overrides
+from lenspair.core.config import dump_yaml, load_yaml
+from lenspair.core.errors import ConfigError
 
 SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
 SCENES = sorted(p for p in SAMPLES.glob("*.yaml") if p.name != "alphasense_camchain.yaml")
@@ -134,7 +134,7 @@ def test_errors_name_the_key(tmp_path: Path, data: dict, message: str) -> None:
 def test_texture_path_relative_to_spec(tmp_path: Path) -> None:
     import numpy as np
 
-    from lenspair.imageio import write_image
+    from lenspair.core.imageio import write_image
 
     write_image(tmp_path / "wall.png", np.full((64, 64), 128, np.uint8))
     spec = load_scene(_write(tmp_path, _with("planes[0].texture", "wall.png")))

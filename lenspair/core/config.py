@@ -1,0 +1,182 @@
+"""Typed configuration: YAML files into frozen dataclasses, strictly.
+
+One loader serves every config and spec in lenspair (scene specs, rig files,
+curation thresholds, training configs). It rejects unknown keys and wrong
+types with the dotted path of the offending key, so that a typo never
+silently becomes a default::
+
+    train.lr: expected float, got 'le-4'
+    scene.planes[1].depth_m: unknown key 'depth'; valid keys: depth_m, texture
+
+Supported field types: ``bool``, ``int``, ``float`` (ints accepted),
+``str``, ``pathlib.Path``, ``Literal[...]``, ``X | None``, ``tuple[X, ...]``,
+``tuple[X, Y]``, ``list[X]``, ``dict[str, X]`` and nested dataclasses.
+"""
+
+import dataclasses
+import math
+import types
+import typing
+from pathlib import Path
+from typing import Any, Literal, TypeVar, Union, get_args, get_origin
+
+import yaml
+
+from lenspair.core.errors import ConfigError
+
+T = TypeVar("T")
+
+
+def _type_name(tp: Any) -> str:
+    if isinstance(tp, type):
+        return tp.__name__
+    return str(tp).replace("typing.", "")
+
+
+def _describe(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _convert(tp: Any, value: Any, path: str) -> Any:
+    origin = get_origin(tp)
+    args = get_args(tp)
+    if tp is Any:
+        return value
+    if origin in (Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        options = [a for a in args if a is not type(None)]
+        if len(options) == 1:  # X | None: the error inside X is the useful one
+            return _convert(options[0], value, path)
+        for option in options:
+            try:
+                return _convert(option, value, path)
+            except ConfigError:
+                continue
+        expected = " or ".join(_type_name(a) for a in args)
+        raise ConfigError(f"{path}: expected {expected}, got {_describe(value)}")
+    if origin is Literal:
+        if value in args:
+            return value
+        choices = ", ".join(repr(a) for a in args)
+        raise ConfigError(f"{path}: expected one of {choices}, got {_describe(value)}")
+    if dataclasses.is_dataclass(tp) and isinstance(tp, type):
+        return load_dataclass(tp, value, path)
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"{path}: expected bool, got {_describe(value)}")
+    if tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise ConfigError(f"{path}: expected int, got {_describe(value)}")
+    if tp is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not math.isfinite(value):
+                raise ConfigError(f"{path}: expected a finite float, got {_describe(value)}")
+            return float(value)
+        raise ConfigError(f"{path}: expected float, got {_describe(value)}")
+    if tp is str:
+        if isinstance(value, str):
+            return value
+        raise ConfigError(f"{path}: expected str, got {_describe(value)}")
+    if tp is Path:
+        if isinstance(value, (str, Path)):
+            return Path(value)
+        raise ConfigError(f"{path}: expected a path, got {_describe(value)}")
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{path}: expected a list, got {_describe(value)}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(args[0], v, f"{path}[{i}]") for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(f"{path}: expected {len(args)} values, got {len(value)}")
+        pairs = enumerate(zip(args, value, strict=True))
+        return tuple(_convert(a, v, f"{path}[{i}]") for i, (a, v) in pairs)
+    if origin is list:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{path}: expected a list, got {_describe(value)}")
+        return [_convert(args[0], v, f"{path}[{i}]") for i, v in enumerate(value)]
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{path}: expected a mapping, got {_describe(value)}")
+        key_type, value_type = args
+        return {
+            _convert(key_type, k, f"{path}.<key>"): _convert(value_type, v, f"{path}.{k}")
+            for k, v in value.items()
+        }
+    raise TypeError(f"config loader does not support type {tp!r} at {path}")
+
+
+def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
+    """Build dataclass ``cls`` from plain data (as parsed from YAML/JSON).
+
+    Args:
+        cls: a dataclass type; nested dataclass fields are built recursively.
+        data: a mapping (``None`` is read as an empty mapping, so that
+            ``effects: {dust: }`` enables dust with default parameters).
+        path: dotted prefix for error messages.
+
+    Raises:
+        ConfigError: unknown key, missing required key, wrong type, or a
+            ``__post_init__`` validation failure, with the dotted path.
+
+    """
+    prefix = f"{path}." if path else ""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path or '<root>'}: expected a mapping, got {_describe(data)}")
+    assert dataclasses.is_dataclass(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    hints = typing.get_type_hints(cls)
+    unknown = sorted(set(map(str, data)) - set(fields))
+    if unknown:
+        valid = ", ".join(sorted(fields))
+        raise ConfigError(f"{prefix}{unknown[0]}: unknown key; valid keys: {valid}")
+    kwargs = {}
+    for name, field in fields.items():
+        if name in data:
+            kwargs[name] = _convert(hints[name], data[name], f"{prefix}{name}")
+        elif field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
+            raise ConfigError(f"{prefix}{name}: required key is missing")
+    try:
+        return cls(**kwargs)
+    except ConfigError:
+        raise
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{path or '<root>'}: {exc}") from None
+
+
+def load_yaml(cls: type[T], file: Path) -> T:
+    """Load a YAML file into dataclass ``cls``; errors start with the file name."""
+    file = Path(file)
+    try:
+        data = yaml.safe_load(file.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{file}: file not found") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{file}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    try:
+        return load_dataclass(cls, data)
+    except ConfigError as exc:
+        raise ConfigError(f"{file}: {exc}") from None
+
+
+def to_plain(obj: Any) -> Any:
+    """Turn a (nested) dataclass into plain YAML/JSON-serialisable data."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, (list, tuple)):
+        return [to_plain(v) for v in obj]
+    if isinstance(obj, dict):
+        return {str(k): to_plain(v) for k, v in obj.items()}
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def dump_yaml(obj: Any) -> str:
+    """Serialise a dataclass (or plain data) as YAML, keys in field order."""
+    return yaml.safe_dump(to_plain(obj), sort_keys=False, default_flow_style=None)

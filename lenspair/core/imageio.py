@@ -1,0 +1,133 @@
+"""Image files through OpenImageIO, and the pixel conventions of lenspair.
+
+Conventions (stated once, checked where data enters):
+
+* **On disk / in arrays between stages**: ``uint8`` or ``uint16``, shape
+  ``(H, W)`` for mono or ``(H, W, 3)`` for RGB, sRGB-encoded as cameras and
+  PNG viewers expect. Bit depth is preserved end to end.
+* **Inside renderers and metrics**: ``float32`` in ``[0, 1]``; blending
+  happens in *linear* light (:func:`to_linear` / :func:`from_linear`).
+
+OpenImageIO's Python binding misreads 2-D arrays on write (rows come out
+strided and the bytes differ from run to run), so every write goes through
+an explicit ``(H, W, C)`` contiguous array; the output bytes are then a pure
+function of the pixels.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+
+from lenspair.core.errors import ImageIOError
+from lenspair.core.fsutil import atomic_write
+
+_OIIO_TYPES = {np.dtype(np.uint8): oiio.UINT8, np.dtype(np.uint16): oiio.UINT16}
+
+
+def check_image(image: np.ndarray, name: str = "image") -> None:
+    """Raise ``ValueError`` unless ``image`` is uint8/uint16 (H, W) or (H, W, 3)."""
+    if image.dtype not in _OIIO_TYPES:
+        raise ValueError(f"{name}: expected dtype uint8 or uint16, got {image.dtype}")
+    if image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3):
+        return
+    raise ValueError(f"{name}: expected shape (H, W) or (H, W, 3), got {image.shape}")
+
+
+def read_image(path: Path) -> np.ndarray:
+    """Read an 8- or 16-bit image file (PNG, TIFF, ...).
+
+    Returns:
+        ``uint8``/``uint16`` array, ``(H, W)`` for one channel, ``(H, W, 3)``
+        for colour (an alpha channel is dropped).
+
+    Raises:
+        ImageIOError: the file is missing, corrupt or truncated, or has a
+            pixel format other than 8/16-bit integer; the message names it.
+
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ImageIOError(f"{path}: file not found")
+    handle = oiio.ImageInput.open(str(path))
+    if handle is None:
+        raise ImageIOError(f"{path}: cannot open image ({_first_line(oiio.geterror())})")
+    try:
+        spec = handle.spec()
+        if spec.format not in (oiio.UINT8, oiio.UINT16):
+            raise ImageIOError(f"{path}: unsupported pixel format {spec.format} (need 8/16-bit)")
+        pixels = handle.read_image(spec.format)
+        if pixels is None:
+            raise ImageIOError(f"{path}: corrupt or truncated ({_first_line(handle.geterror())})")
+    finally:
+        handle.close()
+    array = np.asarray(pixels)
+    channels = array.shape[2]
+    if channels in (1, 2):  # mono, or mono + alpha
+        return np.ascontiguousarray(array[:, :, 0])
+    return np.ascontiguousarray(array[:, :, :3])
+
+
+def write_image(path: Path, image: np.ndarray) -> None:
+    """Write ``image`` atomically; the format follows the file extension.
+
+    Args:
+        path: destination (``.png`` or ``.tif``/``.tiff``).
+        image: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)``.
+
+    """
+    check_image(image, str(path))
+    pixels = np.ascontiguousarray(image if image.ndim == 3 else image[:, :, None])
+    height, width, channels = pixels.shape
+    path = Path(path)
+
+    def _write(tmp: Path) -> None:
+        spec = oiio.ImageSpec(width, height, channels, _OIIO_TYPES[image.dtype])
+        out = oiio.ImageOutput.create(str(path))
+        if out is None or not out.open(str(tmp), spec):
+            raise ImageIOError(f"{path}: cannot write ({_first_line(oiio.geterror())})")
+        ok = out.write_image(pixels)
+        out.close()
+        if not ok:
+            raise ImageIOError(f"{path}: write failed ({_first_line(out.geterror())})")
+
+    atomic_write(path, _write, suffix=path.suffix)
+
+
+def max_value(dtype: np.dtype | type) -> float:
+    """Largest code value of an integer image dtype (255 or 65535)."""
+    return float(np.iinfo(np.dtype(dtype)).max)
+
+
+def to_float(image: np.ndarray) -> np.ndarray:
+    """Integer image to ``float32`` in ``[0, 1]`` (still sRGB-encoded)."""
+    check_image(image)
+    return image.astype(np.float32) / np.float32(max_value(image.dtype))
+
+
+def from_float(image: np.ndarray, dtype: np.dtype | type) -> np.ndarray:
+    """``float32`` image in ``[0, 1]`` to integer codes, clipping once, rounding."""
+    scale = np.float32(max_value(dtype))
+    scaled = np.clip(np.nan_to_num(image, nan=0.0), 0.0, 1.0) * scale
+    return np.asarray(np.rint(scaled).astype(dtype))
+
+
+def to_linear(encoded: np.ndarray) -> np.ndarray:
+    """sRGB-encoded ``[0, 1]`` float32 to linear light (IEC 61966-2-1)."""
+    x = np.asarray(encoded, dtype=np.float32)
+    low = x / np.float32(12.92)
+    high = np.power((np.maximum(x, 0.04045) + np.float32(0.055)) / np.float32(1.055), 2.4)
+    return np.where(x <= 0.04045, low, high).astype(np.float32)
+
+
+def from_linear(linear: np.ndarray) -> np.ndarray:
+    """Linear-light float32 to sRGB-encoded ``[0, 1]`` float32 (input clipped to >= 0)."""
+    x = np.maximum(np.asarray(linear, dtype=np.float32), 0.0)
+    low = x * np.float32(12.92)
+    high = np.float32(1.055) * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - np.float32(0.055)
+    return np.where(x <= 0.0031308, low, high).astype(np.float32)
+
+
+def _first_line(text: str) -> str:
+    lines = [line for line in text.splitlines() if line.strip()]
+    return lines[0] if lines else "unknown error"

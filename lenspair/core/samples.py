@@ -1,0 +1,33 @@
+"""The bundled sample files (scene specs, a Kalibr camchain), found as package data.
+
+They ship inside the installed package as ``lenspair.calib_samples`` (the
+repository's ``calib_samples/`` folder), so they are found the same way in an
+editable install, a wheel and an sdist, whatever the working directory.
+"""
+
+from importlib import resources
+from pathlib import Path
+
+from lenspair.core.errors import LenspairError
+
+SAMPLES_PACKAGE = "lenspair.calib_samples"
+
+
+def sample_names(suffix: str = ".yaml") -> list[str]:
+    """File names of the bundled samples ending in ``suffix``, sorted."""
+    root = resources.files(SAMPLES_PACKAGE)
+    return sorted(p.name for p in root.iterdir() if p.name.endswith(suffix))
+
+
+def sample_path(name: str) -> Path:
+    """The file system path of one bundled sample, e.g. ``sample_path("rain.yaml")``.
+
+    Raises:
+        LenspairError: no bundled sample has that name (the message lists them).
+    """
+    resource = resources.files(SAMPLES_PACKAGE) / name
+    if not resource.is_file():
+        raise LenspairError(
+            f"no bundled sample named {name!r}; available: {', '.join(sample_names())}"
+        )
+    return Path(str(resource))

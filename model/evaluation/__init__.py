@@ -1,0 +1,1 @@
+"""Evaluation and deployment: scores, reports, latency, accuracy-versus-time, export."""

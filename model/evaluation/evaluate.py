@@ -1,0 +1,337 @@
+"""Evaluate a restoration network on paired images: PSNR/SSIM per image and means.
+
+What is scored: the network's final (enhanced) output for the whole image,
+batch 1, clamped to [0, 1] and rounded to the bit depth of the target (what
+a deployed model would write), against the target. Both are converted to the
+network's channel count first (Rec. 601 luma for a mono network on RGB data).
+
+Metric conventions (:mod:`lenspair.model.metrics`), named in every table:
+
+* ``skimage-gaussian``: scikit-image's ``peak_signal_noise_ratio`` and
+  ``structural_similarity(gaussian_weights=True, sigma=1.5,
+  use_sample_covariance=False)`` on the [0, 1] images (Wang et al.).
+* ``deraindrop-y``: DeRaindrop's published protocol: uint8, the Y channel,
+  a 7x7 uniform SSIM window.
+
+PSNR is infinite when output and target are identical; such an image keeps
+``inf`` in the per-image CSV, and means cap it at :data:`PSNR_CAP_DB`
+(reported with the count of capped images), so one perfect image cannot
+make a mean infinite.
+
+The reports (CSV, JSON, Markdown, contact sheet) are written by
+:func:`lenspair.model.evaluation.report.write_report`.
+"""
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from lenspair.model import metrics
+from lenspair.model.errors import ModelError
+from lenspair.model.evaluation.latency import Latency, autocast_context
+from lenspair.model.metrics import PSNR_CAP_DB, image_metrics, parse_metric_convention
+from lenspair.model.training.pairs import PairSource, to_tensor
+from torch import nn
+
+from lenspair.core.config import to_plain
+from lenspair.core.imageio import max_value
+from lenspair.core.progress import progress
+
+CONVENTIONS = tuple(c.value for c in metrics.MetricConvention)
+DIFFICULTY_ORDER = ("easy", "medium", "hard", "clean")
+
+
+def score_tensors(
+    output: torch.Tensor, target: torch.Tensor, convention: str
+) -> tuple[float, float]:
+    """PSNR (dB) and SSIM of one ``(1, C, H, W)`` output against its target, in [0, 1].
+
+    Raises:
+        ModelError: unknown convention.
+
+    """
+    scores = image_metrics(output, target, parse_metric_convention(convention))
+    return float(scores.psnr[0]), float(scores.ssim[0])
+
+
+def mean_psnr(values: Sequence[float]) -> float:
+    """Mean PSNR, each value capped at :data:`PSNR_CAP_DB` (``inf`` -> cap); NaN when empty."""
+    if not values:
+        return math.nan
+    return metrics.mean_psnr(torch.tensor(list(values), dtype=torch.float64))
+
+
+@dataclass(frozen=True)
+class ImageScore:
+    """Scores of one pair (PSNR may be ``inf``).
+
+    ``psnr_db``/``ssim`` score the network's output against the target;
+    ``input_psnr_db``/``input_ssim`` score the input itself (no restoration),
+    the baseline any restoration has to beat.
+    """
+
+    name: str
+    difficulty: str | None
+    height: int
+    width: int
+    psnr_db: float
+    ssim: float
+    input_psnr_db: float = math.nan
+    input_ssim: float = math.nan
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Means over a set of images.
+
+    Attributes:
+        pairs: number of images.
+        psnr_db: mean PSNR, infinite values capped at :data:`PSNR_CAP_DB`.
+        ssim: mean SSIM.
+        capped: images whose PSNR was infinite.
+
+    """
+
+    pairs: int
+    psnr_db: float
+    ssim: float
+    capped: int
+
+
+def summarize(scores: Sequence[ImageScore], of: Literal["output", "input"] = "output") -> Summary:
+    """Means of ``scores`` (see :class:`Summary`): of the outputs, or of the inputs."""
+    psnrs = [s.psnr_db if of == "output" else s.input_psnr_db for s in scores]
+    ssims = [s.ssim if of == "output" else s.input_ssim for s in scores]
+    return Summary(
+        pairs=len(scores),
+        psnr_db=mean_psnr(psnrs),
+        ssim=float(np.mean(ssims)) if scores else math.nan,
+        capped=sum(1 for value in psnrs if math.isinf(value)),
+    )
+
+
+@dataclass(frozen=True)
+class SheetRow:
+    """One contact-sheet row: float ``(H, W, C)`` input, output and target, a label for each."""
+
+    labels: tuple[str, str, str]
+    difficulty: str | None
+    images: tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+@dataclass
+class EvalResult:
+    """Everything one evaluation measured.
+
+    Attributes:
+        checkpoint: what was evaluated.
+        data: the paired images (folder and split).
+        convention: metric convention.
+        precision: inference precision of the scored outputs.
+        scores: per-image scores, in dataset order.
+        overall: means over all images.
+        by_difficulty: means per difficulty (empty when unknown).
+        input_overall: means of the inputs themselves (no restoration).
+        input_by_difficulty: the same per difficulty.
+        latency: timings (CPU, and CUDA when present).
+        samples: contact-sheet rows (input, output, target).
+        model: the checkpoint's ``model`` config section (plain data).
+
+    """
+
+    checkpoint: str
+    data: str
+    convention: str
+    precision: str
+    scores: list[ImageScore]
+    overall: Summary
+    by_difficulty: dict[str, Summary]
+    input_overall: Summary | None = None
+    input_by_difficulty: dict[str, Summary] = field(default_factory=dict)
+    latency: list[Latency] = field(default_factory=list)
+    samples: list[SheetRow] = field(default_factory=list)
+    model: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready means (per-image scores stay in the CSV)."""
+        return {
+            "checkpoint": self.checkpoint,
+            "model": self.model,
+            "data": self.data,
+            "convention": self.convention,
+            "precision": self.precision,
+            "psnr_cap_db": PSNR_CAP_DB,
+            "overall": asdict(self.overall),
+            "by_difficulty": {k: asdict(v) for k, v in self.by_difficulty.items()},
+            "input": {
+                "overall": None if self.input_overall is None else asdict(self.input_overall),
+                "by_difficulty": {k: asdict(v) for k, v in self.input_by_difficulty.items()},
+            },
+            "latency": [lat.as_dict() for lat in self.latency],
+        }
+
+
+def _to_numpy(batch: torch.Tensor) -> np.ndarray:
+    return np.asarray(batch[0].detach().float().cpu().numpy().transpose(1, 2, 0))
+
+
+def _quantize(image: torch.Tensor, dtype: np.dtype[Any]) -> torch.Tensor:
+    scale = max_value(dtype)
+    return torch.round(image.clamp(0.0, 1.0) * scale) / scale
+
+
+@torch.inference_mode()
+def score_pairs(
+    network: nn.Module,
+    pairs: PairSource,
+    channels: int,
+    device: torch.device,
+    convention: str = "skimage-gaussian",
+    precision: str = "fp32",
+    samples_per_difficulty: int = 2,
+    max_samples: int = 6,
+) -> tuple[list[ImageScore], list[SheetRow]]:
+    """Score ``network`` on every pair, one whole image at a time (batch 1).
+
+    Args:
+        network: forward(x) -> (generator_out, enhanced_out); eval mode is set.
+        pairs: pairs from ``dataset.readers`` (any image size, odd ones too).
+        channels: the network's channels.
+        device: where to run it.
+        convention: ``skimage-gaussian`` or ``deraindrop-y``.
+        precision: ``fp32``, ``bf16`` or ``fp16`` (autocast).
+        samples_per_difficulty: contact-sheet rows per difficulty, when known.
+        max_samples: contact-sheet rows when difficulties are unknown.
+
+    Returns:
+        Per-image scores, and contact-sheet rows in easy/medium/hard order.
+
+    """
+    network.to(device).eval()
+    scores: list[ImageScore] = []
+    samples: list[SheetRow] = []
+    taken: dict[str, int] = {}
+    for index in progress(range(len(pairs)), "evaluating", total=len(pairs), unit="image"):
+        item = pairs[index]
+        x = to_tensor(item.input, channels)[None].to(device)
+        target = to_tensor(item.target, channels)[None].to(device)
+        with autocast_context(device, precision):
+            output = network(x)[1]
+        output = _quantize(output.float(), item.target.dtype)
+        psnr, ssim = score_tensors(output, target, convention)
+        input_psnr, input_ssim = score_tensors(x.float(), target, convention)
+        height, width = item.input.shape[:2]
+        scores.append(
+            ImageScore(
+                item.name, item.difficulty, height, width, psnr, ssim, input_psnr, input_ssim
+            )
+        )
+        key = item.difficulty or ""
+        if taken.get(key, 0) < (samples_per_difficulty if key else max_samples):
+            taken[key] = taken.get(key, 0) + 1
+            samples.append(
+                SheetRow(
+                    (
+                        f"{key or 'input'} input {fmt_psnr(input_psnr)} dB",
+                        f"output {fmt_psnr(psnr)} dB",
+                        f"target {item.name}",
+                    ),
+                    item.difficulty,
+                    (_to_numpy(x), _to_numpy(output), _to_numpy(target)),
+                )
+            )
+    order = {name: i for i, name in enumerate(DIFFICULTY_ORDER)}
+    samples.sort(key=lambda row: order.get(row.difficulty or "", len(order)))
+    return scores, samples
+
+
+def breakdown(
+    scores: Sequence[ImageScore], of: Literal["output", "input"] = "output"
+) -> dict[str, Summary]:
+    """Means per difficulty, in easy/medium/hard/clean order (empty when unknown)."""
+    groups: dict[str, list[ImageScore]] = {}
+    for score in scores:
+        if score.difficulty:
+            groups.setdefault(score.difficulty, []).append(score)
+    order = {name: i for i, name in enumerate(DIFFICULTY_ORDER)}
+    return {
+        k: summarize(groups[k], of) for k in sorted(groups, key=lambda k: (order.get(k, 99), k))
+    }
+
+
+def fmt_psnr(value: float) -> str:
+    """A PSNR in dB for tables and labels: two decimals, or ``inf``."""
+    return "inf" if math.isinf(value) else f"{value:.2f}"
+
+
+def evaluate_checkpoint(
+    checkpoint: Path,
+    data: Path,
+    split: str,
+    device: torch.device,
+    convention: str = "skimage-gaussian",
+    precision: str = "fp32",
+    latency_runs: int = 30,
+) -> EvalResult:
+    """Load a checkpoint, score it on ``data`` and time it as deployed.
+
+    Latency: batch 1 at the size of the first pair, on the CPU (always) and
+    on CUDA (when available), at ``precision`` where the device supports it;
+    ``latency_runs=0`` skips timing.
+
+    Raises:
+        ModelError: unreadable checkpoint, unknown convention; DatasetError.
+
+    """
+    from lenspair.model.checkpoint import load_model
+    from lenspair.model.evaluation.latency import measure_latency
+    from lenspair.model.training.pairs import open_eval_pairs
+
+    parse_metric_convention(convention)
+    loaded = load_model(checkpoint, device)
+    channels = loaded.config.model.channels or 1
+    pairs = open_eval_pairs(data, split)
+    if len(pairs) == 0:
+        raise ModelError(f"{data}: no pairs to evaluate")
+    scores, samples = score_pairs(loaded.network, pairs, channels, device, convention, precision)
+    latency = []
+    if latency_runs > 0:
+        size = tuple(pairs[0].input.shape[:2])
+        cuda = device if device.type == "cuda" else torch.device("cuda")
+        devices = [torch.device("cpu")] + ([cuda] if torch.cuda.is_available() else [])
+        for where in devices:
+            timed_precision = "fp32" if (precision == "fp16" and where.type == "cpu") else precision
+            latency.append(
+                measure_latency(
+                    loaded.network,
+                    channels,
+                    where,
+                    (size[0], size[1]),
+                    timed_precision,
+                    runs=latency_runs,
+                )
+            )
+        loaded.network.to(device)
+    split_text = (
+        ""
+        if Path(getattr(pairs, "root", data)).resolve() == Path(data).resolve()
+        else f" (split {split})"
+    )
+    return EvalResult(
+        checkpoint=str(checkpoint),
+        data=f"{data}{split_text}",
+        convention=convention,
+        precision=precision,
+        scores=scores,
+        overall=summarize(scores),
+        by_difficulty=breakdown(scores),
+        input_overall=summarize(scores, "input"),
+        input_by_difficulty=breakdown(scores, "input"),
+        latency=latency,
+        samples=samples,
+        model=to_plain(loaded.config.model),
+    )

@@ -1,0 +1,297 @@
+"""Export a trained network to ONNX and TorchScript, checked against torch.
+
+The exported graph is the deployed network: one input ``image``
+``(N, C, H, W)`` float32 in [0, 1] and one output ``restored`` (the
+enhanced image, same shape); the generator-only output used for training is
+dropped. The image size is fixed at export (``--size``, 540x360 by default),
+since the network pads to a multiple of 4 from the input's shape; the batch
+dimension stays dynamic in ONNX.
+
+Each export is run on a random image (seeded) and compared with the torch
+output: the maximum absolute difference is reported. ONNX files are checked
+and timed with ``onnxruntime`` when it is installed (``pip install
+'lenspair[onnx]'``); without it the file is still written and the report says
+it could not be checked. torch's new ``dynamo`` exporter needs
+``onnxscript``; when that is missing the TorchScript-based exporter is used.
+"""
+
+import functools
+import importlib.util
+import logging
+import statistics
+import time
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from lenspair.model.errors import ModelError
+from lenspair.model.evaluation.latency import percentile
+from torch import Tensor, nn
+
+from lenspair.core.fsutil import atomic_write
+
+log = logging.getLogger(__name__)
+
+ONNX_OPSET = 17
+INPUT_NAME = "image"
+OUTPUT_NAME = "restored"
+
+
+class Restorer(nn.Module):
+    """The deployed network: ``forward(x)`` returns only the enhanced image."""
+
+    def __init__(self, network: nn.Module) -> None:
+        super().__init__()
+        self.network = network
+
+    def forward(self, x: Tensor) -> Tensor:
+        """``(N, C, H, W)`` in [0, 1] -> restored ``(N, C, H, W)`` in [0, 1]."""
+        output: Tensor = self.network(x)[1]
+        return output
+
+
+@dataclass(frozen=True)
+class ExportCheck:
+    """What one export produced and how well it matches torch.
+
+    Attributes:
+        format: ``onnx`` or ``torchscript``.
+        path: the written file.
+        size: ``WxH`` it was exported (and checked) at.
+        exporter: which exporter wrote it.
+        max_abs_diff: largest |export - torch| on the check image (``None``: not checked).
+        runtime_median_ms: median batch-1 latency in its runtime (``None``: not timed).
+        runtime_p90_ms: 90th percentile of the same.
+        threads: CPU threads of the timed runtime.
+        note: anything the user must know (e.g. onnxruntime missing).
+
+    """
+
+    format: str
+    path: str
+    size: str
+    exporter: str
+    max_abs_diff: float | None
+    runtime_median_ms: float | None = None
+    runtime_p90_ms: float | None = None
+    threads: int | None = None
+    note: str = ""
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain data for JSON."""
+        return asdict(self)
+
+    def summary(self) -> str:
+        """One line for people."""
+        diff = "not checked" if self.max_abs_diff is None else f"{self.max_abs_diff:.3g}"
+        text = (
+            f"{self.format}: {self.path} ({self.size}, {self.exporter}); max |diff| vs torch {diff}"
+        )
+        if self.runtime_median_ms is not None:
+            text += (
+                f"; {self.runtime_median_ms:.2f} ms median (p90 {self.runtime_p90_ms:.2f}, "
+                f"{self.threads} threads)"
+            )
+        return text + (f"; {self.note}" if self.note else "")
+
+
+def check_image(channels: int, size: tuple[int, int]) -> Tensor:
+    """The seeded random ``(1, C, H, W)`` image exports are checked on."""
+    generator = torch.Generator().manual_seed(0)
+    return torch.rand(1, channels, size[0], size[1], generator=generator)
+
+
+def _time(run: Any, runs: int, warmup: int = 3) -> tuple[float, float]:
+    times = []
+    for index in range(warmup + runs):
+        start = time.perf_counter()
+        run()
+        if index >= warmup:
+            times.append((time.perf_counter() - start) * 1000.0)
+    return statistics.median(times), percentile(times, 90.0)
+
+
+_EXPORTERS = {
+    "dynamo": "torch.onnx (dynamo)",
+    "legacy": "torch.onnx (TorchScript-based)",
+}
+
+
+def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) -> None:
+    """Run one of torch's ONNX exporters (fixed H, W; batch dynamic where supported)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # deprecation, tracer and shape-inference chatter
+        if exporter == "dynamo":
+            torch.onnx.export(
+                model,
+                (image,),
+                str(path),
+                input_names=[INPUT_NAME],
+                output_names=[OUTPUT_NAME],
+                opset_version=ONNX_OPSET,
+                dynamo=True,
+                external_data=False,
+            )
+        else:
+            torch.onnx.export(
+                model,
+                (image,),
+                str(path),
+                input_names=[INPUT_NAME],
+                output_names=[OUTPUT_NAME],
+                opset_version=ONNX_OPSET,
+                dynamo=False,
+                dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
+            )
+
+
+def export_onnx(
+    network: nn.Module,
+    channels: int,
+    path: Path,
+    size: tuple[int, int] = (360, 540),
+    runs: int = 20,
+) -> ExportCheck:
+    """Write ``network`` as ONNX, then check (and time) it with onnxruntime if installed.
+
+    Args:
+        network: forward(x) -> (generator_out, enhanced_out), on the CPU.
+        channels: input channels.
+        path: destination ``.onnx`` file.
+        size: ``(H, W)`` of the exported input.
+        runs: timed onnxruntime runs (after warm-up).
+
+    Raises:
+        ModelError: the export failed (message from the exporter).
+
+    """
+    model = Restorer(network).cpu().eval()
+    image = check_image(channels, size)
+    exporters = ["dynamo"] if importlib.util.find_spec("onnxscript") is not None else []
+    exporters.append("legacy")  # torch's TorchScript-based exporter needs no onnxscript
+    exporter = ""
+    for attempt in exporters:
+        try:
+            atomic_write(
+                Path(path), functools.partial(_onnx_export, model, image, exporter=attempt), ".onnx"
+            )
+            exporter = _EXPORTERS[attempt]
+            break
+        except Exception as exc:  # exporters raise many types; report one line
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            if attempt == exporters[-1]:
+                raise ModelError(f"ONNX export failed: {first}") from exc
+            log.warning("%s failed (%s); trying %s", _EXPORTERS[attempt], first, exporters[-1])
+    size_text = f"{size[1]}x{size[0]}"
+    if importlib.util.find_spec("onnxruntime") is None:
+        note = "onnxruntime is not installed (pip install 'lenspair[onnx]'): written, not checked"
+        return ExportCheck("onnx", str(path), size_text, exporter, None, note=note)
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    threads = torch.get_num_threads()
+    options.intra_op_num_threads = threads
+    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    feed = {INPUT_NAME: image.numpy()}
+    with torch.inference_mode():
+        expected = model(image).numpy()
+    actual = session.run(None, feed)[0]
+    diff = float(np.max(np.abs(actual - expected)))
+    median, p90 = _time(lambda: session.run(None, feed), runs)
+    return ExportCheck("onnx", str(path), size_text, exporter, diff, median, p90, threads)
+
+
+def export_torchscript(
+    network: nn.Module,
+    channels: int,
+    path: Path,
+    size: tuple[int, int] = (360, 540),
+    runs: int = 20,
+) -> ExportCheck:
+    """Trace ``network`` to TorchScript, reload the file and check it against torch.
+
+    Raises:
+        ModelError: tracing failed.
+
+    """
+    model = Restorer(network).cpu().eval()
+    image = check_image(channels, size)
+    try:
+        with warnings.catch_warnings(), torch.no_grad():
+            warnings.simplefilter("ignore")  # deprecation and tracer chatter
+            traced = torch.jit.trace(model, (image,), check_trace=False)
+    except Exception as exc:
+        raise ModelError(f"TorchScript trace failed: {str(exc).strip().splitlines()[0]}") from exc
+
+    def _write(tmp: Path) -> None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            torch.jit.save(traced, str(tmp))
+
+    atomic_write(Path(path), _write, suffix=".pt")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        loaded = torch.jit.load(str(path), map_location="cpu")
+    with torch.no_grad():
+        expected = model(image)
+        actual = loaded(image)
+        diff = float((actual - expected).abs().max())
+        median, p90 = _time(lambda: loaded(image), runs)
+    return ExportCheck(
+        "torchscript",
+        str(path),
+        f"{size[1]}x{size[0]}",
+        "torch.jit.trace",
+        diff,
+        median,
+        p90,
+        torch.get_num_threads(),
+    )
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"540x360"`` (width x height) -> ``(360, 540)`` = (H, W).
+
+    Raises:
+        ModelError: not ``WxH`` with both sides >= 8.
+
+    """
+    try:
+        width_text, height_text = text.lower().split("x")
+        width, height = int(width_text), int(height_text)
+    except ValueError:
+        raise ModelError(f"--size: expected WIDTHxHEIGHT such as 540x360, got {text!r}") from None
+    if width < 8 or height < 8:
+        raise ModelError(f"--size: both sides must be >= 8 pixels, got {text!r}")
+    return height, width
+
+
+def export_checkpoint(
+    checkpoint: Path,
+    onnx_path: Path | None,
+    torchscript_path: Path | None,
+    size: tuple[int, int] = (360, 540),
+) -> list[ExportCheck]:
+    """Export a checkpoint's network to ONNX and/or TorchScript, each checked.
+
+    Raises:
+        ModelError: unreadable checkpoint, nothing to export, or a failed export.
+
+    """
+    from lenspair.model.checkpoint import load_model
+
+    if onnx_path is None and torchscript_path is None:
+        raise ModelError("nothing to export: give --onnx and/or --torchscript")
+    loaded = load_model(checkpoint, "cpu")
+    channels = loaded.config.model.channels or 1
+    checks = []
+    if onnx_path is not None:
+        checks.append(export_onnx(loaded.network, channels, onnx_path, size))
+        log.info("%s", checks[-1].summary())
+    if torchscript_path is not None:
+        checks.append(export_torchscript(loaded.network, channels, torchscript_path, size))
+        log.info("%s", checks[-1].summary())
+    return checks

@@ -1,0 +1,332 @@
+"""Accuracy against inference time: train variants under one budget, score and time them.
+
+Every variant is trained on the same data with the same budget (steps or
+seconds; early stopping off so that budgets stay equal), then its
+``best.pt`` is scored on the evaluation pairs and timed at batch 1 on the
+data's frame size. Each ``GEA``-family checkpoint is scored and timed again
+at bf16 (and fp16 on CUDA), since reduced precision is the other lever on
+speed. The result is ONE table (``tradeoff.md``, ``.csv``, ``.json``) and a
+plot (``tradeoff.png``) of PSNR and SSIM against CPU time with the Pareto
+front (no other row is both faster and more accurate) marked; those files
+are written by :func:`lenspair.model.evaluation.tradeoff_report.write_tradeoff`.
+
+Layout of ``OUT``::
+
+    tradeoff.md / tradeoff.csv / tradeoff.json / tradeoff.png
+    tradeoff_config.yaml     base run config, budget and variants
+    runs/<variant>/          one run folder per variant (reused when rerun)
+"""
+
+import logging
+import math
+import re
+import shutil
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+from lenspair.model.errors import ModelError
+from lenspair.model.training.config import RunConfig, Variant
+
+from lenspair.core.config import dump_yaml, to_plain
+from lenspair.core.errors import LenspairError
+from lenspair.core.fsutil import atomic_write_text
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TradeoffVariant:
+    """One network in the comparison."""
+
+    name: str
+    variant: Variant
+    width: float = 1.0
+    num_blocks: int = 9
+
+
+DEFAULT_VARIANTS: tuple[TradeoffVariant, ...] = (
+    TradeoffVariant("G", "G"),
+    TradeoffVariant("GE", "GE"),
+    TradeoffVariant("GEA", "GEA"),
+    TradeoffVariant("GEA-w0.5", "GEA", width=0.5),
+    TradeoffVariant("GEA-w2", "GEA", width=2.0),
+    TradeoffVariant("GEA-b3", "GEA", num_blocks=3),
+)
+"""G, GE, GEA, a narrower and a wider GEA, and a GEA with 3 residual blocks."""
+
+
+@dataclass(frozen=True)
+class Budget:
+    """Training budget of each variant: optimiser steps or wall-clock seconds."""
+
+    steps: int | None = None
+    seconds: float | None = None
+
+    def describe(self) -> str:
+        """``60 steps`` or ``90 s``."""
+        return f"{self.steps} steps" if self.steps is not None else f"{self.seconds:g} s"
+
+
+def parse_budget(text: str) -> Budget:
+    """``"60"`` -> 60 steps; ``"90s"``, ``"2m"``, ``"1h"`` -> seconds.
+
+    Raises:
+        ModelError: anything else, or a non-positive budget.
+
+    """
+    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([smh]?)\s*", text.lower())
+    if match is None:
+        raise ModelError(f"--budget: expected STEPS or SECONDS like 60, 90s, 2m; got {text!r}")
+    value, unit = float(match.group(1)), match.group(2)
+    if value <= 0:
+        raise ModelError(f"--budget must be positive, got {text!r}")
+    if not unit:
+        if value != int(value):
+            raise ModelError(f"--budget: steps must be a whole number, got {text!r}")
+        return Budget(steps=int(value))
+    return Budget(seconds=value * {"s": 1.0, "m": 60.0, "h": 3600.0}[unit])
+
+
+@dataclass(frozen=True)
+class TradeoffRow:
+    """One line of the table: a checkpoint at one precision."""
+
+    name: str
+    variant: str
+    width: float
+    num_blocks: int
+    precision: str
+    params: int
+    gflops: float
+    cpu_ms: float | None
+    gpu_ms: float | None
+    psnr_db: float
+    ssim: float
+    convention: str
+    steps: int
+    pareto_psnr: bool = False
+    pareto_ssim: bool = False
+
+
+@dataclass(frozen=True)
+class TradeoffResult:
+    """The table rows (Pareto flags set) and the conditions they were measured under."""
+
+    rows: list[TradeoffRow]
+    meta: dict[str, Any]
+
+
+def pareto_front(times: Sequence[float | None], scores: Sequence[float]) -> list[int]:
+    """Indices of the points no other point dominates (faster-or-equal and better-or-equal).
+
+    A point with an unknown (``None``) or NaN time or a NaN score is never on
+    the front. Points that tie exactly are all on it. Returned in index order.
+    """
+    valid = [
+        i
+        for i, (t, s) in enumerate(zip(times, scores, strict=True))
+        if t is not None and not math.isnan(t) and not math.isnan(s)
+    ]
+    front = []
+    for i in valid:
+        ti, si = times[i], scores[i]
+        assert ti is not None
+        dominated = False
+        for j in valid:
+            tj, sj = times[j], scores[j]
+            assert tj is not None
+            if tj <= ti and sj >= si and (tj < ti or sj > si):
+                dominated = True
+                break
+        if not dominated:
+            front.append(i)
+    return front
+
+
+def mark_pareto(rows: Sequence[TradeoffRow]) -> list[TradeoffRow]:
+    """Set ``pareto_psnr``/``pareto_ssim`` against CPU time."""
+    times = [r.cpu_ms for r in rows]
+    on_psnr = set(pareto_front(times, [r.psnr_db for r in rows]))
+    on_ssim = set(pareto_front(times, [r.ssim for r in rows]))
+    return [
+        replace(r, pareto_psnr=i in on_psnr, pareto_ssim=i in on_ssim) for i, r in enumerate(rows)
+    ]
+
+
+def variant_config(base: RunConfig, variant: TradeoffVariant, budget: Budget) -> RunConfig:
+    """The run config of one variant: its network, the shared budget, no early stopping."""
+    return replace(
+        base,
+        model=replace(
+            base.model, variant=variant.variant, width=variant.width, num_blocks=variant.num_blocks
+        ),
+        train=replace(
+            base.train,
+            max_steps=budget.steps,
+            max_seconds=budget.seconds,
+            patience=0,
+            epochs=max(base.train.epochs, 10**6)
+            if budget.steps or budget.seconds
+            else base.train.epochs,
+        ),
+        runtime=None,
+    )
+
+
+def precisions_for(variant: str, device: torch.device) -> list[str]:
+    """fp32 for every variant; bf16 (and fp16 on CUDA) again for GEA checkpoints."""
+    if variant != "GEA":
+        return ["fp32"]
+    return ["fp32", "bf16"] + (["fp16"] if device.type == "cuda" else [])
+
+
+def run_tradeoff(
+    dataset: Path,
+    out_dir: Path,
+    device: torch.device,
+    budget: Budget,
+    base: RunConfig,
+    variants: Sequence[TradeoffVariant] = DEFAULT_VARIANTS,
+    convention: str = "skimage-gaussian",
+    split: str = "test",
+    latency_runs: int = 20,
+) -> TradeoffResult:
+    """Train, score and time every variant; write the table and the plot.
+
+    Args:
+        dataset: paired data (any layout); trained on its training split.
+        out_dir: output folder (see the module docstring); reruns reuse runs.
+        device: training and scoring device; CPU timings are always taken.
+        budget: per-variant training budget.
+        base: run config shared by all variants (crop, batch, seed, losses).
+        variants: the networks to compare.
+        convention: metric convention of the table.
+        split: evaluation split (falls back to the held-out validation pairs).
+        latency_runs: timed runs per latency figure.
+
+    Returns:
+        The rows (Pareto flags set) and the measurement conditions.
+
+    """
+    from lenspair.model.checkpoint import load_model
+    from lenspair.model.evaluation.evaluate import Summary, score_pairs, summarize
+    from lenspair.model.evaluation.latency import measure_latency
+
+    # here, not at the top: model.evaluation.tradeoff_report imports TradeoffRow from this module
+    from lenspair.model.evaluation.tradeoff_report import write_tradeoff
+    from lenspair.model.training.datasets import paired_training_data
+    from lenspair.model.training.loop import fit, resolve_config
+    from lenspair.model.training.pairs import open_eval_pairs
+
+    out_dir = Path(out_dir)
+    data = paired_training_data(dataset, base.data, base.model.channels, base.train.seed)
+    try:
+        pairs: Any = open_eval_pairs(dataset, split)
+        pairs_text = f"{dataset} split {split}"
+    except LenspairError:
+        pairs = getattr(data.val, "source", None)
+        if pairs is None:
+            raise
+        pairs_text = f"{dataset} held-out validation pairs (no {split!r} split)"
+    size = tuple(pairs[0].input.shape[:2])
+    out_dir.mkdir(parents=True, exist_ok=True)
+    meta = {
+        "dataset": str(dataset),
+        "evaluated_on": pairs_text,
+        "budget": budget.describe(),
+        "variants": [asdict(v) for v in variants],
+        "device": str(device),
+        "threads": torch.get_num_threads(),
+        "size": f"{size[1]}x{size[0]}",
+        "convention": convention,
+    }
+    atomic_write_text(
+        out_dir / "tradeoff_config.yaml",
+        dump_yaml({"base": to_plain(resolve_config(base, data.channels)), **meta}),
+    )
+    rows = []
+    baseline: Summary | None = None
+    for variant in variants:
+        config = resolve_config(variant_config(base, variant, budget), data.channels)
+        run = out_dir / "runs" / variant.name
+        resume = _reusable(run, config)
+        log.info("tradeoff: training %s for %s", variant.name, budget.describe())
+        summary = fit(
+            config,
+            data.train,
+            data.val,
+            run,
+            device,
+            data_description=data.description,
+            resume=resume,
+        )
+        loaded = load_model(run / "checkpoints" / "best.pt", device)
+        params, gflops = complexity(loaded.network, data.channels, (size[0], size[1]))
+        for precision in precisions_for(variant.variant, device):
+            scores, _ = score_pairs(
+                loaded.network, pairs, data.channels, device, convention, precision, 0, 0
+            )
+            means = summarize(scores)
+            baseline = baseline or summarize(scores, "input")
+            cpu_ms = gpu_ms = None
+            if precision != "fp16":
+                cpu = measure_latency(
+                    loaded.network, data.channels, torch.device("cpu"), (size[0], size[1]),
+                    precision, warmup=3, runs=latency_runs,
+                )  # fmt: skip
+                cpu_ms = cpu.median_ms
+            if device.type == "cuda":
+                gpu = measure_latency(
+                    loaded.network, data.channels, device, (size[0], size[1]), precision,
+                    warmup=3, runs=latency_runs,
+                )  # fmt: skip
+                gpu_ms = gpu.median_ms
+            loaded.network.to(device)
+            rows.append(
+                TradeoffRow(
+                    name=variant.name,
+                    variant=variant.variant,
+                    width=variant.width,
+                    num_blocks=variant.num_blocks,
+                    precision=precision,
+                    params=params,
+                    gflops=gflops,
+                    cpu_ms=cpu_ms,
+                    gpu_ms=gpu_ms,
+                    psnr_db=means.psnr_db,
+                    ssim=means.ssim,
+                    convention=convention,
+                    steps=summary.steps,
+                )
+            )
+            log.info("tradeoff: %s", rows[-1])
+    if baseline is not None:
+        meta["input_baseline"] = {"psnr_db": baseline.psnr_db, "ssim": baseline.ssim}
+    rows = mark_pareto(rows)
+    write_tradeoff(rows, out_dir, meta)
+    return TradeoffResult(rows, meta)
+
+
+def _reusable(run: Path, config: RunConfig) -> bool:
+    """Whether ``run`` holds a run of the same network to resume; else clear it."""
+    from lenspair.model.checkpoint import checkpoint_config, load_checkpoint
+
+    last = run / "checkpoints" / "last.pt"
+    if not last.is_file():
+        return False
+    if checkpoint_config(load_checkpoint(last), last).model == config.model:
+        return True
+    log.warning("tradeoff: %s was trained with other settings; training it again", run)
+    shutil.rmtree(run)
+    return False
+
+
+def complexity(network: torch.nn.Module, channels: int, size: tuple[int, int]) -> tuple[int, float]:
+    """Parameter count and GFLOPs of one forward pass at ``size`` = (H, W)."""
+    from lenspair.model.networks.complexity import describe
+
+    summary = describe(network, (channels, size[0], size[1]))
+    return summary.parameters, summary.gflops

@@ -1,0 +1,139 @@
+"""Write the accuracy-against-time comparison: Markdown, CSV and JSON table, and plot.
+
+The rows come from :func:`lenspair.model.evaluation.tradeoff.run_tradeoff`
+(:class:`~lenspair.model.evaluation.tradeoff.TradeoffRow`, Pareto flags already set by
+:func:`~lenspair.model.evaluation.tradeoff.mark_pareto`); this module only
+formats and writes them, with the measurement conditions (``meta``) named in the
+table and the plot.
+
+Files written by :func:`write_tradeoff` into ``OUT``::
+
+    tradeoff.md    the table as Markdown, with its conditions and the input baseline
+    tradeoff.csv   one row per checkpoint and precision (columns: COLUMNS)
+    tradeoff.json  the conditions and the rows
+    tradeoff.png   PSNR and SSIM against CPU time, Pareto fronts marked
+
+An infinite PSNR is written as ``inf`` (the string ``"inf"`` in
+``tradeoff.json``). An unknown time is empty in the CSV, ``null`` in the JSON,
+``n/a`` in the Markdown, and its row is left out of the plot.
+"""
+
+import csv
+import io
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from lenspair.model.evaluation.tradeoff import TradeoffRow
+
+from lenspair.core.fsutil import atomic_write, atomic_write_text
+
+
+def _fmt(value: float | None, digits: int) -> str:
+    if value is None:
+        return ""
+    if math.isinf(value):
+        return "inf"
+    return f"{value:.{digits}f}"
+
+
+COLUMNS = (
+    "name", "variant", "width", "num_blocks", "precision", "params", "gflops", "cpu_ms",
+    "gpu_ms", "psnr_db", "ssim", "convention", "steps", "pareto_psnr", "pareto_ssim",
+)  # fmt: skip
+
+
+def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
+    """The table as Markdown, with its measurement conditions."""
+    lines = [
+        "# Accuracy against inference time",
+        "",
+        f"- data: `{meta['dataset']}`, scored on {meta['evaluated_on']}",
+        f"- training budget per variant: {meta['budget']}",
+        f"- metric convention: {meta['convention']}",
+        f"- latency: batch 1 at {meta['size']}, median after warm-up; CPU with "
+        f"{meta['threads']} threads; GPU column only when trained on CUDA",
+        "- Pareto: `*` = on the PSNR-vs-CPU-time front, `+` = on the SSIM-vs-CPU-time front",
+        "",
+        "| name | precision | params | GFLOPs | CPU ms | GPU ms | PSNR (dB) | SSIM | "
+        "convention | Pareto |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- |",
+    ]
+    for r in rows:
+        mark = ("*" if r.pareto_psnr else "") + ("+" if r.pareto_ssim else "")
+        lines.append(
+            f"| {r.name} | {r.precision} | {r.params:,} | {r.gflops:.3f} | "
+            f"{_fmt(r.cpu_ms, 2) or 'n/a'} | {_fmt(r.gpu_ms, 2) or 'n/a'} | "
+            f"{_fmt(r.psnr_db, 2)} | {_fmt(r.ssim, 4)} | {r.convention} | {mark} |"
+        )
+    baseline = meta.get("input_baseline")
+    if baseline:
+        lines += [
+            "",
+            f"Input without restoration (the baseline to beat): PSNR "
+            f"{_fmt(baseline['psnr_db'], 2)} dB, SSIM {_fmt(baseline['ssim'], 4)}.",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def write_tradeoff(rows: Sequence[TradeoffRow], out_dir: Path, meta: dict[str, Any]) -> None:
+    """Write ``tradeoff.md``, ``tradeoff.csv``, ``tradeoff.json`` and ``tradeoff.png``."""
+    out_dir = Path(out_dir)
+    atomic_write_text(out_dir / "tradeoff.md", tradeoff_markdown(rows, meta))
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: ("" if v is None else v) for k, v in asdict(r).items()})
+    atomic_write_text(out_dir / "tradeoff.csv", buffer.getvalue())
+    payload = {**meta, "rows": [asdict(r) for r in rows]}
+    text = json.dumps(payload, indent=2, default=str).replace("Infinity", '"inf"')
+    atomic_write_text(out_dir / "tradeoff.json", text + "\n")
+    plot_tradeoff(rows, out_dir / "tradeoff.png", meta)
+
+
+def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any]) -> None:
+    """PSNR and SSIM against CPU time, one panel each, Pareto fronts drawn and ringed."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(11, 4.5), dpi=110)
+    FigureCanvasAgg(figure)
+    panels = ((figure.add_subplot(1, 2, 1), "psnr_db", "PSNR (dB)", "pareto_psnr"),
+              (figure.add_subplot(1, 2, 2), "ssim", "SSIM", "pareto_ssim"))  # fmt: skip
+    timed = [(r.cpu_ms, r) for r in rows if r.cpu_ms is not None]
+    for axes, key, label, flag in panels:
+        for x, r in timed:
+            y = min(getattr(r, key), 100.0)
+            marker = "o" if r.precision == "fp32" else "s"
+            axes.scatter([x], [y], marker=marker, color="tab:blue", zorder=3)
+            # fp32 labels above, reduced precision below: the two precisions of
+            # one network score alike and would print over each other
+            below = r.precision != "fp32"
+            axes.annotate(f"{r.name} {r.precision}", (x, y), textcoords="offset points",
+                          xytext=(4, -11 if below else 4), fontsize=7)  # fmt: skip
+        front = sorted(((x, r) for x, r in timed if getattr(r, flag)), key=lambda p: p[0])
+        if front:
+            xs = [x for x, _ in front]
+            ys = [min(getattr(r, key), 100.0) for _, r in front]
+            axes.plot(xs, ys, color="tab:red", linewidth=1.5, zorder=2, label="Pareto front")
+            axes.scatter(xs, ys, s=140, facecolors="none", edgecolors="tab:red", zorder=4)
+            axes.legend(loc="lower right", fontsize=8)
+        baseline = meta.get("input_baseline")
+        if baseline:
+            axes.axhline(min(baseline[key], 100.0), color="grey", linestyle="--", linewidth=1,
+                         label="input, no restoration")  # fmt: skip
+            axes.legend(loc="lower right", fontsize=8)
+        axes.set_xlabel(f"CPU time per {meta['size']} frame (ms, batch 1)")
+        axes.set_ylabel(f"{label}, {meta['convention']}")
+        axes.grid(True, alpha=0.3)
+    figure.suptitle(f"Accuracy vs CPU time ({meta['budget']} per variant; o fp32, s bf16)")
+    figure.tight_layout()
+
+    def _write(tmp: Path) -> None:
+        figure.savefig(tmp, format="png")
+
+    atomic_write(Path(path), _write, suffix=".png")

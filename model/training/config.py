@@ -1,0 +1,269 @@
+"""Typed training configuration: one YAML file per experiment, diffable.
+
+A run's configuration has four sections, each a frozen dataclass loaded
+through :func:`lenspair.core.config.load_yaml`, which rejects unknown keys with
+their dotted path (``train.lr: expected float, got 'le-4'``)::
+
+    model: {variant: GEA, channels: null, width: 1.0, num_blocks: 9, discriminator_width: 1.0}
+    data:  {crop_size: 256, hflip: true, vflip: false, drops: ours, ...}
+    train: {lr: 2.0e-4, beta1: 0.5, beta2: 0.999, batch_size: 8, epochs: 200, ...}
+    loss:  {adversarial: 1.0, feature_matching: 10.0, perceptual: 10.0, fidelity: 100.0, ...}
+
+The file saved as ``RUN/config.yaml`` is the *resolved* configuration: every
+default written out, ``model.channels`` fixed from the data, and a
+``runtime`` section stating what the run actually did (device, precision,
+whether the perceptual loss ran, the data it read).
+"""
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from lenspair.core.config import dump_yaml, load_dataclass, load_yaml
+
+Variant = Literal["G", "GE", "GEA"]
+DropsPreset = Literal["ours", "sharp"]
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Which restoration network to build (``lenspair.model.networks.variants.build_model``).
+
+    Attributes:
+        variant: ``G`` (generator only), ``GE`` (+ enhancer) or ``GEA``
+            (+ aggregation), as in the paper's ablation.
+        channels: 1 (mono) or 3 (RGB); ``None`` takes it from the data.
+        width: multiplier of the number of filters (0.5 narrower, 2 wider).
+        num_blocks: residual blocks of the generator (9 in the paper).
+        discriminator_width: multiplier of the PatchGAN's 64 base filters
+            (training only; the deployed network does not contain it).
+
+    """
+
+    variant: Variant = "GEA"
+    channels: int | None = None
+    width: float = 1.0
+    num_blocks: int = 9
+    discriminator_width: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.channels is not None and self.channels not in (1, 3):
+            raise ValueError(f"channels: expected 1 or 3, got {self.channels}")
+        if not 0.0 < self.width <= 16.0:
+            raise ValueError(f"width: expected 0 < width <= 16, got {self.width}")
+        if self.num_blocks < 0:
+            raise ValueError(f"num_blocks: expected >= 0, got {self.num_blocks}")
+        if not 0.0 < self.discriminator_width <= 16.0:
+            raise ValueError(
+                f"discriminator_width: expected 0 < width <= 16, got {self.discriminator_width}"
+            )
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """How training pairs are drawn (``lenspair.model.training.pairs``, ``...datasets``).
+
+    Attributes:
+        crop_size: side of the square random training crop, pixels.
+        hflip: random horizontal flips.
+        vflip: random vertical flips (off: skies stay on top).
+        train_split: dataset split trained on.
+        val_split: split used for validation and early stopping.
+        max_val_images: validate on at most this many images (``None``: all).
+        num_workers: DataLoader worker processes (0: load in the main process).
+        drops: synthetic pretraining only: ``ours`` (defocused, brightened
+            lens drops) or ``sharp`` (Porav et al.'s in-focus drops).
+        val_fraction: synthetic pretraining only: fraction of the clean
+            images held out for validation (chosen by a hash of the file
+            name, so the choice is deterministic and stable).
+
+    """
+
+    crop_size: int = 256
+    hflip: bool = True
+    vflip: bool = False
+    train_split: str = "train"
+    val_split: str = "val"
+    max_val_images: int | None = 64
+    num_workers: int = 0
+    drops: DropsPreset = "ours"
+    val_fraction: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.crop_size < 8:
+            raise ValueError(f"crop_size: expected >= 8, got {self.crop_size}")
+        if self.max_val_images is not None and self.max_val_images < 1:
+            raise ValueError(f"max_val_images: expected >= 1, got {self.max_val_images}")
+        if self.num_workers < 0:
+            raise ValueError(f"num_workers: expected >= 0, got {self.num_workers}")
+        if not 0.0 < self.val_fraction < 1.0:
+            raise ValueError(f"val_fraction: expected 0..1, got {self.val_fraction}")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation, schedule and safety settings (``lenspair.model.training.loop``).
+
+    Attributes:
+        lr: Adam learning rate of all networks.
+        beta1: Adam beta1 (0.5, as for GANs).
+        beta2: Adam beta2.
+        batch_size: pairs per step (global: split across processes under torchrun).
+        epochs: at most this many passes over the training split.
+        patience: stop after this many validations without a better PSNR
+            (0 disables early stopping).
+        max_steps: optional budget in optimiser steps (stops mid-epoch).
+        max_seconds: optional budget in wall-clock seconds of training.
+        amp: mixed precision: bf16 autocast on CPU, fp16 + GradScaler on CUDA.
+        seed: seeds network initialisation, crops, flips and rendered drops.
+        deterministic: ask torch for deterministic kernels (slower on CUDA).
+        vgg19_weights: VGG19 ImageNet weights for the perceptual loss;
+            ``None`` falls back to ``LENSPAIR_VGG19_WEIGHTS``; without either
+            the perceptual term is disabled (and the run says so).
+        nan_patience: stop after this many consecutive non-finite steps (each
+            one is skipped without updating any weight).
+        grad_clip: optional max gradient norm of the restoration network.
+        val_every: validate (and maybe save ``best.pt``) every N epochs.
+        log_every: progress-bar / TensorBoard update interval, steps.
+        tensorboard: also log to ``RUN/tensorboard`` when it is installed.
+
+    """
+
+    lr: float = 2e-4
+    beta1: float = 0.5
+    beta2: float = 0.999
+    batch_size: int = 8
+    epochs: int = 200
+    patience: int = 10
+    max_steps: int | None = None
+    max_seconds: float | None = None
+    amp: bool = True
+    seed: int = 0
+    deterministic: bool = False
+    vgg19_weights: Path | None = None
+    nan_patience: int = 5
+    grad_clip: float | None = None
+    val_every: int = 1
+    log_every: int = 10
+    tensorboard: bool = True
+
+    def __post_init__(self) -> None:
+        if self.lr <= 0:
+            raise ValueError(f"lr: expected > 0, got {self.lr}")
+        if not (0.0 <= self.beta1 < 1.0 and 0.0 <= self.beta2 < 1.0):
+            raise ValueError("beta1, beta2: expected 0 <= beta < 1")
+        for name in ("batch_size", "epochs", "nan_patience", "val_every", "log_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)}")
+        if self.patience < 0:
+            raise ValueError(f"patience: expected >= 0, got {self.patience}")
+        if self.max_steps is not None and self.max_steps < 1:
+            raise ValueError(f"max_steps: expected >= 1, got {self.max_steps}")
+        if self.max_seconds is not None and self.max_seconds <= 0:
+            raise ValueError(f"max_seconds: expected > 0, got {self.max_seconds}")
+        if self.grad_clip is not None and self.grad_clip <= 0:
+            raise ValueError(f"grad_clip: expected > 0, got {self.grad_clip}")
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Weights of the loss terms.
+
+    The generator output gets the LSGAN adversarial and feature-matching
+    terms; the enhanced output gets the VGG19 perceptual and L2 fidelity
+    terms; the restoration network minimises their weighted sum in one step.
+
+    Attributes:
+        adversarial: LSGAN generator term.
+        feature_matching: L1 between discriminator features of real and fake.
+        perceptual: VGG19 perceptual term (needs weights, else disabled).
+        perceptual_layers: weights of the five VGG19 stages (1/32 ... 1).
+        fidelity: L2 (mean squared error) to the target, in [0, 1] units.
+
+    """
+
+    adversarial: float = 1.0
+    feature_matching: float = 10.0
+    perceptual: float = 10.0
+    perceptual_layers: tuple[float, ...] = (1 / 32, 1 / 16, 1 / 8, 1 / 4, 1.0)
+    fidelity: float = 100.0
+
+    def __post_init__(self) -> None:
+        for f in ("adversarial", "feature_matching", "perceptual", "fidelity"):
+            if getattr(self, f) < 0:
+                raise ValueError(f"{f}: expected >= 0, got {getattr(self, f)}")
+        if len(self.perceptual_layers) != 5:
+            raise ValueError(
+                f"perceptual_layers: expected 5 weights, got {len(self.perceptual_layers)}"
+            )
+
+
+@dataclass(frozen=True)
+class RuntimeInfo:
+    """What a run actually did; written by the trainer, informative only.
+
+    Attributes:
+        perceptual: ``enabled (PATH)`` or ``disabled (reason)``.
+        precision: ``fp32``, ``bf16 autocast`` or ``fp16 autocast + GradScaler``.
+        device: the torch device trained on.
+        world_size: number of processes (``torchrun``), 1 otherwise.
+        data: the dataset or clean-image folder trained on.
+        synthetic: drops preset when training on synthetic drops, else ``None``.
+        init: checkpoint the weights were initialised from, if any.
+        torch_version: ``torch.__version__``.
+
+    """
+
+    perceptual: str = ""
+    precision: str = ""
+    device: str = ""
+    world_size: int = 1
+    data: str = ""
+    synthetic: str | None = None
+    init: str | None = None
+    torch_version: str = ""
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """A whole experiment: ``model``, ``data``, ``train``, ``loss`` (+ ``runtime``, resolved)."""
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    runtime: RuntimeInfo | None = None
+
+
+def load_run_config(path: Path | None) -> RunConfig:
+    """Read a run configuration YAML file; ``None`` gives the defaults.
+
+    Raises:
+        ConfigError: unknown key, wrong type or invalid value (dotted path named).
+
+    """
+    return RunConfig() if path is None else load_yaml(RunConfig, path)
+
+
+def run_config_from_dict(data: object) -> RunConfig:
+    """Build a :class:`RunConfig` from plain data (e.g. stored in a checkpoint)."""
+    return load_dataclass(RunConfig, data)
+
+
+def run_config_to_yaml(config: RunConfig) -> str:
+    """Serialise a configuration as YAML (all keys, field order)."""
+    return dump_yaml(config)
+
+
+def config_differences(old: RunConfig, new: RunConfig) -> list[str]:
+    """Dotted keys whose values differ between two configs (``runtime`` ignored)."""
+    changed = []
+    for section in ("model", "data", "train", "loss"):
+        a, b = getattr(old, section), getattr(new, section)
+        for f in dataclasses.fields(a):
+            if getattr(a, f.name) != getattr(b, f.name):
+                changed.append(
+                    f"{section}.{f.name}: {getattr(a, f.name)!r} -> {getattr(b, f.name)!r}"
+                )
+    return changed

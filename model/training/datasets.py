@@ -1,0 +1,203 @@
+"""The training and validation sets of one run, from real pairs or clean images.
+
+The entry points of ``lenspair train`` (and of the trade-off study): a paired
+dataset becomes random crops of its training pairs (:mod:`lenspair.model.training.pairs`), a
+folder of clean images becomes synthetic drops rendered on them
+(:mod:`lenspair.model.training.synthetic`). When no validation split exists, a fraction
+is held out by a hash of the names, so the split is deterministic and stable
+as data is added.
+"""
+
+import hashlib
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from lenspair.model.errors import ModelError
+from lenspair.model.training.config import DataConfig
+from lenspair.model.training.pairs import PairedCrops, PairItem, PairSource, channels_of
+from lenspair.model.training.synthetic import SyntheticDrops, drops_preset, find_clean_images
+
+from lenspair.core.imageio import read_image
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainData:
+    """Training and validation sets of one run, and what they are.
+
+    Attributes:
+        train: random crops (``set_epoch`` selects the epoch's draws).
+        val: whole images with fixed content.
+        channels: channels of the network (1 or 3).
+        description: where the pairs come from and how many, for the run config.
+        synthetic: the drops preset for synthetic pretraining, else ``None``.
+
+    """
+
+    train: "PairedCrops | SyntheticDrops"
+    val: "PairedCrops | SyntheticDrops"
+    channels: int
+    description: str
+    synthetic: str | None = None
+
+
+def first_channels(dataset: PairSource) -> int:
+    """Channels of the first pair's input (1 or 3)."""
+    if len(dataset) == 0:
+        raise ModelError("the dataset is empty")
+    return channels_of(dataset[0].input)
+
+
+class SubsetSource:
+    """Some pairs of a source, by index (a deterministic hold-out)."""
+
+    def __init__(self, source: PairSource, indices: Sequence[int]) -> None:
+        self.source = source
+        self.indices = list(indices)
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, index: int) -> PairItem:
+        return self.source[self.indices[index]]
+
+
+def _hash_rank(name: str) -> str:
+    return hashlib.sha256(name.encode("utf-8")).hexdigest()
+
+
+def holdout_indices(names: Sequence[str], fraction: float) -> tuple[list[int], list[int]]:
+    """Split indices into (train, validation) by a hash of each name (deterministic).
+
+    Raises:
+        ModelError: fewer than two names.
+
+    """
+    if len(names) < 2:
+        raise ModelError(f"need at least 2 pairs to hold out a validation set, got {len(names)}")
+    count = min(len(names) - 1, max(1, math.ceil(fraction * len(names))))
+    ranked = sorted(range(len(names)), key=lambda i: (_hash_rank(names[i]), i))
+    held = set(ranked[:count])
+    return [i for i in range(len(names)) if i not in held], sorted(held)
+
+
+def split_holdout(
+    images: Sequence[Path], fraction: float, root: Path
+) -> tuple[list[Path], list[Path]]:
+    """Split images into (train, validation) by a hash of their path below ``root``.
+
+    The choice depends on the file names only (not on a seed or the listing
+    order), so adding images never moves an old one across the split. At
+    least one image lands on each side when there are two or more.
+    """
+    if len(images) < 2:
+        raise ModelError(f"{root}: need at least 2 clean images, found {len(images)}")
+
+    def key(path: Path) -> str:
+        relative = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
+        return hashlib.sha256(relative.encode("utf-8")).hexdigest()
+
+    ranked = sorted(images, key=key)
+    count = min(len(images) - 1, max(1, math.ceil(fraction * len(images))))
+    holdout = set(ranked[:count])
+    return [p for p in images if p not in holdout], [p for p in images if p in holdout]
+
+
+def _names(source: PairSource) -> list[str]:
+    names = getattr(source, "names", None)
+    if names is not None:
+        return [str(n) for n in names]
+    return [source[i].name for i in range(len(source))]
+
+
+def paired_training_data(
+    path: Path,
+    data: DataConfig,
+    channels: int | None,
+    seed: int,
+) -> TrainData:
+    """Training pairs from any layout ``dataset.readers`` reads.
+
+    A dataset with splits trains on ``data.train_split`` and validates on
+    ``data.val_split``; a split-less paired folder (or a dataset without the
+    validation split, like Raindrop) holds out ``data.val_fraction`` of the
+    training pairs, chosen by a hash of their names, and says so.
+
+    Args:
+        path: dataset root or paired folder.
+        data: the ``data`` section of the run config.
+        channels: network channels; ``None`` takes the first input's.
+        seed: seed of crops and flips.
+
+    Raises:
+        DatasetError: unreadable dataset; ModelError: too few pairs.
+
+    """
+    from lenspair.dataset.errors import DatasetError
+    from lenspair.dataset.readers import detect_layout, open_paired
+
+    path = Path(path)
+    note = ""
+    train_source: PairSource
+    val_source: PairSource
+    if detect_layout(path) is not None:
+        every = open_paired(path)
+        train_idx, val_idx = holdout_indices(_names(every), data.val_fraction)
+        train_source, val_source = SubsetSource(every, train_idx), SubsetSource(every, val_idx)
+        note = f"validation: {len(val_idx)} pairs held out by name hash"
+    else:
+        train_source = open_paired(path, data.train_split)
+        try:
+            val_source = open_paired(path, data.val_split)
+        except DatasetError as exc:
+            every = train_source
+            train_idx, val_idx = holdout_indices(_names(every), data.val_fraction)
+            train_source, val_source = SubsetSource(every, train_idx), SubsetSource(every, val_idx)
+            note = f"no {data.val_split!r} split ({exc}); validation: {len(val_idx)} "
+            note += f"{data.train_split!r} pairs held out by name hash"
+            log.warning("%s: %s", path, note)
+    resolved = channels or first_channels(train_source)
+    train = PairedCrops(train_source, resolved, data.crop_size, data.hflip, data.vflip, seed=seed)
+    val = PairedCrops(val_source, resolved, None, seed=seed, limit=data.max_val_images)
+    description = f"{path} (train {len(train)} pairs, validation {len(val)} pairs"
+    description += f"; {note})" if note else ")"
+    return TrainData(train=train, val=val, channels=resolved, description=description)
+
+
+def synthetic_training_data(
+    folder: Path,
+    data: DataConfig,
+    channels: int | None,
+    seed: int,
+) -> TrainData:
+    """Clean images with drops rendered on the fly, with a held-out validation subset.
+
+    Args:
+        folder: any folder of clean PNG/JPG/TIFF images, or a lenspair
+            dataset (its ``target/`` images are used).
+        data: the ``data`` section (``drops``, ``val_fraction``, crops, flips).
+        channels: network channels; ``None`` takes the first image's.
+        seed: seed of crops, flips and drops.
+
+    """
+    folder = Path(folder)
+    images = find_clean_images(folder)
+    train_images, val_images = split_holdout(images, data.val_fraction, folder)
+    resolved = channels or channels_of(read_image(images[0]))
+    effects = drops_preset(data.drops)
+    train = SyntheticDrops(
+        train_images, effects, resolved, data.crop_size, data.hflip, data.vflip, seed=seed
+    )
+    limit = data.max_val_images or len(val_images)
+    val = SyntheticDrops(val_images[:limit], effects, resolved, None, seed=seed, fixed=True)
+    description = (
+        f"{folder} (synthetic {data.drops} drops on {len(train_images)} clean images, "
+        f"validation {len(val)} held out by name hash)"
+    )
+    return TrainData(
+        train=train, val=val, channels=resolved, description=description, synthetic=data.drops
+    )

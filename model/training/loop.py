@@ -1,0 +1,382 @@
+"""The training loop: epochs, validation, early stopping, checkpoints, logs.
+
+:func:`fit` trains one run into a run folder and can be resumed exactly::
+
+    RUN/config.yaml              resolved configuration (+ runtime: what really ran)
+    RUN/checkpoints/last.pt      after every epoch (and at a budget stop)
+    RUN/checkpoints/best.pt      best validation PSNR so far
+    RUN/metrics.csv              one row per epoch
+    RUN/train.log                the log, warnings included
+    RUN/samples.png              input | output | target of a few validation images
+    RUN/tensorboard/             when TensorBoard is installed
+
+Epochs are passes over the training set in an order drawn from
+``(seed, epoch)`` (``DistributedSampler``, also for a single process); the
+items themselves are seeded by ``(seed, epoch, index)`` (:mod:`lenspair.model.training.pairs`).
+A checkpoint records the step within the epoch, so ``--resume`` skips exactly
+the batches already seen and continues with bit-identical updates on the CPU.
+
+Validation runs on rank 0 after every ``train.val_every`` epochs on whole
+images at fp32; its PSNR (convention ``skimage-gaussian``) drives
+``best.pt`` and early stopping (``train.patience`` validations without
+improvement). Budgets (``train.max_steps``, ``train.max_seconds``) stop the
+run mid-epoch after saving ``last.pt``.
+
+The run folder's files are :mod:`lenspair.model.training.run_files`, validation is
+:mod:`lenspair.model.training.validation`, and the progress a checkpoint records and the stop
+conditions are :mod:`lenspair.model.training.run_state`.
+"""
+
+import dataclasses
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import torch
+from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_weights
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
+from lenspair.model.training.config import RunConfig, RuntimeInfo, TrainConfig, config_differences
+from lenspair.model.training.pairs import Sample
+from lenspair.model.training.run_files import (
+    RunPaths,
+    read_metrics_rows,
+    run_logging,
+    tensorboard_writer,
+)
+from lenspair.model.training.run_state import RunState, budget_reason, stop_reason
+from lenspair.model.training.step import (
+    Distributed,
+    Trainer,
+    all_true,
+    init_distributed,
+    set_rng_state,
+)
+from lenspair.model.training.validation import validate_and_save
+from torch.utils.data import DataLoader
+from torch.utils.data.distributed import DistributedSampler
+
+from lenspair.core.config import dump_yaml
+from lenspair.core.fsutil import atomic_write_text
+from lenspair.core.progress import progress
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainSummary:
+    """What :func:`fit` did.
+
+    Attributes:
+        run: the run folder.
+        epochs: completed epochs.
+        steps: optimiser steps taken (skipped ones included).
+        best_psnr: best validation PSNR, dB (``-inf`` if never validated).
+        best_epoch: epoch of ``best.pt`` (0 if none).
+        stop_reason: why the loop ended.
+        seconds: training wall time over all sessions of the run.
+        skipped_steps: steps the NaN/Inf guard skipped.
+        perceptual: whether the perceptual loss ran (and why not).
+
+    """
+
+    run: Path
+    epochs: int
+    steps: int
+    best_psnr: float
+    best_epoch: int
+    stop_reason: str
+    seconds: float
+    skipped_steps: int
+    perceptual: str
+
+
+class EpochDataset(Protocol):
+    """A training set whose random choices depend on the epoch (``model.training.pairs``)."""
+
+    def __len__(self) -> int: ...
+    def __getitem__(self, index: int) -> Sample: ...
+    def set_epoch(self, epoch: int) -> None:
+        """Select the epoch."""
+
+
+def resolve_config(config: RunConfig, channels: int) -> RunConfig:
+    """Fix ``model.channels`` from the data when the config leaves it open."""
+    if config.model.channels is not None:
+        return config
+    return dataclasses.replace(config, model=dataclasses.replace(config.model, channels=channels))
+
+
+def resume_config(run: Path, override: RunConfig | None) -> RunConfig:
+    """The configuration to resume ``run`` with.
+
+    The run's ``last.pt`` holds the configuration it was started with; an
+    ``override`` (``--config``) may change anything but the network, and
+    each change is logged as a warning.
+
+    Raises:
+        ModelError: no checkpoint, or the override changes the network.
+
+    """
+    paths = RunPaths(run)
+    stored = checkpoint_config(load_checkpoint(paths.last), paths.last)
+    stored = dataclasses.replace(stored, runtime=None)
+    if override is None:
+        return stored
+    override = resolve_config(override, stored.model.channels or 1)
+    if override.model != stored.model:
+        raise ModelError(
+            f"--resume: the network of {run} is {stored.model}; --config asks for "
+            f"{override.model}; start a new run (or use --init) to change it"
+        )
+    for change in config_differences(stored, override):
+        log.warning("--resume with a changed config: %s", change)
+    return override
+
+
+def fit(
+    config: RunConfig,
+    train_set: EpochDataset,
+    val_set: EpochDataset,
+    run: Path,
+    device: torch.device,
+    *,
+    data_description: str = "",
+    synthetic: str | None = None,
+    init: Path | None = None,
+    resume: bool = False,
+) -> TrainSummary:
+    """Train into the run folder ``run`` (see the module docstring).
+
+    Args:
+        config: resolved configuration (``model.channels`` set).
+        train_set: training samples (random crops), with ``set_epoch``.
+        val_set: validation samples (whole images).
+        run: run folder; created if missing.
+        device: training device (resolved by the CLI).
+        data_description: what the data is, for ``config.yaml``'s runtime section.
+        synthetic: drops preset when the data is synthetic.
+        init: initialise the network's weights from this checkpoint.
+        resume: continue from ``run/checkpoints/last.pt``.
+
+    Returns:
+        A :class:`TrainSummary`.
+
+    Raises:
+        ModelError: existing run without ``resume``, incompatible ``init``,
+            empty datasets; :class:`~lenspair.model.training.step.TrainingDivergedError`.
+
+    """
+    if len(train_set) == 0 or len(val_set) == 0:
+        raise ModelError("training needs at least one training and one validation pair")
+    info, device = init_distributed(device)
+    train = config.train
+    if train.batch_size % info.world_size:
+        raise ModelError(
+            f"train.batch_size {train.batch_size} is not divisible by {info.world_size} processes"
+        )
+    paths = RunPaths(Path(run))
+    checkpoint = load_checkpoint(paths.last) if resume else None
+    if checkpoint is None and paths.last.exists():
+        raise ModelError(
+            f"{paths.root} already holds a run; pass --resume to continue it, "
+            "or choose another --out"
+        )
+    deterministic_before = torch.are_deterministic_algorithms_enabled()
+    try:
+        if train.deterministic:
+            torch.use_deterministic_algorithms(True, warn_only=True)
+            torch.backends.cudnn.benchmark = False
+        trainer = Trainer(config, device, info)
+        config = dataclasses.replace(
+            config,
+            runtime=RuntimeInfo(
+                perceptual=trainer.perceptual_status,
+                precision=trainer.precision,
+                device=str(device),
+                world_size=info.world_size,
+                data=data_description,
+                synthetic=synthetic,
+                init=None if init is None else str(init),
+                torch_version=str(torch.__version__),
+            ),
+        )
+        if info.is_main:
+            paths.root.mkdir(parents=True, exist_ok=True)
+        with run_logging(paths.log, info.is_main):
+            state = _start(trainer, config, paths, checkpoint, init)
+            if info.is_main:
+                atomic_write_text(paths.config, dump_yaml(config))
+            if trainer.vgg is None and config.loss.perceptual > 0:
+                log.warning(
+                    "PERCEPTUAL LOSS DISABLED: no VGG19 weights (set train.vgg19_weights or "
+                    "%s); training with the adversarial, feature-matching and L2 terms only",
+                    VGG19_WEIGHTS_ENV,
+                )
+            log.info(
+                "training %s (%s, width %g, %d blocks, %d channels) on %s, %s, perceptual %s",
+                config.model.variant,
+                paths.root,
+                config.model.width,
+                config.model.num_blocks,
+                trainer.channels,
+                device,
+                trainer.precision,
+                trainer.perceptual_status,
+            )
+            with tensorboard_writer(paths.tensorboard, info.is_main and train.tensorboard) as board:
+                reason = _loop(trainer, config, train_set, val_set, paths, state, info, board)
+            log.info(
+                "stopped (%s) after %d epochs, %d steps, %.0f s; best validation PSNR %.2f dB "
+                "at epoch %d; %d steps skipped as non-finite",
+                reason,
+                state.epoch,
+                state.step,
+                state.seconds,
+                state.best_psnr,
+                state.best_epoch,
+                trainer.guard.total,
+            )
+            if trainer.vgg is None and config.loss.perceptual > 0:
+                log.warning("reminder: this run trained WITHOUT the perceptual loss")
+        return TrainSummary(
+            run=paths.root,
+            epochs=state.epoch,
+            steps=state.step,
+            best_psnr=state.best_psnr,
+            best_epoch=state.best_epoch,
+            stop_reason=reason,
+            seconds=state.seconds,
+            skipped_steps=trainer.guard.total,
+            perceptual=trainer.perceptual_status,
+        )
+    finally:
+        torch.use_deterministic_algorithms(deterministic_before)
+        if info.active:
+            torch.distributed.destroy_process_group()
+
+
+def _start(
+    trainer: Trainer,
+    config: RunConfig,
+    paths: RunPaths,
+    checkpoint: dict[str, Any] | None,
+    init: Path | None,
+) -> RunState:
+    """Restore a resumed run, or load ``--init`` weights into a new one."""
+    if checkpoint is not None:
+        stored = checkpoint_config(checkpoint, paths.last)
+        if stored.model != config.model:
+            raise ModelError(
+                f"{paths.last}: its network {stored.model} differs from {config.model}"
+            )
+        trainer.load_state_dict(checkpoint)
+        set_rng_state(checkpoint.get("rng", {}))
+        state = RunState.from_checkpoint(checkpoint)
+        state.rows = [
+            row for row in read_metrics_rows(paths.metrics) if int(row["step"]) <= state.step
+        ]
+        log.info("resuming %s at epoch %d, step %d", paths.root, state.epoch + 1, state.step)
+        return state
+    if init is not None:
+        data = load_checkpoint(init)
+        source = checkpoint_config(data, init).model
+        # Only the restoration network is loaded; the discriminator starts afresh.
+        source = dataclasses.replace(source, discriminator_width=config.model.discriminator_width)
+        if source != config.model:
+            raise ModelError(
+                f"--init {init}: it holds a {source} network, this run builds {config.model}; "
+                "the model sections must match"
+            )
+        load_weights(trainer.model, data, init)
+        log.info("initialised the network from %s (weights only)", init)
+    return RunState()
+
+
+def _loop(
+    trainer: Trainer,
+    config: RunConfig,
+    train_set: EpochDataset,
+    val_set: EpochDataset,
+    paths: RunPaths,
+    state: RunState,
+    info: Distributed,
+    board: Any,
+) -> str:
+    """Epochs until done, early-stopped, out of budget; returns the reason."""
+    train = config.train
+    per_rank = train.batch_size // info.world_size
+    sampler: DistributedSampler[int] = DistributedSampler(
+        train_set,  # type: ignore[arg-type]
+        num_replicas=info.world_size,
+        rank=info.rank,
+        shuffle=True,
+        seed=train.seed,
+    )
+    steps_per_epoch = math.ceil(len(sampler) / per_rank)
+    started = time.monotonic()
+    session_start = state.seconds
+
+    def elapsed() -> float:
+        return session_start + time.monotonic() - started
+
+    reason = stop_reason(config, state, elapsed())
+    while reason is None:
+        epoch = state.epoch
+        train_set.set_epoch(epoch)
+        sampler.set_epoch(epoch)
+        order = list(sampler)[state.step_in_epoch * per_rank :]
+        loader: DataLoader[Sample] = DataLoader(
+            train_set,  # type: ignore[arg-type]
+            batch_size=per_rank,
+            sampler=order,
+            num_workers=config.data.num_workers,
+            pin_memory=trainer.device.type == "cuda",
+        )
+        sums: dict[str, float] = {}
+        counted = 0
+        bar = progress(loader, _epoch_label(epoch, train), total=len(loader), unit="step")
+        for batch in bar if info.is_main else loader:
+            result = trainer.train_step(batch)
+            state.step += 1
+            state.step_in_epoch += 1
+            if not result.skipped:
+                counted += 1
+                for name, value in result.losses.items():
+                    sums[name] = sums.get(name, 0.0) + value
+                if board is not None and state.step % train.log_every == 0:
+                    for name, value in result.losses.items():
+                        board.add_scalar(f"train/{name}", value, state.step)
+            state.seconds = elapsed()
+            reason = budget_reason(config, state)
+            if not all_true(reason is None, info, trainer.device):
+                reason = reason or "time budget reached on another process"
+                break
+        if state.step_in_epoch >= steps_per_epoch:
+            state.epoch += 1
+            state.step_in_epoch = 0
+        means = {name: total / max(counted, 1) for name, total in sums.items()}
+        finished = state.epoch >= train.epochs
+        if (
+            reason is not None
+            or finished
+            or (state.epoch % train.val_every == 0 and state.step_in_epoch == 0)
+        ):
+            validate_and_save(trainer, config, val_set, paths, state, info, means, board)
+        state.seconds = elapsed()
+        reason = reason or stop_reason(config, state, state.seconds)
+        if not all_true(reason is None, info, trainer.device):  # stop together
+            reason = reason or "stopped with the other processes"
+    return reason
+
+
+def _epoch_label(epoch: int, train: TrainConfig) -> str:
+    """Progress label: ``epoch 3/200``, or ``epoch 3 (budget 400 steps)`` when a budget binds."""
+    budgets = [f"{train.max_steps} steps"] if train.max_steps else []
+    budgets += [f"{train.max_seconds:g} s"] if train.max_seconds else []
+    if budgets:
+        return f"epoch {epoch + 1} (budget {' or '.join(budgets)})"
+    return f"epoch {epoch + 1}/{train.epochs}"

@@ -1,0 +1,210 @@
+"""Torch datasets over paired images: tensor conventions, random crops and flips.
+
+Conventions: readers hand out ``uint8``/``uint16`` arrays ``(H, W)`` or
+``(H, W, 3)``; the datasets of ``model`` (here and in
+:mod:`lenspair.model.training.synthetic`) return float32 tensors ``(C, H, W)`` in
+``[0, 1]`` (``C`` = 1 mono, 3 RGB; converted with Rec. 601 luma or channel
+repetition to what the network expects) and a ``valid`` map ``(1, H, W)``
+that is 0 where the pair is not trustworthy (``mask`` > 0) and 1 elsewhere.
+
+Every random choice (crop position, flips, rendered drops) comes from a
+generator seeded by ``(seed, epoch, index)``: the same item of the same epoch
+is identical whatever the number of workers or processes, and a resumed run
+sees exactly the batches it would have seen.
+"""
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Protocol, TypedDict
+
+import numpy as np
+import torch
+from lenspair.model.errors import ModelError
+from torch.utils.data import Dataset
+
+from lenspair.core.imageio import to_float
+
+
+class PairItem(Protocol):
+    """One pair from a reader (``dataset.readers``)."""
+
+    @property
+    def input(self) -> np.ndarray: ...  # noqa: D102
+    @property
+    def target(self) -> np.ndarray: ...  # noqa: D102
+    @property
+    def name(self) -> str: ...  # noqa: D102
+    @property
+    def mask(self) -> np.ndarray | None: ...  # noqa: D102
+    @property
+    def difficulty(self) -> str | None: ...  # noqa: D102
+
+
+class PairSource(Protocol):
+    """A sized, indexable collection of pairs (``dataset.readers.PairedDataset``)."""
+
+    def __len__(self) -> int: ...
+    def __getitem__(self, index: int) -> PairItem: ...
+
+
+class Sample(TypedDict):
+    """One training/validation sample (batched by the default collate)."""
+
+    input: torch.Tensor
+    target: torch.Tensor
+    valid: torch.Tensor
+    name: str
+
+
+def to_channels(image: np.ndarray, channels: int) -> np.ndarray:
+    """Float image ``(H, W)`` or ``(H, W, 3)`` to ``(H, W, channels)`` float32.
+
+    RGB to mono uses Rec. 601 luma (0.299, 0.587, 0.114) on the encoded
+    values, as OpenCV's grey conversion does; mono to RGB repeats the channel.
+    """
+    if image.ndim == 2:
+        image = image[:, :, None]
+    have = image.shape[2]
+    if have == channels:
+        return np.ascontiguousarray(image, dtype=np.float32)
+    if have == 3 and channels == 1:
+        weights = np.array([0.299, 0.587, 0.114], dtype=np.float32)
+        return np.ascontiguousarray((image @ weights)[:, :, None], dtype=np.float32)
+    if have == 1 and channels == 3:
+        return np.ascontiguousarray(np.repeat(image, 3, axis=2), dtype=np.float32)
+    raise ModelError(f"cannot convert a {have}-channel image to {channels} channels")
+
+
+def to_tensor(image: np.ndarray, channels: int) -> torch.Tensor:
+    """``uint8``/``uint16`` ``(H, W[, 3])`` to float32 ``(channels, H, W)`` in [0, 1]."""
+    array = to_channels(to_float(image), channels)
+    return torch.from_numpy(np.ascontiguousarray(array.transpose(2, 0, 1)))
+
+
+def channels_of(image: np.ndarray) -> int:
+    """1 for a mono image ``(H, W)``, 3 for RGB ``(H, W, 3)``."""
+    return 1 if image.ndim == 2 else int(image.shape[2])
+
+
+def item_rng(seed: int, epoch: int, index: int) -> np.random.Generator:
+    """The generator of one item of one epoch (independent of workers and ranks)."""
+    return np.random.default_rng([seed, epoch + 1, index])
+
+
+def crop_box(
+    height: int, width: int, crop_size: int | None, rng: np.random.Generator
+) -> tuple[int, int, int, int]:
+    """A random ``(top, left, height, width)`` crop; the whole image when ``crop_size`` is None.
+
+    Raises:
+        ModelError: the image is smaller than the crop.
+
+    """
+    if crop_size is None:
+        return 0, 0, height, width
+    if height < crop_size or width < crop_size:
+        raise ModelError(
+            f"crop of {crop_size} px does not fit an image of {width}x{height}; "
+            "lower data.crop_size"
+        )
+    top = int(rng.integers(0, height - crop_size + 1))
+    left = int(rng.integers(0, width - crop_size + 1))
+    return top, left, crop_size, crop_size
+
+
+def random_flip(
+    tensors: Sequence[torch.Tensor], rng: np.random.Generator, h: bool, v: bool
+) -> list[torch.Tensor]:
+    """Flip all ``tensors`` alike: horizontally and/or vertically at random.
+
+    Args:
+        tensors: tensors ``(..., H, W)`` of one sample (input, target, valid map).
+        rng: the item's generator; two draws are taken from it.
+        h: allow horizontal flips (each with probability 1/2).
+        v: allow vertical flips (each with probability 1/2).
+
+    Returns:
+        The tensors, flipped the same way (unchanged when no flip is drawn).
+
+    """
+    # Always draw both decisions so the stream does not depend on the flags.
+    flip_h, flip_v = bool(rng.random() < 0.5), bool(rng.random() < 0.5)
+    dims = [d for d, on in ((-1, h and flip_h), (-2, v and flip_v)) if on]
+    return [t.flip(dims) if dims else t for t in tensors]
+
+
+class PairedCrops(Dataset[Sample]):
+    """Random crops and flips of real pairs (training), or whole pairs (validation).
+
+    Args:
+        source: pairs from ``dataset.readers.open_paired``.
+        channels: channels the network takes (1 or 3).
+        crop_size: side of the random square crop; ``None`` keeps whole images.
+        hflip: random horizontal flips.
+        vflip: random vertical flips.
+        seed: seed of the crops and flips.
+        limit: use only the first ``limit`` pairs (validation budget).
+
+    """
+
+    def __init__(
+        self,
+        source: PairSource,
+        channels: int,
+        crop_size: int | None = None,
+        hflip: bool = False,
+        vflip: bool = False,
+        seed: int = 0,
+        limit: int | None = None,
+    ) -> None:
+        self.source = source
+        self.channels = channels
+        self.crop_size = crop_size
+        self.hflip, self.vflip = hflip, vflip
+        self.seed = seed
+        self.epoch = 0
+        self.length = len(source) if limit is None else min(limit, len(source))
+
+    def set_epoch(self, epoch: int) -> None:
+        """Select the epoch whose crops and flips ``__getitem__`` returns."""
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return self.length
+
+    def __getitem__(self, index: int) -> Sample:
+        item = self.source[index]
+        rng = item_rng(self.seed, self.epoch, index)
+        height, width = item.input.shape[:2]
+        if item.target.shape[:2] != (height, width):
+            raise ModelError(
+                f"{item.name}: input {item.input.shape} and target {item.target.shape} differ"
+            )
+        top, left, h, w = crop_box(height, width, self.crop_size, rng)
+        window = (slice(top, top + h), slice(left, left + w))
+        tensors = [
+            to_tensor(item.input[window], self.channels),
+            to_tensor(item.target[window], self.channels),
+            _valid_map(item.mask, window, h, w),
+        ]
+        tensors = random_flip(tensors, rng, self.hflip, self.vflip)
+        return Sample(input=tensors[0], target=tensors[1], valid=tensors[2], name=item.name)
+
+
+def _valid_map(
+    mask: np.ndarray | None, window: tuple[slice, slice], height: int, width: int
+) -> torch.Tensor:
+    if mask is None:
+        return torch.ones(1, height, width)
+    part = mask[window]
+    if part.ndim == 3:
+        part = part.max(axis=2)
+    return torch.from_numpy((part == 0).astype(np.float32))[None]
+
+
+def open_eval_pairs(path: Path, split: str) -> PairSource:
+    """Pairs to evaluate: ``path`` itself when it is a paired folder, else its ``split``."""
+    from lenspair.dataset.readers import detect_layout, open_paired
+
+    path = Path(path)
+    return open_paired(path) if detect_layout(path) is not None else open_paired(path, split)

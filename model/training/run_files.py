@@ -1,0 +1,181 @@
+"""The files of a training run folder: paths, metrics CSV, log file, TensorBoard.
+
+A run folder (written by :func:`lenspair.model.training.fit`) holds::
+
+    RUN/config.yaml              resolved configuration (+ runtime: what really ran)
+    RUN/checkpoints/last.pt      after every epoch (and at a budget stop)
+    RUN/checkpoints/best.pt      best validation PSNR so far
+    RUN/metrics.csv              one row per epoch (columns: METRICS_COLUMNS)
+    RUN/train.log                the log, warnings included
+    RUN/samples.png              input | output | target of a few validation images
+    RUN/tensorboard/             when TensorBoard is installed
+"""
+
+import contextlib
+import csv
+import io
+import logging
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lenspair.model.training.run_state import RunState
+
+from lenspair.core.fsutil import atomic_write_text
+
+log = logging.getLogger(__name__)
+
+METRICS_COLUMNS = (
+    "epoch",
+    "step",
+    "seconds",
+    "loss_g",
+    "loss_d",
+    "adversarial",
+    "feature_matching",
+    "perceptual",
+    "fidelity",
+    "skipped_steps",
+    "val_psnr",
+    "val_ssim",
+    "best_psnr",
+)
+"""Columns of ``RUN/metrics.csv`` (one row per epoch, or per budget stop)."""
+
+
+@dataclass(frozen=True)
+class RunPaths:
+    """The files of a run folder."""
+
+    root: Path
+
+    @property
+    def config(self) -> Path:
+        """``RUN/config.yaml``: the resolved configuration."""
+        return self.root / "config.yaml"
+
+    @property
+    def last(self) -> Path:
+        """``RUN/checkpoints/last.pt``."""
+        return self.root / "checkpoints" / "last.pt"
+
+    @property
+    def best(self) -> Path:
+        """``RUN/checkpoints/best.pt``."""
+        return self.root / "checkpoints" / "best.pt"
+
+    @property
+    def metrics(self) -> Path:
+        """``RUN/metrics.csv``."""
+        return self.root / "metrics.csv"
+
+    @property
+    def log(self) -> Path:
+        """``RUN/train.log``."""
+        return self.root / "train.log"
+
+    @property
+    def samples(self) -> Path:
+        """``RUN/samples.png``: input | output | target of a few validation images."""
+        return self.root / "samples.png"
+
+    @property
+    def tensorboard(self) -> Path:
+        """``RUN/tensorboard/`` (only when TensorBoard is installed)."""
+        return self.root / "tensorboard"
+
+
+def metrics_row(
+    state: RunState, means: dict[str, float], skipped: int, val_psnr: float, val_ssim: float
+) -> dict[str, str]:
+    """One row of ``RUN/metrics.csv``, keyed by :data:`METRICS_COLUMNS`.
+
+    Args:
+        state: the run's progress after the validation.
+        means: mean training losses of the epoch (missing ones are left empty).
+        skipped: steps the NaN/Inf guard skipped so far.
+        val_psnr: validation PSNR, dB.
+        val_ssim: validation SSIM.
+
+    """
+    values: dict[str, object] = {
+        "epoch": state.epoch,
+        "step": state.step,
+        "seconds": f"{state.seconds:.1f}",
+        "skipped_steps": skipped,
+        "val_psnr": f"{val_psnr:.4f}",
+        "val_ssim": f"{val_ssim:.6f}",
+        "best_psnr": f"{state.best_psnr:.4f}",
+    }
+    for name in ("loss_g", "loss_d", "adversarial", "feature_matching", "perceptual", "fidelity"):
+        values[name] = f"{means[name]:.6g}" if name in means else ""
+    return {column: str(values[column]) for column in METRICS_COLUMNS}
+
+
+def read_metrics_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a metrics CSV (``[]`` if there is no such file)."""
+    if not path.is_file():
+        return []
+    with path.open(newline="", encoding="utf-8") as handle:
+        return list(csv.DictReader(handle))
+
+
+def write_metrics_rows(path: Path, rows: list[dict[str, str]]) -> None:
+    """Write ``rows`` as a metrics CSV with :data:`METRICS_COLUMNS` (atomically)."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=METRICS_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({column: row.get(column, "") for column in METRICS_COLUMNS})
+    atomic_write_text(path, buffer.getvalue())
+
+
+@contextlib.contextmanager
+def run_logging(path: Path, enabled: bool) -> Iterator[None]:
+    """Copy log records to ``RUN/train.log`` (INFO and up) while training.
+
+    Processes other than rank 0 (``enabled=False``) log warnings and errors only.
+    """
+    package = logging.getLogger("lenspair.model")
+    old_level = package.level
+    if not enabled:
+        package.setLevel(logging.WARNING)
+        try:
+            yield
+        finally:
+            package.setLevel(old_level)
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(path, encoding="utf-8")
+    handler.setLevel(logging.INFO)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    if package.getEffectiveLevel() > logging.INFO:
+        package.setLevel(logging.INFO)
+    root.addHandler(handler)
+    try:
+        yield
+    finally:
+        root.removeHandler(handler)
+        handler.close()
+        package.setLevel(old_level)
+
+
+@contextlib.contextmanager
+def tensorboard_writer(folder: Path, enabled: bool) -> Iterator[Any]:
+    """A TensorBoard ``SummaryWriter`` when enabled and installed, else ``None``."""
+    if not enabled:
+        yield None
+        return
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        log.info("TensorBoard is not installed; metrics go to metrics.csv only")
+        yield None
+        return
+    writer = SummaryWriter(log_dir=str(folder))
+    try:
+        yield writer
+    finally:
+        writer.close()

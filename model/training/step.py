@@ -1,0 +1,381 @@
+"""The training step of the shallow GAN: networks, optimisers, losses, NaN guard.
+
+One step: the restoration network (G, E, A) maps the obstructed batch to
+``(generator_out, enhanced_out)``; the conditional PatchGAN ``D`` scores
+``cat(input, image)``. The network minimises, in one optimiser step,
+
+    adversarial * LSGAN(D(gen)) + feature_matching * FM(D(gen), D(target))
+    + perceptual * VGG19(enhanced, target) + fidelity * L2(enhanced, target)
+
+and ``D`` then takes its own LSGAN step on the detached outputs. Untrusted
+pixels (``valid`` = 0) are left out of the fidelity term and replaced by the
+(detached) output in the perceptual target, so they cost nothing.
+
+Safety: a step whose losses or gradients are not finite updates nothing
+(the NaN/Inf guard); ``train.nan_patience`` such steps in a row stop the run
+with :class:`TrainingDivergedError`. Mixed precision is bf16 autocast on the CPU
+and fp16 autocast with a ``GradScaler`` on CUDA (``train.amp``).
+
+Multi-GPU: under ``torchrun`` (``WORLD_SIZE`` > 1) both networks are wrapped
+in ``DistributedDataParallel``; the single-device path never touches
+``torch.distributed``. The loop over epochs is :func:`lenspair.model.training.fit`.
+"""
+
+import contextlib
+import logging
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from lenspair.model.checkpoint import build_network
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV, load_vgg19
+from lenspair.model.training.config import RunConfig
+from lenspair.model.training.losses import (
+    PerceptualLoss,
+    discriminator_loss,
+    feature_matching_loss,
+    lsgan_loss,
+)
+from torch import Tensor, nn
+
+log = logging.getLogger(__name__)
+
+PERCEPTUAL_DISABLED = f"disabled (no VGG19 weights: set train.vgg19_weights or {VGG19_WEIGHTS_ENV})"
+
+
+class TrainingDivergedError(ModelError):
+    """Too many consecutive non-finite training steps."""
+
+
+@dataclass(frozen=True)
+class Distributed:
+    """This process's place in a ``torchrun`` job (rank 0 of 1 without one)."""
+
+    rank: int = 0
+    world_size: int = 1
+    local_rank: int = 0
+
+    @property
+    def is_main(self) -> bool:
+        """Whether this process logs and writes files."""
+        return self.rank == 0
+
+    @property
+    def active(self) -> bool:
+        """Whether more than one process takes part."""
+        return self.world_size > 1
+
+
+def distributed_from_env() -> Distributed:
+    """Read ``WORLD_SIZE``, ``RANK`` and ``LOCAL_RANK`` as set by ``torchrun``."""
+    try:
+        world = int(os.environ.get("WORLD_SIZE", "1"))
+        rank = int(os.environ.get("RANK", "0"))
+        local = int(os.environ.get("LOCAL_RANK", "0"))
+    except ValueError:
+        raise ModelError("WORLD_SIZE, RANK and LOCAL_RANK must be integers") from None
+    return Distributed(rank=rank, world_size=max(world, 1), local_rank=local)
+
+
+def init_distributed(device: torch.device) -> tuple[Distributed, torch.device]:
+    """Join the ``torchrun`` process group when there is one.
+
+    Single-process runs return ``(Distributed(), device)`` untouched. Under
+    ``torchrun`` with CUDA each process takes ``cuda:LOCAL_RANK``.
+    """
+    info = distributed_from_env()
+    if not info.active:
+        return info, device
+    import torch.distributed as dist
+
+    if device.type == "cuda":
+        device = torch.device("cuda", info.local_rank)
+        torch.cuda.set_device(device)
+    if not dist.is_initialized():
+        dist.init_process_group(backend="nccl" if device.type == "cuda" else "gloo")
+    return info, device
+
+
+def all_true(flag: bool, info: Distributed, device: torch.device) -> bool:
+    """``flag`` on every process (a MIN all-reduce under ``torchrun``)."""
+    if not info.active:
+        return flag
+    import torch.distributed as dist
+
+    value = torch.tensor([1 if flag else 0], device=device)
+    dist.all_reduce(value, op=dist.ReduceOp.MIN)
+    return bool(value.item())
+
+
+def precision_of(device: torch.device, amp: bool) -> tuple[str, torch.dtype | None]:
+    """``(description, autocast dtype)`` for training on ``device``."""
+    if not amp:
+        return "fp32", None
+    if device.type == "cuda":
+        return "fp16 autocast + GradScaler", torch.float16
+    return "bf16 autocast", torch.bfloat16
+
+
+def vgg19_weights_path(configured: Path | None) -> Path | None:
+    """The VGG19 weights file: the config's, else ``LENSPAIR_VGG19_WEIGHTS``, else None."""
+    if configured is not None:
+        return configured
+    env = os.environ.get(VGG19_WEIGHTS_ENV, "").strip()
+    return Path(env) if env else None
+
+
+@dataclass
+class StepResult:
+    """Outcome of one training step.
+
+    Attributes:
+        losses: loss terms as floats (``loss_g``, ``loss_d``, and each term).
+        skipped: the NaN/Inf guard skipped the update.
+
+    """
+
+    losses: dict[str, float]
+    skipped: bool
+
+
+@dataclass
+class _Guard:
+    consecutive: int = 0
+    total: int = 0
+
+
+def _unwrap(module: nn.Module) -> nn.Module:
+    inner = getattr(module, "module", None)
+    return inner if isinstance(inner, nn.Module) else module
+
+
+class Trainer:
+    """Networks, optimisers, scaler and losses of one run, and its training step.
+
+    Args:
+        config: the resolved run configuration (``model.channels`` set).
+        device: where to train.
+        info: process-group position (default: single process).
+
+    Raises:
+        ModelError: unresolved channels or an unreadable VGG19 weights file.
+
+    """
+
+    def __init__(
+        self, config: RunConfig, device: torch.device, info: Distributed | None = None
+    ) -> None:
+        from lenspair.model.networks.variants import build_discriminator
+
+        self.config = config
+        self.device = device
+        self.info = info or Distributed()
+        if config.model.channels is None:
+            raise ModelError("model.channels must be resolved before training")
+        self.channels = config.model.channels
+        train = config.train
+        # Initialisation draws from torch's global generator: seed it locally.
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(train.seed)
+            network = build_network(config.model)
+            discriminator = build_discriminator(self.channels, config.model.discriminator_width)
+        self.network: nn.Module = network.to(device)
+        self.discriminator: nn.Module = discriminator.to(device)
+        if self.info.active:
+            from torch.nn.parallel import DistributedDataParallel as DDP
+
+            ids = [device.index] if device.type == "cuda" else None
+            self.network = DDP(self.network, device_ids=ids)
+            self.discriminator = DDP(self.discriminator, device_ids=ids)
+        betas = (train.beta1, train.beta2)
+        self.opt_g = torch.optim.Adam(self.network.parameters(), lr=train.lr, betas=betas)
+        self.opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=train.lr, betas=betas)
+        self.precision, self.amp_dtype = precision_of(device, train.amp)
+        self.scaler = torch.amp.GradScaler(device.type, enabled=self.amp_dtype == torch.float16)
+        self.vgg_path = vgg19_weights_path(train.vgg19_weights)
+        self.vgg = None if config.loss.perceptual == 0 else load_vgg19(self.vgg_path)
+        self.perceptual: PerceptualLoss | None = None
+        if self.vgg is not None:
+            self.vgg = self.vgg.to(device)
+            self.perceptual = PerceptualLoss(self.vgg, config.loss.perceptual_layers)
+        self.guard = _Guard()
+
+    @property
+    def perceptual_status(self) -> str:
+        """``enabled (PATH)``, ``disabled (...)``: what the run config records."""
+        if self.config.loss.perceptual == 0:
+            return "disabled (loss.perceptual = 0)"
+        if self.vgg is None:
+            return PERCEPTUAL_DISABLED
+        return f"enabled ({self.vgg_path})"
+
+    @property
+    def model(self) -> nn.Module:
+        """The restoration network (unwrapped from DDP)."""
+        return _unwrap(self.network)
+
+    def _autocast(self) -> contextlib.AbstractContextManager[Any]:
+        if self.amp_dtype is None:
+            return contextlib.nullcontext()
+        return torch.autocast(device_type=self.device.type, dtype=self.amp_dtype)
+
+    def generator_terms(
+        self, x: Tensor, target: Tensor, valid: Tensor
+    ) -> tuple[Tensor, dict[str, Tensor], Tensor]:
+        """Forward pass and the restoration network's loss terms.
+
+        Returns:
+            ``(weighted sum, {term: value}, generator_out)``, losses in fp32.
+
+        """
+        weights = self.config.loss
+        raw_d = _unwrap(self.discriminator)
+        with self._autocast():
+            outputs = self.network(x)
+            generated, enhanced = outputs[0], outputs[1]
+            with torch.no_grad():
+                real_features = raw_d(torch.cat([x, target], dim=1))
+            fake_features = raw_d(torch.cat([x, generated], dim=1))
+        generated, enhanced = generated.float(), enhanced.float()
+        fake = [f.float() for f in fake_features]
+        real = [f.float() for f in real_features]
+        terms: dict[str, Tensor] = {
+            "adversarial": lsgan_loss(fake[-1], True),
+            "feature_matching": feature_matching_loss(fake, real),
+        }
+        error = (enhanced - target) ** 2 * valid
+        terms["fidelity"] = error.sum() / (valid.sum() * enhanced.shape[1]).clamp_min(1.0)
+        if self.perceptual is not None:
+            trusted = valid * target + (1 - valid) * enhanced.detach()
+            with self._autocast():
+                terms["perceptual"] = self.perceptual(enhanced, trusted).float()
+        total = sum(
+            (getattr(weights, name) * value for name, value in terms.items()),
+            torch.zeros((), device=x.device),
+        )
+        return total, terms, generated
+
+    def discriminator_loss(self, x: Tensor, target: Tensor, generated: Tensor) -> Tensor:
+        """LSGAN loss of ``D`` on real pairs and detached generated pairs (fp32)."""
+        pairs = torch.cat(
+            [torch.cat([x, target], dim=1), torch.cat([x, generated.detach()], dim=1)], dim=0
+        )
+        with self._autocast():
+            logits = self.discriminator(pairs)[-1]
+        real, fake = logits.float().chunk(2, dim=0)
+        return discriminator_loss(real, fake)
+
+    def train_step(self, batch: Mapping[str, Any]) -> StepResult:
+        """One update of the restoration network and of ``D`` (or none, if not finite).
+
+        Raises:
+            TrainingDivergedError: ``train.nan_patience`` non-finite steps in a row.
+
+        """
+        self.network.train()
+        self.discriminator.train()
+        x = batch["input"].to(self.device, non_blocking=True)
+        target = batch["target"].to(self.device, non_blocking=True)
+        valid = batch["valid"].to(self.device, non_blocking=True)
+        self.opt_g.zero_grad(set_to_none=True)
+        self.opt_d.zero_grad(set_to_none=True)
+        loss_g, terms, generated = self.generator_terms(x, target, valid)
+        self.scaler.scale(loss_g).backward()
+        self.opt_d.zero_grad(set_to_none=True)  # D's gradients from the G loss are not D's
+        loss_d = self.discriminator_loss(x, target, generated)
+        self.scaler.scale(loss_d).backward()
+        # Backward always runs (DDP needs every process to take part); the update may not.
+        self.scaler.unscale_(self.opt_g)
+        self.scaler.unscale_(self.opt_d)
+        norm_g = _grad_norm(self.network, self.config.train.grad_clip, self.device)
+        norm_d = _grad_norm(self.discriminator, None, self.device)
+        checks = [loss_g.detach().float(), loss_d.detach().float()]
+        if not self.scaler.is_enabled():  # with a scaler, inf gradients are its business
+            checks += [norm_g, norm_d]
+        finite = bool(torch.isfinite(torch.stack(checks)).all().item())
+        finite = all_true(finite, self.info, self.device)
+        if finite:
+            self.scaler.step(self.opt_g)
+            self.scaler.step(self.opt_d)
+        else:
+            self.opt_g.zero_grad(set_to_none=True)
+            self.opt_d.zero_grad(set_to_none=True)
+        self.scaler.update()
+        losses = {"loss_g": float(loss_g.item()), "loss_d": float(loss_d.item())}
+        losses.update({name: float(value.item()) for name, value in terms.items()})
+        self._update_guard(finite, losses)
+        return StepResult(losses=losses, skipped=not finite)
+
+    def _update_guard(self, finite: bool, losses: dict[str, float]) -> None:
+        if finite:
+            self.guard.consecutive = 0
+            return
+        self.guard.consecutive += 1
+        self.guard.total += 1
+        shown = ", ".join(f"{k} {v:.4g}" for k, v in losses.items())
+        log.warning(
+            "non-finite loss or gradient: step skipped, no weight updated (%d in a row; %s)",
+            self.guard.consecutive,
+            shown,
+        )
+        patience = self.config.train.nan_patience
+        if self.guard.consecutive >= patience:
+            lr = float(self.opt_g.param_groups[0]["lr"])
+            raise TrainingDivergedError(
+                f"training diverged: {patience} consecutive steps with non-finite losses or "
+                f"gradients ({shown}); lower train.lr (now {lr:g}), set "
+                "train.grad_clip, or set train.amp: false, then restart or --resume from "
+                "the last checkpoint"
+            )
+
+    def state_dict(self) -> dict[str, Any]:
+        """Networks, optimisers and scaler state (tensors on their devices)."""
+        return {
+            "model": self.model.state_dict(),
+            "discriminator": _unwrap(self.discriminator).state_dict(),
+            "optimizer_g": self.opt_g.state_dict(),
+            "optimizer_d": self.opt_d.state_dict(),
+            "scaler": self.scaler.state_dict(),
+            "skipped_steps": self.guard.total,
+        }
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore what :meth:`state_dict` returned (from a CPU checkpoint)."""
+        self.model.load_state_dict(state["model"])
+        _unwrap(self.discriminator).load_state_dict(state["discriminator"])
+        self.opt_g.load_state_dict(state["optimizer_g"])
+        self.opt_d.load_state_dict(state["optimizer_d"])
+        if state.get("scaler"):
+            self.scaler.load_state_dict(state["scaler"])
+        self.guard.total = int(state.get("skipped_steps", 0))
+
+
+def _grad_norm(module: nn.Module, clip: float | None, device: torch.device) -> Tensor:
+    """Total L2 norm of the gradients (clipped to ``clip`` when finite and set)."""
+    grads = [p.grad for p in module.parameters() if p.grad is not None]
+    if not grads:
+        return torch.zeros((), device=device)
+    norm = torch.nn.utils.get_total_norm(grads, error_if_nonfinite=False)
+    if clip is not None and bool(torch.isfinite(norm)):
+        torch.nn.utils.clip_grads_with_norm_(module.parameters(), clip, norm)
+    return norm.detach().float()
+
+
+def rng_state() -> dict[str, Any]:
+    """Global torch CPU (and CUDA) generator states, for checkpoints."""
+    state: dict[str, Any] = {"torch": torch.random.get_rng_state()}
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def set_rng_state(state: Mapping[str, Any]) -> None:
+    """Restore :func:`rng_state`'s result (CUDA states only where CUDA is present)."""
+    if "torch" in state:
+        torch.random.set_rng_state(state["torch"])
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(list(state["cuda"]))

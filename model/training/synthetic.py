@@ -1,0 +1,149 @@
+"""Synthetic pretraining data: clean images with drops rendered on the fly.
+
+The drop presets (``--drops``), the search for clean images in a folder or a
+lenspair dataset, and the dataset that renders drops on them. Items follow the
+conventions of :mod:`lenspair.model.training.pairs`: float32 ``(C, H, W)`` in ``[0, 1]``, a
+``valid`` map of ones, and every random choice (crop, flips, drops) drawn
+from a generator seeded by ``(seed, epoch, index)``.
+"""
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+from lenspair.model.errors import ModelError
+from lenspair.model.training.pairs import (
+    Sample,
+    channels_of,
+    crop_box,
+    item_rng,
+    random_flip,
+    to_channels,
+    to_tensor,
+)
+from lenspair.simulate.effects.spec import (
+    SHARP_DROPS,
+    BrightnessSpec,
+    DefocusSpec,
+    EffectsSpec,
+    RaindropsSpec,
+)
+from lenspair.simulate.render import render_effects
+from torch.utils.data import Dataset
+
+from lenspair.core.imageio import from_float, read_image, to_float
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
+CLEAN_FOLDER_NAMES = ("target", "gt", "clean")
+_VAL_EPOCH = -1  # fixed seed slot for validation items: the same drops every time
+
+OUR_DROPS = EffectsSpec(
+    raindrops=RaindropsSpec(), defocus=DefocusSpec(), brightness=BrightnessSpec()
+)
+"""Our synthetic drops: lens-like drops, defocused glass, some drops brightened."""
+
+DROPS_PRESETS: dict[str, EffectsSpec] = {"ours": OUR_DROPS, "sharp": SHARP_DROPS}
+"""Synthetic-drop presets by name (``--drops``)."""
+
+
+def drops_preset(name: str) -> EffectsSpec:
+    """The effects of a synthetic-drop preset; unknown names list the valid ones."""
+    try:
+        return DROPS_PRESETS[name]
+    except KeyError:
+        valid = ", ".join(DROPS_PRESETS)
+        raise ModelError(f"unknown drops preset {name!r}; valid presets: {valid}") from None
+
+
+def find_clean_images(folder: Path) -> list[Path]:
+    """Clean images under ``folder`` for synthetic pretraining, sorted.
+
+    When the folder holds ``target/`` (or ``gt/``, ``clean/``) sub-folders, as
+    a lenspair dataset does, only the images in them are used (for a dataset
+    root, only those of ``train/``, so validation and test images stay
+    unseen); otherwise every PNG/JPG/TIFF below ``folder``.
+
+    Raises:
+        ModelError: no image found.
+
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ModelError(f"{folder}: not a folder of clean images")
+    if (folder / "train").is_dir() and any(
+        (folder / "train" / name).is_dir() for name in CLEAN_FOLDER_NAMES
+    ):
+        folder = folder / "train"  # a dataset root: never pretrain on val/test targets
+    images = sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
+    clean = [p for p in images if p.parent.name.lower() in CLEAN_FOLDER_NAMES]
+    chosen = clean or images
+    if not chosen:
+        raise ModelError(f"{folder}: no PNG/JPG/TIFF images found")
+    return chosen
+
+
+class SyntheticDrops(Dataset[Sample]):
+    """Clean images with drops rendered on the fly (synthetic pretraining).
+
+    Training items are random crops with new drops every epoch; validation
+    items (``fixed=True``) are whole images with the same drops every time.
+
+    Args:
+        images: clean image files (8- or 16-bit, mono or RGB).
+        effects: what to render (``OUR_DROPS`` or ``SHARP_DROPS``).
+        channels: channels the network takes.
+        crop_size: random crop side; ``None`` keeps whole images.
+        hflip: random horizontal flips.
+        vflip: random vertical flips.
+        seed: seed of crops, flips and drops.
+        fixed: validation mode: drops do not change with the epoch.
+
+    """
+
+    def __init__(
+        self,
+        images: Sequence[Path],
+        effects: EffectsSpec,
+        channels: int,
+        crop_size: int | None = None,
+        hflip: bool = False,
+        vflip: bool = False,
+        seed: int = 0,
+        fixed: bool = False,
+    ) -> None:
+        self.images = list(images)
+        self.effects = effects
+        self.channels = channels
+        self.crop_size = crop_size
+        self.hflip, self.vflip = hflip, vflip
+        self.seed = seed
+        self.fixed = fixed
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        """Select the epoch whose crops and drops ``__getitem__`` returns."""
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def __getitem__(self, index: int) -> Sample:
+        path = self.images[index]
+        rng = item_rng(self.seed, _VAL_EPOCH if self.fixed else self.epoch, index)
+        clean = read_image(path)
+        if channels_of(clean) != self.channels:
+            clean = from_float(to_channels(to_float(clean), self.channels), clean.dtype)
+            if self.channels == 1:
+                clean = clean[:, :, 0]
+        # Render on the whole frame, then crop: drop density and size match real frames.
+        obstructed, _ = render_effects(clean, self.effects, rng)
+        top, left, h, w = crop_box(clean.shape[0], clean.shape[1], self.crop_size, rng)
+        window = (slice(top, top + h), slice(left, left + w))
+        tensors = [
+            to_tensor(obstructed[window], self.channels),
+            to_tensor(clean[window], self.channels),
+        ]
+        tensors = random_flip(tensors, rng, self.hflip, self.vflip)
+        return Sample(
+            input=tensors[0], target=tensors[1], valid=torch.ones(1, h, w), name=path.name
+        )

@@ -1,0 +1,138 @@
+"""Validation during training: whole-image scores, samples, best checkpoint.
+
+Validation runs on rank 0 after every ``train.val_every`` epochs (and at a
+budget stop) on whole images at fp32; its PSNR (convention
+:data:`VAL_CONVENTION`) drives ``best.pt`` and early stopping
+(``train.patience`` validations without improvement). After each validation
+:func:`validate_and_save` writes ``last.pt``, ``best.pt`` when the PSNR
+improved, ``samples.png`` and a row of ``metrics.csv``
+(:mod:`lenspair.model.training.run_files`).
+"""
+
+import logging
+import math
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+from lenspair.model.checkpoint import save_checkpoint
+from lenspair.model.training.config import RunConfig
+from lenspair.model.training.pairs import Sample
+from lenspair.model.training.run_files import RunPaths, metrics_row, write_metrics_rows
+from lenspair.model.training.run_state import RunState
+from lenspair.model.training.step import Distributed, Trainer, rng_state
+from torch import nn
+
+from lenspair.core.imageio import write_image
+
+log = logging.getLogger(__name__)
+
+VAL_CONVENTION = "skimage-gaussian"
+"""Metric convention of the validation PSNR/SSIM that drives early stopping."""
+
+
+class SampleSet(Protocol):
+    """Indexable samples with a length, e.g. a validation set (``model.training.pairs``)."""
+
+    def __len__(self) -> int: ...
+    def __getitem__(self, index: int) -> Sample: ...
+
+
+def validate_and_save(
+    trainer: Trainer,
+    config: RunConfig,
+    val_set: SampleSet,
+    paths: RunPaths,
+    state: RunState,
+    info: Distributed,
+    means: dict[str, float],
+    board: Any,
+) -> None:
+    """Validate on rank 0, update early stopping, write checkpoints and metrics."""
+    improved = False
+    val_psnr = val_ssim = math.nan
+    if info.is_main:
+        val_psnr, val_ssim, sheet = validate(trainer.model, val_set, trainer.device)
+        improved = val_psnr > state.best_psnr
+        if improved:
+            state.best_psnr, state.best_epoch, state.stale = val_psnr, state.epoch, 0
+        elif state.step_in_epoch == 0:
+            # Only end-of-epoch validations count towards early stopping, so that a
+            # run stopped by a budget and resumed stops where a straight run would.
+            state.stale += 1
+        write_image(paths.samples, sheet)
+        log.info(
+            "epoch %d step %d: loss_g %.4g loss_d %.4g | validation PSNR %.2f dB, SSIM %.4f "
+            "(%s) | best %.2f dB at epoch %d",
+            state.epoch,
+            state.step,
+            means.get("loss_g", math.nan),
+            means.get("loss_d", math.nan),
+            val_psnr,
+            val_ssim,
+            VAL_CONVENTION,
+            state.best_psnr,
+            state.best_epoch,
+        )
+        if board is not None:
+            board.add_scalar("val/psnr", val_psnr, state.step)
+            board.add_scalar("val/ssim", val_ssim, state.step)
+    state.stale = _broadcast_int(state.stale, info, trainer.device)
+    if not info.is_main:
+        return
+    payload = {**trainer.state_dict(), **state.payload(), "rng": rng_state()}
+    save_checkpoint(paths.last, payload, config)
+    if improved:
+        save_checkpoint(paths.best, payload, config)
+    state.rows.append(metrics_row(state, means, trainer.guard.total, val_psnr, val_ssim))
+    write_metrics_rows(paths.metrics, state.rows)
+
+
+def _broadcast_int(value: int, info: Distributed, device: torch.device) -> int:
+    if not info.active:
+        return value
+    import torch.distributed as dist
+
+    tensor = torch.tensor([value], device=device)
+    dist.broadcast(tensor, src=0)
+    return int(tensor.item())
+
+
+@torch.inference_mode()
+def validate(
+    network: nn.Module, val_set: SampleSet, device: torch.device, samples: int = 3
+) -> tuple[float, float, np.ndarray]:
+    """Mean PSNR and SSIM (``skimage-gaussian``) of whole validation images, at fp32.
+
+    Returns:
+        ``(psnr_db, ssim, contact_sheet)``; PSNR means cap identical images at
+        :data:`lenspair.model.evaluation.evaluate.PSNR_CAP_DB`.
+
+    """
+    from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
+
+    from lenspair.core.contact_sheet import make_contact_sheet
+
+    was_training = network.training
+    network.eval()
+    psnrs, ssims = [], []
+    rows: list[list[np.ndarray | None]] = []
+    for index in range(len(val_set)):
+        sample = val_set[index]
+        x = sample["input"][None].to(device)
+        target = sample["target"][None].to(device)
+        output = network(x)[1].float().clamp(0.0, 1.0)
+        psnr, ssim = score_tensors(output, target, VAL_CONVENTION)
+        psnrs.append(psnr)
+        ssims.append(ssim)
+        if len(rows) < samples:
+            rows.append([_hwc(x), _hwc(output), _hwc(target)])
+    network.train(was_training)
+    labels = [["input", "output", "target"]] * len(rows)
+    sheet = make_contact_sheet(rows, labels, title="validation samples")
+    return mean_psnr(psnrs), float(np.mean(ssims)), sheet
+
+
+def _hwc(batch: torch.Tensor) -> np.ndarray:
+    array = batch[0].detach().float().cpu().numpy().transpose(1, 2, 0)
+    return np.asarray(array)
