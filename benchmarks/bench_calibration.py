@@ -20,6 +20,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+
 from lenspair.rectify.boards import Board, BoardRenderer, parse_board_spec
 from lenspair.rectify.calibration import CalibrationModel, calibrate_from_detections, detect_views
 from lenspair.rectify.rectification import project_rays

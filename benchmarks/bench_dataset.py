@@ -31,12 +31,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from lenspair.capture.ingested import IngestReport, PairRecord, write_pairs, write_report
-from lenspair.dataset.build import build_dataset
-from lenspair.dataset.config import DatasetConfig, SplitConfig
 
+from lenspair.capture.ingested import IngestReport, PairRecord, write_pairs, write_report
 from lenspair.core.fsutil import sha256_bytes, sha256_file
 from lenspair.core.imageio import read_image, write_image
+from lenspair.dataset.build import build_dataset
+from lenspair.dataset.config import DatasetConfig, SplitConfig
 
 HEIGHT, WIDTH = 360, 540
 

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from lenspair.simulate.effects.spec import (
     SHARP_DROPS,
     BrightnessSpec,

@@ -31,17 +31,17 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 from lenspair.capture.ingest import REGISTRATION_FILE, ingest_recording
 from lenspair.capture.ingested import read_pairs
 from lenspair.capture.recording import load_frame, open_recording
 from lenspair.capture.rigfile import read_rig_file
+from lenspair.cli import main as lenspair_main
+from lenspair.core.imageio import write_image
 from lenspair.rectify.crop import Crop
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.remap import apply, input_map, target_map
 from lenspair.rectify.rig import read_kalibr
-
-from lenspair.cli import main as lenspair_main
-from lenspair.core.imageio import write_image
 
 SCENE = Path(__file__).resolve().parents[1] / "calib_samples" / "rain.yaml"
 

@@ -46,6 +46,7 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F
+
 from lenspair.model.evaluation.latency import tune_allocator
 from lenspair.model.metrics import psnr
 from lenspair.model.networks.complexity import describe

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+
 from lenspair.model.evaluation.latency import measure_latency
 from lenspair.model.training.config import DataConfig, ModelConfig, RunConfig, TrainConfig
 from lenspair.model.training.step import Trainer

@@ -38,6 +38,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from lenspair import __version__
 from lenspair.capture import ingest_frames as frame_work
 from lenspair.capture.calibration_source import find_calibration
 from lenspair.capture.errors import CaptureError
@@ -68,17 +70,15 @@ from lenspair.capture.recording import (
 )
 from lenspair.capture.rigfile import CameraName, RigFile
 from lenspair.capture.side_check import check_obstructed_side
+from lenspair.core.config import to_plain
+from lenspair.core.errors import LenspairError
+from lenspair.core.fsutil import atomic_write_json, atomic_write_text
+from lenspair.core.progress import progress
 from lenspair.rectify.crop import CropError, choose_crop
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.registration import EstimationParams, VerifyParams, estimate_homography
 from lenspair.rectify.remap import target_map, valid_region
 from lenspair.rectify.rig import rig_to_kalibr
-
-from lenspair import __version__
-from lenspair.core.config import to_plain
-from lenspair.core.errors import LenspairError
-from lenspair.core.fsutil import atomic_write_json, atomic_write_text
-from lenspair.core.progress import progress
 
 log = logging.getLogger(__name__)
 

@@ -16,19 +16,19 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from lenspair.capture.ingested import PairRecord
 from lenspair.capture.recording import FrameRef, load_frame
 from lenspair.capture.rigfile import CameraName
+from lenspair.core.errors import LenspairError
+from lenspair.core.fsutil import sha256_bytes, sha256_file
+from lenspair.core.imageio import write_image
+from lenspair.core.quality import exposure_fractions, laplacian_variance, to_grey
 from lenspair.rectify.crop import Crop
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.registration import EstimationParams, VerifyParams, match_views, to_u8
 from lenspair.rectify.remap import RemapGrid, apply, input_map, shifted
 from lenspair.rectify.verification import measure_shift, verify_pair
-
-from lenspair.core.errors import LenspairError
-from lenspair.core.fsutil import sha256_bytes, sha256_file
-from lenspair.core.imageio import write_image
-from lenspair.core.quality import exposure_fractions, laplacian_variance, to_grey
 
 OUTPUT_KINDS = ("input", "target", "mask")
 

@@ -11,11 +11,11 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+
 from lenspair.capture.ingested import IngestReport, PairRecord
 from lenspair.capture.pairing import PairingResult
 from lenspair.capture.recording import CAMERAS, Recording
 from lenspair.capture.rigfile import RigFile
-
 from lenspair.core.config import to_plain
 from lenspair.core.fsutil import atomic_write_json
 

@@ -16,7 +16,6 @@ from typing import Any
 
 from lenspair.capture.ingest_frames import OUTPUT_KINDS
 from lenspair.capture.ingested import PairRecord
-
 from lenspair.core.config import load_dataclass, to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import sha256_bytes, sha256_file

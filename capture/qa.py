@@ -10,8 +10,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from lenspair.capture.ingested import PairRecord
 
+from lenspair.capture.ingested import PairRecord
 from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.imageio import read_image, to_float, write_image
 

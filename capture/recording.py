@@ -55,9 +55,9 @@ from pathlib import Path
 from typing import Literal, get_args
 
 import numpy as np
+
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.rigfile import RIG_FILE, CameraName, RigFile, read_rig_file
-
 from lenspair.core.imageio import read_image
 
 CAMERAS: tuple[CameraName, CameraName] = ("cam0", "cam1")

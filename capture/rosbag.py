@@ -30,6 +30,9 @@ from typing import Any
 
 import cv2
 import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import (
     FrameProblem,
@@ -40,8 +43,6 @@ from lenspair.capture.recording import (
     recording_id_for,
 )
 from lenspair.capture.rigfile import CameraName
-from rosbags.highlevel import AnyReader
-from rosbags.typesys import Stores, get_typestore
 
 RAW_IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.rigfile import CameraName
-
 from lenspair.core.imageio import check_image, to_float
 
 Inferred = Literal["cam0", "cam1", "undetermined"]

@@ -40,6 +40,11 @@ from lenspair.capture.ingested import (
     read_pairs,
     read_report,
 )
+from lenspair.core.config import dump_yaml
+from lenspair.core.errors import ImageIOError
+from lenspair.core.fsutil import atomic_write_text, sha256_bytes
+from lenspair.core.imageio import read_image, write_image
+from lenspair.core.progress import progress
 from lenspair.dataset import curation, splits
 from lenspair.dataset.card import (
     CARD_FILE,
@@ -62,12 +67,6 @@ from lenspair.dataset.manifest import (
     write_removed,
 )
 from lenspair.dataset.verify import dataset_difference
-
-from lenspair.core.config import dump_yaml
-from lenspair.core.errors import ImageIOError
-from lenspair.core.fsutil import atomic_write_text, sha256_bytes
-from lenspair.core.imageio import read_image, write_image
-from lenspair.core.progress import progress
 
 logger = logging.getLogger(__name__)
 CONFIG_FILE = "config.yaml"

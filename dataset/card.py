@@ -15,10 +15,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from lenspair.dataset.config import DIFFICULTIES, SPLITS, DatasetConfig
-from lenspair.dataset.curation import RULES
-from lenspair.dataset.errors import DatasetError
-from lenspair.dataset.manifest import ManifestRow
 
 from lenspair import __version__
 from lenspair.core.config import load_dataclass, to_plain
@@ -26,6 +22,10 @@ from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
+from lenspair.dataset.config import DIFFICULTIES, SPLITS, DatasetConfig
+from lenspair.dataset.curation import RULES
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.manifest import ManifestRow
 
 CARD_FILE = "dataset.json"
 CARD_FORMAT = "lenspair-dataset/1"

@@ -15,11 +15,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from lenspair.capture.ingested import PairRecord
-from lenspair.dataset.config import CurationConfig, Difficulty
 
+from lenspair.capture.ingested import PairRecord
 from lenspair.core.imageio import check_image, max_value
 from lenspair.core.quality import exposure_fractions, laplacian_variance, to_grey
+from lenspair.dataset.config import CurationConfig, Difficulty
 
 RULES: tuple[tuple[str, str], ...] = (
     ("ingest_rejected", "rejected by capture-ingest (status 'rejected' in pairs.jsonl)"),

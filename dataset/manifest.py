@@ -11,12 +11,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from lenspair.dataset.config import Difficulty
-from lenspair.dataset.errors import DatasetError
-
 from lenspair.core.config import load_dataclass, to_plain
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_lines
+from lenspair.dataset.config import Difficulty
+from lenspair.dataset.errors import DatasetError
 
 MANIFEST_FILE = "manifest.jsonl"
 REMOVED_FILE = "removed.jsonl"

@@ -26,11 +26,11 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+
+from lenspair.core.imageio import read_image
 from lenspair.dataset.card import CARD_FILE
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.manifest import MANIFEST_FILE, read_manifest
-
-from lenspair.core.imageio import read_image
 
 Layout = Literal["lenspair", "paired", "raindrop"]
 IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".tif", ".tiff")

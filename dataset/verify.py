@@ -13,12 +13,11 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+from lenspair.core.fsutil import sha256_file
 from lenspair.dataset.card import CARD_FILE, compare_counts, count_rows, read_card
 from lenspair.dataset.config import SPLITS
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.manifest import MANIFEST_FILE, REMOVED_FILE, ManifestRow, read_manifest
-
-from lenspair.core.fsutil import sha256_file
 
 _COMPARED_FILES = (MANIFEST_FILE, CARD_FILE, "config.yaml", REMOVED_FILE)
 

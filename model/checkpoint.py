@@ -20,13 +20,13 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from lenspair.model.errors import ModelError
-from lenspair.model.training.config import ModelConfig, RunConfig, run_config_from_dict
 from torch import nn
 
 from lenspair.core.config import to_plain
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write
+from lenspair.model.errors import ModelError
+from lenspair.model.training.config import ModelConfig, RunConfig, run_config_from_dict
 
 CHECKPOINT_FORMAT = "lenspair-checkpoint"
 CHECKPOINT_VERSION = 1

@@ -45,8 +45,9 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
-from lenspair.model.errors import ModelError
 from torch import Tensor
+
+from lenspair.model.errors import ModelError
 
 PSNR_CAP_DB = 100.0
 """PSNR of a single image is capped at this value (dB) when averaged."""

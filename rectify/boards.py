@@ -26,6 +26,7 @@ from typing import Literal
 
 import cv2
 import numpy as np
+
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import pixel_rays
 from lenspair.rectify.rig import CameraModel

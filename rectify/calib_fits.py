@@ -14,6 +14,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+
 from lenspair.rectify.boards import Board, Detection
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import pixel_rays, project_rays

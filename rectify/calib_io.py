@@ -46,6 +46,7 @@ from typing import Any
 import cv2
 import numpy as np
 import yaml
+
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
 

@@ -25,6 +25,8 @@ from typing import Any, Literal, TypeVar
 
 import cv2
 import numpy as np
+
+from lenspair.core.progress import progress
 from lenspair.rectify.boards import Board, Detection, detect_corners
 from lenspair.rectify.calib_fits import (
     fit_camera,
@@ -37,8 +39,6 @@ from lenspair.rectify.calib_fits import (
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import StereoRectification, project_rays, row_disagreement
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
-
-from lenspair.core.progress import progress
 
 CalibrationModel = Literal["pinhole-radtan", "pinhole-equi"]
 MODELS: dict[str, DistortionModel] = {"pinhole-radtan": "radtan", "pinhole-equi": "equidistant"}

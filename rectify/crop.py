@@ -21,6 +21,7 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
+
 from lenspair.rectify.errors import RectifyError
 
 

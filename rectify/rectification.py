@@ -36,6 +36,7 @@ from typing import Literal
 
 import cv2
 import numpy as np
+
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import CameraModel, StereoRig
 

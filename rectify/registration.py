@@ -37,6 +37,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+
 from lenspair.rectify.errors import RectifyError
 
 

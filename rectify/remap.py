@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
 from lenspair.rectify.crop import Crop
 
 PointMap = Callable[[np.ndarray], np.ndarray]

@@ -18,9 +18,9 @@ from typing import Any, Literal
 
 import numpy as np
 import yaml
-from lenspair.rectify.errors import RectifyError
 
 from lenspair.core.fsutil import atomic_write_text
+from lenspair.rectify.errors import RectifyError
 
 DistortionModel = Literal["radtan", "equidistant"]
 

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
 from lenspair.rectify.registration import (
     VerifyParams,
     anomaly_regions,

@@ -18,6 +18,7 @@ detectors need). Reflectances in linear light: black 0.03, white 0.80.
 
 import cv2
 import numpy as np
+
 from lenspair.rectify.rig import CameraModel
 from lenspair.simulate.boardspec import BoardSpec
 from lenspair.simulate.camera import project, unproject

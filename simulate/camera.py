@@ -19,6 +19,7 @@ once per camera (:func:`ray_map`), never per frame.
 from dataclasses import dataclass
 
 import numpy as np
+
 from lenspair.rectify.rig import CameraModel
 
 _NEWTON_STEPS = 30

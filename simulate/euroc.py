@@ -11,9 +11,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from lenspair.rectify.rig import CameraModel
 
 from lenspair.core.fsutil import atomic_write_lines, atomic_write_text
+from lenspair.rectify.rig import CameraModel
 
 CSV_HEADER = "#timestamp [ns],filename"
 EUROC_DISTORTION_NAMES = {"radtan": "radial-tangential", "equidistant": "equidistant"}

@@ -8,6 +8,7 @@ offset ``start_m`` (see :class:`simulate.spec.MotionSpec` for the formula).
 from dataclasses import dataclass
 
 import numpy as np
+
 from lenspair.simulate.spec import MotionSpec, RecordingSpec
 from lenspair.simulate.transforms import make_transform, rotation_x, rotation_y, rotation_z
 

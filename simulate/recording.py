@@ -29,7 +29,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from lenspair.capture.rigfile import RigFile, write_rig_file
+from lenspair.core.config import dump_yaml
+from lenspair.core.fsutil import atomic_write_json, atomic_write_text
+from lenspair.core.imageio import write_image
+from lenspair.core.progress import progress
 from lenspair.rectify.rig import CameraModel, StereoRig, write_kalibr
 from lenspair.simulate import boards, truth
 from lenspair.simulate.camera import project, ray_map
@@ -42,11 +47,6 @@ from lenspair.simulate.sensor import expose
 from lenspair.simulate.spec import SceneSpec
 from lenspair.simulate.stereo import body_from_cameras, rig_from_spec
 from lenspair.simulate.transforms import invert_transform, transform_points
-
-from lenspair.core.config import dump_yaml
-from lenspair.core.fsutil import atomic_write_json, atomic_write_text
-from lenspair.core.imageio import write_image
-from lenspair.core.progress import progress
 
 CAMERAS = ("cam0", "cam1")
 _STREAMS = ("clock", "board", "glass", "glass_changes", "noise")

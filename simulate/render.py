@@ -40,12 +40,12 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from lenspair.core.imageio import check_image, from_float, from_linear, to_linear
 from lenspair.simulate.effects import brightness, defocus, dirt, dust, raindrops
 from lenspair.simulate.effects.layer import Placement, Sprites, composite_over, place, support_mask
 from lenspair.simulate.effects.spec import EffectsSpec
 from lenspair.simulate.errors import SimulateError
-
-from lenspair.core.imageio import check_image, from_float, from_linear, to_linear
 
 EffectHook = Callable[[str], None]
 """Called with an effect's name each time that effect is computed (instrumentation)."""

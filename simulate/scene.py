@@ -20,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from lenspair.simulate.camera import RayMap
 from lenspair.simulate.spec import PlaneSpec
 from lenspair.simulate.textures import (

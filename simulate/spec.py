@@ -35,13 +35,13 @@ from pathlib import Path
 from typing import Any, Literal, Union, get_args, get_origin
 
 import yaml
+
+from lenspair.core.config import load_dataclass, load_yaml
+from lenspair.core.errors import ConfigError
 from lenspair.simulate.boardspec import BoardSpec
 from lenspair.simulate.effects.spec import EffectsSpec
 from lenspair.simulate.rigspec import RigSpec
 from lenspair.simulate.textures import check_texture
-
-from lenspair.core.config import load_dataclass, load_yaml
-from lenspair.core.errors import ConfigError
 
 CameraName = Literal["cam0", "cam1"]
 Vector3 = tuple[float, float, float]

@@ -6,6 +6,7 @@ when ``cam1_rotated_180`` is set; nothing else special-cases that mounting.
 """
 
 import numpy as np
+
 from lenspair.rectify.rig import CameraModel, StereoRig
 from lenspair.simulate.rigspec import CameraSpec, RigSpec
 from lenspair.simulate.transforms import invert_transform, make_transform, rotation_xyz_deg

@@ -49,6 +49,7 @@ inner corners in that camera, in ``object_points`` order.
 from typing import Any
 
 import numpy as np
+
 from lenspair.simulate.scene import Plane
 from lenspair.simulate.transforms import invert_transform
 

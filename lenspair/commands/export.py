@@ -6,7 +6,7 @@ The exported network takes one image (N, C, H, W) float32 in [0, 1] of the
 given size (batch dynamic in ONNX) and returns the restored image. Each file
 is run on a seeded random image and compared with torch (the largest absolute
 difference is printed) and timed at batch 1. Checking and timing ONNX needs
-onnxruntime (pip install 'lenspair[onnx]'); without it the file is written
+onnxruntime (a dependency of lenspair; reinstall it); without it the file is written
 and the output says it was not checked. A JSON report goes next to the
 first file (<name>.export.json).
 """

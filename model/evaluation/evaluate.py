@@ -30,16 +30,16 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-from lenspair.model import metrics
-from lenspair.model.errors import ModelError
-from lenspair.model.evaluation.latency import Latency, autocast_context
-from lenspair.model.metrics import PSNR_CAP_DB, image_metrics, parse_metric_convention
-from lenspair.model.training.pairs import PairSource, to_tensor
 from torch import nn
 
 from lenspair.core.config import to_plain
 from lenspair.core.imageio import max_value
 from lenspair.core.progress import progress
+from lenspair.model import metrics
+from lenspair.model.errors import ModelError
+from lenspair.model.evaluation.latency import Latency, autocast_context
+from lenspair.model.metrics import PSNR_CAP_DB, image_metrics, parse_metric_convention
+from lenspair.model.training.pairs import PairSource, to_tensor
 
 CONVENTIONS = tuple(c.value for c in metrics.MetricConvention)
 DIFFICULTY_ORDER = ("easy", "medium", "hard", "clean")

@@ -10,7 +10,7 @@ dimension stays dynamic in ONNX.
 Each export is run on a random image (seeded) and compared with the torch
 output: the maximum absolute difference is reported. ONNX files are checked
 and timed with ``onnxruntime`` when it is installed (``pip install
-'lenspair[onnx]'``); without it the file is still written and the report says
+'onnxruntime'``); without it the file is still written and the report says
 it could not be checked. torch's new ``dynamo`` exporter needs
 ``onnxscript``; when that is missing the TorchScript-based exporter is used.
 """
@@ -27,15 +27,15 @@ from typing import Any
 
 import numpy as np
 import torch
-from lenspair.model.errors import ModelError
-from lenspair.model.evaluation.latency import percentile
 from torch import Tensor, nn
 
 from lenspair.core.fsutil import atomic_write
+from lenspair.model.errors import ModelError
+from lenspair.model.evaluation.latency import percentile
 
 log = logging.getLogger(__name__)
 
-ONNX_OPSET = 17
+ONNX_OPSET = 18
 INPUT_NAME = "image"
 OUTPUT_NAME = "restored"
 
@@ -134,6 +134,7 @@ def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) 
                 opset_version=ONNX_OPSET,
                 dynamo=True,
                 external_data=False,
+                dynamic_shapes={"x": {0: torch.export.Dim("batch", min=1, max=64)}},
             )
         else:
             torch.onnx.export(
@@ -187,7 +188,7 @@ def export_onnx(
             log.warning("%s failed (%s); trying %s", _EXPORTERS[attempt], first, exporters[-1])
     size_text = f"{size[1]}x{size[0]}"
     if importlib.util.find_spec("onnxruntime") is None:
-        note = "onnxruntime is not installed (pip install 'lenspair[onnx]'): written, not checked"
+        note = "onnxruntime is missing (a lenspair dependency): written, not checked"
         return ExportCheck("onnx", str(path), size_text, exporter, None, note=note)
     import onnxruntime as ort
 

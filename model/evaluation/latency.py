@@ -31,8 +31,9 @@ from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
 import torch
-from lenspair.model.errors import ModelError
 from torch import nn
+
+from lenspair.model.errors import ModelError
 
 Precision = Literal["fp32", "bf16", "fp16"]
 DEFAULT_SIZE = (360, 540)

@@ -24,12 +24,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from lenspair.model.evaluation.evaluate import EvalResult, fmt_psnr
-from lenspair.model.metrics import PSNR_CAP_DB
 
 from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.imageio import write_image
+from lenspair.model.evaluation.evaluate import EvalResult, fmt_psnr
+from lenspair.model.metrics import PSNR_CAP_DB
 
 
 def convention_note(convention: str) -> str:

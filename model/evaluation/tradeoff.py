@@ -27,12 +27,12 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from lenspair.model.errors import ModelError
-from lenspair.model.training.config import RunConfig, Variant
 
 from lenspair.core.config import dump_yaml, to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_text
+from lenspair.model.errors import ModelError
+from lenspair.model.training.config import RunConfig, Variant
 
 log = logging.getLogger(__name__)
 

@@ -27,9 +27,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from lenspair.model.evaluation.tradeoff import TradeoffRow
-
 from lenspair.core.fsutil import atomic_write, atomic_write_text
+from lenspair.model.evaluation.tradeoff import TradeoffRow
 
 
 def _fmt(value: float | None, digits: int) -> str:

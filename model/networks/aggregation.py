@@ -16,8 +16,9 @@ additive skips instead (see :mod:`lenspair.model.networks.generator`).
 """
 
 import torch.nn.functional as F
-from lenspair.model.networks.layers import ConvNormReLU, cat_channels
 from torch import Tensor, nn
+
+from lenspair.model.networks.layers import ConvNormReLU, cat_channels
 
 
 class Aggregation(nn.Module):

@@ -11,9 +11,10 @@ for network tables. Divide by two for MACs.
 from dataclasses import asdict, dataclass
 
 import torch
-from lenspair.model.errors import ModelError
 from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
+
+from lenspair.model.errors import ModelError
 
 
 @dataclass(frozen=True)

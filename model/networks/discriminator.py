@@ -29,9 +29,10 @@ norm couples all positions of a map, so the receptive-field statement is
 about the convolutional structure (exact with ``norm="none"``).
 """
 
+from torch import Tensor, nn
+
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.layers import make_norm
-from torch import Tensor, nn
 
 KERNEL_SIZE = 4
 PADDING = 1

@@ -41,6 +41,8 @@ from typing import cast
 
 import torch
 import torch.nn.functional as F
+from torch import Tensor, nn
+
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.layers import (
     NarrowConv2d,
@@ -48,7 +50,6 @@ from lenspair.model.networks.layers import (
     clamp_unit_straight_through,
     zero_init,
 )
-from torch import Tensor, nn
 
 PYRAMID_SCALES: tuple[int, ...] = (4, 8, 16, 32)
 """Pooling factors of the pyramid (1/4, 1/8, 1/16 and 1/32 of the resolution)."""

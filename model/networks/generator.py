@@ -37,6 +37,8 @@ the head is zero-initialised, and unlike pix2pixHD's ``tanh`` output never
 saturates the gradient.
 """
 
+from torch import Tensor, nn
+
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.aggregation import Aggregation
 from lenspair.model.networks.layers import (
@@ -46,7 +48,6 @@ from lenspair.model.networks.layers import (
     make_norm,
     zero_init,
 )
-from torch import Tensor, nn
 
 DOWNSAMPLING_FACTOR = 4
 """Input height and width must be multiples of this (two stride-2 stages)."""

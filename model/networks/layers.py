@@ -17,8 +17,9 @@ from typing import Literal
 
 import torch
 import torch.nn.functional as F
-from lenspair.model.errors import ModelError
 from torch import Tensor, nn
+
+from lenspair.model.errors import ModelError
 
 PaddingMode = Literal["zeros", "reflect", "replicate", "circular"]
 """Padding modes of ``nn.Conv2d``."""

@@ -8,8 +8,9 @@ and the output is cropped back, so outputs always have the input's size.
 """
 
 import torch.nn.functional as F
-from lenspair.model.errors import ModelError
 from torch import Tensor
+
+from lenspair.model.errors import ModelError
 
 MIN_SIDE = 8
 """Smallest accepted height/width: the residual blocks at 1/4 scale need 2 pixels."""

@@ -22,13 +22,14 @@ and at least 1.
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from torch import Tensor, nn
+
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.discriminator import PatchDiscriminator
 from lenspair.model.networks.enhancer import Enhancer
 from lenspair.model.networks.generator import DOWNSAMPLING_FACTOR, Generator
 from lenspair.model.networks.layers import init_weights, scaled_channels
 from lenspair.model.networks.padding import check_image_batch, crop_to, pad_to_multiple
-from torch import Tensor, nn
 
 SUPPORTED_CHANNELS = (1, 3)
 """Image channel counts the models accept (mono and RGB)."""

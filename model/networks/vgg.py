@@ -16,8 +16,9 @@ import os
 from pathlib import Path
 
 import torch
-from lenspair.model.errors import ModelError
 from torch import Tensor, nn
+
+from lenspair.model.errors import ModelError
 
 VGG19_WEIGHTS_ENV = "LENSPAIR_VGG19_WEIGHTS"
 """Environment variable naming a torchvision-format VGG19 state-dict file."""

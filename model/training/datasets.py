@@ -15,12 +15,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from lenspair.core.imageio import read_image
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.pairs import PairedCrops, PairItem, PairSource, channels_of
 from lenspair.model.training.synthetic import SyntheticDrops, drops_preset, find_clean_images
-
-from lenspair.core.imageio import read_image
 
 log = logging.getLogger(__name__)
 

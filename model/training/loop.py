@@ -36,6 +36,12 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import torch
+from torch.utils.data import DataLoader
+from torch.utils.data.distributed import DistributedSampler
+
+from lenspair.core.config import dump_yaml
+from lenspair.core.fsutil import atomic_write_text
+from lenspair.core.progress import progress
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_weights
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
@@ -56,12 +62,6 @@ from lenspair.model.training.step import (
     set_rng_state,
 )
 from lenspair.model.training.validation import validate_and_save
-from torch.utils.data import DataLoader
-from torch.utils.data.distributed import DistributedSampler
-
-from lenspair.core.config import dump_yaml
-from lenspair.core.fsutil import atomic_write_text
-from lenspair.core.progress import progress
 
 log = logging.getLogger(__name__)
 

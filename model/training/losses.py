@@ -27,9 +27,10 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
+from torch import Tensor, nn
+
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19Features
-from torch import Tensor, nn
 
 VGG_LAYER_WEIGHTS: tuple[float, ...] = (1 / 32, 1 / 16, 1 / 8, 1 / 4, 1.0)
 """Weights of relu1_1 ... relu5_1 in the perceptual loss (pix2pixHD)."""

@@ -19,10 +19,10 @@ from typing import Protocol, TypedDict
 
 import numpy as np
 import torch
-from lenspair.model.errors import ModelError
 from torch.utils.data import Dataset
 
 from lenspair.core.imageio import to_float
+from lenspair.model.errors import ModelError
 
 
 class PairItem(Protocol):

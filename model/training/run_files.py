@@ -20,9 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from lenspair.model.training.run_state import RunState
-
 from lenspair.core.fsutil import atomic_write_text
+from lenspair.model.training.run_state import RunState
 
 log = logging.getLogger(__name__)
 

@@ -30,6 +30,8 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torch import Tensor, nn
+
 from lenspair.model.checkpoint import build_network
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV, load_vgg19
@@ -40,7 +42,6 @@ from lenspair.model.training.losses import (
     feature_matching_loss,
     lsgan_loss,
 )
-from torch import Tensor, nn
 
 log = logging.getLogger(__name__)
 

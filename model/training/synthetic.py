@@ -11,6 +11,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import torch
+from torch.utils.data import Dataset
+
+from lenspair.core.imageio import from_float, read_image, to_float
 from lenspair.model.errors import ModelError
 from lenspair.model.training.pairs import (
     Sample,
@@ -29,9 +32,6 @@ from lenspair.simulate.effects.spec import (
     RaindropsSpec,
 )
 from lenspair.simulate.render import render_effects
-from torch.utils.data import Dataset
-
-from lenspair.core.imageio import from_float, read_image, to_float
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 CLEAN_FOLDER_NAMES = ("target", "gt", "clean")

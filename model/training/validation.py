@@ -15,15 +15,15 @@ from typing import Any, Protocol
 
 import numpy as np
 import torch
+from torch import nn
+
+from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import save_checkpoint
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.pairs import Sample
 from lenspair.model.training.run_files import RunPaths, metrics_row, write_metrics_rows
 from lenspair.model.training.run_state import RunState
 from lenspair.model.training.step import Distributed, Trainer, rng_state
-from torch import nn
-
-from lenspair.core.imageio import write_image
 
 log = logging.getLogger(__name__)
 
@@ -109,9 +109,8 @@ def validate(
         :data:`lenspair.model.evaluation.evaluate.PSNR_CAP_DB`.
 
     """
-    from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
-
     from lenspair.core.contact_sheet import make_contact_sheet
+    from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
 
     was_training = network.training
     network.eval()

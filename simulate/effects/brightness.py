@@ -8,6 +8,7 @@ gain drawn from ``gain``, applied to its colour in linear light. Gains above
 """
 
 import numpy as np
+
 from lenspair.simulate.effects.spec import BrightnessSpec
 
 

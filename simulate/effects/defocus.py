@@ -16,6 +16,7 @@ import math
 
 import cv2
 import numpy as np
+
 from lenspair.simulate.effects.spec import DefocusSpec
 
 

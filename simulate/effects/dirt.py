@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from lenspair.simulate.effects.layer import Sprites, box_grid, clip_boxes
 from lenspair.simulate.effects.spec import DirtSpec
 

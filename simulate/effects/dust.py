@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from lenspair.simulate.effects.spec import DustSpec
 
 MAX_PATCHES = 4096

@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
 from lenspair.simulate.effects.layer import Sprites, box_grid, clip_boxes
 from lenspair.simulate.effects.spec import RaindropsSpec
 

@@ -5,14 +5,14 @@ import re
 from pathlib import Path
 
 import pytest
+
+from benchmarks.readme_results import BEGIN, END, main, replace_section
+from lenspair.core.fsutil import atomic_write_json
 from lenspair.model.evaluation.evaluate import EvalResult, ImageScore, breakdown, summarize
 from lenspair.model.evaluation.latency import Latency
 from lenspair.model.evaluation.report import write_report
 from lenspair.model.evaluation.tradeoff import TradeoffRow, mark_pareto
 from lenspair.model.evaluation.tradeoff_report import write_tradeoff
-
-from benchmarks.readme_results import BEGIN, END, main, replace_section
-from lenspair.core.fsutil import atomic_write_json
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from lenspair.capture.ingested import read_pairs, read_report
 from lenspair.capture.rigfile import RigFile, write_rig_file
+from lenspair.core.imageio import write_image
 from lenspair.rectify.rectification import StereoRectification, pixel_rays, project_rays
 from lenspair.rectify.remap import apply_homography, pixel_grid
 from lenspair.rectify.rig import CameraModel, StereoRig, read_kalibr, write_kalibr
-
-from lenspair.core.imageio import write_image
 from tests.images import texture
 
 T0 = 1_700_000_000_000_000_000

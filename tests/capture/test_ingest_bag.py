@@ -5,17 +5,17 @@ from typing import Any
 
 import numpy as np
 import pytest
-from lenspair.capture.ingest import ingest_recording
-from lenspair.capture.ingested import read_pairs
-from lenspair.capture.rigfile import RigFile, write_rig_file
-from lenspair.rectify.rig import write_kalibr
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
+from lenspair.capture.ingest import ingest_recording
+from lenspair.capture.ingested import read_pairs
+from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.cli import main
 from lenspair.core.imageio import read_image
+from lenspair.rectify.rig import write_kalibr
 from tests.capture.ingest_helpers import CROP, frame_files, make_recording, rig
 
 SIZE = (240, 160)

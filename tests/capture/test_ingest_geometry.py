@@ -3,11 +3,11 @@
 from pathlib import Path
 
 import numpy as np
+
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import read_pairs
-from lenspair.rectify.registration import EstimationParams
-
 from lenspair.core.imageio import read_image
+from lenspair.rectify.registration import EstimationParams
 from tests.capture.ingest_helpers import plane_region, registration_errors, simulate
 
 FEW_FRAMES = EstimationParams(max_frames=2)

@@ -10,10 +10,10 @@ import time
 from pathlib import Path
 
 import pytest
+
 from lenspair.capture import ingest_frames
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.journal import JOURNAL_FILE
-
 from tests.capture.ingest_helpers import simulate, tree_bytes
 
 

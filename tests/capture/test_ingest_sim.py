@@ -5,10 +5,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import read_pairs
 from lenspair.rectify.registration import EstimationParams
-
 from tests.capture.ingest_helpers import registration_errors, simulate, tree_bytes
 
 MAX_MEDIAN_ERROR_PX = 0.25

@@ -1,6 +1,7 @@
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.pairing import (
     DUPLICATE,

@@ -4,6 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import (
     FrameRef,
@@ -12,7 +13,6 @@ from lenspair.capture.recording import (
     resolve_obstructed,
 )
 from lenspair.capture.rigfile import RigFile, write_rig_file
-
 from lenspair.core.errors import ConfigError, ImageIOError
 from lenspair.core.imageio import write_image
 

@@ -6,14 +6,15 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from lenspair.capture.errors import CaptureError
-from lenspair.capture.recording import FrameRef, load_frame, open_recording, resolve_obstructed
-from lenspair.capture.rigfile import RigFile, write_rig_file
-from lenspair.capture.rosbag import close_bag_readers, decode_raw, select_topics
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
+
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.recording import FrameRef, load_frame, open_recording, resolve_obstructed
+from lenspair.capture.rigfile import RigFile, write_rig_file
+from lenspair.capture.rosbag import close_bag_readers, decode_raw, select_topics
 
 MS = 1_000_000
 T0 = 1_700_000_000_000_000_000

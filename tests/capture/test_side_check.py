@@ -1,6 +1,7 @@
 import cv2
 import numpy as np
 import pytest
+
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.side_check import check_obstructed_side, tile_detail
 

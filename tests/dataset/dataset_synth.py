@@ -5,8 +5,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from lenspair.capture.ingested import IngestReport, PairRecord, write_pairs, write_report
 
+from lenspair.capture.ingested import IngestReport, PairRecord, write_pairs, write_report
 from lenspair.core.fsutil import sha256_file
 from lenspair.core.imageio import write_image
 

@@ -5,7 +5,11 @@ import os
 from pathlib import Path
 
 import pytest
+
 from lenspair.capture.ingested import read_pairs, write_pairs
+from lenspair.cli import main
+from lenspair.core.fsutil import sha256_file
+from lenspair.core.imageio import read_image
 from lenspair.dataset import build as build_module
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.card import read_card
@@ -13,10 +17,6 @@ from lenspair.dataset.config import CurationConfig, DatasetConfig, SplitConfig
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.manifest import read_manifest
 from lenspair.dataset.verify import verify_dataset
-
-from lenspair.cli import main
-from lenspair.core.fsutil import sha256_file
-from lenspair.core.imageio import read_image
 from tests.dataset.dataset_synth import RecordingFactory
 
 SEGMENTS = DatasetConfig(split=SplitConfig(segment_frames=10, segment_gap_frames=2))

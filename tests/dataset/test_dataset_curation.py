@@ -3,7 +3,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from lenspair.capture.ingested import PairRecord
+from lenspair.core.errors import ConfigError
 from lenspair.dataset.config import (
     CurationConfig,
     DatasetConfig,
@@ -23,8 +25,6 @@ from lenspair.dataset.curation import (
     measure_pair,
     quality_rule,
 )
-
-from lenspair.core.errors import ConfigError
 from tests.dataset.dataset_synth import add_drops, scene
 
 

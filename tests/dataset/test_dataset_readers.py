@@ -2,13 +2,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
+from lenspair.core.imageio import write_image
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig, SplitConfig
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.manifest import read_manifest
 from lenspair.dataset.readers import PairedDataset, detect_layout, natural_key, open_paired
-
-from lenspair.core.imageio import write_image
 from tests.dataset.dataset_synth import RecordingFactory
 
 

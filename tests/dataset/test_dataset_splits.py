@@ -2,6 +2,7 @@ import itertools
 
 from hypothesis import given
 from hypothesis import strategies as st
+
 from lenspair.dataset.config import SplitConfig
 from lenspair.dataset.splits import (
     SplitItem,

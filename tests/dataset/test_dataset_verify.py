@@ -2,13 +2,13 @@ import json
 from pathlib import Path
 
 import pytest
+
+from lenspair.cli import main
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig, SplitConfig
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.manifest import read_manifest
 from lenspair.dataset.verify import verify_dataset
-
-from lenspair.cli import main
 from tests.dataset.dataset_synth import RecordingFactory
 
 

@@ -45,7 +45,7 @@ def test_samples_are_found_as_package_data() -> None:
 def test_unknown_sample_names_the_available_ones() -> None:
     from lenspair.core.errors import LenspairError
 
-    with pytest.raises(LenspairError, match="available: .*rain.yaml"):
+    with pytest.raises(LenspairError, match=r"available: .*rain\.yaml"):
         sample_path("no_such_scene.yaml")
 
 

@@ -2,6 +2,8 @@ from pathlib import Path
 
 import pytest
 import torch
+
+from lenspair.core.config import to_plain
 from lenspair.model.checkpoint import (
     CHECKPOINT_FORMAT,
     checkpoint_config,
@@ -12,8 +14,6 @@ from lenspair.model.checkpoint import (
 )
 from lenspair.model.errors import ModelError
 from lenspair.model.training.step import Trainer
-
-from lenspair.core.config import to_plain
 from tests.model.train_fixtures import make_checkpoint, tiny_config
 
 pytestmark = pytest.mark.usefixtures("one_thread")

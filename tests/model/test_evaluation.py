@@ -7,6 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
+from lenspair.cli import main
+from lenspair.core.imageio import write_image
 from lenspair.dataset.manifest import ManifestRow, write_manifest
 from lenspair.dataset.readers import open_paired
 from lenspair.model.checkpoint import load_model
@@ -16,9 +19,6 @@ from lenspair.model.evaluation.report import write_report
 from lenspair.model.metrics import MetricConvention, image_metrics
 from lenspair.model.networks.variants import build_model
 from lenspair.model.training.pairs import to_tensor
-
-from lenspair.cli import main
-from lenspair.core.imageio import write_image
 from tests.model.train_fixtures import (
     clean_image,
     make_checkpoint,

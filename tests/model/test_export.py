@@ -4,11 +4,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+
+from lenspair.cli import main
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import check_image, export_torchscript, parse_size
-
-from lenspair.cli import main
 from tests.model.train_fixtures import make_checkpoint
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -67,7 +67,7 @@ def test_export_without_onnxruntime_says_so(
     )
     report = json.loads((tmp_path / "m.onnx.export.json").read_text())
     assert report["exports"][0]["max_abs_diff"] is None
-    assert "onnxruntime is not installed" in report["exports"][0]["note"]
+    assert "onnxruntime is missing" in report["exports"][0]["note"]
 
 
 def test_parse_size_and_missing_targets(tmp_path: Path) -> None:

@@ -2,10 +2,11 @@
 
 import pytest
 import torch
+from torch import nn
+
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.complexity import ModelSummary, count_flops, count_parameters, describe
 from lenspair.model.networks.variants import build_model
-from torch import nn
 
 
 def test_conv_flops_are_two_per_mac() -> None:

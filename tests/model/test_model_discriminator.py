@@ -2,6 +2,7 @@
 
 import pytest
 import torch
+
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.discriminator import PatchDiscriminator
 from lenspair.model.networks.variants import build_discriminator

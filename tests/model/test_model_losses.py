@@ -2,6 +2,7 @@
 
 import pytest
 import torch
+
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19Features
 from lenspair.model.training.losses import (

@@ -7,6 +7,8 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
 from lenspair.model.errors import ModelError
 from lenspair.model.metrics import (
     PSNR_CAP_DB,
@@ -20,7 +22,6 @@ from lenspair.model.metrics import (
     quantize_uint8,
     ssim,
 )
-from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 SIZES = [(11, 11), (24, 37), (63, 50), (97, 131)]
 

@@ -5,6 +5,7 @@ import io
 import pytest
 import torch
 import torch.nn.functional as F
+
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.aggregation import Aggregation
 from lenspair.model.networks.enhancer import Enhancer

@@ -2,6 +2,7 @@
 
 import pytest
 import torch
+
 from lenspair.model.networks.enhancer import Enhancer
 from lenspair.model.networks.variants import build_discriminator, build_model
 from lenspair.model.training.losses import LossWeights, discriminator_loss, generator_loss

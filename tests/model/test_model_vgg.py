@@ -4,6 +4,7 @@ from pathlib import Path
 
 import pytest
 import torch
+
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import SLICE_ENDS, VGG19_WEIGHTS_ENV, VGG19Features, load_vgg19
 

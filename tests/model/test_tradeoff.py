@@ -5,6 +5,9 @@ from pathlib import Path
 
 import pytest
 import torch
+
+from lenspair.cli import main
+from lenspair.core.config import dump_yaml
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import score_tensors
 from lenspair.model.evaluation.tradeoff import (
@@ -18,9 +21,6 @@ from lenspair.model.evaluation.tradeoff import (
     run_tradeoff,
 )
 from lenspair.model.training.pairs import open_eval_pairs, to_tensor
-
-from lenspair.cli import main
-from lenspair.core.config import dump_yaml
 from tests.model.train_fixtures import tiny_config, write_split_dataset
 
 pytestmark = pytest.mark.usefixtures("one_thread")

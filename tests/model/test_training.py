@@ -6,6 +6,11 @@ import numpy as np
 import pytest
 import torch
 import yaml
+
+from lenspair.cli import main
+from lenspair.core.config import dump_yaml
+from lenspair.core.errors import ConfigError
+from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import load_checkpoint
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19Features
@@ -24,11 +29,6 @@ from lenspair.model.training.step import (
 )
 from lenspair.model.training.synthetic import OUR_DROPS, find_clean_images
 from lenspair.simulate.effects.spec import SHARP_DROPS
-
-from lenspair.cli import main
-from lenspair.core.config import dump_yaml
-from lenspair.core.errors import ConfigError
-from lenspair.core.imageio import write_image
 from tests.model.train_fixtures import (
     clean_image,
     tiny_config,

@@ -4,6 +4,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+
+from lenspair.core.imageio import write_image
 from lenspair.model.training.config import (
     DataConfig,
     LossConfig,
@@ -11,8 +13,6 @@ from lenspair.model.training.config import (
     RunConfig,
     TrainConfig,
 )
-
-from lenspair.core.imageio import write_image
 
 HEIGHT, WIDTH = 32, 48
 
@@ -81,6 +81,7 @@ def tiny_config(**train: object) -> RunConfig:
 def make_checkpoint(path: Path, config: RunConfig | None = None, perturb: bool = True) -> Path:
     """Save an untrained checkpoint (weights nudged off the identity when ``perturb``)."""
     import torch
+
     from lenspair.model.checkpoint import save_checkpoint
     from lenspair.model.training.step import Trainer
 

@@ -5,6 +5,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+
 from lenspair.rectify.calib_io import load_calibration
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import StereoRectification

@@ -5,6 +5,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from lenspair.rectify.boards import Board, BoardRenderer, Detection, parse_board_spec
 from lenspair.rectify.calibration import (
     CalibrationResult,
@@ -188,10 +189,9 @@ def test_calibrate_command_recovers_simulator_truth(
     tmp_path: Path, scene: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """``lenspair calibrate`` on the simulator's board scenes, against its true camchain."""
+    from lenspair.commands import calibrate
     from lenspair.simulate.recording import simulate_recording
     from lenspair.simulate.spec import load_scene, with_overrides
-
-    from lenspair.commands import calibrate
 
     spec_path = Path(__file__).parents[2] / "calib_samples" / f"{scene}.yaml"
     spec = with_overrides(load_scene(spec_path), frames=12)

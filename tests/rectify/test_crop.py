@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+
 from lenspair.rectify.crop import Crop, CropError, choose_crop, parse_size
 
 

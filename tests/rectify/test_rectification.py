@@ -1,6 +1,7 @@
 import cv2
 import numpy as np
 import pytest
+
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import (
     StereoRectification,

@@ -3,6 +3,8 @@
 import cv2
 import numpy as np
 import pytest
+
+from lenspair.core.quality import to_grey
 from lenspair.rectify.registration import (
     EstimationParams,
     RegistrationError,
@@ -12,8 +14,6 @@ from lenspair.rectify.registration import (
 )
 from lenspair.rectify.remap import apply_homography, pixel_grid
 from lenspair.rectify.verification import measure_shift, verify_pair
-
-from lenspair.core.quality import to_grey
 from tests.images import texture
 
 PARAMS = VerifyParams()

@@ -1,6 +1,7 @@
 import cv2
 import numpy as np
 import pytest
+
 from lenspair.rectify.crop import Crop
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.remap import (

@@ -2,6 +2,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import CameraModel, StereoRig, read_kalibr, write_kalibr
 

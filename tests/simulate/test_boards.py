@@ -5,14 +5,14 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+
+from lenspair.core.imageio import read_image
 from lenspair.rectify.rig import CameraModel
 from lenspair.simulate import boards
 from lenspair.simulate.boardspec import BoardSpec
 from lenspair.simulate.errors import SimulateError
 from lenspair.simulate.recording import simulate_recording
 from lenspair.simulate.spec import load_scene, with_overrides
-
-from lenspair.core.imageio import read_image
 
 SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
 WIDTH, HEIGHT = 720, 540

@@ -2,6 +2,7 @@ import cv2
 import numpy as np
 from hypothesis import assume, given
 from hypothesis import strategies as st
+
 from lenspair.rectify.rig import CameraModel
 from lenspair.simulate.camera import project, ray_map, sample_positions, undistort_maps, unproject
 

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from lenspair.simulate.effects import brightness
 from lenspair.simulate.effects.spec import BrightnessSpec, EffectsSpec, RaindropsSpec
 from lenspair.simulate.render import render_effects, sample_glass

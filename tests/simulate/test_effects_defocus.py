@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from lenspair.simulate.effects import defocus, raindrops
 from lenspair.simulate.effects.spec import DefocusSpec, EffectsSpec, RaindropsSpec
 from lenspair.simulate.render import render_effects, sample_glass

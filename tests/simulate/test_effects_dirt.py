@@ -4,12 +4,12 @@ import math
 
 import numpy as np
 import pytest
+
+from lenspair.core.imageio import from_float, from_linear
 from lenspair.simulate.effects import dirt
 from lenspair.simulate.effects.layer import Sprites
 from lenspair.simulate.effects.spec import DirtSpec, EffectsSpec
 from lenspair.simulate.render import render_effects
-
-from lenspair.core.imageio import from_float, from_linear
 
 
 def _blobs(radius: float, opacity: float, amplitudes: list[float]) -> dirt.Blobs:

@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
+
+from lenspair.core.imageio import from_float, from_linear
 from lenspair.simulate.effects import dust
 from lenspair.simulate.effects.spec import DustSpec, EffectsSpec
 from lenspair.simulate.render import apply_glass, render_effects, sample_glass
-
-from lenspair.core.imageio import from_float, from_linear
 
 
 def _grey(linear: float, shape: tuple[int, ...]) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from lenspair.simulate.effects.layer import (
     Sprites,
     box_grid,

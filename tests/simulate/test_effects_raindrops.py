@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
+from lenspair.core.imageio import from_float, from_linear
 from lenspair.simulate.effects import raindrops
 from lenspair.simulate.effects.raindrops import Drops, exit_refraction
 from lenspair.simulate.effects.spec import (
@@ -16,8 +18,6 @@ from lenspair.simulate.effects.spec import (
     RaindropsSpec,
 )
 from lenspair.simulate.render import render_effects, sample_glass
-
-from lenspair.core.imageio import from_float, from_linear
 
 WATER = 1.33
 CRITICAL = math.asin(1 / WATER)

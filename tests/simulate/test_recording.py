@@ -7,15 +7,15 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+
 from lenspair.capture.rigfile import read_rig_file
+from lenspair.cli import main
+from lenspair.core.imageio import read_image
 from lenspair.rectify.rig import CameraModel, read_kalibr
 from lenspair.simulate.camera import undistort_maps
 from lenspair.simulate.errors import SimulateError
 from lenspair.simulate.recording import simulate_recording
 from lenspair.simulate.spec import load_scene
-
-from lenspair.cli import main
-from lenspair.core.imageio import read_image
 
 SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
 FISHEYE0 = {

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
+from lenspair.core.errors import LenspairError
 from lenspair.simulate import render
 from lenspair.simulate.effects import brightness, defocus, dirt, dust, raindrops
 from lenspair.simulate.effects.spec import (
@@ -18,8 +20,6 @@ from lenspair.simulate.effects.spec import (
     RaindropsSpec,
 )
 from lenspair.simulate.render import advance_glass, apply_glass, render_effects, sample_glass
-
-from lenspair.core.errors import LenspairError
 
 EFFECTS = {
     "raindrops": RaindropsSpec(count=12, radius_px=(4.0, 14.0)),

@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
+from lenspair.core.errors import ConfigError
 from lenspair.rectify.rig import CameraModel
 from lenspair.simulate.camera import project, ray_map
 from lenspair.simulate.scene import Plane, build_planes, render_view
 from lenspair.simulate.spec import PlaneSpec
 from lenspair.simulate.textures import NAMES, build_texture, load_texture_image, mosaic
 from lenspair.simulate.transforms import invert_transform, make_transform, rotation_xyz_deg
-
-from lenspair.core.errors import ConfigError
 
 FISHEYE = CameraModel(
     (350.2, 349.8, 361.3, 268.4), "equidistant", (-0.0095, 0.0036, -0.0049, 0.0015), (720, 540)

@@ -2,10 +2,10 @@ from pathlib import Path
 
 import pytest
 import yaml
-from lenspair.simulate.spec import SceneSpec, load_scene, with_overrides
 
 from lenspair.core.config import dump_yaml, load_yaml
 from lenspair.core.errors import ConfigError
+from lenspair.simulate.spec import SceneSpec, load_scene, with_overrides
 
 SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
 SCENES = sorted(p for p in SAMPLES.glob("*.yaml") if p.name != "alphasense_camchain.yaml")
