@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from lenspair.core.fsutil import atomic_write, atomic_write_text
-from lenspair.model.evaluation.tradeoff import TradeoffRow
+from lenspair.model.evaluation.tradeoff_rows import TradeoffRow
 
 
 def _fmt(value: float | None, digits: int) -> str:
