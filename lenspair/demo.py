@@ -29,9 +29,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from lenspair.cli import main as cli_main
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text, sha256_file
 from lenspair.core.samples import sample_path
+from lenspair.demo_report import write_report
 
 log = logging.getLogger(__name__)
 
@@ -282,9 +284,6 @@ def run_stages(
 
 def run_demo(out: Path, budget: Budget = Budget()) -> Path:
     """Run every stage under ``out`` and write the report; returns ``report.md``'s path."""
-    from lenspair.cli import main as cli_main
-    from lenspair.demo_report import write_report
-
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     # Three short recordings make too few whole-recording groups for three

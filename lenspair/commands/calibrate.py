@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lenspair.capture.pairing import pair_frames
+from lenspair.capture.recording import open_recording
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.progress import progress
@@ -78,9 +80,6 @@ def _spread(count: int, limit: int) -> list[int]:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lenspair calibrate``; returns the exit code."""
-    from lenspair.capture.pairing import pair_frames  # imported here: only this command needs them
-    from lenspair.capture.recording import open_recording
-
     board = parse_board_spec(args.board)
     model = parse_model(args.model)
     if args.max_views < 0:

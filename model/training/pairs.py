@@ -22,6 +22,7 @@ import torch
 from torch.utils.data import Dataset
 
 from lenspair.core.imageio import to_float
+from lenspair.dataset.readers import detect_layout, open_paired
 from lenspair.model.errors import ModelError
 
 
@@ -204,7 +205,5 @@ def _valid_map(
 
 def open_eval_pairs(path: Path, split: str) -> PairSource:
     """Pairs to evaluate: ``path`` itself when it is a paired folder, else its ``split``."""
-    from lenspair.dataset.readers import detect_layout, open_paired
-
     path = Path(path)
     return open_paired(path) if detect_layout(path) is not None else open_paired(path, split)

@@ -167,7 +167,7 @@ def tensorboard_writer(folder: Path, enabled: bool) -> Iterator[Any]:
     if not enabled:
         yield None
         return
-    try:
+    try:  # here, not at the top: tensorboard is optional, its absence is logged
         from torch.utils.tensorboard import SummaryWriter
     except ImportError:
         log.info("TensorBoard is not installed; metrics go to metrics.csv only")
