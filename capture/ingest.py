@@ -74,7 +74,8 @@ from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.core.progress import progress
-from lenspair.rectify.crop import CropError, choose_crop
+from lenspair.rectify.crop import choose_crop
+from lenspair.rectify.errors import CropError
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.registration import EstimationParams, VerifyParams, estimate_homography
 from lenspair.rectify.remap import target_map, valid_region

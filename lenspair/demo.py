@@ -30,10 +30,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lenspair.cli import main as cli_main
-from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text, sha256_file
 from lenspair.core.samples import sample_path
 from lenspair.demo_report import write_report
+from lenspair.errors import DemoError
 
 log = logging.getLogger(__name__)
 
@@ -41,10 +41,6 @@ RECORDINGS = ("rain", "heavy_rain", "dust_swapped")
 """The anomaly recordings the demo simulates and ingests (``calib_samples/<name>.yaml``):
 light rain on cam1 (easy pairs), heavy, changing rain on cam1 (medium and hard
 pairs) and dust on cam0, the sides swapped."""
-
-
-class DemoError(LenspairError):
-    """A stage of the demo failed (the message names the stage)."""
 
 
 @dataclass(frozen=True)

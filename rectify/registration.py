@@ -38,11 +38,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from lenspair.rectify.errors import RectifyError
-
-
-class RegistrationError(RectifyError):
-    """No trustworthy homography between the two views could be estimated."""
+from lenspair.rectify.errors import RegistrationError
 
 
 @dataclass(frozen=True)

@@ -167,7 +167,7 @@ def fit(
 
     Raises:
         ModelError: existing run without ``resume``, incompatible ``init``,
-            empty datasets; :class:`~lenspair.model.training.step.TrainingDivergedError`.
+            empty datasets; :class:`~lenspair.model.errors.TrainingDivergedError`.
 
     """
     if len(train_set) == 0 or len(val_set) == 0:

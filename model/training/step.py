@@ -35,7 +35,7 @@ from torch import Tensor, nn
 from torch.nn.parallel import DistributedDataParallel as DDP
 
 from lenspair.model.checkpoint import build_network
-from lenspair.model.errors import ModelError
+from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.variants import build_discriminator
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV, load_vgg19
 from lenspair.model.training.config import RunConfig
@@ -49,10 +49,6 @@ from lenspair.model.training.losses import (
 log = logging.getLogger(__name__)
 
 PERCEPTUAL_DISABLED = f"disabled (no VGG19 weights: set train.vgg19_weights or {VGG19_WEIGHTS_ENV})"
-
-
-class TrainingDivergedError(ModelError):
-    """Too many consecutive non-finite training steps."""
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,9 @@ bodies nor ``if TYPE_CHECKING:`` blocks) become edges between modules:
   ``.simulate``) never import the face (``lenspair.cli``,
   ``lenspair.commands``, ``lenspair.demo*``);
 * no module imports itself through a chain of module-level imports.
+
+Two more structural rules are checked the same way: error classes live in
+each package's ``errors.py``, and an import left inside a function says why.
 """
 
 import ast
@@ -234,3 +237,17 @@ def test_command_help_does_not_import_torch() -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=True
     )
     assert result.stdout.strip() == "False", "building a command's --help imported torch"
+
+
+def test_error_classes_live_in_errors_modules() -> None:
+    misplaced = []
+    for module, source in MODULES.items():
+        if module.rpartition(".")[2] == "errors":
+            continue
+        tree = ast.parse(source.read_text(encoding="utf-8"), filename=str(source))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef):
+                bases = [ast.unparse(base).rpartition(".")[2] for base in node.bases]
+                if any(base.endswith(("Error", "Exception")) for base in bases):
+                    misplaced.append(f"{module}.{node.name}")
+    assert not misplaced, f"error classes outside an errors.py: {misplaced}"
