@@ -2,7 +2,7 @@
 
 ``python -m benchmarks.bench_calibration [--out DIR] [--views N] [--repeats K]``
 
-Views are rendered once (not timed) with :class:`rectify.boards.BoardRenderer`
+Views are rendered once (not timed) with :class:`tests.rectify.board_renderer.BoardRenderer`
 for an Alphasense-like rig (720x540, f ~ 350 px, B = 0.11 m). Timed, as the
 median of ``--repeats`` runs: corner detection in all 2N images, then
 :func:`rectify.calibration.calibrate_from_detections` (both single-camera
@@ -21,10 +21,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from lenspair.rectify.boards import Board, BoardRenderer, parse_board_spec
+from lenspair.rectify.boards import Board, parse_board_spec
 from lenspair.rectify.calibration import CalibrationModel, calibrate_from_detections, detect_views
 from lenspair.rectify.rectification import project_rays
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
+from tests.rectify.board_renderer import BoardRenderer
 
 CASES: tuple[tuple[str, CalibrationModel], ...] = (
     ("chessboard:9x6:0.06", "pinhole-equi"),

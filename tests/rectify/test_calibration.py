@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from lenspair.rectify.boards import Board, BoardRenderer, Detection, parse_board_spec
+from lenspair.rectify.boards import Board, Detection, parse_board_spec
 from lenspair.rectify.calibration import (
     CalibrationResult,
     calibrate_from_detections,
@@ -16,6 +16,7 @@ from lenspair.rectify.calibration import (
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import project_rays
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
+from tests.rectify.board_renderer import BoardRenderer
 
 MODELS = {"radtan": "pinhole-radtan", "equidistant": "pinhole-equi"}
 SIZES = ((720, 540), (720, 540))
