@@ -200,7 +200,7 @@ def score_pairs(
 
     Args:
         network: forward(x) -> (generator_out, enhanced_out); eval mode is set.
-        pairs: pairs from ``dataset.readers`` (any image size, odd ones too).
+        pairs: pairs from ``lenspair.dataset.readers`` (any image size, odd ones too).
         channels: the network's channels.
         device: where to run it.
         convention: ``skimage-gaussian`` or ``deraindrop-y``.

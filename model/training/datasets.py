@@ -121,7 +121,7 @@ def paired_training_data(
     channels: int | None,
     seed: int,
 ) -> TrainData:
-    """Training pairs from any layout ``dataset.readers`` reads.
+    """Training pairs from any layout ``lenspair.dataset.readers`` reads.
 
     A dataset with splits trains on ``data.train_split`` and validates on
     ``data.val_split``; a split-less paired folder (or a dataset without the

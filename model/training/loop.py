@@ -95,7 +95,7 @@ class TrainSummary:
 
 
 class EpochDataset(Protocol):
-    """A training set whose random choices depend on the epoch (``model.training.pairs``)."""
+    """A training set whose random choices depend on the epoch (as in ``training.pairs``)."""
 
     def __len__(self) -> int: ...
     def __getitem__(self, index: int) -> Sample: ...

@@ -1,6 +1,6 @@
 """The files of a training run folder: paths, metrics CSV, log file, TensorBoard.
 
-A run folder (written by :func:`lenspair.model.training.fit`) holds::
+A run folder (written by :func:`lenspair.model.training.loop.fit`) holds::
 
     RUN/config.yaml              resolved configuration (+ runtime: what really ran)
     RUN/checkpoints/last.pt      after every epoch (and at a budget stop)

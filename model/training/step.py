@@ -18,7 +18,7 @@ and fp16 autocast with a ``GradScaler`` on CUDA (``train.amp``).
 
 Multi-GPU: under ``torchrun`` (``WORLD_SIZE`` > 1) both networks are wrapped
 in ``DistributedDataParallel``; the single-device path never touches
-``torch.distributed``. The loop over epochs is :func:`lenspair.model.training.fit`.
+``torch.distributed``. The loop over epochs is :func:`lenspair.model.training.loop.fit`.
 """
 
 import contextlib

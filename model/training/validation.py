@@ -35,7 +35,7 @@ VAL_CONVENTION = "skimage-gaussian"
 
 
 class SampleSet(Protocol):
-    """Indexable samples with a length, e.g. a validation set (``model.training.pairs``)."""
+    """Indexable samples with a length, e.g. a validation set (of ``training.pairs``)."""
 
     def __len__(self) -> int: ...
     def __getitem__(self, index: int) -> Sample: ...
