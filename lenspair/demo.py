@@ -34,6 +34,8 @@ from lenspair.core.fsutil import atomic_write_json, atomic_write_text, sha256_fi
 from lenspair.core.samples import sample_path
 from lenspair.demo_report import write_report
 from lenspair.errors import DemoError
+from lenspair.rectify.calibration import MODELS
+from lenspair.simulate.spec import load_scene
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +80,19 @@ class Stage:
     resumable: bool = False
 
 
+def board_arguments(scene: str = "chessboard.yaml") -> tuple[str, str, str, str]:
+    """``--board`` and ``--model`` of ``lenspair calibrate`` for a sample board scene.
+
+    Read from the scene spec through the shared board model, so that the
+    demo calibrates with the board the simulator drew.
+    """
+    spec = load_scene(sample_path(scene))
+    if spec.board is None:
+        raise DemoError(f"{scene}: the sample scene has no board")
+    model = next(name for name, lens in MODELS.items() if lens == spec.rig.cam0.distortion_model)
+    return "--board", spec.board.target.spec(), "--model", model
+
+
 def plan(out: Path, budget: Budget) -> list[Stage]:
     """The demo's stages, in order, writing under ``out``."""
     rec, ing = out / "recordings", out / "ingested"
@@ -115,16 +130,7 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
         ),
         Stage(
             "calibrate",
-            (
-                "calibrate",
-                str(rec / "board"),
-                "--board",
-                "chessboard:9x6:0.06",
-                "--model",
-                "pinhole-equi",
-                "--out",
-                str(calib),
-            ),
+            ("calibrate", str(rec / "board"), *board_arguments(), "--out", str(calib)),
             calib.parent,
         ),
     ]
