@@ -34,6 +34,17 @@ from lenspair.dataset.curation import RULE_NAMES
 from lenspair.dataset.verify import verify_dataset
 
 
+def _positive_int(text: str) -> int:
+    """Argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``dataset-build``."""
     parser.add_argument("sources", nargs="*", type=Path, help="ingested recording folders")
@@ -43,7 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="split seed (default 0)")
     parser.add_argument("--config", type=Path, help="YAML with curation: and split: sections")
     parser.add_argument("--overwrite", action="store_true", help="replace a different dataset")
-    parser.add_argument("--workers", type=int, help="threads reading images (default up to 4)")
+    parser.add_argument(
+        "--workers", type=_positive_int, help="threads reading images (default up to 4)"
+    )
     group = parser.add_argument_group("common thresholds (override --config)")
     group.add_argument("--max-residual-px", type=float, help="registration residual (2.0)")
     group.add_argument("--min-sharpness", type=float, help="variance of Laplacian (20)")
@@ -67,6 +80,9 @@ def run(args: argparse.Namespace) -> int:
     config = load_dataset_config(args.config)
     try:
         fractions = parse_fractions(args.splits) if args.splits is not None else None
+    except ValueError as exc:
+        raise ConfigError(f"--splits: {exc}") from None
+    try:
         config = with_overrides(
             config,
             curation={

@@ -89,4 +89,7 @@ def test_not_a_dataset(tmp_path: Path) -> None:
     with pytest.raises(DatasetError, match="not a folder"):
         verify_dataset(tmp_path / "nope")
     (tmp_path / "x").mkdir()
+    with pytest.raises(DatasetError, match="not a dataset"):
+        verify_dataset(tmp_path / "x")  # an empty folder is a wrong argument, not a damaged dataset
+    (tmp_path / "x" / "dataset.json").write_text("{}")
     assert "manifest.jsonl: file not found" in verify_dataset(tmp_path / "x").problems[0]
