@@ -20,6 +20,12 @@ when the data allows. Output: DS/{train,val,test}/{input,target[,mask]}/
 removed pair with its rule and reason), config.yaml and
 contact_<split>.png. Same inputs and seed give byte-identical files.
 
+Images are independent copies of the ingested ones (a reflink where the file
+system supports it, else a byte copy): editing a dataset image never changes
+the recording or another dataset. --link hard saves the space with hard
+links instead, makes those files read-only and says so in dataset.json.
+A killed build leaves nothing the next build of the same DS does not remove.
+
 --verify re-checks every file against the manifest and the card's counts and
 exits with status 1 and a list of problems when anything is off.
 """
@@ -54,6 +60,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="split seed (default 0)")
     parser.add_argument("--config", type=Path, help="YAML with curation: and split: sections")
     parser.add_argument("--overwrite", action="store_true", help="replace a different dataset")
+    parser.add_argument(
+        "--link",
+        choices=("copy", "hard"),
+        default="copy",
+        help="copy: images independent of the ingested ones (reflink where the file system "
+        "can, else a copy; default); hard: hard links, read-only, noted in the card",
+    )
     parser.add_argument(
         "--workers", type=_positive_int, help="threads reading images (default up to 4)"
     )
@@ -96,7 +109,12 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     result = build_dataset(
-        args.sources, args.out, config, overwrite=args.overwrite, workers=args.workers
+        args.sources,
+        args.out,
+        config,
+        overwrite=args.overwrite,
+        workers=args.workers,
+        link=args.link,
     )
     card = result.card
     print(f"dataset written to {result.out}: {card.counts['all'].pairs} of {card.pairs_in} pairs")
