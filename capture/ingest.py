@@ -30,6 +30,7 @@ only rewritten when something other than its timings changed).
 
 import json
 import logging
+import os
 import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -108,7 +109,7 @@ def _map_tasks(
         max_workers=workers,
         mp_context=get_context("spawn"),
         initializer=frame_work.init_worker,
-        initargs=(context,),
+        initargs=(context, os.getpid()),
     ) as pool:
         results = pool.map(function, tasks, chunksize=max(1, min(8, len(tasks) // (4 * workers))))
         yield from progress(results, desc=desc, total=len(tasks))
