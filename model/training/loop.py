@@ -3,7 +3,8 @@
 :func:`fit` trains one run into a run folder and can be resumed exactly::
 
     RUN/config.yaml              resolved configuration (+ runtime: what really ran)
-    RUN/checkpoints/last.pt      after every epoch (and at a budget stop)
+    RUN/checkpoints/last.pt      after every epoch, at a budget stop, and every
+                                 train.checkpoint_every_seconds/_steps within one
     RUN/checkpoints/best.pt      best validation PSNR so far
     RUN/metrics.csv              one row per epoch
     RUN/train.log                the log, warnings included
@@ -47,9 +48,11 @@ from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
 from lenspair.model.training.config import RunConfig, RuntimeInfo, TrainConfig, config_differences
 from lenspair.model.training.pairs import Sample
+from lenspair.model.training.periodic import CheckpointClock, save_progress
 from lenspair.model.training.run_files import (
     RunPaths,
     read_metrics_rows,
+    remove_run_leftovers,
     run_logging,
     tensorboard_writer,
 )
@@ -206,6 +209,7 @@ def fit(
         )
         if info.is_main:
             paths.root.mkdir(parents=True, exist_ok=True)
+            remove_run_leftovers(paths)
         with run_logging(paths.log, info.is_main):
             state = _start(trainer, config, paths, checkpoint, init)
             if info.is_main:
@@ -324,6 +328,7 @@ def _loop(
         return session_start + time.monotonic() - started
 
     reason = stop_reason(config, state, elapsed())
+    clock = CheckpointClock.start(train, state)
     while reason is None:
         epoch = state.epoch
         train_set.set_epoch(epoch)
@@ -352,6 +357,9 @@ def _loop(
                         board.add_scalar(f"train/{name}", value, state.step)
             state.seconds = elapsed()
             reason = budget_reason(config, state)
+            if reason is None and clock.due(state):  # a kill now loses little
+                save_progress(trainer, config, paths, state, info)
+                clock.reset(state)
             if not all_true(reason is None, info, trainer.device):
                 reason = reason or "time budget reached on another process"
                 break
@@ -366,6 +374,7 @@ def _loop(
             or (state.epoch % train.val_every == 0 and state.step_in_epoch == 0)
         ):
             validate_and_save(trainer, config, val_set, paths, state, info, means, board)
+            clock.reset(state)
         state.seconds = elapsed()
         reason = reason or stop_reason(config, state, state.seconds)
         if not all_true(reason is None, info, trainer.device):  # stop together
