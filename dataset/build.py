@@ -135,6 +135,8 @@ def load_source(path: Path) -> Source:
     records = tuple(read_pairs(path / PAIRS_FILE))
     seen: set[int] = set()
     for number, record in enumerate(records, start=1):
+        if record.status != "kept":
+            continue  # a rejected frame may repeat a kept one's timestamp (another file)
         if record.t_ns in seen:
             raise DatasetError(f"{path / PAIRS_FILE}:{number}: timestamp {record.t_ns} repeats")
         seen.add(record.t_ns)

@@ -285,6 +285,10 @@ def _start(
         ]
         log.info("resuming %s at epoch %d, step %d", paths.root, state.epoch + 1, state.step)
         return state
+    # A new run starts the global generator from the seed, not from whatever this
+    # process drew before: its checkpoints (which store that state) then match
+    # those of the same run in a fresh process, and of a killed-and-resumed one.
+    torch.manual_seed(config.train.seed)
     if init is not None:
         data = load_checkpoint(init)
         source = checkpoint_config(data, init).model
@@ -340,6 +344,9 @@ def _loop(
             sampler=order,
             num_workers=config.data.num_workers,
             pin_memory=trainer.device.type == "cuda",
+            # Its own generator: each DataLoader draws a base seed, which must not
+            # advance the global RNG (a resumed run makes one DataLoader more).
+            generator=torch.Generator().manual_seed(train.seed * 100_003 + epoch),
         )
         sums: dict[str, float] = {}
         counted = 0
