@@ -348,8 +348,8 @@ def _loop(
             # advance the global RNG (a resumed run makes one DataLoader more).
             generator=torch.Generator().manual_seed(train.seed * 100_003 + epoch),
         )
-        sums: dict[str, float] = {}
-        counted = 0
+        # A resumed epoch goes on from the sums its checkpoint recorded.
+        sums, counted = dict(state.loss_sums), state.loss_steps
         bar = progress(loader, _epoch_label(epoch, train), total=len(loader), unit="step")
         for batch in bar if info.is_main else loader:
             result = trainer.train_step(batch)
@@ -365,14 +365,17 @@ def _loop(
             state.seconds = elapsed()
             reason = budget_reason(config, state)
             if reason is None and clock.due(state):  # a kill now loses little
+                state.loss_sums, state.loss_steps = dict(sums), counted
                 save_progress(trainer, config, paths, state, info)
                 clock.reset(state)
             if not all_true(reason is None, info, trainer.device):
                 reason = reason or "time budget reached on another process"
                 break
+        state.loss_sums, state.loss_steps = dict(sums), counted  # for a budget-stop checkpoint
         if state.step_in_epoch >= steps_per_epoch:
             state.epoch += 1
             state.step_in_epoch = 0
+            state.loss_sums, state.loss_steps = {}, 0
         means = {name: total / max(counted, 1) for name, total in sums.items()}
         finished = state.epoch >= train.epochs
         if (
