@@ -130,6 +130,17 @@ def run(args: argparse.Namespace) -> int:
     print(f"  removed: {listed or 'none'}; tagged clean (kept): {card.tagged_clean}")
     for warning in card.grouping.warnings:
         print(f"  warning: {warning}")
+    wanted = dict(zip(SPLITS, card.fractions, strict=True))
+    for name in ("val", "test"):
+        if wanted[name] > 0 and card.counts[name].pairs == 0:
+            print(
+                f"  note: split {name!r} is empty (too few recordings or segments): "
+                + (
+                    "train holds out a tenth of train/ to validate"
+                    if name == "val"
+                    else "eval needs another --split; add recordings to fill it"
+                )
+            )
     return 0
 
 

@@ -296,7 +296,10 @@ def evaluate_checkpoint(
     channels = loaded.config.model.channels or 1
     pairs = open_eval_pairs(data, split)
     if len(pairs) == 0:
-        raise ModelError(f"{data}: no pairs to evaluate")
+        raise ModelError(
+            f"{data}: split {split!r} holds no pairs (dataset-build leaves a split empty when "
+            "there are too few recordings or segments); evaluate another one with --split"
+        )
     scores, samples = score_pairs(loaded.network, pairs, channels, device, convention, precision)
     latency = []
     if latency_runs > 0:

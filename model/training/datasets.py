@@ -152,6 +152,8 @@ def paired_training_data(
         train_source = open_paired(path, data.train_split)
         try:
             val_source = open_paired(path, data.val_split)
+            if len(val_source) == 0:  # dataset-build leaves a split empty on small inputs
+                raise DatasetError(f"{path / data.val_split}: the split is empty")
         except DatasetError as exc:
             every = train_source
             train_idx, val_idx = holdout_indices(_names(every), data.val_fraction)
