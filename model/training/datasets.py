@@ -18,7 +18,13 @@ from pathlib import Path
 from lenspair.core.imageio import read_image
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import DataConfig
-from lenspair.model.training.pairs import PairedCrops, PairItem, PairSource, channels_of
+from lenspair.model.training.pairs import (
+    PairedCrops,
+    PairItem,
+    PairSource,
+    channels_of,
+    conversion_note,
+)
 from lenspair.model.training.synthetic import SyntheticDrops, drops_preset, find_clean_images
 
 log = logging.getLogger(__name__)
@@ -162,6 +168,8 @@ def paired_training_data(
             note += f"{data.train_split!r} pairs held out by name hash"
             log.warning("%s: %s", path, note)
     resolved = channels or first_channels(train_source)
+    if channel_note := conversion_note(resolved, first_channels(train_source), path):
+        log.warning("%s", channel_note)
     train = PairedCrops(train_source, resolved, data.crop_size, data.hflip, data.vflip, seed=seed)
     val = PairedCrops(val_source, resolved, None, seed=seed, limit=data.max_val_images)
     description = f"{path} (train {len(train)} pairs, validation {len(val)} pairs"
