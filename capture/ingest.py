@@ -30,6 +30,7 @@ only rewritten when something other than its timings changed).
 
 import json
 import logging
+import os
 import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -47,6 +48,7 @@ from lenspair.capture.ingest_report import (
     frame_counts,
     in_output_pixels,
     rejection_reasons,
+    unlisted_records,
     write_report_if_changed,
 )
 from lenspair.capture.ingested import PAIRS_FILE, REPORT_FILE, IngestReport, PairRecord, write_pairs
@@ -109,7 +111,7 @@ def _map_tasks(
         max_workers=workers,
         mp_context=get_context("spawn"),
         initializer=frame_work.init_worker,
-        initargs=(context,),
+        initargs=(context, os.getpid()),
     ) as pool:
         results = pool.map(function, tasks, chunksize=max(1, min(8, len(tasks) // (4 * workers))))
         yield from progress(results, desc=desc, total=len(tasks))
@@ -232,10 +234,17 @@ def _frame_stage(
         records[frame.t_ns] = PairRecord(t_ns=frame.t_ns, status="rejected", reason=unpaired.reason)
     ordered = [records[t] for t in sorted(records)]
     remove_stale_outputs(out_dir, ordered)
-    write_pairs(out_dir / PAIRS_FILE, ordered)
     lines = (journal_line(keys[r.t_ns], r) for r in ordered if r.t_ns in keys)
     atomic_write_text(journal_path, "".join(lines))  # compacted: one line per frame
+    # One line per obstructed frame, also for those the recording could not list
+    # (a second file with an earlier frame's timestamp, a missing file): rejected.
+    ordered = sorted(ordered + unlisted_records(recording, rig_file.obstructed), key=_time)
+    write_pairs(out_dir / PAIRS_FILE, ordered)
     return ordered
+
+
+def _time(record: PairRecord) -> int:
+    return record.t_ns
 
 
 def ingest_recording(
@@ -359,7 +368,7 @@ def ingest_recording(
     counts["homography_frames"] = len(registration["frames"])
     counts["homography_matches"] = int(registration["matches"])
     counts["homography_inliers"] = int(registration["inliers"])
-    reasons = rejection_reasons(recording, ordered)
+    reasons = rejection_reasons(recording, ordered, rig_file.obstructed)
     homography_out = in_output_pixels(matrix, crop.x, crop.y)
     report = IngestReport(
         recording_id=recording.recording_id,

@@ -23,6 +23,7 @@ from lenspair.capture.rigfile import CameraName
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import sha256_bytes, sha256_file
 from lenspair.core.imageio import write_image
+from lenspair.core.orphans import end_with_parent
 from lenspair.core.quality import exposure_fractions, laplacian_variance, to_grey
 from lenspair.rectify.crop import Crop
 from lenspair.rectify.rectification import StereoRectification
@@ -134,12 +135,17 @@ def set_context(context: Context) -> None:
     _CONTEXT = context
 
 
-def init_worker(context: Context) -> None:
-    """Pool initializer: install the context, and pin OpenCV to one thread per worker.
+def init_worker(context: Context, parent_pid: int | None = None) -> None:
+    """Pool initializer: end with the parent, install the context, one OpenCV thread.
 
+    A worker must not outlive the ingest that started it: after a ``kill -9``
+    of the parent, orphaned workers would go on writing frames nobody
+    records. :func:`end_with_parent` ties each worker's life to ``parent_pid``.
     The pool already uses every core it was given; OpenCV's own threads
     would only compete with it.
     """
+    if parent_pid is not None:
+        end_with_parent(parent_pid)
     set_context(context)
     cv2.setNumThreads(1)
 

@@ -14,8 +14,8 @@ import numpy as np
 
 from lenspair.capture.ingested import IngestReport, PairRecord
 from lenspair.capture.pairing import PairingResult
-from lenspair.capture.recording import CAMERAS, Recording
-from lenspair.capture.rigfile import RigFile
+from lenspair.capture.recording import CAMERAS, FrameProblem, Recording
+from lenspair.capture.rigfile import CameraName, RigFile
 from lenspair.core.config import to_plain
 from lenspair.core.fsutil import atomic_write_json
 
@@ -25,13 +25,46 @@ def _category(reason: str) -> str:
     return re.split(r":| \(", reason, maxsplit=1)[0].strip()
 
 
-def rejection_reasons(recording: Recording, records: list[PairRecord]) -> Counter[str]:
+def _has_record(problem: FrameProblem, recording: Recording, obstructed: CameraName | None) -> bool:
+    """Whether a dropped frame gets its own rejected line in ``pairs.jsonl``.
+
+    Every dropped obstructed frame with a timestamp does, except a row that
+    lists the very file an earlier row listed (the same frame twice).
+    """
+    if obstructed is None or not problem.dropped or problem.camera != obstructed:
+        return False
+    if problem.t_ns is None:
+        return False
+    listed = {frame.t_ns: frame for frame in recording.frames[obstructed]}
+    same = listed.get(problem.t_ns)
+    return same is None or same.describe() != problem.source
+
+
+def unlisted_records(recording: Recording, obstructed: CameraName) -> list[PairRecord]:
+    """Rejected records of the obstructed frames the recording could not list.
+
+    ``pairs.jsonl`` holds one line per obstructed frame: a frame whose
+    timestamp repeats an earlier frame's (a different file), or whose file is
+    missing, gets a rejected line whose reason names its source.
+    """
+    return [
+        PairRecord(t_ns=p.t_ns, status="rejected", reason=f"{p.reason} ({p.source})")
+        for p in recording.problems
+        if _has_record(p, recording, obstructed) and p.t_ns is not None
+    ]
+
+
+def rejection_reasons(
+    recording: Recording, records: list[PairRecord], obstructed: CameraName | None = None
+) -> Counter[str]:
     """How many frames were rejected or dropped, by the stable part of the reason.
 
     Args:
         recording: the recording (its dropped problems are counted as
-            ``"<camera or 'recording'> not listed: <category>"``).
+            ``"<camera or 'recording'> not listed: <category>"``, except those of
+            the ``obstructed`` camera that have a record, counted once by it).
         records: the run's records, kept and rejected.
+        obstructed: the obstructed camera.
 
     Returns:
         Count per reason category (the text before the first ``:`` or ``" ("``).
@@ -39,7 +72,7 @@ def rejection_reasons(recording: Recording, records: list[PairRecord]) -> Counte
     """
     reasons = Counter(_category(r.reason) for r in records if r.status == "rejected" and r.reason)
     for problem in recording.problems:
-        if problem.dropped:
+        if problem.dropped and not _has_record(problem, recording, obstructed):
             reasons[f"{problem.camera or 'recording'} not listed: {_category(problem.reason)}"] += 1
     return reasons
 
@@ -75,7 +108,8 @@ def frame_counts(
     Returns:
         Counts keyed ``frames_<camera>``, ``listed_<camera>``,
         ``dropped_<camera>``, ``unpaired_<camera>``, ``pairs``, ``kept``,
-        ``rejected``, ``rejected_paired``, ``masked``, ``recording_problems``.
+        ``rejected``, ``rejected_paired``, ``rejected_unlisted`` (dropped
+        obstructed frames with their own line), ``masked``, ``recording_problems``.
 
     """
     counts: dict[str, int] = {}
@@ -89,7 +123,11 @@ def frame_counts(
     counts["pairs"] = len(pairing.pairs)
     counts["kept"] = sum(1 for r in records if r.status == "kept")
     counts["rejected"] = sum(1 for r in records if r.status == "rejected")
-    counts["rejected_paired"] = counts["rejected"] - counts[f"unpaired_{rig_file.obstructed}"]
+    unlisted = sum(1 for p in recording.problems if _has_record(p, recording, rig_file.obstructed))
+    counts["rejected_unlisted"] = unlisted
+    counts["rejected_paired"] = (
+        counts["rejected"] - counts[f"unpaired_{rig_file.obstructed}"] - unlisted
+    )
     counts["masked"] = sum(1 for r in records if r.status == "kept" and "mask" in r.files)
     counts["recording_problems"] = sum(1 for p in recording.problems if p.camera is None)
     return counts

@@ -6,11 +6,13 @@ hashes everything the frame's outputs depend on (see :func:`fingerprint`).
 A rerun skips frames whose key matches and whose files still have the
 recorded checksums (:func:`still_valid`), so an interrupted run (even
 ``kill -9``) finishes the work and a full rerun leaves every file
-byte-identical. Half-written temporaries and images no kept record lists are
-deleted (:func:`remove_temporaries`, :func:`remove_stale_outputs`).
+byte-identical. Half-written temporaries of killed runs and frame images no
+kept record lists are deleted (:func:`remove_temporaries`,
+:func:`remove_stale_outputs`); files a user put there are left alone.
 """
 
 import json
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +21,9 @@ from lenspair.capture.ingested import PairRecord
 from lenspair.core.config import load_dataclass, to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import sha256_bytes, sha256_file
+from lenspair.core.leftovers import remove_leftovers
+
+logger = logging.getLogger(__name__)
 
 JOURNAL_FILE = ".journal.jsonl"
 
@@ -68,19 +73,33 @@ def journal_line(key: str, record: PairRecord) -> str:
 
 
 def remove_temporaries(out_dir: Path) -> None:
-    """Delete half-written temporary files a killed run left (atomic writes never finished)."""
+    """Delete half-written temporaries that killed runs left (their writer process is gone)."""
     for folder in (out_dir, *(out_dir / kind for kind in OUTPUT_KINDS)):
-        for path in sorted(folder.glob(".*.tmp")):
-            path.unlink(missing_ok=True)
+        remove_leftovers(folder)
 
 
 def remove_stale_outputs(out_dir: Path, records: list[PairRecord]) -> None:
-    """Delete images under input/, target/, mask/ that no kept record lists (earlier runs)."""
+    """Delete frame images of earlier runs that no kept record lists; never a user's file.
+
+    Only ``<t_ns>.png`` files named after a frame of this recording are ingest's
+    own (a frame kept by an earlier run, rejected now); each deletion is
+    logged. Any other file under ``input/``, ``target/``, ``mask/`` was not
+    written by ``capture-ingest``: it is left in place with a warning.
+    """
     listed = {out_dir / name for record in records for name in record.files.values()}
+    frames = {str(record.t_ns) for record in records}
     for kind in OUTPUT_KINDS:
-        for path in sorted((out_dir / kind).glob("*.png")):
-            if path not in listed:
+        folder = out_dir / kind
+        if not folder.is_dir():
+            continue
+        for path in sorted(folder.iterdir()):
+            if path in listed or path.name.startswith("."):
+                continue
+            if path.suffix == ".png" and path.stem in frames and path.is_file():
                 path.unlink()
+                logger.info("removed %s: written by an earlier run, not kept now", path)
+            else:
+                logger.warning("%s: not written by capture-ingest; left in place", path)
 
 
 def still_valid(out_dir: Path, record: PairRecord) -> bool:

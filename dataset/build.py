@@ -9,8 +9,11 @@ Entry point :func:`build_dataset`. The output layout::
     DS/config.yaml         the resolved configuration
     DS/contact_<split>.png input | target of a few pairs per split
 
-Images are hard-linked from the ingested folders when on the same file system
-and copied otherwise. The dataset is written into a temporary sibling folder
+Images are independent of the ingested files by default: reflinked where the
+file system supports copy-on-write clones, else copied, so editing a dataset
+image never changes the recording or another dataset. ``link="hard"`` (CLI
+``--link hard``) hard-links them instead to save space, makes them read-only
+and says so in the card. The dataset is written into a temporary sibling folder
 and renamed into place, so ``DS`` never holds a half-written dataset. A ``DS``
 that already holds a *different* dataset is only replaced with
 ``overwrite=True``; rebuilding the same dataset is always allowed. The same
@@ -24,6 +27,7 @@ pair, which is counted under its rule and logged as a warning.
 import logging
 import os
 import shutil
+import stat
 import tempfile
 from collections import Counter
 from collections.abc import Sequence
@@ -42,8 +46,9 @@ from lenspair.capture.ingested import (
 )
 from lenspair.core.config import dump_yaml
 from lenspair.core.errors import ImageIOError
-from lenspair.core.fsutil import atomic_write_text, sha256_bytes
+from lenspair.core.fsutil import atomic_write_text, clone_file, sha256_bytes
 from lenspair.core.imageio import read_image, write_image
+from lenspair.core.leftovers import remove_leftovers, temporary_prefix
 from lenspair.core.progress import progress
 from lenspair.dataset import curation, splits
 from lenspair.dataset.card import (
@@ -70,6 +75,8 @@ from lenspair.dataset.verify import dataset_difference
 
 logger = logging.getLogger(__name__)
 CONFIG_FILE = "config.yaml"
+LinkMode = Literal["copy", "hard"]
+_WRITE_BITS = stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH
 _FILE_RULES = ("missing_file", "checksum", "bad_image")
 
 
@@ -128,6 +135,8 @@ def load_source(path: Path) -> Source:
     records = tuple(read_pairs(path / PAIRS_FILE))
     seen: set[int] = set()
     for number, record in enumerate(records, start=1):
+        if record.status != "kept":
+            continue  # a rejected frame may repeat a kept one's timestamp (another file)
         if record.t_ns in seen:
             raise DatasetError(f"{path / PAIRS_FILE}:{number}: timestamp {record.t_ns} repeats")
         seen.add(record.t_ns)
@@ -285,8 +294,9 @@ def write_dataset(
     card: DatasetCard,
     config: DatasetConfig,
     removed: list[RemovedPair],
+    link: LinkMode = "copy",
 ) -> None:
-    """Write the complete dataset into the empty folder ``folder``."""
+    """Write the complete dataset into the empty folder ``folder`` (``link``: see module)."""
     for name in SPLITS:
         for kind in ("input", "target"):
             (folder / name / kind).mkdir(parents=True, exist_ok=True)
@@ -294,7 +304,7 @@ def write_dataset(
         for kind, relative in row.files.items():
             destination = folder / relative
             destination.parent.mkdir(parents=True, exist_ok=True)
-            _link_or_copy(m.files[kind], destination)
+            _place_image(m.files[kind], destination, link)
     rows = [row for row, _ in pairs]
     write_manifest(folder / MANIFEST_FILE, rows)
     write_card(folder / CARD_FILE, card)
@@ -306,11 +316,18 @@ def write_dataset(
             write_image(folder / f"contact_{name}.png", contact_sheet(folder, name, selected))
 
 
-def _link_or_copy(source: Path, destination: Path) -> None:
-    try:
-        os.link(source, destination)
-    except OSError:  # another file system, or hard links not allowed: copy the bytes
-        shutil.copyfile(source, destination)
+def _place_image(source: Path, destination: Path, link: LinkMode) -> None:
+    if link == "hard":
+        try:
+            os.link(source, destination)
+        except OSError as exc:
+            raise DatasetError(
+                f"{destination.parent}: --link hard cannot link {source} ({exc.strerror}); "
+                "the default copies instead"
+            ) from None
+        os.chmod(destination, os.stat(destination).st_mode & ~_WRITE_BITS)
+        return
+    clone_file(source, destination)
 
 
 def build_dataset(
@@ -320,6 +337,7 @@ def build_dataset(
     *,
     overwrite: bool = False,
     workers: int | None = None,
+    link: LinkMode = "copy",
 ) -> BuildResult:
     """Curate ingested recordings into a split dataset at ``out``.
 
@@ -330,6 +348,8 @@ def build_dataset(
         overwrite: replace ``out`` even when it holds a different dataset.
         workers: threads reading and measuring images (default: up to 4);
             the output does not depend on it.
+        link: ``"copy"`` (independent files, reflinked where possible) or
+            ``"hard"`` (hard links, made read-only; recorded in the card).
 
     Raises:
         DatasetError: no sources, a bad source folder, two sources with one
@@ -364,15 +384,19 @@ def build_dataset(
         reasons,
         Grouping(plan.mode, plan.moved, plan.warnings),
         config,
+        image_files="hard-link" if link == "hard" else "copy",
     )
     out.parent.mkdir(parents=True, exist_ok=True)
-    temp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".building", dir=out.parent))
+    remove_leftovers(out.parent, out.name)  # of killed builds of this same output only
+    temp = Path(
+        tempfile.mkdtemp(prefix=temporary_prefix(out.name), suffix=".building", dir=out.parent)
+    )
     try:
         gone = [
             RemovedPair(loaded[s].report.recording_id, loaded[s].records[i].t_ns, rule, reason)
             for (s, i), (rule, reason) in removed.items()
         ]
-        write_dataset(temp, pairs, card, config, gone)
+        write_dataset(temp, pairs, card, config, gone, link)
         _place(temp, out, overwrite)
     finally:
         shutil.rmtree(temp, ignore_errors=True)
@@ -415,7 +439,7 @@ def _place(temp: Path, out: Path, overwrite: bool) -> None:
     if state == "absent":
         os.replace(temp, out)
         return
-    trash = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".old", dir=out.parent))
+    trash = Path(tempfile.mkdtemp(prefix=temporary_prefix(out.name), suffix=".old", dir=out.parent))
     try:
         os.replace(out, trash / "dataset")
         try:

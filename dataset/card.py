@@ -13,6 +13,7 @@ import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -126,6 +127,11 @@ class DatasetCard:
         grouping: how groups were formed and assigned.
         config: the resolved configuration (thresholds, split settings).
         sources: the ingested recordings.
+        image_files: ``"copy"``: the images are independent of the ingested
+            ones (reflinked or copied); ``"hard-link"``: they are the ingested
+            files themselves, made read-only (an edit would change the
+            recording and every dataset built from it).
+        image_files_note: that choice in words, for a reader of the card.
     """
 
     lenspair_version: str
@@ -139,7 +145,17 @@ class DatasetCard:
     config: DatasetConfig
     sources: tuple[SourceInfo, ...]
     ingest_reasons: dict[str, int] = field(default_factory=dict)
+    image_files: Literal["copy", "hard-link"] = "copy"
+    image_files_note: str = ""
     format: str = CARD_FORMAT
+
+
+IMAGE_FILES_NOTES = {
+    "copy": "images are independent copies of the ingested files (reflinked where the "
+    "file system supports it, else copied): editing one changes nothing else",
+    "hard-link": "images are hard links to the ingested files and read-only: they are the "
+    "same files as the ingested recording's (rebuild without --link hard to edit them)",
+}
 
 
 def count_rows(rows: Iterable[ManifestRow]) -> dict[str, Counts]:
@@ -216,6 +232,7 @@ def make_card(
     ingest_reasons: Mapping[str, int],
     grouping: Grouping,
     config: DatasetConfig,
+    image_files: Literal["copy", "hard-link"] = "copy",
 ) -> DatasetCard:
     """The card of a build; counts are recomputed from ``rows``."""
     return DatasetCard(
@@ -230,6 +247,8 @@ def make_card(
         config=config,
         sources=tuple(sources),
         ingest_reasons=dict(ingest_reasons),
+        image_files=image_files,
+        image_files_note=IMAGE_FILES_NOTES[image_files],
     )
 
 

@@ -52,11 +52,13 @@ def verify_dataset(root: Path, workers: int | None = None) -> VerifyResult:
         workers: threads hashing files (default: up to 4).
 
     Raises:
-        DatasetError: ``root`` is not a folder.
+        DatasetError: ``root`` is not a folder, or holds neither a manifest nor a card.
     """
     root = Path(root)
     if not root.is_dir():
         raise DatasetError(f"{root}: not a folder")
+    if not (root / MANIFEST_FILE).exists() and not (root / CARD_FILE).exists():
+        raise DatasetError(f"{root}: not a dataset (no {MANIFEST_FILE} and no {CARD_FILE})")
     try:
         rows = read_manifest(root / MANIFEST_FILE)
     except DatasetError as exc:

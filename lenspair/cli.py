@@ -11,6 +11,7 @@ import importlib
 import logging
 import sys
 from types import ModuleType
+from typing import NoReturn
 
 from lenspair import __version__
 from lenspair.core.errors import LenspairError
@@ -39,9 +40,17 @@ def _load(name: str) -> ModuleType:
     return importlib.import_module(COMMANDS[name][0])
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line naming the option (exit code 2)."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print ``PROG: error: MESSAGE`` (no usage block) and exit with code 2."""
+        self.exit(2, f"{self.prog}: error: {message}; see '{self.prog} --help'\n")
+
+
 def build_parser(selected: str | None) -> argparse.ArgumentParser:
     """Build the parser; only ``selected``'s module is imported for its arguments."""
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog="lenspair",
         description="Paired camera-anomaly datasets from stereo rigs, and a fast shallow GAN "
         "that removes raindrops, dust and dirt. Run 'lenspair COMMAND --help' for details.",

@@ -15,6 +15,8 @@ Only ``format``, ``version``, ``config`` and ``model`` are required to use a
 checkpoint for inference (``eval``, ``export``) or as ``--init``.
 """
 
+import pickle
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,7 +32,14 @@ from lenspair.model.networks.variants import build_model
 from lenspair.model.training.config import ModelConfig, RunConfig, run_config_from_dict
 
 CHECKPOINT_FORMAT = "lenspair-checkpoint"
+_ANSI_ESCAPE = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 CHECKPOINT_VERSION = 1
+
+
+def _first_line(exc: BaseException) -> str:
+    """First line of an exception's message, without terminal escape codes."""
+    text = _ANSI_ESCAPE.sub("", str(exc)).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def to_cpu(obj: Any) -> Any:
@@ -78,11 +87,22 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"{path}: checkpoint not found")
+    if path.stat().st_size == 0:
+        raise ModelError(f"{path}: empty file, not a lenspair checkpoint")
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for corrupt or unsafe files
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ModelError(f"{path}: cannot read checkpoint ({first})") from None
+    except pickle.UnpicklingError as exc:
+        # torch's own message advises weights_only=False: never right for a file
+        # from elsewhere, so it is never quoted.
+        found = "Python objects other than tensors" if "GLOBAL" in str(exc) else "no torch data"
+        raise ModelError(
+            f"{path}: not a lenspair checkpoint (it holds {found}; lenspair loads "
+            "only tensors and plain data)"
+        ) from None
+    except Exception as exc:  # torch raises many types for corrupt files
+        raise ModelError(
+            f"{path}: not a lenspair checkpoint (not a readable torch file: {_first_line(exc)})"
+        ) from None
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise ModelError(f"{path}: not a lenspair checkpoint")
     if data.get("version") != CHECKPOINT_VERSION:
@@ -158,8 +178,38 @@ def load_weights(network: nn.Module, data: dict[str, Any], path: Path | str) -> 
     """Load a checkpoint's ``model`` state dict into ``network`` (strict)."""
     if "model" not in data:
         raise ModelError(f"{path}: checkpoint holds no model weights")
+    weights = data["model"]
+    if not isinstance(weights, dict):
+        raise ModelError(f"{path}: checkpoint 'model' is not a state dict")
+    problem = first_shape_difference(network.state_dict(), weights)
+    if problem is not None:
+        raise ModelError(f"{path}: weights do not fit the network: {problem}")
     try:
-        network.load_state_dict(data["model"])
+        network.load_state_dict(weights)
     except RuntimeError as exc:
-        first = str(exc).strip().splitlines()[0]
-        raise ModelError(f"{path}: weights do not fit the network ({first})") from None
+        raise ModelError(f"{path}: weights do not fit the network ({_first_line(exc)})") from None
+
+
+def first_shape_difference(expected: dict[str, torch.Tensor], found: dict[str, Any]) -> str | None:
+    """Describe the first tensor whose name or shape differs, in the network's order.
+
+    Args:
+        expected: the network's own state dict.
+        found: the state dict read from a checkpoint.
+
+    Returns:
+        ``None`` when every name and shape agree, else one phrase such as
+        ``generator.head.weight: checkpoint (16, 3, 3, 3), network (32, 3, 3, 3)``.
+
+    """
+    for name, tensor in expected.items():
+        if name not in found:
+            return f"{name}: missing from the checkpoint"
+        other = found[name]
+        shape = tuple(other.shape) if isinstance(other, torch.Tensor) else None
+        if shape != tuple(tensor.shape):
+            return f"{name}: checkpoint {shape}, network {tuple(tensor.shape)}"
+    extra = [name for name in found if name not in expected]
+    if extra:
+        return f"{extra[0]}: in the checkpoint but not in the network"
+    return None

@@ -34,9 +34,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal, Union, get_args, get_origin
 
-import yaml
-
-from lenspair.core.config import load_dataclass, load_yaml
+from lenspair.core.config import load_dataclass, read_yaml
 from lenspair.core.errors import ConfigError
 from lenspair.simulate.boardspec import BoardSpec
 from lenspair.simulate.effects.spec import EffectsSpec
@@ -306,16 +304,17 @@ def load_scene(path: Path) -> SceneSpec:
 
     """
     path = Path(path)
+    data = read_yaml(path)  # parse once: a syntax error is reported here, alone
     try:
-        spec = load_yaml(SceneSpec, path)
-    except ConfigError:
+        spec = load_dataclass(SceneSpec, data)
+    except ConfigError as error:
         # The loader reports a bad optional section (``board:``, an effect) only as
         # "expected BoardSpec or NoneType"; look inside for the precise key first.
         try:
-            _check_optional_sections(SceneSpec, yaml.safe_load(path.read_text("utf-8")), "")
+            _check_optional_sections(SceneSpec, data, "")
         except ConfigError as exc:
             raise ConfigError(f"{path}: {exc}") from None
-        raise
+        raise ConfigError(f"{path}: {error}") from None
     for index, plane in enumerate(spec.planes):
         for name in plane.textures:
             problem = check_texture(name, path.parent)

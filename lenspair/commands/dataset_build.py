@@ -20,6 +20,12 @@ when the data allows. Output: DS/{train,val,test}/{input,target[,mask]}/
 removed pair with its rule and reason), config.yaml and
 contact_<split>.png. Same inputs and seed give byte-identical files.
 
+Images are independent copies of the ingested ones (a reflink where the file
+system supports it, else a byte copy): editing a dataset image never changes
+the recording or another dataset. --link hard saves the space with hard
+links instead, makes those files read-only and says so in dataset.json.
+A killed build leaves nothing the next build of the same DS does not remove.
+
 --verify re-checks every file against the manifest and the card's counts and
 exits with status 1 and a list of problems when anything is off.
 """
@@ -34,6 +40,17 @@ from lenspair.dataset.curation import RULE_NAMES
 from lenspair.dataset.verify import verify_dataset
 
 
+def _positive_int(text: str) -> int:
+    """Argparse type: an integer >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``dataset-build``."""
     parser.add_argument("sources", nargs="*", type=Path, help="ingested recording folders")
@@ -43,7 +60,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="split seed (default 0)")
     parser.add_argument("--config", type=Path, help="YAML with curation: and split: sections")
     parser.add_argument("--overwrite", action="store_true", help="replace a different dataset")
-    parser.add_argument("--workers", type=int, help="threads reading images (default up to 4)")
+    parser.add_argument(
+        "--link",
+        choices=("copy", "hard"),
+        default="copy",
+        help="copy: images independent of the ingested ones (reflink where the file system "
+        "can, else a copy; default); hard: hard links, read-only, noted in the card",
+    )
+    parser.add_argument(
+        "--workers", type=_positive_int, help="threads reading images (default up to 4)"
+    )
     group = parser.add_argument_group("common thresholds (override --config)")
     group.add_argument("--max-residual-px", type=float, help="registration residual (2.0)")
     group.add_argument("--min-sharpness", type=float, help="variance of Laplacian (20)")
@@ -67,6 +93,9 @@ def run(args: argparse.Namespace) -> int:
     config = load_dataset_config(args.config)
     try:
         fractions = parse_fractions(args.splits) if args.splits is not None else None
+    except ValueError as exc:
+        raise ConfigError(f"--splits: {exc}") from None
+    try:
         config = with_overrides(
             config,
             curation={
@@ -80,7 +109,12 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     result = build_dataset(
-        args.sources, args.out, config, overwrite=args.overwrite, workers=args.workers
+        args.sources,
+        args.out,
+        config,
+        overwrite=args.overwrite,
+        workers=args.workers,
+        link=args.link,
     )
     card = result.card
     print(f"dataset written to {result.out}: {card.counts['all'].pairs} of {card.pairs_in} pairs")
@@ -96,6 +130,17 @@ def run(args: argparse.Namespace) -> int:
     print(f"  removed: {listed or 'none'}; tagged clean (kept): {card.tagged_clean}")
     for warning in card.grouping.warnings:
         print(f"  warning: {warning}")
+    wanted = dict(zip(SPLITS, card.fractions, strict=True))
+    for name in ("val", "test"):
+        if wanted[name] > 0 and card.counts[name].pairs == 0:
+            print(
+                f"  note: split {name!r} is empty (too few recordings or segments): "
+                + (
+                    "train holds out a tenth of train/ to validate"
+                    if name == "val"
+                    else "eval needs another --split; add recordings to fill it"
+                )
+            )
     return 0
 
 

@@ -23,18 +23,41 @@ CUDA. Without VGG19 weights (train.vgg19_weights or LENSPAIR_VGG19_WEIGHTS)
 the perceptual term is disabled, with a warning in the log and in config.yaml.
 
 Run folder: RUN/config.yaml (resolved), RUN/checkpoints/{last,best}.pt,
-RUN/metrics.csv, RUN/train.log, RUN/samples.png. --resume continues exactly
-where the run stopped (a --config given with it may change budgets, not the
-network). Multi-GPU: torchrun --nproc_per_node N -m lenspair train ...
+RUN/metrics.csv, RUN/train.log, RUN/samples.png. last.pt is written after
+every epoch and also within epochs (--checkpoint-every, default every 10
+minutes of training), so a killed run loses minutes, not an epoch. --resume
+continues exactly from the latest last.pt (a --config given with it may
+change budgets, not the network); a run killed before its first checkpoint
+starts over. Multi-GPU: torchrun --nproc_per_node N -m lenspair train ...
+
+  lenspair train DS --out RUN --checkpoint-every 500     # every 500 steps
+  lenspair train DS --out RUN --resume                   # after a crash or kill
 """
 
 import argparse
 import dataclasses
+import logging
+import re
 from pathlib import Path
 from typing import Any
 
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+def _every(text: str) -> tuple[int | None, float | None]:
+    """Argparse type of --checkpoint-every: ``"500"`` -> (500, None); ``"90s"`` -> (None, 90.0)."""
+    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([smh]?)\s*", text.lower())
+    if match is None or float(match.group(1)) <= 0:
+        raise argparse.ArgumentTypeError(f"expected STEPS or a time like 90s, 10m; got {text!r}")
+    value, unit = float(match.group(1)), match.group(2)
+    if not unit:
+        if value != int(value):
+            raise argparse.ArgumentTypeError(f"steps must be a whole number, got {text!r}")
+        return int(value), None
+    return None, value * {"s": 1.0, "m": 60.0, "h": 3600.0}[unit]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,6 +81,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--seed", type=int, help="train.seed (0)")
     group.add_argument("--no-amp", action="store_true", help="train at fp32 (train.amp: false)")
     group.add_argument("--vgg19-weights", type=Path, help="train.vgg19_weights")
+    group.add_argument(
+        "--checkpoint-every",
+        type=_every,
+        metavar="STEPS|SECONDS",
+        help="also write last.pt within epochs: every N steps (500) or a time (90s, 10m, 1h); "
+        "default every 10 minutes",
+    )
 
 
 def _overrides(config: Any, args: argparse.Namespace) -> Any:
@@ -70,12 +100,19 @@ def _overrides(config: Any, args: argparse.Namespace) -> Any:
         "vgg19_weights": args.vgg19_weights,
         "amp": False if args.no_amp else None,
     }
+    if args.checkpoint_every is not None:
+        steps, seconds = args.checkpoint_every
+        train["checkpoint_every_steps"] = steps
+        train["checkpoint_every_seconds"] = seconds
+    keep_none = (
+        {"checkpoint_every_steps", "checkpoint_every_seconds"} if args.checkpoint_every else set()
+    )
     data = {"crop_size": args.crop_size, "drops": args.drops}
     try:
         return dataclasses.replace(
             config,
             train=dataclasses.replace(
-                config.train, **{k: v for k, v in train.items() if v is not None}
+                config.train, **{k: v for k, v in train.items() if v is not None or k in keep_none}
             ),
             data=dataclasses.replace(
                 config.data, **{k: v for k, v in data.items() if v is not None}
@@ -99,6 +136,13 @@ def run(args: argparse.Namespace) -> int:
     if args.drops is not None and args.synthetic is None:
         raise ConfigError("--drops applies to --synthetic pretraining only")
     device = resolve_device(args.device)
+    if args.resume and not (args.out / "checkpoints" / "last.pt").is_file():
+        if not (args.out / "config.yaml").is_file():
+            raise ConfigError(f"--resume: {args.out} holds no run to resume")
+        # Killed before its first checkpoint: nothing is lost by starting over.
+        log.warning("%s has no checkpoint yet; starting the run from step 0", args.out)
+        args.config = args.config or args.out / "config.yaml"
+        args.resume = False
     if args.resume:
         base = load_run_config(args.config) if args.config else resume_config(args.out, None)
         config = resume_config(args.out, _overrides(base, args))

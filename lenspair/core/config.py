@@ -149,15 +149,35 @@ def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
         raise ConfigError(f"{path or '<root>'}: {exc}") from None
 
 
+def read_yaml(file: Path) -> Any:
+    """Parse a YAML file into plain data; every file problem is a one-line error.
+
+    Raises:
+        ConfigError: the file is missing, a folder, unreadable, not UTF-8 text,
+            or not valid YAML; the message starts with the file name.
+
+    """
+    file = Path(file)
+    try:
+        text = file.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{file}: file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{file}: is a folder, expected a YAML file") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{file}: not a text file (expected YAML)") from None
+    except OSError as exc:
+        raise ConfigError(f"{file}: cannot read ({exc.strerror or exc})") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{file}: not valid YAML ({str(exc).splitlines()[0]})") from None
+
+
 def load_yaml(cls: type[T], file: Path) -> T:
     """Load a YAML file into dataclass ``cls``; errors start with the file name."""
     file = Path(file)
-    try:
-        data = yaml.safe_load(file.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{file}: file not found") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{file}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    data = read_yaml(file)
     try:
         return load_dataclass(cls, data)
     except ConfigError as exc:

@@ -9,13 +9,20 @@ mode of the temporary file, so a dataset built by one user can be read by a
 training job running as another.
 """
 
+import fcntl
 import hashlib
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
+
+from lenspair.core.leftovers import temporary_prefix
+
+# linux/fs.h FICLONE = _IOW(0x94, 9, int): share the source's blocks copy-on-write
+_FICLONE = 0x40049409
 
 
 def _file_mode() -> int:
@@ -41,7 +48,7 @@ def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str = "") -
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(
-        prefix=f".{path.name}.", suffix=suffix + ".tmp", dir=path.parent
+        prefix=temporary_prefix(path.name), suffix=suffix + ".tmp", dir=path.parent
     )
     os.close(fd)
     tmp = Path(tmp_name)
@@ -76,6 +83,28 @@ def atomic_write_json(path: Path, obj: Any) -> None:
 def atomic_write_lines(path: Path, lines: Iterable[str]) -> None:
     """Write text lines (each without its newline) to ``path`` atomically."""
     atomic_write_text(path, "".join(line + "\n" for line in lines))
+
+
+def clone_file(source: Path, destination: Path) -> str:
+    """Make ``destination`` an independent copy of ``source``: a reflink where possible.
+
+    Like ``cp --reflink=auto``: on file systems with copy-on-write clones
+    (Btrfs, XFS, bcachefs, ...) the copy shares blocks and costs no space until
+    either side is changed; elsewhere the bytes are copied. Either way,
+    editing one file never changes the other (unlike a hard link).
+
+    Returns:
+        ``"reflink"`` or ``"copy"``: what was done.
+
+    """
+    with open(source, "rb") as src, open(destination, "wb") as dst:
+        try:
+            fcntl.ioctl(dst.fileno(), _FICLONE, src.fileno())
+            return "reflink"
+        except OSError:  # not supported here, or across file systems
+            pass
+    shutil.copyfile(source, destination)
+    return "copy"
 
 
 def sha256_bytes(data: bytes) -> str:

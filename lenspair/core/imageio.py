@@ -21,6 +21,7 @@ import OpenImageIO as oiio
 
 from lenspair.core.errors import ImageIOError
 from lenspair.core.fsutil import atomic_write
+from lenspair.core.pngcheck import png_problem
 
 _OIIO_TYPES = {np.dtype(np.uint8): oiio.UINT8, np.dtype(np.uint16): oiio.UINT16}
 
@@ -42,13 +43,20 @@ def read_image(path: Path) -> np.ndarray:
         for colour (an alpha channel is dropped).
 
     Raises:
-        ImageIOError: the file is missing, corrupt or truncated, or has a
+        ImageIOError: the file is missing, empty, corrupt or truncated (a PNG's
+            chunks are checked first, so libpng prints nothing), or has a
             pixel format other than 8/16-bit integer; the message names it.
 
     """
     path = Path(path)
     if not path.is_file():
         raise ImageIOError(f"{path}: file not found")
+    if path.stat().st_size == 0:
+        raise ImageIOError(f"{path}: empty file (0 bytes)")
+    if path.suffix.lower() == ".png":  # keeps libpng's own stderr lines away
+        problem = png_problem(path.read_bytes())
+        if problem is not None:
+            raise ImageIOError(f"{path}: {problem}")
     handle = oiio.ImageInput.open(str(path))
     if handle is None:
         raise ImageIOError(f"{path}: cannot open image ({_first_line(oiio.geterror())})")

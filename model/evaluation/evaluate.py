@@ -22,6 +22,7 @@ The reports (CSV, JSON, Markdown, contact sheet) are written by
 :func:`lenspair.model.evaluation.report.write_report`.
 """
 
+import logging
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -40,7 +41,15 @@ from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import Latency, autocast_context, measure_latency
 from lenspair.model.metrics import PSNR_CAP_DB, image_metrics, parse_metric_convention
-from lenspair.model.training.pairs import PairSource, open_eval_pairs, to_tensor
+from lenspair.model.training.pairs import (
+    PairSource,
+    channels_of,
+    conversion_note,
+    open_eval_pairs,
+    to_tensor,
+)
+
+log = logging.getLogger(__name__)
 
 CONVENTIONS = tuple(c.value for c in metrics.MetricConvention)
 DIFFICULTY_ORDER = ("easy", "medium", "hard", "clean")
@@ -292,8 +301,13 @@ def evaluate_checkpoint(
     loaded = load_model(checkpoint, device)
     channels = loaded.config.model.channels or 1
     pairs = open_eval_pairs(data, split)
+    if len(pairs) and (note := conversion_note(channels, channels_of(pairs[0].input), data)):
+        log.warning("%s", note)
     if len(pairs) == 0:
-        raise ModelError(f"{data}: no pairs to evaluate")
+        raise ModelError(
+            f"{data}: split {split!r} holds no pairs (dataset-build leaves a split empty when "
+            "there are too few recordings or segments); evaluate another one with --split"
+        )
     scores, samples = score_pairs(loaded.network, pairs, channels, device, convention, precision)
     latency = []
     if latency_runs > 0:

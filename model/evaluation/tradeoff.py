@@ -30,6 +30,7 @@ import torch
 from lenspair.core.config import dump_yaml, to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_text
+from lenspair.dataset.readers import detect_layout
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import Summary, score_pairs, summarize
@@ -156,7 +157,10 @@ def run_tradeoff(
         base: run config shared by all variants (crop, batch, seed, losses).
         variants: the networks to compare.
         convention: metric convention of the table.
-        split: evaluation split (falls back to the held-out validation pairs).
+        split: evaluation split of a dataset with splits; a single paired
+            folder (or a dataset without ``split``) is scored on the
+            validation pairs held out of its training, never on pairs it
+            trained on.
         latency_runs: timed runs per latency figure.
 
     Returns:
@@ -165,14 +169,20 @@ def run_tradeoff(
     """
     out_dir = Path(out_dir)
     data = paired_training_data(dataset, base.data, base.model.channels, base.train.seed)
-    try:
-        pairs: Any = open_eval_pairs(dataset, split)
-        pairs_text = f"{dataset} split {split}"
-    except LenspairError:
+    pairs: Any = None
+    if detect_layout(Path(dataset)) is None:  # a dataset with splits: score on ``split``
+        try:
+            pairs = open_eval_pairs(dataset, split)
+            pairs_text = f"{dataset} split {split}"
+        except LenspairError:
+            pass
+    if pairs is None:
+        # One paired folder (input/ + target/, Raindrop's train/) trains on nine
+        # tenths of itself: score on the held-out tenth, never on training pairs.
         pairs = getattr(data.val, "source", None)
         if pairs is None:
-            raise
-        pairs_text = f"{dataset} held-out validation pairs (no {split!r} split)"
+            raise ModelError(f"{dataset}: no {split!r} split and no held-out pairs to score")
+        pairs_text = f"{dataset} held-out validation pairs ({len(pairs)}, not trained on)"
     size = tuple(pairs[0].input.shape[:2])
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = {

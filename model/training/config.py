@@ -127,6 +127,12 @@ class TrainConfig:
         val_every: validate (and maybe save ``best.pt``) every N epochs.
         log_every: progress-bar / TensorBoard update interval, steps.
         tensorboard: also log to ``RUN/tensorboard`` when it is installed.
+        checkpoint_every_steps: also write ``last.pt`` every N optimiser steps
+            within an epoch (``None``: by time only).
+        checkpoint_every_seconds: also write ``last.pt`` when this much
+            training time passed since the last one (default 10 minutes: a
+            kill loses at most that much, whatever the epoch length);
+            ``None``: by steps only (neither: once per epoch).
 
     """
 
@@ -147,8 +153,18 @@ class TrainConfig:
     val_every: int = 1
     log_every: int = 10
     tensorboard: bool = True
+    checkpoint_every_steps: int | None = None
+    checkpoint_every_seconds: float | None = 600.0
 
     def __post_init__(self) -> None:
+        if self.checkpoint_every_steps is not None and self.checkpoint_every_steps < 1:
+            raise ValueError(
+                f"checkpoint_every_steps: expected >= 1, got {self.checkpoint_every_steps}"
+            )
+        if self.checkpoint_every_seconds is not None and self.checkpoint_every_seconds <= 0:
+            raise ValueError(
+                f"checkpoint_every_seconds: expected > 0, got {self.checkpoint_every_seconds}"
+            )
         if self.lr <= 0:
             raise ValueError(f"lr: expected > 0, got {self.lr}")
         if not (0.0 <= self.beta1 < 1.0 and 0.0 <= self.beta2 < 1.0):

@@ -20,7 +20,13 @@ from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.readers import detect_layout, open_paired
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import DataConfig
-from lenspair.model.training.pairs import PairedCrops, PairItem, PairSource, channels_of
+from lenspair.model.training.pairs import (
+    PairedCrops,
+    PairItem,
+    PairSource,
+    channels_of,
+    conversion_note,
+)
 from lenspair.model.training.synthetic import SyntheticDrops, drops_preset, find_clean_images
 
 log = logging.getLogger(__name__)
@@ -151,6 +157,8 @@ def paired_training_data(
         train_source = open_paired(path, data.train_split)
         try:
             val_source = open_paired(path, data.val_split)
+            if len(val_source) == 0:  # dataset-build leaves a split empty on small inputs
+                raise DatasetError(f"{path / data.val_split}: the split is empty")
         except DatasetError as exc:
             every = train_source
             train_idx, val_idx = holdout_indices(_names(every), data.val_fraction)
@@ -159,6 +167,8 @@ def paired_training_data(
             note += f"{data.train_split!r} pairs held out by name hash"
             log.warning("%s: %s", path, note)
     resolved = channels or first_channels(train_source)
+    if channel_note := conversion_note(resolved, first_channels(train_source), path):
+        log.warning("%s", channel_note)
     train = PairedCrops(train_source, resolved, data.crop_size, data.hflip, data.vflip, seed=seed)
     val = PairedCrops(val_source, resolved, None, seed=seed, limit=data.max_val_images)
     description = f"{path} (train {len(train)} pairs, validation {len(val)} pairs"

@@ -3,7 +3,8 @@
 :func:`fit` trains one run into a run folder and can be resumed exactly::
 
     RUN/config.yaml              resolved configuration (+ runtime: what really ran)
-    RUN/checkpoints/last.pt      after every epoch (and at a budget stop)
+    RUN/checkpoints/last.pt      after every epoch, at a budget stop, and every
+                                 train.checkpoint_every_seconds/_steps within one
     RUN/checkpoints/best.pt      best validation PSNR so far
     RUN/metrics.csv              one row per epoch
     RUN/train.log                the log, warnings included
@@ -47,9 +48,11 @@ from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
 from lenspair.model.training.config import RunConfig, RuntimeInfo, TrainConfig, config_differences
 from lenspair.model.training.pairs import Sample
+from lenspair.model.training.periodic import CheckpointClock, save_progress
 from lenspair.model.training.run_files import (
     RunPaths,
     read_metrics_rows,
+    remove_run_leftovers,
     run_logging,
     tensorboard_writer,
 )
@@ -206,6 +209,7 @@ def fit(
         )
         if info.is_main:
             paths.root.mkdir(parents=True, exist_ok=True)
+            remove_run_leftovers(paths)
         with run_logging(paths.log, info.is_main):
             state = _start(trainer, config, paths, checkpoint, init)
             if info.is_main:
@@ -281,6 +285,10 @@ def _start(
         ]
         log.info("resuming %s at epoch %d, step %d", paths.root, state.epoch + 1, state.step)
         return state
+    # A new run starts the global generator from the seed, not from whatever this
+    # process drew before: its checkpoints (which store that state) then match
+    # those of the same run in a fresh process, and of a killed-and-resumed one.
+    torch.manual_seed(config.train.seed)
     if init is not None:
         data = load_checkpoint(init)
         source = checkpoint_config(data, init).model
@@ -324,6 +332,7 @@ def _loop(
         return session_start + time.monotonic() - started
 
     reason = stop_reason(config, state, elapsed())
+    clock = CheckpointClock.start(train, state)
     while reason is None:
         epoch = state.epoch
         train_set.set_epoch(epoch)
@@ -335,9 +344,12 @@ def _loop(
             sampler=order,
             num_workers=config.data.num_workers,
             pin_memory=trainer.device.type == "cuda",
+            # Its own generator: each DataLoader draws a base seed, which must not
+            # advance the global RNG (a resumed run makes one DataLoader more).
+            generator=torch.Generator().manual_seed(train.seed * 100_003 + epoch),
         )
-        sums: dict[str, float] = {}
-        counted = 0
+        # A resumed epoch goes on from the sums its checkpoint recorded.
+        sums, counted = dict(state.loss_sums), state.loss_steps
         bar = progress(loader, _epoch_label(epoch, train), total=len(loader), unit="step")
         for batch in bar if info.is_main else loader:
             result = trainer.train_step(batch)
@@ -352,12 +364,18 @@ def _loop(
                         board.add_scalar(f"train/{name}", value, state.step)
             state.seconds = elapsed()
             reason = budget_reason(config, state)
+            if reason is None and clock.due(state):  # a kill now loses little
+                state.loss_sums, state.loss_steps = dict(sums), counted
+                save_progress(trainer, config, paths, state, info)
+                clock.reset(state)
             if not all_true(reason is None, info, trainer.device):
                 reason = reason or "time budget reached on another process"
                 break
+        state.loss_sums, state.loss_steps = dict(sums), counted  # for a budget-stop checkpoint
         if state.step_in_epoch >= steps_per_epoch:
             state.epoch += 1
             state.step_in_epoch = 0
+            state.loss_sums, state.loss_steps = {}, 0
         means = {name: total / max(counted, 1) for name, total in sums.items()}
         finished = state.epoch >= train.epochs
         if (
@@ -366,6 +384,7 @@ def _loop(
             or (state.epoch % train.val_every == 0 and state.step_in_epoch == 0)
         ):
             validate_and_save(trainer, config, val_set, paths, state, info, means, board)
+            clock.reset(state)
         state.seconds = elapsed()
         reason = reason or stop_reason(config, state, state.seconds)
         if not all_true(reason is None, info, trainer.device):  # stop together

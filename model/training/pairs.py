@@ -82,6 +82,22 @@ def to_tensor(image: np.ndarray, channels: int) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(array.transpose(2, 0, 1)))
 
 
+def conversion_note(network_channels: int, data_channels: int, where: object) -> str | None:
+    """The warning to give when a network's channels differ from its data's, else None.
+
+    The conversion itself (:func:`to_channels`) is well defined, but a mono
+    network scored on colour pairs (or the reverse) is seldom what was meant,
+    so it is never silent.
+    """
+    if network_channels == data_channels:
+        return None
+    conversion = "luma (Rec. 601)" if network_channels == 1 else "three equal channels"
+    return (
+        f"{where}: the network takes {network_channels} channel(s) and the images have "
+        f"{data_channels}: they are converted to {conversion}"
+    )
+
+
 def channels_of(image: np.ndarray) -> int:
     """1 for a mono image ``(H, W)``, 3 for RGB ``(H, W, 3)``."""
     return 1 if image.ndim == 2 else int(image.shape[2])

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from lenspair.core.fsutil import atomic_write_text
+from lenspair.core.leftovers import remove_leftovers
 from lenspair.model.training.run_state import RunState
 
 log = logging.getLogger(__name__)
@@ -83,6 +84,12 @@ class RunPaths:
     def tensorboard(self) -> Path:
         """``RUN/tensorboard/`` (only when TensorBoard is installed)."""
         return self.root / "tensorboard"
+
+
+def remove_run_leftovers(paths: RunPaths) -> None:
+    """Delete temporaries (half-written checkpoints, logs) of killed sessions of this run."""
+    for folder in (paths.root, paths.last.parent):
+        remove_leftovers(folder)
 
 
 def metrics_row(

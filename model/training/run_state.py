@@ -26,6 +26,10 @@ class RunState:
         stale: validations without improvement.
         seconds: training wall time over all sessions of the run.
         rows: the rows of ``RUN/metrics.csv`` so far.
+        loss_sums: sums of the training losses over the current epoch's
+            counted steps (kept in a checkpoint written mid-epoch, so that a
+            resumed epoch reports the same means as an uninterrupted one).
+        loss_steps: steps counted in ``loss_sums``.
 
     """
 
@@ -37,6 +41,8 @@ class RunState:
     stale: int = 0
     seconds: float = 0.0
     rows: list[dict[str, str]] = field(default_factory=list)
+    loss_sums: dict[str, float] = field(default_factory=dict)
+    loss_steps: int = 0
 
     def payload(self) -> dict[str, Any]:
         """The progress entries of a checkpoint (:mod:`lenspair.model.checkpoint`)."""
@@ -48,6 +54,8 @@ class RunState:
             "best_epoch": self.best_epoch,
             "stale_validations": self.stale,
             "seconds": self.seconds,
+            "epoch_loss_sums": dict(self.loss_sums),
+            "epoch_loss_steps": self.loss_steps,
         }
 
     @classmethod
@@ -61,6 +69,8 @@ class RunState:
             best_epoch=int(data["best_epoch"]),
             stale=int(data["stale_validations"]),
             seconds=float(data.get("seconds", 0.0)),
+            loss_sums={str(k): float(v) for k, v in data.get("epoch_loss_sums", {}).items()},
+            loss_steps=int(data.get("epoch_loss_steps", 0)),
         )
 
 

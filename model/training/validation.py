@@ -84,11 +84,13 @@ def validate_and_save(
     if not info.is_main:
         return
     payload = {**trainer.state_dict(), **state.payload(), "rng": rng_state()}
-    save_checkpoint(paths.last, payload, config)
-    if improved:
-        save_checkpoint(paths.best, payload, config)
+    # last.pt is the commit point of a resume: everything it vouches for is
+    # written first (a resume drops metrics rows past its step).
     state.rows.append(metrics_row(state, means, trainer.guard.total, val_psnr, val_ssim))
     write_metrics_rows(paths.metrics, state.rows)
+    if improved:
+        save_checkpoint(paths.best, payload, config)
+    save_checkpoint(paths.last, payload, config)
 
 
 def _broadcast_int(value: int, info: Distributed, device: torch.device) -> int:

@@ -35,8 +35,12 @@ def _assert_counts_add_up(counts: dict[str, int], obstructed: str = "cam1") -> N
             counts[f"frames_{camera}"] == counts[f"listed_{camera}"] + counts[f"dropped_{camera}"]
         )
         assert counts[f"listed_{camera}"] == counts["pairs"] + counts[f"unpaired_{camera}"]
-    assert counts[f"listed_{obstructed}"] == counts["kept"] + counts["rejected"]
-    assert counts["rejected"] == counts["rejected_paired"] + counts[f"unpaired_{obstructed}"]
+    unlisted = counts["rejected_unlisted"]  # dropped obstructed frames with their own line
+    assert counts[f"listed_{obstructed}"] + unlisted == counts["kept"] + counts["rejected"]
+    assert (
+        counts["rejected"]
+        == counts["rejected_paired"] + counts[f"unpaired_{obstructed}"] + unlisted
+    )
     assert counts[f"listed_{clean}"] >= counts["pairs"]
 
 
@@ -129,6 +133,29 @@ def test_unpaired_duplicate_and_backward_frames_are_accounted_for(tmp_path: Path
     assert report.rejection_reasons["cam1 not listed: duplicate timestamp"] == 1
     warned = [r for r in records if r.reason and "timestamp goes back" in r.reason]
     assert len(warned) == 1 and warned[0].status == "kept"
+
+
+def test_a_second_file_with_a_repeated_timestamp_gets_its_own_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=5)
+    csv1 = recording / "mav0" / "cam1" / "data.csv"
+    lines = csv1.read_text().splitlines()
+    t_ns, name = lines[3].split(",")
+    copy = recording / "mav0" / "cam1" / "data" / "second.png"
+    copy.write_bytes((recording / "mav0" / "cam1" / "data" / name.strip()).read_bytes())
+    csv1.write_text("\n".join([*lines, f"{t_ns},second.png"]) + "\n")
+    out = tmp_path / "out"
+    assert main(["capture-ingest", str(recording), "--out", str(out), "--size", "240x160"]) == 0
+    records = read_pairs(out / "rec" / "pairs.jsonl")
+    assert len(records) == 6  # one line per obstructed file: 5 + the second one
+    second = [r for r in records if r.reason and "second.png" in r.reason]
+    assert len(second) == 1 and second[0].status == "rejected"
+    assert second[0].reason.startswith("duplicate timestamp")
+    summary = capsys.readouterr().out
+    assert "kept 5 of 6 cam1 frames" in summary
+    assert "rejected 1: duplicate timestamp" in summary
+    _assert_counts_add_up(read_report(out / "rec" / "report.json").counts)
 
 
 def test_all_frames_of_the_wrong_size_is_a_clear_error(tmp_path: Path) -> None:

@@ -15,6 +15,7 @@ from lenspair.capture import ingest_frames
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.journal import JOURNAL_FILE
 from tests.capture.ingest_helpers import simulate, tree_bytes
+from tests.processes import descendants, wait_gone
 
 
 @pytest.fixture(scope="module")
@@ -100,3 +101,56 @@ def test_resume_after_kill_9(reference: tuple[Path, dict[str, bytes]], tmp_path:
     ingest_recording(recording, tmp_path)
     _same_as(files, tmp_path / "rain")
     shutil.rmtree(tmp_path / "rain")
+
+
+def test_workers_end_when_the_parent_is_killed(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path
+) -> None:
+    recording, _ = reference
+    journal = tmp_path / "rain" / JOURNAL_FILE
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "lenspair",
+            "capture-ingest",
+            str(recording),
+            "--out",
+            str(tmp_path),
+            "--workers",
+            "2",
+        ],
+        env={**os.environ, "LENSPAIR_QUIET": "1"},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 120
+    children: set[int] = set()
+    while process.poll() is None and time.monotonic() < deadline:
+        children |= descendants(process.pid)
+        if len(children) >= 3 and journal.is_file() and journal.read_text():
+            break  # the tracker and both workers run, and frames are being written
+        time.sleep(0.02)
+    assert process.poll() is None, "ingest finished before it could be killed"
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    assert wait_gone(children, timeout=10) == set()
+    written = {p.name for p in (tmp_path / "rain" / "input").glob("*.png")}
+    time.sleep(0.5)
+    assert {p.name for p in (tmp_path / "rain" / "input").glob("*.png")} == written
+
+
+def test_a_users_file_in_the_output_is_kept_and_reported(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    recording, _ = reference
+    ingest_recording(recording, tmp_path)
+    mine = tmp_path / "rain" / "input" / "my_notes.png"
+    mine.write_bytes(b"a user's own file")
+    kept = sorted((tmp_path / "rain" / "input").glob("1*.png"))
+    ingest_recording(recording, tmp_path)
+    assert mine.read_bytes() == b"a user's own file"
+    assert any(
+        "my_notes.png" in r.getMessage() and r.levelname == "WARNING" for r in caplog.records
+    )
+    assert sorted((tmp_path / "rain" / "input").glob("1*.png")) == kept

@@ -113,25 +113,74 @@ def test_same_inputs_and_seed_give_identical_bytes(
     assert _tree(third) != _tree(first)
 
 
-def test_images_are_hard_linked_or_copied(
-    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+def test_dataset_images_are_independent_of_their_sources(
+    recording: RecordingFactory, tmp_path: Path
 ) -> None:
     source = recording("rec_a", n=4)
     config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
-    ds = build_dataset([source], tmp_path / "DS", config).out
+    first = build_dataset([source], tmp_path / "DS", config).out
+    second = build_dataset([source], tmp_path / "DS2", config).out
     name = f"{read_pairs(source / 'pairs.jsonl')[0].t_ns}"
-    linked = ds / "train" / "input" / f"rec_a_{name}.png"
+    original = source / "input" / f"{name}.png"
+    before = original.read_bytes()
+    edited = first / "train" / "input" / f"rec_a_{name}.png"
+    assert edited.stat().st_nlink == 1
+    with edited.open("r+b") as handle:  # edit in place, as an image editor would
+        handle.seek(len(before) - 1)
+        handle.write(bytes([before[-1] ^ 1]))
+    assert original.read_bytes() == before
+    assert (second / "train" / "input" / f"rec_a_{name}.png").read_bytes() == before
+    assert verify_dataset(second).ok
+    assert read_card(first / "dataset.json").image_files == "copy"
+
+
+def test_hard_links_are_opt_in_read_only_and_on_the_card(
+    recording: RecordingFactory, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    source = recording("rec_a", n=4)
+    out = tmp_path / "DS"
+    code = main(["dataset-build", str(source), "--out", str(out), "--link", "hard",
+                 "--splits", "1,0,0"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    name = f"{read_pairs(source / 'pairs.jsonl')[0].t_ns}"
+    linked = out / "train" / "input" / f"rec_a_{name}.png"
     assert os.path.samefile(linked, source / "input" / f"{name}.png")
+    assert linked.stat().st_mode & 0o222 == 0
+    card = read_card(out / "dataset.json")
+    assert card.image_files == "hard-link" and "read-only" in card.image_files_note
+    assert verify_dataset(out).ok
 
-    def refuse(*_: object) -> None:
-        raise OSError(18, "Invalid cross-device link")
 
-    monkeypatch.setattr(os, "link", refuse)
-    copied = build_dataset([source], tmp_path / "DS2", config).out
-    copy = copied / "train" / "input" / f"rec_a_{name}.png"
-    assert not os.path.samefile(copy, source / "input" / f"{name}.png")
-    assert copy.read_bytes() == linked.read_bytes()
-    assert verify_dataset(copied).ok
+def test_rerun_removes_leftovers_of_killed_builds_of_the_same_output_only(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    source = recording("rec_a", n=4)
+    dead = _dead_pid()
+    killed = tmp_path / f".DS.{dead}.abc123.building"
+    (killed / "train").mkdir(parents=True)
+    (killed / "train" / "x.png").write_bytes(b"half")
+    trash = tmp_path / f".DS.{dead}.zz.old"
+    trash.mkdir()
+    other_output = tmp_path / f".OTHER.{dead}.abc.building"
+    other_output.mkdir()
+    running = tmp_path / f".DS.{os.getppid()}.abc.building"  # a live process's build
+    running.mkdir()
+    users = tmp_path / ".DS.notes.building"
+    users.mkdir()
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    build_dataset([source], tmp_path / "DS", config)
+    assert not killed.exists() and not trash.exists()
+    assert other_output.exists() and running.exists() and users.exists()
+
+
+def _dead_pid() -> int:
+    """The id of a process that has exited."""
+    import subprocess
+    import sys
+
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                           capture_output=True, text=True, check=True)  # fmt: skip
+    return int(child.stdout)
 
 
 def test_missing_image_is_skipped_counted_and_warned(

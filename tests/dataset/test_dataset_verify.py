@@ -43,7 +43,6 @@ def test_missing_changed_and_extra_files_are_listed(
     missing.unlink()
     changed = ds / rows[1].files["input"]
     data = changed.read_bytes()
-    changed.unlink()  # break the hard link before editing: the source stays intact
     changed.write_bytes(data[:-1] + bytes([data[-1] ^ 1]))
     extra = ds / rows[2].split / "input" / "stray.png"
     extra.write_bytes(b"x")
@@ -89,4 +88,7 @@ def test_not_a_dataset(tmp_path: Path) -> None:
     with pytest.raises(DatasetError, match="not a folder"):
         verify_dataset(tmp_path / "nope")
     (tmp_path / "x").mkdir()
+    with pytest.raises(DatasetError, match="not a dataset"):
+        verify_dataset(tmp_path / "x")  # an empty folder is a wrong argument, not a damaged dataset
+    (tmp_path / "x" / "dataset.json").write_text("{}")
     assert "manifest.jsonl: file not found" in verify_dataset(tmp_path / "x").problems[0]

@@ -71,3 +71,34 @@ def test_float_conversion_is_exact_for_every_code() -> None:
     assert from_float(np.array([[np.nan, -1.0, 2.0]], np.float32), np.uint8).tolist() == [
         [0, 0, 255]
     ]
+
+
+@pytest.mark.parametrize("damage", ["empty", "truncated", "flipped-byte", "no-iend"])
+def test_damaged_png_is_one_clear_error_and_nothing_on_stderr(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str], damage: str
+) -> None:
+    good = tmp_path / "good.png"
+    rng = np.random.default_rng(0)
+    write_image(good, (rng.random((48, 64)) * 255).astype(np.uint8))
+    data = bytearray(good.read_bytes())
+    bad = tmp_path / "bad.png"
+    expected = {
+        "empty": "empty file",
+        "truncated": "truncated",
+        "flipped-byte": "CRC mismatch",
+        "no-iend": "truncated",
+    }[damage]
+    if damage == "empty":
+        data = bytearray()
+    elif damage == "truncated":
+        data = data[: len(data) // 2]
+    elif damage == "flipped-byte":
+        data[len(data) // 2] ^= 0xFF
+    else:
+        data = data[:-12]
+    bad.write_bytes(bytes(data))
+    capfd.readouterr()
+    with pytest.raises(ImageIOError, match=expected) as info:
+        read_image(bad)
+    assert str(info.value).startswith(f"{bad}: ")
+    assert capfd.readouterr().err == ""  # libpng printed nothing

@@ -1,3 +1,4 @@
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -6,9 +7,11 @@ import torch
 from lenspair.core.config import to_plain
 from lenspair.model.checkpoint import (
     CHECKPOINT_FORMAT,
+    build_network,
     checkpoint_config,
     load_checkpoint,
     load_model,
+    load_weights,
     save_checkpoint,
     to_cpu,
 )
@@ -80,7 +83,7 @@ def test_unreadable_and_foreign_files_raise(tmp_path: Path) -> None:
         load_checkpoint(tmp_path / "missing.pt")
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"not a checkpoint")
-    with pytest.raises(ModelError, match="cannot read checkpoint"):
+    with pytest.raises(ModelError, match="not a lenspair checkpoint"):
         load_checkpoint(junk)
     foreign = tmp_path / "foreign.pt"
     torch.save({"weights": torch.zeros(1)}, foreign)
@@ -95,3 +98,42 @@ def test_weights_that_do_not_fit_are_reported(tmp_path: Path) -> None:
     torch.save(data, path)
     with pytest.raises(ModelError, match="do not fit"):
         load_model(path)
+
+
+class _Pickled:
+    """A Python object that a weights-only load must refuse."""
+
+
+@pytest.mark.parametrize("content", ["empty", "pickled-object", "garbage"])
+def test_non_checkpoint_is_one_line_without_unsafe_advice(tmp_path: Path, content: str) -> None:
+    path = tmp_path / "other.pt"
+    if content == "empty":
+        path.write_bytes(b"")
+    elif content == "pickled-object":
+        torch.save({"thing": _Pickled()}, path)
+    else:
+        path.write_bytes(b"PK\x03\x04 not really a zip")
+    with pytest.raises(ModelError) as info:
+        load_checkpoint(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: ") and "not a lenspair checkpoint" in message
+    assert "\n" not in message and "\x1b" not in message
+    assert "weights_only" not in message
+    if content == "empty":
+        assert "empty" in message
+
+
+def test_other_width_names_the_first_differing_tensor_and_both_shapes(tmp_path: Path) -> None:
+    narrow = tiny_config()
+    wide = replace(narrow, model=replace(narrow.model, width=0.5))
+    path = make_checkpoint(tmp_path / "narrow.pt", narrow)
+    data = load_checkpoint(path)
+    network = build_network(wide.model)
+    expected = network.state_dict()
+    first = next(k for k, v in expected.items() if v.shape != data["model"][k].shape)
+    with pytest.raises(ModelError) as info:
+        load_weights(network, data, path)
+    message = str(info.value)
+    assert first in message
+    assert str(tuple(data["model"][first].shape)) in message
+    assert str(tuple(expected[first].shape)) in message

@@ -181,3 +181,17 @@ def test_cpu_latency_times_a_channels_last_copy_and_leaves_the_network_alone() -
     assert "channels-last" in latency.summary()
     assert first.is_contiguous()  # the caller's weights keep their NCHW layout
     assert tune_allocator() is (platform.libc_ver()[0] == "glibc")
+
+
+def test_a_mono_network_on_colour_pairs_says_so(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from lenspair.model.evaluation.evaluate import evaluate_checkpoint
+    from tests.model.train_fixtures import make_checkpoint, write_paired_folder
+
+    checkpoint = make_checkpoint(tmp_path / "mono.pt")  # a 1-channel network
+    colour = write_paired_folder(tmp_path / "rgb", count=2, rgb=True)
+    with caplog.at_level("WARNING"):
+        evaluate_checkpoint(checkpoint, colour, "test", torch.device("cpu"), latency_runs=0)
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert any("1 channel(s)" in m and "have 3" in m and "luma" in m for m in warned), warned

@@ -114,3 +114,21 @@ def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(tmp_path: Path)
     assert [r["name"] for r in json.loads((out / "tradeoff.json").read_text())["rows"]] == ["G"]
     assert (out / "runs" / "G" / "checkpoints" / "last.pt").stat().st_mtime_ns == before
     assert main(["tradeoff", str(dataset), "--out", str(out), "--variants", "X"]) == 2
+
+
+def test_a_single_paired_folder_is_scored_on_pairs_it_did_not_train_on(tmp_path: Path) -> None:
+    from lenspair.model.training.datasets import paired_training_data
+    from tests.model.train_fixtures import write_paired_folder
+
+    folder = write_paired_folder(tmp_path / "pairs", count=20)  # input/ + target/, no splits
+    base = tiny_config()
+    data = paired_training_data(folder, base.data, 1, base.train.seed)
+    trained = {pair.name for pair in data.train.source}  # type: ignore[attr-defined]
+    variant = next(v for v in DEFAULT_VARIANTS if v.name == "G")
+    result = run_tradeoff(folder, tmp_path / "out", torch.device("cpu"), Budget(steps=1), base,
+                          (variant,), latency_runs=1)  # fmt: skip
+    evaluated = result.meta["evaluated_on"]
+    assert "held-out" in evaluated and "split test" not in evaluated
+    scored = {pair.name for pair in data.val.source}  # type: ignore[attr-defined]
+    assert scored and not scored & trained
+    assert f"({len(scored)}, not trained on)" in evaluated

@@ -1,0 +1,83 @@
+"""Temporary names that say who made them, and removal of what killed runs left.
+
+Every temporary file or folder lenspair creates beside an output is named
+``.<name>.<pid>.<random><suffix>`` where ``<pid>`` is the creating process,
+and ``<suffix>`` ends in ``.tmp`` (files), ``.building`` or ``.old`` (dataset
+folders). A run that is killed (``kill -9``, power loss) cannot remove them;
+the next run of the same output calls :func:`remove_leftovers`, which deletes
+exactly those whose creating process no longer exists, so a concurrent run
+writing beside it keeps its own temporaries. Files of other outputs, and
+files whose names do not follow the pattern, are never touched.
+
+A process id that the system has reused for an unrelated process keeps its
+leftover alive until a later rerun: the safe direction.
+"""
+
+import logging
+import os
+import re
+import shutil
+from pathlib import Path
+
+logger = logging.getLogger(__name__)
+
+LEFTOVER_SUFFIXES = (".tmp", ".building", ".old")
+
+
+def temporary_prefix(name: str) -> str:
+    """The prefix of this process's temporaries for output ``name`` (``.name.<pid>.``)."""
+    return f".{name}.{os.getpid()}."
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by another user
+        return True
+    return True
+
+
+def _pattern(name: str | None) -> re.Pattern[str]:
+    stem = re.escape(name) if name is not None else r"[^/]+?"
+    endings = "|".join(re.escape(s) for s in LEFTOVER_SUFFIXES)
+    return re.compile(rf"^\.{stem}\.(?P<pid>[0-9]+)\.[^/]*(?:{endings})$")
+
+
+def leftovers(folder: Path, name: str | None = None) -> list[Path]:
+    """Temporaries in ``folder`` (of output ``name``, or of any output) whose creator is gone.
+
+    Args:
+        folder: folder to look in (not recursively); a missing folder has none.
+        name: the output's file or folder name; ``None`` matches every output.
+
+    Returns:
+        Sorted paths of files and folders safe to delete.
+
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    pattern = _pattern(name)
+    found = []
+    for entry in folder.iterdir():
+        match = pattern.match(entry.name)
+        if match is not None and not _alive(int(match["pid"])):
+            found.append(entry)
+    return sorted(found)
+
+
+def remove_leftovers(folder: Path, name: str | None = None) -> int:
+    """Delete :func:`leftovers` of ``folder`` (logged); returns how many were removed."""
+    removed = 0
+    for path in leftovers(folder, name):
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+        logger.info("removed %s, left by an interrupted run", path)
+        removed += 1
+    return removed

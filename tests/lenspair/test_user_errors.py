@@ -1,0 +1,196 @@
+"""No traceback for any user error: every subcommand, every kind of bad input.
+
+Each case runs the CLI in-process with one bad file or option value and
+asserts exit code 2 and exactly one line on stderr that names the file or
+option. The table covers every entry of ``lenspair.cli.COMMANDS`` (a test
+checks), so a new command must add its bad inputs here.
+"""
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from lenspair.cli import COMMANDS, main
+from tests.model.train_fixtures import write_split_dataset
+
+# Bad files, by kind: (file name, writer). "unreadable" is a folder where a file
+# is expected when running as root (root reads any mode-000 file).
+BAD_FILES: dict[str, Callable[[Path], None]] = {
+    "missing": lambda path: None,
+    "empty": lambda path: path.write_bytes(b""),
+    "folder": lambda path: path.mkdir(),
+    "binary": lambda path: path.write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff garbage"),
+    "malformed-yaml": lambda path: path.write_text("a: [1, 2\n  b: }\n"),
+    "wrong-yaml": lambda path: path.write_text("- just\n- a list\n"),
+}
+
+
+def _unreadable(path: Path) -> None:
+    path.write_text("rig: {}\n")
+    path.chmod(0)
+    if os.access(path, os.R_OK):  # root: a mode-000 file is still readable
+        path.chmod(0o644)
+        path.unlink()
+        path.mkdir()
+
+
+BAD_FILES["unreadable"] = _unreadable
+
+# command -> argument lists where BAD stands for the bad file and the named
+# token must appear in the message. DS is a valid tiny dataset, OUT a fresh folder.
+FILE_CASES: dict[str, list[list[str]]] = {
+    "simulate": [["BAD", "--out", "OUT"]],
+    "calibrate": [
+        [
+            "BAD",
+            "--board",
+            "chessboard:9x6:0.025",
+            "--model",
+            "pinhole-radtan",
+            "--out",
+            "OUT/c.yaml",
+        ]
+    ],
+    "capture-ingest": [["BAD", "--out", "OUT"]],
+    "dataset-build": [["BAD", "--out", "OUT"], ["--verify", "BAD"]],
+    "train": [
+        ["DS", "--out", "OUT", "--config", "BAD"],
+        ["DS", "--out", "OUT", "--init", "BAD"],
+        ["BAD", "--out", "OUT"],
+    ],
+    "eval": [["BAD", "--data", "DS"]],
+    "tradeoff": [["BAD", "--out", "OUT"], ["DS", "--out", "OUT", "--config", "BAD"]],
+    "export": [["BAD", "--onnx", "OUT/m.onnx"]],
+    "demo": [],  # demo reads only bundled files; its options are covered below
+}
+
+# (argv, token the message must name)
+OPTION_CASES: list[tuple[list[str], str]] = [
+    (["simulate", "calib_samples/rain.yaml", "--out", "OUT", "--frames", "x"], "--frames"),
+    (["simulate", "calib_samples/rain.yaml", "--out", "OUT", "--frames", "-3"], "frames"),
+    (
+        ["calibrate", "DS", "--board", "nonsense", "--model", "pinhole-radtan", "--out", "OUT/c"],
+        "board",
+    ),
+    (["calibrate", "DS", "--board", "x", "--model", "pinhole", "--out", "OUT/c"], "--model"),
+    (["capture-ingest", "DS", "--out", "OUT", "--workers", "0"], "--workers"),
+    (["dataset-build", "DS", "--out", "OUT", "--splits", "1,2"], "--splits"),
+    (["dataset-build", "DS", "--out", "OUT", "--workers", "-1"], "--workers"),
+    (["train", "DS", "--out", "OUT", "--batch-size", "0"], "batch_size"),
+    (["train", "DS", "--out", "OUT", "--device", "tpu"], "--device"),
+    (["tradeoff", "DS", "--out", "OUT", "--budget", "abc"], "--budget"),
+    (["tradeoff", "DS", "--out", "OUT", "--variants", "nope"], "nope"),
+    (["eval", "DS", "--latency-runs", "many"], "--latency-runs"),
+    (["export", "DS", "--onnx", "OUT/m.onnx", "--size", "big"], "--size"),
+    (["demo", "--bogus"], "--bogus"),
+    (["no-such-command"], "no-such-command"),
+]
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A valid tiny split dataset, so that the bad file is the only problem."""
+    return write_split_dataset(tmp_path_factory.mktemp("errors") / "ds")
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    code = main(argv)  # any exception other than SystemExit fails the test with its traceback
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+def _expand(args: list[str], bad: Path, dataset: Path, out: Path) -> list[str]:
+    table = {"BAD": str(bad), "DS": str(dataset), "OUT": str(out)}
+    return [table.get(arg, arg.replace("OUT", str(out))) for arg in args]
+
+
+def test_every_command_has_bad_input_cases() -> None:
+    assert set(FILE_CASES) == set(COMMANDS)
+    named = {argv[0] for argv, _ in OPTION_CASES}
+    assert set(COMMANDS) <= named
+
+
+def _file_cases() -> list[tuple[str, list[str], str]]:
+    """Every (command, template, kind); an empty --config file is valid (all defaults)."""
+    return [
+        (name, args, kind)
+        for name, cases in FILE_CASES.items()
+        for args in cases
+        for kind in sorted(BAD_FILES)
+        if not (kind == "empty" and "--config" in args)
+    ]
+
+
+@pytest.mark.parametrize(
+    "command,template,kind",
+    _file_cases(),
+    ids=lambda value: value if isinstance(value, str) else "-".join(value)[:40],
+)
+def test_bad_file_gives_one_line_naming_it(
+    command: str,
+    template: list[str],
+    kind: str,
+    dataset: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    bad = tmp_path / f"bad-{kind}.yaml"
+    BAD_FILES[kind](bad)
+    argv = [command, *_expand(template, bad, dataset, tmp_path / "out")]
+    try:
+        code, lines = _run(argv, capsys)
+    except SystemExit as exc:
+        code, lines = int(exc.code or 0), capsys.readouterr().err.strip().splitlines()
+    assert code == 2, (argv, lines)
+    assert len(lines) == 1, (argv, lines)
+    assert bad.name in lines[0], (argv, lines)
+    assert "Traceback" not in lines[0]
+
+
+@pytest.mark.parametrize("argv,token", OPTION_CASES, ids=lambda v: "-".join(v)[:50])
+def test_bad_option_gives_one_line_naming_it(
+    argv: list[str],
+    token: str,
+    dataset: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    argv = _expand(argv, tmp_path / "unused", dataset, tmp_path / "out")
+    try:
+        code, lines = _run(argv, capsys)
+    except SystemExit as exc:
+        code, lines = int(exc.code or 0), capsys.readouterr().err.strip().splitlines()
+    assert code == 2, (argv, lines)
+    assert len(lines) == 1, (argv, lines)
+    assert token in lines[0], (argv, lines)
+
+
+@settings(max_examples=25, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    text=st.one_of(
+        st.text(alphabet="ab:-[]{}!&*|>'\" \n\t#%@`,?", max_size=40),
+        st.recursive(
+            st.none() | st.booleans() | st.integers() | st.text(max_size=5),
+            lambda inner: (
+                st.lists(inner, max_size=3)
+                | st.dictionaries(
+                    st.sampled_from(["rig", "recording", "seed", "x"]), inner, max_size=3
+                )
+            ),
+            max_leaves=8,
+        ).map(yaml.safe_dump),
+    )
+)
+def test_malformed_scene_yaml_gives_one_line(
+    text: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(text)
+    out = tmp_path / "never"
+    code, lines = _run(["simulate", str(scene), "--out", str(out)], capsys)
+    assert code == 2
+    assert len(lines) == 1 and "scene.yaml" in lines[0], lines

@@ -1,0 +1,92 @@
+"""Checkpoints within an epoch: a run killed mid-epoch resumes from its latest step."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+import torch
+
+from lenspair.cli import main
+from lenspair.core.config import dump_yaml
+from lenspair.model.checkpoint import load_checkpoint
+from lenspair.model.training.config import RunConfig
+from lenspair.model.training.datasets import paired_training_data
+from lenspair.model.training.loop import fit, resolve_config
+from lenspair.model.training.step import Trainer
+from tests.model.train_fixtures import tiny_config, write_split_dataset
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+CPU = torch.device("cpu")
+
+
+def _train(dataset: Path, run: Path, config: RunConfig, resume: bool = False) -> None:
+    data = paired_training_data(dataset, config.data, config.model.channels, config.train.seed)
+    fit(resolve_config(config, data.channels), data.train, data.val, run, CPU, resume=resume)
+
+
+def _weights(run: Path) -> dict[str, torch.Tensor]:
+    return dict(load_checkpoint(run / "checkpoints" / "last.pt")["model"])
+
+
+def test_kill_in_the_first_epoch_resumes_from_the_latest_step(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 2})  # 4 steps per epoch
+    config = tiny_config(epochs=2, deterministic=True, seed=5, checkpoint_every_steps=1)
+    _train(dataset, tmp_path / "straight", config)
+
+    real = Trainer.train_step
+    calls = []
+
+    def killed_at_third_step(self: Trainer, batch: object) -> object:
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt  # stands in for kill -9: nothing after this runs
+        return real(self, batch)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Trainer, "train_step", killed_at_third_step)
+    with pytest.raises(KeyboardInterrupt):
+        _train(dataset, tmp_path / "split", config)
+    monkeypatch.setattr(Trainer, "train_step", real)
+    saved = load_checkpoint(tmp_path / "split" / "checkpoints" / "last.pt")
+    assert (saved["epoch"], saved["step"], saved["step_in_epoch"]) == (0, 2, 2)
+
+    _train(dataset, tmp_path / "split", config, resume=True)
+    straight, split = _weights(tmp_path / "straight"), _weights(tmp_path / "split")
+    assert straight.keys() == split.keys()
+    for key in straight:
+        assert torch.equal(straight[key], split[key]), key
+
+
+def test_default_interval_is_in_time_and_the_cli_sets_steps_or_time(tmp_path: Path) -> None:
+    defaults = tiny_config().train
+    assert defaults.checkpoint_every_steps is None
+    assert defaults.checkpoint_every_seconds is not None and defaults.checkpoint_every_seconds > 0
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1})
+    config_file = tmp_path / "tiny.yaml"
+    config_file.write_text(dump_yaml(tiny_config(max_steps=1)))
+    for every, expected in (("3", (3, None)), ("2m", (None, 120.0))):
+        run = tmp_path / f"run{every}"
+        argv = ["train", str(dataset), "--out", str(run), "--config", str(config_file),
+                "--device", "cpu", "--checkpoint-every", every]  # fmt: skip
+        assert main(argv) == 0
+        stored = load_checkpoint(run / "checkpoints" / "last.pt")["config"]["train"]
+        assert (stored["checkpoint_every_steps"], stored["checkpoint_every_seconds"]) == expected
+
+
+def test_resume_before_the_first_checkpoint_starts_over(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1})
+    config = replace(tiny_config(max_steps=2), model=replace(tiny_config().model, channels=1))
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text(dump_yaml(config))  # what a kill before step 1 leaves
+    leftover = run / "checkpoints" / f".last.pt.{2**22 + 7}.abcd.pt.tmp"
+    leftover.parent.mkdir()
+    leftover.write_bytes(b"half a checkpoint")
+    assert main(["train", str(dataset), "--out", str(run), "--resume", "--device", "cpu"]) == 0
+    assert load_checkpoint(run / "checkpoints" / "last.pt")["step"] == 2
+    assert not leftover.exists()
+    code = main(["train", str(dataset), "--out", str(tmp_path / "none"), "--resume"])
+    assert code == 2 and "holds no run to resume" in capsys.readouterr().err

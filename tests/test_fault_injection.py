@@ -1,0 +1,294 @@
+"""Fault injection: ``kill -9`` at seeded random moments, rerun, compare with a clean run.
+
+For each command in :data:`SCENARIOS` the test runs it once uninterrupted
+(the reference, in a subprocess, timed from its first output to its end),
+then :data:`KILLS` times: starts it in a subprocess, kills it with
+``SIGKILL`` at a moment drawn from a seeded generator over that working
+time (counted from the run's own first output), checks that no process of the run
+survives (pool workers, the resource tracker), reruns it to completion, and
+asserts that the output tree equals the reference (byte for byte, up to the
+fields a scenario declares as wall-clock timings) and that no temporary file
+remains anywhere under the output's parent folder.
+
+Adding a command is one :class:`Scenario` entry (``restore`` joins when it exists).
+Inputs are tiny (3 simulated 360x270 frames, a 6-pair dataset, a network of a few
+thousand parameters) so that the whole module stays within a few minutes on
+two cores.
+"""
+
+import csv
+import io
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from lenspair.cli import main
+from lenspair.core.config import dump_yaml
+from lenspair.core.leftovers import LEFTOVER_SUFFIXES
+from tests.model.train_fixtures import tiny_config, write_split_dataset
+from tests.processes import descendants, wait_gone
+
+pytestmark = pytest.mark.slow
+KILLS = 10
+SEED = 15
+SIZE = "240x160"
+SAMPLES = Path(__file__).resolve().parents[1] / "calib_samples"
+
+
+def _report_without_timings(content: bytes) -> object:
+    report = json.loads(content)
+    report.pop("timings_s", None)
+    return report
+
+
+def _checkpoint_without_timings(content: bytes) -> object:
+    data = torch.load(io.BytesIO(content), map_location="cpu", weights_only=True)
+    data.pop("seconds", None)
+    return _comparable(data)
+
+
+def _comparable(value: object) -> object:
+    if isinstance(value, torch.Tensor):
+        return ("tensor", value.dtype, tuple(value.shape), value.numpy().tobytes())
+    if isinstance(value, dict):
+        return {key: _comparable(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_comparable(item) for item in value]
+    return value
+
+
+def _metrics_without_timings(content: bytes) -> object:
+    rows = list(csv.DictReader(io.StringIO(content.decode())))
+    for row in rows:
+        row.pop("seconds", None)
+    return rows
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One command under fault injection.
+
+    Attributes:
+        name: test id.
+        argv: the command line, given the inputs folder and the output path.
+        rerun: the command line that completes a killed run (default: ``argv``).
+        output: the folder whose tree is compared, given the output path.
+        timings: relative file name -> a function returning its content without
+            wall-clock fields (files absent here are compared byte for byte).
+        skip: relative file names not compared (logs that record each session).
+
+    """
+
+    name: str
+    argv: Callable[[Path, Path], list[str]]
+    rerun: Callable[[Path, Path], list[str]] | None = None
+    output: Callable[[Path], Path] = lambda out: out
+    timings: dict[str, Callable[[bytes], object]] = field(default_factory=dict)
+    skip: frozenset[str] = frozenset()
+
+
+def _ingest_argv(workers: int) -> Callable[[Path, Path], list[str]]:
+    def argv(inputs: Path, out: Path) -> list[str]:
+        recording = str(inputs / "rain")
+        return ["capture-ingest", recording, "--out", str(out), "--size", SIZE,
+                "--workers", str(workers)]  # fmt: skip
+
+    return argv
+
+
+def _build_argv(inputs: Path, out: Path) -> list[str]:
+    source = str(inputs / "ingested" / "rain")
+    return ["dataset-build", source, "--out", str(out), "--splits", "0.5,0.25,0.25"]
+
+
+def _train_argv(inputs: Path, out: Path) -> list[str]:
+    return ["train", str(inputs / "ds"), "--out", str(out), "--device", "cpu",
+            "--config", str(inputs / "tiny.yaml")]  # fmt: skip
+
+
+def _train_rerun(inputs: Path, out: Path) -> list[str]:
+    """What a user reruns: ``--resume`` once the run folder holds a run (its config.yaml)."""
+    resume = ["--resume"] if (out / "config.yaml").is_file() else []
+    return [*_train_argv(inputs, out), *resume]
+
+
+def _ingested(out: Path) -> Path:
+    return out / "rain"
+
+
+INGEST_TIMINGS = {"report.json": _report_without_timings}
+SCENARIOS = [
+    Scenario("capture-ingest-1-worker", _ingest_argv(1), None, _ingested, INGEST_TIMINGS),
+    Scenario("capture-ingest-2-workers", _ingest_argv(2), None, _ingested, INGEST_TIMINGS),
+    Scenario("dataset-build", _build_argv),
+    Scenario(
+        "train",
+        _train_argv,
+        rerun=_train_rerun,
+        timings={
+            "checkpoints/last.pt": _checkpoint_without_timings,
+            "checkpoints/best.pt": _checkpoint_without_timings,
+            "metrics.csv": _metrics_without_timings,
+        },
+        skip=frozenset({"train.log"}),  # one section per session, with times
+    ),
+]
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 3-frame 360x270 rain recording, its ingest, a 6-pair dataset, a tiny training config."""
+    root = tmp_path_factory.mktemp("faults")
+    scene = yaml.safe_load((SAMPLES / "rain.yaml").read_text())
+    for camera in ("cam0", "cam1"):  # half the sample's resolution: 2.7x faster ingests
+        scene["rig"][camera]["intrinsics"] = [v / 2 for v in scene["rig"][camera]["intrinsics"]]
+        scene["rig"][camera]["resolution"] = [360, 270]
+    scene["recording"].update(frames=3, drop_probability=[0.0, 0.0])
+    scene["obstructed"]["effects"]["raindrops"] = {"count": 12, "radius_px": [3.0, 11.0]}
+    scene["planes"][0]["texture"] = ["astronaut", "gravel"]
+    (root / "rain.yaml").write_text(yaml.safe_dump(scene))
+    assert main(["simulate", str(root / "rain.yaml"), "--out", str(root / "rain")]) == 0
+    ingest = ["capture-ingest", str(root / "rain"), "--out", str(root / "ingested")]
+    assert main([*ingest, "--size", SIZE]) == 0
+    write_split_dataset(root / "ds", {"train": 6, "val": 2})
+    config = tiny_config(epochs=2, deterministic=True, seed=1, checkpoint_every_steps=1)
+    (root / "tiny.yaml").write_text(dump_yaml(config))
+    return root
+
+
+def _start(argv: list[str]) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "lenspair", *argv],
+        env={**os.environ, "LENSPAIR_QUIET": "1", "OMP_NUM_THREADS": "1"},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    if not folder.is_dir():
+        return {}
+    return {
+        str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
+
+
+def _comparable_tree(scenario: Scenario, folder: Path) -> dict[str, object]:
+    tree: dict[str, object] = {}
+    for name, content in _tree(folder).items():
+        if name in scenario.skip:
+            continue
+        normalise = scenario.timings.get(name)
+        tree[name] = normalise(content) if normalise is not None else content
+    return tree
+
+
+def _first_difference(expected: object, found: object, where: str = "") -> str | None:
+    """Where two comparable trees first differ (a readable failure message), or None."""
+    if isinstance(expected, dict) and isinstance(found, dict):
+        if expected.keys() != found.keys():
+            return f"{where or 'tree'}: keys differ: {sorted(set(expected) ^ set(found))[:5]}"
+        for key in expected:
+            difference = _first_difference(expected[key], found[key], f"{where}/{key}")
+            if difference is not None:
+                return difference
+        return None
+    if isinstance(expected, list) and isinstance(found, list) and len(expected) == len(found):
+        for index, (a, b) in enumerate(zip(expected, found, strict=True)):
+            difference = _first_difference(a, b, f"{where}[{index}]")
+            if difference is not None:
+                return difference
+        return None
+    return None if expected == found else f"{where}: {str(expected)[:80]} != {str(found)[:80]}"
+
+
+_TEMPORARY = re.compile(r"^\..*(" + "|".join(re.escape(s) for s in LEFTOVER_SUFFIXES) + r")$")
+
+
+def _temporaries(folder: Path) -> list[Path]:
+    return [p for p in folder.rglob("*") if _TEMPORARY.match(p.name)]
+
+
+def _watch(process: subprocess.Popen[bytes], folder: Path) -> tuple[float, float]:
+    """Poll a run to its end: when ``folder`` (its first output) appeared, when it ended."""
+    appeared = None
+    while process.poll() is None:
+        if appeared is None and folder.exists():
+            appeared = time.monotonic()
+        time.sleep(0.01)
+    ended = time.monotonic()
+    return (ended if appeared is None else appeared), ended
+
+
+def _wait_for_work(process: subprocess.Popen[bytes], folder: Path, moment: float) -> set[int]:
+    """Wait until ``folder`` appears, then ``moment`` seconds more; returns the run's children.
+
+    Kill moments are drawn over the working part of a run: a kill while
+    Python imports modules tests nothing.
+    """
+    children: set[int] = set()
+    deadline = None
+    while process.poll() is None and (deadline is None or time.monotonic() < deadline):
+        if deadline is None and folder.exists():
+            deadline = time.monotonic() + moment
+        children |= descendants(process.pid)
+        time.sleep(0.01)
+    return children | descendants(process.pid)
+
+
+@pytest.fixture
+def one_thread() -> Iterator[None]:
+    """One torch thread in the in-process reruns, as in the subprocesses (OMP_NUM_THREADS=1).
+
+    Float sums depend on how a kernel splits them over threads; a rerun with
+    another thread count would differ from the reference in the last bits.
+    """
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.mark.usefixtures("one_thread")
+@pytest.mark.parametrize("scenario", SCENARIOS, ids=lambda s: s.name)
+def test_killed_runs_resume_to_the_same_output(
+    scenario: Scenario, inputs: Path, tmp_path: Path
+) -> None:
+    argv = scenario.argv
+    rerun = scenario.rerun or argv
+    reference_out = tmp_path / "reference" / "out"
+    process = _start(argv(inputs, reference_out))
+    appeared, ended = _watch(process, reference_out.parent)
+    _, error = process.communicate()
+    assert process.returncode == 0, error.decode()
+    working = ended - appeared  # from its first output (after imports) to its end
+    reference = _comparable_tree(scenario, scenario.output(reference_out))
+    assert reference
+
+    moments = np.random.default_rng(SEED).uniform(0.0, working, size=KILLS)
+    for index, moment in enumerate(moments):
+        out = tmp_path / f"kill{index}" / "out"
+        process = _start(argv(inputs, out))
+        children = _wait_for_work(process, out.parent, moment)
+        process.send_signal(signal.SIGKILL)
+        process.communicate()
+        survivors = wait_gone(children, timeout=10)
+        assert not survivors, f"kill {index} at {moment:.2f} s: processes {survivors} survived"
+        assert main(rerun(inputs, out)) == 0, f"rerun after kill {index} at {moment:.2f} s"
+        difference = _first_difference(reference, _comparable_tree(scenario, scenario.output(out)))
+        assert difference is None, (
+            f"kill {index} at {moment:.2f} s of {working:.2f} s: {difference}"
+        )
+        assert _temporaries(out.parent) == [], f"kill {index} at {moment:.2f} s"
