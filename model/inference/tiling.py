@@ -24,6 +24,8 @@ from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 
 DEFAULT_OVERLAP = 32
+ALIGN = 32
+"""Tile steps are multiples of this when possible: the enhancer pools 4..32 px cells."""
 
 
 def to_batch(images: list[np.ndarray]) -> np.ndarray:
@@ -40,8 +42,13 @@ def from_batch(batch: np.ndarray, dtype: np.dtype, mono: bool) -> list[np.ndarra
     return [np.ascontiguousarray(image[0] if mono else image.transpose(1, 2, 0)) for image in codes]
 
 
-def tile_starts(length: int, tile: int, overlap: int) -> list[int]:
-    """Start offsets of tiles of ``tile`` pixels covering ``length`` with ``overlap``.
+def tile_starts(length: int, tile: int, overlap: int, align: int = ALIGN) -> list[int]:
+    """Start offsets of tiles of ``tile`` pixels covering ``length``, overlapping.
+
+    The step between tiles is ``tile - overlap`` rounded down to a multiple of
+    ``align`` when that leaves a step of at least ``align`` (so every tile
+    sees the enhancer's pooling cells where the whole image does); the last
+    tile may reach past ``length`` (the caller pads).
 
     Raises:
         ModelError: ``overlap`` not in ``[0, tile)``.
@@ -50,8 +57,13 @@ def tile_starts(length: int, tile: int, overlap: int) -> list[int]:
         raise ModelError(f"tile overlap must be in [0, {tile}), got {overlap}")
     if length <= tile:
         return [0]
-    starts = list(range(0, length - tile, tile - overlap))
-    return [*starts, length - tile]
+    step = tile - overlap
+    if step >= align:
+        step -= step % align
+    starts = [0]
+    while starts[-1] + tile < length:
+        starts.append(starts[-1] + step)
+    return starts
 
 
 def ramp(tile: int, overlap: int, ramp_start: bool, ramp_end: bool) -> np.ndarray:
@@ -92,15 +104,15 @@ def run_tiled(
     """
     n, c, height, width = batch.shape
     tile_h, tile_w = tile
+    rows = tile_starts(height, tile_h, min(overlap, tile_h - 1))
+    cols = tile_starts(width, tile_w, min(overlap, tile_w - 1))
+    full_h, full_w = max(height, rows[-1] + tile_h), max(width, cols[-1] + tile_w)
     padded = batch
-    if height < tile_h or width < tile_w:
-        pad = ((0, 0), (0, 0), (0, max(0, tile_h - height)), (0, max(0, tile_w - width)))
+    if (full_h, full_w) != (height, width):
+        pad = ((0, 0), (0, 0), (0, full_h - height), (0, full_w - width))
         padded = np.pad(batch, pad, mode="symmetric")
-    full_h, full_w = padded.shape[2:]
-    overlap_h = min(overlap, tile_h - 1)
-    overlap_w = min(overlap, tile_w - 1)
-    rows = tile_starts(full_h, tile_h, overlap_h)
-    cols = tile_starts(full_w, tile_w, overlap_w)
+    overlap_h = tile_h - (rows[1] - rows[0]) if len(rows) > 1 else 0
+    overlap_w = tile_w - (cols[1] - cols[0]) if len(cols) > 1 else 0
     total = np.zeros((n, c, full_h, full_w), dtype=np.float32)
     weights = np.zeros((full_h, full_w), dtype=np.float32)
     places = [(top, left) for top in rows for left in cols]
