@@ -135,8 +135,10 @@ def image_files(folder: Path) -> list[Path]:
 def bag_camera_topics(path: Path) -> dict[str, CameraName]:
     """Image topics of a bag and the camera each stands for.
 
-    One image topic is ``cam0``... only in name: it is the camera. With two or
-    more, :func:`lenspair.capture.rosbag.select_topics` picks ``(cam0, cam1)``.
+    A single image topic is the camera (called ``cam0``). With two or more,
+    :func:`lenspair.capture.rosbag.select_topics` picks ``(cam0, cam1)``
+    among the topics that do not extend another one (``<topic>/restored``
+    topics written by ``restore --suffix`` are not cameras).
 
     Raises:
         CaptureError: no image topic, or an ambiguous choice (lists topics).
@@ -154,6 +156,10 @@ def bag_camera_topics(path: Path) -> dict[str, CameraName]:
         raise CaptureError(f"{path}: no image topic (sensor_msgs/Image or CompressedImage)")
     if len(topics) == 1:
         return {topics[0]: "cam0"}
+    # A bag written by ``restore --suffix`` holds /cam1/image_raw and
+    # /cam1/image_raw/restored: the cameras are the original topics.
+    originals = [t for t in topics if not any(t.startswith(o + "/") for o in topics)]
+    topics = originals if len(originals) >= 2 else topics
     cam0, cam1 = rosbag.select_topics(topics, Path(path))
     return {cam0: "cam0", cam1: "cam1"}
 
@@ -239,7 +245,7 @@ def iter_bag_messages(
     from lenspair.capture import rosbag
 
     path = Path(path)
-    chosen = {t: c for t, c in bag_camera_topics(path).items() if c in cameras}
+    chosen = {t: c for t, c in bag_camera_topics(path).items() if c in cameras} if cameras else {}
     reader = rosbag._open(path)
     index = 0
     read = 0
