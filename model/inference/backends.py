@@ -63,7 +63,8 @@ class TorchBackend:
     """A checkpoint's network in eval mode (the enhanced output only).
 
     Args:
-        network: forward(x) -> (generator_out, enhanced_out).
+        network: forward(x) -> (generator_out, enhanced_out), prepared by
+            :func:`deploy`.
         channels: its image channels.
         device: where it runs.
         precision: ``fp32`` or ``bf16`` (autocast).
@@ -92,6 +93,8 @@ class TorchBackend:
         from lenspair.model.evaluation.latency import autocast_context
 
         x = torch.from_numpy(np.ascontiguousarray(batch, dtype=np.float32)).to(self.device)
+        if self.device.type == "cpu":
+            x = x.contiguous(memory_format=torch.channels_last)
         with autocast_context(self.device, self.precision):
             output = self.network(x)[1]
         return np.asarray(output.float().clamp(0.0, 1.0).cpu().numpy(), dtype=np.float32)
@@ -185,4 +188,19 @@ def open_backend(path: Path, device: torch.device, precision: str = "auto") -> B
         return OnnxBackend(path, device)
     loaded = load_model(path, device)
     channels = loaded.config.model.channels or 1
-    return TorchBackend(loaded.network, channels, device, resolved, path)
+    return TorchBackend(deploy(loaded.network, device), channels, device, resolved, path)
+
+
+def deploy(network: torch.nn.Module, device: torch.device) -> torch.nn.Module:
+    """Prepare ``network`` to run as ``eval``'s latency measures it (in place, eval mode).
+
+    On the CPU: channels-last weights (oneDNN's preferred layout) and glibc
+    told to keep freed activations (see :mod:`lenspair.model.evaluation.latency`).
+    """
+    from lenspair.model.evaluation.latency import tune_allocator
+
+    network.to(device).eval()
+    if device.type == "cpu":
+        tune_allocator()
+        network.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+    return network

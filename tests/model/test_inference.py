@@ -109,7 +109,7 @@ def test_odd_sizes_are_restored_at_their_size(backend: TorchBackend) -> None:
     assert output.shape == batch.shape
     with torch.inference_mode():
         expected = backend.network(torch.from_numpy(batch))[1].clamp(0, 1).numpy()
-    np.testing.assert_allclose(output, expected, atol=1e-6)
+    np.testing.assert_allclose(output, expected, atol=1e-5)  # channels-last vs NCHW
 
 
 def test_onnx_matches_torch(tmp_path: Path, backend: TorchBackend) -> None:
