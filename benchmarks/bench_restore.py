@@ -26,6 +26,7 @@ import statistics
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -93,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     network = deploy(build_network(ModelConfig(variant="GEA", channels=1)), device)
     backend = TorchBackend(network, 1, device)
     latencies = [measure_latency(network, 1, device, (HEIGHT, WIDTH), runs=20).median_ms]
-    runs = []
+    runs: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as temp:
         root = Path(temp)
         frames = _frames(args.frames)
