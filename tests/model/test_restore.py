@@ -271,3 +271,20 @@ def test_frames_of_every_input_kind(tmp_path: Path) -> None:
     ):
         assert frame.image is not None
         np.testing.assert_array_equal(frame.image, read_image(file))
+
+
+def test_demo_restores_a_recording_and_shows_before_after(tmp_path: Path, checkpoint: Path) -> None:
+    from lenspair.core.report import Image
+    from lenspair.demo import QUICK, RESTORED_RECORDING, plan
+    from lenspair.demo_report import restore_blocks
+
+    out = tmp_path / "demo"
+    (stage,) = [s for s in plan(out, QUICK) if s.name == "restore"]
+    assert stage.argv[0] == "restore" and stage.argv[1].endswith("finetune/checkpoints/best.pt")
+    recording = make_recording(out / "recordings" / RESTORED_RECORDING, frames=3)
+    argv = ["restore", str(checkpoint), str(recording), *stage.argv[3:]]
+    assert main(argv) == 0
+    blocks = restore_blocks(out)
+    assert any(isinstance(b, Image) and b.path == "restore_before_after.png" for b in blocks)
+    strip = read_image(out / "restore_before_after.png")
+    assert strip.ndim == 3 and strip.shape[0] > 100
