@@ -147,6 +147,13 @@ def test_channel_mismatch_is_refused() -> None:
         run_backend(Pointwise(), rgb)
 
 
+def test_bf16_stays_close_to_fp32(backend: TorchBackend) -> None:
+    """bf16 autocast (8 mantissa bits): within 0.05 max abs of fp32 on [0, 1] images."""
+    bf16 = TorchBackend(backend.network, 1, CPU, "bf16")
+    batch = texture((32, 48), seed=5)[None, None].astype(np.float32)
+    assert float(np.abs(bf16(batch) - backend(batch)).max()) < 0.05
+
+
 def test_precision_auto_is_fp32_for_now() -> None:
     assert resolve_precision("auto", CPU) == "fp32"
     assert resolve_precision("bf16", CPU) == "bf16"
