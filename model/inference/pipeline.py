@@ -23,8 +23,6 @@ Rules a robotics user can rely on:
 * ``judge`` (``--only-obstructed``): frames judged clean are copied unchanged.
 """
 
-import queue
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
@@ -34,7 +32,6 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import (
     InputFrame,
     InputKind,
@@ -51,6 +48,7 @@ from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.judge import FrameJudge
 from lenspair.model.inference.sinks import BagSink, FileSink
+from lenspair.model.inference.threads import Writer, threaded
 from lenspair.model.inference.tiling import DEFAULT_OVERLAP, from_batch, run_backend, to_batch
 
 REPORT_NAME = "restore_report.json"
@@ -166,81 +164,6 @@ def check_out_dir(out_dir: Path, resume: bool) -> None:
         )
 
 
-_END = object()
-
-
-def _threaded(items: Iterator[Any], size: int) -> Iterator[Any]:
-    """Iterate ``items`` in a reader thread (errors re-raised here)."""
-    buffer: queue.Queue[Any] = queue.Queue(maxsize=size)
-    failure: list[BaseException] = []
-
-    def produce() -> None:
-        try:
-            for item in items:
-                buffer.put(item)
-        except BaseException as exc:  # handed to the consumer, raised there
-            failure.append(exc)
-        finally:
-            buffer.put(_END)
-
-    thread = threading.Thread(target=produce, name="restore-reader", daemon=True)
-    thread.start()
-    while (item := buffer.get()) is not _END:
-        yield item
-    thread.join()
-    if failure:
-        raise failure[0]
-
-
-class _Writer:
-    """The writer thread: writes ``(item, pixels | None)`` in order, records failures."""
-
-    def __init__(self, sink: FileSink | BagSink, report: RestoreReport, size: int) -> None:
-        self.sink, self.report = sink, report
-        self.queue: queue.Queue[Any] = queue.Queue(maxsize=size)
-        self.failure: list[BaseException] = []
-        self.thread = threading.Thread(target=self._run, name="restore-writer", daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        try:
-            self._drain()
-        finally:
-            try:
-                self.sink.close()  # in this thread: bag storage handles are thread-bound
-            except BaseException as exc:  # raised by close()
-                self.failure.append(exc)
-
-    def _drain(self) -> None:
-        while (entry := self.queue.get()) is not _END:
-            if self.failure:
-                continue  # drain after an error; the caller raises it
-            item, frame, pixels = entry
-            try:
-                try:
-                    self.sink.write(item, pixels)
-                except (CaptureError, ValueError) as exc:  # this frame only
-                    if frame is None or pixels is None:
-                        raise
-                    self.report.restored -= 1
-                    self.report.failed += 1
-                    self.report.problems.append({"frame": frame.name, "reason": str(exc)})
-                    self.sink.write(item, None)
-            except BaseException as exc:  # disk full, permissions: fatal, raised by close()
-                self.failure.append(exc)
-
-    def put(self, item: Any, frame: InputFrame | None, pixels: np.ndarray | None) -> None:
-        if self.failure:
-            raise self.failure[0]
-        self.queue.put((item, frame, pixels))
-
-    def close(self) -> None:
-        self.queue.put(_END)
-        self.thread.join()
-        if self.failure:
-            raise self.failure[0]
-
-
 def restore_input(
     input_path: Path,
     out_dir: Path,
@@ -290,9 +213,9 @@ def restore_input(
     report = RestoreReport(
         str(input_path), kind, str(sink.output), backend.description, list(cameras)
     )
-    writer = _Writer(sink, report, size=4 * options.batch_size)
+    writer = Writer(sink, report, size=4 * options.batch_size)
     try:
-        _run(_threaded(items, 4 * options.batch_size), backend, options, judge, writer, total)
+        _run(threaded(items, 4 * options.batch_size), backend, options, judge, writer, total)
     finally:
         writer.close()
     report.problems.extend({"frame": "", "reason": reason} for reason in source_problems)
@@ -306,7 +229,7 @@ def _run(
     backend: Backend,
     options: RestoreOptions,
     judge: FrameJudge | None,
-    writer: _Writer,
+    writer: Writer,
     total: int | None,
 ) -> None:
     """Batch frames and run the network; hands everything to ``writer`` in order."""
