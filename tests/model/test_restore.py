@@ -17,7 +17,7 @@ from lenspair.model.inference.backends import TorchBackend, open_backend
 from lenspair.model.inference.judge import ThresholdJudge
 from lenspair.model.inference.pipeline import REPORT_NAME, RestoreOptions, restore_input
 from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
-from tests.capture.ingest_helpers import make_recording
+from tests.capture.ingest_helpers import make_recording, simulate
 from tests.images import texture
 from tests.model.restore_helpers import bag_from_recording
 from tests.model.train_fixtures import make_checkpoint, tiny_config
@@ -89,10 +89,9 @@ def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thre
 
 
 def test_recording_restores_the_obstructed_camera(tmp_path: Path, backend: TorchBackend) -> None:
-    recording = make_recording(tmp_path / "rec", frames=3, obstructed="cam1")
-    (recording / "mav0" / "cam1" / "sensor.yaml").write_text("sensor_type: camera\n")
+    recording = simulate("rain", tmp_path / "rec", frames=2)  # rig.yaml: cam1 obstructed
     report = restore_input(recording, tmp_path / "out", backend)
-    assert report.cameras == ["cam1"] and report.restored == 3
+    assert report.cameras == ["cam1"] and report.restored == 2
     before, after = _files(recording), _files(tmp_path / "out")
     assert before.keys() == after.keys()
     for name, data in before.items():
