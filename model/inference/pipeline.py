@@ -11,8 +11,9 @@ Rules a robotics user can rely on:
 * **Batches are aligned to frame index** (frames ``k*B .. k*B+B-1`` of the
   same size form a batch), so a frame is always computed in the same batch,
   and ``--resume`` (which skips batches whose outputs all exist and recomputes
-  the others) writes the same bytes as an uninterrupted run. Bags are written
-  in one pass and restart from the beginning on ``--resume``.
+  the others) writes the same bytes as an uninterrupted run. A bag is
+  written in one pass, so ``--resume`` writes it again, taking the frames an
+  earlier run restored from a cache (:class:`~lenspair.model.inference.sinks.BagSink`).
 * **Channels**: a mono network on RGB images (or the reverse) is refused with
   a one-line error on the first frame: no silent conversion. A later frame
   whose channels differ is a failed frame.
@@ -201,7 +202,7 @@ def restore_input(
     sink: FileSink | BagSink
     total: int | None = None
     if bag:
-        sink = BagSink(input_path, out_dir, options.suffix)
+        sink = BagSink(input_path, out_dir, options.suffix, options.resume)
         items: Iterator[Any] = iter_bag_messages(input_path, cameras, source_problems)
     else:
         sink = FileSink(out_dir)
@@ -218,6 +219,7 @@ def restore_input(
         _run(threaded(items, 4 * options.batch_size), backend, options, judge, writer, total)
     finally:
         writer.close()
+    sink.finish()
     report.problems.extend({"frame": "", "reason": reason} for reason in source_problems)
     report.seconds = time.perf_counter() - started
     atomic_write_json(out_dir / REPORT_NAME, report.as_dict())
@@ -240,7 +242,8 @@ def _run(
 
     def flush() -> None:
         outputs: list[np.ndarray | None] = [None] * len(batch)
-        if batch and not all(writer.sink.done(frame) for frame in batch):
+        done = [writer.sink.done(frame) for frame in batch]
+        if batch and not all(done):  # the whole batch: same batches as an uninterrupted run
             images = [frame.image for frame in batch if frame.image is not None]
             restored = run_backend(backend, to_batch(images), options.tile, options.overlap)
             first = images[0]
@@ -248,8 +251,11 @@ def _run(
         for item, frame, slot in pending:
             if slot is None:
                 writer.put(item, frame, None)
-            elif outputs[slot] is None or writer.sink.done(batch[slot]):
+            elif done[slot]:  # written by an earlier run; a bag takes it from the cache
                 report.resumed += 1
+                cached = writer.sink.cached(batch[slot])
+                if cached is not None:
+                    writer.put(item, frame, cached)
             else:
                 report.restored += 1
                 writer.put(item, frame, outputs[slot])

@@ -9,7 +9,8 @@ failed, a bag message that is not an image of a chosen camera).
   other file (``data.csv``, ``sensor.yaml``, other cameras, ``rig.yaml``,
   IMU, ...) is copied first, so OUT is the same recording with the chosen
   cameras restored. ``done`` tells ``--resume`` which frames are written.
-* :class:`BagSink`: a copy of the bag (:mod:`lenspair.capture.bagwrite`).
+* :class:`BagSink`: a copy of the bag (:mod:`lenspair.capture.bagwrite`),
+  with a cache of restored frames so ``--resume`` need not run them again.
 """
 
 import shutil
@@ -22,6 +23,9 @@ from lenspair.capture.bagwrite import BagCopy, output_bag_path
 from lenspair.capture.frames import BagMessage, InputFrame
 from lenspair.core.fsutil import atomic_write
 from lenspair.core.imageio import write_image
+
+CACHE_DIR = ".restore-cache"
+"""Under OUT: restored bag frames kept until the bag is complete (see :class:`BagSink`)."""
 
 
 def copy_file(source: Path, destination: Path) -> None:
@@ -72,30 +76,46 @@ class FileSink:
             destination.parent.mkdir(parents=True, exist_ok=True)
             write_image(destination, restored)
 
+    def cached(self, frame: InputFrame) -> np.ndarray | None:
+        """Files need no cache: a finished frame is its output file."""
+        return None
+
     def close(self) -> None:
-        """Nothing to finish for files."""
+        """Nothing to close for files."""
+        return
+
+    def finish(self) -> None:
+        """Nothing to clean up after a complete run."""
         return
 
 
 class BagSink:
     """Writes a copy of a bag; restored images replace (or sit beside) the originals.
 
-    A bag is written in one pass: ``--resume`` cannot append to one, so a
-    bag left unfinished by a killed run is removed and written again from the
-    start (it comes out byte-identical, see the restore docstring).
+    A bag cannot be appended to, so it is written in one pass. To let
+    ``--resume`` continue a killed run without running the network again,
+    each restored frame is also kept in ``OUT/.restore-cache/<bag>/<index>.npy``
+    (written atomically after its message); a resumed run takes cached frames
+    from there, writes the whole bag again (byte-identical: the same pixels,
+    messages and order) and removes the cache when the bag is complete.
 
     Args:
         source: the input bag.
         out_dir: the output folder; the bag keeps its name inside it.
         suffix: see :class:`~lenspair.capture.bagwrite.BagCopy`.
+        resume: keep the cache of an earlier run (else it is cleared).
     """
 
-    def __init__(self, source: Path, out_dir: Path, suffix: str = "") -> None:
+    def __init__(self, source: Path, out_dir: Path, suffix: str = "", resume: bool = False) -> None:
         self.path = output_bag_path(source, out_dir)
+        self.cache = Path(out_dir) / CACHE_DIR / self.path.name
         if self.path.is_dir():
             shutil.rmtree(self.path)
         elif self.path.exists():
             self.path.unlink()
+        if not resume and self.cache.exists():
+            shutil.rmtree(self.cache)
+        self.cache.mkdir(parents=True, exist_ok=True)
         self.copy = BagCopy(source, self.path, suffix)
         self.opened = False
 
@@ -104,14 +124,28 @@ class BagSink:
         """The bag written."""
         return self.path
 
+    def _cached_path(self, frame: InputFrame) -> Path:
+        return self.cache / f"{frame.index}.npy"
+
     def done(self, frame: InputFrame) -> bool:
-        """Bags restart from the start: nothing is done before."""
-        return False
+        """True when an earlier run restored ``frame`` (it is in the cache)."""
+        return self._cached_path(frame).is_file()
+
+    def cached(self, frame: InputFrame) -> np.ndarray | None:
+        """The restored pixels an earlier run kept for ``frame``."""
+        return np.asarray(np.load(self._cached_path(frame), allow_pickle=False))
 
     def write(self, item: BagMessage, restored: np.ndarray | None) -> None:
-        """Copy the message, with ``restored`` pixels when given."""
+        """Copy the message, with ``restored`` pixels when given (then cache them)."""
         self._open()
         self.copy.write(item, restored)
+        if restored is not None and item.frame is not None and not self.done(item.frame):
+
+            def _save(tmp: Path) -> None:
+                with tmp.open("wb") as handle:
+                    np.save(handle, restored, allow_pickle=False)
+
+            atomic_write(self._cached_path(item.frame), _save, suffix=".npy")
 
     def _open(self) -> None:
         # SQLite handles belong to the thread that made them: open in the writer thread.
@@ -120,6 +154,12 @@ class BagSink:
             self.opened = True
 
     def close(self) -> None:
-        """Finish the bag (index, metadata); call from the thread that wrote."""
+        """Close the bag (index, metadata); call from the thread that wrote."""
         self._open()
         self.copy.__exit__(None, None, None)
+
+    def finish(self) -> None:
+        """After a complete run: drop the resume cache."""
+        shutil.rmtree(self.cache)
+        if not any(self.cache.parent.iterdir()):
+            self.cache.parent.rmdir()

@@ -216,13 +216,20 @@ def test_resume_writes_the_same_bytes(tmp_path: Path, backend: TorchBackend, kin
     assert _files(tmp_path / "resumed") == _files(tmp_path / "whole")
 
 
-def test_bag_resume_rewrites_the_same_bytes(tmp_path: Path, backend: TorchBackend) -> None:
-    bag = bag_from_recording(tmp_path, "ros1")
-    first = restore_input(bag, tmp_path / "out", backend)
-    data = Path(first.output).read_bytes()
-    Path(first.output).write_bytes(data[: len(data) // 2])  # a killed run's half bag
-    again = restore_input(bag, tmp_path / "out", backend, RestoreOptions(resume=True))
-    assert Path(again.output).read_bytes() == data
+@pytest.mark.parametrize("kind", ["ros1", "db3"])
+def test_bag_resume_reuses_frames_and_writes_the_same_bytes(
+    tmp_path: Path, backend: TorchBackend, kind: str
+) -> None:
+    bag = bag_from_recording(tmp_path, kind, frames=5)
+    options = RestoreOptions(batch_size=2)
+    whole = restore_input(bag, tmp_path / "whole", backend, options)
+    with pytest.raises(_KilledError):
+        restore_input(bag, tmp_path / "out", _DiesAfter(backend, 1), options)  # type: ignore[arg-type]
+    resume = RestoreOptions(batch_size=2, resume=True)
+    again = restore_input(bag, tmp_path / "out", backend, resume)
+    assert (again.resumed, again.restored) == (2, 3)
+    assert _files(tmp_path / "out") == _files(tmp_path / "whole")  # the cache is gone too
+    assert Path(again.output).name == Path(whole.output).name
 
 
 def test_only_obstructed_copies_clean_frames(tmp_path: Path, backend: TorchBackend) -> None:
