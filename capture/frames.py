@@ -195,15 +195,24 @@ def iter_frames(
 
 def frame_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> list[Path]:
     """The image files :func:`iter_frames` reads for a file-based input, in order."""
+    return [file for file, _, _ in _file_entries(path, kind, cameras)]
+
+
+def _file_entries(
+    path: Path, kind: InputKind, cameras: Sequence[CameraName]
+) -> list[tuple[Path, CameraName | None, int | None]]:
+    """``(file, camera, t_ns)`` per frame; recordings take both from ``data.csv``."""
     path = Path(path)
     if kind == "image":
-        return [path]
+        return [(path, None, None)]
     if kind == "folder":
-        return image_files(path)
+        return [(file, None, None) for file in image_files(path)]
     from lenspair.capture.recording import open_recording
 
     recording = open_recording(path)
-    return [ref.source for camera in cameras for ref in recording.frames[camera]]
+    return [
+        (ref.source, camera, ref.t_ns) for camera in cameras for ref in recording.frames[camera]
+    ]
 
 
 def _iter_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> Iterator[InputFrame]:
@@ -211,20 +220,13 @@ def _iter_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> I
 
     path = Path(path)
     base = path.parent if kind == "image" else path
-    for index, file in enumerate(frame_files(path, kind, cameras)):
+    for index, (file, camera, t_ns) in enumerate(_file_entries(path, kind, cameras)):
         name = file.relative_to(base).as_posix()
-        camera = _camera_of(name) if kind == "euroc" else None
-        t_ns = int(file.stem) if kind == "euroc" and file.stem.isdigit() else None
         try:
             image, error = read_image(file), None
         except LenspairError as exc:
             image, error = None, str(exc)
         yield InputFrame(index, name, camera, t_ns, str(file), image, error)
-
-
-def _camera_of(name: str) -> CameraName | None:
-    parts = name.split("/")
-    return next((c for c in CAMERAS if c in parts), None)
 
 
 def iter_bag_messages(

@@ -19,7 +19,7 @@ from lenspair.model.inference.pipeline import REPORT_NAME, RestoreOptions, resto
 from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
 from tests.capture.ingest_helpers import make_recording, simulate
 from tests.images import texture
-from tests.model.restore_helpers import bag_from_recording
+from tests.model.restore_helpers import bag_from_recording, write_bag
 from tests.model.train_fixtures import make_checkpoint, tiny_config
 
 CPU = torch.device("cpu")
@@ -277,6 +277,17 @@ def test_frames_of_every_input_kind(tmp_path: Path) -> None:
     ):
         assert frame.image is not None
         np.testing.assert_array_equal(frame.image, read_image(file))
+
+
+def test_single_topic_bag_restores_that_topic(tmp_path: Path, backend: TorchBackend) -> None:
+    """A mono-camera bag: its one image topic is restored whatever rig.yaml says."""
+    image = (texture((32, 48), seed=3) * 255).astype(np.uint8)
+    bag = write_bag(tmp_path / "front", "mcap", {"front": [(10**18, image), (10**18 + 50, image)]})
+    report = restore_input(bag, tmp_path / "out", backend, RestoreOptions(camera="cam1"))
+    assert report.cameras == ["cam0"] and report.restored == 2
+    (frame, _) = list(iter_frames(Path(report.output)))
+    assert frame.image is not None
+    np.testing.assert_array_equal(frame.image, expected(backend, image))
 
 
 def test_demo_restores_a_recording_and_shows_before_after(tmp_path: Path, checkpoint: Path) -> None:
