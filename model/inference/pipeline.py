@@ -24,6 +24,7 @@ Rules a robotics user can rely on:
 * ``judge`` (``--only-obstructed``): frames judged clean are copied unchanged.
 """
 
+import os
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
@@ -208,8 +209,6 @@ def restore_input(
         sink = FileSink(out_dir)
         files = frame_files(input_path, kind, cameras)
         total = len(files)
-        if kind == "euroc":
-            sink.copy_others(input_path, files)
         items = iter_frames(input_path, cameras)
     report = RestoreReport(
         str(input_path), kind, str(sink.output), backend.description, list(cameras)
@@ -219,6 +218,9 @@ def restore_input(
         _run(threaded(items, 4 * options.batch_size), backend, options, judge, writer, total)
     finally:
         writer.close()
+    if kind == "euroc":  # after the frames: a run refused at its first frame writes nothing
+        assert isinstance(sink, FileSink)
+        sink.copy_others(input_path, files)
     sink.finish()
     report.problems.extend({"frame": "", "reason": reason} for reason in source_problems)
     report.seconds = time.perf_counter() - started
@@ -309,6 +311,4 @@ def _channels(image: np.ndarray) -> int:
 
 
 def _quiet() -> bool:
-    import os
-
     return os.environ.get("LENSPAIR_QUIET", "") == "1"

@@ -115,7 +115,6 @@ class BagSink:
             self.path.unlink()
         if not resume and self.cache.exists():
             shutil.rmtree(self.cache)
-        self.cache.mkdir(parents=True, exist_ok=True)
         self.copy = BagCopy(source, self.path, suffix)
         self.opened = False
 
@@ -148,18 +147,21 @@ class BagSink:
             atomic_write(self._cached_path(item.frame), _save, suffix=".npy")
 
     def _open(self) -> None:
-        # SQLite handles belong to the thread that made them: open in the writer thread.
+        # SQLite handles belong to the thread that made them: open in the writer
+        # thread, on the first message (a run refused at its first frame leaves OUT empty).
         if not self.opened:
+            self.cache.mkdir(parents=True, exist_ok=True)
             self.copy.__enter__()
             self.opened = True
 
     def close(self) -> None:
         """Close the bag (index, metadata); call from the thread that wrote."""
-        self._open()
-        self.copy.__exit__(None, None, None)
+        if self.opened:
+            self.copy.__exit__(None, None, None)
 
     def finish(self) -> None:
         """After a complete run: drop the resume cache."""
-        shutil.rmtree(self.cache)
-        if not any(self.cache.parent.iterdir()):
+        if self.cache.exists():
+            shutil.rmtree(self.cache)
+        if self.cache.parent.is_dir() and not any(self.cache.parent.iterdir()):
             self.cache.parent.rmdir()

@@ -63,9 +63,9 @@ def write_bag(
     return bag
 
 
-def bag_from_recording(tmp_path: Path, kind: str, frames: int = 3) -> Path:
+def bag_from_recording(tmp_path: Path, kind: str, frames: int = 3, colour: bool = False) -> Path:
     """A stereo bag from a simulated-style EuRoC recording, rig.yaml beside it (cam1)."""
-    euroc = make_recording(tmp_path / "euroc", frames=frames)
+    euroc = make_recording(tmp_path / "euroc", frames=frames, colour=colour)
     images = {
         camera: [(int(p.stem), read_image(p)) for p in frame_files(euroc, camera)]
         for camera in ("cam0", "cam1")
@@ -73,4 +73,4 @@ def bag_from_recording(tmp_path: Path, kind: str, frames: int = 3) -> Path:
     folder = tmp_path / "bags"
     folder.mkdir()
     write_rig_file(folder / "rig.yaml", RigFile(obstructed="cam1", anomaly=("rain",)))
-    return write_bag(folder / "run", kind, images)
+    return write_bag(folder / "run", kind, images, "rgb8" if colour else "mono8")

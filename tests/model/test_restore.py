@@ -86,6 +86,11 @@ def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thre
     mono = open_backend(make_checkpoint(tmp_path / "mono.pt"), CPU)
     with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
         restore_input(tmp_path / "in", tmp_path / "out2", mono)
+    assert not any((tmp_path / "out2").iterdir())  # refused before writing anything
+    rgb_bag = bag_from_recording(tmp_path / "b", "db3", frames=2, colour=True)
+    with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
+        restore_input(rgb_bag, tmp_path / "out3", mono)
+    assert not any((tmp_path / "out3").iterdir())
 
 
 def test_recording_restores_the_obstructed_camera(tmp_path: Path, backend: TorchBackend) -> None:
