@@ -23,13 +23,16 @@ writes the same bytes as an uninterrupted one.
 import argparse
 from pathlib import Path
 
+from lenspair.model.inference.options import (
+    CAMERA_CHOICES,
+    DEFAULT_BATCH_SIZE,
+    DEFAULT_OVERLAP,
+    PRECISIONS,
+)
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``restore``."""
-    from lenspair.model.inference.backends import PRECISIONS
-    from lenspair.model.inference.pipeline import CAMERA_CHOICES
-    from lenspair.model.inference.tiling import DEFAULT_OVERLAP
-
     parser.add_argument("model", type=Path, help="checkpoint (.pt) or ONNX model (.onnx)")
     parser.add_argument("input", type=Path, help="image, folder, EuRoC/ASL recording or bag")
     parser.add_argument("--out", type=Path, required=True, help="output folder (empty or new)")
@@ -46,10 +49,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="bags: write restored images to <topic><suffix> (e.g. /restored) beside the "
         "originals instead of replacing them",
     )
-    parser.add_argument("--batch-size", type=int, default=4, help="frames per network call (4)")
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        default=DEFAULT_BATCH_SIZE,
+        help=f"frames per network call ({DEFAULT_BATCH_SIZE})",
+    )
     parser.add_argument("--tile", type=int, help="tile side in pixels for large images (off)")
     parser.add_argument(
-        "--overlap", type=int, default=DEFAULT_OVERLAP, help="tile overlap in pixels (32)"
+        "--overlap",
+        type=int,
+        default=DEFAULT_OVERLAP,
+        help=f"tile overlap in pixels ({DEFAULT_OVERLAP})",
     )
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     parser.add_argument(
@@ -68,6 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Restore; prints the summary line; returns the exit code."""
+    # Imported here, not at module level: they load torch, which --help must not.
     from lenspair.core.device import resolve_device
     from lenspair.model.inference.backends import open_backend
     from lenspair.model.inference.judge import default_judge

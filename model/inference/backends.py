@@ -20,8 +20,7 @@ import numpy as np
 import torch
 
 from lenspair.model.errors import ModelError
-
-PRECISIONS = ("auto", "fp32", "bf16")
+from lenspair.model.inference.options import PRECISIONS
 
 
 class Backend(Protocol):

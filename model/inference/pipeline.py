@@ -49,12 +49,12 @@ from lenspair.core.fsutil import atomic_write_json
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.judge import FrameJudge
+from lenspair.model.inference.options import CAMERA_CHOICES, DEFAULT_BATCH_SIZE, DEFAULT_OVERLAP
 from lenspair.model.inference.sinks import BagSink, FileSink
 from lenspair.model.inference.threads import Writer, threaded
-from lenspair.model.inference.tiling import DEFAULT_OVERLAP, from_batch, run_backend, to_batch
+from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
 
 REPORT_NAME = "restore_report.json"
-CAMERA_CHOICES = ("auto", "cam0", "cam1", "both")
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,7 @@ class RestoreOptions:
     """
 
     camera: str = "auto"
-    batch_size: int = 4
+    batch_size: int = DEFAULT_BATCH_SIZE
     tile: int | None = None
     overlap: int = DEFAULT_OVERLAP
     suffix: str = ""

@@ -22,8 +22,8 @@ import numpy as np
 from lenspair.core.imageio import max_value
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
+from lenspair.model.inference.options import DEFAULT_OVERLAP
 
-DEFAULT_OVERLAP = 32
 ALIGN = 32
 """Tile steps are multiples of this when possible: the enhancer pools 4..32 px cells."""
 
