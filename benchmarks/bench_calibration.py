@@ -1,19 +1,24 @@
-"""Stereo calibration time for 30 board views: detection and calibration, separately.
+"""Stereo calibration time for 30 board views: detection, calibration, and the whole workflow.
 
 ``python -m benchmarks.bench_calibration [--out DIR] [--views N] [--repeats K]``
 
-Views are rendered once (not timed) with :class:`rectify.boards.BoardRenderer`
+Views are rendered once (not timed) with :class:`tests.rectify.board_renderer.BoardRenderer`
 for an Alphasense-like rig (720x540, f ~ 350 px, B = 0.11 m). Timed, as the
 median of ``--repeats`` runs: corner detection in all 2N images, then
-:func:`rectify.calibration.calibrate_from_detections` (both single-camera
+:func:`lenspair.rectify.calibration.calibrate_from_detections` (both single-camera
 calibrations, stereo calibration, outlier rounds, rectification and row
-disagreement). Accuracy columns come from the last run, against the truth.
+disagreement). Then the whole ``lenspair calibrate`` workflow,
+:func:`lenspair.rectify.recording_calibration.calibrate_recording`, on the same
+views written as a left/right folder recording (PNG reads, pairing, detection
+and calibration); its ratio to detection + calibration is the cost of reading
+a recording. Accuracy columns come from the last run, against the truth.
 """
 
 import argparse
 import json
 import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -21,10 +26,13 @@ from typing import Any
 import cv2
 import numpy as np
 
-from lenspair.rectify.boards import Board, BoardRenderer, parse_board_spec
+from lenspair.core.imageio import write_image
+from lenspair.rectify.boards import Board, parse_board_spec
 from lenspair.rectify.calibration import CalibrationModel, calibrate_from_detections, detect_views
+from lenspair.rectify.recording_calibration import calibrate_recording
 from lenspair.rectify.rectification import project_rays
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
+from tests.rectify.board_renderer import BoardRenderer
 
 CASES: tuple[tuple[str, CalibrationModel], ...] = (
     ("chessboard:9x6:0.06", "pinhole-equi"),
@@ -82,17 +90,26 @@ def run_case(spec: str, model: CalibrationModel, count: int, repeats: int) -> di
     board = parse_board_spec(spec)
     truth = make_rig("equidistant" if model == "pinhole-equi" else "radtan")
     views = render_views(board, truth, count)
-    wall: dict[str, list[float]] = {"detect": [], "calibrate": []}
-    cpu: dict[str, list[float]] = {"detect": [], "calibrate": []}
-    for _ in range(repeats):
-        for stage in ("detect", "calibrate"):
-            start, start_cpu = time.perf_counter(), time.process_time()
-            if stage == "detect":
-                detections = detect_views(views, board)
-            else:
-                result = calibrate_from_detections(detections, board, model, ((720, 540),) * 2)
-            wall[stage].append(time.perf_counter() - start)
-            cpu[stage].append(time.process_time() - start_cpu)
+    stages = ("detect", "calibrate", "recording")
+    wall: dict[str, list[float]] = {stage: [] for stage in stages}
+    cpu: dict[str, list[float]] = {stage: [] for stage in stages}
+    with tempfile.TemporaryDirectory() as folder:
+        recording = Path(folder)
+        for index, (image0, image1) in enumerate(views):  # 20 Hz, not timed
+            t_ns = 1_700_000_000_000_000_000 + index * 50_000_000
+            write_image(recording / "left" / f"{t_ns}.png", image0)
+            write_image(recording / "right" / f"{t_ns}.png", image1)
+        for _ in range(repeats):
+            for stage in stages:
+                start, start_cpu = time.perf_counter(), time.process_time()
+                if stage == "detect":
+                    detections = detect_views(views, board)
+                elif stage == "calibrate":
+                    result = calibrate_from_detections(detections, board, model, ((720, 540),) * 2)
+                else:
+                    calibrate_recording(recording, board, model, max_views=0)
+                wall[stage].append(time.perf_counter() - start)
+                cpu[stage].append(time.process_time() - start_cpu)
     focal = max(
         abs(found.camera.intrinsics[i] / true.intrinsics[i] - 1)
         for found, true in zip(result.cameras, (truth.cam0, truth.cam1), strict=True)
@@ -107,6 +124,8 @@ def run_case(spec: str, model: CalibrationModel, count: int, repeats: int) -> di
         "detect_cpu_ms": 1e3 * statistics.median(cpu["detect"]),
         "calibrate_ms": 1e3 * statistics.median(wall["calibrate"]),
         "calibrate_cpu_ms": 1e3 * statistics.median(cpu["calibrate"]),
+        "recording_ms": 1e3 * statistics.median(wall["recording"]),
+        "recording_cpu_ms": 1e3 * statistics.median(cpu["recording"]),
         "stereo_rms_px": result.stereo_rms_px,
         "row_disagreement_px": result.row_disagreement_px,
         "focal_error_pct": 100 * focal,
@@ -129,13 +148,16 @@ def main(argv: list[str] | None = None) -> int:
         f"Stereo calibration of {args.views} views (720x540), median of {args.repeats} runs, "
         f"OpenCV {cv2.__version__}; wall ms (process CPU ms).\n"
     )
-    print("| board | model | found in both | detection ms | calibration ms | stereo RMS px "
+    print("| board | model | found in both | detection ms | calibration ms | workflow ms "
+          "| workflow / (detection + calibration) | stereo RMS px "
           "| rows px | focal err % | baseline err % |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
+        ratio = r["recording_ms"] / (r["detect_ms"] + r["calibrate_ms"])
         print(f"| {r['board']} | {r['model']} | {r['both_detected']}/{r['views']} | "
               f"{r['detect_ms']:.0f} ({r['detect_cpu_ms']:.0f}) | "
               f"{r['calibrate_ms']:.0f} ({r['calibrate_cpu_ms']:.0f}) | "
+              f"{r['recording_ms']:.0f} ({r['recording_cpu_ms']:.0f}) | {ratio:.2f} | "
               f"{r['stereo_rms_px']:.3f} | {r['row_disagreement_px']:.3f} | "
               f"{r['focal_error_pct']:.3f} | {r['baseline_error_pct']:.3f} |")  # fmt: skip
     if args.out is not None:

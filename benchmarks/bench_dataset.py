@@ -5,7 +5,7 @@
 Writes synthetic ingested recordings (540x360 RGB, both ground-truth sides)
 into a temporary folder, then times, in the same run:
 
-* ``build``: :func:`dataset.build.build_dataset` end to end (read, hash,
+* ``build``: :func:`lenspair.dataset.build.build_dataset` end to end (read, hash,
   decode, measure, curate, split, link, manifest, card, contact sheets);
 * ``io floor``: reading and hashing every image and hard-linking it into a
   fresh folder, which any build must do;

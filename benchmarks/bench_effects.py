@@ -2,9 +2,9 @@
 
     .venv/bin/python -m benchmarks.bench_effects [--out DIR] [--runs 30]
 
-Times :func:`simulate.render.render_effects` (sample the glass + render it,
+Times :func:`lenspair.simulate.render.render_effects` (sample the glass + render it,
 what training does on arbitrary clean images) and
-:func:`simulate.render.apply_glass` alone (what a recording pays per frame,
+:func:`lenspair.simulate.render.apply_glass` alone (what a recording pays per frame,
 the glass being sampled once) on a textured 720x540 scene, mono 8-bit and
 RGB 8-bit, for each effect alone, the paper's rain (50 drops + defocus +
 brightness), everything at once, and no effect at all. The floor is

@@ -8,7 +8,7 @@ times, in interleaved rounds:
 
 * ``io floor``: per pair, what any ingest must do: decode both raw frames,
   one composed ``cv2.remap`` per view, encode both outputs as PNG;
-* ``ingest w1``: the per-frame stage of :func:`capture.ingest.ingest_recording`
+* ``ingest w1``: the per-frame stage of :func:`lenspair.capture.ingest.ingest_recording`
   with one process (remap, verify, refine, write, hash, journal), into a
   fresh folder that holds only the cached homography;
 * ``ingest w2``: the same with two worker processes (pool start included).

@@ -25,7 +25,7 @@ def find_calibration(
         recording: the recording (its folder is searched).
         rig_file: the recording's ``rig.yaml`` contents.
         calibration: files given with ``--calib`` (any format of
-            :func:`rectify.calib_io.load_calibration`).
+            :func:`lenspair.rectify.calib_io.load_calibration`).
 
     Returns:
         ``(rig, description of the source)``.

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.folders import image_files, list_image_folder
-from lenspair.capture.recording import (
+from lenspair.capture.recording_types import (
     CAMERAS,
     FrameProblem,
     FrameRef,

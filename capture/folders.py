@@ -17,7 +17,7 @@ import re
 from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.recording import (
+from lenspair.capture.recording_types import (
     CAMERAS,
     FrameProblem,
     FrameRef,

@@ -1,26 +1,26 @@
 """Ingesting a recording: registered (obstructed, clean) pairs, cropped, verified, on disk.
 
 :func:`ingest_recording` is the library entry point of ``lenspair capture-ingest``.
-It writes the ingested-recording layout of :mod:`capture.ingested` under
+It writes the ingested-recording layout of :mod:`lenspair.capture.ingested` under
 ``OUT/<recording_id>/``:
 
-1. list both cameras (:mod:`capture.recording`), pair them by timestamp
-   (:mod:`capture.pairing`): every frame ends up paired or unpaired;
-2. load the calibration (:mod:`capture.calibration_source`: ``--calib``, else
+1. list both cameras (:mod:`lenspair.capture.recording`), pair them by timestamp
+   (:mod:`lenspair.capture.pairing`): every frame ends up paired or unpaired;
+2. load the calibration (:mod:`lenspair.capture.calibration_source`: ``--calib``, else
    ``rig.yaml``'s ``calibration``, else ``camchain.yaml`` beside the
    recording) and rectify (once);
 3. estimate the clean -> obstructed homography from features pooled over up
-   to 30 frames (:func:`rectify.registration.estimate_homography`), cached in
+   to 30 frames (:func:`lenspair.rectify.registration.estimate_homography`), cached in
    ``registration.json`` with a fingerprint of what it was computed from;
-4. choose the crop (:func:`rectify.crop.choose_crop`) and compose one map per
-   view (:mod:`rectify.remap`);
+4. choose the crop (:func:`lenspair.rectify.crop.choose_crop`) and compose one map per
+   view (:mod:`lenspair.rectify.remap`);
 5. check the declared obstructed side against the images
-   (:func:`capture.side_check.check_obstructed_side`);
-6. per frame (:mod:`capture.ingest_frames`, in a process pool with ``workers > 1``):
+   (:func:`lenspair.capture.side_check.check_obstructed_side`);
+6. per frame (:mod:`lenspair.capture.ingest_frames`, in a process pool with ``workers > 1``):
    remap, verify, refine, write ``input/``, ``target/``, ``mask/``;
-7. write ``pairs.jsonl``, ``report.json`` (:mod:`capture.ingest_report`) and ``qa.png``.
+7. write ``pairs.jsonl``, ``report.json`` (:mod:`lenspair.capture.ingest_report`) and ``qa.png``.
 
-Resuming (:mod:`capture.journal`): each finished frame is appended to
+Resuming (:mod:`lenspair.capture.journal`): each finished frame is appended to
 ``.journal.jsonl`` with a key that hashes everything its outputs depend on;
 a rerun skips frames whose key matches and whose files still have the
 recorded checksums, so an interrupted run (even ``kill -9``) finishes the
@@ -74,7 +74,8 @@ from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.core.progress import progress
-from lenspair.rectify.crop import CropError, choose_crop
+from lenspair.rectify.crop import choose_crop
+from lenspair.rectify.errors import CropError
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.registration import EstimationParams, VerifyParams, estimate_homography
 from lenspair.rectify.remap import target_map, valid_region
@@ -260,7 +261,7 @@ def ingest_recording(
         size: crop ``(width, height)``, pixels.
         workers: processes for the per-frame work (1: in this process).
         estimation: homography estimation thresholds.
-        verify: per-frame verification thresholds (see :mod:`rectify.registration`).
+        verify: per-frame verification thresholds (see :mod:`lenspair.rectify.registration`).
 
     Returns:
         The report also written to ``report.json``.

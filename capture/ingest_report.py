@@ -1,7 +1,7 @@
 """The figures of an ingest's ``report.json``: counts, rejection reasons, output homography.
 
-Helpers of :func:`capture.ingest.ingest_recording` that summarise a finished
-run for :class:`capture.ingested.IngestReport`, and write the report so that
+Helpers of :func:`lenspair.capture.ingest.ingest_recording` that summarise a finished
+run for :class:`lenspair.capture.ingested.IngestReport`, and write the report so that
 a rerun which changed nothing but the timings leaves the file untouched.
 """
 

@@ -34,7 +34,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.recording import (
+from lenspair.capture.recording_types import (
     FrameProblem,
     FrameRef,
     Layout,

@@ -144,7 +144,7 @@ def measure_record(source: Source, position: int, index: int, anomaly_delta: flo
         source: the recording.
         position: its index in the list of sources.
         index: line index in ``pairs.jsonl``.
-        anomaly_delta: see :class:`dataset.config.CurationConfig`.
+        anomaly_delta: see :class:`lenspair.dataset.config.CurationConfig`.
     """
     record = source.records[index]
     files = _source_files(source.path, record)

@@ -96,7 +96,7 @@ class SourceInfo:
 
 @dataclass(frozen=True)
 class Grouping:
-    """How pairs were grouped for splitting (see :mod:`dataset.splits`).
+    """How pairs were grouped for splitting (see :mod:`lenspair.dataset.splits`).
 
     Attributes:
         mode: ``recording`` or ``segment``.

@@ -1,7 +1,7 @@
 """Curation rules: image figures of one pair, the filters, near-duplicates, difficulty.
 
 Pure functions on arrays (images per :mod:`lenspair.core.imageio`: ``uint8``/``uint16``,
-``(H, W)`` or ``(H, W, 3)`` RGB) and :class:`capture.ingested.PairRecord`.
+``(H, W)`` or ``(H, W, 3)`` RGB) and :class:`lenspair.capture.ingested.PairRecord`.
 
 Rules run in the order of :data:`RULES`; a pair is removed by the first rule
 it fails, so the removed counts of the rules add up to the pairs removed.

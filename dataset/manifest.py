@@ -89,7 +89,7 @@ class RemovedPair:
     Attributes:
         recording: recording id.
         t_ns: obstructed frame timestamp (ns).
-        rule: the curation rule (see :data:`dataset.curation.RULES`).
+        rule: the curation rule (see :data:`lenspair.dataset.curation.RULES`).
         reason: the details (figure and threshold, or the file and its problem).
     """
 

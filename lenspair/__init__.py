@@ -1,9 +1,12 @@
 """lenspair: paired camera-anomaly datasets and fast anomaly mitigation.
 
-The stage packages live beside this one at the repository root
-(``capture``, ``rectify``, ``dataset``, ``model``, ``simulate``); this package
-holds what they share: errors, the typed config loader, image I/O, atomic
-file writes, progress bars and the command-line interface.
+One import name for the whole toolkit. The stages are sub-packages
+(``lenspair.capture``, ``lenspair.rectify``, ``lenspair.dataset``,
+``lenspair.model``, ``lenspair.simulate``; in the repository they are the
+top-level folders of the same names); :mod:`lenspair.core` holds the helpers
+they share (errors, typed config loader, image I/O, atomic writes, progress
+bars, reports) and imports no stage; :mod:`lenspair.cli`,
+:mod:`lenspair.commands` and :mod:`lenspair.demo` are the face.
 """
 
 from importlib.metadata import PackageNotFoundError, version

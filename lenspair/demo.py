@@ -31,9 +31,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from lenspair.core.errors import LenspairError
+from lenspair.cli import main as cli_main
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text, sha256_file
 from lenspair.core.samples import sample_path
+from lenspair.demo_report import write_report
+from lenspair.errors import DemoError
+from lenspair.rectify.calibration import MODELS
+from lenspair.simulate.spec import load_scene
 
 log = logging.getLogger(__name__)
 
@@ -45,10 +49,6 @@ pairs) and dust on cam0, the sides swapped."""
 
 RESTORED_RECORDING = "heavy_rain"
 """The raw recording the last stage restores (its obstructed camera, from ``rig.yaml``)."""
-
-
-class DemoError(LenspairError):
-    """A stage of the demo failed (the message names the stage)."""
 
 
 @dataclass(frozen=True)
@@ -84,6 +84,19 @@ class Stage:
     argv: tuple[str, ...]
     output: Path
     resumable: bool = False
+
+
+def board_arguments(scene: str = "chessboard.yaml") -> tuple[str, str, str, str]:
+    """``--board`` and ``--model`` of ``lenspair calibrate`` for a sample board scene.
+
+    Read from the scene spec through the shared board model, so that the
+    demo calibrates with the board the simulator drew.
+    """
+    spec = load_scene(sample_path(scene))
+    if spec.board is None:
+        raise DemoError(f"{scene}: the sample scene has no board")
+    model = next(name for name, lens in MODELS.items() if lens == spec.rig.cam0.distortion_model)
+    return "--board", spec.board.target.spec(), "--model", model
 
 
 def plan(out: Path, budget: Budget) -> list[Stage]:
@@ -123,16 +136,7 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
         ),
         Stage(
             "calibrate",
-            (
-                "calibrate",
-                str(rec / "board"),
-                "--board",
-                "chessboard:9x6:0.06",
-                "--model",
-                "pinhole-equi",
-                "--out",
-                str(calib),
-            ),
+            ("calibrate", str(rec / "board"), *board_arguments(), "--out", str(calib)),
             calib.parent,
         ),
     ]
@@ -301,9 +305,6 @@ def run_stages(
 
 def run_demo(out: Path, budget: Budget = Budget()) -> Path:
     """Run every stage under ``out`` and write the report; returns ``report.md``'s path."""
-    from lenspair.cli import main as cli_main
-    from lenspair.demo_report import write_report
-
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     # Three short recordings make too few whole-recording groups for three

@@ -26,6 +26,7 @@ from lenspair.core.config import to_plain
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.errors import ModelError
+from lenspair.model.networks.variants import build_model
 from lenspair.model.training.config import ModelConfig, RunConfig, run_config_from_dict
 
 CHECKPOINT_FORMAT = "lenspair-checkpoint"
@@ -106,8 +107,6 @@ def build_network(config: ModelConfig) -> nn.Module:
         ModelError: ``channels`` is not resolved yet.
 
     """
-    from lenspair.model.networks.variants import build_model
-
     if config.channels is None:
         raise ModelError("model.channels is unresolved; cannot build the network")
     return build_model(config.variant, config.channels, config.width, config.num_blocks)

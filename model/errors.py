@@ -5,3 +5,7 @@ from lenspair.core.errors import LenspairError
 
 class ModelError(LenspairError):
     """A problem in the model stage (the message names the file or key)."""
+
+
+class TrainingDivergedError(ModelError):
+    """Too many consecutive non-finite training steps."""

@@ -1,4 +1,9 @@
-"""Calibration boards: the ``--board`` spec, board geometry, corner detection, synthetic views.
+"""Calibration boards: the ``--board`` spec, the board model, the printed board, corner detection.
+
+The one board model of lenspair: :class:`Board` is what ``lenspair calibrate``
+detects and what the simulator prints and poses (a scene spec's ``board:``
+section, :class:`lenspair.simulate.boardspec.BoardSpec`, builds one through
+:attr:`~lenspair.simulate.boardspec.BoardSpec.target`).
 
 Board specs (``lenspair calibrate --board``)::
 
@@ -17,7 +22,11 @@ Board specs (``lenspair calibrate --board``)::
 
 Corner ids are row-major: id ``j * columns + i`` is inner corner ``(i, j)`` at
 board coordinates ``(i, j) * square`` (chessboard) or ``(i + 1, j + 1) * square``
-(ChArUco, whose origin is the outer corner), ``z = 0``. Pixel coordinates
+(ChArUco, whose origin is the outer corner), ``z = 0``; with
+``grid_origin=True`` both kinds put the origin at the outer top-left corner of
+the square grid (the frame the simulator poses boards in). The printed board
+(:meth:`Board.printed_image`) has a white border one square wide, the quiet
+zone detectors need, and a black top-left square. Pixel coordinates
 follow OpenCV: the centre of the top-left pixel is ``(0, 0)``.
 """
 
@@ -28,8 +37,6 @@ import cv2
 import numpy as np
 
 from lenspair.rectify.errors import RectifyError
-from lenspair.rectify.rectification import pixel_rays
-from lenspair.rectify.rig import CameraModel
 
 BoardKind = Literal["chessboard", "charuco"]
 DEFAULT_DICTIONARY = "DICT_5X5_100"
@@ -105,11 +112,31 @@ class Board:
         columns, rows = self.grid
         return columns * rows
 
-    def object_points(self) -> np.ndarray:
-        """Board coordinates of every inner corner, metres, ``(N, 3)`` float64, row-major ids."""
+    @property
+    def squares(self) -> tuple[int, int]:
+        """Squares ``(across, down)`` of the printed grid (without the white border)."""
+        if self.kind == "chessboard":
+            return self.columns + 1, self.rows + 1
+        return self.columns, self.rows
+
+    @property
+    def grid_size_m(self) -> tuple[float, float]:
+        """``(width, height)`` of the square grid, metres (without the white border)."""
+        across, down = self.squares
+        return across * self.square_m, down * self.square_m
+
+    def object_points(self, grid_origin: bool = False) -> np.ndarray:
+        """Board coordinates of every inner corner, metres, ``(N, 3)`` float64, row-major ids.
+
+        Args:
+            grid_origin: False: OpenCV's origin for the kind (a chessboard's
+                first inner corner, a ChArUco board's outer corner); True: the
+                outer top-left corner of the square grid for both kinds.
+
+        """
         columns, rows = self.grid
         i, j = np.meshgrid(np.arange(columns), np.arange(rows))
-        offset = 0.0 if self.kind == "chessboard" else 1.0
+        offset = 0.0 if self.kind == "chessboard" and not grid_origin else 1.0
         xy = np.stack([i.ravel() + offset, j.ravel() + offset], axis=1) * self.square_m
         return np.column_stack([xy, np.zeros(len(xy))]).astype(np.float64)
 
@@ -131,6 +158,28 @@ class Board:
             return [ids.ravel()]
         turns = (0, 1, 2, 3) if columns == rows else (0, 2)
         return [np.rot90(ids, k).ravel().copy() for k in turns]
+
+    def printed_image(self, pixels_per_square: int) -> np.ndarray:
+        """The printed board with a white border one square wide.
+
+        Pixel ``(r, c)`` covers grid-origin board coordinates
+        ``[c - p, c - p + 1] * square_m / p`` along x (likewise y), with
+        ``p = pixels_per_square``.
+
+        Returns:
+            ``uint8`` ``((down + 2) p, (across + 2) p)`` image, 0 black, 255 white.
+
+        """
+        p = pixels_per_square
+        across, down = self.squares
+        if self.kind == "charuco":
+            size = ((across + 2) * p, (down + 2) * p)
+            image = self.charuco().generateImage(size, marginSize=p, borderBits=1)
+            return np.ascontiguousarray(image, dtype=np.uint8)
+        rows, cols = np.mgrid[0:down, 0:across]
+        cells = np.where((rows + cols) % 2 == 0, 0, 255).astype(np.uint8)
+        grid = np.repeat(np.repeat(cells, p, axis=0), p, axis=1)
+        return np.ascontiguousarray(np.pad(grid, p, constant_values=255))
 
     def spec(self) -> str:
         """The ``--board`` spec string of this board."""
@@ -284,87 +333,3 @@ def detect_corners(image: np.ndarray, board: Board) -> Detection | None:
     order = np.argsort(ids)
     refined = _refine(gray, np.asarray(corners, dtype=np.float32).reshape(-1, 2), board)
     return Detection(ids[order], refined[order])
-
-
-def board_texture(board: Board, pixels_per_square: int = 40) -> tuple[np.ndarray, np.ndarray]:
-    """A printable image of the board, with a one-square white margin.
-
-    Returns:
-        ``(texture, board_to_texture)``: ``uint8`` ``(H, W)`` image and the 3x3
-        float64 affine matrix taking board coordinates in metres (``x, y, 1``)
-        to texture pixel coordinates.
-
-    """
-    s = pixels_per_square
-    if board.kind == "chessboard":
-        squares = (board.columns + 1, board.rows + 1)
-        origin = 2.0 * s  # the first inner corner: margin + one square
-        j, i = np.mgrid[0 : squares[1] * s, 0 : squares[0] * s] // s
-        cells = np.where((i + j) % 2 == 0, 0, 255).astype(np.uint8)
-        texture = cv2.copyMakeBorder(cells, s, s, s, s, cv2.BORDER_CONSTANT, value=255)
-    else:
-        squares = (board.columns, board.rows)
-        origin = float(s)
-        size = ((squares[0] + 2) * s, (squares[1] + 2) * s)
-        texture = board.charuco().generateImage(size, marginSize=s)
-    scale = s / board.square_m
-    board_to_texture = np.array([[scale, 0, origin - 0.5], [0, scale, origin - 0.5], [0, 0, 1.0]])
-    return np.asarray(texture, dtype=np.uint8), board_to_texture
-
-
-class BoardRenderer:
-    """Synthetic images of a board seen by a distorted camera (tests, benchmarks).
-
-    Every output pixel is the area average of ``supersample**2`` samples of the
-    board texture, each found by back-projecting the sample through the lens
-    (:func:`rectify.rectification.pixel_rays`) and intersecting it with the
-    board plane, so corners land where the camera model puts them.
-    """
-
-    def __init__(
-        self, board: Board, camera: CameraModel, supersample: int = 2, pixels_per_square: int = 48
-    ) -> None:
-        """Prepare the texture and the per-sample rays of ``camera`` (done once).
-
-        Args:
-            board: the board to draw.
-            camera: the camera that sees it.
-            supersample: samples per output pixel along each axis.
-            pixels_per_square: texture resolution.
-
-        """
-        self.camera = camera
-        self.supersample = supersample
-        self.texture, self.board_to_texture = board_texture(board, pixels_per_square)
-        width, height = camera.resolution
-        s = supersample
-        ys, xs = np.mgrid[0 : height * s, 0 : width * s].astype(np.float64)
-        samples = np.stack([(xs + 0.5) / s - 0.5, (ys + 0.5) / s - 0.5], axis=-1)
-        self.rays = pixel_rays(camera, samples).astype(np.float32)
-
-    def render(self, rvec: np.ndarray, tvec: np.ndarray, background: int = 110) -> np.ndarray:
-        """Render the board at pose ``(rvec, tvec)`` (board -> camera, metres).
-
-        Returns:
-            ``uint8`` ``(H, W)`` image; ``background`` where the board is not seen.
-
-        """
-        rotation = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3))[0]
-        t = np.asarray(tvec, dtype=np.float64).reshape(3)
-        normal = rotation[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            depth = float(normal @ t) / (self.rays @ normal.astype(np.float32))
-            points = self.rays * depth[..., None] - t.astype(np.float32)
-            board_xy = points @ rotation[:, :2].astype(np.float32)  # R^T (p - t), first two axes
-        affine = self.board_to_texture.astype(np.float32)
-        map_x = board_xy[..., 0] * affine[0, 0] + affine[0, 2]
-        map_y = board_xy[..., 1] * affine[1, 1] + affine[1, 2]
-        behind = ~((depth > 0) & np.isfinite(map_x) & np.isfinite(map_y))
-        map_x[behind] = -1e4
-        map_y[behind] = -1e4
-        fine = cv2.remap(
-            self.texture, map_x, map_y, cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_CONSTANT, borderValue=background,
-        )  # fmt: skip
-        width, height = self.camera.resolution
-        return np.asarray(cv2.resize(fine, (width, height), interpolation=cv2.INTER_AREA))

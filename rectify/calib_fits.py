@@ -1,4 +1,4 @@
-"""The OpenCV calls behind :mod:`rectify.calibration`, where OpenCV 4/5 differences live.
+"""The OpenCV calls behind :mod:`lenspair.rectify.calibration`, where OpenCV 4/5 differences live.
 
 * ``cv2.fisheye`` flags are ``cv2.fisheye.CALIB_*`` in OpenCV 4 and the shared
   ``cv2.CALIB_*`` (other values) in OpenCV 5: :func:`fisheye_flag`.

@@ -4,7 +4,7 @@ The format is recognised from the files' contents; the paths' order matters
 only where it says which camera is which (first = cam0, second = cam1).
 
 **Kalibr camchain** (one YAML file with ``cam0`` and ``cam1``): read by
-:func:`rectify.rig.read_kalibr`.
+:func:`lenspair.rectify.rig.read_kalibr`.
 
 **OpenCV FileStorage** (YAML with ``!!opencv-matrix`` nodes or a ``%YAML:1.0``
 header, or XML; one to

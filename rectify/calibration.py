@@ -128,7 +128,7 @@ class CalibrationResult:
     """Everything :func:`calibrate_stereo` found out.
 
     Attributes:
-        rig: the calibrated rig (write it with :func:`rectify.rig.write_kalibr`).
+        rig: the calibrated rig (write it with :func:`lenspair.rectify.rig.write_kalibr`).
         board: the board used.
         model: ``pinhole-radtan`` or ``pinhole-equi``.
         cameras: the single-camera calibrations of cam0 and cam1.

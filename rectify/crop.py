@@ -22,11 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lenspair.rectify.errors import RectifyError
-
-
-class CropError(RectifyError):
-    """The valid region of the registered views is smaller than the requested crop."""
+from lenspair.rectify.errors import CropError
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Stereo rectification that composes: rectified pixel coordinates <-> raw pixel coordinates.
 
 A :class:`StereoRectification` is computed once per recording from a
-:class:`~rectify.rig.StereoRig`. It never resamples an image by itself unless
+:class:`~lenspair.rectify.rig.StereoRig`. It never resamples an image by itself unless
 asked (:meth:`StereoRectification.rectify`): later stages compose the
 rectification with a homography and a crop by mapping *their* output pixel
 grid to rectified coordinates and then calling

@@ -11,7 +11,7 @@ result is a pure function of the inputs.
 
 **Gain compensation and anomaly regions**, on grey ``float32 [0, 1]`` views
 of one size, serve both the estimation above and the per-frame checks of
-:mod:`rectify.verification` (whose thresholds, :class:`VerifyParams`, are
+:mod:`lenspair.rectify.verification` (whose thresholds, :class:`VerifyParams`, are
 defined here for that reason):
 
 - :func:`compensate_gain`: the target is fitted to the input by a local
@@ -38,11 +38,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from lenspair.rectify.errors import RectifyError
-
-
-class RegistrationError(RectifyError):
-    """No trustworthy homography between the two views could be estimated."""
+from lenspair.rectify.errors import RegistrationError
 
 
 @dataclass(frozen=True)
@@ -59,7 +55,7 @@ class EstimationParams:
 
 @dataclass(frozen=True)
 class VerifyParams:
-    """Thresholds of the per-frame verification; see :mod:`rectify.verification` for the rule."""
+    """Thresholds of the per-frame verification (the rule: :mod:`lenspair.rectify.verification`)."""
 
     gain_window_px: int = 63
     anomaly_blur_px: float = 3.0

@@ -13,7 +13,7 @@ convention: pixel ``(0, 0)`` is centred at ``(0.0, 0.0)``).
 
 The target map is built with a margin of spare pixels around the crop so
 that a small per-frame translation (the refinement of
-:mod:`rectify.registration`) is applied by resampling the *map*, which is
+:mod:`lenspair.rectify.registration`) is applied by resampling the *map*, which is
 smooth, never the image: the image is still interpolated once.
 """
 

@@ -2,12 +2,12 @@
 
 **Per frame** (:func:`measure_shift` then :func:`verify_pair`), on the
 cropped, registered pair, in grey ``float32 [0, 1]``, with the thresholds of
-:class:`rectify.registration.VerifyParams`:
+:class:`lenspair.rectify.registration.VerifyParams`:
 
-1. *Gain compensation* (:func:`rectify.registration.compensate_gain`): the
+1. *Gain compensation* (:func:`lenspair.rectify.registration.compensate_gain`): the
    target is fitted to the input by a local linear model ``a * target + b``
    (box windows of ``gain_window_px``).
-2. *Anomaly regions* (:func:`rectify.registration.anomaly_regions`): where
+2. *Anomaly regions* (:func:`lenspair.rectify.registration.anomaly_regions`): where
    the blurred (sigma ``anomaly_blur_px``) compensated residual exceeds
    ``max(anomaly_threshold, 4 * median)``, dilated by ``anomaly_dilate_px``.
 3. *Global shift*: corners outside anomaly regions are tracked into the

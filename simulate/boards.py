@@ -1,4 +1,7 @@
-"""Calibration boards: textures, corner coordinates and poses seen by both cameras.
+"""Calibration boards in a scene: textures, corner coordinates and poses seen by both cameras.
+
+The board model (geometry, printed image) is shared with ``lenspair calibrate``:
+:class:`lenspair.rectify.boards.Board`, reached through ``BoardSpec.target``.
 
 Board frame (metres): origin at the outer top-left corner of the square
 grid, x along the rows of squares (``cols`` direction), y down the columns,
@@ -16,7 +19,6 @@ Both are printed with a white border one square wide (the quiet zone that
 detectors need). Reflectances in linear light: black 0.03, white 0.80.
 """
 
-import cv2
 import numpy as np
 
 from lenspair.rectify.rig import CameraModel
@@ -39,57 +41,15 @@ _MAX_VIEW_ANGLE_DEG = 65.0
 _SPIN_DEG = 15.0
 
 
-def grid_squares(board: BoardSpec) -> tuple[int, int]:
-    """Number of squares ``(across, down)`` of the board."""
-    if board.kind == "chessboard":
-        return board.cols + 1, board.rows + 1
-    return board.cols, board.rows
-
-
-def grid_size_m(board: BoardSpec) -> tuple[float, float]:
-    """``(width, height)`` of the square grid, metres (without the white border)."""
-    across, down = grid_squares(board)
-    return across * board.square_m, down * board.square_m
-
-
-def charuco_board(board: BoardSpec) -> cv2.aruco.CharucoBoard:
-    """The ``cv2.aruco.CharucoBoard`` of a ChArUco ``BoardSpec``."""
-    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, board.dictionary))
-    return cv2.aruco.CharucoBoard(
-        (board.cols, board.rows), board.square_m, board.marker_size_m, dictionary
-    )
-
-
 def object_points(board: BoardSpec) -> np.ndarray:
     """Inner corners in the board frame, ``(N, 3)`` float64, row-major (ids 0..N-1)."""
-    if board.kind == "charuco":
-        return np.asarray(charuco_board(board).getChessboardCorners(), dtype=np.float64)
-    rows, cols = np.mgrid[1 : board.rows + 1, 1 : board.cols + 1]
-    points = np.stack([cols.ravel(), rows.ravel(), np.zeros(cols.size)], axis=1)
-    return np.asarray(points * board.square_m, dtype=np.float64)
-
-
-def board_image(board: BoardSpec) -> np.ndarray:
-    """The printed board, ``uint8`` ``(h, w)``, 255 white, one-square white border.
-
-    Pixel ``(r, c)`` covers board-frame x in ``[(c - p), (c - p + 1)] * s / p``
-    with ``p = pixels_per_square``, ``s = square_m`` (the border is one square).
-    """
-    p = board.pixels_per_square
-    across, down = grid_squares(board)
-    if board.kind == "charuco":
-        size = ((across + 2) * p, (down + 2) * p)
-        image = charuco_board(board).generateImage(size, marginSize=p, borderBits=1)
-        return np.ascontiguousarray(image, dtype=np.uint8)
-    rows, cols = np.mgrid[0:down, 0:across]
-    squares = np.where((rows + cols) % 2 == 0, 0, 255).astype(np.uint8)
-    grid = np.repeat(np.repeat(squares, p, axis=0), p, axis=1)
-    return np.ascontiguousarray(np.pad(grid, p, constant_values=255))
+    return board.target.object_points(grid_origin=True)
 
 
 def board_texture(board: BoardSpec, channels: int) -> Texture:
     """Linear-light mip pyramid of the printed board (not tiled)."""
-    reflectance = BLACK + (WHITE - BLACK) * (board_image(board).astype(np.float32) / 255.0)
+    printed = board.target.printed_image(board.pixels_per_square)
+    reflectance = BLACK + (WHITE - BLACK) * (printed.astype(np.float32) / 255.0)
     if channels == 3:
         reflectance = np.repeat(reflectance[:, :, None], 3, axis=2)
     return build_texture(reflectance.astype(np.float32), tiled=False)
@@ -97,7 +57,7 @@ def board_texture(board: BoardSpec, channels: int) -> Texture:
 
 def board_outline(board: BoardSpec, per_edge: int = 8) -> np.ndarray:
     """Points along the outer edge of the printed board (border included), ``(M, 3)``."""
-    width, height = grid_size_m(board)
+    width, height = board.target.grid_size_m
     border = board.square_m
     x0, y0, x1, y1 = -border, -border, width + border, height + border
     steps = np.linspace(0.0, 1.0, per_edge, endpoint=False)
@@ -113,7 +73,7 @@ def board_outline(board: BoardSpec, per_edge: int = 8) -> np.ndarray:
 
 def board_plane(board: BoardSpec, texture: Texture, T_world_board: np.ndarray) -> Plane:
     """The printed board as a finite :class:`Plane` at pose ``T_world_board``."""
-    width, height = grid_size_m(board)
+    width, height = board.target.grid_size_m
     texel = board.square_m / board.pixels_per_square
     texture_width, texture_height = texture.size
     centre = transform_points(T_world_board, np.array([[width / 2, height / 2, 0.0]]))[0]
@@ -185,7 +145,7 @@ def sample_board_poses(
     columns, rows = board.grid
     width, height = cameras[0].resolution
     outline = board_outline(board)
-    grid_width, grid_height = grid_size_m(board)
+    grid_width, grid_height = board.target.grid_size_m
     local_centre = np.array([grid_width / 2, grid_height / 2, 0.0])
     cam0_from_body = invert_transform(T_body_cams[0])
     poses: list[np.ndarray] = []

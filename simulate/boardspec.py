@@ -1,10 +1,16 @@
 """The ``board:`` section of a scene spec: a calibration board and how it is posed.
 
-Kept apart from :mod:`simulate.spec` (which uses it) to keep modules small.
+Kept apart from :mod:`lenspair.simulate.spec` (which uses it) to keep modules
+small. The board itself (geometry, printed image) is lenspair's one board
+model, :class:`lenspair.rectify.boards.Board`, built by :attr:`BoardSpec.target`;
+this section adds how the simulator poses and prints it.
 """
 
 from dataclasses import dataclass
 from typing import Literal
+
+from lenspair.rectify.boards import Board
+from lenspair.rectify.errors import RectifyError
 
 DICTIONARIES = (
     "DICT_4X4_50",
@@ -79,8 +85,19 @@ class BoardSpec:
             raise ValueError(f"pixels_per_square: expected 8..512, got {self.pixels_per_square}")
         if min(self.grid) < 1:
             raise ValueError(f"grid: expected positive sizes, got {self.grid}")
+        try:
+            self.target  # noqa: B018 (validated as the calibration tool will read it)
+        except RectifyError as exc:
+            raise ValueError(str(exc)) from None
 
     @property
     def marker_size_m(self) -> float:
         """ChArUco marker side, metres."""
         return self.marker_m if self.marker_m is not None else 0.75 * self.square_m
+
+    @property
+    def target(self) -> Board:
+        """The board as ``lenspair calibrate`` sees it (the shared board model)."""
+        marker = self.marker_size_m if self.kind == "charuco" else None
+        dictionary = self.dictionary if self.kind == "charuco" else None
+        return Board(self.kind, self.cols, self.rows, self.square_m, marker, dictionary)

@@ -1,6 +1,6 @@
 """Projection and unprojection for pinhole cameras with radtan or equidistant distortion.
 
-Conventions (those of OpenCV and Kalibr, see :mod:`rectify.rig`): points in
+Conventions (those of OpenCV and Kalibr, see :mod:`lenspair.rectify.rig`): points in
 the camera frame are metres, x right, y down, z forward; pixel centres are at
 integer coordinates, so pixel ``(0, 0)`` covers ``[-0.5, 0.5]^2``.
 

@@ -2,7 +2,7 @@
 
 Poses are ``T_world_body`` (4x4, metres): the body frame is cam0's frame and
 the world frame is the body frame at the first frame, before the start
-offset ``start_m`` (see :class:`simulate.spec.MotionSpec` for the formula).
+offset ``start_m`` (see :class:`lenspair.simulate.spec.MotionSpec` for the formula).
 """
 
 from dataclasses import dataclass

@@ -290,7 +290,7 @@ def _frame_record(
 
 
 def _geometry(setup: _Setup, frames: list[dict[str, Any]]) -> dict[str, Any]:
-    """The whole ``geometry.json`` document (schema in :mod:`simulate.truth`)."""
+    """The whole ``geometry.json`` document (schema in :mod:`lenspair.simulate.truth`)."""
     spec = setup.spec
     cameras = setup.cameras
     far_index = spec.far_plane_index

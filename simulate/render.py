@@ -31,7 +31,7 @@ an unlisted effect's code is never reached (neither sampled nor applied).
 
 Randomness: :func:`sample_glass` splits ``rng`` into one stream per effect,
 so the same seed gives the same drops whether or not defocus, dust or dirt
-are listed (:data:`~simulate.effects.spec.SHARP_DROPS` and a defocused
+are listed (:data:`~lenspair.simulate.effects.spec.SHARP_DROPS` and a defocused
 variant show the same drops); :func:`apply_glass` draws nothing.
 """
 

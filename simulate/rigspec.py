@@ -1,6 +1,6 @@
 """The ``rig:`` section of a scene spec: two cameras and how cam1 is mounted.
 
-Kept apart from :mod:`simulate.spec` (which uses it) to keep modules small.
+Kept apart from :mod:`lenspair.simulate.spec` (which uses it) to keep modules small.
 Conventions as there: metres, degrees, x right, y down, z forward.
 """
 

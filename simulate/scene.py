@@ -1,7 +1,7 @@
 """Ray-cast rendering of textured planes, in linear light.
 
 Each output pixel is covered by ``s x s`` samples whose rays come from a
-:class:`~simulate.camera.RayMap` (computed once per camera). A ray is
+:class:`~lenspair.simulate.camera.RayMap` (computed once per camera). A ray is
 intersected with every plane in the world frame; the nearest positive hit
 inside the plane's extent wins, and its texture is sampled trilinearly from
 the texture's mip pyramid at a level matched to the sample's footprint on
@@ -11,7 +11,7 @@ a constant background.
 
 Output images are ``float32`` linear light in ``[0, 1]`` (before gain),
 ``(H, W)`` for mono or ``(H, W, 3)`` for RGB; encoding and quantisation
-happen once, later (:mod:`simulate.recording`).
+happen once, later (:mod:`lenspair.simulate.recording`).
 """
 
 from collections.abc import Sequence

@@ -64,7 +64,7 @@ class PlaneSpec:
     repeats the texture every ``tile_m`` metres (default ``depth_m`` square).
 
     Attributes:
-        texture: a scikit-image sample name (see ``simulate.textures.NAMES``)
+        texture: a scikit-image sample name (see ``lenspair.simulate.textures.NAMES``)
             or an image path (relative to the spec file); a list makes a
             near-square mosaic of several images (richer for matching).
         depth_m: distance of the plane centre along world z, metres.

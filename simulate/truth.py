@@ -12,7 +12,7 @@ where ``(R_oc, t_oc)`` takes clean-camera coordinates to obstructed-camera
 coordinates (at the two cameras' actual timestamps of that frame) and the
 far plane is ``n_c . X = d_c`` in the clean camera's frame. To compare with
 raw images, undistort both with their own models first (e.g.
-``simulate.camera.undistort_maps``). The top-level ``homography`` is frame 0;
+``lenspair.simulate.camera.undistort_maps``). The top-level ``homography`` is frame 0;
 ``frames[k].homography`` is frame ``k``. When the rig translates parallel to
 the far plane (``motion.velocity_mps[2] == 0``, as in the samples), the
 plane's distance from the body origin (cam0) is the same in every frame and

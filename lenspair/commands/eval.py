@@ -55,13 +55,13 @@ def default_out(checkpoint: Path, split: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate (or describe) a checkpoint; returns the exit code."""
+    # Imported here, not at the top: keeps torch out of `lenspair eval --help`.
     from lenspair.model.checkpoint import load_model
     from lenspair.model.evaluation.evaluate import evaluate_checkpoint
     from lenspair.model.evaluation.report import markdown_report, write_report
+    from lenspair.model.networks.complexity import describe
 
     if args.describe:
-        from lenspair.model.networks.complexity import describe
-
         loaded = load_model(args.checkpoint, "cpu")
         channels = loaded.config.model.channels or 1
         summary = describe(loaded.network, (channels, 360, 540))

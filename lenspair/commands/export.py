@@ -29,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Export and check; returns the exit code."""
+    # Imported here, not at the top: keeps torch out of `lenspair export --help`.
     from lenspair.model.evaluation.export import export_checkpoint, parse_size
 
     if args.onnx is None and args.torchscript is None:

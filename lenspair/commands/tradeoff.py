@@ -47,6 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the comparison; returns the exit code."""
+    # Imported here, not at the top: keeps torch out of `lenspair tradeoff --help`.
     from lenspair.model.evaluation.tradeoff import DEFAULT_VARIANTS, parse_budget, run_tradeoff
     from lenspair.model.evaluation.tradeoff_report import tradeoff_markdown
     from lenspair.model.training.config import load_run_config

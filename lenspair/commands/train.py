@@ -87,6 +87,7 @@ def _overrides(config: Any, args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Train one run; returns the exit code."""
+    # Imported here, not at the top: keeps torch out of `lenspair train --help`.
     from lenspair.model.training.config import load_run_config
     from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
     from lenspair.model.training.loop import fit, resolve_config, resume_config

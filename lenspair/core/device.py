@@ -1,20 +1,25 @@
 """Resolve ``--device auto|cpu|cuda`` once, in the CLI, and pass it down."""
 
-from typing import Literal
-
-import torch
+from typing import TYPE_CHECKING, Literal
 
 from lenspair.core.errors import LenspairError
+
+if TYPE_CHECKING:
+    import torch
 
 DeviceChoice = Literal["auto", "cpu", "cuda"]
 
 
-def resolve_device(choice: str) -> torch.device:
+def resolve_device(choice: str) -> "torch.device":
     """Map a ``--device`` choice to a ``torch.device``.
 
     ``auto`` picks CUDA when available and the CPU otherwise; ``cuda`` on a
     machine without one raises a clear error instead of crashing later.
     """
+    # Imported here, not at the top: every command imports this module, and
+    # `lenspair COMMAND --help` should not pay for importing torch.
+    import torch
+
     if choice == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if choice == "cpu":

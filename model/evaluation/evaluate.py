@@ -36,10 +36,11 @@ from lenspair.core.config import to_plain
 from lenspair.core.imageio import max_value
 from lenspair.core.progress import progress
 from lenspair.model import metrics
+from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
-from lenspair.model.evaluation.latency import Latency, autocast_context
+from lenspair.model.evaluation.latency import Latency, autocast_context, measure_latency
 from lenspair.model.metrics import PSNR_CAP_DB, image_metrics, parse_metric_convention
-from lenspair.model.training.pairs import PairSource, to_tensor
+from lenspair.model.training.pairs import PairSource, open_eval_pairs, to_tensor
 
 CONVENTIONS = tuple(c.value for c in metrics.MetricConvention)
 DIFFICULTY_ORDER = ("easy", "medium", "hard", "clean")
@@ -199,7 +200,7 @@ def score_pairs(
 
     Args:
         network: forward(x) -> (generator_out, enhanced_out); eval mode is set.
-        pairs: pairs from ``dataset.readers`` (any image size, odd ones too).
+        pairs: pairs from ``lenspair.dataset.readers`` (any image size, odd ones too).
         channels: the network's channels.
         device: where to run it.
         convention: ``skimage-gaussian`` or ``deraindrop-y``.
@@ -287,10 +288,6 @@ def evaluate_checkpoint(
         ModelError: unreadable checkpoint, unknown convention; DatasetError.
 
     """
-    from lenspair.model.checkpoint import load_model
-    from lenspair.model.evaluation.latency import measure_latency
-    from lenspair.model.training.pairs import open_eval_pairs
-
     parse_metric_convention(convention)
     loaded = load_model(checkpoint, device)
     channels = loaded.config.model.channels or 1

@@ -30,6 +30,7 @@ import torch
 from torch import Tensor, nn
 
 from lenspair.core.fsutil import atomic_write
+from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import percentile
 
@@ -190,6 +191,7 @@ def export_onnx(
     if importlib.util.find_spec("onnxruntime") is None:
         note = "onnxruntime is missing (a lenspair dependency): written, not checked"
         return ExportCheck("onnx", str(path), size_text, exporter, None, note=note)
+    # here, not at the top: a missing or broken onnxruntime degrades to a note
     import onnxruntime as ort
 
     options = ort.SessionOptions()
@@ -282,8 +284,6 @@ def export_checkpoint(
         ModelError: unreadable checkpoint, nothing to export, or a failed export.
 
     """
-    from lenspair.model.checkpoint import load_model
-
     if onnx_path is None and torchscript_path is None:
         raise ModelError("nothing to export: give --onnx and/or --torchscript")
     loaded = load_model(checkpoint, "cpu")

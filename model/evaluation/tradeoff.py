@@ -18,7 +18,6 @@ Layout of ``OUT``::
 """
 
 import logging
-import math
 import re
 import shutil
 from collections.abc import Sequence
@@ -31,8 +30,19 @@ import torch
 from lenspair.core.config import dump_yaml, to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_text
+from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_model
 from lenspair.model.errors import ModelError
+from lenspair.model.evaluation.evaluate import Summary, score_pairs, summarize
+from lenspair.model.evaluation.latency import measure_latency
+from lenspair.model.evaluation.tradeoff_report import write_tradeoff
+from lenspair.model.evaluation.tradeoff_rows import TradeoffRow as TradeoffRow
+from lenspair.model.evaluation.tradeoff_rows import mark_pareto as mark_pareto
+from lenspair.model.evaluation.tradeoff_rows import pareto_front as pareto_front
+from lenspair.model.networks.complexity import describe
 from lenspair.model.training.config import RunConfig, Variant
+from lenspair.model.training.datasets import paired_training_data
+from lenspair.model.training.loop import fit, resolve_config
+from lenspair.model.training.pairs import open_eval_pairs
 
 log = logging.getLogger(__name__)
 
@@ -91,69 +101,11 @@ def parse_budget(text: str) -> Budget:
 
 
 @dataclass(frozen=True)
-class TradeoffRow:
-    """One line of the table: a checkpoint at one precision."""
-
-    name: str
-    variant: str
-    width: float
-    num_blocks: int
-    precision: str
-    params: int
-    gflops: float
-    cpu_ms: float | None
-    gpu_ms: float | None
-    psnr_db: float
-    ssim: float
-    convention: str
-    steps: int
-    pareto_psnr: bool = False
-    pareto_ssim: bool = False
-
-
-@dataclass(frozen=True)
 class TradeoffResult:
     """The table rows (Pareto flags set) and the conditions they were measured under."""
 
     rows: list[TradeoffRow]
     meta: dict[str, Any]
-
-
-def pareto_front(times: Sequence[float | None], scores: Sequence[float]) -> list[int]:
-    """Indices of the points no other point dominates (faster-or-equal and better-or-equal).
-
-    A point with an unknown (``None``) or NaN time or a NaN score is never on
-    the front. Points that tie exactly are all on it. Returned in index order.
-    """
-    valid = [
-        i
-        for i, (t, s) in enumerate(zip(times, scores, strict=True))
-        if t is not None and not math.isnan(t) and not math.isnan(s)
-    ]
-    front = []
-    for i in valid:
-        ti, si = times[i], scores[i]
-        assert ti is not None
-        dominated = False
-        for j in valid:
-            tj, sj = times[j], scores[j]
-            assert tj is not None
-            if tj <= ti and sj >= si and (tj < ti or sj > si):
-                dominated = True
-                break
-        if not dominated:
-            front.append(i)
-    return front
-
-
-def mark_pareto(rows: Sequence[TradeoffRow]) -> list[TradeoffRow]:
-    """Set ``pareto_psnr``/``pareto_ssim`` against CPU time."""
-    times = [r.cpu_ms for r in rows]
-    on_psnr = set(pareto_front(times, [r.psnr_db for r in rows]))
-    on_ssim = set(pareto_front(times, [r.ssim for r in rows]))
-    return [
-        replace(r, pareto_psnr=i in on_psnr, pareto_ssim=i in on_ssim) for i, r in enumerate(rows)
-    ]
 
 
 def variant_config(base: RunConfig, variant: TradeoffVariant, budget: Budget) -> RunConfig:
@@ -211,16 +163,6 @@ def run_tradeoff(
         The rows (Pareto flags set) and the measurement conditions.
 
     """
-    from lenspair.model.checkpoint import load_model
-    from lenspair.model.evaluation.evaluate import Summary, score_pairs, summarize
-    from lenspair.model.evaluation.latency import measure_latency
-
-    # here, not at the top: model.evaluation.tradeoff_report imports TradeoffRow from this module
-    from lenspair.model.evaluation.tradeoff_report import write_tradeoff
-    from lenspair.model.training.datasets import paired_training_data
-    from lenspair.model.training.loop import fit, resolve_config
-    from lenspair.model.training.pairs import open_eval_pairs
-
     out_dir = Path(out_dir)
     data = paired_training_data(dataset, base.data, base.model.channels, base.train.seed)
     try:
@@ -312,8 +254,6 @@ def run_tradeoff(
 
 def _reusable(run: Path, config: RunConfig) -> bool:
     """Whether ``run`` holds a run of the same network to resume; else clear it."""
-    from lenspair.model.checkpoint import checkpoint_config, load_checkpoint
-
     last = run / "checkpoints" / "last.pt"
     if not last.is_file():
         return False
@@ -326,7 +266,5 @@ def _reusable(run: Path, config: RunConfig) -> bool:
 
 def complexity(network: torch.nn.Module, channels: int, size: tuple[int, int]) -> tuple[int, float]:
     """Parameter count and GFLOPs of one forward pass at ``size`` = (H, W)."""
-    from lenspair.model.networks.complexity import describe
-
     summary = describe(network, (channels, size[0], size[1]))
     return summary.parameters, summary.gflops

@@ -27,8 +27,11 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
 from lenspair.core.fsutil import atomic_write, atomic_write_text
-from lenspair.model.evaluation.tradeoff import TradeoffRow
+from lenspair.model.evaluation.tradeoff_rows import TradeoffRow
 
 
 def _fmt(value: float | None, digits: int) -> str:
@@ -96,9 +99,6 @@ def write_tradeoff(rows: Sequence[TradeoffRow], out_dir: Path, meta: dict[str, A
 
 def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any]) -> None:
     """PSNR and SSIM against CPU time, one panel each, Pareto fronts drawn and ringed."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     figure = Figure(figsize=(11, 4.5), dpi=110)
     FigureCanvasAgg(figure)
     panels = ((figure.add_subplot(1, 2, 1), "psnr_db", "PSNR (dB)", "pareto_psnr"),

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lenspair.core.imageio import read_image
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.readers import detect_layout, open_paired
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.pairs import PairedCrops, PairItem, PairSource, channels_of
@@ -119,7 +121,7 @@ def paired_training_data(
     channels: int | None,
     seed: int,
 ) -> TrainData:
-    """Training pairs from any layout ``dataset.readers`` reads.
+    """Training pairs from any layout ``lenspair.dataset.readers`` reads.
 
     A dataset with splits trains on ``data.train_split`` and validates on
     ``data.val_split``; a split-less paired folder (or a dataset without the
@@ -136,9 +138,6 @@ def paired_training_data(
         DatasetError: unreadable dataset; ModelError: too few pairs.
 
     """
-    from lenspair.dataset.errors import DatasetError
-    from lenspair.dataset.readers import detect_layout, open_paired
-
     path = Path(path)
     note = ""
     train_source: PairSource

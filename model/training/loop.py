@@ -95,7 +95,7 @@ class TrainSummary:
 
 
 class EpochDataset(Protocol):
-    """A training set whose random choices depend on the epoch (``model.training.pairs``)."""
+    """A training set whose random choices depend on the epoch (as in ``training.pairs``)."""
 
     def __len__(self) -> int: ...
     def __getitem__(self, index: int) -> Sample: ...
@@ -167,7 +167,7 @@ def fit(
 
     Raises:
         ModelError: existing run without ``resume``, incompatible ``init``,
-            empty datasets; :class:`~lenspair.model.training.step.TrainingDivergedError`.
+            empty datasets; :class:`~lenspair.model.errors.TrainingDivergedError`.
 
     """
     if len(train_set) == 0 or len(val_set) == 0:

@@ -22,11 +22,12 @@ import torch
 from torch.utils.data import Dataset
 
 from lenspair.core.imageio import to_float
+from lenspair.dataset.readers import detect_layout, open_paired
 from lenspair.model.errors import ModelError
 
 
 class PairItem(Protocol):
-    """One pair from a reader (``dataset.readers``)."""
+    """One pair from a reader (``lenspair.dataset.readers``)."""
 
     @property
     def input(self) -> np.ndarray: ...  # noqa: D102
@@ -41,7 +42,7 @@ class PairItem(Protocol):
 
 
 class PairSource(Protocol):
-    """A sized, indexable collection of pairs (``dataset.readers.PairedDataset``)."""
+    """A sized, indexable collection of pairs (``lenspair.dataset.readers.PairedDataset``)."""
 
     def __len__(self) -> int: ...
     def __getitem__(self, index: int) -> PairItem: ...
@@ -137,7 +138,7 @@ class PairedCrops(Dataset[Sample]):
     """Random crops and flips of real pairs (training), or whole pairs (validation).
 
     Args:
-        source: pairs from ``dataset.readers.open_paired``.
+        source: pairs from ``lenspair.dataset.readers.open_paired``.
         channels: channels the network takes (1 or 3).
         crop_size: side of the random square crop; ``None`` keeps whole images.
         hflip: random horizontal flips.
@@ -204,7 +205,5 @@ def _valid_map(
 
 def open_eval_pairs(path: Path, split: str) -> PairSource:
     """Pairs to evaluate: ``path`` itself when it is a paired folder, else its ``split``."""
-    from lenspair.dataset.readers import detect_layout, open_paired
-
     path = Path(path)
     return open_paired(path) if detect_layout(path) is not None else open_paired(path, split)

@@ -1,6 +1,6 @@
 """The files of a training run folder: paths, metrics CSV, log file, TensorBoard.
 
-A run folder (written by :func:`lenspair.model.training.fit`) holds::
+A run folder (written by :func:`lenspair.model.training.loop.fit`) holds::
 
     RUN/config.yaml              resolved configuration (+ runtime: what really ran)
     RUN/checkpoints/last.pt      after every epoch (and at a budget stop)
@@ -167,7 +167,7 @@ def tensorboard_writer(folder: Path, enabled: bool) -> Iterator[Any]:
     if not enabled:
         yield None
         return
-    try:
+    try:  # here, not at the top: tensorboard is optional, its absence is logged
         from torch.utils.tensorboard import SummaryWriter
     except ImportError:
         log.info("TensorBoard is not installed; metrics go to metrics.csv only")

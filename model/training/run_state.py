@@ -3,7 +3,7 @@
 :class:`RunState` holds the counters that a checkpoint stores next to the
 state dicts (:mod:`lenspair.model.checkpoint`), so that ``--resume`` continues exactly
 where a run left off; :func:`stop_reason` and :func:`budget_reason` decide
-from it when the loop of :func:`lenspair.model.training.fit` ends.
+from it when the loop of :func:`lenspair.model.training.loop.fit` ends.
 """
 
 import math

@@ -18,7 +18,7 @@ and fp16 autocast with a ``GradScaler`` on CUDA (``train.amp``).
 
 Multi-GPU: under ``torchrun`` (``WORLD_SIZE`` > 1) both networks are wrapped
 in ``DistributedDataParallel``; the single-device path never touches
-``torch.distributed``. The loop over epochs is :func:`lenspair.model.training.fit`.
+``torch.distributed``. The loop over epochs is :func:`lenspair.model.training.loop.fit`.
 """
 
 import contextlib
@@ -30,10 +30,13 @@ from pathlib import Path
 from typing import Any
 
 import torch
+import torch.distributed as dist
 from torch import Tensor, nn
+from torch.nn.parallel import DistributedDataParallel as DDP
 
 from lenspair.model.checkpoint import build_network
-from lenspair.model.errors import ModelError
+from lenspair.model.errors import ModelError, TrainingDivergedError
+from lenspair.model.networks.variants import build_discriminator
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV, load_vgg19
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.losses import (
@@ -46,10 +49,6 @@ from lenspair.model.training.losses import (
 log = logging.getLogger(__name__)
 
 PERCEPTUAL_DISABLED = f"disabled (no VGG19 weights: set train.vgg19_weights or {VGG19_WEIGHTS_ENV})"
-
-
-class TrainingDivergedError(ModelError):
-    """Too many consecutive non-finite training steps."""
 
 
 @dataclass(frozen=True)
@@ -91,8 +90,6 @@ def init_distributed(device: torch.device) -> tuple[Distributed, torch.device]:
     info = distributed_from_env()
     if not info.active:
         return info, device
-    import torch.distributed as dist
-
     if device.type == "cuda":
         device = torch.device("cuda", info.local_rank)
         torch.cuda.set_device(device)
@@ -105,8 +102,6 @@ def all_true(flag: bool, info: Distributed, device: torch.device) -> bool:
     """``flag`` on every process (a MIN all-reduce under ``torchrun``)."""
     if not info.active:
         return flag
-    import torch.distributed as dist
-
     value = torch.tensor([1 if flag else 0], device=device)
     dist.all_reduce(value, op=dist.ReduceOp.MIN)
     return bool(value.item())
@@ -170,8 +165,6 @@ class Trainer:
     def __init__(
         self, config: RunConfig, device: torch.device, info: Distributed | None = None
     ) -> None:
-        from lenspair.model.networks.variants import build_discriminator
-
         self.config = config
         self.device = device
         self.info = info or Distributed()
@@ -187,8 +180,6 @@ class Trainer:
         self.network: nn.Module = network.to(device)
         self.discriminator: nn.Module = discriminator.to(device)
         if self.info.active:
-            from torch.nn.parallel import DistributedDataParallel as DDP
-
             ids = [device.index] if device.type == "cuda" else None
             self.network = DDP(self.network, device_ids=ids)
             self.discriminator = DDP(self.discriminator, device_ids=ids)

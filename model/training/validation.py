@@ -15,10 +15,13 @@ from typing import Any, Protocol
 
 import numpy as np
 import torch
+import torch.distributed as dist
 from torch import nn
 
+from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import save_checkpoint
+from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.pairs import Sample
 from lenspair.model.training.run_files import RunPaths, metrics_row, write_metrics_rows
@@ -32,7 +35,7 @@ VAL_CONVENTION = "skimage-gaussian"
 
 
 class SampleSet(Protocol):
-    """Indexable samples with a length, e.g. a validation set (``model.training.pairs``)."""
+    """Indexable samples with a length, e.g. a validation set (of ``training.pairs``)."""
 
     def __len__(self) -> int: ...
     def __getitem__(self, index: int) -> Sample: ...
@@ -91,8 +94,6 @@ def validate_and_save(
 def _broadcast_int(value: int, info: Distributed, device: torch.device) -> int:
     if not info.active:
         return value
-    import torch.distributed as dist
-
     tensor = torch.tensor([value], device=device)
     dist.broadcast(tensor, src=0)
     return int(tensor.item())
@@ -109,9 +110,6 @@ def validate(
         :data:`lenspair.model.evaluation.evaluate.PSNR_CAP_DB`.
 
     """
-    from lenspair.core.contact_sheet import make_contact_sheet
-    from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
-
     was_training = network.training
     network.eval()
     psnrs, ssims = [], []

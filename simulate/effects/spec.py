@@ -36,7 +36,7 @@ class RaindropsSpec:
             totally internally reflected rays appears.
         refractive_index: of water, 1.33; 1.0 makes the drops invisible.
         persistence: probability that a drop stays put when a recording
-            advances the glass state (:func:`simulate.render.advance_glass`);
+            advances the glass state (:func:`lenspair.simulate.render.advance_glass`);
             the others are replaced by fresh drops. 1 = drops never move.
         focal_px: focal length of the camera, pixels; converts the angle by
             which a drop bends a viewing ray into an image offset.

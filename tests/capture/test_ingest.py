@@ -13,8 +13,7 @@ from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import IngestReport, PairRecord, read_pairs, read_report
 from lenspair.cli import main
 from lenspair.core.imageio import read_image, write_image
-from lenspair.rectify.crop import CropError
-from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.errors import CropError, RectifyError
 from lenspair.rectify.registration import VerifyParams
 from tests.capture.ingest_helpers import CROP, DISPARITY, frame_files, make_recording
 

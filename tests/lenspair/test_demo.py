@@ -2,7 +2,14 @@
 
 from pathlib import Path
 
-from lenspair.demo import Stage, run_stages
+import pytest
+
+from lenspair.core.samples import sample_path
+from lenspair.demo import Stage, board_arguments, run_stages
+from lenspair.errors import DemoError
+from lenspair.rectify.boards import parse_board_spec
+from lenspair.rectify.calibration import MODELS
+from lenspair.simulate.spec import load_scene
 
 
 class FakeCli:
@@ -62,3 +69,17 @@ def test_an_unfinished_resumable_stage_resumes_and_later_stages_run(tmp_path: Pa
     assert cli.calls[3:] == ["ingest", "train"]
     assert timings["simulate"]["reused"] and not timings["ingest"]["reused"]
     assert (tmp_path / "ing" / "partial").is_file()  # resumed, not wiped
+
+
+@pytest.mark.parametrize("scene", ["chessboard.yaml", "charuco.yaml"])
+def test_demo_calibrates_with_the_board_the_simulator_drew(scene: str) -> None:
+    flag_board, board, flag_model, model = board_arguments(scene)
+    spec = load_scene(sample_path(scene))
+    assert spec.board is not None and (flag_board, flag_model) == ("--board", "--model")
+    assert parse_board_spec(board) == spec.board.target
+    assert MODELS[model] == spec.rig.cam0.distortion_model
+
+
+def test_a_scene_without_a_board_is_a_demo_error() -> None:
+    with pytest.raises(DemoError, match=r"rain\.yaml: the sample scene has no board"):
+        board_arguments("rain.yaml")

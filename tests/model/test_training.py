@@ -12,7 +12,7 @@ from lenspair.core.config import dump_yaml
 from lenspair.core.errors import ConfigError
 from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import load_checkpoint
-from lenspair.model.errors import ModelError
+from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.vgg import VGG19Features
 from lenspair.model.training.config import RunConfig, load_run_config
 from lenspair.model.training.datasets import (
@@ -23,7 +23,6 @@ from lenspair.model.training.datasets import (
 from lenspair.model.training.loop import fit, resolve_config
 from lenspair.model.training.step import (
     Trainer,
-    TrainingDivergedError,
     distributed_from_env,
     init_distributed,
 )

@@ -2,16 +2,11 @@ import cv2
 import numpy as np
 import pytest
 
-from lenspair.rectify.boards import (
-    Board,
-    BoardRenderer,
-    board_texture,
-    detect_corners,
-    parse_board_spec,
-)
+from lenspair.rectify.boards import Board, detect_corners, parse_board_spec
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import project_rays
 from lenspair.rectify.rig import CameraModel
+from tests.rectify.board_renderer import BoardRenderer, board_texture
 
 CAMERA = CameraModel(
     (350.0, 351.0, 360.0, 270.0), "equidistant", (0.01, -0.002, 0.001, -0.0005), (720, 540)
@@ -99,3 +94,28 @@ def test_no_board_gives_none() -> None:
 def test_board_is_validated_on_construction() -> None:
     with pytest.raises(RectifyError, match="marker size"):
         Board("charuco", 5, 4, 0.05, None, "DICT_5X5_100")
+
+
+@pytest.mark.parametrize("spec", ["chessboard:6x4:0.05", "charuco:6x5:0.05:0.035"])
+def test_printed_board_puts_corners_at_object_points(spec: str) -> None:
+    board = parse_board_spec(spec)
+    pixels_per_square = 24
+    image = board.printed_image(pixels_per_square)
+    across, down = board.squares
+    assert image.shape == ((down + 2) * pixels_per_square, (across + 2) * pixels_per_square)
+    assert image.dtype == np.uint8 and set(np.unique(image)) <= {0, 255}
+    assert image[0].min() == 255 and image[:, 0].min() == 255  # white quiet zone
+    width, height = board.grid_size_m
+    assert (width, height) == pytest.approx((across * 0.05, down * 0.05))
+    points = board.object_points(grid_origin=True)
+    shift = points - board.object_points()
+    np.testing.assert_allclose(shift, shift[:1].repeat(len(points), axis=0))
+    for x, y, _ in points:
+        col = round(x / board.square_m * pixels_per_square) + pixels_per_square
+        row = round(y / board.square_m * pixels_per_square) + pixels_per_square
+        quad = image[row - 2 : row + 2, col - 2 : col + 2].astype(int)
+        assert quad[0, 0] == quad[3, 3] and quad[0, 3] == quad[3, 0] and quad[0, 0] != quad[0, 3]
+    # the printed board is what the detector finds (through the test renderer's texture)
+    texture, _ = board_texture(board, pixels_per_square=40)
+    detection = detect_corners(cv2.copyMakeBorder(texture, 20, 20, 20, 20, 0, value=255), board)
+    assert detection is not None and len(detection) == board.num_corners

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from lenspair.rectify.boards import Board, BoardRenderer, Detection, parse_board_spec
+from lenspair.rectify.boards import Board, Detection, parse_board_spec
 from lenspair.rectify.calibration import (
     CalibrationResult,
     calibrate_from_detections,
@@ -16,6 +16,7 @@ from lenspair.rectify.calibration import (
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import project_rays
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
+from tests.rectify.board_renderer import BoardRenderer
 
 MODELS = {"radtan": "pinhole-radtan", "equidistant": "pinhole-equi"}
 SIZES = ((720, 540), (720, 540))
@@ -196,11 +197,8 @@ def test_calibrate_command_recovers_simulator_truth(
     spec_path = Path(__file__).parents[2] / "calib_samples" / f"{scene}.yaml"
     spec = with_overrides(load_scene(spec_path), frames=12)
     simulate_recording(spec, tmp_path / "rec", base_dir=spec_path.parent)
-    b = spec.board
-    assert b is not None
-    board = f"chessboard:{b.cols}x{b.rows}:{b.square_m}"
-    if b.kind == "charuco":
-        board = f"charuco:{b.cols}x{b.rows}:{b.square_m}:{b.marker_size_m}:{b.dictionary}"
+    assert spec.board is not None
+    board = spec.board.target.spec()  # the scene's board, as the calibrator reads it
     model = "pinhole-equi" if spec.rig.cam0.distortion_model == "equidistant" else "pinhole-radtan"
     parser = argparse.ArgumentParser()
     calibrate.add_arguments(parser)

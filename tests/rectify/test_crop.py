@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from lenspair.rectify.crop import Crop, CropError, choose_crop, parse_size
+from lenspair.rectify.crop import Crop, choose_crop, parse_size
+from lenspair.rectify.errors import CropError
 
 
 def test_parse_size() -> None:

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from lenspair.core.quality import to_grey
+from lenspair.rectify.errors import RegistrationError
 from lenspair.rectify.registration import (
     EstimationParams,
-    RegistrationError,
     VerifyParams,
     compensate_gain,
     estimate_homography,

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from lenspair.core.imageio import read_image
+from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.rig import CameraModel
 from lenspair.simulate import boards
 from lenspair.simulate.boardspec import BoardSpec
@@ -96,9 +97,9 @@ def test_rotated_rig_views_are_upside_down(tmp_path: Path) -> None:
 @pytest.mark.parametrize("kind", ["chessboard", "charuco"])
 def test_printed_board_matches_object_points(kind: str) -> None:
     board = BoardSpec(kind=kind, cols=5, rows=4, square_m=0.05, pixels_per_square=32)
-    image = boards.board_image(board)
+    image = board.target.printed_image(board.pixels_per_square)
     points = boards.object_points(board)
-    across, down = boards.grid_squares(board)
+    across, down = board.target.squares
     assert image.shape == ((down + 2) * 32, (across + 2) * 32)
     # Board-frame metres -> printed pixel edges: one square of white border first.
     for x, y, _ in points:
@@ -106,6 +107,25 @@ def test_printed_board_matches_object_points(kind: str) -> None:
         quad = image[row - 2 : row + 2, col - 2 : col + 2].astype(int)
         # An inner corner: diagonal neighbours equal, adjacent ones opposite.
         assert quad[0, 0] == quad[3, 3] and quad[0, 3] == quad[3, 0] and quad[0, 0] != quad[0, 3]
+
+
+@pytest.mark.parametrize("kind", ["chessboard", "charuco"])
+def test_scene_board_is_the_calibration_board(kind: str) -> None:
+    # the spec a user passes to `lenspair calibrate` for a simulated board names the same board
+    spec = BoardSpec(kind=kind, cols=6, rows=5, square_m=0.04, marker_m=0.03)
+    target = spec.target
+    assert parse_board_spec(target.spec()) == target
+    # the simulator's frame differs from calibration's only by where the origin is
+    shift = boards.object_points(spec) - target.object_points()
+    np.testing.assert_allclose(shift, np.tile(shift[0], (len(shift), 1)), atol=1e-12)
+    if kind == "charuco":
+        expected = target.charuco().getChessboardCorners()
+        np.testing.assert_allclose(boards.object_points(spec), expected, atol=1e-7)
+
+
+def test_board_the_calibrator_rejects_is_a_spec_error() -> None:
+    with pytest.raises(ValueError, match=r"needs .* markers"):
+        BoardSpec(kind="charuco", cols=20, rows=12, square_m=0.02, dictionary="DICT_4X4_50")
 
 
 def test_impossible_board_poses_are_an_error() -> None:

@@ -1,0 +1,174 @@
+"""Value types of a stereo recording: frame references, problems, the recording.
+
+These are the types every reader (:mod:`lenspair.capture.euroc`,
+:mod:`lenspair.capture.folders`, :mod:`lenspair.capture.rosbag`) returns; the
+dispatch that picks a reader is :mod:`lenspair.capture.recording`, which
+re-exports every name here (import from there in application code).
+"""
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.rigfile import CameraName
+
+CAMERAS: tuple[CameraName, CameraName] = ("cam0", "cam1")
+Layout = Literal["euroc", "rosbag1", "rosbag2", "folders"]
+
+
+@dataclass(frozen=True)
+class FrameRef:
+    """A reference to one image of a recording, cheap to keep and to pickle.
+
+    Attributes:
+        camera: ``cam0`` or ``cam1``.
+        t_ns: capture timestamp in nanoseconds (file name, ``data.csv`` or
+            ``header.stamp``).
+        source: the image file, or the bag (``.bag`` file, ROS2 folder or
+            ``.db3``/``.mcap`` file) holding the message.
+        topic: bag frames only: the image topic.
+        log_time_ns: bag frames only: the bag's receive time of the message
+            (ns), used to seek to it.
+        occurrence: bag frames only: index among the topic's messages that
+            share ``log_time_ns`` (almost always 0).
+    """
+
+    camera: CameraName
+    t_ns: int
+    source: Path
+    topic: str | None = None
+    log_time_ns: int | None = None
+    occurrence: int = 0
+
+    @property
+    def in_bag(self) -> bool:
+        """True when the image is a message in a bag, False for an image file."""
+        return self.topic is not None
+
+    def describe(self) -> str:
+        """Human-readable location: the file, or ``bag topic @ t_ns``."""
+        if self.topic is None:
+            return str(self.source)
+        return f"{self.source} {self.topic} @ t_ns={self.t_ns}"
+
+
+@dataclass(frozen=True)
+class FrameProblem:
+    """A frame that could not be listed, or a warning about a listed one.
+
+    Attributes:
+        camera: ``cam0``/``cam1``, or None when the problem concerns the whole
+            source (e.g. a bag truncated mid-way).
+        t_ns: timestamp (ns) of the frame when known.
+        source: where: a file, ``data.csv:<line>``, or ``bag topic``.
+        reason: one line saying what is wrong.
+        dropped: True when the frame is NOT in ``Recording.frames``.
+    """
+
+    camera: CameraName | None
+    t_ns: int | None
+    source: str
+    reason: str
+    dropped: bool = True
+
+    def __str__(self) -> str:
+        return f"{self.source}: {self.reason}"
+
+
+@dataclass(frozen=True)
+class Recording:
+    """The frames of both cameras of one recording, listed but not loaded.
+
+    Attributes:
+        path: the path given to :func:`open_recording`.
+        recording_id: folder name or bag stem (``MH_01`` for ``MH_01/mav0``).
+        layout: ``euroc``, ``rosbag1``, ``rosbag2`` or ``folders``.
+        frames: ``cam0``/``cam1`` -> frames sorted by ``t_ns``, timestamps
+            unique per camera, never empty.
+        problems: frames not listed (``dropped``) and warnings, in the order met.
+        topics: bags only: the ``(cam0, cam1)`` topics read.
+        sensor_files: EuRoC only: ``sensor.yaml`` of each camera that has one.
+
+    Raises:
+        CaptureError: at construction, when a camera has no frames.
+    """
+
+    path: Path
+    recording_id: str
+    layout: Layout
+    frames: dict[CameraName, list[FrameRef]]
+    problems: list[FrameProblem] = field(default_factory=list)
+    topics: tuple[str, str] | None = None
+    sensor_files: dict[CameraName, Path] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for camera in CAMERAS:
+            if not self.frames.get(camera):
+                dropped = [p for p in self.problems if p.camera in (camera, None) and p.dropped]
+                detail = f"; first of {len(dropped)} problems: {dropped[0]}" if dropped else ""
+                raise CaptureError(f"{self.path}: no {camera} frames could be listed{detail}")
+
+    def timestamps(self, camera: CameraName) -> list[int]:
+        """Sorted, unique timestamps (ns) of ``camera``'s frames."""
+        return [frame.t_ns for frame in self.frames[camera]]
+
+    def load(self, frame: FrameRef) -> np.ndarray:
+        """Read the pixels of ``frame``; see :func:`lenspair.capture.recording.load_frame`."""
+        # Imported here to break a circle: the dispatch module imports the
+        # readers, which import these types.
+        from lenspair.capture.recording import load_frame
+
+        return load_frame(frame)
+
+
+def recording_id_for(path: Path) -> str:
+    """Name of a recording: the folder name or the bag's stem (``mav0`` -> parent)."""
+    resolved = Path(path).resolve()
+    if resolved.is_file():
+        return resolved.stem
+    if resolved.name == "mav0":
+        return resolved.parent.name
+    return resolved.name
+
+
+def order_frames(
+    camera: CameraName, frames: Iterable[FrameRef], problems: list[FrameProblem]
+) -> list[FrameRef]:
+    """Sort one camera's frames by time, dropping duplicate timestamps with a record.
+
+    Args:
+        camera: the camera the frames belong to.
+        frames: the frames in recording order (``data.csv`` rows, bag log
+            time, or already sorted for folders).
+        problems: appended to: one dropped entry per repeated timestamp (the
+            first occurrence is kept) and one warning per frame whose timestamp
+            goes back relative to an earlier one.
+
+    Returns:
+        Frames sorted by ``t_ns`` with unique timestamps.
+    """
+    kept: dict[int, FrameRef] = {}
+    latest: FrameRef | None = None
+    for frame in frames:
+        if frame.t_ns in kept:
+            first = kept[frame.t_ns].describe()
+            problems.append(
+                FrameProblem(
+                    camera, frame.t_ns, frame.describe(), f"duplicate timestamp (kept {first})"
+                )
+            )
+            continue
+        if latest is not None and frame.t_ns < latest.t_ns:
+            back_ms = (latest.t_ns - frame.t_ns) / 1e6
+            reason = f"timestamp goes back by {back_ms:.3f} ms after t_ns={latest.t_ns}"
+            problems.append(
+                FrameProblem(camera, frame.t_ns, frame.describe(), reason, dropped=False)
+            )
+        kept[frame.t_ns] = frame
+        if latest is None or frame.t_ns > latest.t_ns:
+            latest = frame
+    return sorted(kept.values(), key=lambda f: f.t_ns)

@@ -1,0 +1,68 @@
+"""The rows of the accuracy/time trade-off table and their Pareto marking.
+
+Shared by :mod:`lenspair.model.evaluation.tradeoff` (which measures the rows)
+and :mod:`lenspair.model.evaluation.tradeoff_report` (which writes them), so
+that neither imports the other's caller.
+"""
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+
+@dataclass(frozen=True)
+class TradeoffRow:
+    """One line of the table: a checkpoint at one precision."""
+
+    name: str
+    variant: str
+    width: float
+    num_blocks: int
+    precision: str
+    params: int
+    gflops: float
+    cpu_ms: float | None
+    gpu_ms: float | None
+    psnr_db: float
+    ssim: float
+    convention: str
+    steps: int
+    pareto_psnr: bool = False
+    pareto_ssim: bool = False
+
+
+def pareto_front(times: Sequence[float | None], scores: Sequence[float]) -> list[int]:
+    """Indices of the points no other point dominates (faster-or-equal and better-or-equal).
+
+    A point with an unknown (``None``) or NaN time or a NaN score is never on
+    the front. Points that tie exactly are all on it. Returned in index order.
+    """
+    valid = [
+        i
+        for i, (t, s) in enumerate(zip(times, scores, strict=True))
+        if t is not None and not math.isnan(t) and not math.isnan(s)
+    ]
+    front = []
+    for i in valid:
+        ti, si = times[i], scores[i]
+        assert ti is not None
+        dominated = False
+        for j in valid:
+            tj, sj = times[j], scores[j]
+            assert tj is not None
+            if tj <= ti and sj >= si and (tj < ti or sj > si):
+                dominated = True
+                break
+        if not dominated:
+            front.append(i)
+    return front
+
+
+def mark_pareto(rows: Sequence[TradeoffRow]) -> list[TradeoffRow]:
+    """Set ``pareto_psnr``/``pareto_ssim`` against CPU time."""
+    times = [r.cpu_ms for r in rows]
+    on_psnr = set(pareto_front(times, [r.psnr_db for r in rows]))
+    on_ssim = set(pareto_front(times, [r.ssim for r in rows]))
+    return [
+        replace(r, pareto_psnr=i in on_psnr, pareto_ssim=i in on_ssim) for i, r in enumerate(rows)
+    ]

@@ -1,0 +1,167 @@
+"""Calibrate a stereo rig from a recording of a calibration board (the ``calibrate`` workflow).
+
+Usage::
+
+    from lenspair.rectify.boards import parse_board_spec
+    from lenspair.rectify.recording_calibration import calibrate_recording, write_calibration
+
+    calibration = calibrate_recording(
+        Path("runs/board_01"), parse_board_spec("chessboard:9x6:0.05"), "pinhole-equi"
+    )
+    for line in calibration.summary():
+        print(line)
+    write_calibration(calibration, Path("runs/board_01/camchain.yaml"))
+
+Steps: the two cameras' frames are paired by timestamp
+(:func:`lenspair.capture.pairing.pair_frames`), at most ``max_views`` pairs
+evenly spread in time are read, the board's corners are found in each image
+and :func:`lenspair.rectify.calibration.calibrate_from_detections` calibrates
+each camera alone, then the pair. A frame that cannot be read is recorded in
+:attr:`RecordingCalibration.unreadable`, not fatal. ``lenspair calibrate``,
+the demo (through that command) and ``benchmarks/bench_calibration.py`` call
+this module.
+"""
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lenspair.capture.pairing import pair_frames
+from lenspair.capture.recording import open_recording
+from lenspair.core.errors import LenspairError
+from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.progress import progress
+from lenspair.rectify.boards import Board, Detection, detect_corners
+from lenspair.rectify.calibration import (
+    CalibrationModel,
+    CalibrationOptions,
+    CalibrationResult,
+    calibrate_from_detections,
+)
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rig import StereoRig, write_kalibr
+
+
+@dataclass(frozen=True, eq=False)
+class RecordingCalibration:
+    """The calibration of one board recording, with what was read to get it.
+
+    Attributes:
+        recording: the recording path given.
+        result: the calibration (rig, per-camera and stereo errors, rejected views).
+        rig: the calibrated rig; for bags it carries the two image topics.
+        frames: ``cam0``/``cam1`` frame counts, ``paired``, ``used`` pairs.
+        view_names: ``t0=<ns> t1=<ns>`` of each used pair (rejected views
+            are named by these).
+        unreadable: one line per frame that could not be read.
+    """
+
+    recording: Path
+    result: CalibrationResult
+    rig: StereoRig
+    frames: dict[str, int]
+    view_names: list[str]
+    unreadable: list[str] = field(default_factory=list)
+
+    def summary(self) -> list[str]:
+        """Lines for people: RMS errors, row disagreement, rejected and unreadable frames."""
+        lines = self.result.summary()
+        lines += [f"unreadable frame: {problem}" for problem in self.unreadable]
+        return lines
+
+    def report(self) -> dict[str, Any]:
+        """Plain JSON-serialisable report (``camchain.report.json``)."""
+        report = self.result.report()
+        report["recording"] = str(self.recording)
+        report["frames"] = {**self.frames, "unreadable": list(self.unreadable)}
+        report["view_names"] = list(self.view_names)
+        return report
+
+
+def spread_indices(count: int, limit: int) -> list[int]:
+    """``limit`` indices evenly spread over ``range(count)`` (all when ``limit`` is 0)."""
+    if limit <= 0 or count <= limit:
+        return list(range(count))
+    return sorted({round(float(i)) for i in np.linspace(0, count - 1, limit)})
+
+
+def calibrate_recording(
+    recording_path: Path,
+    board: Board,
+    model: CalibrationModel,
+    topics: tuple[str, str] | None = None,
+    max_views: int = 100,
+    options: CalibrationOptions | None = None,
+) -> RecordingCalibration:
+    """Calibrate a stereo rig from a recording of a board (see the module docstring).
+
+    Args:
+        recording_path: any layout :func:`lenspair.capture.recording.open_recording`
+            reads (EuRoC/ASL folder, ROS bag, left/right folders).
+        board: the board seen.
+        model: ``pinhole-radtan`` or ``pinhole-equi``.
+        topics: bags only: ``(cam0_topic, cam1_topic)``; None picks them.
+        max_views: at most this many frame pairs, evenly spread in time (0: all).
+        options: outlier rejection and rectification settings.
+
+    Returns:
+        The calibration; nothing is written (see :func:`write_calibration`).
+
+    Raises:
+        RectifyError: ``max_views`` negative, no pairs, a camera with no
+            readable frame, or too few views with the board.
+        CaptureError: the recording cannot be opened.
+    """
+    if max_views < 0:
+        raise RectifyError(f"max_views (--max-views): expected >= 0, got {max_views}")
+    recording = open_recording(recording_path, topics)
+    pairing = pair_frames(recording.timestamps("cam0"), recording.timestamps("cam1"))
+    pairs = [pairing.pairs[i] for i in spread_indices(len(pairing.pairs), max_views)]
+    if not pairs:
+        raise RectifyError(f"{recording_path}: no cam0/cam1 frames could be paired by timestamp")
+    detections: list[tuple[Detection | None, Detection | None]] = []
+    unreadable: list[str] = []
+    resolutions: list[tuple[int, int] | None] = [None, None]
+    for pair in progress(pairs, "detecting board", total=len(pairs), unit="pair"):
+        found: list[Detection | None] = []
+        for index, position in enumerate((pair.index0, pair.index1)):
+            frame = recording.frames["cam0" if index == 0 else "cam1"][position]
+            try:
+                image = recording.load(frame)
+            except LenspairError as exc:  # a bad frame is recorded, not fatal
+                unreadable.append(str(exc))
+                found.append(None)
+                continue
+            resolutions[index] = resolutions[index] or (image.shape[1], image.shape[0])
+            found.append(detect_corners(image, board))
+        detections.append((found[0], found[1]))
+    if resolutions[0] is None or resolutions[1] is None:
+        raise RectifyError(f"{recording_path}: no frame of one camera could be read")
+    names = [f"t0={p.t0_ns} t1={p.t1_ns}" for p in pairs]
+    result = calibrate_from_detections(
+        detections, board, model, (resolutions[0], resolutions[1]), names, options
+    )
+    rig = result.rig
+    if recording.topics is not None:
+        rig = replace(rig, topics=recording.topics)
+    frames = {
+        "cam0": len(recording.frames["cam0"]),
+        "cam1": len(recording.frames["cam1"]),
+        "paired": len(pairing.pairs),
+        "used": len(pairs),
+    }
+    return RecordingCalibration(Path(recording_path), result, rig, frames, names, unreadable)
+
+
+def write_calibration(calibration: RecordingCalibration, camchain: Path) -> Path:
+    """Write Kalibr's camchain to ``camchain`` and the JSON report beside it (atomically).
+
+    Returns:
+        The report's path: ``camchain.yaml`` -> ``camchain.report.json``.
+    """
+    write_kalibr(camchain, calibration.rig)
+    report_path = camchain.with_suffix(".report.json")
+    atomic_write_json(report_path, calibration.report())
+    return report_path

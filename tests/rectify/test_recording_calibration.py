@@ -1,0 +1,62 @@
+"""The calibrate workflow as a library function: simulated board recordings, bad frames."""
+
+from pathlib import Path
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.recording_calibration import (
+    calibrate_recording,
+    spread_indices,
+    write_calibration,
+)
+from lenspair.rectify.rig import read_kalibr
+from lenspair.simulate.recording import simulate_recording
+from lenspair.simulate.spec import load_scene, with_overrides
+
+SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
+
+
+@given(st.integers(0, 500), st.integers(0, 120))
+def test_spread_indices_are_even_unique_and_cover_the_ends(count: int, limit: int) -> None:
+    indices = spread_indices(count, limit)
+    assert indices == sorted(set(indices)) and all(0 <= i < count for i in indices)
+    if limit == 0 or count <= limit:
+        assert indices == list(range(count))
+    else:
+        assert len(indices) == limit and indices[0] == 0 and indices[-1] == count - 1
+
+
+def test_negative_max_views_is_refused_before_reading(tmp_path: Path) -> None:
+    board = load_scene(SAMPLES / "chessboard.yaml").board
+    assert board is not None
+    with pytest.raises(RectifyError, match=r"max_views \(--max-views\): expected >= 0, got -1"):
+        calibrate_recording(tmp_path / "missing", board.target, "pinhole-equi", max_views=-1)
+
+
+@pytest.mark.slow
+def test_an_unreadable_frame_is_recorded_not_fatal(tmp_path: Path) -> None:
+    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=9)
+    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
+    assert spec.board is not None
+    broken = sorted((tmp_path / "rec" / "mav0" / "cam1" / "data").glob("*.png"))[4]
+    broken.write_bytes(broken.read_bytes()[:200])  # truncated mid-file
+    model = "pinhole-equi" if spec.rig.cam0.distortion_model == "equidistant" else "pinhole-radtan"
+
+    calibration = calibrate_recording(tmp_path / "rec", spec.board.target, model, max_views=0)
+
+    assert len(calibration.unreadable) == 1 and broken.name in calibration.unreadable[0]
+    assert calibration.frames == {"cam0": 9, "cam1": 9, "paired": 9, "used": 9}
+    assert calibration.result.counts["both_detected"] <= 8
+    assert any(broken.name in line for line in calibration.summary())
+    report_path = write_calibration(calibration, tmp_path / "out" / "camchain.yaml")
+    assert report_path == tmp_path / "out" / "camchain.report.json"
+    report = calibration.report()
+    assert report["frames"]["unreadable"] == calibration.unreadable
+    assert len(report["view_names"]) == 9 and report["recording"] == str(tmp_path / "rec")
+    truth = read_kalibr(tmp_path / "rec" / "camchain.yaml")
+    assert read_kalibr(tmp_path / "out" / "camchain.yaml").baseline_m == pytest.approx(
+        truth.baseline_m, rel=0.02
+    )
