@@ -39,10 +39,12 @@ from typing import Any, Literal
 
 import numpy as np
 
+from lenspair.capture import euroc, rosbag
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.recording import CAMERAS
+from lenspair.capture.recording import CAMERAS, open_recording
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.errors import LenspairError
+from lenspair.core.imageio import read_image
 
 InputKind = Literal["image", "folder", "euroc", "rosbag1", "rosbag2"]
 IMAGE_SUFFIXES = frozenset({".png", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp"})
@@ -99,8 +101,6 @@ def detect_input(path: Path) -> InputKind:
     Raises:
         CaptureError: missing path, or neither an image, a folder nor a bag.
     """
-    from lenspair.capture import euroc, rosbag
-
     path = Path(path)
     if not path.exists():
         raise CaptureError(f"{path}: no such file or folder")
@@ -143,8 +143,6 @@ def bag_camera_topics(path: Path) -> dict[str, CameraName]:
     Raises:
         CaptureError: no image topic, or an ambiguous choice (lists topics).
     """
-    from lenspair.capture import rosbag
-
     reader = rosbag._open(Path(path))
     try:
         topics = sorted(
@@ -207,8 +205,6 @@ def _file_entries(
         return [(path, None, None)]
     if kind == "folder":
         return [(file, None, None) for file in image_files(path)]
-    from lenspair.capture.recording import open_recording
-
     recording = open_recording(path)
     return [
         (ref.source, camera, ref.t_ns) for camera in cameras for ref in recording.frames[camera]
@@ -216,8 +212,6 @@ def _file_entries(
 
 
 def _iter_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> Iterator[InputFrame]:
-    from lenspair.core.imageio import read_image
-
     path = Path(path)
     base = path.parent if kind == "image" else path
     for index, (file, camera, t_ns) in enumerate(_file_entries(path, kind, cameras)):
@@ -244,8 +238,6 @@ def iter_bag_messages(
     Raises:
         CaptureError: the bag cannot be opened, or no message can be read.
     """
-    from lenspair.capture import rosbag
-
     path = Path(path)
     chosen = {t: c for t, c in bag_camera_topics(path).items() if c in cameras} if cameras else {}
     reader = rosbag._open(path)

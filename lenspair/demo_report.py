@@ -10,8 +10,12 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from lenspair import __version__
+from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.fsutil import atomic_write_text
+from lenspair.core.imageio import read_image, write_image
 from lenspair.core.report import Block, Code, Heading, Image, Paragraph, Table, to_html, to_markdown
 from lenspair.rectify.rig import read_kalibr
 
@@ -168,11 +172,6 @@ def restore_blocks(out: Path, strips: int = 3) -> list[Block]:
     The strip (``restore_before_after.png``) pairs frames of the raw
     recording's obstructed camera with the same frames in ``restored/``.
     """
-    import numpy as np
-
-    from lenspair.core.contact_sheet import make_contact_sheet
-    from lenspair.core.imageio import read_image, write_image
-
     report = load_json(out / "restored" / "restore_report.json")
     if report is None:
         return [Paragraph("No restore report found.")]

@@ -19,7 +19,9 @@ from typing import Protocol
 import numpy as np
 import torch
 
+from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
+from lenspair.model.evaluation.latency import autocast_context, tune_allocator
 from lenspair.model.inference.options import PRECISIONS
 
 
@@ -89,8 +91,6 @@ class TorchBackend:
     @torch.inference_mode()
     def __call__(self, batch: np.ndarray) -> np.ndarray:
         """Run the network on a numpy batch (see :class:`Backend`)."""
-        from lenspair.model.evaluation.latency import autocast_context
-
         x = torch.from_numpy(np.ascontiguousarray(batch, dtype=np.float32)).to(self.device)
         if self.device.type == "cpu":
             x = x.contiguous(memory_format=torch.channels_last)
@@ -113,7 +113,7 @@ class OnnxBackend:
     """
 
     def __init__(self, path: Path, device: torch.device, threads: int | None = None) -> None:
-        import onnxruntime as ort
+        import onnxruntime as ort  # only ONNX models need it: checkpoints do not load it
 
         self.path = Path(path)
         if not self.path.is_file():
@@ -177,8 +177,6 @@ def open_backend(path: Path, device: torch.device, precision: str = "auto") -> B
     Raises:
         ModelError: unreadable model, or ``bf16`` asked of an ONNX model.
     """
-    from lenspair.model.checkpoint import load_model
-
     path = Path(path)
     resolved = resolve_precision(precision, device)
     if path.suffix.lower() == ".onnx":
@@ -196,8 +194,6 @@ def deploy(network: torch.nn.Module, device: torch.device) -> torch.nn.Module:
     On the CPU: channels-last weights (oneDNN's preferred layout) and glibc
     told to keep freed activations (see :mod:`lenspair.model.evaluation.latency`).
     """
-    from lenspair.model.evaluation.latency import tune_allocator
-
     network.to(device).eval()
     if device.type == "cpu":
         tune_allocator()
