@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("lenspair.commands.eval", "measure PSNR/SSIM and latency of a checkpoint"),
     "tradeoff": ("lenspair.commands.tradeoff", "accuracy-versus-time table and plot of variants"),
     "export": ("lenspair.commands.export", "export a checkpoint to ONNX and TorchScript"),
+    "restore": ("lenspair.commands.restore", "restore images, folders, recordings and bags"),
     "demo": ("lenspair.commands.demo", "run the whole pipeline on the bundled sample scenes"),
 }
 

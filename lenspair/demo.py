@@ -13,6 +13,8 @@ tutorial):
 5. ``train --synthetic``: pretraining on drops rendered over clean frames;
 6. ``train --init``: a short fine-tune on the real (here: simulated) pairs;
 7. ``eval`` on the test split, 8. a small ``tradeoff``;
+9. ``restore`` the heavy-rain recording (its obstructed camera) with the
+   fine-tuned network, as a robot would clean its stream;
 
 then ``report.md`` and ``report.html`` gather the figures. A stage whose
 outputs are complete (a marker in ``OUT/.stages`` with the same arguments)
@@ -43,6 +45,10 @@ RECORDINGS = ("rain", "heavy_rain", "dust_swapped")
 """The anomaly recordings the demo simulates and ingests (``calib_samples/<name>.yaml``):
 light rain on cam1 (easy pairs), heavy, changing rain on cam1 (medium and hard
 pairs) and dust on cam0, the sides swapped."""
+
+
+RESTORED_RECORDING = "heavy_rain"
+"""The raw recording the last stage restores (its obstructed camera, from ``rig.yaml``)."""
 
 
 @dataclass(frozen=True)
@@ -217,6 +223,19 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
                 str(budget.batch_size),
             ),
             out / "tradeoff",
+        ),
+        Stage(
+            "restore",
+            (
+                "restore",
+                str(fine / "checkpoints" / "best.pt"),
+                str(rec / RESTORED_RECORDING),
+                "--out",
+                str(out / "restored"),
+                "--device",
+                "auto",
+            ),
+            out / "restored",
         ),
     ]
     return stages

@@ -10,8 +10,12 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from lenspair import __version__
+from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.fsutil import atomic_write_text
+from lenspair.core.imageio import read_image, write_image
 from lenspair.core.report import Block, Code, Heading, Image, Paragraph, Table, to_html, to_markdown
 from lenspair.rectify.rig import read_kalibr
 
@@ -162,6 +166,48 @@ def dataset_blocks(out: Path) -> list[Block]:
     return blocks
 
 
+def restore_blocks(out: Path, strips: int = 3) -> list[Block]:
+    """Counts of the restore stage and a before/after strip of a few of its frames.
+
+    The strip (``restore_before_after.png``) pairs frames of the raw
+    recording's obstructed camera with the same frames in ``restored/``.
+    """
+    report = load_json(out / "restored" / "restore_report.json")
+    if report is None:
+        return [Paragraph("No restore report found.")]
+    source = Path(report["input"])
+    blocks: list[Block] = [
+        Paragraph(f"`lenspair restore` on {source.name}: {report['model']}."),
+        Table(
+            ["frames read", "restored", "skipped", "failed", "seconds", "frames/s"],
+            [
+                [
+                    str(report["frames_read"]),
+                    str(report["restored"]),
+                    str(report["skipped"]),
+                    str(report["failed"]),
+                    f"{report['seconds']:.1f}",
+                    f"{report['frames_per_second']:.2f}",
+                ]
+            ],
+        ),
+    ]
+    names = sorted(
+        p.relative_to(out / "restored").as_posix()
+        for camera in report["cameras"]
+        for p in (out / "restored").glob(f"**/{camera}/data/*.png")
+    )
+    if not names:
+        return blocks
+    picks = [names[i] for i in np.linspace(0, len(names) - 1, min(strips, len(names))).astype(int)]
+    rows = [[read_image(source / name), read_image(out / "restored" / name)] for name in picks]
+    labels = [[f"before {Path(name).stem}", "after"] for name in picks]
+    sheet = make_contact_sheet(rows, labels, title="restore: obstructed camera before | after")
+    write_image(out / "restore_before_after.png", sheet)
+    blocks.append(Image("restore_before_after.png", "before | after restore"))
+    return blocks
+
+
 def write_report(out: Path, timings: dict[str, dict[str, float | bool]]) -> Path:
     """Write ``report.md`` and ``report.html`` under ``out``; returns the Markdown path."""
     blocks: list[Block] = [
@@ -197,6 +243,8 @@ def write_report(out: Path, timings: dict[str, dict[str, float | bool]]) -> Path
         blocks.append(
             Image("tradeoff/tradeoff.png", "accuracy against CPU time, Pareto front marked")
         )
+    blocks.append(Heading("Restore"))
+    blocks += restore_blocks(out)
     blocks.append(Heading("Reproduce"))
     blocks.append(
         Code(

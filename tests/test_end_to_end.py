@@ -24,10 +24,18 @@ def test_demo_runs_every_stage_and_writes_the_report(demo_out: Path) -> None:
     timings = json.loads((demo_out / "timings.json").read_text())
     assert sorted(timings) == sorted(stage.name for stage in plan(demo_out, QUICK))
     report = (demo_out / "report.md").read_text()
-    for section in ("Calibration", "Ingest", "Dataset", "Evaluation", "Accuracy against time"):
+    sections = (
+        "Calibration",
+        "Ingest",
+        "Dataset",
+        "Evaluation",
+        "Accuracy against time",
+        "Restore",
+    )
+    for section in sections:
         assert f"## {section}" in report
     assert "<table>" in (demo_out / "report.html").read_text()
-    for picture in ("eval/contact_sheet.png", "tradeoff/tradeoff.png"):
+    for picture in ("eval/contact_sheet.png", "tradeoff/tradeoff.png", "restore_before_after.png"):
         assert picture in report and (demo_out / picture).is_file()
 
 

@@ -1,0 +1,168 @@
+"""Writing a copy of a bag with some image messages replaced, through ``rosbags``.
+
+:class:`BagCopy` receives every message of the source bag (a
+:class:`~lenspair.capture.frames.BagMessage`, in log-time order) and writes it
+to a new bag of the same kind: a ROS 1 ``.bag`` for a ``.bag``, a ROS 2 bag
+folder with the same storage (``sqlite3`` for ``.db3``, ``mcap`` for
+``.mcap``) for a ROS 2 input. Every connection is copied with its message
+definition, md5/type hash, caller id, latching and QoS profiles, and every
+message keeps its log time; messages that are not replaced are copied byte for
+byte. A replaced image keeps its header (stamp, frame id), size and encoding:
+only the pixel payload changes (:func:`encode_image`). With a ``suffix``, the
+restored image goes to ``<topic><suffix>`` and the original stays on
+``<topic>``.
+
+Bag-level compression of the source is not reproduced (the copy is
+uncompressed); per-message compression (``CompressedImage``) is.
+"""
+
+from dataclasses import replace
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import cv2
+import numpy as np
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Writer2
+from rosbags.typesys import Stores, get_typestore
+
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.frames import BagMessage
+from lenspair.capture.rosbag import COMPRESSED_IMAGE
+
+_CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
+
+
+def output_bag_path(source: Path, out_dir: Path) -> Path:
+    """Where the copy of ``source`` goes inside ``out_dir`` (same name; ROS 2 as a folder)."""
+    source = Path(source)
+    if source.suffix.lower() == ".bag":
+        return out_dir / source.name
+    return out_dir / (source.stem if source.is_file() else source.name)
+
+
+def _storage_plugin(source: Path) -> StoragePlugin:
+    source = Path(source)
+    files = [source] if source.is_file() else sorted(source.iterdir())
+    if any(f.suffix.lower() == ".mcap" for f in files):
+        return StoragePlugin.MCAP
+    return StoragePlugin.SQLITE3
+
+
+class BagCopy:
+    """A bag being written as a copy of ``source`` (use as a context manager).
+
+    Args:
+        source: the bag read (decides the output kind and storage).
+        destination: from :func:`output_bag_path`; must not exist.
+        suffix: when set, restored images go to ``<topic><suffix>``.
+    """
+
+    def __init__(self, source: Path, destination: Path, suffix: str = "") -> None:
+        self.ros1 = Path(source).suffix.lower() == ".bag"
+        self.typestore = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
+        self.suffix = suffix
+        self.writer: Any = (
+            Writer1(destination)
+            if self.ros1
+            else Writer2(destination, version=9, storage_plugin=_storage_plugin(source))
+        )
+        self.connections: dict[tuple[int, str], Any] = {}
+
+    def __enter__(self) -> "BagCopy":
+        self.writer.open()
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        value: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.writer.close()
+
+    def _connection(self, connection: Any, topic: str) -> Any:
+        key = (int(connection.id), topic)
+        if key not in self.connections:
+            if self.ros1:
+                self.connections[key] = self.writer.add_connection(
+                    topic,
+                    connection.msgtype,
+                    msgdef=connection.msgdef.data,
+                    md5sum=connection.digest,
+                    callerid=getattr(connection.ext, "callerid", None),
+                    latching=getattr(connection.ext, "latching", None),
+                )
+            else:
+                self.connections[key] = self.writer.add_connection(
+                    topic,
+                    connection.msgtype,
+                    msgdef=connection.msgdef.data,
+                    rihs01=connection.digest,
+                    serialization_format=getattr(connection.ext, "serialization_format", "cdr"),
+                    offered_qos_profiles=getattr(connection.ext, "offered_qos_profiles", []),
+                )
+        return self.connections[key]
+
+    def write(self, item: BagMessage, restored: np.ndarray | None = None) -> None:
+        """Copy ``item``; with ``restored`` pixels, write them as its image too.
+
+        Raises:
+            CaptureError: the restored image cannot be encoded in the
+                message's encoding.
+        """
+        original = self._connection(item.connection, item.connection.topic)
+        if restored is None:
+            self.writer.write(original, item.log_time_ns, item.raw)
+            return
+        message = encode_image(item.connection.msgtype, item.message, restored)
+        msgtype = item.connection.msgtype
+        data = (
+            self.typestore.serialize_ros1(message, msgtype)
+            if self.ros1
+            else self.typestore.serialize_cdr(message, msgtype)
+        )
+        if self.suffix:
+            self.writer.write(original, item.log_time_ns, item.raw)
+            target = self._connection(item.connection, item.connection.topic + self.suffix)
+            self.writer.write(target, item.log_time_ns, data)
+        else:
+            self.writer.write(original, item.log_time_ns, data)
+
+
+def encode_image(msgtype: str, message: Any, image: np.ndarray) -> Any:
+    """A copy of an image message with ``image`` as its pixels; header and encoding kept.
+
+    Args:
+        msgtype: ``sensor_msgs/msg/Image`` or ``sensor_msgs/msg/CompressedImage``.
+        message: the deserialised original.
+        image: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB, the
+            original's size and dtype.
+
+    Raises:
+        CaptureError: an encoding that cannot be written back (e.g. ``rgba8``).
+    """
+    if msgtype == COMPRESSED_IMAGE:
+        fmt = str(message.format).lower()
+        extension = ".png" if "png" in fmt else ".jpg"
+        pixels = image if image.ndim == 2 else np.ascontiguousarray(image[:, :, ::-1])
+        ok, encoded = cv2.imencode(extension, pixels)
+        if not ok:
+            raise CaptureError(f"cannot encode a {image.dtype} image as {extension}")
+        return replace(message, data=np.asarray(encoded, dtype=np.uint8).reshape(-1))
+    encoding = str(message.encoding).lower()
+    if image.ndim == 3:
+        order = _CHANNEL_ORDER.get(encoding[:3])
+        if order is None or encoding not in ("rgb8", "bgr8", "rgb16", "bgr16"):
+            raise CaptureError(f"cannot write restored pixels as encoding {message.encoding!r}")
+        image = image[:, :, list(order)]
+    little = np.ascontiguousarray(image, dtype=image.dtype.newbyteorder("<"))
+    row_bytes = little.shape[1] * (1 if little.ndim == 2 else 3) * little.dtype.itemsize
+    return replace(
+        message,
+        is_bigendian=0,
+        step=row_bytes,
+        data=np.frombuffer(little.tobytes(), dtype=np.uint8).copy(),
+    )

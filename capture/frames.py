@@ -1,0 +1,292 @@
+"""Frames of any input, in order: an image, a folder of images, an EuRoC/ASL recording, a bag.
+
+The one place that answers "give me every frame of this input", shared by
+``lenspair restore`` and the anomaly detector (``detect``)::
+
+    from lenspair.capture.frames import detect_input, iter_frames
+
+    kind = detect_input(Path("run.bag"))                # "rosbag1"
+    for frame in iter_frames(Path("run.bag"), cameras=("cam1",)):
+        if frame.image is None:
+            print(frame.name, "failed:", frame.error)   # recorded, not fatal
+        else:
+            use(frame.image)                            # uint8/uint16 (H, W) or (H, W, 3) RGB
+
+Inputs (:func:`detect_input`):
+
+* ``image``: one image file (``.png``, ``.tif``, ``.jpg``, ...).
+* ``folder``: a folder of images, searched recursively; ``name`` is the path
+  relative to the folder (so an output can keep the tree). Left/right folder
+  recordings are read this way too (every image of both cameras).
+* ``euroc``: an EuRoC/ASL recording (``mav0/cam{0,1}/data.csv``); frames of
+  the chosen cameras in time order, ``name`` relative to the recording folder
+  (``mav0/cam1/data/<t_ns>.png``).
+* ``rosbag1`` / ``rosbag2``: a ``.bag`` file, a ROS 2 bag folder or a bare
+  ``.db3``/``.mcap`` file, read once from start to end (no seeking); the
+  chosen cameras' image topics are decoded. :func:`iter_bag_messages` gives
+  every message (for copying a bag), :func:`iter_frames` only the images.
+
+A frame that cannot be read (corrupt file, undecodable message) is yielded
+with ``image=None`` and ``error`` set, so the caller records it and goes on.
+A bag that stops part-way (truncated) ends the iteration early; the reason is
+appended to the ``problems`` list passed in.
+"""
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from lenspair.capture import euroc, rosbag
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.recording import CAMERAS, open_recording
+from lenspair.capture.rigfile import CameraName
+from lenspair.core.errors import LenspairError
+from lenspair.core.imageio import read_image
+
+InputKind = Literal["image", "folder", "euroc", "rosbag1", "rosbag2"]
+IMAGE_SUFFIXES = frozenset({".png", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp"})
+
+
+@dataclass(frozen=True)
+class InputFrame:
+    """One frame of an input, decoded (or not, with the reason).
+
+    Attributes:
+        index: position among the frames yielded (0-based, input order).
+        name: stable identifier; for files the path relative to the input
+            folder (POSIX), for bags ``<topic>@<log_time_ns>#<occurrence>``.
+        camera: ``cam0``/``cam1`` for recordings and bags, None otherwise.
+        t_ns: timestamp (ns) when the input has one, else None.
+        source: where it came from, for messages (file, or ``bag topic @ t``).
+        image: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB, or None
+            when it could not be read.
+        error: one line saying why ``image`` is None.
+    """
+
+    index: int
+    name: str
+    camera: CameraName | None
+    t_ns: int | None
+    source: str
+    image: np.ndarray | None
+    error: str | None = None
+
+
+@dataclass(frozen=True)
+class BagMessage:
+    """One message of a bag, in log-time order, with its image decoded when chosen.
+
+    Attributes:
+        connection: the ``rosbags`` connection it was recorded on.
+        log_time_ns: the bag's receive time (ns).
+        raw: serialised bytes as stored (ROS1 or CDR).
+        frame: the decoded frame when the message is an image of a chosen
+            camera topic, else None.
+        message: the deserialised message when ``frame`` is set (to re-encode).
+    """
+
+    connection: Any
+    log_time_ns: int
+    raw: bytes
+    frame: InputFrame | None = None
+    message: Any = None
+
+
+def detect_input(path: Path) -> InputKind:
+    """Which kind of input ``path`` is.
+
+    Raises:
+        CaptureError: missing path, or neither an image, a folder nor a bag.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise CaptureError(f"{path}: no such file or folder")
+    if rosbag.is_bag(path):
+        return "rosbag1" if path.suffix.lower() == ".bag" else "rosbag2"
+    if path.is_file():
+        if path.suffix.lower() in IMAGE_SUFFIXES:
+            return "image"
+        raise CaptureError(
+            f"{path}: not an image ({', '.join(sorted(IMAGE_SUFFIXES))}) or a bag "
+            "(.bag, .db3, .mcap)"
+        )
+    if euroc.find_euroc_root(path) is not None and (
+        (path / "mav0").is_dir() or all((path / camera).is_dir() for camera in CAMERAS)
+    ):
+        return "euroc"
+    return "folder"
+
+
+def image_files(folder: Path) -> list[Path]:
+    """Image files under ``folder`` (recursive, hidden entries skipped), sorted by path."""
+    found = [
+        p
+        for p in Path(folder).rglob("*")
+        if p.is_file()
+        and p.suffix.lower() in IMAGE_SUFFIXES
+        and not any(part.startswith(".") for part in p.relative_to(folder).parts)
+    ]
+    return sorted(found)
+
+
+def bag_camera_topics(path: Path) -> dict[str, CameraName]:
+    """Image topics of a bag and the camera each stands for.
+
+    A single image topic is the camera (called ``cam0``). With two or more,
+    :func:`lenspair.capture.rosbag.select_topics` picks ``(cam0, cam1)``
+    among the topics that do not extend another one (``<topic>/restored``
+    topics written by ``restore --suffix`` are not cameras).
+
+    Raises:
+        CaptureError: no image topic, or an ambiguous choice (lists topics).
+    """
+    reader = rosbag._open(Path(path))
+    try:
+        topics = sorted(
+            name for name, info in reader.topics.items() if info.msgtype in rosbag.IMAGE_TYPES
+        )
+    finally:
+        reader.close()
+    if not topics:
+        raise CaptureError(f"{path}: no image topic (sensor_msgs/Image or CompressedImage)")
+    if len(topics) == 1:
+        return {topics[0]: "cam0"}
+    # A bag written by ``restore --suffix`` holds /cam1/image_raw and
+    # /cam1/image_raw/restored: the cameras are the original topics.
+    originals = [t for t in topics if not any(t.startswith(o + "/") for o in topics)]
+    topics = originals if len(originals) >= 2 else topics
+    cam0, cam1 = rosbag.select_topics(topics, Path(path))
+    return {cam0: "cam0", cam1: "cam1"}
+
+
+def iter_frames(
+    path: Path,
+    cameras: Sequence[CameraName] = CAMERAS,
+    problems: list[str] | None = None,
+) -> Iterator[InputFrame]:
+    """Every frame of ``path`` (any kind, see the module docstring), decoded.
+
+    Args:
+        path: the input.
+        cameras: recordings and bags only: the cameras whose frames are wanted.
+        problems: appended to when a bag stops part-way.
+
+    Yields:
+        :class:`InputFrame` in input order (files sorted by path; recordings
+        by camera then time; bags by log time).
+
+    Raises:
+        CaptureError: the input cannot be opened at all (unknown layout,
+            unreadable bag).
+    """
+    kind = detect_input(path)
+    if kind in ("rosbag1", "rosbag2"):
+        for item in iter_bag_messages(path, cameras, problems):
+            if item.frame is not None:
+                yield item.frame
+        return
+    yield from _iter_files(path, kind, cameras)
+
+
+def frame_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> list[Path]:
+    """The image files :func:`iter_frames` reads for a file-based input, in order."""
+    return [file for file, _, _ in _file_entries(path, kind, cameras)]
+
+
+def _file_entries(
+    path: Path, kind: InputKind, cameras: Sequence[CameraName]
+) -> list[tuple[Path, CameraName | None, int | None]]:
+    """``(file, camera, t_ns)`` per frame; recordings take both from ``data.csv``."""
+    path = Path(path)
+    if kind == "image":
+        return [(path, None, None)]
+    if kind == "folder":
+        return [(file, None, None) for file in image_files(path)]
+    recording = open_recording(path)
+    return [
+        (ref.source, camera, ref.t_ns) for camera in cameras for ref in recording.frames[camera]
+    ]
+
+
+def _iter_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> Iterator[InputFrame]:
+    path = Path(path)
+    base = path.parent if kind == "image" else path
+    for index, (file, camera, t_ns) in enumerate(_file_entries(path, kind, cameras)):
+        name = file.relative_to(base).as_posix()
+        try:
+            image, error = read_image(file), None
+        except LenspairError as exc:
+            image, error = None, str(exc)
+        yield InputFrame(index, name, camera, t_ns, str(file), image, error)
+
+
+def iter_bag_messages(
+    path: Path,
+    cameras: Sequence[CameraName] = CAMERAS,
+    problems: list[str] | None = None,
+) -> Iterator[BagMessage]:
+    """Every message of a bag in log-time order; chosen camera images decoded.
+
+    Args:
+        path: ``.bag`` file, ROS 2 bag folder, or ``.db3``/``.mcap`` file.
+        cameras: cameras (see :func:`bag_camera_topics`) whose images are decoded.
+        problems: appended to (one line) when reading stops part-way.
+
+    Raises:
+        CaptureError: the bag cannot be opened, or no message can be read.
+    """
+    path = Path(path)
+    chosen = {t: c for t, c in bag_camera_topics(path).items() if c in cameras} if cameras else {}
+    reader = rosbag._open(path)
+    index = 0
+    read = 0
+    occurrences: dict[tuple[str, int], int] = {}
+    try:
+        stream = reader.messages()
+        while True:
+            try:
+                connection, log_time, raw = next(stream)
+            except StopIteration:
+                break
+            except Exception as exc:  # storage backends raise assorted types when damaged
+                if read == 0:
+                    raise CaptureError(f"{path}: cannot read messages ({_one_line(exc)})") from None
+                if problems is not None:
+                    problems.append(
+                        f"{path}: reading stopped early after {read} messages ({_one_line(exc)})"
+                    )
+                break
+            read += 1
+            raw = bytes(raw)
+            camera = chosen.get(connection.topic)
+            if camera is None:
+                yield BagMessage(connection, log_time, raw)
+                continue
+            key = (connection.topic, log_time)
+            occurrence = occurrences.get(key, 0)
+            occurrences[key] = occurrence + 1
+            name = f"{connection.topic}@{log_time}#{occurrence}"
+            where = f"{path} {connection.topic} @ log time {log_time}"
+            message: Any = None
+            t_ns: int | None = None
+            try:
+                message = reader.deserialize(raw, connection.msgtype)
+                t_ns = rosbag._stamp_ns(message)
+                image, error = rosbag.decode_message(connection.msgtype, message, where), None
+            except CaptureError as exc:
+                image, error = None, str(exc)
+            except Exception as exc:  # corrupt serialisation: the frame only
+                image, error = None, f"{where}: cannot deserialise ({_one_line(exc)})"
+            frame = InputFrame(index, name, camera, t_ns, where, image, error)
+            index += 1
+            yield BagMessage(connection, log_time, raw, frame, message)
+    finally:
+        reader.close()
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 200 else text[:197] + "..."

@@ -1,0 +1,100 @@
+"""Restore images, folders, recordings and bags with a trained network: the same format out.
+
+  lenspair restore runs/rain/best.pt photos/ --out photos_clean/
+  lenspair restore model.onnx run_01/ --out run_01_clean/ --camera cam1
+  lenspair restore best.pt rain_run/ --out clean_run/ --suffix /restored   # ROS 2 bag folder
+
+INPUT is an image, a folder of images (recursive; the tree and file names are
+kept), an EuRoC/ASL recording (data.csv, sensor.yaml and every other file
+copied; the chosen camera's images restored), a ROS 1 .bag or a ROS 2 bag
+(.db3 or .mcap; every message copied, restored images on the same topics or on
+<topic><suffix>, headers and log times unchanged). Images keep their bit
+depth and channel count. The model is a lenspair checkpoint (torch, CPU or
+CUDA) or an ONNX file from `lenspair export` (ONNX Runtime; it was exported
+at a fixed size, so other sizes run on tiles of that size).
+
+Any size works (padded to a multiple of 4 and cropped back, as eval does);
+--tile N runs large images in overlapping N x N tiles blended without seams.
+Unreadable frames are copied unchanged and listed in OUT/restore_report.json;
+a non-empty OUT is refused unless --resume, which continues a killed run and
+writes the same bytes as an uninterrupted one.
+"""
+
+import argparse
+from pathlib import Path
+
+from lenspair.model.inference.options import (
+    CAMERA_CHOICES,
+    DEFAULT_BATCH_SIZE,
+    DEFAULT_OVERLAP,
+    PRECISIONS,
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``restore``."""
+    parser.add_argument("model", type=Path, help="checkpoint (.pt) or ONNX model (.onnx)")
+    parser.add_argument("input", type=Path, help="image, folder, EuRoC/ASL recording or bag")
+    parser.add_argument("--out", type=Path, required=True, help="output folder (empty or new)")
+    parser.add_argument(
+        "--camera",
+        choices=CAMERA_CHOICES,
+        default="auto",
+        help="recordings and bags: camera(s) to restore (auto: the obstructed one in "
+        "rig.yaml, else both)",
+    )
+    parser.add_argument(
+        "--suffix",
+        default="",
+        help="bags: write restored images to <topic><suffix> (e.g. /restored) beside the "
+        "originals instead of replacing them",
+    )
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        default=DEFAULT_BATCH_SIZE,
+        help=f"frames per network call ({DEFAULT_BATCH_SIZE})",
+    )
+    parser.add_argument("--tile", type=int, help="tile side in pixels for large images (off)")
+    parser.add_argument(
+        "--overlap",
+        type=int,
+        default=DEFAULT_OVERLAP,
+        help=f"tile overlap in pixels ({DEFAULT_OVERLAP})",
+    )
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    parser.add_argument(
+        "--precision",
+        choices=PRECISIONS,
+        default="auto",
+        help="auto (fp32 for now), fp32 or bf16 (torch checkpoints only)",
+    )
+    parser.add_argument("--resume", action="store_true", help="continue a killed run in OUT")
+    parser.add_argument(
+        "--only-obstructed",
+        action="store_true",
+        help="restore only frames the anomaly detector calls obstructed; copy the others",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Restore; prints the summary line; returns the exit code."""
+    # Imported here, not at module level: they load torch, which --help must not.
+    from lenspair.core.device import resolve_device
+    from lenspair.model.inference.backends import open_backend
+    from lenspair.model.inference.judge import default_judge
+    from lenspair.model.inference.pipeline import RestoreOptions, restore_input
+
+    judge = default_judge() if args.only_obstructed else None
+    backend = open_backend(args.model, resolve_device(args.device), args.precision)
+    options = RestoreOptions(
+        camera=args.camera,
+        batch_size=args.batch_size,
+        tile=args.tile,
+        overlap=args.overlap,
+        suffix=args.suffix,
+        resume=args.resume,
+    )
+    report = restore_input(args.input, args.out, backend, options, judge)
+    print(report.summary())
+    return 0

@@ -1,0 +1,1 @@
+"""Applying a trained network to new data: backends, tiling, the restore pipeline."""

@@ -1,0 +1,201 @@
+"""Inference backends: a torch checkpoint or an exported ONNX model, one call signature.
+
+A backend maps a batch ``(N, C, H, W)`` ``float32`` in [0, 1] (numpy) to the
+restored batch of the same shape, dtype and range. Any ``H, W >= 8`` is
+accepted by the torch network (it reflection-pads to a multiple of 4 and
+crops back, as ``eval`` does). An ONNX file from ``lenspair export`` has a
+fixed ``H x W`` (``fixed_size``); the caller tiles other sizes
+(:mod:`lenspair.model.inference.tiling`).
+
+Precision: ``--precision auto|fp32|bf16``. **auto means fp32 for now**
+(:func:`resolve_precision`): the hardware-driven choice that ``train``/``eval``
+will share is being built separately (issue 11) and is to be routed here.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from lenspair.model.checkpoint import load_model
+from lenspair.model.errors import ModelError
+from lenspair.model.evaluation.latency import autocast_context, tune_allocator
+from lenspair.model.inference.options import PRECISIONS
+
+
+class Backend(Protocol):
+    """What the restore pipeline needs from a network."""
+
+    @property
+    def channels(self) -> int:
+        """Image channels the network takes and returns (1 mono, 3 RGB)."""
+
+    @property
+    def fixed_size(self) -> tuple[int, int] | None:
+        """``(H, W)`` the model only accepts, or None for any size."""
+
+    @property
+    def description(self) -> str:
+        """One line: file, runtime, device, precision."""
+
+    def __call__(self, batch: np.ndarray) -> np.ndarray:
+        """``(N, C, H, W)`` float32 in [0, 1] -> restored, same shape, float32 in [0, 1]."""
+
+
+def resolve_precision(choice: str, device: torch.device) -> str:
+    """``--precision`` to what runs: ``fp32`` or ``bf16``.
+
+    ``auto`` is fp32 for the moment. TODO(issue 11): route ``auto`` to the
+    shared hardware-driven precision decision once it is merged.
+
+    Raises:
+        ModelError: an unknown choice.
+    """
+    if choice not in PRECISIONS:
+        raise ModelError(f"--precision: expected one of {', '.join(PRECISIONS)}, got {choice!r}")
+    del device  # used by the shared decision (issue 11)
+    return "fp32" if choice == "auto" else choice
+
+
+@dataclass
+class TorchBackend:
+    """A checkpoint's network in eval mode (the enhanced output only).
+
+    Args:
+        network: forward(x) -> (generator_out, enhanced_out), prepared by
+            :func:`deploy`.
+        channels: its image channels.
+        device: where it runs.
+        precision: ``fp32`` or ``bf16`` (autocast).
+        path: the checkpoint, for the description.
+    """
+
+    network: torch.nn.Module
+    channels: int
+    device: torch.device
+    precision: str = "fp32"
+    path: Path = Path("checkpoint")
+
+    @property
+    def fixed_size(self) -> tuple[int, int] | None:
+        """Any size works (the network pads to a multiple of 4)."""
+        return None
+
+    @property
+    def description(self) -> str:
+        """One line for logs and the report."""
+        return f"torch checkpoint {self.path} on {self.device} ({self.precision})"
+
+    @torch.inference_mode()
+    def __call__(self, batch: np.ndarray) -> np.ndarray:
+        """Run the network on a numpy batch (see :class:`Backend`)."""
+        x = torch.from_numpy(np.ascontiguousarray(batch, dtype=np.float32)).to(self.device)
+        if self.device.type == "cpu":
+            x = x.contiguous(memory_format=torch.channels_last)
+        with autocast_context(self.device, self.precision):
+            output = self.network(x)[1]
+        return np.asarray(output.float().clamp(0.0, 1.0).cpu().numpy(), dtype=np.float32)
+
+
+class OnnxBackend:
+    """An ONNX model run by ONNX Runtime (input ``image``, output ``restored``).
+
+    Args:
+        path: the ``.onnx`` file (from ``lenspair export``).
+        device: ``cuda`` uses the CUDA execution provider (must be installed).
+        threads: intra-op CPU threads (``torch.get_num_threads()`` by default).
+
+    Raises:
+        ModelError: unreadable model, wrong input rank, or CUDA asked for and
+            not available in onnxruntime.
+    """
+
+    def __init__(self, path: Path, device: torch.device, threads: int | None = None) -> None:
+        import onnxruntime as ort  # only ONNX models need it: checkpoints do not load it
+
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise ModelError(f"{path}: ONNX model not found")
+        providers = ["CPUExecutionProvider"]
+        if device.type == "cuda":
+            if "CUDAExecutionProvider" not in ort.get_available_providers():
+                raise ModelError(
+                    "--device cuda: this onnxruntime has no CUDA provider "
+                    "(install onnxruntime-gpu) or use --device cpu"
+                )
+            providers.insert(0, "CUDAExecutionProvider")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = threads or torch.get_num_threads()
+        try:
+            self.session = ort.InferenceSession(str(self.path), options, providers=providers)
+        except Exception as exc:  # onnxruntime raises its own assorted types
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ModelError(f"{path}: cannot load ONNX model ({first})") from None
+        (spec,) = self.session.get_inputs()
+        if len(spec.shape) != 4 or not isinstance(spec.shape[1], int):
+            raise ModelError(f"{path}: expected an input (N, C, H, W), got {spec.shape}")
+        self.input_name = spec.name
+        self.device = device
+        self._channels = int(spec.shape[1])
+        height, width = spec.shape[2], spec.shape[3]
+        fixed = isinstance(height, int) and isinstance(width, int)
+        self._fixed = (int(height), int(width)) if fixed else None
+
+    @property
+    def channels(self) -> int:
+        """Channels of the model's input."""
+        return self._channels
+
+    @property
+    def fixed_size(self) -> tuple[int, int] | None:
+        """The exported ``(H, W)``, or None when the model takes any size."""
+        return self._fixed
+
+    @property
+    def description(self) -> str:
+        """One line for logs and the report."""
+        return f"ONNX Runtime {self.path} on {self.device} (fp32)"
+
+    def __call__(self, batch: np.ndarray) -> np.ndarray:
+        """Run the session on a numpy batch (see :class:`Backend`)."""
+        feed = {self.input_name: np.ascontiguousarray(batch, dtype=np.float32)}
+        output = self.session.run(None, feed)[0]
+        return np.clip(np.asarray(output, dtype=np.float32), 0.0, 1.0)
+
+
+def open_backend(path: Path, device: torch.device, precision: str = "auto") -> Backend:
+    """A backend for a checkpoint (``.pt``) or an ONNX model (``.onnx``).
+
+    Args:
+        path: the model file; ``.onnx`` selects ONNX Runtime, anything else
+            is read as a lenspair checkpoint.
+        device: from ``--device`` (resolved in the CLI).
+        precision: ``auto``/``fp32``/``bf16``; ONNX models run in fp32.
+
+    Raises:
+        ModelError: unreadable model, or ``bf16`` asked of an ONNX model.
+    """
+    path = Path(path)
+    resolved = resolve_precision(precision, device)
+    if path.suffix.lower() == ".onnx":
+        if resolved != "fp32":
+            raise ModelError(f"--precision {precision}: ONNX models run in fp32 here")
+        return OnnxBackend(path, device)
+    loaded = load_model(path, device)
+    channels = loaded.config.model.channels or 1
+    return TorchBackend(deploy(loaded.network, device), channels, device, resolved, path)
+
+
+def deploy(network: torch.nn.Module, device: torch.device) -> torch.nn.Module:
+    """Prepare ``network`` to run as ``eval``'s latency measures it (in place, eval mode).
+
+    On the CPU: channels-last weights (oneDNN's preferred layout) and glibc
+    told to keep freed activations (see :mod:`lenspair.model.evaluation.latency`).
+    """
+    network.to(device).eval()
+    if device.type == "cpu":
+        tune_allocator()
+        network.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+    return network

@@ -1,0 +1,13 @@
+"""Choices and defaults of ``lenspair restore``, importable without torch (for ``--help``)."""
+
+PRECISIONS = ("auto", "fp32", "bf16")
+"""``--precision``: ``auto`` is fp32 for now (see ``backends.resolve_precision``)."""
+
+CAMERA_CHOICES = ("auto", "cam0", "cam1", "both")
+"""``--camera``: ``auto`` = the obstructed camera of ``rig.yaml``, else both."""
+
+DEFAULT_OVERLAP = 32
+"""``--overlap``: pixels shared by neighbouring tiles."""
+
+DEFAULT_BATCH_SIZE = 4
+"""``--batch-size``: frames per network call."""

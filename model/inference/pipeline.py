@@ -1,0 +1,314 @@
+"""``restore_input``: a network over every frame of an input, the same format out.
+
+Three stages overlap: a **reader thread** decodes frames
+(:mod:`lenspair.capture.frames`), the calling thread batches them and runs
+the network (:mod:`lenspair.model.inference.tiling`), and a **writer thread**
+encodes and writes them in input order (:mod:`lenspair.model.inference.sinks`).
+Queues between the stages are bounded (a few batches), so memory stays flat.
+
+Rules a robotics user can rely on:
+
+* **Batches are aligned to frame index** (frames ``k*B .. k*B+B-1`` of the
+  same size form a batch), so a frame is always computed in the same batch,
+  and ``--resume`` (which skips batches whose outputs all exist and recomputes
+  the others) writes the same bytes as an uninterrupted run. A bag is
+  written in one pass, so ``--resume`` writes it again, taking the frames an
+  earlier run restored from a cache (:class:`~lenspair.model.inference.sinks.BagSink`).
+* **Channels**: a mono network on RGB images (or the reverse) is refused with
+  a one-line error on the first frame: no silent conversion. A later frame
+  whose channels differ is a failed frame.
+* **Failures cost only their frames**: an unreadable image or undecodable
+  message is recorded in ``OUT/restore_report.json`` with its reason and copied
+  unchanged, so the output stays complete and aligned with the input; a bag
+  cut short ends the copy where reading stopped (recorded too).
+* ``judge`` (``--only-obstructed``): frames judged clean are copied unchanged.
+"""
+
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from lenspair.capture.frames import (
+    InputFrame,
+    InputKind,
+    bag_camera_topics,
+    detect_input,
+    frame_files,
+    iter_bag_messages,
+    iter_frames,
+)
+from lenspair.capture.recording import CAMERAS, find_rig_file
+from lenspair.capture.rigfile import CameraName, read_rig_file
+from lenspair.core.fsutil import atomic_write_json
+from lenspair.model.errors import ModelError
+from lenspair.model.inference.backends import Backend
+from lenspair.model.inference.judge import FrameJudge
+from lenspair.model.inference.options import CAMERA_CHOICES, DEFAULT_BATCH_SIZE, DEFAULT_OVERLAP
+from lenspair.model.inference.sinks import BagSink, FileSink
+from lenspair.model.inference.threads import Writer, threaded
+from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
+
+REPORT_NAME = "restore_report.json"
+
+
+@dataclass(frozen=True)
+class RestoreOptions:
+    """How to restore.
+
+    Attributes:
+        camera: ``auto`` (the obstructed camera named by ``rig.yaml``, else
+            both), ``cam0``, ``cam1`` or ``both``; recordings and bags only.
+        batch_size: frames per network call (>= 1).
+        tile: square tile side in pixels, or None for whole images.
+        overlap: pixels shared by neighbouring tiles.
+        suffix: bags only: write restored images to ``<topic><suffix>``
+            beside the originals instead of replacing them.
+        resume: continue a killed run in a non-empty OUT.
+    """
+
+    camera: str = "auto"
+    batch_size: int = DEFAULT_BATCH_SIZE
+    tile: int | None = None
+    overlap: int = DEFAULT_OVERLAP
+    suffix: str = ""
+    resume: bool = False
+
+
+@dataclass
+class RestoreReport:
+    """What a run did; written to ``OUT/restore_report.json``.
+
+    Attributes:
+        input: the input path.
+        kind: ``image``, ``folder``, ``euroc``, ``rosbag1`` or ``rosbag2``.
+        output: the folder, or the bag written.
+        model: the backend's description.
+        cameras: cameras restored (recordings and bags).
+        frames_read: frames met (decoded or not).
+        restored: frames the network restored and wrote in this run.
+        resumed: frames already written by an earlier run (``--resume``).
+        skipped: frames judged clean and copied unchanged.
+        failed: frames that could not be restored (copied unchanged).
+        problems: ``{"frame", "reason"}`` per failed frame, plus input-level ones.
+        seconds: wall time of the run.
+    """
+
+    input: str
+    kind: str
+    output: str
+    model: str
+    cameras: list[str]
+    frames_read: int = 0
+    restored: int = 0
+    resumed: int = 0
+    skipped: int = 0
+    failed: int = 0
+    problems: list[dict[str, str]] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def frames_per_second(self) -> float:
+        """Frames read per second of wall time."""
+        return self.frames_read / self.seconds if self.seconds > 0 else 0.0
+
+    def summary(self) -> str:
+        """The final line: frames, time, frames/s, where the output is."""
+        return (
+            f"restore: {self.frames_read} frames ({self.restored} restored, "
+            f"{self.resumed} resumed, {self.skipped} skipped, {self.failed} failed) "
+            f"in {self.seconds:.1f} s, "
+            f"{self.frames_per_second:.1f} frames/s -> {self.output}"
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain data for JSON."""
+        return {**asdict(self), "frames_per_second": round(self.frames_per_second, 3)}
+
+
+def resolve_cameras(path: Path, kind: InputKind, choice: str) -> tuple[CameraName, ...]:
+    """The cameras to restore for ``--camera`` (see :class:`RestoreOptions`).
+
+    A bag with a single image topic has one camera (``cam0``), restored
+    whatever ``rig.yaml`` says.
+
+    Raises:
+        ModelError: an unknown choice.
+    """
+    if choice not in CAMERA_CHOICES:
+        raise ModelError(f"--camera: expected one of {', '.join(CAMERA_CHOICES)}, got {choice!r}")
+    if kind in ("rosbag1", "rosbag2") and len(bag_camera_topics(path)) == 1:
+        return ("cam0",)
+    if choice == "both":
+        return CAMERAS
+    if choice in CAMERAS:
+        return ("cam0",) if choice == "cam0" else ("cam1",)
+    rig = find_rig_file(path)
+    return (read_rig_file(rig).obstructed,) if rig is not None else CAMERAS
+
+
+def check_out_dir(out_dir: Path, resume: bool) -> None:
+    """Refuse a non-empty OUT unless resuming.
+
+    Raises:
+        ModelError: OUT is a file, or holds files and ``resume`` is False.
+    """
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ModelError(f"--out {out_dir}: exists and is not a folder")
+    if not resume and out_dir.is_dir() and any(out_dir.iterdir()):
+        raise ModelError(
+            f"--out {out_dir}: not empty; pass --resume to continue a run or choose a new folder"
+        )
+
+
+def restore_input(
+    input_path: Path,
+    out_dir: Path,
+    backend: Backend,
+    options: RestoreOptions = RestoreOptions(),
+    judge: FrameJudge | None = None,
+) -> RestoreReport:
+    """Restore every frame of an input into OUT in the input's format.
+
+    Args:
+        input_path: image, folder, EuRoC/ASL recording or bag.
+        out_dir: output folder (refused when not empty unless ``options.resume``).
+        backend: the network (:func:`~lenspair.model.inference.backends.open_backend`).
+        options: see :class:`RestoreOptions`.
+        judge: when given, only frames it calls obstructed are restored.
+
+    Returns:
+        The report (also written to ``OUT/restore_report.json``).
+
+    Raises:
+        ModelError: bad options, non-empty OUT, or a channel mismatch on the
+            first frame.
+        CaptureError: the input cannot be opened at all.
+    """
+    started = time.perf_counter()
+    input_path, out_dir = Path(input_path), Path(out_dir)
+    if options.batch_size < 1:
+        raise ModelError(f"--batch-size: expected at least 1, got {options.batch_size}")
+    kind = detect_input(input_path)
+    cameras = resolve_cameras(input_path, kind, options.camera)
+    check_out_dir(out_dir, options.resume)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    bag = kind in ("rosbag1", "rosbag2")
+    source_problems: list[str] = []
+    sink: FileSink | BagSink
+    total: int | None = None
+    if bag:
+        sink = BagSink(input_path, out_dir, options.suffix, options.resume)
+        items: Iterator[Any] = iter_bag_messages(input_path, cameras, source_problems)
+    else:
+        sink = FileSink(out_dir)
+        files = frame_files(input_path, kind, cameras)
+        total = len(files)
+        items = iter_frames(input_path, cameras)
+    report = RestoreReport(
+        str(input_path), kind, str(sink.output), backend.description, list(cameras)
+    )
+    writer = Writer(sink, report, size=4 * options.batch_size)
+    try:
+        _run(threaded(items, 4 * options.batch_size), backend, options, judge, writer, total)
+    finally:
+        writer.close()
+    if kind == "euroc":  # after the frames: a run refused at its first frame writes nothing
+        assert isinstance(sink, FileSink)
+        sink.copy_others(input_path, files)
+    sink.finish()
+    report.problems.extend({"frame": "", "reason": reason} for reason in source_problems)
+    report.seconds = time.perf_counter() - started
+    atomic_write_json(out_dir / REPORT_NAME, report.as_dict())
+    return report
+
+
+def _run(
+    items: Iterator[Any],
+    backend: Backend,
+    options: RestoreOptions,
+    judge: FrameJudge | None,
+    writer: Writer,
+    total: int | None,
+) -> None:
+    """Batch frames and run the network; hands everything to ``writer`` in order."""
+    report = writer.report
+    pending: list[tuple[Any, InputFrame | None, int | None]] = []  # item, frame, batch slot
+    batch: list[InputFrame] = []
+    bar = tqdm(total=total, desc="restoring", unit="frame", leave=False, disable=_quiet())
+
+    def flush() -> None:
+        outputs: list[np.ndarray | None] = [None] * len(batch)
+        done = [writer.sink.done(frame) for frame in batch]
+        if batch and not all(done):  # the whole batch: same batches as an uninterrupted run
+            images = [frame.image for frame in batch if frame.image is not None]
+            restored = run_backend(backend, to_batch(images), options.tile, options.overlap)
+            first = images[0]
+            outputs = list(from_batch(restored, first.dtype, first.ndim == 2))
+        for item, frame, slot in pending:
+            if slot is None:
+                writer.put(item, frame, None)
+            elif done[slot]:  # written by an earlier run; a bag takes it from the cache
+                report.resumed += 1
+                cached = writer.sink.cached(batch[slot])
+                if cached is not None:
+                    writer.put(item, frame, cached)
+            else:
+                report.restored += 1
+                writer.put(item, frame, outputs[slot])
+        pending.clear()
+        batch.clear()
+
+    channels_checked = False
+    for item in items:
+        frame: InputFrame | None = item if isinstance(item, InputFrame) else item.frame
+        if frame is None:
+            pending.append((item, None, None))
+            continue
+        report.frames_read += 1
+        bar.update(1)
+        image = frame.image
+        reason = frame.error
+        if image is not None and _channels(image) != backend.channels:
+            reason = (
+                f"{frame.source}: {_channels(image)} channel(s) but the network takes "
+                f"{backend.channels}; convert the images or use a network trained on them"
+            )
+            if not channels_checked:
+                raise ModelError(reason)
+        if image is None or reason is not None:
+            report.failed += 1
+            report.problems.append({"frame": frame.name, "reason": reason or "unreadable"})
+            pending.append((item, frame, None))
+            continue
+        channels_checked = True
+        if judge is not None and not judge(frame, image):
+            report.skipped += 1
+            pending.append((item, frame, None))
+            continue
+        if batch and _batch_key(batch[0], options) != _batch_key(frame, options):
+            flush()
+        batch.append(frame)
+        pending.append((item, frame, len(batch) - 1))
+        if len(batch) == options.batch_size:
+            flush()
+    flush()
+    bar.close()
+
+
+def _batch_key(frame: InputFrame, options: RestoreOptions) -> tuple[Any, ...]:
+    assert frame.image is not None
+    return (frame.index // options.batch_size, frame.image.shape, frame.image.dtype)
+
+
+def _channels(image: np.ndarray) -> int:
+    return 1 if image.ndim == 2 else int(image.shape[2])
+
+
+def _quiet() -> bool:
+    return os.environ.get("LENSPAIR_QUIET", "") == "1"

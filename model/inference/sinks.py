@@ -1,0 +1,167 @@
+"""Where restored frames go: files (same names, bit depth, channels) or a bag copy.
+
+A sink receives every item of the input in order, each with restored pixels
+or with None (copy the original unchanged: a frame judged clean, a frame that
+failed, a bag message that is not an image of a chosen camera).
+
+* :class:`FileSink` (image, folder, EuRoC/ASL recording): ``OUT/<name>``
+  with the input's relative name, written atomically. For a recording every
+  other file (``data.csv``, ``sensor.yaml``, other cameras, ``rig.yaml``,
+  IMU, ...) is copied first, so OUT is the same recording with the chosen
+  cameras restored. ``done`` tells ``--resume`` which frames are written.
+* :class:`BagSink`: a copy of the bag (:mod:`lenspair.capture.bagwrite`),
+  with a cache of restored frames so ``--resume`` need not run them again.
+"""
+
+import shutil
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from lenspair.capture.bagwrite import BagCopy, output_bag_path
+from lenspair.capture.frames import BagMessage, InputFrame
+from lenspair.core.fsutil import atomic_write
+from lenspair.core.imageio import write_image
+
+CACHE_DIR = ".restore-cache"
+"""Under OUT: restored bag frames kept until the bag is complete (see :class:`BagSink`)."""
+
+
+def copy_file(source: Path, destination: Path) -> None:
+    """Copy bytes atomically (a killed run never leaves half a file)."""
+    destination.parent.mkdir(parents=True, exist_ok=True)
+
+    def _copy(tmp: Path) -> None:
+        shutil.copyfile(source, tmp)
+
+    atomic_write(destination, _copy, suffix=destination.suffix)
+
+
+class FileSink:
+    """Writes frames of file inputs under ``out_dir`` with their relative names.
+
+    Args:
+        out_dir: the output folder.
+    """
+
+    def __init__(self, out_dir: Path) -> None:
+        self.out_dir = Path(out_dir)
+
+    @property
+    def output(self) -> Path:
+        """Where the output is."""
+        return self.out_dir
+
+    def copy_others(self, root: Path, restored: Iterable[Path]) -> int:
+        """Copy every file under ``root`` except ``restored`` ones; returns the count."""
+        skip = {Path(p).resolve() for p in restored}
+        count = 0
+        for source in sorted(Path(root).rglob("*")):
+            if source.is_file() and source.resolve() not in skip:
+                copy_file(source, self.out_dir / source.relative_to(root))
+                count += 1
+        return count
+
+    def done(self, frame: InputFrame) -> bool:
+        """True when ``frame``'s output already exists (written atomically: complete)."""
+        return (self.out_dir / frame.name).is_file()
+
+    def write(self, item: InputFrame, restored: np.ndarray | None) -> None:
+        """Write ``restored`` under the frame's name, or copy the original file."""
+        destination = self.out_dir / item.name
+        if restored is None:
+            copy_file(Path(item.source), destination)
+        else:
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            write_image(destination, restored)
+
+    def cached(self, frame: InputFrame) -> np.ndarray | None:
+        """Files need no cache: a finished frame is its output file."""
+        return None
+
+    def close(self) -> None:
+        """Nothing to close for files."""
+        return
+
+    def finish(self) -> None:
+        """Nothing to clean up after a complete run."""
+        return
+
+
+class BagSink:
+    """Writes a copy of a bag; restored images replace (or sit beside) the originals.
+
+    A bag cannot be appended to, so it is written in one pass. To let
+    ``--resume`` continue a killed run without running the network again,
+    each restored frame is also kept in ``OUT/.restore-cache/<bag>/<index>.npy``
+    (written atomically after its message); a resumed run takes cached frames
+    from there, writes the whole bag again (byte-identical: the same pixels,
+    messages and order) and removes the cache when the bag is complete.
+
+    Args:
+        source: the input bag.
+        out_dir: the output folder; the bag keeps its name inside it.
+        suffix: see :class:`~lenspair.capture.bagwrite.BagCopy`.
+        resume: keep the cache of an earlier run (else it is cleared).
+    """
+
+    def __init__(self, source: Path, out_dir: Path, suffix: str = "", resume: bool = False) -> None:
+        self.path = output_bag_path(source, out_dir)
+        self.cache = Path(out_dir) / CACHE_DIR / self.path.name
+        if self.path.is_dir():
+            shutil.rmtree(self.path)
+        elif self.path.exists():
+            self.path.unlink()
+        if not resume and self.cache.exists():
+            shutil.rmtree(self.cache)
+        self.copy = BagCopy(source, self.path, suffix)
+        self.opened = False
+
+    @property
+    def output(self) -> Path:
+        """The bag written."""
+        return self.path
+
+    def _cached_path(self, frame: InputFrame) -> Path:
+        return self.cache / f"{frame.index}.npy"
+
+    def done(self, frame: InputFrame) -> bool:
+        """True when an earlier run restored ``frame`` (it is in the cache)."""
+        return self._cached_path(frame).is_file()
+
+    def cached(self, frame: InputFrame) -> np.ndarray | None:
+        """The restored pixels an earlier run kept for ``frame``."""
+        return np.asarray(np.load(self._cached_path(frame), allow_pickle=False))
+
+    def write(self, item: BagMessage, restored: np.ndarray | None) -> None:
+        """Copy the message, with ``restored`` pixels when given (then cache them)."""
+        self._open()
+        self.copy.write(item, restored)
+        if restored is not None and item.frame is not None and not self.done(item.frame):
+
+            def _save(tmp: Path) -> None:
+                with tmp.open("wb") as handle:
+                    np.save(handle, restored, allow_pickle=False)
+
+            atomic_write(self._cached_path(item.frame), _save, suffix=".npy")
+
+    def _open(self) -> None:
+        # SQLite handles belong to the thread that made them: open in the writer
+        # thread, on the first message (a run refused at its first frame leaves OUT empty).
+        if not self.opened:
+            self.cache.mkdir(parents=True, exist_ok=True)
+            self.copy.__enter__()
+            self.opened = True
+
+    def close(self) -> None:
+        """Close the bag (index, metadata); call from the thread that wrote."""
+        if self.opened:
+            self.copy.__exit__(None, None, None)
+
+    def finish(self) -> None:
+        """After a complete run: drop the resume cache."""
+        if self.cache.exists():
+            shutil.rmtree(self.cache)
+        if self.cache.parent.is_dir() and not any(self.cache.parent.iterdir()):
+            self.cache.parent.rmdir()

@@ -1,0 +1,165 @@
+"""Running a backend on whole images or on overlapping tiles blended without seams.
+
+Array convention: batches ``(N, C, H, W)`` ``float32`` in [0, 1]. Frames
+enter as the :mod:`lenspair.core.imageio` convention (``uint8``/``uint16``,
+``(H, W)`` or ``(H, W, 3)`` RGB) and leave in the same dtype and shape
+(:func:`to_batch`, :func:`from_batch`).
+
+Tiling (``--tile N``, or forced by an ONNX model exported at a fixed size):
+the image is covered by ``N x N`` tiles placed every ``N - overlap`` pixels,
+the last one flush with the border. Each tile's output is weighted by a
+linear ramp that rises over the ``overlap`` pixels of every side shared with
+a neighbour (sides on the image border keep weight 1), and the weighted sum
+is divided by the summed weights, so every pixel is a convex blend and no
+seam appears. The network normalises each tile by its own statistics
+(instance norm), so a tiled result is close to, not equal to, the whole-image
+one (tests/model/test_inference.py states the tolerance). A side shorter than
+the tile is reflected up to the tile size and cropped back.
+"""
+
+import numpy as np
+
+from lenspair.core.imageio import max_value
+from lenspair.model.errors import ModelError
+from lenspair.model.inference.backends import Backend
+from lenspair.model.inference.options import DEFAULT_OVERLAP
+
+ALIGN = 32
+"""Tile steps are multiples of this when possible: the enhancer pools 4..32 px cells."""
+
+
+def to_batch(images: list[np.ndarray]) -> np.ndarray:
+    """Same-shape integer images -> ``(N, C, H, W)`` float32 in [0, 1]."""
+    scale = np.float32(max_value(images[0].dtype))
+    stacked = np.stack([image if image.ndim == 3 else image[:, :, None] for image in images])
+    return np.ascontiguousarray(stacked.transpose(0, 3, 1, 2), dtype=np.float32) / scale
+
+
+def from_batch(batch: np.ndarray, dtype: np.dtype, mono: bool) -> list[np.ndarray]:
+    """``(N, C, H, W)`` float in [0, 1] -> integer images, rounded once, clipped."""
+    scale = np.float32(max_value(dtype))
+    codes = np.rint(np.clip(batch, 0.0, 1.0) * scale).astype(dtype)
+    return [np.ascontiguousarray(image[0] if mono else image.transpose(1, 2, 0)) for image in codes]
+
+
+def tile_starts(length: int, tile: int, overlap: int, align: int = ALIGN) -> list[int]:
+    """Start offsets of tiles of ``tile`` pixels covering ``length``, overlapping.
+
+    The step between tiles is ``tile - overlap`` rounded down to a multiple of
+    ``align`` when that leaves a step of at least ``align`` (so every tile
+    sees the enhancer's pooling cells where the whole image does); the last
+    tile may reach past ``length`` (the caller pads).
+
+    Raises:
+        ModelError: ``overlap`` not in ``[0, tile)``.
+    """
+    if not 0 <= overlap < tile:
+        raise ModelError(f"tile overlap must be in [0, {tile}), got {overlap}")
+    if length <= tile:
+        return [0]
+    step = tile - overlap
+    if step >= align:
+        step -= step % align
+    starts = [0]
+    while starts[-1] + tile < length:
+        starts.append(starts[-1] + step)
+    return starts
+
+
+def ramp(tile: int, overlap: int, ramp_start: bool, ramp_end: bool) -> np.ndarray:
+    """1-D blending weight of a tile: linear ramps over ``overlap`` px on shared sides.
+
+    Returns:
+        ``(tile,)`` float32 in (0, 1].
+    """
+    weight = np.ones(tile, dtype=np.float32)
+    if overlap == 0:
+        return weight
+    position = np.arange(tile, dtype=np.float32)
+    if ramp_start:
+        weight = np.minimum(weight, (position + 1) / np.float32(overlap + 1))
+    if ramp_end:
+        weight = np.minimum(weight, (tile - position) / np.float32(overlap + 1))
+    return weight
+
+
+def run_tiled(
+    backend: Backend,
+    batch: np.ndarray,
+    tile: tuple[int, int],
+    overlap: int = DEFAULT_OVERLAP,
+    max_tiles: int = 8,
+) -> np.ndarray:
+    """Restore ``batch`` tile by tile and blend the tiles (see the module docstring).
+
+    Args:
+        backend: the network.
+        batch: ``(N, C, H, W)`` float32 in [0, 1].
+        tile: ``(tile_height, tile_width)``.
+        overlap: pixels shared by neighbouring tiles (capped below the tile).
+        max_tiles: tiles per backend call.
+
+    Returns:
+        ``(N, C, H, W)`` float32 in [0, 1].
+    """
+    n, c, height, width = batch.shape
+    tile_h, tile_w = tile
+    rows = tile_starts(height, tile_h, min(overlap, tile_h - 1))
+    cols = tile_starts(width, tile_w, min(overlap, tile_w - 1))
+    full_h, full_w = max(height, rows[-1] + tile_h), max(width, cols[-1] + tile_w)
+    padded = batch
+    if (full_h, full_w) != (height, width):
+        pad = ((0, 0), (0, 0), (0, full_h - height), (0, full_w - width))
+        padded = np.pad(batch, pad, mode="symmetric")
+    overlap_h = tile_h - (rows[1] - rows[0]) if len(rows) > 1 else 0
+    overlap_w = tile_w - (cols[1] - cols[0]) if len(cols) > 1 else 0
+    total = np.zeros((n, c, full_h, full_w), dtype=np.float32)
+    weights = np.zeros((full_h, full_w), dtype=np.float32)
+    places = [(top, left) for top in rows for left in cols]
+    for first in range(0, len(places), max(1, max_tiles // n)):
+        chunk = places[first : first + max(1, max_tiles // n)]
+        tiles = np.concatenate(
+            [padded[:, :, top : top + tile_h, left : left + tile_w] for top, left in chunk]
+        )
+        outputs = backend(tiles)
+        for index, (top, left) in enumerate(chunk):
+            weight = np.outer(
+                ramp(tile_h, overlap_h, top > 0, top + tile_h < full_h),
+                ramp(tile_w, overlap_w, left > 0, left + tile_w < full_w),
+            )
+            part = outputs[index * n : (index + 1) * n]
+            total[:, :, top : top + tile_h, left : left + tile_w] += part * weight
+            weights[top : top + tile_h, left : left + tile_w] += weight
+    return np.asarray(total / weights, dtype=np.float32)[:, :, :height, :width]
+
+
+def run_backend(
+    backend: Backend, batch: np.ndarray, tile: int | None = None, overlap: int = DEFAULT_OVERLAP
+) -> np.ndarray:
+    """Restore a batch whole, or tiled when ``tile`` is set or the model has a fixed size.
+
+    Args:
+        backend: the network.
+        batch: ``(N, C, H, W)`` float32 in [0, 1], ``H, W >= 8``.
+        tile: square tile side (pixels, >= 16), or None for whole images. A
+            model exported at a fixed size always runs on tiles of that size.
+        overlap: pixels shared by neighbouring tiles.
+
+    Raises:
+        ModelError: a tile below 16 px, or the batch's channels differ from
+            the network's.
+    """
+    if batch.shape[1] != backend.channels:
+        raise ModelError(
+            f"the network takes {backend.channels} channel(s), the images have {batch.shape[1]}"
+        )
+    fixed = backend.fixed_size
+    if fixed is not None:
+        if tuple(batch.shape[2:]) == fixed:
+            return backend(batch)
+        return run_tiled(backend, batch, fixed, overlap)
+    if tile is None or (batch.shape[2] <= tile and batch.shape[3] <= tile):
+        return backend(batch)
+    if tile < 16:
+        raise ModelError(f"--tile: expected at least 16 pixels, got {tile}")
+    return run_tiled(backend, batch, (tile, tile), overlap)

@@ -1,0 +1,161 @@
+"""Restore backends and tiling: whole vs tiled, torch vs ONNX Runtime, precision stub."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lenspair.model.errors import ModelError
+from lenspair.model.inference.backends import (
+    OnnxBackend,
+    TorchBackend,
+    open_backend,
+    resolve_precision,
+)
+from lenspair.model.inference.tiling import (
+    from_batch,
+    run_backend,
+    run_tiled,
+    tile_starts,
+    to_batch,
+)
+from tests.images import texture
+from tests.model.train_fixtures import make_checkpoint
+
+CPU = torch.device("cpu")
+
+
+class Pointwise:
+    """A context-free backend (a fixed tone curve): tiling must not change its output."""
+
+    channels = 1
+    fixed_size: tuple[int, int] | None = None
+    description = "pointwise"
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[int, ...]] = []
+
+    def __call__(self, batch: np.ndarray) -> np.ndarray:
+        self.calls.append(batch.shape)
+        return np.asarray(np.sqrt(batch), dtype=np.float32)
+
+
+@pytest.fixture
+def backend(tmp_path: Path, one_thread: None) -> TorchBackend:
+    loaded = open_backend(make_checkpoint(tmp_path / "ck.pt"), CPU)
+    assert isinstance(loaded, TorchBackend)
+    return loaded
+
+
+@given(
+    length=st.integers(8, 700),
+    tile=st.integers(16, 300),
+    overlap=st.integers(0, 64),
+)
+def test_tile_starts_cover_with_overlap(length: int, tile: int, overlap: int) -> None:
+    overlap = min(overlap, tile - 1)
+    starts = tile_starts(length, tile, overlap)
+    assert starts[0] == 0 and starts[-1] + tile >= length
+    steps = np.diff(starts)
+    assert np.all(steps > 0) and np.all(steps <= tile - overlap)
+    assert len(set(steps.tolist())) <= 1  # one step: the pooling grid stays aligned
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    height=st.integers(8, 90),
+    width=st.integers(8, 90),
+    tile=st.integers(16, 64),
+    overlap=st.integers(0, 40),
+)
+def test_tiling_a_context_free_network_is_exact(
+    height: int, width: int, tile: int, overlap: int
+) -> None:
+    """Blend weights are a partition of unity: no seam, no pixel left out, any size."""
+    rng = np.random.default_rng(height * 1000 + width)
+    batch = rng.random((2, 1, height, width), dtype=np.float32)
+    tiled = run_tiled(Pointwise(), batch, (tile, tile), overlap)
+    np.testing.assert_allclose(tiled, np.sqrt(batch), atol=1e-5)  # float32 blend
+
+
+def test_tiled_and_whole_agree_within_tolerance(backend: TorchBackend) -> None:
+    """The network normalises each tile by its own statistics (instance norm).
+
+    Stated tolerance on this untrained test network: mean |tiled - whole| at
+    most 0.6 x the network's own mean change to the image (measured ~0.5 x), and
+    no seam: the step across tile boundaries is no larger than elsewhere.
+    """
+    image = texture((128, 160), seed=3)
+    batch = image[None, None].astype(np.float32)
+    whole = run_backend(backend, batch)
+    tiled = run_backend(backend, batch, tile=64, overlap=32)
+    change = float(np.abs(whole - batch).mean())
+    assert change > 0.01  # the network does something
+    assert float(np.abs(tiled - whole).mean()) <= 0.6 * change
+    steps = np.abs(np.diff(tiled[0, 0], axis=1)).mean(axis=0)
+    reference = np.abs(np.diff(whole[0, 0], axis=1)).mean(axis=0)
+    boundaries = [63, 95, 127]  # last column of a tile, or first of the next's ramp
+    assert np.all(steps[boundaries] <= reference[boundaries] + 0.05)
+
+
+def test_odd_sizes_are_restored_at_their_size(backend: TorchBackend) -> None:
+    """Not multiples of 4: padded and cropped back inside the network, as eval does."""
+    image = texture((37, 53), seed=1)
+    batch = image[None, None].astype(np.float32)
+    output = run_backend(backend, batch)
+    assert output.shape == batch.shape
+    with torch.inference_mode():
+        expected = backend.network(torch.from_numpy(batch))[1].clamp(0, 1).numpy()
+    np.testing.assert_allclose(output, expected, atol=1e-5)  # channels-last vs NCHW
+
+
+def test_onnx_matches_torch(tmp_path: Path, backend: TorchBackend) -> None:
+    """ONNX Runtime and torch agree to 1e-4 (max abs, [0, 1] range) at the exported size."""
+    from lenspair.model.evaluation.export import export_onnx
+
+    export_onnx(backend.network, 1, tmp_path / "m.onnx", size=(32, 48), runs=1)
+    onnx = open_backend(tmp_path / "m.onnx", CPU)
+    assert isinstance(onnx, OnnxBackend) and onnx.fixed_size == (32, 48)
+    rng = np.random.default_rng(0)
+    batch = rng.random((3, 1, 32, 48), dtype=np.float32)
+    np.testing.assert_allclose(onnx(batch), backend(batch), atol=1e-4)
+    # another size runs on tiles of the exported size, like torch tiled the same way
+    large = texture((64, 96), seed=2)[None, None].astype(np.float32)
+    np.testing.assert_allclose(
+        run_backend(onnx, large), run_tiled(backend, large, (32, 48)), atol=1e-4
+    )
+
+
+def test_integer_round_trip_keeps_dtype_and_channels() -> None:
+    rng = np.random.default_rng(0)
+    for dtype in (np.uint8, np.uint16):
+        top = np.iinfo(dtype).max
+        mono = rng.integers(0, top, (9, 11), dtype=dtype, endpoint=True)
+        rgb = rng.integers(0, top, (9, 11, 3), dtype=dtype, endpoint=True)
+        for image in (mono, rgb):
+            (back,) = from_batch(to_batch([image]), image.dtype, image.ndim == 2)
+            assert back.dtype == image.dtype and back.shape == image.shape
+            np.testing.assert_array_equal(back, image)
+
+
+def test_channel_mismatch_is_refused() -> None:
+    rgb = np.zeros((1, 3, 16, 16), dtype=np.float32)
+    with pytest.raises(ModelError, match="takes 1 channel"):
+        run_backend(Pointwise(), rgb)
+
+
+def test_bf16_stays_close_to_fp32(backend: TorchBackend) -> None:
+    """bf16 autocast (8 mantissa bits): within 0.05 max abs of fp32 on [0, 1] images."""
+    bf16 = TorchBackend(backend.network, 1, CPU, "bf16")
+    batch = texture((32, 48), seed=5)[None, None].astype(np.float32)
+    assert float(np.abs(bf16(batch) - backend(batch)).max()) < 0.05
+
+
+def test_precision_auto_is_fp32_for_now() -> None:
+    assert resolve_precision("auto", CPU) == "fp32"
+    assert resolve_precision("bf16", CPU) == "bf16"
+    with pytest.raises(ModelError, match="--precision"):
+        resolve_precision("int4", CPU)

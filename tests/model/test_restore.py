@@ -1,0 +1,312 @@
+"""``lenspair restore`` end to end: folders, recordings, bags, failures, resume, the CLI."""
+
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+from lenspair.capture.frames import BagMessage, iter_bag_messages, iter_frames
+from lenspair.cli import main
+from lenspair.core.imageio import read_image, write_image
+from lenspair.model.errors import ModelError
+from lenspair.model.inference.backends import TorchBackend, open_backend
+from lenspair.model.inference.judge import ThresholdJudge
+from lenspair.model.inference.pipeline import REPORT_NAME, RestoreOptions, restore_input
+from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
+from tests.capture.ingest_helpers import make_recording, simulate
+from tests.images import texture
+from tests.model.restore_helpers import bag_from_recording, write_bag
+from tests.model.train_fixtures import make_checkpoint, tiny_config
+
+CPU = torch.device("cpu")
+
+
+@pytest.fixture
+def checkpoint(tmp_path: Path, one_thread: None) -> Path:
+    return make_checkpoint(tmp_path / "ck.pt")
+
+
+@pytest.fixture
+def backend(checkpoint: Path) -> TorchBackend:
+    loaded = open_backend(checkpoint, CPU)
+    assert isinstance(loaded, TorchBackend)
+    return loaded
+
+
+def expected(backend: TorchBackend, image: np.ndarray) -> np.ndarray:
+    """What restoring ``image`` alone gives (batch 1, whole image)."""
+    (out,) = from_batch(run_backend(backend, to_batch([image])), image.dtype, image.ndim == 2)
+    return out
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {
+        p.relative_to(root).as_posix(): p.read_bytes()
+        for p in sorted(root.rglob("*"))
+        if p.is_file() and p.name != REPORT_NAME
+    }
+
+
+def _folder(root: Path, dtype: type = np.uint8) -> Path:
+    """Images in a tree, odd sizes among them, 8- or 16-bit."""
+    top = np.iinfo(dtype).max
+    for index, (name, shape) in enumerate(
+        [("a.png", (32, 48)), ("sub/b.png", (37, 53)), ("sub/deep/c.tif", (32, 48))]
+    ):
+        write_image(root / name, (texture(shape, seed=index) * top).astype(dtype))
+    return root
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_folder_keeps_tree_names_depth(tmp_path: Path, backend: TorchBackend, dtype: type) -> None:
+    source = _folder(tmp_path / "in", dtype)
+    report = restore_input(source, tmp_path / "out", backend, RestoreOptions(batch_size=2))
+    assert (report.frames_read, report.restored, report.failed) == (3, 3, 0)
+    for name in ("a.png", "sub/b.png", "sub/deep/c.tif"):
+        original, restored = read_image(source / name), read_image(tmp_path / "out" / name)
+        assert restored.dtype == original.dtype and restored.shape == original.shape
+        np.testing.assert_array_equal(restored, expected(backend, original))
+    saved = json.loads((tmp_path / "out" / REPORT_NAME).read_text())
+    assert saved["restored"] == 3 and saved["input"] == str(source)
+
+
+def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thread: None) -> None:
+    config = tiny_config()
+    rgb_config = replace(config, model=replace(config.model, channels=3))
+    rgb = open_backend(make_checkpoint(tmp_path / "rgb.pt", rgb_config), CPU)
+    image = (texture((32, 48, 3), seed=4) * 255).astype(np.uint8)
+    write_image(tmp_path / "in" / "x.png", image)
+    restore_input(tmp_path / "in", tmp_path / "out", rgb)
+    restored = read_image(tmp_path / "out" / "x.png")
+    assert restored.shape == (32, 48, 3)
+    mono = open_backend(make_checkpoint(tmp_path / "mono.pt"), CPU)
+    with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
+        restore_input(tmp_path / "in", tmp_path / "out2", mono)
+    assert not any((tmp_path / "out2").iterdir())  # refused before writing anything
+    rgb_bag = bag_from_recording(tmp_path / "b", "db3", frames=2, colour=True)
+    with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
+        restore_input(rgb_bag, tmp_path / "out3", mono)
+    assert not any((tmp_path / "out3").iterdir())
+
+
+def test_recording_restores_the_obstructed_camera(tmp_path: Path, backend: TorchBackend) -> None:
+    recording = simulate("rain", tmp_path / "rec", frames=2)  # rig.yaml: cam1 obstructed
+    report = restore_input(recording, tmp_path / "out", backend)
+    assert report.cameras == ["cam1"] and report.restored == 2
+    before, after = _files(recording), _files(tmp_path / "out")
+    assert before.keys() == after.keys()
+    for name, data in before.items():
+        if name.startswith("mav0/cam1/data/"):
+            np.testing.assert_array_equal(
+                read_image(tmp_path / "out" / name), expected(backend, read_image(recording / name))
+            )
+        else:  # data.csv, sensor.yaml, rig.yaml, the clean camera: unchanged
+            assert after[name] == data, name
+
+
+@pytest.mark.parametrize("kind", ["ros1", "db3", "mcap"])
+def test_bag_copies_every_message(tmp_path: Path, backend: TorchBackend, kind: str) -> None:
+    bag = bag_from_recording(tmp_path, kind)
+    suffix = "/restored" if kind == "mcap" else ""
+    report = restore_input(bag, tmp_path / "out", backend, RestoreOptions(suffix=suffix))
+    assert report.cameras == ["cam1"] and report.restored == 3
+    source = list(iter_bag_messages(bag, cameras=("cam0", "cam1")))
+    copy = list(iter_bag_messages(Path(report.output), cameras=()))
+    restored_topic = "/cam1/image_raw" + suffix
+    assert len(copy) == len(source) + (3 if suffix else 0)
+    originals = iter(m for m in source if m.connection.topic == "/cam1/image_raw")
+    for message in copy:
+        topic = message.connection.topic
+        if topic == restored_topic:
+            original = next(originals)
+            assert message.log_time_ns == original.log_time_ns
+            decoded = _decode(message, kind == "ros1")
+            assert _header(decoded) == _header(original.message)  # stamp, frame id, seq
+            assert original.frame is not None and original.frame.image is not None
+            pixels = _pixels(decoded)
+            np.testing.assert_array_equal(pixels, expected(backend, original.frame.image))
+    untouched = [(m.connection.topic, m.log_time_ns, m.raw) for m in copy]
+    for message in source:
+        if message.connection.topic != "/cam1/image_raw" or suffix:
+            key = (message.connection.topic, message.log_time_ns, message.raw)
+            assert key in untouched
+
+
+def _decode(message: BagMessage, ros1: bool) -> Any:
+    from rosbags.typesys import Stores, get_typestore
+
+    msgtype = message.connection.msgtype
+    if ros1:
+        return get_typestore(Stores.ROS1_NOETIC).deserialize_ros1(message.raw, msgtype)
+    return get_typestore(Stores.ROS2_HUMBLE).deserialize_cdr(message.raw, msgtype)
+
+
+def _header(message: Any) -> tuple[int, int, str, int]:
+    header = message.header
+    seq = int(getattr(header, "seq", -1))
+    return int(header.stamp.sec), int(header.stamp.nanosec), str(header.frame_id), seq
+
+
+def _pixels(message: Any) -> np.ndarray:
+    from lenspair.capture.rosbag import decode_message
+
+    return decode_message("sensor_msgs/msg/Image", message, "test")
+
+
+def test_unreadable_image_costs_only_itself(tmp_path: Path, backend: TorchBackend) -> None:
+    source = _folder(tmp_path / "in")
+    (source / "sub" / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n not really")
+    report = restore_input(source, tmp_path / "out", backend)
+    assert (report.frames_read, report.restored, report.failed) == (4, 3, 1)
+    (problem,) = report.problems
+    assert problem["frame"] == "sub/broken.png" and "broken.png" in problem["reason"]
+    assert (tmp_path / "out" / "sub" / "broken.png").read_bytes() == (
+        source / "sub" / "broken.png"
+    ).read_bytes()
+
+
+def test_truncated_bag_keeps_what_was_read(tmp_path: Path, backend: TorchBackend) -> None:
+    bag = bag_from_recording(tmp_path, "db3", frames=6)
+    storage = next(bag.glob("*.db3"))
+    storage.write_bytes(storage.read_bytes()[:-100])
+    report = restore_input(bag, tmp_path / "out", backend)
+    assert 1 <= report.restored < 6
+    assert any("stopped early" in p["reason"] for p in report.problems)
+    copied = list(iter_bag_messages(Path(report.output)))
+    assert sum(m.frame is not None and m.frame.camera == "cam1" for m in copied) == report.restored
+
+
+class _KilledError(Exception):
+    """Stands in for a kill: raised by the backend part-way."""
+
+
+class _DiesAfter:
+    def __init__(self, inner: TorchBackend, calls: int) -> None:
+        self.inner, self.left = inner, calls
+        self.channels, self.fixed_size, self.description = inner.channels, None, "dies"
+
+    def __call__(self, batch: np.ndarray) -> np.ndarray:
+        self.left -= 1
+        if self.left < 0:
+            raise _KilledError
+        return self.inner(batch)
+
+
+@pytest.mark.parametrize("kind", ["folder", "euroc"])
+def test_resume_writes_the_same_bytes(tmp_path: Path, backend: TorchBackend, kind: str) -> None:
+    if kind == "folder":
+        source = tmp_path / "in"
+        for index in range(7):
+            write_image(
+                source / f"{index:02d}.png", (texture((32, 48), seed=index) * 255).astype(np.uint8)
+            )
+    else:
+        source = make_recording(tmp_path / "rec", frames=7)
+    options = RestoreOptions(batch_size=2)
+    restore_input(source, tmp_path / "whole", backend, options)
+    with pytest.raises(_KilledError):
+        restore_input(source, tmp_path / "resumed", _DiesAfter(backend, 2), options)  # type: ignore[arg-type]
+    partial = _files(tmp_path / "resumed")
+    with pytest.raises(ModelError, match="not empty; pass --resume"):
+        restore_input(source, tmp_path / "resumed", backend, options)
+    report = restore_input(
+        source, tmp_path / "resumed", backend, RestoreOptions(batch_size=2, resume=True)
+    )
+    assert report.resumed == 4 and report.restored == 3
+    assert len(partial) < len(_files(tmp_path / "whole"))
+    assert _files(tmp_path / "resumed") == _files(tmp_path / "whole")
+
+
+@pytest.mark.parametrize("kind", ["ros1", "db3"])
+def test_bag_resume_reuses_frames_and_writes_the_same_bytes(
+    tmp_path: Path, backend: TorchBackend, kind: str
+) -> None:
+    bag = bag_from_recording(tmp_path, kind, frames=5)
+    options = RestoreOptions(batch_size=2)
+    whole = restore_input(bag, tmp_path / "whole", backend, options)
+    with pytest.raises(_KilledError):
+        restore_input(bag, tmp_path / "out", _DiesAfter(backend, 1), options)  # type: ignore[arg-type]
+    resume = RestoreOptions(batch_size=2, resume=True)
+    again = restore_input(bag, tmp_path / "out", backend, resume)
+    assert (again.resumed, again.restored) == (2, 3)
+    assert _files(tmp_path / "out") == _files(tmp_path / "whole")  # the cache is gone too
+    assert Path(again.output).name == Path(whole.output).name
+
+
+def test_only_obstructed_copies_clean_frames(tmp_path: Path, backend: TorchBackend) -> None:
+    source = tmp_path / "in"
+    write_image(source / "dark.png", (texture((32, 48), seed=1) * 60).astype(np.uint8))
+    write_image(source / "bright.png", (texture((32, 48), seed=2) * 255).astype(np.uint8))
+    report = restore_input(source, tmp_path / "out", backend, judge=ThresholdJudge(0.3))
+    assert (report.restored, report.skipped) == (1, 1)
+    assert (tmp_path / "out" / "bright.png").read_bytes() == (source / "bright.png").read_bytes()
+    np.testing.assert_array_equal(
+        read_image(tmp_path / "out" / "dark.png"),
+        expected(backend, read_image(source / "dark.png")),
+    )
+
+
+def test_cli_single_image_and_one_line_errors(
+    tmp_path: Path, checkpoint: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    image = tmp_path / "photo.png"
+    write_image(image, (texture((30, 41), seed=0) * 255).astype(np.uint8))
+    out = tmp_path / "out"
+    assert main(["restore", str(checkpoint), str(image), "--out", str(out), "--device", "cpu"]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line.startswith("restore: 1 frames (1 restored") and line.endswith(f"-> {out}")
+    assert read_image(out / "photo.png").shape == (30, 41)
+    for extra, message in (([], "not empty; pass --resume"), (["--only-obstructed"], "detector")):
+        code = main(["restore", str(checkpoint), str(image), "--out", str(out), *extra])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1, err
+        assert err[0].startswith("lenspair restore: error:") and message in err[0]
+
+
+def test_frames_of_every_input_kind(tmp_path: Path) -> None:
+    """The shared iterator (also used by the detector) gives names, cameras and pixels."""
+    folder = _folder(tmp_path / "in")
+    assert [f.name for f in iter_frames(folder)] == ["a.png", "sub/b.png", "sub/deep/c.tif"]
+    recording = make_recording(tmp_path / "rec", frames=2)
+    frames = list(iter_frames(recording, cameras=("cam1",)))
+    assert [f.camera for f in frames] == ["cam1", "cam1"] and all(f.t_ns for f in frames)
+    bag = bag_from_recording(tmp_path / "b", "ros1", frames=2)
+    bag_frames = list(iter_frames(bag))
+    assert [f.camera for f in bag_frames] == ["cam0", "cam1", "cam0", "cam1"]
+    for frame, file in zip(
+        frames, sorted((recording / "mav0/cam1/data").glob("*.png")), strict=True
+    ):
+        assert frame.image is not None
+        np.testing.assert_array_equal(frame.image, read_image(file))
+
+
+def test_single_topic_bag_restores_that_topic(tmp_path: Path, backend: TorchBackend) -> None:
+    """A mono-camera bag: its one image topic is restored whatever rig.yaml says."""
+    image = (texture((32, 48), seed=3) * 255).astype(np.uint8)
+    bag = write_bag(tmp_path / "front", "mcap", {"front": [(10**18, image), (10**18 + 50, image)]})
+    report = restore_input(bag, tmp_path / "out", backend, RestoreOptions(camera="cam1"))
+    assert report.cameras == ["cam0"] and report.restored == 2
+    (frame, _) = list(iter_frames(Path(report.output)))
+    assert frame.image is not None
+    np.testing.assert_array_equal(frame.image, expected(backend, image))
+
+
+def test_demo_restores_a_recording_and_shows_before_after(tmp_path: Path, checkpoint: Path) -> None:
+    from lenspair.core.report import Image
+    from lenspair.demo import QUICK, RESTORED_RECORDING, plan
+    from lenspair.demo_report import restore_blocks
+
+    out = tmp_path / "demo"
+    (stage,) = [s for s in plan(out, QUICK) if s.name == "restore"]
+    assert stage.argv[0] == "restore" and stage.argv[1].endswith("finetune/checkpoints/best.pt")
+    recording = make_recording(out / "recordings" / RESTORED_RECORDING, frames=3)
+    argv = ["restore", str(checkpoint), str(recording), *stage.argv[3:]]
+    assert main(argv) == 0
+    blocks = restore_blocks(out)
+    assert any(isinstance(b, Image) and b.path == "restore_before_after.png" for b in blocks)
+    strip = read_image(out / "restore_before_after.png")
+    assert strip.ndim == 3 and strip.shape[0] > 100
