@@ -23,7 +23,7 @@ import logging
 import statistics
 import tempfile
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -169,6 +169,8 @@ class Int8Network(nn.Module):
 
     """
 
+    fp32_network: nn.Module
+
     def __init__(
         self,
         network: nn.Module,
@@ -177,7 +179,9 @@ class Int8Network(nn.Module):
         threads: int | None = None,
     ) -> None:
         super().__init__()
-        self.network = network.cpu().eval()
+        # Not registered as a submodule: .to() and deep copies of this wrapper
+        # (latency timing) must not touch the fp32 network it quantises.
+        object.__setattr__(self, "fp32_network", network.cpu().eval())
         self.channels = channels
         self.calibration = list(calibration)
         self.threads = threads
@@ -197,7 +201,7 @@ class Int8Network(nn.Module):
                 for image in self.calibration
             ]
             path = Path(self._folder.name) / f"int8_{size[1]}x{size[0]}.onnx"
-            quantize_network(self.network, self.channels, path, size, resized)
+            quantize_network(self.fp32_network, self.channels, path, size, resized)
             self._sessions[size] = open_session(path, self.threads)
         return self._sessions[size]
 
@@ -265,7 +269,10 @@ def check_int8(
         expected = model(image)
         actual = torch.from_numpy(session.run(None, feed)[0])
         times: dict[str, list[float]] = {"int8": [], "fp32": []}
-        calls = {"int8": functools.partial(session.run, None, feed), "fp32": lambda: model(image)}
+        calls: dict[str, Callable[[], object]] = {
+            "int8": functools.partial(session.run, None, feed),
+            "fp32": lambda: model(image),
+        }
         for index in range(3 + runs):  # interleaved: load from other processes hits both
             for name, call in calls.items():
                 start = time.perf_counter()
