@@ -216,7 +216,13 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 f"GEA training step, batch {training['batch']}, crop {training['crop']}",
                 " / ".join(f"{k} {_num(v, 2)} steps/s" for k, v in steps.items()),
                 "fp32 step",
-                f"{_num(training['mixed_over_fp32_speed'], 2)}x (bf16 / fp32)",
+                " / ".join(
+                    f"{name} {_num(speed, 2)}x"
+                    for name, speed in training.get(
+                        "speed_vs_fp32", {"mixed": training.get("mixed_over_fp32_speed")}
+                    ).items()
+                )
+                + " (speed vs fp32)",
             ]
         )
     effects = load_json(bench / "effects.json")
