@@ -86,11 +86,15 @@ def test_tradeoff_int8_row_scores_against_fp32_and_target(
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
     base = tiny_config()
     base = replace(base, model=replace(base.model, channels=None))
-    gea = tuple(v for v in DEFAULT_VARIANTS if v.name == "GEA")
+    gea = tuple(v for v in DEFAULT_VARIANTS if v.name in ("GEA", "GEA-w0.5"))
     result = run_tradeoff(dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), base,
                           gea, latency_runs=2)  # fmt: skip
-    rows = {r.precision: r for r in result.rows}
-    assert set(rows) == {"fp32", "int8"}
+    assert {(r.name, r.precision) for r in result.rows} == {
+        ("GEA", "fp32"),
+        ("GEA", "int8"),
+        ("GEA-w0.5", "fp32"),
+    }  # int8 for the paper's GEA only
+    rows = {r.precision: r for r in result.rows if r.name == "GEA"}
     assert rows["fp32"].psnr_vs_fp32_db is None
     assert 25.0 < (rows["int8"].psnr_vs_fp32_db or 0.0) <= 100.0
     assert abs(rows["int8"].psnr_db - rows["fp32"].psnr_db) < 3.0
