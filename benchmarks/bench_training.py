@@ -89,6 +89,7 @@ def measure(
             sync()
             times[name].append(time.perf_counter() - start)
     medians = {name: statistics.median(values) for name, values in times.items()}
+    single = _single_thread_cpu_seconds(trainers, data, steps) if device.type == "cpu" else {}
     network = trainers["fp32"].model
     inference = choose_precision("auto", device, "infer").native
     latency = [
@@ -113,8 +114,35 @@ def measure(
         "auto_is_fastest_eager": auto.precision
         == min((n for n in medians if "compile" not in n), key=medians.__getitem__),
         "compile_seconds": compile_seconds,
+        "single_thread_cpu_seconds": single,
+        "single_thread_speed_vs_fp32": {n: single["fp32"] / v for n, v in single.items()},
         "latency_batch1_540x360": latency,
     }
+
+
+def _single_thread_cpu_seconds(
+    trainers: dict[str, Trainer], data: dict[str, torch.Tensor], steps: int
+) -> dict[str, float]:
+    """Median CPU time of one step on one thread, per eager precision.
+
+    ``time.thread_time`` counts only this thread's CPU time, so other
+    processes sharing the cores disturb it much less than wall time: on a
+    loaded 2-core machine, wall-clock bf16 came out 2x slower than fp32 while
+    its CPU time was 1.7x faster (threads of an oversubscribed OpenMP team
+    wait for each other).
+    """
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        cpu: dict[str, list[float]] = {n: [] for n in trainers if "compile" not in n}
+        for _ in range(max(2, steps)):
+            for name in cpu:
+                start = time.thread_time()
+                trainers[name].train_step(data)
+                cpu[name].append(time.thread_time() - start)
+    finally:
+        torch.set_num_threads(before)
+    return {name: statistics.median(values) for name, values in cpu.items()}
 
 
 def _table(result: dict[str, Any]) -> str:
@@ -134,6 +162,11 @@ def _table(result: dict[str, Any]) -> str:
         "",
         f"{result['precision_auto']['reason']}; fastest measured: {result['fastest']}; "
         f"auto is the fastest eager precision: {result['auto_is_fastest_eager']}",
+        "one thread, CPU time per step (robust to load): "
+        + ", ".join(
+            f"{name} {seconds:.2f} s ({result['single_thread_speed_vs_fp32'][name]:.2f}x fp32)"
+            for name, seconds in result["single_thread_cpu_seconds"].items()
+        ),
         "",
         "| inference | median ms | p90 ms |",
         "| --- | ---: | ---: |",
