@@ -353,3 +353,22 @@ def test_progress_label_names_the_budget_that_binds() -> None:
     assert _epoch_label(2, TrainConfig(epochs=10**6, max_steps=40)) == "epoch 3 (budget 40 steps)"
     label = _epoch_label(0, TrainConfig(max_steps=40, max_seconds=90.0))
     assert label == "epoch 1 (budget 40 steps or 90 s)"
+
+
+def test_only_rank_zero_prints_the_summary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from lenspair.model.training.loop import TrainSummary
+
+    dataset = write_split_dataset(tmp_path / "ds")
+    summary = TrainSummary(
+        run=tmp_path / "run", epochs=1, steps=1, best_psnr=float("-inf"), best_epoch=0,
+        stop_reason="max_steps", seconds=1.0, skipped_steps=0, perceptual="disabled",
+    )  # fmt: skip
+    monkeypatch.setattr("lenspair.model.training.loop.fit", lambda *a, **k: summary)
+    args = ["train", str(dataset), "--out", str(tmp_path / "run"), "--max-steps", "1"]
+    for rank, prints in (("1", False), ("0", True)):
+        monkeypatch.setenv("WORLD_SIZE", "2")
+        monkeypatch.setenv("RANK", rank)
+        assert main(args) == 0
+        assert ("best validation PSNR" in capsys.readouterr().out) == prints
