@@ -18,7 +18,12 @@
   generation with gcc, frozen weights) of the channels-last models;
 * the same with glibc's default allocator, and, as a measure that other
   processes disturb much less, the CPU time of one forward pass on one
-  thread against a one-thread peak measured the same way.
+  thread against a one-thread peak measured the same way;
+* where the fp32 time goes: a per-layer profile (``torch.profiler``, by
+  operator and input shape, :mod:`benchmarks.model_profile`);
+* GEA against DeRaindrop's generator (:mod:`benchmarks.deraindrop`) at
+  720x480 RGB in the same run, and which precisions are native on this CPU
+  (:mod:`lenspair.model.precision`).
 
 Allocator: by default glibc serves the large activation tensors with fresh
 ``mmap`` calls and returns them on free, so every forward pass page-faults
@@ -47,10 +52,12 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
+from benchmarks.model_profile import deraindrop_comparison, layer_profile, profile_table
 from lenspair.model.evaluation.latency import tune_allocator
 from lenspair.model.metrics import psnr
 from lenspair.model.networks.complexity import describe
 from lenspair.model.networks.variants import AnomalyMitigator, build_model
+from lenspair.model.precision import choose_precision
 
 HEIGHT, WIDTH = 360, 540
 LATENCY_TARGET_BF16_MS = 50.0
@@ -203,7 +210,14 @@ def _configs(
     return configs
 
 
-def run(runs: int, warmup: int, threads: int, compile_models: bool = False) -> dict[str, object]:
+def run(
+    runs: int,
+    warmup: int,
+    threads: int,
+    compile_models: bool = False,
+    profile_runs: int = 3,
+    deraindrop_runs: int = 3,
+) -> dict[str, object]:
     """Measure everything; returns the JSON record."""
     load_start, pressure_start = os.getloadavg(), _pressure()
     model = _untrained_model()
@@ -233,6 +247,12 @@ def run(runs: int, warmup: int, threads: int, compile_models: bool = False) -> d
         single_times = _round_robin(calls, max(5, runs // 4), 1, time.thread_time)
         torch.set_num_threads(threads)
     medians = {name: _median_ms(samples) for name, samples in times.items()}
+    best_fp32 = min((n for n in medians if n.startswith("fp32")), key=medians.__getitem__)
+    profile: list[dict[str, object]] = []
+    if profile_runs > 0:
+        with torch.inference_mode():
+            profile = layer_profile(calls[best_fp32], profile_runs)
+    deraindrop = deraindrop_comparison(deraindrop_runs) if deraindrop_runs > 0 else {}
     peak = max(peaks.values())
     single_peak = max(single_peaks.values())
     roofline_ms = summary.flops / peak / 1e6
@@ -295,6 +315,9 @@ def run(runs: int, warmup: int, threads: int, compile_models: bool = False) -> d
         "single_thread_roofline_ms": single_roofline_ms,
         "single_thread_cpu_ms": single_ms,
         "single_thread_fp32_roofline_ratio": single_ms[fp32_name] / single_roofline_ms,
+        "precision": choose_precision("auto", torch.device("cpu"), "infer").as_dict(),
+        "layer_profile_fp32": profile,
+        "deraindrop_720x480_rgb": deraindrop,
         "load_average_start": list(load_start),
         "load_average_end": list(os.getloadavg()),
         "cpu_pressure_start": pressure_start,
@@ -353,9 +376,24 @@ def _table(record: dict[str, object]) -> str:
         f"{record['fp32_eager_ratio_to_gemm_roofline']:.2f}x the plain-GEMM roofline",
         f"- bf16 best: {record['bf16_best']}, {record['bf16_ms']:.1f} ms (target < "
         f"{LATENCY_TARGET_BF16_MS:.0f} ms: {bf16_met})",
+        f"- precisions native on this CPU ({record['cpu_model']}): "
+        f"{', '.join(record['precision']['native'])}"  # type: ignore[index]
+        f"; auto picks {record['precision']['precision']}",  # type: ignore[index]
         f"- load average start/end: {record['load_average_start']} / "
         f"{record['load_average_end']}; CPU pressure start: {record['cpu_pressure_start']}",
     ]
+    deraindrop = record["deraindrop_720x480_rgb"]
+    if isinstance(deraindrop, dict) and deraindrop:
+        lines.append(
+            f"- 720x480 RGB, fp32, same run: GEA {deraindrop['gea_ms']:.0f} ms, DeRaindrop's "
+            f"generator ({deraindrop['deraindrop_parameters'] / 1e6:.2f} M parameters) "
+            f"{deraindrop['deraindrop_ms']:.0f} ms: GEA is {deraindrop['speedup']:.1f}x faster "
+            "(the paper: 8x)"
+        )
+    profile = record["layer_profile_fp32"]
+    if isinstance(profile, list) and profile:
+        lines += ["", f"Where the fp32 time goes ({record['fp32_best']}):", ""]
+        lines.append(profile_table(profile))
     return "\n".join(lines)
 
 
@@ -369,8 +407,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--compile", action="store_true", help="also time torch.compile'd models (slow start)"
     )
+    parser.add_argument("--profile-runs", type=int, default=3, help="profiled runs (0: none)")
+    parser.add_argument(
+        "--deraindrop-runs", type=int, default=3, help="720x480 DeRaindrop comparison (0: none)"
+    )
     args = parser.parse_args(argv)
-    record = run(args.runs, args.warmup, args.threads, compile_models=args.compile)
+    record = run(
+        args.runs,
+        args.warmup,
+        args.threads,
+        compile_models=args.compile,
+        profile_runs=args.profile_runs,
+        deraindrop_runs=args.deraindrop_runs,
+    )
     print(_table(record))
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)

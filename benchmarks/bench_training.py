@@ -1,4 +1,4 @@
-"""Training throughput of the full GAN step, fp32 against mixed precision.
+"""Training throughput of the full GAN step at every precision ``auto`` can choose.
 
 ``python -m benchmarks.bench_training [--out DIR] [--device cpu|cuda] [--steps N]``:
 GEA (width 1, 9 residual blocks), mono, batch 8, 256 px crops, the whole
@@ -6,10 +6,13 @@ training step of :class:`lenspair.model.training.step.Trainer` (G/E/A forward, P
 real and fake, LSGAN + feature matching + L2 — the perceptual term only if
 VGG19 weights are configured — two Adam updates, the NaN/Inf guard).
 
-fp32 and mixed precision (bf16 autocast on the CPU, fp16 autocast with a
-GradScaler on CUDA) are timed round-robin after warm-up, so a load spike
-from other processes hits both alike; the median step time is quoted as
-steps/s and images/s, with the mixed/fp32 speed ratio. Inference latency as
+Every precision native on the device (:mod:`lenspair.model.precision`: fp32,
+and bf16 autocast on a CPU with avx512_bf16/AMX; bf16/fp16 on CUDA by
+capability) is timed round-robin after warm-up, so a load spike from other
+processes hits all alike; with ``--compile`` also the fastest native one
+with the restoration network under ``torch.compile`` (compile time
+recorded). Median step time as steps/s, images/s and speed vs fp32, and
+whether ``auto``'s choice was the fastest eager precision. Inference latency as
 deployed (batch 1, 540x360, :mod:`lenspair.model.evaluation.latency`) is measured on the same
 device at every precision. The load average at start and end is recorded.
 """
@@ -26,15 +29,16 @@ from typing import Any
 import torch
 
 from lenspair.model.evaluation.latency import measure_latency
+from lenspair.model.precision import choose_precision
 from lenspair.model.training.config import DataConfig, ModelConfig, RunConfig, TrainConfig
 from lenspair.model.training.step import Trainer
 
 
-def _config(amp: bool, batch: int) -> RunConfig:
+def _config(precision: str, batch: int) -> RunConfig:
     return RunConfig(
         model=ModelConfig(variant="GEA", channels=1),
         data=DataConfig(),
-        train=TrainConfig(batch_size=batch, amp=amp, tensorboard=False),
+        train=TrainConfig(batch_size=batch, precision=precision, tensorboard=False),  # type: ignore[arg-type]
     )
 
 
@@ -49,11 +53,28 @@ def _batch(batch: int, crop: int, device: torch.device) -> dict[str, torch.Tenso
     }
 
 
-def measure(device: torch.device, steps: int, warmup: int, batch: int, crop: int) -> dict[str, Any]:
-    """Median training step time of fp32 and mixed precision, plus inference latency."""
-    trainers = {"fp32": Trainer(_config(False, batch), device)}
-    mixed = Trainer(_config(True, batch), device)
-    trainers[mixed.precision] = mixed
+def measure(
+    device: torch.device, steps: int, warmup: int, batch: int, crop: int, compile_network: bool
+) -> dict[str, Any]:
+    """Median step time at every precision ``auto`` can choose here, plus inference latency.
+
+    The candidates are the device's native training precisions
+    (:func:`lenspair.model.precision.choose_precision`); with
+    ``compile_network`` the fastest eager one is timed again with the
+    restoration network under ``torch.compile``.
+    """
+    auto = choose_precision("auto", device, "train")
+    candidates = [p for p in auto.native if p != "int8"]
+    trainers = {p: Trainer(_config(p, batch), device) for p in candidates}
+    compile_seconds = None
+    if compile_network:
+        fastest_native = auto.precision
+        start = time.perf_counter()
+        compiled = Trainer(_config(fastest_native, batch), device)
+        compiled.network = torch.compile(compiled.network)  # type: ignore[assignment]
+        compiled.train_step(_batch(batch, crop, device))
+        compile_seconds = time.perf_counter() - start
+        trainers[f"{fastest_native} + torch.compile"] = compiled
     data = _batch(batch, crop, device)
     sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
     for trainer in trainers.values():
@@ -68,13 +89,15 @@ def measure(device: torch.device, steps: int, warmup: int, batch: int, crop: int
             sync()
             times[name].append(time.perf_counter() - start)
     medians = {name: statistics.median(values) for name, values in times.items()}
+    single = _single_thread_cpu_seconds(trainers, data, steps) if device.type == "cpu" else {}
     network = trainers["fp32"].model
-    precisions = ["fp32", "bf16"] + (["fp16"] if device.type == "cuda" else [])
+    inference = choose_precision("auto", device, "infer").native
     latency = [
         measure_latency(network, 1, device, (360, 540), p, warmup=3, runs=max(10, steps)).as_dict()
-        for p in precisions
+        for p in inference
+        if p != "int8"  # int8 inference: python -m benchmarks.bench_int8
     ]
-    mixed_name = mixed.precision
+    fastest = min(medians, key=medians.__getitem__)
     return {
         "device": str(device) if device.type == "cpu" else torch.cuda.get_device_name(device),
         "threads": torch.get_num_threads(),
@@ -82,12 +105,44 @@ def measure(device: torch.device, steps: int, warmup: int, batch: int, crop: int
         "crop": crop,
         "steps": steps,
         "warmup": warmup,
+        "precision_auto": auto.as_dict(),
         "step_seconds_median": medians,
         "steps_per_second": {name: 1.0 / value for name, value in medians.items()},
         "images_per_second": {name: batch / value for name, value in medians.items()},
-        "mixed_over_fp32_speed": medians["fp32"] / medians[mixed_name],
+        "speed_vs_fp32": {name: medians["fp32"] / value for name, value in medians.items()},
+        "fastest": fastest,
+        "auto_is_fastest_eager": auto.precision
+        == min((n for n in medians if "compile" not in n), key=medians.__getitem__),
+        "compile_seconds": compile_seconds,
+        "single_thread_cpu_seconds": single,
+        "single_thread_speed_vs_fp32": {n: single["fp32"] / v for n, v in single.items()},
         "latency_batch1_540x360": latency,
     }
+
+
+def _single_thread_cpu_seconds(
+    trainers: dict[str, Trainer], data: dict[str, torch.Tensor], steps: int
+) -> dict[str, float]:
+    """Median CPU time of one step on one thread, per eager precision.
+
+    ``time.thread_time`` counts only this thread's CPU time, so other
+    processes sharing the cores disturb it much less than wall time: on a
+    loaded 2-core machine, wall-clock bf16 came out 2x slower than fp32 while
+    its CPU time was 1.7x faster (threads of an oversubscribed OpenMP team
+    wait for each other).
+    """
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        cpu: dict[str, list[float]] = {n: [] for n in trainers if "compile" not in n}
+        for _ in range(max(2, steps)):
+            for name in cpu:
+                start = time.thread_time()
+                trainers[name].train_step(data)
+                cpu[name].append(time.thread_time() - start)
+    finally:
+        torch.set_num_threads(before)
+    return {name: statistics.median(values) for name, values in cpu.items()}
 
 
 def _table(result: dict[str, Any]) -> str:
@@ -95,16 +150,23 @@ def _table(result: dict[str, Any]) -> str:
         f"Training step, GEA mono, batch {result['batch']}, crop {result['crop']}, "
         f"{result['device']}, {result['threads']} threads, median of {result['steps']} steps",
         "",
-        "| precision | s/step | steps/s | images/s |",
-        "| --- | ---: | ---: | ---: |",
+        "| precision | s/step | steps/s | images/s | speed vs fp32 |",
+        "| --- | ---: | ---: | ---: | ---: |",
     ]
     for name, seconds in result["step_seconds_median"].items():
         lines.append(
-            f"| {name} | {seconds:.3f} | {1 / seconds:.3f} | {result['batch'] / seconds:.2f} |"
+            f"| {name} | {seconds:.3f} | {1 / seconds:.3f} | {result['batch'] / seconds:.2f} | "
+            f"{result['speed_vs_fp32'][name]:.2f}x |"
         )
     lines += [
         "",
-        f"mixed precision / fp32 speed: {result['mixed_over_fp32_speed']:.2f}x",
+        f"{result['precision_auto']['reason']}; fastest measured: {result['fastest']}; "
+        f"auto is the fastest eager precision: {result['auto_is_fastest_eager']}",
+        "one thread, CPU time per step (robust to load): "
+        + ", ".join(
+            f"{name} {seconds:.2f} s ({result['single_thread_speed_vs_fp32'][name]:.2f}x fp32)"
+            for name, seconds in result["single_thread_cpu_seconds"].items()
+        ),
         "",
         "| inference | median ms | p90 ms |",
         "| --- | ---: | ---: |",
@@ -129,6 +191,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch", type=int, default=8)
     parser.add_argument("--crop", type=int, default=256)
     parser.add_argument("--threads", type=int, default=None, help="CPU threads (torch default)")
+    parser.add_argument(
+        "--compile", action="store_true", help="also time torch.compile (minutes to compile)"
+    )
     args = parser.parse_args(argv)
     if args.device == "cuda" and not torch.cuda.is_available():
         print("bench_training: --device cuda but no CUDA device is available", file=sys.stderr)
@@ -136,7 +201,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     load_start = os.getloadavg()
-    result = measure(torch.device(args.device), args.steps, args.warmup, args.batch, args.crop)
+    result = measure(
+        torch.device(args.device), args.steps, args.warmup, args.batch, args.crop, args.compile
+    )
     result["load_average_start"] = load_start
     result["load_average_end"] = os.getloadavg()
     result["torch"] = str(torch.__version__)

@@ -42,6 +42,45 @@ class ResultsError(Exception):
     """The README cannot take the section (markers missing or out of order)."""
 
 
+def _precision_rows(model: dict[str, Any] | None, int8: dict[str, Any] | None) -> list[list[str]]:
+    """Rows for int8 inference (bench_int8) and GEA vs DeRaindrop (bench_model)."""
+    rows = []
+    if int8:
+        for name, ms in int8["medians_ms"].items():
+            if name == "fp32 torch":
+                continue
+            rows.append(
+                [
+                    f"GEA 540x360 batch 1, {name}",
+                    f"{_num(ms, 1)} ms",
+                    f"PSNR against fp32 output {_num(int8['psnr_vs_fp32_db'][name], 1)} dB; "
+                    f"quantise/compile {_num(int8['setup_seconds'].get(name, 0.0), 0)} s",
+                    f"{_num(int8['speed_vs_fp32'][name], 2)}x faster than fp32 torch",
+                ]
+            )
+    deraindrop = (model or {}).get("deraindrop_720x480_rgb") or {}
+    if deraindrop:
+        rows.append(
+            [
+                "720x480 RGB batch 1 fp32: GEA / DeRaindrop's generator (same run)",
+                f"{_num(deraindrop['gea_ms'], 0)} ms / {_num(deraindrop['deraindrop_ms'], 0)} ms",
+                "DeRaindrop re-implemented layer for layer (the paper: 8x)",
+                f"{_num(deraindrop['speedup'], 1)}x faster",
+            ]
+        )
+    native = ((model or {}).get("precision") or {}).get("native")
+    if native:
+        rows.append(
+            [
+                "precisions native on this CPU",
+                ", ".join(native),
+                "lenspair.model.precision (auto never picks an emulated one)",
+                f"auto: {model['precision']['precision']}",  # type: ignore[index]
+            ]
+        )
+    return rows
+
+
 def _num(value: Any, digits: int) -> str:
     if value is None:
         return "n/a"
@@ -216,9 +255,16 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 f"GEA training step, batch {training['batch']}, crop {training['crop']}",
                 " / ".join(f"{k} {_num(v, 2)} steps/s" for k, v in steps.items()),
                 "fp32 step",
-                f"{_num(training['mixed_over_fp32_speed'], 2)}x (bf16 / fp32)",
+                " / ".join(
+                    f"{name} {_num(speed, 2)}x"
+                    for name, speed in training.get(
+                        "speed_vs_fp32", {"mixed": training.get("mixed_over_fp32_speed")}
+                    ).items()
+                )
+                + " (speed vs fp32)",
             ]
         )
+    rows += _precision_rows(model, load_json(bench / "int8.json"))
     effects = load_json(bench / "effects.json")
     if effects:
         for name, target in effects["targets"].items():

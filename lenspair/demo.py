@@ -55,6 +55,13 @@ RESTORED_RECORDING = "heavy_rain"
 class Budget:
     """How much work the demo does; the defaults fit 15 minutes on 2 CPU cores.
 
+    Budgets are steps, never seconds, so the same command makes the same
+    data and networks on every machine while its time adapts. Training runs
+    at ``--precision auto`` (:mod:`lenspair.model.precision`): bf16 autocast
+    on a CPU with native bf16 (``avx512_bf16``/AMX), fp32 on one without,
+    which avoids the 2.6x penalty of emulated bf16 measured on an AVX-512
+    Xeon without ``avx512_bf16``.
+
     Attributes:
         frames: frames per anomaly recording.
         pretrain_steps: synthetic pretraining steps.

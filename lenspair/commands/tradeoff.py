@@ -8,7 +8,10 @@ Each variant (G, GE, GEA, GEA at width 0.5 and 2, GEA with 3 residual
 blocks) is trained on DS for the same budget (--budget 60 = 60 steps; 90s,
 5m = wall-clock time; early stopping off), scored on DS's test split (or the
 held-out validation pairs) and timed at batch 1 on the data's frame size.
-Every GEA checkpoint is scored and timed again at bf16 (and fp16 on CUDA).
+Every GEA checkpoint is scored and timed again at each precision the device
+runs natively (bf16 with avx512_bf16/AMX, int8 with VNNI through ONNX Runtime
+static quantisation calibrated on the training split, for the paper's GEA only;
+fp16/bf16 on CUDA), and that row also gives its PSNR against the fp32 output.
 
 Writes ONE table, DIR/tradeoff.md, .csv and .json (params, GFLOPs, CPU ms,
 GPU ms on CUDA, PSNR, SSIM, metric convention, Pareto flags), the plot

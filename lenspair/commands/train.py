@@ -4,6 +4,8 @@
                  [--device auto|cpu|cuda]
   lenspair train --synthetic IMAGES_DIR --out RUN [--drops ours|sharp] ...
 
+Example: lenspair train DS --out runs/gea --max-steps 2000 --precision auto
+
 DS is any paired layout lenspair reads: a dataset from dataset-build (trains
 on train/, validates on val/), a folder with input/ + target/ (or lq/ + gt/),
 or the Raindrop dataset of Qian et al.; without a validation split a
@@ -18,9 +20,13 @@ real pairs with --init RUN/checkpoints/best.pt (network weights only).
 Defaults follow the paper: Adam lr 2e-4 (0.5, 0.999), batch 8, up to 200
 epochs, early stopping on validation PSNR (patience 10), random 256 px crops
 and flips, LSGAN + feature matching on the generator output, VGG19
-perceptual + L2 on the enhanced output, bf16 autocast on the CPU and fp16 on
-CUDA. Without VGG19 weights (train.vgg19_weights or LENSPAIR_VGG19_WEIGHTS)
-the perceptual term is disabled, with a warning in the log and in config.yaml.
+perceptual + L2 on the enhanced output. --precision auto (the default) trains
+at the fastest precision the hardware runs natively: bf16 autocast on a CPU
+with avx512_bf16 or AMX, fp32 on one without (emulated bf16 is ~2.6x slower),
+bf16 or fp16 + GradScaler on CUDA by compute capability; the choice and its
+reason are printed once and written to RUN/config.yaml (runtime). Without
+VGG19 weights (train.vgg19_weights or LENSPAIR_VGG19_WEIGHTS) the perceptual
+term is disabled, with a warning in the log and in config.yaml.
 
 Run folder: RUN/config.yaml (resolved), RUN/checkpoints/{last,best}.pt,
 RUN/metrics.csv, RUN/train.log, RUN/samples.png. last.pt is written after
@@ -79,7 +85,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--batch-size", type=int, help="train.batch_size (8)")
     group.add_argument("--crop-size", type=int, help="data.crop_size (256)")
     group.add_argument("--seed", type=int, help="train.seed (0)")
-    group.add_argument("--no-amp", action="store_true", help="train at fp32 (train.amp: false)")
+    group.add_argument(
+        "--precision",
+        choices=("auto", "fp32", "bf16", "fp16"),
+        help="train.precision (auto: fastest native; bf16 where the CPU has avx512_bf16/AMX)",
+    )
+    group.add_argument("--no-amp", action="store_true", help="train at fp32 (same as fp32)")
     group.add_argument("--vgg19-weights", type=Path, help="train.vgg19_weights")
     group.add_argument(
         "--checkpoint-every",
@@ -99,6 +110,7 @@ def _overrides(config: Any, args: argparse.Namespace) -> Any:
         "seed": args.seed,
         "vgg19_weights": args.vgg19_weights,
         "amp": False if args.no_amp else None,
+        "precision": args.precision,
     }
     if args.checkpoint_every is not None:
         steps, seconds = args.checkpoint_every
@@ -128,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.model.training.config import load_run_config
     from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
     from lenspair.model.training.loop import fit, resolve_config, resume_config
+    from lenspair.model.training.step import distributed_from_env
 
     if (args.dataset is None) == (args.synthetic is None):
         raise ConfigError("give a dataset DS, or --synthetic IMAGES_DIR (not both)")
@@ -165,6 +178,8 @@ def run(args: argparse.Namespace) -> int:
         init=args.init,
         resume=args.resume,
     )
+    if not distributed_from_env().is_main:
+        return 0  # under torchrun only rank 0 reports (the others hold no best PSNR)
     print(
         f"{summary.run}: {summary.stop_reason}; {summary.epochs} epochs, {summary.steps} steps, "
         f"best validation PSNR {summary.best_psnr:.2f} dB (epoch {summary.best_epoch}); "

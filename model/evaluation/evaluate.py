@@ -150,6 +150,9 @@ class EvalResult:
         latency: timings (CPU, and CUDA when present).
         samples: contact-sheet rows (input, output, target).
         model: the checkpoint's ``model`` config section (plain data).
+        versus_fp32: means of the output scored against the fp32 output
+            (reduced precisions only): what the precision costs.
+        precision_reason: why this precision (``lenspair.model.precision``).
 
     """
 
@@ -165,6 +168,8 @@ class EvalResult:
     latency: list[Latency] = field(default_factory=list)
     samples: list[SheetRow] = field(default_factory=list)
     model: dict[str, Any] = field(default_factory=dict)
+    versus_fp32: Summary | None = None
+    precision_reason: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready means (per-image scores stay in the CSV)."""
@@ -182,6 +187,8 @@ class EvalResult:
                 "by_difficulty": {k: asdict(v) for k, v in self.input_by_difficulty.items()},
             },
             "latency": [lat.as_dict() for lat in self.latency],
+            "versus_fp32": None if self.versus_fp32 is None else asdict(self.versus_fp32),
+            "precision_reason": self.precision_reason,
         }
 
 
@@ -259,6 +266,35 @@ def score_pairs(
     return scores, samples
 
 
+@torch.inference_mode()
+def agreement_with_fp32(
+    network: nn.Module,
+    reference: nn.Module,
+    pairs: PairSource,
+    channels: int,
+    device: torch.device,
+    convention: str,
+    precision: str,
+) -> Summary:
+    """Means of ``network``'s output (at ``precision``) scored against fp32 ``reference``'s.
+
+    Both outputs are clamped to [0, 1] and kept in float (no rounding to the
+    target's bit depth), so this isolates what the precision changes.
+    """
+    reference.to(device).eval()
+    rows = []
+    for index in progress(range(len(pairs)), "versus fp32", total=len(pairs), unit="image"):
+        item = pairs[index]
+        x = to_tensor(item.input, channels)[None].to(device)
+        with autocast_context(device, precision):
+            output = network(x)[1].float().clamp(0, 1).to(device)
+        expected = reference(x)[1].float().clamp(0, 1)
+        psnr, ssim = score_tensors(output, expected, convention)
+        height, width = item.input.shape[:2]
+        rows.append(ImageScore(item.name, item.difficulty, height, width, psnr, ssim, 0, 0))
+    return summarize(rows)
+
+
 def breakdown(
     scores: Sequence[ImageScore], of: Literal["output", "input"] = "output"
 ) -> dict[str, Summary]:
@@ -286,12 +322,18 @@ def evaluate_checkpoint(
     convention: str = "skimage-gaussian",
     precision: str = "fp32",
     latency_runs: int = 30,
+    calibration: PairSource | None = None,
+    precision_reason: str = "",
 ) -> EvalResult:
     """Load a checkpoint, score it on ``data`` and time it as deployed.
 
     Latency: batch 1 at the size of the first pair, on the CPU (always) and
     on CUDA (when available), at ``precision`` where the device supports it;
-    ``latency_runs=0`` skips timing.
+    ``latency_runs=0`` skips timing. ``int8`` runs the network through ONNX
+    Runtime static quantisation (:mod:`lenspair.model.evaluation.quantize`),
+    calibrated on ``calibration`` (default: the evaluated pairs themselves),
+    CPU only. Any precision other than fp32 is also scored against the fp32
+    output (``versus_fp32``).
 
     Raises:
         ModelError: unreadable checkpoint, unknown convention; DatasetError.
@@ -308,7 +350,21 @@ def evaluate_checkpoint(
             f"{data}: split {split!r} holds no pairs (dataset-build leaves a split empty when "
             "there are too few recordings or segments); evaluate another one with --split"
         )
-    scores, samples = score_pairs(loaded.network, pairs, channels, device, convention, precision)
+    network: nn.Module = loaded.network
+    if precision == "int8":
+        # here, not at the top: only int8 needs ONNX Runtime, which is slow to import
+        from lenspair.model.evaluation.quantize import Int8Network, calibration_images
+
+        first = tuple(pairs[0].input.shape[:2])
+        source = pairs if calibration is None else calibration
+        images = calibration_images(source, channels, (first[0], first[1]))
+        network = Int8Network(loaded.network, channels, images)
+    scores, samples = score_pairs(network, pairs, channels, device, convention, precision)
+    versus_fp32 = None
+    if precision != "fp32":
+        versus_fp32 = agreement_with_fp32(
+            network, loaded.network, pairs, channels, device, convention, precision
+        )
     latency = []
     if latency_runs > 0:
         size = tuple(pairs[0].input.shape[:2])
@@ -316,9 +372,11 @@ def evaluate_checkpoint(
         devices = [torch.device("cpu")] + ([cuda] if torch.cuda.is_available() else [])
         for where in devices:
             timed_precision = "fp32" if (precision == "fp16" and where.type == "cpu") else precision
+            if precision == "int8" and where.type != "cpu":
+                continue
             latency.append(
                 measure_latency(
-                    loaded.network,
+                    network,
                     channels,
                     where,
                     (size[0], size[1]),
@@ -345,4 +403,6 @@ def evaluate_checkpoint(
         latency=latency,
         samples=samples,
         model=to_plain(loaded.config.model),
+        versus_fp32=versus_fp32,
+        precision_reason=precision_reason,
     )

@@ -35,7 +35,7 @@ from torch import nn
 
 from lenspair.model.errors import ModelError
 
-Precision = Literal["fp32", "bf16", "fp16"]
+Precision = Literal["fp32", "bf16", "fp16", "int8"]
 DEFAULT_SIZE = (360, 540)
 """(H, W) of the deployed camera crop, 540x360."""
 
@@ -109,10 +109,10 @@ def autocast_context(
         ModelError: fp16 requested on the CPU, or an unknown precision.
 
     """
-    if precision == "fp32":
+    if precision in ("fp32", "int8"):  # an int8 network is quantised itself (ONNX Runtime)
         return contextlib.nullcontext()
     if precision not in _DTYPES:
-        raise ModelError(f"unknown precision {precision!r}; valid: fp32, bf16, fp16")
+        raise ModelError(f"unknown precision {precision!r}; valid: fp32, bf16, fp16, int8")
     if precision == "fp16" and device.type != "cuda":
         raise ModelError("fp16 inference is measured on CUDA only; use bf16 on the CPU")
     return torch.autocast(device_type=device.type, dtype=_DTYPES[precision])
@@ -176,7 +176,9 @@ def measure_latency(
     image = torch.rand(1, channels, height, width, generator=generator).to(device)
     cuda = device.type == "cuda"
     layout = "NCHW"
-    if device.type == "cpu":
+    if precision == "int8":  # an Int8Network: ONNX Runtime takes NCHW
+        layout = "NCHW (onnxruntime)"
+    elif device.type == "cpu":
         tune_allocator()
         network = copy.deepcopy(network).to(memory_format=torch.channels_last)  # type: ignore[call-overload]
         image = image.contiguous(memory_format=torch.channels_last)

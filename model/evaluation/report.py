@@ -50,6 +50,15 @@ def markdown_report(result: EvalResult) -> str:
         f"- data: `{result.data}`",
         f"- metric convention: {convention_note(result.convention)}",
         f"- inference precision: {result.precision}",
+        *(
+            [
+                f"- agreement with the fp32 output ({result.precision} against fp32, all "
+                f"pairs): PSNR {fmt_psnr(result.versus_fp32.psnr_db)} dB, SSIM "
+                f"{result.versus_fp32.ssim:.4f}"
+            ]
+            if result.versus_fp32 is not None
+            else []
+        ),
         "",
         "| subset | pairs | PSNR (dB) | SSIM | input PSNR (dB) | input SSIM | convention |",
         "| --- | ---: | ---: | ---: | ---: | ---: | --- |",

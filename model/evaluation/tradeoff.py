@@ -33,7 +33,12 @@ from lenspair.core.fsutil import atomic_write_text
 from lenspair.dataset.readers import detect_layout
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_model
 from lenspair.model.errors import ModelError
-from lenspair.model.evaluation.evaluate import Summary, score_pairs, summarize
+from lenspair.model.evaluation.evaluate import (
+    Summary,
+    agreement_with_fp32,
+    score_pairs,
+    summarize,
+)
 from lenspair.model.evaluation.latency import measure_latency
 from lenspair.model.evaluation.tradeoff_report import write_tradeoff
 from lenspair.model.evaluation.tradeoff_rows import TradeoffRow as TradeoffRow
@@ -129,11 +134,25 @@ def variant_config(base: RunConfig, variant: TradeoffVariant, budget: Budget) ->
     )
 
 
-def precisions_for(variant: str, device: torch.device) -> list[str]:
-    """fp32 for every variant; bf16 (and fp16 on CUDA) again for GEA checkpoints."""
+def precisions_for(
+    variant: str, device: torch.device, native: Sequence[str] | None = None
+) -> list[str]:
+    """fp32 for every variant; GEA checkpoints again at each native reduced precision.
+
+    ``native`` is what :func:`lenspair.model.precision.native_precisions` found
+    on ``device`` (default: probed now): bf16 where it is native (an emulated
+    one would only show the emulation), fp16 on CUDA, and int8 (ONNX Runtime,
+    CPU) where the CPU has VNNI.
+    """
     if variant != "GEA":
         return ["fp32"]
-    return ["fp32", "bf16"] + (["fp16"] if device.type == "cuda" else [])
+    if native is None:
+        from lenspair.model.precision import choose_precision
+
+        native = choose_precision("auto", device, "infer").native
+    order = ("bf16", "fp16", "int8") if device.type == "cuda" else ("bf16", "int8")
+    reduced = [p for p in order if p in native and not (p == "int8" and device.type == "cuda")]
+    return ["fp32", *reduced]
 
 
 def run_tradeoff(
@@ -218,19 +237,27 @@ def run_tradeoff(
         loaded = load_model(run / "checkpoints" / "best.pt", device)
         params, gflops = complexity(loaded.network, data.channels, (size[0], size[1]))
         for precision in precisions_for(variant.variant, device):
+            if precision == "int8" and (variant.width, variant.num_blocks) != (1.0, 9):
+                continue  # int8 for the paper's GEA only: each quantisation costs ~1 min
+            network = _at_precision(loaded.network, precision, pairs, dataset, base, data.channels)
             scores, _ = score_pairs(
-                loaded.network, pairs, data.channels, device, convention, precision, 0, 0
+                network, pairs, data.channels, device, convention, precision, 0, 0
             )
             means = summarize(scores)
+            versus = None
+            if precision != "fp32":
+                versus = agreement_with_fp32(
+                    network, loaded.network, pairs, data.channels, device, convention, precision
+                ).psnr_db
             baseline = baseline or summarize(scores, "input")
             cpu_ms = gpu_ms = None
             if precision != "fp16":
                 cpu = measure_latency(
-                    loaded.network, data.channels, torch.device("cpu"), (size[0], size[1]),
+                    network, data.channels, torch.device("cpu"), (size[0], size[1]),
                     precision, warmup=3, runs=latency_runs,
                 )  # fmt: skip
                 cpu_ms = cpu.median_ms
-            if device.type == "cuda":
+            if device.type == "cuda" and precision != "int8":
                 gpu = measure_latency(
                     loaded.network, data.channels, device, (size[0], size[1]), precision,
                     warmup=3, runs=latency_runs,
@@ -252,6 +279,7 @@ def run_tradeoff(
                     ssim=means.ssim,
                     convention=convention,
                     steps=summary.steps,
+                    psnr_vs_fp32_db=versus,
                 )
             )
             log.info("tradeoff: %s", rows[-1])
@@ -260,6 +288,32 @@ def run_tradeoff(
     rows = mark_pareto(rows)
     write_tradeoff(rows, out_dir, meta)
     return TradeoffResult(rows, meta)
+
+
+def _at_precision(
+    network: torch.nn.Module,
+    precision: str,
+    pairs: Any,
+    dataset: Path,
+    base: RunConfig,
+    channels: int,
+) -> torch.nn.Module:
+    """``network`` itself, or for int8 its ONNX Runtime quantisation.
+
+    int8 calibrates on the dataset's training split (the evaluated pairs
+    where there is none), at the evaluated frame size.
+    """
+    if precision != "int8":
+        return network
+    # here, not at the top: only int8 needs ONNX Runtime, which is slow to import
+    from lenspair.model.evaluation.quantize import Int8Network, calibration_images
+
+    try:
+        source: Any = open_eval_pairs(dataset, base.data.train_split)
+    except LenspairError:
+        source = pairs
+    size = (int(pairs[0].input.shape[0]), int(pairs[0].input.shape[1]))
+    return Int8Network(network, channels, calibration_images(source, channels, size))
 
 
 def _reusable(run: Path, config: RunConfig) -> bool:

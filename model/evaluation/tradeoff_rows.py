@@ -29,6 +29,7 @@ class TradeoffRow:
     steps: int
     pareto_psnr: bool = False
     pareto_ssim: bool = False
+    psnr_vs_fp32_db: float | None = None
 
 
 def pareto_front(times: Sequence[float | None], scores: Sequence[float]) -> list[int]:

@@ -204,11 +204,19 @@ class NarrowConv2d(nn.Conv2d):
         in_channels, out_channels = self.in_channels, self.out_channels
         # A standard-layout depthwise weight: a channels-last model would
         # otherwise hand oneDNN a strided weight to reorder on every call.
-        weight = (
-            self.weight.transpose(0, 1)
-            .reshape(in_channels * out_channels, 1, *self.kernel_size)
-            .contiguous()
-        )
+        if out_channels == 1:
+            # A view, no transpose: its gradient then has exactly the
+            # parameter's strides. Through the transpose, the size-1 output
+            # dimension came back with another (equivalent) stride, which
+            # autograd accepts but DDP's bucket check does not ("grad strides
+            # do not match bucket view strides"), costing a copy per step.
+            weight = self.weight.reshape(in_channels, 1, *self.kernel_size).contiguous()
+        else:
+            weight = (
+                self.weight.transpose(0, 1)
+                .reshape(in_channels * out_channels, 1, *self.kernel_size)
+                .contiguous()
+            )
         per_input = F.conv2d(x, weight, None, self.stride, padding, groups=in_channels)
         batch, _, height, width = per_input.shape
         out = per_input.reshape(batch, in_channels, out_channels, height, width).sum(dim=1)

@@ -24,6 +24,7 @@ from lenspair.core.config import dump_yaml, load_dataclass, load_yaml
 
 Variant = Literal["G", "GE", "GEA"]
 DropsPreset = Literal["ours", "sharp"]
+TrainPrecision = Literal["auto", "fp32", "bf16", "fp16"]
 
 
 @dataclass(frozen=True)
@@ -115,7 +116,11 @@ class TrainConfig:
             (0 disables early stopping).
         max_steps: optional budget in optimiser steps (stops mid-epoch).
         max_seconds: optional budget in wall-clock seconds of training.
-        amp: mixed precision: bf16 autocast on CPU, fp16 + GradScaler on CUDA.
+        precision: ``auto`` (the fastest precision the device runs natively:
+            bf16 autocast on a CPU with ``avx512_bf16``/AMX, fp32 on one
+            without, bf16 or fp16 + GradScaler on CUDA by compute capability;
+            see :mod:`lenspair.model.precision`), ``fp32``, ``bf16`` or ``fp16``.
+        amp: ``false`` forces fp32 whatever ``precision`` says (older configs).
         seed: seeds network initialisation, crops, flips and rendered drops.
         deterministic: ask torch for deterministic kernels (slower on CUDA).
         vgg19_weights: VGG19 ImageNet weights for the perceptual loss;
@@ -144,6 +149,7 @@ class TrainConfig:
     patience: int = 10
     max_steps: int | None = None
     max_seconds: float | None = None
+    precision: TrainPrecision = "auto"
     amp: bool = True
     seed: int = 0
     deterministic: bool = False
@@ -222,6 +228,8 @@ class RuntimeInfo:
     Attributes:
         perceptual: ``enabled (PATH)`` or ``disabled (reason)``.
         precision: ``fp32``, ``bf16 autocast`` or ``fp16 autocast + GradScaler``.
+        precision_reason: why (:class:`lenspair.model.precision.PrecisionDecision`).
+        native_precisions: what the device runs natively, fastest first.
         device: the torch device trained on.
         world_size: number of processes (``torchrun``), 1 otherwise.
         data: the dataset or clean-image folder trained on.
@@ -233,6 +241,8 @@ class RuntimeInfo:
 
     perceptual: str = ""
     precision: str = ""
+    precision_reason: str = ""
+    native_precisions: tuple[str, ...] = ()
     device: str = ""
     world_size: int = 1
     data: str = ""

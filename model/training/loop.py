@@ -199,6 +199,8 @@ def fit(
             runtime=RuntimeInfo(
                 perceptual=trainer.perceptual_status,
                 precision=trainer.precision,
+                precision_reason=trainer.decision.reason,
+                native_precisions=trainer.decision.native,
                 device=str(device),
                 world_size=info.world_size,
                 data=data_description,
@@ -231,6 +233,7 @@ def fit(
                 trainer.precision,
                 trainer.perceptual_status,
             )
+            log.info("%s", trainer.decision.summary())
             with tensorboard_writer(paths.tensorboard, info.is_main and train.tensorboard) as board:
                 reason = _loop(trainer, config, train_set, val_set, paths, state, info, board)
             log.info(

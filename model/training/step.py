@@ -13,8 +13,10 @@ pixels (``valid`` = 0) are left out of the fidelity term and replaced by the
 
 Safety: a step whose losses or gradients are not finite updates nothing
 (the NaN/Inf guard); ``train.nan_patience`` such steps in a row stop the run
-with :class:`TrainingDivergedError`. Mixed precision is bf16 autocast on the CPU
-and fp16 autocast with a ``GradScaler`` on CUDA (``train.amp``).
+with :class:`TrainingDivergedError`. The precision (``train.precision``) is
+decided by :func:`lenspair.model.precision.choose_precision`: bf16 autocast
+where the CPU or GPU runs bf16 natively, fp16 autocast with a ``GradScaler``
+on CUDA devices with fp16 tensor cores only, fp32 otherwise.
 
 Multi-GPU: under ``torchrun`` (``WORLD_SIZE`` > 1) both networks are wrapped
 in ``DistributedDataParallel``; the single-device path never touches
@@ -38,7 +40,8 @@ from lenspair.model.checkpoint import build_network
 from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.variants import build_discriminator
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV, load_vgg19
-from lenspair.model.training.config import RunConfig
+from lenspair.model.precision import PrecisionDecision, choose_precision
+from lenspair.model.training.config import RunConfig, TrainConfig
 from lenspair.model.training.losses import (
     PerceptualLoss,
     discriminator_loss,
@@ -107,13 +110,19 @@ def all_true(flag: bool, info: Distributed, device: torch.device) -> bool:
     return bool(value.item())
 
 
-def precision_of(device: torch.device, amp: bool) -> tuple[str, torch.dtype | None]:
-    """``(description, autocast dtype)`` for training on ``device``."""
-    if not amp:
-        return "fp32", None
-    if device.type == "cuda":
-        return "fp16 autocast + GradScaler", torch.float16
-    return "bf16 autocast", torch.bfloat16
+def training_precision(train: TrainConfig, device: torch.device) -> PrecisionDecision:
+    """The precision decision for training with ``train`` on ``device``.
+
+    ``train.amp: false`` forces fp32; otherwise ``train.precision`` (``auto``
+    by default) is resolved against the device's native precisions.
+    """
+    requested = train.precision if train.amp else "fp32"
+    return choose_precision(requested, device, "train")
+
+
+def describe_precision(precision: str) -> str:
+    """``fp32``, ``bf16 autocast`` or ``fp16 autocast + GradScaler``."""
+    return {"bf16": "bf16 autocast", "fp16": "fp16 autocast + GradScaler"}.get(precision, precision)
 
 
 def vgg19_weights_path(configured: Path | None) -> Path | None:
@@ -156,6 +165,8 @@ class Trainer:
         config: the resolved run configuration (``model.channels`` set).
         device: where to train.
         info: process-group position (default: single process).
+        decision: the precision to train at (default: decided from
+            ``config.train`` by :func:`training_precision`).
 
     Raises:
         ModelError: unresolved channels or an unreadable VGG19 weights file.
@@ -163,7 +174,11 @@ class Trainer:
     """
 
     def __init__(
-        self, config: RunConfig, device: torch.device, info: Distributed | None = None
+        self,
+        config: RunConfig,
+        device: torch.device,
+        info: Distributed | None = None,
+        decision: PrecisionDecision | None = None,
     ) -> None:
         self.config = config
         self.device = device
@@ -186,7 +201,9 @@ class Trainer:
         betas = (train.beta1, train.beta2)
         self.opt_g = torch.optim.Adam(self.network.parameters(), lr=train.lr, betas=betas)
         self.opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=train.lr, betas=betas)
-        self.precision, self.amp_dtype = precision_of(device, train.amp)
+        self.decision = decision or training_precision(train, device)
+        self.precision = describe_precision(self.decision.precision)
+        self.amp_dtype = self.decision.autocast_dtype
         self.scaler = torch.amp.GradScaler(device.type, enabled=self.amp_dtype == torch.float16)
         self.vgg_path = vgg19_weights_path(train.vgg19_weights)
         self.vgg = None if config.loss.perceptual == 0 else load_vgg19(self.vgg_path)

@@ -77,6 +77,28 @@ def test_eval_cli_writes_reports_that_match_model_metrics(tmp_path: Path, conven
     assert (out / "contact_sheet.png").stat().st_size > 0
 
 
+def test_int8_eval_scores_against_target_and_fp32(tmp_path: Path) -> None:
+    pytest.importorskip("onnxruntime")
+    folder = write_paired_folder(tmp_path / "pairs", count=3)
+    calibration = write_paired_folder(tmp_path / "calibration", count=4, seed=7)
+    checkpoint = make_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")
+    out = tmp_path / "eval"
+    args = ["eval", str(checkpoint), "--data", str(folder), "--out", str(out), "--device", "cpu"]
+    calibrate = ["--calibration", str(calibration)]
+    assert main([*args, "--precision", "int8", *calibrate, "--latency-runs", "2"]) == 0
+    means = json.loads((out / "metrics.json").read_text())
+    assert means["precision"] == "int8"
+    assert "requested" in means["precision_reason"]
+    versus = means["versus_fp32"]
+    assert versus["pairs"] == 3 and 25.0 < versus["psnr_db"] < 100.0
+    fp32 = np.mean([p for p, _ in _expected(checkpoint, folder, "skimage-gaussian")])
+    # The int8 output is scored against the target too, close to the fp32 score.
+    assert abs(means["overall"]["psnr_db"] - fp32) < 3.0
+    assert means["latency"][0]["precision"] == "int8"
+    assert means["latency"][0]["layout"] == "NCHW (onnxruntime)"
+    assert "agreement with the fp32 output" in (out / "metrics.md").read_text()
+
+
 def test_default_eval_folder_sits_in_the_run(tmp_path: Path) -> None:
     folder = write_paired_folder(tmp_path / "pairs", count=1)
     checkpoint = make_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")

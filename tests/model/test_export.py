@@ -9,7 +9,7 @@ from lenspair.cli import main
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import check_image, export_torchscript, parse_size
-from tests.model.train_fixtures import make_checkpoint
+from tests.model.train_fixtures import make_checkpoint, write_paired_folder
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -104,3 +104,32 @@ def test_failing_dynamo_exporter_falls_back_to_the_legacy_one(
     check = export.export_onnx(network, 1, tmp_path / "m.onnx", (32, 48), runs=1)
     assert check.exporter == "torch.onnx (TorchScript-based)"
     assert (tmp_path / "m.onnx").stat().st_size > 0
+
+
+def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
+    ort = pytest.importorskip("onnxruntime")
+    onnx = pytest.importorskip("onnx")
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    data = write_paired_folder(tmp_path / "pairs", count=4)
+    onnx_file = tmp_path / "model.onnx"
+    args = ["export", str(checkpoint), "--onnx", str(onnx_file), "--size", "48x32"]
+    assert main([*args, "--int8", "--calibration", str(data)]) == 0
+    report = json.loads((tmp_path / "model.onnx.export.json").read_text())
+    int8 = report["int8"]
+    assert int8["calibration_images"] == 4 and int8["precision"]["precision"] == "int8"
+    assert 25.0 < int8["psnr_vs_fp32_db"] < 100.0  # quantised: close, yet not identical
+    session = ort.InferenceSession(int8["path"], providers=["CPUExecutionProvider"])
+    kinds = {node.op_type for node in onnx.load(int8["path"]).graph.node}
+    assert "QuantizeLinear" in kinds and "DequantizeLinear" in kinds
+    image = torch.rand(2, 1, 32, 48, generator=torch.Generator().manual_seed(3))
+    (restored,) = session.run(None, {"image": image.numpy()})
+    with torch.no_grad():
+        expected = load_model(checkpoint).network(image)[1].numpy()
+    assert restored.shape == (2, 1, 32, 48)
+    assert np.abs(restored - expected).mean() < 0.05
+
+
+def test_int8_export_needs_calibration(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    assert main(["export", str(checkpoint), "--onnx", str(tmp_path / "m.onnx"), "--int8"]) == 2
+    assert "--int8 needs --onnx FILE and --calibration DS" in capsys.readouterr().err

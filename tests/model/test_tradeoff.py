@@ -62,12 +62,50 @@ def test_variant_set_and_precisions() -> None:
     assert any(v.width == 0.5 for v in DEFAULT_VARIANTS)
     assert any(v.width == 2.0 for v in DEFAULT_VARIANTS)
     assert any(v.num_blocks == 3 for v in DEFAULT_VARIANTS)
-    assert precisions_for("G", torch.device("cpu")) == ["fp32"]
-    assert precisions_for("GEA", torch.device("cpu")) == ["fp32", "bf16"]
-    assert precisions_for("GEA", torch.device("cuda")) == ["fp32", "bf16", "fp16"]
+    cpu, cuda = torch.device("cpu"), torch.device("cuda")
+    assert precisions_for("G", cpu, ("int8", "bf16", "fp32")) == ["fp32"]
+    assert precisions_for("GEA", cpu, ("int8", "bf16", "fp32")) == ["fp32", "bf16", "int8"]
+    assert precisions_for("GEA", cpu, ("int8", "fp32")) == ["fp32", "int8"]  # no emulated bf16
+    assert precisions_for("GEA", cpu, ("fp32",)) == ["fp32"]
+    assert precisions_for("GEA", cuda, ("bf16", "fp16", "fp32")) == ["fp32", "bf16", "fp16"]
+    assert precisions_for("GEA", cuda, ("fp16", "fp32")) == ["fp32", "fp16"]
 
 
-def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(tmp_path: Path) -> None:
+def _fixed_precisions(monkeypatch: pytest.MonkeyPatch, reduced: list[str]) -> None:
+    def fixed(variant: str, device: torch.device, native: object = None) -> list[str]:
+        return ["fp32", *reduced] if variant == "GEA" else ["fp32"]
+
+    monkeypatch.setattr("lenspair.model.evaluation.tradeoff.precisions_for", fixed)
+
+
+def test_tradeoff_int8_row_scores_against_fp32_and_target(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("onnxruntime")
+    _fixed_precisions(monkeypatch, ["int8"])
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    base = tiny_config()
+    base = replace(base, model=replace(base.model, channels=None))
+    gea = tuple(v for v in DEFAULT_VARIANTS if v.name in ("GEA", "GEA-w0.5"))
+    result = run_tradeoff(dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), base,
+                          gea, latency_runs=2)  # fmt: skip
+    assert {(r.name, r.precision) for r in result.rows} == {
+        ("GEA", "fp32"),
+        ("GEA", "int8"),
+        ("GEA-w0.5", "fp32"),
+    }  # int8 for the paper's GEA only
+    rows = {r.precision: r for r in result.rows if r.name == "GEA"}
+    assert rows["fp32"].psnr_vs_fp32_db is None
+    assert 25.0 < (rows["int8"].psnr_vs_fp32_db or 0.0) <= 100.0
+    assert abs(rows["int8"].psnr_db - rows["fp32"].psnr_db) < 3.0
+    assert rows["int8"].cpu_ms is not None and rows["int8"].cpu_ms > 0
+    assert "| GEA | int8 (" in (tmp_path / "t" / "tradeoff.md").read_text()
+
+
+def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _fixed_precisions(monkeypatch, ["bf16"])
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
     base = tiny_config()
     base = replace(base, model=replace(base.model, channels=None))
@@ -89,7 +127,7 @@ def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(tmp_path: Path)
 
     markdown = (out / "tradeoff.md").read_text()
     for name, precision in expected:
-        assert f"| {name} | {precision} |" in markdown
+        assert f"| {name} | {precision}" in markdown
     assert "skimage-gaussian" in markdown
     with (out / "tradeoff.csv").open() as handle:
         assert len(list(csv.DictReader(handle))) == len(expected)

@@ -1,4 +1,5 @@
 import logging
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import load_checkpoint
 from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.vgg import VGG19Features
+from lenspair.model.precision import Hardware, PrecisionDecision, choose_precision
 from lenspair.model.training.config import RunConfig, load_run_config
 from lenspair.model.training.datasets import (
     holdout_indices,
@@ -95,7 +97,7 @@ def test_one_training_step_lowers_the_loss() -> None:
 
 
 def test_bf16_autocast_step_is_finite() -> None:
-    trainer = Trainer(tiny_config(amp=True), CPU)
+    trainer = Trainer(tiny_config(amp=True, precision="bf16"), CPU)
     assert trainer.precision == "bf16 autocast"
     assert not trainer.scaler.is_enabled()  # GradScaler is for fp16 on CUDA only
     for seed in range(2):
@@ -103,6 +105,35 @@ def test_bf16_autocast_step_is_finite() -> None:
         assert not result.skipped
         assert all(np.isfinite(v) for v in result.losses.values())
     assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
+
+
+def test_auto_precision_follows_the_probe(monkeypatch: pytest.MonkeyPatch) -> None:
+    def probe(flags: frozenset[str]) -> Callable[[torch.device], Hardware]:
+        return lambda device: Hardware("cpu", "mock", flags, "mock")
+
+    for flags, expected, dtype in (
+        (frozenset({"avx512_vnni"}), "fp32", None),
+        (frozenset({"avx512_bf16", "avx512_vnni"}), "bf16 autocast", torch.bfloat16),
+    ):
+        monkeypatch.setattr(
+            "lenspair.model.training.step.choose_precision",
+            lambda requested, device, task, flags=flags: choose_precision(
+                requested, device, task, probe(flags)
+            ),
+        )
+        trainer = Trainer(tiny_config(amp=True), CPU)
+        assert trainer.precision == expected and trainer.amp_dtype == dtype
+        assert Trainer(tiny_config(amp=False), CPU).precision == "fp32"
+
+
+def test_fp16_path_steps_with_an_enabled_grad_scaler() -> None:
+    # The CUDA fp16 path (autocast + GradScaler), exercised on the CPU.
+    decision = PrecisionDecision("fp16", "fp16", "test", ("fp16", "fp32"), "cpu", "mock")
+    trainer = Trainer(tiny_config(), CPU, decision=decision)
+    assert trainer.scaler.is_enabled() and trainer.amp_dtype == torch.float16
+    result = trainer.train_step(_batch(0))
+    assert all(np.isfinite(v) for v in result.losses.values())
+    assert trainer.scaler.get_scale() > 0
 
 
 def test_injected_nan_is_skipped_without_any_update() -> None:
@@ -321,3 +352,22 @@ def test_progress_label_names_the_budget_that_binds() -> None:
     assert _epoch_label(2, TrainConfig(epochs=10**6, max_steps=40)) == "epoch 3 (budget 40 steps)"
     label = _epoch_label(0, TrainConfig(max_steps=40, max_seconds=90.0))
     assert label == "epoch 1 (budget 40 steps or 90 s)"
+
+
+def test_only_rank_zero_prints_the_summary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from lenspair.model.training.loop import TrainSummary
+
+    dataset = write_split_dataset(tmp_path / "ds")
+    summary = TrainSummary(
+        run=tmp_path / "run", epochs=1, steps=1, best_psnr=float("-inf"), best_epoch=0,
+        stop_reason="max_steps", seconds=1.0, skipped_steps=0, perceptual="disabled",
+    )  # fmt: skip
+    monkeypatch.setattr("lenspair.model.training.loop.fit", lambda *a, **k: summary)
+    args = ["train", str(dataset), "--out", str(tmp_path / "run"), "--max-steps", "1"]
+    for rank, prints in (("1", False), ("0", True)):
+        monkeypatch.setenv("WORLD_SIZE", "2")
+        monkeypatch.setenv("RANK", rank)
+        assert main(args) == 0
+        assert ("best validation PSNR" in capsys.readouterr().out) == prints

@@ -1,0 +1,235 @@
+"""Which numeric precision to run at: the one the hardware does natively.
+
+One decision for ``train``, ``eval``, ``tradeoff``, ``export`` and the
+benchmarks: ``--precision auto|fp32|bf16|fp16|int8``. ``auto`` is the fastest
+precision the device runs *natively*; a precision the device only emulates is
+never chosen by ``auto`` (bf16 on a CPU without bf16 instructions is emulated
+by oneDNN through fp32 conversions: a GEA training step measured 2.6x slower
+than fp32 on an AVX-512 Xeon without ``avx512_bf16``).
+
+What counts as native:
+
+* CPU, x86: bf16 with ``avx512_bf16`` or ``amx_bf16``; int8 with
+  ``avx512_vnni``, ``avx_vnni`` or ``amx_int8``.
+* CPU, Arm: bf16 with ``bf16``; int8 with ``asimddp`` or ``i8mm``.
+* CUDA: fp16 from compute capability 7.0 (tensor cores), bf16 from 8.0.
+* fp32 everywhere.
+
+The flags come from ``/proc/cpuinfo`` (Linux). Elsewhere (macOS, Windows) no
+flag list is read, so bf16 and int8 count as not native and ``auto`` stays
+at fp32, which is never emulated; ``--precision bf16`` still runs on request.
+``torch.ops.mkldnn._is_mkldnn_bf16_supported()`` is not used: it answers
+True on CPUs that only emulate bf16.
+
+``auto`` never picks int8: quantisation changes the output (see ``lenspair
+export --int8``) and needs calibration images, so it is a deployment choice,
+measured with ``eval``/``tradeoff --precision int8``. For training, int8
+is refused; fp16 on the CPU is refused (no fast CPU fp16 kernels in PyTorch).
+"""
+
+import platform
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import torch
+
+from lenspair.model.errors import ModelError
+
+Precision = Literal["fp32", "bf16", "fp16", "int8"]
+PRECISIONS: tuple[str, ...] = ("fp32", "bf16", "fp16", "int8")
+CHOICES: tuple[str, ...] = ("auto", *PRECISIONS)
+Task = Literal["train", "infer"]
+
+CPU_BF16_FLAGS = frozenset({"avx512_bf16", "amx_bf16", "bf16"})
+"""``/proc/cpuinfo`` flags that mean bf16 arithmetic in hardware (x86 and Arm)."""
+CPU_INT8_FLAGS = frozenset({"avx512_vnni", "avx_vnni", "amx_int8", "asimddp", "i8mm"})
+"""``/proc/cpuinfo`` flags that mean int8 dot products in hardware (x86 and Arm)."""
+
+
+@dataclass(frozen=True)
+class Hardware:
+    """What a device can do, as the probe saw it.
+
+    Attributes:
+        kind: ``cpu`` or ``cuda``.
+        name: CPU model or CUDA device name.
+        cpu_flags: CPU feature flags (empty when unknown or for CUDA).
+        flags_source: where ``cpu_flags`` came from (``/proc/cpuinfo`` or a
+            note that nothing was read).
+        cuda_capability: ``(major, minor)`` for CUDA, else ``None``.
+
+    """
+
+    kind: str
+    name: str
+    cpu_flags: frozenset[str] = frozenset()
+    flags_source: str = ""
+    cuda_capability: tuple[int, int] | None = None
+
+
+Probe = Callable[[torch.device], Hardware]
+
+
+@dataclass(frozen=True)
+class PrecisionDecision:
+    """The precision a run uses and why.
+
+    Attributes:
+        precision: ``fp32``, ``bf16``, ``fp16`` or ``int8``.
+        requested: what the user asked for (``auto`` or a precision).
+        reason: one sentence, printed once and written into the run's config.
+        native: the precisions the device runs natively, fastest first.
+        device: the device the decision is for (``cpu``, ``cuda:0``).
+        hardware: CPU model or CUDA device name.
+
+    """
+
+    precision: str
+    requested: str
+    reason: str
+    native: tuple[str, ...]
+    device: str
+    hardware: str
+
+    @property
+    def autocast_dtype(self) -> torch.dtype | None:
+        """The autocast dtype (``None`` for fp32 and int8)."""
+        return {"bf16": torch.bfloat16, "fp16": torch.float16}.get(self.precision)
+
+    @property
+    def emulated(self) -> bool:
+        """Whether the chosen precision is not native on the device (slow)."""
+        return self.precision not in self.native
+
+    def summary(self) -> str:
+        """``precision bf16 (auto): REASON``: the line printed once per run."""
+        return f"precision {self.precision} ({self.requested}): {self.reason}"
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready record (for run configs, reports and benchmarks)."""
+        return {
+            "precision": self.precision,
+            "requested": self.requested,
+            "reason": self.reason,
+            "native": list(self.native),
+            "device": self.device,
+            "hardware": self.hardware,
+        }
+
+
+def read_cpu_flags(cpuinfo: Path = Path("/proc/cpuinfo")) -> tuple[str, frozenset[str], str]:
+    """``(model name, flags, source)`` of this CPU from ``/proc/cpuinfo``.
+
+    x86 lists ``flags``, Arm ``Features``. Where the file does not exist or
+    cannot be read (macOS, Windows), the flags are empty and the source says
+    so: bf16/int8 then count as not native.
+    """
+    try:
+        text = cpuinfo.read_text()
+    except OSError:
+        return platform.processor() or platform.machine(), frozenset(), "no /proc/cpuinfo"
+    name, flags = platform.machine(), frozenset[str]()
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        key = key.strip().lower()
+        if key == "model name" and name == platform.machine():
+            name = value.strip()
+        elif key in ("flags", "features") and not flags:
+            flags = frozenset(value.split())
+    return name, flags, str(cpuinfo)
+
+
+def probe_hardware(device: torch.device) -> Hardware:
+    """Read the capabilities of ``device`` (CPU flags or CUDA capability)."""
+    if device.type == "cuda":
+        index = device.index if device.index is not None else torch.cuda.current_device()
+        major, minor = torch.cuda.get_device_capability(index)
+        return Hardware("cuda", torch.cuda.get_device_name(index), cuda_capability=(major, minor))
+    name, flags, source = read_cpu_flags()
+    return Hardware("cpu", name, flags, source)
+
+
+def native_precisions(hardware: Hardware) -> tuple[str, ...]:
+    """Precisions ``hardware`` runs natively, fastest first (fp32 always last)."""
+    if hardware.kind == "cuda":
+        major, minor = hardware.cuda_capability or (0, 0)
+        native = []
+        if (major, minor) >= (8, 0):
+            native.append("bf16")
+        if (major, minor) >= (7, 0):
+            native.append("fp16")
+        return (*native, "fp32")
+    native = []
+    if hardware.cpu_flags & CPU_INT8_FLAGS:
+        native.append("int8")
+    if hardware.cpu_flags & CPU_BF16_FLAGS:
+        native.append("bf16")
+    return (*native, "fp32")
+
+
+def _why_native(hardware: Hardware, precision: str) -> str:
+    if hardware.kind == "cuda":
+        major, minor = hardware.cuda_capability or (0, 0)
+        return f"compute capability {major}.{minor}"
+    wanted = CPU_BF16_FLAGS if precision == "bf16" else CPU_INT8_FLAGS
+    found = sorted(hardware.cpu_flags & wanted)
+    return "CPU flag " + ", ".join(found) if found else "no CPU flag"
+
+
+def choose_precision(
+    requested: str, device: torch.device, task: Task, probe: Probe = probe_hardware
+) -> PrecisionDecision:
+    """Resolve ``--precision`` for ``device`` and ``task``.
+
+    Args:
+        requested: ``auto``, ``fp32``, ``bf16``, ``fp16`` or ``int8``.
+        device: where the run computes.
+        task: ``train`` (autocast training) or ``infer`` (eval, tradeoff, export).
+        probe: reads the hardware (mocked in tests).
+
+    Returns:
+        The decision with its reason and the native set.
+
+    Raises:
+        ModelError: an unknown precision, fp16 on the CPU, or int8 for
+            training or on CUDA.
+
+    """
+    if requested not in CHOICES:
+        raise ModelError(f"--precision: expected one of {', '.join(CHOICES)}, got {requested!r}")
+    hardware = probe(device)
+    native = native_precisions(hardware)
+    where = f"{hardware.name} ({device.type})"
+    if requested == "auto":
+        candidates = [p for p in native if p != "int8"]
+        precision = candidates[0]
+        if precision == "fp32":
+            if hardware.kind == "cuda":
+                reason = f"auto: no tensor-core fp16/bf16 on {where}"
+            elif not hardware.cpu_flags:
+                reason = (
+                    f"auto: CPU flags unknown ({hardware.flags_source}); fp32 is never emulated"
+                )
+            else:
+                reason = f"auto: bf16 is not native on {where} (emulated bf16 is slower than fp32)"
+        else:
+            reason = (
+                f"auto: fastest native precision on {where} ({_why_native(hardware, precision)})"
+            )
+        return PrecisionDecision(precision, requested, reason, native, str(device), hardware.name)
+    if requested == "fp16" and device.type == "cpu":
+        raise ModelError("--precision fp16 runs on CUDA only; on the CPU use bf16 or fp32")
+    if requested == "int8" and (task == "train" or device.type == "cuda"):
+        raise ModelError(
+            "--precision int8 is for CPU inference (an ONNX Runtime quantised model); "
+            "train at auto, fp32 or bf16"
+        )
+    if requested in native:
+        reason = f"requested; native on {where}"
+        if requested != "fp32":
+            reason += f" ({_why_native(hardware, requested)})"
+    else:
+        reason = f"requested; NOT native on {where}: emulated, expect it to be slower than fp32"
+    return PrecisionDecision(requested, requested, reason, native, str(device), hardware.name)

@@ -1,0 +1,153 @@
+"""The precision decision, with the hardware probe mocked both ways."""
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from lenspair.model.errors import ModelError
+from lenspair.model.precision import (
+    Hardware,
+    choose_precision,
+    native_precisions,
+    probe_hardware,
+    read_cpu_flags,
+)
+
+CPU = torch.device("cpu")
+CUDA = torch.device("cuda", 0)
+
+
+def _cpu(*flags: str) -> Hardware:
+    return Hardware("cpu", "Test CPU", frozenset({"sse2", "avx2", "avx512f", *flags}), "mock")
+
+
+def _gpu(major: int, minor: int) -> Hardware:
+    return Hardware("cuda", "Test GPU", cuda_capability=(major, minor))
+
+
+def _probe(hardware: Hardware):  # type: ignore[no-untyped-def]
+    return lambda device: hardware
+
+
+def test_native_bf16_cpu_trains_and_infers_in_bf16() -> None:
+    hardware = _cpu("avx512_bf16", "avx512_vnni")
+    for task in ("train", "infer"):
+        decision = choose_precision("auto", CPU, task, _probe(hardware))  # type: ignore[arg-type]
+        assert decision.precision == "bf16"
+        assert "avx512_bf16" in decision.reason
+        assert decision.native == ("int8", "bf16", "fp32")
+        assert not decision.emulated
+        assert decision.autocast_dtype == torch.bfloat16
+
+
+def test_amx_counts_as_native_bf16_and_int8() -> None:
+    assert native_precisions(_cpu("amx_bf16", "amx_int8")) == ("int8", "bf16", "fp32")
+
+
+def test_vnni_only_cpu_never_chooses_emulated_bf16() -> None:
+    hardware = _cpu("avx512_vnni")
+    decision = choose_precision("auto", CPU, "train", _probe(hardware))
+    assert decision.precision == "fp32"
+    assert decision.native == ("int8", "fp32")
+    assert "not native" in decision.reason
+    assert decision.autocast_dtype is None
+
+
+def test_cpu_without_either_runs_fp32_and_marks_bf16_emulated() -> None:
+    hardware = _cpu()
+    assert choose_precision("auto", CPU, "infer", _probe(hardware)).precision == "fp32"
+    forced = choose_precision("bf16", CPU, "train", _probe(hardware))
+    assert forced.precision == "bf16" and forced.emulated
+    assert "NOT native" in forced.reason
+
+
+def test_unknown_flags_fall_back_to_fp32() -> None:
+    hardware = Hardware("cpu", "somewhere", frozenset(), "no /proc/cpuinfo")
+    decision = choose_precision("auto", CPU, "train", _probe(hardware))
+    assert decision.precision == "fp32"
+    assert "no /proc/cpuinfo" in decision.reason
+
+
+@pytest.mark.parametrize(
+    ("capability", "expected", "native"),
+    [
+        ((6, 1), "fp32", ("fp32",)),
+        ((7, 5), "fp16", ("fp16", "fp32")),
+        ((8, 6), "bf16", ("bf16", "fp16", "fp32")),
+        ((9, 0), "bf16", ("bf16", "fp16", "fp32")),
+    ],
+)
+def test_cuda_follows_compute_capability(
+    capability: tuple[int, int], expected: str, native: tuple[str, ...]
+) -> None:
+    decision = choose_precision("auto", CUDA, "train", _probe(_gpu(*capability)))
+    assert decision.precision == expected
+    assert decision.native == native
+    if expected != "fp32":
+        assert f"{capability[0]}.{capability[1]}" in decision.reason
+
+
+def test_refused_combinations_name_the_option() -> None:
+    with pytest.raises(ModelError, match="--precision fp16 runs on CUDA only"):
+        choose_precision("fp16", CPU, "infer", _probe(_cpu("avx512_bf16")))
+    with pytest.raises(ModelError, match="--precision int8 is for CPU inference"):
+        choose_precision("int8", CPU, "train", _probe(_cpu("avx512_vnni")))
+    with pytest.raises(ModelError, match="--precision int8 is for CPU inference"):
+        choose_precision("int8", CUDA, "infer", _probe(_gpu(8, 0)))
+    with pytest.raises(ModelError, match="expected one of auto, fp32"):
+        choose_precision("fp8", CPU, "infer", _probe(_cpu()))
+
+
+def test_auto_never_picks_int8_but_int8_is_native_with_vnni() -> None:
+    hardware = _cpu("avx512_vnni")
+    assert choose_precision("auto", CPU, "infer", _probe(hardware)).precision == "fp32"
+    decision = choose_precision("int8", CPU, "infer", _probe(hardware))
+    assert decision.precision == "int8" and not decision.emulated
+    assert "avx512_vnni" in decision.reason
+
+
+def test_decision_record_is_json_ready() -> None:
+    decision = choose_precision("auto", CPU, "infer", _probe(_cpu("avx512_bf16")))
+    record = decision.as_dict()
+    assert record["precision"] == "bf16" and record["requested"] == "auto"
+    assert record["native"] == ["bf16", "fp32"]
+    assert decision.summary().startswith("precision bf16 (auto): ")
+
+
+def test_read_cpu_flags_parses_x86_and_arm(tmp_path: Path) -> None:
+    x86 = tmp_path / "x86"
+    x86.write_text(
+        "processor\t: 0\nmodel name\t: Example EPYC\nflags\t\t: fpu avx512f avx512_bf16\n\n"
+        "processor\t: 1\nmodel name\t: Example EPYC\nflags\t\t: fpu avx512f avx512_bf16\n"
+    )
+    name, flags, source = read_cpu_flags(x86)
+    assert name == "Example EPYC" and "avx512_bf16" in flags and source == str(x86)
+    arm = tmp_path / "arm"
+    arm.write_text("processor\t: 0\nFeatures\t: fp asimd asimddp bf16 i8mm\n")
+    assert native_precisions(Hardware("cpu", "arm", read_cpu_flags(arm)[1])) == (
+        "int8",
+        "bf16",
+        "fp32",
+    )
+    name, flags, source = read_cpu_flags(tmp_path / "missing")
+    assert flags == frozenset() and source == "no /proc/cpuinfo"
+
+
+def test_probe_reads_cuda_capability_through_torch(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(torch.cuda, "get_device_capability", lambda index: (7, 5))
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda index: "Mock T4")
+    hardware = probe_hardware(CUDA)
+    assert hardware.cuda_capability == (7, 5) and hardware.name == "Mock T4"
+    assert choose_precision("auto", CUDA, "infer", probe_hardware).precision == "fp16"
+
+
+def test_probe_on_this_cpu_agrees_with_proc_cpuinfo() -> None:
+    hardware = probe_hardware(CPU)
+    cpuinfo = Path("/proc/cpuinfo")
+    if not cpuinfo.exists():
+        pytest.skip("no /proc/cpuinfo")
+    bf16 = "avx512_bf16" in cpuinfo.read_text().split()
+    assert ("bf16" in native_precisions(hardware)) == (
+        bf16 or bool(hardware.cpu_flags & {"amx_bf16", "bf16"})
+    )
