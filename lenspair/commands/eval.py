@@ -95,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     if args.latency_runs < 0:
         raise ConfigError("--latency-runs must be >= 0")
     device = resolve_device(args.device)
+    # here, not at the top: keeps `lenspair eval --help` from importing torch
     from lenspair.model.precision import choose_precision
     from lenspair.model.training.pairs import open_eval_pairs
 

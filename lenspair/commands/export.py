@@ -71,8 +71,10 @@ def run(args: argparse.Namespace) -> int:
 def _export_int8(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, object]:
     import dataclasses
 
+    # here, not at the top: keeps `lenspair export --help` from importing torch
     import torch
 
+    # likewise: these import torch
     from lenspair.model.checkpoint import load_model
     from lenspair.model.evaluation.quantize import calibration_images, check_int8
     from lenspair.model.precision import choose_precision

@@ -41,6 +41,8 @@ from torch import Tensor, nn
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import INPUT_NAME, Restorer, _onnx_export, check_image
+from lenspair.model.metrics import psnr
+from lenspair.model.training.pairs import to_tensor
 
 log = logging.getLogger(__name__)
 
@@ -65,8 +67,6 @@ def calibration_images(
         ModelError: no pairs.
 
     """
-    from lenspair.model.training.pairs import to_tensor
-
     if len(pairs) == 0:
         raise ModelError("int8 calibration: no images to calibrate on")
     indices = np.unique(np.linspace(0, len(pairs) - 1, min(count, len(pairs))).round().astype(int))
@@ -263,8 +263,6 @@ def check_int8(
     runs: int = 20,
 ) -> Int8Check:
     """Quantise ``network`` to ``path``, then compare and time it against fp32 torch."""
-    from lenspair.model.metrics import psnr
-
     quantize_network(network, channels, path, size, calibration)
     session = open_session(path)
     image = torch.from_numpy(calibration[0]) if calibration else check_image(channels, size)

@@ -45,6 +45,7 @@ from lenspair.model.evaluation.tradeoff_rows import TradeoffRow as TradeoffRow
 from lenspair.model.evaluation.tradeoff_rows import mark_pareto as mark_pareto
 from lenspair.model.evaluation.tradeoff_rows import pareto_front as pareto_front
 from lenspair.model.networks.complexity import describe
+from lenspair.model.precision import choose_precision
 from lenspair.model.training.config import RunConfig, Variant
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
@@ -147,8 +148,6 @@ def precisions_for(
     if variant != "GEA":
         return ["fp32"]
     if native is None:
-        from lenspair.model.precision import choose_precision
-
         native = choose_precision("auto", device, "infer").native
     order = ("bf16", "fp16", "int8") if device.type == "cuda" else ("bf16", "int8")
     reduced = [p for p in order if p in native and not (p == "int8" and device.type == "cuda")]
