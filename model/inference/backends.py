@@ -7,11 +7,12 @@ crops back, as ``eval`` does). An ONNX file from ``lenspair export`` has a
 fixed ``H x W`` (``fixed_size``); the caller tiles other sizes
 (:mod:`lenspair.model.inference.tiling`).
 
-Precision: ``--precision auto|fp32|bf16``. **auto means fp32 for now**
-(:func:`resolve_precision`): the hardware-driven choice that ``train``/``eval``
-will share is being built separately (issue 11) and is to be routed here.
+Precision: ``--precision auto|fp32|bf16|fp16`` for checkpoints; ``auto`` is the
+hardware-driven choice that ``train``/``eval``/``tradeoff``/``export`` share
+(:func:`resolve_precision`). ONNX models run in fp32.
 """
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -23,6 +24,9 @@ from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import autocast_context, tune_allocator
 from lenspair.model.inference.options import PRECISIONS
+from lenspair.model.precision import choose_precision
+
+log = logging.getLogger(__name__)
 
 
 class Backend(Protocol):
@@ -45,18 +49,21 @@ class Backend(Protocol):
 
 
 def resolve_precision(choice: str, device: torch.device) -> str:
-    """``--precision`` to what runs: ``fp32`` or ``bf16``.
+    """``--precision`` to what runs: ``fp32`` or ``bf16`` (``fp16`` on CUDA).
 
-    ``auto`` is fp32 for the moment. TODO(issue 11): route ``auto`` to the
-    shared hardware-driven precision decision once it is merged.
+    ``auto`` is the shared hardware-driven decision of
+    :func:`lenspair.model.precision.choose_precision` (the fastest native
+    precision; emulated bf16 is never chosen); the decision and its reason are
+    logged once.
 
     Raises:
-        ModelError: an unknown choice.
+        ModelError: an unknown choice, or one the device cannot run.
     """
     if choice not in PRECISIONS:
         raise ModelError(f"--precision: expected one of {', '.join(PRECISIONS)}, got {choice!r}")
-    del device  # used by the shared decision (issue 11)
-    return "fp32" if choice == "auto" else choice
+    decision = choose_precision(choice, device, "infer")
+    log.info("%s", decision.summary())
+    return decision.precision
 
 
 @dataclass
@@ -178,11 +185,11 @@ def open_backend(path: Path, device: torch.device, precision: str = "auto") -> B
         ModelError: unreadable model, or ``bf16`` asked of an ONNX model.
     """
     path = Path(path)
-    resolved = resolve_precision(precision, device)
     if path.suffix.lower() == ".onnx":
-        if resolved != "fp32":
+        if precision not in ("auto", "fp32"):
             raise ModelError(f"--precision {precision}: ONNX models run in fp32 here")
         return OnnxBackend(path, device)
+    resolved = resolve_precision(precision, device)
     loaded = load_model(path, device)
     channels = loaded.config.model.channels or 1
     return TorchBackend(deploy(loaded.network, device), channels, device, resolved, path)

@@ -1,7 +1,7 @@
 """Choices and defaults of ``lenspair restore``, importable without torch (for ``--help``)."""
 
-PRECISIONS = ("auto", "fp32", "bf16")
-"""``--precision``: ``auto`` is fp32 for now (see ``backends.resolve_precision``)."""
+PRECISIONS = ("auto", "fp32", "bf16", "fp16")
+"""``--precision``: ``auto`` is the fastest native one (``lenspair.model.precision``)."""
 
 CAMERA_CHOICES = ("auto", "cam0", "cam1", "both")
 """``--camera``: ``auto`` = the obstructed camera of ``rig.yaml``, else both."""

@@ -1,4 +1,4 @@
-"""Restore backends and tiling: whole vs tiled, torch vs ONNX Runtime, precision stub."""
+"""Restore backends and tiling: whole vs tiled, torch vs ONNX Runtime, precision routing."""
 
 from pathlib import Path
 
@@ -154,8 +154,24 @@ def test_bf16_stays_close_to_fp32(backend: TorchBackend) -> None:
     assert float(np.abs(bf16(batch) - backend(batch)).max()) < 0.05
 
 
-def test_precision_auto_is_fp32_for_now() -> None:
-    assert resolve_precision("auto", CPU) == "fp32"
-    assert resolve_precision("bf16", CPU) == "bf16"
+def test_precision_auto_follows_the_hardware(monkeypatch: pytest.MonkeyPatch) -> None:
+    import lenspair.model.precision as precision
+
+    def probe(flags: frozenset[str]) -> precision.Probe:
+        return lambda device: precision.Hardware("cpu", "test CPU", flags, "mock")
+
+    native = probe(frozenset({"avx512_bf16", "avx512_vnni"}))
+    emulated = probe(frozenset({"avx512f", "avx512_vnni"}))
+    monkeypatch.setattr(
+        "lenspair.model.inference.backends.choose_precision",
+        lambda r, d, t: precision.choose_precision(r, d, t, probe=native),
+    )
+    assert resolve_precision("auto", CPU) == "bf16"
+    monkeypatch.setattr(
+        "lenspair.model.inference.backends.choose_precision",
+        lambda r, d, t: precision.choose_precision(r, d, t, probe=emulated),
+    )
+    assert resolve_precision("auto", CPU) == "fp32"  # emulated bf16 is never auto
+    assert resolve_precision("bf16", CPU) == "bf16"  # asked for explicitly: honoured
     with pytest.raises(ModelError, match="--precision"):
         resolve_precision("int4", CPU)
