@@ -87,13 +87,14 @@ def main(argv: list[str] | None = None) -> int:
     """Run the benchmark, print a table (and JSON); returns 0."""
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--frames", type=int, default=40)
+    parser.add_argument("--runs", type=int, default=20, help="timed latency runs (20)")
     parser.add_argument("--out", type=Path, help="folder for restore.json")
     args = parser.parse_args(argv)
     os.environ.setdefault("LENSPAIR_QUIET", "1")
     device = torch.device("cpu")
     network = deploy(build_network(ModelConfig(variant="GEA", channels=1)), device)
     backend = TorchBackend(network, 1, device)
-    latencies = [measure_latency(network, 1, device, (HEIGHT, WIDTH), runs=20).median_ms]
+    latencies = [measure_latency(network, 1, device, (HEIGHT, WIDTH), runs=args.runs).median_ms]
     runs: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory() as temp:
         root = Path(temp)
@@ -117,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
                         "ms_per_frame": round(1000 * seconds / report.restored, 2),
                     }
                 )
-    latencies.append(measure_latency(network, 1, device, (HEIGHT, WIDTH), runs=20).median_ms)
+    latencies.append(measure_latency(network, 1, device, (HEIGHT, WIDTH), runs=args.runs).median_ms)
     latency = statistics.median(latencies)
     for run in runs:
         run["io_overhead_ratio"] = round(float(run["ms_per_frame"]) / latency, 3)
