@@ -31,6 +31,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("lenspair.commands.eval", "measure PSNR/SSIM and latency of a checkpoint"),
     "tradeoff": ("lenspair.commands.tradeoff", "accuracy-versus-time table and plot of variants"),
     "export": ("lenspair.commands.export", "export a checkpoint to ONNX and TorchScript"),
+    "train-detector": (
+        "lenspair.commands.train_detector",
+        "train the small anomaly detector (obstructed?, kind, where)",
+    ),
+    "detect": ("lenspair.commands.detect", "judge frames: obstructed?, by what, where"),
     "demo": ("lenspair.commands.demo", "run the whole pipeline on the bundled sample scenes"),
 }
 
