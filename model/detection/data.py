@@ -14,9 +14,14 @@ labels (:class:`DetectorSample`):
 * **simulated recordings** (:func:`recording_samples`, ``lenspair simulate``
   output): the obstructed camera's frames with their exact ``truth/mask/``
   footprint and the kind from ``rig.yaml``, and the clean camera's frames.
+  The footprint of dust is the whole support of a smooth field, mostly so
+  faint that nothing is visible; the map is therefore the *visible*
+  footprint: ``truth/mask`` intersected with the pair rule applied to the
+  frame and ``truth/clear`` (the same view through clean glass) at a low
+  threshold (5 % relative change).
 * **synthetic anomalies over clean images** (:func:`synthetic_samples`): the
   simulator's renderer puts rain, dust or dirt with random parameters over
-  clean images (exact masks), a quarter of them left clean; before that,
+  clean images (visible footprints, as above), a quarter of them left clean; before that,
   each clean image gets a random exposure gain and, for some, a defocus blur,
   so that dark and blurry clean scenes are seen as clean.
 
@@ -101,6 +106,17 @@ def _mask_at(mask: np.ndarray, spec: DetectorSpec) -> np.ndarray:
     return covered >= 0.5
 
 
+VISIBLE_THRESHOLD = 0.05
+"""Relative change above which a footprint pixel is visible (module docstring)."""
+
+
+def visible_footprint(obstructed: np.ndarray, clear: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``bool`` ``(H, W)``: footprint pixels where the glass visibly changes the view."""
+    changed = pair_anomaly_mask(obstructed, clear, threshold=VISIBLE_THRESHOLD)
+    covered: np.ndarray = (np.asarray(mask) > 0) & changed
+    return covered
+
+
 def labelled(
     image: np.ndarray,
     kind: int,
@@ -110,7 +126,7 @@ def labelled(
     group: str,
     untrusted: np.ndarray | None = None,
 ) -> DetectorSample:
-    """A sample from an image and its footprint mask (None: nothing covered)."""
+    """A sample from an image and its covered-pixel mask (None: nothing covered)."""
     grid = spec.grid
     tiles = np.zeros(grid, np.float32)
     if mask is not None and kind != 0:
@@ -183,6 +199,9 @@ def recording_samples(
             source = f"{recording.recording_id}/{camera}/{frame.t_ns}"
             if camera == rig.obstructed:
                 mask = read_image(masks / f"{frame.t_ns}.png")
+                clear_file = path / "truth" / "clear" / f"{frame.t_ns}.png"
+                if clear_file.is_file():
+                    mask = visible_footprint(image, read_image(clear_file), mask)
                 frame_kind = kind if mask.any() or kind == 0 else 0
                 samples.append(
                     labelled(image, frame_kind, mask, spec, source, recording.recording_id)
@@ -278,7 +297,8 @@ def synthetic_samples(
         if kind == "clean":
             samples.append(labelled(view, 0, None, spec, f"synthetic:{index}", group))
             continue
-        obstructed, mask = render_effects(view, random_effects(kind, rng), rng)
+        obstructed, footprint = render_effects(view, random_effects(kind, rng), rng)
+        mask = visible_footprint(obstructed, view, footprint)
         kind_id = KINDS.index(kind) if mask.any() else 0
         samples.append(labelled(obstructed, kind_id, mask, spec, f"synthetic:{index}", group))
     return samples

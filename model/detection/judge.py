@@ -13,6 +13,13 @@ ingest side check, ``restore --only-obstructed``)::
 Frames are converted to luma and resized to the detector's input size
 (540x360 by default) before judging, so any camera resolution works; maps
 are on that size's tile grid (1/16).
+
+A *blank* frame (all black, saturated, or otherwise nearly uniform: luma
+standard deviation below 1/255 after resizing) carries no evidence about the
+glass; it is flagged ``blank`` and never called obstructed, whatever the
+network says, so that ``restore --only-obstructed`` skips it and a side
+check is not swayed by it. The robot should treat a run of blank frames as a
+camera or exposure fault, which is a different alarm.
 """
 
 from collections.abc import Callable, Sequence
@@ -27,6 +34,9 @@ from lenspair.model.networks.detector import KINDS, AnomalyDetector
 OBSTRUCTED_THRESHOLD = 0.5
 """Probability above which a frame is called obstructed."""
 
+BLANK_STD = 1.0 / 255.0
+"""Luma standard deviation below which a frame is blank (module docstring)."""
+
 
 @dataclass(frozen=True)
 class Judgement:
@@ -36,18 +46,20 @@ class Judgement:
         probability: ``float32`` ``(N,)``, probability that the glass is obstructed.
         kind_probabilities: ``float32`` ``(N, len(KINDS))``, rows sum to 1.
         maps: ``float32`` ``(N, rows, cols)``, probability that a tile is covered.
+        blank: ``bool`` ``(N,)``, nearly uniform frames (module docstring).
         threshold: the probability above which a frame is obstructed.
     """
 
     probability: np.ndarray
     kind_probabilities: np.ndarray
     maps: np.ndarray
+    blank: np.ndarray
     threshold: float = OBSTRUCTED_THRESHOLD
 
     @property
     def obstructed(self) -> np.ndarray:
-        """``bool`` ``(N,)``: probability above the threshold."""
-        return np.asarray(self.probability > self.threshold)
+        """``bool`` ``(N,)``: probability above the threshold, and not blank."""
+        return np.asarray((self.probability > self.threshold) & ~self.blank)
 
     @property
     def kinds(self) -> list[str]:
@@ -89,10 +101,11 @@ def judge(
     rows, cols = spec.grid
     device = next(network.parameters()).device
     network.eval()
-    probabilities, kinds, maps = [], [], []
+    probabilities, kinds, maps, blanks = [], [], [], []
     with torch.inference_mode():
         for start in range(0, len(images), batch_size):
             chunk = [prepare(image, spec) for image in images[start : start + batch_size]]
+            blanks.append(np.array([float(c.std()) < BLANK_STD for c in chunk], dtype=bool))
             batch = torch.from_numpy(np.stack(chunk))[:, None].to(device)
             output = network(batch)
             probabilities.append(output.obstructed.float().cpu().numpy())
@@ -103,12 +116,14 @@ def judge(
             np.zeros(0, np.float32),
             np.zeros((0, len(KINDS)), np.float32),
             np.zeros((0, rows, cols), np.float32),
+            np.zeros(0, bool),
             threshold,
         )
     return Judgement(
         np.concatenate(probabilities),
         np.concatenate(kinds),
         np.concatenate(maps),
+        np.concatenate(blanks),
         threshold,
     )
 

@@ -1,8 +1,9 @@
 """``lenspair detect`` output: per-frame CSV/JSON and a contact sheet with the maps.
 
 For each frame of the input (:mod:`lenspair.capture.frame_source`) one row:
-``name, camera, t_ns, probability, kind, obstructed, obstructed_share,
-p_clean, p_rain, p_dust, p_dirt, error``. A frame that cannot be read gets its
+``name, camera, t_ns, probability, kind, obstructed, obstructed_share, blank,
+p_clean, p_rain, p_dust, p_dirt, error`` (``blank``: a nearly uniform frame,
+see :mod:`lenspair.model.detection.judge`). A frame that cannot be read gets its
 ``error`` filled and empty figures: it is recorded, not fatal. The contact
 sheet shows up to ``sheet_frames`` frames spread over the input, each with its
 tile map overlaid in red (opacity = tile probability) and labelled with kind
@@ -38,6 +39,7 @@ FIELDS = (
     "kind",
     "obstructed",
     "obstructed_share",
+    "blank",
     *(f"p_{kind}" for kind in KINDS),
     "error",
 )
@@ -55,6 +57,7 @@ class FrameVerdict:
     obstructed: bool | None
     obstructed_share: float | None
     kind_probabilities: tuple[float, ...] | None
+    blank: bool | None = None
     error: str | None = None
 
     def row(self) -> dict[str, object]:
@@ -93,6 +96,7 @@ def _verdicts(frames: Sequence[InputFrame], verdict: Judgement) -> list[FrameVer
                 bool(verdict.obstructed[index]),
                 round(float(verdict.obstructed_share[index]), 4),
                 tuple(round(float(p), 4) for p in verdict.kind_probabilities[index]),
+                bool(verdict.blank[index]),
             )
         )
     return rows
@@ -139,7 +143,7 @@ def detect_frames(
             flush()
             log.warning("%s: %s", frame.name, exc)
             failed = FrameVerdict(
-                frame.name, frame.camera, frame.t_ns, None, None, None, None, None, str(exc)
+                frame.name, frame.camera, frame.t_ns, None, None, None, None, None, None, str(exc)
             )
             verdicts.append(failed)
             continue

@@ -5,13 +5,22 @@ take part only through the map) plus ``map_weight`` times the binary
 cross-entropy of the valid tiles of the map. Each step draws a batch with a
 ``torch.Generator`` seeded by ``seed``, flips half of it left-right and
 scales each image by a random exposure gain (0.5..1.2, clipped), so the same
-samples and seed give the same weights on one machine.
+samples and seed give the same weights on one machine (with ``max_seconds``
+the number of steps, and so the weights, depend on the machine's speed).
+
+Synthetic samples (group ``synthetic``) are cheap to make and easily
+outnumber the recorded ones; when both are present, batches draw half from
+each, so the frames of real (or simulated) cameras are not drowned. The
+learning rate decays on a cosine to 5 % of its start over ``steps`` or over
+``max_seconds``, whichever is nearer its end, so a time-limited run still
+ends with small steps.
 
 A checkpoint is a dict of plain values and tensors (``format``, the
 :class:`DetectorSpec` fields, the kinds, the state dict, a training summary),
 read back with ``weights_only=True``.
 """
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -85,6 +94,15 @@ def stack(samples: Sequence[DetectorSample]) -> dict[str, torch.Tensor]:
     }
 
 
+def sampling_weights(samples: Sequence[DetectorSample]) -> torch.Tensor:
+    """Per-sample draw weights: synthetic and other samples half each (module docstring)."""
+    synthetic = torch.tensor([s.group == "synthetic" for s in samples])
+    count = int(synthetic.sum())
+    if count in (0, len(samples)):
+        return torch.ones(len(samples), dtype=torch.float64)
+    return torch.where(synthetic, 0.5 / count, 0.5 / (len(samples) - count)).double()
+
+
 def detector_loss(
     network: AnomalyDetector, batch: dict[str, torch.Tensor], map_weight: float
 ) -> torch.Tensor:
@@ -154,21 +172,24 @@ def _train(
     optimiser = torch.optim.AdamW(
         network.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay
     )
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(
-        optimiser, settings.steps, eta_min=0.05 * settings.learning_rate
-    )
+    weights = sampling_weights(samples)
     losses: list[float] = []
     start = time.perf_counter()
     network.train()
-    for _ in progress(range(settings.steps), desc="train-detector", unit="step"):
-        picks = torch.randint(len(samples), (settings.batch_size,), generator=generator)
+    for step in progress(range(settings.steps), desc="train-detector", unit="step"):
+        done = step / settings.steps
+        if settings.max_seconds is not None:
+            done = max(done, (time.perf_counter() - start) / settings.max_seconds)
+        factor = 0.05 + 0.95 * 0.5 * (1.0 + math.cos(math.pi * min(1.0, done)))
+        for group in optimiser.param_groups:
+            group["lr"] = settings.learning_rate * factor
+        picks = torch.multinomial(weights, settings.batch_size, True, generator=generator)
         batch = {key: value[picks] for key, value in data.items()}
         batch["images"] = _augment(batch["images"], generator)
         loss = detector_loss(network, batch, settings.map_weight)
         optimiser.zero_grad(set_to_none=True)
         loss.backward()  # type: ignore[no-untyped-call]
         optimiser.step()
-        schedule.step()
         losses.append(float(loss.detach()))
         if settings.max_seconds is not None and time.perf_counter() - start > settings.max_seconds:
             break
