@@ -23,7 +23,7 @@ import numpy as np
 from lenspair.capture.frame_source import InputFrame
 from lenspair.core.contact_sheet import make_contact_sheet, to_display
 from lenspair.core.errors import LenspairError
-from lenspair.core.fsutil import atomic_write, atomic_write_json, atomic_write_text
+from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.core.imageio import write_image
 from lenspair.core.progress import progress
 from lenspair.model.detection.judge import Judgement, judge
@@ -164,5 +164,5 @@ def detect_frames(
         rows = [cells[i : i + columns] for i in range(0, len(cells), columns)]
         label_rows = [labels[i : i + columns] for i in range(0, len(labels), columns)]
         sheet = make_contact_sheet(rows, label_rows, title="detector: red = covered tiles")
-        atomic_write(out / "contact_sheet.png", lambda tmp: write_image(tmp, sheet), suffix=".png")
+        write_image(out / "contact_sheet.png", sheet)  # atomic, as every write_image
     return verdicts
