@@ -5,7 +5,7 @@
 
 Sources (any mix): lenspair datasets DS (their train split: obstructed views
 are positives, with a map from the registered pair; clean views negatives;
-their test split is scored), simulated recordings (--recordings, exact
+their val and test splits are scored), simulated recordings (--recordings, exact
 truth/mask), synthetic rain/dust/dirt over clean images (--synthetic N
 frames, over --clean-images DIR or the simulator's textures), and
 --simulated-set DIR, a small multi-kind set of simulated recordings rendered

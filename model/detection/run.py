@@ -40,7 +40,7 @@ class DetectorSources:
     """Where the samples come from.
 
     Attributes:
-        datasets: lenspair dataset roots (train split trained on, test split scored).
+        datasets: lenspair dataset roots (train split trained on, val and test scored).
         recordings: simulated recordings trained on (``truth/mask/``).
         test_recordings: simulated recordings only scored.
         synthetic: synthetic samples to render (0: none).
@@ -84,10 +84,13 @@ def gather(
     held_out: dict[str, list[DetectorSample]] = {}
     for root in sources.datasets:
         train += dataset_samples(root, "train", spec)
-        try:
-            held_out[f"dataset {Path(root).name}, split test"] = dataset_samples(root, "test", spec)
-        except ModelError as exc:
-            log.warning("%s: no test split scored (%s)", root, exc)
+        for split in ("val", "test"):  # no model selection here: both are held out
+            try:
+                held_out[f"dataset {Path(root).name}, split {split}"] = dataset_samples(
+                    root, split, spec
+                )
+            except ModelError as exc:
+                log.warning("%s: split %s not scored (%s)", root, split, exc)
     recordings = list(sources.recordings)
     test_recordings = list(sources.test_recordings)
     if sources.simulated_set is not None:

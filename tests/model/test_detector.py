@@ -10,6 +10,7 @@ from lenspair.model.detection.data import synthetic_samples, texture_images
 from lenspair.model.detection.judge import judge
 from lenspair.model.detection.train import (
     DetectorTraining,
+    crop_batch,
     load_detector,
     save_detector,
     train_detector,
@@ -114,3 +115,27 @@ def test_blank_frames_are_never_called_obstructed(one_thread: None) -> None:
     assert verdict.obstructed.tolist() == [False, False, True]
     assert verdict.kinds == ["clean", "clean", "rain"]
     assert np.isfinite(verdict.maps).all() and np.isfinite(verdict.probability).all()
+
+
+def test_training_windows_cut_maps_exactly_and_drop_kinds_without_anomaly() -> None:
+    images = torch.arange(2 * 48 * 64, dtype=torch.float32).reshape(2, 1, 48, 64)
+    tiles = torch.zeros(2, 6, 8)
+    tiles[0, 0, 0] = 1.0  # only in the top-left tile
+    batch = {
+        "images": images,
+        "kinds": torch.tensor([KINDS.index("dirt"), KINDS.index("rain")]),
+        "tiles": tiles,
+        "valid": torch.ones(2, 6, 8, dtype=torch.bool),
+    }
+    for seed in range(6):
+        cropped = crop_batch(batch, (2, 3), torch.Generator().manual_seed(seed))
+        assert cropped["images"].shape == (2, 1, 16, 24)
+        assert cropped["tiles"].shape == (2, 2, 3)
+        # the window's first pixel is the first pixel of its first tile
+        first = int(cropped["images"][0, 0, 0, 0])
+        row, col = divmod(first, 64)
+        assert row % 8 == 0 and col % 8 == 0
+        assert float(cropped["tiles"][0].sum()) == float(tiles[0, row // 8, col // 8])
+        has_dirt = bool(cropped["tiles"][0].sum() > 0)
+        assert int(cropped["kinds"][0]) == (KINDS.index("dirt") if has_dirt else -1)
+        assert int(cropped["kinds"][1]) == -1  # rain frame with no covered tile
