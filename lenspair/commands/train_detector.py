@@ -40,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--minutes", type=float, help="stop training after this many minutes")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="CPU threads (1)")
+    parser.add_argument(
+        "--input-size", default="180x270", metavar="HxW", help="size frames are judged at"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -73,7 +76,12 @@ def run(args: argparse.Namespace) -> int:
         )
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    scores = run_training(args.out, sources, DetectorSpec(), settings)
+    try:
+        height, width = (int(v) for v in args.input_size.lower().split("x"))
+        spec = DetectorSpec(input_size=(height, width))
+    except ValueError as exc:
+        raise ConfigError(f"--input-size: expected HxW, e.g. 360x540 ({exc})") from None
+    scores = run_training(args.out, sources, spec, settings)
     for name, result in scores.items():
         sys.stdout.write(scores_markdown(name, result) + "\n")
     print(f"wrote {args.out / 'detector.pt'}")
