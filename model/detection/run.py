@@ -8,7 +8,7 @@ sources, sample counts, training summary).
 
 import json
 import logging
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +61,6 @@ class DetectorSources:
     set_per_kind: int = 3
     set_frames: int = 6
     max_frames: int = 12
-    extra: dict[str, str] = field(default_factory=dict)
 
 
 def _clean_images(folder: Path | None) -> list[np.ndarray]:
