@@ -5,9 +5,10 @@ For each frame of the input (:mod:`lenspair.capture.frame_source`) one row:
 p_clean, p_rain, p_dust, p_dirt, error`` (``blank``: a nearly uniform frame,
 see :mod:`lenspair.model.detection.judge`). A frame that cannot be read gets its
 ``error`` filled and empty figures: it is recorded, not fatal. The contact
-sheet shows up to ``sheet_frames`` frames spread over the input, each with its
-tile map overlaid in red (opacity = tile probability) and labelled with kind
-and probability. All files are written atomically.
+sheet shows up to ``sheet_frames`` frames spread over the input, each
+labelled with kind and probability; on frames called obstructed, the tiles
+called covered (map > 0.5, those counted in ``obstructed_share``) are tinted
+red. All files are written atomically.
 """
 
 import csv
@@ -71,13 +72,13 @@ class FrameVerdict:
 
 
 def overlay(image: np.ndarray, tile_map: np.ndarray) -> np.ndarray:
-    """``uint8`` RGB display of ``image`` with ``tile_map`` (probabilities) tinted red."""
+    """``uint8`` RGB display of ``image`` with the tiles of ``tile_map`` above 0.5 tinted red."""
     shown = to_display(image).astype(np.float32)
     height, width = shown.shape[:2]
     alpha = cv2.resize(
         tile_map.astype(np.float32), (width, height), interpolation=cv2.INTER_NEAREST
     )
-    alpha = 0.6 * np.clip(alpha, 0.0, 1.0)[:, :, None]
+    alpha = 0.5 * (alpha > 0.5).astype(np.float32)[:, :, None]
     red = np.array([255.0, 0.0, 0.0], np.float32)
     blended: np.ndarray = np.rint(shown * (1.0 - alpha) + red * alpha).astype(np.uint8)
     return blended
@@ -133,7 +134,8 @@ def detect_frames(
             verdicts.append(row)
             if index in sheet_picks:
                 label = f"{frame.name}: {row.kind} p={row.probability:.2f}"
-                shown.append((image, result.maps[position], label))
+                tile_map = result.maps[position] if row.obstructed else 0.0 * result.maps[position]
+                shown.append((image, tile_map, label))
         batch.clear()
 
     for index, frame in enumerate(progress(listed, desc="detect", total=len(listed), unit="frame")):
