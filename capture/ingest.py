@@ -72,6 +72,7 @@ from lenspair.capture.recording import (
 )
 from lenspair.capture.rigfile import CameraName, RigFile
 from lenspair.capture.side_check import check_obstructed_side
+from lenspair.capture.side_detector import ObstructedProbability, check_side_with_detector
 from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
@@ -258,6 +259,7 @@ def ingest_recording(
     workers: int = 1,
     estimation: EstimationParams | None = None,
     verify: VerifyParams | None = None,
+    side_detector: ObstructedProbability | None = None,
 ) -> IngestReport:
     """Turn one stereo recording into registered, verified pairs under ``out/<recording_id>/``.
 
@@ -271,6 +273,9 @@ def ingest_recording(
         workers: processes for the per-frame work (1: in this process).
         estimation: homography estimation thresholds.
         verify: per-frame verification thresholds (see :mod:`lenspair.rectify.registration`).
+        side_detector: a trained detector as a function (``--detector``); when
+            given, the side check uses it (:mod:`lenspair.capture.side_detector`)
+            instead of the detail ratio.
 
     Returns:
         The report also written to ``report.json``.
@@ -348,7 +353,11 @@ def ingest_recording(
     images0, images1 = _side_check_images(chosen, context, SIDE_CHECK_FRAMES)
     side_check: dict[str, Any] = {"message": "no readable frame pair to check", "mismatch": False}
     if images0:
-        side = check_obstructed_side(images0, images1, rig_file.obstructed)
+        side: Any = (
+            check_obstructed_side(images0, images1, rig_file.obstructed)
+            if side_detector is None
+            else check_side_with_detector(images0, images1, rig_file.obstructed, side_detector)
+        )
         side_check = to_plain(side)
         if side.mismatch:
             log.warning("%s: %s", recording.path, side.message)

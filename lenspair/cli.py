@@ -33,6 +33,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "tradeoff": ("lenspair.commands.tradeoff", "accuracy-versus-time table and plot of variants"),
     "export": ("lenspair.commands.export", "export a checkpoint to ONNX and TorchScript"),
     "restore": ("lenspair.commands.restore", "restore images, folders, recordings and bags"),
+    "train-detector": (
+        "lenspair.commands.train_detector",
+        "train the small anomaly detector (obstructed?, kind, where)",
+    ),
+    "detect": ("lenspair.commands.detect", "judge frames: obstructed?, by what, where"),
     "demo": ("lenspair.commands.demo", "run the whole pipeline on the bundled sample scenes"),
 }
 

@@ -14,7 +14,10 @@ recording, checked and refined per frame), crops both to --size and writes
 
 Which camera is obstructed comes from rig.yaml beside the recording or
 --obstructed; the calibration from --calib, else rig.yaml's 'calibration',
-else camchain.yaml beside the recording. Rerunning resumes an interrupted
+else camchain.yaml beside the recording. The declared side is checked
+against the images: by default by comparing fine detail, with --detector
+MODEL (from train-detector) by judging each camera's views; report.json's
+side_check gives the inferred side and its confidence. Rerunning resumes an interrupted
 run and leaves finished outputs untouched. Exit code 0 when at least one pair
 was kept, 2 on an error or when no usable pair remains.
 """
@@ -73,10 +76,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--size", type=_size, default=(540, 360), metavar="WxH", help="crop size (540x360)"
     )
+    parser.add_argument(
+        "--detector", type=Path, metavar="MODEL", help="check the obstructed side with a detector"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Ingest one recording; returns the exit code."""
+    side_detector = None
+    if args.detector is not None:
+        from lenspair.model.detection.judge import obstructed_probability
+        from lenspair.model.detection.train import load_detector
+
+        side_detector = obstructed_probability(load_detector(args.detector))
     report = ingest_recording(
         args.recording,
         args.out,
@@ -85,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         topics=args.topics,
         size=args.size,
         workers=args.workers,
+        side_detector=side_detector,
     )
     counts = report.counts  # a side-check mismatch was already logged as a warning
     print(
@@ -94,4 +107,6 @@ def run(args: argparse.Namespace) -> int:
     )
     for reason, count in report.rejection_reasons.items():
         print(f"  rejected {count}: {reason}")
+    if args.detector is not None:
+        print(f"  side check: {report.side_check.get('message', '')}")
     return 0

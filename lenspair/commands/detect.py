@@ -1,0 +1,63 @@
+"""Judge frames with a trained detector: obstructed or clean, by what, and where.
+
+  lenspair detect MODEL INPUT [--out DIR] [--device auto|cpu|cuda] [--threshold 0.5]
+
+INPUT is what restore reads: one image, a folder of images (recursive), or a
+stereo recording (EuRoC/ASL folder, ROS 1 .bag, ROS 2 bag, left/ + right/
+folders; both cameras are judged). Writes DIR/detections.csv and
+detections.json (one row per frame: probability that the glass is
+obstructed, kind among clean/rain/dust/dirt, share of tiles covered, the
+probability of each kind; unreadable frames are listed with their error) and
+DIR/contact_sheet.png (frames spread over the input, covered tiles in red).
+Prints how many frames were called obstructed, per kind.
+
+Example:
+  lenspair detect runs/detector/detector.pt rec/rain --out detect_rain
+"""
+
+import argparse
+from collections import Counter
+from pathlib import Path
+
+from lenspair.core.device import resolve_device
+from lenspair.core.errors import ConfigError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the arguments of ``detect``."""
+    parser.add_argument("model", type=Path, help="detector checkpoint from train-detector")
+    parser.add_argument("input", type=Path, help="image, folder of images, recording or bag")
+    parser.add_argument("--out", type=Path, help="output folder (default: detect_<input name>)")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    parser.add_argument("--threshold", type=float, default=0.5, help="obstructed above this")
+    parser.add_argument("--batch-size", type=int, default=8)
+    parser.add_argument("--sheet-frames", type=int, default=12, help="frames on the sheet")
+    parser.add_argument("--topics", nargs=2, metavar=("CAM0", "CAM1"), help="bag image topics")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Judge the frames of INPUT; returns the exit code."""
+    from lenspair.capture.frame_source import input_frames
+    from lenspair.model.detection.report import detect_frames
+    from lenspair.model.detection.train import load_detector
+
+    if not 0.0 < args.threshold < 1.0:
+        raise ConfigError(f"--threshold: expected 0 < t < 1, got {args.threshold}")
+    if args.batch_size < 1 or args.sheet_frames < 0:
+        raise ConfigError("--batch-size must be >= 1 and --sheet-frames >= 0")
+    network = load_detector(args.model, resolve_device(args.device))
+    out = args.out or Path(f"detect_{args.input.resolve().name}")
+    topics = tuple(args.topics) if args.topics else None
+    frames = input_frames(args.input, topics)  # type: ignore[arg-type]
+    verdicts = detect_frames(
+        network, frames, out, args.batch_size, args.sheet_frames, threshold=args.threshold
+    )
+    judged = [v for v in verdicts if v.error is None]
+    counts = Counter(v.kind for v in judged)
+    obstructed = sum(1 for v in judged if v.obstructed)
+    summary = ", ".join(f"{kind} {count}" for kind, count in sorted(counts.items()))
+    print(
+        f"{len(judged)} frames judged ({len(verdicts) - len(judged)} unreadable): "
+        f"{obstructed} obstructed; {summary}; see {out / 'detections.csv'}"
+    )
+    return 0

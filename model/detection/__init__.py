@@ -1,0 +1,1 @@
+"""Camera-anomaly detection: training data, training, judging and scoring."""

@@ -1,0 +1,285 @@
+"""Training the detector, and saving/loading its checkpoints.
+
+The loss is the cross-entropy of the kind (positives whose kind is unknown
+take part only through the map) plus ``map_weight`` times the binary
+cross-entropy of the valid tiles of the map, covered tiles weighted
+``covered_weight`` times (they are few; unweighted, the map learns to say
+"nothing" everywhere). Each step draws a batch with a ``torch.Generator``
+seeded by ``seed``, cuts one window of ``crop_tiles`` tiles (aligned to the
+tile grid, so the map targets are cut exactly) out of every frame, which
+halves the cost of a step and stops the network from learning whole scenes
+by heart; an obstructed frame whose window holds no covered tile does not
+take part in the kind loss for that step. It flips half of the batch
+left-right and scales each image by a random exposure gain (0.5..1.2,
+clipped), so the same
+samples and seed give the same weights on one machine (with ``max_seconds``
+the number of steps, and so the weights, depend on the machine's speed).
+
+Synthetic samples (group ``synthetic``) are cheap to make and easily
+outnumber the recorded ones; when both are present, batches draw half from
+each, so the frames of real (or simulated) cameras are not drowned. The
+learning rate decays on a cosine to 5 % of its start over ``steps`` or over
+``max_seconds``, whichever is nearer its end, so a time-limited run still
+ends with small steps.
+
+A checkpoint is a dict of plain values and tensors (``format``, the
+:class:`DetectorSpec` fields, the kinds, the state dict, a training summary),
+read back with ``weights_only=True``.
+"""
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as functional
+
+from lenspair.core.fsutil import atomic_write
+from lenspair.core.progress import progress
+from lenspair.model.detection.data import UNKNOWN_KIND, DetectorSample
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.detector import KINDS, TILE_STRIDE, AnomalyDetector, DetectorSpec
+
+CHECKPOINT_FORMAT = "lenspair-detector-1"
+
+
+@dataclass(frozen=True)
+class DetectorTraining:
+    """Training settings.
+
+    Attributes:
+        steps: optimiser steps.
+        batch_size: frames per step.
+        learning_rate: AdamW learning rate (cosine decay to 5 % of it).
+        weight_decay: AdamW weight decay.
+        map_weight: weight of the tile-map loss against the kind loss.
+        seed: seeds the initial weights and every batch.
+        max_seconds: stop early after this much wall time (None: no limit).
+        covered_weight: weight of covered tiles in the map loss.
+        crop_tiles: ``(rows, cols)`` of the training window, tiles; None: whole frames.
+        threads: CPU threads for training; 1 is fastest for this small network
+            on a shared CPU (measured: 2 threads were several times slower
+            while other jobs ran).
+    """
+
+    steps: int = 600
+    batch_size: int = 8
+    learning_rate: float = 3e-3
+    weight_decay: float = 1e-4
+    map_weight: float = 1.0
+    seed: int = 0
+    max_seconds: float | None = None
+    threads: int = 1
+    covered_weight: float = 4.0
+    crop_tiles: tuple[int, int] | None = (15, 22)
+
+    def __post_init__(self) -> None:
+        if self.steps < 1 or self.batch_size < 1:
+            raise ModelError(
+                f"steps and batch_size must be >= 1, got {self.steps}, {self.batch_size}"
+            )
+
+
+@dataclass(frozen=True)
+class TrainingSummary:
+    """What a training run did: steps done, seconds, first and last mean loss (20 steps)."""
+
+    steps: int
+    seconds: float
+    first_loss: float
+    last_loss: float
+    samples: int
+
+
+def stack(samples: Sequence[DetectorSample]) -> dict[str, torch.Tensor]:
+    """Samples -> ``images (N,1,H,W)``, ``kinds (N,)``, ``tiles``/``valid (N,rows,cols)``."""
+    return {
+        "images": torch.from_numpy(np.stack([s.image for s in samples]))[:, None],
+        "kinds": torch.tensor([s.kind for s in samples], dtype=torch.long),
+        "tiles": torch.from_numpy(np.stack([s.tiles for s in samples])),
+        "valid": torch.from_numpy(np.stack([s.valid for s in samples])),
+    }
+
+
+def sampling_weights(samples: Sequence[DetectorSample]) -> torch.Tensor:
+    """Per-sample draw weights: synthetic and other samples half each (module docstring)."""
+    synthetic = torch.tensor([s.group == "synthetic" for s in samples])
+    count = int(synthetic.sum())
+    if count in (0, len(samples)):
+        return torch.ones(len(samples), dtype=torch.float64)
+    return torch.where(synthetic, 0.5 / count, 0.5 / (len(samples) - count)).double()
+
+
+def crop_batch(
+    batch: dict[str, torch.Tensor], crop_tiles: tuple[int, int], generator: torch.Generator
+) -> dict[str, torch.Tensor]:
+    """One tile-aligned window of every frame (module docstring); kinds adjusted."""
+    images, tiles = batch["images"], batch["tiles"]
+    full_rows, full_cols = images.shape[2] // TILE_STRIDE, images.shape[3] // TILE_STRIDE
+    rows, cols = min(crop_tiles[0], full_rows), min(crop_tiles[1], full_cols)
+    top = int(torch.randint(full_rows - rows + 1, (1,), generator=generator))
+    left = int(torch.randint(full_cols - cols + 1, (1,), generator=generator))
+    window = (slice(top, top + rows), slice(left, left + cols))
+    pixels = tuple(slice(s.start * TILE_STRIDE, s.stop * TILE_STRIDE) for s in window)
+    cropped = {
+        "images": images[:, :, pixels[0], pixels[1]],
+        "tiles": tiles[:, window[0], window[1]],
+        "valid": batch["valid"][:, window[0], window[1]],
+    }
+    covered = ((cropped["tiles"] > 0.5) & cropped["valid"]).flatten(1).any(dim=1)
+    kinds = batch["kinds"]
+    cropped["kinds"] = torch.where((kinds > 0) & ~covered, UNKNOWN_KIND, kinds)
+    return cropped
+
+
+def detector_loss(
+    network: AnomalyDetector,
+    batch: dict[str, torch.Tensor],
+    map_weight: float,
+    covered_weight: float = 1.0,
+) -> torch.Tensor:
+    """Kind cross-entropy + ``map_weight`` x weighted tile cross-entropy over valid tiles."""
+    output = network(batch["images"])
+    kinds = batch["kinds"]
+    known = kinds != UNKNOWN_KIND
+    kind_loss = (
+        functional.cross_entropy(output.kind_logits[known], kinds[known])
+        if bool(known.any())
+        else output.kind_logits.sum() * 0.0
+    )
+    valid = batch["valid"].float()
+    tile_loss = functional.binary_cross_entropy_with_logits(
+        output.tile_logits,
+        batch["tiles"],
+        reduction="none",
+        pos_weight=torch.tensor(covered_weight),
+    )
+    tile_loss = (tile_loss * valid).sum() / valid.sum().clamp(min=1.0)
+    return kind_loss + map_weight * tile_loss
+
+
+def _augment(images: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    count = images.shape[0]
+    flip = torch.rand(count, generator=generator) < 0.5
+    images = torch.where(flip[:, None, None, None], images.flip(-1), images)
+    gains = 0.5 + 0.7 * torch.rand(count, 1, 1, 1, generator=generator)
+    return (images * gains).clamp(0.0, 1.0)
+
+
+def train_detector(
+    samples: Sequence[DetectorSample],
+    spec: DetectorSpec,
+    settings: DetectorTraining,
+) -> tuple[AnomalyDetector, TrainingSummary]:
+    """Train a fresh detector on ``samples`` (on the CPU, the tensors are small).
+
+    Args:
+        samples: labelled frames at ``spec.input_size``.
+        spec: the architecture.
+        settings: steps, batch, optimiser, seed, time limit.
+
+    Returns:
+        The network (eval mode) and a summary.
+
+    Raises:
+        ModelError: no samples, or samples of another size than ``spec.input_size``.
+    """
+    if not samples:
+        raise ModelError("train-detector: no training samples")
+    sizes = {s.image.shape for s in samples}
+    if sizes != {spec.input_size}:
+        raise ModelError(f"samples have sizes {sorted(sizes)}, expected {spec.input_size}")
+    threads_before = torch.get_num_threads()
+    torch.set_num_threads(max(1, settings.threads))
+    try:
+        return _train(samples, spec, settings)
+    finally:
+        torch.set_num_threads(threads_before)
+
+
+def _train(
+    samples: Sequence[DetectorSample], spec: DetectorSpec, settings: DetectorTraining
+) -> tuple[AnomalyDetector, TrainingSummary]:
+    torch.manual_seed(settings.seed)
+    network = AnomalyDetector(spec)
+    data = stack(samples)
+    generator = torch.Generator().manual_seed(settings.seed)
+    optimiser = torch.optim.AdamW(
+        network.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay
+    )
+    weights = sampling_weights(samples)
+    losses: list[float] = []
+    start = time.perf_counter()
+    network.train()
+    for step in progress(range(settings.steps), desc="train-detector", unit="step"):
+        done = step / settings.steps
+        if settings.max_seconds is not None:
+            done = max(done, (time.perf_counter() - start) / settings.max_seconds)
+        factor = 0.05 + 0.95 * 0.5 * (1.0 + math.cos(math.pi * min(1.0, done)))
+        for group in optimiser.param_groups:
+            group["lr"] = settings.learning_rate * factor
+        picks = torch.multinomial(weights, settings.batch_size, True, generator=generator)
+        batch = {key: value[picks] for key, value in data.items()}
+        if settings.crop_tiles is not None:
+            batch = crop_batch(batch, settings.crop_tiles, generator)
+        batch["images"] = _augment(batch["images"], generator)
+        loss = detector_loss(network, batch, settings.map_weight, settings.covered_weight)
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()  # type: ignore[no-untyped-call]
+        optimiser.step()
+        losses.append(float(loss.detach()))
+        if settings.max_seconds is not None and time.perf_counter() - start > settings.max_seconds:
+            break
+    network.eval()
+    window = min(20, len(losses))
+    summary = TrainingSummary(
+        steps=len(losses),
+        seconds=round(time.perf_counter() - start, 2),
+        first_loss=float(np.mean(losses[:window])),
+        last_loss=float(np.mean(losses[-window:])),
+        samples=len(samples),
+    )
+    return network, summary
+
+
+def save_detector(
+    path: Path, network: AnomalyDetector, extra: dict[str, Any] | None = None
+) -> None:
+    """Write a detector checkpoint atomically (CPU tensors, plain values)."""
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "spec": {key: list(value) for key, value in asdict(network.spec).items()},
+        "kinds": list(KINDS),
+        "state_dict": {k: v.detach().cpu() for k, v in network.state_dict().items()},
+        "extra": extra or {},
+    }
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(Path(path), lambda temporary: torch.save(payload, temporary), suffix=".pt")
+
+
+def load_detector(path: Path, device: torch.device | str = "cpu") -> AnomalyDetector:
+    """Read a detector checkpoint (``weights_only=True``) onto ``device``, in eval mode.
+
+    Raises:
+        ModelError: missing file, not a detector checkpoint, or other kinds.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"{path}: no such detector checkpoint")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for corrupt files
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ModelError(f"{path}: not a readable checkpoint ({first})") from None
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        raise ModelError(f"{path}: not a detector checkpoint (train one with train-detector)")
+    if tuple(data["kinds"]) != KINDS:
+        raise ModelError(f"{path}: kinds {data['kinds']} differ from this version's {KINDS}")
+    spec_fields = {key: tuple(int(v) for v in value) for key, value in data["spec"].items()}
+    network = AnomalyDetector(DetectorSpec(**spec_fields))  # type: ignore[arg-type]
+    network.load_state_dict(data["state_dict"])
+    return network.to(device).eval()

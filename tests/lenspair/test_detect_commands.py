@@ -1,0 +1,56 @@
+"""The train-detector and detect commands, end to end on a tiny budget."""
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lenspair.cli import main
+from lenspair.core.imageio import read_image, write_image
+from tests.images import texture
+
+
+@pytest.fixture(scope="module")
+def tiny_detector(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("detector")
+    code = main(["train-detector", "--synthetic", "8", "--steps", "2", "--out", str(out)])
+    assert code == 0
+    return out / "detector.pt"
+
+
+def test_train_detector_writes_its_run(tiny_detector: Path) -> None:
+    run = tiny_detector.parent
+    info = json.loads((run / "run.json").read_text())
+    assert info["counts"]["train"] == 8
+    assert info["training"]["steps"] == 2
+    assert (run / "scores.md").is_file()
+
+
+def test_detect_folder_writes_rows_sheet_and_records_bad_frames(
+    tiny_detector: Path, tmp_path: Path
+) -> None:
+    frames = tmp_path / "frames"
+    for index in range(3):
+        image = (texture((120, 180), index) * 255).astype(np.uint8)
+        write_image(frames / "sub" / f"{index}.png", image)
+    (frames / "broken.png").write_bytes(b"\x89PNG not really")
+    out = tmp_path / "out"
+    assert main(["detect", str(tiny_detector), str(frames), "--out", str(out)]) == 0
+    with (out / "detections.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [row["name"] for row in rows] == ["broken.png", "sub/0.png", "sub/1.png", "sub/2.png"]
+    assert rows[0]["error"] and rows[0]["probability"] == ""
+    for row in rows[1:]:
+        assert 0.0 <= float(row["probability"]) <= 1.0 and not row["error"]
+        assert row["kind"] in ("clean", "rain", "dust", "dirt")
+    assert len(json.loads((out / "detections.json").read_text())) == 4
+    assert read_image(out / "contact_sheet.png").ndim == 3
+
+
+def test_detect_bad_input_is_one_line(tiny_detector: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    assert main(["detect", str(tiny_detector), str(tmp_path / "nothing")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert main(["detect", str(tmp_path / "none.pt"), str(tmp_path)]) == 2
+    assert main(["train-detector", "--out", str(tmp_path / "r")]) == 2

@@ -1,0 +1,141 @@
+"""The detector network, its training step and its checkpoints."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lenspair.model.detection.data import synthetic_samples, texture_images
+from lenspair.model.detection.judge import judge
+from lenspair.model.detection.train import (
+    DetectorTraining,
+    crop_batch,
+    load_detector,
+    save_detector,
+    train_detector,
+)
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.detector import (
+    KINDS,
+    AnomalyDetector,
+    DetectorSpec,
+    count_parameters,
+)
+
+SMALL = DetectorSpec(widths=(4, 8, 8), context_dilations=(2,), input_size=(48, 64))
+
+
+def test_default_detector_is_small_and_maps_at_one_sixteenth_of_a_frame() -> None:
+    network = AnomalyDetector()
+    assert count_parameters(network) < 300_000
+    # 540x360 frames are judged at 270x180; the map is 1/16 of the frame.
+    assert network.spec.grid == (-(-360 // 16), -(-540 // 16))
+
+
+@pytest.mark.parametrize("size", [(48, 64), (37, 53)])
+def test_output_shapes_and_obstructed_is_one_minus_clean(one_thread: None, size: tuple) -> None:
+    torch.manual_seed(0)
+    network = AnomalyDetector(SMALL).eval()
+    with torch.no_grad():
+        output = network(torch.rand(3, 1, *size))
+    assert output.kind_logits.shape == (3, len(KINDS))
+    assert output.tile_logits.shape == (3, -(-size[0] // 8), -(-size[1] // 8))
+    clean = torch.softmax(output.kind_logits, dim=1)[:, 0]
+    torch.testing.assert_close(output.obstructed, 1.0 - clean)
+
+
+def test_rejects_colour_input() -> None:
+    with pytest.raises(ValueError, match=r"expected \(N, 1, H, W\)"):
+        AnomalyDetector(SMALL)(torch.rand(1, 3, 48, 64))
+
+
+def test_training_lowers_the_loss(one_thread: None) -> None:
+    samples = synthetic_samples(
+        texture_images(["brick", "grass"]), 16, SMALL, np.random.default_rng(0)
+    )
+    settings = DetectorTraining(steps=80, batch_size=8, learning_rate=1e-2, seed=1)
+    _, summary = train_detector(samples, SMALL, settings)
+    assert summary.steps == 80
+    assert summary.last_loss < 0.8 * summary.first_loss
+
+
+def test_training_rejects_samples_of_another_size() -> None:
+    samples = synthetic_samples(texture_images(["brick"]), 2, SMALL, np.random.default_rng(0))
+    with pytest.raises(ModelError, match="expected"):
+        train_detector(samples, DetectorSpec(), DetectorTraining(steps=1))
+
+
+def test_checkpoint_round_trip(tmp_path: Path, one_thread: None) -> None:
+    torch.manual_seed(3)
+    network = AnomalyDetector(SMALL).eval()
+    save_detector(tmp_path / "d.pt", network)
+    loaded = load_detector(tmp_path / "d.pt")
+    assert loaded.spec == SMALL
+    image = (np.random.default_rng(0).random((60, 80)) * 255).astype(np.uint8)
+    first, second = judge(network, [image]), judge(loaded, [image])
+    np.testing.assert_array_equal(first.probability, second.probability)
+    np.testing.assert_array_equal(first.maps, second.maps)
+
+
+def test_loading_something_else_is_a_one_line_error(tmp_path: Path) -> None:
+    torch.save({"state_dict": {}}, tmp_path / "other.pt")
+    with pytest.raises(ModelError, match="not a detector checkpoint"):
+        load_detector(tmp_path / "other.pt")
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ModelError, match=r"junk\.pt"):
+        load_detector(tmp_path / "junk.pt")
+    with pytest.raises(ModelError, match="no such"):
+        load_detector(tmp_path / "missing.pt")
+
+
+def test_judge_takes_any_size_grey_or_colour_8_or_16_bit(one_thread: None) -> None:
+    network = AnomalyDetector(SMALL).eval()
+    rng = np.random.default_rng(1)
+    images = [
+        (rng.random((90, 120)) * 255).astype(np.uint8),
+        (rng.random((50, 70, 3)) * 65535).astype(np.uint16),
+    ]
+    verdict = judge(network, images, batch_size=1)
+    assert verdict.probability.shape == (2,)
+    assert verdict.maps.shape == (2, *SMALL.grid)
+    np.testing.assert_allclose(verdict.kind_probabilities.sum(axis=1), 1.0, rtol=1e-5)
+    assert len(verdict.kinds) == 2 and set(verdict.kinds) <= set(KINDS)
+
+
+def test_blank_frames_are_never_called_obstructed(one_thread: None) -> None:
+    network = AnomalyDetector(SMALL).eval()
+    with torch.no_grad():  # force the network to say "rain" for everything
+        network.kind_head.bias.copy_(torch.tensor([-50.0, 50.0, 0.0, 0.0]))
+    black = np.zeros((60, 80), np.uint8)
+    saturated = np.full((60, 80, 3), 65535, np.uint16)
+    textured = (np.random.default_rng(2).random((60, 80)) * 255).astype(np.uint8)
+    verdict = judge(network, [black, saturated, textured])
+    assert verdict.blank.tolist() == [True, True, False]
+    assert verdict.obstructed.tolist() == [False, False, True]
+    assert verdict.kinds == ["clean", "clean", "rain"]
+    assert np.isfinite(verdict.maps).all() and np.isfinite(verdict.probability).all()
+
+
+def test_training_windows_cut_maps_exactly_and_drop_kinds_without_anomaly() -> None:
+    images = torch.arange(2 * 48 * 64, dtype=torch.float32).reshape(2, 1, 48, 64)
+    tiles = torch.zeros(2, 6, 8)
+    tiles[0, 0, 0] = 1.0  # only in the top-left tile
+    batch = {
+        "images": images,
+        "kinds": torch.tensor([KINDS.index("dirt"), KINDS.index("rain")]),
+        "tiles": tiles,
+        "valid": torch.ones(2, 6, 8, dtype=torch.bool),
+    }
+    for seed in range(6):
+        cropped = crop_batch(batch, (2, 3), torch.Generator().manual_seed(seed))
+        assert cropped["images"].shape == (2, 1, 16, 24)
+        assert cropped["tiles"].shape == (2, 2, 3)
+        # the window's first pixel is the first pixel of its first tile
+        first = int(cropped["images"][0, 0, 0, 0])
+        row, col = divmod(first, 64)
+        assert row % 8 == 0 and col % 8 == 0
+        assert float(cropped["tiles"][0].sum()) == float(tiles[0, row // 8, col // 8])
+        has_dirt = bool(cropped["tiles"][0].sum() > 0)
+        assert int(cropped["kinds"][0]) == (KINDS.index("dirt") if has_dirt else -1)
+        assert int(cropped["kinds"][1]) == -1  # rain frame with no covered tile
