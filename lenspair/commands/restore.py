@@ -73,8 +73,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="continue a killed run in OUT")
     parser.add_argument(
         "--only-obstructed",
-        action="store_true",
-        help="restore only frames the anomaly detector calls obstructed; copy the others",
+        type=Path,
+        metavar="DETECTOR",
+        help="restore only frames this anomaly detector (lenspair train-detector) calls "
+        "obstructed; copy the others unchanged",
     )
 
 
@@ -86,8 +88,9 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.model.inference.judge import default_judge
     from lenspair.model.inference.pipeline import RestoreOptions, restore_input
 
-    judge = default_judge() if args.only_obstructed else None
-    backend = open_backend(args.model, resolve_device(args.device), args.precision)
+    device = resolve_device(args.device)
+    judge = default_judge(args.only_obstructed, device) if args.only_obstructed else None
+    backend = open_backend(args.model, device, args.precision)
     options = RestoreOptions(
         camera=args.camera,
         batch_size=args.batch_size,

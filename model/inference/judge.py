@@ -2,18 +2,21 @@
 
 ``lenspair restore --only-obstructed`` restores only frames a
 :class:`FrameJudge` calls obstructed and copies the others unchanged. The
-anomaly detector (issue 14) is to provide the real judge through
-:func:`default_judge`; until it is merged that function refuses with a
-one-line error, and the library accepts any judge
+real judge is the anomaly detector (``lenspair train-detector``), wrapped by
+:class:`DetectorJudge`; the library accepts any judge
 (``restore_input(..., judge=...)``), e.g. :class:`ThresholdJudge` in tests.
 """
 
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
+import torch
 
 from lenspair.capture.frames import InputFrame
-from lenspair.model.errors import ModelError
+from lenspair.model.detection.judge import judge
+from lenspair.model.detection.train import load_detector
+from lenspair.model.networks.detector import AnomalyDetector
 
 
 class FrameJudge(Protocol):
@@ -39,15 +42,29 @@ class ThresholdJudge:
         return bool(float(image.mean()) / top < self.threshold)
 
 
-def default_judge() -> FrameJudge:
-    """The judge ``--only-obstructed`` uses.
+class DetectorJudge:
+    """The anomaly detector as a :class:`FrameJudge` (``--only-obstructed MODEL``).
 
-    TODO(issue 14): return the anomaly detector's judge once it is merged.
+    A frame is obstructed when the detector's probability exceeds its threshold
+    (:data:`lenspair.model.detection.judge.OBSTRUCTED_THRESHOLD`); blank frames
+    (all black, saturated) are never obstructed.
+
+    Args:
+        network: a trained detector (:func:`lenspair.model.detection.train.load_detector`).
+    """
+
+    def __init__(self, network: AnomalyDetector) -> None:
+        self.network = network
+
+    def __call__(self, frame: InputFrame, image: np.ndarray) -> bool:
+        """True when the detector calls ``image`` obstructed."""
+        return bool(judge(self.network, [image]).obstructed[0])
+
+
+def default_judge(model: Path, device: torch.device) -> FrameJudge:
+    """The judge ``--only-obstructed MODEL`` uses: the detector saved at ``model``.
 
     Raises:
-        ModelError: always, for now: there is no detector in this build.
+        ModelError: ``model`` is not a readable lenspair detector.
     """
-    raise ModelError(
-        "--only-obstructed needs the anomaly detector (lenspair detect, issue 14), "
-        "which this build does not have yet; restore every frame instead"
-    )
+    return DetectorJudge(load_detector(model, device))

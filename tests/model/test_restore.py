@@ -12,11 +12,14 @@ import torch
 from lenspair.capture.frames import BagMessage, iter_bag_messages, iter_frames
 from lenspair.cli import main
 from lenspair.core.imageio import read_image, write_image
+from lenspair.model.detection.judge import judge
+from lenspair.model.detection.train import save_detector
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import TorchBackend, open_backend
-from lenspair.model.inference.judge import ThresholdJudge
+from lenspair.model.inference.judge import ThresholdJudge, default_judge
 from lenspair.model.inference.pipeline import REPORT_NAME, RestoreOptions, restore_input
 from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
+from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
 from tests.capture.ingest_helpers import make_recording, simulate
 from tests.images import texture
 from tests.model.restore_helpers import bag_from_recording, write_bag
@@ -260,7 +263,11 @@ def test_cli_single_image_and_one_line_errors(
     line = capsys.readouterr().out.strip().splitlines()[-1]
     assert line.startswith("restore: 1 frames (1 restored") and line.endswith(f"-> {out}")
     assert read_image(out / "photo.png").shape == (30, 41)
-    for extra, message in (([], "not empty; pass --resume"), (["--only-obstructed"], "detector")):
+    missing = str(tmp_path / "no_detector.pt")
+    for extra, message in (
+        ([], "not empty; pass --resume"),
+        (["--only-obstructed", missing], f"{missing}: no such detector checkpoint"),
+    ):
         code = main(["restore", str(checkpoint), str(image), "--out", str(out), *extra])
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1, err
@@ -310,3 +317,25 @@ def test_demo_restores_a_recording_and_shows_before_after(tmp_path: Path, checkp
     assert any(isinstance(b, Image) and b.path == "restore_before_after.png" for b in blocks)
     strip = read_image(out / "restore_before_after.png")
     assert strip.ndim == 3 and strip.shape[0] > 100
+
+
+def test_only_obstructed_uses_the_detector(tmp_path: Path, backend: TorchBackend) -> None:
+    """The detector is the judge: blank frames (never obstructed) are copied unchanged."""
+    torch.manual_seed(0)
+    network = AnomalyDetector(
+        DetectorSpec(widths=(4, 8, 8), context_dilations=(2,), input_size=(48, 64))
+    )
+    save_detector(tmp_path / "d.pt", network)
+    detector_judge = default_judge(tmp_path / "d.pt", torch.device("cpu"))
+    folder = tmp_path / "in"
+    folder.mkdir()
+    textured = (texture((40, 56), seed=3) * 255).astype(np.uint8)
+    write_image(folder / "blank.png", np.zeros((40, 56), np.uint8))
+    write_image(folder / "textured.png", textured)
+    expected = bool(judge(network, [textured]).obstructed[0])
+    frames = {f.name: f for f in iter_frames(folder)}
+    assert detector_judge(frames["blank.png"], np.zeros((40, 56), np.uint8)) is False
+    assert detector_judge(frames["textured.png"], textured) is expected
+    out = tmp_path / "out"
+    restore_input(folder, out, backend, RestoreOptions(), detector_judge)
+    assert np.array_equal(read_image(out / "blank.png"), np.zeros((40, 56), np.uint8))
