@@ -61,7 +61,7 @@ class RealismStatistics:
 STATISTIC_NAMES: tuple[str, ...] = tuple(f.name for f in fields(RealismStatistics))
 
 STATISTIC_LABELS: dict[str, str] = {
-    "coverage": "coverage: share where |GaussianBlur(d, 2)| > 0.05",
+    "coverage": "coverage: share where abs(GaussianBlur(d, 2)) > 0.05",
     "high_frequency": "high-frequency share of d (sigma 4)",
     "mean_difference": "mean of d (positive = brighter)",
     "contrast_ratio": "contrast ratio std(obstructed) / std(clean)",
