@@ -54,7 +54,7 @@ tradeoff-seeds: demo
 	$(BIN)/lenspair tradeoff demo_out/dataset --out tradeoff_seeds_out --budget 400 --seeds 0,1,2
 
 table2: $(VENV)/.installed
-	$(BIN)/python -m benchmarks.table2 --out table2_out --frames 30 --pretrain-steps 20 --finetune-steps 20 --seeds 0 1 2 --crop-size 64
+	$(BIN)/python -m benchmarks.table2 --out table2_out --frames 30 --pretrain-steps 6 --finetune-steps 6 --seeds 0 1 2 --crop-size 64
 
 pretrained: $(VENV)/.installed
 	$(BIN)/python -m benchmarks.pretrain_weights --channels 1 3 --minutes 11

@@ -61,15 +61,24 @@ def card_markdown(card: dict[str, Any]) -> str:
             value = card.get(name, {}).get(key)
             cells.append("n/a" if value is None else fmt.format(value))
         lines.append(f"| {label} | {cells[0]} | {cells[1]} |")
+    gains = []
+    for name, label in (("mono", "mono"), ("rgb", "RGB")):
+        entry = card.get(name)
+        if entry:
+            gain = entry["output_psnr"] - entry["input_psnr"]
+            gains.append(f"{label}: {entry['steps']} steps, {gain:+.2f} dB on the held-out pairs")
     lines += [
         "",
         "Metrics: skimage-gaussian convention (scikit-image PSNR, Gaussian SSIM), [0, 1] "
-        "images. Learning curves (validation PSNR per validation) are in `card.json`.",
+        "images. Learning curves (validation PSNR per validation) are in `card.json`. The CPU "
+        "time was taken on a machine whose 2 cores were shared with several other jobs (load "
+        "average above 10): compare it only with figures taken in the same run.",
         "",
-        "**Limits.** The budget is minutes on a shared 2-core CPU, so these weights have seen "
-        "few optimiser steps: they are a starting point that already models the drops' "
-        "appearance, not a converged network. Check the held-out figures above before relying "
-        "on them, and fine-tune on your own pairs.",
+        "**Limits.** The budget is minutes on a shared 2-core CPU, so these networks are barely "
+        f"trained ({'; '.join(gains)}): they are a starting point, not a converged network, and "
+        "a held-out set of 2 images under 2 drop draws is too small to rank them. Fine-tune on "
+        "your own pairs; a GPU run of `make pretrained` with a longer `--minutes` gives better "
+        "weights.",
     ]
     return "\n".join(lines) + "\n"
 
