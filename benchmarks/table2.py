@@ -22,6 +22,7 @@ training) are printed beside, labelled.
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -101,6 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--crop-size", type=int, default=128)
     parser.add_argument("--batch-size", type=int, default=4)
     args = parser.parse_args(argv)
+    command = "python -m benchmarks.table2 " + " ".join(sys.argv[1:] if argv is None else argv)
     torch.set_num_threads(2)
     out = args.out.resolve()
     started = time.monotonic()
@@ -152,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
             f"pretraining {args.pretrain_steps} steps on bundled natural photographs, then "
             f"fine-tuning {args.finetune_steps} steps per seed; crop {args.crop_size}, batch "
             f"{args.batch_size}, CPU; {total / 60:.1f} min wall clock in all.",
+            "",
+            f"Command: `{command}`",
             "",
             *lines,
             "",
