@@ -47,8 +47,8 @@ results: demo bench
 	$(BIN)/python -m benchmarks.readme_results --demo demo_out --bench bench_out --readme README.md
 
 # Issue 12: the tradeoff over seeds with a convergence check (budget: 6 variants x 3
-# seeds x 400 steps, crop 128, batch 4: about 1.5 h on 2 free CPU cores), the
-# paper's Table 2 on simulated pairs (~20 min), and the shipped pretrained weights
+# seeds x 400 steps, crop 128, batch 4: hours on 2 CPU cores; not yet run), the
+# paper's Table 2 on simulated pairs (43 min here with the cores shared), the weights
 # (11 min per network). Each prints its table and writes it beside its runs.
 tradeoff-seeds: demo
 	$(BIN)/lenspair tradeoff demo_out/dataset --out tradeoff_seeds_out --budget 400 --seeds 0,1,2
