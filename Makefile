@@ -7,7 +7,7 @@ VENV ?= .venv
 TORCH_SPEC ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint typecheck unit bench results clean
+.PHONY: demo test lint typecheck unit bench results tradeoff-seeds table2 pretrained clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -45,6 +45,20 @@ bench: $(VENV)/.installed
 # then written from their output files (benchmarks/readme_results.py).
 results: demo bench
 	$(BIN)/python -m benchmarks.readme_results --demo demo_out --bench bench_out --readme README.md
+
+# Issue 12: the tradeoff over seeds with a convergence check (budget: 6 variants x 3
+# seeds x 400 steps, crop 128, batch 4: hours on 2 CPU cores; not yet run), the
+# paper's Table 2 on simulated pairs (43 min here with the cores shared), the weights
+# (11 min per network). Each prints its table and writes it beside its runs.
+tradeoff-seeds: demo
+	$(BIN)/lenspair tradeoff demo_out/dataset --out tradeoff_seeds_out --budget 400 --seeds 0,1,2
+
+table2: $(VENV)/.installed
+	$(BIN)/python -m benchmarks.table2 --out table2_out --frames 30 --pretrain-steps 6 --finetune-steps 6 --seeds 0 1 2 --crop-size 64
+
+pretrained: $(VENV)/.installed
+	$(BIN)/python -m benchmarks.pretrain_weights --channels 1 3 --minutes 11
+	$(BIN)/python -m benchmarks.model_card
 
 clean:
 	rm -rf $(VENV) demo_out bench_out build *.egg-info

@@ -19,6 +19,10 @@ from lenspair.core.errors import LenspairError
 # name -> (module, one-line summary). A plain table: no registry magic.
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("lenspair.commands.simulate", "render a scene spec into a stereo recording"),
+    "realism": (
+        "lenspair.commands.realism",
+        "do synthetic drops look real: statistics beside real ones",
+    ),
     "calibrate": ("lenspair.commands.calibrate", "calibrate a stereo rig from board views"),
     "capture-ingest": (
         "lenspair.commands.capture_ingest",

@@ -10,7 +10,8 @@ tutorial):
 2. ``calibrate`` from the board session;
 3. ``capture-ingest`` each recording with that calibration;
 4. ``dataset-build`` the ingested recordings into train/val/test;
-5. ``train --synthetic``: pretraining on drops rendered over clean frames;
+5. ``train --synthetic``: pretraining on drops rendered over clean frames,
+   starting from the GEA weights shipped with lenspair (``--init pretrained``);
 6. ``train --init``: a short fine-tune on the real (here: simulated) pairs;
 7. ``eval`` on the test split, 8. a small ``tradeoff``;
 9. ``restore`` the heavy-rain recording (its obstructed camera) with the
@@ -178,6 +179,8 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
                 "train",
                 "--synthetic",
                 str(dataset / "train" / "target"),
+                "--init",
+                "pretrained",
                 "--out",
                 str(pre),
                 "--max-steps",
@@ -228,6 +231,8 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
                 str(budget.crop_size),
                 "--batch-size",
                 str(budget.batch_size),
+                "--seeds",
+                "0",  # one seed fits the demo's time; `make tradeoff-seeds` repeats over seeds
             ),
             out / "tradeoff",
         ),

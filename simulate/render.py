@@ -15,12 +15,14 @@ Pipeline (only listed effects are computed, in ``EffectsSpec.listed`` order):
 ``raindrops`` (refracting drops) and ``brightness`` (gains on some drops)
 and ``dirt`` (blobs) build a premultiplied *glass layer*; ``defocus`` blurs
 that layer; it is composited over the clean image; ``dust`` then applies
-``I = I0 a + b``.
+``I = I0 a + b``; ``veil`` (scattered light of wet glass) then lowers the
+contrast of the whole frame.
 
 Mask convention: ``uint8`` ``(H, W)``, 255 inside the footprint of the
 listed effects and 0 outside. The footprint comes from geometry, never from
 pixel differences: the union of drop and blob outlines (where their coverage
-is positive) grown by the defocus kernel's reach, and the dust support.
+is positive) grown by the defocus kernel's reach, the dust support, and the
+whole frame when ``veil`` is listed (scattered light reaches every pixel).
 Pixels outside the mask are copied from the input, so they are bit-identical
 by construction; pixels inside may or may not change (decoding and encoding
 an untouched pixel gives back its code exactly).
@@ -42,7 +44,7 @@ import cv2
 import numpy as np
 
 from lenspair.core.imageio import check_image, from_float, from_linear, to_linear
-from lenspair.simulate.effects import brightness, defocus, dirt, dust, raindrops
+from lenspair.simulate.effects import brightness, defocus, dirt, dust, raindrops, veil
 from lenspair.simulate.effects.layer import Placement, Sprites, composite_over, place, support_mask
 from lenspair.simulate.effects.spec import EffectsSpec
 from lenspair.simulate.errors import SimulateError
@@ -50,7 +52,7 @@ from lenspair.simulate.errors import SimulateError
 EffectHook = Callable[[str], None]
 """Called with an effect's name each time that effect is computed (instrumentation)."""
 
-_STREAMS = ("raindrops", "brightness", "dirt", "defocus", "dust")
+_STREAMS = ("raindrops", "brightness", "dirt", "defocus", "dust", "veil")
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,6 +74,7 @@ class GlassState:
         dirt: dirt coverage.
         kernel: defocus correlation kernel.
         dust: dust fields.
+        veiling: the veil of wet glass (strength and level).
         mask: ``uint8`` ``(H, W)`` footprint, 255 inside, 0 outside (read-only).
         indices: ``int64`` flat indices of the footprint pixels.
         margin: canvas margin of the glass layer, pixels.
@@ -90,6 +93,7 @@ class GlassState:
     dirt: Sprites | None
     kernel: np.ndarray | None
     dust: dust.DustField | None
+    veiling: veil.Veil | None
     mask: np.ndarray
     indices: np.ndarray
     margin: int
@@ -129,7 +133,7 @@ def sample_glass(
     def stream(name: str) -> np.random.Generator:
         return np.random.default_rng(seeds[name])
 
-    drops = gains = blobs = kernel = field = None
+    drops = gains = blobs = kernel = field = veiling = None
     if effects.raindrops is not None:
         drops = raindrops.sample_drops(effects.raindrops, shape, stream("raindrops"))
         if effects.brightness is not None:
@@ -138,10 +142,12 @@ def sample_glass(
         blobs = dirt.sample_blobs(effects.dirt, shape, stream("dirt"))
     if effects.defocus is not None:
         shifts = defocus.sample_shifts(effects.defocus, stream("defocus"))
-        kernel = defocus.blur_kernel(shifts, effects.defocus.disk_radius_px)
+        kernel = defocus.blur_kernel(shifts, effects.defocus.disk_px)
     if effects.dust is not None:
         field = dust.sample_dust(effects.dust, shape, stream("dust"))
-    return _assemble(effects, shape, drops, gains, blobs, kernel, field)
+    if effects.veil is not None:
+        veiling = veil.sample_veil(effects.veil, stream("veil"))
+    return _assemble(effects, shape, drops, gains, blobs, kernel, field, veiling)
 
 
 def advance_glass(glass: GlassState, rng: np.random.Generator) -> GlassState:
@@ -169,7 +175,14 @@ def advance_glass(glass: GlassState, rng: np.random.Generator) -> GlassState:
         fresh = brightness.sample_gains(glass.effects.brightness, drops.count, rng)
         gains = np.where(keep, gains, fresh).astype(np.float32)
     return _assemble(
-        glass.effects, glass.shape, drops, gains, glass.blobs, glass.kernel, glass.dust
+        glass.effects,
+        glass.shape,
+        drops,
+        gains,
+        glass.blobs,
+        glass.kernel,
+        glass.dust,
+        glass.veiling,
     )
 
 
@@ -181,6 +194,7 @@ def _assemble(
     blobs: dirt.Blobs | None,
     kernel: np.ndarray | None,
     field: dust.DustField | None,
+    veiling: veil.Veil | None = None,
 ) -> GlassState:
     """Rasterise the sampled geometry and compute the footprint."""
     half = 0 if kernel is None else kernel.shape[0] // 2
@@ -202,6 +216,8 @@ def _assemble(
     mask = np.ascontiguousarray(footprint[margin : margin + shape[0], margin : margin + shape[1]])
     if field is not None:
         mask[field.support] = 255
+    if veiling is not None:
+        mask[:] = 255  # scattered light reaches every pixel
     indices = np.flatnonzero(mask)
     dust_at_mask = None
     if field is not None:
@@ -222,6 +238,7 @@ def _assemble(
         dirt=blob_sprites,
         kernel=kernel,
         dust=field,
+        veiling=veiling,
         mask=mask,
         indices=indices,
         margin=margin,
@@ -296,6 +313,9 @@ def apply_glass(
     channels = 1 if image.ndim == 2 else image.shape[2]
     codes = np.take(image.reshape(-1, channels), glass.indices, axis=0)
     values = np.take(_decode_table(image.dtype), codes)
+    light = None
+    if effects.veil is not None and glass.veiling is not None:
+        light = veil.veil_light(values, glass.veiling)  # the footprint is the whole frame
     if glass.optics is not None or glass.dirt is not None:
         layer = _glass_layer(image, glass, notify)
         values = layer[:, :channels] + (1.0 - layer[:, channels:]) * values
@@ -306,6 +326,9 @@ def apply_glass(
     if effects.dust is not None and glass.dust_at_mask is not None:
         notify("dust")
         values = dust.apply_dust(values, *glass.dust_at_mask)
+    if light is not None and glass.veiling is not None:
+        notify("veil")
+        values = veil.apply_veil(values, light, glass.veiling.strength)
     out.reshape(-1, channels)[glass.indices] = _encode(values, image.dtype)
     return out, mask
 

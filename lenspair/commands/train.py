@@ -17,6 +17,13 @@ or 'sharp' (Porav et al.'s in-focus drops), holding out a deterministic
 validation subset. This is the paper's synthetic initialisation: fine-tune on
 real pairs with --init RUN/checkpoints/best.pt (network weights only).
 
+--init pretrained starts from the GEA weights that ship with lenspair (mono or
+RGB, chosen by the data): pretrained on 'ours' drops over the natural
+photographs that scikit-image and matplotlib ship; see
+lenspair/model/weights/MODEL_CARD.md. Example:
+
+  lenspair train DS --init pretrained --out runs/gea
+
 Defaults follow the paper: Adam lr 2e-4 (0.5, 0.999), batch 8, up to 200
 epochs, early stopping on validation PSNR (patience 10), random 256 px crops
 and flips, LSGAN + feature matching on the generator output, VGG19
@@ -71,7 +78,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", nargs="?", type=Path, help="paired dataset folder (DS)")
     parser.add_argument("--out", type=Path, required=True, help="run folder (RUN)")
     parser.add_argument("--config", type=Path, help="YAML with model/data/train/loss sections")
-    parser.add_argument("--init", type=Path, metavar="CKPT", help="start from these weights")
+    parser.add_argument(
+        "--init",
+        type=Path,
+        metavar="CKPT",
+        help="start from these weights; 'pretrained': the GEA weights shipped with lenspair",
+    )
     parser.add_argument("--resume", action="store_true", help="continue RUN where it stopped")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     parser.add_argument(
@@ -167,6 +179,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         data = paired_training_data(args.dataset, config.data, config.model.channels, seed)
     config = resolve_config(config, data.channels)
+    init = args.init
+    if init is not None and str(init) == "pretrained":
+        from lenspair.model.training.pretrained import resolve_init
+
+        assert config.model.channels is not None
+        init = resolve_init(init, config.model.channels)
     summary = fit(
         config,
         data.train,
@@ -175,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
         device,
         data_description=data.description,
         synthetic=data.synthetic,
-        init=args.init,
+        init=init,
         resume=args.resume,
     )
     if not distributed_from_env().is_main:

@@ -21,8 +21,12 @@ from lenspair.simulate.effects.spec import DefocusSpec
 
 
 def sample_shifts(spec: DefocusSpec, rng: np.random.Generator) -> np.ndarray:
-    """``float64`` ``(shifts, 2)`` offsets ``(dx, dy)`` uniform in a disk of ``shift_px``."""
-    radius = spec.shift_px * np.sqrt(rng.random(spec.shifts))
+    """``float64`` ``(shifts, 2)`` offsets ``(dx, dy)`` uniform in a disk of the shift radius.
+
+    The radius is the thin-lens blur radius of the glass unless ``shift_px``
+    sets it (:class:`~lenspair.simulate.effects.spec.DefocusSpec`).
+    """
+    radius = spec.shift_radius_px * np.sqrt(rng.random(spec.shifts))
     angle = rng.uniform(0.0, 2 * math.pi, spec.shifts)
     return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)
 

@@ -116,16 +116,43 @@ def sample_drops(spec: RaindropsSpec, shape: tuple[int, int], rng: np.random.Gen
     """Draw ``spec.count`` drops uniformly over an image of ``shape`` = (H, W).
 
     Centres are uniform over the image, so drops near the border are cut.
+    Radii follow ``spec.size_distribution`` (:func:`sample_radii`).
     """
     height, width = shape
     count = spec.count
     x = rng.uniform(-0.5, width - 0.5, count)
     y = rng.uniform(-0.5, height - 0.5, count)
-    major = rng.uniform(*spec.radius_px, count)
+    major = sample_radii(spec, rng.random(count))
     minor = major * rng.uniform(*spec.aspect, count)
     angles = rng.uniform(0.0, math.pi, count)
     contact = np.deg2rad(rng.uniform(*spec.contact_angle_deg, count))
     return Drops(np.stack([x, y], 1), np.stack([major, minor], 1), angles, contact)
+
+
+def sample_radii(spec: RaindropsSpec, uniform: np.ndarray) -> np.ndarray:
+    """Drop radii from uniform variates by inverting the size distribution's CDF.
+
+    Args:
+        spec: ``radius_px = (r0, r1)``, ``size_distribution``, ``size_exponent``.
+        uniform: ``float64`` ``(N,)`` variates in ``[0, 1)``.
+
+    Returns:
+        ``float64`` ``(N,)`` radii in ``[r0, r1]``: uniform, or with density
+        ``~ r^-k`` (``k = size_exponent``): many small drops, few large ones.
+
+    """
+    low, high = spec.radius_px
+    if spec.size_distribution == "uniform" or high <= low:
+        uniform_radii: np.ndarray = low + (high - low) * uniform
+        return uniform_radii
+    k = spec.size_exponent
+    low = max(low, 1e-3)  # r^-k has no finite mass at 0
+    if abs(k - 1.0) < 1e-9:
+        radii: np.ndarray = low * (high / low) ** uniform
+        return radii
+    a, b = low ** (1.0 - k), high ** (1.0 - k)
+    radii = np.clip((a + (b - a) * uniform) ** (1.0 / (1.0 - k)), low, high)
+    return radii
 
 
 def exit_refraction(

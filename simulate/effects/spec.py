@@ -9,6 +9,7 @@ the brightest code value.
 """
 
 from dataclasses import dataclass
+from typing import Literal
 
 
 def _check_range(name: str, value: tuple[float, float], low: float, high: float) -> None:
@@ -43,6 +44,11 @@ class RaindropsSpec:
         rim_brightness: linear-light brightness of light reflected inside a
             drop (the totally internally reflected rim), as a fraction of the
             mean colour the drop transmits.
+        size_distribution: how ``radius_px`` is sampled: ``uniform`` (Porav
+            et al.'s synthetic drops), or ``power-law``: density
+            ``~ r^-size_exponent`` over ``radius_px``, so many small drops
+            and a few large merged ones, as on real wet glass.
+        size_exponent: exponent of the power law (> 1 favours small drops).
 
     """
 
@@ -54,6 +60,8 @@ class RaindropsSpec:
     persistence: float = 1.0
     focal_px: float = 350.0
     rim_brightness: float = 0.1
+    size_distribution: Literal["uniform", "power-law"] = "uniform"
+    size_exponent: float = 2.0
 
     def __post_init__(self) -> None:
         if self.count < 0:
@@ -65,28 +73,128 @@ class RaindropsSpec:
         _check_value("persistence", self.persistence, 0.0, 1.0)
         _check_value("focal_px", self.focal_px, 1.0, 1e5)
         _check_value("rim_brightness", self.rim_brightness, 0.0, 1.0)
+        if self.size_distribution not in ("uniform", "power-law"):
+            raise ValueError(
+                f"size_distribution: expected uniform or power-law, got {self.size_distribution!r}"
+            )
+        _check_value("size_exponent", self.size_exponent, 0.0, 10.0)
 
 
 @dataclass(frozen=True)
 class DefocusSpec:
     """The glass is out of focus: blur the glass layer (drops and dirt).
 
+    A camera focused far away sees a point on glass at distance ``d`` as a
+    disk of diameter ``f_px * A / d`` pixels (thin lens), with the aperture
+    diameter ``A = focal_length / f_number`` and ``f_px = focal_length /
+    pixel_pitch``. The defaults are an Alphasense Core-like robot camera
+    behind a glass panel 3 cm away: 2.4 mm lens at f/2.0 on a 6.9 um pixel
+    (Sony IMX287 global shutter, 720x540), so ``f_px = 348`` (the sample
+    camchain's ``fx`` is 350) and the blur disk is 13.9 px across. (The focal
+    length and pitch follow from the sample camchain and the sensor's data
+    sheet; the f-number is typical of such wide-angle M12 lenses, not a
+    published Alphasense figure.)
+
+    The blur's *shape* is the paper's: the layer averaged over ``shifts``
+    random shifts drawn uniformly in a disk of the blur radius (its
+    ``shift_px``). ``kernel: disk`` uses the thin-lens disk itself instead,
+    and ``shift_px`` / ``disk_radius_px`` set pixel sizes by hand (they
+    override the optics).
+
     Attributes:
         shifts: number of random shifts averaged (the paper's method).
-        shift_px: largest shift, pixels; shifts are uniform in a disk.
-        disk_radius_px: optional thin-lens disk blur radius (0 = off).
+        shift_px: largest shift, pixels; ``None``: the blur radius from
+            the optics (with ``kernel: shifts``), else 0.
+        disk_radius_px: thin-lens disk blur radius, pixels; ``None``: the
+            blur radius from the optics (with ``kernel: disk``), else 0.
+        kernel: ``shifts`` (the paper's averaged shifts) or ``disk``.
+        glass_distance_m: distance from the lens to the glass, metres.
+        focal_length_mm: lens focal length, millimetres.
+        f_number: the lens's f-number (aperture diameter = focal / f_number).
+        pixel_pitch_um: sensor pixel pitch, micrometres.
 
     """
 
-    shifts: int = 8
-    shift_px: float = 3.0
-    disk_radius_px: float = 0.0
+    shifts: int = 16
+    shift_px: float | None = None
+    disk_radius_px: float | None = None
+    kernel: Literal["shifts", "disk"] = "shifts"
+    glass_distance_m: float = 0.03
+    focal_length_mm: float = 2.4
+    f_number: float = 2.0
+    pixel_pitch_um: float = 6.9
 
     def __post_init__(self) -> None:
         if not 1 <= self.shifts <= 256:
             raise ValueError(f"shifts: expected 1..256, got {self.shifts}")
-        _check_value("shift_px", self.shift_px, 0.0, 64.0)
-        _check_value("disk_radius_px", self.disk_radius_px, 0.0, 64.0)
+        if self.shift_px is not None:
+            _check_value("shift_px", self.shift_px, 0.0, 64.0)
+        if self.disk_radius_px is not None:
+            _check_value("disk_radius_px", self.disk_radius_px, 0.0, 64.0)
+        if self.kernel not in ("shifts", "disk"):
+            raise ValueError(f"kernel: expected shifts or disk, got {self.kernel!r}")
+        _check_value("glass_distance_m", self.glass_distance_m, 1e-3, 10.0)
+        _check_value("focal_length_mm", self.focal_length_mm, 0.1, 1e3)
+        _check_value("f_number", self.f_number, 0.5, 64.0)
+        _check_value("pixel_pitch_um", self.pixel_pitch_um, 0.1, 100.0)
+        if self.blur_diameter_px / 2 > 64.0 and (
+            self.shift_px is None if self.kernel == "shifts" else self.disk_radius_px is None
+        ):
+            raise ValueError(
+                f"glass_distance_m: blur disk of {self.blur_diameter_px:.0f} px is over 128 px; "
+                "move the glass away or set shift_px/disk_radius_px"
+            )
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length in pixels, ``focal_length / pixel_pitch``."""
+        return self.focal_length_mm * 1e3 / self.pixel_pitch_um
+
+    @property
+    def blur_diameter_px(self) -> float:
+        """Thin-lens blur disk diameter of the glass, ``f_px * A / d``, pixels."""
+        aperture_mm = self.focal_length_mm / self.f_number
+        return self.focal_px * aperture_mm / (self.glass_distance_m * 1e3)
+
+    @property
+    def shift_radius_px(self) -> float:
+        """Largest shift actually used, pixels."""
+        if self.shift_px is not None:
+            return self.shift_px
+        return self.blur_diameter_px / 2 if self.kernel == "shifts" else 0.0
+
+    @property
+    def disk_px(self) -> float:
+        """Disk blur radius actually used, pixels."""
+        if self.disk_radius_px is not None:
+            return self.disk_radius_px
+        return self.blur_diameter_px / 2 if self.kernel == "disk" else 0.0
+
+
+@dataclass(frozen=True)
+class VeilSpec:
+    """Wet glass scatters light over the whole frame: a veil that lowers contrast.
+
+    ``I = (1 - s) * I0 + s * level * mean(I0)`` in linear light, per
+    channel: a share ``s`` of the light reaching each pixel is replaced by
+    light scattered from the whole scene (its mean), brightened by
+    ``level`` (drops and the water film catch light from bright parts of
+    the scene, e.g. the sky). Contrast (the standard deviation in linear
+    light) drops by exactly ``1 - s`` everywhere, not only inside drops.
+    ``s`` and ``level`` are drawn once per glass state.
+
+    Attributes:
+        strength: range of the scattered share ``s`` (0 = clear glass).
+        level: range of the veil's brightness relative to the scene mean.
+
+    """
+
+    strength: tuple[float, float] = (0.1, 0.2)
+    level: tuple[float, float] = (1.0, 1.5)
+
+    def __post_init__(self) -> None:
+        _check_range("strength", self.strength, 0.0, 1.0)
+        _check_range("level", self.level, 0.0, 10.0)
 
 
 @dataclass(frozen=True)
@@ -176,11 +284,12 @@ class EffectsSpec:
     brightness: BrightnessSpec | None = None
     dust: DustSpec | None = None
     dirt: DirtSpec | None = None
+    veil: VeilSpec | None = None
 
     @property
     def listed(self) -> tuple[str, ...]:
         """Names of the listed effects, in rendering order."""
-        order = ("raindrops", "brightness", "dirt", "defocus", "dust")
+        order = ("raindrops", "brightness", "dirt", "defocus", "dust", "veil")
         return tuple(name for name in order if getattr(self, name) is not None)
 
     @property

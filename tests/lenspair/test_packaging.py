@@ -91,6 +91,7 @@ def test_sdist_wheel_installs_one_name_and_demo_runs_from_any_folder(tmp_path: P
     assert {t for t in top if not t.endswith(".dist-info")} == {"lenspair"}
     assert "lenspair/calib_samples/rain.yaml" in names
     assert "lenspair/capture/ingest.py" in names
+    assert "lenspair/model/weights/gea_ours_mono.pt" in names  # --init pretrained works installed
 
     env_dir = tmp_path / "venv"
     venv.create(env_dir, with_pip=False)

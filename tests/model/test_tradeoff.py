@@ -148,6 +148,7 @@ def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
     config.write_text(dump_yaml(base))
     before = (out / "runs" / "G" / "checkpoints" / "last.pt").stat().st_mtime_ns
     args = ["tradeoff", str(dataset), "--out", str(out), "--budget", "1", "--variants", "G"]
+    args += ["--seeds", "0"]  # one seed: the single table
     assert main([*args, "--config", str(config), "--latency-runs", "1"]) == 0
     assert [r["name"] for r in json.loads((out / "tradeoff.json").read_text())["rows"]] == ["G"]
     assert (out / "runs" / "G" / "checkpoints" / "last.pt").stat().st_mtime_ns == before
@@ -170,3 +171,35 @@ def test_a_single_paired_folder_is_scored_on_pairs_it_did_not_train_on(tmp_path:
     scored = {pair.name for pair in data.val.source}  # type: ignore[attr-defined]
     assert scored and not scored & trained
     assert f"({len(scored)}, not trained on)" in evaluated
+
+
+def test_seeded_tradeoff_reports_mean_spread_convergence_and_published_rows(
+    tmp_path: Path,
+) -> None:
+    from lenspair.model.evaluation.tradeoff_seeds import run_seeded_tradeoff
+
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    base = tiny_config()
+    base = replace(base, model=replace(base.model, channels=None))
+    out = tmp_path / "seeded"
+    variants = [v for v in DEFAULT_VARIANTS if v.name in ("G", "GEA-b3")]
+    rows, meta = run_seeded_tradeoff(
+        dataset, out, torch.device("cpu"), Budget(steps=3), base, [0, 1], variants,
+        latency_runs=1,
+    )  # fmt: skip
+    assert meta["seeds"] == [0, 1]
+    for row in rows:
+        per_seed = []
+        for seed in (0, 1):
+            table = json.loads((out / f"seed{seed}" / "tradeoff.json").read_text())
+            match = [
+                r for r in table["rows"] if (r["name"], r["precision"]) == (row.name, row.precision)
+            ]
+            per_seed.append(float(match[0]["psnr_db"]))
+        assert row.psnr.values == pytest.approx(tuple(per_seed))
+        assert row.psnr.mean == pytest.approx(sum(per_seed) / 2)
+        assert row.converged in (True, False, None)
+    markdown = (out / "tradeoff_seeds.md").read_text()
+    assert "+/-" in markdown and "converged" in markdown
+    assert "published" in markdown and "| G+E+A | 0.909 | 29.84 |" in markdown
+    assert json.loads((out / "tradeoff_seeds.json").read_text())["meta"]["seeds"] == [0, 1]

@@ -131,3 +131,35 @@ def test_defocused_drop_outside_the_frame_bleeds_in(monkeypatch: pytest.MonkeyPa
     assert mask[25, 0] == 255 and mask[25, 6] == 0
     assert out[25, 0] < image[25, 0]  # the blurred dark rim shows at the border
     np.testing.assert_array_equal(out[mask == 0], image[mask == 0])
+
+
+def test_default_blur_follows_the_thin_lens_of_an_alphasense_like_camera() -> None:
+    spec = DefocusSpec()
+    # f_px = 2.4 mm / 6.9 um = 348 px; A = 2.4 / 2.0 = 1.2 mm; d = 30 mm.
+    assert spec.focal_px == pytest.approx(2400 / 6.9)
+    assert spec.blur_diameter_px == pytest.approx(2400 / 6.9 * 1.2 / 30)
+    assert spec.shift_radius_px == pytest.approx(spec.blur_diameter_px / 2) and spec.disk_px == 0
+    farther = DefocusSpec(glass_distance_m=0.06)
+    assert farther.blur_diameter_px == pytest.approx(spec.blur_diameter_px / 2)
+    wider = DefocusSpec(f_number=1.0)
+    assert wider.blur_diameter_px == pytest.approx(2 * spec.blur_diameter_px)
+    disk = DefocusSpec(kernel="disk")
+    assert disk.shift_radius_px == 0 and disk.disk_px == pytest.approx(spec.blur_diameter_px / 2)
+    by_hand = DefocusSpec(shift_px=2.0, disk_radius_px=1.0)
+    assert (by_hand.shift_radius_px, by_hand.disk_px) == (2.0, 1.0)
+
+
+@pytest.mark.parametrize("kernel", ["shifts", "disk"])
+def test_kernel_reach_is_the_blur_radius(kernel: str) -> None:
+    spec = DefocusSpec(kernel=kernel, shifts=64)  # type: ignore[arg-type]
+    glass = sample_glass(EffectsSpec(defocus=spec), (32, 32), np.random.default_rng(0))
+    assert glass.kernel is not None
+    reach = defocus.kernel_reach(glass.kernel)
+    radius = spec.blur_diameter_px / 2
+    assert radius - 1.5 <= reach <= radius + 2.0
+
+
+def test_glass_too_close_for_the_kernel_is_refused() -> None:
+    with pytest.raises(ValueError, match="glass_distance_m"):
+        DefocusSpec(glass_distance_m=0.002)
+    DefocusSpec(glass_distance_m=0.002, shift_px=3.0)  # pixels by hand: allowed

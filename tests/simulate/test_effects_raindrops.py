@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lenspair.core.imageio import from_float, from_linear
@@ -250,3 +250,31 @@ def test_large_drop_layers_beyond_opencv_map_limit() -> None:
     out, mask = render_effects(image, spec, np.random.default_rng(1))
     assert int((mask > 0).sum()) > 32767
     assert out.dtype == np.uint8 and not np.array_equal(out, image)
+
+
+@given(
+    low=st.floats(0.5, 20.0),
+    span=st.floats(0.0, 80.0),
+    exponent=st.floats(0.0, 4.0),
+    seed=st.integers(0, 1000),
+)
+@settings(max_examples=50, deadline=None)
+def test_power_law_radii_stay_in_range(low: float, span: float, exponent: float, seed: int) -> None:
+    spec = RaindropsSpec(
+        radius_px=(low, low + span), size_distribution="power-law", size_exponent=exponent
+    )
+    radii = raindrops.sample_radii(spec, np.random.default_rng(seed).random(200))
+    assert np.isfinite(radii).all()
+    assert (radii >= low - 1e-9).all() and (radii <= low + span + 1e-9).all()
+
+
+def test_power_law_gives_many_small_drops_and_few_large_ones() -> None:
+    uniform = np.random.default_rng(0).random(20000)
+    spec = RaindropsSpec(radius_px=(3.0, 60.0), size_distribution="power-law", size_exponent=2.0)
+    radii = raindrops.sample_radii(spec, uniform)
+    # Density ~ r^-2 on [3, 60]: CDF(r) = (1/3 - 1/r) / (1/3 - 1/60).
+    for radius in (5.0, 10.0, 30.0):
+        expected = (1 / 3 - 1 / radius) / (1 / 3 - 1 / 60)
+        assert float((radii <= radius).mean()) == pytest.approx(expected, abs=0.015)
+    flat = raindrops.sample_radii(RaindropsSpec(radius_px=(3.0, 60.0)), uniform)
+    assert np.median(radii) < 0.3 * np.median(flat)

@@ -1,0 +1,124 @@
+"""Do synthetic drops look real? Print issue 12's statistics side by side.
+
+For each set of (obstructed, clean) pairs, prints the range (min - max over
+the pairs) of five statistics beside the range measured on real adherent
+raindrops (4 Raindrop-like pairs): coverage, high-frequency share of the
+difference, mean difference, contrast ratio and input PSNR (definitions in
+lenspair.simulate.realism). A cell marked * misses the real range.
+
+Sets of pairs are paired folders (a lenspair dataset split, an ingested
+recording, input/+target/, lq/+gt/, or a Raindrop split such as test_a) and
+drop presets rendered over clean images (by default the natural photographs
+that scikit-image and matplotlib ship, at 720x480, Raindrop's size):
+
+    lenspair realism --render ours sharp
+    lenspair realism ingested/rain raindrop/test_a --render ours
+    lenspair realism DS --split test --json realism.json
+
+Pairs that cannot be measured (a flat clean image, mismatched sizes) are
+listed and skipped.
+"""
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.imageio import read_image
+from lenspair.core.progress import progress
+from lenspair.dataset.readers import detect_layout, open_paired
+from lenspair.model.training.synthetic import DROPS_PRESETS, drops_preset, find_clean_images
+from lenspair.simulate.natural_images import fit, load_natural_images
+from lenspair.simulate.realism import (
+    PairStatistics,
+    format_ranges,
+    measure_pairs,
+    rendered_pairs,
+    summarise,
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Register the ``realism`` arguments."""
+    parser.add_argument("pairs", type=Path, nargs="*", help="paired folders to measure")
+    parser.add_argument("--split", default="test", help="split of a dataset root (default: test)")
+    parser.add_argument(
+        "--render",
+        nargs="*",
+        metavar="PRESET",
+        help=f"drop presets to render and measure ({', '.join(DROPS_PRESETS)}); "
+        "default: ours sharp when no folder is given",
+    )
+    parser.add_argument(
+        "--images",
+        type=Path,
+        metavar="DIR",
+        help="clean images to render on (default: the bundled natural photographs)",
+    )
+    parser.add_argument("--size", default="720x480", help="render size WxH (default: 720x480)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the rendered drops")
+    parser.add_argument("--json", type=Path, metavar="FILE", help="also write per-pair figures")
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        width, height = (int(part) for part in text.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--size: expected WxH such as 720x480, got {text!r}") from None
+    if width < 16 or height < 16:
+        raise ConfigError(f"--size: expected at least 16x16, got {text!r}")
+    return height, width
+
+
+def run(args: argparse.Namespace) -> int:
+    """Measure every set of pairs and print the table; returns the exit code."""
+    presets = args.render if args.render is not None else ([] if args.pairs else ["ours", "sharp"])
+    if not presets and not args.pairs:
+        raise ConfigError("nothing to measure: give paired folders or --render PRESET")
+    shape = _size(args.size)
+    effects = {name: drops_preset(name) for name in presets}
+    results: dict[str, list[PairStatistics]] = {}
+    for folder in args.pairs:
+        split = None if detect_layout(folder) is not None else args.split
+        dataset = open_paired(folder, split)
+        items = progress(dataset, desc=f"realism {folder.name}", total=len(dataset), unit="pair")
+        results[str(folder)] = measure_pairs((i.name, i.input, i.target) for i in items)
+    if presets:
+        if args.images is not None:
+            images = {p.name: fit(read_image(p), shape) for p in find_clean_images(args.images)}
+        else:
+            images = load_natural_images(shape)
+        for name, spec in effects.items():
+            pairs = progress(
+                rendered_pairs(images, spec, args.seed),
+                desc=f"realism {name}",
+                total=len(images),
+                unit="image",
+            )
+            results[name] = measure_pairs(pairs)
+    columns = []
+    for label, rows in results.items():
+        for row in rows:
+            if row.problem is not None:
+                print(f"realism: {label}: skipped {row.name}: {row.problem}")
+        measured = [row.statistics for row in rows if row.statistics is not None]
+        if not measured:
+            raise ConfigError(f"{label}: no pair could be measured")
+        columns.append((f"{label} ({len(measured)})", summarise(measured)))
+    print(format_ranges(columns))
+    if args.json is not None:
+        atomic_write_json(
+            args.json, {label: [_row(r) for r in rows] for label, rows in results.items()}
+        )
+    return 0
+
+
+def _row(row: PairStatistics) -> dict[str, Any]:
+    """One pair for the JSON file (an infinite PSNR, identical images, becomes null)."""
+    values: dict[str, Any] = {"name": row.name, "problem": row.problem}
+    if row.statistics is not None:
+        for key, value in vars(row.statistics).items():
+            values[key] = value if math.isfinite(value) else None
+    return values

@@ -1,0 +1,247 @@
+"""The tradeoff repeated over seeds: accuracy as mean +/- spread, a convergence check.
+
+One training run per variant gives an accuracy figure whose run-to-run noise
+can exceed the differences between variants. :func:`run_seeded_tradeoff`
+runs :func:`~lenspair.model.evaluation.tradeoff.run_tradeoff` once per seed
+(``OUT/seed<k>/``, each reusable on a rerun), then per network and
+precision reports PSNR and SSIM as mean +/- spread over the seeds
+(:mod:`lenspair.model.evaluation.seed_statistics`), the median CPU time,
+whether training converged (over the last 20 % of the budget, validation
+PSNR moved less than the seed spread, checked on every seed's learning
+curve ``runs/<variant>/metrics.csv``) and the Pareto front counted only
+where a difference exceeds the spread. The paper's published rows are
+printed beside, labelled. Files: ``OUT/tradeoff_seeds.md`` and ``.json``.
+"""
+
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from lenspair.core.fsutil import atomic_write_json, atomic_write_text
+from lenspair.model.evaluation.published import ABLATION, STATE_OF_THE_ART, published_markdown
+from lenspair.model.evaluation.seed_statistics import (
+    CONVERGENCE_TAIL,
+    SeedSummary,
+    converged,
+    robust_pareto,
+    summarise_seeds,
+)
+from lenspair.model.evaluation.tradeoff import (
+    DEFAULT_VARIANTS,
+    Budget,
+    TradeoffResult,
+    TradeoffVariant,
+    run_tradeoff,
+)
+from lenspair.model.training.config import RunConfig
+
+
+@dataclass(frozen=True)
+class SeededRow:
+    """One network at one precision, over seeds.
+
+    Attributes:
+        name: variant name.
+        precision: ``fp32``, ``bf16``, ``fp16``.
+        params: parameter count.
+        gflops: GFLOPs per frame.
+        cpu_ms: median over seeds of the median CPU ms per frame (None if unknown).
+        psnr: PSNR over seeds, dB.
+        ssim: SSIM over seeds.
+        converged: the convergence check held on every seed (None: not checkable).
+        tail_change_db: largest absolute PSNR change over the last 20 % of the budget.
+        pareto_psnr: on the spread-aware PSNR-vs-CPU-time front.
+        pareto_ssim: on the spread-aware SSIM-vs-CPU-time front.
+
+    """
+
+    name: str
+    precision: str
+    params: int
+    gflops: float
+    cpu_ms: float | None
+    psnr: SeedSummary
+    ssim: SeedSummary
+    converged: bool | None
+    tail_change_db: float | None
+    pareto_psnr: bool = False
+    pareto_ssim: bool = False
+
+
+def learning_curve(metrics_csv: Path, unit: str) -> list[tuple[float, float]]:
+    """``(steps or seconds, validation PSNR)`` points of a run's ``metrics.csv``."""
+    from lenspair.model.training.run_files import read_metrics_rows
+
+    if not metrics_csv.is_file():
+        return []
+    column = "step" if unit == "steps" else "seconds"
+    return [(float(row[column]), float(row["val_psnr"])) for row in read_metrics_rows(metrics_csv)]
+
+
+def _convergence(
+    out_dir: Path, seeds: Sequence[int], name: str, budget: Budget, spread: float
+) -> tuple[bool | None, float | None]:
+    unit = "steps" if budget.steps is not None else "seconds"
+    limit = float(budget.steps if budget.steps is not None else budget.seconds or 0.0)
+    checks = []
+    for seed in seeds:
+        curve = learning_curve(out_dir / f"seed{seed}" / "runs" / name / "metrics.csv", unit)
+        check = converged(curve, limit, spread)
+        if check is None:
+            return None, None
+        checks.append(check)
+    return all(held for held, _ in checks), max(abs(change) for _, change in checks)
+
+
+def aggregate(
+    results: Sequence[TradeoffResult], out_dir: Path, seeds: Sequence[int], budget: Budget
+) -> list[SeededRow]:
+    """Group the per-seed rows by (name, precision) and summarise them."""
+    keys: list[tuple[str, str]] = []
+    for row in results[0].rows:
+        keys.append((row.name, row.precision))
+    rows = []
+    for name, precision in keys:
+        same = [
+            r
+            for result in results
+            for r in result.rows
+            if (r.name, r.precision) == (name, precision)
+        ]
+        times = [r.cpu_ms for r in same if r.cpu_ms is not None]
+        psnr = summarise_seeds([r.psnr_db for r in same])
+        ok, change = _convergence(out_dir, seeds, name, budget, psnr.spread)
+        rows.append(
+            SeededRow(
+                name=name,
+                precision=precision,
+                params=same[0].params,
+                gflops=same[0].gflops,
+                cpu_ms=statistics.median(times) if times else None,
+                psnr=psnr,
+                ssim=summarise_seeds([r.ssim for r in same]),
+                converged=ok,
+                tail_change_db=change,
+            )
+        )
+    row_times: list[float | None] = [r.cpu_ms for r in rows]
+    on_psnr = set(robust_pareto(row_times, [r.psnr for r in rows]))
+    on_ssim = set(robust_pareto(row_times, [r.ssim for r in rows]))
+    return [
+        replace(row, pareto_psnr=i in on_psnr, pareto_ssim=i in on_ssim)
+        for i, row in enumerate(rows)
+    ]
+
+
+def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
+    """The table, its conditions, the convergence verdict and the published rows."""
+    tail = f"{CONVERGENCE_TAIL:.0%}"
+    lines = [
+        "# Accuracy against inference time, over seeds",
+        "",
+        f"- data: `{meta['dataset']}`, scored on {meta['evaluated_on']}",
+        f"- training budget per variant and seed: {meta['budget']}; seeds {meta['seeds']}",
+        f"- metric convention: {meta['convention']}; accuracy is mean +/- spread (sample "
+        "standard deviation over seeds)",
+        f"- CPU ms: median over seeds of the median per frame (batch 1, {meta['size']})",
+        f"- converged: over the last {tail} of the budget validation PSNR moved less than the "
+        "seed spread, on every seed (largest change in brackets)",
+        "- Pareto: `*` PSNR-vs-time, `+` SSIM-vs-time front; a row is dominated only by a "
+        "row as fast that is better by more than either spread",
+        "",
+        "| name | precision | params | GFLOPs | CPU ms | PSNR (dB) | SSIM | converged | Pareto |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    baseline = meta.get("input_baseline")
+    if baseline:
+        lines.append(
+            f"| input, no restoration | - | 0 | 0 | 0 | {baseline['psnr_db']:.2f} | "
+            f"{baseline['ssim']:.4f} | - | |"
+        )
+    for row in rows:
+        cpu = "n/a" if row.cpu_ms is None else f"{row.cpu_ms:.1f}"
+        if row.converged is None:
+            verdict = "not checkable"
+        else:
+            verdict = f"{'yes' if row.converged else 'no'} ({row.tail_change_db:+.2f} dB)"
+        marks = ("*" if row.pareto_psnr else "") + ("+" if row.pareto_ssim else "")
+        lines.append(
+            f"| {row.name} | {row.precision} | {row.params:,} | {row.gflops:.1f} | {cpu} | "
+            f"{row.psnr.format(2)} | {row.ssim.format(4)} | {verdict} | {marks} |"
+        )
+    if all(row.converged is True for row in rows):
+        verdict_text = (
+            "The convergence check holds for every network: the accuracy columns compare "
+            "converged networks."
+        )
+    else:
+        verdict_text = (
+            "The convergence check does NOT hold for every network: a longer budget would "
+            "change the accuracy columns; read them as what this budget buys."
+        )
+    lines += ["", verdict_text]
+    lines += ["", published_markdown((ABLATION, STATE_OF_THE_ART))]
+    return "\n".join(lines) + "\n"
+
+
+def run_seeded_tradeoff(
+    dataset: Path,
+    out_dir: Path,
+    device: torch.device,
+    budget: Budget,
+    base: RunConfig,
+    seeds: Sequence[int],
+    variants: Sequence[TradeoffVariant] = DEFAULT_VARIANTS,
+    convention: str = "skimage-gaussian",
+    split: str = "test",
+    latency_runs: int = 20,
+) -> tuple[list[SeededRow], dict[str, Any]]:
+    """Run the tradeoff once per seed and write ``tradeoff_seeds.md``/``.json``.
+
+    Returns:
+        The seeded rows and the measurement conditions.
+
+    """
+    out_dir = Path(out_dir)
+    results = []
+    for seed in seeds:
+        config = replace(base, train=replace(base.train, seed=seed))
+        results.append(
+            run_tradeoff(
+                dataset, out_dir / f"seed{seed}", device, budget, config, variants,
+                convention=convention, split=split, latency_runs=latency_runs,
+            )
+        )  # fmt: skip
+    rows = aggregate(results, out_dir, seeds, budget)
+    meta = dict(results[0].meta)
+    meta["seeds"] = list(seeds)
+    baselines = [r.meta.get("input_baseline") for r in results]
+    meta["input_baseline"] = baselines[0]
+    atomic_write_text(out_dir / "tradeoff_seeds.md", seeded_markdown(rows, meta))
+    atomic_write_json(
+        out_dir / "tradeoff_seeds.json",
+        {
+            "meta": meta,
+            "rows": [
+                {
+                    "name": r.name,
+                    "precision": r.precision,
+                    "params": r.params,
+                    "gflops": r.gflops,
+                    "cpu_ms": r.cpu_ms,
+                    "psnr_db": list(r.psnr.values),
+                    "ssim": list(r.ssim.values),
+                    "converged": r.converged,
+                    "tail_change_db": r.tail_change_db,
+                    "pareto_psnr": r.pareto_psnr,
+                    "pareto_ssim": r.pareto_ssim,
+                }
+                for r in rows
+            ],
+        },
+    )
+    return rows, meta

@@ -1,0 +1,261 @@
+"""How real do synthetic drops look: the statistics of issue 12's table.
+
+For a pair (obstructed, clean), both converted to grey in ``[0, 1]`` (the
+encoded values, as stored; RGB is reduced with the ITU-R 601 luma weights
+of ``cv2.cvtColor``) and ``d = obstructed - clean``:
+
+* ``coverage``: share of pixels where ``|GaussianBlur(d, sigma 2)| > 0.05``:
+  how much of the frame the glass visibly changes.
+* ``high_frequency``: ``sum((d - GaussianBlur(d, sigma 4))^2) / sum(d^2)``:
+  how sharp the change is (0 for a change that is smooth at that scale, 1
+  for pixel noise); 0 when ``d`` is zero everywhere.
+* ``mean_difference``: mean of ``d`` (positive: the glass brightens).
+* ``contrast_ratio``: ``std(obstructed) / std(clean)`` (below 1: a veil).
+* ``input_psnr``: PSNR of the obstructed image against the clean one, dB
+  (scikit-image, data range 1; ``inf`` for identical images).
+
+Gaussian blurs are OpenCV's with reflected borders and a kernel of
+``2 * ceil(3 sigma) + 1`` taps. :data:`REAL_RANGES` holds the ranges measured
+on four real Raindrop-like pairs (a camera behind wet glass, focused far),
+from the issue.
+"""
+
+import math
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, fields
+
+import cv2
+import numpy as np
+from skimage.metrics import peak_signal_noise_ratio
+
+from lenspair.core.imageio import check_image, to_float
+from lenspair.simulate.effects.spec import EffectsSpec
+from lenspair.simulate.errors import SimulateError
+from lenspair.simulate.render import render_effects
+
+COVERAGE_SIGMA = 2.0
+COVERAGE_THRESHOLD = 0.05
+HIGH_FREQUENCY_SIGMA = 4.0
+
+
+@dataclass(frozen=True)
+class RealismStatistics:
+    """The table's statistics for one pair (see the module docstring).
+
+    Attributes:
+        coverage: share of visibly changed pixels, ``[0, 1]``.
+        high_frequency: high-frequency share of the difference energy, ``[0, 1]``.
+        mean_difference: mean of ``obstructed - clean``, grey ``[-1, 1]``.
+        contrast_ratio: ``std(obstructed) / std(clean)``, >= 0.
+        input_psnr: dB, ``inf`` for identical images.
+
+    """
+
+    coverage: float
+    high_frequency: float
+    mean_difference: float
+    contrast_ratio: float
+    input_psnr: float
+
+
+STATISTIC_NAMES: tuple[str, ...] = tuple(f.name for f in fields(RealismStatistics))
+
+STATISTIC_LABELS: dict[str, str] = {
+    "coverage": "coverage: share where abs(GaussianBlur(d, 2)) > 0.05",
+    "high_frequency": "high-frequency share of d (sigma 4)",
+    "mean_difference": "mean of d (positive = brighter)",
+    "contrast_ratio": "contrast ratio std(obstructed) / std(clean)",
+    "input_psnr": "input PSNR (dB)",
+}
+
+REAL_RANGES: dict[str, tuple[float, float]] = {
+    "coverage": (0.25, 0.58),
+    "high_frequency": (0.11, 0.30),
+    "mean_difference": (0.02, 0.09),
+    "contrast_ratio": (0.68, 0.90),
+    "input_psnr": (15.0, 20.8),
+}
+"""Real adherent drops, 4 Raindrop-like pairs (issue 12's table), min and max."""
+
+
+def to_grey(image: np.ndarray) -> np.ndarray:
+    """``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB -> ``float32`` ``(H, W)`` grey."""
+    check_image(image)
+    values = to_float(image)
+    if values.ndim == 3:
+        values = cv2.cvtColor(values, cv2.COLOR_RGB2GRAY)
+    grey: np.ndarray = np.asarray(values, np.float32)
+    return grey
+
+
+def _blur(values: np.ndarray, sigma: float) -> np.ndarray:
+    size = 2 * math.ceil(3 * sigma) + 1
+    blurred: np.ndarray = cv2.GaussianBlur(
+        values, (size, size), sigma, borderType=cv2.BORDER_REFLECT_101
+    )
+    return blurred
+
+
+def realism_statistics(obstructed: np.ndarray, clean: np.ndarray) -> RealismStatistics:
+    """The table's statistics for one (obstructed, clean) pair.
+
+    Args:
+        obstructed: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)``.
+        clean: same shape and dtype.
+
+    Returns:
+        The statistics, all finite except ``input_psnr`` (``inf`` when the
+        images are identical).
+
+    Raises:
+        SimulateError: shapes or dtypes differ, or the clean image is flat
+            (its contrast ratio is undefined).
+
+    """
+    if obstructed.shape != clean.shape or obstructed.dtype != clean.dtype:
+        raise SimulateError(
+            f"pair: obstructed {obstructed.shape} {obstructed.dtype} and clean "
+            f"{clean.shape} {clean.dtype} differ"
+        )
+    try:
+        grey_obstructed, grey_clean = to_grey(obstructed), to_grey(clean)
+    except ValueError as exc:
+        raise SimulateError(str(exc)) from None
+    clean_std = float(grey_clean.std(dtype=np.float64))
+    if clean_std == 0.0:
+        raise SimulateError("clean image is flat: its contrast ratio is undefined")
+    difference = grey_obstructed - grey_clean
+    energy = float(np.square(difference, dtype=np.float64).sum())
+    detail = difference - _blur(difference, HIGH_FREQUENCY_SIGMA)
+    high = float(np.square(detail, dtype=np.float64).sum()) / energy if energy > 0 else 0.0
+    visible = np.abs(_blur(difference, COVERAGE_SIGMA)) > COVERAGE_THRESHOLD
+    psnr = (
+        math.inf
+        if energy == 0
+        else float(peak_signal_noise_ratio(grey_clean, grey_obstructed, data_range=1.0))
+    )
+    return RealismStatistics(
+        coverage=float(visible.mean()),
+        high_frequency=min(high, 1.0),
+        mean_difference=float(difference.mean(dtype=np.float64)),
+        contrast_ratio=float(grey_obstructed.std(dtype=np.float64)) / clean_std,
+        input_psnr=psnr,
+    )
+
+
+@dataclass(frozen=True)
+class StatisticRange:
+    """Range of one statistic over a set of pairs, beside the real range.
+
+    Attributes:
+        name: statistic name (a :class:`RealismStatistics` field).
+        low: smallest value over the pairs.
+        high: largest value.
+        median: median value.
+        real: the real range from :data:`REAL_RANGES`.
+
+    """
+
+    name: str
+    low: float
+    high: float
+    median: float
+    real: tuple[float, float]
+
+    @property
+    def overlaps(self) -> bool:
+        """Whether ``[low, high]`` and the real range intersect."""
+        return self.low <= self.real[1] and self.high >= self.real[0]
+
+
+def summarise(rows: Iterable[RealismStatistics]) -> list[StatisticRange]:
+    """Min, max and median of every statistic over ``rows`` (at least one)."""
+    table = list(rows)
+    if not table:
+        raise SimulateError("no pairs to summarise")
+    ranges = []
+    for name in STATISTIC_NAMES:
+        values = np.array([getattr(row, name) for row in table], np.float64)
+        ranges.append(
+            StatisticRange(
+                name=name,
+                low=float(values.min()),
+                high=float(values.max()),
+                median=float(np.median(values)),
+                real=REAL_RANGES[name],
+            )
+        )
+    return ranges
+
+
+def _number(name: str, value: float) -> str:
+    if name == "input_psnr":
+        return f"{value:.1f}"
+    if name == "mean_difference":
+        return f"{value:+.3f}"
+    return f"{value:.2f}"
+
+
+def format_ranges(columns: Sequence[tuple[str, Sequence[StatisticRange]]]) -> str:
+    """A Markdown table: the real range, then ``low - high`` of each column.
+
+    Args:
+        columns: ``(label, summarise(...))`` per set of pairs (a preset, a folder).
+
+    Returns:
+        The table; a cell is marked ``*`` when it misses the real range.
+
+    """
+    header = "| statistic | real adherent drops (4 pairs) | " + " | ".join(
+        label for label, _ in columns
+    )
+    lines = [header + " |", "|---|---|" + "---|" * len(columns)]
+    for index, name in enumerate(STATISTIC_NAMES):
+        low, high = REAL_RANGES[name]
+        cells = [STATISTIC_LABELS[name], f"{_number(name, low)} - {_number(name, high)}"]
+        for _, ranges in columns:
+            entry = ranges[index]
+            mark = "" if entry.overlaps else " *"
+            cells.append(f"{_number(name, entry.low)} - {_number(name, entry.high)}{mark}")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class PairStatistics:
+    """The statistics of one named pair, or why it has none.
+
+    Attributes:
+        name: the pair's name.
+        statistics: the statistics, or None when the pair was skipped.
+        problem: why the pair was skipped (one line), else None.
+
+    """
+
+    name: str
+    statistics: RealismStatistics | None
+    problem: str | None = None
+
+
+def measure_pairs(pairs: Iterable[tuple[str, np.ndarray, np.ndarray]]) -> list[PairStatistics]:
+    """Statistics of ``(name, obstructed, clean)`` pairs; a bad pair is recorded, not fatal."""
+    results = []
+    for name, obstructed, clean in pairs:
+        try:
+            results.append(PairStatistics(name, realism_statistics(obstructed, clean)))
+        except SimulateError as exc:
+            results.append(PairStatistics(name, None, str(exc)))
+    return results
+
+
+def rendered_pairs(
+    images: dict[str, np.ndarray], effects: EffectsSpec, seed: int
+) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
+    """``(name, obstructed, clean)`` with ``effects`` rendered over each clean image.
+
+    Image ``i`` (in the dict's order) gets the glass of ``default_rng((seed, i))``,
+    so a preset's pairs do not depend on which other presets are measured.
+    """
+    for index, (name, clean) in enumerate(images.items()):
+        obstructed, _ = render_effects(clean, effects, np.random.default_rng((seed, index)))
+        yield name, obstructed, clean

@@ -1,0 +1,70 @@
+"""Shipped pretrained weights: compact copies, --init pretrained, and the natural images."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lenspair.cli import main
+from lenspair.core.imageio import read_image
+from lenspair.model.checkpoint import load_checkpoint, load_model
+from lenspair.model.errors import ModelError
+from lenspair.model.training.pretrained import (
+    PRETRAINED,
+    WEIGHTS_FILES,
+    pretrained_weights,
+    resolve_init,
+    ship_weights,
+    write_natural_images,
+)
+from lenspair.simulate.natural_images import HELD_OUT
+from tests.model.train_fixtures import make_checkpoint, write_split_dataset
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+def test_shipped_copy_is_float16_and_loads_into_the_same_network(tmp_path: Path) -> None:
+    source = make_checkpoint(tmp_path / "best.pt")
+    shipped = tmp_path / "shipped.pt"
+    size = ship_weights(source, shipped)
+    assert size == shipped.stat().st_size and size < source.stat().st_size
+    data = load_checkpoint(shipped)
+    assert set(data) >= {"format", "version", "config", "model"}
+    assert "optimizer_g" not in data and "discriminator" not in data
+    assert all(v.dtype == torch.float16 for v in data["model"].values() if v.is_floating_point())
+    original, compact = load_model(source), load_model(shipped)
+    x = torch.rand(1, 1, 32, 48, generator=torch.Generator().manual_seed(0))
+    with torch.inference_mode():
+        difference = (original.network(x)[1] - compact.network(x)[1]).abs().max()
+    assert float(difference) < 5e-3  # float16 rounding of the weights only
+
+
+@pytest.mark.parametrize("channels", sorted(WEIGHTS_FILES))
+def test_shipped_weights_exist_and_resolve(channels: int) -> None:
+    path = pretrained_weights(channels)
+    assert path.is_file() and path.stat().st_size < 4_000_000  # a few MB at most
+    assert resolve_init(Path(PRETRAINED), channels) == path
+    assert resolve_init(Path("runs/x.pt"), channels) == Path("runs/x.pt")
+    assert resolve_init(None, channels) is None
+    loaded = load_model(path)
+    assert loaded.config.model.variant == "GEA" and loaded.config.model.channels == channels
+    with pytest.raises(ModelError, match="no shipped weights"):
+        pretrained_weights(2)
+
+
+def test_natural_images_are_written_with_held_out_ones_apart(tmp_path: Path) -> None:
+    train, validation = write_natural_images(tmp_path, 1)
+    assert sorted(p.stem for p in validation) == sorted(HELD_OUT)
+    assert not any(p.stem.split("_zoom")[0].split("_whole")[0] in HELD_OUT for p in train)
+    image = read_image(train[0])
+    assert image.shape == (480, 720) and image.dtype == np.uint8
+
+
+def test_cli_fine_tunes_from_the_shipped_weights(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    run = tmp_path / "run"
+    args = ["train", str(dataset), "--out", str(run), "--init", "pretrained", "--max-steps", "1"]
+    assert main([*args, "--crop-size", "32", "--batch-size", "2", "--no-amp"]) == 0
+    config = (run / "config.yaml").read_text()
+    assert WEIGHTS_FILES[1] in config  # the runtime section names the weights it started from

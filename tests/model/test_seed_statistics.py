@@ -1,0 +1,71 @@
+"""Seed statistics: spread, claims beyond it, convergence, spread-aware Pareto; paper rows."""
+
+import math
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from lenspair.model.evaluation.published import PUBLISHED, published_markdown
+from lenspair.model.evaluation.seed_statistics import (
+    clearly_better,
+    converged,
+    robust_pareto,
+    summarise_seeds,
+)
+
+
+def test_mean_and_sample_spread() -> None:
+    summary = summarise_seeds([1.0, 2.0, 3.0, math.nan])
+    assert summary.values == (1.0, 2.0, 3.0) and summary.mean == 2.0
+    assert summary.spread == pytest.approx(1.0)
+    assert summary.format(1) == "2.0 +/- 1.0"
+    single = summarise_seeds([5.0])
+    assert single.spread == 0.0 and single.format(1) == "5.0"
+    with pytest.raises(ValueError):
+        summarise_seeds([math.nan])
+
+
+@given(
+    values=st.lists(st.floats(-50, 50), min_size=2, max_size=6),
+    shift=st.floats(0, 20),
+)
+def test_a_shift_is_claimed_only_beyond_the_spread(values: list[float], shift: float) -> None:
+    base = summarise_seeds(values)
+    moved = summarise_seeds([v + shift for v in values])
+    assert moved.spread == pytest.approx(base.spread, abs=1e-6)
+    assert clearly_better(moved, base) == (moved.mean - base.mean > max(moved.spread, base.spread))
+    assert not clearly_better(base, moved)
+    assert not clearly_better(summarise_seeds([values[0] + 100]), summarise_seeds([values[0]]))
+
+
+def test_convergence_compares_the_last_fifth_with_the_spread() -> None:
+    flat = [(10, 20.0), (50, 24.0), (80, 24.9), (100, 25.0)]
+    assert converged(flat, 100, spread=0.2) == (True, pytest.approx(0.1))
+    rising = [(10, 20.0), (80, 23.0), (100, 25.0)]
+    assert converged(rising, 100, spread=0.2) == (False, pytest.approx(2.0))
+    assert converged([(90, 25.0), (100, 25.1)], 100, spread=1.0) is None  # no point at 80 %
+    assert converged([(10, 20.0)], 100, spread=1.0) is None  # nothing after it
+
+
+def test_pareto_ignores_differences_within_the_spread() -> None:
+    fast = summarise_seeds([25.0, 25.4, 24.6])  # spread 0.4
+    slow_slightly_better = summarise_seeds([25.2, 25.5, 24.9])  # within the spread
+    slow_much_worse = summarise_seeds([22.0, 22.1, 21.9])
+    times = [10.0, 20.0, 30.0, None]
+    front = robust_pareto(times, [fast, slow_slightly_better, slow_much_worse, fast])
+    assert front == [0, 1]
+    faster_and_clearly_better = summarise_seeds([28.0, 28.1, 27.9])
+    assert robust_pareto([5.0, 10.0], [faster_and_clearly_better, fast]) == [0]
+
+
+def test_published_rows_are_the_papers() -> None:
+    by_name = {row.name: row for row in PUBLISHED}
+    assert (by_name["G+E+A"].ssim, by_name["G+E+A"].psnr_db) == (0.909, 29.84)
+    assert (by_name["the paper's synthetic"].psnr_db, by_name["random init"].psnr_db) == (
+        24.77,
+        22.36,
+    )
+    assert by_name["the paper (GEA)"].cpu_s == 0.542
+    table = published_markdown()
+    assert table.count("\n| ") == len(PUBLISHED) + 1 and "published" in table

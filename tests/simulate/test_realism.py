@@ -1,0 +1,188 @@
+"""Realism statistics: each pinned on constructed pairs whose answer is known."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lenspair.cli import main
+from lenspair.core.imageio import write_image
+from lenspair.simulate.effects.spec import SHARP_DROPS
+from lenspair.simulate.errors import SimulateError
+from lenspair.simulate.natural_images import NATURAL_IMAGES, load_natural_images
+from lenspair.simulate.realism import (
+    REAL_RANGES,
+    STATISTIC_NAMES,
+    RealismStatistics,
+    format_ranges,
+    measure_pairs,
+    realism_statistics,
+    rendered_pairs,
+    summarise,
+)
+
+TOP = 65535
+
+
+def _clean(shape: tuple[int, int] = (96, 128), seed: int = 0) -> np.ndarray:
+    """A textured uint16 image in the middle of the range (no clipping when offset)."""
+    rng = np.random.default_rng(seed)
+    values = rng.uniform(0.3, 0.6, shape)
+    return np.round(values * TOP).astype(np.uint16)
+
+
+def test_identical_images_change_nothing() -> None:
+    clean = _clean()
+    stats = realism_statistics(clean, clean)
+    assert stats == RealismStatistics(0.0, 0.0, 0.0, 1.0, math.inf)
+
+
+@pytest.mark.parametrize("offset_code", [1000, 6554, 13107])
+def test_a_uniform_brightening_is_all_low_frequency(offset_code: int) -> None:
+    clean = _clean()
+    obstructed = clean + np.uint16(offset_code)
+    offset = offset_code / TOP
+    stats = realism_statistics(obstructed, clean)
+    assert stats.mean_difference == pytest.approx(offset, abs=1e-6)
+    assert stats.coverage == (1.0 if offset > 0.05 else 0.0)
+    assert stats.high_frequency == pytest.approx(0.0, abs=1e-6)
+    assert stats.contrast_ratio == pytest.approx(1.0, abs=1e-6)
+    assert stats.input_psnr == pytest.approx(20 * math.log10(1 / offset), abs=1e-3)
+
+
+def test_pixel_checkerboard_difference_is_all_high_frequency_and_invisible() -> None:
+    clean = _clean()
+    rows, cols = np.indices(clean.shape)
+    sign = np.where((rows + cols) % 2 == 0, 1, -1)
+    obstructed = (clean.astype(np.int64) + sign * 6554).astype(np.uint16)
+    stats = realism_statistics(obstructed, clean)
+    assert stats.high_frequency == pytest.approx(1.0, abs=1e-3)
+    assert stats.coverage == 0.0  # blurred at sigma 2 it averages out
+    assert stats.mean_difference == pytest.approx(0.0, abs=1e-6)
+
+
+def test_half_frame_step_covers_half_plus_the_blur_margin() -> None:
+    height, width, step = 64, 200, 0.2
+    clean = _clean((height, width))
+    obstructed = clean.copy()
+    obstructed[:, : width // 2] += np.uint16(round(step * TOP))
+    # The blurred step at distance x (pixels) past the edge is step * Phi(-x / sigma):
+    # the first column beyond the edge (x = 0.5) is above 0.05, the second (1.5) is not.
+    phi = [0.5 * (1 + math.erf(-(x / 2.0) / math.sqrt(2))) for x in (0.5, 1.5)]
+    assert step * phi[0] > 0.05 > step * phi[1]
+    stats = realism_statistics(obstructed, clean)
+    assert stats.coverage == pytest.approx((width // 2 + 1) / width)
+    assert stats.mean_difference == pytest.approx(step / 2, abs=1e-4)
+
+
+@given(gain=st.floats(0.2, 1.0))
+@settings(max_examples=20, deadline=None)
+def test_contrast_ratio_of_a_scaled_image_is_the_scale(gain: float) -> None:
+    clean = _clean()
+    values = clean / TOP
+    obstructed = np.round((0.45 + gain * (values - 0.45)) * TOP).astype(np.uint16)
+    stats = realism_statistics(obstructed, clean)
+    assert stats.contrast_ratio == pytest.approx(gain, abs=2e-4)
+
+
+def test_smooth_difference_has_little_high_frequency() -> None:
+    clean = _clean((120, 160))
+    rows, cols = np.indices(clean.shape)
+    bump = 0.1 * np.exp(-((rows - 60) ** 2 + (cols - 80) ** 2) / (2 * 30.0**2))
+    obstructed = np.round(clean + bump * TOP).astype(np.uint16)
+    stats = realism_statistics(obstructed, clean)
+    assert stats.high_frequency < 0.01
+    mse = float(np.mean((obstructed / TOP - clean / TOP) ** 2))
+    assert stats.input_psnr == pytest.approx(10 * math.log10(1 / mse), abs=1e-3)
+
+
+def test_rgb_is_measured_on_its_luma() -> None:
+    clean_grey = _clean()
+    obstructed_grey = clean_grey + np.uint16(3000)
+    rgb = (np.repeat(clean_grey[..., None], 3, 2), np.repeat(obstructed_grey[..., None], 3, 2))
+    grey_stats = realism_statistics(obstructed_grey, clean_grey)
+    rgb_stats = realism_statistics(rgb[1], rgb[0])
+    for name in STATISTIC_NAMES:
+        assert getattr(rgb_stats, name) == pytest.approx(getattr(grey_stats, name), abs=1e-4)
+
+
+def test_bad_pairs_raise_and_are_recorded_not_fatal() -> None:
+    clean = _clean()
+    with pytest.raises(SimulateError, match="differ"):
+        realism_statistics(clean[:10], clean)
+    flat = np.full((8, 8), 100, np.uint8)
+    with pytest.raises(SimulateError, match="flat"):
+        realism_statistics(flat, flat)
+    results = measure_pairs([("flat", flat, flat), ("good", clean, clean)])
+    assert results[0].statistics is None and "flat" in str(results[0].problem)
+    assert results[1].statistics is not None and results[1].problem is None
+
+
+def test_summary_ranges_and_overlap_marks() -> None:
+    inside = RealismStatistics(0.3, 0.2, 0.05, 0.8, 18.0)
+    outside = RealismStatistics(0.01, 0.9, -0.2, 1.5, 40.0)
+    ranges = summarise([inside, outside])
+    coverage = ranges[STATISTIC_NAMES.index("coverage")]
+    assert (coverage.low, coverage.high) == (0.01, 0.3)
+    assert coverage.real == REAL_RANGES["coverage"]
+    assert all(entry.overlaps for entry in ranges)
+    missing = summarise([outside])
+    assert not any(entry.overlaps for entry in missing)
+    table = format_ranges([("in", summarise([inside])), ("out", missing)])
+    assert table.count(" *") == len(STATISTIC_NAMES)
+    with pytest.raises(SimulateError):
+        summarise([])
+
+
+def test_sharp_drops_miss_the_real_ranges_our_drops_meet() -> None:
+    """The issue's claim on bundled photographs at Raindrop's size, 720x480."""
+    from lenspair.model.training.synthetic import OUR_DROPS
+
+    images = load_natural_images((480, 720), 3, ("astronaut", "coffee", "rocket"))
+    ours = summarise(
+        [r.statistics for r in measure_pairs(rendered_pairs(images, OUR_DROPS, 0)) if r.statistics]
+    )
+    sharp = summarise(
+        [
+            r.statistics
+            for r in measure_pairs(rendered_pairs(images, SHARP_DROPS, 0))
+            if r.statistics
+        ]
+    )
+    by_name = {entry.name: entry for entry in ours}
+    sharp_by_name = {entry.name: entry for entry in sharp}
+    # Real drops brighten and veil the frame; Porav's sharp drops do neither.
+    assert by_name["mean_difference"].median > 0.0 > sharp_by_name["mean_difference"].median
+    assert by_name["contrast_ratio"].high < 1.0 <= sharp_by_name["contrast_ratio"].high
+    assert by_name["coverage"].median > 3 * sharp_by_name["coverage"].median
+
+
+def test_natural_images_load_offline_at_any_size() -> None:
+    images = load_natural_images((48, 72), 1)
+    assert list(images) == list(NATURAL_IMAGES)
+    assert all(image.shape == (48, 72) and image.dtype == np.uint8 for image in images.values())
+    with pytest.raises(SimulateError, match="unknown natural image"):
+        load_natural_images(names=("nope",))
+
+
+def test_cli_measures_a_paired_folder_and_renders_presets(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = tmp_path / "pairs"
+    clean = _clean((48, 64)).astype(np.uint16)
+    for index in range(3):
+        write_image(folder / "input" / f"{index}.png", clean + np.uint16(2000 * (index + 1)))
+        write_image(folder / "target" / f"{index}.png", clean)
+    out = tmp_path / "realism.json"
+    code = main(
+        ["realism", str(folder), "--render", "sharp", "--size", "96x64", "--json", str(out)]
+    )
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "pairs (3)" in printed and "sharp (11)" in printed
+    assert out.is_file() and '"mean_difference"' in out.read_text()
+    assert main(["realism", "--render", "sharp", "--size", "big"]) == 2
+    assert "--size" in capsys.readouterr().err
