@@ -85,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     """Ingest one recording; returns the exit code."""
     side_detector = None
     if args.detector is not None:
+        # here, not at the top: only --detector needs torch, which ingest does not load otherwise
         from lenspair.model.detection.judge import obstructed_probability
         from lenspair.model.detection.train import load_detector
 

@@ -100,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--seeds: expected distinct integers, got {args.seeds!r}")
     device = resolve_device(args.device)
     if len(seeds) > 1:
+        # here, not at the top: keeps `--help` from importing torch
         from lenspair.model.evaluation.tradeoff_seeds import run_seeded_tradeoff, seeded_markdown
 
         rows, meta = run_seeded_tradeoff(

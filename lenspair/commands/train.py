@@ -181,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
     config = resolve_config(config, data.channels)
     init = args.init
     if init is not None and str(init) == "pretrained":
+        # here, not at the top: keeps `--help` from importing torch
         from lenspair.model.training.pretrained import resolve_init
 
         assert config.model.channels is not None

@@ -47,6 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Train a detector; returns the exit code."""
+    # here, not at the top: keeps `--help` from importing torch
     from lenspair.model.detection.run import DetectorSources, run_training
     from lenspair.model.detection.score import scores_markdown
     from lenspair.model.detection.train import DetectorTraining

@@ -57,6 +57,7 @@ from lenspair.simulate.effects.spec import (
     RaindropsSpec,
 )
 from lenspair.simulate.render import render_effects
+from lenspair.simulate.textures import NAMES
 
 UNKNOWN_KIND = -1
 """Kind index of a positive whose anomaly label is not one of :data:`KINDS`."""
@@ -306,8 +307,6 @@ def synthetic_samples(
 
 def texture_images(names: Sequence[str] | None = None) -> list[np.ndarray]:
     """The simulator's built-in scikit-image textures as ``uint8`` images (clean scenes)."""
-    from lenspair.simulate.textures import NAMES
-
     chosen = list(names) if names is not None else sorted(NAMES)
     images = []
     for name in chosen:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
-from lenspair.core.imageio import from_float
+from lenspair.core.imageio import from_float, read_image
 from lenspair.model.detection.data import (
     DetectorSample,
     dataset_samples,
@@ -66,8 +66,6 @@ class DetectorSources:
 def _clean_images(folder: Path | None) -> list[np.ndarray]:
     if folder is None:
         return texture_images()
-    from lenspair.core.imageio import read_image
-
     return [read_image(path) for path in find_clean_images(folder)[:200]]
 
 

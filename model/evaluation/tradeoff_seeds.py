@@ -38,6 +38,7 @@ from lenspair.model.evaluation.tradeoff import (
     run_tradeoff,
 )
 from lenspair.model.training.config import RunConfig
+from lenspair.model.training.run_files import read_metrics_rows
 
 
 @dataclass(frozen=True)
@@ -74,8 +75,6 @@ class SeededRow:
 
 def learning_curve(metrics_csv: Path, unit: str) -> list[tuple[float, float]]:
     """``(steps or seconds, validation PSNR)`` points of a run's ``metrics.csv``."""
-    from lenspair.model.training.run_files import read_metrics_rows
-
     if not metrics_csv.is_file():
         return []
     column = "step" if unit == "steps" else "seconds"
