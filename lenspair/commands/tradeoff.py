@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--split", default="test", help="evaluation split (test)")
     parser.add_argument("--latency-runs", type=int, default=20, help="timed runs per figure")
+    parser.add_argument(
+        "--no-int8", action="store_true", help="skip the int8 row (quantising takes a minute)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -89,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         convention=args.convention,
         split=args.split,
         latency_runs=args.latency_runs,
+        int8=not args.no_int8,
     )
     print(tradeoff_markdown(result.rows, result.meta))
     print(f"wrote {args.out / 'tradeoff.md'}, tradeoff.csv, tradeoff.json, tradeoff.png")
