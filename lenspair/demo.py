@@ -70,6 +70,7 @@ class Budget:
         tradeoff_steps: training steps per variant in the tradeoff.
         crop_size: training crop side, pixels.
         batch_size: training batch.
+        int8: the tradeoff's int8 row where the CPU has VNNI (about a minute).
     """
 
     frames: int = 60
@@ -78,9 +79,12 @@ class Budget:
     tradeoff_steps: int = 40
     crop_size: int = 128
     batch_size: int = 4
+    int8: bool = True
 
 
-QUICK = Budget(frames=12, pretrain_steps=4, finetune_steps=4, tradeoff_steps=2, crop_size=32)
+QUICK = Budget(
+    frames=12, pretrain_steps=4, finetune_steps=4, tradeoff_steps=2, crop_size=32, int8=False
+)
 """A tiny budget for the end-to-end test: every stage runs, nothing is learnt."""
 
 
@@ -233,6 +237,7 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
                 str(budget.batch_size),
                 "--seeds",
                 "0",  # one seed fits the demo's time; `make tradeoff-seeds` repeats over seeds
+                *(() if budget.int8 else ("--no-int8",)),
             ),
             out / "tradeoff",
         ),

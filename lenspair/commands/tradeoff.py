@@ -57,6 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--split", default="test", help="evaluation split (test)")
     parser.add_argument("--latency-runs", type=int, default=20, help="timed runs per figure")
     parser.add_argument("--seeds", default="0,1,2", help="comma-separated training seeds (0,1,2)")
+    parser.add_argument(
+        "--no-int8", action="store_true", help="skip the int8 row (quantising takes a minute)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -106,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         rows, meta = run_seeded_tradeoff(
             args.dataset, args.out, device, budget, base, seeds, variants,
             convention=args.convention, split=args.split, latency_runs=args.latency_runs,
+            int8=not args.no_int8,
         )  # fmt: skip
         print(seeded_markdown(rows, meta))
         print(f"wrote {args.out / 'tradeoff_seeds.md'} and tradeoff_seeds.json")
@@ -121,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         convention=args.convention,
         split=args.split,
         latency_runs=args.latency_runs,
+        int8=not args.no_int8,
     )
     print(tradeoff_markdown(result.rows, result.meta))
     print(f"wrote {args.out / 'tradeoff.md'}, tradeoff.csv, tradeoff.json, tradeoff.png")

@@ -164,6 +164,7 @@ def run_tradeoff(
     convention: str = "skimage-gaussian",
     split: str = "test",
     latency_runs: int = 20,
+    int8: bool = True,
 ) -> TradeoffResult:
     """Train, score and time every variant; write the table and the plot.
 
@@ -180,6 +181,7 @@ def run_tradeoff(
             validation pairs held out of its training, never on pairs it
             trained on.
         latency_runs: timed runs per latency figure.
+        int8: add the int8 row where the CPU has VNNI (quantising takes a while).
 
     Returns:
         The rows (Pareto flags set) and the measurement conditions.
@@ -236,7 +238,9 @@ def run_tradeoff(
         loaded = load_model(run / "checkpoints" / "best.pt", device)
         params, gflops = complexity(loaded.network, data.channels, (size[0], size[1]))
         for precision in precisions_for(variant.variant, device):
-            if precision == "int8" and (variant.width, variant.num_blocks) != (1.0, 9):
+            if precision == "int8" and (
+                not int8 or (variant.width, variant.num_blocks) != (1.0, 9)
+            ):
                 continue  # int8 for the paper's GEA only: each quantisation costs ~1 min
             network = _at_precision(loaded.network, precision, pairs, dataset, base, data.channels)
             scores, _ = score_pairs(

@@ -198,8 +198,12 @@ def run_seeded_tradeoff(
     convention: str = "skimage-gaussian",
     split: str = "test",
     latency_runs: int = 20,
+    int8: bool = True,
 ) -> tuple[list[SeededRow], dict[str, Any]]:
     """Run the tradeoff once per seed and write ``tradeoff_seeds.md``/``.json``.
+
+    The arguments are :func:`lenspair.model.evaluation.tradeoff.run_tradeoff`'s,
+    plus ``seeds``: each seed trains every variant once (``out_dir/seed<k>/``).
 
     Returns:
         The seeded rows and the measurement conditions.
@@ -212,7 +216,7 @@ def run_seeded_tradeoff(
         results.append(
             run_tradeoff(
                 dataset, out_dir / f"seed{seed}", device, budget, config, variants,
-                convention=convention, split=split, latency_runs=latency_runs,
+                convention=convention, split=split, latency_runs=latency_runs, int8=int8,
             )
         )  # fmt: skip
     rows = aggregate(results, out_dir, seeds, budget)
