@@ -23,8 +23,15 @@ Inputs (:func:`detect_input`):
   (``mav0/cam1/data/<t_ns>.png``).
 * ``rosbag1`` / ``rosbag2``: a ``.bag`` file, a ROS 2 bag folder or a bare
   ``.db3``/``.mcap`` file, read once from start to end (no seeking); the
-  chosen cameras' image topics are decoded. :func:`iter_bag_messages` gives
-  every message (for copying a bag), :func:`iter_frames` only the images.
+  chosen cameras' image topics are decoded (picked as in
+  :func:`bag_camera_topics`, or passed as ``topics=(cam0, cam1)``).
+  :func:`iter_bag_messages` gives every message (for copying a bag),
+  :func:`iter_frames` only the images.
+
+Anything else (another kind of file, a folder without images) is a one-line
+:class:`~lenspair.capture.errors.CaptureError`. Frames are decoded one at a
+time: a caller that needs the count up front (a progress bar) takes it from
+:func:`frame_files` (files) rather than holding the frames.
 
 A frame that cannot be read (corrupt file, undecodable message) is yielded
 with ``image=None`` and ``error`` set, so the caller records it and goes on.
@@ -132,33 +139,39 @@ def image_files(folder: Path) -> list[Path]:
     return sorted(found)
 
 
-def bag_camera_topics(path: Path) -> dict[str, CameraName]:
+def bag_camera_topics(path: Path, topics: tuple[str, str] | None = None) -> dict[str, CameraName]:
     """Image topics of a bag and the camera each stands for.
 
-    A single image topic is the camera (called ``cam0``). With two or more,
+    ``topics=(cam0, cam1)`` names them. Otherwise a single image topic is the
+    camera (called ``cam0``); with two or more,
     :func:`lenspair.capture.rosbag.select_topics` picks ``(cam0, cam1)``
     among the topics that do not extend another one (``<topic>/restored``
     topics written by ``restore --suffix`` are not cameras).
 
     Raises:
-        CaptureError: no image topic, or an ambiguous choice (lists topics).
+        CaptureError: no image topic, a named topic that is not an image
+            topic, or an ambiguous choice (lists topics).
     """
     reader = rosbag._open(Path(path))
     try:
-        topics = sorted(
+        image_topics = sorted(
             name for name, info in reader.topics.items() if info.msgtype in rosbag.IMAGE_TYPES
         )
     finally:
         reader.close()
-    if not topics:
+    if topics is not None:
+        rosbag._check_chosen(tuple(topics), image_topics, Path(path))
+        return {topics[0]: "cam0", topics[1]: "cam1"}
+    if not image_topics:
         raise CaptureError(f"{path}: no image topic (sensor_msgs/Image or CompressedImage)")
-    if len(topics) == 1:
-        return {topics[0]: "cam0"}
+    if len(image_topics) == 1:
+        return {image_topics[0]: "cam0"}
     # A bag written by ``restore --suffix`` holds /cam1/image_raw and
     # /cam1/image_raw/restored: the cameras are the original topics.
-    originals = [t for t in topics if not any(t.startswith(o + "/") for o in topics)]
-    topics = originals if len(originals) >= 2 else topics
-    cam0, cam1 = rosbag.select_topics(topics, Path(path))
+    originals = [t for t in image_topics if not any(t.startswith(o + "/") for o in image_topics)]
+    cam0, cam1 = rosbag.select_topics(
+        originals if len(originals) >= 2 else image_topics, Path(path)
+    )
     return {cam0: "cam0", cam1: "cam1"}
 
 
@@ -166,6 +179,7 @@ def iter_frames(
     path: Path,
     cameras: Sequence[CameraName] = CAMERAS,
     problems: list[str] | None = None,
+    topics: tuple[str, str] | None = None,
 ) -> Iterator[InputFrame]:
     """Every frame of ``path`` (any kind, see the module docstring), decoded.
 
@@ -173,22 +187,26 @@ def iter_frames(
         path: the input.
         cameras: recordings and bags only: the cameras whose frames are wanted.
         problems: appended to when a bag stops part-way.
+        topics: bags only: the ``(cam0, cam1)`` image topics; None picks them.
 
-    Yields:
-        :class:`InputFrame` in input order (files sorted by path; recordings
-        by camera then time; bags by log time).
+    Returns:
+        An iterator of :class:`InputFrame` in input order (files sorted by
+        path; recordings by camera then time; bags by log time), each decoded
+        when reached.
 
     Raises:
-        CaptureError: the input cannot be opened at all (unknown layout,
-            unreadable bag).
+        CaptureError: at the call, before any frame is read: the input cannot
+            be opened at all (unknown layout, no images, no usable image
+            topic), or ``topics`` given for a non-bag; a bag none of whose
+            messages can be read raises when iterated.
     """
     kind = detect_input(path)
     if kind in ("rosbag1", "rosbag2"):
-        for item in iter_bag_messages(path, cameras, problems):
-            if item.frame is not None:
-                yield item.frame
-        return
-    yield from _iter_files(path, kind, cameras)
+        messages = iter_bag_messages(path, cameras, problems, topics)
+        return (item.frame for item in messages if item.frame is not None)
+    if topics is not None:
+        raise CaptureError(f"{path}: topics can only be chosen for bags, this is a {kind}")
+    return _iter_files(Path(path), kind, _file_entries(path, kind, cameras))
 
 
 def frame_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> list[Path]:
@@ -199,22 +217,33 @@ def frame_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> l
 def _file_entries(
     path: Path, kind: InputKind, cameras: Sequence[CameraName]
 ) -> list[tuple[Path, CameraName | None, int | None]]:
-    """``(file, camera, t_ns)`` per frame; recordings take both from ``data.csv``."""
+    """``(file, camera, t_ns)`` per frame; recordings take both from ``data.csv``.
+
+    Raises:
+        CaptureError: a folder without images (the caller asked for frames).
+    """
     path = Path(path)
     if kind == "image":
         return [(path, None, None)]
     if kind == "folder":
-        return [(file, None, None) for file in image_files(path)]
+        files = image_files(path)
+        if not files:
+            raise CaptureError(
+                f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) found "
+                "and not a recording or a bag"
+            )
+        return [(file, None, None) for file in files]
     recording = open_recording(path)
     return [
         (ref.source, camera, ref.t_ns) for camera in cameras for ref in recording.frames[camera]
     ]
 
 
-def _iter_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> Iterator[InputFrame]:
-    path = Path(path)
+def _iter_files(
+    path: Path, kind: InputKind, entries: list[tuple[Path, CameraName | None, int | None]]
+) -> Iterator[InputFrame]:
     base = path.parent if kind == "image" else path
-    for index, (file, camera, t_ns) in enumerate(_file_entries(path, kind, cameras)):
+    for index, (file, camera, t_ns) in enumerate(entries):
         name = file.relative_to(base).as_posix()
         try:
             image, error = read_image(file), None
@@ -227,6 +256,7 @@ def iter_bag_messages(
     path: Path,
     cameras: Sequence[CameraName] = CAMERAS,
     problems: list[str] | None = None,
+    topics: tuple[str, str] | None = None,
 ) -> Iterator[BagMessage]:
     """Every message of a bag in log-time order; chosen camera images decoded.
 
@@ -234,12 +264,21 @@ def iter_bag_messages(
         path: ``.bag`` file, ROS 2 bag folder, or ``.db3``/``.mcap`` file.
         cameras: cameras (see :func:`bag_camera_topics`) whose images are decoded.
         problems: appended to (one line) when reading stops part-way.
+        topics: the ``(cam0, cam1)`` image topics; None picks them.
 
     Raises:
-        CaptureError: the bag cannot be opened, or no message can be read.
+        CaptureError: at the call: the bag cannot be opened or its topics
+            chosen; when iterated: no message can be read.
     """
     path = Path(path)
-    chosen = {t: c for t, c in bag_camera_topics(path).items() if c in cameras} if cameras else {}
+    named = bag_camera_topics(path, topics) if cameras else {}
+    chosen = {topic: camera for topic, camera in named.items() if camera in cameras}
+    return _bag_messages(path, chosen, problems)
+
+
+def _bag_messages(
+    path: Path, chosen: dict[str, CameraName], problems: list[str] | None
+) -> Iterator[BagMessage]:
     reader = rosbag._open(path)
     index = 0
     read = 0

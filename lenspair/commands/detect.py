@@ -2,20 +2,24 @@
 
   lenspair detect MODEL INPUT [--out DIR] [--device auto|cpu|cuda] [--threshold 0.5]
 
-INPUT is what restore reads: one image, a folder of images (recursive), or a
-stereo recording (EuRoC/ASL folder, ROS 1 .bag, ROS 2 bag, left/ + right/
-folders; both cameras are judged). Writes DIR/detections.csv and
-detections.json (one row per frame: probability that the glass is
-obstructed, kind among clean/rain/dust/dirt, share of tiles covered, the
-probability of each kind; unreadable frames are listed with their error) and
-DIR/contact_sheet.png (frames spread over the input, covered tiles in red).
-Prints how many frames were called obstructed, per kind.
+INPUT is what restore reads (:mod:`lenspair.capture.frames`): one image, a
+folder of images (recursive; left/ + right/ folders included), an EuRoC/ASL
+recording or a ROS 1/ROS 2 bag (both cameras are judged; --topics names the
+bag's two image topics when they cannot be told apart). Writes
+DIR/detections.csv and detections.json (one row per frame: probability that
+the glass is obstructed, kind among clean/rain/dust/dirt, share of tiles
+covered, the probability of each kind; unreadable frames are listed with
+their error) and DIR/contact_sheet.png (frames spread over the input, covered
+tiles in red). Frames are decoded one batch at a time, so a long recording
+needs no more memory than a short one. Prints how many frames were called
+obstructed, per kind, and a warning when a bag stops part-way.
 
 Example:
   lenspair detect runs/detector/detector.pt rec/rain --out detect_rain
 """
 
 import argparse
+import sys
 from collections import Counter
 from pathlib import Path
 
@@ -37,7 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Judge the frames of INPUT; returns the exit code."""
-    from lenspair.capture.frame_source import input_frames
+    # torch and the bag readers load when the command runs, so --help stays fast
+    from lenspair.capture.frames import detect_input, frame_files, iter_frames
+    from lenspair.capture.recording import CAMERAS
     from lenspair.model.detection.report import detect_frames
     from lenspair.model.detection.train import load_detector
 
@@ -45,13 +51,20 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--threshold: expected 0 < t < 1, got {args.threshold}")
     if args.batch_size < 1 or args.sheet_frames < 0:
         raise ConfigError("--batch-size must be >= 1 and --sheet-frames >= 0")
+    kind = detect_input(args.input)  # a bad INPUT fails before anything is written
     network = load_detector(args.model, resolve_device(args.device))
     out = args.out or Path(f"detect_{args.input.resolve().name}")
-    topics = tuple(args.topics) if args.topics else None
-    frames = input_frames(args.input, topics)  # type: ignore[arg-type]
+    topics = (args.topics[0], args.topics[1]) if args.topics else None
+    # Files are counted from their listing (cheap); a bag's count is only known once read.
+    bag = kind in ("rosbag1", "rosbag2")
+    total = None if bag else len(frame_files(args.input, kind, CAMERAS))
+    problems: list[str] = []
+    frames = iter_frames(args.input, CAMERAS, problems, topics)
     verdicts = detect_frames(
-        network, frames, out, args.batch_size, args.sheet_frames, threshold=args.threshold
+        network, frames, out, args.batch_size, args.sheet_frames, args.threshold, total
     )
+    for problem in problems:
+        print(f"lenspair detect: warning: {problem}", file=sys.stderr)
     judged = [v for v in verdicts if v.error is None]
     counts = Counter(v.kind for v in judged)
     obstructed = sum(1 for v in judged if v.obstructed)

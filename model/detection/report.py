@@ -1,6 +1,6 @@
 """``lenspair detect`` output: per-frame CSV/JSON and a contact sheet with the maps.
 
-For each frame of the input (:mod:`lenspair.capture.frame_source`) one row:
+For each frame of the input (:func:`lenspair.capture.frames.iter_frames`) one row:
 ``name, camera, t_ns, probability, kind, obstructed, obstructed_share, blank,
 p_clean, p_rain, p_dust, p_dirt, error`` (``blank``: a nearly uniform frame,
 see :mod:`lenspair.model.detection.judge`). A frame that cannot be read gets its
@@ -8,7 +8,9 @@ see :mod:`lenspair.model.detection.judge`). A frame that cannot be read gets its
 sheet shows up to ``sheet_frames`` frames spread over the input, each
 labelled with kind and probability; on frames called obstructed, the tiles
 called covered (map > 0.5, those counted in ``obstructed_share``) are tinted
-red. All files are written atomically.
+red. Frames stream through in batches: memory holds one batch and the few
+sheet candidates (:class:`SpreadSample`), never the whole input. All files
+are written atomically.
 """
 
 import csv
@@ -17,13 +19,13 @@ import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Generic, TypeVar
 
 import cv2
 import numpy as np
 
-from lenspair.capture.frame_source import InputFrame
+from lenspair.capture.frames import InputFrame
 from lenspair.core.contact_sheet import make_contact_sheet, to_display
-from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.core.imageio import write_image
 from lenspair.core.progress import progress
@@ -84,6 +86,53 @@ def overlay(image: np.ndarray, tile_map: np.ndarray) -> np.ndarray:
     return blended
 
 
+T = TypeVar("T")
+
+
+class SpreadSample(Generic[T]):
+    """Up to ``size`` items spread evenly over a stream whose length is unknown.
+
+    Keeps every ``stride``-th item (by index); when more than ``2 * size`` are
+    kept the stride doubles and every other one is dropped, so memory stays
+    at ``2 * size`` items and the kept ones still span the stream.
+    """
+
+    def __init__(self, size: int) -> None:
+        """``size``: how many items :meth:`picks` returns at most (>= 0)."""
+        self.size = size
+        self.stride = 1
+        self.kept: list[tuple[int, T]] = []
+
+    def wants(self, index: int) -> bool:
+        """Whether the item at ``index`` would be kept (to skip building it)."""
+        return self.size > 0 and index % self.stride == 0
+
+    def add(self, index: int, item: T) -> None:
+        """Offer the item at ``index`` (indices increasing); kept when :meth:`wants` it."""
+        if not self.wants(index):
+            return
+        self.kept.append((index, item))
+        if len(self.kept) > 2 * self.size:
+            self.stride *= 2
+            self.kept = [(i, kept) for i, kept in self.kept if i % self.stride == 0]
+
+    def picks(self) -> list[T]:
+        """At most ``size`` of the kept items, evenly spread, first one included."""
+        count = min(self.size, len(self.kept))
+        spread = np.linspace(0, len(self.kept) - 1, count).round().astype(int).tolist()
+        return [self.kept[i][1] for i in sorted(set(spread))]
+
+
+def _sheet_cell(image: np.ndarray, tile_map: np.ndarray, width: int = 480) -> np.ndarray:
+    """The overlay, shrunk to at most ``width`` pixels wide (the sheet shows less)."""
+    cell = overlay(image, tile_map)
+    if cell.shape[1] <= width:
+        return cell
+    height = max(1, round(cell.shape[0] * width / cell.shape[1]))
+    resized: np.ndarray = cv2.resize(cell, (width, height), interpolation=cv2.INTER_AREA)
+    return resized
+
+
 def _verdicts(frames: Sequence[InputFrame], verdict: Judgement) -> list[FrameVerdict]:
     rows = []
     for index, frame in enumerate(frames):
@@ -110,8 +159,19 @@ def detect_frames(
     batch_size: int = 8,
     sheet_frames: int = 12,
     threshold: float = 0.5,
+    total: int | None = None,
 ) -> list[FrameVerdict]:
     """Judge every frame; write ``out/detections.csv``, ``.json`` and ``contact_sheet.png``.
+
+    Args:
+        network: the detector.
+        frames: decoded frames in input order
+            (:func:`lenspair.capture.frames.iter_frames`); read once, lazily.
+        out: output folder (created).
+        batch_size: frames per network call.
+        sheet_frames: frames on the contact sheet (0: no sheet).
+        threshold: obstructed above this probability.
+        total: the number of frames when known, for the progress bar only.
 
     Returns:
         One :class:`FrameVerdict` per frame, in input order.
@@ -119,37 +179,34 @@ def detect_frames(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     verdicts: list[FrameVerdict] = []
-    shown: list[tuple[np.ndarray, np.ndarray, str]] = []
-    listed = list(frames)
-    picks = np.linspace(0, max(0, len(listed) - 1), min(sheet_frames, len(listed)))
-    sheet_picks = set(picks.round().astype(int).tolist())
-    batch: list[tuple[int, InputFrame, np.ndarray]] = []
+    candidates: SpreadSample[tuple[np.ndarray, str]] = SpreadSample(sheet_frames)
+    batch: list[InputFrame] = []
 
     def flush() -> None:
         if not batch:
             return
-        result = judge(network, [image for _, _, image in batch], batch_size, threshold)
-        rows = _verdicts([frame for _, frame, _ in batch], result)
-        for position, ((index, frame, image), row) in enumerate(zip(batch, rows, strict=True)):
+        images = [frame.image for frame in batch if frame.image is not None]
+        result = judge(network, images, batch_size, threshold)
+        rows = _verdicts(batch, result)
+        for position, (frame, row) in enumerate(zip(batch, rows, strict=True)):
             verdicts.append(row)
-            if index in sheet_picks:
+            if candidates.wants(frame.index):
                 label = f"{frame.name}: {row.kind} p={row.probability:.2f}"
                 tile_map = result.maps[position] if row.obstructed else 0.0 * result.maps[position]
-                shown.append((image, tile_map, label))
+                candidates.add(frame.index, (_sheet_cell(images[position], tile_map), label))
         batch.clear()
 
-    for index, frame in enumerate(progress(listed, desc="detect", total=len(listed), unit="frame")):
-        try:
-            image = frame.load()
-        except LenspairError as exc:
+    for frame in progress(frames, desc="detect", total=total, unit="frame"):
+        if frame.image is None:
             flush()
-            log.warning("%s: %s", frame.name, exc)
+            log.warning("%s: %s", frame.name, frame.error)
+            error = frame.error or "unreadable"
             failed = FrameVerdict(
-                frame.name, frame.camera, frame.t_ns, None, None, None, None, None, None, str(exc)
+                frame.name, frame.camera, frame.t_ns, None, None, None, None, None, error=error
             )
             verdicts.append(failed)
             continue
-        batch.append((index, frame, image))
+        batch.append(frame)
         if len(batch) == batch_size:
             flush()
     flush()
@@ -159,10 +216,11 @@ def detect_frames(
     writer.writerows(v.row() for v in verdicts)
     atomic_write_text(out / "detections.csv", buffer.getvalue())
     atomic_write_json(out / "detections.json", [asdict(v) for v in verdicts])
+    shown = candidates.picks()
     if shown:
         columns = 4
-        cells = [overlay(image, tile_map) for image, tile_map, _ in shown]
-        labels = [label for _, _, label in shown]
+        cells = [cell for cell, _ in shown]
+        labels = [label for _, label in shown]
         rows = [cells[i : i + columns] for i in range(0, len(cells), columns)]
         label_rows = [labels[i : i + columns] for i in range(0, len(labels), columns)]
         sheet = make_contact_sheet(rows, label_rows, title="detector: red = covered tiles")

@@ -10,6 +10,7 @@ import pytest
 from lenspair.cli import main
 from lenspair.core.imageio import read_image, write_image
 from tests.images import texture
+from tests.model.restore_helpers import bag_from_recording
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +50,32 @@ def test_detect_folder_writes_rows_sheet_and_records_bad_frames(
     assert read_image(out / "contact_sheet.png").ndim == 3
 
 
-def test_detect_bad_input_is_one_line(tiny_detector: Path, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+def test_detect_bag_judges_both_cameras_frame_by_frame(tiny_detector: Path, tmp_path: Path) -> None:
+    bag = bag_from_recording(tmp_path / "b", "mcap", frames=3)
+    out = tmp_path / "out"
+    args = ["detect", str(tiny_detector), str(bag), "--out", str(out), "--batch-size", "2"]
+    assert main([*args, "--sheet-frames", "2"]) == 0
+    with (out / "detections.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [row["camera"] for row in rows] == ["cam0", "cam1"] * 3
+    assert all(row["name"].startswith(f"/{row['camera']}/image_raw@") for row in rows)
+    assert all(not row["error"] for row in rows)
+    assert read_image(out / "contact_sheet.png").ndim == 3
+
+
+def test_detect_bad_input_is_one_line(  # type: ignore[no-untyped-def]
+    tiny_detector: Path, tmp_path: Path, capsys, monkeypatch
+) -> None:
+    monkeypatch.chdir(tmp_path)  # the default --out would land here
     assert main(["detect", str(tiny_detector), str(tmp_path / "nothing")]) == 2
     assert "no such file" in capsys.readouterr().err
+    assert not (tmp_path / "detect_nothing").exists()  # refused before writing anything
+    (tmp_path / "empty").mkdir()
+    assert main(["detect", str(tiny_detector), str(tmp_path / "empty")]) == 2
+    assert "no images" in capsys.readouterr().err
+    (tmp_path / "notes.txt").write_text("x")
+    assert main(["detect", str(tiny_detector), str(tmp_path / "notes.txt")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not an image" in err[0]
     assert main(["detect", str(tmp_path / "none.pt"), str(tmp_path)]) == 2
     assert main(["train-detector", "--out", str(tmp_path / "r")]) == 2

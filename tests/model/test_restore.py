@@ -274,23 +274,6 @@ def test_cli_single_image_and_one_line_errors(
         assert err[0].startswith("lenspair restore: error:") and message in err[0]
 
 
-def test_frames_of_every_input_kind(tmp_path: Path) -> None:
-    """The shared iterator (also used by the detector) gives names, cameras and pixels."""
-    folder = _folder(tmp_path / "in")
-    assert [f.name for f in iter_frames(folder)] == ["a.png", "sub/b.png", "sub/deep/c.tif"]
-    recording = make_recording(tmp_path / "rec", frames=2)
-    frames = list(iter_frames(recording, cameras=("cam1",)))
-    assert [f.camera for f in frames] == ["cam1", "cam1"] and all(f.t_ns for f in frames)
-    bag = bag_from_recording(tmp_path / "b", "ros1", frames=2)
-    bag_frames = list(iter_frames(bag))
-    assert [f.camera for f in bag_frames] == ["cam0", "cam1", "cam0", "cam1"]
-    for frame, file in zip(
-        frames, sorted((recording / "mav0/cam1/data").glob("*.png")), strict=True
-    ):
-        assert frame.image is not None
-        np.testing.assert_array_equal(frame.image, read_image(file))
-
-
 def test_single_topic_bag_restores_that_topic(tmp_path: Path, backend: TorchBackend) -> None:
     """A mono-camera bag: its one image topic is restored whatever rig.yaml says."""
     image = (texture((32, 48), seed=3) * 255).astype(np.uint8)
