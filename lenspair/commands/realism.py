@@ -29,8 +29,8 @@ from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
 from lenspair.core.progress import progress
 from lenspair.dataset.readers import detect_layout, open_paired
-from lenspair.model.training.synthetic import DROPS_PRESETS, drops_preset, find_clean_images
 from lenspair.simulate.natural_images import fit, load_natural_images
+from lenspair.simulate.presets import DROPS_PRESETS, drops_preset, find_clean_images
 from lenspair.simulate.realism import (
     PairStatistics,
     format_ranges,

@@ -17,7 +17,6 @@ import torch
 from torch.utils.data import Dataset
 
 from lenspair.core.imageio import from_float, read_image, to_float
-from lenspair.model.errors import ModelError
 from lenspair.model.training.pairs import (
     Sample,
     channels_of,
@@ -27,81 +26,14 @@ from lenspair.model.training.pairs import (
     to_channels,
     to_tensor,
 )
-from lenspair.simulate.effects.spec import (
-    SHARP_DROPS,
-    BrightnessSpec,
-    DefocusSpec,
-    EffectsSpec,
-    RaindropsSpec,
-    VeilSpec,
-)
+from lenspair.simulate.effects.spec import EffectsSpec
+from lenspair.simulate.presets import DROPS_PRESETS as DROPS_PRESETS
+from lenspair.simulate.presets import OUR_DROPS as OUR_DROPS
+from lenspair.simulate.presets import drops_preset as drops_preset
+from lenspair.simulate.presets import find_clean_images as find_clean_images
 from lenspair.simulate.render import render_effects
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
-CLEAN_FOLDER_NAMES = ("target", "gt", "clean")
 _VAL_EPOCH = -1  # fixed seed slot for validation items: the same drops every time
-
-OUR_DROPS = EffectsSpec(
-    raindrops=RaindropsSpec(
-        count=250,
-        radius_px=(3.0, 60.0),
-        size_distribution="power-law",
-        size_exponent=2.0,
-        contact_angle_deg=(20.0, 60.0),
-    ),
-    defocus=DefocusSpec(),
-    brightness=BrightnessSpec(fraction=0.6, gain=(1.2, 2.0)),
-    veil=VeilSpec(strength=(0.1, 0.25), level=(1.1, 1.6)),
-)
-"""Our synthetic drops, tuned to look like real adherent drops (issue 12).
-
-Many small drops and a few large merged ones (power-law radii, 3-60 px),
-flatter than hemispheres; the glass 3 cm in front of an Alphasense-like
-camera (2.4 mm f/2.0, so a 14 px blur disk, the paper's averaged shifts);
-most drops brightened; a veil of scattered light over the whole frame.
-Over the bundled natural images at 720x480 every statistic of
-:mod:`lenspair.simulate.realism` overlaps the real range
-(``lenspair realism --render ours sharp`` prints them).
-"""
-
-DROPS_PRESETS: dict[str, EffectsSpec] = {"ours": OUR_DROPS, "sharp": SHARP_DROPS}
-"""Synthetic-drop presets by name (``--drops``)."""
-
-
-def drops_preset(name: str) -> EffectsSpec:
-    """The effects of a synthetic-drop preset; unknown names list the valid ones."""
-    try:
-        return DROPS_PRESETS[name]
-    except KeyError:
-        valid = ", ".join(DROPS_PRESETS)
-        raise ModelError(f"unknown drops preset {name!r}; valid presets: {valid}") from None
-
-
-def find_clean_images(folder: Path) -> list[Path]:
-    """Clean images under ``folder`` for synthetic pretraining, sorted.
-
-    When the folder holds ``target/`` (or ``gt/``, ``clean/``) sub-folders, as
-    a lenspair dataset does, only the images in them are used (for a dataset
-    root, only those of ``train/``, so validation and test images stay
-    unseen); otherwise every PNG/JPG/TIFF below ``folder``.
-
-    Raises:
-        ModelError: no image found.
-
-    """
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise ModelError(f"{folder}: not a folder of clean images")
-    if (folder / "train").is_dir() and any(
-        (folder / "train" / name).is_dir() for name in CLEAN_FOLDER_NAMES
-    ):
-        folder = folder / "train"  # a dataset root: never pretrain on val/test targets
-    images = sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
-    clean = [p for p in images if p.parent.name.lower() in CLEAN_FOLDER_NAMES]
-    chosen = clean or images
-    if not chosen:
-        raise ModelError(f"{folder}: no PNG/JPG/TIFF images found")
-    return chosen
 
 
 class SyntheticDrops(Dataset[Sample]):
