@@ -10,10 +10,10 @@ asserts that the output tree equals the reference (byte for byte, up to the
 fields a scenario declares as wall-clock timings) and that no temporary file
 remains anywhere under the output's parent folder.
 
-Adding a command is one :class:`Scenario` entry (``restore`` joins when it exists).
-Inputs are tiny (3 simulated 360x270 frames, a 6-pair dataset, a network of a few
-thousand parameters) so that the whole module stays within a few minutes on
-two cores.
+Adding a command is one :class:`Scenario` entry. Inputs are tiny (3 simulated
+360x270 frames, a 6-pair dataset, a network of a few thousand parameters,
+32x48 images and a 3-frame ROS 2 bag to restore) so that the whole module
+stays within a few minutes on two cores.
 """
 
 import csv
@@ -36,8 +36,15 @@ import yaml
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
+from lenspair.core.imageio import write_image
 from lenspair.core.leftovers import LEFTOVER_SUFFIXES
-from tests.model.train_fixtures import tiny_config, write_split_dataset
+from tests.model.restore_helpers import bag_from_recording
+from tests.model.train_fixtures import (
+    clean_image,
+    make_checkpoint,
+    tiny_config,
+    write_split_dataset,
+)
 from tests.processes import descendants, wait_gone
 
 pytestmark = pytest.mark.slow
@@ -124,6 +131,32 @@ def _train_rerun(inputs: Path, out: Path) -> list[str]:
     return [*_train_argv(inputs, out), *resume]
 
 
+def _restore_argv(source: str) -> Callable[[Path, Path], list[str]]:
+    def argv(inputs: Path, out: Path) -> list[str]:
+        return ["restore", str(inputs / "tiny.pt"), str(inputs / source), "--out", str(out),
+                "--device", "cpu", "--batch-size", "2"]  # fmt: skip
+
+    return argv
+
+
+def _restore_rerun(source: str) -> Callable[[Path, Path], list[str]]:
+    """What a user reruns after a kill: the same command with ``--resume``."""
+
+    def rerun(inputs: Path, out: Path) -> list[str]:
+        return [*_restore_argv(source)(inputs, out), "--resume"]
+
+    return rerun
+
+
+def _restore_report(content: bytes) -> object:
+    """The report less its timings and output path; a resumed frame counts as restored."""
+    report = json.loads(content)
+    for key in ("seconds", "frames_per_second", "output"):
+        report.pop(key, None)
+    report["restored"] += report.pop("resumed")
+    return report
+
+
 def _ingested(out: Path) -> Path:
     return out / "rain"
 
@@ -143,6 +176,18 @@ SCENARIOS = [
             "metrics.csv": _metrics_without_timings,
         },
         skip=frozenset({"train.log"}),  # one section per session, with times
+    ),
+    Scenario(
+        "restore-folder",
+        _restore_argv("photos"),
+        rerun=_restore_rerun("photos"),
+        timings={"restore_report.json": _restore_report},
+    ),
+    Scenario(
+        "restore-db3-bag",
+        _restore_argv("bags/run"),
+        rerun=_restore_rerun("bags/run"),
+        timings={"restore_report.json": _restore_report},
     ),
 ]
 
@@ -165,6 +210,11 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     write_split_dataset(root / "ds", {"train": 6, "val": 2})
     config = tiny_config(epochs=2, deterministic=True, seed=1, checkpoint_every_steps=1)
     (root / "tiny.yaml").write_text(dump_yaml(config))
+    make_checkpoint(root / "tiny.pt")
+    rng = np.random.default_rng(3)
+    for index in range(12):  # a nested folder of 32x48 images
+        write_image(root / "photos" / "ab"[index % 2] / f"{index:02d}.png", clean_image(rng))
+    bag_from_recording(root, "db3")  # root/bags/run, 3 stereo frames, rig.yaml: cam1
     return root
 
 
