@@ -46,6 +46,7 @@ from lenspair.capture.frames import (
 from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
 from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.leftovers import remove_leftovers_under
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.judge import FrameJudge
@@ -216,6 +217,7 @@ def restore_input(
         # Refused before OUT is made: an empty run is a mistyped path, not a result.
         raise ModelError(f"{input_path}: no images to restore")
     check_out_dir(out_dir, options.resume)
+    remove_leftovers_under(out_dir)  # of a killed run: its half-written temporaries
     out_dir.mkdir(parents=True, exist_ok=True)
     source_problems: list[str] = []
     sink: FileSink | BagSink
