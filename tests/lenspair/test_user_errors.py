@@ -259,3 +259,16 @@ def test_malformed_scene_yaml_gives_one_line(
     code, lines = _run(["simulate", str(scene), "--out", str(out)], capsys)
     assert code == 2
     assert len(lines) == 1 and "scene.yaml" in lines[0], lines
+
+
+@pytest.mark.parametrize("content", [b"", b"\x08\x07garbage not protobuf", b"ir_version: 7\n"])
+def test_bad_onnx_model_gives_one_line_naming_it(
+    content: bytes, models: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An .onnx MODEL goes to ONNX Runtime, whose errors are many lines long."""
+    model = tmp_path / "broken.onnx"
+    model.write_bytes(content)
+    argv = ["restore", str(model), str(models["IMGS"]), "--out", str(tmp_path / "out")]
+    code, lines = _run([*argv, "--device", "cpu"], capsys)
+    assert code == 2, lines
+    assert len(lines) == 1 and "broken.onnx" in lines[0], lines
