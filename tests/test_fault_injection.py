@@ -2,18 +2,18 @@
 
 For each command in :data:`SCENARIOS` the test runs it once uninterrupted
 (the reference, in a subprocess, timed from its first output to its end),
-then :data:`KILLS` times: starts it in a subprocess, kills it with
-``SIGKILL`` at a moment drawn from a seeded generator over that working
-time (counted from the run's own first output), checks that no process of the run
+then :data:`KILLS` times (or its own count): starts it in a subprocess, kills
+it with ``SIGKILL`` at a moment drawn from a seeded generator over that
+working time (counted from the run's own first output), checks that no process of the run
 survives (pool workers, the resource tracker), reruns it to completion, and
 asserts that the output tree equals the reference (byte for byte, up to the
 fields a scenario declares as wall-clock timings) and that no temporary file
 remains anywhere under the output's parent folder.
 
-Adding a command is one :class:`Scenario` entry (``restore`` joins when it exists).
-Inputs are tiny (3 simulated 360x270 frames, a 6-pair dataset, a network of a few
-thousand parameters) so that the whole module stays within a few minutes on
-two cores.
+Adding a command is one :class:`Scenario` entry. Inputs are tiny (3 simulated
+360x270 frames, a 6-pair dataset, a network of a few thousand parameters,
+32x48 images and a 3-frame ROS 2 bag to restore) so that the whole module
+stays within a few minutes on two cores.
 """
 
 import csv
@@ -36,8 +36,15 @@ import yaml
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
+from lenspair.core.imageio import write_image
 from lenspair.core.leftovers import LEFTOVER_SUFFIXES
-from tests.model.train_fixtures import tiny_config, write_split_dataset
+from tests.model.restore_helpers import bag_from_recording
+from tests.model.train_fixtures import (
+    clean_image,
+    make_checkpoint,
+    tiny_config,
+    write_split_dataset,
+)
 from tests.processes import descendants, wait_gone
 
 pytestmark = pytest.mark.slow
@@ -88,6 +95,11 @@ class Scenario:
         timings: relative file name -> a function returning its content without
             wall-clock fields (files absent here are compared byte for byte).
         skip: relative file names not compared (logs that record each session).
+        finished: given the output path, the file written last, whose
+            appearance ends the working time kills are drawn over (default:
+            the process's exit). Restore's work on tiny inputs takes a fraction
+            of the interpreter's teardown; moments after it would test nothing.
+        kills: how many seeded kill moments (each costs a process start).
 
     """
 
@@ -97,6 +109,8 @@ class Scenario:
     output: Callable[[Path], Path] = lambda out: out
     timings: dict[str, Callable[[bytes], object]] = field(default_factory=dict)
     skip: frozenset[str] = frozenset()
+    finished: Callable[[Path], Path] | None = None
+    kills: int = KILLS
 
 
 def _ingest_argv(workers: int) -> Callable[[Path, Path], list[str]]:
@@ -124,6 +138,36 @@ def _train_rerun(inputs: Path, out: Path) -> list[str]:
     return [*_train_argv(inputs, out), *resume]
 
 
+def _restore_argv(source: str) -> Callable[[Path, Path], list[str]]:
+    def argv(inputs: Path, out: Path) -> list[str]:
+        return ["restore", str(inputs / "tiny.pt"), str(inputs / source), "--out", str(out),
+                "--device", "cpu", "--precision", "fp32", "--batch-size", "2"]  # fmt: skip
+
+    return argv
+
+
+def _restore_rerun(source: str) -> Callable[[Path, Path], list[str]]:
+    """What a user reruns after a kill: the same command with ``--resume``."""
+
+    def rerun(inputs: Path, out: Path) -> list[str]:
+        return [*_restore_argv(source)(inputs, out), "--resume"]
+
+    return rerun
+
+
+def _restore_report(content: bytes) -> object:
+    """The report less its timings and output path; a resumed frame counts as restored."""
+    report = json.loads(content)
+    for key in ("seconds", "frames_per_second", "output"):
+        report.pop(key, None)
+    report["restored"] += report.pop("resumed")
+    return report
+
+
+def _restore_finished(out: Path) -> Path:
+    return out / "restore_report.json"  # written once every frame is out
+
+
 def _ingested(out: Path) -> Path:
     return out / "rain"
 
@@ -143,6 +187,21 @@ SCENARIOS = [
             "metrics.csv": _metrics_without_timings,
         },
         skip=frozenset({"train.log"}),  # one section per session, with times
+    ),
+    Scenario(
+        "restore-folder",
+        _restore_argv("photos"),
+        rerun=_restore_rerun("photos"),
+        timings={"restore_report.json": _restore_report},
+        finished=_restore_finished,
+    ),
+    Scenario(
+        "restore-db3-bag",
+        _restore_argv("bags/run"),
+        rerun=_restore_rerun("bags/run"),
+        timings={"restore_report.json": _restore_report},
+        finished=_restore_finished,
+        kills=5,  # the folder scenario has the 10; this adds the bag's single-pass writer
     ),
 ]
 
@@ -165,6 +224,12 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     write_split_dataset(root / "ds", {"train": 6, "val": 2})
     config = tiny_config(epochs=2, deterministic=True, seed=1, checkpoint_every_steps=1)
     (root / "tiny.yaml").write_text(dump_yaml(config))
+    make_checkpoint(root / "tiny.pt")
+    rng = np.random.default_rng(3)
+    for index in range(40):  # a nested folder of 48x64 images
+        image = clean_image(rng, 48, 64)
+        write_image(root / "photos" / "ab"[index % 2] / f"{index:02d}.png", image)
+    bag_from_recording(root, "db3", frames=6)  # root/bags/run, stereo, rig.yaml: cam1
     return root
 
 
@@ -221,14 +286,21 @@ def _temporaries(folder: Path) -> list[Path]:
     return [p for p in folder.rglob("*") if _TEMPORARY.match(p.name)]
 
 
-def _watch(process: subprocess.Popen[bytes], folder: Path) -> tuple[float, float]:
-    """Poll a run to its end: when ``folder`` (its first output) appeared, when it ended."""
-    appeared = None
+def _watch(
+    process: subprocess.Popen[bytes], folder: Path, finished: Path | None = None
+) -> tuple[float, float]:
+    """Poll a run to its end: when ``folder`` (its first output) appeared, when it ended.
+
+    The end is when ``finished`` appeared, when given, else the process's exit.
+    """
+    appeared = done = None
     while process.poll() is None:
         if appeared is None and folder.exists():
             appeared = time.monotonic()
-        time.sleep(0.01)
-    ended = time.monotonic()
+        if done is None and finished is not None and finished.exists():
+            done = time.monotonic()
+        time.sleep(0.002 if finished is not None else 0.01)
+    ended = time.monotonic() if done is None else done
     return (ended if appeared is None else appeared), ended
 
 
@@ -270,14 +342,15 @@ def test_killed_runs_resume_to_the_same_output(
     rerun = scenario.rerun or argv
     reference_out = tmp_path / "reference" / "out"
     process = _start(argv(inputs, reference_out))
-    appeared, ended = _watch(process, reference_out.parent)
+    finished = scenario.finished(reference_out) if scenario.finished else None
+    appeared, ended = _watch(process, reference_out.parent, finished)
     _, error = process.communicate()
     assert process.returncode == 0, error.decode()
     working = ended - appeared  # from its first output (after imports) to its end
     reference = _comparable_tree(scenario, scenario.output(reference_out))
     assert reference
 
-    moments = np.random.default_rng(SEED).uniform(0.0, working, size=KILLS)
+    moments = np.random.default_rng(SEED).uniform(0.0, working, size=scenario.kills)
     for index, moment in enumerate(moments):
         out = tmp_path / f"kill{index}" / "out"
         process = _start(argv(inputs, out))

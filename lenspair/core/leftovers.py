@@ -81,3 +81,16 @@ def remove_leftovers(folder: Path, name: str | None = None) -> int:
         logger.info("removed %s, left by an interrupted run", path)
         removed += 1
     return removed
+
+
+def remove_leftovers_under(root: Path) -> int:
+    """:func:`remove_leftovers` in ``root`` and every folder below it; returns the count.
+
+    For outputs that mirror an input tree (``restore`` of a folder), where a
+    killed run leaves temporaries beside files at any depth.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        return 0
+    folders = [root, *(p for p in sorted(root.rglob("*")) if p.is_dir() and not p.is_symlink())]
+    return sum(remove_leftovers(folder) for folder in folders if folder.is_dir())

@@ -82,6 +82,8 @@ class DetectorTraining:
             raise ModelError(
                 f"steps and batch_size must be >= 1, got {self.steps}, {self.batch_size}"
             )
+        if self.threads < 1:
+            raise ModelError(f"--threads: expected at least 1, got {self.threads}")
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,7 @@ from lenspair.capture.frames import (
 from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
 from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.leftovers import remove_leftovers_under
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.judge import FrameJudge
@@ -152,6 +153,22 @@ def resolve_cameras(path: Path, kind: InputKind, choice: str) -> tuple[CameraNam
     return (read_rig_file(rig).obstructed,) if rig is not None else CAMERAS
 
 
+def check_options(options: RestoreOptions) -> None:
+    """Refuse option values no input can use, before anything is read or written.
+
+    Raises:
+        ModelError: naming the option (``--batch-size``, ``--overlap``, ``--tile``).
+    """
+    if options.batch_size < 1:
+        raise ModelError(f"--batch-size: expected at least 1, got {options.batch_size}")
+    if options.overlap < 0:
+        raise ModelError(f"--overlap: expected at least 0 pixels, got {options.overlap}")
+    if options.tile is not None and options.tile <= options.overlap:
+        raise ModelError(
+            f"--tile: expected more than --overlap ({options.overlap}) pixels, got {options.tile}"
+        )
+
+
 def check_out_dir(out_dir: Path, resume: bool) -> None:
     """Refuse a non-empty OUT unless resuming.
 
@@ -192,13 +209,16 @@ def restore_input(
     """
     started = time.perf_counter()
     input_path, out_dir = Path(input_path), Path(out_dir)
-    if options.batch_size < 1:
-        raise ModelError(f"--batch-size: expected at least 1, got {options.batch_size}")
+    check_options(options)
     kind = detect_input(input_path)
     cameras = resolve_cameras(input_path, kind, options.camera)
-    check_out_dir(out_dir, options.resume)
-    out_dir.mkdir(parents=True, exist_ok=True)
     bag = kind in ("rosbag1", "rosbag2")
+    if not bag and not frame_files(input_path, kind, cameras):
+        # Refused before OUT is made: an empty run is a mistyped path, not a result.
+        raise ModelError(f"{input_path}: no images to restore")
+    check_out_dir(out_dir, options.resume)
+    remove_leftovers_under(out_dir)  # of a killed run: its half-written temporaries
+    out_dir.mkdir(parents=True, exist_ok=True)
     source_problems: list[str] = []
     sink: FileSink | BagSink
     total: int | None = None

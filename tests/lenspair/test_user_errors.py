@@ -42,7 +42,9 @@ def _unreadable(path: Path) -> None:
 BAD_FILES["unreadable"] = _unreadable
 
 # command -> argument lists where BAD stands for the bad file and the named
-# token must appear in the message. DS is a valid tiny dataset, OUT a fresh folder.
+# token must appear in the message. DS is a valid tiny dataset, OUT a fresh folder,
+# CKPT a valid tiny restoration checkpoint, DET a valid detector checkpoint and
+# IMGS a folder of valid images (so that the bad file is the only problem).
 FILE_CASES: dict[str, list[list[str]]] = {
     "simulate": [["BAD", "--out", "OUT"]],
     "calibrate": [
@@ -67,6 +69,17 @@ FILE_CASES: dict[str, list[list[str]]] = {
     "tradeoff": [["BAD", "--out", "OUT"], ["DS", "--out", "OUT", "--config", "BAD"]],
     "export": [["BAD", "--onnx", "OUT/m.onnx"]],
     "demo": [],  # demo reads only bundled files; its options are covered below
+    "restore": [
+        ["BAD", "IMGS", "--out", "OUT"],
+        ["CKPT", "BAD", "--out", "OUT"],
+        ["CKPT", "IMGS", "--out", "OUT", "--only-obstructed", "BAD"],
+    ],
+    "detect": [["BAD", "IMGS", "--out", "OUT"], ["DET", "BAD", "--out", "OUT"]],
+    "train-detector": [
+        ["BAD", "--out", "OUT"],
+        ["--recordings", "BAD", "--out", "OUT"],
+        ["--synthetic", "2", "--clean-images", "BAD", "--out", "OUT"],
+    ],
 }
 
 # (argv, token the message must name)
@@ -88,6 +101,36 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["eval", "DS", "--latency-runs", "many"], "--latency-runs"),
     (["export", "DS", "--onnx", "OUT/m.onnx", "--size", "big"], "--size"),
     (["demo", "--bogus"], "--bogus"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--tile", "-1"], "--tile"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--tile", "abc"], "--tile"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--tile", "0"], "--tile"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--overlap", "-2"], "--overlap"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--camera", "cam7"], "--camera"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--precision", "fp8"], "--precision"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--device", "tpu"], "--device"),
+    (["restore", "CKPT", "IMGS"], "--out"),
+    (["restore", "CKPT", "OUT/none", "--out", "OUT"], "none"),
+    # a detector where a restoration checkpoint is expected, and vice versa
+    (["restore", "DET", "IMGS", "--out", "OUT"], "DET.pt"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--only-obstructed", "CKPT"], "CKPT.pt"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--only-obstructed", "IMGS"], "input"),
+    (["detect", "CKPT", "IMGS", "--out", "OUT"], "CKPT.pt"),
+    (["detect", "DET", "IMGS", "--out", "OUT", "--threshold", "1.5"], "--threshold"),
+    (["detect", "DET", "IMGS", "--out", "OUT", "--threshold", "x"], "--threshold"),
+    (["detect", "DET", "IMGS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
+    (["detect", "DET", "IMGS", "--out", "OUT", "--sheet-frames", "-1"], "--sheet-frames"),
+    (["detect", "DET", "IMGS", "--out", "OUT", "--topics", "a"], "--topics"),
+    (["detect", "DET", "OUT/none", "--out", "OUT"], "none"),
+    (["train-detector", "--out", "OUT"], "training data"),
+    (["train-detector", "--out", "OUT", "--synthetic", "-1"], "--synthetic"),
+    (["train-detector", "--out", "OUT", "--synthetic", "2", "--steps", "0"], "steps"),
+    (["train-detector", "--out", "OUT", "--synthetic", "2", "--batch-size", "0"], "batch"),
+    (["train-detector", "--out", "OUT", "--synthetic", "2", "--minutes", "0"], "--minutes"),
+    (["train-detector", "--out", "OUT", "--synthetic", "2", "--input-size", "big"], "--input-size"),
+    (["train-detector", "--out", "OUT", "--synthetic", "2", "--input-size", "0x9"], "--input-size"),
+    (["train-detector", "--out", "OUT", "--synthetic", "2", "--threads", "0"], "threads"),
+    (["train-detector", "--out", "OUT", "--set-per-kind", "1"], "--set-per-kind"),
     (["no-such-command"], "no-such-command"),
 ]
 
@@ -98,13 +141,33 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_split_dataset(tmp_path_factory.mktemp("errors") / "ds")
 
 
+@pytest.fixture(scope="module")
+def models(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A tiny restoration checkpoint, a tiny untrained detector and a folder of images."""
+    from lenspair.model.detection.train import save_detector
+    from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
+    from tests.model.train_fixtures import make_checkpoint, write_paired_folder
+
+    root = tmp_path_factory.mktemp("models")
+    detector = AnomalyDetector(DetectorSpec(widths=(4, 4, 4), input_size=(32, 48)))
+    save_detector(root / "DET.pt", detector)
+    return {
+        "CKPT": make_checkpoint(root / "CKPT.pt"),
+        "DET": root / "DET.pt",
+        "IMGS": write_paired_folder(root / "pairs", count=2) / "input",
+    }
+
+
 def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
     code = main(argv)  # any exception other than SystemExit fails the test with its traceback
     return code, capsys.readouterr().err.strip().splitlines()
 
 
-def _expand(args: list[str], bad: Path, dataset: Path, out: Path) -> list[str]:
+def _expand(
+    args: list[str], bad: Path, dataset: Path, out: Path, models: dict[str, Path]
+) -> list[str]:
     table = {"BAD": str(bad), "DS": str(dataset), "OUT": str(out)}
+    table.update({name: str(path) for name, path in models.items()})
     return [table.get(arg, arg.replace("OUT", str(out))) for arg in args]
 
 
@@ -135,12 +198,13 @@ def test_bad_file_gives_one_line_naming_it(
     template: list[str],
     kind: str,
     dataset: Path,
+    models: dict[str, Path],
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     bad = tmp_path / f"bad-{kind}.yaml"
     BAD_FILES[kind](bad)
-    argv = [command, *_expand(template, bad, dataset, tmp_path / "out")]
+    argv = [command, *_expand(template, bad, dataset, tmp_path / "out", models)]
     try:
         code, lines = _run(argv, capsys)
     except SystemExit as exc:
@@ -156,10 +220,11 @@ def test_bad_option_gives_one_line_naming_it(
     argv: list[str],
     token: str,
     dataset: Path,
+    models: dict[str, Path],
     tmp_path: Path,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    argv = _expand(argv, tmp_path / "unused", dataset, tmp_path / "out")
+    argv = _expand(argv, tmp_path / "unused", dataset, tmp_path / "out", models)
     try:
         code, lines = _run(argv, capsys)
     except SystemExit as exc:
@@ -194,3 +259,16 @@ def test_malformed_scene_yaml_gives_one_line(
     code, lines = _run(["simulate", str(scene), "--out", str(out)], capsys)
     assert code == 2
     assert len(lines) == 1 and "scene.yaml" in lines[0], lines
+
+
+@pytest.mark.parametrize("content", [b"", b"\x08\x07garbage not protobuf", b"ir_version: 7\n"])
+def test_bad_onnx_model_gives_one_line_naming_it(
+    content: bytes, models: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An .onnx MODEL goes to ONNX Runtime, whose errors are many lines long."""
+    model = tmp_path / "broken.onnx"
+    model.write_bytes(content)
+    argv = ["restore", str(model), str(models["IMGS"]), "--out", str(tmp_path / "out")]
+    code, lines = _run([*argv, "--device", "cpu"], capsys)
+    assert code == 2, lines
+    assert len(lines) == 1 and "broken.onnx" in lines[0], lines
