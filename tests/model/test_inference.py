@@ -45,7 +45,7 @@ class Pointwise:
 
 @pytest.fixture
 def backend(tmp_path: Path, one_thread: None) -> TorchBackend:
-    loaded = open_backend(make_checkpoint(tmp_path / "ck.pt"), CPU)
+    loaded = open_backend(make_checkpoint(tmp_path / "ck.pt"), CPU, "fp32")
     assert isinstance(loaded, TorchBackend)
     return loaded
 
@@ -117,7 +117,7 @@ def test_onnx_matches_torch(tmp_path: Path, backend: TorchBackend) -> None:
     from lenspair.model.evaluation.export import export_onnx
 
     export_onnx(backend.network, 1, tmp_path / "m.onnx", size=(32, 48), runs=1)
-    onnx = open_backend(tmp_path / "m.onnx", CPU)
+    onnx = open_backend(tmp_path / "m.onnx", CPU, "fp32")
     assert isinstance(onnx, OnnxBackend) and onnx.fixed_size == (32, 48)
     rng = np.random.default_rng(0)
     batch = rng.random((3, 1, 32, 48), dtype=np.float32)

@@ -35,7 +35,7 @@ def checkpoint(tmp_path: Path, one_thread: None) -> Path:
 
 @pytest.fixture
 def backend(checkpoint: Path) -> TorchBackend:
-    loaded = open_backend(checkpoint, CPU)
+    loaded = open_backend(checkpoint, CPU, "fp32")
     assert isinstance(loaded, TorchBackend)
     return loaded
 
@@ -80,13 +80,13 @@ def test_folder_keeps_tree_names_depth(tmp_path: Path, backend: TorchBackend, dt
 def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thread: None) -> None:
     config = tiny_config()
     rgb_config = replace(config, model=replace(config.model, channels=3))
-    rgb = open_backend(make_checkpoint(tmp_path / "rgb.pt", rgb_config), CPU)
+    rgb = open_backend(make_checkpoint(tmp_path / "rgb.pt", rgb_config), CPU, "fp32")
     image = (texture((32, 48, 3), seed=4) * 255).astype(np.uint8)
     write_image(tmp_path / "in" / "x.png", image)
     restore_input(tmp_path / "in", tmp_path / "out", rgb)
     restored = read_image(tmp_path / "out" / "x.png")
     assert restored.shape == (32, 48, 3)
-    mono = open_backend(make_checkpoint(tmp_path / "mono.pt"), CPU)
+    mono = open_backend(make_checkpoint(tmp_path / "mono.pt"), CPU, "fp32")
     with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
         restore_input(tmp_path / "in", tmp_path / "out2", mono)
     assert not any((tmp_path / "out2").iterdir())  # refused before writing anything
