@@ -283,6 +283,9 @@ def iter_bag_messages(
             frame = InputFrame(index, name, camera, t_ns, where, image, error)
             index += 1
             yield BagMessage(connection, log_time, raw, frame, message)
+        note = rosbag.cut_note(reader)
+        if note is not None and problems is not None:
+            problems.append(f"{path}: reading stopped early after {read} messages ({note})")
     finally:
         reader.close()
 
