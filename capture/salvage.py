@@ -457,11 +457,13 @@ def _scan_db3(bag: SalvagedBag) -> None:
     data_size = bag.storage.stat().st_size
     with bag.storage.open("rb") as bio:
         head = bio.read(100)
-        if len(head) < 100:
-            raise CaptureError(f"{bag.storage}: cut short inside the SQLite header")
-        (page_size,) = struct.unpack_from(">H", head, 16)
+        (page_size,) = struct.unpack_from(">H", head, 16) if len(head) == 100 else (0,)
         page_size = 65536 if page_size == 1 else page_size
-        pages = data_size // page_size
+        pages = data_size // page_size if page_size else 0
+        if not pages:
+            raise CaptureError(
+                f"{bag.storage}: cut short ({data_size} bytes) inside its first page"
+            )
         bio.seek(0)
         whole = bytearray(bio.read(pages * page_size))
     struct.pack_into(">L", whole, 28, pages)
