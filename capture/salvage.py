@@ -164,6 +164,23 @@ class SalvagedBag:
             f"messages before byte {stopped_at}; {why}"
         )
         self._typestore = _typestore(self.connections, self.is_ros1)
+        if not self.is_ros1:
+            # Writers (restore's copy of the bag) need a definition and hash per
+            # connection; a cut MCAP/db3 may not say them, the types do.
+            filled = {c.id: self._with_definition(c) for c in self.connections}
+            self.connections = list(filled.values())
+            self._entries = [e._replace(connection=filled[e.connection.id]) for e in self._entries]
+
+    def _with_definition(self, connection: Connection) -> Connection:
+        try:
+            text, _ = self._typestore.generate_msgdef(connection.msgtype, ros_version=2)
+            digest = self._typestore.hash_rihs01(connection.msgtype)
+        except Exception:  # an unknown type: messages are copied, not deserialised
+            return connection
+        msgdef = connection.msgdef
+        if msgdef.format == MessageDefinitionFormat.NONE or not msgdef.data:
+            msgdef = MessageDefinition(MessageDefinitionFormat.MSG, text)
+        return connection._replace(msgdef=msgdef, digest=connection.digest or digest)
 
 
 def salvage_bag(path: Path) -> SalvagedBag:
