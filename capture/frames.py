@@ -28,8 +28,9 @@ Inputs (:func:`detect_input`):
 
 A frame that cannot be read (corrupt file, undecodable message) is yielded
 with ``image=None`` and ``error`` set, so the caller records it and goes on.
-A bag that stops part-way (truncated) ends the iteration early; the reason is
-appended to the ``problems`` list passed in.
+A bag cut short yields its complete messages (see
+:mod:`lenspair.capture.salvage`); that, or a bag that stops part-way, is
+appended once to the ``problems`` list passed in.
 """
 
 from collections.abc import Iterator, Sequence

@@ -10,10 +10,12 @@ read. A frame's timestamp is ``header.stamp``; the bag's receive (log) time
 is kept in the :class:`FrameRef` to seek back to the message lazily.
 
 Listing reads every message of the two topics once (deserialising only to
-get the header). If reading stops part-way (a truncated ``.db3``), frames read
-so far are kept and the stop is recorded as a problem; ROS1 and MCAP files
-whose index is cut off cannot be opened by ``rosbags`` at all and raise
-:class:`CaptureError` (``rosbag reindex`` / ``mcap recover`` repair them).
+get the header). A bag cut short, which ``rosbags`` cannot open (or, for a
+``.db3``, would open and fail part-way), is read up to its cut by
+:mod:`lenspair.capture.salvage`: its complete messages are listed and the cut
+is recorded as one problem naming the file and the byte reading stopped at.
+If reading stops part-way for another reason, frames read so far are kept and
+the stop is recorded the same way.
 
 Open readers are cached per process (a few at a time) so that loading many
 frames does not reopen the bag; a forked worker opens its own.
