@@ -482,15 +482,21 @@ def _scan_db3(bag: SalvagedBag) -> None:
                 f"{bag.storage}: cut short ({data_size} bytes) inside its first page"
             )
         bio.seek(0)
-        whole = bytearray(bio.read(pages * page_size))
-    struct.pack_into(">L", whole, 28, pages)
-    handle, name = tempfile.mkstemp(suffix=".db3", prefix="lenspair-salvage-")
-    try:
-        with os.fdopen(handle, "wb") as out:
-            out.write(whole)
-        db = sqlite3.connect(f"file:{name}?immutable=1", uri=True, check_same_thread=False)
-    finally:
-        os.unlink(name)  # the open connection keeps the data until it closes
+        handle, name = tempfile.mkstemp(suffix=".db3", prefix="lenspair-salvage-")
+        try:
+            with os.fdopen(handle, "wb") as out:  # whole pages only, streamed
+                left = pages * page_size
+                while left:
+                    block = bio.read(min(left, 1 << 20))
+                    if not block:  # the file shrank while being read
+                        break
+                    out.write(block)
+                    left -= len(block)
+                out.seek(28)  # the header's page count: SQLite stops at the last page
+                out.write(struct.pack(">L", pages))
+            db = sqlite3.connect(f"file:{name}?immutable=1", uri=True, check_same_thread=False)
+        finally:
+            os.unlink(name)  # the open connection keeps the data until it closes
     bag._db = db
     why = "end of the rows"
     try:
