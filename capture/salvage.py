@@ -22,32 +22,30 @@ The result quacks like the parts of ``rosbags.highlevel.AnyReader`` that
 one line naming the file and where reading stopped.
 """
 
-import os
 import sqlite3
 import struct
-import tempfile
 from collections.abc import Collection, Generator
-from io import BytesIO
 from pathlib import Path
 from typing import Any, NamedTuple
 
 from rosbags.interfaces import (
     Connection,
-    ConnectionExtRosbag1,
-    ConnectionExtRosbag2,
     MessageDefinition,
     MessageDefinitionFormat,
 )
-from rosbags.rosbag1.reader import Header, RecordType, decompressors, normalize, read_uint32
-from rosbags.rosbag2.storage_mcap import Schema, decompress, get_msgdef, get_qos
+from rosbags.rosbag1.reader import decompressors
+from rosbags.rosbag2.storage_mcap import decompress
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
-from rosbags.typesys.msg import normalize_msgtype
 
 from lenspair.capture.errors import CaptureError
-
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
-_ROS1_MAGIC = b"#ROSBAG V2.0\n"
-_SQLITE_MAGIC = b"SQLite format 3\x00"
+from lenspair.capture.salvage_records import (
+    MCAP_MAGIC,
+    ROS1_MAGIC,
+    SQLITE_MAGIC,
+    scan_db3,
+    scan_mcap,
+    scan_ros1,
+)
 
 
 class _Topic(NamedTuple):
@@ -90,10 +88,10 @@ class SalvagedBag:
         self.topics: dict[str, _Topic] = {}
         self.cut = ""
         self._entries: list[_Entry] = []
-        self._chunks: list[tuple[int, int, str, int, int]] = []  # pos, size, codec, usize, crc
+        self.chunks: list[tuple[int, int, str, int, int]] = []  # pos, size, codec, usize, crc
         self._cached: tuple[int, bytes] = (-1, b"")
         self._bio = storage.open("rb")
-        self._db: sqlite3.Connection | None = None
+        self.db: sqlite3.Connection | None = None
         self._typestore: Any = None
 
     def messages(
@@ -122,13 +120,13 @@ class SalvagedBag:
     def close(self) -> None:
         """Release the file (and the SQLite copy)."""
         self._bio.close()
-        if self._db is not None:
-            self._db.close()
+        if self.db is not None:
+            self.db.close()
 
     def _payload(self, entry: _Entry) -> bytes:
         if entry.chunk == -2:
-            assert self._db is not None
-            (data,) = self._db.execute(
+            assert self.db is not None
+            (data,) = self.db.execute(
                 "SELECT data FROM messages WHERE id = ?", (entry.offset,)
             ).fetchone()
             return bytes(data)
@@ -140,23 +138,31 @@ class SalvagedBag:
         return self._cached[1][entry.offset : entry.offset + entry.size]
 
     def _decompress(self, index: int) -> bytes:
-        pos, size, codec, usize, crc = self._chunks[index]
+        pos, size, codec, usize, crc = self.chunks[index]
         self._bio.seek(pos)
         data = self._bio.read(size)
         if self.is_ros1:
             return decompressors[codec](data)
         return decompress(data, codec, usize, crc)
 
-    def _add(
+    def add_message(
         self, connection: Connection, log_time: int, chunk: int, offset: int, size: int
     ) -> None:
+        """Record a complete message (``chunk``/``offset``/``size``: see ``_Entry``)."""
         self._entries.append(_Entry(log_time, len(self._entries), connection, chunk, offset, size))
 
-    def _add_connection(self, connection: Connection) -> None:
+    def add_connection(self, connection: Connection) -> None:
+        """Record a connection read before the cut."""
         self.connections.append(connection)
         self.topics.setdefault(connection.topic, _Topic(connection.msgtype))
 
-    def _finish(self, stopped_at: int, why: str) -> None:
+    @property
+    def message_count(self) -> int:
+        """Complete messages found."""
+        return len(self._entries)
+
+    def finish(self, stopped_at: int, why: str) -> None:
+        """Order the messages by log time, write :attr:`cut`, build the typestore."""
         self._entries.sort(key=lambda e: (e.log_time, e.order))
         size = self.storage.stat().st_size
         self.cut = (
@@ -199,18 +205,18 @@ def salvage_bag(path: Path) -> SalvagedBag:
         with storage.open("rb") as bio:
             magic = bio.read(16)
             bio.seek(0)
-            if magic.startswith(_ROS1_MAGIC):
-                _scan_ros1(bag, bio)
-            elif magic.startswith(_MCAP_MAGIC):
-                _scan_mcap(bag, bio)
-            elif magic.startswith(_SQLITE_MAGIC):
-                _scan_db3(bag)
+            if magic.startswith(ROS1_MAGIC):
+                scan_ros1(bag, bio)
+            elif magic.startswith(MCAP_MAGIC):
+                scan_mcap(bag, bio)
+            elif magic.startswith(SQLITE_MAGIC):
+                scan_db3(bag)
             else:
                 raise CaptureError(f"{storage}: not a ROS1, MCAP or SQLite bag (file magic)")
     except BaseException:
         bag.close()
         raise
-    if not bag._entries:
+    if not bag.message_count:
         bag.close()
         raise CaptureError(f"{bag.cut or storage}: no complete message")
     return bag
@@ -227,7 +233,7 @@ def is_cut_db3(path: Path) -> bool:
             head = bio.read(100)
     except (CaptureError, OSError):
         return False
-    if len(head) < 100 or not head.startswith(_SQLITE_MAGIC):
+    if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
         return False
     (page_size,) = struct.unpack_from(">H", head, 16)
     (pages,) = struct.unpack_from(">L", head, 28)
@@ -256,280 +262,3 @@ def _typestore(connections: list[Connection], is_ros1: bool) -> Any:
         except Exception:  # a definition clashing with the store's keeps the store's
             continue
     return store
-
-
-def _scan_ros1(bag: SalvagedBag, bio: Any) -> None:
-    size = bag.storage.stat().st_size
-    bio.readline()
-    known: dict[int, Connection] = {}
-    stopped_at, why = bio.tell(), "end of the records"
-    while bio.tell() < size:
-        start = bio.tell()
-        try:
-            header = Header.read(bio)
-            op = header.get_uint8("op")
-            if op == RecordType.CONNECTION:
-                _ros1_connection(bag, known, header, Header.read(bio))
-                stopped_at = bio.tell()
-                continue
-            length = read_uint32(bio)
-        except Exception:
-            why = f"the record at byte {start} is incomplete"
-            break
-        datapos = bio.tell()
-        complete = datapos + length <= size
-        if op == RecordType.CHUNK:
-            codec = header.get_string("compression")
-            if codec == "none":
-                got = bio.read(min(length, size - datapos))
-                stopped_at = datapos + _ros1_records(bag, known, got, -1, datapos)
-            elif complete and codec in decompressors:
-                bag._chunks.append((datapos, length, codec, 0, 0))
-                raw = decompressors[codec](bio.read(length))
-                _ros1_records(bag, known, raw, len(bag._chunks) - 1, 0)
-                stopped_at = datapos + length
-        elif op == RecordType.MSGDATA and complete and header.get_uint32("conn") in known:
-            connection = known[header.get_uint32("conn")]
-            bag._add(connection, header.get_time("time"), -1, datapos, length)
-            stopped_at = datapos + length
-        elif complete:
-            stopped_at = datapos + length
-        if not complete:
-            why = f"the {RecordType(op).name.lower()} record at byte {start} is incomplete"
-            break
-        bio.seek(datapos + length)
-    bag._finish(stopped_at, why)
-
-
-def _ros1_records(
-    bag: SalvagedBag, known: dict[int, Connection], data: bytes, chunk: int, base: int
-) -> int:
-    """Add the complete records of a chunk's data; returns where they end."""
-    buf = BytesIO(data)
-    end = 0
-    while buf.tell() < len(data):
-        try:
-            header = Header.read(buf)
-            if header.get_uint8("op") == RecordType.CONNECTION:
-                _ros1_connection(bag, known, header, Header.read(buf))
-            else:
-                length = read_uint32(buf)
-                if buf.tell() + length > len(data):
-                    break
-                if header.get_uint8("op") == RecordType.MSGDATA:
-                    connection = known[header.get_uint32("conn")]
-                    bag._add(connection, header.get_time("time"), chunk, base + buf.tell(), length)
-                buf.seek(length, os.SEEK_CUR)
-        except Exception:
-            break
-        end = buf.tell()
-    return end
-
-
-def _ros1_connection(
-    bag: SalvagedBag, known: dict[int, Connection], header: Header, data: Header
-) -> None:
-    conn = header.get_uint32("conn")
-    if conn in known:
-        return
-    msgtype = normalize_msgtype(data.get_string("type"))
-    callerid = data.get_string("callerid") if "callerid" in data else None
-    latching = data.get_string("latching") if "latching" in data else ""
-    connection = Connection(
-        conn,
-        normalize(header.get_string("topic")),
-        msgtype,
-        MessageDefinition(MessageDefinitionFormat.MSG, data.get_string("message_definition")),
-        data.get_string("md5sum"),
-        0,
-        ConnectionExtRosbag1(callerid, int(latching) if latching else None),
-        bag,
-    )
-    known[conn] = connection
-    bag._add_connection(connection)
-
-
-def _scan_mcap(bag: SalvagedBag, bio: Any) -> None:
-    size = bag.storage.stat().st_size
-    bio.seek(len(_MCAP_MAGIC))
-    schemas: dict[int, Schema] = {}
-    known: dict[int, Connection] = {}
-    stopped_at, why = bio.tell(), "end of the records"
-    while bio.tell() < size:
-        start = bio.tell()
-        head = bio.read(9)
-        if len(head) < 9:
-            why = f"the record at byte {start} is incomplete"
-            break
-        op, length = struct.unpack("<BQ", head)
-        if op in (0x02, 0x0F):  # footer, data end: the data section is whole
-            why = "the cut lies after the data section"
-            break
-        content = bio.read(min(length, size - start - 9))
-        complete = len(content) == length
-        if op == 0x06:
-            used = _mcap_chunk(bag, schemas, known, content, start + 9, complete)
-            if complete or used:
-                stopped_at = used if not complete else start + 9 + length
-        elif complete:
-            try:
-                _mcap_record(bag, schemas, known, op, content, -1, start + 9)
-            except Exception:
-                why = f"the record at byte {start} is damaged"
-                break
-            stopped_at = start + 9 + length
-        if not complete:
-            name = "chunk record" if op == 0x06 else "record"
-            why = f"the {name} at byte {start} is incomplete"
-            break
-    bag._finish(stopped_at, why)
-
-
-def _mcap_chunk(
-    bag: SalvagedBag,
-    schemas: dict[int, Schema],
-    known: dict[int, Connection],
-    content: bytes,
-    base: int,
-    complete: bool,
-) -> int:
-    """Add a chunk's complete records; returns the file byte they end at (0: none)."""
-    if len(content) < 32:
-        return 0
-    _, _, usize, crc, name_size = struct.unpack_from("<QQQIL", content)
-    codec = content[32 : 32 + name_size].decode()
-    offset = 32 + name_size + 8
-    records = content[offset:]
-    if codec:
-        if not complete:
-            return 0
-        bag._chunks.append((base + offset, len(records), codec, usize, crc))
-        records = decompress(records, codec, usize, crc)
-        chunk, where = len(bag._chunks) - 1, 0
-    else:
-        chunk, where = -1, base + offset
-    end = 0
-    pos = 0
-    while pos + 9 <= len(records):
-        op, length = struct.unpack_from("<BQ", records, pos)
-        if pos + 9 + length > len(records):
-            break
-        try:
-            _mcap_record(
-                bag, schemas, known, op, records[pos + 9 : pos + 9 + length], chunk, where + pos + 9
-            )
-        except Exception:
-            break
-        pos += 9 + length
-        end = pos
-    return base + offset + end if chunk == -1 else base + len(content)
-
-
-def _mcap_record(
-    bag: SalvagedBag,
-    schemas: dict[int, Schema],
-    known: dict[int, Connection],
-    op: int,
-    record: bytes,
-    chunk: int,
-    offset: int,
-) -> None:
-    """Take in a schema, channel or message record (``offset``: its content)."""
-    if op == 0x03:
-        rec = BytesIO(record)
-        (key,) = struct.unpack("<H", rec.read(2))
-        schemas[key] = Schema(key, _string(rec), _string(rec), _string(rec))
-    elif op == 0x04:
-        rec = BytesIO(record)
-        key, schema_id = struct.unpack("<HH", rec.read(4))
-        topic, encoding = _string(rec), _string(rec)
-        (map_size,) = struct.unpack("<L", rec.read(4))
-        metadata = struct.pack("<L", map_size) + rec.read(map_size)
-        schema = schemas.get(schema_id)
-        connection = Connection(
-            key,
-            topic,
-            schema.name if schema else "__schemaless__",
-            get_msgdef(schema),
-            "",
-            0,
-            ConnectionExtRosbag2(encoding, get_qos(metadata[4:])),
-            bag,
-        )
-        if key not in known:
-            known[key] = connection
-            bag._add_connection(connection)
-    elif op == 0x05:
-        channel, _, log_time, _ = struct.unpack_from("<HLQQ", record)
-        if channel in known:
-            bag._add(known[channel], log_time, chunk, offset + 22, len(record) - 22)
-
-
-def _string(rec: BytesIO) -> str:
-    (size,) = struct.unpack("<L", rec.read(4))
-    return rec.read(size).decode()
-
-
-def _scan_db3(bag: SalvagedBag) -> None:
-    data_size = bag.storage.stat().st_size
-    with bag.storage.open("rb") as bio:
-        head = bio.read(100)
-        (page_size,) = struct.unpack_from(">H", head, 16) if len(head) == 100 else (0,)
-        page_size = 65536 if page_size == 1 else page_size
-        pages = data_size // page_size if page_size else 0
-        if not pages:
-            raise CaptureError(
-                f"{bag.storage}: cut short ({data_size} bytes) inside its first page"
-            )
-        bio.seek(0)
-        handle, name = tempfile.mkstemp(suffix=".db3", prefix="lenspair-salvage-")
-        try:
-            with os.fdopen(handle, "wb") as out:  # whole pages only, streamed
-                left = pages * page_size
-                while left:
-                    block = bio.read(min(left, 1 << 20))
-                    if not block:  # the file shrank while being read
-                        break
-                    out.write(block)
-                    left -= len(block)
-                out.seek(28)  # the header's page count: SQLite stops at the last page
-                out.write(struct.pack(">L", pages))
-            db = sqlite3.connect(f"file:{name}?immutable=1", uri=True, check_same_thread=False)
-        finally:
-            os.unlink(name)  # the open connection keeps the data until it closes
-    bag._db = db
-    why = "end of the rows"
-    try:
-        known = _db3_connections(bag, db)
-        # Reading ``data`` makes SQLite fetch every page of the row.
-        rows = db.execute("SELECT id, topic_id, timestamp, data FROM messages ORDER BY id")
-        for row_id, topic_id, log_time, _ in rows:
-            if topic_id in known:
-                bag._add(known[topic_id], log_time, -2, row_id, 0)
-    except sqlite3.DatabaseError as exc:
-        why = f"SQLite stops at the missing pages ({exc})"
-    bag._finish(pages * page_size, why)
-
-
-def _db3_connections(bag: SalvagedBag, db: sqlite3.Connection) -> dict[int, Connection]:
-    definitions: dict[str, tuple[str, str]] = {}
-    try:
-        for msgtype, encoding, text in db.execute(
-            "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"
-        ):
-            definitions[msgtype] = (encoding, text)
-    except sqlite3.DatabaseError:  # older schema, or the table lies past the cut
-        pass
-    known: dict[int, Connection] = {}
-    for key, topic, msgtype, fmt in db.execute(
-        "SELECT id, name, type, serialization_format FROM topics"
-    ):
-        encoding, text = definitions.get(msgtype, ("", ""))
-        kind = {"ros2msg": MessageDefinitionFormat.MSG, "ros2idl": MessageDefinitionFormat.IDL}
-        msgdef = MessageDefinition(kind.get(encoding, MessageDefinitionFormat.NONE), text)
-        connection = Connection(
-            key, topic, msgtype, msgdef, "", 0, ConnectionExtRosbag2(fmt, []), bag
-        )
-        known[key] = connection
-        bag._add_connection(connection)
-    return known
