@@ -24,6 +24,7 @@ one line naming the file and where reading stopped.
 
 import sqlite3
 import struct
+from bisect import bisect_left
 from collections.abc import Collection, Generator
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -102,14 +103,15 @@ class SalvagedBag:
     ) -> Generator[tuple[Connection, int, bytes], None, None]:
         """``(connection, log_time_ns, raw)`` in log-time order, like ``AnyReader``."""
         wanted = {c.id for c in connections} if connections else None
-        for entry in self._entries:
-            if wanted is not None and entry.connection.id not in wanted:
-                continue
-            if (start is not None and entry.log_time < start) or (
-                stop is not None and entry.log_time >= stop
-            ):
-                continue
-            yield entry.connection, entry.log_time, self._payload(entry)
+        # Entries are in log-time order: seek to ``start`` (loading one frame
+        # must not walk the whole bag).
+        first = 0 if start is None else bisect_left(self._entries, start, key=_log_time)
+        for index in range(first, len(self._entries)):
+            entry = self._entries[index]
+            if stop is not None and entry.log_time >= stop:
+                return
+            if wanted is None or entry.connection.id in wanted:
+                yield entry.connection, entry.log_time, self._payload(entry)
 
     def deserialize(self, raw: bytes, msgtype: str) -> Any:
         """Deserialise a message with the bag's own definitions (ROS1 or CDR)."""
@@ -187,6 +189,10 @@ class SalvagedBag:
         if msgdef.format == MessageDefinitionFormat.NONE or not msgdef.data:
             msgdef = MessageDefinition(MessageDefinitionFormat.MSG, text)
         return connection._replace(msgdef=msgdef, digest=connection.digest or digest)
+
+
+def _log_time(entry: _Entry) -> int:
+    return entry.log_time
 
 
 def salvage_bag(path: Path) -> SalvagedBag:
