@@ -60,8 +60,12 @@ def scan_ros1(bag: "SalvagedBag", bio: Any) -> None:
                 got = bio.read(min(length, size - datapos))
                 stopped_at = datapos + _ros1_records(bag, known, got, -1, datapos)
             elif complete and codec in decompressors:
+                try:
+                    raw = decompressors[codec](bio.read(length))
+                except Exception:  # a chunk that does not decompress: damaged, not cut
+                    why = f"the chunk record at byte {start} is damaged"
+                    break
                 bag.chunks.append((datapos, length, codec, 0, 0))
-                raw = decompressors[codec](bio.read(length))
                 _ros1_records(bag, known, raw, len(bag.chunks) - 1, 0)
                 stopped_at = datapos + length
         elif op == RecordType.MSGDATA and complete and header.get_uint32("conn") in known:
@@ -147,7 +151,11 @@ def scan_mcap(bag: "SalvagedBag", bio: Any) -> None:
         content = bio.read(min(length, size - start - 9))
         complete = len(content) == length
         if op == 0x06:
-            used = _mcap_chunk(bag, schemas, known, content, start + 9, complete)
+            try:
+                used = _mcap_chunk(bag, schemas, known, content, start + 9, complete)
+            except Exception:  # a chunk that does not decompress: damaged, not cut
+                why = f"the chunk record at byte {start} is damaged"
+                break
             if complete or used:
                 stopped_at = used if not complete else start + 9 + length
         elif complete:
