@@ -241,6 +241,8 @@ def is_cut_db3(path: Path) -> bool:
         return False
     if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
         return False
+    if head[24:28] != head[92:96]:  # SQLite ignores a page count not kept up to date
+        return False
     (page_size,) = struct.unpack_from(">H", head, 16)
     (pages,) = struct.unpack_from(">L", head, 28)
     return storage.stat().st_size < (65536 if page_size == 1 else int(page_size)) * int(pages)
