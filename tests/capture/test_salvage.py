@@ -167,3 +167,14 @@ def test_bag_cut_before_any_frame_is_one_error(tmp_path: Path, kind: str) -> Non
     storage.write_bytes(storage.read_bytes()[:300])
     with pytest.raises(CaptureError, match=rf"{bag.name}: cannot open bag \(.*nothing to keep"):
         open_recording(bag)
+
+
+@pytest.mark.parametrize("kind", ["db3", "mcap"])
+def test_cut_bare_storage_file_is_read_too(tmp_path: Path, kind: str) -> None:
+    _, storage = _write(tmp_path / "run", kind)
+    bare = storage.rename(tmp_path / storage.name)
+    data = bare.read_bytes()
+    bare.write_bytes(data[: len(data) * 2 // 3])
+    found, problems = _recovered(bare)
+    assert len(found) >= 2 and found == list(range(len(found)))
+    _assert_one_cut_report(bare, bare, problems)
