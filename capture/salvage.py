@@ -14,7 +14,9 @@ from the start instead and keeps every message whose record is complete:
 * ``.db3``: the whole pages before the cut are copied to a temporary file
   whose header says so; SQLite then reads rows in id order and stops with an
   error at the first row that needs a missing page, so no row is returned
-  with bytes that were not in the file.
+  with bytes that were not in the file. SQLite writes a table's leaf pages
+  after the rows' data, so the last row or two before the cut (and, for a
+  cut near the start, the first rows) can be lost: their leaf is past it.
 
 The result quacks like the parts of ``rosbags.highlevel.AnyReader`` that
 :mod:`lenspair.capture.rosbag` uses (``topics``, ``connections``,
