@@ -35,8 +35,9 @@ time: a caller that needs the count up front (a progress bar) takes it from
 
 A frame that cannot be read (corrupt file, undecodable message) is yielded
 with ``image=None`` and ``error`` set, so the caller records it and goes on.
-A bag that stops part-way (truncated) ends the iteration early; the reason is
-appended to the ``problems`` list passed in.
+A bag cut short yields its complete messages (see
+:mod:`lenspair.capture.salvage`); that, or a bag that stops part-way, is
+appended once to the ``problems`` list passed in.
 """
 
 from collections.abc import Iterator, Sequence
@@ -322,6 +323,9 @@ def _bag_messages(
             frame = InputFrame(index, name, camera, t_ns, where, image, error)
             index += 1
             yield BagMessage(connection, log_time, raw, frame, message)
+        note = rosbag.cut_note(reader)
+        if note is not None and problems is not None:
+            problems.append(f"{path}: reading stopped early after {read} messages ({note})")
     finally:
         reader.close()
 

@@ -10,10 +10,12 @@ read. A frame's timestamp is ``header.stamp``; the bag's receive (log) time
 is kept in the :class:`FrameRef` to seek back to the message lazily.
 
 Listing reads every message of the two topics once (deserialising only to
-get the header). If reading stops part-way (a truncated ``.db3``), frames read
-so far are kept and the stop is recorded as a problem; ROS1 and MCAP files
-whose index is cut off cannot be opened by ``rosbags`` at all and raise
-:class:`CaptureError` (``rosbag reindex`` / ``mcap recover`` repair them).
+get the header). A bag cut short, which ``rosbags`` cannot open (or, for a
+``.db3``, would open and fail part-way), is read up to its cut by
+:mod:`lenspair.capture.salvage`: its complete messages are listed and the cut
+is recorded as one problem naming the file and the byte reading stopped at.
+If reading stops part-way for another reason, frames read so far are kept and
+the stop is recorded the same way.
 
 Open readers are cached per process (a few at a time) so that loading many
 frames does not reopen the bag; a forked worker opens its own.
@@ -43,11 +45,13 @@ from lenspair.capture.recording_types import (
     recording_id_for,
 )
 from lenspair.capture.rigfile import CameraName
+from lenspair.capture.salvage import SalvagedBag, is_cut_db3, salvage_bag
 
 RAW_IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 IMAGE_TYPES = (RAW_IMAGE, COMPRESSED_IMAGE)
 BAG_SUFFIXES = frozenset({".bag", ".db3", ".mcap"})
+BagReader = AnyReader | SalvagedBag
 
 # encoding -> (dtype, channels, channel order to RGB or None)
 _ENCODINGS: dict[str, tuple[type[np.unsignedinteger[Any]], int, tuple[int, ...] | None]] = {
@@ -119,11 +123,20 @@ def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
     try:
         available = {name: info.msgtype for name, info in reader.topics.items()}
         image_topics = [name for name, msgtype in available.items() if msgtype in IMAGE_TYPES]
-        chosen = select_topics(image_topics, path) if topics is None else tuple(topics)
-        _check_chosen(chosen, image_topics, path)
+        try:
+            chosen = select_topics(image_topics, path) if topics is None else tuple(topics)
+            _check_chosen(chosen, image_topics, path)
+        except CaptureError as exc:
+            note = cut_note(reader)  # a cut may have left out a topic's first record
+            raise CaptureError(str(exc) if note is None else f"{exc}; {note}") from None
         cameras: dict[str, CameraName] = {chosen[0]: "cam0", chosen[1]: "cam1"}
         problems: list[FrameProblem] = []
         listed = _list_messages(reader, path, cameras, problems)
+        note = cut_note(reader)
+        if note is not None:
+            read = {camera: len(frames) for camera, frames in listed.items()}
+            reason = f"reading stopped early ({note}); frames read before: {read}"
+            problems.append(FrameProblem(None, None, str(path), reason))
     finally:
         with suppress(Exception):
             reader.close()
@@ -276,11 +289,11 @@ class _ReaderCache:
     def __init__(self, size: int) -> None:
         self.size = size
         self.lock = threading.Lock()
-        self.readers: OrderedDict[Path, AnyReader] = OrderedDict()
+        self.readers: OrderedDict[Path, BagReader] = OrderedDict()
         self.pid = os.getpid()
-        self.inherited: list[AnyReader] = []
+        self.inherited: list[BagReader] = []
 
-    def get(self, bag: Path) -> AnyReader:
+    def get(self, bag: Path) -> BagReader:
         if self.pid != os.getpid():
             # A forked child must not use (or close) its parent's file handles.
             self.inherited.extend(self.readers.values())
@@ -307,17 +320,31 @@ class _ReaderCache:
 _CACHE = _ReaderCache(size=4)
 
 
-def _open(path: Path) -> AnyReader:
+def _open(path: Path) -> BagReader:
+    """Open a bag with ``rosbags``; one it cannot open is read up to its cut."""
     store = Stores.ROS1_NOETIC if path.suffix.lower() == ".bag" else Stores.ROS2_HUMBLE
+    # SQLite opens a cut .db3 and fails part-way without saying where: salvage it.
+    failure = "the SQLite file is shorter than its header says"
+    if not is_cut_db3(path):
+        try:
+            reader = AnyReader([path], default_typestore=get_typestore(store))
+            reader.open()
+        except Exception as exc:  # rosbags and its storage backends raise assorted types
+            failure = _one_line(exc)
+        else:
+            return reader
     try:
-        reader = AnyReader([path], default_typestore=get_typestore(store))
-        reader.open()
-    except Exception as exc:  # rosbags and its storage backends raise assorted types
+        return salvage_bag(path)
+    except (CaptureError, OSError) as exc:
         raise CaptureError(
-            f"{path}: cannot open bag ({_one_line(exc)}); if it was cut short, "
-            "repair it first (rosbag reindex / mcap recover)"
+            f"{path}: cannot open bag ({failure}); reading it record by record "
+            f"found nothing to keep ({_one_line(exc)})"
         ) from None
-    return reader
+
+
+def cut_note(reader: BagReader) -> str | None:
+    """One line saying where a bag cut short stopped, or None for a whole bag."""
+    return reader.cut if isinstance(reader, SalvagedBag) else None
 
 
 def _check_chosen(chosen: tuple[str, ...], image_topics: list[str], bag: Path) -> None:
@@ -330,7 +357,7 @@ def _check_chosen(chosen: tuple[str, ...], image_topics: list[str], bag: Path) -
 
 
 def _list_messages(
-    reader: AnyReader, bag: Path, cameras: dict[str, CameraName], problems: list[FrameProblem]
+    reader: BagReader, bag: Path, cameras: dict[str, CameraName], problems: list[FrameProblem]
 ) -> dict[CameraName, list[FrameRef]]:
     listed: dict[CameraName, list[FrameRef]] = {"cam0": [], "cam1": []}
     occurrences: Counter[tuple[str, int]] = Counter()

@@ -94,16 +94,26 @@ def test_truncated_db3_keeps_what_was_read(tmp_path: Path) -> None:
     assert len(read_pairs(tmp_path / "out" / "run" / "pairs.jsonl")) == counts["listed_cam1"]
 
 
-def test_truncated_bag_is_a_one_line_error(
+def test_truncated_ros1_bag_ingests_the_frames_before_the_cut(tmp_path: Path) -> None:
+    bag = _bag_from_euroc(tmp_path, "ros1")
+    data = bag.read_bytes()
+    bag.write_bytes(data[: len(data) * 3 // 4])
+    report = ingest_recording(bag, tmp_path / "out", size=SIZE)
+    counts = report.counts
+    assert counts["recording_problems"] == 1
+    assert counts["kept"] >= 1
+    assert len(read_pairs(tmp_path / "out" / "run" / "pairs.jsonl")) == counts["listed_cam1"]
+
+
+def test_bag_cut_before_any_frame_is_a_one_line_error(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     bag = _bag_from_euroc(tmp_path, "ros1")
-    data = bag.read_bytes()
-    bag.write_bytes(data[: len(data) // 2])
+    bag.write_bytes(bag.read_bytes()[:300])
     code = main(["capture-ingest", str(bag), "--out", str(tmp_path / "out"), "--size", CROP])
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and line.startswith(f"lenspair capture-ingest: error: {bag}")
-    assert "cannot open bag" in line
+    assert "cannot open bag" in line and "nothing to keep" in line
 
 
 def test_topics_must_name_two_topics(tmp_path: Path) -> None:

@@ -172,13 +172,17 @@ def test_unreadable_image_costs_only_itself(tmp_path: Path, backend: TorchBacken
     ).read_bytes()
 
 
-def test_truncated_bag_keeps_what_was_read(tmp_path: Path, backend: TorchBackend) -> None:
-    bag = bag_from_recording(tmp_path, "db3", frames=6)
-    storage = next(bag.glob("*.db3"))
-    storage.write_bytes(storage.read_bytes()[:-100])
+@pytest.mark.parametrize("kind", ["ros1", "db3", "mcap"])
+def test_truncated_bag_keeps_what_was_read(
+    tmp_path: Path, backend: TorchBackend, kind: str
+) -> None:
+    bag = bag_from_recording(tmp_path, kind, frames=6)
+    storage = bag if kind == "ros1" else next(bag.glob(f"*.{kind}"))
+    data = storage.read_bytes()
+    storage.write_bytes(data[: len(data) * 3 // 4])
     report = restore_input(bag, tmp_path / "out", backend)
     assert 1 <= report.restored < 6
-    assert any("stopped early" in p["reason"] for p in report.problems)
+    assert sum("stopped early" in p["reason"] for p in report.problems) == 1
     copied = list(iter_bag_messages(Path(report.output)))
     assert sum(m.frame is not None and m.frame.camera == "cam1" for m in copied) == report.restored
 

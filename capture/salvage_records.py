@@ -1,0 +1,323 @@
+"""Record-by-record scans of bag files cut short, for :mod:`lenspair.capture.salvage`.
+
+Each scan reads a file from its start, hands every complete connection and
+message to the :class:`~lenspair.capture.salvage.SalvagedBag` and ends with
+``finish(byte where reading stopped, why)``.
+"""
+
+import os
+import sqlite3
+import struct
+import tempfile
+from io import BytesIO
+from typing import TYPE_CHECKING, Any
+
+from rosbags.interfaces import (
+    Connection,
+    ConnectionExtRosbag1,
+    ConnectionExtRosbag2,
+    MessageDefinition,
+    MessageDefinitionFormat,
+)
+from rosbags.rosbag1.reader import Header, RecordType, decompressors, normalize, read_uint32
+from rosbags.rosbag2.storage_mcap import Schema, decompress, get_msgdef, get_qos
+from rosbags.typesys.msg import normalize_msgtype
+
+from lenspair.capture.errors import CaptureError
+
+if TYPE_CHECKING:
+    from lenspair.capture.salvage import SalvagedBag
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+ROS1_MAGIC = b"#ROSBAG V2.0\n"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
+def scan_ros1(bag: "SalvagedBag", bio: Any) -> None:
+    """Scan a ROS1 bag: header, chunks (their complete records), connections, messages."""
+    size = bag.storage.stat().st_size
+    bio.readline()
+    known: dict[int, Connection] = {}
+    stopped_at, why = bio.tell(), "end of the records"
+    while bio.tell() < size:
+        start = bio.tell()
+        try:
+            header = Header.read(bio)
+            op = header.get_uint8("op")
+            if op == RecordType.CONNECTION:
+                _ros1_connection(bag, known, header, Header.read(bio))
+                stopped_at = bio.tell()
+                continue
+            length = read_uint32(bio)
+        except Exception:
+            why = f"the record at byte {start} is incomplete"
+            break
+        datapos = bio.tell()
+        complete = datapos + length <= size
+        if op == RecordType.CHUNK:
+            codec = header.get_string("compression")
+            if codec == "none":
+                got = bio.read(min(length, size - datapos))
+                stopped_at = datapos + _ros1_records(bag, known, got, -1, datapos)
+            elif complete and codec in decompressors:
+                try:
+                    raw = decompressors[codec](bio.read(length))
+                except Exception:  # a chunk that does not decompress: damaged, not cut
+                    why = f"the chunk record at byte {start} is damaged"
+                    break
+                bag.chunks.append((datapos, length, codec, 0, 0))
+                _ros1_records(bag, known, raw, len(bag.chunks) - 1, 0)
+                stopped_at = datapos + length
+        elif op == RecordType.MSGDATA and complete and header.get_uint32("conn") in known:
+            connection = known[header.get_uint32("conn")]
+            bag.add_message(connection, header.get_time("time"), -1, datapos, length)
+            stopped_at = datapos + length
+        elif complete:
+            stopped_at = datapos + length
+        if not complete:
+            why = f"the {RecordType(op).name.lower()} record at byte {start} is incomplete"
+            break
+        bio.seek(datapos + length)
+    bag.finish(stopped_at, why)
+
+
+def _ros1_records(
+    bag: "SalvagedBag", known: dict[int, Connection], data: bytes, chunk: int, base: int
+) -> int:
+    """Add the complete records of a chunk's data; returns where they end."""
+    buf = BytesIO(data)
+    end = 0
+    while buf.tell() < len(data):
+        try:
+            header = Header.read(buf)
+            if header.get_uint8("op") == RecordType.CONNECTION:
+                _ros1_connection(bag, known, header, Header.read(buf))
+            else:
+                length = read_uint32(buf)
+                if buf.tell() + length > len(data):
+                    break
+                if header.get_uint8("op") == RecordType.MSGDATA:
+                    connection = known[header.get_uint32("conn")]
+                    bag.add_message(
+                        connection, header.get_time("time"), chunk, base + buf.tell(), length
+                    )
+                buf.seek(length, os.SEEK_CUR)
+        except Exception:
+            break
+        end = buf.tell()
+    return end
+
+
+def _ros1_connection(
+    bag: "SalvagedBag", known: dict[int, Connection], header: Header, data: Header
+) -> None:
+    conn = header.get_uint32("conn")
+    if conn in known:
+        return
+    msgtype = normalize_msgtype(data.get_string("type"))
+    callerid = data.get_string("callerid") if "callerid" in data else None
+    latching = data.get_string("latching") if "latching" in data else ""
+    connection = Connection(
+        conn,
+        normalize(header.get_string("topic")),
+        msgtype,
+        MessageDefinition(MessageDefinitionFormat.MSG, data.get_string("message_definition")),
+        data.get_string("md5sum"),
+        0,
+        ConnectionExtRosbag1(callerid, int(latching) if latching else None),
+        bag,
+    )
+    known[conn] = connection
+    bag.add_connection(connection)
+
+
+def scan_mcap(bag: "SalvagedBag", bio: Any) -> None:
+    """Scan an MCAP file: schemas, channels, messages, chunks, up to the data end."""
+    size = bag.storage.stat().st_size
+    bio.seek(len(MCAP_MAGIC))
+    schemas: dict[int, Schema] = {}
+    known: dict[int, Connection] = {}
+    stopped_at, why = bio.tell(), "end of the records"
+    while bio.tell() < size:
+        start = bio.tell()
+        head = bio.read(9)
+        if len(head) < 9:
+            why = f"the record at byte {start} is incomplete"
+            break
+        op, length = struct.unpack("<BQ", head)
+        if op in (0x02, 0x0F):  # footer, data end: the data section is whole
+            why = "the cut lies after the data section"
+            break
+        content = bio.read(min(length, size - start - 9))
+        complete = len(content) == length
+        if op == 0x06:
+            try:
+                used = _mcap_chunk(bag, schemas, known, content, start + 9, complete)
+            except Exception:  # a chunk that does not decompress: damaged, not cut
+                why = f"the chunk record at byte {start} is damaged"
+                break
+            if complete or used:
+                stopped_at = used if not complete else start + 9 + length
+        elif complete:
+            try:
+                _mcap_record(bag, schemas, known, op, content, -1, start + 9)
+            except Exception:
+                why = f"the record at byte {start} is damaged"
+                break
+            stopped_at = start + 9 + length
+        if not complete:
+            name = "chunk record" if op == 0x06 else "record"
+            why = f"the {name} at byte {start} is incomplete"
+            break
+    bag.finish(stopped_at, why)
+
+
+def _mcap_chunk(
+    bag: "SalvagedBag",
+    schemas: dict[int, Schema],
+    known: dict[int, Connection],
+    content: bytes,
+    base: int,
+    complete: bool,
+) -> int:
+    """Add a chunk's complete records; returns the file byte they end at (0: none)."""
+    if len(content) < 32:
+        return 0
+    _, _, usize, crc, name_size = struct.unpack_from("<QQQIL", content)
+    codec = content[32 : 32 + name_size].decode()
+    offset = 32 + name_size + 8
+    records = content[offset:]
+    if codec:
+        if not complete:
+            return 0
+        bag.chunks.append((base + offset, len(records), codec, usize, crc))
+        records = decompress(records, codec, usize, crc)
+        chunk, where = len(bag.chunks) - 1, 0
+    else:
+        chunk, where = -1, base + offset
+    end = 0
+    pos = 0
+    while pos + 9 <= len(records):
+        op, length = struct.unpack_from("<BQ", records, pos)
+        if pos + 9 + length > len(records):
+            break
+        try:
+            _mcap_record(
+                bag, schemas, known, op, records[pos + 9 : pos + 9 + length], chunk, where + pos + 9
+            )
+        except Exception:
+            break
+        pos += 9 + length
+        end = pos
+    return base + offset + end if chunk == -1 else base + len(content)
+
+
+def _mcap_record(
+    bag: "SalvagedBag",
+    schemas: dict[int, Schema],
+    known: dict[int, Connection],
+    op: int,
+    record: bytes,
+    chunk: int,
+    offset: int,
+) -> None:
+    """Take in a schema, channel or message record (``offset``: its content)."""
+    if op == 0x03:
+        rec = BytesIO(record)
+        (key,) = struct.unpack("<H", rec.read(2))
+        schemas[key] = Schema(key, _string(rec), _string(rec), _string(rec))
+    elif op == 0x04:
+        rec = BytesIO(record)
+        key, schema_id = struct.unpack("<HH", rec.read(4))
+        topic, encoding = _string(rec), _string(rec)
+        (map_size,) = struct.unpack("<L", rec.read(4))
+        metadata = struct.pack("<L", map_size) + rec.read(map_size)
+        schema = schemas.get(schema_id)
+        connection = Connection(
+            key,
+            topic,
+            schema.name if schema else "__schemaless__",
+            get_msgdef(schema),
+            "",
+            0,
+            ConnectionExtRosbag2(encoding, get_qos(metadata[4:])),
+            bag,
+        )
+        if key not in known:
+            known[key] = connection
+            bag.add_connection(connection)
+    elif op == 0x05:
+        channel, _, log_time, _ = struct.unpack_from("<HLQQ", record)
+        if channel in known:
+            bag.add_message(known[channel], log_time, chunk, offset + 22, len(record) - 22)
+
+
+def _string(rec: BytesIO) -> str:
+    (size,) = struct.unpack("<L", rec.read(4))
+    return rec.read(size).decode()
+
+
+def scan_db3(bag: "SalvagedBag") -> None:
+    """Read a cut ``.db3``'s rows in id order from a copy of its whole pages."""
+    data_size = bag.storage.stat().st_size
+    with bag.storage.open("rb") as bio:
+        head = bio.read(100)
+        (page_size,) = struct.unpack_from(">H", head, 16) if len(head) == 100 else (0,)
+        page_size = 65536 if page_size == 1 else page_size
+        pages = data_size // page_size if page_size else 0
+        if not pages:
+            raise CaptureError(
+                f"{bag.storage}: cut short ({data_size} bytes) inside its first page"
+            )
+        bio.seek(0)
+        handle, name = tempfile.mkstemp(suffix=".db3", prefix="lenspair-salvage-")
+        try:
+            with os.fdopen(handle, "wb") as out:  # whole pages only, streamed
+                left = pages * page_size
+                while left:
+                    block = bio.read(min(left, 1 << 20))
+                    if not block:  # the file shrank while being read
+                        break
+                    out.write(block)
+                    left -= len(block)
+                out.seek(28)  # the header's page count: SQLite stops at the last page
+                out.write(struct.pack(">L", pages))
+            db = sqlite3.connect(f"file:{name}?immutable=1", uri=True, check_same_thread=False)
+        finally:
+            os.unlink(name)  # the open connection keeps the data until it closes
+    bag.db = db
+    why = "end of the rows"
+    try:
+        known = _db3_connections(bag, db)
+        # Reading ``data`` makes SQLite fetch every page of the row.
+        rows = db.execute("SELECT id, topic_id, timestamp, data FROM messages ORDER BY id")
+        for row_id, topic_id, log_time, _ in rows:
+            if topic_id in known:
+                bag.add_message(known[topic_id], log_time, -2, row_id, 0)
+    except sqlite3.DatabaseError as exc:
+        why = f"SQLite stops at the missing pages ({exc})"
+    bag.finish(pages * page_size, why)
+
+
+def _db3_connections(bag: "SalvagedBag", db: sqlite3.Connection) -> dict[int, Connection]:
+    definitions: dict[str, tuple[str, str]] = {}
+    try:
+        for msgtype, encoding, text in db.execute(
+            "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"
+        ):
+            definitions[msgtype] = (encoding, text)
+    except sqlite3.DatabaseError:  # older schema, or the table lies past the cut
+        pass
+    known: dict[int, Connection] = {}
+    for key, topic, msgtype, fmt in db.execute(
+        "SELECT id, name, type, serialization_format FROM topics"
+    ):
+        encoding, text = definitions.get(msgtype, ("", ""))
+        kind = {"ros2msg": MessageDefinitionFormat.MSG, "ros2idl": MessageDefinitionFormat.IDL}
+        msgdef = MessageDefinition(kind.get(encoding, MessageDefinitionFormat.NONE), text)
+        connection = Connection(
+            key, topic, msgtype, msgdef, "", 0, ConnectionExtRosbag2(fmt, []), bag
+        )
+        known[key] = connection
+        bag.add_connection(connection)
+    return known
