@@ -62,6 +62,27 @@ class SideCheck:
     message: str
 
 
+def side_message(declared: CameraName, inferred: Inferred, shares: str) -> tuple[bool | None, str]:
+    """Whether ``inferred`` agrees with ``declared`` (``None``: undetermined) and the sentence.
+
+    Args:
+        declared: the obstructed camera that ``rig.yaml`` (or ``--obstructed``) names.
+        inferred: what the images say.
+        shares: the figures the verdict rests on, put in brackets.
+    """
+    agrees = None if inferred == "undetermined" else inferred == declared
+    if agrees is None:
+        message = f"obstructed side undetermined ({shares}); declared {declared}"
+    elif agrees:
+        message = f"images agree that {declared} is obstructed ({shares})"
+    else:
+        message = (
+            f"images suggest {inferred} is obstructed, but {declared} is declared ({shares}); "
+            "check rig.yaml or --obstructed"
+        )
+    return agrees, message
+
+
 def tile_detail(image: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
     """Laplacian energy per tile of a gain-normalised grey image.
 
@@ -156,17 +177,8 @@ def check_obstructed_side(
         inferred = "cam0" if lower0 > lower1 else "cam1"
         saturation = min(1.0, high / (4 * min_tile_fraction))
         confidence = (high - low) / (high + low) * saturation
-    agrees = None if inferred == "undetermined" else inferred == declared
     shares = f"tiles with less detail: cam0 {lower0:.0%}, cam1 {lower1:.0%} of {num_tiles}"
-    if agrees is None:
-        message = f"obstructed side undetermined ({shares}); declared {declared}"
-    elif agrees:
-        message = f"images agree that {declared} is obstructed ({shares})"
-    else:
-        message = (
-            f"images suggest {inferred} is obstructed, but {declared} is declared ({shares}); "
-            "check rig.yaml or --obstructed"
-        )
+    agrees, message = side_message(declared, inferred, shares)
     return SideCheck(
         declared=declared,
         inferred=inferred,

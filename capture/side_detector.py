@@ -24,7 +24,7 @@ import numpy as np
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.rigfile import CameraName
-from lenspair.capture.side_check import Inferred
+from lenspair.capture.side_check import Inferred, side_message
 
 ObstructedProbability = Callable[[Sequence[np.ndarray]], np.ndarray]
 """Frames (``uint8``/``uint16``, grey or RGB) -> ``(N,)`` probabilities of an obstructed glass."""
@@ -95,17 +95,8 @@ def check_side_with_detector(
     if max(p0, p1) >= min_probability and abs(p1 - p0) >= margin:
         inferred = "cam1" if p1 > p0 else "cam0"
     confidence = abs(p1 - p0) if inferred != "undetermined" else 0.0
-    agrees = None if inferred == "undetermined" else inferred == declared
     shares = f"detector: p(obstructed) cam0 {p0:.2f}, cam1 {p1:.2f} over {len(images_cam0)} pairs"
-    if agrees is None:
-        message = f"obstructed side undetermined ({shares}); declared {declared}"
-    elif agrees:
-        message = f"images agree that {declared} is obstructed ({shares})"
-    else:
-        message = (
-            f"images suggest {inferred} is obstructed, but {declared} is declared ({shares}); "
-            "check rig.yaml or --obstructed"
-        )
+    agrees, message = side_message(declared, inferred, shares)
     return DetectorSideCheck(
         declared=declared,
         inferred=inferred,
