@@ -75,6 +75,7 @@ FILE_CASES: dict[str, list[list[str]]] = {
         ["CKPT", "IMGS", "--out", "OUT", "--only-obstructed", "BAD"],
     ],
     "detect": [["BAD", "IMGS", "--out", "OUT"], ["DET", "BAD", "--out", "OUT"]],
+    "realism": [["BAD"], ["--render", "ours", "--images", "BAD"]],
     "train-detector": [
         ["BAD", "--out", "OUT"],
         ["--recordings", "BAD", "--out", "OUT"],
@@ -131,6 +132,10 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["train-detector", "--out", "OUT", "--synthetic", "2", "--input-size", "0x9"], "--input-size"),
     (["train-detector", "--out", "OUT", "--synthetic", "2", "--threads", "0"], "threads"),
     (["train-detector", "--out", "OUT", "--set-per-kind", "1"], "--set-per-kind"),
+    (["realism", "--render", "nope"], "nope"),
+    (["realism", "--render", "ours", "--size", "big"], "--size"),
+    (["realism", "--render", "ours", "--size", "0x480"], "--size"),
+    (["realism", "DS", "--split", "nosuch"], "nosuch"),
     (["no-such-command"], "no-such-command"),
 ]
 
