@@ -26,6 +26,7 @@ import argparse
 from pathlib import Path
 
 from lenspair.capture.ingest import ingest_recording
+from lenspair.commands.argtypes import positive_int
 from lenspair.rectify.crop import parse_size
 
 
@@ -41,16 +42,6 @@ def _topics(text: str) -> tuple[str, str]:
     if len(parts) != 2 or not all(parts):
         raise argparse.ArgumentTypeError(f"expected CAM0_TOPIC,CAM1_TOPIC, got {text!r}")
     return parts[0], parts[1]
-
-
-def _workers(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -69,7 +60,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--obstructed", choices=("cam0", "cam1"), default=None, help="override rig.yaml"
     )
-    parser.add_argument("--workers", type=_workers, default=1, help="worker processes (default 1)")
+    parser.add_argument(
+        "--workers", type=positive_int, default=1, help="worker processes (default 1)"
+    )
     parser.add_argument(
         "--topics", type=_topics, default=None, metavar="A,B", help="bag topics of cam0,cam1"
     )

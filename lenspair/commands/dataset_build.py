@@ -33,22 +33,12 @@ exits with status 1 and a list of problems when anything is off.
 import argparse
 from pathlib import Path
 
+from lenspair.commands.argtypes import positive_int
 from lenspair.core.errors import ConfigError
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import SPLITS, load_dataset_config, parse_fractions, with_overrides
 from lenspair.dataset.curation import RULE_NAMES
 from lenspair.dataset.verify import verify_dataset
-
-
-def _positive_int(text: str) -> int:
-    """Argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "can, else a copy; default); hard: hard links, read-only, noted in the card",
     )
     parser.add_argument(
-        "--workers", type=_positive_int, help="threads reading images (default up to 4)"
+        "--workers", type=positive_int, help="threads reading images (default up to 4)"
     )
     group = parser.add_argument_group("common thresholds (override --config)")
     group.add_argument("--max-residual-px", type=float, help="registration residual (2.0)")
