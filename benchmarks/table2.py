@@ -22,8 +22,10 @@ training) are printed beside, labelled.
 
 import argparse
 import json
+import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import torch
@@ -58,26 +60,42 @@ def _dataset(out: Path, frames: int) -> Path:
     return demo / "dataset"
 
 
-def _train(argv: list[str], run: Path) -> float:
-    """Run ``lenspair train`` unless ``run`` already finished; returns seconds spent."""
+def _train(argv: list[str], run: Path, device: str) -> float:
+    """Run ``lenspair train`` unless ``run`` already finished; returns seconds spent.
+
+    Each run is its own process (``python -m lenspair train``), so runs can go
+    side by side (``--jobs``) without sharing torch's global seed or threads.
+    """
     if (run / "checkpoints" / "best.pt").is_file():
         return 0.0
     start = time.monotonic()
-    code = cli_main(["train", *argv, "--out", str(run), "--device", "cpu"])
+    command = [sys.executable, "-m", "lenspair", "train", *argv, "--out", str(run)]
+    code = subprocess.run([*command, "--device", device], check=False).returncode
     if code != 0:
         raise SystemExit(f"table2: training {run} failed (exit {code})")
     return time.monotonic() - start
 
 
+def _parallel(jobs: int, work: dict[str, tuple[list[str], Path]], device: str) -> dict[str, float]:
+    """Train every ``name: (argv, run)`` of ``work``, ``jobs`` at a time; seconds per name."""
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = {name: pool.submit(_train, *job, device) for name, job in work.items()}
+        return {name: future.result() for name, future in futures.items()}
+
+
 @torch.inference_mode()
-def _score(checkpoint: Path, dataset: Path) -> tuple[float, float, float, float]:
+def _score(checkpoint: Path, dataset: Path, device: str) -> tuple[float, float, float, float]:
     """Output PSNR/SSIM and input PSNR/SSIM on the test split."""
-    loaded = load_model(checkpoint)
+    loaded = load_model(checkpoint, torch.device(device))
     channels = loaded.config.model.channels or 1
     pairs = open_eval_pairs(dataset, "test")
-    scores, _ = score_pairs(loaded.network, pairs, channels, torch.device("cpu"), max_samples=0)
+    scores, _ = score_pairs(loaded.network, pairs, channels, torch.device(device), max_samples=0)
     out, inp = summarize(scores), summarize(scores, "input")
     return out.psnr_db, out.ssim, inp.psnr_db, inp.ssim
+
+
+def _device_name(device: str) -> str:
+    return torch.cuda.get_device_name(0) if device == "cuda" else "CPU"
 
 
 def _claims(psnr: dict[str, SeedSummary]) -> list[str]:
@@ -101,6 +119,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--crop-size", type=int, default=128)
     parser.add_argument("--batch-size", type=int, default=4)
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    parser.add_argument("--jobs", type=int, default=1, help="training runs side by side (1)")
+    parser.add_argument(
+        "--config", type=Path, help="run config for every `train` (default: early stopping off)"
+    )
     args = parser.parse_args(argv)
     command = "python -m benchmarks.table2 " + " ".join(sys.argv[1:] if argv is None else argv)
     torch.set_num_threads(2)
@@ -112,26 +135,36 @@ def main(argv: list[str] | None = None) -> int:
     natural = out / "natural"
     if not (natural / "train").is_dir():
         write_natural_images(natural, channels)
+    # --epochs far above the step budget: --max-steps, not the epoch count, ends every run
     common = ["--crop-size", str(args.crop_size), "--batch-size", str(args.batch_size)]
-    seconds: dict[str, float] = {}
+    common += ["--epochs", "1000000"]
+    config = args.config.resolve() if args.config else out / "table2_train.yaml"
+    if not args.config:  # equal budgets: early stopping off (a --config must say so itself)
+        config.write_text("train:\n  patience: 0\n")
+    common += ["--config", str(config)]
+    pretrain = {}
     for preset in ("ours", "sharp"):
-        run = out / f"pretrain-{preset}"
-        seconds[run.name] = _train(
-            ["--synthetic", str(natural / "train"), "--drops", preset, "--seed", "0",
-             "--max-steps", str(args.pretrain_steps), *common],
-            run,
-        )  # fmt: skip
+        argv = ["--synthetic", str(natural / "train"), "--drops", preset, "--seed", "0"]
+        argv += ["--max-steps", str(args.pretrain_steps), *common]
+        pretrain[f"pretrain-{preset}"] = (argv, out / f"pretrain-{preset}")
+    seconds = _parallel(args.jobs, pretrain, args.device)
+    finetune = {}
+    for seed in args.seeds:
+        for init in INITS:
+            pretrained = out / f"pretrain-{init}" / "checkpoints" / "best.pt"
+            start = [] if init == "random" else ["--init", str(pretrained)]
+            budget = ["--seed", str(seed), "--max-steps", str(args.finetune_steps)]
+            name = f"finetune-{init}-seed{seed}"
+            finetune[name] = ([str(dataset), *start, *budget, *common], out / name)
+    seconds |= _parallel(args.jobs, finetune, args.device)
     psnr: dict[str, list[float]] = {name: [] for name in INITS}
     ssim: dict[str, list[float]] = {name: [] for name in INITS}
     inputs: tuple[float, float] = (float("nan"), float("nan"))
     for seed in args.seeds:
         for init in INITS:
             run = out / f"finetune-{init}-seed{seed}"
-            pretrained = out / f"pretrain-{init}" / "checkpoints" / "best.pt"
-            start = [] if init == "random" else ["--init", str(pretrained)]
-            budget = ["--seed", str(seed), "--max-steps", str(args.finetune_steps)]
-            seconds[run.name] = _train([str(dataset), *start, *budget, *common], run)
-            out_psnr, out_ssim, in_psnr, in_ssim = _score(run / "checkpoints" / "best.pt", dataset)
+            best = run / "checkpoints" / "best.pt"
+            out_psnr, out_ssim, in_psnr, in_ssim = _score(best, dataset, args.device)
             psnr[init].append(out_psnr)
             ssim[init].append(out_ssim)
             inputs = (in_psnr, in_ssim)
@@ -153,7 +186,8 @@ def main(argv: list[str] | None = None) -> int:
             f"Table 2 on simulated recording pairs ({dataset}, test split, skimage-gaussian): "
             f"pretraining {args.pretrain_steps} steps on bundled natural photographs, then "
             f"fine-tuning {args.finetune_steps} steps per seed; crop {args.crop_size}, batch "
-            f"{args.batch_size}, CPU; {total / 60:.1f} min wall clock in all.",
+            f"{args.batch_size}, {_device_name(args.device)}, {args.jobs} run(s) side by side; "
+            f"{total / 60:.1f} min wall clock in all.",
             "",
             f"Command: `{command}`",
             "",
