@@ -32,11 +32,11 @@ from typing import Any
 
 import torch
 
-from benchmarks.bench_model import HEIGHT, WIDTH, _cpu_model, _structured_image, _untrained_model
+from benchmarks.bench_model import HEIGHT, WIDTH, _structured_image, _untrained_model
 from lenspair.model.evaluation.export import INPUT_NAME
 from lenspair.model.evaluation.quantize import open_session, quantize_network
 from lenspair.model.metrics import psnr
-from lenspair.model.precision import choose_precision
+from lenspair.model.precision import choose_precision, read_cpu_flags
 
 
 def _calibration(count: int) -> list[torch.Tensor]:
@@ -121,7 +121,7 @@ def run(runs: int, calibration_count: int, pt2e: bool) -> dict[str, Any]:
     medians = {name: statistics.median(values) for name, values in times.items()}
     reference = outputs["fp32 torch"].clamp(0, 1)
     return {
-        "cpu_model": _cpu_model(),
+        "cpu_model": read_cpu_flags()[0],
         "torch": torch.__version__,
         "threads": torch.get_num_threads(),
         "runs": runs,

@@ -43,82 +43,27 @@ import copy
 import json
 import os
 import platform
-import statistics
 import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 
+from benchmarks.machine import cpu_pressure, median_ms, round_robin
+from benchmarks.machine import peaks as measure_peaks
 from benchmarks.model_profile import deraindrop_comparison, layer_profile, profile_table
 from lenspair.model.evaluation.latency import tune_allocator
 from lenspair.model.metrics import psnr
 from lenspair.model.networks.complexity import describe
 from lenspair.model.networks.variants import AnomalyMitigator, build_model
-from lenspair.model.precision import choose_precision
+from lenspair.model.precision import choose_precision, read_cpu_flags
 
 HEIGHT, WIDTH = 360, 540
 LATENCY_TARGET_BF16_MS = 50.0
 ROOFLINE_TARGET = 1.5
 
-Clock = Callable[[], float]
 Context = Callable[[], contextlib.AbstractContextManager[None]]
-
-
-def _round_robin(
-    calls: dict[str, Callable[[], object]], runs: int, warmup: int, clock: Clock
-) -> dict[str, list[float]]:
-    for call in calls.values():
-        for _ in range(warmup):
-            call()
-    times: dict[str, list[float]] = {name: [] for name in calls}
-    for _ in range(runs):
-        for name, call in calls.items():
-            start = clock()
-            call()
-            times[name].append(clock() - start)
-    return times
-
-
-def _median_ms(samples: list[float]) -> float:
-    return statistics.median(samples) * 1e3
-
-
-def _peaks(runs: int, clock: Clock) -> dict[str, float]:
-    """Median fp32 GFLOP/s of three GEMM-like kernels.
-
-    ``torch.mm`` 2048^3 (MKL), a 1x1 convolution 512->512 on 64x64 (a plain
-    4096x512x512 GEMM in oneDNN) and a 3x3 convolution 256->256 on 64x64 (an
-    implicit 4096x256x2304 GEMM in oneDNN, the kernel family the network uses).
-    """
-    generator = torch.Generator().manual_seed(0)
-    n = 2048
-    a = torch.randn(n, n, generator=generator)
-    b = torch.randn(n, n, generator=generator)
-    cl = torch.channels_last
-    side = 64
-    x1 = torch.randn(1, 512, side, side, generator=generator).contiguous(memory_format=cl)
-    w1 = torch.randn(512, 512, 1, 1, generator=generator).contiguous(memory_format=cl)
-    x3 = torch.randn(1, 256, side, side, generator=generator).contiguous(memory_format=cl)
-    w3 = torch.randn(256, 256, 3, 3, generator=generator).contiguous(memory_format=cl)
-    times = _round_robin(
-        {
-            "mm": lambda: torch.mm(a, b),
-            "conv1x1": lambda: F.conv2d(x1, w1),
-            "conv3x3": lambda: F.conv2d(x3, w3, padding=1),
-        },
-        runs,
-        3,
-        clock,
-    )
-    flops = {
-        "mm": 2 * n**3,
-        "conv1x1": 2 * side * side * 512 * 512,
-        "conv3x3": 2 * side * side * 256 * 256 * 9,
-    }
-    return {f"{name}_gflops": flops[name] / statistics.median(times[name]) / 1e9 for name in flops}
 
 
 def _structured_image() -> torch.Tensor:
@@ -155,24 +100,6 @@ def _nothing() -> Iterator[None]:
 
 def _autocast() -> contextlib.AbstractContextManager[None]:
     return torch.autocast("cpu", dtype=torch.bfloat16)
-
-
-def _cpu_model() -> str:
-    """The CPU's marketing name from /proc/cpuinfo (Linux), else the platform's machine."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.machine()
-
-
-def _pressure() -> str:
-    try:
-        return Path("/proc/pressure/cpu").read_text().splitlines()[0]
-    except OSError:
-        return "n/a"
 
 
 def _configs(
@@ -219,7 +146,7 @@ def run(
     deraindrop_runs: int = 3,
 ) -> dict[str, object]:
     """Measure everything; returns the JSON record."""
-    load_start, pressure_start = os.getloadavg(), _pressure()
+    load_start, pressure_start = os.getloadavg(), cpu_pressure()
     model = _untrained_model()
     summary = describe(model, (1, HEIGHT, WIDTH))
     configs = _configs(model, compile_models)
@@ -238,15 +165,15 @@ def run(
     calls = {name: caller(name) for name in configs}
     with torch.inference_mode():
         torch.set_num_threads(threads)
-        default_times = _round_robin(calls, max(5, runs // 2), warmup, time.perf_counter)
+        default_times = round_robin(calls, max(5, runs // 2), warmup, time.perf_counter)
         allocator_tuned = tune_allocator()
-        peaks = _peaks(max(5, runs // 3), time.perf_counter)
-        times = _round_robin(calls, runs, warmup, time.perf_counter)
+        peaks = measure_peaks(max(5, runs // 3), time.perf_counter)
+        times = round_robin(calls, runs, warmup, time.perf_counter)
         torch.set_num_threads(1)
-        single_peaks = _peaks(5, time.thread_time)
-        single_times = _round_robin(calls, max(5, runs // 4), 1, time.thread_time)
+        single_peaks = measure_peaks(5, time.thread_time)
+        single_times = round_robin(calls, max(5, runs // 4), 1, time.thread_time)
         torch.set_num_threads(threads)
-    medians = {name: _median_ms(samples) for name, samples in times.items()}
+    medians = {name: median_ms(samples) for name, samples in times.items()}
     best_fp32 = min((n for n in medians if n.startswith("fp32")), key=medians.__getitem__)
     profile: list[dict[str, object]] = []
     if profile_runs > 0:
@@ -270,10 +197,10 @@ def run(
         for name in medians
         if name.startswith("bf16")
     }
-    single_ms = {name: _median_ms(samples) for name, samples in single_times.items()}
+    single_ms = {name: median_ms(samples) for name, samples in single_times.items()}
     return {
         "device": platform.processor() or platform.machine(),
-        "cpu_model": _cpu_model(),
+        "cpu_model": read_cpu_flags()[0],
         "torch": torch.__version__,
         "threads": threads,
         "runs": runs,
@@ -292,7 +219,7 @@ def run(
         "medians_ms": medians,
         "min_ms": {name: min(samples) * 1e3 for name, samples in times.items()},
         "default_allocator_medians_ms": {
-            name: _median_ms(samples) for name, samples in default_times.items()
+            name: median_ms(samples) for name, samples in default_times.items()
         },
         "fp32_best": fp32_name,
         "fp32_ms": medians[fp32_name],
@@ -321,7 +248,7 @@ def run(
         "load_average_start": list(load_start),
         "load_average_end": list(os.getloadavg()),
         "cpu_pressure_start": pressure_start,
-        "cpu_pressure_end": _pressure(),
+        "cpu_pressure_end": cpu_pressure(),
     }
 
 
