@@ -47,9 +47,10 @@ results: demo bench
 	$(BIN)/python -m benchmarks.readme_results --demo demo_out --bench bench_out --readme README.md
 
 # Issue 12: the tradeoff over seeds with a convergence check (budget: 6 variants x 3
-# seeds x 400 steps, crop 128, batch 4: hours on 2 CPU cores; not yet run), the
-# paper's Table 2 on simulated pairs (43 min here with the cores shared), the weights
-# (11 min per network). Each prints its table and writes it beside its runs.
+# seeds x 400 steps, crop 128, batch 4: hours on 2 CPU cores; 800 steps at crop 256 ran
+# on an H100, docs/results/gpu_h100.md), the paper's Table 2 on simulated pairs (a
+# converging budget needs a GPU: add --device cuda --jobs 9 and 1000+ steps), the
+# weights (11 min per network). Each prints its table and writes it beside its runs.
 tradeoff-seeds: demo
 	$(BIN)/lenspair tradeoff demo_out/dataset --out tradeoff_seeds_out --budget 400 --seeds 0,1,2
 
