@@ -8,8 +8,9 @@ then supports no claim), and a difference is claimed only when it is larger
 than the spread of either side (:func:`clearly_better`).
 
 A budget is long enough when the learning curve has flattened: over the
-last 20 % of the budget, validation PSNR changed by less than the seed
-spread (:func:`converged`).
+last 20 % of the budget, the trend of validation PSNR (a least-squares
+line, robust to the GAN's validation noise) changed it by less than the
+seed spread (:func:`converged`).
 """
 
 import math
@@ -74,6 +75,12 @@ def converged(
 ) -> tuple[bool, float] | None:
     """Whether validation PSNR moved less than ``spread`` over the last 20 % of the budget.
 
+    The change is read off the least-squares line through the points of the
+    last 20 % (from the last point at or before 80 % of the budget to the
+    end), as its rise over that span: a GAN's validation PSNR jumps by tenths
+    of a dB between validations, and the difference of two single points
+    would call that noise a trend. With two points it is their difference.
+
     Args:
         curve: ``(progress, psnr_db)`` points (steps or seconds), any order.
         budget: the budget in the same unit (the last point's progress when
@@ -81,9 +88,8 @@ def converged(
         spread: the seed spread of the final PSNR, dB.
 
     Returns:
-        ``(holds, change_db)`` where ``change_db`` is the PSNR of the last
-        point minus that of the last point at or before 80 % of the budget;
-        None when no point lies at or before 80 % or no point after it.
+        ``(holds, change_db)``; None when no point lies at or before 80 %
+        or no point after it.
 
     """
     points = sorted((p, v) for p, v in curve if math.isfinite(v))
@@ -91,7 +97,9 @@ def converged(
     before = [point for point in points if point[0] <= cut]
     if not before or points[-1][0] <= before[-1][0]:
         return None
-    change = points[-1][1] - before[-1][1]
+    tail = points[len(before) - 1 :]
+    slope, _ = statistics.linear_regression([p for p, _ in tail], [v for _, v in tail])
+    change = slope * (tail[-1][0] - tail[0][0])
     return abs(change) < spread, change
 
 

@@ -147,8 +147,9 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
         f"- metric convention: {meta['convention']}; accuracy is mean +/- spread (sample "
         "standard deviation over seeds)",
         f"- CPU ms: median over seeds of the median per frame (batch 1, {meta['size']})",
-        f"- converged: over the last {tail} of the budget validation PSNR moved less than the "
-        "seed spread, on every seed (largest change in brackets)",
+        f"- converged: over the last {tail} of the budget the trend (least-squares line) of "
+        "validation PSNR moved less than the seed spread, on every seed (largest change in "
+        "brackets)",
         "- Pareto: `*` PSNR-vs-time, `+` SSIM-vs-time front; a row is dominated only by a "
         "row as fast that is better by more than either spread",
         "",
