@@ -12,7 +12,9 @@ set, the way ``dataset-build`` splits by recording to avoid the leakage of
 consecutive frames in both train and test.
 """
 
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
+from multiprocessing import get_context
 from pathlib import Path
 
 from lenspair.core.samples import sample_path
@@ -25,7 +27,7 @@ from lenspair.simulate.effects.spec import (
     RaindropsSpec,
 )
 from lenspair.simulate.recording import simulate_recording
-from lenspair.simulate.spec import ObstructionSpec, load_scene
+from lenspair.simulate.spec import ObstructionSpec, SceneSpec, load_scene
 
 SCENE_KINDS: dict[str, EffectsSpec] = {
     "clean": EffectsSpec(),
@@ -56,28 +58,14 @@ _TEXTURES = (
 )
 
 
-def simulate_kind_set(out: Path, per_kind: int = 3, frames: int = 6, seed: int = 0) -> list[Path]:
-    """Render ``per_kind`` recordings of every kind under ``out/<kind>_<k>/``.
-
-    Finished recordings (a ``rig.yaml`` present) are kept, so a rerun resumes.
-
-    Args:
-        out: output folder.
-        per_kind: recordings per kind.
-        frames: frames per recording.
-        seed: base seed; recording ``k`` of kind ``i`` uses ``seed + 100 i + k``.
-
-    Returns:
-        The recording folders, kind by kind.
-    """
+def kind_set_specs(
+    out: Path, per_kind: int = 3, frames: int = 6, seed: int = 0
+) -> list[tuple[Path, SceneSpec]]:
+    """The folders and scene specs of :func:`simulate_kind_set`, kind by kind."""
     base = load_scene(sample_path("rain.yaml"))
-    paths = []
+    jobs = []
     for kind_number, (kind, effects) in enumerate(SCENE_KINDS.items()):
         for k in range(per_kind):
-            path = Path(out) / f"{kind}_{k}"
-            paths.append(path)
-            if (path / "rig.yaml").is_file():
-                continue
             number = kind_number * per_kind + k
             textures = tuple(_TEXTURES[(number + i) % len(_TEXTURES)] for i in range(6))
             planes = tuple(replace(p, texture=textures) for p in base.planes)
@@ -93,8 +81,42 @@ def simulate_kind_set(out: Path, per_kind: int = 3, frames: int = 6, seed: int =
                 ),
                 seed=seed + 100 * kind_number + k,
             )
-            simulate_recording(spec, path)
-    return paths
+            jobs.append((Path(out) / f"{kind}_{k}", spec))
+    return jobs
+
+
+def _simulate(job: tuple[Path, SceneSpec]) -> None:
+    path, spec = job
+    simulate_recording(spec, path)
+
+
+def simulate_kind_set(
+    out: Path, per_kind: int = 3, frames: int = 6, seed: int = 0, workers: int = 1
+) -> list[Path]:
+    """Render ``per_kind`` recordings of every kind under ``out/<kind>_<k>/``.
+
+    Finished recordings (a ``rig.yaml`` present) are kept, so a rerun resumes.
+
+    Args:
+        out: output folder.
+        per_kind: recordings per kind.
+        frames: frames per recording.
+        seed: base seed; recording ``k`` of kind ``i`` uses ``seed + 100 i + k``.
+        workers: processes rendering recordings side by side (1: in this
+            process); the recordings do not depend on it.
+
+    Returns:
+        The recording folders, kind by kind.
+    """
+    jobs = kind_set_specs(out, per_kind, frames, seed)
+    todo = [job for job in jobs if not (job[0] / "rig.yaml").is_file()]
+    if workers > 1 and len(todo) > 1:
+        with ProcessPoolExecutor(min(workers, len(todo)), mp_context=get_context("spawn")) as pool:
+            list(pool.map(_simulate, todo))
+    else:
+        for job in todo:
+            _simulate(job)
+    return [path for path, _ in jobs]
 
 
 def split_by_recording(paths: list[Path], held_out: int = 1) -> tuple[list[Path], list[Path]]:
