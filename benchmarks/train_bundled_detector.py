@@ -37,9 +37,7 @@ import shlex
 import shutil
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from functools import partial
-from multiprocessing import get_context
 from pathlib import Path
 
 import torch
@@ -51,6 +49,7 @@ from lenspair.core.device import resolve_device
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import load_dataset_config
 from lenspair.dataset.manifest import read_manifest
+from lenspair.model.detection.parallel import process_map
 from lenspair.model.detection.run import DETECTOR_FILE, DetectorSources, run_training
 from lenspair.model.detection.score import DetectionScores, scores_markdown
 from lenspair.model.detection.simset import simulate_kind_set
@@ -88,8 +87,7 @@ def prepare_data(
     started = time.perf_counter()
     ingested_root = work / "ingested"
     ingest = partial(_ingest, out=ingested_root)
-    with ProcessPoolExecutor(min(workers, len(others)), mp_context=get_context("spawn")) as pool:
-        ingested = [Path(folder) for folder in pool.map(ingest, others)]
+    ingested = [Path(folder) for folder in process_map(ingest, others, workers)]
     print(f"ingested {len(ingested)} recordings in {time.perf_counter() - started:.0f} s")
     dataset = work / "DS"
     build_dataset(ingested, dataset, load_dataset_config(None), overwrite=True, workers=workers)

@@ -12,12 +12,11 @@ set, the way ``dataset-build`` splits by recording to avoid the leakage of
 consecutive frames in both train and test.
 """
 
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
-from multiprocessing import get_context
 from pathlib import Path
 
 from lenspair.core.samples import sample_path
+from lenspair.model.detection.parallel import process_map
 from lenspair.simulate.effects.spec import (
     BrightnessSpec,
     DefocusSpec,
@@ -110,12 +109,7 @@ def simulate_kind_set(
     """
     jobs = kind_set_specs(out, per_kind, frames, seed)
     todo = [job for job in jobs if not (job[0] / "rig.yaml").is_file()]
-    if workers > 1 and len(todo) > 1:
-        with ProcessPoolExecutor(min(workers, len(todo)), mp_context=get_context("spawn")) as pool:
-            list(pool.map(_simulate, todo))
-    else:
-        for job in todo:
-            _simulate(job)
+    process_map(_simulate, todo, workers)
     return [path for path, _ in jobs]
 
 

@@ -15,13 +15,10 @@ on the number of workers.
 """
 
 import logging
-from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from functools import partial
-from multiprocessing import get_context
 from pathlib import Path
-from typing import TypeVar
 
 import numpy as np
 
@@ -34,6 +31,7 @@ from lenspair.model.detection.data import (
     texture_images,
 )
 from lenspair.model.detection.hard_cases import CleanView, clean_views, hard_samples
+from lenspair.model.detection.parallel import process_map
 from lenspair.model.detection.simset import simulate_kind_set, split_by_recording
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import DetectorSpec
@@ -43,9 +41,6 @@ log = logging.getLogger(__name__)
 
 CHUNK = 60
 """Synthetic or hard samples per seed (a multiple of the 4 kinds and the 5 hard cases)."""
-
-T = TypeVar("T")
-R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -77,14 +72,6 @@ class DetectorSources:
     set_frames: int = 6
     max_frames: int = 12
     hard: int = 0
-
-
-def _map(function: Callable[[T], R], items: Sequence[T], workers: int) -> list[R]:
-    """``function`` over ``items`` in order, in a spawned process pool when ``workers > 1``."""
-    if workers <= 1 or len(items) <= 1:
-        return [function(item) for item in items]
-    with ProcessPoolExecutor(min(workers, len(items)), mp_context=get_context("spawn")) as pool:
-        return list(pool.map(function, items))
 
 
 def _flat(groups: Iterable[list[DetectorSample]]) -> list[DetectorSample]:
@@ -160,19 +147,23 @@ def gather(
         set_train, set_test = split_by_recording(paths)
         recordings += set_train
         names = ", ".join(p.name for p in set_test)
-        held_out[f"held-out simulated recordings ({names})"] = _flat(_map(read, set_test, workers))
-    train += _flat(_map(read, recordings, workers))
+        held_out[f"held-out simulated recordings ({names})"] = _flat(
+            process_map(read, set_test, workers)
+        )
+    train += _flat(process_map(read, recordings, workers))
     if sources.test_recordings:
-        held_out["test recordings"] = _flat(_map(read, list(sources.test_recordings), workers))
+        held_out["test recordings"] = _flat(
+            process_map(read, list(sources.test_recordings), workers)
+        )
     if sources.synthetic:
         synthetic = partial(_synthetic_chunk, folder=sources.clean_folder, spec=spec)
-        train += _flat(_map(synthetic, _chunks(sources.synthetic, seed), workers))
+        train += _flat(process_map(synthetic, _chunks(sources.synthetic, seed), workers))
     if sources.hard:
         views = [v for path in recordings for v in clean_views(path, sources.max_frames)]
         if not views:
             raise ModelError("train-detector: hard cases need training recordings (their views)")
         hard = partial(_hard_chunk, views=views, spec=spec)
-        train += _flat(_map(hard, _chunks(sources.hard, seed + 1), workers))
+        train += _flat(process_map(hard, _chunks(sources.hard, seed + 1), workers))
     if not train:
         raise ModelError("train-detector: no training data; give DS/recordings or --synthetic N")
     return train, held_out
