@@ -127,6 +127,8 @@ def gather(
     Raises:
         ModelError: nothing to train on, or hard cases without recordings.
     """
+    if sources.hard and not (sources.recordings or sources.simulated_set):
+        raise ModelError("train-detector: hard cases need training recordings (their views)")
     train: list[DetectorSample] = []
     held_out: dict[str, list[DetectorSample]] = {}
     for root in sources.datasets:
@@ -160,8 +162,6 @@ def gather(
         train += _flat(process_map(synthetic, _chunks(sources.synthetic, seed), workers))
     if sources.hard:
         views = [v for path in recordings for v in clean_views(path, sources.max_frames)]
-        if not views:
-            raise ModelError("train-detector: hard cases need training recordings (their views)")
         hard = partial(_hard_chunk, views=views, spec=spec)
         train += _flat(process_map(hard, _chunks(sources.hard, seed + 1), workers))
     if not train:
