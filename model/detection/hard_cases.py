@@ -10,10 +10,10 @@ recording (the sample ``rain.yaml`` drops are 6-22 px on a 720x540 frame,
 
 * hard **negatives** (kind ``clean``, empty map): ``defocus`` (a Gaussian
   blur of random sigma, 1-7 px at 720 px width: a focus or motion problem,
-  not the glass), ``exposure`` (a gain of 0.2-1.6, clipped: dark and
-  over-exposed clean scenes), ``flat`` (a low-texture scene: a small part of
-  the view enlarged to the whole frame, so sky- or wall-like, with a random
-  gain);
+  not the glass; then an exposure gain as below), ``exposure`` (a gain of
+  0.2-1.6, log-uniform, clipped: dark and over-exposed clean scenes),
+  ``flat`` (a low-texture scene: a small part of the view enlarged to the
+  whole frame, so sky- or wall-like, with a random gain);
 * hard **positives**: ``veiled_dust`` (dust over 80-100 % of the frame with
   patches of a fifth to a third of its width, transmission 0.45-0.9 and
   scatter 0.03-0.12, half of them with a wet-glass veil; it darkens and
@@ -105,6 +105,11 @@ def _gain(image: np.ndarray, gain: float) -> np.ndarray:
     return np.asarray(np.round(scaled), dtype=np.uint8)
 
 
+def _exposure(rng: np.random.Generator) -> float:
+    """A gain of 0.2-1.6, uniform in its logarithm (as many darker as brighter frames)."""
+    return float(np.exp(rng.uniform(np.log(0.2), np.log(1.6))))
+
+
 def defocused(image: np.ndarray, sigma_px: float) -> np.ndarray:
     """``uint8`` ``(H, W)`` blurred with a Gaussian of ``sigma_px``."""
     blurred = np.asarray(cv2.GaussianBlur(image.astype(np.float32), (0, 0), sigma_px))
@@ -166,12 +171,10 @@ def hard_sample(
     kind = HARD_KINDS[case]
     scale = view.shape[1] / REFERENCE_WIDTH
     if case == "defocus":
-        return labelled(
-            defocused(view, scale * rng.uniform(1.0, 7.0)), 0, None, spec, source, group
-        )
+        blurred = _gain(defocused(view, scale * rng.uniform(1.0, 7.0)), _exposure(rng))
+        return labelled(blurred, 0, None, spec, source, group)
     if case == "exposure":
-        gain = float(np.exp(rng.uniform(np.log(0.2), np.log(1.6))))
-        return labelled(_gain(view, gain), 0, None, spec, source, group)
+        return labelled(_gain(view, _exposure(rng)), 0, None, spec, source, group)
     if case == "flat":
         flat = _gain(flat_scene(view, rng), float(rng.uniform(0.3, 1.3)))
         return labelled(flat, 0, None, spec, source, group)
