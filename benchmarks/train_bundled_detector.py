@@ -2,8 +2,8 @@
 
     python -m benchmarks.train_bundled_detector --work WORK --checkpoint detector.pt \\
         --markdown detector.md [--device auto|cpu|cuda] [--minutes 6] [--steps 200000] \\
-        [--workers 16] [--batch-size 64] [--per-kind 12] [--frames 12] \\
-        [--synthetic 2400] [--hard 3000] [--seed 0] [--latency-runs 20]
+        [--workers 16] [--batch-size 64] [--per-kind 16] [--frames 12] \\
+        [--synthetic 4000] [--hard 6000] [--seed 0] [--latency-runs 20]
 
 Run it from a folder that is not the repository root (there the root's
 ``lenspair/`` folder shadows the installed package), with ``benchmarks``
@@ -171,10 +171,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--learning-rate", type=float, default=3e-3)
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (1)")
-    parser.add_argument("--per-kind", type=int, default=12, help="recordings per kind (12)")
+    parser.add_argument("--per-kind", type=int, default=16, help="recordings per kind (16)")
     parser.add_argument("--frames", type=int, default=12, help="frames per recording (12)")
-    parser.add_argument("--synthetic", type=int, default=2400)
-    parser.add_argument("--hard", type=int, default=3000)
+    parser.add_argument("--synthetic", type=int, default=4000)
+    parser.add_argument("--hard", type=int, default=6000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--latency-runs", type=int, default=20, help="0: no latency table")
     args = parser.parse_args(argv)
