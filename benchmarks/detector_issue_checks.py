@@ -14,6 +14,7 @@ judged before it replaces ``calib_samples/detector.pt`` and the strict
   as cam0 with the detector side check: inferred cam1, a mismatch.
 """
 
+import shutil
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -63,7 +64,11 @@ def _probabilities(values: np.ndarray) -> str:
 
 
 def issue_checks(network: AnomalyDetector, work: Path) -> list[IssueCheck]:
-    """Run the four cases (module docstring) with ``network``; scenes are simulated in ``work``."""
+    """Run the four cases (module docstring) with ``network``; scenes are simulated in ``work``.
+
+    ``work`` is emptied first: a resumed ingest would keep an earlier detector's side check.
+    """
+    shutil.rmtree(work, ignore_errors=True)
     clean = open_recording(_simulate("clean", Path(work) / "clean", frames=3))
     frames = [clean.load(frame) for frame in clean.frames["cam0"]]
     checks = []
