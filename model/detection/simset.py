@@ -3,12 +3,15 @@
 :func:`simulate_kind_set` renders, with the scene simulator, ``per_kind``
 short recordings of each kind in :data:`SCENE_KINDS` (clean glass, rain,
 dust, dirt) from the sample scene ``calib_samples/rain.yaml``: each recording
-gets its own seed, its own mix of textures (rotated through the sample
-textures), its own walking direction and its own obstructed camera (cam0 and
-cam1 alternate), so that held-out recordings are new scenes, not neighbouring
-frames of a training recording. Recordings are named ``<kind>_<k>``;
-:func:`split_by_recording` puts the last ``held_out`` of each kind in the test
-set, the way ``dataset-build`` splits by recording to avoid the leakage of
+gets its own seed, its own mix of textures (3 to 9 of them, rotated through
+the sample textures: the more textures, the smaller each cell of the
+mosaic; a detector trained on one cell size called the finer mosaic of the
+sample scenes obstructed), its own walking direction and its own
+obstructed camera (cam0 and cam1 alternate), so that held-out recordings
+are new scenes, not neighbouring frames of a training recording.
+Recordings are named ``<kind>_<k>``; :func:`split_by_recording` puts the
+last ``held_out`` of each kind in the test set, the way ``dataset-build``
+splits by recording to avoid the leakage of
 consecutive frames in both train and test.
 """
 
@@ -66,7 +69,8 @@ def kind_set_specs(
     for kind_number, (kind, effects) in enumerate(SCENE_KINDS.items()):
         for k in range(per_kind):
             number = kind_number * per_kind + k
-            textures = tuple(_TEXTURES[(number + i) % len(_TEXTURES)] for i in range(6))
+            count = 3 + number % 7  # 3-9 textures: coarser and finer mosaics (the samples have 9)
+            textures = tuple(_TEXTURES[(number + i) % len(_TEXTURES)] for i in range(count))
             planes = tuple(replace(p, texture=textures) for p in base.planes)
             direction = 1.0 if number % 2 else -1.0
             velocity = (direction * 0.8, 0.05 * direction, 0.0)
