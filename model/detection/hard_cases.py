@@ -21,9 +21,12 @@ recording (the sample ``rain.yaml`` drops are 6-22 px on a 720x540 frame,
   ``light_rain`` (the drops, defocus and brightening of ``rain.yaml``, 15-60
   drops).
 
-Positives get a random exposure gain (0.3-1.2) *before* the effect, so
-darkness is evidence neither way. Labels: the kind is the case's; the map
-is the rendered footprint where the glass visibly changes the view
+Positives are rendered over a view of one of the negatives' looks (as it
+is, defocused, or flat, a third each) with a random exposure gain
+(0.3-1.2), so that neither sharpness nor darkness is evidence either way
+(with sharp positives only, a detector learned "sharp means obstructed" and
+called the sharp clean frames of the sample scene obstructed). Labels: the
+kind is the case's; the map is the rendered footprint where the glass visibly changes the view
 (:func:`lenspair.model.detection.data.visible_footprint`, no gain
 compensation: the clean view has the same exposure); a positive whose
 effect happens to be invisible is labelled clean.
@@ -178,6 +181,11 @@ def hard_sample(
     if case == "flat":
         flat = _gain(flat_scene(view, rng), float(rng.uniform(0.3, 1.3)))
         return labelled(flat, 0, None, spec, source, group)
+    look = int(rng.integers(3))  # the negatives' looks, so that blur is no evidence either
+    if look == 1:
+        view = defocused(view, scale * rng.uniform(1.0, 7.0))
+    elif look == 2:
+        view = flat_scene(view, rng)
     base = _gain(view, float(rng.uniform(0.3, 1.2)))
     effects = veiled_dust if case == "veiled_dust" else light_rain
     obstructed, footprint = render_effects(base, effects(view.shape[1], rng), rng)
