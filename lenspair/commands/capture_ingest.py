@@ -16,7 +16,8 @@ Which camera is obstructed comes from rig.yaml beside the recording or
 --obstructed; the calibration from --calib, else rig.yaml's 'calibration',
 else camchain.yaml beside the recording. The declared side is checked
 against the images: by default by comparing fine detail, with --detector
-MODEL (from train-detector) by judging each camera's views; report.json's
+MODEL (from train-detector; on --device, the GPU when there is one) by
+judging each camera's views; report.json's
 side_check gives the inferred side and its confidence. Rerunning resumes an interrupted
 run and leaves finished outputs untouched. Exit code 0 when at least one pair
 was kept, 2 on an error or when no usable pair remains.
@@ -72,6 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--detector", type=Path, metavar="MODEL", help="check the obstructed side with a detector"
     )
+    parser.add_argument(
+        "--device", choices=("auto", "cpu", "cuda"), default="auto", help="for --detector"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,10 +83,12 @@ def run(args: argparse.Namespace) -> int:
     side_detector = None
     if args.detector is not None:
         # here, not at the top: only --detector needs torch, which ingest does not load otherwise
+        from lenspair.core.device import resolve_device
         from lenspair.model.detection.judge import obstructed_probability
         from lenspair.model.detection.train import load_detector
 
-        side_detector = obstructed_probability(load_detector(args.detector))
+        device = resolve_device(args.device)
+        side_detector = obstructed_probability(load_detector(args.detector, device))
     report = ingest_recording(
         args.recording,
         args.out,

@@ -1,7 +1,8 @@
 """Train the small anomaly detector (obstructed?, which kind, where) from paired data.
 
   lenspair train-detector [DS ...] --out RUN [--recordings REC ...] [--synthetic N]
-                          [--simulated-set DIR] [--steps 600] [--minutes M]
+                          [--simulated-set DIR] [--hard N] [--steps 600] [--minutes M]
+                          [--device auto|cpu|cuda] [--workers N]
 
 Sources (any mix): lenspair datasets DS (their train split: obstructed views
 are positives, with a map from the registered pair; clean views negatives;
@@ -10,7 +11,12 @@ truth/mask), synthetic rain/dust/dirt over clean images (--synthetic N
 frames, over --clean-images DIR or the simulator's textures), and
 --simulated-set DIR, a small multi-kind set of simulated recordings rendered
 there (clean, rain, dust, dirt; its last recording of each kind is held out
-and scored). Writes RUN/detector.pt, RUN/scores.md and scores.json
+and scored). --hard N adds N hard cases made from the clean views of the
+training recordings (defocused, dark or bright, low-texture clean frames;
+dust darkening the whole frame, light rain: see
+lenspair.model.detection.hard_cases). --workers N renders and reads samples
+in N processes (the samples do not depend on it); --device picks where to
+train and score. Writes RUN/detector.pt, RUN/scores.md and scores.json
 (accuracy, F1, per-kind confusion, tile IoU), RUN/run.json.
 
 Example (a few CPU minutes):
@@ -21,6 +27,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from lenspair.commands.argtypes import positive_int
+from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
 
@@ -40,6 +48,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--minutes", type=float, help="stop training after this many minutes")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="CPU threads (1)")
+    parser.add_argument("--hard", type=int, default=0, metavar="N", help="hard cases (0)")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    parser.add_argument(
+        "--workers", type=positive_int, default=1, help="processes making samples (1)"
+    )
     parser.add_argument(
         "--input-size", default="180x270", metavar="HxW", help="size frames are judged at"
     )
@@ -55,8 +68,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.minutes is not None and args.minutes <= 0:
         raise ConfigError("--minutes must be > 0")
-    if args.synthetic < 0 or args.set_per_kind < 2 or args.set_frames < 1:
-        raise ConfigError("--synthetic >= 0, --set-per-kind >= 2, --set-frames >= 1 expected")
+    if args.synthetic < 0 or args.hard < 0 or args.set_per_kind < 2 or args.set_frames < 1:
+        raise ConfigError(
+            "--synthetic >= 0, --hard >= 0, --set-per-kind >= 2, --set-frames >= 1 expected"
+        )
     sources = DetectorSources(
         datasets=tuple(args.datasets),
         recordings=tuple(args.recordings),
@@ -66,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
         simulated_set=args.simulated_set,
         set_per_kind=args.set_per_kind,
         set_frames=args.set_frames,
+        hard=args.hard,
     )
     try:
         settings = DetectorTraining(
@@ -82,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
         spec = DetectorSpec(input_size=(height, width))
     except ValueError as exc:
         raise ConfigError(f"--input-size: expected HxW, e.g. 360x540 ({exc})") from None
-    scores = run_training(args.out, sources, spec, settings)
+    device = resolve_device(args.device)
+    scores = run_training(args.out, sources, spec, settings, device=device, workers=args.workers)
     for name, result in scores.items():
         sys.stdout.write(scores_markdown(name, result) + "\n")
     print(f"wrote {args.out / 'detector.pt'}")

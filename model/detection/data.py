@@ -17,8 +17,8 @@ labels (:class:`DetectorSample`):
   The footprint of dust is the whole support of a smooth field, mostly so
   faint that nothing is visible; the map is therefore the *visible*
   footprint: ``truth/mask`` intersected with the pair rule applied to the
-  frame and ``truth/clear`` (the same view through clean glass) at a low
-  threshold (5 % relative change).
+  frame and ``truth/clear`` (the same view through clean glass, same
+  exposure, so no gain compensation) at a low threshold (5 % relative change).
 * **synthetic anomalies over clean images** (:func:`synthetic_samples`): the
   simulator's renderer puts rain, dust or dirt with random parameters over
   clean images (visible footprints, as above), a quarter of them left clean; before that,
@@ -112,8 +112,14 @@ VISIBLE_THRESHOLD = 0.05
 
 
 def visible_footprint(obstructed: np.ndarray, clear: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """``bool`` ``(H, W)``: footprint pixels where the glass visibly changes the view."""
-    changed = pair_anomaly_mask(obstructed, clear, threshold=VISIBLE_THRESHOLD)
+    """``bool`` ``(H, W)``: footprint pixels where the glass visibly changes the view.
+
+    ``clear`` must have the exposure of ``obstructed`` (no gain compensation:
+    dust that darkens the whole frame evenly is visible, not an exposure change).
+    """
+    changed = pair_anomaly_mask(
+        obstructed, clear, threshold=VISIBLE_THRESHOLD, compensate_gain=False
+    )
     covered: np.ndarray = (np.asarray(mask) > 0) & changed
     return covered
 
@@ -273,6 +279,7 @@ def synthetic_samples(
     spec: DetectorSpec,
     rng: np.random.Generator,
     group: str = "synthetic",
+    first: int = 0,
 ) -> list[DetectorSample]:
     """Rain, dust, dirt and clean frames rendered over clean images (module docstring).
 
@@ -282,6 +289,7 @@ def synthetic_samples(
         spec: the detector's architecture (input size).
         rng: all random choices.
         group: group name of the samples.
+        first: number of the first sample (kinds and source names continue from it).
 
     Raises:
         ModelError: no clean image.
@@ -289,7 +297,7 @@ def synthetic_samples(
     if not clean_images:
         raise ModelError("synthetic samples need at least one clean image")
     samples = []
-    for index in range(count):
+    for index in range(first, first + count):
         base = clean_images[int(rng.integers(len(clean_images)))]
         if base.dtype != np.uint8:
             base = (base.astype(np.float32) / 257.0).round().astype(np.uint8)

@@ -88,6 +88,7 @@ def pair_anomaly_mask(
     *,
     sigma_px: float = 3.0,
     threshold: float = 0.12,
+    compensate_gain: bool = True,
 ) -> np.ndarray:
     """Where a registered pair differs: the module docstring's rule.
 
@@ -97,6 +98,10 @@ def pair_anomaly_mask(
         untrusted: optional ``(H, W)``, non-zero where the pair is not trustworthy.
         sigma_px: Gaussian blur of the relative difference, pixels.
         threshold: relative difference above which a pixel is covered.
+        compensate_gain: scale the clean view by the median ratio first (two
+            cameras differ in exposure); False when both views share one
+            exposure (a render over the clean view, the simulator's
+            ``truth/clear``), so that a frame-wide darkening counts.
 
     Returns:
         ``bool`` ``(H, W)``, True where the glass is judged covered.
@@ -110,7 +115,9 @@ def pair_anomaly_mask(
     reference = to_linear(to_luma(clean))
     trusted = np.ones(seen.shape, bool) if untrusted is None else np.asarray(untrusted) == 0
     usable = trusted & (reference > 0.01)
-    gain = float(np.median(seen[usable] / reference[usable])) if usable.any() else 1.0
+    gain = 1.0
+    if compensate_gain and usable.any():
+        gain = float(np.median(seen[usable] / reference[usable]))
     relative = np.abs(seen - gain * reference) / (gain * reference + 0.02)
     blurred = cv2.GaussianBlur(relative.astype(np.float32), (0, 0), sigma_px)
     covered: np.ndarray = (blurred > threshold) & trusted

@@ -3,12 +3,15 @@
 :func:`simulate_kind_set` renders, with the scene simulator, ``per_kind``
 short recordings of each kind in :data:`SCENE_KINDS` (clean glass, rain,
 dust, dirt) from the sample scene ``calib_samples/rain.yaml``: each recording
-gets its own seed, its own mix of textures (rotated through the sample
-textures), its own walking direction and its own obstructed camera (cam0 and
-cam1 alternate), so that held-out recordings are new scenes, not neighbouring
-frames of a training recording. Recordings are named ``<kind>_<k>``;
-:func:`split_by_recording` puts the last ``held_out`` of each kind in the test
-set, the way ``dataset-build`` splits by recording to avoid the leakage of
+gets its own seed, its own mix of textures (3 to 9 of them, rotated through
+the sample textures: the more textures, the smaller each cell of the
+mosaic; a detector trained on one cell size called the finer mosaic of the
+sample scenes obstructed), its own walking direction and its own
+obstructed camera (cam0 and cam1 alternate), so that held-out recordings
+are new scenes, not neighbouring frames of a training recording.
+Recordings are named ``<kind>_<k>``; :func:`split_by_recording` puts the
+last ``held_out`` of each kind in the test set, the way ``dataset-build``
+splits by recording to avoid the leakage of
 consecutive frames in both train and test.
 """
 
@@ -16,6 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from lenspair.core.samples import sample_path
+from lenspair.model.detection.parallel import process_map
 from lenspair.simulate.effects.spec import (
     BrightnessSpec,
     DefocusSpec,
@@ -25,7 +29,7 @@ from lenspair.simulate.effects.spec import (
     RaindropsSpec,
 )
 from lenspair.simulate.recording import simulate_recording
-from lenspair.simulate.spec import ObstructionSpec, load_scene
+from lenspair.simulate.spec import ObstructionSpec, SceneSpec, load_scene
 
 SCENE_KINDS: dict[str, EffectsSpec] = {
     "clean": EffectsSpec(),
@@ -56,30 +60,17 @@ _TEXTURES = (
 )
 
 
-def simulate_kind_set(out: Path, per_kind: int = 3, frames: int = 6, seed: int = 0) -> list[Path]:
-    """Render ``per_kind`` recordings of every kind under ``out/<kind>_<k>/``.
-
-    Finished recordings (a ``rig.yaml`` present) are kept, so a rerun resumes.
-
-    Args:
-        out: output folder.
-        per_kind: recordings per kind.
-        frames: frames per recording.
-        seed: base seed; recording ``k`` of kind ``i`` uses ``seed + 100 i + k``.
-
-    Returns:
-        The recording folders, kind by kind.
-    """
+def kind_set_specs(
+    out: Path, per_kind: int = 3, frames: int = 6, seed: int = 0
+) -> list[tuple[Path, SceneSpec]]:
+    """The folders and scene specs of :func:`simulate_kind_set`, kind by kind."""
     base = load_scene(sample_path("rain.yaml"))
-    paths = []
+    jobs = []
     for kind_number, (kind, effects) in enumerate(SCENE_KINDS.items()):
         for k in range(per_kind):
-            path = Path(out) / f"{kind}_{k}"
-            paths.append(path)
-            if (path / "rig.yaml").is_file():
-                continue
             number = kind_number * per_kind + k
-            textures = tuple(_TEXTURES[(number + i) % len(_TEXTURES)] for i in range(6))
+            count = 3 + number % 7  # 3-9 textures: coarser and finer mosaics (the samples have 9)
+            textures = tuple(_TEXTURES[(number + i) % len(_TEXTURES)] for i in range(count))
             planes = tuple(replace(p, texture=textures) for p in base.planes)
             direction = 1.0 if number % 2 else -1.0
             velocity = (direction * 0.8, 0.05 * direction, 0.0)
@@ -93,8 +84,37 @@ def simulate_kind_set(out: Path, per_kind: int = 3, frames: int = 6, seed: int =
                 ),
                 seed=seed + 100 * kind_number + k,
             )
-            simulate_recording(spec, path)
-    return paths
+            jobs.append((Path(out) / f"{kind}_{k}", spec))
+    return jobs
+
+
+def _simulate(job: tuple[Path, SceneSpec]) -> None:
+    path, spec = job
+    simulate_recording(spec, path)
+
+
+def simulate_kind_set(
+    out: Path, per_kind: int = 3, frames: int = 6, seed: int = 0, workers: int = 1
+) -> list[Path]:
+    """Render ``per_kind`` recordings of every kind under ``out/<kind>_<k>/``.
+
+    Finished recordings (a ``rig.yaml`` present) are kept, so a rerun resumes.
+
+    Args:
+        out: output folder.
+        per_kind: recordings per kind.
+        frames: frames per recording.
+        seed: base seed; recording ``k`` of kind ``i`` uses ``seed + 100 i + k``.
+        workers: processes rendering recordings side by side (1: in this
+            process); the recordings do not depend on it.
+
+    Returns:
+        The recording folders, kind by kind.
+    """
+    jobs = kind_set_specs(out, per_kind, frames, seed)
+    todo = [job for job in jobs if not (job[0] / "rig.yaml").is_file()]
+    process_map(_simulate, todo, workers)
+    return [path for path, _ in jobs]
 
 
 def split_by_recording(paths: list[Path], held_out: int = 1) -> tuple[list[Path], list[Path]]:

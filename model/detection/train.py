@@ -158,7 +158,7 @@ def detector_loss(
         output.tile_logits,
         batch["tiles"],
         reduction="none",
-        pos_weight=torch.tensor(covered_weight),
+        pos_weight=torch.tensor(covered_weight, device=output.tile_logits.device),
     )
     tile_loss = (tile_loss * valid).sum() / valid.sum().clamp(min=1.0)
     return kind_loss + map_weight * tile_loss
@@ -166,26 +166,34 @@ def detector_loss(
 
 def _augment(images: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
     count = images.shape[0]
-    flip = torch.rand(count, generator=generator) < 0.5
+    flip = (torch.rand(count, generator=generator) < 0.5).to(images.device)
     images = torch.where(flip[:, None, None, None], images.flip(-1), images)
     gains = 0.5 + 0.7 * torch.rand(count, 1, 1, 1, generator=generator)
-    return (images * gains).clamp(0.0, 1.0)
+    return (images * gains.to(images.device)).clamp(0.0, 1.0)
 
 
 def train_detector(
     samples: Sequence[DetectorSample],
     spec: DetectorSpec,
     settings: DetectorTraining,
+    device: torch.device | str = "cpu",
 ) -> tuple[AnomalyDetector, TrainingSummary]:
-    """Train a fresh detector on ``samples`` (on the CPU, the tensors are small).
+    """Train a fresh detector on ``samples``.
+
+    All samples are stacked once and moved to ``device`` (a few thousand
+    frames of 270x180 are a few hundred MB); batches are drawn, cut and
+    augmented there. The random draws come from a CPU ``torch.Generator``,
+    so the batches do not depend on the device (the arithmetic may differ
+    in the last bits).
 
     Args:
         samples: labelled frames at ``spec.input_size``.
         spec: the architecture.
         settings: steps, batch, optimiser, seed, time limit.
+        device: where to train (resolved by the caller, e.g. ``--device``).
 
     Returns:
-        The network (eval mode) and a summary.
+        The network (eval mode, on ``device``) and a summary.
 
     Raises:
         ModelError: no samples, or samples of another size than ``spec.input_size``.
@@ -198,23 +206,26 @@ def train_detector(
     threads_before = torch.get_num_threads()
     torch.set_num_threads(max(1, settings.threads))
     try:
-        return _train(samples, spec, settings)
+        return _train(samples, spec, settings, torch.device(device))
     finally:
         torch.set_num_threads(threads_before)
 
 
 def _train(
-    samples: Sequence[DetectorSample], spec: DetectorSpec, settings: DetectorTraining
+    samples: Sequence[DetectorSample],
+    spec: DetectorSpec,
+    settings: DetectorTraining,
+    device: torch.device,
 ) -> tuple[AnomalyDetector, TrainingSummary]:
     torch.manual_seed(settings.seed)
-    network = AnomalyDetector(spec)
-    data = stack(samples)
+    network = AnomalyDetector(spec).to(device)
+    data = {key: value.to(device) for key, value in stack(samples).items()}
     generator = torch.Generator().manual_seed(settings.seed)
     optimiser = torch.optim.AdamW(
         network.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay
     )
     weights = sampling_weights(samples)
-    losses: list[float] = []
+    losses: list[torch.Tensor] = []  # kept on the device: no synchronisation per step
     start = time.perf_counter()
     network.train()
     for step in progress(range(settings.steps), desc="train-detector", unit="step"):
@@ -225,7 +236,7 @@ def _train(
         for group in optimiser.param_groups:
             group["lr"] = settings.learning_rate * factor
         picks = torch.multinomial(weights, settings.batch_size, True, generator=generator)
-        batch = {key: value[picks] for key, value in data.items()}
+        batch = {key: value[picks.to(device)] for key, value in data.items()}
         if settings.crop_tiles is not None:
             batch = crop_batch(batch, settings.crop_tiles, generator)
         batch["images"] = _augment(batch["images"], generator)
@@ -233,16 +244,17 @@ def _train(
         optimiser.zero_grad(set_to_none=True)
         loss.backward()  # type: ignore[no-untyped-call]
         optimiser.step()
-        losses.append(float(loss.detach()))
+        losses.append(loss.detach())
         if settings.max_seconds is not None and time.perf_counter() - start > settings.max_seconds:
             break
     network.eval()
-    window = min(20, len(losses))
+    values = torch.stack(losses).float().cpu().numpy()
+    window = min(20, len(values))
     summary = TrainingSummary(
-        steps=len(losses),
+        steps=len(values),
         seconds=round(time.perf_counter() - start, 2),
-        first_loss=float(np.mean(losses[:window])),
-        last_loss=float(np.mean(losses[-window:])),
+        first_loss=float(np.mean(values[:window])),
+        last_loss=float(np.mean(values[-window:])),
         samples=len(samples),
     )
     return network, summary

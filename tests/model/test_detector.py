@@ -139,3 +139,27 @@ def test_training_windows_cut_maps_exactly_and_drop_kinds_without_anomaly() -> N
         has_dirt = bool(cropped["tiles"][0].sum() > 0)
         assert int(cropped["kinds"][0]) == (KINDS.index("dirt") if has_dirt else -1)
         assert int(cropped["kinds"][1]) == -1  # rain frame with no covered tile
+
+
+@pytest.mark.parametrize(
+    "device",
+    [
+        "cpu",
+        pytest.param(
+            "cuda",
+            marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device"),
+        ),
+    ],
+)
+def test_training_and_judging_on_a_device(tmp_path: Path, device: str, one_thread: None) -> None:
+    samples = synthetic_samples(texture_images(["brick"]), 8, SMALL, np.random.default_rng(0))
+    settings = DetectorTraining(steps=3, batch_size=4, seed=2)
+    network, summary = train_detector(samples, SMALL, settings, device=device)
+    assert summary.steps == 3 and np.isfinite(summary.last_loss)
+    assert next(network.parameters()).device.type == device
+    frames = [(np.random.default_rng(1).random((36, 54)) * 255).astype(np.uint8)]
+    on_device = judge(network, frames)
+    save_detector(tmp_path / "d.pt", network)
+    back = judge(load_detector(tmp_path / "d.pt"), frames)  # loaded onto the CPU
+    np.testing.assert_allclose(on_device.probability, back.probability, atol=1e-4)
+    assert isinstance(on_device.probability, np.ndarray)

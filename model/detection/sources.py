@@ -1,0 +1,169 @@
+"""Where the detector's samples come from, gathered in parallel.
+
+:func:`gather` turns :class:`DetectorSources` into training samples and
+named held-out sets: lenspair datasets (train split trained on, val and test
+scored), simulated recordings (trained on, or only scored), synthetic
+anomalies over clean images, hard cases over the clean views of the training
+recordings (:mod:`lenspair.model.detection.hard_cases`) and the simulated
+multi-kind set (:mod:`lenspair.model.detection.simset`).
+
+With ``workers > 1`` recordings are read, and synthetic and hard samples
+rendered, in a process pool. Synthetic and hard samples are made in chunks of
+:data:`CHUNK` with one child seed of ``seed`` per chunk
+(``np.random.SeedSequence.spawn``), so the samples depend on the seed, never
+on the number of workers.
+"""
+
+import logging
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+
+from lenspair.core.imageio import read_image
+from lenspair.model.detection.data import (
+    DetectorSample,
+    dataset_samples,
+    recording_samples,
+    synthetic_samples,
+    texture_images,
+)
+from lenspair.model.detection.hard_cases import CleanView, clean_views, hard_samples
+from lenspair.model.detection.parallel import process_map
+from lenspair.model.detection.simset import simulate_kind_set, split_by_recording
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.detector import DetectorSpec
+from lenspair.model.training.synthetic import find_clean_images
+
+log = logging.getLogger(__name__)
+
+CHUNK = 60
+"""Synthetic or hard samples per seed (a multiple of the 4 kinds and the 5 hard cases)."""
+
+
+@dataclass(frozen=True)
+class DetectorSources:
+    """Where the samples come from.
+
+    Attributes:
+        datasets: lenspair dataset roots (train split trained on, val and test scored).
+        recordings: simulated recordings trained on (``truth/mask/``).
+        test_recordings: simulated recordings only scored.
+        synthetic: synthetic samples to render (0: none).
+        clean_folder: clean images for synthetic samples; None: the built-in textures.
+        simulated_set: folder for :func:`simulate_kind_set` (None: not used);
+            its held-out recordings are scored.
+        set_per_kind: recordings per kind in the simulated set.
+        set_frames: frames per simulated recording.
+        max_frames: per camera and recording, frames used.
+        hard: hard cases to render over the clean views of the training
+            recordings (0: none; needs recordings or a simulated set).
+    """
+
+    datasets: tuple[Path, ...] = ()
+    recordings: tuple[Path, ...] = ()
+    test_recordings: tuple[Path, ...] = ()
+    synthetic: int = 0
+    clean_folder: Path | None = None
+    simulated_set: Path | None = None
+    set_per_kind: int = 3
+    set_frames: int = 6
+    max_frames: int = 12
+    hard: int = 0
+
+
+def _flat(groups: Iterable[list[DetectorSample]]) -> list[DetectorSample]:
+    return [sample for group in groups for sample in group]
+
+
+def _chunks(count: int, seed: int) -> list[tuple[int, int, np.random.SeedSequence]]:
+    """``(first, size, seed)`` of each chunk of ``count`` samples."""
+    starts = list(range(0, count, CHUNK))
+    seeds = np.random.SeedSequence(seed).spawn(len(starts))
+    return [(s, min(CHUNK, count - s), q) for s, q in zip(starts, seeds, strict=True)]
+
+
+def clean_images(folder: Path | None) -> list[np.ndarray]:
+    """Clean images for synthetic samples: up to 200 of ``folder``, or the built-in textures."""
+    if folder is None:
+        return texture_images()
+    return [read_image(path) for path in find_clean_images(folder)[:200]]
+
+
+def _synthetic_chunk(
+    chunk: tuple[int, int, np.random.SeedSequence], folder: Path | None, spec: DetectorSpec
+) -> list[DetectorSample]:
+    first, size, seed = chunk
+    rng = np.random.default_rng(seed)
+    return synthetic_samples(clean_images(folder), size, spec, rng, first=first)
+
+
+def _hard_chunk(
+    chunk: tuple[int, int, np.random.SeedSequence],
+    views: Sequence[CleanView],
+    spec: DetectorSpec,
+) -> list[DetectorSample]:
+    first, size, seed = chunk
+    return hard_samples(views, size, spec, np.random.default_rng(seed), first=first)
+
+
+def _recording(path: Path, spec: DetectorSpec, max_frames: int) -> list[DetectorSample]:
+    return recording_samples(path, spec, max_frames)
+
+
+def gather(
+    sources: DetectorSources, spec: DetectorSpec, seed: int, workers: int = 1
+) -> tuple[list[DetectorSample], dict[str, list[DetectorSample]]]:
+    """Training samples and named held-out sets from ``sources``.
+
+    Args:
+        sources: what to read and render.
+        spec: the detector's architecture (input size).
+        seed: seeds the simulated set, the synthetic and the hard samples.
+        workers: processes (1: all in this process); the samples do not depend on it.
+
+    Raises:
+        ModelError: nothing to train on, or hard cases without recordings.
+    """
+    if sources.hard and not (sources.recordings or sources.simulated_set):
+        raise ModelError("train-detector: hard cases need training recordings (their views)")
+    train: list[DetectorSample] = []
+    held_out: dict[str, list[DetectorSample]] = {}
+    for root in sources.datasets:
+        train += dataset_samples(root, "train", spec)
+        for split in ("val", "test"):  # no model selection here: both are held out
+            try:
+                held_out[f"dataset {Path(root).name}, split {split}"] = dataset_samples(
+                    root, split, spec
+                )
+            except ModelError as exc:
+                log.warning("%s: split %s not scored (%s)", root, split, exc)
+    recordings = list(sources.recordings)
+    read = partial(_recording, spec=spec, max_frames=sources.max_frames)
+    if sources.simulated_set is not None:
+        paths = simulate_kind_set(
+            sources.simulated_set, sources.set_per_kind, sources.set_frames, seed, workers
+        )
+        set_train, set_test = split_by_recording(paths)
+        recordings += set_train
+        names = ", ".join(p.name for p in set_test)
+        held_out[f"held-out simulated recordings ({names})"] = _flat(
+            process_map(read, set_test, workers)
+        )
+    train += _flat(process_map(read, recordings, workers))
+    if sources.test_recordings:
+        held_out["test recordings"] = _flat(
+            process_map(read, list(sources.test_recordings), workers)
+        )
+    if sources.synthetic:
+        synthetic = partial(_synthetic_chunk, folder=sources.clean_folder, spec=spec)
+        train += _flat(process_map(synthetic, _chunks(sources.synthetic, seed), workers))
+    if sources.hard:
+        views = [v for path in recordings for v in clean_views(path, sources.max_frames)]
+        hard = partial(_hard_chunk, views=views, spec=spec)
+        train += _flat(process_map(hard, _chunks(sources.hard, seed + 1), workers))
+    if not train:
+        raise ModelError("train-detector: no training data; give DS/recordings or --synthetic N")
+    return train, held_out
