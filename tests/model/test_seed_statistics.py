@@ -58,3 +58,26 @@ def test_convergence_reads_the_trend_not_the_noise_of_the_last_fifth() -> None:
     rising = [(s, v + 0.05 * s) for s, v in noisy_flat]
     holds, change = converged(rising, 100, spread=0.5) or (True, 0.0)
     assert not holds and 0.5 < change < 1.0
+
+
+def test_pareto_ignores_differences_within_the_spread() -> None:
+    fast = summarise_seeds([25.0, 25.4, 24.6])  # spread 0.4
+    slow_slightly_better = summarise_seeds([25.2, 25.5, 24.9])  # within the spread
+    slow_much_worse = summarise_seeds([22.0, 22.1, 21.9])
+    times = [10.0, 20.0, 30.0, None]
+    front = robust_pareto(times, [fast, slow_slightly_better, slow_much_worse, fast])
+    assert front == [0, 1]
+    faster_and_clearly_better = summarise_seeds([28.0, 28.1, 27.9])
+    assert robust_pareto([5.0, 10.0], [faster_and_clearly_better, fast]) == [0]
+
+
+def test_published_rows_are_the_papers() -> None:
+    by_name = {row.name: row for row in PUBLISHED}
+    assert (by_name["G+E+A"].ssim, by_name["G+E+A"].psnr_db) == (0.909, 29.84)
+    assert (by_name["the paper's synthetic"].psnr_db, by_name["random init"].psnr_db) == (
+        24.77,
+        22.36,
+    )
+    assert by_name["the paper (GEA)"].cpu_s == 0.542
+    table = published_markdown()
+    assert table.count("\n| ") == len(PUBLISHED) + 1 and "published" in table
