@@ -80,6 +80,7 @@ class SalvagedBag:
         connections: connections seen before the cut.
         topics: topic -> info with ``msgtype``.
         cut: one line: file, byte where reading stopped, messages kept, why.
+        db3: for a ``.db3``, its page layout (rows are read from the file).
     """
 
     def __init__(self, path: Path, storage: Path) -> None:

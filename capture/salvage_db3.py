@@ -130,9 +130,12 @@ def _read_cell(
     if used > len(head):
         return None
     local = _local_size(layout.usable, payload_size)
+    in_page = local + (4 if local < payload_size else 0)
+    if cell % layout.page_size + used + in_page > layout.usable:  # not a cell of this page
+        return None
     bio.seek(cell + used)
-    first = bio.read(local + (4 if local < payload_size else 0))
-    if len(first) < local + (4 if local < payload_size else 0):
+    first = bio.read(in_page)
+    if len(first) < in_page:
         return None
     record = _message_record(first[:local], payload_size, rowid)
     if record is None:

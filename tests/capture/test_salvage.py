@@ -292,3 +292,24 @@ def test_any_cut_keeps_exactly_the_messages_before_it(
         assert sum(end <= cut for end in ends) - len(read) <= 1
     (line,) = problems
     assert f"{cut_storage}: cut short ({cut} bytes): kept the {len(expected)} complete" in line
+
+
+def test_cut_db3_skips_the_stale_rows_of_free_pages(tmp_path: Path) -> None:
+    # Without secure_delete, a dropped table's leaf pages go to the free list
+    # with their cells still in them: stale rows, not messages.
+    bag, storage = _write(tmp_path / "run", "db3")
+    with closing(sqlite3.connect(storage)) as db:
+        db.execute("PRAGMA secure_delete = OFF")
+        db.execute("CREATE TABLE old (id INTEGER PRIMARY KEY, t INTEGER, ts INTEGER, b BLOB)")
+        db.execute("INSERT INTO old SELECT id + 100, topic_id, timestamp + 7, data FROM messages")
+        db.commit()
+        db.execute("DROP TABLE old")
+        db.execute("DELETE FROM messages WHERE id IN (3, 4, 9)")
+        db.commit()
+    data = storage.read_bytes()
+    cut = len(data) * 9 // 10
+    expected = _db3_rows_before(storage, data, cut)
+    deleted = {T0 + MS + index * 20 * MS for index in (2, 3, 8)}
+    assert len(expected) >= 10 and not expected & deleted
+    storage.write_bytes(data[:cut])
+    assert set(_messages(bag, [])) == expected
