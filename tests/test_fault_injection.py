@@ -21,15 +21,12 @@ Adding a command is one :class:`Scenario` entry. Inputs are tiny (3 simulated
 stays within about a minute and a half on two cores.
 """
 
-import contextlib
 import csv
 import io
 import json
 import os
 import re
-import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -44,6 +41,7 @@ from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.core.imageio import write_image
 from lenspair.core.leftovers import LEFTOVER_SUFFIXES
+from tests.fork_server import ForkedRun, start_server
 from tests.model.restore_helpers import bag_from_recording
 from tests.model.train_fixtures import (
     clean_image,
@@ -239,53 +237,10 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-class _Run:
-    """A command running in a child of the fork server (see ``tests/fork_server.py``)."""
-
-    def __init__(self, server: subprocess.Popen[str], argv: list[str], stderr: Path) -> None:
-        assert server.stdin is not None and server.stdout is not None
-        server.stdin.write(json.dumps({"argv": argv, "stderr": str(stderr)}) + "\n")
-        server.stdin.flush()
-        self.server = server
-        self.pid = int(server.stdout.readline())
-        self.stderr = stderr
-        self.returncode: int | None = None
-
-    def poll(self) -> int | None:
-        """The exit code once the child has ended (a zombie counts as ended), else None."""
-        if self.returncode is None and not _running(self.pid):
-            assert self.server.stdout is not None
-            self.returncode = int(self.server.stdout.readline())
-        return self.returncode
-
-    def kill(self) -> None:
-        """``SIGKILL`` the child (unless it has ended) and wait for the server to reap it."""
-        if self.poll() is None:
-            with contextlib.suppress(ProcessLookupError):  # it ended meanwhile
-                os.kill(self.pid, signal.SIGKILL)
-        while self.poll() is None:
-            time.sleep(0.001)
-
-
-def _running(pid: int) -> bool:
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat[stat.rindex(")") + 2] != "Z"
-
-
 @pytest.fixture(scope="module")
 def server() -> Iterator[subprocess.Popen[str]]:
     """The fork server: one warm process whose children are the runs killed."""
-    process = subprocess.Popen(
-        # -P: the script's folder (tests/, holding tests/lenspair/) stays off sys.path
-        [sys.executable, "-P", str(Path(__file__).with_name("fork_server.py"))],
-        env={**os.environ, "LENSPAIR_QUIET": "1", "OMP_NUM_THREADS": "1"},
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    process = start_server({**os.environ, "LENSPAIR_QUIET": "1", "OMP_NUM_THREADS": "1"})
     yield process
     assert process.stdin is not None
     process.stdin.close()
@@ -336,7 +291,7 @@ def _temporaries(folder: Path) -> list[Path]:
     return [p for p in folder.rglob("*") if _TEMPORARY.match(p.name)]
 
 
-def _watch(run: _Run, folder: Path, finished: Path | None = None) -> tuple[float, float]:
+def _watch(run: ForkedRun, folder: Path, finished: Path | None = None) -> tuple[float, float]:
     """Poll a run to its end: when ``folder`` (its first output) appeared, when it ended.
 
     The end is when ``finished`` appeared, when given, else the process's exit.
@@ -352,7 +307,7 @@ def _watch(run: _Run, folder: Path, finished: Path | None = None) -> tuple[float
     return (ended if appeared is None else appeared), ended
 
 
-def _wait_for_work(run: _Run, folder: Path, moment: float) -> set[int]:
+def _wait_for_work(run: ForkedRun, folder: Path, moment: float) -> set[int]:
     """Wait until ``folder`` appears, then ``moment`` seconds more; returns the run's children.
 
     Kill moments are drawn over the working part of a run: a kill while it
@@ -389,7 +344,7 @@ def test_killed_runs_resume_to_the_same_output(
     argv = scenario.argv
     rerun = scenario.rerun or argv
     reference_out = tmp_path / "reference" / "out"
-    run = _Run(server, argv(inputs, reference_out), tmp_path / "reference.err")
+    run = ForkedRun(server, argv(inputs, reference_out), tmp_path / "reference.err")
     finished = scenario.finished(reference_out) if scenario.finished else None
     appeared, ended = _watch(run, reference_out.parent, finished)
     while run.poll() is None:
@@ -402,7 +357,7 @@ def test_killed_runs_resume_to_the_same_output(
     moments = np.random.default_rng(SEED).uniform(0.0, working, size=scenario.kills)
     for index, moment in enumerate(moments):
         out = tmp_path / f"kill{index}" / "out"
-        run = _Run(server, argv(inputs, out), tmp_path / f"kill{index}.err")
+        run = ForkedRun(server, argv(inputs, out), tmp_path / f"kill{index}.err")
         children = _wait_for_work(run, out.parent, moment)
         run.kill()
         survivors = wait_gone(children, timeout=10)
