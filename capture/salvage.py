@@ -3,7 +3,8 @@
 ``rosbags`` opens a ROS1 or MCAP file through the index written at its end,
 and SQLite refuses a ``.db3`` whose last pages are missing, so a cut bag
 cannot be opened at all. :func:`salvage_bag` reads the file record by record
-from the start instead and keeps every message whose record is complete:
+(page by page for SQLite) instead and keeps every message whose bytes all lie
+before the cut:
 
 * ROS1 ``.bag``: bag header, chunk (``none``/``bz2``/``lz4``), connection and
   message records, parsed with ``rosbags.rosbag1`` helpers. In a chunk cut
@@ -11,12 +12,10 @@ from the start instead and keeps every message whose record is complete:
   compressed one cannot be decompressed and is lost.
 * MCAP: schema, channel, message and chunk records (the same rule for a cut
   chunk), parsed with ``rosbags.rosbag2.storage_mcap`` helpers.
-* ``.db3``: the whole pages before the cut are copied to a temporary file
-  whose header says so; SQLite then reads rows in id order and stops with an
-  error at the first row that needs a missing page, so no row is returned
-  with bytes that were not in the file. SQLite writes a table's leaf pages
-  after the rows' data, so the last row or two before the cut (and, for a
-  cut near the start, the first rows) can be lost: their leaf is past it.
+* ``.db3``: every table leaf page is read for ``messages`` rows without the
+  B-tree above them (:mod:`lenspair.capture.salvage_db3`); a row is kept when
+  all of its bytes (its cell and its overflow pages' pieces) lie before the
+  cut. The ``topics`` table is read by SQLite from the whole pages before it.
 
 The result quacks like the parts of ``rosbags.highlevel.AnyReader`` that
 :mod:`lenspair.capture.rosbag` uses (``topics``, ``connections``,
@@ -24,7 +23,6 @@ The result quacks like the parts of ``rosbags.highlevel.AnyReader`` that
 one line naming the file and where reading stopped.
 """
 
-import sqlite3
 import struct
 from bisect import bisect_left
 from collections.abc import Collection, Generator
@@ -41,11 +39,11 @@ from rosbags.rosbag2.storage_mcap import decompress
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
 from lenspair.capture.errors import CaptureError
+from lenspair.capture.salvage_db3 import Db3Layout, read_db3_data, scan_db3
 from lenspair.capture.salvage_records import (
     MCAP_MAGIC,
     ROS1_MAGIC,
     SQLITE_MAGIC,
-    scan_db3,
     scan_mcap,
     scan_ros1,
 )
@@ -61,7 +59,8 @@ class _Entry(NamedTuple):
     """One complete message: where its payload lies.
 
     ``chunk`` is -1 for bytes read straight from the file at ``offset``, the
-    index of a decompressed chunk otherwise, or -2 for a ``.db3`` row id.
+    index of a decompressed chunk otherwise, or -2 for a ``.db3`` row whose
+    cell starts at file byte ``offset``.
     """
 
     log_time: int
@@ -81,6 +80,7 @@ class SalvagedBag:
         connections: connections seen before the cut.
         topics: topic -> info with ``msgtype``.
         cut: one line: file, byte where reading stopped, messages kept, why.
+        db3: for a ``.db3``, its page layout (rows are read from the file).
     """
 
     def __init__(self, path: Path, storage: Path) -> None:
@@ -94,7 +94,7 @@ class SalvagedBag:
         self.chunks: list[tuple[int, int, str, int, int]] = []  # pos, size, codec, usize, crc
         self._cached: tuple[int, bytes] = (-1, b"")
         self._bio = storage.open("rb")
-        self.db: sqlite3.Connection | None = None
+        self.db3: Db3Layout | None = None
         self._typestore: Any = None
 
     def messages(
@@ -122,18 +122,13 @@ class SalvagedBag:
         return self._typestore.deserialize_cdr(raw, msgtype)
 
     def close(self) -> None:
-        """Release the file (and the SQLite copy)."""
+        """Release the file."""
         self._bio.close()
-        if self.db is not None:
-            self.db.close()
 
     def _payload(self, entry: _Entry) -> bytes:
         if entry.chunk == -2:
-            assert self.db is not None
-            (data,) = self.db.execute(
-                "SELECT data FROM messages WHERE id = ?", (entry.offset,)
-            ).fetchone()
-            return bytes(data)
+            assert self.db3 is not None
+            return read_db3_data(self._bio, self.db3, entry.offset)
         if entry.chunk == -1:
             self._bio.seek(entry.offset)
             return self._bio.read(entry.size)

@@ -6,9 +6,7 @@ message to the :class:`~lenspair.capture.salvage.SalvagedBag` and ends with
 """
 
 import os
-import sqlite3
 import struct
-import tempfile
 from io import BytesIO
 from typing import TYPE_CHECKING, Any
 
@@ -22,8 +20,6 @@ from rosbags.interfaces import (
 from rosbags.rosbag1.reader import Header, RecordType, decompressors, normalize, read_uint32
 from rosbags.rosbag2.storage_mcap import Schema, decompress, get_msgdef, get_qos
 from rosbags.typesys.msg import normalize_msgtype
-
-from lenspair.capture.errors import CaptureError
 
 if TYPE_CHECKING:
     from lenspair.capture.salvage import SalvagedBag
@@ -255,69 +251,3 @@ def _mcap_record(
 def _string(rec: BytesIO) -> str:
     (size,) = struct.unpack("<L", rec.read(4))
     return rec.read(size).decode()
-
-
-def scan_db3(bag: "SalvagedBag") -> None:
-    """Read a cut ``.db3``'s rows in id order from a copy of its whole pages."""
-    data_size = bag.storage.stat().st_size
-    with bag.storage.open("rb") as bio:
-        head = bio.read(100)
-        (page_size,) = struct.unpack_from(">H", head, 16) if len(head) == 100 else (0,)
-        page_size = 65536 if page_size == 1 else page_size
-        pages = data_size // page_size if page_size else 0
-        if not pages:
-            raise CaptureError(
-                f"{bag.storage}: cut short ({data_size} bytes) inside its first page"
-            )
-        bio.seek(0)
-        handle, name = tempfile.mkstemp(suffix=".db3", prefix="lenspair-salvage-")
-        try:
-            with os.fdopen(handle, "wb") as out:  # whole pages only, streamed
-                left = pages * page_size
-                while left:
-                    block = bio.read(min(left, 1 << 20))
-                    if not block:  # the file shrank while being read
-                        break
-                    out.write(block)
-                    left -= len(block)
-                out.seek(28)  # the header's page count: SQLite stops at the last page
-                out.write(struct.pack(">L", pages))
-            db = sqlite3.connect(f"file:{name}?immutable=1", uri=True, check_same_thread=False)
-        finally:
-            os.unlink(name)  # the open connection keeps the data until it closes
-    bag.db = db
-    why = "end of the rows"
-    try:
-        known = _db3_connections(bag, db)
-        # Reading ``data`` makes SQLite fetch every page of the row.
-        rows = db.execute("SELECT id, topic_id, timestamp, data FROM messages ORDER BY id")
-        for row_id, topic_id, log_time, _ in rows:
-            if topic_id in known:
-                bag.add_message(known[topic_id], log_time, -2, row_id, 0)
-    except sqlite3.DatabaseError as exc:
-        why = f"SQLite stops at the missing pages ({exc})"
-    bag.finish(pages * page_size, why)
-
-
-def _db3_connections(bag: "SalvagedBag", db: sqlite3.Connection) -> dict[int, Connection]:
-    definitions: dict[str, tuple[str, str]] = {}
-    try:
-        for msgtype, encoding, text in db.execute(
-            "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"
-        ):
-            definitions[msgtype] = (encoding, text)
-    except sqlite3.DatabaseError:  # older schema, or the table lies past the cut
-        pass
-    known: dict[int, Connection] = {}
-    for key, topic, msgtype, fmt in db.execute(
-        "SELECT id, name, type, serialization_format FROM topics"
-    ):
-        encoding, text = definitions.get(msgtype, ("", ""))
-        kind = {"ros2msg": MessageDefinitionFormat.MSG, "ros2idl": MessageDefinitionFormat.IDL}
-        msgdef = MessageDefinition(kind.get(encoding, MessageDefinitionFormat.NONE), text)
-        connection = Connection(
-            key, topic, msgtype, msgdef, "", 0, ConnectionExtRosbag2(fmt, []), bag
-        )
-        known[key] = connection
-        bag.add_connection(connection)
-    return known

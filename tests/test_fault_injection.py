@@ -1,19 +1,24 @@
 """Fault injection: ``kill -9`` at seeded random moments, rerun, compare with a clean run.
 
 For each command in :data:`SCENARIOS` the test runs it once uninterrupted
-(the reference, in a subprocess, timed from its first output to its end),
-then :data:`KILLS` times (or its own count): starts it in a subprocess, kills
-it with ``SIGKILL`` at a moment drawn from a seeded generator over that
-working time (counted from the run's own first output), checks that no process of the run
-survives (pool workers, the resource tracker), reruns it to completion, and
-asserts that the output tree equals the reference (byte for byte, up to the
-fields a scenario declares as wall-clock timings) and that no temporary file
-remains anywhere under the output's parent folder.
+(the reference, timed from its first output to its end), then :data:`KILLS`
+times (or its own count): starts it, kills it with ``SIGKILL`` at a moment
+drawn from a seeded generator over that working time (counted from the run's
+own first output), checks that no process of the run survives (pool workers,
+the resource tracker), reruns it to completion, and asserts that the output
+tree equals the reference (byte for byte, up to the fields a scenario
+declares as wall-clock timings) and that no temporary file remains anywhere
+under the output's parent folder.
+
+Each run that is timed or killed is a process of its own, forked from a warm
+fork server (``tests/fork_server.py``) rather than a fresh ``python -m
+lenspair``: the seconds of imports (torch) that each start would cost are
+paid once, and kills land in the work either way. Reruns run in this process.
 
 Adding a command is one :class:`Scenario` entry. Inputs are tiny (3 simulated
 360x270 frames, a 6-pair dataset, a network of a few thousand parameters,
 32x48 images and a 3-frame ROS 2 bag to restore) so that the whole module
-stays within a few minutes on two cores.
+stays within about a minute and a half on two cores.
 """
 
 import csv
@@ -21,9 +26,7 @@ import io
 import json
 import os
 import re
-import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -38,6 +41,7 @@ from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.core.imageio import write_image
 from lenspair.core.leftovers import LEFTOVER_SUFFIXES
+from tests.fork_server import ForkedRun, start_server
 from tests.model.restore_helpers import bag_from_recording
 from tests.model.train_fixtures import (
     clean_image,
@@ -233,13 +237,14 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root
 
 
-def _start(argv: list[str]) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(
-        [sys.executable, "-m", "lenspair", *argv],
-        env={**os.environ, "LENSPAIR_QUIET": "1", "OMP_NUM_THREADS": "1"},
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
+@pytest.fixture(scope="module")
+def server() -> Iterator[subprocess.Popen[str]]:
+    """The fork server: one warm process whose children are the runs killed."""
+    process = start_server({**os.environ, "LENSPAIR_QUIET": "1", "OMP_NUM_THREADS": "1"})
+    yield process
+    assert process.stdin is not None
+    process.stdin.close()
+    process.wait(timeout=30)
 
 
 def _tree(folder: Path) -> dict[str, bytes]:
@@ -286,15 +291,13 @@ def _temporaries(folder: Path) -> list[Path]:
     return [p for p in folder.rglob("*") if _TEMPORARY.match(p.name)]
 
 
-def _watch(
-    process: subprocess.Popen[bytes], folder: Path, finished: Path | None = None
-) -> tuple[float, float]:
+def _watch(run: ForkedRun, folder: Path, finished: Path | None = None) -> tuple[float, float]:
     """Poll a run to its end: when ``folder`` (its first output) appeared, when it ended.
 
     The end is when ``finished`` appeared, when given, else the process's exit.
     """
     appeared = done = None
-    while process.poll() is None:
+    while run.poll() is None:
         if appeared is None and folder.exists():
             appeared = time.monotonic()
         if done is None and finished is not None and finished.exists():
@@ -304,20 +307,20 @@ def _watch(
     return (ended if appeared is None else appeared), ended
 
 
-def _wait_for_work(process: subprocess.Popen[bytes], folder: Path, moment: float) -> set[int]:
+def _wait_for_work(run: ForkedRun, folder: Path, moment: float) -> set[int]:
     """Wait until ``folder`` appears, then ``moment`` seconds more; returns the run's children.
 
-    Kill moments are drawn over the working part of a run: a kill while
-    Python imports modules tests nothing.
+    Kill moments are drawn over the working part of a run: a kill while it
+    starts tests nothing.
     """
     children: set[int] = set()
     deadline = None
-    while process.poll() is None and (deadline is None or time.monotonic() < deadline):
+    while run.poll() is None and (deadline is None or time.monotonic() < deadline):
         if deadline is None and folder.exists():
             deadline = time.monotonic() + moment
-        children |= descendants(process.pid)
+        children |= descendants(run.pid)
         time.sleep(0.01)
-    return children | descendants(process.pid)
+    return children | descendants(run.pid)
 
 
 @pytest.fixture
@@ -336,16 +339,17 @@ def one_thread() -> Iterator[None]:
 @pytest.mark.usefixtures("one_thread")
 @pytest.mark.parametrize("scenario", SCENARIOS, ids=lambda s: s.name)
 def test_killed_runs_resume_to_the_same_output(
-    scenario: Scenario, inputs: Path, tmp_path: Path
+    scenario: Scenario, inputs: Path, server: subprocess.Popen[str], tmp_path: Path
 ) -> None:
     argv = scenario.argv
     rerun = scenario.rerun or argv
     reference_out = tmp_path / "reference" / "out"
-    process = _start(argv(inputs, reference_out))
+    run = ForkedRun(server, argv(inputs, reference_out), tmp_path / "reference.err")
     finished = scenario.finished(reference_out) if scenario.finished else None
-    appeared, ended = _watch(process, reference_out.parent, finished)
-    _, error = process.communicate()
-    assert process.returncode == 0, error.decode()
+    appeared, ended = _watch(run, reference_out.parent, finished)
+    while run.poll() is None:
+        time.sleep(0.01)
+    assert run.returncode == 0, run.stderr.read_text()
     working = ended - appeared  # from its first output (after imports) to its end
     reference = _comparable_tree(scenario, scenario.output(reference_out))
     assert reference
@@ -353,10 +357,9 @@ def test_killed_runs_resume_to_the_same_output(
     moments = np.random.default_rng(SEED).uniform(0.0, working, size=scenario.kills)
     for index, moment in enumerate(moments):
         out = tmp_path / f"kill{index}" / "out"
-        process = _start(argv(inputs, out))
-        children = _wait_for_work(process, out.parent, moment)
-        process.send_signal(signal.SIGKILL)
-        process.communicate()
+        run = ForkedRun(server, argv(inputs, out), tmp_path / f"kill{index}.err")
+        children = _wait_for_work(run, out.parent, moment)
+        run.kill()
         survivors = wait_gone(children, timeout=10)
         assert not survivors, f"kill {index} at {moment:.2f} s: processes {survivors} survived"
         assert main(rerun(inputs, out)) == 0, f"rerun after kill {index} at {moment:.2f} s"

@@ -283,8 +283,13 @@ def _start(
         trainer.load_state_dict(checkpoint)
         set_rng_state(checkpoint.get("rng", {}))
         state = RunState.from_checkpoint(checkpoint)
+        # The rows last.pt vouches for: none past its step, and none of an epoch
+        # it has not completed (a checkpoint written on an epoch's last step
+        # precedes that epoch's validation row, which has the same step).
         state.rows = [
-            row for row in read_metrics_rows(paths.metrics) if int(row["step"]) <= state.step
+            row
+            for row in read_metrics_rows(paths.metrics)
+            if int(row["step"]) <= state.step and int(row["epoch"]) <= state.epoch
         ]
         log.info("resuming %s at epoch %d, step %d", paths.root, state.epoch + 1, state.step)
         return state

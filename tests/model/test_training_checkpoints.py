@@ -9,9 +9,11 @@ import torch
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.model.checkpoint import load_checkpoint
+from lenspair.model.training import validation
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
+from lenspair.model.training.run_files import read_metrics_rows
 from lenspair.model.training.step import Trainer
 from tests.model.train_fixtures import tiny_config, write_split_dataset
 
@@ -90,3 +92,38 @@ def test_resume_before_the_first_checkpoint_starts_over(
     assert not leftover.exists()
     code = main(["train", str(dataset), "--out", str(tmp_path / "none"), "--resume"])
     assert code == 2 and "holds no run to resume" in capsys.readouterr().err
+
+
+def test_kill_between_an_epochs_metrics_row_and_its_checkpoint_writes_the_row_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # With a checkpoint every step, last.pt of the epoch's last step is written
+    # before that epoch's validation row; a kill after the row, before the
+    # validation's last.pt, resumes from that checkpoint (found by the fault tests).
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 2})  # 4 steps per epoch
+    config = tiny_config(epochs=2, deterministic=True, seed=5, checkpoint_every_steps=1)
+    _train(dataset, tmp_path / "straight", config)
+
+    real = validation.save_checkpoint
+
+    def killed_after_the_row(path: Path, *args: object, **kwargs: object) -> None:
+        if path.name == "last.pt":
+            raise KeyboardInterrupt  # stands in for kill -9 right after metrics.csv
+        real(path, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(validation, "save_checkpoint", killed_after_the_row)
+    with pytest.raises(KeyboardInterrupt):
+        _train(dataset, tmp_path / "split", config)
+    monkeypatch.setattr(validation, "save_checkpoint", real)
+    metrics = tmp_path / "split" / "metrics.csv"
+    assert len(read_metrics_rows(metrics)) == 1  # the row is out, last.pt is not
+    saved = load_checkpoint(tmp_path / "split" / "checkpoints" / "last.pt")
+    assert (saved["epoch"], saved["step"], saved["step_in_epoch"]) == (0, 4, 4)
+
+    _train(dataset, tmp_path / "split", config, resume=True)
+    straight = read_metrics_rows(tmp_path / "straight" / "metrics.csv")
+    split = read_metrics_rows(metrics)
+    assert [(r["epoch"], r["step"]) for r in split] == [("1", "4"), ("2", "8")]
+    for row in (*straight, *split):
+        row.pop("seconds")
+    assert split == straight
