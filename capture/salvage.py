@@ -41,9 +41,11 @@ from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.salvage_db3 import Db3Layout, read_db3_data, scan_db3
 from lenspair.capture.salvage_records import (
+    CUT_CHUNK,
     MCAP_MAGIC,
     ROS1_MAGIC,
     SQLITE_MAGIC,
+    decompress_prefix,
     scan_mcap,
     scan_ros1,
 )
@@ -140,6 +142,8 @@ class SalvagedBag:
         pos, size, codec, usize, crc = self.chunks[index]
         self._bio.seek(pos)
         data = self._bio.read(size)
+        if usize == CUT_CHUNK:
+            return decompress_prefix(codec, data)
         if self.is_ros1:
             return decompressors[codec](data)
         return decompress(data, codec, usize, crc)

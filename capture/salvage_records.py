@@ -5,11 +5,15 @@ message to the :class:`~lenspair.capture.salvage.SalvagedBag` and ends with
 ``finish(byte where reading stopped, why)``.
 """
 
+import bz2
 import os
 import struct
+import sys
+from collections.abc import Callable
 from io import BytesIO
 from typing import TYPE_CHECKING, Any
 
+import lz4.frame
 from rosbags.interfaces import (
     Connection,
     ConnectionExtRosbag1,
@@ -21,12 +25,42 @@ from rosbags.rosbag1.reader import Header, RecordType, decompressors, normalize,
 from rosbags.rosbag2.storage_mcap import Schema, decompress, get_msgdef, get_qos
 from rosbags.typesys.msg import normalize_msgtype
 
+if sys.version_info >= (3, 14):
+    from compression import zstd
+else:
+    from backports import zstd  # what rosbags reads MCAP zstd chunks with before 3.14
+
 if TYPE_CHECKING:
     from lenspair.capture.salvage import SalvagedBag
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"
+CUT_CHUNK = -1  # uncompressed size recorded for a chunk cut short: decode its prefix
+
+# The streaming decoders of the codecs rosbags reads chunks with (ROS1 lz4
+# chunks are lz4 frames, as roslz4 writes them; MCAP lz4 chunks too).
+_STREAMING: dict[str, Callable[[], Any]] = {
+    "bz2": bz2.BZ2Decompressor,
+    "lz4": lz4.frame.LZ4FrameDecompressor,
+    "zstd": zstd.ZstdDecompressor,
+}
+
+
+def decompress_prefix(codec: str, data: bytes) -> bytes:
+    """All that a streaming decoder returns of the first bytes of a compressed chunk.
+
+    Decoders emit whole blocks: a compressed block whose end is cut gives
+    nothing, so up to a block of data before the cut is lost (bz2: a block
+    of up to 900 kB, which is usually the whole chunk; lz4 frame: 64 KiB as
+    rosbags writes it; zstd: up to 128 KiB). A block stored raw
+    (incompressible data) comes out as far as its bytes go.
+
+    Raises:
+        KeyError: an unknown codec; the decoder's own error for damaged data.
+    """
+    decoder = _STREAMING[codec]()
+    return bytes(decoder.decompress(data))
 
 
 def scan_ros1(bag: "SalvagedBag", bio: Any) -> None:
@@ -55,15 +89,21 @@ def scan_ros1(bag: "SalvagedBag", bio: Any) -> None:
             if codec == "none":
                 got = bio.read(min(length, size - datapos))
                 stopped_at = datapos + _ros1_records(bag, known, got, -1, datapos)
-            elif complete and codec in decompressors:
+            elif codec in decompressors:
+                got = bio.read(min(length, size - datapos))
                 try:
-                    raw = decompressors[codec](bio.read(length))
+                    raw = decompressors[codec](got) if complete else decompress_prefix(codec, got)
                 except Exception:  # a chunk that does not decompress: damaged, not cut
                     why = f"the chunk record at byte {start} is damaged"
                     break
-                bag.chunks.append((datapos, length, codec, 0, 0))
+                bag.chunks.append((datapos, len(got), codec, 0 if complete else CUT_CHUNK, 0))
+                kept = bag.message_count
                 _ros1_records(bag, known, raw, len(bag.chunks) - 1, 0)
-                stopped_at = datapos + length
+                if complete or bag.message_count > kept:
+                    stopped_at = datapos + len(got)
+                if not complete:
+                    why = _cut_chunk(start, codec, len(got), len(raw), bag.message_count - kept)
+                    break
         elif op == RecordType.MSGDATA and complete and header.get_uint32("conn") in known:
             connection = known[header.get_uint32("conn")]
             bag.add_message(connection, header.get_time("time"), -1, datapos, length)
@@ -75,6 +115,15 @@ def scan_ros1(bag: "SalvagedBag", bio: Any) -> None:
             break
         bio.seek(datapos + length)
     bag.finish(stopped_at, why)
+
+
+def _cut_chunk(start: int, codec: str, got: int, decoded: int, kept: int) -> str:
+    """Why reading stopped in a compressed chunk cut short (one line)."""
+    return (
+        f"the {codec} chunk record at byte {start} is incomplete: its {got} compressed bytes "
+        f"before the cut decode to {decoded} bytes holding {kept} complete messages; the "
+        f"messages whose compressed bytes reach past them are lost"
+    )
 
 
 def _ros1_records(
@@ -148,12 +197,15 @@ def scan_mcap(bag: "SalvagedBag", bio: Any) -> None:
         complete = len(content) == length
         if op == 0x06:
             try:
-                used = _mcap_chunk(bag, schemas, known, content, start + 9, complete)
+                used, cut_why = _mcap_chunk(bag, schemas, known, content, start, complete)
             except Exception:  # a chunk that does not decompress: damaged, not cut
                 why = f"the chunk record at byte {start} is damaged"
                 break
             if complete or used:
                 stopped_at = used if not complete else start + 9 + length
+            if cut_why:
+                why = cut_why
+                break
         elif complete:
             try:
                 _mcap_record(bag, schemas, known, op, content, -1, start + 9)
@@ -173,21 +225,33 @@ def _mcap_chunk(
     schemas: dict[int, Schema],
     known: dict[int, Connection],
     content: bytes,
-    base: int,
+    start: int,
     complete: bool,
-) -> int:
-    """Add a chunk's complete records; returns the file byte they end at (0: none)."""
-    if len(content) < 32:
-        return 0
+) -> tuple[int, str]:
+    """Add a chunk's complete records.
+
+    Returns:
+        The file byte they end at (0: none), and for a compressed chunk cut
+        short, why reading stopped (else "").
+    """
+    base = start + 9
+    if len(content) < 36:
+        return 0, ""
     _, _, usize, crc, name_size = struct.unpack_from("<QQQIL", content)
-    codec = content[32 : 32 + name_size].decode()
     offset = 32 + name_size + 8
+    if len(content) < offset:  # cut within the codec's name or the records' length
+        return 0, ""
+    codec = content[32 : 32 + name_size].decode()
     records = content[offset:]
     if codec:
-        if not complete:
-            return 0
-        bag.chunks.append((base + offset, len(records), codec, usize, crc))
-        records = decompress(records, codec, usize, crc)
+        kept = bag.message_count
+        bag.chunks.append(
+            (base + offset, len(records), codec, usize if complete else CUT_CHUNK, crc)
+        )
+        if complete:
+            records = decompress(records, codec, usize, crc)
+        else:
+            records = decompress_prefix(codec, records)
         chunk, where = len(bag.chunks) - 1, 0
     else:
         chunk, where = -1, base + offset
@@ -205,7 +269,13 @@ def _mcap_chunk(
             break
         pos += 9 + length
         end = pos
-    return base + offset + end if chunk == -1 else base + len(content)
+    if chunk == -1:
+        return base + offset + end, ""
+    if complete:
+        return base + len(content), ""
+    got = bag.message_count - kept
+    why = _cut_chunk(start, codec, len(content) - offset, len(records), got)
+    return (base + len(content) if got else 0), why
 
 
 def _mcap_record(
