@@ -5,114 +5,48 @@ import sqlite3
 import tempfile
 from contextlib import closing
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from rosbags.rosbag1 import Writer as Writer1
-from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
-from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.frames import iter_bag_messages, iter_frames
+from lenspair.capture.frames import iter_frames
 from lenspair.capture.recording import open_recording
-from lenspair.capture.rosbag import close_bag_readers
+from tests.capture.salvage_helpers import (
+    COUNT,
+    MS,
+    T0,
+    assert_one_cut_report,
+    bag_messages,
+    pixels,
+    recovered,
+    write_bag,
+)
 
-T0 = 1_700_000_000_000_000_000
-MS = 1_000_000
-COUNT = 16  # messages, alternating cam0 / cam1
 KINDS = ("ros1", "db3", "mcap")
 # Cut points as fractions of the file, drawn once with a fixed seed.
 CUTS = sorted(np.random.default_rng(157).uniform(0.2, 0.995, 6).round(3).tolist())
 
 
-def _pixels(index: int, rows: int = 40) -> np.ndarray:
-    """A rows x 50 RGB image no other message shares (its bytes can be found in the file)."""
-    return np.random.default_rng(index).integers(0, 256, (rows, 50, 3), dtype=np.uint8)
-
-
-def _write(path: Path, kind: str, compression: str = "none", rows: int = 40) -> tuple[Path, Path]:
-    """Write ``COUNT`` rgb8 frames; returns ``(bag, storage file)``."""
-    store = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
-    types = store.types
-    writer: Any
-    if kind == "ros1":
-        writer = Writer1(path.with_suffix(".bag"))
-        writer.chunk_threshold = 20_000  # several chunks in a small bag
-        if compression != "none":
-            writer.set_compression(Writer1.CompressionFormat[compression.upper()])
-    else:
-        plugin = StoragePlugin.SQLITE3 if kind == "db3" else StoragePlugin.MCAP
-        writer = Writer2(path, version=9, storage_plugin=plugin)
-        if compression == "zstd":  # MCAP chunks of 1 MiB, zstd-compressed
-            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
-    with writer:
-        connections = [
-            writer.add_connection(f"/cam{i}/image_raw", "sensor_msgs/msg/Image", typestore=store)
-            for i in (0, 1)
-        ]
-        for index in range(COUNT):
-            t_ns = T0 + index * 20 * MS
-            stamp = types["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
-            extra = {"seq": 0} if kind == "ros1" else {}
-            header = types["std_msgs/msg/Header"](stamp=stamp, frame_id="cam", **extra)
-            message = types["sensor_msgs/msg/Image"](
-                header=header,
-                height=rows,
-                width=50,
-                encoding="rgb8",
-                is_bigendian=0,
-                step=150,
-                data=_pixels(index, rows).reshape(-1),
-            )
-            serialize = store.serialize_ros1 if kind == "ros1" else store.serialize_cdr
-            writer.write(connections[index % 2], t_ns + MS, serialize(message, message.__msgtype__))
-    if kind == "ros1":
-        return path.with_suffix(".bag"), path.with_suffix(".bag")
-    return path, next(p for p in path.iterdir() if p.suffix in (".db3", ".mcap"))
-
-
-def _recovered(bag: Path, rows: int = 40) -> tuple[list[int], list[Any]]:
-    """Indexes of the frames read (checked pixel-exact) and the recording's problems."""
-    close_bag_readers()
-    recording = open_recording(bag)
-    found = []
-    for camera in ("cam0", "cam1"):
-        for position, frame in enumerate(recording.frames[camera]):
-            index = 2 * position + (camera == "cam1")
-            np.testing.assert_array_equal(recording.load(frame), _pixels(index, rows))
-            found.append(index)
-    close_bag_readers()
-    return sorted(found), recording.problems
-
-
-def _assert_one_cut_report(bag: Path, storage: Path, problems: list[Any]) -> None:
-    (problem,) = problems
-    assert problem.camera is None and problem.source == str(bag)
-    assert f"{storage}: cut short ({storage.stat().st_size} bytes)" in problem.reason
-    assert "\n" not in problem.reason
-
-
 @pytest.mark.parametrize("kind", ["ros1", "mcap"])
 @pytest.mark.parametrize("cut", CUTS)
 def test_cut_bag_keeps_exactly_the_complete_frames(tmp_path: Path, kind: str, cut: float) -> None:
-    bag, storage = _write(tmp_path / "run", kind)
+    bag, storage = write_bag(tmp_path / "run", kind)
     data = storage.read_bytes()
     size = int(len(data) * cut)
     # Uncompressed, each image's bytes end its message: complete iff they end before the cut.
-    ends = [data.find(_pixels(i).tobytes()) + _pixels(i).nbytes for i in range(COUNT)]
+    ends = [data.find(pixels(i).tobytes()) + pixels(i).nbytes for i in range(COUNT)]
     expected = [i for i in range(COUNT) if ends[i] <= size]
     storage.write_bytes(data[:size])
     if len({i % 2 for i in expected}) < 2:  # a camera's first frame is after the cut
         with pytest.raises(CaptureError, match=r"need two image topics.*cut short"):
             open_recording(bag)
         return
-    found, problems = _recovered(bag)
+    found, problems = recovered(bag)
     assert found == expected
-    _assert_one_cut_report(bag, storage, problems)
+    assert_one_cut_report(bag, storage, problems)
     assert f"kept the {len(expected)} complete messages" in problems[0].reason
 
 
@@ -121,7 +55,7 @@ def test_cut_db3_keeps_exactly_the_rows_before_the_cut(tmp_path: Path, cut: floa
     # A row's bytes are its cell in a leaf page and its overflow pages; SQLite
     # writes the leaf after the data and moves rows when the root splits, so
     # the rows are read page by page, not through the B-tree.
-    bag, storage = _write(tmp_path / "run", "db3")
+    bag, storage = write_bag(tmp_path / "run", "db3")
     data = storage.read_bytes()
     size = int(len(data) * cut)
     expected = sorted((t - T0 - MS) // (20 * MS) for t in _db3_rows_before(storage, data, size))
@@ -130,38 +64,22 @@ def test_cut_db3_keeps_exactly_the_rows_before_the_cut(tmp_path: Path, cut: floa
         with pytest.raises(CaptureError, match=r"need two image topics.*cut short"):
             open_recording(bag)
         return
-    found, problems = _recovered(bag)
+    found, problems = recovered(bag)
     assert found == expected
-    _assert_one_cut_report(bag, storage, problems)
+    assert_one_cut_report(bag, storage, problems)
     assert f"kept the {len(expected)} complete messages" in problems[0].reason
-
-
-@pytest.mark.parametrize(
-    ("kind", "compression", "rows"),
-    [("ros1", "bz2", 40), ("ros1", "lz4", 40), ("mcap", "zstd", 1500)],
-)
-def test_cut_compressed_bag_keeps_the_whole_chunks(
-    tmp_path: Path, kind: str, compression: str, rows: int
-) -> None:
-    # A compressed chunk split by the cut cannot be decompressed: its messages are lost.
-    bag, storage = _write(tmp_path / "run", kind, compression, rows)
-    data = storage.read_bytes()
-    storage.write_bytes(data[: len(data) * 3 // 4])
-    found, problems = _recovered(bag, rows)
-    assert 2 <= len(found) < COUNT and found == list(range(len(found)))
-    _assert_one_cut_report(bag, storage, problems)
 
 
 @pytest.mark.parametrize("kind", ["ros1", "db3", "mcap"])
 def test_cut_bag_iter_frames_reports_the_cut_once(tmp_path: Path, kind: str) -> None:
-    bag, storage = _write(tmp_path / "run", kind)
+    bag, storage = write_bag(tmp_path / "run", kind)
     data = storage.read_bytes()
     storage.write_bytes(data[: len(data) * 2 // 3])
     problems: list[str] = []
     frames = list(iter_frames(bag, problems=problems))
     assert frames and all(f.image is not None for f in frames)
     for frame in frames:
-        np.testing.assert_array_equal(frame.image, _pixels(frame.index))
+        np.testing.assert_array_equal(frame.image, pixels(frame.index))
     (line,) = problems
     assert line.startswith(f"{bag}: reading stopped early after {len(frames)} messages (")
     assert f"{storage}: cut short" in line
@@ -169,7 +87,7 @@ def test_cut_bag_iter_frames_reports_the_cut_once(tmp_path: Path, kind: str) -> 
 
 @pytest.mark.parametrize("kind", ["ros1", "db3", "mcap"])
 def test_bag_cut_before_any_frame_is_one_error(tmp_path: Path, kind: str) -> None:
-    bag, storage = _write(tmp_path / "run", kind)
+    bag, storage = write_bag(tmp_path / "run", kind)
     storage.write_bytes(storage.read_bytes()[:300])
     with pytest.raises(CaptureError, match=rf"{bag.name}: cannot open bag \(.*nothing to keep"):
         open_recording(bag)
@@ -177,13 +95,13 @@ def test_bag_cut_before_any_frame_is_one_error(tmp_path: Path, kind: str) -> Non
 
 @pytest.mark.parametrize("kind", ["db3", "mcap"])
 def test_cut_bare_storage_file_is_read_too(tmp_path: Path, kind: str) -> None:
-    _, storage = _write(tmp_path / "run", kind)
+    _, storage = write_bag(tmp_path / "run", kind)
     bare = storage.rename(tmp_path / storage.name)
     data = bare.read_bytes()
     bare.write_bytes(data[: len(data) * 2 // 3])
-    found, problems = _recovered(bare)
+    found, problems = recovered(bare)
     assert len(found) >= 2 and found == list(range(len(found)))
-    _assert_one_cut_report(bare, bare, problems)
+    assert_one_cut_report(bare, bare, problems)
 
 
 # Property: over any cut, the messages read are exactly those whose bytes all
@@ -193,16 +111,7 @@ def test_cut_bare_storage_file_is_read_too(tmp_path: Path, kind: str) -> None:
 @pytest.fixture(scope="module")
 def whole_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Path]]:
     """One uncut bag per kind: ``(bag, storage file)``."""
-    return {kind: _write(tmp_path_factory.mktemp(kind) / "run", kind) for kind in KINDS}
-
-
-def _messages(bag: Path, problems: list[str]) -> dict[int, bytes]:
-    """Every message read: log time -> raw bytes."""
-    close_bag_readers()
-    try:
-        return {m.log_time_ns: m.raw for m in iter_bag_messages(bag, cameras=(), problems=problems)}
-    finally:
-        close_bag_readers()
+    return {kind: write_bag(tmp_path_factory.mktemp(kind) / "run", kind) for kind in KINDS}
 
 
 def _db3_rows_before(storage: Path, data: bytes, cut: int) -> set[int]:
@@ -260,7 +169,7 @@ def test_any_cut_keeps_exactly_the_messages_before_it(
 ) -> None:
     bag, storage = whole_bags[kind]
     whole = storage.read_bytes()
-    written = _messages(bag, [])
+    written = bag_messages(bag, [])
     assert len(written) == COUNT
     # Each message's last byte: uncompressed, its raw bytes lie whole in the file.
     ends = [whole.find(raw[-64:]) + 64 for raw in written.values()]
@@ -281,9 +190,9 @@ def test_any_cut_keeps_exactly_the_messages_before_it(
         problems: list[str] = []
         if not expected:
             with pytest.raises(CaptureError, match="nothing to keep"):
-                _messages(copy, problems)
+                bag_messages(copy, problems)
             return
-        read = _messages(copy, problems)
+        read = bag_messages(copy, problems)
     assert set(read) == expected
     assert all(raw == written[t] for t, raw in read.items())
     if kind == "db3" and cut >= _first_leaf_end(storage):
@@ -297,7 +206,7 @@ def test_any_cut_keeps_exactly_the_messages_before_it(
 def test_cut_db3_skips_the_stale_rows_of_free_pages(tmp_path: Path) -> None:
     # Without secure_delete, a dropped table's leaf pages go to the free list
     # with their cells still in them: stale rows, not messages.
-    bag, storage = _write(tmp_path / "run", "db3")
+    bag, storage = write_bag(tmp_path / "run", "db3")
     with closing(sqlite3.connect(storage)) as db:
         db.execute("PRAGMA secure_delete = OFF")
         db.execute("CREATE TABLE old (id INTEGER PRIMARY KEY, t INTEGER, ts INTEGER, b BLOB)")
@@ -312,4 +221,4 @@ def test_cut_db3_skips_the_stale_rows_of_free_pages(tmp_path: Path) -> None:
     deleted = {T0 + MS + index * 20 * MS for index in (2, 3, 8)}
     assert len(expected) >= 10 and not expected & deleted
     storage.write_bytes(data[:cut])
-    assert set(_messages(bag, [])) == expected
+    assert set(bag_messages(bag, [])) == expected
