@@ -8,10 +8,15 @@ before the cut:
 
 * ROS1 ``.bag``: bag header, chunk (``none``/``bz2``/``lz4``), connection and
   message records, parsed with ``rosbags.rosbag1`` helpers. In a chunk cut
-  short, the complete messages of an uncompressed chunk are kept; a
-  compressed one cannot be decompressed and is lost.
-* MCAP: schema, channel, message and chunk records (the same rule for a cut
-  chunk), parsed with ``rosbags.rosbag2.storage_mcap`` helpers.
+  short, the complete records of an uncompressed chunk are kept; a
+  compressed one's bytes before the cut go through the codec's streaming
+  decoder, and the complete records of what it returns are kept
+  (:func:`~lenspair.capture.salvage_records.decompress_prefix`: decoders
+  return whole blocks, so the messages in the block the cut splits, and
+  after it, are lost; for bz2 that is usually the whole chunk).
+* MCAP: schema, channel, message and chunk records (``lz4``/``zstd`` or
+  none: the same rule for a cut chunk), parsed with
+  ``rosbags.rosbag2.storage_mcap`` helpers.
 * ``.db3``: every table leaf page is read for ``messages`` rows without the
   B-tree above them (:mod:`lenspair.capture.salvage_db3`); a row is kept when
   all of its bytes (its cell and its overflow pages' pieces) lie before the

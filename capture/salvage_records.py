@@ -2,7 +2,9 @@
 
 Each scan reads a file from its start, hands every complete connection and
 message to the :class:`~lenspair.capture.salvage.SalvagedBag` and ends with
-``finish(byte where reading stopped, why)``.
+``finish(byte where reading stopped, why)``. A compressed chunk cut short is
+recorded with uncompressed size ``CUT_CHUNK``: its data is what
+:func:`decompress_prefix` returns of its bytes before the cut.
 """
 
 import bz2

@@ -226,7 +226,7 @@ def test_decode_raw_checks_step() -> None:
 
 @pytest.mark.parametrize("kind", ["ros1", "mcap"])
 def test_bag_cut_before_any_message_names_the_bag(tmp_path: Path, kind: str) -> None:
-    # Cut later, the complete messages are kept (tests/capture/test_salvage.py).
+    # Cut later, the complete messages are kept (tests/capture/test_salvage*.py).
     bag = _write_bag(tmp_path / "run", kind, _stereo(5))
     storage = bag if kind == "ros1" else next(bag.glob("*.mcap"))
     storage.write_bytes(storage.read_bytes()[:300])
