@@ -1,13 +1,20 @@
 """Bags for the salvage tests: ``COUNT`` rgb8 frames, alternating cam0 / cam1.
 
 Each image's pixels are random bytes that no other message shares (they are
-found in the file, and no codec compresses them).
+found in the file, and no codec compresses them). :func:`chunk_layout` finds
+where a compressed bag's chunks and their messages lie, by decoding the
+whole chunks with the codecs' own decoders (``DECODERS``).
 """
 
+import bz2
+import struct
+import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
+import lz4.frame
 import numpy as np
+from rosbags.rosbag1 import Reader as Reader1
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
@@ -17,9 +24,19 @@ from lenspair.capture.frames import iter_bag_messages
 from lenspair.capture.recording import open_recording
 from lenspair.capture.rosbag import close_bag_readers
 
+if sys.version_info >= (3, 14):
+    from compression import zstd
+else:
+    from backports import zstd
+
 T0 = 1_700_000_000_000_000_000
 MS = 1_000_000
 COUNT = 16  # messages, alternating cam0 / cam1
+DECODERS: dict[str, Any] = {
+    "bz2": bz2.BZ2Decompressor,
+    "lz4": lz4.frame.LZ4FrameDecompressor,
+    "zstd": zstd.ZstdDecompressor,
+}
 
 
 def pixels(index: int, rows: int = 40) -> np.ndarray:
@@ -103,3 +120,46 @@ def bag_messages(bag: Path, problems: list[str]) -> dict[int, bytes]:
         return {m.log_time_ns: m.raw for m in iter_bag_messages(bag, cameras=(), problems=problems)}
     finally:
         close_bag_readers()
+
+
+class Chunk(NamedTuple):
+    """A compressed chunk: its data in the file, and its messages' ends in its decoded data."""
+
+    datapos: int
+    size: int
+    codec: str
+    ends: dict[int, int]  # log time -> decompressed byte after the message's last
+
+
+def mcap_chunk_records(data: bytes) -> list[tuple[int, int, str]]:
+    """``(records' file offset, compressed size, codec)`` of each chunk of the data section."""
+    chunks, pos = [], 8
+    while pos + 9 <= len(data):
+        op, length = struct.unpack_from("<BQ", data, pos)
+        if op == 0x0F:  # data end
+            break
+        if op == 0x06:
+            (name_size,) = struct.unpack_from("<L", data, pos + 9 + 28)
+            codec = data[pos + 9 + 32 : pos + 9 + 32 + name_size].decode()
+            start = pos + 9 + 32 + name_size + 8
+            chunks.append((start, pos + 9 + length - start, codec))
+        pos += 9 + length
+    return chunks
+
+
+def chunk_layout(
+    whole: bytes, storage: Path, kind: str, codec: str, written: dict[int, bytes]
+) -> list[Chunk]:
+    """The compressed chunks of the uncut bag ``whole`` (the bytes of ``storage``)."""
+    if kind == "ros1":  # rosbags' index of the uncut bag
+        with Reader1(storage) as reader:
+            found = [(c.datapos, c.datasize, codec) for c in reader.chunks.values()]
+    else:
+        found = mcap_chunk_records(whole)
+    chunks = []
+    for datapos, size, chunk_codec in found:
+        decoded = DECODERS[chunk_codec]().decompress(whole[datapos : datapos + size])
+        ends = {t: decoded.find(raw) + len(raw) for t, raw in written.items() if raw in decoded}
+        chunks.append(Chunk(datapos, size, chunk_codec, ends))
+    assert sum(len(c.ends) for c in chunks) == COUNT  # every message lies in a chunk
+    return chunks

@@ -10,33 +10,27 @@ bytes before the cut, and that is at most one block short of those bytes
 compress). Messages whose compressed bytes straddle the cut are lost.
 """
 
-import bz2
 import shutil
 import struct
-import sys
 import tempfile
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import lz4.frame
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from rosbags.rosbag1 import Reader as Reader1
 
 from lenspair.capture.errors import CaptureError
 from tests.capture.salvage_helpers import (
-    COUNT,
+    DECODERS,
+    Chunk,
     assert_one_cut_report,
     bag_messages,
+    chunk_layout,
     recovered,
     write_bag,
 )
-
-if sys.version_info >= (3, 14):
-    from compression import zstd
-else:
-    from backports import zstd
 
 # name: (kind, codec, image rows, ROS1 chunk bytes)
 CONFIGS = {
@@ -45,22 +39,8 @@ CONFIGS = {
     "mcap-zstd": ("mcap", "zstd", 100, 0),  # one chunk of two zstd blocks
     "mcap-lz4": ("mcap", "lz4", 100, 0),  # rosbags' chunk recompressed as an lz4 frame
 }
-DECODERS: dict[str, Any] = {
-    "bz2": bz2.BZ2Decompressor,
-    "lz4": lz4.frame.LZ4FrameDecompressor,
-    "zstd": zstd.ZstdDecompressor,
-}
 # The most compressed bytes of one block, and some slack for block and frame headers.
 BLOCK = {"bz2": 900_000 * 101 // 100, "lz4": 64 * 1024 + 64, "zstd": 128 * 1024 + 64}
-
-
-class Chunk(NamedTuple):
-    """A compressed chunk: its data in the file, and its messages' ends in its decoded data."""
-
-    datapos: int
-    size: int
-    codec: str
-    ends: dict[int, int]  # log time -> decompressed byte after the message's last
 
 
 class Whole(NamedTuple):
@@ -70,22 +50,6 @@ class Whole(NamedTuple):
     storage: Path
     written: dict[int, bytes]
     chunks: list[Chunk]
-
-
-def _mcap_chunk_records(data: bytes) -> list[tuple[int, int, str]]:
-    """``(records' file offset, compressed size, codec)`` of each chunk of the data section."""
-    chunks, pos = [], 8
-    while pos + 9 <= len(data):
-        op, length = struct.unpack_from("<BQ", data, pos)
-        if op == 0x0F:  # data end
-            break
-        if op == 0x06:
-            (name_size,) = struct.unpack_from("<L", data, pos + 9 + 28)
-            codec = data[pos + 9 + 32 : pos + 9 + 32 + name_size].decode()
-            start = pos + 9 + 32 + name_size + 8
-            chunks.append((start, pos + 9 + length - start, codec))
-        pos += 9 + length
-    return chunks
 
 
 def _recompress_mcap_lz4(storage: Path) -> None:
@@ -112,23 +76,6 @@ def _recompress_mcap_lz4(storage: Path) -> None:
     storage.write_bytes(bytes(out))
 
 
-def _chunks(
-    whole: bytes, storage: Path, kind: str, codec: str, written: dict[int, bytes]
-) -> list[Chunk]:
-    if kind == "ros1":  # rosbags' index of the uncut bag
-        with Reader1(storage) as reader:
-            found = [(c.datapos, c.datasize, codec) for c in reader.chunks.values()]
-    else:
-        found = _mcap_chunk_records(whole)
-    chunks = []
-    for datapos, size, codec in found:
-        decoded = DECODERS[codec]().decompress(whole[datapos : datapos + size])
-        ends = {t: decoded.find(raw) + len(raw) for t, raw in written.items() if raw in decoded}
-        chunks.append(Chunk(datapos, size, codec, ends))
-    assert sum(len(c.ends) for c in chunks) == COUNT  # every message lies in a chunk
-    return chunks
-
-
 @pytest.fixture(scope="module")
 def compressed_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Whole]:
     """One uncut bag per configuration."""
@@ -142,7 +89,9 @@ def compressed_bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Whole
         if name == "mcap-lz4":
             _recompress_mcap_lz4(storage)
         whole = storage.read_bytes()
-        bags[name] = Whole(bag, storage, written, _chunks(whole, storage, kind, codec, written))
+        bags[name] = Whole(
+            bag, storage, written, chunk_layout(whole, storage, kind, codec, written)
+        )
         assert {c.codec for c in bags[name].chunks} == {codec}
     return bags
 
