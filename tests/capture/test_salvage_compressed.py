@@ -22,6 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lenspair.capture.errors import CaptureError
+from lenspair.capture.salvage import salvage_bag
 from tests.capture.salvage_helpers import (
     DECODERS,
     Chunk,
@@ -163,3 +164,19 @@ def test_cut_inside_a_compressed_chunk_keeps_its_decoded_frames(
     assert len(found) == len(_expected(whole, whole.storage.read_bytes(), cut))
     assert_one_cut_report(copy, storage, problems)
     assert f"the {codec} chunk record at byte" in problems[0].reason
+
+
+@pytest.mark.parametrize("name", ["mcap-zstd", "mcap-lz4"])
+def test_mcap_cut_inside_a_chunk_header_is_a_cut_not_damage(
+    compressed_bags: dict[str, Whole], name: str, tmp_path: Path
+) -> None:
+    # The header holds times, sizes, the codec's name and the records' length.
+    whole = compressed_bags[name]
+    chunk = whole.chunks[0]
+    record = chunk.datapos - 9 - 40 - len(chunk.codec)
+    for cut in range(record + 1, chunk.datapos + 1):
+        storage = tmp_path / whole.storage.name
+        storage.write_bytes(whole.storage.read_bytes()[:cut])
+        with pytest.raises(CaptureError, match="no complete message") as error:
+            salvage_bag(storage)
+        assert f"record at byte {record} is incomplete" in str(error.value)
