@@ -1,75 +1,23 @@
 """capture-ingest from ROS bags: whole, truncated, and with chosen topics."""
 
 from pathlib import Path
-from typing import Any
 
-import numpy as np
 import pytest
-from rosbags.rosbag1 import Writer as Writer1
-from rosbags.rosbag2 import StoragePlugin
-from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import read_pairs
-from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.cli import main
-from lenspair.core.imageio import read_image
 from lenspair.rectify.rig import write_kalibr
-from tests.capture.ingest_helpers import CROP, frame_files, make_recording, rig
+from tests.capture.ingest_helpers import CROP, rig
+from tests.model.restore_helpers import bag_from_recording
 
 SIZE = (240, 160)
 
 
-def _write_bag(path: Path, kind: str, images: dict[str, list[tuple[int, np.ndarray]]]) -> Path:
-    """A bag with mono8 ``sensor_msgs/Image`` messages on ``/<camera>/image_raw``."""
-    store = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
-    types = store.types
-    msgtype = "sensor_msgs/msg/Image"
-    writer: Any = (
-        Writer1(path.with_suffix(".bag"))
-        if kind == "ros1"
-        else Writer2(path, version=9, storage_plugin=StoragePlugin.SQLITE3)
-    )
-    messages = sorted((t, camera, image) for camera, items in images.items() for t, image in items)
-    with writer:
-        connections = {
-            camera: writer.add_connection(f"/{camera}/image_raw", msgtype, typestore=store)
-            for camera in sorted(images)
-        }
-        for t_ns, camera, image in messages:
-            stamp = types["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
-            extra = {"seq": 0} if kind == "ros1" else {}
-            header = types["std_msgs/msg/Header"](stamp=stamp, frame_id=camera, **extra)
-            message = types[msgtype](
-                header=header,
-                height=image.shape[0],
-                width=image.shape[1],
-                encoding="mono8",
-                is_bigendian=0,
-                step=image.shape[1],
-                data=np.ascontiguousarray(image).reshape(-1),
-            )
-            raw = (
-                store.serialize_ros1(message, msgtype)
-                if kind == "ros1"
-                else store.serialize_cdr(message, msgtype)
-            )
-            writer.write(connections[camera], t_ns + 1_000_000, raw)
-    return path.with_suffix(".bag") if kind == "ros1" else path
-
-
 def _bag_from_euroc(tmp_path: Path, kind: str, frames: int = 4) -> Path:
-    euroc = make_recording(tmp_path / "euroc", frames=frames)
-    images = {
-        camera: [(int(p.stem), read_image(p)) for p in frame_files(euroc, camera)]
-        for camera in ("cam0", "cam1")
-    }
-    folder = tmp_path / "bags"
-    folder.mkdir()
-    write_rig_file(folder / "rig.yaml", RigFile(obstructed="cam1", anomaly=("rain",)))
-    write_kalibr(folder / "camchain.yaml", rig())
-    return _write_bag(folder / "run", kind, images)
+    bag = bag_from_recording(tmp_path, kind, frames)
+    write_kalibr(bag.parent / "camchain.yaml", rig())
+    return bag
 
 
 @pytest.mark.parametrize("kind", ["ros1", "db3"])
