@@ -2,9 +2,12 @@
 
 Rendering, reading and ingesting recordings are CPU work in numpy and OpenCV;
 ``workers`` processes of one thread each use ``workers`` cores (OpenCV and
-torch would otherwise start a thread per core in every worker).
+torch would otherwise start a thread per core in every worker). Like
+ingest's workers, they end when the command that started them dies
+(:func:`lenspair.core.orphans.end_with_parent`).
 """
 
+import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
@@ -13,11 +16,14 @@ from typing import TypeVar
 import cv2
 import torch
 
+from lenspair.core.orphans import end_with_parent
+
 T = TypeVar("T")
 R = TypeVar("R")
 
 
-def _one_thread() -> None:
+def _init_worker(parent_pid: int) -> None:
+    end_with_parent(parent_pid)
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
 
@@ -31,6 +37,9 @@ def process_map(function: Callable[[T], R], items: Sequence[T], workers: int) ->
     if workers <= 1 or len(items) <= 1:
         return [function(item) for item in items]
     with ProcessPoolExecutor(
-        min(workers, len(items)), mp_context=get_context("spawn"), initializer=_one_thread
+        min(workers, len(items)),
+        mp_context=get_context("spawn"),
+        initializer=_init_worker,
+        initargs=(os.getpid(),),
     ) as pool:
         return list(pool.map(function, items))
