@@ -5,10 +5,16 @@ short recordings of each kind in :data:`SCENE_KINDS` (clean glass, rain,
 dust, dirt) from the sample scene ``calib_samples/rain.yaml``: each recording
 gets its own seed, its own mix of textures (3 to 9 of them, rotated through
 the sample textures: the more textures, the smaller each cell of the
-mosaic; a detector trained on one cell size called the finer mosaic of the
-sample scenes obstructed), its own walking direction and its own
-obstructed camera (cam0 and cam1 alternate), so that held-out recordings
-are new scenes, not neighbouring frames of a training recording.
+mosaic), its own walking direction and its own obstructed camera (cam0 and
+cam1 alternate), so that held-out recordings are new scenes, not
+neighbouring frames of a training recording.
+
+The mosaic, direction and side of recording ``k`` are the same for every
+kind (only the glass and the seed differ), and ``k = 0`` has the sample
+scenes' mosaic of 9 textures. Scene and kind are thus independent: when the
+texture count followed the recording's number across kinds, the only
+9-texture training recordings were obstructed ones, and a detector trained
+on them called the clean frames of the sample scenes obstructed.
 Recordings are named ``<kind>_<k>``; :func:`split_by_recording` puts the
 last ``held_out`` of each kind in the test set, the way ``dataset-build``
 splits by recording to avoid the leakage of
@@ -68,20 +74,17 @@ def kind_set_specs(
     jobs = []
     for kind_number, (kind, effects) in enumerate(SCENE_KINDS.items()):
         for k in range(per_kind):
-            number = kind_number * per_kind + k
-            count = 3 + number % 7  # 3-9 textures: coarser and finer mosaics (the samples have 9)
-            textures = tuple(_TEXTURES[(number + i) % len(_TEXTURES)] for i in range(count))
+            count = 9 - k % 7  # 9 (the samples' mosaic) down to 3 textures: finer to coarser
+            textures = tuple(_TEXTURES[(k + i) % len(_TEXTURES)] for i in range(count))
             planes = tuple(replace(p, texture=textures) for p in base.planes)
-            direction = 1.0 if number % 2 else -1.0
+            direction = 1.0 if k % 2 else -1.0
             velocity = (direction * 0.8, 0.05 * direction, 0.0)
             spec = replace(
                 base,
                 planes=planes,
                 motion=replace(base.motion, velocity_mps=velocity),
                 recording=replace(base.recording, frames=frames, drop_probability=(0.0, 0.0)),
-                obstructed=ObstructionSpec(
-                    camera="cam1" if number % 2 else "cam0", effects=effects
-                ),
+                obstructed=ObstructionSpec(camera="cam1" if k % 2 else "cam0", effects=effects),
                 seed=seed + 100 * kind_number + k,
             )
             jobs.append((Path(out) / f"{kind}_{k}", spec))
