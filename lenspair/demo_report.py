@@ -208,6 +208,25 @@ def restore_blocks(out: Path, strips: int = 3) -> list[Block]:
     return blocks
 
 
+def machine_blocks(out: Path, timings: dict[str, dict[str, float | bool]]) -> list[Block]:
+    """Where the demo ran and at which precision: read from the fine-tuning run's config."""
+    # Imported here: both import torch, which `lenspair --help` must not load.
+    from lenspair.model.precision import read_cpu_flags
+    from lenspair.model.training.config import load_run_config
+
+    total = sum(float(v["seconds"]) for v in timings.values())
+    lines = [f"Total {total / 60:.1f} min on {read_cpu_flags()[0]}."]
+    config = out / "runs" / "finetune" / "config.yaml"
+    if config.is_file():
+        runtime = load_run_config(config).runtime
+        if runtime is not None:
+            lines.append(
+                f"Training ran on {runtime.device} at {runtime.precision} "
+                f"(natively: {', '.join(runtime.native_precisions)}): {runtime.precision_reason}."
+            )
+    return [Paragraph(" ".join(lines))]
+
+
 def write_report(out: Path, timings: dict[str, dict[str, float | bool]]) -> Path:
     """Write ``report.md`` and ``report.html`` under ``out``; returns the Markdown path."""
     blocks: list[Block] = [
@@ -224,6 +243,7 @@ def write_report(out: Path, timings: dict[str, dict[str, float | bool]]) -> Path
                 for k, v in timings.items()
             ],
         ),
+        *machine_blocks(out, timings),
         Heading("Calibration"),
         *calibration_blocks(out),
         Heading("Ingest"),

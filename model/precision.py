@@ -23,6 +23,17 @@ training step (batch 8, crop 256) ran 43 steps/s at fp32, 38 at bf16 and 36
 at fp16. ``--precision bf16|fp16`` still runs on request (larger networks or
 batches may gain from it).
 
+oneDNN, which runs PyTorch's CPU convolutions, can be told to use fewer
+instructions than the CPU has (``ONEDNN_MAX_CPU_ISA``, or the older
+``DNNL_MAX_CPU_ISA``). Under a cap below ``AVX512_CORE_BF16`` the probe drops
+the bf16 flags, because oneDNN then emulates bf16: on an AMD EPYC with
+``avx512_bf16``, ``ONEDNN_MAX_CPU_ISA=AVX512_CORE_VNNI`` made a bf16 3x3
+convolution 2.7x slower than fp32, the ratio measured on the Xeon without
+``avx512_bf16``. This is also how to run lenspair on a bf16 CPU as it runs on
+one without (``benchmarks`` and the demo report say which cap was set). The
+int8 flags stay: the int8 path runs in ONNX Runtime, which does not read the
+cap.
+
 The flags come from ``/proc/cpuinfo`` (Linux). Elsewhere (macOS, Windows) no
 flag list is read, so bf16 and int8 count as not native and ``auto`` stays
 at fp32, which is never emulated; ``--precision bf16`` still runs on request.
@@ -35,8 +46,9 @@ measured with ``eval``/``tradeoff --precision int8``. For training, int8
 is refused; fp16 on the CPU is refused (no fast CPU fp16 kernels in PyTorch).
 """
 
+import os
 import platform
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -149,14 +161,64 @@ def read_cpu_flags(cpuinfo: Path = Path("/proc/cpuinfo")) -> tuple[str, frozense
     return name, flags, str(cpuinfo)
 
 
+ONEDNN_ISA_ORDER: tuple[str, ...] = (
+    "SSE41",
+    "AVX",
+    "AVX2",
+    "AVX2_VNNI",
+    "AVX2_VNNI_2",
+    "AVX512_CORE",
+    "AVX512_CORE_VNNI",
+    "AVX512_CORE_BF16",
+    "AVX512_CORE_FP16",
+    "AVX10_1_512",
+    "AVX512_CORE_AMX",
+    "AVX10_1_512_AMX",
+    "AVX512_CORE_AMX_FP16",
+    "AVX10_1_512_AMX_FP16",
+    "ALL",
+)
+"""oneDNN's x86 ISA cap values, lowest first (``ONEDNN_MAX_CPU_ISA``)."""
+
+
+def onednn_isa_cap(environ: Mapping[str, str] = os.environ) -> str | None:
+    """The oneDNN ISA cap set in the environment (upper case), or None."""
+    for variable in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA"):
+        value = environ.get(variable, "").strip().upper()
+        if value:
+            return value
+    return None
+
+
+def apply_isa_cap(flags: frozenset[str], cap: str | None) -> tuple[frozenset[str], str | None]:
+    """``(flags, note)``: ``flags`` without the bf16 ones that oneDNN may not use under ``cap``.
+
+    Below ``AVX512_CORE_BF16`` no bf16 instruction is used; below the AMX
+    caps no AMX. An unknown cap (oneDNN ignores it) or none changes nothing.
+    """
+    if cap is None or cap not in ONEDNN_ISA_ORDER:
+        return flags, None
+    rank = ONEDNN_ISA_ORDER.index(cap)
+    dropped = set()
+    if rank < ONEDNN_ISA_ORDER.index("AVX512_CORE_BF16"):
+        dropped |= {"avx512_bf16", "amx_bf16"}
+    elif rank < ONEDNN_ISA_ORDER.index("AVX512_CORE_AMX"):
+        dropped |= {"amx_bf16"}
+    removed = sorted(flags & dropped)
+    if not removed:
+        return flags, None
+    return flags - dropped, f"ONEDNN_MAX_CPU_ISA={cap} turns off {', '.join(removed)}"
+
+
 def probe_hardware(device: torch.device) -> Hardware:
-    """Read the capabilities of ``device`` (CPU flags or CUDA capability)."""
+    """Read the capabilities of ``device`` (CPU flags, under oneDNN's ISA cap; CUDA capability)."""
     if device.type == "cuda":
         index = device.index if device.index is not None else torch.cuda.current_device()
         major, minor = torch.cuda.get_device_capability(index)
         return Hardware("cuda", torch.cuda.get_device_name(index), cuda_capability=(major, minor))
     name, flags, source = read_cpu_flags()
-    return Hardware("cpu", name, flags, source)
+    flags, note = apply_isa_cap(flags, onednn_isa_cap())
+    return Hardware("cpu", name, flags, source if note is None else f"{source}; {note}")
 
 
 def native_precisions(hardware: Hardware) -> tuple[str, ...]:
@@ -227,6 +289,9 @@ def choose_precision(
                 )
             else:
                 reason = f"auto: bf16 is not native on {where} (emulated bf16 is slower than fp32)"
+                cap = hardware.flags_source.partition("; ")[2]
+                if cap:
+                    reason += f"; {cap}"
         else:
             reason = (
                 f"auto: fastest native precision on {where} ({_why_native(hardware, precision)})"

@@ -11,6 +11,7 @@ from lenspair.cli import main
 from lenspair.core.imageio import read_image
 from lenspair.demo import QUICK, plan
 from lenspair.model.precision import choose_precision
+from lenspair.model.training.config import load_run_config
 
 pytestmark = pytest.mark.slow
 
@@ -37,6 +38,9 @@ def test_demo_runs_every_stage_and_writes_the_report(demo_out: Path) -> None:
     for section in sections:
         assert f"## {section}" in report
     assert "<table>" in (demo_out / "report.html").read_text()
+    runtime = load_run_config(demo_out / "runs" / "finetune" / "config.yaml").runtime
+    assert runtime is not None  # the report says where training ran and why at that precision
+    assert f"at {runtime.precision} (natively: " in report and runtime.precision_reason in report
     for picture in ("eval/contact_sheet.png", "tradeoff/tradeoff.png", "restore_before_after.png"):
         assert picture in report and (demo_out / picture).is_file()
 

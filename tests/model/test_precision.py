@@ -8,8 +8,10 @@ import torch
 from lenspair.model.errors import ModelError
 from lenspair.model.precision import (
     Hardware,
+    apply_isa_cap,
     choose_precision,
     native_precisions,
+    onednn_isa_cap,
     probe_hardware,
     read_cpu_flags,
 )
@@ -154,3 +156,35 @@ def test_probe_on_this_cpu_agrees_with_proc_cpuinfo() -> None:
     assert ("bf16" in native_precisions(hardware)) == (
         bf16 or bool(hardware.cpu_flags & {"amx_bf16", "bf16"})
     )
+
+
+@pytest.mark.parametrize(
+    ("cap", "kept"),
+    [
+        (None, {"avx512_bf16", "amx_bf16"}),
+        ("AVX512_CORE_VNNI", set()),
+        ("AVX2", set()),
+        ("AVX512_CORE_BF16", {"avx512_bf16"}),
+        ("AVX512_CORE_AMX", {"avx512_bf16", "amx_bf16"}),
+        ("ALL", {"avx512_bf16", "amx_bf16"}),
+        ("NOT_AN_ISA", {"avx512_bf16", "amx_bf16"}),
+    ],
+)
+def test_onednn_isa_cap_removes_the_bf16_it_turns_off(cap: str | None, kept: set[str]) -> None:
+    flags = frozenset({"avx512f", "avx512_vnni", "avx512_bf16", "amx_bf16", "amx_int8"})
+    capped, note = apply_isa_cap(flags, cap)
+    assert capped & {"avx512_bf16", "amx_bf16"} == kept
+    assert {"avx512f", "avx512_vnni", "amx_int8"} <= capped  # int8 runs in ONNX Runtime
+    assert (note is None) == (kept == {"avx512_bf16", "amx_bf16"})
+
+
+def test_probe_under_an_isa_cap_never_chooses_bf16(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert onednn_isa_cap({"DNNL_MAX_CPU_ISA": " avx512_core_vnni "}) == "AVX512_CORE_VNNI"
+    assert onednn_isa_cap({}) is None
+    monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "avx512_core_vnni")
+    hardware = probe_hardware(CPU)
+    assert not hardware.cpu_flags & {"avx512_bf16", "amx_bf16"}
+    decision = choose_precision("auto", CPU, "train", probe_hardware)
+    assert decision.precision == "fp32" and "bf16" not in decision.native
+    if "turns off" in hardware.flags_source:  # this CPU has native bf16: the reason names the cap
+        assert "ONEDNN_MAX_CPU_ISA=AVX512_CORE_VNNI" in decision.reason
