@@ -9,12 +9,15 @@ mosaic), its own walking direction and its own obstructed camera (cam0 and
 cam1 alternate), so that held-out recordings are new scenes, not
 neighbouring frames of a training recording.
 
-The mosaic, direction and side of recording ``k`` are the same for every
-kind (only the glass and the seed differ), and ``k = 0`` has the sample
-scenes' mosaic of 9 textures. Scene and kind are thus independent: when the
-texture count followed the recording's number across kinds, the only
-9-texture training recordings were obstructed ones, and a detector trained
-on them called the clean frames of the sample scenes obstructed.
+The mosaic's cell size (its texture count), the direction and the side of
+recording ``k`` are the same for every kind, and ``k = 0`` has the sample
+scenes' 9 textures, so none of them predicts the kind: when the texture
+count followed the recording's number across kinds, the only 9-texture
+training recordings were obstructed ones, and a detector trained on them
+called the clean frames of the sample scenes obstructed. Which textures
+still follows the number, so every recording is a scene of its own: with
+the same scene for recording ``k`` of every kind, a detector learnt the
+clean look of each training scene and called every new scene obstructed.
 Recordings are named ``<kind>_<k>``; :func:`split_by_recording` puts the
 last ``held_out`` of each kind in the test set, the way ``dataset-build``
 splits by recording to avoid the leakage of
@@ -75,7 +78,8 @@ def kind_set_specs(
     for kind_number, (kind, effects) in enumerate(SCENE_KINDS.items()):
         for k in range(per_kind):
             count = 9 - k % 7  # 9 (the samples' mosaic) down to 3 textures: finer to coarser
-            textures = tuple(_TEXTURES[(k + i) % len(_TEXTURES)] for i in range(count))
+            number = kind_number * per_kind + k
+            textures = tuple(_TEXTURES[(number + i) % len(_TEXTURES)] for i in range(count))
             planes = tuple(replace(p, texture=textures) for p in base.planes)
             direction = 1.0 if k % 2 else -1.0
             velocity = (direction * 0.8, 0.05 * direction, 0.0)
