@@ -38,11 +38,6 @@ def test_ingest_reports_the_detector_side_check(swapped: dict[str, Any]) -> None
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="the bundled detector (8 CPU-minutes of training) does not see this light rain: "
-    "p(obstructed) about 0.2 on both cameras, so the side stays undetermined",
-)
 def test_swapped_side_is_flagged_on_light_rain(swapped: dict[str, Any]) -> None:
     side = swapped["side"]
     assert side["inferred"] == "cam1"

@@ -59,11 +59,6 @@ def test_clean_and_dark_frames_are_not_obstructed(
     assert not verdict.obstructed.any(), verdict.probability
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the bundled detector calls a defocused (Gaussian-blurred) clean frame obstructed, "
-    "p about 0.95: 8 CPU-minutes of training did not separate defocus from dirty glass",
-)
 def test_clean_blurry_frames_are_not_obstructed(
     detector: AnomalyDetector, clean_frames: list[np.ndarray]
 ) -> None:
@@ -71,11 +66,6 @@ def test_clean_blurry_frames_are_not_obstructed(
     assert not verdict.obstructed.any(), verdict.probability
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the bundled detector misses dust that darkens the whole frame smoothly "
-    "(p 0.1-0.6): from one frame it looks like an exposure or illumination change",
-)
 def test_smooth_darkening_dust_is_detected(
     detector: AnomalyDetector, clean_frames: list[np.ndarray]
 ) -> None:
