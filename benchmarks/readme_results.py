@@ -14,6 +14,13 @@ The tradeoff plot and the evaluation contact sheet are copied to
 A missing input is not an error: its part of the section says which command
 produces it. ``--check`` writes nothing and exits 1 when the README's
 section differs from what the inputs give.
+
+The bundled detector's figures have their own section, between
+:data:`DETECTOR_BEGIN` and :data:`DETECTOR_END` (under "How well it works"),
+written from ``--detector`` (default ``docs/results/detector.json``, which
+``benchmarks/train_bundled_detector.py`` writes beside its document):
+``--detector-only`` rewrites just that one, since retraining the detector
+does not rerun the demo.
 """
 
 import argparse
@@ -30,6 +37,11 @@ from lenspair.demo_report import calibration_blocks, load_json
 
 BEGIN = "<!-- results:begin (written by `make results`; do not edit by hand) -->"
 END = "<!-- results:end -->"
+DETECTOR_BEGIN = (
+    "<!-- detector:begin (written by `python -m benchmarks.readme_results --detector-only`; "
+    "do not edit by hand) -->"
+)
+DETECTOR_END = "<!-- detector:end -->"
 FIGURES = Path("docs") / "results"
 PAPER = "https://arxiv.org/abs/2109.01889"
 
@@ -369,12 +381,74 @@ def section(demo: Path, bench: Path, copies: Copies) -> str:
     return to_markdown(blocks).rstrip("\n") + "\n"
 
 
-def replace_section(readme: str, body: str) -> str:
-    """``readme`` with the text between the markers replaced by ``body``."""
-    start, end = readme.find(BEGIN), readme.find(END)
-    if start < 0 or end < 0 or end < start:
-        raise ResultsError(f"README needs the markers {BEGIN!r} and {END!r}, in that order")
-    return readme[: start + len(BEGIN)] + "\n\n" + body + "\n" + readme[end:]
+def detector_section(figures_path: Path) -> str:
+    """The bundled detector's held-out scores, hard cases and latency, from its JSON."""
+    figures = load_json(figures_path)
+    if not figures:
+        missing = _missing("this section", "python -m benchmarks.train_bundled_detector")
+        return to_markdown(missing).rstrip("\n") + "\n"
+    training = figures["training"]
+    rows = [
+        [
+            name,
+            str(s["frames"]),
+            str(s["positives"]),
+            _num(s["accuracy"], 3),
+            _num(s["f1"], 3),
+            _num(s["precision"], 3),
+            _num(s["recall"], 3),
+            _num(s["tile_iou"], 3),
+        ]
+        for name, s in figures["scores"].items()
+    ]
+    blocks: list[Block] = [
+        Paragraph(
+            f"The bundled detector ({training['steps']} steps in "
+            f"{training['seconds'] / 60:.0f} min on `{figures['device']}`; "
+            f"`{figures['command']}`), on sets held out by recording:"
+        ),
+        Table(
+            [
+                "held-out set",
+                "frames",
+                "obstructed",
+                "accuracy",
+                "F1",
+                "precision",
+                "recall",
+                "tile IoU",
+            ],
+            rows,
+        ),
+        Table(
+            ["hard case (#14)", "passed", "answer"],
+            [
+                [c["name"], "yes" if c["passed"] else "no", c["detail"]]
+                for c in figures["hard_cases"]
+            ],
+        ),
+    ]
+    latency = figures.get("latency")
+    if latency:
+        medians = latency["median_ms"]
+        blocks.append(
+            Paragraph(
+                f"Its time per 540x360 frame (batch 1, fp32, {latency['threads']} thread, median "
+                f"of {latency['runs']} interleaved runs): {medians['judge']:.2f} ms with its "
+                f"input preparation, {latency['ratio_judge_to_gea']:.3f}x GEA's "
+                f"{medians['GEA']:.0f} ms measured in the same run "
+                f"({latency['parameters']['detector']:,} parameters)."
+            )
+        )
+    return to_markdown(blocks).rstrip("\n") + "\n"
+
+
+def replace_section(readme: str, body: str, begin: str = BEGIN, end: str = END) -> str:
+    """``readme`` with the text between the markers ``begin`` and ``end`` replaced by ``body``."""
+    start, stop = readme.find(begin), readme.find(end)
+    if start < 0 or stop < 0 or stop < start:
+        raise ResultsError(f"README needs the markers {begin!r} and {end!r}, in that order")
+    return readme[: start + len(begin)] + "\n\n" + body + "\n" + readme[stop:]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -387,12 +461,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--demo", type=Path, default=Path("demo_out"), help="lenspair demo output")
     parser.add_argument("--bench", type=Path, default=Path("bench_out"), help="benchmark JSON")
     parser.add_argument("--readme", type=Path, default=Path("README.md"), help="file to update")
+    parser.add_argument(
+        "--detector",
+        type=Path,
+        default=FIGURES / "detector.json",
+        help="the bundled detector's figures (train_bundled_detector writes them)",
+    )
+    parser.add_argument(
+        "--detector-only", action="store_true", help="rewrite only the detector's section"
+    )
     parser.add_argument("--check", action="store_true", help="exit 1 if the README is stale")
     args = parser.parse_args(argv)
     text = args.readme.read_text(encoding="utf-8")
     copies: Copies = []
     try:
-        updated = replace_section(text, section(args.demo, args.bench, copies))
+        updated = text
+        if args.detector_only or DETECTOR_BEGIN in text:  # a README may show no detector
+            body = detector_section(args.detector)
+            updated = replace_section(updated, body, DETECTOR_BEGIN, DETECTOR_END)
+        if not args.detector_only:
+            updated = replace_section(updated, section(args.demo, args.bench, copies))
     except ResultsError as error:
         print(f"{args.readme}: {error}", file=sys.stderr)
         return 2
@@ -412,7 +500,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         atomic_write_bytes(target, source.read_bytes())
     if updated != text:
         atomic_write_text(args.readme, updated)
-    print(f"{args.readme}: results section written from {args.demo} and {args.bench}")
+    sources = f"{args.detector}" if args.detector_only else f"{args.demo}, {args.bench}"
+    print(f"{args.readme}: results written from {sources}")
     return 0
 
 

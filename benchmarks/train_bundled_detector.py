@@ -27,8 +27,12 @@ what a killed run finished in ``WORK``:
    runs the hard cases of issue #14 (:mod:`benchmarks.detector_issue_checks`)
    and, with ``--latency-runs N > 0``, :mod:`benchmarks.bench_detector`
    (CPU, 1 thread);
-6. copies the checkpoint to ``--checkpoint`` and writes ``--markdown`` (the
-   text of ``docs/results/detector.md``, with this exact command).
+6. copies the checkpoint to ``--checkpoint``, writes ``--markdown`` (the
+   text of ``docs/results/detector.md``, with this exact command) and, beside
+   it, the same figures as JSON (``detector.json``: command, training,
+   scores, hard cases, latency), from which
+   ``python -m benchmarks.readme_results --detector-only`` writes the
+   README's detector figures.
 """
 
 import argparse
@@ -37,6 +41,7 @@ import shlex
 import shutil
 import sys
 import time
+from dataclasses import asdict
 from functools import partial
 from pathlib import Path
 
@@ -46,6 +51,7 @@ from benchmarks import bench_detector
 from benchmarks.detector_issue_checks import checks_markdown, issue_checks
 from lenspair.capture.ingest import ingest_recording
 from lenspair.core.device import resolve_device
+from lenspair.core.fsutil import atomic_write_json
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import load_dataset_config
 from lenspair.dataset.manifest import read_manifest
@@ -205,10 +211,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     run = json.loads((out / "run.json").read_text())
     network = load_detector(out / DETECTOR_FILE, device)
-    checks = checks_markdown(issue_checks(network, work / "issue"))
-    latency = ""
+    cases = issue_checks(network, work / "issue")
+    checks = checks_markdown(cases)
+    latency, timing = "", None
     if args.latency_runs > 0:
-        latency = bench_detector.markdown(bench_detector.run(args.latency_runs, 1))
+        timing = bench_detector.run(args.latency_runs, 1)
+        latency = bench_detector.markdown(timing)
     command = "python -m benchmarks.train_bundled_detector " + shlex.join(
         sys.argv[1:] if argv is None else argv
     )
@@ -216,6 +224,15 @@ def main(argv: list[str] | None = None) -> int:
     shutil.copyfile(out / DETECTOR_FILE, args.checkpoint)
     args.markdown.parent.mkdir(parents=True, exist_ok=True)
     args.markdown.write_text(document(command, run, scores, checks, latency))
+    figures = {
+        "command": command,
+        "training": run["training"],
+        "device": run["device"],
+        "scores": {name: asdict(s) for name, s in scores.items()},
+        "hard_cases": [asdict(case) for case in cases],
+        "latency": timing,
+    }
+    atomic_write_json(args.markdown.with_suffix(".json"), figures)
     print(args.markdown.read_text())
     print(f"wrote {args.checkpoint} and {args.markdown}")
     return 0

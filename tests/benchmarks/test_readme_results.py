@@ -6,7 +6,14 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.readme_results import BEGIN, END, main, replace_section
+from benchmarks.readme_results import (
+    BEGIN,
+    DETECTOR_BEGIN,
+    DETECTOR_END,
+    END,
+    main,
+    replace_section,
+)
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.model.evaluation.evaluate import EvalResult, ImageScore, breakdown, summarize
 from lenspair.model.evaluation.latency import Latency
@@ -137,6 +144,45 @@ MEASURED = re.compile(rf"(?<!\w)\d[\d.,]*\s*(?:{UNITS})", re.IGNORECASE)
 
 def test_readme_figures_outside_the_generated_section_are_not_measurements() -> None:
     text = README.read_text(encoding="utf-8")
-    assert text.count(BEGIN) == 1 and text.count(END) == 1
-    outside = text[: text.index(BEGIN)] + text[text.index(END) :]
+    outside = text
+    for begin, end in ((BEGIN, END), (DETECTOR_BEGIN, DETECTOR_END)):
+        assert outside.count(begin) == 1 and outside.count(end) == 1
+        outside = outside[: outside.index(begin)] + outside[outside.index(end) :]
     assert MEASURED.findall(outside) == []
+
+
+def _detector_figures(path: Path) -> Path:
+    scores = {"frames": 128, "positives": 48, "accuracy": 0.671875, "precision": 0.5384,
+              "recall": 0.875, "f1": 0.66667, "tile_iou": 0.0969, "confusion": [[0]]}  # fmt: skip
+    latency = {"threads": 1, "runs": 20, "median_ms": {"GEA": 318.03, "judge": 4.17},
+               "ratio_judge_to_gea": 0.0131, "parameters": {"detector": 81845}}  # fmt: skip
+    figures = {
+        "command": "python -m benchmarks.train_bundled_detector --minutes 30",
+        "training": {"steps": 35132, "seconds": 1800.05},
+        "device": "cpu",
+        "scores": {"test recordings": scores},
+        "hard_cases": [{"name": "defocused frames: clean", "passed": True, "detail": "p 0.01"}],
+        "latency": latency,
+    }
+    atomic_write_json(path, figures)
+    return path
+
+
+def test_detector_only_writes_the_detector_section_from_its_json(tmp_path: Path) -> None:
+    readme = tmp_path / "README.md"
+    results = f"{BEGIN}\nkept as it was\n{END}\n"
+    readme.write_text(f"# T\n{results}## D\n{DETECTOR_BEGIN}\nold\n{DETECTOR_END}\n")
+    figures = _detector_figures(tmp_path / "detector.json")
+    argv = ["--readme", str(readme), "--detector", str(figures)]
+    assert main([*argv, "--detector-only", "--check"]) == 1
+    assert main([*argv, "--detector-only"]) == 0
+    text = readme.read_text()
+    assert results in text and "\nold\n" not in text
+    assert "| test recordings | 128 | 48 | 0.672 | 0.667 | 0.538 | 0.875 | 0.097 |" in text
+    assert "35132 steps in 30 min on `cpu`" in text
+    assert "| defocused frames: clean | yes | p 0.01 |" in text
+    assert "4.17 ms with its input preparation, 0.013x GEA's 318 ms" in text
+    assert main([*argv, "--detector-only", "--check"]) == 0
+    figures.unlink()
+    assert main([*argv, "--detector-only"]) == 0
+    assert "Not measured yet: this section comes from" in readme.read_text()

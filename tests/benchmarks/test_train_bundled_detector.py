@@ -1,5 +1,6 @@
 """The one-command retraining of the bundled detector, on a tiny budget."""
 
+import json
 from pathlib import Path
 
 import pytest
@@ -44,3 +45,10 @@ def test_one_command_writes_the_checkpoint_and_the_document(tmp_path: Path) -> N
     # 8 held-out recordings x 2 frames x 2 cameras; the 6 not of clean glass have 2 obstructed
     assert "**test recordings**: 32 frames (12 obstructed)" in text
     assert text.count("| smooth whole-frame dust: obstructed |") == 1
+    figures = json.loads(document.with_suffix(".json").read_text())  # the README's source
+    assert figures["scores"]["test recordings"]["frames"] == 32
+    assert figures["scores"]["test recordings"]["positives"] == 12
+    assert figures["training"]["steps"] == 2 and figures["latency"] is None
+    assert [case["name"] for case in figures["hard_cases"]][
+        2
+    ] == "smooth whole-frame dust: obstructed"
