@@ -28,11 +28,12 @@ instructions than the CPU has (``ONEDNN_MAX_CPU_ISA``, or the older
 ``DNNL_MAX_CPU_ISA``). Under a cap below ``AVX512_CORE_BF16`` the probe drops
 the bf16 flags, because oneDNN then emulates bf16: on an AMD EPYC with
 ``avx512_bf16``, ``ONEDNN_MAX_CPU_ISA=AVX512_CORE_VNNI`` made a bf16 3x3
-convolution 2.7x slower than fp32, the ratio measured on the Xeon without
-``avx512_bf16``. This is also how to run lenspair on a bf16 CPU as it runs on
-one without (``benchmarks`` and the demo report say which cap was set). The
-int8 flags stay: the int8 path runs in ONNX Runtime, which does not read the
-cap.
+convolution 2.7x slower than fp32 instead of 2x faster, the ratio measured on
+the Xeon without ``avx512_bf16`` (``python -m benchmarks.bench_isa_cap``).
+This is also how to run lenspair on a bf16 CPU as it runs on one without
+(the precision reason, printed once and kept in the run's config and the
+demo report, names the cap). The int8 flags stay: the int8 path runs in
+ONNX Runtime, which does not read the cap.
 
 The flags come from ``/proc/cpuinfo`` (Linux). Elsewhere (macOS, Windows) no
 flag list is read, so bf16 and int8 count as not native and ``auto`` stays

@@ -1,0 +1,90 @@
+"""bf16 against fp32 with and without oneDNN's instruction cap, in one run.
+
+    python -m benchmarks.bench_isa_cap [--runs 15] [--cap AVX512_CORE_VNNI]
+
+Times one GEA-sized 3x3 convolution (32 to 32 channels, 270x180,
+channels-last, batch 1, one thread) in fp32 and under bf16 autocast, in two
+child processes: one as the machine is, one with ``ONEDNN_MAX_CPU_ISA=CAP``
+(oneDNN reads the cap when it starts, so it takes a new process). Prints the
+bf16/fp32 ratio of each, medians of interleaved runs, and what the precision
+probe (:func:`lenspair.model.precision.choose_precision`) decides in each.
+
+On a CPU with native bf16 the cap shows what a CPU without it does: oneDNN
+emulates bf16 through fp32 conversions (the Xeon without ``avx512_bf16`` of
+issue #11 measured 2.6x slower than fp32 for a whole training step), and
+``auto`` must then stay at fp32.
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+CHILD = """
+import json, statistics, time, torch
+from lenspair.model.precision import choose_precision
+torch.set_num_threads(1)
+x = torch.randn(1, 32, 180, 270).to(memory_format=torch.channels_last)
+conv = torch.nn.Conv2d(32, 32, 3, padding=1).to(memory_format=torch.channels_last)
+def fp32(): conv(x)
+def bf16():
+    with torch.autocast("cpu", torch.bfloat16):
+        conv(x)
+times = {"fp32": [], "bf16": []}
+with torch.inference_mode():
+    for index in range(RUNS + 3):
+        for name, call in (("fp32", fp32), ("bf16", bf16)):
+            start = time.perf_counter(); call(); elapsed = time.perf_counter() - start
+            if index >= 3:
+                times[name].append(elapsed * 1e3)
+medians = {k: statistics.median(v) for k, v in times.items()}
+decision = choose_precision("auto", torch.device("cpu"), "train")
+print(json.dumps({"median_ms": medians, "auto": decision.precision, "reason": decision.reason}))
+"""
+
+
+def measure(runs: int, cap: str | None) -> dict[str, object]:
+    """One child's medians and the probe's decision (``cap``: None = as the machine is)."""
+    env = {
+        k: v for k, v in os.environ.items() if k not in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA")
+    }
+    if cap is not None:
+        env["ONEDNN_MAX_CPU_ISA"] = cap
+    code = CHILD.replace("RUNS", str(runs))
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
+    )
+    result: dict[str, object] = json.loads(out.stdout.strip().splitlines()[-1])
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line (module docstring); returns the exit code."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("--runs", type=int, default=15)
+    parser.add_argument("--cap", default="AVX512_CORE_VNNI")
+    args = parser.parse_args(argv)
+    load = os.getloadavg()[0]
+    start = time.monotonic()
+    print("| oneDNN ISA | fp32 ms | bf16 ms | bf16 / fp32 | `auto` trains at |")
+    print("|---|---|---|---|---|")
+    for cap in (None, args.cap):
+        result = measure(args.runs, cap)
+        medians = result["median_ms"]
+        assert isinstance(medians, dict)
+        ratio = medians["bf16"] / medians["fp32"]
+        print(
+            f"| {cap or 'as the machine is'} | {medians['fp32']:.2f} | {medians['bf16']:.2f} "
+            f"| {ratio:.2f} | {result['auto']} |"
+        )
+    print(
+        f"\n3x3 conv 32->32, 270x180, 1 thread, median of {args.runs}; load average "
+        f"{load:.2f} -> {os.getloadavg()[0]:.2f}; {time.monotonic() - start:.0f} s"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
