@@ -21,6 +21,7 @@ training) are printed beside, labelled.
 """
 
 import argparse
+import dataclasses
 import json
 import subprocess
 import sys
@@ -46,11 +47,18 @@ from lenspair.model.training.pretrained import write_natural_images
 INITS = ("random", "sharp", "ours")
 
 
-def _dataset(out: Path, frames: int) -> Path:
-    """The demo's simulated dataset, built (or reused) under ``out/demo``."""
+def _dataset(out: Path, frames: int, splits: str | None = None) -> Path:
+    """The demo's simulated dataset, built (or reused) under ``out/demo``.
+
+    ``splits``: train,val,test fractions for ``dataset-build`` (None: the demo's).
+    """
     demo = out / "demo"
     stages = plan(demo, Budget(frames=frames))
     stages = stages[: [s.name for s in stages].index("dataset-build") + 1]
+    if splits is not None:
+        argv = list(stages[-1].argv)
+        argv[argv.index("--splits") + 1] = splits
+        stages[-1] = dataclasses.replace(stages[-1], argv=tuple(argv))
     demo.mkdir(parents=True, exist_ok=True)
     segment = max(2, frames // 12)
     (demo / "dataset_config.yaml").write_text(
@@ -114,6 +122,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("table2_out"))
     parser.add_argument("--dataset", type=Path, help="paired dataset (default: the demo's)")
     parser.add_argument("--frames", type=int, default=60, help="frames per demo recording")
+    parser.add_argument(
+        "--splits", help="train,val,test fractions of the demo dataset (default: the demo's)"
+    )
     parser.add_argument("--pretrain-steps", type=int, default=60)
     parser.add_argument("--finetune-steps", type=int, default=60)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -129,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(2)
     out = args.out.resolve()
     started = time.monotonic()
-    dataset = args.dataset or _dataset(out, args.frames)
+    dataset = args.dataset or _dataset(out, args.frames, args.splits)
     pairs = open_eval_pairs(dataset, "test")
     channels = 1 if pairs[0].input.ndim == 2 else 3
     natural = out / "natural"

@@ -1,0 +1,21 @@
+"""benchmarks.table2 builds the demo's dataset with the split it is asked for."""
+
+from pathlib import Path
+
+import pytest
+
+from benchmarks import table2
+from lenspair.demo import Stage
+
+
+@pytest.mark.parametrize(("splits", "expected"), [(None, "0.7,0.15,0.15"), ("0.6,0.15,0.25", None)])
+def test_dataset_stages_stop_at_dataset_build_with_the_splits_asked(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, splits: str | None, expected: str | None
+) -> None:
+    ran: list[Stage] = []
+    monkeypatch.setattr(table2, "run_stages", lambda out, stages, cli: ran.extend(stages))
+    dataset = table2._dataset(tmp_path, frames=24, splits=splits)
+    assert ran[-1].name == "dataset-build" and dataset == ran[-1].output
+    argv = ran[-1].argv
+    assert argv[argv.index("--splits") + 1] == (expected or splits)
+    assert "segment_frames: 2" in (tmp_path / "demo" / "dataset_config.yaml").read_text()
