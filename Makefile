@@ -48,14 +48,17 @@ results: demo bench
 
 # Issue 12: the tradeoff over seeds with a convergence check (budget: 6 variants x 3
 # seeds x 400 steps, crop 128, batch 4: hours on 2 CPU cores; 800 steps at crop 256 ran
-# on an H100, docs/results/gpu_h100.md), the paper's Table 2 on simulated pairs (a
-# converging budget needs a GPU: add --device cuda --jobs 9 and 1000+ steps), the
-# weights (11 min per network). Each prints its table and writes it beside its runs.
+# on an H100, docs/results/gpu_h100.md), the paper's Table 2 on simulated pairs (2
+# pretrainings of 1200 steps and 9 fine-tunings of 250: about an hour on 2 CPU cores;
+# docs/results/table2.md), the weights (11 min per network). Each prints its table and
+# writes it beside its runs.
 tradeoff-seeds: demo
 	$(BIN)/lenspair tradeoff demo_out/dataset --out tradeoff_seeds_out --budget 400 --seeds 0,1,2
 
 table2: $(VENV)/.installed
-	$(BIN)/python -m benchmarks.table2 --out table2_out --frames 30 --pretrain-steps 6 --finetune-steps 6 --seeds 0 1 2 --crop-size 64
+	$(BIN)/python -m benchmarks.table2 --out table2_out --frames 60 --splits 0.6,0.15,0.25 \
+		--pretrain-steps 1200 --finetune-steps 250 --seeds 0 1 2 --crop-size 128 --batch-size 4 \
+		--config benchmarks/table2_cpu.yaml
 
 pretrained: $(VENV)/.installed
 	$(BIN)/python -m benchmarks.pretrain_weights --channels 1 3 --minutes 11
