@@ -80,6 +80,8 @@ class Hardware:
         flags_source: where ``cpu_flags`` came from (``/proc/cpuinfo`` or a
             note that nothing was read).
         cuda_capability: ``(major, minor)`` for CUDA, else ``None``.
+        isa_cap: what oneDNN's ISA cap took out of ``cpu_flags`` (empty: nothing;
+            :func:`apply_isa_cap`).
 
     """
 
@@ -88,6 +90,7 @@ class Hardware:
     cpu_flags: frozenset[str] = frozenset()
     flags_source: str = ""
     cuda_capability: tuple[int, int] | None = None
+    isa_cap: str = ""
 
 
 Probe = Callable[[torch.device], Hardware]
@@ -219,7 +222,7 @@ def probe_hardware(device: torch.device) -> Hardware:
         return Hardware("cuda", torch.cuda.get_device_name(index), cuda_capability=(major, minor))
     name, flags, source = read_cpu_flags()
     flags, note = apply_isa_cap(flags, onednn_isa_cap())
-    return Hardware("cpu", name, flags, source if note is None else f"{source}; {note}")
+    return Hardware("cpu", name, flags, source, isa_cap=note or "")
 
 
 def native_precisions(hardware: Hardware) -> tuple[str, ...]:
@@ -290,9 +293,8 @@ def choose_precision(
                 )
             else:
                 reason = f"auto: bf16 is not native on {where} (emulated bf16 is slower than fp32)"
-                cap = hardware.flags_source.partition("; ")[2]
-                if cap:
-                    reason += f"; {cap}"
+                if hardware.isa_cap:
+                    reason += f"; {hardware.isa_cap}"
         else:
             reason = (
                 f"auto: fastest native precision on {where} ({_why_native(hardware, precision)})"
