@@ -22,40 +22,38 @@ import subprocess
 import sys
 import time
 
-CHILD = """
-import json, statistics, time, torch
+import torch
+
+from benchmarks.machine import median_ms, round_robin
 from lenspair.model.precision import choose_precision
-torch.set_num_threads(1)
-x = torch.randn(1, 32, 180, 270).to(memory_format=torch.channels_last)
-conv = torch.nn.Conv2d(32, 32, 3, padding=1).to(memory_format=torch.channels_last)
-def fp32(): conv(x)
-def bf16():
-    with torch.autocast("cpu", torch.bfloat16):
-        conv(x)
-times = {"fp32": [], "bf16": []}
-with torch.inference_mode():
-    for index in range(RUNS + 3):
-        for name, call in (("fp32", fp32), ("bf16", bf16)):
-            start = time.perf_counter(); call(); elapsed = time.perf_counter() - start
-            if index >= 3:
-                times[name].append(elapsed * 1e3)
-medians = {k: statistics.median(v) for k, v in times.items()}
-decision = choose_precision("auto", torch.device("cpu"), "train")
-print(json.dumps({"median_ms": medians, "auto": decision.precision, "reason": decision.reason}))
-"""
+
+
+def child(runs: int) -> dict[str, object]:
+    """In this process: the medians and the probe's decision (the cap is this process's own)."""
+    torch.set_num_threads(1)
+    x = torch.randn(1, 32, 180, 270).to(memory_format=torch.channels_last)
+    conv = torch.nn.Conv2d(32, 32, 3, padding=1).to(memory_format=torch.channels_last)
+
+    def bf16() -> None:
+        with torch.autocast("cpu", torch.bfloat16):
+            conv(x)
+
+    with torch.inference_mode():
+        times = round_robin({"fp32": lambda: conv(x), "bf16": bf16}, runs, 3, time.perf_counter)
+    decision = choose_precision("auto", torch.device("cpu"), "train")
+    medians = {name: median_ms(samples) for name, samples in times.items()}
+    return {"median_ms": medians, "auto": decision.precision, "reason": decision.reason}
 
 
 def measure(runs: int, cap: str | None) -> dict[str, object]:
-    """One child's medians and the probe's decision (``cap``: None = as the machine is)."""
+    """:func:`child` in a new process (``cap``: None = as the machine is)."""
     env = {
         k: v for k, v in os.environ.items() if k not in ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA")
     }
     if cap is not None:
         env["ONEDNN_MAX_CPU_ISA"] = cap
-    code = CHILD.replace("RUNS", str(runs))
-    out = subprocess.run(
-        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
-    )
+    command = [sys.executable, "-m", "benchmarks.bench_isa_cap", "--child", "--runs", str(runs)]
+    out = subprocess.run(command, env=env, capture_output=True, text=True, check=True)
     result: dict[str, object] = json.loads(out.stdout.strip().splitlines()[-1])
     return result
 
@@ -65,7 +63,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--runs", type=int, default=15)
     parser.add_argument("--cap", default="AVX512_CORE_VNNI")
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.child:
+        print(json.dumps(child(args.runs)))
+        return 0
     load = os.getloadavg()[0]
     start = time.monotonic()
     print("| oneDNN ISA | fp32 ms | bf16 ms | bf16 / fp32 | `auto` trains at |")
