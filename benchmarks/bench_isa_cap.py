@@ -32,7 +32,8 @@ def child(runs: int) -> dict[str, object]:
     """In this process: the medians and the probe's decision (the cap is this process's own)."""
     torch.set_num_threads(1)
     x = torch.randn(1, 32, 180, 270).to(memory_format=torch.channels_last)
-    conv = torch.nn.Conv2d(32, 32, 3, padding=1).to(memory_format=torch.channels_last)
+    conv = torch.nn.Conv2d(32, 32, 3, padding=1)
+    conv = conv.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
 
     def bf16() -> None:
         with torch.autocast("cpu", torch.bfloat16):
