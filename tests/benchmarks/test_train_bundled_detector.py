@@ -49,6 +49,4 @@ def test_one_command_writes_the_checkpoint_and_the_document(tmp_path: Path) -> N
     assert figures["scores"]["test recordings"]["frames"] == 32
     assert figures["scores"]["test recordings"]["positives"] == 12
     assert figures["training"]["steps"] == 2 and figures["latency"] is None
-    assert [case["name"] for case in figures["hard_cases"]][
-        2
-    ] == "smooth whole-frame dust: obstructed"
+    assert figures["hard_cases"][2]["name"] == "smooth whole-frame dust: obstructed"
