@@ -32,7 +32,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n## {name}\n", flush=True)
         start = time.perf_counter()
         module = importlib.import_module(f"benchmarks.{name}")
-        code = module.main([] if args.out is None else ["--out", str(args.out)])
+        try:
+            code = module.main([] if args.out is None else ["--out", str(args.out)])
+        except SystemExit as stop:  # argparse's error exit: count it, run the others
+            code = stop.code if isinstance(stop.code, int) else 1
         print(f"\n({name} took {time.perf_counter() - start:.0f} s)", flush=True)
         if code:
             failed.append(name)

@@ -1,13 +1,14 @@
 """bf16 against fp32 with and without oneDNN's instruction cap, in one run.
 
-    python -m benchmarks.bench_isa_cap [--runs 15] [--cap AVX512_CORE_VNNI]
+    python -m benchmarks.bench_isa_cap [--runs 15] [--cap AVX512_CORE_VNNI] [--out DIR]
 
 Times one GEA-sized 3x3 convolution (32 to 32 channels, 270x180,
 channels-last, batch 1, one thread) in fp32 and under bf16 autocast, in two
 child processes: one as the machine is, one with ``ONEDNN_MAX_CPU_ISA=CAP``
 (oneDNN reads the cap when it starts, so it takes a new process). Prints the
 bf16/fp32 ratio of each, medians of interleaved runs, and what the precision
-probe (:func:`lenspair.model.precision.choose_precision`) decides in each.
+probe (:func:`lenspair.model.precision.choose_precision`) decides in each;
+with ``--out``, also ``isa_cap.json``.
 
 On a CPU with native bf16 the cap shows what a CPU without it does: oneDNN
 emulates bf16 through fp32 conversions (the Xeon without ``avx512_bf16`` of
@@ -21,6 +22,7 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import torch
 
@@ -64,6 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--runs", type=int, default=15)
     parser.add_argument("--cap", default="AVX512_CORE_VNNI")
+    parser.add_argument("--out", type=Path, default=None, help="folder for isa_cap.json")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
@@ -73,19 +76,26 @@ def main(argv: list[str] | None = None) -> int:
     start = time.monotonic()
     print("| oneDNN ISA | fp32 ms | bf16 ms | bf16 / fp32 | `auto` trains at |")
     print("|---|---|---|---|---|")
+    rows = []
     for cap in (None, args.cap):
         result = measure(args.runs, cap)
         medians = result["median_ms"]
         assert isinstance(medians, dict)
         ratio = medians["bf16"] / medians["fp32"]
+        rows.append({"cap": cap, "bf16_over_fp32": ratio, **result})
         print(
             f"| {cap or 'as the machine is'} | {medians['fp32']:.2f} | {medians['bf16']:.2f} "
             f"| {ratio:.2f} | {result['auto']} |"
         )
+    end_load = os.getloadavg()[0]
     print(
         f"\n3x3 conv 32->32, 270x180, 1 thread, median of {args.runs}; load average "
-        f"{load:.2f} -> {os.getloadavg()[0]:.2f}; {time.monotonic() - start:.0f} s"
+        f"{load:.2f} -> {end_load:.2f}; {time.monotonic() - start:.0f} s"
     )
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        payload = {"runs": args.runs, "load_average": [load, end_load], "rows": rows}
+        (args.out / "isa_cap.json").write_text(json.dumps(payload, indent=2) + "\n")
     return 0
 
 

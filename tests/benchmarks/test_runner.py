@@ -1,0 +1,50 @@
+"""``python -m benchmarks`` hands every benchmark ``--out DIR``, and one failure stops none."""
+
+import importlib
+import pkgutil
+from pathlib import Path
+
+import pytest
+
+import benchmarks
+from benchmarks.__main__ import main
+
+NAMES = sorted(
+    m.name for m in pkgutil.iter_modules(benchmarks.__path__) if m.name.startswith("bench_")
+)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_benchmark_takes_the_runners_out_option(
+    name: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # An option nobody knows makes argparse stop before any measuring; its
+    # message then lists every unknown option, --out among them if it were one.
+    module = importlib.import_module(f"benchmarks.{name}")
+    with pytest.raises(SystemExit) as stop:
+        module.main(["--out", str(tmp_path), "--no-such-option"])
+    assert stop.value.code == 2
+    error = capsys.readouterr().err
+    assert "unrecognized arguments: --no-such-option" in error
+    assert "--out" not in error.split("unrecognized arguments:")[1]
+
+
+def test_a_benchmark_that_exits_is_a_failure_and_the_rest_still_run(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    ran = []
+
+    class Stub:
+        def __init__(self, name: str) -> None:
+            self.name = name
+
+        def main(self, argv: list[str]) -> int:
+            ran.append(self.name)
+            if self.name == "bench_effects":
+                raise SystemExit(2)  # what argparse does on an unknown option
+            return 0
+
+    monkeypatch.setattr(importlib, "import_module", lambda dotted: Stub(dotted.split(".")[-1]))
+    assert main(["--only", "effects", "ingest"]) == 1
+    assert ran == ["bench_effects", "bench_ingest"]
+    assert "failed: bench_effects" in capsys.readouterr().err
