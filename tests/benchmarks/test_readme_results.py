@@ -13,13 +13,16 @@ from benchmarks.readme_results import (
     END,
     main,
     replace_section,
+    stage_blocks,
 )
 from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.report import to_markdown
 from lenspair.model.evaluation.evaluate import EvalResult, ImageScore, breakdown, summarize
 from lenspair.model.evaluation.latency import Latency
 from lenspair.model.evaluation.report import write_report
 from lenspair.model.evaluation.tradeoff import TradeoffRow, mark_pareto
 from lenspair.model.evaluation.tradeoff_report import write_tradeoff
+from lenspair.model.training.config import RunConfig, RuntimeInfo, run_config_to_yaml
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -186,3 +189,41 @@ def test_detector_only_writes_the_detector_section_from_its_json(tmp_path: Path)
     figures.unlink()
     assert main([*argv, "--detector-only"]) == 0
     assert "Not measured yet: this section comes from" in readme.read_text()
+
+
+def _finetune_config(demo: Path, precision: str, reason: str) -> None:
+    """The fine-tuning run's config.yaml as the trainer writes it (runtime section included)."""
+    runtime = RuntimeInfo(precision=precision, precision_reason=reason, device="cpu")
+    config = demo / "runs" / "finetune" / "config.yaml"
+    config.parent.mkdir(parents=True)
+    config.write_text(run_config_to_yaml(RunConfig(runtime=runtime)))
+
+
+def _timings(demo: Path, **seconds: float) -> None:
+    timings = {
+        name.replace("_", "-"): {"seconds": s, "reused": False} for name, s in seconds.items()
+    }
+    atomic_write_json(demo / "timings.json", timings)
+
+
+def test_stage_times_stand_beside_the_run_without_native_bf16(tmp_path: Path) -> None:
+    native, capped = tmp_path / "demo_out", tmp_path / "demo_out_fp32"
+    _timings(native, simulate_rain=8.0, finetune=180.0, tradeoff=200.0)
+    _timings(capped, simulate_rain=9.0, finetune=250.0, tradeoff=240.0)
+    _finetune_config(native, "bf16 autocast", "auto: fastest native precision")
+    _finetune_config(capped, "fp32", "auto: bf16 is not native; ONEDNN_MAX_CPU_ISA caps it")
+    text = to_markdown(stage_blocks(native, capped))
+    assert "| stage | seconds (demo_out) | seconds (demo_out_fp32, bf16 off) |" in text
+    assert "| finetune | 180.0 | 250.0 |" in text
+    assert "| total | 388.0 | 499.0 |" in text
+    assert "`demo_out`: 6.5 min, trained at bf16 autocast (auto: fastest native precision)" in text
+    assert "`demo_out_fp32`: the same demo under `ONEDNN_MAX_CPU_ISA=AVX512_CORE_VNNI`" in text
+    assert "8.3 min, trained at fp32 (auto: bf16 is not native; ONEDNN_MAX_CPU_ISA" in text
+    assert "Target: 15 min on 2 CPU cores; met." in text
+    # one run over the target fails the target for both
+    _timings(capped, simulate_rain=9.0, finetune=700.0, tradeoff=240.0)
+    assert "Target: 15 min on 2 CPU cores; NOT met." in to_markdown(stage_blocks(native, capped))
+    # no second run (a CPU without bf16 runs the demo once): one column, the same target
+    alone = to_markdown(stage_blocks(native, tmp_path / "absent"))
+    assert "| stage | seconds (demo_out) |\n" in alone and "bf16 off" not in alone
+    assert "| total | 388.0 |" in alone and "met." in alone
