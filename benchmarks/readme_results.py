@@ -54,6 +54,22 @@ class ResultsError(Exception):
     """The README cannot take the section (markers missing or out of order)."""
 
 
+def _isa_cap_rows(isa_cap: dict[str, Any] | None) -> list[list[str]]:
+    """bf16 against fp32 as the CPU is and with oneDNN capped below bf16 (bench_isa_cap)."""
+    rows = []
+    for row in (isa_cap or {}).get("rows", []):
+        medians = row["median_ms"]
+        rows.append(
+            [
+                f"3x3 conv 32->32 270x180, 1 thread, oneDNN {row['cap'] or 'as the CPU is'}",
+                f"bf16 {_num(medians['bf16'], 2)} ms / fp32 {_num(medians['fp32'], 2)} ms",
+                f"fp32 in the same run; auto trains at {row['auto']}",
+                f"{_num(row['bf16_over_fp32'], 2)}x (bf16 / fp32)",
+            ]
+        )
+    return rows
+
+
 def _precision_rows(model: dict[str, Any] | None, int8: dict[str, Any] | None) -> list[list[str]]:
     """Rows for int8 inference (bench_int8) and GEA vs DeRaindrop (bench_model)."""
     rows = []
@@ -323,6 +339,7 @@ def _bench_rows(bench: Path) -> list[list[str]]:
             ]
         )
     rows += _precision_rows(model, load_json(bench / "int8.json"))
+    rows += _isa_cap_rows(load_json(bench / "isa_cap.json"))
     effects = load_json(bench / "effects.json")
     if effects:
         for name, target in effects["targets"].items():

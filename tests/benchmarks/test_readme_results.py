@@ -11,6 +11,7 @@ from benchmarks.readme_results import (
     DETECTOR_BEGIN,
     DETECTOR_END,
     END,
+    bench_blocks,
     main,
     replace_section,
     stage_blocks,
@@ -227,3 +228,21 @@ def test_stage_times_stand_beside_the_run_without_native_bf16(tmp_path: Path) ->
     alone = to_markdown(stage_blocks(native, tmp_path / "absent"))
     assert "| stage | seconds (demo_out) |\n" in alone and "bf16 off" not in alone
     assert "| total | 388.0 |" in alone and "met." in alone
+
+
+def test_speed_table_shows_bf16_against_fp32_with_and_without_the_isa_cap(tmp_path: Path) -> None:
+    bench = _bench(tmp_path / "bench")
+    rows = [
+        {"cap": None, "bf16_over_fp32": 0.553, "median_ms": {"fp32": 9.17, "bf16": 5.07},
+         "auto": "bf16", "reason": "native"},
+        {"cap": "AVX512_CORE_VNNI", "bf16_over_fp32": 2.718,
+         "median_ms": {"fp32": 8.98, "bf16": 24.41}, "auto": "fp32", "reason": "capped"},
+    ]  # fmt: skip
+    atomic_write_json(bench / "isa_cap.json", {"runs": 15, "rows": rows})
+    text = to_markdown(bench_blocks(bench))
+    assert (
+        "| 3x3 conv 32->32 270x180, 1 thread, oneDNN as the CPU is | bf16 5.07 ms / fp32 9.17 ms "
+        "| fp32 in the same run; auto trains at bf16 | 0.55x (bf16 / fp32) |"
+    ) in text
+    assert "oneDNN AVX512_CORE_VNNI | bf16 24.41 ms / fp32 8.98 ms" in text
+    assert "auto trains at fp32 | 2.72x (bf16 / fp32) |" in text
