@@ -74,12 +74,14 @@ def _precision_rows(model: dict[str, Any] | None, int8: dict[str, Any] | None) -
     """Rows for int8 inference (bench_int8) and GEA vs DeRaindrop (bench_model)."""
     rows = []
     if int8:
+        count = int8.get("threads")
+        threads = "threads as set" if count is None else f"{count} thread" + "s" * (count != 1)
         for name, ms in int8["medians_ms"].items():
             if name == "fp32 torch":
                 continue
             rows.append(
                 [
-                    f"GEA 540x360 batch 1, {name}",
+                    f"GEA 540x360 batch 1, {threads}, {name}",
                     f"{_num(ms, 1)} ms",
                     f"PSNR against fp32 output {_num(int8['psnr_vs_fp32_db'][name], 1)} dB; "
                     f"quantise/compile {_num(int8['setup_seconds'].get(name, 0.0), 0)} s",

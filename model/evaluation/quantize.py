@@ -9,15 +9,20 @@ convolution into integer convolutions, which use VNNI dot products where the
 CPU has them; instance norms and the final clamp stay in float.
 
 Why ONNX Runtime and not PyTorch's PT2E ``X86InductorQuantizer`` (torchao):
-measured in one run by ``python -m benchmarks.bench_int8 --runs 5`` on GEA
-540x360 mono, batch 1, 2 threads, on an AMD EPYC with ``avx512_vnni`` (the
-machine was loaded, load average ~14 on 2 cores; ratios from interleaved
-runs): ONNX Runtime int8 ran 2.22x faster than fp32 torch, PT2E int8 under
-``torch.compile`` 1.25x, so ONNX Runtime was 1.8x faster than PT2E; PT2E
-kept more accuracy (43.6 dB PSNR against the fp32 output, ONNX Runtime
-37.8 dB) but needed a C++ compiler and 857 s of quantise-and-compile
-against 263 s, and its compiled artefact is not a deployable file, while the
-ONNX model is what a robot deploys anyway. Speed and deployability decided.
+``python -m benchmarks.bench_int8`` measures both in one run (GEA 540x360
+mono, batch 1, against fp32 torch channels-last). Which is faster depends on
+the CPU and its load. On an AMD EPYC with ``avx512_vnni`` under heavy load
+(load average ~14 on 2 cores, interleaved runs, 2 threads), ONNX Runtime int8
+ran 2.22x faster than fp32 torch and PT2E 1.25x. On a quiet AMD EPYC (load
+~1.4, one thread, session 6) it was the other way round: ONNX Runtime 1.40x,
+PT2E 2.27x; and in that machine's demo tradeoff (2 threads) ONNX Runtime int8
+was no faster than fp32 torch. PT2E keeps more accuracy (43.5 dB PSNR against
+the fp32 output, ONNX Runtime 37.8 dB). ONNX Runtime stays the path because
+of deployment, not speed: its output is one ``.onnx`` file that a robot runs
+without PyTorch or a C++ compiler, quantised in seconds (9 s against 39 s
+here, 263 s against 857 s loaded), while PT2E's artefact is code compiled
+by ``torch.compile`` in the process that runs it. Whether int8 pays on a
+given CPU is what the int8 rows of ``eval`` and ``tradeoff`` show.
 
 Shapes: every image is ``(1, C, H, W)`` float32 in [0, 1]; the quantised
 model has a fixed ``H, W`` (the export's) and a dynamic batch.
