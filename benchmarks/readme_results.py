@@ -33,7 +33,7 @@ from typing import Any
 from lenspair.core.fsutil import atomic_write_bytes, atomic_write_text
 from lenspair.core.report import Block, Heading, Image, Paragraph, Table, to_markdown
 from lenspair.demo import Budget, plan
-from lenspair.demo_report import calibration_blocks, load_json
+from lenspair.demo_report import calibration_blocks, load_json, markdown_file_blocks
 
 BEGIN = "<!-- results:begin (written by `make results`; do not edit by hand) -->"
 END = "<!-- results:end -->"
@@ -229,6 +229,30 @@ def eval_blocks(demo: Path, copies: Copies) -> list[Block]:
     return blocks
 
 
+SEEDED = FIGURES / "tradeoff_seeds_h100.md"
+"""The longest tradeoff over seeds run so far (``tradeoff_seeds.md`` as the command wrote it)."""
+
+
+def seeded_blocks(path: Path) -> list[Block]:
+    """The tradeoff over seeds, as ``lenspair tradeoff --seeds`` wrote it, with where it ran.
+
+    Its own heading is dropped (the section gives one); the device comes from
+    the ``.json`` the command writes beside the ``.md``.
+    """
+    if not path.is_file():
+        return _missing("the tradeoff over seeds", "lenspair tradeoff DS --seeds 0,1,2")
+    meta = (load_json(path.with_suffix(".json")) or {}).get("meta", {})
+    device = meta.get("device", "a device not recorded")
+    blocks = [b for b in markdown_file_blocks(path) if not isinstance(b, Heading)]
+    intro = Paragraph(
+        f"A longer run than the demo's: `lenspair tradeoff DS --seeds 0,1,2 --budget N` "
+        f"(`make tradeoff-seeds`), trained on {device}, CPU times from that machine's CPU; "
+        f"written by the command to `{path.as_posix()}`. Read the accuracy columns with "
+        "the convergence column beside them."
+    )
+    return [intro, *blocks]
+
+
 DEMO_TARGET_MINUTES = 15.0
 """Issue 11: the demo finishes within 15 minutes on 2 CPU cores, with or without native bf16."""
 
@@ -415,10 +439,17 @@ def bench_blocks(bench: Path) -> list[Block]:
     ]
 
 
-def section(demo: Path, bench: Path, copies: Copies, demo_fp32: Path | None = None) -> str:
+def section(
+    demo: Path,
+    bench: Path,
+    copies: Copies,
+    demo_fp32: Path | None = None,
+    seeded: Path = SEEDED,
+) -> str:
     """The Markdown between the markers (without them); pictures to copy go to ``copies``."""
     parts: list[tuple[str, Callable[[], list[Block]]]] = [
         ("Accuracy and its time (demo data)", lambda: tradeoff_blocks(demo, copies)),
+        ("Accuracy over seeds (a longer run)", lambda: seeded_blocks(seeded)),
         ("The fine-tuned network per difficulty", lambda: eval_blocks(demo, copies)),
         ("Pipeline stages", lambda: stage_blocks(demo, demo_fp32)),
         ("Calibration against the simulator's truth", lambda: calibration_section(demo)),
@@ -530,6 +561,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         default=None,
         help="the same demo run under ONEDNN_MAX_CPU_ISA=AVX512_CORE_VNNI (bf16 off), if any",
     )
+    parser.add_argument(
+        "--tradeoff-seeds",
+        type=Path,
+        default=SEEDED,
+        help="tradeoff_seeds.md of a longer `lenspair tradeoff --seeds` run (default: %(default)s)",
+    )
     parser.add_argument("--bench", type=Path, default=Path("bench_out"), help="benchmark JSON")
     parser.add_argument("--readme", type=Path, default=Path("README.md"), help="file to update")
     parser.add_argument(
@@ -551,7 +588,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             body = detector_section(args.detector)
             updated = replace_section(updated, body, DETECTOR_BEGIN, DETECTOR_END)
         if not args.detector_only:
-            body = section(args.demo, args.bench, copies, args.demo_fp32)
+            body = section(args.demo, args.bench, copies, args.demo_fp32, args.tradeoff_seeds)
             updated = replace_section(updated, body)
     except ResultsError as error:
         print(f"{args.readme}: {error}", file=sys.stderr)

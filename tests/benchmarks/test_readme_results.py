@@ -14,6 +14,7 @@ from benchmarks.readme_results import (
     bench_blocks,
     main,
     replace_section,
+    seeded_blocks,
     stage_blocks,
 )
 from lenspair.core.fsutil import atomic_write_json
@@ -21,8 +22,10 @@ from lenspair.core.report import to_markdown
 from lenspair.model.evaluation.evaluate import EvalResult, ImageScore, breakdown, summarize
 from lenspair.model.evaluation.latency import Latency
 from lenspair.model.evaluation.report import write_report
+from lenspair.model.evaluation.seed_statistics import summarise_seeds
 from lenspair.model.evaluation.tradeoff import TradeoffRow, mark_pareto
 from lenspair.model.evaluation.tradeoff_report import write_tradeoff
+from lenspair.model.evaluation.tradeoff_seeds import SeededRow, seeded_markdown
 from lenspair.model.training.config import RunConfig, RuntimeInfo, run_config_to_yaml
 
 README = Path(__file__).resolve().parents[2] / "README.md"
@@ -248,3 +251,28 @@ def test_speed_table_shows_bf16_against_fp32_with_and_without_the_isa_cap(tmp_pa
     ) in text
     assert "oneDNN AVX512_CORE_VNNI | bf16 24.41 ms / fp32 8.98 ms" in text
     assert "auto trains at fp32 | 2.72x (bf16 / fp32) |" in text
+
+
+def test_seeded_tradeoff_comes_in_as_the_command_wrote_it_with_its_device(tmp_path: Path) -> None:
+    row = SeededRow(
+        name="GEA", precision="fp32", params=708_426, gflops=19.71, cpu_ms=133.5,
+        psnr=summarise_seeds([28.2, 28.5, 28.6]), ssim=summarise_seeds([0.907, 0.9071, 0.9072]),
+        converged=False, tail_change_db=1.82, pareto_psnr=True,
+    )  # fmt: skip
+    meta = {
+        "dataset": "ds", "evaluated_on": "ds split test", "budget": "800 steps",
+        "seeds": [0, 1, 2], "convention": "skimage-gaussian", "size": "540x360",
+        "input_baseline": {"psnr_db": 25.64, "ssim": 0.8953}, "device": "cuda",
+    }  # fmt: skip
+    markdown = tmp_path / "tradeoff_seeds.md"
+    markdown.write_text(seeded_markdown([row], meta))
+    atomic_write_json(tmp_path / "tradeoff_seeds.json", {"meta": meta, "rows": []})
+    text = to_markdown(seeded_blocks(markdown))
+    assert "# Accuracy against inference time" not in text  # the section has its own heading
+    assert "trained on cuda" in text and f"`{markdown.as_posix()}`" in text
+    assert "| GEA | fp32 | 708,426 | 19.7 | 133.5 | 28.43 +/- 0.21 |" in text
+    assert "| no (+1.82 dB) | * |" in text
+    assert "800 steps" in text and "does NOT hold for every network" in text
+    assert "| state of the art, Raindrop test set | DeRaindrop | 0.921 | 31.50 |" in text
+    missing = to_markdown(seeded_blocks(tmp_path / "absent.md"))
+    assert "Not measured yet: the tradeoff over seeds comes from `lenspair tradeoff" in missing
