@@ -52,6 +52,11 @@ class InstanceNorm(nn.Module):
 
     def forward(self, x: Tensor) -> Tensor:
         """Normalise ``x`` (``(N, C, H, W)``, floating point)."""
+        if torch.onnx.is_in_onnx_export():
+            # ONNX has InstanceNormalization. A group norm exports as reshapes, a
+            # norm, a scale by one and a shift by zero, which int8 quantisation
+            # then wraps in Q/DQ pairs (lenspair.model.evaluation.quantize).
+            return F.instance_norm(x, eps=self.eps)
         if x.dtype != torch.float32 and self.channels < 16 and _is_channels_last(x):
             # PyTorch's channels-last group norm is ~5x slower than
             # instance_norm for a few bf16/fp16 channels (same result).

@@ -1,5 +1,6 @@
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -9,6 +10,8 @@ from lenspair.cli import main
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import check_image, export_torchscript, parse_size
+from lenspair.model.evaluation.quantize import QUANTISED_OPS
+from lenspair.model.networks.layers import InstanceNorm
 from tests.model.train_fixtures import make_checkpoint, write_paired_folder
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -37,6 +40,14 @@ def test_onnx_export_matches_torch(tmp_path: Path) -> None:
         expected = network(image)[1].numpy()
     assert restored.shape == (2, 1, 32, 48)
     assert np.abs(restored - expected).max() < 1e-4
+    # Each instance norm is ONNX's own InstanceNormalization (a group norm would
+    # export as reshapes around it plus a scale and a shift).
+    onnx = pytest.importorskip("onnx")
+    kinds = [node.op_type for node in onnx.load(str(onnx_file)).graph.node]
+    norms = sum(isinstance(m, InstanceNorm) for m in network.modules())
+    assert norms > 0 and kinds.count("InstanceNormalization") == norms
+    # ... and nothing of a group norm's export is left: no scale by one, no shapes
+    assert not {"GroupNormalization", "Mul", "Shape"} & set(kinds)
 
 
 def test_torchscript_export_reloads_and_matches(tmp_path: Path) -> None:
@@ -106,6 +117,28 @@ def test_failing_dynamo_exporter_falls_back_to_the_legacy_one(
     assert (tmp_path / "m.onnx").stat().st_size > 0
 
 
+def _quantised_ops(graph: Any) -> set[str]:
+    """Operators of a QDQ graph whose inputs are all dequantised and whose output is quantised."""
+    constants = {t.name for t in graph.initializer}
+    dequantised = {o for n in graph.node if n.op_type == "DequantizeLinear" for o in n.output}
+    readers: dict[str, list[str]] = {}
+    for node in graph.node:
+        for name in node.input:
+            readers.setdefault(name, []).append(node.op_type)
+    found = set()
+    for node in graph.node:
+        inputs = [i for i in node.input if i and i not in constants]
+        outputs = [readers.get(o, []) for o in node.output]
+        if (
+            node.op_type not in ("QuantizeLinear", "DequantizeLinear")
+            and inputs
+            and all(i in dequantised for i in inputs)
+            and all(kinds and set(kinds) == {"QuantizeLinear"} for kinds in outputs)
+        ):
+            found.add(node.op_type)
+    return found
+
+
 def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     ort = pytest.importorskip("onnxruntime")
     onnx = pytest.importorskip("onnx")
@@ -119,8 +152,15 @@ def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     assert int8["calibration_images"] == 4 and int8["precision"]["precision"] == "int8"
     assert 25.0 < int8["psnr_vs_fp32_db"] < 100.0  # quantised: close, yet not identical
     session = ort.InferenceSession(int8["path"], providers=["CPUExecutionProvider"])
-    kinds = {node.op_type for node in onnx.load(int8["path"]).graph.node}
+    graph = onnx.load(int8["path"]).graph
+    kinds = {node.op_type for node in graph.node}
     assert "QuantizeLinear" in kinds and "DequantizeLinear" in kinds
+    # Only convolutions are quantised: they alone run between dequantised inputs
+    # and a quantised output (DQ -> op -> Q, fused into an integer op), apart
+    # from an activation squeezed between one convolution's output pair and
+    # the next one's input pair. Quantising everything also caught the norms,
+    # pads, pools, concatenations and adds.
+    assert _quantised_ops(graph) - {"Relu", "LeakyRelu"} == set(QUANTISED_OPS)
     image = torch.rand(2, 1, 32, 48, generator=torch.Generator().manual_seed(3))
     (restored,) = session.run(None, {"image": image.numpy()})
     with torch.no_grad():
