@@ -13,6 +13,8 @@ import sys
 import time
 from pathlib import Path
 
+import torch
+
 import benchmarks
 
 
@@ -28,7 +30,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.only:
         names = [n for n in names if n.removeprefix("bench_") in args.only]
     failed = []
+    threads = torch.get_num_threads()
     for name in names:
+        # Some benchmarks set torch's thread count (bench_detector: 1); the next
+        # one must start from the machine's, not inherit it.
+        torch.set_num_threads(threads)
         print(f"\n## {name}\n", flush=True)
         start = time.perf_counter()
         module = importlib.import_module(f"benchmarks.{name}")

@@ -5,6 +5,7 @@ import pkgutil
 from pathlib import Path
 
 import pytest
+import torch
 
 import benchmarks
 from benchmarks.__main__ import main
@@ -48,3 +49,21 @@ def test_a_benchmark_that_exits_is_a_failure_and_the_rest_still_run(
     assert main(["--only", "effects", "ingest"]) == 1
     assert ran == ["bench_effects", "bench_ingest"]
     assert "failed: bench_effects" in capsys.readouterr().err
+
+
+def test_a_benchmark_that_sets_the_thread_count_does_not_set_the_next_ones(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    calls: list[int] = []
+
+    class Stub:
+        def main(self, argv: list[str]) -> int:
+            torch.set_num_threads(1)  # as bench_detector does by default
+            return 0
+
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 3)  # the machine's count
+    monkeypatch.setattr(torch, "set_num_threads", calls.append)
+    monkeypatch.setattr(importlib, "import_module", lambda dotted: Stub())
+    assert main(["--only", "detector", "effects"]) == 0
+    # before each benchmark the runner sets the machine's count back; each stub then sets 1
+    assert calls == [3, 1, 3, 1]
