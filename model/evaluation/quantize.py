@@ -15,14 +15,13 @@ Why ONNX Runtime and not PyTorch's PT2E ``X86InductorQuantizer`` (torchao):
 mono, batch 1, against fp32 torch channels-last). Which is faster depends on
 the CPU and its load. On an AMD EPYC with ``avx512_vnni`` under heavy load
 (load average ~14 on 2 cores, interleaved runs, 2 threads), ONNX Runtime int8
-ran 2.22x faster than fp32 torch and PT2E 1.25x. On a quiet AMD EPYC (load
-~1.4, one thread, session 6) it was the other way round: ONNX Runtime 1.40x,
-PT2E 2.27x; and in that machine's demo tradeoff (2 threads) ONNX Runtime int8
-was no faster than fp32 torch. PT2E keeps more accuracy (43.5 dB PSNR against
-the fp32 output, ONNX Runtime 37.8 dB). ONNX Runtime stays the path because
+ran 2.22x faster than fp32 torch and PT2E 1.25x. On a quiet AMD EPYC
+(2 threads, quantising only :data:`QUANTISED_OPS`), ONNX Runtime ran 1.15x
+faster and PT2E 1.29x. PT2E keeps more accuracy (43.6 dB PSNR against the
+fp32 output, ONNX Runtime 39.4 dB). ONNX Runtime stays the path because
 of deployment, not speed: its output is one ``.onnx`` file that a robot runs
-without PyTorch or a C++ compiler, quantised in seconds (9 s against 39 s
-here, 263 s against 857 s loaded), while PT2E's artefact is code compiled
+without PyTorch or a C++ compiler, quantised in seconds (14 s against 45 s
+there, 263 s against 857 s loaded), while PT2E's artefact is code compiled
 by ``torch.compile`` in the process that runs it. Whether int8 pays on a
 given CPU is what the int8 rows of ``eval`` and ``tradeoff`` show.
 
