@@ -29,12 +29,16 @@ import torch
 from benchmarks.machine import median_ms, round_robin
 from lenspair.model.precision import choose_precision
 
+CHANNELS, HEIGHT, WIDTH = 32, 180, 270
+KERNEL = f"3x3 conv {CHANNELS}->{CHANNELS} {WIDTH}x{HEIGHT}, 1 thread"
+"""What is timed, as the table and ``isa_cap.json`` name it."""
+
 
 def child(runs: int) -> dict[str, object]:
     """In this process: the medians and the probe's decision (the cap is this process's own)."""
     torch.set_num_threads(1)
-    x = torch.randn(1, 32, 180, 270).to(memory_format=torch.channels_last)
-    conv = torch.nn.Conv2d(32, 32, 3, padding=1)
+    x = torch.randn(1, CHANNELS, HEIGHT, WIDTH).to(memory_format=torch.channels_last)
+    conv = torch.nn.Conv2d(CHANNELS, CHANNELS, 3, padding=1)
     conv = conv.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
 
     def bf16() -> None:
@@ -89,12 +93,17 @@ def main(argv: list[str] | None = None) -> int:
         )
     end_load = os.getloadavg()[0]
     print(
-        f"\n3x3 conv 32->32, 270x180, 1 thread, median of {args.runs}; load average "
+        f"\n{KERNEL}, median of {args.runs}; load average "
         f"{load:.2f} -> {end_load:.2f}; {time.monotonic() - start:.0f} s"
     )
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
-        payload = {"runs": args.runs, "load_average": [load, end_load], "rows": rows}
+        payload = {
+            "kernel": KERNEL,
+            "runs": args.runs,
+            "load_average": [load, end_load],
+            "rows": rows,
+        }
         (args.out / "isa_cap.json").write_text(json.dumps(payload, indent=2) + "\n")
     return 0
 

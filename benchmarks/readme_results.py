@@ -33,7 +33,12 @@ from typing import Any
 from lenspair.core.fsutil import atomic_write_bytes, atomic_write_text
 from lenspair.core.report import Block, Heading, Image, Paragraph, Table, to_markdown
 from lenspair.demo import Budget, plan
-from lenspair.demo_report import calibration_blocks, load_json, markdown_file_blocks
+from lenspair.demo_report import (
+    calibration_blocks,
+    finetune_runtime,
+    load_json,
+    markdown_file_blocks,
+)
 
 BEGIN = "<!-- results:begin (written by `make results`; do not edit by hand) -->"
 END = "<!-- results:end -->"
@@ -56,12 +61,14 @@ class ResultsError(Exception):
 
 def _isa_cap_rows(isa_cap: dict[str, Any] | None) -> list[list[str]]:
     """bf16 against fp32 as the CPU is and with oneDNN capped below bf16 (bench_isa_cap)."""
+    if not isa_cap:
+        return []
     rows = []
-    for row in (isa_cap or {}).get("rows", []):
+    for row in isa_cap["rows"]:
         medians = row["median_ms"]
         rows.append(
             [
-                f"3x3 conv 32->32 270x180, 1 thread, oneDNN {row['cap'] or 'as the CPU is'}",
+                f"{isa_cap['kernel']}, oneDNN {row['cap'] or 'as the CPU is'}",
                 f"bf16 {_num(medians['bf16'], 2)} ms / fp32 {_num(medians['fp32'], 2)} ms",
                 f"fp32 in the same run; auto trains at {row['auto']}",
                 f"{_num(row['bf16_over_fp32'], 2)}x (bf16 / fp32)",
@@ -259,11 +266,7 @@ DEMO_TARGET_MINUTES = 15.0
 
 def _training_line(demo: Path) -> str:
     """How the demo's fine-tuning ran (precision and why), read from its ``config.yaml``."""
-    # Imported here: it imports torch, and only this part of the section needs it.
-    from lenspair.model.training.config import load_run_config
-
-    config = demo / "runs" / "finetune" / "config.yaml"
-    runtime = load_run_config(config).runtime if config.is_file() else None
+    runtime = finetune_runtime(demo)
     if runtime is None:
         return "training precision not recorded"
     return f"trained at {runtime.precision} ({runtime.precision_reason})"
@@ -298,11 +301,11 @@ def stage_blocks(demo: Path, demo_fp32: Path | None = None) -> list[Block]:
     note = f" Reused from an earlier run, with that run's time: {reused}." if reused else ""
     headers = ["stage", f"seconds ({demo.name})"]
     lines = [f"`{demo.name}`: {totals[0] / 60:.1f} min, {_training_line(demo)}."]
-    for extra, _ in runs[1:]:
+    for (extra, _), total in zip(runs[1:], totals[1:], strict=True):
         headers.append(f"seconds ({extra.name}, bf16 off)")
         lines.append(
             f"`{extra.name}`: the same demo under `ONEDNN_MAX_CPU_ISA=AVX512_CORE_VNNI`, "
-            f"as on a CPU without native bf16: {totals[1] / 60:.1f} min, "
+            f"as on a CPU without native bf16: {total / 60:.1f} min, "
             f"{_training_line(extra)}."
         )
     within = all(total <= DEMO_TARGET_MINUTES * 60 for total in totals)

@@ -8,7 +8,7 @@ typed in by hand.
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -18,6 +18,9 @@ from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.imageio import read_image, write_image
 from lenspair.core.report import Block, Code, Heading, Image, Paragraph, Table, to_html, to_markdown
 from lenspair.rectify.rig import read_kalibr
+
+if TYPE_CHECKING:
+    from lenspair.model.training.config import RuntimeInfo
 
 
 def load_json(path: Path) -> Any:
@@ -208,22 +211,28 @@ def restore_blocks(out: Path, strips: int = 3) -> list[Block]:
     return blocks
 
 
+def finetune_runtime(out: Path) -> "RuntimeInfo | None":
+    """What the demo's fine-tuning ran on and at which precision (its ``config.yaml``), if any."""
+    # Imported here: it imports torch, which `lenspair --help` must not load.
+    from lenspair.model.training.config import load_run_config
+
+    config = out / "runs" / "finetune" / "config.yaml"
+    return load_run_config(config).runtime if config.is_file() else None
+
+
 def machine_blocks(out: Path, timings: dict[str, dict[str, float | bool]]) -> list[Block]:
     """Where the demo ran and at which precision: read from the fine-tuning run's config."""
-    # Imported here: both import torch, which `lenspair --help` must not load.
+    # Imported here: it imports torch, which `lenspair --help` must not load.
     from lenspair.model.precision import read_cpu_flags
-    from lenspair.model.training.config import load_run_config
 
     total = sum(float(v["seconds"]) for v in timings.values())
     lines = [f"Total {total / 60:.1f} min on {read_cpu_flags()[0]}."]
-    config = out / "runs" / "finetune" / "config.yaml"
-    if config.is_file():
-        runtime = load_run_config(config).runtime
-        if runtime is not None:
-            lines.append(
-                f"Training ran on {runtime.device} at {runtime.precision} "
-                f"(natively: {', '.join(runtime.native_precisions)}): {runtime.precision_reason}."
-            )
+    runtime = finetune_runtime(out)
+    if runtime is not None:
+        lines.append(
+            f"Training ran on {runtime.device} at {runtime.precision} "
+            f"(natively: {', '.join(runtime.native_precisions)}): {runtime.precision_reason}."
+        )
     return [Paragraph(" ".join(lines))]
 
 

@@ -243,7 +243,8 @@ def test_speed_table_shows_bf16_against_fp32_with_and_without_the_isa_cap(tmp_pa
         {"cap": "AVX512_CORE_VNNI", "bf16_over_fp32": 2.718,
          "median_ms": {"fp32": 8.98, "bf16": 24.41}, "auto": "fp32", "reason": "capped"},
     ]  # fmt: skip
-    atomic_write_json(bench / "isa_cap.json", {"runs": 15, "rows": rows})
+    kernel = "3x3 conv 32->32 270x180, 1 thread"
+    atomic_write_json(bench / "isa_cap.json", {"kernel": kernel, "runs": 15, "rows": rows})
     text = to_markdown(bench_blocks(bench))
     assert (
         "| 3x3 conv 32->32 270x180, 1 thread, oneDNN as the CPU is | bf16 5.07 ms / fp32 9.17 ms "
