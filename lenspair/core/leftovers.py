@@ -9,7 +9,8 @@ exactly those whose creating process no longer exists, so a concurrent run
 writing beside it keeps its own temporaries. Files of other outputs, and
 files whose names do not follow the pattern, are never touched.
 
-A process id that the system has reused for an unrelated process keeps its
+A process that has ended but was never reaped (a zombie) counts as gone. A
+process id that the system has reused for an unrelated process keeps its
 leftover alive until a later rerun: the safe direction.
 """
 
@@ -29,7 +30,23 @@ def temporary_prefix(name: str) -> str:
     return f".{name}.{os.getpid()}."
 
 
+def _zombie(pid: int) -> bool:
+    """Whether ``pid`` has ended but not been reaped (Linux ``/proc``; elsewhere ``False``).
+
+    A killed worker whose parent was killed too is re-parented to PID 1; in a
+    container whose PID 1 never calls ``wait()`` it stays a zombie for good, and
+    ``os.kill(pid, 0)`` still succeeds on it.
+    """
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    state = stat[stat.rindex(")") + 2 :].split(maxsplit=1)[0]  # the name may hold spaces
+    return state in ("Z", "X")
+
+
 def _alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs: it may still be writing its temporaries."""
     if pid == os.getpid():
         return True
     try:
@@ -37,8 +54,8 @@ def _alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:  # exists, owned by another user
-        return True
-    return True
+        return not _zombie(pid)
+    return not _zombie(pid)
 
 
 def _pattern(name: str | None) -> re.Pattern[str]:

@@ -2,6 +2,7 @@
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from lenspair.core.leftovers import remove_leftovers_under
@@ -20,3 +21,33 @@ def test_removes_dead_temporaries_at_any_depth_and_keeps_the_rest(tmp_path: Path
     assert not any(path.exists() for path in stale)
     assert all(path.exists() for path in kept)
     assert remove_leftovers_under(tmp_path / "missing") == 0
+
+
+def test_temporaries_of_an_unreaped_zombie_are_removed(tmp_path: Path) -> None:
+    # A killed worker whose parent died too can stay a zombie for good (a
+    # container's PID 1 that never reaps); os.kill(pid, 0) still succeeds on it.
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    stat = Path(f"/proc/{child.pid}/stat")
+    deadline = time.monotonic() + 30
+    while stat.read_text().rsplit(")", 1)[1].split()[0] != "Z":
+        assert time.monotonic() < deadline, "the child never ended"
+        time.sleep(0.01)
+    try:
+        stale = tmp_path / f".01.png.{child.pid}.z.png.tmp"
+        stale.write_bytes(b"x")
+        assert remove_leftovers_under(tmp_path) == 1
+        assert not stale.exists()
+    finally:
+        child.wait()
+
+
+def test_temporaries_of_a_running_process_are_kept(tmp_path: Path) -> None:
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        busy = tmp_path / f".01.png.{child.pid}.r.png.tmp"
+        busy.write_bytes(b"x")
+        assert remove_leftovers_under(tmp_path) == 0
+        assert busy.exists()
+    finally:
+        child.kill()
+        child.wait()
