@@ -76,15 +76,17 @@ class Budget:
     frames: int = 60
     # Measured on a 2-core AMD EPYC with oneDNN capped below bf16
     # (ONEDNN_MAX_CPU_ISA=AVX512_CORE_VNNI, so auto trains at fp32, as on a CPU
-    # without native bf16): 0.76 s per pretraining step, 1.0 s per fine-tuning
-    # step (with validation), the demo 11.8 min with 25 tradeoff steps per
-    # variant. The AVX-512 Xeon without bf16 of issue 11 is slower in fp32
-    # (about 1.1 s per step: 300 emulated-bf16 steps took 848 s there, 2.6x
-    # fp32), so the tradeoff's steps, whose accuracy is noise at any budget
-    # the demo can afford (its times are what it shows), went from 25 to 10:
-    # about 1.5 minutes less there. Pretraining starts from the shipped weights.
-    pretrain_steps: int = 150
-    finetune_steps: int = 250
+    # without native bf16): 0.93 s per pretraining step, 1.06 s per fine-tuning
+    # step (with validation each epoch), the demo 11.1 min with 150 pretraining,
+    # 250 fine-tuning and 10 tradeoff steps. The AVX-512 Xeon without bf16 of
+    # issue 11 is about 1.5x slower in fp32 (bench_training, batch 8, crop 256:
+    # 7.3 s per step there, 4.81 s on that EPYC), which puts that budget near
+    # 16 min there; 100 pretraining and 200 fine-tuning steps take about two
+    # minutes off it. Pretraining starts from the shipped weights, and the
+    # tradeoff's accuracy is noise at any budget the demo can afford (its
+    # times are what it shows), so these cuts cost the demo little.
+    pretrain_steps: int = 100
+    finetune_steps: int = 200
     tradeoff_steps: int = 10
     crop_size: int = 128
     batch_size: int = 4
