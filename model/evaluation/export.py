@@ -15,12 +15,14 @@ it could not be checked. torch's new ``dynamo`` exporter needs
 ``onnxscript``; when that is missing the TorchScript-based exporter is used.
 """
 
+import contextlib
 import functools
 import importlib.util
 import logging
 import statistics
 import time
 import warnings
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -121,10 +123,39 @@ _EXPORTERS = {
 }
 
 
-def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) -> None:
-    """Run one of torch's ONNX exporters (fixed H, W; batch dynamic where supported)."""
+# Loggers of the ONNX tool chain that narrate every export: the graph optimiser's
+# passes (about 130 INFO lines per GEA export) and torch's note that torchvision,
+# whose operators lenspair never uses, is not installed.
+_EXPORT_CHATTER = {
+    "onnxscript": logging.WARNING,
+    "onnx_ir": logging.WARNING,
+    "torch.onnx._internal.exporter._registration": logging.ERROR,
+}
+
+
+@contextlib.contextmanager
+def _quiet_exporters() -> Iterator[None]:
+    """Silence the exporters' warnings and progress lines for the duration of one export.
+
+    Their real failures still raise; only narration is dropped, so that
+    ``lenspair export`` and the tradeoff's int8 row print lenspair's own lines.
+    """
+    loggers = {logging.getLogger(name): level for name, level in _EXPORT_CHATTER.items()}
+    before = {logger: logger.level for logger in loggers}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # deprecation, tracer and shape-inference chatter
+        for logger, level in loggers.items():
+            logger.setLevel(max(level, logger.getEffectiveLevel()))
+        try:
+            yield
+        finally:
+            for logger, level in before.items():
+                logger.setLevel(level)
+
+
+def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) -> None:
+    """Run one of torch's ONNX exporters (fixed H, W; batch dynamic where supported)."""
+    with _quiet_exporters():
         if exporter == "dynamo":
             torch.onnx.export(
                 model,
@@ -134,6 +165,7 @@ def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) 
                 output_names=[OUTPUT_NAME],
                 opset_version=ONNX_OPSET,
                 dynamo=True,
+                verbose=False,  # no "[torch.onnx] Obtain model graph..." progress lines
                 external_data=False,
                 dynamic_shapes={"x": {0: torch.export.Dim("batch", min=1, max=64)}},
             )

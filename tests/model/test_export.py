@@ -1,4 +1,5 @@
 import json
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +49,30 @@ def test_onnx_export_matches_torch(tmp_path: Path) -> None:
     assert norms > 0 and kinds.count("InstanceNormalization") == norms
     # ... and nothing of a group norm's export is left: no scale by one, no shapes
     assert not {"GroupNormalization", "Mul", "Shape"} & set(kinds)
+
+
+def test_onnx_export_prints_lenspair_lines_only(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    # The exporter narrated each export: "[torch.onnx] ..." progress lines on
+    # stdout and about 130 INFO lines of the onnxscript/onnx_ir optimiser passes,
+    # more than half of what the demo printed.
+    pytest.importorskip("onnxscript")
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    caplog.set_level(logging.INFO)  # the CLI's level without --verbose
+    chatter = logging.getLogger("onnx_ir")
+    before = chatter.level
+    assert (
+        main(["export", str(checkpoint), "--onnx", str(tmp_path / "m.onnx"), "--size", "48x32"])
+        == 0
+    )
+    assert chatter.level == before  # levels are restored after the export
+    printed = capfd.readouterr()
+    assert "[torch.onnx]" not in printed.out + printed.err
+    assert "torchvision is not installed" not in printed.out + printed.err
+    foreign = [r.name for r in caplog.records if not r.name.startswith("lenspair")]
+    assert foreign == []
+    assert any(r.name.startswith("lenspair") for r in caplog.records)  # its own lines stay
 
 
 def test_torchscript_export_reloads_and_matches(tmp_path: Path) -> None:
