@@ -9,6 +9,7 @@ improved, ``samples.png`` and a row of ``metrics.csv``
 (:mod:`lenspair.model.training.run_files`).
 """
 
+import copy
 import logging
 import math
 from typing import Any, Protocol
@@ -112,24 +113,37 @@ def validate(
         :data:`lenspair.model.evaluation.evaluate.PSNR_CAP_DB`.
 
     """
-    was_training = network.training
-    network.eval()
+    deployed = _as_deployed(network, device)
     psnrs, ssims = [], []
     rows: list[list[np.ndarray | None]] = []
     for index in range(len(val_set)):
         sample = val_set[index]
         x = sample["input"][None].to(device)
         target = sample["target"][None].to(device)
-        output = network(x)[1].float().clamp(0.0, 1.0)
+        output = deployed(x)[1].float().clamp(0.0, 1.0)
         psnr, ssim = score_tensors(output, target, VAL_CONVENTION)
         psnrs.append(psnr)
         ssims.append(ssim)
         if len(rows) < samples:
             rows.append([_hwc(x), _hwc(output), _hwc(target)])
-    network.train(was_training)
     labels = [["input", "output", "target"]] * len(rows)
     sheet = make_contact_sheet(rows, labels, title="validation samples")
     return mean_psnr(psnrs), float(np.mean(ssims)), sheet
+
+
+def _as_deployed(network: nn.Module, device: torch.device) -> nn.Module:
+    """An eval-mode copy of ``network`` laid out as ``restore`` runs it.
+
+    On the CPU that is channels-last (:func:`lenspair.model.inference.backends.deploy`):
+    1.7x faster than the training layout on whole 540x360 frames (GEA, fp32, 2
+    threads: 147 against 250 ms), and validation of a small dataset costs as
+    much as its epoch of training. A copy, so that the parameters the
+    optimiser holds keep their layout and the network keeps its mode.
+    """
+    deployed = copy.deepcopy(network).eval()
+    if device.type == "cpu":
+        deployed.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+    return deployed
 
 
 def _hwc(batch: torch.Tensor) -> np.ndarray:

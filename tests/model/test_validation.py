@@ -1,0 +1,61 @@
+"""Validation scores whole frames the way ``restore`` runs them, without touching training."""
+
+import numpy as np
+import torch
+from torch import nn
+
+from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
+from lenspair.model.networks.variants import build_model
+from lenspair.model.training.pairs import Sample
+from lenspair.model.training.validation import VAL_CONVENTION, validate
+
+
+class _Frames:
+    """Whole validation frames (odd sizes, as real crops are not)."""
+
+    def __init__(self, count: int = 3) -> None:
+        generator = torch.Generator().manual_seed(3)
+        self.pairs = [
+            (torch.rand(1, 37, 61, generator=generator), torch.rand(1, 37, 61, generator=generator))
+            for _ in range(count)
+        ]
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def __getitem__(self, index: int) -> Sample:
+        x, y = self.pairs[index]
+        return Sample(input=x, target=y, valid=torch.ones_like(x), name=f"{index:02d}")
+
+
+def test_validation_runs_channels_last_on_a_copy_and_scores_as_the_training_layout() -> None:
+    torch.manual_seed(0)
+    network = build_model("GEA", 1, width=0.25, num_blocks=2).train()
+    layouts: list[bool] = []
+
+    def record(module: nn.Module, args: tuple[torch.Tensor, ...]) -> None:
+        # a weight whose layouts differ (with one input channel or a 1x1 kernel both coincide)
+        weight = max((p for p in module.parameters() if p.ndim == 4), key=lambda p: p.shape[1])
+        assert weight.shape[1] > 1 and weight.shape[2] > 1
+        layouts.append(weight.is_contiguous(memory_format=torch.channels_last))
+
+    network.register_forward_pre_hook(record)
+    frames = _Frames()
+    psnr, ssim, sheet = validate(network, frames, torch.device("cpu"))
+
+    # the copy ran in restore's layout; the trained network kept its own and its mode
+    assert layouts == [True] * len(frames)
+    assert network.training
+    assert all(p.is_contiguous() for p in network.parameters())
+    # ... and scores what the training layout computes
+    network.eval()
+    psnrs, ssims = [], []
+    with torch.inference_mode():
+        for x, y in frames.pairs:
+            output = network(x[None])[1].float().clamp(0.0, 1.0)
+            scores = score_tensors(output, y[None], VAL_CONVENTION)
+            psnrs.append(scores[0])
+            ssims.append(scores[1])
+    assert abs(psnr - mean_psnr(psnrs)) < 1e-3
+    assert abs(ssim - float(np.mean(ssims))) < 1e-5
+    assert sheet.ndim == 3 and sheet.size > 0
