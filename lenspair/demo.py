@@ -76,15 +76,15 @@ class Budget:
     frames: int = 60
     # Measured on a 2-core AMD EPYC with oneDNN capped below bf16
     # (ONEDNN_MAX_CPU_ISA=AVX512_CORE_VNNI, so auto trains at fp32, as on a CPU
-    # without native bf16): 0.93 s per pretraining step, 1.06 s per fine-tuning
-    # step (with validation each epoch), the demo 11.1 min with 150 pretraining,
-    # 250 fine-tuning and 10 tradeoff steps. The AVX-512 Xeon without bf16 of
-    # issue 11 is about 1.5x slower in fp32 (bench_training, batch 8, crop 256:
-    # 7.3 s per step there, 4.81 s on that EPYC), which puts that budget near
-    # 16 min there; 100 pretraining and 200 fine-tuning steps take about two
-    # minutes off it. Pretraining starts from the shipped weights, and the
-    # tradeoff's accuracy is noise at any budget the demo can afford (its
-    # times are what it shows), so these cuts cost the demo little.
+    # without native bf16): 11.1 min with 150 pretraining and 250 fine-tuning
+    # steps; 8.6 min with 100 and 200 and validation run channels-last (README,
+    # "Pipeline stages"). The AVX-512 Xeon without bf16 of issue 11 is slower:
+    # 1.5x per fp32 training step (bench_training, batch 8, crop 256: 7.3 s
+    # there, 4.81 s on that EPYC) and 1.8x per fp32 frame (253 against 138 ms),
+    # which put the old budget near 16 min there and this one near 13 (an
+    # estimate: no such CPU was at hand). Pretraining starts from the shipped
+    # weights, and the tradeoff's accuracy is noise at any budget the demo can
+    # afford (its times are what it shows), so the cuts cost the demo little.
     pretrain_steps: int = 100
     finetune_steps: int = 200
     tradeoff_steps: int = 10
