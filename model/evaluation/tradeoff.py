@@ -285,7 +285,7 @@ def run_tradeoff(
                     psnr_vs_fp32_db=versus,
                 )
             )
-            log.info("tradeoff: %s", rows[-1])
+            log.info("tradeoff: %s", rows[-1].describe())
     if baseline is not None:
         meta["input_baseline"] = {"psnr_db": baseline.psnr_db, "ssim": baseline.ssim}
     rows = mark_pareto(rows)

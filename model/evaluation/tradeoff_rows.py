@@ -31,6 +31,23 @@ class TradeoffRow:
     pareto_ssim: bool = False
     psnr_vs_fp32_db: float | None = None
 
+    def describe(self) -> str:
+        """The row as one line for a log: name, precision, accuracy and its time."""
+        agreement = (
+            "" if self.psnr_vs_fp32_db is None else f" ({self.psnr_vs_fp32_db:.1f} dB vs fp32)"
+        )
+        times = [
+            f"{device} {ms:.1f} ms"
+            for device, ms in (("CPU", self.cpu_ms), ("GPU", self.gpu_ms))
+            if ms is not None
+        ]
+        steps = f"{self.steps} step{'' if self.steps == 1 else 's'}"
+        return (
+            f"{self.name} {self.precision}{agreement}: PSNR {self.psnr_db:.2f} dB, SSIM "
+            f"{self.ssim:.4f} ({self.convention}, {steps}); "
+            f"{', '.join(times) or 'not timed'} per frame"
+        )
+
 
 def pareto_front(times: Sequence[float | None], scores: Sequence[float]) -> list[int]:
     """Indices of the points no other point dominates (faster-or-equal and better-or-equal).

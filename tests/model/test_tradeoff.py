@@ -1,5 +1,6 @@
 import csv
 import json
+import logging
 from dataclasses import replace
 from pathlib import Path
 
@@ -103,8 +104,9 @@ def test_tradeoff_int8_row_scores_against_fp32_and_target(
 
 
 def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
+    caplog.set_level(logging.INFO, logger="lenspair.model.evaluation.tradeoff")
     _fixed_precisions(monkeypatch, ["bf16"])
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
     base = tiny_config()
@@ -124,6 +126,11 @@ def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
     assert by_name[("GEA-w2", "fp32")].params > by_name[("GEA", "fp32")].params
     assert by_name[("GEA", "fp32")].params > by_name[("GEA-w0.5", "fp32")].params
     assert by_name[("GEA-b3", "fp32")].gflops < by_name[("GEA", "fp32")].gflops
+    # each row is logged as a readable line, not as a dataclass repr
+    logged = [r.getMessage() for r in caplog.records if r.name.endswith(".tradeoff")]
+    for row in result.rows:
+        assert f"tradeoff: {row.describe()}" in logged
+    assert not any("TradeoffRow(" in line for line in logged)
 
     markdown = (out / "tradeoff.md").read_text()
     for name, precision in expected:
@@ -203,3 +210,19 @@ def test_seeded_tradeoff_reports_mean_spread_convergence_and_published_rows(
     assert "+/-" in markdown and "converged" in markdown
     assert "published" in markdown and "| G+E+A | 0.909 | 29.84 |" in markdown
     assert json.loads((out / "tradeoff_seeds.json").read_text())["meta"]["seeds"] == [0, 1]
+
+
+def test_a_row_describes_itself_in_one_line() -> None:
+    row = TradeoffRow(name="GEA", variant="GEA", width=1.0, num_blocks=9, precision="int8",
+                      params=708426, gflops=19.7, cpu_ms=118.436, gpu_ms=None, psnr_db=25.0812,
+                      ssim=0.89431, convention="skimage-gaussian", steps=10,
+                      psnr_vs_fp32_db=69.06)  # fmt: skip
+    assert row.describe() == (
+        "GEA int8 (69.1 dB vs fp32): PSNR 25.08 dB, SSIM 0.8943 (skimage-gaussian, 10 steps); "
+        "CPU 118.4 ms per frame"
+    )
+    on_gpu = replace(row, precision="fp16", cpu_ms=None, gpu_ms=2.5, psnr_vs_fp32_db=None)
+    assert on_gpu.describe().endswith(
+        ": PSNR 25.08 dB, SSIM 0.8943 (skimage-gaussian, 10 steps); GPU 2.5 ms per frame"
+    )
+    assert replace(row, cpu_ms=None).describe().endswith("not timed per frame")
