@@ -54,7 +54,7 @@ def _alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     except PermissionError:  # exists, owned by another user
-        return not _zombie(pid)
+        pass
     return not _zombie(pid)
 
 

@@ -49,13 +49,6 @@ COLUMNS = (
 )  # fmt: skip
 
 
-def _precision_cell(row: TradeoffRow) -> str:
-    """``int8 (41.20 dB vs fp32)``: a reduced precision with its agreement with fp32."""
-    if row.psnr_vs_fp32_db is None:
-        return row.precision
-    return f"{row.precision} ({_fmt(row.psnr_vs_fp32_db, 2)} dB vs fp32)"
-
-
 def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
     """The table as Markdown, with its measurement conditions."""
     lines = [
@@ -75,7 +68,7 @@ def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
     for r in rows:
         mark = ("*" if r.pareto_psnr else "") + ("+" if r.pareto_ssim else "")
         lines.append(
-            f"| {r.name} | {_precision_cell(r)} | {r.params:,} | {r.gflops:.3f} | "
+            f"| {r.name} | {r.precision_label()} | {r.params:,} | {r.gflops:.3f} | "
             f"{_fmt(r.cpu_ms, 2) or 'n/a'} | {_fmt(r.gpu_ms, 2) or 'n/a'} | "
             f"{_fmt(r.psnr_db, 2)} | {_fmt(r.ssim, 4)} | {r.convention} | {mark} |"
         )

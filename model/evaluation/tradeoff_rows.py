@@ -31,11 +31,14 @@ class TradeoffRow:
     pareto_ssim: bool = False
     psnr_vs_fp32_db: float | None = None
 
+    def precision_label(self) -> str:
+        """``int8 (41.20 dB vs fp32)``: a reduced precision with its agreement with fp32."""
+        if self.psnr_vs_fp32_db is None:
+            return self.precision
+        return f"{self.precision} ({self.psnr_vs_fp32_db:.2f} dB vs fp32)"
+
     def describe(self) -> str:
         """The row as one line for a log: name, precision, accuracy and its time."""
-        agreement = (
-            "" if self.psnr_vs_fp32_db is None else f" ({self.psnr_vs_fp32_db:.1f} dB vs fp32)"
-        )
         times = [
             f"{device} {ms:.1f} ms"
             for device, ms in (("CPU", self.cpu_ms), ("GPU", self.gpu_ms))
@@ -43,7 +46,7 @@ class TradeoffRow:
         ]
         steps = f"{self.steps} step{'' if self.steps == 1 else 's'}"
         return (
-            f"{self.name} {self.precision}{agreement}: PSNR {self.psnr_db:.2f} dB, SSIM "
+            f"{self.name} {self.precision_label()}: PSNR {self.psnr_db:.2f} dB, SSIM "
             f"{self.ssim:.4f} ({self.convention}, {steps}); "
             f"{', '.join(times) or 'not timed'} per frame"
         )

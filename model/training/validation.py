@@ -138,7 +138,8 @@ def _as_deployed(network: nn.Module, device: torch.device) -> nn.Module:
     1.7x faster than the training layout on whole 540x360 frames (GEA, fp32, 2
     threads: 147 against 250 ms), and validation of a small dataset costs as
     much as its epoch of training. A copy, so that the parameters the
-    optimiser holds keep their layout and the network keeps its mode.
+    optimiser holds keep their layout and the network keeps its mode; and not
+    ``deploy`` itself, which also retunes the whole process's allocator.
     """
     deployed = copy.deepcopy(network).eval()
     if device.type == "cpu":

@@ -2,10 +2,10 @@
 
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 from lenspair.core.leftovers import remove_leftovers_under
+from tests.processes import wait_gone
 
 
 def test_removes_dead_temporaries_at_any_depth_and_keeps_the_rest(tmp_path: Path) -> None:
@@ -27,11 +27,9 @@ def test_temporaries_of_an_unreaped_zombie_are_removed(tmp_path: Path) -> None:
     # A killed worker whose parent died too can stay a zombie for good (a
     # container's PID 1 that never reaps); os.kill(pid, 0) still succeeds on it.
     child = subprocess.Popen([sys.executable, "-c", "pass"])
-    stat = Path(f"/proc/{child.pid}/stat")
-    deadline = time.monotonic() + 30
-    while stat.read_text().rsplit(")", 1)[1].split()[0] != "Z":
-        assert time.monotonic() < deadline, "the child never ended"
-        time.sleep(0.01)
+    # ended, not waited for: a zombie (alive() counts zombies as gone)
+    assert not wait_gone({child.pid}, timeout=30), "the child never ended"
+    assert Path(f"/proc/{child.pid}").exists()
     try:
         stale = tmp_path / f".01.png.{child.pid}.z.png.tmp"
         stale.write_bytes(b"x")

@@ -218,7 +218,7 @@ def test_a_row_describes_itself_in_one_line() -> None:
                       ssim=0.89431, convention="skimage-gaussian", steps=10,
                       psnr_vs_fp32_db=69.06)  # fmt: skip
     assert row.describe() == (
-        "GEA int8 (69.1 dB vs fp32): PSNR 25.08 dB, SSIM 0.8943 (skimage-gaussian, 10 steps); "
+        "GEA int8 (69.06 dB vs fp32): PSNR 25.08 dB, SSIM 0.8943 (skimage-gaussian, 10 steps); "
         "CPU 118.4 ms per frame"
     )
     on_gpu = replace(row, precision="fp16", cpu_ms=None, gpu_ms=2.5, psnr_vs_fp32_db=None)
