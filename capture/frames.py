@@ -16,8 +16,11 @@ Inputs (:func:`detect_input`):
 
 * ``image``: one image file (``.png``, ``.tif``, ``.jpg``, ...).
 * ``folder``: a folder of images, searched recursively; ``name`` is the path
-  relative to the folder (so an output can keep the tree). Left/right folder
-  recordings are read this way too (every image of both cameras).
+  relative to the folder (so an output can keep the tree).
+* ``folders``: a left/right folder recording (``left/`` and ``right/`` of
+  images named by timestamp, :mod:`lenspair.capture.folders`); frames of the
+  chosen cameras in time order, ``name`` relative to the recording folder.
+  Left and right folders whose names carry no timestamps are a ``folder``.
 * ``euroc``: an EuRoC/ASL recording (``mav0/cam{0,1}/data.csv``); frames of
   the chosen cameras in time order, ``name`` relative to the recording folder
   (``mav0/cam1/data/<t_ns>.png``).
@@ -47,14 +50,14 @@ from typing import Any, Literal
 
 import numpy as np
 
-from lenspair.capture import euroc, rosbag
+from lenspair.capture import euroc, folders, rosbag
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import CAMERAS, open_recording
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import read_image
 
-InputKind = Literal["image", "folder", "euroc", "rosbag1", "rosbag2"]
+InputKind = Literal["image", "folder", "euroc", "folders", "rosbag1", "rosbag2"]
 IMAGE_SUFFIXES = frozenset({".png", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp"})
 
 
@@ -125,7 +128,24 @@ def detect_input(path: Path) -> InputKind:
         (path / "mav0").is_dir() or all((path / camera).is_dir() for camera in CAMERAS)
     ):
         return "euroc"
+    if _is_folder_recording(path):
+        return "folders"
     return "folder"
+
+
+def _is_folder_recording(path: Path) -> bool:
+    """``left/`` + ``right/`` folders whose file names carry timestamps: a recording.
+
+    Left and right folders of other images stay a plain folder (every image
+    restored), as before such recordings were recognised.
+    """
+    if not all((path / name).is_dir() for name in folders.FOLDER_NAMES.values()):
+        return False
+    try:
+        folders.read_folders(path)
+    except CaptureError:
+        return False
+    return True
 
 
 def image_files(folder: Path) -> list[Path]:
@@ -187,7 +207,9 @@ def iter_frames(
     Args:
         path: the input.
         cameras: recordings and bags only: the cameras whose frames are wanted.
-        problems: appended to when a bag stops part-way.
+        problems: appended to (one line each) when a bag stops part-way, and
+            for recordings, what their listing reported for the chosen cameras
+            (images ``data.csv`` does not list, duplicate timestamps, ...).
         topics: bags only: the ``(cam0, cam1)`` image topics; None picks them.
 
     Returns:
@@ -207,7 +229,7 @@ def iter_frames(
         return (item.frame for item in messages if item.frame is not None)
     if topics is not None:
         raise CaptureError(f"{path}: topics can only be chosen for bags, this is a {kind}")
-    return _iter_files(Path(path), kind, _file_entries(path, kind, cameras))
+    return _iter_files(Path(path), kind, _file_entries(path, kind, cameras, problems))
 
 
 def frame_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> list[Path]:
@@ -216,9 +238,14 @@ def frame_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> l
 
 
 def _file_entries(
-    path: Path, kind: InputKind, cameras: Sequence[CameraName]
+    path: Path,
+    kind: InputKind,
+    cameras: Sequence[CameraName],
+    problems: list[str] | None = None,
 ) -> list[tuple[Path, CameraName | None, int | None]]:
-    """``(file, camera, t_ns)`` per frame; recordings take both from ``data.csv``.
+    """``(file, camera, t_ns)`` per frame; recordings take both from their listing.
+
+    ``problems`` receives the recording's listing problems for ``cameras``.
 
     Raises:
         CaptureError: a folder without images (the caller asked for frames).
@@ -235,6 +262,12 @@ def _file_entries(
             )
         return [(file, None, None) for file in files]
     recording = open_recording(path)
+    if problems is not None:
+        problems.extend(
+            str(problem)
+            for problem in recording.problems
+            if problem.camera is None or problem.camera in cameras
+        )
     return [
         (ref.source, camera, ref.t_ns) for camera in cameras for ref in recording.frames[camera]
     ]

@@ -44,13 +44,26 @@ def read_image(path: Path) -> np.ndarray:
 
     Raises:
         ImageIOError: the file is missing, empty, corrupt or truncated (a PNG's
-            chunks are checked first, so libpng prints nothing), or has a
-            pixel format other than 8/16-bit integer; the message names it.
+            chunks are checked first, so libpng prints nothing), unreadable
+            (permissions, I/O error), or has a pixel format other than
+            8/16-bit integer; the message names it.
 
     """
     path = Path(path)
     if not path.is_file():
         raise ImageIOError(f"{path}: file not found")
+    try:
+        array = _read_pixels(path)
+    except OSError as exc:  # permissions, I/O errors: this file only
+        raise ImageIOError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    channels = array.shape[2]
+    if channels in (1, 2):  # mono, or mono + alpha
+        return np.ascontiguousarray(array[:, :, 0])
+    return np.ascontiguousarray(array[:, :, :3])
+
+
+def _read_pixels(path: Path) -> np.ndarray:
+    """The pixels of an existing file as OpenImageIO returns them, ``(H, W, C)``."""
     if path.stat().st_size == 0:
         raise ImageIOError(f"{path}: empty file (0 bytes)")
     if path.suffix.lower() == ".png":  # keeps libpng's own stderr lines away
@@ -69,11 +82,7 @@ def read_image(path: Path) -> np.ndarray:
             raise ImageIOError(f"{path}: corrupt or truncated ({_first_line(handle.geterror())})")
     finally:
         handle.close()
-    array = np.asarray(pixels)
-    channels = array.shape[2]
-    if channels in (1, 2):  # mono, or mono + alpha
-        return np.ascontiguousarray(array[:, :, 0])
-    return np.ascontiguousarray(array[:, :, :3])
+    return np.asarray(pixels)
 
 
 def write_image(path: Path, image: np.ndarray) -> None:

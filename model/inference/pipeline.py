@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from lenspair.capture.bagwrite import output_bag_path
 from lenspair.capture.frames import (
     InputFrame,
     InputKind,
@@ -87,7 +88,7 @@ class RestoreReport:
 
     Attributes:
         input: the input path.
-        kind: ``image``, ``folder``, ``euroc``, ``rosbag1`` or ``rosbag2``.
+        kind: ``image``, ``folder``, ``euroc``, ``folders``, ``rosbag1`` or ``rosbag2``.
         output: the folder, or the bag written.
         model: the backend's description.
         cameras: cameras restored (recordings and bags).
@@ -119,12 +120,13 @@ class RestoreReport:
         return self.frames_read / self.seconds if self.seconds > 0 else 0.0
 
     def summary(self) -> str:
-        """The final line: frames, time, frames/s, where the output is."""
+        """The final line: frames, time, frames/s, where the output is, problems if any."""
         return (
             f"restore: {self.frames_read} frames ({self.restored} restored, "
             f"{self.resumed} resumed, {self.skipped} skipped, {self.failed} failed) "
             f"in {self.seconds:.1f} s, "
             f"{self.frames_per_second:.1f} frames/s -> {self.output}"
+            + (f"; {len(self.problems)} problem(s) in {REPORT_NAME}" if self.problems else "")
         )
 
     def as_dict(self) -> dict[str, Any]:
@@ -183,6 +185,32 @@ def check_out_dir(out_dir: Path, resume: bool) -> None:
         )
 
 
+def check_apart(input_path: Path, kind: InputKind, out_dir: Path) -> None:
+    """Refuse an OUT that would overwrite the input or be read back as input.
+
+    Outputs keep the input's names, so OUT may not be the input folder or lie
+    inside it (a rerun would restore its own outputs), and the output of a
+    single image or bag may not land on the input itself (OUT = the folder
+    that holds it: a bag is written afresh, which would delete the input).
+
+    Raises:
+        ModelError: naming OUT and the input.
+    """
+    source, out = input_path.resolve(), out_dir.resolve()
+    if kind in ("folder", "euroc", "folders") and out.is_relative_to(source):
+        raise ModelError(
+            f"--out {out_dir}: inside the input {input_path}; outputs keep the input's names, "
+            "so choose a folder outside it"
+        )
+    bag = kind in ("rosbag1", "rosbag2")
+    written = output_bag_path(input_path, out_dir) if bag else out_dir / input_path.name
+    if kind not in ("folder", "euroc", "folders") and written.resolve() == source:
+        raise ModelError(
+            f"--out {out_dir}: the folder that holds {input_path}; the output keeps its name "
+            "and would replace it, so choose another folder"
+        )
+
+
 def restore_input(
     input_path: Path,
     out_dir: Path,
@@ -203,14 +231,15 @@ def restore_input(
         The report (also written to ``OUT/restore_report.json``).
 
     Raises:
-        ModelError: bad options, non-empty OUT, or a channel mismatch on the
-            first frame.
+        ModelError: bad options, non-empty OUT, OUT overlapping the input (see
+            :func:`check_apart`), or a channel mismatch on the first frame.
         CaptureError: the input cannot be opened at all.
     """
     started = time.perf_counter()
     input_path, out_dir = Path(input_path), Path(out_dir)
     check_options(options)
     kind = detect_input(input_path)
+    check_apart(input_path, kind, out_dir)
     cameras = resolve_cameras(input_path, kind, options.camera)
     bag = kind in ("rosbag1", "rosbag2")
     if not bag and not frame_files(input_path, kind, cameras):
@@ -229,7 +258,7 @@ def restore_input(
         sink = FileSink(out_dir)
         files = frame_files(input_path, kind, cameras)
         total = len(files)
-        items = iter_frames(input_path, cameras)
+        items = iter_frames(input_path, cameras, source_problems)
     report = RestoreReport(
         str(input_path), kind, str(sink.output), backend.description, list(cameras)
     )
@@ -238,7 +267,7 @@ def restore_input(
         _run(threaded(items, 4 * options.batch_size), backend, options, judge, writer, total)
     finally:
         writer.close()
-    if kind == "euroc":  # after the frames: a run refused at its first frame writes nothing
+    if kind in ("euroc", "folders"):  # after the frames: a refused run writes nothing
         assert isinstance(sink, FileSink)
         sink.copy_others(input_path, files)
     sink.finish()

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from lenspair.capture.bagwrite import BagCopy, output_bag_path
+from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage, InputFrame
 from lenspair.core.fsutil import atomic_write
 from lenspair.core.imageio import write_image
@@ -68,9 +69,21 @@ class FileSink:
         return (self.out_dir / frame.name).is_file()
 
     def write(self, item: InputFrame, restored: np.ndarray | None) -> None:
-        """Write ``restored`` under the frame's name, or copy the original file."""
+        """Write ``restored`` under the frame's name, or copy the original file.
+
+        Raises:
+            CaptureError: the original cannot be read to copy it (this frame
+                only; a failure to write OUT stays an ``OSError``).
+        """
         destination = self.out_dir / item.name
         if restored is None:
+            try:
+                with open(item.source, "rb"):  # reading the original is this frame's problem
+                    pass
+            except OSError as exc:
+                raise CaptureError(
+                    f"{item.source}: cannot read ({exc.strerror or exc}); not copied to OUT"
+                ) from exc
             copy_file(Path(item.source), destination)
         else:
             destination.parent.mkdir(parents=True, exist_ok=True)

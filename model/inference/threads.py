@@ -3,8 +3,9 @@
 The network runs in the calling thread; decoding (PNG, bag messages) and
 encoding/writing overlap with it. Queues are bounded so memory stays flat.
 A per-frame encoding error (:class:`~lenspair.capture.errors.CaptureError`,
-``ValueError``) turns that frame into a failed one (copied unchanged); any
-other writer error (disk full, permissions) ends the run.
+``ValueError``) turns that frame into a failed one (copied unchanged); an
+original that cannot even be read to copy it is recorded and left out; any
+other writer error (disk full, permissions on OUT) ends the run.
 """
 
 import queue
@@ -98,11 +99,13 @@ class Writer:
                 try:
                     self.sink.write(item, pixels)
                 except (CaptureError, ValueError) as exc:  # this frame only
-                    if frame is None or pixels is None:
+                    if frame is None:
                         raise
+                    self.report.problems.append({"frame": frame.name, "reason": str(exc)})
+                    if pixels is None:  # not even the original could be copied: said above
+                        continue
                     self.report.restored -= 1
                     self.report.failed += 1
-                    self.report.problems.append({"frame": frame.name, "reason": str(exc)})
                     self.sink.write(item, None)
             except BaseException as exc:  # disk full, permissions: fatal, raised by close()
                 self.failure.append(exc)

@@ -1,0 +1,163 @@
+"""``restore`` keeps inputs safe and accounts for every frame of every input kind."""
+
+import errno
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lenspair.capture.frames import detect_input
+from lenspair.capture.rigfile import RigFile, write_rig_file
+from lenspair.core import imageio
+from lenspair.core.errors import ImageIOError
+from lenspair.core.imageio import read_image, write_image
+from lenspair.model.errors import ModelError
+from lenspair.model.inference import sinks
+from lenspair.model.inference.backends import TorchBackend, open_backend
+from lenspair.model.inference.pipeline import RestoreOptions, restore_input
+from tests.capture.ingest_helpers import make_recording
+from tests.images import texture
+from tests.model.restore_helpers import write_bag
+from tests.model.train_fixtures import make_checkpoint
+
+
+@pytest.fixture
+def backend(tmp_path: Path, one_thread: None) -> TorchBackend:
+    loaded = open_backend(make_checkpoint(tmp_path / "ck.pt"), torch.device("cpu"), "fp32")
+    assert isinstance(loaded, TorchBackend)
+    return loaded
+
+
+def _image(seed: int) -> np.ndarray:
+    return (texture((32, 48), seed=seed) * 255).astype(np.uint8)
+
+
+def _tree(root: Path) -> dict[str, bytes]:
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in root.rglob("*") if p.is_file()}
+
+
+def _inputs(root: Path) -> dict[str, tuple[Path, Path]]:
+    """``name: (input, OUT that overlaps it)`` for each way OUT can land on the input."""
+    photos = root / "photos"
+    for index in range(2):
+        write_image(photos / f"{index}.png", _image(index))
+    single = root / "single"
+    write_image(single / "x.png", _image(3))
+    frames = {"cam0": [(10**9 + k * 10**8, _image(k)) for k in range(2)]}
+    for folder in ("ros1", "ros2"):
+        (root / folder).mkdir()
+    ros1 = write_bag(root / "ros1" / "run", "ros1", frames)
+    ros2 = write_bag(root / "ros2" / "run", "db3", frames)
+    return {
+        "OUT is the input folder": (photos, photos),
+        "OUT inside the input folder": (photos, photos / "clean"),
+        "OUT holds the image": (single / "x.png", single),
+        "OUT holds the ROS 1 bag": (ros1, ros1.parent),
+        "OUT holds the ROS 2 bag folder": (ros2, ros2.parent),
+    }
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "OUT is the input folder",
+        "OUT inside the input folder",
+        "OUT holds the image",
+        "OUT holds the ROS 1 bag",
+        "OUT holds the ROS 2 bag folder",
+    ],
+)
+def test_out_overlapping_the_input_is_refused_and_the_input_kept(
+    tmp_path: Path, backend: TorchBackend, case: str
+) -> None:
+    source, out = _inputs(tmp_path)[case]
+    before = _tree(tmp_path)
+    with pytest.raises(ModelError, match=r"^--out .*(inside the input|would replace it)"):
+        restore_input(source, out, backend, RestoreOptions(resume=True))
+    assert _tree(tmp_path) == before  # nothing deleted, nothing written
+
+
+def test_out_beside_the_input_is_fine(tmp_path: Path, backend: TorchBackend) -> None:
+    write_image(tmp_path / "x.png", _image(0))
+    report = restore_input(tmp_path / "x.png", tmp_path / "clean", backend)
+    assert report.restored == 1 and (tmp_path / "clean" / "x.png").is_file()
+
+
+def test_an_unreadable_frame_costs_only_itself(
+    tmp_path: Path, backend: TorchBackend, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source = tmp_path / "in"
+    for index in range(3):
+        write_image(source / f"{index}.png", _image(index))
+    locked = source / "1.png"
+    read_pixels = imageio._read_pixels
+
+    def refuse(path: Path) -> np.ndarray:
+        if path == locked:
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return read_pixels(path)
+
+    monkeypatch.setattr(imageio, "_read_pixels", refuse)
+    with pytest.raises(ImageIOError, match=r"1\.png: cannot read \(Permission denied\)"):
+        read_image(locked)
+    real_open = open
+
+    def no_copy(path: str, *args: object, **kwargs: object) -> object:
+        if Path(path) == locked:
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return real_open(path, *args, **kwargs)  # type: ignore[call-overload]
+
+    monkeypatch.setattr(sinks, "open", no_copy, raising=False)
+    report = restore_input(source, tmp_path / "out", backend)
+    assert (report.frames_read, report.restored, report.failed) == (3, 2, 1)
+    assert {p["frame"] for p in report.problems} == {"1.png"}
+    assert any("not copied" in p["reason"] for p in report.problems)
+    assert sorted(p.name for p in (tmp_path / "out").glob("*.png")) == ["0.png", "2.png"]
+    assert "problem(s) in restore_report.json" in report.summary()
+
+
+def test_recording_frames_its_listing_dropped_are_reported(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3)
+    data = recording / "mav0" / "cam1" / "data"
+    shutil.copy(next(data.glob("*.png")), data / "unlisted.png")
+    report = restore_input(recording, tmp_path / "out", backend, RestoreOptions(camera="cam1"))
+    assert report.restored == 3
+    (problem,) = report.problems
+    assert "unlisted.png" in problem["reason"] and "not listed" in problem["reason"]
+    assert (tmp_path / "out" / "mav0/cam1/data/unlisted.png").read_bytes() == (
+        data / "unlisted.png"
+    ).read_bytes()  # copied as it is, as every file the recording does not list
+
+
+def _left_right(root: Path, names: list[str]) -> Path:
+    for side in ("left", "right"):
+        for index, name in enumerate(names):
+            write_image(root / side / name, _image(index))
+    write_rig_file(root / "rig.yaml", RigFile(obstructed="cam1", anomaly=("rain",)))
+    return root
+
+
+def test_left_right_recording_restores_the_obstructed_camera(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    names = [f"{1_700_000_000_000_000_000 + k * 10**8}.png" for k in range(2)]
+    recording = _left_right(tmp_path / "rec", names)
+    assert detect_input(recording) == "folders"
+    report = restore_input(recording, tmp_path / "out", backend)
+    assert report.cameras == ["cam1"] and report.restored == 2
+    out = tmp_path / "out"
+    assert _tree(out / "left") == _tree(recording / "left")  # the clean camera: unchanged
+    assert _tree(out / "right") != _tree(recording / "right")
+    assert (out / "rig.yaml").read_bytes() == (recording / "rig.yaml").read_bytes()
+
+
+def test_left_right_folders_without_timestamps_stay_a_folder(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    folder = _left_right(tmp_path / "pics", ["a.png", "b.png"])
+    assert detect_input(folder) == "folder"
+    assert restore_input(folder, tmp_path / "out", backend).restored == 4
