@@ -21,7 +21,10 @@ Validation runs on rank 0 after every ``train.val_every`` epochs on whole
 images at fp32; its PSNR (convention ``skimage-gaussian``) drives
 ``best.pt`` and early stopping (``train.patience`` validations without
 improvement). Budgets (``train.max_steps``, ``train.max_seconds``) stop the
-run mid-epoch after saving ``last.pt``.
+run mid-epoch after a validation and saving ``last.pt``; that validation
+counts for ``best.pt`` only in a run that has none yet
+(:mod:`lenspair.model.training.validation`). A run resumed mid-epoch keeps
+its ``train.batch_size`` (:func:`check_resume_batch`).
 
 The run folder's files are :mod:`lenspair.model.training.run_files`, validation is
 :mod:`lenspair.model.training.validation`, and the progress a checkpoint records and the stop
@@ -121,11 +124,13 @@ def resume_config(run: Path, override: RunConfig | None) -> RunConfig:
     each change is logged as a warning.
 
     Raises:
-        ModelError: no checkpoint, or the override changes the network.
+        ModelError: no checkpoint, the override changes the network, or
+            the batch size of a run stopped mid-epoch (:func:`check_resume_batch`).
 
     """
     paths = RunPaths(run)
-    stored = checkpoint_config(load_checkpoint(paths.last), paths.last)
+    checkpoint = load_checkpoint(paths.last)
+    stored = checkpoint_config(checkpoint, paths.last)
     stored = dataclasses.replace(stored, runtime=None)
     if override is None:
         return stored
@@ -135,9 +140,46 @@ def resume_config(run: Path, override: RunConfig | None) -> RunConfig:
             f"--resume: the network of {run} is {stored.model}; --config asks for "
             f"{override.model}; start a new run (or use --init) to change it"
         )
+    check_resume_batch(checkpoint, paths.last, override)
     for change in config_differences(stored, override):
         log.warning("--resume with a changed config: %s", change)
     return override
+
+
+def check_resume_batch(checkpoint: dict[str, Any], path: Path, config: RunConfig) -> None:
+    """Refuse to resume a checkpoint written mid-epoch at another ``train.batch_size``.
+
+    A resumed epoch skips the pairs its checkpoint has seen, counted as
+    ``step_in_epoch`` steps of the *current* batch size; at another batch
+    size it would repeat or skip pairs. Refusing is simpler than storing the
+    offset in pairs: that offset need not be a whole number of new steps, so
+    the epoch's step count, its end and its loss means would all need
+    reworking, for a change that is just as easy from a checkpoint at the end
+    of an epoch (``step_in_epoch`` 0), where any batch size is fine.
+
+    The number of processes may change: rank ``r`` of ``W`` draws the epoch's
+    order at positions ``r, r + W, ...``, so ``k`` steps of a global batch
+    ``B`` have used exactly its first ``k * B`` positions, whatever ``W``.
+
+    Args:
+        checkpoint: the loaded ``last.pt``.
+        path: where it was read (named in the error).
+        config: the configuration the run is resumed with.
+
+    Raises:
+        ModelError: the checkpoint is mid-epoch and the batch sizes differ.
+
+    """
+    step_in_epoch = int(checkpoint.get("step_in_epoch", 0))
+    stored = checkpoint_config(checkpoint, path).train.batch_size
+    wanted = config.train.batch_size
+    if step_in_epoch and wanted != stored:
+        raise ModelError(
+            f"--resume: {path} stopped {step_in_epoch} steps into epoch "
+            f"{int(checkpoint.get('epoch', 0)) + 1} at batch size {stored}; resuming it at "
+            f"batch size {wanted} would repeat or skip pairs of that epoch: resume at batch "
+            f"size {stored} (a checkpoint at an epoch's end takes any batch size)"
+        )
 
 
 def fit(
@@ -170,7 +212,8 @@ def fit(
 
     Raises:
         ModelError: existing run without ``resume``, incompatible ``init``,
-            empty datasets; :class:`~lenspair.model.errors.TrainingDivergedError`.
+            empty datasets, a mid-epoch resume at another batch size;
+            :class:`~lenspair.model.errors.TrainingDivergedError`.
 
     """
     if len(train_set) == 0 or len(val_set) == 0:
@@ -280,6 +323,7 @@ def _start(
             raise ModelError(
                 f"{paths.last}: its network {stored.model} differs from {config.model}"
             )
+        check_resume_batch(checkpoint, paths.last, config)
         trainer.load_state_dict(checkpoint)
         set_rng_state(checkpoint.get("rng", {}))
         state = RunState.from_checkpoint(checkpoint)

@@ -7,6 +7,16 @@ budget stop) on whole images at fp32; its PSNR (convention
 :func:`validate_and_save` writes ``last.pt``, ``best.pt`` when the PSNR
 improved, ``samples.png`` and a row of ``metrics.csv``
 (:mod:`lenspair.model.training.run_files`).
+
+Only end-of-epoch validations count for ``best.pt`` and early stopping. A
+budget stop mid-epoch validates too (logged, in ``metrics.csv`` and
+``last.pt``), but a straight run has no such validation, so counting it would
+make a budget-stopped and resumed run keep other weights and stop elsewhere.
+The one exception: a run with no best yet (its budget ended before its first
+end-of-epoch validation) takes ``best.pt``, ``best_psnr`` and ``best_epoch``
+from its mid-epoch validation, so that every run leaves a usable ``best.pt``
+(``lenspair train --max-steps`` and the demo hand it on); a later
+end-of-epoch validation of a resumed run then has to beat that PSNR.
 """
 
 import copy
@@ -52,22 +62,31 @@ def validate_and_save(
     means: dict[str, float],
     board: Any,
 ) -> None:
-    """Validate on rank 0, update early stopping, write checkpoints and metrics."""
+    """Validate on rank 0, update early stopping, write checkpoints and metrics.
+
+    A validation mid-epoch (``state.step_in_epoch != 0``: a budget stop) leaves
+    ``best.pt``, the best PSNR and early stopping alone unless the run has no
+    best yet (see the module docstring).
+    """
     improved = False
     val_psnr = val_ssim = math.nan
     if info.is_main:
         val_psnr, val_ssim, sheet = validate(trainer.model, val_set, trainer.device)
-        improved = val_psnr > state.best_psnr
+        end_of_epoch = state.step_in_epoch == 0
+        improved = val_psnr > state.best_psnr and (end_of_epoch or state.best_psnr == -math.inf)
         if improved:
-            state.best_psnr, state.best_epoch, state.stale = val_psnr, state.epoch, 0
-        elif state.step_in_epoch == 0:
-            # Only end-of-epoch validations count towards early stopping, so that a
-            # run stopped by a budget and resumed stops where a straight run would.
+            state.best_psnr, state.best_epoch = val_psnr, state.epoch
+            if end_of_epoch:
+                state.stale = 0
+        elif end_of_epoch:
             state.stale += 1
+        note = ""
+        if not end_of_epoch:
+            note = "; mid-epoch: " + ("the run's first best" if improved else "not counted")
         write_image(paths.samples, sheet)
         log.info(
             "epoch %d step %d: loss_g %.4g loss_d %.4g | validation PSNR %.2f dB, SSIM %.4f "
-            "(%s) | best %.2f dB at epoch %d",
+            "(%s%s) | best %.2f dB at epoch %d",
             state.epoch,
             state.step,
             means.get("loss_g", math.nan),
@@ -75,6 +94,7 @@ def validate_and_save(
             val_psnr,
             val_ssim,
             VAL_CONVENTION,
+            note,
             state.best_psnr,
             state.best_epoch,
         )

@@ -1,0 +1,109 @@
+"""Budget stops and resumes: best.pt, early stopping and the samples of a resumed epoch."""
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lenspair.model.checkpoint import load_checkpoint
+from lenspair.model.errors import ModelError
+from lenspair.model.training import validation
+from lenspair.model.training.config import RunConfig
+from lenspair.model.training.datasets import paired_training_data
+from lenspair.model.training.loop import fit, resolve_config, resume_config
+from lenspair.model.training.run_files import RunPaths
+from lenspair.model.training.run_state import RunState
+from lenspair.model.training.step import Distributed, Trainer
+from tests.model.train_fixtures import tiny_config, write_split_dataset
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+CPU = torch.device("cpu")
+
+
+def _train(dataset: Path, run: Path, config: RunConfig, resume: bool = False) -> None:
+    data = paired_training_data(dataset, config.data, config.model.channels, config.train.seed)
+    fit(resolve_config(config, data.channels), data.train, data.val, run, CPU, resume=resume)
+
+
+def _validations(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, events: list[tuple[int, int, float]]
+) -> tuple[RunState, RunPaths, list[float]]:
+    """Run ``validate_and_save`` at ``(epoch, step_in_epoch, psnr)``; best.pt's PSNR after each."""
+    scores = iter(psnr for _, _, psnr in events)
+    sheet = np.zeros((8, 8, 3), np.uint8)
+    monkeypatch.setattr(validation, "validate", lambda *_: (next(scores), 0.9, sheet))
+    config = tiny_config()
+    trainer = Trainer(config, CPU)
+    paths = RunPaths(tmp_path / "run")
+    state, best = RunState(), []
+    for epoch, step_in_epoch, _ in events:
+        state.epoch, state.step_in_epoch = epoch, step_in_epoch
+        state.step = 10 * epoch + step_in_epoch
+        validation.validate_and_save(trainer, config, [], paths, state, Distributed(), {}, None)
+        best.append(float(load_checkpoint(paths.best)["best_metric"]) if paths.best.exists() else 0)
+    return state, paths, best
+
+
+def test_a_mid_epoch_validation_leaves_best_and_early_stopping_alone(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A straight run validates after epochs 1, 2, 3; the same run stopped by a
+    # budget in epoch 2 and resumed validates once more, mid-epoch (step 7).
+    straight, _, _ = _validations(
+        tmp_path / "a", monkeypatch, [(1, 0, 30.0), (2, 0, 30.2), (3, 0, 30.1)]
+    )
+    resumed, paths, best = _validations(
+        tmp_path / "b", monkeypatch, [(1, 0, 30.0), (1, 7, 30.5), (2, 0, 30.2), (3, 0, 30.1)]
+    )
+    assert (straight.best_psnr, straight.best_epoch, straight.stale) == (30.2, 2, 1)
+    assert (resumed.best_psnr, resumed.best_epoch, resumed.stale) == (30.2, 2, 1)
+    assert best == [30.0, 30.0, 30.2, 30.2]  # the mid-epoch 30.5 never reached best.pt
+    assert load_checkpoint(paths.best)["step"] == 20
+    assert load_checkpoint(paths.last)["step"] == 30
+
+
+def test_a_run_with_no_best_yet_takes_best_pt_from_a_mid_epoch_validation(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    state, paths, best = _validations(tmp_path, monkeypatch, [(0, 3, 25.0), (0, 5, 26.0)])
+    assert best == [25.0, 25.0]  # the first gives the run a best.pt; later ones do not count
+    assert (state.best_psnr, state.best_epoch, state.stale) == (25.0, 0, 0)
+    assert load_checkpoint(paths.best)["step"] == 3
+
+
+def test_a_budget_stop_in_the_first_epoch_leaves_a_best_checkpoint(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 1})  # 4 steps per epoch
+    _train(dataset, tmp_path / "run", tiny_config(max_steps=1))
+    best = load_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")
+    assert (best["epoch"], best["step"], best["step_in_epoch"]) == (0, 1, 1)
+    assert math.isfinite(float(best["best_metric"]))
+
+
+def test_resuming_mid_epoch_at_another_batch_size_is_refused(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 1})
+    run = tmp_path / "run"
+    first = tiny_config(batch_size=4, epochs=2, max_steps=1)  # stops at step 1 of 2
+    _train(dataset, run, first)
+    smaller = replace(first, train=replace(first.train, batch_size=2, max_steps=None))
+    with pytest.raises(ModelError, match=r"last\.pt.*batch size 4.*batch size 2") as error:
+        resume_config(run, smaller)
+    assert "\n" not in str(error.value)
+    with pytest.raises(ModelError, match=r"last\.pt.*batch size 4.*batch size 2"):
+        _train(dataset, run, smaller, resume=True)  # fit itself refuses too
+    same = replace(first, train=replace(first.train, max_steps=None))
+    _train(dataset, run, resume_config(run, same), resume=True)
+    assert load_checkpoint(run / "checkpoints" / "last.pt")["step"] == 4
+
+
+def test_resuming_at_an_epoch_boundary_may_change_the_batch_size(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 1})
+    run = tmp_path / "run"
+    first = tiny_config(batch_size=4, epochs=2, max_steps=2)  # stops at the end of epoch 1
+    _train(dataset, run, first)
+    smaller = replace(first, train=replace(first.train, batch_size=2, max_steps=None))
+    _train(dataset, run, resume_config(run, smaller), resume=True)
+    saved = load_checkpoint(run / "checkpoints" / "last.pt")
+    assert (saved["epoch"], saved["step"]) == (2, 6)  # 2 steps of 4, then 4 steps of 2
