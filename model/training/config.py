@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from lenspair.core.config import dump_yaml, load_dataclass, load_yaml
+from lenspair.core.config import load_dataclass, load_yaml
 
 Variant = Literal["G", "GE", "GEA"]
 DropsPreset = Literal["ours", "sharp"]
@@ -276,11 +276,6 @@ def load_run_config(path: Path | None) -> RunConfig:
 def run_config_from_dict(data: object) -> RunConfig:
     """Build a :class:`RunConfig` from plain data (e.g. stored in a checkpoint)."""
     return load_dataclass(RunConfig, data)
-
-
-def run_config_to_yaml(config: RunConfig) -> str:
-    """Serialise a configuration as YAML (all keys, field order)."""
-    return dump_yaml(config)
 
 
 def config_differences(old: RunConfig, new: RunConfig) -> list[str]:

@@ -17,6 +17,7 @@ from benchmarks.readme_results import (
     seeded_blocks,
     stage_blocks,
 )
+from lenspair.core.config import dump_yaml
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.report import to_markdown
 from lenspair.model.evaluation.evaluate import EvalResult, ImageScore, breakdown, summarize
@@ -26,7 +27,7 @@ from lenspair.model.evaluation.seed_statistics import summarise_seeds
 from lenspair.model.evaluation.tradeoff import TradeoffRow, mark_pareto
 from lenspair.model.evaluation.tradeoff_report import write_tradeoff
 from lenspair.model.evaluation.tradeoff_seeds import SeededRow, seeded_markdown
-from lenspair.model.training.config import RunConfig, RuntimeInfo, run_config_to_yaml
+from lenspair.model.training.config import RunConfig, RuntimeInfo
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 
@@ -200,7 +201,7 @@ def _finetune_config(demo: Path, precision: str, reason: str) -> None:
     runtime = RuntimeInfo(precision=precision, precision_reason=reason, device="cpu")
     config = demo / "runs" / "finetune" / "config.yaml"
     config.parent.mkdir(parents=True)
-    config.write_text(run_config_to_yaml(RunConfig(runtime=runtime)))
+    config.write_text(dump_yaml(RunConfig(runtime=runtime)))
 
 
 def _timings(demo: Path, **seconds: float) -> None:
