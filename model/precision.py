@@ -43,8 +43,10 @@ True on CPUs that only emulate bf16.
 
 ``auto`` never picks int8: quantisation changes the output (see ``lenspair
 export --int8``) and needs calibration images, so it is a deployment choice,
-measured with ``eval``/``tradeoff --precision int8``. For training, int8
-is refused; fp16 on the CPU is refused (no fast CPU fp16 kernels in PyTorch).
+measured with ``eval --precision int8`` and the tradeoff's int8 row. For
+training, int8 is refused; for inference on CUDA too (it runs in ONNX Runtime
+on the CPU: the message points to ``--device cpu``); fp16 on the CPU is refused
+(no fast CPU fp16 kernels in PyTorch).
 """
 
 import os
@@ -302,10 +304,16 @@ def choose_precision(
         return PrecisionDecision(precision, requested, reason, native, str(device), hardware.name)
     if requested == "fp16" and device.type == "cpu":
         raise ModelError("--precision fp16 runs on CUDA only; on the CPU use bf16 or fp32")
-    if requested == "int8" and (task == "train" or device.type == "cuda"):
+    if requested == "int8" and task == "train":
         raise ModelError(
             "--precision int8 is for CPU inference (an ONNX Runtime quantised model); "
             "train at auto, fp32 or bf16"
+        )
+    if requested == "int8" and device.type == "cuda":
+        # an inference caller (eval, tradeoff): the same network can run int8 on the CPU
+        raise ModelError(
+            "--precision int8 is for CPU inference (an ONNX Runtime quantised model); "
+            "use --device cpu for int8, or fp32, bf16 or fp16 on CUDA"
         )
     if requested in native:
         reason = f"requested; native on {where}"

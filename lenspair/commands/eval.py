@@ -22,9 +22,10 @@ on the CPU, and on CUDA when the device is CUDA. EVAL_DIR defaults to
 RUN/eval_<split> for RUN/checkpoints/*.pt. --describe prints the parameter
 count and FLOPs at 540x360 and exits.
 
---precision fp32 (default: the reference numbers), auto (the fastest native
-one: bf16 on a CPU with avx512_bf16/AMX, never an emulated one), bf16, fp16
-(CUDA) or int8 (CPU; ONNX Runtime static quantisation calibrated on 16
+--precision fp32 (default: the reference numbers), auto (bf16 on a CPU with
+avx512_bf16/AMX, else fp32; fp32 on CUDA, where bf16/fp16 autocast measured
+slower for these networks; never an emulated precision), bf16, fp16
+(CUDA) or int8 (CPU only; ONNX Runtime static quantisation calibrated on 16
 obstructed images of --calibration DS, its train split for a dataset;
 default: the evaluated images). A reduced precision is also scored against
 the fp32 output ("agreement with the fp32 output"): what it costs in
@@ -52,7 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--precision",
         choices=("auto", "fp32", "bf16", "fp16", "int8"),
         default="fp32",
-        help="inference precision (fp32; auto: fastest native; int8: ONNX Runtime)",
+        help="inference precision (fp32; auto: bf16 on a CPU with avx512_bf16/AMX, else fp32; "
+        "fp32 on CUDA; int8: ONNX Runtime on the CPU)",
     )
     parser.add_argument(
         "--calibration", type=Path, metavar="DS", help="int8: paired images to calibrate on"

@@ -16,11 +16,14 @@ fp16/bf16 on CUDA), and that row also gives its PSNR against the fp32 output.
 Writes ONE table, DIR/tradeoff.md, .csv and .json (params, GFLOPs, CPU ms,
 GPU ms on CUDA, PSNR, SSIM, metric convention, Pareto flags), the plot
 DIR/tradeoff.png (PSNR and SSIM against CPU time, Pareto front marked),
-DIR/tradeoff_config.yaml and one run folder per variant in DIR/runs/ (a
-rerun reuses finished runs). The defaults (60 steps, 128 px crops, batch 4,
-bf16 on the CPU: roughly 0.5-1 s per GEA step on two cores, three times that
-for GEA-w2) are sized for a demonstration, not for conclusions; use e.g.
---budget 30m --crop-size 256 --batch-size 8 on a GPU for a real comparison.
+DIR/tradeoff_config.yaml and one run folder per variant in DIR/runs/. A
+rerun reuses a run trained on the same data with the same settings and seed
+(a larger --budget extends it); one trained otherwise is trained again, and
+the log names the setting that differs. The defaults (60 steps, 128 px
+crops, batch 4, bf16 on the CPU: roughly 0.5-1 s per GEA step on two cores,
+three times that for GEA-w2) are sized for a demonstration, not for
+conclusions; use e.g. --budget 30m --crop-size 256 --batch-size 8 on a GPU
+for a real comparison.
 
 With several --seeds (default 0,1,2) every variant is trained once per seed
 (DIR/seed<k>/ holds each seed's table and runs) and DIR/tradeoff_seeds.md
@@ -37,6 +40,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from lenspair.commands.argtypes import positive_int
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -48,8 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--budget", default="60", help="per variant: STEPS, or 90s / 5m / 1h")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     parser.add_argument("--config", type=Path, help="base run config (model section ignored)")
-    parser.add_argument("--crop-size", type=int, default=None, help="training crop (128)")
-    parser.add_argument("--batch-size", type=int, default=None, help="training batch (4)")
+    parser.add_argument("--crop-size", type=positive_int, default=None, help="training crop (128)")
+    parser.add_argument("--batch-size", type=positive_int, default=None, help="training batch (4)")
     parser.add_argument("--variants", help="comma-separated subset of the variant names")
     parser.add_argument(
         "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
@@ -83,8 +87,10 @@ def run(args: argparse.Namespace) -> int:
     if args.latency_runs < 1:
         raise ConfigError("--latency-runs must be >= 1")
     base = load_run_config(args.config)
-    crop = args.crop_size or (base.data.crop_size if args.config else 128)
-    batch = args.batch_size or (base.train.batch_size if args.config else 4)
+    # Without --config: the demonstration's 128 px crops and batch 4, not the paper's 256 and 8.
+    crop, batch = (base.data.crop_size, base.train.batch_size) if args.config else (128, 4)
+    crop = crop if args.crop_size is None else args.crop_size  # positive_int: >= 1
+    batch = batch if args.batch_size is None else args.batch_size
     try:
         base = dataclasses.replace(
             base,

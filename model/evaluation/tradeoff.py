@@ -15,6 +15,13 @@ Layout of ``OUT``::
     tradeoff.md / tradeoff.csv / tradeoff.json / tradeoff.png
     tradeoff_config.yaml     base run config, budget and variants
     runs/<variant>/          one run folder per variant (reused when rerun)
+
+A rerun into the same ``OUT`` reuses (resumes) a variant's run only when
+everything that decides what it learns is unchanged: the model, data, loss
+and train sections (seed included), the dataset and whether the perceptual
+loss runs. A larger budget extends the run; anything else clears the run
+folder and trains it again, with one log line naming the first difference
+(:func:`reuse_obstacle`).
 """
 
 import logging
@@ -46,10 +53,11 @@ from lenspair.model.evaluation.tradeoff_rows import mark_pareto as mark_pareto
 from lenspair.model.evaluation.tradeoff_rows import pareto_front as pareto_front
 from lenspair.model.networks.complexity import describe
 from lenspair.model.precision import choose_precision
-from lenspair.model.training.config import RunConfig, Variant
+from lenspair.model.training.config import RunConfig, Variant, config_differences
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
 from lenspair.model.training.pairs import open_eval_pairs
+from lenspair.model.training.step import vgg19_weights_path
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +196,11 @@ def run_tradeoff(
 
     """
     out_dir = Path(out_dir)
-    data = paired_training_data(dataset, base.data, base.model.channels, base.train.seed)
+    # The resolved path goes into each run's config (runtime.data), so that a
+    # rerun from another folder tells the same dataset from another one.
+    data = paired_training_data(
+        Path(dataset).resolve(), base.data, base.model.channels, base.train.seed
+    )
     pairs: Any = None
     if detect_layout(Path(dataset)) is None:  # a dataset with splits: score on ``split``
         try:
@@ -214,6 +226,7 @@ def run_tradeoff(
         "threads": torch.get_num_threads(),
         "size": f"{size[1]}x{size[0]}",
         "convention": convention,
+        "seed": base.train.seed,
     }
     atomic_write_text(
         out_dir / "tradeoff_config.yaml",
@@ -224,7 +237,7 @@ def run_tradeoff(
     for variant in variants:
         config = resolve_config(variant_config(base, variant, budget), data.channels)
         run = out_dir / "runs" / variant.name
-        resume = _reusable(run, config)
+        resume = _reusable(run, config, data.description)
         log.info("tradeoff: training %s for %s", variant.name, budget.describe())
         summary = fit(
             config,
@@ -319,14 +332,85 @@ def _at_precision(
     return Int8Network(network, channels, calibration_images(source, channels, size))
 
 
-def _reusable(run: Path, config: RunConfig) -> bool:
-    """Whether ``run`` holds a run of the same network to resume; else clear it."""
+REUSE_IGNORES: frozenset[str] = frozenset(
+    {
+        "data.num_workers",
+        "train.log_every",
+        "train.tensorboard",
+        "train.checkpoint_every_steps",
+        "train.checkpoint_every_seconds",
+    }
+)
+"""Settings that change how a run loads data, logs and checkpoints, never what it learns."""
+
+BUDGET_FIELDS: tuple[str, ...] = ("epochs", "max_steps", "max_seconds")
+"""Train settings a rerun may raise: resuming then extends the run (``fit(resume=True)``)."""
+
+
+def reuse_obstacle(stored: RunConfig, wanted: RunConfig, dataset: str | None = None) -> str | None:
+    """The first setting that keeps a run trained under ``stored`` from standing for ``wanted``.
+
+    A run is reused when the model, data, loss and train sections match
+    (the seed included) but for :data:`REUSE_IGNORES` and the budget: each
+    budget limit of ``wanted`` must be at least the stored one (``None`` is
+    no limit), since resuming extends a run and cannot shorten it. The
+    perceptual loss must be on (or off) in both, and when ``dataset`` (the
+    data description, ``runtime.data``) is given, the stored run must have
+    trained on the same.
+
+    Args:
+        stored: the configuration in the run's ``last.pt``.
+        wanted: the resolved configuration the rerun asks for.
+        dataset: the description of the data the rerun trains on.
+
+    Returns:
+        ``"train.seed: 0 -> 5"`` and the like, or ``None`` when the run can be reused.
+
+    """
+    budget = {f"train.{name}" for name in BUDGET_FIELDS}
+    for change in config_differences(stored, wanted):
+        key = change.partition(":")[0]
+        if key not in REUSE_IGNORES and key not in budget:
+            return change
+    for name in BUDGET_FIELDS:
+        before, after = getattr(stored.train, name), getattr(wanted.train, name)
+        if after is not None and (before is None or after < before):
+            return f"train.{name}: {before!r} -> {after!r} (the run may have trained past it)"
+    runtime = stored.runtime
+    if dataset is not None and (runtime is None or runtime.data != dataset):
+        return f"dataset: {runtime.data if runtime else 'unknown'!r} -> {dataset!r}"
+    if runtime is not None and runtime.perceptual:
+        was = runtime.perceptual.startswith("enabled")
+        weights = vgg19_weights_path(wanted.train.vgg19_weights)
+        now = wanted.loss.perceptual > 0 and weights is not None
+        if was != now:
+            after = f"enabled ({weights})" if now else "disabled"
+            return f"perceptual loss: {runtime.perceptual!r} -> {after!r}"
+    return None
+
+
+def _reusable(run: Path, config: RunConfig, dataset: str | None = None) -> bool:
+    """Whether ``run`` holds a run that ``config`` may resume; else clear it.
+
+    Args:
+        run: the variant's run folder.
+        config: the resolved configuration of the rerun.
+        dataset: the description of its data (checked when given).
+
+    Returns:
+        True when ``run/checkpoints/last.pt`` may be resumed (:func:`reuse_obstacle`).
+
+    """
     last = run / "checkpoints" / "last.pt"
     if not last.is_file():
         return False
-    if checkpoint_config(load_checkpoint(last), last).model == config.model:
+    stored = checkpoint_config(load_checkpoint(last), last)
+    obstacle = reuse_obstacle(stored, config, dataset)
+    if obstacle is None:
         return True
-    log.warning("tradeoff: %s was trained with other settings; training it again", run)
+    log.warning(
+        "tradeoff: %s was trained with other settings (%s); training it again", run, obstacle
+    )
     shutil.rmtree(run)
     return False
 

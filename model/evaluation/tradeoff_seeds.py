@@ -222,6 +222,7 @@ def run_seeded_tradeoff(
         )  # fmt: skip
     rows = aggregate(results, out_dir, seeds, budget)
     meta = dict(results[0].meta)
+    meta.pop("seed", None)  # the first seed's; each seed<k>/tradeoff.json keeps its own
     meta["seeds"] = list(seeds)
     baselines = [r.meta.get("input_baseline") for r in results]
     meta["input_baseline"] = baselines[0]

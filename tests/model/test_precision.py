@@ -99,9 +99,23 @@ def test_refused_combinations_name_the_option() -> None:
     with pytest.raises(ModelError, match="--precision int8 is for CPU inference"):
         choose_precision("int8", CPU, "train", _probe(_cpu("avx512_vnni")))
     with pytest.raises(ModelError, match="--precision int8 is for CPU inference"):
-        choose_precision("int8", CUDA, "infer", _probe(_gpu(8, 0)))
+        choose_precision("int8", CUDA, "train", _probe(_gpu(8, 0)))
     with pytest.raises(ModelError, match="expected one of auto, fp32"):
         choose_precision("fp8", CPU, "infer", _probe(_cpu()))
+
+
+def test_each_int8_refusal_gives_its_caller_a_hint_it_can_follow() -> None:
+    # training: no int8 anywhere, so name the precisions a run can train at
+    for device, probe in ((CPU, _probe(_cpu("avx512_vnni"))), (CUDA, _probe(_gpu(9, 0)))):
+        with pytest.raises(ModelError) as trained:
+            choose_precision("int8", device, "train", probe)
+        assert "train at auto, fp32 or bf16" in str(trained.value)
+    # inference on CUDA (eval, tradeoff): int8 runs on the CPU, so say how to get there
+    with pytest.raises(ModelError) as inferred:
+        choose_precision("int8", CUDA, "infer", _probe(_gpu(9, 0)))
+    message = str(inferred.value)
+    assert "--device cpu" in message and "fp32, bf16 or fp16 on CUDA" in message
+    assert "train" not in message
 
 
 def test_auto_never_picks_int8_but_int8_is_native_with_vnni() -> None:

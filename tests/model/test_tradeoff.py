@@ -14,6 +14,7 @@ from lenspair.model.evaluation.evaluate import score_tensors
 from lenspair.model.evaluation.tradeoff import (
     DEFAULT_VARIANTS,
     Budget,
+    TradeoffResult,
     TradeoffRow,
     mark_pareto,
     pareto_front,
@@ -21,6 +22,7 @@ from lenspair.model.evaluation.tradeoff import (
     precisions_for,
     run_tradeoff,
 )
+from lenspair.model.training.config import RunConfig
 from lenspair.model.training.pairs import open_eval_pairs, to_tensor
 from tests.model.train_fixtures import tiny_config, write_split_dataset
 
@@ -226,3 +228,101 @@ def test_a_row_describes_itself_in_one_line() -> None:
         ": PSNR 25.08 dB, SSIM 0.8943 (skimage-gaussian, 10 steps); GPU 2.5 ms per frame"
     )
     assert replace(row, cpu_ms=None).describe().endswith("not timed per frame")
+
+
+def test_a_run_trained_with_other_settings_is_not_reused(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from lenspair.model.evaluation.tradeoff import _reusable
+    from lenspair.model.training.config import RuntimeInfo
+    from tests.model.train_fixtures import make_checkpoint
+
+    caplog.set_level(logging.WARNING, logger="lenspair.model.evaluation.tradeoff")
+    data = "/data/ds (train 2 pairs, validation 1 pairs)"
+    stored = replace(tiny_config(max_steps=60), runtime=RuntimeInfo(data=data))
+    run = tmp_path / "runs" / "GEA"
+
+    def reused(wanted: RunConfig, dataset: str | None = None) -> bool:
+        make_checkpoint(run / "checkpoints" / "last.pt", stored)
+        return _reusable(run, wanted) if dataset is None else _reusable(run, wanted, dataset)
+
+    # The same settings, a larger budget (extends the run) or other logging: reused.
+    assert reused(tiny_config(max_steps=60))
+    assert reused(tiny_config(max_steps=120, log_every=3, tensorboard=True))
+    assert not caplog.records
+    # Anything that changes what the run learns: cleared and trained again, said once.
+    changes = {
+        "train.seed": tiny_config(max_steps=60, seed=5),
+        "train.batch_size": tiny_config(max_steps=60, batch_size=4),
+        "train.lr": tiny_config(max_steps=60, lr=1e-3),
+        "train.max_steps": tiny_config(max_steps=30),  # the run trained past this budget
+        "train.max_seconds": tiny_config(max_seconds=90.0),  # another kind of budget
+    }
+    cropped = tiny_config(max_steps=60)
+    changes["data.crop_size"] = replace(cropped, data=replace(cropped.data, crop_size=16))
+    weighted = replace(cropped, loss=replace(cropped.loss, fidelity=1.0))
+    changes["loss.fidelity"] = weighted
+    for setting, wanted in changes.items():
+        caplog.clear()
+        assert not reused(wanted), setting
+        assert not run.exists(), setting
+        [record] = caplog.records
+        assert str(run) in record.getMessage() and setting in record.getMessage()
+    caplog.clear()
+    assert reused(tiny_config(max_steps=60), data)  # the same dataset
+    assert not reused(tiny_config(max_steps=60), "/data/other (train 2 pairs, validation 1 pairs)")
+    assert "dataset" in caplog.records[0].getMessage()
+
+
+def test_a_rerun_with_another_seed_retrains_and_records_the_seed(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, logger="lenspair.model.evaluation.tradeoff")
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    base = tiny_config()
+    variant = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
+    out = tmp_path / "t"
+    last = out / "runs" / "G" / "checkpoints" / "last.pt"
+
+    def rerun(config: RunConfig, steps: int) -> TradeoffResult:
+        return run_tradeoff(dataset, out, torch.device("cpu"), Budget(steps=steps), config,
+                            variant, latency_runs=1, int8=False)  # fmt: skip
+
+    first = rerun(base, 1)
+    assert first.meta["seed"] == 0
+    assert json.loads((out / "tradeoff.json").read_text())["seed"] == 0
+    stamp = last.stat().st_mtime_ns
+    assert rerun(base, 1).rows[0].steps == 1 and last.stat().st_mtime_ns == stamp  # reused
+    assert rerun(base, 2).rows[0].steps == 2  # a larger budget extends the run
+    assert not any("trained with other settings" in r.getMessage() for r in caplog.records)
+    reseeded = rerun(replace(base, train=replace(base.train, seed=5)), 2)
+    assert reseeded.meta["seed"] == 5
+    assert reseeded.rows[0].steps == 2
+    [line] = [r.getMessage() for r in caplog.records if "other settings" in r.getMessage()]
+    assert str(out / "runs" / "G") in line and "train.seed: 0 -> 5" in line
+    assert "seed: 5" in (out / "runs" / "G" / "config.yaml").read_text()
+
+
+def test_per_seed_runs_are_reused_by_the_seeded_tradeoff(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # docs/results/gpu_h100.md: one process per seed into T/seed<k>, then
+    # `--seeds 0,1` into T reuses those runs (a relative DS, as there).
+    caplog.set_level(logging.INFO, logger="lenspair.model.evaluation.tradeoff")
+    monkeypatch.chdir(tmp_path)
+    write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    (tmp_path / "cfg.yaml").write_text(dump_yaml(tiny_config()))
+    common = ["--budget", "1", "--variants", "G", "--config", "cfg.yaml", "--crop-size", "32"]
+    common += ["--batch-size", "2", "--latency-runs", "1", "--no-int8", "--device", "cpu"]
+    for seed in (0, 1):
+        assert (
+            main(["tradeoff", "ds", "--out", f"T/seed{seed}", "--seeds", str(seed), *common]) == 0
+        )
+        assert json.loads((tmp_path / f"T/seed{seed}/tradeoff.json").read_text())["seed"] == seed
+    lasts = [tmp_path / f"T/seed{seed}/runs/G/checkpoints/last.pt" for seed in (0, 1)]
+    stamps = [last.stat().st_mtime_ns for last in lasts]
+    assert main(["tradeoff", "ds", "--out", "T", "--seeds", "0,1", *common]) == 0
+    assert [last.stat().st_mtime_ns for last in lasts] == stamps
+    assert not any("other settings" in r.getMessage() for r in caplog.records)
+    meta = json.loads((tmp_path / "T" / "tradeoff_seeds.json").read_text())["meta"]
+    assert meta["seeds"] == [0, 1] and "seed" not in meta

@@ -1,0 +1,46 @@
+"""The help texts and option checks of ``lenspair train``, ``eval`` and ``tradeoff``."""
+
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+from lenspair.cli import main
+from lenspair.model.precision import Hardware, choose_precision
+
+
+def _help(command: str, capsys: pytest.CaptureFixture[str]) -> str:
+    with pytest.raises(SystemExit) as exited:
+        main([command, "--help"])
+    assert exited.value.code == 0
+    return " ".join(capsys.readouterr().out.split())  # one line: wrapping aside
+
+
+def test_help_says_what_auto_picks_on_cuda(capsys: pytest.CaptureFixture[str]) -> None:
+    h100 = Hardware("cuda", "NVIDIA H100", cuda_capability=(9, 0))
+    for task in ("train", "infer"):
+        decision = choose_precision("auto", torch.device("cuda"), task, lambda _: h100)
+        assert decision.precision == "fp32"  # what the help texts below must say
+    for command in ("train", "eval", "tradeoff", "export"):
+        text = _help(command, capsys)
+        # every sentence or clause that says what auto does on CUDA says fp32
+        for clause in re.split(r"(?<=[.;])\s+", text):
+            if re.search(r"\bauto\b", clause) and "CUDA" in clause:
+                assert "fp32 on CUDA" in clause, (command, clause)
+        if command in ("train", "eval"):  # the two that explain auto
+            assert "fp32 on CUDA" in text, command
+
+
+@pytest.mark.parametrize("option", ["--crop-size", "--batch-size"])
+@pytest.mark.parametrize("value", ["0", "-1"])
+def test_tradeoff_rejects_a_crop_or_batch_below_one(
+    option: str, value: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["tradeoff", str(tmp_path / "missing"), "--out", str(tmp_path / "out")]
+    with pytest.raises(SystemExit) as exited:
+        main([*argv, option, value])
+    assert exited.value.code == 2
+    [line] = capsys.readouterr().err.strip().splitlines()
+    assert option in line and value in line
+    assert not (tmp_path / "out").exists()
