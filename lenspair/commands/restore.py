@@ -67,8 +67,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--precision",
         choices=PRECISIONS,
         default="auto",
-        help="auto (the fastest precision this hardware runs natively), fp32, bf16 or fp16 "
-        "(CUDA); torch checkpoints only, ONNX models run in fp32",
+        help="auto (bf16 on a CPU with avx512_bf16/AMX, else fp32; fp32 on CUDA), fp32, bf16 "
+        "or fp16 (CUDA); torch checkpoints only, ONNX models run in fp32",
     )
     parser.add_argument("--resume", action="store_true", help="continue a killed run in OUT")
     parser.add_argument(

@@ -1,4 +1,4 @@
-"""The help texts and option checks of ``lenspair train``, ``eval`` and ``tradeoff``."""
+"""Help texts and option checks of ``lenspair train``, ``eval``, ``tradeoff`` and ``restore``."""
 
 import re
 from pathlib import Path
@@ -22,13 +22,13 @@ def test_help_says_what_auto_picks_on_cuda(capsys: pytest.CaptureFixture[str]) -
     for task in ("train", "infer"):
         decision = choose_precision("auto", torch.device("cuda"), task, lambda _: h100)
         assert decision.precision == "fp32"  # what the help texts below must say
-    for command in ("train", "eval", "tradeoff", "export"):
+    for command in ("train", "eval", "tradeoff", "export", "restore"):
         text = _help(command, capsys)
         # every sentence or clause that says what auto does on CUDA says fp32
         for clause in re.split(r"(?<=[.;])\s+", text):
             if re.search(r"\bauto\b", clause) and "CUDA" in clause:
                 assert "fp32 on CUDA" in clause, (command, clause)
-        if command in ("train", "eval"):  # the two that explain auto
+        if command in ("train", "eval", "restore"):  # the ones that explain auto
             assert "fp32 on CUDA" in text, command
 
 
