@@ -54,7 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--workers", type=positive_int, default=1, help="processes making samples (1)"
     )
     parser.add_argument(
-        "--input-size", default="180x270", metavar="HxW", help="size frames are judged at"
+        "--input-size",
+        default="270x180",
+        metavar="WxH",
+        help="size frames are judged at (270x180; width first, as every lenspair size)",
     )
 
 
@@ -94,10 +97,10 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     try:
-        height, width = (int(v) for v in args.input_size.lower().split("x"))
+        width, height = (int(v) for v in args.input_size.lower().split("x"))
         spec = DetectorSpec(input_size=(height, width))
     except ValueError as exc:
-        raise ConfigError(f"--input-size: expected HxW, e.g. 360x540 ({exc})") from None
+        raise ConfigError(f"--input-size: expected WxH, e.g. 540x360 ({exc})") from None
     device = resolve_device(args.device)
     scores = run_training(args.out, sources, spec, settings, device=device, workers=args.workers)
     for name, result in scores.items():

@@ -79,3 +79,17 @@ def test_detect_bad_input_is_one_line(  # type: ignore[no-untyped-def]
     assert len(err) == 1 and "not an image" in err[0]
     assert main(["detect", str(tmp_path / "none.pt"), str(tmp_path)]) == 2
     assert main(["train-detector", "--out", str(tmp_path / "r")]) == 2
+
+
+def test_train_detector_input_size_is_width_first(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from lenspair.model.detection import run as detection_run
+
+    seen = []
+    monkeypatch.setattr(
+        detection_run, "run_training", lambda out, sources, spec, *a, **k: seen.append(spec) or {}
+    )
+    argv = ["train-detector", "--out", str(tmp_path / "d"), "--synthetic", "2"]
+    assert main([*argv, "--input-size", "300x100"]) == 0
+    assert seen[-1].input_size == (100, 300)  # (height, width), as every WxH option of lenspair
