@@ -3,6 +3,7 @@ import json
 import math
 import platform
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from tests.model.train_fixtures import (
     make_checkpoint,
     obstruct,
     write_paired_folder,
+    write_split_dataset,
 )
 
 CPU = torch.device("cpu")
@@ -217,3 +219,33 @@ def test_a_mono_network_on_colour_pairs_says_so(
         evaluate_checkpoint(checkpoint, colour, "test", torch.device("cpu"), latency_runs=0)
     warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert any("1 channel(s)" in m and "have 3" in m and "luma" in m for m in warned), warned
+
+
+@pytest.mark.parametrize("layout", ["dataset", "folder"])
+def test_int8_eval_calibrates_off_the_scored_images_where_it_can(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], layout: str
+) -> None:
+    pytest.importorskip("onnxruntime")
+    from lenspair.model.evaluation import quantize
+
+    counts = {"train": 5, "val": 1, "test": 2}
+    if layout == "dataset":
+        data = write_split_dataset(tmp_path / "ds", counts)
+    else:
+        data = write_paired_folder(tmp_path / "pairs", count=2)
+    sizes: list[int] = []
+    real = quantize.calibration_images
+
+    def record(pairs: Any, *args: Any, **kwargs: Any) -> list[np.ndarray]:
+        sizes.append(len(pairs))
+        return real(pairs, *args, **kwargs)
+
+    monkeypatch.setattr(quantize, "calibration_images", record)
+    checkpoint = make_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")
+    args = ["eval", str(checkpoint), "--data", str(data), "--out", str(tmp_path / "eval")]
+    assert main([*args, "--device", "cpu", "--precision", "int8", "--latency-runs", "1"]) == 0
+    printed = capsys.readouterr().out
+    if layout == "dataset":  # the train split's 5 pairs, not the 2 scored test pairs
+        assert sizes == [counts["train"]] and "split train" in printed
+    else:  # nothing else to calibrate on: the scored pairs, and the output says so
+        assert sizes == [2] and "optimistic" in printed
