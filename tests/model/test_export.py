@@ -174,7 +174,8 @@ def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     assert main([*args, "--int8", "--calibration", str(data)]) == 0
     report = json.loads((tmp_path / "model.onnx.export.json").read_text())
     int8 = report["int8"]
-    assert int8["calibration_images"] == 4 and int8["precision"]["precision"] == "int8"
+    # 4 pairs: 3 calibrate, the 4th is held out to compare int8 with fp32 on
+    assert int8["calibration_images"] == 3 and int8["precision"]["precision"] == "int8"
     assert 25.0 < int8["psnr_vs_fp32_db"] < 100.0  # quantised: close, yet not identical
     session = ort.InferenceSession(int8["path"], providers=["CPUExecutionProvider"])
     graph = onnx.load(int8["path"]).graph
@@ -198,3 +199,25 @@ def test_int8_export_needs_calibration(tmp_path: Path, capsys: pytest.CaptureFix
     checkpoint = make_checkpoint(tmp_path / "c.pt")
     assert main(["export", str(checkpoint), "--onnx", str(tmp_path / "m.onnx"), "--int8"]) == 2
     assert "--int8 needs --onnx FILE and --calibration DS" in capsys.readouterr().err
+
+
+def test_int8_check_compares_on_an_image_held_out_of_the_calibration(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("onnxruntime")
+    from lenspair.model.evaluation import quantize
+
+    fitted: list[list[np.ndarray]] = []
+    real = quantize.quantize_network
+
+    def record(network: Any, channels: int, path: Path, size: Any, images: Any) -> Any:
+        fitted.append(list(images))
+        return real(network, channels, path, size, images)
+
+    monkeypatch.setattr(quantize, "quantize_network", record)
+    network = load_model(make_checkpoint(tmp_path / "c.pt")).network
+    rng = np.random.default_rng(0)
+    images = [rng.random((1, 1, 32, 48), dtype=np.float32) for _ in range(3)]
+    check = quantize.check_int8(network, 1, tmp_path / "m.int8.onnx", (32, 48), images, runs=1)
+    assert check.calibration_images == 2 and len(fitted[0]) == 2
+    assert not any(image is images[-1] for image in fitted[0])  # compared on the last one
