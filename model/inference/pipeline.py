@@ -24,6 +24,7 @@ Rules a robotics user can rely on:
 * ``judge`` (``--only-obstructed``): frames judged clean are copied unchanged.
 """
 
+import json
 import os
 import time
 from collections.abc import Iterator
@@ -46,7 +47,7 @@ from lenspair.capture.frames import (
 )
 from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
-from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.fsutil import atomic_write_json, sha256_file
 from lenspair.core.leftovers import remove_leftovers_under
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
@@ -99,6 +100,8 @@ class RestoreReport:
         failed: frames that could not be restored (copied unchanged).
         problems: ``{"frame", "reason"}`` per failed frame, plus input-level ones.
         seconds: wall time of the run.
+        settings: what decides the output bytes (:func:`run_settings`);
+            ``--resume`` refuses an OUT written with other ones.
     """
 
     input: str
@@ -113,6 +116,7 @@ class RestoreReport:
     failed: int = 0
     problems: list[dict[str, str]] = field(default_factory=list)
     seconds: float = 0.0
+    settings: dict[str, Any] = field(default_factory=dict)
 
     @property
     def frames_per_second(self) -> float:
@@ -130,8 +134,12 @@ class RestoreReport:
         )
 
     def as_dict(self) -> dict[str, Any]:
-        """Plain data for JSON."""
-        return {**asdict(self), "frames_per_second": round(self.frames_per_second, 3)}
+        """Plain data for JSON (``complete``: the run finished)."""
+        return {
+            **asdict(self),
+            "frames_per_second": round(self.frames_per_second, 3),
+            "complete": True,
+        }
 
 
 def resolve_cameras(path: Path, kind: InputKind, choice: str) -> tuple[CameraName, ...]:
@@ -182,6 +190,59 @@ def check_out_dir(out_dir: Path, resume: bool) -> None:
     if not resume and out_dir.is_dir() and any(out_dir.iterdir()):
         raise ModelError(
             f"--out {out_dir}: not empty; pass --resume to continue a run or choose a new folder"
+        )
+
+
+def run_settings(
+    input_path: Path,
+    backend: Backend,
+    options: RestoreOptions,
+    cameras: tuple[CameraName, ...],
+    judge: FrameJudge | None,
+) -> dict[str, Any]:
+    """What decides a run's output bytes: input, model (and its file's hash), batching, tiles."""
+    model_file = getattr(backend, "path", None)
+    digest = sha256_file(Path(model_file)) if model_file and Path(model_file).is_file() else None
+    return {
+        "input": str(input_path.resolve()),
+        "model": backend.description,
+        "model_sha256": digest,
+        "cameras": list(cameras),
+        "batch_size": options.batch_size,
+        "tile": options.tile,
+        "overlap": options.overlap,
+        "suffix": options.suffix,
+        "only_obstructed": judge is not None,
+    }
+
+
+def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
+    """``--resume``: refuse an OUT whose report records other :func:`run_settings`.
+
+    A resumed run keeps the frames already written, so resuming with another
+    model, batch size or tiling would mix outputs of two different runs.
+
+    Raises:
+        ModelError: naming OUT and each setting that differs.
+    """
+    report = out_dir / REPORT_NAME
+    if not report.is_file():
+        return
+    try:
+        before = json.loads(report.read_text(encoding="utf-8")).get("settings", {})
+    except (OSError, ValueError, AttributeError):
+        before = {}
+    if not before:
+        return  # written before settings were recorded: nothing to compare with
+    changed = [
+        f"{key}: {before.get(key)!r} -> {value!r}"
+        for key, value in settings.items()
+        if before.get(key) != value
+    ]
+    if changed:
+        raise ModelError(
+            f"--resume: {out_dir} was written with other settings ({'; '.join(changed)}); "
+            "resume with the same ones, or choose a new --out"
         )
 
 
@@ -246,8 +307,14 @@ def restore_input(
         # Refused before OUT is made: an empty run is a mistyped path, not a result.
         raise ModelError(f"{input_path}: no images to restore")
     check_out_dir(out_dir, options.resume)
+    settings = run_settings(input_path, backend, options, cameras, judge)
+    if options.resume:
+        check_same_settings(out_dir, settings)
     remove_leftovers_under(out_dir)  # of a killed run: its half-written temporaries
     out_dir.mkdir(parents=True, exist_ok=True)
+    # the settings go first, so that a killed run's --resume can check them
+    started_report = not (out_dir / REPORT_NAME).exists()
+    atomic_write_json(out_dir / REPORT_NAME, {"settings": settings, "complete": False})
     source_problems: list[str] = []
     sink: FileSink | BagSink
     total: int | None = None
@@ -262,9 +329,14 @@ def restore_input(
     report = RestoreReport(
         str(input_path), kind, str(sink.output), backend.description, list(cameras)
     )
+    report.settings = settings
     writer = Writer(sink, report, size=4 * options.batch_size)
     try:
         _run(threaded(items, 4 * options.batch_size), backend, options, judge, writer, total)
+    except ModelError:  # refused at the first frame, before any write: leave OUT as it was
+        if started_report:
+            (out_dir / REPORT_NAME).unlink(missing_ok=True)
+        raise
     finally:
         writer.close()
     if kind in ("euroc", "folders"):  # after the frames: a refused run writes nothing

@@ -194,7 +194,8 @@ class _KilledError(Exception):
 class _DiesAfter:
     def __init__(self, inner: TorchBackend, calls: int) -> None:
         self.inner, self.left = inner, calls
-        self.channels, self.fixed_size, self.description = inner.channels, None, "dies"
+        self.channels, self.fixed_size = inner.channels, None
+        self.description, self.path = inner.description, inner.path  # the same model, killed
 
     def __call__(self, batch: np.ndarray) -> np.ndarray:
         self.left -= 1

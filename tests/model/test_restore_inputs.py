@@ -161,3 +161,18 @@ def test_left_right_folders_without_timestamps_stay_a_folder(
     folder = _left_right(tmp_path / "pics", ["a.png", "b.png"])
     assert detect_input(folder) == "folder"
     assert restore_input(folder, tmp_path / "out", backend).restored == 4
+
+
+def test_resume_with_other_settings_is_refused(tmp_path: Path, backend: TorchBackend) -> None:
+    source = tmp_path / "in"
+    for index in range(3):
+        write_image(source / f"{index}.png", _image(index))
+    out = tmp_path / "out"
+    first = restore_input(source, out, backend, RestoreOptions(batch_size=2))
+    assert first.settings["batch_size"] == 2 and first.settings["model_sha256"]
+    written = _tree(out)
+    with pytest.raises(ModelError, match=r"^--resume: .*batch_size: 2 -> 3"):
+        restore_input(source, out, backend, RestoreOptions(batch_size=3, resume=True))
+    assert _tree(out) == written  # refused before anything was touched
+    again = restore_input(source, out, backend, RestoreOptions(batch_size=2, resume=True))
+    assert (again.resumed, again.restored) == (3, 0)
