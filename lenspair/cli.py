@@ -109,5 +109,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lenspair {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"lenspair {args.command}: interrupted; rerun to resume", file=sys.stderr)
+        # restore and train continue only when asked; the other commands resume by themselves
+        hint = "rerun with --resume to continue" if hasattr(args, "resume") else "rerun to resume"
+        print(f"lenspair {args.command}: interrupted; {hint}", file=sys.stderr)
         return 130

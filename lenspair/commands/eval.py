@@ -139,6 +139,7 @@ def _default_calibration(data: Path, split: str) -> "PairSource | None":
     other split (a plain paired folder, or the train split itself) they are
     used and a line says so.
     """
+    # here, not at the top: these import torch, and `lenspair eval --help` should not
     from lenspair.dataset.readers import detect_layout
     from lenspair.model.training.pairs import open_eval_pairs
 

@@ -215,6 +215,11 @@ def run_tradeoff(
         if pairs is None:
             raise ModelError(f"{dataset}: no {split!r} split and no held-out pairs to score")
         pairs_text = f"{dataset} held-out validation pairs ({len(pairs)}, not trained on)"
+    if len(pairs) == 0:
+        raise ModelError(
+            f"{pairs_text}: no pairs to score; choose another --split (e.g. val) or rebuild "
+            "the dataset with a non-empty one (dataset-build --splits)"
+        )
     size = tuple(pairs[0].input.shape[:2])
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = {

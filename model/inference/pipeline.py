@@ -56,6 +56,7 @@ from lenspair.model.inference.options import CAMERA_CHOICES, DEFAULT_BATCH_SIZE,
 from lenspair.model.inference.sinks import BagSink, FileSink
 from lenspair.model.inference.threads import Writer, threaded
 from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
+from lenspair.model.networks.padding import MIN_SIDE
 
 REPORT_NAME = "restore_report.json"
 
@@ -402,6 +403,11 @@ def _run(
             )
             if not channels_checked:
                 raise ModelError(reason)
+        elif image is not None and min(image.shape[:2]) < MIN_SIDE:
+            reason = (
+                f"{frame.source}: {image.shape[1]}x{image.shape[0]} pixels, smaller than the "
+                f"network's {MIN_SIDE}x{MIN_SIDE} minimum"
+            )
         if image is None or reason is not None:
             report.failed += 1
             report.problems.append({"frame": frame.name, "reason": reason or "unreadable"})

@@ -44,3 +44,22 @@ def test_tradeoff_rejects_a_crop_or_batch_below_one(
     [line] = capsys.readouterr().err.strip().splitlines()
     assert option in line and value in line
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("command", "hint"), [("restore", "--resume"), ("eval", "rerun to resume")]
+)
+def test_ctrl_c_says_how_to_continue(
+    command: str, hint: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import importlib
+
+    from lenspair import cli
+
+    def interrupted(args: object) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(importlib.import_module(cli.COMMANDS[command][0]), "run", interrupted)
+    argv = {"restore": ["restore", "m.pt", "in", "--out", "o"], "eval": ["eval", "m.pt"]}[command]
+    assert cli.main(argv) == 130
+    assert hint in capsys.readouterr().err

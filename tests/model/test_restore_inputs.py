@@ -176,3 +176,16 @@ def test_resume_with_other_settings_is_refused(tmp_path: Path, backend: TorchBac
     assert _tree(out) == written  # refused before anything was touched
     again = restore_input(source, out, backend, RestoreOptions(batch_size=2, resume=True))
     assert (again.resumed, again.restored) == (3, 0)
+
+
+def test_an_image_too_small_for_the_network_costs_only_itself(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    source = tmp_path / "in"
+    write_image(source / "a.png", _image(0))
+    write_image(source / "tiny.png", _image(1)[:5, :7])
+    report = restore_input(source, tmp_path / "out", backend)
+    assert (report.restored, report.failed) == (1, 1)
+    (problem,) = report.problems
+    assert problem["frame"] == "tiny.png" and "7x5 pixels" in problem["reason"]
+    assert (tmp_path / "out" / "tiny.png").read_bytes() == (source / "tiny.png").read_bytes()

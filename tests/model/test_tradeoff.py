@@ -326,3 +326,18 @@ def test_per_seed_runs_are_reused_by_the_seeded_tradeoff(
     assert not any("other settings" in r.getMessage() for r in caplog.records)
     meta = json.loads((tmp_path / "T" / "tradeoff_seeds.json").read_text())["meta"]
     assert meta["seeds"] == [0, 1] and "seed" not in meta
+
+
+def test_an_empty_split_to_score_is_a_one_line_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from lenspair.model.evaluation import tradeoff
+
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    monkeypatch.setattr(tradeoff, "open_eval_pairs", lambda data, split: [])  # built, but empty
+    gea = tuple(v for v in DEFAULT_VARIANTS if v.name == "GEA")
+    with pytest.raises(ModelError, match=r"split test: no pairs to score; choose another --split"):
+        run_tradeoff(
+            dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), tiny_config(), gea
+        )
+    assert not (tmp_path / "t").exists()  # refused before anything was trained or written
