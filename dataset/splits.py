@@ -21,6 +21,11 @@ that side whose hash ``u`` lies nearest to the split's interval (ties by id),
 taken from a split that holds at least two groups of the side, is moved to
 it. Only moved groups (listed in the card) can change split when data is
 added; a stratum with too few groups is left as hashed, with a warning.
+
+**Train first.** When the hash leaves train empty (one or two short
+recordings give that often), the group nearest train's interval moves there,
+with a warning: a dataset must have something to train on, even if val or
+test then stays empty.
 """
 
 import hashlib
@@ -146,6 +151,17 @@ def plan_splits(items: Iterable[SplitItem], config: SplitConfig) -> SplitPlan:
             best = min(donors, key=lambda g: (_distance(units[g], start, end), g))
             assignment[best] = empty[0]
             moved.append(best)
+    if "train" in active and assignment and "train" not in assignment.values():
+        # Too few groups for every split: a dataset without training pairs is of no
+        # use, so the group nearest the train interval moves there.
+        start, end = intervals["train"]
+        best = min(assignment, key=lambda g: (_distance(units[g], start, end), g))
+        warnings.append(
+            f"{len(assignment)} group(s) left train empty; moved {best} from "
+            f"{assignment[best]} to train (add recordings to fill every split)"
+        )
+        assignment[best] = "train"
+        moved.append(best)
     return SplitPlan(mode, assignment, tuple(sorted(moved)), tuple(warnings))
 
 
