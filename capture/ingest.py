@@ -234,7 +234,8 @@ def _frame_stage(
         frame = recording.frames[rig_file.obstructed][unpaired.index]
         records[frame.t_ns] = PairRecord(t_ns=frame.t_ns, status="rejected", reason=unpaired.reason)
     ordered = [records[t] for t in sorted(records)]
-    remove_stale_outputs(out_dir, ordered)
+    every_frame = {frame.t_ns for frames in recording.frames.values() for frame in frames}
+    remove_stale_outputs(out_dir, ordered, every_frame)
     lines = (journal_line(keys[r.t_ns], r) for r in ordered if r.t_ns in keys)
     atomic_write_text(journal_path, "".join(lines))  # compacted: one line per frame
     # One line per obstructed frame, also for those the recording could not list

@@ -78,16 +78,20 @@ def remove_temporaries(out_dir: Path) -> None:
         remove_leftovers(folder)
 
 
-def remove_stale_outputs(out_dir: Path, records: list[PairRecord]) -> None:
+def remove_stale_outputs(
+    out_dir: Path, records: list[PairRecord], own_frames: set[int] | None = None
+) -> None:
     """Delete frame images of earlier runs that no kept record lists; never a user's file.
 
     Only ``<t_ns>.png`` files named after a frame of this recording are ingest's
-    own (a frame kept by an earlier run, rejected now); each deletion is
-    logged. Any other file under ``input/``, ``target/``, ``mask/`` was not
-    written by ``capture-ingest``: it is left in place with a warning.
+    own: a frame of ``records`` or of ``own_frames`` (every frame of both
+    cameras, so that the outputs of a run with the other side declared
+    obstructed go too). Each deletion is logged. Any other file under
+    ``input/``, ``target/``, ``mask/`` was not written by ``capture-ingest``:
+    it is left in place with a warning.
     """
     listed = {out_dir / name for record in records for name in record.files.values()}
-    frames = {str(record.t_ns) for record in records}
+    frames = {str(record.t_ns) for record in records} | {str(t) for t in own_frames or ()}
     for kind in OUTPUT_KINDS:
         folder = out_dir / kind
         if not folder.is_dir():

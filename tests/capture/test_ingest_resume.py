@@ -154,3 +154,13 @@ def test_a_users_file_in_the_output_is_kept_and_reported(
         "my_notes.png" in r.getMessage() and r.levelname == "WARNING" for r in caplog.records
     )
     assert sorted((tmp_path / "rain" / "input").glob("1*.png")) == kept
+
+
+def test_rerun_with_the_other_side_declared_replaces_the_first_runs_pairs(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    recording, files = reference  # rig.yaml: cam1 obstructed
+    ingest_recording(recording, tmp_path, obstructed="cam0")  # the wrong side, first
+    ingest_recording(recording, tmp_path)  # corrected: as an ingest straight away
+    _same_as(files, tmp_path / "rain")  # no pair of the wrong-side run is left
+    assert not any("not written by capture-ingest" in r.getMessage() for r in caplog.records)
