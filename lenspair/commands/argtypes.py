@@ -1,6 +1,9 @@
 """Argparse value types shared by the subcommands (one-line errors naming the option)."""
 
 import argparse
+from pathlib import Path
+
+from lenspair.core.samples import file_or_sample
 
 
 def positive_int(text: str) -> int:
@@ -12,3 +15,8 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
     return value
+
+
+def detector_file(text: str) -> Path:
+    """Argparse type: a detector checkpoint; ``detector.pt`` alone is the bundled one."""
+    return file_or_sample(text, ".pt")

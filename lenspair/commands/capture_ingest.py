@@ -15,9 +15,10 @@ recording, checked and refined per frame), crops both to --size and writes
 Which camera is obstructed comes from rig.yaml beside the recording or
 --obstructed; the calibration from --calib, else rig.yaml's 'calibration',
 else camchain.yaml beside the recording. The declared side is checked
-against the images: by default by comparing fine detail, with --detector
-MODEL (from train-detector; on --device, the GPU when there is one) by
-judging each camera's views; report.json's
+against the images: by default by comparing fine detail (it decides only
+where the anomaly removes much of it; undetermined on defocused rain), with
+--detector MODEL (from train-detector, or detector.pt: the bundled one; on
+--device, the GPU when there is one) by judging each camera's views; report.json's
 side_check gives the inferred side and its confidence. Rerunning resumes an interrupted
 run and leaves finished outputs untouched. Exit code 0 when at least one pair
 was kept, 2 on an error or when no usable pair remains.
@@ -27,7 +28,7 @@ import argparse
 from pathlib import Path
 
 from lenspair.capture.ingest import ingest_recording
-from lenspair.commands.argtypes import positive_int
+from lenspair.commands.argtypes import detector_file, positive_int
 from lenspair.rectify.crop import parse_size
 
 
@@ -71,7 +72,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--size", type=_size, default=(540, 360), metavar="WxH", help="crop size (540x360)"
     )
     parser.add_argument(
-        "--detector", type=Path, metavar="MODEL", help="check the obstructed side with a detector"
+        "--detector",
+        type=detector_file,
+        metavar="MODEL",
+        help="check the obstructed side with a detector (detector.pt: the bundled one)",
     )
     parser.add_argument(
         "--device", choices=("auto", "cpu", "cuda"), default="auto", help="for --detector"

@@ -23,13 +23,18 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+from lenspair.commands.argtypes import detector_file
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``detect``."""
-    parser.add_argument("model", type=Path, help="detector checkpoint from train-detector")
+    parser.add_argument(
+        "model",
+        type=detector_file,
+        help="detector checkpoint from train-detector (detector.pt: the bundled one)",
+    )
     parser.add_argument("input", type=Path, help="image, folder of images, recording or bag")
     parser.add_argument("--out", type=Path, help="output folder (default: detect_<input name>)")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")

@@ -23,6 +23,7 @@ writes the same bytes as an uninterrupted one.
 import argparse
 from pathlib import Path
 
+from lenspair.commands.argtypes import detector_file
 from lenspair.model.inference.options import (
     CAMERA_CHOICES,
     DEFAULT_BATCH_SIZE,
@@ -73,10 +74,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="continue a killed run in OUT")
     parser.add_argument(
         "--only-obstructed",
-        type=Path,
+        type=detector_file,
         metavar="DETECTOR",
-        help="restore only frames this anomaly detector (lenspair train-detector) calls "
-        "obstructed; copy the others unchanged",
+        help="restore only frames this anomaly detector (lenspair train-detector, or "
+        "detector.pt: the bundled one) calls obstructed; copy the others unchanged",
     )
 
 

@@ -5,10 +5,12 @@ and sensor.yaml), rig.yaml, the true calibration camchain.yaml, the resolved
 scene.yaml, and truth/ (clear/ and mask/ frames of the obstructed camera and
 geometry.json with the far-plane homography, planes and poses).
 
-Scene specs are documented in calib_samples/README.md; examples:
+Scene specs are documented in calib_samples/README.md; a bundled one can be
+named without its path, from any folder; examples:
 
-    lenspair simulate calib_samples/rain.yaml --out rec_rain
-    lenspair simulate calib_samples/chessboard.yaml --out boards --frames 27 --seed 3
+    lenspair simulate rain --out rec_rain
+    lenspair simulate chessboard --out boards --frames 27 --seed 3
+    lenspair simulate my_scene.yaml --out rec_mine
 
 The same spec and seed always give byte-identical output.
 """
@@ -17,15 +19,25 @@ import argparse
 import logging
 from pathlib import Path
 
+from lenspair.core.samples import file_or_sample
 from lenspair.simulate.recording import check_output_folder, simulate_recording
 from lenspair.simulate.spec import load_scene, with_overrides
 
 log = logging.getLogger(__name__)
 
 
+def _scene(text: str) -> Path:
+    return file_or_sample(text, ".yaml")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the ``simulate`` arguments."""
-    parser.add_argument("scene", type=Path, help="scene spec YAML file")
+    parser.add_argument(
+        "scene",
+        type=_scene,
+        help="scene spec YAML file, or a bundled one by name (rain, heavy_rain, "
+        "dust_swapped, chessboard, ...; calib_samples/README.md)",
+    )
     parser.add_argument("--out", type=Path, required=True, help="new or empty output folder")
     parser.add_argument("--frames", type=int, help="number of frames (overrides the spec)")
     parser.add_argument("--seed", type=int, help="random seed (overrides the spec)")

@@ -31,3 +31,21 @@ def sample_path(name: str) -> Path:
             f"no bundled sample named {name!r}; available: {', '.join(sample_names())}"
         )
     return Path(str(resource))
+
+
+def file_or_sample(text: str, suffix: str) -> Path:
+    """A command-line file argument: the file when it exists, else a bundled sample.
+
+    ``lenspair simulate rain --out rec`` and ``--detector detector.pt`` work
+    from any folder: a name (with or without ``suffix``) that is not an
+    existing path but names a bundled sample is that sample; anything else
+    stays the path it was (and fails later as a missing file would).
+    """
+    path = Path(text)
+    if path.exists() or path.parent != Path("."):
+        return path
+    names = sample_names(suffix)
+    for candidate in (path.name, path.name + suffix):
+        if candidate in names:
+            return sample_path(candidate)
+    return path
