@@ -17,6 +17,7 @@ checkpoint for inference (``eval``, ``export``) or as ``--init``.
 
 import pickle
 import re
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -77,6 +78,21 @@ def save_checkpoint(path: Path, payload: dict[str, Any], config: RunConfig) -> N
     atomic_write(Path(path), _write, suffix=".pt")
 
 
+def _exported_kind(path: Path) -> str | None:
+    """``an ONNX model`` / ``a TorchScript model`` for the files export writes, else None."""
+    if path.suffix.lower() == ".onnx":
+        return "an ONNX model"
+    if zipfile.is_zipfile(path):
+        try:
+            with zipfile.ZipFile(path) as archive:
+                names = archive.namelist()
+        except (OSError, zipfile.BadZipFile):
+            return None
+        if any(name.endswith("/constants.pkl") or "/code/" in name for name in names):
+            return "a TorchScript model"
+    return None
+
+
 def load_checkpoint(path: Path) -> dict[str, Any]:
     """Read a checkpoint safely (``weights_only=True``) onto the CPU.
 
@@ -86,9 +102,19 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     """
     path = Path(path)
     if not path.is_file():
-        raise ModelError(f"{path}: checkpoint not found")
+        hint = ""
+        if str(path) == "pretrained":
+            hint = " ('pretrained' names the shipped weights for train --init only)"
+        raise ModelError(f"{path}: checkpoint not found{hint}")
     if path.stat().st_size == 0:
         raise ModelError(f"{path}: empty file, not a lenspair checkpoint")
+    other = _exported_kind(path)
+    if other is not None:
+        raise ModelError(
+            f"{path}: {other} written by lenspair export, not a checkpoint; give the "
+            "checkpoint (.pt from lenspair train) it was exported from"
+            + (" (restore also runs the .onnx file itself)" if other.startswith("an ONNX") else "")
+        )
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
@@ -100,8 +126,11 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
             "only tensors and plain data)"
         ) from None
     except Exception as exc:  # torch raises many types for corrupt files
+        detail = _first_line(exc)
+        if "weights_only" in detail:  # torch's advice to unpickle anything: never right here
+            detail = "it holds more than tensors and plain data"
         raise ModelError(
-            f"{path}: not a lenspair checkpoint (not a readable torch file: {_first_line(exc)})"
+            f"{path}: not a lenspair checkpoint (not a readable torch file: {detail})"
         ) from None
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise ModelError(f"{path}: not a lenspair checkpoint")

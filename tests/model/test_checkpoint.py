@@ -137,3 +137,21 @@ def test_other_width_names_the_first_differing_tensor_and_both_shapes(tmp_path: 
     assert first in message
     assert str(tuple(data["model"][first].shape)) in message
     assert str(tuple(expected[first].shape)) in message
+
+
+def test_exported_models_are_named_for_what_they_are(tmp_path: Path) -> None:
+    from lenspair.model.checkpoint import load_model
+    from lenspair.model.evaluation.export import export_torchscript
+
+    network = load_model(make_checkpoint(tmp_path / "c.pt")).network
+    export_torchscript(network, 1, tmp_path / "m.ts.pt", size=(32, 48), runs=1)
+    with pytest.raises(
+        ModelError, match=r"m\.ts\.pt: a TorchScript model written by lenspair"
+    ) as ts:
+        load_checkpoint(tmp_path / "m.ts.pt")
+    assert "weights_only" not in str(ts.value)
+    (tmp_path / "m.onnx").write_bytes(b"\x08\x07")  # any bytes: the suffix says what it is
+    with pytest.raises(ModelError, match=r"an ONNX model .*restore also runs the \.onnx"):
+        load_checkpoint(tmp_path / "m.onnx")
+    with pytest.raises(ModelError, match=r"shipped weights for train --init only"):
+        load_checkpoint(Path("pretrained"))
