@@ -27,7 +27,8 @@ from typing import Literal
 
 import numpy as np
 
-from lenspair.core.imageio import read_image
+from lenspair.core.errors import ImageIOError
+from lenspair.core.imageio import image_header, read_image
 from lenspair.dataset.card import CARD_FILE
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.manifest import MANIFEST_FILE, read_manifest
@@ -114,6 +115,36 @@ class PairedDataset:
             mask = read_image(entry.mask_path)
             mask = mask if mask.ndim == 2 else mask.max(axis=2)
         return PairedItem(entry.name, input_image, target, mask, entry.difficulty)
+
+    def check_headers(self, most: int = 3) -> None:
+        """Check every pair's files from their headers, pixels unread (fast).
+
+        A training run reads its pairs for minutes or hours; a pair whose input
+        and target differ in size, channels or bit depth, or whose file cannot
+        be opened, is better found before the first step than in epoch 40.
+
+        Raises:
+            DatasetError: naming the first ``most`` bad pairs and how many there are.
+        """
+        problems = []
+        for entry in self.entries:
+            try:
+                have = image_header(entry.input_path)
+                want = image_header(entry.target_path)
+            except ImageIOError as exc:
+                problems.append(str(exc))
+                continue
+            if have != want:
+                problems.append(
+                    f"{entry.input_path}: {have[1]}x{have[0]}x{have[2]} {have[3]} does not "
+                    f"match {entry.target_path.name} {want[1]}x{want[0]}x{want[2]} {want[3]}"
+                )
+        if problems:
+            raise DatasetError(
+                f"{self.root}: {len(problems)} bad pair(s) of {len(self.entries)}: "
+                + "; ".join(problems[:most])
+                + ("; ..." if len(problems) > most else "")
+            )
 
     def __iter__(self) -> Iterator[PairedItem]:
         """Read the pairs in order."""

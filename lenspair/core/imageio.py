@@ -62,6 +62,30 @@ def read_image(path: Path) -> np.ndarray:
     return np.ascontiguousarray(array[:, :, :3])
 
 
+def image_header(path: Path) -> tuple[int, int, int, str]:
+    """``(height, width, channels, format)`` from a file's header, pixels unread.
+
+    ``channels`` counts as :func:`read_image` returns them (1 or 3: alpha
+    dropped), so two files whose headers agree read to arrays of one shape.
+
+    Raises:
+        ImageIOError: the file is missing or its header unreadable (names it).
+    """
+    path = Path(path)
+    try:
+        handle = oiio.ImageInput.open(str(path))
+    except OSError as exc:
+        raise ImageIOError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    if handle is None:
+        raise ImageIOError(f"{path}: cannot open image ({_first_line(oiio.geterror())})")
+    try:
+        spec = handle.spec()
+        channels = 1 if spec.nchannels in (1, 2) else 3
+        return spec.height, spec.width, channels, str(spec.format)
+    finally:
+        handle.close()
+
+
 def _read_pixels(path: Path) -> np.ndarray:
     """The pixels of an existing file as OpenImageIO returns them, ``(H, W, C)``."""
     if path.stat().st_size == 0:

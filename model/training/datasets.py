@@ -17,7 +17,7 @@ from pathlib import Path
 
 from lenspair.core.imageio import read_image
 from lenspair.dataset.errors import DatasetError
-from lenspair.dataset.readers import detect_layout, open_paired
+from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.pairs import (
@@ -141,7 +141,9 @@ def paired_training_data(
         seed: seed of crops and flips.
 
     Raises:
-        DatasetError: unreadable dataset; ModelError: too few pairs.
+        DatasetError: unreadable dataset, or pairs whose headers disagree
+            (:meth:`~lenspair.dataset.readers.PairedDataset.check_headers`);
+            ModelError: too few pairs.
 
     """
     path = Path(path)
@@ -166,6 +168,12 @@ def paired_training_data(
             note = f"no {data.val_split!r} split ({exc}); validation: {len(val_idx)} "
             note += f"{data.train_split!r} pairs held out by name hash"
             log.warning("%s: %s", path, note)
+    checked: set[int] = set()
+    for source in (train_source, val_source):  # before the first step, not in epoch 40
+        paired = source.source if isinstance(source, SubsetSource) else source
+        if isinstance(paired, PairedDataset) and id(paired) not in checked:
+            paired.check_headers()
+            checked.add(id(paired))
     resolved = channels or first_channels(train_source)
     if channel_note := conversion_note(resolved, first_channels(train_source), path):
         log.warning("%s", channel_note)
