@@ -65,8 +65,15 @@ class FileSink:
         return count
 
     def done(self, frame: InputFrame) -> bool:
-        """True when ``frame``'s output already exists (written atomically: complete)."""
-        return (self.out_dir / frame.name).is_file()
+        """True when ``frame``'s output already exists (written atomically: complete).
+
+        An empty file does not count: outputs are renamed into place without
+        ``fsync`` (one per frame would cost more than the frame on slow
+        storage), and after a power cut a file system may keep the new name
+        with no data, which is what that looks like.
+        """
+        path = self.out_dir / frame.name
+        return path.is_file() and path.stat().st_size > 0
 
     def write(self, item: InputFrame, restored: np.ndarray | None) -> None:
         """Write ``restored`` under the frame's name, or copy the original file.

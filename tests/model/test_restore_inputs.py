@@ -189,3 +189,18 @@ def test_an_image_too_small_for_the_network_costs_only_itself(
     (problem,) = report.problems
     assert problem["frame"] == "tiny.png" and "7x5 pixels" in problem["reason"]
     assert (tmp_path / "out" / "tiny.png").read_bytes() == (source / "tiny.png").read_bytes()
+
+
+def test_resume_redoes_an_output_a_power_cut_left_empty(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    source = tmp_path / "in"
+    for index in range(2):
+        write_image(source / f"{index}.png", _image(index))
+    out = tmp_path / "out"
+    restore_input(source, out, backend)
+    whole = (out / "1.png").read_bytes()
+    (out / "1.png").write_bytes(b"")  # renamed into place, its data never reached the disk
+    report = restore_input(source, out, backend, RestoreOptions(resume=True))
+    assert (report.resumed, report.restored) == (1, 1)
+    assert (out / "1.png").read_bytes() == whole
