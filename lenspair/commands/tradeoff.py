@@ -49,7 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``tradeoff``."""
     parser.add_argument("dataset", type=Path, help="paired dataset folder (DS)")
     parser.add_argument("--out", type=Path, required=True, help="output folder (DIR)")
-    parser.add_argument("--budget", default="60", help="per variant: STEPS, or 90s / 5m / 1h")
+    parser.add_argument(
+        "--budget", default="60", help="per variant: STEPS, or 90s / 5m / 1h (60 steps)"
+    )
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     parser.add_argument("--config", type=Path, help="base run config (model section ignored)")
     parser.add_argument("--crop-size", type=positive_int, default=None, help="training crop (128)")
