@@ -127,6 +127,7 @@ class BagSink:
     """
 
     def __init__(self, source: Path, out_dir: Path, suffix: str = "", resume: bool = False) -> None:
+        self.source = Path(source)
         self.path = output_bag_path(source, out_dir)
         self.cache = Path(out_dir) / CACHE_DIR / self.path.name
         if self.path.is_dir():
@@ -180,7 +181,18 @@ class BagSink:
             self.copy.__exit__(None, None, None)
 
     def finish(self) -> None:
-        """After a complete run: drop the resume cache."""
+        """After a complete run: copy a ROS 2 bag folder's own files, drop the resume cache.
+
+        A ROS 2 bag folder may hold files of the recording beside its storage
+        (``rig.yaml``, a calibration): they are copied; its storage files and
+        ``metadata.yaml`` are not (the new bag has its own).
+        """
+        if self.source.is_dir() and self.path.is_dir():
+            for extra in sorted(self.source.iterdir()):
+                storage = extra.name == "metadata.yaml" or ".db3" in extra.name
+                storage = storage or extra.suffix.lower() == ".mcap"
+                if extra.is_file() and not storage and not (self.path / extra.name).exists():
+                    copy_file(extra, self.path / extra.name)
         if self.cache.exists():
             shutil.rmtree(self.cache)
         if self.cache.parent.is_dir() and not any(self.cache.parent.iterdir()):

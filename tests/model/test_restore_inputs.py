@@ -204,3 +204,15 @@ def test_resume_redoes_an_output_a_power_cut_left_empty(
     report = restore_input(source, out, backend, RestoreOptions(resume=True))
     assert (report.resumed, report.restored) == (1, 1)
     assert (out / "1.png").read_bytes() == whole
+
+
+def test_a_ros2_bag_folder_keeps_its_rig_file(tmp_path: Path, backend: TorchBackend) -> None:
+    (tmp_path / "b").mkdir()
+    frames = {"cam0": [(10**9 + k * 10**8, _image(k)) for k in range(2)]}
+    bag = write_bag(tmp_path / "b" / "run", "db3", frames)
+    write_rig_file(bag / "rig.yaml", RigFile(obstructed="cam0", anomaly=("rain",)))
+    report = restore_input(bag, tmp_path / "out", backend)
+    written = Path(report.output)
+    assert (written / "rig.yaml").read_bytes() == (bag / "rig.yaml").read_bytes()
+    ours = sorted(p.name for p in written.iterdir())
+    assert sum(name.endswith(".db3") for name in ours) == 1 and "metadata.yaml" in ours
