@@ -92,7 +92,7 @@ def _precision_rows(model: dict[str, Any] | None, int8: dict[str, Any] | None) -
                     f"{_num(ms, 1)} ms",
                     f"PSNR against fp32 output {_num(int8['psnr_vs_fp32_db'][name], 1)} dB; "
                     f"quantise/compile {_num(int8['setup_seconds'].get(name, 0.0), 0)} s",
-                    f"{_num(int8['speed_vs_fp32'][name], 2)}x faster than fp32 torch",
+                    _speed(int8["speed_vs_fp32"][name], "fp32 torch"),
                 ]
             )
     deraindrop = (model or {}).get("deraindrop_720x480_rgb") or {}
@@ -116,6 +116,13 @@ def _precision_rows(model: dict[str, Any] | None, int8: dict[str, Any] | None) -
             ]
         )
     return rows
+
+
+def _speed(ratio: float, than: str) -> str:
+    """``1.43x faster than fp32``, or ``1.18x slower than fp32`` for a ratio below 1."""
+    if ratio >= 1.0:
+        return f"{_num(ratio, 2)}x faster than {than}"
+    return f"{_num(1.0 / ratio, 2)}x slower than {than}"
 
 
 def _num(value: Any, digits: int) -> str:
@@ -347,7 +354,7 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 f"GEA {model['size'][1]}x{model['size'][0]} batch 1, {bf16}",
                 f"{_num(model['bf16_ms'], 1)} ms",
                 f"PSNR against fp32 output {_num(model['bf16_psnr_vs_fp32_db'][bf16], 1)} dB",
-                f"{_num(model['fp32_ms'] / model['bf16_ms'], 2)}x faster than fp32",
+                _speed(model["fp32_ms"] / model["bf16_ms"], "fp32"),
             ],
         ]
     training = load_json(bench / "training.json")

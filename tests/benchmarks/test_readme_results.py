@@ -278,3 +278,10 @@ def test_seeded_tradeoff_comes_in_as_the_command_wrote_it_with_its_device(tmp_pa
     assert "| state of the art, Raindrop test set | DeRaindrop | 0.921 | 31.50 |" in text
     missing = to_markdown(seeded_blocks(tmp_path / "absent.md"))
     assert "Not measured yet: the tradeoff over seeds comes from `lenspair tradeoff" in missing
+
+
+def test_a_speed_ratio_below_one_reads_as_slower() -> None:
+    from benchmarks.readme_results import _speed
+
+    assert _speed(1.43, "fp32") == "1.43x faster than fp32"
+    assert _speed(0.85, "fp32 torch") == "1.18x slower than fp32 torch"
