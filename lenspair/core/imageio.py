@@ -109,12 +109,20 @@ def _read_pixels(path: Path) -> np.ndarray:
     return np.asarray(pixels)
 
 
-def write_image(path: Path, image: np.ndarray) -> None:
+FAST_PNG = 1
+"""zlib level for PNGs written where throughput matters (``restore``): on
+natural 540x360 frames about twice as fast to write as the default level 6,
+for files a few per cent larger (the same pixels)."""
+
+
+def write_image(path: Path, image: np.ndarray, png_level: int | None = None) -> None:
     """Write ``image`` atomically; the format follows the file extension.
 
     Args:
         path: destination (``.png`` or ``.tif``/``.tiff``).
         image: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)``.
+        png_level: zlib compression level 0-9 of a PNG (``None``: the
+            library's default); see :data:`FAST_PNG`.
 
     """
     check_image(image, str(path))
@@ -124,6 +132,8 @@ def write_image(path: Path, image: np.ndarray) -> None:
 
     def _write(tmp: Path) -> None:
         spec = oiio.ImageSpec(width, height, channels, _OIIO_TYPES[image.dtype])
+        if png_level is not None:
+            spec.attribute("png:compressionLevel", png_level)
         out = oiio.ImageOutput.create(str(path))
         if out is None or not out.open(str(tmp), spec):
             raise ImageIOError(f"{path}: cannot write ({_first_line(oiio.geterror())})")

@@ -23,7 +23,7 @@ from lenspair.capture.bagwrite import BagCopy, output_bag_path
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage, InputFrame
 from lenspair.core.fsutil import atomic_write
-from lenspair.core.imageio import write_image
+from lenspair.core.imageio import FAST_PNG, write_image
 
 CACHE_DIR = ".restore-cache"
 """Under OUT: restored bag frames kept until the bag is complete (see :class:`BagSink`)."""
@@ -94,7 +94,7 @@ class FileSink:
             copy_file(Path(item.source), destination)
         else:
             destination.parent.mkdir(parents=True, exist_ok=True)
-            write_image(destination, restored)
+            write_image(destination, restored, png_level=FAST_PNG)  # a robot's stream: speed
 
     def cached(self, frame: InputFrame) -> np.ndarray | None:
         """Files need no cache: a finished frame is its output file."""

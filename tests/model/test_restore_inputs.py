@@ -216,3 +216,16 @@ def test_a_ros2_bag_folder_keeps_its_rig_file(tmp_path: Path, backend: TorchBack
     assert (written / "rig.yaml").read_bytes() == (bag / "rig.yaml").read_bytes()
     ours = sorted(p.name for p in written.iterdir())
     assert sum(name.endswith(".db3") for name in ours) == 1 and "metadata.yaml" in ours
+
+
+def _zlib_level(png: bytes) -> int:
+    """FLEVEL of the zlib stream in a PNG's first IDAT (0 fastest ... 2 default ... 3 best)."""
+    at = png.index(b"IDAT") + 4
+    return png[at + 1] >> 6
+
+
+def test_restored_pngs_are_written_for_speed(tmp_path: Path, backend: TorchBackend) -> None:
+    write_image(tmp_path / "in" / "a.png", _image(0))
+    assert _zlib_level((tmp_path / "in" / "a.png").read_bytes()) == 2  # the library default
+    restore_input(tmp_path / "in", tmp_path / "out", backend)
+    assert _zlib_level((tmp_path / "out" / "a.png").read_bytes()) == 0  # FAST_PNG: level 1
