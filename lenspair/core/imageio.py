@@ -14,7 +14,10 @@ an explicit ``(H, W, C)`` contiguous array; the output bytes are then a pure
 function of the pixels.
 """
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import OpenImageIO as oiio
@@ -71,17 +74,24 @@ def image_header(path: Path) -> tuple[int, int, int, str]:
     Raises:
         ImageIOError: the file is missing or its header unreadable (names it).
     """
-    path = Path(path)
-    try:
-        handle = oiio.ImageInput.open(str(path))
-    except OSError as exc:
-        raise ImageIOError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    if handle is None:
-        raise ImageIOError(f"{path}: cannot open image ({_first_line(oiio.geterror())})")
-    try:
+    with _opened(Path(path)) as handle:
         spec = handle.spec()
         channels = 1 if spec.nchannels in (1, 2) else 3
         return spec.height, spec.width, channels, str(spec.format)
+
+
+@contextlib.contextmanager
+def _opened(path: Path) -> Iterator[Any]:
+    """An OpenImageIO input for ``path``, closed on exit.
+
+    Raises:
+        ImageIOError: it cannot be opened (OpenImageIO's reason).
+    """
+    handle = oiio.ImageInput.open(str(path))
+    if handle is None:
+        raise ImageIOError(f"{path}: cannot open image ({_first_line(oiio.geterror())})")
+    try:
+        yield handle
     finally:
         handle.close()
 
@@ -94,18 +104,13 @@ def _read_pixels(path: Path) -> np.ndarray:
         problem = png_problem(path.read_bytes())
         if problem is not None:
             raise ImageIOError(f"{path}: {problem}")
-    handle = oiio.ImageInput.open(str(path))
-    if handle is None:
-        raise ImageIOError(f"{path}: cannot open image ({_first_line(oiio.geterror())})")
-    try:
+    with _opened(path) as handle:
         spec = handle.spec()
         if spec.format not in (oiio.UINT8, oiio.UINT16):
             raise ImageIOError(f"{path}: unsupported pixel format {spec.format} (need 8/16-bit)")
         pixels = handle.read_image(spec.format)
         if pixels is None:
             raise ImageIOError(f"{path}: corrupt or truncated ({_first_line(handle.geterror())})")
-    finally:
-        handle.close()
     return np.asarray(pixels)
 
 

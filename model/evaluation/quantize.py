@@ -48,7 +48,7 @@ from torch import Tensor, nn
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import INPUT_NAME, Restorer, _onnx_export, check_image
-from lenspair.model.evaluation.latency import tune_allocator
+from lenspair.model.inference.backends import deploy
 from lenspair.model.metrics import psnr
 from lenspair.model.training.pairs import to_tensor
 
@@ -291,9 +291,9 @@ def check_int8(
     The comparison image is held out of the calibration (the last of
     ``calibration`` when there are two or more): agreement measured on an
     image the ranges were fitted to would flatter int8. fp32 is timed as
-    ``restore`` runs it on the CPU (a channels-last copy, the allocator tuned:
-    :func:`~lenspair.model.evaluation.latency.measure_latency`), interleaved
-    with the int8 runs.
+    ``restore`` runs it on the CPU (a copy prepared by
+    :func:`~lenspair.model.inference.backends.deploy`: channels-last, the
+    allocator tuned), interleaved with the int8 runs.
     """
     held_out = calibration[-1] if len(calibration) >= 2 else None
     fitted = list(calibration[:-1]) if held_out is not None else list(calibration)
@@ -302,8 +302,7 @@ def check_int8(
     image = torch.from_numpy(held_out) if held_out is not None else check_image(channels, size)
     feed = {INPUT_NAME: image.numpy()}
     model = Restorer(network).cpu().eval()
-    tune_allocator()
-    deployed = copy.deepcopy(model).to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+    deployed = deploy(copy.deepcopy(model), torch.device("cpu"))
     deployed_image = image.contiguous(memory_format=torch.channels_last)
     with torch.inference_mode():
         expected = model(image)

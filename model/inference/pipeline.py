@@ -259,14 +259,16 @@ def check_apart(input_path: Path, kind: InputKind, out_dir: Path) -> None:
         ModelError: naming OUT and the input.
     """
     source, out = input_path.resolve(), out_dir.resolve()
-    if kind in ("folder", "euroc", "folders") and out.is_relative_to(source):
-        raise ModelError(
-            f"--out {out_dir}: inside the input {input_path}; outputs keep the input's names, "
-            "so choose a folder outside it"
-        )
+    if kind in ("folder", "euroc", "folders"):
+        if out.is_relative_to(source):
+            raise ModelError(
+                f"--out {out_dir}: inside the input {input_path}; outputs keep the input's "
+                "names, so choose a folder outside it"
+            )
+        return
     bag = kind in ("rosbag1", "rosbag2")
     written = output_bag_path(input_path, out_dir) if bag else out_dir / input_path.name
-    if kind not in ("folder", "euroc", "folders") and written.resolve() == source:
+    if written.resolve() == source:
         raise ModelError(
             f"--out {out_dir}: the folder that holds {input_path}; the output keeps its name "
             "and would replace it, so choose another folder"
@@ -304,7 +306,8 @@ def restore_input(
     check_apart(input_path, kind, out_dir)
     cameras = resolve_cameras(input_path, kind, options.camera)
     bag = kind in ("rosbag1", "rosbag2")
-    if not bag and not frame_files(input_path, kind, cameras):
+    files = [] if bag else frame_files(input_path, kind, cameras)
+    if not bag and not files:
         # Refused before OUT is made: an empty run is a mistyped path, not a result.
         raise ModelError(f"{input_path}: no images to restore")
     check_out_dir(out_dir, options.resume)
@@ -324,7 +327,6 @@ def restore_input(
         items: Iterator[Any] = iter_bag_messages(input_path, cameras, source_problems)
     else:
         sink = FileSink(out_dir)
-        files = frame_files(input_path, kind, cameras)
         total = len(files)
         items = iter_frames(input_path, cameras, source_problems)
     report = RestoreReport(

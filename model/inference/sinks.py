@@ -22,6 +22,7 @@ import numpy as np
 from lenspair.capture.bagwrite import BagCopy, output_bag_path
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage, InputFrame
+from lenspair.capture.rosbag import BAG_SUFFIXES
 from lenspair.core.fsutil import atomic_write
 from lenspair.core.imageio import FAST_PNG, write_image
 
@@ -189,8 +190,9 @@ class BagSink:
         """
         if self.source.is_dir() and self.path.is_dir():
             for extra in sorted(self.source.iterdir()):
-                storage = extra.name == "metadata.yaml" or ".db3" in extra.name
-                storage = storage or extra.suffix.lower() == ".mcap"
+                # run.db3, run.db3-wal, run.mcap: the storage and its SQLite side files
+                suffix = extra.suffix.lower().split("-")[0]
+                storage = extra.name == "metadata.yaml" or suffix in BAG_SUFFIXES
                 if extra.is_file() and not storage and not (self.path / extra.name).exists():
                     copy_file(extra, self.path / extra.name)
         if self.cache.exists():
