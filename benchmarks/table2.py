@@ -97,7 +97,9 @@ def _score(checkpoint: Path, dataset: Path, device: str) -> tuple[float, float, 
     loaded = load_model(checkpoint, torch.device(device))
     channels = loaded.config.model.channels or 1
     pairs = open_eval_pairs(dataset, "test")
-    scores, _ = score_pairs(loaded.network, pairs, channels, torch.device(device), max_samples=0)
+    scores = score_pairs(
+        loaded.network, pairs, channels, torch.device(device), max_samples=0
+    ).scores
     out, inp = summarize(scores), summarize(scores, "input")
     return out.psnr_db, out.ssim, inp.psnr_db, inp.ssim
 

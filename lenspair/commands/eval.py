@@ -15,6 +15,9 @@ contact_sheet.png (input | output | target; easy/medium/hard rows). Every
 table names its metric convention: skimage-gaussian (scikit-image, Gaussian
 SSIM) or deraindrop-y (DeRaindrop's Y-channel, 7x7 window protocol). An
 identical output gives PSNR = inf: kept per image, capped at 100 dB in means.
+A pair that cannot be read (a truncated file, input and target of different
+sizes) costs only itself: it is named in a one-line warning and listed in
+metrics.md and metrics.json, and the others are scored.
 
 Latency is measured as deployed: one image of the data's size, batch 1,
 after warm-up, median and p90 of --latency-runs runs, thread count stated;

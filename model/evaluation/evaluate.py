@@ -27,7 +27,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -42,10 +42,14 @@ from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import Latency, autocast_context, measure_latency
 from lenspair.model.metrics import PSNR_CAP_DB, image_metrics, parse_metric_convention
 from lenspair.model.training.pairs import (
+    PairItem,
     PairSource,
+    PairsView,
+    Unread,
     channels_of,
     conversion_note,
     open_eval_pairs,
+    read_pair,
     to_tensor,
 )
 
@@ -153,6 +157,7 @@ class EvalResult:
         versus_fp32: means of the output scored against the fp32 output
             (reduced precisions only): what the precision costs.
         precision_reason: why this precision (``lenspair.model.precision``).
+        unread: pairs that could not be read, and why (not in any mean).
 
     """
 
@@ -170,6 +175,7 @@ class EvalResult:
     model: dict[str, Any] = field(default_factory=dict)
     versus_fp32: Summary | None = None
     precision_reason: str = ""
+    unread: list[Unread] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready means (per-image scores stay in the CSV)."""
@@ -189,6 +195,7 @@ class EvalResult:
             "latency": [lat.as_dict() for lat in self.latency],
             "versus_fp32": None if self.versus_fp32 is None else asdict(self.versus_fp32),
             "precision_reason": self.precision_reason,
+            "unread": [asdict(u) for u in self.unread],
         }
 
 
@@ -201,6 +208,14 @@ def _quantize(image: torch.Tensor, dtype: np.dtype[Any]) -> torch.Tensor:
     return torch.round(image.clamp(0.0, 1.0) * scale) / scale
 
 
+class Scored(NamedTuple):
+    """What :func:`score_pairs` returns."""
+
+    scores: list[ImageScore]
+    samples: list[SheetRow]
+    unread: list[Unread]
+
+
 @torch.inference_mode()
 def score_pairs(
     network: nn.Module,
@@ -211,7 +226,8 @@ def score_pairs(
     precision: str = "fp32",
     samples_per_difficulty: int = 2,
     max_samples: int = 6,
-) -> tuple[list[ImageScore], list[SheetRow]]:
+    unread: Sequence[Unread] = (),
+) -> Scored:
     """Score ``network`` on every pair, one whole image at a time (batch 1).
 
     Args:
@@ -223,17 +239,23 @@ def score_pairs(
         precision: ``fp32``, ``bf16`` or ``fp16`` (autocast).
         samples_per_difficulty: contact-sheet rows per difficulty, when known.
         max_samples: contact-sheet rows when difficulties are unknown.
+        unread: pairs already known to be unreadable: skipped, and returned.
 
     Returns:
-        Per-image scores, and contact-sheet rows in easy/medium/hard order.
+        Per-image scores, contact-sheet rows in easy/medium/hard order, and
+        the pairs that could not be read (each logged once): one bad pair
+        costs only itself.
 
     """
     network.to(device).eval()
     scores: list[ImageScore] = []
     samples: list[SheetRow] = []
     taken: dict[str, int] = {}
+    bad = list(unread)
+    known = {u.index for u in bad}
     for index in progress(range(len(pairs)), "evaluating", total=len(pairs), unit="image"):
-        item = pairs[index]
+        if index in known or (item := read_pair(pairs, index, bad)) is None:
+            continue
         x = to_tensor(item.input, channels)[None].to(device)
         target = to_tensor(item.target, channels)[None].to(device)
         with autocast_context(device, precision):
@@ -263,7 +285,7 @@ def score_pairs(
             )
     order = {name: i for i, name in enumerate(DIFFICULTY_ORDER)}
     samples.sort(key=lambda row: order.get(row.difficulty or "", len(order)))
-    return scores, samples
+    return Scored(scores, samples, sorted(bad, key=lambda u: u.index))
 
 
 @torch.inference_mode()
@@ -343,31 +365,36 @@ def evaluate_checkpoint(
     loaded = load_model(checkpoint, device)
     channels = loaded.config.model.channels or 1
     pairs = open_eval_pairs(data, split)
-    if len(pairs) and (note := conversion_note(channels, channels_of(pairs[0].input), data)):
-        log.warning("%s", note)
     if len(pairs) == 0:
         raise ModelError(
             f"{data}: split {split!r} holds no pairs (dataset-build leaves a split empty when "
             "there are too few recordings or segments); evaluate another one with --split"
         )
+    leading: list[Unread] = []
+    first = _first_readable(pairs, leading)
+    if note := conversion_note(channels, channels_of(first.input), data):
+        log.warning("%s", note)
+    size = (int(first.input.shape[0]), int(first.input.shape[1]))
     network: nn.Module = loaded.network
     if precision == "int8":
         # here, not at the top: only int8 needs ONNX Runtime, which is slow to import
         from lenspair.model.evaluation.quantize import Int8Network, calibration_images
 
-        first = tuple(pairs[0].input.shape[:2])
         source = pairs if calibration is None else calibration
-        images = calibration_images(source, channels, (first[0], first[1]))
+        images = calibration_images(source, channels, size)
         network = Int8Network(loaded.network, channels, images)
-    scores, samples = score_pairs(network, pairs, channels, device, convention, precision)
+    scores, samples, unread = score_pairs(
+        network, pairs, channels, device, convention, precision, unread=leading
+    )
+    bad = {u.index for u in unread}
+    scored = PairsView(pairs, [i for i in range(len(pairs)) if i not in bad]) if bad else pairs
     versus_fp32 = None
     if precision != "fp32":
         versus_fp32 = agreement_with_fp32(
-            network, loaded.network, pairs, channels, device, convention, precision
+            network, loaded.network, scored, channels, device, convention, precision
         )
     latency = []
     if latency_runs > 0:
-        size = tuple(pairs[0].input.shape[:2])
         cuda = device if device.type == "cuda" else torch.device("cuda")
         devices = [torch.device("cpu")] + ([cuda] if torch.cuda.is_available() else [])
         for where in devices:
@@ -405,4 +432,18 @@ def evaluate_checkpoint(
         model=to_plain(loaded.config.model),
         versus_fp32=versus_fp32,
         precision_reason=precision_reason,
+        unread=unread,
     )
+
+
+def _first_readable(pairs: PairSource, unread: list[Unread]) -> PairItem:
+    """The first pair that can be read (the unreadable ones before it go to ``unread``).
+
+    Raises:
+        ModelError: no pair can be read (naming the first problem).
+
+    """
+    for index in range(len(pairs)):
+        if (item := read_pair(pairs, index, unread)) is not None:
+            return item
+    raise ModelError(f"none of the {len(pairs)} pairs can be read; the first: {unread[0].reason}")

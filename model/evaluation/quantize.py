@@ -50,7 +50,7 @@ from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import INPUT_NAME, Restorer, _onnx_export, check_image
 from lenspair.model.inference.backends import deploy
 from lenspair.model.metrics import psnr
-from lenspair.model.training.pairs import to_tensor
+from lenspair.model.training.pairs import Unread, read_pair, to_tensor
 
 log = logging.getLogger(__name__)
 
@@ -71,19 +71,27 @@ def calibration_images(
             (area interpolation: the ranges matter here, not the geometry).
         count: at most this many images, evenly spaced.
 
+    An unreadable pair is skipped with a warning (calibration goes on with
+    the others).
+
     Raises:
-        ModelError: no pairs.
+        ModelError: no pairs, or none readable.
 
     """
     if len(pairs) == 0:
         raise ModelError("int8 calibration: no images to calibrate on")
     indices = np.unique(np.linspace(0, len(pairs) - 1, min(count, len(pairs))).round().astype(int))
     images = []
+    unread: list[Unread] = []
     for index in indices:
-        x = to_tensor(pairs[int(index)].input, channels)[None]
+        if (item := read_pair(pairs, int(index), unread)) is None:
+            continue
+        x = to_tensor(item.input, channels)[None]
         if tuple(x.shape[2:]) != size:
             x = F.interpolate(x, size=size, mode="area")
         images.append(np.ascontiguousarray(x.numpy(), dtype=np.float32))
+    if not images:
+        raise ModelError(f"int8 calibration: no image can be read; the first: {unread[0].reason}")
     return images
 
 

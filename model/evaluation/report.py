@@ -8,7 +8,8 @@ PSNR cap (:data:`~lenspair.model.metrics.PSNR_CAP_DB`) named in every table.
 Reports written by :func:`write_report` into ``EVAL_DIR``::
 
     per_image.csv      name, difficulty, height, width, psnr_db, ssim
-    metrics.json       means overall and per difficulty, convention, latency
+    metrics.json       means overall and per difficulty, convention, latency,
+                       the pairs that could not be read and why
     metrics.md         the same as Markdown tables
     contact_sheet.png  input | output | target for a few images (easy/medium/hard rows)
 
@@ -30,6 +31,9 @@ from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.imageio import write_image
 from lenspair.model.evaluation.evaluate import EvalResult, fmt_psnr
 from lenspair.model.metrics import PSNR_CAP_DB
+
+UNREAD_LISTED = 20
+"""Unreadable pairs named in ``metrics.md``; ``metrics.json`` lists them all."""
 
 
 def convention_note(convention: str) -> str:
@@ -79,6 +83,11 @@ def markdown_report(result: EvalResult) -> str:
         f"{capped} image(s) were capped. The input columns score the obstructed input "
         "itself against the target (no restoration): the baseline to beat.",
     ]
+    if result.unread:
+        lines += ["", f"## {len(result.unread)} pair(s) could not be read (not in the means)", ""]
+        lines += [f"- pair {u.index}: {u.reason}" for u in result.unread[:UNREAD_LISTED]]
+        if len(result.unread) > UNREAD_LISTED:
+            lines.append(f"- and {len(result.unread) - UNREAD_LISTED} more (metrics.json)")
     if result.latency:
         lines += [
             "",

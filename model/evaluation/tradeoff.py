@@ -56,7 +56,7 @@ from lenspair.model.precision import choose_precision
 from lenspair.model.training.config import RunConfig, Variant, config_differences
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
-from lenspair.model.training.pairs import open_eval_pairs
+from lenspair.model.training.pairs import open_eval_pairs, readable_pairs
 from lenspair.model.training.step import vgg19_weights_path
 
 log = logging.getLogger(__name__)
@@ -220,6 +220,14 @@ def run_tradeoff(
             f"{pairs_text}: no pairs to score; choose another --split (e.g. val) or rebuild "
             "the dataset with a non-empty one (dataset-build --splits)"
         )
+    pairs, unread = readable_pairs(pairs)
+    if len(pairs) == 0:
+        raise ModelError(f"{pairs_text}: none can be read; the first: {unread[0].reason}")
+    if unread:
+        pairs_text += (
+            f"; {len(unread)} pair(s) of the scored split could not be read and are not "
+            "scored (listed in tradeoff.json)"
+        )
     size = tuple(pairs[0].input.shape[:2])
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -232,6 +240,7 @@ def run_tradeoff(
         "size": f"{size[1]}x{size[0]}",
         "convention": convention,
         "seed": base.train.seed,
+        **({"unread": [asdict(u) for u in unread]} if unread else {}),
     }
     atomic_write_text(
         out_dir / "tradeoff_config.yaml",
@@ -261,9 +270,9 @@ def run_tradeoff(
             ):
                 continue  # int8 for the paper's GEA only: each quantisation costs ~1 min
             network = _at_precision(loaded.network, precision, pairs, dataset, base, data.channels)
-            scores, _ = score_pairs(
+            scores = score_pairs(
                 network, pairs, data.channels, device, convention, precision, 0, 0
-            )
+            ).scores
             means = summarize(scores)
             versus = None
             if precision != "fp32":

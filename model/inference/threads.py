@@ -72,12 +72,19 @@ def threaded(items: Iterator[Any], size: int) -> Iterator[Any]:
 
 
 class Writer:
-    """The writer thread: writes ``(item, pixels | None)`` in order, records failures."""
+    """The writer thread: writes ``(item, pixels | None)`` in order, records failures.
+
+    A restored frame that cannot be written (its original is copied instead)
+    is counted into the report by :meth:`close`, in the caller's thread: the
+    report's counters are the caller's alone, never updated from two threads.
+    """
 
     def __init__(self, sink: "FileSink | BagSink", report: "RestoreReport", size: int) -> None:
         self.sink, self.report = sink, report
         self.queue: queue.Queue[Any] = queue.Queue(maxsize=size)
         self.failure: list[BaseException] = []
+        self.problems: list[dict[str, str]] = []  # found in the writer thread
+        self.unwritten = 0  # restored frames whose original was written instead
         self.thread = threading.Thread(target=self._run, name="restore-writer", daemon=True)
         self.thread.start()
 
@@ -101,11 +108,10 @@ class Writer:
                 except (CaptureError, ValueError) as exc:  # this frame only
                     if frame is None:
                         raise
-                    self.report.problems.append({"frame": frame.name, "reason": str(exc)})
+                    self.problems.append({"frame": frame.name, "reason": str(exc)})
                     if pixels is None:  # not even the original could be copied: said above
                         continue
-                    self.report.restored -= 1
-                    self.report.failed += 1
+                    self.unwritten += 1
                     self.sink.write(item, None)
             except BaseException as exc:  # disk full, permissions: fatal, raised by close()
                 self.failure.append(exc)
@@ -117,8 +123,11 @@ class Writer:
         self.queue.put((item, frame, pixels))
 
     def close(self) -> None:
-        """Finish writing and close the sink; raises the writer's error, if any."""
+        """Finish writing, close the sink, count unwritten frames; raises the writer's error."""
         self.queue.put(_END)
         self.thread.join()
+        self.report.problems.extend(self.problems)
+        self.report.restored -= self.unwritten
+        self.report.failed += self.unwritten
         if self.failure:
             raise self.failure[0]

@@ -13,7 +13,9 @@ is identical whatever the number of workers or processes, and a resumed run
 sees exactly the batches it would have seen.
 """
 
+import logging
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol, TypedDict
 
@@ -21,9 +23,12 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import to_float
 from lenspair.dataset.readers import detect_layout, open_paired
 from lenspair.model.errors import ModelError
+
+log = logging.getLogger(__name__)
 
 
 class PairItem(Protocol):
@@ -46,6 +51,56 @@ class PairSource(Protocol):
 
     def __len__(self) -> int: ...
     def __getitem__(self, index: int) -> PairItem: ...
+
+
+@dataclass(frozen=True)
+class Unread:
+    """A pair that could not be read, and why (the reason names the file)."""
+
+    index: int
+    reason: str
+
+
+class PairsView:
+    """The pairs of ``pairs`` at ``indices``, in that order (a :class:`PairSource`)."""
+
+    def __init__(self, pairs: PairSource, indices: Sequence[int]) -> None:
+        self.pairs = pairs
+        self.indices = list(indices)
+        self.root = getattr(pairs, "root", None)
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def __getitem__(self, index: int) -> PairItem:
+        return self.pairs[self.indices[index]]
+
+
+def read_pair(pairs: PairSource, index: int, unread: list[Unread]) -> PairItem | None:
+    """Pair ``index``, or ``None`` after logging and recording why it cannot be read.
+
+    One bad pair (a truncated file, input and target of different sizes)
+    costs only itself: the caller goes on with the others and reports
+    ``unread`` at the end, so that every pair is accounted for.
+    """
+    try:
+        return pairs[index]
+    except LenspairError as exc:
+        log.warning("skipped pair %d: %s", index, exc)
+        unread.append(Unread(index, str(exc)))
+        return None
+
+
+def readable_pairs(pairs: PairSource) -> tuple[PairSource, list[Unread]]:
+    """Read every pair once: a view of the readable ones, and why the others are not.
+
+    For scoring the same pairs many times (``tradeoff`` scores each variant
+    and precision): the bad ones are found, and said, once, before any
+    training.
+    """
+    unread: list[Unread] = []
+    good = [i for i in range(len(pairs)) if read_pair(pairs, i, unread) is not None]
+    return (pairs if not unread else PairsView(pairs, good)), unread
 
 
 class Sample(TypedDict):

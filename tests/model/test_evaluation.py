@@ -137,6 +137,62 @@ def test_odd_sizes_and_identical_images(tmp_path: Path) -> None:
     assert f"as {PSNR_CAP_DB:g} dB" in files["markdown"].read_text()
 
 
+def _spoil(folder: Path) -> dict[str, str]:
+    """Truncate pair 000's input and give pair 002 a target of another size."""
+    first = folder / "input" / "000.png"
+    first.write_bytes(first.read_bytes()[:60])
+    rng = np.random.default_rng(3)
+    write_image(folder / "target" / "002.png", clean_image(rng, 20, 24))
+    return {"000": "000.png", "002": "002.png"}
+
+
+@pytest.mark.parametrize("precision", ["fp32", "int8"])
+def test_a_bad_pair_costs_only_itself_and_is_reported(tmp_path: Path, precision: str) -> None:
+    if precision == "int8":
+        pytest.importorskip("onnxruntime")
+    folder = write_paired_folder(tmp_path / "pairs", count=5)
+    expected = dict(
+        zip(
+            ["000", "001", "002", "003", "004"],
+            _expected(make_checkpoint(tmp_path / "ckpt.pt"), folder, "skimage-gaussian"),
+            strict=True,
+        )
+    )
+    _spoil(folder)
+    checkpoint = tmp_path / "ckpt.pt"
+    out = tmp_path / "eval"
+    args = ["eval", str(checkpoint), "--data", str(folder), "--out", str(out), "--device", "cpu"]
+    assert main([*args, "--precision", precision, "--latency-runs", "1"]) == 0
+
+    with (out / "per_image.csv").open() as handle:
+        rows = {r["name"]: float(r["psnr_db"]) for r in csv.DictReader(handle)}
+    assert sorted(rows) == ["001", "003", "004"]
+    if precision == "fp32":
+        for name, psnr in rows.items():
+            assert psnr == pytest.approx(expected[name][0], abs=1e-6)
+    means = json.loads((out / "metrics.json").read_text())
+    assert means["overall"]["pairs"] == 3
+    unread = means["unread"]
+    assert [u["index"] for u in unread] == [0, 2]
+    assert "000.png" in unread[0]["reason"] and "002.png" in unread[1]["reason"]
+    if precision == "int8":
+        assert means["versus_fp32"]["pairs"] == 3
+    markdown = (out / "metrics.md").read_text()
+    assert "2 pair(s) could not be read" in markdown and "000.png" in markdown
+    assert means["latency"][0]["size"] == "48x32"  # from the first readable pair
+
+
+def test_eval_with_no_readable_pair_is_one_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder = write_paired_folder(tmp_path / "pairs", count=1)
+    (folder / "target" / "000.png").write_bytes(b"not a png")
+    checkpoint = make_checkpoint(tmp_path / "ckpt.pt")
+    assert main(["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0"]) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "none of the 1 pairs can be read" in error and "000.png" in error
+
+
 def _row(name: str, difficulty: str) -> ManifestRow:
     return ManifestRow(
         split="test", name=name, recording="rec", group="rec", t_ns=0, obstructed="cam0",

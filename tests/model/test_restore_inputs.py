@@ -2,6 +2,7 @@
 
 import errno
 import shutil
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from lenspair.core.imageio import read_image, write_image
 from lenspair.model.errors import ModelError
 from lenspair.model.inference import sinks
 from lenspair.model.inference.backends import TorchBackend, open_backend
-from lenspair.model.inference.pipeline import RestoreOptions, restore_input
+from lenspair.model.inference.pipeline import RestoreOptions, RestoreReport, restore_input
 from tests.capture.ingest_helpers import make_recording
 from tests.images import texture
 from tests.model.restore_helpers import write_bag
@@ -229,3 +230,35 @@ def test_restored_pngs_are_written_for_speed(tmp_path: Path, backend: TorchBacke
     assert _zlib_level((tmp_path / "in" / "a.png").read_bytes()) == 2  # the library default
     restore_input(tmp_path / "in", tmp_path / "out", backend)
     assert _zlib_level((tmp_path / "out" / "a.png").read_bytes()) == 0  # FAST_PNG: level 1
+
+
+def test_a_restored_frame_that_cannot_be_written_is_copied_and_counted_once(
+    tmp_path: Path, backend: TorchBackend, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source = tmp_path / "in"
+    for index in range(4):
+        write_image(source / f"{index}.png", _image(index))
+    real_write = sinks.FileSink.write
+    writer_threads = []
+
+    def write(self: sinks.FileSink, item: object, restored: np.ndarray | None) -> None:
+        writer_threads.append(threading.current_thread().name)
+        if restored is not None and getattr(item, "name", "") == "2.png":
+            raise ValueError("2.png: cannot encode")
+        real_write(self, item, restored)  # type: ignore[arg-type]
+
+    counted_in = set()
+
+    def count(self: RestoreReport, name: str, value: object) -> None:
+        counted_in.add(threading.current_thread().name)
+        object.__setattr__(self, name, value)
+
+    monkeypatch.setattr(sinks.FileSink, "write", write)
+    monkeypatch.setattr(RestoreReport, "__setattr__", count)
+    report = restore_input(source, tmp_path / "out", backend, RestoreOptions(batch_size=2))
+    assert set(writer_threads) == {"restore-writer"}
+    assert counted_in == {threading.main_thread().name}  # counters never raced by the writer
+    assert (report.frames_read, report.restored, report.failed) == (4, 3, 1)
+    assert report.problems == [{"frame": "2.png", "reason": "2.png: cannot encode"}]
+    assert (tmp_path / "out" / "2.png").read_bytes() == (source / "2.png").read_bytes()
+    assert (tmp_path / "out" / "1.png").read_bytes() != (source / "1.png").read_bytes()

@@ -9,6 +9,7 @@ import torch
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
+from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import score_tensors
 from lenspair.model.evaluation.tradeoff import (
@@ -341,3 +342,43 @@ def test_an_empty_split_to_score_is_a_one_line_error(
             dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), tiny_config(), gea
         )
     assert not (tmp_path / "t").exists()  # refused before anything was trained or written
+
+
+def test_an_unreadable_test_pair_is_skipped_and_recorded_before_training(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1, "test": 3})
+    bad = dataset / "test" / "target" / "001.png"
+    bad.write_bytes(bad.read_bytes()[:50])
+    g = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
+    result = run_tradeoff(dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1),
+                          tiny_config(), g, latency_runs=1)  # fmt: skip
+    (unread,) = result.meta["unread"]
+    assert unread["index"] == 1 and "001.png" in unread["reason"]
+    # the row's mean is over the two readable pairs: recompute it from them
+    network = load_model(tmp_path / "t" / "runs" / "G" / "checkpoints" / "best.pt").network
+    pairs = open_eval_pairs(dataset, "test")
+    psnrs = []
+    for index in (0, 2):
+        x = to_tensor(pairs[index].input, 1)[None]
+        with torch.no_grad():
+            output = torch.round(network(x)[1].clamp(0, 1) * 255) / 255
+        psnrs.append(
+            score_tensors(output, to_tensor(pairs[index].target, 1)[None], "skimage-gaussian")[0]
+        )
+    assert result.rows[0].psnr_db == pytest.approx(sum(psnrs) / 2, abs=1e-6)
+    saved = json.loads((tmp_path / "t" / "tradeoff.json").read_text())
+    assert saved["unread"] == result.meta["unread"]
+    assert (
+        "1 pair(s) of the scored split could not be read"
+        in (tmp_path / "t" / "tradeoff.md").read_text()
+    )
+
+
+def test_a_test_split_with_no_readable_pair_is_refused_before_training(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    (dataset / "test" / "input" / "000.png").write_bytes(b"")
+    g = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
+    with pytest.raises(ModelError, match=r"none can be read; the first: .*000\.png"):
+        run_tradeoff(
+            dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), tiny_config(), g
+        )
+    assert not (tmp_path / "t").exists()
