@@ -23,7 +23,10 @@ the log names the setting that differs. The defaults (60 steps, 128 px
 crops, batch 4, bf16 on the CPU: roughly 0.5-1 s per GEA step on two cores,
 three times that for GEA-w2) are sized for a demonstration, not for
 conclusions; use e.g. --budget 30m --crop-size 256 --batch-size 8 on a GPU
-for a real comparison.
+for a real comparison. Under a step budget the learning rate falls linearly
+to zero over the budget's second half (--lr-decay 0.5, pix2pix's schedule),
+so that each network's accuracy settles by the end instead of being read off
+a still-rising curve.
 
 With several --seeds (default 0,1,2) every variant is trained once per seed
 (DIR/seed<k>/ holds each seed's table and runs) and DIR/tradeoff_seeds.md
@@ -56,6 +59,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, help="base run config (model section ignored)")
     parser.add_argument("--crop-size", type=positive_int, default=None, help="training crop (128)")
     parser.add_argument("--batch-size", type=positive_int, default=None, help="training batch (4)")
+    parser.add_argument(
+        "--lr-decay",
+        type=float,
+        default=None,
+        metavar="SHARE",
+        help="share of a step budget, at its end, over which the learning rate falls "
+        "linearly to zero, so that each variant's accuracy settles by the end (0.5, "
+        "pix2pix's schedule; with --config: its train.lr_decay; 0: constant, as the "
+        "paper; a time budget trains at constant rate)",
+    )
     parser.add_argument("--variants", help="comma-separated subset of the variant names")
     parser.add_argument(
         "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
@@ -71,7 +84,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the comparison; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair tradeoff --help`.
-    from lenspair.model.evaluation.tradeoff import DEFAULT_VARIANTS, parse_budget, run_tradeoff
+    from lenspair.model.evaluation.tradeoff import (
+        DEFAULT_LR_DECAY,
+        DEFAULT_VARIANTS,
+        parse_budget,
+        run_tradeoff,
+    )
     from lenspair.model.evaluation.tradeoff_report import tradeoff_markdown
     from lenspair.model.training.config import load_run_config
 
@@ -93,11 +111,13 @@ def run(args: argparse.Namespace) -> int:
     crop, batch = (base.data.crop_size, base.train.batch_size) if args.config else (128, 4)
     crop = crop if args.crop_size is None else args.crop_size  # positive_int: >= 1
     batch = batch if args.batch_size is None else args.batch_size
+    decay = base.train.lr_decay if args.config else DEFAULT_LR_DECAY
+    decay = decay if args.lr_decay is None else args.lr_decay
     try:
         base = dataclasses.replace(
             base,
             data=dataclasses.replace(base.data, crop_size=crop),
-            train=dataclasses.replace(base.train, batch_size=batch),
+            train=dataclasses.replace(base.train, batch_size=batch, lr_decay=decay),
         )
     except ValueError as exc:
         raise ConfigError(str(exc)) from None

@@ -123,8 +123,16 @@ class TradeoffResult:
     meta: dict[str, Any]
 
 
+DEFAULT_LR_DECAY = 0.5
+"""``lenspair tradeoff``'s learning-rate decay: over the step budget's second half (pix2pix)."""
+
+
 def variant_config(base: RunConfig, variant: TradeoffVariant, budget: Budget) -> RunConfig:
-    """The run config of one variant: its network, the shared budget, no early stopping."""
+    """The run config of one variant: its network, the shared budget, no early stopping.
+
+    ``train.lr_decay`` is kept for a step budget and set to 0 for a time
+    budget, whose length in steps is not known in advance.
+    """
     return replace(
         base,
         model=replace(
@@ -135,6 +143,7 @@ def variant_config(base: RunConfig, variant: TradeoffVariant, budget: Budget) ->
             max_steps=budget.steps,
             max_seconds=budget.seconds,
             patience=0,
+            lr_decay=base.train.lr_decay if budget.steps else 0.0,
             epochs=max(base.train.epochs, 10**6)
             if budget.steps or budget.seconds
             else base.train.epochs,
@@ -390,6 +399,11 @@ def reuse_obstacle(stored: RunConfig, wanted: RunConfig, dataset: str | None = N
         before, after = getattr(stored.train, name), getattr(wanted.train, name)
         if after is not None and (before is None or after < before):
             return f"train.{name}: {before!r} -> {after!r} (the run may have trained past it)"
+        if wanted.train.lr_decay > 0 and before != after:
+            return (
+                f"train.{name}: {before!r} -> {after!r} (the learning rate decays to the "
+                "budget's end: a longer run is another schedule, not an extension)"
+            )
     runtime = stored.runtime
     if dataset is not None and (runtime is None or runtime.data != dataset):
         return f"dataset: {runtime.data if runtime else 'unknown'!r} -> {dataset!r}"

@@ -116,6 +116,15 @@ class TrainConfig:
             (0 disables early stopping).
         max_steps: optional budget in optimiser steps (stops mid-epoch).
         max_seconds: optional budget in wall-clock seconds of training.
+        lr_decay: the share of the run, at its end, over which the learning
+            rate of both networks falls linearly to zero (pix2pix's schedule
+            is 0.5: constant for the first half, then linear decay); ``0``
+            keeps it constant, as the paper trains. The run's length is
+            counted in steps: ``max_steps``, else ``epochs`` x steps per
+            epoch (a ``max_seconds`` budget does not move it, so that every
+            process of a torchrun run sets the same rate). A budget-bound
+            comparison (``lenspair tradeoff``) anneals so that each network's
+            accuracy settles by the budget's end.
         precision: ``auto`` (bf16 autocast on a CPU with ``avx512_bf16``/AMX,
             fp32 on one without, and fp32 on CUDA: measured on an H100, these
             small networks train faster at fp32 than with bf16/fp16 autocast;
@@ -150,6 +159,7 @@ class TrainConfig:
     patience: int = 10
     max_steps: int | None = None
     max_seconds: float | None = None
+    lr_decay: float = 0.0
     precision: TrainPrecision = "auto"
     amp: bool = True
     seed: int = 0
@@ -174,6 +184,8 @@ class TrainConfig:
             )
         if self.lr <= 0:
             raise ValueError(f"lr: expected > 0, got {self.lr}")
+        if not 0.0 <= self.lr_decay <= 1.0:
+            raise ValueError(f"lr_decay: expected 0..1, got {self.lr_decay}")
         if not (0.0 <= self.beta1 < 1.0 and 0.0 <= self.beta2 < 1.0):
             raise ValueError("beta1, beta2: expected 0 <= beta < 1")
         for name in ("batch_size", "epochs", "nan_patience", "val_every", "log_every"):

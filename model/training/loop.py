@@ -65,6 +65,7 @@ from lenspair.model.training.step import (
     Trainer,
     all_true,
     init_distributed,
+    scheduled_lr,
     set_rng_state,
 )
 from lenspair.model.training.validation import validate_and_save
@@ -377,6 +378,14 @@ def _loop(
         seed=train.seed,
     )
     steps_per_epoch = math.ceil(len(sampler) / per_rank)
+    total_steps = train.max_steps or train.epochs * steps_per_epoch
+    if train.lr_decay > 0 and info.is_main:
+        log.info(
+            "learning rate %g, falling linearly over the last %d of %d steps",
+            train.lr,
+            round(train.lr_decay * total_steps),
+            total_steps,
+        )
     started = time.monotonic()
     session_start = state.seconds
 
@@ -404,6 +413,8 @@ def _loop(
         sums, counted = dict(state.loss_sums), state.loss_steps
         bar = progress(loader, _epoch_label(epoch, train), total=len(loader), unit="step")
         for batch in bar if info.is_main else loader:
+            if train.lr_decay > 0:
+                trainer.set_lr(scheduled_lr(train, state.step, total_steps))
             result = trainer.train_step(batch)
             state.step += 1
             state.step_in_epoch += 1
@@ -414,6 +425,8 @@ def _loop(
                 if board is not None and state.step % train.log_every == 0:
                     for name, value in result.losses.items():
                         board.add_scalar(f"train/{name}", value, state.step)
+                    lr = trainer.opt_g.param_groups[0]["lr"]
+                    board.add_scalar("train/lr", lr, state.step)
             state.seconds = elapsed()
             reason = budget_reason(config, state)
             if reason is None and clock.due(state):  # a kill now loses little

@@ -158,6 +158,22 @@ def _unwrap(module: nn.Module) -> nn.Module:
     return inner if isinstance(inner, nn.Module) else module
 
 
+def scheduled_lr(train: TrainConfig, step: int, total_steps: int) -> float:
+    """The learning rate of optimiser step ``step`` (0-based) of a ``total_steps`` run.
+
+    Constant at ``train.lr`` until the last ``train.lr_decay`` share of the
+    run, then linear down to ``lr / decay_steps`` at the last step (never
+    zero, never negative: a resumed run past its old end keeps the last
+    rate). A function of the step alone, so a resumed run sets exactly the
+    rates a straight run would.
+    """
+    decay_steps = train.lr_decay * total_steps
+    if decay_steps <= 0:
+        return train.lr
+    remaining = max(total_steps - step, 1)
+    return train.lr * min(1.0, remaining / decay_steps)
+
+
 class Trainer:
     """Networks, optimisers, scaler and losses of one run, and its training step.
 
@@ -277,6 +293,12 @@ class Trainer:
             logits = self.discriminator(pairs)[-1]
         real, fake = logits.float().chunk(2, dim=0)
         return discriminator_loss(real, fake)
+
+    def set_lr(self, lr: float) -> None:
+        """Set the learning rate of both optimisers (the schedule: :func:`scheduled_lr`)."""
+        for optimizer in (self.opt_g, self.opt_d):
+            for group in optimizer.param_groups:
+                group["lr"] = lr
 
     def train_step(self, batch: Mapping[str, Any]) -> StepResult:
         """One update of the restoration network and of ``D`` (or none, if not finite).

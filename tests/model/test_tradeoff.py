@@ -269,6 +269,14 @@ def test_a_run_trained_with_other_settings_is_not_reused(
         assert not run.exists(), setting
         [record] = caplog.records
         assert str(run) in record.getMessage() and setting in record.getMessage()
+    # With a decaying learning rate a longer budget is another schedule, not an extension.
+    stored = replace(tiny_config(max_steps=60, lr_decay=0.5), runtime=RuntimeInfo(data=data))
+    assert reused(tiny_config(max_steps=60, lr_decay=0.5))
+    caplog.clear()
+    assert not reused(tiny_config(max_steps=120, lr_decay=0.5))
+    assert "another schedule" in caplog.records[0].getMessage()
+    assert not reused(tiny_config(max_steps=60))  # lr_decay 0.5 -> 0
+    stored = replace(tiny_config(max_steps=60), runtime=RuntimeInfo(data=data))
     caplog.clear()
     assert reused(tiny_config(max_steps=60), data)  # the same dataset
     assert not reused(tiny_config(max_steps=60), "/data/other (train 2 pairs, validation 1 pairs)")
@@ -382,3 +390,30 @@ def test_a_test_split_with_no_readable_pair_is_refused_before_training(tmp_path:
             dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), tiny_config(), g
         )
     assert not (tmp_path / "t").exists()
+
+
+def test_the_cli_anneals_step_budgets_by_default(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from lenspair.model.evaluation import tradeoff
+
+    decays: list[float] = []
+
+    def record(dataset: Path, out: Path, device: object, budget: Budget, base: RunConfig,
+               *args: object, **kwargs: object) -> TradeoffResult:  # fmt: skip
+        decays.append(base.train.lr_decay)
+        variant = tradeoff.variant_config(base, DEFAULT_VARIANTS[0], budget)
+        decays.append(variant.train.lr_decay)
+        return TradeoffResult([], {"dataset": str(dataset), "evaluated_on": "x", "budget": "b",
+                                   "convention": "c", "size": "1x1", "threads": 1})  # fmt: skip
+
+    monkeypatch.setattr(tradeoff, "run_tradeoff", record)
+    config = tmp_path / "base.yaml"
+    config.write_text(dump_yaml(tiny_config(lr_decay=0.25)))
+    argv = ["tradeoff", str(tmp_path), "--out", str(tmp_path / "t"), "--seeds", "0"]
+    assert main([*argv, "--budget", "10"]) == 0  # the default: pix2pix's second half
+    assert main([*argv, "--budget", "10", "--config", str(config)]) == 0  # the config's
+    assert main([*argv, "--budget", "10", "--config", str(config), "--lr-decay", "0"]) == 0
+    assert main([*argv, "--budget", "90s"]) == 0  # a time budget: steps unknown, constant
+    assert decays == [0.5, 0.5, 0.25, 0.25, 0.0, 0.0, 0.5, 0.0]
+    assert main([*argv, "--lr-decay", "1.5"]) == 2  # one line, not a traceback

@@ -2,11 +2,14 @@ import logging
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import torch
 import yaml
+from hypothesis import given
+from hypothesis import strategies as st
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
@@ -16,7 +19,7 @@ from lenspair.model.checkpoint import load_checkpoint
 from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.vgg import VGG19Features
 from lenspair.model.precision import Hardware, PrecisionDecision, choose_precision
-from lenspair.model.training.config import RunConfig, load_run_config
+from lenspair.model.training.config import RunConfig, TrainConfig, load_run_config
 from lenspair.model.training.datasets import (
     holdout_indices,
     paired_training_data,
@@ -27,6 +30,7 @@ from lenspair.model.training.step import (
     Trainer,
     distributed_from_env,
     init_distributed,
+    scheduled_lr,
 )
 from lenspair.model.training.synthetic import OUR_DROPS, find_clean_images
 from lenspair.simulate.effects.spec import SHARP_DROPS
@@ -240,6 +244,47 @@ def test_resume_continues_exactly(tmp_path: Path, first_leg: dict[str, int]) -> 
         assert torch.equal(straight[key], split[key]), key
     rows = (tmp_path / "split" / "metrics.csv").read_text().splitlines()
     assert [r.split(",")[1] for r in rows[1:]][-1] == "6"
+
+
+def test_the_learning_rate_falls_over_the_runs_last_share(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    dataset = write_split_dataset(tmp_path / "ds")  # 6 pairs, batch 2: 3 steps per epoch
+    seen: list[tuple[float, float]] = []
+    real_step = Trainer.train_step
+
+    def step(self: Trainer, batch: Any) -> Any:
+        seen.append((self.opt_g.param_groups[0]["lr"], self.opt_d.param_groups[0]["lr"]))
+        return real_step(self, batch)
+
+    monkeypatch.setattr(Trainer, "train_step", step)
+    _train(dataset, tmp_path / "epochs", tiny_config(epochs=2, lr=1e-3, lr_decay=0.5))
+    # 6 steps, the last 3 decaying: 1e-3 * (3/3, 2/3, 1/3) at steps 3, 4, 5
+    expected = [1e-3, 1e-3, 1e-3, 1e-3, 2e-3 / 3, 1e-3 / 3]
+    assert [g for g, _ in seen] == pytest.approx(expected)
+    assert [d for _, d in seen] == pytest.approx(expected)
+    seen.clear()
+    _train(dataset, tmp_path / "steps", tiny_config(epochs=9, max_steps=4, lr_decay=1.0))
+    assert [g for g, _ in seen] == pytest.approx([2e-4, 1.5e-4, 1e-4, 0.5e-4])  # over max_steps
+
+
+@given(
+    decay=st.floats(0.0, 1.0),
+    total=st.integers(1, 10_000),
+    step=st.integers(0, 20_000),
+)
+def test_the_scheduled_rate_is_positive_and_never_rises(
+    decay: float, total: int, step: int
+) -> None:
+    train = TrainConfig(lr=2e-4, lr_decay=decay)
+    now, later = scheduled_lr(train, step, total), scheduled_lr(train, step + 1, total)
+    assert 0 < later <= now <= 2e-4
+    if step <= total * (1 - decay):
+        assert now == 2e-4  # constant before the decay starts
+    if decay > 0 and step == total - 1:
+        assert now == pytest.approx(2e-4 / max(decay * total, 1.0))
+    with pytest.raises(ValueError, match="lr_decay"):
+        TrainConfig(lr_decay=decay + 1.01)
 
 
 def test_init_loads_weights_and_checks_the_network(tmp_path: Path) -> None:

@@ -30,11 +30,14 @@ def _weights(run: Path) -> dict[str, torch.Tensor]:
     return dict(load_checkpoint(run / "checkpoints" / "last.pt")["model"])
 
 
+@pytest.mark.parametrize("lr_decay", [0.0, 0.5])
 def test_kill_in_the_first_epoch_resumes_from_the_latest_step(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, lr_decay: float
 ) -> None:
     dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 2})  # 4 steps per epoch
-    config = tiny_config(epochs=2, deterministic=True, seed=5, checkpoint_every_steps=1)
+    config = tiny_config(
+        epochs=2, deterministic=True, seed=5, checkpoint_every_steps=1, lr_decay=lr_decay
+    )
     _train(dataset, tmp_path / "straight", config)
 
     real = Trainer.train_step
