@@ -216,7 +216,7 @@ def _assemble(
     mask = np.ascontiguousarray(footprint[margin : margin + shape[0], margin : margin + shape[1]])
     if field is not None:
         mask[field.support] = 255
-    if veiling is not None:
+    if veiling is not None and veiling.strength > 0:
         mask[:] = 255  # scattered light reaches every pixel
     indices = np.flatnonzero(mask)
     dust_at_mask = None

@@ -259,7 +259,9 @@ def rasterize(drops: Drops, spec: RaindropsSpec, shape: tuple[int, int], pad: in
         off_centre, ((u / a) ** 2 + (v / b) ** 2) / np.where(off_centre, rho2, 1.0), 1.0 / a**2
     )
     distance = (1.0 - np.sqrt(rho2)) / np.sqrt(inverse_radius2)
-    subpixel = np.minimum(1.0, math.pi * major * minor).astype(np.float32)[owner]
+    # footprint area from the drawn axes, not the clamped ones: radius 0 covers nothing
+    area = math.pi * drops.semi_axes[:, 0] * drops.semi_axes[:, 1]
+    subpixel = np.minimum(1.0, area).astype(np.float32)[owner]
     alpha = np.clip(distance + 0.5, 0.0, 1.0) * subpixel
     covered = alpha > 0 if n != 1.0 else np.zeros(alpha.shape, bool)  # n = 1: optically absent
     sprites = Sprites(boxes, ys_all, xs_all, owner, alpha.astype(np.float32)).keep(covered)

@@ -16,6 +16,7 @@ from lenspair.simulate.effects.spec import (
     DustSpec,
     EffectsSpec,
     RaindropsSpec,
+    VeilSpec,
 )
 from lenspair.simulate.render import render_effects, sample_glass
 
@@ -211,6 +212,20 @@ def test_nearly_zero_radius_drops_barely_change_the_image() -> None:
     out, mask = render_effects(image, spec, np.random.default_rng(3))
     assert np.count_nonzero(mask) <= 40  # at most about one pixel each
     assert np.count_nonzero(out != image) <= np.count_nonzero(mask)
+
+
+@pytest.mark.parametrize("defocus", [None, DefocusSpec()])
+def test_zero_radius_drops_and_a_zero_veil_mask_nothing(defocus: DefocusSpec | None) -> None:
+    """What the glass does not change is not obstructed: the mask says so."""
+    image = np.random.default_rng(1).integers(0, 256, (64, 96, 3), dtype=np.uint8)
+    specs = [
+        EffectsSpec(raindrops=RaindropsSpec(count=40, radius_px=(0.0, 0.0)), defocus=defocus),
+        EffectsSpec(veil=VeilSpec(strength=(0.0, 0.0))),
+    ]
+    for spec in specs:
+        out, mask = render_effects(image, spec, np.random.default_rng(3))
+        np.testing.assert_array_equal(out, image)
+        assert not mask.any(), spec
 
 
 def test_border_and_overlapping_drops(monkeypatch: pytest.MonkeyPatch) -> None:
