@@ -100,11 +100,25 @@ class BagCopy:
                     topic,
                     connection.msgtype,
                     msgdef=connection.msgdef.data,
-                    rihs01=connection.digest,
+                    rihs01=connection.digest or self._type_hash(connection.msgtype, topic),
                     serialization_format=getattr(connection.ext, "serialization_format", "cdr"),
                     offered_qos_profiles=getattr(connection.ext, "offered_qos_profiles", []),
                 )
         return self.connections[key]
+
+    def _type_hash(self, msgtype: str, topic: str) -> str:
+        """RIHS01 hash of ``msgtype`` for a source that stores none (a bare ``.mcap`` file).
+
+        Raises:
+            CaptureError: a message type the ROS 2 type store does not know.
+        """
+        try:
+            return str(self.typestore.hash_rihs01(msgtype))
+        except KeyError as exc:
+            raise CaptureError(
+                f"{topic}: the source stores no type hash for {msgtype} and lenspair does not "
+                f"know the type ({exc}); restore the bag folder (with metadata.yaml) instead"
+            ) from None
 
     def write(self, item: BagMessage, restored: np.ndarray | None = None) -> None:
         """Copy ``item``; with ``restored`` pixels, write them as its image too.

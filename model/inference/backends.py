@@ -189,8 +189,8 @@ def open_backend(path: Path, device: torch.device, precision: str = "auto") -> B
         if precision not in ("auto", "fp32"):
             raise ModelError(f"--precision {precision}: ONNX models run in fp32 here")
         return OnnxBackend(path, device)
+    loaded = load_model(path, device)  # first: a bad file is the only line a user sees
     resolved = resolve_precision(precision, device)
-    loaded = load_model(path, device)
     channels = loaded.config.model.channels or 1
     return TorchBackend(deploy(loaded.network, device), channels, device, resolved, path)
 

@@ -250,21 +250,23 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
 def check_apart(input_path: Path, kind: InputKind, out_dir: Path) -> None:
     """Refuse an OUT that would overwrite the input or be read back as input.
 
-    Outputs keep the input's names, so OUT may not be the input folder or lie
-    inside it (a rerun would restore its own outputs), and the output of a
-    single image or bag may not land on the input itself (OUT = the folder
-    that holds it: a bag is written afresh, which would delete the input).
+    Outputs keep the input's names, so OUT may not be an input folder (a
+    folder of images, a recording, a ROS 2 bag folder) or lie inside it (a
+    rerun would restore its own outputs, or write into the bag), and the
+    output of a single image or bag may not land on the input itself (OUT =
+    the folder that holds it: a bag is written afresh, which would delete the
+    input).
 
     Raises:
         ModelError: naming OUT and the input.
     """
     source, out = input_path.resolve(), out_dir.resolve()
+    if source.is_dir() and out.is_relative_to(source):  # a folder, a recording, a ROS 2 bag
+        raise ModelError(
+            f"--out {out_dir}: inside the input {input_path}; outputs keep the input's "
+            "names, so choose a folder outside it"
+        )
     if kind in ("folder", "euroc", "folders"):
-        if out.is_relative_to(source):
-            raise ModelError(
-                f"--out {out_dir}: inside the input {input_path}; outputs keep the input's "
-                "names, so choose a folder outside it"
-            )
         return
     bag = kind in ("rosbag1", "rosbag2")
     written = output_bag_path(input_path, out_dir) if bag else out_dir / input_path.name

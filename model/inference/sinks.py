@@ -10,9 +10,11 @@ failed, a bag message that is not an image of a chosen camera).
   IMU, ...) is copied first, so OUT is the same recording with the chosen
   cameras restored. ``done`` tells ``--resume`` which frames are written.
 * :class:`BagSink`: a copy of the bag (:mod:`lenspair.capture.bagwrite`),
-  with a cache of restored frames so ``--resume`` need not run them again.
+  written aside and moved to its name when complete, with a cache of
+  restored frames so ``--resume`` need not run them again.
 """
 
+import json
 import shutil
 from collections.abc import Iterable
 from pathlib import Path
@@ -23,11 +25,25 @@ from lenspair.capture.bagwrite import BagCopy, output_bag_path
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage, InputFrame
 from lenspair.capture.rosbag import BAG_SUFFIXES
-from lenspair.core.fsutil import atomic_write
+from lenspair.core.fsutil import atomic_write, atomic_write_text
 from lenspair.core.imageio import FAST_PNG, write_image
+
+PARTIAL_DIR = ".restore-partial"
+"""Under OUT: the bag being written, moved to its name when complete (see :class:`BagSink`)."""
 
 CACHE_DIR = ".restore-cache"
 """Under OUT: restored bag frames kept until the bag is complete (see :class:`BagSink`)."""
+
+COPIES_NAME = ".restore-copies"
+"""Under OUT: the frames written as copies of the input (see :class:`FileSink`)."""
+
+
+def _remove(path: Path) -> None:
+    """Remove a bag: a ROS 2 bag folder or a ROS 1 file (nothing when absent)."""
+    if path.is_dir():
+        shutil.rmtree(path)
+    elif path.exists():
+        path.unlink()
 
 
 def copy_file(source: Path, destination: Path) -> None:
@@ -43,12 +59,27 @@ def copy_file(source: Path, destination: Path) -> None:
 class FileSink:
     """Writes frames of file inputs under ``out_dir`` with their relative names.
 
+    A frame written as a copy of its input (it failed, or was judged clean)
+    is named in ``OUT/.restore-copies`` before it is copied, so that
+    ``--resume`` does it again instead of taking the copy for a finished
+    frame: a frame that failed on a truncated file is restored once the file
+    is whole. The list is rewritten when the run finishes (and removed when
+    no copy is left).
+
     Args:
         out_dir: the output folder.
     """
 
     def __init__(self, out_dir: Path) -> None:
         self.out_dir = Path(out_dir)
+        self.copies_file = self.out_dir / COPIES_NAME
+        self.copies: set[str] = set()
+        if self.copies_file.is_file():
+            for line in self.copies_file.read_text(encoding="utf-8").splitlines():
+                try:
+                    self.copies.add(json.loads(line))
+                except ValueError:  # cut by a kill while being named: its copy never began
+                    continue
 
     @property
     def output(self) -> Path:
@@ -68,13 +99,14 @@ class FileSink:
     def done(self, frame: InputFrame) -> bool:
         """True when ``frame``'s output already exists (written atomically: complete).
 
-        An empty file does not count: outputs are renamed into place without
+        Neither does a copy of the input (``OUT/.restore-copies``). An empty
+        file does not count either: outputs are renamed into place without
         ``fsync`` (one per frame would cost more than the frame on slow
         storage), and after a power cut a file system may keep the new name
         with no data, which is what that looks like.
         """
         path = self.out_dir / frame.name
-        return path.is_file() and path.stat().st_size > 0
+        return frame.name not in self.copies and path.is_file() and path.stat().st_size > 0
 
     def write(self, item: InputFrame, restored: np.ndarray | None) -> None:
         """Write ``restored`` under the frame's name, or copy the original file.
@@ -92,10 +124,16 @@ class FileSink:
                 raise CaptureError(
                     f"{item.source}: cannot read ({exc.strerror or exc}); not copied to OUT"
                 ) from exc
+            if item.name not in self.copies:  # named first: a kill after the copy keeps it listed
+                self.copies.add(item.name)
+                self.copies_file.parent.mkdir(parents=True, exist_ok=True)
+                with self.copies_file.open("a", encoding="utf-8") as journal:
+                    journal.write(json.dumps(item.name) + "\n")  # one line, any name
             copy_file(Path(item.source), destination)
         else:
             destination.parent.mkdir(parents=True, exist_ok=True)
             write_image(destination, restored, png_level=FAST_PNG)  # a robot's stream: speed
+            self.copies.discard(item.name)
 
     def cached(self, frame: InputFrame) -> np.ndarray | None:
         """Files need no cache: a finished frame is its output file."""
@@ -106,8 +144,12 @@ class FileSink:
         return
 
     def finish(self) -> None:
-        """Nothing to clean up after a complete run."""
-        return
+        """Rewrite ``OUT/.restore-copies`` with the copies left (remove it when none)."""
+        if self.copies:
+            lines = "".join(json.dumps(name) + "\n" for name in sorted(self.copies))
+            atomic_write_text(self.copies_file, lines)
+        else:
+            self.copies_file.unlink(missing_ok=True)
 
 
 class BagSink:
@@ -131,13 +173,11 @@ class BagSink:
         self.source = Path(source)
         self.path = output_bag_path(source, out_dir)
         self.cache = Path(out_dir) / CACHE_DIR / self.path.name
-        if self.path.is_dir():
-            shutil.rmtree(self.path)
-        elif self.path.exists():
-            self.path.unlink()
+        self.partial = Path(out_dir) / PARTIAL_DIR / self.path.name
+        _remove(self.partial)  # a killed run's unfinished bag: this run writes it anew
         if not resume and self.cache.exists():
             shutil.rmtree(self.cache)
-        self.copy = BagCopy(source, self.path, suffix)
+        self.copy = BagCopy(source, self.partial, suffix)
         self.opened = False
 
     @property
@@ -173,6 +213,7 @@ class BagSink:
         # thread, on the first message (a run refused at its first frame leaves OUT empty).
         if not self.opened:
             self.cache.mkdir(parents=True, exist_ok=True)
+            self.partial.parent.mkdir(parents=True, exist_ok=True)
             self.copy.__enter__()
             self.opened = True
 
@@ -182,12 +223,20 @@ class BagSink:
             self.copy.__exit__(None, None, None)
 
     def finish(self) -> None:
-        """After a complete run: copy a ROS 2 bag folder's own files, drop the resume cache.
+        """After a complete run: put the bag in place, copy its folder's files, drop the cache.
 
-        A ROS 2 bag folder may hold files of the recording beside its storage
-        (``rig.yaml``, a calibration): they are copied; its storage files and
-        ``metadata.yaml`` are not (the new bag has its own).
+        The bag is written under ``OUT/.restore-partial/`` and moved to its
+        name only now, so a killed run never leaves a bag that reads cleanly
+        but lacks its last messages. A ROS 2 bag folder may hold files of the
+        recording beside its storage (``rig.yaml``, a calibration): they are
+        copied; its storage files and ``metadata.yaml`` are not (the new bag
+        has its own).
         """
+        if self.partial.exists():
+            _remove(self.path)  # an earlier complete run's bag, replaced by this one
+            self.partial.rename(self.path)
+        if self.partial.parent.is_dir() and not any(self.partial.parent.iterdir()):
+            self.partial.parent.rmdir()
         if self.source.is_dir() and self.path.is_dir():
             for extra in sorted(self.source.iterdir()):
                 # run.db3, run.db3-wal, run.mcap: the storage and its SQLite side files

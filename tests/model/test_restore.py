@@ -1,6 +1,7 @@
 """``lenspair restore`` end to end: folders, recordings, bags, failures, resume, the CLI."""
 
 import json
+import shutil
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -238,6 +239,9 @@ def test_bag_resume_reuses_frames_and_writes_the_same_bytes(
     whole = restore_input(bag, tmp_path / "whole", backend, options)
     with pytest.raises(_KilledError):
         restore_input(bag, tmp_path / "out", _DiesAfter(backend, 1), options)  # type: ignore[arg-type]
+    # the killed run's bag is not at its name: nothing reads as a complete bag
+    assert not (tmp_path / "out" / Path(whole.output).name).exists()
+    assert (tmp_path / "out" / ".restore-partial" / Path(whole.output).name).exists()
     resume = RestoreOptions(batch_size=2, resume=True)
     again = restore_input(bag, tmp_path / "out", backend, resume)
     assert (again.resumed, again.restored) == (2, 3)
@@ -327,3 +331,32 @@ def test_only_obstructed_uses_the_detector(tmp_path: Path, backend: TorchBackend
     out = tmp_path / "out"
     restore_input(folder, out, backend, RestoreOptions(), detector_judge)
     assert np.array_equal(read_image(out / "blank.png"), np.zeros((40, 56), np.uint8))
+
+
+def test_a_bare_mcap_file_is_restored_into_a_bag_folder(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    """A .mcap without its metadata.yaml stores no RIHS01 type hashes: they are computed."""
+    image = (texture((32, 48), seed=4) * 255).astype(np.uint8)
+    folder = write_bag(tmp_path / "b", "mcap", {"cam0": [(10**18, image), (10**18 + 50, image)]})
+    bare = tmp_path / "bare.mcap"
+    shutil.copy(next(folder.glob("*.mcap")), bare)
+    assert all(not m.connection.digest for m in iter_bag_messages(bare, cameras=("cam0",)))
+    report = restore_input(bare, tmp_path / "out", backend, RestoreOptions(suffix="/restored"))
+    assert report.restored == 2 and report.failed == 0
+    copy = list(iter_bag_messages(Path(report.output), cameras=()))
+    topics = sorted(m.connection.topic for m in copy)
+    assert topics.count("/cam0/image_raw/restored") == 2 and topics.count("/status") == 2
+    assert all(m.connection.digest.startswith("RIHS01_") for m in copy)
+
+
+def test_a_missing_model_is_the_only_line_a_user_sees(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
+) -> None:
+    caplog.set_level("INFO")
+    image = tmp_path / "photo.png"
+    write_image(image, (texture((30, 41), seed=0) * 255).astype(np.uint8))
+    argv = ["restore", str(tmp_path / "nope.pt"), str(image), "--out", str(tmp_path / "out")]
+    assert main(argv) == 2
+    assert "nope.pt: checkpoint not found" in capsys.readouterr().err
+    assert not [r for r in caplog.records if "precision" in r.getMessage()]  # decided after

@@ -57,6 +57,8 @@ def _inputs(root: Path) -> dict[str, tuple[Path, Path]]:
         "OUT holds the image": (single / "x.png", single),
         "OUT holds the ROS 1 bag": (ros1, ros1.parent),
         "OUT holds the ROS 2 bag folder": (ros2, ros2.parent),
+        "OUT is the ROS 2 bag folder": (ros2, ros2),
+        "OUT inside the ROS 2 bag folder": (ros2, ros2 / "x"),
     }
 
 
@@ -68,6 +70,8 @@ def _inputs(root: Path) -> dict[str, tuple[Path, Path]]:
         "OUT holds the image",
         "OUT holds the ROS 1 bag",
         "OUT holds the ROS 2 bag folder",
+        "OUT is the ROS 2 bag folder",
+        "OUT inside the ROS 2 bag folder",
     ],
 )
 def test_out_overlapping_the_input_is_refused_and_the_input_kept(
@@ -205,6 +209,43 @@ def test_resume_redoes_an_output_a_power_cut_left_empty(
     report = restore_input(source, out, backend, RestoreOptions(resume=True))
     assert (report.resumed, report.restored) == (1, 1)
     assert (out / "1.png").read_bytes() == whole
+
+
+def test_resume_redoes_a_frame_that_was_copied_because_it_failed(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    source = tmp_path / "in"
+    for index in range(3):
+        write_image(source / f"{index}.png", _image(index))
+    whole = (source / "1.png").read_bytes()
+    (source / "1.png").write_bytes(whole[:100])  # truncated: fails, copied unchanged
+    out = tmp_path / "out"
+    first = restore_input(source, out, backend)
+    assert (first.restored, first.failed) == (2, 1)
+    assert (out / "1.png").read_bytes() == whole[:100]
+    (source / "1.png").write_bytes(whole)  # the file is whole again
+    again = restore_input(source, out, backend, RestoreOptions(resume=True))
+    assert (again.resumed, again.restored, again.failed, again.problems) == (2, 1, 0, [])
+    restored = read_image(out / "1.png")
+    assert restored.shape == _image(1).shape and (out / "1.png").read_bytes() != whole
+    assert not (out / ".restore-copies").exists()  # no copy left
+    third = restore_input(source, out, backend, RestoreOptions(resume=True))
+    assert (third.resumed, third.restored) == (3, 0)
+
+
+def test_a_kill_while_naming_a_copy_leaves_a_list_resume_reads(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    source = tmp_path / "in"
+    for index in range(2):
+        write_image(source / f"{index}.png", _image(index))
+    out = tmp_path / "out"
+    restore_input(source, out, backend)
+    (out / "0.png").write_bytes((source / "0.png").read_bytes())  # a copy, named ...
+    (out / ".restore-copies").write_text('"0.png"\n"1.p')  # ... and a name cut mid-line
+    again = restore_input(source, out, backend, RestoreOptions(resume=True))
+    assert (again.resumed, again.restored) == (1, 1)
+    assert (out / "0.png").read_bytes() != (source / "0.png").read_bytes()
 
 
 def test_a_ros2_bag_folder_keeps_its_rig_file(tmp_path: Path, backend: TorchBackend) -> None:
