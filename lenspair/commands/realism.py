@@ -15,16 +15,20 @@ that scikit-image and matplotlib ship, at 720x480, Raindrop's size):
     lenspair realism ingested/rain raindrop/test_a --render ours
     lenspair realism DS --split test --json realism.json
 
-Pairs that cannot be measured (a flat clean image, mismatched sizes) are
+Pairs that cannot be read or measured (a truncated file, mismatched sizes,
+a flat clean image, a clean image of a format lenspair does not read) are
 listed and skipped.
 """
 
 import argparse
 import math
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from lenspair.core.errors import ConfigError
+import numpy as np
+
+from lenspair.core.errors import ConfigError, LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
 from lenspair.core.progress import progress
@@ -83,11 +87,23 @@ def run(args: argparse.Namespace) -> int:
     for folder in args.pairs:
         split = None if detect_layout(folder) is not None else args.split
         dataset = open_paired(folder, split)
-        items = progress(dataset, desc=f"realism {folder.name}", total=len(dataset), unit="pair")
-        results[str(folder)] = measure_pairs((i.name, i.input, i.target) for i in items)
+        unread: list[PairStatistics] = []
+        items = progress(
+            _readable(dataset, unread),
+            desc=f"realism {folder.name}",
+            total=len(dataset),
+            unit="pair",
+        )
+        results[str(folder)] = measure_pairs(items) + unread
     if presets:
+        skipped: list[PairStatistics] = []
         if args.images is not None:
-            images = {p.name: fit(read_image(p), shape) for p in find_clean_images(args.images)}
+            images = {}
+            for path in find_clean_images(args.images):
+                try:
+                    images[path.name] = fit(read_image(path), shape)
+                except LenspairError as exc:  # this image only
+                    skipped.append(PairStatistics(path.name, None, str(exc)))
         else:
             images = load_natural_images(shape)
         for name, spec in effects.items():
@@ -97,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
                 total=len(images),
                 unit="image",
             )
-            results[name] = measure_pairs(pairs)
+            results[name] = measure_pairs(pairs) + skipped
     columns = []
     for label, rows in results.items():
         for row in rows:
@@ -113,6 +129,19 @@ def run(args: argparse.Namespace) -> int:
             args.json, {label: [_row(r) for r in rows] for label, rows in results.items()}
         )
     return 0
+
+
+def _readable(
+    dataset: Any, unread: list[PairStatistics]
+) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
+    """``(name, obstructed, clean)`` of every pair that can be read; the others go to ``unread``."""
+    for index in range(len(dataset)):
+        try:
+            item = dataset[index]
+        except LenspairError as exc:  # a truncated file, a size mismatch: this pair only
+            unread.append(PairStatistics(f"pair {index}", None, str(exc)))
+            continue
+        yield item.name, item.input, item.target
 
 
 def _row(row: PairStatistics) -> dict[str, Any]:

@@ -34,6 +34,7 @@ import torch
 from torch import nn
 
 from lenspair.core.config import to_plain
+from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import max_value
 from lenspair.core.progress import progress
 from lenspair.model import metrics
@@ -256,13 +257,18 @@ def score_pairs(
     for index in progress(range(len(pairs)), "evaluating", total=len(pairs), unit="image"):
         if index in known or (item := read_pair(pairs, index, bad)) is None:
             continue
-        x = to_tensor(item.input, channels)[None].to(device)
-        target = to_tensor(item.target, channels)[None].to(device)
-        with autocast_context(device, precision):
-            output = network(x)[1]
-        output = _quantize(output.float(), item.target.dtype)
-        psnr, ssim = score_tensors(output, target, convention)
-        input_psnr, input_ssim = score_tensors(x.float(), target, convention)
+        try:
+            x = to_tensor(item.input, channels)[None].to(device)
+            target = to_tensor(item.target, channels)[None].to(device)
+            with autocast_context(device, precision):
+                output = network(x)[1]
+            output = _quantize(output.float(), item.target.dtype)
+            psnr, ssim = score_tensors(output, target, convention)
+            input_psnr, input_ssim = score_tensors(x.float(), target, convention)
+        except LenspairError as exc:  # e.g. smaller than the SSIM window: this pair only
+            log.warning("skipped pair %d: %s: %s", index, item.name, exc)
+            bad.append(Unread(index, f"{item.name}: {exc}"))
+            continue
         height, width = item.input.shape[:2]
         scores.append(
             ImageScore(
@@ -301,17 +307,21 @@ def agreement_with_fp32(
     """Means of ``network``'s output (at ``precision``) scored against fp32 ``reference``'s.
 
     Both outputs are clamped to [0, 1] and kept in float (no rounding to the
-    target's bit depth), so this isolates what the precision changes.
+    target's bit depth), so this isolates what the precision changes. Pairs
+    that cannot be read or scored are left out (:func:`score_pairs` names them).
     """
     reference.to(device).eval()
     rows = []
     for index in progress(range(len(pairs)), "versus fp32", total=len(pairs), unit="image"):
-        item = pairs[index]
-        x = to_tensor(item.input, channels)[None].to(device)
-        with autocast_context(device, precision):
-            output = network(x)[1].float().clamp(0, 1).to(device)
-        expected = reference(x)[1].float().clamp(0, 1)
-        psnr, ssim = score_tensors(output, expected, convention)
+        try:
+            item = pairs[index]
+            x = to_tensor(item.input, channels)[None].to(device)
+            with autocast_context(device, precision):
+                output = network(x)[1].float().clamp(0, 1).to(device)
+            expected = reference(x)[1].float().clamp(0, 1)
+            psnr, ssim = score_tensors(output, expected, convention)
+        except LenspairError:  # said by score_pairs, which met it first
+            continue
         height, width = item.input.shape[:2]
         rows.append(ImageScore(item.name, item.difficulty, height, width, psnr, ssim, 0, 0))
     return summarize(rows)

@@ -84,7 +84,11 @@ def markdown_report(result: EvalResult) -> str:
         "itself against the target (no restoration): the baseline to beat.",
     ]
     if result.unread:
-        lines += ["", f"## {len(result.unread)} pair(s) could not be read (not in the means)", ""]
+        lines += [
+            "",
+            f"## {len(result.unread)} pair(s) could not be read or scored (not in the means)",
+            "",
+        ]
         lines += [f"- pair {u.index}: {u.reason}" for u in result.unread[:UNREAD_LISTED]]
         if len(result.unread) > UNREAD_LISTED:
             lines.append(f"- and {len(result.unread) - UNREAD_LISTED} more (metrics.json)")

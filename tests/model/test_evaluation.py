@@ -137,13 +137,18 @@ def test_odd_sizes_and_identical_images(tmp_path: Path) -> None:
     assert f"as {PSNR_CAP_DB:g} dB" in files["markdown"].read_text()
 
 
-def _spoil(folder: Path) -> dict[str, str]:
-    """Truncate pair 000's input and give pair 002 a target of another size."""
+def _spoil(folder: Path) -> None:
+    """Truncate pair 000's input, give 002 a target of another size, make 005 too small.
+
+    005 (10x10) is large enough for the network (8 px) but not for SSIM's 11x11 window.
+    """
     first = folder / "input" / "000.png"
     first.write_bytes(first.read_bytes()[:60])
     rng = np.random.default_rng(3)
     write_image(folder / "target" / "002.png", clean_image(rng, 20, 24))
-    return {"000": "000.png", "002": "002.png"}
+    small = clean_image(rng, 10, 10)
+    write_image(folder / "input" / "005.png", obstruct(small, rng))
+    write_image(folder / "target" / "005.png", small)
 
 
 @pytest.mark.parametrize("precision", ["fp32", "int8"])
@@ -173,12 +178,13 @@ def test_a_bad_pair_costs_only_itself_and_is_reported(tmp_path: Path, precision:
     means = json.loads((out / "metrics.json").read_text())
     assert means["overall"]["pairs"] == 3
     unread = means["unread"]
-    assert [u["index"] for u in unread] == [0, 2]
+    assert [u["index"] for u in unread] == [0, 2, 5]
     assert "000.png" in unread[0]["reason"] and "002.png" in unread[1]["reason"]
+    assert unread[2]["reason"].startswith("005: ") and "window" in unread[2]["reason"]
     if precision == "int8":
         assert means["versus_fp32"]["pairs"] == 3
     markdown = (out / "metrics.md").read_text()
-    assert "2 pair(s) could not be read" in markdown and "000.png" in markdown
+    assert "3 pair(s) could not be read or scored" in markdown and "000.png" in markdown
     assert means["latency"][0]["size"] == "48x32"  # from the first readable pair
 
 

@@ -1,5 +1,6 @@
 """Realism statistics: each pinned on constructed pairs whose answer is known."""
 
+import json
 import math
 from pathlib import Path
 
@@ -186,3 +187,33 @@ def test_cli_measures_a_paired_folder_and_renders_presets(
     assert out.is_file() and '"mean_difference"' in out.read_text()
     assert main(["realism", "--render", "sharp", "--size", "big"]) == 2
     assert "--size" in capsys.readouterr().err
+
+
+def test_cli_lists_and_skips_pairs_and_images_it_cannot_read(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import OpenImageIO as oiio
+
+    folder = tmp_path / "pairs"
+    clean = _clean((48, 64))
+    for index in range(4):
+        write_image(folder / "input" / f"{index}.png", clean + np.uint16(2000 * (index + 1)))
+        write_image(folder / "target" / f"{index}.png", clean)
+    cut = folder / "target" / "1.png"
+    cut.write_bytes(cut.read_bytes()[:80])  # truncated
+    write_image(folder / "target" / "2.png", clean[:24])  # another size
+    images = tmp_path / "clean"
+    write_image(images / "a.png", _clean((48, 64), seed=1))
+    float_tiff = oiio.ImageBuf(oiio.ImageSpec(64, 48, 1, "float"))
+    assert float_tiff.write(str(images / "b.tif"))  # a format lenspair does not read
+    out = tmp_path / "realism.json"
+    argv = [str(folder), "--render", "sharp", "--images", str(images), "--size", "64x48"]
+    assert main(["realism", *argv, "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "pairs (2)" in printed and "sharp (1)" in printed
+    skipped = [line for line in printed.splitlines() if "skipped" in line]
+    assert len(skipped) == 3
+    assert any("1.png" in line for line in skipped) and any("2.png" in line for line in skipped)
+    assert any("b.tif" in line for line in skipped)
+    rows = json.loads(out.read_text())
+    assert len(rows[str(folder)]) == 4  # every pair accounted for, measured or not
