@@ -321,10 +321,19 @@ def export_checkpoint(
     loaded = load_model(checkpoint, "cpu")
     channels = loaded.config.model.channels or 1
     checks = []
-    if onnx_path is not None:
-        checks.append(export_onnx(loaded.network, channels, onnx_path, size))
-        log.info("%s", checks[-1].summary())
-    if torchscript_path is not None:
-        checks.append(export_torchscript(loaded.network, channels, torchscript_path, size))
-        log.info("%s", checks[-1].summary())
+    try:
+        if onnx_path is not None:
+            checks.append(export_onnx(loaded.network, channels, onnx_path, size))
+            log.info("%s", checks[-1].summary())
+        if torchscript_path is not None:
+            checks.append(export_torchscript(loaded.network, channels, torchscript_path, size))
+            log.info("%s", checks[-1].summary())
+    except (RuntimeError, MemoryError) as exc:
+        if isinstance(exc, RuntimeError) and "allocate" not in str(exc):
+            raise
+        raise ModelError(
+            f"--size {size[1]}x{size[0]}: not enough memory to export at this size "
+            f"({str(exc).splitlines()[0][:160]}); export at the camera's frame size "
+            "(restore tiles larger frames)"
+        ) from None
     return checks

@@ -221,3 +221,40 @@ def test_int8_check_compares_on_an_image_held_out_of_the_calibration(
     check = quantize.check_int8(network, 1, tmp_path / "m.int8.onnx", (32, 48), images, runs=1)
     assert check.calibration_images == 2 and len(fitted[0]) == 2
     assert not any(image is images[-1] for image in fitted[0])  # compared on the last one
+
+
+def test_an_output_on_the_checkpoint_or_on_another_output_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    before = checkpoint.read_bytes()
+    same = tmp_path / "m.onnx"
+    cases = {
+        "the same file as the checkpoint": ["--torchscript", str(checkpoint)],
+        "the same file as --onnx": ["--onnx", str(same), "--torchscript", str(same)],
+        "the --int8 model " + str(tmp_path / "m.int8.onnx") + ": the same file as --torchscript": [
+            "--onnx", str(tmp_path / "m.onnx"), "--torchscript", str(tmp_path / "m.int8.onnx"),
+            "--int8", "--calibration", str(tmp_path),
+        ],
+    }  # fmt: skip
+    for message, argv in cases.items():
+        assert main(["export", str(checkpoint), "--size", "16x16", *argv]) == 2
+        assert message in capsys.readouterr().err
+    assert checkpoint.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.pt"]  # nothing written
+
+
+def test_a_size_too_large_for_memory_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from lenspair.model.evaluation import export
+
+    def out_of_memory(*args: Any) -> Any:
+        raise RuntimeError("[enforce fail] DefaultCPUAllocator: can't allocate memory: 4e10 bytes")
+
+    monkeypatch.setattr(export, "export_torchscript", out_of_memory)
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    argv = ["export", str(checkpoint), "--torchscript", str(tmp_path / "m.pt")]
+    assert main([*argv, "--size", "100000x100000"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "--size 100000x100000: not enough memory" in line
