@@ -94,6 +94,9 @@ class CurationConfig:
 
     def __post_init__(self) -> None:
         """Check ranges; the loader reports a ``ValueError`` with the file name."""
+        for name, value in vars(self).items():  # NaN passes every comparison below
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"{name}: expected a finite number, got {value}")
         for name in ("max_mask_fraction", "max_saturated", "max_black", "min_anomaly_fraction"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:

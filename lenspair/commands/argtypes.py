@@ -1,6 +1,8 @@
 """Argparse value types shared by the subcommands (one-line errors naming the option)."""
 
 import argparse
+import math
+from collections.abc import Callable
 from pathlib import Path
 
 from lenspair.core.samples import file_or_sample
@@ -14,6 +16,39 @@ def positive_int(text: str) -> int:
         value = 0
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def _float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def float_at_least(low: float, *, above: bool = False) -> Callable[[str], float]:
+    """Argparse type: a finite number >= ``low`` (> ``low`` with ``above``); NaN/inf refused."""
+
+    def parse(text: str) -> float:
+        value = _float(text)
+        if value < low or (above and value == low):
+            raise argparse.ArgumentTypeError(
+                f"expected a number {'>' if above else '>='} {low:g}, got {text!r}"
+            )
+        return value
+
+    parse.__name__ = "number"  # argparse names the type in its messages
+    return parse
+
+
+def fraction(text: str) -> float:
+    """Argparse type: a finite number in [0, 1]."""
+    value = _float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
     return value
 
 

@@ -24,6 +24,7 @@ Example:
 import argparse
 from pathlib import Path
 
+from lenspair.commands.argtypes import float_at_least
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.calibration import MODELS, CalibrationOptions, parse_model
 from lenspair.rectify.recording_calibration import calibrate_recording, write_calibration
@@ -52,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--outlier-factor",
-        type=float,
+        type=float_at_least(1.0),
         default=3.0,
         metavar="X",
         help="reject views whose error exceeds X times the median view error (default 3)",

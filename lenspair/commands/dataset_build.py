@@ -33,7 +33,7 @@ exits with status 1 and a list of problems when anything is off.
 import argparse
 from pathlib import Path
 
-from lenspair.commands.argtypes import positive_int
+from lenspair.commands.argtypes import float_at_least, positive_int
 from lenspair.core.errors import ConfigError
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import SPLITS, load_dataset_config, parse_fractions, with_overrides
@@ -61,9 +61,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--workers", type=positive_int, help="threads reading images (default up to 4)"
     )
     group = parser.add_argument_group("common thresholds (override --config)")
-    group.add_argument("--max-residual-px", type=float, help="registration residual (2.0)")
-    group.add_argument("--min-sharpness", type=float, help="variance of Laplacian (20)")
-    group.add_argument("--duplicate-threshold", type=float, help="thumbnail difference (0.004)")
+    group.add_argument(
+        "--max-residual-px", type=float_at_least(0.0), help="registration residual (2.0)"
+    )
+    group.add_argument(
+        "--min-sharpness", type=float_at_least(0.0), help="variance of Laplacian (20)"
+    )
+    group.add_argument(
+        "--duplicate-threshold", type=float_at_least(0.0), help="thumbnail difference (0.004)"
+    )
     group.add_argument(
         "--exclude-clean", action="store_true", help="drop pairs without visible anomaly"
     )

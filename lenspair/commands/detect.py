@@ -23,7 +23,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from lenspair.commands.argtypes import detector_file
+from lenspair.commands.argtypes import detector_file, fraction
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", type=Path, help="image, folder of images, recording or bag")
     parser.add_argument("--out", type=Path, help="output folder (default: detect_<input name>)")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    parser.add_argument("--threshold", type=float, default=0.5, help="obstructed above this")
+    parser.add_argument("--threshold", type=fraction, default=0.5, help="obstructed above this")
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--sheet-frames", type=int, default=12, help="frames on the sheet")
     parser.add_argument("--topics", nargs=2, metavar=("CAM0", "CAM1"), help="bag image topics")

@@ -43,7 +43,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from lenspair.commands.argtypes import positive_int
+from lenspair.commands.argtypes import fraction, positive_int
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -61,7 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-size", type=positive_int, default=None, help="training batch (4)")
     parser.add_argument(
         "--lr-decay",
-        type=float,
+        type=fraction,
         default=None,
         metavar="SHARE",
         help="share of a step budget, at its end, over which the learning rate falls "
@@ -73,7 +73,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
     )
-    parser.add_argument("--split", default="test", help="evaluation split (test)")
+    parser.add_argument(
+        "--split",
+        default=None,
+        help="evaluation split (test; where DS has none, the validation pairs held out of "
+        "training)",
+    )
     parser.add_argument("--latency-runs", type=int, default=20, help="timed runs per figure")
     parser.add_argument("--seeds", default="0,1,2", help="comma-separated training seeds (0,1,2)")
     parser.add_argument(
@@ -90,8 +95,8 @@ def run(args: argparse.Namespace) -> int:
         parse_budget,
         run_tradeoff,
     )
-    from lenspair.model.evaluation.tradeoff_report import tradeoff_markdown
-    from lenspair.model.training.config import load_run_config
+    from lenspair.model.evaluation.tradeoff_report import tradeoff_markdown  # as above
+    from lenspair.model.training.config import load_run_config  # as above
 
     budget = parse_budget(args.budget)
     variants = DEFAULT_VARIANTS
@@ -103,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"--variants: unknown {', '.join(unknown)}; valid: {', '.join(known)}"
             )
+        if not wanted:
+            raise ConfigError(f"--variants: no variant named in {args.variants!r}")
         variants = tuple(known[name] for name in wanted)
     if args.latency_runs < 1:
         raise ConfigError("--latency-runs must be >= 1")
@@ -127,8 +134,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(
             f"--seeds: expected comma-separated integers, got {args.seeds!r}"
         ) from None
-    if not seeds or len(set(seeds)) != len(seeds):
-        raise ConfigError(f"--seeds: expected distinct integers, got {args.seeds!r}")
+    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise ConfigError(f"--seeds: expected distinct integers >= 0, got {args.seeds!r}")
     device = resolve_device(args.device)
     if len(seeds) > 1:
         # here, not at the top: keeps `--help` from importing torch

@@ -56,6 +56,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from lenspair.commands.argtypes import float_at_least
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -95,7 +96,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("overrides of the config file")
     group.add_argument("--epochs", type=int, help="train.epochs (200)")
     group.add_argument("--max-steps", type=int, help="train.max_steps budget")
-    group.add_argument("--max-seconds", type=float, help="train.max_seconds budget")
+    group.add_argument(
+        "--max-seconds", type=float_at_least(0.0, above=True), help="train.max_seconds budget"
+    )
     group.add_argument("--batch-size", type=int, help="train.batch_size (8)")
     group.add_argument("--crop-size", type=int, help="data.crop_size (256)")
     group.add_argument("--seed", type=int, help="train.seed (0)")

@@ -27,7 +27,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from lenspair.commands.argtypes import positive_int
+from lenspair.commands.argtypes import float_at_least, positive_int
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -45,7 +45,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--set-frames", type=int, default=6, help="frames per recording (6)")
     parser.add_argument("--steps", type=int, default=600, help="optimiser steps (600)")
     parser.add_argument("--batch-size", type=int, default=8)
-    parser.add_argument("--minutes", type=float, help="stop training after this many minutes")
+    parser.add_argument(
+        "--minutes",
+        type=float_at_least(0.0, above=True),
+        help="stop training after this many minutes",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="CPU threads (1)")
     parser.add_argument("--hard", type=int, default=0, metavar="N", help="hard cases (0)")

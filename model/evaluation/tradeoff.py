@@ -179,7 +179,7 @@ def run_tradeoff(
     base: RunConfig,
     variants: Sequence[TradeoffVariant] = DEFAULT_VARIANTS,
     convention: str = "skimage-gaussian",
-    split: str = "test",
+    split: str | None = None,
     latency_runs: int = 20,
     int8: bool = True,
 ) -> TradeoffResult:
@@ -193,9 +193,10 @@ def run_tradeoff(
         base: run config shared by all variants (crop, batch, seed, losses).
         variants: the networks to compare.
         convention: metric convention of the table.
-        split: evaluation split of a dataset with splits; a single paired
-            folder (or a dataset without ``split``) is scored on the
-            validation pairs held out of its training, never on pairs it
+        split: evaluation split of a dataset with splits (an error when it
+            cannot be opened); ``None``: ``test``, and where there is none
+            (a single paired folder, a dataset without a test split) the
+            validation pairs held out of its training, never pairs it
             trained on.
         latency_runs: timed runs per latency figure.
         int8: add the int8 row where the CPU has VNNI (quantising takes a while).
@@ -213,16 +214,17 @@ def run_tradeoff(
     pairs: Any = None
     if detect_layout(Path(dataset)) is None:  # a dataset with splits: score on ``split``
         try:
-            pairs = open_eval_pairs(dataset, split)
-            pairs_text = f"{dataset} split {split}"
+            pairs = open_eval_pairs(dataset, split or "test")
+            pairs_text = f"{dataset} split {split or 'test'}"
         except LenspairError:
-            pass
+            if split is not None:  # asked for: its problem is the answer, not another split
+                raise
     if pairs is None:
         # One paired folder (input/ + target/, Raindrop's train/) trains on nine
         # tenths of itself: score on the held-out tenth, never on training pairs.
         pairs = getattr(data.val, "source", None)
         if pairs is None:
-            raise ModelError(f"{dataset}: no {split!r} split and no held-out pairs to score")
+            raise ModelError(f"{dataset}: no test split and no held-out pairs to score")
         pairs_text = f"{dataset} held-out validation pairs ({len(pairs)}, not trained on)"
     if len(pairs) == 0:
         raise ModelError(
@@ -232,11 +234,6 @@ def run_tradeoff(
     pairs, unread = readable_pairs(pairs)
     if len(pairs) == 0:
         raise ModelError(f"{pairs_text}: none can be read; the first: {unread[0].reason}")
-    if unread:
-        pairs_text += (
-            f"; {len(unread)} pair(s) of the scored split could not be read and are not "
-            "scored (listed in tradeoff.json)"
-        )
     size = tuple(pairs[0].input.shape[:2])
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -249,7 +246,6 @@ def run_tradeoff(
         "size": f"{size[1]}x{size[0]}",
         "convention": convention,
         "seed": base.train.seed,
-        **({"unread": [asdict(u) for u in unread]} if unread else {}),
     }
     atomic_write_text(
         out_dir / "tradeoff_config.yaml",
@@ -279,9 +275,9 @@ def run_tradeoff(
             ):
                 continue  # int8 for the paper's GEA only: each quantisation costs ~1 min
             network = _at_precision(loaded.network, precision, pairs, dataset, base, data.channels)
-            scores = score_pairs(
-                network, pairs, data.channels, device, convention, precision, 0, 0
-            ).scores
+            scored = score_pairs(network, pairs, data.channels, device, convention, precision, 0, 0)
+            scores = scored.scores
+            unread += [u for u in scored.unread if u.index not in {k.index for k in unread}]
             means = summarize(scores)
             versus = None
             if precision != "fp32":
@@ -324,6 +320,11 @@ def run_tradeoff(
             log.info("tradeoff: %s", rows[-1].describe())
     if baseline is not None:
         meta["input_baseline"] = {"psnr_db": baseline.psnr_db, "ssim": baseline.ssim}
+    if unread:
+        meta["unread"] = [asdict(u) for u in unread]
+        meta["evaluated_on"] = f"{pairs_text}; {len(unread)} pair(s) could not be read or " + (
+            "scored and are left out (listed in tradeoff.json)"
+        )
     rows = mark_pareto(rows)
     write_tradeoff(rows, out_dir, meta)
     return TradeoffResult(rows, meta)

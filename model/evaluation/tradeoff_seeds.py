@@ -197,7 +197,7 @@ def run_seeded_tradeoff(
     seeds: Sequence[int],
     variants: Sequence[TradeoffVariant] = DEFAULT_VARIANTS,
     convention: str = "skimage-gaussian",
-    split: str = "test",
+    split: str | None = None,
     latency_runs: int = 20,
     int8: bool = True,
 ) -> tuple[list[SeededRow], dict[str, Any]]:

@@ -184,6 +184,8 @@ class TrainConfig:
             )
         if self.lr <= 0:
             raise ValueError(f"lr: expected > 0, got {self.lr}")
+        if self.seed < 0:
+            raise ValueError(f"seed: expected >= 0, got {self.seed}")
         if not 0.0 <= self.lr_decay <= 1.0:
             raise ValueError(f"lr_decay: expected 0..1, got {self.lr_decay}")
         if not (0.0 <= self.beta1 < 1.0 and 0.0 <= self.beta2 < 1.0):

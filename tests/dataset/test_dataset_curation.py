@@ -1,3 +1,4 @@
+import math
 from pathlib import Path
 
 import cv2
@@ -196,3 +197,12 @@ def test_config_yaml_sections_overrides_and_errors(tmp_path: Path) -> None:
     assert parse_fractions("0.7, 0.2, 0.1") == (0.7, 0.2, 0.1)
     with pytest.raises(ValueError, match="gap"):
         SplitConfig(segment_frames=3, segment_gap_frames=3)
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+@pytest.mark.parametrize("name", ["max_residual_px", "duplicate_threshold", "easy_min_psnr_db"])
+def test_a_non_finite_threshold_is_refused_however_it_is_given(name: str, value: float) -> None:
+    # NaN passes every comparison, so a range check alone let it through and
+    # silently switched the rule off (and wrote NaN into dataset.json).
+    with pytest.raises(ValueError, match=f"{name}: expected a finite number"):
+        with_overrides(DatasetConfig(), curation={name: value})

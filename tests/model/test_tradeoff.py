@@ -1,6 +1,7 @@
 import csv
 import json
 import logging
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -9,6 +10,7 @@ import torch
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
+from lenspair.core.errors import LenspairError
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import score_tensors
@@ -375,10 +377,7 @@ def test_an_unreadable_test_pair_is_skipped_and_recorded_before_training(tmp_pat
     assert result.rows[0].psnr_db == pytest.approx(sum(psnrs) / 2, abs=1e-6)
     saved = json.loads((tmp_path / "t" / "tradeoff.json").read_text())
     assert saved["unread"] == result.meta["unread"]
-    assert (
-        "1 pair(s) of the scored split could not be read"
-        in (tmp_path / "t" / "tradeoff.md").read_text()
-    )
+    assert "1 pair(s) could not be read or scored" in (tmp_path / "t" / "tradeoff.md").read_text()
 
 
 def test_a_test_split_with_no_readable_pair_is_refused_before_training(tmp_path: Path) -> None:
@@ -416,4 +415,19 @@ def test_the_cli_anneals_step_budgets_by_default(
     assert main([*argv, "--budget", "10", "--config", str(config), "--lr-decay", "0"]) == 0
     assert main([*argv, "--budget", "90s"]) == 0  # a time budget: steps unknown, constant
     assert decays == [0.5, 0.5, 0.25, 0.25, 0.0, 0.0, 0.5, 0.0]
-    assert main([*argv, "--lr-decay", "1.5"]) == 2  # one line, not a traceback
+
+
+def test_a_split_asked_for_is_scored_or_refused_never_replaced(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    g = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
+
+    def tradeoff(split: str | None, out: str) -> TradeoffResult:
+        return run_tradeoff(dataset, tmp_path / out, torch.device("cpu"), Budget(steps=1),
+                            tiny_config(), g, split=split, latency_runs=1)  # fmt: skip
+
+    with pytest.raises(LenspairError, match="nope"):
+        tradeoff("nope", "t1")
+    assert not (tmp_path / "t1").exists()
+    assert "split val" in tradeoff("val", "t2").meta["evaluated_on"]
+    shutil.rmtree(dataset / "test")  # no test split: the default falls back, said so
+    assert "held-out validation pairs" in tradeoff(None, "t3").meta["evaluated_on"]
