@@ -179,7 +179,7 @@ def tradeoff_blocks(demo: Path, copies: Copies) -> list[Block]:
             f"{Path(str(data['evaluated_on'])).name} with the {data['convention']} convention; "
             f"CPU time is the median for one {data['size']} frame, batch 1, "
             f"{data['threads']} threads, channels-last with the allocator tuned "
-            "(model/latency.py). G, GE and GEA are the paper's ablation; the "
+            "(model/evaluation/latency.py). G, GE and GEA are the paper's ablation; the "
             "w (width) and b (residual blocks) variants trade accuracy for time. "
             "Pareto marks the PSNR-vs-time and SSIM-vs-time fronts."
         ),
