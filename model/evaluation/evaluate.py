@@ -158,7 +158,7 @@ class EvalResult:
         versus_fp32: means of the output scored against the fp32 output
             (reduced precisions only): what the precision costs.
         precision_reason: why this precision (``lenspair.model.precision``).
-        unread: pairs that could not be read, and why (not in any mean).
+        unread: pairs that could not be read or scored, and why (not in any mean).
 
     """
 
@@ -396,6 +396,10 @@ def evaluate_checkpoint(
     scores, samples, unread = score_pairs(
         network, pairs, channels, device, convention, precision, unread=leading
     )
+    if not scores:
+        raise ModelError(
+            f"none of the {len(pairs)} pairs can be scored; the first: {unread[0].reason}"
+        )
     bad = {u.index for u in unread}
     scored = PairsView(pairs, [i for i in range(len(pairs)) if i not in bad]) if bad else pairs
     versus_fp32 = None

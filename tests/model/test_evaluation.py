@@ -197,6 +197,12 @@ def test_eval_with_no_readable_pair_is_one_error(
     assert main(["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0"]) == 2
     error = capsys.readouterr().err.strip().splitlines()[-1]
     assert "none of the 1 pairs can be read" in error and "000.png" in error
+    small = clean_image(np.random.default_rng(1), 10, 10)  # the network's 8 px, not SSIM's 11
+    write_image(folder / "input" / "000.png", small)
+    write_image(folder / "target" / "000.png", small)
+    assert main(["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0"]) == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "none of the 1 pairs can be scored" in error and "window" in error
 
 
 def _row(name: str, difficulty: str) -> ManifestRow:
