@@ -56,7 +56,7 @@ from lenspair.model.precision import choose_precision
 from lenspair.model.training.config import RunConfig, Variant, config_differences
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
-from lenspair.model.training.pairs import open_eval_pairs, readable_pairs
+from lenspair.model.training.pairs import Unread, open_eval_pairs, readable_pairs
 from lenspair.model.training.step import vgg19_weights_path
 
 log = logging.getLogger(__name__)
@@ -234,6 +234,7 @@ def run_tradeoff(
     pairs, unread = readable_pairs(pairs)
     if len(pairs) == 0:
         raise ModelError(f"{pairs_text}: none can be read; the first: {unread[0].reason}")
+    view: list[int] = list(getattr(pairs, "indices", []))  # a PairsView when some were left out
     size = tuple(pairs[0].input.shape[:2])
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -277,7 +278,10 @@ def run_tradeoff(
             network = _at_precision(loaded.network, precision, pairs, dataset, base, data.channels)
             scored = score_pairs(network, pairs, data.channels, device, convention, precision, 0, 0)
             scores = scored.scores
-            unread += [u for u in scored.unread if u.index not in {k.index for k in unread}]
+            for problem in scored.unread:  # indices of the view: back to the split's own
+                index = view[problem.index] if view else problem.index
+                if index not in {u.index for u in unread}:
+                    unread.append(Unread(index, problem.reason))
             means = summarize(scores)
             versus = None
             if precision != "fp32":

@@ -5,12 +5,14 @@ import shutil
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.core.errors import LenspairError
+from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import score_tensors
@@ -27,7 +29,7 @@ from lenspair.model.evaluation.tradeoff import (
 )
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.pairs import open_eval_pairs, to_tensor
-from tests.model.train_fixtures import tiny_config, write_split_dataset
+from tests.model.train_fixtures import clean_image, tiny_config, write_split_dataset
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -355,14 +357,18 @@ def test_an_empty_split_to_score_is_a_one_line_error(
 
 
 def test_an_unreadable_test_pair_is_skipped_and_recorded_before_training(tmp_path: Path) -> None:
-    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1, "test": 3})
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1, "test": 4})
     bad = dataset / "test" / "target" / "001.png"
     bad.write_bytes(bad.read_bytes()[:50])
+    small = clean_image(np.random.default_rng(5), 10, 10)  # readable, but under SSIM's window
+    write_image(dataset / "test" / "input" / "003.png", small)
+    write_image(dataset / "test" / "target" / "003.png", small)
     g = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
     result = run_tradeoff(dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1),
                           tiny_config(), g, latency_runs=1)  # fmt: skip
-    (unread,) = result.meta["unread"]
+    unread, small_one = result.meta["unread"]
     assert unread["index"] == 1 and "001.png" in unread["reason"]
+    assert small_one["index"] == 3 and "window" in small_one["reason"]  # the split's index
     # the row's mean is over the two readable pairs: recompute it from them
     network = load_model(tmp_path / "t" / "runs" / "G" / "checkpoints" / "best.pt").network
     pairs = open_eval_pairs(dataset, "test")
@@ -377,7 +383,7 @@ def test_an_unreadable_test_pair_is_skipped_and_recorded_before_training(tmp_pat
     assert result.rows[0].psnr_db == pytest.approx(sum(psnrs) / 2, abs=1e-6)
     saved = json.loads((tmp_path / "t" / "tradeoff.json").read_text())
     assert saved["unread"] == result.meta["unread"]
-    assert "1 pair(s) could not be read or scored" in (tmp_path / "t" / "tradeoff.md").read_text()
+    assert "2 pair(s) could not be read or scored" in (tmp_path / "t" / "tradeoff.md").read_text()
 
 
 def test_a_test_split_with_no_readable_pair_is_refused_before_training(tmp_path: Path) -> None:
