@@ -9,8 +9,8 @@ kept), an EuRoC/ASL recording (data.csv, sensor.yaml and every other file
 copied; the chosen camera's images restored), a ROS 1 .bag or a ROS 2 bag
 (.db3 or .mcap; every message copied, restored images on the same topics or on
 <topic><suffix>, headers and log times unchanged). Images keep their bit
-depth and colour channels; an alpha channel is not carried (RGBA comes out
-RGB, grey + alpha grey). The model is a lenspair checkpoint (torch, CPU or
+depth and channels (an image file's alpha channel is written back unchanged
+beside the restored colour). The model is a lenspair checkpoint (torch, CPU or
 CUDA) or an ONNX file from `lenspair export` (ONNX Runtime; it was exported
 at a fixed size, so other sizes run on tiles of that size).
 

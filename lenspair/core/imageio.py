@@ -43,7 +43,8 @@ def read_image(path: Path) -> np.ndarray:
 
     Returns:
         ``uint8``/``uint16`` array, ``(H, W)`` for one channel, ``(H, W, 3)``
-        for colour (an alpha channel is dropped).
+        for colour, as stored (an alpha channel is dropped, see :func:`read_alpha`;
+        colour is not premultiplied by it).
 
     Raises:
         ImageIOError: the file is missing, empty, corrupt or truncated (a PNG's
@@ -80,6 +81,27 @@ def image_header(path: Path) -> tuple[int, int, int, str]:
         return spec.height, spec.width, channels, str(spec.format)
 
 
+def read_alpha(path: Path) -> np.ndarray | None:
+    """The alpha channel of an image file, ``(H, W)`` of its dtype; ``None`` when it has none.
+
+    :func:`read_image` drops alpha (the networks see colour only); whoever
+    writes an image back in the file's place (``restore``) puts it back with
+    :func:`write_image`'s ``alpha``. Only the header is read when there is none.
+
+    Raises:
+        ImageIOError: as :func:`read_image`.
+    """
+    path = Path(path)
+    with _opened(path) as handle:
+        if handle.spec().nchannels not in (2, 4):
+            return None
+    try:
+        array = _read_pixels(path)
+    except OSError as exc:
+        raise ImageIOError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    return np.ascontiguousarray(array[:, :, -1])
+
+
 @contextlib.contextmanager
 def _opened(path: Path) -> Iterator[Any]:
     """An OpenImageIO input for ``path``, closed on exit.
@@ -87,7 +109,12 @@ def _opened(path: Path) -> Iterator[Any]:
     Raises:
         ImageIOError: it cannot be opened (OpenImageIO's reason).
     """
-    handle = oiio.ImageInput.open(str(path))
+    # The stored colour values: by default OpenImageIO premultiplies a PNG's
+    # colour by its alpha (200 at alpha 100 reads as 78), darkening every
+    # translucent pixel of what the networks and metrics see.
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    handle = oiio.ImageInput.open(str(path), config)
     if handle is None:
         raise ImageIOError(f"{path}: cannot open image ({_first_line(oiio.geterror())})")
     try:
@@ -120,7 +147,9 @@ natural 540x360 frames about twice as fast to write as the default level 6,
 for files a few per cent larger (the same pixels)."""
 
 
-def write_image(path: Path, image: np.ndarray, png_level: int | None = None) -> None:
+def write_image(
+    path: Path, image: np.ndarray, png_level: int | None = None, alpha: np.ndarray | None = None
+) -> None:
     """Write ``image`` atomically; the format follows the file extension.
 
     Args:
@@ -128,15 +157,27 @@ def write_image(path: Path, image: np.ndarray, png_level: int | None = None) -> 
         image: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)``.
         png_level: zlib compression level 0-9 of a PNG (``None``: the
             library's default); see :data:`FAST_PNG`.
+        alpha: an alpha channel ``(H, W)`` of ``image``'s dtype to write
+            after the colour ones (grey + alpha, RGBA); see :func:`read_alpha`.
 
     """
     check_image(image, str(path))
     pixels = np.ascontiguousarray(image if image.ndim == 3 else image[:, :, None])
+    if alpha is not None:
+        if alpha.shape != pixels.shape[:2] or alpha.dtype != image.dtype:
+            raise ValueError(
+                f"{path}: alpha {alpha.shape} {alpha.dtype} does not match the image "
+                f"{pixels.shape[:2]} {image.dtype}"
+            )
+        pixels = np.ascontiguousarray(np.concatenate([pixels, alpha[:, :, None]], axis=2))
     height, width, channels = pixels.shape
     path = Path(path)
 
     def _write(tmp: Path) -> None:
         spec = oiio.ImageSpec(width, height, channels, _OIIO_TYPES[image.dtype])
+        if alpha is not None:
+            spec.alpha_channel = channels - 1
+            spec.attribute("oiio:UnassociatedAlpha", 1)  # colour as given, not divided by alpha
         if png_level is not None:
             spec.attribute("png:compressionLevel", png_level)
         out = oiio.ImageOutput.create(str(path))

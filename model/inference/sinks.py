@@ -25,8 +25,9 @@ from lenspair.capture.bagwrite import BagCopy, output_bag_path
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage, InputFrame
 from lenspair.capture.rosbag import BAG_SUFFIXES
+from lenspair.core.errors import ImageIOError
 from lenspair.core.fsutil import atomic_write, atomic_write_text
-from lenspair.core.imageio import FAST_PNG, write_image
+from lenspair.core.imageio import FAST_PNG, read_alpha, write_image
 
 PARTIAL_DIR = ".restore-partial"
 """Under OUT: the bag being written, moved to its name when complete (see :class:`BagSink`)."""
@@ -44,6 +45,22 @@ def _remove(path: Path) -> None:
         shutil.rmtree(path)
     elif path.exists():
         path.unlink()
+
+
+def _alpha_of(source: Path, shape: tuple[int, ...]) -> np.ndarray | None:
+    """The input's alpha channel, carried to its restored image (``None``: it has none).
+
+    The network restores colour only; a file's transparency is not the
+    glass's business and is written back unchanged.
+
+    Raises:
+        CaptureError: the input has an alpha channel that cannot be read again.
+    """
+    try:
+        alpha = read_alpha(source)
+    except ImageIOError as exc:
+        raise CaptureError(str(exc)) from None
+    return alpha if alpha is not None and alpha.shape == shape else None
 
 
 def copy_file(source: Path, destination: Path) -> None:
@@ -132,7 +149,9 @@ class FileSink:
             copy_file(Path(item.source), destination)
         else:
             destination.parent.mkdir(parents=True, exist_ok=True)
-            write_image(destination, restored, png_level=FAST_PNG)  # a robot's stream: speed
+            alpha = _alpha_of(Path(item.source), restored.shape[:2])
+            # FAST_PNG: a robot's stream wants speed
+            write_image(destination, restored, png_level=FAST_PNG, alpha=alpha)
             self.copies.discard(item.name)
 
     def cached(self, frame: InputFrame) -> np.ndarray | None:

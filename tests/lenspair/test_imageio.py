@@ -10,6 +10,7 @@ from lenspair.core.fsutil import sha256_file
 from lenspair.core.imageio import (
     from_float,
     from_linear,
+    read_alpha,
     read_image,
     to_float,
     to_linear,
@@ -102,3 +103,23 @@ def test_damaged_png_is_one_clear_error_and_nothing_on_stderr(
         read_image(bad)
     assert str(info.value).startswith(f"{bad}: ")
     assert capfd.readouterr().err == ""  # libpng printed nothing
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_translucent_pixels_read_as_stored_and_alpha_round_trips(
+    tmp_path: Path, dtype: type
+) -> None:
+    # OpenImageIO premultiplies a PNG's colour by its alpha unless told not to:
+    # colour 200 at alpha 100 (8 bit) read as 78, darkening what the networks saw.
+    top = np.iinfo(dtype).max
+    colour = np.full((4, 5, 3), top * 200 // 255, dtype)
+    alpha = np.full((4, 5), top * 100 // 255, dtype)
+    alpha[0, 0] = 0  # fully transparent: its colour is kept too
+    path = tmp_path / "rgba.png"
+    write_image(path, colour, alpha=alpha)
+    np.testing.assert_array_equal(read_image(path), colour)
+    np.testing.assert_array_equal(read_alpha(path), alpha)
+    write_image(tmp_path / "rgb.png", colour)
+    assert read_alpha(tmp_path / "rgb.png") is None
+    with pytest.raises(ValueError, match="alpha"):
+        write_image(tmp_path / "bad.png", colour, alpha=alpha[:2])

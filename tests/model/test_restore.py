@@ -97,6 +97,39 @@ def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thre
     assert not any((tmp_path / "out3").iterdir())
 
 
+def _raw(path: Path) -> np.ndarray:
+    """Every channel of an image file as stored, alpha included (not premultiplied)."""
+    import OpenImageIO as oiio
+
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    handle = oiio.ImageInput.open(str(path), config)
+    pixels = np.asarray(handle.read_image(handle.spec().format))
+    handle.close()
+    return pixels
+
+
+@pytest.mark.parametrize(("colour", "dtype"), [(True, np.uint8), (False, np.uint16)])
+def test_alpha_is_carried_to_the_restored_image(
+    tmp_path: Path, one_thread: None, colour: bool, dtype: type
+) -> None:
+    config = tiny_config()
+    config = replace(config, model=replace(config.model, channels=3 if colour else 1))
+    backend = open_backend(make_checkpoint(tmp_path / "m.pt", config), CPU, "fp32")
+    top = np.iinfo(dtype).max
+    image = (texture((32, 48, 3) if colour else (32, 48), seed=6) * top).astype(dtype)
+    alpha = (texture((32, 48), seed=7) * top).astype(dtype)
+    write_image(tmp_path / "in" / "x.png", image, alpha=alpha)
+    assert _raw(tmp_path / "in" / "x.png").shape == (32, 48, 4 if colour else 2)
+    report = restore_input(tmp_path / "in", tmp_path / "out", backend)
+    assert (report.restored, report.failed) == (1, 0)
+    written = _raw(tmp_path / "out" / "x.png")
+    assert written.dtype == dtype and written.shape == (32, 48, 4 if colour else 2)
+    np.testing.assert_array_equal(written[:, :, -1], alpha)  # transparency unchanged
+    restored = written[:, :, :3] if colour else written[:, :, 0]
+    np.testing.assert_array_equal(restored, expected(backend, image))  # colour restored
+
+
 def test_recording_restores_the_obstructed_camera(tmp_path: Path, backend: TorchBackend) -> None:
     recording = simulate("rain", tmp_path / "rec", frames=2)  # rig.yaml: cam1 obstructed
     report = restore_input(recording, tmp_path / "out", backend)
