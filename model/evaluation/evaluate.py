@@ -45,7 +45,7 @@ from lenspair.model.metrics import PSNR_CAP_DB, image_metrics, parse_metric_conv
 from lenspair.model.training.pairs import (
     PairItem,
     PairSource,
-    PairsView,
+    SubsetSource,
     Unread,
     channels_of,
     conversion_note,
@@ -401,7 +401,7 @@ def evaluate_checkpoint(
             f"none of the {len(pairs)} pairs can be scored; the first: {unread[0].reason}"
         )
     bad = {u.index for u in unread}
-    scored = PairsView(pairs, [i for i in range(len(pairs)) if i not in bad]) if bad else pairs
+    scored = SubsetSource(pairs, [i for i in range(len(pairs)) if i not in bad]) if bad else pairs
     versus_fp32 = None
     if precision != "fp32":
         versus_fp32 = agreement_with_fp32(

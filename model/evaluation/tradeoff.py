@@ -56,7 +56,7 @@ from lenspair.model.precision import choose_precision
 from lenspair.model.training.config import RunConfig, Variant, config_differences
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
-from lenspair.model.training.pairs import Unread, open_eval_pairs, readable_pairs
+from lenspair.model.training.pairs import SubsetSource, Unread, open_eval_pairs, readable_pairs
 from lenspair.model.training.step import vgg19_weights_path
 
 log = logging.getLogger(__name__)
@@ -231,10 +231,12 @@ def run_tradeoff(
             f"{pairs_text}: no pairs to score; choose another --split (e.g. val) or rebuild "
             "the dataset with a non-empty one (dataset-build --splits)"
         )
-    pairs, unread = readable_pairs(pairs)
-    if len(pairs) == 0:
+    readable, unread = readable_pairs(pairs)
+    if len(readable) == 0:
         raise ModelError(f"{pairs_text}: none can be read; the first: {unread[0].reason}")
-    view: list[int] = list(getattr(pairs, "indices", []))  # a PairsView when some were left out
+    # scoring indexes the readable pairs; problems are reported by the split's own index
+    view = readable.indices if isinstance(readable, SubsetSource) and unread else []
+    pairs = readable
     size = tuple(pairs[0].input.shape[:2])
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = {
@@ -436,6 +438,8 @@ def _reusable(run: Path, config: RunConfig, dataset: str | None = None) -> bool:
     """
     last = run / "checkpoints" / "last.pt"
     if not last.is_file():
+        if run.exists():  # killed before its first checkpoint: train it from the start
+            shutil.rmtree(run)
         return False
     stored = checkpoint_config(load_checkpoint(last), last)
     obstacle = reuse_obstacle(stored, config, dataset)

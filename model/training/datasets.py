@@ -15,15 +15,16 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from lenspair.core.imageio import read_image
+from lenspair.core.errors import ImageIOError
+from lenspair.core.imageio import image_header, read_image
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.pairs import (
     PairedCrops,
-    PairItem,
     PairSource,
+    SubsetSource,
     channels_of,
     conversion_note,
 )
@@ -57,20 +58,6 @@ def first_channels(dataset: PairSource) -> int:
     if len(dataset) == 0:
         raise ModelError("the dataset is empty")
     return channels_of(dataset[0].input)
-
-
-class SubsetSource:
-    """Some pairs of a source, by index (a deterministic hold-out)."""
-
-    def __init__(self, source: PairSource, indices: Sequence[int]) -> None:
-        self.source = source
-        self.indices = list(indices)
-
-    def __len__(self) -> int:
-        return len(self.indices)
-
-    def __getitem__(self, index: int) -> PairItem:
-        return self.source[self.indices[index]]
 
 
 def _hash_rank(name: str) -> str:
@@ -174,6 +161,7 @@ def paired_training_data(
         if isinstance(paired, PairedDataset) and id(paired) not in checked:
             paired.check_headers()
             checked.add(id(paired))
+    check_training_images(train_source, data.crop_size, channels)
     resolved = channels or first_channels(train_source)
     if channel_note := conversion_note(resolved, first_channels(train_source), path):
         log.warning("%s", channel_note)
@@ -182,6 +170,75 @@ def paired_training_data(
     description = f"{path} (train {len(train)} pairs, validation {len(val)} pairs"
     description += f"; {note})" if note else ")"
     return TrainData(train=train, val=val, channels=resolved, description=description)
+
+
+def check_training_images(source: PairSource, crop_size: int | None, channels: int | None) -> None:
+    """Every training pair holds a crop, and mixed channels are said: from headers, up front.
+
+    A smaller image would stop the run whenever the sampler first drew it; a
+    dataset of grey and colour pairs trains a network of one channel count
+    and converts the others, which must not pass unsaid.
+
+    Args:
+        source: the training pairs.
+        crop_size: ``data.crop_size`` (``None``: whole images).
+        channels: the network's channels (``None``: the first pair's).
+
+    Raises:
+        DatasetError: naming the first three images too small and how many there are.
+    """
+    paired = source.source if isinstance(source, SubsetSource) else source
+    if not isinstance(paired, PairedDataset):
+        return
+    indices = source.indices if isinstance(source, SubsetSource) else range(len(paired))
+    small, counts = [], {1: 0, 3: 0}
+    for index in indices:
+        path = paired.entries[index].input_path
+        height, width, have = image_header(path)[:3]
+        counts[have] = counts.get(have, 0) + 1
+        if crop_size is not None and min(height, width) < crop_size:
+            small.append(f"{path} ({width}x{height})")
+    if small:
+        raise DatasetError(
+            f"{len(small)} training image(s) smaller than the {crop_size} px crop "
+            f"(data.crop_size, --crop-size): {', '.join(small[:3])}"
+            + (", ..." if len(small) > 3 else "")
+            + "; lower the crop or leave them out"
+        )
+    if counts[1] and counts[3]:
+        log.warning(
+            "%s: the training pairs mix %d grey and %d colour images; the network takes %s, "
+            "so the others are converted (colour to Rec. 601 luma, grey repeated); set "
+            "model.channels to choose",
+            paired.root,
+            counts[1],
+            counts[3],
+            f"{channels} channel(s)" if channels else "the first pair's channels",
+        )
+
+
+def _check_clean_images(
+    folder: Path, train: Sequence[Path], val: Sequence[Path], crop_size: int | None
+) -> None:
+    """Headers of every clean image, and training ones hold a crop: before the first step.
+
+    Raises:
+        DatasetError: naming the first three problems and how many there are.
+    """
+    problems, training = [], set(train)
+    for path in [*train, *val]:
+        try:
+            height, width = image_header(path)[:2]
+        except ImageIOError as exc:
+            problems.append(str(exc))
+            continue
+        if crop_size is not None and path in training and min(height, width) < crop_size:
+            problems.append(f"{path}: {width}x{height}, smaller than the {crop_size} px crop")
+    if problems:
+        raise DatasetError(
+            f"{folder}: {len(problems)} unusable clean image(s): {'; '.join(problems[:3])}"
+            + ("; ..." if len(problems) > 3 else "")
+        )
 
 
 def synthetic_training_data(
@@ -203,6 +260,7 @@ def synthetic_training_data(
     folder = Path(folder)
     images = find_clean_images(folder)
     train_images, val_images = split_holdout(images, data.val_fraction, folder)
+    _check_clean_images(folder, train_images, val_images, data.crop_size)
     resolved = channels or channels_of(read_image(images[0]))
     effects = drops_preset(data.drops)
     train = SyntheticDrops(

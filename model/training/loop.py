@@ -227,10 +227,11 @@ def fit(
         )
     paths = RunPaths(Path(run))
     checkpoint = load_checkpoint(paths.last) if resume else None
-    if checkpoint is None and paths.last.exists():
+    held = [p.name for p in (paths.last, paths.best, paths.metrics) if p.exists()]
+    if checkpoint is None and held:  # best.pt without last.pt is still another run's result
         raise ModelError(
-            f"{paths.root} already holds a run; pass --resume to continue it, "
-            "or choose another --out"
+            f"{paths.root} already holds a run ({', '.join(held)}); pass --resume to continue "
+            "it, or choose another --out"
         )
     deterministic_before = torch.are_deterministic_algorithms_enabled()
     try:
@@ -413,8 +414,9 @@ def _loop(
         sums, counted = dict(state.loss_sums), state.loss_steps
         bar = progress(loader, _epoch_label(epoch, train), total=len(loader), unit="step")
         for batch in bar if info.is_main else loader:
-            if train.lr_decay > 0:
-                trainer.set_lr(scheduled_lr(train, state.step, total_steps))
+            # every step, also at a constant rate: a resumed run's optimiser state
+            # carries the rate it was saved with, and the config may have changed it
+            trainer.set_lr(scheduled_lr(train, state.step, total_steps))
             result = trainer.train_step(batch)
             state.step += 1
             state.step_in_epoch += 1

@@ -61,19 +61,19 @@ class Unread:
     reason: str
 
 
-class PairsView:
-    """The pairs of ``pairs`` at ``indices``, in that order (a :class:`PairSource`)."""
+class SubsetSource:
+    """Some pairs of a source, by index, in that order (a hold-out, the readable ones)."""
 
-    def __init__(self, pairs: PairSource, indices: Sequence[int]) -> None:
-        self.pairs = pairs
+    def __init__(self, source: PairSource, indices: Sequence[int]) -> None:
+        self.source = source
         self.indices = list(indices)
-        self.root = getattr(pairs, "root", None)
+        self.root = getattr(source, "root", None)
 
     def __len__(self) -> int:
         return len(self.indices)
 
     def __getitem__(self, index: int) -> PairItem:
-        return self.pairs[self.indices[index]]
+        return self.source[self.indices[index]]
 
 
 def read_pair(pairs: PairSource, index: int, unread: list[Unread]) -> PairItem | None:
@@ -100,7 +100,7 @@ def readable_pairs(pairs: PairSource) -> tuple[PairSource, list[Unread]]:
     """
     unread: list[Unread] = []
     good = [i for i in range(len(pairs)) if read_pair(pairs, i, unread) is not None]
-    return (pairs if not unread else PairsView(pairs, good)), unread
+    return (pairs if not unread else SubsetSource(pairs, good)), unread
 
 
 class Sample(TypedDict):

@@ -228,6 +228,7 @@ class Trainer:
             self.vgg = self.vgg.to(device)
             self.perceptual = PerceptualLoss(self.vgg, config.loss.perceptual_layers)
         self.guard = _Guard()
+        self.val_skipped: dict[int, str] = {}  # validation pairs that cannot be scored
 
     @property
     def perceptual_status(self) -> str:

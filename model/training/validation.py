@@ -30,8 +30,10 @@ import torch.distributed as dist
 from torch import nn
 
 from lenspair.core.contact_sheet import make_contact_sheet
+from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import save_checkpoint
+from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.pairs import Sample
@@ -71,11 +73,16 @@ def validate_and_save(
     improved = False
     val_psnr = val_ssim = math.nan
     if info.is_main:
-        val_psnr, val_ssim, sheet = validate(trainer.model, val_set, trainer.device)
+        val_psnr, val_ssim, sheet = validate(
+            trainer.model, val_set, trainer.device, skipped=trainer.val_skipped
+        )
         end_of_epoch = state.step_in_epoch == 0
         improved = val_psnr > state.best_psnr and (end_of_epoch or state.best_psnr == -math.inf)
         if improved:
-            state.best_psnr, state.best_epoch = val_psnr, state.epoch
+            # epochs count from 1: a mid-epoch best lies in the epoch under way, so
+            # that 0 keeps meaning "no best yet" in the run's summary
+            state.best_psnr = val_psnr
+            state.best_epoch = state.epoch if end_of_epoch else state.epoch + 1
             if end_of_epoch:
                 state.stale = 0
         elif end_of_epoch:
@@ -124,28 +131,53 @@ def _broadcast_int(value: int, info: Distributed, device: torch.device) -> int:
 
 @torch.inference_mode()
 def validate(
-    network: nn.Module, val_set: SampleSet, device: torch.device, samples: int = 3
+    network: nn.Module,
+    val_set: SampleSet,
+    device: torch.device,
+    samples: int = 3,
+    skipped: dict[int, str] | None = None,
 ) -> tuple[float, float, np.ndarray]:
     """Mean PSNR and SSIM (``skimage-gaussian``) of whole validation images, at fp32.
+
+    A pair that cannot be read or scored (a truncated file, an image under
+    SSIM's 11x11 window) is left out with a warning, once per run when
+    ``skipped`` (index -> reason) is kept between validations: one bad pair
+    must not end a run at its first validation, after an epoch of training.
 
     Returns:
         ``(psnr_db, ssim, contact_sheet)``; PSNR means cap identical images at
         :data:`lenspair.model.evaluation.evaluate.PSNR_CAP_DB`.
 
+    Raises:
+        ModelError: no validation pair can be scored (naming the first problem).
+
     """
     deployed = _as_deployed(network, device)
+    skipped = {} if skipped is None else skipped
     psnrs, ssims = [], []
     rows: list[list[np.ndarray | None]] = []
     for index in range(len(val_set)):
-        sample = val_set[index]
-        x = sample["input"][None].to(device)
-        target = sample["target"][None].to(device)
-        output = deployed(x)[1].float().clamp(0.0, 1.0)
-        psnr, ssim = score_tensors(output, target, VAL_CONVENTION)
+        if index in skipped:
+            continue
+        sample: Sample | None = None
+        try:
+            sample = val_set[index]
+            x = sample["input"][None].to(device)
+            target = sample["target"][None].to(device)
+            output = deployed(x)[1].float().clamp(0.0, 1.0)
+            psnr, ssim = score_tensors(output, target, VAL_CONVENTION)
+        except LenspairError as exc:
+            skipped[index] = f"{sample['name']}: {exc}" if sample is not None else str(exc)
+            log.warning("validation: left out for the rest of the run: %s", skipped[index])
+            continue
         psnrs.append(psnr)
         ssims.append(ssim)
         if len(rows) < samples:
             rows.append([_hwc(x), _hwc(output), _hwc(target)])
+    if not psnrs:
+        raise ModelError(
+            f"no validation pair can be scored; the first: {next(iter(skipped.values()))}"
+        )
     labels = [["input", "output", "target"]] * len(rows)
     sheet = make_contact_sheet(rows, labels, title="validation samples")
     return mean_psnr(psnrs), float(np.mean(ssims)), sheet

@@ -212,6 +212,9 @@ def test_fit_writes_the_run_folder_and_warns_without_vgg(
     assert len(rows) == 2
     with pytest.raises(ModelError, match="already holds a run"):
         _train(dataset, run, tiny_config(epochs=1))
+    (run / "checkpoints" / "last.pt").unlink()  # best.pt and metrics.csv are results still
+    with pytest.raises(ModelError, match=r"already holds a run \(best.pt, metrics.csv\)"):
+        _train(dataset, run, tiny_config(epochs=1))
 
 
 def test_perceptual_loss_runs_with_vgg_weights(tmp_path: Path) -> None:
@@ -244,6 +247,34 @@ def test_resume_continues_exactly(tmp_path: Path, first_leg: dict[str, int]) -> 
         assert torch.equal(straight[key], split[key]), key
     rows = (tmp_path / "split" / "metrics.csv").read_text().splitlines()
     assert [r.split(",")[1] for r in rows[1:]][-1] == "6"
+
+
+def test_a_resume_trains_at_the_rate_its_config_now_says(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds")  # 3 steps per epoch
+    run = tmp_path / "run"
+    _train(dataset, run, tiny_config(epochs=1, lr=2e-4))
+    _train(dataset, run, tiny_config(epochs=2, lr=1e-3), resume=True)
+    saved = load_checkpoint(run / "checkpoints" / "last.pt")
+    for name in ("optimizer_g", "optimizer_d"):  # the saved optimiser carried 2e-4
+        assert saved[name]["param_groups"][0]["lr"] == pytest.approx(1e-3)
+
+
+def test_resume_without_last_pt_starts_over_and_says_what_it_replaces(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1})
+    config = tmp_path / "tiny.yaml"
+    config.write_text(dump_yaml(tiny_config(max_steps=1)))
+    run = tmp_path / "run"
+    argv = ["train", str(dataset), "--out", str(run), "--config", str(config), "--device", "cpu"]
+    assert main(argv) == 0
+    (run / "checkpoints" / "last.pt").unlink()  # as a kill between best.pt and last.pt leaves
+    caplog.set_level(logging.WARNING)
+    assert main([*argv, "--resume"]) == 0
+    said = " ".join(r.getMessage() for r in caplog.records)
+    assert "no last.pt to resume from" in said and "replacing its best.pt, metrics.csv" in said
+    assert (run / "checkpoints" / "last.pt").is_file()
+    assert len((run / "metrics.csv").read_text().splitlines()) == 2  # this run's row only
 
 
 def test_the_learning_rate_falls_over_the_runs_last_share(
@@ -411,6 +442,7 @@ def test_only_rank_zero_prints_the_summary(
     )  # fmt: skip
     monkeypatch.setattr("lenspair.model.training.loop.fit", lambda *a, **k: summary)
     args = ["train", str(dataset), "--out", str(tmp_path / "run"), "--max-steps", "1"]
+    args += ["--crop-size", "16"]  # the images are 48x32
     for rank, prints in (("1", False), ("0", True)):
         monkeypatch.setenv("WORLD_SIZE", "2")
         monkeypatch.setenv("RANK", rank)

@@ -8,8 +8,13 @@ import pytest
 from lenspair.core.imageio import image_header, write_image
 from lenspair.dataset.errors import DatasetError
 from lenspair.model.training.config import DataConfig
-from lenspair.model.training.datasets import paired_training_data
-from tests.model.train_fixtures import write_paired_folder
+from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
+from tests.model.train_fixtures import (
+    clean_image,
+    tiny_config,
+    write_paired_folder,
+    write_split_dataset,
+)
 
 
 def test_header_matches_what_read_image_returns(tmp_path: Path) -> None:
@@ -29,3 +34,46 @@ def test_a_bad_pair_is_found_before_training(tmp_path: Path, bad: str) -> None:
         target.write_bytes(b"not an image at all")
     with pytest.raises(DatasetError, match=r"1 bad pair\(s\) of 8: .*005\.png"):
         paired_training_data(folder, DataConfig(crop_size=16), None, seed=0)
+
+
+def test_a_training_image_smaller_than_the_crop_is_found_before_the_first_step(
+    tmp_path: Path,
+) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 3, "val": 1})
+    small = clean_image(np.random.default_rng(1), 20, 20)
+    write_image(dataset / "train" / "input" / "001.png", small)
+    write_image(dataset / "train" / "target" / "001.png", small)
+    config = tiny_config()  # 32 px crops
+    with pytest.raises(
+        DatasetError, match=r"1 training image\(s\) smaller than the 32 px crop.*001"
+    ):
+        paired_training_data(dataset, config.data, 1, 0)
+    # validation images are whole: a small one there is fine
+    write_image(dataset / "train" / "input" / "001.png", clean_image(np.random.default_rng(1)))
+    write_image(dataset / "train" / "target" / "001.png", clean_image(np.random.default_rng(1)))
+    write_image(dataset / "val" / "input" / "000.png", small)
+    write_image(dataset / "val" / "target" / "000.png", small)
+    paired_training_data(dataset, config.data, 1, 0)
+
+
+def test_mixed_grey_and_colour_pairs_are_said(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 3, "val": 1})
+    grey = clean_image(np.random.default_rng(2))
+    colour = np.ascontiguousarray(np.stack([grey, grey[::-1], grey], axis=2))
+    write_image(dataset / "train" / "input" / "002.png", colour)
+    write_image(dataset / "train" / "target" / "002.png", colour)
+    caplog.set_level("WARNING")
+    data = paired_training_data(dataset, tiny_config().data, None, 0)
+    assert data.channels == 1
+    assert any("mix 2 grey and 1 colour" in r.getMessage() for r in caplog.records)
+
+
+def test_unusable_clean_images_are_found_before_synthetic_pretraining(tmp_path: Path) -> None:
+    folder = tmp_path / "clean"
+    for index in range(6):
+        write_image(folder / f"{index}.png", clean_image(np.random.default_rng(index)))
+    (folder / "3.png").write_bytes(b"\\x89PNG\\r\\n\\x1a\\n garbage")
+    with pytest.raises(DatasetError, match=r"1 unusable clean image\(s\).*3\.png"):
+        synthetic_training_data(folder, tiny_config().data, 1, 0)

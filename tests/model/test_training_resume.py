@@ -34,7 +34,7 @@ def _validations(
     """Run ``validate_and_save`` at ``(epoch, step_in_epoch, psnr)``; best.pt's PSNR after each."""
     scores = iter(psnr for _, _, psnr in events)
     sheet = np.zeros((8, 8, 3), np.uint8)
-    monkeypatch.setattr(validation, "validate", lambda *_: (next(scores), 0.9, sheet))
+    monkeypatch.setattr(validation, "validate", lambda *_, **__: (next(scores), 0.9, sheet))
     config = tiny_config()
     trainer = Trainer(config, CPU)
     paths = RunPaths(tmp_path / "run")
@@ -70,7 +70,8 @@ def test_a_run_with_no_best_yet_takes_best_pt_from_a_mid_epoch_validation(
 ) -> None:
     state, paths, best = _validations(tmp_path, monkeypatch, [(0, 3, 25.0), (0, 5, 26.0)])
     assert best == [25.0, 25.0]  # the first gives the run a best.pt; later ones do not count
-    assert (state.best_psnr, state.best_epoch, state.stale) == (25.0, 0, 0)
+    # in epoch 1 (counting from 1, as end-of-epoch bests do): 0 stays "no best yet"
+    assert (state.best_psnr, state.best_epoch, state.stale) == (25.0, 1, 0)
     assert load_checkpoint(paths.best)["step"] == 3
 
 
@@ -107,3 +108,30 @@ def test_resuming_at_an_epoch_boundary_may_change_the_batch_size(tmp_path: Path)
     _train(dataset, run, resume_config(run, smaller), resume=True)
     saved = load_checkpoint(run / "checkpoints" / "last.pt")
     assert (saved["epoch"], saved["step"]) == (2, 6)  # 2 steps of 4, then 4 steps of 2
+
+
+def test_a_validation_pair_that_cannot_be_scored_is_left_out_not_fatal(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from lenspair.core.imageio import write_image
+    from tests.model.train_fixtures import clean_image
+
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 3})
+    small = clean_image(np.random.default_rng(2), 10, 10)  # under SSIM's 11x11 window
+    write_image(dataset / "val" / "input" / "001.png", small)
+    write_image(dataset / "val" / "target" / "001.png", small)
+    cut = dataset / "val" / "target" / "002.png"
+    cut.write_bytes(cut.read_bytes()[:300])  # header whole, pixels cut: found when read
+    caplog.set_level("WARNING")
+    _train(dataset, tmp_path / "run", tiny_config(epochs=2))
+    left_out = [r.getMessage() for r in caplog.records if "left out" in r.getMessage()]
+    assert len(left_out) == 2  # once per pair, not once per validation
+    assert any("001" in m and "window" in m for m in left_out)
+    assert any("002.png" in m for m in left_out)
+    rows = (tmp_path / "run" / "metrics.csv").read_text().splitlines()
+    assert len(rows) == 3 and (tmp_path / "run" / "checkpoints" / "best.pt").is_file()
+    for name in ("000", "001", "002"):  # none can be scored: one error naming the first
+        write_image(dataset / "val" / "input" / f"{name}.png", small)
+        write_image(dataset / "val" / "target" / f"{name}.png", small)
+    with pytest.raises(ModelError, match=r"no validation pair can be scored; the first: 000"):
+        _train(dataset, tmp_path / "run2", tiny_config(epochs=1))
