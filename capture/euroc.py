@@ -104,7 +104,7 @@ def read_data_csv(
         CaptureError: the file cannot be read as text.
     """
     try:
-        text = csv_path.read_text(encoding="utf-8")
+        text = csv_path.read_text(encoding="utf-8-sig")  # a spreadsheet's BOM is not a row
     except (OSError, UnicodeDecodeError) as exc:
         raise CaptureError(f"{csv_path}: cannot read ({exc})") from None
     frames = []

@@ -53,6 +53,7 @@ import numpy as np
 from lenspair.capture import euroc, folders, rosbag
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import CAMERAS, open_recording
+from lenspair.capture.recording_types import FrameProblem
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import read_image
@@ -201,6 +202,7 @@ def iter_frames(
     cameras: Sequence[CameraName] = CAMERAS,
     problems: list[str] | None = None,
     topics: tuple[str, str] | None = None,
+    dropped: list[FrameProblem] | None = None,
 ) -> Iterator[InputFrame]:
     """Every frame of ``path`` (any kind, see the module docstring), decoded.
 
@@ -211,6 +213,9 @@ def iter_frames(
             for recordings, what their listing reported for the chosen cameras
             (images ``data.csv`` does not list, duplicate timestamps, ...).
         topics: bags only: the ``(cam0, cam1)`` image topics; None picks them.
+        dropped: recordings only: appended to with the listing's problems that
+            leave a frame out (a file ``data.csv`` lists but that is missing),
+            so that a caller can account for those frames too.
 
     Returns:
         An iterator of :class:`InputFrame` in input order (files sorted by
@@ -229,7 +234,8 @@ def iter_frames(
         return (item.frame for item in messages if item.frame is not None)
     if topics is not None:
         raise CaptureError(f"{path}: topics can only be chosen for bags, this is a {kind}")
-    return _iter_files(Path(path), kind, _file_entries(path, kind, cameras, problems))
+    entries = _file_entries(path, kind, cameras, problems, dropped)
+    return _iter_files(Path(path), kind, entries)
 
 
 def frame_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> list[Path]:
@@ -242,10 +248,12 @@ def _file_entries(
     kind: InputKind,
     cameras: Sequence[CameraName],
     problems: list[str] | None = None,
+    dropped: list[FrameProblem] | None = None,
 ) -> list[tuple[Path, CameraName | None, int | None]]:
     """``(file, camera, t_ns)`` per frame; recordings take both from their listing.
 
-    ``problems`` receives the recording's listing problems for ``cameras``.
+    ``problems`` receives the recording's listing problems for ``cameras``,
+    ``dropped`` those of them that leave a frame out.
 
     Raises:
         CaptureError: a folder without images (the caller asked for frames).
@@ -262,12 +270,11 @@ def _file_entries(
             )
         return [(file, None, None) for file in files]
     recording = open_recording(path)
+    mine = [p for p in recording.problems if p.camera is None or p.camera in cameras]
     if problems is not None:
-        problems.extend(
-            str(problem)
-            for problem in recording.problems
-            if problem.camera is None or problem.camera in cameras
-        )
+        problems.extend(str(problem) for problem in mine)
+    if dropped is not None:
+        dropped.extend(problem for problem in mine if problem.dropped)
     return [
         (ref.source, camera, ref.t_ns) for camera in cameras for ref in recording.frames[camera]
     ]

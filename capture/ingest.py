@@ -115,7 +115,11 @@ def _map_tasks(
         initargs=(context, os.getpid()),
     ) as pool:
         results = pool.map(function, tasks, chunksize=max(1, min(8, len(tasks) // (4 * workers))))
-        yield from progress(results, desc=desc, total=len(tasks))
+        try:
+            yield from progress(results, desc=desc, total=len(tasks))
+        except BaseException:  # Ctrl-C, or a task's error: stop handing out work, now
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
 
 
 def _side_check_images(
@@ -249,6 +253,32 @@ def _time(record: PairRecord) -> int:
     return record.t_ns
 
 
+def _check_same_source(out_dir: Path, source: Path) -> None:
+    """Refuse to ingest ``source`` into a folder that holds another recording's ingest.
+
+    Recordings land in ``OUT/<folder name>``: two recordings of one name
+    (``a/rec`` and ``b/rec``, or ``rec.bag`` beside a folder ``rec``) would
+    overwrite each other's pairs.
+
+    Raises:
+        CaptureError: naming both recordings and what to do.
+    """
+    report = out_dir / REPORT_FILE
+    if not report.is_file():
+        return
+    try:
+        before = json.loads(report.read_text(encoding="utf-8")).get("source")
+    except (OSError, ValueError):
+        return  # unreadable: the run rewrites it
+    if not isinstance(before, str) or not Path(before).is_absolute():
+        return  # written before sources were absolute: cannot tell
+    if Path(before) != Path(source).resolve():
+        raise CaptureError(
+            f"{out_dir}: holds the ingest of {before}, and {source} has the same name; "
+            "ingest it into another --out (or rename one of the recordings)"
+        )
+
+
 def ingest_recording(
     recording_path: Path,
     out: Path,
@@ -316,6 +346,7 @@ def ingest_recording(
         both = (recording.frames["cam0"][pair.index0], recording.frames["cam1"][pair.index1])
         frame_pairs.append(both if rig_file.obstructed == "cam0" else (both[1], both[0]))
     out_dir = Path(out) / recording.recording_id
+    _check_same_source(out_dir, recording.path)
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_temporaries(out_dir)
     lap("open")
@@ -382,7 +413,7 @@ def ingest_recording(
     homography_out = in_output_pixels(matrix, crop.x, crop.y)
     report = IngestReport(
         recording_id=recording.recording_id,
-        source=str(recording.path),
+        source=str(Path(recording.path).resolve()),  # absolute: tells a namesake apart
         obstructed=rig_file.obstructed,
         anomaly=rig_file.anomaly,
         calibration_source=calibration_source,

@@ -11,6 +11,7 @@ exceptions.
 """
 
 import json
+import signal
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -136,7 +137,7 @@ def set_context(context: Context) -> None:
 
 
 def init_worker(context: Context, parent_pid: int | None = None) -> None:
-    """Pool initializer: end with the parent, install the context, one OpenCV thread.
+    """Pool initializer: end with the parent, ignore Ctrl-C, install the context, one OpenCV thread.
 
     A worker must not outlive the ingest that started it: after a ``kill -9``
     of the parent, orphaned workers would go on writing frames nobody
@@ -146,6 +147,9 @@ def init_worker(context: Context, parent_pid: int | None = None) -> None:
     """
     if parent_pid is not None:
         end_with_parent(parent_pid)
+    # Ctrl-C reaches the whole process group: the parent stops the pool; a
+    # worker interrupted inside the pool's queue could leave the parent waiting
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     set_context(context)
     cv2.setNumThreads(1)
 

@@ -108,6 +108,16 @@ def main(argv: list[str] | None = None) -> int:
     except LenspairError as exc:
         print(f"lenspair {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # the file system refused: read-only, full, a file where a folder goes
+        if args.verbose:
+            raise
+        where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
+        reason = exc.strerror or str(exc)
+        print(
+            f"lenspair {args.command}: error: {where + ': ' if where else ''}{reason}",
+            file=sys.stderr,
+        )
+        return 1
     except KeyboardInterrupt:
         # restore and train continue only when asked; the other commands resume by themselves
         hint = "rerun with --resume to continue" if hasattr(args, "resume") else "rerun to resume"

@@ -345,4 +345,5 @@ def run_demo(out: Path, budget: Budget = Budget()) -> Path:
     )
     timings = run_stages(out, plan(out, budget), cli_main)
     atomic_write_json(out / "timings.json", timings)
-    return write_report(out, timings)
+    flags = "" if budget == Budget() else " --quick" if budget == QUICK else " (custom budget)"
+    return write_report(out, timings, f"lenspair demo --out {out.name}{flags}")

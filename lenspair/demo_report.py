@@ -236,12 +236,16 @@ def machine_blocks(out: Path, timings: dict[str, dict[str, float | bool]]) -> li
     return [Paragraph(" ".join(lines))]
 
 
-def write_report(out: Path, timings: dict[str, dict[str, float | bool]]) -> Path:
-    """Write ``report.md`` and ``report.html`` under ``out``; returns the Markdown path."""
+def write_report(out: Path, timings: dict[str, dict[str, float | bool]], command: str = "") -> Path:
+    """Write ``report.md`` and ``report.html`` under ``out``; returns the Markdown path.
+
+    ``command`` is what made the run (``--quick`` included), for its "Reproduce" section.
+    """
+    command = command or f"lenspair demo --out {out.name}"
     blocks: list[Block] = [
         Heading("lenspair demo report", 1),
         Paragraph(
-            f"Produced by `lenspair demo --out {out.name}` (lenspair {__version__}) on simulated "
+            f"Produced by `{command}` (lenspair {__version__}) on simulated "
             "recordings: the numbers show the pipeline working, not accuracy on real rain."
         ),
         Heading("Stages and their time"),
@@ -275,12 +279,7 @@ def write_report(out: Path, timings: dict[str, dict[str, float | bool]]) -> Path
     blocks.append(Heading("Restore"))
     blocks += restore_blocks(out)
     blocks.append(Heading("Reproduce"))
-    blocks.append(
-        Code(
-            f"lenspair demo --out {out.name}\n"
-            f"# each stage's command is in {out.name}/.stages/*.json"
-        )
-    )
+    blocks.append(Code(f"{command}\n# each stage's command is in {out.name}/.stages/*.json"))
     markdown = out / "report.md"
     atomic_write_text(markdown, to_markdown(blocks))
     atomic_write_text(out / "report.html", to_html(blocks, "lenspair demo report"))

@@ -168,10 +168,22 @@ def _transform(R: np.ndarray, T: np.ndarray, where: str) -> np.ndarray:
     return _checked_transform(matrix, where)
 
 
+_MIN_BASELINE_M = 1e-4
+"""A tenth of a millimetre: below it the rig is a single point (OpenCV's
+stereoRectify then asserts); no stereo rig is built that tight."""
+
+
 def _checked_transform(matrix: np.ndarray, where: str) -> np.ndarray:
     if matrix.shape != (4, 4):
         raise RectifyError(f"{where}: T_cam1_cam0 must be 4x4, got shape {matrix.shape}")
     baseline = float(np.linalg.norm(matrix[:3, 3]))
+    if not np.isfinite(matrix).all():
+        raise RectifyError(f"{where}: T_cam1_cam0 holds non-finite values")
+    if baseline < _MIN_BASELINE_M:
+        raise RectifyError(
+            f"{where}: baseline {baseline:g} m: the two cameras sit at one point, so the "
+            "views cannot be rectified as a stereo pair; check the extrinsics (T_cn_cnm1)"
+        )
     if baseline > _MAX_BASELINE_M:
         raise RectifyError(
             f"{where}: baseline {baseline:g} is not plausible in metres (millimetres?); "

@@ -52,6 +52,38 @@ def fraction(text: str) -> float:
     return value
 
 
+def out_folder(text: str) -> Path:
+    """Argparse type: an output folder: new, or an existing folder (not a file, nor inside one)."""
+    path = Path(text)
+    for part in (path, *path.parents):
+        if part.exists():
+            if not part.is_dir():
+                where = "is a file" if part == path else f"lies inside the file {part}"
+                raise argparse.ArgumentTypeError(f"{text!r} {where}; give a folder")
+            break
+    return path
+
+
+def out_file(text: str) -> Path:
+    """Argparse type: a file to write: not an existing folder, nor inside a file."""
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name")
+    out_folder(str(path.parent))
+    return path
+
+
+def random_seed(text: str) -> int:
+    """Argparse type: a random seed, an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
 def detector_file(text: str) -> Path:
     """Argparse type: a detector checkpoint; ``detector.pt`` alone is the bundled one."""
     return file_or_sample(text, ".pt")

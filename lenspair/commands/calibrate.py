@@ -24,7 +24,7 @@ Example:
 import argparse
 from pathlib import Path
 
-from lenspair.commands.argtypes import float_at_least
+from lenspair.commands.argtypes import float_at_least, out_file
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.calibration import MODELS, CalibrationOptions, parse_model
 from lenspair.rectify.recording_calibration import calibrate_recording, write_calibration
@@ -40,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--board", required=True, metavar="SPEC", help="board spec, see above")
     parser.add_argument("--model", required=True, choices=sorted(MODELS), help="camera model")
-    parser.add_argument("--out", required=True, type=Path, help="camchain YAML to write")
+    parser.add_argument("--out", required=True, type=out_file, help="camchain YAML to write")
     parser.add_argument(
         "--max-views",
         type=int,

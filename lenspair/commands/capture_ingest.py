@@ -28,7 +28,7 @@ import argparse
 from pathlib import Path
 
 from lenspair.capture.ingest import ingest_recording
-from lenspair.commands.argtypes import detector_file, positive_int
+from lenspair.commands.argtypes import detector_file, out_folder, positive_int
 from lenspair.rectify.crop import parse_size
 
 
@@ -49,7 +49,7 @@ def _topics(text: str) -> tuple[str, str]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``lenspair capture-ingest``."""
     parser.add_argument("recording", type=Path, help="recording folder or bag")
-    parser.add_argument("--out", type=Path, required=True, help="output root folder")
+    parser.add_argument("--out", type=out_folder, required=True, help="output root folder")
     parser.add_argument(
         "--calib",
         type=Path,

@@ -33,7 +33,7 @@ exits with status 1 and a list of problems when anything is off.
 import argparse
 from pathlib import Path
 
-from lenspair.commands.argtypes import float_at_least, positive_int
+from lenspair.commands.argtypes import float_at_least, out_folder, positive_int
 from lenspair.core.errors import ConfigError
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import SPLITS, load_dataset_config, parse_fractions, with_overrides
@@ -44,7 +44,7 @@ from lenspair.dataset.verify import verify_dataset
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``dataset-build``."""
     parser.add_argument("sources", nargs="*", type=Path, help="ingested recording folders")
-    parser.add_argument("--out", type=Path, help="dataset folder to create")
+    parser.add_argument("--out", type=out_folder, help="dataset folder to create")
     parser.add_argument("--verify", type=Path, metavar="DS", help="check an existing dataset")
     parser.add_argument("--splits", help="train,val,test fractions of groups (0.8,0.1,0.1)")
     parser.add_argument("--seed", type=int, help="split seed (default 0)")

@@ -16,6 +16,7 @@ Example:
 import argparse
 from pathlib import Path
 
+from lenspair.commands.argtypes import out_folder
 from lenspair.demo import QUICK, Budget, run_demo
 
 
@@ -23,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``lenspair demo``."""
     parser.add_argument(
         "--out",
-        type=Path,
+        type=out_folder,
         default=Path("demo_out"),
         help="output folder (default: demo_out in the current folder)",
     )

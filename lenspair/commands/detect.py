@@ -23,7 +23,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from lenspair.commands.argtypes import detector_file, fraction
+from lenspair.commands.argtypes import detector_file, fraction, out_folder
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -36,7 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="detector checkpoint from train-detector (detector.pt: the bundled one)",
     )
     parser.add_argument("input", type=Path, help="image, folder of images, recording or bag")
-    parser.add_argument("--out", type=Path, help="output folder (default: detect_<input name>)")
+    parser.add_argument(
+        "--out", type=out_folder, help="output folder (default: detect_<input name>)"
+    )
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     parser.add_argument("--threshold", type=fraction, default=0.5, help="obstructed above this")
     parser.add_argument("--batch-size", type=int, default=8)
@@ -49,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
     # torch and the bag readers load when the command runs, so --help stays fast
     from lenspair.capture.frames import detect_input, frame_files, iter_frames
     from lenspair.capture.recording import CAMERAS
+    from lenspair.capture.recording_types import FrameProblem
     from lenspair.model.detection.report import detect_frames
     from lenspair.model.detection.train import load_detector
 
@@ -64,9 +67,10 @@ def run(args: argparse.Namespace) -> int:
     bag = kind in ("rosbag1", "rosbag2")
     total = None if bag else len(frame_files(args.input, kind, CAMERAS))
     problems: list[str] = []
-    frames = iter_frames(args.input, CAMERAS, problems, topics)
+    dropped: list[FrameProblem] = []  # listed frames that could not be read: rows too
+    frames = iter_frames(args.input, CAMERAS, problems, topics, dropped)
     verdicts = detect_frames(
-        network, frames, out, args.batch_size, args.sheet_frames, args.threshold, total
+        network, frames, out, args.batch_size, args.sheet_frames, args.threshold, total, dropped
     )
     for problem in problems:
         print(f"lenspair detect: warning: {problem}", file=sys.stderr)

@@ -41,6 +41,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from lenspair.commands.argtypes import out_folder
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -57,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
     )
-    parser.add_argument("--out", type=Path, metavar="EVAL_DIR", help="report folder")
+    parser.add_argument("--out", type=out_folder, metavar="EVAL_DIR", help="report folder")
     parser.add_argument(
         "--precision",
         choices=("auto", "fp32", "bf16", "fp16", "int8"),

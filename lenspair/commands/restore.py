@@ -24,7 +24,7 @@ writes the same bytes as an uninterrupted one.
 import argparse
 from pathlib import Path
 
-from lenspair.commands.argtypes import detector_file
+from lenspair.commands.argtypes import detector_file, out_folder
 from lenspair.model.inference.options import (
     CAMERA_CHOICES,
     DEFAULT_BATCH_SIZE,
@@ -37,7 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``restore``."""
     parser.add_argument("model", type=Path, help="checkpoint (.pt) or ONNX model (.onnx)")
     parser.add_argument("input", type=Path, help="image, folder, EuRoC/ASL recording or bag")
-    parser.add_argument("--out", type=Path, required=True, help="output folder (empty or new)")
+    parser.add_argument(
+        "--out", type=out_folder, required=True, help="output folder (empty or new)"
+    )
     parser.add_argument(
         "--camera",
         choices=CAMERA_CHOICES,

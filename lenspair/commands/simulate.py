@@ -19,6 +19,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from lenspair.commands.argtypes import out_folder
 from lenspair.core.samples import file_or_sample
 from lenspair.simulate.recording import check_output_folder, simulate_recording
 from lenspair.simulate.spec import load_scene, with_overrides
@@ -38,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="scene spec YAML file, or a bundled one by name (rain, heavy_rain, "
         "dust_swapped, chessboard, ...; calib_samples/README.md)",
     )
-    parser.add_argument("--out", type=Path, required=True, help="new or empty output folder")
+    parser.add_argument("--out", type=out_folder, required=True, help="new or empty output folder")
     parser.add_argument("--frames", type=int, help="number of frames (overrides the spec)")
     parser.add_argument("--seed", type=int, help="random seed (overrides the spec)")
 

@@ -43,7 +43,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from lenspair.commands.argtypes import fraction, positive_int
+from lenspair.commands.argtypes import fraction, out_folder, positive_int
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -51,7 +51,7 @@ from lenspair.core.errors import ConfigError
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``tradeoff``."""
     parser.add_argument("dataset", type=Path, help="paired dataset folder (DS)")
-    parser.add_argument("--out", type=Path, required=True, help="output folder (DIR)")
+    parser.add_argument("--out", type=out_folder, required=True, help="output folder (DIR)")
     parser.add_argument(
         "--budget", default="60", help="per variant: STEPS, or 90s / 5m / 1h (60 steps)"
     )

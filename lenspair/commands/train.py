@@ -56,7 +56,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from lenspair.commands.argtypes import float_at_least
+from lenspair.commands.argtypes import float_at_least, out_folder
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -79,7 +79,7 @@ def _every(text: str) -> tuple[int | None, float | None]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``train``."""
     parser.add_argument("dataset", nargs="?", type=Path, help="paired dataset folder (DS)")
-    parser.add_argument("--out", type=Path, required=True, help="run folder (RUN)")
+    parser.add_argument("--out", type=out_folder, required=True, help="run folder (RUN)")
     parser.add_argument("--config", type=Path, help="YAML with model/data/train/loss sections")
     parser.add_argument(
         "--init",
@@ -169,8 +169,17 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and not (args.out / "checkpoints" / "last.pt").is_file():
         if not (args.out / "config.yaml").is_file():
             raise ConfigError(f"--resume: {args.out} holds no run to resume")
-        # Killed before its first checkpoint: nothing is lost by starting over.
-        log.warning("%s has no checkpoint yet; starting the run from step 0", args.out)
+        # Killed before its first checkpoint was complete (or last.pt removed):
+        # resuming means starting this run over, and its partial results go.
+        stale = [args.out / "checkpoints" / "best.pt", args.out / "metrics.csv"]
+        stale = [path for path in stale if path.exists()]
+        log.warning(
+            "%s has no last.pt to resume from; starting the run again from step 0%s",
+            args.out,
+            f" (replacing its {', '.join(p.name for p in stale)})" if stale else "",
+        )
+        for path in stale:
+            path.unlink()
         args.config = args.config or args.out / "config.yaml"
         args.resume = False
     if args.resume:

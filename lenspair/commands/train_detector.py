@@ -27,7 +27,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from lenspair.commands.argtypes import float_at_least, positive_int
+from lenspair.commands.argtypes import float_at_least, out_folder, positive_int, random_seed
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -35,7 +35,9 @@ from lenspair.core.errors import ConfigError
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``train-detector``."""
     parser.add_argument("datasets", type=Path, nargs="*", metavar="DS", help="lenspair datasets")
-    parser.add_argument("--out", type=Path, required=True, metavar="RUN", help="output folder")
+    parser.add_argument(
+        "--out", type=out_folder, required=True, metavar="RUN", help="output folder"
+    )
     parser.add_argument("--recordings", type=Path, nargs="+", default=[], metavar="REC")
     parser.add_argument("--test-recordings", type=Path, nargs="+", default=[], metavar="REC")
     parser.add_argument("--synthetic", type=int, default=0, metavar="N", help="synthetic frames")
@@ -50,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float_at_least(0.0, above=True),
         help="stop training after this many minutes",
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=random_seed, default=0)
     parser.add_argument("--threads", type=int, default=1, help="CPU threads (1)")
     parser.add_argument("--hard", type=int, default=0, metavar="N", help="hard cases (0)")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")

@@ -38,11 +38,12 @@ def file_or_sample(text: str, suffix: str) -> Path:
 
     ``lenspair simulate rain --out rec`` and ``--detector detector.pt`` work
     from any folder: a name (with or without ``suffix``) that is not an
-    existing path but names a bundled sample is that sample; anything else
+    existing file but names a bundled sample is that sample (a folder of
+    that name, such as the output of an earlier run, does not hide it); anything else
     stays the path it was (and fails later as a missing file would).
     """
     path = Path(text)
-    if path.exists() or path.parent != Path("."):
+    if path.is_file() or path.parent != Path("."):  # a folder named "rain" is not the scene
         return path
     names = sample_names(suffix)
     for candidate in (path.name, path.name + suffix):

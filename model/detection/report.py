@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from lenspair.capture.frames import InputFrame
+from lenspair.capture.recording_types import FrameProblem
 from lenspair.core.contact_sheet import make_contact_sheet, to_display
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.core.imageio import write_image
@@ -160,6 +161,7 @@ def detect_frames(
     sheet_frames: int = 12,
     threshold: float = 0.5,
     total: int | None = None,
+    dropped: Sequence[FrameProblem] = (),
 ) -> list[FrameVerdict]:
     """Judge every frame; write ``out/detections.csv``, ``.json`` and ``contact_sheet.png``.
 
@@ -172,9 +174,12 @@ def detect_frames(
         sheet_frames: frames on the contact sheet (0: no sheet).
         threshold: obstructed above this probability.
         total: the number of frames when known, for the progress bar only.
+        dropped: frames the input lists but that could not be read at all (a
+            recording's missing file): a row each, with the reason, after the
+            others (read once ``frames`` is exhausted: the listing fills it).
 
     Returns:
-        One :class:`FrameVerdict` per frame, in input order.
+        One :class:`FrameVerdict` per frame, in input order, then the dropped ones.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -210,6 +215,13 @@ def detect_frames(
         if len(batch) == batch_size:
             flush()
     flush()
+    for problem in dropped:
+        verdicts.append(
+            FrameVerdict(
+                problem.source, problem.camera, problem.t_ns, None, None, None, None, None,
+                error=problem.reason,
+            )
+        )  # fmt: skip
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=FIELDS)
     writer.writeheader()

@@ -243,3 +243,16 @@ def test_nothing_usable_fails_after_writing_the_records(tmp_path: Path) -> None:
     assert all(r.reason and r.reason.startswith("photometric residual") for r in records)
     assert not list((out / "rec" / "input").glob("*.png"))  # no stale outputs stay behind
     assert json.loads((out / "rec" / "report.json").read_text())["counts"]["kept"] == 0
+
+
+def test_a_namesake_recording_is_refused_not_merged(tmp_path: Path) -> None:
+    first = make_recording(tmp_path / "a" / "rec", frames=3)
+    second = make_recording(tmp_path / "b" / "rec", frames=3, obstructed="cam0")
+    out = tmp_path / "out"
+    _, _, report = _ingest(first, out)
+    assert Path(report.source) == first.resolve()  # absolute, whatever the working folder
+    pairs_before = (out / "rec" / "pairs.jsonl").read_bytes()
+    with pytest.raises(CaptureError, match=r"holds the ingest of .*a/rec.*same name"):
+        _ingest(second, out)
+    assert (out / "rec" / "pairs.jsonl").read_bytes() == pairs_before  # untouched
+    _ingest(first, out)  # the same recording again: a rerun, accepted

@@ -9,6 +9,7 @@ import pytest
 
 from lenspair.cli import main
 from lenspair.core.imageio import read_image, write_image
+from tests.capture.ingest_helpers import make_recording
 from tests.images import texture
 from tests.model.restore_helpers import bag_from_recording
 
@@ -61,6 +62,23 @@ def test_detect_bag_judges_both_cameras_frame_by_frame(tiny_detector: Path, tmp_
     assert all(row["name"].startswith(f"/{row['camera']}/image_raw@") for row in rows)
     assert all(not row["error"] for row in rows)
     assert read_image(out / "contact_sheet.png").ndim == 3
+
+
+def test_detect_gives_a_row_to_a_listed_frame_whose_file_is_missing(
+    tiny_detector: Path, tmp_path: Path
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3)
+    missing = sorted((recording / "mav0" / "cam0" / "data").glob("*.png"))[1]
+    missing.unlink()  # data.csv still lists it
+    out = tmp_path / "out"
+    assert main(["detect", str(tiny_detector), str(recording), "--out", str(out)]) == 0
+    with (out / "detections.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 6  # every listed frame of both cameras, read or not
+    (lost,) = [row for row in rows if row["error"]]
+    assert lost["camera"] == "cam0" and lost["t_ns"] == missing.stem
+    assert "missing" in lost["error"] and lost["probability"] == ""
+    assert len(json.loads((out / "detections.json").read_text())) == 6
 
 
 def test_detect_bad_input_is_one_line(  # type: ignore[no-untyped-def]

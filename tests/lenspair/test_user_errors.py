@@ -62,7 +62,7 @@ FILE_CASES: dict[str, list[list[str]]] = {
     "dataset-build": [["BAD", "--out", "OUT"], ["--verify", "BAD"]],
     "train": [
         ["DS", "--out", "OUT", "--config", "BAD"],
-        ["DS", "--out", "OUT", "--init", "BAD"],
+        ["DS", "--out", "OUT", "--init", "BAD", "--crop-size", "16"],  # DS: 48x32 images
         ["BAD", "--out", "OUT"],
     ],
     "eval": [["BAD", "--data", "DS"]],
@@ -110,6 +110,17 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["calibrate", "DS", "--board", "x", "--outlier-factor", "nan", "--out", "OUT/c"], "--outlier"),
     (["calibrate", "DS", "--board", "x", "--outlier-factor", "0.5", "--out", "OUT/c"], "--outlier"),
     (["export", "CKPT", "--torchscript", "CKPT"], "checkpoint"),
+    (["train-detector", "--out", "OUT", "--synthetic", "2", "--seed", "-1"], "--seed"),
+    (["train", "DS", "--out", "CKPT"], "--out"),  # a file, not a folder
+    (["restore", "CKPT", "IMGS", "--out", "CKPT"], "--out"),
+    (["simulate", "calib_samples/rain.yaml", "--out", "CKPT"], "--out"),
+    (["capture-ingest", "DS", "--out", "CKPT"], "--out"),
+    (["dataset-build", "DS", "--out", "CKPT"], "--out"),
+    (["eval", "CKPT", "--data", "DS", "--out", "CKPT"], "--out"),
+    (["tradeoff", "DS", "--out", "CKPT"], "--out"),
+    (["train-detector", "--out", "CKPT", "--synthetic", "2"], "--out"),
+    (["demo", "--out", "CKPT"], "--out"),
+    (["calibrate", "DS", "--board", "x", "--model", "pinhole-radtan", "--out", "DS"], "folder"),
     (["tradeoff", "DS", "--out", "OUT", "--variants", "nope"], "nope"),
     (["eval", "DS", "--latency-runs", "many"], "--latency-runs"),
     (["export", "DS", "--onnx", "OUT/m.onnx", "--size", "big"], "--size"),
@@ -294,3 +305,19 @@ def test_bad_onnx_model_gives_one_line_naming_it(
     code, lines = _run([*argv, "--device", "cpu"], capsys)
     assert code == 2, lines
     assert len(lines) == 1 and "broken.onnx" in lines[0], lines
+
+
+def test_a_file_system_refusal_is_one_line_naming_the_path(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "rec").mkdir()  # where capture-ingest will put a recording's folder: a file
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "rain").write_text("not a folder")
+    recording = tmp_path / "rain"
+    assert main(["simulate", "rain", "--out", str(recording), "--frames", "2"]) == 0
+    capsys.readouterr()
+    code = main(["capture-ingest", str(recording), "--out", str(out)])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(lines) == 1, lines
+    assert str(out / "rain") in lines[0]

@@ -123,6 +123,17 @@ def test_opencv_baseline_in_millimetres_is_refused(tmp_path: Path) -> None:
         load_calibration([write_storage(tmp_path / "stereo.yml", keys)])
 
 
+@pytest.mark.parametrize(("scale", "message"), [(0.0, "sit at one point"), (np.nan, "NaN")])
+def test_a_baseline_of_zero_or_nan_is_one_error_naming_the_file(
+    tmp_path: Path, scale: float, message: str
+) -> None:
+    rig = make_rig()
+    keys = {**opencv_stereo_keys(rig), "image_size": np.array([720, 540])}
+    keys["T"] = keys["T"] * scale  # cv2.stereoRectify asserted on it
+    with pytest.raises(RectifyError, match=rf"stereo\.yml.*{message}"):
+        load_calibration([write_storage(tmp_path / "stereo.yml", keys)])
+
+
 def ros_files(folder: Path, rig: StereoRig) -> tuple[Path, Path]:
     """camera_info YAML pair as ROS camera_calibration writes it for a rectified pair."""
     rectification = StereoRectification.from_rig(rig)
