@@ -50,10 +50,15 @@ class FrameRef:
         return self.topic is not None
 
     def describe(self) -> str:
-        """Human-readable location: the file, or ``bag topic @ t_ns``."""
+        """Human-readable location: the file, or ``bag topic @ t_ns (logged at ...)``.
+
+        A bag frame names its log time too: two messages may carry one header
+        stamp, and each must be told apart (and accounted for) on its own.
+        """
         if self.topic is None:
             return str(self.source)
-        return f"{self.source} {self.topic} @ t_ns={self.t_ns}"
+        nth = f", #{self.occurrence + 1} at that time" if self.occurrence else ""
+        return f"{self.source} {self.topic} @ t_ns={self.t_ns} (logged {self.log_time_ns}{nth})"
 
 
 @dataclass(frozen=True)

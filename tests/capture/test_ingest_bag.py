@@ -6,10 +6,12 @@ import pytest
 
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import read_pairs
+from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.cli import main
+from lenspair.core.imageio import read_image
 from lenspair.rectify.rig import write_kalibr
-from tests.capture.ingest_helpers import CROP, rig
-from tests.model.restore_helpers import bag_from_recording
+from tests.capture.ingest_helpers import CROP, frame_files, make_recording, rig
+from tests.model.restore_helpers import bag_from_recording, write_bag
 
 SIZE = (240, 160)
 
@@ -71,3 +73,24 @@ def test_topics_must_name_two_topics(tmp_path: Path) -> None:
     assert main([*args, "--topics", "/cam0/image_raw,/cam1/image_raw"]) == 0
     with pytest.raises(SystemExit):
         main([*args, "--topics", "/cam0/image_raw"])
+
+
+def test_bag_messages_sharing_a_stamp_each_get_a_line(tmp_path: Path) -> None:
+    """Two obstructed-camera messages with one header stamp are two frames to account for."""
+    euroc = make_recording(tmp_path / "euroc", frames=4)
+    images = {
+        camera: [(int(p.stem), read_image(p)) for p in frame_files(euroc, camera)]
+        for camera in ("cam0", "cam1")
+    }
+    stamp, image = images["cam1"][1]
+    images["cam1"].insert(2, (stamp, image))  # a second message, same stamp
+    folder = tmp_path / "bags"
+    folder.mkdir()
+    write_rig_file(folder / "rig.yaml", RigFile(obstructed="cam1", anomaly=("rain",)))
+    write_kalibr(folder / "camchain.yaml", rig())
+    bag = write_bag(folder / "run", "ros1", images)
+    report = ingest_recording(bag, tmp_path / "out", size=SIZE, workers=1)
+    records = read_pairs(tmp_path / "out" / "run" / "pairs.jsonl")
+    assert report.counts["frames_cam1"] == 5
+    assert len(records) == 5  # every obstructed message, the repeated one rejected
+    assert sum("duplicate timestamp" in (r.reason or "") for r in records) == 1

@@ -208,11 +208,13 @@ def test_corrupt_messages_fail_on_load_only(tmp_path: Path) -> None:
     recording = open_recording(_write_bag(tmp_path / "run", "ros1", messages))
     with pytest.raises(
         CaptureError,
-        match=r"run.bag /cam0/image_raw @ t_ns=\d+: unsupported encoding 'bayer_rggb8'",
+        match=r"run.bag /cam0/image_raw @ t_ns=\d+ \(logged \d+\): unsupported encoding "
+        r"'bayer_rggb8'",
     ):
         recording.load(recording.frames["cam0"][0])
     with pytest.raises(
-        CaptureError, match=r"/cam1/image_raw @ t_ns=\d+: truncated image data \(38 of 45 bytes\)"
+        CaptureError,
+        match=r"/cam1/image_raw @ t_ns=\d+ \(logged \d+\): truncated image data \(38 of 45 bytes\)",
     ):
         recording.load(recording.frames["cam1"][0])
 
