@@ -22,6 +22,7 @@ the demo (through that command) and ``benchmarks/bench_calibration.py`` call
 this module.
 """
 
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -121,27 +122,52 @@ def calibrate_recording(
     pairs = [pairing.pairs[i] for i in spread_indices(len(pairing.pairs), max_views)]
     if not pairs:
         raise RectifyError(f"{recording_path}: no cam0/cam1 frames could be paired by timestamp")
-    detections: list[tuple[Detection | None, Detection | None]] = []
+    detections: list[list[Detection | None]] = []
     unreadable: list[str] = []
-    resolutions: list[tuple[int, int] | None] = [None, None]
+    sizes: list[list[tuple[int, int] | None]] = []  # per pair, per camera (None: unread)
+    where: list[list[str]] = []
     for pair in progress(pairs, "detecting board", total=len(pairs), unit="pair"):
         found: list[Detection | None] = []
+        sizes.append([None, None])
+        where.append(["", ""])
         for index, position in enumerate((pair.index0, pair.index1)):
             frame = recording.frames["cam0" if index == 0 else "cam1"][position]
+            where[-1][index] = frame.describe()
             try:
                 image = recording.load(frame)
             except LenspairError as exc:  # a bad frame is recorded, not fatal
                 unreadable.append(str(exc))
                 found.append(None)
                 continue
-            resolutions[index] = resolutions[index] or (image.shape[1], image.shape[0])
+            sizes[-1][index] = (image.shape[1], image.shape[0])
             found.append(detect_corners(image, board))
-        detections.append((found[0], found[1]))
-    if resolutions[0] is None or resolutions[1] is None:
-        raise RectifyError(f"{recording_path}: no frame of one camera could be read")
+        detections.append(found)
+    resolutions: list[tuple[int, int]] = []
+    for index in (0, 1):
+        # a camera's resolution is that of most of its frames: one odd frame
+        # (resized, from another session) is left out, not taken for the camera's
+        seen = Counter(size[index] for size in sizes if size[index] is not None)
+        if not seen:
+            raise RectifyError(f"{recording_path}: no frame of one camera could be read")
+        resolution = seen.most_common(1)[0][0]
+        assert resolution is not None  # the Counter holds no None
+        resolutions.append(resolution)
+        for row, size in enumerate(sizes):
+            odd = size[index]
+            if odd is not None and odd != resolution:
+                unreadable.append(
+                    f"{where[row][index]}: {odd[0]}x{odd[1]} px, but most frames of "
+                    f"cam{index} are {resolution[0]}x{resolution[1]}; left out"
+                )
+                detections[row][index] = None
     names = [f"t0={p.t0_ns} t1={p.t1_ns}" for p in pairs]
     result = calibrate_from_detections(
-        detections, board, model, (resolutions[0], resolutions[1]), names, options
+        [(found[0], found[1]) for found in detections],
+        board,
+        model,
+        (resolutions[0], resolutions[1]),
+        names,
+        options,
     )
     rig = result.rig
     if recording.topics is not None:

@@ -2,10 +2,12 @@
 
 from pathlib import Path
 
+import cv2
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from lenspair.core.imageio import read_image, write_image
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.recording_calibration import (
     calibrate_recording,
@@ -43,13 +45,18 @@ def test_an_unreadable_frame_is_recorded_not_fatal(tmp_path: Path) -> None:
     assert spec.board is not None
     broken = sorted((tmp_path / "rec" / "mav0" / "cam1" / "data").glob("*.png"))[4]
     broken.write_bytes(broken.read_bytes()[:200])  # truncated mid-file
+    # the first cam0 frame at another size: it must not set the camera's resolution
+    odd = sorted((tmp_path / "rec" / "mav0" / "cam0" / "data").glob("*.png"))[0]
+    write_image(odd, cv2.resize(read_image(odd), (640, 480), interpolation=cv2.INTER_AREA))
     model = "pinhole-equi" if spec.rig.cam0.distortion_model == "equidistant" else "pinhole-radtan"
 
     calibration = calibrate_recording(tmp_path / "rec", spec.board.target, model, max_views=0)
 
-    assert len(calibration.unreadable) == 1 and broken.name in calibration.unreadable[0]
+    assert len(calibration.unreadable) == 2 and broken.name in calibration.unreadable[0]
+    assert odd.name in calibration.unreadable[1] and "640x480 px" in calibration.unreadable[1]
+    assert calibration.rig.cam0.resolution == calibration.rig.cam1.resolution == (720, 540)
     assert calibration.frames == {"cam0": 9, "cam1": 9, "paired": 9, "used": 9}
-    assert calibration.result.counts["both_detected"] <= 8
+    assert calibration.result.counts["both_detected"] <= 7
     assert any(broken.name in line for line in calibration.summary())
     report_path = write_calibration(calibration, tmp_path / "out" / "camchain.yaml")
     assert report_path == tmp_path / "out" / "camchain.report.json"
