@@ -31,6 +31,7 @@ only rewritten when something other than its timings changed).
 import json
 import logging
 import os
+import shutil
 import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -78,7 +79,7 @@ from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.core.progress import progress
 from lenspair.rectify.crop import choose_crop
-from lenspair.rectify.errors import CropError
+from lenspair.rectify.errors import CropError, RectifyError
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.registration import EstimationParams, VerifyParams, estimate_homography
 from lenspair.rectify.remap import target_map, valid_region
@@ -314,7 +315,9 @@ def ingest_recording(
     Raises:
         CaptureError: unreadable recording, no calibration, or no usable pair
             at all (``pairs.jsonl`` and ``report.json`` are still written).
-        RectifyError: bad calibration, registration impossible, crop too large.
+        RectifyError: bad calibration, registration impossible, crop too large
+            (named with the recording; nothing can be paired, so nothing is
+            written, and an ``OUT/<recording_id>`` this run made is removed).
 
     """
     estimation = estimation or EstimationParams()
@@ -347,19 +350,30 @@ def ingest_recording(
         frame_pairs.append(both if rig_file.obstructed == "cam0" else (both[1], both[0]))
     out_dir = Path(out) / recording.recording_id
     _check_same_source(out_dir, recording.path)
+    created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_temporaries(out_dir)
     lap("open")
 
-    rectification = StereoRectification.from_rig(rig)
-    context = frame_work.Context.build(out_dir, rig_file.obstructed, rectification, verify)
-    setup = {
-        "calibration": rig_to_kalibr(rig),
-        "obstructed": rig_file.obstructed,
-        "verify": to_plain(verify),
-        "version": __version__,
-    }
-    registration = _homography(recording, frame_pairs, context, estimation, workers, out_dir, setup)
+    try:
+        rectification = StereoRectification.from_rig(rig)
+        context = frame_work.Context.build(out_dir, rig_file.obstructed, rectification, verify)
+        setup = {
+            "calibration": rig_to_kalibr(rig),
+            "obstructed": rig_file.obstructed,
+            "verify": to_plain(verify),
+            "version": __version__,
+        }
+        registration = _homography(
+            recording, frame_pairs, context, estimation, workers, out_dir, setup
+        )
+    except RectifyError as exc:  # the views cannot be registered at all: no pair to write
+        if created:  # an empty OUT/<rec> would stop `dataset-build OUT/*` (no pairs.jsonl)
+            shutil.rmtree(out_dir, ignore_errors=True)
+        message = str(exc)
+        if not message.startswith(str(recording.path)):
+            message = f"{recording.path}: {message}"
+        raise type(exc)(message) from None
     lap("homography")
 
     matrix = np.asarray(registration["matrix"], dtype=np.float64)
@@ -374,6 +388,8 @@ def ingest_recording(
     try:
         crop = choose_crop(valid, size)
     except CropError as exc:
+        if created:
+            shutil.rmtree(out_dir, ignore_errors=True)
         raise CropError(f"{recording.path}: cannot crop {size[0]}x{size[1]}: {exc}") from None
     margin = int(np.ceil(verify.max_shift_px)) + 2
     context = context.with_maps(

@@ -14,7 +14,7 @@ from lenspair.capture.ingested import IngestReport, PairRecord, read_pairs, read
 from lenspair.cli import main
 from lenspair.core.imageio import read_image, write_image
 from lenspair.rectify.errors import CropError, RectifyError
-from lenspair.rectify.registration import VerifyParams
+from lenspair.rectify.registration import EstimationParams, VerifyParams
 from tests.capture.ingest_helpers import CROP, DISPARITY, frame_files, make_recording
 
 SIZE = (240, 160)
@@ -202,6 +202,15 @@ def test_crop_too_large_says_by_how_much(tmp_path: Path) -> None:
     recording = make_recording(tmp_path / "rec", frames=2)
     with pytest.raises(CropError, match=r"need 330x160: 1[0-9] px too narrow"):
         ingest_recording(recording, tmp_path / "out", size=(330, 160))
+    assert not (tmp_path / "out" / "rec").exists()  # no empty folder to trip dataset-build
+    with pytest.raises(RectifyError, match=r"^\S*rec: "):  # named
+        ingest_recording(
+            recording,
+            tmp_path / "out",
+            size=(240, 160),
+            estimation=EstimationParams(min_inliers=10**6),
+        )
+    assert not (tmp_path / "out" / "rec").exists()
 
 
 def test_side_mismatch_is_flagged(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
