@@ -32,7 +32,7 @@ import tempfile
 from collections import Counter
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -231,6 +231,18 @@ def assemble_rows(
         else:
             pairs.append((_row(sources[m.source], m, plan, config), m))
     pairs.sort(key=lambda pair: (SPLITS.index(pair[0].split), pair[0].name))
+    splits_of: dict[str, set[str]] = {}
+    for row, _ in pairs:
+        if digest := row.sha256.get("input"):
+            splits_of.setdefault(digest, set()).add(row.split)
+    if leaks := sum(1 for found in splits_of.values() if len(found) > 1):
+        # groups keep a recording's frames together; byte-identical frames from two
+        # "recordings" (one copied under another name) defeat that: say so
+        warning = (
+            f"{leaks} input image(s) are byte-identical to one in another split (the same "
+            "recording given twice under two names?): those splits are not independent"
+        )
+        plan = replace(plan, warnings=(*plan.warnings, warning))
     return pairs, plan
 
 

@@ -91,6 +91,28 @@ def test_no_group_straddles_two_splits(recording: RecordingFactory, tmp_path: Pa
             assert split_a == split_b or b - a > 2
 
 
+def test_one_recording_given_twice_under_two_names_is_said(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    import shutil
+
+    first = recording("rec_a", n=30)
+    twin = first.parent / "rec_twin"
+    shutil.copytree(first, twin)  # the same frames, byte for byte, under another name
+    report = json.loads((twin / "report.json").read_text())
+    (twin / "report.json").write_text(json.dumps({**report, "recording_id": "rec_twin"}))
+    result = build_dataset([first, twin], tmp_path / "DS", SEGMENTS)
+    splits_of: dict[str, set[str]] = {}
+    for row in result.rows:
+        splits_of.setdefault(row.sha256["input"], set()).add(row.split)
+    leaks = sum(1 for found in splits_of.values() if len(found) > 1)
+    assert leaks > 0  # the twins' segments hash to other splits: the case to say
+    (warning,) = [w for w in result.card.grouping.warnings if "byte-identical" in w]
+    assert warning.startswith(f"{leaks} input image(s)")
+    clean = build_dataset([first], tmp_path / "DS1", SEGMENTS)
+    assert not any("byte-identical" in w for w in clean.card.grouping.warnings)
+
+
 def test_recording_mode_keeps_recordings_whole(recording: RecordingFactory, tmp_path: Path) -> None:
     config = DatasetConfig(split=SplitConfig(group_by="recording"))
     result = build_dataset(_three(recording), tmp_path / "DS", config)
