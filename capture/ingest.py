@@ -76,7 +76,7 @@ from lenspair.capture.side_check import check_obstructed_side
 from lenspair.capture.side_detector import ObstructedProbability, check_side_with_detector
 from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
-from lenspair.core.fsutil import atomic_write_json, atomic_write_text
+from lenspair.core.fsutil import atomic_write_json, atomic_write_text, read_json_field
 from lenspair.core.progress import progress
 from lenspair.rectify.crop import choose_crop
 from lenspair.rectify.errors import CropError, RectifyError
@@ -264,13 +264,7 @@ def _check_same_source(out_dir: Path, source: Path) -> None:
     Raises:
         CaptureError: naming both recordings and what to do.
     """
-    report = out_dir / REPORT_FILE
-    if not report.is_file():
-        return
-    try:
-        before = json.loads(report.read_text(encoding="utf-8")).get("source")
-    except (OSError, ValueError):
-        return  # unreadable: the run rewrites it
+    before = read_json_field(out_dir / REPORT_FILE, "source")
     if not isinstance(before, str) or not Path(before).is_absolute():
         return  # written before sources were absolute: cannot tell
     if Path(before) != Path(source).resolve():

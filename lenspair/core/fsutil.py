@@ -80,6 +80,19 @@ def atomic_write_json(path: Path, obj: Any) -> None:
     atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
 
 
+def read_json_field(path: Path, key: str) -> Any:
+    """``key`` of the JSON object in ``path``; ``None`` when the file is absent or unreadable.
+
+    For a rerun reading what an earlier run recorded (its source, its
+    settings): a file it cannot parse tells nothing, and the rerun rewrites it.
+    """
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data.get(key) if isinstance(data, dict) else None
+
+
 def atomic_write_lines(path: Path, lines: Iterable[str]) -> None:
     """Write text lines (each without its newline) to ``path`` atomically."""
     atomic_write_text(path, "".join(line + "\n" for line in lines))

@@ -24,7 +24,6 @@ Rules a robotics user can rely on:
 * ``judge`` (``--only-obstructed``): frames judged clean are copied unchanged.
 """
 
-import json
 import os
 import time
 from collections.abc import Iterator
@@ -47,7 +46,7 @@ from lenspair.capture.frames import (
 )
 from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
-from lenspair.core.fsutil import atomic_write_json, sha256_file
+from lenspair.core.fsutil import atomic_write_json, read_json_field, sha256_file
 from lenspair.core.leftovers import remove_leftovers_under
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
@@ -226,14 +225,8 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
     Raises:
         ModelError: naming OUT and each setting that differs.
     """
-    report = out_dir / REPORT_NAME
-    if not report.is_file():
-        return
-    try:
-        before = json.loads(report.read_text(encoding="utf-8")).get("settings", {})
-    except (OSError, ValueError, AttributeError):
-        before = {}
-    if not before:
+    before = read_json_field(out_dir / REPORT_NAME, "settings")
+    if not isinstance(before, dict) or not before:
         return  # written before settings were recorded: nothing to compare with
     changed = [
         f"{key}: {before.get(key)!r} -> {value!r}"

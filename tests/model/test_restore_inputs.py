@@ -196,14 +196,19 @@ def test_an_image_too_small_for_the_network_costs_only_itself(
     assert (tmp_path / "out" / "tiny.png").read_bytes() == (source / "tiny.png").read_bytes()
 
 
-def test_resume_redoes_an_output_a_power_cut_left_empty(
-    tmp_path: Path, backend: TorchBackend
-) -> None:
+def _restored_folder(tmp_path: Path, backend: TorchBackend) -> tuple[Path, Path]:
+    """Two images restored from ``tmp_path/in`` into ``tmp_path/out``."""
     source = tmp_path / "in"
     for index in range(2):
         write_image(source / f"{index}.png", _image(index))
-    out = tmp_path / "out"
-    restore_input(source, out, backend)
+    restore_input(source, tmp_path / "out", backend)
+    return source, tmp_path / "out"
+
+
+def test_resume_redoes_an_output_a_power_cut_left_empty(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    source, out = _restored_folder(tmp_path, backend)
     whole = (out / "1.png").read_bytes()
     (out / "1.png").write_bytes(b"")  # renamed into place, its data never reached the disk
     report = restore_input(source, out, backend, RestoreOptions(resume=True))
@@ -236,11 +241,7 @@ def test_resume_redoes_a_frame_that_was_copied_because_it_failed(
 def test_a_kill_while_naming_a_copy_leaves_a_list_resume_reads(
     tmp_path: Path, backend: TorchBackend
 ) -> None:
-    source = tmp_path / "in"
-    for index in range(2):
-        write_image(source / f"{index}.png", _image(index))
-    out = tmp_path / "out"
-    restore_input(source, out, backend)
+    source, out = _restored_folder(tmp_path, backend)
     (out / "0.png").write_bytes((source / "0.png").read_bytes())  # a copy, named ...
     (out / ".restore-copies").write_text('"0.png"\n"1.p')  # ... and a name cut mid-line
     again = restore_input(source, out, backend, RestoreOptions(resume=True))
