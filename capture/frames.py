@@ -214,8 +214,9 @@ def iter_frames(
             (images ``data.csv`` does not list, duplicate timestamps, ...).
         topics: bags only: the ``(cam0, cam1)`` image topics; None picks them.
         dropped: recordings only: appended to with the listing's problems that
-            leave a frame out (a file ``data.csv`` lists but that is missing),
-            so that a caller can account for those frames too.
+            leave an image out (a file ``data.csv`` lists but that is missing,
+            an image it does not list, a second file with a repeated
+            timestamp), so that a caller can account for those frames too.
 
     Returns:
         An iterator of :class:`InputFrame` in input order (files sorted by
@@ -273,8 +274,14 @@ def _file_entries(
     mine = [p for p in recording.problems if p.camera is None or p.camera in cameras]
     if problems is not None:
         problems.extend(str(problem) for problem in mine)
-    if dropped is not None:
-        dropped.extend(problem for problem in mine if problem.dropped)
+    if dropped is not None:  # images, not rows of a listing: a frame each
+        dropped.extend(
+            problem
+            for problem in mine
+            if problem.dropped
+            and problem.camera is not None
+            and (problem.t_ns is not None or Path(problem.source).suffix.lower() in IMAGE_SUFFIXES)
+        )
     return [
         (ref.source, camera, ref.t_ns) for camera in cameras for ref in recording.frames[camera]
     ]

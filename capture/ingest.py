@@ -254,6 +254,14 @@ def _time(record: PairRecord) -> int:
     return record.t_ns
 
 
+def _root(recording: Recording) -> Path:
+    """The recording's own folder or file, absolute: ``rec`` for ``rec`` and ``rec/mav0``."""
+    path = Path(recording.path).resolve()
+    if path.name != recording.recording_id and path.parent.name == recording.recording_id:
+        return path.parent
+    return path
+
+
 def _check_same_source(out_dir: Path, source: Path) -> None:
     """Refuse to ingest ``source`` into a folder that holds another recording's ingest.
 
@@ -270,7 +278,8 @@ def _check_same_source(out_dir: Path, source: Path) -> None:
     if Path(before) != Path(source).resolve():
         raise CaptureError(
             f"{out_dir}: holds the ingest of {before}, and {source} has the same name; "
-            "ingest it into another --out (or rename one of the recordings)"
+            f"ingest it into another --out, rename one of the recordings, or remove {out_dir} "
+            "to ingest it again"
         )
 
 
@@ -343,7 +352,7 @@ def ingest_recording(
         both = (recording.frames["cam0"][pair.index0], recording.frames["cam1"][pair.index1])
         frame_pairs.append(both if rig_file.obstructed == "cam0" else (both[1], both[0]))
     out_dir = Path(out) / recording.recording_id
-    _check_same_source(out_dir, recording.path)
+    _check_same_source(out_dir, _root(recording))
     created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_temporaries(out_dir)
@@ -423,7 +432,7 @@ def ingest_recording(
     homography_out = in_output_pixels(matrix, crop.x, crop.y)
     report = IngestReport(
         recording_id=recording.recording_id,
-        source=str(Path(recording.path).resolve()),  # absolute: tells a namesake apart
+        source=str(_root(recording)),  # absolute: tells a namesake apart
         obstructed=rig_file.obstructed,
         anomaly=rig_file.anomaly,
         calibration_source=calibration_source,

@@ -7,6 +7,7 @@ so ``lenspair simulate`` does not pay for importing torch.
 """
 
 import argparse
+import errno
 import importlib
 import logging
 import sys
@@ -83,6 +84,13 @@ def build_parser(selected: str | None) -> argparse.ArgumentParser:
     return parser
 
 
+REFUSALS = frozenset(
+    {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EEXIST,
+     errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG, errno.EIO}
+)  # fmt: skip
+"""``errno`` values of a file system refusing a write: one line, exit 1 (``-v``: traceback)."""
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the process exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -109,8 +117,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lenspair {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # the file system refused: read-only, full, a file where a folder goes
-        if args.verbose:
-            raise
+        if args.verbose or exc.errno not in REFUSALS:
+            raise  # anything else may be a bug: its traceback is wanted
         where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
         reason = exc.strerror or str(exc)
         print(

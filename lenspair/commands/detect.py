@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     bag = kind in ("rosbag1", "rosbag2")
     total = None if bag else len(frame_files(args.input, kind, CAMERAS))
     problems: list[str] = []
-    dropped: list[FrameProblem] = []  # listed frames that could not be read: rows too
+    dropped: list[FrameProblem] = []  # images the listing left out or could not find: rows too
     frames = iter_frames(args.input, CAMERAS, problems, topics, dropped)
     verdicts = detect_frames(
         network, frames, out, args.batch_size, args.sheet_frames, args.threshold, total, dropped
@@ -79,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     obstructed = sum(1 for v in judged if v.obstructed)
     summary = ", ".join(f"{kind} {count}" for kind, count in sorted(counts.items()))
     print(
-        f"{len(judged)} frames judged ({len(verdicts) - len(judged)} unreadable): "
+        f"{len(judged)} frames judged ({len(verdicts) - len(judged)} not: unreadable or left "
+        "out by the listing): "
         f"{obstructed} obstructed; {summary}; see {out / 'detections.csv'}"
     )
     return 0

@@ -63,8 +63,7 @@ def run(args: argparse.Namespace) -> int:
     }
     if args.int8:
         payload["int8"] = _export_int8(args, size)
-    first = Path(checks[0].path)
-    report = first.with_name(first.name + ".export.json")
+    report = report_path(args)
     atomic_write_text(report, json.dumps(payload, indent=2) + "\n")
     print(f"wrote {report}")
     return 0
@@ -76,11 +75,10 @@ def check_outputs(args: argparse.Namespace) -> None:
     Raises:
         ConfigError: naming the option and the file, before anything is written.
     """
-    first = args.onnx if args.onnx is not None else args.torchscript
     outputs = {"--onnx": args.onnx, "--torchscript": args.torchscript}
     if args.int8 and args.onnx is not None:
-        outputs["the --int8 model"] = args.onnx.with_name(args.onnx.stem + ".int8.onnx")
-    outputs["the report"] = first.with_name(first.name + ".export.json")
+        outputs["the --int8 model"] = int8_path(args.onnx)
+    outputs["the report"] = report_path(args)
     seen: dict[Path, str] = {Path(args.checkpoint).resolve(): "the checkpoint"}
     for option, path in outputs.items():
         if path is None:
@@ -91,7 +89,17 @@ def check_outputs(args: argparse.Namespace) -> None:
                 "choose another name"
             )
         seen[path.resolve()] = f"{option} {path}"
-    return
+
+
+def int8_path(onnx: Path) -> Path:
+    """Where ``--int8`` writes its model: ``NAME.int8.onnx`` beside ``NAME.onnx``."""
+    return onnx.with_name(onnx.stem + ".int8.onnx")
+
+
+def report_path(args: argparse.Namespace) -> Path:
+    """The JSON report: ``<first file>.export.json`` (the ONNX file, else TorchScript)."""
+    first = args.onnx if args.onnx is not None else args.torchscript
+    return Path(first).with_name(Path(first).name + ".export.json")
 
 
 def _export_int8(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, object]:
@@ -111,7 +119,6 @@ def _export_int8(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, o
     loaded = load_model(args.checkpoint, "cpu")
     channels = loaded.config.model.channels or 1
     images = calibration_images(open_eval_pairs(args.calibration, args.split), channels, size)
-    path = args.onnx.with_name(args.onnx.stem + ".int8.onnx")
-    check = check_int8(loaded.network, channels, path, size, images)
+    check = check_int8(loaded.network, channels, int8_path(args.onnx), size, images)
     print(check.summary())
     return {**dataclasses.asdict(check), "precision": decision.as_dict()}

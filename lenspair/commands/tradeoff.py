@@ -24,7 +24,7 @@ crops, batch 4, bf16 on the CPU: roughly 0.5-1 s per GEA step on two cores,
 three times that for GEA-w2) are sized for a demonstration, not for
 conclusions; use e.g. --budget 30m --crop-size 256 --batch-size 8 on a GPU
 for a real comparison. Under a step budget the learning rate falls linearly
-to zero over the budget's second half (--lr-decay 0.5, pix2pix's schedule),
+towards zero over the budget's second half (--lr-decay 0.5, pix2pix's schedule),
 so that each network's accuracy settles by the end instead of being read off
 a still-rising curve.
 
@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="SHARE",
         help="share of a step budget, at its end, over which the learning rate falls "
-        "linearly to zero, so that each variant's accuracy settles by the end (0.5, "
+        "linearly towards zero, so that each variant's accuracy settles by the end (0.5, "
         "pix2pix's schedule; with --config: its train.lr_decay; 0: constant, as the "
         "paper; a time budget trains at constant rate)",
     )

@@ -174,9 +174,10 @@ def detect_frames(
         sheet_frames: frames on the contact sheet (0: no sheet).
         threshold: obstructed above this probability.
         total: the number of frames when known, for the progress bar only.
-        dropped: frames the input lists but that could not be read at all (a
-            recording's missing file): a row each, with the reason, after the
-            others (read once ``frames`` is exhausted: the listing fills it).
+        dropped: a recording's images its listing left out or could not find
+            (:func:`lenspair.capture.frames.iter_frames`): a row each, not
+            judged, with the reason, after the others (read once ``frames`` is
+            exhausted: the listing fills it).
 
     Returns:
         One :class:`FrameVerdict` per frame, in input order, then the dropped ones.

@@ -295,6 +295,36 @@ def score_pairs(
 
 
 @torch.inference_mode()
+def scorable_pairs(
+    pairs: PairSource, channels: int, convention: str
+) -> tuple[PairSource, list[Unread]]:
+    """Read every pair and score its input once (no network): the usable ones, and why not.
+
+    For scoring the same pairs many times (``tradeoff`` scores each variant
+    and precision after training it): a truncated file, a size mismatch or
+    an image under the SSIM window is found, and said, before any training.
+
+    Returns:
+        ``pairs`` itself when all are usable, else a :class:`SubsetSource` of
+        the usable ones; and the others, by their index in ``pairs``.
+    """
+    unread: list[Unread] = []
+    good = []
+    for index in range(len(pairs)):
+        if (item := read_pair(pairs, index, unread)) is None:
+            continue
+        try:
+            x, target = (to_tensor(image, channels)[None] for image in (item.input, item.target))
+            score_tensors(x, target, convention)
+        except LenspairError as exc:
+            log.warning("skipped pair %d: %s: %s", index, item.name, exc)
+            unread.append(Unread(index, f"{item.name}: {exc}"))
+            continue
+        good.append(index)
+    return (pairs if not unread else SubsetSource(pairs, good)), unread
+
+
+@torch.inference_mode()
 def agreement_with_fp32(
     network: nn.Module,
     reference: nn.Module,

@@ -43,6 +43,7 @@ from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import (
     Summary,
     agreement_with_fp32,
+    scorable_pairs,
     score_pairs,
     summarize,
 )
@@ -56,7 +57,7 @@ from lenspair.model.precision import choose_precision
 from lenspair.model.training.config import RunConfig, Variant, config_differences
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
-from lenspair.model.training.pairs import SubsetSource, Unread, open_eval_pairs, readable_pairs
+from lenspair.model.training.pairs import SubsetSource, Unread, open_eval_pairs
 from lenspair.model.training.step import vgg19_weights_path
 
 log = logging.getLogger(__name__)
@@ -231,9 +232,11 @@ def run_tradeoff(
             f"{pairs_text}: no pairs to score; choose another --split (e.g. val) or rebuild "
             "the dataset with a non-empty one (dataset-build --splits)"
         )
-    readable, unread = readable_pairs(pairs)
+    readable, unread = scorable_pairs(pairs, data.channels, convention)
     if len(readable) == 0:
-        raise ModelError(f"{pairs_text}: none can be read; the first: {unread[0].reason}")
+        raise ModelError(
+            f"{pairs_text}: none can be read and scored; the first: {unread[0].reason}"
+        )
     # scoring indexes the readable pairs; problems are reported by the split's own index
     view = readable.indices if isinstance(readable, SubsetSource) and unread else []
     pairs = readable

@@ -92,11 +92,14 @@ class FileSink:
         self.copies_file = self.out_dir / COPIES_NAME
         self.copies: set[str] = set()
         if self.copies_file.is_file():
-            for line in self.copies_file.read_text(encoding="utf-8").splitlines():
+            text = self.copies_file.read_text(encoding="utf-8")
+            for line in text.splitlines():
                 try:
                     self.copies.add(json.loads(line))
                 except ValueError:  # cut by a kill while being named: its copy never began
                     continue
+            if text and not text.endswith("\n"):  # the next name must not join the cut line
+                self._rewrite_copies()
 
     @property
     def output(self) -> Path:
@@ -164,6 +167,9 @@ class FileSink:
 
     def finish(self) -> None:
         """Rewrite ``OUT/.restore-copies`` with the copies left (remove it when none)."""
+        self._rewrite_copies()
+
+    def _rewrite_copies(self) -> None:
         if self.copies:
             lines = "".join(json.dumps(name) + "\n" for name in sorted(self.copies))
             atomic_write_text(self.copies_file, lines)

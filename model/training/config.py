@@ -117,14 +117,16 @@ class TrainConfig:
         max_steps: optional budget in optimiser steps (stops mid-epoch).
         max_seconds: optional budget in wall-clock seconds of training.
         lr_decay: the share of the run, at its end, over which the learning
-            rate of both networks falls linearly to zero (pix2pix's schedule
-            is 0.5: constant for the first half, then linear decay); ``0``
+            rate of both networks falls linearly towards zero (pix2pix's
+            schedule is 0.5: constant for the first half, then linear decay;
+            the last step runs at ``lr`` / the number of decay steps); ``0``
             keeps it constant, as the paper trains. The run's length is
-            counted in steps: ``max_steps``, else ``epochs`` x steps per
-            epoch (a ``max_seconds`` budget does not move it, so that every
-            process of a torchrun run sets the same rate). A budget-bound
-            comparison (``lenspair tradeoff``) anneals so that each network's
-            accuracy settles by the budget's end.
+            counted in steps: the smaller of ``max_steps`` and ``epochs`` x
+            steps per epoch (a ``max_seconds`` budget does not move it, so
+            that every process of a torchrun run sets the same rate; a resume
+            at another batch size changes the steps per epoch, and so the
+            schedule). A budget-bound comparison (``lenspair tradeoff``)
+            anneals so that each network's accuracy settles by the budget's end.
         precision: ``auto`` (bf16 autocast on a CPU with ``avx512_bf16``/AMX,
             fp32 on one without, and fp32 on CUDA: measured on an H100, these
             small networks train faster at fp32 than with bf16/fp16 autocast;

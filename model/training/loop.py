@@ -379,7 +379,9 @@ def _loop(
         seed=train.seed,
     )
     steps_per_epoch = math.ceil(len(sampler) / per_rank)
-    total_steps = train.max_steps or train.epochs * steps_per_epoch
+    # the run's length in steps: whichever budget ends it first (a time budget aside)
+    total_steps = min(train.max_steps or math.inf, train.epochs * steps_per_epoch)
+    total_steps = int(total_steps)
     if train.lr_decay > 0 and info.is_main:
         log.info(
             "learning rate %g, falling linearly over the last %d of %d steps",

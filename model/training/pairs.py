@@ -91,18 +91,6 @@ def read_pair(pairs: PairSource, index: int, unread: list[Unread]) -> PairItem |
         return None
 
 
-def readable_pairs(pairs: PairSource) -> tuple[PairSource, list[Unread]]:
-    """Read every pair once: a view of the readable ones, and why the others are not.
-
-    For scoring the same pairs many times (``tradeoff`` scores each variant
-    and precision): the bad ones are found, and said, once, before any
-    training.
-    """
-    unread: list[Unread] = []
-    good = [i for i in range(len(pairs)) if read_pair(pairs, i, unread) is not None]
-    return (pairs if not unread else SubsetSource(pairs, good)), unread
-
-
 class Sample(TypedDict):
     """One training/validation sample (batched by the default collate)."""
 

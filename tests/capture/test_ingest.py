@@ -265,3 +265,4 @@ def test_a_namesake_recording_is_refused_not_merged(tmp_path: Path) -> None:
         _ingest(second, out)
     assert (out / "rec" / "pairs.jsonl").read_bytes() == pairs_before  # untouched
     _ingest(first, out)  # the same recording again: a rerun, accepted
+    _ingest(first / "mav0", out)  # the same recording by its mav0 folder, too

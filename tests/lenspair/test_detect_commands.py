@@ -69,16 +69,19 @@ def test_detect_gives_a_row_to_a_listed_frame_whose_file_is_missing(
 ) -> None:
     recording = make_recording(tmp_path / "rec", frames=3)
     missing = sorted((recording / "mav0" / "cam0" / "data").glob("*.png"))[1]
+    extra = missing.with_name("extra.png")
+    extra.write_bytes(missing.read_bytes())  # an image data.csv does not list
     missing.unlink()  # data.csv still lists it
     out = tmp_path / "out"
     assert main(["detect", str(tiny_detector), str(recording), "--out", str(out)]) == 0
     with (out / "detections.csv").open() as handle:
         rows = list(csv.DictReader(handle))
-    assert len(rows) == 6  # every listed frame of both cameras, read or not
-    (lost,) = [row for row in rows if row["error"]]
+    assert len(rows) == 7  # every image of both cameras, judged or not
+    lost, unlisted = [row for row in rows if row["error"]]
     assert lost["camera"] == "cam0" and lost["t_ns"] == missing.stem
     assert "missing" in lost["error"] and lost["probability"] == ""
-    assert len(json.loads((out / "detections.json").read_text())) == 6
+    assert unlisted["name"].endswith("extra.png") and "not listed" in unlisted["error"]
+    assert len(json.loads((out / "detections.json").read_text())) == 7
 
 
 def test_detect_bad_input_is_one_line(  # type: ignore[no-untyped-def]

@@ -310,10 +310,9 @@ def test_bad_onnx_model_gives_one_line_naming_it(
 def test_a_file_system_refusal_is_one_line_naming_the_path(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    (tmp_path / "rec").mkdir()  # where capture-ingest will put a recording's folder: a file
     out = tmp_path / "out"
     out.mkdir()
-    (out / "rain").write_text("not a folder")
+    (out / "rain").write_text("not a folder")  # where the recording's folder goes
     recording = tmp_path / "rain"
     assert main(["simulate", "rain", "--out", str(recording), "--frames", "2"]) == 0
     capsys.readouterr()

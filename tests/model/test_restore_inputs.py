@@ -244,6 +244,9 @@ def test_a_kill_while_naming_a_copy_leaves_a_list_resume_reads(
     source, out = _restored_folder(tmp_path, backend)
     (out / "0.png").write_bytes((source / "0.png").read_bytes())  # a copy, named ...
     (out / ".restore-copies").write_text('"0.png"\n"1.p')  # ... and a name cut mid-line
+    sink = sinks.FileSink(out)  # reading a cut list ends it cleanly, so the next name stands alone
+    assert (out / ".restore-copies").read_text() == '"0.png"\n'
+    assert sink.copies == {"0.png"}
     again = restore_input(source, out, backend, RestoreOptions(resume=True))
     assert (again.resumed, again.restored) == (1, 1)
     assert (out / "0.png").read_bytes() != (source / "0.png").read_bytes()

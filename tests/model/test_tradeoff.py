@@ -390,11 +390,19 @@ def test_a_test_split_with_no_readable_pair_is_refused_before_training(tmp_path:
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
     (dataset / "test" / "input" / "000.png").write_bytes(b"")
     g = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
-    with pytest.raises(ModelError, match=r"none can be read; the first: .*000\.png"):
+    with pytest.raises(ModelError, match=r"none can be read and scored; the first: .*000\.png"):
         run_tradeoff(
             dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), tiny_config(), g
         )
     assert not (tmp_path / "t").exists()
+    small = clean_image(np.random.default_rng(5), 10, 10)  # readable, under SSIM's window
+    write_image(dataset / "test" / "input" / "000.png", small)
+    write_image(dataset / "test" / "target" / "000.png", small)
+    with pytest.raises(ModelError, match=r"none can be read and scored; the first: 000: .*window"):
+        run_tradeoff(
+            dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), tiny_config(), g
+        )
+    assert not (tmp_path / "t").exists()  # found before any training
 
 
 def test_the_cli_anneals_step_budgets_by_default(
