@@ -154,7 +154,14 @@ def _quiet_exporters() -> Iterator[None]:
 
 
 def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) -> None:
-    """Run one of torch's ONNX exporters (fixed H, W; batch dynamic where supported)."""
+    """Run one of torch's ONNX exporters (fixed H, W; batch dynamic).
+
+    The graph is traced on a batch of two: traced on one, torch.export
+    specialises the batch dimension to 1 wherever an operation's shape
+    depends on it (the full GEA's did), whatever ``dynamic_shapes`` asks,
+    and ``restore`` with the ONNX file then fails on any batch or tile set.
+    """
+    image = image.expand(2, *image.shape[1:]).contiguous()
     with _quiet_exporters():
         if exporter == "dynamo":
             torch.onnx.export(

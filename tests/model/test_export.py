@@ -258,3 +258,30 @@ def test_a_size_too_large_for_memory_is_one_line(
     assert main([*argv, "--size", "100000x100000"]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "--size 100000x100000: not enough memory" in line
+
+
+def test_the_papers_gea_exports_with_a_dynamic_batch_that_restore_uses(tmp_path: Path) -> None:
+    """Traced on batch 1, the GEA exported its batch fixed to 1 at 64x48 and larger, 540x360 too."""
+    onnx = pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from dataclasses import replace
+
+    from lenspair.core.imageio import write_image
+    from lenspair.model.inference.backends import open_backend
+    from lenspair.model.inference.pipeline import RestoreOptions, restore_input
+    from lenspair.model.training.config import ModelConfig
+    from tests.model.train_fixtures import clean_image, tiny_config
+
+    config = replace(tiny_config(), model=ModelConfig(variant="GEA", channels=1))  # the paper's
+    checkpoint = make_checkpoint(tmp_path / "gea.pt", config)
+    model = tmp_path / "gea.onnx"
+    assert main(["export", str(checkpoint), "--onnx", str(model), "--size", "64x48"]) == 0
+    batch = onnx.load(str(model)).graph.input[0].type.tensor_type.shape.dim[0]
+    assert batch.dim_param and not batch.dim_value  # symbolic, not 1
+    rng = np.random.default_rng(0)
+    for index in range(3):
+        write_image(tmp_path / "in" / f"{index}.png", clean_image(rng, 48, 64))
+    write_image(tmp_path / "in" / "big.png", clean_image(rng, 90, 120))  # tiles, batched
+    backend = open_backend(model, torch.device("cpu"))
+    report = restore_input(tmp_path / "in", tmp_path / "out", backend, RestoreOptions(batch_size=2))
+    assert (report.restored, report.failed) == (4, 0)
