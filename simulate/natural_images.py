@@ -49,11 +49,19 @@ HELD_OUT: tuple[str, ...] = ("coffee", "clock")
 
 
 def fit(image: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Centre-crop ``image`` to the aspect ratio of ``shape`` = (H, W), then resize to it."""
+    """Centre-crop ``image`` to the aspect ratio of ``shape`` = (H, W), then resize to it.
+
+    Raises:
+        SimulateError: the image is too small to hold a crop of that aspect (a 1x1 image).
+    """
     height, width = image.shape[:2]
     target_h, target_w = shape
     scale = min(height / target_h, width / target_w)
     crop_h, crop_w = round(target_h * scale), round(target_w * scale)
+    if crop_h < 1 or crop_w < 1:
+        raise SimulateError(
+            f"{width}x{height} px is too small for a crop of {target_w}x{target_h}'s aspect"
+        )
     top, left = (height - crop_h) // 2, (width - crop_w) // 2
     window = np.ascontiguousarray(image[top : top + crop_h, left : left + crop_w])
     interpolation = cv2.INTER_AREA if scale > 1 else cv2.INTER_CUBIC

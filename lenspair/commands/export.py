@@ -26,6 +26,7 @@ import argparse
 import json
 from pathlib import Path
 
+from lenspair.commands.argtypes import out_file
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_text
 
@@ -33,8 +34,8 @@ from lenspair.core.fsutil import atomic_write_text
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``export``."""
     parser.add_argument("checkpoint", type=Path, help="checkpoint (.pt) from lenspair train")
-    parser.add_argument("--onnx", type=Path, help="ONNX file to write")
-    parser.add_argument("--torchscript", type=Path, help="TorchScript file to write")
+    parser.add_argument("--onnx", type=out_file, help="ONNX file to write")
+    parser.add_argument("--torchscript", type=out_file, help="TorchScript file to write")
     parser.add_argument("--size", default="540x360", help="WIDTHxHEIGHT of the input (540x360)")
     parser.add_argument(
         "--int8", action="store_true", help="also write NAME.int8.onnx (needs --calibration)"

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from lenspair.commands.argtypes import out_file, random_seed
 from lenspair.core.errors import ConfigError, LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
@@ -62,8 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="clean images to render on (default: the bundled natural photographs)",
     )
     parser.add_argument("--size", default="720x480", help="render size WxH (default: 720x480)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the rendered drops")
-    parser.add_argument("--json", type=Path, metavar="FILE", help="also write per-pair figures")
+    parser.add_argument("--seed", type=random_seed, default=0, help="seed of the rendered drops")
+    parser.add_argument("--json", type=out_file, metavar="FILE", help="also write per-pair figures")
 
 
 def _size(text: str) -> tuple[int, int]:

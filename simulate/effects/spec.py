@@ -294,9 +294,13 @@ class EffectsSpec:
 
     @property
     def anomaly_kinds(self) -> tuple[str, ...]:
-        """Anomaly labels for ``rig.yaml``: ``rain``, ``dust``, ``dirt``."""
+        """Anomaly labels for ``rig.yaml``: ``rain``, ``dust``, ``dirt``.
+
+        A veil is wet glass scattering light: ``rain``, also alone (a frame it
+        changes everywhere is not clean, and a detector must not learn it is).
+        """
         kinds = []
-        if self.raindrops is not None:
+        if self.raindrops is not None or (self.veil is not None and self.veil.strength[1] > 0):
             kinds.append("rain")
         if self.dust is not None:
             kinds.append("dust")

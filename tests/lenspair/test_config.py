@@ -4,7 +4,7 @@ from typing import Literal
 
 import pytest
 
-from lenspair.core.config import dump_yaml, load_dataclass, load_yaml
+from lenspair.core.config import dump_yaml, load_dataclass, load_yaml, read_yaml
 from lenspair.core.errors import ConfigError
 
 
@@ -65,3 +65,12 @@ def test_yaml_file_errors_name_the_file(tmp_path: Path) -> None:
         load_yaml(Outer, file)
     with pytest.raises(ConfigError, match=r"missing\.yaml: file not found"):
         load_yaml(Outer, tmp_path / "missing.yaml")
+
+
+def test_a_key_given_twice_is_refused_not_overwritten(tmp_path: Path) -> None:
+    spec = tmp_path / "scene.yaml"
+    spec.write_text("effects:\n  raindrops: {count: 5}\n  raindrops: {count: 0}\n")
+    with pytest.raises(
+        ConfigError, match=r"scene\.yaml: not valid YAML \(key 'raindrops' given twice"
+    ):
+        read_yaml(spec)

@@ -217,3 +217,14 @@ def test_cli_lists_and_skips_pairs_and_images_it_cannot_read(
     assert any("b.tif" in line for line in skipped)
     rows = json.loads(out.read_text())
     assert len(rows[str(folder)]) == 4  # every pair accounted for, measured or not
+
+
+def test_a_clean_image_too_small_to_crop_is_skipped(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    images = tmp_path / "clean"
+    write_image(images / "a.png", _clean((48, 64), seed=1))
+    write_image(images / "dot.png", _clean((1, 1), seed=2))  # no crop of 100x16's aspect fits
+    assert main(["realism", "--render", "sharp", "--images", str(images), "--size", "100x16"]) == 0
+    printed = capsys.readouterr().out
+    assert "skipped dot.png" in printed and "sharp (1)" in printed

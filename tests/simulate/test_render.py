@@ -119,6 +119,8 @@ def test_unlisted_effects_never_run(
 def test_sharp_drops_preset_is_raindrops_only_and_shares_drops_with_defocus() -> None:
     assert SHARP_DROPS.listed == ("raindrops",)
     assert SHARP_DROPS.anomaly_kinds == ("rain",)
+    assert EffectsSpec(veil=VeilSpec()).anomaly_kinds == ("rain",)  # wet glass: not clean
+    assert EffectsSpec(veil=VeilSpec(strength=(0.0, 0.0))).anomaly_kinds == ()  # changes nothing
     image = _image(np.uint8, 3, (120, 160))
     sharp_out, sharp_mask = render_effects(image, SHARP_DROPS, np.random.default_rng(3))
     soft = EffectsSpec(
