@@ -23,6 +23,8 @@ stream per purpose (clock, board poses, glass, glass changes, per-frame
 noise), so the same spec and seed give byte-identical files.
 """
 
+import logging
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +50,8 @@ from lenspair.simulate.spec import SceneSpec
 from lenspair.simulate.stereo import body_from_cameras, rig_from_spec
 from lenspair.simulate.transforms import invert_transform, transform_points
 
+log = logging.getLogger(__name__)
+
 CAMERAS = ("cam0", "cam1")
 _STREAMS = ("clock", "board", "glass", "glass_changes", "noise")
 
@@ -71,8 +75,16 @@ class SimulationSummary:
     seconds_per_pair: float
 
 
+INCOMPLETE = ".simulate-incomplete"
+"""In OUT while a simulation runs: a rerun of a killed one starts it over (it is deterministic)."""
+
+
 def check_output_folder(out_dir: Path) -> None:
     """Refuse an output folder that exists with content (or is a file).
+
+    A folder holding a killed simulation (its :data:`INCOMPLETE` marker is
+    still there) is emptied instead: the same spec and seed give the same
+    files, so the rerun simply starts again.
 
     Raises:
         SimulateError: one line naming the folder.
@@ -81,6 +93,11 @@ def check_output_folder(out_dir: Path) -> None:
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise SimulateError(f"{out_dir}: is a file, not a folder; choose a new or empty folder")
+    if (out_dir / INCOMPLETE).is_file():
+        log.warning("%s: a killed simulation; starting it again", out_dir)
+        for child in out_dir.iterdir():
+            shutil.rmtree(child) if child.is_dir() else child.unlink()
+        return
     if out_dir.exists() and any(out_dir.iterdir()):
         raise SimulateError(f"{out_dir}: output folder is not empty; choose a new or empty folder")
 
@@ -132,6 +149,8 @@ def simulate_recording(
     """
     out_dir = Path(out_dir)
     check_output_folder(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / INCOMPLETE).write_text("removed when the simulation is complete\n")
     rig = rig_from_spec(spec.rig)
     channels = 3 if spec.rig.color == "rgb" else 1
     dtype = np.uint16 if spec.rig.bit_depth == 16 else np.uint8
@@ -208,6 +227,7 @@ def simulate_recording(
         records.append(_frame_record(setup, k, stamps, T_world_body, T_world_cams, T_world_board))
 
     _write_metadata(setup, out_dir, written, records)
+    (out_dir / INCOMPLETE).unlink()
     images = (len(written[0]), len(written[1]))
     return SimulationSummary(
         out_dir=out_dir,

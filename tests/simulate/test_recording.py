@@ -237,6 +237,31 @@ def test_output_folder_must_be_new_or_empty(tmp_path: Path) -> None:
         simulate_recording(load_scene(spec_file), tmp_path / "rec")
 
 
+def test_a_killed_simulation_starts_over_on_rerun_and_gives_the_same_bytes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from lenspair.simulate import recording
+
+    data = _scene(tmp_path, recording={"frames": 4})
+    whole = _tree_digest(_render(tmp_path, data, "whole"))
+    assert ".simulate-incomplete" not in whole  # gone once complete
+    writes = []
+    real_write = recording.write_image
+
+    def dies(path: Path, image: Any) -> None:
+        writes.append(path)
+        if len(writes) == 5:
+            raise KeyboardInterrupt  # stands in for a kill mid-run
+        real_write(path, image)
+
+    monkeypatch.setattr(recording, "write_image", dies)
+    with pytest.raises(KeyboardInterrupt):
+        _render(tmp_path, data, "again")
+    monkeypatch.setattr(recording, "write_image", real_write)
+    assert (tmp_path / "again" / ".simulate-incomplete").is_file()
+    assert _tree_digest(_render(tmp_path, data, "again")) == whole  # rerun: the same files
+
+
 def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "clean"
     args = ["simulate", str(SAMPLES / "clean.yaml"), "--out", str(out), "--frames", "2"]
