@@ -89,10 +89,13 @@ class PlaneSpec:
             raise ValueError(f"depth_m: expected 0.05..1e5 m, got {self.depth_m}")
         if isinstance(self.texture, tuple) and not self.texture:
             raise ValueError("texture: expected a name, a path or a non-empty list")
-        if self.size_m is not None and min(self.size_m) <= 0:
-            raise ValueError(f"size_m: expected positive sizes, got {self.size_m}")
-        if self.tile_m is not None and min(self.tile_m) <= 0:
-            raise ValueError(f"tile_m: expected positive sizes, got {self.tile_m}")
+        # a plane is a physical thing in front of the rig: bounded sizes keep the
+        # texture coordinates finite (1e300 m or 1e-38 m rendered black NaN frames)
+        for name, value in (("size_m", self.size_m), ("tile_m", self.tile_m)):
+            if value is not None and not all(1e-3 <= v <= 1e6 for v in value):
+                raise ValueError(f"{name}: expected sizes in 1e-3..1e6 m, got {value}")
+        if not all(abs(v) <= 1e6 for v in self.center_xy_m):
+            raise ValueError(f"center_xy_m: expected |x|, |y| <= 1e6 m, got {self.center_xy_m}")
         _positive("brightness", self.brightness)
 
     @property
@@ -177,9 +180,16 @@ class RecordingSpec:
             raise ValueError(f"frames: expected 1..100000, got {self.frames}")
         if not 0.1 <= self.rate_hz <= 1000.0:
             raise ValueError(f"rate_hz: expected 0.1..1000, got {self.rate_hz}")
-        if self.start_ns < 0:
-            raise ValueError(f"start_ns: expected >= 0, got {self.start_ns}")
         period_us = 1e6 / self.rate_hz
+        # jitter may move frame 0 up to 3 sigma earlier, and the last frame must
+        # stay an int64 nanosecond count (timestamps are file names and data.csv)
+        end_ns = self.start_ns + round(self.frames * period_us * 1e3) + round(3e3 * self.jitter_us)
+        if self.start_ns < 3e3 * self.jitter_us or end_ns >= 2**63:
+            raise ValueError(
+                f"start_ns: expected {3e3 * self.jitter_us:.0f} (3 sigma of jitter) .. "
+                f"{2**63 - 1 - (end_ns - self.start_ns)} (the last frame within int64 ns), "
+                f"got {self.start_ns}"
+            )
         if not 0.0 <= 3.0 * self.jitter_us < period_us / 4.0:
             raise ValueError(
                 f"jitter_us: expected 0 <= 3 sigma < a quarter period "

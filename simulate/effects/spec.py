@@ -11,6 +11,9 @@ the brightest code value.
 from dataclasses import dataclass
 from typing import Literal
 
+MAX_COUNT = 100_000
+"""Most drops or blobs on one glass: far beyond a real pane, and a bound on memory."""
+
 
 def _check_range(name: str, value: tuple[float, float], low: float, high: float) -> None:
     lo, hi = value
@@ -64,8 +67,8 @@ class RaindropsSpec:
     size_exponent: float = 2.0
 
     def __post_init__(self) -> None:
-        if self.count < 0:
-            raise ValueError(f"count: expected >= 0, got {self.count}")
+        if not 0 <= self.count <= MAX_COUNT:
+            raise ValueError(f"count: expected 0..{MAX_COUNT}, got {self.count}")
         _check_range("radius_px", self.radius_px, 0.0, 1e3)
         _check_range("aspect", self.aspect, 0.05, 1.0)
         _check_range("contact_angle_deg", self.contact_angle_deg, 0.0, 90.0)
@@ -267,8 +270,8 @@ class DirtSpec:
     irregularity: float = 0.3
 
     def __post_init__(self) -> None:
-        if self.count < 0:
-            raise ValueError(f"count: expected >= 0, got {self.count}")
+        if not 0 <= self.count <= MAX_COUNT:
+            raise ValueError(f"count: expected 0..{MAX_COUNT}, got {self.count}")
         _check_range("radius_px", self.radius_px, 0.0, 1e3)
         _check_range("opacity", self.opacity, 0.0, 1.0)
         _check_value("color", self.color, 0.0, 1.0)

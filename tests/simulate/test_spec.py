@@ -150,3 +150,25 @@ def test_overrides() -> None:
         with_overrides(spec, frames=0)
     with pytest.raises(ConfigError, match=r"seed: expected 0 <= seed"):
         with_overrides(spec, seed=-1)
+
+
+@pytest.mark.parametrize(
+    ("section", "value", "message"),
+    [
+        ("recording", {"start_ns": 2**63 - 10}, "start_ns: expected"),
+        ("recording", {"start_ns": 0, "jitter_us": 1000.0}, "start_ns: expected"),
+        ("planes", [{"texture": "brick", "depth_m": 5.0, "tile_m": [1e-38, 1e-38]}], "tile_m"),
+        ("planes", [{"texture": "brick", "depth_m": 5.0, "size_m": [1e300, 1e300]}], "size_m"),
+        ("planes", [{"texture": "brick", "depth_m": 5.0, "center_xy_m": [1e300, 0]}], "center"),
+        ("obstructed", {"camera": "cam1", "effects": {"raindrops": {"count": 10**12}}}, "count"),
+    ],
+)
+def test_values_that_would_overflow_or_exhaust_memory_are_refused(
+    tmp_path: Path, section: str, value: object, message: str
+) -> None:
+    data = yaml.safe_load((SAMPLES / "rain.yaml").read_text())
+    data[section] = {**data[section], **value} if isinstance(value, dict) else value
+    spec = tmp_path / "s.yaml"
+    spec.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=message):
+        load_scene(spec)
