@@ -26,7 +26,7 @@ noise), so the same spec and seed give byte-identical files.
 import logging
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +48,7 @@ from lenspair.simulate.scene import Plane, build_planes, render_view
 from lenspair.simulate.sensor import expose
 from lenspair.simulate.spec import SceneSpec
 from lenspair.simulate.stereo import body_from_cameras, rig_from_spec
+from lenspair.simulate.textures import NAMES
 from lenspair.simulate.transforms import invert_transform, transform_points
 
 log = logging.getLogger(__name__)
@@ -116,6 +117,7 @@ class _Setup:
     """What every frame of one simulation shares."""
 
     spec: SceneSpec
+    resolved_spec: SceneSpec  # texture files as absolute paths: scene.yaml renders from anywhere
     rig: StereoRig
     T_body_cams: tuple[np.ndarray, np.ndarray]
     planes: list[Plane]
@@ -157,6 +159,7 @@ def simulate_recording(
     obstructed = CAMERAS.index(spec.obstructed.camera)
     setup = _Setup(
         spec=spec,
+        resolved_spec=_absolute_textures(spec, Path(base_dir)),
         rig=rig,
         T_body_cams=body_from_cameras(rig),
         planes=build_planes(spec.planes, Path(base_dir), channels),
@@ -237,6 +240,28 @@ def simulate_recording(
     )
 
 
+def _absolute_textures(spec: SceneSpec, base_dir: Path) -> SceneSpec:
+    """``spec`` with texture files named by absolute path (sample names stay names).
+
+    ``scene.yaml`` is written into the recording; a texture path relative to
+    the spec's own folder would not resolve from there.
+    """
+
+    def absolute(name: str) -> str:
+        return name if name in NAMES else str((base_dir / name).resolve())
+
+    planes = tuple(
+        replace(
+            plane,
+            texture=absolute(plane.texture)
+            if isinstance(plane.texture, str)
+            else tuple(absolute(name) for name in plane.texture),
+        )
+        for plane in spec.planes
+    )
+    return replace(spec, planes=planes)
+
+
 def _write_metadata(
     setup: _Setup,
     out_dir: Path,
@@ -259,7 +284,7 @@ def _write_metadata(
         calibration="camchain.yaml",
     )
     write_rig_file(out_dir / "rig.yaml", rig_file)
-    atomic_write_text(out_dir / "scene.yaml", dump_yaml(spec))
+    atomic_write_text(out_dir / "scene.yaml", dump_yaml(setup.resolved_spec))
     atomic_write_json(out_dir / "truth" / "geometry.json", _geometry(setup, records))
 
 

@@ -10,7 +10,7 @@ import yaml
 
 from lenspair.capture.rigfile import read_rig_file
 from lenspair.cli import main
-from lenspair.core.imageio import read_image
+from lenspair.core.imageio import read_image, write_image
 from lenspair.rectify.rig import CameraModel, read_kalibr
 from lenspair.simulate.camera import undistort_maps
 from lenspair.simulate.errors import SimulateError
@@ -260,6 +260,26 @@ def test_a_killed_simulation_starts_over_on_rerun_and_gives_the_same_bytes(
     monkeypatch.setattr(recording, "write_image", real_write)
     assert (tmp_path / "again" / ".simulate-incomplete").is_file()
     assert _tree_digest(_render(tmp_path, data, "again")) == whole  # rerun: the same files
+
+
+def test_the_written_scene_renders_again_from_the_recording(tmp_path: Path) -> None:
+    """A texture file relative to the spec's folder is written by absolute path."""
+    specs = tmp_path / "specs"
+    write_image(
+        specs / "tex.png", (np.random.default_rng(3).random((32, 32)) * 255).astype(np.uint8)
+    )
+    data = _scene(tmp_path, recording={"frames": 2})
+    data["planes"] = [{"texture": "tex.png", "depth_m": 8.0}]
+    (specs / "s.yaml").write_text(yaml.safe_dump(data))
+    first = tmp_path / "first"
+    simulate_recording(load_scene(specs / "s.yaml"), first, base_dir=specs)
+    again = tmp_path / "again"
+    simulate_recording(load_scene(first / "scene.yaml"), again, base_dir=first)
+    assert _tree_digest(again)["mav0/cam0/data.csv"] == _tree_digest(first)["mav0/cam0/data.csv"]
+    frames = sorted((first / "mav0" / "cam0" / "data").glob("*.png"))
+    assert (
+        frames[0].read_bytes() == (again / "mav0" / "cam0" / "data" / frames[0].name).read_bytes()
+    )
 
 
 def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
