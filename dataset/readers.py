@@ -27,7 +27,7 @@ from typing import Literal
 
 import numpy as np
 
-from lenspair.core.errors import ImageIOError
+from lenspair.core.errors import ImageIOError, listed
 from lenspair.core.imageio import image_header, read_image
 from lenspair.dataset.card import CARD_FILE
 from lenspair.dataset.errors import DatasetError
@@ -116,17 +116,22 @@ class PairedDataset:
             mask = mask if mask.ndim == 2 else mask.max(axis=2)
         return PairedItem(entry.name, input_image, target, mask, entry.difficulty)
 
-    def check_headers(self, most: int = 3) -> None:
+    def check_headers(self, most: int = 3) -> list[tuple[int, int, int, str]]:
         """Check every pair's files from their headers, pixels unread (fast).
 
         A training run reads its pairs for minutes or hours; a pair whose input
         and target differ in size, channels or bit depth, or whose file cannot
         be opened, is better found before the first step than in epoch 40.
 
+        Returns:
+            Each pair's header (:func:`~lenspair.core.imageio.image_header`:
+            height, width, channels, format), in pair order, for further checks
+            without opening the files again.
+
         Raises:
             DatasetError: naming the first ``most`` bad pairs and how many there are.
         """
-        problems = []
+        problems, headers = [], []
         for entry in self.entries:
             try:
                 have = image_header(entry.input_path)
@@ -139,12 +144,13 @@ class PairedDataset:
                     f"{entry.input_path}: {have[1]}x{have[0]}x{have[2]} {have[3]} does not "
                     f"match {entry.target_path.name} {want[1]}x{want[0]}x{want[2]} {want[3]}"
                 )
+            headers.append(have)
         if problems:
             raise DatasetError(
                 f"{self.root}: {len(problems)} bad pair(s) of {len(self.entries)}: "
-                + "; ".join(problems[:most])
-                + ("; ..." if len(problems) > most else "")
+                + listed(problems, most)
             )
+        return headers
 
     def __iter__(self) -> Iterator[PairedItem]:
         """Read the pairs in order."""
@@ -268,8 +274,8 @@ def _check_paired(
     unpaired += [f"mask/{masks[n].name} (no pair)" for n in masks.keys() - inputs]
     if unpaired:
         unpaired.sort(key=natural_key)
-        listed = ", ".join(unpaired[:5]) + (", ..." if len(unpaired) > 5 else "")
-        raise DatasetError(f"{folder}: {len(unpaired)} unpaired file(s): {listed}")
+        names = listed(unpaired, 5, ", ")
+        raise DatasetError(f"{folder}: {len(unpaired)} unpaired file(s): {names}")
 
 
 def _difficulties(split_folder: Path) -> dict[str, str]:

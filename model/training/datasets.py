@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from lenspair.core.errors import ImageIOError
+from lenspair.core.errors import ImageIOError, listed
 from lenspair.core.imageio import image_header, read_image
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired
@@ -155,13 +155,12 @@ def paired_training_data(
             note = f"no {data.val_split!r} split ({exc}); validation: {len(val_idx)} "
             note += f"{data.train_split!r} pairs held out by name hash"
             log.warning("%s: %s", path, note)
-    checked: set[int] = set()
+    headers: dict[int, list[tuple[int, int, int, str]]] = {}  # id(dataset) -> pair headers
     for source in (train_source, val_source):  # before the first step, not in epoch 40
         paired = source.source if isinstance(source, SubsetSource) else source
-        if isinstance(paired, PairedDataset) and id(paired) not in checked:
-            paired.check_headers()
-            checked.add(id(paired))
-    check_training_images(train_source, data.crop_size, channels)
+        if isinstance(paired, PairedDataset) and id(paired) not in headers:
+            headers[id(paired)] = paired.check_headers()
+    check_training_images(train_source, headers, data.crop_size, channels)
     resolved = channels or first_channels(train_source)
     if channel_note := conversion_note(resolved, first_channels(train_source), path):
         log.warning("%s", channel_note)
@@ -172,7 +171,12 @@ def paired_training_data(
     return TrainData(train=train, val=val, channels=resolved, description=description)
 
 
-def check_training_images(source: PairSource, crop_size: int | None, channels: int | None) -> None:
+def check_training_images(
+    source: PairSource,
+    headers: dict[int, list[tuple[int, int, int, str]]],
+    crop_size: int | None,
+    channels: int | None,
+) -> None:
     """Every training pair holds a crop, and mixed channels are said: from headers, up front.
 
     A smaller image would stop the run whenever the sampler first drew it; a
@@ -181,6 +185,9 @@ def check_training_images(source: PairSource, crop_size: int | None, channels: i
 
     Args:
         source: the training pairs.
+        headers: ``id(dataset)`` -> its pairs' headers, as
+            :meth:`~lenspair.dataset.readers.PairedDataset.check_headers`
+            returned them (the files are not opened again).
         crop_size: ``data.crop_size`` (``None``: whole images).
         channels: the network's channels (``None``: the first pair's).
 
@@ -188,22 +195,20 @@ def check_training_images(source: PairSource, crop_size: int | None, channels: i
         DatasetError: naming the first three images too small and how many there are.
     """
     paired = source.source if isinstance(source, SubsetSource) else source
-    if not isinstance(paired, PairedDataset):
+    if not isinstance(paired, PairedDataset) or id(paired) not in headers:
         return
     indices = source.indices if isinstance(source, SubsetSource) else range(len(paired))
     small, counts = [], {1: 0, 3: 0}
     for index in indices:
-        path = paired.entries[index].input_path
-        height, width, have = image_header(path)[:3]
+        height, width, have = headers[id(paired)][index][:3]
         counts[have] = counts.get(have, 0) + 1
         if crop_size is not None and min(height, width) < crop_size:
-            small.append(f"{path} ({width}x{height})")
+            small.append(f"{paired.entries[index].input_path} ({width}x{height})")
     if small:
         raise DatasetError(
             f"{len(small)} training image(s) smaller than the {crop_size} px crop "
-            f"(data.crop_size, --crop-size): {', '.join(small[:3])}"
-            + (", ..." if len(small) > 3 else "")
-            + "; lower the crop or leave them out"
+            f"(data.crop_size, --crop-size): {listed(small, 3, ', ')}; lower the crop or "
+            "leave them out"
         )
     if counts[1] and counts[3]:
         log.warning(
@@ -235,10 +240,7 @@ def _check_clean_images(
         if crop_size is not None and path in training and min(height, width) < crop_size:
             problems.append(f"{path}: {width}x{height}, smaller than the {crop_size} px crop")
     if problems:
-        raise DatasetError(
-            f"{folder}: {len(problems)} unusable clean image(s): {'; '.join(problems[:3])}"
-            + ("; ..." if len(problems) > 3 else "")
-        )
+        raise DatasetError(f"{folder}: {len(problems)} unusable clean image(s): {listed(problems)}")
 
 
 def synthetic_training_data(
