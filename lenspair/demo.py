@@ -25,7 +25,6 @@ is reused on a rerun; an unfinished stage is cleaned and run again
 
 import json
 import logging
-import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -33,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lenspair.cli import main as cli_main
-from lenspair.core.fsutil import atomic_write_json, atomic_write_text, sha256_file
+from lenspair.core.fsutil import atomic_write_json, atomic_write_text, remove_path, sha256_file
 from lenspair.core.samples import sample_path
 from lenspair.demo_report import write_report
 from lenspair.errors import DemoError
@@ -301,7 +300,7 @@ def run_stage(
             return float(recorded.get("seconds", 0.0)), True
     # A resumable stage picks up where it stopped, unless what it read changed.
     if stage.output.exists() and not (stage.resumable and reuse):
-        shutil.rmtree(stage.output) if stage.output.is_dir() else stage.output.unlink()
+        remove_path(stage.output)
     print(f"\n[{stage.name}] lenspair {' '.join(stage.argv)}", file=sys.stderr, flush=True)
     start = time.perf_counter()
     code = cli_main(list(stage.argv))

@@ -24,7 +24,6 @@ noise), so the same spec and seed give byte-identical files.
 """
 
 import logging
-import shutil
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -34,7 +33,7 @@ import numpy as np
 
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.core.config import dump_yaml
-from lenspair.core.fsutil import atomic_write_json, atomic_write_text
+from lenspair.core.fsutil import atomic_write_json, atomic_write_text, remove_path
 from lenspair.core.imageio import write_image
 from lenspair.core.progress import progress
 from lenspair.rectify.rig import CameraModel, StereoRig, write_kalibr
@@ -97,7 +96,7 @@ def check_output_folder(out_dir: Path) -> None:
     if (out_dir / INCOMPLETE).is_file():
         log.warning("%s: a killed simulation; starting it again", out_dir)
         for child in out_dir.iterdir():
-            shutil.rmtree(child) if child.is_dir() else child.unlink()
+            remove_path(child)
         return
     if out_dir.exists() and any(out_dir.iterdir()):
         raise SimulateError(f"{out_dir}: output folder is not empty; choose a new or empty folder")

@@ -80,6 +80,15 @@ def atomic_write_json(path: Path, obj: Any) -> None:
     atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
 
 
+def remove_path(path: Path) -> None:
+    """Remove a file or a whole folder (a link itself, not what it points to); absent: nothing."""
+    path = Path(path)
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    else:
+        path.unlink(missing_ok=True)
+
+
 def read_json_field(path: Path, key: str) -> Any:
     """``key`` of the JSON object in ``path``; ``None`` when the file is absent or unreadable.
 

@@ -26,7 +26,7 @@ from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage, InputFrame
 from lenspair.capture.rosbag import BAG_SUFFIXES
 from lenspair.core.errors import ImageIOError
-from lenspair.core.fsutil import atomic_write, atomic_write_text
+from lenspair.core.fsutil import atomic_write, atomic_write_text, remove_path
 from lenspair.core.imageio import FAST_PNG, read_alpha, write_image
 
 PARTIAL_DIR = ".restore-partial"
@@ -37,14 +37,6 @@ CACHE_DIR = ".restore-cache"
 
 COPIES_NAME = ".restore-copies"
 """Under OUT: the frames written as copies of the input (see :class:`FileSink`)."""
-
-
-def _remove(path: Path) -> None:
-    """Remove a bag: a ROS 2 bag folder or a ROS 1 file (nothing when absent)."""
-    if path.is_dir():
-        shutil.rmtree(path)
-    elif path.exists():
-        path.unlink()
 
 
 def _alpha_of(source: Path, shape: tuple[int, ...]) -> np.ndarray | None:
@@ -199,7 +191,7 @@ class BagSink:
         self.path = output_bag_path(source, out_dir)
         self.cache = Path(out_dir) / CACHE_DIR / self.path.name
         self.partial = Path(out_dir) / PARTIAL_DIR / self.path.name
-        _remove(self.partial)  # a killed run's unfinished bag: this run writes it anew
+        remove_path(self.partial)  # a killed run's unfinished bag: this run writes it anew
         if not resume and self.cache.exists():
             shutil.rmtree(self.cache)
         self.copy = BagCopy(source, self.partial, suffix)
@@ -258,7 +250,7 @@ class BagSink:
         has its own).
         """
         if self.partial.exists():
-            _remove(self.path)  # an earlier complete run's bag, replaced by this one
+            remove_path(self.path)  # an earlier complete run's bag, replaced by this one
             self.partial.rename(self.path)
         if self.partial.parent.is_dir() and not any(self.partial.parent.iterdir()):
             self.partial.parent.rmdir()

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lenspair.core.fsutil import atomic_write, atomic_write_text
+from lenspair.core.fsutil import atomic_write, atomic_write_text, remove_path
 from lenspair.core.imageio import write_image
 
 
@@ -35,3 +35,20 @@ def test_a_failing_writer_leaves_neither_file_nor_temporary(tmp_path: Path) -> N
         atomic_write(target, broken)
     assert target.read_bytes() == b"old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bin"]
+
+
+def test_remove_path_takes_files_folders_and_links_but_never_what_a_link_points_to(
+    tmp_path: Path,
+) -> None:
+    kept = tmp_path / "kept"
+    (kept / "sub").mkdir(parents=True)
+    (kept / "sub" / "x.txt").write_text("x")
+    link = tmp_path / "link"
+    link.symlink_to(kept, target_is_directory=True)
+    remove_path(link)
+    assert not link.exists() and (kept / "sub" / "x.txt").is_file()
+    remove_path(kept / "sub" / "x.txt")
+    assert not (kept / "sub" / "x.txt").exists()
+    remove_path(kept)
+    assert not kept.exists()
+    remove_path(tmp_path / "absent")  # nothing to do, no error
