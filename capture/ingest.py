@@ -263,7 +263,7 @@ def _root(recording: Recording) -> Path:
 
 
 def _check_same_source(out_dir: Path, source: Path) -> None:
-    """Refuse to ingest ``source`` into a folder that holds another recording's ingest.
+    """Refuse to ingest ``source`` (:func:`_root`) into a folder holding another recording's ingest.
 
     Recordings land in ``OUT/<folder name>``: two recordings of one name
     (``a/rec`` and ``b/rec``, or ``rec.bag`` beside a folder ``rec``) would
@@ -275,7 +275,7 @@ def _check_same_source(out_dir: Path, source: Path) -> None:
     before = read_json_field(out_dir / REPORT_FILE, "source")
     if not isinstance(before, str) or not Path(before).is_absolute():
         return  # written before sources were absolute: cannot tell
-    if Path(before) != Path(source).resolve():
+    if Path(before) != source:
         raise CaptureError(
             f"{out_dir}: holds the ingest of {before}, and {source} has the same name; "
             f"ingest it into another --out, rename one of the recordings, or remove {out_dir} "
@@ -352,7 +352,8 @@ def ingest_recording(
         both = (recording.frames["cam0"][pair.index0], recording.frames["cam1"][pair.index1])
         frame_pairs.append(both if rig_file.obstructed == "cam0" else (both[1], both[0]))
     out_dir = Path(out) / recording.recording_id
-    _check_same_source(out_dir, _root(recording))
+    source = _root(recording)
+    _check_same_source(out_dir, source)
     created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_temporaries(out_dir)
@@ -432,7 +433,7 @@ def ingest_recording(
     homography_out = in_output_pixels(matrix, crop.x, crop.y)
     report = IngestReport(
         recording_id=recording.recording_id,
-        source=str(_root(recording)),  # absolute: tells a namesake apart
+        source=str(source),  # absolute: tells a namesake apart
         obstructed=rig_file.obstructed,
         anomaly=rig_file.anomaly,
         calibration_source=calibration_source,

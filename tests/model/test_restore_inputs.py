@@ -35,15 +35,20 @@ def _image(seed: int) -> np.ndarray:
     return (texture((32, 48), seed=seed) * 255).astype(np.uint8)
 
 
+def _folder(source: Path, count: int) -> Path:
+    """``count`` images ``0.png`` ... in ``source``."""
+    for index in range(count):
+        write_image(source / f"{index}.png", _image(index))
+    return source
+
+
 def _tree(root: Path) -> dict[str, bytes]:
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in root.rglob("*") if p.is_file()}
 
 
 def _inputs(root: Path) -> dict[str, tuple[Path, Path]]:
     """``name: (input, OUT that overlaps it)`` for each way OUT can land on the input."""
-    photos = root / "photos"
-    for index in range(2):
-        write_image(photos / f"{index}.png", _image(index))
+    photos = _folder(root / "photos", 2)
     single = root / "single"
     write_image(single / "x.png", _image(3))
     frames = {"cam0": [(10**9 + k * 10**8, _image(k)) for k in range(2)]}
@@ -93,9 +98,7 @@ def test_out_beside_the_input_is_fine(tmp_path: Path, backend: TorchBackend) -> 
 def test_an_unreadable_frame_costs_only_itself(
     tmp_path: Path, backend: TorchBackend, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    source = tmp_path / "in"
-    for index in range(3):
-        write_image(source / f"{index}.png", _image(index))
+    source = _folder(tmp_path / "in", 3)
     locked = source / "1.png"
     read_pixels = imageio._read_pixels
 
@@ -169,9 +172,7 @@ def test_left_right_folders_without_timestamps_stay_a_folder(
 
 
 def test_resume_with_other_settings_is_refused(tmp_path: Path, backend: TorchBackend) -> None:
-    source = tmp_path / "in"
-    for index in range(3):
-        write_image(source / f"{index}.png", _image(index))
+    source = _folder(tmp_path / "in", 3)
     out = tmp_path / "out"
     first = restore_input(source, out, backend, RestoreOptions(batch_size=2))
     assert first.settings["batch_size"] == 2 and first.settings["model_sha256"]
@@ -198,9 +199,7 @@ def test_an_image_too_small_for_the_network_costs_only_itself(
 
 def _restored_folder(tmp_path: Path, backend: TorchBackend) -> tuple[Path, Path]:
     """Two images restored from ``tmp_path/in`` into ``tmp_path/out``."""
-    source = tmp_path / "in"
-    for index in range(2):
-        write_image(source / f"{index}.png", _image(index))
+    source = _folder(tmp_path / "in", 2)
     restore_input(source, tmp_path / "out", backend)
     return source, tmp_path / "out"
 
@@ -219,9 +218,7 @@ def test_resume_redoes_an_output_a_power_cut_left_empty(
 def test_resume_redoes_a_frame_that_was_copied_because_it_failed(
     tmp_path: Path, backend: TorchBackend
 ) -> None:
-    source = tmp_path / "in"
-    for index in range(3):
-        write_image(source / f"{index}.png", _image(index))
+    source = _folder(tmp_path / "in", 3)
     whole = (source / "1.png").read_bytes()
     (source / "1.png").write_bytes(whole[:100])  # truncated: fails, copied unchanged
     out = tmp_path / "out"
@@ -280,9 +277,7 @@ def test_restored_pngs_are_written_for_speed(tmp_path: Path, backend: TorchBacke
 def test_a_restored_frame_that_cannot_be_written_is_copied_and_counted_once(
     tmp_path: Path, backend: TorchBackend, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    source = tmp_path / "in"
-    for index in range(4):
-        write_image(source / f"{index}.png", _image(index))
+    source = _folder(tmp_path / "in", 4)
     real_write = sinks.FileSink.write
     writer_threads = []
 
