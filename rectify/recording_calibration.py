@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from lenspair.capture.pairing import pair_frames
+from lenspair.capture.pairing import estimate_period_ns, pair_frames
 from lenspair.capture.recording import open_recording
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json
@@ -118,7 +118,17 @@ def calibrate_recording(
     if max_views < 0:
         raise RectifyError(f"max_views (--max-views): expected >= 0, got {max_views}")
     recording = open_recording(recording_path, topics)
-    pairing = pair_frames(recording.timestamps("cam0"), recording.timestamps("cam1"))
+    stamps0, stamps1 = recording.timestamps("cam0"), recording.timestamps("cam1")
+    needed = (options or CalibrationOptions()).min_views
+    if estimate_period_ns(stamps0, stamps1) is None:
+        # pair_frames would ask for a pairing tolerance, which calibrate has no
+        # option for: what is missing is board views, so that is what is said
+        raise RectifyError(
+            f"{recording_path}: one timestamp per camera ({len(stamps0)} cam0, "
+            f"{len(stamps1)} cam1 frames); calibration needs at least {needed} views "
+            "of the board in different poses"
+        )
+    pairing = pair_frames(stamps0, stamps1)
     pairs = [pairing.pairs[i] for i in spread_indices(len(pairing.pairs), max_views)]
     if not pairs:
         raise RectifyError(f"{recording_path}: no cam0/cam1 frames could be paired by timestamp")

@@ -67,3 +67,15 @@ def test_an_unreadable_frame_is_recorded_not_fatal(tmp_path: Path) -> None:
     assert read_kalibr(tmp_path / "out" / "camchain.yaml").baseline_m == pytest.approx(
         truth.baseline_m, rel=0.02
     )
+
+
+def test_one_frame_per_camera_says_views_are_missing(tmp_path: Path) -> None:
+    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=1)
+    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
+    assert spec.board is not None
+    # it used to ask for a pairing tolerance, which calibrate has no option for
+    with pytest.raises(RectifyError) as caught:
+        calibrate_recording(tmp_path / "rec", spec.board.target, "pinhole-equi")
+    message = str(caught.value)
+    assert "1 cam0, 1 cam1 frames" in message and "at least 5 views" in message
+    assert "tolerance" not in message and str(tmp_path / "rec") in message
