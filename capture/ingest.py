@@ -374,10 +374,10 @@ def ingest_recording(
     except RectifyError as exc:  # the views cannot be registered at all: no pair to write
         if created:  # an empty OUT/<rec> would stop `dataset-build OUT/*` (no pairs.jsonl)
             shutil.rmtree(out_dir, ignore_errors=True)
-        message = str(exc)
-        if not message.startswith(str(recording.path)):
-            message = f"{recording.path}: {message}"
-        raise type(exc)(message) from None
+        message = str(exc).removeprefix(f"{recording.path}: ")
+        # the calibration is named: registration that fails everywhere is
+        # as often a wrong or stale calibration as a scene that cannot be registered
+        raise type(exc)(f"{recording.path}: {message} (with {calibration_source})") from None
     lap("homography")
 
     matrix = np.asarray(registration["matrix"], dtype=np.float64)
@@ -394,7 +394,9 @@ def ingest_recording(
     except CropError as exc:
         if created:
             shutil.rmtree(out_dir, ignore_errors=True)
-        raise CropError(f"{recording.path}: cannot crop {size[0]}x{size[1]}: {exc}") from None
+        raise CropError(
+            f"{recording.path}: cannot crop {size[0]}x{size[1]}: {exc} (with {calibration_source})"
+        ) from None
     margin = int(np.ceil(verify.max_shift_px)) + 2
     context = context.with_maps(
         crop, target_map(context.rectified_to_raw_clean, matrix, crop, margin)

@@ -200,16 +200,20 @@ def test_nan_in_calibration_names_the_file(tmp_path: Path) -> None:
 
 def test_crop_too_large_says_by_how_much(tmp_path: Path) -> None:
     recording = make_recording(tmp_path / "rec", frames=2)
-    with pytest.raises(CropError, match=r"need 330x160: 1[0-9] px too narrow"):
+    calibration = f"Kalibr camchain {recording / 'camchain.yaml'}"
+    with pytest.raises(CropError, match=r"need 330x160: 1[0-9] px too narrow") as caught:
         ingest_recording(recording, tmp_path / "out", size=(330, 160))
+    assert str(caught.value).endswith(f"(with {calibration})")
     assert not (tmp_path / "out" / "rec").exists()  # no empty folder to trip dataset-build
-    with pytest.raises(RectifyError, match=r"^\S*rec: "):  # named
+    with pytest.raises(RectifyError, match=r"^\S*rec: ") as caught:  # named, with the calibration
         ingest_recording(
             recording,
             tmp_path / "out",
             size=(240, 160),
             estimation=EstimationParams(min_inliers=10**6),
         )
+    assert str(caught.value).endswith(f"(with {calibration})")
+    assert str(caught.value).count(str(recording)) == 2  # once as the recording, once in its path
     assert not (tmp_path / "out" / "rec").exists()
 
 
