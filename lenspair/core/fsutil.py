@@ -1,9 +1,10 @@
 """Atomic file writes and checksums.
 
 Every output file lenspair writes goes through these helpers: data is written
-to a temporary file in the destination folder and renamed into place, so an
-interrupted run never leaves a half-written file under its final name, and a
-rerun can trust any file that exists. Files get the permissions a plain
+to a temporary file in the destination folder, flushed to the disk and
+renamed into place, so an interrupted run (or a power cut) never leaves a
+half-written file under its final name, and a rerun can trust any file that
+exists. Files get the permissions a plain
 ``open()`` would give them (``0o666`` less the umask), not the owner-only
 mode of the temporary file, so a dataset built by one user can be read by a
 training job running as another.
@@ -38,6 +39,8 @@ FILE_MODE = _file_mode()
 def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str = "") -> None:
     """Call ``writer(tmp_path)`` and rename the result to ``path`` atomically.
 
+    The data is on the disk (fsync) before the rename.
+
     Args:
         path: final destination; its parent folder is created when missing.
         writer: function that writes the complete file at the path it is given.
@@ -55,10 +58,25 @@ def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str = "") -
     try:
         writer(tmp)
         os.chmod(tmp, FILE_MODE)  # mkstemp creates 0o600
+        _sync(tmp)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def _sync(path: Path) -> None:
+    """Flush ``path``'s data to the disk before it is renamed into place.
+
+    Without it a power cut soon after the rename (a robot's battery) can leave
+    the final name holding an empty file, which a rerun would trust. About
+    0.3 ms a file on an SSD, against tens of milliseconds of work per frame.
+    """
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:

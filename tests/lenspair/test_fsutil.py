@@ -1,5 +1,6 @@
 """Atomic writes: all or nothing, and the permissions a plain write would give."""
 
+import os
 import stat
 from pathlib import Path
 
@@ -35,6 +36,28 @@ def test_a_failing_writer_leaves_neither_file_nor_temporary(tmp_path: Path) -> N
         atomic_write(target, broken)
     assert target.read_bytes() == b"old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bin"]
+
+
+def test_the_data_reaches_the_disk_before_the_rename(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    events: list[tuple[str, str]] = []
+    fsync, replace = os.fsync, os.replace
+
+    def record_fsync(fd: int) -> None:
+        events.append(("fsync", os.readlink(f"/proc/self/fd/{fd}")))
+        fsync(fd)
+
+    def record_replace(source: str, destination: str) -> None:
+        events.append(("replace", str(source)))
+        replace(source, destination)
+
+    monkeypatch.setattr(os, "fsync", record_fsync)
+    monkeypatch.setattr(os, "replace", record_replace)
+    write_image(tmp_path / "frame.png", np.zeros((4, 6), np.uint8))
+    assert [kind for kind, _ in events] == ["fsync", "replace"]
+    assert events[0][1] == events[1][1]  # the temporary synced is the one renamed
+    assert (tmp_path / "frame.png").stat().st_size > 0
 
 
 def test_remove_path_takes_files_folders_and_links_but_never_what_a_link_points_to(
