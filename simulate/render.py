@@ -122,12 +122,17 @@ def sample_glass(
         The glass state, with its footprint mask.
 
     Raises:
-        SimulateError: ``shape`` is not two positive integers.
+        SimulateError: ``shape`` is not two positive integers, or the drops or
+            dirt would not fit in memory (:meth:`EffectsSpec.check_memory`).
 
     """
     if len(shape) != 2 or min(int(shape[0]), int(shape[1])) < 1:
         raise SimulateError(f"shape: expected (H, W) with H, W >= 1, got {tuple(shape)}")
     shape = (int(shape[0]), int(shape[1]))
+    try:
+        effects.check_memory(shape)
+    except ValueError as exc:
+        raise SimulateError(str(exc)) from None
     seeds = _stream_seeds(rng)
 
     def stream(name: str) -> np.random.Generator:

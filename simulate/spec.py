@@ -255,6 +255,11 @@ class SceneSpec:
             raise ValueError(f"seed: expected 0 <= seed < 2**63, got {self.seed}")
         if not self.planes and self.board is None:
             raise ValueError("planes: a scene needs at least one plane or a board")
+        width, height = getattr(self.rig, self.obstructed.camera).resolution
+        try:
+            self.obstructed.effects.check_memory((height, width))
+        except ValueError as exc:
+            raise ValueError(f"obstructed.effects.{exc}") from None
 
     @property
     def far_plane_index(self) -> int | None:

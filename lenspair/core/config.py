@@ -146,7 +146,8 @@ def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
     except ConfigError:
         raise
     except (ValueError, TypeError) as exc:
-        raise ConfigError(f"{path or '<root>'}: {exc}") from None
+        # a top-level check names its keys itself ("planes: ..."): no "<root>: " before it
+        raise ConfigError(f"{path}: {exc}" if path else str(exc)) from None
 
 
 def read_yaml(file: Path) -> Any:

@@ -12,7 +12,15 @@ from dataclasses import dataclass
 from typing import Literal
 
 MAX_COUNT = 100_000
-"""Most drops or blobs on one glass: far beyond a real pane, and a bound on memory."""
+"""Most drops or blobs on one glass: far beyond a real pane."""
+
+MAX_SPRITE_PIXELS = 20_000_000
+"""Most pixels the boxes of one glass's drops (or blobs) may hold in a frame.
+
+The renderer keeps about 130 bytes for each (coordinates, refraction,
+coverage): 2.6 GB at this bound, which a spec like ``count: 250,
+radius_px: [3, 60]`` (the ``ours`` preset) stays 5x below at its largest.
+"""
 
 
 def _check_range(name: str, value: tuple[float, float], low: float, high: float) -> None:
@@ -288,6 +296,34 @@ class EffectsSpec:
     dust: DustSpec | None = None
     dirt: DirtSpec | None = None
     veil: VeilSpec | None = None
+
+    def check_memory(self, shape: tuple[int, int]) -> None:
+        """Refuse drops or dirt whose pixels would not fit in memory on an ``(H, W)`` frame.
+
+        The bound is on the worst case (every drop or blob at the largest
+        radius), so a spec that passes renders on every frame of a recording.
+
+        Raises:
+            ValueError: naming the effect, its worst case and the bound.
+        """
+        height, width = shape
+        reaches = []  # (key, noun, count, largest radius, largest reach from the centre)
+        if self.raindrops is not None:
+            radius = self.raindrops.radius_px[1]
+            reaches.append(("raindrops", "drops", self.raindrops.count, radius, radius + 1.0))
+        if self.dirt is not None:
+            radius = self.dirt.radius_px[1]
+            wiggle = radius * (1.0 + self.dirt.irregularity) + 1.0
+            reaches.append(("dirt", "blobs", self.dirt.count, radius, wiggle))
+        for name, things, count, radius, reach in reaches:
+            side = 2.0 * reach + 3.0  # a box, rounded out
+            pixels = count * min(side, height) * min(side, width)
+            if pixels > MAX_SPRITE_PIXELS:
+                raise ValueError(
+                    f"{name}: {count} {things} of radius up to {radius:g} px cover up to "
+                    f"{pixels:.3g} pixels of a {width}x{height} frame, more than the renderer's "
+                    f"{MAX_SPRITE_PIXELS:.0e} (about 2.6 GB); use fewer or smaller {things}"
+                )
 
     @property
     def listed(self) -> tuple[str, ...]:

@@ -20,6 +20,7 @@ from lenspair.simulate.effects.spec import (
     RaindropsSpec,
     VeilSpec,
 )
+from lenspair.simulate.presets import OUR_DROPS
 from lenspair.simulate.render import advance_glass, apply_glass, render_effects, sample_glass
 
 EFFECTS = {
@@ -192,6 +193,18 @@ def test_bad_images_raise_a_lenspair_error(image: np.ndarray) -> None:
 def test_bad_shape_raises() -> None:
     with pytest.raises(LenspairError, match="shape"):
         sample_glass(SHARP_DROPS, (0, 10), np.random.default_rng(0))
+
+
+def test_drop_pixels_are_bounded_by_the_worst_case_on_the_frame() -> None:
+    # 55 drops of 300 px: each box is 605 px wide, clipped to a 540 px high frame
+    under = EffectsSpec(raindrops=RaindropsSpec(count=55, radius_px=(300.0, 300.0)))
+    under.check_memory((540, 720))  # 55 * 540 * 605 = 1.8e7 pixels
+    over = EffectsSpec(raindrops=RaindropsSpec(count=62, radius_px=(300.0, 300.0)))
+    with pytest.raises(LenspairError, match=r"raindrops: 62 drops .* 2.03e\+07 pixels of a 720x5"):
+        sample_glass(over, (540, 720), np.random.default_rng(0))
+    # the same drops on a smaller frame are clipped to it, so they fit
+    sample_glass(over, (240, 320), np.random.default_rng(0))
+    OUR_DROPS.check_memory((1080, 1920))  # the ours preset, even on a large frame
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])

@@ -161,6 +161,18 @@ def test_overrides() -> None:
         ("planes", [{"texture": "brick", "depth_m": 5.0, "size_m": [1e300, 1e300]}], "size_m"),
         ("planes", [{"texture": "brick", "depth_m": 5.0, "center_xy_m": [1e300, 0]}], "center"),
         ("obstructed", {"camera": "cam1", "effects": {"raindrops": {"count": 10**12}}}, "count"),
+        # 200 drops of 300 px: gigabytes of drop pixels (a MemoryError traceback before)
+        (
+            "obstructed",
+            {"camera": "cam1", "effects": {"raindrops": {"count": 200, "radius_px": [300, 300]}}},
+            r"^\S*s.yaml: obstructed.effects.raindrops: 200 drops of radius up to 300 px cover "
+            r"up to 6.53e\+07 pixels of a 720x540 frame",
+        ),
+        (
+            "obstructed",
+            {"camera": "cam1", "effects": {"dirt": {"count": 2000, "radius_px": [10, 100]}}},
+            r"obstructed.effects.dirt: 2000 blobs .* use fewer or smaller blobs$",
+        ),
     ],
 )
 def test_values_that_would_overflow_or_exhaust_memory_are_refused(
