@@ -78,6 +78,7 @@ from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text, read_json_field
 from lenspair.core.progress import progress
+from lenspair.core.quality import is_blank
 from lenspair.rectify.crop import choose_crop
 from lenspair.rectify.errors import CropError, RectifyError
 from lenspair.rectify.rectification import StereoRectification
@@ -125,9 +126,15 @@ def _map_tasks(
 
 def _side_check_images(
     pairs: list[tuple[FrameRef, FrameRef]], context: frame_work.Context, count: int
-) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Raw cam0 and cam1 images of the first ``count`` readable pairs among ``pairs``."""
+) -> tuple[list[np.ndarray], list[np.ndarray], int]:
+    """Raw cam0 and cam1 images of the first ``count`` readable pairs among ``pairs``.
+
+    A pair with a blank view (:func:`lenspair.core.quality.is_blank`: lens cap,
+    exposure fault) is left out: it says nothing about the glass, and a black
+    frame has less detail than any other. The third value counts those pairs.
+    """
     images: dict[str, list[np.ndarray]] = {"cam0": [], "cam1": []}
+    blank = 0
     for pair in pairs:
         if len(images["cam0"]) == count:
             break
@@ -138,9 +145,12 @@ def _side_check_images(
         sizes = [(image.shape[1], image.shape[0]) for image in loaded]
         if sizes != [context.raw_size(frame.camera) for frame in pair]:
             continue
+        if any(is_blank(image) for image in loaded):
+            blank += 1
+            continue
         for frame, image in zip(pair, loaded, strict=True):
             images[frame.camera].append(image)
-    return images["cam0"], images["cam1"]
+    return images["cam0"], images["cam1"], blank
 
 
 def _homography(
@@ -404,8 +414,11 @@ def ingest_recording(
     lap("maps")
 
     chosen = [frame_pairs[i] for i in _sample(len(frame_pairs), estimation.max_frames)]
-    images0, images1 = _side_check_images(chosen, context, SIDE_CHECK_FRAMES)
-    side_check: dict[str, Any] = {"message": "no readable frame pair to check", "mismatch": False}
+    images0, images1, blank = _side_check_images(chosen, context, SIDE_CHECK_FRAMES)
+    nothing = "no readable frame pair to check"
+    if blank:
+        nothing = f"every readable frame pair checked ({blank}) has a blank view; side not checked"
+    side_check: dict[str, Any] = {"message": nothing, "mismatch": False}
     if images0:
         side: Any = (
             check_obstructed_side(images0, images1, rig_file.obstructed)
@@ -415,6 +428,9 @@ def ingest_recording(
         side_check = to_plain(side)
         if side.mismatch:
             log.warning("%s: %s", recording.path, side.message)
+    elif blank:
+        log.warning("%s: %s (a camera or exposure fault?)", recording.path, nothing)
+    side_check["blank_pairs_left_out"] = blank
     lap("side_check")
 
     state = fingerprint({**setup, "matrix": registration["matrix"], "crop": crop.as_tuple()})

@@ -28,14 +28,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from lenspair.core.quality import BLANK_STD
 from lenspair.model.detection.data import prepare
 from lenspair.model.networks.detector import KINDS, AnomalyDetector
 
 OBSTRUCTED_THRESHOLD = 0.5
 """Probability above which a frame is called obstructed."""
-
-BLANK_STD = 1.0 / 255.0
-"""Luma standard deviation below which a frame is blank (module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -131,9 +129,13 @@ def judge(
 def obstructed_probability(
     network: AnomalyDetector,
 ) -> Callable[[Sequence[np.ndarray]], np.ndarray]:
-    """``judge`` as a plain function, frames -> ``(N,)`` probabilities (for ingest)."""
+    """``judge`` as a plain function, frames -> ``(N,)`` probabilities (for ingest).
+
+    A blank frame's probability is 0: it is never called obstructed.
+    """
 
     def probabilities(images: Sequence[np.ndarray]) -> np.ndarray:
-        return judge(network, images).probability
+        verdict = judge(network, images)
+        return np.where(verdict.blank, 0.0, verdict.probability)  # blank: never obstructed
 
     return probabilities

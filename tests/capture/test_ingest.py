@@ -217,6 +217,18 @@ def test_crop_too_large_says_by_how_much(tmp_path: Path) -> None:
     assert not (tmp_path / "out" / "rec").exists()
 
 
+def test_blank_frames_do_not_sway_the_side_check(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "rec", frames=8, drops=60)
+    for path in frame_files(recording, "cam0")[:6]:  # the clean camera: lens cap, exposure fault
+        write_image(path, np.zeros_like(read_image(path)))
+    _, _, report = _ingest(recording, tmp_path / "out")
+    side = report.side_check
+    # a black frame has less detail than any other: counted, these pairs said cam0 (clean)
+    # was the obstructed camera
+    assert side["blank_pairs_left_out"] == 6 and side["num_frames"] == 2
+    assert side["inferred"] == "cam1" and not side["mismatch"]
+
+
 def test_side_mismatch_is_flagged(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     recording = make_recording(tmp_path / "rec", frames=3, drops=60)
     with caplog.at_level(logging.WARNING):

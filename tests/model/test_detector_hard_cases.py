@@ -5,6 +5,7 @@ new views and a new seed, but its textures are among those the detector was
 trained on, so these check behaviour on known kinds of scene.
 """
 
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -13,7 +14,8 @@ import pytest
 
 from lenspair.capture.recording import open_recording
 from lenspair.core.samples import sample_path
-from lenspair.model.detection.judge import judge
+from lenspair.model.detection import judge as judge_module
+from lenspair.model.detection.judge import Judgement, judge, obstructed_probability
 from lenspair.model.detection.train import load_detector
 from lenspair.model.networks.detector import AnomalyDetector
 from lenspair.simulate.effects.spec import DustSpec, EffectsSpec
@@ -76,3 +78,19 @@ def test_smooth_darkening_dust_is_detected(
     dusty = [render_effects(frame, dust, rng)[0] for frame in clean_frames]
     verdict = judge(detector, dusty)
     assert verdict.obstructed.all(), verdict.probability
+
+
+def test_the_side_check_function_never_counts_a_blank_frame_as_obstructed(
+    detector: AnomalyDetector, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    black = np.zeros((90, 120), np.uint8)
+    texture = np.random.default_rng(0).integers(0, 255, (90, 120), dtype=np.uint8)
+
+    def certain(network: AnomalyDetector, images: list[np.ndarray]) -> Judgement:
+        # a detector that (wrongly) scores every frame obstructed, blank ones too
+        verdict = judge(network, images)
+        return replace(verdict, probability=np.ones_like(verdict.probability))
+
+    monkeypatch.setattr(judge_module, "judge", certain)
+    probabilities = obstructed_probability(detector)([black, texture])
+    assert probabilities.tolist() == [0.0, 1.0]
