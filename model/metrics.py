@@ -37,7 +37,8 @@ Edge cases, never NaN: identical images give PSNR ``+inf`` (skimage too);
 :func:`mean_psnr` caps each value at :data:`PSNR_CAP_DB` before averaging
 so one perfect frame cannot turn a mean into ``inf``. Constant images keep
 SSIM finite through ``C1``/``C2`` (two equal constant images score 1).
-Non-finite inputs are rejected.
+Non-finite inputs are rejected, and so are images on another scale than the
+convention's (:func:`image_metrics`: integer codes, 0-255 floats).
 """
 
 import enum
@@ -110,6 +111,36 @@ def _check_pair(output: Tensor, target: Tensor) -> None:
     for name, tensor in (("output", output), ("target", target)):
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
             raise ModelError(f"metrics: {name} holds NaN or infinite values")
+
+
+SCALE_SLACK = 0.05
+"""How far outside ``[0, 1]`` :func:`image_metrics` lets float values stray (rounding, int8)."""
+
+
+def _check_scale(output: Tensor, target: Tensor, convention: "MetricConvention") -> None:
+    """Refuse images that are not ``[0, 1]`` floats (or, for ``deraindrop-y``, uint8).
+
+    A 0-255 or integer tensor scored with ``data_range=1`` gave a PSNR such as
+    -5.9 dB where 42 dB was right, and clamping 0-255 floats to ``[0, 1]``
+    binarised them: wrong numbers, silently.
+    """
+    for name, tensor in (("output", output), ("target", target)):
+        if tensor.dtype == torch.uint8 and convention is MetricConvention.DERAINDROP_Y:
+            continue
+        if not tensor.is_floating_point():
+            allowed = "floats in [0, 1]"
+            if convention is MetricConvention.DERAINDROP_Y:
+                allowed += " or uint8"
+            raise ModelError(
+                f"metrics: {name} is {tensor.dtype}; expected {allowed} "
+                "(divide uint8 images by 255, uint16 by 65535)"
+            )
+        low, high = float(tensor.min()), float(tensor.max())
+        if low < -SCALE_SLACK or high > 1.0 + SCALE_SLACK:
+            raise ModelError(
+                f"metrics: {name} values span [{low:g}, {high:g}]; expected [0, 1] "
+                "(divide 0-255 values by 255)"
+            )
 
 
 def psnr(output: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
@@ -260,24 +291,27 @@ def image_metrics(output: Tensor, target: Tensor, convention: MetricConvention) 
     """PSNR and SSIM of each image pair under a convention.
 
     Args:
-        output: ``(N, C, H, W)`` restored images, float in [0, 1] (``C`` 1 or 3).
-        target: ``(N, C, H, W)`` clean images, float in [0, 1].
+        output: ``(N, C, H, W)`` restored images, float in [0, 1] (``C`` 1 or 3);
+            ``deraindrop-y`` also takes uint8.
+        target: ``(N, C, H, W)`` clean images, the same.
         convention: see the module docstring.
 
     Returns:
         Per-image :class:`ImageMetrics`.
 
     Raises:
-        ModelError: on mismatched or too small images, or non-finite values.
+        ModelError: on mismatched or too small images, non-finite values,
+            or images on another scale (integer codes, 0-255 floats).
     """
     convention = parse_metric_convention(str(convention))
+    _check_pair(output, target)
+    _check_scale(output, target, convention)
     if convention is MetricConvention.SKIMAGE_GAUSSIAN:
         return ImageMetrics(
             psnr=psnr(output, target, data_range=1.0),
             ssim=ssim(output, target, data_range=1.0, gaussian_weights=True),
             convention=convention,
         )
-    _check_pair(output, target)
     output_y = luma_uint8(quantize_uint8(output))
     target_y = luma_uint8(quantize_uint8(target))
     return ImageMetrics(

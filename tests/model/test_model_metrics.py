@@ -186,3 +186,26 @@ def test_errors() -> None:
     with pytest.raises(ModelError, match="odd"):
         ssim(torch.rand(1, 1, 16, 16), torch.rand(1, 1, 16, 16), gaussian_weights=False, win_size=4)
     assert str(MetricConvention.DERAINDROP_Y) == "deraindrop-y"
+
+
+@pytest.mark.parametrize("convention", list(MetricConvention))
+def test_images_on_another_scale_are_refused_not_misscored(convention: MetricConvention) -> None:
+    rng = np.random.default_rng(11)
+    codes = rng.integers(0, 256, (1, 1, 24, 24), dtype=np.uint8)
+    noisy = np.clip(codes.astype(np.int16) + rng.integers(-2, 3, codes.shape), 0, 255)
+    a, b = torch.from_numpy(codes), torch.from_numpy(noisy.astype(np.uint8))
+    # 0-255 floats: PSNR at data_range 1 came out negative, deraindrop-y binarised them
+    with pytest.raises(ModelError, match=r"output values span \[0, 255\]; expected \[0, 1\]"):
+        image_metrics(b.double(), a.double() / 255, convention)
+    with pytest.raises(ModelError, match=r"target is torch.int32; expected floats in \[0, 1\]"):
+        image_metrics(b.double() / 255, a.int(), convention)
+    right = image_metrics(b.double() / 255, a.double() / 255, convention)
+    assert float(right.psnr[0]) > 40.0
+    if convention is MetricConvention.DERAINDROP_Y:  # its uint8 input: the same numbers
+        exact = image_metrics(b, a, convention)
+        assert torch.equal(exact.psnr, right.psnr) and torch.equal(exact.ssim, right.ssim)
+    else:
+        with pytest.raises(ModelError, match=r"output is torch.uint8; expected floats in \[0, 1\]"):
+            image_metrics(b, a, convention)
+    # values a hair outside [0, 1] (rounding of a network's output) are scored
+    image_metrics((b.double() / 255 * 1.01 - 0.005), a.double() / 255, convention)
