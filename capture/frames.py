@@ -161,6 +161,35 @@ def image_files(folder: Path) -> list[Path]:
     return sorted(found)
 
 
+def bag_image_topics(path: Path) -> list[str]:
+    """Every image topic of a bag (``sensor_msgs/Image`` or ``CompressedImage``), sorted."""
+    reader = rosbag._open(Path(path))
+    try:
+        return sorted(
+            name for name, info in reader.topics.items() if info.msgtype in rosbag.IMAGE_TYPES
+        )
+    finally:
+        reader.close()
+
+
+def other_image_topics(path: Path, topics: tuple[str, str] | None = None) -> list[str]:
+    """One line per image topic of a bag that is neither camera's (:func:`bag_camera_topics`).
+
+    A robot's bag often holds more than two image topics (a camera's
+    ``/compressed`` twin, a third camera); a command that reads only the two
+    cameras must say which it left alone, or dirty frames pass unnoticed.
+    """
+    named = bag_camera_topics(path, topics)
+    by_camera = sorted(named.items(), key=lambda item: item[1])
+    cameras = ", ".join(f"{camera} {topic}" for topic, camera in by_camera)
+    return [
+        f"{path}: image topic {topic} left as recorded (camera topics: {cameras}; "
+        "--topics CAM0 CAM1 chooses others)"
+        for topic in bag_image_topics(path)
+        if topic not in named
+    ]
+
+
 def bag_camera_topics(path: Path, topics: tuple[str, str] | None = None) -> dict[str, CameraName]:
     """Image topics of a bag and the camera each stands for.
 
@@ -174,13 +203,7 @@ def bag_camera_topics(path: Path, topics: tuple[str, str] | None = None) -> dict
         CaptureError: no image topic, a named topic that is not an image
             topic, or an ambiguous choice (lists topics).
     """
-    reader = rosbag._open(Path(path))
-    try:
-        image_topics = sorted(
-            name for name, info in reader.topics.items() if info.msgtype in rosbag.IMAGE_TYPES
-        )
-    finally:
-        reader.close()
+    image_topics = bag_image_topics(path)
     if topics is not None:
         rosbag._check_chosen(tuple(topics), image_topics, Path(path))
         return {topics[0]: "cam0", topics[1]: "cam1"}

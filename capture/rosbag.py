@@ -102,7 +102,7 @@ def select_topics(image_topics: Sequence[str], bag: Path) -> tuple[str, str]:
         return found[0], found[1]
     raise CaptureError(
         f"{bag}: cannot tell which of {len(found)} image topics are cam0 and cam1 "
-        f"({listing}); pass topics=(cam0_topic, cam1_topic)"
+        f"({listing}); name them with --topics CAM0 CAM1"
     )
 
 

@@ -87,3 +87,37 @@ def random_seed(text: str) -> int:
 def detector_file(text: str) -> Path:
     """Argparse type: a detector checkpoint; ``detector.pt`` alone is the bundled one."""
     return file_or_sample(text, ".pt")
+
+
+class _Topics(argparse.Action):
+    """Stores ``--topics`` as a ``(cam0, cam1)`` tuple from two words or one ``A,B``."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option_string: str | None = None,
+    ) -> None:
+        words = [str(v) for v in values] if isinstance(values, list) else [str(values)]
+        if len(words) == 1:  # the comma form capture-ingest always took
+            words = [part.strip() for part in words[0].split(",")]
+        if len(words) != 2 or not all(words) or words[0] == words[1]:
+            parser.error(
+                f"--topics: expected two different topics, CAM0 CAM1 (or CAM0,CAM1), "
+                f"got {' '.join(str(v) for v in values) if isinstance(values, list) else values!r}"
+            )
+        setattr(namespace, self.dest, (words[0], words[1]))
+
+
+def add_topics_option(parser: argparse.ArgumentParser) -> None:
+    """``--topics CAM0 CAM1``, the same in every command that reads bags."""
+    parser.add_argument(
+        "--topics",
+        nargs="+",
+        action=_Topics,
+        default=None,
+        metavar="TOPIC",
+        help="bags: the image topics of cam0 and cam1, as CAM0 CAM1 or CAM0,CAM1 (default: "
+        "chosen from the topic names: cam0/cam1 or left/right, or the only two)",
+    )

@@ -24,7 +24,7 @@ Example:
 import argparse
 from pathlib import Path
 
-from lenspair.commands.argtypes import float_at_least, out_file
+from lenspair.commands.argtypes import add_topics_option, float_at_least, out_file
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.calibration import MODELS, CalibrationOptions, parse_model
 from lenspair.rectify.recording_calibration import calibrate_recording, write_calibration
@@ -48,9 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="use at most N frame pairs, evenly spread in time (default 100; 0 = all)",
     )
-    parser.add_argument(
-        "--topics", nargs=2, metavar=("CAM0", "CAM1"), help="bags only: the two image topics"
-    )
+    add_topics_option(parser)
     parser.add_argument(
         "--outlier-factor",
         type=float_at_least(1.0),
@@ -66,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         args.recording,
         parse_board_spec(args.board),
         parse_model(args.model),
-        topics=tuple(args.topics) if args.topics else None,
+        topics=args.topics,
         max_views=args.max_views,
         options=CalibrationOptions(outlier_factor=args.outlier_factor),
     )

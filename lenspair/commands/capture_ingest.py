@@ -28,7 +28,7 @@ import argparse
 from pathlib import Path
 
 from lenspair.capture.ingest import ingest_recording
-from lenspair.commands.argtypes import detector_file, out_folder, positive_int
+from lenspair.commands.argtypes import add_topics_option, detector_file, out_folder, positive_int
 from lenspair.rectify.crop import parse_size
 
 
@@ -37,13 +37,6 @@ def _size(text: str) -> tuple[int, int]:
         return parse_size(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def _topics(text: str) -> tuple[str, str]:
-    parts = [p.strip() for p in text.split(",")]
-    if len(parts) != 2 or not all(parts):
-        raise argparse.ArgumentTypeError(f"expected CAM0_TOPIC,CAM1_TOPIC, got {text!r}")
-    return parts[0], parts[1]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,9 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--workers", type=positive_int, default=1, help="worker processes (default 1)"
     )
-    parser.add_argument(
-        "--topics", type=_topics, default=None, metavar="A,B", help="bag topics of cam0,cam1"
-    )
+    add_topics_option(parser)
     parser.add_argument(
         "--size", type=_size, default=(540, 360), metavar="WxH", help="crop size (540x360)"
     )

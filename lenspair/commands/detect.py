@@ -23,7 +23,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from lenspair.commands.argtypes import detector_file, fraction, out_folder
+from lenspair.commands.argtypes import add_topics_option, detector_file, fraction, out_folder
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -43,13 +43,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threshold", type=fraction, default=0.5, help="obstructed above this")
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--sheet-frames", type=int, default=12, help="frames on the sheet")
-    parser.add_argument("--topics", nargs=2, metavar=("CAM0", "CAM1"), help="bag image topics")
+    add_topics_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     """Judge the frames of INPUT; returns the exit code."""
     # torch and the bag readers load when the command runs, so --help stays fast
-    from lenspair.capture.frames import detect_input, frame_files, iter_frames
+    from lenspair.capture.frames import detect_input, frame_files, iter_frames, other_image_topics
     from lenspair.capture.recording import CAMERAS
     from lenspair.capture.recording_types import FrameProblem
     from lenspair.model.detection.report import detect_frames
@@ -62,13 +62,12 @@ def run(args: argparse.Namespace) -> int:
     kind = detect_input(args.input)  # a bad INPUT fails before anything is written
     network = load_detector(args.model, resolve_device(args.device))
     out = args.out or Path(f"detect_{args.input.resolve().name}")
-    topics = (args.topics[0], args.topics[1]) if args.topics else None
     # Files are counted from their listing (cheap); a bag's count is only known once read.
     bag = kind in ("rosbag1", "rosbag2")
     total = None if bag else len(frame_files(args.input, kind, CAMERAS))
-    problems: list[str] = []
+    problems: list[str] = other_image_topics(args.input, args.topics) if bag else []
     dropped: list[FrameProblem] = []  # images the listing left out or could not find: rows too
-    frames = iter_frames(args.input, CAMERAS, problems, topics, dropped)
+    frames = iter_frames(args.input, CAMERAS, problems, args.topics, dropped)
     verdicts = detect_frames(
         network, frames, out, args.batch_size, args.sheet_frames, args.threshold, total, dropped
     )

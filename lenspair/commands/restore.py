@@ -24,7 +24,7 @@ writes the same bytes as an uninterrupted one.
 import argparse
 from pathlib import Path
 
-from lenspair.commands.argtypes import detector_file, out_folder
+from lenspair.commands.argtypes import add_topics_option, detector_file, out_folder
 from lenspair.model.inference.options import (
     CAMERA_CHOICES,
     DEFAULT_BATCH_SIZE,
@@ -74,6 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="auto (bf16 on a CPU with avx512_bf16/AMX, else fp32; fp32 on CUDA), fp32, bf16 "
         "or fp16 (CUDA); torch checkpoints only, ONNX models run in fp32",
     )
+    add_topics_option(parser)
     parser.add_argument("--resume", action="store_true", help="continue a killed run in OUT")
     parser.add_argument(
         "--only-obstructed",
@@ -102,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
         overlap=args.overlap,
         suffix=args.suffix,
         resume=args.resume,
+        topics=args.topics,
     )
     report = restore_input(args.input, args.out, backend, options, judge)
     print(report.summary())

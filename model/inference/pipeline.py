@@ -43,6 +43,7 @@ from lenspair.capture.frames import (
     frame_files,
     iter_bag_messages,
     iter_frames,
+    other_image_topics,
 )
 from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
@@ -73,6 +74,8 @@ class RestoreOptions:
         suffix: bags only: write restored images to ``<topic><suffix>``
             beside the originals instead of replacing them.
         resume: continue a killed run in a non-empty OUT.
+        topics: bags only: the ``(cam0, cam1)`` image topics; None picks
+            them from their names (:func:`lenspair.capture.frames.bag_camera_topics`).
     """
 
     camera: str = "auto"
@@ -81,6 +84,7 @@ class RestoreOptions:
     overlap: int = DEFAULT_OVERLAP
     suffix: str = ""
     resume: bool = False
+    topics: tuple[str, str] | None = None
 
 
 @dataclass
@@ -142,7 +146,9 @@ class RestoreReport:
         }
 
 
-def resolve_cameras(path: Path, kind: InputKind, choice: str) -> tuple[CameraName, ...]:
+def resolve_cameras(
+    path: Path, kind: InputKind, choice: str, topics: tuple[str, str] | None = None
+) -> tuple[CameraName, ...]:
     """The cameras to restore for ``--camera`` (see :class:`RestoreOptions`).
 
     A bag with a single image topic has one camera (``cam0``), restored
@@ -153,7 +159,7 @@ def resolve_cameras(path: Path, kind: InputKind, choice: str) -> tuple[CameraNam
     """
     if choice not in CAMERA_CHOICES:
         raise ModelError(f"--camera: expected one of {', '.join(CAMERA_CHOICES)}, got {choice!r}")
-    if kind in ("rosbag1", "rosbag2") and len(bag_camera_topics(path)) == 1:
+    if kind in ("rosbag1", "rosbag2") and len(bag_camera_topics(path, topics)) == 1:
         return ("cam0",)
     if choice == "both":
         return CAMERAS
@@ -212,6 +218,7 @@ def run_settings(
         "tile": options.tile,
         "overlap": options.overlap,
         "suffix": options.suffix,
+        "topics": list(options.topics) if options.topics else None,
         "only_obstructed": judge is not None,
     }
 
@@ -299,7 +306,7 @@ def restore_input(
     check_options(options)
     kind = detect_input(input_path)
     check_apart(input_path, kind, out_dir)
-    cameras = resolve_cameras(input_path, kind, options.camera)
+    cameras = resolve_cameras(input_path, kind, options.camera, options.topics)
     bag = kind in ("rosbag1", "rosbag2")
     files = [] if bag else frame_files(input_path, kind, cameras)
     if not bag and not files:
@@ -319,7 +326,10 @@ def restore_input(
     total: int | None = None
     if bag:
         sink = BagSink(input_path, out_dir, options.suffix, options.resume)
-        items: Iterator[Any] = iter_bag_messages(input_path, cameras, source_problems)
+        source_problems.extend(other_image_topics(input_path, options.topics))
+        items: Iterator[Any] = iter_bag_messages(
+            input_path, cameras, source_problems, options.topics
+        )
     else:
         sink = FileSink(out_dir)
         total = len(files)

@@ -167,7 +167,7 @@ def test_select_topics() -> None:
     assert select_topics(["/right", "/left", "/depth"], bag) == ("/left", "/right")
     with pytest.raises(CaptureError, match=r"b.bag: need two image topics .* found 1: /only"):
         select_topics(["/only"], bag)
-    with pytest.raises(CaptureError, match=r"cannot tell which of 3 .* pass topics="):
+    with pytest.raises(CaptureError, match=r"cannot tell which of 3 .* name them with --topics"):
         select_topics(["/x", "/y", "/z"], bag)
 
 

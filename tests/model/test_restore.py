@@ -393,3 +393,55 @@ def test_a_missing_model_is_the_only_line_a_user_sees(
     assert main(argv) == 2
     assert "nope.pt: checkpoint not found" in capsys.readouterr().err
     assert not [r for r in caplog.records if "precision" in r.getMessage()]  # decided after
+
+
+def test_a_bag_with_three_image_topics_restores_the_named_ones_and_reports_the_third(
+    tmp_path: Path, checkpoint: Path, backend: TorchBackend
+) -> None:
+    images = {
+        name: [(10**9 + k * 10**8 + i * 1000, texture((40, 48), seed=k)) for k in range(2)]
+        for i, name in enumerate(("infra1", "infra2", "color"))
+    }
+    bag = write_bag(tmp_path / "rs", "ros1", images)
+    out = tmp_path / "out"  # the topics' names say nothing of cam0/cam1: they must be named
+    assert main(["restore", str(checkpoint), str(bag), "--out", str(out)]) == 2
+    assert not out.exists()
+    # one spelling of --topics in every command: two words, or the comma form
+    args = [
+        "--camera",
+        "cam1",
+        "--device",
+        "cpu",
+        "--precision",
+        "fp32",
+        "--topics",
+        "/infra2/image_raw",
+    ]
+    command = ["restore", str(checkpoint), str(bag), "--out", str(out), *args, "/infra1/image_raw"]
+    assert main(command) == 0
+    report = json.loads((out / REPORT_NAME).read_text())
+    assert report["restored"] == 2 and report["settings"]["topics"] == [
+        "/infra2/image_raw",
+        "/infra1/image_raw",
+    ]
+    # the third image topic was copied as recorded, and the report says so
+    (problem,) = [p for p in report["problems"] if "/color/image_raw" in str(p)]
+    assert "left as recorded" in str(problem) and "cam1 /infra1/image_raw" in str(problem)
+    copy = {
+        (m.connection.topic, m.log_time_ns): m
+        for m in iter_bag_messages(Path(report["output"]), cameras=())
+    }
+    for message in iter_bag_messages(
+        bag, ("cam0", "cam1"), topics=("/infra2/image_raw", "/infra1/image_raw")
+    ):
+        copied = copy[(message.connection.topic, message.log_time_ns)]
+        if message.connection.topic == "/infra1/image_raw":  # cam1: restored
+            assert message.frame is not None and message.frame.image is not None
+            decoded = _pixels(_decode(copied, ros1=True))
+            np.testing.assert_array_equal(decoded, expected(backend, message.frame.image))
+        else:
+            assert copied.raw == message.raw
+    comma = ["restore", str(checkpoint), str(bag), "--out", str(tmp_path / "o2"), "--device", "cpu"]
+    assert (
+        main([*comma, "--topics", "/infra2/image_raw,/infra1/image_raw", "--camera", "cam1"]) == 0
+    )
