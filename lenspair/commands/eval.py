@@ -58,7 +58,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
     )
-    parser.add_argument("--out", type=out_folder, metavar="EVAL_DIR", help="report folder")
+    parser.add_argument(
+        "--out",
+        type=out_folder,
+        metavar="EVAL_DIR",
+        help="report folder (default: RUN/eval_<checkpoint>_<data>[_<split>] for "
+        "RUN/checkpoints/<checkpoint>.pt)",
+    )
     parser.add_argument(
         "--precision",
         choices=("auto", "fp32", "bf16", "fp16", "int8"),
@@ -73,12 +79,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--describe", action="store_true", help="print params and FLOPs only")
 
 
-def default_out(checkpoint: Path, split: str) -> Path:
-    """``RUN/eval_<split>`` for ``RUN/checkpoints/x.pt``, else ``<stem>_eval_<split>`` beside it."""
+def default_out(checkpoint: Path, data: Path, split: str | None) -> Path:
+    """Where an evaluation goes without ``--out``: one folder per checkpoint and data.
+
+    ``RUN/eval_<stem>_<data>[_<split>]`` for ``RUN/checkpoints/<stem>.pt``,
+    else ``<stem>_eval_<data>[_<split>]`` beside the checkpoint; ``split`` is
+    None for a paired folder, which has none. Evaluating ``last.pt``, or other
+    data, no longer replaces the evaluation of ``best.pt``.
+    """
     checkpoint = Path(checkpoint)
+    what = Path(data).resolve().name + (f"_{split}" if split else "")
     if checkpoint.parent.name == "checkpoints":
-        return checkpoint.parent.parent / f"eval_{split}"
-    return checkpoint.with_name(f"{checkpoint.stem}_eval_{split}")
+        return checkpoint.parent.parent / f"eval_{checkpoint.stem}_{what}"
+    return checkpoint.with_name(f"{checkpoint.stem}_eval_{what}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -108,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--latency-runs must be >= 0")
     device = resolve_device(args.device)
     # here, not at the top: keeps `lenspair eval --help` from importing torch
+    from lenspair.dataset.readers import detect_layout
     from lenspair.model.precision import choose_precision
     from lenspair.model.training.pairs import open_eval_pairs
 
@@ -129,7 +143,11 @@ def run(args: argparse.Namespace) -> int:
         calibration=calibration,
         precision_reason=decision.reason,
     )
-    out = args.out if args.out is not None else default_out(args.checkpoint, args.split)
+    if args.out is not None:
+        out = args.out
+    else:
+        plain = detect_layout(args.data) is not None  # a paired folder: no split in the name
+        out = default_out(args.checkpoint, args.data, None if plain else args.split)
     files = write_report(result, out)
     print(markdown_report(result))
     print("wrote " + ", ".join(str(path) for path in files.values()))

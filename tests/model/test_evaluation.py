@@ -105,7 +105,20 @@ def test_default_eval_folder_sits_in_the_run(tmp_path: Path) -> None:
     folder = write_paired_folder(tmp_path / "pairs", count=1)
     checkpoint = make_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")
     assert main(["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0"]) == 0
-    assert (tmp_path / "run" / "eval_test" / "metrics.json").is_file()
+    assert (tmp_path / "run" / "eval_best_pairs" / "metrics.json").is_file()  # no split
+    # another checkpoint of the run, or other data, does not replace that evaluation
+    last = make_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt")
+    assert main(["eval", str(last), "--data", str(folder), "--latency-runs", "0"]) == 0
+    other = write_paired_folder(tmp_path / "more", count=1)
+    assert main(["eval", str(checkpoint), "--data", str(other), "--latency-runs", "0"]) == 0
+    written = sorted(p.name for p in (tmp_path / "run").glob("eval_*"))
+    assert written == ["eval_best_more", "eval_best_pairs", "eval_last_pairs"]
+    # a dataset's split is named too
+    dataset = tmp_path / "ds"
+    write_paired_folder(dataset / "val", count=1)
+    args = ["--data", str(dataset), "--split", "val", "--latency-runs", "0"]
+    assert main(["eval", str(checkpoint), *args]) == 0
+    assert (tmp_path / "run" / "eval_best_ds_val" / "metrics.json").is_file()
 
 
 def test_odd_sizes_and_identical_images(tmp_path: Path) -> None:
