@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lenspair.core.errors import ImageIOError, listed
-from lenspair.core.imageio import image_header, read_image
+from lenspair.core.imageio import image_header
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired
 from lenspair.model.errors import ModelError
@@ -210,37 +210,48 @@ def check_training_images(
             f"(data.crop_size, --crop-size): {listed(small, 3, ', ')}; lower the crop or "
             "leave them out"
         )
-    if counts[1] and counts[3]:
+    _warn_mixed(paired.root, "training pairs", counts, channels)
+
+
+def _warn_mixed(root: Path, what: str, counts: dict[int, int], channels: int | None) -> None:
+    """Say that grey and colour images are mixed and how they are converted, when they are."""
+    if counts.get(1) and counts.get(3):
         log.warning(
-            "%s: the training pairs mix %d grey and %d colour images; the network takes %s, "
+            "%s: the %s mix %d grey and %d colour images; the network takes %s, "
             "so the others are converted (colour to Rec. 601 luma, grey repeated); set "
             "model.channels to choose",
-            paired.root,
+            root,
+            what,
             counts[1],
             counts[3],
-            f"{channels} channel(s)" if channels else "the first pair's channels",
+            f"{channels} channel(s)" if channels else "the first image's channels",
         )
 
 
 def _check_clean_images(
     folder: Path, train: Sequence[Path], val: Sequence[Path], crop_size: int | None
-) -> None:
+) -> dict[int, int]:
     """Headers of every clean image, and training ones hold a crop: before the first step.
+
+    Returns:
+        How many images have 1 and 3 channels.
 
     Raises:
         DatasetError: naming the first three problems and how many there are.
     """
-    problems, training = [], set(train)
+    problems, training, counts = [], set(train), {1: 0, 3: 0}
     for path in [*train, *val]:
         try:
-            height, width = image_header(path)[:2]
+            height, width, have = image_header(path)[:3]
         except ImageIOError as exc:
             problems.append(str(exc))
             continue
+        counts[have] += 1
         if crop_size is not None and path in training and min(height, width) < crop_size:
             problems.append(f"{path}: {width}x{height}, smaller than the {crop_size} px crop")
     if problems:
         raise DatasetError(f"{folder}: {len(problems)} unusable clean image(s): {listed(problems)}")
+    return counts
 
 
 def synthetic_training_data(
@@ -262,8 +273,9 @@ def synthetic_training_data(
     folder = Path(folder)
     images = find_clean_images(folder)
     train_images, val_images = split_holdout(images, data.val_fraction, folder)
-    _check_clean_images(folder, train_images, val_images, data.crop_size)
-    resolved = channels or channels_of(read_image(images[0]))
+    counts = _check_clean_images(folder, train_images, val_images, data.crop_size)
+    _warn_mixed(folder, "clean images", counts, channels)
+    resolved = channels or image_header(images[0])[2]
     effects = drops_preset(data.drops)
     train = SyntheticDrops(
         train_images, effects, resolved, data.crop_size, data.hflip, data.vflip, seed=seed

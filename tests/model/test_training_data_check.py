@@ -77,3 +77,21 @@ def test_unusable_clean_images_are_found_before_synthetic_pretraining(tmp_path: 
     (folder / "3.png").write_bytes(b"\\x89PNG\\r\\n\\x1a\\n garbage")
     with pytest.raises(DatasetError, match=r"1 unusable clean image\(s\).*3\.png"):
         synthetic_training_data(folder, tiny_config().data, 1, 0)
+
+
+def test_mixed_grey_and_colour_clean_images_are_said(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    folder = tmp_path / "photos"
+    grey = clean_image(np.random.default_rng(3))
+    write_image(folder / "0_grey.png", grey)  # first by name: it sets the network's channels
+    for index in range(1, 5):
+        write_image(folder / f"{index}.png", np.ascontiguousarray(np.stack([grey] * 3, axis=2)))
+    caplog.set_level("WARNING")
+    data = synthetic_training_data(folder, tiny_config().data, None, 0)
+    assert data.channels == 1
+    (said,) = [r.getMessage() for r in caplog.records if "mix" in r.getMessage()]
+    assert "clean images mix 1 grey and 4 colour" in said and "model.channels" in said
+    caplog.clear()
+    synthetic_training_data(folder, tiny_config().data, 3, 0)  # chosen: still said, as 3
+    assert any("the network takes 3 channel(s)" in r.getMessage() for r in caplog.records)
