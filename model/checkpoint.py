@@ -93,6 +93,34 @@ def _exported_kind(path: Path) -> str | None:
     return None
 
 
+def read_torch_file(path: Path, what: str) -> Any:
+    """``torch.load`` with ``weights_only=True`` onto the CPU; every failure is one line.
+
+    Args:
+        path: an existing file.
+        what: what the file should be, for messages ("lenspair checkpoint").
+
+    Raises:
+        ModelError: an empty file, pickled Python objects, or a corrupt file;
+            never torch's advice to load with ``weights_only=False``, which is
+            never right for a file from elsewhere, nor its terminal escape codes.
+    """
+    if path.stat().st_size == 0:
+        raise ModelError(f"{path}: empty file, not a {what}")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        found = "Python objects other than tensors" if "GLOBAL" in str(exc) else "no torch data"
+        raise ModelError(
+            f"{path}: not a {what} (it holds {found}; lenspair loads only tensors and plain data)"
+        ) from None
+    except Exception as exc:  # torch raises many types for corrupt files
+        detail = _first_line(exc)
+        if "weights_only" in detail:  # torch's advice to unpickle anything: never right here
+            detail = "it holds more than tensors and plain data"
+        raise ModelError(f"{path}: not a {what} (not a readable torch file: {detail})") from None
+
+
 def load_checkpoint(path: Path) -> dict[str, Any]:
     """Read a checkpoint safely (``weights_only=True``) onto the CPU.
 
@@ -106,32 +134,14 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
         if str(path) == "pretrained":
             hint = " ('pretrained' names the shipped weights for train --init only)"
         raise ModelError(f"{path}: checkpoint not found{hint}")
-    if path.stat().st_size == 0:
-        raise ModelError(f"{path}: empty file, not a lenspair checkpoint")
-    other = _exported_kind(path)
+    other = _exported_kind(path) if path.stat().st_size else None
     if other is not None:
         raise ModelError(
             f"{path}: {other} written by lenspair export, not a checkpoint; give the "
             "checkpoint (.pt from lenspair train) it was exported from"
             + (" (restore also runs the .onnx file itself)" if other.startswith("an ONNX") else "")
         )
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as exc:
-        # torch's own message advises weights_only=False: never right for a file
-        # from elsewhere, so it is never quoted.
-        found = "Python objects other than tensors" if "GLOBAL" in str(exc) else "no torch data"
-        raise ModelError(
-            f"{path}: not a lenspair checkpoint (it holds {found}; lenspair loads "
-            "only tensors and plain data)"
-        ) from None
-    except Exception as exc:  # torch raises many types for corrupt files
-        detail = _first_line(exc)
-        if "weights_only" in detail:  # torch's advice to unpickle anything: never right here
-            detail = "it holds more than tensors and plain data"
-        raise ModelError(
-            f"{path}: not a lenspair checkpoint (not a readable torch file: {detail})"
-        ) from None
+    data = read_torch_file(path, "lenspair checkpoint")
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise ModelError(f"{path}: not a lenspair checkpoint")
     if data.get("version") != CHECKPOINT_VERSION:

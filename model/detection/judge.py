@@ -11,8 +11,9 @@ ingest side check, ``restore --only-obstructed``)::
     keep = verdict.obstructed                       # bool (N,): worth restoring
 
 Frames are converted to luma and resized to the detector's input size
-(540x360 by default) before judging, so any camera resolution works; maps
-are on that size's tile grid (1/16).
+(``DetectorSpec.input_size``: 270x180 by default, half a 540x360 frame)
+before judging, so any camera resolution works; maps have one tile per 8
+pixels of that size (16 pixels of a 540x360 frame).
 
 A *blank* frame (all black, saturated, or otherwise nearly uniform: luma
 standard deviation below 1/255 after resizing) carries no evidence about the

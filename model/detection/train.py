@@ -40,6 +40,8 @@ import torch.nn.functional as functional
 
 from lenspair.core.fsutil import atomic_write
 from lenspair.core.progress import progress
+from lenspair.core.samples import file_or_sample
+from lenspair.model.checkpoint import read_torch_file
 from lenspair.model.detection.data import UNKNOWN_KIND, DetectorSample
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import KINDS, TILE_STRIDE, AnomalyDetector, DetectorSpec
@@ -278,17 +280,16 @@ def save_detector(
 def load_detector(path: Path, device: torch.device | str = "cpu") -> AnomalyDetector:
     """Read a detector checkpoint (``weights_only=True``) onto ``device``, in eval mode.
 
+    ``detector.pt`` alone, when no such file is here, is the bundled detector
+    (as on the command line).
+
     Raises:
         ModelError: missing file, not a detector checkpoint, or other kinds.
     """
-    path = Path(path)
+    path = file_or_sample(str(path), ".pt")
     if not path.is_file():
         raise ModelError(f"{path}: no such detector checkpoint")
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for corrupt files
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise ModelError(f"{path}: not a readable checkpoint ({first})") from None
+    data = read_torch_file(path, "detector checkpoint")
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise ModelError(f"{path}: not a detector checkpoint (train one with train-detector)")
     if tuple(data["kinds"]) != KINDS:

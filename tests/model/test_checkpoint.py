@@ -15,6 +15,7 @@ from lenspair.model.checkpoint import (
     save_checkpoint,
     to_cpu,
 )
+from lenspair.model.detection.train import load_detector
 from lenspair.model.errors import ModelError
 from lenspair.model.training.step import Trainer
 from tests.model.train_fixtures import make_checkpoint, tiny_config
@@ -104,19 +105,26 @@ class _Pickled:
     """A Python object that a weights-only load must refuse."""
 
 
-@pytest.mark.parametrize("content", ["empty", "pickled-object", "garbage"])
-def test_non_checkpoint_is_one_line_without_unsafe_advice(tmp_path: Path, content: str) -> None:
+@pytest.mark.parametrize("loader", ["checkpoint", "detector"])
+@pytest.mark.parametrize("content", ["empty", "pickled-object", "garbage", "truncated"])
+def test_non_checkpoint_is_one_line_without_unsafe_advice(
+    tmp_path: Path, content: str, loader: str
+) -> None:
     path = tmp_path / "other.pt"
     if content == "empty":
         path.write_bytes(b"")
     elif content == "pickled-object":
         torch.save({"thing": _Pickled()}, path)
+    elif content == "truncated":
+        torch.save({"weights": torch.zeros(64, 64)}, path)
+        path.write_bytes(path.read_bytes()[:-200])
     else:
         path.write_bytes(b"PK\x03\x04 not really a zip")
     with pytest.raises(ModelError) as info:
-        load_checkpoint(path)
+        load_checkpoint(path) if loader == "checkpoint" else load_detector(path)
     message = str(info.value)
-    assert message.startswith(f"{path}: ") and "not a lenspair checkpoint" in message
+    kind = "lenspair checkpoint" if loader == "checkpoint" else "detector checkpoint"
+    assert message.startswith(f"{path}: ") and f"not a {kind}" in message
     assert "\n" not in message and "\x1b" not in message
     assert "weights_only" not in message
     if content == "empty":

@@ -163,3 +163,13 @@ def test_training_and_judging_on_a_device(tmp_path: Path, device: str, one_threa
     back = judge(load_detector(tmp_path / "d.pt"), frames)  # loaded onto the CPU
     np.testing.assert_allclose(on_device.probability, back.probability, atol=1e-4)
     assert isinstance(on_device.probability, np.ndarray)
+
+
+def test_the_bundled_detector_loads_by_its_name_as_the_docstring_says(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)  # no detector.pt here
+    network = load_detector(Path("detector.pt"))
+    assert isinstance(network, AnomalyDetector) and not network.training
+    with pytest.raises(ModelError, match=r"^elsewhere/detector.pt: no such detector checkpoint"):
+        load_detector(Path("elsewhere/detector.pt"))  # a path is a path
