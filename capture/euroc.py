@@ -15,7 +15,7 @@ the file names give the timestamps.
 from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.folders import image_files, list_image_folder
+from lenspair.capture.folders import image_files, list_image_folder, timestamp_from_name
 from lenspair.capture.recording_types import (
     CAMERAS,
     FrameProblem,
@@ -78,9 +78,10 @@ def _list_camera(
     frames, named = read_data_csv(camera, csv_path, data_dir, problems)
     if data_dir.is_dir():
         for file in image_files(data_dir):
-            if file.name not in named:
+            if file.name not in named:  # its name is its timestamp: pairs.jsonl names it
+                t_ns = timestamp_from_name(file.name)
                 problems.append(
-                    FrameProblem(camera, None, str(file), f"image not listed in {csv_path}")
+                    FrameProblem(camera, t_ns, str(file), f"image not listed in {csv_path}")
                 )
     return order_frames(camera, frames, problems)
 

@@ -135,6 +135,25 @@ def test_unpaired_duplicate_and_backward_frames_are_accounted_for(tmp_path: Path
     assert len(warned) == 1 and warned[0].status == "kept"
 
 
+def test_an_image_data_csv_does_not_list_is_named_in_pairs_jsonl(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=4)
+    data = recording / "mav0" / "cam1" / "data"
+    last = frame_files(recording, "cam1")[-1]
+    extra = data / f"{int(last.stem) + 10**6}.png"  # between frames, on no row of data.csv
+    extra.write_bytes(last.read_bytes())
+    out = tmp_path / "out"
+    assert main(["capture-ingest", str(recording), "--out", str(out), "--size", "240x160"]) == 0
+    records = read_pairs(out / "rec" / "pairs.jsonl")
+    (unlisted,) = [r for r in records if r.reason and extra.name in r.reason]
+    assert unlisted.status == "rejected" and unlisted.t_ns == int(extra.stem)
+    assert unlisted.reason.startswith("image not listed in")
+    summary = capsys.readouterr().out
+    assert "kept 4 of 5 cam1 frames" in summary and "rejected 1: image not listed" in summary
+    _assert_counts_add_up(read_report(out / "rec" / "report.json").counts)
+
+
 def test_a_second_file_with_a_repeated_timestamp_gets_its_own_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
