@@ -10,9 +10,22 @@ Its ``eps`` (1e-5) sits inside the square root, so a constant (or
 saturated) feature map normalises to exactly 0 instead of 0/0, and its
 gradient stays finite. A convolution feeding an instance norm has no bias:
 the norm subtracts the per-channel mean, which would cancel it.
+
+A *flat* input (every channel constant: a saturated or black frame, a tile
+of clear sky) makes every feature map constant, and each norm should give
+exactly 0. Kernels that round differently from pixel to pixel
+(channels-last, oneDNN, ONNX Runtime) leave noise of about 1e-7 instead,
+which each norm multiplies by up to ``1/sqrt(eps)`` = 316: after a few
+layers a grey frame came out as blotches from 10 to 158. So the generator
+marks flat samples (:func:`flat_samples`, spread at most
+:data:`FLAT_TOLERANCE`) and every instance norm inside it gives them
+exactly 0, what exact arithmetic gives; other samples are untouched, and a
+batch without a flat sample costs one small reduction.
 """
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from typing import Literal
 
 import torch
@@ -26,6 +39,53 @@ PaddingMode = Literal["zeros", "reflect", "replicate", "circular"]
 
 INSTANCE_NORM_EPS = 1e-5
 """``eps`` of every instance norm: keeps constant feature maps finite (0, not 0/0)."""
+
+
+FLAT_TOLERANCE = 0.5 / 255.0
+"""Largest spread (max - min, [0, 1] scale) of every channel of a flat input: half an 8-bit code."""
+
+_KEEP: ContextVar[Tensor | None] = ContextVar("lenspair_instance_norm_keep", default=None)
+"""``(N, 1, 1, 1)``: 0 for the flat samples of the generator's batch (module docstring)."""
+
+
+def _traced() -> bool:
+    """Whether the forward is being traced or compiled: no data-dependent branch then."""
+    tracing = torch._C._get_tracing_state() is not None  # torch.jit.is_tracing, typed
+    return tracing or torch.onnx.is_in_onnx_export() or torch.compiler.is_compiling()
+
+
+def flat_keep(x: Tensor) -> Tensor | None:
+    """``(N, 1, 1, 1)`` 0 for each flat sample of ``x`` and 1 for the others.
+
+    Args:
+        x: ``(N, C, H, W)`` images in [0, 1] (any memory format).
+
+    Returns:
+        The mask, or None when no sample is flat (eager mode; a traced or
+        compiled forward always gets the mask, so exported models carry it).
+    """
+    # spread from each channel's corner pixel, reduced over one contiguous row
+    # per sample: a per-channel reduction of a 3-channel channels-last image
+    # is 15x slower
+    difference = x - x[:, :, :1, :1]
+    if difference.is_contiguous(memory_format=torch.channels_last):
+        difference = difference.permute(0, 2, 3, 1)
+    rows = difference.reshape(x.shape[0], -1)
+    spread = torch.maximum(rows.amax(dim=1), -rows.amin(dim=1))
+    flat = spread <= FLAT_TOLERANCE
+    if not _traced() and not bool(flat.any()):
+        return None
+    return (~flat).to(x.dtype).view(-1, 1, 1, 1)
+
+
+@contextmanager
+def flat_samples(x: Tensor) -> Iterator[None]:
+    """Within the block, every :class:`InstanceNorm` gives exactly 0 for ``x``'s flat samples."""
+    token = _KEEP.set(flat_keep(x))
+    try:
+        yield
+    finally:
+        _KEEP.reset(token)
 
 
 class InstanceNorm(nn.Module):
@@ -51,7 +111,14 @@ class InstanceNorm(nn.Module):
         self.eps = eps
 
     def forward(self, x: Tensor) -> Tensor:
-        """Normalise ``x`` (``(N, C, H, W)``, floating point)."""
+        """Normalise ``x`` (``(N, C, H, W)``, floating point); flat samples give 0 (module doc)."""
+        keep = _KEEP.get()
+        if keep is not None and keep.shape[0] != x.shape[0]:
+            keep = None  # not the batch the generator marked (cannot happen inside it)
+        normalised = self._normalise(x)
+        return normalised if keep is None else normalised * keep.to(normalised.dtype)
+
+    def _normalise(self, x: Tensor) -> Tensor:
         if torch.onnx.is_in_onnx_export():
             # ONNX has InstanceNormalization. A group norm exports as reshapes, a
             # norm, a scale by one and a shift by zero, which int8 quantisation

@@ -13,6 +13,7 @@ from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import check_image, export_torchscript, parse_size
 from lenspair.model.evaluation.quantize import QUANTISED_OPS
 from lenspair.model.networks.layers import InstanceNorm
+from lenspair.model.training.pretrained import pretrained_weights
 from tests.model.train_fixtures import make_checkpoint, write_paired_folder
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -47,8 +48,10 @@ def test_onnx_export_matches_torch(tmp_path: Path) -> None:
     kinds = [node.op_type for node in onnx.load(str(onnx_file)).graph.node]
     norms = sum(isinstance(m, InstanceNorm) for m in network.modules())
     assert norms > 0 and kinds.count("InstanceNormalization") == norms
-    # ... and nothing of a group norm's export is left: no scale by one, no shapes
-    assert not {"GroupNormalization", "Mul", "Shape"} & set(kinds)
+    # ... and nothing of a group norm's export is left: no shapes, and one scale per
+    # norm, by the flat-frame mask (lenspair.model.networks.layers), not by one
+    assert not {"GroupNormalization", "Shape"} & set(kinds)
+    assert kinds.count("Mul") == norms
 
 
 def test_onnx_export_prints_lenspair_lines_only(
@@ -285,3 +288,22 @@ def test_the_papers_gea_exports_with_a_dynamic_batch_that_restore_uses(tmp_path:
     backend = open_backend(model, torch.device("cpu"))
     report = restore_input(tmp_path / "in", tmp_path / "out", backend, RestoreOptions(batch_size=2))
     assert (report.restored, report.failed) == (4, 0)
+
+
+def test_a_flat_frame_stays_flat_through_onnx_runtime(tmp_path: Path) -> None:
+    pytest.importorskip("onnx")
+    ort = pytest.importorskip("onnxruntime")
+    shipped = pretrained_weights(1)  # trained: an untrained GEA's zero heads hide its norms
+    onnx_file = tmp_path / "gea.onnx"
+    assert main(["export", str(shipped), "--onnx", str(onnx_file), "--size", "128x96"]) == 0
+    report = json.loads((tmp_path / "gea.onnx.export.json").read_text())
+    assert report["exports"][0]["max_abs_diff"] < 1e-4  # the check includes a flat frame
+    session = ort.InferenceSession(str(onnx_file), providers=["CPUExecutionProvider"])
+    frames = np.stack([np.full((1, 96, 128), v, np.float32) for v in (0.0, 0.5, 1.0)])
+    (restored,) = session.run(None, {"image": frames})
+    with torch.inference_mode():
+        reference = load_model(shipped).network.restore(torch.from_numpy(frames)).numpy()
+    # ONNX Runtime's rounding, amplified by the norms, made a grey frame 48..157 of 255
+    assert float(np.abs(restored - reference).max()) < 1e-4
+    inner = restored[..., 4:-4, 4:-4]
+    assert float((inner.max(axis=(1, 2, 3)) - inner.min(axis=(1, 2, 3))).max()) < 2e-3

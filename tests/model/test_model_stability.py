@@ -1,11 +1,14 @@
-"""Hard cases stay finite: constant and saturated images, bf16, a full GAN training step."""
+"""Hard cases stay finite: constant and saturated images, flat frames, bf16, a GAN step."""
 
 import pytest
 import torch
 
+from lenspair.model.checkpoint import load_model
 from lenspair.model.networks.enhancer import Enhancer
+from lenspair.model.networks.layers import FLAT_TOLERANCE, flat_keep
 from lenspair.model.networks.variants import build_discriminator, build_model
 from lenspair.model.training.losses import LossWeights, discriminator_loss, generator_loss
+from lenspair.model.training.pretrained import pretrained_weights
 
 TINY = {"width": 0.25, "num_blocks": 2}
 
@@ -102,3 +105,56 @@ def test_fp32_gan_training_step_without_nan() -> None:
         assert all(_finite(value) for value in terms.values()) and _finite(loss_d)
     for parameter in [*model.parameters(), *discriminator.parameters()]:
         assert _finite(parameter)
+
+
+def _shipped_gea() -> torch.nn.Module:
+    # trained weights: an untrained GEA's heads start at zero and hide what its norms do
+    return load_model(pretrained_weights(1), "cpu").network.eval()
+
+
+@pytest.mark.parametrize("value", [0.0, 0.5, 1.0])
+@pytest.mark.parametrize("layout", ["channels-last", "bf16 channels-last", "bf16 autocast"])
+def test_a_flat_frame_restores_flat_in_every_layout_and_precision(
+    value: float, layout: str
+) -> None:
+    network = _shipped_gea()
+    frame = torch.full((1, 1, 96, 128), value)
+    with torch.inference_mode():
+        reference = network(frame).enhanced  # NCHW fp32: exact zero variance in every norm
+        network.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+        x = frame.contiguous(memory_format=torch.channels_last)
+        if layout == "bf16 channels-last":
+            out = network.to(torch.bfloat16)(x.bfloat16()).enhanced.float()
+        elif layout == "bf16 autocast":
+            with torch.autocast("cpu", dtype=torch.bfloat16):
+                out = network(x).enhanced.float()
+        else:
+            out = network(x).enhanced
+    # rounding noise amplified by the norms made a mid-grey frame 10..158 of 255
+    inner = out[..., 4:-4, 4:-4]  # the enhancer's zero padding shades the border slightly
+    assert float(inner.amax() - inner.amin()) < 2e-3
+    assert float((out - reference).abs().amax()) < 8e-3
+
+
+def test_flat_samples_do_not_change_the_other_samples_of_a_batch() -> None:
+    network = _shipped_gea()
+    textured = torch.rand((1, 1, 64, 96), generator=torch.Generator().manual_seed(3))
+    flat = torch.full((1, 1, 64, 96), 0.3)
+    with torch.inference_mode():
+        alone = network(textured).enhanced
+        together = network(torch.cat([textured, flat, textured])).enhanced
+    torch.testing.assert_close(together[0:1], alone, rtol=0, atol=1e-6)
+    torch.testing.assert_close(together[2:3], alone, rtol=0, atol=1e-6)
+    assert float(together[1, :, 4:-4, 4:-4].std()) < 1e-3
+
+
+def test_only_flat_samples_are_marked() -> None:
+    texture = torch.rand((2, 3, 16, 20), generator=torch.Generator().manual_seed(1))
+    assert flat_keep(texture) is None  # nothing flat: the norms run as they always did
+    batch = texture.clone()
+    batch[1] = torch.tensor([0.2, 0.5, 0.9]).view(3, 1, 1)  # flat: each channel constant
+    batch[1, 0, 3, 4] += 0.4 * FLAT_TOLERANCE  # within the tolerance
+    keep = flat_keep(batch.contiguous(memory_format=torch.channels_last))
+    assert keep is not None and keep.flatten().tolist() == [1.0, 0.0]
+    batch[1, 2, 5, 6] += 2 * FLAT_TOLERANCE  # one channel varies: not flat
+    assert flat_keep(batch) is None
