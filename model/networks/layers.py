@@ -25,7 +25,6 @@ batch without a flat sample costs one small reduction.
 
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from contextvars import ContextVar
 from typing import Literal
 
 import torch
@@ -43,9 +42,6 @@ INSTANCE_NORM_EPS = 1e-5
 
 FLAT_TOLERANCE = 0.5 / 255.0
 """Largest spread (max - min, [0, 1] scale) of every channel of a flat input: half an 8-bit code."""
-
-_KEEP: ContextVar[Tensor | None] = ContextVar("lenspair_instance_norm_keep", default=None)
-"""``(N, 1, 1, 1)``: 0 for the flat samples of the generator's batch (module docstring)."""
 
 
 def _traced() -> bool:
@@ -79,13 +75,21 @@ def flat_keep(x: Tensor) -> Tensor | None:
 
 
 @contextmanager
-def flat_samples(x: Tensor) -> Iterator[None]:
-    """Within the block, every :class:`InstanceNorm` gives exactly 0 for ``x``'s flat samples."""
-    token = _KEEP.set(flat_keep(x))
+def flat_samples(norms: Sequence["InstanceNorm"], x: Tensor) -> Iterator[None]:
+    """Within the block, ``norms`` give exactly 0 for ``x``'s flat samples (module docstring).
+
+    The mask is an attribute of each norm for the block's duration (not a
+    context variable, which ``torch.compile`` cannot trace): a network runs
+    one forward at a time.
+    """
+    keep = flat_keep(x)
+    for norm in norms:
+        norm.keep = keep
     try:
         yield
     finally:
-        _KEEP.reset(token)
+        for norm in norms:
+            norm.keep = None
 
 
 class InstanceNorm(nn.Module):
@@ -109,12 +113,11 @@ class InstanceNorm(nn.Module):
         super().__init__()
         self.channels = channels
         self.eps = eps
+        self.keep: Tensor | None = None  # set by flat_samples
 
     def forward(self, x: Tensor) -> Tensor:
         """Normalise ``x`` (``(N, C, H, W)``, floating point); flat samples give 0 (module doc)."""
-        keep = _KEEP.get()
-        if keep is not None and keep.shape[0] != x.shape[0]:
-            keep = None  # not the batch the generator marked (cannot happen inside it)
+        keep = self.keep
         normalised = self._normalise(x)
         return normalised if keep is None else normalised * keep.to(normalised.dtype)
 
