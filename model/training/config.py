@@ -253,6 +253,8 @@ class RuntimeInfo:
         synthetic: drops preset when training on synthetic drops, else ``None``.
         init: checkpoint the weights were initialised from, if any.
         torch_version: ``torch.__version__``.
+        earlier_precisions: a resumed run's earlier precisions, when they
+            differ from ``precision``: ``bf16 autocast until step 300``.
 
     """
 
@@ -266,6 +268,7 @@ class RuntimeInfo:
     synthetic: str | None = None
     init: str | None = None
     torch_version: str = ""
+    earlier_precisions: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -259,6 +259,8 @@ def fit(
             remove_run_leftovers(paths)
         with run_logging(paths.log, info.is_main):
             state = _start(trainer, config, paths, checkpoint, init)
+            if checkpoint is not None:
+                config = _with_earlier_precisions(config, checkpoint, paths.last, state.step)
             if info.is_main:
                 atomic_write_text(paths.config, dump_yaml(config))
             if trainer.vgg is None and config.loss.perceptual > 0:
@@ -309,6 +311,31 @@ def fit(
         torch.use_deterministic_algorithms(deterministic_before)
         if info.active:
             torch.distributed.destroy_process_group()
+
+
+def _with_earlier_precisions(
+    config: RunConfig, checkpoint: dict[str, Any], path: Path, step: int
+) -> RunConfig:
+    """``config`` whose runtime also says what a resumed run trained at before ``step``.
+
+    Without it, a run resumed at another precision (``--precision``, another
+    machine) had its config.yaml say it all ran at the new one.
+    """
+    before = checkpoint_config(checkpoint, path).runtime
+    assert config.runtime is not None  # set by run() before the start
+    if before is None or not before.precision:
+        return config
+    earlier = before.earlier_precisions
+    if before.precision != config.runtime.precision:
+        earlier = (*earlier, f"{before.precision} until step {step}")
+        log.warning(
+            "resuming at %s; the first %d steps trained at %s",
+            config.runtime.precision,
+            step,
+            before.precision,
+        )
+    runtime = dataclasses.replace(config.runtime, earlier_precisions=earlier)
+    return dataclasses.replace(config, runtime=runtime)
 
 
 def _start(

@@ -27,7 +27,7 @@ import contextlib
 import logging
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -115,9 +115,20 @@ def training_precision(train: TrainConfig, device: torch.device) -> PrecisionDec
 
     ``train.amp: false`` forces fp32; otherwise ``train.precision`` (``auto``
     by default) is resolved against the device's native precisions.
+
+    Raises:
+        ModelError: ``amp: false`` (``--no-amp``) beside a precision other than
+            ``auto`` or ``fp32``: the two say opposite things.
     """
-    requested = train.precision if train.amp else "fp32"
-    return choose_precision(requested, device, "train")
+    if train.amp:
+        return choose_precision(train.precision, device, "train")
+    if train.precision not in ("auto", "fp32"):
+        raise ModelError(
+            f"train.amp: false (--no-amp) trains at fp32, but train.precision (--precision) "
+            f"is {train.precision}; give one of them"
+        )
+    decision = choose_precision("fp32", device, "train")
+    return replace(decision, reason=f"train.amp: false (--no-amp); {decision.reason}")
 
 
 def describe_precision(precision: str) -> str:

@@ -130,6 +130,14 @@ def test_auto_precision_follows_the_probe(monkeypatch: pytest.MonkeyPatch) -> No
         assert Trainer(tiny_config(amp=False), CPU).precision == "fp32"
 
 
+def test_no_amp_beside_a_lower_precision_is_refused_and_otherwise_says_why() -> None:
+    with pytest.raises(ModelError, match=r"--no-amp\) trains at fp32, but .* is bf16"):
+        Trainer(tiny_config(amp=False, precision="bf16"), CPU)  # bf16 was dropped in silence
+    trainer = Trainer(tiny_config(amp=False, precision="auto"), CPU)
+    assert trainer.precision == "fp32"
+    assert trainer.decision.reason.startswith("train.amp: false (--no-amp); ")
+
+
 def test_fp16_path_steps_with_an_enabled_grad_scaler() -> None:
     # The CUDA fp16 path (autocast + GradScaler), exercised on the CPU.
     decision = PrecisionDecision("fp16", "fp16", "test", ("fp16", "fp32"), "cpu", "mock")

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from lenspair.model.checkpoint import load_checkpoint
+from lenspair.core.config import load_yaml
+from lenspair.model.checkpoint import checkpoint_config, load_checkpoint
 from lenspair.model.errors import ModelError
 from lenspair.model.training import validation
 from lenspair.model.training.config import RunConfig
@@ -135,3 +136,20 @@ def test_a_validation_pair_that_cannot_be_scored_is_left_out_not_fatal(
         write_image(dataset / "val" / "target" / f"{name}.png", small)
     with pytest.raises(ModelError, match=r"no validation pair can be scored; the first: 000"):
         _train(dataset, tmp_path / "run2", tiny_config(epochs=1))
+
+
+def test_a_run_resumed_at_another_precision_keeps_what_it_trained_at_before(
+    tmp_path: Path,
+) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 1})
+    run = tmp_path / "run"
+    first = tiny_config(batch_size=4, epochs=2, max_steps=2, amp=True, precision="bf16")
+    _train(dataset, run, first)
+    fp32 = replace(first, train=replace(first.train, precision="fp32", max_steps=None))
+    _train(dataset, run, resume_config(run, fp32), resume=True)
+    runtime = load_yaml(RunConfig, run / "config.yaml").runtime
+    assert runtime is not None and runtime.precision == "fp32"
+    # it said fp32 alone, though the first two steps trained at bf16
+    assert runtime.earlier_precisions == ("bf16 autocast until step 2",)
+    stored = checkpoint_config(load_checkpoint(run / "checkpoints" / "last.pt")).runtime
+    assert stored is not None and stored.earlier_precisions == runtime.earlier_precisions
