@@ -58,7 +58,11 @@ from lenspair.model.training.config import RunConfig, Variant, config_difference
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
 from lenspair.model.training.pairs import SubsetSource, Unread, open_eval_pairs
-from lenspair.model.training.step import vgg19_weights_path
+from lenspair.model.training.step import (
+    describe_precision,
+    training_precision,
+    vgg19_weights_path,
+)
 
 log = logging.getLogger(__name__)
 
@@ -262,7 +266,7 @@ def run_tradeoff(
     for variant in variants:
         config = resolve_config(variant_config(base, variant, budget), data.channels)
         run = out_dir / "runs" / variant.name
-        resume = _reusable(run, config, data.description)
+        resume = _reusable(run, config, device, data.description)
         log.info("tradeoff: training %s for %s", variant.name, budget.describe())
         summary = fit(
             config,
@@ -380,7 +384,12 @@ BUDGET_FIELDS: tuple[str, ...] = ("epochs", "max_steps", "max_seconds")
 """Train settings a rerun may raise: resuming then extends the run (``fit(resume=True)``)."""
 
 
-def reuse_obstacle(stored: RunConfig, wanted: RunConfig, dataset: str | None = None) -> str | None:
+def reuse_obstacle(
+    stored: RunConfig,
+    wanted: RunConfig,
+    dataset: str | None = None,
+    precision: str | None = None,
+) -> str | None:
     """The first setting that keeps a run trained under ``stored`` from standing for ``wanted``.
 
     A run is reused when the model, data, loss and train sections match
@@ -389,12 +398,16 @@ def reuse_obstacle(stored: RunConfig, wanted: RunConfig, dataset: str | None = N
     no limit), since resuming extends a run and cannot shorten it. The
     perceptual loss must be on (or off) in both, and when ``dataset`` (the
     data description, ``runtime.data``) is given, the stored run must have
-    trained on the same.
+    trained on the same. When ``precision`` is given, the stored run must have
+    trained at it: ``auto`` resolves to bf16 on one CPU and fp32 on another
+    (or under ``ONEDNN_MAX_CPU_ISA``), and a resumed run would be labelled
+    with the new precision.
 
     Args:
         stored: the configuration in the run's ``last.pt``.
         wanted: the resolved configuration the rerun asks for.
         dataset: the description of the data the rerun trains on.
+        precision: what the rerun trains at (``runtime.precision``'s words).
 
     Returns:
         ``"train.seed: 0 -> 5"`` and the like, or ``None`` when the run can be reused.
@@ -417,6 +430,8 @@ def reuse_obstacle(stored: RunConfig, wanted: RunConfig, dataset: str | None = N
     runtime = stored.runtime
     if dataset is not None and (runtime is None or runtime.data != dataset):
         return f"dataset: {runtime.data if runtime else 'unknown'!r} -> {dataset!r}"
+    if precision is not None and runtime is not None and runtime.precision not in ("", precision):
+        return f"precision: {runtime.precision!r} -> {precision!r}"
     if runtime is not None and runtime.perceptual:
         was = runtime.perceptual.startswith("enabled")
         weights = vgg19_weights_path(wanted.train.vgg19_weights)
@@ -427,12 +442,15 @@ def reuse_obstacle(stored: RunConfig, wanted: RunConfig, dataset: str | None = N
     return None
 
 
-def _reusable(run: Path, config: RunConfig, dataset: str | None = None) -> bool:
+def _reusable(
+    run: Path, config: RunConfig, device: torch.device, dataset: str | None = None
+) -> bool:
     """Whether ``run`` holds a run that ``config`` may resume; else clear it.
 
     Args:
         run: the variant's run folder.
         config: the resolved configuration of the rerun.
+        device: where it trains (its precision is resolved for it).
         dataset: the description of its data (checked when given).
 
     Returns:
@@ -445,7 +463,8 @@ def _reusable(run: Path, config: RunConfig, dataset: str | None = None) -> bool:
             shutil.rmtree(run)
         return False
     stored = checkpoint_config(load_checkpoint(last), last)
-    obstacle = reuse_obstacle(stored, config, dataset)
+    precision = describe_precision(training_precision(config.train, device).precision)
+    obstacle = reuse_obstacle(stored, config, dataset, precision)
     if obstacle is None:
         return True
     log.warning(

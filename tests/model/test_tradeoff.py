@@ -249,7 +249,7 @@ def test_a_run_trained_with_other_settings_is_not_reused(
 
     def reused(wanted: RunConfig, dataset: str | None = None) -> bool:
         make_checkpoint(run / "checkpoints" / "last.pt", stored)
-        return _reusable(run, wanted) if dataset is None else _reusable(run, wanted, dataset)
+        return _reusable(run, wanted, torch.device("cpu"), dataset)
 
     # The same settings, a larger budget (extends the run) or other logging: reused.
     assert reused(tiny_config(max_steps=60))
@@ -285,6 +285,15 @@ def test_a_run_trained_with_other_settings_is_not_reused(
     assert reused(tiny_config(max_steps=60), data)  # the same dataset
     assert not reused(tiny_config(max_steps=60), "/data/other (train 2 pairs, validation 1 pairs)")
     assert "dataset" in caplog.records[0].getMessage()
+    # trained at bf16 where bf16 was native; the rerun trains at fp32 (tiny_config: amp off,
+    # as auto resolves where bf16 is emulated): trained again, not relabelled fp32
+    bf16 = RuntimeInfo(data=data, precision="bf16 autocast")
+    stored = replace(tiny_config(max_steps=60), runtime=bf16)
+    caplog.clear()
+    assert not reused(tiny_config(max_steps=60), data)
+    assert "precision: 'bf16 autocast' -> 'fp32'" in caplog.records[0].getMessage()
+    stored = replace(tiny_config(max_steps=60), runtime=replace(bf16, precision="fp32"))
+    assert reused(tiny_config(max_steps=60), data)
 
 
 def test_a_rerun_with_another_seed_retrains_and_records_the_seed(
