@@ -272,13 +272,32 @@ def _marker(out: Path, stage: Stage) -> Path:
     return out / ".stages" / f"{stage.name}.json"
 
 
+PRECISION_STAGES = ("train", "eval", "tradeoff", "export", "restore", "train-detector", "detect")
+"""Commands whose results depend on the precisions the machine runs natively."""
+
+
 def _fingerprint(stage: Stage) -> dict[str, str]:
-    """sha256 of the YAML files a stage reads (scene specs, configs), by path."""
-    return {
+    """sha256 of the YAML files a stage reads (scene specs, configs), by path.
+
+    Stages that train or time networks also record the CPU's native
+    precisions: the same demo rerun on a CPU without native bf16 (or under
+    ``ONEDNN_MAX_CPU_ISA``) trains at fp32 and must not reuse bf16 results.
+    """
+    inputs = {
         arg: sha256_file(Path(arg))
         for arg in stage.argv
         if arg.endswith(".yaml") and Path(arg).is_file()
     }
+    if stage.argv and stage.argv[0] in PRECISION_STAGES:
+        # here, not at the top: torch loads only when a stage that needs it runs
+        import torch
+
+        # (the same reason: the precision module loads torch)
+        from lenspair.model.precision import native_precisions, probe_hardware
+
+        native = native_precisions(probe_hardware(torch.device("cpu")))
+        inputs["cpu native precisions"] = ",".join(native)
+    return inputs
 
 
 def run_stage(

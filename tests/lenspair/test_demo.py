@@ -83,3 +83,23 @@ def test_demo_calibrates_with_the_board_the_simulator_drew(scene: str) -> None:
 def test_a_scene_without_a_board_is_a_demo_error() -> None:
     with pytest.raises(DemoError, match=r"rain\.yaml: the sample scene has no board"):
         board_arguments("rain.yaml")
+
+
+def test_a_machine_with_other_native_precisions_reruns_the_training_stages(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from lenspair.model import precision
+
+    spec = tmp_path / "scene.yaml"
+    spec.write_text("frames: 10\n")
+    stages = _stages(tmp_path, spec)
+    cli = FakeCli({s.argv[0]: s.output for s in stages})
+    monkeypatch.setattr(precision, "native_precisions", lambda hardware: ("bf16", "fp32"))
+    run_stages(tmp_path, stages, cli)
+    # the same demo where bf16 is emulated (another CPU, or ONEDNN_MAX_CPU_ISA): auto
+    # trains at fp32, so the bf16 results must not be reused; the recording may be
+    monkeypatch.setattr(precision, "native_precisions", lambda hardware: ("fp32",))
+    again = run_stages(tmp_path, stages, cli)
+    assert cli.calls == ["simulate", "ingest", "train", "train"]
+    assert again["simulate"]["reused"] and again["ingest"]["reused"]
+    assert not again["train"]["reused"]
