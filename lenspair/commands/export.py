@@ -25,10 +25,14 @@ CPUs with VNNI (avx512_vnni, avx_vnni, AMX); the precision decision is printed
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from lenspair.commands.argtypes import out_file
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_text
+
+if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
+    from lenspair.model.training.pairs import PairSource
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -53,8 +57,16 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give --onnx FILE and/or --torchscript FILE")
     if args.int8 and (args.onnx is None or args.calibration is None):
         raise ConfigError("--int8 needs --onnx FILE and --calibration DS (paired images)")
+    if args.calibration is not None and not args.int8:
+        raise ConfigError("--calibration DS is for --int8 only; add --int8 or leave it out")
     check_outputs(args)
     size = parse_size(args.size)
+    calibration = None
+    if args.int8:  # a bad DS or split fails here, before any file is written
+        # likewise: loads torch
+        from lenspair.model.training.pairs import open_eval_pairs
+
+        calibration = open_eval_pairs(args.calibration, args.split)
     checks = export_checkpoint(args.checkpoint, args.onnx, args.torchscript, size)
     for check in checks:
         print(check.summary())
@@ -62,8 +74,8 @@ def run(args: argparse.Namespace) -> int:
         "checkpoint": str(args.checkpoint),
         "exports": [c.as_dict() for c in checks],
     }
-    if args.int8:
-        payload["int8"] = _export_int8(args, size)
+    if calibration is not None:
+        payload["int8"] = _export_int8(args, size, calibration)
     report = report_path(args)
     atomic_write_text(report, json.dumps(payload, indent=2) + "\n")
     print(f"wrote {report}")
@@ -103,7 +115,9 @@ def report_path(args: argparse.Namespace) -> Path:
     return Path(first).with_name(Path(first).name + ".export.json")
 
 
-def _export_int8(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, object]:
+def _export_int8(
+    args: argparse.Namespace, size: tuple[int, int], calibration: "PairSource"
+) -> dict[str, object]:
     import dataclasses
 
     # here, not at the top: keeps `lenspair export --help` from importing torch
@@ -113,13 +127,12 @@ def _export_int8(args: argparse.Namespace, size: tuple[int, int]) -> dict[str, o
     from lenspair.model.checkpoint import load_model
     from lenspair.model.evaluation.quantize import calibration_images, check_int8
     from lenspair.model.precision import choose_precision
-    from lenspair.model.training.pairs import open_eval_pairs
 
     decision = choose_precision("int8", torch.device("cpu"), "infer")
     print(decision.summary())
     loaded = load_model(args.checkpoint, "cpu")
     channels = loaded.config.model.channels or 1
-    images = calibration_images(open_eval_pairs(args.calibration, args.split), channels, size)
+    images = calibration_images(calibration, channels, size)
     check = check_int8(loaded.network, channels, int8_path(args.onnx), size, images)
     print(check.summary())
     return {**dataclasses.asdict(check), "precision": decision.as_dict()}

@@ -204,6 +204,29 @@ def test_int8_export_needs_calibration(tmp_path: Path, capsys: pytest.CaptureFix
     assert "--int8 needs --onnx FILE and --calibration DS" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("problem", ["missing folder", "missing split", "without --int8"])
+def test_a_bad_calibration_is_refused_before_anything_is_written(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], problem: str
+) -> None:
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    onnx_file = tmp_path / "m.onnx"
+    onnx_file.write_bytes(b"an earlier export")
+    dataset = write_paired_folder(tmp_path / "pairs", count=2)
+    args = ["export", str(checkpoint), "--onnx", str(onnx_file), "--size", "48x32"]
+    if problem == "missing folder":
+        args += ["--int8", "--calibration", str(tmp_path / "nope")]
+    elif problem == "missing split":
+        args += ["--int8", "--calibration", str(tmp_path), "--split", "nosuch"]
+    else:
+        args += ["--calibration", str(dataset)]  # it was ignored without a word
+    assert main(args) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "nope" in line or "nosuch" in line or "--int8 only" in line
+    # the fp32 export used to be written (overwriting this file) before the refusal
+    assert onnx_file.read_bytes() == b"an earlier export"
+    assert not (tmp_path / "m.onnx.export.json").exists()
+
+
 def test_int8_check_compares_on_an_image_held_out_of_the_calibration(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
