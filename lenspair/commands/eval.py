@@ -126,6 +126,11 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.model.training.pairs import open_eval_pairs
 
     decision = choose_precision(args.precision, device, "infer")
+    if args.calibration is not None and decision.precision != "int8":
+        raise ConfigError(
+            f"--calibration DS is for --precision int8; this evaluation runs at "
+            f"{decision.precision}, so add --precision int8 or leave it out"
+        )
     print(decision.summary())
     calibration = None
     if args.calibration is not None:
