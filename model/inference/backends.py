@@ -149,6 +149,7 @@ class OnnxBackend:
         height, width = spec.shape[2], spec.shape[3]
         fixed = isinstance(height, int) and isinstance(width, int)
         self._fixed = (int(height), int(width)) if fixed else None
+        self.precision = _onnx_precision(self.path)
 
     @property
     def channels(self) -> int:
@@ -163,13 +164,25 @@ class OnnxBackend:
     @property
     def description(self) -> str:
         """One line for logs and the report."""
-        return f"ONNX Runtime {self.path} on {self.device} (fp32)"
+        return f"ONNX Runtime {self.path} on {self.device} ({self.precision})"
 
     def __call__(self, batch: np.ndarray) -> np.ndarray:
         """Run the session on a numpy batch (see :class:`Backend`)."""
         feed = {self.input_name: np.ascontiguousarray(batch, dtype=np.float32)}
         output = self.session.run(None, feed)[0]
         return np.clip(np.asarray(output, dtype=np.float32), 0.0, 1.0)
+
+
+QUANTISED_NODES = frozenset({"QuantizeLinear", "DequantizeLinear", "QLinearConv", "ConvInteger"})
+"""ONNX operators that only a quantised (int8) model holds."""
+
+
+def _onnx_precision(path: Path) -> str:
+    """``int8`` for a quantised ONNX model (``export --int8``), else ``fp32``."""
+    import onnx  # only ONNX models need it, like onnxruntime
+
+    graph = onnx.load(str(path), load_external_data=False).graph
+    return "int8" if any(node.op_type in QUANTISED_NODES for node in graph.node) else "fp32"
 
 
 def open_backend(path: Path, device: torch.device, precision: str = "auto") -> Backend:

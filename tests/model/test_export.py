@@ -12,6 +12,7 @@ from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import check_image, export_torchscript, parse_size
 from lenspair.model.evaluation.quantize import QUANTISED_OPS
+from lenspair.model.inference.backends import OnnxBackend
 from lenspair.model.networks.layers import InstanceNorm
 from lenspair.model.training.pretrained import pretrained_weights
 from tests.model.train_fixtures import make_checkpoint, write_paired_folder
@@ -196,6 +197,10 @@ def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
         expected = load_model(checkpoint).network(image)[1].numpy()
     assert restored.shape == (2, 1, 32, 48)
     assert np.abs(restored - expected).mean() < 0.05
+    # restore's report names what ran: it said fp32 for the int8 model
+    cpu = torch.device("cpu")
+    assert OnnxBackend(Path(int8["path"]), cpu).description.endswith("(int8)")
+    assert OnnxBackend(onnx_file, cpu).description.endswith("(fp32)")
 
 
 def test_int8_export_needs_calibration(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
