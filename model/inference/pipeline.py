@@ -169,12 +169,23 @@ def resolve_cameras(
     return (read_rig_file(rig).obstructed,) if rig is not None else CAMERAS
 
 
-def check_options(options: RestoreOptions) -> None:
+def check_options(options: RestoreOptions, backend: Backend | None = None) -> None:
     """Refuse option values no input can use, before anything is read or written.
 
     Raises:
-        ModelError: naming the option (``--batch-size``, ``--overlap``, ``--tile``).
+        ModelError: naming the option (``--batch-size``, ``--overlap``, ``--tile``);
+            ``--tile`` for a model exported at a fixed size, which always runs
+            on tiles of that size (the option was ignored without a word).
     """
+    fixed = backend.fixed_size if backend is not None else None
+    if options.tile is not None and backend is not None and fixed is not None:
+        raise ModelError(
+            f"--tile: {backend.description.split(' on ')[0]} was exported at "
+            f"{fixed[1]}x{fixed[0]} and runs on tiles of that size; leave --tile out "
+            "(export at another --size to change it)"
+        )
+    if options.tile is not None and options.tile < 16:
+        raise ModelError(f"--tile: expected at least 16 pixels, got {options.tile}")
     if options.batch_size < 1:
         raise ModelError(f"--batch-size: expected at least 1, got {options.batch_size}")
     if options.overlap < 0:
@@ -303,7 +314,7 @@ def restore_input(
     """
     started = time.perf_counter()
     input_path, out_dir = Path(input_path), Path(out_dir)
-    check_options(options)
+    check_options(options, backend)
     kind = detect_input(input_path)
     check_apart(input_path, kind, out_dir)
     cameras = resolve_cameras(input_path, kind, options.camera, options.topics)

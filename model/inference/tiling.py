@@ -153,6 +153,8 @@ def run_backend(
         raise ModelError(
             f"the network takes {backend.channels} channel(s), the images have {batch.shape[1]}"
         )
+    if tile is not None and tile < 16:
+        raise ModelError(f"--tile: expected at least 16 pixels, got {tile}")
     fixed = backend.fixed_size
     if fixed is not None:
         if tuple(batch.shape[2:]) == fixed:
@@ -160,6 +162,4 @@ def run_backend(
         return run_tiled(backend, batch, fixed, overlap)
     if tile is None or (batch.shape[2] <= tile and batch.shape[3] <= tile):
         return backend(batch)
-    if tile < 16:
-        raise ModelError(f"--tile: expected at least 16 pixels, got {tile}")
     return run_tiled(backend, batch, (tile, tile), overlap)

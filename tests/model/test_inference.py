@@ -8,6 +8,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from lenspair.core.imageio import write_image
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import (
     OnnxBackend,
@@ -15,6 +16,7 @@ from lenspair.model.inference.backends import (
     open_backend,
     resolve_precision,
 )
+from lenspair.model.inference.pipeline import RestoreOptions, restore_input
 from lenspair.model.inference.tiling import (
     from_batch,
     run_backend,
@@ -127,6 +129,14 @@ def test_onnx_matches_torch(tmp_path: Path, backend: TorchBackend) -> None:
     np.testing.assert_allclose(
         run_backend(onnx, large), run_tiled(backend, large, (32, 48)), atol=1e-4
     )
+    # --tile cannot change those tiles: refused before anything is read (it was ignored)
+    image = tmp_path / "in.png"
+    write_image(image, (large[0, 0] * 255).astype(np.uint8))
+    with pytest.raises(ModelError, match=r"--tile: .*m.onnx was exported at 48x32 and runs on"):
+        restore_input(image, tmp_path / "out", onnx, RestoreOptions(tile=64))
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(ModelError, match="at least 16 pixels"):
+        run_backend(backend, large[..., :12, :12], tile=8)  # its docstring's promise
 
 
 def test_integer_round_trip_keeps_dtype_and_channels() -> None:
