@@ -83,11 +83,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 def check_outputs(args: argparse.Namespace) -> None:
-    """Refuse an output that is the checkpoint, or two outputs that are one file.
+    """Refuse an output that is the checkpoint, two that are one file, or an unsuffixed ONNX file.
 
     Raises:
         ConfigError: naming the option and the file, before anything is written.
     """
+    if args.onnx is not None and args.onnx.suffix.lower() != ".onnx":
+        raise ConfigError(
+            f"--onnx {args.onnx}: name it {args.onnx.name}.onnx; restore and eval tell "
+            "ONNX models by their suffix"
+        )
     outputs = {"--onnx": args.onnx, "--torchscript": args.torchscript}
     if args.int8 and args.onnx is not None:
         outputs["the --int8 model"] = int8_path(args.onnx)

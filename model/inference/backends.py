@@ -185,19 +185,19 @@ def _onnx_precision(path: Path) -> str:
     return "int8" if any(node.op_type in QUANTISED_NODES for node in graph.node) else "fp32"
 
 
-def open_backend(path: Path, device: torch.device, precision: str = "auto") -> Backend:
+def open_backend(path: Path, device: torch.device | str, precision: str = "auto") -> Backend:
     """A backend for a checkpoint (``.pt``) or an ONNX model (``.onnx``).
 
     Args:
         path: the model file; ``.onnx`` selects ONNX Runtime, anything else
             is read as a lenspair checkpoint.
-        device: from ``--device`` (resolved in the CLI).
+        device: from ``--device`` (resolved in the CLI), or its name (``"cpu"``).
         precision: ``auto``/``fp32``/``bf16``; ONNX models run in fp32.
 
     Raises:
         ModelError: unreadable model, or ``bf16`` asked of an ONNX model.
     """
-    path = Path(path)
+    path, device = Path(path), torch.device(device)
     if path.suffix.lower() == ".onnx":
         if precision not in ("auto", "fp32"):
             raise ModelError(f"--precision {precision}: ONNX models run in fp32 here")

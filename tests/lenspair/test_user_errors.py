@@ -128,6 +128,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["eval", "DS", "--latency-runs", "many"], "--latency-runs"),
     (["eval", "CKPT", "--data", "DS", "--calibration", "DS", "--precision", "fp32"], "int8"),
     (["export", "DS", "--onnx", "OUT/m.onnx", "--size", "big"], "--size"),
+    (["export", "CKPT", "--onnx", "OUT/model"], "model.onnx"),
     (["demo", "--bogus"], "--bogus"),
     (["restore", "CKPT", "IMGS", "--out", "OUT", "--tile", "-1"], "--tile"),
     (["restore", "CKPT", "IMGS", "--out", "OUT", "--tile", "abc"], "--tile"),

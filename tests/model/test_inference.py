@@ -185,3 +185,8 @@ def test_precision_auto_follows_the_hardware(monkeypatch: pytest.MonkeyPatch) ->
     assert resolve_precision("bf16", CPU) == "bf16"  # asked for explicitly: honoured
     with pytest.raises(ModelError, match="--precision"):
         resolve_precision("int4", CPU)
+
+
+def test_open_backend_takes_a_device_name(tmp_path: Path) -> None:
+    # load_model and load_detector take "cpu"; open_backend raised AttributeError
+    assert open_backend(make_checkpoint(tmp_path / "ck.pt"), "cpu", "fp32").channels == 1
