@@ -121,3 +121,15 @@ def add_topics_option(parser: argparse.ArgumentParser) -> None:
         help="bags: the image topics of cam0 and cam1, as CAM0 CAM1 or CAM0,CAM1 (default: "
         "chosen from the topic names: cam0/cam1 or left/right, or the only two)",
     )
+
+
+def add_device_option(parser: argparse.ArgumentParser, purpose: str = "") -> None:
+    """``--device auto|cpu|cuda``, with the same help in every command."""
+    parser.add_argument(
+        "--device",
+        choices=("auto", "cpu", "cuda"),
+        default="auto",
+        help=(f"{purpose}: " if purpose else "")
+        + "where the networks run: auto (CUDA when available, else the CPU), cpu or cuda "
+        "(default auto)",
+    )

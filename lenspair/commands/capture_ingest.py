@@ -28,7 +28,13 @@ import argparse
 from pathlib import Path
 
 from lenspair.capture.ingest import ingest_recording
-from lenspair.commands.argtypes import add_topics_option, detector_file, out_folder, positive_int
+from lenspair.commands.argtypes import (
+    add_device_option,
+    add_topics_option,
+    detector_file,
+    out_folder,
+    positive_int,
+)
 from lenspair.rectify.crop import parse_size
 
 
@@ -68,9 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="MODEL",
         help="check the obstructed side with a detector (detector.pt: the bundled one)",
     )
-    parser.add_argument(
-        "--device", choices=("auto", "cpu", "cuda"), default="auto", help="for --detector"
-    )
+    add_device_option(parser, "--detector")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -2,7 +2,7 @@
 
   lenspair detect MODEL INPUT [--out DIR] [--device auto|cpu|cuda] [--threshold 0.5]
 
-INPUT is what restore reads (:mod:`lenspair.capture.frames`): one image, a
+INPUT is what restore reads: one image, a
 folder of images (recursive; left/ + right/ folders included), an EuRoC/ASL
 recording or a ROS 1/ROS 2 bag (both cameras are judged; --topics names the
 bag's two image topics when they cannot be told apart). Writes
@@ -23,7 +23,13 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from lenspair.commands.argtypes import add_topics_option, detector_file, fraction, out_folder
+from lenspair.commands.argtypes import (
+    add_device_option,
+    add_topics_option,
+    detector_file,
+    fraction,
+    out_folder,
+)
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -39,10 +45,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", type=out_folder, help="output folder (default: detect_<input name>)"
     )
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    parser.add_argument("--threshold", type=fraction, default=0.5, help="obstructed above this")
-    parser.add_argument("--batch-size", type=int, default=8)
-    parser.add_argument("--sheet-frames", type=int, default=12, help="frames on the sheet")
+    add_device_option(parser)
+    parser.add_argument(
+        "--threshold",
+        type=fraction,
+        default=0.5,
+        help="a frame is called obstructed above this probability (0.5)",
+    )
+    parser.add_argument("--batch-size", type=int, default=8, help="frames per network call (8)")
+    parser.add_argument(
+        "--sheet-frames", type=int, default=12, help="frames on the contact sheet (12)"
+    )
     add_topics_option(parser)
 
 

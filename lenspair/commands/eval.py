@@ -41,7 +41,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lenspair.commands.argtypes import out_folder
+from lenspair.commands.argtypes import add_device_option, out_folder
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -54,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=Path, help="checkpoint (.pt) from lenspair train")
     parser.add_argument("--data", type=Path, help="paired images to score")
     parser.add_argument("--split", default="test", help="split of a dataset root (test)")
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(parser)
     parser.add_argument(
         "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
     )

@@ -24,7 +24,12 @@ writes the same bytes as an uninterrupted one.
 import argparse
 from pathlib import Path
 
-from lenspair.commands.argtypes import add_topics_option, detector_file, out_folder
+from lenspair.commands.argtypes import (
+    add_device_option,
+    add_topics_option,
+    detector_file,
+    out_folder,
+)
 from lenspair.model.inference.options import (
     CAMERA_CHOICES,
     DEFAULT_BATCH_SIZE,
@@ -66,7 +71,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_OVERLAP,
         help=f"tile overlap in pixels ({DEFAULT_OVERLAP})",
     )
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(parser)
     parser.add_argument(
         "--precision",
         choices=PRECISIONS,

@@ -43,7 +43,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from lenspair.commands.argtypes import fraction, out_folder, positive_int
+from lenspair.commands.argtypes import add_device_option, fraction, out_folder, positive_int
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -55,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--budget", default="60", help="per variant: STEPS, or 90s / 5m / 1h (60 steps)"
     )
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(parser)
     parser.add_argument("--config", type=Path, help="base run config (model section ignored)")
     parser.add_argument("--crop-size", type=positive_int, default=None, help="training crop (128)")
     parser.add_argument("--batch-size", type=positive_int, default=None, help="training batch (4)")

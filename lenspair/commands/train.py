@@ -56,7 +56,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from lenspair.commands.argtypes import float_at_least, out_folder
+from lenspair.commands.argtypes import add_device_option, float_at_least, out_folder
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -88,16 +88,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="start from these weights; 'pretrained': the GEA weights shipped with lenspair",
     )
     parser.add_argument("--resume", action="store_true", help="continue RUN where it stopped")
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(parser)
     parser.add_argument(
         "--synthetic", type=Path, metavar="IMAGES_DIR", help="pretrain on rendered drops"
     )
     parser.add_argument("--drops", choices=("ours", "sharp"), help="synthetic drops (ours)")
     group = parser.add_argument_group("overrides of the config file")
     group.add_argument("--epochs", type=int, help="train.epochs (200)")
-    group.add_argument("--max-steps", type=int, help="train.max_steps budget")
     group.add_argument(
-        "--max-seconds", type=float_at_least(0.0, above=True), help="train.max_seconds budget"
+        "--max-steps", type=int, help="train.max_steps: stop after this many steps (no limit)"
+    )
+    group.add_argument(
+        "--max-seconds",
+        type=float_at_least(0.0, above=True),
+        help="train.max_seconds: stop after this much training time (no limit)",
     )
     group.add_argument("--batch-size", type=int, help="train.batch_size (8)")
     group.add_argument("--crop-size", type=int, help="data.crop_size (256)")

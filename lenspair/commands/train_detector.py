@@ -27,7 +27,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from lenspair.commands.argtypes import float_at_least, out_folder, positive_int, random_seed
+from lenspair.commands.argtypes import (
+    add_device_option,
+    float_at_least,
+    out_folder,
+    positive_int,
+    random_seed,
+)
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -38,24 +44,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out", type=out_folder, required=True, metavar="RUN", help="output folder"
     )
-    parser.add_argument("--recordings", type=Path, nargs="+", default=[], metavar="REC")
-    parser.add_argument("--test-recordings", type=Path, nargs="+", default=[], metavar="REC")
+    parser.add_argument(
+        "--recordings",
+        type=Path,
+        nargs="+",
+        default=[],
+        metavar="REC",
+        help="simulated recordings (lenspair simulate) to train on, with their exact masks",
+    )
+    parser.add_argument(
+        "--test-recordings",
+        type=Path,
+        nargs="+",
+        default=[],
+        metavar="REC",
+        help="simulated recordings to score the detector on, never trained on",
+    )
     parser.add_argument("--synthetic", type=int, default=0, metavar="N", help="synthetic frames")
     parser.add_argument("--clean-images", type=Path, help="clean images for --synthetic")
     parser.add_argument("--simulated-set", type=Path, metavar="DIR", help="render + use a sim set")
     parser.add_argument("--set-per-kind", type=int, default=3, help="recordings per kind (3)")
     parser.add_argument("--set-frames", type=int, default=6, help="frames per recording (6)")
     parser.add_argument("--steps", type=int, default=600, help="optimiser steps (600)")
-    parser.add_argument("--batch-size", type=int, default=8)
+    parser.add_argument("--batch-size", type=int, default=8, help="frames per step (8)")
     parser.add_argument(
         "--minutes",
         type=float_at_least(0.0, above=True),
-        help="stop training after this many minutes",
+        help="stop training after this many minutes (default: no time limit)",
     )
-    parser.add_argument("--seed", type=random_seed, default=0)
+    parser.add_argument("--seed", type=random_seed, default=0, help="random seed (0)")
     parser.add_argument("--threads", type=int, default=1, help="CPU threads (1)")
     parser.add_argument("--hard", type=int, default=0, metavar="N", help="hard cases (0)")
-    parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    add_device_option(parser)
     parser.add_argument(
         "--workers", type=positive_int, default=1, help="processes making samples (1)"
     )

@@ -200,7 +200,8 @@ def run_tradeoff(
         convention: metric convention of the table.
         split: evaluation split of a dataset with splits (an error when it
             cannot be opened); ``None``: ``test``, and where there is none
-            (a single paired folder, a dataset without a test split) the
+            (a single paired folder, a dataset without a test split or with
+            an empty one) the
             validation pairs held out of its training, never pairs it
             trained on.
         latency_runs: timed runs per latency figure.
@@ -224,6 +225,8 @@ def run_tradeoff(
         except LenspairError:
             if split is not None:  # asked for: its problem is the answer, not another split
                 raise
+        if split is None and pairs is not None and len(pairs) == 0:
+            pairs = None  # an empty test split (dataset-build left it empty): as if none
     if pairs is None:
         # One paired folder (input/ + target/, Raindrop's train/) trains on nine
         # tenths of itself: score on the held-out tenth, never on training pairs.
