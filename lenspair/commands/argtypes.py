@@ -130,6 +130,6 @@ def add_device_option(parser: argparse.ArgumentParser, purpose: str = "") -> Non
         choices=("auto", "cpu", "cuda"),
         default="auto",
         help=(f"{purpose}: " if purpose else "")
-        + "where the networks run: auto (CUDA when available, else the CPU), cpu or cuda "
-        "(default auto)",
+        + "where the networks run: auto (a GPU when one is available, else the CPU), cpu "
+        "or cuda (default auto)",
     )
