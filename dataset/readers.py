@@ -206,7 +206,12 @@ def open_paired(path: Path, split: str | None = None) -> PairedDataset:
     if split is not None and (path / split).is_dir():
         folder = path / split
     elif split is not None and path.name != split:
-        found = ", ".join(sorted(p.name for p in path.iterdir() if detect_layout(p))) or "none"
+        found = ", ".join(sorted(p.name for p in path.iterdir() if detect_layout(p)))
+        if not found:  # not a dataset at all: say what a paired folder holds
+            raise DatasetError(
+                f"{path}: no paired images (expected input/ + target/, lq/ + gt/ or Raindrop "
+                "data/ + gt/ folders, or split folders holding them)"
+            )
         raise DatasetError(f"{path}: no split folder {split!r} (splits found: {found})")
     layout = detect_layout(folder)
     if layout is None:

@@ -121,8 +121,10 @@ def run(args: argparse.Namespace) -> int:
             if row.problem is not None:
                 print(f"realism: {label}: skipped {row.name}: {row.problem}")
         measured = [row.statistics for row in rows if row.statistics is not None]
+        if not rows:
+            raise ConfigError(f"{label}: no pairs to measure (an empty folder or split)")
         if not measured:
-            raise ConfigError(f"{label}: no pair could be measured")
+            raise ConfigError(f"{label}: none of its {len(rows)} pairs could be measured")
         columns.append((f"{label} ({len(measured)})", summarise(measured)))
     print(format_ranges(columns))
     if args.json is not None:

@@ -48,6 +48,11 @@ def test_lenspair_layout_root_with_split_and_split_folder(
     assert len(open_paired(ds, "test")) == 0  # an empty split of a lenspair dataset is fine
     with pytest.raises(DatasetError, match="no split folder 'dev'"):
         open_paired(ds, "dev")
+    photos = ds.parent / "photos"  # a folder of images, not pairs: said so, not "no split"
+    photos.mkdir()
+    (photos / "a.png").write_bytes(b"")
+    with pytest.raises(DatasetError, match=r"photos: no paired images \(expected input/"):
+        open_paired(photos, "test")
     train = open_paired(ds, "train")
     assert len(train.select({"clean"})) + len(train.select({"easy", "medium", "hard"})) == len(
         train

@@ -228,3 +228,20 @@ def test_a_clean_image_too_small_to_crop_is_skipped(
     assert main(["realism", "--render", "sharp", "--images", str(images), "--size", "100x16"]) == 0
     printed = capsys.readouterr().out
     assert "skipped dot.png" in printed and "sharp (1)" in printed
+
+
+def test_an_empty_split_and_a_folder_without_pairs_say_what_is_wrong(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    dataset = tmp_path / "ds"
+    for side in ("input", "target"):
+        (dataset / "test" / side).mkdir(parents=True)
+    (dataset / "dataset.json").write_text("{}\n")  # a lenspair dataset: its test split is empty
+    assert main(["realism", str(dataset)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "no pairs to measure (an empty folder or split)" in line  # was "could not be measured"
+    photos = tmp_path / "photos"
+    write_image(photos / "a.png", _clean((48, 64)))
+    assert main(["realism", str(photos)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "photos: no paired images (expected input/ + target/" in line
