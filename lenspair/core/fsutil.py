@@ -1,10 +1,11 @@
 """Atomic file writes and checksums.
 
 Every output file lenspair writes goes through these helpers: data is written
-to a temporary file in the destination folder, flushed to the disk and
-renamed into place, so an interrupted run (or a power cut) never leaves a
-half-written file under its final name, and a rerun can trust any file that
-exists. Files get the permissions a plain
+to a temporary file in the destination folder, flushed to the disk (reports,
+journals, configs, checkpoints; image frames are checked on a rerun instead)
+and renamed into place, so an interrupted run (or a power cut) never leaves
+a half-written file under its final name, and a rerun can trust any file
+that exists. Files get the permissions a plain
 ``open()`` would give them (``0o666`` less the umask), not the owner-only
 mode of the temporary file, so a dataset built by one user can be read by a
 training job running as another.
@@ -36,16 +37,21 @@ def _file_mode() -> int:
 FILE_MODE = _file_mode()
 
 
-def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str = "") -> None:
+def atomic_write(
+    path: Path, writer: Callable[[Path], None], suffix: str = "", sync: bool = True
+) -> None:
     """Call ``writer(tmp_path)`` and rename the result to ``path`` atomically.
-
-    The data is on the disk (fsync) before the rename.
 
     Args:
         path: final destination; its parent folder is created when missing.
         writer: function that writes the complete file at the path it is given.
         suffix: extension for the temporary name (some writers pick the format
             from it, e.g. ``.png``).
+        sync: flush the data to the disk before the rename (:func:`_sync`).
+            Image frames skip it (:func:`lenspair.core.imageio.write_image`):
+            one fsync per frame can cost more than the frame on a robot's
+            SD card or eMMC, and the stages that write frames check them on a
+            rerun instead (capture-ingest by SHA-256, restore by size).
 
     """
     path = Path(path)
@@ -58,7 +64,8 @@ def atomic_write(path: Path, writer: Callable[[Path], None], suffix: str = "") -
     try:
         writer(tmp)
         os.chmod(tmp, FILE_MODE)  # mkstemp creates 0o600
-        _sync(tmp)
+        if sync:
+            _sync(tmp)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)

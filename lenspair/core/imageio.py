@@ -188,7 +188,7 @@ def write_image(
         if not ok:
             raise ImageIOError(f"{path}: write failed ({_first_line(out.geterror())})")
 
-    atomic_write(path, _write, suffix=path.suffix)
+    atomic_write(path, _write, suffix=path.suffix, sync=False)  # frames: see atomic_write
 
 
 def max_value(dtype: np.dtype | type) -> float:

@@ -62,7 +62,7 @@ def copy_file(source: Path, destination: Path) -> None:
     def _copy(tmp: Path) -> None:
         shutil.copyfile(source, tmp)
 
-    atomic_write(destination, _copy, suffix=destination.suffix)
+    atomic_write(destination, _copy, suffix=destination.suffix, sync=False)  # as frames are
 
 
 class FileSink:
