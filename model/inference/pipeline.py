@@ -358,7 +358,7 @@ def restore_input(
         raise
     finally:
         writer.close()
-    if kind in ("euroc", "folders"):  # after the frames: a refused run writes nothing
+    if kind in ("euroc", "folders", "folder"):  # after the frames: a refused run writes nothing
         assert isinstance(sink, FileSink)
         sink.copy_others(input_path, files)
     sink.finish()

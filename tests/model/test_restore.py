@@ -78,6 +78,18 @@ def test_folder_keeps_tree_names_depth(tmp_path: Path, backend: TorchBackend, dt
     assert saved["restored"] == 3 and saved["input"] == str(source)
 
 
+def test_a_folders_other_files_are_copied_with_it(tmp_path: Path, backend: TorchBackend) -> None:
+    source = _folder(tmp_path / "in")
+    (source / "sub" / "notes.txt").write_text("exposure 4 ms")  # not an image
+    hidden = texture((32, 48), seed=7)
+    write_image(source / ".thumb.png", (hidden * 255).astype(np.uint8))  # hidden: not a frame
+    report = restore_input(source, tmp_path / "out", backend)
+    assert report.restored == 3  # the hidden image is not one of the frames
+    # "the same tree": they were left out without a word
+    assert (tmp_path / "out" / "sub" / "notes.txt").read_text() == "exposure 4 ms"
+    assert (tmp_path / "out" / ".thumb.png").read_bytes() == (source / ".thumb.png").read_bytes()
+
+
 def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thread: None) -> None:
     config = tiny_config()
     rgb_config = replace(config, model=replace(config.model, channels=3))
