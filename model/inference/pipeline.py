@@ -101,6 +101,7 @@ class RestoreReport:
         restored: frames the network restored and wrote in this run.
         resumed: frames already written by an earlier run (``--resume``).
         skipped: frames judged clean and copied unchanged.
+        skipped_frames: their names, in input order.
         failed: frames that could not be restored (copied unchanged).
         problems: ``{"frame", "reason"}`` per failed frame, plus input-level ones.
         seconds: wall time of the run.
@@ -117,6 +118,7 @@ class RestoreReport:
     restored: int = 0
     resumed: int = 0
     skipped: int = 0
+    skipped_frames: list[str] = field(default_factory=list)
     failed: int = 0
     problems: list[dict[str, str]] = field(default_factory=list)
     seconds: float = 0.0
@@ -434,6 +436,7 @@ def _run(
         channels_checked = True
         if judge is not None and not judge(frame, image):
             report.skipped += 1
+            report.skipped_frames.append(frame.name)
             pending.append((item, frame, None))
             continue
         if batch and _batch_key(batch[0], options) != _batch_key(frame, options):

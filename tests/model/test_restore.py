@@ -300,6 +300,9 @@ def test_only_obstructed_copies_clean_frames(tmp_path: Path, backend: TorchBacke
     write_image(source / "bright.png", (texture((32, 48), seed=2) * 255).astype(np.uint8))
     report = restore_input(source, tmp_path / "out", backend, judge=ThresholdJudge(0.3))
     assert (report.restored, report.skipped) == (1, 1)
+    assert report.skipped_frames == ["bright.png"]  # named, not only counted
+    saved = json.loads((tmp_path / "out" / REPORT_NAME).read_text())
+    assert saved["skipped_frames"] == ["bright.png"]
     assert (tmp_path / "out" / "bright.png").read_bytes() == (source / "bright.png").read_bytes()
     np.testing.assert_array_equal(
         read_image(tmp_path / "out" / "dark.png"),
