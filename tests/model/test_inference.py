@@ -149,6 +149,12 @@ def test_integer_round_trip_keeps_dtype_and_channels() -> None:
             (back,) = from_batch(to_batch([image]), image.dtype, image.ndim == 2)
             assert back.dtype == image.dtype and back.shape == image.shape
             np.testing.assert_array_equal(back, image)
+    # a batch mixing 8- and 16-bit frames: each on its own scale (16-bit read as 0..257)
+    eight = np.full((4, 5), 255, np.uint8)
+    sixteen = np.full((4, 5), 65535, np.uint16)
+    assert to_batch([eight, sixteen]).max() == 1.0 and to_batch([eight, sixteen]).min() == 1.0
+    with pytest.raises(ModelError, match="different shapes"):
+        to_batch([eight, eight[:3]])
 
 
 def test_channel_mismatch_is_refused() -> None:
