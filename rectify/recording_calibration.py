@@ -171,14 +171,21 @@ def calibrate_recording(
                 )
                 detections[row][index] = None
     names = [f"t0={p.t0_ns} t1={p.t1_ns}" for p in pairs]
-    result = calibrate_from_detections(
-        [(found[0], found[1]) for found in detections],
-        board,
-        model,
-        (resolutions[0], resolutions[1]),
-        names,
-        options,
-    )
+    try:
+        result = calibrate_from_detections(
+            [(found[0], found[1]) for found in detections],
+            board,
+            model,
+            (resolutions[0], resolutions[1]),
+            names,
+            options,
+        )
+    except RectifyError as exc:  # name the recording and what was found in it
+        seen = [sum(found[i] is not None for found in detections) for i in (0, 1)]
+        raise RectifyError(
+            f"{recording_path}: {exc} ({len(pairs)} frame pairs examined; the board "
+            f"{board.spec()} was found in {seen[0]} cam0 and {seen[1]} cam1 views)"
+        ) from None
     rig = result.rig
     if recording.topics is not None:
         rig = replace(rig, topics=recording.topics)
