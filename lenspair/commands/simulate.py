@@ -20,7 +20,8 @@ import logging
 from pathlib import Path
 
 from lenspair.commands.argtypes import out_folder
-from lenspair.core.samples import file_or_sample
+from lenspair.core.errors import ConfigError
+from lenspair.core.samples import file_or_sample, sample_names
 from lenspair.simulate.recording import check_output_folder, simulate_recording
 from lenspair.simulate.spec import load_scene, with_overrides
 
@@ -47,6 +48,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Load the spec, apply overrides, render; returns the exit code."""
     check_output_folder(args.out)
+    if not args.scene.exists():
+        scenes = [Path(name).stem for name in sample_names(".yaml") if "camchain" not in name]
+        raise ConfigError(
+            f"{args.scene}: neither a scene spec file nor a bundled scene ({', '.join(scenes)})"
+        )
     spec = with_overrides(load_scene(args.scene), frames=args.frames, seed=args.seed)
     summary = simulate_recording(spec, args.out, base_dir=args.scene.parent)
     print(

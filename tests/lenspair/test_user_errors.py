@@ -86,6 +86,7 @@ FILE_CASES: dict[str, list[list[str]]] = {
 # (argv, token the message must name)
 OPTION_CASES: list[tuple[list[str], str]] = [
     (["simulate", "calib_samples/rain.yaml", "--out", "OUT", "--frames", "x"], "--frames"),
+    (["simulate", "nope", "--out", "OUT"], "nor a bundled scene (charuco, chessboard"),
     (["simulate", "calib_samples/rain.yaml", "--out", "OUT", "--frames", "-3"], "frames"),
     (
         ["calibrate", "DS", "--board", "nonsense", "--model", "pinhole-radtan", "--out", "OUT/c"],
