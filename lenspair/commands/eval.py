@@ -119,6 +119,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give --data DIR (paired images), or --describe")
     if args.latency_runs < 0:
         raise ConfigError("--latency-runs must be >= 0")
+    if not Path(args.data).exists():  # before the precision line: the error alone
+        raise ConfigError(f"--data {args.data}: no such folder")
     device = resolve_device(args.device)
     # here, not at the top: keeps `lenspair eval --help` from importing torch
     from lenspair.dataset.readers import detect_layout

@@ -96,11 +96,8 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.core.device import resolve_device
     from lenspair.model.inference.backends import open_backend
     from lenspair.model.inference.judge import default_judge
-    from lenspair.model.inference.pipeline import RestoreOptions, restore_input
+    from lenspair.model.inference.pipeline import RestoreOptions, check_options, restore_input
 
-    device = resolve_device(args.device)
-    judge = default_judge(args.only_obstructed, device) if args.only_obstructed else None
-    backend = open_backend(args.model, device, args.precision)
     options = RestoreOptions(
         camera=args.camera,
         batch_size=args.batch_size,
@@ -110,6 +107,10 @@ def run(args: argparse.Namespace) -> int:
         resume=args.resume,
         topics=args.topics,
     )
+    check_options(options)  # before the model loads: a bad option is the only line
+    device = resolve_device(args.device)
+    judge = default_judge(args.only_obstructed, device) if args.only_obstructed else None
+    backend = open_backend(args.model, device, args.precision)
     report = restore_input(args.input, args.out, backend, options, judge)
     print(report.summary())
     return 0

@@ -127,6 +127,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["realism", "--render", "ours", "--json", "DS"], "folder"),
     (["tradeoff", "DS", "--out", "OUT", "--variants", "nope"], "nope"),
     (["eval", "DS", "--latency-runs", "many"], "--latency-runs"),
+    (["eval", "CKPT", "--data", "OUT/none"], "--data"),
     (["eval", "CKPT", "--data", "DS", "--calibration", "DS", "--precision", "fp32"], "int8"),
     (["export", "DS", "--onnx", "OUT/m.onnx", "--size", "big"], "--size"),
     (["export", "CKPT", "--onnx", "OUT/model"], "model.onnx"),
