@@ -172,6 +172,21 @@ def bag_image_topics(path: Path) -> list[str]:
         reader.close()
 
 
+def bag_frame_count(
+    path: Path, cameras: Sequence[CameraName], topics: tuple[str, str] | None = None
+) -> int | None:
+    """How many image messages ``cameras`` have in a bag (its index), None for a cut bag."""
+    named = bag_camera_topics(path, topics)
+    chosen = {topic for topic, camera in named.items() if camera in cameras}
+    reader = rosbag._open(Path(path))
+    try:
+        if rosbag.cut_note(reader) is not None:
+            return None  # read record by record: no index to count from
+        return sum(int(c.msgcount) for c in reader.connections if c.topic in chosen)
+    finally:
+        reader.close()
+
+
 def other_image_topics(path: Path, topics: tuple[str, str] | None = None) -> list[str]:
     """One line per image topic of a bag that is neither camera's (:func:`bag_camera_topics`).
 

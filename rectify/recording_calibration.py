@@ -181,10 +181,10 @@ def calibrate_recording(
             options,
         )
     except RectifyError as exc:  # name the recording and what was found in it
-        seen = [sum(found[i] is not None for found in detections) for i in (0, 1)]
+        views = [sum(found[i] is not None for found in detections) for i in (0, 1)]
         raise RectifyError(
             f"{recording_path}: {exc} ({len(pairs)} frame pairs examined; the board "
-            f"{board.spec()} was found in {seen[0]} cam0 and {seen[1]} cam1 views)"
+            f"{board.spec()} was found in {views[0]} cam0 and {views[1]} cam1 views)"
         ) from None
     rig = result.rig
     if recording.topics is not None:

@@ -39,6 +39,7 @@ from lenspair.capture.frames import (
     InputFrame,
     InputKind,
     bag_camera_topics,
+    bag_frame_count,
     detect_input,
     frame_files,
     iter_bag_messages,
@@ -340,6 +341,7 @@ def restore_input(
     if bag:
         sink = BagSink(input_path, out_dir, options.suffix, options.resume)
         source_problems.extend(other_image_topics(input_path, options.topics))
+        total = bag_frame_count(input_path, cameras, options.topics)  # for the progress bar
         items: Iterator[Any] = iter_bag_messages(
             input_path, cameras, source_problems, options.topics
         )
