@@ -342,10 +342,10 @@ def export_checkpoint(
     try:
         if onnx_path is not None:
             checks.append(export_onnx(loaded.network, channels, onnx_path, size))
-            log.info("%s", checks[-1].summary())
+            log.debug("%s", checks[-1].summary())  # the CLI prints it
         if torchscript_path is not None:
             checks.append(export_torchscript(loaded.network, channels, torchscript_path, size))
-            log.info("%s", checks[-1].summary())
+            log.debug("%s", checks[-1].summary())  # the CLI prints it
     except (RuntimeError, MemoryError) as exc:
         if isinstance(exc, RuntimeError) and "allocate" not in str(exc):
             raise

@@ -34,6 +34,7 @@ conditions are :mod:`lenspair.model.training.run_state`.
 import dataclasses
 import logging
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -142,8 +143,9 @@ def resume_config(run: Path, override: RunConfig | None) -> RunConfig:
             f"{override.model}; start a new run (or use --init) to change it"
         )
     check_resume_batch(checkpoint, paths.last, override)
-    for change in config_differences(stored, override):
-        log.warning("--resume with a changed config: %s", change)
+    if os.environ.get("RANK", "0") == "0":  # torchrun: said once, by rank 0
+        for change in config_differences(stored, override):
+            log.warning("--resume with a changed config: %s", change)
     return override
 
 
@@ -260,10 +262,12 @@ def fit(
         with run_logging(paths.log, info.is_main):
             state = _start(trainer, config, paths, checkpoint, init)
             if checkpoint is not None:
-                config = _with_earlier_precisions(config, checkpoint, paths.last, state.step)
+                config = _with_earlier_precisions(
+                    config, checkpoint, paths.last, state.step, warn=info.is_main
+                )
             if info.is_main:
                 atomic_write_text(paths.config, dump_yaml(config))
-            if trainer.vgg is None and config.loss.perceptual > 0:
+            if info.is_main and trainer.vgg is None and config.loss.perceptual > 0:
                 log.warning(
                     "PERCEPTUAL LOSS DISABLED: no VGG19 weights (set train.vgg19_weights or "
                     "%s); training with the adversarial, feature-matching and L2 terms only",
@@ -294,7 +298,7 @@ def fit(
                 state.best_epoch,
                 trainer.guard.total,
             )
-            if trainer.vgg is None and config.loss.perceptual > 0:
+            if info.is_main and trainer.vgg is None and config.loss.perceptual > 0:
                 log.warning("reminder: this run trained WITHOUT the perceptual loss")
         return TrainSummary(
             run=paths.root,
@@ -314,7 +318,7 @@ def fit(
 
 
 def _with_earlier_precisions(
-    config: RunConfig, checkpoint: dict[str, Any], path: Path, step: int
+    config: RunConfig, checkpoint: dict[str, Any], path: Path, step: int, warn: bool = True
 ) -> RunConfig:
     """``config`` whose runtime also says what a resumed run trained at before ``step``.
 
@@ -328,6 +332,7 @@ def _with_earlier_precisions(
     earlier = before.earlier_precisions
     if before.precision != config.runtime.precision:
         earlier = (*earlier, f"{before.precision} until step {step}")
+    if warn and before.precision != config.runtime.precision:
         log.warning(
             "resuming at %s; the first %d steps trained at %s",
             config.runtime.precision,
