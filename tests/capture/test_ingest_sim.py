@@ -5,14 +5,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import read_pairs
+from lenspair.cli import main
+from lenspair.core.imageio import write_image
 from lenspair.rectify.registration import EstimationParams
 from tests.capture.ingest_helpers import registration_errors, simulate, tree_bytes
 
 MAX_MEDIAN_ERROR_PX = 0.25
 FEW_FRAMES = EstimationParams(max_frames=3)  # keeps the test fast; the default pools 30
+SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
 
 
 @pytest.fixture(scope="module")
@@ -53,3 +57,31 @@ def test_two_workers_give_identical_outputs(rain: tuple[Path, Path], tmp_path: P
     for report in reports:
         del report["timings_s"]  # wall-clock times are the only difference
     assert reports[0] == reports[1]
+
+
+def test_a_periodic_wall_that_registers_a_period_off_is_flagged(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, rain: tuple[Path, Path]
+) -> None:
+    rows, columns = np.mgrid[0:256, 0:256]
+    write_image(
+        tmp_path / "checker.png", (((rows // 16 + columns // 16) % 2) * 200 + 30).astype(np.uint8)
+    )
+    scene = yaml.safe_load((SAMPLES / "clean.yaml").read_text())
+    scene["planes"][0].update(texture=str(tmp_path / "checker.png"), tile_m=[55.0, 55.0])
+    (tmp_path / "checker.yaml").write_text(yaml.safe_dump(scene))
+    assert main(["simulate", str(tmp_path / "checker.yaml"), "--out", str(tmp_path / "rec"),
+                 "--frames", "6"]) == 0  # fmt: skip
+    with caplog.at_level("WARNING"):
+        report = ingest_recording(tmp_path / "rec", tmp_path / "out", estimation=FEW_FRAMES)
+    counts = report.counts
+    assert counts["homography_inliers"] < 0.5 * counts["homography_matches"]
+    # one period off, yet every frame kept: the warning is all a user gets
+    (said,) = [
+        r.getMessage() for r in caplog.records if "agree with the homography" in r.getMessage()
+    ]
+    assert "repetitive scene" in said and "qa.png" in said
+    # a recording registered right is not flagged
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        ingest_recording(rain[0], tmp_path / "out2", workers=1, estimation=FEW_FRAMES)
+    assert not any("agree with the homography" in r.getMessage() for r in caplog.records)
