@@ -148,6 +148,8 @@ def test_odd_sizes_and_identical_images(tmp_path: Path) -> None:
     assert "inf" in files["csv"].read_text()
     assert json.loads(files["json"].read_text())["overall"]["capped"] == 1
     assert f"as {PSNR_CAP_DB:g} dB" in files["markdown"].read_text()
+    # the input column's capped image is counted too (only the output's was)
+    assert "1 output(s) and 1 input(s) were capped" in files["markdown"].read_text()
 
 
 def _spoil(folder: Path) -> None:
