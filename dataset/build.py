@@ -46,13 +46,14 @@ from lenspair.capture.ingested import (
 )
 from lenspair.core.config import dump_yaml
 from lenspair.core.errors import ImageIOError
-from lenspair.core.fsutil import atomic_write_text, clone_file, sha256_bytes
+from lenspair.core.fsutil import atomic_write_text, clone_file, read_json_field, sha256_bytes
 from lenspair.core.imageio import read_image, write_image
 from lenspair.core.leftovers import remove_leftovers, temporary_prefix
 from lenspair.core.progress import progress
 from lenspair.dataset import curation, splits
 from lenspair.dataset.card import (
     CARD_FILE,
+    CARD_FORMAT,
     DatasetCard,
     Grouping,
     SourceInfo,
@@ -426,21 +427,43 @@ def _check_paths(sources: Sequence[Source], out: Path) -> None:
             raise DatasetError(f"{out}: the dataset folder overlaps source {source.path}")
 
 
+def _own_entries() -> frozenset[str]:
+    """Top-level names a build writes (:func:`write_dataset`); anything else is the user's."""
+    contact = {f"contact_{name}.png" for name in SPLITS}
+    return frozenset({*SPLITS, MANIFEST_FILE, CARD_FILE, REMOVED_FILE, CONFIG_FILE, *contact})
+
+
 def _out_state(out: Path) -> Literal["absent", "empty", "dataset"]:
-    """What ``out`` holds now; raise when it is something that must not be replaced."""
+    """What ``out`` holds now; raise when it is something that must not be replaced.
+
+    A lenspair dataset is told by its card's format tag: a ``dataset.json``
+    of another tool (COCO, Hugging Face) is not one, even with ``--overwrite``.
+    """
     if not out.exists():
         return "absent"
     if not out.is_dir():
         raise DatasetError(f"{out}: exists and is not a folder")
     if not any(out.iterdir()):
         return "empty"
-    if not (out / CARD_FILE).is_file() and not (out / MANIFEST_FILE).is_file():
+    card = out / CARD_FILE
+    if card.is_file():
+        if read_json_field(card, "format") != CARD_FORMAT:
+            raise DatasetError(
+                f"{out}: its {CARD_FILE} is not a lenspair dataset card; refusing to replace "
+                "the folder (choose another --out)"
+            )
+    elif not (out / MANIFEST_FILE).is_file():
         raise DatasetError(f"{out}: not empty and not a lenspair dataset; refusing to replace it")
     return "dataset"
 
 
 def _place(temp: Path, out: Path, overwrite: bool) -> None:
-    """Rename the finished ``temp`` to ``out``, replacing an old dataset when allowed."""
+    """Rename the finished ``temp`` to ``out``, replacing an old dataset when allowed.
+
+    Files and folders the user put into an old dataset (notes, evaluations)
+    are carried over into the new one, with a warning; a rebuild used to
+    delete them.
+    """
     state = _out_state(out)
     if state == "dataset":
         difference = dataset_difference(out, temp)
@@ -451,13 +474,23 @@ def _place(temp: Path, out: Path, overwrite: bool) -> None:
     if state == "absent":
         os.replace(temp, out)
         return
+    own = _own_entries()
+    theirs = sorted(p.name for p in out.iterdir() if p.name not in own)
+    for name in theirs:
+        os.replace(out / name, temp / name)
+    if theirs:
+        logger.warning(
+            "%s: kept %s, not part of the dataset, in the rebuilt one", out, ", ".join(theirs)
+        )
     trash = Path(tempfile.mkdtemp(prefix=temporary_prefix(out.name), suffix=".old", dir=out.parent))
     try:
         os.replace(out, trash / "dataset")
         try:
             os.replace(temp, out)
         except OSError:
-            os.replace(trash / "dataset", out)  # put the old dataset back
+            os.replace(trash / "dataset", out)  # put the old dataset back, and the user's files
+            for name in theirs:
+                os.replace(temp / name, out / name)
             raise
     finally:
         shutil.rmtree(trash, ignore_errors=True)

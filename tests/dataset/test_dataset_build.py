@@ -300,6 +300,36 @@ def test_existing_output_rules(recording: RecordingFactory, tmp_path: Path) -> N
     (tmp_path / "empty").mkdir()
     build_dataset([source], tmp_path / "empty", config)
     assert (tmp_path / "empty" / "manifest.jsonl").is_file()
+    # another tool's dataset.json (COCO, Hugging Face) does not make a folder ours:
+    # --overwrite would have deleted its images
+    coco = tmp_path / "coco"
+    (coco / "photos").mkdir(parents=True)
+    (coco / "photos" / "a.jpg").write_bytes(b"x")
+    (coco / "dataset.json").write_text('{"images": []}')
+    with pytest.raises(DatasetError, match=r"coco: its dataset\.json is not a lenspair dataset"):
+        build_dataset([source], coco, config, overwrite=True)
+    assert (coco / "photos" / "a.jpg").read_bytes() == b"x"
+
+
+def test_a_rebuild_keeps_the_users_own_files(
+    recording: RecordingFactory, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    source = recording("rec_a", n=6)
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    out = tmp_path / "DS"
+    build_dataset([source], out, config)
+    (out / "NOTES.md").write_text("collected on the roof")
+    (out / "eval_best").mkdir()
+    (out / "eval_best" / "metrics.json").write_text("{}")
+    with caplog.at_level("WARNING"):
+        build_dataset([source], out, config)  # an unchanged rerun deleted both, silently
+    assert (out / "NOTES.md").read_text() == "collected on the roof"
+    assert (out / "eval_best" / "metrics.json").read_text() == "{}"
+    assert any("kept NOTES.md, eval_best" in r.getMessage() for r in caplog.records)
+    other = DatasetConfig(config.curation, SplitConfig(fractions=(1.0, 0.0, 0.0), seed=3))
+    build_dataset([source], out, other, overwrite=True)  # replaced: still kept
+    assert (out / "NOTES.md").is_file() and read_card(out / "dataset.json").seed == 3
+    assert verify_dataset(out).ok  # the user's files are not the dataset's problems
 
 
 def test_failed_build_leaves_nothing_half_written(
