@@ -49,6 +49,7 @@ from lenspair.capture.ingest_report import (
     frame_counts,
     in_output_pixels,
     rejection_reasons,
+    set_report_aside,
     unlisted_records,
     write_report_if_changed,
 )
@@ -451,6 +452,7 @@ def ingest_recording(
     side_check["blank_pairs_left_out"] = blank
     lap("side_check")
 
+    set_report_aside(out_dir)  # until this run's report is written (its docstring)
     state = fingerprint({**setup, "matrix": registration["matrix"], "crop": crop.as_tuple()})
     ordered = _frame_stage(recording, pairing, rig_file, frame_pairs, context, state, workers)
     lap("frames")

@@ -6,13 +6,14 @@ a rerun which changed nothing but the timings leaves the file untouched.
 """
 
 import json
+import os
 import re
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
-from lenspair.capture.ingested import IngestReport, PairRecord
+from lenspair.capture.ingested import REPORT_FILE, IngestReport, PairRecord
 from lenspair.capture.pairing import PairingResult
 from lenspair.capture.recording import CAMERAS, FrameProblem, Recording
 from lenspair.capture.rigfile import CameraName, RigFile
@@ -133,14 +134,38 @@ def frame_counts(
     return counts
 
 
-def write_report_if_changed(path: Path, report: IngestReport) -> None:
-    """Write ``report.json`` unless the existing one differs only in its timings."""
-    plain = to_plain(report)
+STALE_REPORT = ".report.json.stale"
+"""``report.json`` while a run rewrites ``pairs.jsonl`` (:func:`set_report_aside`)."""
+
+
+def set_report_aside(out_dir: Path) -> None:
+    """Move ``report.json`` aside before a run rewrites the recording's pairs.
+
+    ``pairs.jsonl`` is written before ``report.json``: a run killed between
+    the two (say, re-ingesting with the other side declared) left the new
+    pairs beside the old report, and dataset-build paired the frames the
+    wrong way round. Aside, the old report is not there to be misread; the
+    run's end puts it back when nothing but timings changed
+    (:func:`write_report_if_changed`), so an unchanged rerun keeps its bytes.
+    """
+    path = out_dir / REPORT_FILE
     if path.is_file():
+        os.replace(path, out_dir / STALE_REPORT)
+
+
+def write_report_if_changed(path: Path, report: IngestReport) -> None:
+    """Write ``report.json`` unless the one before (or set aside) differs only in timings."""
+    plain = to_plain(report)
+    stale = path.with_name(STALE_REPORT)
+    before = path if path.is_file() else stale
+    if before.is_file():
         try:
-            old = json.loads(path.read_text(encoding="utf-8"))
+            old = json.loads(before.read_text(encoding="utf-8"))
             if {**old, "timings_s": None} == {**json.loads(json.dumps(plain)), "timings_s": None}:
+                if before == stale:
+                    os.replace(stale, path)
                 return
-        except ValueError:
+        except (ValueError, UnicodeDecodeError):
             pass
     atomic_write_json(path, plain)
+    stale.unlink(missing_ok=True)

@@ -124,7 +124,10 @@ def load_source(path: Path) -> Source:
         raise DatasetError(f"{path}: not a folder (expected an ingested recording)")
     for name in (PAIRS_FILE, REPORT_FILE):
         if not (path / name).is_file():
-            raise DatasetError(f"{path}: missing {name} (not an ingested recording?)")
+            raise DatasetError(
+                f"{path}: missing {name} (not an ingested recording, or capture-ingest was "
+                "stopped before it finished: run it again)"
+            )
     report = read_report(path / REPORT_FILE)
     if report.obstructed not in ("cam0", "cam1"):
         raise DatasetError(

@@ -11,9 +11,14 @@ from pathlib import Path
 
 import pytest
 
+from lenspair.capture import ingest as ingest_module
 from lenspair.capture import ingest_frames
 from lenspair.capture.ingest import ingest_recording
+from lenspair.capture.ingest_report import STALE_REPORT
 from lenspair.capture.journal import JOURNAL_FILE
+from lenspair.dataset.build import build_dataset
+from lenspair.dataset.config import DatasetConfig
+from lenspair.dataset.errors import DatasetError
 from tests.capture.ingest_helpers import simulate, tree_bytes
 from tests.processes import descendants, wait_gone
 
@@ -164,3 +169,38 @@ def test_rerun_with_the_other_side_declared_replaces_the_first_runs_pairs(
     ingest_recording(recording, tmp_path)  # corrected: as an ingest straight away
     _same_as(files, tmp_path / "rain")  # no pair of the wrong-side run is left
     assert not any("not written by capture-ingest" in r.getMessage() for r in caplog.records)
+
+
+def test_a_rerun_stopped_after_its_pairs_leaves_no_report_to_misread(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    recording, files = reference  # rig.yaml: cam1 obstructed
+    ingest_recording(recording, tmp_path, obstructed="cam0")  # the wrong side, first
+    out_dir = tmp_path / "rain"
+
+    def killed(*args: object) -> None:
+        raise KeyboardInterrupt  # after pairs.jsonl, before report.json
+
+    monkeypatch.setattr(ingest_module, "write_qa_sheet", killed)
+    with pytest.raises(KeyboardInterrupt):
+        ingest_recording(recording, tmp_path)  # corrected, then stopped
+    # the new pairs beside the old report said cam0, and dataset-build built the
+    # pairs the wrong way round; now there is no report until the run finishes
+    assert (out_dir / "pairs.jsonl").is_file() and not (out_dir / "report.json").exists()
+    with pytest.raises(DatasetError, match="stopped before it finished: run it again"):
+        build_dataset([out_dir], tmp_path / "ds", DatasetConfig())
+    monkeypatch.undo()
+    ingest_recording(recording, tmp_path)
+    _same_as(files, out_dir)
+    assert not (out_dir / STALE_REPORT).exists()
+
+
+def test_an_unchanged_rerun_keeps_the_reports_bytes(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path
+) -> None:
+    recording, _ = reference
+    ingest_recording(recording, tmp_path)
+    before = (tmp_path / "rain" / "report.json").read_bytes()
+    ingest_recording(recording, tmp_path)  # set aside and put back: the same timings
+    assert (tmp_path / "rain" / "report.json").read_bytes() == before
+    assert not (tmp_path / "rain" / STALE_REPORT).exists()
