@@ -354,6 +354,7 @@ def build_dataset(
     overwrite: bool = False,
     workers: int | None = None,
     link: LinkMode = "copy",
+    accept_side_mismatch: bool = False,
 ) -> BuildResult:
     """Curate ingested recordings into a split dataset at ``out``.
 
@@ -366,16 +367,20 @@ def build_dataset(
             the output does not depend on it.
         link: ``"copy"`` (independent files, reflinked where possible) or
             ``"hard"`` (hard links, made read-only; recorded in the card).
+        accept_side_mismatch: build a recording whose side check contradicts
+            its declared obstructed camera as declared (with a warning).
 
     Raises:
         DatasetError: no sources, a bad source folder, two sources with one
-            recording id, or ``out`` holds something that may not be replaced.
+            recording id, a side-check mismatch not accepted, or ``out``
+            holds something that may not be replaced.
     """
     if not sources:
         raise DatasetError("no ingested recordings given")
     out = Path(out).resolve()
     loaded = [load_source(path) for path in sources]
     _check_paths(loaded, out)
+    _check_sides(loaded, accept_side_mismatch)
     _out_state(out)
     jobs = [(p, i) for p, s in enumerate(loaded) for i in range(len(s.records))]
     delta = config.curation.anomaly_delta
@@ -417,6 +422,33 @@ def build_dataset(
     finally:
         shutil.rmtree(temp, ignore_errors=True)
     return BuildResult(out, tuple(rows), card)
+
+
+def _check_sides(sources: Sequence[Source], accept: bool) -> None:
+    """Refuse recordings whose images contradict the declared obstructed camera.
+
+    capture-ingest checks the declared side and records a mismatch in
+    ``report.json``, but builds the pairs as declared: built into a dataset,
+    their input is the clean view and their target the obstructed one, and a
+    network trained on them learns to add the anomaly.
+
+    Raises:
+        DatasetError: naming each such recording and what its check said.
+    """
+    mismatched = [s for s in sources if s.report.side_check.get("mismatch") is True]
+    if not mismatched:
+        return
+    said = "; ".join(
+        f"{s.path}: {s.report.side_check.get('message', 'side check mismatch')}" for s in mismatched
+    )
+    if accept:
+        logger.warning("building as declared (--accept-side-mismatch): %s", said)
+        return
+    raise DatasetError(
+        f"{said}. Their pairs would have input and target swapped: fix rig.yaml (or "
+        "--obstructed) and run capture-ingest again, or pass --accept-side-mismatch if the "
+        "declared side is right"
+    )
 
 
 def _check_paths(sources: Sequence[Source], out: Path) -> None:

@@ -51,6 +51,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, help="YAML with curation: and split: sections")
     parser.add_argument("--overwrite", action="store_true", help="replace a different dataset")
     parser.add_argument(
+        "--accept-side-mismatch",
+        action="store_true",
+        help="build recordings whose images capture-ingest found to contradict the declared "
+        "obstructed camera (report.json side_check) as declared; refused by default",
+    )
+    parser.add_argument(
         "--link",
         choices=("copy", "hard"),
         default="copy",
@@ -111,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         workers=args.workers,
         link=args.link,
+        accept_side_mismatch=args.accept_side_mismatch,
     )
     card = result.card
     print(f"dataset written to {result.out}: {card.counts['all'].pairs} of {card.pairs_in} pairs")

@@ -2,11 +2,12 @@ import itertools
 import json
 import logging
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
-from lenspair.capture.ingested import read_pairs, write_pairs
+from lenspair.capture.ingested import read_pairs, read_report, write_pairs, write_report
 from lenspair.cli import main
 from lenspair.core.fsutil import sha256_file
 from lenspair.core.imageio import read_image
@@ -382,3 +383,23 @@ def test_thresholds_reach_the_card(recording: RecordingFactory, tmp_path: Path) 
     result = build_dataset([recording("rec_a", n=3)], tmp_path / "DS", config)
     assert {r.rule: r.removed for r in result.card.curation}["residual"] == 3
     assert result.card.config.curation.max_residual_px == 0.1
+
+
+def test_a_recording_whose_side_check_disagrees_is_refused_unless_accepted(
+    recording: RecordingFactory, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    good = recording("rec_a", n=6)
+    swapped = recording("rec_b", n=6, obstructed="cam0")
+    report = read_report(swapped / "report.json")
+    said = "images suggest cam1 is obstructed, but cam0 is declared (detector: ...)"
+    write_report(
+        swapped / "report.json", replace(report, side_check={"mismatch": True, "message": said})
+    )
+    args = ["dataset-build", str(good), str(swapped), "--out", str(tmp_path / "DS")]
+    # it was built as declared: input the clean view, target the rainy one
+    assert main(args) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "rec_b: images suggest cam1 is obstructed" in line and "--accept-side-mismatch" in line
+    assert not (tmp_path / "DS").exists()
+    assert main([*args, "--accept-side-mismatch"]) == 0
+    assert read_card(tmp_path / "DS" / "dataset.json").pairs_in == 12
