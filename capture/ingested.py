@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from lenspair.core.config import load_dataclass, to_plain
+from lenspair.core.config import load_dataclass, read_json, text_lines, to_plain
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_json, atomic_write_lines
 
@@ -109,9 +109,7 @@ def read_pairs(path: Path) -> list[PairRecord]:
     """Read ``pairs.jsonl``; a malformed line raises ``ConfigError`` naming file and line."""
     path = Path(path)
     records = []
-    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
-        if not line.strip():
-            continue
+    for number, line in text_lines(path):
         try:
             records.append(load_dataclass(PairRecord, json.loads(line)))
         except (json.JSONDecodeError, ConfigError) as exc:
@@ -128,8 +126,10 @@ def read_report(path: Path) -> IngestReport:
     """Read ``report.json``; errors name the file."""
     path = Path(path)
     try:
-        return load_dataclass(IngestReport, json.loads(path.read_text(encoding="utf-8")))
+        return load_dataclass(IngestReport, read_json(path))
     except FileNotFoundError:
         raise ConfigError(f"{path}: file not found") from None
-    except (json.JSONDecodeError, ConfigError) as exc:
-        raise ConfigError(f"{path}: {exc}") from None
+    except ConfigError as exc:
+        message = str(exc)
+        named = message if message.startswith(str(path)) else f"{path}: {message}"
+        raise ConfigError(named) from None

@@ -9,7 +9,6 @@ recomputed from ``manifest.jsonl`` (see :func:`count_rows`), which is what
 ``dataset-build --verify`` checks.
 """
 
-import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,7 +17,7 @@ from typing import Literal
 import numpy as np
 
 from lenspair import __version__
-from lenspair.core.config import load_dataclass, to_plain
+from lenspair.core.config import load_dataclass, read_json, to_plain
 from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_json
@@ -202,12 +201,13 @@ def read_card(path: Path) -> DatasetCard:
     """
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        return load_dataclass(DatasetCard, data)
+        return load_dataclass(DatasetCard, read_json(path))
     except FileNotFoundError:
         raise DatasetError(f"{path}: file not found (not a lenspair dataset?)") from None
-    except (json.JSONDecodeError, ConfigError) as exc:
-        raise DatasetError(f"{path}: {exc}") from None
+    except ConfigError as exc:
+        message = str(exc)
+        named = message if message.startswith(str(path)) else f"{path}: {message}"
+        raise DatasetError(named) from None
 
 
 def compare_counts(recorded: dict[str, Counts], actual: dict[str, Counts]) -> list[str]:

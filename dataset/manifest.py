@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from lenspair.core.config import load_dataclass, to_plain
+from lenspair.core.config import load_dataclass, text_lines, to_plain
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_lines
 from lenspair.dataset.config import Difficulty
@@ -124,13 +124,13 @@ def read_manifest(path: Path) -> list[ManifestRow]:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        lines = text_lines(path)
     except FileNotFoundError:
         raise DatasetError(f"{path}: file not found (not a lenspair dataset?)") from None
+    except ConfigError as exc:  # not UTF-8: names the line
+        raise DatasetError(str(exc)) from None
     rows = []
-    for number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
-            continue
+    for number, line in lines:
         try:
             rows.append(load_dataclass(ManifestRow, json.loads(line)))
         except (json.JSONDecodeError, ConfigError) as exc:

@@ -14,6 +14,7 @@ Supported field types: ``bool``, ``int``, ``float`` (ints accepted),
 """
 
 import dataclasses
+import json
 import math
 import types
 import typing
@@ -148,6 +149,42 @@ def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
     except (ValueError, TypeError) as exc:
         # a top-level check names its keys itself ("planes: ..."): no "<root>: " before it
         raise ConfigError(f"{path}: {exc}" if path else str(exc)) from None
+
+
+def text_lines(path: Path) -> list[tuple[int, str]]:
+    """``(line number, text)`` of a UTF-8 text file (JSON lines), blank lines left out.
+
+    Raises:
+        ConfigError: a line that is not UTF-8, naming the file and the line
+            (a whole-file decode gave a traceback and no line).
+        FileNotFoundError: as ``open`` (callers say what the file should be).
+    """
+    lines = []
+    for number, raw in enumerate(Path(path).read_bytes().splitlines(), start=1):
+        try:
+            line = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ConfigError(
+                f"{path}:{number}: not UTF-8 text (byte {exc.start + 1}: {exc.reason})"
+            ) from None
+        if line.strip():
+            lines.append((number, line))
+    return lines
+
+
+def read_json(path: Path) -> Any:
+    """A JSON file's data.
+
+    Raises:
+        ConfigError: not UTF-8 text, or not valid JSON (names the file).
+        FileNotFoundError: as ``open``.
+    """
+    try:
+        return json.loads(Path(path).read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start + 1}: {exc.reason})") from None
+    except json.JSONDecodeError as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
 
 
 def read_yaml(file: Path) -> Any:

@@ -403,3 +403,29 @@ def test_a_recording_whose_side_check_disagrees_is_refused_unless_accepted(
     assert not (tmp_path / "DS").exists()
     assert main([*args, "--accept-side-mismatch"]) == 0
     assert read_card(tmp_path / "DS" / "dataset.json").pairs_in == 12
+
+
+@pytest.mark.parametrize(
+    "damaged", ["pairs.jsonl", "report.json", "manifest.jsonl", "dataset.json"]
+)
+def test_bytes_that_are_not_utf8_are_one_line_naming_the_file(
+    recording: RecordingFactory, tmp_path: Path, capsys: pytest.CaptureFixture[str], damaged: str
+) -> None:
+    source = recording("rec_a", n=6)
+    out = tmp_path / "DS"
+    assert main(["dataset-build", str(source), "--out", str(out)]) == 0
+    capsys.readouterr()
+    target = (source if damaged in ("pairs.jsonl", "report.json") else out) / damaged
+    target.write_bytes(target.read_bytes() + b"\xff\xfe\x00bad\n")  # a traceback, exit 1
+    argv = ["--verify", str(out)] if target.parent == out else [str(source), "--out", str(out)]
+    code = main(["dataset-build", *argv])
+    printed = capsys.readouterr()
+    if argv[0] == "--verify":  # a problem of the dataset: listed, exit 1
+        assert code == 1
+        lines = [line for line in printed.out.splitlines() if "not UTF-8" in line]
+    else:  # a problem of the input: one line, exit 2
+        lines = printed.err.strip().splitlines()
+        assert code == 2
+    assert len(lines) == 1 and str(target) in lines[0] and "not UTF-8" in lines[0], printed
+    if damaged.endswith(".jsonl"):  # the line is named too
+        assert f"{target}:{len(target.read_bytes().splitlines())}: not UTF-8" in lines[0]
