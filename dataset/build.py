@@ -407,6 +407,12 @@ def build_dataset(
         config,
         image_files="hard-link" if link == "hard" else "copy",
     )
+    if not rows:  # an empty dataset trains nothing: said now, not by train later
+        why = ", ".join(f"{c.rule} {c.removed}" for c in card.curation if c.removed) or "none"
+        raise DatasetError(
+            f"no pair survived curation: {card.pairs_in} pairs in, removed: {why}; "
+            "see the sources' pairs.jsonl (and --min-* thresholds)"
+        )
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_leftovers(out.parent, out.name)  # of killed builds of this same output only
     temp = Path(

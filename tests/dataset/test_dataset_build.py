@@ -355,8 +355,10 @@ def test_exclude_clean_and_thresholds_from_cli(recording: RecordingFactory, tmp_
     card = read_card(out / "dataset.json")
     assert {r.rule: r.removed for r in card.curation}["clean"] == 5
     assert card.config.curation.clean_pairs == "exclude" and card.seed == 4
-    assert main(["dataset-build", *args, "--min-sharpness", "1e9", "--overwrite"]) == 0
-    assert read_card(out / "dataset.json").counts["all"].pairs == 0
+    # thresholds that remove every pair: refused, the old dataset kept (an empty one
+    # was written, exit 0, and train found out)
+    assert main(["dataset-build", *args, "--min-sharpness", "1e9", "--overwrite"]) == 2
+    assert read_card(out / "dataset.json").counts["all"].pairs == 3
     assert main(["dataset-build", "--verify", str(out)]) == 0
 
 
@@ -379,10 +381,13 @@ def test_cli_errors_are_one_line(
 
 
 def test_thresholds_reach_the_card(recording: RecordingFactory, tmp_path: Path) -> None:
-    config = DatasetConfig(CurationConfig(max_residual_px=0.1), SplitConfig(fractions=(1, 0, 0)))
+    config = DatasetConfig(CurationConfig(max_residual_px=0.5), SplitConfig(fractions=(1, 0, 0)))
     result = build_dataset([recording("rec_a", n=3)], tmp_path / "DS", config)
-    assert {r.rule: r.removed for r in result.card.curation}["residual"] == 3
-    assert result.card.config.curation.max_residual_px == 0.1
+    assert result.card.config.curation.max_residual_px == 0.5
+    strict = DatasetConfig(CurationConfig(max_residual_px=0.1), SplitConfig(fractions=(1, 0, 0)))
+    with pytest.raises(DatasetError, match=r"no pair survived curation: 3 pairs in, .*residual 3"):
+        build_dataset([recording("rec_b", n=3)], tmp_path / "DS2", strict)
+    assert not (tmp_path / "DS2").exists()
 
 
 def test_a_recording_whose_side_check_disagrees_is_refused_unless_accepted(
