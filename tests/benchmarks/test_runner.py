@@ -43,12 +43,41 @@ def test_a_benchmark_that_exits_is_a_failure_and_the_rest_still_run(
             ran.append(self.name)
             if self.name == "bench_effects":
                 raise SystemExit(2)  # what argparse does on an unknown option
+            if self.name == "bench_int8":
+                raise RuntimeError("out of memory")  # stopped every later benchmark
             return 0
 
     monkeypatch.setattr(importlib, "import_module", lambda dotted: Stub(dotted.split(".")[-1]))
-    assert main(["--only", "effects", "ingest"]) == 1
-    assert ran == ["bench_effects", "bench_ingest"]
-    assert "failed: bench_effects" in capsys.readouterr().err
+    assert main(["--only", "effects", "int8", "ingest"]) == 1
+    assert ran == ["bench_effects", "bench_ingest", "bench_int8"]  # in name order
+    error = capsys.readouterr().err
+    assert "failed: bench_effects, bench_int8" in error and "out of memory" in error
+
+
+@pytest.mark.parametrize(
+    "argv,said",
+    [
+        (["--only", "nosuch"], "no benchmark named nosuch; choose from"),  # ran nothing, rc 0
+        (["--only"], "expected at least one argument"),  # ran every benchmark
+    ],
+)
+def test_only_names_benchmarks_that_exist(
+    argv: list[str], said: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(importlib, "import_module", lambda dotted: pytest.fail("ran " + dotted))
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2 and said in capsys.readouterr().err
+
+
+def test_an_out_that_is_a_file_is_refused_before_any_work(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setattr(importlib, "import_module", lambda dotted: pytest.fail("ran " + dotted))
+    (tmp_path / "results").write_text("")
+    with pytest.raises(SystemExit):
+        main(["--out", str(tmp_path / "results"), "--only", "effects"])
+    assert "exists and is not a folder" in capsys.readouterr().err
 
 
 def test_a_benchmark_that_sets_the_thread_count_does_not_set_the_next_ones(
