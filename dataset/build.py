@@ -213,6 +213,7 @@ def assemble_rows(
     measured: Sequence[Measured],
     removed: Removals,
     config: DatasetConfig,
+    earlier_mode: str | None = None,
 ) -> tuple[list[tuple[ManifestRow, Measured]], splits.SplitPlan]:
     """Split the surviving pairs (adding ``split_gap`` removals) and make their rows.
 
@@ -226,7 +227,7 @@ def assemble_rows(
         )
         for m in survivors
     }
-    plan = splits.plan_splits(items.values(), config.split)
+    plan = splits.plan_splits(items.values(), config.split, earlier_mode)
     gapped = splits.gap_items(items.values(), plan, config.split)
     pairs: list[tuple[ManifestRow, Measured]] = []
     for m in survivors:
@@ -391,7 +392,9 @@ def build_dataset(
         if m.rule in _FILE_RULES:
             logger.warning("pair skipped (%s): %s", m.rule, m.reason)
     removed = curation.curate(measured, config.curation)
-    pairs, plan = assemble_rows(loaded, measured, removed, config)
+    grouping = read_json_field(out / CARD_FILE, "grouping")  # of the dataset being rebuilt
+    earlier = grouping.get("mode") if isinstance(grouping, dict) else None
+    pairs, plan = assemble_rows(loaded, measured, removed, config, earlier)
     for warning in plan.warnings:
         logger.warning("split: %s", warning)
     rows = [row for row, _ in pairs]

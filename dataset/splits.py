@@ -11,7 +11,8 @@ land in different splits are dropped (rule ``split_gap``).
 **Hashing.** A group goes to the split whose interval of the cumulative
 fractions holds ``u = int(sha256(f"{seed}:{group_id}")[:16], 16) / 2**64``.
 The assignment of a group depends only on its id and the seed, so adding a
-recording later does not move existing pairs between splits.
+recording later does not move existing pairs between splits (with
+``group_by: auto``, a rebuild keeps the grouping of the dataset it replaces).
 
 **Side stratification.** Within each stratum (the obstructed camera, i.e.
 the ground-truth side), when the stratum has at least as many groups as there
@@ -112,18 +113,37 @@ def hashed_split(u: float, fractions: Sequence[float]) -> str:
     raise AssertionError(f"u={u} outside [0, 1)")  # pragma: no cover
 
 
-def plan_splits(items: Iterable[SplitItem], config: SplitConfig) -> SplitPlan:
+def plan_splits(
+    items: Iterable[SplitItem], config: SplitConfig, earlier_mode: str | None = None
+) -> SplitPlan:
     """Assign every group of ``items`` to a split (hash, then the side fix-up).
 
     Args:
         items: the curated pairs of all recordings.
         config: fractions, seed and grouping.
+        earlier_mode: how the dataset being rebuilt grouped its pairs. With
+            ``group_by: auto`` it is kept: auto switches from segments to whole
+            recordings once there are enough recordings, and the switch moved
+            about half the existing pairs between splits (test frames into
+            train). A warning says so when auto would now choose otherwise.
 
     Returns:
         The plan; use :func:`group_id` with ``plan.mode`` to find a pair's group.
     """
     items = list(items)
     mode = choose_mode(len({item.recording for item in items}), config)
+    warnings: list[str] = []
+    if (
+        config.group_by == "auto"
+        and earlier_mode in ("recording", "segment")
+        and earlier_mode != mode
+    ):
+        warnings.append(
+            f"group_by auto: kept grouping by {earlier_mode} as the dataset being rebuilt "
+            f"did (auto would now group by {mode}, moving pairs between splits; set "
+            "split.group_by to choose)"
+        )
+        mode = "recording" if earlier_mode == "recording" else "segment"
     sides: dict[str, str] = {}
     for item in items:
         gid = group_id(item.recording, item.index, mode, config.segment_frames)
@@ -133,7 +153,6 @@ def plan_splits(items: Iterable[SplitItem], config: SplitConfig) -> SplitPlan:
     intervals = split_intervals(config.fractions)
     active = [name for name, f in zip(SPLITS, config.fractions, strict=True) if f > 0]
     moved: list[str] = []
-    warnings: list[str] = []
     for side in sorted(set(sides.values())):
         members = sorted(gid for gid, s in sides.items() if s == side)
         if len(members) < len(active):

@@ -434,3 +434,21 @@ def test_bytes_that_are_not_utf8_are_one_line_naming_the_file(
     assert len(lines) == 1 and str(target) in lines[0] and "not UTF-8" in lines[0], printed
     if damaged.endswith(".jsonl"):  # the line is named too
         assert f"{target}:{len(target.read_bytes().splitlines())}: not UTF-8" in lines[0]
+
+
+def test_a_rebuild_with_one_more_recording_keeps_the_grouping(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    split = SplitConfig(
+        fractions=(0.5, 0.5, 0.0), min_groups_per_split=1, segment_frames=2, segment_gap_frames=0
+    )
+    config = DatasetConfig(split=split)
+    out = tmp_path / "DS"
+    first = build_dataset([recording("rec_a", n=8)], out, config)
+    assert first.card.grouping.mode == "segment"  # one recording: too few to split by
+    both = [recording("rec_a", n=8), recording("rec_b", n=8, seed=1)]
+    again = build_dataset(both, out, config, overwrite=True)
+    assert again.card.grouping.mode == "segment"  # auto alone would now say recording
+    assert any("kept grouping by segment" in w for w in again.card.grouping.warnings)
+    fresh = build_dataset(both, tmp_path / "DS2", config)
+    assert fresh.card.grouping.mode == "recording"

@@ -66,6 +66,25 @@ def test_adding_a_recording_moves_no_existing_group() -> None:
     assert all(before.assignment[r] == after.assignment[r] for r in stable)
 
 
+def test_auto_keeps_the_grouping_of_the_dataset_it_rebuilds() -> None:
+    # 8 recordings of 150 frames: auto groups by segments; a 9th makes it group by
+    # recordings, which moved half the existing pairs between splits
+    recordings = {f"rec{i}": "cam0" for i in range(8)}
+    config = SplitConfig(seed=1)
+    before = plan_splits(_items(recordings, frames=150), config)
+    assert before.mode == "segment"
+    grown = _items(recordings | {"rec8": "cam0"}, frames=150)
+    assert plan_splits(grown, config).mode == "recording"  # a new dataset: auto decides
+    after = plan_splits(grown, config, earlier_mode=before.mode)
+    assert after.mode == "segment" and "kept grouping by segment" in after.warnings[-1]
+    stable = set(before.assignment) - set(before.moved) - set(after.moved)
+    assert len(stable) >= 0.9 * len(before.assignment)
+    assert all(before.assignment[g] == after.assignment[g] for g in stable)
+    # an explicit group_by is obeyed
+    explicit = SplitConfig(seed=1, group_by="recording")
+    assert plan_splits(grown, explicit, earlier_mode="segment").mode == "recording"
+
+
 def test_fractions_are_roughly_respected() -> None:
     recordings = {f"rec{i:04d}": "cam0" for i in range(2000)}
     plan = plan_splits(_items(recordings), SplitConfig(group_by="recording"))
