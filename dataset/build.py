@@ -465,6 +465,8 @@ def _check_paths(sources: Sequence[Source], out: Path) -> None:
     for source in sources:
         rid = source.report.recording_id
         if rid in ids:
+            if ids[rid] == source.path:
+                raise DatasetError(f"{source.path}: given twice")
             raise DatasetError(f"{source.path}: recording id {rid!r} is also that of {ids[rid]}")
         ids[rid] = source.path
         if out == source.path or out in source.path.parents or source.path in out.parents:

@@ -138,11 +138,13 @@ def _readable(
     dataset: Any, unread: list[PairStatistics]
 ) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
     """``(name, obstructed, clean)`` of every pair that can be read; the others go to ``unread``."""
+    names = getattr(dataset, "names", None)
     for index in range(len(dataset)):
         try:
             item = dataset[index]
         except LenspairError as exc:  # a truncated file, a size mismatch: this pair only
-            unread.append(PairStatistics(f"pair {index}", None, str(exc)))
+            name = str(names[index]) if names is not None else f"pair {index}"
+            unread.append(PairStatistics(name, None, str(exc)))
             continue
         yield item.name, item.input, item.target
 

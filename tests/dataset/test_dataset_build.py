@@ -2,6 +2,7 @@ import itertools
 import json
 import logging
 import os
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -271,8 +272,12 @@ def test_bad_sources_are_errors(recording: RecordingFactory, tmp_path: Path) -> 
     source = recording("rec_a", n=2)
     with pytest.raises(DatasetError, match="not a folder"):
         build_dataset([tmp_path / "nope"], tmp_path / "DS", DatasetConfig())
-    with pytest.raises(DatasetError, match="also that of"):
+    with pytest.raises(DatasetError, match="rec_a: given twice"):  # not "also that of itself"
         build_dataset([source, source], tmp_path / "DS", DatasetConfig())
+    namesake = tmp_path / "elsewhere" / "rec_a"
+    shutil.copytree(source, namesake)
+    with pytest.raises(DatasetError, match="also that of"):
+        build_dataset([source, namesake], tmp_path / "DS", DatasetConfig())
     with pytest.raises(DatasetError, match="overlaps"):
         build_dataset([source], source / "DS", DatasetConfig())
     report = json.loads((source / "report.json").read_text())

@@ -217,6 +217,8 @@ def test_cli_lists_and_skips_pairs_and_images_it_cannot_read(
     assert any("b.tif" in line for line in skipped)
     rows = json.loads(out.read_text())
     assert len(rows[str(folder)]) == 4  # every pair accounted for, measured or not
+    # named by their names, not by an index ("pair 1")
+    assert sorted(row["name"] for row in rows[str(folder)]) == ["0", "1", "2", "3"]
 
 
 def test_a_clean_image_too_small_to_crop_is_skipped(
