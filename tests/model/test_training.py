@@ -21,6 +21,7 @@ from lenspair.model.networks.vgg import VGG19Features
 from lenspair.model.precision import Hardware, PrecisionDecision, choose_precision
 from lenspair.model.training.config import RunConfig, TrainConfig, load_run_config
 from lenspair.model.training.datasets import (
+    holdout_group,
     holdout_indices,
     paired_training_data,
     synthetic_training_data,
@@ -374,6 +375,24 @@ def test_holdout_is_deterministic_and_stable() -> None:
     assert holdout_indices(names, 0.1) == (train, val)
     _, val_more = holdout_indices([*names, "new"], 0.1)
     assert set(val) & set(val_more)  # adding a name does not reshuffle everything
+
+
+def test_neighbouring_frames_of_a_recording_are_held_out_together() -> None:
+    # dataset-build names: <recording>_<t_ns>; 20 Hz frames over 40 s of two recordings
+    t0 = 1_700_000_000_000_000_000
+    names = [f"{rec}_{t0 + k * 50_000_000}" for rec in ("rain", "dust") for k in range(800)]
+    train, val = holdout_indices(names, 0.1)
+    assert 0.05 * len(names) <= len(val) <= 0.3 * len(names)
+    held = set(val)
+    # frame by frame, a held-out frame had its neighbours in training
+    edges = sum(1 for i in range(1, len(names)) if (i in held) != (i - 1 in held))
+    assert edges <= 2 * 8  # only at the borders of whole 10 s windows
+    windows = {holdout_group(names[i]) for i in val}
+    assert all(holdout_group(names[i]) not in windows for i in train)
+    # one short recording is a single window: held out frame by frame, the only way
+    short = [f"rec_{t0 + k * 50_000_000}" for k in range(20)]
+    assert len(holdout_indices(short, 0.1)[1]) == 2
+    assert holdout_group("0_rain") == "0_rain"  # not a recording frame: its own group
 
 
 def test_crops_and_flips_depend_on_seed_epoch_and_index(tmp_path: Path) -> None:
