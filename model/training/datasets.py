@@ -112,7 +112,8 @@ def holdout_indices(names: Sequence[str], fraction: float) -> tuple[list[int], l
             break
         held.update(groups[key])
     if not held:  # every group holds most pairs: take the smallest whole one
-        held.update(min(groups.values(), key=lambda members: len(members)))
+        smallest = min(groups, key=lambda g: len(groups[g]))
+        held.update(groups[smallest])
     return [i for i in range(len(names)) if i not in held], sorted(held)
 
 
