@@ -17,12 +17,14 @@ exactly 0. Kernels that round differently from pixel to pixel
 (channels-last, oneDNN, ONNX Runtime) leave noise of about 1e-7 instead,
 which each norm multiplies by up to ``1/sqrt(eps)`` = 316: after a few
 layers a grey frame came out as blotches from 10 to 158. So the generator
-marks flat samples (:func:`flat_samples`, spread at most
-:data:`FLAT_TOLERANCE`) and every instance norm inside it gives them
+marks flat samples (:func:`flat_samples`: every pixel within
+:data:`FLAT_TOLERANCE` of its channel's corner pixel) and every instance
+norm inside it gives them
 exactly 0, what exact arithmetic gives; other samples are untouched, and a
 batch without a flat sample costs one small reduction.
 """
 
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Literal
@@ -41,7 +43,10 @@ INSTANCE_NORM_EPS = 1e-5
 
 
 FLAT_TOLERANCE = 0.5 / 255.0
-"""Largest spread (max - min, [0, 1] scale) of every channel of a flat input: half an 8-bit code."""
+"""How far ([0, 1] scale) every pixel of a flat input may be from its channel's corner pixel.
+
+Half an 8-bit code: an 8-bit frame is flat when each channel is constant.
+"""
 
 
 def _traced() -> bool:
@@ -57,8 +62,9 @@ def flat_keep(x: Tensor) -> Tensor | None:
         x: ``(N, C, H, W)`` images in [0, 1] (any memory format).
 
     Returns:
-        The mask, or None when no sample is flat (eager mode; a traced or
-        compiled forward always gets the mask, so exported models carry it).
+        The mask, or None when no sample is flat (eager on the CPU; a traced
+        or compiled forward, and any on a GPU, always gets the mask, so
+        exported models carry it).
     """
     # spread from each channel's corner pixel, reduced over one contiguous row
     # per sample: a per-channel reduction of a 3-channel channels-last image
@@ -69,27 +75,32 @@ def flat_keep(x: Tensor) -> Tensor | None:
     rows = difference.reshape(x.shape[0], -1)
     spread = torch.maximum(rows.amax(dim=1), -rows.amin(dim=1))
     flat = spread <= FLAT_TOLERANCE
-    if not _traced() and not bool(flat.any()):
+    # on the CPU a batch without a flat sample skips the masks; on a GPU the test
+    # would wait for the device (a training step's overlap lost): the mask is applied
+    if x.device.type == "cpu" and not _traced() and not bool(flat.any()):
         return None
     return (~flat).to(x.dtype).view(-1, 1, 1, 1)
 
 
-@contextmanager
-def flat_samples(norms: Sequence["InstanceNorm"], x: Tensor) -> Iterator[None]:
-    """Within the block, ``norms`` give exactly 0 for ``x``'s flat samples (module docstring).
+_FLAT = threading.local()
+"""``keep``: the mask of the generator forward running in this thread, or absent.
 
-    The mask is an attribute of each norm for the block's duration (not a
-    context variable, which ``torch.compile`` cannot trace): a network runs
-    one forward at a time.
-    """
-    keep = flat_keep(x)
-    for norm in norms:
-        norm.keep = keep
+Per thread, not an attribute of the norms: two threads may run one network
+(a robot's callbacks, ``nn.DataParallel``'s replicas, which share their
+modules' attributes), and ``torch.compile`` traces it without a graph break
+(a ``ContextVar`` broke the graph at every norm).
+"""
+
+
+@contextmanager
+def flat_samples(x: Tensor) -> Iterator[None]:
+    """Within the block, this thread's :class:`InstanceNorm` give ``x``'s flat samples 0."""
+    before = getattr(_FLAT, "keep", None)
+    _FLAT.keep = flat_keep(x)
     try:
         yield
     finally:
-        for norm in norms:
-            norm.keep = None
+        _FLAT.keep = before
 
 
 class InstanceNorm(nn.Module):
@@ -113,11 +124,10 @@ class InstanceNorm(nn.Module):
         super().__init__()
         self.channels = channels
         self.eps = eps
-        self.keep: Tensor | None = None  # set by flat_samples
 
     def forward(self, x: Tensor) -> Tensor:
         """Normalise ``x`` (``(N, C, H, W)``, floating point); flat samples give 0 (module doc)."""
-        keep = self.keep
+        keep: Tensor | None = getattr(_FLAT, "keep", None)
         normalised = self._normalise(x)
         return normalised if keep is None else normalised * keep.to(normalised.dtype)
 

@@ -396,23 +396,31 @@ def test_thresholds_reach_the_card(recording: RecordingFactory, tmp_path: Path) 
 
 
 def test_a_recording_whose_side_check_disagrees_is_refused_unless_accepted(
-    recording: RecordingFactory, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    recording: RecordingFactory,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
 ) -> None:
     good = recording("rec_a", n=6)
     swapped = recording("rec_b", n=6, obstructed="cam0")
     report = read_report(swapped / "report.json")
     said = "images suggest cam1 is obstructed, but cam0 is declared (detector: ...)"
-    write_report(
-        swapped / "report.json", replace(report, side_check={"mismatch": True, "message": said})
-    )
-    args = ["dataset-build", str(good), str(swapped), "--out", str(tmp_path / "DS")]
+    side_check = {"mismatch": True, "message": said, "confidence": 0.9}  # a sure detector
+    write_report(swapped / "report.json", replace(report, side_check=side_check))
+    args = ["dataset-build", str(good), str(swapped), "--out"]
     # it was built as declared: input the clean view, target the rainy one
-    assert main(args) == 2
+    assert main([*args, str(tmp_path / "DS")]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "rec_b: images suggest cam1 is obstructed" in line and "--accept-side-mismatch" in line
     assert not (tmp_path / "DS").exists()
-    assert main([*args, "--accept-side-mismatch"]) == 0
+    assert main([*args, str(tmp_path / "DS"), "--accept-side-mismatch"]) == 0
     assert read_card(tmp_path / "DS" / "dataset.json").pairs_in == 12
+    # a weak vote (the fine-detail check on light rain: 6 % of its tiles) only warns
+    weak = {**side_check, "confidence": 0.3}
+    write_report(swapped / "report.json", replace(report, side_check=weak))
+    with caplog.at_level("WARNING"):
+        assert main([*args, str(tmp_path / "DS2")]) == 0
+    assert any("building as declared, although" in r.getMessage() for r in caplog.records)
 
 
 @pytest.mark.parametrize(

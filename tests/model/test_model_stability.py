@@ -1,11 +1,13 @@
 """Hard cases stay finite: constant and saturated images, flat frames, bf16, a GAN step."""
 
+import threading
+
 import pytest
 import torch
 
 from lenspair.model.checkpoint import load_model
 from lenspair.model.networks.enhancer import Enhancer
-from lenspair.model.networks.layers import FLAT_TOLERANCE, flat_keep
+from lenspair.model.networks.layers import FLAT_TOLERANCE, InstanceNorm, flat_keep
 from lenspair.model.networks.variants import build_discriminator, build_model
 from lenspair.model.training.losses import LossWeights, discriminator_loss, generator_loss
 from lenspair.model.training.pretrained import pretrained_weights
@@ -158,3 +160,47 @@ def test_only_flat_samples_are_marked() -> None:
     assert keep is not None and keep.flatten().tolist() == [1.0, 0.0]
     batch[1, 2, 5, 6] += 2 * FLAT_TOLERANCE  # one channel varies: not flat
     assert flat_keep(batch) is None
+
+
+def test_a_flat_frame_in_one_thread_does_not_mask_another_threads_frames() -> None:
+    network = _shipped_gea()
+    textured = torch.rand((1, 1, 64, 96), generator=torch.Generator().manual_seed(5))
+    flat = torch.full((1, 1, 64, 96), 0.5)
+    with torch.inference_mode():
+        alone = network(textured).enhanced
+    first_norm = next(m for m in network.modules() if isinstance(m, InstanceNorm))
+    events = {name: threading.Event() for name in ("textured in", "flat in", "textured done")}
+
+    def interleave(module: torch.nn.Module, args: tuple[torch.Tensor]) -> None:
+        # the textured forward pauses at its first norm until the flat forward has
+        # set its mask and paused in turn; then the textured one runs to its end
+        if threading.current_thread().name == "textured":
+            events["textured in"].set()
+            assert events["flat in"].wait(30)
+        elif threading.current_thread().name == "flat":
+            events["flat in"].set()
+            assert events["textured done"].wait(30)
+
+    outputs: dict[str, torch.Tensor] = {}
+
+    def run(name: str, frame: torch.Tensor) -> None:
+        with torch.inference_mode():
+            outputs[name] = network(frame).enhanced
+        if name == "textured":
+            events["textured done"].set()
+
+    handle = first_norm.register_forward_pre_hook(interleave)
+    threads = [
+        threading.Thread(target=run, args=(name, frame), name=name)
+        for name, frame in (("textured", textured), ("flat", flat))
+    ]
+    threads[0].start()
+    assert events["textured in"].wait(30)
+    threads[1].start()
+    for thread in threads:
+        thread.join(30)
+    handle.remove()
+    # a mask shared by the threads (an attribute of the norms) zeroed the
+    # textured frame's norms while the flat frame's forward held it
+    torch.testing.assert_close(outputs["textured"], alone, rtol=0, atol=1e-6)
+    assert float(outputs["flat"][..., 4:-4, 4:-4].std()) < 1e-3

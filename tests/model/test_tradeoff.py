@@ -358,10 +358,12 @@ def test_an_empty_split_to_score_is_a_one_line_error(
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
     monkeypatch.setattr(tradeoff, "open_eval_pairs", lambda data, split: [])  # built, but empty
     gea = tuple(v for v in DEFAULT_VARIANTS if v.name == "GEA")
+    # asked for by name (the default falls back to held-out pairs: see the test above)
     with pytest.raises(ModelError, match=r"split test: no pairs to score; choose another --split"):
         run_tradeoff(
-            dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), tiny_config(), gea
-        )
+            dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), tiny_config(), gea,
+            split="test",
+        )  # fmt: skip
     assert not (tmp_path / "t").exists()  # refused before anything was trained or written
 
 
