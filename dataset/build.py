@@ -455,7 +455,8 @@ def _check_sides(sources: Sequence[Source], accept: bool) -> None:
     Raises:
         DatasetError: naming each such recording and what its check said.
     """
-    strong, weak = [], []
+    strong: list[str] = []
+    weak: list[str] = []
     for source in sources:
         check = source.report.side_check
         if check.get("mismatch") is not True:
