@@ -68,12 +68,12 @@ def _hash_rank(name: str) -> str:
 RECORDING_FRAME = re.compile(r"^(?P<recording>.+)_(?P<t_ns>\d{16,20})$")
 """A dataset-build pair name: ``<recording id>_<timestamp in ns>``."""
 
-HOLDOUT_WINDOW_NS = 10 * 10**9
-"""Frames of one recording within one such window are held out (or kept) together."""
+HOLDOUT_WINDOWS_NS = (10 * 10**9, 5 * 10**9, 2 * 10**9, 10**9)
+"""Windows of a recording held out together, tried longest first (:func:`holdout_indices`)."""
 
 
-def holdout_group(name: str) -> str:
-    """The group a pair is held out with: ``rec@<10 s window>`` for recording frames.
+def holdout_group(name: str, window_ns: int = HOLDOUT_WINDOWS_NS[0]) -> str:
+    """The group a pair is held out with: ``rec@<window>`` for recording frames.
 
     Neighbouring frames of a recording are near duplicates: held out one by
     one, a validation frame had its neighbours in training (frames 5 and 7
@@ -83,16 +83,29 @@ def holdout_group(name: str) -> str:
     match = RECORDING_FRAME.match(name)
     if match is None:
         return name
-    return f"{match['recording']}@{int(match['t_ns']) // HOLDOUT_WINDOW_NS}"
+    return f"{match['recording']}@{int(match['t_ns']) // window_ns}"
+
+
+def _hold_out_groups(groups: dict[str, list[int]], count: int, upper: int) -> set[int]:
+    """Whole groups in hash order, skipping any that would pass ``upper``, up to ``count``."""
+    held: set[int] = set()
+    for key in sorted(groups, key=lambda g: (_hash_rank(g), g)):
+        if len(held) >= count:
+            break
+        if len(held) + len(groups[key]) <= upper:
+            held.update(groups[key])
+    return held
 
 
 def holdout_indices(names: Sequence[str], fraction: float) -> tuple[list[int], list[int]]:
     """Split indices into (train, validation) by a hash of each name's group (deterministic).
 
-    Whole groups (:func:`holdout_group`) are held out, in the order of their
-    hash, until ``fraction`` of the pairs are; adding pairs never moves an old
-    group. With a single group (one short recording) pairs are held out one by
-    one, the only choice left.
+    Whole groups (:func:`holdout_group`) are held out in the order of their
+    hash, so adding pairs never moves an old group, until ``fraction`` of the
+    pairs are; a group that would take the share past 1.5 times ``fraction``
+    is skipped. When no window length (10 s, then 5, 2 and 1 s) lands within
+    half to 1.5 times the share, pairs are held out one by one, the only
+    choice left (one short recording).
 
     Raises:
         ModelError: fewer than two names.
@@ -101,19 +114,20 @@ def holdout_indices(names: Sequence[str], fraction: float) -> tuple[list[int], l
     if len(names) < 2:
         raise ModelError(f"need at least 2 pairs to hold out a validation set, got {len(names)}")
     count = min(len(names) - 1, max(1, math.ceil(fraction * len(names))))
-    groups: dict[str, list[int]] = {}
+    upper = min(len(names) - 1, max(count, math.floor(1.5 * count)))
+    for window in HOLDOUT_WINDOWS_NS:
+        groups: dict[str, list[int]] = {}
+        for index, name in enumerate(names):
+            groups.setdefault(holdout_group(name, window), []).append(index)
+        if len(groups) == len(names):
+            break  # every pair its own group already: the per-pair split below
+        held = _hold_out_groups(groups, count, upper)
+        if len(held) >= max(1, count // 2):
+            return [i for i in range(len(names)) if i not in held], sorted(held)
+    single: dict[str, list[int]] = {}
     for index, name in enumerate(names):
-        groups.setdefault(holdout_group(name), []).append(index)
-    if len(groups) < 2:
-        groups = {name: [index] for index, name in enumerate(names)}
-    held: set[int] = set()
-    for key in sorted(groups, key=lambda g: (_hash_rank(g), g)):
-        if len(held) >= count or len(held) + len(groups[key]) >= len(names):
-            break
-        held.update(groups[key])
-    if not held:  # every group holds most pairs: take the smallest whole one
-        smallest = min(groups, key=lambda g: len(groups[g]))
-        held.update(groups[smallest])
+        single.setdefault(name, []).append(index)
+    held = _hold_out_groups(single, count, upper)
     return [i for i in range(len(names)) if i not in held], sorted(held)
 
 
