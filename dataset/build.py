@@ -537,21 +537,36 @@ def _place(temp: Path, out: Path, overwrite: bool) -> None:
         return
     own = _own_entries()
     theirs = sorted(p.name for p in out.iterdir() if p.name not in own)
-    for name in theirs:
-        os.replace(out / name, temp / name)
-    if theirs:
-        logger.warning(
-            "%s: kept %s, not part of the dataset, in the rebuilt one", out, ", ".join(theirs)
-        )
+    for name in theirs:  # linked, not moved: until the swap, the originals stay where they are
+        _link_tree(out / name, temp / name)
     trash = Path(tempfile.mkdtemp(prefix=temporary_prefix(out.name), suffix=".old", dir=out.parent))
     try:
         os.replace(out, trash / "dataset")
         try:
             os.replace(temp, out)
         except OSError:
-            os.replace(trash / "dataset", out)  # put the old dataset back, and the user's files
-            for name in theirs:
-                os.replace(temp / name, out / name)
+            os.replace(trash / "dataset", out)  # put the old dataset back
             raise
     finally:
         shutil.rmtree(trash, ignore_errors=True)
+    if theirs:
+        logger.warning(
+            "%s: kept %s, not part of the dataset, in the rebuilt one", out, ", ".join(theirs)
+        )
+
+
+def _link_tree(source: Path, destination: Path) -> None:
+    """Hard-link ``source`` (a file, or a folder's files) at ``destination``, else copy."""
+
+    def link(src: str, dst: str) -> None:
+        try:
+            os.link(src, dst)
+        except OSError:
+            shutil.copy2(src, dst)
+
+    if source.is_dir() and not source.is_symlink():
+        shutil.copytree(source, destination, symlinks=True, copy_function=link)
+    elif source.is_symlink():
+        os.symlink(os.readlink(source), destination)
+    else:
+        link(str(source), str(destination))

@@ -465,3 +465,26 @@ def test_a_rebuild_with_one_more_recording_keeps_the_grouping(
     assert any("kept grouping by segment" in w for w in again.card.grouping.warnings)
     fresh = build_dataset(both, tmp_path / "DS2", config)
     assert fresh.card.grouping.mode == "recording"
+
+
+def test_a_rebuild_that_fails_at_the_swap_loses_none_of_the_users_files(
+    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source = recording("rec_a", n=6)
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    out = tmp_path / "DS"
+    build_dataset([source], out, config)
+    (out / "NOTES.md").write_text("collected on the roof")
+    real = os.replace
+
+    def busy(src: object, dst: object) -> None:
+        if Path(str(src)) == out:  # --out a mount point (a Docker volume): EBUSY
+            raise OSError(16, "Device or resource busy", str(src))
+        real(src, dst)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(build_module.os, "replace", busy)
+    with pytest.raises(OSError, match="busy"):
+        build_dataset([source], out, config)
+    # moved into the new build first, they went with its clean-up
+    assert (out / "NOTES.md").read_text() == "collected on the roof"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["DS", "ingested"]
