@@ -15,6 +15,7 @@ from types import ModuleType
 from typing import NoReturn
 
 from lenspair import __version__
+from lenspair.commands.argtypes import expand_topics
 from lenspair.core.errors import LenspairError
 
 # name -> (module, one-line summary). A plain table: no registry magic.
@@ -93,7 +94,7 @@ REFUSALS = frozenset(
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the process exit code."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+    argv = expand_topics(list(sys.argv[1:] if argv is None else argv))
     selected = next((a for a in argv if a in COMMANDS), None)
     parser = build_parser(selected)
     if not argv:

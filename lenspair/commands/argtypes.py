@@ -90,7 +90,7 @@ def detector_file(text: str) -> Path:
 
 
 class _Topics(argparse.Action):
-    """Stores ``--topics`` as a ``(cam0, cam1)`` tuple from two words or one ``A,B``."""
+    """Stores ``--topics CAM0 CAM1`` as a ``(cam0, cam1)`` tuple of two different topics."""
 
     def __call__(
         self,
@@ -99,27 +99,43 @@ class _Topics(argparse.Action):
         values: object,
         option_string: str | None = None,
     ) -> None:
-        words = [str(v) for v in values] if isinstance(values, list) else [str(values)]
-        if len(words) == 1:  # the comma form capture-ingest always took
-            words = [part.strip() for part in words[0].split(",")]
+        words = [str(v).strip() for v in values] if isinstance(values, list) else []
         if len(words) != 2 or not all(words) or words[0] == words[1]:
-            parser.error(
-                f"--topics: expected two different topics, CAM0 CAM1 (or CAM0,CAM1), "
-                f"got {' '.join(str(v) for v in values) if isinstance(values, list) else values!r}"
-            )
+            parser.error(f"--topics: expected two different topics, got {' '.join(words)!r}")
         setattr(namespace, self.dest, (words[0], words[1]))
+
+
+def expand_topics(argv: list[str]) -> list[str]:
+    """``--topics A,B`` (the form capture-ingest always took) as ``--topics A B``.
+
+    The option takes exactly two words (``nargs=2``): one that took "one or
+    more" swallowed the positional arguments written after it.
+    """
+    expanded: list[str] = []
+    after_option = False
+    for token in argv:
+        if token.startswith("--topics="):
+            expanded.append("--topics")
+            token = token.split("=", 1)[1]
+            after_option = True
+        if after_option and "," in token:
+            expanded.extend(part.strip() for part in token.split(","))
+        else:
+            expanded.append(token)
+        after_option = token == "--topics"
+    return expanded
 
 
 def add_topics_option(parser: argparse.ArgumentParser) -> None:
     """``--topics CAM0 CAM1``, the same in every command that reads bags."""
     parser.add_argument(
         "--topics",
-        nargs="+",
+        nargs=2,
         action=_Topics,
         default=None,
-        metavar="TOPIC",
-        help="bags: the image topics of cam0 and cam1, as CAM0 CAM1 or CAM0,CAM1 (default: "
-        "chosen from the topic names: cam0/cam1 or left/right, or the only two)",
+        metavar=("CAM0", "CAM1"),
+        help="bags: the image topics of cam0 and cam1 (also CAM0,CAM1; default: chosen from "
+        "the topic names: cam0/cam1 or left/right, or the only two)",
     )
 
 

@@ -15,7 +15,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from lenspair.cli import COMMANDS, main
+from lenspair.cli import COMMANDS, build_parser, main
+from lenspair.commands.argtypes import expand_topics
 from tests.model.train_fixtures import write_split_dataset
 
 # Bad files, by kind: (file name, writer). "unreadable" is a folder where a file
@@ -153,7 +154,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["detect", "DET", "IMGS", "--out", "OUT", "--sheet-frames", "-1"], "--sheet-frames"),
     (["detect", "DET", "IMGS", "--out", "OUT", "--topics", "a"], "--topics"),
     (["detect", "DET", "IMGS", "--out", "OUT", "--topics", "/a", "/a"], "two different topics"),
-    (["restore", "CKPT", "IMGS", "--out", "OUT", "--topics", "/a", "/b", "/c"], "--topics"),
+    (["restore", "CKPT", "IMGS", "--out", "OUT", "--topics", "/a", "/b", "/c"], "/c"),
     (["capture-ingest", "DS", "--out", "OUT", "--topics", "/a,"], "--topics"),
     (["calibrate", "DS", "--board", "x", "--model", "pinhole-equi", "--topics", "/a"], "--topics"),
     (["detect", "DET", "OUT/none", "--out", "OUT"], "none"),
@@ -331,3 +332,35 @@ def test_a_file_system_refusal_is_one_line_naming_the_path(
     lines = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(lines) == 1, lines
     assert str(out / "rain") in lines[0]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["restore", "--topics", "/a", "/b", "model.pt", "rec.bag", "--out", "o"],
+        ["restore", "--topics", "/a,/b", "model.pt", "rec.bag", "--out", "o"],
+        ["restore", "model.pt", "rec.bag", "--out", "o", "--topics=/a,/b"],
+        ["detect", "--topics", "/a", "/b", "det.pt", "rec.bag"],
+        ["capture-ingest", "--topics", "/a,/b", "rec.bag", "--out", "o"],
+        [
+            "calibrate",
+            "--topics",
+            "/a",
+            "/b",
+            "rec.bag",
+            "--board",
+            "b",
+            "--model",
+            "pinhole-equi",
+            "--out",
+            "c",
+        ],
+    ],
+)
+def test_topics_before_the_positionals_take_two_words(argv: list[str]) -> None:
+    # "one or more" words swallowed the recording after them
+    args = build_parser(argv[0]).parse_args(expand_topics(argv))
+    assert args.topics == ("/a", "/b")
+    positional = {"restore": "input", "detect": "input", "capture-ingest": "recording"}
+    name = positional.get(argv[0], "recording")
+    assert str(getattr(args, name)) == "rec.bag"
