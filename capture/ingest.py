@@ -46,6 +46,7 @@ from lenspair.capture import ingest_frames as frame_work
 from lenspair.capture.calibration_source import find_calibration
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.ingest_report import (
+    STALE_REPORT,
     frame_counts,
     in_output_pixels,
     rejection_reasons,
@@ -291,6 +292,8 @@ def _check_same_source(out_dir: Path, source: Path) -> None:
         CaptureError: naming both recordings and what to do.
     """
     before = read_json_field(out_dir / REPORT_FILE, "source")
+    if before is None:  # a run stopped while its report was set aside
+        before = read_json_field(out_dir / STALE_REPORT, "source")
     if not isinstance(before, str) or not Path(before).is_absolute():
         return  # written before sources were absolute: cannot tell
     if Path(before) != source:

@@ -10,6 +10,7 @@ import pytest
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.ingest import ingest_recording
+from lenspair.capture.ingest_report import set_report_aside
 from lenspair.capture.ingested import IngestReport, PairRecord, read_pairs, read_report
 from lenspair.cli import main
 from lenspair.core.imageio import read_image, write_image
@@ -301,3 +302,8 @@ def test_a_namesake_recording_is_refused_not_merged(tmp_path: Path) -> None:
     assert (out / "rec" / "pairs.jsonl").read_bytes() == pairs_before  # untouched
     _ingest(first, out)  # the same recording again: a rerun, accepted
     _ingest(first / "mav0", out)  # the same recording by its mav0 folder, too
+    # a run stopped while its report was set aside (ingest_report.set_report_aside):
+    # the guard read report.json only, and the namesake was let in
+    set_report_aside(out / "rec")
+    with pytest.raises(CaptureError, match=r"holds the ingest of .*a/rec.*same name"):
+        _ingest(second, out)
