@@ -161,48 +161,61 @@ def image_files(folder: Path) -> list[Path]:
     return sorted(found)
 
 
+def _image_topics(reader: rosbag.BagReader) -> list[str]:
+    return sorted(
+        name for name, info in reader.topics.items() if info.msgtype in rosbag.IMAGE_TYPES
+    )
+
+
 def bag_image_topics(path: Path) -> list[str]:
     """Every image topic of a bag (``sensor_msgs/Image`` or ``CompressedImage``), sorted."""
     reader = rosbag._open(Path(path))
     try:
-        return sorted(
-            name for name, info in reader.topics.items() if info.msgtype in rosbag.IMAGE_TYPES
-        )
+        return _image_topics(reader)
     finally:
         reader.close()
 
 
-def bag_frame_count(
-    path: Path, cameras: Sequence[CameraName], topics: tuple[str, str] | None = None
-) -> int | None:
-    """How many image messages ``cameras`` have in a bag (its index), None for a cut bag."""
-    named = bag_camera_topics(path, topics)
-    chosen = {topic for topic, camera in named.items() if camera in cameras}
+@dataclass(frozen=True)
+class BagOverview:
+    """What a command reading a bag's cameras says before the first frame.
+
+    Attributes:
+        others: one line per image topic that is neither camera's: a robot's
+            bag often holds more than two (a camera's ``/compressed`` twin, a
+            third camera), and a command that reads only the two cameras must
+            say which it left alone, or dirty frames pass unnoticed.
+        frames: image messages of the chosen cameras, from the bag's index
+            (None for a bag cut short: it has no index).
+    """
+
+    others: tuple[str, ...]
+    frames: int | None
+
+
+def bag_overview(
+    path: Path, cameras: Sequence[CameraName] = CAMERAS, topics: tuple[str, str] | None = None
+) -> BagOverview:
+    """The :class:`BagOverview` of a bag, from one opening (a cut bag is scanned once)."""
     reader = rosbag._open(Path(path))
     try:
-        if rosbag.cut_note(reader) is not None:
-            return None  # read record by record: no index to count from
-        return sum(int(c.msgcount) for c in reader.connections if c.topic in chosen)
+        image_topics = _image_topics(reader)
+        named = _camera_topics(image_topics, Path(path), topics)
+        counts = None
+        if rosbag.cut_note(reader) is None:
+            chosen = {topic for topic, camera in named.items() if camera in cameras}
+            counts = sum(int(c.msgcount) for c in reader.connections if c.topic in chosen)
     finally:
         reader.close()
-
-
-def other_image_topics(path: Path, topics: tuple[str, str] | None = None) -> list[str]:
-    """One line per image topic of a bag that is neither camera's (:func:`bag_camera_topics`).
-
-    A robot's bag often holds more than two image topics (a camera's
-    ``/compressed`` twin, a third camera); a command that reads only the two
-    cameras must say which it left alone, or dirty frames pass unnoticed.
-    """
-    named = bag_camera_topics(path, topics)
     by_camera = sorted(named.items(), key=lambda item: item[1])
-    cameras = ", ".join(f"{camera} {topic}" for topic, camera in by_camera)
-    return [
-        f"{path}: image topic {topic} left as recorded (camera topics: {cameras}; "
+    listed = ", ".join(f"{camera} {topic}" for topic, camera in by_camera)
+    others = tuple(
+        f"{path}: image topic {topic} left as recorded (camera topics: {listed}; "
         "--topics CAM0 CAM1 chooses others)"
-        for topic in bag_image_topics(path)
+        for topic in image_topics
         if topic not in named
-    ]
+    )
+    return BagOverview(others, counts)
 
 
 def bag_camera_topics(path: Path, topics: tuple[str, str] | None = None) -> dict[str, CameraName]:
@@ -218,9 +231,14 @@ def bag_camera_topics(path: Path, topics: tuple[str, str] | None = None) -> dict
         CaptureError: no image topic, a named topic that is not an image
             topic, or an ambiguous choice (lists topics).
     """
-    image_topics = bag_image_topics(path)
+    return _camera_topics(bag_image_topics(path), Path(path), topics)
+
+
+def _camera_topics(
+    image_topics: list[str], path: Path, topics: tuple[str, str] | None
+) -> dict[str, CameraName]:
     if topics is not None:
-        rosbag._check_chosen(tuple(topics), image_topics, Path(path))
+        rosbag._check_chosen(tuple(topics), image_topics, path)
         return {topics[0]: "cam0", topics[1]: "cam1"}
     if not image_topics:
         raise CaptureError(f"{path}: no image topic (sensor_msgs/Image or CompressedImage)")
@@ -229,9 +247,7 @@ def bag_camera_topics(path: Path, topics: tuple[str, str] | None = None) -> dict
     # A bag written by ``restore --suffix`` holds /cam1/image_raw and
     # /cam1/image_raw/restored: the cameras are the original topics.
     originals = [t for t in image_topics if not any(t.startswith(o + "/") for o in image_topics)]
-    cam0, cam1 = rosbag.select_topics(
-        originals if len(originals) >= 2 else image_topics, Path(path)
-    )
+    cam0, cam1 = rosbag.select_topics(originals if len(originals) >= 2 else image_topics, path)
     return {cam0: "cam0", cam1: "cam1"}
 
 

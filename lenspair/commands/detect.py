@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Judge the frames of INPUT; returns the exit code."""
     # torch and the bag readers load when the command runs, so --help stays fast
-    from lenspair.capture.frames import detect_input, frame_files, iter_frames, other_image_topics
+    from lenspair.capture.frames import bag_overview, detect_input, frame_files, iter_frames
     from lenspair.capture.recording import CAMERAS
     from lenspair.capture.recording_types import FrameProblem
     from lenspair.model.detection.report import detect_frames
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     # Files are counted from their listing (cheap); a bag's count is only known once read.
     bag = kind in ("rosbag1", "rosbag2")
     total = None if bag else len(frame_files(args.input, kind, CAMERAS))
-    problems: list[str] = other_image_topics(args.input, args.topics) if bag else []
+    problems: list[str] = list(bag_overview(args.input, CAMERAS, args.topics).others) if bag else []
     dropped: list[FrameProblem] = []  # images the listing left out or could not find: rows too
     frames = iter_frames(args.input, CAMERAS, problems, args.topics, dropped)
     verdicts = detect_frames(

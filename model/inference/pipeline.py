@@ -39,12 +39,11 @@ from lenspair.capture.frames import (
     InputFrame,
     InputKind,
     bag_camera_topics,
-    bag_frame_count,
+    bag_overview,
     detect_input,
     frame_files,
     iter_bag_messages,
     iter_frames,
-    other_image_topics,
 )
 from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
@@ -340,8 +339,9 @@ def restore_input(
     total: int | None = None
     if bag:
         sink = BagSink(input_path, out_dir, options.suffix, options.resume)
-        source_problems.extend(other_image_topics(input_path, options.topics))
-        total = bag_frame_count(input_path, cameras, options.topics)  # for the progress bar
+        overview = bag_overview(input_path, cameras, options.topics)
+        source_problems.extend(overview.others)
+        total = overview.frames  # for the progress bar
         items: Iterator[Any] = iter_bag_messages(
             input_path, cameras, source_problems, options.topics
         )

@@ -6,13 +6,7 @@ import numpy as np
 import pytest
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.frames import (
-    bag_frame_count,
-    detect_input,
-    frame_files,
-    iter_frames,
-    other_image_topics,
-)
+from lenspair.capture.frames import bag_overview, detect_input, frame_files, iter_frames
 from lenspair.core.imageio import read_image, write_image
 from tests.capture.ingest_helpers import make_recording
 from tests.model.restore_helpers import bag_from_recording, write_bag
@@ -77,12 +71,12 @@ def test_bag_topics_can_be_named(tmp_path: Path) -> None:
     with pytest.raises(CaptureError, match="/status is not an image topic"):
         iter_frames(bag, topics=("/status", "/cam0/image_raw"))
     # the progress bar's total, from the bag's index: the chosen cameras' messages only
-    assert bag_frame_count(bag, ("cam0", "cam1")) == 4
-    assert bag_frame_count(bag, ("cam1",), ("/cam2/image_raw", "/cam0/image_raw")) == 2
-    assert other_image_topics(bag) == [
+    assert bag_overview(bag, ("cam0", "cam1")).frames == 4
+    assert bag_overview(bag, ("cam1",), ("/cam2/image_raw", "/cam0/image_raw")).frames == 2
+    assert bag_overview(bag).others == (
         f"{bag}: image topic /cam2/image_raw left as recorded (camera topics: cam0 "
-        "/cam0/image_raw, cam1 /cam1/image_raw; --topics CAM0 CAM1 chooses others)"
-    ]
+        "/cam0/image_raw, cam1 /cam1/image_raw; --topics CAM0 CAM1 chooses others)",
+    )
 
 
 def test_bad_inputs_are_one_line_errors_raised_before_any_frame(tmp_path: Path) -> None:
