@@ -463,6 +463,9 @@ def test_a_rebuild_with_one_more_recording_keeps_the_grouping(
     again = build_dataset(both, out, config, overwrite=True)
     assert again.card.grouping.mode == "segment"  # auto alone would now say recording
     assert any("kept grouping by segment" in w for w in again.card.grouping.warnings)
+    # its config.yaml says so: built again from it, the same splits come out
+    assert again.card.config.split.group_by == "segment"
+    assert "group_by: segment" in (out / "config.yaml").read_text()
     fresh = build_dataset(both, tmp_path / "DS2", config)
     assert fresh.card.grouping.mode == "recording"
 
