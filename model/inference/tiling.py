@@ -29,23 +29,24 @@ ALIGN = 32
 
 
 def to_batch(images: list[np.ndarray]) -> np.ndarray:
-    """Same-shape integer images -> ``(N, C, H, W)`` float32 in [0, 1].
-
-    Each image is scaled by its own dtype's full scale (255 or 65535), so a
-    batch may mix 8- and 16-bit frames.
+    """Same-shape, same-dtype integer images -> ``(N, C, H, W)`` float32 in [0, 1].
 
     Raises:
-        ModelError: no images, or images of different shapes.
+        ModelError: no images, or images of different shapes or bit depths
+            (a uint8 frame batched with uint16 ones was scaled by theirs, and
+            :func:`from_batch` gives every output one dtype).
     """
     if not images:
         raise ModelError("to_batch: no images")
     shapes = {image.shape for image in images}
     if len(shapes) > 1:
         raise ModelError(f"to_batch: images of different shapes {sorted(shapes)}")
-    scales = np.array([max_value(image.dtype) for image in images], np.float32)
+    dtypes = {image.dtype.name for image in images}
+    if len(dtypes) > 1:
+        raise ModelError(f"to_batch: images of different bit depths ({', '.join(sorted(dtypes))})")
+    scale = np.float32(max_value(images[0].dtype))
     stacked = np.stack([image if image.ndim == 3 else image[:, :, None] for image in images])
-    batch = np.ascontiguousarray(stacked.transpose(0, 3, 1, 2), dtype=np.float32)
-    return batch / scales[:, None, None, None]
+    return np.ascontiguousarray(stacked.transpose(0, 3, 1, 2), dtype=np.float32) / scale
 
 
 def from_batch(batch: np.ndarray, dtype: np.dtype, mono: bool) -> list[np.ndarray]:

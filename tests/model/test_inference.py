@@ -149,10 +149,11 @@ def test_integer_round_trip_keeps_dtype_and_channels() -> None:
             (back,) = from_batch(to_batch([image]), image.dtype, image.ndim == 2)
             assert back.dtype == image.dtype and back.shape == image.shape
             np.testing.assert_array_equal(back, image)
-    # a batch mixing 8- and 16-bit frames: each on its own scale (16-bit read as 0..257)
+    # a uint8 frame batched with uint16 ones was scaled by their 65535: refused
     eight = np.full((4, 5), 255, np.uint8)
     sixteen = np.full((4, 5), 65535, np.uint16)
-    assert to_batch([eight, sixteen]).max() == 1.0 and to_batch([eight, sixteen]).min() == 1.0
+    with pytest.raises(ModelError, match=r"different bit depths \(uint16, uint8\)"):
+        to_batch([sixteen, eight])
     with pytest.raises(ModelError, match="different shapes"):
         to_batch([eight, eight[:3]])
 
