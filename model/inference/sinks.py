@@ -223,6 +223,7 @@ class BagSink:
                 with tmp.open("wb") as handle:
                     np.save(handle, restored, allow_pickle=False)
 
+            # synced, unlike the image frames: done() trusts a cached frame that exists
             atomic_write(self._cached_path(item.frame), _save, suffix=".npy")
 
     def _open(self) -> None:
