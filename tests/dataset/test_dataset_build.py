@@ -317,14 +317,22 @@ def test_existing_output_rules(recording: RecordingFactory, tmp_path: Path) -> N
     assert (coco / "photos" / "a.jpg").read_bytes() == b"x"
 
 
-def test_a_rebuild_keeps_the_users_own_files(
-    recording: RecordingFactory, tmp_path: Path, caplog: pytest.LogCaptureFixture
-) -> None:
+def _dataset_with_notes(
+    recording: RecordingFactory, tmp_path: Path
+) -> tuple[Path, Path, DatasetConfig]:
+    """``(source, DS, config)``: a built dataset the user wrote NOTES.md into."""
     source = recording("rec_a", n=6)
     config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
     out = tmp_path / "DS"
     build_dataset([source], out, config)
     (out / "NOTES.md").write_text("collected on the roof")
+    return source, out, config
+
+
+def test_a_rebuild_keeps_the_users_own_files(
+    recording: RecordingFactory, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    source, out, config = _dataset_with_notes(recording, tmp_path)
     (out / "eval_best").mkdir()
     (out / "eval_best" / "metrics.json").write_text("{}")
     with caplog.at_level("WARNING"):
@@ -473,11 +481,7 @@ def test_a_rebuild_with_one_more_recording_keeps_the_grouping(
 def test_a_rebuild_that_fails_at_the_swap_loses_none_of_the_users_files(
     recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    source = recording("rec_a", n=6)
-    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
-    out = tmp_path / "DS"
-    build_dataset([source], out, config)
-    (out / "NOTES.md").write_text("collected on the roof")
+    source, out, config = _dataset_with_notes(recording, tmp_path)
     real = os.replace
 
     def busy(src: object, dst: object) -> None:

@@ -69,25 +69,25 @@ def test_an_unreadable_frame_is_recorded_not_fatal(tmp_path: Path) -> None:
     )
 
 
-def test_one_frame_per_camera_says_views_are_missing(tmp_path: Path) -> None:
-    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=1)
+def _calibration_error(tmp_path: Path, frames: int) -> tuple[str, str]:
+    """Calibrate a board recording of ``frames`` frames: ``(error message, board spec)``."""
+    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=frames)
     simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
     assert spec.board is not None
-    # it used to ask for a pairing tolerance, which calibrate has no option for
     with pytest.raises(RectifyError) as caught:
         calibrate_recording(tmp_path / "rec", spec.board.target, "pinhole-equi")
-    message = str(caught.value)
+    return str(caught.value), spec.board.target.spec()
+
+
+def test_one_frame_per_camera_says_views_are_missing(tmp_path: Path) -> None:
+    message, _ = _calibration_error(tmp_path, frames=1)
+    # it used to ask for a pairing tolerance, which calibrate has no option for
     assert "1 cam0, 1 cam1 frames" in message and "at least 5 views" in message
     assert "tolerance" not in message and str(tmp_path / "rec") in message
 
 
 def test_too_few_board_views_names_the_recording_and_what_was_found(tmp_path: Path) -> None:
-    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=3)
-    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
-    assert spec.board is not None
-    with pytest.raises(RectifyError) as caught:
-        calibrate_recording(tmp_path / "rec", spec.board.target, "pinhole-equi")
-    message = str(caught.value)
+    message, board = _calibration_error(tmp_path, frames=3)
     # it said "cam0: only 3 usable board views, need at least 5", naming no recording
     assert message.startswith(f"{tmp_path / 'rec'}: ") and "need at least 5" in message
-    assert "3 frame pairs examined" in message and spec.board.target.spec() in message
+    assert "3 frame pairs examined" in message and board in message
