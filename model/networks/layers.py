@@ -19,9 +19,9 @@ which each norm multiplies by up to ``1/sqrt(eps)`` = 316: after a few
 layers a grey frame came out as blotches from 10 to 158. So the generator
 marks flat samples (:func:`flat_samples`: every pixel within
 :data:`FLAT_TOLERANCE` of its channel's corner pixel) and every instance
-norm inside it gives them
-exactly 0, what exact arithmetic gives; other samples are untouched, and a
-batch without a flat sample costs one small reduction.
+norm inside it gives them exactly 0, what exact arithmetic gives; other
+samples are untouched, and a batch without a flat sample costs one small
+reduction.
 """
 
 import threading
