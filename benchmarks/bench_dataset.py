@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from lenspair.capture.ingested import IngestReport, PairRecord, write_pairs, write_report
+from lenspair.commands.argtypes import positive_int
 from lenspair.core.fsutil import sha256_bytes, sha256_file
 from lenspair.core.imageio import read_image, write_image
 from lenspair.dataset.build import build_dataset
@@ -176,8 +177,8 @@ def main(argv: list[str] | None = None) -> int:
     """Command line: run, print the table, write it and the JSON to ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--out", type=Path, help="folder for bench_dataset.{md,json}")
-    parser.add_argument("--pairs", type=int, default=200)
-    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--pairs", type=positive_int, default=200)
+    parser.add_argument("--runs", type=positive_int, default=3)
     parser.add_argument("--workers", type=int, default=None)
     args = parser.parse_args(argv)
     os.environ.setdefault("LENSPAIR_QUIET", "1")

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lenspair.commands.argtypes import positive_int
 from lenspair.model.detection.judge import judge
 from lenspair.model.evaluation.latency import tune_allocator
 from lenspair.model.networks.complexity import describe
@@ -106,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     """Command line: run, print the table, write it and the JSON to ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--out", type=Path, help="folder for detector.{md,json}")
-    parser.add_argument("--runs", type=int, default=40)
+    parser.add_argument("--runs", type=positive_int, default=40)
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     result = run(args.runs, args.threads)

@@ -26,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from lenspair.commands.argtypes import positive_int
 from lenspair.simulate.effects.spec import (
     SHARP_DROPS,
     BrightnessSpec,
@@ -173,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     """Command line: run, print the table, write it and the JSON to ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--out", type=Path, help="folder for bench_effects.{md,json}")
-    parser.add_argument("--runs", type=int, default=30)
+    parser.add_argument("--runs", type=positive_int, default=30)
     args = parser.parse_args(argv)
     result = run(args.runs)
     table = markdown(result)

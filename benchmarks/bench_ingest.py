@@ -37,6 +37,7 @@ from lenspair.capture.ingested import read_pairs
 from lenspair.capture.recording import load_frame, open_recording
 from lenspair.capture.rigfile import read_rig_file
 from lenspair.cli import main as lenspair_main
+from lenspair.commands.argtypes import positive_int
 from lenspair.core.imageio import write_image
 from lenspair.rectify.crop import Crop
 from lenspair.rectify.rectification import StereoRectification
@@ -93,8 +94,10 @@ def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; returns 0."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_ingest", description=__doc__)
     parser.add_argument("--out", type=Path, default=None, help="folder for JSON and Markdown")
-    parser.add_argument("--frames", type=int, default=40, help="simulated frames (default 40)")
-    parser.add_argument("--runs", type=int, default=3, help="timed rounds (default 3)")
+    parser.add_argument(
+        "--frames", type=positive_int, default=40, help="simulated frames (default 40)"
+    )
+    parser.add_argument("--runs", type=positive_int, default=3, help="timed rounds (default 3)")
     args = parser.parse_args(argv)
     os.environ.setdefault("LENSPAIR_QUIET", "1")
     with tempfile.TemporaryDirectory(prefix="bench_ingest_") as tmp:

@@ -33,6 +33,7 @@ from typing import Any
 import torch
 
 from benchmarks.bench_model import HEIGHT, WIDTH, _structured_image, _untrained_model
+from lenspair.commands.argtypes import positive_int
 from lenspair.model.evaluation.export import INPUT_NAME
 from lenspair.model.evaluation.quantize import open_session, quantize_network
 from lenspair.model.metrics import psnr
@@ -164,7 +165,9 @@ def main(argv: list[str] | None = None) -> int:
     """Run the benchmark; print a Markdown table, write ``int8.json`` with ``--out``."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_int8", description=__doc__)
     parser.add_argument("--out", type=Path, default=None, help="folder for int8.json")
-    parser.add_argument("--runs", type=int, default=10, help="timed runs per configuration")
+    parser.add_argument(
+        "--runs", type=positive_int, default=10, help="timed runs per configuration"
+    )
     parser.add_argument("--calibration", type=int, default=8, help="calibration images")
     parser.add_argument("--no-pt2e", action="store_true", help="skip PT2E (slow compile)")
     args = parser.parse_args(argv)

@@ -27,6 +27,7 @@ from pathlib import Path
 import torch
 
 from benchmarks.machine import median_ms, round_robin
+from lenspair.commands.argtypes import positive_int
 from lenspair.model.precision import choose_precision
 
 CHANNELS, HEIGHT, WIDTH = 32, 180, 270
@@ -68,7 +69,7 @@ def measure(runs: int, cap: str | None) -> dict[str, object]:
 def main(argv: list[str] | None = None) -> int:
     """Command line (module docstring); returns the exit code."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
-    parser.add_argument("--runs", type=int, default=15)
+    parser.add_argument("--runs", type=positive_int, default=15)
     parser.add_argument("--cap", default="AVX512_CORE_VNNI")
     parser.add_argument("--out", type=Path, default=None, help="folder for isa_cap.json")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)

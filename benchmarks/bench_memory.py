@@ -37,6 +37,8 @@ from pathlib import Path
 
 import yaml
 
+from lenspair.commands.argtypes import positive_int
+
 SCENE = Path(__file__).resolve().parents[1] / "calib_samples" / "rain.yaml"
 TARGET_RATIO = 1.15
 COMMANDS = ("capture-ingest", "dataset-build", "restore")
@@ -94,7 +96,9 @@ def main(argv: list[str] | None = None) -> int:
     """Measure and print the table; returns 1 when memory grows past the target."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=None)
-    parser.add_argument("--frames", type=int, nargs=2, default=[500, 2000], metavar=("FEW", "MANY"))
+    parser.add_argument(
+        "--frames", type=positive_int, nargs=2, default=[500, 2000], metavar=("FEW", "MANY")
+    )
     args = parser.parse_args(argv)
     few, many = sorted(args.frames)
     if few < 1 or few == many:

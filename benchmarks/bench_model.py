@@ -53,6 +53,7 @@ import torch
 from benchmarks.machine import cpu_pressure, median_ms, round_robin
 from benchmarks.machine import peaks as measure_peaks
 from benchmarks.model_profile import deraindrop_comparison, layer_profile, profile_table
+from lenspair.commands.argtypes import positive_int
 from lenspair.model.evaluation.latency import tune_allocator
 from lenspair.model.metrics import psnr
 from lenspair.model.networks.complexity import describe
@@ -328,7 +329,9 @@ def main(argv: list[str] | None = None) -> int:
     """Run the benchmark, print a Markdown table, optionally write ``model.json``."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_model", description=__doc__)
     parser.add_argument("--out", type=Path, default=None, help="folder for model.json")
-    parser.add_argument("--runs", type=int, default=40, help="timed runs per configuration")
+    parser.add_argument(
+        "--runs", type=positive_int, default=40, help="timed runs per configuration"
+    )
     parser.add_argument("--warmup", type=int, default=5, help="untimed runs per configuration")
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument(

@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 import torch
 
+from lenspair.commands.argtypes import positive_int
 from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import build_network
 from lenspair.model.evaluation.latency import measure_latency
@@ -86,8 +87,8 @@ def _write_db3(path: Path, frames: list[np.ndarray]) -> Path:
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark, print a table (and JSON); returns 0."""
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("--frames", type=int, default=40)
-    parser.add_argument("--runs", type=int, default=20, help="timed latency runs (20)")
+    parser.add_argument("--frames", type=positive_int, default=40)
+    parser.add_argument("--runs", type=positive_int, default=20, help="timed latency runs (20)")
     parser.add_argument("--out", type=Path, help="folder for restore.json")
     args = parser.parse_args(argv)
     os.environ.setdefault("LENSPAIR_QUIET", "1")

@@ -28,6 +28,7 @@ from typing import Any
 
 import torch
 
+from lenspair.commands.argtypes import positive_int
 from lenspair.model.evaluation.latency import measure_latency
 from lenspair.model.precision import choose_precision
 from lenspair.model.training.config import DataConfig, ModelConfig, RunConfig, TrainConfig
@@ -186,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, default=None, help="folder for training.json")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
-    parser.add_argument("--steps", type=int, default=5, help="timed steps per precision")
+    parser.add_argument("--steps", type=positive_int, default=5, help="timed steps per precision")
     parser.add_argument("--warmup", type=int, default=2, help="untimed steps per precision")
     parser.add_argument("--batch", type=int, default=8)
     parser.add_argument("--crop", type=int, default=256)

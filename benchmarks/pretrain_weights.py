@@ -30,6 +30,7 @@ from typing import Any
 import torch
 import yaml
 
+from lenspair.commands.argtypes import positive_int
 from lenspair.core.imageio import read_image
 from lenspair.model.checkpoint import load_model
 from lenspair.model.evaluation.evaluate import evaluate_checkpoint, score_tensors
@@ -133,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--channels", type=int, nargs="+", default=[1, 3], choices=(1, 3))
     parser.add_argument(
         "--steps",
-        type=int,
+        type=positive_int,
         default=1500,
         help="cap on optimiser steps per network (1500); training also ends after --epochs",
     )

@@ -32,6 +32,7 @@ from pathlib import Path
 import torch
 
 from lenspair.cli import main as cli_main
+from lenspair.commands.argtypes import positive_int
 from lenspair.demo import Budget, plan, run_stages
 from lenspair.model.checkpoint import load_model
 from lenspair.model.evaluation.evaluate import score_pairs, summarize
@@ -123,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.table2", description=__doc__)
     parser.add_argument("--out", type=Path, default=Path("table2_out"))
     parser.add_argument("--dataset", type=Path, help="paired dataset (default: the demo's)")
-    parser.add_argument("--frames", type=int, default=60, help="frames per demo recording")
+    parser.add_argument("--frames", type=positive_int, default=60, help="frames per demo recording")
     parser.add_argument(
         "--splits", help="train,val,test fractions of the demo dataset (default: the demo's)"
     )

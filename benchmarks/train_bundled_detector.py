@@ -50,6 +50,7 @@ import torch
 from benchmarks import bench_detector
 from benchmarks.detector_issue_checks import checks_markdown, issue_checks
 from lenspair.capture.ingest import ingest_recording
+from lenspair.commands.argtypes import positive_int
 from lenspair.core.device import resolve_device
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.dataset.build import build_dataset
@@ -171,14 +172,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--checkpoint", type=Path, required=True, help="where to copy detector.pt")
     parser.add_argument("--markdown", type=Path, required=True, help="the scores document")
     parser.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
-    parser.add_argument("--steps", type=int, default=200_000)
+    parser.add_argument("--steps", type=positive_int, default=200_000)
     parser.add_argument("--minutes", type=float, default=None)
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--learning-rate", type=float, default=3e-3)
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (1)")
     parser.add_argument("--per-kind", type=int, default=16, help="recordings per kind (16)")
-    parser.add_argument("--frames", type=int, default=12, help="frames per recording (12)")
+    parser.add_argument("--frames", type=positive_int, default=12, help="frames per recording (12)")
     parser.add_argument("--synthetic", type=int, default=4000)
     parser.add_argument("--hard", type=int, default=6000)
     parser.add_argument("--seed", type=int, default=0)

@@ -96,3 +96,17 @@ def test_a_benchmark_that_sets_the_thread_count_does_not_set_the_next_ones(
     assert main(["--only", "detector", "effects"]) == 0
     # before each benchmark the runner sets the machine's count back; each stub then sets 1
     assert calls == [3, 1, 3, 1]
+
+
+@pytest.mark.parametrize(
+    "name,option",
+    [("bench_dataset", "--runs"), ("bench_dataset", "--pairs"), ("bench_model", "--runs")],
+)
+def test_counts_below_one_are_refused_before_measuring(
+    name: str, option: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # --runs 0 ended in a StatisticsError traceback; --pairs 0 printed meaningless ratios
+    module = importlib.import_module(f"benchmarks.{name}")
+    with pytest.raises(SystemExit) as stop:
+        module.main([option, "0"])
+    assert stop.value.code == 2 and "expected a positive integer" in capsys.readouterr().err
