@@ -107,11 +107,16 @@ def write_pairs(path: Path, records: list[PairRecord]) -> None:
 
 def read_pairs(path: Path) -> list[PairRecord]:
     """Read ``pairs.jsonl``; a malformed line raises ``ConfigError`` naming file and line."""
+    return [record for _, record in read_numbered_pairs(path)]
+
+
+def read_numbered_pairs(path: Path) -> list[tuple[int, PairRecord]]:
+    """``(line number, record)`` of each line of ``pairs.jsonl`` (:func:`read_pairs`)."""
     path = Path(path)
     records = []
     for number, line in text_lines(path):
         try:
-            records.append(load_dataclass(PairRecord, json.loads(line)))
+            records.append((number, load_dataclass(PairRecord, json.loads(line))))
         except (json.JSONDecodeError, ConfigError) as exc:
             raise ConfigError(f"{path}:{number}: {exc}") from None
     return records

@@ -41,7 +41,7 @@ from lenspair.capture.ingested import (
     REPORT_FILE,
     IngestReport,
     PairRecord,
-    read_pairs,
+    read_numbered_pairs,
     read_report,
 )
 from lenspair.core.config import dump_yaml
@@ -136,9 +136,10 @@ def load_source(path: Path) -> Source:
     rid = report.recording_id
     if not rid or rid.startswith(".") or any(c in rid for c in "/\\\0"):
         raise DatasetError(f"{path / REPORT_FILE}: recording_id {rid!r} is not a file name")
-    records = tuple(read_pairs(path / PAIRS_FILE))
+    numbered = read_numbered_pairs(path / PAIRS_FILE)
+    records = tuple(record for _, record in numbered)
     seen: set[int] = set()
-    for number, record in enumerate(records, start=1):
+    for number, record in numbered:  # the file's own line numbers, blank lines counted
         if record.status != "kept":
             continue  # a rejected frame may repeat a kept one's timestamp (another file)
         if record.t_ns in seen:
@@ -379,7 +380,8 @@ def build_dataset(
     if not sources:
         raise DatasetError("no ingested recordings given")
     out = Path(out).resolve()
-    loaded = [load_source(path) for path in sources]
+    # in recording-id order: the same recordings in another order are the same dataset
+    loaded = sorted((load_source(path) for path in sources), key=lambda s: s.report.recording_id)
     _check_paths(loaded, out)
     _check_sides(loaded, accept_side_mismatch)
     _out_state(out)

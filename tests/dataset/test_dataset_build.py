@@ -131,6 +131,10 @@ def test_same_inputs_and_seed_give_identical_bytes(
     first = build_dataset(sources, tmp_path / "one", SEGMENTS, workers=1).out
     second = build_dataset(sources, tmp_path / "two", SEGMENTS, workers=3).out
     assert _tree(first) == _tree(second)
+    # the same recordings in another order: the same dataset (a rerun was refused as
+    # "a different dataset" because the card listed them in the order given)
+    reversed_order = build_dataset(sources[::-1], tmp_path / "rev", SEGMENTS).out
+    assert _tree(reversed_order) == _tree(first)
     assert len(_tree(first)) > 100
     other = DatasetConfig(split=SplitConfig(segment_frames=10, segment_gap_frames=2, seed=1))
     third = build_dataset(sources, tmp_path / "three", other).out
@@ -495,3 +499,14 @@ def test_a_rebuild_that_fails_at_the_swap_loses_none_of_the_users_files(
     # moved into the new build first, they went with its clean-up
     assert (out / "NOTES.md").read_text() == "collected on the roof"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["DS", "ingested"]
+
+
+def test_a_repeated_timestamp_is_named_by_its_line_in_the_file(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    source = recording("rec_a", n=3)
+    lines = (source / "pairs.jsonl").read_text().splitlines()
+    # blank lines before the repeat: the message counted records, not the file's lines
+    (source / "pairs.jsonl").write_text("\n".join([lines[0], "", "", lines[0], *lines[1:]]) + "\n")
+    with pytest.raises(DatasetError, match=r"pairs\.jsonl:4: timestamp \d+ repeats"):
+        build_dataset([source], tmp_path / "DS", DatasetConfig())
