@@ -131,10 +131,10 @@ def read_report(path: Path) -> IngestReport:
     """Read ``report.json``; errors name the file."""
     path = Path(path)
     try:
-        return load_dataclass(IngestReport, read_json(path))
+        data = read_json(path)  # its errors name the file
     except FileNotFoundError:
         raise ConfigError(f"{path}: file not found") from None
+    try:
+        return load_dataclass(IngestReport, data)
     except ConfigError as exc:
-        message = str(exc)
-        named = message if message.startswith(str(path)) else f"{path}: {message}"
-        raise ConfigError(named) from None
+        raise ConfigError(f"{path}: {exc}") from None

@@ -201,13 +201,15 @@ def read_card(path: Path) -> DatasetCard:
     """
     path = Path(path)
     try:
-        return load_dataclass(DatasetCard, read_json(path))
+        data = read_json(path)
     except FileNotFoundError:
         raise DatasetError(f"{path}: file not found (not a lenspair dataset?)") from None
+    except ConfigError as exc:  # not UTF-8 or not JSON: names the file
+        raise DatasetError(str(exc)) from None
+    try:
+        return load_dataclass(DatasetCard, data)
     except ConfigError as exc:
-        message = str(exc)
-        named = message if message.startswith(str(path)) else f"{path}: {message}"
-        raise DatasetError(named) from None
+        raise DatasetError(f"{path}: {exc}") from None
 
 
 def compare_counts(recorded: dict[str, Counts], actual: dict[str, Counts]) -> list[str]:
