@@ -5,10 +5,9 @@ to a temporary file in the destination folder, flushed to the disk (reports,
 journals, configs, checkpoints; image frames are checked on a rerun instead)
 and renamed into place, so an interrupted run (or a power cut) never leaves
 a half-written file under its final name, and a rerun can trust any file
-that exists. Files get the permissions a plain
-``open()`` would give them (``0o666`` less the umask), not the owner-only
-mode of the temporary file, so a dataset built by one user can be read by a
-training job running as another.
+that exists. Files get the permissions a plain ``open()`` would give them
+(``0o666`` less the umask), not the owner-only mode of the temporary file, so
+a dataset built by one user can be read by a training job running as another.
 """
 
 import fcntl
@@ -77,7 +76,7 @@ def _sync(path: Path) -> None:
 
     Without it a power cut soon after the rename (a robot's battery) can leave
     the final name holding an empty file, which a rerun would trust. About
-    0.3 ms a file on an SSD, against tens of milliseconds of work per frame.
+    0.3 ms a file on an SSD.
     """
     fd = os.open(path, os.O_RDONLY)
     try:
