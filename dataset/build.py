@@ -397,8 +397,7 @@ def build_dataset(
     grouping = read_json_field(out / CARD_FILE, "grouping")  # of the dataset being rebuilt
     earlier = grouping.get("mode") if isinstance(grouping, dict) else None
     pairs, plan = assemble_rows(loaded, measured, removed, config, earlier)
-    kept = any(w.startswith("group_by auto: kept") for w in plan.warnings)
-    if config.split.group_by == "auto" and kept:
+    if plan.kept_earlier:
         # config.yaml says what was done: with "auto" it would rebuild other splits
         config = replace(config, split=replace(config.split, group_by=plan.mode))
     for warning in plan.warnings:

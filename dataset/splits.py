@@ -62,13 +62,17 @@ class SplitPlan:
         mode: how pairs were grouped.
         assignment: group id -> split name, for every group that has pairs.
         moved: groups moved by the side fix-up (sorted).
-        warnings: strata whose groups could not cover every split.
+        warnings: strata whose groups could not cover every split, and a
+            kept earlier grouping.
+        kept_earlier: ``group_by: auto`` kept the grouping of the dataset
+            being rebuilt where it would now choose the other.
     """
 
     mode: GroupMode
     assignment: dict[str, str]
     moved: tuple[str, ...]
     warnings: tuple[str, ...]
+    kept_earlier: bool = False
 
 
 def choose_mode(num_recordings: int, config: SplitConfig) -> GroupMode:
@@ -133,11 +137,9 @@ def plan_splits(
     items = list(items)
     mode = choose_mode(len({item.recording for item in items}), config)
     warnings: list[str] = []
-    if (
-        config.group_by == "auto"
-        and earlier_mode in ("recording", "segment")
-        and earlier_mode != mode
-    ):
+    known = earlier_mode in ("recording", "segment")
+    kept_earlier = config.group_by == "auto" and known and earlier_mode != mode
+    if kept_earlier:
         warnings.append(
             f"group_by auto: kept grouping by {earlier_mode} as the dataset being rebuilt "
             f"did (auto would now group by {mode}, moving pairs between splits; set "
@@ -181,7 +183,7 @@ def plan_splits(
         )
         assignment[best] = "train"
         moved.append(best)
-    return SplitPlan(mode, assignment, tuple(sorted(moved)), tuple(warnings))
+    return SplitPlan(mode, assignment, tuple(sorted(moved)), tuple(warnings), kept_earlier)
 
 
 def gap_items(items: Iterable[SplitItem], plan: SplitPlan, config: SplitConfig) -> set[SplitItem]:
