@@ -304,14 +304,14 @@ def image_metrics(output: Tensor, target: Tensor, convention: MetricConvention) 
             or images on another scale (integer codes, 0-255 floats).
     """
     convention = parse_metric_convention(str(convention))
-    _check_pair(output, target)
     _check_scale(output, target, convention)
-    if convention is MetricConvention.SKIMAGE_GAUSSIAN:
+    if convention is MetricConvention.SKIMAGE_GAUSSIAN:  # psnr and ssim check the pair
         return ImageMetrics(
             psnr=psnr(output, target, data_range=1.0),
             ssim=ssim(output, target, data_range=1.0, gaussian_weights=True),
             convention=convention,
         )
+    _check_pair(output, target)
     output_y = luma_uint8(quantize_uint8(output))
     target_y = luma_uint8(quantize_uint8(target))
     return ImageMetrics(
