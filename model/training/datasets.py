@@ -72,18 +72,27 @@ HOLDOUT_WINDOWS_NS = (10 * 10**9, 5 * 10**9, 2 * 10**9, 10**9)
 """Windows of a recording held out together, tried longest first (:func:`holdout_indices`)."""
 
 
-def holdout_group(name: str, window_ns: int = HOLDOUT_WINDOWS_NS[0]) -> str:
+def holdout_group(name: str, window_ns: int | None = HOLDOUT_WINDOWS_NS[0]) -> str:
     """The group a pair is held out with: ``rec@<window>`` for recording frames.
 
     Neighbouring frames of a recording are near duplicates: held out one by
     one, a validation frame had its neighbours in training (frames 5 and 7
     held out, 4, 6 and 8 trained on), and validation measured memory. Any
-    other name (a Raindrop image, a photograph) is its own group.
+    other name (a Raindrop image, a photograph), or any name when
+    ``window_ns`` is None, is its own group.
     """
     match = RECORDING_FRAME.match(name)
-    if match is None:
+    if window_ns is None or match is None:
         return name
     return f"{match['recording']}@{int(match['t_ns']) // window_ns}"
+
+
+def _groups(names: Sequence[str], window_ns: int | None) -> dict[str, list[int]]:
+    """Indices of ``names`` by :func:`holdout_group`."""
+    groups: dict[str, list[int]] = {}
+    for index, name in enumerate(names):
+        groups.setdefault(holdout_group(name, window_ns), []).append(index)
+    return groups
 
 
 def _hold_out_groups(groups: dict[str, list[int]], count: int, upper: int) -> set[int]:
@@ -116,18 +125,13 @@ def holdout_indices(names: Sequence[str], fraction: float) -> tuple[list[int], l
     count = min(len(names) - 1, max(1, math.ceil(fraction * len(names))))
     upper = min(len(names) - 1, max(count, math.floor(1.5 * count)))
     for window in HOLDOUT_WINDOWS_NS:
-        groups: dict[str, list[int]] = {}
-        for index, name in enumerate(names):
-            groups.setdefault(holdout_group(name, window), []).append(index)
+        groups = _groups(names, window)
         if len(groups) == len(names):
             break  # every pair its own group already: the per-pair split below
         held = _hold_out_groups(groups, count, upper)
         if len(held) >= max(1, count // 2):
             return [i for i in range(len(names)) if i not in held], sorted(held)
-    single: dict[str, list[int]] = {}
-    for index, name in enumerate(names):
-        single.setdefault(name, []).append(index)
-    held = _hold_out_groups(single, count, upper)
+    held = _hold_out_groups(_groups(names, None), count, upper)
     return [i for i in range(len(names)) if i not in held], sorted(held)
 
 
