@@ -34,7 +34,6 @@ conditions are :mod:`lenspair.model.training.run_state`.
 import dataclasses
 import logging
 import math
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -65,6 +64,7 @@ from lenspair.model.training.step import (
     Distributed,
     Trainer,
     all_true,
+    distributed_from_env,
     init_distributed,
     scheduled_lr,
     set_rng_state,
@@ -143,7 +143,7 @@ def resume_config(run: Path, override: RunConfig | None) -> RunConfig:
             f"{override.model}; start a new run (or use --init) to change it"
         )
     check_resume_batch(checkpoint, paths.last, override)
-    if os.environ.get("RANK", "0") == "0":  # torchrun: said once, by rank 0
+    if distributed_from_env().is_main:  # torchrun: said once, by rank 0
         for change in config_differences(stored, override):
             log.warning("--resume with a changed config: %s", change)
     return override
