@@ -55,7 +55,7 @@ from lenspair.model.inference.judge import FrameJudge
 from lenspair.model.inference.options import CAMERA_CHOICES, DEFAULT_BATCH_SIZE, DEFAULT_OVERLAP
 from lenspair.model.inference.sinks import BagSink, FileSink
 from lenspair.model.inference.threads import Writer, threaded
-from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
+from lenspair.model.inference.tiling import check_tile, from_batch, run_backend, to_batch
 from lenspair.model.networks.padding import MIN_SIDE
 
 REPORT_NAME = "restore_report.json"
@@ -180,14 +180,13 @@ def check_options(options: RestoreOptions, backend: Backend | None = None) -> No
             on tiles of that size (the option was ignored without a word).
     """
     fixed = backend.fixed_size if backend is not None else None
-    if options.tile is not None and backend is not None and fixed is not None:
+    if options.tile is not None and fixed is not None:
+        model = getattr(backend, "path", "the model")
         raise ModelError(
-            f"--tile: {backend.description.split(' on ')[0]} was exported at "
-            f"{fixed[1]}x{fixed[0]} and runs on tiles of that size; leave --tile out "
-            "(export at another --size to change it)"
+            f"--tile: {model} was exported at {fixed[1]}x{fixed[0]} and runs on tiles of "
+            "that size; leave --tile out (export at another --size to change it)"
         )
-    if options.tile is not None and options.tile < 16:
-        raise ModelError(f"--tile: expected at least 16 pixels, got {options.tile}")
+    check_tile(options.tile)
     if options.batch_size < 1:
         raise ModelError(f"--batch-size: expected at least 1, got {options.batch_size}")
     if options.overlap < 0:

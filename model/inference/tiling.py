@@ -27,6 +27,19 @@ from lenspair.model.inference.options import DEFAULT_OVERLAP
 ALIGN = 32
 """Tile steps are multiples of this when possible: the enhancer pools 4..32 px cells."""
 
+MIN_TILE = 16
+"""Smallest tile side, pixels (``--tile``)."""
+
+
+def check_tile(tile: int | None) -> None:
+    """Refuse a tile side below :data:`MIN_TILE` (None: whole images).
+
+    Raises:
+        ModelError: naming ``--tile``.
+    """
+    if tile is not None and tile < MIN_TILE:
+        raise ModelError(f"--tile: expected at least {MIN_TILE} pixels, got {tile}")
+
 
 def to_batch(images: list[np.ndarray]) -> np.ndarray:
     """Same-shape, same-dtype integer images -> ``(N, C, H, W)`` float32 in [0, 1].
@@ -167,8 +180,7 @@ def run_backend(
         raise ModelError(
             f"the network takes {backend.channels} channel(s), the images have {batch.shape[1]}"
         )
-    if tile is not None and tile < 16:
-        raise ModelError(f"--tile: expected at least 16 pixels, got {tile}")
+    check_tile(tile)
     fixed = backend.fixed_size
     if fixed is not None:
         if tuple(batch.shape[2:]) == fixed:
