@@ -138,12 +138,21 @@ def test_a_flat_frame_restores_flat_in_every_layout_and_precision(
     assert float((out - reference).abs().amax()) < 8e-3
 
 
-def test_flat_samples_do_not_change_the_other_samples_of_a_batch() -> None:
+def _textured_and_flat(
+    seed: int, level: float
+) -> tuple[torch.nn.Module, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The shipped GEA, a textured and a flat frame, and the textured one restored alone."""
     network = _shipped_gea()
-    textured = torch.rand((1, 1, 64, 96), generator=torch.Generator().manual_seed(3))
-    flat = torch.full((1, 1, 64, 96), 0.3)
+    textured = torch.rand((1, 1, 64, 96), generator=torch.Generator().manual_seed(seed))
+    flat = torch.full((1, 1, 64, 96), level)
     with torch.inference_mode():
         alone = network(textured).enhanced
+    return network, textured, flat, alone
+
+
+def test_flat_samples_do_not_change_the_other_samples_of_a_batch() -> None:
+    network, textured, flat, alone = _textured_and_flat(seed=3, level=0.3)
+    with torch.inference_mode():
         together = network(torch.cat([textured, flat, textured])).enhanced
     torch.testing.assert_close(together[0:1], alone, rtol=0, atol=1e-6)
     torch.testing.assert_close(together[2:3], alone, rtol=0, atol=1e-6)
@@ -163,11 +172,7 @@ def test_only_flat_samples_are_marked() -> None:
 
 
 def test_a_flat_frame_in_one_thread_does_not_mask_another_threads_frames() -> None:
-    network = _shipped_gea()
-    textured = torch.rand((1, 1, 64, 96), generator=torch.Generator().manual_seed(5))
-    flat = torch.full((1, 1, 64, 96), 0.5)
-    with torch.inference_mode():
-        alone = network(textured).enhanced
+    network, textured, flat, alone = _textured_and_flat(seed=5, level=0.5)
     first_norm = next(m for m in network.modules() if isinstance(m, InstanceNorm))
     events = {name: threading.Event() for name in ("textured in", "flat in", "textured done")}
 
