@@ -84,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("nothing to measure: give paired folders or --render PRESET")
     shape = _size(args.size)
     effects = {name: drops_preset(name) for name in presets}
+    _check_distinct(args.pairs)
     results: dict[str, list[PairStatistics]] = {}
     for folder in args.pairs:
         split = None if detect_layout(folder) is not None else args.split
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
             total=len(dataset),
             unit="pair",
         )
-        results[str(folder)] = measure_pairs(items) + unread
+        results[_folder_label(folder, presets)] = measure_pairs(items) + unread
     if presets:
         skipped: list[PairStatistics] = []
         if args.images is not None:
@@ -132,6 +133,21 @@ def run(args: argparse.Namespace) -> int:
             args.json, {label: [_row(r) for r in rows] for label, rows in results.items()}
         )
     return 0
+
+
+def _check_distinct(folders: list[Path]) -> None:
+    """Refuse a folder given twice: its two columns would be one (the second replaced the first)."""
+    seen: dict[Path, Path] = {}
+    for folder in folders:
+        first = seen.setdefault(folder.resolve(), folder)
+        if first is not folder:
+            raise ConfigError(f"{folder}: given twice (also as {first})")
+
+
+def _folder_label(folder: Path, presets: list[str]) -> str:
+    """The folder's column label: its path, with a slash where it reads like a preset's name."""
+    label = str(folder)
+    return f"{label}/" if label in presets else label
 
 
 def _readable(

@@ -247,3 +247,23 @@ def test_an_empty_split_and_a_folder_without_pairs_say_what_is_wrong(
     assert main(["realism", str(photos)]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "photos: no paired images (expected input/ + target/" in line
+
+
+def test_a_folder_given_twice_is_refused_and_a_folder_named_like_a_preset_keeps_its_column(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    folder = tmp_path / "sharp"
+    clean = _clean((48, 64)).astype(np.uint16)
+    for index in range(2):
+        write_image(folder / "input" / f"{index}.png", clean + np.uint16(2000 * (index + 1)))
+        write_image(folder / "target" / f"{index}.png", clean)
+    assert main(["realism", "sharp", str(folder)]) == 2  # one folder, two spellings
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "given twice" in line
+    out = tmp_path / "realism.json"
+    argv = ["realism", "sharp", "--render", "sharp", "--size", "96x64", "--json", str(out)]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "sharp/ (2)" in printed and "sharp (11)" in printed  # two columns, not one
+    assert sorted(json.loads(out.read_text())) == ["sharp", "sharp/"]
