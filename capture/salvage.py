@@ -26,10 +26,20 @@ The result quacks like the parts of ``rosbags.highlevel.AnyReader`` that
 :mod:`lenspair.capture.rosbag` uses (``topics``, ``connections``,
 ``messages``, ``deserialize``, ``close``) and carries :attr:`SalvagedBag.cut`,
 one line naming the file and where reading stopped.
+
+A scan reads the whole file, so each process keeps the last few scans (keyed
+by the file's identity, size and modification time): the commands open a bag
+several times (to list its topics, to count, to read), and a cut bag of
+gigabytes was read from end to end each time.
 """
 
+import copy
+import hashlib
+import os
 import struct
+import threading
 from bisect import bisect_left
+from collections import OrderedDict
 from collections.abc import Collection, Generator
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -201,6 +211,55 @@ def _log_time(entry: _Entry) -> int:
     return entry.log_time
 
 
+class _ScanCache:
+    """The last few scans of this process, by the storage file's identity."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self.lock = threading.Lock()
+        self.scans: OrderedDict[tuple[Any, ...], SalvagedBag] = OrderedDict()
+
+    def reopen(self, key: tuple[Any, ...], path: Path) -> SalvagedBag | None:
+        """A new reader over an earlier scan of the same file, or None."""
+        with self.lock:
+            scanned = self.scans.get(key)
+            if scanned is None:
+                return None
+            self.scans.move_to_end(key)
+        reader = copy.copy(scanned)  # shares the index, which is never changed after finish
+        reader.path = path
+        reader._cached = (-1, b"")
+        reader._bio = scanned.storage.open("rb")
+        return reader
+
+    def keep(self, key: tuple[Any, ...], bag: SalvagedBag) -> None:
+        with self.lock:
+            self.scans[key] = bag
+            while len(self.scans) > self.size:
+                self.scans.popitem(last=False)
+
+
+_SCANS = _ScanCache(size=2)
+
+
+def _file_key(storage: Path) -> tuple[Any, ...]:
+    """The file's identity, size, times and its first and last bytes.
+
+    The bytes guard against a rewrite of the same size within the clock tick
+    of the file times (a few milliseconds on Linux).
+    """
+    with storage.open("rb") as bio:
+        stat = os.fstat(bio.fileno())
+        head = bio.read(_KEY_BYTES)
+        bio.seek(max(stat.st_size - _KEY_BYTES, 0))
+        tail = bio.read(_KEY_BYTES)
+    times = (stat.st_mtime_ns, stat.st_ctime_ns)
+    return (stat.st_dev, stat.st_ino, stat.st_size, times, hashlib.sha256(head + tail).digest())
+
+
+_KEY_BYTES = 1 << 16
+
+
 def salvage_bag(path: Path) -> SalvagedBag:
     """Open the complete messages of a bag that ``rosbags`` cannot open.
 
@@ -212,6 +271,10 @@ def salvage_bag(path: Path) -> SalvagedBag:
     """
     path = Path(path)
     storage = _storage_file(path)
+    key = _file_key(storage)
+    earlier = _SCANS.reopen(key, path)
+    if earlier is not None:
+        return earlier
     bag = SalvagedBag(path, storage)
     try:
         with storage.open("rb") as bio:
@@ -231,6 +294,7 @@ def salvage_bag(path: Path) -> SalvagedBag:
     if not bag.message_count:
         bag.close()
         raise CaptureError(f"{bag.cut or storage}: no complete message")
+    _SCANS.keep(key, bag)
     return bag
 
 

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import lenspair.capture.salvage as salvage
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import iter_frames
 from lenspair.capture.recording import open_recording
@@ -220,3 +221,27 @@ def test_cut_db3_skips_the_stale_rows_of_free_pages(tmp_path: Path) -> None:
     assert len(expected) >= 10 and not expected & deleted
     storage.write_bytes(data[:cut])
     assert set(bag_messages(bag, [])) == expected
+
+
+@pytest.mark.parametrize("kind", ["ros1", "db3", "mcap"])
+def test_a_cut_bag_is_scanned_once_until_it_changes(
+    tmp_path: Path, kind: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    scans: list[str] = []
+    for name in ("scan_ros1", "scan_mcap", "scan_db3"):
+        scan = getattr(salvage, name)
+        monkeypatch.setattr(salvage, name, lambda *a, _s=scan, _n=name: scans.append(_n) or _s(*a))
+    bag, storage = write_bag(tmp_path / "run", kind)
+    data = storage.read_bytes()
+    storage.write_bytes(data[: len(data) * 2 // 3])
+    first, _ = recovered(bag)
+    again, _ = recovered(bag)  # lists topics, counts and reads: the scan is reused
+    assert again == first and len(scans) == 1
+    storage.write_bytes(data[: len(data) // 2])  # the same file, shorter
+    fewer, _ = recovered(bag)
+    assert len(scans) == 2 and 0 < len(fewer) < len(first)
+    cut = bytearray(data[: len(data) // 2])
+    cut[-1] ^= 0xFF  # the same size, changed within the file times' clock tick
+    storage.write_bytes(bytes(cut))
+    recovered(bag)
+    assert len(scans) == 3
