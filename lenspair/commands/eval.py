@@ -22,8 +22,8 @@ metrics.md and metrics.json, and the others are scored.
 Latency is measured as deployed: one image of the data's size, batch 1,
 after warm-up, median and p90 of --latency-runs runs, thread count stated;
 on the CPU, and on CUDA when the device is CUDA. EVAL_DIR defaults to
-RUN/eval_<split> for RUN/checkpoints/*.pt. --describe prints the parameter
-count and FLOPs at 540x360 and exits.
+RUN/eval_<checkpoint>_<data>[_<split>] for RUN/checkpoints/<checkpoint>.pt.
+--describe prints the parameter count and FLOPs at 540x360 and exits.
 
 --precision fp32 (default: the reference numbers), auto (bf16 on a CPU with
 avx512_bf16/AMX, else fp32; fp32 on CUDA, where bf16/fp16 autocast measured
