@@ -10,9 +10,11 @@ import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
 
+from lenspair.cli import main
+from lenspair.core.config import dump_yaml
 from lenspair.model.precision import PrecisionDecision
 from lenspair.model.training.step import Distributed, Trainer
-from tests.model.train_fixtures import tiny_config
+from tests.model.train_fixtures import tiny_config, write_split_dataset
 
 CPU = torch.device("cpu")
 STEPS = 3
@@ -66,3 +68,42 @@ def test_two_process_ddp_ends_with_identical_weights(
     for rank in range(2):
         assert json.loads((tmp_path / f"rank{rank}.json").read_text()) == []
     assert "grad strides do not match bucket view strides" not in capfd.readouterr().err.lower()
+
+
+def _cli_worker(rank: int, world: int, port: int, argv: list[str], out: str) -> None:
+    """One torchrun process of ``lenspair train``: its stdout and stderr go to ``out/rankR.txt``."""
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), WORLD_SIZE=str(world),
+        RANK=str(rank), LOCAL_RANK=str(rank),
+    )  # fmt: skip
+    torch.set_num_threads(1)
+    with open(Path(out) / f"rank{rank}.txt", "w") as log:
+        os.dup2(log.fileno(), 1)
+        os.dup2(log.fileno(), 2)
+        code = main(argv)
+    if dist.is_initialized():
+        dist.destroy_process_group()
+    if code != 0:
+        raise SystemExit(code)
+
+
+@pytest.mark.skipif(not dist.is_available() or not dist.is_gloo_available(), reason="no gloo")
+def test_under_torchrun_only_rank_zero_says_the_run_level_lines(tmp_path: Path) -> None:
+    # The real CLI path: init_distributed from torchrun's variables, fit, the summary.
+    dataset = write_split_dataset(tmp_path / "ds")
+    config = tmp_path / "tiny.yaml"
+    config.write_text(dump_yaml(tiny_config(max_steps=2)))  # perceptual on, no VGG weights
+    run = tmp_path / "run"
+    argv = ["train", str(dataset), "--out", str(run), "--config", str(config), "--device", "cpu"]
+    mp.spawn(_cli_worker, args=(2, _free_port(), argv, str(tmp_path)), nprocs=2, join=True)
+    said = [(tmp_path / f"rank{rank}.txt").read_text() for rank in range(2)]
+    for line in ("PERCEPTUAL LOSS DISABLED", "best validation PSNR", "reminder: this run trained"):
+        assert line in said[0] and line not in said[1], line
+    assert "world_size: 2" in (run / "config.yaml").read_text()
+    # A resume with a changed config is warned about once, by rank 0.
+    config.write_text(dump_yaml(tiny_config(max_steps=3, lr=1e-4)))
+    resumed = [*argv, "--resume"]
+    mp.spawn(_cli_worker, args=(2, _free_port(), resumed, str(tmp_path)), nprocs=2, join=True)
+    said = [(tmp_path / f"rank{rank}.txt").read_text() for rank in range(2)]
+    assert "--resume with a changed config: train.lr" in said[0]
+    assert "--resume with a changed config" not in said[1]
