@@ -77,12 +77,13 @@ def validate_and_save(
             trainer.model, val_set, trainer.device, skipped=trainer.val_skipped
         )
         end_of_epoch = state.step_in_epoch == 0
+        # epochs count from 1, as the progress bar does: mid-epoch, the one under way
+        epoch = state.epoch if end_of_epoch else state.epoch + 1
         improved = val_psnr > state.best_psnr and (end_of_epoch or state.best_psnr == -math.inf)
         if improved:
-            # epochs count from 1: a mid-epoch best lies in the epoch under way, so
-            # that 0 keeps meaning "no best yet" in the run's summary
+            # a mid-epoch best lies in the epoch under way: 0 keeps meaning "no best yet"
             state.best_psnr = val_psnr
-            state.best_epoch = state.epoch if end_of_epoch else state.epoch + 1
+            state.best_epoch = epoch
             if end_of_epoch:
                 state.stale = 0
         elif end_of_epoch:
@@ -94,7 +95,7 @@ def validate_and_save(
         log.info(
             "epoch %d step %d: loss_g %.4g loss_d %.4g | validation PSNR %.2f dB, SSIM %.4f "
             "(%s%s) | best %.2f dB at epoch %d",
-            state.epoch,
+            epoch,
             state.step,
             means.get("loss_g", math.nan),
             means.get("loss_d", math.nan),

@@ -67,9 +67,14 @@ def test_a_mid_epoch_validation_leaves_best_and_early_stopping_alone(
 
 
 def test_a_run_with_no_best_yet_takes_best_pt_from_a_mid_epoch_validation(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
+    caplog.set_level("INFO", logger="lenspair.model.training.validation")
     state, paths, best = _validations(tmp_path, monkeypatch, [(0, 3, 25.0), (0, 5, 26.0)])
+    # the log names the epoch under way as the progress bar does ("epoch 1"), not "epoch 0"
+    lines = [r.getMessage() for r in caplog.records if "validation PSNR" in r.getMessage()]
+    assert [line.split(":")[0] for line in lines] == ["epoch 1 step 3", "epoch 1 step 5"]
+    assert all(line.endswith("at epoch 1") for line in lines)
     assert best == [25.0, 25.0]  # the first gives the run a best.pt; later ones do not count
     # in epoch 1 (counting from 1, as end-of-epoch bests do): 0 stays "no best yet"
     assert (state.best_psnr, state.best_epoch, state.stale) == (25.0, 1, 0)
