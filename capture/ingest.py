@@ -78,7 +78,12 @@ from lenspair.capture.side_check import check_obstructed_side
 from lenspair.capture.side_detector import ObstructedProbability, check_side_with_detector
 from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
-from lenspair.core.fsutil import atomic_write_json, atomic_write_text, read_json_field
+from lenspair.core.fsutil import (
+    atomic_write_json,
+    atomic_write_text,
+    naming_errors,
+    read_json_field,
+)
 from lenspair.core.progress import progress
 from lenspair.core.quality import is_blank
 from lenspair.rectify.crop import choose_crop
@@ -248,7 +253,7 @@ def _frame_stage(
             tasks.append(task)
     keys = {t.obstructed.t_ns: t.key for t in tasks}
     keys.update({t: journal[t][0] for t in records})
-    with journal_path.open("a", encoding="utf-8") as handle:
+    with naming_errors(journal_path), journal_path.open("a", encoding="utf-8") as handle:
         results = _map_tasks(frame_work.process, tasks, workers, context, "pairs")
         for task, record in zip(tasks, results, strict=True):
             records[record.t_ns] = record

@@ -87,7 +87,7 @@ def build_parser(selected: str | None) -> argparse.ArgumentParser:
 
 REFUSALS = frozenset(
     {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EEXIST,
-     errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG, errno.EIO}
+     errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG, errno.EIO, errno.EFBIG}
 )  # fmt: skip
 """``errno`` values of a file system refusing a write: one line, exit 1 (``-v``: traceback)."""
 

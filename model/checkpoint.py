@@ -15,6 +15,7 @@ Only ``format``, ``version``, ``config`` and ``model`` are required to use a
 checkpoint for inference (``eval``, ``export``) or as ``--init``.
 """
 
+import io
 import pickle
 import re
 import zipfile
@@ -73,7 +74,10 @@ def save_checkpoint(path: Path, payload: dict[str, Any], config: RunConfig) -> N
     }
 
     def _write(tmp: Path) -> None:
-        torch.save(data, tmp)
+        # serialised first: torch.save's own short write is a RuntimeError naming no file
+        buffer = io.BytesIO()
+        torch.save(data, buffer)
+        tmp.write_bytes(buffer.getbuffer())
 
     atomic_write(Path(path), _write, suffix=".pt")
 

@@ -16,7 +16,8 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -61,7 +62,8 @@ def atomic_write(
     os.close(fd)
     tmp = Path(tmp_name)
     try:
-        writer(tmp)
+        with naming_errors(path):
+            writer(tmp)
         os.chmod(tmp, FILE_MODE)  # mkstemp creates 0o600
         if sync:
             _sync(tmp)
@@ -69,6 +71,22 @@ def atomic_write(
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+@contextmanager
+def naming_errors(path: Path) -> Iterator[None]:
+    """Name ``path`` in a file-system error raised without a file name.
+
+    A write or flush that fills the disk raises ``OSError(ENOSPC)`` naming no
+    file, and the CLI could then only say "No space left on device". Errors
+    that name a file already, and other exceptions, pass unchanged.
+    """
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is not None or exc.errno is None:
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
 
 
 def _sync(path: Path) -> None:

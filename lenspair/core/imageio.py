@@ -15,6 +15,9 @@ function of the pixels.
 """
 
 import contextlib
+import errno
+import os
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -184,11 +187,54 @@ def write_image(
         if out is None or not out.open(str(tmp), spec):
             raise ImageIOError(f"{path}: cannot write ({_first_line(oiio.geterror())})")
         ok = out.write_image(pixels)
-        out.close()
-        if not ok:
-            raise ImageIOError(f"{path}: write failed ({_first_line(out.geterror())})")
+        closed = out.close()
+        error = out.geterror()  # not always a failure: TIFFs carry a note on their Exif data
+        if not (ok and closed):
+            raise _write_failure(path, tmp, error)
+        # OpenImageIO answers True when the disk fills: its error text may say so, and a
+        # write refused while closing (the last buffer) it does not report at all
+        short = error if _SHORT_WRITE in error else ""
+        problem = short or _written_problem(tmp, path.suffix)
+        if problem:
+            raise _write_failure(path, tmp, problem)
 
     atomic_write(path, _write, suffix=path.suffix, sync=False)  # frames: see atomic_write
+
+
+_SHORT_WRITE = "Write error"
+"""How OpenImageIO's error text starts for a write the file system cut short."""
+
+
+def _written_problem(tmp: Path, suffix: str) -> str:
+    """Why the file just written is not whole ("" when it is): the structure read back.
+
+    A PNG's chunks are walked (:func:`~lenspair.core.pngcheck.png_problem`: lengths and
+    CRCs, well under a millisecond for a frame, from the page cache); other formats are
+    decoded.
+    """
+    if suffix.lower() == ".png":  # the temporary's own suffix is .tmp
+        problem = png_problem(tmp.read_bytes())
+        return "" if problem is None else f"{_SHORT_WRITE}: the file written is {problem}"
+    try:
+        _read_pixels(tmp)
+    except ImageIOError as exc:
+        return f"{_SHORT_WRITE}: the file written does not read back ({exc})"
+    return ""
+
+
+def _write_failure(path: Path, tmp: Path, error: str) -> Exception:
+    """The exception of a failed image write: the file system's refusal, or the library's error.
+
+    A short write ("could only write N bytes") is the file system refusing
+    (a full disk or quota): an ``OSError`` naming ``path``, which the CLI says
+    in one line (exit 1). Either way the temporary is removed by
+    :func:`~lenspair.core.fsutil.atomic_write` and nothing takes ``path``.
+    """
+    if _SHORT_WRITE in error:
+        free = shutil.disk_usage(tmp.parent).free
+        code = errno.ENOSPC if free < (1 << 20) else errno.EIO
+        return OSError(code, f"{os.strerror(code)} (writing an image)", str(path))
+    return ImageIOError(f"{path}: write failed ({_first_line(error) or 'no reason given'})")
 
 
 def max_value(dtype: np.dtype | type) -> float:

@@ -14,9 +14,13 @@ failed, a bag message that is not an image of a chosen camera).
   restored frames so ``--resume`` need not run them again.
 """
 
+import errno
+import io
 import json
 import shutil
-from collections.abc import Iterable
+import sqlite3
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +30,7 @@ from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage, InputFrame
 from lenspair.capture.rosbag import BAG_SUFFIXES
 from lenspair.core.errors import ImageIOError
-from lenspair.core.fsutil import atomic_write, atomic_write_text, remove_path
+from lenspair.core.fsutil import atomic_write, atomic_write_text, naming_errors, remove_path
 from lenspair.core.imageio import FAST_PNG, read_alpha, write_image
 
 PARTIAL_DIR = ".restore-partial"
@@ -139,7 +143,10 @@ class FileSink:
             if item.name not in self.copies:  # named first: a kill after the copy keeps it listed
                 self.copies.add(item.name)
                 self.copies_file.parent.mkdir(parents=True, exist_ok=True)
-                with self.copies_file.open("a", encoding="utf-8") as journal:
+                with (
+                    naming_errors(self.copies_file),
+                    self.copies_file.open("a", encoding="utf-8") as journal,
+                ):
                     journal.write(json.dumps(item.name) + "\n")  # one line, any name
             copy_file(Path(item.source), destination)
         else:
@@ -215,13 +222,16 @@ class BagSink:
 
     def write(self, item: BagMessage, restored: np.ndarray | None) -> None:
         """Copy the message, with ``restored`` pixels when given (then cache them)."""
-        self._open()
-        self.copy.write(item, restored)
+        with self._writing():
+            self._open()
+            self.copy.write(item, restored)
         if restored is not None and item.frame is not None and not self.done(item.frame):
 
             def _save(tmp: Path) -> None:
-                with tmp.open("wb") as handle:
-                    np.save(handle, restored, allow_pickle=False)
+                # serialised first: np.save's own short write names no errno and no file
+                buffer = io.BytesIO()
+                np.save(buffer, restored, allow_pickle=False)
+                tmp.write_bytes(buffer.getbuffer())
 
             # synced, unlike the image frames: done() trusts a cached frame that exists
             atomic_write(self._cached_path(item.frame), _save, suffix=".npy")
@@ -238,7 +248,24 @@ class BagSink:
     def close(self) -> None:
         """Close the bag (index, metadata); call from the thread that wrote."""
         if self.opened:
-            self.copy.__exit__(None, None, None)
+            with self._writing():
+                self.copy.__exit__(None, None, None)
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        """The bag writers' refusals as the file system's, naming the bag being written.
+
+        rosbags' writers pass on a full disk as an ``OSError`` naming no file, and
+        SQLite's (db3) as its own ``disk I/O error``: the CLI said "File too large"
+        with no path, or printed a traceback.
+        """
+        try:
+            with naming_errors(self.partial):
+                yield
+        except sqlite3.OperationalError as exc:
+            if "disk" not in str(exc):
+                raise
+            raise OSError(errno.EIO, f"cannot write the bag ({exc})", str(self.partial)) from exc
 
     def finish(self) -> None:
         """After a complete run: put the bag in place, copy its folder's files, drop the cache.

@@ -20,6 +20,7 @@ from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig
 from lenspair.dataset.errors import DatasetError
 from tests.capture.ingest_helpers import simulate, tree_bytes
+from tests.file_limits import run_with_file_limit
 from tests.processes import descendants, wait_gone
 
 
@@ -204,3 +205,20 @@ def test_an_unchanged_rerun_keeps_the_reports_bytes(
     ingest_recording(recording, tmp_path)  # set aside and put back: the same timings
     assert (tmp_path / "rain" / "report.json").read_bytes() == before
     assert not (tmp_path / "rain" / STALE_REPORT).exists()
+
+
+def test_a_full_disk_leaves_no_frame_behind_and_a_rerun_repairs_everything(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path
+) -> None:
+    recording, files = reference
+    pngs = sorted(len(content) for name, content in files.items() if name.endswith(".png"))
+    limit = pngs[len(pngs) // 2]  # half the images cannot be written whole
+    failed = run_with_file_limit(["capture-ingest", str(recording), "--out", str(tmp_path)], limit)
+    assert failed.returncode == 1, failed.stderr
+    (line,) = failed.stderr.strip().splitlines()  # one line naming the image, no traceback
+    assert line.startswith("lenspair capture-ingest: error: ") and ".png" in line
+    out_dir = tmp_path / "rain"
+    for image in out_dir.rglob("*.png"):  # nothing incomplete under a final name
+        assert image.stat().st_size == len(files[image.relative_to(out_dir).as_posix()])
+    ingest_recording(recording, tmp_path)
+    _same_as(files, out_dir)

@@ -22,6 +22,7 @@ from lenspair.model.inference.pipeline import REPORT_NAME, RestoreOptions, resto
 from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
 from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
 from tests.capture.ingest_helpers import make_recording, simulate
+from tests.file_limits import run_with_file_limit
 from tests.images import texture
 from tests.model.restore_helpers import bag_from_recording, write_bag
 from tests.model.train_fixtures import make_checkpoint, tiny_config
@@ -460,3 +461,21 @@ def test_a_bag_with_three_image_topics_restores_the_named_ones_and_reports_the_t
     assert (
         main([*comma, "--topics", "/infra2/image_raw,/infra1/image_raw", "--camera", "cam1"]) == 0
     )
+
+
+@pytest.mark.parametrize(
+    ("kind", "limit"), [("ros1", 60_000), ("ros1", 150_000), ("db3", 150_000), ("mcap", 150_000)]
+)
+def test_a_full_disk_is_one_line_naming_the_file_and_resume_finishes(
+    tmp_path: Path, checkpoint: Path, kind: str, limit: int
+) -> None:
+    # 60 kB: a frame's cache file does not fit; 150 kB: the bag being written does not
+    bag = bag_from_recording(tmp_path, kind, frames=3)
+    out = tmp_path / "out"
+    argv = ["restore", str(checkpoint), str(bag), "--out", str(out), "--device", "cpu"]
+    failed = run_with_file_limit(argv, limit)
+    assert failed.returncode == 1 and "Traceback" not in failed.stderr, failed.stderr
+    line = failed.stderr.strip().splitlines()[-1]
+    assert line.startswith(f"lenspair restore: error: {out}/"), line
+    assert main([*argv, "--resume"]) == 0
+    assert len(list(iter_bag_messages(out / bag.name))) == len(list(iter_bag_messages(bag)))

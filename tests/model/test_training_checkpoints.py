@@ -15,6 +15,7 @@ from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
 from lenspair.model.training.run_files import read_metrics_rows
 from lenspair.model.training.step import Trainer
+from tests.file_limits import run_with_file_limit
 from tests.model.train_fixtures import tiny_config, write_split_dataset
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -130,3 +131,17 @@ def test_kill_between_an_epochs_metrics_row_and_its_checkpoint_writes_the_row_on
     for row in (*straight, *split):
         row.pop("seconds")
     assert split == straight
+
+
+def test_a_checkpoint_the_disk_cannot_hold_is_one_line_naming_it(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1})
+    config_file = tmp_path / "tiny.yaml"
+    config_file.write_text(dump_yaml(tiny_config(max_steps=1)))
+    run = tmp_path / "run"
+    argv = ["train", str(dataset), "--out", str(run), "--config", str(config_file)]
+    failed = run_with_file_limit([*argv, "--device", "cpu"], limit=20_000)  # a checkpoint is more
+    assert failed.returncode == 1, failed.stderr
+    line = failed.stderr.strip().splitlines()[-1]  # after the log; torch.save's was a traceback
+    assert "Traceback" not in failed.stderr
+    assert line.startswith("lenspair train: error: ") and line.endswith(".pt: File too large")
+    assert not list((run / "checkpoints").glob("*.pt"))  # nothing half-written under its name
