@@ -96,7 +96,11 @@ def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the process exit code."""
     argv = expand_topics(list(sys.argv[1:] if argv is None else argv))
     selected = next((a for a in argv if a in COMMANDS), None)
-    parser = build_parser(selected)
+    try:
+        parser = build_parser(selected)  # imports the command's module: numpy, OpenCV, torch
+    except KeyboardInterrupt:  # Ctrl-C this early has nothing to resume
+        print(f"lenspair {selected or ''}: interrupted".replace(" :", ":"), file=sys.stderr)
+        return 130
     if not argv:
         parser.print_help(sys.stderr)
         return 2

@@ -63,3 +63,17 @@ def test_ctrl_c_says_how_to_continue(
     argv = {"restore": ["restore", "m.pt", "in", "--out", "o"], "eval": ["eval", "m.pt"]}[command]
     assert cli.main(argv) == 130
     assert hint in capsys.readouterr().err
+
+
+def test_ctrl_c_while_the_command_loads_is_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the first fraction of a second goes to importing numpy, OpenCV and torch
+    from lenspair import cli
+
+    def interrupted(name: str) -> object:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "_load", interrupted)
+    assert cli.main(["capture-ingest", "rec", "--out", "o"]) == 130
+    assert capsys.readouterr().err == "lenspair capture-ingest: interrupted\n"
