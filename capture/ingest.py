@@ -264,6 +264,8 @@ def _frame_stage(
         records[frame.t_ns] = PairRecord(t_ns=frame.t_ns, status="rejected", reason=unpaired.reason)
     ordered = [records[t] for t in sorted(records)]
     every_frame = {frame.t_ns for frames in recording.frames.values() for frame in frames}
+    # and the frames it could not list (a file deleted since an earlier run): their outputs
+    every_frame |= {p.t_ns for p in recording.problems if p.t_ns is not None}
     remove_stale_outputs(out_dir, ordered, every_frame)
     lines = (journal_line(keys[r.t_ns], r) for r in ordered if r.t_ns in keys)
     atomic_write_text(journal_path, "".join(lines))  # compacted: one line per frame

@@ -15,6 +15,7 @@ from lenspair.capture import ingest as ingest_module
 from lenspair.capture import ingest_frames
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingest_report import STALE_REPORT
+from lenspair.capture.ingested import read_pairs
 from lenspair.capture.journal import JOURNAL_FILE
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig
@@ -222,3 +223,24 @@ def test_a_full_disk_leaves_no_frame_behind_and_a_rerun_repairs_everything(
         assert image.stat().st_size == len(files[image.relative_to(out_dir).as_posix()])
     ingest_recording(recording, tmp_path)
     _same_as(files, out_dir)
+
+
+def test_a_frame_deleted_from_the_recording_takes_its_outputs_along(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    recording, _ = reference
+    copy = tmp_path / "rain"
+    shutil.copytree(recording, copy)
+    out = tmp_path / "out"
+    ingest_recording(copy, out)
+    victim = next(r for r in read_pairs(out / "rain" / "pairs.jsonl") if r.status == "kept")
+    for relative in victim.files.values():
+        assert (out / "rain" / relative).is_file()
+    obstructed = copy / "mav0" / "cam1" / "data" / f"{victim.t_ns}.png"  # rig.yaml: cam1
+    obstructed.unlink()
+    ingest_recording(copy, out)
+    (line,) = [r for r in read_pairs(out / "rain" / "pairs.jsonl") if r.t_ns == victim.t_ns]
+    assert line.status == "rejected"
+    for relative in victim.files.values():  # gone, as from a clean ingest of what is left
+        assert not (out / "rain" / relative).exists()
+    assert "not written by capture-ingest" not in caplog.text
