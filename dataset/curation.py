@@ -18,7 +18,12 @@ import numpy as np
 
 from lenspair.capture.ingested import PairRecord
 from lenspair.core.imageio import check_image, max_value
-from lenspair.core.quality import exposure_fractions, laplacian_variance, to_grey
+from lenspair.core.quality import (
+    anomaly_cells,
+    exposure_fractions,
+    laplacian_variance,
+    to_grey,
+)
 from lenspair.dataset.config import CurationConfig, Difficulty
 
 RULES: tuple[tuple[str, str], ...] = (
@@ -43,7 +48,6 @@ THUMBNAIL_SIZE: tuple[int, int] = (32, 24)
 """(width, height) of the grey thumbnails compared for near-duplicates."""
 PSNR_CAP_DB = 100.0
 """PSNR reported for identical images (instead of infinity)."""
-_ANOMALY_SCALE = 4
 
 
 @dataclass(frozen=True, eq=False)
@@ -139,31 +143,13 @@ def measure_pair(
 def anomaly_fraction(
     input_grey: np.ndarray, target_grey: np.ndarray, valid: np.ndarray | None, delta: float
 ) -> float:
-    """Fraction of trustworthy pixels where the views differ by more than ``delta``.
+    """Fraction of trustworthy cells where the views differ by more than ``delta``.
 
-    Compared at 1/4 resolution (area average), so that sensor noise and
-    one-pixel registration error along edges do not count, after removing
-    the median difference (a gain or exposure offset between the cameras).
-
-    Args:
-        input_grey: ``float32`` ``(H, W)`` in [0, 1].
-        target_grey: same.
-        valid: ``bool`` ``(H, W)``, True where trustworthy; None for all.
-        delta: threshold in [0, 1].
+    The cells are :func:`lenspair.core.quality.anomaly_cells`' (1/4 resolution,
+    median offset removed).
     """
-    height, width = input_grey.shape
-    size = (max(1, width // _ANOMALY_SCALE), max(1, height // _ANOMALY_SCALE))
-    diff = cv2.resize(input_grey - target_grey, size, interpolation=cv2.INTER_AREA)
-    if valid is not None:
-        small = cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA)
-        values = diff[small > 0.5]
-        if values.size == 0:
-            values = diff.ravel()
-    else:
-        values = diff.ravel()
-    offset = np.float32(np.median(values))
-    count = int(np.count_nonzero(np.abs(values - offset) > delta))
-    return count / int(values.size)
+    anomalous, trusted = anomaly_cells(input_grey, target_grey, valid, delta)
+    return int(np.count_nonzero(anomalous)) / int(np.count_nonzero(trusted))
 
 
 def quality_rule(

@@ -9,7 +9,10 @@ computed in one place:
 * :func:`laplacian_variance` - variance of the 3x3 Laplacian on the 8-bit
   scale, the usual motion-blur / defocus figure;
 * :func:`is_blank` - a nearly uniform frame (black, saturated, lens cap),
-  which carries no evidence about the glass.
+  which carries no evidence about the glass;
+* :func:`anomaly_cells` - where the obstructed and clean views differ, at
+  1/4 resolution: ``dataset-build`` counts them (a pair without any is
+  ``clean``) and training centres crops on them.
 """
 
 import cv2
@@ -19,6 +22,9 @@ from lenspair.core.imageio import max_value
 
 BLANK_STD = 1.0 / 255.0
 """Luma standard deviation (``[0, 1]`` scale) below which a frame is blank."""
+
+ANOMALY_SCALE = 4
+"""Side in pixels of the cells :func:`anomaly_cells` compares."""
 
 
 def to_grey(image: np.ndarray) -> np.ndarray:
@@ -55,3 +61,35 @@ def is_blank(image: np.ndarray) -> bool:
     Its luma's standard deviation is below :data:`BLANK_STD`.
     """
     return float(to_grey(image).std()) < BLANK_STD
+
+
+def anomaly_cells(
+    input_grey: np.ndarray, target_grey: np.ndarray, valid: np.ndarray | None, delta: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cells of :data:`ANOMALY_SCALE` pixels where the two views differ by more than ``delta``.
+
+    Compared at 1/4 resolution (area average), so that sensor noise and
+    one-pixel registration error along edges do not count, after removing
+    the median difference (a gain or exposure offset between the cameras).
+
+    Args:
+        input_grey: ``float32`` ``(H, W)`` in [0, 1].
+        target_grey: same.
+        valid: ``bool`` ``(H, W)``, True where trustworthy; None for all.
+        delta: threshold in [0, 1].
+
+    Returns:
+        ``(anomalous, trusted)``: ``bool`` maps of ``(H // 4, W // 4)`` cells
+        (at least 1x1); a cell is trusted when most of its pixels are valid
+        (every cell, when none is). Anomalous cells are trusted ones.
+    """
+    height, width = input_grey.shape
+    size = (max(1, width // ANOMALY_SCALE), max(1, height // ANOMALY_SCALE))
+    diff = cv2.resize(input_grey - target_grey, size, interpolation=cv2.INTER_AREA)
+    trusted = np.ones(diff.shape, bool)
+    if valid is not None:
+        small = cv2.resize(valid.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+        if np.any(small > 0.5):
+            trusted = small > 0.5
+    offset = np.float32(np.median(diff[trusted]))
+    return (np.abs(diff - offset) > delta) & trusted, trusted

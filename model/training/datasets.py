@@ -220,7 +220,15 @@ def paired_training_data(
     resolved = channels or first_channels(train_source)
     if channel_note := conversion_note(resolved, first_channels(train_source), path):
         log.warning("%s", channel_note)
-    train = PairedCrops(train_source, resolved, data.crop_size, data.hflip, data.vflip, seed=seed)
+    train = PairedCrops(
+        train_source,
+        resolved,
+        data.crop_size,
+        data.hflip,
+        data.vflip,
+        seed=seed,
+        anomaly_crops=data.anomaly_crops,
+    )
     val = PairedCrops(val_source, resolved, None, seed=seed, limit=data.max_val_images)
     description = f"{path} (train {len(train)} pairs, validation {len(val)} pairs"
     description += f"; {note})" if note else ")"

@@ -14,6 +14,7 @@ sees exactly the batches it would have seen.
 """
 
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +26,7 @@ from torch.utils.data import Dataset
 
 from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import to_float
+from lenspair.core.quality import anomaly_cells, to_grey
 from lenspair.dataset.readers import detect_layout, open_paired
 from lenspair.model.errors import ModelError
 
@@ -146,6 +148,11 @@ def channels_of(image: np.ndarray) -> int:
     return 1 if image.ndim == 2 else int(image.shape[2])
 
 
+ANOMALY_DELTA = 0.03
+"""Grey difference (in [0, 1]) that makes a cell anomalous for :func:`anomaly_crop_box`:
+``dataset-build``'s default ``curation.anomaly_delta``, which decides that a pair is clean."""
+
+
 def item_rng(seed: int, epoch: int, index: int) -> np.random.Generator:
     """The generator of one item of one epoch (independent of workers and ranks)."""
     return np.random.default_rng([seed, epoch + 1, index])
@@ -170,6 +177,45 @@ def crop_box(
     top = int(rng.integers(0, height - crop_size + 1))
     left = int(rng.integers(0, width - crop_size + 1))
     return top, left, crop_size, crop_size
+
+
+def anomaly_crop_box(
+    item: PairItem, crop_size: int, rng: np.random.Generator
+) -> tuple[int, int, int, int] | None:
+    """A ``(top, left, height, width)`` crop holding pixels where the pair differs.
+
+    A cell is drawn uniformly among the anomalous cells of
+    :func:`lenspair.core.quality.anomaly_cells` (threshold :data:`ANOMALY_DELTA`,
+    untrustworthy pixels left out), and the crop uniformly among those that
+    hold the whole cell: large drops are drawn more often than small ones, and
+    no drop always sits in the crop's centre. None when the pair shows no
+    anomaly (a clean pair): the caller crops at random.
+    """
+    height, width = item.input.shape[:2]
+    valid = None
+    if item.mask is not None:
+        valid = (item.mask.max(axis=2) if item.mask.ndim == 3 else item.mask) == 0
+    anomalous, _ = anomaly_cells(to_grey(item.input), to_grey(item.target), valid, ANOMALY_DELTA)
+    rows, cols = np.nonzero(anomalous)
+    if rows.size == 0:
+        return None
+    pick = int(rng.integers(rows.size))
+    top = _around(int(rows[pick]), height / anomalous.shape[0], height, crop_size, rng)
+    left = _around(int(cols[pick]), width / anomalous.shape[1], width, crop_size, rng)
+    return top, left, crop_size, crop_size
+
+
+def _around(cell: int, scale: float, size: int, crop_size: int, rng: np.random.Generator) -> int:
+    """A crop start, drawn uniformly among those whose crop holds the whole cell.
+
+    A cell is the area average of the pixels ``[cell * scale, (cell + 1) * scale)``,
+    so a crop holding them all holds what made the cell anomalous.
+    """
+    first, end = math.floor(cell * scale), math.ceil((cell + 1) * scale)
+    low, high = max(0, end - crop_size), min(first, size - crop_size)
+    if low > high:  # a cell wider than the crop: hold its start
+        return min(first, size - crop_size)
+    return int(rng.integers(low, high + 1))
 
 
 def random_flip(
@@ -204,6 +250,9 @@ class PairedCrops(Dataset[Sample]):
         vflip: random vertical flips.
         seed: seed of the crops and flips.
         limit: use only the first ``limit`` pairs (validation budget).
+        anomaly_crops: share of crops that hold a pixel where input and
+            target differ (:func:`anomaly_crop_box`); the others, and every
+            crop of a clean pair, lie anywhere.
 
     """
 
@@ -216,8 +265,12 @@ class PairedCrops(Dataset[Sample]):
         vflip: bool = False,
         seed: int = 0,
         limit: int | None = None,
+        anomaly_crops: float = 0.0,
     ) -> None:
+        if not 0.0 <= anomaly_crops <= 1.0:
+            raise ValueError(f"anomaly_crops: expected 0..1, got {anomaly_crops}")
         self.source = source
+        self.anomaly_crops = anomaly_crops
         self.channels = channels
         self.crop_size = crop_size
         self.hflip, self.vflip = hflip, vflip
@@ -240,7 +293,12 @@ class PairedCrops(Dataset[Sample]):
             raise ModelError(
                 f"{item.name}: input {item.input.shape} and target {item.target.shape} differ"
             )
-        top, left, h, w = crop_box(height, width, self.crop_size, rng)
+        box = None
+        # drawn only when asked: a share of 0 keeps the crops of earlier versions
+        on_anomaly = self.anomaly_crops > 0 and bool(rng.random() < self.anomaly_crops)
+        if on_anomaly and self.crop_size is not None and min(height, width) >= self.crop_size:
+            box = anomaly_crop_box(item, self.crop_size, rng)
+        top, left, h, w = box or crop_box(height, width, self.crop_size, rng)
         window = (slice(top, top + h), slice(left, left + w))
         tensors = [
             to_tensor(item.input[window], self.channels),
