@@ -17,11 +17,13 @@ failed, a bag message that is not an image of a chosen camera).
 import errno
 import io
 import json
+import logging
 import shutil
 import sqlite3
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -30,14 +32,26 @@ from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage, InputFrame
 from lenspair.capture.rosbag import BAG_SUFFIXES
 from lenspair.core.errors import ImageIOError
-from lenspair.core.fsutil import atomic_write, atomic_write_text, naming_errors, remove_path
+from lenspair.core.fsutil import (
+    atomic_write,
+    atomic_write_json,
+    atomic_write_text,
+    naming_errors,
+    read_json_field,
+    remove_path,
+)
 from lenspair.core.imageio import FAST_PNG, read_alpha, write_image
+
+log = logging.getLogger(__name__)
 
 PARTIAL_DIR = ".restore-partial"
 """Under OUT: the bag being written, moved to its name when complete (see :class:`BagSink`)."""
 
 CACHE_DIR = ".restore-cache"
 """Under OUT: restored bag frames kept until the bag is complete (see :class:`BagSink`)."""
+
+SOURCE_STAMP = "source.json"
+"""In a bag's cache folder: the files the cached frames were restored from."""
 
 COPIES_NAME = ".restore-copies"
 """Under OUT: the frames written as copies of the input (see :class:`FileSink`)."""
@@ -67,6 +81,24 @@ def copy_file(source: Path, destination: Path) -> None:
         shutil.copyfile(source, tmp)
 
     atomic_write(destination, _copy, suffix=destination.suffix, sync=False)  # as frames are
+
+
+def _changed_since(source: Path, written_ns: int) -> bool:
+    """Whether ``source`` changed after ``written_ns``, by its inode's change time.
+
+    A copy with preserved times (``cp -p``) still counts. An input that cannot be
+    read now has not changed as far as its output is concerned.
+    """
+    try:
+        return source.stat().st_ctime_ns > written_ns
+    except OSError:
+        return False
+
+
+def source_fingerprint(source: Path) -> list[list[Any]]:
+    """Name, size and modification time of a bag's files (its folder's, for ROS 2)."""
+    files = sorted(p for p in source.rglob("*") if p.is_file()) if source.is_dir() else [source]
+    return [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in files]
 
 
 class FileSink:
@@ -119,10 +151,15 @@ class FileSink:
         file does not count either: outputs are renamed into place without
         ``fsync`` (one per frame would cost more than the frame on slow
         storage), and after a power cut a file system may keep the new name
-        with no data, which is what that looks like.
+        with no data, which is what that looks like. Nor does an output older
+        than its input's last change (the input was edited or replaced after
+        a killed run wrote it).
         """
         path = self.out_dir / frame.name
-        return frame.name not in self.copies and path.is_file() and path.stat().st_size > 0
+        if frame.name in self.copies or not path.is_file():
+            return False
+        written = path.stat()
+        return written.st_size > 0 and not _changed_since(Path(frame.source), written.st_mtime_ns)
 
     def write(self, item: InputFrame, restored: np.ndarray | None) -> None:
         """Write ``restored`` under the frame's name, or copy the original file.
@@ -199,8 +236,14 @@ class BagSink:
         self.cache = Path(out_dir) / CACHE_DIR / self.path.name
         self.partial = Path(out_dir) / PARTIAL_DIR / self.path.name
         remove_path(self.partial)  # a killed run's unfinished bag: this run writes it anew
+        stamp = self.cache / SOURCE_STAMP
+        fingerprint = source_fingerprint(self.source)
+        if resume and self.cache.exists() and read_json_field(stamp, "files") != fingerprint:
+            log.warning("%s changed since the run being resumed: restoring it anew", source)
+            resume = False
         if not resume and self.cache.exists():
             shutil.rmtree(self.cache)
+        self.fingerprint = fingerprint
         self.copy = BagCopy(source, self.partial, suffix)
         self.opened = False
 
@@ -241,6 +284,8 @@ class BagSink:
         # thread, on the first message (a run refused at its first frame leaves OUT empty).
         if not self.opened:
             self.cache.mkdir(parents=True, exist_ok=True)
+            # what the cached frames were restored from: a resume checks it
+            atomic_write_json(self.cache / SOURCE_STAMP, {"files": self.fingerprint})
             self.partial.parent.mkdir(parents=True, exist_ok=True)
             self.copy.__enter__()
             self.opened = True

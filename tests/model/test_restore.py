@@ -21,7 +21,7 @@ from lenspair.model.inference.judge import ThresholdJudge, default_judge
 from lenspair.model.inference.pipeline import REPORT_NAME, RestoreOptions, restore_input
 from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
 from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
-from tests.capture.ingest_helpers import make_recording, simulate
+from tests.capture.ingest_helpers import frame_files, make_recording, simulate
 from tests.file_limits import run_with_file_limit
 from tests.images import texture
 from tests.model.restore_helpers import bag_from_recording, write_bag
@@ -479,3 +479,41 @@ def test_a_full_disk_is_one_line_naming_the_file_and_resume_finishes(
     assert line.startswith(f"lenspair restore: error: {out}/"), line
     assert main([*argv, "--resume"]) == 0
     assert len(list(iter_bag_messages(out / bag.name))) == len(list(iter_bag_messages(bag)))
+
+
+def test_resume_redoes_a_file_changed_after_the_kill(tmp_path: Path, backend: TorchBackend) -> None:
+    source = tmp_path / "in"
+    for index in range(5):
+        write_image(source / f"{index}.png", (texture((32, 48), seed=index) * 255).astype(np.uint8))
+    options = RestoreOptions(batch_size=2)
+    with pytest.raises(_KilledError):
+        restore_input(source, tmp_path / "out", _DiesAfter(backend, 1), options)  # type: ignore[arg-type]
+    assert (tmp_path / "out" / "0.png").is_file()  # restored before the kill ...
+    edited = (texture((32, 48), seed=99) * 255).astype(np.uint8)
+    write_image(source / "0.png", edited)  # ... and edited since
+    again = restore_input(source, tmp_path / "out", backend, replace(options, resume=True))
+    assert (again.resumed, again.restored) == (1, 4)
+    np.testing.assert_array_equal(read_image(tmp_path / "out" / "0.png"), expected(backend, edited))
+
+
+@pytest.mark.parametrize("kind", ["ros1", "db3"])
+def test_bag_resume_restores_a_bag_changed_after_the_kill_anew(
+    tmp_path: Path, backend: TorchBackend, kind: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    bag = bag_from_recording(tmp_path, kind, frames=5)
+    options = RestoreOptions(batch_size=2)
+    with pytest.raises(_KilledError):
+        restore_input(bag, tmp_path / "out", _DiesAfter(backend, 1), options)  # type: ignore[arg-type]
+    inverted = {
+        camera: [
+            (int(p.stem), 255 - read_image(p)) for p in frame_files(tmp_path / "euroc", camera)
+        ]
+        for camera in ("cam0", "cam1")
+    }
+    shutil.rmtree(bag) if bag.is_dir() else bag.unlink()
+    write_bag(bag.parent / "run", kind, inverted)  # the same name, other pixels
+    fresh = restore_input(bag, tmp_path / "fresh", backend, options)
+    again = restore_input(bag, tmp_path / "out", backend, replace(options, resume=True))
+    assert (again.resumed, again.restored) == (0, fresh.restored)
+    assert "changed since the run being resumed" in caplog.text
+    assert _files(tmp_path / "out") == _files(tmp_path / "fresh")
