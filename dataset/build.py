@@ -48,7 +48,7 @@ from lenspair.core.config import dump_yaml
 from lenspair.core.errors import ImageIOError
 from lenspair.core.fsutil import atomic_write_text, clone_file, read_json_field, sha256_bytes
 from lenspair.core.imageio import read_image, write_image
-from lenspair.core.leftovers import remove_leftovers, temporary_prefix
+from lenspair.core.leftovers import leftovers, remove_leftovers, temporary_prefix
 from lenspair.core.progress import progress
 from lenspair.dataset import curation, splits
 from lenspair.dataset.card import (
@@ -380,6 +380,7 @@ def build_dataset(
     if not sources:
         raise DatasetError("no ingested recordings given")
     out = Path(out).resolve()
+    _recover_swap(out)
     # in recording-id order: the same recordings in another order are the same dataset
     loaded = sorted((load_source(path) for path in sources), key=lambda s: s.report.recording_id)
     _check_paths(loaded, out)
@@ -558,6 +559,23 @@ def _place(temp: Path, out: Path, overwrite: bool) -> None:
         logger.warning(
             "%s: kept %s, not part of the dataset, in the rebuilt one", out, ", ".join(theirs)
         )
+
+
+def _recover_swap(out: Path) -> None:
+    """Put back the dataset a build killed during its swap (:func:`_place`) had set aside.
+
+    Between the swap's two renames the old dataset, with the user's files in it,
+    lies in a ``.<name>.<pid>.*.old`` folder and ``out`` is missing; the rerun's
+    clean-up of leftovers would delete it. When ``out`` exists the swap finished
+    and the set-aside copy is a leftover like any other.
+    """
+    if out.exists():
+        return
+    for trash in leftovers(out.parent, out.name):
+        if trash.name.endswith(".old") and (trash / "dataset").is_dir():
+            os.replace(trash / "dataset", out)
+            logger.warning("%s: put back from %s, set aside by an interrupted rebuild", out, trash)
+            return
 
 
 def _link_tree(source: Path, destination: Path) -> None:

@@ -1,6 +1,7 @@
 import itertools
 import json
 import logging
+import multiprocessing
 import os
 import shutil
 from dataclasses import replace
@@ -510,3 +511,37 @@ def test_a_repeated_timestamp_is_named_by_its_line_in_the_file(
     (source / "pairs.jsonl").write_text("\n".join([lines[0], "", "", lines[0], *lines[1:]]) + "\n")
     with pytest.raises(DatasetError, match=r"pairs\.jsonl:4: timestamp \d+ repeats"):
         build_dataset([source], tmp_path / "DS", DatasetConfig())
+
+
+def _killed_between_the_swaps_renames(source: Path, out: Path, config: DatasetConfig) -> None:
+    """Build in a child process that dies (as by kill -9) after the swap's first rename."""
+    renames = []
+    real = os.replace
+
+    def dying(src: object, dst: object) -> None:
+        if Path(str(src)) == out or renames:
+            renames.append(src)
+        if len(renames) == 2:
+            os._exit(9)  # no finally, no clean-up: a kill
+        real(src, dst)  # type: ignore[arg-type]
+
+    build_module.os.replace = dying  # type: ignore[assignment]
+    build_dataset([source], out, config, overwrite=True)
+
+
+def test_a_rebuild_killed_during_its_swap_is_put_back_by_the_next(
+    recording: RecordingFactory, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    source, out, config = _dataset_with_notes(recording, tmp_path)
+    other = DatasetConfig(config.curation, SplitConfig(fractions=(1.0, 0.0, 0.0), seed=3))
+    child = multiprocessing.get_context("fork").Process(
+        target=_killed_between_the_swaps_renames, args=(source, out, other)
+    )
+    child.start()
+    child.join()
+    assert child.exitcode == 9 and not out.exists()  # the old dataset lies set aside
+    with caplog.at_level("WARNING"):
+        build_dataset([source], out, config)
+    assert (out / "NOTES.md").read_text() == "collected on the roof"  # deleted as a leftover
+    assert "set aside by an interrupted rebuild" in caplog.text
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["DS", "ingested"]
