@@ -134,5 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         # restore and train continue only when asked; the other commands resume by themselves
         hint = "rerun with --resume to continue" if hasattr(args, "resume") else "rerun to resume"
+        own_hint = getattr(_load(args.command), "interrupt_hint", None)  # a command may know better
+        if own_hint is not None:
+            hint = own_hint(args) or hint
         print(f"lenspair {args.command}: interrupted; {hint}", file=sys.stderr)
         return 130

@@ -155,6 +155,13 @@ def _overrides(config: Any, args: argparse.Namespace) -> Any:
         raise ConfigError(str(exc)) from None
 
 
+def interrupt_hint(args: argparse.Namespace) -> str | None:
+    """What to do after Ctrl-C: ``--resume`` only once the run folder holds a run."""
+    if not (Path(args.out) / "config.yaml").is_file():
+        return "nothing was saved yet; rerun the same command to start again"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     """Train one run; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair train --help`.

@@ -77,3 +77,25 @@ def test_ctrl_c_while_the_command_loads_is_one_line(
     monkeypatch.setattr(cli, "_load", interrupted)
     assert cli.main(["capture-ingest", "rec", "--out", "o"]) == 130
     assert capsys.readouterr().err == "lenspair capture-ingest: interrupted\n"
+
+
+def test_ctrl_c_before_train_saved_anything_does_not_advise_resume(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import importlib
+
+    from lenspair import cli
+
+    def interrupted(args: object) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(importlib.import_module(cli.COMMANDS["train"][0]), "run", interrupted)
+    run = tmp_path / "run"
+    argv = ["train", "DS", "--out", str(run)]
+    assert cli.main(argv) == 130
+    err = capsys.readouterr().err
+    assert "--resume" not in err and "rerun the same command" in err  # --resume said "no run"
+    run.mkdir()
+    (run / "config.yaml").write_text("model: {}\n")  # a run has begun: --resume continues it
+    assert cli.main(argv) == 130
+    assert "rerun with --resume to continue" in capsys.readouterr().err
