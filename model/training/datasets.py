@@ -228,6 +228,7 @@ def paired_training_data(
         data.vflip,
         seed=seed,
         anomaly_crops=data.anomaly_crops,
+        substitute_unreadable=True,
     )
     val = PairedCrops(val_source, resolved, None, seed=seed, limit=data.max_val_images)
     description = f"{path} (train {len(train)} pairs, validation {len(val)} pairs"

@@ -253,6 +253,10 @@ class PairedCrops(Dataset[Sample]):
         anomaly_crops: share of crops that hold a pixel where input and
             target differ (:func:`anomaly_crop_box`); the others, and every
             crop of a clean pair, lie anywhere.
+        substitute_unreadable: a pair that cannot be read (a file truncated
+            or damaged after ``train`` checked the headers) is replaced by the
+            next readable one, with a warning once per pair, instead of ending
+            the run mid-epoch (training); validation reports its own.
 
     """
 
@@ -266,11 +270,14 @@ class PairedCrops(Dataset[Sample]):
         seed: int = 0,
         limit: int | None = None,
         anomaly_crops: float = 0.0,
+        substitute_unreadable: bool = False,
     ) -> None:
         if not 0.0 <= anomaly_crops <= 1.0:
             raise ValueError(f"anomaly_crops: expected 0..1, got {anomaly_crops}")
         self.source = source
         self.anomaly_crops = anomaly_crops
+        self.substitute_unreadable = substitute_unreadable
+        self.unreadable: set[int] = set()  # said once each (per worker process)
         self.channels = channels
         self.crop_size = crop_size
         self.hflip, self.vflip = hflip, vflip
@@ -286,7 +293,7 @@ class PairedCrops(Dataset[Sample]):
         return self.length
 
     def __getitem__(self, index: int) -> Sample:
-        item = self.source[index]
+        item = self._read(index)
         rng = item_rng(self.seed, self.epoch, index)
         height, width = item.input.shape[:2]
         if item.target.shape[:2] != (height, width):
@@ -307,6 +314,20 @@ class PairedCrops(Dataset[Sample]):
         ]
         tensors = random_flip(tensors, rng, self.hflip, self.vflip)
         return Sample(input=tensors[0], target=tensors[1], valid=tensors[2], name=item.name)
+
+    def _read(self, index: int) -> PairItem:
+        if not self.substitute_unreadable:
+            return self.source[index]
+        for step in range(self.length):
+            candidate = (index + step) % self.length
+            if candidate in self.unreadable:
+                continue
+            try:
+                return self.source[candidate]
+            except LenspairError as exc:
+                self.unreadable.add(candidate)
+                log.warning("training goes on without pair %d: %s", candidate, exc)
+        raise ModelError("no training pair can be read any more (see the warnings above)")
 
 
 def _valid_map(

@@ -5,6 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lenspair.cli import main
+from lenspair.core.config import dump_yaml
 from lenspair.core.imageio import image_header, write_image
 from lenspair.dataset.errors import DatasetError
 from lenspair.model.training.config import DataConfig
@@ -95,3 +97,22 @@ def test_mixed_grey_and_colour_clean_images_are_said(
     caplog.clear()
     synthetic_training_data(folder, tiny_config().data, 3, 0)  # chosen: still said, as 3
     assert any("the network takes 3 channel(s)" in r.getMessage() for r in caplog.records)
+
+
+def test_a_training_image_damaged_behind_its_header_costs_only_its_pair(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # the check before the first step reads headers; the damage shows mid-epoch
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 6, "val": 2})
+    damaged = sorted((dataset / "train" / "input").glob("*.png"))[2]
+    data = damaged.read_bytes()
+    damaged.write_bytes(data[: data.index(b"IDAT") + 20])  # the header chunks whole, pixels cut
+    config = tmp_path / "tiny.yaml"
+    config.write_text(dump_yaml(tiny_config(max_steps=7)))  # 3 steps an epoch: 2 epochs and more
+    run = tmp_path / "run"
+    argv = ["train", str(dataset), "--out", str(run), "--config", str(config), "--device", "cpu"]
+    with caplog.at_level("WARNING"):
+        assert main(argv) == 0  # the run ended mid-epoch with an error, all its work lost
+    said = [r.getMessage() for r in caplog.records if "training goes on without" in r.getMessage()]
+    assert len(said) == 1 and damaged.name in said[0]  # once, naming the file
+    assert (run / "checkpoints" / "last.pt").is_file()
