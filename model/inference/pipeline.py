@@ -363,7 +363,7 @@ def restore_input(
         writer.close()
     if kind in ("euroc", "folders", "folder"):  # after the frames: a refused run writes nothing
         assert isinstance(sink, FileSink)
-        sink.copy_others(input_path, files)
+        source_problems.extend(sink.copy_others(input_path, files, reserved=(REPORT_NAME,)))
     sink.finish()
     report.problems.extend({"frame": "", "reason": reason} for reason in source_problems)
     report.seconds = time.perf_counter() - started

@@ -134,15 +134,30 @@ class FileSink:
         """Where the output is."""
         return self.out_dir
 
-    def copy_others(self, root: Path, restored: Iterable[Path]) -> int:
-        """Copy every file under ``root`` except ``restored`` ones; returns the count."""
+    def copy_others(
+        self, root: Path, restored: Iterable[Path], reserved: Iterable[str] = ()
+    ) -> list[str]:
+        """Copy every file under ``root`` except ``restored`` ones.
+
+        A file at the top of ``root`` named like one of restore's own files
+        (``reserved``, and :data:`COPIES_NAME`) would be overwritten by it:
+        it is not copied, and one line per such file is returned.
+        """
         skip = {Path(p).resolve() for p in restored}
-        count = 0
+        own = {*reserved, COPIES_NAME, CACHE_DIR, PARTIAL_DIR}
+        clashes = []
         for source in sorted(Path(root).rglob("*")):
-            if source.is_file() and source.resolve() not in skip:
-                copy_file(source, self.out_dir / source.relative_to(root))
-                count += 1
-        return count
+            if not source.is_file() or source.resolve() in skip:
+                continue
+            relative = source.relative_to(root)
+            if relative.parts[0] in own:
+                clashes.append(
+                    f"{source}: not copied: OUT/{relative.parts[0]} is restore's own "
+                    "(rename the file to keep it beside the restored frames)"
+                )
+                continue
+            copy_file(source, self.out_dir / relative)
+        return clashes
 
     def done(self, frame: InputFrame) -> bool:
         """True when ``frame``'s output already exists (written atomically: complete).

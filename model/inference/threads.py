@@ -126,7 +126,18 @@ class Writer:
         """Finish writing, close the sink, count unwritten frames; raises the writer's error."""
         self.queue.put(_END)
         self.thread.join()
-        self.report.problems.extend(self.problems)
+        earlier = {p["frame"]: p for p in self.report.problems}
+        for problem in self.problems:
+            said = earlier.get(problem["frame"])
+            if said is None:
+                self.report.problems.append(problem)
+            else:  # a frame that could not be read could not be copied either: one entry
+                copied = "not copied to OUT"
+                said["reason"] += (
+                    f"; {copied}"
+                    if problem["reason"].endswith(copied)
+                    else (f"; {problem['reason']}")
+                )
         self.report.restored -= self.unwritten
         self.report.failed += self.unwritten
         if self.failure:

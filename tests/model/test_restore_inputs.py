@@ -302,3 +302,40 @@ def test_a_restored_frame_that_cannot_be_written_is_copied_and_counted_once(
     assert report.problems == [{"frame": "2.png", "reason": "2.png: cannot encode"}]
     assert (tmp_path / "out" / "2.png").read_bytes() == (source / "2.png").read_bytes()
     assert (tmp_path / "out" / "1.png").read_bytes() != (source / "1.png").read_bytes()
+
+
+def test_a_frame_that_can_be_neither_read_nor_copied_is_one_problem(
+    tmp_path: Path, backend: TorchBackend, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source = tmp_path / "in"
+    write_image(source / "a.png", (texture((32, 48), seed=1) * 255).astype(np.uint8))
+    (source / "gone.png").write_bytes(b"")  # cannot be read ...
+    real_open = open
+
+    def refusing(path: object, *args: object, **kwargs: object) -> object:
+        if str(path).endswith("gone.png"):  # ... nor copied (chmod 000 does not stop root)
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return real_open(path, *args, **kwargs)  # type: ignore[call-overload]
+
+    monkeypatch.setattr(sinks, "open", refusing, raising=False)
+    report = restore_input(source, tmp_path / "out", backend)
+    assert (report.restored, report.failed) == (1, 1)
+    (problem,) = report.problems  # it was listed twice: unreadable, then not copied
+    assert problem["frame"] == "gone.png" and problem["reason"].endswith("not copied to OUT")
+
+
+def test_input_files_named_like_restores_own_are_said_not_overwritten(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    source = tmp_path / "in"
+    write_image(source / "a.png", (texture((32, 48), seed=1) * 255).astype(np.uint8))
+    (source / "restore_report.json").write_text('{"mine": 1}')
+    (source / ".restore-copies").write_text("x\n")
+    (source / "sub").mkdir()
+    (source / "sub" / "restore_report.json").write_text('{"deeper": 1}')  # no clash there
+    report = restore_input(source, tmp_path / "out", backend)
+    clashes = sorted(p["reason"] for p in report.problems)
+    assert len(clashes) == 2
+    assert ".restore-copies: not copied" in clashes[0] and "restore_report.json: not" in clashes[1]
+    assert "mine" not in (tmp_path / "out" / "restore_report.json").read_text()
+    assert (tmp_path / "out" / "sub" / "restore_report.json").read_text() == '{"deeper": 1}'
