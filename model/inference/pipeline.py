@@ -24,6 +24,7 @@ Rules a robotics user can rely on:
 * ``judge`` (``--only-obstructed``): frames judged clean are copied unchanged.
 """
 
+import contextlib
 import os
 import time
 from collections.abc import Iterator
@@ -329,6 +330,7 @@ def restore_input(
     if options.resume:
         check_same_settings(out_dir, settings)
     remove_leftovers_under(out_dir)  # of a killed run: its half-written temporaries
+    made = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
     # the settings go first, so that a killed run's --resume can check them
     started_report = not (out_dir / REPORT_NAME).exists()
@@ -358,6 +360,9 @@ def restore_input(
     except ModelError:  # refused at the first frame, before any write: leave OUT as it was
         if started_report:
             (out_dir / REPORT_NAME).unlink(missing_ok=True)
+        if made:
+            with contextlib.suppress(OSError):  # only when nothing else went in
+                out_dir.rmdir()
         raise
     finally:
         writer.close()

@@ -103,11 +103,15 @@ def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thre
     mono = open_backend(make_checkpoint(tmp_path / "mono.pt"), CPU, "fp32")
     with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
         restore_input(tmp_path / "in", tmp_path / "out2", mono)
-    assert not any((tmp_path / "out2").iterdir())  # refused before writing anything
+    assert not (tmp_path / "out2").exists()  # refused before writing anything: not even OUT
     rgb_bag = bag_from_recording(tmp_path / "b", "db3", frames=2, colour=True)
     with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
         restore_input(rgb_bag, tmp_path / "out3", mono)
-    assert not any((tmp_path / "out3").iterdir())
+    assert not (tmp_path / "out3").exists()
+    (tmp_path / "out4").mkdir()  # a folder the user made stays
+    with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
+        restore_input(tmp_path / "in", tmp_path / "out4", mono)
+    assert (tmp_path / "out4").is_dir() and not any((tmp_path / "out4").iterdir())
 
 
 def _raw(path: Path) -> np.ndarray:
