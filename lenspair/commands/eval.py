@@ -22,7 +22,8 @@ metrics.md and metrics.json, and the others are scored.
 Latency is measured as deployed: one image of the data's size, batch 1,
 after warm-up, median and p90 of --latency-runs runs, thread count stated;
 on the CPU, and on CUDA when the device is CUDA. EVAL_DIR defaults to
-RUN/eval_<checkpoint>_<data>[_<split>] for RUN/checkpoints/<checkpoint>.pt.
+RUN/eval_<checkpoint>_<data>[_<split>][_<precision>] for
+RUN/checkpoints/<checkpoint>.pt (the precision named unless fp32).
 --describe prints the parameter count and FLOPs at 540x360 and exits.
 
 --precision fp32 (default: the reference numbers), auto (bf16 on a CPU with
@@ -62,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out",
         type=out_folder,
         metavar="EVAL_DIR",
-        help="report folder (default: RUN/eval_<checkpoint>_<data>[_<split>] for "
+        help="report folder (default: RUN/eval_<checkpoint>_<data>[_<split>][_<precision>] for "
         "RUN/checkpoints/<checkpoint>.pt)",
     )
     parser.add_argument(
@@ -79,16 +80,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--describe", action="store_true", help="print params and FLOPs only")
 
 
-def default_out(checkpoint: Path, data: Path, split: str | None) -> Path:
-    """Where an evaluation goes without ``--out``: one folder per checkpoint and data.
+def default_out(checkpoint: Path, data: Path, split: str | None, precision: str = "fp32") -> Path:
+    """Where an evaluation goes without ``--out``: one folder per checkpoint, data and precision.
 
-    ``RUN/eval_<stem>_<data>[_<split>]`` for ``RUN/checkpoints/<stem>.pt``,
-    else ``<stem>_eval_<data>[_<split>]`` beside the checkpoint; ``split`` is
-    None for a paired folder, which has none. Evaluating ``last.pt``, or other
-    data, no longer replaces the evaluation of ``best.pt``.
+    ``RUN/eval_<stem>_<data>[_<split>][_<precision>]`` for
+    ``RUN/checkpoints/<stem>.pt``, else ``<stem>_eval_<data>...`` beside the
+    checkpoint; ``split`` is None for a paired folder, which has none, and the
+    precision is named unless it is fp32 (the reference). Evaluating
+    ``last.pt``, other data, or at int8 no longer replaces the evaluation of
+    ``best.pt``.
     """
     checkpoint = Path(checkpoint)
     what = Path(data).resolve().name + (f"_{split}" if split else "")
+    what += f"_{precision}" if precision != "fp32" else ""
     if checkpoint.parent.name == "checkpoints":
         return checkpoint.parent.parent / f"eval_{checkpoint.stem}_{what}"
     return checkpoint.with_name(f"{checkpoint.stem}_eval_{what}")
@@ -154,7 +158,8 @@ def run(args: argparse.Namespace) -> int:
         out = args.out
     else:
         plain = detect_layout(args.data) is not None  # a paired folder: no split in the name
-        out = default_out(args.checkpoint, args.data, None if plain else args.split)
+        split = None if plain else args.split
+        out = default_out(args.checkpoint, args.data, split, decision.precision)
     files = write_report(result, out)
     print(markdown_report(result))
     print("wrote " + ", ".join(str(path) for path in files.values()))

@@ -119,6 +119,9 @@ def test_default_eval_folder_sits_in_the_run(tmp_path: Path) -> None:
     args = ["--data", str(dataset), "--split", "val", "--latency-runs", "0"]
     assert main(["eval", str(checkpoint), *args]) == 0
     assert (tmp_path / "run" / "eval_best_ds_val" / "metrics.json").is_file()
+    # and another precision: an int8 evaluation replaced the fp32 one
+    assert main(["eval", str(checkpoint), *args, "--precision", "bf16"]) == 0
+    assert (tmp_path / "run" / "eval_best_ds_val_bf16" / "metrics.json").is_file()
 
 
 def test_odd_sizes_and_identical_images(tmp_path: Path) -> None:
