@@ -253,19 +253,22 @@ def _frame_stage(
             tasks.append(task)
     keys = {t.obstructed.t_ns: t.key for t in tasks}
     keys.update({t: journal[t][0] for t in records})
-    with naming_errors(journal_path), journal_path.open("a", encoding="utf-8") as handle:
+    with journal_path.open("a", encoding="utf-8") as handle:
         results = _map_tasks(frame_work.process, tasks, workers, context, "pairs")
         for task, record in zip(tasks, results, strict=True):
             records[record.t_ns] = record
-            handle.write(journal_line(task.key, record))
-            handle.flush()  # a crash loses at most the frames in flight
+            with naming_errors(journal_path):  # a full disk: the journal named, not the frames
+                handle.write(journal_line(task.key, record))
+                handle.flush()  # a crash loses at most the frames in flight
     for unpaired in pairing.unpaired_of(rig_file.obstructed):
         frame = recording.frames[rig_file.obstructed][unpaired.index]
         records[frame.t_ns] = PairRecord(t_ns=frame.t_ns, status="rejected", reason=unpaired.reason)
     ordered = [records[t] for t in sorted(records)]
     every_frame = {frame.t_ns for frames in recording.frames.values() for frame in frames}
-    # and the frames it could not list (a file deleted since an earlier run): their outputs
+    # and the frames it could not list, or no longer lists (a file deleted since an
+    # earlier run; without data.csv that leaves no problem, only the journal knows it)
     every_frame |= {p.t_ns for p in recording.problems if p.t_ns is not None}
+    every_frame |= set(journal)
     remove_stale_outputs(out_dir, ordered, every_frame)
     lines = (journal_line(keys[r.t_ns], r) for r in ordered if r.t_ns in keys)
     atomic_write_text(journal_path, "".join(lines))  # compacted: one line per frame

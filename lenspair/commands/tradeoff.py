@@ -19,8 +19,9 @@ DIR/tradeoff.png (PSNR and SSIM against CPU time, Pareto front marked),
 DIR/tradeoff_config.yaml and one run folder per variant in DIR/runs/. A
 rerun reuses a run trained on the same data with the same settings and seed;
 one trained otherwise is trained again, and the log names the setting that
-differs. Under the default --lr-decay a larger --budget is another schedule,
-so it trains again; with --lr-decay 0 it extends the run. The defaults (60 steps, 128 px
+differs. A larger step --budget under the default --lr-decay is another
+schedule, so it trains again; a larger time budget (which trains at a
+constant rate) or --lr-decay 0 extends the run. The defaults (60 steps, 128 px
 crops, batch 4, bf16 on the CPU: roughly 0.5-1 s per GEA step on two cores,
 three times that for GEA-w2) are sized for a demonstration, not for
 conclusions; use e.g. --budget 30m --crop-size 256 --batch-size 8 on a GPU

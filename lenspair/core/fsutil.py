@@ -64,9 +64,9 @@ def atomic_write(
     try:
         with naming_errors(path):
             writer(tmp)
-        os.chmod(tmp, FILE_MODE)  # mkstemp creates 0o600
-        if sync:
-            _sync(tmp)
+            os.chmod(tmp, FILE_MODE)  # mkstemp creates 0o600
+            if sync:
+                _sync(tmp)  # where NFS and the like report a full disk
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)

@@ -25,6 +25,7 @@ Rules a robotics user can rely on:
 """
 
 import contextlib
+import logging
 import os
 import time
 from collections.abc import Iterator
@@ -58,6 +59,8 @@ from lenspair.model.inference.sinks import BagSink, FileSink
 from lenspair.model.inference.threads import Writer, threaded
 from lenspair.model.inference.tiling import check_tile, from_batch, run_backend, to_batch
 from lenspair.model.networks.padding import MIN_SIDE
+
+log = logging.getLogger(__name__)
 
 REPORT_NAME = "restore_report.json"
 
@@ -330,7 +333,7 @@ def restore_input(
     if options.resume:
         check_same_settings(out_dir, settings)
     remove_leftovers_under(out_dir)  # of a killed run: its half-written temporaries
-    made = not out_dir.exists()
+    made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]
     out_dir.mkdir(parents=True, exist_ok=True)
     # the settings go first, so that a killed run's --resume can check them
     started_report = not (out_dir / REPORT_NAME).exists()
@@ -360,14 +363,20 @@ def restore_input(
     except ModelError:  # refused at the first frame, before any write: leave OUT as it was
         if started_report:
             (out_dir / REPORT_NAME).unlink(missing_ok=True)
-        if made:
-            with contextlib.suppress(OSError):  # only when nothing else went in
-                out_dir.rmdir()
+        with contextlib.suppress(OSError):  # only the folders this run made, while empty
+            for folder in made:
+                folder.rmdir()
         raise
     finally:
         writer.close()
     if kind in ("euroc", "folders", "folder"):  # after the frames: a refused run writes nothing
         assert isinstance(sink, FileSink)
+        if sink.changed:
+            log.warning(
+                "%d frame(s) restored again: their input changed after the resumed run wrote "
+                "them (or only its metadata: chmod, a copy with cp -a)",
+                sink.changed,
+            )
         source_problems.extend(sink.copy_others(input_path, files, reserved=(REPORT_NAME,)))
     sink.finish()
     report.problems.extend({"frame": "", "reason": reason} for reason in source_problems)

@@ -119,6 +119,7 @@ class FileSink:
         self.out_dir = Path(out_dir)
         self.copies_file = self.out_dir / COPIES_NAME
         self.copies: set[str] = set()
+        self.changed = 0  # outputs found older than their input's last change: redone
         if self.copies_file.is_file():
             text = self.copies_file.read_text(encoding="utf-8")
             for line in text.splitlines():
@@ -174,7 +175,12 @@ class FileSink:
         if frame.name in self.copies or not path.is_file():
             return False
         written = path.stat()
-        return written.st_size > 0 and not _changed_since(Path(frame.source), written.st_mtime_ns)
+        if written.st_size == 0:
+            return False
+        if _changed_since(Path(frame.source), written.st_mtime_ns):
+            self.changed += 1
+            return False
+        return True
 
     def write(self, item: InputFrame, restored: np.ndarray | None) -> None:
         """Write ``restored`` under the frame's name, or copy the original file.
@@ -251,9 +257,10 @@ class BagSink:
         self.cache = Path(out_dir) / CACHE_DIR / self.path.name
         self.partial = Path(out_dir) / PARTIAL_DIR / self.path.name
         remove_path(self.partial)  # a killed run's unfinished bag: this run writes it anew
-        stamp = self.cache / SOURCE_STAMP
         fingerprint = source_fingerprint(self.source)
-        if resume and self.cache.exists() and read_json_field(stamp, "files") != fingerprint:
+        stamped = read_json_field(self.cache / SOURCE_STAMP, "files")
+        # a cache without a stamp (an earlier version's) is trusted, as it was then
+        if resume and stamped is not None and stamped != fingerprint:
             log.warning("%s changed since the run being resumed: restoring it anew", source)
             resume = False
         if not resume and self.cache.exists():

@@ -255,8 +255,10 @@ class PairedCrops(Dataset[Sample]):
             crop of a clean pair, lie anywhere.
         substitute_unreadable: a pair that cannot be read (a file truncated
             or damaged after ``train`` checked the headers) is replaced by the
-            next readable one, with a warning once per pair, instead of ending
-            the run mid-epoch (training); validation reports its own.
+            next readable one, with a warning once per pair (once per epoch
+            with loader workers, whose copies of the dataset live an epoch),
+            instead of ending the run mid-epoch (training); validation reports
+            its own.
 
     """
 

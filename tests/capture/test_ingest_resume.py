@@ -225,12 +225,19 @@ def test_a_full_disk_leaves_no_frame_behind_and_a_rerun_repairs_everything(
     _same_as(files, out_dir)
 
 
+@pytest.mark.parametrize("listed", [True, False])
 def test_a_frame_deleted_from_the_recording_takes_its_outputs_along(
-    reference: tuple[Path, dict[str, bytes]], tmp_path: Path, caplog: pytest.LogCaptureFixture
+    reference: tuple[Path, dict[str, bytes]],
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+    listed: bool,
 ) -> None:
     recording, _ = reference
     copy = tmp_path / "rain"
     shutil.copytree(recording, copy)
+    if not listed:  # timestamps from the file names: a deleted file leaves no trace
+        for csv in copy.rglob("data.csv"):
+            csv.unlink()
     out = tmp_path / "out"
     ingest_recording(copy, out)
     victim = next(r for r in read_pairs(out / "rain" / "pairs.jsonl") if r.status == "kept")
@@ -239,8 +246,9 @@ def test_a_frame_deleted_from_the_recording_takes_its_outputs_along(
     obstructed = copy / "mav0" / "cam1" / "data" / f"{victim.t_ns}.png"  # rig.yaml: cam1
     obstructed.unlink()
     ingest_recording(copy, out)
-    (line,) = [r for r in read_pairs(out / "rain" / "pairs.jsonl") if r.t_ns == victim.t_ns]
-    assert line.status == "rejected"
+    lines = [r for r in read_pairs(out / "rain" / "pairs.jsonl") if r.t_ns == victim.t_ns]
+    # listed in data.csv: rejected as missing; otherwise no longer a frame of the recording
+    assert [r.status for r in lines] == (["rejected"] if listed else [])
     for relative in victim.files.values():  # gone, as from a clean ingest of what is left
         assert not (out / "rain" / relative).exists()
     assert "not written by capture-ingest" not in caplog.text

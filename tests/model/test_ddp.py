@@ -76,6 +76,7 @@ def _cli_worker(rank: int, world: int, port: int, argv: list[str], out: str) -> 
         MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), WORLD_SIZE=str(world),
         RANK=str(rank), LOCAL_RANK=str(rank),
     )  # fmt: skip
+    os.environ.pop("LENSPAIR_VGG19_WEIGHTS", None)  # the perceptual warning is the one said
     torch.set_num_threads(1)
     with open(Path(out) / f"rank{rank}.txt", "w") as log:
         os.dup2(log.fileno(), 1)

@@ -108,6 +108,9 @@ def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thre
     with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
         restore_input(rgb_bag, tmp_path / "out3", mono)
     assert not (tmp_path / "out3").exists()
+    with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
+        restore_input(tmp_path / "in", tmp_path / "new" / "deeper" / "out", mono)
+    assert not (tmp_path / "new").exists()  # the parents it made go too
     (tmp_path / "out4").mkdir()  # a folder the user made stays
     with pytest.raises(ModelError, match=r"3 channel.*network takes 1"):
         restore_input(tmp_path / "in", tmp_path / "out4", mono)
@@ -485,7 +488,9 @@ def test_a_full_disk_is_one_line_naming_the_file_and_resume_finishes(
     assert len(list(iter_bag_messages(out / bag.name))) == len(list(iter_bag_messages(bag)))
 
 
-def test_resume_redoes_a_file_changed_after_the_kill(tmp_path: Path, backend: TorchBackend) -> None:
+def test_resume_redoes_a_file_changed_after_the_kill(
+    tmp_path: Path, backend: TorchBackend, caplog: pytest.LogCaptureFixture
+) -> None:
     source = tmp_path / "in"
     for index in range(5):
         write_image(source / f"{index}.png", (texture((32, 48), seed=index) * 255).astype(np.uint8))
@@ -495,8 +500,10 @@ def test_resume_redoes_a_file_changed_after_the_kill(tmp_path: Path, backend: To
     assert (tmp_path / "out" / "0.png").is_file()  # restored before the kill ...
     edited = (texture((32, 48), seed=99) * 255).astype(np.uint8)
     write_image(source / "0.png", edited)  # ... and edited since
-    again = restore_input(source, tmp_path / "out", backend, replace(options, resume=True))
+    with caplog.at_level("WARNING"):
+        again = restore_input(source, tmp_path / "out", backend, replace(options, resume=True))
     assert (again.resumed, again.restored) == (1, 4)
+    assert "1 frame(s) restored again: their input changed" in caplog.text
     np.testing.assert_array_equal(read_image(tmp_path / "out" / "0.png"), expected(backend, edited))
 
 
@@ -521,3 +528,18 @@ def test_bag_resume_restores_a_bag_changed_after_the_kill_anew(
     assert (again.resumed, again.restored) == (0, fresh.restored)
     assert "changed since the run being resumed" in caplog.text
     assert _files(tmp_path / "out") == _files(tmp_path / "fresh")
+
+
+def test_bag_resume_trusts_a_cache_without_a_stamp(
+    tmp_path: Path, backend: TorchBackend, caplog: pytest.LogCaptureFixture
+) -> None:
+    # a run killed under an earlier version (or before its stamp was written)
+    bag = bag_from_recording(tmp_path, "ros1", frames=5)
+    options = RestoreOptions(batch_size=2)
+    with pytest.raises(_KilledError):
+        restore_input(bag, tmp_path / "out", _DiesAfter(backend, 1), options)  # type: ignore[arg-type]
+    (stamp,) = (tmp_path / "out" / ".restore-cache").rglob("source.json")
+    stamp.unlink()
+    again = restore_input(bag, tmp_path / "out", backend, replace(options, resume=True))
+    assert (again.resumed, again.restored) == (2, 3)
+    assert "changed since the run being resumed" not in caplog.text
