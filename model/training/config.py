@@ -86,7 +86,7 @@ class DataConfig:
             crops spend most steps on pixels that need no change. Off by
             default: on the demo's dataset (200 fine-tuning steps, 2 seeds),
             0.5 raised validation PSNR by about 0.3 dB and the hard test pairs
-            by about 0.4 dB, but the nearly clean pairs lost up to 1.8 dB in
+            by about 0.4 dB, but the nearly clean pairs lost 1.4 dB in
             one seed (the network learnt to change more), so the test mean did
             not move beyond the seed spread.
     """
