@@ -175,9 +175,11 @@ def advance_glass(glass: GlassState, rng: np.random.Generator) -> GlassState:
         return glass
     keep = rng.random(glass.drops.count) < spec.persistence
     drops = glass.drops.select(keep, raindrops.sample_drops(spec, glass.shape, rng))
+    # the gains' own stream, always drawn: listing brightness does not move later drops
+    gain_rng = np.random.default_rng(int(rng.integers(0, 2**63)))
     gains = glass.gains
     if gains is not None and glass.effects.brightness is not None:
-        fresh = brightness.sample_gains(glass.effects.brightness, drops.count, rng)
+        fresh = brightness.sample_gains(glass.effects.brightness, drops.count, gain_rng)
         gains = np.where(keep, gains, fresh).astype(np.float32)
     return _assemble(
         glass.effects,

@@ -301,3 +301,25 @@ def test_non_contiguous_views_render_like_copies() -> None:
         expected = render_effects(np.ascontiguousarray(view), spec, np.random.default_rng(8))
         np.testing.assert_array_equal(got[0], expected[0])
         np.testing.assert_array_equal(got[1], expected[1])
+
+
+def test_listing_brightness_does_not_move_the_drops_of_later_frames() -> None:
+    # "simulate only the effects a scene calls for": a do-nothing brightness must
+    # not change where drops fall; it drew from the drops' generator
+    shape = (64, 80)
+    drops = RaindropsSpec(count=60, radius_px=(1.0, 3.0), persistence=0.5)
+    centres = []
+    for spec in (
+        EffectsSpec(raindrops=drops),
+        EffectsSpec(raindrops=drops, brightness=BrightnessSpec()),
+    ):
+        rng = np.random.default_rng(3)
+        glass = sample_glass(spec, shape, rng)
+        frames = []
+        for _ in range(4):
+            glass = advance_glass(glass, rng)
+            assert glass.drops is not None
+            frames.append(glass.drops.centers.copy())
+        centres.append(frames)
+    for plain, bright in zip(*centres, strict=True):
+        np.testing.assert_array_equal(plain, bright)
