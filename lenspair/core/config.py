@@ -210,6 +210,8 @@ def read_yaml(file: Path) -> Any:
         return yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader: plain data only
     except yaml.YAMLError as exc:
         raise ConfigError(f"{file}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    except RecursionError:  # PyYAML's composer recurses once per level
+        raise ConfigError(f"{file}: not valid YAML (nested too deeply)") from None
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):

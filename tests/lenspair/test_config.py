@@ -65,6 +65,10 @@ def test_yaml_file_errors_name_the_file(tmp_path: Path) -> None:
         load_yaml(Outer, file)
     with pytest.raises(ConfigError, match=r"missing\.yaml: file not found"):
         load_yaml(Outer, tmp_path / "missing.yaml")
+    deep = tmp_path / "deep.yaml"
+    deep.write_text("seed: " + "[" * 2000 + "]" * 2000 + "\n")  # a RecursionError traceback
+    with pytest.raises(ConfigError, match=r"deep\.yaml: not valid YAML \(nested too deeply\)"):
+        read_yaml(deep)
 
 
 def test_a_key_given_twice_is_refused_not_overwritten(tmp_path: Path) -> None:
