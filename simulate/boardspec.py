@@ -83,8 +83,8 @@ class BoardSpec:
             raise ValueError(f"max_tilt_deg: expected 0..70, got {self.max_tilt_deg}")
         if not 8 <= self.pixels_per_square <= 512:
             raise ValueError(f"pixels_per_square: expected 8..512, got {self.pixels_per_square}")
-        if min(self.grid) < 1:
-            raise ValueError(f"grid: expected positive sizes, got {self.grid}")
+        if not (min(self.grid) >= 1 and max(self.grid) <= 100):
+            raise ValueError(f"grid: expected sizes 1..100, got {self.grid}")
         try:
             self.target  # noqa: B018 (validated as the calibration tool will read it)
         except RectifyError as exc:

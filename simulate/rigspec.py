@@ -87,7 +87,11 @@ class RigSpec:
     def __post_init__(self) -> None:
         if not 0.0 < self.baseline_m <= 2.0:
             raise ValueError(f"baseline_m: expected 0 < baseline <= 2 m, got {self.baseline_m}")
-        if math.hypot(*self.baseline_direction) < 1e-9:
+        if not all(math.isfinite(v) for v in self.baseline_direction):
+            raise ValueError(
+                f"baseline_direction: expected finite values, got {self.baseline_direction}"
+            )
+        if max(abs(v) for v in self.baseline_direction) < 1e-9:
             raise ValueError("baseline_direction: must not be the zero vector")
         if any(abs(a) > 20.0 for a in self.cam1_rotation_deg):
             angles = self.cam1_rotation_deg

@@ -149,6 +149,11 @@ class MotionSpec:
                 raise ValueError(f"{name}: expected 0..30 degrees, got {getattr(self, name)}")
         if self.frequency_hz < 0:
             raise ValueError(f"frequency_hz: expected >= 0, got {self.frequency_hz}")
+        # as the plane's centre: beyond, float32 rendering loses the texture (black frames)
+        if not all(abs(v) <= 1e6 for v in self.start_m):
+            raise ValueError(f"start_m: expected |x|, |y|, |z| <= 1e6 m, got {self.start_m}")
+        if not all(abs(v) <= 100.0 for v in self.velocity_mps):
+            raise ValueError(f"velocity_mps: expected |v| <= 100 m/s, got {self.velocity_mps}")
 
 
 @dataclass(frozen=True)

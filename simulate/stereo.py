@@ -28,6 +28,7 @@ def rig_from_spec(spec: RigSpec) -> StereoRig:
     mounting) or ``R_mis``.
     """
     direction = np.asarray(spec.baseline_direction, dtype=np.float64)
+    direction = direction / np.abs(direction).max()  # first: the length of 1e308s overflows
     centre = spec.baseline_m * direction / np.linalg.norm(direction)
     R_cam0_cam1 = rotation_xyz_deg(spec.cam1_rotation_deg)
     if spec.cam1_rotated_180:

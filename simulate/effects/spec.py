@@ -337,13 +337,19 @@ class EffectsSpec:
 
         A veil is wet glass scattering light: ``rain``, also alone (a frame it
         changes everywhere is not clean, and a detector must not learn it is).
+        An effect that changes no pixel (no drops, no dust coverage, no blobs,
+        a veil of strength 0) gives no label.
         """
         kinds = []
-        if self.raindrops is not None or (self.veil is not None and self.veil.strength[1] > 0):
+        drops = self.raindrops
+        # drops of refractive index 1 bend no light: invisible unless brightened
+        seen = drops is not None and drops.count > 0
+        seen = seen and (drops.refractive_index != 1.0 or self.brightness is not None)
+        if seen or (self.veil is not None and self.veil.strength[1] > 0):
             kinds.append("rain")
-        if self.dust is not None:
+        if self.dust is not None and self.dust.coverage > 0:
             kinds.append("dust")
-        if self.dirt is not None:
+        if self.dirt is not None and self.dirt.count > 0:
             kinds.append("dirt")
         return tuple(kinds)
 

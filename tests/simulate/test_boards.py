@@ -135,3 +135,9 @@ def test_impossible_board_poses_are_an_error() -> None:
         boards.sample_board_poses(
             huge, (camera, camera), (np.eye(4), np.eye(4)), 1, np.random.default_rng(0)
         )
+
+
+def test_a_pose_grid_beyond_reason_is_refused_at_the_spec() -> None:
+    # 100000 x 100000 poses: a 74.5 GiB allocation traceback while rendering
+    with pytest.raises(ValueError, match=r"grid: expected sizes 1\.\.100"):
+        BoardSpec(kind="chessboard", cols=9, rows=6, square_m=0.06, grid=(100_000, 100_000))

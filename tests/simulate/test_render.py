@@ -323,3 +323,22 @@ def test_listing_brightness_does_not_move_the_drops_of_later_frames() -> None:
         centres.append(frames)
     for plain, bright in zip(*centres, strict=True):
         np.testing.assert_array_equal(plain, bright)
+
+
+@pytest.mark.parametrize(
+    "effects",
+    [
+        EffectsSpec(raindrops=RaindropsSpec(count=0)),
+        EffectsSpec(raindrops=RaindropsSpec(refractive_index=1.0)),
+        EffectsSpec(dust=DustSpec(coverage=0.0)),
+        EffectsSpec(dirt=DirtSpec(count=0)),
+        EffectsSpec(veil=VeilSpec(strength=(0.0, 0.0))),
+    ],
+    ids=["no-drops", "drops-of-air", "no-dust", "no-dirt", "no-veil"],
+)
+def test_an_effect_that_changes_no_pixel_is_no_anomaly(effects: EffectsSpec) -> None:
+    # rig.yaml's anomaly labels train the detector: a label on a clean frame teaches it wrong
+    image = _image(np.uint8, 1, (60, 80))
+    out, _ = render_effects(image, effects, np.random.default_rng(1))
+    np.testing.assert_array_equal(out, image)
+    assert effects.anomaly_kinds == ()

@@ -6,6 +6,7 @@ import yaml
 from lenspair.core.config import dump_yaml, load_yaml
 from lenspair.core.errors import ConfigError
 from lenspair.simulate.spec import SceneSpec, load_scene, with_overrides
+from lenspair.simulate.stereo import rig_from_spec
 
 SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
 SCENES = sorted(p for p in SAMPLES.glob("*.yaml") if p.name != "alphasense_camchain.yaml")
@@ -160,6 +161,14 @@ def test_overrides() -> None:
         ("planes", [{"texture": "brick", "depth_m": 5.0, "tile_m": [1e-38, 1e-38]}], "tile_m"),
         ("planes", [{"texture": "brick", "depth_m": 5.0, "size_m": [1e300, 1e300]}], "size_m"),
         ("planes", [{"texture": "brick", "depth_m": 5.0, "center_xy_m": [1e300, 0]}], "center"),
+        # the rig far away or fast: float32 rendering turned every frame black, with exit 0
+        ("motion", {"start_m": [1.0e38, 0, 0]}, r"motion: start_m: expected"),
+        ("motion", {"velocity_mps": [1.0e40, 0, 0]}, r"motion: velocity_mps: expected"),
+        (
+            "rig",
+            {"baseline_direction": [float("inf"), 0, 0]},
+            r"baseline_direction\[0\]: expected a finite",
+        ),
         ("obstructed", {"camera": "cam1", "effects": {"raindrops": {"count": 10**12}}}, "count"),
         # 200 drops of 300 px: gigabytes of drop pixels (a MemoryError traceback before)
         (
@@ -184,3 +193,11 @@ def test_values_that_would_overflow_or_exhaust_memory_are_refused(
     spec.write_text(yaml.safe_dump(data))
     with pytest.raises(ConfigError, match=message):
         load_scene(spec)
+
+
+def test_a_huge_baseline_direction_keeps_the_baseline(tmp_path: Path) -> None:
+    # its length overflowed to inf, and the baseline written to the truth files was 0
+    data = yaml.safe_load((SAMPLES / "rain.yaml").read_text())
+    data["rig"]["baseline_direction"] = [1.0e308, 1.0e308, 0.0]
+    rig = rig_from_spec(load_scene(_write(tmp_path, data)).rig)
+    assert rig.baseline_m == pytest.approx(data["rig"]["baseline_m"])
