@@ -47,6 +47,10 @@ def _dictionary_names() -> list[str]:
     return sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_") and n.upper() == n)
 
 
+MAX_BOARD_SIDE = 200
+"""Most corners or squares along a board's side (printed boards have tens)."""
+
+
 @dataclass(frozen=True)
 class Board:
     """A planar calibration board.
@@ -74,6 +78,11 @@ class Board:
             raise RectifyError(
                 f"board {self.kind}: need at least {minimum}x{minimum} "
                 f"{'inner corners' if self.kind == 'chessboard' else 'squares'}, "
+                f"got {self.columns}x{self.rows}"
+            )
+        if max(self.columns, self.rows) > MAX_BOARD_SIDE:  # OpenCV takes a C int; and no print
+            raise RectifyError(
+                f"board {self.kind}: at most {MAX_BOARD_SIDE} along a side, "
                 f"got {self.columns}x{self.rows}"
             )
         if not 0.0 < self.square_m < 1.0:

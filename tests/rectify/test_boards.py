@@ -33,6 +33,7 @@ def test_parse_chessboard_and_charuco_specs() -> None:
         ("chessboard:9x6:abc", r"SQUARE_M must be a length in metres, got 'abc'"),
         ("chessboard:9x6:25", r"did you give millimetres"),
         ("chessboard:1x6:0.02", r"at least 2x2 inner corners, got 1x6"),
+        ("chessboard:99999999999x6:0.06", r"at most 200 along a side"),  # an OpenCV traceback
         ("charuco:8x6:0.04", r"expected charuco:COLSxROWS:SQUARE_M:MARKER_M\[:DICT\]"),
         ("charuco:8x6:0.04:0.05", r"expected 0 < MARKER_M < SQUARE_M = 0.04"),
         ("charuco:8x6:0.04:0.03:DICT_9X9_1", r"unknown 'DICT_9X9_1'; valid: DICT_4X4_100"),
