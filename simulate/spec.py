@@ -221,6 +221,11 @@ class ObstructionSpec:
     effects: EffectsSpec = field(default_factory=EffectsSpec)
 
 
+MAX_RENDER_SAMPLES = 8192 * 8192
+"""Most ray samples a frame (pixels x supersample^2): rendering takes about 175 bytes a
+sample at its peak (4096x4096 once: 2.9 GB), so this is about 12 GB."""
+
+
 @dataclass(frozen=True)
 class SceneSpec:
     """A complete scene: rig, planes, motion, clock, obstruction, optional board.
@@ -260,6 +265,14 @@ class SceneSpec:
             raise ValueError(f"seed: expected 0 <= seed < 2**63, got {self.seed}")
         if not self.planes and self.board is None:
             raise ValueError("planes: a scene needs at least one plane or a board")
+        for name in ("cam0", "cam1"):
+            columns, rows = getattr(self.rig, name).resolution
+            if columns * rows * self.supersample**2 > MAX_RENDER_SAMPLES:
+                raise ValueError(
+                    f"supersample: {self.supersample} at rig.{name}.resolution {columns}x{rows} "
+                    f"is {columns * rows * self.supersample**2:.2e} samples a frame, over "
+                    f"{MAX_RENDER_SAMPLES:.2e} (8192x8192 once; about 12 GB to render)"
+                )
         width, height = getattr(self.rig, self.obstructed.camera).resolution
         try:
             self.obstructed.effects.check_memory((height, width))

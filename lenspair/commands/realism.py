@@ -74,6 +74,8 @@ def _size(text: str) -> tuple[int, int]:
         raise ConfigError(f"--size: expected WxH such as 720x480, got {text!r}") from None
     if width < 16 or height < 16:
         raise ConfigError(f"--size: expected at least 16x16, got {text!r}")
+    if width > 8192 or height > 8192:  # 100000x100000 was an OpenCV allocation traceback
+        raise ConfigError(f"--size: expected at most 8192x8192, got {text!r}")
     return height, width
 
 

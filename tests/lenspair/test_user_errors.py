@@ -175,6 +175,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["realism", "--render", "nope"], "nope"),
     (["realism", "--render", "ours", "--size", "big"], "--size"),
     (["realism", "--render", "ours", "--size", "0x480"], "--size"),
+    (["realism", "--render", "ours", "--size", "100000x100000"], "at most 8192x8192"),
     (["realism", "DS", "--split", "nosuch"], "nosuch"),
     (["no-such-command"], "no-such-command"),
 ]

@@ -201,3 +201,15 @@ def test_a_huge_baseline_direction_keeps_the_baseline(tmp_path: Path) -> None:
     data["rig"]["baseline_direction"] = [1.0e308, 1.0e308, 0.0]
     rig = rig_from_spec(load_scene(_write(tmp_path, data)).rig)
     assert rig.baseline_m == pytest.approx(data["rig"]["baseline_m"])
+
+
+def test_a_frame_too_large_to_render_is_refused_at_the_spec(tmp_path: Path) -> None:
+    # 8192x8192 at 4x4 samples: about 180 GB to render (a MemoryError traceback)
+    data = yaml.safe_load((SAMPLES / "rain.yaml").read_text())
+    for camera in ("cam0", "cam1"):
+        data["rig"].setdefault(camera, {})["resolution"] = [8192, 8192]
+    data["supersample"] = 4
+    with pytest.raises(ConfigError, match=r"supersample: 4 at rig\.cam0\.resolution 8192x8192"):
+        load_scene(_write(tmp_path, data))
+    data["supersample"] = 1  # the largest frame, once: allowed
+    assert load_scene(_write(tmp_path, data)).supersample == 1
