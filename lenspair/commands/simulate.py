@@ -22,6 +22,7 @@ from pathlib import Path
 from lenspair.commands.argtypes import out_folder
 from lenspair.core.errors import ConfigError
 from lenspair.core.samples import file_or_sample, sample_names
+from lenspair.simulate.errors import SimulateError
 from lenspair.simulate.recording import check_output_folder, simulate_recording
 from lenspair.simulate.spec import load_scene, with_overrides
 
@@ -54,7 +55,12 @@ def run(args: argparse.Namespace) -> int:
             f"{args.scene}: neither a scene spec file nor a bundled scene ({', '.join(scenes)})"
         )
     spec = with_overrides(load_scene(args.scene), frames=args.frames, seed=args.seed)
-    summary = simulate_recording(spec, args.out, base_dir=args.scene.parent)
+    try:
+        summary = simulate_recording(spec, args.out, base_dir=args.scene.parent)
+    except SimulateError as exc:  # what the spec asks cannot be rendered (a board's poses)
+        if str(exc).startswith(str(args.scene)):
+            raise
+        raise SimulateError(f"{args.scene}: {exc}") from None
     print(
         f"simulate: {summary.frames} frames -> {summary.out_dir} "
         f"(cam0 {summary.images[0]} images, cam1 {summary.images[1]}; "

@@ -5,7 +5,9 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
+import yaml
 
+from lenspair.cli import main
 from lenspair.core.imageio import read_image
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.rig import CameraModel
@@ -141,3 +143,15 @@ def test_a_pose_grid_beyond_reason_is_refused_at_the_spec() -> None:
     # 100000 x 100000 poses: a 74.5 GiB allocation traceback while rendering
     with pytest.raises(ValueError, match=r"grid: expected sizes 1\.\.100"):
         BoardSpec(kind="chessboard", cols=9, rows=6, square_m=0.06, grid=(100_000, 100_000))
+
+
+def test_impossible_board_poses_name_the_spec_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = yaml.safe_load((SAMPLES / "chessboard.yaml").read_text())
+    data["board"]["margin_px"] = 200.0  # no pose keeps the board that far inside 720x540
+    spec = tmp_path / "margin.yaml"
+    spec.write_text(yaml.safe_dump(data))
+    assert main(["simulate", str(spec), "--out", str(tmp_path / "out"), "--frames", "2"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"lenspair simulate: error: {spec}: board: no pose")
