@@ -59,7 +59,7 @@ from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import read_image
 
 InputKind = Literal["image", "folder", "euroc", "folders", "rosbag1", "rosbag2"]
-IMAGE_SUFFIXES = frozenset({".png", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp"})
+IMAGE_SUFFIXES = folders.IMAGE_SUFFIXES
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,10 @@ Example:
 import argparse
 from pathlib import Path
 
+from lenspair.capture.folders import IMAGE_SUFFIXES
+from lenspair.capture.rosbag import BAG_SUFFIXES
 from lenspair.commands.argtypes import add_topics_option, float_at_least, out_file
+from lenspair.core.errors import ConfigError
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.calibration import MODELS, CalibrationOptions, parse_model
 from lenspair.rectify.recording_calibration import calibrate_recording, write_calibration
@@ -58,8 +61,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _check_out(recording: Path, out: Path) -> None:
+    """Refuse an ``--out`` that is the recording or one of the files it is read from."""
+    target, source = out.resolve(), recording.resolve()
+    inside = source.is_dir() and source in target.parents
+    read = target.name in _RECORDING_FILES or target.suffix.lower() in _READ_SUFFIXES
+    if target == source or (inside and read):
+        raise ConfigError(
+            f"--out {out}: is a file of the recording {recording} (its frames, index or rig "
+            "file); write the calibration elsewhere, e.g. beside it as camchain.yaml"
+        )
+
+
+_RECORDING_FILES = frozenset({"data.csv", "rig.yaml", "metadata.yaml", "sensor.yaml"})
+_READ_SUFFIXES = IMAGE_SUFFIXES | BAG_SUFFIXES
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``lenspair calibrate``; returns the exit code."""
+    _check_out(args.recording, args.out)
     calibration = calibrate_recording(
         args.recording,
         parse_board_spec(args.board),

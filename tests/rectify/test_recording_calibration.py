@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from lenspair.cli import main
 from lenspair.core.imageio import read_image, write_image
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.recording_calibration import (
@@ -91,3 +92,19 @@ def test_too_few_board_views_names_the_recording_and_what_was_found(tmp_path: Pa
     # it said "cam0: only 3 usable board views, need at least 5", naming no recording
     assert message.startswith(f"{tmp_path / 'rec'}: ") and "need at least 5" in message
     assert "3 frame pairs examined" in message and board in message
+
+
+def test_an_out_that_is_a_file_of_the_recording_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # --out board/mav0/cam0/data.csv overwrote the recording's index, silently
+    recording = tmp_path / "rec"
+    (recording / "mav0" / "cam0").mkdir(parents=True)
+    index = recording / "mav0" / "cam0" / "data.csv"
+    index.write_text("#timestamp [ns],filename\n")
+    argv = ["calibrate", str(recording), "--board", "chessboard:9x6:0.06", "--model"]
+    for out in (index, recording / "mav0" / "cam0" / "data" / "1.png", recording / "rig.yaml"):
+        assert main([*argv, "pinhole-equi", "--out", str(out)]) == 2
+        (line,) = capsys.readouterr().err.strip().splitlines()
+        assert f"--out {out}: is a file of the recording" in line
+    assert index.read_text() == "#timestamp [ns],filename\n"
