@@ -88,7 +88,8 @@ FILE_CASES: dict[str, list[list[str]]] = {
 OPTION_CASES: list[tuple[list[str], str]] = [
     (["simulate", "calib_samples/rain.yaml", "--out", "OUT", "--frames", "x"], "--frames"),
     (["simulate", "nope", "--out", "OUT"], "nor a bundled scene (charuco, chessboard"),
-    (["simulate", "calib_samples/rain.yaml", "--out", "OUT", "--frames", "-3"], "frames"),
+    (["simulate", "calib_samples/rain.yaml", "--out", "OUT", "--frames", "-3"], "--frames"),
+    (["simulate", "calib_samples/rain.yaml", "--out", "OUT", "--frames", "0"], "--frames"),
     (
         ["calibrate", "DS", "--board", "nonsense", "--model", "pinhole-radtan", "--out", "OUT/c"],
         "board",
