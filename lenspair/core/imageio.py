@@ -104,6 +104,27 @@ def read_alpha(path: Path) -> np.ndarray | None:
     return np.ascontiguousarray(array[:, :, -1])
 
 
+def oiio_name(path: Path) -> str:
+    """``path`` as OpenImageIO takes it: text that encodes as UTF-8.
+
+    A file name of other bytes (a Latin-1 name from an old camera, a damaged
+    card) reaches Python as surrogate escapes, and OpenImageIO's binding
+    refused it with a ``TypeError`` traceback that stopped the whole run.
+
+    Raises:
+        ImageIOError: the name is not UTF-8 (this file only).
+    """
+    text = str(path)
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        shown = text.encode("utf-8", "backslashreplace").decode("ascii", "backslashreplace")
+        raise ImageIOError(
+            f"{shown}: the file name is not UTF-8, which OpenImageIO cannot open; rename it"
+        ) from None
+    return text
+
+
 @contextlib.contextmanager
 def _opened(path: Path) -> Iterator[Any]:
     """An OpenImageIO input for ``path``, closed on exit.
@@ -116,7 +137,7 @@ def _opened(path: Path) -> Iterator[Any]:
     # translucent pixel of what the networks and metrics see.
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)
-    handle = oiio.ImageInput.open(str(path), config)
+    handle = oiio.ImageInput.open(oiio_name(path), config)
     if handle is None:
         raise ImageIOError(f"{path}: cannot open image ({_first_line(oiio.geterror())})")
     try:
@@ -182,8 +203,8 @@ def write_image(
             spec.attribute("oiio:UnassociatedAlpha", 1)  # colour as given, not divided by alpha
         if png_level is not None:
             spec.attribute("png:compressionLevel", png_level)
-        out = oiio.ImageOutput.create(str(path))
-        if out is None or not out.open(str(tmp), spec):
+        out = oiio.ImageOutput.create(oiio_name(path))
+        if out is None or not out.open(oiio_name(tmp), spec):
             raise ImageIOError(f"{path}: cannot write ({_first_line(oiio.geterror())})")
         ok = out.write_image(pixels)
         closed = out.close()

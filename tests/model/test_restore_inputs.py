@@ -1,6 +1,7 @@
 """``restore`` keeps inputs safe and accounts for every frame of every input kind."""
 
 import errno
+import os
 import shutil
 import threading
 from pathlib import Path
@@ -339,3 +340,21 @@ def test_input_files_named_like_restores_own_are_said_not_overwritten(
     assert ".restore-copies: not copied" in clashes[0] and "restore_report.json: not" in clashes[1]
     assert "mine" not in (tmp_path / "out" / "restore_report.json").read_text()
     assert (tmp_path / "out" / "sub" / "restore_report.json").read_text() == '{"deeper": 1}'
+
+
+def test_a_file_name_that_is_not_utf8_costs_only_its_frame(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    # OpenImageIO's binding raised TypeError on it: a traceback, the run stopped
+    source = tmp_path / "in"
+    pixels = (texture((32, 48), seed=1) * 255).astype(np.uint8)
+    write_image(source / "ok.png", pixels)
+    odd = source / os.fsdecode(b"x\xff.png")  # a Latin-1 name from an old camera
+    shutil.copyfile(source / "ok.png", odd)
+    report = restore_input(source, tmp_path / "out", backend)
+    assert (report.restored, report.failed) == (1, 1)
+    (problem,) = report.problems
+    assert "not UTF-8" in problem["reason"]
+    assert (tmp_path / "out" / odd.name).read_bytes() == odd.read_bytes()  # copied as it is
+    with pytest.raises(ImageIOError, match=r"x\\udcff\.png: the file name is not UTF-8"):
+        imageio.read_image(odd)
