@@ -52,6 +52,14 @@ def fraction(text: str) -> float:
     return value
 
 
+def open_fraction(text: str) -> float:
+    """Argparse type: a finite number strictly between 0 and 1 (a probability threshold)."""
+    value = _float(text)
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}")
+    return value
+
+
 def out_folder(text: str) -> Path:
     """Argparse type: an output folder: new, or an existing folder (not a file, nor inside one)."""
     path = Path(text)

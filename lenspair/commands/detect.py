@@ -27,7 +27,7 @@ from lenspair.commands.argtypes import (
     add_device_option,
     add_topics_option,
     detector_file,
-    fraction,
+    open_fraction,
     out_folder,
 )
 from lenspair.core.device import resolve_device
@@ -43,12 +43,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("input", type=Path, help="image, folder of images, recording or bag")
     parser.add_argument(
-        "--out", type=out_folder, help="output folder (default: detect_<input name>)"
+        "--out",
+        type=out_folder,
+        help="output folder, outside the input (default: detect_<input name>, beside the "
+        "input when the current folder is inside it)",
     )
     add_device_option(parser)
     parser.add_argument(
         "--threshold",
-        type=fraction,
+        type=open_fraction,
         default=0.5,
         help="a frame is called obstructed above this probability (0.5)",
     )
@@ -57,6 +60,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--sheet-frames", type=int, default=12, help="frames on the contact sheet (12)"
     )
     add_topics_option(parser)
+
+
+def _default_out(source: Path) -> Path:
+    """``detect_<input name>`` here, or beside the input when here is inside it."""
+    name = f"detect_{source.resolve().name}"
+    here = Path.cwd().resolve()
+    inside = source.is_dir() and here.is_relative_to(source.resolve())
+    return source.resolve().parent / name if inside else Path(name)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,13 +79,16 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.model.detection.report import detect_frames
     from lenspair.model.detection.train import load_detector
 
-    if not 0.0 < args.threshold < 1.0:
-        raise ConfigError(f"--threshold: expected 0 < t < 1, got {args.threshold}")
     if args.batch_size < 1 or args.sheet_frames < 0:
         raise ConfigError("--batch-size must be >= 1 and --sheet-frames >= 0")
     kind = detect_input(args.input)  # a bad INPUT fails before anything is written
     network = load_detector(args.model, resolve_device(args.device))
-    out = args.out or Path(f"detect_{args.input.resolve().name}")
+    out = args.out or _default_out(args.input)
+    if args.input.is_dir() and out.resolve().is_relative_to(args.input.resolve()):
+        raise ConfigError(
+            f"--out {out}: inside the input {args.input}; a later run would judge the "
+            "contact sheet as a frame, so choose a folder outside it"
+        )
     # Files are counted from their listing (cheap); a bag's count is only known once read.
     bag = kind in ("rosbag1", "rosbag2")
     total = None if bag else len(frame_files(args.input, kind, CAMERAS))

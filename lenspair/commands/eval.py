@@ -131,6 +131,14 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.model.precision import choose_precision
     from lenspair.model.training.pairs import open_eval_pairs
 
+    # the pairs scored: a paired folder itself, or a dataset's split (DS/eval_* is fine)
+    scored = Path(args.data) if detect_layout(args.data) is not None else args.data / args.split
+    if args.out is not None and args.out.resolve().is_relative_to(scored.resolve()):
+        raise ConfigError(
+            f"--out {args.out}: inside the pairs scored ({scored}); its contact sheet would be "
+            "read as an unpaired image next time, so choose a folder outside it"
+        )
+
     decision = choose_precision(args.precision, device, "infer")
     if args.calibration is not None and decision.precision != "int8":
         raise ConfigError(

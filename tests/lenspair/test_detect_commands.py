@@ -114,3 +114,19 @@ def test_train_detector_input_size_is_width_first(
     argv = ["train-detector", "--out", str(tmp_path / "d"), "--synthetic", "2"]
     assert main([*argv, "--input-size", "300x100"]) == 0
     assert seen[-1].input_size == (100, 300)  # (height, width), as every WxH option of lenspair
+
+
+def test_detect_keeps_its_output_out_of_its_input(
+    tiny_detector: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a second run judged the first run's contact sheet as a frame
+    folder = tmp_path / "frames"
+    write_image(folder / "a.png", (texture((48, 64), seed=1) * 255).astype(np.uint8))
+    assert main(["detect", str(tiny_detector), str(folder), "--out", str(folder / "d")]) == 2
+    assert not (folder / "d").exists()
+    monkeypatch.chdir(folder)  # the default lands beside the input, not in it
+    for _ in range(2):
+        assert main(["detect", str(tiny_detector), "."]) == 0
+    rows = list(csv.DictReader((tmp_path / "detect_frames" / "detections.csv").open()))
+    assert [row["name"] for row in rows] == ["a.png"]
+    assert sorted(p.name for p in folder.iterdir()) == ["a.png"]

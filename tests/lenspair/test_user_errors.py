@@ -151,6 +151,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["detect", "CKPT", "IMGS", "--out", "OUT"], "CKPT.pt"),
     (["detect", "DET", "IMGS", "--out", "OUT", "--threshold", "1.5"], "--threshold"),
     (["detect", "DET", "IMGS", "--out", "OUT", "--threshold", "x"], "--threshold"),
+    (["detect", "DET", "IMGS", "--out", "OUT", "--threshold", "1"], "expected a number in (0, 1)"),
     (["detect", "DET", "IMGS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
     (["detect", "DET", "IMGS", "--out", "OUT", "--sheet-frames", "-1"], "--sheet-frames"),
     (["detect", "DET", "IMGS", "--out", "OUT", "--topics", "a"], "--topics"),

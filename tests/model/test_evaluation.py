@@ -335,3 +335,19 @@ def test_int8_eval_calibrates_off_the_scored_images_where_it_can(
         assert sizes == [counts["train"]] and "split train" in printed
     else:  # nothing else to calibrate on: the scored pairs, and the output says so
         assert sizes == [2] and "optimistic" in printed
+
+
+def test_an_eval_folder_inside_the_pairs_scored_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # its contact sheet became an unpaired input: the next evaluation refused the data
+    folder = write_paired_folder(tmp_path / "pairs", count=1)
+    checkpoint = make_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")
+    argv = ["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0", "--out"]
+    assert main([*argv, str(folder / "input")]) == 2
+    assert "inside the pairs scored" in capsys.readouterr().err
+    assert not (folder / "input" / "metrics.json").exists()
+    dataset = tmp_path / "ds"
+    write_paired_folder(dataset / "test", count=1)
+    ds_argv = ["eval", str(checkpoint), "--data", str(dataset), "--latency-runs", "0", "--out"]
+    assert main([*ds_argv, str(dataset / "eval_best")]) == 0  # beside the splits: fine
