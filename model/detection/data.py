@@ -164,6 +164,11 @@ def dataset_samples(root: Path, split: str, spec: DetectorSpec) -> list[Detector
         untrusted = read_image(files["mask"]) if "mask" in files else None
         if untrusted is not None and untrusted.ndim == 3:
             untrusted = untrusted[:, :, 0]
+        if seen.shape[:2] != clean.shape[:2]:  # a damaged dataset: said, not a traceback
+            raise ModelError(
+                f"{files.get('input', row.name)}: {seen.shape[1]}x{seen.shape[0]} pixels, its "
+                f"target {clean.shape[1]}x{clean.shape[0]}; check it with dataset-build --verify"
+            )
         kind = 0 if row.difficulty == "clean" else kind_index(row.anomaly)
         kind = UNKNOWN_KIND if kind is None else kind
         covered = pair_anomaly_mask(seen, clean, untrusted) if kind != 0 else None
@@ -206,6 +211,11 @@ def recording_samples(
             source = f"{recording.recording_id}/{camera}/{frame.t_ns}"
             if camera == rig.obstructed:
                 mask = read_image(masks / f"{frame.t_ns}.png")
+                if mask.shape[:2] != image.shape[:2]:
+                    raise ModelError(
+                        f"{masks / f'{frame.t_ns}.png'}: {mask.shape[1]}x{mask.shape[0]} pixels, "
+                        f"its frame {image.shape[1]}x{image.shape[0]} (not this recording's truth)"
+                    )
                 clear_file = path / "truth" / "clear" / f"{frame.t_ns}.png"
                 if clear_file.is_file():
                     mask = visible_footprint(image, read_image(clear_file), mask)
@@ -248,13 +258,17 @@ def random_effects(kind: str, rng: np.random.Generator) -> EffectsSpec:
     raise ModelError(f"no effects for kind {kind!r}; valid: rain, dust, dirt")
 
 
+MIN_CLEAN_SIDE = 16
+"""Smallest side of a clean image that synthetic samples are cut from, pixels."""
+
+
 def _random_view(image: np.ndarray, spec: DetectorSpec, rng: np.random.Generator) -> np.ndarray:
     """A random crop of ``image`` (at least half its size) resized to the input size."""
     height, width = image.shape[:2]
     target_h, target_w = spec.input_size
     scale = rng.uniform(0.5, 1.0)
-    crop_w = max(16, min(width, round(width * scale)))
-    crop_h = max(16, min(height, round(crop_w * target_h / target_w)))
+    crop_w = max(MIN_CLEAN_SIDE, min(width, round(width * scale)))
+    crop_h = max(MIN_CLEAN_SIDE, min(height, round(crop_w * target_h / target_w)))
     top = int(rng.integers(0, height - crop_h + 1))
     left = int(rng.integers(0, width - crop_w + 1))
     crop = image[top : top + crop_h, left : left + crop_w]

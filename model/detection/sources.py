@@ -24,6 +24,7 @@ import numpy as np
 
 from lenspair.core.imageio import read_image
 from lenspair.model.detection.data import (
+    MIN_CLEAN_SIDE,
     DetectorSample,
     dataset_samples,
     recording_samples,
@@ -85,11 +86,30 @@ def _chunks(count: int, seed: int) -> list[tuple[int, int, np.random.SeedSequenc
     return [(s, min(CHUNK, count - s), q) for s, q in zip(starts, seeds, strict=True)]
 
 
-def clean_images(folder: Path | None) -> list[np.ndarray]:
-    """Clean images for synthetic samples: up to 200 of ``folder``, or the built-in textures."""
+def clean_images(folder: Path | None, say: bool = False) -> list[np.ndarray]:
+    """Clean images for synthetic samples: up to 200 of ``folder``, or the built-in textures.
+
+    Images under :data:`MIN_CLEAN_SIDE` pixels on a side hold no crop: they are left out
+    (with a warning each when ``say``; the chunks of workers read them again quietly).
+
+    Raises:
+        ModelError: none of ``folder``'s images is large enough.
+    """
     if folder is None:
         return texture_images()
-    return [read_image(path) for path in find_clean_images(folder)[:200]]
+    images = []
+    for path in find_clean_images(folder)[:200]:
+        image = read_image(path)
+        if min(image.shape[:2]) >= MIN_CLEAN_SIDE:
+            images.append(image)
+        elif say:
+            log.warning(
+                "%s: %dx%d pixels, under %d on a side: left out of the synthetic samples",
+                path, image.shape[1], image.shape[0], MIN_CLEAN_SIDE,
+            )  # fmt: skip
+    if not images:
+        raise ModelError(f"{folder}: no clean image of at least {MIN_CLEAN_SIDE}x{MIN_CLEAN_SIDE}")
+    return images
 
 
 def _synthetic_chunk(
@@ -158,6 +178,7 @@ def gather(
             process_map(read, list(sources.test_recordings), workers)
         )
     if sources.synthetic:
+        clean_images(sources.clean_folder, say=True)  # what is left out is said once, here
         synthetic = partial(_synthetic_chunk, folder=sources.clean_folder, spec=spec)
         train += _flat(process_map(synthetic, _chunks(sources.synthetic, seed), workers))
     if sources.hard:

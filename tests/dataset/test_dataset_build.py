@@ -7,12 +7,13 @@ import shutil
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from lenspair.capture.ingested import read_pairs, read_report, write_pairs, write_report
 from lenspair.cli import main
 from lenspair.core.fsutil import sha256_file
-from lenspair.core.imageio import read_image
+from lenspair.core.imageio import read_image, write_image
 from lenspair.dataset import build as build_module
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.card import read_card
@@ -20,6 +21,9 @@ from lenspair.dataset.config import CurationConfig, DatasetConfig, SplitConfig
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.manifest import read_manifest
 from lenspair.dataset.verify import verify_dataset
+from lenspair.model.detection.data import dataset_samples
+from lenspair.model.errors import ModelError
+from lenspair.model.networks.detector import DetectorSpec
 from tests.dataset.dataset_synth import RecordingFactory
 
 SEGMENTS = DatasetConfig(split=SplitConfig(segment_frames=10, segment_gap_frames=2))
@@ -545,3 +549,15 @@ def test_a_rebuild_killed_during_its_swap_is_put_back_by_the_next(
     assert (out / "NOTES.md").read_text() == "collected on the roof"  # deleted as a leftover
     assert "set aside by an interrupted rebuild" in caplog.text
     assert sorted(p.name for p in tmp_path.iterdir()) == ["DS", "ingested"]
+
+
+def test_the_detector_says_which_pair_of_a_damaged_dataset_differs_in_size(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    # train-detector on it was a ValueError traceback ("pair: shapes differ")
+    _, out, _ = _dataset_with_notes(recording, tmp_path)
+    first = sorted((out / "train" / "input").glob("*.png"))[0]
+    image = read_image(first)
+    write_image(first, np.ascontiguousarray(image[:-1, :-1]))
+    with pytest.raises(ModelError, match=rf"{first.name}: .* its target .*dataset-build --verify"):
+        dataset_samples(out, "train", DetectorSpec())

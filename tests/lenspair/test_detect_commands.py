@@ -130,3 +130,20 @@ def test_detect_keeps_its_output_out_of_its_input(
     rows = list(csv.DictReader((tmp_path / "detect_frames" / "detections.csv").open()))
     assert [row["name"] for row in rows] == ["a.png"]
     assert sorted(p.name for p in folder.iterdir()) == ["a.png"]
+
+
+def test_train_detector_says_what_it_cannot_use_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    # each was a ValueError traceback
+    clean = tmp_path / "clean"
+    write_image(clean / "thin.png", (texture((15, 200), seed=1) * 255).astype(np.uint8))
+    argv = ["train-detector", "--synthetic", "4", "--steps", "1", "--clean-images", str(clean)]
+    assert main([*argv, "--out", str(tmp_path / "a")]) == 2
+    assert "no clean image of at least 16x16" in capsys.readouterr().err
+    write_image(clean / "wide.png", (texture((48, 64), seed=2) * 255).astype(np.uint8))
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        assert main([*argv, "--out", str(tmp_path / "b")]) == 0
+    said = [r.getMessage() for r in caplog.records if "left out of the synthetic" in r.getMessage()]
+    assert len(said) == 1 and "thin.png" in said[0]
