@@ -111,6 +111,9 @@ def read_torch_file(path: Path, what: str) -> Any:
     """
     if path.stat().st_size == 0:
         raise ModelError(f"{path}: empty file, not a {what}")
+    exported = _exported_kind(path)
+    if exported is not None:  # torch.load warns about a TorchScript archive before failing
+        raise ModelError(f"{path}: {exported} (from lenspair export), not a {what}")
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:

@@ -173,3 +173,14 @@ def test_the_bundled_detector_loads_by_its_name_as_the_docstring_says(
     assert isinstance(network, AnomalyDetector) and not network.training
     with pytest.raises(ModelError, match=r"^elsewhere/detector.pt: no such detector checkpoint"):
         load_detector(Path("elsewhere/detector.pt"))  # a path is a path
+
+
+def test_an_exported_model_given_as_the_detector_is_one_line(
+    tmp_path: Path, recwarn: pytest.WarningsRecorder
+) -> None:
+    # torch.load printed a UserWarning about TorchScript archives before the error
+    scripted = torch.jit.script(torch.nn.Linear(2, 2))
+    torch.jit.save(scripted, str(tmp_path / "ts.pt"))
+    with pytest.raises(ModelError, match=r"ts\.pt: a TorchScript model .*not a detector"):
+        load_detector(tmp_path / "ts.pt")
+    assert not [w for w in recwarn if "TorchScript" in str(w.message)]
