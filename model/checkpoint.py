@@ -17,7 +17,6 @@ checkpoint for inference (``eval``, ``export``) or as ``--init``.
 
 import io
 import pickle
-import re
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,21 +26,14 @@ import torch
 from torch import nn
 
 from lenspair.core.config import to_plain
-from lenspair.core.errors import ConfigError
+from lenspair.core.errors import ConfigError, first_line
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.variants import build_model
 from lenspair.model.training.config import ModelConfig, RunConfig, run_config_from_dict
 
 CHECKPOINT_FORMAT = "lenspair-checkpoint"
-_ANSI_ESCAPE = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 CHECKPOINT_VERSION = 1
-
-
-def _first_line(exc: BaseException) -> str:
-    """First line of an exception's message, without terminal escape codes."""
-    text = _ANSI_ESCAPE.sub("", str(exc)).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def to_cpu(obj: Any) -> Any:
@@ -122,7 +114,7 @@ def read_torch_file(path: Path, what: str) -> Any:
             f"{path}: not a {what} (it holds {found}; lenspair loads only tensors and plain data)"
         ) from None
     except Exception as exc:  # torch raises many types for corrupt files
-        detail = _first_line(exc)
+        detail = first_line(exc)
         if "weights_only" in detail:  # torch's advice to unpickle anything: never right here
             detail = "it holds more than tensors and plain data"
         raise ModelError(f"{path}: not a {what} (not a readable torch file: {detail})") from None
@@ -233,7 +225,7 @@ def load_weights(network: nn.Module, data: dict[str, Any], path: Path | str) -> 
     try:
         network.load_state_dict(weights)
     except RuntimeError as exc:
-        raise ModelError(f"{path}: weights do not fit the network ({_first_line(exc)})") from None
+        raise ModelError(f"{path}: weights do not fit the network ({first_line(exc)})") from None
 
 
 def first_shape_difference(expected: dict[str, torch.Tensor], found: dict[str, Any]) -> str | None:

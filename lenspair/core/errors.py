@@ -5,7 +5,20 @@ Each stage package defines its own errors in its ``errors.py``, deriving from
 message and a non-zero exit code without catching unrelated bugs.
 """
 
+import re
 from collections.abc import Sequence
+
+_ANSI_ESCAPE = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+
+
+def first_line(exc: BaseException) -> str:
+    """The first line of an exception's message, without terminal escape codes.
+
+    For one-line errors quoting a library's exception (torch.export colours its
+    messages): the exception's type name when it has no message.
+    """
+    text = _ANSI_ESCAPE.sub("", str(exc)).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def listed(items: Sequence[str], most: int = 3, sep: str = "; ") -> str:

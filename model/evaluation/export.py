@@ -31,6 +31,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
@@ -233,7 +234,7 @@ def export_onnx(
             exporter = _EXPORTERS[attempt]
             break
         except Exception as exc:  # exporters raise many types; report one line
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            first = first_line(exc)
             if attempt == exporters[-1]:
                 raise ModelError(f"ONNX export failed: {first}") from exc
             log.warning("%s failed (%s); trying %s", _EXPORTERS[attempt], first, exporters[-1])

@@ -45,6 +45,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import INPUT_NAME, Restorer, _onnx_export, check_image
@@ -150,7 +151,7 @@ def quantize_network(
             _onnx_export(model, check_image(channels, size), fp32, exporter="dynamo")
             quant_pre_process(str(fp32), str(prepared), skip_symbolic_shape=True)
         except Exception as exc:  # exporters raise many types; report one line
-            raise ModelError(f"int8: ONNX export failed: {_first_line(exc)}") from exc
+            raise ModelError(f"int8: ONNX export failed: {first_line(exc)}") from exc
         reader = _Reader(calibration)
 
         def write(tmp: Path) -> None:
@@ -169,13 +170,8 @@ def quantize_network(
         try:
             atomic_write(Path(path), write, ".onnx")
         except Exception as exc:
-            raise ModelError(f"int8: quantisation failed: {_first_line(exc)}") from exc
+            raise ModelError(f"int8: quantisation failed: {first_line(exc)}") from exc
     return Path(path)
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def open_session(path: Path, threads: int | None = None) -> Any:

@@ -344,7 +344,8 @@ class EffectsSpec:
         drops = self.raindrops
         # drops of refractive index 1 bend no light: invisible unless brightened
         seen = drops is not None and drops.count > 0
-        seen = seen and (drops.refractive_index != 1.0 or self.brightness is not None)
+        if drops is not None and drops.refractive_index == 1.0 and self.brightness is None:
+            seen = False
         if seen or (self.veil is not None and self.veil.strength[1] > 0):
             kinds.append("rain")
         if self.dust is not None and self.dust.coverage > 0:

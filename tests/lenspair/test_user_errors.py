@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 
 from lenspair.cli import COMMANDS, build_parser, main
 from lenspair.commands.argtypes import expand_topics
+from lenspair.core.errors import first_line
 from tests.model.train_fixtures import write_split_dataset
 
 # Bad files, by kind: (file name, writer). "unreadable" is a folder where a file
@@ -367,3 +368,16 @@ def test_topics_before_the_positionals_take_two_words(argv: list[str]) -> None:
     positional = {"restore": "input", "detect": "input", "capture-ingest": "recording"}
     name = positional.get(argv[0], "recording")
     assert str(getattr(args, name)) == "rec.bag"
+
+
+def test_a_quoted_library_error_is_its_first_line_without_terminal_colours() -> None:
+    # torch.export's message, as eval --precision int8 wrote it into metrics.md
+    coloured = RuntimeError(
+        "Failed to export the model with torch.export. \x1b[96mThis is step 1/3\x1b[0m of ...\n"
+        "more lines"
+    )
+    assert (
+        first_line(coloured)
+        == "Failed to export the model with torch.export. This is step 1/3 of ..."
+    )
+    assert first_line(ValueError()) == "ValueError"
