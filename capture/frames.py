@@ -43,6 +43,7 @@ A bag cut short yields its complete messages (see
 appended once to the ``problems`` list passed in.
 """
 
+import os
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -159,6 +160,24 @@ def image_files(folder: Path) -> list[Path]:
         and not any(part.startswith(".") for part in p.relative_to(folder).parts)
     ]
     return sorted(found)
+
+
+def unfollowed_entries(folder: Path) -> list[str]:
+    """One line per entry under ``folder`` that :func:`image_files` passes over unseen.
+
+    A link to a folder is not followed (a link back up would never end) and a
+    link to nothing, or to something that is not a file, has no image: the
+    commands reading a folder say so instead of leaving them out silently.
+    """
+    lines = []
+    for entry in sorted(Path(folder).rglob("*")):
+        if any(part.startswith(".") for part in entry.relative_to(folder).parts):
+            continue
+        if entry.is_symlink() and entry.is_dir():
+            lines.append(f"{entry}: a link to a folder, not followed; its images are left out")
+        elif entry.is_symlink() and not entry.exists():
+            lines.append(f"{entry}: a link to nothing ({os.readlink(entry)}); left out")
+    return lines
 
 
 def _image_topics(reader: rosbag.BagReader) -> list[str]:
@@ -323,6 +342,8 @@ def _file_entries(
                 f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) found "
                 "and not a recording or a bag"
             )
+        if problems is not None:
+            problems.extend(unfollowed_entries(path))
         return [(file, None, None) for file in files]
     recording = open_recording(path)
     mine = [p for p in recording.problems if p.camera is None or p.camera in cameras]

@@ -358,3 +358,18 @@ def test_a_file_name_that_is_not_utf8_costs_only_its_frame(
     assert (tmp_path / "out" / odd.name).read_bytes() == odd.read_bytes()  # copied as it is
     with pytest.raises(ImageIOError, match=r"x\\udcff\.png: the file name is not UTF-8"):
         imageio.read_image(odd)
+
+
+def test_links_a_folder_listing_passes_over_are_said(tmp_path: Path, backend: TorchBackend) -> None:
+    # a linked folder and a dangling link were left out without a word
+    source = tmp_path / "in"
+    write_image(source / "real" / "a.png", (texture((32, 48), seed=1) * 255).astype(np.uint8))
+    write_image(tmp_path / "other" / "b.png", (texture((32, 48), seed=2) * 255).astype(np.uint8))
+    (source / "linked").symlink_to(tmp_path / "other")
+    (source / "dangling.png").symlink_to(tmp_path / "gone.png")
+    report = restore_input(source, tmp_path / "out", backend)
+    assert report.restored == 1
+    reasons = sorted(p["reason"] for p in report.problems)
+    assert len(reasons) == 2
+    assert reasons[0].startswith(f"{source / 'dangling.png'}: a link to nothing")
+    assert reasons[1].startswith(f"{source / 'linked'}: a link to a folder, not followed")
