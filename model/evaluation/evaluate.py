@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from lenspair.core.config import to_plain
-from lenspair.core.errors import LenspairError
+from lenspair.core.errors import LenspairError, listed
 from lenspair.core.imageio import max_value
 from lenspair.core.progress import progress
 from lenspair.model import metrics
@@ -254,9 +254,14 @@ def score_pairs(
     taken: dict[str, int] = {}
     bad = list(unread)
     known = {u.index for u in bad}
+    converted: list[str] = []
+    read = 0
     for index in progress(range(len(pairs)), "evaluating", total=len(pairs), unit="image"):
         if index in known or (item := read_pair(pairs, index, bad)) is None:
             continue
+        read += 1
+        if channels_of(item.input) != channels:
+            converted.append(item.name)
         try:
             x = to_tensor(item.input, channels)[None].to(device)
             target = to_tensor(item.target, channels)[None].to(device)
@@ -289,6 +294,15 @@ def score_pairs(
                     (_to_numpy(x), _to_numpy(output), _to_numpy(target)),
                 )
             )
+    if 0 < len(converted) < read:  # mixed; all converted is said by evaluate, from the first
+        log.warning(
+            "%d pair(s) have another channel count than the network's %d and were converted "
+            "(%s): %s",
+            len(converted),
+            channels,
+            "to luma" if channels == 1 else "grey repeated",
+            listed(converted),
+        )
     order = {name: i for i, name in enumerate(DIFFICULTY_ORDER)}
     samples.sort(key=lambda row: order.get(row.difficulty or "", len(order)))
     return Scored(scores, samples, sorted(bad, key=lambda u: u.index))

@@ -2,6 +2,7 @@ import csv
 import json
 import math
 import platform
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -351,3 +352,18 @@ def test_an_eval_folder_inside_the_pairs_scored_is_refused(
     write_paired_folder(dataset / "test", count=1)
     ds_argv = ["eval", str(checkpoint), "--data", str(dataset), "--latency-runs", "0", "--out"]
     assert main([*ds_argv, str(dataset / "eval_best")]) == 0  # beside the splits: fine
+
+
+def test_colour_pairs_among_grey_ones_are_said_converted(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # the conversion was said only when the first pair needed it
+    folder = write_paired_folder(tmp_path / "pairs", count=2)
+    colour = write_paired_folder(tmp_path / "colour", count=1, seed=5, rgb=True)
+    for side in ("input", "target"):
+        shutil.copyfile(colour / side / "000.png", folder / side / "zzz.png")
+    checkpoint = make_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")  # mono
+    with caplog.at_level("WARNING"):
+        assert main(["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0"]) == 0
+    said = [r.getMessage() for r in caplog.records if "were converted" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("1 pair(s)") and "zzz" in said[0]
