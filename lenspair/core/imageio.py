@@ -83,6 +83,26 @@ def image_header(path: Path) -> tuple[int, int, int, str]:
         return spec.height, spec.width, channels, str(spec.format)
 
 
+def image_layout(path: Path) -> tuple[int, int]:
+    """``(orientation, pages)`` from a file's header.
+
+    The EXIF/TIFF ``Orientation`` (1 when none: as stored), and how many images
+    the file holds (a multi-page TIFF holds several; counted up to 2).
+
+    Whoever writes an image back in the file's place (``restore``) keeps the
+    orientation, or viewers turn the new file by 90 degrees against the old one.
+
+    Raises:
+        ImageIOError: as :func:`image_header`.
+    """
+    with _opened(Path(path)) as handle:
+        orientation = int(handle.spec().get_int_attribute("Orientation", 1))
+        pages = 1
+        while pages < 2 and handle.seek_subimage(pages, 0):
+            pages += 1
+    return orientation, pages
+
+
 def read_alpha(path: Path) -> np.ndarray | None:
     """The alpha channel of an image file, ``(H, W)`` of its dtype; ``None`` when it has none.
 
@@ -171,7 +191,11 @@ for files a few per cent larger (the same pixels)."""
 
 
 def write_image(
-    path: Path, image: np.ndarray, png_level: int | None = None, alpha: np.ndarray | None = None
+    path: Path,
+    image: np.ndarray,
+    png_level: int | None = None,
+    alpha: np.ndarray | None = None,
+    orientation: int = 1,
 ) -> None:
     """Write ``image`` atomically; the format follows the file extension.
 
@@ -182,6 +206,8 @@ def write_image(
             library's default); see :data:`FAST_PNG`.
         alpha: an alpha channel ``(H, W)`` of ``image``'s dtype to write
             after the colour ones (grey + alpha, RGBA); see :func:`read_alpha`.
+        orientation: the EXIF/TIFF ``Orientation`` to record (1, as stored: none
+            is written); see :func:`image_layout`.
 
     """
     check_image(image, str(path))
@@ -203,6 +229,8 @@ def write_image(
             spec.attribute("oiio:UnassociatedAlpha", 1)  # colour as given, not divided by alpha
         if png_level is not None:
             spec.attribute("png:compressionLevel", png_level)
+        if orientation != 1:
+            spec.attribute("Orientation", orientation)
         out = oiio.ImageOutput.create(oiio_name(path))
         if out is None or not out.open(oiio_name(tmp), spec):
             raise ImageIOError(f"{path}: cannot write ({_first_line(oiio.geterror())})")

@@ -40,7 +40,7 @@ from lenspair.core.fsutil import (
     read_json_field,
     remove_path,
 )
-from lenspair.core.imageio import FAST_PNG, read_alpha, write_image
+from lenspair.core.imageio import FAST_PNG, image_layout, read_alpha, write_image
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +71,23 @@ def _alpha_of(source: Path, shape: tuple[int, ...]) -> np.ndarray | None:
     except ImageIOError as exc:
         raise CaptureError(str(exc)) from None
     return alpha if alpha is not None and alpha.shape == shape else None
+
+
+def _orientation_of(source: Path) -> int:
+    """The input's EXIF/TIFF orientation, kept on its restored image.
+
+    Raises:
+        CaptureError: a file of several pages (a multi-page TIFF): the network
+            restores one image, and writing it in the file's place would drop
+            the others, so the file is copied unchanged and listed instead.
+    """
+    try:
+        orientation, pages = image_layout(source)
+    except ImageIOError as exc:
+        raise CaptureError(str(exc)) from None
+    if pages > 1:
+        raise CaptureError(f"{source}: a file of several pages; only single images are restored")
+    return orientation
 
 
 def copy_file(source: Path, destination: Path) -> None:
@@ -210,8 +227,11 @@ class FileSink:
         else:
             destination.parent.mkdir(parents=True, exist_ok=True)
             alpha = _alpha_of(Path(item.source), restored.shape[:2])
+            orientation = _orientation_of(Path(item.source))
             # FAST_PNG: a robot's stream wants speed
-            write_image(destination, restored, png_level=FAST_PNG, alpha=alpha)
+            write_image(
+                destination, restored, png_level=FAST_PNG, alpha=alpha, orientation=orientation
+            )
             self.copies.discard(item.name)
 
     def cached(self, frame: InputFrame) -> np.ndarray | None:

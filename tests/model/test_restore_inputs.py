@@ -373,3 +373,33 @@ def test_links_a_folder_listing_passes_over_are_said(tmp_path: Path, backend: To
     assert len(reasons) == 2
     assert reasons[0].startswith(f"{source / 'dangling.png'}: a link to nothing")
     assert reasons[1].startswith(f"{source / 'linked'}: a link to a folder, not followed")
+
+
+def test_a_restored_image_keeps_its_orientation_and_a_multi_page_file_is_kept_whole(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    import OpenImageIO as oiio  # the test writes what lenspair's own writer does not
+
+    source = tmp_path / "in"
+    source.mkdir()
+    pixels = (texture((32, 48), seed=1) * 255).astype(np.uint8)
+    spec = oiio.ImageSpec(48, 32, 1, "uint8")
+    spec.attribute("Orientation", 6)  # a phone held upright: viewers turn it 90 degrees
+    turned = oiio.ImageOutput.create(str(source / "turned.png"))
+    assert turned.open(str(source / "turned.png"), spec) and turned.write_image(pixels[:, :, None])
+    turned.close()
+    pages = oiio.ImageOutput.create(str(source / "pages.tif"))
+    plain = oiio.ImageSpec(48, 32, 1, "uint8")
+    assert pages.open(str(source / "pages.tif"), (plain, plain))
+    pages.write_image(pixels[:, :, None])
+    assert pages.open(str(source / "pages.tif"), plain, "AppendSubimage")
+    pages.write_image(pixels[:, :, None])
+    pages.close()
+    report = restore_input(source, tmp_path / "out", backend)
+    assert (report.restored, report.failed) == (1, 1)
+    # the orientation was dropped: the restored image showed turned against the input
+    assert imageio.image_layout(tmp_path / "out" / "turned.png") == (6, 1)
+    # the second page was dropped without a word; now the file is copied whole and listed
+    (problem,) = report.problems
+    assert problem["frame"] == "pages.tif" and "several pages" in problem["reason"]
+    assert (tmp_path / "out" / "pages.tif").read_bytes() == (source / "pages.tif").read_bytes()
