@@ -103,10 +103,11 @@ def run(args: argparse.Namespace) -> int:
     judged = [v for v in verdicts if v.error is None]
     counts = Counter(v.kind for v in judged)
     obstructed = sum(1 for v in judged if v.obstructed)
-    summary = ", ".join(f"{kind} {count}" for kind, count in sorted(counts.items()))
+    listed_kinds = ", ".join(f"{kind} {count}" for kind, count in sorted(counts.items()))
+    kinds = f"; {listed_kinds}" if listed_kinds else ""  # none judged: no empty "; ;"
     print(
         f"{len(judged)} frames judged ({len(verdicts) - len(judged)} not: unreadable or left "
         "out by the listing): "
-        f"{obstructed} obstructed; {summary}; see {out / 'detections.csv'}"
+        f"{obstructed} obstructed{kinds}; see {out / 'detections.csv'}"
     )
     return 0

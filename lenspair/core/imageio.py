@@ -32,12 +32,13 @@ _OIIO_TYPES = {np.dtype(np.uint8): oiio.UINT8, np.dtype(np.uint16): oiio.UINT16}
 
 
 def check_image(image: np.ndarray, name: str = "image") -> None:
-    """Raise ``ValueError`` unless ``image`` is uint8/uint16 (H, W) or (H, W, 3)."""
+    """Raise ``ValueError`` unless ``image`` is uint8/uint16 (H, W) or (H, W, 3), H, W >= 1."""
     if image.dtype not in _OIIO_TYPES:
         raise ValueError(f"{name}: expected dtype uint8 or uint16, got {image.dtype}")
-    if image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3):
-        return
-    raise ValueError(f"{name}: expected shape (H, W) or (H, W, 3), got {image.shape}")
+    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
+        raise ValueError(f"{name}: expected shape (H, W) or (H, W, 3), got {image.shape}")
+    if image.shape[0] == 0 or image.shape[1] == 0:
+        raise ValueError(f"{name}: an empty image, shape {image.shape}")
 
 
 def read_image(path: Path) -> np.ndarray:

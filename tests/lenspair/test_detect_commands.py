@@ -9,6 +9,8 @@ import pytest
 
 from lenspair.cli import main
 from lenspair.core.imageio import read_image, write_image
+from lenspair.model.detection.judge import judge
+from lenspair.model.detection.train import load_detector
 from tests.capture.ingest_helpers import make_recording
 from tests.images import texture
 from tests.model.restore_helpers import bag_from_recording
@@ -147,3 +149,15 @@ def test_train_detector_says_what_it_cannot_use_in_one_line(
         assert main([*argv, "--out", str(tmp_path / "b")]) == 0
     said = [r.getMessage() for r in caplog.records if "left out of the synthetic" in r.getMessage()]
     assert len(said) == 1 and "thin.png" in said[0]
+
+
+def test_detect_with_nothing_judged_says_so_cleanly(
+    tiny_detector: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fake = tmp_path / "notimage.png"
+    fake.write_bytes(b"hello")
+    assert main(["detect", str(tiny_detector), str(fake), "--out", str(tmp_path / "d")]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert line.startswith("0 frames judged (1 not") and "; ;" not in line  # it printed "; ;"
+    with pytest.raises(ValueError, match="an empty image"):
+        judge(load_detector(tiny_detector), [np.zeros((0, 0), np.uint8)])  # a cv2.error
