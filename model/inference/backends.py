@@ -48,6 +48,25 @@ class Backend(Protocol):
         """``(N, C, H, W)`` float32 in [0, 1] -> restored, same shape, float32 in [0, 1]."""
 
 
+def check_batch(batch: np.ndarray, channels: int) -> np.ndarray:
+    """``batch`` as a contiguous float32 ``(N, channels, H, W)`` array, or a one-line error.
+
+    Integer frames (0..255) would run unscaled and come out clipped white; a
+    3-D array failed inside torch with a traceback about memory formats.
+
+    Raises:
+        ModelError: not a floating-point ``(N, C, H, W)`` batch of the network's channels.
+    """
+    if not np.issubdtype(batch.dtype, np.floating):
+        raise ModelError(
+            f"a batch of {batch.dtype}: expected float32 in [0, 1] "
+            "(lenspair.model.inference.tiling.to_batch converts frames)"
+        )
+    if batch.ndim != 4 or batch.shape[1] != channels:
+        raise ModelError(f"a batch of shape {batch.shape}: expected (N, {channels}, H, W)")
+    return np.ascontiguousarray(batch, dtype=np.float32)
+
+
 def resolve_precision(choice: str, device: torch.device) -> str:
     """``--precision`` to what runs: ``fp32`` or ``bf16`` (``fp16`` on CUDA).
 
@@ -98,7 +117,7 @@ class TorchBackend:
     @torch.inference_mode()
     def __call__(self, batch: np.ndarray) -> np.ndarray:
         """Run the network on a numpy batch (see :class:`Backend`)."""
-        x = torch.from_numpy(np.ascontiguousarray(batch, dtype=np.float32)).to(self.device)
+        x = torch.from_numpy(check_batch(batch, self.channels)).to(self.device)
         if self.device.type == "cpu":
             x = x.contiguous(memory_format=torch.channels_last)
         with autocast_context(self.device, self.precision):
@@ -168,7 +187,7 @@ class OnnxBackend:
 
     def __call__(self, batch: np.ndarray) -> np.ndarray:
         """Run the session on a numpy batch (see :class:`Backend`)."""
-        feed = {self.input_name: np.ascontiguousarray(batch, dtype=np.float32)}
+        feed = {self.input_name: check_batch(batch, self.channels)}
         output = self.session.run(None, feed)[0]
         return np.clip(np.asarray(output, dtype=np.float32), 0.0, 1.0)
 

@@ -197,3 +197,12 @@ def test_precision_auto_follows_the_hardware(monkeypatch: pytest.MonkeyPatch) ->
 def test_open_backend_takes_a_device_name(tmp_path: Path) -> None:
     # load_model and load_detector take "cpu"; open_backend raised AttributeError
     assert open_backend(make_checkpoint(tmp_path / "ck.pt"), "cpu", "fp32").channels == 1
+
+
+def test_a_backend_refuses_batches_it_would_misread(backend: TorchBackend) -> None:
+    frames = np.full((1, 1, 16, 16), 128, np.uint8)  # 0..255 ran unscaled: white output
+    with pytest.raises(ModelError, match="a batch of uint8: expected float32"):
+        backend(frames)
+    with pytest.raises(ModelError, match=r"shape \(1, 16, 16\): expected \(N, 1, H, W\)"):
+        backend(np.zeros((1, 16, 16), np.float32))  # a traceback about memory formats
+    assert backend(np.zeros((1, 1, 16, 16), np.float32)).shape == (1, 1, 16, 16)
