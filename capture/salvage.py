@@ -27,8 +27,8 @@ The result quacks like the parts of ``rosbags.highlevel.AnyReader`` that
 ``messages``, ``deserialize``, ``close``) and carries :attr:`SalvagedBag.cut`,
 one line naming the file and where reading stopped.
 
-A scan reads the whole file, so each process keeps the last few scans (keyed
-by the file's identity, size and modification time): the commands open a bag
+A scan reads the whole file, so each process keeps the last two scans (keyed
+by the file's identity, size, times and end bytes): the commands open a bag
 several times (to list its topics, to count, to read), and a cut bag of
 gigabytes was read from end to end each time.
 """
