@@ -300,7 +300,7 @@ def fit(
             )
             if info.is_main and trainer.vgg is None and config.loss.perceptual > 0:
                 log.warning("reminder: this run trained WITHOUT the perceptual loss")
-        return TrainSummary(
+        summary = TrainSummary(
             run=paths.root,
             epochs=state.epoch,
             steps=state.step,
@@ -311,6 +311,12 @@ def fit(
             skipped_steps=trainer.guard.total,
             perceptual=trainer.perceptual_status,
         )
+        if info.active:
+            # every rank here before any tears the group down: rank 1, done while rank 0
+            # still validated and saved, destroyed its gloo group under it and could abort
+            # at exit ("terminate called without an active exception")
+            torch.distributed.barrier()
+        return summary
     finally:
         torch.use_deterministic_algorithms(deterministic_before)
         if info.active:
