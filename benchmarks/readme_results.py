@@ -262,7 +262,9 @@ def seeded_blocks(path: Path) -> list[Block]:
         f"A longer run than the demo's: `lenspair tradeoff DS --seeds 0,1,2 --budget N` "
         f"(`make tradeoff-seeds`), trained on {device}, CPU times from that machine's CPU; "
         f"written by the command to `{path.as_posix()}`. Read the accuracy columns with "
-        "the convergence column beside them."
+        "the convergence column beside them. Its dataset is the demo's as simulated when it "
+        "ran, so its input row can differ from the demo table's above: a later simulator "
+        "fix (brightness no longer moves the drops of later frames) changed the demo's data."
     )
     return [intro, *blocks]
 
