@@ -150,34 +150,28 @@ def _is_folder_recording(path: Path) -> bool:
     return True
 
 
-def image_files(folder: Path) -> list[Path]:
-    """Image files under ``folder`` (recursive, hidden entries skipped), sorted by path."""
-    found = [
-        p
-        for p in Path(folder).rglob("*")
-        if p.is_file()
-        and p.suffix.lower() in IMAGE_SUFFIXES
-        and not any(part.startswith(".") for part in p.relative_to(folder).parts)
-    ]
-    return sorted(found)
+def _folder_listing(folder: Path) -> tuple[list[Path], list[str]]:
+    """Image files under ``folder`` (recursive, hidden entries skipped) and what it passes over.
 
-
-def unfollowed_entries(folder: Path) -> list[str]:
-    """One line per entry under ``folder`` that :func:`image_files` passes over unseen.
-
-    A link to a folder is not followed (a link back up would never end) and a
-    link to nothing, or to something that is not a file, has no image: the
-    commands reading a folder say so instead of leaving them out silently.
+    Both from one walk, sorted by path. The second list has one line per entry
+    the images leave out unseen: a link to a folder is not followed (a link back
+    up would never end) and a link to nothing has no image, so the commands
+    reading a folder say so instead of leaving them out silently.
     """
-    lines = []
+    files: list[Path] = []
+    passed_over: list[str] = []
     for entry in sorted(Path(folder).rglob("*")):
         if any(part.startswith(".") for part in entry.relative_to(folder).parts):
             continue
         if entry.is_symlink() and entry.is_dir():
-            lines.append(f"{entry}: a link to a folder, not followed; its images are left out")
+            passed_over.append(
+                f"{entry}: a link to a folder, not followed; its images are left out"
+            )
         elif entry.is_symlink() and not entry.exists():
-            lines.append(f"{entry}: a link to nothing ({os.readlink(entry)}); left out")
-    return lines
+            passed_over.append(f"{entry}: a link to nothing ({os.readlink(entry)}); left out")
+        elif entry.is_file() and entry.suffix.lower() in IMAGE_SUFFIXES:
+            files.append(entry)
+    return files, passed_over
 
 
 def _image_topics(reader: rosbag.BagReader) -> list[str]:
@@ -336,14 +330,14 @@ def _file_entries(
     if kind == "image":
         return [(path, None, None)]
     if kind == "folder":
-        files = image_files(path)
+        files, passed_over = _folder_listing(path)
         if not files:
             raise CaptureError(
                 f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) found "
                 "and not a recording or a bag"
             )
         if problems is not None:
-            problems.extend(unfollowed_entries(path))
+            problems.extend(passed_over)
         return [(file, None, None) for file in files]
     recording = open_recording(path)
     mine = [p for p in recording.problems if p.camera is None or p.camera in cameras]
