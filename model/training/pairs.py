@@ -27,6 +27,8 @@ from torch.utils.data import Dataset
 from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import to_float
 from lenspair.core.quality import anomaly_cells, to_grey
+from lenspair.dataset.config import CurationConfig
+from lenspair.dataset.curation import channel_max
 from lenspair.dataset.readers import detect_layout, open_paired
 from lenspair.model.errors import ModelError
 
@@ -148,7 +150,7 @@ def channels_of(image: np.ndarray) -> int:
     return 1 if image.ndim == 2 else int(image.shape[2])
 
 
-ANOMALY_DELTA = 0.03
+ANOMALY_DELTA = CurationConfig.anomaly_delta
 """Grey difference (in [0, 1]) that makes a cell anomalous for :func:`anomaly_crop_box`:
 ``dataset-build``'s default ``curation.anomaly_delta``, which decides that a pair is clean."""
 
@@ -192,9 +194,7 @@ def anomaly_crop_box(
     anomaly (a clean pair): the caller crops at random.
     """
     height, width = item.input.shape[:2]
-    valid = None
-    if item.mask is not None:
-        valid = (item.mask.max(axis=2) if item.mask.ndim == 3 else item.mask) == 0
+    valid = None if item.mask is None else channel_max(item.mask) == 0
     anomalous, _ = anomaly_cells(to_grey(item.input), to_grey(item.target), valid, ANOMALY_DELTA)
     rows, cols = np.nonzero(anomalous)
     if rows.size == 0:
@@ -337,10 +337,7 @@ def _valid_map(
 ) -> torch.Tensor:
     if mask is None:
         return torch.ones(1, height, width)
-    part = mask[window]
-    if part.ndim == 3:
-        part = part.max(axis=2)
-    return torch.from_numpy((part == 0).astype(np.float32))[None]
+    return torch.from_numpy((channel_max(mask[window]) == 0).astype(np.float32))[None]
 
 
 def open_eval_pairs(path: Path, split: str) -> PairSource:
