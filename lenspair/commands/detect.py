@@ -32,6 +32,7 @@ from lenspair.commands.argtypes import (
 )
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import inside_refusal
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,11 +85,9 @@ def run(args: argparse.Namespace) -> int:
     kind = detect_input(args.input)  # a bad INPUT fails before anything is written
     network = load_detector(args.model, resolve_device(args.device))
     out = args.out or _default_out(args.input)
-    if args.input.is_dir() and out.resolve().is_relative_to(args.input.resolve()):
-        raise ConfigError(
-            f"--out {out}: inside the input {args.input}; a later run would judge the "
-            "contact sheet as a frame, so choose a folder outside it"
-        )
+    why = "a later run would judge the contact sheet as a frame"
+    if (problem := inside_refusal(out, args.input, "the input", why)) is not None:
+        raise ConfigError(problem)
     # Files are counted from their listing (cheap); a bag's count is only known once read.
     bag = kind in ("rosbag1", "rosbag2")
     total = None if bag else len(frame_files(args.input, kind, CAMERAS))

@@ -45,6 +45,7 @@ from typing import TYPE_CHECKING
 from lenspair.commands.argtypes import add_device_option, out_folder
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import inside_refusal
 
 if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
     from lenspair.model.training.pairs import PairSource
@@ -133,11 +134,11 @@ def run(args: argparse.Namespace) -> int:
 
     # the pairs scored: a paired folder itself, or a dataset's split (DS/eval_* is fine)
     scored = Path(args.data) if detect_layout(args.data) is not None else args.data / args.split
-    if args.out is not None and args.out.resolve().is_relative_to(scored.resolve()):
-        raise ConfigError(
-            f"--out {args.out}: inside the pairs scored ({scored}); its contact sheet would be "
-            "read as an unpaired image next time, so choose a folder outside it"
-        )
+    why = "its contact sheet would be read as an unpaired image next time"
+    if args.out is not None and (
+        problem := inside_refusal(args.out, scored, "the pairs scored", why)
+    ):
+        raise ConfigError(problem)
 
     decision = choose_precision(args.precision, device, "infer")
     if args.calibration is not None and decision.precision != "int8":

@@ -11,14 +11,22 @@ from collections.abc import Sequence
 _ANSI_ESCAPE = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
 
+def first_text_line(text: str, empty: str = "") -> str:
+    """The first non-blank line of a library's message, without terminal escape codes.
+
+    ``empty`` when there is none. For one-line errors that quote a library.
+    """
+    text = _ANSI_ESCAPE.sub("", text).strip()
+    return text.splitlines()[0] if text else empty
+
+
 def first_line(exc: BaseException) -> str:
     """The first line of an exception's message, without terminal escape codes.
 
     For one-line errors quoting a library's exception (torch.export colours its
     messages): the exception's type name when it has no message.
     """
-    text = _ANSI_ESCAPE.sub("", str(exc)).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
+    return first_text_line(str(exc), type(exc).__name__)
 
 
 def listed(items: Sequence[str], most: int = 3, sep: str = "; ") -> str:

@@ -135,6 +135,21 @@ def remove_path(path: Path) -> None:
         path.unlink(missing_ok=True)
 
 
+def inside_refusal(out: Path, source: Path, what: str, why: str) -> str | None:
+    """The one-line refusal of an ``--out`` folder that is ``source`` or lies inside it, else None.
+
+    For commands that write beside what they read (restore, detect, eval): an
+    output inside the input would be read back as input by the next run.
+    ``source`` counts only when it is a folder; both are compared resolved, so
+    a link to the input is the input. ``what`` names the input in the message
+    ("the input", "the pairs scored"); ``why`` says what would go wrong.
+    """
+    source_resolved = source.resolve()
+    if source_resolved.is_dir() and out.resolve().is_relative_to(source_resolved):
+        return f"--out {out}: inside {what} {source}; {why}, so choose a folder outside it"
+    return None
+
+
 def read_json_field(path: Path, key: str) -> Any:
     """``key`` of the JSON object in ``path``; ``None`` when the file is absent or unreadable.
 

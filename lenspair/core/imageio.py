@@ -24,10 +24,11 @@ from typing import Any
 import numpy as np
 import OpenImageIO as oiio
 
-from lenspair.core.errors import ImageIOError
+from lenspair.core.errors import ImageIOError, first_text_line
 from lenspair.core.fsutil import atomic_write
 from lenspair.core.pngcheck import png_problem
 
+_UNKNOWN = "unknown error"  # an OpenImageIO failure that gives no reason
 _OIIO_TYPES = {np.dtype(np.uint8): oiio.UINT8, np.dtype(np.uint16): oiio.UINT16}
 
 
@@ -160,7 +161,9 @@ def _opened(path: Path) -> Iterator[Any]:
     config.attribute("oiio:UnassociatedAlpha", 1)
     handle = oiio.ImageInput.open(oiio_name(path), config)
     if handle is None:
-        raise ImageIOError(f"{path}: cannot open image ({_first_line(oiio.geterror())})")
+        raise ImageIOError(
+            f"{path}: cannot open image ({first_text_line(oiio.geterror(), _UNKNOWN)})"
+        )
     try:
         yield handle
     finally:
@@ -181,7 +184,9 @@ def _read_pixels(path: Path) -> np.ndarray:
             raise ImageIOError(f"{path}: unsupported pixel format {spec.format} (need 8/16-bit)")
         pixels = handle.read_image(spec.format)
         if pixels is None:
-            raise ImageIOError(f"{path}: corrupt or truncated ({_first_line(handle.geterror())})")
+            raise ImageIOError(
+                f"{path}: corrupt or truncated ({first_text_line(handle.geterror(), _UNKNOWN)})"
+            )
     return np.asarray(pixels)
 
 
@@ -234,7 +239,9 @@ def write_image(
             spec.attribute("Orientation", orientation)
         out = oiio.ImageOutput.create(oiio_name(path))
         if out is None or not out.open(oiio_name(tmp), spec):
-            raise ImageIOError(f"{path}: cannot write ({_first_line(oiio.geterror())})")
+            raise ImageIOError(
+                f"{path}: cannot write ({first_text_line(oiio.geterror(), _UNKNOWN)})"
+            )
         ok = out.write_image(pixels)
         closed = out.close()
         error = out.geterror()  # not always a failure: TIFFs carry a note on their Exif data
@@ -271,7 +278,9 @@ def _written_problem(tmp: Path, suffix: str) -> str:
         why = "" if handle.read_image() is not None else handle.geterror() or "no pixels"
         handle.close()
     return (
-        f"{_SHORT_WRITE}: the file written does not read back ({_first_line(why)})" if why else ""
+        f"{_SHORT_WRITE}: the file written does not read back ({first_text_line(why)})"
+        if why
+        else ""
     )
 
 
@@ -289,7 +298,7 @@ def _write_failure(path: Path, tmp: Path, error: str) -> Exception:
         # a quota or a file-size limit: OpenImageIO does not say which
         reason = "the file system cut the write short (a quota or file-size limit?)"
         return OSError(errno.EIO, reason, str(path))
-    return ImageIOError(f"{path}: write failed ({_first_line(error) or 'no reason given'})")
+    return ImageIOError(f"{path}: write failed ({first_text_line(error, 'no reason given')})")
 
 
 def max_value(dtype: np.dtype | type) -> float:
@@ -324,8 +333,3 @@ def from_linear(linear: np.ndarray) -> np.ndarray:
     low = x * np.float32(12.92)
     high = np.float32(1.055) * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - np.float32(0.055)
     return np.where(x <= 0.0031308, low, high).astype(np.float32)
-
-
-def _first_line(text: str) -> str:
-    lines = [line for line in text.splitlines() if line.strip()]
-    return lines[0] if lines else "unknown error"

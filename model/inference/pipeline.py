@@ -49,7 +49,7 @@ from lenspair.capture.frames import (
 )
 from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
-from lenspair.core.fsutil import atomic_write_json, read_json_field, sha256_file
+from lenspair.core.fsutil import atomic_write_json, inside_refusal, read_json_field, sha256_file
 from lenspair.core.leftovers import remove_leftovers_under
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
@@ -276,17 +276,15 @@ def check_apart(input_path: Path, kind: InputKind, out_dir: Path) -> None:
     Raises:
         ModelError: naming OUT and the input.
     """
-    source, out = input_path.resolve(), out_dir.resolve()
-    if source.is_dir() and out.is_relative_to(source):  # a folder, a recording, a ROS 2 bag
-        raise ModelError(
-            f"--out {out_dir}: inside the input {input_path}; outputs keep the input's "
-            "names, so choose a folder outside it"
-        )
+    # a folder, a recording, a ROS 2 bag
+    why = "outputs keep the input's names"
+    if (problem := inside_refusal(out_dir, input_path, "the input", why)) is not None:
+        raise ModelError(problem)
     if kind in ("folder", "euroc", "folders"):
         return
     bag = kind in ("rosbag1", "rosbag2")
     written = output_bag_path(input_path, out_dir) if bag else out_dir / input_path.name
-    if written.resolve() == source:
+    if written.resolve() == input_path.resolve():
         raise ModelError(
             f"--out {out_dir}: the folder that holds {input_path}; the output keeps its name "
             "and would replace it, so choose another folder"

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lenspair.core.fsutil import atomic_write, atomic_write_text, remove_path
+from lenspair.core.fsutil import atomic_write, atomic_write_text, inside_refusal, remove_path
 from lenspair.core.imageio import write_image
 
 
@@ -78,3 +78,18 @@ def test_remove_path_takes_files_folders_and_links_but_never_what_a_link_points_
     remove_path(kept)
     assert not kept.exists()
     remove_path(tmp_path / "absent")  # nothing to do, no error
+
+
+def test_an_out_folder_inside_its_input_is_refused_also_through_a_link(tmp_path: Path) -> None:
+    source = tmp_path / "photos"
+    (source / "sub").mkdir(parents=True)
+    link = tmp_path / "link"
+    link.symlink_to(source)
+    for out in (source, source / "sub" / "new", link / "restored"):
+        problem = inside_refusal(out, source, "the input", "outputs keep its names")
+        assert problem is not None and problem.startswith(f"--out {out}: inside the input ")
+    # beside the input, a prefix of its name, or an input that is a file: fine
+    assert inside_refusal(tmp_path / "photos_out", source, "the input", "x") is None
+    image = tmp_path / "one.png"
+    image.write_bytes(b"")
+    assert inside_refusal(tmp_path, image, "the input", "x") is None

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from lenspair.cli import COMMANDS, build_parser, main
 from lenspair.commands.argtypes import expand_topics
-from lenspair.core.errors import first_line
+from lenspair.core.errors import first_line, first_text_line
 from tests.model.train_fixtures import write_split_dataset
 
 # Bad files, by kind: (file name, writer). "unreadable" is a folder where a file
@@ -381,3 +381,10 @@ def test_a_quoted_library_error_is_its_first_line_without_terminal_colours() -> 
         == "Failed to export the model with torch.export. This is step 1/3 of ..."
     )
     assert first_line(ValueError()) == "ValueError"
+
+
+def test_a_quoted_library_message_skips_leading_blank_lines_and_says_when_empty() -> None:
+    # OpenImageIO's geterror() can start with a blank line, or be empty
+    assert first_text_line("\n  \nPNG read error: bad CRC\nsecond") == "PNG read error: bad CRC"
+    assert first_text_line("", "unknown error") == "unknown error"
+    assert first_text_line(" \n") == ""
