@@ -41,7 +41,15 @@ METRICS_COLUMNS = (
     "val_ssim",
     "best_psnr",
 )
-"""Columns of ``RUN/metrics.csv`` (one row per epoch, or per budget stop)."""
+"""Columns of ``RUN/metrics.csv`` (one row per epoch, or per budget stop).
+
+``epoch`` counts completed epochs. A budget stop mid-epoch writes a row whose
+``epoch`` is the count completed before it and whose ``step`` says where it
+stopped; the log names that validation by the epoch under way, counting from
+1 as the progress bar does (``epoch 1 step 3`` is the row ``0,3``). A resume
+keeps the rows its ``last.pt`` vouches for by these two columns, so their
+meaning stays as it is.
+"""
 
 
 @dataclass(frozen=True)
