@@ -9,22 +9,8 @@ import yaml
 from lenspair.rectify.calib_io import load_calibration
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import StereoRectification
-from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, write_kalibr
-
-
-def make_rig(model: DistortionModel = "radtan", rotated: bool = False) -> StereoRig:
-    radtan = model == "radtan"
-    d0 = (-0.28, 0.07, 0.0005, -0.0003) if radtan else (0.01, -0.002, 0.001, 0.0)
-    d1 = (-0.27, 0.065, -0.0004, 0.0002) if radtan else (0.012, -0.001, 0.0005, -0.0003)
-    cam0 = CameraModel((350.0, 351.0, 360.0, 270.0), model, d0, (720, 540))
-    cam1 = CameraModel((352.0, 352.5, 358.0, 271.0), model, d1, (720, 540))
-    R = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
-    if rotated:
-        R = np.diag([-1.0, -1.0, 1.0]) @ R
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = -R @ np.array([0.11, 0.002, -0.001])
-    return StereoRig(cam0, cam1, T)
+from lenspair.rectify.rig import DistortionModel, StereoRig, write_kalibr
+from tests.rectify.rigs import make_rig
 
 
 def assert_same_rig(found: StereoRig, expected: StereoRig, atol: float = 1e-9) -> None:

@@ -10,26 +10,8 @@ from lenspair.rectify.rectification import (
     row_differences,
     row_disagreement,
 )
-from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
-
-DISTORTION = {
-    "radtan": ((-0.28, 0.07, 0.0005, -0.0003), (-0.27, 0.065, -0.0004, 0.0002)),
-    "equidistant": ((0.01, -0.002, 0.001, -0.0005), (0.012, -0.001, 0.0005, -0.0003)),
-}
-
-
-def make_rig(model: DistortionModel, rotated: bool = False) -> StereoRig:
-    d0, d1 = DISTORTION[model]
-    cam0 = CameraModel((350.0, 351.0, 360.0, 270.0), model, d0, (720, 540))
-    cam1 = CameraModel((352.0, 352.5, 358.0, 271.0), model, d1, (720, 540))
-    R = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
-    if rotated:  # cam1 mounted upside down
-        R = np.diag([-1.0, -1.0, 1.0]) @ R
-    centre = np.array([0.11, 0.002, -0.001])  # cam1 on cam0's right
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = -R @ centre
-    return StereoRig(cam0, cam1, T)
+from lenspair.rectify.rig import DistortionModel, StereoRig
+from tests.rectify.rigs import make_rig
 
 
 def visible_points(rig: StereoRig, count: int = 400) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
