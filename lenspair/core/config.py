@@ -16,6 +16,7 @@ Supported field types: ``bool``, ``int``, ``float`` (ints accepted),
 import dataclasses
 import json
 import math
+import re
 import types
 import typing
 from pathlib import Path
@@ -219,6 +220,10 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
     Plain ``safe_load`` keeps the last value: ``{raindrops: {count: 5},
     raindrops: {count: 0}}`` would render no drops without a word.
+
+    It also reads ``1e-4`` and ``4e-3`` as numbers, as YAML 1.2 and every
+    other YAML reader do: PyYAML follows YAML 1.1, where a float needs a dot
+    (``1.0e-4``), so ``lr: 1e-4`` was the string ``'1e-4'`` and refused.
     """
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
@@ -231,6 +236,14 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                 )
             seen.add(key)
         return super().construct_mapping(node, deep=deep)
+
+
+# YAML 1.2's exponent floats without a dot; PyYAML's own float resolver takes the rest
+_UniqueKeyLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
 
 
 def load_yaml(cls: type[T], file: Path) -> T:

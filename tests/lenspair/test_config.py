@@ -78,3 +78,19 @@ def test_a_key_given_twice_is_refused_not_overwritten(tmp_path: Path) -> None:
         ConfigError, match=r"scene\.yaml: not valid YAML \(key 'raindrops' given twice"
     ):
         read_yaml(spec)
+
+
+@pytest.mark.parametrize(("text", "lr"), [("1e-4", 1e-4), ("4E-3", 4e-3), ("-2e+1", -20.0)])
+def test_an_exponent_without_a_dot_is_a_number_as_in_yaml_1_2(
+    tmp_path: Path, text: str, lr: float
+) -> None:
+    # PyYAML (YAML 1.1) read `lr: 1e-4` as the string '1e-4', and the config refused it
+    file = tmp_path / "c.yaml"
+    file.write_text(f"lr: {text}\nmode: b\n")
+    assert load_yaml(Outer, file) == Outer(lr=lr, mode="b")
+    file.write_text("epochs: 1e3\n")  # a float where an int goes is still refused
+    with pytest.raises(ConfigError, match=r"epochs: expected int, got 1000\.0"):
+        load_yaml(Outer, file)
+    file.write_text("mode: 1e\n")  # not a number: stays a string
+    with pytest.raises(ConfigError, match=r"mode: expected one of 'a', 'b', got '1e'"):
+        load_yaml(Outer, file)
