@@ -350,8 +350,11 @@ def ingest_recording(
         CaptureError: unreadable recording, no calibration, or no usable pair
             at all (``pairs.jsonl`` and ``report.json`` are still written).
         RectifyError: bad calibration, registration impossible, crop too large
-            (named with the recording; nothing can be paired, so nothing is
-            written, and an ``OUT/<recording_id>`` this run made is removed).
+            (named with the recording and the calibration; nothing can be
+            paired, so nothing is written, and an ``OUT/<recording_id>`` this
+            run made is removed). A ``CaptureError`` because no sampled pair
+            can be registered (sizes unlike the calibration's, undecodable
+            frames) is treated the same way.
 
     """
     estimation = estimation or EstimationParams()
@@ -402,7 +405,8 @@ def ingest_recording(
         registration = _homography(
             recording, frame_pairs, context, estimation, workers, out_dir, setup
         )
-    except RectifyError as exc:  # the views cannot be registered at all: no pair to write
+    except (RectifyError, CaptureError) as exc:
+        # the views cannot be registered at all (no sampled pair is usable): no pair to write
         if created:  # an empty OUT/<rec> would stop `dataset-build OUT/*` (no pairs.jsonl)
             shutil.rmtree(out_dir, ignore_errors=True)
         message = str(exc).removeprefix(f"{recording.path}: ")

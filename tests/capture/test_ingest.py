@@ -186,9 +186,11 @@ def test_all_frames_of_the_wrong_size_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(
         CaptureError,
         match=rf"no usable frame pair to register: size mismatch: {first} is 300x200 px, "
-        r"the calibration says 320x240$",
+        r"the calibration says 320x240 \(with Kalibr camchain \S+camchain\.yaml\)$",
     ):
         _ingest(recording, tmp_path / "out")
+    # nothing was paired: no empty OUT/rec left to stop `dataset-build OUT/*`
+    assert not (tmp_path / "out" / "rec").exists()
 
 
 def test_missing_camera_empty_recording_and_no_calibration(tmp_path: Path) -> None:
