@@ -136,6 +136,7 @@ def calibrate_recording(
     unreadable: list[str] = []
     sizes: list[list[tuple[int, int] | None]] = []  # per pair, per camera (None: unread)
     where: list[list[str]] = []
+    first_problem: list[str] = ["", ""]  # per camera: why its first unread frame was not read
     for pair in progress(pairs, "detecting board", total=len(pairs), unit="pair"):
         found: list[Detection | None] = []
         sizes.append([None, None])
@@ -147,6 +148,7 @@ def calibrate_recording(
                 image = recording.load(frame)
             except LenspairError as exc:  # a bad frame is recorded, not fatal
                 unreadable.append(str(exc))
+                first_problem[index] = first_problem[index] or str(exc)
                 found.append(None)
                 continue
             sizes[-1][index] = (image.shape[1], image.shape[0])
@@ -158,7 +160,10 @@ def calibrate_recording(
         # (resized, from another session) is left out, not taken for the camera's
         seen = Counter(size[index] for size in sizes if size[index] is not None)
         if not seen:
-            raise RectifyError(f"{recording_path}: no frame of one camera could be read")
+            raise RectifyError(
+                f"{recording_path}: no cam{index} frame could be read ({len(pairs)} tried; "
+                f"the first: {first_problem[index]})"
+            )
         resolution = seen.most_common(1)[0][0]
         assert resolution is not None  # the Counter holds no None
         resolutions.append(resolution)

@@ -108,3 +108,20 @@ def test_an_out_that_is_a_file_of_the_recording_is_refused(
         (line,) = capsys.readouterr().err.strip().splitlines()
         assert f"--out {out}: is a file of the recording" in line
     assert index.read_text() == "#timestamp [ns],filename\n"
+
+
+def test_a_camera_none_of_whose_frames_reads_is_named_with_the_first_reason(
+    tmp_path: Path,
+) -> None:
+    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=3)
+    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
+    assert spec.board is not None
+    frames = sorted((tmp_path / "rec" / "mav0" / "cam1" / "data").glob("*.png"))
+    for frame in frames:
+        frame.write_bytes(b"x\n")
+    with pytest.raises(RectifyError) as caught:
+        calibrate_recording(tmp_path / "rec", spec.board.target, "pinhole-equi")
+    # it said "no frame of one camera could be read": which one, and why, was lost
+    message = str(caught.value)
+    assert message.startswith(f"{tmp_path / 'rec'}: no cam1 frame could be read (3 tried; ")
+    assert f"the first: {frames[0]}" in message and "\n" not in message
