@@ -21,6 +21,7 @@ Open readers are cached per process (a few at a time) so that loading many
 frames does not reopen the bag; a forked worker opens its own.
 """
 
+import dataclasses
 import os
 import re
 import threading
@@ -131,7 +132,7 @@ def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
             raise CaptureError(str(exc) if note is None else f"{exc}; {note}") from None
         cameras: dict[str, CameraName] = {chosen[0]: "cam0", chosen[1]: "cam1"}
         problems: list[FrameProblem] = []
-        listed = _list_messages(reader, path, cameras, problems)
+        listed = _timed_by_log(_list_messages(reader, path, cameras, problems), path, problems)
         note = cut_note(reader)
         if note is not None:
             read = {camera: len(frames) for camera, frames in listed.items()}
@@ -184,7 +185,8 @@ def load_bag_frame(frame: FrameRef) -> np.ndarray:
     if found is None:
         raise CaptureError(f"{where}: message not found at log time {start} ns")
     msgtype = found[0].msgtype
-    if _stamp_ns(message) != frame.t_ns:
+    # (a frame timed by its log time, as _timed_by_log does, has no stamp to check)
+    if frame.t_ns != frame.log_time_ns and _stamp_ns(message) != frame.t_ns:
         raise CaptureError(f"{where}: message at log time {start} has t_ns={_stamp_ns(message)}")
     return decode_message(msgtype, message, where)
 
@@ -382,6 +384,33 @@ def _list_messages(
         reason = f"reading stopped early ({_one_line(exc)}); frames read before: {read}"
         problems.append(FrameProblem(None, None, str(bag), reason))
     return listed
+
+
+def _timed_by_log(
+    listed: dict[CameraName, list[FrameRef]], bag: Path, problems: list[FrameProblem]
+) -> dict[CameraName, list[FrameRef]]:
+    """The frames timed by the bag's log time when a camera's header stamps are all one value.
+
+    Some drivers never set ``header.stamp`` (all 0) or set it once: every
+    frame but the first was then a "duplicate timestamp" and a recording
+    came down to one frame. Both cameras then take the log time (one clock
+    for both, so that pairing stays fair), and the bag's problems say so.
+    """
+    unset = [
+        c for c, frames in listed.items() if len(frames) > 1 and len({f.t_ns for f in frames}) == 1
+    ]
+    if not unset:
+        return listed
+    said = ", ".join(f"{c} ({listed[c][0].topic}) {listed[c][0].t_ns} ns" for c in unset)
+    reason = (
+        f"every header.stamp of {said}: never set by the driver? Both cameras are timed "
+        "by the bag's log time instead"
+    )
+    problems.append(FrameProblem(None, None, str(bag), reason, dropped=False))
+    return {
+        camera: [dataclasses.replace(f, t_ns=f.log_time_ns or 0) for f in frames]
+        for camera, frames in listed.items()
+    }
 
 
 def _stamp_ns(message: Any) -> int:

@@ -284,3 +284,26 @@ def test_empty_bag_is_a_clear_error(tmp_path: Path) -> None:
             writer.add_connection(topic, IMAGE, typestore=store)
     with pytest.raises(CaptureError, match=r"empty: no cam0 frames could be listed"):
         open_recording(tmp_path / "empty")
+
+
+@pytest.mark.parametrize("kind", ["ros1", "db3"])
+def test_header_stamps_never_set_are_replaced_by_the_log_time(tmp_path: Path, kind: str) -> None:
+    # A driver that never sets header.stamp (all 0): every frame but the first was
+    # a "duplicate timestamp", and a 4-frame recording came down to one frame.
+    messages = []
+    for i in range(4):
+        log = T0 + i * 50 * MS
+        for camera in (0, 1):
+            fields = {**_raw_fields(_image(10 * camera + i), "mono8"), "_log_ns": log + camera}
+            messages.append((f"/cam{camera}/image_raw", IMAGE, 0, fields))
+    recording = open_recording(_write_bag(tmp_path / "run", kind, messages))
+    assert recording.timestamps("cam0") == [T0 + i * 50 * MS for i in range(4)]
+    assert recording.timestamps("cam1") == [T0 + i * 50 * MS + 1 for i in range(4)]
+    (said,) = recording.problems
+    assert said.camera is None and not said.dropped
+    assert "every header.stamp of cam0 (/cam0/image_raw) 0 ns, cam1" in said.reason
+    assert "timed by the bag's log time" in said.reason
+    for camera in ("cam0", "cam1"):  # each frame still loads, and is the right one
+        for i, frame in enumerate(recording.frames[camera]):  # type: ignore[index]
+            expected = _image(10 * int(camera[-1]) + i)
+            np.testing.assert_array_equal(recording.load(frame), expected)
