@@ -2,7 +2,8 @@
 
 In order: the files given with ``--calib``, else the file named by
 ``rig.yaml``'s ``calibration`` key (relative to ``rig.yaml``), else a Kalibr
-``camchain.yaml`` in or beside the recording.
+``camchain.yaml`` in or beside the recording, else a EuRoC recording's own
+``mav0/cam{0,1}/sensor.yaml`` when both hold intrinsics and ``T_BS``.
 """
 
 from pathlib import Path
@@ -10,7 +11,7 @@ from pathlib import Path
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import Recording, find_rig_file
 from lenspair.capture.rigfile import RigFile
-from lenspair.rectify.calib_io import load_calibration
+from lenspair.rectify.calib_io import is_euroc_sensor_file, load_calibration
 from lenspair.rectify.rig import StereoRig
 
 CAMCHAIN_FILE = "camchain.yaml"
@@ -19,7 +20,7 @@ CAMCHAIN_FILE = "camchain.yaml"
 def find_calibration(
     recording: Recording, rig_file: RigFile, calibration: tuple[Path, ...]
 ) -> tuple[StereoRig, str]:
-    """The rig calibration: ``--calib``, else ``rig.yaml``'s key, else ``camchain.yaml``.
+    """The rig calibration: ``--calib``, ``rig.yaml``'s key, ``camchain.yaml``, ``sensor.yaml``.
 
     Args:
         recording: the recording (its folder is searched).
@@ -47,6 +48,9 @@ def find_calibration(
         places = [recording.path] if recording.path.is_dir() else []
         places.append(recording.path.parent)
         paths = [p / CAMCHAIN_FILE for p in places if (p / CAMCHAIN_FILE).is_file()][:1]
+        sensors = [recording.sensor_files.get(camera) for camera in ("cam0", "cam1")]
+        if not paths and all(p is not None and is_euroc_sensor_file(p) for p in sensors):
+            paths = [p for p in sensors if p is not None]  # a EuRoC recording's own
         if not paths:
             raise CaptureError(
                 f"{recording.path}: no calibration: pass --calib FILE, set 'calibration:' in "

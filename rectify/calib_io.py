@@ -34,6 +34,14 @@ else from the rectified pair: ``R = R1^T R0`` and ``T = R1^T (t1 - t0)`` with
 ``t_i = (Tx_i / fx', Ty_i / fy', 0)`` from each ``projection_matrix``
 (``Tx = -fx' * B``).
 
+**EuRoC/ASL camera ``sensor.yaml`` pair** (``mav0/cam0/sensor.yaml`` and
+``mav0/cam1/sensor.yaml``: ``intrinsics`` ``[fu, fv, cu, cv]``,
+``distortion_model`` ``radial-tangential``/``equidistant``,
+``distortion_coefficients``, ``resolution`` and ``T_BS``, each camera's pose in
+the body frame; first file cam0). The extrinsic is
+``T_cam1_cam0 = inv(T_BS1) T_BS0``. ``capture-ingest`` takes them from a
+EuRoC recording that has no other calibration.
+
 Radtan models keep four coefficients (Kalibr's ``k1 k2 p1 p2``); a non-zero
 ``k3`` or higher term is refused rather than silently dropped. Every value is
 checked: NaN or Inf is a one-line :class:`RectifyError` naming the file.
@@ -48,7 +56,13 @@ import numpy as np
 import yaml
 
 from lenspair.rectify.errors import RectifyError
-from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
+from lenspair.rectify.rig import (
+    CameraModel,
+    DistortionModel,
+    StereoRig,
+    camera_from_kalibr,
+    read_kalibr,
+)
 
 _CAMERA_KEYS = {
     "cam0": (("K1", "M1", "cameraMatrix1", "camera_matrix_1", "K_left", "camera_matrix_left"),
@@ -349,6 +363,59 @@ def _from_ros(paths: list[Path], texts: list[str]) -> tuple[StereoRig, str]:
     return rig, f"ROS camera_info {where} (extrinsic from the projection matrices)"
 
 
+_EUROC_MODELS = {"radial-tangential": "radtan", "equidistant": "equidistant"}
+
+
+def _euroc_sensor(path: Path, text: str) -> dict[str, Any] | None:
+    """The mapping of a EuRoC camera ``sensor.yaml`` (intrinsics and ``T_BS``), else None."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return None
+    keys = ("intrinsics", "T_BS", "distortion_coefficients", "resolution")
+    if (
+        isinstance(data, dict)
+        and data.get("sensor_type") == "camera"
+        and all(k in data for k in keys)
+    ):
+        return data
+    return None
+
+
+def is_euroc_sensor_file(path: Path) -> bool:
+    """Whether ``path`` is a EuRoC camera ``sensor.yaml`` holding a calibration."""
+    try:
+        return _euroc_sensor(path, Path(path).read_text(encoding="utf-8")) is not None
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def _from_euroc(paths: list[Path], sensors: list[dict[str, Any]]) -> tuple[StereoRig, str]:
+    cameras, poses = [], []
+    for path, data in zip(paths, sensors, strict=True):
+        model = _EUROC_MODELS.get(str(data.get("distortion_model")), data.get("distortion_model"))
+        kalibr = {
+            "camera_model": data.get("camera_model", "pinhole"),
+            "distortion_model": model,
+            "intrinsics": data["intrinsics"],
+            "distortion_coeffs": data["distortion_coefficients"],
+            "resolution": data["resolution"],
+        }
+        cameras.append(camera_from_kalibr(kalibr, str(path)))
+        poses.append(_finite(path, "T_BS", _matrix_node(data["T_BS"], path, "T_BS")))
+    where = f"{paths[0]} + {paths[1]}"
+    matrix = _checked_transform(np.linalg.inv(poses[1]) @ poses[0], where)
+    return _rig(cameras[0], cameras[1], matrix, where), f"EuRoC sensor.yaml {where}"
+
+
+def _matrix_node(node: Any, path: Path, key: str) -> np.ndarray:
+    try:
+        values = np.asarray(node["data"] if isinstance(node, dict) else node, dtype=np.float64)
+        return values.reshape(4, 4)
+    except (TypeError, ValueError, KeyError):
+        raise RectifyError(f"{path}: {key}: expected 16 numbers (a 4x4 transform)") from None
+
+
 def _is_ros(text: str) -> bool:
     try:
         data = yaml.safe_load(text)
@@ -385,6 +452,9 @@ def load_calibration(
         return rig, f"OpenCV FileStorage {' + '.join(str(p) for p in files)}"
     if len(files) in (2, 3) and _is_ros(texts[0]) and _is_ros(texts[1]):
         return _from_ros(files, texts)
+    sensors = [_euroc_sensor(p, t) for p, t in zip(files, texts, strict=True)]
+    if len(files) == 2 and all(sensors):
+        return _from_euroc(files, sensors)  # type: ignore[arg-type]
     if len(files) == 1:
         try:
             data = yaml.safe_load(texts[0])
@@ -394,5 +464,6 @@ def load_calibration(
             return read_kalibr(files[0]), f"Kalibr camchain {files[0]}"
     raise RectifyError(
         f"{' + '.join(str(p) for p in files)}: not a recognised calibration; expected one Kalibr "
-        "camchain, 1-3 OpenCV FileStorage files, or two ROS camera_info files (cam0, cam1)"
+        "camchain, 1-3 OpenCV FileStorage files, two ROS camera_info files (cam0, cam1), or "
+        "two EuRoC sensor.yaml files (cam0, cam1)"
     )

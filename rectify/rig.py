@@ -140,7 +140,12 @@ def write_kalibr(path: Path, rig: StereoRig) -> None:
     atomic_write_text(Path(path), text)
 
 
-def _kalibr_camera(data: Any, where: str) -> CameraModel:
+def camera_from_kalibr(data: Any, where: str) -> CameraModel:
+    """One camera of a Kalibr camchain; errors start with ``where``.
+
+    Keys: ``camera_model``, ``distortion_model``, ``intrinsics``,
+    ``distortion_coeffs``, ``resolution``.
+    """
     if not isinstance(data, dict):
         raise RectifyError(f"{where}: expected a mapping")
     try:
@@ -181,8 +186,8 @@ def rig_from_kalibr(data: Any, source: str = "camchain") -> StereoRig:
     """
     if not isinstance(data, dict) or "cam0" not in data or "cam1" not in data:
         raise RectifyError(f"{source}: expected a Kalibr camchain with cam0 and cam1")
-    cam0 = _kalibr_camera(data["cam0"], f"{source}: cam0")
-    cam1 = _kalibr_camera(data["cam1"], f"{source}: cam1")
+    cam0 = camera_from_kalibr(data["cam0"], f"{source}: cam0")
+    cam1 = camera_from_kalibr(data["cam1"], f"{source}: cam1")
     try:
         T = np.asarray(data["cam1"]["T_cn_cnm1"], dtype=np.float64)
         topics = (

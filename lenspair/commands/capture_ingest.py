@@ -14,7 +14,8 @@ recording, checked and refined per frame), crops both to --size and writes
 
 Which camera is obstructed comes from rig.yaml beside the recording or
 --obstructed; the calibration from --calib, else rig.yaml's 'calibration',
-else camchain.yaml beside the recording. The declared side is checked
+else camchain.yaml beside the recording, else a EuRoC recording's own
+sensor.yaml files. The declared side is checked
 against the images: by default by comparing fine detail (it decides only
 where the anomaly removes much of it; undetermined on defocused rain), with
 --detector MODEL (from train-detector, or detector.pt: the bundled one; on
@@ -55,8 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="FILE",
-        help="calibration file: Kalibr camchain, OpenCV FileStorage or ROS camera_info "
-        "(repeat for several files); default: rig.yaml's, else camchain.yaml",
+        help="calibration file: Kalibr camchain, OpenCV FileStorage, ROS camera_info or "
+        "EuRoC sensor.yaml (repeat for several files); default: rig.yaml's, else "
+        "camchain.yaml, else the EuRoC recording's sensor.yaml files",
     )
     parser.add_argument(
         "--obstructed", choices=("cam0", "cam1"), default=None, help="override rig.yaml"

@@ -309,3 +309,30 @@ def test_a_namesake_recording_is_refused_not_merged(tmp_path: Path) -> None:
     set_report_aside(out / "rec")
     with pytest.raises(CaptureError, match=r"holds the ingest of .*a/rec.*same name"):
         _ingest(second, out)
+
+
+def test_a_euroc_recording_calibrated_only_by_its_sensor_yaml_files(tmp_path: Path) -> None:
+    # Real EuRoC recordings ship mav0/camN/sensor.yaml (intrinsics, T_BS) and no
+    # camchain: they were "no calibration" unless converted to Kalibr by hand.
+    from lenspair.simulate.euroc import write_sensor_yaml
+    from tests.capture.ingest_helpers import rig
+
+    truth = rig()
+    body_from = {"cam0": np.eye(4), "cam1": np.linalg.inv(truth.T_cam1_cam0)}
+    body = np.array([[0, 0, 1, 0.1], [-1, 0, 0, 0.02], [0, -1, 0, 0.0], [0, 0, 0, 1.0]])
+    recording = make_recording(tmp_path / "euroc", frames=3, camchain=False)
+    for camera in ("cam0", "cam1"):
+        sensor = recording / "mav0" / camera / "sensor.yaml"
+        write_sensor_yaml(sensor, truth.camera(camera), body @ body_from[camera], 20.0, camera)
+    out_dir, records, report = _ingest(recording, tmp_path / "out")
+    assert "EuRoC sensor.yaml" in report.calibration_source
+    found = report.calibration  # the rig it used: the truth, up to float rounding
+    np.testing.assert_allclose(np.asarray(found["cam1"]["T_cn_cnm1"]), truth.T_cam1_cam0, atol=1e-9)
+    reference = make_recording(tmp_path / "kalibr", frames=3)
+    _, expected, _ = _ingest(reference, tmp_path / "out2")
+    assert [r.status for r in records] == [r.status for r in expected] == ["kept"] * 3
+    images = sorted((tmp_path / "out2" / "kalibr").glob("*/*.png"))
+    assert len(images) == 6  # input/ and target/ of 3 pairs: the same pixels
+    for image in images:
+        mine = out_dir / image.parent.name / image.name
+        np.testing.assert_array_equal(read_image(mine), read_image(image))

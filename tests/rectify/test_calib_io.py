@@ -208,3 +208,20 @@ def test_unknown_format_lists_the_supported_ones(tmp_path: Path) -> None:
         load_calibration([path])
     with pytest.raises(RectifyError, match=r"missing\.yaml: file not found"):
         load_calibration([tmp_path / "missing.yaml"])
+
+
+def test_euroc_sensor_files_give_the_rig_and_a_bad_pose_names_its_file(tmp_path: Path) -> None:
+    from lenspair.simulate.euroc import write_sensor_yaml
+
+    rig = make_rig("equidistant", rotated=True)
+    files = [tmp_path / "cam0.yaml", tmp_path / "cam1.yaml"]
+    write_sensor_yaml(files[0], rig.cam0, np.eye(4), 20.0, "cam0")
+    write_sensor_yaml(files[1], rig.cam1, np.linalg.inv(rig.T_cam1_cam0), 20.0, "cam1")
+    found, source = load_calibration(files)
+    assert source.startswith("EuRoC sensor.yaml")
+    assert found.cam0 == rig.cam0 and found.cam1 == rig.cam1
+    np.testing.assert_allclose(found.T_cam1_cam0, rig.T_cam1_cam0, atol=1e-12)
+    text = files[1].read_text()
+    files[1].write_text(text.replace("  data: [", "  data: [7, "))  # 17 numbers
+    with pytest.raises(RectifyError, match=rf"^{files[1]}: T_BS: expected 16 numbers"):
+        load_calibration(files)
