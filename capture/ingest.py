@@ -28,6 +28,7 @@ work and a full rerun leaves every file byte-identical (``report.json`` is
 only rewritten when something other than its timings changed).
 """
 
+import contextlib
 import json
 import logging
 import os
@@ -97,6 +98,7 @@ log = logging.getLogger(__name__)
 
 REGISTRATION_FILE = "registration.json"
 SIDE_CHECK_FRAMES = 8
+BIT_DEPTH_FRAMES = 8  # frame pairs read to tell the bits 16-bit frames use
 MAX_LOGGED_PROBLEMS = 10
 MIN_INLIER_SHARE = 0.5
 """Below this share of feature matches agreeing with the homography, registration is doubted.
@@ -153,7 +155,7 @@ def _side_check_images(
         if len(images["cam0"]) == count:
             break
         try:
-            loaded = [load_frame(frame) for frame in pair]
+            loaded = [frame_work.widen(load_frame(frame), context.bits) for frame in pair]
         except LenspairError:
             continue
         sizes = [(image.shape[1], image.shape[0]) for image in loaded]
@@ -165,6 +167,30 @@ def _side_check_images(
         for frame, image in zip(pair, loaded, strict=True):
             images[frame.camera].append(image)
     return images["cam0"], images["cam1"], blank
+
+
+def _recording_bits(recording: Recording, pairs: list[tuple[FrameRef, FrameRef]]) -> int:
+    """:func:`frame_work.significant_bits` of up to 8 frame pairs spread over the recording.
+
+    Unreadable frames are passed over (the frame stage reports them); a
+    recording that uses fewer than 16 bits is said in the log.
+    """
+    images = []
+    for index in _sample(len(pairs), BIT_DEPTH_FRAMES):
+        for frame in pairs[index]:
+            with contextlib.suppress(LenspairError):
+                images.append(load_frame(frame))
+    bits = frame_work.significant_bits(images)
+    if bits < 16:
+        log.warning(
+            "%s: its 16-bit frames hold %d-bit values (none above %d in %d sampled frames): "
+            "they are scaled to the full 16-bit range",
+            recording.path,
+            bits,
+            (1 << bits) - 1,
+            len(images),
+        )
+    return bits
 
 
 def _homography(
@@ -393,15 +419,20 @@ def ingest_recording(
     remove_temporaries(out_dir)
     lap("open")
 
+    bits = _recording_bits(recording, frame_pairs)
     try:
         rectification = StereoRectification.from_rig(rig)
-        context = frame_work.Context.build(out_dir, rig_file.obstructed, rectification, verify)
+        context = frame_work.Context.build(
+            out_dir, rig_file.obstructed, rectification, verify, bits
+        )
         setup = {
             "calibration": rig_to_kalibr(rig),
             "obstructed": rig_file.obstructed,
             "verify": to_plain(verify),
             "version": __version__,
         }
+        if bits < 16:  # only then: the outputs of other recordings keep their fingerprint
+            setup["significant_bits"] = bits
         registration = _homography(
             recording, frame_pairs, context, estimation, workers, out_dir, setup
         )
@@ -500,6 +531,7 @@ def ingest_recording(
         timings_s=timings,
         side_check=side_check,
         lenspair_version=__version__,
+        significant_bits=bits if bits < 16 else None,
     )
     write_report_if_changed(out_dir / REPORT_FILE, report)
     if not kept:

@@ -82,6 +82,8 @@ class IngestReport:
         timings_s: stage -> seconds.
         side_check: result of checking the declared obstructed side.
         lenspair_version: version that wrote it.
+        significant_bits: 10 or 12 when the recording's 16-bit frames held
+            values of that depth (scaled to 16 bits in the outputs), else None.
     """
 
     recording_id: str
@@ -97,6 +99,7 @@ class IngestReport:
     timings_s: dict[str, float] = field(default_factory=dict)
     side_check: dict[str, Any] = field(default_factory=dict)
     lenspair_version: str = ""
+    significant_bits: int | None = None
 
 
 def write_pairs(path: Path, records: list[PairRecord]) -> None:

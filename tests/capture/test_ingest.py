@@ -7,9 +7,12 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.ingest import ingest_recording
+from lenspair.capture.ingest_frames import significant_bits, widen
 from lenspair.capture.ingest_report import set_report_aside
 from lenspair.capture.ingested import IngestReport, PairRecord, read_pairs, read_report
 from lenspair.cli import main
@@ -336,3 +339,41 @@ def test_a_euroc_recording_calibrated_only_by_its_sensor_yaml_files(tmp_path: Pa
     for image in images:
         mine = out_dir / image.parent.name / image.name
         np.testing.assert_array_equal(read_image(mine), read_image(image))
+
+
+def test_twelve_bit_values_in_16_bit_frames_are_scaled_not_judged_black(tmp_path: Path) -> None:
+    # Mono12 cameras published as mono16 (values 0..4095): the side check called
+    # every pair blank, registration found no corners, dataset-build called the
+    # pairs blurred. The same scene at full 16-bit range is the reference.
+    full = make_recording(tmp_path / "full", frames=3, dtype=np.uint16)
+    low = make_recording(tmp_path / "low", frames=3, dtype=np.uint16)
+    for camera in ("cam0", "cam1"):
+        for path in frame_files(low, camera):
+            write_image(path, read_image(path) >> 4)
+    out_full, expected, report_full = _ingest(full, tmp_path / "out")
+    out_low, records, report_low = _ingest(low, tmp_path / "out")
+    assert (report_full.significant_bits, report_low.significant_bits) == (None, 12)
+    assert [r.status for r in records] == [r.status for r in expected] == ["kept"] * 3
+    images = sorted(out_full.glob("*/*.png"))
+    assert len(images) == 6
+    for image in images:
+        reference = read_image(image).astype(np.int32)
+        scaled = read_image(out_low / image.parent.name / image.name).astype(np.int32)
+        assert np.abs(scaled - reference).max() <= 32  # the 4 low bits the camera lacked
+
+
+@given(
+    values=st.lists(st.integers(0, 65535), min_size=1, max_size=50),
+    bits=st.sampled_from([10, 12, 16]),
+)
+def test_widening_keeps_order_black_and_full_scale(values: list[int], bits: int) -> None:
+    top = (1 << bits) - 1
+    image = np.array([0, top, *(v & top for v in values)], np.uint16)
+    assert significant_bits([image]) == bits
+    assert significant_bits([image.astype(np.uint8)]) == 16  # 8-bit frames: as they are
+    wide = widen(image, bits).astype(np.int64)
+    assert wide[0] == 0 and wide[1] == 65535  # black stays black, full scale stays full
+    order = np.argsort(image, kind="stable")
+    assert np.all(np.diff(wide[order]) >= 0)  # no value overtakes another
+    if bits == 16:
+        np.testing.assert_array_equal(wide, image)
