@@ -69,6 +69,21 @@ def test_detect_chessboard_in_a_warped_image() -> None:
     assert error.max() < 0.25
 
 
+@pytest.mark.parametrize("bits", [16, 12, 10])
+def test_a_board_in_16_bit_words_is_found_whatever_bits_the_camera_fills(bits: int) -> None:
+    # mono16 from a Mono10/Mono12 camera holds 0..1023 or 0..4095: the top byte
+    # of those is all but 0, and calibrate found no board in a single frame
+    board = parse_board_spec("chessboard:7x5:0.03")
+    texture, _ = board_texture(board, pixels_per_square=40)
+    H = np.array([[0.9, 0.12, 60.0], [-0.05, 0.85, 40.0], [1e-4, 2e-4, 1.0]])
+    image = cv2.warpPerspective(texture, H, (640, 480), flags=cv2.INTER_AREA, borderValue=120)
+    wide = (image.astype(np.uint16) * 257) >> (16 - bits)  # full scale -> 2**bits - 1
+    detection, reference = detect_corners(wide, board), detect_corners(image, board)
+    assert detection is not None and reference is not None
+    assert len(detection) == len(reference) == board.num_corners
+    assert np.abs(detection.corners - reference.corners).max() < 0.05
+
+
 @pytest.mark.parametrize("spec", ["chessboard:9x6:0.05", "charuco:10x7:0.05:0.037"])
 def test_detect_board_seen_through_a_fisheye_lens(spec: str) -> None:
     board = parse_board_spec(spec)
