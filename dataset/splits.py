@@ -159,7 +159,7 @@ def plan_splits(
         members = sorted(gid for gid, s in sides.items() if s == side)
         if len(members) < len(active):
             warnings.append(
-                f"side {side}: {len(members)} group(s) cannot cover the {len(active)} splits"
+                f"obstructed {side}: {len(members)} group(s) cannot cover the {len(active)} splits"
             )
             continue
         while True:
