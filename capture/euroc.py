@@ -81,7 +81,9 @@ def _list_camera(
             if file.name not in named:  # its name is its timestamp: pairs.jsonl names it
                 t_ns = timestamp_from_name(file.name)
                 problems.append(
-                    FrameProblem(camera, t_ns, str(file), f"image not listed in {csv_path}")
+                    FrameProblem(
+                        camera, t_ns, str(file), f"image not listed in data.csv ({csv_path})"
+                    )
                 )
     return order_frames(camera, frames, problems)
 
