@@ -181,18 +181,14 @@ def run(args: argparse.Namespace) -> int:
         if not (args.out / "config.yaml").is_file():
             raise ConfigError(f"--resume: {args.out} holds no run to resume")
         # Killed before its first checkpoint was complete (or last.pt removed):
-        # resuming means starting this run over, and its partial results go.
+        # resuming means starting this run over, and its partial results go,
+        # but only once the data, config and options have been checked.
         stale = [args.out / "checkpoints" / "best.pt", args.out / "metrics.csv"]
         stale = [path for path in stale if path.exists()]
-        log.warning(
-            "%s has no last.pt to resume from; starting the run again from step 0%s",
-            args.out,
-            f" (replacing its {', '.join(p.name for p in stale)})" if stale else "",
-        )
-        for path in stale:
-            path.unlink()
         args.config = args.config or args.out / "config.yaml"
-        args.resume = False
+        args.resume, restart = False, True
+    else:
+        stale, restart = [], False
     if args.resume:
         base = load_run_config(args.config) if args.config else resume_config(args.out, None)
         config = resume_config(args.out, _overrides(base, args))
@@ -211,6 +207,14 @@ def run(args: argparse.Namespace) -> int:
 
         assert config.model.channels is not None
         init = resolve_init(init, config.model.channels)
+    if restart:
+        log.warning(
+            "%s has no last.pt to resume from; starting the run again from step 0%s",
+            args.out,
+            f" (replacing its {', '.join(p.name for p in stale)})" if stale else "",
+        )
+    for path in stale:
+        path.unlink()
     summary = fit(
         config,
         data.train,
@@ -221,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
         synthetic=data.synthetic,
         init=init,
         resume=args.resume,
+        data_path=args.synthetic if args.synthetic is not None else args.dataset,
     )
     if not distributed_from_env().is_main:
         return 0  # under torchrun only rank 0 reports (the others hold no best PSNR)
@@ -229,5 +234,9 @@ def run(args: argparse.Namespace) -> int:
         f"best validation PSNR {summary.best_psnr:.2f} dB (epoch {summary.best_epoch}); "
         f"perceptual loss {summary.perceptual}"
     )
-    print(f"best checkpoint: {summary.run / 'checkpoints' / 'best.pt'}")
+    best = summary.run / "checkpoints" / "best.pt"
+    if best.is_file():
+        print(f"best checkpoint: {best}")
+    else:  # resumed without its best.pt and stopped before validating again
+        print(f"no best checkpoint: {best} went missing; resume with a larger budget to write it")
     return 0

@@ -279,6 +279,7 @@ def run_tradeoff(
             device,
             data_description=data.description,
             resume=resume,
+            data_path=Path(dataset),
         )
         loaded = load_model(run / "checkpoints" / "best.pt", device)
         params, gflops = complexity(loaded.network, data.channels, (size[0], size[1]))
@@ -468,6 +469,8 @@ def _reusable(
     stored = checkpoint_config(load_checkpoint(last), last)
     precision = describe_precision(training_precision(config.train, device).precision)
     obstacle = reuse_obstacle(stored, config, dataset, precision)
+    if obstacle is None and not (run / "checkpoints" / "best.pt").is_file():
+        obstacle = "its best.pt is missing"  # scored from it: a resume might never write it
     if obstacle is None:
         return True
     log.warning(

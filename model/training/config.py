@@ -264,10 +264,15 @@ class RuntimeInfo:
         world_size: number of processes (``torchrun``), 1 otherwise.
         data: the dataset or clean-image folder trained on.
         synthetic: drops preset when training on synthetic drops, else ``None``.
-        init: checkpoint the weights were initialised from, if any.
+        init: checkpoint the weights were initialised from, if any (a
+            resumed run keeps its first session's).
         torch_version: ``torch.__version__``.
         earlier_precisions: a resumed run's earlier precisions, when they
             differ from ``precision``: ``bf16 autocast until step 300``.
+        data_path: the resolved folder of ``data`` (empty in runs written
+            before it was recorded).
+        earlier_data: a resumed run's earlier data, when it differs from
+            ``data_path``: ``/old/DS until step 300``.
 
     """
 
@@ -282,6 +287,8 @@ class RuntimeInfo:
     init: str | None = None
     torch_version: str = ""
     earlier_precisions: tuple[str, ...] = ()
+    data_path: str = ""
+    earlier_data: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

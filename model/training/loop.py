@@ -196,6 +196,7 @@ def fit(
     synthetic: str | None = None,
     init: Path | None = None,
     resume: bool = False,
+    data_path: Path | None = None,
 ) -> TrainSummary:
     """Train into the run folder ``run`` (see the module docstring).
 
@@ -209,6 +210,8 @@ def fit(
         synthetic: drops preset when the data is synthetic.
         init: initialise the network's weights from this checkpoint.
         resume: continue from ``run/checkpoints/last.pt``.
+        data_path: the dataset or clean-image folder (recorded resolved; a
+            resume on other data is said and recorded, :func:`_with_history`).
 
     Returns:
         A :class:`TrainSummary`.
@@ -229,6 +232,8 @@ def fit(
         )
     paths = RunPaths(Path(run))
     checkpoint = load_checkpoint(paths.last) if resume else None
+    if checkpoint is not None:
+        check_resume_mode(checkpoint, paths.last, synthetic)
     held = [p.name for p in (paths.last, paths.best, paths.metrics) if p.exists()]
     if checkpoint is None and held:  # best.pt without last.pt is still another run's result
         raise ModelError(
@@ -254,6 +259,7 @@ def fit(
                 synthetic=synthetic,
                 init=None if init is None else str(init),
                 torch_version=str(torch.__version__),
+                data_path="" if data_path is None else str(Path(data_path).resolve()),
             ),
         )
         if info.is_main:
@@ -262,7 +268,7 @@ def fit(
         with run_logging(paths.log, info.is_main):
             state = _start(trainer, config, paths, checkpoint, init)
             if checkpoint is not None:
-                config = _with_earlier_precisions(
+                config = _with_history(
                     config, checkpoint, paths.last, state.step, warn=info.is_main
                 )
             if info.is_main:
@@ -323,30 +329,100 @@ def fit(
             torch.distributed.destroy_process_group()
 
 
-def _with_earlier_precisions(
-    config: RunConfig, checkpoint: dict[str, Any], path: Path, step: int, warn: bool = True
-) -> RunConfig:
-    """``config`` whose runtime also says what a resumed run trained at before ``step``.
+def check_resume_mode(checkpoint: dict[str, Any], path: Path, synthetic: str | None) -> None:
+    """Refuse to resume a run on synthetic drops with real pairs, or the reverse.
 
-    Without it, a run resumed at another precision (``--precision``, another
-    machine) had its config.yaml say it all ran at the new one.
+    Its ``best.pt`` and early stopping compare validation PSNRs, which mean
+    nothing across the two (a real pair scores some 10 dB above a synthetic
+    one); pretraining followed by fine-tuning is a new run with ``--init``.
+
+    Raises:
+        ModelError: naming the run's data and the data given.
     """
     before = checkpoint_config(checkpoint, path).runtime
-    assert config.runtime is not None  # set by run() before the start
-    if before is None or not before.precision:
+    if before is None or (before.synthetic is None) == (synthetic is None):
+        return
+    was = f"synthetic {before.synthetic} drops" if before.synthetic else "real pairs"
+    now = f"synthetic {synthetic} drops" if synthetic else "real pairs"
+    raise ModelError(
+        f"--resume: {path} trained on {was} ({before.data}); resuming it on {now} would compare "
+        f"validation PSNRs across both: start a new run with --init {path}"
+    )
+
+
+def _with_history(
+    config: RunConfig, checkpoint: dict[str, Any], path: Path, step: int, warn: bool = True
+) -> RunConfig:
+    """``config`` whose runtime also says what a resumed run did before ``step``.
+
+    The precision and the data it trained on before, when they differ (said
+    once as a warning too), and the ``--init`` of its first session. Without
+    it, a run resumed at another precision (``--precision``, another
+    machine) or on another dataset had its config.yaml say it all ran so, and
+    lost where its weights started.
+    """
+    before = checkpoint_config(checkpoint, path).runtime
+    runtime = config.runtime
+    assert runtime is not None  # set by fit() before the start
+    if before is None:
         return config
-    earlier = before.earlier_precisions
-    if before.precision != config.runtime.precision:
-        earlier = (*earlier, f"{before.precision} until step {step}")
-    if warn and before.precision != config.runtime.precision:
-        log.warning(
-            "resuming at %s; the first %d steps trained at %s",
-            config.runtime.precision,
-            step,
-            before.precision,
-        )
-    runtime = dataclasses.replace(config.runtime, earlier_precisions=earlier)
+    earlier_precisions, earlier_data = before.earlier_precisions, before.earlier_data
+    if before.precision and before.precision != runtime.precision:
+        earlier_precisions = (*earlier_precisions, f"{before.precision} until step {step}")
+        if warn:
+            log.warning(
+                "resuming at %s; the first %d steps trained at %s",
+                runtime.precision,
+                step,
+                before.precision,
+            )
+    if before.data_path and runtime.data_path and before.data_path != runtime.data_path:
+        earlier_data = (*earlier_data, f"{before.data_path} until step {step}")
+        if warn:
+            log.warning(
+                "resuming on %s; the first %d steps trained on %s (its validation PSNRs and "
+                "best.pt were measured there)",
+                runtime.data_path,
+                step,
+                before.data_path,
+            )
+    runtime = dataclasses.replace(
+        runtime,
+        earlier_precisions=earlier_precisions,
+        earlier_data=earlier_data,
+        init=runtime.init or before.init,
+    )
     return dataclasses.replace(config, runtime=runtime)
+
+
+def _resumed_rows(path: Path, state: RunState) -> list[dict[str, str]]:
+    """The rows of ``metrics.csv`` that ``last.pt`` (``state``) vouches for.
+
+    None past its step, and none of an epoch it has not completed (a
+    checkpoint written on an epoch's last step precedes that epoch's
+    validation row, which has the same step). A run that has validated but
+    whose file is gone loses those rows: said as a warning.
+
+    Raises:
+        ModelError: the file is not a metrics table (one line naming it).
+    """
+    rows = read_metrics_rows(path)
+    try:
+        kept = [
+            row
+            for row in rows
+            if int(row["step"]) <= state.step and int(row["epoch"]) <= state.epoch
+        ]
+    except (KeyError, TypeError, ValueError):
+        raise ModelError(
+            f"{path}: a row without a whole-number epoch and step; move the file aside to "
+            "resume without the run's earlier rows"
+        ) from None
+    if not path.exists() and state.best_epoch:
+        log.warning(
+            "%s is missing: the rows of the run's first %d steps are lost", path, state.step
+        )
+    return kept
 
 
 def _start(
@@ -367,14 +443,17 @@ def _start(
         trainer.load_state_dict(checkpoint)
         set_rng_state(checkpoint.get("rng", {}))
         state = RunState.from_checkpoint(checkpoint)
-        # The rows last.pt vouches for: none past its step, and none of an epoch
-        # it has not completed (a checkpoint written on an epoch's last step
-        # precedes that epoch's validation row, which has the same step).
-        state.rows = [
-            row
-            for row in read_metrics_rows(paths.metrics)
-            if int(row["step"]) <= state.step and int(row["epoch"]) <= state.epoch
-        ]
+        state.rows = _resumed_rows(paths.metrics, state)
+        if state.best_epoch and not paths.best.is_file():
+            # a best PSNR whose checkpoint is gone would never be written again
+            log.warning(
+                "%s is missing: its best validation (%.2f dB, epoch %d) is forgotten, and the "
+                "next validation writes a new one",
+                paths.best,
+                state.best_psnr,
+                state.best_epoch,
+            )
+            state.best_psnr, state.best_epoch, state.stale = -math.inf, 0, 0
         log.info("resuming %s at epoch %d, step %d", paths.root, state.epoch + 1, state.step)
         return state
     # A new run starts the global generator from the seed, not from whatever this

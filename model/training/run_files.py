@@ -20,8 +20,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.leftovers import remove_leftovers
+from lenspair.model.errors import ModelError
 from lenspair.model.training.run_state import RunState
 
 log = logging.getLogger(__name__)
@@ -128,11 +130,21 @@ def metrics_row(
 
 
 def read_metrics_rows(path: Path) -> list[dict[str, str]]:
-    """The rows of a metrics CSV (``[]`` if there is no such file)."""
+    """The rows of a metrics CSV (``[]`` if there is no such file).
+
+    Raises:
+        ModelError: the file is not text or not CSV (one line naming it).
+    """
     if not path.is_file():
         return []
-    with path.open(newline="", encoding="utf-8") as handle:
-        return list(csv.DictReader(handle))
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            return list(csv.DictReader(handle))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise ModelError(
+            f"{path}: not a metrics table ({first_line(exc)}); move it aside to resume without "
+            "the run's earlier rows"
+        ) from None
 
 
 def write_metrics_rows(path: Path, rows: list[dict[str, str]]) -> None:

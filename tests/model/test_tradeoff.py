@@ -247,8 +247,12 @@ def test_a_run_trained_with_other_settings_is_not_reused(
     stored = replace(tiny_config(max_steps=60), runtime=RuntimeInfo(data=data))
     run = tmp_path / "runs" / "GEA"
 
-    def reused(wanted: RunConfig, dataset: str | None = None) -> bool:
+    def reused(wanted: RunConfig, dataset: str | None = None, best: bool = True) -> bool:
         make_checkpoint(run / "checkpoints" / "last.pt", stored)
+        if best:
+            make_checkpoint(run / "checkpoints" / "best.pt", stored)
+        else:
+            (run / "checkpoints" / "best.pt").unlink(missing_ok=True)
         return _reusable(run, wanted, torch.device("cpu"), dataset)
 
     # The same settings, a larger budget (extends the run) or other logging: reused.
@@ -294,6 +298,11 @@ def test_a_run_trained_with_other_settings_is_not_reused(
     assert "precision: 'bf16 autocast' -> 'fp32'" in caplog.records[0].getMessage()
     stored = replace(tiny_config(max_steps=60), runtime=replace(bf16, precision="fp32"))
     assert reused(tiny_config(max_steps=60), data)
+    # best.pt gone (the row is scored from it, and a resume of a finished run never
+    # writes it): every rerun failed on "checkpoint not found"; now trained again
+    caplog.clear()
+    assert not reused(tiny_config(max_steps=60), data, best=False)
+    assert "its best.pt is missing" in caplog.records[0].getMessage()
 
 
 def test_a_rerun_with_another_seed_retrains_and_records_the_seed(

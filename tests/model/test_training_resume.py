@@ -158,3 +158,90 @@ def test_a_run_resumed_at_another_precision_keeps_what_it_trained_at_before(
     assert runtime.earlier_precisions == ("bf16 autocast until step 2",)
     stored = checkpoint_config(load_checkpoint(run / "checkpoints" / "last.pt")).runtime
     assert stored is not None and stored.earlier_precisions == runtime.earlier_precisions
+
+
+def _cli_run(tmp_path: Path, steps: int = 2) -> tuple[Path, Path, list[str]]:
+    """A finished `lenspair train` run of ``steps`` steps: ``(dataset, run, its argv)``."""
+    from lenspair.cli import main
+    from lenspair.core.config import dump_yaml
+
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1})  # 2 steps per epoch
+    config = tmp_path / "tiny.yaml"
+    config.write_text(dump_yaml(tiny_config(epochs=10)))
+    run = tmp_path / "run"
+    argv = ["train", str(dataset), "--out", str(run), "--config", str(config), "--device", "cpu"]
+    assert main([*argv, "--max-steps", str(steps)]) == 0
+    return dataset, run, argv
+
+
+def test_a_refused_restart_keeps_the_runs_best_pt_and_metrics(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from lenspair.cli import main
+
+    _, run, _ = _cli_run(tmp_path)
+    (run / "checkpoints" / "last.pt").unlink()  # resume then means starting over
+    kept = {p: p.read_bytes() for p in (run / "checkpoints" / "best.pt", run / "metrics.csv")}
+    capsys.readouterr()
+    code = main(["train", str(tmp_path / "no_such_ds"), "--out", str(run), "--resume"])
+    assert code == 2 and "no_such_ds" in capsys.readouterr().err
+    # they were deleted before the dataset was even looked at
+    assert {p: p.read_bytes() for p in kept} == kept
+
+
+def test_resuming_keeps_the_init_refuses_other_kinds_of_data_and_records_other_data(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    import shutil
+
+    import yaml
+
+    from lenspair.cli import main
+
+    dataset, first, argv = _cli_run(tmp_path)
+    run = tmp_path / "fine"
+    init = str(first / "checkpoints" / "best.pt")
+    fine = [*argv[:3], str(run), *argv[4:]]
+    assert main([*fine, "--init", init, "--max-steps", "2"]) == 0
+    moved = tmp_path / "moved_ds"
+    shutil.copytree(dataset, moved)
+    assert main(["train", str(moved), "--out", str(run), "--resume", "--max-steps", "4"]) == 0
+    runtime = yaml.safe_load((run / "config.yaml").read_text())["runtime"]
+    assert runtime["init"] == init  # it was null after a resume
+    assert runtime["data_path"] == str(moved.resolve())
+    assert runtime["earlier_data"] == [f"{dataset.resolve()} until step 2"]
+    assert any("the first 2 steps trained on" in m for m in caplog.messages)
+    capsys.readouterr()
+    synthetic = ["train", "--synthetic", str(dataset / "train" / "target"), "--out", str(run)]
+    assert main([*synthetic, "--resume", "--max-steps", "6"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "trained on real pairs" in error and "on synthetic ours drops" in error
+    assert "\n" not in error and load_checkpoint(run / "checkpoints" / "last.pt")["step"] == 4
+
+
+def test_a_resume_without_best_pt_writes_it_again(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    from lenspair.cli import main
+
+    dataset, run, _ = _cli_run(tmp_path)
+    best = run / "checkpoints" / "best.pt"
+    best.unlink()
+    assert main(["train", str(dataset), "--out", str(run), "--resume", "--max-steps", "4"]) == 0
+    assert best.is_file() and load_checkpoint(best)["step"] == 4
+    assert any(f"{best} is missing" in m for m in caplog.messages)
+    assert f"best checkpoint: {best}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("content", [b"\x00\xff\xfe\x01", b"epoch,step,seconds\nx,y,z\n"])
+def test_a_damaged_metrics_csv_is_one_line_on_resume(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], content: bytes
+) -> None:
+    from lenspair.cli import main
+
+    dataset, run, _ = _cli_run(tmp_path)
+    (run / "metrics.csv").write_bytes(content)
+    capsys.readouterr()
+    assert main(["train", str(dataset), "--out", str(run), "--resume", "--max-steps", "4"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert f"{run / 'metrics.csv'}: " in error and "move" in error and "\n" not in error
