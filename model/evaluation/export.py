@@ -18,6 +18,7 @@ it could not be checked. torch's new ``dynamo`` exporter needs
 import contextlib
 import functools
 import importlib.util
+import io
 import logging
 import statistics
 import time
@@ -32,7 +33,7 @@ import torch
 from torch import Tensor, nn
 
 from lenspair.core.errors import first_line
-from lenspair.core.fsutil import atomic_write
+from lenspair.core.fsutil import atomic_write, atomic_write_bytes
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import percentile
@@ -201,6 +202,21 @@ def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) 
             )
 
 
+def _file_system_error(exc: BaseException) -> OSError | None:
+    """The ``OSError`` with an ``errno`` in ``exc`` or in what caused it, else None.
+
+    The dynamo exporter wraps the error its file write raised.
+    """
+    seen: set[int] = set()
+    current: BaseException | None = exc
+    while current is not None and id(current) not in seen:
+        if isinstance(current, OSError) and current.errno is not None:
+            return current
+        seen.add(id(current))
+        current = current.__cause__ or current.__context__
+    return None
+
+
 def export_onnx(
     network: nn.Module,
     channels: int,
@@ -234,6 +250,8 @@ def export_onnx(
             exporter = _EXPORTERS[attempt]
             break
         except Exception as exc:  # exporters raise many types; report one line
+            if (refused := _file_system_error(exc)) is not None:
+                raise refused from exc  # a full disk: the other exporter would fail the same
             first = first_line(exc)
             if attempt == exporters[-1]:
                 raise ModelError(f"ONNX export failed: {first}") from exc
@@ -281,12 +299,13 @@ def export_torchscript(
     except Exception as exc:
         raise ModelError(f"TorchScript trace failed: {str(exc).strip().splitlines()[0]}") from exc
 
-    def _write(tmp: Path) -> None:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", DeprecationWarning)
-            torch.jit.save(traced, str(tmp))
-
-    atomic_write(Path(path), _write, suffix=".pt")
+    # Serialised in memory first: torch.jit.save writing a file that the disk
+    # refuses part-way aborts the process from C++ ("terminate called ...").
+    buffer = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        torch.jit.save(traced, buffer)
+    atomic_write_bytes(Path(path), buffer.getvalue())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         loaded = torch.jit.load(str(path), map_location="cpu")

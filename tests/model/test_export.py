@@ -337,3 +337,23 @@ def test_a_flat_frame_stays_flat_through_onnx_runtime(tmp_path: Path) -> None:
     assert float(np.abs(restored - reference).max()) < 1e-4
     inner = restored[..., 4:-4, 4:-4]
     assert float((inner.max(axis=(1, 2, 3)) - inner.min(axis=(1, 2, 3))).max()) < 2e-3
+
+
+@pytest.mark.parametrize("option", ["--torchscript", "--onnx"])
+def test_a_full_disk_is_one_line_naming_the_file_and_leaves_no_temporary(
+    tmp_path: Path, option: str
+) -> None:
+    from tests.file_limits import run_with_file_limit
+
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    out = tmp_path / "out" / ("m.pt" if option == "--torchscript" else "m.onnx")
+    out.parent.mkdir()
+    argv = ["export", str(checkpoint), option, str(out), "--size", "48x32"]
+    failed = run_with_file_limit(argv, limit=checkpoint.stat().st_size // 4)
+    # torch.jit.save aborted from C++ (exit 134, a stack dump); ONNX tried its
+    # second exporter, then said "ONNX export failed" with exit 2
+    assert failed.returncode == 1, failed.stderr
+    lines = failed.stderr.strip().splitlines()
+    assert lines[-1] == f"lenspair export: error: {out}: File too large", failed.stderr
+    assert "Traceback" not in failed.stderr and "terminate called" not in failed.stderr
+    assert list(out.parent.iterdir()) == []
