@@ -5,6 +5,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
+from lenspair.core.config import MAX_SEED
 from lenspair.core.samples import file_or_sample
 
 
@@ -82,13 +83,13 @@ def out_file(text: str) -> Path:
 
 
 def random_seed(text: str) -> int:
-    """Argparse type: a random seed, an integer >= 0."""
+    """Argparse type: a random seed, an integer in ``0 .. MAX_SEED``."""
     try:
         value = int(text)
     except ValueError:
         value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"expected an integer 0 .. {MAX_SEED}, got {text!r}")
     return value
 
 

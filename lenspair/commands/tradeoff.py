@@ -46,6 +46,7 @@ import dataclasses
 from pathlib import Path
 
 from lenspair.commands.argtypes import add_device_option, fraction, out_folder, positive_int
+from lenspair.core.config import MAX_SEED
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -136,8 +137,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(
             f"--seeds: expected comma-separated integers, got {args.seeds!r}"
         ) from None
-    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
-        raise ConfigError(f"--seeds: expected distinct integers >= 0, got {args.seeds!r}")
+    if not seeds or len(set(seeds)) != len(seeds) or not 0 <= min(seeds) <= max(seeds) <= MAX_SEED:
+        raise ConfigError(
+            f"--seeds: expected distinct integers 0 .. {MAX_SEED}, got {args.seeds!r}"
+        )
     device = resolve_device(args.device)
     if len(seeds) > 1:
         # here, not at the top: keeps `--help` from importing torch

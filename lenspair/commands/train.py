@@ -56,7 +56,12 @@ import re
 from pathlib import Path
 from typing import Any
 
-from lenspair.commands.argtypes import add_device_option, float_at_least, out_folder
+from lenspair.commands.argtypes import (
+    add_device_option,
+    float_at_least,
+    out_folder,
+    random_seed,
+)
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 
@@ -105,7 +110,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument("--batch-size", type=int, help="train.batch_size (8)")
     group.add_argument("--crop-size", type=int, help="data.crop_size (256)")
-    group.add_argument("--seed", type=int, help="train.seed (0)")
+    group.add_argument("--seed", type=random_seed, help="train.seed (0)")
     group.add_argument(
         "--precision",
         choices=("auto", "fp32", "bf16", "fp16"),

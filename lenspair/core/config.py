@@ -28,6 +28,10 @@ from lenspair.core.errors import ConfigError
 
 T = TypeVar("T")
 
+MAX_SEED = 2**32 - 1
+"""Largest random seed an option or config takes (torch takes 64 bits, and
+training derives its per-epoch seeds from ``train.seed``: they must fit)."""
+
 
 def _type_name(tp: Any) -> str:
     if isinstance(tp, type):

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from lenspair.core.config import load_dataclass, load_yaml
+from lenspair.core.config import MAX_SEED, load_dataclass, load_yaml
 
 Variant = Literal["G", "GE", "GEA"]
 DropsPreset = Literal["ours", "sharp"]
@@ -199,8 +199,8 @@ class TrainConfig:
             )
         if self.lr <= 0:
             raise ValueError(f"lr: expected > 0, got {self.lr}")
-        if self.seed < 0:
-            raise ValueError(f"seed: expected >= 0, got {self.seed}")
+        if not 0 <= self.seed <= MAX_SEED:  # epoch seeds are seed * 100_003 + epoch: < 2**63
+            raise ValueError(f"seed: expected 0 .. {MAX_SEED}, got {self.seed}")
         if not 0.0 <= self.lr_decay <= 1.0:
             raise ValueError(f"lr_decay: expected 0..1, got {self.lr_decay}")
         if not (0.0 <= self.beta1 < 1.0 and 0.0 <= self.beta2 < 1.0):

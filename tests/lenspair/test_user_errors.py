@@ -388,3 +388,24 @@ def test_a_quoted_library_message_skips_leading_blank_lines_and_says_when_empty(
     assert first_text_line("\n  \nPNG read error: bad CRC\nsecond") == "PNG read error: bad CRC"
     assert first_text_line("", "unknown error") == "unknown error"
     assert first_text_line(" \n") == ""
+
+
+def test_a_seed_too_large_for_training_is_refused_at_the_option_and_in_a_config(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # torch.manual_seed raised "Overflow when unpacking long long" as a traceback,
+    # or after setup, from the per-epoch seed train.seed * 100_003 + epoch
+    from lenspair.cli import main
+    from lenspair.model.training.config import TrainConfig
+
+    too_large = str(2**32)
+    with pytest.raises(SystemExit) as stop:  # argparse's own exit
+        main(["train", str(tmp_path), "--out", str(tmp_path / "r"), "--seed", too_large])
+    assert stop.value.code == 2
+    assert "argument --seed: expected an integer 0 .. 4294967295" in capsys.readouterr().err
+    config = tmp_path / "c.yaml"
+    config.write_text(f"train: {{seed: {too_large}}}\n")
+    argv = ["train", str(tmp_path), "--out", str(tmp_path / "r"), "--config", str(config)]
+    assert main(argv) == 2
+    assert f"train: seed: expected 0 .. 4294967295, got {too_large}" in capsys.readouterr().err
+    assert TrainConfig(seed=2**32 - 1).seed * 100_003 + 10**6 < 2**63  # the largest still fits
