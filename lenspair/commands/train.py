@@ -64,6 +64,7 @@ from lenspair.commands.argtypes import (
 )
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import inside_refusal
 
 log = logging.getLogger(__name__)
 
@@ -167,6 +168,29 @@ def interrupt_hint(args: argparse.Namespace) -> str | None:
     return None
 
 
+def _check_out_apart(args: argparse.Namespace, train_split: str, val_split: str) -> None:
+    """Refuse an --out inside the folders the run reads its images from.
+
+    Its samples.png would be read as an unpaired image (or a clean one)
+    next time. A dataset's own folder is fine (DS/runs/...): only the
+    splits trained and validated on are read, or DS itself when it is one
+    paired folder.
+    """
+    # here, not at the top: keeps torch and OpenCV out of `lenspair train --help`
+    from lenspair.dataset.readers import detect_layout
+
+    why = "its samples.png would be read as an image next time"
+    if args.synthetic is not None:
+        sources = [args.synthetic]
+    elif detect_layout(args.dataset) is not None:
+        sources = [args.dataset]
+    else:
+        sources = [args.dataset / train_split, args.dataset / val_split]
+    for source in sources:
+        if (problem := inside_refusal(args.out, source, "the images read from", why)) is not None:
+            raise ConfigError(problem)
+
+
 def run(args: argparse.Namespace) -> int:
     """Train one run; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair train --help`.
@@ -199,6 +223,7 @@ def run(args: argparse.Namespace) -> int:
         config = resume_config(args.out, _overrides(base, args))
     else:
         config = _overrides(load_run_config(args.config), args)
+    _check_out_apart(args, config.data.train_split, config.data.val_split)
     seed = config.train.seed
     if args.synthetic is not None:
         data = synthetic_training_data(args.synthetic, config.data, config.model.channels, seed)

@@ -245,3 +245,19 @@ def test_a_damaged_metrics_csv_is_one_line_on_resume(
     assert main(["train", str(dataset), "--out", str(run), "--resume", "--max-steps", "4"]) == 2
     error = capsys.readouterr().err.strip()
     assert f"{run / 'metrics.csv'}: " in error and "move" in error and "\n" not in error
+
+
+def test_an_out_inside_the_images_trained_on_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from lenspair.cli import main
+
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1})
+    for out in (dataset / "train" / "input" / "run", dataset / "val"):
+        assert main(["train", str(dataset), "--out", str(out), "--max-steps", "1"]) == 2
+        error = capsys.readouterr().err
+        assert f"--out {out}: inside the images read from" in error, error
+        assert not (out / "config.yaml").exists()
+    synthetic = ["train", "--synthetic", str(dataset / "train" / "target")]
+    assert main([*synthetic, "--out", str(dataset / "train" / "target" / "r")]) == 2
+    assert "inside the images read from" in capsys.readouterr().err
