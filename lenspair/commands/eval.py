@@ -39,13 +39,14 @@ accuracy, beside what it saves in time.
 """
 
 import argparse
+import itertools
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lenspair.commands.argtypes import add_device_option, out_folder
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
-from lenspair.core.fsutil import inside_refusal
+from lenspair.core.fsutil import inside_refusal, read_json_field
 
 if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
     from lenspair.model.training.pairs import PairSource
@@ -89,14 +90,25 @@ def default_out(checkpoint: Path, data: Path, split: str | None, precision: str 
     checkpoint; ``split`` is None for a paired folder, which has none, and the
     precision is named unless it is fp32 (the reference). Evaluating
     ``last.pt``, other data, or at int8 no longer replaces the evaluation of
-    ``best.pt``.
+    ``best.pt``; nor does a dataset of the same name elsewhere, whose
+    evaluation (told by ``metrics.json``'s ``data_path``) takes the first
+    free ``_2``, ``_3``, ... after the name.
     """
     checkpoint = Path(checkpoint)
     what = Path(data).resolve().name + (f"_{split}" if split else "")
     what += f"_{precision}" if precision != "fp32" else ""
     if checkpoint.parent.name == "checkpoints":
-        return checkpoint.parent.parent / f"eval_{checkpoint.stem}_{what}"
-    return checkpoint.with_name(f"{checkpoint.stem}_eval_{what}")
+        base = checkpoint.parent.parent / f"eval_{checkpoint.stem}_{what}"
+    else:
+        base = checkpoint.with_name(f"{checkpoint.stem}_eval_{what}")
+    # A namesake dataset elsewhere (other/DS) gets its own folder: _2, _3, ...
+    scored = str((Path(data) if split is None else Path(data) / split).resolve())
+    for number in itertools.count(1):
+        out = base if number == 1 else base.with_name(f"{base.name}_{number}")
+        earlier = read_json_field(out / "metrics.json", "data_path")
+        if not out.exists() or earlier in (None, "", scored):
+            return out
+    raise AssertionError("unreachable")  # itertools.count never ends
 
 
 def run(args: argparse.Namespace) -> int:
@@ -163,6 +175,7 @@ def run(args: argparse.Namespace) -> int:
         calibration=calibration,
         precision_reason=decision.reason,
     )
+    result.data_path = str(scored.resolve())
     if args.out is not None:
         out = args.out
     else:

@@ -159,6 +159,8 @@ class EvalResult:
             (reduced precisions only): what the precision costs.
         precision_reason: why this precision (``lenspair.model.precision``).
         unread: pairs that could not be read or scored, and why (not in any mean).
+        data_path: the scored folder, resolved, as ``lenspair eval`` sets it
+            (it tells evaluations of namesake datasets apart by it).
 
     """
 
@@ -177,6 +179,7 @@ class EvalResult:
     versus_fp32: Summary | None = None
     precision_reason: str = ""
     unread: list[Unread] = field(default_factory=list)
+    data_path: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready means (per-image scores stay in the CSV)."""
@@ -184,6 +187,7 @@ class EvalResult:
             "checkpoint": self.checkpoint,
             "model": self.model,
             "data": self.data,
+            "data_path": self.data_path,
             "convention": self.convention,
             "precision": self.precision,
             "psnr_cap_db": PSNR_CAP_DB,

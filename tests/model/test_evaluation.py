@@ -123,6 +123,17 @@ def test_default_eval_folder_sits_in_the_run(tmp_path: Path) -> None:
     # and another precision: an int8 evaluation replaced the fp32 one
     assert main(["eval", str(checkpoint), *args, "--precision", "bf16"]) == 0
     assert (tmp_path / "run" / "eval_best_ds_val_bf16" / "metrics.json").is_file()
+    # a dataset of the same name elsewhere: its own folder, reused by its own reruns
+    namesake = tmp_path / "elsewhere" / "ds"
+    write_paired_folder(namesake / "val", count=2)
+    elsewhere = ["--data", str(namesake), "--split", "val", "--latency-runs", "0"]
+    for _ in range(2):
+        assert main(["eval", str(checkpoint), *elsewhere]) == 0
+        assert main(["eval", str(checkpoint), *args]) == 0
+    first, second = (tmp_path / "run" / name for name in ("eval_best_ds_val", "eval_best_ds_val_2"))
+    assert json.loads((first / "metrics.json").read_text())["overall"]["pairs"] == 1
+    assert json.loads((second / "metrics.json").read_text())["overall"]["pairs"] == 2
+    assert not (tmp_path / "run" / "eval_best_ds_val_3").exists()
 
 
 def test_odd_sizes_and_identical_images(tmp_path: Path) -> None:
