@@ -59,7 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--budget", default="60", help="per variant: STEPS, or 90s / 5m / 1h (60 steps)"
     )
     add_device_option(parser)
-    parser.add_argument("--config", type=Path, help="base run config (model section ignored)")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        help="base run config (each variant sets the network's variant, width and blocks; "
+        "model.channels and the other sections apply to every variant)",
+    )
     parser.add_argument("--crop-size", type=positive_int, default=None, help="training crop (128)")
     parser.add_argument("--batch-size", type=positive_int, default=None, help="training batch (4)")
     parser.add_argument(
@@ -113,6 +118,9 @@ def run(args: argparse.Namespace) -> int:
             )
         if not wanted:
             raise ConfigError(f"--variants: no variant named in {args.variants!r}")
+        if twice := sorted({name for name in wanted if wanted.count(name) > 1}):
+            # each would be trained and scored again, one "dominating" its own copy
+            raise ConfigError(f"--variants: {', '.join(twice)} named twice")
         variants = tuple(known[name] for name in wanted)
     if args.latency_runs < 1:
         raise ConfigError("--latency-runs must be >= 1")

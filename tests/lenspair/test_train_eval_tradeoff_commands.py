@@ -46,6 +46,17 @@ def test_tradeoff_rejects_a_crop_or_batch_below_one(
     assert not (tmp_path / "out").exists()
 
 
+def test_tradeoff_refuses_a_variant_named_twice(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # G,G trained and scored G twice: two rows, one "dominated" by its own copy
+    argv = ["tradeoff", str(tmp_path / "ds"), "--out", str(tmp_path / "out")]
+    assert main([*argv, "--variants", "G,GEA,G"]) == 2
+    [line] = capsys.readouterr().err.strip().splitlines()
+    assert line.endswith("--variants: G named twice")
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize(
     ("command", "hint"), [("restore", "--resume"), ("eval", "rerun to resume")]
 )
