@@ -60,6 +60,7 @@ from lenspair.commands.argtypes import (
     add_device_option,
     float_at_least,
     out_folder,
+    positive_int,
     random_seed,
 )
 from lenspair.core.device import resolve_device
@@ -100,17 +101,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--drops", choices=("ours", "sharp"), help="synthetic drops (ours)")
     group = parser.add_argument_group("overrides of the config file")
-    group.add_argument("--epochs", type=int, help="train.epochs (200)")
+    group.add_argument("--epochs", type=positive_int, help="train.epochs (200)")
     group.add_argument(
-        "--max-steps", type=int, help="train.max_steps: stop after this many steps (no limit)"
+        "--max-steps",
+        type=positive_int,
+        help="train.max_steps: stop after this many steps (no limit)",
     )
     group.add_argument(
         "--max-seconds",
         type=float_at_least(0.0, above=True),
         help="train.max_seconds: stop after this much training time (no limit)",
     )
-    group.add_argument("--batch-size", type=int, help="train.batch_size (8)")
-    group.add_argument("--crop-size", type=int, help="data.crop_size (256)")
+    group.add_argument("--batch-size", type=positive_int, help="train.batch_size (8)")
+    group.add_argument("--crop-size", type=positive_int, help="data.crop_size (256)")
     group.add_argument("--seed", type=random_seed, help="train.seed (0)")
     group.add_argument(
         "--precision",

@@ -46,6 +46,18 @@ def test_tradeoff_rejects_a_crop_or_batch_below_one(
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("option", ["--batch-size", "--crop-size", "--max-steps", "--epochs"])
+def test_train_names_the_option_of_a_count_below_one(
+    option: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # "error: batch_size: expected >= 1, got 0" named the config key, not the option
+    argv = ["train", str(tmp_path / "ds"), "--out", str(tmp_path / "run"), option, "0"]
+    with pytest.raises(SystemExit) as exited:
+        main(argv)
+    assert exited.value.code == 2
+    assert f"argument {option}: expected a positive integer, got '0'" in capsys.readouterr().err
+
+
 def test_tradeoff_refuses_a_variant_named_twice(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
