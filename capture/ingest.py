@@ -77,6 +77,7 @@ from lenspair.capture.recording import (
 from lenspair.capture.rigfile import CameraName, RigFile
 from lenspair.capture.side_check import check_obstructed_side
 from lenspair.capture.side_detector import ObstructedProbability, check_side_with_detector
+from lenspair.core.bitdepth import significant_bits, widen
 from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import (
@@ -155,7 +156,7 @@ def _side_check_images(
         if len(images["cam0"]) == count:
             break
         try:
-            loaded = [frame_work.widen(load_frame(frame), context.bits) for frame in pair]
+            loaded = [widen(load_frame(frame), context.bits) for frame in pair]
         except LenspairError:
             continue
         sizes = [(image.shape[1], image.shape[0]) for image in loaded]
@@ -170,7 +171,7 @@ def _side_check_images(
 
 
 def _recording_bits(recording: Recording, pairs: list[tuple[FrameRef, FrameRef]]) -> int:
-    """:func:`frame_work.significant_bits` of up to 8 frame pairs spread over the recording.
+    """:func:`significant_bits` of up to 8 frame pairs spread over the recording.
 
     Unreadable frames are passed over (the frame stage reports them); a
     recording that uses fewer than 16 bits is said in the log.
@@ -180,7 +181,7 @@ def _recording_bits(recording: Recording, pairs: list[tuple[FrameRef, FrameRef]]
         for frame in pairs[index]:
             with contextlib.suppress(LenspairError):
                 images.append(load_frame(frame))
-    bits = frame_work.significant_bits(images)
+    bits = significant_bits(images)
     if bits < 16:
         log.warning(
             "%s: its 16-bit frames hold %d-bit values (none above %d in %d sampled frames): "

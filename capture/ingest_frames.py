@@ -21,6 +21,7 @@ import numpy as np
 from lenspair.capture.ingested import PairRecord
 from lenspair.capture.recording import FrameRef, load_frame
 from lenspair.capture.rigfile import CameraName
+from lenspair.core.bitdepth import widen
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import sha256_bytes, sha256_file
 from lenspair.core.imageio import write_image
@@ -33,39 +34,6 @@ from lenspair.rectify.remap import RemapGrid, apply, input_map, shifted
 from lenspair.rectify.verification import measure_shift, verify_pair
 
 OUTPUT_KINDS = ("input", "target", "mask")
-LOW_BIT_DEPTHS = (10, 12)
-"""Depths of machine-vision cameras whose drivers publish 16-bit words with the value in
-the low bits (``mono16`` from a Mono10/Mono12 sensor): :func:`significant_bits`."""
-
-
-def significant_bits(images: list[np.ndarray]) -> int:
-    """The bits that a recording's 16-bit frames really use: 10, 12, or 16.
-
-    10 or 12 when no value of ``images`` (frames sampled over the recording)
-    exceeds that depth's largest value, else 16; 8-bit frames (or none): 16,
-    meaning "as they are". A genuine 16-bit recording whose brightest pixel
-    stays below 4096 (6 % of the range) in every sampled frame is nearly
-    black, and is brightened too: said in the log and ``report.json``.
-    """
-    wide = [image for image in images if image.dtype == np.uint16]
-    if not wide or len(wide) != len(images):
-        return 16
-    top = max(int(image.max()) for image in wide)
-    return next((bits for bits in LOW_BIT_DEPTHS if top < 1 << bits), 16)
-
-
-def widen(image: np.ndarray, bits: int) -> np.ndarray:
-    """A ``uint16`` image of ``bits``-bit values on the full 16-bit scale; others as they are.
-
-    The bits are replicated into the low end (``4095 -> 65535``, ``0 -> 0``),
-    so full scale stays full scale (the saturation check looks for it); a
-    value above ``bits`` (a frame the sample missed) saturates.
-    """
-    if bits >= 16 or image.dtype != np.uint16:
-        return image
-    shift = 16 - bits
-    values = np.minimum(image, np.uint16((1 << bits) - 1))
-    return np.asarray((values << shift) | (values >> (bits - shift)), dtype=np.uint16)
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,8 +57,9 @@ class Context:
         input_grid: composed map of the obstructed view (rectify + crop).
         target_grid: composed map of the clean view (rectify + homography +
             crop), with a margin for per-frame shifts.
-        bits: the bits the recording's 16-bit frames use (:func:`significant_bits`);
-            frames are read through :func:`widen` with it.
+        bits: the bits the recording's 16-bit frames use
+            (:func:`lenspair.core.bitdepth.significant_bits`); frames are read
+            through :func:`lenspair.core.bitdepth.widen` with it.
 
     """
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from lenspair.capture.frames import InputFrame
 from lenspair.capture.recording_types import FrameProblem
+from lenspair.core.bitdepth import significant_bits, widen
 from lenspair.core.contact_sheet import make_contact_sheet, to_display
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.core.imageio import write_image
@@ -126,7 +127,7 @@ class SpreadSample(Generic[T]):
 
 def _sheet_cell(image: np.ndarray, tile_map: np.ndarray, width: int = 480) -> np.ndarray:
     """The overlay, shrunk to at most ``width`` pixels wide (the sheet shows less)."""
-    cell = overlay(image, tile_map)
+    cell = overlay(widen(image, significant_bits([image])), tile_map)  # as the detector saw it
     if cell.shape[1] <= width:
         return cell
     height = max(1, round(cell.shape[0] * width / cell.shape[1]))

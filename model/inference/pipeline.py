@@ -49,6 +49,7 @@ from lenspair.capture.frames import (
 )
 from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
+from lenspair.core.bitdepth import narrow, significant_bits, widen
 from lenspair.core.fsutil import atomic_write_json, inside_refusal, read_json_field, sha256_file
 from lenspair.core.leftovers import remove_leftovers_under
 from lenspair.model.errors import ModelError
@@ -402,9 +403,14 @@ def _run(
         done = [writer.sink.done(frame) for frame in batch]
         if batch and not all(done):  # the whole batch: same batches as an uninterrupted run
             images = [frame.image for frame in batch if frame.image is not None]
-            restored = run_backend(backend, to_batch(images), options.tile, options.overlap)
+            # a 16-bit frame of 10- or 12-bit values is restored on the full scale, then
+            # written back in its camera's words (lenspair.core.bitdepth)
+            bits = [significant_bits([image]) for image in images]
+            wide = [widen(image, depth) for image, depth in zip(images, bits, strict=True)]
+            restored = run_backend(backend, to_batch(wide), options.tile, options.overlap)
             first = images[0]
-            outputs = list(from_batch(restored, first.dtype, first.ndim == 2))
+            back = from_batch(restored, first.dtype, first.ndim == 2)
+            outputs = [narrow(image, depth) for image, depth in zip(back, bits, strict=True)]
         for item, frame, slot in pending:
             if slot is None:
                 writer.put(item, frame, None)

@@ -12,10 +12,10 @@ from hypothesis import strategies as st
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.ingest import ingest_recording
-from lenspair.capture.ingest_frames import significant_bits, widen
 from lenspair.capture.ingest_report import set_report_aside
 from lenspair.capture.ingested import IngestReport, PairRecord, read_pairs, read_report
 from lenspair.cli import main
+from lenspair.core.bitdepth import narrow, significant_bits, widen
 from lenspair.core.imageio import read_image, write_image
 from lenspair.rectify.errors import CropError, RectifyError
 from lenspair.rectify.registration import EstimationParams, VerifyParams
@@ -380,3 +380,5 @@ def test_widening_keeps_order_black_and_full_scale(values: list[int], bits: int)
     assert np.all(np.diff(wide[order]) >= 0)  # no value overtakes another
     if bits == 16:
         np.testing.assert_array_equal(wide, image)
+    every = np.arange(1 << bits, dtype=np.uint16)  # restore writes the camera's words back
+    np.testing.assert_array_equal(narrow(widen(every, bits), bits), every)

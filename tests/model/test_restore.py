@@ -79,6 +79,27 @@ def test_folder_keeps_tree_names_depth(tmp_path: Path, backend: TorchBackend, dt
     assert saved["restored"] == 3 and saved["input"] == str(source)
 
 
+@pytest.mark.parametrize("bits", [10, 12])
+def test_16_bit_frames_of_fewer_bits_are_restored_on_the_full_scale_and_written_back(
+    tmp_path: Path, backend: TorchBackend, bits: int
+) -> None:
+    # mono16 words of a Mono10/Mono12 camera: the network saw an all but black
+    # frame; now it sees the full-range one, and the output is in the camera's words
+    from lenspair.core.bitdepth import narrow, widen
+
+    full = (texture((32, 48), seed=3) * 65535).astype(np.uint16)
+    low = narrow(full, bits)
+    write_image(tmp_path / "in" / "full.png", full)
+    write_image(tmp_path / "in" / "low.png", low)  # batched with the full-range one
+    restore_input(tmp_path / "in", tmp_path / "out", backend, RestoreOptions(batch_size=2))
+    restored = read_image(tmp_path / "out" / "low.png")
+    assert restored.dtype == np.uint16 and int(restored.max()) < 1 << bits
+    reference = narrow(expected(backend, widen(low, bits)), bits).astype(np.int64)
+    assert np.abs(restored.astype(np.int64) - reference).max() <= 1
+    beside = read_image(tmp_path / "out" / "full.png").astype(np.int64)  # batch 2 vs 1: 1 LSB
+    assert np.abs(beside - expected(backend, full).astype(np.int64)).max() <= 1
+
+
 def test_a_folders_other_files_are_copied_with_it(tmp_path: Path, backend: TorchBackend) -> None:
     source = _folder(tmp_path / "in")
     (source / "sub" / "notes.txt").write_text("exposure 4 ms")  # not an image

@@ -1,0 +1,58 @@
+"""16-bit frames that hold 10- or 12-bit values, as machine-vision cameras send them.
+
+A Mono10 or Mono12 sensor's driver often publishes ``mono16`` words holding
+the values as they come (0..1023, 0..4095). Read as 16-bit data they are all
+but black: quality checks call them blank or blurred, registration finds no
+corners, the network sees a black frame. :func:`significant_bits` tells the
+depth from the values, :func:`widen` scales to the full 16-bit range and
+:func:`narrow` back (``narrow(widen(v)) == v`` for every value of the depth).
+"""
+
+import numpy as np
+
+LOW_BIT_DEPTHS = (10, 12)
+"""Depths of machine-vision cameras whose drivers publish 16-bit words with the value in
+the low bits (``mono16`` from a Mono10/Mono12 sensor): :func:`significant_bits`."""
+
+
+def significant_bits(images: list[np.ndarray]) -> int:
+    """The bits that 16-bit frames really use: 10, 12, or 16.
+
+    10 or 12 when no value of ``images`` (frames sampled over a recording, or
+    one frame) exceeds that depth's largest value, else 16; 8-bit frames (or
+    none): 16, meaning "as they are". A genuine 16-bit frame whose brightest
+    pixel is below 4096 (6 % of the range) is nearly black, and is brightened
+    too; the callers say so.
+    """
+    wide = [image for image in images if image.dtype == np.uint16]
+    if not wide or len(wide) != len(images):
+        return 16
+    top = max(int(image.max()) for image in wide)
+    return next((bits for bits in LOW_BIT_DEPTHS if top < 1 << bits), 16)
+
+
+def widen(image: np.ndarray, bits: int) -> np.ndarray:
+    """A ``uint16`` image of ``bits``-bit values on the full 16-bit scale; others as they are.
+
+    The bits are replicated into the low end (``4095 -> 65535``, ``0 -> 0``),
+    so full scale stays full scale (the saturation check looks for it); a
+    value above ``bits`` (a frame the sample missed) saturates.
+    """
+    if bits >= 16 or image.dtype != np.uint16:
+        return image
+    shift = 16 - bits
+    values = np.minimum(image, np.uint16((1 << bits) - 1))
+    return np.asarray((values << shift) | (values >> (bits - shift)), dtype=np.uint16)
+
+
+def narrow(image: np.ndarray, bits: int) -> np.ndarray:
+    """A full-range ``uint16`` image back to ``bits``-bit values (rounded); others as they are.
+
+    The inverse of :func:`widen` (exact on its outputs); a restored frame goes
+    back into the words its camera wrote.
+    """
+    if bits >= 16 or image.dtype != np.uint16:
+        return image
+    top = (1 << bits) - 1
+    values = np.rint(image.astype(np.float64) * (top / 65535.0))
+    return np.asarray(np.clip(values, 0, top), dtype=np.uint16)
