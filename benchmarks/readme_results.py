@@ -411,6 +411,21 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 f"{_num(dataset['build_over_io_floor'], 1)}x",
             ]
         )
+    memory = load_json(bench / "memory.json")
+    if memory:
+        counts = sorted({row["frames"] for row in memory["rows"]})
+        most = {
+            row["command"]: row["peak_mib"] for row in memory["rows"] if row["frames"] == counts[-1]
+        }
+        ratios = memory["ratios"]
+        rows.append(
+            [
+                f"peak memory at {counts[-1]} frames: ingest / dataset-build / restore",
+                " / ".join(f"{_num(most[c], 0)} MiB" for c in ratios),
+                f"the same at {counts[0]} frames (target <= {memory['target_ratio']}x)",
+                " / ".join(f"{_num(ratios[c], 2)}x" for c in ratios),
+            ]
+        )
     calibration = load_json(bench / "calibration.json")
     for case in (calibration or {}).get("cases", []):
         rows.append(

@@ -79,6 +79,15 @@ def _bench(root: Path) -> Path:
              "ratio_w1_to_floor": 1.917}
         )
     )  # fmt: skip
+    rows = [
+        {"command": command, "frames": frames, "peak_mib": mib, "s": 1.0}
+        for frames, mibs in ((500, (150.4, 110.0, 470.0)), (2000, (156.2, 125.0, 474.0)))
+        for command, mib in zip(("capture-ingest", "dataset-build", "restore"), mibs, strict=True)
+    ]
+    ratios = {"capture-ingest": 1.0386, "dataset-build": 1.1364, "restore": 1.0085}
+    (root / "memory.json").write_text(
+        json.dumps({"rows": rows, "ratios": ratios, "worst_ratio": 1.1364, "target_ratio": 1.15})
+    )
     return root
 
 
@@ -111,6 +120,11 @@ def test_section_carries_the_figures_of_the_files(tmp_path: Path) -> None:
     assert "earlier run, with that run's time: pretrain" in text
     # benchmark ratio against its floor; absent benchmarks name their command
     assert "| 65.0 ms/pair |" in text and "| 1.92x |" in text
+    # peak memory at the longer recording, as ratios to the shorter one (bench_memory)
+    assert (
+        "| peak memory at 2000 frames: ingest / dataset-build / restore | 156 MiB / 125 MiB / "
+        "474 MiB | the same at 500 frames (target <= 1.15x) | 1.04x / 1.14x / 1.01x |"
+    ) in text
     assert "Not measured yet: the calibration comes from `lenspair demo --out demo_out`" in text
     # pictures are copied beside the README and linked relative to it
     assert (tmp_path / "repo" / "docs" / "results" / "contact_sheet.png").read_bytes() == (
