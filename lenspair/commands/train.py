@@ -171,27 +171,45 @@ def interrupt_hint(args: argparse.Namespace) -> str | None:
     return None
 
 
-def _check_out_apart(args: argparse.Namespace, train_split: str, val_split: str) -> None:
-    """Refuse an --out inside the folders the run reads its images from.
+PAIRED_FOLDERS = ("input", "target", "lq", "gt", "data")
+"""Sub-folders of a split (or paired folder) whose images a paired reader lists."""
 
-    Its samples.png would be read as an unpaired image (or a clean one)
-    next time. A dataset's own folder is fine (DS/runs/...): only the
-    splits trained and validated on are read, or DS itself when it is one
-    paired folder.
+
+def _check_out_apart(args: argparse.Namespace, train_split: str, val_split: str) -> None:
+    """Refuse an --out whose samples.png the next run on this data would read as an image.
+
+    A paired reader lists the files directly in a split's ``input/`` and
+    ``target/`` (``lq``/``gt``, ``data``/``gt``): --out may not be one of
+    those. ``--synthetic`` reads every image below a plain folder: --out may
+    not lie inside it; below a dataset or a folder of ``target``/``gt``/
+    ``clean`` folders, only those folders' own images: --out may not be one.
+    Anything else in the data's tree (DS/runs/...) is fine.
     """
     # here, not at the top: keeps torch and OpenCV out of `lenspair train --help`
     from lenspair.dataset.readers import detect_layout
+    from lenspair.simulate.presets import CLEAN_FOLDER_NAMES, find_clean_images
 
     why = "its samples.png would be read as an image next time"
     if args.synthetic is not None:
-        sources = [args.synthetic]
-    elif detect_layout(args.dataset) is not None:
-        sources = [args.dataset]
+        images = find_clean_images(args.synthetic)
+        if all(p.parent.name.lower() not in CLEAN_FOLDER_NAMES for p in images):
+            problem = inside_refusal(args.out, args.synthetic, "the images read from", why)
+            if problem is not None:
+                raise ConfigError(problem)
+            return
+        folders = sorted({p.parent for p in images})
     else:
-        sources = [args.dataset / train_split, args.dataset / val_split]
-    for source in sources:
-        if (problem := inside_refusal(args.out, source, "the images read from", why)) is not None:
-            raise ConfigError(problem)
+        splits = [args.dataset]
+        if detect_layout(args.dataset) is None:
+            splits = [args.dataset / train_split, args.dataset / val_split]
+        folders = [split / name for split in splits for name in PAIRED_FOLDERS]
+    out = args.out.resolve()
+    for folder in folders:
+        if folder.is_dir() and out == folder.resolve():
+            raise ConfigError(
+                f"--out {args.out}: a folder of the images read ({folder}); {why}, so choose "
+                "another"
+            )
 
 
 def run(args: argparse.Namespace) -> int:

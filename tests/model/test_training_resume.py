@@ -247,17 +247,29 @@ def test_a_damaged_metrics_csv_is_one_line_on_resume(
     assert f"{run / 'metrics.csv'}: " in error and "move" in error and "\n" not in error
 
 
-def test_an_out_inside_the_images_trained_on_is_refused(
+def test_an_out_whose_samples_would_be_read_as_images_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from lenspair.cli import main
 
     dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1})
-    for out in (dataset / "train" / "input" / "run", dataset / "val"):
+    # the next run on this dataset failed: "1 unpaired file(s): input/samples.png"
+    for out in (dataset / "train" / "input", dataset / "val" / "target"):
         assert main(["train", str(dataset), "--out", str(out), "--max-steps", "1"]) == 2
         error = capsys.readouterr().err
-        assert f"--out {out}: inside the images read from" in error, error
+        assert f"--out {out}: a folder of the images read" in error, error
         assert not (out / "config.yaml").exists()
-    synthetic = ["train", "--synthetic", str(dataset / "train" / "target")]
-    assert main([*synthetic, "--out", str(dataset / "train" / "target" / "r")]) == 2
+    photos = tmp_path / "photos"  # a plain folder: every image below it is a clean image
+    photos.mkdir()
+    (dataset / "train" / "target" / "000.png").rename(photos / "a.png")
+    synthetic = ["train", "--synthetic", str(photos), "--out", str(photos / "runs" / "r")]
+    assert main(synthetic) == 2
     assert "inside the images read from" in capsys.readouterr().err
+    # elsewhere in the data's tree nothing is read: a run in DS/runs trains
+    other = write_split_dataset(tmp_path / "other", {"train": 4, "val": 1})
+    from lenspair.core.config import dump_yaml
+
+    config = tmp_path / "tiny.yaml"
+    config.write_text(dump_yaml(tiny_config(max_steps=1)))
+    run = other / "runs" / "r"
+    assert main(["train", str(other), "--out", str(run), "--config", str(config)]) == 0
