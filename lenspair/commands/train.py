@@ -231,14 +231,20 @@ def run(args: argparse.Namespace) -> int:
         if not (args.out / "config.yaml").is_file():
             raise ConfigError(f"--resume: {args.out} holds no run to resume")
         # Killed before its first checkpoint was complete (or last.pt removed):
-        # resuming means starting this run over, and its partial results go,
-        # but only once the data, config and options have been checked.
-        stale = [args.out / "checkpoints" / "best.pt", args.out / "metrics.csv"]
-        stale = [path for path in stale if path.exists()]
+        # resuming means starting this run over (fit replaces its partial
+        # results once every check has passed), from where it started.
+        stored = load_run_config(args.out / "config.yaml").runtime
+        if stored is not None and stored.init is not None:
+            if not Path(stored.init).is_file():
+                raise ConfigError(
+                    f"--resume: {args.out} starts over (it has no last.pt) from --init "
+                    f"{stored.init}, which is gone; start it anew with another --init"
+                )
+            args.init = Path(stored.init)
         args.config = args.config or args.out / "config.yaml"
         args.resume, restart = False, True
     else:
-        stale, restart = [], False
+        restart = False
     if args.resume:
         base = load_run_config(args.config) if args.config else resume_config(args.out, None)
         config = resume_config(args.out, _overrides(base, args))
@@ -258,14 +264,6 @@ def run(args: argparse.Namespace) -> int:
 
         assert config.model.channels is not None
         init = resolve_init(init, config.model.channels)
-    if restart:
-        log.warning(
-            "%s has no last.pt to resume from; starting the run again from step 0%s",
-            args.out,
-            f" (replacing its {', '.join(p.name for p in stale)})" if stale else "",
-        )
-    for path in stale:
-        path.unlink()
     summary = fit(
         config,
         data.train,
@@ -277,16 +275,22 @@ def run(args: argparse.Namespace) -> int:
         init=init,
         resume=args.resume,
         data_path=args.synthetic if args.synthetic is not None else args.dataset,
+        restart=restart,
     )
     if not distributed_from_env().is_main:
         return 0  # under torchrun only rank 0 reports (the others hold no best PSNR)
+    best = summary.run / "checkpoints" / "best.pt"
+    validated = summary.best_epoch > 0 and best.is_file()
     print(
         f"{summary.run}: {summary.stop_reason}; {summary.epochs} epochs, {summary.steps} steps, "
-        f"best validation PSNR {summary.best_psnr:.2f} dB (epoch {summary.best_epoch}); "
-        f"perceptual loss {summary.perceptual}"
+        + (
+            f"best validation PSNR {summary.best_psnr:.2f} dB (epoch {summary.best_epoch}); "
+            if validated
+            else ""
+        )
+        + f"perceptual loss {summary.perceptual}"
     )
-    best = summary.run / "checkpoints" / "best.pt"
-    if best.is_file():
+    if validated:
         print(f"best checkpoint: {best}")
     else:  # resumed without its best.pt and stopped before validating again
         print(f"no best checkpoint: {best} went missing; resume with a larger budget to write it")

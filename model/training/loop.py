@@ -197,6 +197,7 @@ def fit(
     init: Path | None = None,
     resume: bool = False,
     data_path: Path | None = None,
+    restart: bool = False,
 ) -> TrainSummary:
     """Train into the run folder ``run`` (see the module docstring).
 
@@ -212,6 +213,9 @@ def fit(
         resume: continue from ``run/checkpoints/last.pt``.
         data_path: the dataset or clean-image folder (recorded resolved; a
             resume on other data is said and recorded, :func:`_with_history`).
+        restart: start ``run`` over (``--resume`` of a run killed before its
+            first ``last.pt``): its partial ``best.pt`` and ``metrics.csv`` are
+            replaced, once every check before training has passed.
 
     Returns:
         A :class:`TrainSummary`.
@@ -235,6 +239,8 @@ def fit(
     if checkpoint is not None:
         check_resume_mode(checkpoint, paths.last, synthetic)
     held = [p.name for p in (paths.last, paths.best, paths.metrics) if p.exists()]
+    stale = [paths.best, paths.metrics] if restart and not paths.last.exists() else []
+    held = [name for name in held if name not in {p.name for p in stale}]
     if checkpoint is None and held:  # best.pt without last.pt is still another run's result
         raise ModelError(
             f"{paths.root} already holds a run ({', '.join(held)}); pass --resume to continue "
@@ -246,6 +252,15 @@ def fit(
             torch.use_deterministic_algorithms(True, warn_only=True)
             torch.backends.cudnn.benchmark = False
         trainer = Trainer(config, device, info)
+        if info.is_main and stale:  # every check passed (data, config, precision, batch)
+            replaced = [p for p in stale if p.exists()]
+            log.warning(
+                "%s has no last.pt to resume from; starting the run again from step 0%s",
+                paths.root,
+                f" (replacing its {', '.join(p.name for p in replaced)})" if replaced else "",
+            )
+            for path in replaced:
+                path.unlink()
         config = dataclasses.replace(
             config,
             runtime=RuntimeInfo(

@@ -187,6 +187,32 @@ def test_a_refused_restart_keeps_the_runs_best_pt_and_metrics(
     assert code == 2 and "no_such_ds" in capsys.readouterr().err
     # they were deleted before the dataset was even looked at
     assert {p: p.read_bytes() for p in kept} == kept
+    dataset = tmp_path / "ds"  # refused when the trainer is built: fp16 needs CUDA
+    assert main(["train", str(dataset), "--out", str(run), "--resume", "--precision", "fp16"]) == 2
+    assert "fp16" in capsys.readouterr().err
+    assert {p: p.read_bytes() for p in kept} == kept
+
+
+def test_a_restart_of_a_fine_tuning_starts_again_from_its_init(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    import yaml
+
+    from lenspair.cli import main
+
+    dataset, first, argv = _cli_run(tmp_path)
+    init = first / "checkpoints" / "best.pt"
+    run = tmp_path / "fine"
+    fine = [*argv[:3], str(run), *argv[4:], "--max-steps", "2"]
+    assert main([*fine, "--init", str(init)]) == 0
+    straight = load_checkpoint(run / "checkpoints" / "best.pt")["model"]
+    (run / "checkpoints" / "last.pt").unlink()  # as a kill before its first checkpoint
+    assert main(["train", str(dataset), "--out", str(run), "--resume"]) == 0
+    assert any("starting the run again from step 0" in m for m in caplog.messages)
+    # it restarted from random weights, and config.yaml said runtime.init: null
+    assert yaml.safe_load((run / "config.yaml").read_text())["runtime"]["init"] == str(init)
+    again = load_checkpoint(run / "checkpoints" / "best.pt")["model"]
+    assert all(torch.equal(straight[key], again[key]) for key in straight)
 
 
 def test_resuming_keeps_the_init_refuses_other_kinds_of_data_and_records_other_data(
