@@ -225,9 +225,10 @@ class _UniqueKeyLoader(yaml.SafeLoader):
     Plain ``safe_load`` keeps the last value: ``{raindrops: {count: 5},
     raindrops: {count: 0}}`` would render no drops without a word.
 
-    It also reads ``1e-4`` and ``4e-3`` as numbers, as YAML 1.2 and every
-    other YAML reader do: PyYAML follows YAML 1.1, where a float needs a dot
-    (``1.0e-4``), so ``lr: 1e-4`` was the string ``'1e-4'`` and refused.
+    It also reads ``1e-4``, ``4e-3`` and ``3.6e3`` as numbers, as YAML 1.2
+    and every other YAML reader do: PyYAML follows YAML 1.1, where a float
+    needs a dot and a signed exponent (``1.0e-4``, ``3.6e+3``), so ``lr: 1e-4``
+    was the string ``'1e-4'`` and refused.
     """
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
@@ -242,11 +243,12 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-# YAML 1.2's exponent floats without a dot; PyYAML's own float resolver takes the rest
+# YAML 1.2's exponent floats PyYAML (YAML 1.1: a dot and a signed exponent) reads as
+# strings: 1e-4, 3.6e3, 1.e3, .5e3; its own float resolver takes the rest
 _UniqueKeyLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?[0-9][0-9_]*[eE][-+]?[0-9]+$"),
-    list("-+0123456789"),
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
 )
 
 

@@ -80,7 +80,11 @@ def test_a_key_given_twice_is_refused_not_overwritten(tmp_path: Path) -> None:
         read_yaml(spec)
 
 
-@pytest.mark.parametrize(("text", "lr"), [("1e-4", 1e-4), ("4E-3", 4e-3), ("-2e+1", -20.0)])
+@pytest.mark.parametrize(
+    ("text", "lr"),
+    [("1e-4", 1e-4), ("4E-3", 4e-3), ("-2e+1", -20.0), ("3.6e3", 3600.0), ("1.e3", 1000.0),
+     (".5e3", 500.0), ("1.5", 1.5), ("12", 12)],
+)  # fmt: skip
 def test_an_exponent_without_a_dot_is_a_number_as_in_yaml_1_2(
     tmp_path: Path, text: str, lr: float
 ) -> None:
@@ -91,6 +95,6 @@ def test_an_exponent_without_a_dot_is_a_number_as_in_yaml_1_2(
     file.write_text("epochs: 1e3\n")  # a float where an int goes is still refused
     with pytest.raises(ConfigError, match=r"epochs: expected int, got 1000\.0"):
         load_yaml(Outer, file)
-    file.write_text("mode: 1e\n")  # not a number: stays a string
+    file.write_text("mode: 1e\n")  # not a number: stays a string (so do 1:2e3, e5)
     with pytest.raises(ConfigError, match=r"mode: expected one of 'a', 'b', got '1e'"):
         load_yaml(Outer, file)
