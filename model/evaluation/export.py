@@ -16,6 +16,7 @@ it could not be checked. torch's new ``dynamo`` exporter needs
 """
 
 import contextlib
+import errno
 import functools
 import importlib.util
 import io
@@ -202,15 +203,19 @@ def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) 
             )
 
 
+_DISK_REFUSALS = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS, errno.EIO})
+"""A file system refusing the write: the other exporter would fail the same."""
+
+
 def _file_system_error(exc: BaseException) -> OSError | None:
-    """The ``OSError`` with an ``errno`` in ``exc`` or in what caused it, else None.
+    """The disk's refusal (:data:`_DISK_REFUSALS`) in ``exc`` or in what led to it, else None.
 
     The dynamo exporter wraps the error its file write raised.
     """
     seen: set[int] = set()
     current: BaseException | None = exc
     while current is not None and id(current) not in seen:
-        if isinstance(current, OSError) and current.errno is not None:
+        if isinstance(current, OSError) and current.errno in _DISK_REFUSALS:
             return current
         seen.add(id(current))
         current = current.__cause__ or current.__context__
