@@ -99,7 +99,7 @@ log = logging.getLogger(__name__)
 
 REGISTRATION_FILE = "registration.json"
 SIDE_CHECK_FRAMES = 8
-BIT_DEPTH_FRAMES = 8  # frame pairs read to tell the bits 16-bit frames use
+BIT_DEPTH_FRAMES = 32  # frame pairs read to tell the bits 16-bit frames use (~0.3 s)
 MAX_LOGGED_PROBLEMS = 10
 MIN_INLIER_SHARE = 0.5
 """Below this share of feature matches agreeing with the homography, registration is doubted.
@@ -171,10 +171,11 @@ def _side_check_images(
 
 
 def _recording_bits(recording: Recording, pairs: list[tuple[FrameRef, FrameRef]]) -> int:
-    """:func:`significant_bits` of up to 8 frame pairs spread over the recording.
+    """:func:`significant_bits` of up to 32 frame pairs spread over the recording.
 
     Unreadable frames are passed over (the frame stage reports them); a
-    recording that uses fewer than 16 bits is said in the log.
+    recording that uses fewer than 16 bits is said in the log. A frame the
+    sample missed that holds more is rejected with that reason, not clipped.
     """
     images = []
     for index in _sample(len(pairs), BIT_DEPTH_FRAMES):

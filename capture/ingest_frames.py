@@ -187,9 +187,17 @@ def _load_pair(
         (clean, context.clean, "clean"),
     ):
         try:
-            image = widen(load_frame(frame), context.bits)
+            image = load_frame(frame)
         except LenspairError as exc:
             return f"cannot read {role} frame: {exc}"
+        top = (1 << context.bits) - 1
+        if context.bits < 16 and image.dtype == np.uint16 and int(image.max()) > top:
+            # the frames sampled said otherwise: scaling this one would clip it
+            return (
+                f"values above the recording's {context.bits} bits ({int(image.max())} > {top} "
+                f"in {frame.describe()})"
+            )
+        image = widen(image, context.bits)
         problem = _size_problem(image, frame, context.raw_size(camera))
         if problem is not None:
             return problem

@@ -8,7 +8,11 @@ depth from the values, :func:`widen` scales to the full 16-bit range and
 :func:`narrow` back (``narrow(widen(v)) == v`` for every value of the depth).
 """
 
+import logging
+
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 LOW_BIT_DEPTHS = (10, 12)
 """Depths of machine-vision cameras whose drivers publish 16-bit words with the value in
@@ -56,3 +60,46 @@ def narrow(image: np.ndarray, bits: int) -> np.ndarray:
     top = (1 << bits) - 1
     values = np.rint(image.astype(np.float64) * (top / 65535.0))
     return np.asarray(np.clip(values, 0, top), dtype=np.uint16)
+
+
+class RunningDepth:
+    """The bits an input's 16-bit frames use, told from the frames seen so far.
+
+    ``restore`` and ``detect`` take frames one by one and cannot sample ahead
+    as ``capture-ingest`` does: the depth is the least of 10, 12 and 16 that
+    holds every frame seen so far. It only ever rises, so a dim frame of a
+    12-bit camera never switches the gain back and forth. Logged (a warning
+    naming ``source``) when it is first below 16 and when it rises from there.
+    """
+
+    def __init__(self, source: str) -> None:
+        """Nothing seen yet: :attr:`bits` is 16 until a frame says otherwise."""
+        self.source = source
+        self._bits = 0
+
+    @property
+    def bits(self) -> int:
+        """The depth to :func:`widen` and :func:`narrow` with (16: frames as they are)."""
+        return self._bits or 16
+
+    def see(self, image: np.ndarray) -> None:
+        """Take one more frame into account."""
+        bits = significant_bits([image])
+        if bits <= self._bits:
+            return
+        if bits < 16:
+            log.warning(
+                "%s: its 16-bit frames hold %d-bit values (none above %d so far): taken on "
+                "the full 16-bit scale",
+                self.source,
+                bits,
+                (1 << bits) - 1,
+            )
+        elif self._bits:
+            log.warning(
+                "%s: a frame holds values above %d: 16-bit frames are taken as they are from "
+                "here on",
+                self.source,
+                (1 << self._bits) - 1,
+            )
+        self._bits = bits

@@ -37,7 +37,6 @@ import cv2
 import numpy as np
 
 from lenspair.capture.recording import open_recording, resolve_obstructed
-from lenspair.core.bitdepth import significant_bits, widen
 from lenspair.core.imageio import read_image
 from lenspair.dataset.manifest import read_manifest
 from lenspair.model.detection.labels import (
@@ -99,12 +98,8 @@ def resize_to(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 
 
 def prepare(image: np.ndarray, spec: DetectorSpec) -> np.ndarray:
-    """Any ``uint8``/``uint16`` image -> luma ``float32`` at ``spec.input_size``.
-
-    A 16-bit frame of 10- or 12-bit values (:mod:`lenspair.core.bitdepth`) is
-    judged on the full scale: read as 16-bit data it was a blank frame.
-    """
-    return resize_to(to_luma(widen(image, significant_bits([image]))), spec.input_size)
+    """Any ``uint8``/``uint16`` image -> luma ``float32`` at ``spec.input_size``."""
+    return resize_to(to_luma(image), spec.input_size)
 
 
 def _mask_at(mask: np.ndarray, spec: DetectorSpec) -> np.ndarray:

@@ -26,7 +26,7 @@ import numpy as np
 
 from lenspair.capture.frames import InputFrame
 from lenspair.capture.recording_types import FrameProblem
-from lenspair.core.bitdepth import significant_bits, widen
+from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.core.contact_sheet import make_contact_sheet, to_display
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.core.imageio import write_image
@@ -127,7 +127,7 @@ class SpreadSample(Generic[T]):
 
 def _sheet_cell(image: np.ndarray, tile_map: np.ndarray, width: int = 480) -> np.ndarray:
     """The overlay, shrunk to at most ``width`` pixels wide (the sheet shows less)."""
-    cell = overlay(widen(image, significant_bits([image])), tile_map)  # as the detector saw it
+    cell = overlay(image, tile_map)
     if cell.shape[1] <= width:
         return cell
     height = max(1, round(cell.shape[0] * width / cell.shape[1]))
@@ -188,11 +188,13 @@ def detect_frames(
     verdicts: list[FrameVerdict] = []
     candidates: SpreadSample[tuple[np.ndarray, str]] = SpreadSample(sheet_frames)
     batch: list[InputFrame] = []
+    depth = RunningDepth("the input")
 
     def flush() -> None:
         if not batch:
             return
-        images = [frame.image for frame in batch if frame.image is not None]
+        # 16-bit frames of 10- or 12-bit values are judged (and shown) on the full scale
+        images = [widen(frame.image, depth.bits) for frame in batch if frame.image is not None]
         result = judge(network, images, batch_size, threshold)
         rows = _verdicts(batch, result)
         for position, (frame, row) in enumerate(zip(batch, rows, strict=True)):
@@ -213,6 +215,7 @@ def detect_frames(
             )
             verdicts.append(failed)
             continue
+        depth.see(frame.image)
         batch.append(frame)
         if len(batch) == batch_size:
             flush()

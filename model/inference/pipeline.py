@@ -49,7 +49,7 @@ from lenspair.capture.frames import (
 )
 from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
-from lenspair.core.bitdepth import narrow, significant_bits, widen
+from lenspair.core.bitdepth import RunningDepth, narrow, widen
 from lenspair.core.fsutil import atomic_write_json, inside_refusal, read_json_field, sha256_file
 from lenspair.core.leftovers import remove_leftovers_under
 from lenspair.model.errors import ModelError
@@ -403,14 +403,14 @@ def _run(
         done = [writer.sink.done(frame) for frame in batch]
         if batch and not all(done):  # the whole batch: same batches as an uninterrupted run
             images = [frame.image for frame in batch if frame.image is not None]
-            # a 16-bit frame of 10- or 12-bit values is restored on the full scale, then
-            # written back in its camera's words (lenspair.core.bitdepth)
-            bits = [significant_bits([image]) for image in images]
-            wide = [widen(image, depth) for image, depth in zip(images, bits, strict=True)]
+            # 16-bit frames of 10- or 12-bit values are restored on the full scale, then
+            # written back in the camera's words (lenspair.core.bitdepth)
+            bits = depth.bits
+            wide = [widen(image, bits) for image in images]
             restored = run_backend(backend, to_batch(wide), options.tile, options.overlap)
             first = images[0]
             back = from_batch(restored, first.dtype, first.ndim == 2)
-            outputs = [narrow(image, depth) for image, depth in zip(back, bits, strict=True)]
+            outputs = [narrow(image, bits) for image in back]
         for item, frame, slot in pending:
             if slot is None:
                 writer.put(item, frame, None)
@@ -426,6 +426,7 @@ def _run(
         batch.clear()
 
     channels_checked = False
+    depth = RunningDepth(writer.report.input)
     for item in items:
         frame: InputFrame | None = item if isinstance(item, InputFrame) else item.frame
         if frame is None:
@@ -453,7 +454,8 @@ def _run(
             pending.append((item, frame, None))
             continue
         channels_checked = True
-        if judge is not None and not judge(frame, image):
+        depth.see(image)  # every readable frame, finished ones too: a resume decides alike
+        if judge is not None and not judge(frame, widen(image, depth.bits)):
             report.skipped += 1
             report.skipped_frames.append(frame.name)
             pending.append((item, frame, None))

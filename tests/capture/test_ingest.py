@@ -382,3 +382,25 @@ def test_widening_keeps_order_black_and_full_scale(values: list[int], bits: int)
         np.testing.assert_array_equal(wide, image)
     every = np.arange(1 << bits, dtype=np.uint16)  # restore writes the camera's words back
     np.testing.assert_array_equal(narrow(widen(every, bits), bits), every)
+
+
+def test_a_frame_the_bit_depth_sample_missed_is_rejected_not_clipped(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from lenspair.capture import ingest
+
+    monkeypatch.setattr(ingest, "BIT_DEPTH_FRAMES", 2)  # pairs 0 and 3 of 4 are sampled
+    low = make_recording(tmp_path / "low", frames=4, dtype=np.uint16)
+    for camera in ("cam0", "cam1"):
+        for path in frame_files(low, camera):
+            write_image(path, read_image(path) >> 4)
+    bright = frame_files(low, "cam1")[1]  # one 16-bit value the sample does not see
+    image = read_image(bright)
+    image[0, 0] = 60000
+    write_image(bright, image)
+    _, records, report = _ingest(low, tmp_path / "out")
+    assert report.significant_bits == 12
+    assert [r.status for r in records] == ["kept", "rejected", "kept", "kept"]
+    assert records[1].reason is not None
+    assert records[1].reason.startswith("values above the recording's 12 bits (60000 > 4095 in ")
+    assert report.rejection_reasons == {"values above the recording's 12 bits": 1}

@@ -81,7 +81,7 @@ def test_folder_keeps_tree_names_depth(tmp_path: Path, backend: TorchBackend, dt
 
 @pytest.mark.parametrize("bits", [10, 12])
 def test_16_bit_frames_of_fewer_bits_are_restored_on_the_full_scale_and_written_back(
-    tmp_path: Path, backend: TorchBackend, bits: int
+    tmp_path: Path, backend: TorchBackend, bits: int, caplog: pytest.LogCaptureFixture
 ) -> None:
     # mono16 words of a Mono10/Mono12 camera: the network saw an all but black
     # frame; now it sees the full-range one, and the output is in the camera's words
@@ -89,15 +89,22 @@ def test_16_bit_frames_of_fewer_bits_are_restored_on_the_full_scale_and_written_
 
     full = (texture((32, 48), seed=3) * 65535).astype(np.uint16)
     low = narrow(full, bits)
-    write_image(tmp_path / "in" / "full.png", full)
-    write_image(tmp_path / "in" / "low.png", low)  # batched with the full-range one
-    restore_input(tmp_path / "in", tmp_path / "out", backend, RestoreOptions(batch_size=2))
-    restored = read_image(tmp_path / "out" / "low.png")
-    assert restored.dtype == np.uint16 and int(restored.max()) < 1 << bits
-    reference = narrow(expected(backend, widen(low, bits)), bits).astype(np.int64)
-    assert np.abs(restored.astype(np.int64) - reference).max() <= 1
-    beside = read_image(tmp_path / "out" / "full.png").astype(np.int64)  # batch 2 vs 1: 1 LSB
-    assert np.abs(beside - expected(backend, full).astype(np.int64)).max() <= 1
+    dim = low // 8  # then a dim frame: its own values fit 2 bits fewer
+    write_image(tmp_path / "in" / "a.png", low)
+    write_image(tmp_path / "in" / "b.png", dim)
+    restore_input(tmp_path / "in", tmp_path / "out", backend, RestoreOptions(batch_size=1))
+    assert any(f"16-bit frames hold {bits}-bit values" in m for m in caplog.messages)
+    for name, image in (("a.png", low), ("b.png", dim)):
+        restored = read_image(tmp_path / "out" / name)
+        assert restored.dtype == np.uint16 and int(restored.max()) < 1 << bits
+        # the dim frame too at the input's depth: the same gain, not one of its own
+        reference = narrow(expected(backend, widen(image, bits)), bits).astype(np.int64)
+        assert np.abs(restored.astype(np.int64) - reference).max() <= 1, name
+    # a full-range frame first: the input is 16-bit, and a later dim frame stays as it is
+    write_image(tmp_path / "mixed" / "a.png", full)
+    write_image(tmp_path / "mixed" / "b.png", low)
+    restore_input(tmp_path / "mixed", tmp_path / "out2", backend, RestoreOptions(batch_size=1))
+    np.testing.assert_array_equal(read_image(tmp_path / "out2" / "b.png"), expected(backend, low))
 
 
 def test_a_folders_other_files_are_copied_with_it(tmp_path: Path, backend: TorchBackend) -> None:
