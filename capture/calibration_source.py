@@ -52,8 +52,10 @@ def find_calibration(
         if not paths and all(p is not None and is_euroc_sensor_file(p) for p in sensors):
             paths = [p for p in sensors if p is not None]  # a EuRoC recording's own
         if not paths:
+            found = [p for p in sensors if p is not None]
+            note = f" ({len(found)} sensor.yaml without intrinsics and T_BS)" if found else ""
             raise CaptureError(
-                f"{recording.path}: no calibration: pass --calib FILE, set 'calibration:' in "
-                f"rig.yaml, or put {CAMCHAIN_FILE} (Kalibr) beside the recording"
+                f"{recording.path}: no calibration{note}: pass --calib FILE, set 'calibration:' "
+                f"in rig.yaml, or put {CAMCHAIN_FILE} (Kalibr) beside the recording"
             )
     return load_calibration(paths)
