@@ -8,7 +8,8 @@ folder with the same storage (``sqlite3`` for ``.db3``, ``mcap`` for
 definition, md5/type hash, caller id, latching and QoS profiles, and every
 message keeps its log time; messages that are not replaced are copied byte for
 byte. A replaced image keeps its header (stamp, frame id), size and encoding:
-only the pixel payload changes (:func:`encode_image`). With a ``suffix``, the
+only the pixel payload changes (:func:`encode_image`; a Bayer frame, restored
+in RGB, is sampled back into its mosaic). With a ``suffix``, the
 restored image goes to ``<topic><suffix>`` and the original stays on
 ``<topic>``.
 
@@ -30,7 +31,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage
-from lenspair.capture.rosbag import COMPRESSED_IMAGE
+from lenspair.capture.rosbag import COMPRESSED_IMAGE, bayer_pattern
 
 _CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
 
@@ -146,6 +147,20 @@ class BagCopy:
             self.writer.write(original, item.log_time_ns, data)
 
 
+def mosaic(image: np.ndarray, pattern: str) -> np.ndarray:
+    """An RGB image sampled into the Bayer ``pattern`` (``rggb``...): one channel a pixel.
+
+    What a restored frame of a Bayer camera is written back as: each pixel
+    keeps the colour its site of the mosaic records.
+    """
+    channel = {"r": 0, "g": 1, "b": 2}
+    out = np.empty(image.shape[:2], dtype=image.dtype)
+    for index, colour in enumerate(pattern):
+        row, col = divmod(index, 2)
+        out[row::2, col::2] = image[row::2, col::2, channel[colour]]
+    return out
+
+
 def encode_image(msgtype: str, message: Any, image: np.ndarray) -> Any:
     """A copy of an image message with ``image`` as its pixels; header and encoding kept.
 
@@ -167,6 +182,8 @@ def encode_image(msgtype: str, message: Any, image: np.ndarray) -> Any:
             raise CaptureError(f"cannot encode a {image.dtype} image as {extension}")
         return replace(message, data=np.asarray(encoded, dtype=np.uint8).reshape(-1))
     encoding = str(message.encoding).lower()
+    if image.ndim == 3 and (bayer := bayer_pattern(encoding)) is not None:
+        image = mosaic(image, bayer[0])  # back into the camera's own mosaic
     if image.ndim == 3:
         order = _CHANNEL_ORDER.get(encoding[:3])
         if order is None or encoding not in ("rgb8", "bgr8", "rgb16", "bgr16"):

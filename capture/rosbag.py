@@ -3,7 +3,8 @@
 Accepted: a ROS1 ``.bag`` file, a ROS2 bag folder (``metadata.yaml`` with
 ``.db3`` or ``.mcap`` storage) or a bare ``.db3``/``.mcap`` file. Messages of
 type ``sensor_msgs/msg/Image`` (encodings ``mono8``/``8UC1``, ``mono16``/
-``16UC1``, ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``, ``rgb16``, ``bgr16``;
+``16UC1``, ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``, ``rgb16``, ``bgr16``, and the
+Bayer mosaics ``bayer_rggb8`` ... ``bayer_grbg16``, demosaiced by OpenCV;
 ``step`` row padding and ``is_bigendian`` respected; colour returned as RGB)
 and ``sensor_msgs/msg/CompressedImage`` (JPEG/PNG, decoded with OpenCV) are
 read. A frame's timestamp is ``header.stamp``; the bag's receive (log) time
@@ -67,6 +68,30 @@ _ENCODINGS: dict[str, tuple[type[np.unsignedinteger[Any]], int, tuple[int, ...] 
     "rgb16": (np.uint16, 3, (0, 1, 2)),
     "bgr16": (np.uint16, 3, (2, 1, 0)),
 }
+
+
+BAYER_PATTERNS = ("rggb", "bggr", "gbrg", "grbg")
+"""ROS Bayer encodings ``bayer_<pattern>8`` / ``bayer_<pattern>16``: the colours of the
+top-left 2x2 cell, row by row."""
+
+# OpenCV names a Bayer pattern by the second row's second and third pixels, so ROS's
+# rggb is OpenCV's BG (the mapping cv_bridge uses)
+_DEMOSAIC = {
+    "rggb": cv2.COLOR_BayerBG2RGB,
+    "bggr": cv2.COLOR_BayerRG2RGB,
+    "gbrg": cv2.COLOR_BayerGR2RGB,
+    "grbg": cv2.COLOR_BayerGB2RGB,
+}
+
+
+def bayer_pattern(encoding: str) -> tuple[str, type[np.unsignedinteger[Any]]] | None:
+    """``(pattern, dtype)`` of a ROS Bayer encoding (``bayer_rggb8``), else None."""
+    key = encoding.lower()
+    for pattern in BAYER_PATTERNS:
+        for bits, dtype in (("8", np.uint8), ("16", np.uint16)):
+            if key == f"bayer_{pattern}{bits}":
+                return pattern, dtype
+    return None
 
 
 def is_bag(path: Path) -> bool:
@@ -235,8 +260,15 @@ def decode_raw(
             payload shorter than ``step * (height - 1) + row bytes``.
     """
     key = encoding.lower()
+    bayer = bayer_pattern(key)
+    if bayer is not None:  # the raw mosaic, demosaiced to RGB (OpenCV, bilinear)
+        mosaic = decode_raw(
+            height, width, "mono16" if bayer[1] == np.uint16 else "mono8", is_bigendian, step,
+            data, where,
+        )  # fmt: skip
+        return np.ascontiguousarray(cv2.cvtColor(mosaic, _DEMOSAIC[bayer[0]]))
     if key not in _ENCODINGS:
-        supported = ", ".join(sorted(_ENCODINGS))
+        supported = ", ".join([*sorted(_ENCODINGS), "bayer_<rggb|bggr|gbrg|grbg><8|16>"])
         raise CaptureError(f"{where}: unsupported encoding {encoding!r}; supported: {supported}")
     dtype, channels, order = _ENCODINGS[key]
     itemsize = np.dtype(dtype).itemsize

@@ -202,14 +202,14 @@ def test_corrupt_messages_fail_on_load_only(tmp_path: Path) -> None:
     short = _raw_fields(_image(1), "mono8")
     short["data"] = short["data"][:-10]
     messages = [
-        ("/cam0/image_raw", IMAGE, T0, _raw_fields(_image(0), "bayer_rggb8")),
+        ("/cam0/image_raw", IMAGE, T0, _raw_fields(_image(0), "yuv422")),
         ("/cam1/image_raw", IMAGE, T0, short),
     ]
     recording = open_recording(_write_bag(tmp_path / "run", "ros1", messages))
     with pytest.raises(
         CaptureError,
         match=r"run.bag /cam0/image_raw @ t_ns=\d+ \(logged \d+\): unsupported encoding "
-        r"'bayer_rggb8'",
+        r"'yuv422'; supported: .*bayer_<rggb\|bggr\|gbrg\|grbg><8\|16>",
     ):
         recording.load(recording.frames["cam0"][0])
     with pytest.raises(
@@ -307,3 +307,42 @@ def test_header_stamps_never_set_are_replaced_by_the_log_time(tmp_path: Path, ki
         for i, frame in enumerate(recording.frames[camera]):  # type: ignore[index]
             expected = _image(10 * int(camera[-1]) + i)
             np.testing.assert_array_equal(recording.load(frame), expected)
+
+
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_bayer_frames_are_demosaiced_to_rgb_and_written_back_as_their_mosaic(
+    tmp_path: Path, pattern: str, dtype: type
+) -> None:
+    # bayer_rggb8 and kin (raw frames of most colour machine-vision cameras) were
+    # "unsupported encoding"
+    from lenspair.capture.bagwrite import encode_image, mosaic
+    from lenspair.capture.rosbag import decode_message
+
+    top = np.iinfo(dtype).max
+    colours = np.array([[0.9, 0.2, 0.1], [0.1, 0.8, 0.3], [0.2, 0.3, 0.9]]) * top
+    rgb = np.zeros((24, 36, 3), dtype)
+    for index, colour in enumerate(colours):  # three flat blocks: red, green, blue
+        rgb[:, 12 * index : 12 * (index + 1)] = colour.astype(dtype)
+    raw = mosaic(rgb, pattern)
+    encoding = f"bayer_{pattern}{8 if dtype == np.uint8 else 16}"
+    messages = [
+        (f"/cam{c}/image_raw", IMAGE, T0, _raw_fields(raw, encoding, big=dtype == np.uint16))
+        for c in (0, 1)
+    ]
+    recording = open_recording(_write_bag(tmp_path / "run", "ros1", messages))
+    decoded = recording.load(recording.frames["cam0"][0])
+    assert decoded.shape == (24, 36, 3) and decoded.dtype == dtype
+    for index, colour in enumerate(colours):  # block centres: the block's own colour
+        centre = decoded[8:16, 12 * index + 4 : 12 * index + 8].reshape(-1, 3).astype(float)
+        np.testing.assert_allclose(centre.mean(axis=0), colour.astype(dtype), atol=0.01 * top)
+    # restore writes a frame back in its mosaic: each site keeps its own colour's value
+    store = get_typestore(Stores.ROS1_NOETIC)
+    fields = _raw_fields(raw, encoding)
+    header = store.types["std_msgs/msg/Header"](
+        seq=0, stamp=store.types["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="c"
+    )
+    message = store.types[IMAGE](header=header, **fields)
+    back = decode_message(IMAGE, encode_image(IMAGE, message, decoded), "x")
+    # (OpenCV's demosaicing keeps each site's own value but on the frame's outer rows)
+    np.testing.assert_array_equal(mosaic(back, pattern)[1:-1, 1:-1], raw[1:-1, 1:-1])
