@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from lenspair.core.config import MAX_SEED, load_dataclass, load_yaml
+from lenspair.core.config import MAX_SEED, load_dataclass, read_yaml
+from lenspair.core.errors import ConfigError
 
 Variant = Literal["G", "GE", "GEA"]
 DropsPreset = Literal["ours", "sharp"]
@@ -309,11 +310,26 @@ def load_run_config(path: Path | None) -> RunConfig:
         ConfigError: unknown key, wrong type or invalid value (dotted path named).
 
     """
-    return RunConfig() if path is None else load_yaml(RunConfig, path)
+    if path is None:
+        return RunConfig()
+    try:
+        return run_config_from_dict(read_yaml(path))
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
 
 
 def run_config_from_dict(data: object) -> RunConfig:
-    """Build a :class:`RunConfig` from plain data (e.g. stored in a checkpoint)."""
+    """Build a :class:`RunConfig` from plain data (e.g. stored in a checkpoint).
+
+    The ``runtime`` section says what a run did and steers nothing: keys that
+    a later lenspair added to it are passed over, so that a checkpoint or
+    ``config.yaml`` written by a newer version still loads (a table of runs
+    trained by a newer lenspair failed to score every one of them). The
+    other sections stay strict: a typo there changes what trains.
+    """
+    if isinstance(data, dict) and isinstance(data.get("runtime"), dict):
+        known = {f.name for f in dataclasses.fields(RuntimeInfo)}
+        data = {**data, "runtime": {k: v for k, v in data["runtime"].items() if k in known}}
     return load_dataclass(RunConfig, data)
 
 

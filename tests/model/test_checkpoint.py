@@ -163,3 +163,26 @@ def test_exported_models_are_named_for_what_they_are(tmp_path: Path) -> None:
         load_checkpoint(tmp_path / "m.onnx")
     with pytest.raises(ModelError, match=r"shipped weights for train --init only"):
         load_checkpoint(Path("pretrained"))
+
+
+def test_a_runtime_key_of_a_newer_version_is_passed_over_but_a_section_typo_is_not(
+    tmp_path: Path,
+) -> None:
+    # runs trained by a newer lenspair (runtime.data_path) failed to load in the
+    # process that scored them: "runtime.data_path: unknown key"
+    from lenspair.core.config import dump_yaml, to_plain
+    from lenspair.core.errors import ConfigError
+    from lenspair.model.training.config import load_run_config, run_config_from_dict
+
+    plain = to_plain(tiny_config())
+    plain["runtime"] = {"precision": "fp32", "added_by_a_later_version": [1, 2]}
+    loaded = run_config_from_dict(plain)
+    assert loaded.runtime is not None and loaded.runtime.precision == "fp32"
+    assert loaded.train == tiny_config().train
+    file = tmp_path / "config.yaml"
+    file.write_text(dump_yaml(plain))
+    assert load_run_config(file) == loaded
+    plain["train"]["learning_rate"] = 1e-3  # a typo where it steers training: refused
+    file.write_text(dump_yaml(plain))
+    with pytest.raises(ConfigError, match=r"config\.yaml: train\.learning_rate: unknown key"):
+        load_run_config(file)
