@@ -55,7 +55,7 @@ results: demo bench
 # Issue 12: the tradeoff over seeds with a convergence check (budget: 6 variants x 3
 # seeds x 400 steps, crop 128, batch 4: hours on 2 CPU cores; 800 steps at crop 256 ran
 # on an H100, docs/results/gpu_h100.md), the paper's Table 2 on simulated pairs (2
-# pretrainings of 1200 steps and 9 fine-tunings of 250: about an hour on 2 CPU cores;
+# pretrainings of 1200 steps and 9 fine-tunings of 800: about an hour on 2 CPU cores;
 # docs/results/table2.md), the weights (1500 optimiser steps per network, batch 8, crop
 # 128; then scored as shipped on the demo's test split). Each prints its table and
 # writes it beside its runs.
@@ -64,7 +64,7 @@ tradeoff-seeds: demo
 
 table2: $(VENV)/.installed
 	$(BIN)/python -m benchmarks.table2 --out table2_out --frames 60 --splits 0.6,0.15,0.25 \
-		--pretrain-steps 1200 --finetune-steps 250 --seeds 0 1 2 --crop-size 128 --batch-size 4 \
+		--pretrain-steps 1200 --finetune-steps 800 --seeds 0 1 2 --crop-size 128 --batch-size 4 \
 		--config benchmarks/table2_cpu.yaml
 
 pretrained: demo

@@ -44,6 +44,7 @@ from lenspair.model.evaluation.seed_statistics import (
 )
 from lenspair.model.training.pairs import open_eval_pairs
 from lenspair.model.training.pretrained import write_natural_images
+from lenspair.model.training.run_files import read_metrics_rows
 
 INITS = ("random", "sharp", "ours")
 
@@ -103,6 +104,12 @@ def _score(checkpoint: Path, dataset: Path, device: str) -> tuple[float, float, 
     ).scores
     out, inp = summarize(scores), summarize(scores, "input")
     return out.psnr_db, out.ssim, inp.psnr_db, inp.ssim
+
+
+def _training_seconds(run: Path) -> float:
+    """Training time of a finished run: its last ``metrics.csv`` row (0 without one)."""
+    rows = read_metrics_rows(run / "metrics.csv")
+    return float(rows[-1]["seconds"]) if rows else 0.0
 
 
 def _device_name(device: str) -> str:
@@ -185,6 +192,9 @@ def main(argv: list[str] | None = None) -> int:
     psnr_summary = {name: summarise_seeds(values) for name, values in psnr.items()}
     ssim_summary = {name: summarise_seeds(values) for name, values in ssim.items()}
     total = time.monotonic() - started
+    # the runs' own training time (metrics.csv), also when a rerun reused them
+    runs = [out / name for name in (*pretrain, *finetune)]
+    trained = sum(_training_seconds(run) for run in runs)
     lines = [
         "| initialisation | PSNR (dB), mean +/- spread | SSIM, mean +/- spread | seeds |",
         "|---|---|---|---|",
@@ -201,7 +211,8 @@ def main(argv: list[str] | None = None) -> int:
             f"pretraining {args.pretrain_steps} steps on bundled natural photographs, then "
             f"fine-tuning {args.finetune_steps} steps per seed; crop {args.crop_size}, batch "
             f"{args.batch_size}, {_device_name(args.device)}, {args.jobs} run(s) side by side; "
-            f"{total / 60:.1f} min wall clock in all.",
+            f"training {trained / 60:.1f} min over the {len(runs)} runs; this invocation "
+            f"{total / 60:.1f} min wall clock.",
             "",
             f"Command: `{command}`",
             "",
@@ -221,6 +232,7 @@ def main(argv: list[str] | None = None) -> int:
         "args": {k: str(v) for k, v in vars(args).items()},
         "seconds": seconds,
         "total_seconds": total,
+        "training_seconds": trained,
     }
     (out / "table2.json").write_text(json.dumps(payload, indent=2) + "\n")
     return 0

@@ -19,3 +19,17 @@ def test_dataset_stages_stop_at_dataset_build_with_the_splits_asked(
     argv = ran[-1].argv
     assert argv[argv.index("--splits") + 1] == (expected or splits)
     assert "segment_frames: 2" in (tmp_path / "demo" / "dataset_config.yaml").read_text()
+
+
+def test_training_time_is_read_from_the_runs_themselves(tmp_path: Path) -> None:
+    # a rerun that scored reused runs said "0.9 min wall clock in all" for an hour of training
+    from lenspair.model.training.run_files import write_metrics_rows
+
+    rows = [
+        {"epoch": "1", "step": "10", "seconds": "12.5"},
+        {"epoch": "2", "step": "20", "seconds": "30.0"},
+    ]
+    (tmp_path / "run").mkdir()
+    write_metrics_rows(tmp_path / "run" / "metrics.csv", rows)  # type: ignore[arg-type]
+    assert table2._training_seconds(tmp_path / "run") == 30.0
+    assert table2._training_seconds(tmp_path / "never_trained") == 0.0
