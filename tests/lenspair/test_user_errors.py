@@ -99,7 +99,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["capture-ingest", "DS", "--out", "OUT", "--workers", "0"], "--workers"),
     (["dataset-build", "DS", "--out", "OUT", "--splits", "1,2"], "--splits"),
     (["dataset-build", "DS", "--out", "OUT", "--workers", "-1"], "--workers"),
-    (["train", "DS", "--out", "OUT", "--batch-size", "0"], "batch_size"),
+    (["train", "DS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
     (["train", "DS", "--out", "OUT", "--device", "tpu"], "--device"),
     (["tradeoff", "DS", "--out", "OUT", "--budget", "abc"], "--budget"),
     (["tradeoff", "DS", "--out", "OUT", "--variants", ","], "--variants"),
