@@ -12,9 +12,10 @@ copied; the chosen camera's images restored), a ROS 1 .bag or a ROS 2 bag
 depth and channels (an image file's alpha channel is written back unchanged
 beside the restored colour; 16-bit frames of 10- or 12-bit values are restored
 on the full scale and written back in the camera's words; a Bayer bag frame is
-demosaiced, restored in colour, and sampled back into its mosaic). The model is a lenspair checkpoint (torch, CPU or
-CUDA) or an ONNX file from `lenspair export` (ONNX Runtime; it was exported
-at a fixed size, so other sizes run on tiles of that size).
+demosaiced, restored in colour, and sampled back into its mosaic). The model
+is a lenspair checkpoint (torch, CPU or CUDA) or an ONNX file from `lenspair
+export` (ONNX Runtime; it was exported at a fixed size, so other sizes run on
+tiles of that size).
 
 Any size works (padded to a multiple of 4 and cropped back, as eval does);
 --tile N runs large images in overlapping N x N tiles blended without seams.
