@@ -534,6 +534,7 @@ def ingest_recording(
         side_check=side_check,
         lenspair_version=__version__,
         significant_bits=bits if bits < 16 else None,
+        recording_problems=[str(p) for p in recording.problems if p.camera is None],
     )
     write_report_if_changed(out_dir / REPORT_FILE, report)
     if not kept:

@@ -84,6 +84,8 @@ class IngestReport:
         lenspair_version: version that wrote it.
         significant_bits: 10 or 12 when the recording's 16-bit frames held
             values of that depth (scaled to 16 bits in the outputs), else None.
+        recording_problems: what was said of the recording as a whole (a bag
+            cut short, header stamps never set): ``counts`` has their number.
     """
 
     recording_id: str
@@ -100,6 +102,7 @@ class IngestReport:
     side_check: dict[str, Any] = field(default_factory=dict)
     lenspair_version: str = ""
     significant_bits: int | None = None
+    recording_problems: list[str] = field(default_factory=list)
 
 
 def write_pairs(path: Path, records: list[PairRecord]) -> None:

@@ -262,6 +262,8 @@ def decode_raw(
     key = encoding.lower()
     bayer = bayer_pattern(key)
     if bayer is not None:  # the raw mosaic, demosaiced to RGB (OpenCV, bilinear)
+        if min(height, width) < 3:  # OpenCV returns black below 3 px
+            raise CaptureError(f"{where}: {width}x{height} Bayer image: too small to demosaic")
         mosaic = decode_raw(
             height, width, "mono16" if bayer[1] == np.uint16 else "mono8", is_bigendian, step,
             data, where,

@@ -47,6 +47,7 @@ Radtan models keep four coefficients (Kalibr's ``k1 k2 p1 p2``); a non-zero
 checked: NaN or Inf is a one-line :class:`RectifyError` naming the file.
 """
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -364,45 +365,79 @@ def _from_ros(paths: list[Path], texts: list[str]) -> tuple[StereoRig, str]:
 
 
 _EUROC_MODELS = {"radial-tangential": "radtan", "equidistant": "equidistant"}
+_EUROC_KEYS = ("intrinsics", "T_BS", "distortion_coefficients", "resolution")
 
 
-def _euroc_sensor(path: Path, text: str) -> dict[str, Any] | None:
-    """The mapping of a EuRoC camera ``sensor.yaml`` (intrinsics and ``T_BS``), else None."""
+def _euroc_sensor(text: str) -> dict[str, Any] | None:
+    """The mapping of a EuRoC camera ``sensor.yaml`` (``sensor_type: camera``), else None."""
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError:
         return None
-    keys = ("intrinsics", "T_BS", "distortion_coefficients", "resolution")
-    if (
-        isinstance(data, dict)
-        and data.get("sensor_type") == "camera"
-        and all(k in data for k in keys)
-    ):
-        return data
-    return None
+    return data if isinstance(data, dict) and data.get("sensor_type") == "camera" else None
 
 
 def is_euroc_sensor_file(path: Path) -> bool:
     """Whether ``path`` is a EuRoC camera ``sensor.yaml`` holding a calibration."""
     try:
-        return _euroc_sensor(path, Path(path).read_text(encoding="utf-8")) is not None
+        data = _euroc_sensor(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError):
         return False
+    return data is not None and all(key in data for key in _EUROC_KEYS)
+
+
+def _rigid(path: Path, matrix: np.ndarray) -> np.ndarray:
+    """``T_BS`` checked to be a rigid transform (rotation, translation, bottom row 0 0 0 1)."""
+    rotation = matrix[:3, :3]
+    rigid = (
+        np.allclose(matrix[3], (0.0, 0.0, 0.0, 1.0), atol=1e-6)
+        and np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4)
+        and np.linalg.det(rotation) > 0
+    )
+    if not rigid:
+        raise RectifyError(
+            f"{path}: T_BS is not a rigid transform (a rotation, a translation and the bottom "
+            "row 0 0 0 1)"
+        )
+    return matrix
+
+
+def _euroc_camera(path: Path, data: dict[str, Any]) -> CameraModel:
+    if missing := [key for key in _EUROC_KEYS if key not in data]:
+        raise RectifyError(f"{path}: missing key {missing[0]!r} (a EuRoC camera sensor.yaml)")
+    model = _EUROC_MODELS.get(str(data.get("distortion_model")), data.get("distortion_model"))
+    coefficients = data["distortion_coefficients"]
+    if model == "radtan" and isinstance(coefficients, list) and len(coefficients) > 4:
+        # k1 k2 p1 p2 [k3]: a zero k3 is dropped as for the other formats, a non-zero one refused
+        if any(_as_float(value) != 0.0 for value in coefficients[4:]):
+            raise RectifyError(
+                f"{path}: distortion_coefficients: a non-zero k3 or higher term; lenspair's "
+                "radtan model has k1 k2 p1 p2"
+            )
+        coefficients = coefficients[:4]
+    kalibr = {
+        "camera_model": data.get("camera_model", "pinhole"),
+        "distortion_model": model,
+        "intrinsics": data["intrinsics"],
+        "distortion_coeffs": coefficients,
+        "resolution": data["resolution"],
+    }
+    return camera_from_kalibr(kalibr, str(path))
+
+
+def _as_float(value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan  # not zero: refused as a term that is not 0
 
 
 def _from_euroc(paths: list[Path], sensors: list[dict[str, Any]]) -> tuple[StereoRig, str]:
     cameras, poses = [], []
     for path, data in zip(paths, sensors, strict=True):
-        model = _EUROC_MODELS.get(str(data.get("distortion_model")), data.get("distortion_model"))
-        kalibr = {
-            "camera_model": data.get("camera_model", "pinhole"),
-            "distortion_model": model,
-            "intrinsics": data["intrinsics"],
-            "distortion_coeffs": data["distortion_coefficients"],
-            "resolution": data["resolution"],
-        }
-        cameras.append(camera_from_kalibr(kalibr, str(path)))
-        poses.append(_finite(path, "T_BS", _matrix_node(data["T_BS"], path, "T_BS")))
+        cameras.append(_euroc_camera(path, data))
+        pose = _finite(path, "T_BS", _matrix_node(data["T_BS"], path, "T_BS"))
+        poses.append(_rigid(path, pose))
     where = f"{paths[0]} + {paths[1]}"
     matrix = _checked_transform(np.linalg.inv(poses[1]) @ poses[0], where)
     return _rig(cameras[0], cameras[1], matrix, where), f"EuRoC sensor.yaml {where}"
@@ -452,7 +487,7 @@ def load_calibration(
         return rig, f"OpenCV FileStorage {' + '.join(str(p) for p in files)}"
     if len(files) in (2, 3) and _is_ros(texts[0]) and _is_ros(texts[1]):
         return _from_ros(files, texts)
-    sensors = [_euroc_sensor(p, t) for p, t in zip(files, texts, strict=True)]
+    sensors = [_euroc_sensor(text) for text in texts]
     if len(files) == 2 and all(sensors):
         return _from_euroc(files, sensors)  # type: ignore[arg-type]
     if len(files) == 1:

@@ -83,7 +83,9 @@ class RunningDepth:
         return self._bits or 16
 
     def see(self, image: np.ndarray) -> None:
-        """Take one more frame into account."""
+        """Take one more frame into account (an 8-bit one tells nothing of 16-bit ones)."""
+        if image.dtype != np.uint16:
+            return  # it would read as 16 bits, which never drops again
         bits = significant_bits([image])
         if bits <= self._bits:
             return

@@ -404,3 +404,29 @@ def test_a_frame_the_bit_depth_sample_missed_is_rejected_not_clipped(
     assert records[1].reason is not None
     assert records[1].reason.startswith("values above the recording's 12 bits (60000 > 4095 in ")
     assert report.rejection_reasons == {"values above the recording's 12 bits": 1}
+
+
+def test_a_bag_timed_by_its_log_time_says_so_in_report_json(tmp_path: Path) -> None:
+    # the README says the fallback is "said in the report": it was in the log only
+    from tests.capture.ingest_helpers import rig
+    from tests.capture.test_rosbag import IMAGE, _raw_fields, _write_bag
+
+    euroc = make_recording(tmp_path / "euroc", frames=3)
+    messages = []
+    for camera in ("cam0", "cam1"):
+        for path in frame_files(euroc, camera):
+            fields = {**_raw_fields(read_image(path), "mono8"), "_log_ns": int(path.stem)}
+            messages.append((f"/{camera}/image_raw", IMAGE, 0, fields))  # stamps never set
+    messages.sort(key=lambda message: message[3]["_log_ns"])
+    folder = tmp_path / "bags"
+    folder.mkdir()
+    (folder / "rig.yaml").write_text("obstructed: cam1\n")
+    from lenspair.rectify.rig import write_kalibr
+
+    write_kalibr(folder / "camchain.yaml", rig())
+    bag = _write_bag(folder / "run", "ros1", messages)
+    _, records, report = _ingest(bag, tmp_path / "out")
+    assert [r.status for r in records] == ["kept"] * 3
+    (said,) = report.recording_problems
+    assert said.startswith(f"{bag}: every header.stamp of cam0 (/cam0/image_raw) 0 ns")
+    assert report.counts["recording_problems"] == 1

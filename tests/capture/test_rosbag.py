@@ -309,6 +309,14 @@ def test_header_stamps_never_set_are_replaced_by_the_log_time(tmp_path: Path, ki
             np.testing.assert_array_equal(recording.load(frame), expected)
 
 
+def test_a_bayer_frame_too_small_to_demosaic_is_one_line() -> None:
+    from lenspair.capture.rosbag import decode_raw
+
+    data = np.full((2, 8), 200, np.uint8).tobytes()  # OpenCV gave an all-black image
+    with pytest.raises(CaptureError, match=r"^x: 8x2 Bayer image: too small to demosaic$"):
+        decode_raw(2, 8, "bayer_rggb8", False, 8, data, "x")
+
+
 @pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
 def test_bayer_frames_are_demosaiced_to_rgb_and_written_back_as_their_mosaic(

@@ -90,6 +90,7 @@ def test_16_bit_frames_of_fewer_bits_are_restored_on_the_full_scale_and_written_
     full = (texture((32, 48), seed=3) * 65535).astype(np.uint16)
     low = narrow(full, bits)
     dim = low // 8  # then a dim frame: its own values fit 2 bits fewer
+    write_image(tmp_path / "in" / "0.png", (full >> 8).astype(np.uint8))  # an 8-bit one first
     write_image(tmp_path / "in" / "a.png", low)
     write_image(tmp_path / "in" / "b.png", dim)
     restore_input(tmp_path / "in", tmp_path / "out", backend, RestoreOptions(batch_size=1))

@@ -225,3 +225,39 @@ def test_euroc_sensor_files_give_the_rig_and_a_bad_pose_names_its_file(tmp_path:
     files[1].write_text(text.replace("  data: [", "  data: [7, "))  # 17 numbers
     with pytest.raises(RectifyError, match=rf"^{files[1]}: T_BS: expected 16 numbers"):
         load_calibration(files)
+    zeros = "  data: [" + ", ".join(["0"] * 16) + "]"  # a placeholder pose: LinAlgError
+    files[1].write_text(
+        "\n".join(zeros if "  data:" in line else line for line in text.split("\n"))
+    )
+    with pytest.raises(RectifyError, match=rf"^{files[1]}: T_BS is not a rigid transform"):
+        load_calibration(files)
+    lines = text.split("\n")
+    files[1].write_text(
+        "\n".join(line for line in lines if "T_BS" not in line and not line.startswith("  "))
+    )
+    with pytest.raises(RectifyError, match=rf"^{files[1]}: missing key 'T_BS'"):
+        load_calibration(files)  # it said "not a recognised calibration", naming no key
+
+
+def test_euroc_radtan_with_a_zero_k3_is_read_and_a_non_zero_one_refused(tmp_path: Path) -> None:
+    from lenspair.simulate.euroc import write_sensor_yaml
+
+    rig = make_rig("radtan")
+    files = [tmp_path / "cam0.yaml", tmp_path / "cam1.yaml"]
+    write_sensor_yaml(files[0], rig.cam0, np.eye(4), 20.0, "cam0")
+    write_sensor_yaml(files[1], rig.cam1, np.linalg.inv(rig.T_cam1_cam0), 20.0, "cam1")
+    text = files[0].read_text()
+    files[0].write_text(_with_k3(text, "0.0"))
+    found, _ = load_calibration(files)
+    assert found.cam0 == rig.cam0
+    files[0].write_text(_with_k3(text, "0.01"))
+    with pytest.raises(RectifyError, match=rf"^{files[0]}: distortion_coefficients: a non-zero k3"):
+        load_calibration(files)
+
+
+def _with_k3(text: str, k3: str) -> str:
+    lines = text.split("\n")
+    for index, line in enumerate(lines):
+        if line.startswith("distortion_coefficients: ["):
+            lines[index] = line.rstrip("]") + f", {k3}]"
+    return "\n".join(lines)
