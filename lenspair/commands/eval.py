@@ -146,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.model.training.pairs import open_eval_pairs
 
     # the pairs scored: a paired folder itself, or a dataset's split (DS/eval_* is fine)
-    scored = Path(args.data) if detect_layout(args.data) is not None else args.data / args.split
+    plain = detect_layout(args.data) is not None  # a paired folder: no split in its name
+    scored = Path(args.data) if plain else args.data / args.split
     why = "its contact sheet would be read as an unpaired image next time"
     if args.out is not None and (
         problem := inside_refusal(args.out, scored, "the pairs scored", why)
@@ -180,7 +181,6 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         out = args.out
     else:
-        plain = detect_layout(args.data) is not None  # a paired folder: no split in the name
         split = None if plain else args.split
         out = default_out(args.checkpoint, args.data, split, decision.precision)
     files = write_report(result, out)

@@ -238,9 +238,10 @@ def fit(
     checkpoint = load_checkpoint(paths.last) if resume else None
     if checkpoint is not None:
         check_resume_mode(checkpoint, paths.last, synthetic)
-    held = [p.name for p in (paths.last, paths.best, paths.metrics) if p.exists()]
     stale = [paths.best, paths.metrics] if restart and not paths.last.exists() else []
-    held = [name for name in held if name not in {p.name for p in stale}]
+    held = [
+        p.name for p in (paths.last, paths.best, paths.metrics) if p.exists() and p not in stale
+    ]
     if checkpoint is None and held:  # best.pt without last.pt is still another run's result
         raise ModelError(
             f"{paths.root} already holds a run ({', '.join(held)}); pass --resume to continue "
