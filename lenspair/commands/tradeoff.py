@@ -65,8 +65,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="base run config (each variant sets the network's variant, width and blocks; "
         "model.channels and the other sections apply to every variant)",
     )
-    parser.add_argument("--crop-size", type=positive_int, default=None, help="training crop (128)")
-    parser.add_argument("--batch-size", type=positive_int, default=None, help="training batch (4)")
+    parser.add_argument(
+        "--crop-size",
+        type=positive_int,
+        default=None,
+        help="training crop (128; with --config: its data.crop_size)",
+    )
+    parser.add_argument(
+        "--batch-size",
+        type=positive_int,
+        default=None,
+        help="training batch (4; with --config: its train.batch_size)",
+    )
     parser.add_argument(
         "--lr-decay",
         type=fraction,

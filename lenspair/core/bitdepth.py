@@ -16,7 +16,12 @@ log = logging.getLogger(__name__)
 
 LOW_BIT_DEPTHS = (10, 12)
 """Depths of machine-vision cameras whose drivers publish 16-bit words with the value in
-the low bits (``mono16`` from a Mono10/Mono12 sensor): :func:`significant_bits`."""
+the low bits (``mono16`` from a Mono10/Mono12 sensor): :func:`significant_bits`.
+
+14 is left out on purpose: a 14-bit camera's values (below 16384) cannot be
+told from a genuine 16-bit frame of a dim scene (brightest pixel under a
+quarter of the range, common at dusk), which would be brightened fourfold;
+below 4096 (12 bits) a genuine 16-bit frame is nearly black."""
 
 
 def significant_bits(images: list[np.ndarray]) -> int:
