@@ -451,6 +451,31 @@ def test_the_cli_anneals_step_budgets_by_default(
     assert decays == [0.5, 0.5, 0.25, 0.25, 0.0, 0.0, 0.5, 0.0]
 
 
+def test_a_config_sets_only_what_it_names(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # A config written to set val_every once switched crop, batch and the decay to
+    # train's defaults (256, 8, constant): a tradeoff of other networks than asked for.
+    from lenspair.model.evaluation import tradeoff
+
+    settings: list[tuple[int, int, float]] = []
+
+    def record(dataset: Path, out: Path, device: object, budget: Budget, base: RunConfig,
+               *args: object, **kwargs: object) -> TradeoffResult:  # fmt: skip
+        settings.append((base.data.crop_size, base.train.batch_size, base.train.lr_decay))
+        return TradeoffResult([], {"dataset": str(dataset), "evaluated_on": "x", "budget": "b",
+                                   "convention": "c", "size": "1x1", "threads": 1})  # fmt: skip
+
+    monkeypatch.setattr(tradeoff, "run_tradeoff", record)
+    partial = tmp_path / "partial.yaml"
+    partial.write_text("train:\n  val_every: 3\n  patience: 0\n")
+    cropped = tmp_path / "cropped.yaml"
+    cropped.write_text("data:\n  crop_size: 64\ntrain:\n  batch_size: 2\n")
+    argv = ["tradeoff", str(tmp_path), "--out", str(tmp_path / "t"), "--seeds", "0"]
+    assert main([*argv, "--budget", "10", "--config", str(partial)]) == 0
+    assert main([*argv, "--budget", "10", "--config", str(cropped)]) == 0
+    assert main([*argv, "--budget", "10", "--config", str(cropped), "--crop-size", "32"]) == 0
+    assert settings == [(128, 4, 0.5), (64, 2, 0.5), (32, 2, 0.5)]
+
+
 def test_a_split_asked_for_is_scored_or_refused_never_replaced(tmp_path: Path) -> None:
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
     g = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
