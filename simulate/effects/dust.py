@@ -11,7 +11,9 @@ multiply) and the veil of light scattered towards the camera is
 ``b = 0`` exactly: that union is the dust's footprint. The number of patches
 is chosen so that the expected covered fraction of the image (Poisson
 coverage ``1 - exp(-N E[pi r^2] / (H W))``) equals ``coverage`` (capped
-at 0.99, and at :data:`MAX_PATCHES` patches).
+at 0.99). Fine dust takes many patches (50 % of a 1920x1080 frame under 4 px
+patches: 49,000), so they are evaluated together, window by window, not one
+by one: an earlier cap of 4,096 patches silently covered half what was asked.
 """
 
 import math
@@ -21,8 +23,8 @@ import numpy as np
 
 from lenspair.simulate.effects.spec import DustSpec
 
-MAX_PATCHES = 4096
-"""Upper bound on the number of dust patches (keeps tiny ``scale_px`` tractable)."""
+_CHUNK_VALUES = 1 << 22
+"""Patch-window pixels evaluated at once (memory: about 100 MB of temporaries)."""
 
 _MIN_TRANSMISSION = 1e-4
 
@@ -50,7 +52,7 @@ def patch_count(spec: DustSpec, shape: tuple[int, int]) -> int:
     height, width = shape
     mean_area = math.pi * spec.scale_px**2 * 7.0 / 12.0  # E[r^2] for r ~ U(0.5, 1) * scale
     depth = -math.log(1.0 - min(spec.coverage, 0.99))
-    return min(MAX_PATCHES, max(1, math.ceil(depth * height * width / mean_area)))
+    return max(1, math.ceil(depth * height * width / mean_area))
 
 
 def sample_dust(spec: DustSpec, shape: tuple[int, int], rng: np.random.Generator) -> DustField:
@@ -72,22 +74,49 @@ def sample_dust(spec: DustSpec, shape: tuple[int, int], rng: np.random.Generator
     radii = spec.scale_px * rng.uniform(0.5, 1.0, count)
     lowest = max(spec.attenuation[0], _MIN_TRANSMISSION)
     depths = -np.log(rng.uniform(lowest, max(spec.attenuation[1], lowest), count))
-    tau = np.zeros(shape, np.float32)
-    for cx, cy, radius, depth in zip(x, y, radii, depths, strict=True):
-        top, bottom = max(0, math.floor(cy - radius)), min(height, math.ceil(cy + radius) + 1)
-        left, right = max(0, math.floor(cx - radius)), min(width, math.ceil(cx + radius) + 1)
-        if bottom <= top or right <= left:
-            continue
-        rows = (((np.arange(top, bottom) - cy) / radius) ** 2).astype(np.float32)
-        cols = (((np.arange(left, right) - cx) / radius) ** 2).astype(np.float32)
-        inside = np.maximum(1.0 - rows[:, None] - cols[None, :], np.float32(0.0))
-        tau[top:bottom, left:right] += np.float32(depth) * inside * inside * inside
+    tau = _optical_depth(x, y, radii, depths, shape)
     support = tau > 0
     transmission = np.ones(shape, np.float32)
     transmission[support] = np.exp(-tau[support])
     veil = np.zeros(shape, np.float32)
     veil[support] = np.float32(spec.scatter) * (1.0 - transmission[support])
     return DustField(transmission=transmission, veil=veil, support=support)
+
+
+def _optical_depth(
+    x: np.ndarray, y: np.ndarray, radii: np.ndarray, depths: np.ndarray, shape: tuple[int, int]
+) -> np.ndarray:
+    """``tau``: the sum of every patch's bump, ``float32`` ``(H, W)``.
+
+    Each patch is evaluated on the square window of pixels around its centre
+    that holds its disc, all patches of a chunk at once, and the values are
+    summed into the image with one ``bincount``.
+    """
+    height, width = shape
+    tau = np.zeros(height * width, np.float64)
+    if len(x) == 0:
+        return tau.reshape(shape).astype(np.float32)
+    reach = math.ceil(float(radii.max())) + 1  # floor(c) +- reach holds |p - c| < r
+    offsets = np.arange(-reach, reach + 1)
+    chunk = max(1, _CHUNK_VALUES // len(offsets) ** 2)
+    for start in range(0, len(x), chunk):
+        part = slice(start, start + chunk)
+        cx, cy = x[part, None], y[part, None]
+        radius, depth = radii[part, None, None], depths[part, None, None]
+        rows = np.floor(cy).astype(np.int64) + offsets  # (n, k)
+        cols = np.floor(cx).astype(np.int64) + offsets
+        dy2 = ((rows - cy) ** 2)[:, :, None]
+        dx2 = ((cols - cx) ** 2)[:, None, :]
+        inside = np.maximum(1.0 - (dy2 + dx2) / radius**2, 0.0)
+        bump = depth * inside**3
+        keep = (
+            (bump > 0)
+            & ((rows >= 0) & (rows < height))[:, :, None]
+            & ((cols >= 0) & (cols < width))[:, None, :]
+        )
+        index = rows[:, :, None] * width + cols[:, None, :]
+        tau += np.bincount(index[keep], weights=bump[keep], minlength=height * width)
+    return tau.reshape(shape).astype(np.float32)
 
 
 def apply_dust(values: np.ndarray, transmission: np.ndarray, veil: np.ndarray) -> np.ndarray:

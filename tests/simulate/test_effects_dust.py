@@ -60,6 +60,24 @@ def test_coverage_sets_the_covered_fraction(coverage: float) -> None:
     assert np.mean(fractions) == pytest.approx(coverage, abs=0.12)
 
 
+def test_fine_dust_covers_what_is_asked_on_a_large_frame() -> None:
+    # 50 % of 1280x720 under patches of 2-4 px radius takes about 22,000 of them; a cap of
+    # 4,096 patches once covered 12 % without a word.
+    spec = DustSpec(scale_px=4.0, coverage=0.5)
+    field = dust.sample_dust(spec, (720, 1280), np.random.default_rng(0))
+    assert field.support.mean() == pytest.approx(0.5, abs=0.02)
+
+
+def test_a_patch_cut_by_the_frame_edge_is_the_same_bump_inside() -> None:
+    # Patches are evaluated on windows around their centres; one centred on a corner keeps
+    # exactly its quarter inside the frame, the bump of the formula.
+    x, y = np.array([-0.5]), np.array([-0.5])
+    tau = dust._optical_depth(x, y, np.array([6.0]), np.array([2.0]), (8, 9))
+    rows, cols = np.mgrid[0:8, 0:9]
+    inside = np.maximum(1 - ((rows + 0.5) ** 2 + (cols + 0.5) ** 2) / 36.0, 0.0)
+    np.testing.assert_allclose(tau, 2.0 * inside**3, rtol=1e-6)
+
+
 def test_zero_coverage_is_no_dust() -> None:
     image = np.full((40, 50, 3), 77, np.uint8)
     out, mask = render_effects(
