@@ -337,20 +337,28 @@ class EffectsSpec:
 
         A veil is wet glass scattering light: ``rain``, also alone (a frame it
         changes everywhere is not clean, and a detector must not learn it is).
-        An effect that changes no pixel (no drops, no dust coverage, no blobs,
-        a veil of strength 0) gives no label.
+        An effect that changes no pixel gives no label: no drops, drops of
+        radius 0 or of refractive index 1 (optically absent: the renderer
+        gives them no footprint, so brightening has nothing to act on), no
+        dust coverage or dust that attenuates nothing, no blobs or blobs of
+        radius or opacity 0, a veil of strength 0. Such a camera's frames
+        are clean, and a dataset or detector trained on them must say so.
         """
         kinds = []
         drops = self.raindrops
-        # drops of refractive index 1 bend no light: invisible unless brightened
-        seen = drops is not None and drops.count > 0
-        if drops is not None and drops.refractive_index == 1.0 and self.brightness is None:
-            seen = False
+        seen = (
+            drops is not None
+            and drops.count > 0
+            and drops.radius_px[1] > 0
+            and drops.refractive_index != 1.0
+        )
         if seen or (self.veil is not None and self.veil.strength[1] > 0):
             kinds.append("rain")
-        if self.dust is not None and self.dust.coverage > 0:
+        dust = self.dust
+        if dust is not None and dust.coverage > 0 and dust.attenuation[0] < 1.0:
             kinds.append("dust")
-        if self.dirt is not None and self.dirt.count > 0:
+        dirt = self.dirt
+        if dirt is not None and dirt.count > 0 and dirt.radius_px[1] > 0 and dirt.opacity[1] > 0:
             kinds.append("dirt")
         return tuple(kinds)
 

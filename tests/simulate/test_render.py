@@ -333,8 +333,19 @@ def test_listing_brightness_does_not_move_the_drops_of_later_frames() -> None:
         EffectsSpec(dust=DustSpec(coverage=0.0)),
         EffectsSpec(dirt=DirtSpec(count=0)),
         EffectsSpec(veil=VeilSpec(strength=(0.0, 0.0))),
+        EffectsSpec(
+            raindrops=RaindropsSpec(refractive_index=1.0),
+            brightness=BrightnessSpec(fraction=1.0, gain=(2.0, 2.0)),
+        ),
+        EffectsSpec(raindrops=RaindropsSpec(radius_px=(0.0, 0.0))),
+        EffectsSpec(dirt=DirtSpec(opacity=(0.0, 0.0))),
+        EffectsSpec(dirt=DirtSpec(radius_px=(0.0, 0.0))),
+        EffectsSpec(dust=DustSpec(attenuation=(1.0, 1.0))),
     ],
-    ids=["no-drops", "drops-of-air", "no-dust", "no-dirt", "no-veil"],
+    ids=[
+        "no-drops", "drops-of-air", "no-dust", "no-dirt", "no-veil", "brightened-drops-of-air",
+        "drops-of-radius-0", "clear-dirt", "dirt-of-radius-0", "dust-that-blocks-nothing",
+    ],  # fmt: skip
 )
 def test_an_effect_that_changes_no_pixel_is_no_anomaly(effects: EffectsSpec) -> None:
     # rig.yaml's anomaly labels train the detector: a label on a clean frame teaches it wrong
