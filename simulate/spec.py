@@ -273,11 +273,16 @@ class SceneSpec:
                     f"is {columns * rows * self.supersample**2:.2e} samples a frame, over "
                     f"{MAX_RENDER_SAMPLES:.2e} (8192x8192 once; about 12 GB to render)"
                 )
-        width, height = getattr(self.rig, self.obstructed.camera).resolution
+        camera = getattr(self.rig, self.obstructed.camera)
+        width, height = camera.resolution
         try:
-            self.obstructed.effects.check_memory((height, width))
+            # the glass optics left unset follow the obstructed camera (scene.yaml says them)
+            effects = self.obstructed.effects.for_camera(camera.intrinsics[0])
+            effects.check_memory((height, width))
         except ValueError as exc:
             raise ValueError(f"obstructed.effects.{exc}") from None
+        resolved = dataclasses.replace(self.obstructed, effects=effects)
+        object.__setattr__(self, "obstructed", resolved)  # frozen: settled once, here
 
     @property
     def far_plane_index(self) -> int | None:

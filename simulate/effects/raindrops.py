@@ -279,7 +279,7 @@ def rasterize(drops: Drops, spec: RaindropsSpec, shape: tuple[int, int], pad: in
     normal = (normal_x / length, normal_y / length, normal_z / length)
 
     # Camera ray through the pixel, then through the flat glass into the water.
-    focal = np.float32(spec.focal_px)
+    focal = np.float32(spec.optics_focal_px)
     centre_x, centre_y = np.float32((width - 1) / 2), np.float32((height - 1) / 2)
     ray_x, ray_y = (xs - centre_x) / focal, (ys - centre_y) / focal
     scale = 1.0 / (np.sqrt(ray_x * ray_x + ray_y * ray_y + 1.0) * np.float32(n))
@@ -291,7 +291,7 @@ def rasterize(drops: Drops, spec: RaindropsSpec, shape: tuple[int, int], pad: in
     source_y = np.clip(centre_y + focal * exit_y / exit_z, -height, 2 * height - 1)
 
     # Minification at the centre of the lens: q - p ~ -f (n - 1) * normal tilt.
-    power = spec.focal_px * (n - 1.0) * np.sqrt(major * minor) * np.sin(drops.contact_angles)
+    power = spec.optics_focal_px * (n - 1.0) * np.sqrt(major * minor) * np.sin(drops.contact_angles)
     minification = np.sqrt(np.abs(1 - power / major**2) * np.abs(1 - power / minor**2))
     levels = np.clip(np.round(np.log2(np.maximum(minification, 1.0))), 0, MAX_LEVEL)
     levels = levels.astype(np.int64)

@@ -8,8 +8,15 @@ intensity (gains, veils, colours) is in *linear* light, ``[0, 1]`` = black to
 the brightest code value.
 """
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
+
+PHOTO_FOCAL_PX = 350.0
+"""The drops' focal length over a photograph, pixels: the sample camchain's ``fx``."""
+
+PHOTO_PIXEL_PITCH_UM = 6.9
+"""The defocus's pixel pitch over a photograph: the Sony IMX287 (see :class:`DefocusSpec`)."""
 
 MAX_COUNT = 100_000
 """Most drops or blobs on one glass: far beyond a real pane."""
@@ -51,7 +58,9 @@ class RaindropsSpec:
             advances the glass state (:func:`lenspair.simulate.render.advance_glass`);
             the others are replaced by fresh drops. 1 = drops never move.
         focal_px: focal length of the camera, pixels; converts the angle by
-            which a drop bends a viewing ray into an image offset.
+            which a drop bends a viewing ray into an image offset. ``None``:
+            the obstructed camera's ``fx`` in a recording scene, and
+            :data:`PHOTO_FOCAL_PX` over a photograph (no camera given).
         rim_brightness: linear-light brightness of light reflected inside a
             drop (the totally internally reflected rim), as a fraction of the
             mean colour the drop transmits.
@@ -69,7 +78,7 @@ class RaindropsSpec:
     contact_angle_deg: tuple[float, float] = (30.0, 80.0)
     refractive_index: float = 1.33
     persistence: float = 1.0
-    focal_px: float = 350.0
+    focal_px: float | None = None
     rim_brightness: float = 0.1
     size_distribution: Literal["uniform", "power-law"] = "uniform"
     size_exponent: float = 2.0
@@ -82,13 +91,19 @@ class RaindropsSpec:
         _check_range("contact_angle_deg", self.contact_angle_deg, 0.0, 90.0)
         _check_value("refractive_index", self.refractive_index, 1.0, 3.0)
         _check_value("persistence", self.persistence, 0.0, 1.0)
-        _check_value("focal_px", self.focal_px, 1.0, 1e5)
+        if self.focal_px is not None:
+            _check_value("focal_px", self.focal_px, 1.0, 1e5)
         _check_value("rim_brightness", self.rim_brightness, 0.0, 1.0)
         if self.size_distribution not in ("uniform", "power-law"):
             raise ValueError(
                 f"size_distribution: expected uniform or power-law, got {self.size_distribution!r}"
             )
         _check_value("size_exponent", self.size_exponent, 0.0, 10.0)
+
+    @property
+    def optics_focal_px(self) -> float:
+        """The focal length the drop optics use, pixels (``focal_px``, else the photo default)."""
+        return PHOTO_FOCAL_PX if self.focal_px is None else self.focal_px
 
 
 @dataclass(frozen=True)
@@ -122,7 +137,10 @@ class DefocusSpec:
         glass_distance_m: distance from the lens to the glass, metres.
         focal_length_mm: lens focal length, millimetres.
         f_number: the lens's f-number (aperture diameter = focal / f_number).
-        pixel_pitch_um: sensor pixel pitch, micrometres.
+        pixel_pitch_um: sensor pixel pitch, micrometres. ``None``: the
+            focal length over the obstructed camera's ``fx`` in a recording
+            scene (so the blur follows that camera), and
+            :data:`PHOTO_PIXEL_PITCH_UM` over a photograph.
 
     """
 
@@ -133,7 +151,7 @@ class DefocusSpec:
     glass_distance_m: float = 0.03
     focal_length_mm: float = 2.4
     f_number: float = 2.0
-    pixel_pitch_um: float = 6.9
+    pixel_pitch_um: float | None = None
 
     def __post_init__(self) -> None:
         if not 1 <= self.shifts <= 256:
@@ -147,7 +165,8 @@ class DefocusSpec:
         _check_value("glass_distance_m", self.glass_distance_m, 1e-3, 10.0)
         _check_value("focal_length_mm", self.focal_length_mm, 0.1, 1e3)
         _check_value("f_number", self.f_number, 0.5, 64.0)
-        _check_value("pixel_pitch_um", self.pixel_pitch_um, 0.1, 100.0)
+        if self.pixel_pitch_um is not None:
+            _check_value("pixel_pitch_um", self.pixel_pitch_um, 0.1, 100.0)
         if self.blur_diameter_px / 2 > 64.0 and (
             self.shift_px is None if self.kernel == "shifts" else self.disk_radius_px is None
         ):
@@ -159,7 +178,8 @@ class DefocusSpec:
     @property
     def focal_px(self) -> float:
         """Focal length in pixels, ``focal_length / pixel_pitch``."""
-        return self.focal_length_mm * 1e3 / self.pixel_pitch_um
+        pitch = PHOTO_PIXEL_PITCH_UM if self.pixel_pitch_um is None else self.pixel_pitch_um
+        return self.focal_length_mm * 1e3 / pitch
 
     @property
     def blur_diameter_px(self) -> float:
@@ -324,6 +344,34 @@ class EffectsSpec:
                     f"{pixels:.3g} pixels of a {width}x{height} frame, more than the renderer's "
                     f"{MAX_SPRITE_PIXELS:.0e} (about 2.6 GB); use fewer or smaller {things}"
                 )
+
+    def for_camera(self, fx: float) -> "EffectsSpec":
+        """These effects in front of a camera of focal length ``fx`` pixels.
+
+        Optics left unset take the camera's: the drops' ``focal_px`` and
+        the defocus's pixel pitch (``focal_length_mm / fx``, so its blur
+        disk is ``fx * A / d``). Set values stay.
+
+        Raises:
+            ValueError: the camera makes the defocus impossible (a blur disk
+                over 128 px, a pitch out of range), named by its key.
+        """
+        drops, defocus = self.raindrops, self.defocus
+        if drops is not None and drops.focal_px is None:
+            drops = dataclasses.replace(drops, focal_px=min(max(fx, 1.0), 1e5))
+        if defocus is not None and defocus.pixel_pitch_um is None:
+            pitch = defocus.focal_length_mm * 1e3 / fx
+            if not 0.1 <= pitch <= 100.0:
+                raise ValueError(
+                    f"defocus.pixel_pitch_um: focal_length_mm {defocus.focal_length_mm:g} over "
+                    f"the camera's fx {fx:g} px is a {pitch:.3g} um pixel, outside 0.1..100; "
+                    "set focal_length_mm or pixel_pitch_um"
+                )
+            try:
+                defocus = dataclasses.replace(defocus, pixel_pitch_um=pitch)
+            except ValueError as exc:
+                raise ValueError(f"defocus.{exc} (with the camera's fx {fx:g} px)") from None
+        return dataclasses.replace(self, raindrops=drops, defocus=defocus)
 
     @property
     def listed(self) -> tuple[str, ...]:

@@ -343,9 +343,17 @@ def test_listing_brightness_does_not_move_the_drops_of_later_frames() -> None:
         EffectsSpec(dust=DustSpec(attenuation=(1.0, 1.0))),
     ],
     ids=[
-        "no-drops", "drops-of-air", "no-dust", "no-dirt", "no-veil", "brightened-drops-of-air",
-        "drops-of-radius-0", "clear-dirt", "dirt-of-radius-0", "dust-that-blocks-nothing",
-    ],  # fmt: skip
+        "no-drops",
+        "drops-of-air",
+        "no-dust",
+        "no-dirt",
+        "no-veil",
+        "brightened-drops-of-air",
+        "drops-of-radius-0",
+        "clear-dirt",
+        "dirt-of-radius-0",
+        "dust-that-blocks-nothing",
+    ],
 )
 def test_an_effect_that_changes_no_pixel_is_no_anomaly(effects: EffectsSpec) -> None:
     # rig.yaml's anomaly labels train the detector: a label on a clean frame teaches it wrong

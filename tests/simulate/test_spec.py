@@ -213,3 +213,35 @@ def test_a_frame_too_large_to_render_is_refused_at_the_spec(tmp_path: Path) -> N
         load_scene(_write(tmp_path, data))
     data["supersample"] = 1  # the largest frame, once: allowed
     assert load_scene(_write(tmp_path, data)).supersample == 1
+
+
+def test_glass_optics_left_unset_follow_the_obstructed_camera(tmp_path: Path) -> None:
+    # Drop refraction and the glass blur once assumed a 350 px camera whatever the scene's.
+    data = _with("rig.cam1.intrinsics", [700.0, 700.0, 359.5, 269.5])
+    data["obstructed"] = {"effects": {"raindrops": {"count": 5}, "defocus": {}}}
+    effects = load_scene(_write(tmp_path, data)).obstructed.effects
+    assert effects.raindrops is not None and effects.raindrops.focal_px == 700.0
+    assert effects.defocus is not None and effects.defocus.focal_px == pytest.approx(700.0)
+    # thin lens: f_px * (focal / f_number) / d = 700 * 1.2 mm / 30 mm
+    assert effects.defocus.blur_diameter_px == pytest.approx(28.0)
+    # what a scene sets stays, and scene.yaml (the dump) re-renders the same
+    data["obstructed"]["effects"]["raindrops"]["focal_px"] = 400.0
+    data["obstructed"]["effects"]["defocus"]["pixel_pitch_um"] = 3.0
+    effects = load_scene(_write(tmp_path, data)).obstructed.effects
+    assert effects.raindrops is not None and effects.raindrops.focal_px == 400.0
+    assert effects.defocus is not None and effects.defocus.pixel_pitch_um == 3.0
+    spec = load_scene(_write(tmp_path, data))
+    assert load_yaml(SceneSpec, _dumped(tmp_path, spec)) == spec
+
+
+def _dumped(tmp_path: Path, spec: SceneSpec) -> Path:
+    path = tmp_path / "dumped.yaml"
+    path.write_text(dump_yaml(spec))
+    return path
+
+
+def test_a_camera_that_makes_the_glass_blur_impossible_is_named(tmp_path: Path) -> None:
+    data = _with("rig.cam1.intrinsics", [9000.0, 9000.0, 359.5, 269.5])
+    data["obstructed"] = {"effects": {"defocus": {}}}
+    with pytest.raises(ConfigError, match=r"obstructed\.effects\.defocus\.glass_distance_m: .*fx"):
+        load_scene(_write(tmp_path, data))
