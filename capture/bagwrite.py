@@ -27,7 +27,7 @@ import numpy as np
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage
@@ -71,6 +71,8 @@ class BagCopy:
             else Writer2(destination, version=9, storage_plugin=_storage_plugin(source))
         )
         self.connections: dict[tuple[int, str], Any] = {}
+        self.undefined: list[str] = []
+        """Topics whose type neither the source nor the type store defines (copied as bytes)."""
 
     def __enter__(self) -> "BagCopy":
         self.writer.open()
@@ -97,29 +99,52 @@ class BagCopy:
                     latching=getattr(connection.ext, "latching", None),
                 )
             else:
+                msgdef, digest = self._definition(connection, topic)
                 self.connections[key] = self.writer.add_connection(
                     topic,
                     connection.msgtype,
-                    msgdef=connection.msgdef.data,
-                    rihs01=connection.digest or self._type_hash(connection.msgtype, topic),
+                    msgdef=msgdef,
+                    rihs01=digest,
                     serialization_format=getattr(connection.ext, "serialization_format", "cdr"),
                     offered_qos_profiles=getattr(connection.ext, "offered_qos_profiles", []),
                 )
         return self.connections[key]
 
-    def _type_hash(self, msgtype: str, topic: str) -> str:
-        """RIHS01 hash of ``msgtype`` for a source that stores none (a bare ``.mcap`` file).
+    def _definition(self, connection: Any, topic: str) -> tuple[str, str]:
+        """The message definition and RIHS01 hash to write for a ROS 2 connection.
 
-        Raises:
-            CaptureError: a message type the ROS 2 type store does not know.
+        The source's own where it stores both. A ROS 2 Humble bag stores
+        neither, and a bare ``.mcap`` no hash: the definition then comes from
+        the ROS 2 type store and the hash from the definition, so that the two
+        agree (readers check; a copy with empty definitions beside the type
+        store's hashes could not be opened). A type the store does not know
+        either (a vendor's message in a Humble bag) is copied under its name
+        with an empty definition, and :attr:`undefined` lists its topic.
         """
-        try:
-            return str(self.typestore.hash_rihs01(msgtype))
-        except KeyError as exc:
-            raise CaptureError(
-                f"{topic}: the source stores no type hash for {msgtype} and lenspair does not "
-                f"know the type ({exc}); restore the bag folder (with metadata.yaml) instead"
-            ) from None
+        msgtype = connection.msgtype
+        msgdef, digest = connection.msgdef.data, connection.digest
+        if msgdef and digest:
+            return msgdef, digest
+        if not msgdef:
+            try:
+                msgdef = self.typestore.generate_msgdef(msgtype, ros_version=2)[0]
+            except (KeyError, TypesysError):  # rosbags' words for a type it does not know
+                self.undefined.append(f"{topic} ({msgtype})")
+                msgdef = ""
+        if not digest and msgdef.startswith("=" * 80 + "\nIDL: "):
+            try:
+                return msgdef, str(self.typestore.hash_rihs01(msgtype))
+            except (KeyError, TypesysError) as exc:
+                raise CaptureError(
+                    f"{topic}: the source stores no type hash for {msgtype} and lenspair "
+                    f"does not know the type ({exc}); restore the bag folder (with "
+                    "metadata.yaml) instead"
+                ) from None
+        if not digest:
+            store = get_typestore(Stores.EMPTY)
+            store.register(get_types_from_msg(msgdef, msgtype))
+            digest = str(store.hash_rihs01(msgtype))
+        return msgdef, digest
 
     def write(self, item: BagMessage, restored: np.ndarray | None = None) -> None:
         """Copy ``item``; with ``restored`` pixels, write them as its image too.

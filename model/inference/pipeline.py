@@ -378,6 +378,12 @@ def restore_input(
             )
         source_problems.extend(sink.copy_others(input_path, files, reserved=(REPORT_NAME,)))
     sink.finish()
+    if isinstance(sink, BagSink):
+        source_problems.extend(
+            f"{topic}: a type neither the bag nor rosbags defines: its messages are copied "
+            "byte for byte under an empty definition (ROS 2 tools with its package read them)"
+            for topic in sink.copy.undefined
+        )
     report.problems.extend({"frame": "", "reason": reason} for reason in source_problems)
     report.seconds = time.perf_counter() - started
     atomic_write_json(out_dir / REPORT_NAME, report.as_dict())

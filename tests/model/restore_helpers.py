@@ -1,13 +1,16 @@
 """Inputs for the restore tests: bags with image and non-image topics."""
 
+import contextlib
+import sqlite3
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.core.imageio import read_image
@@ -74,3 +77,74 @@ def bag_from_recording(tmp_path: Path, kind: str, frames: int = 3, colour: bool 
     folder.mkdir()
     write_rig_file(folder / "rig.yaml", RigFile(obstructed="cam1", anomaly=("rain",)))
     return write_bag(folder / "run", kind, images, "rgb8" if colour else "mono8")
+
+
+HEALTH = "my_msgs/msg/Health"
+"""A vendor's message type: neither a Humble bag nor rosbags' type store defines it."""
+
+
+def humble_bag(path: Path, images: list[tuple[int, np.ndarray]], vendor: bool = False) -> Path:
+    """A ROS 2 Humble bag folder: metadata version 5, SQLite schema 3, no definitions or hashes.
+
+    Mono8 images on ``/cam0/image_raw``, a ``/status`` string after each, and
+    with ``vendor`` a ``/vendor/health`` message of :data:`HEALTH` too.
+    Written with SQLite, as Humble's recorder lays it out (rosbags writes only
+    versions 8 and 9).
+    """
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    store.register(get_types_from_msg("string name\nfloat32 temperature\n", HEALTH))
+    types = store.types
+    topics = [("/cam0/image_raw", IMAGE), ("/status", STRING)]
+    topics += [("/vendor/health", HEALTH)] if vendor else []
+    path.mkdir(parents=True)
+    database = path / f"{path.name}_0.db3"
+    rows = []
+    for t_ns, image in images:
+        stamp = types["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+        header = types["std_msgs/msg/Header"](stamp=stamp, frame_id="cam0")
+        message = types[IMAGE](
+            header=header, height=image.shape[0], width=image.shape[1], encoding="mono8",
+            is_bigendian=0, step=image.shape[1], data=image.reshape(-1),
+        )  # fmt: skip
+        rows.append((1, t_ns + 1, bytes(store.serialize_cdr(message, IMAGE))))
+        text = types[STRING](data=f"frame {t_ns}")
+        rows.append((2, t_ns + 2, bytes(store.serialize_cdr(text, STRING))))
+        if vendor:
+            health = types[HEALTH](name="cam0", temperature=40.5)
+            rows.append((3, t_ns + 3, bytes(store.serialize_cdr(health, HEALTH))))
+    with contextlib.closing(sqlite3.connect(database)) as db, db:
+        db.executescript(
+            "CREATE TABLE schema(schema_version INTEGER PRIMARY KEY, ros_distro TEXT NOT NULL);"
+            "INSERT INTO schema VALUES(3, 'humble');"
+            "CREATE TABLE metadata(id INTEGER PRIMARY KEY, metadata_version INTEGER NOT NULL,"
+            " metadata TEXT NOT NULL);"
+            "CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT NOT NULL, type TEXT NOT NULL,"
+            " serialization_format TEXT NOT NULL, offered_qos_profiles TEXT NOT NULL);"
+            "CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER NOT NULL,"
+            " timestamp INTEGER NOT NULL, data BLOB NOT NULL);"
+        )
+        db.executemany(
+            "INSERT INTO topics VALUES(?, ?, ?, 'cdr', '')",
+            [(i, name, msgtype) for i, (name, msgtype) in enumerate(topics, 1)],
+        )
+        db.executemany("INSERT INTO messages(topic_id, timestamp, data) VALUES(?, ?, ?)", rows)
+    times = [t for _, t, _ in rows]
+    counts = [sum(1 for topic, _, _ in rows if topic == i) for i in range(1, len(topics) + 1)]
+    info = {
+        "version": 5, "storage_identifier": "sqlite3",
+        "duration": {"nanoseconds": max(times) - min(times)},
+        "starting_time": {"nanoseconds_since_epoch": min(times)}, "message_count": len(rows),
+        "topics_with_message_count": [
+            {"topic_metadata": {"name": name, "type": msgtype, "serialization_format": "cdr",
+                                "offered_qos_profiles": ""}, "message_count": count}
+            for (name, msgtype), count in zip(topics, counts, strict=True)
+        ],
+        "compression_format": "", "compression_mode": "",
+        "relative_file_paths": [database.name],
+        "files": [{"path": database.name,
+                   "starting_time": {"nanoseconds_since_epoch": min(times)},
+                   "duration": {"nanoseconds": max(times) - min(times)},
+                   "message_count": len(rows)}],
+    }  # fmt: skip
+    (path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
+    return path

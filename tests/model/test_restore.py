@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from rosbags.highlevel import AnyReader
 
 from lenspair.capture.frames import BagMessage, iter_bag_messages, iter_frames
 from lenspair.cli import main
@@ -24,7 +25,7 @@ from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
 from tests.capture.ingest_helpers import frame_files, make_recording, simulate
 from tests.file_limits import run_with_file_limit
 from tests.images import texture
-from tests.model.restore_helpers import bag_from_recording, write_bag
+from tests.model.restore_helpers import HEALTH, bag_from_recording, humble_bag, write_bag
 from tests.model.train_fixtures import make_checkpoint, tiny_config
 
 CPU = torch.device("cpu")
@@ -572,3 +573,32 @@ def test_bag_resume_trusts_a_cache_without_a_stamp(
     again = restore_input(bag, tmp_path / "out", backend, replace(options, resume=True))
     assert (again.resumed, again.restored) == (2, 3)
     assert "changed since the run being resumed" not in caplog.text
+
+
+@pytest.mark.parametrize("vendor", [False, True], ids=["standard-types", "vendor-type"])
+def test_a_humble_bag_is_restored_into_a_bag_readers_open(
+    tmp_path: Path, backend: TorchBackend, vendor: bool
+) -> None:
+    # Humble stores no definitions or hashes: the copy had empty definitions beside the type
+    # store's hashes (rosbags refused to open it, lenspair read it as cut short), and a
+    # vendor's type stopped the run part-way.
+    image = (texture((32, 48), seed=5) * 255).astype(np.uint8)
+    source = humble_bag(tmp_path / "run", [(10**18, image), (10**18 + 50_000_000, image)], vendor)
+    report = restore_input(source, tmp_path / "out", backend, RestoreOptions(suffix="/restored"))
+    assert report.restored == 2 and report.failed == 0
+    undefined = [p["reason"] for p in report.problems if "defines" in p["reason"]]
+    assert len(undefined) == vendor and all(f"/vendor/health ({HEALTH})" in u for u in undefined)
+    problems: list[str] = []
+    copy = list(iter_bag_messages(Path(report.output), (), problems))
+    assert problems == []  # read whole, not salvaged
+    topics = sorted(m.connection.topic for m in copy)
+    assert topics.count("/cam0/image_raw/restored") == 2 and topics.count("/status") == 2
+    originals = {
+        (m.connection.topic, m.log_time_ns): bytes(m.raw) for m in iter_bag_messages(source, ())
+    }
+    for message in copy:
+        if not message.connection.topic.endswith("/restored"):
+            assert bytes(message.raw) == originals[(message.connection.topic, message.log_time_ns)]
+    # rosbags' reader checks that every definition agrees with its hash
+    with AnyReader([Path(report.output)]) as reader:
+        assert {c.topic for c in reader.connections} >= {"/cam0/image_raw", "/status"}
