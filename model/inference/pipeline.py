@@ -226,9 +226,12 @@ def run_settings(
     """What decides a run's output bytes: input, model (and its file's hash), batching, tiles."""
     model_file = getattr(backend, "path", None)
     digest = sha256_file(Path(model_file)) if model_file and Path(model_file).is_file() else None
+    model = backend.description
+    if model_file:  # as for the input: the same file, however the path was typed
+        model = model.replace(str(model_file), str(Path(model_file).resolve()), 1)
     return {
         "input": str(input_path.resolve()),
-        "model": backend.description,
+        "model": model,
         "model_sha256": digest,
         "cameras": list(cameras),
         "batch_size": options.batch_size,

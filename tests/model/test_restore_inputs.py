@@ -185,6 +185,20 @@ def test_resume_with_other_settings_is_refused(tmp_path: Path, backend: TorchBac
     assert (again.resumed, again.restored) == (3, 0)
 
 
+def test_resume_takes_the_same_model_however_its_path_is_typed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, backend: TorchBackend
+) -> None:
+    # A resume typed from another folder ("helperF/mono.pt" for "mono.pt") was refused.
+    source = _folder(tmp_path / "in", 2)
+    monkeypatch.chdir(tmp_path)
+    typed = open_backend(Path("ck.pt"), torch.device("cpu"), "fp32")
+    restore_input(source, tmp_path / "out", typed)
+    monkeypatch.chdir(tmp_path / "in")
+    again = open_backend(Path("../ck.pt"), torch.device("cpu"), "fp32")
+    resumed = restore_input(source, tmp_path / "out", again, RestoreOptions(resume=True))
+    assert (resumed.resumed, resumed.restored) == (2, 0)
+
+
 def test_an_image_too_small_for_the_network_costs_only_itself(
     tmp_path: Path, backend: TorchBackend
 ) -> None:
