@@ -1,5 +1,7 @@
 """Process helpers of the fault tests: the descendants of a process, read from /proc."""
 
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -42,3 +44,10 @@ def wait_gone(pids: set[int], timeout: float) -> set[int]:
     while (left := alive(pids)) and time.monotonic() < deadline:
         time.sleep(0.05)
     return left
+
+
+def dead_pid() -> int:
+    """The id of a process that has exited (for leftovers whose creator is gone)."""
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                           capture_output=True, text=True, check=True)  # fmt: skip
+    return int(child.stdout)

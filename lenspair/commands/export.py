@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 from lenspair.commands.argtypes import out_file
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_text
+from lenspair.core.leftovers import remove_leftovers
 
 if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
     from lenspair.model.training.pairs import PairSource
@@ -60,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
     if args.calibration is not None and not args.int8:
         raise ConfigError("--calibration DS is for --int8 only; add --int8 or leave it out")
     check_outputs(args)
+    for path in _outputs(args).values():  # what a killed export left beside its files
+        remove_leftovers(path.parent, path.name)
     size = parse_size(args.size)
     calibration = None
     if args.int8:  # a bad DS or split fails here, before any file is written
@@ -93,20 +96,23 @@ def check_outputs(args: argparse.Namespace) -> None:
             f"--onnx {args.onnx}: name it {args.onnx.name}.onnx; restore and eval tell "
             "ONNX models by their suffix"
         )
-    outputs = {"--onnx": args.onnx, "--torchscript": args.torchscript}
-    if args.int8 and args.onnx is not None:
-        outputs["the --int8 model"] = int8_path(args.onnx)
-    outputs["the report"] = report_path(args)
     seen: dict[Path, str] = {Path(args.checkpoint).resolve(): "the checkpoint"}
-    for option, path in outputs.items():
-        if path is None:
-            continue
+    for option, path in _outputs(args).items():
         if (other := seen.get(path.resolve())) is not None:
             raise ConfigError(
                 f"{option} {path}: the same file as {other}, which it would overwrite; "
                 "choose another name"
             )
         seen[path.resolve()] = f"{option} {path}"
+
+
+def _outputs(args: argparse.Namespace) -> dict[str, Path]:
+    """Every file the export writes, by the option (or role) that names it."""
+    outputs = {"--onnx": args.onnx, "--torchscript": args.torchscript}
+    if args.int8 and args.onnx is not None:
+        outputs["the --int8 model"] = int8_path(args.onnx)
+    outputs["the report"] = report_path(args)
+    return {option: Path(path) for option, path in outputs.items() if path is not None}
 
 
 def int8_path(onnx: Path) -> Path:

@@ -25,6 +25,7 @@ from lenspair.model.detection.data import dataset_samples
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import DetectorSpec
 from tests.dataset.dataset_synth import RecordingFactory
+from tests.processes import dead_pid
 
 SEGMENTS = DatasetConfig(split=SplitConfig(segment_frames=10, segment_gap_frames=2))
 
@@ -188,7 +189,7 @@ def test_rerun_removes_leftovers_of_killed_builds_of_the_same_output_only(
     recording: RecordingFactory, tmp_path: Path
 ) -> None:
     source = recording("rec_a", n=4)
-    dead = _dead_pid()
+    dead = dead_pid()
     killed = tmp_path / f".DS.{dead}.abc123.building"
     (killed / "train").mkdir(parents=True)
     (killed / "train" / "x.png").write_bytes(b"half")
@@ -204,16 +205,6 @@ def test_rerun_removes_leftovers_of_killed_builds_of_the_same_output_only(
     build_dataset([source], tmp_path / "DS", config)
     assert not killed.exists() and not trash.exists()
     assert other_output.exists() and running.exists() and users.exists()
-
-
-def _dead_pid() -> int:
-    """The id of a process that has exited."""
-    import subprocess
-    import sys
-
-    child = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
-                           capture_output=True, text=True, check=True)  # fmt: skip
-    return int(child.stdout)
 
 
 def test_missing_image_is_skipped_counted_and_warned(

@@ -1,5 +1,6 @@
 import json
 import logging
+import os
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +17,7 @@ from lenspair.model.inference.backends import OnnxBackend
 from lenspair.model.networks.layers import InstanceNorm
 from lenspair.model.training.pretrained import pretrained_weights
 from tests.model.train_fixtures import make_checkpoint, write_paired_folder
+from tests.processes import dead_pid
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -89,6 +91,18 @@ def test_torchscript_export_reloads_and_matches(tmp_path: Path) -> None:
     image = check_image(1, (33, 47))
     with torch.no_grad():
         assert script(image).shape == (1, 1, 33, 47)
+
+
+def test_an_export_removes_what_a_killed_one_left_beside_its_file(tmp_path: Path) -> None:
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    killed = tmp_path / f".m.pt.{dead_pid()}.x1.pt.tmp"
+    running = tmp_path / f".m.pt.{os.getpid()}.x2.pt.tmp"  # a live writer's: kept
+    other = tmp_path / f".n.pt.{dead_pid()}.x3.pt.tmp"  # another output's: kept
+    for path in (killed, running, other):
+        path.write_bytes(b"")
+    argv = ["export", str(checkpoint), "--torchscript", str(tmp_path / "m.pt"), "--size", "32x48"]
+    assert main(argv) == 0
+    assert not killed.exists() and running.exists() and other.exists()
 
 
 def test_export_without_onnxruntime_says_so(
