@@ -77,6 +77,7 @@ class InputFrame:
         image: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB, or None
             when it could not be read.
         error: one line saying why ``image`` is None.
+        log_time_ns: a bag message's receive time (ns), else None.
     """
 
     index: int
@@ -86,6 +87,7 @@ class InputFrame:
     source: str
     image: np.ndarray | None
     error: str | None = None
+    log_time_ns: int | None = None
 
 
 @dataclass(frozen=True)
@@ -436,7 +438,7 @@ def _bag_messages(
                 image, error = None, str(exc)
             except Exception as exc:  # corrupt serialisation: the frame only
                 image, error = None, f"{where}: cannot deserialise ({_one_line(exc)})"
-            frame = InputFrame(index, name, camera, t_ns, where, image, error)
+            frame = InputFrame(index, name, camera, t_ns, where, image, error, log_time)
             index += 1
             yield BagMessage(connection, log_time, raw, frame, message)
         note = rosbag.cut_note(reader)

@@ -17,7 +17,7 @@ import csv
 import io
 import logging
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Generic, TypeVar
 
@@ -26,6 +26,7 @@ import numpy as np
 
 from lenspair.capture.frames import InputFrame
 from lenspair.capture.recording_types import FrameProblem
+from lenspair.capture.rigfile import CameraName
 from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.core.contact_sheet import make_contact_sheet, to_display
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
@@ -154,6 +155,35 @@ def _verdicts(frames: Sequence[InputFrame], verdict: Judgement) -> list[FrameVer
     return rows
 
 
+def _timed_by_log(
+    verdicts: list[FrameVerdict], log_times: Sequence[int | None]
+) -> list[FrameVerdict]:
+    """Bag frames timed by the log time where a camera's header stamps are all one value.
+
+    As ``capture-ingest`` does (:func:`lenspair.capture.rosbag.read_bag`): a
+    driver that never sets ``header.stamp`` gave every row one ``t_ns``. Both
+    cameras then take the log time, and the log says so.
+    """
+    stamps: dict[CameraName | None, set[int]] = {}
+    counts: dict[CameraName | None, int] = {}
+    for verdict, log_time in zip(verdicts, log_times, strict=True):
+        if log_time is not None and verdict.t_ns is not None:
+            stamps.setdefault(verdict.camera, set()).add(verdict.t_ns)
+            counts[verdict.camera] = counts.get(verdict.camera, 0) + 1
+    unset = [camera for camera, seen in stamps.items() if counts[camera] > 1 and len(seen) == 1]
+    if not unset:
+        return verdicts
+    log.warning(
+        "every header.stamp of %s is one value: never set by the driver? t_ns is the bag's "
+        "log time instead",
+        ", ".join(f"{camera} ({next(iter(stamps[camera]))} ns)" for camera in unset),
+    )
+    return [
+        replace(verdict, t_ns=log_time) if log_time is not None else verdict
+        for verdict, log_time in zip(verdicts, log_times, strict=True)
+    ]
+
+
 def detect_frames(
     network: AnomalyDetector,
     frames: Iterable[InputFrame],
@@ -205,7 +235,9 @@ def detect_frames(
                 candidates.add(frame.index, (_sheet_cell(images[position], tile_map), label))
         batch.clear()
 
+    log_times: list[int | None] = []  # per verdict, in order
     for frame in progress(frames, desc="detect", total=total, unit="frame"):
+        log_times.append(frame.log_time_ns)
         if frame.image is None:
             flush()
             log.warning("%s: %s", frame.name, frame.error)
@@ -220,6 +252,7 @@ def detect_frames(
         if len(batch) == batch_size:
             flush()
     flush()
+    verdicts = _timed_by_log(verdicts, log_times)
     for problem in dropped:
         verdicts.append(
             FrameVerdict(

@@ -13,7 +13,7 @@ from lenspair.model.detection.judge import judge
 from lenspair.model.detection.train import load_detector
 from tests.capture.ingest_helpers import make_recording
 from tests.images import texture
-from tests.model.restore_helpers import bag_from_recording
+from tests.model.restore_helpers import bag_from_recording, write_bag
 
 
 @pytest.fixture(scope="module")
@@ -64,6 +64,23 @@ def test_detect_bag_judges_both_cameras_frame_by_frame(tiny_detector: Path, tmp_
     assert all(row["name"].startswith(f"/{row['camera']}/image_raw@") for row in rows)
     assert all(not row["error"] for row in rows)
     assert read_image(out / "contact_sheet.png").ndim == 3
+
+
+@pytest.mark.parametrize("unset", [False, True], ids=["stamped", "stamps-never-set"])
+def test_detect_times_bag_frames_by_header_else_by_log_time(
+    tiny_detector: Path, tmp_path: Path, unset: bool
+) -> None:
+    # A driver that never sets header.stamp gave every row one t_ns (ingest used the log time).
+    image = (texture((60, 80), 1) * 255).astype(np.uint8)
+    times = [10**18 + k * 50_000_000 for k in range(3)]
+    frames = {camera: [(t, image) for t in times] for camera in ("cam0", "cam1")}
+    bag = write_bag(tmp_path / "b", "mcap", frames, stamp=0 if unset else None)
+    out = tmp_path / "out"
+    assert main(["detect", str(tiny_detector), str(bag), "--out", str(out)]) == 0
+    with (out / "detections.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    expected = [t + 1_000_000 if unset else t for t in times for _ in ("cam0", "cam1")]
+    assert [int(row["t_ns"]) for row in rows] == expected
 
 
 def test_detect_gives_a_row_to_a_listed_frame_whose_file_is_missing(

@@ -21,12 +21,17 @@ STRING = "std_msgs/msg/String"
 
 
 def write_bag(
-    path: Path, kind: str, images: dict[str, list[tuple[int, np.ndarray]]], encoding: str = "mono8"
+    path: Path,
+    kind: str,
+    images: dict[str, list[tuple[int, np.ndarray]]],
+    encoding: str = "mono8",
+    stamp: int | None = None,
 ) -> Path:
     """A bag (``ros1``, ``db3`` or ``mcap``) with images on ``/<camera>/image_raw``.
 
     A ``/status`` ``std_msgs/String`` message follows every image, so copies of
-    non-image topics are checked too. Log time = stamp + 1 ms.
+    non-image topics are checked too. Log time = stamp + 1 ms; ``stamp`` set:
+    every header carries it instead (a driver that never sets it).
     """
     store = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
     types = store.types
@@ -47,9 +52,10 @@ def write_bag(
         }
         status = writer.add_connection("/status", STRING, typestore=store)
         for t_ns, camera, image in messages:
-            stamp = types["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+            said = t_ns if stamp is None else stamp
+            time = types["builtin_interfaces/msg/Time"](sec=said // 10**9, nanosec=said % 10**9)
             extra = {"seq": 7} if kind == "ros1" else {}
-            header = types["std_msgs/msg/Header"](stamp=stamp, frame_id=camera, **extra)
+            header = types["std_msgs/msg/Header"](stamp=time, frame_id=camera, **extra)
             pixels = image if image.ndim == 2 else image[:, :, ::-1] if "bgr" in encoding else image
             message = types[IMAGE](
                 header=header,
