@@ -88,6 +88,11 @@ def run(args: argparse.Namespace) -> int:
     why = "a later run would judge the contact sheet as a frame"
     if (problem := inside_refusal(out, args.input, "the input", why)) is not None:
         raise ConfigError(problem)
+    if args.input.is_file() and out.resolve() == args.input.resolve().parent:
+        raise ConfigError(
+            f"--out {out}: the folder that holds {args.input}; {why} there, so choose "
+            "another folder"
+        )
     # Files are counted from their listing (cheap); a bag's count is only known once read.
     bag = kind in ("rosbag1", "rosbag2")
     total = None if bag else len(frame_files(args.input, kind, CAMERAS))

@@ -275,4 +275,6 @@ def detect_frames(
         label_rows = [labels[i : i + columns] for i in range(0, len(labels), columns)]
         sheet = make_contact_sheet(rows, label_rows, title="detector: red = covered tiles")
         write_image(out / "contact_sheet.png", sheet)  # atomic, as every write_image
+    else:  # an earlier run's sheet would pass for this run's
+        (out / "contact_sheet.png").unlink(missing_ok=True)
     return verdicts

@@ -149,6 +149,21 @@ def test_detect_keeps_its_output_out_of_its_input(
     rows = list(csv.DictReader((tmp_path / "detect_frames" / "detections.csv").open()))
     assert [row["name"] for row in rows] == ["a.png"]
     assert sorted(p.name for p in folder.iterdir()) == ["a.png"]
+    # one image: its own folder is refused too (the sheet would sit beside it as a frame)
+    image = folder / "a.png"
+    assert main(["detect", str(tiny_detector), str(image), "--out", str(folder)]) == 2
+    assert sorted(p.name for p in folder.iterdir()) == ["a.png"]
+
+
+def test_a_run_without_a_sheet_leaves_no_earlier_sheet(tiny_detector: Path, tmp_path: Path) -> None:
+    frames = tmp_path / "frames"
+    write_image(frames / "a.png", (texture((48, 64), seed=1) * 255).astype(np.uint8))
+    out = tmp_path / "out"
+    assert main(["detect", str(tiny_detector), str(frames), "--out", str(out)]) == 0
+    assert (out / "contact_sheet.png").is_file()
+    argv = ["detect", str(tiny_detector), str(frames), "--out", str(out), "--sheet-frames", "0"]
+    assert main(argv) == 0
+    assert not (out / "contact_sheet.png").exists()  # it was the first run's, passing for this one
 
 
 def test_train_detector_says_what_it_cannot_use_in_one_line(
