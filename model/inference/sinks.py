@@ -159,7 +159,8 @@ class FileSink:
 
         A file at the top of ``root`` named like one of restore's own files
         (``reserved``, and :data:`COPIES_NAME`) would be overwritten by it:
-        it is not copied, and one line per such file is returned.
+        it is not copied, and one line per such file is returned; so is one
+        per copied file that holds frames left unrestored (:func:`unrestored_note`).
         """
         skip = {Path(p).resolve() for p in restored}
         own = {*reserved, COPIES_NAME, CACHE_DIR, PARTIAL_DIR}
@@ -175,6 +176,8 @@ class FileSink:
                 )
                 continue
             copy_file(source, self.out_dir / relative)
+            if (note := unrestored_note(source)) is not None:
+                clashes.append(note)
         return clashes
 
     def done(self, frame: InputFrame) -> bool:
@@ -252,6 +255,30 @@ class FileSink:
             atomic_write_text(self.copies_file, lines)
         else:
             self.copies_file.unlink(missing_ok=True)
+
+
+VIDEO_SUFFIXES = frozenset({".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg"})
+UNREAD_IMAGE_SUFFIXES = frozenset({".webp", ".gif", ".heic", ".heif", ".jp2", ".exr", ".avif"})
+
+
+def unrestored_note(source: Path) -> str | None:
+    """A line for a file of a folder input that holds frames restore left as they were.
+
+    Every other file of a folder is copied as it is, which is right for notes
+    and calibration files but lets dirty frames pass unnoticed when the file
+    is a bag, a video or an image format that is not read: the report says so.
+    """
+    suffix = source.suffix.lower()
+    if suffix in BAG_SUFFIXES:
+        return f"{source}: a bag, copied as it is: restore it as an INPUT of its own"
+    if suffix in VIDEO_SUFFIXES:
+        return f"{source}: a video, copied as it is: restore takes its frames as images"
+    if suffix in UNREAD_IMAGE_SUFFIXES:
+        return (
+            f"{source}: {suffix} images are not read, copied as it is: convert it to PNG or "
+            "TIFF to restore it"
+        )
+    return None
 
 
 class BagSink:

@@ -119,6 +119,21 @@ def test_a_folders_other_files_are_copied_with_it(tmp_path: Path, backend: Torch
     # "the same tree": they were left out without a word
     assert (tmp_path / "out" / "sub" / "notes.txt").read_text() == "exposure 4 ms"
     assert (tmp_path / "out" / ".thumb.png").read_bytes() == (source / ".thumb.png").read_bytes()
+    assert report.problems == []  # notes are no frames left dirty
+
+
+def test_frames_a_folder_holds_but_restore_does_not_read_are_named(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    # a bag, a video or a WebP in a folder were copied unchanged without a word: dirty frames
+    source = _folder(tmp_path / "in")
+    for name in ("day1/run.bag", "clip.mp4", "frame.webp", "calib/camchain.yaml"):
+        (source / name).parent.mkdir(parents=True, exist_ok=True)
+        (source / name).write_bytes(b"data")
+    report = restore_input(source, tmp_path / "out", backend)
+    said = sorted(p["reason"].split(":")[0] for p in report.problems)
+    assert said == sorted(str(source / name) for name in ("day1/run.bag", "clip.mp4", "frame.webp"))
+    assert all((tmp_path / "out" / name).read_bytes() == b"data" for name in ("clip.mp4",))
 
 
 def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thread: None) -> None:
