@@ -367,18 +367,19 @@ def with_overrides(
     """``spec`` with the command line's ``--frames`` / ``--seed`` applied (validated).
 
     Raises:
-        ConfigError: ``recording.frames`` or ``seed`` out of range.
+        ConfigError: ``--frames`` or ``--seed`` out of range, named as the
+            option the user typed (the spec's own key means nothing there).
 
     """
     if frames is not None:
         try:
             recording = replace(spec.recording, frames=frames)
         except ValueError as exc:
-            raise ConfigError(f"recording.{exc}") from None
+            raise ConfigError(f"--frames {str(exc).removeprefix('frames: ')}") from None
         spec = replace(spec, recording=recording)
     if seed is not None:
         try:
             spec = replace(spec, seed=seed)
         except ValueError as exc:
-            raise ConfigError(str(exc)) from None
+            raise ConfigError(f"--seed {str(exc).removeprefix('seed: ')}") from None
     return spec
