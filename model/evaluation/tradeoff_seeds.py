@@ -136,6 +136,20 @@ def aggregate(
     ]
 
 
+def _schedule(training: dict[str, Any]) -> str:
+    """Crops, batch and learning-rate schedule in words (what a budget of steps buys)."""
+    decay = float(training["lr_decay"])
+    rate = (
+        f"falling linearly towards zero over the last {decay:.0%} of the budget"
+        if decay > 0
+        else "constant"
+    )
+    return (
+        f"{training['crop_size']} px crops, batch {training['batch_size']}, learning rate "
+        f"{training['lr']:g} {rate}"
+    )
+
+
 def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
     """The table, its conditions, the convergence verdict and the published rows."""
     tail = f"{CONVERGENCE_TAIL:.0%}"
@@ -144,6 +158,7 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
         "",
         f"- data: `{meta['dataset']}`, scored on {meta['evaluated_on']}",
         f"- training budget per variant and seed: {meta['budget']}; seeds {meta['seeds']}",
+        *([f"- training: {_schedule(meta['training'])}"] if "training" in meta else []),
         f"- metric convention: {meta['convention']}; accuracy is mean +/- spread (sample "
         "standard deviation over seeds)",
         f"- CPU ms: median over seeds of the median per frame (batch 1, {meta['size']})",
@@ -224,6 +239,12 @@ def run_seeded_tradeoff(
     meta = dict(results[0].meta)
     meta.pop("seed", None)  # the first seed's; each seed<k>/tradeoff.json keeps its own
     meta["seeds"] = list(seeds)
+    meta["training"] = {
+        "crop_size": base.data.crop_size,
+        "batch_size": base.train.batch_size,
+        "lr": base.train.lr,
+        "lr_decay": base.train.lr_decay,
+    }
     baselines = [r.meta.get("input_baseline") for r in results]
     meta["input_baseline"] = baselines[0]
     atomic_write_text(out_dir / "tradeoff_seeds.md", seeded_markdown(rows, meta))

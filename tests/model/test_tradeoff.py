@@ -217,6 +217,10 @@ def test_seeded_tradeoff_reports_mean_spread_convergence_and_published_rows(
     assert "+/-" in markdown and "converged" in markdown
     assert "published" in markdown and "| G+E+A | 0.909 | 29.84 |" in markdown
     assert json.loads((out / "tradeoff_seeds.json").read_text())["meta"]["seeds"] == [0, 1]
+    # what the budget bought depends on crops, batch and schedule: the table says them
+    crop, batch = base.data.crop_size, base.train.batch_size
+    said = f"- training: {crop} px crops, batch {batch}, learning rate {base.train.lr:g} constant"
+    assert said in markdown
 
 
 def test_a_row_describes_itself_in_one_line() -> None:
@@ -496,3 +500,13 @@ def test_a_split_asked_for_is_scored_or_refused_never_replaced(tmp_path: Path) -
     assert "held-out validation pairs" in tradeoff(None, "t4").meta["evaluated_on"]
     with pytest.raises(LenspairError, match="no pairs to score"):
         tradeoff("test", "t5")  # asked for by name: refused, not replaced
+
+
+def test_the_schedule_in_words_says_the_decay() -> None:
+    from lenspair.model.evaluation.tradeoff_seeds import _schedule
+
+    training = {"crop_size": 128, "batch_size": 4, "lr": 2e-4, "lr_decay": 0.5}
+    assert _schedule(training) == (
+        "128 px crops, batch 4, learning rate 0.0002 falling linearly towards zero over the "
+        "last 50% of the budget"
+    )
