@@ -145,7 +145,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--config", type=Path, help="run config for every `train` (default: early stopping off)"
     )
+    parser.add_argument(
+        "--data-only",
+        action="store_true",
+        help="build (or reuse) the demo dataset under OUT/demo, print its path and stop "
+        "(`make tradeoff-seeds` trains its variants on it)",
+    )
     args = parser.parse_args(argv)
+    if args.data_only:
+        print(_dataset(args.out.resolve(), args.frames, args.splits))
+        return 0
     command = "python -m benchmarks.table2 " + " ".join(sys.argv[1:] if argv is None else argv)
     torch.set_num_threads(2)
     out = args.out.resolve()

@@ -33,3 +33,16 @@ def test_training_time_is_read_from_the_runs_themselves(tmp_path: Path) -> None:
     write_metrics_rows(tmp_path / "run" / "metrics.csv", rows)  # type: ignore[arg-type]
     assert table2._training_seconds(tmp_path / "run") == 30.0
     assert table2._training_seconds(tmp_path / "never_trained") == 0.0
+
+
+def test_data_only_builds_the_dataset_and_trains_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # `make tradeoff-seeds` trains on Table 2's dataset without Table 2's hour of training
+    ran: list[Stage] = []
+    monkeypatch.setattr(table2, "run_stages", lambda out, stages, cli: ran.extend(stages))
+    monkeypatch.setattr(table2, "_parallel", lambda *args: pytest.fail("trained"))
+    argv = ["--out", str(tmp_path), "--frames", "24", "--splits", "0.6,0.15,0.25", "--data-only"]
+    assert table2.main(argv) == 0
+    assert capsys.readouterr().out.strip() == str(ran[-1].output)
+    assert ran[-1].name == "dataset-build"
