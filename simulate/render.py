@@ -130,6 +130,7 @@ def sample_glass(
         raise SimulateError(f"shape: expected (H, W) with H, W >= 1, got {tuple(shape)}")
     shape = (int(shape[0]), int(shape[1]))
     try:
+        effects = effects.for_photograph()  # a scene's are set already (its camera's)
         effects.check_memory(shape)
     except ValueError as exc:
         raise SimulateError(str(exc)) from None

@@ -26,6 +26,10 @@ from lenspair.simulate.effects.spec import DustSpec
 _CHUNK_VALUES = 1 << 22
 """Patch-window pixels evaluated at once (memory: about 100 MB of temporaries)."""
 
+_MAX_WINDOW_REACH = 64
+"""Patches whose window reaches further go one by one, their windows cut to the frame
+(a whole window of a patch far larger than the frame would not fit in memory)."""
+
 _MIN_TRANSMISSION = 1e-4
 
 
@@ -90,13 +94,25 @@ def _optical_depth(
 
     Each patch is evaluated on the square window of pixels around its centre
     that holds its disc, all patches of a chunk at once, and the values are
-    summed into the image with one ``bincount``.
+    summed into the image with one ``bincount``; large patches (there are few)
+    one by one, on the part of their window inside the frame.
     """
     height, width = shape
     tau = np.zeros(height * width, np.float64)
     if len(x) == 0:
         return tau.reshape(shape).astype(np.float32)
     reach = math.ceil(float(radii.max())) + 1  # floor(c) +- reach holds |p - c| < r
+    if reach > _MAX_WINDOW_REACH:  # few, large patches: each on its window cut to the frame
+        flat = tau.reshape(shape)
+        for cx, cy, radius, depth in zip(x, y, radii, depths, strict=True):
+            top, bottom = max(0, math.floor(cy - radius)), min(height, math.ceil(cy + radius) + 1)
+            left, right = max(0, math.floor(cx - radius)), min(width, math.ceil(cx + radius) + 1)
+            if bottom > top and right > left:
+                dy2 = ((np.arange(top, bottom) - cy) ** 2)[:, None]
+                dx2 = ((np.arange(left, right) - cx) ** 2)[None, :]
+                inside = np.maximum(1.0 - (dy2 + dx2) / radius**2, 0.0)
+                flat[top:bottom, left:right] += depth * inside**3
+        return flat.astype(np.float32)
     offsets = np.arange(-reach, reach + 1)
     chunk = max(1, _CHUNK_VALUES // len(offsets) ** 2)
     for start in range(0, len(x), chunk):

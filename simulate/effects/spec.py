@@ -167,6 +167,15 @@ class DefocusSpec:
         _check_value("f_number", self.f_number, 0.5, 64.0)
         if self.pixel_pitch_um is not None:
             _check_value("pixel_pitch_um", self.pixel_pitch_um, 0.1, 100.0)
+        if self.pixel_pitch_um is not None:  # else the camera decides (for_camera, for_photograph)
+            self.check_blur()
+
+    def check_blur(self) -> None:
+        """Refuse a blur disk over 128 px where the optics, not a pixel size, set it.
+
+        Raises:
+            ValueError: naming ``glass_distance_m``.
+        """
         if self.blur_diameter_px / 2 > 64.0 and (
             self.shift_px is None if self.kernel == "shifts" else self.disk_radius_px is None
         ):
@@ -371,6 +380,19 @@ class EffectsSpec:
                 defocus = dataclasses.replace(defocus, pixel_pitch_um=pitch)
             except ValueError as exc:
                 raise ValueError(f"defocus.{exc} (with the camera's fx {fx:g} px)") from None
+        return dataclasses.replace(self, raindrops=drops, defocus=defocus)
+
+    def for_photograph(self) -> "EffectsSpec":
+        """These effects over a photograph (no camera): unset optics take the photo defaults.
+
+        Raises:
+            ValueError: the defocus's blur disk would be over 128 px.
+        """
+        drops, defocus = self.raindrops, self.defocus
+        if drops is not None and drops.focal_px is None:
+            drops = dataclasses.replace(drops, focal_px=PHOTO_FOCAL_PX)
+        if defocus is not None and defocus.pixel_pitch_um is None:
+            defocus = dataclasses.replace(defocus, pixel_pitch_um=PHOTO_PIXEL_PITCH_UM)
         return dataclasses.replace(self, raindrops=drops, defocus=defocus)
 
     @property

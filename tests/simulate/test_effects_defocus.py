@@ -161,5 +161,11 @@ def test_kernel_reach_is_the_blur_radius(kernel: str) -> None:
 
 def test_glass_too_close_for_the_kernel_is_refused() -> None:
     with pytest.raises(ValueError, match="glass_distance_m"):
-        DefocusSpec(glass_distance_m=0.002)
-    DefocusSpec(glass_distance_m=0.002, shift_px=3.0)  # pixels by hand: allowed
+        DefocusSpec(glass_distance_m=0.002, pixel_pitch_um=6.9)
+    close = EffectsSpec(defocus=DefocusSpec(glass_distance_m=0.002))  # the camera decides
+    with pytest.raises(ValueError, match="glass_distance_m"):
+        close.for_photograph()
+    with pytest.raises(ValueError, match="glass_distance_m"):
+        close.for_camera(350.0)
+    assert close.for_camera(30.0).defocus is not None  # a 30 px camera blurs it 18 px
+    DefocusSpec(glass_distance_m=0.002, shift_px=3.0, pixel_pitch_um=6.9)  # pixels by hand

@@ -1,5 +1,7 @@
 """Dust: I = I0 a + b with smooth, compactly supported a and b."""
 
+import tracemalloc
+
 import numpy as np
 import pytest
 
@@ -76,6 +78,19 @@ def test_a_patch_cut_by_the_frame_edge_is_the_same_bump_inside() -> None:
     rows, cols = np.mgrid[0:8, 0:9]
     inside = np.maximum(1 - ((rows + 0.5) ** 2 + (cols + 0.5) ** 2) / 36.0, 0.0)
     np.testing.assert_allclose(tau, 2.0 * inside**3, rtol=1e-6)
+
+
+def test_memory_follows_the_frame_not_the_patch() -> None:
+    # Patches far larger than the frame were evaluated on their whole windows: a legal
+    # scale_px of 1e4 needed about 10 GB whatever the frame's size.
+    spec = DustSpec(scale_px=2000.0, coverage=0.5)
+    tracemalloc.start()
+    try:
+        field = dust.sample_dust(spec, (60, 80), np.random.default_rng(0))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 10e6 and field.support.any()
 
 
 def test_zero_coverage_is_no_dust() -> None:

@@ -246,3 +246,14 @@ def test_a_camera_that_makes_the_glass_blur_impossible_is_named(tmp_path: Path) 
     data["obstructed"] = {"effects": {"defocus": {}}}
     with pytest.raises(ConfigError, match=r"obstructed\.effects\.defocus\.glass_distance_m: .*fx"):
         load_scene(_write(tmp_path, data))
+
+
+def test_a_blur_is_judged_for_the_scenes_camera_not_the_photo_default(tmp_path: Path) -> None:
+    # A 175 px camera behind glass 3 mm away blurs 70 px: refused as the 139 px of 350 px.
+    data = _with("rig.cam1.intrinsics", [175.0, 175.0, 179.5, 134.5])
+    data["rig"]["cam1"]["resolution"] = [360, 270]
+    data["rig"]["cam0"] = {"resolution": [360, 270], "intrinsics": [175.0, 175.0, 179.5, 134.5]}
+    data["obstructed"] = {"effects": {"defocus": {"glass_distance_m": 0.003}}}
+    effects = load_scene(_write(tmp_path, data)).obstructed.effects
+    assert effects.defocus is not None
+    assert effects.defocus.blur_diameter_px == pytest.approx(70.0)
