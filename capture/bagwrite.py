@@ -27,13 +27,46 @@ import numpy as np
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
+from rosbags.typesys import (
+    Stores,
+    TypesysError,
+    get_types_from_idl,
+    get_types_from_msg,
+    get_typestore,
+)
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage
 from lenspair.capture.rosbag import COMPRESSED_IMAGE, bayer_pattern
 
 _CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
+
+
+_IDL_SEPARATOR = "=" * 80 + "\n"
+
+
+def _definition_hash(msgdef: str, msgtype: str, topic: str) -> str:
+    """The RIHS01 hash of ``msgtype`` as ``msgdef`` (``.msg`` or IDL text) defines it.
+
+    Computed from the definition itself, as readers check it, so a copy's
+    hash always agrees with its definition.
+
+    Raises:
+        CaptureError: the definition cannot be parsed, naming the topic.
+    """
+    store = get_typestore(Stores.EMPTY)
+    try:
+        # IDL as rosbags' writer tells it (it labels the rest ros2msg): one file per section
+        if msgdef.startswith(_IDL_SEPARATOR + "IDL: "):
+            for part in msgdef.split(_IDL_SEPARATOR)[1:]:
+                store.register(get_types_from_idl(part.split("\n", 1)[1]))
+        else:
+            store.register(get_types_from_msg(msgdef, msgtype))
+        return str(store.hash_rihs01(msgtype))
+    except (KeyError, TypesysError, IndexError) as exc:
+        raise CaptureError(
+            f"{topic}: cannot read the message definition of {msgtype} the source stores ({exc})"
+        ) from None
 
 
 def output_bag_path(source: Path, out_dir: Path) -> Path:
@@ -119,7 +152,8 @@ class BagCopy:
         agree (readers check; a copy with empty definitions beside the type
         store's hashes could not be opened). A type the store does not know
         either (a vendor's message in a Humble bag) is copied under its name
-        with an empty definition, and :attr:`undefined` lists its topic.
+        with an empty definition (and that definition's hash: the writer needs
+        one), which no reader can decode it by; :attr:`undefined` lists its topic.
         """
         msgtype = connection.msgtype
         msgdef, digest = connection.msgdef.data, connection.digest
@@ -131,19 +165,8 @@ class BagCopy:
             except (KeyError, TypesysError):  # rosbags' words for a type it does not know
                 self.undefined.append(f"{topic} ({msgtype})")
                 msgdef = ""
-        if not digest and msgdef.startswith("=" * 80 + "\nIDL: "):
-            try:
-                return msgdef, str(self.typestore.hash_rihs01(msgtype))
-            except (KeyError, TypesysError) as exc:
-                raise CaptureError(
-                    f"{topic}: the source stores no type hash for {msgtype} and lenspair "
-                    f"does not know the type ({exc}); restore the bag folder (with "
-                    "metadata.yaml) instead"
-                ) from None
         if not digest:
-            store = get_typestore(Stores.EMPTY)
-            store.register(get_types_from_msg(msgdef, msgtype))
-            digest = str(store.hash_rihs01(msgtype))
+            digest = _definition_hash(msgdef, msgtype, topic)
         return msgdef, digest
 
     def write(self, item: BagMessage, restored: np.ndarray | None = None) -> None:

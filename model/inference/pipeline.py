@@ -384,7 +384,9 @@ def restore_input(
     if isinstance(sink, BagSink):
         source_problems.extend(
             f"{topic}: a type neither the bag nor rosbags defines: its messages are copied "
-            "byte for byte under an empty definition (ROS 2 tools with its package read them)"
+            "byte for byte, under an empty definition whose hash is not the type's, so readers "
+            "that decode by the bag's definitions (rosbags) cannot decode them from the copy; "
+            "decode that topic from the original"
             for topic in sink.copy.undefined
         )
     report.problems.extend({"frame": "", "reason": reason} for reason in source_problems)

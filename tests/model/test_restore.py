@@ -617,3 +617,40 @@ def test_a_humble_bag_is_restored_into_a_bag_readers_open(
     # rosbags' reader checks that every definition agrees with its hash
     with AnyReader([Path(report.output)]) as reader:
         assert {c.topic for c in reader.connections} >= {"/cam0/image_raw", "/status"}
+
+
+def test_a_bare_mcap_with_an_idl_vendor_type_is_copied_with_its_own_hash(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    # A bare .mcap stores definitions but no hashes: an IDL-defined vendor type stopped the
+    # run ("restore the bag folder instead", which the user did not have).
+    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import Writer as Writer2
+    from rosbags.typesys import Stores, get_types_from_idl, get_typestore
+
+    idl = "module my_msgs { module msg { struct Health { string name; float temperature; }; }; };\n"
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    store.register(get_types_from_idl(idl))
+    truth = store.hash_rihs01(HEALTH)
+    image = (texture((32, 48), seed=6) * 255).astype(np.uint8)
+    folder = write_bag(tmp_path / "b", "mcap", {"cam0": [(10**18, image)]})
+    with_vendor = tmp_path / "v"
+    writer = Writer2(with_vendor, version=9, storage_plugin=StoragePlugin.MCAP)
+    with writer:
+        connections = {}
+        for message in iter_bag_messages(folder, ()):
+            c = message.connection
+            if c.topic not in connections:
+                connections[c.topic] = writer.add_connection(c.topic, c.msgtype, typestore=store)
+            writer.write(connections[c.topic], message.log_time_ns, message.raw)
+        vendor = writer.add_connection(
+            "/vendor", HEALTH, msgdef="=" * 80 + f"\nIDL: {HEALTH}\n" + idl, rihs01=truth
+        )
+        health = store.types[HEALTH](name="cam0", temperature=40.5)
+        writer.write(vendor, 10**18 + 5, bytes(store.serialize_cdr(health, HEALTH)))
+    bare = tmp_path / "bare.mcap"
+    shutil.copy(next(with_vendor.glob("*.mcap")), bare)
+    report = restore_input(bare, tmp_path / "out", backend, RestoreOptions(suffix="/restored"))
+    assert report.restored == 1 and report.problems == []
+    copy = iter_bag_messages(Path(report.output), ())
+    assert [m.connection.digest for m in copy if m.connection.topic == "/vendor"] == [truth]
