@@ -27,6 +27,7 @@ Rules a robotics user can rely on:
 import contextlib
 import logging
 import os
+import re
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
@@ -258,13 +259,28 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
     changed = [
         f"{key}: {before.get(key)!r} -> {value!r}"
         for key, value in settings.items()
-        if before.get(key) != value
+        if before.get(key) != value and not (key == "model" and _same_model(before, settings))
     ]
     if changed:
         raise ModelError(
             f"--resume: {out_dir} was written with other settings ({'; '.join(changed)}); "
             "resume with the same ones, or choose a new --out"
         )
+
+
+def _same_model(before: dict[str, Any], settings: dict[str, Any]) -> bool:
+    """The same model file (by hash) on the same backend, device and precision.
+
+    Runs recorded before the model's path was resolved hold it as typed; the
+    descriptions are compared without their paths (``<kind> PATH on <device>
+    (<precision>)``).
+    """
+    digest = settings.get("model_sha256")
+    if digest is None or before.get("model_sha256") != digest:
+        return False
+    pattern = re.compile(r"^(?P<kind>.+?) (?P<path>.+) on (?P<where>[^ ]+ \([^)]+\))$")
+    old, new = pattern.match(str(before.get("model"))), pattern.match(str(settings["model"]))
+    return bool(old and new and (old["kind"], old["where"]) == (new["kind"], new["where"]))
 
 
 def check_apart(input_path: Path, kind: InputKind, out_dir: Path) -> None:

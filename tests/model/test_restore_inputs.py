@@ -1,6 +1,7 @@
 """``restore`` keeps inputs safe and accounts for every frame of every input kind."""
 
 import errno
+import json
 import os
 import shutil
 import threading
@@ -18,7 +19,12 @@ from lenspair.core.imageio import read_image, write_image
 from lenspair.model.errors import ModelError
 from lenspair.model.inference import sinks
 from lenspair.model.inference.backends import TorchBackend, open_backend
-from lenspair.model.inference.pipeline import RestoreOptions, RestoreReport, restore_input
+from lenspair.model.inference.pipeline import (
+    REPORT_NAME,
+    RestoreOptions,
+    RestoreReport,
+    restore_input,
+)
 from tests.capture.ingest_helpers import make_recording
 from tests.images import texture
 from tests.model.restore_helpers import write_bag
@@ -197,6 +203,17 @@ def test_resume_takes_the_same_model_however_its_path_is_typed(
     again = open_backend(Path("../ck.pt"), torch.device("cpu"), "fp32")
     resumed = restore_input(source, tmp_path / "out", again, RestoreOptions(resume=True))
     assert (resumed.resumed, resumed.restored) == (2, 0)
+    # a run recorded by an earlier version holds the path as typed: the same file resumes
+    report = tmp_path / "out" / REPORT_NAME
+    recorded = json.loads(report.read_text())
+    recorded["settings"]["model"] = "torch checkpoint ck.pt on cpu (fp32)"
+    report.write_text(json.dumps({**recorded, "complete": False}))
+    resumed = restore_input(source, tmp_path / "out", again, RestoreOptions(resume=True))
+    assert (resumed.resumed, resumed.restored) == (2, 0)
+    recorded["settings"]["model"] = "torch checkpoint ck.pt on cpu (bf16)"  # but not another
+    report.write_text(json.dumps({**recorded, "complete": False}))
+    with pytest.raises(ModelError, match=r"--resume: .*\(bf16\)"):
+        restore_input(source, tmp_path / "out", again, RestoreOptions(resume=True))
 
 
 def test_an_image_too_small_for_the_network_costs_only_itself(
