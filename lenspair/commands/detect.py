@@ -88,10 +88,11 @@ def run(args: argparse.Namespace) -> int:
     why = "a later run would judge the contact sheet as a frame"
     if (problem := inside_refusal(out, args.input, "the input", why)) is not None:
         raise ConfigError(problem)
-    if args.input.is_file() and out.resolve() == args.input.resolve().parent:
+    # one image: a later run over its folder (listed recursively) would read the sheet there
+    if kind == "image" and out.resolve().is_relative_to(args.input.resolve().parent):
         raise ConfigError(
-            f"--out {out}: the folder that holds {args.input}; {why} there, so choose "
-            "another folder"
+            f"--out {out}: inside the folder that holds {args.input}; {why} there, so "
+            "choose a folder outside it"
         )
     # Files are counted from their listing (cheap); a bag's count is only known once read.
     bag = kind in ("rosbag1", "rosbag2")

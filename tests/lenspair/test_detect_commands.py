@@ -149,10 +149,15 @@ def test_detect_keeps_its_output_out_of_its_input(
     rows = list(csv.DictReader((tmp_path / "detect_frames" / "detections.csv").open()))
     assert [row["name"] for row in rows] == ["a.png"]
     assert sorted(p.name for p in folder.iterdir()) == ["a.png"]
-    # one image: its own folder is refused too (the sheet would sit beside it as a frame)
+    # one image: its own folder, or one inside it, is refused too (folders are listed
+    # recursively, so the sheet would be judged as a frame of that folder)
     image = folder / "a.png"
-    assert main(["detect", str(tiny_detector), str(image), "--out", str(folder)]) == 2
+    for out in (folder, folder / "det"):
+        assert main(["detect", str(tiny_detector), str(image), "--out", str(out)]) == 2
     assert sorted(p.name for p in folder.iterdir()) == ["a.png"]
+    # a bag's folder is no image folder: its sheet beside it is fine
+    bag = bag_from_recording(tmp_path / "b", "mcap", frames=2)
+    assert main(["detect", str(tiny_detector), str(bag), "--out", str(bag.parent)]) == 0
 
 
 def test_a_run_without_a_sheet_leaves_no_earlier_sheet(tiny_detector: Path, tmp_path: Path) -> None:
