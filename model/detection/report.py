@@ -26,7 +26,6 @@ import numpy as np
 
 from lenspair.capture.frames import InputFrame
 from lenspair.capture.recording_types import FrameProblem
-from lenspair.capture.rigfile import CameraName
 from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.core.contact_sheet import make_contact_sheet, to_display
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
@@ -164,8 +163,8 @@ def _timed_by_log(
     driver that never sets ``header.stamp`` gave every row one ``t_ns``. Both
     cameras then take the log time, and the log says so.
     """
-    stamps: dict[CameraName | None, set[int]] = {}
-    counts: dict[CameraName | None, int] = {}
+    stamps: dict[str | None, set[int]] = {}
+    counts: dict[str | None, int] = {}
     for verdict, log_time in zip(verdicts, log_times, strict=True):
         if log_time is not None and verdict.t_ns is not None:
             stamps.setdefault(verdict.camera, set()).add(verdict.t_ns)
