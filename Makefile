@@ -54,7 +54,8 @@ results: demo bench
 
 # Issue 12: the tradeoff over seeds with a convergence check (6 variants x 3 seeds x 800
 # steps, crop 128, batch 4, learning rate decaying over the second half, on Table 2's
-# dataset: about 85 minutes on 2 CPU cores, docs/results/tradeoff_seeds_cpu.md; 800
+# dataset: 3 hours of one-thread training, about one on 2 cores with the seeds side by
+# side as docs/results/tradeoff_seeds_cpu.md was; 800
 # constant-rate steps at crop 256 ran on an H100, docs/results/gpu_h100.md), the paper's
 # Table 2 on simulated pairs (2 pretrainings of 1200 steps and 9 fine-tunings of 800:
 # about an hour on 2 CPU cores;

@@ -249,17 +249,24 @@ SEEDED = (FIGURES / "tradeoff_seeds_cpu.md", FIGURES / "tradeoff_seeds_h100.md")
 trained on this project's 2-core CPU with the decaying schedule, one on a lent H100."""
 
 
-def seeded_blocks(path: Path) -> list[Block]:
+def seeded_blocks(path: Path, published: bool = True) -> list[Block]:
     """The tradeoff over seeds, as ``lenspair tradeoff --seeds`` wrote it, with where it ran.
 
     Its own heading is dropped (the section gives one); the device comes from
-    the ``.json`` the command writes beside the ``.md``.
+    the ``.json`` the command writes beside the ``.md``. ``published=False``
+    also drops the paper's published rows (shown once, after the last run).
     """
     if not path.is_file():
         return _missing("the tradeoff over seeds", "lenspair tradeoff DS --seeds 0,1,2")
     meta = (load_json(path.with_suffix(".json")) or {}).get("meta", {})
     device = meta.get("device", "a device not recorded")
     blocks = [b for b in markdown_file_blocks(path) if not isinstance(b, Heading)]
+    if not published:
+        starts = [
+            i for i, b in enumerate(blocks)
+            if isinstance(b, Paragraph) and b.text.startswith("Published figures")
+        ]  # fmt: skip
+        blocks = blocks[: starts[0]] if starts else blocks
     intro = Paragraph(
         f"A longer run than the demo's: `lenspair tradeoff DS --seeds 0,1,2 --budget N` "
         f"(`make tradeoff-seeds`), trained on {device}, CPU times from that machine's CPU; "
@@ -268,6 +275,12 @@ def seeded_blocks(path: Path) -> list[Block]:
         "names it), so its input row differs from the demo table's above."
     )
     return [intro, *blocks]
+
+
+def seeded_runs(paths: Sequence[Path]) -> list[Block]:
+    """Each longer run's table in turn; the paper's published rows once, after the last."""
+    last = len(paths) - 1
+    return [*chain(*(seeded_blocks(path, i == last) for i, path in enumerate(paths)))]
 
 
 DEMO_TARGET_MINUTES = 15.0
@@ -477,7 +490,7 @@ def section(
     """The Markdown between the markers (without them); pictures to copy go to ``copies``."""
     parts: list[tuple[str, Callable[[], list[Block]]]] = [
         ("Accuracy and its time (demo data)", lambda: tradeoff_blocks(demo, copies)),
-        ("Accuracy over seeds (longer runs)", lambda: [*chain(*map(seeded_blocks, seeded))]),
+        ("Accuracy over seeds (longer runs)", lambda: seeded_runs(seeded)),
         ("The fine-tuned network per difficulty", lambda: eval_blocks(demo, copies)),
         ("Pipeline stages", lambda: stage_blocks(demo, demo_fp32)),
         ("Calibration against the simulator's truth", lambda: calibration_section(demo)),

@@ -15,6 +15,7 @@ from benchmarks.readme_results import (
     main,
     replace_section,
     seeded_blocks,
+    seeded_runs,
     stage_blocks,
 )
 from lenspair.core.config import dump_yaml
@@ -290,6 +291,10 @@ def test_seeded_tradeoff_comes_in_as_the_command_wrote_it_with_its_device(tmp_pa
     assert "| no (+1.82 dB) | * |" in text
     assert "800 steps" in text and "does NOT hold for every network" in text
     assert "| state of the art, Raindrop test set | DeRaindrop | 0.921 | 31.50 |" in text
+    # several runs: the paper's rows once, after the last
+    both = to_markdown(seeded_runs([markdown, markdown]))
+    assert both.count("| GEA | fp32 | 708,426 |") == 2 and both.count("| DeRaindrop |") == 1
+    assert both.index("| DeRaindrop |") > both.rindex("| GEA | fp32 | 708,426 |")
     missing = to_markdown(seeded_blocks(tmp_path / "absent.md"))
     assert "Not measured yet: the tradeoff over seeds comes from `lenspair tradeoff" in missing
 
