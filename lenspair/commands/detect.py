@@ -88,11 +88,12 @@ def run(args: argparse.Namespace) -> int:
     why = "a later run would judge the contact sheet as a frame"
     if (problem := inside_refusal(out, args.input, "the input", why)) is not None:
         raise ConfigError(problem)
-    # one image: a later run over its folder (listed recursively) would read the sheet there
-    if kind == "image" and out.resolve().is_relative_to(args.input.resolve().parent):
+    # One image: its own folder would mix the sheet with the frames. A folder below it stays
+    # allowed: the default (detect_<name> here) is one whenever the image is here.
+    if kind == "image" and out.resolve() == args.input.resolve().parent:
         raise ConfigError(
-            f"--out {out}: inside the folder that holds {args.input}; {why} there, so "
-            "choose a folder outside it"
+            f"--out {out}: the folder that holds {args.input}; {why} there, so choose "
+            "another folder"
         )
     # Files are counted from their listing (cheap); a bag's count is only known once read.
     bag = kind in ("rosbag1", "rosbag2")

@@ -149,12 +149,13 @@ def test_detect_keeps_its_output_out_of_its_input(
     rows = list(csv.DictReader((tmp_path / "detect_frames" / "detections.csv").open()))
     assert [row["name"] for row in rows] == ["a.png"]
     assert sorted(p.name for p in folder.iterdir()) == ["a.png"]
-    # one image: its own folder, or one inside it, is refused too (folders are listed
-    # recursively, so the sheet would be judged as a frame of that folder)
+    # one image: its own folder is refused too (the sheet would sit among the frames); a
+    # folder below it is not, since the default output is one when the image is here
     image = folder / "a.png"
-    for out in (folder, folder / "det"):
-        assert main(["detect", str(tiny_detector), str(image), "--out", str(out)]) == 2
+    assert main(["detect", str(tiny_detector), str(image), "--out", str(folder)]) == 2
     assert sorted(p.name for p in folder.iterdir()) == ["a.png"]
+    assert main(["detect", str(tiny_detector), "a.png"]) == 0  # here: detect_a.png below
+    assert (folder / "detect_a.png" / "detections.csv").is_file()
     # a bag's folder is no image folder: its sheet beside it is fine
     bag = bag_from_recording(tmp_path / "b", "mcap", frames=2)
     assert main(["detect", str(tiny_detector), str(bag), "--out", str(bag.parent)]) == 0
