@@ -46,8 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--out",
         type=out_folder,
-        help="output folder, outside the input (default: detect_<input name>, beside the "
-        "input when the current folder is inside it)",
+        help="output folder, outside the input and, for one image, not the image's own "
+        "folder (default: detect_<input name>, beside the input when the current folder is "
+        "inside it)",
     )
     add_device_option(parser)
     parser.add_argument(
