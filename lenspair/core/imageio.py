@@ -126,6 +126,25 @@ def read_alpha(path: Path) -> np.ndarray | None:
     return np.ascontiguousarray(array[:, :, -1])
 
 
+def alpha_is_associated(path: Path) -> bool:
+    """Whether a TIFF's alpha is associated (colour stored premultiplied); header only.
+
+    TIFF says which (``ExtraSamples``); OpenImageIO reports an unassociated
+    one as ``oiio:UnassociatedAlpha``. Other formats (PNG) are unassociated
+    by definition: ``False``, as for a file without alpha.
+
+    Raises:
+        ImageIOError: as :func:`read_image`.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return False
+    with _opened(path) as handle:
+        spec = handle.spec()
+        unassociated = int(spec.get_int_attribute("oiio:UnassociatedAlpha", 0)) == 1
+        return int(spec.alpha_channel) >= 0 and not unassociated
+
+
 def oiio_name(path: Path) -> str:
     """``path`` as OpenImageIO takes it: text that encodes as UTF-8.
 
@@ -202,6 +221,7 @@ def write_image(
     png_level: int | None = None,
     alpha: np.ndarray | None = None,
     orientation: int = 1,
+    associated: bool = False,
 ) -> None:
     """Write ``image`` atomically; the format follows the file extension.
 
@@ -214,6 +234,9 @@ def write_image(
             after the colour ones (grey + alpha, RGBA); see :func:`read_alpha`.
         orientation: the EXIF/TIFF ``Orientation`` to record (1, as stored: none
             is written); see :func:`image_layout`.
+        associated: ``alpha`` is associated (the colour is premultiplied, as
+            in the TIFF it came from: :func:`alpha_is_associated`), and a TIFF
+            says so; the colour is written as given either way.
 
     """
     check_image(image, str(path))
@@ -232,7 +255,8 @@ def write_image(
         spec = oiio.ImageSpec(width, height, channels, _OIIO_TYPES[image.dtype])
         if alpha is not None:
             spec.alpha_channel = channels - 1
-            spec.attribute("oiio:UnassociatedAlpha", 1)  # colour as given, not divided by alpha
+            if not associated:  # colour as given, not divided by alpha
+                spec.attribute("oiio:UnassociatedAlpha", 1)
         if png_level is not None:
             spec.attribute("png:compressionLevel", png_level)
         if orientation != 1:

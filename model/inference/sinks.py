@@ -40,7 +40,13 @@ from lenspair.core.fsutil import (
     read_json_field,
     remove_path,
 )
-from lenspair.core.imageio import FAST_PNG, image_layout, read_alpha, write_image
+from lenspair.core.imageio import (
+    FAST_PNG,
+    alpha_is_associated,
+    image_layout,
+    read_alpha,
+    write_image,
+)
 
 log = logging.getLogger(__name__)
 
@@ -231,10 +237,13 @@ class FileSink:
             destination.parent.mkdir(parents=True, exist_ok=True)
             alpha = _alpha_of(Path(item.source), restored.shape[:2])
             orientation = _orientation_of(Path(item.source))
+            # a premultiplied TIFF stays marked so: its colour values mean that
+            associated = alpha is not None and alpha_is_associated(Path(item.source))
             # FAST_PNG: a robot's stream wants speed
             write_image(
-                destination, restored, png_level=FAST_PNG, alpha=alpha, orientation=orientation
-            )
+                destination, restored, png_level=FAST_PNG, alpha=alpha, orientation=orientation,
+                associated=associated,
+            )  # fmt: skip
             self.copies.discard(item.name)
 
     def cached(self, frame: InputFrame) -> np.ndarray | None:

@@ -13,7 +13,7 @@ from rosbags.highlevel import AnyReader
 
 from lenspair.capture.frames import BagMessage, iter_bag_messages, iter_frames
 from lenspair.cli import main
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import alpha_is_associated, read_image, write_image
 from lenspair.model.detection.judge import judge
 from lenspair.model.detection.train import save_detector
 from lenspair.model.errors import ModelError
@@ -193,6 +193,20 @@ def test_alpha_is_carried_to_the_restored_image(
     np.testing.assert_array_equal(written[:, :, -1], alpha)  # transparency unchanged
     restored = written[:, :, :3] if colour else written[:, :, 0]
     np.testing.assert_array_equal(restored, expected(backend, image))  # colour restored
+
+
+@pytest.mark.parametrize("associated", [True, False], ids=["premultiplied", "straight"])
+def test_a_tiffs_alpha_keeps_its_association(
+    tmp_path: Path, backend: TorchBackend, associated: bool
+) -> None:
+    # A premultiplied TIFF came out marked straight: the same colour values, another meaning.
+    image = (texture((32, 48), seed=8) * 255).astype(np.uint8)
+    alpha = (texture((32, 48), seed=9) * 255).astype(np.uint8)
+    write_image(tmp_path / "in" / "x.tif", image, alpha=alpha, associated=associated)
+    assert alpha_is_associated(tmp_path / "in" / "x.tif") is associated
+    assert restore_input(tmp_path / "in", tmp_path / "out", backend).restored == 1
+    assert alpha_is_associated(tmp_path / "out" / "x.tif") is associated
+    np.testing.assert_array_equal(_raw(tmp_path / "out" / "x.tif")[:, :, -1], alpha)
 
 
 def test_recording_restores_the_obstructed_camera(tmp_path: Path, backend: TorchBackend) -> None:
