@@ -27,10 +27,10 @@ import os
 import re
 import threading
 from collections import Counter, OrderedDict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from contextlib import suppress
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -48,6 +48,8 @@ from lenspair.capture.recording_types import (
 )
 from lenspair.capture.rigfile import CameraName
 from lenspair.capture.salvage import SalvagedBag, is_cut_db3, salvage_bag
+
+K = TypeVar("K")
 
 RAW_IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
@@ -420,6 +422,16 @@ def _list_messages(
     return listed
 
 
+def never_stamped(stamps: Mapping[K, Sequence[int]]) -> list[K]:
+    """The cameras of more than one frame whose header stamps are all one value.
+
+    A driver that never sets ``header.stamp`` (all 0) or sets it once: such
+    a camera is timed by the bag's log time instead (``capture-ingest``,
+    ``detect``).
+    """
+    return [camera for camera, seen in stamps.items() if len(seen) > 1 and len(set(seen)) == 1]
+
+
 def _timed_by_log(
     listed: dict[CameraName, list[FrameRef]], bag: Path, problems: list[FrameProblem]
 ) -> dict[CameraName, list[FrameRef]]:
@@ -430,9 +442,7 @@ def _timed_by_log(
     came down to one frame. Both cameras then take the log time (one clock
     for both, so that pairing stays fair), and the bag's problems say so.
     """
-    unset = [
-        c for c, frames in listed.items() if len(frames) > 1 and len({f.t_ns for f in frames}) == 1
-    ]
+    unset = never_stamped({c: [f.t_ns for f in frames] for c, frames in listed.items()})
     if not unset:
         return listed
     said = ", ".join(f"{c} ({listed[c][0].topic}) {listed[c][0].t_ns} ns" for c in unset)

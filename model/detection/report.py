@@ -26,6 +26,7 @@ import numpy as np
 
 from lenspair.capture.frames import InputFrame
 from lenspair.capture.recording_types import FrameProblem
+from lenspair.capture.rosbag import never_stamped
 from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.core.contact_sheet import make_contact_sheet, to_display
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
@@ -163,19 +164,17 @@ def _timed_by_log(
     driver that never sets ``header.stamp`` gave every row one ``t_ns``. Both
     cameras then take the log time, and the log says so.
     """
-    stamps: dict[str | None, set[int]] = {}
-    counts: dict[str | None, int] = {}
+    stamps: dict[str | None, list[int]] = {}
     for verdict, log_time in zip(verdicts, log_times, strict=True):
         if log_time is not None and verdict.t_ns is not None:
-            stamps.setdefault(verdict.camera, set()).add(verdict.t_ns)
-            counts[verdict.camera] = counts.get(verdict.camera, 0) + 1
-    unset = [camera for camera, seen in stamps.items() if counts[camera] > 1 and len(seen) == 1]
+            stamps.setdefault(verdict.camera, []).append(verdict.t_ns)
+    unset = never_stamped(stamps)
     if not unset:
         return verdicts
     log.warning(
         "every header.stamp of %s is one value: never set by the driver? t_ns is the bag's "
         "log time instead",
-        ", ".join(f"{camera} ({next(iter(stamps[camera]))} ns)" for camera in unset),
+        ", ".join(f"{camera} ({stamps[camera][0]} ns)" for camera in unset),
     )
     return [
         replace(verdict, t_ns=log_time) if log_time is not None else verdict
