@@ -62,6 +62,7 @@ from lenspair.rectify.rig import (
     DistortionModel,
     StereoRig,
     camera_from_kalibr,
+    is_rotation,
     read_kalibr,
 )
 
@@ -388,13 +389,8 @@ def is_euroc_sensor_file(path: Path) -> bool:
 
 def _rigid(path: Path, matrix: np.ndarray) -> np.ndarray:
     """``T_BS`` checked to be a rigid transform (rotation, translation, bottom row 0 0 0 1)."""
-    rotation = matrix[:3, :3]
-    rigid = (
-        np.allclose(matrix[3], (0.0, 0.0, 0.0, 1.0), atol=1e-6)
-        and np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-4)
-        and np.linalg.det(rotation) > 0
-    )
-    if not rigid:
+    rigid = np.allclose(matrix[3], (0.0, 0.0, 0.0, 1.0), atol=1e-6)
+    if not (rigid and is_rotation(matrix[:3, :3], atol=1e-4)):
         raise RectifyError(
             f"{path}: T_BS is not a rigid transform (a rotation, a translation and the bottom "
             "row 0 0 0 1)"

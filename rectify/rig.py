@@ -65,6 +65,11 @@ class CameraModel:
         return np.array([*self.distortion, 0.0], dtype=np.float64).reshape(1, 5)
 
 
+def is_rotation(matrix: np.ndarray, atol: float) -> bool:
+    """Whether a 3x3 ``matrix`` is a proper rotation: orthonormal within ``atol``, det +1."""
+    return bool(np.allclose(matrix @ matrix.T, np.eye(3), atol=atol) and np.linalg.det(matrix) > 0)
+
+
 @dataclass(frozen=True)
 class StereoRig:
     """Two cameras and the rigid transform between them.
@@ -88,8 +93,7 @@ class StereoRig:
             raise ValueError(f"T_cam1_cam0: expected shape (4, 4), got {T.shape}")
         if not np.all(np.isfinite(T)):
             raise ValueError("T_cam1_cam0 contains NaN or Inf")
-        R = T[:3, :3]
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-5) or np.linalg.det(R) < 0:
+        if not is_rotation(T[:3, :3], atol=1e-5):
             raise ValueError("T_cam1_cam0: rotation part is not a proper rotation matrix")
         object.__setattr__(self, "T_cam1_cam0", T)
 
