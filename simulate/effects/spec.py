@@ -165,9 +165,8 @@ class DefocusSpec:
         _check_value("glass_distance_m", self.glass_distance_m, 1e-3, 10.0)
         _check_value("focal_length_mm", self.focal_length_mm, 0.1, 1e3)
         _check_value("f_number", self.f_number, 0.5, 64.0)
-        if self.pixel_pitch_um is not None:
-            _check_value("pixel_pitch_um", self.pixel_pitch_um, 0.1, 100.0)
         if self.pixel_pitch_um is not None:  # else the camera decides (for_camera, for_photograph)
+            _check_value("pixel_pitch_um", self.pixel_pitch_um, 0.1, 100.0)
             self.check_blur()
 
     def check_blur(self) -> None:
@@ -365,22 +364,19 @@ class EffectsSpec:
             ValueError: the camera makes the defocus impossible (a blur disk
                 over 128 px, a pitch out of range), named by its key.
         """
-        drops, defocus = self.raindrops, self.defocus
-        if drops is not None and drops.focal_px is None:
-            drops = dataclasses.replace(drops, focal_px=min(max(fx, 1.0), 1e5))
-        if defocus is not None and defocus.pixel_pitch_um is None:
-            pitch = defocus.focal_length_mm * 1e3 / fx
+        pitch = None
+        if self.defocus is not None and self.defocus.pixel_pitch_um is None:
+            pitch = self.defocus.focal_length_mm * 1e3 / fx
             if not 0.1 <= pitch <= 100.0:
                 raise ValueError(
-                    f"defocus.pixel_pitch_um: focal_length_mm {defocus.focal_length_mm:g} over "
-                    f"the camera's fx {fx:g} px is a {pitch:.3g} um pixel, outside 0.1..100; "
-                    "set focal_length_mm or pixel_pitch_um"
+                    f"defocus.pixel_pitch_um: focal_length_mm {self.defocus.focal_length_mm:g} "
+                    f"over the camera's fx {fx:g} px is a {pitch:.3g} um pixel, outside "
+                    "0.1..100; set focal_length_mm or pixel_pitch_um"
                 )
-            try:
-                defocus = dataclasses.replace(defocus, pixel_pitch_um=pitch)
-            except ValueError as exc:
-                raise ValueError(f"defocus.{exc} (with the camera's fx {fx:g} px)") from None
-        return dataclasses.replace(self, raindrops=drops, defocus=defocus)
+        try:
+            return self._with_optics(min(max(fx, 1.0), 1e5), pitch)
+        except ValueError as exc:
+            raise ValueError(f"defocus.{exc} (with the camera's fx {fx:g} px)") from None
 
     def for_photograph(self) -> "EffectsSpec":
         """These effects over a photograph (no camera): unset optics take the photo defaults.
@@ -388,11 +384,15 @@ class EffectsSpec:
         Raises:
             ValueError: the defocus's blur disk would be over 128 px.
         """
+        return self._with_optics(PHOTO_FOCAL_PX, PHOTO_PIXEL_PITCH_UM)
+
+    def _with_optics(self, focal_px: float, pitch_um: float | None) -> "EffectsSpec":
+        """The drops' ``focal_px`` and the defocus's pixel pitch where unset (checked)."""
         drops, defocus = self.raindrops, self.defocus
         if drops is not None and drops.focal_px is None:
-            drops = dataclasses.replace(drops, focal_px=PHOTO_FOCAL_PX)
+            drops = dataclasses.replace(drops, focal_px=focal_px)
         if defocus is not None and defocus.pixel_pitch_um is None:
-            defocus = dataclasses.replace(defocus, pixel_pitch_um=PHOTO_PIXEL_PITCH_UM)
+            defocus = dataclasses.replace(defocus, pixel_pitch_um=pitch_um)
         return dataclasses.replace(self, raindrops=drops, defocus=defocus)
 
     @property
