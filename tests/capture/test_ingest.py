@@ -317,6 +317,21 @@ def test_a_namesake_recording_is_refused_not_merged(tmp_path: Path) -> None:
         _ingest(second, out)
 
 
+def test_an_out_that_puts_the_ingest_inside_the_recording_is_refused(tmp_path: Path) -> None:
+    # --out = the recording's parent made OUT/<rec> the recording itself: input/ and
+    # target/ were written into it, and files of the user's there were deleted
+    recording = make_recording(tmp_path / "rec", frames=3)
+    mask = recording / "mask"
+    mask.mkdir()
+    (mask / "12345.png").write_bytes(b"the user's own file")
+    files = sorted(p for p in recording.rglob("*"))
+    for out in (tmp_path, recording / "mav0"):  # rec itself, and a folder inside it
+        with pytest.raises(CaptureError, match=r"inside the recording .*rec; .*outside"):
+            _ingest(recording, out)
+    assert sorted(p for p in recording.rglob("*")) == files  # nothing written, nothing removed
+    assert (mask / "12345.png").read_bytes() == b"the user's own file"
+
+
 def test_a_euroc_recording_calibrated_only_by_its_sensor_yaml_files(tmp_path: Path) -> None:
     # Real EuRoC recordings ship mav0/camN/sensor.yaml (intrinsics, T_BS) and no
     # camchain: they were "no calibration" unless converted to Kalibr by hand.
