@@ -172,10 +172,11 @@ def load_dataset_config(path: Path | None) -> DatasetConfig:
 
 
 def parse_fractions(text: str) -> tuple[float, float, float]:
-    """Parse ``"0.8,0.1,0.1"`` into three fractions (validated by :class:`SplitConfig`).
+    """Parse ``"0.8,0.1,0.1"`` into three fractions, checked as :class:`SplitConfig` does.
 
     Raises:
-        ValueError: not three comma-separated numbers.
+        ValueError: not three comma-separated numbers, or not a distribution
+            with a positive train fraction.
     """
     parts = [p.strip() for p in text.split(",")]
     if len(parts) != 3:
@@ -184,6 +185,10 @@ def parse_fractions(text: str) -> tuple[float, float, float]:
         train, val, test = (float(p) for p in parts)
     except ValueError:
         raise ValueError(f"expected numbers like 0.8,0.1,0.1, got {text!r}") from None
+    try:
+        SplitConfig(fractions=(train, val, test))
+    except ValueError as exc:  # said of the text typed, not of a config key
+        raise ValueError(f"{str(exc).removeprefix('fractions: ')} ({text!r})") from None
     return (train, val, test)
 
 

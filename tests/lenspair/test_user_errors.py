@@ -98,6 +98,8 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["calibrate", "DS", "--board", "x", "--model", "pinhole", "--out", "OUT/c"], "--model"),
     (["capture-ingest", "DS", "--out", "OUT", "--workers", "0"], "--workers"),
     (["dataset-build", "DS", "--out", "OUT", "--splits", "1,2"], "--splits"),
+    (["dataset-build", "DS", "--out", "OUT", "--splits", "80,10,10"], "--splits: must sum to 1"),
+    (["dataset-build", "DS", "--out", "OUT", "--splits", "0,.5,.5"], "--splits: the train"),
     (["dataset-build", "DS", "--out", "OUT", "--workers", "-1"], "--workers"),
     (["train", "DS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
     (["train", "DS", "--out", "OUT", "--device", "tpu"], "--device"),
