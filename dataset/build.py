@@ -404,9 +404,11 @@ def build_dataset(
     for warning in plan.warnings:
         logger.warning("split: %s", warning)
     rows = [row for row, _ in pairs]
-    reasons = Counter(
-        r.reason or "unspecified" for s in loaded for r in s.records if r.status == "rejected"
-    )
+    # as each ingest counted them: by the stable part of the reason (one entry per
+    # frame, with its path, made the card unreadable), and frames it could not list
+    reasons: Counter[str] = Counter()
+    for source in loaded:
+        reasons.update(source.report.rejection_reasons)
     card = make_card(
         rows,
         [_source_info(s, rows) for s in loaded],

@@ -122,7 +122,9 @@ class DatasetCard:
         curation: rules in the order applied, with removed counts.
         pairs_in: lines of ``pairs.jsonl`` over all sources.
         tagged_clean: pairs kept with difficulty ``clean``.
-        ingest_reasons: rejection reason at ingest -> count.
+        ingest_reasons: frames rejected or left unlisted at ingest, by the stable
+            part of the reason (the sources' ``report.json`` ``rejection_reasons``,
+            summed) -> count.
         grouping: how groups were formed and assigned.
         config: the resolved configuration (thresholds, split settings).
         sources: the ingested recordings.

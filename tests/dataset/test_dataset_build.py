@@ -552,3 +552,21 @@ def test_the_detector_says_which_pair_of_a_damaged_dataset_differs_in_size(
     write_image(first, np.ascontiguousarray(image[:-1, :-1]))
     with pytest.raises(ModelError, match=rf"{first.name}: .* its target .*dataset-build --verify"):
         dataset_samples(out, "train", DetectorSpec())
+
+
+def test_the_card_counts_ingest_rejections_by_reason_not_by_frame(tmp_path: Path) -> None:
+    # each rejected frame's reason names its own file: the card listed one entry per
+    # frame (count 1 each), hundreds on a real recording, instead of one per reason
+    from lenspair.capture.ingest import ingest_recording
+    from tests.capture.ingest_helpers import frame_files, make_recording
+
+    recording = make_recording(tmp_path / "rec", frames=6)
+    for bad in frame_files(recording, "cam1")[1:3]:
+        bad.write_bytes(bad.read_bytes()[:300])  # truncated
+    ingest_recording(recording, tmp_path / "ing", size=(160, 120))
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    result = build_dataset([tmp_path / "ing" / "rec"], tmp_path / "DS", config)
+    assert result.card.ingest_reasons == {"cannot read input frame": 2}
+    assert read_card(tmp_path / "DS" / "dataset.json").ingest_reasons == {
+        "cannot read input frame": 2
+    }
