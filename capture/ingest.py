@@ -93,7 +93,7 @@ from lenspair.rectify.errors import CropError, RectifyError
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.registration import EstimationParams, VerifyParams, estimate_homography
 from lenspair.rectify.remap import target_map, valid_region
-from lenspair.rectify.rig import rig_to_kalibr
+from lenspair.rectify.rig import StereoRig, rig_to_kalibr
 
 log = logging.getLogger(__name__)
 
@@ -319,6 +319,18 @@ def _root(recording: Recording) -> Path:
     return path
 
 
+def _topics_reversed(recording: Recording, rig: StereoRig) -> bool:
+    """A bag read with cam0's and cam1's topics the other way round from the calibration's.
+
+    A Kalibr camchain names each camera's ``rostopic`` (others read as
+    ``/cam0/image_raw`` and ``/cam1/image_raw``). Reading the two topics
+    swapped would rectify each camera's frames with the other's calibration
+    and make the clean camera's frames the input, without any error.
+    """
+    read = recording.topics
+    return read is not None and read != rig.topics and read == rig.topics[::-1]
+
+
 def _check_same_source(out_dir: Path, source: Path) -> None:
     """Refuse to ingest ``source`` (:func:`_root`) into a folder holding another recording's ingest.
 
@@ -401,6 +413,16 @@ def ingest_recording(
     rig_file = resolve_obstructed(recording.path, obstructed)
     clean: CameraName = rig_file.clean
     rig, calibration_source = find_calibration(recording, rig_file, tuple(calibration))
+    if _topics_reversed(recording, rig):
+        if topics is not None:
+            raise CaptureError(
+                f"{recording.path}: --topics {topics[0]} {topics[1]} gives cam0 and cam1 the "
+                f"other way round from the calibration ({calibration_source}: cam0 "
+                f"{rig.topics[0]}, cam1 {rig.topics[1]}); the frames would be rectified with "
+                "the other camera's calibration and the obstructed and clean sides swapped: "
+                "pass --topics in cam0, cam1 order, or fix the calibration's rostopic"
+            )
+        recording = open_recording(Path(recording_path), rig.topics)  # the calibration's order
     for problem in recording.problems[:MAX_LOGGED_PROBLEMS]:
         log.warning("%s", problem)
     if len(recording.problems) > MAX_LOGGED_PROBLEMS:

@@ -1,9 +1,11 @@
 """capture-ingest from ROS bags: whole, truncated, and with chosen topics."""
 
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
+from lenspair.capture.errors import CaptureError
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import read_pairs
 from lenspair.capture.rigfile import RigFile, write_rig_file
@@ -73,6 +75,29 @@ def test_topics_must_name_two_topics(tmp_path: Path) -> None:
     assert main([*args, "--topics", "/cam0/image_raw,/cam1/image_raw"]) == 0
     with pytest.raises(SystemExit):
         main([*args, "--topics", "/cam0/image_raw"])
+
+
+def test_topics_the_other_way_round_from_the_camchain(tmp_path: Path) -> None:
+    # Reversed topics rectified each camera with the other's calibration and made the
+    # clean camera's frames the input, silently: refused when typed, and when chosen
+    # by name the camchain's rostopic order wins.
+    bag = _bag_from_euroc(tmp_path, "ros1", frames=3)
+    cam0, cam1 = "/cam0/image_raw", "/cam1/image_raw"
+    with pytest.raises(CaptureError, match=r"other way round from the calibration .*camchain"):
+        ingest_recording(bag, tmp_path / "refused", size=SIZE, topics=(cam1, cam0))
+    assert not (tmp_path / "refused").exists()
+    swapped = tmp_path / "swapped"  # the same bag, its camchain naming the topics crossed
+    swapped.mkdir()
+    (swapped / bag.name).write_bytes(bag.read_bytes())
+    write_rig_file(swapped / "rig.yaml", RigFile(obstructed="cam0", anomaly=("rain",)))
+    write_kalibr(swapped / "camchain.yaml", replace(rig(), topics=(cam1, cam0)))
+    typed = ingest_recording(swapped / bag.name, tmp_path / "typed", size=SIZE, topics=(cam1, cam0))
+    chosen = ingest_recording(swapped / bag.name, tmp_path / "chosen", size=SIZE)
+    assert typed.counts["kept"] == chosen.counts["kept"] == 3
+    for name in ("input", "target"):
+        for image in sorted((tmp_path / "typed" / "run" / name).iterdir()):
+            other = tmp_path / "chosen" / "run" / name / image.name
+            assert read_image(other).tobytes() == read_image(image).tobytes()
 
 
 def test_bag_messages_sharing_a_stamp_each_get_a_line(tmp_path: Path) -> None:
