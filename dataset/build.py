@@ -442,11 +442,12 @@ def build_dataset(
 
 
 SIDE_MISMATCH_CONFIDENCE = 0.5
-"""Side-check confidence from which a mismatch refuses the build (below: a warning).
+"""Detector side-check confidence from which a mismatch refuses the build (below: a warning).
 
-The check is a sanity flag: the fine-detail check on light rain has voted
-for the wrong camera with 6 % of its tiles (confidence 0.3), while a
-detector sure of a swapped side says 0.99 against 0.09 (confidence 0.9).
+A detector sure of a swapped side says 0.99 against 0.09 (confidence 0.9).
+The fine-detail check only warns, whatever its confidence: refracting drops
+add detail, and on heavy rain it has named the clean camera with confidence
+0.52 (:mod:`lenspair.capture.side_check`).
 """
 
 
@@ -456,8 +457,9 @@ def _check_sides(sources: Sequence[Source], accept: bool) -> None:
     capture-ingest checks the declared side and records a mismatch in
     ``report.json``, but builds the pairs as declared: built into a dataset,
     their input is the clean view and their target the obstructed one, and a
-    network trained on them learns to add the anomaly. A mismatch of
-    confidence :data:`SIDE_MISMATCH_CONFIDENCE` or more refuses; a weaker one
+    network trained on them learns to add the anomaly. A detector's mismatch
+    of confidence :data:`SIDE_MISMATCH_CONFIDENCE` or more refuses; a weaker
+    one, or the fine-detail check's (reports without a ``method`` are its),
     is a warning.
 
     Raises:
@@ -471,7 +473,11 @@ def _check_sides(sources: Sequence[Source], accept: bool) -> None:
             continue
         said = f"{source.path}: {check.get('message', 'side check mismatch')}"
         confidence = check.get("confidence")
-        sure = isinstance(confidence, int | float) and confidence >= SIDE_MISMATCH_CONFIDENCE
+        sure = (
+            check.get("method") == "detector"
+            and isinstance(confidence, int | float)
+            and confidence >= SIDE_MISMATCH_CONFIDENCE
+        )
         (strong if sure and not accept else weak).append(said)
     for said in weak:
         logger.warning("building as declared, although %s", said)

@@ -18,8 +18,9 @@ else camchain.yaml beside the recording, else a EuRoC recording's own
 sensor.yaml files. A bag's two topics take the calibration's cam0/cam1 order (a
 camchain's rostopic keys); --topics naming them the other way round is refused.
 The declared side is checked
-against the images: by default by comparing fine detail (it decides only
-where the anomaly removes much of it; undetermined on defocused rain), with
+against the images: by default by comparing fine detail (a hint only: dust and
+defocused drops remove detail, sharp drops add it, so dataset-build only warns on
+its mismatches; undetermined on defocused rain), with
 --detector MODEL (from train-detector, or detector.pt: the bundled one; on
 --device, the GPU when there is one) by judging each camera's views; report.json's
 side_check gives the inferred side and its confidence. Rerunning resumes an interrupted

@@ -53,8 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--accept-side-mismatch",
         action="store_true",
-        help="build recordings whose images capture-ingest found to contradict the declared "
-        "obstructed camera (report.json side_check) as declared; refused by default",
+        help="build recordings whose images capture-ingest's detector (--detector) found to "
+        "contradict the declared obstructed camera with confidence >= 0.5 (report.json "
+        "side_check) as declared; refused by default (other mismatches only warn)",
     )
     parser.add_argument(
         "--link",

@@ -263,7 +263,7 @@ def test_side_mismatch_is_flagged(tmp_path: Path, caplog: pytest.LogCaptureFixtu
         _, _, report = _ingest(recording, tmp_path / "out", obstructed="cam0")
     side = report.side_check
     assert side["declared"] == "cam0" and side["inferred"] == "cam1" and side["mismatch"]
-    assert any("images suggest cam1 is obstructed" in m for m in caplog.messages)
+    assert any("fine detail is lower on cam1, but cam0 is declared" in m for m in caplog.messages)
 
 
 def test_cli_success_and_one_line_errors(

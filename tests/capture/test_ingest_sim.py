@@ -85,3 +85,26 @@ def test_a_periodic_wall_that_registers_a_period_off_is_flagged(
     with caplog.at_level("WARNING"):
         ingest_recording(rain[0], tmp_path / "out2", workers=1, estimation=FEW_FRAMES)
     assert not any("agree with the homography" in r.getMessage() for r in caplog.records)
+
+
+def test_heavy_rain_declared_right_builds_with_the_detail_hint_as_a_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # heavy_rain seed 13: the fine-detail check names the clean camera (the drops' rims
+    # add detail) with confidence 0.52; dataset-build refused the right declaration and
+    # told the user to swap it, while the wrong one got "images agree" and built
+    recording = tmp_path / "h13"
+    spec = str(SAMPLES / "heavy_rain.yaml")
+    assert main(["simulate", spec, "--out", str(recording), "--frames", "8", "--seed", "13"]) == 0
+    report = ingest_recording(recording, tmp_path / "ing")
+    side = report.side_check
+    assert (side["declared"], side["inferred"], side["method"]) == ("cam1", "cam0", "detail")
+    assert side["confidence"] >= 0.5 and "images agree" not in side["message"]
+    assert "a hint, not a check" in side["message"]
+    out = tmp_path / "DS"
+    with caplog.at_level("WARNING"):
+        assert main(["dataset-build", str(tmp_path / "ing" / "h13"), "--out", str(out)]) == 0
+    assert any("building as declared, although" in m for m in caplog.messages)
+    wrong = ingest_recording(recording, tmp_path / "wrong", obstructed="cam0")
+    assert "images agree" not in wrong.side_check["message"]
+    assert wrong.side_check["message"].startswith("fine detail is lower on cam0, as declared")

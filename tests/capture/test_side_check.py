@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.side_check import check_obstructed_side, tile_detail
+from lenspair.capture.side_check import DETAIL_HINT, check_obstructed_side, tile_detail
 
 
 def _textured(rng: np.random.Generator, shape: tuple[int, int] = (120, 160)) -> np.ndarray:
@@ -44,7 +44,9 @@ def test_declared_side_agrees(colour: bool) -> None:
     assert result.confidence > 0.5
     assert result.lower_cam1 > result.lower_cam0
     assert result.num_frames == 3 and result.num_tiles == 48
-    assert "agree" in result.message
+    # a hint, never "images agree": refracting drops can add detail (module docstring)
+    assert result.message.startswith("fine detail is lower on cam1, as declared (")
+    assert "agree" not in result.message and result.message.endswith(DETAIL_HINT)
 
 
 def test_swapped_declaration_is_flagged() -> None:
@@ -52,7 +54,8 @@ def test_swapped_declaration_is_flagged() -> None:
     result = check_obstructed_side(dirty, clean, "cam1")
     assert result.inferred == "cam0"
     assert result.mismatch and result.agrees is False
-    assert "cam0 is obstructed, but cam1 is declared" in result.message
+    assert result.message.startswith("fine detail is lower on cam0, but cam1 is declared (")
+    assert result.method == "detail" and result.message.endswith(DETAIL_HINT)
 
 
 def test_identical_or_gain_shifted_views_are_undetermined() -> None:
