@@ -17,7 +17,13 @@ from lenspair.core.fsutil import sha256_file
 from lenspair.dataset.card import CARD_FILE, compare_counts, count_rows, read_card
 from lenspair.dataset.config import SPLITS
 from lenspair.dataset.errors import DatasetError
-from lenspair.dataset.manifest import MANIFEST_FILE, REMOVED_FILE, ManifestRow, read_manifest
+from lenspair.dataset.manifest import (
+    IMAGE_KINDS,
+    MANIFEST_FILE,
+    REMOVED_FILE,
+    ManifestRow,
+    read_manifest,
+)
 
 _COMPARED_FILES = (MANIFEST_FILE, CARD_FILE, "config.yaml", REMOVED_FILE)
 
@@ -72,7 +78,9 @@ def verify_dataset(root: Path, workers: int | None = None) -> VerifyResult:
     with ThreadPoolExecutor(max_workers=workers or min(4, os.cpu_count() or 1)) as pool:
         problems += [p for p in pool.map(_check_file, expected.items()) if p]
     for path in sorted(_split_files(root) - set(expected)):
-        problems.append(f"{path}: not listed in {MANIFEST_FILE}")
+        if path.relative_to(root).parts[1] in IMAGE_KINDS:  # a folder-reading loader takes it
+            problems.append(f"{path}: not listed in {MANIFEST_FILE}")
+        # elsewhere in a split folder (train/restored/...): the user's, kept by a rebuild
     problems += _check_card(root, rows)
     return VerifyResult(root, len(rows), len(expected), tuple(problems))
 
@@ -137,17 +145,33 @@ def _check_card(root: Path, rows: list[ManifestRow]) -> list[str]:
     return problems
 
 
+def unlisted_files(root: Path) -> list[Path]:
+    """Files in ``root``'s split folders that its manifest does not list: a user's.
+
+    Relative to ``root``, sorted; none when the manifest cannot be read.
+    ``--verify`` names each of them; a rebuild keeps them (``dataset-build``).
+    """
+    try:
+        rows = read_manifest(root / MANIFEST_FILE)
+    except DatasetError:
+        return []
+    listed = {root / relative for row in rows for relative in row.files.values()}
+    return sorted(p.relative_to(root) for p in _split_files(root) - listed)
+
+
 def dataset_difference(existing: Path, new: Path) -> str | None:
     """Why the dataset at ``existing`` differs from the one at ``new``; None if the same.
 
     Compares the file lists and the bytes of the manifest, card and config
-    (the manifest holds the sha256 of every image).
+    (the manifest holds the sha256 of every image). Files a user added to
+    the split folders (:func:`unlisted_files`) are no difference.
     """
     for name in _COMPARED_FILES:
         a, b = existing / name, new / name
         if not a.is_file() or not b.is_file() or a.read_bytes() != b.read_bytes():
             return f"{name} differs"
     old_files = {p.relative_to(existing) for p in _split_files(existing)}
+    old_files -= set(unlisted_files(existing))
     new_files = {p.relative_to(new) for p in _split_files(new)}
     if old_files != new_files:
         example = sorted(old_files ^ new_files)[0]

@@ -27,7 +27,10 @@ links instead, makes those files read-only and says so in dataset.json.
 A killed build leaves nothing the next build of the same DS does not remove.
 
 --verify re-checks every file against the manifest and the card's counts and
-exits with status 1 and a list of problems when anything is off.
+exits with status 1 and a list of problems when anything is off (also a file
+in an input/, target/ or mask/ folder that the manifest does not list). Files
+you add elsewhere in DS (notes, train/restored/...) are yours: a rebuild keeps
+them, with a warning.
 """
 
 import argparse

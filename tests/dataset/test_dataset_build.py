@@ -346,6 +346,28 @@ def test_a_rebuild_keeps_the_users_own_files(
     assert verify_dataset(out).ok  # the user's files are not the dataset's problems
 
 
+def test_a_rebuild_keeps_the_users_files_inside_split_folders(
+    recording: RecordingFactory, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # An evaluation saved in train/restored/ made an identical rebuild "a different
+    # dataset (file lists differ)", and --overwrite then deleted it without a word.
+    source, out, config = _dataset_with_notes(recording, tmp_path)
+    (out / "train" / "restored").mkdir()
+    (out / "train" / "restored" / "r.txt").write_text("mine")
+    with caplog.at_level("WARNING"):
+        build_dataset([source], out, config)  # unchanged: accepted, no --overwrite needed
+    assert (out / "train" / "restored" / "r.txt").read_text() == "mine"
+    assert any("train/restored/r.txt" in r.getMessage() for r in caplog.records)
+    assert verify_dataset(out).ok  # not in an image folder: no loader takes it
+    other = DatasetConfig(config.curation, SplitConfig(fractions=(1.0, 0.0, 0.0), seed=3))
+    build_dataset([source], out, other, overwrite=True)
+    assert (out / "train" / "restored" / "r.txt").read_text() == "mine"
+    assert read_card(out / "dataset.json").seed == 3
+    stray = out / "train" / "input" / "extra.png"  # an image folder: a loader would take it
+    stray.write_bytes(b"x")
+    assert any(str(stray) in p and "not listed" in p for p in verify_dataset(out).problems)
+
+
 def test_failed_build_leaves_nothing_half_written(
     recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
