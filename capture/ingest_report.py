@@ -29,16 +29,13 @@ def _category(reason: str) -> str:
 def _has_record(problem: FrameProblem, recording: Recording, obstructed: CameraName | None) -> bool:
     """Whether a dropped frame gets its own rejected line in ``pairs.jsonl``.
 
-    Every dropped obstructed frame with a timestamp does, except a row that
-    lists the very file an earlier row listed (the same frame twice).
+    Every dropped obstructed frame with a timestamp does (a row that lists the
+    very file and timestamp of an earlier row is not dropped but one frame:
+    :func:`lenspair.capture.recording_types.order_frames`).
     """
     if obstructed is None or not problem.dropped or problem.camera != obstructed:
         return False
-    if problem.t_ns is None:
-        return False
-    listed = {frame.t_ns: frame for frame in recording.frames[obstructed]}
-    same = listed.get(problem.t_ns)
-    return same is None or same.describe() != problem.source
+    return problem.t_ns is not None
 
 
 def unlisted_records(recording: Recording, obstructed: CameraName) -> list[PairRecord]:

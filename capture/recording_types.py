@@ -150,8 +150,10 @@ def order_frames(
         frames: the frames in recording order (``data.csv`` rows, bag log
             time, or already sorted for folders).
         problems: appended to: one dropped entry per repeated timestamp (the
-            first occurrence is kept) and one warning per frame whose timestamp
-            goes back relative to an earlier one.
+            first occurrence is kept), one warning per frame whose timestamp
+            goes back relative to an earlier one, and one warning per frame
+            listed again with its timestamp (a repeated ``data.csv`` row: one
+            frame, counted once).
 
     Returns:
         Frames sorted by ``t_ns`` with unique timestamps.
@@ -161,6 +163,10 @@ def order_frames(
     for frame in frames:
         if frame.t_ns in kept:
             first = kept[frame.t_ns].describe()
+            if first == frame.describe():
+                reason = "listed twice with the same timestamp; counted once"
+                problems.append(FrameProblem(camera, frame.t_ns, first, reason, dropped=False))
+                continue
             problems.append(
                 FrameProblem(
                     camera, frame.t_ns, frame.describe(), f"duplicate timestamp (kept {first})"
