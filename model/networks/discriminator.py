@@ -126,6 +126,24 @@ class PatchDiscriminator(nn.Module):
         return field
 
 
+def min_input_side(num_layers: int = 3) -> int:
+    """The smallest input side for which every 4x4 layer still has an output (24 for 3 layers).
+
+    Each layer maps a side ``n`` to ``(n + 2 * PADDING - KERNEL_SIZE) // stride + 1``;
+    ``num_layers`` of stride 2 are followed by two of stride 1 (the table above).
+    Training crops must be at least this large.
+    """
+    strides = [2] * num_layers + [1, 1]
+    side = 1
+    while True:
+        n = side
+        for stride in strides:
+            n = (n + 2 * PADDING - KERNEL_SIZE) // stride + 1 if n > 0 else 0
+        if n >= 1:
+            return side
+        side += 1
+
+
 def _conv(in_channels: int, out_channels: int, stride: int, bias: bool) -> nn.Conv2d:
     return nn.Conv2d(
         in_channels, out_channels, KERNEL_SIZE, stride=stride, padding=PADDING, bias=bias

@@ -62,6 +62,12 @@ class ModelConfig:
             )
 
 
+MIN_CROP_SIZE = 24
+"""The smallest training crop: the PatchGAN's three stride-2 4x4 layers leave no output
+below it (:func:`lenspair.model.networks.discriminator.min_input_side`, not imported
+here, so that reading a config does not load torch)."""
+
+
 @dataclass(frozen=True)
 class DataConfig:
     """How training pairs are drawn (``lenspair.model.training.pairs``, ``...datasets``).
@@ -104,8 +110,11 @@ class DataConfig:
     anomaly_crops: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.crop_size < 8:
-            raise ValueError(f"crop_size: expected >= 8, got {self.crop_size}")
+        if self.crop_size < MIN_CROP_SIZE:
+            raise ValueError(
+                f"crop_size: expected >= {MIN_CROP_SIZE} (the smallest the PatchGAN "
+                f"discriminator's 4x4 layers can take), got {self.crop_size}"
+            )
         if self.max_val_images is not None and self.max_val_images < 1:
             raise ValueError(f"max_val_images: expected >= 1, got {self.max_val_images}")
         if self.num_workers < 0:

@@ -64,7 +64,7 @@ FILE_CASES: dict[str, list[list[str]]] = {
     "dataset-build": [["BAD", "--out", "OUT"], ["--verify", "BAD"]],
     "train": [
         ["DS", "--out", "OUT", "--config", "BAD"],
-        ["DS", "--out", "OUT", "--init", "BAD", "--crop-size", "16"],  # DS: 48x32 images
+        ["DS", "--out", "OUT", "--init", "BAD", "--crop-size", "24"],  # DS: 48x32 images
         ["BAD", "--out", "OUT"],
     ],
     "eval": [["BAD", "--data", "DS"]],
@@ -102,6 +102,8 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["dataset-build", "DS", "--out", "OUT", "--splits", "0,.5,.5"], "--splits: the train"),
     (["dataset-build", "DS", "--out", "OUT", "--workers", "-1"], "--workers"),
     (["train", "DS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
+    (["train", "DS", "--out", "OUT", "--crop-size", "16"], "crop_size: expected >= 24"),
+    (["tradeoff", "DS", "--out", "OUT", "--crop-size", "16"], "crop_size: expected >= 24"),
     (["train", "DS", "--out", "OUT", "--device", "tpu"], "--device"),
     (["tradeoff", "DS", "--out", "OUT", "--budget", "abc"], "--budget"),
     (["tradeoff", "DS", "--out", "OUT", "--variants", ","], "--variants"),

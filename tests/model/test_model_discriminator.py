@@ -4,8 +4,9 @@ import pytest
 import torch
 
 from lenspair.model.errors import ModelError
-from lenspair.model.networks.discriminator import PatchDiscriminator
+from lenspair.model.networks.discriminator import PatchDiscriminator, min_input_side
 from lenspair.model.networks.variants import build_discriminator
+from lenspair.model.training.config import MIN_CROP_SIZE, DataConfig
 
 
 def test_outputs_and_features() -> None:
@@ -50,3 +51,22 @@ def test_bad_arguments() -> None:
         PatchDiscriminator(2, norm="batch")
     with pytest.raises(ModelError, match="1 \\(mono\\) or 3"):
         build_discriminator(4)
+
+
+@pytest.mark.parametrize("num_layers", [1, 2, 3, 4])
+def test_the_smallest_input_is_the_smallest_that_runs(num_layers: int) -> None:
+    discriminator = PatchDiscriminator(2, num_filters=4, num_layers=num_layers).eval()
+    least = min_input_side(num_layers)
+    with torch.no_grad():
+        assert discriminator(torch.zeros(1, 2, least, least))[-1].shape[-1] == 1
+        with pytest.raises((RuntimeError, ValueError)):  # no output, or a 1x1 map to norm
+            discriminator(torch.zeros(1, 2, least - 1, least - 1))
+
+
+def test_training_crops_below_the_discriminators_smallest_input_are_refused() -> None:
+    # crops of 8 to 23 passed the config and then died in the discriminator with a
+    # traceback, after the run folder was made
+    assert min_input_side() == MIN_CROP_SIZE  # the architecture the config states
+    DataConfig(crop_size=MIN_CROP_SIZE)
+    with pytest.raises(ValueError, match=rf"crop_size: expected >= {MIN_CROP_SIZE} .*got 23"):
+        DataConfig(crop_size=MIN_CROP_SIZE - 1)

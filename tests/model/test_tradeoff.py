@@ -272,7 +272,7 @@ def test_a_run_trained_with_other_settings_is_not_reused(
         "train.max_seconds": tiny_config(max_seconds=90.0),  # another kind of budget
     }
     cropped = tiny_config(max_steps=60)
-    changes["data.crop_size"] = replace(cropped, data=replace(cropped.data, crop_size=16))
+    changes["data.crop_size"] = replace(cropped, data=replace(cropped.data, crop_size=24))
     weighted = replace(cropped, loss=replace(cropped.loss, fidelity=1.0))
     changes["loss.fidelity"] = weighted
     for setting, wanted in changes.items():

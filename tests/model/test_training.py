@@ -479,7 +479,7 @@ def test_only_rank_zero_prints_the_summary(
     )  # fmt: skip
     monkeypatch.setattr("lenspair.model.training.loop.fit", lambda *a, **k: summary)
     args = ["train", str(dataset), "--out", str(tmp_path / "run"), "--max-steps", "1"]
-    args += ["--crop-size", "16"]  # the images are 48x32
+    args += ["--crop-size", "24"]  # the images are 48x32
     for rank, prints in (("1", False), ("0", True)):
         monkeypatch.setenv("WORLD_SIZE", "2")
         monkeypatch.setenv("RANK", rank)

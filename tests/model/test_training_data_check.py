@@ -35,7 +35,7 @@ def test_a_bad_pair_is_found_before_training(tmp_path: Path, bad: str) -> None:
     else:
         target.write_bytes(b"not an image at all")
     with pytest.raises(DatasetError, match=r"1 bad pair\(s\) of 8: .*005\.png"):
-        paired_training_data(folder, DataConfig(crop_size=16), None, seed=0)
+        paired_training_data(folder, DataConfig(crop_size=24), None, seed=0)
 
 
 def test_a_training_image_smaller_than_the_crop_is_found_before_the_first_step(
