@@ -41,8 +41,9 @@ Run folder: RUN/config.yaml (resolved), RUN/checkpoints/{last,best}.pt,
 RUN/metrics.csv, RUN/train.log, RUN/samples.png. last.pt is written after
 every epoch and also within epochs (--checkpoint-every, default every 10
 minutes of training), so a killed run loses minutes, not an epoch. --resume
-continues exactly from the latest last.pt (a --config given with it may
-change budgets, not the network); a run killed before its first checkpoint
+continues exactly from the latest last.pt (a --config given with it changes
+the keys it names, on top of the run's own, and may change budgets, not the
+network); a run killed before its first checkpoint
 starts over. Multi-GPU: torchrun --nproc_per_node N -m lenspair train ...
 
   lenspair train DS --out RUN --checkpoint-every 500     # every 500 steps
@@ -215,7 +216,7 @@ def _check_out_apart(args: argparse.Namespace, train_split: str, val_split: str)
 def run(args: argparse.Namespace) -> int:
     """Train one run; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair train --help`.
-    from lenspair.model.training.config import load_run_config
+    from lenspair.model.training.config import load_run_config, with_file
     from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
     from lenspair.model.training.loop import fit, resolve_config, resume_config
     from lenspair.model.training.step import distributed_from_env
@@ -233,21 +234,27 @@ def run(args: argparse.Namespace) -> int:
         # Killed before its first checkpoint was complete (or last.pt removed):
         # resuming means starting this run over (fit replaces its partial
         # results once every check has passed), from where it started.
-        stored = load_run_config(args.out / "config.yaml").runtime
-        if stored is not None and stored.init is not None:
-            if not Path(stored.init).is_file():
+        stored = load_run_config(args.out / "config.yaml")
+        runtime = stored.runtime
+        if runtime is not None and runtime.init is not None:
+            if not Path(runtime.init).is_file():
                 raise ConfigError(
                     f"--resume: {args.out} starts over (it has no last.pt) from --init "
-                    f"{stored.init}, which is gone; start it anew with another --init"
+                    f"{runtime.init}, which is gone; start it anew with another --init"
                 )
-            args.init = Path(stored.init)
-        args.config = args.config or args.out / "config.yaml"
+            args.init = Path(runtime.init)
         args.resume, restart = False, True
     else:
-        restart = False
-    if args.resume:
-        base = load_run_config(args.config) if args.config else resume_config(args.out, None)
-        config = resume_config(args.out, _overrides(base, args))
+        stored, restart = None, False
+    if args.resume or restart:
+        # a --config given with it sets the keys it names on top of the run's own
+        # (train.patience alone did not put crop, batch and rate back to the defaults)
+        if stored is None:
+            stored = resume_config(args.out, None)
+        base = with_file(stored, args.config) if args.config else stored
+        config = _overrides(base, args)
+        if args.resume:
+            config = resume_config(args.out, config)
     else:
         config = _overrides(load_run_config(args.config), args)
     _check_out_apart(args, config.data.train_split, config.data.val_split)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from lenspair.core.config import MAX_SEED, load_dataclass, read_yaml
+from lenspair.core.config import MAX_SEED, load_dataclass, read_yaml, to_plain
 from lenspair.core.errors import ConfigError
 
 Variant = Literal["G", "GE", "GEA"]
@@ -323,6 +323,31 @@ def load_run_config(path: Path | None) -> RunConfig:
         return RunConfig()
     try:
         return run_config_from_dict(read_yaml(path))
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def with_file(config: RunConfig, path: Path) -> RunConfig:
+    """``config`` with the keys the file ``path`` names set from it; every other key kept.
+
+    For a ``--config`` given on top of a configuration that is not the
+    defaults (the stored one of ``train --resume``, ``tradeoff``'s own): a
+    file written to set, say, ``train.patience`` changes that, and no more.
+
+    Raises:
+        ConfigError: the file alone is invalid (named, as :func:`load_run_config`),
+            or the combination is.
+    """
+    load_run_config(path)  # its own keys and types, with the file named
+    data = read_yaml(path) or {}
+    merged = to_plain(config)
+    for section, values in data.items():
+        if isinstance(values, dict) and isinstance(merged.get(section), dict):
+            merged[section] = {**merged[section], **values}
+        else:
+            merged[section] = values
+    try:
+        return run_config_from_dict(merged)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
 

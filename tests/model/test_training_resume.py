@@ -299,3 +299,25 @@ def test_an_out_whose_samples_would_be_read_as_images_is_refused(
     config.write_text(dump_yaml(tiny_config(max_steps=1)))
     run = other / "runs" / "r"
     assert main(["train", str(other), "--out", str(run), "--config", str(config)]) == 0
+
+
+@pytest.mark.parametrize("restart", [False, True])
+def test_a_config_given_with_resume_sets_only_its_own_keys(tmp_path: Path, restart: bool) -> None:
+    # `--resume --config p.yaml` with p.yaml = {train: {patience: 3}} put crop, batch
+    # and rate back to train's defaults (256, 8, 2e-4), with a warning per change
+    import yaml
+
+    from lenspair.cli import main
+
+    dataset, run, _ = _cli_run(tmp_path)
+    before = yaml.safe_load((run / "config.yaml").read_text())
+    if restart:
+        (run / "checkpoints" / "last.pt").unlink()  # a kill before the first checkpoint
+    patience = tmp_path / "patience.yaml"
+    patience.write_text("train: {patience: 3}\n")
+    resumed = ["train", str(dataset), "--out", str(run), "--resume", "--config", str(patience)]
+    assert main([*resumed, "--max-steps", "4"]) == 0
+    after = yaml.safe_load((run / "config.yaml").read_text())
+    assert after["train"]["patience"] == 3 != before["train"]["patience"]
+    for section, key in (("data", "crop_size"), ("train", "batch_size"), ("train", "lr")):
+        assert after[section][key] == before[section][key], key
