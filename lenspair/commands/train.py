@@ -140,7 +140,9 @@ def _overrides(config: Any, args: argparse.Namespace) -> Any:
         "batch_size": args.batch_size,
         "seed": args.seed,
         "vgg19_weights": args.vgg19_weights,
-        "amp": False if args.no_amp else None,
+        # --precision alone also lifts a stored amp: false (a run started with --no-amp,
+        # resumed at bf16); both together are refused as contradicting each other
+        "amp": False if args.no_amp else (True if args.precision else None),
         "precision": args.precision,
     }
     if args.checkpoint_every is not None:

@@ -321,3 +321,22 @@ def test_a_config_given_with_resume_sets_only_its_own_keys(tmp_path: Path, resta
     assert after["train"]["patience"] == 3 != before["train"]["patience"]
     for section, key in (("data", "crop_size"), ("train", "batch_size"), ("train", "lr")):
         assert after[section][key] == before[section][key], key
+
+
+def test_a_no_amp_run_resumes_at_the_precision_given(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # `--resume --precision bf16` of a run started with --no-amp was refused for
+    # "train.amp: false (--no-amp)", a flag not given, with no --amp to undo it
+    from lenspair.cli import main
+
+    dataset, _, argv = _cli_run(tmp_path)
+    assert main([*argv, "--no-amp", "--max-steps", "2", "--out", str(tmp_path / "na")]) == 0
+    resumed = ["train", str(dataset), "--out", str(tmp_path / "na"), "--resume"]
+    assert main([*resumed, "--max-steps", "4", "--precision", "bf16"]) == 0
+    runtime = load_yaml(RunConfig, tmp_path / "na" / "config.yaml").runtime
+    assert runtime is not None and runtime.precision == "bf16 autocast"
+    assert runtime.earlier_precisions == ("fp32 until step 2",)
+    capsys.readouterr()
+    both = [*resumed, "--max-steps", "6", "--precision", "bf16", "--no-amp"]
+    assert main(both) == 2 and "give one of them" in capsys.readouterr().err
