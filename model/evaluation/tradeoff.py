@@ -466,16 +466,18 @@ def _reusable(
         if run.exists():  # killed before its first checkpoint: train it from the start
             shutil.rmtree(run)
         return False
-    stored = checkpoint_config(load_checkpoint(last), last)
+    checkpoint = load_checkpoint(last)
+    stored = checkpoint_config(checkpoint, last)
     precision = describe_precision(training_precision(config.train, device).precision)
     obstacle = reuse_obstacle(stored, config, dataset, precision)
-    if obstacle is None and not (run / "checkpoints" / "best.pt").is_file():
-        obstacle = "its best.pt is missing"  # scored from it: a resume might never write it
+    best_written = int(checkpoint.get("best_epoch", 0)) > 0
+    if obstacle is None and best_written and not (run / "checkpoints" / "best.pt").is_file():
+        # scored from it, and a resume forgets the lost best and might never validate
+        # again; a run killed before its first best takes one when it resumes
+        obstacle = "its best.pt is missing"
     if obstacle is None:
         return True
-    log.warning(
-        "tradeoff: %s was trained with other settings (%s); training it again", run, obstacle
-    )
+    log.warning("tradeoff: %s cannot be resumed (%s); training it again", run, obstacle)
     shutil.rmtree(run)
     return False
 

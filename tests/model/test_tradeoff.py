@@ -251,8 +251,10 @@ def test_a_run_trained_with_other_settings_is_not_reused(
     stored = replace(tiny_config(max_steps=60), runtime=RuntimeInfo(data=data))
     run = tmp_path / "runs" / "GEA"
 
-    def reused(wanted: RunConfig, dataset: str | None = None, best: bool = True) -> bool:
-        make_checkpoint(run / "checkpoints" / "last.pt", stored)
+    def reused(
+        wanted: RunConfig, dataset: str | None = None, best: bool = True, best_epoch: int = 1
+    ) -> bool:
+        make_checkpoint(run / "checkpoints" / "last.pt", stored, best_epoch=best_epoch)
         if best:
             make_checkpoint(run / "checkpoints" / "best.pt", stored)
         else:
@@ -306,7 +308,12 @@ def test_a_run_trained_with_other_settings_is_not_reused(
     # writes it): every rerun failed on "checkpoint not found"; now trained again
     caplog.clear()
     assert not reused(tiny_config(max_steps=60), data, best=False)
-    assert "its best.pt is missing" in caplog.records[0].getMessage()
+    assert "cannot be resumed (its best.pt is missing)" in caplog.records[0].getMessage()
+    # but a run killed before its first best (a long epoch, validated at the budget's
+    # end) resumes and takes one then: it was thrown away and trained from step 0
+    caplog.clear()
+    assert reused(tiny_config(max_steps=60), data, best=False, best_epoch=0)
+    assert not caplog.records
 
 
 def test_a_rerun_with_another_seed_retrains_and_records_the_seed(
@@ -329,11 +336,11 @@ def test_a_rerun_with_another_seed_retrains_and_records_the_seed(
     stamp = last.stat().st_mtime_ns
     assert rerun(base, 1).rows[0].steps == 1 and last.stat().st_mtime_ns == stamp  # reused
     assert rerun(base, 2).rows[0].steps == 2  # a larger budget extends the run
-    assert not any("trained with other settings" in r.getMessage() for r in caplog.records)
+    assert not any("cannot be resumed" in r.getMessage() for r in caplog.records)
     reseeded = rerun(replace(base, train=replace(base.train, seed=5)), 2)
     assert reseeded.meta["seed"] == 5
     assert reseeded.rows[0].steps == 2
-    [line] = [r.getMessage() for r in caplog.records if "other settings" in r.getMessage()]
+    [line] = [r.getMessage() for r in caplog.records if "cannot be resumed" in r.getMessage()]
     assert str(out / "runs" / "G") in line and "train.seed: 0 -> 5" in line
     assert "seed: 5" in (out / "runs" / "G" / "config.yaml").read_text()
 

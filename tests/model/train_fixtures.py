@@ -78,8 +78,13 @@ def tiny_config(**train: object) -> RunConfig:
     return replace(base, train=replace(base.train, **train))  # type: ignore[arg-type]
 
 
-def make_checkpoint(path: Path, config: RunConfig | None = None, perturb: bool = True) -> Path:
-    """Save an untrained checkpoint (weights nudged off the identity when ``perturb``)."""
+def make_checkpoint(
+    path: Path, config: RunConfig | None = None, perturb: bool = True, best_epoch: int = 0
+) -> Path:
+    """Save an untrained checkpoint (weights nudged off the identity when ``perturb``).
+
+    ``best_epoch`` > 0 records a best validation (30 dB) taken at that epoch.
+    """
     import torch
 
     from lenspair.model.checkpoint import save_checkpoint
@@ -94,5 +99,7 @@ def make_checkpoint(path: Path, config: RunConfig | None = None, perturb: bool =
                 noise = torch.randn(parameter.shape, generator=generator)
                 parameter.add_(0.02 * noise)
     payload = {**trainer.state_dict(), "epoch": 0, "step": 0, "step_in_epoch": 0}
+    if best_epoch:
+        payload.update(best_metric=30.0, best_epoch=best_epoch, stale_validations=0)
     save_checkpoint(path, payload, config)
     return path
