@@ -83,13 +83,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--describe", action="store_true", help="print params and FLOPs only")
 
 
-def default_out(checkpoint: Path, data: Path, split: str | None, precision: str = "fp32") -> Path:
-    """Where an evaluation goes without ``--out``: one folder per checkpoint, data and precision.
+def default_out(
+    checkpoint: Path,
+    data: Path,
+    split: str | None,
+    precision: str = "fp32",
+    convention: str = "skimage-gaussian",
+) -> Path:
+    """Where an evaluation goes without ``--out``: a folder per checkpoint, data, precision, metric.
 
-    ``RUN/eval_<stem>_<data>[_<split>][_<precision>]`` for
+    ``RUN/eval_<stem>_<data>[_<split>][_<precision>][_<convention>]`` for
     ``RUN/checkpoints/<stem>.pt``, else ``<stem>_eval_<data>...`` beside the
-    checkpoint; ``split`` is None for a paired folder, which has none, and the
-    precision is named unless it is fp32 (the reference). Evaluating
+    checkpoint; ``split`` is None for a paired folder, which has none, the
+    precision is named unless it is fp32 (the reference) and the convention
+    unless it is the default (``deraindrop-y`` beside the default no longer
+    replaces it). Evaluating
     ``last.pt``, other data, or at int8 no longer replaces the evaluation of
     ``best.pt``; nor does a dataset of the same name elsewhere, whose
     evaluation (told by ``metrics.json``'s ``data_path``) takes the first
@@ -98,6 +106,7 @@ def default_out(checkpoint: Path, data: Path, split: str | None, precision: str 
     checkpoint = Path(checkpoint)
     what = Path(data).resolve().name + (f"_{split}" if split else "")
     what += f"_{precision}" if precision != "fp32" else ""
+    what += f"_{convention}" if convention != "skimage-gaussian" else ""
     if checkpoint.parent.name == "checkpoints":
         base = checkpoint.parent.parent / f"eval_{checkpoint.stem}_{what}"
     else:
@@ -182,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
         out = args.out
     else:
         split = None if plain else args.split
-        out = default_out(args.checkpoint, args.data, split, decision.precision)
+        out = default_out(args.checkpoint, args.data, split, decision.precision, args.convention)
     files = write_report(result, out)
     print(markdown_report(result))
     print("wrote " + ", ".join(str(path) for path in files.values()))

@@ -123,6 +123,13 @@ def test_default_eval_folder_sits_in_the_run(tmp_path: Path) -> None:
     # and another precision: an int8 evaluation replaced the fp32 one
     assert main(["eval", str(checkpoint), *args, "--precision", "bf16"]) == 0
     assert (tmp_path / "run" / "eval_best_ds_val_bf16" / "metrics.json").is_file()
+    # and the other metric convention: deraindrop-y replaced the default's results
+    assert main(["eval", str(checkpoint), *args, "--convention", "deraindrop-y"]) == 0
+    y = json.loads(
+        (tmp_path / "run" / "eval_best_ds_val_deraindrop-y" / "metrics.json").read_text()
+    )
+    default = json.loads((tmp_path / "run" / "eval_best_ds_val" / "metrics.json").read_text())
+    assert (y["convention"], default["convention"]) == ("deraindrop-y", "skimage-gaussian")
     # a dataset of the same name elsewhere: its own folder, reused by its own reruns
     namesake = tmp_path / "elsewhere" / "ds"
     write_paired_folder(namesake / "val", count=2)
