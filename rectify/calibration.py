@@ -15,10 +15,14 @@ The procedure (see DESIGN.md, "Geometry notes"):
 
 At every step a view whose RMS reprojection error exceeds
 ``max(outlier_factor * median, outlier_floor_px)`` is rejected, and the step
-is repeated until none is; each rejection is recorded with its reason.
+is repeated until none is; each rejection is recorded with its reason. A
+round that would leave fewer than ``min_views`` views rejects none: outlier
+rejection never fails a calibration that works without it.
 Reprojection errors are RMS over corners of the Euclidean pixel residual.
 """
 
+import dataclasses
+import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
@@ -39,6 +43,8 @@ from lenspair.rectify.calib_fits import (
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import StereoRectification, project_rays, row_disagreement
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
+
+log = logging.getLogger(__name__)
 
 CalibrationModel = Literal["pinhole-radtan", "pinhole-equi"]
 MODELS: dict[str, DistortionModel] = {"pinhole-radtan": "radtan", "pinhole-equi": "equidistant"}
@@ -232,15 +238,22 @@ def _reject_outliers(
         median = float(np.median(errors))
         threshold = max(options.outlier_factor * median, options.outlier_floor_px)
         bad = [k for k, e in enumerate(errors) if e > threshold]
-        # most views "bad" means a wrong model or board spec, not bad views: keep them
-        if not bad or len(bad) > len(views) // 2 or rounds == options.max_rounds:
+        # most views "bad" means a wrong model or board spec, not bad views: keep them;
+        # and never reject down to too few views (a factor near 1 on evenly noisy views
+        # dropped half of them a round until the calibration failed)
+        too_few = len(views) - len(bad) < options.min_views
+        if not bad or len(bad) > len(views) // 2 or rounds == options.max_rounds or too_few:
             return result, views, errors, rejected
         rounds += 1
+        scaled = options.outlier_factor * median
+        source = (
+            f"{options.outlier_factor:g} x median {median:.3f} px"
+            if scaled >= options.outlier_floor_px
+            else f"the {options.outlier_floor_px:g} px floor; {options.outlier_factor:g} x "
+            f"median {median:.3f} px is less"
+        )
         for k in bad:
-            reason = (
-                f"reprojection error {errors[k]:.2f} px > {threshold:.2f} px "
-                f"({options.outlier_factor:g} x median {median:.3f} px)"
-            )
+            reason = f"reprojection error {errors[k]:.2f} px > {threshold:.2f} px ({source})"
             rejected.append(
                 RejectedView(views[k], names[views[k]], stage, float(errors[k]), reason)
             )
@@ -335,18 +348,45 @@ def calibrate_from_detections(
     names = list(names) if names is not None else [f"view {i}" for i in range(len(detections))]
     if len(names) != len(detections):
         raise ValueError(f"names: expected {len(detections)}, got {len(names)}")
-    monos = []
-    rejected: list[RejectedView] = []
-    for index, stage in enumerate(("cam0", "cam1")):
-        per_view = [pair[index] for pair in detections]
-        mono, dropped = calibrate_camera(
-            per_view, board, model, resolutions[index], stage, names, options
-        )
-        monos.append(mono)
-        rejected += dropped
+
+    def each_camera(
+        settings: CalibrationOptions,
+    ) -> tuple[list[CameraCalibration], list[RejectedView], dict[int, tuple[Detection, Detection]]]:
+        monos: list[CameraCalibration] = []
+        dropped: list[RejectedView] = []
+        for index, stage in enumerate(("cam0", "cam1")):
+            per_view = [pair[index] for pair in detections]
+            mono, left_out = calibrate_camera(
+                per_view, board, model, resolutions[index], stage, names, settings
+            )
+            monos.append(mono)
+            dropped += left_out
+        usable = set(monos[0].views) & set(monos[1].views)
+        shared = {v: (d0, d1) for v, (d0, d1) in enumerate(detections) if v in usable and d0 and d1}
+        return monos, dropped, shared
+
+    monos, rejected, pairs = each_camera(options)
+    if len(pairs) < options.min_views and options.max_rounds > 0:
+        # each camera rejected other views, and too few are left to both: calibrated
+        # without rejecting, as it would work (a factor near 1 on evenly noisy views)
+        plain = dataclasses.replace(options, max_rounds=0)
+        again = each_camera(plain)
+        if len(again[2]) >= options.min_views:
+            log.warning(
+                "outlier rejection left %d views that both cameras kept (need %d): "
+                "calibrating without rejecting any; a larger --outlier-factor rejects fewer",
+                len(pairs),
+                options.min_views,
+            )
+            monos, rejected, pairs = again
+            options = plain
     cameras = (monos[0].camera, monos[1].camera)
-    usable = set(monos[0].views) & set(monos[1].views)
-    pairs = {v: (d0, d1) for v, (d0, d1) in enumerate(detections) if v in usable and d0 and d1}
+    if len(pairs) < options.min_views:  # the stereo step needs views the two cameras share
+        raise RectifyError(
+            f"stereo: the board was seen by both cameras at once in {len(pairs)} usable views, "
+            f"need at least {options.min_views} (cam0 {len(monos[0].views)}, cam1 "
+            f"{len(monos[1].views)} views on their own); record views where both see it"
+        )
     matched, refused = match_views(pairs, board, cameras, options.pose_tolerance_deg)
     rejected += [RejectedView(v, names[v], "stereo", None, r) for v, r in refused.items()]
 

@@ -57,7 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float_at_least(1.0),
         default=3.0,
         metavar="X",
-        help="reject views whose error exceeds X times the median view error (default 3)",
+        help="reject views whose error exceeds X times the median view error and 0.5 px "
+        "(a floor: views under it are never rejected), while at least 5 views remain "
+        "(default 3)",
     )
 
 

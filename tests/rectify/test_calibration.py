@@ -8,6 +8,7 @@ import pytest
 
 from lenspair.rectify.boards import Board, Detection, parse_board_spec
 from lenspair.rectify.calibration import (
+    CalibrationOptions,
     CalibrationResult,
     calibrate_from_detections,
     calibrate_stereo,
@@ -105,6 +106,8 @@ def test_outlier_views_are_rejected_and_named() -> None:
     assert set(rejected) == {"frame-007", "frame-012"}
     assert rejected["frame-007"].stage == "cam1"  # cam1 alone sees it
     assert rejected["frame-012"].stage == "stereo"  # consistent per camera, not as a pair
+    # 3 x the median is under the 0.5 px floor here: said so, not "3 x median 0.05 px"
+    assert "px (the 0.5 px floor; 3 x median 0.0" in rejected["frame-007"].reason
     assert 7 not in result.stereo_views and 12 not in result.stereo_views
     assert any("frame-007 [cam1]" in line for line in result.summary())
     check_accuracy(result, truth)
@@ -141,6 +144,35 @@ def test_too_few_views_is_a_clear_error() -> None:
     views = point_views(board, truth, count=3)
     with pytest.raises(RectifyError, match="cam0: only 3 usable board views, need at least 5"):
         calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+
+
+def test_no_view_seen_by_both_cameras_is_a_clear_error() -> None:
+    # each camera alone had 9 good views, never the same ones: a traceback from an
+    # argmax over no views
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = point_views(board, truth, count=18)
+    split = [(d0, None) for d0, _ in views[:9]] + [(None, d1) for _, d1 in views[9:]]
+    with pytest.raises(RectifyError, match=r"stereo: .*both cameras at once in 0 usable views"):
+        calibrate_from_detections(split, board, "pinhole-radtan", SIZES)
+
+
+def test_outlier_rejection_never_rejects_down_to_too_few_views(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # a factor of 1 on evenly noisy views dropped the views above the median each
+    # round, down to 4, and failed a calibration that works without rejection
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = point_views(board, truth, count=12, noise_px=0.6, seed=3)
+    options = CalibrationOptions(outlier_factor=1.0)
+    with caplog.at_level("WARNING"):
+        result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES, options=options)
+    assert len(result.stereo_views) == 12 and result.rejected == ()
+    assert all(len(c.views) == 12 for c in result.cameras)
+    # each camera kept more than 5, but too few of the same views: said, and undone
+    assert any("calibrating without rejecting any" in m for m in caplog.messages)
+    assert result.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.05)  # 0.6 px noise
 
 
 def test_unknown_model_lists_the_valid_ones() -> None:
