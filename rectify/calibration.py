@@ -41,7 +41,12 @@ from lenspair.rectify.calib_fits import (
     view_error,
 )
 from lenspair.rectify.errors import RectifyError
-from lenspair.rectify.rectification import StereoRectification, project_rays, row_disagreement
+from lenspair.rectify.rectification import (
+    StereoRectification,
+    project_rays,
+    row_disagreement,
+    vertical_baseline,
+)
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
 
 log = logging.getLogger(__name__)
@@ -141,7 +146,8 @@ class CalibrationResult:
         stereo_rms_px: RMS reprojection error of the stereo step, both cameras.
         stereo_views: indices of the views used by the stereo step.
         stereo_view_errors_px: RMS error of each of those views.
-        row_disagreement_px: RMS of rectified row differences of matched corners.
+        row_disagreement_px: RMS of rectified row differences of matched corners;
+            None for a top/bottom rig, which is not rectified.
         rejected: views left out, in the order they were rejected.
         counts: ``views``, ``cam0_detected``, ``cam1_detected``, ``both_detected``.
 
@@ -154,7 +160,7 @@ class CalibrationResult:
     stereo_rms_px: float
     stereo_views: tuple[int, ...]
     stereo_view_errors_px: tuple[float, ...]
-    row_disagreement_px: float
+    row_disagreement_px: float | None
     rejected: tuple[RejectedView, ...]
     counts: dict[str, int]
 
@@ -180,7 +186,10 @@ class CalibrationResult:
             f"stereo: RMS {self.stereo_rms_px:.3f} px over {len(self.stereo_views)} views; "
             f"baseline {self.rig.baseline_m:.4f} m"
         )
-        lines.append(f"rectified row disagreement: {self.row_disagreement_px:.3f} px RMS")
+        if self.row_disagreement_px is None:
+            lines.append("rectified row disagreement: n/a (a top/bottom rig is not rectified)")
+        else:
+            lines.append(f"rectified row disagreement: {self.row_disagreement_px:.3f} px RMS")
         for r in self.rejected:
             error = "" if r.error_px is None else f" ({r.error_px:.2f} px)"
             lines.append(f"rejected {r.name} [{r.stage}]{error}: {r.reason}")
@@ -260,6 +269,52 @@ def _reject_outliers(
         views = [v for k, v in enumerate(views) if k not in bad]
 
 
+STILL_BOARD_DEG = 2.0
+"""A board turned less than this between any two views, and moved less than
+:data:`STILL_BOARD_SHIFT` of its distance, stood still: no calibration."""
+STILL_BOARD_SHIFT = 0.02
+FEW_TILTS_DEG = 10.0
+"""Below this largest turn between two views the focal length is poorly determined (warning)."""
+
+
+def _check_pose_spread(rvecs: np.ndarray, tvecs: np.ndarray, stage: str) -> None:
+    """Refuse views of a board that stood still; warn when it was never tilted much.
+
+    A recording of a static board (or of the same frame many times) fits a
+    calibration whose errors look small and whose focal length and baseline
+    are unconstrained: it ended in a misleading "baseline mostly vertical" or
+    a camchain a few per cent off, without a word.
+
+    Raises:
+        RectifyError: the board barely turned or moved across the views.
+    """
+    rotations = [cv2.Rodrigues(np.asarray(r, np.float64).reshape(3))[0] for r in rvecs]
+    turned = max(
+        (
+            float(np.degrees(np.linalg.norm(cv2.Rodrigues(a.T @ b)[0])))
+            for i, a in enumerate(rotations)
+            for b in rotations[i + 1 :]
+        ),
+        default=0.0,
+    )
+    centres = np.asarray(tvecs, np.float64).reshape(-1, 3)
+    moved = float(np.max(np.linalg.norm(centres[:, None] - centres[None], axis=2)))
+    depth = float(np.mean(np.linalg.norm(centres, axis=1)))
+    if turned < STILL_BOARD_DEG and moved < STILL_BOARD_SHIFT * depth:
+        raise RectifyError(
+            f"{stage}: the board barely moved in the {len(centres)} views (turned "
+            f"{turned:.1f} deg and moved {100 * moved:.1f} cm at most): a calibration needs "
+            "it tilted in several directions and moved across the image"
+        )
+    if turned < FEW_TILTS_DEG:
+        log.warning(
+            "%s: the board turned at most %.1f deg between views; tilt it by 20-40 deg in "
+            "several directions, or the focal length is poorly determined",
+            stage,
+            turned,
+        )
+
+
 def calibrate_camera(
     detections: Sequence[Detection | None],
     board: Board,
@@ -307,6 +362,7 @@ def calibrate_camera(
         raise RectifyError(
             f"{stage}: {exc}" if not str(exc).startswith(stage) else str(exc)
         ) from None
+    _check_pose_spread(rvecs, tvecs, stage)
     residuals = np.concatenate(
         [project_rays(camera, data[v][0] @ cv2.Rodrigues(rvecs[k])[0].T + tvecs[k]) - data[v][1]
          for k, v in enumerate(views)]
@@ -406,12 +462,19 @@ def calibrate_from_detections(
         rig = StereoRig(cameras[0], cameras[1], transform)
     except ValueError as exc:
         raise RectifyError(f"stereo calibration gave an invalid transform: {exc}") from None
-    rectification = StereoRectification.from_rig(rig, alpha=options.alpha)
-    rows = row_disagreement(
-        rectification,
-        np.concatenate([matched[v][1] for v in views]),
-        np.concatenate([matched[v][2] for v in views]),
-    )
+    rows: float | None = None
+    if (vertical := vertical_baseline(rig)) is None:
+        rows = row_disagreement(
+            StereoRectification.from_rig(rig, alpha=options.alpha),
+            np.concatenate([matched[v][1] for v in views]),
+            np.concatenate([matched[v][2] for v in views]),
+        )
+    else:  # a valid calibration all the same, for other tools: written, with the warning
+        log.warning(
+            "stereo: the baseline %s m is mostly vertical (a top/bottom rig): the camchain is "
+            "written, but capture-ingest rectifies side-by-side rigs only",
+            vertical,
+        )
     counts = {
         "views": len(detections),
         "cam0_detected": sum(d0 is not None for d0, _ in detections),

@@ -206,6 +206,16 @@ def _fit(rectangle: np.ndarray, size: tuple[int, int], fill: bool) -> tuple[floa
     return f, cx, cy
 
 
+def vertical_baseline(rig: StereoRig) -> list[float] | None:
+    """cam1's optical centre in cam0's frame (m, rounded) for a top/bottom rig, else None.
+
+    A top/bottom rig has cam1 more above or below cam0 than beside it;
+    rectification supports side-by-side rigs only.
+    """
+    centre = -rig.R.T @ rig.t
+    return np.round(centre, 4).tolist() if abs(centre[0]) < abs(centre[1]) else None
+
+
 @dataclass(frozen=True, eq=False)
 class StereoRectification:
     """Row-aligned rectification of a stereo rig.
@@ -255,10 +265,9 @@ class StereoRectification:
         turns = int(np.argmax([np.trace(_rotation_z(k) @ rig.R) for k in range(4)]))
         turn = _rotation_z(turns)
         r_virtual, t_virtual = turn @ rig.R, turn @ rig.t
-        centre = -rig.R.T @ rig.t  # cam1's optical centre in cam0's frame
-        if abs(centre[0]) < abs(centre[1]):
+        if (vertical := vertical_baseline(rig)) is not None:
             raise RectifyError(
-                f"rectification: the baseline {np.round(centre, 4).tolist()} m is mostly vertical; "
+                f"rectification: the baseline {vertical} m is mostly vertical; "
                 "only side-by-side rigs are supported"
             )
         zero = np.zeros(5)

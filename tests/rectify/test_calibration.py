@@ -175,6 +175,41 @@ def test_outlier_rejection_never_rejects_down_to_too_few_views(
     assert result.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.05)  # 0.6 px noise
 
 
+@pytest.mark.parametrize("model", ["pinhole-radtan", "pinhole-equi"])
+def test_a_board_that_stood_still_is_refused(model: str, caplog: pytest.LogCaptureFixture) -> None:
+    # 18 views of a static board calibrated "over 18 views" (equi, 2.5 % off) or died
+    # on a "baseline mostly vertical" that blamed the rig (radtan)
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = point_views(board, truth, count=18, noise_px=0.0)
+    still = [views[0]] * 18
+    with pytest.raises(RectifyError, match=r"cam0: the board barely moved in the 18 views"):
+        calibrate_from_detections(still, board, model, SIZES)
+    with caplog.at_level("WARNING"):  # the varied views: no complaint
+        calibrate_from_detections(views, board, model, SIZES)
+    assert not any("turned at most" in m for m in caplog.messages)
+
+
+def test_a_top_bottom_rig_is_calibrated_with_a_warning(caplog: pytest.LogCaptureFixture) -> None:
+    # its calibration is valid (for other tools), but the row figure needs a
+    # side-by-side rectification: the whole calibration was thrown away
+    side = make_rig("radtan")
+    T = side.T_cam1_cam0.copy()
+    T[:3, 3] = -side.R @ np.array([0.002, 0.11, -0.001])  # cam1 11 cm below cam0
+    truth = StereoRig(side.cam0, side.cam1, T)
+    board = parse_board_spec("chessboard:9x6:0.05")
+    with caplog.at_level("WARNING"):
+        result = calibrate_from_detections(
+            point_views(board, truth), board, "pinhole-radtan", SIZES
+        )
+    assert result.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.01)
+    assert result.row_disagreement_px is None
+    assert "rectified row disagreement: n/a (a top/bottom rig is not rectified)" in (
+        result.summary()
+    )
+    assert any("mostly vertical (a top/bottom rig)" in m for m in caplog.messages)
+
+
 def test_unknown_model_lists_the_valid_ones() -> None:
     with pytest.raises(
         RectifyError, match="unknown 'kannala'; valid: pinhole-radtan, pinhole-equi"
