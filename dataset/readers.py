@@ -108,7 +108,7 @@ class PairedDataset:
         if input_image.shape != target.shape or input_image.dtype != target.dtype:
             raise DatasetError(
                 f"{entry.input_path}: {input_image.shape} {input_image.dtype} does not match "
-                f"{entry.target_path.name} {target.shape} {target.dtype}"
+                f"{entry.target_path} {target.shape} {target.dtype}"
             )
         mask = None
         if entry.mask_path is not None:

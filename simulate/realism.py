@@ -28,7 +28,8 @@ import cv2
 import numpy as np
 from skimage.metrics import peak_signal_noise_ratio
 
-from lenspair.core.imageio import check_image, to_float
+from lenspair.core.imageio import check_image
+from lenspair.core.quality import to_grey
 from lenspair.simulate.effects.spec import EffectsSpec
 from lenspair.simulate.errors import SimulateError
 from lenspair.simulate.render import render_effects
@@ -78,16 +79,6 @@ REAL_RANGES: dict[str, tuple[float, float]] = {
 """Real adherent drops, 4 Raindrop-like pairs (issue 12's table), min and max."""
 
 
-def to_grey(image: np.ndarray) -> np.ndarray:
-    """``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB -> ``float32`` ``(H, W)`` grey."""
-    check_image(image)
-    values = to_float(image)
-    if values.ndim == 3:
-        values = cv2.cvtColor(values, cv2.COLOR_RGB2GRAY)
-    grey: np.ndarray = np.asarray(values, np.float32)
-    return grey
-
-
 def _blur(values: np.ndarray, sigma: float) -> np.ndarray:
     size = 2 * math.ceil(3 * sigma) + 1
     blurred: np.ndarray = cv2.GaussianBlur(
@@ -118,6 +109,8 @@ def realism_statistics(obstructed: np.ndarray, clean: np.ndarray) -> RealismStat
             f"{clean.shape} {clean.dtype} differ"
         )
     try:
+        check_image(obstructed)
+        check_image(clean)
         grey_obstructed, grey_clean = to_grey(obstructed), to_grey(clean)
     except ValueError as exc:
         raise SimulateError(str(exc)) from None
