@@ -72,7 +72,7 @@ from lenspair.dataset.manifest import (
     write_manifest,
     write_removed,
 )
-from lenspair.dataset.verify import dataset_difference, unlisted_files
+from lenspair.dataset.verify import dataset_difference, user_files
 
 logger = logging.getLogger(__name__)
 CONFIG_FILE = "config.yaml"
@@ -552,11 +552,11 @@ def _place(temp: Path, out: Path, overwrite: bool) -> None:
     own = _own_entries()
     theirs = sorted(p.name for p in out.iterdir() if p.name not in own)
     # and what they put inside the split folders (an evaluation in train/restored/)
-    inside = [str(p) for p in unlisted_files(out) if not (temp / p).exists()]
+    inside = [p for p in user_files(out) if not (temp / p).exists()]
     for name in [*theirs, *inside]:  # linked, not moved: the originals stay until the swap
         (temp / name).parent.mkdir(parents=True, exist_ok=True)
         _link_tree(out / name, temp / name)
-    theirs += inside
+    theirs += sorted({str(Path(*p.parts[:2])) for p in inside})  # by folder: train/restored
     trash = Path(tempfile.mkdtemp(prefix=temporary_prefix(out.name), suffix=".old", dir=out.parent))
     try:
         os.replace(out, trash / "dataset")

@@ -80,7 +80,7 @@ def verify_dataset(root: Path, workers: int | None = None) -> VerifyResult:
     for path in sorted(_split_files(root) - set(expected)):
         if path.relative_to(root).parts[1] in IMAGE_KINDS:  # a folder-reading loader takes it
             problems.append(f"{path}: not listed in {MANIFEST_FILE}")
-        # elsewhere in a split folder (train/restored/...): the user's, kept by a rebuild
+        # elsewhere in a split folder (train/restored/...): the user's (user_files)
     problems += _check_card(root, rows)
     return VerifyResult(root, len(rows), len(expected), tuple(problems))
 
@@ -145,18 +145,21 @@ def _check_card(root: Path, rows: list[ManifestRow]) -> list[str]:
     return problems
 
 
-def unlisted_files(root: Path) -> list[Path]:
-    """Files in ``root``'s split folders that its manifest does not list: a user's.
+def user_files(root: Path) -> list[Path]:
+    """Files in ``root``'s split folders outside their image folders: a user's.
 
-    Relative to ``root``, sorted; none when the manifest cannot be read.
-    ``--verify`` names each of them; a rebuild keeps them (``dataset-build``).
+    A build writes a split's images into ``input/``, ``target/`` and ``mask/``
+    only, so anything else there (an evaluation in ``train/restored/``) is
+    the user's, manifest or not; a rebuild keeps it (``dataset-build``). An
+    unlisted file in an image folder is not: ``--verify`` names it, a folder-
+    reading loader would take it, and a rebuild with ``--overwrite`` drops it.
+    Relative to ``root``, sorted.
     """
-    try:
-        rows = read_manifest(root / MANIFEST_FILE)
-    except DatasetError:
-        return []
-    listed = {root / relative for row in rows for relative in row.files.values()}
-    return sorted(p.relative_to(root) for p in _split_files(root) - listed)
+    return sorted(
+        relative
+        for relative in (p.relative_to(root) for p in _split_files(root))
+        if relative.parts[1] not in IMAGE_KINDS
+    )
 
 
 def dataset_difference(existing: Path, new: Path) -> str | None:
@@ -164,14 +167,14 @@ def dataset_difference(existing: Path, new: Path) -> str | None:
 
     Compares the file lists and the bytes of the manifest, card and config
     (the manifest holds the sha256 of every image). Files a user added to
-    the split folders (:func:`unlisted_files`) are no difference.
+    the split folders (:func:`user_files`, outside their image folders) are no difference.
     """
     for name in _COMPARED_FILES:
         a, b = existing / name, new / name
         if not a.is_file() or not b.is_file() or a.read_bytes() != b.read_bytes():
             return f"{name} differs"
     old_files = {p.relative_to(existing) for p in _split_files(existing)}
-    old_files -= set(unlisted_files(existing))
+    old_files -= set(user_files(existing))
     new_files = {p.relative_to(new) for p in _split_files(new)}
     if old_files != new_files:
         example = sorted(old_files ^ new_files)[0]

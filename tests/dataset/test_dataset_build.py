@@ -357,15 +357,21 @@ def test_a_rebuild_keeps_the_users_files_inside_split_folders(
     with caplog.at_level("WARNING"):
         build_dataset([source], out, config)  # unchanged: accepted, no --overwrite needed
     assert (out / "train" / "restored" / "r.txt").read_text() == "mine"
-    assert any("train/restored/r.txt" in r.getMessage() for r in caplog.records)
     assert verify_dataset(out).ok  # not in an image folder: no loader takes it
     other = DatasetConfig(config.curation, SplitConfig(fractions=(1.0, 0.0, 0.0), seed=3))
     build_dataset([source], out, other, overwrite=True)
     assert (out / "train" / "restored" / "r.txt").read_text() == "mine"
     assert read_card(out / "dataset.json").seed == 3
+    assert any("kept NOTES.md, train/restored, not" in r.getMessage() for r in caplog.records)
     stray = out / "train" / "input" / "extra.png"  # an image folder: a loader would take it
     stray.write_bytes(b"x")
     assert any(str(stray) in p and "not listed" in p for p in verify_dataset(out).problems)
+    with pytest.raises(DatasetError, match="file lists differ"):  # not the user's to keep
+        build_dataset([source], out, other)
+    (out / "manifest.jsonl").write_text("not json\n")  # and with no manifest to read
+    build_dataset([source], out, other, overwrite=True)
+    assert not stray.exists() and verify_dataset(out).ok  # dropped: readers would fail on it
+    assert (out / "train" / "restored" / "r.txt").read_text() == "mine"
 
 
 def test_failed_build_leaves_nothing_half_written(
