@@ -342,6 +342,8 @@ def with_file(config: RunConfig, path: Path) -> RunConfig:
     data = read_yaml(path) or {}
     merged = to_plain(config)
     for section, values in data.items():
+        if values is None:  # every key commented out: an empty section, as load_dataclass reads
+            continue
         if isinstance(values, dict) and isinstance(merged.get(section), dict):
             merged[section] = {**merged[section], **values}
         else:

@@ -484,7 +484,10 @@ def test_a_config_sets_only_what_it_names(tmp_path: Path, monkeypatch: pytest.Mo
     assert main([*argv, "--budget", "10", "--config", str(partial)]) == 0
     assert main([*argv, "--budget", "10", "--config", str(cropped)]) == 0
     assert main([*argv, "--budget", "10", "--config", str(cropped), "--crop-size", "32"]) == 0
-    assert settings == [(128, 4, 0.5), (64, 2, 0.5), (32, 2, 0.5)]
+    emptied = tmp_path / "emptied.yaml"  # every key commented out: the section is null
+    emptied.write_text("train:\n  # batch_size: 2\n")
+    assert main([*argv, "--budget", "10", "--config", str(emptied)]) == 0
+    assert settings == [(128, 4, 0.5), (64, 2, 0.5), (32, 2, 0.5), (128, 4, 0.5)]
 
 
 def test_a_split_asked_for_is_scored_or_refused_never_replaced(tmp_path: Path) -> None:
