@@ -251,6 +251,16 @@ def _reject_outliers(
         # and never reject down to too few views (a factor near 1 on evenly noisy views
         # dropped half of them a round until the calibration failed)
         too_few = len(views) - len(bad) < options.min_views
+        if bad and too_few and rounds < options.max_rounds and len(bad) <= len(views) // 2:
+            log.warning(
+                "%s: kept %d views above the %.2f px rejection threshold (%s): rejecting them "
+                "would leave fewer than %d; more views, or a larger --outlier-factor",
+                stage,
+                len(bad),
+                threshold,
+                ", ".join(names[views[k]] for k in bad),
+                options.min_views,
+            )
         if not bad or len(bad) > len(views) // 2 or rounds == options.max_rounds or too_few:
             return result, views, errors, rejected
         rounds += 1
@@ -270,11 +280,11 @@ def _reject_outliers(
 
 
 STILL_BOARD_DEG = 2.0
-"""A board turned less than this between any two views, and moved less than
+"""A board turned less than this from the first view in every view, and moved less than
 :data:`STILL_BOARD_SHIFT` of its distance, stood still: no calibration."""
 STILL_BOARD_SHIFT = 0.02
 FEW_TILTS_DEG = 10.0
-"""Below this largest turn between two views the focal length is poorly determined (warning)."""
+"""Below this largest turn from the first view the focal length is poorly determined (warning)."""
 
 
 def _check_pose_spread(rvecs: np.ndarray, tvecs: np.ndarray, stage: str) -> None:
@@ -288,27 +298,25 @@ def _check_pose_spread(rvecs: np.ndarray, tvecs: np.ndarray, stage: str) -> None
     Raises:
         RectifyError: the board barely turned or moved across the views.
     """
+    # from the first view: linear in the views (the largest turn between any two
+    # lies between this and twice this)
     rotations = [cv2.Rodrigues(np.asarray(r, np.float64).reshape(3))[0] for r in rvecs]
     turned = max(
-        (
-            float(np.degrees(np.linalg.norm(cv2.Rodrigues(a.T @ b)[0])))
-            for i, a in enumerate(rotations)
-            for b in rotations[i + 1 :]
-        ),
-        default=0.0,
+        float(np.degrees(np.linalg.norm(cv2.Rodrigues(rotations[0].T @ r)[0])))
+        for r in rotations
     )
     centres = np.asarray(tvecs, np.float64).reshape(-1, 3)
-    moved = float(np.max(np.linalg.norm(centres[:, None] - centres[None], axis=2)))
+    moved = float(np.max(np.linalg.norm(centres - centres[0], axis=1)))
     depth = float(np.mean(np.linalg.norm(centres, axis=1)))
     if turned < STILL_BOARD_DEG and moved < STILL_BOARD_SHIFT * depth:
         raise RectifyError(
             f"{stage}: the board barely moved in the {len(centres)} views (turned "
-            f"{turned:.1f} deg and moved {100 * moved:.1f} cm at most): a calibration needs "
-            "it tilted in several directions and moved across the image"
+            f"{turned:.1f} deg and moved {100 * moved:.1f} cm at most from the first): a "
+            "calibration needs it tilted in several directions and moved across the image"
         )
     if turned < FEW_TILTS_DEG:
         log.warning(
-            "%s: the board turned at most %.1f deg between views; tilt it by 20-40 deg in "
+            "%s: the board turned at most %.1f deg from the first view; tilt it by 20-40 deg in "
             "several directions, or the focal length is poorly determined",
             stage,
             turned,
@@ -434,8 +442,7 @@ def calibrate_from_detections(
                 len(pairs),
                 options.min_views,
             )
-            monos, rejected, pairs = again
-            options = plain
+            monos, rejected, pairs = again  # the stereo step still rejects its outliers
     cameras = (monos[0].camera, monos[1].camera)
     if len(pairs) < options.min_views:  # the stereo step needs views the two cameras share
         raise RectifyError(

@@ -168,11 +168,37 @@ def test_outlier_rejection_never_rejects_down_to_too_few_views(
     options = CalibrationOptions(outlier_factor=1.0)
     with caplog.at_level("WARNING"):
         result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES, options=options)
-    assert len(result.stereo_views) == 12 and result.rejected == ()
     assert all(len(c.views) == 12 for c in result.cameras)
+    # the stereo step still rejects its own outliers, down to no fewer than 5
+    assert len(result.stereo_views) >= options.min_views
+    assert {r.stage for r in result.rejected} <= {"stereo"}
     # each camera kept more than 5, but too few of the same views: said, and undone
     assert any("calibrating without rejecting any" in m for m in caplog.messages)
     assert result.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.05)  # 0.6 px noise
+
+
+def test_views_kept_only_because_too_few_would_remain_are_named(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # 7 views, 3 of them noisy in cam1: rejecting all 3 would leave 4 of the 5 needed,
+    # and they were kept without a word
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = point_views(board, truth, count=7, seed=4)
+    rng = np.random.default_rng(0)
+    for k in (1, 3, 5):
+        d0, d1 = views[k]
+        assert d1 is not None
+        noisy = d1.corners + rng.normal(0, 1.5, d1.corners.shape).astype(np.float32)
+        views[k] = (d0, Detection(d1.ids, noisy))
+    names = [f"frame-{i}" for i in range(7)]
+    with caplog.at_level("WARNING"):
+        calibrate_from_detections(views, board, "pinhole-radtan", SIZES, names)
+    said = [m for m in caplog.messages if "rejection threshold" in m]
+    assert [m.split(":")[0] for m in said] == ["cam1", "stereo"]  # each step that kept them
+    for line in said:
+        assert "kept 3 views above the" in line and "(frame-1, frame-3, frame-5)" in line
+        assert "fewer than 5" in line
 
 
 @pytest.mark.parametrize("model", ["pinhole-radtan", "pinhole-equi"])
