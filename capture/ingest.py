@@ -437,11 +437,11 @@ def ingest_recording(
         frame_pairs.append(both if rig_file.obstructed == "cam0" else (both[1], both[0]))
     out_dir = Path(out) / recording.recording_id
     source = _root(recording)
-    if source.is_dir() and out_dir.resolve().is_relative_to(source):
+    if out_dir.resolve() == source:  # --out = the recording's parent folder
         raise CaptureError(
-            f"--out {out}: the recording goes to {out_dir}, which is inside the recording "
-            f"{source}; the ingest writes input/ and target/ there and removes files it did "
-            "not write, so choose an --out outside the recording"
+            f"--out {out}: the recording goes to {out_dir}, which is the recording "
+            f"{source} itself; the ingest writes input/ and target/ there and removes "
+            "files it did not write, so choose another --out"
         )
     _check_same_source(out_dir, source)
     created = not out_dir.exists()

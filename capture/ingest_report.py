@@ -26,7 +26,7 @@ def _category(reason: str) -> str:
     return re.split(r":| \(", reason, maxsplit=1)[0].strip()
 
 
-def _has_record(problem: FrameProblem, recording: Recording, obstructed: CameraName | None) -> bool:
+def _has_record(problem: FrameProblem, obstructed: CameraName | None) -> bool:
     """Whether a dropped frame gets its own rejected line in ``pairs.jsonl``.
 
     Every dropped obstructed frame with a timestamp does (a row that lists the
@@ -48,7 +48,7 @@ def unlisted_records(recording: Recording, obstructed: CameraName) -> list[PairR
     return [
         PairRecord(t_ns=p.t_ns, status="rejected", reason=f"{p.reason} ({p.source})")
         for p in recording.problems
-        if _has_record(p, recording, obstructed) and p.t_ns is not None
+        if _has_record(p, obstructed) and p.t_ns is not None  # (said for the type checker)
     ]
 
 
@@ -70,7 +70,7 @@ def rejection_reasons(
     """
     reasons = Counter(_category(r.reason) for r in records if r.status == "rejected" and r.reason)
     for problem in recording.problems:
-        if problem.dropped and not _has_record(problem, recording, obstructed):
+        if problem.dropped and not _has_record(problem, obstructed):
             reasons[f"{problem.camera or 'recording'} not listed: {_category(problem.reason)}"] += 1
     return reasons
 
@@ -121,7 +121,7 @@ def frame_counts(
     counts["pairs"] = len(pairing.pairs)
     counts["kept"] = sum(1 for r in records if r.status == "kept")
     counts["rejected"] = sum(1 for r in records if r.status == "rejected")
-    unlisted = sum(1 for p in recording.problems if _has_record(p, recording, rig_file.obstructed))
+    unlisted = sum(1 for p in recording.problems if _has_record(p, rig_file.obstructed))
     counts["rejected_unlisted"] = unlisted
     counts["rejected_paired"] = (
         counts["rejected"] - counts[f"unpaired_{rig_file.obstructed}"] - unlisted

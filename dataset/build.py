@@ -553,7 +553,7 @@ def _place(temp: Path, out: Path, overwrite: bool) -> None:
     theirs = sorted(p.name for p in out.iterdir() if p.name not in own)
     # and what they put inside the split folders (an evaluation in train/restored/)
     inside = [p for p in user_files(out) if not (temp / p).exists()]
-    for name in [*theirs, *inside]:  # linked, not moved: the originals stay until the swap
+    for name in [*theirs, *map(str, inside)]:  # linked, not moved: kept until the swap
         (temp / name).parent.mkdir(parents=True, exist_ok=True)
         _link_tree(out / name, temp / name)
     theirs += sorted({str(Path(*p.parts[:2])) for p in inside})  # by folder: train/restored

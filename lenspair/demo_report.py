@@ -89,7 +89,7 @@ def calibration_blocks(out: Path) -> list[Block]:
         ["cam0 RMS reprojection", f"{report['cam0']['rms_px']:.3f} px"],
         ["cam1 RMS reprojection", f"{report['cam1']['rms_px']:.3f} px"],
         ["stereo RMS reprojection", f"{report['stereo']['rms_px']:.3f} px"],
-        ["rectified row disagreement (RMS)", f"{report['row_disagreement_px']:.3f} px"],
+        ["rectified row disagreement (RMS)", _px(report["row_disagreement_px"])],
         ["views used (stereo)", str(len(report["stereo"]["views"]))],
         ["views rejected", str(len(report["rejected"]))],
     ]
@@ -284,3 +284,8 @@ def write_report(out: Path, timings: dict[str, dict[str, float | bool]], command
     atomic_write_text(markdown, to_markdown(blocks))
     atomic_write_text(out / "report.html", to_html(blocks, "lenspair demo report"))
     return markdown
+
+
+def _px(value: float | None) -> str:
+    """A pixel figure; ``n/a`` where there is none (a top/bottom rig is not rectified)."""
+    return "n/a" if value is None else f"{value:.3f} px"

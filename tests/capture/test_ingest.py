@@ -323,7 +323,7 @@ def test_a_namesake_recording_is_refused_not_merged(tmp_path: Path) -> None:
         _ingest(second, out)
 
 
-def test_an_out_that_puts_the_ingest_inside_the_recording_is_refused(tmp_path: Path) -> None:
+def test_an_out_that_makes_the_ingest_the_recording_itself_is_refused(tmp_path: Path) -> None:
     # --out = the recording's parent made OUT/<rec> the recording itself: input/ and
     # target/ were written into it, and files of the user's there were deleted
     recording = make_recording(tmp_path / "rec", frames=3)
@@ -331,10 +331,11 @@ def test_an_out_that_puts_the_ingest_inside_the_recording_is_refused(tmp_path: P
     mask.mkdir()
     (mask / "12345.png").write_bytes(b"the user's own file")
     files = sorted(p for p in recording.rglob("*"))
-    for out in (tmp_path, recording / "mav0"):  # rec itself, and a folder inside it
-        with pytest.raises(CaptureError, match=r"inside the recording .*rec; .*outside"):
-            _ingest(recording, out)
+    with pytest.raises(CaptureError, match=r"which is the recording .*rec itself; "):
+        _ingest(recording, tmp_path)
     assert sorted(p for p in recording.rglob("*")) == files  # nothing written, nothing removed
+    assert (mask / "12345.png").read_bytes() == b"the user's own file"
+    _ingest(recording, recording / "processed")  # a fresh folder inside it holds nothing of theirs
     assert (mask / "12345.png").read_bytes() == b"the user's own file"
 
 
