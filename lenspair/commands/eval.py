@@ -22,9 +22,10 @@ metrics.md and metrics.json, and the others are scored.
 Latency is measured as deployed: one image of the data's size, batch 1,
 after warm-up, median and p90 of --latency-runs runs, thread count stated;
 on the CPU, and on CUDA when the device is CUDA. EVAL_DIR defaults to
-RUN/eval_<checkpoint>_<data>[_<split>][_<precision>] for
-RUN/checkpoints/<checkpoint>.pt (the precision named unless fp32; _2, _3, ...
-after it for a dataset of the same name elsewhere).
+RUN/eval_<checkpoint>_<data>[_<split>][_<precision>][_<convention>] for
+RUN/checkpoints/<checkpoint>.pt (the precision named unless fp32, the convention
+unless skimage-gaussian; _2, _3, ... after it for a dataset of the same name
+elsewhere).
 --describe prints the parameter count and FLOPs at 540x360 and exits.
 
 --precision fp32 (default: the reference numbers), auto (bf16 on a CPU with
@@ -66,8 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out",
         type=out_folder,
         metavar="EVAL_DIR",
-        help="report folder (default: RUN/eval_<checkpoint>_<data>[_<split>][_<precision>] for "
-        "RUN/checkpoints/<checkpoint>.pt; _2, _3, ... for a namesake dataset elsewhere)",
+        help="report folder (default: RUN/eval_<checkpoint>_<data>[_<split>][_<precision>]"
+        "[_<convention>] for RUN/checkpoints/<checkpoint>.pt; _2, _3, ... for a namesake "
+        "dataset elsewhere)",
     )
     parser.add_argument(
         "--precision",
