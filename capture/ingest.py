@@ -322,13 +322,15 @@ def _root(recording: Recording) -> Path:
 def _topics_reversed(recording: Recording, rig: StereoRig) -> bool:
     """A bag read with cam0's and cam1's topics the other way round from the calibration's.
 
-    A Kalibr camchain names each camera's ``rostopic`` (others read as
-    ``/cam0/image_raw`` and ``/cam1/image_raw``). Reading the two topics
+    A Kalibr camchain names each camera's ``rostopic``. Reading the two topics
     swapped would rectify each camera's frames with the other's calibration
-    and make the clean camera's frames the input, without any error.
+    and make the clean camera's frames the input, without any error. Topics
+    the calibration does not state (the conventional ``/cam0/image_raw`` and
+    ``/cam1/image_raw`` it is read with) decide nothing.
     """
     read = recording.topics
-    return read is not None and read != rig.topics and read == rig.topics[::-1]
+    reversed_ = read is not None and read != rig.topics and read == rig.topics[::-1]
+    return rig.topics_stated and reversed_
 
 
 def _check_same_source(out_dir: Path, source: Path) -> None:

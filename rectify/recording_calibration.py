@@ -193,7 +193,7 @@ def calibrate_recording(
         ) from None
     rig = result.rig
     if recording.topics is not None:
-        rig = replace(rig, topics=recording.topics)
+        rig = replace(rig, topics=recording.topics, topics_stated=True)
     frames = {
         "cam0": len(recording.frames["cam0"]),
         "cam1": len(recording.frames["cam1"]),

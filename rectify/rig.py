@@ -79,6 +79,9 @@ class StereoRig:
         cam1: second camera.
         T_cam1_cam0: 4x4 transform from cam0's frame to cam1's frame.
         topics: ROS topics of the two cameras, when known.
+        topics_stated: whether the calibration stated them (a camchain's
+            ``rostopic`` keys, a calibration from a bag); else ``topics`` are
+            the conventional defaults, an assumption.
 
     """
 
@@ -86,6 +89,7 @@ class StereoRig:
     cam1: CameraModel
     T_cam1_cam0: np.ndarray = field(repr=False)
     topics: tuple[str, str] = ("/cam0/image_raw", "/cam1/image_raw")
+    topics_stated: bool = field(default=False, compare=False)
 
     def __post_init__(self) -> None:
         T = np.asarray(self.T_cam1_cam0, dtype=np.float64)
@@ -198,7 +202,8 @@ def rig_from_kalibr(data: Any, source: str = "camchain") -> StereoRig:
             str(data["cam0"].get("rostopic", "/cam0/image_raw")),
             str(data["cam1"].get("rostopic", "/cam1/image_raw")),
         )
-        return StereoRig(cam0, cam1, T, topics)
+        stated = "rostopic" in data["cam0"] or "rostopic" in data["cam1"]
+        return StereoRig(cam0, cam1, T, topics, stated)
     except KeyError:
         raise RectifyError(f"{source}: cam1.T_cn_cnm1 is missing") from None
     except ValueError as exc:

@@ -94,6 +94,12 @@ def test_topics_the_other_way_round_from_the_camchain(tmp_path: Path) -> None:
     typed = ingest_recording(swapped / bag.name, tmp_path / "typed", size=SIZE, topics=(cam1, cam0))
     chosen = ingest_recording(swapped / bag.name, tmp_path / "chosen", size=SIZE)
     assert typed.counts["kept"] == chosen.counts["kept"] == 3
+    # a camchain that names no topics states nothing to contradict: typed, they stand
+    camchain = bag.parent / "camchain.yaml"
+    lines = camchain.read_text().splitlines(keepends=True)
+    camchain.write_text("".join(line for line in lines if "rostopic" not in line))
+    unstated = ingest_recording(bag, tmp_path / "unstated", size=SIZE, topics=(cam1, cam0))
+    assert unstated.counts["frames_cam0"] == unstated.counts["frames_cam1"] == 3
     for name in ("input", "target"):
         for image in sorted((tmp_path / "typed" / "run" / name).iterdir()):
             other = tmp_path / "chosen" / "run" / name / image.name
