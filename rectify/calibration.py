@@ -302,8 +302,7 @@ def _check_pose_spread(rvecs: np.ndarray, tvecs: np.ndarray, stage: str) -> None
     # lies between this and twice this)
     rotations = [cv2.Rodrigues(np.asarray(r, np.float64).reshape(3))[0] for r in rvecs]
     turned = max(
-        float(np.degrees(np.linalg.norm(cv2.Rodrigues(rotations[0].T @ r)[0])))
-        for r in rotations
+        float(np.degrees(np.linalg.norm(cv2.Rodrigues(rotations[0].T @ r)[0]))) for r in rotations
     )
     centres = np.asarray(tvecs, np.float64).reshape(-1, 3)
     moved = float(np.max(np.linalg.norm(centres - centres[0], axis=1)))
