@@ -270,6 +270,7 @@ def _frame_stage(
     journal = read_journal(journal_path)
     records: dict[int, PairRecord] = {}
     tasks = []
+    redone = 0
     for obstructed_frame, clean_frame in frame_pairs:
         task = frame_work.FrameTask(
             obstructed_frame, clean_frame, state, warnings.get(obstructed_frame.t_ns)
@@ -278,7 +279,15 @@ def _frame_stage(
         if done and done[0] == task.key and still_valid(out_dir, done[1]):
             records[obstructed_frame.t_ns] = done[1]
         else:
+            redone += done is not None and done[0] != task.key
             tasks.append(task)
+    if redone:  # a rerun with another calibration, side or thresholds replaces them: said
+        log.warning(
+            "%s: %d finished frames are processed again: the calibration, obstructed side, "
+            "thresholds or input frames differ from the run that wrote them",
+            out_dir,
+            redone,
+        )
     keys = {t.obstructed.t_ns: t.key for t in tasks}
     keys.update({t: journal[t][0] for t in records})
     with journal_path.open("a", encoding="utf-8") as handle:

@@ -56,7 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", type=Path, help="paired dataset folder (DS)")
     parser.add_argument("--out", type=out_folder, required=True, help="output folder (DIR)")
     parser.add_argument(
-        "--budget", default="60", help="per variant: STEPS, or 90s / 5m / 1h (60 steps)"
+        "--budget", default="60", help="per variant and seed: STEPS, or 90s / 5m / 1h (60 steps)"
     )
     add_device_option(parser)
     parser.add_argument(

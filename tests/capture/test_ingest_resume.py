@@ -252,3 +252,22 @@ def test_a_frame_deleted_from_the_recording_takes_its_outputs_along(
     for relative in victim.files.values():  # gone, as from a clean ingest of what is left
         assert not (out / "rain" / relative).exists()
     assert "not written by capture-ingest" not in caplog.text
+
+
+def test_a_rerun_with_other_thresholds_says_it_processes_finished_frames_again(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # a rerun with other settings (another --calib, thresholds) replaced finished
+    # outputs without a word, though --help said they were left untouched
+    from lenspair.rectify.registration import VerifyParams
+
+    recording, _ = reference
+    ingest_recording(recording, tmp_path)
+    kept = len(list((tmp_path / "rain" / "input").glob("*.png")))
+    caplog.clear()
+    ingest_recording(recording, tmp_path, verify=VerifyParams(min_correlation=0.5))
+    [said] = [r.getMessage() for r in caplog.records if "processed again" in r.getMessage()]
+    assert f": {kept} finished frames are processed again: the calibration" in said
+    caplog.clear()
+    ingest_recording(recording, tmp_path, verify=VerifyParams(min_correlation=0.5))
+    assert not any("processed again" in r.getMessage() for r in caplog.records)  # unchanged
