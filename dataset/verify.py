@@ -78,9 +78,8 @@ def verify_dataset(root: Path, workers: int | None = None) -> VerifyResult:
     with ThreadPoolExecutor(max_workers=workers or min(4, os.cpu_count() or 1)) as pool:
         problems += [p for p in pool.map(_check_file, expected.items()) if p]
     for path in sorted(_split_files(root) - set(expected)):
-        if path.relative_to(root).parts[1] in IMAGE_KINDS:  # a folder-reading loader takes it
+        if not _is_users(path.relative_to(root)):  # a folder-reading loader would take it
             problems.append(f"{path}: not listed in {MANIFEST_FILE}")
-        # elsewhere in a split folder (train/restored/...): the user's (user_files)
     problems += _check_card(root, rows)
     return VerifyResult(root, len(rows), len(expected), tuple(problems))
 
@@ -155,11 +154,13 @@ def user_files(root: Path) -> list[Path]:
     reading loader would take it, and a rebuild with ``--overwrite`` drops it.
     Relative to ``root``, sorted.
     """
-    return sorted(
-        relative
-        for relative in (p.relative_to(root) for p in _split_files(root))
-        if relative.parts[1] not in IMAGE_KINDS
-    )
+    relative = (path.relative_to(root) for path in _split_files(root))
+    return sorted(path for path in relative if _is_users(path))
+
+
+def _is_users(relative: Path) -> bool:
+    """``split/...`` outside the split's image folders: the user's (:func:`user_files`)."""
+    return relative.parts[1] not in IMAGE_KINDS
 
 
 def dataset_difference(existing: Path, new: Path) -> str | None:
@@ -174,7 +175,7 @@ def dataset_difference(existing: Path, new: Path) -> str | None:
         if not a.is_file() or not b.is_file() or a.read_bytes() != b.read_bytes():
             return f"{name} differs"
     old_files = {p.relative_to(existing) for p in _split_files(existing)}
-    old_files -= set(user_files(existing))
+    old_files = {p for p in old_files if not _is_users(p)}
     new_files = {p.relative_to(new) for p in _split_files(new)}
     if old_files != new_files:
         example = sorted(old_files ^ new_files)[0]
