@@ -92,21 +92,22 @@ def realism_statistics(obstructed: np.ndarray, clean: np.ndarray) -> RealismStat
 
     Args:
         obstructed: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)``.
-        clean: same shape and dtype.
+        clean: same height and width. Grey or RGB and 8 or 16 bits may
+            differ from ``obstructed``: both are compared as grey ``[0, 1]``.
 
     Returns:
         The statistics, all finite except ``input_psnr`` (``inf`` when the
         images are identical).
 
     Raises:
-        SimulateError: shapes or dtypes differ, or the clean image is flat
+        SimulateError: the sizes differ, or the clean image is flat
             (its contrast ratio is undefined).
 
     """
-    if obstructed.shape != clean.shape or obstructed.dtype != clean.dtype:
+    if obstructed.shape[:2] != clean.shape[:2]:
         raise SimulateError(
-            f"pair: obstructed {obstructed.shape} {obstructed.dtype} and clean "
-            f"{clean.shape} {clean.dtype} differ"
+            f"pair: obstructed {obstructed.shape[1]}x{obstructed.shape[0]} and clean "
+            f"{clean.shape[1]}x{clean.shape[0]} differ in size"
         )
     try:
         check_image(obstructed)

@@ -33,7 +33,7 @@ from lenspair.core.errors import ConfigError, LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
 from lenspair.core.progress import progress
-from lenspair.dataset.readers import detect_layout, open_paired
+from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired
 from lenspair.simulate.natural_images import fit, load_natural_images
 from lenspair.simulate.presets import DROPS_PRESETS, drops_preset, find_clean_images
 from lenspair.simulate.realism import (
@@ -153,18 +153,31 @@ def _folder_label(folder: Path, presets: list[str]) -> str:
 
 
 def _readable(
-    dataset: Any, unread: list[PairStatistics]
+    dataset: PairedDataset, unread: list[PairStatistics]
 ) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
-    """``(name, obstructed, clean)`` of every pair that can be read; the others go to ``unread``."""
-    names = getattr(dataset, "names", None)
-    for index in range(len(dataset)):
+    """``(name, obstructed, clean)`` of every pair that can be read; the others go to ``unread``.
+
+    The files are read as they are: a grey clean image beside a colour
+    obstructed one, or 8 bits beside 16, is measured (both go to grey
+    ``[0, 1]``), where a training set would refuse the pair.
+    """
+    for entry in dataset.entries:
         try:
-            item = dataset[index]
-        except LenspairError as exc:  # a truncated file, a size mismatch: this pair only
-            name = str(names[index]) if names is not None else f"pair {index}"
-            unread.append(PairStatistics(name, None, str(exc)))
+            obstructed, clean = read_image(entry.input_path), read_image(entry.target_path)
+        except LenspairError as exc:  # a truncated file, an unknown format: this pair only
+            unread.append(PairStatistics(entry.name, None, str(exc)))
             continue
-        yield item.name, item.input, item.target
+        if obstructed.shape[:2] != clean.shape[:2]:
+            unread.append(
+                PairStatistics(
+                    entry.name,
+                    None,
+                    f"{entry.input_path}: {obstructed.shape[1]}x{obstructed.shape[0]} does not "
+                    f"match {entry.target_path} {clean.shape[1]}x{clean.shape[0]}",
+                )
+            )
+            continue
+        yield entry.name, obstructed, clean
 
 
 def _row(row: PairStatistics) -> dict[str, Any]:

@@ -112,7 +112,7 @@ def test_rgb_is_measured_on_its_luma() -> None:
 
 def test_bad_pairs_raise_and_are_recorded_not_fatal() -> None:
     clean = _clean()
-    with pytest.raises(SimulateError, match="differ"):
+    with pytest.raises(SimulateError, match="differ in size"):
         realism_statistics(clean[:10], clean)
     flat = np.full((8, 8), 100, np.uint8)
     with pytest.raises(SimulateError, match="flat"):
@@ -219,6 +219,29 @@ def test_cli_lists_and_skips_pairs_and_images_it_cannot_read(
     assert len(rows[str(folder)]) == 4  # every pair accounted for, measured or not
     # named by their names, not by an index ("pair 1")
     assert sorted(row["name"] for row in rows[str(folder)]) == ["0", "1", "2", "3"]
+
+
+def test_a_folder_pair_of_grey_beside_colour_or_8_beside_16_bits_is_measured_in_grey(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Statistics are defined on grey [0, 1]: how each file stores it does not matter."""
+    clean16 = _clean((48, 64))
+    obstructed16 = clean16 + np.uint16(3000)
+    folder = tmp_path / "pairs"
+    colour = np.repeat(obstructed16[..., None], 3, 2)
+    write_image(folder / "input" / "colour.png", colour)  # RGB beside a grey clean image
+    write_image(folder / "target" / "colour.png", clean16)
+    write_image(folder / "input" / "depth.png", obstructed16)  # 16 bits beside 8
+    write_image(folder / "target" / "depth.png", (clean16 // 257).astype(np.uint8))
+    out = tmp_path / "realism.json"
+    assert main(["realism", str(folder), "--json", str(out)]) == 0
+    assert "skipped" not in capsys.readouterr().out
+    rows = {row["name"]: row for row in json.loads(out.read_text())[str(folder)]}
+    expected = realism_statistics(obstructed16, clean16)
+    for name in ("colour", "depth"):
+        assert rows[name]["problem"] is None
+        assert rows[name]["mean_difference"] == pytest.approx(expected.mean_difference, abs=3e-3)
+        assert rows[name]["contrast_ratio"] == pytest.approx(expected.contrast_ratio, abs=2e-2)
 
 
 def test_a_clean_image_too_small_to_crop_is_skipped(
