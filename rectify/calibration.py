@@ -322,6 +322,34 @@ def _check_pose_spread(rvecs: np.ndarray, tvecs: np.ndarray, stage: str) -> None
         )
 
 
+MARKER_TOLERANCE = 0.15
+"""Markers measured this far (relative) from the stated ``MARKER_M`` are reported (warning)."""
+
+
+def _check_marker_size(
+    detections: Sequence[tuple[Detection | None, Detection | None]], board: Board
+) -> None:
+    """Warn when the images' ChArUco markers are not the size ``--board`` states.
+
+    The measure (:func:`~lenspair.rectify.boards.measured_marker_m`) comes
+    out a few per cent small, and a marker size a little off changes the
+    calibration by less than its noise; the tolerance catches the typing
+    mistakes (a third off and more) that bias the focal length unseen.
+    """
+    measured = [d.marker_m for pair in detections for d in pair if d and d.marker_m is not None]
+    if board.marker_m is None or not measured:
+        return
+    median = float(np.median(measured))
+    if abs(median / board.marker_m - 1.0) > MARKER_TOLERANCE:
+        log.warning(
+            "board: its markers measure about %.3g m on the images, %s states %.3g m "
+            "(MARKER_M); a wrong marker size biases the focal length: check the printed board",
+            median,
+            board.spec(),
+            board.marker_m,
+        )
+
+
 def calibrate_camera(
     detections: Sequence[Detection | None],
     board: Board,
@@ -411,6 +439,7 @@ def calibrate_from_detections(
     names = list(names) if names is not None else [f"view {i}" for i in range(len(detections))]
     if len(names) != len(detections):
         raise ValueError(f"names: expected {len(detections)}, got {len(names)}")
+    _check_marker_size(detections, board)
 
     def each_camera(
         settings: CalibrationOptions,

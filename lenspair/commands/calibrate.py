@@ -13,6 +13,8 @@ lenspair.rectify.recording_calibration.calibrate_recording.
 Boards (sizes in metres):
   chessboard:COLSxROWS:SQUARE_M               COLS x ROWS inner corners
   charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT]  COLS x ROWS squares, DICT default DICT_5X5_100
+ChArUco markers are also measured on the images: a MARKER_M more than 15 %
+away from what they measure is reported (a wrong one biases the focal length).
 
 Models (Kalibr's names): pinhole-radtan (k1 k2 p1 p2), pinhole-equi (fisheye k1..k4).
 

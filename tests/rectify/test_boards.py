@@ -135,3 +135,21 @@ def test_printed_board_puts_corners_at_object_points(spec: str) -> None:
     texture, _ = board_texture(board, pixels_per_square=40)
     detection = detect_corners(cv2.copyMakeBorder(texture, 20, 20, 20, 20, 0, value=255), board)
     assert detection is not None and len(detection) == board.num_corners
+
+
+@pytest.mark.parametrize("stated_m", [0.03, 0.02, 0.035])
+def test_charuco_markers_are_measured_on_the_image_whatever_size_the_spec_states(
+    stated_m: float,
+) -> None:
+    """The measure is the printed marker's (0.03 m), not the spec's, within a few per cent."""
+    printed = parse_board_spec("charuco:8x6:0.04:0.03")
+    texture, _ = board_texture(printed, pixels_per_square=60)
+    H = np.array([[0.8, 0.1, 50.0], [-0.06, 0.78, 40.0], [1e-4, 1.5e-4, 1.0]])
+    image = cv2.warpPerspective(texture, H, (620, 480), flags=cv2.INTER_AREA, borderValue=120)
+    stated = parse_board_spec(f"charuco:8x6:0.04:{stated_m}")
+    detection = detect_corners(image, stated)
+    assert detection is not None and detection.marker_m is not None
+    assert detection.marker_m == pytest.approx(0.03, rel=0.06)
+    chessboard = parse_board_spec("chessboard:7x5:0.03")
+    found = detect_corners(board_texture(chessboard, pixels_per_square=40)[0], chessboard)
+    assert found is not None and found.marker_m is None

@@ -8,6 +8,7 @@ import pytest
 
 from lenspair.rectify.boards import Board, Detection, parse_board_spec
 from lenspair.rectify.calibration import (
+    MARKER_TOLERANCE,
     CalibrationOptions,
     CalibrationResult,
     calibrate_from_detections,
@@ -136,6 +137,29 @@ def test_partial_charuco_views_with_fisheye_model() -> None:
         "both_detected": 19,
     }
     assert 3 not in result.stereo_views
+
+
+@pytest.mark.parametrize(("measured_m", "warned"), [(0.0352, False), (0.0278, True)])
+def test_charuco_markers_unlike_the_stated_size_are_reported(
+    measured_m: float, warned: bool, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A few per cent small is the measure's own bias; a quarter off is a wrong MARKER_M."""
+    truth = make_rig("radtan")
+    board = parse_board_spec("charuco:10x7:0.05:0.037")
+    views = [
+        (Detection(d0.ids, d0.corners, measured_m), Detection(d1.ids, d1.corners, measured_m))
+        for d0, d1 in point_views(board, truth, count=12)
+        if d0 is not None and d1 is not None
+    ]
+    with caplog.at_level("WARNING"):
+        calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+    reported = [m for m in caplog.messages if "MARKER_M" in m]
+    assert bool(reported) is warned
+    if warned:
+        assert "0.0278 m" in reported[0] and "states 0.037 m" in reported[0]
+    from lenspair.commands import calibrate
+
+    assert f"more than {round(100 * MARKER_TOLERANCE)} %" in str(calibrate.__doc__)
 
 
 def test_too_few_views_is_a_clear_error() -> None:
