@@ -433,7 +433,7 @@ def ingest_recording(
                 "the other camera's calibration and the obstructed and clean sides swapped: "
                 "pass --topics in cam0, cam1 order, or fix the calibration's rostopic"
             )
-        recording = open_recording(Path(recording_path), rig.topics)  # the calibration's order
+        recording = recording.swapped()  # the calibration's order
     for problem in recording.problems[:MAX_LOGGED_PROBLEMS]:
         log.warning("%s", problem)
     if len(recording.problems) > MAX_LOGGED_PROBLEMS:

@@ -7,7 +7,7 @@ re-exports every name here (import from there in application code).
 """
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -116,6 +116,27 @@ class Recording:
                 dropped = [p for p in self.problems if p.camera in (camera, None) and p.dropped]
                 detail = f"; first of {len(dropped)} problems: {dropped[0]}" if dropped else ""
                 raise CaptureError(f"{self.path}: no {camera} frames could be listed{detail}")
+
+    def swapped(self) -> "Recording":
+        """The same recording with cam0 and cam1 exchanged (bags read with crossed topics).
+
+        Cheaper than reading the bag again the other way round, which lists
+        every message a second time.
+        """
+        other: dict[CameraName, CameraName] = {"cam0": "cam1", "cam1": "cam0"}
+        return replace(
+            self,
+            frames={
+                other[camera]: [replace(frame, camera=other[camera]) for frame in frames]
+                for camera, frames in self.frames.items()
+            },
+            problems=[
+                replace(problem, camera=other[problem.camera]) if problem.camera else problem
+                for problem in self.problems
+            ],
+            topics=None if self.topics is None else (self.topics[1], self.topics[0]),
+            sensor_files={other[camera]: path for camera, path in self.sensor_files.items()},
+        )
 
     def timestamps(self, camera: CameraName) -> list[int]:
         """Sorted, unique timestamps (ns) of ``camera``'s frames."""

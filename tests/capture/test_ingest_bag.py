@@ -5,10 +5,12 @@ from pathlib import Path
 
 import pytest
 
+from lenspair.capture import rosbag
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import read_pairs
 from lenspair.capture.rigfile import RigFile, write_rig_file
+from lenspair.capture.rosbag import _open as open_bag
 from lenspair.cli import main
 from lenspair.core.imageio import read_image
 from lenspair.rectify.rig import write_kalibr
@@ -77,7 +79,9 @@ def test_topics_must_name_two_topics(tmp_path: Path) -> None:
         main([*args, "--topics", "/cam0/image_raw"])
 
 
-def test_topics_the_other_way_round_from_the_camchain(tmp_path: Path) -> None:
+def test_topics_the_other_way_round_from_the_camchain(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # Reversed topics rectified each camera with the other's calibration and made the
     # clean camera's frames the input, silently: refused when typed, and when chosen
     # by name the camchain's rostopic order wins.
@@ -92,7 +96,14 @@ def test_topics_the_other_way_round_from_the_camchain(tmp_path: Path) -> None:
     write_rig_file(swapped / "rig.yaml", RigFile(obstructed="cam0", anomaly=("rain",)))
     write_kalibr(swapped / "camchain.yaml", replace(rig(), topics=(cam1, cam0)))
     typed = ingest_recording(swapped / bag.name, tmp_path / "typed", size=SIZE, topics=(cam1, cam0))
+    opened = []
+    monkeypatch.setattr(rosbag, "_open", lambda path: opened.append(path) or open_bag(path))
     chosen = ingest_recording(swapped / bag.name, tmp_path / "chosen", size=SIZE)
+    assert opened == [swapped / bag.name]  # listed once: a bag of hours is not read twice
+    assert (
+        rosbag.read_bag(swapped / bag.name, (cam1, cam0))
+        == rosbag.read_bag(swapped / bag.name, (cam0, cam1)).swapped()
+    )
     assert typed.counts["kept"] == chosen.counts["kept"] == 3
     # a camchain that names no topics states nothing to contradict: typed, they stand
     camchain = bag.parent / "camchain.yaml"
