@@ -440,6 +440,30 @@ def calibrate_from_detections(
     if len(names) != len(detections):
         raise ValueError(f"names: expected {len(detections)}, got {len(names)}")
     _check_marker_size(detections, board)
+    said: set[str] = set()
+
+    def once(record: logging.LogRecord) -> bool:  # the fallback calibrates each camera again
+        message = record.getMessage()
+        fresh = message not in said
+        said.add(message)
+        return fresh
+
+    log.addFilter(once)
+    try:
+        return _calibrate_pair(detections, board, model, resolutions, names, options)
+    finally:
+        log.removeFilter(once)
+
+
+def _calibrate_pair(
+    detections: Sequence[tuple[Detection | None, Detection | None]],
+    board: Board,
+    model: CalibrationModel,
+    resolutions: tuple[tuple[int, int], tuple[int, int]],
+    names: list[str],
+    options: CalibrationOptions,
+) -> CalibrationResult:
+    """:func:`calibrate_from_detections` once its arguments are checked."""
 
     def each_camera(
         settings: CalibrationOptions,

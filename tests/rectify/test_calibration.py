@@ -201,6 +201,31 @@ def test_outlier_rejection_never_rejects_down_to_too_few_views(
     assert result.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.05)  # 0.6 px noise
 
 
+def test_a_warning_of_the_fallback_calibration_is_said_once(
+    caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The fallback calibrates each camera a second time: its warnings were repeated."""
+    from lenspair.rectify import calibration
+
+    def tilt_warning(rvecs: np.ndarray, tvecs: np.ndarray, stage: str) -> None:
+        calibration.log.warning("%s: the board turned at most 6.0 deg", stage)
+
+    monkeypatch.setattr(calibration, "_check_pose_spread", tilt_warning)
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = point_views(board, truth, count=12, noise_px=0.6, seed=3)
+    options = CalibrationOptions(outlier_factor=1.0)
+    with caplog.at_level("WARNING"):
+        calibrate_from_detections(views, board, "pinhole-radtan", SIZES, options=options)
+    assert any("calibrating without rejecting any" in m for m in caplog.messages)
+    said = [m for m in caplog.messages if "turned at most" in m]
+    assert sorted(said) == [
+        "cam0: the board turned at most 6.0 deg",
+        "cam1: the board turned at most 6.0 deg",
+    ]
+    assert calibration.log.filters == []  # and nothing of it outlives the call
+
+
 def test_views_kept_only_because_too_few_would_remain_are_named(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
