@@ -189,8 +189,10 @@ def check_obstructed_side(
         saturation = min(1.0, high / (4 * min_tile_fraction))
         confidence = (high - low) / (high + low) * saturation
     shares = f"tiles with less detail: cam0 {lower0:.0%}, cam1 {lower1:.0%} of {num_tiles}"
-    agrees, message = side_message(declared, inferred, shares)
-    if agrees is not None:  # never "images agree": the views differ, maybe the other way
+    if inferred == "undetermined":
+        agrees, message = side_message(declared, inferred, shares)
+    else:  # never "images agree": the views differ, maybe the other way
+        agrees = inferred == declared
         said = "as declared" if agrees else f"but {declared} is declared"
         message = f"fine detail is lower on {inferred}, {said} ({shares}); {DETAIL_HINT}"
     return SideCheck(
