@@ -50,16 +50,17 @@ from lenspair.capture.frames import (
 )
 from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
-from lenspair.core.bitdepth import RunningDepth, narrow, widen
+from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.core.fsutil import atomic_write_json, inside_refusal, read_json_field, sha256_file
 from lenspair.core.leftovers import remove_leftovers_under
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.judge import FrameJudge
 from lenspair.model.inference.options import CAMERA_CHOICES, DEFAULT_BATCH_SIZE, DEFAULT_OVERLAP
+from lenspair.model.inference.restorer import restore_images
 from lenspair.model.inference.sinks import BagSink, FileSink
 from lenspair.model.inference.threads import Writer, threaded
-from lenspair.model.inference.tiling import check_tile, from_batch, run_backend, to_batch
+from lenspair.model.inference.tiling import check_tile
 from lenspair.model.networks.padding import MIN_SIDE
 
 log = logging.getLogger(__name__)
@@ -432,12 +433,7 @@ def _run(
             images = [frame.image for frame in batch if frame.image is not None]
             # 16-bit frames of 10- or 12-bit values are restored on the full scale, then
             # written back in the camera's words (lenspair.core.bitdepth)
-            bits = depth.bits
-            wide = [widen(image, bits) for image in images]
-            restored = run_backend(backend, to_batch(wide), options.tile, options.overlap)
-            first = images[0]
-            back = from_batch(restored, first.dtype, first.ndim == 2)
-            outputs = [narrow(image, bits) for image in back]
+            outputs[:] = restore_images(backend, images, depth.bits, options.tile, options.overlap)
         for item, frame, slot in pending:
             if slot is None:
                 writer.put(item, frame, None)

@@ -1,0 +1,149 @@
+"""Restore frames in your own process: a ROS node, a camera driver's callback, a notebook.
+
+``lenspair restore`` runs over files, folders and bags; a robot that must
+clean each frame as it arrives calls the network itself::
+
+    from lenspair.model.inference.restorer import Restorer
+
+    restorer = Restorer("runs/gea/checkpoints/best.pt")  # or an exported .onnx
+    clean = restorer(frame)  # numpy (H, W) or (H, W, 3), uint8 or uint16: same out
+
+The frame goes through exactly what ``restore`` does to each frame: the
+16-bit words of a 10- or 12-bit camera are taken on the full scale and
+written back in the camera's words (:class:`~lenspair.core.bitdepth.RunningDepth`,
+told from the frames seen so far, as for a recording), the precision is the
+hardware's fastest native one unless given, and ``tile`` restores large
+frames in overlapping tiles. Frames are RGB (not OpenCV's BGR) when the
+network is a colour one; a mono network refuses colour frames and the
+reverse, with a one-line :class:`~lenspair.model.errors.ModelError`, as
+``restore`` does: converting silently would hide a wrong network.
+"""
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lenspair.core.bitdepth import RunningDepth, narrow, widen
+from lenspair.core.device import resolve_device
+from lenspair.core.imageio import check_image
+from lenspair.model.errors import ModelError
+from lenspair.model.inference.backends import Backend, open_backend
+from lenspair.model.inference.options import DEFAULT_OVERLAP
+from lenspair.model.inference.tiling import check_tile, from_batch, run_backend, to_batch
+from lenspair.model.networks.padding import MIN_SIDE
+
+
+def restore_images(
+    backend: Backend,
+    images: Sequence[np.ndarray],
+    bits: int = 16,
+    tile: int | None = None,
+    overlap: int = DEFAULT_OVERLAP,
+) -> list[np.ndarray]:
+    """Run ``backend`` on same-shape, same-dtype integer frames; the restored frames, alike.
+
+    Args:
+        backend: the network.
+        images: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` frames of the
+            network's channels, ``H, W >= 8``.
+        bits: the bits 16-bit frames use (10, 12 or 16); see
+            :mod:`lenspair.core.bitdepth`.
+        tile: square tile side, or None for whole frames.
+        overlap: pixels shared by neighbouring tiles.
+    """
+    wide = [widen(image, bits) for image in images]
+    restored = run_backend(backend, to_batch(wide), tile, overlap)
+    first = images[0]
+    return [narrow(image, bits) for image in from_batch(restored, first.dtype, first.ndim == 2)]
+
+
+class Restorer:
+    """A trained network, ready to restore frames one call at a time.
+
+    Args:
+        model: a lenspair checkpoint (``.pt``) or a model from ``lenspair
+            export`` (``.onnx``).
+        device: ``auto`` (CUDA when available), ``cpu`` or ``cuda``.
+        precision: ``auto`` (the fastest precision the hardware runs
+            natively), ``fp32``, ``bf16`` or ``fp16``; ONNX models run as
+            exported.
+        tile: restore in overlapping square tiles of this side (pixels, at
+            least 16) to bound memory on large frames; None: whole frames.
+        overlap: pixels shared by neighbouring tiles.
+
+    Raises:
+        ModelError: the model cannot be read, or a setting is invalid.
+        LenspairError: ``device`` cannot be used here.
+    """
+
+    def __init__(
+        self,
+        model: str | Path,
+        device: str | torch.device = "auto",
+        precision: str = "auto",
+        tile: int | None = None,
+        overlap: int = DEFAULT_OVERLAP,
+    ) -> None:
+        """Load ``model`` on ``device``; see the class docstring."""
+        check_tile(tile)
+        if tile is not None and not 0 <= overlap < tile:
+            raise ModelError(f"overlap: expected 0 <= overlap < tile ({tile}), got {overlap}")
+        chosen = device if isinstance(device, torch.device) else resolve_device(device)
+        self.backend: Backend = open_backend(Path(model), chosen, precision)
+        self.tile = tile
+        self.overlap = overlap
+        self.depth = RunningDepth(str(model))
+
+    @property
+    def channels(self) -> int:
+        """Channels of the frames the network takes: 1 (mono) or 3 (RGB)."""
+        return self.backend.channels
+
+    @property
+    def description(self) -> str:
+        """One line: the model file, runtime, device and precision."""
+        return self.backend.description
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        """Restore one frame: ``(H, W)`` or ``(H, W, 3)``, ``uint8``/``uint16``, same out.
+
+        Raises:
+            ModelError: not such a frame, channels other than the network's,
+                or smaller than 8x8 pixels.
+        """
+        return self.restore_batch([image])[0]
+
+    def restore_batch(self, images: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Restore frames of one shape and dtype in one batch (faster on a GPU).
+
+        Raises:
+            ModelError: as :meth:`__call__`, or frames that differ in shape
+                or bit depth.
+        """
+        if not len(images):
+            return []
+        for index, image in enumerate(images):
+            self._check(np.asarray(image), f"frame {index}")
+        frames = [np.asarray(image) for image in images]
+        for frame in frames:
+            self.depth.see(frame)
+        return restore_images(self.backend, frames, self.depth.bits, self.tile, self.overlap)
+
+    def _check(self, image: np.ndarray, name: str) -> None:
+        try:
+            check_image(image, name)
+        except ValueError as exc:
+            raise ModelError(str(exc)) from None
+        channels = 1 if image.ndim == 2 else image.shape[2]
+        if channels != self.channels:
+            raise ModelError(
+                f"{name}: {channels} channel(s) but the network takes {self.channels}; "
+                "convert the frames or use a network trained on them"
+            )
+        if min(image.shape[:2]) < MIN_SIDE:
+            raise ModelError(
+                f"{name}: {image.shape[1]}x{image.shape[0]} pixels, smaller than the "
+                f"network's {MIN_SIDE}x{MIN_SIDE} minimum"
+            )

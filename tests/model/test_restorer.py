@@ -1,0 +1,100 @@
+"""Restorer: the network in a user's own process gives what ``lenspair restore`` writes."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lenspair.cli import main
+from lenspair.core.bitdepth import narrow, widen
+from lenspair.core.imageio import read_image, write_image
+from lenspair.model.errors import ModelError
+from lenspair.model.inference.restorer import Restorer
+from lenspair.model.training.config import RunConfig
+from tests.images import texture
+from tests.model.train_fixtures import make_checkpoint, tiny_config
+
+
+@pytest.fixture
+def checkpoint(tmp_path: Path, one_thread: None) -> Path:
+    return make_checkpoint(tmp_path / "ck.pt")
+
+
+def _restored_by_command(
+    tmp_path: Path, model: Path, frames: list[np.ndarray], *options: str
+) -> list[np.ndarray]:
+    folder, out = tmp_path / "frames", tmp_path / "out"
+    for index, frame in enumerate(frames):
+        write_image(folder / f"{index}.png", frame)
+    argv = [str(model), str(folder), "--out", str(out), "--precision", "fp32", *options]
+    assert main(["restore", *argv]) == 0
+    return [read_image(out / f"{index}.png") for index in range(len(frames))]
+
+
+def test_a_frame_restored_in_process_is_the_frame_restore_writes(
+    tmp_path: Path, checkpoint: Path
+) -> None:
+    frames = [(texture((37, 53), seed=seed) * 255).astype(np.uint8) for seed in range(3)]
+    restorer = Restorer(checkpoint, device="cpu", precision="fp32")
+    assert restorer.channels == 1 and str(checkpoint) in restorer.description
+    mine = [restorer(frame) for frame in frames]
+    assert all(out.shape == (37, 53) and out.dtype == np.uint8 for out in mine)
+    assert any(not np.array_equal(out, frame) for out, frame in zip(mine, frames, strict=True))
+    for out, written in zip(mine, _restored_by_command(tmp_path, checkpoint, frames), strict=True):
+        np.testing.assert_array_equal(out, written)
+    assert all(
+        np.array_equal(a, b) for a, b in zip(restorer.restore_batch(frames[:1]), mine, strict=False)
+    )
+
+
+def test_a_12_bit_camera_s_words_come_back_in_its_words(checkpoint: Path) -> None:
+    """As restore does: on the full scale through the network, then narrowed back."""
+    full = (texture((32, 48), seed=4) * 65535).astype(np.uint16)
+    frame = narrow(full, 12)
+    restorer = Restorer(checkpoint, device="cpu", precision="fp32")
+    out = restorer(frame)
+    assert out.dtype == np.uint16 and int(out.max()) < 1 << 12
+    reference = Restorer(checkpoint, device="cpu", precision="fp32")(widen(frame, 12))
+    assert np.abs(out.astype(np.int64) - narrow(reference, 12).astype(np.int64)).max() <= 1
+
+
+def test_tiles_are_those_of_restore_tile(tmp_path: Path, checkpoint: Path) -> None:
+    frame = (texture((64, 96), seed=5) * 255).astype(np.uint8)
+    whole = Restorer(checkpoint, device="cpu", precision="fp32")(frame)
+    tiled = Restorer(checkpoint, device="cpu", precision="fp32", tile=48, overlap=16)(frame)
+    assert tiled.shape == whole.shape and not np.array_equal(tiled, whole)
+    (written,) = _restored_by_command(
+        tmp_path, checkpoint, [frame], "--tile", "48", "--overlap", "16"
+    )
+    np.testing.assert_array_equal(tiled, written)
+
+
+def test_frames_it_cannot_restore_are_one_line_errors(tmp_path: Path, checkpoint: Path) -> None:
+    restorer = Restorer(checkpoint, device="cpu", precision="fp32")
+    grey = (texture((32, 48), seed=6) * 255).astype(np.uint8)
+    cases = [
+        (np.repeat(grey[..., None], 3, axis=2), r"frame 0: 3 channel\(s\) but the network takes 1"),
+        (grey.astype(np.float32) / 255, "expected dtype uint8 or uint16, got float32"),
+        (grey[:4, :4], "4x4 pixels, smaller than the network's 8x8 minimum"),
+    ]
+    for frame, message in cases:
+        with pytest.raises(ModelError, match=message):
+            restorer(frame)
+    with pytest.raises(ModelError, match="different shapes"):
+        restorer.restore_batch([grey, grey[:, :40]])
+    assert restorer.restore_batch([]) == []
+    with pytest.raises(ModelError, match="--tile"):
+        Restorer(checkpoint, device="cpu", tile=8)
+    with pytest.raises(ModelError, match="overlap"):
+        Restorer(checkpoint, device="cpu", tile=32, overlap=32)
+    with pytest.raises(ModelError, match="not found"):
+        Restorer(tmp_path / "missing.pt", device="cpu")
+    rgb = make_checkpoint(tmp_path / "rgb.pt", tiny_config_rgb())
+    with pytest.raises(ModelError, match=r"frame 0: 1 channel\(s\) but the network takes 3"):
+        Restorer(rgb, device="cpu")(grey)
+
+
+def tiny_config_rgb() -> RunConfig:
+    config = tiny_config()
+    return replace(config, model=replace(config.model, channels=3))
