@@ -246,14 +246,25 @@ def run_settings(
 
 
 def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
-    """``--resume``: refuse an OUT whose report records other :func:`run_settings`.
+    """``--resume``: refuse an OUT that a restore run with other settings wrote, or none did.
 
     A resumed run keeps the frames already written, so resuming with another
-    model, batch size or tiling would mix outputs of two different runs.
+    model, batch size or tiling would mix outputs of two different runs; and
+    in a folder no restore run wrote (no report: every run writes its
+    settings there first), files that happen to bear an input's name would
+    be taken for finished frames.
 
     Raises:
-        ModelError: naming OUT and each setting that differs.
+        ModelError: naming OUT and each setting that differs, or the missing report.
     """
+    if not (out_dir / REPORT_NAME).is_file():
+        if out_dir.is_dir() and any(out_dir.iterdir()):
+            # its files would pass for finished frames (a name, a newer time)
+            raise ModelError(
+                f"--resume: {out_dir} holds files but no {REPORT_NAME}, so no restore run "
+                "wrote it; choose a new --out"
+            )
+        return
     before = read_json_field(out_dir / REPORT_NAME, "settings")
     if not isinstance(before, dict) or not before:
         return  # written before settings were recorded: nothing to compare with
@@ -309,6 +320,11 @@ def check_apart(input_path: Path, kind: InputKind, out_dir: Path) -> None:
         raise ModelError(
             f"--out {out_dir}: the folder that holds {input_path}; the output keeps its name "
             "and would replace it, so choose another folder"
+        )
+    if input_path.resolve().is_relative_to(written.resolve()):  # a bare .db3/.mcap
+        raise ModelError(
+            f"--out {out_dir}: the restored bag is written as the folder {written}, which "
+            f"holds the input {input_path} and would replace it, so choose another folder"
         )
 
 

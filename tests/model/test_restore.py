@@ -342,6 +342,40 @@ def test_resume_writes_the_same_bytes(tmp_path: Path, backend: TorchBackend, kin
     assert _files(tmp_path / "resumed") == _files(tmp_path / "whole")
 
 
+def test_resume_into_a_folder_no_restore_run_wrote_is_refused(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    """Its files bore the inputs' names and newer times: they passed for finished frames."""
+    source = tmp_path / "in"
+    for name in ("a.png", "b.png"):
+        write_image(source / name, (texture((32, 48), seed=1) * 255).astype(np.uint8))
+    out = tmp_path / "other"
+    unrelated = (texture((37, 53), seed=9) * 255).astype(np.uint8)
+    write_image(out / "a.png", unrelated)
+    with pytest.raises(ModelError, match=f"holds files but no {REPORT_NAME}"):
+        restore_input(source, out, backend, RestoreOptions(resume=True))
+    np.testing.assert_array_equal(read_image(out / "a.png"), unrelated)
+    assert not (out / "b.png").exists()
+    empty = tmp_path / "empty"
+    empty.mkdir()  # an empty folder is a fresh start, resumed or not
+    assert restore_input(source, empty, backend, RestoreOptions(resume=True)).restored == 2
+
+
+@pytest.mark.parametrize("suffix", ["db3", "mcap"])
+def test_a_bare_bag_file_is_not_replaced_by_its_restored_folder(
+    tmp_path: Path, backend: TorchBackend, suffix: str
+) -> None:
+    """OUT/<stem> is the restored bag's folder: when it holds the input, it would replace it."""
+    image = (texture((32, 48), seed=3) * 255).astype(np.uint8)
+    folder = write_bag(tmp_path / "src" / "run", suffix, {"cam0": [(10**18, image)]})
+    bare = next(folder.glob(f"*.{suffix}"))
+    before = bare.read_bytes()
+    for resume in (False, True):
+        with pytest.raises(ModelError, match="which holds the input"):
+            restore_input(bare, folder.parent, backend, RestoreOptions(resume=resume))
+    assert bare.read_bytes() == before
+
+
 @pytest.mark.parametrize("kind", ["ros1", "db3"])
 def test_bag_resume_reuses_frames_and_writes_the_same_bytes(
     tmp_path: Path, backend: TorchBackend, kind: str
