@@ -202,10 +202,10 @@ def _read_pixels(path: Path) -> np.ndarray:
         if spec.format not in (oiio.UINT8, oiio.UINT16):
             raise ImageIOError(f"{path}: unsupported pixel format {spec.format} (need 8/16-bit)")
         pixels = handle.read_image(spec.format)
-        if pixels is None:
-            raise ImageIOError(
-                f"{path}: corrupt or truncated ({first_text_line(handle.geterror(), _UNKNOWN)})"
-            )
+        error = handle.geterror()
+        # a JPEG cut short decodes: its missing rows come back grey, with the error said
+        if pixels is None or error:
+            raise ImageIOError(f"{path}: corrupt or truncated ({first_text_line(error, _UNKNOWN)})")
     return np.asarray(pixels)
 
 

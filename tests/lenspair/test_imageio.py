@@ -55,6 +55,18 @@ def test_truncated_and_missing_files_name_the_file(tmp_path: Path) -> None:
         read_image(tmp_path / "text.png")
 
 
+def test_a_jpeg_cut_short_is_an_error_not_an_image_with_grey_rows(tmp_path: Path) -> None:
+    """libjpeg decodes what it has and says the rest is missing: the rows came back grey."""
+    rng = np.random.default_rng(0)
+    whole = tmp_path / "whole.jpg"
+    write_image(whole, (rng.random((96, 128, 3)) * 255).astype(np.uint8))
+    assert read_image(whole).shape == (96, 128, 3)
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    with pytest.raises(ImageIOError, match=r"cut\.jpg: corrupt or truncated \(.*Premature end"):
+        read_image(cut)
+
+
 def test_write_rejects_float_images(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="expected dtype uint8 or uint16"):
         write_image(tmp_path / "f.png", np.zeros((4, 4), np.float32))
