@@ -263,9 +263,14 @@ def write_image(
             spec.attribute("Orientation", orientation)
         out = oiio.ImageOutput.create(oiio_name(path))
         if out is None or not out.open(oiio_name(tmp), spec):
+            why = out.geterror() if out is not None else ""
             raise ImageIOError(
-                f"{path}: cannot write ({first_text_line(oiio.geterror(), _UNKNOWN)})"
+                f"{path}: cannot write ({first_text_line(why or oiio.geterror(), _UNKNOWN)})"
             )
+        lost = _format_loses(out, spec, alpha is not None)
+        if lost:
+            out.close()
+            raise ImageIOError(f"{path}: cannot write: {lost}")
         ok = out.write_image(pixels)
         closed = out.close()
         error = out.geterror()  # not always a failure: TIFFs carry a note on their Exif data
@@ -279,6 +284,24 @@ def write_image(
             raise _write_failure(path, tmp, problem)
 
     atomic_write(path, _write, suffix=path.suffix, sync=False)  # frames: see atomic_write
+
+
+def _format_loses(out: "oiio.ImageOutput", spec: "oiio.ImageSpec", alpha: bool) -> str:
+    """What the file's format would drop of the image ("" if nothing).
+
+    OpenImageIO writes what the format holds, silently: a JPEG takes 8-bit
+    values only and no alpha, so a 16-bit or grey + alpha PNG misnamed
+    ``.jpg`` came out 8-bit, or as a colour image of grey, alpha and zero.
+    """
+    name = out.format_name().upper()
+    used = out.spec()
+    if alpha and not out.supports("alpha"):
+        return f"{name} holds no alpha channel"
+    if used.nchannels != spec.nchannels:
+        return f"{name} cannot hold {spec.nchannels} channels"
+    if used.format != spec.format:
+        return f"{name} holds {used.format} values, not the image's {spec.format}"
+    return ""
 
 
 _SHORT_WRITE = "Write error"

@@ -3,7 +3,8 @@
 The network runs in the calling thread; decoding (PNG, bag messages) and
 encoding/writing overlap with it. Queues are bounded so memory stays flat.
 A per-frame encoding error (:class:`~lenspair.capture.errors.CaptureError`,
-``ValueError``) turns that frame into a failed one (copied unchanged); an
+:class:`~lenspair.core.errors.ImageIOError`: a format that cannot hold the
+frame, ``ValueError``) turns that frame into a failed one (copied unchanged); an
 original that cannot even be read to copy it is recorded and left out; any
 other writer error (disk full, permissions on OUT) ends the run.
 """
@@ -17,6 +18,7 @@ import numpy as np
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import InputFrame
+from lenspair.core.errors import ImageIOError
 
 if TYPE_CHECKING:
     from lenspair.model.inference.pipeline import RestoreReport
@@ -105,7 +107,7 @@ class Writer:
             try:
                 try:
                     self.sink.write(item, pixels)
-                except (CaptureError, ValueError) as exc:  # this frame only
+                except (CaptureError, ImageIOError, ValueError) as exc:  # this frame only
                     if frame is None:
                         raise
                     self.problems.append({"frame": frame.name, "reason": str(exc)})

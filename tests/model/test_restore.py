@@ -317,6 +317,31 @@ class _DiesAfter:
         return self.inner(batch)
 
 
+def test_a_frame_its_extension_s_format_cannot_hold_is_failed_and_copied_not_mangled(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    """PNGs misnamed .jpg came out 8-bit or with the alpha as a colour; a .ppm stopped the run."""
+    source = tmp_path / "in"
+    grey = (texture((32, 48), seed=2) * 255).astype(np.uint8)
+    write_image(source / "a.png", grey)
+    write_image(tmp_path / "alpha.png", grey, alpha=np.full_like(grey, 200))
+    write_image(tmp_path / "deep.png", grey.astype(np.uint16) * 257)
+    (source / "b_alpha.jpg").write_bytes((tmp_path / "alpha.png").read_bytes())
+    (source / "c_deep.jpg").write_bytes((tmp_path / "deep.png").read_bytes())
+    (source / "d_alpha.ppm").write_bytes((tmp_path / "alpha.png").read_bytes())
+    write_image(source / "e.png", grey)
+    report = restore_input(source, tmp_path / "out", backend, RestoreOptions(batch_size=1))
+    assert (report.frames_read, report.restored, report.failed) == (5, 2, 3)
+    reasons = {p["frame"]: p["reason"] for p in report.problems}
+    assert "JPEG holds no alpha channel" in reasons["b_alpha.jpg"]
+    assert "JPEG holds uint8 values, not the image's uint16" in reasons["c_deep.jpg"]
+    assert "4-channel" in reasons["d_alpha.ppm"] or "alpha" in reasons["d_alpha.ppm"]
+    for name in ("b_alpha.jpg", "c_deep.jpg", "d_alpha.ppm"):  # as they were, not mangled
+        assert (tmp_path / "out" / name).read_bytes() == (source / name).read_bytes()
+    for name in ("a.png", "e.png"):  # the frames after them are restored
+        np.testing.assert_array_equal(read_image(tmp_path / "out" / name), expected(backend, grey))
+
+
 @pytest.mark.parametrize("kind", ["folder", "euroc"])
 def test_resume_writes_the_same_bytes(tmp_path: Path, backend: TorchBackend, kind: str) -> None:
     if kind == "folder":
