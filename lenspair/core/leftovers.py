@@ -14,6 +14,7 @@ process id that the system has reused for an unrelated process keeps its
 leftover alive until a later rerun: the safe direction.
 """
 
+import hashlib
 import logging
 import os
 import re
@@ -25,9 +26,28 @@ logger = logging.getLogger(__name__)
 LEFTOVER_SUFFIXES = (".tmp", ".building", ".old")
 
 
+LONG_NAME = 120
+"""Bytes of an output's name above which its temporaries carry a shortened one."""
+
+
+def _stem(name: str) -> str:
+    """``name`` as its temporaries carry it: itself, or a long one cut, with its hash.
+
+    A file system refuses names over 255 bytes, and a temporary adds about 25
+    to its output's: a valid name of 230 bytes could not be written at all.
+    """
+    if len(os.fsencode(name)) <= LONG_NAME:
+        return name
+    digest = hashlib.sha256(os.fsencode(name)).hexdigest()[:12]
+    cut = name
+    while len(os.fsencode(cut)) > LONG_NAME - len(digest) - 1:
+        cut = cut[:-1]
+    return f"{cut}~{digest}"
+
+
 def temporary_prefix(name: str) -> str:
     """The prefix of this process's temporaries for output ``name`` (``.name.<pid>.``)."""
-    return f".{name}.{os.getpid()}."
+    return f".{_stem(name)}.{os.getpid()}."
 
 
 def _zombie(pid: int) -> bool:
@@ -59,7 +79,7 @@ def _alive(pid: int) -> bool:
 
 
 def _pattern(name: str | None) -> re.Pattern[str]:
-    stem = re.escape(name) if name is not None else r"[^/]+?"
+    stem = re.escape(_stem(name)) if name is not None else r"[^/]+?"
     endings = "|".join(re.escape(s) for s in LEFTOVER_SUFFIXES)
     return re.compile(rf"^\.{stem}\.(?P<pid>[0-9]+)\.[^/]*(?:{endings})$")
 

@@ -93,3 +93,31 @@ def test_an_out_folder_inside_its_input_is_refused_also_through_a_link(tmp_path:
     image = tmp_path / "one.png"
     image.write_bytes(b"")
     assert inside_refusal(tmp_path, image, "the input", "x") is None
+
+
+@pytest.mark.parametrize("name", ["x" * 235 + ".png", "ü" * 118 + ".png"])
+def test_a_name_near_the_file_system_s_limit_is_written_and_its_leftover_found(
+    tmp_path: Path, name: str
+) -> None:
+    """The temporary added about 25 bytes to a valid 239-byte name: nothing could be written."""
+    from lenspair.core.leftovers import leftovers, temporary_prefix
+
+    assert len(os.fsencode(name)) <= 255
+    seen: list[str] = []
+
+    def writer(tmp: Path) -> None:
+        seen.append(tmp.name)
+        tmp.write_bytes(b"frame")
+
+    atomic_write(tmp_path / name, writer)
+    assert (tmp_path / name).read_bytes() == b"frame"
+    assert len(os.fsencode(seen[0])) <= 255
+    # a killed run's temporary of that output, by a process that is gone, is found by name
+    dead = tmp_path / seen[0].replace(f".{os.getpid()}.", ".999999999.")
+    dead.write_bytes(b"half")
+    # another long name cut to the same start: its temporaries are not this output's
+    twin = name[:-5] + "2.png"
+    other = tmp_path / f"{temporary_prefix(twin).replace(f'.{os.getpid()}.', '.999999999.')}a.tmp"
+    other.write_bytes(b"half")
+    assert leftovers(tmp_path, name) == [dead]
+    assert leftovers(tmp_path, twin) == [other]
