@@ -61,11 +61,27 @@ def open_fraction(text: str) -> float:
     return value
 
 
+def _exists(path: Path, text: str) -> bool:
+    """Whether ``path`` exists; a path the system cannot even look up is an argument error.
+
+    ``Path.exists`` raises on a name over the file system's limit (a traceback).
+    """
+    try:
+        path.stat()
+    except FileNotFoundError:
+        return False
+    except NotADirectoryError:
+        return False
+    except OSError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc.strerror}") from None
+    return True
+
+
 def out_folder(text: str) -> Path:
     """Argparse type: an output folder: new, or an existing folder (not a file, nor inside one)."""
     path = Path(text)
     for part in (path, *path.parents):
-        if part.exists():
+        if _exists(part, text):
             if not part.is_dir():
                 where = "is a file" if part == path else f"lies inside the file {part}"
                 raise argparse.ArgumentTypeError(f"{text!r} {where}; give a folder")
@@ -76,7 +92,7 @@ def out_folder(text: str) -> Path:
 def out_file(text: str) -> Path:
     """Argparse type: a file to write: not an existing folder, nor inside a file."""
     path = Path(text)
-    if path.is_dir():
+    if _exists(path, text) and path.is_dir():
         raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name")
     out_folder(str(path.parent))
     return path

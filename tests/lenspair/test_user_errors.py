@@ -101,6 +101,8 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["dataset-build", "DS", "--out", "OUT", "--splits", "80,10,10"], "--splits: must sum to 1"),
     (["dataset-build", "DS", "--out", "OUT", "--splits", "0,.5,.5"], "--splits: the train"),
     (["dataset-build", "DS", "--out", "OUT", "--workers", "-1"], "--workers"),
+    (["dataset-build", "DS", "--out", "x" * 300], "File name too long"),  # was a traceback
+    (["eval", "CKPT", "--data", "DS", "--out", "y" * 300], "File name too long"),
     (["train", "DS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
     (["train", "DS", "--out", "OUT", "--crop-size", "16"], "crop_size: expected >= 24"),
     (["tradeoff", "DS", "--out", "OUT", "--crop-size", "16"], "crop_size: expected >= 24"),
