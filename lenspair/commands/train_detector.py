@@ -11,7 +11,8 @@ truth/mask), synthetic rain/dust/dirt over clean images (--synthetic N
 frames, over --clean-images DIR or the simulator's textures), and
 --simulated-set DIR, a small multi-kind set of simulated recordings rendered
 there (clean, rain, dust, dirt; its last recording of each kind is held out
-and scored). --hard N adds N hard cases made from the clean views of the
+and scored; a rerun keeps recordings rendered with the same --set-frames and
+--seed and renders the others again). --hard N adds N hard cases made from the clean views of the
 training recordings (defocused, dark or bright, low-texture clean frames;
 dust darkening the whole frame, light rain: see
 lenspair.model.detection.hard_cases). --workers N renders and reads samples
@@ -62,7 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--synthetic", type=int, default=0, metavar="N", help="synthetic frames")
     parser.add_argument("--clean-images", type=Path, help="clean images for --synthetic")
-    parser.add_argument("--simulated-set", type=Path, metavar="DIR", help="render + use a sim set")
+    parser.add_argument(
+        "--simulated-set", type=Path, metavar="DIR", help="render or reuse a simulated set"
+    )
     parser.add_argument("--set-per-kind", type=int, default=3, help="recordings per kind (3)")
     parser.add_argument("--set-frames", type=int, default=6, help="frames per recording (6)")
     parser.add_argument("--steps", type=int, default=600, help="optimiser steps (600)")

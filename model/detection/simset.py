@@ -24,9 +24,12 @@ splits by recording to avoid the leakage of
 consecutive frames in both train and test.
 """
 
+import logging
 from dataclasses import replace
 from pathlib import Path
 
+from lenspair.core.errors import LenspairError
+from lenspair.core.fsutil import remove_path
 from lenspair.core.samples import sample_path
 from lenspair.model.detection.parallel import process_map
 from lenspair.simulate.effects.spec import (
@@ -37,8 +40,10 @@ from lenspair.simulate.effects.spec import (
     EffectsSpec,
     RaindropsSpec,
 )
-from lenspair.simulate.recording import simulate_recording
+from lenspair.simulate.recording import INCOMPLETE, simulate_recording
 from lenspair.simulate.spec import ObstructionSpec, SceneSpec, load_scene
+
+log = logging.getLogger(__name__)
 
 SCENE_KINDS: dict[str, EffectsSpec] = {
     "clean": EffectsSpec(),
@@ -95,6 +100,16 @@ def kind_set_specs(
     return jobs
 
 
+def _finished(path: Path, spec: SceneSpec) -> bool:
+    """Whether ``path`` holds a complete rendering of ``spec`` (its scene.yaml is the spec)."""
+    if (path / INCOMPLETE).exists() or not (path / "rig.yaml").is_file():
+        return False
+    try:
+        return load_scene(path / "scene.yaml") == spec
+    except LenspairError:  # missing or unreadable: not a rendering of this spec
+        return False
+
+
 def _simulate(job: tuple[Path, SceneSpec]) -> None:
     path, spec = job
     simulate_recording(spec, path)
@@ -105,7 +120,10 @@ def simulate_kind_set(
 ) -> list[Path]:
     """Render ``per_kind`` recordings of every kind under ``out/<kind>_<k>/``.
 
-    Finished recordings (a ``rig.yaml`` present) are kept, so a rerun resumes.
+    Finished recordings of the same spec are kept, so a rerun resumes; one
+    rendered with other settings (``--set-frames``, ``--seed``) is rendered
+    again (said in the log), since a set mixing both would train on what the
+    command line no longer says.
 
     Args:
         out: output folder.
@@ -119,7 +137,12 @@ def simulate_kind_set(
         The recording folders, kind by kind.
     """
     jobs = kind_set_specs(out, per_kind, frames, seed)
-    todo = [job for job in jobs if not (job[0] / "rig.yaml").is_file()]
+    todo = [job for job in jobs if not _finished(*job)]
+    for path, _ in todo:
+        if (path / "scene.yaml").is_file() and not (path / INCOMPLETE).exists():
+            log.warning("%s: rendered with other settings (frames, seed): rendering it again", path)
+            for child in path.iterdir():
+                remove_path(child)
     process_map(_simulate, todo, workers)
     return [path for path, _ in jobs]
 

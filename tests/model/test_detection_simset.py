@@ -2,7 +2,14 @@
 
 from pathlib import Path
 
-from lenspair.model.detection.simset import SCENE_KINDS, kind_set_specs, split_by_recording
+import pytest
+
+from lenspair.model.detection.simset import (
+    SCENE_KINDS,
+    kind_set_specs,
+    simulate_kind_set,
+    split_by_recording,
+)
 
 
 def test_scenes_vary_in_textures_side_and_seed(tmp_path: Path) -> None:
@@ -36,3 +43,22 @@ def test_scene_is_independent_of_kind(tmp_path: Path) -> None:
     assert all(kind_looks == looks["clean"] for kind_looks in looks.values())
     assert len(set(looks["clean"])) == 5 and looks["clean"][0][0] == 9
     assert len({spec.planes[0].texture for _, spec in jobs}) == len(jobs)
+
+
+def test_a_rerun_with_other_frames_or_seed_renders_again_and_one_alike_resumes(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The set was reused whatever --set-frames and --seed said: training on the old one."""
+    from lenspair.simulate.spec import load_scene
+
+    out = tmp_path / "set"
+    (first,) = [p for p in simulate_kind_set(out, per_kind=1, frames=1) if p.name == "rain_0"]
+    stamp = (first / "rig.yaml").stat().st_mtime_ns
+    simulate_kind_set(out, per_kind=1, frames=1)  # the same: kept
+    assert (first / "rig.yaml").stat().st_mtime_ns == stamp
+    with caplog.at_level("WARNING"):
+        simulate_kind_set(out, per_kind=1, frames=2, seed=5)
+    assert load_scene(first / "scene.yaml").recording.frames == 2
+    assert load_scene(first / "scene.yaml").seed == 105  # seed + 100 x kind number
+    assert len(list((first / "mav0" / "cam0" / "data").glob("*.png"))) == 2
+    assert sum("rendering it again" in m for m in caplog.messages) == 4  # every kind
