@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lenspair.core.config import to_plain
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.core.imageio import from_float
 from lenspair.model.detection.data import DetectorSample
@@ -61,8 +62,8 @@ def run_training(
         workers: processes gathering samples (:func:`gather`).
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     train, held_out = gather(sources, spec, settings.seed, workers)
+    out.mkdir(parents=True, exist_ok=True)  # after the inputs are found good: none left empty
     counts = {"train": len(train), "train_obstructed": sum(s.obstructed for s in train)}
     log.info("training on %d frames (%d obstructed)", counts["train"], counts["train_obstructed"])
     network, summary = train_detector(train, spec, settings, device)
@@ -72,7 +73,7 @@ def run_training(
         "settings": asdict(settings),
         "device": str(device),
         "workers": workers,
-        "sources": {k: str(v) for k, v in asdict(sources).items()},
+        "sources": to_plain(sources),
         "counts": counts | {name: len(s) for name, s in held_out.items()},
         "training": asdict(summary),
     }

@@ -16,12 +16,13 @@ on the number of workers.
 
 import logging
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 
 import numpy as np
 
+from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import read_image
 from lenspair.model.detection.data import (
     MIN_CLEAN_SIDE,
@@ -99,7 +100,12 @@ def clean_images(folder: Path | None, say: bool = False) -> list[np.ndarray]:
         return texture_images()
     images = []
     for path in find_clean_images(folder)[:200]:
-        image = read_image(path)
+        try:
+            image = read_image(path)
+        except LenspairError as exc:  # this image only, as train and detect skip one
+            if say:
+                log.warning("%s: left out of the synthetic samples", exc)
+            continue
         if min(image.shape[:2]) >= MIN_CLEAN_SIDE:
             images.append(image)
         elif say:
@@ -133,6 +139,39 @@ def _recording(path: Path, spec: DetectorSpec, max_frames: int) -> list[Detector
     return recording_samples(path, spec, max_frames)
 
 
+def _once(paths: Sequence[Path], option: str) -> tuple[Path, ...]:
+    """``paths`` without repeats (the same folder however typed), each repeat said."""
+    kept: dict[Path, Path] = {}
+    for path in paths:
+        if Path(path).resolve() in kept:
+            log.warning("%s: given twice in %s; used once", path, option)
+        else:
+            kept[Path(path).resolve()] = Path(path)
+    return tuple(kept.values())
+
+
+def _distinct(sources: DetectorSources) -> DetectorSources:
+    """``sources`` with repeated folders used once; a recording both trained on and scored refused.
+
+    A folder given twice was trained on twice; one in ``--recordings`` and
+    ``--test-recordings`` was scored on the frames it was trained on.
+
+    Raises:
+        ModelError: a test recording is also a training recording.
+    """
+    recordings = _once(sources.recordings, "--recordings")
+    tests = _once(sources.test_recordings, "--test-recordings")
+    trained = {path.resolve() for path in recordings}
+    for path in tests:
+        if path.resolve() in trained:
+            raise ModelError(
+                f"--test-recordings: {path} is also in --recordings: it would be scored on the "
+                "frames it was trained on; hold out other recordings"
+            )
+    datasets = _once(sources.datasets, "the datasets")
+    return replace(sources, datasets=datasets, recordings=recordings, test_recordings=tests)
+
+
 def gather(
     sources: DetectorSources, spec: DetectorSpec, seed: int, workers: int = 1
 ) -> tuple[list[DetectorSample], dict[str, list[DetectorSample]]]:
@@ -149,6 +188,7 @@ def gather(
     """
     if sources.hard and not (sources.recordings or sources.simulated_set):
         raise ModelError("train-detector: hard cases need training recordings (their views)")
+    sources = _distinct(sources)
     train: list[DetectorSample] = []
     held_out: dict[str, list[DetectorSample]] = {}
     for root in sources.datasets:

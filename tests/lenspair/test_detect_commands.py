@@ -187,6 +187,23 @@ def test_train_detector_says_what_it_cannot_use_in_one_line(
         assert main([*argv, "--out", str(tmp_path / "b")]) == 0
     said = [r.getMessage() for r in caplog.records if "left out of the synthetic" in r.getMessage()]
     assert len(said) == 1 and "thin.png" in said[0]
+    # an unreadable image is one more left out, not the end of the run
+    (clean / "empty.png").write_bytes(b"")
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        assert main([*argv, "--out", str(tmp_path / "c")]) == 0
+    said = [r.getMessage() for r in caplog.records if "left out of the synthetic" in r.getMessage()]
+    assert len(said) == 2 and any("empty.png: empty file" in line for line in said)
+    # a refused run leaves no empty --out behind
+    assert main(["train-detector", "--steps", "1", "--out", str(tmp_path / "none")]) == 2
+    assert not (tmp_path / "none").exists()
+
+
+def test_train_detector_run_json_holds_plain_values(tiny_detector: Path) -> None:
+    sources = json.loads((tiny_detector.parent / "run.json").read_text())["sources"]
+    # were "()", "None" and "8": the reprs of the values
+    assert sources["datasets"] == [] and sources["clean_folder"] is None
+    assert sources["synthetic"] == 8
 
 
 def test_detect_with_nothing_judged_says_so_cleanly(

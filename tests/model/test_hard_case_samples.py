@@ -22,6 +22,7 @@ from lenspair.model.detection.hard_cases import (
 from lenspair.model.detection.labels import pair_anomaly_mask
 from lenspair.model.detection.simset import SCENE_KINDS
 from lenspair.model.detection.sources import DetectorSources, gather
+from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import KINDS, DetectorSpec
 from tests.capture.ingest_helpers import simulate
 from tests.images import texture
@@ -138,3 +139,19 @@ def test_gathered_samples_do_not_depend_on_workers(rain: Path) -> None:
         assert (one.source, one.kind, one.group) == (two.source, two.kind, two.group)
         np.testing.assert_array_equal(one.image, two.image)
         np.testing.assert_array_equal(one.tiles, two.tiles)
+
+
+def test_a_recording_trained_on_is_not_scored_and_a_repeat_is_read_once(
+    rain: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Scored on the frames it trained on, without a word; given twice, trained on twice."""
+    typed_otherwise = rain.parent / "." / rain.name
+    with pytest.raises(ModelError, match=r"--test-recordings: .* is also in --recordings"):
+        gather(DetectorSources(recordings=(rain,), test_recordings=(typed_otherwise,)), SPEC, 0)
+    once, _ = gather(DetectorSources(recordings=(rain,), max_frames=2), SPEC, 0)
+    with caplog.at_level("WARNING"):
+        twice, _ = gather(
+            DetectorSources(recordings=(rain, typed_otherwise), max_frames=2), SPEC, 0
+        )
+    assert len(twice) == len(once)
+    assert any("given twice in --recordings" in m for m in caplog.messages)
