@@ -20,7 +20,7 @@ import numpy as np
 import skimage.data
 
 from lenspair.core.errors import ConfigError, ImageIOError
-from lenspair.core.imageio import read_image, to_float, to_linear
+from lenspair.core.imageio import image_header, read_image, to_float, to_linear
 
 NAMES: dict[str, Callable[[], np.ndarray]] = {
     "astronaut": skimage.data.astronaut,
@@ -71,8 +71,21 @@ class Texture:
 
 
 def check_texture(name: str, base_dir: Path) -> str | None:
-    """Return ``None`` if ``name`` is a known texture or an existing file, else the problem."""
-    if name in NAMES or (base_dir / name).is_file():
+    """Return ``None`` if ``name`` is a known texture or an 8/16-bit image file, else the problem.
+
+    The file's header is read (pixels are not), so that a spec naming a file
+    that is no image is refused with the spec and its key, before a
+    simulation starts writing.
+    """
+    if name in NAMES:
+        return None
+    if (base_dir / name).is_file():
+        try:
+            _, _, _, pixel_format = image_header(base_dir / name)
+        except ImageIOError as exc:
+            return str(exc)
+        if pixel_format not in ("uint8", "uint16"):
+            return f"{base_dir / name}: {pixel_format} pixels; a texture is an 8- or 16-bit image"
         return None
     return f"unknown texture {name!r}; use an image file or one of: {', '.join(sorted(NAMES))}"
 

@@ -142,6 +142,26 @@ def test_texture_path_relative_to_spec(tmp_path: Path) -> None:
     assert spec.planes[0].textures == ("wall.png",)
 
 
+def test_a_texture_file_that_is_no_image_is_refused_with_the_spec_and_key(
+    tmp_path: Path,
+) -> None:
+    """It named neither, and came only once the simulation had made its folder."""
+    import OpenImageIO as oiio
+
+    from lenspair.cli import main
+
+    (tmp_path / "notes.yaml").write_text("a: 1\n")
+    spec = _write(tmp_path, _with("planes[0].texture", "notes.yaml"))
+    with pytest.raises(ConfigError, match=r"planes\[0\]\.texture: .*notes\.yaml: cannot open"):
+        load_scene(spec)
+    float_tiff = oiio.ImageBuf(oiio.ImageSpec(16, 16, 1, "float"))
+    assert float_tiff.write(str(tmp_path / "depth.tif"))
+    with pytest.raises(ConfigError, match=r"depth\.tif: float pixels; a texture is an 8- or 16"):
+        load_scene(_write(tmp_path, _with("planes[0].texture", "depth.tif")))
+    assert main(["simulate", str(spec), "--out", str(tmp_path / "out")]) == 2
+    assert not (tmp_path / "out").exists()
+
+
 def test_overrides() -> None:
     spec = load_scene(SAMPLES / "clean.yaml")
     changed = with_overrides(spec, frames=3, seed=11)
