@@ -17,7 +17,6 @@ how much it falls short, e.g. ``valid region is 510x380 px; need 540x360:
 30 px too narrow``.
 """
 
-import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,21 +53,6 @@ class Crop:
     def as_tuple(self) -> tuple[int, int, int, int]:
         """``(x, y, width, height)``, as ``report.json`` stores it."""
         return (self.x, self.y, self.width, self.height)
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """Parse ``"540x360"`` into ``(540, 360)``.
-
-    Raises:
-        ValueError: not ``WIDTHxHEIGHT`` with positive integers.
-
-    """
-    match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if match is None or int(match.group(1)) <= 0 or int(match.group(2)) <= 0:
-        raise ValueError(
-            f"expected WIDTHxHEIGHT with positive integers (e.g. 540x360), got {text!r}"
-        )
-    return int(match.group(1)), int(match.group(2))
 
 
 def _run_lengths_down(valid: np.ndarray) -> np.ndarray:

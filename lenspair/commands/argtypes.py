@@ -7,6 +7,7 @@ from pathlib import Path
 
 from lenspair.core.config import MAX_SEED
 from lenspair.core.samples import file_or_sample
+from lenspair.core.sizes import parse_size
 
 
 def positive_int(text: str) -> int:
@@ -42,6 +43,19 @@ def float_at_least(low: float, *, above: bool = False) -> Callable[[str], float]
         return value
 
     parse.__name__ = "number"  # argparse names the type in its messages
+    return parse
+
+
+def size(minimum: int = 1, maximum: int | None = None) -> Callable[[str], tuple[int, int]]:
+    """Argparse type: ``WIDTHxHEIGHT`` -> ``(width, height)``, sides in ``minimum .. maximum``."""
+
+    def parse(text: str) -> tuple[int, int]:
+        try:
+            return parse_size(text, minimum, maximum)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    parse.__name__ = "size"
     return parse
 
 

@@ -40,15 +40,8 @@ from lenspair.commands.argtypes import (
     detector_file,
     out_folder,
     positive_int,
+    size,
 )
-from lenspair.rectify.crop import parse_size
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        return parse_size(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -73,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_topics_option(parser)
     parser.add_argument(
-        "--size", type=_size, default=(540, 360), metavar="WxH", help="crop size (540x360)"
+        "--size", type=size(), default=(540, 360), metavar="WxH", help="crop size (540x360)"
     )
     parser.add_argument(
         "--detector",

@@ -27,10 +27,14 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lenspair.commands.argtypes import out_file
+from lenspair.commands.argtypes import out_file, size
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.leftovers import remove_leftovers
+
+MIN_INPUT_SIDE = 8
+"""The network's smallest input side (``lenspair.model.networks.padding.MIN_SIDE``; not
+imported: ``--help`` would load torch)."""
 
 if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
     from lenspair.model.training.pairs import PairSource
@@ -41,7 +45,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=Path, help="checkpoint (.pt) from lenspair train")
     parser.add_argument("--onnx", type=out_file, help="ONNX file to write")
     parser.add_argument("--torchscript", type=out_file, help="TorchScript file to write")
-    parser.add_argument("--size", default="540x360", help="WIDTHxHEIGHT of the input (540x360)")
+    parser.add_argument(
+        "--size",
+        type=size(MIN_INPUT_SIDE),
+        default=(540, 360),
+        metavar="WxH",
+        help="size of the input (540x360)",
+    )
     parser.add_argument(
         "--int8", action="store_true", help="also write NAME.int8.onnx (needs --calibration)"
     )
@@ -52,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Export and check; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair export --help`.
-    from lenspair.model.evaluation.export import export_checkpoint, parse_size
+    from lenspair.model.evaluation.export import export_checkpoint
 
     if args.onnx is None and args.torchscript is None:
         raise ConfigError("give --onnx FILE and/or --torchscript FILE")
@@ -63,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(args)
     for path in _outputs(args).values():  # what a killed export left beside its files
         remove_leftovers(path.parent, path.name)
-    size = parse_size(args.size)
+    size = (args.size[1], args.size[0])  # (height, width)
     calibration = None
     if args.int8:  # a bad DS or split fails here, before any file is written
         # likewise: loads torch

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from lenspair.commands.argtypes import out_file, random_seed
+from lenspair.commands.argtypes import out_file, random_seed, size
 from lenspair.core.errors import ConfigError, LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
@@ -62,21 +62,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="clean images to render on (default: the bundled natural photographs)",
     )
-    parser.add_argument("--size", default="720x480", help="render size WxH (default: 720x480)")
+    parser.add_argument(
+        "--size",
+        type=size(16, 8192),  # 100000x100000 was an OpenCV allocation traceback
+        default=(720, 480),
+        metavar="WxH",
+        help="render size (default: 720x480)",
+    )
     parser.add_argument("--seed", type=random_seed, default=0, help="seed of the rendered drops")
     parser.add_argument("--json", type=out_file, metavar="FILE", help="also write per-pair figures")
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        width, height = (int(part) for part in text.lower().split("x"))
-    except ValueError:
-        raise ConfigError(f"--size: expected WxH such as 720x480, got {text!r}") from None
-    if width < 16 or height < 16:
-        raise ConfigError(f"--size: expected at least 16x16, got {text!r}")
-    if width > 8192 or height > 8192:  # 100000x100000 was an OpenCV allocation traceback
-        raise ConfigError(f"--size: expected at most 8192x8192, got {text!r}")
-    return height, width
 
 
 def run(args: argparse.Namespace) -> int:
@@ -84,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     presets = args.render if args.render is not None else ([] if args.pairs else ["ours", "sharp"])
     if not presets and not args.pairs:
         raise ConfigError("nothing to measure: give paired folders or --render PRESET")
-    shape = _size(args.size)
+    shape = (args.size[1], args.size[0])  # (height, width)
     effects = {name: drops_preset(name) for name in presets}
     _check_distinct(args.pairs)
     results: dict[str, list[PairStatistics]] = {}

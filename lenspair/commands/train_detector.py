@@ -34,9 +34,14 @@ from lenspair.commands.argtypes import (
     out_folder,
     positive_int,
     random_seed,
+    size,
 )
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
+
+MIN_INPUT_SIDE = 8
+"""The detector's tile stride (``lenspair.model.networks.detector.TILE_STRIDE``; not
+imported: ``--help`` would load torch)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,7 +89,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--input-size",
-        default="270x180",
+        type=size(MIN_INPUT_SIDE),
+        default=(270, 180),
         metavar="WxH",
         help="size frames are judged at (270x180; width first, as every lenspair size)",
     )
@@ -125,11 +131,8 @@ def run(args: argparse.Namespace) -> int:
         )
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    try:
-        width, height = (int(v) for v in args.input_size.lower().split("x"))
-        spec = DetectorSpec(input_size=(height, width))
-    except ValueError as exc:
-        raise ConfigError(f"--input-size: expected WxH, e.g. 540x360 ({exc})") from None
+    width, height = args.input_size
+    spec = DetectorSpec(input_size=(height, width))
     device = resolve_device(args.device)
     scores = run_training(args.out, sources, spec, settings, device=device, workers=args.workers)
     for name, result in scores.items():

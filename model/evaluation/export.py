@@ -330,23 +330,6 @@ def export_torchscript(
     )
 
 
-def parse_size(text: str) -> tuple[int, int]:
-    """``"540x360"`` (width x height) -> ``(360, 540)`` = (H, W).
-
-    Raises:
-        ModelError: not ``WxH`` with both sides >= 8.
-
-    """
-    try:
-        width_text, height_text = text.lower().split("x")
-        width, height = int(width_text), int(height_text)
-    except ValueError:
-        raise ModelError(f"--size: expected WIDTHxHEIGHT such as 540x360, got {text!r}") from None
-    if width < 8 or height < 8:
-        raise ModelError(f"--size: both sides must be >= 8 pixels, got {text!r}")
-    return height, width
-
-
 def export_checkpoint(
     checkpoint: Path,
     onnx_path: Path | None,

@@ -1,17 +1,8 @@
 import numpy as np
 import pytest
 
-from lenspair.rectify.crop import Crop, choose_crop, parse_size
+from lenspair.rectify.crop import Crop, choose_crop
 from lenspair.rectify.errors import CropError
-
-
-def test_parse_size() -> None:
-    assert parse_size("540x360") == (540, 360)
-    assert parse_size(" 64X48 ") == (64, 48)
-    with pytest.raises(ValueError, match="WIDTHxHEIGHT"):
-        parse_size("540")
-    with pytest.raises(ValueError, match="WIDTHxHEIGHT"):
-        parse_size("0x360")
 
 
 def test_crop_is_centred_in_the_valid_region() -> None:

@@ -185,7 +185,8 @@ def test_cli_measures_a_paired_folder_and_renders_presets(
     printed = capsys.readouterr().out
     assert "pairs (3)" in printed and "sharp (11)" in printed
     assert out.is_file() and '"mean_difference"' in out.read_text()
-    assert main(["realism", "--render", "sharp", "--size", "big"]) == 2
+    with pytest.raises(SystemExit, match="2"):
+        main(["realism", "--render", "sharp", "--size", "big"])
     assert "--size" in capsys.readouterr().err
 
 
