@@ -214,9 +214,22 @@ def read_yaml(file: Path) -> Any:
     try:
         return yaml.load(text, Loader=_UniqueKeyLoader)  # a SafeLoader: plain data only
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{file}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        raise ConfigError(f"{file}: not valid YAML ({_yaml_problem(exc)})") from None
     except RecursionError:  # PyYAML's composer recurses once per level
         raise ConfigError(f"{file}: not valid YAML (nested too deeply)") from None
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """PyYAML's error in one line, where it is first: ``line 2, column 2: expected ','``.
+
+    Its message starts with the context ("while parsing a flow sequence"),
+    which says neither what is wrong nor where.
+    """
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    if mark is None:
+        return str(problem)
+    return f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
