@@ -56,7 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--int8", action="store_true", help="also write NAME.int8.onnx (needs --calibration)"
     )
     parser.add_argument("--calibration", type=Path, metavar="DS", help="paired images for --int8")
-    parser.add_argument("--split", default="train", help="split of DS to calibrate on (train)")
+    parser.add_argument(
+        "--split", help="split of DS to calibrate on (train; DS a paired folder: all of it)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--int8 needs --onnx FILE and --calibration DS (paired images)")
     if args.calibration is not None and not args.int8:
         raise ConfigError("--calibration DS is for --int8 only; add --int8 or leave it out")
+    if args.split is not None and args.calibration is None:
+        raise ConfigError("--split is the split of --calibration DS; give both, or neither")
     check_outputs(args)
     for path in _outputs(args).values():  # what a killed export left beside its files
         remove_leftovers(path.parent, path.name)
@@ -77,9 +81,15 @@ def run(args: argparse.Namespace) -> int:
     calibration = None
     if args.int8:  # a bad DS or split fails here, before any file is written
         # likewise: loads torch
+        from lenspair.dataset.readers import detect_layout
         from lenspair.model.training.pairs import open_eval_pairs
 
-        calibration = open_eval_pairs(args.calibration, args.split)
+        if args.split is not None and detect_layout(args.calibration) is not None:
+            raise ConfigError(
+                f"--split {args.split}: {args.calibration} is a paired folder, not a dataset "
+                "with splits; all its pairs calibrate: leave --split out"
+            )
+        calibration = open_eval_pairs(args.calibration, args.split or "train")
     checks = export_checkpoint(args.checkpoint, args.onnx, args.torchscript, size)
     for check in checks:
         print(check.summary())

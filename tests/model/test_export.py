@@ -220,7 +220,10 @@ def test_int8_export_needs_calibration(tmp_path: Path, capsys: pytest.CaptureFix
     assert "--int8 needs --onnx FILE and --calibration DS" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("problem", ["missing folder", "missing split", "without --int8"])
+@pytest.mark.parametrize(
+    "problem",
+    ["missing folder", "missing split", "without --int8", "split alone", "split of a folder"],
+)
 def test_a_bad_calibration_is_refused_before_anything_is_written(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], problem: str
 ) -> None:
@@ -233,11 +236,21 @@ def test_a_bad_calibration_is_refused_before_anything_is_written(
         args += ["--int8", "--calibration", str(tmp_path / "nope")]
     elif problem == "missing split":
         args += ["--int8", "--calibration", str(tmp_path), "--split", "nosuch"]
-    else:
+    elif problem == "without --int8":
         args += ["--calibration", str(dataset)]  # it was ignored without a word
+    elif problem == "split alone":  # so was this
+        args += ["--split", "val"]
+    else:  # and this: a paired folder has no splits, all of it calibrated
+        args += ["--int8", "--calibration", str(dataset), "--split", "val"]
     assert main(args) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
-    assert "nope" in line or "nosuch" in line or "--int8 only" in line
+    assert {
+        "missing folder": "nope",
+        "missing split": "nosuch",
+        "without --int8": "--int8 only",
+        "split alone": "--split is the split of --calibration DS",
+        "split of a folder": "is a paired folder, not a dataset with splits",
+    }[problem] in line
     # the fp32 export used to be written (overwriting this file) before the refusal
     assert onnx_file.read_bytes() == b"an earlier export"
     assert not (tmp_path / "m.onnx.export.json").exists()
