@@ -128,6 +128,10 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
 
     """
     path = Path(path)
+    if path.is_dir():
+        runs = path / "checkpoints" / "best.pt"
+        hint = f"; the run's best network is {runs}" if runs.is_file() else ""
+        raise ModelError(f"{path}: a folder, not a checkpoint file{hint}")
     if not path.is_file():
         hint = ""
         if str(path) == "pretrained":

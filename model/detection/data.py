@@ -194,6 +194,8 @@ def recording_samples(
     """
     path = Path(path)
     masks = path / "truth" / "mask"
+    if not path.is_dir():
+        raise ModelError(f"{path}: no such recording folder")
     if not masks.is_dir():
         raise ModelError(f"{path}: no truth/mask/ (train on real recordings via dataset-build)")
     recording = open_recording(path)

@@ -186,3 +186,23 @@ def test_a_runtime_key_of_a_newer_version_is_passed_over_but_a_section_typo_is_n
     file.write_text(dump_yaml(plain))
     with pytest.raises(ConfigError, match=r"config\.yaml: train\.learning_rate: unknown key"):
         load_run_config(file)
+
+
+def test_a_run_folder_given_for_a_checkpoint_names_its_best_network(tmp_path: Path) -> None:
+    """It said "checkpoint not found" of a folder that is there."""
+    run = tmp_path / "run"
+    with pytest.raises(ModelError, match=r"run: a folder, not a checkpoint file$"):
+        run.mkdir() or load_checkpoint(run)
+    make_checkpoint(run / "checkpoints" / "best.pt")
+    with pytest.raises(
+        ModelError, match=r"a folder, not a checkpoint file; the run's best network"
+    ):
+        load_checkpoint(run)
+
+
+def test_a_missing_recording_folder_is_named_as_missing(tmp_path: Path) -> None:
+    from lenspair.model.detection.data import recording_samples
+    from lenspair.model.networks.detector import DetectorSpec
+
+    with pytest.raises(ModelError, match=r"nosuch: no such recording folder"):
+        recording_samples(tmp_path / "nosuch", DetectorSpec(), 2)
