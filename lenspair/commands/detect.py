@@ -103,8 +103,9 @@ def run(args: argparse.Namespace) -> int:
     dropped: list[FrameProblem] = []  # images the listing left out or could not find: rows too
     frames = iter_frames(args.input, CAMERAS, problems, args.topics, dropped)
     verdicts = detect_frames(
-        network, frames, out, args.batch_size, args.sheet_frames, args.threshold, total, dropped
-    )
+        network, frames, out, args.batch_size, args.sheet_frames, args.threshold, total, dropped,
+        args.input,
+    )  # fmt: skip
     for problem in problems:
         print(f"lenspair detect: warning: {problem}", file=sys.stderr)
     judged = [v for v in verdicts if v.error is None]

@@ -182,6 +182,14 @@ def _timed_by_log(
     ]
 
 
+def _relative(source: str, root: Path | None) -> str:
+    """``source`` (a file, or ``data.csv:LINE``) relative to ``root`` when it lies in it."""
+    if root is None:
+        return source
+    prefix = f"{Path(root)}/"
+    return source[len(prefix) :] if source.startswith(prefix) else source
+
+
 def detect_frames(
     network: AnomalyDetector,
     frames: Iterable[InputFrame],
@@ -191,6 +199,7 @@ def detect_frames(
     threshold: float = 0.5,
     total: int | None = None,
     dropped: Sequence[FrameProblem] = (),
+    root: Path | None = None,
 ) -> list[FrameVerdict]:
     """Judge every frame; write ``out/detections.csv``, ``.json`` and ``contact_sheet.png``.
 
@@ -207,6 +216,8 @@ def detect_frames(
             (:func:`lenspair.capture.frames.iter_frames`): a row each, not
             judged, with the reason, after the others (read once ``frames`` is
             exhausted: the listing fills it).
+        root: the input they were listed from: their rows are named relative
+            to it, as the judged frames' are.
 
     Returns:
         One :class:`FrameVerdict` per frame, in input order, then the dropped ones.
@@ -254,8 +265,8 @@ def detect_frames(
     for problem in dropped:
         verdicts.append(
             FrameVerdict(
-                problem.source, problem.camera, problem.t_ns, None, None, None, None, None,
-                error=problem.reason,
+                _relative(problem.source, root), problem.camera, problem.t_ns, None, None, None,
+                None, None, error=problem.reason,
             )
         )  # fmt: skip
     buffer = io.StringIO()

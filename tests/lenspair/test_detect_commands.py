@@ -99,7 +99,9 @@ def test_detect_gives_a_row_to_a_listed_frame_whose_file_is_missing(
     lost, unlisted = [row for row in rows if row["error"]]
     assert lost["camera"] == "cam0" and lost["t_ns"] == missing.stem
     assert "missing" in lost["error"] and lost["probability"] == ""
-    assert unlisted["name"].endswith("extra.png") and "not listed" in unlisted["error"]
+    assert unlisted["name"] == "mav0/cam0/data/extra.png" and "not listed" in unlisted["error"]
+    # named relative to the input, as the judged frames are (the left-out ones carried its path)
+    assert not any(row["name"].startswith(str(recording)) for row in rows)
     assert len(json.loads((out / "detections.json").read_text())) == 7
 
 
