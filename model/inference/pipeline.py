@@ -30,7 +30,7 @@ import os
 import re
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -176,6 +176,26 @@ def resolve_cameras(
         return ("cam0",) if choice == "cam0" else ("cam1",)
     rig = find_rig_file(path)
     return (read_rig_file(rig).obstructed,) if rig is not None else CAMERAS
+
+
+def _say_unused(input_path: Path, kind: InputKind, options: RestoreOptions) -> None:
+    """Warn of options that mean nothing for an image or a folder of images."""
+    unused = [
+        option
+        for option, given in (
+            ("--camera", options.camera != "auto"),
+            ("--suffix", bool(options.suffix)),
+            ("--topics", options.topics is not None),
+        )
+        if given
+    ]
+    if unused:
+        log.warning(
+            "%s: %s apply to recordings and bags; ignored for %s",
+            input_path,
+            " and ".join(unused),
+            "an image" if kind == "image" else "a folder of images",
+        )
 
 
 def check_options(options: RestoreOptions, backend: Backend | None = None) -> None:
@@ -358,6 +378,11 @@ def restore_input(
     kind = detect_input(input_path)
     check_apart(input_path, kind, out_dir)
     cameras = resolve_cameras(input_path, kind, options.camera, options.topics)
+    if kind in ("image", "folder"):
+        _say_unused(input_path, kind, options)
+        # an image or a folder of them has no cameras nor topics: none decides its bytes
+        options = replace(options, camera="auto", suffix="", topics=None)
+        cameras = ()
     bag = kind in ("rosbag1", "rosbag2")
     files = [] if bag else frame_files(input_path, kind, cameras)
     if not bag and not files:

@@ -386,6 +386,21 @@ def test_resume_into_a_folder_no_restore_run_wrote_is_refused(
     assert restore_input(source, empty, backend, RestoreOptions(resume=True)).restored == 2
 
 
+def test_camera_options_on_a_folder_are_said_unused_and_do_not_bind_a_resume(
+    tmp_path: Path, backend: TorchBackend, caplog: pytest.LogCaptureFixture
+) -> None:
+    """--camera made a --resume of a folder refuse, over a setting that changed nothing."""
+    source = _folder(tmp_path / "in")
+    with caplog.at_level("WARNING"):
+        report = restore_input(
+            source, tmp_path / "out", backend, RestoreOptions(camera="cam1", suffix="/r")
+        )
+    assert report.cameras == [] and report.restored == 3
+    assert any("--camera and --suffix apply to recordings and bags" in m for m in caplog.messages)
+    again = restore_input(source, tmp_path / "out", backend, RestoreOptions(resume=True))
+    assert again.resumed == 3
+
+
 @pytest.mark.parametrize("suffix", ["db3", "mcap"])
 def test_a_bare_bag_file_is_not_replaced_by_its_restored_folder(
     tmp_path: Path, backend: TorchBackend, suffix: str
