@@ -445,7 +445,9 @@ def _timed_by_log(
     unset = never_stamped({c: [f.t_ns for f in frames] for c, frames in listed.items()})
     if not unset:
         return listed
-    said = ", ".join(f"{c} ({listed[c][0].topic}) {listed[c][0].t_ns} ns" for c in unset)
+    # by topic, not by cam0/cam1: a recording turned round (Recording.swapped) says the same
+    firsts = sorted((str(listed[c][0].topic), listed[c][0].t_ns) for c in unset)
+    said = ", ".join(f"{topic} {t_ns} ns" for topic, t_ns in firsts)
     reason = (
         f"every header.stamp of {said}: never set by the driver? Both cameras are timed "
         "by the bag's log time instead"
