@@ -189,6 +189,10 @@ def _opened(path: Path) -> Iterator[Any]:
         handle.close()
 
 
+_CUT_SHORT = "Premature end"
+"""How libjpeg (through OpenImageIO) says a file ended before its image did."""
+
+
 def _read_pixels(path: Path) -> np.ndarray:
     """The pixels of an existing file as OpenImageIO returns them, ``(H, W, C)``."""
     if path.stat().st_size == 0:
@@ -203,8 +207,10 @@ def _read_pixels(path: Path) -> np.ndarray:
             raise ImageIOError(f"{path}: unsupported pixel format {spec.format} (need 8/16-bit)")
         pixels = handle.read_image(spec.format)
         error = handle.geterror()
-        # a JPEG cut short decodes: its missing rows come back grey, with the error said
-        if pixels is None or error:
+        # A JPEG cut short decodes: its missing rows come back grey, and libjpeg says the
+        # data ended. Its other complaints (extraneous bytes, an unknown JFIF revision)
+        # are warnings about files whose pixels are whole: those are read.
+        if pixels is None or _CUT_SHORT in error:
             raise ImageIOError(f"{path}: corrupt or truncated ({first_text_line(error, _UNKNOWN)})")
     return np.asarray(pixels)
 
@@ -226,7 +232,9 @@ def write_image(
     """Write ``image`` atomically; the format follows the file extension.
 
     Args:
-        path: destination (``.png`` or ``.tif``/``.tiff``).
+        path: destination; any format OpenImageIO writes, by its extension
+            (an image the format cannot hold, 16 bits or an alpha channel in
+            a JPEG, is refused: see :func:`_format_loses`).
         image: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)``.
         png_level: zlib compression level 0-9 of a PNG (``None``: the
             library's default); see :data:`FAST_PNG`.

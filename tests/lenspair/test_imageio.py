@@ -65,6 +65,15 @@ def test_a_jpeg_cut_short_is_an_error_not_an_image_with_grey_rows(tmp_path: Path
     cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
     with pytest.raises(ImageIOError, match=r"cut\.jpg: corrupt or truncated \(.*Premature end"):
         read_image(cut)
+    # libjpeg's warnings about whole files are not errors: three stray bytes before a
+    # marker, an unknown JFIF revision; the pixels are those of the intact file
+    data = whole.read_bytes()
+    stray = data.index(b"\xff\xdb")
+    (tmp_path / "stray.jpg").write_bytes(data[:stray] + b"\x00\x01\x02" + data[stray:])
+    jfif = data.index(b"JFIF\x00") + 5
+    (tmp_path / "rev.jpg").write_bytes(data[:jfif] + b"\x02\x01" + data[jfif + 2 :])
+    for name in ("stray.jpg", "rev.jpg"):
+        np.testing.assert_array_equal(read_image(tmp_path / name), read_image(whole))
 
 
 def test_write_rejects_float_images(tmp_path: Path) -> None:
