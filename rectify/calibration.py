@@ -21,9 +21,10 @@ rejection never fails a calibration that works without it.
 Reprojection errors are RMS over corners of the Euclidean pixel residual.
 """
 
+import contextlib
 import dataclasses
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
@@ -322,6 +323,27 @@ def _check_pose_spread(rvecs: np.ndarray, tvecs: np.ndarray, stage: str) -> None
         )
 
 
+@contextlib.contextmanager
+def _held(logger: logging.Logger, records: list[logging.LogRecord]) -> Iterator[None]:
+    """Keep what ``logger`` is told meanwhile in ``records`` instead of saying it."""
+
+    def hold(record: logging.LogRecord) -> bool:
+        records.append(record)
+        return False
+
+    logger.addFilter(hold)
+    try:
+        yield
+    finally:
+        logger.removeFilter(hold)
+
+
+def _release(records: list[logging.LogRecord]) -> None:
+    """Say what :func:`_held` kept, in order."""
+    for record in records:
+        log.handle(record)
+
+
 MARKER_TOLERANCE = 0.15
 """Markers measured this far (relative) from the stated ``MARKER_M`` are reported (warning)."""
 
@@ -440,48 +462,37 @@ def calibrate_from_detections(
     if len(names) != len(detections):
         raise ValueError(f"names: expected {len(detections)}, got {len(names)}")
     _check_marker_size(detections, board)
-    said: set[str] = set()
-
-    def once(record: logging.LogRecord) -> bool:  # the fallback calibrates each camera again
-        message = record.getMessage()
-        fresh = message not in said
-        said.add(message)
-        return fresh
-
-    log.addFilter(once)
-    try:
-        return _calibrate_pair(detections, board, model, resolutions, names, options)
-    finally:
-        log.removeFilter(once)
-
-
-def _calibrate_pair(
-    detections: Sequence[tuple[Detection | None, Detection | None]],
-    board: Board,
-    model: CalibrationModel,
-    resolutions: tuple[tuple[int, int], tuple[int, int]],
-    names: list[str],
-    options: CalibrationOptions,
-) -> CalibrationResult:
-    """:func:`calibrate_from_detections` once its arguments are checked."""
 
     def each_camera(
         settings: CalibrationOptions,
-    ) -> tuple[list[CameraCalibration], list[RejectedView], dict[int, tuple[Detection, Detection]]]:
+    ) -> tuple[
+        list[CameraCalibration],
+        list[RejectedView],
+        dict[int, tuple[Detection, Detection]],
+        list[logging.LogRecord],
+    ]:
+        # what each camera's calibration says is held back: only the pass that is kept
+        # speaks (the fallback calibrates each camera again, over other views)
+        said: list[logging.LogRecord] = []
         monos: list[CameraCalibration] = []
         dropped: list[RejectedView] = []
-        for index, stage in enumerate(("cam0", "cam1")):
-            per_view = [pair[index] for pair in detections]
-            mono, left_out = calibrate_camera(
-                per_view, board, model, resolutions[index], stage, names, settings
-            )
-            monos.append(mono)
-            dropped += left_out
+        try:
+            with _held(log, said):
+                for index, stage in enumerate(("cam0", "cam1")):
+                    per_view = [pair[index] for pair in detections]
+                    mono, left_out = calibrate_camera(
+                        per_view, board, model, resolutions[index], stage, names, settings
+                    )
+                    monos.append(mono)
+                    dropped += left_out
+        except RectifyError:  # this pass ends the calibration: what it said is said
+            _release(said)
+            raise
         usable = set(monos[0].views) & set(monos[1].views)
         shared = {v: (d0, d1) for v, (d0, d1) in enumerate(detections) if v in usable and d0 and d1}
-        return monos, dropped, shared
+        return monos, dropped, shared, said
 
-    monos, rejected, pairs = each_camera(options)
+    monos, rejected, pairs, said = each_camera(options)
     if len(pairs) < options.min_views and options.max_rounds > 0:
         # each camera rejected other views, and too few are left to both: calibrated
         # without rejecting, as it would work (a factor near 1 on evenly noisy views)
@@ -494,7 +505,8 @@ def _calibrate_pair(
                 len(pairs),
                 options.min_views,
             )
-            monos, rejected, pairs = again  # the stereo step still rejects its outliers
+            monos, rejected, pairs, said = again  # the stereo step still rejects its outliers
+    _release(said)
     cameras = (monos[0].camera, monos[1].camera)
     if len(pairs) < options.min_views:  # the stereo step needs views the two cameras share
         raise RectifyError(
