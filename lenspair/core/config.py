@@ -220,7 +220,7 @@ def read_yaml(file: Path) -> Any:
 
 
 def _yaml_problem(exc: yaml.YAMLError) -> str:
-    """PyYAML's error in one line, where it is first: ``line 2, column 2: expected ','``.
+    """PyYAML's error in one line, where first: ``line 2, column 1: expected ','`` (and its start).
 
     Its message starts with the context ("while parsing a flow sequence"),
     which says neither what is wrong nor where.
@@ -229,7 +229,13 @@ def _yaml_problem(exc: yaml.YAMLError) -> str:
     problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
     if mark is None:
         return str(problem)
-    return f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
+    said = f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
+    start, context = getattr(exc, "context_mark", None), getattr(exc, "context", None)
+    if start is None or not context or start.line == mark.line:
+        return said
+    # the mistake often lies where the context began (an unclosed quote, a key
+    # without its colon), lines before the place PyYAML gave up
+    return f"{said} ({context} begun at line {start.line + 1}, column {start.column + 1})"
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):

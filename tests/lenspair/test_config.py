@@ -66,6 +66,14 @@ def test_yaml_file_errors_name_the_file(tmp_path: Path) -> None:
         ConfigError, match=r"bad\.yaml: not valid YAML \(line 2, column 1: expected ',' or ']'"
     ):
         load_yaml(Outer, file)
+    # an unclosed quote on line 3 is found at the end of the file: both are named
+    file.write_text("a: 1\nb: 2\nx: 'unterminated\n\n")
+    with pytest.raises(
+        ConfigError,
+        match=r"line 5, column 1: found unexpected end of stream \(while scanning a quoted "
+        r"scalar begun at line 3, column 4\)\)$",
+    ):
+        read_yaml(file)
     with pytest.raises(ConfigError, match=r"missing\.yaml: file not found"):
         load_yaml(Outer, tmp_path / "missing.yaml")
     deep = tmp_path / "deep.yaml"
