@@ -124,9 +124,14 @@ class Restorer:
         """
         if not len(images):
             return []
-        for index, image in enumerate(images):
-            self._check(np.asarray(image), f"frame {index}")
         frames = [np.asarray(image) for image in images]
+        for index, frame in enumerate(frames):
+            self._check(frame, f"frame {index}")
+        if len({(frame.shape, frame.dtype) for frame in frames}) > 1:  # before depth.see
+            raise ModelError(
+                "restore_batch: frames of different shapes or bit depths "
+                f"({sorted({f'{f.shape} {f.dtype}' for f in frames})}); restore them apart"
+            )
         for frame in frames:
             self.depth.see(frame)
         return restore_images(self.backend, frames, self.depth.bits, self.tile, self.overlap)

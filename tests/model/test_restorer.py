@@ -83,6 +83,10 @@ def test_frames_it_cannot_restore_are_one_line_errors(tmp_path: Path, checkpoint
             restorer(frame)
     with pytest.raises(ModelError, match="different shapes"):
         restorer.restore_batch([grey, grey[:, :40]])
+    dim16 = np.zeros_like(grey, dtype=np.uint16)  # would read as 10-bit words
+    with pytest.raises(ModelError, match="different shapes or bit depths"):
+        restorer.restore_batch([grey, dim16])
+    assert restorer.depth.bits == 16  # a refused call leaves the camera's depth as it was
     assert restorer.restore_batch([]) == []
     with pytest.raises(ModelError, match="--tile"):
         Restorer(checkpoint, device="cpu", tile=8)
