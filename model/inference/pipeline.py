@@ -52,7 +52,7 @@ from lenspair.capture.recording import CAMERAS, find_rig_file
 from lenspair.capture.rigfile import CameraName, read_rig_file
 from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.core.fsutil import atomic_write_json, inside_refusal, read_json_field, sha256_file
-from lenspair.core.leftovers import remove_leftovers_under
+from lenspair.core.leftovers import leftovers, remove_leftovers_under
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.judge import FrameJudge
@@ -278,7 +278,8 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
         ModelError: naming OUT and each setting that differs, or the missing report.
     """
     if not (out_dir / REPORT_NAME).is_file():
-        if out_dir.is_dir() and any(out_dir.iterdir()):
+        stale = set(leftovers(out_dir))  # a run killed while writing its first report
+        if out_dir.is_dir() and any(entry not in stale for entry in out_dir.iterdir()):
             # its files would pass for finished frames (a name, a newer time)
             raise ModelError(
                 f"--resume: {out_dir} holds files but no {REPORT_NAME}, so no restore run "

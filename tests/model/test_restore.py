@@ -384,6 +384,10 @@ def test_resume_into_a_folder_no_restore_run_wrote_is_refused(
     empty = tmp_path / "empty"
     empty.mkdir()  # an empty folder is a fresh start, resumed or not
     assert restore_input(source, empty, backend, RestoreOptions(resume=True)).restored == 2
+    killed = tmp_path / "killed"  # killed while writing its first report: only that temporary
+    killed.mkdir()
+    (killed / f".{REPORT_NAME}.999999999.abcd.json.tmp").write_text("{")
+    assert restore_input(source, killed, backend, RestoreOptions(resume=True)).restored == 2
 
 
 def test_camera_options_on_a_folder_are_said_unused_and_do_not_bind_a_resume(
