@@ -57,10 +57,9 @@ from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.judge import FrameJudge
 from lenspair.model.inference.options import CAMERA_CHOICES, DEFAULT_BATCH_SIZE, DEFAULT_OVERLAP
-from lenspair.model.inference.restorer import restore_images
 from lenspair.model.inference.sinks import BagSink, FileSink
 from lenspair.model.inference.threads import Writer, threaded
-from lenspair.model.inference.tiling import check_tile
+from lenspair.model.inference.tiling import check_tile, restore_images
 from lenspair.model.networks.padding import MIN_SIDE
 
 log = logging.getLogger(__name__)
@@ -196,6 +195,25 @@ def _say_unused(input_path: Path, kind: InputKind, options: RestoreOptions) -> N
             " and ".join(unused),
             "an image" if kind == "image" else "a folder of images",
         )
+
+
+def frame_problem(name: str, image: np.ndarray, channels: int) -> str | None:
+    """Why the network cannot take ``image`` (``name`` leads the line), or None.
+
+    Channels other than the network's ``channels`` (no silent conversion), or
+    a side under the network's minimum.
+    """
+    if _channels(image) != channels:
+        return (
+            f"{name}: {_channels(image)} channel(s) but the network takes {channels}; "
+            "convert the images or use a network trained on them"
+        )
+    if min(image.shape[:2]) < MIN_SIDE:
+        return (
+            f"{name}: {image.shape[1]}x{image.shape[0]} pixels, smaller than the network's "
+            f"{MIN_SIDE}x{MIN_SIDE} minimum"
+        )
+    return None
 
 
 def check_options(options: RestoreOptions, backend: Backend | None = None) -> None:
@@ -501,18 +519,10 @@ def _run(
         bar.update(1)
         image = frame.image
         reason = frame.error
-        if image is not None and _channels(image) != backend.channels:
-            reason = (
-                f"{frame.source}: {_channels(image)} channel(s) but the network takes "
-                f"{backend.channels}; convert the images or use a network trained on them"
-            )
-            if not channels_checked:
+        if image is not None:
+            reason = frame_problem(str(frame.source), image, backend.channels) or reason
+            if reason is not None and _channels(image) != backend.channels and not channels_checked:
                 raise ModelError(reason)
-        elif image is not None and min(image.shape[:2]) < MIN_SIDE:
-            reason = (
-                f"{frame.source}: {image.shape[1]}x{image.shape[0]} pixels, smaller than the "
-                f"network's {MIN_SIDE}x{MIN_SIDE} minimum"
-            )
         if image is None or reason is not None:
             report.failed += 1
             report.problems.append({"frame": frame.name, "reason": reason or "unreadable"})

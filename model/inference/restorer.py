@@ -25,38 +25,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lenspair.core.bitdepth import RunningDepth, narrow, widen
+from lenspair.core.bitdepth import RunningDepth
 from lenspair.core.device import resolve_device
 from lenspair.core.imageio import check_image
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend, open_backend
 from lenspair.model.inference.options import DEFAULT_OVERLAP
-from lenspair.model.inference.tiling import check_tile, from_batch, run_backend, to_batch
-from lenspair.model.networks.padding import MIN_SIDE
-
-
-def restore_images(
-    backend: Backend,
-    images: Sequence[np.ndarray],
-    bits: int = 16,
-    tile: int | None = None,
-    overlap: int = DEFAULT_OVERLAP,
-) -> list[np.ndarray]:
-    """Run ``backend`` on same-shape, same-dtype integer frames; the restored frames, alike.
-
-    Args:
-        backend: the network.
-        images: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` frames of the
-            network's channels, ``H, W >= 8``.
-        bits: the bits 16-bit frames use (10, 12 or 16); see
-            :mod:`lenspair.core.bitdepth`.
-        tile: square tile side, or None for whole frames.
-        overlap: pixels shared by neighbouring tiles.
-    """
-    wide = [widen(image, bits) for image in images]
-    restored = run_backend(backend, to_batch(wide), tile, overlap)
-    first = images[0]
-    return [narrow(image, bits) for image in from_batch(restored, first.dtype, first.ndim == 2)]
+from lenspair.model.inference.pipeline import RestoreOptions, check_options, frame_problem
+from lenspair.model.inference.tiling import restore_images
 
 
 class Restorer:
@@ -87,11 +63,9 @@ class Restorer:
         overlap: int = DEFAULT_OVERLAP,
     ) -> None:
         """Load ``model`` on ``device``; see the class docstring."""
-        check_tile(tile)
-        if tile is not None and not 0 <= overlap < tile:
-            raise ModelError(f"overlap: expected 0 <= overlap < tile ({tile}), got {overlap}")
         chosen = device if isinstance(device, torch.device) else resolve_device(device)
         self.backend: Backend = open_backend(Path(model), chosen, precision)
+        check_options(RestoreOptions(tile=tile, overlap=overlap), self.backend)  # as restore's
         self.tile = tile
         self.overlap = overlap
         self.depth = RunningDepth(str(model))
@@ -141,14 +115,6 @@ class Restorer:
             check_image(image, name)
         except ValueError as exc:
             raise ModelError(str(exc)) from None
-        channels = 1 if image.ndim == 2 else image.shape[2]
-        if channels != self.channels:
-            raise ModelError(
-                f"{name}: {channels} channel(s) but the network takes {self.channels}; "
-                "convert the frames or use a network trained on them"
-            )
-        if min(image.shape[:2]) < MIN_SIDE:
-            raise ModelError(
-                f"{name}: {image.shape[1]}x{image.shape[0]} pixels, smaller than the "
-                f"network's {MIN_SIDE}x{MIN_SIDE} minimum"
-            )
+        problem = frame_problem(name, image, self.channels)
+        if problem is not None:
+            raise ModelError(problem)

@@ -17,8 +17,11 @@ one (tests/model/test_inference.py states the tolerance). A side shorter than
 the tile is reflected up to the tile size and cropped back.
 """
 
+from collections.abc import Sequence
+
 import numpy as np
 
+from lenspair.core.bitdepth import narrow, widen
 from lenspair.core.imageio import max_value
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
@@ -189,3 +192,27 @@ def run_backend(
     if tile is None or (batch.shape[2] <= tile and batch.shape[3] <= tile):
         return backend(batch)
     return run_tiled(backend, batch, (tile, tile), overlap)
+
+
+def restore_images(
+    backend: Backend,
+    images: Sequence[np.ndarray],
+    bits: int = 16,
+    tile: int | None = None,
+    overlap: int = DEFAULT_OVERLAP,
+) -> list[np.ndarray]:
+    """Run ``backend`` on same-shape, same-dtype integer frames; the restored frames, alike.
+
+    Args:
+        backend: the network.
+        images: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` frames of the
+            network's channels, ``H, W >= 8``.
+        bits: the bits 16-bit frames use (10, 12 or 16); see
+            :mod:`lenspair.core.bitdepth`.
+        tile: square tile side, or None for whole frames.
+        overlap: pixels shared by neighbouring tiles.
+    """
+    wide = [widen(image, bits) for image in images]
+    restored = run_backend(backend, to_batch(wide), tile, overlap)
+    first = images[0]
+    return [narrow(image, bits) for image in from_batch(restored, first.dtype, first.ndim == 2)]
