@@ -189,6 +189,15 @@ def _opened(path: Path) -> Iterator[Any]:
         handle.close()
 
 
+READABLE_FORMATS = frozenset({"uint8", "uint16"})
+"""Pixel formats :func:`read_image` reads (as :func:`image_header` names them)."""
+
+
+def format_problem(kind: str) -> str:
+    """Why :func:`read_image` refuses pixels of format ``kind`` ("" when it reads them)."""
+    return "" if kind in READABLE_FORMATS else f"unsupported pixel format {kind} (need 8/16-bit)"
+
+
 _CUT_SHORT = "Premature end"
 """How libjpeg (through OpenImageIO) says a file ended before its image did."""
 
@@ -203,8 +212,9 @@ def _read_pixels(path: Path) -> np.ndarray:
             raise ImageIOError(f"{path}: {problem}")
     with _opened(path) as handle:
         spec = handle.spec()
-        if spec.format not in (oiio.UINT8, oiio.UINT16):
-            raise ImageIOError(f"{path}: unsupported pixel format {spec.format} (need 8/16-bit)")
+        problem = format_problem(str(spec.format))
+        if problem:
+            raise ImageIOError(f"{path}: {problem}")
         pixels = handle.read_image(spec.format)
         error = handle.geterror()
         # A JPEG cut short decodes: its missing rows come back grey, and libjpeg says the

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lenspair.core.errors import ImageIOError, listed
-from lenspair.core.imageio import image_header
+from lenspair.core.imageio import format_problem, image_header
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired
 from lenspair.model.errors import ModelError
@@ -307,12 +307,14 @@ def _check_clean_images(
     problems, training, counts = [], set(train), {1: 0, 3: 0}
     for path in [*train, *val]:
         try:
-            height, width, have = image_header(path)[:3]
+            height, width, have, kind = image_header(path)
         except ImageIOError as exc:
             problems.append(str(exc))
             continue
         counts[have] += 1
-        if crop_size is not None and path in training and min(height, width) < crop_size:
+        if format_problem(kind):
+            problems.append(f"{path}: {format_problem(kind)}")
+        elif crop_size is not None and path in training and min(height, width) < crop_size:
             problems.append(f"{path}: {width}x{height}, smaller than the {crop_size} px crop")
     if problems:
         raise DatasetError(f"{folder}: {len(problems)} unusable clean image(s): {listed(problems)}")
@@ -343,7 +345,14 @@ def synthetic_training_data(
     resolved = channels or image_header(images[0])[2]
     effects = drops_preset(data.drops)
     train = SyntheticDrops(
-        train_images, effects, resolved, data.crop_size, data.hflip, data.vflip, seed=seed
+        train_images,
+        effects,
+        resolved,
+        data.crop_size,
+        data.hflip,
+        data.vflip,
+        seed=seed,
+        substitute_unreadable=True,
     )
     limit = data.max_val_images or len(val_images)
     val = SyntheticDrops(val_images[:limit], effects, resolved, None, seed=seed, fixed=True)

@@ -15,10 +15,10 @@ sees exactly the batches it would have seen.
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, TypedDict
+from typing import Protocol, TypedDict, TypeVar
 
 import numpy as np
 import torch
@@ -33,6 +33,8 @@ from lenspair.dataset.readers import detect_layout, open_paired
 from lenspair.model.errors import ModelError
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
 
 
 class PairItem(Protocol):
@@ -320,16 +322,32 @@ class PairedCrops(Dataset[Sample]):
     def _read(self, index: int) -> PairItem:
         if not self.substitute_unreadable:
             return self.source[index]
-        for step in range(self.length):
-            candidate = (index + step) % self.length
-            if candidate in self.unreadable:
-                continue
-            try:
-                return self.source[candidate]
-            except LenspairError as exc:
-                self.unreadable.add(candidate)
-                log.warning("training goes on without pair %d: %s", candidate, exc)
-        raise ModelError("no training pair can be read any more (see the warnings above)")
+        return read_substituting(self.source.__getitem__, index, self.length, self.unreadable)
+
+
+def read_substituting(
+    read: Callable[[int], T], index: int, length: int, unreadable: set[int], what: str = "pair"
+) -> T:
+    """``read(index)``, or when it fails, the next index (cyclically) that reads.
+
+    A training item that cannot be read (a file truncated or damaged after
+    the headers were checked) must not end a run mid-epoch: it is replaced,
+    with a warning once per index (``unreadable`` remembers them; once per
+    epoch with loader workers, whose copies of the dataset live an epoch).
+
+    Raises:
+        ModelError: no item of the ``length`` can be read any more.
+    """
+    for step in range(length):
+        candidate = (index + step) % length
+        if candidate in unreadable:
+            continue
+        try:
+            return read(candidate)
+        except LenspairError as exc:
+            unreadable.add(candidate)
+            log.warning("training goes on without %s %d: %s", what, candidate, exc)
+    raise ModelError(f"no training {what} can be read any more (see the warnings above)")
 
 
 def _valid_map(

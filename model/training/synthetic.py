@@ -23,6 +23,7 @@ from lenspair.model.training.pairs import (
     crop_box,
     item_rng,
     random_flip,
+    read_substituting,
     to_channels,
     to_tensor,
 )
@@ -51,6 +52,11 @@ class SyntheticDrops(Dataset[Sample]):
         vflip: random vertical flips.
         seed: seed of crops, flips and drops.
         fixed: validation mode: drops do not change with the epoch.
+        substitute_unreadable: an image that cannot be read (truncated or
+            damaged after ``train`` checked the headers) is replaced by the
+            next readable one, with a warning, instead of ending the run
+            (training; see :func:`~lenspair.model.training.pairs.read_substituting`);
+            validation reports its own.
 
     """
 
@@ -64,8 +70,11 @@ class SyntheticDrops(Dataset[Sample]):
         vflip: bool = False,
         seed: int = 0,
         fixed: bool = False,
+        substitute_unreadable: bool = False,
     ) -> None:
         self.images = list(images)
+        self.substitute_unreadable = substitute_unreadable
+        self.unreadable: set[int] = set()  # said once each (per worker process)
         self.effects = effects
         self.channels = channels
         self.crop_size = crop_size
@@ -82,9 +91,13 @@ class SyntheticDrops(Dataset[Sample]):
         return len(self.images)
 
     def __getitem__(self, index: int) -> Sample:
-        path = self.images[index]
+        # a substitute image gets this index's crop and drops, not a copy of its own item
         rng = item_rng(self.seed, _VAL_EPOCH if self.fixed else self.epoch, index)
-        clean = read_image(path)
+        if self.substitute_unreadable:
+            read = read_substituting(self._read, index, len(self.images), self.unreadable, "image")
+        else:
+            read = self._read(index)
+        path, clean = read
         if channels_of(clean) != self.channels:
             clean = from_float(to_channels(to_float(clean), self.channels), clean.dtype)
             if self.channels == 1:
@@ -97,6 +110,9 @@ class SyntheticDrops(Dataset[Sample]):
         return Sample(
             input=tensors[0], target=tensors[1], valid=torch.ones(1, h, w), name=path.name
         )
+
+    def _read(self, index: int) -> tuple[Path, np.ndarray]:
+        return self.images[index], read_image(self.images[index])
 
 
 def render_crop(

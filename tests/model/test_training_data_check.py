@@ -4,6 +4,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
@@ -116,3 +117,38 @@ def test_a_training_image_damaged_behind_its_header_costs_only_its_pair(
     said = [r.getMessage() for r in caplog.records if "training goes on without" in r.getMessage()]
     assert len(said) == 1 and damaged.name in said[0]  # once, naming the file
     assert (run / "checkpoints" / "last.pt").is_file()
+
+
+def test_a_float_clean_image_is_found_before_synthetic_pretraining(tmp_path: Path) -> None:
+    import OpenImageIO as oiio
+
+    folder = tmp_path / "clean"
+    for index in range(6):
+        write_image(folder / f"{index}.png", clean_image(np.random.default_rng(index)))
+    pixels = np.random.default_rng(9).random((64, 64, 1)).astype(np.float32)
+    out = oiio.ImageOutput.create(str(folder / "float.tif"))
+    assert out.open(str(folder / "float.tif"), oiio.ImageSpec(64, 64, 1, oiio.FLOAT))
+    assert out.write_image(pixels) and out.close()
+    # read_image refuses it: the run would end at the step that first drew it
+    with pytest.raises(DatasetError, match=r"1 unusable clean image\(s\).*float\.tif.*float"):
+        synthetic_training_data(folder, tiny_config().data, 1, 0)
+
+
+def test_a_clean_image_damaged_behind_its_header_costs_only_itself(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    folder = tmp_path / "clean"
+    for index in range(8):
+        write_image(folder / f"{index}.png", clean_image(np.random.default_rng(index)))
+    data = synthetic_training_data(folder, tiny_config().data, 1, 0)
+    damaged = data.train.images[1]  # type: ignore[attr-defined]
+    whole = damaged.read_bytes()
+    damaged.write_bytes(whole[: whole.index(b"IDAT") + 20])  # header whole, pixels cut
+    data = synthetic_training_data(folder, tiny_config().data, 1, 0)  # headers still pass
+    with caplog.at_level("WARNING"):
+        items = [data.train[index] for index in range(len(data.train))]  # type: ignore[arg-type]
+        again = data.train[1]  # type: ignore[index]
+    said = [r.getMessage() for r in caplog.records if "training goes on without" in r.getMessage()]
+    assert len(said) == 1 and damaged.name in said[0]  # once, naming the file
+    assert items[1]["name"] == items[2]["name"] == again["name"] != damaged.name
+    assert not torch.equal(items[1]["input"], items[2]["input"])  # its own crop and drops
