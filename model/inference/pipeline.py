@@ -486,14 +486,16 @@ def _run(
     batch: list[InputFrame] = []
     bar = tqdm(total=total, desc="restoring", unit="frame", leave=False, disable=_quiet())
 
-    def flush() -> None:
+    def flush(bits: int | None = None) -> None:
+        """Restore ``batch`` at ``bits`` (default: the depth now) and hand on ``pending``."""
         outputs: list[np.ndarray | None] = [None] * len(batch)
         done = [writer.sink.done(frame) for frame in batch]
         if batch and not all(done):  # the whole batch: same batches as an uninterrupted run
             images = [frame.image for frame in batch if frame.image is not None]
             # 16-bit frames of 10- or 12-bit values are restored on the full scale, then
             # written back in the camera's words (lenspair.core.bitdepth)
-            outputs[:] = restore_images(backend, images, depth.bits, options.tile, options.overlap)
+            bits = depth.bits if bits is None else bits
+            outputs[:] = restore_images(backend, images, bits, options.tile, options.overlap)
         for item, frame, slot in pending:
             if slot is None:
                 writer.put(item, frame, None)
@@ -529,7 +531,12 @@ def _run(
             pending.append((item, frame, None))
             continue
         channels_checked = True
+        seen = depth.bits
         depth.see(image)  # every readable frame, finished ones too: a resume decides alike
+        if batch and depth.bits != seen:
+            # the frames batched so far are restored at the depth they were seen at, as
+            # one by one (Restorer): a batch must not change how its first frames scale
+            flush(seen)
         if judge is not None and not judge(frame, widen(image, depth.bits)):
             report.skipped += 1
             report.skipped_frames.append(frame.name)

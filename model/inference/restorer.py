@@ -63,11 +63,15 @@ class Restorer:
         overlap: int = DEFAULT_OVERLAP,
     ) -> None:
         """Load ``model`` on ``device``; see the class docstring."""
+        for name, value in (("tile", tile), ("overlap", overlap)):
+            whole = isinstance(value, int | np.integer) and not isinstance(value, bool)
+            if not whole and not (value is None and name == "tile"):
+                raise ModelError(f"Restorer: {name} must be a whole number of pixels: {value!r}")
         chosen = device if isinstance(device, torch.device) else resolve_device(device)
         self.backend: Backend = open_backend(Path(model), chosen, precision)
         check_options(RestoreOptions(tile=tile, overlap=overlap), self.backend)  # as restore's
-        self.tile = tile
-        self.overlap = overlap
+        self.tile = None if tile is None else int(tile)
+        self.overlap = int(overlap)
         self.depth = RunningDepth(str(model))
 
     @property
@@ -106,9 +110,20 @@ class Restorer:
                 "restore_batch: frames of different shapes or bit depths "
                 f"({sorted({f'{f.shape} {f.dtype}' for f in frames})}); restore them apart"
             )
+        # each frame at the depth known when it comes, as one by one: a frame that raises
+        # the depth must not change how the frames before it scale
+        runs: list[tuple[int, list[np.ndarray]]] = []
         for frame in frames:
             self.depth.see(frame)
-        return restore_images(self.backend, frames, self.depth.bits, self.tile, self.overlap)
+            if runs and runs[-1][0] == self.depth.bits:
+                runs[-1][1].append(frame)
+            else:
+                runs.append((self.depth.bits, [frame]))
+        return [
+            restored
+            for bits, run in runs
+            for restored in restore_images(self.backend, run, bits, self.tile, self.overlap)
+        ]
 
     def _check(self, image: np.ndarray, name: str) -> None:
         try:

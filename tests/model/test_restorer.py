@@ -59,6 +59,30 @@ def test_a_12_bit_camera_s_words_come_back_in_its_words(checkpoint: Path) -> Non
     assert np.abs(out.astype(np.int64) - narrow(reference, 12).astype(np.int64)).max() <= 1
 
 
+def test_a_batch_whose_depth_rises_scales_each_frame_as_one_by_one(
+    tmp_path: Path, checkpoint: Path
+) -> None:
+    """Two 10-bit frames, then a 12-bit one: the first two are taken as 10-bit words
+    whatever the batch (they were, one by one, before the third came)."""
+    frames = [narrow((texture((32, 48), seed=s) * 65535).astype(np.uint16), 10) for s in (7, 8)]
+    frames.append(narrow((texture((32, 48), seed=9) * 65535).astype(np.uint16), 12))
+    one_by_one = Restorer(checkpoint, device="cpu", precision="fp32")
+    mine = [one_by_one(frame) for frame in frames]
+    assert int(mine[0].max()) < 1 << 10 and int(mine[2].max()) >= 1 << 10
+    batched = Restorer(checkpoint, device="cpu", precision="fp32").restore_batch(frames)
+    written = _restored_by_command(tmp_path, checkpoint, frames, "--batch-size", "4")
+    for out, together, by_command in zip(mine, batched, written, strict=True):
+        np.testing.assert_array_equal(together, out)
+        np.testing.assert_array_equal(by_command, out)
+
+
+def test_a_non_integer_tile_is_a_one_line_error(checkpoint: Path) -> None:
+    for tile, overlap in ((64.5, 16), ("64", 16), (64, 1.5), (True, 16)):
+        with pytest.raises(ModelError, match="whole number of pixels"):
+            Restorer(checkpoint, device="cpu", tile=tile, overlap=overlap)  # type: ignore[arg-type]
+    assert Restorer(checkpoint, device="cpu", tile=np.int64(64)).tile == 64
+
+
 def test_tiles_are_those_of_restore_tile(tmp_path: Path, checkpoint: Path) -> None:
     frame = (texture((64, 96), seed=5) * 255).astype(np.uint8)
     whole = Restorer(checkpoint, device="cpu", precision="fp32")(frame)
