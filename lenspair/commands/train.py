@@ -84,6 +84,19 @@ def _every(text: str) -> tuple[int | None, float | None]:
     return None, value * {"s": 1.0, "m": 60.0, "h": 3600.0}[unit]
 
 
+SHIPPED_WEIGHTS = "pretrained"
+"""``--init`` word for the shipped weights (``lenspair.model.training.pretrained``)."""
+
+
+def _init_weights(text: str) -> Path | str:
+    """``--init``: the word ``pretrained`` exactly as typed, else a checkpoint path.
+
+    ``./pretrained`` is a file: a path equal to the word once normalised
+    (``Path("./pretrained")``) must not select the shipped weights.
+    """
+    return text if text == SHIPPED_WEIGHTS else Path(text)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``train``."""
     parser.add_argument("dataset", nargs="?", type=Path, help="paired dataset folder (DS)")
@@ -91,9 +104,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, help="YAML with model/data/train/loss sections")
     parser.add_argument(
         "--init",
-        type=Path,
+        type=_init_weights,
         metavar="CKPT",
-        help="start from these weights; 'pretrained': the GEA weights shipped with lenspair",
+        help="start from these weights; 'pretrained': the GEA weights shipped with lenspair "
+        "(a file of that name: ./pretrained)",
     )
     parser.add_argument("--resume", action="store_true", help="continue RUN where it stopped")
     add_device_option(parser)
@@ -267,12 +281,22 @@ def run(args: argparse.Namespace) -> int:
         data = paired_training_data(args.dataset, config.data, config.model.channels, seed)
     config = resolve_config(config, data.channels)
     init = args.init
-    if init is not None and str(init) == "pretrained":
+    if isinstance(init, str):  # the word, as typed: the shipped weights
         # here, not at the top: keeps `--help` from importing torch
-        from lenspair.model.training.pretrained import resolve_init
+        from lenspair.model.training.pretrained import pretrained_weights
 
+        if Path(init).exists():
+            log.warning(
+                "--init %s: the weights shipped with lenspair, not the file %s here; give "
+                "./%s to start from that file",
+                init,
+                Path(init).resolve(),
+                init,
+            )
         assert config.model.channels is not None
-        init = resolve_init(init, config.model.channels)
+        init = pretrained_weights(config.model.channels)
+    elif init is not None:  # recorded whole: "init: pretrained" would read as the word
+        init = init.absolute()
     summary = fit(
         config,
         data.train,

@@ -32,9 +32,6 @@ WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
 WEIGHTS_FILES: dict[int, str] = {1: "gea_ours_mono.pt", 3: "gea_ours_rgb.pt"}
 """Shipped checkpoint per channel count."""
 
-PRETRAINED = "pretrained"
-"""The ``--init`` value that selects the shipped weights."""
-
 FRAME = (480, 720)
 """Size the natural images are rendered at (Raindrop's 720x480)."""
 
@@ -55,13 +52,6 @@ def pretrained_weights(channels: int) -> Path:
     if not path.is_file():
         raise ModelError(f"--init pretrained: {path} is missing from this installation")
     return path
-
-
-def resolve_init(init: Path | None, channels: int) -> Path | None:
-    """``--init``: the word ``pretrained`` becomes the shipped checkpoint, else unchanged."""
-    if init is not None and str(init) == PRETRAINED:
-        return pretrained_weights(channels)
-    return init
 
 
 def write_natural_images(folder: Path, channels: int) -> tuple[list[Path], list[Path]]:

@@ -7,19 +7,18 @@ import pytest
 import torch
 
 from lenspair.cli import main
+from lenspair.core.config import dump_yaml
 from lenspair.core.imageio import read_image
 from lenspair.model.checkpoint import load_checkpoint, load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.training.pretrained import (
-    PRETRAINED,
     WEIGHTS_FILES,
     pretrained_weights,
-    resolve_init,
     ship_weights,
     write_natural_images,
 )
 from lenspair.simulate.natural_images import HELD_OUT
-from tests.model.train_fixtures import make_checkpoint, write_split_dataset
+from tests.model.train_fixtures import make_checkpoint, tiny_config, write_split_dataset
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -44,9 +43,6 @@ def test_shipped_copy_is_float16_and_loads_into_the_same_network(tmp_path: Path)
 def test_shipped_weights_exist_and_resolve(channels: int) -> None:
     path = pretrained_weights(channels)
     assert path.is_file() and path.stat().st_size < 4_000_000  # a few MB at most
-    assert resolve_init(Path(PRETRAINED), channels) == path
-    assert resolve_init(Path("runs/x.pt"), channels) == Path("runs/x.pt")
-    assert resolve_init(None, channels) is None
     loaded = load_model(path)
     assert loaded.config.model.variant == "GEA" and loaded.config.model.channels == channels
     with pytest.raises(ModelError, match="no shipped weights"):
@@ -68,3 +64,22 @@ def test_cli_fine_tunes_from_the_shipped_weights(tmp_path: Path) -> None:
     assert main([*args, "--crop-size", "32", "--batch-size", "2", "--no-amp"]) == 0
     config = (run / "config.yaml").read_text()
     assert WEIGHTS_FILES[1] in config  # the runtime section names the weights it started from
+
+
+def test_a_file_named_pretrained_is_started_from_when_given_as_a_path(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """``--init ./pretrained`` is that file; the bare word stays the shipped weights, said."""
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    make_checkpoint(tmp_path / "pretrained")
+    monkeypatch.chdir(tmp_path)
+    common = ["--max-steps", "1", "--crop-size", "32", "--batch-size", "2", "--no-amp"]
+    (tmp_path / "tiny.yaml").write_text(dump_yaml(tiny_config()))  # the file's network
+    argv = ["train", str(dataset), "--out", "a", "--init", "./pretrained", "--config", "tiny.yaml"]
+    assert main([*argv, *common]) == 0
+    config = (tmp_path / "a" / "config.yaml").read_text()
+    assert WEIGHTS_FILES[1] not in config and str(tmp_path / "pretrained") in config
+    with caplog.at_level("WARNING"):
+        assert main(["train", str(dataset), "--out", "b", "--init", "pretrained", *common]) == 0
+    assert WEIGHTS_FILES[1] in (tmp_path / "b" / "config.yaml").read_text()
+    assert any("give ./pretrained" in r.getMessage() for r in caplog.records)
