@@ -59,6 +59,19 @@ def size(minimum: int = 1, maximum: int | None = None) -> Callable[[str], tuple[
     return parse
 
 
+def split_name(text: str) -> str:
+    """Argparse type: the name of a dataset's split folder (``train``, ``val``, ``test``).
+
+    A path (``test/input``, ``../other``) would read pairs outside the
+    dataset's splits and, in ``eval``, nest the default report folder.
+    """
+    if text in ("", ".", "..") or "/" in text or "\\" in text:
+        raise argparse.ArgumentTypeError(
+            f"expected the name of a split folder (train, val, test), not a path: {text!r}"
+        )
+    return text
+
+
 def fraction(text: str) -> float:
     """Argparse type: a finite number in [0, 1]."""
     value = _float(text)

@@ -45,7 +45,7 @@ import itertools
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lenspair.commands.argtypes import add_device_option, out_folder
+from lenspair.commands.argtypes import add_device_option, out_folder, split_name
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal, read_json_field
@@ -53,12 +53,19 @@ from lenspair.core.fsutil import inside_refusal, read_json_field
 if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
     from lenspair.model.training.pairs import PairSource
 
+DEFAULT_SPLIT = "test"
+"""The split of a dataset root that ``eval`` scores without ``--split``."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``eval``."""
     parser.add_argument("checkpoint", type=Path, help="checkpoint (.pt) from lenspair train")
     parser.add_argument("--data", type=Path, help="paired images to score")
-    parser.add_argument("--split", default="test", help="split of a dataset root (test)")
+    parser.add_argument(
+        "--split",
+        type=split_name,
+        help=f"split of a dataset root ({DEFAULT_SPLIT}); a paired folder is scored whole",
+    )
     add_device_option(parser)
     parser.add_argument(
         "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
@@ -158,6 +165,12 @@ def run(args: argparse.Namespace) -> int:
 
     # the pairs scored: a paired folder itself, or a dataset's split (DS/eval_* is fine)
     plain = detect_layout(args.data) is not None  # a paired folder: no split in its name
+    if plain and args.split is not None:
+        raise ConfigError(
+            f"--split {args.split}: {args.data} is a paired folder (input/ + target/), scored "
+            "whole; leave --split out, or give the dataset root whose split it is"
+        )
+    args.split = args.split or DEFAULT_SPLIT
     scored = Path(args.data) if plain else args.data / args.split
     why = "its contact sheet would be read as an unpaired image next time"
     if args.out is not None and (

@@ -27,7 +27,7 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lenspair.commands.argtypes import out_file, size
+from lenspair.commands.argtypes import out_file, size, split_name
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.leftovers import remove_leftovers
@@ -57,7 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--calibration", type=Path, metavar="DS", help="paired images for --int8")
     parser.add_argument(
-        "--split", help="split of DS to calibrate on (train; DS a paired folder: all of it)"
+        "--split",
+        type=split_name,
+        help="split of DS to calibrate on (train; DS a paired folder: all of it)",
     )
 
 

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from lenspair.commands.argtypes import out_file, random_seed, size
+from lenspair.commands.argtypes import out_file, random_seed, size, split_name
 from lenspair.core.errors import ConfigError, LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
@@ -48,7 +48,9 @@ from lenspair.simulate.realism import (
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the ``realism`` arguments."""
     parser.add_argument("pairs", type=Path, nargs="*", help="paired folders to measure")
-    parser.add_argument("--split", default="test", help="split of a dataset root (default: test)")
+    parser.add_argument(
+        "--split", default="test", type=split_name, help="split of a dataset root (default: test)"
+    )
     parser.add_argument(
         "--render",
         nargs="*",

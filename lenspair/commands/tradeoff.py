@@ -45,7 +45,13 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from lenspair.commands.argtypes import add_device_option, fraction, out_folder, positive_int
+from lenspair.commands.argtypes import (
+    add_device_option,
+    fraction,
+    out_folder,
+    positive_int,
+    split_name,
+)
 from lenspair.core.config import MAX_SEED
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
@@ -95,6 +101,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--split",
         default=None,
+        type=split_name,
         help="evaluation split (test; where DS has none, the validation pairs held out of "
         "training)",
     )

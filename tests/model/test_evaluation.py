@@ -385,3 +385,23 @@ def test_colour_pairs_among_grey_ones_are_said_converted(
         assert main(["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0"]) == 0
     said = [r.getMessage() for r in caplog.records if "were converted" in r.getMessage()]
     assert len(said) == 1 and said[0].startswith("1 pair(s)") and "zzz" in said[0]
+
+
+def test_a_split_eval_cannot_use_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--split on a paired folder was ignored (its pairs scored whole); a path as the split
+    read pairs outside the dataset's splits and nested the default report folder."""
+    folder = write_paired_folder(tmp_path / "pairs", count=1)
+    checkpoint = make_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")
+    argv = ["eval", str(checkpoint), "--latency-runs", "0", "--data"]
+    assert main([*argv, str(folder), "--split", "val"]) == 2
+    [line] = capsys.readouterr().err.strip().splitlines()
+    assert "--split val" in line and "paired folder" in line and "leave --split out" in line
+    dataset = tmp_path / "ds"
+    write_paired_folder(dataset / "test" / "more", count=1)
+    for split in ("test/more", "..", ""):
+        with pytest.raises(SystemExit) as stop:
+            main([*argv, str(dataset), "--split", split])
+        assert stop.value.code == 2 and "not a path" in capsys.readouterr().err
+    assert not any((tmp_path / "run").glob("eval_*"))
