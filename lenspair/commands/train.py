@@ -11,7 +11,7 @@ on train/, validates on val/), a folder with input/ + target/ (or lq/ + gt/),
 or the Raindrop dataset of Qian et al.; without a validation split a
 deterministic tenth of the training pairs is held out.
 
---synthetic renders drops on the fly on clean images (any folder of PNG/JPG,
+--synthetic renders drops on the fly on clean images (any folder of PNG/JPEG/TIFF,
 or a dataset's target/ images): 'ours' (lens-like, defocused, some brightened)
 or 'sharp' (Porav et al.'s in-focus drops), holding out a deterministic
 validation subset. This is the paper's synthetic initialisation: fine-tune on

@@ -321,8 +321,9 @@ def load_run_config(path: Path | None) -> RunConfig:
     """
     if path is None:
         return RunConfig()
+    data = read_yaml(path)  # its errors name the file already
     try:
-        return run_config_from_dict(read_yaml(path))
+        return run_config_from_dict(data)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
 

@@ -109,3 +109,15 @@ def test_an_exponent_without_a_dot_is_a_number_as_in_yaml_1_2(
     file.write_text("mode: 1e\n")  # not a number: stays a string (so do 1:2e3, e5)
     with pytest.raises(ConfigError, match=r"mode: expected one of 'a', 'b', got '1e'"):
         load_yaml(Outer, file)
+
+
+@pytest.mark.parametrize("text", [None, "train: [1,\n", "train:\n  epochz: 3\n"])
+def test_a_run_config_error_names_its_file_once(tmp_path: Path, text: str | None) -> None:
+    from lenspair.model.training.config import load_run_config
+
+    path = tmp_path / "run.yaml"
+    if text is not None:
+        path.write_text(text)
+    with pytest.raises(ConfigError) as caught:
+        load_run_config(path)
+    assert str(caught.value).startswith(f"{path}: ") and str(caught.value).count(str(path)) == 1
