@@ -73,10 +73,14 @@ def test_mixed_grey_and_colour_pairs_are_said(
     assert any("mix 2 grey and 1 colour" in r.getMessage() for r in caplog.records)
 
 
-def test_unusable_clean_images_are_found_before_synthetic_pretraining(tmp_path: Path) -> None:
-    folder = tmp_path / "clean"
-    for index in range(6):
+def _clean_folder(folder: Path, count: int) -> Path:
+    for index in range(count):
         write_image(folder / f"{index}.png", clean_image(np.random.default_rng(index)))
+    return folder
+
+
+def test_unusable_clean_images_are_found_before_synthetic_pretraining(tmp_path: Path) -> None:
+    folder = _clean_folder(tmp_path / "clean", 6)
     (folder / "3.png").write_bytes(b"\\x89PNG\\r\\n\\x1a\\n garbage")
     with pytest.raises(DatasetError, match=r"1 unusable clean image\(s\).*3\.png"):
         synthetic_training_data(folder, tiny_config().data, 1, 0)
@@ -122,9 +126,7 @@ def test_a_training_image_damaged_behind_its_header_costs_only_its_pair(
 def test_a_float_clean_image_is_found_before_synthetic_pretraining(tmp_path: Path) -> None:
     import OpenImageIO as oiio
 
-    folder = tmp_path / "clean"
-    for index in range(6):
-        write_image(folder / f"{index}.png", clean_image(np.random.default_rng(index)))
+    folder = _clean_folder(tmp_path / "clean", 6)
     pixels = np.random.default_rng(9).random((64, 64, 1)).astype(np.float32)
     out = oiio.ImageOutput.create(str(folder / "float.tif"))
     assert out.open(str(folder / "float.tif"), oiio.ImageSpec(64, 64, 1, oiio.FLOAT))
@@ -137,9 +139,7 @@ def test_a_float_clean_image_is_found_before_synthetic_pretraining(tmp_path: Pat
 def test_a_clean_image_damaged_behind_its_header_costs_only_itself(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    folder = tmp_path / "clean"
-    for index in range(8):
-        write_image(folder / f"{index}.png", clean_image(np.random.default_rng(index)))
+    folder = _clean_folder(tmp_path / "clean", 8)
     data = synthetic_training_data(folder, tiny_config().data, 1, 0)
     damaged = data.train.images[1]  # type: ignore[attr-defined]
     whole = damaged.read_bytes()
