@@ -21,6 +21,7 @@ from lenspair.core.imageio import format_problem, image_header
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired
 from lenspair.model.errors import ModelError
+from lenspair.model.metrics import gaussian_window
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.pairs import (
     PairedCrops,
@@ -298,6 +299,9 @@ def _check_clean_images(
 ) -> dict[int, int]:
     """Headers of every clean image, and training ones hold a crop: before the first step.
 
+    Held-out images smaller than validation's SSIM window are said here, not
+    after the first epoch (validation leaves them out); all of them is an error.
+
     Returns:
         How many images have 1 and 3 channels.
 
@@ -305,6 +309,8 @@ def _check_clean_images(
         DatasetError: naming the first three problems and how many there are.
     """
     problems, training, counts = [], set(train), {1: 0, 3: 0}
+    window = gaussian_window().numel()  # the SSIM window of VAL_CONVENTION
+    unscored = []
     for path in [*train, *val]:
         try:
             height, width, have, kind = image_header(path)
@@ -316,8 +322,17 @@ def _check_clean_images(
             problems.append(f"{path}: {format_problem(kind)}")
         elif crop_size is not None and path in training and min(height, width) < crop_size:
             problems.append(f"{path}: {width}x{height}, smaller than the {crop_size} px crop")
+        elif path not in training and min(height, width) < window:
+            unscored.append(f"{path} ({width}x{height})")
     if problems:
         raise DatasetError(f"{folder}: {len(problems)} unusable clean image(s): {listed(problems)}")
+    if unscored:
+        what = f"held-out clean image(s) smaller than validation's {window}x{window} SSIM window"
+        if len(unscored) == len(val):
+            raise DatasetError(f"{folder}: every one of the {len(val)} {what}: {listed(unscored)}")
+        log.warning(
+            "%s: validation leaves out %d %s: %s", folder, len(unscored), what, listed(unscored)
+        )
     return counts
 
 
@@ -340,6 +355,7 @@ def synthetic_training_data(
     folder = Path(folder)
     images = find_clean_images(folder)
     train_images, val_images = split_holdout(images, data.val_fraction, folder)
+    val_images = val_images[: data.max_val_images or len(val_images)]
     counts = _check_clean_images(folder, train_images, val_images, data.crop_size)
     _warn_mixed(folder, "clean images", counts, channels)
     resolved = channels or image_header(images[0])[2]
@@ -354,8 +370,7 @@ def synthetic_training_data(
         seed=seed,
         substitute_unreadable=True,
     )
-    limit = data.max_val_images or len(val_images)
-    val = SyntheticDrops(val_images[:limit], effects, resolved, None, seed=seed, fixed=True)
+    val = SyntheticDrops(val_images, effects, resolved, None, seed=seed, fixed=True)
     description = (
         f"{folder} (synthetic {data.drops} drops on {len(train_images)} clean images, "
         f"validation {len(val)} held out by name hash)"

@@ -152,3 +152,22 @@ def test_a_clean_image_damaged_behind_its_header_costs_only_itself(
     assert len(said) == 1 and damaged.name in said[0]  # once, naming the file
     assert items[1]["name"] == items[2]["name"] == again["name"] != damaged.name
     assert not torch.equal(items[1]["input"], items[2]["input"])  # its own crop and drops
+
+
+def test_held_out_clean_images_too_small_to_score_are_said_before_the_first_step(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Validation leaves out images under SSIM's 11x11 window: said up front, not after an
+    epoch; when every held-out image is that small, nothing could be validated."""
+    folder = _clean_folder(tmp_path / "clean", 12)
+    data = synthetic_training_data(folder, tiny_config().data, 1, 0)
+    held_out = data.val.images  # type: ignore[attr-defined]
+    write_image(held_out[0], np.zeros((10, 40), np.uint8))
+    with caplog.at_level("WARNING"):
+        synthetic_training_data(folder, tiny_config().data, 1, 0)
+    said = [r.getMessage() for r in caplog.records if "validation leaves out" in r.getMessage()]
+    assert len(said) == 1 and held_out[0].name in said[0] and "40x10" in said[0]
+    for path in held_out:
+        write_image(path, np.zeros((10, 40), np.uint8))
+    with pytest.raises(DatasetError, match=r"every one of the \d+ held-out clean image"):
+        synthetic_training_data(folder, tiny_config().data, 1, 0)
