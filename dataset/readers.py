@@ -82,6 +82,14 @@ class PairedItem:
     difficulty: str | None = None
 
 
+def _mask_mismatch(entry: PairEntry, mask: tuple[int, ...], image: tuple[int, ...]) -> str:
+    """A mask whose ``(height, width)`` is not its input's, said about the mask file."""
+    return (
+        f"{entry.mask_path}: mask {mask[1]}x{mask[0]} does not match "
+        f"{entry.input_path.name} {image[1]}x{image[0]}"
+    )
+
+
 class PairedDataset:
     """A list of pairs that reads its images on access (map-style, like a torch Dataset)."""
 
@@ -100,7 +108,8 @@ class PairedDataset:
 
         Raises:
             ImageIOError: a file is missing or unreadable (names it).
-            DatasetError: input and target differ in shape or dtype.
+            DatasetError: input and target differ in shape or dtype, or the
+                mask in height and width.
         """
         entry = self.entries[index]
         input_image = read_image(entry.input_path)
@@ -114,6 +123,8 @@ class PairedDataset:
         if entry.mask_path is not None:
             mask = read_image(entry.mask_path)
             mask = mask if mask.ndim == 2 else mask.max(axis=2)
+            if mask.shape != input_image.shape[:2]:
+                raise DatasetError(_mask_mismatch(entry, mask.shape[:2], input_image.shape[:2]))
         return PairedItem(entry.name, input_image, target, mask, entry.difficulty)
 
     def check_headers(self, most: int = 3) -> list[tuple[int, int, int, str]]:
@@ -136,6 +147,7 @@ class PairedDataset:
             try:
                 have = image_header(entry.input_path)
                 want = image_header(entry.target_path)
+                mask = image_header(entry.mask_path)[:2] if entry.mask_path else have[:2]
             except ImageIOError as exc:
                 problems.append(str(exc))
                 continue
@@ -144,6 +156,8 @@ class PairedDataset:
                     f"{entry.input_path}: {have[1]}x{have[0]}x{have[2]} {have[3]} does not "
                     f"match {entry.target_path.name} {want[1]}x{want[0]}x{want[2]} {want[3]}"
                 )
+            elif mask != have[:2]:
+                problems.append(_mask_mismatch(entry, mask, have[:2]))
             headers.append(have)
         if problems:
             raise DatasetError(
@@ -222,7 +236,10 @@ def open_paired(path: Path, split: str | None = None) -> PairedDataset:
             f"{folder}: no paired images found (expected input/ + target/, lq/ + gt/, "
             "or Raindrop data/ + gt/)"
         )
-    input_dir, target_dir = ("lq", "gt") if (folder / "lq").is_dir() else _FOLDERS[layout]
+    input_dir, target_dir = _FOLDERS[layout]
+    if layout == "paired" and not all((folder / d).is_dir() for d in (input_dir, target_dir)):
+        # the pair of folders detect_layout found: input/ + target/ first
+        input_dir, target_dir = "lq", "gt"
     key = _raindrop_key if layout == "raindrop" else _stem
     inputs = _index(folder / input_dir, key)
     targets = _index(folder / target_dir, key)

@@ -132,3 +132,32 @@ def test_dataset_is_map_style(tmp_path: Path) -> None:
     assert isinstance(data, PairedDataset) and len(data) == 2
     assert [item.name for item in data] == ["a", "b"]
     assert "pairs=2" in repr(data)
+
+
+def test_input_and_target_are_read_even_beside_an_lq_folder(tmp_path: Path) -> None:
+    """detect_layout finds input/ + target/ first; the reader read lq/ + gt/ whenever lq/
+    existed: the wrong pairs without a word, or a traceback for a missing gt/."""
+    _write(tmp_path / "a" / "input", {"1.png": 1, "2.png": 2, "3.png": 3})
+    _write(tmp_path / "a" / "target", {"1.png": 4, "2.png": 5, "3.png": 6})
+    _write(tmp_path / "a" / "lq", {"9.png": 7})
+    _write(tmp_path / "a" / "gt", {"9.png": 8})
+    assert open_paired(tmp_path / "a").names == ("1", "2", "3")
+    (tmp_path / "b" / "lq").mkdir(parents=True)  # an empty lq/ and no gt/
+    _write(tmp_path / "b" / "input", {"1.png": 1})
+    _write(tmp_path / "b" / "target", {"1.png": 2})
+    assert open_paired(tmp_path / "b").names == ("1",)
+
+
+def test_a_mask_of_another_size_is_found_from_headers_and_on_reading(tmp_path: Path) -> None:
+    """It passed both and ended a training run mid-epoch with a tensor-size traceback."""
+    _write(tmp_path / "p" / "input", {"1.png": 1, "2.png": 2})
+    _write(tmp_path / "p" / "target", {"1.png": 3, "2.png": 4})
+    write_image(tmp_path / "p" / "mask" / "1.png", np.zeros((8, 12), np.uint8))
+    write_image(tmp_path / "p" / "mask" / "2.png", np.zeros((5, 5), np.uint8))
+    data = open_paired(tmp_path / "p")
+    assert data[0].mask is not None and data[0].mask.shape == (8, 12)
+    mask = re.escape(str(tmp_path / "p" / "mask" / "2.png"))
+    with pytest.raises(DatasetError, match=rf"1 bad pair\(s\) of 2: {mask}: mask 5x5 does not "):
+        data.check_headers()
+    with pytest.raises(DatasetError, match=rf"^{mask}: mask 5x5 does not match 2\.png 12x8$"):
+        data[1]
