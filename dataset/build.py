@@ -28,7 +28,6 @@ import logging
 import os
 import shutil
 import stat
-import tempfile
 from collections import Counter
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -46,9 +45,15 @@ from lenspair.capture.ingested import (
 )
 from lenspair.core.config import dump_yaml
 from lenspair.core.errors import ImageIOError
-from lenspair.core.fsutil import atomic_write_text, clone_file, read_json_field, sha256_bytes
+from lenspair.core.fsutil import (
+    atomic_write_text,
+    clone_file,
+    read_json_field,
+    sha256_bytes,
+    temporary_folder,
+)
 from lenspair.core.imageio import read_image, write_image
-from lenspair.core.leftovers import leftovers, remove_leftovers, temporary_prefix
+from lenspair.core.leftovers import leftovers, remove_leftovers
 from lenspair.core.progress import progress
 from lenspair.dataset import curation, splits
 from lenspair.dataset.card import (
@@ -426,9 +431,7 @@ def build_dataset(
         )
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_leftovers(out.parent, out.name)  # of killed builds of this same output only
-    temp = Path(
-        tempfile.mkdtemp(prefix=temporary_prefix(out.name), suffix=".building", dir=out.parent)
-    )
+    temp = temporary_folder(out.parent, out.name, ".building")
     try:
         gone = [
             RemovedPair(loaded[s].report.recording_id, loaded[s].records[i].t_ns, rule, reason)
@@ -557,7 +560,7 @@ def _place(temp: Path, out: Path, overwrite: bool) -> None:
         (temp / name).parent.mkdir(parents=True, exist_ok=True)
         _link_tree(out / name, temp / name)
     theirs += sorted({str(Path(*p.parts[:2])) for p in inside})  # by folder: train/restored
-    trash = Path(tempfile.mkdtemp(prefix=temporary_prefix(out.name), suffix=".old", dir=out.parent))
+    trash = temporary_folder(out.parent, out.name, ".old")
     try:
         os.replace(out, trash / "dataset")
         try:

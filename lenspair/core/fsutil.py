@@ -27,14 +27,30 @@ from lenspair.core.leftovers import temporary_prefix
 _FICLONE = 0x40049409
 
 
-def _file_mode() -> int:
-    """``0o666`` less the process umask (read once, at import, before any worker threads)."""
+def _umask() -> int:
+    """The process umask (read once, at import, before any worker threads)."""
     mask = os.umask(0o022)
     os.umask(mask)
-    return 0o666 & ~mask
+    return mask
 
 
-FILE_MODE = _file_mode()
+FILE_MODE = 0o666 & ~_umask()
+"""The mode ``open()`` gives a new file."""
+
+FOLDER_MODE = 0o777 & ~_umask()
+"""The mode ``mkdir()`` gives a new folder."""
+
+
+def temporary_folder(parent: Path, name: str, suffix: str) -> Path:
+    """A new folder in ``parent`` that becomes ``parent / name`` by a rename, when complete.
+
+    Named as :func:`lenspair.core.leftovers.temporary_prefix` says (a killed
+    run's leftovers are found by it), with the mode ``mkdir()`` would give,
+    not ``mkdtemp``'s owner-only 0o700, which the rename would carry over.
+    """
+    folder = Path(tempfile.mkdtemp(prefix=temporary_prefix(name), suffix=suffix, dir=parent))
+    os.chmod(folder, FOLDER_MODE)
+    return folder
 
 
 def atomic_write(

@@ -4,6 +4,7 @@ import logging
 import multiprocessing
 import os
 import shutil
+import stat
 from dataclasses import replace
 from pathlib import Path
 
@@ -603,3 +604,18 @@ def test_the_card_counts_ingest_rejections_by_reason_not_by_frame(tmp_path: Path
     assert read_card(tmp_path / "DS" / "dataset.json").ingest_reasons == {
         "cannot read input frame": 2
     }
+
+
+def test_the_dataset_folder_gets_the_mode_of_a_plain_mkdir(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    """mkdtemp's 0o700 came over with the rename: no other user (a training job's account,
+    a container's uid) could open the dataset, and every rebuild set it back."""
+    source = recording("rec_a", n=4)
+    plain = tmp_path / "plain"
+    plain.mkdir()  # mkdir applies the umask to 0o777
+    out = tmp_path / "DS"
+    for extra in ([], ["--overwrite", "--seed", "3"]):
+        argv = ["dataset-build", str(source), "--out", str(out), "--splits", "1,0,0", *extra]
+        assert main(argv) == 0
+        assert stat.S_IMODE(out.stat().st_mode) == stat.S_IMODE(plain.stat().st_mode)
