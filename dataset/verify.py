@@ -152,10 +152,20 @@ def user_files(root: Path) -> list[Path]:
     the user's, manifest or not; a rebuild keeps it (``dataset-build``). An
     unlisted file in an image folder is not: ``--verify`` names it, a folder-
     reading loader would take it, and a rebuild with ``--overwrite`` drops it.
+    Besides files, a symbolic link to a folder (``train/restored ->
+    ../../evals/run1``) and an empty folder count, as whole entries.
     Relative to ``root``, sorted.
     """
-    relative = (path.relative_to(root) for path in _split_files(root))
-    return sorted(path for path in relative if _is_users(path))
+    found: set[Path] = set()
+    for split in SPLITS:
+        for folder, folders, files in os.walk(root / split):  # links to folders not entered
+            here = Path(folder)
+            found.update(here / name for name in files)
+            found.update(here / name for name in folders if (here / name).is_symlink())
+            if not folders and not files:
+                found.add(here)
+    relative = (path.relative_to(root) for path in found)
+    return sorted(path for path in relative if len(path.parts) > 1 and _is_users(path))
 
 
 def _is_users(relative: Path) -> bool:

@@ -375,6 +375,25 @@ def test_a_rebuild_keeps_the_users_files_inside_split_folders(
     assert (out / "train" / "restored" / "r.txt").read_text() == "mine"
 
 
+def test_a_rebuild_keeps_a_link_to_a_folder_and_an_empty_folder_in_a_split(
+    recording: RecordingFactory, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """os.walk lists both as folders, not files: a rebuild dropped them without a word."""
+    source, out, config = _dataset_with_notes(recording, tmp_path)
+    (tmp_path / "evals" / "run1").mkdir(parents=True)
+    (tmp_path / "evals" / "run1" / "metrics.md").write_text("mine")
+    (out / "train" / "restored").symlink_to(Path("..", "..", "evals", "run1"))
+    (out / "train" / "notes").mkdir()
+    other = DatasetConfig(config.curation, SplitConfig(fractions=(1.0, 0.0, 0.0), seed=3))
+    with caplog.at_level("WARNING"):
+        build_dataset([source], out, other, overwrite=True)
+    assert (out / "train" / "restored").is_symlink()
+    assert (out / "train" / "restored" / "metrics.md").read_text() == "mine"
+    assert (out / "train" / "notes").is_dir() and read_card(out / "dataset.json").seed == 3
+    assert any("train/notes, train/restored" in r.getMessage() for r in caplog.records)
+    assert verify_dataset(out).ok
+
+
 def test_failed_build_leaves_nothing_half_written(
     recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
