@@ -391,6 +391,7 @@ def build_dataset(
     _check_paths(loaded, out)
     _check_sides(loaded, accept_side_mismatch)
     _out_state(out)
+    _check_file_system(loaded, out, link)
     jobs = [(p, i) for p, s in enumerate(loaded) for i in range(len(s.records))]
     delta = config.curation.anomaly_delta
     with ThreadPoolExecutor(max_workers=workers or min(4, os.cpu_count() or 1)) as pool:
@@ -503,6 +504,41 @@ def _check_paths(sources: Sequence[Source], out: Path) -> None:
         ids[rid] = source.path
         if out == source.path or out in source.path.parents or source.path in out.parents:
             raise DatasetError(f"{out}: the dataset folder overlaps source {source.path}")
+
+
+def _check_file_system(sources: Sequence[Source], out: Path, link: LinkMode) -> None:
+    """What the file system of ``out`` would refuse, found before any pair is measured.
+
+    A recording id near 255 bytes ingests (its frames are ``<t_ns>.png``) but
+    its dataset files ``<id>_<t_ns>.png`` would not fit; ``--link hard`` cannot
+    link across file systems. Both failed after every pair had been measured,
+    naming the build's temporary folder.
+    """
+    existing = next(folder for folder in (out, *out.parents) if folder.exists())
+    try:
+        limit = os.pathconf(existing, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        limit = 255
+    for source in sources:
+        rid = source.report.recording_id
+        names = (
+            f"{rid}_{record.t_ns}{Path(file).suffix}"
+            for record in source.records
+            for file in record.files.values()
+        )
+        longest = max(names, key=lambda name: len(name.encode()), default="")
+        if len(longest.encode()) > limit:
+            raise DatasetError(
+                f"{source.path}: its dataset file names <recording id>_<t_ns> would be "
+                f"{len(longest.encode())} bytes, over the {limit} its file system allows "
+                f"(recording id {rid[:40]!r}... of {len(rid.encode())} bytes); ingest it again "
+                "from a folder or bag of a shorter name"
+            )
+        if link == "hard" and os.stat(source.path).st_dev != os.stat(existing).st_dev:
+            raise DatasetError(
+                f"--link hard: {source.path} and {out} are on different file systems, "
+                "which cannot share files; leave --link out to copy"
+            )
 
 
 def _own_entries() -> frozenset[str]:

@@ -5,6 +5,7 @@ import multiprocessing
 import os
 import shutil
 import stat
+import tempfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -638,3 +639,30 @@ def test_the_dataset_folder_gets_the_mode_of_a_plain_mkdir(
         argv = ["dataset-build", str(source), "--out", str(out), "--splits", "1,0,0", *extra]
         assert main(argv) == 0
         assert stat.S_IMODE(out.stat().st_mode) == stat.S_IMODE(plain.stat().st_mode)
+
+
+def test_what_the_output_file_system_refuses_is_found_before_measuring(
+    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A recording id near 255 bytes, and --link hard across file systems, failed after
+    every pair was measured, naming the build's temporary folder."""
+    source = recording("rec_a", n=4)
+    report = read_report(source / "report.json")
+    write_report(source / "report.json", replace(report, recording_id="d" * 240))
+    measured: list[object] = []
+    real = build_module.measure_record
+    monkeypatch.setattr(build_module, "measure_record", lambda *a: measured.append(a) or real(*a))
+    out = tmp_path / "DS"
+    with pytest.raises(DatasetError, match=r"rec_a: its dataset file names .* over the 255 "):
+        build_dataset([source], out, DatasetConfig(split=SplitConfig(fractions=(1, 0, 0))))
+    write_report(source / "report.json", report)
+    shm = Path("/dev/shm")
+    if not shm.is_dir() or shm.stat().st_dev == tmp_path.stat().st_dev:
+        pytest.skip("no second file system here")
+    elsewhere = Path(tempfile.mkdtemp(dir=shm)) / "DS"
+    try:
+        with pytest.raises(DatasetError, match=r"--link hard: .* different file systems"):
+            build_dataset([source], elsewhere, DatasetConfig(), link="hard")
+    finally:
+        shutil.rmtree(elsewhere.parent)
+    assert not measured and not out.exists()
