@@ -55,6 +55,7 @@ from lenspair.commands.argtypes import (
 from lenspair.core.config import MAX_SEED
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import inside_refusal
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -112,6 +113,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _check_places(args: argparse.Namespace) -> None:
+    """Refuse a --split of a paired folder, and an --out inside the folders pairs are read from.
+
+    A paired folder has no splits (its held-out pairs are scored): a --split
+    there, even one that does not exist, was ignored. An --out inside an image
+    folder (or a split) put the plot among the pairs, and every later command
+    refused the data over an unpaired file.
+    """
+    from lenspair.dataset.readers import detect_layout  # as in run: numpy, OpenImageIO
+
+    dataset = Path(args.dataset)
+    if not dataset.is_dir():
+        raise ConfigError(f"{dataset}: no such folder")
+    if detect_layout(dataset) is not None:
+        if args.split is not None:
+            raise ConfigError(
+                f"--split {args.split}: {dataset} is a paired folder, whose held-out pairs are "
+                "scored; leave --split out, or give the dataset root whose split it is"
+            )
+        read = [dataset / name for name in PAIR_FOLDERS]
+    else:
+        read = [path for path in dataset.iterdir() if detect_layout(path) is not None]
+    why = "its plot and runs would be read as unpaired images"
+    for folder in read:
+        if problem := inside_refusal(args.out, folder, "the pairs", why):
+            raise ConfigError(problem)
+
+
+PAIR_FOLDERS = ("input", "target", "mask", "lq", "gt", "data")
+"""Sub-folders of a paired folder that readers take images from (lenspair.dataset.readers)."""
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the comparison; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair tradeoff --help`.
@@ -125,8 +158,9 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.model.training.config import RunConfig, with_file  # as above
 
     budget = parse_budget(args.budget)
+    _check_places(args)
     variants = DEFAULT_VARIANTS
-    if args.variants:
+    if args.variants is not None:  # "" names none: not all of them
         wanted = [name.strip() for name in args.variants.split(",") if name.strip()]
         known = {v.name: v for v in DEFAULT_VARIANTS}
         unknown = [name for name in wanted if name not in known]
@@ -165,6 +199,15 @@ def run(args: argparse.Namespace) -> int:
         )
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
+    if budget.seconds is not None:
+        # its length in steps is not known in advance: every variant trains at a constant
+        # rate (variant_config), and the config and report say so
+        if args.lr_decay:
+            raise ConfigError(
+                f"--lr-decay {args.lr_decay:g}: a time budget ({args.budget}) trains at a "
+                "constant rate; give a step budget (--budget N) to decay it"
+            )
+        base = dataclasses.replace(base, train=dataclasses.replace(base.train, lr_decay=0.0))
     try:
         seeds = [int(part) for part in args.seeds.split(",") if part.strip()]
     except ValueError:

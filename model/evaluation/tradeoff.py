@@ -270,6 +270,8 @@ def run_tradeoff(
         config = resolve_config(variant_config(base, variant, budget), data.channels)
         run = out_dir / "runs" / variant.name
         resume = _reusable(run, config, device, data.description)
+        if not resume:  # tradeoff's own from here on: a rerun may resume or replace it
+            atomic_write_text(run / RUN_MARKER, "lenspair tradeoff trains this run\n")
         log.info("tradeoff: training %s for %s", variant.name, budget.describe())
         summary = fit(
             config,
@@ -288,7 +290,8 @@ def run_tradeoff(
                 not int8 or (variant.width, variant.num_blocks) != (1.0, 9)
             ):
                 continue  # int8 for the paper's GEA only: each quantisation costs ~1 min
-            network = _at_precision(loaded.network, precision, pairs, dataset, base, data.channels)
+            trained_on = data.train.source  # type: ignore[union-attr]  # PairedCrops
+            network = _at_precision(loaded.network, precision, pairs, trained_on, data.channels)
             scored = score_pairs(network, pairs, data.channels, device, convention, precision, 0, 0)
             scores = scored.scores
             for problem in scored.unread:  # indices of the view: back to the split's own
@@ -348,30 +351,30 @@ def run_tradeoff(
 
 
 def _at_precision(
-    network: torch.nn.Module,
-    precision: str,
-    pairs: Any,
-    dataset: Path,
-    base: RunConfig,
-    channels: int,
+    network: torch.nn.Module, precision: str, pairs: Any, trained_on: Any, channels: int
 ) -> torch.nn.Module:
     """``network`` itself, or for int8 its ONNX Runtime quantisation.
 
-    int8 calibrates on the dataset's training split (the evaluated pairs
-    where there is none), at the evaluated frame size.
+    int8 calibrates on the pairs the network trained on (``trained_on``: a
+    dataset's training split, or a paired folder less its held-out pairs),
+    never on the scored ``pairs``, which would flatter its accuracy, at the
+    evaluated frame size.
     """
     if precision != "int8":
         return network
     # here, not at the top: only int8 needs ONNX Runtime, which is slow to import
     from lenspair.model.evaluation.quantize import Int8Network, calibration_images
 
-    try:
-        source: Any = open_eval_pairs(dataset, base.data.train_split)
-    except LenspairError:
-        source = pairs
     size = (int(pairs[0].input.shape[0]), int(pairs[0].input.shape[1]))
-    return Int8Network(network, channels, calibration_images(source, channels, size))
+    return Int8Network(network, channels, calibration_images(trained_on, channels, size))
 
+
+RUN_MARKER = "tradeoff_run.txt"
+"""A file tradeoff writes into each run folder it starts (``OUT/runs/<variant>``).
+
+Only such a folder is tradeoff's to resume or to clear: a run of the user's
+own at that path (``--out .`` in a project with ``runs/GEA``) is refused,
+never deleted."""
 
 REUSE_IGNORES: frozenset[str] = frozenset(
     {
@@ -461,6 +464,11 @@ def _reusable(
         True when ``run/checkpoints/last.pt`` may be resumed (:func:`reuse_obstacle`).
 
     """
+    if run.exists() and not (run / RUN_MARKER).is_file():
+        raise ModelError(
+            f"{run}: exists and was not started by lenspair tradeoff (no {RUN_MARKER} in "
+            "it), so it is not tradeoff's to resume or replace; move it, or choose another --out"
+        )
     last = run / "checkpoints" / "last.pt"
     if not last.is_file():
         if run.exists():  # killed before its first checkpoint: train it from the start

@@ -242,7 +242,7 @@ def test_a_row_describes_itself_in_one_line() -> None:
 def test_a_run_trained_with_other_settings_is_not_reused(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    from lenspair.model.evaluation.tradeoff import _reusable
+    from lenspair.model.evaluation.tradeoff import RUN_MARKER, _reusable
     from lenspair.model.training.config import RuntimeInfo
     from tests.model.train_fixtures import make_checkpoint
 
@@ -255,6 +255,7 @@ def test_a_run_trained_with_other_settings_is_not_reused(
         wanted: RunConfig, dataset: str | None = None, best: bool = True, best_epoch: int = 1
     ) -> bool:
         make_checkpoint(run / "checkpoints" / "last.pt", stored, best_epoch=best_epoch)
+        (run / RUN_MARKER).write_text("")  # a run tradeoff started
         if best:
             make_checkpoint(run / "checkpoints" / "best.pt", stored)
         else:
@@ -437,7 +438,7 @@ def test_a_test_split_with_no_readable_pair_is_refused_before_training(tmp_path:
 
 
 def test_the_cli_anneals_step_budgets_by_default(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     from lenspair.model.evaluation import tradeoff
 
@@ -459,7 +460,11 @@ def test_the_cli_anneals_step_budgets_by_default(
     assert main([*argv, "--budget", "10", "--config", str(config)]) == 0  # the config's
     assert main([*argv, "--budget", "10", "--config", str(config), "--lr-decay", "0"]) == 0
     assert main([*argv, "--budget", "90s"]) == 0  # a time budget: steps unknown, constant
-    assert decays == [0.5, 0.5, 0.25, 0.25, 0.0, 0.0, 0.5, 0.0]
+    # ... and recorded as constant (the config and report said "falling" for it)
+    assert decays == [0.5, 0.5, 0.25, 0.25, 0.0, 0.0, 0.0, 0.0]
+    # asked for: refused, not dropped unsaid
+    assert main([*argv, "--budget", "90s", "--lr-decay", "0.5"]) == 2
+    assert "--lr-decay 0.5: a time budget (90s)" in capsys.readouterr().err
 
 
 def test_a_config_sets_only_what_it_names(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -520,3 +525,76 @@ def test_the_schedule_in_words_says_the_decay() -> None:
         "128 px crops, batch 4, learning rate 0.0002 falling linearly towards zero over the "
         "last 50% of the budget"
     )
+
+
+def test_a_run_folder_tradeoff_did_not_start_is_refused_never_deleted(tmp_path: Path) -> None:
+    """``--out .`` in a project with runs/G: tradeoff deleted the user's folder, notes and
+    checkpoints, with no word or with "cannot be resumed; training it again"."""
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    g = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
+    mine = tmp_path / "t" / "runs" / "G"
+    mine.mkdir(parents=True)
+    (mine / "notes.txt").write_text("important")
+
+    def tradeoff() -> TradeoffResult:
+        return run_tradeoff(dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1),
+                            tiny_config(), g, latency_runs=1)  # fmt: skip
+
+    with pytest.raises(ModelError, match=r"runs/G: exists and was not started by lenspair trade"):
+        tradeoff()
+    assert (mine / "notes.txt").read_text() == "important"
+    shutil.rmtree(mine)
+    first = tradeoff().rows[0].psnr_db
+    assert (mine / "tradeoff_run.txt").is_file()  # its own: a rerun resumes it
+    assert tradeoff().rows[0].psnr_db == first
+
+
+def test_int8_in_a_paired_folder_calibrates_on_the_pairs_it_trained_on(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """It calibrated on every pair of the folder, the scored held-out ones included."""
+    pytest.importorskip("onnxruntime")
+    from lenspair.model.evaluation import quantize
+    from tests.model.train_fixtures import write_paired_folder
+
+    _fixed_precisions(monkeypatch, ["int8"])
+    calibrated: list[str] = []
+    real = quantize.calibration_images
+
+    def record(source: object, *args: object) -> object:
+        calibrated.extend(source[i].name for i in range(len(source)))  # type: ignore[index]
+        return real(source, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(quantize, "calibration_images", record)
+    folder = write_paired_folder(tmp_path / "pairs", count=12)
+    gea = tuple(v for v in DEFAULT_VARIANTS if v.name == "GEA")
+    base = tiny_config()
+    base = replace(base, model=replace(base.model, channels=None))
+    result = run_tradeoff(folder, tmp_path / "t", torch.device("cpu"), Budget(steps=1), base,
+                          gea, latency_runs=1)  # fmt: skip
+    assert {r.precision for r in result.rows} == {"fp32", "int8"}
+    from lenspair.model.training.datasets import paired_training_data
+
+    data = paired_training_data(folder, base.data, 1, base.train.seed)
+    scored = {pair.name for pair in data.val.source}  # type: ignore[attr-defined]
+    assert calibrated and scored and not scored & set(calibrated)
+
+
+def test_places_a_tradeoff_cannot_use_are_one_line_errors(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from tests.model.train_fixtures import write_paired_folder
+
+    folder = write_paired_folder(tmp_path / "pairs", count=4)
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    cases = {  # argv after tradeoff: what the one line says
+        (str(folder), "--out", str(folder / "input")): "inside the pairs",
+        (str(dataset), "--out", str(dataset / "test" / "t")): "inside the pairs",
+        (str(folder), "--out", str(tmp_path / "o"), "--split", "bogus"): "is a paired folder",
+        (str(folder), "--out", str(tmp_path / "o"), "--variants", ""): "no variant named",
+    }
+    for argv, said in cases.items():
+        assert main(["tradeoff", *argv, "--budget", "1"]) == 2
+        [line] = capsys.readouterr().err.strip().splitlines()
+        assert said in line, line
+    assert not (tmp_path / "o").exists() and not (folder / "input" / "tradeoff.png").exists()
