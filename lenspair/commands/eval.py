@@ -214,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _default_calibration(data: Path, split: str) -> "PairSource | None":
-    """int8 without --calibration: ``data``'s train split when another split is scored.
+    """int8 without --calibration: another split of ``data`` than the scored one (train first).
 
     Calibrating on the scored images would flatter int8; where there is no
     other split (a plain paired folder, or the train split itself) they are
@@ -224,9 +224,14 @@ def _default_calibration(data: Path, split: str) -> "PairSource | None":
     from lenspair.dataset.readers import detect_layout
     from lenspair.model.training.pairs import open_eval_pairs
 
-    if detect_layout(Path(data)) is None and split != "train":
-        print(f"int8: calibrated on {data} split train (--calibration to choose)")
-        return open_eval_pairs(data, "train")
+    if detect_layout(Path(data)) is None:
+        others = sorted(
+            (p.name for p in Path(data).iterdir() if p.name != split and detect_layout(p)),
+            key=lambda name: (name != "train", name != "val", name),  # train, val, others
+        )
+        if others:
+            print(f"int8: calibrated on {data} split {others[0]} (--calibration to choose)")
+            return open_eval_pairs(data, others[0])
     print(
         "int8: calibrated on the evaluated images themselves (no other split): its accuracy "
         "is optimistic; pass --calibration DS to calibrate on other images"

@@ -107,6 +107,8 @@ def markdown_report(result: EvalResult) -> str:
                 f"| {lat.device} | {lat.precision} | {lat.size} | {lat.threads} | "
                 f"{lat.median_ms:.2f} | {lat.p90_ms:.2f} | {lat.runs} |"
             )
+    else:  # every accuracy figure comes with its time: its absence is said
+        lines += ["", "## Latency", "", "Not timed (`--latency-runs 0`)."]
     return "\n".join(lines) + "\n"
 
 

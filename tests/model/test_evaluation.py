@@ -354,6 +354,23 @@ def test_int8_eval_calibrates_off_the_scored_images_where_it_can(
         assert sizes == [counts["train"]] and "split train" in printed
     else:  # nothing else to calibrate on: the scored pairs, and the output says so
         assert sizes == [2] and "optimistic" in printed
+    if layout == "dataset":  # no train split: another unscored one, said after it opened
+        shutil.rmtree(data / "train")
+        sizes.clear()
+        assert main([*args, "--precision", "int8", "--latency-runs", "1", "--split", "test"]) == 0
+        assert sizes == [counts["val"]] and "split val" in capsys.readouterr().out
+
+
+def test_an_untimed_evaluation_says_so(tmp_path: Path) -> None:
+    """--latency-runs 0 left the report without a time and without a word about it."""
+    folder = write_paired_folder(tmp_path / "pairs", count=1)
+    checkpoint = make_checkpoint(tmp_path / "ck.pt")
+    out = tmp_path / "eval"
+    argv = ["eval", str(checkpoint), "--data", str(folder), "--out", str(out)]
+    assert main([*argv, "--latency-runs", "0"]) == 0
+    assert "Not timed (`--latency-runs 0`)" in (out / "metrics.md").read_text()
+    assert main([*argv, "--latency-runs", "1"]) == 0
+    assert "Not timed" not in (out / "metrics.md").read_text()
 
 
 def test_an_eval_folder_inside_the_pairs_scored_is_refused(
