@@ -11,7 +11,7 @@ is run on a seeded random image and compared with torch (the largest absolute
 difference is printed) and timed at batch 1. Checking and timing ONNX needs
 onnxruntime (a dependency of lenspair; reinstall it); without it the file is written
 and the output says it was not checked. A JSON report goes next to the
-first file (<name>.export.json).
+first file, its whole name and .export.json (model.onnx.export.json).
 
 --int8 also writes <name>.int8.onnx: ONNX Runtime static quantisation (QDQ,
 int8 weights per channel, uint8 activations) calibrated on 15 of 16 obstructed
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def check_outputs(args: argparse.Namespace) -> None:
-    """Refuse an output that is the checkpoint, two that are one file, or an unsuffixed ONNX file.
+    """Refuse an output that is the checkpoint, two that are one file, or a misleading suffix.
 
     Raises:
         ConfigError: naming the option and the file, before anything is written.
@@ -117,6 +117,11 @@ def check_outputs(args: argparse.Namespace) -> None:
         raise ConfigError(
             f"--onnx {args.onnx}: name it {args.onnx.name}.onnx; restore and eval tell "
             "ONNX models by their suffix"
+        )
+    if args.torchscript is not None and args.torchscript.suffix.lower() == ".onnx":
+        raise ConfigError(
+            f"--torchscript {args.torchscript}: restore and eval would take it for an ONNX "
+            f"model; name it {args.torchscript.stem}.pt"
         )
     seen: dict[Path, str] = {Path(args.checkpoint).resolve(): "the checkpoint"}
     for option, path in _outputs(args).items():

@@ -44,12 +44,21 @@ from lenspair.simulate.realism import (
     summarise,
 )
 
+DEFAULT_SPLIT = "test"
+"""The split of a dataset root measured without ``--split``."""
+
+DEFAULT_SIZE = (720, 480)
+"""``--render`` size, width x height: the Raindrop dataset's frames."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the ``realism`` arguments."""
     parser.add_argument("pairs", type=Path, nargs="*", help="paired folders to measure")
     parser.add_argument(
-        "--split", default="test", type=split_name, help="split of a dataset root (default: test)"
+        "--split",
+        type=split_name,
+        help=f"split of a dataset root (default: {DEFAULT_SPLIT}); paired folders are measured "
+        "whole",
     )
     parser.add_argument(
         "--render",
@@ -67,11 +76,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--size",
         type=size(16, 8192),  # 100000x100000 was an OpenCV allocation traceback
-        default=(720, 480),
         metavar="WxH",
         help="render size (default: 720x480)",
     )
-    parser.add_argument("--seed", type=random_seed, default=0, help="seed of the rendered drops")
+    parser.add_argument("--seed", type=random_seed, help="seed of the rendered drops (0)")
     parser.add_argument("--json", type=out_file, metavar="FILE", help="also write per-pair figures")
 
 
@@ -80,12 +88,25 @@ def run(args: argparse.Namespace) -> int:
     presets = args.render if args.render is not None else ([] if args.pairs else ["ours", "sharp"])
     if not presets and not args.pairs:
         raise ConfigError("nothing to measure: give paired folders or --render PRESET")
-    shape = (args.size[1], args.size[0])  # (height, width)
+    if not presets:  # said, not ignored: they shape rendered drops only
+        unused = [
+            f"--{name}" for name in ("images", "size", "seed") if getattr(args, name) is not None
+        ]
+        if unused:
+            raise ConfigError(f"{', '.join(unused)}: for rendered drops; add --render PRESET")
+    if args.split is not None and not any(detect_layout(f) is None for f in args.pairs):
+        raise ConfigError(
+            f"--split {args.split}: no dataset root given (a paired folder is measured whole); "
+            "leave --split out, or give the dataset root whose split it is"
+        )
+    width, height = args.size or DEFAULT_SIZE
+    shape = (height, width)
+    seed = args.seed or 0
+    _check_distinct(args.pairs, args.split or DEFAULT_SPLIT, presets)
     effects = {name: drops_preset(name) for name in presets}
-    _check_distinct(args.pairs)
     results: dict[str, list[PairStatistics]] = {}
     for folder in args.pairs:
-        split = None if detect_layout(folder) is not None else args.split
+        split = None if detect_layout(folder) is not None else args.split or DEFAULT_SPLIT
         dataset = open_paired(folder, split)
         unread: list[PairStatistics] = []
         items = progress(
@@ -108,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
             images = load_natural_images(shape)
         for name, spec in effects.items():
             pairs = progress(
-                rendered_pairs(images, spec, args.seed),
+                rendered_pairs(images, spec, seed),
                 desc=f"realism {name}",
                 total=len(images),
                 unit="image",
@@ -133,13 +154,20 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_distinct(folders: list[Path]) -> None:
-    """Refuse a folder given twice: its two columns would be one (the second replaced the first)."""
+def _check_distinct(folders: list[Path], split: str, presets: list[str]) -> None:
+    """Refuse pairs or a preset given twice: two columns of the same figures.
+
+    A folder is the pairs it stands for: a dataset root given beside its
+    own split (``DS DS/test``) is the same pairs twice.
+    """
     seen: dict[Path, Path] = {}
     for folder in folders:
-        first = seen.setdefault(folder.resolve(), folder)
+        pairs = folder if detect_layout(folder) is not None else folder / split
+        first = seen.setdefault(pairs.resolve(), folder)
         if first is not folder:
-            raise ConfigError(f"{folder}: given twice (also as {first})")
+            raise ConfigError(f"{folder}: the same pairs as {first} ({pairs}), given twice")
+    if twice := sorted({name for name in presets if presets.count(name) > 1}):
+        raise ConfigError(f"--render: {', '.join(twice)} named twice")
 
 
 def _folder_label(folder: Path, presets: list[str]) -> str:

@@ -186,6 +186,8 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["realism", "--render", "ours", "--size", "0x480"], "--size"),
     (["realism", "--render", "ours", "--size", "100000x100000"], "at most 8192x8192"),
     (["realism", "DS", "--split", "nosuch"], "nosuch"),
+    (["realism", "DS", "--size", "64x64", "--seed", "3"], "--size, --seed: for rendered drops"),
+    (["export", "CKPT", "--torchscript", "OUT/m.onnx"], "would take it for an ONNX model"),
     (["no-such-command"], "no-such-command"),
 ]
 
@@ -415,3 +417,11 @@ def test_a_seed_too_large_for_training_is_refused_at_the_option_and_in_a_config(
     assert main(argv) == 2
     assert f"train: seed: expected 0 .. 4294967295, got {too_large}" in capsys.readouterr().err
     assert TrainConfig(seed=2**32 - 1).seed * 100_003 + 10**6 < 2**63  # the largest still fits
+
+
+def test_a_split_given_with_no_dataset_root_is_refused(
+    dataset: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """realism measured a paired folder whole and ignored --split, even one not there."""
+    code, lines = _run(["realism", str(dataset / "test"), "--split", "nosuch"], capsys)
+    assert code == 2 and len(lines) == 1 and "no dataset root given" in lines[0]

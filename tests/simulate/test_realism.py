@@ -2,6 +2,7 @@
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -291,3 +292,9 @@ def test_a_folder_given_twice_is_refused_and_a_folder_named_like_a_preset_keeps_
     printed = capsys.readouterr().out
     assert "sharp/ (2)" in printed and "sharp (11)" in printed  # two columns, not one
     assert sorted(json.loads(out.read_text())) == ["sharp", "sharp/"]
+    dataset = tmp_path / "ds"
+    shutil.copytree(folder, dataset / "test")
+    for argv in (["ds", "ds/test"], ["--render", "sharp", "sharp"]):  # the same figures twice
+        assert main(["realism", *argv]) == 2
+        (line,) = capsys.readouterr().err.strip().splitlines()
+        assert "given twice" in line or "named twice" in line
