@@ -40,6 +40,8 @@ _FOLDERS: dict[Layout, tuple[str, str]] = {
     "paired": ("input", "target"),
     "raindrop": ("data", "gt"),
 }
+IMAGE_FOLDERS: tuple[str, ...] = ("input", "target", "mask", "lq", "gt", "data")
+"""Sub-folders of a paired folder whose files the readers take as images (of any layout)."""
 _RAINDROP_SUFFIX = re.compile(r"_(rain|clean)$")
 
 

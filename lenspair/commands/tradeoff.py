@@ -121,7 +121,7 @@ def _check_places(args: argparse.Namespace) -> None:
     folder (or a split) put the plot among the pairs, and every later command
     refused the data over an unpaired file.
     """
-    from lenspair.dataset.readers import detect_layout  # as in run: numpy, OpenImageIO
+    from lenspair.dataset.readers import IMAGE_FOLDERS, detect_layout  # numpy, OpenImageIO
 
     dataset = Path(args.dataset)
     if not dataset.is_dir():
@@ -132,17 +132,13 @@ def _check_places(args: argparse.Namespace) -> None:
                 f"--split {args.split}: {dataset} is a paired folder, whose held-out pairs are "
                 "scored; leave --split out, or give the dataset root whose split it is"
             )
-        read = [dataset / name for name in PAIR_FOLDERS]
+        paired = [dataset]
     else:
-        read = [path for path in dataset.iterdir() if detect_layout(path) is not None]
-    why = "its plot and runs would be read as unpaired images"
-    for folder in read:
-        if problem := inside_refusal(args.out, folder, "the pairs", why):
+        paired = [path for path in dataset.iterdir() if detect_layout(path) is not None]
+    why = "its plot would be read as an unpaired image"
+    for folder in (pairs / name for pairs in paired for name in IMAGE_FOLDERS):
+        if problem := inside_refusal(args.out, folder, "the image folder", why):
             raise ConfigError(problem)
-
-
-PAIR_FOLDERS = ("input", "target", "mask", "lq", "gt", "data")
-"""Sub-folders of a paired folder that readers take images from (lenspair.dataset.readers)."""
 
 
 def run(args: argparse.Namespace) -> int:
@@ -158,7 +154,6 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.model.training.config import RunConfig, with_file  # as above
 
     budget = parse_budget(args.budget)
-    _check_places(args)
     variants = DEFAULT_VARIANTS
     if args.variants is not None:  # "" names none: not all of them
         wanted = [name.strip() for name in args.variants.split(",") if name.strip()]
@@ -176,6 +171,7 @@ def run(args: argparse.Namespace) -> int:
         variants = tuple(known[name] for name in wanted)
     if args.latency_runs < 1:
         raise ConfigError("--latency-runs must be >= 1")
+    _check_places(args)  # after the options: their errors need no data
     # The demonstration's 128 px crops, batch 4 and decaying rate (not the paper's 256, 8 and
     # constant rate), unless the --config file names the setting or the option is given: a
     # config written to set, say, val_every must not switch the others to train's defaults.

@@ -249,6 +249,7 @@ def run_tradeoff(
     pairs = readable
     size = tuple(pairs[0].input.shape[:2])
     out_dir.mkdir(parents=True, exist_ok=True)
+    earlier_tradeoff = (out_dir / "tradeoff_config.yaml").is_file()  # before it is written
     meta = {
         "dataset": str(dataset),
         "evaluated_on": pairs_text,
@@ -269,9 +270,9 @@ def run_tradeoff(
     for variant in variants:
         config = resolve_config(variant_config(base, variant, budget), data.channels)
         run = out_dir / "runs" / variant.name
-        resume = _reusable(run, config, device, data.description)
+        resume = _reusable(run, config, device, data.description, earlier_tradeoff)
         if not resume:  # tradeoff's own from here on: a rerun may resume or replace it
-            atomic_write_text(run / RUN_MARKER, "lenspair tradeoff trains this run\n")
+            atomic_write_text(run / RUN_MARKER, MARKER_TEXT)
         log.info("tradeoff: training %s for %s", variant.name, budget.describe())
         summary = fit(
             config,
@@ -374,7 +375,10 @@ RUN_MARKER = "tradeoff_run.txt"
 
 Only such a folder is tradeoff's to resume or to clear: a run of the user's
 own at that path (``--out .`` in a project with ``runs/GEA``) is refused,
-never deleted."""
+never deleted (:func:`_owned`)."""
+
+MARKER_TEXT = "lenspair tradeoff trains this run\n"
+"""What :data:`RUN_MARKER` holds."""
 
 REUSE_IGNORES: frozenset[str] = frozenset(
     {
@@ -450,7 +454,11 @@ def reuse_obstacle(
 
 
 def _reusable(
-    run: Path, config: RunConfig, device: torch.device, dataset: str | None = None
+    run: Path,
+    config: RunConfig,
+    device: torch.device,
+    dataset: str | None = None,
+    earlier_tradeoff: bool = False,
 ) -> bool:
     """Whether ``run`` holds a run that ``config`` may resume; else clear it.
 
@@ -459,15 +467,20 @@ def _reusable(
         config: the resolved configuration of the rerun.
         device: where it trains (its precision is resolved for it).
         dataset: the description of its data (checked when given).
+        earlier_tradeoff: an earlier tradeoff wrote this output
+            (``tradeoff_config.yaml`` was there before this run began).
 
     Returns:
         True when ``run/checkpoints/last.pt`` may be resumed (:func:`reuse_obstacle`).
 
+    Raises:
+        ModelError: ``run`` is not tradeoff's (:func:`_owned`).
     """
-    if run.exists() and not (run / RUN_MARKER).is_file():
+    if run.exists() and not _owned(run, earlier_tradeoff):
         raise ModelError(
-            f"{run}: exists and was not started by lenspair tradeoff (no {RUN_MARKER} in "
-            "it), so it is not tradeoff's to resume or replace; move it, or choose another --out"
+            f"{run}: exists and holds more than a run tradeoff started (no {RUN_MARKER} "
+            "in it), so it is not tradeoff's to resume or replace; move it, or choose "
+            "another --out"
         )
     last = run / "checkpoints" / "last.pt"
     if not last.is_file():
@@ -488,6 +501,31 @@ def _reusable(
     log.warning("tradeoff: %s cannot be resumed (%s); training it again", run, obstacle)
     shutil.rmtree(run)
     return False
+
+
+def _owned(run: Path, earlier_tradeoff: bool) -> bool:
+    """Whether the run folder ``run`` is tradeoff's to resume or clear.
+
+    Its marker says so. A folder without one (tradeoff before the marker, or
+    killed before writing it) is adopted, marker written, when an earlier
+    tradeoff wrote the output and the folder holds only what training writes;
+    a note or any other file of the user's keeps it the user's.
+    """
+    if (run / RUN_MARKER).is_file():
+        return True
+    written = {
+        "config.yaml",
+        "checkpoints",
+        "metrics.csv",
+        "samples.png",
+        "train.log",
+        "tensorboard",
+    }
+    theirs = [p.name for p in run.iterdir() if p.name not in written and not p.name.startswith(".")]
+    if not earlier_tradeoff or theirs:
+        return False
+    atomic_write_text(run / RUN_MARKER, MARKER_TEXT)
+    return True
 
 
 def complexity(network: torch.nn.Module, channels: int, size: tuple[int, int]) -> tuple[int, float]:

@@ -1,3 +1,4 @@
+import argparse
 import csv
 import json
 import logging
@@ -540,13 +541,21 @@ def test_a_run_folder_tradeoff_did_not_start_is_refused_never_deleted(tmp_path: 
         return run_tradeoff(dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1),
                             tiny_config(), g, latency_runs=1)  # fmt: skip
 
-    with pytest.raises(ModelError, match=r"runs/G: exists and was not started by lenspair trade"):
+    with pytest.raises(ModelError, match=r"runs/G: exists and holds more than a run tradeoff"):
         tradeoff()
     assert (mine / "notes.txt").read_text() == "important"
     shutil.rmtree(mine)
     first = tradeoff().rows[0].psnr_db
     assert (mine / "tradeoff_run.txt").is_file()  # its own: a rerun resumes it
     assert tradeoff().rows[0].psnr_db == first
+    # a run of the version before the marker, in its own output: adopted, not refused
+    (mine / "tradeoff_run.txt").unlink()
+    assert tradeoff().rows[0].psnr_db == first and (mine / "tradeoff_run.txt").is_file()
+    # ... unless the user put a file of theirs in it
+    (mine / "tradeoff_run.txt").unlink()
+    (mine / "notes.txt").write_text("important")
+    with pytest.raises(ModelError, match="holds more than a run tradeoff started"):
+        tradeoff()
 
 
 def test_int8_in_a_paired_folder_calibrates_on_the_pairs_it_trained_on(
@@ -588,8 +597,8 @@ def test_places_a_tradeoff_cannot_use_are_one_line_errors(
     folder = write_paired_folder(tmp_path / "pairs", count=4)
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
     cases = {  # argv after tradeoff: what the one line says
-        (str(folder), "--out", str(folder / "input")): "inside the pairs",
-        (str(dataset), "--out", str(dataset / "test" / "t")): "inside the pairs",
+        (str(folder), "--out", str(folder / "input")): "inside the image folder",
+        (str(dataset), "--out", str(dataset / "test" / "target" / "t")): "inside the image folder",
         (str(folder), "--out", str(tmp_path / "o"), "--split", "bogus"): "is a paired folder",
         (str(folder), "--out", str(tmp_path / "o"), "--variants", ""): "no variant named",
     }
@@ -598,3 +607,10 @@ def test_places_a_tradeoff_cannot_use_are_one_line_errors(
         [line] = capsys.readouterr().err.strip().splitlines()
         assert said in line, line
     assert not (tmp_path / "o").exists() and not (folder / "input" / "tradeoff.png").exists()
+    # beside the image folders (as dataset-build keeps train/restored/): never read as pairs
+    from lenspair.commands.tradeoff import _check_places
+    from lenspair.commands.tradeoff import add_arguments as tradeoff_arguments
+
+    parser = argparse.ArgumentParser()
+    tradeoff_arguments(parser)
+    _check_places(parser.parse_args([str(dataset), "--out", str(dataset / "test" / "t")]))
