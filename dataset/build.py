@@ -521,10 +521,11 @@ def _check_file_system(sources: Sequence[Source], out: Path, link: LinkMode) -> 
         limit = 255
     for source in sources:
         rid = source.report.recording_id
-        names = (
+        names = (  # a line without files: the default layout, <kind>/<t_ns>.png
             f"{rid}_{record.t_ns}{Path(file).suffix}"
             for record in source.records
-            for file in record.files.values()
+            if record.status == "kept"
+            for file in (record.files.values() or ["default.png"])
         )
         longest = max(names, key=lambda name: len(name.encode()), default="")
         if len(longest.encode()) > limit:

@@ -15,6 +15,7 @@ import hashlib
 import json
 import os
 import shutil
+import stat
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -34,11 +35,13 @@ def _umask() -> int:
     return mask
 
 
-FILE_MODE = 0o666 & ~_umask()
+_UMASK = _umask()
+
+FILE_MODE = 0o666 & ~_UMASK
 """The mode ``open()`` gives a new file."""
 
-FOLDER_MODE = 0o777 & ~_umask()
-"""The mode ``mkdir()`` gives a new folder."""
+FOLDER_MODE = 0o777 & ~_UMASK
+"""The mode ``mkdir()`` gives a new folder (less the set-group-ID bit it inherits)."""
 
 
 def temporary_folder(parent: Path, name: str, suffix: str) -> Path:
@@ -49,7 +52,8 @@ def temporary_folder(parent: Path, name: str, suffix: str) -> Path:
     not ``mkdtemp``'s owner-only 0o700, which the rename would carry over.
     """
     folder = Path(tempfile.mkdtemp(prefix=temporary_prefix(name), suffix=suffix, dir=parent))
-    os.chmod(folder, FOLDER_MODE)
+    # the set-group-ID bit a shared group folder hands down (mkdir keeps it; chmod must too)
+    os.chmod(folder, FOLDER_MODE | (folder.stat().st_mode & stat.S_ISGID))
     return folder
 
 

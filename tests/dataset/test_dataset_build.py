@@ -639,6 +639,13 @@ def test_the_dataset_folder_gets_the_mode_of_a_plain_mkdir(
         argv = ["dataset-build", str(source), "--out", str(out), "--splits", "1,0,0", *extra]
         assert main(argv) == 0
         assert stat.S_IMODE(out.stat().st_mode) == stat.S_IMODE(plain.stat().st_mode)
+    shared = tmp_path / "shared"  # a group's folder: what is made in it keeps its group
+    shared.mkdir()
+    shared.chmod(0o2775)
+    argv = ["dataset-build", str(source), "--out", str(shared / "DS"), "--splits", "1,0,0"]
+    assert main(argv) == 0
+    assert (shared / "DS").stat().st_mode & stat.S_ISGID
+    assert (shared / "DS" / "train").stat().st_mode & stat.S_ISGID
 
 
 def test_what_the_output_file_system_refuses_is_found_before_measuring(
@@ -653,8 +660,14 @@ def test_what_the_output_file_system_refuses_is_found_before_measuring(
     real = build_module.measure_record
     monkeypatch.setattr(build_module, "measure_record", lambda *a: measured.append(a) or real(*a))
     out = tmp_path / "DS"
+    config = DatasetConfig(split=SplitConfig(fractions=(1, 0, 0)))
     with pytest.raises(DatasetError, match=r"rec_a: its dataset file names .* over the 255 "):
-        build_dataset([source], out, DatasetConfig(split=SplitConfig(fractions=(1, 0, 0))))
+        build_dataset([source], out, config)
+    records = read_pairs(source / "pairs.jsonl")  # lines without files: the default layout
+    write_pairs(source / "pairs.jsonl", [replace(r, files={}, sha256={}) for r in records])
+    with pytest.raises(DatasetError, match=r"rec_a: its dataset file names .* over the 255 "):
+        build_dataset([source], out, config)
+    write_pairs(source / "pairs.jsonl", records)
     write_report(source / "report.json", report)
     shm = Path("/dev/shm")
     if not shm.is_dir() or shm.stat().st_dev == tmp_path.stat().st_dev:
