@@ -59,6 +59,10 @@ def size(minimum: int = 1, maximum: int | None = None) -> Callable[[str], tuple[
     return parse
 
 
+DEFAULT_SPLIT = "test"
+"""The split of a dataset root that ``eval`` and ``realism`` read without ``--split``."""
+
+
 def split_name(text: str) -> str:
     """Argparse type: the name of a dataset's split folder (``train``, ``val``, ``test``).
 

@@ -45,16 +45,13 @@ import itertools
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lenspair.commands.argtypes import add_device_option, out_folder, split_name
+from lenspair.commands.argtypes import DEFAULT_SPLIT, add_device_option, out_folder, split_name
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal, read_json_field
 
 if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
     from lenspair.model.training.pairs import PairSource
-
-DEFAULT_SPLIT = "test"
-"""The split of a dataset root that ``eval`` scores without ``--split``."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -165,10 +162,10 @@ def run(args: argparse.Namespace) -> int:
 
     # the pairs scored: a paired folder itself, or a dataset's split (DS/eval_* is fine)
     plain = detect_layout(args.data) is not None  # a paired folder: no split in its name
-    if plain and args.split is not None:
+    if plain and args.split not in (None, Path(args.data).name):  # DS/test --split test: fine
         raise ConfigError(
-            f"--split {args.split}: {args.data} is a paired folder (input/ + target/), scored "
-            "whole; leave --split out, or give the dataset root whose split it is"
+            f"--split {args.split}: {args.data} is a paired folder, scored whole; leave "
+            "--split out, or give the dataset root whose split it is"
         )
     args.split = args.split or DEFAULT_SPLIT
     scored = Path(args.data) if plain else args.data / args.split

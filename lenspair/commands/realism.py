@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from lenspair.commands.argtypes import out_file, random_seed, size, split_name
+from lenspair.commands.argtypes import DEFAULT_SPLIT, out_file, random_seed, size, split_name
 from lenspair.core.errors import ConfigError, LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
@@ -43,9 +43,6 @@ from lenspair.simulate.realism import (
     rendered_pairs,
     summarise,
 )
-
-DEFAULT_SPLIT = "test"
-"""The split of a dataset root measured without ``--split``."""
 
 DEFAULT_SIZE = (720, 480)
 """``--render`` size, width x height: the Raindrop dataset's frames."""

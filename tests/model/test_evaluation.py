@@ -417,6 +417,8 @@ def test_a_split_eval_cannot_use_is_refused_in_one_line(
     assert "--split val" in line and "paired folder" in line and "leave --split out" in line
     dataset = tmp_path / "ds"
     write_paired_folder(dataset / "test" / "more", count=1)
+    split = write_paired_folder(tmp_path / "ds2" / "test", count=1)  # a split named as itself
+    assert main([*argv, str(split), "--split", "test", "--out", str(tmp_path / "e")]) == 0
     for split in ("test/more", "..", ""):
         with pytest.raises(SystemExit) as stop:
             main([*argv, str(dataset), "--split", split])
