@@ -238,6 +238,10 @@ def _yaml_problem(exc: yaml.YAMLError) -> str:
     return f"{said} ({context} begun at line {start.line + 1}, column {start.column + 1})"
 
 
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+"""The tag of YAML's merge key ``<<``, which the loader flattens after the duplicate check."""
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
     """PyYAML's safe loader, refusing a key given twice in one mapping.
 
@@ -253,6 +257,8 @@ class _UniqueKeyLoader(yaml.SafeLoader):
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         seen: set[Any] = set()
         for key_node, _ in node.value:
+            if key_node.tag == _MERGE_TAG:  # `<<: *base`: its keys may be given again here
+                continue
             key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
             if key in seen:
                 raise yaml.constructor.ConstructorError(

@@ -121,3 +121,14 @@ def test_a_run_config_error_names_its_file_once(tmp_path: Path, text: str | None
     with pytest.raises(ConfigError) as caught:
         load_run_config(path)
     assert str(caught.value).startswith(f"{path}: ") and str(caught.value).count(str(path)) == 1
+
+
+def test_yaml_merge_keys_are_read_and_their_keys_may_be_given_again(tmp_path: Path) -> None:
+    """``<<: *base`` is valid YAML that safe_load reads; it was refused as an unknown tag."""
+    path = tmp_path / "rig.yaml"
+    path.write_text("cam0: &c {fx: 60.0, gain: 1.0}\ncam1: {<<: *c, gain: 1.04}\n")
+    cam0 = {"fx": 60.0, "gain": 1.0}
+    assert read_yaml(path) == {"cam0": cam0, "cam1": {**cam0, "gain": 1.04}}
+    path.write_text("cam1: {<<: {fx: 1.0}, gain: 1.0, gain: 2.0}\n")  # own keys twice: refused
+    with pytest.raises(ConfigError, match="key 'gain' given twice"):
+        read_yaml(path)
