@@ -75,6 +75,13 @@ def _check_out(recording: Path, out: Path) -> None:
             f"--out {out}: is a file of the recording {recording} (its frames, index or rig "
             "file); write the calibration elsewhere, e.g. beside it as camchain.yaml"
         )
+    # any other file already there (its truth, its scene) is overwritten only when it is a
+    # calibration an earlier run wrote, told by its report beside it
+    if inside and target.exists() and not target.with_suffix(".report.json").is_file():
+        raise ConfigError(
+            f"--out {out}: a file of the recording {recording} that no calibrate wrote; "
+            "write the calibration elsewhere, e.g. beside the recording as camchain.yaml"
+        )
 
 
 _RECORDING_FILES = frozenset({"data.csv", "rig.yaml", "metadata.yaml", "sensor.yaml"})

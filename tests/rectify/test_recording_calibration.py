@@ -108,6 +108,13 @@ def test_an_out_that_is_a_file_of_the_recording_is_refused(
         (line,) = capsys.readouterr().err.strip().splitlines()
         assert f"--out {out}: is a file of the recording" in line
     assert index.read_text() == "#timestamp [ns],filename\n"
+    truth = recording / "truth" / "geometry.json"  # the simulator's truth: overwritten too
+    truth.parent.mkdir()
+    truth.write_text("{}")
+    assert main([*argv, "pinhole-equi", "--out", str(truth)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"--out {truth}: a file of the recording" in line and "no calibrate wrote" in line
+    assert truth.read_text() == "{}"
 
 
 def test_a_camera_none_of_whose_frames_reads_is_named_with_the_first_reason(
