@@ -88,6 +88,12 @@ _RECORDING_FILES = frozenset({"data.csv", "rig.yaml", "metadata.yaml", "sensor.y
 _READ_SUFFIXES = IMAGE_SUFFIXES | BAG_SUFFIXES
 
 
+def interrupt_hint(args: argparse.Namespace) -> str:
+    """What to do after Ctrl-C: calibrate writes only at its end; nothing is resumed."""
+    del args
+    return "nothing was written; rerun to calibrate again"
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``lenspair calibrate``; returns the exit code."""
     _check_out(args.recording, args.out)

@@ -46,6 +46,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="random seed (overrides the spec)")
 
 
+def interrupt_hint(args: argparse.Namespace) -> str:
+    """What to do after Ctrl-C: an interrupted recording is rendered over, not resumed."""
+    del args
+    return "a rerun renders the recording again from its start"
+
+
 def run(args: argparse.Namespace) -> int:
     """Load the spec, apply overrides, render; returns the exit code."""
     check_output_folder(args.out)

@@ -70,7 +70,13 @@ def test_tradeoff_refuses_a_variant_named_twice(
 
 
 @pytest.mark.parametrize(
-    ("command", "hint"), [("restore", "--resume"), ("eval", "rerun to resume")]
+    ("command", "hint"),
+    [
+        ("restore", "--resume"),
+        ("eval", "rerun to resume"),
+        ("simulate", "renders the recording again"),  # neither resumes: not "rerun to resume"
+        ("calibrate", "nothing was written"),  # was said of both
+    ],
 )
 def test_ctrl_c_says_how_to_continue(
     command: str, hint: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
@@ -83,7 +89,21 @@ def test_ctrl_c_says_how_to_continue(
         raise KeyboardInterrupt
 
     monkeypatch.setattr(importlib.import_module(cli.COMMANDS[command][0]), "run", interrupted)
-    argv = {"restore": ["restore", "m.pt", "in", "--out", "o"], "eval": ["eval", "m.pt"]}[command]
+    argv = {
+        "restore": ["restore", "m.pt", "in", "--out", "o"],
+        "eval": ["eval", "m.pt"],
+        "simulate": ["simulate", "rain", "--out", "o"],
+        "calibrate": [
+            "calibrate",
+            "rec",
+            "--board",
+            "chessboard:9x6:0.06",
+            "--out",
+            "c.yaml",
+            "--model",
+            "pinhole-equi",
+        ],
+    }[command]
     assert cli.main(argv) == 130
     assert hint in capsys.readouterr().err
 
