@@ -24,6 +24,8 @@ noise), so the same spec and seed give byte-identical files.
 """
 
 import logging
+import os
+import re
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -35,6 +37,7 @@ from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.core.config import dump_yaml
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text, remove_path
 from lenspair.core.imageio import write_image
+from lenspair.core.leftovers import process_alive
 from lenspair.core.progress import progress
 from lenspair.rectify.rig import CameraModel, StereoRig, write_kalibr
 from lenspair.simulate import boards, truth
@@ -79,6 +82,15 @@ INCOMPLETE = ".simulate-incomplete"
 """In OUT while a simulation runs: a rerun of a killed one starts it over (it is deterministic)."""
 
 
+def _writer(marker: Path) -> int | None:
+    """The process that wrote an :data:`INCOMPLETE` marker (None for a marker without one)."""
+    try:
+        match = re.match(r"pid (\d+):", marker.read_text())
+    except OSError:
+        return None
+    return int(match[1]) if match else None
+
+
 def check_output_folder(out_dir: Path) -> None:
     """Refuse an output folder that exists with content (or is a file).
 
@@ -94,6 +106,13 @@ def check_output_folder(out_dir: Path) -> None:
     if out_dir.exists() and not out_dir.is_dir():
         raise SimulateError(f"{out_dir}: is a file, not a folder; choose a new or empty folder")
     if (out_dir / INCOMPLETE).is_file():
+        writer = _writer(out_dir / INCOMPLETE)
+        # not killed but still writing (this process's own marker is of a failed attempt)
+        if writer is not None and writer != os.getpid() and process_alive(writer):
+            raise SimulateError(
+                f"{out_dir}: another simulate (process {writer}) is writing it; wait for it or "
+                f"choose another --out (if none runs, remove {out_dir / INCOMPLETE})"
+            )
         log.warning("%s: a killed simulation; starting it again", out_dir)
         for child in out_dir.iterdir():
             remove_path(child)
@@ -151,7 +170,9 @@ def simulate_recording(
     out_dir = Path(out_dir)
     check_output_folder(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / INCOMPLETE).write_text("removed when the simulation is complete\n")
+    (out_dir / INCOMPLETE).write_text(
+        f"pid {os.getpid()}: removed when the simulation is complete\n"
+    )
     rig = rig_from_spec(spec.rig)
     channels = 3 if spec.rig.color == "rgb" else 1
     dtype = np.uint16 if spec.rig.bit_depth == 16 else np.uint8

@@ -65,7 +65,7 @@ def _zombie(pid: int) -> bool:
     return state in ("Z", "X")
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
     """Whether process ``pid`` still runs: it may still be writing its temporaries."""
     if pid == os.getpid():
         return True
@@ -102,7 +102,7 @@ def leftovers(folder: Path, name: str | None = None) -> list[Path]:
     found = []
     for entry in folder.iterdir():
         match = pattern.match(entry.name)
-        if match is not None and not _alive(int(match["pid"])):
+        if match is not None and not process_alive(int(match["pid"])):
             found.append(entry)
     return sorted(found)
 

@@ -262,6 +262,30 @@ def test_a_killed_simulation_starts_over_on_rerun_and_gives_the_same_bytes(
     assert _tree_digest(_render(tmp_path, data, "again")) == whole  # rerun: the same files
 
 
+def test_a_simulation_still_running_is_not_taken_for_a_killed_one(tmp_path: Path) -> None:
+    """A second simulate into the folder of a running one deleted its files under it."""
+    import subprocess
+    import sys
+
+    from tests.processes import dead_pid
+
+    data = _scene(tmp_path, recording={"frames": 2})
+    out = tmp_path / "rec"
+    out.mkdir()
+    (out / "mav0").mkdir()
+    running = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (out / ".simulate-incomplete").write_text(f"pid {running.pid}: removed when ...\n")
+        with pytest.raises(SimulateError, match=rf"another simulate \(process {running.pid}\)"):
+            _render(tmp_path, data, "rec")
+        assert (out / "mav0").is_dir()  # its files left alone
+    finally:
+        running.kill()
+        running.wait()
+    (out / ".simulate-incomplete").write_text(f"pid {dead_pid()}: removed when ...\n")
+    assert not (_render(tmp_path, data, "rec") / ".simulate-incomplete").exists()  # killed: redone
+
+
 def test_the_written_scene_renders_again_from_the_recording(tmp_path: Path) -> None:
     """A texture file relative to the spec's folder is written by absolute path."""
     specs = tmp_path / "specs"
