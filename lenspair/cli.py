@@ -139,3 +139,7 @@ def main(argv: list[str] | None = None) -> int:
             hint = own_hint(args) or hint
         print(f"lenspair {args.command}: interrupted; {hint}", file=sys.stderr)
         return 130
+
+
+if __name__ == "__main__":  # python -m lenspair.cli, as torchrun -m runs it
+    sys.exit(main())

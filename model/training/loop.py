@@ -169,12 +169,25 @@ def check_resume_batch(checkpoint: dict[str, Any], path: Path, config: RunConfig
         path: where it was read (named in the error).
         config: the configuration the run is resumed with.
 
+    The seed is refused alike: it orders the epoch's pairs (and draws its
+    crops), so the rest of the epoch under another seed would repeat or skip
+    pairs too.
+
     Raises:
-        ModelError: the checkpoint is mid-epoch and the batch sizes differ.
+        ModelError: the checkpoint is mid-epoch and the batch sizes or seeds differ.
 
     """
     step_in_epoch = int(checkpoint.get("step_in_epoch", 0))
-    stored = checkpoint_config(checkpoint, path).train.batch_size
+    before = checkpoint_config(checkpoint, path).train
+    if step_in_epoch and config.train.seed != before.seed:
+        raise ModelError(
+            f"--resume: {path} stopped {step_in_epoch} steps into epoch "
+            f"{int(checkpoint.get('epoch', 0)) + 1} with seed {before.seed}, which orders its "
+            f"pairs; resuming it with seed {config.train.seed} would repeat or skip pairs of "
+            f"that epoch: resume with seed {before.seed} (a checkpoint at an epoch's end "
+            "takes any seed)"
+        )
+    stored = before.batch_size
     wanted = config.train.batch_size
     if step_in_epoch and wanted != stored:
         raise ModelError(

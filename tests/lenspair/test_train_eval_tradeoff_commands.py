@@ -142,3 +142,14 @@ def test_ctrl_c_before_train_saved_anything_does_not_advise_resume(
     (run / "config.yaml").write_text("model: {}\n")  # a run has begun: --resume continues it
     assert cli.main(argv) == 130
     assert "rerun with --resume to continue" in capsys.readouterr().err
+
+
+def test_the_cli_module_runs_as_a_script() -> None:
+    """``python -m lenspair.cli`` (as ``torchrun -m`` runs it) did nothing and exited 0."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "lenspair.cli", "no-such-command"], capture_output=True, text=True
+    )
+    assert done.returncode == 2 and "no-such-command" in done.stderr

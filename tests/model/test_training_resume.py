@@ -105,6 +105,17 @@ def test_resuming_mid_epoch_at_another_batch_size_is_refused(tmp_path: Path) -> 
     assert load_checkpoint(run / "checkpoints" / "last.pt")["step"] == 4
 
 
+def test_resuming_mid_epoch_with_another_seed_is_refused(tmp_path: Path) -> None:
+    """The seed orders the epoch's pairs: it was only warned about, and pairs repeated."""
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 1})
+    run = tmp_path / "run"
+    first = tiny_config(batch_size=4, epochs=2, max_steps=1)  # stops at step 1 of 2
+    _train(dataset, run, first)
+    other = replace(first, train=replace(first.train, seed=5, max_steps=None))
+    with pytest.raises(ModelError, match=r"last\.pt.*with seed 0.*with seed 5"):
+        _train(dataset, run, other, resume=True)
+
+
 def test_resuming_at_an_epoch_boundary_may_change_the_batch_size(tmp_path: Path) -> None:
     dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 1})
     run = tmp_path / "run"
