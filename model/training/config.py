@@ -112,8 +112,8 @@ class DataConfig:
     def __post_init__(self) -> None:
         if self.crop_size < MIN_CROP_SIZE:
             raise ValueError(
-                f"crop_size: expected >= {MIN_CROP_SIZE} (the smallest the PatchGAN "
-                f"discriminator's 4x4 layers can take), got {self.crop_size}"
+                f"data.crop_size (--crop-size): expected >= {MIN_CROP_SIZE} (the smallest "
+                f"the PatchGAN discriminator's 4x4 layers can take), got {self.crop_size}"
             )
         if self.max_val_images is not None and self.max_val_images < 1:
             raise ValueError(f"max_val_images: expected >= 1, got {self.max_val_images}")

@@ -68,5 +68,7 @@ def test_training_crops_below_the_discriminators_smallest_input_are_refused() ->
     # traceback, after the run folder was made
     assert min_input_side() == MIN_CROP_SIZE  # the architecture the config states
     DataConfig(crop_size=MIN_CROP_SIZE)
-    with pytest.raises(ValueError, match=rf"crop_size: expected >= {MIN_CROP_SIZE} .*got 23"):
+    with pytest.raises(
+        ValueError, match=rf"crop_size \(--crop-size\): expected >= {MIN_CROP_SIZE} .*got 23"
+    ):
         DataConfig(crop_size=MIN_CROP_SIZE - 1)
