@@ -201,6 +201,11 @@ def detect_layout(folder: Path) -> Layout | None:
     return None
 
 
+def split_folders(root: Path) -> list[str]:
+    """Names of ``root``'s sub-folders that hold paired images (a dataset's splits), sorted."""
+    return sorted(p.name for p in Path(root).iterdir() if p.is_dir() and detect_layout(p))
+
+
 def open_paired(path: Path, split: str | None = None) -> PairedDataset:
     """Open paired images in any supported layout.
 
@@ -222,7 +227,7 @@ def open_paired(path: Path, split: str | None = None) -> PairedDataset:
     if split is not None and (path / split).is_dir():
         folder = path / split
     elif split is not None and path.name != split:
-        found = ", ".join(sorted(p.name for p in path.iterdir() if detect_layout(p)))
+        found = ", ".join(split_folders(path))
         if not found:  # not a dataset at all: say what a paired folder holds
             raise DatasetError(
                 f"{path}: no paired images (expected input/ + target/, lq/ + gt/ or Raindrop "
@@ -231,7 +236,7 @@ def open_paired(path: Path, split: str | None = None) -> PairedDataset:
         raise DatasetError(f"{path}: no split folder {split!r} (splits found: {found})")
     layout = detect_layout(folder)
     if layout is None:
-        splits = sorted(p.name for p in path.iterdir() if p.is_dir() and detect_layout(p))
+        splits = split_folders(path)
         if splits:
             raise DatasetError(f"{path}: holds several splits; choose one of {', '.join(splits)}")
         raise DatasetError(

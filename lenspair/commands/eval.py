@@ -218,12 +218,12 @@ def _default_calibration(data: Path, split: str) -> "PairSource | None":
     used and a line says so.
     """
     # here, not at the top: these import torch, and `lenspair eval --help` should not
-    from lenspair.dataset.readers import detect_layout
+    from lenspair.dataset.readers import detect_layout, split_folders
     from lenspair.model.training.pairs import open_eval_pairs
 
     if detect_layout(Path(data)) is None:
         others = sorted(
-            (p.name for p in Path(data).iterdir() if p.name != split and detect_layout(p)),
+            (name for name in split_folders(data) if name != split),
             key=lambda name: (name != "train", name != "val", name),  # train, val, others
         )
         if others:

@@ -121,7 +121,11 @@ def _check_places(args: argparse.Namespace) -> None:
     folder (or a split) put the plot among the pairs, and every later command
     refused the data over an unpaired file.
     """
-    from lenspair.dataset.readers import IMAGE_FOLDERS, detect_layout  # numpy, OpenImageIO
+    from lenspair.dataset.readers import (  # numpy, OpenImageIO
+        IMAGE_FOLDERS,
+        detect_layout,
+        split_folders,
+    )
 
     dataset = Path(args.dataset)
     if not dataset.is_dir():
@@ -134,7 +138,7 @@ def _check_places(args: argparse.Namespace) -> None:
             )
         paired = [dataset]
     else:
-        paired = [path for path in dataset.iterdir() if detect_layout(path) is not None]
+        paired = [dataset / name for name in split_folders(dataset)]
     why = "its plot would be read as an unpaired image"
     for folder in (pairs / name for pairs in paired for name in IMAGE_FOLDERS):
         if problem := inside_refusal(args.out, folder, "the image folder", why):
