@@ -58,6 +58,7 @@ from lenspair.model.training.config import RunConfig, Variant, config_difference
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
 from lenspair.model.training.pairs import SubsetSource, Unread, open_eval_pairs
+from lenspair.model.training.run_files import RunPaths
 from lenspair.model.training.step import (
     describe_precision,
     training_precision,
@@ -513,14 +514,9 @@ def _owned(run: Path, earlier_tradeoff: bool) -> bool:
     """
     if (run / RUN_MARKER).is_file():
         return True
-    written = {
-        "config.yaml",
-        "checkpoints",
-        "metrics.csv",
-        "samples.png",
-        "train.log",
-        "tensorboard",
-    }
+    paths = RunPaths(run)  # what training writes: its files, checkpoints/, tensorboard/
+    trained = (paths.config, paths.last.parent, paths.metrics, paths.log, paths.samples)
+    written = {path.name for path in (*trained, paths.tensorboard)}
     theirs = [p.name for p in run.iterdir() if p.name not in written and not p.name.startswith(".")]
     if not earlier_tradeoff or theirs:
         return False
