@@ -318,8 +318,8 @@ def _check_clean_images(
             problems.append(str(exc))
             continue
         counts[have] += 1
-        if format_problem(kind):
-            problems.append(f"{path}: {format_problem(kind)}")
+        if problem := format_problem(kind):
+            problems.append(f"{path}: {problem}")
         elif crop_size is not None and path in training and min(height, width) < crop_size:
             problems.append(f"{path}: {width}x{height}, smaller than the {crop_size} px crop")
         elif path not in training and min(height, width) < window:

@@ -89,11 +89,17 @@ def test_a_budget_stop_in_the_first_epoch_leaves_a_best_checkpoint(tmp_path: Pat
     assert math.isfinite(float(best["best_metric"]))
 
 
-def test_resuming_mid_epoch_at_another_batch_size_is_refused(tmp_path: Path) -> None:
+def _stopped_mid_epoch(tmp_path: Path) -> tuple[Path, Path, RunConfig]:
+    """A run of 8 pairs at batch 4 stopped at step 1 of its first epoch's 2."""
     dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 1})
     run = tmp_path / "run"
-    first = tiny_config(batch_size=4, epochs=2, max_steps=1)  # stops at step 1 of 2
+    first = tiny_config(batch_size=4, epochs=2, max_steps=1)
     _train(dataset, run, first)
+    return dataset, run, first
+
+
+def test_resuming_mid_epoch_at_another_batch_size_is_refused(tmp_path: Path) -> None:
+    dataset, run, first = _stopped_mid_epoch(tmp_path)
     smaller = replace(first, train=replace(first.train, batch_size=2, max_steps=None))
     with pytest.raises(ModelError, match=r"last\.pt.*batch size 4.*batch size 2") as error:
         resume_config(run, smaller)
@@ -107,10 +113,7 @@ def test_resuming_mid_epoch_at_another_batch_size_is_refused(tmp_path: Path) -> 
 
 def test_resuming_mid_epoch_with_another_seed_is_refused(tmp_path: Path) -> None:
     """The seed orders the epoch's pairs: it was only warned about, and pairs repeated."""
-    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 1})
-    run = tmp_path / "run"
-    first = tiny_config(batch_size=4, epochs=2, max_steps=1)  # stops at step 1 of 2
-    _train(dataset, run, first)
+    dataset, run, first = _stopped_mid_epoch(tmp_path)
     other = replace(first, train=replace(first.train, seed=5, max_steps=None))
     with pytest.raises(ModelError, match=r"last\.pt.*with seed 0.*with seed 5"):
         _train(dataset, run, other, resume=True)
