@@ -252,6 +252,8 @@ def fit(
     if checkpoint is not None:
         check_resume_mode(checkpoint, paths.last, synthetic)
     stale = [paths.best, paths.metrics] if restart and not paths.last.exists() else []
+    if stale:
+        _check_restart(paths)
     held = [
         p.name for p in (paths.last, paths.best, paths.metrics) if p.exists() and p not in stale
     ]
@@ -356,6 +358,26 @@ def fit(
         torch.use_deterministic_algorithms(deterministic_before)
         if info.active:
             torch.distributed.destroy_process_group()
+
+
+def _check_restart(paths: RunPaths) -> None:
+    """Refuse to start over a run whose ``last.pt`` was removed after it had been saved.
+
+    A run killed before its first ``last.pt`` holds at most one metrics row (the
+    first validation writes its row, then ``best.pt``, then ``last.pt``); more rows
+    mean a ``last.pt`` existed, and starting over would replace that run's
+    ``best.pt`` and ``metrics.csv``.
+    """
+    try:
+        rows = len(read_metrics_rows(paths.metrics))
+    except ModelError:  # not a metrics table: nothing a restart would lose
+        return
+    if rows > 1:
+        raise ModelError(
+            f"--resume: {paths.last} is missing, yet {paths.metrics} records {rows} "
+            "validations, so the run had saved it; starting over would replace that run's "
+            "best.pt and metrics.csv: put last.pt back, or move them aside to start over"
+        )
 
 
 def check_resume_mode(checkpoint: dict[str, Any], path: Path, synthetic: str | None) -> None:

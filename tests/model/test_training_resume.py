@@ -207,6 +207,22 @@ def test_a_refused_restart_keeps_the_runs_best_pt_and_metrics(
     assert {p: p.read_bytes() for p in kept} == kept
 
 
+def test_a_run_whose_last_pt_was_removed_after_it_was_saved_is_not_started_over(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from lenspair.cli import main
+
+    dataset, run, _ = _cli_run(tmp_path, steps=4)  # two epochs: two validations
+    (run / "checkpoints" / "last.pt").unlink()
+    kept = {p: p.read_bytes() for p in (run / "checkpoints" / "best.pt", run / "metrics.csv")}
+    capsys.readouterr()
+    assert main(["train", str(dataset), "--out", str(run), "--resume"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "records 2 validations" in error and "last.pt" in error and "\n" not in error
+    assert {p: p.read_bytes() for p in kept} == kept
+    assert not (run / "checkpoints" / "last.pt").exists()
+
+
 def test_a_restart_of_a_fine_tuning_starts_again_from_its_init(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
