@@ -165,6 +165,21 @@ def _names(source: PairSource) -> list[str]:
     return [source[i].name for i in range(len(source))]
 
 
+NAMES_DIGEST = "pair names sha256"
+
+
+def names_digest(train: PairSource, val: PairSource) -> str:
+    """``pair names sha256 XXXXXXXXXXXX`` over both splits' names, for the run config.
+
+    A dataset rebuilt in place (other pairs, another split) keeps its path;
+    this tells a resume that its pairs changed (:func:`~lenspair.model.training.loop.fit`).
+    """
+    digest = hashlib.sha256()
+    for source in (train, val):
+        digest.update("\n".join(_names(source)).encode("utf-8") + b"\0")
+    return f"{NAMES_DIGEST} {digest.hexdigest()[:12]}"
+
+
 def paired_training_data(
     path: Path,
     data: DataConfig,
@@ -233,7 +248,8 @@ def paired_training_data(
     )
     val = PairedCrops(val_source, resolved, None, seed=seed, limit=data.max_val_images)
     description = f"{path} (train {len(train)} pairs, validation {len(val)} pairs"
-    description += f"; {note})" if note else ")"
+    description += f"; {note}" if note else ""
+    description += f"; {names_digest(train_source, val_source)})"
     return TrainData(train=train, val=val, channels=resolved, description=description)
 
 

@@ -50,6 +50,7 @@ from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_w
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
 from lenspair.model.training.config import RunConfig, RuntimeInfo, TrainConfig, config_differences
+from lenspair.model.training.datasets import NAMES_DIGEST
 from lenspair.model.training.pairs import Sample
 from lenspair.model.training.periodic import CheckpointClock, save_progress
 from lenspair.model.training.run_files import (
@@ -436,6 +437,18 @@ def _with_history(
                 runtime.data_path,
                 step,
                 before.data_path,
+            )
+    elif (
+        NAMES_DIGEST in before.data and NAMES_DIGEST in runtime.data and before.data != runtime.data
+    ):
+        earlier_data = (*earlier_data, f"{before.data} until step {step}")
+        if warn:  # rebuilt in place: same folder, other pairs
+            log.warning(
+                "resuming on %s, whose pairs changed since the run's first %d steps (then: "
+                "%s); its validation PSNRs and best.pt were measured on the pairs of then",
+                runtime.data,
+                step,
+                before.data,
             )
     runtime = dataclasses.replace(
         runtime,

@@ -81,6 +81,12 @@ class SubsetSource:
     def __getitem__(self, index: int) -> PairItem:
         return self.source[self.indices[index]]
 
+    @property
+    def names(self) -> list[str] | None:
+        """The pairs' names, in order, when the source lists them without reading."""
+        names = getattr(self.source, "names", None)
+        return None if names is None else [str(names[i]) for i in self.indices]
+
 
 def read_pair(pairs: PairSource, index: int, unread: list[Unread]) -> PairItem | None:
     """Pair ``index``, or ``None`` after logging and recording why it cannot be read.

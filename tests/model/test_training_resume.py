@@ -223,6 +223,28 @@ def test_a_run_whose_last_pt_was_removed_after_it_was_saved_is_not_started_over(
     assert not (run / "checkpoints" / "last.pt").exists()
 
 
+def test_a_resume_on_a_dataset_rebuilt_in_place_says_and_records_its_pairs_changed(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    import yaml
+
+    from lenspair.cli import main
+
+    dataset, run, _ = _cli_run(tmp_path)
+    resumed = ["train", str(dataset), "--out", str(run), "--resume"]
+    assert main([*resumed, "--max-steps", "4"]) == 0  # the same pairs: nothing said
+    assert yaml.safe_load((run / "config.yaml").read_text())["runtime"]["earlier_data"] == []
+    assert not any("pairs changed" in m for m in caplog.messages)
+    then = yaml.safe_load((run / "config.yaml").read_text())["runtime"]["data"]
+    for side in ("input", "target"):  # same folder, same counts, another pair
+        (dataset / "train" / side / "000.png").rename(dataset / "train" / side / "100.png")
+    assert main([*resumed, "--max-steps", "6"]) == 0
+    runtime = yaml.safe_load((run / "config.yaml").read_text())["runtime"]
+    assert runtime["earlier_data"] == [f"{then} until step 4"]
+    assert runtime["data"] != then and runtime["data_path"] == str(dataset.resolve())
+    assert any("whose pairs changed since the run's first 4 steps" in m for m in caplog.messages)
+
+
 def test_a_restart_of_a_fine_tuning_starts_again_from_its_init(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
