@@ -305,16 +305,16 @@ def choose_precision(
             )
         return PrecisionDecision(precision, requested, reason, native, str(device), hardware.name)
     if requested == "fp16" and device.type == "cpu":
-        raise ModelError("--precision fp16 runs on CUDA only; on the CPU use bf16 or fp32")
+        raise ModelError("precision fp16 runs on CUDA only; on the CPU use bf16 or fp32")
     if requested == "int8" and task == "train":
         raise ModelError(
-            "--precision int8 is for CPU inference (an ONNX Runtime quantised model); "
+            "precision int8 is for CPU inference (an ONNX Runtime quantised model); "
             "train at auto, fp32 or bf16"
         )
     if requested == "int8" and device.type == "cuda":
         # an inference caller (eval, tradeoff): the same network can run int8 on the CPU
         raise ModelError(
-            "--precision int8 is for CPU inference (an ONNX Runtime quantised model); "
+            "precision int8 is for CPU inference (an ONNX Runtime quantised model); "
             "use --device cpu for int8, or fp32, bf16 or fp16 on CUDA"
         )
     if requested in native:

@@ -94,7 +94,11 @@ def _init_weights(text: str) -> Path | str:
     ``./pretrained`` is a file: a path equal to the word once normalised
     (``Path("./pretrained")``) must not select the shipped weights.
     """
-    return text if text == SHIPPED_WEIGHTS else Path(text)
+    if text == SHIPPED_WEIGHTS:
+        return text
+    if not Path(text).exists():
+        raise argparse.ArgumentTypeError(f"{text}: checkpoint not found")
+    return Path(text)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -107,7 +107,9 @@ def _hold_out_groups(groups: dict[str, list[int]], count: int, upper: int) -> se
     return held
 
 
-def holdout_indices(names: Sequence[str], fraction: float) -> tuple[list[int], list[int]]:
+def holdout_indices(
+    names: Sequence[str], fraction: float, where: Path | None = None
+) -> tuple[list[int], list[int]]:
     """Split indices into (train, validation) by a hash of each name's group (deterministic).
 
     Whole groups (:func:`holdout_group`) are held out in the order of their
@@ -118,11 +120,14 @@ def holdout_indices(names: Sequence[str], fraction: float) -> tuple[list[int], l
     choice left (one short recording).
 
     Raises:
-        ModelError: fewer than two names.
+        ModelError: fewer than two names (naming ``where``, the dataset, if given).
 
     """
     if len(names) < 2:
-        raise ModelError(f"need at least 2 pairs to hold out a validation set, got {len(names)}")
+        raise ModelError(
+            f"{where}: " * (where is not None)
+            + f"need at least 2 pairs to hold out a validation set, got {len(names)}"
+        )
     count = min(len(names) - 1, max(1, math.ceil(fraction * len(names))))
     upper = min(len(names) - 1, max(count, math.floor(1.5 * count)))
     for window in HOLDOUT_WINDOWS_NS:
@@ -211,7 +216,7 @@ def paired_training_data(
     val_source: PairSource
     if detect_layout(path) is not None:
         every = open_paired(path)
-        train_idx, val_idx = holdout_indices(_names(every), data.val_fraction)
+        train_idx, val_idx = holdout_indices(_names(every), data.val_fraction, path)
         train_source, val_source = SubsetSource(every, train_idx), SubsetSource(every, val_idx)
         note = f"validation: {len(val_idx)} pairs held out by name hash"
     else:
@@ -222,7 +227,7 @@ def paired_training_data(
                 raise DatasetError(f"{path / data.val_split}: the split is empty")
         except DatasetError as exc:
             every = train_source
-            train_idx, val_idx = holdout_indices(_names(every), data.val_fraction)
+            train_idx, val_idx = holdout_indices(_names(every), data.val_fraction, path)
             train_source, val_source = SubsetSource(every, train_idx), SubsetSource(every, val_idx)
             note = f"no {data.val_split!r} split ({exc}); validation: {len(val_idx)} "
             note += f"{data.train_split!r} pairs held out by name hash"

@@ -104,6 +104,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["dataset-build", "DS", "--out", "x" * 300], "File name too long"),  # was a traceback
     (["eval", "CKPT", "--data", "DS", "--out", "y" * 300], "File name too long"),
     (["train", "DS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
+    (["train", "DS", "--out", "OUT", "--init", "OUT/none.pt"], "--init"),
     (["train", "DS", "--out", "OUT", "--crop-size", "16"], "--crop-size): expected >= 24"),
     (["tradeoff", "DS", "--out", "OUT", "--crop-size", "16"], "--crop-size): expected >= 24"),
     (["train", "DS", "--out", "OUT", "--device", "tpu"], "--device"),

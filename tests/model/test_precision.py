@@ -94,11 +94,11 @@ def test_cuda_native_set_follows_compute_capability_and_auto_stays_fp32(
 
 
 def test_refused_combinations_name_the_option() -> None:
-    with pytest.raises(ModelError, match="--precision fp16 runs on CUDA only"):
+    with pytest.raises(ModelError, match="precision fp16 runs on CUDA only"):
         choose_precision("fp16", CPU, "infer", _probe(_cpu("avx512_bf16")))
-    with pytest.raises(ModelError, match="--precision int8 is for CPU inference"):
+    with pytest.raises(ModelError, match="precision int8 is for CPU inference"):
         choose_precision("int8", CPU, "train", _probe(_cpu("avx512_vnni")))
-    with pytest.raises(ModelError, match="--precision int8 is for CPU inference"):
+    with pytest.raises(ModelError, match="precision int8 is for CPU inference"):
         choose_precision("int8", CUDA, "train", _probe(_gpu(8, 0)))
     with pytest.raises(ModelError, match="expected one of auto, fp32"):
         choose_precision("fp8", CPU, "infer", _probe(_cpu()))

@@ -377,6 +377,13 @@ def test_holdout_is_deterministic_and_stable() -> None:
     assert set(val) & set(val_more)  # adding a name does not reshuffle everything
 
 
+def test_a_one_pair_dataset_is_refused_naming_it(tmp_path: Path) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 1})  # no val split to fall back on
+    with pytest.raises(ModelError, match=r"ds: need at least 2 pairs to hold out") as error:
+        paired_training_data(dataset, tiny_config().data, None, seed=0)
+    assert str(dataset) in str(error.value)
+
+
 def test_neighbouring_frames_of_a_recording_are_held_out_together() -> None:
     # dataset-build names: <recording>_<t_ns>; 20 Hz frames over 40 s of two recordings
     t0 = 1_700_000_000_000_000_000
