@@ -16,12 +16,15 @@ whether the perceptual loss ran, the data it read).
 """
 
 import dataclasses
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 from lenspair.core.config import MAX_SEED, load_dataclass, read_yaml, to_plain
 from lenspair.core.errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 Variant = Literal["G", "GE", "GEA"]
 DropsPreset = Literal["ours", "sharp"]
@@ -323,9 +326,16 @@ def load_run_config(path: Path | None) -> RunConfig:
         return RunConfig()
     data = read_yaml(path)  # its errors name the file already
     try:
-        return run_config_from_dict(data)
+        config = run_config_from_dict(data)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
+    if config.runtime is not None:  # a run's config.yaml, reused: nothing there steers
+        log.info(
+            "%s: its runtime section records what a run did and is not read as settings "
+            "(precision, device and init are train.precision, --device and --init)",
+            path,
+        )
+    return config
 
 
 def with_file(config: RunConfig, path: Path) -> RunConfig:

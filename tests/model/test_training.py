@@ -86,6 +86,21 @@ def test_config_round_trips_and_defaults_follow_the_paper(tmp_path: Path) -> Non
     assert load_run_config(file) == tiny_config()
 
 
+def test_a_runtime_section_in_a_config_file_is_said_to_steer_nothing(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    file = tmp_path / "c.yaml"
+    file.write_text("train: {lr: 1.0e-3}\nruntime: {precision: fp32, device: cuda}\n")
+    caplog.set_level(logging.INFO)
+    assert load_run_config(file).train.lr == 1e-3
+    said = [r.getMessage() for r in caplog.records]
+    assert any(str(file) in m and "runtime section" in m and "not read" in m for m in said)
+    caplog.clear()
+    file.write_text("train: {lr: 1.0e-3}\n")
+    load_run_config(file)
+    assert not any("runtime section" in r.getMessage() for r in caplog.records)
+
+
 # --- the step ----------------------------------------------------------------------
 
 
