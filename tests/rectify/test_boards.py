@@ -101,6 +101,25 @@ def test_detect_board_seen_through_a_fisheye_lens(spec: str) -> None:
     assert detection.corners.dtype == np.float32 and detection.ids.dtype == np.int32
 
 
+@pytest.mark.parametrize("pixels_per_square", [7, 10, 12])
+def test_a_far_chessboard_with_small_squares_is_found(pixels_per_square: int) -> None:
+    # squares of 12 px or less: cv2's FAST_CHECK alone rejected these boards
+    board = parse_board_spec("chessboard:9x6:0.025")
+    texture, board_to_texture = board_texture(board, pixels_per_square=pixels_per_square)
+    noise = np.random.default_rng(0).normal(0, 4, (720, 1280))
+    image = np.clip(128 + noise, 0, 255).astype(np.uint8)
+    y, x = 300, 500
+    image[y : y + texture.shape[0], x : x + texture.shape[1]] = texture
+    detection = detect_corners(image, board)
+    assert detection is not None and len(detection) == board.num_corners
+    xy = board.object_points()[:, :2] @ board_to_texture[:2, :2].T + board_to_texture[:2, 2]
+    truth = xy + np.array([x, y])
+    error = np.linalg.norm(detection.corners - truth, axis=1)
+    if error.max() > 5:  # numbered from the opposite corner
+        error = np.linalg.norm(detection.corners[::-1] - truth, axis=1)
+    assert error.max() < 0.3
+
+
 def test_no_board_gives_none() -> None:
     blank = np.full((240, 320), 128, np.uint8)
     assert detect_corners(blank, parse_board_spec("chessboard:9x6:0.05")) is None
