@@ -24,6 +24,8 @@ DICTIONARIES = (
 )
 """ArUco dictionaries accepted for ChArUco boards (names of ``cv2.aruco`` constants)."""
 
+DEFAULT_DICTIONARY = "DICT_5X5_100"
+
 
 @dataclass(frozen=True)
 class BoardSpec:
@@ -56,7 +58,7 @@ class BoardSpec:
     rows: int
     square_m: float
     marker_m: float | None = None
-    dictionary: str = "DICT_5X5_100"
+    dictionary: str = DEFAULT_DICTIONARY
     distance_m: tuple[float, float] = (0.6, 1.6)
     max_tilt_deg: float = 40.0
     margin_px: float = 12.0
@@ -68,6 +70,10 @@ class BoardSpec:
             raise ValueError(f"cols, rows: expected 2..64, got {self.cols} x {self.rows}")
         if not 0.002 <= self.square_m <= 1.0:
             raise ValueError(f"square_m: expected 0.002..1 m, got {self.square_m}")
+        if self.kind == "chessboard" and (
+            self.marker_m is not None or self.dictionary != DEFAULT_DICTIONARY
+        ):  # a chessboard has no markers: the value would be ignored
+            raise ValueError("marker_m, dictionary: a chessboard has no markers (charuco only)")
         if self.marker_m is not None and not 0 < self.marker_m < self.square_m:
             raise ValueError(f"marker_m: expected 0 < marker_m < square_m, got {self.marker_m}")
         if self.dictionary not in DICTIONARIES:

@@ -114,7 +114,8 @@ def test_printed_board_matches_object_points(kind: str) -> None:
 @pytest.mark.parametrize("kind", ["chessboard", "charuco"])
 def test_scene_board_is_the_calibration_board(kind: str) -> None:
     # the spec a user passes to `lenspair calibrate` for a simulated board names the same board
-    spec = BoardSpec(kind=kind, cols=6, rows=5, square_m=0.04, marker_m=0.03)
+    marker = 0.03 if kind == "charuco" else None
+    spec = BoardSpec(kind=kind, cols=6, rows=5, square_m=0.04, marker_m=marker)
     target = spec.target
     assert parse_board_spec(target.spec()) == target
     # the simulator's frame differs from calibration's only by where the origin is
@@ -123,6 +124,14 @@ def test_scene_board_is_the_calibration_board(kind: str) -> None:
     if kind == "charuco":
         expected = target.charuco().getChessboardCorners()
         np.testing.assert_allclose(boards.object_points(spec), expected, atol=1e-7)
+
+
+def test_a_chessboard_with_marker_settings_is_a_spec_error() -> None:
+    # they were accepted and ignored: the user meant a ChArUco board, or a setting does nothing
+    with pytest.raises(ValueError, match="a chessboard has no markers"):
+        BoardSpec(kind="chessboard", cols=9, rows=6, square_m=0.04, marker_m=0.03)
+    with pytest.raises(ValueError, match="a chessboard has no markers"):
+        BoardSpec(kind="chessboard", cols=9, rows=6, square_m=0.04, dictionary="DICT_4X4_50")
 
 
 def test_board_the_calibrator_rejects_is_a_spec_error() -> None:
