@@ -151,6 +151,9 @@ class CalibrationResult:
             None for a top/bottom rig, which is not rectified.
         rejected: views left out, in the order they were rejected.
         counts: ``views``, ``cam0_detected``, ``cam1_detected``, ``both_detected``.
+        warnings: what the calibration warned about as it ran (a marker size
+            off, too little tilt, kept outliers), for the report; the board's
+            coverage warnings are added by :meth:`report`.
 
     """
 
@@ -164,6 +167,16 @@ class CalibrationResult:
     row_disagreement_px: float | None
     rejected: tuple[RejectedView, ...]
     counts: dict[str, int]
+    warnings: tuple[str, ...] = ()
+
+    def coverage_warnings(self) -> list[str]:
+        """A warning per camera whose views left much of the image without the board."""
+        return [
+            f"{name}: the board never reached much of the image; show it near the edges and "
+            "corners too, or the distortion there is a guess"
+            for name, cam in zip(("cam0", "cam1"), self.cameras, strict=True)
+            if cam.coverage < _LOW_COVERAGE
+        ]
 
     def summary(self) -> list[str]:
         """Lines for people: RMS figures, baseline, row disagreement, rejected views."""
@@ -178,11 +191,7 @@ class CalibrationResult:
                 f"f = ({fx:.2f}, {fy:.2f}), c = ({cx:.2f}, {cy:.2f}); "
                 f"board covered {cam.coverage:.0%} of the image"
             )
-            if cam.coverage < _LOW_COVERAGE:
-                lines.append(
-                    f"warning: {name}: the board never reached much of the image; show it "
-                    "near the edges and corners too, or the distortion there is a guess"
-                )
+        lines += [f"warning: {warning}" for warning in self.coverage_warnings()]
         lines.append(
             f"stereo: RMS {self.stereo_rms_px:.3f} px over {len(self.stereo_views)} views; "
             f"baseline {self.rig.baseline_m:.4f} m"
@@ -226,6 +235,7 @@ class CalibrationResult:
             },
             "row_disagreement_px": self.row_disagreement_px,
             "rejected": [vars(r) for r in self.rejected],
+            "warnings": [*self.warnings, *self.coverage_warnings()],
         }
 
 
@@ -344,6 +354,28 @@ def _release(records: list[logging.LogRecord]) -> None:
         log.handle(record)
 
 
+class _Noted(logging.Handler):
+    """Keeps the messages of the warnings a logger's handlers are given."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
+
+
+@contextlib.contextmanager
+def _noted(logger: logging.Logger) -> Iterator[list[str]]:
+    """The warnings ``logger`` says meanwhile (those :func:`_held` back only once released)."""
+    handler = _Noted()
+    logger.addHandler(handler)
+    try:
+        yield handler.messages
+    finally:
+        logger.removeHandler(handler)
+
+
 MARKER_TOLERANCE = 0.15
 """Markers measured this far (relative) from the stated ``MARKER_M`` are reported (warning)."""
 
@@ -457,6 +489,19 @@ def calibrate_from_detections(
         RectifyError: too few usable views, OpenCV failure, implausible result.
 
     """
+    with _noted(log) as warnings:
+        result = _calibrate(detections, board, model, resolutions, names, options)
+    return dataclasses.replace(result, warnings=tuple(warnings))
+
+
+def _calibrate(
+    detections: Sequence[tuple[Detection | None, Detection | None]],
+    board: Board,
+    model: CalibrationModel,
+    resolutions: tuple[tuple[int, int], tuple[int, int]],
+    names: Sequence[str] | None,
+    options: CalibrationOptions | None,
+) -> CalibrationResult:
     options = options or CalibrationOptions()
     names = list(names) if names is not None else [f"view {i}" for i in range(len(detections))]
     if len(names) != len(detections):

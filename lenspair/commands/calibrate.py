@@ -7,7 +7,8 @@ reprojection error far above the median are rejected, and named. Prints the
 per-camera and stereo RMS reprojection errors and the rectified row
 disagreement (RMS of the row differences of matched corners after
 rectification), writes Kalibr's camchain to --out and a JSON report beside it
-(camchain.yaml -> camchain.report.json). The workflow is the library function
+(camchain.yaml -> camchain.report.json; its "warnings" keep what the run warned
+about: a marker size off, too little tilt, poor coverage). The workflow is the library function
 lenspair.rectify.recording_calibration.calibrate_recording.
 
 Boards (sizes in metres):

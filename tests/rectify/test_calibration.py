@@ -152,11 +152,13 @@ def test_charuco_markers_unlike_the_stated_size_are_reported(
         if d0 is not None and d1 is not None
     ]
     with caplog.at_level("WARNING"):
-        calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+        result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
     reported = [m for m in caplog.messages if "MARKER_M" in m]
     assert bool(reported) is warned
     if warned:
         assert "0.0278 m" in reported[0] and "states 0.037 m" in reported[0]
+    # and camchain.report.json keeps what was said (it was in the terminal only)
+    assert [m for m in result.report()["warnings"] if "MARKER_M" in m] == reported
     from lenspair.commands import calibrate
 
     assert f"more than {round(100 * MARKER_TOLERANCE)} %" in str(calibrate.__doc__)
@@ -230,6 +232,8 @@ def test_only_the_kept_calibration_of_each_camera_speaks(
         assert len(result.cameras[int(camera[-1])].views) == 14  # said of the kept calibration
     # the first pass's rejections, undone by the fallback, are not said either
     assert not any(m.startswith(("cam0: kept", "cam1: kept")) for m in caplog.messages)
+    said = [r.getMessage() for r in caplog.records if r.name == "lenspair.rectify.calibration"]
+    assert len(said) == 4 and list(result.warnings) == said  # what was said, only that
     assert calibration_filters() == []
 
 
