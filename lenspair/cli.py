@@ -48,6 +48,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+INTERRUPTED = 130
+"""The exit code after Ctrl-C (128 + SIGINT, as shells report a process it stopped)."""
+
+
 def _load(name: str) -> ModuleType:
     return importlib.import_module(COMMANDS[name][0])
 
@@ -100,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         parser = build_parser(selected)  # imports the command's module: numpy, OpenCV, torch
     except KeyboardInterrupt:  # Ctrl-C this early has nothing to resume
         print(f"lenspair {selected or ''}: interrupted".replace(" :", ":"), file=sys.stderr)
-        return 130
+        return INTERRUPTED
     if not argv:
         parser.print_help(sys.stderr)
         return 2
@@ -138,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         if own_hint is not None:
             hint = own_hint(args) or hint
         print(f"lenspair {args.command}: interrupted; {hint}", file=sys.stderr)
-        return 130
+        return INTERRUPTED
 
 
 if __name__ == "__main__":  # python -m lenspair.cli, as torchrun -m runs it

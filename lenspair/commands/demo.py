@@ -35,6 +35,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def interrupt_hint(args: argparse.Namespace) -> str:
+    """After Ctrl-C: the same command again goes on from the stage it stopped in."""
+    quick = " --quick" if args.quick else ""
+    return f"rerun lenspair demo --out {args.out}{quick} to resume from the stage it stopped in"
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns 0 on success."""
     print(f"lenspair demo: writing to {args.out.resolve()}", flush=True)

@@ -71,6 +71,32 @@ def test_an_unfinished_resumable_stage_resumes_and_later_stages_run(tmp_path: Pa
     assert (tmp_path / "ing" / "partial").is_file()  # resumed, not wiped
 
 
+def test_ctrl_c_in_a_stage_stops_the_demo_as_interrupted_not_failed(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import lenspair.demo
+    from lenspair.cli import INTERRUPTED, main
+
+    spec = tmp_path / "scene.yaml"
+    spec.write_text("frames: 10\n")
+    stages = _stages(tmp_path, spec)
+    cli = FakeCli({s.argv[0]: s.output for s in stages})
+
+    def stopped_in_ingest(argv: list[str]) -> int:
+        return INTERRUPTED if argv[0] == "ingest" else cli(argv)
+
+    with pytest.raises(KeyboardInterrupt):  # was DemoError "stage ingest failed (exit code 130)"
+        run_stages(tmp_path, stages, stopped_in_ingest)
+    assert cli.calls == ["simulate"] and not (tmp_path / ".stages" / "ingest.json").exists()
+    monkeypatch.setattr(lenspair.demo, "plan", lambda out, budget: stages)
+    monkeypatch.setattr(lenspair.demo, "cli_main", stopped_in_ingest)
+    capsys.readouterr()
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == INTERRUPTED
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said.startswith("lenspair demo: interrupted; rerun lenspair demo --out")
+    assert "failed" not in said
+
+
 @pytest.mark.parametrize("scene", ["chessboard.yaml", "charuco.yaml"])
 def test_demo_calibrates_with_the_board_the_simulator_drew(scene: str) -> None:
     flag_board, board, flag_model, model = board_arguments(scene)
