@@ -28,8 +28,14 @@ ANOMALY_SCALE = 4
 
 
 def to_grey(image: np.ndarray) -> np.ndarray:
-    """``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB -> grey ``float32`` in ``[0, 1]``."""
-    grey = image.astype(np.float32) * np.float32(1.0 / max_value(image.dtype))
+    """``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB -> grey ``float32`` in ``[0, 1]``.
+
+    Divided, not multiplied by a rounded reciprocal: an 8-bit image and its
+    16-bit copy (``x * 257``) give exactly the same grey (the quotients are
+    equal and IEEE division rounds them alike), so a pair that differs only
+    in bit depth compares as identical.
+    """
+    grey = image.astype(np.float32) / np.float32(max_value(image.dtype))
     if grey.ndim == 3:
         return np.asarray(cv2.cvtColor(grey, cv2.COLOR_RGB2GRAY))
     return grey

@@ -23,3 +23,15 @@ def test_laplacian_variance_drops_with_blur_and_is_bit_depth_free() -> None:
     assert laplacian_variance(to_grey(sharp)) > 1000.0
     wide = sharp.astype(np.uint16) * 257
     assert laplacian_variance(to_grey(wide)) == pytest.approx(laplacian_variance(to_grey(sharp)))
+
+
+def test_an_8_bit_image_and_its_16_bit_copy_have_the_same_grey() -> None:
+    from lenspair.simulate.realism import realism_statistics
+
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    wide = image.astype(np.uint16) * np.uint16(257)
+    assert np.array_equal(to_grey(image), to_grey(wide))  # was a few ulps apart
+    assert np.array_equal(to_grey(image[..., 0]), to_grey(wide[..., 0]))
+    # so realism reads such a pair as identical (its input PSNR was about 152 dB)
+    assert realism_statistics(wide, image).input_psnr == float("inf")
