@@ -229,11 +229,13 @@ def detect_frames(
     batch: list[InputFrame] = []
     depth = RunningDepth("the input")
 
-    def flush() -> None:
+    def flush(bits: int | None = None) -> None:
+        """Judge the batch at ``bits`` (default: the depth now)."""
         if not batch:
             return
         # 16-bit frames of 10- or 12-bit values are judged (and shown) on the full scale
-        images = [widen(frame.image, depth.bits) for frame in batch if frame.image is not None]
+        bits = depth.bits if bits is None else bits
+        images = [widen(frame.image, bits) for frame in batch if frame.image is not None]
         result = judge(network, images, batch_size, threshold)
         rows = _verdicts(batch, result)
         for position, (frame, row) in enumerate(zip(batch, rows, strict=True)):
@@ -256,7 +258,12 @@ def detect_frames(
             )
             verdicts.append(failed)
             continue
+        seen = depth.bits
         depth.see(frame.image)
+        if batch and depth.bits != seen:
+            # the frames batched so far are judged at the depth they were seen at: a
+            # later frame that raises it must not rescale them (as restore does)
+            flush(seen)
         batch.append(frame)
         if len(batch) == batch_size:
             flush()

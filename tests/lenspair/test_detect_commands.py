@@ -53,6 +53,26 @@ def test_detect_folder_writes_rows_sheet_and_records_bad_frames(
     assert read_image(out / "contact_sheet.png").ndim == 3
 
 
+def test_a_frame_is_judged_alike_whatever_frames_share_its_batch(
+    tiny_detector: Path, tmp_path: Path
+) -> None:
+    # a 12-bit frame in 16-bit words, then a true 16-bit one: the second raises the
+    # depth, which rescaled the first in the batch they shared (judged 16x too dark)
+    twelve = (texture((120, 180), 0) * 4095).astype(np.uint16)
+    both, alone = tmp_path / "both", tmp_path / "alone"
+    write_image(both / "a.png", twelve)
+    write_image(both / "b.png", (texture((120, 180), 1) * 65535).astype(np.uint16))
+    write_image(alone / "a.png", twelve)
+    probability = {}
+    for frames in (both, alone):
+        out = tmp_path / f"out_{frames.name}"
+        assert main(["detect", str(tiny_detector), str(frames), "--out", str(out)]) == 0
+        with (out / "detections.csv").open() as handle:
+            rows = {row["name"]: float(row["probability"]) for row in csv.DictReader(handle)}
+        probability[frames.name] = rows["a.png"]
+    assert probability["both"] == pytest.approx(probability["alone"], abs=1e-6)
+
+
 def test_detect_bag_judges_both_cameras_frame_by_frame(tiny_detector: Path, tmp_path: Path) -> None:
     bag = bag_from_recording(tmp_path / "b", "mcap", frames=3)
     out = tmp_path / "out"
