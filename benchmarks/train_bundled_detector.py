@@ -52,7 +52,7 @@ from benchmarks.detector_issue_checks import checks_markdown, issue_checks
 from lenspair.capture.ingest import ingest_recording
 from lenspair.commands.argtypes import positive_int
 from lenspair.core.device import resolve_device
-from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.fsutil import atomic_write_json, remove_path
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import load_dataset_config
 from lenspair.dataset.manifest import read_manifest
@@ -207,6 +207,7 @@ def main(argv: list[str] | None = None) -> int:
         threads=args.threads,
     )
     out = work / "run"
+    remove_path(out)  # a rerun trains again (run_training refuses to replace a run)
     scores = run_training(
         out, sources, DetectorSpec(), settings, device=device, workers=args.workers
     )

@@ -22,6 +22,7 @@ from lenspair.model.detection.judge import judge
 from lenspair.model.detection.score import DetectionScores, score, scores_markdown
 from lenspair.model.detection.sources import DetectorSources, gather
 from lenspair.model.detection.train import DetectorTraining, save_detector, train_detector
+from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
 
 log = logging.getLogger(__name__)
@@ -29,6 +30,9 @@ log = logging.getLogger(__name__)
 __all__ = ["DETECTOR_FILE", "DetectorSources", "gather", "run_training", "score_sets"]
 
 DETECTOR_FILE = "detector.pt"
+
+RUN_FILES = (DETECTOR_FILE, "run.json", "scores.json", "scores.md")
+"""What a run writes into its folder; a folder holding any of them is refused."""
 
 
 def score_sets(
@@ -54,14 +58,23 @@ def run_training(
     """Gather, train, score and write ``out/`` (module docstring); returns the scores.
 
     Args:
-        out: the run folder.
+        out: the run folder (refused if it holds any of :data:`RUN_FILES`).
         sources: where the samples come from.
         spec: the architecture.
         settings: training settings.
         device: where to train and score (resolved by the caller).
         workers: processes gathering samples (:func:`gather`).
+
+    Raises:
+        ModelError: ``out`` holds an earlier run; no usable samples.
     """
     out = Path(out)
+    held = [name for name in RUN_FILES if (out / name).exists()]
+    if held:  # a detector can be half an hour of CPU: never replaced unasked
+        raise ModelError(
+            f"{out} already holds a detector run ({', '.join(held)}); choose another --out, "
+            "or move them aside to train again there"
+        )
     train, held_out = gather(sources, spec, settings.seed, workers)
     out.mkdir(parents=True, exist_ok=True)  # after the inputs are found good: none left empty
     counts = {"train": len(train), "train_obstructed": sum(s.obstructed for s in train)}

@@ -194,6 +194,21 @@ def test_a_run_without_a_sheet_leaves_no_earlier_sheet(tiny_detector: Path, tmp_
     assert not (out / "contact_sheet.png").exists()  # it was the first run's, passing for this one
 
 
+def test_train_detector_never_replaces_an_earlier_run(
+    tiny_detector: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    kept = (run / "detector.pt").write_bytes(tiny_detector.read_bytes())
+    capsys.readouterr()
+    argv = ["train-detector", "--synthetic", "4", "--steps", "1", "--out", str(run)]
+    assert main(argv) == 2  # it was replaced by the one-step detector, unsaid
+    error = capsys.readouterr().err.strip()
+    assert "already holds a detector run (detector.pt)" in error and "\n" not in error
+    assert (run / "detector.pt").read_bytes() == tiny_detector.read_bytes() and kept
+    assert sorted(p.name for p in run.iterdir()) == ["detector.pt"]
+
+
 def test_train_detector_says_what_it_cannot_use_in_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
 ) -> None:
