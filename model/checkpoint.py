@@ -33,6 +33,9 @@ from lenspair.model.networks.variants import build_model
 from lenspair.model.training.config import ModelConfig, RunConfig, run_config_from_dict
 
 CHECKPOINT_FORMAT = "lenspair-checkpoint"
+
+DETECTOR_FORMAT = "lenspair-detector-1"
+"""The ``format`` of an anomaly detector's checkpoint (:mod:`lenspair.model.detection.train`)."""
 CHECKPOINT_VERSION = 1
 
 
@@ -145,6 +148,11 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
             + (" (restore also runs the .onnx file itself)" if other.startswith("an ONNX") else "")
         )
     data = read_torch_file(path, "lenspair checkpoint")
+    if isinstance(data, dict) and data.get("format") == DETECTOR_FORMAT:
+        raise ModelError(
+            f"{path}: an anomaly detector (from train-detector, for detect), not a restoration "
+            "network; give a checkpoint from lenspair train"
+        )
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise ModelError(f"{path}: not a lenspair checkpoint")
     if data.get("version") != CHECKPOINT_VERSION:

@@ -41,12 +41,10 @@ import torch.nn.functional as functional
 from lenspair.core.fsutil import atomic_write
 from lenspair.core.progress import progress
 from lenspair.core.samples import file_or_sample
-from lenspair.model.checkpoint import read_torch_file
+from lenspair.model.checkpoint import DETECTOR_FORMAT, read_torch_file
 from lenspair.model.detection.data import UNKNOWN_KIND, DetectorSample
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import KINDS, TILE_STRIDE, AnomalyDetector, DetectorSpec
-
-CHECKPOINT_FORMAT = "lenspair-detector-1"
 
 
 @dataclass(frozen=True)
@@ -267,7 +265,7 @@ def save_detector(
 ) -> None:
     """Write a detector checkpoint atomically (CPU tensors, plain values)."""
     payload = {
-        "format": CHECKPOINT_FORMAT,
+        "format": DETECTOR_FORMAT,
         "spec": {key: list(value) for key, value in asdict(network.spec).items()},
         "kinds": list(KINDS),
         "state_dict": {k: v.detach().cpu() for k, v in network.state_dict().items()},
@@ -290,7 +288,7 @@ def load_detector(path: Path, device: torch.device | str = "cpu") -> AnomalyDete
     if not path.is_file():
         raise ModelError(f"{path}: no such detector checkpoint")
     data = read_torch_file(path, "detector checkpoint")
-    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+    if not isinstance(data, dict) or data.get("format") != DETECTOR_FORMAT:
         raise ModelError(f"{path}: not a detector checkpoint (train one with train-detector)")
     if tuple(data["kinds"]) != KINDS:
         raise ModelError(f"{path}: kinds {data['kinds']} differ from this version's {KINDS}")

@@ -90,6 +90,10 @@ def test_unreadable_and_foreign_files_raise(tmp_path: Path) -> None:
     torch.save({"weights": torch.zeros(1)}, foreign)
     with pytest.raises(ModelError, match="not a lenspair checkpoint"):
         load_checkpoint(foreign)
+    # the bundled detector is a lenspair checkpoint, of the other kind: said so
+    detector = Path(__file__).parents[2] / "calib_samples" / "detector.pt"
+    with pytest.raises(ModelError, match=r"an anomaly detector \(from train-detector"):
+        load_checkpoint(detector)
 
 
 def test_weights_that_do_not_fit_are_reported(tmp_path: Path) -> None:
