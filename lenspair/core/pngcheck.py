@@ -39,8 +39,11 @@ def png_problem(data: bytes) -> str | None:
         if position + 8 > len(data):
             return f"truncated (chunk header at byte {position} cut off)"
         length, kind = struct.unpack(">I4s", data[position : position + 8])
+        if not all(65 <= c <= 90 or 97 <= c <= 122 for c in kind):
+            # chunk types are four ASCII letters: these bytes are damage, not a chunk
+            return f"corrupt (no chunk type at byte {position + 4}: {bytes(kind)!r})"
         end = position + 12 + length
-        name = kind.decode("latin-1")
+        name = kind.decode("ascii")
         if end > len(data):
             return f"truncated (chunk {name} at byte {position} cut off)"
         if first and kind != b"IHDR":

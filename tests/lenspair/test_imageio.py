@@ -95,7 +95,9 @@ def test_float_conversion_is_exact_for_every_code() -> None:
     ]
 
 
-@pytest.mark.parametrize("damage", ["empty", "truncated", "flipped-byte", "no-iend"])
+@pytest.mark.parametrize(
+    "damage", ["empty", "truncated", "flipped-byte", "no-iend", "garbage-after-signature"]
+)
 def test_damaged_png_is_one_clear_error_and_nothing_on_stderr(
     tmp_path: Path, capfd: pytest.CaptureFixture[str], damage: str
 ) -> None:
@@ -109,6 +111,8 @@ def test_damaged_png_is_one_clear_error_and_nothing_on_stderr(
         "truncated": "truncated",
         "flipped-byte": "CRC mismatch",
         "no-iend": "truncated",
+        # it said "truncated (chunk  is  at byte 8 cut off)": garbage read as a chunk
+        "garbage-after-signature": r"corrupt \(no chunk type at byte 12: b' is '\)",
     }[damage]
     if damage == "empty":
         data = bytearray()
@@ -116,6 +120,8 @@ def test_damaged_png_is_one_clear_error_and_nothing_on_stderr(
         data = data[: len(data) // 2]
     elif damage == "flipped-byte":
         data[len(data) // 2] ^= 0xFF
+    elif damage == "garbage-after-signature":
+        data = data[:8] + bytearray(b"this is garbage")
     else:
         data = data[:-12]
     bad.write_bytes(bytes(data))
