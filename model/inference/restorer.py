@@ -72,7 +72,7 @@ class Restorer:
         check_options(RestoreOptions(tile=tile, overlap=overlap), self.backend)  # as restore's
         self.tile = None if tile is None else int(tile)
         self.overlap = int(overlap)
-        self.depth = RunningDepth(str(model))
+        self.depth = RunningDepth(f"the frames given to Restorer({Path(model).name})")
 
     @property
     def channels(self) -> int:
