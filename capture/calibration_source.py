@@ -6,6 +6,7 @@ In order: the files given with ``--calib``, else the file named by
 ``mav0/cam{0,1}/sensor.yaml`` when both hold intrinsics and ``T_BS``.
 """
 
+import os
 from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
@@ -45,8 +46,9 @@ def find_calibration(
         if not paths[0].is_file():
             raise CaptureError(f"{rig_path}: calibration {rig_file.calibration!r} not found")
     else:
-        places = [recording.path] if recording.path.is_dir() else []
-        places.append(recording.path.parent)
+        here = Path(os.path.abspath(recording.path))  # "." and ".." have parents too
+        places = [here] if here.is_dir() else []
+        places.append(here.parent)
         paths = [p / CAMCHAIN_FILE for p in places if (p / CAMCHAIN_FILE).is_file()][:1]
         sensors = [recording.sensor_files.get(camera) for camera in ("cam0", "cam1")]
         if not paths and all(p is not None and is_euroc_sensor_file(p) for p in sensors):

@@ -261,8 +261,8 @@ def _frame_stage(
 ) -> list[PairRecord]:
     """Process every pair not already done (journal), record unpaired frames; in time order."""
     out_dir = context.out_dir
-    warnings = {
-        p.t_ns: str(p)
+    warnings = {  # the reason alone: the record names its frame, and the path as typed
+        p.t_ns: p.reason  # must not change a finished frame's key (a resume from elsewhere)
         for p in recording.problems
         if not p.dropped and p.camera == rig_file.obstructed and p.t_ns is not None
     }

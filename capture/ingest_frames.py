@@ -267,11 +267,19 @@ def content_id(frame: FrameRef) -> str:
 
 
 def _identity(frame: FrameRef) -> list[object]:
+    """The frame's place in its recording and its file's size and time, whatever the path.
+
+    The file's folder is left out: the same recording given as ``rec`` from
+    one folder and ``../rec`` from another (or moved with its times kept)
+    resumes instead of doing every frame, and a bag's homography again.
+    """
+    place = [frame.camera, frame.t_ns, frame.source.name, frame.topic, frame.log_time_ns]
+    place.append(frame.occurrence)
     try:
         stat = frame.source.stat()
-        return [frame.describe(), stat.st_size, stat.st_mtime_ns]
+        return [*place, stat.st_size, stat.st_mtime_ns]
     except OSError:
-        return [frame.describe(), None, None]
+        return [*place, None, None]
 
 
 @dataclass(frozen=True)

@@ -53,6 +53,7 @@ module is the reader dispatch.
 :func:`find_rig_file`; :func:`resolve_obstructed` applies ``--obstructed``.
 """
 
+import os
 from dataclasses import replace
 from pathlib import Path
 from typing import get_args
@@ -144,8 +145,13 @@ def open_recording(path: Path, topics: tuple[str, str] | None = None) -> Recordi
 
 
 def find_rig_file(recording_path: Path) -> Path | None:
-    """``rig.yaml`` of a recording: inside its folder, else beside it (bag or folder)."""
-    path = Path(recording_path)
+    """``rig.yaml`` of a recording: inside its folder, else beside it (bag or folder).
+
+    "Beside" is taken on the absolute path (``os.path.abspath``, which also
+    undoes ``..``): the recording given as ``.`` from inside ``mav0`` looked
+    for ``./rig.yaml`` twice and missed the one beside ``mav0``.
+    """
+    path = Path(os.path.abspath(recording_path))
     candidates = [path / RIG_FILE] if path.is_dir() else []
     candidates.append(path.parent / RIG_FILE)
     return next((c for c in candidates if c.is_file()), None)

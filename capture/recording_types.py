@@ -172,7 +172,7 @@ def order_frames(
             time, or already sorted for folders).
         problems: appended to: one dropped entry per repeated timestamp (the
             first occurrence is kept), one warning per frame whose timestamp
-            goes back relative to an earlier one, and one warning per frame
+            goes back from the frame before it, and one warning per frame
             listed again with its timestamp (a repeated ``data.csv`` row: one
             frame, counted once).
 
@@ -180,7 +180,7 @@ def order_frames(
         Frames sorted by ``t_ns`` with unique timestamps.
     """
     kept: dict[int, FrameRef] = {}
-    latest: FrameRef | None = None
+    previous: FrameRef | None = None
     for frame in frames:
         if frame.t_ns in kept:
             first = kept[frame.t_ns].describe()
@@ -194,13 +194,14 @@ def order_frames(
                 )
             )
             continue
-        if latest is not None and frame.t_ns < latest.t_ns:
-            back_ms = (latest.t_ns - frame.t_ns) / 1e6
-            reason = f"timestamp goes back by {back_ms:.3f} ms after t_ns={latest.t_ns}"
+        if previous is not None and frame.t_ns < previous.t_ns:
+            back_ms = (previous.t_ns - frame.t_ns) / 1e6
+            reason = f"timestamp goes back by {back_ms:.3f} ms after t_ns={previous.t_ns}"
             problems.append(
                 FrameProblem(camera, frame.t_ns, frame.describe(), reason, dropped=False)
             )
         kept[frame.t_ns] = frame
-        if latest is None or frame.t_ns > latest.t_ns:
-            latest = frame
+        # against the frame before it, not the latest time so far: one stamp far
+        # in the future gave every later (good) frame this warning
+        previous = frame
     return sorted(kept.values(), key=lambda f: f.t_ns)

@@ -145,6 +145,19 @@ def test_unpaired_duplicate_and_backward_frames_are_accounted_for(tmp_path: Path
     assert [r.t_ns for r in twice] == [int(lines[3].split(",")[0])] and twice[0].status == "kept"
 
 
+def test_one_stamp_far_in_the_future_is_not_blamed_on_every_later_frame(tmp_path: Path) -> None:
+    from lenspair.capture.recording_types import FrameProblem, FrameRef, order_frames
+
+    stamps = [100, 200, 10**19, 300, 400, 500]  # a garbled data.csv row in the middle
+    frames = [FrameRef("cam1", t, tmp_path / f"{k}.png") for k, t in enumerate(stamps)]
+    problems: list[FrameProblem] = []
+    ordered = order_frames("cam1", frames, problems)
+    assert [f.t_ns for f in ordered] == sorted(stamps)
+    # one warning, on the frame after the odd one, naming it (each later frame had one)
+    assert [(p.t_ns, p.dropped) for p in problems] == [(300, False)]
+    assert f"after t_ns={10**19}" in problems[0].reason
+
+
 def test_an_image_data_csv_does_not_list_is_named_in_pairs_jsonl(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -321,6 +334,43 @@ def test_a_namesake_recording_is_refused_not_merged(tmp_path: Path) -> None:
     set_report_aside(out / "rec")
     with pytest.raises(CaptureError, match=r"holds the ingest of .*a/rec.*same name"):
         _ingest(second, out)
+
+
+def test_a_recording_given_as_dot_from_inside_mav0_finds_its_rig_and_calibration(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3)
+    _, _, absolute = _ingest(recording / "mav0", tmp_path / "a")
+    monkeypatch.chdir(recording / "mav0")
+    # "." has "." for parent: rig.yaml was not found beside mav0 (an error, or with
+    # --obstructed no anomaly labels and another calibration), "rec" named it right
+    _, _, dot = _ingest(Path("."), tmp_path / "b")
+    assert dot.anomaly == absolute.anomaly == ("rain",)
+    assert dot.calibration_source == absolute.calibration_source
+    monkeypatch.chdir(recording / "mav0" / "cam0")
+    _, _, up = _ingest(Path(".."), tmp_path / "c")
+    assert up.anomaly == ("rain",) and up.calibration_source == absolute.calibration_source
+
+
+def test_a_rerun_from_another_working_folder_resumes_every_frame(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=4)
+    monkeypatch.chdir(tmp_path)
+    out_dir, _, _ = _ingest(Path("rec"), tmp_path / "out")
+    files = {p: p.read_bytes() for p in out_dir.rglob("*") if p.is_file()}
+    stamps = {p: p.stat().st_mtime_ns for p in (out_dir / "input").iterdir()}
+    monkeypatch.chdir(recording / "mav0")
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        _ingest(Path("..") / ".." / "rec", tmp_path / "out")  # the same recording
+    # every frame was done again ("the ... input frames differ"), the homography too
+    assert not any("processed again" in m for m in caplog.messages)
+    assert {p: p.stat().st_mtime_ns for p in (out_dir / "input").iterdir()} == stamps
+    after = {p: p.read_bytes() for p in out_dir.rglob("*") if p.is_file()}
+    assert after.keys() == files.keys()
+    changed = [p.name for p in files if files[p] != after[p]]
+    assert set(changed) <= {"report.json"}, changed  # its timings
 
 
 def test_an_out_that_makes_the_ingest_the_recording_itself_is_refused(tmp_path: Path) -> None:
