@@ -447,6 +447,28 @@ def _matrix_node(node: Any, path: Path, key: str) -> np.ndarray:
         raise RectifyError(f"{path}: {key}: expected 16 numbers (a 4x4 transform)") from None
 
 
+def _camera_named(path: Path) -> str | None:
+    """``cam0``/``cam1`` when the path names one (``mav0/cam1/sensor.yaml``, ``cam0.yaml``)."""
+    for part in reversed(Path(path).with_suffix("").parts):
+        if part in ("cam0", "cam1"):
+            return part
+    return None
+
+
+def _check_camera_order(files: Sequence[Path]) -> None:
+    """Refuse per-camera files whose paths say they were given cam1 first.
+
+    Each camera would be rectified with the other's intrinsics and the
+    extrinsic inverted, and the ingest ran on without a word.
+    """
+    named = [_camera_named(path) for path in files]
+    if named == ["cam1", "cam0"]:
+        raise RectifyError(
+            f"{files[0]} + {files[1]}: by their paths the first is cam1's and the second "
+            "cam0's; give the per-camera files in the order cam0, cam1"
+        )
+
+
 def _is_ros(text: str) -> bool:
     try:
         data = yaml.safe_load(text)
@@ -482,9 +504,11 @@ def load_calibration(
         rig = _from_filestorage(files, resolution)
         return rig, f"OpenCV FileStorage {' + '.join(str(p) for p in files)}"
     if len(files) in (2, 3) and _is_ros(texts[0]) and _is_ros(texts[1]):
+        _check_camera_order(files[:2])
         return _from_ros(files, texts)
     sensors = [_euroc_sensor(text) for text in texts]
     if len(files) == 2 and all(sensors):
+        _check_camera_order(files)
         return _from_euroc(files, sensors)  # type: ignore[arg-type]
     if len(files) == 1:
         try:

@@ -55,7 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         metavar="FILE",
         help="calibration file: Kalibr camchain, OpenCV FileStorage, ROS camera_info or "
-        "EuRoC sensor.yaml (repeat for several files); default: rig.yaml's, else "
+        "EuRoC sensor.yaml (repeat for several files; per-camera files in the order cam0, "
+        "cam1); default: rig.yaml's, else "
         "camchain.yaml, else the EuRoC recording's sensor.yaml files",
     )
     parser.add_argument(

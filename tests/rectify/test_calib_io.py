@@ -221,6 +221,9 @@ def test_euroc_sensor_files_give_the_rig_and_a_bad_pose_names_its_file(tmp_path:
     assert source.startswith("EuRoC sensor.yaml")
     assert found.cam0 == rig.cam0 and found.cam1 == rig.cam1
     np.testing.assert_allclose(found.T_cam1_cam0, rig.T_cam1_cam0, atol=1e-12)
+    # given cam1 first, each camera was rectified with the other's intrinsics, unsaid
+    with pytest.raises(RectifyError, match=r"the first is cam1's .* order cam0, cam1"):
+        load_calibration(files[::-1])
     text = files[1].read_text()
     files[1].write_text(text.replace("  data: [", "  data: [7, "))  # 17 numbers
     with pytest.raises(RectifyError, match=rf"^{files[1]}: T_BS: expected 16 numbers"):
