@@ -284,7 +284,7 @@ def _frame_stage(
     if redone:  # a rerun with another calibration, side or thresholds replaces them: said
         log.warning(
             "%s: %d finished frames are processed again: the calibration, obstructed side, "
-            "thresholds or input frames differ from the run that wrote them",
+            "--size, thresholds or input frames differ from the run that wrote them",
             out_dir,
             redone,
         )

@@ -25,7 +25,7 @@ its mismatches; undetermined on defocused rain), with
 --detector MODEL (from train-detector, or detector.pt: the bundled one; on
 --device, the GPU when there is one) by judging each camera's views; report.json's
 side_check gives the inferred side and its confidence. Rerunning resumes an interrupted
-run and leaves finished outputs untouched; a rerun with another calibration, side or
+run and leaves finished outputs untouched; a rerun with another calibration, side, --size or
 thresholds processes the frames again and says how many. Exit code 0 when at least one pair
 was kept, 2 on an error or when no usable pair remains.
 """
