@@ -91,7 +91,12 @@ from lenspair.core.quality import is_blank
 from lenspair.rectify.crop import choose_crop
 from lenspair.rectify.errors import CropError, RectifyError
 from lenspair.rectify.rectification import StereoRectification
-from lenspair.rectify.registration import EstimationParams, VerifyParams, estimate_homography
+from lenspair.rectify.registration import (
+    EstimationParams,
+    VerifyParams,
+    estimate_homography,
+    implausible_turn,
+)
 from lenspair.rectify.remap import target_map, valid_region
 from lenspair.rectify.rig import StereoRig, rig_to_kalibr
 
@@ -499,6 +504,15 @@ def ingest_recording(
         )
 
     matrix = np.asarray(registration["matrix"], dtype=np.float64)
+    if (turned := implausible_turn(matrix)) is not None:
+        log.warning(
+            "%s: the homography from the clean to the obstructed view %s, where rectified "
+            "views of one rig differ by a shift: the calibration (%s) is likely not this "
+            "rig's (another rig's, or a camera remounted since); check it, or calibrate again",
+            recording.path,
+            turned,
+            calibration_source,
+        )
     valid = valid_region(
         context.rectified_to_raw_obstructed,
         context.rectified_to_raw_clean,

@@ -220,6 +220,35 @@ def estimate_homography(
     return HomographyEstimate(matrix, int(final.sum()), len(src), per_frame, rms)
 
 
+MAX_TURN_DEG = 10.0
+"""A clean -> obstructed homography turning the view more than this is doubted."""
+
+SCALE_RANGE = (0.8, 1.25)
+"""... and one scaling it outside this range (two rectified views of one rig differ by a shift)."""
+
+
+def implausible_turn(matrix: np.ndarray) -> str | None:
+    """What is wrong with a registration that turns, mirrors or scales the view, or ``None``.
+
+    Rectified views of one rig differ by a shift (the disparity of the far
+    scene) and a little residual: a homography that turns one by 180 degrees
+    registers the pairs exactly but says the calibration is not this rig's
+    (another rig's camchain, a camera mounted upside down since).
+    """
+    affine = np.asarray(matrix, dtype=np.float64)[:2, :2] / matrix[2, 2]
+    det = float(np.linalg.det(affine))
+    if det <= 0:
+        return "mirrors the view"
+    turn = float(np.degrees(np.arctan2(affine[1, 0] - affine[0, 1], affine[0, 0] + affine[1, 1])))
+    scale = float(np.sqrt(det))
+    problems = []
+    if abs(turn) > MAX_TURN_DEG:
+        problems.append(f"turns the view by {turn:.0f} deg")
+    if not SCALE_RANGE[0] <= scale <= SCALE_RANGE[1]:
+        problems.append(f"scales it by {scale:.2f}")
+    return " and ".join(problems) or None
+
+
 # -- gain compensation and anomaly regions (also used by rectify.verification) ---------
 
 

@@ -11,6 +11,7 @@ from lenspair.rectify.registration import (
     VerifyParams,
     compensate_gain,
     estimate_homography,
+    implausible_turn,
 )
 from lenspair.rectify.remap import apply_homography, pixel_grid
 from lenspair.rectify.verification import measure_shift, verify_pair
@@ -173,3 +174,24 @@ def test_flat_frame_cannot_be_verified() -> None:
     flat = np.full((360, 540), 0.4, np.float32)
     shift = measure_shift(flat, flat, PARAMS)
     assert shift.failure is not None and shift.failure.startswith("registration unverified")
+
+
+def _turned(degrees: float, scale: float = 1.0, mirror: bool = False) -> np.ndarray:
+    c, s = np.cos(np.radians(degrees)) * scale, np.sin(np.radians(degrees)) * scale
+    flip = -1.0 if mirror else 1.0
+    return np.array([[c, -s * flip, 700.0], [s, c * flip, 500.0], [1e-5, 2e-5, 1.0]])
+
+
+def test_a_registration_that_turns_mirrors_or_scales_the_view_is_doubted() -> None:
+    # another rig's camchain registered every pair exactly through a 180 deg turn, unsaid
+    shift = np.array([[1.0, 0.002, -14.0], [-0.001, 0.998, 0.6], [0.0, 0.0, 1.0]])
+    assert implausible_turn(shift) is None  # rectified views: a shift and a little residual
+    assert implausible_turn(_turned(3.0, 1.04)) is None
+    assert implausible_turn(_turned(180.0)) == "turns the view by 180 deg"
+    assert implausible_turn(_turned(-25.0)) == "turns the view by -25 deg"
+    assert implausible_turn(_turned(0.0, 1.5)) == "scales it by 1.50"
+    assert implausible_turn(_turned(0.0, mirror=True)) == "mirrors the view"
+    assert (
+        implausible_turn(2.0 * _turned(90.0, 0.5))
+        == "turns the view by 90 deg and scales it by 0.50"
+    )
