@@ -207,6 +207,7 @@ def simulate_recording(
     noise_streams = streams["noise"].spawn(spec.recording.frames)
 
     written: tuple[list[int], list[int]] = ([], [])
+    changed = False  # whether the glass changed a pixel of any obstructed frame
     records: list[dict[str, Any]] = []
     render_seconds = 0.0
     start_ns = spec.recording.start_ns
@@ -237,6 +238,7 @@ def simulate_recording(
                 mask = np.zeros(image.shape[:2], dtype=np.uint8)
                 if glass is not None:
                     image, mask = apply_glass(clear, glass)
+                    changed = changed or not np.array_equal(image, clear)
                 render_seconds += time.perf_counter() - started
                 write_image(out_dir / "truth" / "clear" / image_name(t_ns), clear)
                 write_image(out_dir / "truth" / "mask" / image_name(t_ns), mask)
@@ -249,7 +251,16 @@ def simulate_recording(
         stamps = (clock.nominal_ns[k], clock.stamps_ns[k], clock.dropped[k])
         records.append(_frame_record(setup, k, stamps, T_world_body, T_world_cams, T_world_board))
 
-    _write_metadata(setup, out_dir, written, records)
+    anomaly = effects.anomaly_kinds
+    if anomaly and not changed:
+        log.warning(
+            "%s: the effects (%s) changed no pixel of any frame (too small or faint at this "
+            "resolution and bit depth): rig.yaml labels the recording clean",
+            out_dir,
+            ", ".join(anomaly),
+        )
+        anomaly = ()
+    _write_metadata(setup, out_dir, written, records, anomaly)
     (out_dir / INCOMPLETE).unlink()
     images = (len(written[0]), len(written[1]))
     return SimulationSummary(
@@ -287,8 +298,13 @@ def _write_metadata(
     out_dir: Path,
     written: tuple[list[int], list[int]],
     records: list[dict[str, Any]],
+    anomaly: tuple[str, ...],
 ) -> None:
-    """Write data.csv, sensor.yaml, camchain.yaml, rig.yaml, scene.yaml, geometry.json."""
+    """Write data.csv, sensor.yaml, camchain.yaml, rig.yaml, scene.yaml, geometry.json.
+
+    ``anomaly`` is rig.yaml's labels: the effects' kinds, or none when they
+    changed no pixel (a frame is clean whatever its spec listed).
+    """
     spec = setup.spec
     for c, name in enumerate(CAMERAS):
         folder = camera_folder(out_dir, name)
@@ -300,7 +316,7 @@ def _write_metadata(
     write_kalibr(out_dir / "camchain.yaml", setup.rig)
     rig_file = RigFile(
         obstructed=spec.obstructed.camera,
-        anomaly=spec.obstructed.effects.anomaly_kinds,
+        anomaly=anomaly,
         calibration="camchain.yaml",
     )
     write_rig_file(out_dir / "rig.yaml", rig_file)

@@ -153,6 +153,21 @@ def test_effects_change_only_pixels_inside_the_mask(tmp_path: Path) -> None:
     assert changed > 1000
 
 
+def test_effects_that_change_no_pixel_label_the_recording_clean(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # dirt specks far below a pixel: the spec's labels said "dirt", the frames were clean
+    effects = {"dirt": {"count": 3, "radius_px": [0.01, 0.02], "opacity": [0.1, 0.2]}}
+    data = _scene(tmp_path, rig=SMALL, obstructed={"camera": "cam1", "effects": effects})
+    with caplog.at_level("WARNING"):
+        out = _render(tmp_path, data)
+    for t_ns in _csv(out, "cam1"):  # the premise: no pixel changed
+        image = read_image(out / "mav0" / "cam1" / "data" / f"{t_ns}.png")
+        np.testing.assert_array_equal(image, read_image(out / "truth" / "clear" / f"{t_ns}.png"))
+    assert read_rig_file(out / "rig.yaml").anomaly == ()
+    assert any("changed no pixel" in m and "(dirt)" in m for m in caplog.messages)
+
+
 def test_sixteen_bit_rgb_recording(tmp_path: Path) -> None:
     out = _render(tmp_path, _scene(tmp_path, rig={"bit_depth": 16, "color": "rgb", **SMALL}))
     image = read_image(out / "mav0" / "cam0" / "data" / f"{_csv(out, 'cam0')[0]}.png")
