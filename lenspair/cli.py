@@ -7,10 +7,15 @@ so ``lenspair simulate`` does not pay for importing torch.
 """
 
 import argparse
+import contextlib
 import errno
 import importlib
 import logging
+import os
+import signal
 import sys
+import threading
+from collections.abc import Iterator
 from types import ModuleType
 from typing import NoReturn
 
@@ -50,6 +55,48 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 INTERRUPTED = 130
 """The exit code after Ctrl-C (128 + SIGINT, as shells report a process it stopped)."""
+
+TERMINATED = 143
+"""The exit code after SIGTERM (128 + SIGTERM)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``docker stop``, systemd, a ROS launch shutting down), raised as Ctrl-C is.
+
+    So a command stopped that way ends as after Ctrl-C: its ``finally`` blocks
+    run (worker pools stopped, temporaries removed) and it says how to resume;
+    without it Python died on the spot, leaving that to the next run.
+    """
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """Raise :class:`Terminated` on SIGTERM meanwhile, in this process only.
+
+    Left alone when SIGTERM already has a handler (an embedding program's,
+    or this one's in a nested call such as the demo's stages) or off the main
+    thread. A forked worker that inherits the handler ends as by default.
+    """
+    if (
+        threading.current_thread() is not threading.main_thread()
+        or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+    ):
+        yield
+        return
+    owner = os.getpid()
+
+    def stop(signum: int, frame: object) -> None:
+        if os.getpid() != owner:  # a forked worker: die of it, as before
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+            return
+        raise Terminated
+
+    signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def _load(name: str) -> ModuleType:
@@ -121,7 +168,8 @@ def main(argv: list[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
     )
     try:
-        return int(_load(args.command).run(args))
+        with _sigterm_as_interrupt():
+            return int(_load(args.command).run(args))
     except LenspairError as exc:
         print(f"lenspair {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -135,14 +183,15 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         # restore and train continue only when asked; the other commands resume by themselves
         hint = "rerun with --resume to continue" if hasattr(args, "resume") else "rerun to resume"
         own_hint = getattr(_load(args.command), "interrupt_hint", None)  # a command may know better
         if own_hint is not None:
             hint = own_hint(args) or hint
-        print(f"lenspair {args.command}: interrupted; {hint}", file=sys.stderr)
-        return INTERRUPTED
+        stopped = "terminated" if isinstance(exc, Terminated) else "interrupted"
+        print(f"lenspair {args.command}: {stopped}; {hint}", file=sys.stderr)
+        return TERMINATED if isinstance(exc, Terminated) else INTERRUPTED
 
 
 if __name__ == "__main__":  # python -m lenspair.cli, as torchrun -m runs it

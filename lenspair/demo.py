@@ -31,7 +31,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from lenspair.cli import INTERRUPTED
+from lenspair.cli import INTERRUPTED, TERMINATED, Terminated
 from lenspair.cli import main as cli_main
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text, remove_path, sha256_file
 from lenspair.core.samples import sample_path
@@ -327,6 +327,8 @@ def run_stage(
     seconds = time.perf_counter() - start
     if code == INTERRUPTED:  # Ctrl-C in the stage: the demo was stopped, nothing failed
         raise KeyboardInterrupt
+    if code == TERMINATED:  # SIGTERM, likewise
+        raise Terminated
     if code != 0:
         raise DemoError(f"stage {stage.name} failed (exit code {code}); rerun to resume")
     record = {"argv": list(stage.argv), "inputs": _fingerprint(stage), "seconds": round(seconds, 2)}
