@@ -110,6 +110,10 @@ class BagMessage:
     message: Any = None
 
 
+MODEL_SUFFIXES = (".pt", ".onnx")
+"""What models (restore's, detect's) are named; never an input."""
+
+
 def detect_input(path: Path) -> InputKind:
     """Which kind of input ``path`` is.
 
@@ -118,7 +122,10 @@ def detect_input(path: Path) -> InputKind:
     """
     path = Path(path)
     if not path.exists():
-        raise CaptureError(f"{path}: no such file or folder")
+        # a model named where the input goes: the arguments are the other way round
+        # (a bundled model's name is found from any folder, so the message misled)
+        hint = " (the model comes first: MODEL INPUT)" if path.suffix in MODEL_SUFFIXES else ""
+        raise CaptureError(f"{path}: no such file or folder{hint}")
     if rosbag.is_bag(path):
         return "rosbag1" if path.suffix.lower() == ".bag" else "rosbag2"
     if path.is_file():

@@ -99,7 +99,12 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.core.device import resolve_device
     from lenspair.model.inference.backends import open_backend
     from lenspair.model.inference.judge import default_judge
-    from lenspair.model.inference.pipeline import RestoreOptions, check_options, restore_input
+    from lenspair.model.inference.pipeline import (
+        RestoreOptions,
+        check_input,
+        check_options,
+        restore_input,
+    )
 
     options = RestoreOptions(
         camera=args.camera,
@@ -111,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
         topics=args.topics,
     )
     check_options(options)  # before the model loads: a bad option is the only line
+    check_input(args.input, args.out, options)  # and so is a mistyped path or topic
     device = resolve_device(args.device)
     judge = default_judge(args.only_obstructed, device) if args.only_obstructed else None
     backend = open_backend(args.model, device, args.precision)

@@ -367,6 +367,51 @@ def check_apart(input_path: Path, kind: InputKind, out_dir: Path) -> None:
         )
 
 
+@dataclass(frozen=True)
+class CheckedInput:
+    """What :func:`check_input` found: the kind, the options that apply, the frames.
+
+    Attributes:
+        kind: image, folder, EuRoC/ASL recording or bag.
+        options: the options, with those meaning nothing for images reset.
+        cameras: the cameras to restore (none for images).
+        files: the image files (none for bags, read as they stream).
+    """
+
+    kind: InputKind
+    options: RestoreOptions
+    cameras: tuple[CameraName, ...]
+    files: list[Path]
+
+
+def check_input(input_path: Path, out_dir: Path, options: RestoreOptions) -> CheckedInput:
+    """Everything about the input and OUT that can be refused without the model.
+
+    ``restore`` calls it before it loads the model, so that a mistyped path,
+    a topic the bag lacks, a folder without images or a non-empty OUT is the
+    only line said.
+
+    Raises:
+        CaptureError: no such input, not one lenspair reads, a topic or camera it lacks.
+        ModelError: no images, ``out_dir`` inside the input (:func:`check_apart`) or
+            not empty without ``options.resume``.
+    """
+    kind = detect_input(input_path)
+    check_apart(input_path, kind, out_dir)
+    cameras = resolve_cameras(input_path, kind, options.camera, options.topics)
+    if kind in ("image", "folder"):
+        # an image or a folder of them has no cameras nor topics: none decides its bytes
+        options = replace(options, camera="auto", suffix="", topics=None)
+        cameras = ()
+    bag = kind in ("rosbag1", "rosbag2")
+    files = [] if bag else frame_files(input_path, kind, cameras)
+    if not bag and not files:
+        # Refused before OUT is made: an empty run is a mistyped path, not a result.
+        raise ModelError(f"{input_path}: no images to restore")
+    check_out_dir(out_dir, options.resume)
+    return CheckedInput(kind, options, cameras, files)
+
+
 def restore_input(
     input_path: Path,
     out_dir: Path,
@@ -394,20 +439,12 @@ def restore_input(
     started = time.perf_counter()
     input_path, out_dir = Path(input_path), Path(out_dir)
     check_options(options, backend)
-    kind = detect_input(input_path)
-    check_apart(input_path, kind, out_dir)
-    cameras = resolve_cameras(input_path, kind, options.camera, options.topics)
+    checked = check_input(input_path, out_dir, options)
+    kind, cameras, files = checked.kind, checked.cameras, checked.files
     if kind in ("image", "folder"):
         _say_unused(input_path, kind, options)
-        # an image or a folder of them has no cameras nor topics: none decides its bytes
-        options = replace(options, camera="auto", suffix="", topics=None)
-        cameras = ()
+    options = checked.options
     bag = kind in ("rosbag1", "rosbag2")
-    files = [] if bag else frame_files(input_path, kind, cameras)
-    if not bag and not files:
-        # Refused before OUT is made: an empty run is a mistyped path, not a result.
-        raise ModelError(f"{input_path}: no images to restore")
-    check_out_dir(out_dir, options.resume)
     settings = run_settings(input_path, backend, options, cameras, judge)
     if options.resume:
         check_same_settings(out_dir, settings)

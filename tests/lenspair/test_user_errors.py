@@ -6,6 +6,7 @@ option. The table covers every entry of ``lenspair.cli.COMMANDS`` (a test
 checks), so a new command must add its bad inputs here.
 """
 
+import logging
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -105,6 +106,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["eval", "CKPT", "--data", "DS", "--out", "y" * 300], "File name too long"),
     (["train", "DS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
     (["train", "DS", "--out", "OUT", "--init", "OUT/none.pt"], "--init"),
+    (["detect", "IMGS", "OUT/detector.pt", "--out", "OUT/d"], "the model comes first"),
     (["train", "DS", "--out", "OUT", "--crop-size", "16"], "--crop-size): expected >= 24"),
     (["tradeoff", "DS", "--out", "OUT", "--crop-size", "16"], "--crop-size): expected >= 24"),
     (["train", "DS", "--out", "OUT", "--device", "tpu"], "--device"),
@@ -216,9 +218,30 @@ def models(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     }
 
 
+class _Said(logging.Handler):
+    """What the command logs: in a terminal, more lines on stderr before the error."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.lines: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append(f"{record.levelname} {record.name}: {record.getMessage()}")
+
+
 def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
-    code = main(argv)  # any exception other than SystemExit fails the test with its traceback
-    return code, capsys.readouterr().err.strip().splitlines()
+    said, logger = _Said(), logging.getLogger("lenspair")
+    level = logger.level
+    logger.addHandler(said)
+    logger.setLevel(logging.INFO)  # as the CLI logs in a terminal
+    try:
+        code = main(argv)  # any exception other than SystemExit fails the test with its traceback
+    finally:
+        logger.removeHandler(said)
+        logger.setLevel(level)
+    captured = capsys.readouterr()
+    # a precision line on stdout, or a log line, before the error: not one line either
+    return code, said.lines + captured.out.strip().splitlines() + captured.err.strip().splitlines()
 
 
 def _expand(

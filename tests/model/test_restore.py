@@ -466,11 +466,11 @@ def test_cli_single_image_and_one_line_errors(
     assert line.startswith("restore: 1 frames (1 restored") and line.endswith(f"-> {out}")
     assert read_image(out / "photo.png").shape == (30, 41)
     missing = str(tmp_path / "no_detector.pt")
-    for extra, message in (
-        ([], "not empty; pass --resume"),
-        (["--only-obstructed", missing], f"{missing}: no such detector checkpoint"),
+    for target, extra, message in (
+        (out, [], "not empty; pass --resume"),
+        (tmp_path / "out2", ["--only-obstructed", missing], f"{missing}: no such detector"),
     ):
-        code = main(["restore", str(checkpoint), str(image), "--out", str(out), *extra])
+        code = main(["restore", str(checkpoint), str(image), "--out", str(target), *extra])
         err = capsys.readouterr().err.strip().splitlines()
         assert code == 2 and len(err) == 1, err
         assert err[0].startswith("lenspair restore: error:") and message in err[0]
