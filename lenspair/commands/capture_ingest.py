@@ -10,6 +10,7 @@ recording, checked and refined per frame), crops both to --size and writes
   OUT/<recording>/mask/<t_ns>.png     255 where the pair is not trustworthy
   OUT/<recording>/pairs.jsonl         one line per obstructed frame, kept or rejected
   OUT/<recording>/report.json         counts, calibration, homography, crop, timings
+  OUT/<recording>/registration.json   the homography and its inputs (a rerun reuses it)
   OUT/<recording>/qa.png              input | target | difference | mask, a few frames
 
 Which camera is obstructed comes from rig.yaml beside the recording or

@@ -2,9 +2,9 @@
 
 Simulates a chessboard session and three anomaly recordings (light and
 heavy rain on cam1, dust with the sides swapped), calibrates, ingests,
-builds a dataset, pretrains on synthetic drops, fine-tunes, evaluates and
-runs a small accuracy-versus-time tradeoff, then writes OUT/report.md and
-OUT/report.html. Each stage prints the equivalent `lenspair` command. A
+builds a dataset, pretrains on synthetic drops, fine-tunes, evaluates,
+runs a small accuracy-versus-time tradeoff and restores one recording, then
+writes OUT/report.md and OUT/report.html. Each stage prints the equivalent `lenspair` command. A
 rerun reuses finished stages (a stage whose inputs changed runs again, and
 so does every stage after it). The default budget is sized for under a
 quarter of an hour on a 2-core CPU.

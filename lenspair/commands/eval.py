@@ -65,7 +65,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_device_option(parser)
     parser.add_argument(
-        "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
+        "--convention",
+        choices=("skimage-gaussian", "deraindrop-y"),
+        default="skimage-gaussian",
+        help="how PSNR/SSIM are computed: skimage-gaussian (scikit-image, Gaussian SSIM "
+        "window; default), or deraindrop-y (on the luma Y, as DeRaindrop's published numbers)",
     )
     parser.add_argument(
         "--out",

@@ -1,4 +1,4 @@
-"""Do synthetic drops look real? Print issue 12's statistics side by side.
+"""Do synthetic drops look real? Print five statistics of the pairs side by side.
 
 For each set of (obstructed, clean) pairs, prints the range (min - max over
 the pairs) of five statistics beside the range measured on real adherent

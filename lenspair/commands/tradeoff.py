@@ -97,7 +97,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--variants", help="comma-separated subset of the variant names")
     parser.add_argument(
-        "--convention", choices=("skimage-gaussian", "deraindrop-y"), default="skimage-gaussian"
+        "--convention",
+        choices=("skimage-gaussian", "deraindrop-y"),
+        default="skimage-gaussian",
+        help="how PSNR/SSIM are computed: skimage-gaussian (scikit-image, Gaussian SSIM "
+        "window; default), or deraindrop-y (on the luma Y, as DeRaindrop's published numbers)",
     )
     parser.add_argument(
         "--split",

@@ -145,8 +145,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--checkpoint-every",
         type=_every,
         metavar="STEPS|SECONDS",
-        help="also write last.pt within epochs: every N steps (500) or a time (90s, 10m, 1h); "
-        "default every 10 minutes",
+        help="also write last.pt within epochs: a step count (e.g. 500) or a time (90s, 10m, "
+        "1h); default every 10 minutes",
     )
 
 
