@@ -57,7 +57,7 @@ from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.judge import FrameJudge
 from lenspair.model.inference.options import CAMERA_CHOICES, DEFAULT_BATCH_SIZE, DEFAULT_OVERLAP
-from lenspair.model.inference.sinks import BagSink, FileSink
+from lenspair.model.inference.sinks import BagSink, FileSink, FrameDepths
 from lenspair.model.inference.threads import Writer, threaded
 from lenspair.model.inference.tiling import check_tile, restore_images
 from lenspair.model.networks.padding import MIN_SIDE
@@ -526,12 +526,13 @@ def _run(
     def flush(bits: int | None = None) -> None:
         """Restore ``batch`` at ``bits`` (default: the depth now) and hand on ``pending``."""
         outputs: list[np.ndarray | None] = [None] * len(batch)
-        done = [writer.sink.done(frame) for frame in batch]
+        # 16-bit frames of 10- or 12-bit values are restored on the full scale, then
+        # written back in the camera's words (lenspair.core.bitdepth)
+        bits = depth.bits if bits is None else bits
+        done = [writer.sink.done(frame) and depths.same(frame, bits) for frame in batch]
         if batch and not all(done):  # the whole batch: same batches as an uninterrupted run
             images = [frame.image for frame in batch if frame.image is not None]
-            # 16-bit frames of 10- or 12-bit values are restored on the full scale, then
-            # written back in the camera's words (lenspair.core.bitdepth)
-            bits = depth.bits if bits is None else bits
+            depths.record(batch, bits)
             outputs[:] = restore_images(backend, images, bits, options.tile, options.overlap)
         for item, frame, slot in pending:
             if slot is None:
@@ -549,6 +550,7 @@ def _run(
 
     channels_checked = False
     depth = RunningDepth(writer.report.input)
+    depths = FrameDepths(writer.sink.state_dir)
     for item in items:
         frame: InputFrame | None = item if isinstance(item, InputFrame) else item.frame
         if frame is None:
@@ -587,6 +589,12 @@ def _run(
             flush()
     flush()
     bar.close()
+    if depths.redone:
+        log.warning(
+            "%d finished 16-bit frame(s) restored again: frames added or removed before them "
+            "changed the bit depth they are taken at (lenspair.core.bitdepth.RunningDepth)",
+            depths.redone,
+        )
 
 
 def _batch_key(frame: InputFrame, options: RestoreOptions) -> tuple[Any, ...]:

@@ -62,6 +62,56 @@ SOURCE_STAMP = "source.json"
 COPIES_NAME = ".restore-copies"
 """Under OUT: the frames written as copies of the input (see :class:`FileSink`)."""
 
+DEPTHS_NAME = ".restore-depths"
+"""Under OUT: the bit depth each 16-bit frame was restored at (see :class:`FrameDepths`)."""
+
+
+class FrameDepths:
+    """The depth (:class:`~lenspair.core.bitdepth.RunningDepth`) each 16-bit frame was restored at.
+
+    A frame's depth depends on the frames before it: a frame added before
+    finished ones (or one removed) changes it, and ``--resume`` must restore
+    those again rather than keep them at the old scale. One JSON line per
+    restored 16-bit frame, appended before its output is handed on (a kill
+    leaves a line for a frame without output: it is redone, the later line wins).
+    """
+
+    def __init__(self, out_dir: Path) -> None:
+        self.path = Path(out_dir) / DEPTHS_NAME
+        self.bits: dict[str, int] = {}
+        self.redone = 0  # finished frames whose depth changed: restored again
+        if self.path.is_file():
+            for line in self.path.read_text(encoding="utf-8").splitlines():
+                try:
+                    name, bits = json.loads(line)
+                    self.bits[str(name)] = int(bits)
+                except (ValueError, TypeError):  # a line cut by a kill
+                    continue
+
+    def same(self, frame: InputFrame, bits: int) -> bool:
+        """Whether a finished ``frame`` was restored at ``bits`` (frames of before: assumed)."""
+        if frame.image is None or frame.image.dtype != np.uint16:
+            return True
+        if self.bits.get(frame.name, bits) == bits:
+            return True
+        self.redone += 1
+        return False
+
+    def record(self, frames: Iterable[InputFrame], bits: int) -> None:
+        """Note that ``frames`` are being restored at ``bits``."""
+        lines = [
+            json.dumps([frame.name, bits]) + "\n"
+            for frame in frames
+            if frame.image is not None and frame.image.dtype == np.uint16
+        ]
+        if not lines:
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with naming_errors(self.path), self.path.open("a", encoding="utf-8") as journal:
+            journal.write("".join(lines))
+        for frame in frames:
+            self.bits[frame.name] = bits
+
 
 def _alpha_of(source: Path, shape: tuple[int, ...]) -> np.ndarray | None:
     """The input's alpha channel, carried to its restored image (``None``: it has none).
@@ -140,6 +190,7 @@ class FileSink:
 
     def __init__(self, out_dir: Path) -> None:
         self.out_dir = Path(out_dir)
+        self.state_dir = self.out_dir  # where a resume's bookkeeping lives (FrameDepths)
         self.copies_file = self.out_dir / COPIES_NAME
         self.copies: set[str] = set()
         self.changed = 0  # outputs found older than their input's last change: redone
@@ -169,7 +220,7 @@ class FileSink:
         per copied file that holds frames left unrestored (:func:`unrestored_note`).
         """
         skip = {Path(p).resolve() for p in restored}
-        own = {*reserved, COPIES_NAME, CACHE_DIR, PARTIAL_DIR}
+        own = {*reserved, COPIES_NAME, DEPTHS_NAME, CACHE_DIR, PARTIAL_DIR}
         clashes = []
         for source in sorted(Path(root).rglob("*")):
             if not source.is_file() or source.resolve() in skip:
@@ -311,6 +362,7 @@ class BagSink:
         self.source = Path(source)
         self.path = output_bag_path(source, out_dir)
         self.cache = Path(out_dir) / CACHE_DIR / self.path.name
+        self.state_dir = self.cache  # dropped with the cache once the bag is complete
         self.partial = Path(out_dir) / PARTIAL_DIR / self.path.name
         remove_path(self.partial)  # a killed run's unfinished bag: this run writes it anew
         fingerprint = source_fingerprint(self.source)

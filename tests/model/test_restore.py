@@ -80,6 +80,32 @@ def test_folder_keeps_tree_names_depth(tmp_path: Path, backend: TorchBackend, dt
     assert saved["restored"] == 3 and saved["input"] == str(source)
 
 
+def test_a_resume_restores_again_the_frames_whose_depth_an_added_frame_changed(
+    tmp_path: Path, backend: TorchBackend, caplog: pytest.LogCaptureFixture
+) -> None:
+    from lenspair.core.bitdepth import narrow
+
+    full = (texture((32, 48), seed=3) * 65535).astype(np.uint16)
+    for name in ("b0.png", "b1.png"):  # a 10-bit camera's words
+        write_image(tmp_path / "in" / name, narrow(full, 10))
+    options = RestoreOptions(batch_size=1)
+    restore_input(tmp_path / "in", tmp_path / "out", backend, options)
+    assert int(read_image(tmp_path / "out" / "b0.png").max()) < 1 << 10
+    write_image(tmp_path / "in" / "a.png", full)  # before them: the depth is 16 from here on
+    report = restore_input(
+        tmp_path / "in", tmp_path / "out", backend, replace(options, resume=True)
+    )
+    restore_input(tmp_path / "in", tmp_path / "fresh", backend, options)
+    # they were kept in 10-bit words: "1 restored, 2 resumed"
+    assert (report.restored, report.resumed) == (3, 0)
+    for name in ("a.png", "b0.png", "b1.png"):
+        fresh = read_image(tmp_path / "fresh" / name)
+        np.testing.assert_array_equal(read_image(tmp_path / "out" / name), fresh)
+    assert any("2 finished 16-bit frame(s) restored again" in m for m in caplog.messages)
+    again = restore_input(tmp_path / "in", tmp_path / "out", backend, replace(options, resume=True))
+    assert (again.restored, again.resumed) == (0, 3)  # and a plain resume keeps all
+
+
 @pytest.mark.parametrize("bits", [10, 12])
 def test_16_bit_frames_of_fewer_bits_are_restored_on_the_full_scale_and_written_back(
     tmp_path: Path, backend: TorchBackend, bits: int, caplog: pytest.LogCaptureFixture
