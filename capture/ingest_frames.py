@@ -10,6 +10,7 @@ image, wrong size, failed registration) become rejected records, never
 exceptions.
 """
 
+import functools
 import json
 import signal
 from dataclasses import dataclass, field, replace
@@ -267,19 +268,24 @@ def content_id(frame: FrameRef) -> str:
 
 
 def _identity(frame: FrameRef) -> list[object]:
-    """The frame's place in its recording and its file's size and time, whatever the path.
+    """The frame's place in its recording and what it holds, whatever the path.
 
     The file's folder is left out: the same recording given as ``rec`` from
-    one folder and ``../rec`` from another (or moved with its times kept)
-    resumes instead of doing every frame, and a bag's homography again.
+    one folder and ``../rec`` from another (or moved) resumes instead of
+    doing every frame, and a bag's homography again. An image file is known
+    by its bytes (a frame replaced by one of the same size, its time set back
+    with ``touch -r``, was kept stale); a bag message by the bag's size and
+    times, the inode's change time included (``touch`` cannot set it back).
     """
     place = [frame.camera, frame.t_ns, frame.source.name, frame.topic, frame.log_time_ns]
     place.append(frame.occurrence)
+    if not frame.in_bag:
+        return [*place, content_id(frame)]
     try:
         stat = frame.source.stat()
-        return [*place, stat.st_size, stat.st_mtime_ns]
+        return [*place, stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns]
     except OSError:
-        return [*place, None, None]
+        return [*place, None, None, None]
 
 
 @dataclass(frozen=True)
@@ -299,9 +305,9 @@ class FrameTask:
     state: str
     warning: str | None = None
 
-    @property
+    @functools.cached_property
     def key(self) -> str:
-        """Hash of everything this frame's outputs depend on (resume check)."""
+        """Hash of everything this frame's outputs depend on (resume check; read once)."""
         content = [self.state, self.warning, _identity(self.obstructed), _identity(self.clean)]
         return sha256_bytes(json.dumps(content, default=str).encode("utf-8"))
 

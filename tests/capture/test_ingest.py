@@ -373,6 +373,33 @@ def test_a_rerun_from_another_working_folder_resumes_every_frame(
     assert set(changed) <= {"report.json"}, changed  # its timings
 
 
+def test_a_frame_replaced_by_one_of_the_same_size_and_time_is_not_taken_as_finished(
+    tmp_path: Path,
+) -> None:
+    import os
+
+    from lenspair.capture.ingest_frames import FrameTask
+    from lenspair.capture.recording_types import FrameRef
+
+    files = [tmp_path / "cam1.png", tmp_path / "cam0.png"]
+    for file in files:
+        file.write_bytes(b"x" * 100)
+    task = FrameTask(FrameRef("cam1", 5, files[0]), FrameRef("cam0", 5, files[1]), "state")
+    before, stat = task.key, files[0].stat()
+    files[0].write_bytes(b"y" * 100)  # other pixels, same size, its time set back
+    os.utime(files[0], ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    again = FrameTask(FrameRef("cam1", 5, files[0]), FrameRef("cam0", 5, files[1]), "state")
+    assert again.key != before  # frames the homography did not sample kept their stale pair
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    for file in files:
+        file.rename(moved / file.name)
+    there = FrameTask(
+        FrameRef("cam1", 5, moved / "cam1.png"), FrameRef("cam0", 5, moved / "cam0.png"), "state"
+    )
+    assert there.key == again.key  # a recording moved elsewhere resumes
+
+
 def test_an_out_that_makes_the_ingest_the_recording_itself_is_refused(tmp_path: Path) -> None:
     # --out = the recording's parent made OUT/<rec> the recording itself: input/ and
     # target/ were written into it, and files of the user's there were deleted
