@@ -57,7 +57,7 @@ from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.judge import FrameJudge
 from lenspair.model.inference.options import CAMERA_CHOICES, DEFAULT_BATCH_SIZE, DEFAULT_OVERLAP
-from lenspair.model.inference.sinks import BagSink, FileSink, FrameDepths
+from lenspair.model.inference.sinks import STALE_DIR, BagSink, FileSink, FrameDepths
 from lenspair.model.inference.threads import Writer, threaded
 from lenspair.model.inference.tiling import check_tile, restore_images
 from lenspair.model.networks.padding import MIN_SIDE
@@ -494,6 +494,19 @@ def restore_input(
                 sink.changed,
             )
         source_problems.extend(sink.copy_others(input_path, files, reserved=(REPORT_NAME,)))
+        if options.resume:
+            stale = sink.set_aside_stale(input_path, reserved=(REPORT_NAME,))
+            if stale:
+                log.warning(
+                    "%d output file(s) whose input is gone since the resumed run (the first: "
+                    "%s) moved to %s",
+                    len(stale),
+                    stale[0],
+                    out_dir / STALE_DIR,
+                )
+            source_problems.extend(
+                f"{name}: its input is gone; moved to {STALE_DIR}/{name}" for name in stale
+            )
     sink.finish()
     if isinstance(sink, BagSink):
         source_problems.extend(

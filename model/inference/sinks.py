@@ -18,6 +18,7 @@ import errno
 import io
 import json
 import logging
+import os
 import shutil
 import sqlite3
 from collections.abc import Iterable, Iterator
@@ -62,8 +63,15 @@ SOURCE_STAMP = "source.json"
 COPIES_NAME = ".restore-copies"
 """Under OUT: the frames written as copies of the input (see :class:`FileSink`)."""
 
+STALE_DIR = ".restore-stale"
+"""Under OUT: a resumed run's outputs whose input is gone (:meth:`FileSink.set_aside_stale`)."""
+
 DEPTHS_NAME = ".restore-depths"
 """Under OUT: the bit depth each 16-bit frame was restored at (see :class:`FrameDepths`)."""
+
+
+OWN_NAMES = (COPIES_NAME, DEPTHS_NAME, CACHE_DIR, PARTIAL_DIR, STALE_DIR)
+"""restore's own names at the top of OUT: never an input's file."""
 
 
 class FrameDepths:
@@ -220,7 +228,7 @@ class FileSink:
         per copied file that holds frames left unrestored (:func:`unrestored_note`).
         """
         skip = {Path(p).resolve() for p in restored}
-        own = {*reserved, COPIES_NAME, DEPTHS_NAME, CACHE_DIR, PARTIAL_DIR}
+        own = {*reserved, *OWN_NAMES}
         clashes = []
         for source in sorted(Path(root).rglob("*")):
             if not source.is_file() or source.resolve() in skip:
@@ -236,6 +244,27 @@ class FileSink:
             if (note := unrestored_note(source)) is not None:
                 clashes.append(note)
         return clashes
+
+    def set_aside_stale(self, root: Path, reserved: Iterable[str] = ()) -> list[str]:
+        """Move the outputs whose input under ``root`` is gone into ``OUT/.restore-stale``.
+
+        A resumed run whose input lost frames since would otherwise keep
+        their outputs (a restored recording with an image its ``data.csv``
+        no longer lists); they are moved, not deleted (OUT may hold a file of
+        the user's). Returns their names, relative to OUT.
+        """
+        own = {*reserved, *OWN_NAMES}
+        inputs = {p.relative_to(root) for p in Path(root).rglob("*") if p.is_file()}
+        stale = []
+        for path in sorted(self.out_dir.rglob("*")):
+            relative = path.relative_to(self.out_dir)
+            if not path.is_file() or relative.parts[0] in own or relative in inputs:
+                continue
+            target = self.out_dir / STALE_DIR / relative
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(path, target)
+            stale.append(relative.as_posix())
+        return stale
 
     def done(self, frame: InputFrame) -> bool:
         """True when ``frame``'s output already exists (written atomically: complete).

@@ -80,6 +80,34 @@ def test_folder_keeps_tree_names_depth(tmp_path: Path, backend: TorchBackend, dt
     assert saved["restored"] == 3 and saved["input"] == str(source)
 
 
+def test_a_resume_sets_aside_the_outputs_whose_input_is_gone(
+    tmp_path: Path, backend: TorchBackend, caplog: pytest.LogCaptureFixture
+) -> None:
+    for name in ("a.png", "b.png", "sub/c.png"):
+        write_image(
+            tmp_path / "in" / name, (texture((32, 48), seed=len(name)) * 255).astype(np.uint8)
+        )
+    (tmp_path / "in" / "notes.txt").write_text("copied beside the frames")
+    options = RestoreOptions(batch_size=1)
+    restore_input(tmp_path / "in", tmp_path / "out", backend, options)
+    (tmp_path / "in" / "b.png").unlink()
+    (tmp_path / "in" / "notes.txt").unlink()
+    report = restore_input(
+        tmp_path / "in", tmp_path / "out", backend, replace(options, resume=True)
+    )
+    # they stayed beside the others, unsaid: an image the input no longer has
+    out = tmp_path / "out"
+    assert not (out / "b.png").exists() and not (out / "notes.txt").exists()
+    assert (out / ".restore-stale" / "b.png").is_file()  # moved, not deleted
+    assert (out / ".restore-stale" / "notes.txt").is_file()
+    assert (out / "a.png").is_file() and (out / "sub" / "c.png").is_file()
+    reasons = [p["reason"] for p in report.problems]
+    assert "b.png: its input is gone; moved to .restore-stale/b.png" in reasons
+    assert any("2 output file(s) whose input is gone" in m for m in caplog.messages)
+    again = restore_input(tmp_path / "in", tmp_path / "out", backend, replace(options, resume=True))
+    assert not any("input is gone" in p["reason"] for p in again.problems)
+
+
 def test_a_resume_restores_again_the_frames_whose_depth_an_added_frame_changed(
     tmp_path: Path, backend: TorchBackend, caplog: pytest.LogCaptureFixture
 ) -> None:
