@@ -347,6 +347,13 @@ def _topics_reversed(recording: Recording, rig: StereoRig) -> bool:
     return rig.topics_stated and reversed_
 
 
+def _earlier(out_dir: Path, created: bool) -> str:
+    """A failed rerun's note: the folder still holds the earlier run's pairs, untouched."""
+    if created or not (out_dir / PAIRS_FILE).is_file():
+        return ""
+    return f"; {out_dir} still holds an earlier run's pairs, left as they were"
+
+
 def _check_same_source(out_dir: Path, source: Path) -> None:
     """Refuse to ingest ``source`` (:func:`_root`) into a folder holding another recording's ingest.
 
@@ -489,7 +496,9 @@ def ingest_recording(
         message = str(exc).removeprefix(f"{recording.path}: ")
         # the calibration is named: registration that fails everywhere is
         # as often a wrong or stale calibration as a scene that cannot be registered
-        raise type(exc)(f"{recording.path}: {message} (with {calibration_source})") from None
+        raise type(exc)(
+            f"{recording.path}: {message} (with {calibration_source}){_earlier(out_dir, created)}"
+        ) from None
     lap("homography")
     share = registration["inliers"] / max(int(registration["matches"]), 1)
     if share < MIN_INLIER_SHARE:
@@ -527,7 +536,8 @@ def ingest_recording(
         if created:
             shutil.rmtree(out_dir, ignore_errors=True)
         raise CropError(
-            f"{recording.path}: cannot crop {size[0]}x{size[1]}: {exc} (with {calibration_source})"
+            f"{recording.path}: cannot crop {size[0]}x{size[1]}: {exc} (with "
+            f"{calibration_source}){_earlier(out_dir, created)}"
         ) from None
     margin = int(np.ceil(verify.max_shift_px)) + 2
     context = context.with_maps(

@@ -262,6 +262,12 @@ def test_crop_too_large_says_by_how_much(tmp_path: Path) -> None:
     assert str(caught.value).endswith(f"(with {calibration})")
     assert str(caught.value).count(str(recording)) == 2  # once as the recording, once in its path
     assert not (tmp_path / "out" / "rec").exists()
+    # a rerun that fails says the folder still holds the earlier run's pairs (dataset-build
+    # went on with them, unsaid)
+    ingest_recording(recording, tmp_path / "out", size=(240, 160))
+    with pytest.raises(CropError) as caught:
+        ingest_recording(recording, tmp_path / "out", size=(330, 160))
+    assert str(caught.value).endswith("still holds an earlier run's pairs, left as they were")
 
 
 def test_blank_frames_do_not_sway_the_side_check(tmp_path: Path) -> None:
