@@ -19,6 +19,7 @@ Example:
 """
 
 import argparse
+import logging
 import sys
 from collections import Counter
 from pathlib import Path
@@ -33,6 +34,8 @@ from lenspair.commands.argtypes import (
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal
+
+log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -96,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
             f"--out {out}: the folder that holds {args.input}; {why} there, so choose "
             "another folder"
         )
+    if (out / "detections.csv").is_file():  # cheap to make again, but maybe another model's
+        log.warning("%s: replacing the detections of an earlier run there", out)
     # Files are counted from their listing (cheap); a bag's count is only known once read.
     bag = kind in ("rosbag1", "rosbag2")
     total = None if bag else len(frame_files(args.input, kind, CAMERAS))

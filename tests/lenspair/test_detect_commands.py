@@ -183,14 +183,18 @@ def test_detect_keeps_its_output_out_of_its_input(
     assert main(["detect", str(tiny_detector), str(bag), "--out", str(bag.parent)]) == 0
 
 
-def test_a_run_without_a_sheet_leaves_no_earlier_sheet(tiny_detector: Path, tmp_path: Path) -> None:
+def test_a_run_without_a_sheet_leaves_no_earlier_sheet(
+    tiny_detector: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     frames = tmp_path / "frames"
     write_image(frames / "a.png", (texture((48, 64), seed=1) * 255).astype(np.uint8))
     out = tmp_path / "out"
     assert main(["detect", str(tiny_detector), str(frames), "--out", str(out)]) == 0
     assert (out / "contact_sheet.png").is_file()
+    assert not any("replacing the detections" in m for m in caplog.messages)
     argv = ["detect", str(tiny_detector), str(frames), "--out", str(out), "--sheet-frames", "0"]
     assert main(argv) == 0
+    assert any("replacing the detections of an earlier run" in m for m in caplog.messages)
     assert not (out / "contact_sheet.png").exists()  # it was the first run's, passing for this one
 
 
