@@ -456,6 +456,9 @@ def evaluate_checkpoint(
             network, loaded.network, scored, channels, device, convention, precision
         )
     latency = []
+    if bad:  # timed at a scored pair's size: the first readable one may be too small to run
+        first = scored[0]
+        size = (int(first.input.shape[0]), int(first.input.shape[1]))
     if latency_runs > 0:
         cuda = device if device.type == "cuda" else torch.device("cuda")
         devices = [torch.device("cpu")] + ([cuda] if torch.cuda.is_available() else [])

@@ -222,7 +222,20 @@ def test_a_bad_pair_costs_only_itself_and_is_reported(tmp_path: Path, precision:
         assert means["versus_fp32"]["pairs"] == 3
     markdown = (out / "metrics.md").read_text()
     assert "3 pair(s) could not be read or scored" in markdown and "000.png" in markdown
-    assert means["latency"][0]["size"] == "48x32"  # from the first readable pair
+    assert means["latency"][0]["size"] == "48x32"  # from the first scored pair
+
+
+def test_latency_is_timed_at_a_scored_pair_when_the_first_is_too_small(tmp_path: Path) -> None:
+    folder = write_paired_folder(tmp_path / "pairs", count=3)
+    tiny = clean_image(np.random.default_rng(1), 4, 4)  # under the network's 8 px: left out
+    write_image(folder / "input" / "000.png", tiny)
+    write_image(folder / "target" / "000.png", tiny)
+    checkpoint = make_checkpoint(tmp_path / "ckpt.pt")
+    out = tmp_path / "eval"
+    args = ["eval", str(checkpoint), "--data", str(folder), "--out", str(out), "--device", "cpu"]
+    assert main([*args, "--latency-runs", "1"]) == 0  # it scored the rest, then failed timing
+    means = json.loads((out / "metrics.json").read_text())
+    assert means["overall"]["pairs"] == 2 and means["latency"][0]["size"] == "48x32"
 
 
 def test_eval_with_no_readable_pair_is_one_error(
