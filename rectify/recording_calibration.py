@@ -57,6 +57,9 @@ class RecordingCalibration:
         view_names: ``t0=<ns> t1=<ns>`` of each used pair (rejected views
             are named by these).
         unreadable: one line per frame that could not be read.
+        listing: one line per problem of the recording's listing (a frame
+            ``data.csv`` names that is missing, a repeated or unreadable
+            timestamp): frames left out before any was read, or warned about.
     """
 
     recording: Path
@@ -65,18 +68,28 @@ class RecordingCalibration:
     frames: dict[str, int]
     view_names: list[str]
     unreadable: list[str] = field(default_factory=list)
+    listing: list[str] = field(default_factory=list)
 
     def summary(self) -> list[str]:
         """Lines for people: RMS errors, row disagreement, rejected and unreadable frames."""
         lines = self.result.summary()
         lines += [f"unreadable frame: {problem}" for problem in self.unreadable]
+        if self.listing:
+            lines.append(
+                f"{len(self.listing)} problem(s) in the recording's listing (frames.listing in "
+                f"the report); the first: {self.listing[0]}"
+            )
         return lines
 
     def report(self) -> dict[str, Any]:
         """Plain JSON-serialisable report (``camchain.report.json``)."""
         report = self.result.report()
         report["recording"] = str(self.recording)
-        report["frames"] = {**self.frames, "unreadable": list(self.unreadable)}
+        report["frames"] = {
+            **self.frames,
+            "unreadable": list(self.unreadable),
+            "listing": list(self.listing),
+        }
         report["view_names"] = list(self.view_names)
         return report
 
@@ -200,7 +213,10 @@ def calibrate_recording(
         "paired": len(pairing.pairs),
         "used": len(pairs),
     }
-    return RecordingCalibration(Path(recording_path), result, rig, frames, names, unreadable)
+    listing = [str(problem) for problem in recording.problems]
+    return RecordingCalibration(
+        Path(recording_path), result, rig, frames, names, unreadable, listing
+    )
 
 
 def write_calibration(calibration: RecordingCalibration, camchain: Path) -> Path:

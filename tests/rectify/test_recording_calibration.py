@@ -49,6 +49,9 @@ def test_an_unreadable_frame_is_recorded_not_fatal(tmp_path: Path) -> None:
     # the first cam0 frame at another size: it must not set the camera's resolution
     odd = sorted((tmp_path / "rec" / "mav0" / "cam0" / "data").glob("*.png"))[0]
     write_image(odd, cv2.resize(read_image(odd), (640, 480), interpolation=cv2.INTER_AREA))
+    # a frame data.csv lists but that is gone: left out by the listing, and it was unsaid
+    gone = sorted((tmp_path / "rec" / "mav0" / "cam1" / "data").glob("*.png"))[7]
+    gone.unlink()
     model = "pinhole-equi" if spec.rig.cam0.distortion_model == "equidistant" else "pinhole-radtan"
 
     calibration = calibrate_recording(tmp_path / "rec", spec.board.target, model, max_views=0)
@@ -56,14 +59,17 @@ def test_an_unreadable_frame_is_recorded_not_fatal(tmp_path: Path) -> None:
     assert len(calibration.unreadable) == 2 and broken.name in calibration.unreadable[0]
     assert odd.name in calibration.unreadable[1] and "640x480 px" in calibration.unreadable[1]
     assert calibration.rig.cam0.resolution == calibration.rig.cam1.resolution == (720, 540)
-    assert calibration.frames == {"cam0": 9, "cam1": 9, "paired": 9, "used": 9}
+    assert calibration.frames == {"cam0": 9, "cam1": 8, "paired": 8, "used": 8}
+    assert len(calibration.listing) == 1 and gone.name in calibration.listing[0]
+    assert any("problem(s) in the recording's listing" in line for line in calibration.summary())
     assert calibration.result.counts["both_detected"] <= 7
     assert any(broken.name in line for line in calibration.summary())
     report_path = write_calibration(calibration, tmp_path / "out" / "camchain.yaml")
     assert report_path == tmp_path / "out" / "camchain.report.json"
     report = calibration.report()
     assert report["frames"]["unreadable"] == calibration.unreadable
-    assert len(report["view_names"]) == 9 and report["recording"] == str(tmp_path / "rec")
+    assert report["frames"]["listing"] == calibration.listing
+    assert len(report["view_names"]) == 8 and report["recording"] == str(tmp_path / "rec")
     truth = read_kalibr(tmp_path / "rec" / "camchain.yaml")
     assert read_kalibr(tmp_path / "out" / "camchain.yaml").baseline_m == pytest.approx(
         truth.baseline_m, rel=0.02
