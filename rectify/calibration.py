@@ -570,9 +570,18 @@ def _calibrate(
         ]
         return (transform, residuals), np.asarray([rms(r) for r in residuals])
 
-    (transform, residuals), views, errors, dropped = _reject_outliers(
-        sorted(matched), fit, "stereo", names, options
-    )
+    try:
+        (transform, residuals), views, errors, dropped = _reject_outliers(
+            sorted(matched), fit, "stereo", names, options
+        )
+    except RectifyError as exc:  # too few views: say why the others were refused
+        if not refused:
+            raise
+        first = next(iter(refused.values()))
+        raise RectifyError(
+            f"{exc}; {len(refused)} views refused as the cameras' poses disagree (the first: "
+            f"{first}): frames paired out of step, or a board spec or model that is wrong"
+        ) from None
     rejected += dropped
     try:
         rig = StereoRig(cameras[0], cameras[1], transform)

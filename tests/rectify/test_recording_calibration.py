@@ -138,3 +138,20 @@ def test_a_camera_none_of_whose_frames_reads_is_named_with_the_first_reason(
     message = str(caught.value)
     assert message.startswith(f"{tmp_path / 'rec'}: no cam1 frame could be read (3 tried; ")
     assert f"the first: {frames[0]}" in message and "\n" not in message
+
+
+@pytest.mark.slow
+def test_views_refused_for_disagreeing_poses_are_named_when_too_few_are_left(
+    tmp_path: Path,
+) -> None:
+    # cam1's frames one step out of step with cam0's: the error said only "1 usable view"
+    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=10)
+    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
+    assert spec.board is not None
+    csv = tmp_path / "rec" / "mav0" / "cam1" / "data.csv"
+    header, *rows = csv.read_text().splitlines()
+    stamps, files = [r.split(",")[0] for r in rows], [r.split(",")[1] for r in rows]
+    shifted = [f"{t},{f}" for t, f in zip(stamps[:-1], files[1:], strict=True)]
+    csv.write_text("\n".join([header, *shifted]) + "\n")
+    with pytest.raises(RectifyError, match=r"views refused as the cameras' poses disagree"):
+        calibrate_recording(tmp_path / "rec", spec.board.target, "pinhole-equi")
