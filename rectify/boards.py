@@ -30,6 +30,7 @@ zone detectors need, and a black top-left square. Pixel coordinates
 follow OpenCV: the centre of the top-left pixel is ``(0, 0)``.
 """
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -202,10 +203,22 @@ class Board:
         """The OpenCV ChArUco board object (ChArUco boards only)."""
         if self.kind != "charuco" or self.dictionary is None or self.marker_m is None:
             raise RectifyError(f"board {self.spec()} is not a ChArUco board")
-        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
-        return cv2.aruco.CharucoBoard(
-            (self.columns, self.rows), self.square_m, self.marker_m, dictionary
+        return _charuco_board(
+            self.columns, self.rows, self.square_m, self.marker_m, self.dictionary
         )
+
+
+@functools.lru_cache(maxsize=8)
+def _charuco_board(
+    columns: int, rows: int, square_m: float, marker_m: float, dictionary: str
+) -> "cv2.aruco.CharucoBoard":
+    """The OpenCV board of a spec, built once per process.
+
+    OpenCV warns on each construction of a board whose marker border is thin
+    (72 identical lines for one calibration); detection only reads it.
+    """
+    words = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
+    return cv2.aruco.CharucoBoard((columns, rows), square_m, marker_m, words)
 
 
 def parse_board_spec(text: str) -> Board:

@@ -172,3 +172,15 @@ def test_charuco_markers_are_measured_on_the_image_whatever_size_the_spec_states
     chessboard = parse_board_spec("chessboard:7x5:0.03")
     found = detect_corners(board_texture(chessboard, pixels_per_square=40)[0], chessboard)
     assert found is not None and found.marker_m is None
+
+
+def test_a_charuco_board_object_is_built_once_per_spec(capfd: pytest.CaptureFixture[str]) -> None:
+    # OpenCV warns at each construction of a thin-bordered board: once an image, 72 lines
+    spec = "charuco:7x5:0.1:0.09:DICT_4X4_50"
+    first = parse_board_spec(spec).charuco()
+    assert parse_board_spec(spec).charuco() is first
+    assert parse_board_spec("charuco:7x5:0.1:0.08:DICT_4X4_50").charuco() is not first
+    capfd.readouterr()
+    for _ in range(3):
+        parse_board_spec(spec).charuco()
+    assert "Marker border" not in capfd.readouterr().err
