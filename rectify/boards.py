@@ -221,6 +221,27 @@ def _charuco_board(
     return cv2.aruco.CharucoBoard((columns, rows), square_m, marker_m, words)
 
 
+MARKER_FAMILIES = ("DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000", "DICT_7X7_1000")
+"""The largest dictionary of each marker size: a smaller one's markers are among its first."""
+
+
+def marker_family(image: np.ndarray, at_least: int = 4) -> str | None:
+    """The ArUco family of which ``image`` shows ``at_least`` markers, or ``None``.
+
+    For a chessboard spec: a ChArUco board's chessboard corners are found
+    too, but the markers pull ``cornerSubPix``, and the calibration came out
+    biased (focal length 0.6 % off, RMS 0.54 px) without a word.
+    """
+    gray = _to_gray(image)
+    for family in MARKER_FAMILIES:
+        words = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, family))
+        detector = cv2.aruco.ArucoDetector(words, cv2.aruco.DetectorParameters())
+        _, ids, _ = detector.detectMarkers(gray)
+        if ids is not None and len(ids) >= at_least:
+            return family
+    return None
+
+
 def parse_board_spec(text: str) -> Board:
     """Parse a ``--board`` spec (see the module docstring).
 

@@ -22,6 +22,7 @@ the demo (through that command) and ``benchmarks/bench_calibration.py`` call
 this module.
 """
 
+import logging
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -34,7 +35,7 @@ from lenspair.capture.recording import open_recording
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.progress import progress
-from lenspair.rectify.boards import Board, Detection, detect_corners
+from lenspair.rectify.boards import Board, Detection, detect_corners, marker_family
 from lenspair.rectify.calibration import (
     CalibrationModel,
     CalibrationOptions,
@@ -43,6 +44,8 @@ from lenspair.rectify.calibration import (
 )
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import StereoRig, write_kalibr
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,6 +63,8 @@ class RecordingCalibration:
         listing: one line per problem of the recording's listing (a frame
             ``data.csv`` names that is missing, a repeated or unreadable
             timestamp): frames left out before any was read, or warned about.
+        warnings: what reading the views warned about (the calibration's own
+            are in ``result``); both go to the report.
     """
 
     recording: Path
@@ -69,6 +74,7 @@ class RecordingCalibration:
     view_names: list[str]
     unreadable: list[str] = field(default_factory=list)
     listing: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
     def summary(self) -> list[str]:
         """Lines for people: RMS errors, row disagreement, rejected and unreadable frames."""
@@ -91,6 +97,7 @@ class RecordingCalibration:
             "listing": list(self.listing),
         }
         report["view_names"] = list(self.view_names)
+        report["warnings"] = [*self.warnings, *report["warnings"]]
         return report
 
 
@@ -150,6 +157,8 @@ def calibrate_recording(
     sizes: list[list[tuple[int, int] | None]] = []  # per pair, per camera (None: unread)
     where: list[list[str]] = []
     first_problem: list[str] = ["", ""]  # per camera: why its first unread frame was not read
+    looked_for_markers = False
+    warnings: list[str] = []  # said here, and kept for the report
     for pair in progress(pairs, "detecting board", total=len(pairs), unit="pair"):
         found: list[Detection | None] = []
         sizes.append([None, None])
@@ -166,6 +175,16 @@ def calibrate_recording(
                 continue
             sizes[-1][index] = (image.shape[1], image.shape[0])
             found.append(detect_corners(image, board))
+            if found[-1] is not None and board.kind == "chessboard" and not looked_for_markers:
+                looked_for_markers = True  # once, on the first view that shows the board
+                if (family := marker_family(image)) is not None:
+                    warnings.append(
+                        f"{frame.describe()}: the board carries ArUco markers "
+                        f"({family.rsplit('_', 1)[0]} family): it is a ChArUco board, and a "
+                        "chessboard spec reads its corners biased by them; give --board "
+                        "charuco:COLSxROWS:SQUARE_M:MARKER_M:DICT"
+                    )
+                    log.warning("%s", warnings[-1])
         detections.append(found)
     resolutions: list[tuple[int, int]] = []
     for index in (0, 1):
@@ -215,7 +234,7 @@ def calibrate_recording(
     }
     listing = [str(problem) for problem in recording.problems]
     return RecordingCalibration(
-        Path(recording_path), result, rig, frames, names, unreadable, listing
+        Path(recording_path), result, rig, frames, names, unreadable, listing, warnings
     )
 
 
