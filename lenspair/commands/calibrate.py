@@ -16,6 +16,10 @@ Boards (sizes in metres):
   charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT]  COLS x ROWS squares, DICT default DICT_5X5_100
 ChArUco markers are also measured on the images: a MARKER_M more than 15 %
 away from what they measure is reported (a wrong one biases the focal length).
+SQUARE_M alone sets the metric scale: a square size 10 % off gives a baseline
+10 % off, and no image can tell; measure the printed board. Also reported: a
+chessboard spec for a board that carries ArUco markers, and a lens model the
+other one fits far better (pinhole-radtan for a fisheye).
 
 Models (Kalibr's names): pinhole-radtan (k1 k2 p1 p2), pinhole-equi (fisheye k1..k4).
 
