@@ -48,6 +48,16 @@ FLAT_TOLERANCE = 0.5 / 255.0
 Half an 8-bit code: an 8-bit frame is flat when each channel is constant.
 """
 
+FLAT_RAMP = 4.0 / 255.0
+"""Spread ([0, 1] scale) from which a sample is not flat at all (:func:`flat_keep`).
+
+Between :data:`FLAT_TOLERANCE` and this, the norms' outputs are scaled from 0
+to 1: a norm makes a 1-code variation as large as any other (up to 316x), so a
+hard switch made a white frame with one pixel a 16-bit code darker than the
+tolerance come out with a dark blotch, where one a code less dark stayed white.
+A camera's noise spreads a real frame far beyond 4 codes.
+"""
+
 
 def _traced() -> bool:
     """Whether the forward is being traced or compiled: no data-dependent branch then."""
@@ -56,7 +66,11 @@ def _traced() -> bool:
 
 
 def flat_keep(x: Tensor) -> Tensor | None:
-    """``(N, 1, 1, 1)`` 0 for each flat sample of ``x`` and 1 for the others.
+    """``(N, 1, 1, 1)`` 0 for each flat sample of ``x``, 1 for the others, a ramp between.
+
+    A sample's spread (largest distance of a pixel from its channel's corner
+    pixel) at most :data:`FLAT_TOLERANCE` gives 0, at least :data:`FLAT_RAMP`
+    gives 1, and linearly between, so that the output is continuous in the input.
 
     Args:
         x: ``(N, C, H, W)`` images in [0, 1] (any memory format).
@@ -74,12 +88,12 @@ def flat_keep(x: Tensor) -> Tensor | None:
         difference = difference.permute(0, 2, 3, 1)
     rows = difference.reshape(x.shape[0], -1)
     spread = torch.maximum(rows.amax(dim=1), -rows.amin(dim=1))
-    flat = spread <= FLAT_TOLERANCE
-    # on the CPU a batch without a flat sample skips the masks; on a GPU the test
-    # would wait for the device (a training step's overlap lost): the mask is applied
-    if x.device.type == "cpu" and not _traced() and not bool(flat.any()):
+    # on the CPU a batch without a (nearly) flat sample skips the masks; on a GPU the
+    # test would wait for the device (a training step's overlap lost): it is applied
+    if x.device.type == "cpu" and not _traced() and not bool((spread < FLAT_RAMP).any()):
         return None
-    return (~flat).to(x.dtype).view(-1, 1, 1, 1)
+    keep = ((spread - FLAT_TOLERANCE) / (FLAT_RAMP - FLAT_TOLERANCE)).clamp(0.0, 1.0)
+    return keep.to(x.dtype).view(-1, 1, 1, 1)
 
 
 _FLAT = threading.local()

@@ -7,7 +7,7 @@ import torch
 
 from lenspair.model.checkpoint import load_model
 from lenspair.model.networks.enhancer import Enhancer
-from lenspair.model.networks.layers import FLAT_TOLERANCE, InstanceNorm, flat_keep
+from lenspair.model.networks.layers import FLAT_RAMP, FLAT_TOLERANCE, InstanceNorm, flat_keep
 from lenspair.model.networks.variants import build_discriminator, build_model
 from lenspair.model.training.losses import LossWeights, discriminator_loss, generator_loss
 from lenspair.model.training.pretrained import pretrained_weights
@@ -167,8 +167,24 @@ def test_only_flat_samples_are_marked() -> None:
     batch[1, 0, 3, 4] += 0.4 * FLAT_TOLERANCE  # within the tolerance
     keep = flat_keep(batch.contiguous(memory_format=torch.channels_last))
     assert keep is not None and keep.flatten().tolist() == [1.0, 0.0]
-    batch[1, 2, 5, 6] += 2 * FLAT_TOLERANCE  # one channel varies: not flat
+    batch[1, 2, 5, 6] += 2 * FLAT_TOLERANCE  # one channel varies: nearly flat
+    keep = flat_keep(batch)
+    assert keep is not None and keep[0].item() == 1.0 and 0.0 < keep[1].item() < 1.0
+    batch[1, 2, 5, 6] += FLAT_RAMP  # varies as much as a camera's noise: not flat
     assert flat_keep(batch) is None
+
+
+def test_the_output_is_continuous_across_the_flat_tolerance() -> None:
+    # a white frame with one pixel just past the tolerance came out with a dark blotch,
+    # one just within it stayed white: a hard switch between two outputs
+    network = load_model(pretrained_weights(1), torch.device("cpu")).network.eval().double()
+    outputs = []
+    with torch.inference_mode():
+        for dip in (0.99 * FLAT_TOLERANCE, 1.01 * FLAT_TOLERANCE):
+            frame = torch.ones((1, 1, 48, 64), dtype=torch.float64)
+            frame[0, 0, 20, 30] -= dip
+            outputs.append(network(frame).enhanced)
+    assert float((outputs[0] - outputs[1]).abs().max()) < 1e-3
 
 
 def test_a_flat_frame_in_one_thread_does_not_mask_another_threads_frames() -> None:
