@@ -273,9 +273,14 @@ def test_int8_check_compares_on_an_image_held_out_of_the_calibration(
     network = load_model(make_checkpoint(tmp_path / "c.pt")).network
     rng = np.random.default_rng(0)
     images = [rng.random((1, 1, 32, 48), dtype=np.float32) for _ in range(3)]
+    images.append(np.full((1, 1, 32, 48), 0.8, np.float32))  # flat: it flattered int8 last
+    images[1] = images[1] * 0.2  # the least contrast of the textured ones
     check = quantize.check_int8(network, 1, tmp_path / "m.int8.onnx", (32, 48), images, runs=1)
-    assert check.calibration_images == 2 and len(fitted[0]) == 2
-    assert not any(image is images[-1] for image in fitted[0])  # compared on the last one
+    assert check.calibration_images == 3 and len(fitted[0]) == 3
+    contrast = max(range(4), key=lambda i: float(images[i].std()))
+    # compared on the one with the most contrast, held out of the calibration
+    assert not any(image is images[contrast] for image in fitted[0])
+    assert any(image is images[3] for image in fitted[0])
 
 
 def test_an_output_on_the_checkpoint_or_on_another_output_is_refused(
