@@ -87,6 +87,14 @@ def _check_out(recording: Path, out: Path) -> None:
             f"--out {out}: a file of the recording {recording} that no calibrate wrote; "
             "write the calibration elsewhere, e.g. beside the recording as camchain.yaml"
         )
+    # its folder is made now, not after the calibration: a place it cannot be made
+    # (a typo, another user's folder) was a traceback once everything had run
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(
+            f"--out {out}: cannot make its folder {out.parent} ({exc.strerror or exc})"
+        ) from None
 
 
 _RECORDING_FILES = frozenset({"data.csv", "rig.yaml", "metadata.yaml", "sensor.yaml"})

@@ -106,6 +106,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["eval", "CKPT", "--data", "DS", "--out", "y" * 300], "File name too long"),
     (["train", "DS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
     (["train", "DS", "--out", "OUT", "--init", "OUT/none.pt"], "--init"),
+    (["calibrate", "DS", "--board", "x", "--model", "pinhole-equi", "--out", "/proc/x/c"], "x/c"),
     (["detect", "IMGS", "OUT/detector.pt", "--out", "OUT/d"], "the model comes first"),
     (["train", "DS", "--out", "OUT", "--crop-size", "16"], "--crop-size): expected >= 24"),
     (["tradeoff", "DS", "--out", "OUT", "--crop-size", "16"], "--crop-size): expected >= 24"),
