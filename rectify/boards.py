@@ -92,6 +92,11 @@ class Board:
             raise RectifyError(
                 f"board square size: expected 0 < SQUARE_M < 1, got {self.square_m}{hint}"
             )
+        if self.square_m < MIN_SQUARE_M:  # OpenCV's fit fails on it as "ill-conditioned"
+            raise RectifyError(
+                f"board square size: {self.square_m} m is under a millimetre; sizes are in "
+                "metres (a 25 mm square is 0.025)"
+            )
         if self.kind == "chessboard":
             return
         if self.marker_m is None or not 0.0 < self.marker_m < self.square_m:
@@ -220,6 +225,9 @@ def _charuco_board(
     words = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
     return cv2.aruco.CharucoBoard((columns, rows), square_m, marker_m, words)
 
+
+MIN_SQUARE_M = 0.001
+"""Smaller printed squares cannot be measured; OpenCV's fit failed on them as ill-conditioned."""
 
 MARKER_FAMILIES = ("DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000", "DICT_7X7_1000")
 """The largest dictionary of each marker size: a smaller one's markers are among its first."""

@@ -32,6 +32,7 @@ def test_parse_chessboard_and_charuco_specs() -> None:
         ("chessboard:9by6:0.02", r"COLSxROWS must look like 9x6, got '9by6'"),
         ("chessboard:9x6:abc", r"SQUARE_M must be a length in metres, got 'abc'"),
         ("chessboard:9x6:25", r"did you give millimetres"),
+        ("chessboard:9x6:1e-9", r"1e-09 m is under a millimetre"),  # OpenCV's ill-conditioned
         ("chessboard:1x6:0.02", r"at least 2x2 inner corners, got 1x6"),
         ("chessboard:99999999999x6:0.06", r"at most 200 along a side"),  # an OpenCV traceback
         ("charuco:8x6:0.04", r"expected charuco:COLSxROWS:SQUARE_M:MARKER_M\[:DICT\]"),
