@@ -177,14 +177,9 @@ def _changed_since(source: Path, written_ns: int) -> bool:
 
 
 def source_fingerprint(source: Path) -> list[list[Any]]:
-    """Name, size, modification and change time of a bag's files (its folder's, for ROS 2).
-
-    The inode's change time too: a bag replaced by another of the same size
-    with its modification time set back (``touch -r``) still counts as changed.
-    """
+    """Name, size and modification time of a bag's files (its folder's, for ROS 2)."""
     files = sorted(p for p in source.rglob("*") if p.is_file()) if source.is_dir() else [source]
-    stats = [(p, p.stat()) for p in files]
-    return [[p.name, st.st_size, st.st_mtime_ns, st.st_ctime_ns] for p, st in stats]
+    return [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in files]
 
 
 class FileSink:
