@@ -268,24 +268,24 @@ def content_id(frame: FrameRef) -> str:
 
 
 def _identity(frame: FrameRef) -> list[object]:
-    """The frame's place in its recording and what it holds, whatever the path.
+    """The frame's place in its recording and its file's size and time, whatever the path.
 
     The file's folder is left out: the same recording given as ``rec`` from
-    one folder and ``../rec`` from another (or moved) resumes instead of
-    doing every frame, and a bag's homography again. An image file is known
-    by its bytes (a frame replaced by one of the same size, its time set back
-    with ``touch -r``, was kept stale); a bag message by the bag's size and
-    times, the inode's change time included (``touch`` cannot set it back).
+    one folder and ``../rec`` from another (or moved with its times kept)
+    resumes instead of doing every frame. Size and modification time, not
+    the bytes: a rerun with nothing to do reads no frame (a recording can be
+    tens of GB), and ``chmod`` or a move (which change the inode's change
+    time) keep the work done. A frame replaced by one of the same size with
+    its time set back is not noticed, unless the homography sampled it (those
+    are hashed).
     """
     place = [frame.camera, frame.t_ns, frame.source.name, frame.topic, frame.log_time_ns]
     place.append(frame.occurrence)
-    if not frame.in_bag:
-        return [*place, content_id(frame)]
     try:
         stat = frame.source.stat()
-        return [*place, stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns]
+        return [*place, stat.st_size, stat.st_mtime_ns]
     except OSError:
-        return [*place, None, None, None]
+        return [*place, None, None]
 
 
 @dataclass(frozen=True)

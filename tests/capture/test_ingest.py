@@ -379,9 +379,7 @@ def test_a_rerun_from_another_working_folder_resumes_every_frame(
     assert set(changed) <= {"report.json"}, changed  # its timings
 
 
-def test_a_frame_replaced_by_one_of_the_same_size_and_time_is_not_taken_as_finished(
-    tmp_path: Path,
-) -> None:
+def test_a_frame_key_holds_its_place_size_and_time_not_its_path(tmp_path: Path) -> None:
     import os
 
     from lenspair.capture.ingest_frames import FrameTask
@@ -390,20 +388,26 @@ def test_a_frame_replaced_by_one_of_the_same_size_and_time_is_not_taken_as_finis
     files = [tmp_path / "cam1.png", tmp_path / "cam0.png"]
     for file in files:
         file.write_bytes(b"x" * 100)
-    task = FrameTask(FrameRef("cam1", 5, files[0]), FrameRef("cam0", 5, files[1]), "state")
-    before, stat = task.key, files[0].stat()
-    files[0].write_bytes(b"y" * 100)  # other pixels, same size, its time set back
-    os.utime(files[0], ns=(stat.st_atime_ns, stat.st_mtime_ns))
-    again = FrameTask(FrameRef("cam1", 5, files[0]), FrameRef("cam0", 5, files[1]), "state")
-    assert again.key != before  # frames the homography did not sample kept their stale pair
+
+    def key(folder: Path) -> str:
+        frames = (
+            FrameRef("cam1", 5, folder / "cam1.png"),
+            FrameRef("cam0", 5, folder / "cam0.png"),
+        )
+        return FrameTask(*frames, "state").key
+
+    before = key(tmp_path)
+    (tmp_path / "sub").mkdir()
+    assert key(tmp_path / "sub" / "..") == before  # another spelling: it did every frame again
     moved = tmp_path / "moved"
     moved.mkdir()
     for file in files:
         file.rename(moved / file.name)
-    there = FrameTask(
-        FrameRef("cam1", 5, moved / "cam1.png"), FrameRef("cam0", 5, moved / "cam0.png"), "state"
-    )
-    assert there.key == again.key  # a recording moved elsewhere resumes
+    os.chmod(moved / "cam1.png", 0o444)  # protecting raw data keeps the work done
+    assert key(moved) == before
+    (moved / "cam1.png").chmod(0o644)
+    (moved / "cam1.png").write_bytes(b"y" * 101)  # replaced: redone
+    assert key(moved) != before
 
 
 def test_an_out_that_makes_the_ingest_the_recording_itself_is_refused(tmp_path: Path) -> None:
