@@ -493,19 +493,30 @@ def restore_input(
                 "them (or only its metadata: chmod, a copy with cp -a)",
                 sink.changed,
             )
-        source_problems.extend(sink.copy_others(input_path, files, reserved=(REPORT_NAME,)))
+        follow = kind != "folder"  # a folder's frames are listed without following links
+        copied = sink.copy_others(input_path, files, (REPORT_NAME,), follow)
+        source_problems.extend(copied)
         if options.resume:
-            stale = sink.set_aside_stale(input_path, reserved=(REPORT_NAME,))
+            stale, left = sink.set_aside_stale(input_path, (REPORT_NAME,), follow)
             if stale:
                 log.warning(
-                    "%d output file(s) whose input is gone since the resumed run (the first: "
-                    "%s) moved to %s",
+                    "%d image(s) whose input is gone since the resumed run (the first: %s) "
+                    "moved to %s",
                     len(stale),
                     stale[0],
                     out_dir / STALE_DIR,
                 )
+            if left:
+                log.warning(
+                    "%d file(s) in OUT with no input (the first: %s) left in place",
+                    len(left),
+                    left[0],
+                )
             source_problems.extend(
                 f"{name}: its input is gone; moved to {STALE_DIR}/{name}" for name in stale
+            )
+            source_problems.extend(
+                f"{name}: in OUT, not in the input; left in place" for name in left
             )
     sink.finish()
     if isinstance(sink, BagSink):

@@ -30,6 +30,7 @@ import numpy as np
 
 from lenspair.capture.bagwrite import BagCopy, output_bag_path
 from lenspair.capture.errors import CaptureError
+from lenspair.capture.folders import IMAGE_SUFFIXES
 from lenspair.capture.frames import BagMessage, InputFrame
 from lenspair.capture.rosbag import BAG_SUFFIXES
 from lenspair.core.errors import ImageIOError
@@ -182,6 +183,27 @@ def source_fingerprint(source: Path) -> list[list[Any]]:
     return [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in files]
 
 
+def files_under(root: Path, follow_links: bool = True) -> list[Path]:
+    """Every file below ``root``, relative to it, sorted; linked folders followed once each.
+
+    A recording's frames are listed through its ``data.csv``, also through a
+    linked folder (a camera's ``data/`` on another disk), which ``Path.rglob``
+    does not enter; a folder of images is listed without following links
+    (``follow_links=False``, :func:`lenspair.capture.frames.iter_frames`).
+    """
+    found: list[Path] = []
+    seen: set[tuple[int, int]] = set()
+    for folder, names, files in os.walk(root, followlinks=follow_links):
+        info = os.stat(folder)
+        if (info.st_dev, info.st_ino) in seen:  # a link back up the tree
+            names[:] = []
+            continue
+        seen.add((info.st_dev, info.st_ino))
+        here = Path(folder).relative_to(root)
+        found += [here / name for name in files if (Path(folder) / name).is_file()]
+    return sorted(found)
+
+
 class FileSink:
     """Writes frames of file inputs under ``out_dir`` with their relative names.
 
@@ -218,7 +240,11 @@ class FileSink:
         return self.out_dir
 
     def copy_others(
-        self, root: Path, restored: Iterable[Path], reserved: Iterable[str] = ()
+        self,
+        root: Path,
+        restored: Iterable[Path],
+        reserved: Iterable[str] = (),
+        follow_links: bool = True,
     ) -> list[str]:
         """Copy every file under ``root`` except ``restored`` ones.
 
@@ -230,10 +256,10 @@ class FileSink:
         skip = {Path(p).resolve() for p in restored}
         own = {*reserved, *OWN_NAMES}
         clashes = []
-        for source in sorted(Path(root).rglob("*")):
-            if not source.is_file() or source.resolve() in skip:
+        for relative in files_under(root, follow_links):
+            source = Path(root) / relative
+            if source.resolve() in skip:
                 continue
-            relative = source.relative_to(root)
             if relative.parts[0] in own:
                 clashes.append(
                     f"{source}: not copied: OUT/{relative.parts[0]} is restore's own "
@@ -245,26 +271,35 @@ class FileSink:
                 clashes.append(note)
         return clashes
 
-    def set_aside_stale(self, root: Path, reserved: Iterable[str] = ()) -> list[str]:
-        """Move the outputs whose input under ``root`` is gone into ``OUT/.restore-stale``.
+    def set_aside_stale(
+        self, root: Path, reserved: Iterable[str] = (), follow_links: bool = True
+    ) -> tuple[list[str], list[str]]:
+        """Move the images in OUT whose input under ``root`` is gone into ``OUT/.restore-stale``.
 
         A resumed run whose input lost frames since would otherwise keep
         their outputs (a restored recording with an image its ``data.csv``
-        no longer lists); they are moved, not deleted (OUT may hold a file of
-        the user's). Returns their names, relative to OUT.
+        no longer lists); they are moved, not deleted. Other files without an
+        input (a note or calibration of the user's put into OUT) stay where
+        they are, and are named. Folders behind links are walked as the
+        frames are listed, through the link.
+
+        Returns:
+            ``(moved, left)``: names relative to OUT.
         """
         own = {*reserved, *OWN_NAMES}
-        inputs = {p.relative_to(root) for p in Path(root).rglob("*") if p.is_file()}
-        stale = []
-        for path in sorted(self.out_dir.rglob("*")):
-            relative = path.relative_to(self.out_dir)
-            if not path.is_file() or relative.parts[0] in own or relative in inputs:
+        inputs = set(files_under(root, follow_links))
+        moved, left = [], []
+        for relative in files_under(self.out_dir, follow_links):
+            if relative.parts[0] in own or relative in inputs:
+                continue
+            if relative.suffix.lower() not in IMAGE_SUFFIXES:
+                left.append(relative.as_posix())
                 continue
             target = self.out_dir / STALE_DIR / relative
             target.parent.mkdir(parents=True, exist_ok=True)
-            os.replace(path, target)
-            stale.append(relative.as_posix())
-        return stale
+            os.replace(self.out_dir / relative, target)
+            moved.append(relative.as_posix())
+        return moved, left
 
     def done(self, frame: InputFrame) -> bool:
         """True when ``frame``'s output already exists (written atomically: complete).

@@ -83,29 +83,50 @@ def test_folder_keeps_tree_names_depth(tmp_path: Path, backend: TorchBackend, dt
 def test_a_resume_sets_aside_the_outputs_whose_input_is_gone(
     tmp_path: Path, backend: TorchBackend, caplog: pytest.LogCaptureFixture
 ) -> None:
-    for name in ("a.png", "b.png", "sub/c.png"):
-        write_image(
-            tmp_path / "in" / name, (texture((32, 48), seed=len(name)) * 255).astype(np.uint8)
-        )
-    (tmp_path / "in" / "notes.txt").write_text("copied beside the frames")
+    source = tmp_path / "in"
+    for name in ("a.png", "b.png"):
+        write_image(source / name, (texture((32, 48), seed=len(name)) * 255).astype(np.uint8))
     options = RestoreOptions(batch_size=1)
-    restore_input(tmp_path / "in", tmp_path / "out", backend, options)
-    (tmp_path / "in" / "b.png").unlink()
-    (tmp_path / "in" / "notes.txt").unlink()
-    report = restore_input(
-        tmp_path / "in", tmp_path / "out", backend, replace(options, resume=True)
-    )
-    # they stayed beside the others, unsaid: an image the input no longer has
+    restore_input(source, tmp_path / "out", backend, options)
     out = tmp_path / "out"
-    assert not (out / "b.png").exists() and not (out / "notes.txt").exists()
-    assert (out / ".restore-stale" / "b.png").is_file()  # moved, not deleted
-    assert (out / ".restore-stale" / "notes.txt").is_file()
-    assert (out / "a.png").is_file() and (out / "sub" / "c.png").is_file()
+    (source / "b.png").unlink()
+    (out / "notes.txt").write_text("the user's own")
+    report = restore_input(source, out, backend, replace(options, resume=True))
+    # b's output stayed beside the others, unsaid: an image the input no longer has
+    assert not (out / "b.png").exists() and (out / ".restore-stale" / "b.png").is_file()
+    assert (out / "a.png").is_file()
+    assert (out / "notes.txt").read_text() == "the user's own"  # not restore's: left there
     reasons = [p["reason"] for p in report.problems]
     assert "b.png: its input is gone; moved to .restore-stale/b.png" in reasons
-    assert any("2 output file(s) whose input is gone" in m for m in caplog.messages)
-    again = restore_input(tmp_path / "in", tmp_path / "out", backend, replace(options, resume=True))
+    assert "notes.txt: in OUT, not in the input; left in place" in reasons
+    assert any("1 image(s) whose input is gone" in m for m in caplog.messages)
+    again = restore_input(source, out, backend, replace(options, resume=True))
+    assert (again.resumed, again.restored) == (1, 0)
     assert not any("input is gone" in p["reason"] for p in again.problems)
+
+
+def test_a_resume_keeps_the_frames_of_a_camera_folder_behind_a_link(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    # rglob does not enter a linked folder: every frame behind it counted as gone, and
+    # each resume moved them away and restored them again
+    recording = make_recording(tmp_path / "rec", frames=3)
+    data = recording / "mav0" / "cam1" / "data"
+    data.rename(tmp_path / "other_disk")
+    data.symlink_to(tmp_path / "other_disk", target_is_directory=True)
+    options = RestoreOptions(batch_size=1, camera="cam1")
+    first = restore_input(recording, tmp_path / "out", backend, options)
+    restored = sorted((tmp_path / "out" / "mav0" / "cam1" / "data").iterdir())
+    assert first.restored == 3 and len(restored) == 3
+    # the camera not restored, behind its own link: copied (it was left out)
+    cam0 = recording / "mav0" / "cam0" / "data"
+    cam0.rename(tmp_path / "cam0_disk")
+    cam0.symlink_to(tmp_path / "cam0_disk", target_is_directory=True)
+    again = restore_input(recording, tmp_path / "out", backend, replace(options, resume=True))
+    assert (again.resumed, again.restored) == (3, 0)
+    assert not (tmp_path / "out" / ".restore-stale").exists()
+    assert sorted((tmp_path / "out" / "mav0" / "cam1" / "data").iterdir()) == restored
+    assert len(list((tmp_path / "out" / "mav0" / "cam0" / "data").iterdir())) == 3
 
 
 def test_a_resume_restores_again_the_frames_whose_depth_an_added_frame_changed(
