@@ -14,10 +14,11 @@ and the output says it was not checked. A JSON report goes next to the
 first file, its whole name and .export.json (model.onnx.export.json).
 
 --int8 also writes <name>.int8.onnx: ONNX Runtime static quantisation (QDQ,
-int8 weights per channel, uint8 activations) calibrated on 15 of 16 obstructed
+int8 weights per channel, uint8 activations) calibrated on 16 obstructed
 images of DS (any paired layout; --split picks a dataset's split), checked
-against the fp32 network on the 16th, held out of the calibration (PSNR of its
-output against the fp32 output), and timed against it. int8 runs natively on
+against the fp32 network on the one with the most contrast, through a probe
+model calibrated on the other 15 (PSNR of its output against the fp32
+output), and timed against it. int8 runs natively on
 CPUs with VNNI (avx512_vnni, avx_vnni, AMX); the precision decision is printed
 (lenspair.model.precision).
 """

@@ -189,8 +189,9 @@ def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     assert main([*args, "--int8", "--calibration", str(data)]) == 0
     report = json.loads((tmp_path / "model.onnx.export.json").read_text())
     int8 = report["int8"]
-    # 4 pairs: 3 calibrate, the 4th is held out to compare int8 with fp32 on
-    assert int8["calibration_images"] == 3 and int8["precision"]["precision"] == "int8"
+    # 4 pairs: the model written is calibrated on all 4 (the comparison with fp32 is on
+    # the one with the most contrast, held out of a probe model's calibration)
+    assert int8["calibration_images"] == 4 and int8["precision"]["precision"] == "int8"
     assert 25.0 < int8["psnr_vs_fp32_db"] < 100.0  # quantised: close, yet not identical
     session = ort.InferenceSession(int8["path"], providers=["CPUExecutionProvider"])
     graph = onnx.load(int8["path"]).graph
@@ -276,11 +277,13 @@ def test_int8_check_compares_on_an_image_held_out_of_the_calibration(
     images.append(np.full((1, 1, 32, 48), 0.8, np.float32))  # flat: it flattered int8 last
     images[1] = images[1] * 0.2  # the least contrast of the textured ones
     check = quantize.check_int8(network, 1, tmp_path / "m.int8.onnx", (32, 48), images, runs=1)
-    assert check.calibration_images == 3 and len(fitted[0]) == 3
     contrast = max(range(4), key=lambda i: float(images[i].std()))
-    # compared on the one with the most contrast, held out of the calibration
+    # compared on the one with the most contrast, held out of the probe's calibration
+    assert len(fitted) == 2 and len(fitted[0]) == 3
     assert not any(image is images[contrast] for image in fitted[0])
     assert any(image is images[3] for image in fitted[0])
+    # the model written is calibrated on every image, that one too (it was left out)
+    assert check.calibration_images == 4 and len(fitted[1]) == 4
 
 
 def test_an_output_on_the_checkpoint_or_on_another_output_is_refused(
