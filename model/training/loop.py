@@ -438,9 +438,7 @@ def _with_history(
                 step,
                 before.data_path,
             )
-    elif (
-        NAMES_DIGEST in before.data and NAMES_DIGEST in runtime.data and before.data != runtime.data
-    ):
+    elif (then := _digest(before.data)) and (now := _digest(runtime.data)) and then != now:
         earlier_data = (*earlier_data, f"{before.data} until step {step}")
         if warn:  # rebuilt in place: same folder, other pairs
             log.warning(
@@ -457,6 +455,18 @@ def _with_history(
         init=runtime.init or before.init,
     )
     return dataclasses.replace(config, runtime=runtime)
+
+
+def _digest(data: str) -> str | None:
+    """The pair-name digest in a run's data line, if it has one.
+
+    (:func:`lenspair.model.training.datasets.names_digest` writes it.)
+
+    Only it tells whether the pairs changed: the line also holds counts that
+    other settings change (``data.max_val_images``).
+    """
+    _, found, rest = data.partition(NAMES_DIGEST + " ")
+    return rest.split(")")[0].split(";")[0].strip() if found else None
 
 
 def _resumed_rows(path: Path, state: RunState) -> list[dict[str, str]]:

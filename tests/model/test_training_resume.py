@@ -245,6 +245,18 @@ def test_a_resume_on_a_dataset_rebuilt_in_place_says_and_records_its_pairs_chang
     assert any("whose pairs changed since the run's first 4 steps" in m for m in caplog.messages)
 
 
+def test_only_the_pair_digest_of_the_data_line_tells_whether_the_pairs_changed() -> None:
+    from lenspair.model.training.loop import _digest
+
+    # the counts change with data.max_val_images, allowed on a resume: not other pairs
+    then = "/d (train 40 pairs, validation 9 pairs; pair names sha256 0123456789ab)"
+    now = "/d (train 40 pairs, validation 5 pairs; pair names sha256 0123456789ab)"
+    assert _digest(then) == _digest(now) == "0123456789ab"
+    noted = "/d (train 3 pairs, validation 1 pairs; validation: 1 pairs held out by name hash; "
+    assert _digest(noted + "pair names sha256 ba9876543210)") == "ba9876543210"
+    assert _digest("/d (train 40 pairs, validation 9 pairs)") is None  # an older run's line
+
+
 def test_a_restart_of_a_fine_tuning_starts_again_from_its_init(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
