@@ -74,12 +74,16 @@ def _sigterm_as_interrupt() -> Iterator[None]:
     """Raise :class:`Terminated` on SIGTERM meanwhile, in this process only.
 
     Left alone when SIGTERM already has a handler (an embedding program's,
-    or this one's in a nested call such as the demo's stages) or off the main
-    thread. A forked worker that inherits the handler ends as by default.
+    or this one's in a nested call such as the demo's stages), off the main
+    thread, and under ``torchrun`` with several processes (it stops every
+    rank with SIGTERM, and a rank waiting in a collective could not run the
+    handler: the default ending is the clean one there). A forked worker
+    that inherits the handler ends as by default.
     """
     if (
         threading.current_thread() is not threading.main_thread()
         or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+        or int(os.environ.get("WORLD_SIZE", "1") or 1) > 1
     ):
         yield
         return

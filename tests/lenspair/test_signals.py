@@ -30,6 +30,9 @@ def test_a_command_stopped_by_sigterm_says_so_and_exits_143(
 ) -> None:
     import lenspair.commands.simulate
 
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        pytest.skip("the test runner handles SIGTERM itself")
+
     def stopped(args: object) -> int:
         os.kill(os.getpid(), signal.SIGTERM)
         time.sleep(5)
@@ -40,6 +43,16 @@ def test_a_command_stopped_by_sigterm_says_so_and_exits_143(
     assert main(argv) == TERMINATED
     said = capsys.readouterr().err.strip().splitlines()[-1]
     assert said.startswith("lenspair simulate: terminated; ")
+
+
+def test_the_handler_is_left_to_torchrun_with_several_processes(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        pytest.skip("the test runner handles SIGTERM itself")
+    monkeypatch.setenv("WORLD_SIZE", "2")  # torchrun stops every rank with SIGTERM
+    with _sigterm_as_interrupt():
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
 
 
 def test_sigterm_mid_simulation_ends_the_process_cleanly(tmp_path: Path) -> None:
