@@ -30,8 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from lenspair.capture.pairing import estimate_period_ns, pair_frames
+from lenspair.capture.pairing import FramePair, estimate_period_ns, pair_frames
 from lenspair.capture.recording import open_recording
+from lenspair.capture.recording_types import Recording
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.progress import progress
@@ -108,6 +109,39 @@ def spread_indices(count: int, limit: int) -> list[int]:
     return sorted({round(float(i)) for i in np.linspace(0, count - 1, limit)})
 
 
+def _search_again(
+    recording: Recording,
+    pairs: list[FramePair],
+    detections: list[list[Detection | None]],
+    sizes: list[list[tuple[int, int] | None]],
+    board: Board,
+    needed: int,
+) -> None:
+    """Search the chessboard again, thoroughly, in the frames the quick pass missed.
+
+    The quick check misses boards with squares of about 12 px or less, and a
+    thorough search of a frame without a board takes about 20x as long: it is
+    spent where the other camera saw the board at that moment, or on every
+    miss when too few views are found for the calibration.
+    """
+    if board.kind != "chessboard":
+        return
+    both = sum(found[0] is not None and found[1] is not None for found in detections)
+    misses = [
+        (row, index)
+        for row, found in enumerate(detections)
+        for index in (0, 1)
+        if found[index] is None
+        and sizes[row][index] is not None
+        and (found[1 - index] is not None or both < needed)
+    ]
+    for row, index in progress(misses, "searching again", total=len(misses), unit="image"):
+        frames = recording.frames["cam0"] if index == 0 else recording.frames["cam1"]
+        position = pairs[row].index0 if index == 0 else pairs[row].index1
+        image = recording.load(frames[position])
+        detections[row][index] = detect_corners(image, board, thorough=True)
+
+
 def calibrate_recording(
     recording_path: Path,
     board: Board,
@@ -174,7 +208,7 @@ def calibrate_recording(
                 found.append(None)
                 continue
             sizes[-1][index] = (image.shape[1], image.shape[0])
-            found.append(detect_corners(image, board))
+            found.append(detect_corners(image, board, thorough=False))
             if found[-1] is not None and board.kind == "chessboard" and not looked_for_markers:
                 looked_for_markers = True  # once, on the first view that shows the board
                 if (family := marker_family(image)) is not None:
@@ -186,6 +220,7 @@ def calibrate_recording(
                     )
                     log.warning("%s", warnings[-1])
         detections.append(found)
+    _search_again(recording, pairs, detections, sizes, board, needed)
     resolutions: list[tuple[int, int]] = []
     for index in (0, 1):
         # a camera's resolution is that of most of its frames: one odd frame

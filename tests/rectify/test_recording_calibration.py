@@ -184,3 +184,43 @@ def test_a_charuco_board_given_a_chessboard_spec_is_said_to_be_charuco(tmp_path:
     assert len(said) == 1 and f"({board.dictionary.rsplit('_', 1)[0]} family)" in said[0]
     right = calibrate_recording(tmp_path / "rec", board.target, "pinhole-equi")
     assert not any("ArUco markers" in w for w in right.report()["warnings"])
+
+
+def test_frames_the_quick_check_missed_are_searched_again_only_where_it_may_pay(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # a thorough search of a frame without a board costs about 20x the quick one: it is
+    # spent where the other camera saw the board, or everywhere when too few views are found
+    import numpy as np
+
+    from lenspair.capture.pairing import FramePair
+    from lenspair.rectify import recording_calibration
+    from lenspair.rectify.boards import Detection
+
+    board = parse_board_spec("chessboard:9x6:0.05")
+    seen = Detection(np.arange(3, dtype=np.int32), np.zeros((3, 2), np.float32))
+    searched: list[str] = []
+
+    class Frames:
+        def __init__(self) -> None:
+            self.frames = {"cam0": ["a0", "b0", "c0"], "cam1": ["a1", "b1", "c1"]}
+
+        def load(self, frame: str) -> str:
+            return frame
+
+    def thorough(image: str, board: object, thorough: bool = True) -> Detection:
+        assert thorough
+        searched.append(image)
+        return seen
+
+    monkeypatch.setattr(recording_calibration, "detect_corners", thorough)
+    pairs = [FramePair(i, i, 0, 0) for i in range(3)]
+    sizes: list[list[tuple[int, int] | None]] = [[(8, 8), (8, 8)]] * 3
+    found = [[seen, None], [None, None], [seen, seen]]
+    search = recording_calibration._search_again
+    search(Frames(), pairs, found, sizes, board, needed=1)  # type: ignore[arg-type]
+    assert searched == ["a1"] and found[0] == [seen, seen]
+    searched.clear()
+    found = [[seen, None], [None, None], [seen, seen]]
+    search(Frames(), pairs, found, sizes, board, needed=5)  # type: ignore[arg-type]
+    assert searched == ["a1", "b0", "b1"]  # too few views: every miss
