@@ -116,10 +116,10 @@ def run(args: argparse.Namespace) -> int:
         topics=args.topics,
     )
     check_options(options)  # before the model loads: a bad option is the only line
-    check_input(args.input, args.out, options)  # and so is a mistyped path or topic
+    checked = check_input(args.input, args.out, options)  # and so is a mistyped path or topic
     device = resolve_device(args.device)
     judge = default_judge(args.only_obstructed, device) if args.only_obstructed else None
     backend = open_backend(args.model, device, args.precision)
-    report = restore_input(args.input, args.out, backend, options, judge)
+    report = restore_input(args.input, args.out, backend, options, judge, checked)
     print(report.summary())
     return 0

@@ -418,6 +418,7 @@ def restore_input(
     backend: Backend,
     options: RestoreOptions = RestoreOptions(),
     judge: FrameJudge | None = None,
+    checked: CheckedInput | None = None,
 ) -> RestoreReport:
     """Restore every frame of an input into OUT in the input's format.
 
@@ -427,6 +428,7 @@ def restore_input(
         backend: the network (:func:`~lenspair.model.inference.backends.open_backend`).
         options: see :class:`RestoreOptions`.
         judge: when given, only frames it calls obstructed are restored.
+        checked: :func:`check_input` of these arguments, when already called.
 
     Returns:
         The report (also written to ``OUT/restore_report.json``).
@@ -439,7 +441,8 @@ def restore_input(
     started = time.perf_counter()
     input_path, out_dir = Path(input_path), Path(out_dir)
     check_options(options, backend)
-    checked = check_input(input_path, out_dir, options)
+    if checked is None:  # restore's CLI checked it before loading the model
+        checked = check_input(input_path, out_dir, options)
     kind, cameras, files = checked.kind, checked.cameras, checked.files
     if kind in ("image", "folder"):
         _say_unused(input_path, kind, options)
