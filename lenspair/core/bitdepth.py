@@ -87,6 +87,16 @@ class RunningDepth:
         """The depth to :func:`widen` and :func:`narrow` with (16: frames as they are)."""
         return self._bits or 16
 
+    def rise(self, image: np.ndarray) -> int | None:
+        """:meth:`see` ``image``; the depth before it when it raised it, else ``None``.
+
+        A batch being gathered is then run at that earlier depth first: a
+        frame must not rescale the frames before it (restore, detect alike).
+        """
+        before = self.bits
+        self.see(image)
+        return before if self.bits != before else None
+
     def see(self, image: np.ndarray) -> None:
         """Take one more frame into account (an 8-bit one tells nothing of 16-bit ones)."""
         if image.dtype != np.uint16:

@@ -258,12 +258,8 @@ def detect_frames(
             )
             verdicts.append(failed)
             continue
-        seen = depth.bits
-        depth.see(frame.image)
-        if batch and depth.bits != seen:
-            # the frames batched so far are judged at the depth they were seen at: a
-            # later frame that raises it must not rescale them (as restore does)
-            flush(seen)
+        if (before := depth.rise(frame.image)) is not None and batch:
+            flush(before)  # the frames batched so far, at the depth they were seen at
         batch.append(frame)
         if len(batch) == batch_size:
             flush()

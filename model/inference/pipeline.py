@@ -597,12 +597,10 @@ def _run(
             pending.append((item, frame, None))
             continue
         channels_checked = True
-        seen = depth.bits
-        depth.see(image)  # every readable frame, finished ones too: a resume decides alike
-        if batch and depth.bits != seen:
-            # the frames batched so far are restored at the depth they were seen at, as
-            # one by one (Restorer): a batch must not change how its first frames scale
-            flush(seen)
+        # every readable frame, finished ones too: a resume decides alike; the frames
+        # batched so far are restored at the depth they were seen at, as one by one
+        if (before := depth.rise(image)) is not None and batch:
+            flush(before)
         if judge is not None and not judge(frame, widen(image, depth.bits)):
             report.skipped += 1
             report.skipped_frames.append(frame.name)
