@@ -465,7 +465,8 @@ def _check_camera_order(files: Sequence[Path]) -> None:
     if named == ["cam1", "cam0"]:
         raise RectifyError(
             f"{files[0]} + {files[1]}: by their paths the first is cam1's and the second "
-            "cam0's; give the per-camera files in the order cam0, cam1"
+            "cam0's; give the per-camera files in the order cam0, cam1 (or rename them, if "
+            "the file named cam1 really is the first camera's)"
         )
 
 
