@@ -18,9 +18,17 @@ from lenspair.rectify.recording_calibration import (
 )
 from lenspair.rectify.rig import read_kalibr
 from lenspair.simulate.recording import simulate_recording
-from lenspair.simulate.spec import load_scene, with_overrides
+from lenspair.simulate.spec import SceneSpec, load_scene, with_overrides
 
 SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
+
+
+def _board_recording(tmp_path: Path, frames: int, scene: str = "chessboard.yaml") -> SceneSpec:
+    """Simulate a bundled board scene of ``frames`` frames into ``tmp_path/rec``; its spec."""
+    spec = with_overrides(load_scene(SAMPLES / scene), frames=frames)
+    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
+    assert spec.board is not None
+    return spec
 
 
 @given(st.integers(0, 500), st.integers(0, 120))
@@ -42,8 +50,7 @@ def test_negative_max_views_is_refused_before_reading(tmp_path: Path) -> None:
 
 @pytest.mark.slow
 def test_an_unreadable_frame_is_recorded_not_fatal(tmp_path: Path) -> None:
-    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=9)
-    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
+    spec = _board_recording(tmp_path, 9)
     assert spec.board is not None
     broken = sorted((tmp_path / "rec" / "mav0" / "cam1" / "data").glob("*.png"))[4]
     broken.write_bytes(broken.read_bytes()[:200])  # truncated mid-file
@@ -79,8 +86,7 @@ def test_an_unreadable_frame_is_recorded_not_fatal(tmp_path: Path) -> None:
 
 def _calibration_error(tmp_path: Path, frames: int) -> tuple[str, str]:
     """Calibrate a board recording of ``frames`` frames: ``(error message, board spec)``."""
-    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=frames)
-    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
+    spec = _board_recording(tmp_path, frames)
     assert spec.board is not None
     with pytest.raises(RectifyError) as caught:
         calibrate_recording(tmp_path / "rec", spec.board.target, "pinhole-equi")
@@ -127,8 +133,7 @@ def test_an_out_that_is_a_file_of_the_recording_is_refused(
 def test_a_camera_none_of_whose_frames_reads_is_named_with_the_first_reason(
     tmp_path: Path,
 ) -> None:
-    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=3)
-    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
+    spec = _board_recording(tmp_path, 3)
     assert spec.board is not None
     frames = sorted((tmp_path / "rec" / "mav0" / "cam1" / "data").glob("*.png"))
     for frame in frames:
@@ -146,8 +151,7 @@ def test_views_refused_for_disagreeing_poses_are_named_when_too_few_are_left(
     tmp_path: Path,
 ) -> None:
     # cam1's frames one step out of step with cam0's: the error said only "1 usable view"
-    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=10)
-    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
+    spec = _board_recording(tmp_path, 10)
     assert spec.board is not None
     csv = tmp_path / "rec" / "mav0" / "cam1" / "data.csv"
     header, *rows = csv.read_text().splitlines()
@@ -161,9 +165,8 @@ def test_views_refused_for_disagreeing_poses_are_named_when_too_few_are_left(
 @pytest.mark.slow
 def test_a_fisheye_calibrated_as_pinhole_radtan_is_doubted_in_the_report(tmp_path: Path) -> None:
     # the baseline came out 5 % short with RMS 0.46 px, and the report said nothing
-    spec = with_overrides(load_scene(SAMPLES / "chessboard.yaml"), frames=12)
+    spec = _board_recording(tmp_path, 12)
     assert spec.rig.cam0.distortion_model == "equidistant" and spec.board is not None
-    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
     wrong = calibrate_recording(tmp_path / "rec", spec.board.target, "pinhole-radtan")
     doubts = [w for w in wrong.report()["warnings"] if "pinhole-equi fits its views" in w]
     assert {w.split(":")[0] for w in doubts} == {"cam0", "cam1"}
@@ -174,9 +177,7 @@ def test_a_fisheye_calibrated_as_pinhole_radtan_is_doubted_in_the_report(tmp_pat
 @pytest.mark.slow
 def test_a_charuco_board_given_a_chessboard_spec_is_said_to_be_charuco(tmp_path: Path) -> None:
     # its corners were found, pulled by the markers: focal length 0.6 % off, unsaid
-    spec = with_overrides(load_scene(SAMPLES / "charuco.yaml"), frames=8)
-    simulate_recording(spec, tmp_path / "rec", base_dir=SAMPLES)
-    board = spec.board
+    board = _board_recording(tmp_path, 8, "charuco.yaml").board
     assert board is not None and board.kind == "charuco"
     chessboard = parse_board_spec(f"chessboard:{board.cols - 1}x{board.rows - 1}:{board.square_m}")
     calibration = calibrate_recording(tmp_path / "rec", chessboard, "pinhole-equi")
