@@ -276,7 +276,7 @@ def run(args: argparse.Namespace) -> int:
         if args.resume:
             config = resume_config(args.out, config)
     else:
-        config = _overrides(load_run_config(args.config), args)
+        config = _overrides(load_run_config(args.config, given=True), args)
     _check_out_apart(args, config.data.train_split, config.data.val_split)
     seed = config.train.seed
     if args.synthetic is not None:

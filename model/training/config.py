@@ -315,8 +315,11 @@ class RunConfig:
     runtime: RuntimeInfo | None = None
 
 
-def load_run_config(path: Path | None) -> RunConfig:
+def load_run_config(path: Path | None, given: bool = False) -> RunConfig:
     """Read a run configuration YAML file; ``None`` gives the defaults.
+
+    ``given``: the user's ``--config``; a ``runtime`` section in it (a run's
+    ``config.yaml``, reused) is said to steer nothing.
 
     Raises:
         ConfigError: unknown key, wrong type or invalid value (dotted path named).
@@ -329,7 +332,7 @@ def load_run_config(path: Path | None) -> RunConfig:
         config = run_config_from_dict(data)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
-    if config.runtime is not None:  # a run's config.yaml, reused: nothing there steers
+    if given and config.runtime is not None:  # a run's config.yaml, reused: nothing steers
         log.info(
             "%s: its runtime section records what a run did and is not read as settings "
             "(precision, device and init are train.precision, --device and --init)",
@@ -349,7 +352,7 @@ def with_file(config: RunConfig, path: Path) -> RunConfig:
         ConfigError: the file alone is invalid (named, as :func:`load_run_config`),
             or the combination is.
     """
-    load_run_config(path)  # its own keys and types, with the file named
+    load_run_config(path, given=True)  # its own keys and types, with the file named
     data = read_yaml(path) or {}
     merged = to_plain(config)
     for section, values in data.items():
