@@ -220,7 +220,17 @@ def _homography(
 
     """
     chosen = [pairs[i] for i in _sample(len(pairs), estimation.max_frames)]
-    identity = [[o.t_ns, frame_work.content_id(o), frame_work.content_id(c)] for o, c in chosen]
+    contents = [(frame_work.content_id(o), frame_work.content_id(c)) for o, c in chosen]
+    identity = [[o.t_ns, *content] for (o, _), content in zip(chosen, contents, strict=True)]
+    if chosen and all(o == c and not o.startswith("unreadable") for o, c in contents):
+        # two cameras never take the same bytes: one camera's images stored twice
+        log.warning(
+            "%s: the two cameras' files are byte for byte the same in all %d pairs sampled: "
+            "one camera's images recorded twice (a driver or topic mix-up)? The pairs show no "
+            "anomaly to learn",
+            recording.path,
+            len(chosen),
+        )
     cache_key = fingerprint(
         {"setup": setup, "estimation": to_plain(estimation), "frames": identity}
     )

@@ -1,5 +1,6 @@
 """capture-ingest on small hand-made recordings: outputs, bookkeeping, bad input."""
 
+import contextlib
 import json
 import logging
 from pathlib import Path
@@ -408,6 +409,22 @@ def test_a_frame_key_holds_its_place_size_and_time_not_its_path(tmp_path: Path) 
     (moved / "cam1.png").chmod(0o644)
     (moved / "cam1.png").write_bytes(b"y" * 101)  # replaced: redone
     assert key(moved) != before
+
+
+def test_a_camera_recorded_twice_is_said(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    # cam1's files holding cam0's images: every pair kept, nothing said
+    recording = make_recording(tmp_path / "rec", frames=3)
+    cam0 = sorted((recording / "mav0" / "cam0" / "data").glob("*.png"))
+    cam1 = sorted((recording / "mav0" / "cam1" / "data").glob("*.png"))
+    with caplog.at_level(logging.WARNING):
+        _ingest(recording, tmp_path / "first")
+    assert not any("byte for byte the same" in m for m in caplog.messages)
+    for left, right in zip(cam0, cam1, strict=True):
+        right.write_bytes(left.read_bytes())
+    # identical views may not register at all: it is said either way, first
+    with caplog.at_level(logging.WARNING), contextlib.suppress(CaptureError, RectifyError):
+        _ingest(recording, tmp_path / "out")
+    assert any("byte for byte the same in all 3 pairs" in m for m in caplog.messages)
 
 
 def test_an_out_that_makes_the_ingest_the_recording_itself_is_refused(tmp_path: Path) -> None:
