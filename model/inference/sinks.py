@@ -107,19 +107,18 @@ class FrameDepths:
         return False
 
     def record(self, frames: Iterable[InputFrame], bits: int) -> None:
-        """Note that ``frames`` are being restored at ``bits``."""
-        lines = [
-            json.dumps([frame.name, bits]) + "\n"
+        """Note that the 16-bit ones of ``frames`` are being restored at ``bits``."""
+        names = [
+            frame.name
             for frame in frames
             if frame.image is not None and frame.image.dtype == np.uint16
         ]
-        if not lines:
+        if not names:
             return
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with naming_errors(self.path), self.path.open("a", encoding="utf-8") as journal:
-            journal.write("".join(lines))
-        for frame in frames:
-            self.bits[frame.name] = bits
+            journal.write("".join(json.dumps([name, bits]) + "\n" for name in names))
+        self.bits.update(dict.fromkeys(names, bits))
 
 
 def _alpha_of(source: Path, shape: tuple[int, ...]) -> np.ndarray | None:
