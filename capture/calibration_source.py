@@ -6,11 +6,10 @@ In order: the files given with ``--calib``, else the file named by
 ``mav0/cam{0,1}/sensor.yaml`` when both hold intrinsics and ``T_BS``.
 """
 
-import os
 from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.recording import Recording, find_rig_file
+from lenspair.capture.recording import Recording, find_rig_file, recording_places
 from lenspair.capture.rigfile import RigFile
 from lenspair.rectify.calib_io import is_euroc_sensor_file, load_calibration
 from lenspair.rectify.rig import StereoRig
@@ -46,9 +45,7 @@ def find_calibration(
         if not paths[0].is_file():
             raise CaptureError(f"{rig_path}: calibration {rig_file.calibration!r} not found")
     else:
-        here = Path(os.path.abspath(recording.path))  # "." and ".." have parents too
-        places = [here] if here.is_dir() else []
-        places.append(here.parent)
+        places = recording_places(recording.path)
         paths = [p / CAMCHAIN_FILE for p in places if (p / CAMCHAIN_FILE).is_file()][:1]
         sensors = [recording.sensor_files.get(camera) for camera in ("cam0", "cam1")]
         if not paths and all(p is not None and is_euroc_sensor_file(p) for p in sensors):

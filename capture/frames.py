@@ -124,7 +124,9 @@ def detect_input(path: Path) -> InputKind:
     if not path.exists():
         # a model named where the input goes: the arguments are the other way round
         # (a bundled model's name is found from any folder, so the message misled)
-        hint = " (the model comes first: MODEL INPUT)" if path.suffix in MODEL_SUFFIXES else ""
+        hint = (
+            " (the model comes first: MODEL INPUT)" if path.suffix.lower() in MODEL_SUFFIXES else ""
+        )
         raise CaptureError(f"{path}: no such file or folder{hint}")
     if rosbag.is_bag(path):
         return "rosbag1" if path.suffix.lower() == ".bag" else "rosbag2"

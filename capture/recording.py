@@ -144,16 +144,20 @@ def open_recording(path: Path, topics: tuple[str, str] | None = None) -> Recordi
     raise CaptureError(f"{path}: unknown recording layout; expected {EXPECTED_LAYOUTS}")
 
 
-def find_rig_file(recording_path: Path) -> Path | None:
-    """``rig.yaml`` of a recording: inside its folder, else beside it (bag or folder).
+def recording_places(recording_path: Path) -> list[Path]:
+    """Where a recording's own files are looked for: its folder (if one), then beside it.
 
     "Beside" is taken on the absolute path (``os.path.abspath``, which also
     undoes ``..``): the recording given as ``.`` from inside ``mav0`` looked
     for ``./rig.yaml`` twice and missed the one beside ``mav0``.
     """
     path = Path(os.path.abspath(recording_path))
-    candidates = [path / RIG_FILE] if path.is_dir() else []
-    candidates.append(path.parent / RIG_FILE)
+    return [path, path.parent] if path.is_dir() else [path.parent]
+
+
+def find_rig_file(recording_path: Path) -> Path | None:
+    """``rig.yaml`` of a recording: inside its folder, else beside it (bag or folder)."""
+    candidates = [place / RIG_FILE for place in recording_places(recording_path)]
     return next((c for c in candidates if c.is_file()), None)
 
 
