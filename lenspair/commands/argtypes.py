@@ -195,6 +195,17 @@ def add_topics_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_convention_option(parser: argparse.ArgumentParser) -> None:
+    """``--convention``, the metric convention, with the same help in eval and tradeoff."""
+    parser.add_argument(
+        "--convention",
+        choices=("skimage-gaussian", "deraindrop-y"),
+        default="skimage-gaussian",
+        help="how PSNR/SSIM are computed: skimage-gaussian (scikit-image, Gaussian SSIM "
+        "window; default), or deraindrop-y (on the luma Y, as DeRaindrop's published numbers)",
+    )
+
+
 def add_device_option(parser: argparse.ArgumentParser, purpose: str = "") -> None:
     """``--device auto|cpu|cuda``, with the same help in every command."""
     parser.add_argument(

@@ -45,7 +45,13 @@ import itertools
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lenspair.commands.argtypes import DEFAULT_SPLIT, add_device_option, out_folder, split_name
+from lenspair.commands.argtypes import (
+    DEFAULT_SPLIT,
+    add_convention_option,
+    add_device_option,
+    out_folder,
+    split_name,
+)
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal, read_json_field
@@ -64,13 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"split of a dataset root ({DEFAULT_SPLIT}); a paired folder is scored whole",
     )
     add_device_option(parser)
-    parser.add_argument(
-        "--convention",
-        choices=("skimage-gaussian", "deraindrop-y"),
-        default="skimage-gaussian",
-        help="how PSNR/SSIM are computed: skimage-gaussian (scikit-image, Gaussian SSIM "
-        "window; default), or deraindrop-y (on the luma Y, as DeRaindrop's published numbers)",
-    )
+    add_convention_option(parser)
     parser.add_argument(
         "--out",
         type=out_folder,

@@ -46,6 +46,7 @@ import dataclasses
 from pathlib import Path
 
 from lenspair.commands.argtypes import (
+    add_convention_option,
     add_device_option,
     fraction,
     out_folder,
@@ -96,13 +97,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "paper; a time budget trains at constant rate)",
     )
     parser.add_argument("--variants", help="comma-separated subset of the variant names")
-    parser.add_argument(
-        "--convention",
-        choices=("skimage-gaussian", "deraindrop-y"),
-        default="skimage-gaussian",
-        help="how PSNR/SSIM are computed: skimage-gaussian (scikit-image, Gaussian SSIM "
-        "window; default), or deraindrop-y (on the luma Y, as DeRaindrop's published numbers)",
-    )
+    add_convention_option(parser)
     parser.add_argument(
         "--split",
         default=None,
