@@ -99,6 +99,18 @@ class DataConfig:
             by about 0.4 dB, but the nearly clean pairs lost 1.4 dB in
             one seed (the network learnt to change more), so the test mean did
             not move beyond the seed spread.
+        clear_share: synthetic pretraining only: share of items seen through
+            clear glass (no drops, no veil: the input is the target). The
+            ``ours`` drops always come with a veil, and a network that never
+            saw a frame without one darkened every clear frame by about 11
+            codes and put blotches of a few codes into the noise of
+            textureless ones (the weights shipped before 2026-11: 22-25 dB
+            from a clear frame to itself). A robot's camera is clear most of
+            the time, so a pretrained network must learn to leave such frames
+            as they are. Training items only: validation keeps its drops, so
+            that clear frames scored at 40 dB and more do not outweigh them and
+            pick a network that changes nothing. Below 1: the network must see
+            drops.
     """
 
     crop_size: int = 256
@@ -111,6 +123,7 @@ class DataConfig:
     drops: DropsPreset = "ours"
     val_fraction: float = 0.1
     anomaly_crops: float = 0.0
+    clear_share: float = 0.2
 
     def __post_init__(self) -> None:
         if self.crop_size < MIN_CROP_SIZE:
@@ -126,6 +139,8 @@ class DataConfig:
             raise ValueError(f"val_fraction: expected 0..1, got {self.val_fraction}")
         if not 0.0 <= self.anomaly_crops <= 1.0:
             raise ValueError(f"anomaly_crops: expected 0..1, got {self.anomaly_crops}")
+        if not 0.0 <= self.clear_share < 1.0:
+            raise ValueError(f"clear_share: expected 0 <= share < 1, got {self.clear_share}")
 
 
 @dataclass(frozen=True)

@@ -390,7 +390,10 @@ def synthetic_training_data(
         data.vflip,
         seed=seed,
         substitute_unreadable=True,
+        clear_share=data.clear_share,
     )
+    # validation: drops only; clear frames scored at 40+ dB would outweigh the drops and
+    # pick a network that changes nothing
     val = SyntheticDrops(val_images, effects, resolved, None, seed=seed, fixed=True)
     description = (
         f"{folder} (synthetic {data.drops} drops on {len(train_images)} clean images, "

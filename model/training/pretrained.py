@@ -3,10 +3,14 @@
 GEA networks, mono and RGB, pretrained on ``ours`` synthetic drops rendered
 over the clean natural photographs that installed packages ship
 (:mod:`lenspair.simulate.natural_images`; ``coffee`` and ``clock`` held out
-for validation). They live in ``lenspair/model/weights/`` as ordinary
-lenspair checkpoints (network weights only, stored as float16 to stay small,
-loaded with ``weights_only=True``) beside ``MODEL_CARD.md``, which states the
-data, budget, seed and validation figures. ``python -m benchmarks.pretrain_weights``
+for validation) and over a few textureless scenes with sensor noise
+(:data:`PLAIN_SCENES`: a wall, a sky, a night, fog), a share of them seen
+through clear glass (:attr:`~lenspair.model.training.config.DataConfig.clear_share`),
+so that the network leaves frames without an anomaly as they are. They live
+in ``lenspair/model/weights/`` as ordinary lenspair checkpoints (network
+weights only, stored as float16 to stay small, loaded with
+``weights_only=True``) beside ``MODEL_CARD.md``, which states the data,
+budget, seed and validation figures. ``python -m benchmarks.pretrain_weights``
 rebuilds them (:func:`pretrain_on_natural_images` and :func:`ship_weights`).
 """
 
@@ -36,7 +40,46 @@ FRAME = (480, 720)
 """Size the natural images are rendered at (Raindrop's 720x480)."""
 
 VALIDATION_DRAWS = 2
-"""Each held-out image is validated under this many fixed drop draws."""
+"""Each held-out image is validated under this many fixed drop draws (the card: and once clear)."""
+
+PLAIN_SCENES: dict[str, tuple[tuple[float, float, float], float, float]] = {
+    "plain_wall": ((0.45, 0.44, 0.42), 0.15, 2.0),
+    "plain_sky": ((0.62, 0.74, 0.88), 0.25, 1.5),
+    "plain_night": ((0.06, 0.06, 0.07), 0.0, 3.0),
+    "plain_fog": ((0.72, 0.72, 0.74), 0.05, 2.0),
+}
+"""Textureless scenes: name -> (RGB level, top-to-bottom ramp, sensor noise in 8-bit codes).
+
+A grey wall with vignetting, a sky brightening towards the horizon, a night
+frame where the noise is all there is, and fog: what a robot's camera sees
+when nothing in the scene has texture. Instance normalisation scales a
+feature map to unit variance whatever its contrast, so a network that never
+saw such frames turns their noise into blotches.
+"""
+
+HELD_OUT_PLAIN = "plain_fog"
+"""Textureless scene kept for validation, with the natural :data:`HELD_OUT` images."""
+
+
+def plain_scene(name: str, channels: int) -> np.ndarray:
+    """The textureless scene ``name`` of :data:`PLAIN_SCENES` at :data:`FRAME`, ``uint8``.
+
+    Level, ramp and faint shading are smooth; the sensor noise is Gaussian,
+    independent per pixel and channel, drawn from a seed fixed per scene.
+    """
+    level, ramp, noise_codes = PLAIN_SCENES[name]
+    height, width = FRAME
+    rng = np.random.default_rng(list(PLAIN_SCENES).index(name))
+    rows = np.linspace(-0.5, 0.5, height, dtype=np.float32)[:, None]
+    cols = np.linspace(-0.5, 0.5, width, dtype=np.float32)[None, :]
+    shading = 1.0 + ramp * rows - 0.2 * (rows**2 + cols**2)  # ramp and vignetting
+    colour = (
+        np.asarray(level, np.float32)[:channels] if channels == 3 else np.float32(np.mean(level))
+    )
+    image = shading[..., None] * colour if channels == 3 else shading * colour
+    image = image + rng.normal(0.0, noise_codes / 255.0, image.shape).astype(np.float32)
+    scene: np.ndarray = np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+    return scene
 
 
 def pretrained_weights(channels: int) -> Path:
@@ -59,7 +102,8 @@ def write_natural_images(folder: Path, channels: int) -> tuple[list[Path], list[
 
     Each training photograph is written whole (720x480) and as two 1.5x
     zoomed views (upper left, lower right), so that one epoch is a few
-    steps; the :data:`HELD_OUT` images are written whole for validation.
+    steps, and each :data:`PLAIN_SCENES` scene once; the :data:`HELD_OUT`
+    images and :data:`HELD_OUT_PLAIN` are written whole for validation.
 
     Returns:
         ``(train, validation)`` file lists.
@@ -86,7 +130,26 @@ def write_natural_images(folder: Path, channels: int) -> tuple[list[Path], list[
             path = folder / "train" / f"{name}_{label}.png"
             write_image(path, view)
             train.append(path)
+    for name in PLAIN_SCENES:
+        path = folder / ("val" if name == HELD_OUT_PLAIN else "train") / f"{name}.png"
+        write_image(path, plain_scene(name, channels))
+        (validation if name == HELD_OUT_PLAIN else train).append(path)
     return train, validation
+
+
+def validation_drops(files: list[Path], channels: int, clear: bool = False) -> SyntheticDrops:
+    """The held-out items: each file under :data:`VALIDATION_DRAWS` fixed drop draws.
+
+    With ``clear``, each file's draws are followed by the file seen through
+    clear glass (input = target; ``clear(index)`` tells which), for scoring
+    the shipped weights. Training validates on the drops only: clear frames
+    scored at 40 dB and more would outweigh them and pick a network that
+    changes nothing.
+    """
+    repeats = VALIDATION_DRAWS + 1 if clear else VALIDATION_DRAWS
+    items = [path for path in files for _ in range(repeats)]
+    share = 1.0 / repeats if clear else 0.0
+    return SyntheticDrops(items, OUR_DROPS, channels, None, fixed=True, clear_share=share)
 
 
 def load_view(image: np.ndarray, channels: int) -> np.ndarray:
@@ -115,13 +178,22 @@ def pretrain_on_natural_images(
     data = config.data
     seed = config.train.seed
     train = SyntheticDrops(
-        train_files, OUR_DROPS, channels, data.crop_size, data.hflip, data.vflip, seed=seed
+        train_files,
+        OUR_DROPS,
+        channels,
+        data.crop_size,
+        data.hflip,
+        data.vflip,
+        seed=seed,
+        clear_share=data.clear_share,
     )
-    val = SyntheticDrops(val_files * VALIDATION_DRAWS, OUR_DROPS, channels, None, fixed=True)
+    val = validation_drops(val_files, channels)
     config = resolve_config(config, channels)
+    held_out = ", ".join((*HELD_OUT, HELD_OUT_PLAIN))
     description = (
-        f"bundled natural photographs, ours drops ({len(train_files)} training views, "
-        f"validation {len(val)}: {', '.join(HELD_OUT)} x {VALIDATION_DRAWS} drop draws)"
+        f"bundled natural photographs and textureless scenes, ours drops "
+        f"({len(train_files)} training views, {data.clear_share:.0%} through clear glass; "
+        f"validation {len(val)}: {held_out} x {VALIDATION_DRAWS} drop draws)"
     )
     return fit(config, train, val, run, device, data_description=description, synthetic="ours")
 

@@ -57,6 +57,13 @@ class SyntheticDrops(Dataset[Sample]):
             next readable one, with a warning, instead of ending the run
             (training; see :func:`~lenspair.model.training.pairs.read_substituting`);
             validation reports its own.
+        clear_share: share of items seen through clear glass: no effect is
+            rendered and the input is the target, so that the network learns
+            to leave frames without an anomaly as they are (see
+            :attr:`~lenspair.model.training.config.DataConfig.clear_share`).
+            Training draws it per item and epoch; validation (``fixed``)
+            spreads it evenly over the items (with ``images * 3`` and ``1/3``,
+            every third item is clear).
 
     """
 
@@ -71,8 +78,12 @@ class SyntheticDrops(Dataset[Sample]):
         seed: int = 0,
         fixed: bool = False,
         substitute_unreadable: bool = False,
+        clear_share: float = 0.0,
     ) -> None:
+        if not 0.0 <= clear_share < 1.0:
+            raise ValueError(f"clear_share: expected 0 <= share < 1, got {clear_share}")
         self.images = list(images)
+        self.clear_share = clear_share
         self.substitute_unreadable = substitute_unreadable
         self.unreadable: set[int] = set()  # said once each (per worker process)
         self.effects = effects
@@ -102,14 +113,29 @@ class SyntheticDrops(Dataset[Sample]):
             clean = from_float(to_channels(to_float(clean), self.channels), clean.dtype)
             if self.channels == 1:
                 clean = clean[:, :, 0]
+        clear = self._clear(index, rng)
         top, left, h, w = crop_box(clean.shape[0], clean.shape[1], self.crop_size, rng)
-        obstructed = render_crop(clean, self.effects, (top, left, h, w), rng)
         window = (slice(top, top + h), slice(left, left + w))
+        if clear:
+            obstructed = clean[window]
+        else:
+            obstructed = render_crop(clean, self.effects, (top, left, h, w), rng)
         tensors = [to_tensor(obstructed, self.channels), to_tensor(clean[window], self.channels)]
         tensors = random_flip(tensors, rng, self.hflip, self.vflip)
         return Sample(
             input=tensors[0], target=tensors[1], valid=torch.ones(1, h, w), name=path.name
         )
+
+    def clear(self, index: int) -> bool:
+        """Whether validation item ``index`` is seen through clear glass (``fixed`` only)."""
+        return self.fixed and self._clear(index, item_rng(self.seed, _VAL_EPOCH, index))
+
+    def _clear(self, index: int, rng: np.random.Generator) -> bool:
+        if self.clear_share <= 0.0:
+            return False  # no draw: the item's crop and drops are those of a run without
+        if self.fixed:
+            return math.floor((index + 1) * self.clear_share) > math.floor(index * self.clear_share)
+        return bool(rng.random() < self.clear_share)
 
     def _read(self, index: int) -> tuple[Path, np.ndarray]:
         return self.images[index], read_image(self.images[index])
