@@ -161,7 +161,6 @@ def run(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
     # here, not at the top: keeps `lenspair eval --help` from importing torch
     from lenspair.dataset.readers import detect_layout
-    from lenspair.model.checkpoint import load_checkpoint
     from lenspair.model.precision import choose_precision
     from lenspair.model.training.pairs import open_eval_pairs
 
@@ -180,7 +179,8 @@ def run(args: argparse.Namespace) -> int:
     ):
         raise ConfigError(problem)
 
-    load_checkpoint(args.checkpoint)  # a wrong file (the arguments swapped): the error alone
+    # loaded once, here: a wrong file (the arguments swapped) gets its error alone
+    loaded = load_model(args.checkpoint, device)
     decision = choose_precision(args.precision, device, "infer")
     if args.calibration is not None and decision.precision != "int8":
         raise ConfigError(
@@ -194,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
     elif decision.precision == "int8":
         calibration = _default_calibration(args.data, args.split)
     result = evaluate_checkpoint(
-        args.checkpoint,
+        loaded,
         args.data,
         args.split,
         device,

@@ -38,7 +38,7 @@ from lenspair.core.errors import LenspairError, listed
 from lenspair.core.imageio import max_value
 from lenspair.core.progress import progress
 from lenspair.model import metrics
-from lenspair.model.checkpoint import load_model
+from lenspair.model.checkpoint import LoadedModel, load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import Latency, autocast_context, measure_latency
 from lenspair.model.metrics import PSNR_CAP_DB, image_metrics, parse_metric_convention
@@ -395,7 +395,7 @@ def fmt_psnr(value: float) -> str:
 
 
 def evaluate_checkpoint(
-    checkpoint: Path,
+    checkpoint: Path | LoadedModel,
     data: Path,
     split: str,
     device: torch.device,
@@ -413,14 +413,18 @@ def evaluate_checkpoint(
     Runtime static quantisation (:mod:`lenspair.model.evaluation.quantize`),
     calibrated on ``calibration`` (default: the evaluated pairs themselves),
     CPU only. Any precision other than fp32 is also scored against the fp32
-    output (``versus_fp32``).
+    output (``versus_fp32``). ``checkpoint`` may be one already loaded on
+    ``device`` (``lenspair eval`` loads it before its precision line).
 
     Raises:
         ModelError: unreadable checkpoint, unknown convention; DatasetError.
 
     """
     parse_metric_convention(convention)
-    loaded = load_model(checkpoint, device)
+    if isinstance(checkpoint, LoadedModel):
+        loaded, checkpoint = checkpoint, checkpoint.path
+    else:
+        loaded = load_model(checkpoint, device)
     channels = loaded.config.model.channels or 1
     pairs = open_eval_pairs(data, split)
     if len(pairs) == 0:

@@ -80,6 +80,26 @@ def test_eval_cli_writes_reports_that_match_model_metrics(tmp_path: Path, conven
     assert (out / "contact_sheet.png").stat().st_size > 0
 
 
+def test_eval_cli_reads_the_checkpoint_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # it was read twice: once to check it before the precision line, once to evaluate
+    import lenspair.model.checkpoint as checkpoints
+
+    folder = write_paired_folder(tmp_path / "pairs", count=1)
+    checkpoint = make_checkpoint(tmp_path / "run" / "checkpoints" / "best.pt")
+    reads: list[Path] = []
+    original = checkpoints.load_checkpoint
+
+    def counted(path: Path) -> dict[str, object]:
+        reads.append(Path(path))
+        return original(path)
+
+    monkeypatch.setattr(checkpoints, "load_checkpoint", counted)
+    assert main(["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0"]) == 0
+    assert reads == [checkpoint]
+
+
 def test_int8_eval_scores_against_target_and_fp32(tmp_path: Path) -> None:
     pytest.importorskip("onnxruntime")
     folder = write_paired_folder(tmp_path / "pairs", count=3)
