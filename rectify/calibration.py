@@ -367,13 +367,28 @@ class _Noted(logging.Handler):
 
 @contextlib.contextmanager
 def _noted(logger: logging.Logger) -> Iterator[list[str]]:
-    """The warnings ``logger`` says meanwhile (those :func:`_held` back only once released)."""
+    """The warnings ``logger`` says meanwhile (those :func:`_held` back only once released).
+
+    They go into the calibration's report even where the application silenced
+    ``lenspair``'s logging (a level above WARNING on it or an ancestor): the
+    logger is then opened to warnings for the block but kept from passing
+    them on, so the report holds them and the console stays as quiet as asked.
+    ``logging.disable`` still silences both.
+    """
     handler = _Noted()
+    silenced = not logger.isEnabledFor(logging.WARNING)
+    level, propagate = logger.level, logger.propagate
     logger.addHandler(handler)
+    if silenced:
+        logger.setLevel(logging.WARNING)
+        logger.propagate = False
     try:
         yield handler.messages
     finally:
         logger.removeHandler(handler)
+        if silenced:
+            logger.setLevel(level)
+            logger.propagate = propagate
 
 
 MARKER_TOLERANCE = 0.15

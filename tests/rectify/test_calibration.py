@@ -1,5 +1,6 @@
 import argparse
 import json
+import logging
 from pathlib import Path
 
 import cv2
@@ -234,6 +235,41 @@ def test_only_the_kept_calibration_of_each_camera_speaks(
     assert not any(m.startswith(("cam0: kept", "cam1: kept")) for m in caplog.messages)
     said = [r.getMessage() for r in caplog.records if r.name == "lenspair.rectify.calibration"]
     assert len(said) == 4 and list(result.warnings) == said  # what was said, only that
+    assert calibration_filters() == []
+
+
+def test_warnings_reach_the_report_when_the_application_silenced_logging(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A library user who quiets lenspair still gets the calibration's doubts in its report."""
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    objects, ids = board.object_points(), np.arange(board.num_corners, dtype=np.int32)
+    rng = np.random.default_rng(1)
+    views: list[tuple[Detection | None, Detection | None]] = []
+    for _ in range(12):  # turned less than 7 deg: the fit warns of it
+        R = cv2.Rodrigues(rng.uniform(-0.06, 0.06, 3))[0]
+        t = np.array([rng.uniform(-0.15, 0.15), rng.uniform(-0.1, 0.1), rng.uniform(0.6, 0.9)])
+        in_cam0 = objects @ R.T + (t - R @ objects.mean(axis=0))
+        pixels = (
+            project_rays(truth.cam0, in_cam0),
+            project_rays(truth.cam1, in_cam0 @ truth.R.T + truth.t),
+        )
+        views.append((Detection(ids, pixels[0]), Detection(ids, pixels[1])))
+    quiet = logging.getLogger("lenspair")
+    before = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        with caplog.at_level("WARNING"):
+            caplog.clear()
+            result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+    finally:
+        quiet.setLevel(before)
+    tilts = [m for m in result.report()["warnings"] if "the board turned at most" in m]
+    assert len(tilts) == 2  # each camera's, in the report
+    assert not [r for r in caplog.records if r.name.startswith("lenspair")]  # nothing said
+    calibration_log = logging.getLogger("lenspair.rectify.calibration")
+    assert calibration_log.level == logging.NOTSET and calibration_log.propagate
     assert calibration_filters() == []
 
 
