@@ -14,7 +14,9 @@ deterministic tenth of the training pairs is held out.
 --synthetic renders drops on the fly on clean images (any folder of PNG/JPEG/TIFF,
 or a dataset's target/ images): 'ours' (lens-like, defocused, some brightened)
 or 'sharp' (Porav et al.'s in-focus drops), holding out a deterministic
-validation subset. This is the paper's synthetic initialisation: fine-tune on
+validation subset; a fifth of the training items are left clear (input =
+target, data.clear_share) so that the network learns to leave clear frames
+alone. This is the paper's synthetic initialisation: fine-tune on
 real pairs with --init RUN/checkpoints/best.pt (network weights only).
 
 --init pretrained starts from the GEA weights that ship with lenspair (mono or

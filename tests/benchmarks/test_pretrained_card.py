@@ -81,7 +81,8 @@ def test_rescore_keeps_the_training_record_and_scores_the_dataset(tmp_path: Path
     card = json.loads((weights / "card.json").read_text())
     mono = card["mono"]
     assert mono["steps"] == 77 and mono["learning_curve"] == [[4, 20.0]]
-    assert mono["pairs"] == 4 and mono["cpu_ms_median"] > 0  # 2 held-out images x 2 draws
+    assert mono["pairs"] == 6 and mono["cpu_ms_median"] > 0  # 3 held-out images x 2 draws
+    assert mono["clear_frames"] == 3 and mono["clear_psnr"] > 20  # each once through clear glass
     expected = np.mean(
         [
             peak_signal_noise_ratio(
