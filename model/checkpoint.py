@@ -30,7 +30,7 @@ from lenspair.core.errors import ConfigError, first_line
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.variants import build_model
-from lenspair.model.training.config import ModelConfig, RunConfig, run_config_from_dict
+from lenspair.model.training.config import ModelConfig, RunConfig, stored_run_config
 
 CHECKPOINT_FORMAT = "lenspair-checkpoint"
 
@@ -165,7 +165,7 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
 def checkpoint_config(data: dict[str, Any], path: Path | str = "checkpoint") -> RunConfig:
     """The run configuration stored in a loaded checkpoint."""
     try:
-        return run_config_from_dict(data["config"])
+        return stored_run_config(data["config"])
     except (KeyError, ConfigError) as exc:
         raise ModelError(f"{path}: invalid stored config ({exc})") from None
 

@@ -372,16 +372,19 @@ def _noted(logger: logging.Logger) -> Iterator[list[str]]:
     They go into the calibration's report even where the application silenced
     ``lenspair``'s logging (a level above WARNING on it or an ancestor): the
     logger is then opened to warnings for the block but kept from passing
-    them on, so the report holds them and the console stays as quiet as asked.
-    ``logging.disable`` still silences both.
+    them on, so the report holds them and the console stays as quiet as asked
+    (a logger disabled by ``logging.config.dictConfig`` too). ``logging.disable``
+    still silences both. The logger is shared: calibrations run at once in
+    threads of one process would see each other's warnings.
     """
     handler = _Noted()
-    silenced = not logger.isEnabledFor(logging.WARNING)
-    level, propagate = logger.level, logger.propagate
+    silenced = logger.disabled or not logger.isEnabledFor(logging.WARNING)
+    level, propagate, disabled = logger.level, logger.propagate, logger.disabled
     logger.addHandler(handler)
     if silenced:
         logger.setLevel(logging.WARNING)
         logger.propagate = False
+        logger.disabled = False
     try:
         yield handler.messages
     finally:
@@ -389,6 +392,7 @@ def _noted(logger: logging.Logger) -> Iterator[list[str]]:
         if silenced:
             logger.setLevel(level)
             logger.propagate = propagate
+            logger.disabled = disabled
 
 
 MARKER_TOLERANCE = 0.15

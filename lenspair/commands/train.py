@@ -256,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
         # Killed before its first checkpoint was complete (or last.pt removed):
         # resuming means starting this run over (fit replaces its partial
         # results once every check has passed), from where it started.
-        stored = load_run_config(args.out / "config.yaml")
+        stored = load_run_config(args.out / "config.yaml", stored=True)
         runtime = stored.runtime
         if runtime is not None and runtime.init is not None:
             if not Path(runtime.init).is_file():

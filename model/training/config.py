@@ -102,10 +102,10 @@ class DataConfig:
         clear_share: synthetic pretraining only: share of items seen through
             clear glass (no drops, no veil: the input is the target). The
             ``ours`` drops always come with a veil, and a network that never
-            saw a frame without one darkened every clear frame by about 11
-            codes and put blotches of a few codes into the noise of
-            textureless ones (the weights shipped before 2026-11: 22-25 dB
-            from a clear frame to itself). A robot's camera is clear most of
+            saw a frame without one darkened every clear frame by 11-13
+            codes and put blotches into the noise of textureless ones (the
+            weights shipped before 2026-11-25: 22-23 dB from a clear frame
+            to itself). A robot's camera is clear most of
             the time, so a pretrained network must learn to leave such frames
             as they are. Training items only: validation keeps its drops, so
             that clear frames scored at 40 dB and more do not outweigh them and
@@ -330,11 +330,12 @@ class RunConfig:
     runtime: RuntimeInfo | None = None
 
 
-def load_run_config(path: Path | None, given: bool = False) -> RunConfig:
+def load_run_config(path: Path | None, given: bool = False, stored: bool = False) -> RunConfig:
     """Read a run configuration YAML file; ``None`` gives the defaults.
 
     ``given``: the user's ``--config``; a ``runtime`` section in it (a run's
-    ``config.yaml``, reused) is said to steer nothing.
+    ``config.yaml``, reused) is said to steer nothing. ``stored``: a run's
+    own ``config.yaml``, read as :func:`stored_run_config` does.
 
     Raises:
         ConfigError: unknown key, wrong type or invalid value (dotted path named).
@@ -344,7 +345,7 @@ def load_run_config(path: Path | None, given: bool = False) -> RunConfig:
         return RunConfig()
     data = read_yaml(path)  # its errors name the file already
     try:
-        config = run_config_from_dict(data)
+        config = stored_run_config(data) if stored else run_config_from_dict(data)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
     if given and config.runtime is not None:  # a run's config.yaml, reused: nothing steers
@@ -396,6 +397,26 @@ def run_config_from_dict(data: object) -> RunConfig:
         known = {f.name for f in dataclasses.fields(RuntimeInfo)}
         data = {**data, "runtime": {k: v for k, v in data["runtime"].items() if k in known}}
     return load_dataclass(RunConfig, data)
+
+
+EARLIER_DEFAULTS: dict[tuple[str, str], object] = {("data", "clear_share"): 0.0}
+"""Keys added later whose default changes what trains: ``(section, key)`` -> what runs did before.
+
+A configuration a run stored before the key existed (its checkpoint, its
+``config.yaml``) is read with this value, not today's default, so that
+``train --resume`` goes on as the run began, and a ``--config`` that sets
+today's default is reported as the change it is.
+"""
+
+
+def stored_run_config(data: object) -> RunConfig:
+    """:func:`run_config_from_dict` for a configuration a run stored (:data:`EARLIER_DEFAULTS`)."""
+    if isinstance(data, dict):
+        for (section, key), value in EARLIER_DEFAULTS.items():
+            part = data.get(section)
+            if isinstance(part, dict) and key not in part:
+                data = {**data, section: {**part, key: value}}
+    return run_config_from_dict(data)
 
 
 def config_differences(old: RunConfig, new: RunConfig) -> list[str]:

@@ -73,9 +73,7 @@ def plain_scene(name: str, channels: int) -> np.ndarray:
     rows = np.linspace(-0.5, 0.5, height, dtype=np.float32)[:, None]
     cols = np.linspace(-0.5, 0.5, width, dtype=np.float32)[None, :]
     shading = 1.0 + ramp * rows - 0.2 * (rows**2 + cols**2)  # ramp and vignetting
-    colour = (
-        np.asarray(level, np.float32)[:channels] if channels == 3 else np.float32(np.mean(level))
-    )
+    colour = np.asarray(level, np.float32) if channels == 3 else np.float32(np.mean(level))
     image = shading[..., None] * colour if channels == 3 else shading * colour
     image = image + rng.normal(0.0, noise_codes / 255.0, image.shape).astype(np.float32)
     scene: np.ndarray = np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
@@ -165,7 +163,7 @@ def load_view(image: np.ndarray, channels: int) -> np.ndarray:
 def pretrain_on_natural_images(
     run: Path, channels: int, config: RunConfig, device: torch.device
 ) -> TrainSummary:
-    """Pretrain on ``ours`` drops over the natural images (validation: :data:`HELD_OUT`).
+    """Pretrain on ``ours`` drops over :func:`write_natural_images` (validation: held out).
 
     Args:
         run: run folder (the clean images go to ``run/clean/``).

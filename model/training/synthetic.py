@@ -62,8 +62,10 @@ class SyntheticDrops(Dataset[Sample]):
             to leave frames without an anomaly as they are (see
             :attr:`~lenspair.model.training.config.DataConfig.clear_share`).
             Training draws it per item and epoch; validation (``fixed``)
-            spreads it evenly over the items (with ``images * 3`` and ``1/3``,
-            every third item is clear).
+            spreads it evenly over the items: with a share of ``1/3``, items
+            2, 5, 8, ... are clear (so repeat each image three times in a row,
+            as :func:`~lenspair.model.training.pretrained.validation_drops` does,
+            for each to be seen clear once).
 
     """
 
@@ -128,12 +130,12 @@ class SyntheticDrops(Dataset[Sample]):
 
     def clear(self, index: int) -> bool:
         """Whether validation item ``index`` is seen through clear glass (``fixed`` only)."""
-        return self.fixed and self._clear(index, item_rng(self.seed, _VAL_EPOCH, index))
+        return self.fixed and self._clear(index, None)
 
-    def _clear(self, index: int, rng: np.random.Generator) -> bool:
+    def _clear(self, index: int, rng: np.random.Generator | None) -> bool:
         if self.clear_share <= 0.0:
             return False  # no draw: the item's crop and drops are those of a run without
-        if self.fixed:
+        if self.fixed or rng is None:
             return math.floor((index + 1) * self.clear_share) > math.floor(index * self.clear_share)
         return bool(rng.random() < self.clear_share)
 

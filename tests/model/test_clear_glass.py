@@ -12,9 +12,12 @@ import numpy as np
 import pytest
 import torch
 
+from lenspair.core.config import to_plain
 from lenspair.core.imageio import write_image
-from lenspair.model.training.config import DataConfig
+from lenspair.model.checkpoint import checkpoint_config
+from lenspair.model.training.config import DataConfig, run_config_from_dict, stored_run_config
 from lenspair.model.training.datasets import synthetic_training_data
+from lenspair.model.training.loop import resume_config
 from lenspair.model.training.pretrained import (
     FRAME,
     HELD_OUT_PLAIN,
@@ -26,6 +29,7 @@ from lenspair.model.training.pretrained import (
 )
 from lenspair.model.training.synthetic import OUR_DROPS, SyntheticDrops
 from lenspair.simulate.natural_images import HELD_OUT
+from tests.model.train_fixtures import make_checkpoint, tiny_config
 
 
 def _clean_files(folder: Path, count: int, size: int = 96) -> list[Path]:
@@ -94,7 +98,7 @@ def test_a_clear_share_without_drops_is_refused(tmp_path: Path, share: float) ->
         SyntheticDrops(_clean_files(tmp_path, 1), OUR_DROPS, 1, clear_share=share)
 
 
-def test_synthetic_training_data_passes_the_share_to_training_and_validation(
+def test_synthetic_training_data_gives_the_share_to_training_not_validation(
     tmp_path: Path,
 ) -> None:
     _clean_files(tmp_path, 30)
@@ -132,3 +136,24 @@ def test_pretraining_images_hold_plain_scenes_and_keep_the_held_out_apart(tmp_pa
     stems = {p.stem for p in train}
     assert set(PLAIN_SCENES) - {HELD_OUT_PLAIN} <= stems and HELD_OUT_PLAIN not in stems
     assert not any(p.stem.split("_zoom")[0].split("_whole")[0] in HELD_OUT for p in train)
+
+
+def test_a_run_stored_before_clear_share_resumes_as_it_began(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Its stored config has no clear_share: it trained without clear items, and goes on so."""
+    last = make_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt")
+    data = torch.load(last, weights_only=True)
+    del data["config"]["data"]["clear_share"]  # as written before the key existed
+    torch.save(data, last)
+    assert checkpoint_config(data).data.clear_share == 0.0
+    assert resume_config(tmp_path / "run", None).data.clear_share == 0.0
+    with caplog.at_level("WARNING"):
+        resumed = resume_config(tmp_path / "run", tiny_config())  # today's default, 0.2
+    assert resumed.data.clear_share == DataConfig().clear_share
+    assert any("data.clear_share: 0.0 -> 0.2" in m for m in caplog.messages)  # said
+    # a user's own file without the key gets today's default
+    plain = to_plain(tiny_config())
+    del plain["data"]["clear_share"]
+    assert run_config_from_dict(plain).data.clear_share == DataConfig().clear_share
+    assert stored_run_config(plain).data.clear_share == 0.0

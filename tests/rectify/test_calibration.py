@@ -238,8 +238,9 @@ def test_only_the_kept_calibration_of_each_camera_speaks(
     assert calibration_filters() == []
 
 
+@pytest.mark.parametrize("silenced", ["level", "disabled"])
 def test_warnings_reach_the_report_when_the_application_silenced_logging(
-    caplog: pytest.LogCaptureFixture,
+    caplog: pytest.LogCaptureFixture, silenced: str
 ) -> None:
     """A library user who quiets lenspair still gets the calibration's doubts in its report."""
     truth = make_rig("radtan")
@@ -257,18 +258,23 @@ def test_warnings_reach_the_report_when_the_application_silenced_logging(
         )
         views.append((Detection(ids, pixels[0]), Detection(ids, pixels[1])))
     quiet = logging.getLogger("lenspair")
+    calibration_log = logging.getLogger("lenspair.rectify.calibration")
     before = quiet.level
-    quiet.setLevel(logging.ERROR)
+    if silenced == "level":
+        quiet.setLevel(logging.ERROR)
+    else:  # as logging.config.dictConfig(disable_existing_loggers=True) leaves it
+        calibration_log.disabled = True
     try:
         with caplog.at_level("WARNING"):
             caplog.clear()
             result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+        assert calibration_log.disabled == (silenced == "disabled")  # as the application left it
     finally:
         quiet.setLevel(before)
+        calibration_log.disabled = False
     tilts = [m for m in result.report()["warnings"] if "the board turned at most" in m]
     assert len(tilts) == 2  # each camera's, in the report
     assert not [r for r in caplog.records if r.name.startswith("lenspair")]  # nothing said
-    calibration_log = logging.getLogger("lenspair.rectify.calibration")
     assert calibration_log.level == logging.NOTSET and calibration_log.propagate
     assert calibration_filters() == []
 
