@@ -153,8 +153,9 @@ def card_markdown(card: dict[str, Any]) -> str:
         "and a held-out set of 3 images under 2 drop draws is too small to rank them. A veil "
         "comes with every `ours` drop, and a network this shallow cannot tell a veiled frame "
         "from a clear one of low contrast, so it takes a share of a veil off clear frames too "
-        "(the clear-glass rows: they darken by a few codes). Gate clear frames with "
-        "`lenspair restore --only-obstructed`, or fine-tune on your own pairs; `make "
+        "(the clear-glass rows: they darken by a few codes). Fine-tuning on your own pairs, "
+        "which show your glass clear and wet, teaches the network which is which, and "
+        "`lenspair restore --only-obstructed` copies the frames a detector calls clean; `make "
         "pretrained` with larger `--epochs` and `--steps` (on a GPU) trains longer.",
     ]
     return "\n".join(lines) + "\n"
