@@ -204,16 +204,15 @@ def test_outlier_rejection_never_rejects_down_to_too_few_views(
     assert result.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.05)  # 0.6 px noise
 
 
-def test_only_the_kept_calibration_of_each_camera_speaks(
-    caplog: pytest.LogCaptureFixture,
-) -> None:
-    """The fallback calibrates each camera again: both passes said their (different) tilts."""
+def _little_tilted_views(
+    board: Board, count: int, noise_px: float
+) -> list[tuple[Detection | None, Detection | None]]:
+    """``count`` stereo views of ``board`` turned less than 7 deg, with Gaussian corner noise."""
     truth = make_rig("radtan")
-    board = parse_board_spec("chessboard:9x6:0.05")
     objects, ids = board.object_points(), np.arange(board.num_corners, dtype=np.int32)
     rng = np.random.default_rng(1)
     views: list[tuple[Detection | None, Detection | None]] = []
-    for _ in range(14):  # turned less than 7 deg: every pass warns of it
+    for _ in range(count):
         R = cv2.Rodrigues(rng.uniform(-0.06, 0.06, 3))[0]
         t = np.array([rng.uniform(-0.15, 0.15), rng.uniform(-0.1, 0.1), rng.uniform(0.6, 0.9)])
         in_cam0 = objects @ R.T + (t - R @ objects.mean(axis=0))
@@ -221,8 +220,19 @@ def test_only_the_kept_calibration_of_each_camera_speaks(
             project_rays(truth.cam0, in_cam0),
             project_rays(truth.cam1, in_cam0 @ truth.R.T + truth.t),
         )
-        noisy = [(p + rng.normal(0.0, 0.6, p.shape)).astype(np.float32) for p in pixels]
-        views.append((Detection(ids, noisy[0]), Detection(ids, noisy[1])))
+        if noise_px > 0:
+            pixels = tuple(p + rng.normal(0.0, noise_px, p.shape) for p in pixels)
+        corners = [p.astype(np.float32) for p in pixels]
+        views.append((Detection(ids, corners[0]), Detection(ids, corners[1])))
+    return views
+
+
+def test_only_the_kept_calibration_of_each_camera_speaks(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The fallback calibrates each camera again: both passes said their (different) tilts."""
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = _little_tilted_views(board, 14, noise_px=0.6)  # every pass warns of the tilt
     options = CalibrationOptions(outlier_factor=1.0)
     with caplog.at_level("WARNING"):
         result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES, options=options)
@@ -243,20 +253,8 @@ def test_warnings_reach_the_report_when_the_application_silenced_logging(
     caplog: pytest.LogCaptureFixture, silenced: str
 ) -> None:
     """A library user who quiets lenspair still gets the calibration's doubts in its report."""
-    truth = make_rig("radtan")
     board = parse_board_spec("chessboard:9x6:0.05")
-    objects, ids = board.object_points(), np.arange(board.num_corners, dtype=np.int32)
-    rng = np.random.default_rng(1)
-    views: list[tuple[Detection | None, Detection | None]] = []
-    for _ in range(12):  # turned less than 7 deg: the fit warns of it
-        R = cv2.Rodrigues(rng.uniform(-0.06, 0.06, 3))[0]
-        t = np.array([rng.uniform(-0.15, 0.15), rng.uniform(-0.1, 0.1), rng.uniform(0.6, 0.9)])
-        in_cam0 = objects @ R.T + (t - R @ objects.mean(axis=0))
-        pixels = (
-            project_rays(truth.cam0, in_cam0),
-            project_rays(truth.cam1, in_cam0 @ truth.R.T + truth.t),
-        )
-        views.append((Detection(ids, pixels[0]), Detection(ids, pixels[1])))
+    views = _little_tilted_views(board, 12, noise_px=0.0)  # the fit warns of the tilt
     quiet = logging.getLogger("lenspair")
     calibration_log = logging.getLogger("lenspair.rectify.calibration")
     before = quiet.level
