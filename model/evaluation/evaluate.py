@@ -41,6 +41,7 @@ from lenspair.model import metrics
 from lenspair.model.checkpoint import LoadedModel, load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import Latency, autocast_context, measure_latency
+from lenspair.model.inference.backends import deploy
 from lenspair.model.metrics import PSNR_CAP_DB, image_metrics, parse_metric_convention
 from lenspair.model.training.pairs import (
     PairItem,
@@ -235,6 +236,8 @@ def score_pairs(
 ) -> Scored:
     """Score ``network`` on every pair, one whole image at a time (batch 1).
 
+    On the CPU each input is channels-last, as restore's backend gives it.
+
     Args:
         network: forward(x) -> (generator_out, enhanced_out); eval mode is set.
         pairs: pairs from ``lenspair.dataset.readers`` (any image size, odd ones too).
@@ -268,6 +271,8 @@ def score_pairs(
             converted.append(item.name)
         try:
             x = to_tensor(item.input, channels)[None].to(device)
+            if device.type == "cpu":  # as restore's backend runs it (its output, to the code)
+                x = x.contiguous(memory_format=torch.channels_last)
             target = to_tensor(item.target, channels)[None].to(device)
             with autocast_context(device, precision):
                 output = network(x)[1]
@@ -437,7 +442,9 @@ def evaluate_checkpoint(
     if note := conversion_note(channels, channels_of(first.input), data):
         log.warning("%s", note)
     size = (int(first.input.shape[0]), int(first.input.shape[1]))
-    network: nn.Module = loaded.network
+    # laid out as restore deploys it (channels-last on the CPU), so that the scores are
+    # those of what restore writes: the layouts' rounding differs, most on nearly flat frames
+    network: nn.Module = deploy(loaded.network, device)
     if precision == "int8":
         # here, not at the top: only int8 needs ONNX Runtime, which is slow to import
         from lenspair.model.evaluation.quantize import Int8Network, calibration_images
