@@ -105,12 +105,12 @@ class DataConfig:
             saw a frame without one darkened every clear frame by 11-13
             codes and put blotches into the noise of textureless ones (the
             weights shipped before 2026-11-25: 22-23 dB from a clear frame
-            to itself). A robot's camera is clear most of
-            the time, so a pretrained network must learn to leave such frames
-            as they are. Training items only: validation keeps its drops, so
-            that clear frames scored at 40 dB and more do not outweigh them and
-            pick a network that changes nothing. Below 1: the network must see
-            drops.
+            to itself). A robot's camera is clear most of the time, so a
+            pretrained network must learn to leave such frames as they are.
+            Training items only: validation keeps its drops, because clear
+            frames, scored at 40 dB and more by a network that changes
+            nothing, would outweigh them and pick that network. Below 1: the
+            network must see drops.
     """
 
     crop_size: int = 256

@@ -392,8 +392,7 @@ def synthetic_training_data(
         substitute_unreadable=True,
         clear_share=data.clear_share,
     )
-    # validation: drops only; clear frames scored at 40+ dB would outweigh the drops and
-    # pick a network that changes nothing
+    # validation: drops only (see DataConfig.clear_share)
     val = SyntheticDrops(val_images, effects, resolved, None, seed=seed, fixed=True)
     description = (
         f"{folder} (synthetic {data.drops} drops on {len(train_images)} clean images, "

@@ -140,9 +140,8 @@ def validation_drops(files: list[Path], channels: int, clear: bool = False) -> S
 
     With ``clear``, each file's draws are followed by the file seen through
     clear glass (input = target; ``clear(index)`` tells which), for scoring
-    the shipped weights. Training validates on the drops only: clear frames
-    scored at 40 dB and more would outweigh them and pick a network that
-    changes nothing.
+    the shipped weights. Training validates on the drops only (see
+    :attr:`~lenspair.model.training.config.DataConfig.clear_share`).
     """
     repeats = VALIDATION_DRAWS + 1 if clear else VALIDATION_DRAWS
     items = [path for path in files for _ in range(repeats)]
