@@ -381,16 +381,8 @@ def synthetic_training_data(
     _warn_mixed(folder, "clean images", counts, channels)
     resolved = channels or image_header(images[0])[2]
     effects = drops_preset(data.drops)
-    train = SyntheticDrops(
-        train_images,
-        effects,
-        resolved,
-        data.crop_size,
-        data.hflip,
-        data.vflip,
-        seed=seed,
-        substitute_unreadable=True,
-        clear_share=data.clear_share,
+    train = SyntheticDrops.for_training(
+        train_images, effects, resolved, data, seed, substitute_unreadable=True
     )
     # validation: drops only (see DataConfig.clear_share)
     val = SyntheticDrops(val_images, effects, resolved, None, seed=seed, fixed=True)

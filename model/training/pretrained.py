@@ -173,17 +173,7 @@ def pretrain_on_natural_images(
     """
     train_files, val_files = write_natural_images(run / "clean", channels)
     data = config.data
-    seed = config.train.seed
-    train = SyntheticDrops(
-        train_files,
-        OUR_DROPS,
-        channels,
-        data.crop_size,
-        data.hflip,
-        data.vflip,
-        seed=seed,
-        clear_share=data.clear_share,
-    )
+    train = SyntheticDrops.for_training(train_files, OUR_DROPS, channels, data, config.train.seed)
     val = validation_drops(val_files, channels)
     config = resolve_config(config, channels)
     held_out = ", ".join((*HELD_OUT, HELD_OUT_PLAIN))

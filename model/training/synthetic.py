@@ -17,6 +17,7 @@ import torch
 from torch.utils.data import Dataset
 
 from lenspair.core.imageio import from_float, read_image, to_float
+from lenspair.model.training.config import DataConfig
 from lenspair.model.training.pairs import (
     Sample,
     channels_of,
@@ -95,6 +96,29 @@ class SyntheticDrops(Dataset[Sample]):
         self.seed = seed
         self.fixed = fixed
         self.epoch = 0
+
+    @classmethod
+    def for_training(
+        cls,
+        images: Sequence[Path],
+        effects: EffectsSpec,
+        channels: int,
+        data: DataConfig,
+        seed: int,
+        substitute_unreadable: bool = False,
+    ) -> "SyntheticDrops":
+        """Training items as ``data`` asks for them: its crop, flips and clear share."""
+        return cls(
+            images,
+            effects,
+            channels,
+            data.crop_size,
+            data.hflip,
+            data.vflip,
+            seed=seed,
+            substitute_unreadable=substitute_unreadable,
+            clear_share=data.clear_share,
+        )
 
     def set_epoch(self, epoch: int) -> None:
         """Select the epoch whose crops and drops ``__getitem__`` returns."""
