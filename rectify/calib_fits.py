@@ -90,6 +90,74 @@ def fit_camera(
     return camera, np.asarray(rvecs).reshape(-1, 3), np.asarray(tvecs).reshape(-1, 3)
 
 
+INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "d0", "d1", "d2", "d3")
+"""What :func:`intrinsic_std` returns the deviation of, in this order (``d*``: the
+four distortion coefficients, radtan ``k1 k2 p1 p2`` or equidistant ``k1..k4``)."""
+
+
+def intrinsic_std(
+    camera: CameraModel,
+    points: list[tuple[np.ndarray, np.ndarray]],
+    rvecs: np.ndarray,
+    tvecs: np.ndarray,
+) -> np.ndarray:
+    """1-sigma standard deviations of a fitted camera's intrinsics, from its residuals.
+
+    The covariance of the least-squares fit, ``s^2 (J^T J)^-1``, with ``J`` the
+    Jacobian of every corner's projection in the intrinsics and every view's
+    pose (OpenCV's ``projectPoints`` / ``fisheye.projectPoints`` compute it)
+    and ``s^2`` the residual variance per coordinate. For radtan this is what
+    ``cv2.calibrateCameraExtended`` reports (``stdDeviationsIntrinsics``);
+    ``cv2.fisheye.calibrate`` reports none, and one function serves both.
+    It measures the noise of the corners, not a model or board spec that is
+    wrong: a far or barely tilted board shows here as a large deviation.
+
+    Args:
+        camera: the fitted camera (radtan with ``k3 = 0``, or equidistant with skew 0).
+        points: the views it was fitted to: object points ``(N, 3)``, pixels ``(N, 2)``.
+        rvecs: ``(V, 3)`` the fitted board rotations (Rodrigues vectors).
+        tvecs: ``(V, 3)`` the fitted board translations.
+
+    Returns:
+        ``(8,)``: see :data:`INTRINSIC_NAMES`; pixels for ``f`` and ``c``.
+    """
+    fx, fy, cx, cy = camera.intrinsics
+    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    D = np.asarray(camera.distortion, np.float64)
+    count = len(INTRINSIC_NAMES)
+    # J^T J has an intrinsics block A, a 6x6 block C_k per view and couplings B_k:
+    # the intrinsics' block of its inverse is (A - sum B_k C_k^-1 B_k^T)^-1 (Schur
+    # complement), without forming J (a dense J of 1000 views would take gigabytes)
+    reduced = np.zeros((count, count))
+    squared, rows = 0.0, 0
+    try:
+        for k, (obj, img) in enumerate(points):
+            rvec, tvec = np.asarray(rvecs[k], np.float64), np.asarray(tvecs[k], np.float64)
+            if camera.distortion_model == "radtan":  # columns: r, t, f, c, dist
+                projected, J = cv2.projectPoints(obj.reshape(-1, 1, 3), rvec, tvec, K, D)
+                intrinsic, pose = J[:, 6:14], J[:, 0:6]
+            else:  # columns: f, c, k1..k4, r, t, skew (fixed at 0: left out)
+                projected, J = cv2.fisheye.projectPoints(
+                    obj.reshape(1, -1, 3), rvec, tvec, K, D, alpha=0.0
+                )
+                intrinsic, pose = J[:, 0:8], J[:, 8:14]
+            coupling = intrinsic.T @ pose
+            reduced += intrinsic.T @ intrinsic - coupling @ np.linalg.solve(
+                pose.T @ pose, coupling.T
+            )
+            residuals = projected.reshape(-1) - img.reshape(-1)
+            squared += float(residuals @ residuals)
+            rows += len(residuals)
+        freedom = rows - count - 6 * len(points)
+        if freedom <= 0:
+            return np.full(count, np.inf)
+        covariance = squared / freedom * np.linalg.inv(reduced)
+    except np.linalg.LinAlgError:  # a parameter or pose the views do not constrain at all
+        return np.full(count, np.inf)
+    deviations: np.ndarray = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    return deviations
+
+
 def view_error(
     camera: CameraModel, obj: np.ndarray, img: np.ndarray, rvec: np.ndarray, tvec: np.ndarray
 ) -> float:

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from lenspair.rectify.boards import Board, Detection, parse_board_spec
+from lenspair.rectify.calib_fits import CRITERIA, INTRINSIC_NAMES, fit_camera, intrinsic_std
 from lenspair.rectify.calibration import (
+    FOCAL_DOUBT,
     MARKER_TOLERANCE,
     CalibrationOptions,
     CalibrationResult,
@@ -18,7 +20,7 @@ from lenspair.rectify.calibration import (
 )
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import project_rays
-from lenspair.rectify.rig import StereoRig, read_kalibr
+from lenspair.rectify.rig import DistortionModel, StereoRig, read_kalibr
 from tests.rectify.board_renderer import BoardRenderer
 from tests.rectify.rigs import make_rig
 
@@ -27,8 +29,14 @@ SIZES = ((720, 540), (720, 540))
 Pose = tuple[np.ndarray, np.ndarray]
 
 
-def board_poses(board: Board, rig: StereoRig, count: int, seed: int = 0) -> list[Pose]:
-    """Board poses (cam0 frame) with every corner inside both images by 10 px."""
+def board_poses(
+    board: Board,
+    rig: StereoRig,
+    count: int,
+    seed: int = 0,
+    distance: tuple[float, float] = (0.6, 1.4),
+) -> list[Pose]:
+    """Board poses (cam0 frame) ``distance`` m away, every corner inside both images by 10 px."""
     rng = np.random.default_rng(seed)
     objects = board.object_points()
     poses: list[Pose] = []
@@ -36,7 +44,7 @@ def board_poses(board: Board, rig: StereoRig, count: int, seed: int = 0) -> list
         direction = np.array([*rng.uniform([-0.55, -0.4], [0.55, 0.4]), 1.0])
         tilt = np.array([*rng.normal(0.0, 0.35, 2), rng.uniform(-0.3, 0.3)])
         R = cv2.Rodrigues(tilt)[0]
-        t = direction / np.linalg.norm(direction) * rng.uniform(0.6, 1.4) - R @ objects.mean(0)
+        t = direction / np.linalg.norm(direction) * rng.uniform(*distance) - R @ objects.mean(0)
         in_cam0 = objects @ R.T + t
         ok = True
         for camera, points in ((rig.cam0, in_cam0), (rig.cam1, in_cam0 @ rig.R.T + rig.t)):
@@ -49,14 +57,19 @@ def board_poses(board: Board, rig: StereoRig, count: int, seed: int = 0) -> list
 
 
 def point_views(
-    board: Board, rig: StereoRig, count: int = 20, noise_px: float = 0.05, seed: int = 0
+    board: Board,
+    rig: StereoRig,
+    count: int = 20,
+    noise_px: float = 0.05,
+    seed: int = 0,
+    distance: tuple[float, float] = (0.6, 1.4),
 ) -> list[tuple[Detection | None, Detection | None]]:
-    """Projected corners of both cameras with Gaussian noise."""
+    """Projected corners of both cameras with Gaussian noise, the board ``distance`` metres away."""
     rng = np.random.default_rng(seed)
     objects = board.object_points()
     ids = np.arange(board.num_corners, dtype=np.int32)
     views: list[tuple[Detection | None, Detection | None]] = []
-    for R, t in board_poses(board, rig, count, seed):
+    for R, t in board_poses(board, rig, count, seed, distance):
         in_cam0 = objects @ R.T + t
         pixels = (
             project_rays(rig.cam0, in_cam0),
@@ -238,13 +251,14 @@ def test_only_the_kept_calibration_of_each_camera_speaks(
         result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES, options=options)
     assert any("calibrating without rejecting any" in m for m in caplog.messages)
     for camera in ("cam0", "cam1"):
-        tilts = [m for m in caplog.messages if m.startswith(f"{camera}: the board turned at most")]
-        assert len(tilts) == 1, tilts
+        for doubt in ("the board turned at most", "the focal length is known"):
+            said = [m for m in caplog.messages if m.startswith(f"{camera}: {doubt}")]
+            assert len(said) == 1, said
         assert len(result.cameras[int(camera[-1])].views) == 14  # said of the kept calibration
     # the first pass's rejections, undone by the fallback, are not said either
     assert not any(m.startswith(("cam0: kept", "cam1: kept")) for m in caplog.messages)
     said = [r.getMessage() for r in caplog.records if r.name == "lenspair.rectify.calibration"]
-    assert len(said) == 4 and list(result.warnings) == said  # what was said, only that
+    assert len(said) == 6 and list(result.warnings) == said  # what was said, only that
     assert calibration_filters() == []
 
 
@@ -398,3 +412,64 @@ def test_calibrate_command_recovers_simulator_truth(
     assert report["row_disagreement_px"] < 0.3 and report["frames"]["paired"] == 12
     printed = capsys.readouterr().out
     assert "stereo: RMS" in printed and "rectified row disagreement" in printed
+
+
+def _fit_points(
+    views: list[tuple[Detection | None, Detection | None]], board: Board
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    objects = board.object_points()
+    return [(objects[d.ids], d.corners.astype(np.float64)) for d, _ in views if d is not None]
+
+
+def test_intrinsic_deviations_are_what_opencv_reports_for_radtan() -> None:
+    board = parse_board_spec("chessboard:9x6:0.05")
+    points = _fit_points(point_views(board, make_rig("radtan"), noise_px=0.2, seed=3), board)
+    camera, rvecs, tvecs = fit_camera(points, "radtan", SIZES[0])
+    found = intrinsic_std(camera, points, rvecs, tvecs)
+    *_, deviations, _, _ = cv2.calibrateCameraExtended(
+        [o.astype(np.float32) for o, _ in points],
+        [i.astype(np.float32) for _, i in points],
+        SIZES[0], None, None, flags=cv2.CALIB_FIX_K3, criteria=CRITERIA,
+    )  # fmt: skip
+    # OpenCV's order: fx fy cx cy k1 k2 p1 p2 (k3, fixed, after)
+    np.testing.assert_allclose(found, deviations.ravel()[:8], rtol=1e-3)
+
+
+@pytest.mark.parametrize("model", ["radtan", "equidistant"])
+@pytest.mark.parametrize("distance", [(0.6, 1.4), (2.0, 3.0)])
+def test_intrinsic_deviations_predict_the_focal_error(
+    model: DistortionModel, distance: tuple[float, float]
+) -> None:
+    """Over repeated noise, the focal length misses the truth by about the deviation given."""
+    board = parse_board_spec("chessboard:9x6:0.05")
+    truth = make_rig(model).cam0
+    misses, predicted = [], []
+    for seed in range(16):
+        views = point_views(board, make_rig(model), noise_px=0.1, seed=seed, distance=distance)
+        points = _fit_points(views, board)
+        camera, rvecs, tvecs = fit_camera(points, model, SIZES[0])
+        misses.append(camera.intrinsics[0] - truth.intrinsics[0])
+        predicted.append(intrinsic_std(camera, points, rvecs, tvecs)[0])
+    ratio = float(np.sqrt(np.mean(np.square(misses))) / np.median(predicted))
+    assert 0.6 < ratio < 1.6, ratio
+
+
+def test_a_far_board_is_warned_about_and_its_deviations_reported() -> None:
+    board = parse_board_spec("chessboard:9x6:0.05")
+    truth = make_rig()
+    near = calibrate_from_detections(point_views(board, truth, noise_px=0.1), board,
+                                     "pinhole-radtan", SIZES)  # fmt: skip
+    far = calibrate_from_detections(
+        point_views(board, truth, noise_px=0.1, distance=(2.0, 3.0)), board, "pinhole-radtan",
+        SIZES,
+    )  # fmt: skip
+    assert max(cam.focal_std for cam in near.cameras) < FOCAL_DOUBT
+    assert min(cam.focal_std for cam in far.cameras) > FOCAL_DOUBT
+    assert not any("focal length is known" in w for w in near.report()["warnings"])
+    said = [w for w in far.report()["warnings"] if "focal length is known" in w]
+    assert [w.split(":")[0] for w in said] == ["cam0", "cam1"]
+    for cam, name in zip(far.cameras, ("cam0", "cam1"), strict=True):
+        std = far.report()[name]["intrinsics_std"]
+        assert list(std) == list(INTRINSIC_NAMES)
+        assert std["fx"] / cam.camera.intrinsics[0] == pytest.approx(cam.focal_std, rel=0.3)
+        assert f"+/- {std['fx']:.2f}" in "\n".join(far.summary())
