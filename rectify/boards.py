@@ -322,18 +322,20 @@ class Detection:
 
 
 def _to_gray(image: np.ndarray) -> np.ndarray:
-    if image.ndim == 3:
+    image = np.asarray(image)
+    colour = image.ndim == 3 and image.shape[2] == 3
+    if image.dtype not in (np.uint8, np.uint16) or not (image.ndim == 2 or colour):
+        raise RectifyError(
+            f"expected a uint8/uint16 (H, W) or (H, W, 3) image, got {image.dtype} {image.shape}"
+        )
+    if colour:
         image = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
     if image.dtype == np.uint16:
         # the top 8 of the bits the image uses: a full-range image loses its low
         # byte, and 10- or 12-bit values in 16-bit words (mono16 from a Mono10/Mono12
         # camera) keep their own top bits instead of coming out all but black
         shift = max(0, int(image.max()).bit_length() - 8)
-        image = (image >> shift).astype(np.uint8)
-    if image.dtype != np.uint8 or image.ndim != 2:
-        raise ValueError(
-            f"expected a uint8/uint16 (H, W) or (H, W, 3) image, got {image.dtype} {image.shape}"
-        )
+        image = np.right_shift(image, shift).astype(np.uint8)
     return image
 
 

@@ -739,10 +739,18 @@ def calibrate_stereo(
     """
     if not views:
         raise RectifyError("calibration: no views given")
+    names = list(names) if names is not None else [f"view {i}" for i in range(len(views))]
     resolutions = (
-        (views[0][0].shape[1], views[0][0].shape[0]),
-        (views[0][1].shape[1], views[0][1].shape[0]),
+        (int(views[0][0].shape[1]), int(views[0][0].shape[0])),
+        (int(views[0][1].shape[1]), int(views[0][1].shape[0])),
     )
+    for name, pair in zip(names, views, strict=False):
+        for camera, image, size in zip(("cam0", "cam1"), pair, resolutions, strict=True):
+            if (image.shape[1], image.shape[0]) != size:
+                raise RectifyError(
+                    f"{name}: the {camera} image is {image.shape[1]}x{image.shape[0]}, the first "
+                    f"view's {size[0]}x{size[1]}: a camera's views must all have one size"
+                )
     return calibrate_from_detections(
         detect_views(views, board), board, model, resolutions, names, options
     )

@@ -43,6 +43,12 @@ class CameraModel:
     resolution: tuple[int, int]
 
     def __post_init__(self) -> None:
+        # plain Python numbers, whatever the caller passed (numpy scalars do not go to JSON)
+        object.__setattr__(self, "intrinsics", tuple(float(v) for v in self.intrinsics))
+        object.__setattr__(self, "distortion", tuple(float(v) for v in self.distortion))
+        if any(int(side) != side for side in self.resolution):
+            raise ValueError(f"resolution must be whole pixels, got {self.resolution}")
+        object.__setattr__(self, "resolution", tuple(int(side) for side in self.resolution))
         values = (*self.intrinsics, *self.distortion)
         if not all(np.isfinite(values)):
             raise ValueError(f"camera parameters must be finite, got {values}")

@@ -41,13 +41,16 @@ class Restorer:
     Args:
         model: a lenspair checkpoint (``.pt``) or a model from ``lenspair
             export`` (``.onnx``).
-        device: ``auto`` (CUDA when available), ``cpu`` or ``cuda``.
+        device: ``auto`` (CUDA when available), ``cpu``, ``cuda``, ``cuda:N`` or a
+            ``torch.device``.
         precision: ``auto`` (the fastest precision the hardware runs
             natively), ``fp32``, ``bf16`` or ``fp16``; ONNX models run as
             exported.
         tile: restore in overlapping square tiles of this side (pixels, at
-            least 16) to bound memory on large frames; None: whole frames.
-        overlap: pixels shared by neighbouring tiles.
+            least 16 and more than ``overlap``) to bound memory on large
+            frames; None: whole frames.
+        overlap: pixels shared by neighbouring tiles (the ``--overlap`` of
+            ``restore``, default 32; errors name the options as it does).
 
     Raises:
         ModelError: the model cannot be read, or a setting is invalid.
@@ -67,8 +70,7 @@ class Restorer:
             whole = isinstance(value, int | np.integer) and not isinstance(value, bool)
             if not whole and not (value is None and name == "tile"):
                 raise ModelError(f"Restorer: {name} must be a whole number of pixels: {value!r}")
-        chosen = device if isinstance(device, torch.device) else resolve_device(device)
-        self.backend: Backend = open_backend(Path(model), chosen, precision)
+        self.backend: Backend = open_backend(Path(model), resolve_device(device), precision)
         check_options(RestoreOptions(tile=tile, overlap=overlap), self.backend)  # as restore's
         self.tile = None if tile is None else int(tile)
         self.overlap = int(overlap)

@@ -127,6 +127,23 @@ def test_no_board_gives_none() -> None:
     assert detect_corners(blank, parse_board_spec("charuco:5x4:0.05:0.04")) is None
 
 
+@pytest.mark.parametrize(
+    "image",
+    [
+        np.zeros((240, 320, 1), np.uint8),
+        np.zeros((240, 320, 4), np.uint8),
+        np.zeros((240, 320), np.float32),
+        np.zeros((2, 240, 320), np.uint8),
+    ],
+    ids=["one-channel", "rgba", "float", "stack"],
+)
+def test_an_image_it_cannot_read_is_a_one_line_error(image: np.ndarray) -> None:
+    with pytest.raises(
+        RectifyError, match=rf"uint8/uint16 .* got {image.dtype} \({image.shape[0]}"
+    ):
+        detect_corners(image, parse_board_spec("chessboard:9x6:0.05"))
+
+
 def test_board_is_validated_on_construction() -> None:
     with pytest.raises(RectifyError, match="marker size"):
         Board("charuco", 5, 4, 0.05, None, "DICT_5X5_100")

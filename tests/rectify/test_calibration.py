@@ -473,3 +473,20 @@ def test_a_far_board_is_warned_about_and_its_deviations_reported() -> None:
         assert list(std) == list(INTRINSIC_NAMES)
         assert std["fx"] / cam.camera.intrinsics[0] == pytest.approx(cam.focal_std, rel=0.3)
         assert f"+/- {std['fx']:.2f}" in "\n".join(far.summary())
+
+
+def test_views_of_another_size_are_refused_by_name() -> None:
+    """Sizes came from the first view alone: the camchain said 1020x740 for 720x540 images."""
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    blank = np.full((540, 720), 110, np.uint8)
+    views = [(blank, blank)] * 5 + [(blank, np.pad(blank, ((0, 200), (0, 300))))]
+    names = [f"t{i}" for i in range(len(views))]
+    with pytest.raises(
+        RectifyError, match="t5: the cam1 image is 1020x740, the first view's 720x540"
+    ):
+        calibrate_stereo(views, board, "pinhole-radtan", names=names)
+    # numpy sizes (as a caller's image shapes give them) still make a JSON report
+    sizes = tuple(tuple(np.int64(side) for side in size) for size in SIZES)
+    result = calibrate_from_detections(point_views(board, truth), board, "pinhole-radtan", sizes)
+    assert json.loads(json.dumps(result.report()))["cam0"]["resolution"] == [720, 540]
