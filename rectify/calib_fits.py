@@ -10,6 +10,7 @@
   converges to a wrong solution (OpenCV issue 23962); it is always set.
 """
 
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
@@ -121,41 +122,154 @@ def intrinsic_std(
     Returns:
         ``(8,)``: see :data:`INTRINSIC_NAMES`; pixels for ``f`` and ``c``.
     """
+    count = len(INTRINSIC_NAMES)
+    views = [
+        _Observations([(_projected(camera, obj, rvecs[k], tvecs[k]), img, 0)], None)
+        for k, (obj, img) in enumerate(points)
+    ]
+    deviations: np.ndarray = np.sqrt(np.clip(np.diag(_covariance(views, count)), 0.0, None))
+    return deviations
+
+
+@dataclass
+class _Observations:
+    """One board view's corners in one or both cameras, for :func:`_covariance`.
+
+    ``seen``: per camera that saw it, ``(projection, pixels, column)``: the
+    projection at the estimate with its Jacobians, the measured pixels ``(N, 2)``,
+    and the first column of that camera's intrinsics among the shared parameters.
+    ``stereo``: for a cam1 projection through the rig, the derivatives of the
+    cam1 pose in the cam0 pose and in the rig's ``(r, t)`` (shared columns
+    ``-6:``); None for a view fitted in one camera.
+    """
+
+    seen: list[tuple["_Projection", np.ndarray, int]]
+    stereo: tuple[np.ndarray, np.ndarray] | None
+
+
+@dataclass
+class _Projection:
+    """Projected corners ``(2N,)`` and their Jacobians.
+
+    In the intrinsics ``(2N, 8)`` (order :data:`INTRINSIC_NAMES`) and in the
+    board pose ``(2N, 6)`` (``r``, ``t``).
+    """
+
+    points: np.ndarray
+    intrinsic: np.ndarray
+    pose: np.ndarray
+
+
+def _projected(
+    camera: CameraModel, obj: np.ndarray, rvec: np.ndarray, tvec: np.ndarray
+) -> _Projection:
     fx, fy, cx, cy = camera.intrinsics
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     D = np.asarray(camera.distortion, np.float64)
-    count = len(INTRINSIC_NAMES)
-    # J^T J has an intrinsics block A, a 6x6 block C_k per view and couplings B_k:
-    # the intrinsics' block of its inverse is (A - sum B_k C_k^-1 B_k^T)^-1 (Schur
-    # complement), without forming J (a dense J of 1000 views would take gigabytes)
-    reduced = np.zeros((count, count))
+    rvec, tvec = np.asarray(rvec, np.float64).ravel(), np.asarray(tvec, np.float64).ravel()
+    if camera.distortion_model == "radtan":  # columns: r, t, f, c, dist
+        points, J = cv2.projectPoints(obj.reshape(-1, 1, 3), rvec, tvec, K, D)
+        return _Projection(points.reshape(-1), J[:, 6:14], J[:, 0:6])
+    # columns: f, c, k1..k4, r, t, skew (fixed at 0: left out)
+    points, J = cv2.fisheye.projectPoints(obj.reshape(1, -1, 3), rvec, tvec, K, D, alpha=0.0)
+    return _Projection(points.reshape(-1), J[:, 0:8], J[:, 8:14])
+
+
+def _covariance(views: list[_Observations], shared: int) -> np.ndarray:
+    """Covariance ``(shared, shared)`` of the parameters the views share, their poses eliminated.
+
+    The least-squares covariance ``s^2 (J^T J)^-1`` restricted to the shared
+    parameters: ``J^T J`` has a shared block ``A``, a 6x6 block ``C_k`` per
+    view's pose and couplings ``B_k``; the shared block of its inverse is
+    ``(A - sum B_k C_k^-1 B_k^T)^-1`` (Schur complement), without forming ``J``
+    (a dense ``J`` of 1000 views would take gigabytes). ``s^2`` is the residual
+    variance per coordinate. Infinite where the views leave a parameter free.
+    """
+    reduced = np.zeros((shared, shared))
     squared, rows = 0.0, 0
     try:
-        for k, (obj, img) in enumerate(points):
-            rvec, tvec = np.asarray(rvecs[k], np.float64), np.asarray(tvecs[k], np.float64)
-            if camera.distortion_model == "radtan":  # columns: r, t, f, c, dist
-                projected, J = cv2.projectPoints(obj.reshape(-1, 1, 3), rvec, tvec, K, D)
-                intrinsic, pose = J[:, 6:14], J[:, 0:6]
-            else:  # columns: f, c, k1..k4, r, t, skew (fixed at 0: left out)
-                projected, J = cv2.fisheye.projectPoints(
-                    obj.reshape(1, -1, 3), rvec, tvec, K, D, alpha=0.0
-                )
-                intrinsic, pose = J[:, 0:8], J[:, 8:14]
-            coupling = intrinsic.T @ pose
-            reduced += intrinsic.T @ intrinsic - coupling @ np.linalg.solve(
-                pose.T @ pose, coupling.T
+        for view in views:
+            blocks_shared, blocks_pose = [], []
+            for projection, pixels, column in view.seen:
+                block = np.zeros((len(projection.points), shared))
+                block[:, column : column + 8] = projection.intrinsic
+                pose = projection.pose
+                if view.stereo is not None and column > 0:  # cam1, through the rig
+                    in_pose, in_rig = view.stereo
+                    block[:, -6:] = pose @ in_rig
+                    pose = pose @ in_pose
+                blocks_shared.append(block)
+                blocks_pose.append(pose)
+                residuals = projection.points - pixels.reshape(-1)
+                squared += float(residuals @ residuals)
+                rows += len(residuals)
+            J_shared, J_pose = np.concatenate(blocks_shared), np.concatenate(blocks_pose)
+            coupling = J_shared.T @ J_pose
+            reduced += J_shared.T @ J_shared - coupling @ np.linalg.solve(
+                J_pose.T @ J_pose, coupling.T
             )
-            residuals = projected.reshape(-1) - img.reshape(-1)
-            squared += float(residuals @ residuals)
-            rows += len(residuals)
-        freedom = rows - count - 6 * len(points)
+        freedom = rows - shared - 6 * len(views)
         if freedom <= 0:
-            return np.full(count, np.inf)
-        covariance = squared / freedom * np.linalg.inv(reduced)
+            return np.full((shared, shared), np.inf)
+        return squared / freedom * np.linalg.inv(reduced)
     except np.linalg.LinAlgError:  # a parameter or pose the views do not constrain at all
-        return np.full(count, np.inf)
-    deviations: np.ndarray = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    return deviations
+        return np.full((shared, shared), np.inf)
+
+
+def joint_std(
+    cameras: tuple[CameraModel, CameraModel],
+    stereo: list[tuple[Points, np.ndarray, np.ndarray]],
+    transform: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """1-sigma deviations of a rig whose intrinsics were refined with it (:func:`fit_stereo`).
+
+    The shared parameters are both cameras' intrinsics and the rig's rotation
+    and translation; each view gives its corners in both cameras at one board
+    pose (cam1's through the rig, derivatives from ``cv2.composeRT``).
+
+    Args:
+        cameras: cam0, cam1.
+        stereo: the views fitted: ``(object, cam0 pixels, cam1 pixels)`` and
+            the cam0 board pose ``rvec``, ``tvec``.
+        transform: 4x4 cam0 -> cam1.
+
+    Returns:
+        cam0's and cam1's intrinsics deviations (:data:`INTRINSIC_NAMES`) and
+        the baseline's (metres).
+    """
+    rig_r = cv2.Rodrigues(np.ascontiguousarray(transform[:3, :3]))[0].ravel()
+    rig_t = np.ascontiguousarray(transform[:3, 3])
+    views: list[_Observations] = []
+    for (obj, pixels0, pixels1), rvec, tvec in stereo:
+        rvec, tvec = np.asarray(rvec, np.float64).ravel(), np.asarray(tvec, np.float64).ravel()
+        r1, t1, dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2 = cv2.composeRT(
+            rvec, tvec, rig_r, rig_t
+        )
+        seen = [
+            (_projected(cameras[0], obj, rvec, tvec), pixels0, 0),
+            (_projected(cameras[1], obj, r1, t1), pixels1, 8),
+        ]
+        in_pose = np.block([[dr3dr1, dr3dt1], [dt3dr1, dt3dt1]])
+        in_rig = np.block([[dr3dr2, dr3dt2], [dt3dr2, dt3dt2]])
+        views.append(_Observations(seen, (in_pose, in_rig)))
+    covariance = _covariance(views, 22)
+    deviations = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    direction = rig_t / np.linalg.norm(rig_t)
+    baseline = float(np.sqrt(max(0.0, direction @ covariance[-3:, -3:] @ direction)))
+    return deviations[:8], deviations[8:16], baseline
+
+
+def refit_poses(
+    camera: CameraModel, points: list[tuple[np.ndarray, np.ndarray]]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each view's board pose for a fixed camera, and its RMS error: ``rvecs, tvecs, errors``."""
+    poses = [board_pose(camera, obj, img) for obj, img in points]
+    rvecs = np.array([cv2.Rodrigues(pose[:3, :3])[0].ravel() for pose in poses])
+    tvecs = np.array([pose[:3, 3] for pose in poses])
+    errors = np.array(
+        [view_error(camera, obj, img, rvecs[k], tvecs[k]) for k, (obj, img) in enumerate(points)]
+    )
+    return rvecs, tvecs, errors
 
 
 def view_error(
@@ -246,17 +360,35 @@ def match_views(
     return matched, refused
 
 
+def refinable(data: list[Points], cameras: tuple[CameraModel, CameraModel]) -> bool:
+    """Whether :func:`fit_stereo` can refine the intrinsics on these views.
+
+    Not for equidistant cameras whose views hold different numbers of corners
+    (partial ChArUco views): ``cv2.fisheye.stereoCalibrate`` fails on them
+    (OpenCV issue 21748) and the fit runs on undistorted corners instead.
+    """
+    return cameras[0].distortion_model != "equidistant" or len({len(o) for o, _, _ in data}) == 1
+
+
 def fit_stereo(
     data: list[Points],
     cameras: tuple[CameraModel, CameraModel],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``cv2.(fisheye.)stereoCalibrate`` with intrinsics fixed; returns T (4x4), rvecs, tvecs.
+    refine: bool = False,
+) -> tuple[tuple[CameraModel, CameraModel], np.ndarray, np.ndarray, np.ndarray]:
+    """``cv2.(fisheye.)stereoCalibrate``; returns the cameras, T (4x4), rvecs, tvecs.
+
+    Without ``refine`` the intrinsics stay fixed and the cameras come back
+    unchanged; with it (where :func:`refinable`) they are refined with the rig,
+    starting from ``cameras`` (``k3`` stays 0 and the skew 0, as in the
+    single-camera fits).
 
     ``cv2.fisheye.stereoCalibrate`` fails when views hold different numbers of
     corners (OpenCV issue 21748: partial ChArUco views). Then, as the
     intrinsics are fixed anyway, the corners are undistorted exactly and the
     pinhole ``cv2.stereoCalibrate`` runs on them with zero distortion.
     """
+    if refine and not refinable(data, cameras):
+        raise ValueError("fit_stereo: these views cannot refine the intrinsics (see refinable)")
     objects = [o.astype(np.float64) for o, _, _ in data]
     images = [
         [a.astype(np.float64) for _, a, _ in data],
@@ -264,37 +396,52 @@ def fit_stereo(
     ]
     (K0, D0), (K1, D1) = ((c.K, c.dist_coeffs) for c in cameras)
     fisheye = cameras[0].distortion_model == "equidistant"
-    if fisheye and len({len(o) for o in objects}) > 1:
+    if fisheye and not refinable(data, cameras):
         for index, camera in enumerate(cameras):
             images[index] = [pixel_rays(camera, i) @ camera.K[:2].T for i in images[index]]
         D0, D1, fisheye = np.zeros(5), np.zeros(5), False
     result: Any
     try:
         if not fisheye:
+            flags = (
+                cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_K3
+                if refine
+                else cv2.CALIB_FIX_INTRINSIC
+            )
             result = cv2.stereoCalibrateExtended(
                 [o.astype(np.float32) for o in objects],
                 [i.astype(np.float32) for i in images[0]],
                 [i.astype(np.float32) for i in images[1]],
                 K0, D0, K1, D1, cameras[0].resolution, np.eye(3), np.zeros(3),
-                flags=cv2.CALIB_FIX_INTRINSIC, criteria=CRITERIA,
+                flags=flags, criteria=CRITERIA,
             )  # fmt: skip
             R, t, rvecs, tvecs = result[5], result[6], result[9], result[10]
         else:  # OpenCV 5 wants (1, N, C) arrays here, not (N, 1, C)
+            flags = (
+                fisheye_flag("CALIB_USE_INTRINSIC_GUESS") | fisheye_flag("CALIB_FIX_SKEW")
+                if refine
+                else fisheye_flag("CALIB_FIX_INTRINSIC")
+            )
             result = cv2.fisheye.stereoCalibrate(
                 [o.reshape(1, -1, 3) for o in objects],
                 [i.reshape(1, -1, 2) for i in images[0]],
                 [i.reshape(1, -1, 2) for i in images[1]],
-                K0, D0, K1, D1, cameras[0].resolution,
-                flags=fisheye_flag("CALIB_FIX_INTRINSIC"), criteria=CRITERIA,
+                K0, D0, K1, D1, cameras[0].resolution, flags=flags, criteria=CRITERIA,
             )  # fmt: skip
             R, t, rvecs, tvecs = result[5], result[6], result[7], result[8]
     except cv2.error as exc:
         message = str(exc).strip().splitlines()[-1]
         raise RectifyError(f"stereo calibration failed: {message}") from None
+    if refine:
+        model = cameras[0].distortion_model
+        cameras = (
+            _as_camera(result[1], result[2], model, cameras[0].resolution),
+            _as_camera(result[3], result[4], model, cameras[1].resolution),
+        )
     transform = np.eye(4)
     transform[:3, :3] = np.asarray(R, dtype=np.float64)
     transform[:3, 3] = np.asarray(t, dtype=np.float64).ravel()
-    return transform, np.asarray(rvecs).reshape(-1, 3), np.asarray(tvecs).reshape(-1, 3)
+    return cameras, transform, np.asarray(rvecs).reshape(-1, 3), np.asarray(tvecs).reshape(-1, 3)
 
 
 def stereo_residuals(

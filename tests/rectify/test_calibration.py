@@ -14,13 +14,14 @@ from lenspair.rectify.calibration import (
     MARKER_TOLERANCE,
     CalibrationOptions,
     CalibrationResult,
+    calibrate_camera,
     calibrate_from_detections,
     calibrate_stereo,
     parse_model,
 )
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import project_rays
-from lenspair.rectify.rig import DistortionModel, StereoRig, read_kalibr
+from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
 from tests.rectify.board_renderer import BoardRenderer
 from tests.rectify.rigs import make_rig
 
@@ -151,6 +152,8 @@ def test_partial_charuco_views_with_fisheye_model() -> None:
         "both_detected": 19,
     }
     assert 3 not in result.stereo_views
+    # OpenCV's fisheye stereo cannot refine intrinsics on these views: said, no baseline spread
+    assert result.refinement.startswith("not refined") and result.baseline_std_m is None
 
 
 @pytest.mark.parametrize(("measured_m", "warned"), [(0.0352, False), (0.0278, True)])
@@ -258,7 +261,9 @@ def test_only_the_kept_calibration_of_each_camera_speaks(
     # the first pass's rejections, undone by the fallback, are not said either
     assert not any(m.startswith(("cam0: kept", "cam1: kept")) for m in caplog.messages)
     said = [r.getMessage() for r in caplog.records if r.name == "lenspair.rectify.calibration"]
-    assert len(said) == 6 and list(result.warnings) == said  # what was said, only that
+    # a board this little tilted refines into a rig nothing rectifies: not refined, and said
+    assert result.baseline_std_m is None and "unusable" in result.refinement
+    assert len(said) == 7 and list(result.warnings) == said  # what was said, only that
     assert calibration_filters() == []
 
 
@@ -490,3 +495,55 @@ def test_views_of_another_size_are_refused_by_name() -> None:
     sizes = tuple(tuple(np.int64(side) for side in size) for size in SIZES)
     result = calibrate_from_detections(point_views(board, truth), board, "pinhole-radtan", sizes)
     assert json.loads(json.dumps(result.report()))["cam0"]["resolution"] == [720, 540]
+
+
+@pytest.mark.parametrize(("distance", "largest"), [((0.6, 1.4), 0.0015), ((2.0, 3.0), 0.01)])
+def test_intrinsics_refined_with_the_rig_keep_the_baseline_of_far_boards(
+    distance: tuple[float, float], largest: float
+) -> None:
+    """Each camera's own focal error became baseline error: 8 % RMS at 2-3 m, 0.24 % at 1 m."""
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    misses, spreads = [], []
+    for seed in range(6):
+        views = point_views(board, truth, noise_px=0.1, seed=seed, distance=distance)
+        result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+        assert result.refinement == "refined with the rig" and result.baseline_std_m is not None
+        misses.append(result.rig.baseline_m / truth.baseline_m - 1)
+        spreads.append(result.baseline_std_m / truth.baseline_m)
+    miss = float(np.sqrt(np.mean(np.square(misses))))
+    assert miss < largest
+    assert 0.4 < miss / float(np.median(spreads)) < 2.5  # the spread reported is the error made
+    report = result.report()
+    assert report["stereo"]["baseline_std_m"] == result.baseline_std_m
+    assert f"+/- {result.baseline_std_m:.4f} m" in "\n".join(result.summary())
+
+
+DISTORTED = 0.8
+
+
+def test_a_refinement_that_a_camera_s_own_views_disagree_with_is_not_kept(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Views only cam1 saw, through other distortion (its lens turned between them): cam1's own."""
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = point_views(board, truth, count=12, noise_px=0.05)
+    k1, *others = truth.cam1.distortion
+    turned = StereoRig(
+        truth.cam0,
+        CameraModel(truth.cam1.intrinsics, "radtan", (k1 * DISTORTED, *others), (720, 540)),
+        truth.T_cam1_cam0,
+    )
+    views += [(None, d1) for _, d1 in point_views(board, turned, count=12, noise_px=0.05, seed=9)]
+    with caplog.at_level("WARNING"):
+        result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+    assert result.refinement == "not refined with the rig: a camera's own views disagree"
+    assert result.baseline_std_m is None
+    said = [m for m in caplog.messages if "refined with the rig fit its own" in m]
+    own = result.cameras[1]
+    assert len(said) == 1 and said[0].startswith("cam1: the intrinsics refined with the rig fit")
+    assert f"its own {len(own.views)} views" in said[0] and len(own.views) > 20
+    alone, _ = calibrate_camera([d1 for _, d1 in views], board, "pinhole-radtan", SIZES[1], "cam1")
+    np.testing.assert_allclose(own.camera.intrinsics, alone.camera.intrinsics, rtol=1e-6)
+    np.testing.assert_allclose(own.camera.distortion, alone.camera.distortion, atol=1e-8)
