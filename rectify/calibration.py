@@ -221,10 +221,15 @@ class CalibrationResult:
                 f"board covered {cam.coverage:.0%} of the image"
             )
         lines += [f"warning: {warning}" for warning in self.coverage_warnings()]
-        spread = "" if self.baseline_std_m is None else f" +/- {self.baseline_std_m:.4f}"
+        baseline = self.rig.baseline_m
+        spread = (
+            ""
+            if self.baseline_std_m is None
+            else f" +/- {100 * self.baseline_std_m / baseline:.3f} % (1 sigma)"
+        )
         lines.append(
             f"stereo: RMS {self.stereo_rms_px:.3f} px over {len(self.stereo_views)} views; "
-            f"baseline {self.rig.baseline_m:.4f}{spread} m; intrinsics {self.refinement}"
+            f"baseline {baseline:.4f} m{spread}; intrinsics {self.refinement}"
         )
         if self.row_disagreement_px is None:
             lines.append("rectified row disagreement: n/a (a top/bottom rig is not rectified)")

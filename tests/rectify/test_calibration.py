@@ -516,7 +516,8 @@ def test_intrinsics_refined_with_the_rig_keep_the_baseline_of_far_boards(
     assert 0.4 < miss / float(np.median(spreads)) < 2.5  # the spread reported is the error made
     report = result.report()
     assert report["stereo"]["baseline_std_m"] == result.baseline_std_m
-    assert f"+/- {result.baseline_std_m:.4f} m" in "\n".join(result.summary())
+    share = 100 * result.baseline_std_m / result.rig.baseline_m
+    assert f"m +/- {share:.3f} % (1 sigma)" in "\n".join(result.summary())
 
 
 DISTORTED = 0.8
