@@ -91,6 +91,18 @@ def _largest_fitting(valid: np.ndarray, width: int, height: int) -> tuple[int, i
     return found_width, found_height
 
 
+def _largest_of_shape(valid: np.ndarray, width: int, height: int) -> tuple[int, int]:
+    """The largest all-valid rectangle of the shape ``width`` x ``height`` (scaled down)."""
+    low, high = 0, min(height, valid.shape[0])  # a height that fits, one that may not
+    while low < high:
+        middle = (low + high + 1) // 2
+        if _max_width_at_height(valid, middle) >= middle * width // height:
+            low = middle
+        else:
+            high = middle - 1
+    return low * width // height, low
+
+
 def _shortfall_message(valid: np.ndarray, width: int, height: int) -> str:
     found_width, found_height = _largest_fitting(valid, width, height)
     parts = []
@@ -98,10 +110,16 @@ def _shortfall_message(valid: np.ndarray, width: int, height: int) -> str:
         parts.append(f"{width - found_width} px too narrow")
     if found_height < height:
         parts.append(f"{height - found_height} px too short")
-    return (
+    message = (
         f"valid region is {found_width}x{found_height} px; need {width}x{height}: "
         + " and ".join(parts or ["does not fit"])
     )
+    # a region that is not a rectangle (a rectified image's) holds crops of other shapes
+    # than the one above: say how large a crop of the requested shape can be
+    scaled = _largest_of_shape(valid, width, height)
+    if scaled[0] > 0 and scaled not in ((found_width, found_height), (width, height)):
+        message += f"; the largest crop of that shape that fits is {scaled[0]}x{scaled[1]} px"
+    return message
 
 
 def choose_crop(valid: np.ndarray, size: tuple[int, int]) -> Crop:
@@ -118,13 +136,15 @@ def choose_crop(valid: np.ndarray, size: tuple[int, int]) -> Crop:
     Raises:
         CropError: no placement fits; the message gives the size of the valid
             region and the shortfall.
-        ValueError: ``valid`` is not a 2-D array.
+        ValueError: ``valid`` is not a 2-D array, or a side of ``size`` is under 1.
 
     """
     valid = np.asarray(valid, dtype=bool)
     if valid.ndim != 2:
         raise ValueError(f"valid: expected shape (H, W), got {valid.shape}")
     width, height = size
+    if width < 1 or height < 1:
+        raise ValueError(f"crop size: expected at least 1x1 pixels, got {width}x{height}")
     rows, cols = valid.shape
     if width > cols or height > rows or not valid.any():
         raise CropError(_shortfall_message(valid, width, height))

@@ -1,5 +1,9 @@
+import re
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lenspair.rectify.crop import Crop, choose_crop
 from lenspair.rectify.errors import CropError
@@ -31,9 +35,22 @@ def test_too_narrow_says_by_how_much() -> None:
     valid = np.zeros((480, 752), dtype=bool)
     valid[50:430, 100:610] = True  # 510 x 380
     with pytest.raises(
-        CropError, match=r"valid region is 510x380 px; need 540x360: 30 px too narrow$"
+        CropError,
+        match=r"valid region is 510x380 px; need 540x360: 30 px too narrow; the largest crop of "
+        r"that shape that fits is 510x340 px$",
     ):
         choose_crop(valid, (540, 360))
+
+
+def test_a_region_that_is_not_a_rectangle_says_what_crop_of_the_shape_fits() -> None:
+    """The tallest rectangle (328 wide) was all it said, though 720x536 was valid too."""
+    valid = np.zeros((540, 720), dtype=bool)
+    valid[:, 196:524] = True  # 328 x 540
+    valid[2:538, :] = True  # 720 x 536
+    with pytest.raises(CropError, match=r"the largest crop of that shape that fits is 536x536 px$"):
+        choose_crop(valid, (2000, 2000))
+    with pytest.raises(CropError, match=r"the largest crop of that shape that fits is 720x360 px$"):
+        choose_crop(valid, (800, 400))
 
 
 def test_too_short_and_too_narrow() -> None:
@@ -53,3 +70,37 @@ def test_crop_larger_than_image() -> None:
 def test_empty_region() -> None:
     with pytest.raises(CropError, match="valid region is 0x0 px"):
         choose_crop(np.zeros((50, 50), dtype=bool), (10, 10))
+
+
+rectangles = st.tuples(
+    st.integers(0, 60), st.integers(0, 40), st.integers(1, 60), st.integers(1, 40)
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(rectangles, min_size=1, max_size=4), st.integers(2, 90), st.integers(2, 60))
+def test_the_crop_of_that_shape_said_to_fit_fits(
+    parts: list[tuple[int, int, int, int]], width: int, height: int
+) -> None:
+    valid = np.zeros((40, 60), dtype=bool)
+    for x, y, w, h in parts:
+        valid[y : y + h, x : x + w] = True
+    try:
+        choose_crop(valid, (width, height))
+    except CropError as error:
+        said = re.search(r"that shape that fits is (\d+)x(\d+) px", str(error))
+        if said:
+            fits = int(said[1]), int(said[2])
+            crop = choose_crop(valid, fits)
+            assert valid[crop.y : crop.y + crop.height, crop.x : crop.x + crop.width].all()
+            assert fits[0] <= width and fits[1] < height  # smaller, of about that shape
+            assert abs(fits[0] - fits[1] * width / height) < 1
+            taller = fits[1] + 1
+            if taller * width // height >= 1:  # the largest: one row more of that shape won't fit
+                with pytest.raises(CropError):
+                    choose_crop(valid, (taller * width // height, taller))
+
+
+def test_a_crop_without_area_is_refused() -> None:
+    with pytest.raises(ValueError, match="crop size: expected at least 1x1 pixels, got 0x5"):
+        choose_crop(np.ones((40, 60), dtype=bool), (0, 5))
