@@ -84,6 +84,10 @@ def _precision_rows(model: dict[str, Any] | None, int8: dict[str, Any] | None) -
     if int8:
         count = int8.get("threads")
         threads = "threads as set" if count is None else f"{count} thread" + "s" * (count != 1)
+        # against the fp32 torch timed beside it in bench_int8, not the fp32 row above
+        # (bench_model's, another benchmark): its time is shown, so the ratio can be checked
+        fp32 = int8["medians_ms"].get("fp32 torch")
+        beside = "fp32 torch timed beside it" + (f" ({_num(fp32, 1)} ms)" if fp32 else "")
         for name, ms in int8["medians_ms"].items():
             if name == "fp32 torch":
                 continue
@@ -93,7 +97,7 @@ def _precision_rows(model: dict[str, Any] | None, int8: dict[str, Any] | None) -
                     f"{_num(ms, 1)} ms",
                     f"PSNR against fp32 output {_num(int8['psnr_vs_fp32_db'][name], 1)} dB; "
                     f"quantise/compile {_num(int8['setup_seconds'].get(name, 0.0), 0)} s",
-                    _speed(int8["speed_vs_fp32"][name], "fp32 torch"),
+                    _speed(int8["speed_vs_fp32"][name], beside),
                 ]
             )
     deraindrop = (model or {}).get("deraindrop_720x480_rgb") or {}

@@ -144,8 +144,9 @@ class SplitConfig:
             raise ValueError(f"fractions: must sum to 1, got {sum(self.fractions):.6g}")
         if self.fractions[0] <= 0:
             raise ValueError("fractions: the train fraction must be > 0")
-        if self.segment_frames < 1 or self.min_groups_per_split < 1:
-            raise ValueError("segment_frames and min_groups_per_split must be >= 1")
+        for name in ("segment_frames", "min_groups_per_split"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected at least 1, got {getattr(self, name)}")
         if not 0 <= self.segment_gap_frames < self.segment_frames:
             raise ValueError(
                 f"segment_gap_frames: expected 0 <= gap < segment_frames "

@@ -120,6 +120,8 @@ def read_torch_file(path: Path, what: str) -> Any:
         detail = first_line(exc)
         if "weights_only" in detail:  # torch's advice to unpickle anything: never right here
             detail = "it holds more than tensors and plain data"
+        elif detail.isdigit() or len(detail) < 4:  # a bare key or code (KeyError: 101) says nothing
+            detail = "neither a torch zip archive nor a torch pickle"
         raise ModelError(f"{path}: not a {what} (not a readable torch file: {detail})") from None
 
 

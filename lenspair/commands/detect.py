@@ -34,6 +34,7 @@ from lenspair.commands.argtypes import (
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal
+from lenspair.core.wording import counted
 
 log = logging.getLogger(__name__)
 
@@ -50,8 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out",
         type=out_folder,
         help="output folder, outside the input and, for one image, not the image's own "
-        "folder (default: detect_<input name>, beside the input when the current folder is "
-        "inside it)",
+        "folder (default: detect_<input name>, without a file's suffix, beside the input "
+        "when the current folder is inside it)",
     )
     add_device_option(parser)
     parser.add_argument(
@@ -68,8 +69,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _default_out(source: Path) -> Path:
-    """``detect_<input name>`` here, or beside the input when here is inside it."""
-    name = f"detect_{source.resolve().name}"
+    """``detect_<input name>`` here, or beside the input when here is inside it.
+
+    A file's name without its suffix (``frame.png`` -> ``detect_frame``): a folder
+    named like an image or a bag is taken for one.
+    """
+    resolved = source.resolve()
+    name = f"detect_{resolved.stem if resolved.is_file() else resolved.name}"
     here = Path.cwd().resolve()
     inside = source.is_dir() and here.is_relative_to(source.resolve())
     return source.resolve().parent / name if inside else Path(name)
@@ -119,8 +125,8 @@ def run(args: argparse.Namespace) -> int:
     listed_kinds = ", ".join(f"{kind} {count}" for kind, count in sorted(counts.items()))
     kinds = f"; {listed_kinds}" if listed_kinds else ""  # none judged: no empty "; ;"
     print(
-        f"{len(judged)} frames judged ({len(verdicts) - len(judged)} not: unreadable or left "
-        "out by the listing): "
+        f"{counted(len(judged), 'frame')} judged ({len(verdicts) - len(judged)} not: unreadable "
+        "or left out by the listing): "
         f"{obstructed} obstructed{kinds}; see {out / 'detections.csv'}"
     )
     return 0

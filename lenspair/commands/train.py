@@ -69,6 +69,7 @@ from lenspair.commands.argtypes import (
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal
+from lenspair.core.wording import counted
 
 log = logging.getLogger(__name__)
 
@@ -321,7 +322,8 @@ def run(args: argparse.Namespace) -> int:
     best = summary.run / "checkpoints" / "best.pt"
     validated = summary.best_epoch > 0 and best.is_file()
     print(
-        f"{summary.run}: {summary.stop_reason}; {summary.epochs} epochs, {summary.steps} steps, "
+        f"{summary.run}: {summary.stop_reason}; {counted(summary.epochs, 'epoch')}, "
+        f"{counted(summary.steps, 'step')}, "
         + (
             f"best validation PSNR {summary.best_psnr:.2f} dB (epoch {summary.best_epoch}); "
             if validated

@@ -53,6 +53,7 @@ from lenspair.capture.rigfile import CameraName, read_rig_file
 from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.core.fsutil import atomic_write_json, inside_refusal, read_json_field, sha256_file
 from lenspair.core.leftovers import leftovers, remove_leftovers_under
+from lenspair.core.wording import counted
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.judge import FrameJudge
@@ -138,7 +139,7 @@ class RestoreReport:
     def summary(self) -> str:
         """The final line: frames, time, frames/s, where the output is, problems if any."""
         return (
-            f"restore: {self.frames_read} frames ({self.restored} restored, "
+            f"restore: {counted(self.frames_read, 'frame')} ({self.restored} restored, "
             f"{self.resumed} resumed, {self.skipped} skipped, {self.failed} failed) "
             f"in {self.seconds:.1f} s, "
             f"{self.frames_per_second:.1f} frames/s -> {self.output}"

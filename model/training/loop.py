@@ -46,6 +46,7 @@ from torch.utils.data.distributed import DistributedSampler
 from lenspair.core.config import dump_yaml
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.progress import progress
+from lenspair.core.wording import counted
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_weights
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
@@ -326,11 +327,11 @@ def fit(
             with tensorboard_writer(paths.tensorboard, info.is_main and train.tensorboard) as board:
                 reason = _loop(trainer, config, train_set, val_set, paths, state, info, board)
             log.info(
-                "stopped (%s) after %d epochs, %d steps, %.0f s; best validation PSNR %.2f dB "
+                "stopped (%s) after %s, %s, %.0f s; best validation PSNR %.2f dB "
                 "at epoch %d; %d steps skipped as non-finite",
                 reason,
-                state.epoch,
-                state.step,
+                counted(state.epoch, "epoch"),
+                counted(state.step, "step"),
                 state.seconds,
                 state.best_psnr,
                 state.best_epoch,

@@ -304,3 +304,19 @@ def test_a_speed_ratio_below_one_reads_as_slower() -> None:
 
     assert _speed(1.43, "fp32") == "1.43x faster than fp32"
     assert _speed(0.85, "fp32 torch") == "1.18x slower than fp32 torch"
+
+
+def test_int8_rows_show_the_fp32_time_their_ratio_is_against() -> None:
+    """The ratio was against bench_int8's own fp32 run, which the table never showed."""
+    from benchmarks.readme_results import _precision_rows
+
+    int8 = {
+        "threads": 2,
+        "medians_ms": {"fp32 torch": 120.0, "onnxruntime int8": 150.0},
+        "speed_vs_fp32": {"onnxruntime int8": 0.8},
+        "psnr_vs_fp32_db": {"onnxruntime int8": 39.4},
+        "setup_seconds": {"onnxruntime int8": 7.4},
+    }
+    (row,) = _precision_rows(None, int8)
+    assert row[1] == "150.0 ms"
+    assert row[3] == "1.25x slower than fp32 torch timed beside it (120.0 ms)"

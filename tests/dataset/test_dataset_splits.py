@@ -1,5 +1,6 @@
 import itertools
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -141,3 +142,10 @@ def test_a_few_groups_never_leave_train_empty(groups: int, seed: int) -> None:
             assert plan.assignment == hashed and not plan.moved
         else:
             assert len(plan.moved) == 1 and any("left train empty" in w for w in plan.warnings)
+
+
+@pytest.mark.parametrize("name", ["segment_frames", "min_groups_per_split"])
+def test_a_length_under_one_is_named_alone(name: str) -> None:
+    """The message named both keys when the user had set one."""
+    with pytest.raises(ValueError, match=rf"^{name}: expected at least 1, got -1$"):
+        SplitConfig(**{name: -1})

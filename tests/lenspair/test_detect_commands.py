@@ -176,8 +176,8 @@ def test_detect_keeps_its_output_out_of_its_input(
     image = folder / "a.png"
     assert main(["detect", str(tiny_detector), str(image), "--out", str(folder)]) == 2
     assert sorted(p.name for p in folder.iterdir()) == ["a.png"]
-    assert main(["detect", str(tiny_detector), "a.png"]) == 0  # here: detect_a.png below
-    assert (folder / "detect_a.png" / "detections.csv").is_file()
+    assert main(["detect", str(tiny_detector), "a.png"]) == 0  # here: detect_a below
+    assert (folder / "detect_a" / "detections.csv").is_file()  # not a folder named like an image
     # a bag's folder is no image folder: its sheet beside it is fine
     bag = bag_from_recording(tmp_path / "b", "mcap", frames=2)
     assert main(["detect", str(tiny_detector), str(bag), "--out", str(bag.parent)]) == 0

@@ -86,6 +86,9 @@ def test_unreadable_and_foreign_files_raise(tmp_path: Path) -> None:
     junk.write_bytes(b"not a checkpoint")
     with pytest.raises(ModelError, match="not a lenspair checkpoint"):
         load_checkpoint(junk)
+    junk.write_text("hello world\n")  # torch says only "101" (a KeyError) of a text file
+    with pytest.raises(ModelError, match=r"neither a torch zip archive nor a torch pickle\)$"):
+        load_checkpoint(junk)
     foreign = tmp_path / "foreign.pt"
     torch.save({"weights": torch.zeros(1)}, foreign)
     with pytest.raises(ModelError, match="not a lenspair checkpoint"):

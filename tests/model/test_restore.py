@@ -538,7 +538,7 @@ def test_cli_single_image_and_one_line_errors(
     out = tmp_path / "out"
     assert main(["restore", str(checkpoint), str(image), "--out", str(out), "--device", "cpu"]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]
-    assert line.startswith("restore: 1 frames (1 restored") and line.endswith(f"-> {out}")
+    assert line.startswith("restore: 1 frame (1 restored") and line.endswith(f"-> {out}")
     assert read_image(out / "photo.png").shape == (30, 41)
     missing = str(tmp_path / "no_detector.pt")
     for target, extra, message in (

@@ -507,4 +507,4 @@ def test_only_rank_zero_prints_the_summary(
         monkeypatch.setenv("WORLD_SIZE", "2")
         monkeypatch.setenv("RANK", rank)
         assert main(args) == 0
-        assert ("1 epochs, 1 steps" in capsys.readouterr().out) == prints
+        assert ("1 epoch, 1 step," in capsys.readouterr().out) == prints
