@@ -90,6 +90,8 @@ class CalibrationOptions:
         pose_tolerance_deg: a view whose cam0 -> cam1 rotation (from the two
             board poses) differs more than this from the consensus is rejected.
         alpha: rectification ``alpha`` used for the row-disagreement figure.
+        refine_jointly: refine both cameras' intrinsics with the rig after the
+            stereo step (:func:`_refine_jointly`); False keeps each camera's own.
 
     """
 
@@ -99,6 +101,7 @@ class CalibrationOptions:
     min_views: int = 5
     pose_tolerance_deg: float = 3.0
     alpha: float = 0.0
+    refine_jointly: bool = True
 
 
 @dataclass(frozen=True)
@@ -697,9 +700,12 @@ def _calibrate(
             f"{first}): frames paired out of step, or a board spec or model that is wrong"
         ) from None
     rejected += dropped
-    monos, transform, residuals, baseline_std, refinement = _refine_jointly(
-        [matched[v] for v in views], monos, detections, board, transform, residuals
-    )
+    if options.refine_jointly:
+        monos, transform, residuals, baseline_std, refinement = _refine_jointly(
+            [matched[v] for v in views], monos, detections, board, transform, residuals
+        )
+    else:
+        baseline_std, refinement = None, "not refined with the rig: asked not to"
     cameras = (monos[0].camera, monos[1].camera)
     errors = np.asarray([rms(r) for r in residuals])
     try:

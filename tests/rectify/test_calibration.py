@@ -404,8 +404,10 @@ def test_calibrate_command_recovers_simulator_truth(
     parser = argparse.ArgumentParser()
     calibrate.add_arguments(parser)
     out = tmp_path / "out" / "camchain.yaml"
+    fixed = scene == "charuco"  # one scene each way: --fixed-intrinsics reaches the options
     args = parser.parse_args(
         [str(tmp_path / "rec"), "--board", board, "--model", model, "--out", str(out)]
+        + ["--fixed-intrinsics"] * fixed
     )
     assert calibrate.run(args) == 0
     found, truth = read_kalibr(out), read_kalibr(tmp_path / "rec" / "camchain.yaml")
@@ -415,6 +417,9 @@ def test_calibrate_command_recovers_simulator_truth(
     assert found.baseline_m == pytest.approx(truth.baseline_m, rel=0.01)
     report = json.loads((tmp_path / "out" / "camchain.report.json").read_text())
     assert report["row_disagreement_px"] < 0.3 and report["frames"]["paired"] == 12
+    assert report["stereo"]["intrinsics"] == (
+        "not refined with the rig: asked not to" if fixed else "refined with the rig"
+    )
     printed = capsys.readouterr().out
     assert "stereo: RMS" in printed and "rectified row disagreement" in printed
 
@@ -504,15 +509,21 @@ def test_intrinsics_refined_with_the_rig_keep_the_baseline_of_far_boards(
     """Each camera's own focal error became baseline error: 8 % RMS at 2-3 m, 0.24 % at 1 m."""
     truth = make_rig("radtan")
     board = parse_board_spec("chessboard:9x6:0.05")
-    misses, spreads = [], []
+    misses, spreads, fixed = [], [], []
     for seed in range(6):
         views = point_views(board, truth, noise_px=0.1, seed=seed, distance=distance)
         result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
         assert result.refinement == "refined with the rig" and result.baseline_std_m is not None
         misses.append(result.rig.baseline_m / truth.baseline_m - 1)
         spreads.append(result.baseline_std_m / truth.baseline_m)
+        alone = calibrate_from_detections(
+            views, board, "pinhole-radtan", SIZES, options=CalibrationOptions(refine_jointly=False)
+        )
+        assert alone.baseline_std_m is None and "asked not to" in alone.refinement
+        fixed.append(alone.rig.baseline_m / truth.baseline_m - 1)
     miss = float(np.sqrt(np.mean(np.square(misses))))
     assert miss < largest
+    assert float(np.sqrt(np.mean(np.square(fixed)))) > 3 * miss  # what the refinement is for
     assert 0.4 < miss / float(np.median(spreads)) < 2.5  # the spread reported is the error made
     report = result.report()
     assert report["stereo"]["baseline_std_m"] == result.baseline_std_m
