@@ -92,26 +92,27 @@ def fit_camera(
 
 
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "d0", "d1", "d2", "d3")
-"""What :func:`intrinsic_std` returns the deviation of, in this order (``d*``: the
+"""The intrinsics :func:`intrinsic_covariance` is the covariance of, in this order (``d*``: the
 four distortion coefficients, radtan ``k1 k2 p1 p2`` or equidistant ``k1..k4``)."""
 
 
-def intrinsic_std(
+def intrinsic_covariance(
     camera: CameraModel,
     points: list[tuple[np.ndarray, np.ndarray]],
     rvecs: np.ndarray,
     tvecs: np.ndarray,
 ) -> np.ndarray:
-    """1-sigma standard deviations of a fitted camera's intrinsics, from its residuals.
+    """Covariance of a fitted camera's intrinsics, from its residuals.
 
     The covariance of the least-squares fit, ``s^2 (J^T J)^-1``, with ``J`` the
     Jacobian of every corner's projection in the intrinsics and every view's
     pose (OpenCV's ``projectPoints`` / ``fisheye.projectPoints`` compute it)
-    and ``s^2`` the residual variance per coordinate. For radtan this is what
-    ``cv2.calibrateCameraExtended`` reports (``stdDeviationsIntrinsics``);
-    ``cv2.fisheye.calibrate`` reports none, and one function serves both.
-    It measures the noise of the corners, not a model or board spec that is
-    wrong: a far or barely tilted board shows here as a large deviation.
+    and ``s^2`` the residual variance per coordinate. For radtan the square
+    roots of its diagonal are what ``cv2.calibrateCameraExtended`` reports
+    (``stdDeviationsIntrinsics``); ``cv2.fisheye.calibrate`` reports none, and
+    one function serves both. It measures the noise of the corners, not a
+    model or board spec that is wrong: a far or barely tilted board shows here
+    as a large deviation.
 
     Args:
         camera: the fitted camera (radtan with ``k3 = 0``, or equidistant with skew 0).
@@ -120,15 +121,20 @@ def intrinsic_std(
         tvecs: ``(V, 3)`` the fitted board translations.
 
     Returns:
-        ``(8,)``: see :data:`INTRINSIC_NAMES`; pixels for ``f`` and ``c``.
+        ``(8, 8)`` in the order of :data:`INTRINSIC_NAMES`; pixels for ``f`` and ``c``.
     """
-    count = len(INTRINSIC_NAMES)
     views = [
         _Observations([(_projected(camera, obj, rvecs[k], tvecs[k]), img, 0)], None)
         for k, (obj, img) in enumerate(points)
     ]
-    deviations: np.ndarray = np.sqrt(np.clip(np.diag(_covariance(views, count)), 0.0, None))
-    return deviations
+    information, variance = _information(views, len(INTRINSIC_NAMES))
+    return _inverse(information, variance)
+
+
+def deviations(covariance: np.ndarray) -> np.ndarray:
+    """1-sigma deviations: the square roots of a covariance's diagonal."""
+    spread: np.ndarray = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    return spread
 
 
 @dataclass
@@ -175,67 +181,105 @@ def _projected(
     return _Projection(points.reshape(-1), J[:, 0:8], J[:, 8:14])
 
 
-def _covariance(views: list[_Observations], shared: int) -> np.ndarray:
-    """Covariance ``(shared, shared)`` of the parameters the views share, their poses eliminated.
+def _information(views: list[_Observations], shared: int) -> tuple[np.ndarray, float]:
+    """``J^T J`` of the parameters the views share, their poses eliminated, and ``s^2``.
 
-    The least-squares covariance ``s^2 (J^T J)^-1`` restricted to the shared
-    parameters: ``J^T J`` has a shared block ``A``, a 6x6 block ``C_k`` per
-    view's pose and couplings ``B_k``; the shared block of its inverse is
-    ``(A - sum B_k C_k^-1 B_k^T)^-1`` (Schur complement), without forming ``J``
-    (a dense ``J`` of 1000 views would take gigabytes). ``s^2`` is the residual
-    variance per coordinate. Infinite where the views leave a parameter free.
+    ``J^T J`` has a shared block ``A``, a 6x6 block ``C_k`` per view's pose and
+    couplings ``B_k``; the shared block of its inverse is the inverse of
+    ``A - sum B_k C_k^-1 B_k^T`` (Schur complement), returned here, without
+    forming ``J`` (a dense ``J`` of 1000 views would take gigabytes). ``s^2``
+    is the residual variance per coordinate (infinite without degrees of
+    freedom left).
     """
     reduced = np.zeros((shared, shared))
     squared, rows = 0.0, 0
-    try:
-        for view in views:
-            blocks_shared, blocks_pose = [], []
-            for projection, pixels, column in view.seen:
-                block = np.zeros((len(projection.points), shared))
-                block[:, column : column + 8] = projection.intrinsic
-                pose = projection.pose
-                if view.stereo is not None and column > 0:  # cam1, through the rig
-                    in_pose, in_rig = view.stereo
-                    block[:, -6:] = pose @ in_rig
-                    pose = pose @ in_pose
-                blocks_shared.append(block)
-                blocks_pose.append(pose)
-                residuals = projection.points - pixels.reshape(-1)
-                squared += float(residuals @ residuals)
-                rows += len(residuals)
-            J_shared, J_pose = np.concatenate(blocks_shared), np.concatenate(blocks_pose)
-            coupling = J_shared.T @ J_pose
+    for view in views:
+        blocks_shared, blocks_pose = [], []
+        for projection, pixels, column in view.seen:
+            block = np.zeros((len(projection.points), shared))
+            block[:, column : column + 8] = projection.intrinsic
+            pose = projection.pose
+            if view.stereo is not None and column > 0:  # cam1, through the rig
+                in_pose, in_rig = view.stereo
+                block[:, -6:] = pose @ in_rig
+                pose = pose @ in_pose
+            blocks_shared.append(block)
+            blocks_pose.append(pose)
+            residuals = projection.points - pixels.reshape(-1)
+            squared += float(residuals @ residuals)
+            rows += len(residuals)
+        J_shared, J_pose = np.concatenate(blocks_shared), np.concatenate(blocks_pose)
+        coupling = J_shared.T @ J_pose
+        try:
             reduced += J_shared.T @ J_shared - coupling @ np.linalg.solve(
                 J_pose.T @ J_pose, coupling.T
             )
-        freedom = rows - shared - 6 * len(views)
-        if freedom <= 0:
-            return np.full((shared, shared), np.inf)
-        return squared / freedom * np.linalg.inv(reduced)
-    except np.linalg.LinAlgError:  # a parameter or pose the views do not constrain at all
-        return np.full((shared, shared), np.inf)
+        except np.linalg.LinAlgError:  # a pose the view does not constrain
+            reduced[:] = 0.0
+            break
+    freedom = rows - shared - 6 * len(views)
+    return reduced, squared / freedom if freedom > 0 else np.inf
 
 
-def joint_std(
+def _inverse(information: np.ndarray, variance: float) -> np.ndarray:
+    """``variance * information^-1``; infinite where the views leave a parameter free."""
+    try:
+        if np.isfinite(variance):
+            inverse: np.ndarray = variance * np.linalg.inv(information)
+            return inverse
+    except np.linalg.LinAlgError:
+        pass
+    return np.full(information.shape, np.inf)
+
+
+@dataclass(frozen=True, eq=False)
+class RigDeviations:
+    """How well the corners determine a calibrated rig.
+
+    Attributes:
+        covariance: ``(22, 22)``: cam0's intrinsics, cam1's (each in the order of
+            :data:`INTRINSIC_NAMES`), the rig's rotation vector and translation.
+        baseline_m: the baseline's 1-sigma deviation, metres (inf: undetermined).
+    """
+
+    covariance: np.ndarray
+    baseline_m: float
+
+    def intrinsics(self, camera: int) -> np.ndarray:
+        """``(8, 8)`` covariance of cam0's (0) or cam1's (1) intrinsics."""
+        block: np.ndarray = self.covariance[
+            8 * camera : 8 * camera + 8, 8 * camera : 8 * camera + 8
+        ]
+        return block
+
+
+def rig_deviations(
     cameras: tuple[CameraModel, CameraModel],
     stereo: list[tuple[Points, np.ndarray, np.ndarray]],
     transform: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """1-sigma deviations of a rig whose intrinsics were refined with it (:func:`fit_stereo`).
+    own: tuple[np.ndarray, np.ndarray] | None = None,
+) -> RigDeviations:
+    """How well the corners determine a rig, as it was fitted.
 
-    The shared parameters are both cameras' intrinsics and the rig's rotation
-    and translation; each view gives its corners in both cameras at one board
-    pose (cam1's through the rig, derivatives from ``cv2.composeRT``).
+    The parameters the views share are both cameras' intrinsics and the rig's
+    rotation and translation; each view gives its corners in both cameras at
+    one board pose (cam1's through the rig, derivatives from ``cv2.composeRT``).
 
     Args:
         cameras: cam0, cam1.
-        stereo: the views fitted: ``(object, cam0 pixels, cam1 pixels)`` and
-            the cam0 board pose ``rvec``, ``tvec``.
+        stereo: the views of the stereo fit: ``(object, cam0 pixels, cam1
+            pixels)`` and the cam0 board pose ``rvec``, ``tvec``.
         transform: 4x4 cam0 -> cam1.
+        own: None for intrinsics refined with the rig on these views
+            (:func:`fit_stereo` ``refine``); else each camera's intrinsics
+            covariance from its own fit (:func:`intrinsic_covariance`), held fixed
+            in the stereo fit: their errors then reach the rig through its
+            dependence on them, ``M_rr^-1 M_ri`` (the two fits' shared corners
+            are taken as independent).
 
     Returns:
-        cam0's and cam1's intrinsics deviations (:data:`INTRINSIC_NAMES`) and
-        the baseline's (metres).
+        The covariance and the baseline's deviation; the intrinsics' are ``own``
+        when given.
     """
     rig_r = cv2.Rodrigues(np.ascontiguousarray(transform[:3, :3]))[0].ravel()
     rig_t = np.ascontiguousarray(transform[:3, 3])
@@ -252,11 +296,28 @@ def joint_std(
         in_pose = np.block([[dr3dr1, dr3dt1], [dt3dr1, dt3dt1]])
         in_rig = np.block([[dr3dr2, dr3dt2], [dt3dr2, dt3dt2]])
         views.append(_Observations(seen, (in_pose, in_rig)))
-    covariance = _covariance(views, 22)
-    deviations = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    information, variance = _information(views, 22)
+    if own is None:
+        covariance = _inverse(information, variance)
+    else:
+        held = np.zeros((16, 16))
+        held[:8, :8], held[8:, 8:] = own
+        covariance = np.zeros((22, 22))
+        covariance[:16, :16] = held
+        rig_only = _inverse(information[16:, 16:], variance)
+        try:
+            follows = np.linalg.solve(information[16:, 16:], information[16:, :16])
+            covariance[16:, 16:] = rig_only + follows @ held @ follows.T
+        except np.linalg.LinAlgError:
+            covariance[16:, 16:] = np.inf
     direction = rig_t / np.linalg.norm(rig_t)
-    baseline = float(np.sqrt(max(0.0, direction @ covariance[-3:, -3:] @ direction)))
-    return deviations[:8], deviations[8:16], baseline
+    translation = covariance[-3:, -3:]
+    baseline = (
+        float(np.sqrt(max(0.0, direction @ translation @ direction)))
+        if np.all(np.isfinite(translation))
+        else np.inf
+    )
+    return RigDeviations(covariance, baseline)
 
 
 def refit_poses(

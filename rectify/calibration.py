@@ -42,13 +42,15 @@ from lenspair.rectify.boards import Board, Detection, detect_corners
 from lenspair.rectify.calib_fits import (
     INTRINSIC_NAMES,
     Points,
+    RigDeviations,
+    deviations,
     fit_camera,
     fit_stereo,
-    intrinsic_std,
-    joint_std,
+    intrinsic_covariance,
     match_views,
     refinable,
     refit_poses,
+    rig_deviations,
     rms,
     stereo_residuals,
     view_error,
@@ -138,10 +140,14 @@ class CameraCalibration:
         coverage: fraction of the cells of an 8x6 grid over the image that
             hold a corner of a used view; where the board never went, the
             distortion is extrapolated.
-        intrinsics_std: 1-sigma deviations of the intrinsics and distortion
-            coefficients (:data:`~lenspair.rectify.calib_fits.INTRINSIC_NAMES`)
-            from the corner residuals (:func:`~lenspair.rectify.calib_fits.intrinsic_std`).
+        intrinsics_covariance: ``(8, 8)`` covariance of the intrinsics and
+            distortion coefficients (:data:`~lenspair.rectify.calib_fits.INTRINSIC_NAMES`)
+            from the corner residuals
+            (:func:`~lenspair.rectify.calib_fits.intrinsic_covariance`).
 
+    Where the intrinsics were refined with the rig (``CalibrationResult.refinement``),
+    the camera, its covariance (of the joint fit), ``rms_px``, the view errors and
+    poses are those of the refined intrinsics, over the same views.
     """
 
     camera: CameraModel
@@ -151,7 +157,12 @@ class CameraCalibration:
     rvecs: np.ndarray
     tvecs: np.ndarray
     coverage: float
-    intrinsics_std: tuple[float, ...]
+    intrinsics_covariance: np.ndarray
+
+    @property
+    def intrinsics_std(self) -> tuple[float, ...]:
+        """1-sigma deviations (:data:`~lenspair.rectify.calib_fits.INTRINSIC_NAMES` order)."""
+        return tuple(float(d) for d in deviations(self.intrinsics_covariance))
 
     @property
     def focal_std(self) -> float:
@@ -179,8 +190,9 @@ class CalibrationResult:
         warnings: what the calibration warned about as it ran (a marker size
             off, too little tilt, kept outliers), for the report; the board's
             coverage warnings are added by :meth:`report`.
-        baseline_std_m: 1-sigma deviation of the baseline, metres; None where
-            the intrinsics were not refined with the rig.
+        baseline_std_m: 1-sigma deviation of the baseline, metres, as fitted
+            (the refined rig's, or the fixed-intrinsics fit's with both cameras'
+            intrinsics errors in it); None where the views leave it undetermined.
         refinement: whether the intrinsics were refined with the rig, and why not.
 
     """
@@ -256,7 +268,10 @@ class CalibrationResult:
                 "views": list(cam.views),
                 "view_errors_px": list(cam.view_errors_px),
                 "coverage": cam.coverage,
-                "intrinsics_std": dict(zip(INTRINSIC_NAMES, cam.intrinsics_std, strict=True)),
+                "intrinsics_std": {  # None: the views leave it undetermined (no JSON inf)
+                    name: value if np.isfinite(value) else None
+                    for name, value in zip(INTRINSIC_NAMES, cam.intrinsics_std, strict=True)
+                },
             }
 
         return {
@@ -526,10 +541,10 @@ def calibrate_camera(
     cells = np.floor(corners / resolution * _COVERAGE_GRID).astype(int)
     inside = np.all((cells >= 0) & (cells < _COVERAGE_GRID), axis=1)
     coverage = len({tuple(c) for c in cells[inside]}) / (_COVERAGE_GRID[0] * _COVERAGE_GRID[1])
-    deviations = intrinsic_std(camera, [data[v] for v in views], rvecs, tvecs)
+    covariance = intrinsic_covariance(camera, [data[v] for v in views], rvecs, tvecs)
     calibration = CameraCalibration(
         camera, rms(residuals), tuple(views), tuple(float(e) for e in errors), rvecs, tvecs,
-        coverage, tuple(float(d) for d in deviations),
+        coverage, covariance,
     )  # fmt: skip
     return calibration, rejected
 
@@ -679,16 +694,18 @@ def _calibrate(
     matched, refused = match_views(pairs, board, cameras, options.pose_tolerance_deg)
     rejected += [RejectedView(v, names[v], "stereo", None, r) for v, r in refused.items()]
 
-    def fit(views: list[int]) -> tuple[tuple[np.ndarray, list[np.ndarray]], np.ndarray]:
+    Fit = tuple[np.ndarray, list[np.ndarray], np.ndarray, np.ndarray]
+
+    def fit(views: list[int]) -> tuple[Fit, np.ndarray]:
         _, transform, rvecs, tvecs = fit_stereo([matched[v] for v in views], cameras)
         residuals = [
             stereo_residuals(matched[v], cameras, transform, rvecs[k], tvecs[k])
             for k, v in enumerate(views)
         ]
-        return (transform, residuals), np.asarray([rms(r) for r in residuals])
+        return (transform, residuals, rvecs, tvecs), np.asarray([rms(r) for r in residuals])
 
     try:
-        (transform, residuals), views, errors, dropped = _reject_outliers(
+        (transform, residuals, rvecs, tvecs), views, errors, dropped = _reject_outliers(
             sorted(matched), fit, "stereo", names, options
         )
     except RectifyError as exc:  # too few views: say why the others were refused
@@ -700,12 +717,14 @@ def _calibrate(
             f"{first}): frames paired out of step, or a board spec or model that is wrong"
         ) from None
     rejected += dropped
+    stereo = [(matched[v], rvecs[k], tvecs[k]) for k, v in enumerate(views)]
+    own = (monos[0].intrinsics_covariance, monos[1].intrinsics_covariance)
+    fixed = rig_deviations(cameras, stereo, transform, own)
+    baseline_std, refinement = fixed.baseline_m, "not refined with the rig: asked not to"
     if options.refine_jointly:
         monos, transform, residuals, baseline_std, refinement = _refine_jointly(
-            [matched[v] for v in views], monos, detections, board, transform, residuals
+            stereo, monos, detections, board, transform, residuals, fixed
         )
-    else:
-        baseline_std, refinement = None, "not refined with the rig: asked not to"
     cameras = (monos[0].camera, monos[1].camera)
     errors = np.asarray([rms(r) for r in residuals])
     try:
@@ -735,40 +754,56 @@ def _calibrate(
     return CalibrationResult(
         rig, board, model, (monos[0], monos[1]), rms(np.concatenate(residuals)), tuple(views),
         tuple(float(e) for e in errors), rows, tuple(rejected), counts,
-        baseline_std_m=baseline_std, refinement=refinement,
+        baseline_std_m=baseline_std if np.isfinite(baseline_std) else None,
+        refinement=refinement,
     )  # fmt: skip
 
 
 JOINT_FIT_TOLERANCE = (1.2, 0.02)
-"""Intrinsics refined with the rig are kept when each camera's own views still fit them
-within ``ratio * RMS + px`` of its own fit's RMS (both with poses solved per view)."""
+"""Intrinsics refined with the rig are kept only when each camera's own views still fit
+them within ``ratio * RMS + px`` of its own fit's RMS (both with poses solved per view)."""
 
 
 def _refine_jointly(
-    data: list[Points],
+    stereo: list[tuple[Points, np.ndarray, np.ndarray]],
     monos: Sequence[CameraCalibration],
     detections: Sequence[tuple[Detection | None, Detection | None]],
     board: Board,
     transform: np.ndarray,
     residuals: list[np.ndarray],
-) -> tuple[list[CameraCalibration], np.ndarray, list[np.ndarray], float | None, str]:
-    """Refine both cameras' intrinsics with the rig over the stereo step's views.
+    fixed: RigDeviations,
+) -> tuple[list[CameraCalibration], np.ndarray, list[np.ndarray], float, str]:
+    """Refine both cameras' intrinsics with the rig over the stereo step's views, if better.
 
     Each camera calibrated alone has focal lengths off by its own noise; with
     the intrinsics then fixed, the stereo step turns the two cameras' different
     depth errors into baseline: 8 % off for boards 2-3 m away (0.2 % at 1 m),
     where ``cv2.stereoCalibrate`` refining everything together gives 0.4 %
-    (0.06 %). The refinement is kept when each camera's own views, those only
-    it saw included, still fit its refined intrinsics
-    (:data:`JOINT_FIT_TOLERANCE`); the deviations then come from the joint fit.
+    (0.06 %). But the refinement sees only the views both cameras saw: where
+    most views were seen by one camera alone, each camera's own fit is the
+    surer one. So the refinement is kept when its baseline deviation is the
+    smaller of the two (``fixed``: the fixed-intrinsics fit's, intrinsics
+    errors included, :func:`~lenspair.rectify.calib_fits.rig_deviations`),
+    the refined rig rectifies, and each camera's own views still fit the
+    refined intrinsics (:data:`JOINT_FIT_TOLERANCE`).
+
+    Args:
+        stereo: the stereo step's views and their cam0 board poses.
+        monos: each camera's own calibration.
+        detections: every view's corners, per camera.
+        board: the board.
+        transform: the fixed-intrinsics fit's cam0 -> cam1.
+        residuals: its residuals per view.
+        fixed: its deviations.
 
     Returns:
         The cameras' calibrations (refined or as given), the transform, the
-        stereo residuals per view, the baseline's 1-sigma deviation (None when
-        not refined) and a line saying what was done.
+        stereo residuals per view, the baseline's 1-sigma deviation and a line
+        saying what was done.
     """
     cameras = (monos[0].camera, monos[1].camera)
-    kept = list(monos), transform, residuals, None
+    kept = list(monos), transform, residuals, fixed.baseline_m
+    data = [item for item, _, _ in stereo]
     if not refinable(data, cameras):
         return *kept, "not refined with the rig: fisheye views with different corner counts"
     try:
@@ -785,6 +820,15 @@ def _refine_jointly(
             "stereo: intrinsics not refined with the rig: the refined rig is unusable (%s)", exc
         )
         return *kept, "not refined with the rig: the refined rig was unusable"
+    views = list(zip(data, rvecs, tvecs, strict=True))
+    together = rig_deviations(refined, views, joint)
+    spreads = (
+        f"baseline +/- {_share(together.baseline_m, rig.baseline_m)} refined, "
+        f"+/- {_share(fixed.baseline_m, float(np.linalg.norm(transform[:3, 3])))} with each "
+        "camera's own"
+    )
+    if not together.baseline_m < fixed.baseline_m:  # views one camera saw alone weigh more
+        return *kept, f"not refined with the rig: each camera's own fits are surer ({spreads})"
     objects = board.object_points()
     updated = []
     for index, (mono, camera) in enumerate(zip(monos, refined, strict=True)):
@@ -807,8 +851,6 @@ def _refine_jointly(
             )
             return *kept, "not refined with the rig: a camera's own views disagree"
         updated.append((camera, errors, rvecs_own, tvecs_own, after))
-    views = list(zip(data, rvecs, tvecs, strict=True))
-    deviations0, deviations1, baseline_std = joint_std(refined, views, joint)
     residuals = [stereo_residuals(item, refined, joint, r, t) for item, r, t in views]
     calibrations = [
         dataclasses.replace(
@@ -818,13 +860,18 @@ def _refine_jointly(
             view_errors_px=tuple(float(e) for e in errors),
             rvecs=rvecs_own,
             tvecs=tvecs_own,
-            intrinsics_std=tuple(float(d) for d in deviations),
+            intrinsics_covariance=together.intrinsics(index),
         )
-        for mono, (camera, errors, rvecs_own, tvecs_own, after), deviations in zip(
-            monos, updated, (deviations0, deviations1), strict=True
+        for index, (mono, (camera, errors, rvecs_own, tvecs_own, after)) in enumerate(
+            zip(monos, updated, strict=True)
         )
     ]
-    return calibrations, joint, residuals, baseline_std, "refined with the rig"
+    return calibrations, joint, residuals, together.baseline_m, f"refined with the rig ({spreads})"
+
+
+def _share(deviation: float, value: float) -> str:
+    """A deviation as a percentage of ``value``: ``0.36 %``."""
+    return f"{100 * deviation / value:.3g} %" if np.isfinite(deviation) else "undetermined"
 
 
 def _pooled(view_errors: np.ndarray, corners: np.ndarray) -> float:
@@ -833,7 +880,7 @@ def _pooled(view_errors: np.ndarray, corners: np.ndarray) -> float:
 
 
 def _warn_uncertain(
-    monos: Sequence[CameraCalibration], baseline_m: float, baseline_std: float | None
+    monos: Sequence[CameraCalibration], baseline_m: float, baseline_std: float
 ) -> None:
     """Warn of a focal length or baseline the corners determine poorly."""
     for stage, mono in zip(("cam0", "cam1"), monos, strict=True):
@@ -846,7 +893,7 @@ def _warn_uncertain(
                 100 * mono.focal_std,
                 len(mono.views),
             )
-    if baseline_std is not None and baseline_std > BASELINE_DOUBT * baseline_m:
+    if baseline_std > BASELINE_DOUBT * baseline_m:
         log.warning(
             "stereo: the baseline is known to +/- %.2f %% only (1 sigma); every depth scales "
             "with it: show the board nearer, to both cameras at once",
