@@ -19,7 +19,7 @@ reverse, with a one-line :class:`~lenspair.model.errors.ModelError`, as
 ``restore`` does: converting silently would hide a wrong network.
 """
 
-from collections.abc import Sequence
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -95,16 +95,16 @@ class Restorer:
         """
         return self.restore_batch([image])[0]
 
-    def restore_batch(self, images: Sequence[np.ndarray]) -> list[np.ndarray]:
+    def restore_batch(self, images: Iterable[np.ndarray]) -> list[np.ndarray]:
         """Restore frames of one shape and dtype in one batch (faster on a GPU).
 
         Raises:
             ModelError: as :meth:`__call__`, or frames that differ in shape
                 or bit depth.
         """
-        if not len(images):
+        frames = [np.asarray(image) for image in images]  # any iterable, a generator too
+        if not frames:
             return []
-        frames = [np.asarray(image) for image in images]
         for index, frame in enumerate(frames):
             self._check(frame, f"frame {index}")
         if len({(frame.shape, frame.dtype) for frame in frames}) > 1:  # before depth.see

@@ -46,6 +46,9 @@ def test_a_frame_restored_in_process_is_the_frame_restore_writes(
     assert all(
         np.array_equal(a, b) for a, b in zip(restorer.restore_batch(frames[:1]), mine, strict=False)
     )
+    same = [f for f in frames if f.shape == frames[0].shape]  # a generator is a batch too
+    batch = restorer.restore_batch(frame for frame in same)
+    assert len(batch) == len(same) and np.array_equal(batch[0], mine[0])
 
 
 def test_a_12_bit_camera_s_words_come_back_in_its_words(
