@@ -214,5 +214,5 @@ def add_device_option(parser: argparse.ArgumentParser, purpose: str = "") -> Non
         default="auto",
         help=(f"{purpose}: " if purpose else "")
         + "where the networks run: auto (a GPU when one is available, else the CPU), cpu "
-        "or cuda (default auto; CUDA_VISIBLE_DEVICES picks the GPU)",
+        "or cuda (default auto). Pick the GPU with CUDA_VISIBLE_DEVICES.",
     )
