@@ -169,9 +169,7 @@ class _Projection:
 def _projected(
     camera: CameraModel, obj: np.ndarray, rvec: np.ndarray, tvec: np.ndarray
 ) -> _Projection:
-    fx, fy, cx, cy = camera.intrinsics
-    K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-    D = np.asarray(camera.distortion, np.float64)
+    K, D = camera.K, np.asarray(camera.distortion, np.float64)  # D: the 4 fitted (no k3)
     rvec, tvec = np.asarray(rvec, np.float64).ravel(), np.asarray(tvec, np.float64).ravel()
     if camera.distortion_model == "radtan":  # columns: r, t, f, c, dist
         points, J = cv2.projectPoints(obj.reshape(-1, 1, 3), rvec, tvec, K, D)
