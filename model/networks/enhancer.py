@@ -23,6 +23,11 @@ CPU a full-resolution 20->20 convolution measured about twice as slow as a
 16->16 one, for only 1.6x the FLOPs. Filter counts scale with the width multiplier. The
 fuse convolution, with one output channel for mono, is a
 :class:`~lenspair.model.networks.layers.NarrowConv2d` (same parameters, faster on CPU).
+Outside exports, the pyramid and the fuse convolution run as matrix products and
+shifted sums of single-channel planes, the same function without
+concatenating the full-resolution features (``Enhancer._head_by_taps``); exports
+(ONNX, ``torch.export``, TorchScript traces) get the layers as this table
+reads them, which is what exporters and quantisers know.
 
 Any size works, not only multiples of 32: pooling uses ``ceil_mode=True``,
 so a partial window at the bottom/right border averages only the pixels it
@@ -48,6 +53,7 @@ from lenspair.model.networks.layers import (
     NarrowConv2d,
     cat_channels,
     clamp_unit_straight_through,
+    exporting,
     zero_init,
 )
 
@@ -103,24 +109,20 @@ class Enhancer(nn.Module):
         Returns:
             ``(N, C, H, W)`` refined image in [0, 1].
         """
-        height, width = generated.shape[-2:]
         features = self.activation(self.refine1(cat_channels([generated, image])))
         features = self.activation(self.refine2(features))
-        # Average pooling and a 1x1 convolution are both linear and commute
-        # exactly (also for ceil-mode partial windows: the bias is constant),
-        # so all scales' 1x1 convolutions run once at full resolution, stacked,
-        # and only single-channel maps are pooled: EPDN's result, a fraction
-        # of the memory traffic.
-        convs = cast(list[nn.Conv2d], list(self.pyramid))
-        weight = torch.cat([conv.weight for conv in convs], dim=0)
-        if features.is_contiguous(memory_format=torch.channels_last):
-            weight = weight.contiguous(memory_format=torch.channels_last)
-        bias = torch.cat([conv.bias for conv in convs if conv.bias is not None], dim=0)
-        # One channel of a channels-last tensor is a strided view, which
-        # avg_pool2d walks about 5x slower than a contiguous plane: the four
-        # single-channel maps are laid out as planes first (exact, a copy of
-        # four maps, not of the features).
-        projected = F.conv2d(features, weight, bias).contiguous()
+        head = self._head_by_layers if exporting() else self._head_by_taps
+        residual = head(features)
+        return clamp_unit_straight_through(generated + residual)
+
+    def _levels(self, projected: Tensor) -> list[Tensor]:
+        """The pyramid's maps, ``(N, 1, H, W)`` each, from the 1x1 projections ``(N, S, H, W)``.
+
+        ``projected`` holds one plane per scale (contiguous planes: one channel of
+        a channels-last tensor is a strided view, which avg_pool2d walks about 5x
+        slower).
+        """
+        height, width = projected.shape[-2:]
         levels = []
         for index, scale in enumerate(self.scales):
             pooled = F.avg_pool2d(
@@ -130,5 +132,87 @@ class Enhancer(nn.Module):
                 self.activation(pooled), scale_factor=float(scale), mode="nearest"
             )
             levels.append(level[..., :height, :width])
-        residual = self.fuse(cat_channels([*levels, features]))
-        return clamp_unit_straight_through(generated + residual)
+        return levels
+
+    def _pyramid_weights(self) -> tuple[Tensor, Tensor]:
+        """The scales' 1x1 convolutions stacked: weight ``(S, F)`` and bias ``(S,)``."""
+        convs = cast(list[nn.Conv2d], list(self.pyramid))
+        weight = torch.cat([conv.weight.flatten(1) for conv in convs], dim=0)
+        bias = torch.cat([conv.bias for conv in convs if conv.bias is not None], dim=0)
+        return weight, bias
+
+    def _head_by_layers(self, features: Tensor) -> Tensor:
+        """Pyramid and fuse as the layer table reads: what exports and quantisers see.
+
+        Average pooling and a 1x1 convolution are both linear and commute
+        exactly (also for ceil-mode partial windows: the bias is constant), so
+        all scales' 1x1 convolutions run once at full resolution, stacked, and
+        only single-channel maps are pooled: EPDN's result, a fraction of the
+        memory traffic.
+        """
+        weight, bias = self._pyramid_weights()
+        weight = weight[..., None, None]
+        if features.is_contiguous(memory_format=torch.channels_last):
+            weight = weight.contiguous(memory_format=torch.channels_last)
+        projected = F.conv2d(features, weight, bias).contiguous()
+        return cast(Tensor, self.fuse(cat_channels([*self._levels(projected), features])))
+
+    def _head_by_taps(self, features: Tensor) -> Tensor:
+        """The same pyramid and fuse convolution, computed as matrix products and shifts.
+
+        The fuse convolution (3x3, zero padding, a few output channels) is
+        linear, so ``fuse(cat(levels, features))`` is, for each of its nine
+        taps ``(dy, dx)``, a per-pixel product ``W_tap @ [levels; features]``
+        shifted by ``(dy, dx)``, summed. One matrix product gives, from the
+        features, all nine taps of every output channel and the pyramid's four
+        1x1 projections; a second, small one adds the levels' taps; eight
+        shifted additions of single-channel planes finish the convolution.
+        This reads the 16-channel features once and concatenates nothing: on
+        a 2-core CPU the head took 3.3 ms at 540x360 against 7.0 ms through
+        the concatenation and a depthwise convolution, and a training step
+        through it (batch 8, crop 256) 66 ms against 109. The result equals
+        :meth:`_head_by_layers` up to float rounding (tested).
+        """
+        batch, filters, height, width = features.shape
+        scales = len(self.scales)
+        channels = self.fuse.out_channels
+        fuse_weight = self.fuse.weight  # (C, S + F, 3, 3): levels first, as concatenated
+        # tap-major rows: row t * C + c is output channel c's weights of tap t
+        tap_weight = fuse_weight.permute(2, 3, 0, 1).reshape(9 * channels, scales + filters)
+        pyramid_weight, pyramid_bias = self._pyramid_weights()
+        stacked = torch.cat([tap_weight[:, scales:], pyramid_weight], dim=0)
+        # (N, F, H*W) as a view of either memory format; matmul reads it strided
+        flat = features.flatten(2)
+        # bmm's output is contiguous: planes (matmul may return a transposed view)
+        products = torch.bmm(stacked.expand(batch, -1, -1), flat)  # (N, 9C + S, H*W)
+        taps = products[:, : 9 * channels]
+        projected = products[:, 9 * channels :].view(batch, scales, height, width)
+        projected = projected + pyramid_bias.view(1, scales, 1, 1)
+        levels = torch.cat(self._levels(projected), dim=1).flatten(2)  # (N, S, H*W)
+        taps = torch.baddbmm(taps, tap_weight[:, :scales].expand(batch, -1, -1), levels).view(
+            batch, 3, 3, channels, height, width
+        )
+        # summed in fp32 and rounded once, as a convolution does, whatever the taps' dtype
+        out = taps[:, 1, 1].to(torch.float32, copy=True)
+        if self.fuse.bias is not None:
+            out += self.fuse.bias.view(1, -1, 1, 1)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy == dx == 0:
+                    continue
+                # out[y, x] += tap(dy, dx)[y + dy, x + dx] where that pixel exists (zero padding)
+                target = out[
+                    ...,
+                    max(0, -dy) : height - max(0, dy),
+                    max(0, -dx) : width - max(0, dx),
+                ]
+                source = taps[
+                    :,
+                    dy + 1,
+                    dx + 1,
+                    :,
+                    max(0, dy) : height - max(0, -dy),
+                    max(0, dx) : width - max(0, -dx),
+                ]
+                target += source
+        return out.to(taps.dtype)

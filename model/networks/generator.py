@@ -37,6 +37,11 @@ the head is zero-initialised, and unlike pix2pixHD's ``tanh`` output never
 saturates the gradient.
 """
 
+from collections.abc import Iterable
+from typing import cast
+
+import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from lenspair.model.errors import ModelError
@@ -45,7 +50,9 @@ from lenspair.model.networks.layers import (
     ConvNormReLU,
     NarrowConv2d,
     clamp_unit_straight_through,
+    exporting,
     flat_samples,
+    is_channels_last,
     make_norm,
     zero_init,
 )
@@ -86,6 +93,25 @@ class ResidualBlock(nn.Module):
         """Apply the block (see the class docstring for shapes)."""
         residual: Tensor = self.body(x)
         return x + residual
+
+    def add_to_padded(self, stream: Tensor, inner: Tensor) -> None:
+        """Apply the block in place to the interior of ``stream`` (no autograd).
+
+        ``stream`` holds the block's input ``x`` inside a one-pixel border,
+        ``inner`` (same shape) is scratch for the inner activation; the
+        interior of ``stream`` becomes the block's output. The borders are
+        filled here by reflection, so the convolutions pad nothing
+        (:meth:`Generator._residual_features`).
+        """
+        first_unit = cast(ConvNormReLU, self.body[0])
+        first_conv, first_norm = cast(nn.Conv2d, first_unit[0]), first_unit[1]
+        second_conv, second_norm = cast(nn.Conv2d, self.body[1]), self.body[2]
+        _reflect_border(stream)
+        first = first_norm(F.conv2d(stream, first_conv.weight, first_conv.bias))
+        torch.clamp_min(first, 0.0, out=inner[..., 1:-1, 1:-1])
+        _reflect_border(inner)
+        second = second_norm(F.conv2d(inner, second_conv.weight, second_conv.bias))
+        stream[..., 1:-1, 1:-1] += second
 
 
 class Generator(nn.Module):
@@ -173,12 +199,60 @@ class Generator(nn.Module):
             quarter = self.down2(half)
             if self.agg2 is not None:
                 quarter = self.agg2(half, quarter)
-            features = self.blocks(self.expand(quarter))
+            features = self._residual_features(quarter)
             up = self.up1(features)
             up = self.skip1(half, up) if self.skip1 is not None else up + half
             up = self.up2(up)
             up = self.skip0(stem, up) if self.skip0 is not None else up + stem
         return clamp_unit_straight_through(x + self.head(up))
+
+    def _residual_features(self, quarter: Tensor) -> Tensor:
+        """``blocks(expand(quarter))``; without autograd, with the reflection pads in place.
+
+        Each residual block reflect-pads its input and its inner activation:
+        two copies of a 64-channel map per block. Without autograd (inference)
+        the residual stream and the inner activation instead live inside two
+        buffers one pixel larger on every side: the ReLU and the residual sum
+        write into their interiors and only the one-pixel border is filled,
+        by reflection. The same values, about 3 ms less of a 100 ms forward
+        at 540x360 on a 2-core CPU. Training, exports, autocast (whose sums
+        may change dtype from block to block) and ``torch.compile`` run the
+        layers as written: inductor fuses the pads itself, and with freezing
+        (torch 2.13) it turned the in-place form into NaN.
+        """
+        if (
+            torch.is_grad_enabled()
+            or exporting()
+            or torch.compiler.is_compiling()
+            or torch.is_autocast_enabled(quarter.device.type)
+            or len(self.blocks) == 0
+        ):
+            return cast(Tensor, self.blocks(self.expand(quarter)))
+        expand_conv, expand_norm, _ = self.expand
+        expanded = expand_norm(expand_conv(quarter))
+        batch, channels, height, width = expanded.shape
+        memory_format = (
+            torch.channels_last if is_channels_last(expanded) else torch.contiguous_format
+        )
+        stream = torch.empty(
+            (batch, channels, height + 2, width + 2),
+            dtype=expanded.dtype,
+            device=expanded.device,
+            memory_format=memory_format,
+        )
+        inner = torch.empty_like(stream)
+        torch.clamp_min(expanded, 0.0, out=stream[..., 1:-1, 1:-1])  # expand's ReLU
+        for block in cast(Iterable[ResidualBlock], self.blocks):
+            block.add_to_padded(stream, inner)
+        return stream[..., 1:-1, 1:-1]
+
+
+def _reflect_border(padded: Tensor) -> None:
+    """Fill the one-pixel border of ``padded`` as ``F.pad(interior, 1, mode="reflect")`` would."""
+    padded[..., 0, 1:-1] = padded[..., 2, 1:-1]
+    padded[..., -1, 1:-1] = padded[..., -3, 1:-1]
+    padded[..., :, 0] = padded[..., :, 2]  # columns last: the corners reflect both ways
+    padded[..., :, -1] = padded[..., :, -3]
 
 
 def _upsample(in_channels: int, out_channels: int, norm: str) -> nn.Sequential:

@@ -65,6 +65,16 @@ def _traced() -> bool:
     return tracing or torch.onnx.is_in_onnx_export() or torch.compiler.is_compiling()
 
 
+def exporting() -> bool:
+    """Whether the forward is being exported (ONNX, ``torch.export``, a TorchScript trace).
+
+    Layers with a faster eager formulation of the same function give exports
+    the plain one, made of the operators that exporters and quantisers know.
+    """
+    tracing = torch._C._get_tracing_state() is not None
+    return tracing or torch.onnx.is_in_onnx_export() or torch.compiler.is_exporting()
+
+
 def flat_keep(x: Tensor) -> Tensor | None:
     """``(N, 1, 1, 1)`` 0 for each flat sample of ``x``, 1 for the others, a ramp between.
 
@@ -151,7 +161,7 @@ class InstanceNorm(nn.Module):
             # norm, a scale by one and a shift by zero, which int8 quantisation
             # then wraps in Q/DQ pairs (lenspair.model.evaluation.quantize).
             return F.instance_norm(x, eps=self.eps)
-        if x.dtype != torch.float32 and self.channels < 16 and _is_channels_last(x):
+        if x.dtype != torch.float32 and self.channels < 16 and is_channels_last(x):
             # PyTorch's channels-last group norm is ~5x slower than
             # instance_norm for a few bf16/fp16 channels (same result).
             return F.instance_norm(x, eps=self.eps)
@@ -324,7 +334,7 @@ class NarrowConv2d(nn.Conv2d):
         return out
 
 
-def _is_channels_last(x: Tensor) -> bool:
+def is_channels_last(x: Tensor) -> bool:
     """Whether a 4-D tensor is stored channels-last (and not also plain contiguous)."""
     return (
         x.ndim == 4 and x.is_contiguous(memory_format=torch.channels_last) and not x.is_contiguous()
@@ -347,7 +357,7 @@ def cat_channels(tensors: Sequence[Tensor]) -> Tensor:
     Returns:
         ``(N, sum C_i, H, W)``.
     """
-    if any(_is_channels_last(t) for t in tensors):
+    if any(is_channels_last(t) for t in tensors):
         return torch.cat([t.permute(0, 2, 3, 1) for t in tensors], dim=3).permute(0, 3, 1, 2)
     return torch.cat(list(tensors), dim=1)
 

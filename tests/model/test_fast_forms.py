@@ -1,0 +1,139 @@
+"""The networks' faster eager forms compute what their layers, as written, compute.
+
+Two layers have a second formulation for speed on the CPU: the enhancer's
+pyramid-and-fuse head as matrix products and shifts
+(``Enhancer._head_by_taps``), and the generator's residual blocks with their
+reflection pads written in place when no gradient is recorded
+(``Generator._residual_features``). Exports use the layers as written.
+"""
+
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from lenspair.model.networks.enhancer import Enhancer
+from lenspair.model.networks.generator import Generator, _reflect_border
+from lenspair.model.networks.layers import exporting
+
+
+def _random_parameters(module: torch.nn.Module, seed: int) -> None:
+    generator = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for parameter in module.parameters():
+            parameter.copy_(0.3 * torch.randn(parameter.shape, generator=generator))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    channels=st.sampled_from([1, 3]),
+    batch=st.integers(1, 3),
+    height=st.integers(1, 40),
+    width=st.integers(1, 40),
+    channels_last=st.booleans(),
+    seed=st.integers(0, 2**16),
+)
+def test_enhancer_head_by_taps_equals_layers(
+    channels: int, batch: int, height: int, width: int, channels_last: bool, seed: int
+) -> None:
+    # Any size (partial pyramid cells, one-pixel images), either memory format, both
+    # image channel counts: the zero-padded borders and the tap order are exercised.
+    enhancer = Enhancer(channels, num_filters=5)
+    _random_parameters(enhancer, seed)
+    features = torch.rand(batch, 5, height, width, generator=torch.Generator().manual_seed(seed))
+    if channels_last:
+        features = features.contiguous(memory_format=torch.channels_last)
+    with torch.no_grad():
+        expected = enhancer._head_by_layers(features)
+        actual = enhancer._head_by_taps(features)
+    assert actual.shape == expected.shape == (batch, channels, height, width)
+    assert actual.dtype == expected.dtype
+    torch.testing.assert_close(actual, expected, rtol=1e-5, atol=1e-5)
+
+
+def test_enhancer_head_by_taps_has_the_layers_gradients() -> None:
+    # Training runs the taps form: its gradients must be the convolutions' ones.
+    enhancer = Enhancer(3, num_filters=6)
+    _random_parameters(enhancer, 3)
+    features = torch.rand(2, 6, 19, 23, generator=torch.Generator().manual_seed(3))
+    upstream = torch.randn(2, 3, 19, 23, generator=torch.Generator().manual_seed(4))
+    gradients = []
+    for head in (enhancer._head_by_layers, enhancer._head_by_taps):
+        enhancer.zero_grad()
+        leaf = features.clone().requires_grad_()
+        (head(leaf) * upstream).sum().backward()
+        assert leaf.grad is not None
+        weights = [p.grad for p in enhancer.parameters() if p.grad is not None]
+        gradients.append([leaf.grad, *weights])
+    assert len(gradients[0]) == len(gradients[1]) == 1 + 2 + 2 * len(enhancer.scales)
+    for by_layers, by_taps in zip(*gradients, strict=True):
+        torch.testing.assert_close(by_taps, by_layers, rtol=1e-4, atol=1e-5)
+
+
+def test_enhancer_head_by_taps_sums_bf16_taps_in_fp32() -> None:
+    # bf16 weights: the nine taps are summed in fp32 and rounded once, as a convolution
+    # does, so the result stays within bf16 rounding of the fp32 head.
+    enhancer = Enhancer(1, num_filters=16)
+    _random_parameters(enhancer, 5)
+    features = torch.rand(1, 16, 30, 30, generator=torch.Generator().manual_seed(5))
+    with torch.no_grad():
+        reference = enhancer._head_by_layers(features)
+        low = enhancer.to(torch.bfloat16)._head_by_taps(features.to(torch.bfloat16))
+    assert low.dtype == torch.bfloat16
+    error = (low.float() - reference).abs().max().item()
+    assert error <= 0.03 * reference.abs().max().item()
+
+
+def test_exports_see_the_layers_as_written() -> None:
+    # A TorchScript trace records the fuse convolution, not the taps form.
+    enhancer = Enhancer(1, num_filters=4)
+    _random_parameters(enhancer, 7)
+    assert not exporting()
+
+    def refuse(features: torch.Tensor) -> torch.Tensor:
+        raise AssertionError("the taps form ran inside an export")
+
+    enhancer._head_by_taps = refuse  # type: ignore[method-assign]
+    image = torch.rand(1, 1, 16, 16)
+    traced = torch.jit.trace(enhancer, (image, image), check_trace=False)
+    assert "conv" in str(traced.graph).lower()
+
+
+@pytest.mark.parametrize("channels_last", [False, True])
+@pytest.mark.parametrize(("height", "width"), [(8, 8), (12, 20), (36, 28)])
+@pytest.mark.parametrize("norm", ["instance", "none"])
+def test_residual_blocks_in_place_equal_the_blocks(
+    channels_last: bool, height: int, width: int, norm: str
+) -> None:
+    # The in-place form (inference) gives exactly the blocks' values, down to a
+    # 2x2 quarter-resolution map, where reflection reaches across the whole map.
+    generator = Generator(1, 4, (8, 8), 16, num_blocks=3, norm=norm)
+    _random_parameters(generator, height * width)
+    quarter = torch.rand(2, 8, height // 4, width // 4, generator=torch.Generator().manual_seed(1))
+    if channels_last:
+        generator = generator.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+        quarter = quarter.contiguous(memory_format=torch.channels_last)
+    with torch.no_grad():
+        expected = generator.blocks(generator.expand(quarter))
+        actual = generator._residual_features(quarter)
+    assert torch.equal(actual, expected)
+
+
+def test_residual_blocks_keep_autograd_when_training() -> None:
+    # With gradients recorded the blocks run as written: the input gets a gradient.
+    generator = Generator(1, 4, (8, 8), 16, num_blocks=2)
+    _random_parameters(generator, 2)
+    quarter = torch.rand(1, 8, 5, 6, requires_grad=True)
+    generator._residual_features(quarter).sum().backward()
+    assert quarter.grad is not None and quarter.grad.abs().sum() > 0
+
+
+@settings(max_examples=20, deadline=None)
+@given(height=st.integers(2, 9), width=st.integers(2, 9), seed=st.integers(0, 2**16))
+def test_reflect_border_is_reflection_padding(height: int, width: int, seed: int) -> None:
+    interior = torch.rand(1, 3, height, width, generator=torch.Generator().manual_seed(seed))
+    padded = torch.full((1, 3, height + 2, width + 2), float("nan"))
+    padded[..., 1:-1, 1:-1] = interior
+    _reflect_border(padded)
+    expected = torch.nn.functional.pad(interior, (1, 1, 1, 1), mode="reflect")
+    assert torch.equal(padded, expected)
