@@ -226,6 +226,7 @@ class Generator(nn.Module):
             or torch.compiler.is_compiling()
             or torch.is_autocast_enabled(quarter.device.type)
             or len(self.blocks) == 0
+            or min(quarter.shape[-2:]) < 2  # reflection needs two pixels: the layers refuse
         ):
             return cast(Tensor, self.blocks(self.expand(quarter)))
         expand_conv, expand_norm, _ = self.expand

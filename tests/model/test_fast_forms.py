@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from lenspair.model.networks.enhancer import Enhancer
 from lenspair.model.networks.generator import Generator, _reflect_border
 from lenspair.model.networks.layers import exporting
+from lenspair.model.networks.variants import build_model
 
 
 def _random_parameters(module: torch.nn.Module, seed: int) -> None:
@@ -84,19 +85,77 @@ def test_enhancer_head_by_taps_sums_bf16_taps_in_fp32() -> None:
     assert error <= 0.03 * reference.abs().max().item()
 
 
+def test_enhancer_head_by_taps_keeps_float64() -> None:
+    # A float64 network is summed in float64 (gradcheck-grade), not rounded to fp32.
+    enhancer = Enhancer(1, num_filters=6).double()
+    _random_parameters(enhancer, 9)
+    features = torch.rand(2, 6, 17, 13, dtype=torch.float64)
+    with torch.no_grad():
+        actual = enhancer._head_by_taps(features)
+        expected = enhancer._head_by_layers(features)
+    assert actual.dtype == torch.float64
+    torch.testing.assert_close(actual, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_enhancer_head_by_taps_has_the_convolutions_dtype_under_autocast() -> None:
+    # Under CPU autocast the fuse convolution's fp32 bias promotes its output to fp32.
+    enhancer = Enhancer(1, num_filters=4)
+    _random_parameters(enhancer, 11)
+    features = torch.rand(1, 4, 12, 12)
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+        by_layers = enhancer._head_by_layers(features)
+        by_taps = enhancer._head_by_taps(features)
+    assert by_taps.dtype == by_layers.dtype == torch.float32
+    torch.testing.assert_close(by_taps, by_layers, rtol=0.02, atol=0.02)
+
+
+def _refuse(features: torch.Tensor) -> torch.Tensor:
+    raise AssertionError("the taps form ran inside an export")
+
+
 def test_exports_see_the_layers_as_written() -> None:
-    # A TorchScript trace records the fuse convolution, not the taps form.
+    # A TorchScript trace and torch.export (ONNX's dynamo exporter and the int8
+    # quantisers go through it) record the layers: the taps form refuses to run.
     enhancer = Enhancer(1, num_filters=4)
     _random_parameters(enhancer, 7)
+    generated, image = torch.rand(2, 1, 1, 16, 16, generator=torch.Generator().manual_seed(7))
+    with torch.no_grad():
+        expected = enhancer(generated, image)
     assert not exporting()
+    enhancer._head_by_taps = _refuse  # type: ignore[method-assign]
+    traced = torch.jit.trace(enhancer, (generated, image), check_trace=False)
+    exported = torch.export.export(enhancer, (generated, image)).module()
+    with torch.no_grad():
+        for program in (traced, exported):
+            torch.testing.assert_close(program(generated, image), expected)
 
-    def refuse(features: torch.Tensor) -> torch.Tensor:
-        raise AssertionError("the taps form ran inside an export")
 
-    enhancer._head_by_taps = refuse  # type: ignore[method-assign]
-    image = torch.rand(1, 1, 16, 16)
-    traced = torch.jit.trace(enhancer, (image, image), check_trace=False)
-    assert "conv" in str(traced.graph).lower()
+def test_compiled_network_equals_eager() -> None:
+    # torch.compile with freezing (as the latency benchmark compiles): the taps form
+    # compiles, the residual blocks run as written there, and the result is eager's;
+    import torch._inductor.config as inductor_config
+
+    # channels-last, as the benchmark runs it: there freezing turned the in-place
+    # residual form into NaN (torch 2.13)
+    model = build_model("GEA", 1, width=0.25, num_blocks=2).eval()
+    _random_parameters(model, 13)
+    model = model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
+    image = torch.rand(1, 1, 24, 32, generator=torch.Generator().manual_seed(13))
+    image = image.contiguous(memory_format=torch.channels_last)
+    with torch.inference_mode():
+        eager = model.restore(image)
+        with inductor_config.patch(freezing=True):
+            compiled = torch.compile(model.restore)(image)
+    assert torch.isfinite(compiled).all()
+    torch.testing.assert_close(compiled, eager, rtol=1e-4, atol=1e-4)
+
+
+def test_residual_blocks_refuse_a_one_pixel_side() -> None:
+    # Reflection needs two pixels: the in-place form refuses as the layers do instead
+    # of reading its buffers' uninitialised border.
+    generator = Generator(1, 4, (8, 8), 16, num_blocks=2)
+    with torch.no_grad(), pytest.raises(RuntimeError, match=r"[Pp]adding size"):
+        generator._residual_features(torch.rand(1, 8, 1, 3))
 
 
 @pytest.mark.parametrize("channels_last", [False, True])
