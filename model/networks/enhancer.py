@@ -181,7 +181,7 @@ class Enhancer(nn.Module):
         tap_weight = fuse_weight.permute(2, 3, 0, 1).reshape(9 * channels, scales + filters)
         pyramid_weight, pyramid_bias = self._pyramid_weights()
         stacked = torch.cat([tap_weight[:, scales:], pyramid_weight], dim=0)
-        # (N, F, H*W) as a view of either memory format; matmul reads it strided
+        # (N, F, H*W) as a view of either memory format; bmm reads it strided
         flat = features.flatten(2)
         # bmm's output is contiguous: planes (matmul may return a transposed view)
         products = torch.bmm(stacked.expand(batch, -1, -1), flat)  # (N, 9C + S, H*W)

@@ -214,11 +214,12 @@ class Generator(nn.Module):
         the residual stream and the inner activation instead live inside two
         buffers one pixel larger on every side: the ReLU and the residual sum
         write into their interiors and only the one-pixel border is filled,
-        by reflection. The same values, about 3 ms less of a 100 ms forward
-        at 540x360 on a 2-core CPU. Training, exports, autocast (whose sums
-        may change dtype from block to block) and ``torch.compile`` run the
-        layers as written: inductor fuses the pads itself, and with freezing
-        (torch 2.13) it turned the in-place form into NaN.
+        by reflection. The same values, bit for bit, about 2 ms less of a
+        100 ms forward at 540x360 on a 2-core CPU. Training, exports, autocast
+        (whose sums may change dtype from block to block) and ``torch.compile``
+        run the layers as written: inductor fuses the pads itself, and with
+        freezing it turned the in-place form of a channels-last model into NaN
+        (torch 2.13).
         """
         if (
             torch.is_grad_enabled()
