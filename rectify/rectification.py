@@ -164,17 +164,29 @@ def _border(resolution: tuple[int, int], per_side: int = 64) -> list[np.ndarray]
     ]
 
 
-def _regions(camera: CameraModel, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Inner and outer rectangles ``(x0, x1, y0, y1)`` of a raw image on the rectified plane."""
+_EDGES = ("left", "right", "top", "bottom")
+"""The raw image's edges in :func:`_border`'s order."""
+
+
+def _regions(camera: CameraModel, rotation: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Inner and outer rectangles ``(x0, x1, y0, y1)`` of a raw image on the rectified plane.
+
+    Raises:
+        RectifyError: a whole edge of the image has no ray, naming ``name`` and the edge.
+    """
     sides = []
     for edge in _border(camera.resolution):
         rays = pixel_rays(camera, edge) @ rotation.T
         ok = rays[:, 2] > 1e-6  # False for NaN: pixels without a ray are skipped
         sides.append(rays[ok, :2] / rays[ok, 2:])
-    if any(len(s) == 0 for s in sides):
+    lost = [edge for edge, side in zip(_EDGES, sides, strict=True) if len(side) == 0]
+    if lost:
         raise RectifyError(
-            "rectification: a whole image edge has no valid ray (behind the rectified plane, "
-            "or outside the range of the distortion model)"
+            f"rectification: no pixel on {name}'s {' and '.join(lost)} "
+            f"{'edge' if len(lost) == 1 else 'edges'} has a valid ray: behind the "
+            "rectified plane, or beyond the range of its distortion model, which a "
+            "calibration extrapolates where its boards never reached (calibrate again with "
+            "views that bring the board near the image edges)"
         )
     everything = np.concatenate(sides)
     low, high = everything.min(axis=0), everything.max(axis=0)
@@ -276,8 +288,8 @@ class StereoRectification:
             flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1,
         )  # fmt: skip
         rotations = np.stack([np.asarray(r0), np.asarray(r1_virtual) @ turn])
-        inner0, outer0 = _regions(rig.cam0, rotations[0])
-        inner1, outer1 = _regions(rig.cam1, rotations[1])
+        inner0, outer0 = _regions(rig.cam0, rotations[0], "cam0")
+        inner1, outer1 = _regions(rig.cam1, rotations[1], "cam1")
         inner = np.array([max(inner0[0], inner1[0]), min(inner0[1], inner1[1]),
                           max(inner0[2], inner1[2]), min(inner0[3], inner1[3])])  # fmt: skip
         outer = np.array([min(outer0[0], outer1[0]), max(outer0[1], outer1[1]),

@@ -10,7 +10,7 @@ from lenspair.rectify.rectification import (
     row_differences,
     row_disagreement,
 )
-from lenspair.rectify.rig import DistortionModel, StereoRig
+from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
 from tests.rectify.rigs import make_rig
 
 
@@ -125,6 +125,22 @@ def test_vertical_rig_is_refused() -> None:
     T[:3, 3] = [0.0, -0.1, 0.0]
     with pytest.raises(RectifyError, match="mostly vertical"):
         StereoRectification.from_rig(StereoRig(rig.cam0, rig.cam1, T))
+
+
+def test_edges_without_rays_are_named() -> None:
+    # Radial distortion 1 - 0.2 r^2 reaches its largest radius, about 300 px, before
+    # the left and right edges (358 px and more from the centre) but after the top and
+    # bottom ones (270 px): those two edges, and only they, have no ray; cam1 is named.
+    rig = make_rig("radtan")
+    cam1 = CameraModel((352.0, 352.5, 358.0, 271.0), "radtan", (-0.2, 0.0, 0.0, 0.0), (720, 540))
+    with pytest.raises(RectifyError) as refused:
+        StereoRectification.from_rig(StereoRig(rig.cam0, cam1, rig.T_cam1_cam0))
+    message = str(refused.value)
+    assert "cam1's left and right edges has" in message and "cam0" not in message
+    assert "near the image edges" in message
+    # the same camera as cam0 is named cam0
+    with pytest.raises(RectifyError, match="cam0's left and right edges"):
+        StereoRectification.from_rig(StereoRig(cam1, rig.cam1, rig.T_cam1_cam0))
 
 
 def test_bad_alpha_is_refused() -> None:
