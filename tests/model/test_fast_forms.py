@@ -16,13 +16,7 @@ from lenspair.model.networks.enhancer import Enhancer
 from lenspair.model.networks.generator import Generator, _reflect_border
 from lenspair.model.networks.layers import exporting
 from lenspair.model.networks.variants import build_model
-
-
-def _random_parameters(module: torch.nn.Module, seed: int) -> None:
-    generator = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for parameter in module.parameters():
-            parameter.copy_(0.3 * torch.randn(parameter.shape, generator=generator))
+from tests.model.network_helpers import randomise
 
 
 @settings(max_examples=25, deadline=None)
@@ -40,7 +34,7 @@ def test_enhancer_head_by_taps_equals_layers(
     # Any size (partial pyramid cells, one-pixel images), either memory format, both
     # image channel counts: the zero-padded borders and the tap order are exercised.
     enhancer = Enhancer(channels, num_filters=5)
-    _random_parameters(enhancer, seed)
+    randomise(enhancer, seed, scale=0.3)
     features = torch.rand(batch, 5, height, width, generator=torch.Generator().manual_seed(seed))
     if channels_last:
         features = features.contiguous(memory_format=torch.channels_last)
@@ -55,7 +49,7 @@ def test_enhancer_head_by_taps_equals_layers(
 def test_enhancer_head_by_taps_has_the_layers_gradients() -> None:
     # Training runs the taps form: its gradients must be the convolutions' ones.
     enhancer = Enhancer(3, num_filters=6)
-    _random_parameters(enhancer, 3)
+    randomise(enhancer, 3, scale=0.3)
     features = torch.rand(2, 6, 19, 23, generator=torch.Generator().manual_seed(3))
     upstream = torch.randn(2, 3, 19, 23, generator=torch.Generator().manual_seed(4))
     gradients = []
@@ -75,7 +69,7 @@ def test_enhancer_head_by_taps_sums_bf16_taps_in_fp32() -> None:
     # bf16 weights: the nine taps are summed in fp32 and rounded once, as a convolution
     # does, so the result stays within bf16 rounding of the fp32 head.
     enhancer = Enhancer(1, num_filters=16)
-    _random_parameters(enhancer, 5)
+    randomise(enhancer, 5, scale=0.3)
     features = torch.rand(1, 16, 30, 30, generator=torch.Generator().manual_seed(5))
     with torch.no_grad():
         reference = enhancer._head_by_layers(features)
@@ -88,7 +82,7 @@ def test_enhancer_head_by_taps_sums_bf16_taps_in_fp32() -> None:
 def test_enhancer_head_by_taps_keeps_float64() -> None:
     # A float64 network is summed in float64 (gradcheck-grade), not rounded to fp32.
     enhancer = Enhancer(1, num_filters=6).double()
-    _random_parameters(enhancer, 9)
+    randomise(enhancer, 9, scale=0.3)
     features = torch.rand(2, 6, 17, 13, dtype=torch.float64)
     with torch.no_grad():
         actual = enhancer._head_by_taps(features)
@@ -100,7 +94,7 @@ def test_enhancer_head_by_taps_keeps_float64() -> None:
 def test_enhancer_head_by_taps_has_the_convolutions_dtype_under_autocast() -> None:
     # Under CPU autocast the fuse convolution's fp32 bias promotes its output to fp32.
     enhancer = Enhancer(1, num_filters=4)
-    _random_parameters(enhancer, 11)
+    randomise(enhancer, 11, scale=0.3)
     features = torch.rand(1, 4, 12, 12)
     with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
         by_layers = enhancer._head_by_layers(features)
@@ -117,7 +111,7 @@ def test_exports_see_the_layers_as_written() -> None:
     # A TorchScript trace and torch.export (ONNX's dynamo exporter and the int8
     # quantisers go through it) record the layers: the taps form refuses to run.
     enhancer = Enhancer(1, num_filters=4)
-    _random_parameters(enhancer, 7)
+    randomise(enhancer, 7, scale=0.3)
     generated, image = torch.rand(2, 1, 1, 16, 16, generator=torch.Generator().manual_seed(7))
     with torch.no_grad():
         expected = enhancer(generated, image)
@@ -138,7 +132,7 @@ def test_compiled_network_equals_eager() -> None:
     # channels-last, as the benchmark runs it: there freezing turned the in-place
     # residual form into NaN (torch 2.13)
     model = build_model("GEA", 1, width=0.25, num_blocks=2).eval()
-    _random_parameters(model, 13)
+    randomise(model, 13, scale=0.3)
     model = model.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
     image = torch.rand(1, 1, 24, 32, generator=torch.Generator().manual_seed(13))
     image = image.contiguous(memory_format=torch.channels_last)
@@ -167,7 +161,7 @@ def test_residual_blocks_in_place_equal_the_blocks(
     # The in-place form (inference) gives exactly the blocks' values, down to a
     # 2x2 quarter-resolution map, where reflection reaches across the whole map.
     generator = Generator(1, 4, (8, 8), 16, num_blocks=3, norm=norm)
-    _random_parameters(generator, height * width)
+    randomise(generator, height * width, scale=0.3)
     quarter = torch.rand(2, 8, height // 4, width // 4, generator=torch.Generator().manual_seed(1))
     if channels_last:
         generator = generator.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
@@ -181,7 +175,7 @@ def test_residual_blocks_in_place_equal_the_blocks(
 def test_residual_blocks_keep_autograd_when_training() -> None:
     # With gradients recorded the blocks run as written: the input gets a gradient.
     generator = Generator(1, 4, (8, 8), 16, num_blocks=2)
-    _random_parameters(generator, 2)
+    randomise(generator, 2, scale=0.3)
     quarter = torch.rand(1, 8, 5, 6, requires_grad=True)
     generator._residual_features(quarter).sum().backward()
     assert quarter.grad is not None and quarter.grad.abs().sum() > 0

@@ -24,6 +24,7 @@ from lenspair.model.networks.variants import (
     MitigatorOutput,
     build_model,
 )
+from tests.model.network_helpers import randomise
 
 TINY = {"width": 0.25, "num_blocks": 2}
 
@@ -33,19 +34,11 @@ def _images(channels: int, height: int, width: int, batch: int = 2, seed: int = 
     return torch.rand(batch, channels, height, width, generator=generator)
 
 
-def _randomise(model: torch.nn.Module, seed: int = 1) -> None:
-    """Give every parameter random values (heads start at zero, i.e. identity)."""
-    generator = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for parameter in model.parameters():
-            parameter.copy_(0.1 * torch.randn(parameter.shape, generator=generator))
-
-
 @pytest.mark.parametrize("variant", ["G", "GE", "GEA"])
 @pytest.mark.parametrize("channels", [1, 3])
 def test_output_shapes_and_range(variant: str, channels: int) -> None:
     model = build_model(variant, channels, **TINY)
-    _randomise(model)
+    randomise(model)
     x = _images(channels, 20, 28)
     with torch.no_grad():
         out = model(x)
@@ -131,7 +124,7 @@ def test_parameter_counts_scale_with_width_and_blocks() -> None:
 
 def test_state_dict_round_trip_gives_identical_outputs() -> None:
     model = build_model("GEA", 3, **TINY)
-    _randomise(model)
+    randomise(model)
     buffer = io.BytesIO()
     torch.save(model.state_dict(), buffer)
     buffer.seek(0)
@@ -147,7 +140,7 @@ def test_state_dict_round_trip_gives_identical_outputs() -> None:
 def test_one_step_lowers_a_simple_loss(variant: str) -> None:
     torch.manual_seed(0)
     model = build_model(variant, 1, **TINY)
-    _randomise(model)
+    randomise(model)
     x = _images(1, 16, 16, batch=2)
     target = (x * 0.5 + 0.2).clamp(0, 1)
     optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
@@ -202,7 +195,7 @@ def test_generator_aggregation_flag_adds_blocks() -> None:
 def test_enhancer_pyramid_is_exact_for_partial_cells() -> None:
     # The fused 1x1-then-pool pyramid equals EPDN's pool-then-1x1, ceil-mode cells included.
     enhancer = Enhancer(1, num_filters=3)
-    _randomise(enhancer)
+    randomise(enhancer)
     features = torch.rand(1, 3, 37, 45)
     for scale, conv in zip(enhancer.scales, enhancer.pyramid, strict=True):
         direct = conv(F.avg_pool2d(features, scale, scale, ceil_mode=True))

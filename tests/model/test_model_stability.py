@@ -11,15 +11,9 @@ from lenspair.model.networks.layers import FLAT_RAMP, FLAT_TOLERANCE, InstanceNo
 from lenspair.model.networks.variants import build_discriminator, build_model
 from lenspair.model.training.losses import LossWeights, discriminator_loss, generator_loss
 from lenspair.model.training.pretrained import pretrained_weights
+from tests.model.network_helpers import randomise
 
 TINY = {"width": 0.25, "num_blocks": 2}
-
-
-def _randomise(model: torch.nn.Module, seed: int = 1) -> None:
-    generator = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for parameter in model.parameters():
-            parameter.copy_(0.1 * torch.randn(parameter.shape, generator=generator))
 
 
 def _finite(tensor: torch.Tensor | None) -> bool:
@@ -32,7 +26,7 @@ def test_constant_and_saturated_images_give_finite_outputs_and_gradients(
     value: float, variant: str
 ) -> None:
     model = build_model(variant, 1, **TINY)
-    _randomise(model)
+    randomise(model)
     x = torch.full((2, 1, 20, 36), value, requires_grad=True)
     out = model(x)
     assert _finite(out.generator) and _finite(out.enhanced)
@@ -44,7 +38,7 @@ def test_constant_and_saturated_images_give_finite_outputs_and_gradients(
 
 def test_enhancer_pooling_on_constant_and_tiny_images() -> None:
     enhancer = Enhancer(3, num_filters=4)
-    _randomise(enhancer)
+    randomise(enhancer)
     for size in [(8, 8), (31, 33), (64, 96)]:
         image = torch.ones(1, 3, *size, requires_grad=True)
         generated = torch.ones(1, 3, *size)
@@ -56,7 +50,7 @@ def test_enhancer_pooling_on_constant_and_tiny_images() -> None:
 
 def test_bf16_autocast_forward_is_finite_and_close() -> None:
     model = build_model("GEA", 1, **TINY)
-    _randomise(model)
+    randomise(model)
     x = torch.rand(1, 1, 24, 40, generator=torch.Generator().manual_seed(0))
     with torch.inference_mode():
         reference = model(x).enhanced
@@ -68,7 +62,7 @@ def test_bf16_autocast_forward_is_finite_and_close() -> None:
 
 def test_bf16_weights_forward_is_finite() -> None:
     model = build_model("GE", 3, **TINY)
-    _randomise(model)
+    randomise(model)
     model = model.to(torch.bfloat16)
     x = torch.full((1, 3, 16, 24), 1.0, dtype=torch.bfloat16)
     with torch.inference_mode():
