@@ -148,24 +148,21 @@ def _rotation_z(quarter_turns: int) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _border(resolution: tuple[int, int], per_side: int = 64) -> list[np.ndarray]:
+def _border(resolution: tuple[int, int], per_side: int = 64) -> dict[str, np.ndarray]:
     """Points along the outermost pixel centres of an image, ``(per_side, 2)`` per edge.
 
-    Pixel centres, not pixel edges, so that bilinear sources stay inside the image.
+    Keyed by edge: left, right, top, bottom. Pixel centres, not pixel edges,
+    so that bilinear sources stay inside the image.
     """
     width, height = resolution
     xs = np.linspace(0.0, width - 1.0, per_side)
     ys = np.linspace(0.0, height - 1.0, per_side)
-    return [
-        np.column_stack([np.zeros(per_side), ys]),
-        np.column_stack([np.full(per_side, width - 1.0), ys]),
-        np.column_stack([xs, np.zeros(per_side)]),
-        np.column_stack([xs, np.full(per_side, height - 1.0)]),
-    ]
-
-
-_EDGES = ("left", "right", "top", "bottom")
-"""The raw image's edges in :func:`_border`'s order."""
+    return {
+        "left": np.column_stack([np.zeros(per_side), ys]),
+        "right": np.column_stack([np.full(per_side, width - 1.0), ys]),
+        "top": np.column_stack([xs, np.zeros(per_side)]),
+        "bottom": np.column_stack([xs, np.full(per_side, height - 1.0)]),
+    }
 
 
 def _regions(camera: CameraModel, rotation: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -174,12 +171,13 @@ def _regions(camera: CameraModel, rotation: np.ndarray, name: str) -> tuple[np.n
     Raises:
         RectifyError: a whole edge of the image has no ray, naming ``name`` and the edge.
     """
-    sides = []
-    for edge in _border(camera.resolution):
-        rays = pixel_rays(camera, edge) @ rotation.T
+    sides, lost = [], []
+    for edge, points in _border(camera.resolution).items():
+        rays = pixel_rays(camera, points) @ rotation.T
         ok = rays[:, 2] > 1e-6  # False for NaN: pixels without a ray are skipped
         sides.append(rays[ok, :2] / rays[ok, 2:])
-    lost = [edge for edge, side in zip(_EDGES, sides, strict=True) if len(side) == 0]
+        if not ok.any():
+            lost.append(edge)
     if lost:
         raise RectifyError(
             f"rectification: no pixel on {name}'s {' and '.join(lost)} "

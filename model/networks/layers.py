@@ -59,20 +59,19 @@ A camera's noise spreads a real frame far beyond 4 codes.
 """
 
 
-def _traced() -> bool:
-    """Whether the forward is being traced or compiled: no data-dependent branch then."""
-    tracing = torch._C._get_tracing_state() is not None  # torch.jit.is_tracing, typed
-    return tracing or torch.onnx.is_in_onnx_export() or torch.compiler.is_compiling()
-
-
 def exporting() -> bool:
     """Whether the forward is being exported (ONNX, ``torch.export``, a TorchScript trace).
 
     Layers with a faster eager formulation of the same function give exports
     the plain one, made of the operators that exporters and quantisers know.
     """
-    tracing = torch._C._get_tracing_state() is not None
+    tracing = torch._C._get_tracing_state() is not None  # torch.jit.is_tracing, typed
     return tracing or torch.onnx.is_in_onnx_export() or torch.compiler.is_exporting()
+
+
+def _traced() -> bool:
+    """Whether the forward is being exported or compiled: no data-dependent branch then."""
+    return exporting() or torch.compiler.is_compiling()
 
 
 def flat_keep(x: Tensor) -> Tensor | None:
