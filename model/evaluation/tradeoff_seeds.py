@@ -54,7 +54,8 @@ class SeededRow:
         psnr: PSNR over seeds, dB.
         ssim: SSIM over seeds.
         converged: the convergence check held on every seed (None: not checkable).
-        tail_change_db: largest absolute PSNR change over the last 20 % of the budget.
+        tail_change_db: the PSNR change over the last 20 % of the budget, signed, of the
+            seed whose change was largest in size.
         pareto_psnr: on the spread-aware PSNR-vs-CPU-time front.
         pareto_ssim: on the spread-aware SSIM-vs-CPU-time front.
 
@@ -93,27 +94,44 @@ def _convergence(
         if check is None:
             return None, None
         checks.append(check)
-    return all(held for held, _ in checks), max(abs(change) for _, change in checks)
+    largest = max((change for _, change in checks), key=abs)  # signed: a fall reads as one
+    return all(held for held, _ in checks), largest
 
 
 def aggregate(
     results: Sequence[TradeoffResult], out_dir: Path, seeds: Sequence[int], budget: Budget
 ) -> list[SeededRow]:
-    """Group the per-seed rows by (name, precision) and summarise them."""
+    """Group the per-seed rows by (name, precision) and summarise them.
+
+    Convergence is a property of a training, not of a precision: each network's
+    learning curves are checked once, against the seed spread of its fp32 row
+    (the network as trained; its first row if it has none), and every precision
+    of it gets that verdict. With fewer than two finite seeds there is no spread
+    to compare with, so the check is not made.
+    """
     keys: list[tuple[str, str]] = []
     for row in results[0].rows:
         keys.append((row.name, row.precision))
-    rows = []
+    grouped = {
+        key: [r for result in results for r in result.rows if (r.name, r.precision) == key]
+        for key in keys
+    }
+    psnrs = {key: summarise_seeds([r.psnr_db for r in same]) for key, same in grouped.items()}
+    verdicts: dict[str, tuple[bool | None, float | None]] = {}
     for name, precision in keys:
-        same = [
-            r
-            for result in results
-            for r in result.rows
-            if (r.name, r.precision) == (name, precision)
-        ]
+        if name in verdicts and precision != "fp32":
+            continue
+        psnr = psnrs[(name, precision)]
+        verdicts[name] = (
+            _convergence(out_dir, seeds, name, budget, psnr.spread)
+            if psnr.seeds >= 2
+            else (None, None)
+        )
+    rows = []
+    for (name, precision), same in grouped.items():
         times = [r.cpu_ms for r in same if r.cpu_ms is not None]
-        psnr = summarise_seeds([r.psnr_db for r in same])
-        ok, change = _convergence(out_dir, seeds, name, budget, psnr.spread)
+        psnr = psnrs[(name, precision)]
+        ok, change = verdicts[name]
         rows.append(
             SeededRow(
                 name=name,
@@ -162,9 +180,10 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
         f"- metric convention: {meta['convention']}; accuracy is mean +/- spread (sample "
         "standard deviation over seeds)",
         f"- CPU ms: median over seeds of the median per frame (batch 1, {meta['size']})",
-        f"- converged: over the last {tail} of the budget the trend (least-squares line) of "
-        "validation PSNR moved less than the seed spread, on every seed (largest change in "
-        "brackets)",
+        f"- converged: over the last {tail} of the budget (from the last validation at or "
+        "before it) the trend (least-squares line) of validation PSNR moved less than the "
+        "seed spread of the network's fp32 PSNR, on every seed (the largest change, signed, "
+        "in brackets; one verdict per network, whatever the precision)",
         "- Pareto: `*` PSNR-vs-time, `+` SSIM-vs-time front; a row is dominated only by a "
         "row as fast that is better by more than either spread",
         "",
@@ -193,10 +212,16 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
             "The convergence check holds for every network: the accuracy columns compare "
             "converged networks."
         )
-    else:
+    elif any(row.converged is False for row in rows):
         verdict_text = (
             "The convergence check does NOT hold for every network: a longer budget would "
             "change the accuracy columns; read them as what this budget buys."
+        )
+    else:
+        verdict_text = (
+            "The convergence check could not be made for every network (too few seeds or "
+            "validations): whether a longer budget would change the accuracy columns is "
+            "not known."
         )
     lines += ["", verdict_text]
     lines += ["", published_markdown((ABLATION, STATE_OF_THE_ART))]

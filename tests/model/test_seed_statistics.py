@@ -1,6 +1,7 @@
 """Seed statistics: spread, claims beyond it, convergence, spread-aware Pareto; paper rows."""
 
 import math
+from pathlib import Path
 
 import pytest
 from hypothesis import given
@@ -13,6 +14,10 @@ from lenspair.model.evaluation.seed_statistics import (
     robust_pareto,
     summarise_seeds,
 )
+from lenspair.model.evaluation.tradeoff import Budget, TradeoffResult
+from lenspair.model.evaluation.tradeoff_rows import TradeoffRow
+from lenspair.model.evaluation.tradeoff_seeds import aggregate, seeded_markdown
+from lenspair.model.training.run_files import write_metrics_rows
 
 
 def test_mean_and_sample_spread() -> None:
@@ -81,3 +86,50 @@ def test_published_rows_are_the_papers() -> None:
     assert by_name["the paper (GEA)"].cpu_s == 0.542
     table = published_markdown()
     assert table.count("\n| ") == len(PUBLISHED) + 1 and "published" in table
+
+
+def _row(name: str, precision: str, psnr: float) -> TradeoffRow:
+    return TradeoffRow(
+        name=name, variant="GEA", width=1.0, num_blocks=9, precision=precision, params=1,
+        gflops=1.0, cpu_ms=10.0, gpu_ms=None, psnr_db=psnr, ssim=0.9,
+        convention="skimage-gaussian", steps=100,
+    )  # fmt: skip
+
+
+def _curve(path: Path, points: list[tuple[int, float]]) -> None:
+    path.parent.mkdir(parents=True)
+    rows = [{"step": str(step), "seconds": str(step), "val_psnr": str(v)} for step, v in points]
+    write_metrics_rows(path, rows)
+
+
+def test_one_verdict_per_network_from_its_fp32_spread_with_the_change_signed(
+    tmp_path: Path,
+) -> None:
+    # fp32 scores 20.0 / 20.2 (spread 0.14); bf16 20.0 / 21.0 (spread 0.71). Both seeds'
+    # validation PSNR falls 0.5 dB over the last fifth: beyond the fp32 spread, so the
+    # network has not converged, at bf16 too, although 0.5 dB is within bf16's spread.
+    results = [
+        TradeoffResult(
+            [_row("GEA", "fp32", 20.0 + seed * 0.2), _row("GEA", "bf16", 20.0 + seed)], {}
+        )
+        for seed in (0, 1)
+    ]
+    for seed in (0, 1):
+        falling = [(0, 20.0), (80, 21.0), (90, 20.75), (100, 20.5)]
+        _curve(tmp_path / f"seed{seed}" / "runs" / "GEA" / "metrics.csv", falling)
+    rows = aggregate(results, tmp_path, [0, 1], Budget(steps=100))
+    assert [(r.precision, r.converged) for r in rows] == [("fp32", False), ("bf16", False)]
+    assert all(r.tail_change_db == pytest.approx(-0.5) for r in rows)
+    text = seeded_markdown(rows, _META)
+    assert "no (-0.50 dB)" in text and "does NOT hold" in text
+    # one seed has no spread to compare with: not checked, and not called unconverged
+    single = aggregate(results[:1], tmp_path, [0], Budget(steps=100))
+    assert [r.converged for r in single] == [None, None]
+    text = seeded_markdown(single, _META)
+    assert "not checkable" in text and "does NOT hold" not in text and "could not be made" in text
+
+
+_META = {
+    "dataset": "ds", "evaluated_on": "ds split test", "budget": "100 steps", "seeds": [0, 1],
+    "convention": "skimage-gaussian", "size": "540x360",
+}  # fmt: skip
