@@ -214,8 +214,10 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
         )
     elif any(row.converged is False for row in rows):
         verdict_text = (
-            "The convergence check does NOT hold for every network: a longer budget would "
-            "change the accuracy columns; read them as what this budget buys."
+            "The convergence check does NOT hold for every network: validation PSNR still "
+            "moved over the budget's last fifth by more than the seed spread (under a "
+            "decaying learning rate partly the settling as the rate falls; a run at another "
+            "budget tells the two apart); read the accuracy columns as what this budget buys."
         )
     else:
         verdict_text = (

@@ -1,0 +1,74 @@
+"""benchmarks.tradeoff_budgets: what a larger budget changed, claimed only beyond the spread."""
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from benchmarks.tradeoff_budgets import main
+
+
+def _run(path: Path, budget: str, rows: dict[str, list[float]], crop: int = 128) -> Path:
+    meta = {
+        "dataset": "ds", "evaluated_on": "ds split test", "convention": "skimage-gaussian",
+        "size": "540x360", "budget": budget, "seeds": [0, 1, 2],
+        "training": {"crop_size": crop, "batch_size": 4, "lr": 2e-4, "lr_decay": 0.5},
+    }  # fmt: skip
+    table: list[dict[str, Any]] = [
+        {"name": name, "precision": precision, "psnr_db": psnr, "ssim": [0.9, 0.91, 0.92]}
+        for name, psnr in rows.items()
+        for precision in ("fp32", "bf16")
+    ]
+    path.write_text(json.dumps({"meta": meta, "rows": table}))
+    return path
+
+
+def test_a_change_is_claimed_only_beyond_either_spread(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # G rises by 1 dB against spreads of 0.1 and 0.2; GEA by 0.1 dB against 0.2; b3 is
+    # only in the larger run and so not compared
+    small = _run(
+        tmp_path / "a.json", "800 steps", {"G": [24.9, 25.0, 25.1], "GEA": [25.0, 25.2, 25.4]}
+    )
+    large = _run(
+        tmp_path / "b.json",
+        "2000 steps",
+        {"G": [25.8, 26.0, 26.2], "GEA": [25.1, 25.3, 25.5], "GEA-b3": [25.0, 25.0, 25.0]},
+    )
+    out = tmp_path / "budgets.md"
+    assert main([str(small), str(large), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert text == capsys.readouterr().out
+    assert "| G | 25.00 +/- 0.10 | 26.00 +/- 0.20 | +1.00 dB | yes |" in text
+    assert "| GEA | 25.20 +/- 0.20 | 25.30 +/- 0.20 | +0.10 dB | no |" in text
+    assert "GEA-b3" not in text
+    assert "changed G beyond the spread: at 800 steps those had not converged" in text
+
+
+def test_runs_that_do_not_compare_are_a_one_line_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    small = _run(tmp_path / "a.json", "800 steps", {"G": [25.0, 25.1, 25.2]})
+    other_crop = _run(tmp_path / "b.json", "2000 steps", {"G": [25.0, 25.1, 25.2]}, crop=256)
+    assert main([str(small), str(other_crop)]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "b.json: crop_size is 256, but 128" in error
+    same_budget = _run(tmp_path / "c.json", "800 steps", {"G": [25.0, 25.1, 25.2]})
+    assert main([str(small), str(same_budget)]) == 2
+    assert "the same budget" in capsys.readouterr().err
+    (tmp_path / "d.json").write_text("{not json")
+    assert main([str(small), str(tmp_path / "d.json")]) == 2
+    assert "d.json: cannot read it as JSON" in capsys.readouterr().err
+
+
+def test_no_change_beyond_the_spread_says_so(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    small = _run(tmp_path / "a.json", "800 steps", {"G": [24.9, 25.0, 25.1]})
+    large = _run(tmp_path / "b.json", "2000 steps", {"G": [24.95, 25.05, 25.15]})
+    assert main([str(small), str(large)]) == 0
+    assert "No network changed beyond the spread between 800 steps and 2000 steps" in (
+        capsys.readouterr().out
+    )
