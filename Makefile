@@ -52,7 +52,7 @@ results: demo bench
 	$(BIN)/python -m benchmarks.readme_results --demo demo_out --demo-fp32 demo_out_fp32 \
 		--bench bench_out --readme README.md
 
-# Issue 12: the tradeoff over seeds with a convergence check (5 variants x 3 seeds x 2000
+# Issue 12: the tradeoff over seeds with a convergence check (4 variants x 3 seeds x 2000
 # steps, crop 128, batch 4, learning rate decaying over the second half, on Table 2's
 # dataset). Each seed trains in its own one-thread process, side by side (about two hours
 # on 2 cores, docs/results/tradeoff_seeds_cpu.md); a last run reuses their training and
@@ -62,7 +62,7 @@ results: demo bench
 # docs/results/table2.md), the weights (1500 optimiser steps per network, batch 8, crop
 # 128; then scored as shipped on the demo's test split). Each prints its table and
 # writes it beside its runs.
-TRADEOFF := table2_out/demo/dataset --budget 2000 --variants G,GE,GEA,GEA-w0.5,GEA-b3 \
+TRADEOFF := table2_out/demo/dataset --budget 2000 --variants G,GE,GEA,GEA-w0.5 \
 	--config benchmarks/tradeoff_cpu.yaml
 tradeoff-seeds: $(VENV)/.installed
 	$(BIN)/python -m benchmarks.table2 --out table2_out --frames 60 --splits 0.6,0.15,0.25 --data-only
