@@ -54,8 +54,8 @@ results: demo bench
 
 # Issue 12: the tradeoff over seeds with a convergence check (4 variants x 3 seeds x 2000
 # steps, crop 128, batch 4, learning rate decaying over the second half, on Table 2's
-# dataset). Each seed trains in its own one-thread process, side by side (about two hours
-# on 2 cores, docs/results/tradeoff_seeds_cpu.md); a last run reuses their training and
+# dataset). Each seed trains in its own one-thread process, side by side (about an hour and
+# three quarters on 2 cores, docs/results/tradeoff_seeds_cpu.md); a last run reuses their training and
 # times every network alone. 800 constant-rate steps at crop 256 ran on an H100
 # (docs/results/gpu_h100.md). Then the paper's Table 2 on simulated pairs (2 pretrainings
 # of 1200 steps and 9 fine-tunings of 800: about an hour on 2 CPU cores;

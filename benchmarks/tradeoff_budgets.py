@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from lenspair.core.fsutil import atomic_write_text
-from lenspair.model.evaluation.seed_statistics import SeedSummary, summarise_seeds
+from lenspair.model.evaluation.seed_statistics import SeedSummary, clearly_better, summarise_seeds
 
 SAME = ("dataset", "evaluated_on", "convention", "size")
 """Meta fields two runs must share to be compared (plus crops, batch and base rate)."""
@@ -95,7 +95,7 @@ def compare(small_path: Path, large_path: Path) -> str:
     for name in common:
         (psnr_a, ssim_a), (psnr_b, ssim_b) = before[name], after[name]
         change = psnr_b.mean - psnr_a.mean
-        beyond = abs(change) > max(psnr_a.spread, psnr_b.spread)
+        beyond = clearly_better(psnr_b, psnr_a) or clearly_better(psnr_a, psnr_b)
         if beyond:
             changed.append(name)
         lines.append(
