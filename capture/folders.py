@@ -7,7 +7,11 @@ Layout::
 
 The timestamp is the last group of digits of the file stem, in nanoseconds
 (``left_000017_1403636579763555584.png`` works too), or seconds with a
-fraction when the stem ends in ``<digits>.<digits>`` (``1403636579.7635.png``).
+fraction when the stem ends in ``<digits>.<digits>`` (``1403636579.7635.png``),
+or seconds and nanoseconds when it ends in ``<9-10 digits>_<9 digits>`` (or
+``-``), as ROS tools name frames (``1403636579_763555584.png``): read as
+nanoseconds alone, those would lose their seconds and pair frames of
+different seconds.
 Hidden files and files that are not images are ignored. Folders have no
 recording order, so frames are taken in time order; two files with the same
 timestamp keep the first by name and record the other.
@@ -31,6 +35,8 @@ IMAGE_SUFFIXES = frozenset({".png", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".
 FOLDER_NAMES: dict[CameraName, str] = {"cam0": "left", "cam1": "right"}
 
 _SECONDS = re.compile(r"(\d+)\.(\d{1,9})$")
+_SECONDS_NANOSECONDS = re.compile(r"(?<!\d)(\d{9,10})[_-](\d{9})$")
+"""Unix seconds (9-10 digits: 1973 to 2286) and a 9-digit nanosecond field."""
 _LAST_DIGITS = re.compile(r"(\d+)\D*$")
 
 
@@ -42,10 +48,10 @@ def timestamp_from_name(name: str) -> int | None:
 
     Returns:
         Nanoseconds: the stem's last digit group, or ``<s>.<fraction>`` read as
-        seconds.
+        seconds, or ``<s>_<ns>`` (module docstring).
     """
     stem = Path(name).stem
-    seconds = _SECONDS.search(stem)
+    seconds = _SECONDS.search(stem) or _SECONDS_NANOSECONDS.search(stem)
     if seconds is not None:
         whole, fraction = seconds.groups()
         return int(whole) * 1_000_000_000 + int(fraction.ljust(9, "0"))

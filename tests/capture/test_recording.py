@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from lenspair.capture.errors import CaptureError
+from lenspair.capture.folders import timestamp_from_name
 from lenspair.capture.recording import (
     FrameRef,
     load_frame,
@@ -164,6 +165,34 @@ def test_left_right_folders(tmp_path: Path) -> None:
     (tmp_path / "right").rmdir()
     with pytest.raises(CaptureError, match=r"right: missing camera folder \(cam1\)"):
         open_recording(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("name", "expected"),
+    [
+        ("1700000002_001058405.png", 1_700_000_002_001_058_405),  # ROS <s>_<ns>
+        ("left-1700000002-000000007.png", 1_700_000_002_000_000_007),
+        ("1700000002.5.png", 1_700_000_002_500_000_000),
+        ("left_000017_1403636579763555584.png", 1_403_636_579_763_555_584),
+        ("frame_000017.png", 17),  # a frame index stays an index
+        ("12_001058405.png", 1_058_405),  # too few digits for Unix seconds
+        ("nostamp.png", None),
+    ],
+)
+def test_timestamp_from_name(name: str, expected: int | None) -> None:
+    assert timestamp_from_name(name) == expected
+
+
+def test_seconds_nanoseconds_names_pair_within_their_second(tmp_path: Path) -> None:
+    # read as nanoseconds alone, 1700000002_001058405 came before 1700000000_101770880
+    stamps = [1_700_000_000_101_770_880, 1_700_000_001_001_000_000, 1_700_000_002_001_058_405]
+    for i, t in enumerate(stamps):
+        for side in ("left", "right"):
+            name = f"{t // 10**9}_{t % 10**9:09d}.png"
+            write_image(tmp_path / side / name, _image(i))
+    recording = open_recording(tmp_path)
+    assert recording.timestamps("cam0") == stamps == recording.timestamps("cam1")
+    assert recording.problems == []
 
 
 def _load_in_worker(frame: FrameRef) -> np.ndarray:
