@@ -74,6 +74,7 @@ from lenspair.dataset.manifest import (
     REMOVED_FILE,
     ManifestRow,
     RemovedPair,
+    read_manifest,
     write_manifest,
     write_removed,
 )
@@ -410,6 +411,10 @@ def build_dataset(
     for warning in plan.warnings:
         logger.warning("split: %s", warning)
     rows = [row for row, _ in pairs]
+    split_warnings = plan.warnings
+    if changed := changed_splits(out / MANIFEST_FILE, rows):
+        logger.warning("split: %s", changed)
+        split_warnings = (*split_warnings, changed)  # in the card too
     # as each ingest counted them: by the stable part of the reason (one entry per
     # frame, with its path, made the card unreadable), and frames it could not list
     reasons: Counter[str] = Counter()
@@ -420,7 +425,7 @@ def build_dataset(
         [_source_info(s, rows) for s in loaded],
         Counter(rule for rule, _ in removed.values()),
         reasons,
-        Grouping(plan.mode, plan.moved, plan.warnings),
+        Grouping(plan.mode, plan.moved, split_warnings),
         config,
         image_files="hard-link" if link == "hard" else "copy",
     )
@@ -443,6 +448,33 @@ def build_dataset(
     finally:
         shutil.rmtree(temp, ignore_errors=True)
     return BuildResult(out, tuple(rows), card)
+
+
+def changed_splits(earlier_manifest: Path, rows: Sequence[ManifestRow]) -> str | None:
+    """What a rebuild moves between splits, against the dataset it replaces, or None.
+
+    Hashing keeps a group's split when recordings are added, but a group moved
+    to fill a split (side stratification, train first) can move back once new
+    groups fill it, and a network trained on the old train split would then be
+    validated on its own training frames. A missing or unreadable earlier
+    manifest compares nothing.
+    """
+    try:
+        earlier = {(r.recording, r.t_ns): r.split for r in read_manifest(earlier_manifest)}
+    except DatasetError:
+        return None
+    moves: Counter[tuple[str, str]] = Counter(
+        (earlier[key], row.split)
+        for row in rows
+        if (key := (row.recording, row.t_ns)) in earlier and earlier[key] != row.split
+    )
+    if not moves:
+        return None
+    said = ", ".join(f"{n} {a} -> {b}" for (a, b), n in sorted(moves.items()))
+    return (
+        f"{sum(moves.values())} pair(s) changed split against the dataset this build "
+        f"replaces ({said}): do not validate a network trained on the old splits on the new ones"
+    )
 
 
 SIDE_MISMATCH_CONFIDENCE = 0.5

@@ -13,9 +13,12 @@ a visible anomaly (by default they are kept and tagged difficulty "clean").
 Kept pairs are tagged easy (PSNR > 25 dB), medium or hard (< 20 dB).
 
 Pairs are split by recording (or, with few recordings, by contiguous segment
-with a gap at the borders) via a seeded hash, so adding a recording later
-does not move existing pairs, and every split sees both ground-truth sides
-when the data allows. Output: DS/{train,val,test}/{input,target[,mask]}/
+with a gap at the borders) via a seeded hash, and every split sees both
+ground-truth sides when the data allows. Adding a recording later leaves
+hashed pairs where they were; groups moved to fill a split (for the sides,
+or an empty train; named in dataset.json) can move back, and a rebuild
+warns with the count of pairs that changed split against the dataset it
+replaces. Output: DS/{train,val,test}/{input,target[,mask]}/
 <rec>_<t_ns>.png, manifest.jsonl, dataset.json (the card), removed.jsonl (each
 removed pair with its rule and reason), config.yaml and
 contact_<split>.png. Same inputs and seed give byte-identical files.

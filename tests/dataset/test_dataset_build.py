@@ -532,6 +532,24 @@ def test_a_rebuild_with_one_more_recording_keeps_the_grouping(
     assert fresh.card.grouping.mode == "recording"
 
 
+def test_a_rebuild_says_how_many_pairs_changed_split(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    sources = _three(recording)
+    out = tmp_path / "DS"
+    first = build_dataset(sources, out, SEGMENTS)
+    again = build_dataset(sources, out, SEGMENTS, overwrite=True)  # the same splits
+    assert not any("changed split" in w for w in again.card.grouping.warnings)
+    reseeded = replace(SEGMENTS, split=replace(SEGMENTS.split, seed=7))
+    moved = build_dataset(sources, out, reseeded, overwrite=True)
+    before = {(r.recording, r.t_ns): r.split for r in first.rows}
+    changed = sum(before.get((r.recording, r.t_ns), r.split) != r.split for r in moved.rows)
+    assert changed > 0
+    (said,) = [w for w in moved.card.grouping.warnings if "changed split" in w]
+    assert said.startswith(f"{changed} pair(s) changed split")
+    assert json.loads((out / "dataset.json").read_text())["grouping"]["warnings"][-1] == said
+
+
 def test_a_rebuild_that_fails_at_the_swap_loses_none_of_the_users_files(
     recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
