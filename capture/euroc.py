@@ -12,6 +12,7 @@ problem; so is an image in ``data/`` that no row lists. Without ``data.csv``
 the file names give the timestamps.
 """
 
+import os
 from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
@@ -88,6 +89,21 @@ def _list_camera(
     return order_frames(camera, frames, problems)
 
 
+def name_in_folder(folder: Path, name: str) -> str | None:
+    """``name`` (relative to ``folder``, or absolute) as a path inside ``folder``, or None.
+
+    Lexical, as a recording is copied: ``a/../b.png`` is ``b.png``, an absolute
+    path under ``folder`` becomes relative to it, and one that leaves ``folder``
+    (``../x.png``, another folder's absolute path) is None. Symbolic links are
+    not followed: a ``data/`` folder of links to elsewhere is still the folder.
+    """
+    root = os.path.abspath(folder)
+    target = os.path.abspath(os.path.join(root, name))
+    if os.path.commonpath([root, target]) != root or target == root:
+        return None
+    return Path(os.path.relpath(target, root)).as_posix()
+
+
 def read_data_csv(
     camera: CameraName, csv_path: Path, data_dir: Path, problems: list[FrameProblem]
 ) -> tuple[list[FrameRef], set[str]]:
@@ -125,7 +141,8 @@ def read_data_csv(
                 FrameProblem(camera, None, where, f"expected '<t_ns>,<file>', got {row[:60]!r}")
             )
             continue
-        named.add(fields[1])
+        inside = name_in_folder(data_dir, fields[1])
+        named.add(fields[1] if inside is None else inside)
         try:
             t_ns = int(fields[0])
         except ValueError:
@@ -134,7 +151,11 @@ def read_data_csv(
             reason = f"timestamp is not a non-negative integer (ns): {fields[0][:30]!r}"
             problems.append(FrameProblem(camera, None, where, reason))
             continue
-        file = data_dir / fields[1]
+        if inside is None:  # restore writes OUT/<name>: a name leaving data/ must not be one
+            reason = f"listed file lies outside {data_dir}: {fields[1][:80]!r}"
+            problems.append(FrameProblem(camera, t_ns, where, reason))
+            continue
+        file = data_dir / inside
         if not file.is_file():
             problems.append(FrameProblem(camera, t_ns, where, f"listed file missing: {file}"))
             continue

@@ -330,6 +330,9 @@ class FileSink:
                 only; a failure to write OUT stays an ``OSError``).
         """
         destination = self.out_dir / item.name
+        if os.path.isabs(item.name) or ".." in Path(item.name).parts:
+            # readers name frames inside their input; one that did not must not write elsewhere
+            raise CaptureError(f"{item.source}: its name {item.name!r} leaves OUT; not written")
         if restored is None:
             try:
                 with open(item.source, "rb"):  # reading the original is this frame's problem

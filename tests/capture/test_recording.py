@@ -101,6 +101,32 @@ def test_euroc_problems_are_recorded(tmp_path: Path) -> None:
     assert all(p.camera == "cam0" for p in recording.problems)
 
 
+def test_euroc_names_outside_the_data_folder_are_problems(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    stamps = [T0 + i * 50 * MS for i in range(4)]
+    cam0 = tmp_path / "rec" / "mav0" / "cam0"
+    _write_camera(cam0, stamps)
+    write_image(tmp_path / "escaped.png", _image(0))  # exists: only its place is wrong
+    rows = [
+        f"{stamps[0]},{stamps[0]}.png",
+        f"{stamps[1]},{(cam0 / 'data' / f'{stamps[1]}.png').resolve()}",  # absolute, inside
+        f"{stamps[2]},sub/../{stamps[2]}.png",  # stays inside
+        f"{stamps[3]},../../../../escaped.png",
+    ]
+    (cam0 / "data.csv").write_text("\n".join(rows) + "\n")
+    _write_camera(tmp_path / "rec" / "mav0" / "cam1", stamps)
+    monkeypatch.chdir(tmp_path)  # a relative recording path, as typed on a command line
+    recording = open_recording(Path("rec"))
+    assert recording.timestamps("cam0") == stamps[:3]
+    assert all(not ref.source.is_absolute() for ref in recording.frames["cam0"])
+    # the escaping row, and the data/ file that no row names any more
+    unlisted, problem = sorted(recording.problems, key=lambda p: p.reason)
+    assert problem.reason.startswith("listed file lies outside") and problem.t_ns == stamps[3]
+    assert unlisted.reason.startswith("image not listed") and unlisted.t_ns == stamps[3]
+    assert problem.source.endswith("data.csv:4") and problem.dropped
+
+
 def test_corrupt_image_lists_but_load_names_the_file(tmp_path: Path) -> None:
     _euroc(tmp_path)
     recording = open_recording(tmp_path)

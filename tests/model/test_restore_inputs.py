@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from lenspair.capture.frames import detect_input
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.frames import InputFrame, detect_input
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.core import imageio
 from lenspair.core.errors import ImageIOError
@@ -434,3 +435,15 @@ def test_a_restored_image_keeps_its_orientation_and_a_multi_page_file_is_kept_wh
     (problem,) = report.problems
     assert problem["frame"] == "pages.tif" and "several pages" in problem["reason"]
     assert (tmp_path / "out" / "pages.tif").read_bytes() == (source / "pages.tif").read_bytes()
+
+
+@pytest.mark.parametrize("name", ["../escaped.png", "a/../../escaped.png", "/tmp/escaped.png"])
+def test_a_file_sink_writes_nothing_outside_out(tmp_path: Path, name: str) -> None:
+    original = tmp_path / "in.png"
+    write_image(original, np.full((8, 8), 7, np.uint8))
+    frame = InputFrame(0, name, None, None, str(original), None)
+    sink = sinks.FileSink(tmp_path / "OUT")
+    for restored in (None, np.zeros((8, 8), np.uint8)):
+        with pytest.raises(CaptureError, match="leaves OUT; not written"):
+            sink.write(frame, restored)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["in.png"]
