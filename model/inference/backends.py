@@ -114,15 +114,43 @@ class TorchBackend:
         """One line for logs and the report."""
         return f"torch checkpoint {self.path} on {self.device} ({self.precision})"
 
-    @torch.inference_mode()
     def __call__(self, batch: np.ndarray) -> np.ndarray:
-        """Run the network on a numpy batch (see :class:`Backend`)."""
+        """Run the network on a numpy batch (see :class:`Backend`).
+
+        A batch that does not fit in memory runs again one frame at a time;
+        a single frame that does not fit is a :class:`ModelError` that says
+        how to restore it (tiles; a fp32 frame needs about 330 MB per
+        megapixel on the CPU), not an allocator's traceback.
+        """
+        try:
+            return self._run(batch)
+        except (torch.OutOfMemoryError, RuntimeError) as exc:
+            if not _out_of_memory(exc):
+                raise
+            if len(batch) > 1:
+                return np.concatenate([self(batch[i : i + 1]) for i in range(len(batch))])
+            height, width = batch.shape[-2:]
+            raise ModelError(
+                f"{self.path}: out of memory restoring one {width}x{height} frame on "
+                f"{self.device} ({self.precision}); restore it in tiles (--tile 512)"
+            ) from None
+
+    @torch.inference_mode()
+    def _run(self, batch: np.ndarray) -> np.ndarray:
         x = torch.from_numpy(check_batch(batch, self.channels)).to(self.device)
         if self.device.type == "cpu":
             x = x.contiguous(memory_format=torch.channels_last)
         with autocast_context(self.device, self.precision):
             output = self.network(x)[1]
         return np.asarray(output.float().clamp(0.0, 1.0).cpu().numpy(), dtype=np.float32)
+
+
+def _out_of_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` is an allocation failure (CUDA's, or the CPU allocator's)."""
+    if isinstance(exc, torch.OutOfMemoryError):
+        return True
+    text = str(exc)
+    return "can't allocate memory" in text or "DefaultCPUAllocator" in text
 
 
 class OnnxBackend:

@@ -447,3 +447,38 @@ def test_a_file_sink_writes_nothing_outside_out(tmp_path: Path, name: str) -> No
         with pytest.raises(CaptureError, match="leaves OUT; not written"):
             sink.write(frame, restored)
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["in.png"]
+
+
+class _Hungry(torch.nn.Module):
+    """Runs batches of up to ``fits`` frames; a larger one fails as the CPU allocator does."""
+
+    def __init__(self, fits: int) -> None:
+        super().__init__()
+        self.fits = fits
+        self.sizes: list[int] = []
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        self.sizes.append(len(x))
+        if len(x) > self.fits:
+            raise RuntimeError(
+                "[enforce fail at alloc_cpu.cpp:118] DefaultCPUAllocator: can't allocate memory"
+            )
+        return x, 1.0 - x
+
+
+def test_a_batch_out_of_memory_runs_frame_by_frame_and_one_frame_says_tile() -> None:
+    batch = np.random.default_rng(0).random((3, 1, 8, 12), dtype=np.float32)
+    network = _Hungry(fits=1)
+    backend = TorchBackend(network, 1, torch.device("cpu"), path=Path("m.pt"))
+    np.testing.assert_allclose(backend(batch), 1.0 - batch)
+    assert network.sizes == [3, 1, 1, 1]
+    starved = TorchBackend(_Hungry(fits=0), 1, torch.device("cpu"), path=Path("m.pt"))
+    with pytest.raises(ModelError, match=r"^m.pt: out of memory restoring one 12x8 frame .*--tile"):
+        starved(batch)
+    with pytest.raises(RuntimeError, match="other"):  # not an allocation failure: as raised
+        TorchBackend(_Raises(), 1, torch.device("cpu"))(batch)
+
+
+class _Raises(torch.nn.Module):
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        raise RuntimeError("other")
