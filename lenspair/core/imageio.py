@@ -17,7 +17,7 @@ function of the pixels.
 import contextlib
 import errno
 import shutil
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -117,7 +117,10 @@ def read_alpha(path: Path) -> np.ndarray | None:
     """
     path = Path(path)
     with _opened(path) as handle:
-        if handle.spec().nchannels not in (2, 4):
+        spec = handle.spec()
+        if problem := _channel_problem(spec.nchannels, spec.alpha_channel, spec.channelnames):
+            raise ImageIOError(f"{path}: {problem}")
+        if spec.nchannels not in (2, 4):
             return None
     try:
         array = _read_pixels(path)
@@ -202,6 +205,19 @@ _CUT_SHORT = "Premature end"
 """How libjpeg (through OpenImageIO) says a file ended before its image did."""
 
 
+def _channel_problem(channels: int, alpha: int, names: Sequence[str]) -> str | None:
+    """Why lenspair cannot read these channels without losing one, or None.
+
+    It reads grey and RGB, each with or without alpha as the last channel. A
+    fifth channel, or a last channel the file does not call alpha (an RGB +
+    near-infrared TIFF), would be dropped, or written back as transparency.
+    """
+    if channels in (1, 3) or (channels in (2, 4) and alpha == channels - 1):
+        return None
+    what = "grey, RGB, and either with alpha as the last channel"
+    return f"{channels} channels ({', '.join(names)}); lenspair reads {what}"
+
+
 def _read_pixels(path: Path) -> np.ndarray:
     """The pixels of an existing file as OpenImageIO returns them, ``(H, W, C)``."""
     if path.stat().st_size == 0:
@@ -212,7 +228,9 @@ def _read_pixels(path: Path) -> np.ndarray:
             raise ImageIOError(f"{path}: {problem}")
     with _opened(path) as handle:
         spec = handle.spec()
-        problem = format_problem(str(spec.format))
+        problem = format_problem(str(spec.format)) or _channel_problem(
+            spec.nchannels, spec.alpha_channel, spec.channelnames
+        )
         if problem:
             raise ImageIOError(f"{path}: {problem}")
         pixels = handle.read_image(spec.format)

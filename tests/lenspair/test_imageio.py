@@ -1,3 +1,4 @@
+import re
 from pathlib import Path
 
 import numpy as np
@@ -150,3 +151,40 @@ def test_translucent_pixels_read_as_stored_and_alpha_round_trips(
     assert read_alpha(tmp_path / "rgb.png") is None
     with pytest.raises(ValueError, match="alpha"):
         write_image(tmp_path / "bad.png", colour, alpha=alpha[:2])
+
+
+def _write_channels(path: Path, names: tuple[str, ...], alpha: int) -> None:
+    import OpenImageIO as oiio
+
+    spec = oiio.ImageSpec(4, 3, len(names), "uint8")
+    spec.channelnames = names
+    spec.alpha_channel = alpha
+    output = oiio.ImageOutput.create(str(path))
+    assert output.open(str(path), spec)
+    output.write_image(np.arange(12 * len(names), dtype=np.uint8).reshape(3, 4, len(names)))
+    output.close()
+
+
+@pytest.mark.parametrize(
+    ("names", "alpha"),
+    [(("R", "G", "B", "A", "extra"), 3), (("R", "G", "B", "NIR"), -1), (("R", "G"), -1)],
+)
+def test_channels_that_would_be_lost_or_turned_into_alpha_are_an_error(
+    tmp_path: Path, names: tuple[str, ...], alpha: int
+) -> None:
+    path = tmp_path / "multi.tif"
+    _write_channels(path, names, alpha)
+    # a TIFF names its extra channels channelN
+    message = re.escape(f"{path}: {len(names)} channels (") + r"[^)]*\); lenspair reads grey, RGB"
+    for reader in (read_image, read_alpha):
+        with pytest.raises(ImageIOError, match=message):
+            reader(path)
+
+
+def test_rgba_and_grey_alpha_tiffs_still_read(tmp_path: Path) -> None:
+    for names in (("R", "G", "B", "A"), ("Y", "A")):
+        path = tmp_path / f"{len(names)}.tif"
+        _write_channels(path, names, len(names) - 1)
+        assert read_image(path).ndim == (3 if len(names) == 4 else 2)
+        alpha = read_alpha(path)
+        assert alpha is not None and alpha[0, 0] == len(names) - 1
