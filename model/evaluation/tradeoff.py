@@ -2,8 +2,12 @@
 
 Every variant is trained on the same data with the same budget (steps or
 seconds; early stopping off so that budgets stay equal), then its
-``best.pt`` is scored on the evaluation pairs and timed at batch 1 on the
-data's frame size. Each ``GEA``-family checkpoint is scored and timed again
+``best.pt`` (the checkpoint of the best validation PSNR, as the paper's early
+stopping keeps) is scored on the evaluation pairs and timed at batch 1 on the
+data's frame size. Scored on the validation pairs themselves (a paired
+folder without a test split), ``last.pt`` is: a checkpoint those pairs chose
+would score a best of noisy validations on them. Each row says the step of
+the checkpoint it scored (``scored_step``). Each ``GEA``-family checkpoint is scored and timed again
 at bf16 (and fp16 on CUDA), since reduced precision is the other lever on
 speed. The result is ONE table (``tradeoff.md``, ``.csv``, ``.json``) and a
 plot (``tradeoff.png``) of PSNR and SSIM against CPU time with the Pareto
@@ -129,6 +133,13 @@ class TradeoffResult:
     meta: dict[str, Any]
 
 
+SCORED = {
+    "best.pt": "each network's checkpoint of best validation PSNR (step: scored_step)",
+    "last.pt": "each network at the end of its budget (the validation pairs are the "
+    "scored ones, so they choose no checkpoint)",
+}
+"""What ``meta["scored"]`` says for each checkpoint scored."""
+
 DEFAULT_LR_DECAY = 0.5
 """``lenspair tradeoff``'s learning-rate decay: over the step budget's second half (pix2pix)."""
 
@@ -219,6 +230,9 @@ def run_tradeoff(
         Path(dataset).resolve(), base.data, base.model.channels, base.train.seed
     )
     pairs: Any = None
+    # the checkpoint the validation pairs chose, scored on other pairs; scored on
+    # those same pairs it would be a best of noisy validations: the budget's end then
+    checkpoint = "best.pt"
     if detect_layout(Path(dataset)) is None:  # a dataset with splits: score on ``split``
         try:
             pairs = open_eval_pairs(dataset, split or "test")
@@ -235,6 +249,7 @@ def run_tradeoff(
         if pairs is None:
             raise ModelError(f"{dataset}: no test split and no held-out pairs to score")
         pairs_text = f"{dataset} held-out validation pairs ({len(pairs)}, not trained on)"
+        checkpoint = "last.pt"
     if len(pairs) == 0:
         raise ModelError(
             f"{pairs_text}: no pairs to score; choose another --split (e.g. val) or rebuild "
@@ -261,6 +276,7 @@ def run_tradeoff(
         "size": f"{size[1]}x{size[0]}",
         "convention": convention,
         "seed": base.train.seed,
+        "scored": SCORED[checkpoint],
     }
     atomic_write_text(
         out_dir / "tradeoff_config.yaml",
@@ -268,6 +284,7 @@ def run_tradeoff(
     )
     rows = []
     baseline: Summary | None = None
+    cpu_native = choose_precision("auto", torch.device("cpu"), "infer").native
     for variant in variants:
         config = resolve_config(variant_config(base, variant, budget), data.channels)
         run = out_dir / "runs" / variant.name
@@ -285,7 +302,7 @@ def run_tradeoff(
             resume=resume,
             data_path=Path(dataset),
         )
-        loaded = load_model(run / "checkpoints" / "best.pt", device)
+        loaded = load_model(run / "checkpoints" / checkpoint, device)
         params, gflops = complexity(loaded.network, data.channels, (size[0], size[1]))
         for precision in precisions_for(variant.variant, device):
             if precision == "int8" and (
@@ -308,7 +325,7 @@ def run_tradeoff(
                 ).psnr_db
             baseline = baseline or summarize(scores, "input")
             cpu_ms = gpu_ms = None
-            if precision != "fp16":
+            if precision in cpu_native:  # a CPU time at an emulated precision shows the emulation
                 cpu = measure_latency(
                     network, data.channels, torch.device("cpu"), (size[0], size[1]),
                     precision, warmup=3, runs=latency_runs,
@@ -337,6 +354,7 @@ def run_tradeoff(
                     convention=convention,
                     steps=summary.steps,
                     psnr_vs_fp32_db=versus,
+                    scored_step=loaded.step,
                 )
             )
             log.info("tradeoff: %s", rows[-1].describe())

@@ -45,7 +45,7 @@ def _fmt(value: float | None, digits: int) -> str:
 COLUMNS = (
     "name", "variant", "width", "num_blocks", "precision", "params", "gflops", "cpu_ms",
     "gpu_ms", "psnr_db", "ssim", "convention", "steps", "pareto_psnr", "pareto_ssim",
-    "psnr_vs_fp32_db",
+    "psnr_vs_fp32_db", "scored_step",
 )  # fmt: skip
 
 
@@ -56,9 +56,11 @@ def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
         "",
         f"- data: `{meta['dataset']}`, scored on {meta['evaluated_on']}",
         f"- training budget per variant: {meta['budget']}",
+        *([f"- scored: {meta['scored']}"] if "scored" in meta else []),
         f"- metric convention: {meta['convention']}",
         f"- latency: batch 1 at {meta['size']}, median after warm-up; CPU with "
-        f"{meta['threads']} threads; GPU column only when trained on CUDA",
+        f"{meta['threads']} threads (n/a at a precision the CPU only emulates); GPU "
+        "column only when trained on CUDA",
         "- Pareto: `*` = on the PSNR-vs-CPU-time front, `+` = on the SSIM-vs-CPU-time front",
         "",
         "| name | precision | params | GFLOPs | CPU ms | GPU ms | PSNR (dB) | SSIM | "

@@ -30,6 +30,7 @@ class TradeoffRow:
     pareto_psnr: bool = False
     pareto_ssim: bool = False
     psnr_vs_fp32_db: float | None = None
+    scored_step: int | None = None
 
     def precision_label(self) -> str:
         """``int8 (41.20 dB vs fp32)``: a reduced precision with its agreement with fp32."""

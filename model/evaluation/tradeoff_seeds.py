@@ -177,6 +177,11 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
         f"- data: `{meta['dataset']}`, scored on {meta['evaluated_on']}",
         f"- training budget per variant and seed: {meta['budget']}; seeds {meta['seeds']}",
         *([f"- training: {_schedule(meta['training'])}"] if "training" in meta else []),
+        *(
+            [f"- scored: {meta['scored']} (per seed: seed<k>/tradeoff.json)"]
+            if "scored" in meta
+            else []
+        ),
         f"- metric convention: {meta['convention']}; accuracy is mean +/- spread (sample "
         "standard deviation over seeds)",
         f"- CPU ms: median over seeds of the median per frame (batch 1, {meta['size']})",

@@ -6,7 +6,7 @@
     RUN/checkpoints/last.pt      after every epoch, at a budget stop, and every
                                  train.checkpoint_every_seconds/_steps within one
     RUN/checkpoints/best.pt      best validation PSNR so far
-    RUN/metrics.csv              one row per epoch
+    RUN/metrics.csv              one row per validation
     RUN/train.log                the log, warnings included
     RUN/samples.png              input | output | target of a few validation images
     RUN/tensorboard/             when TensorBoard is installed
@@ -645,6 +645,9 @@ def _loop(
             or (state.epoch % train.val_every == 0 and state.step_in_epoch == 0)
         ):
             validate_and_save(trainer, config, val_set, paths, state, info, means, board)
+            clock.reset(state)
+        elif state.step_in_epoch == 0:  # an epoch between validations: a kill loses none of it
+            save_progress(trainer, config, paths, state, info)
             clock.reset(state)
         state.seconds = elapsed()
         reason = reason or stop_reason(config, state, state.seconds)

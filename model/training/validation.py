@@ -8,15 +8,17 @@ budget stop) on whole images at fp32; its PSNR (convention
 improved, ``samples.png`` and a row of ``metrics.csv``
 (:mod:`lenspair.model.training.run_files`).
 
-Only end-of-epoch validations count for ``best.pt`` and early stopping. A
-budget stop mid-epoch validates too (logged, in ``metrics.csv`` and
-``last.pt``), but a straight run has no such validation, so counting it would
-make a budget-stopped and resumed run keep other weights and stop elsewhere.
-The one exception: a run with no best yet (its budget ended before its first
-end-of-epoch validation) takes ``best.pt``, ``best_psnr`` and ``best_epoch``
-from its mid-epoch validation, so that every run leaves a usable ``best.pt``
-(``lenspair train --max-steps`` and the demo hand it on); a later
-end-of-epoch validation of a resumed run then has to beat that PSNR.
+Only the scheduled validations (at the end of every ``val_every``-th epoch,
+and of the last epoch) count for ``best.pt`` and early stopping. A budget
+stop validates too, mid-epoch or at the end of an epoch off that schedule
+(logged, in ``metrics.csv`` and ``last.pt``), but a straight run has no such
+validation, so counting it would make a budget-stopped and resumed run keep
+other weights and stop elsewhere. The one exception: a run with no best yet
+(its budget ended before its first scheduled validation) takes ``best.pt``,
+``best_psnr`` and ``best_epoch`` from its budget-stop validation, so that
+every run leaves a usable ``best.pt`` (``lenspair train --max-steps`` and the
+demo hand it on); a later scheduled validation of a resumed run then has to
+beat that PSNR.
 """
 
 import copy
@@ -66,9 +68,9 @@ def validate_and_save(
 ) -> None:
     """Validate on rank 0, update early stopping, write checkpoints and metrics.
 
-    A validation mid-epoch (``state.step_in_epoch != 0``: a budget stop) leaves
-    ``best.pt``, the best PSNR and early stopping alone unless the run has no
-    best yet (see the module docstring).
+    A validation off the schedule (mid-epoch, or after an epoch that is not a
+    ``val_every``-th: a budget stop) leaves ``best.pt``, the best PSNR and
+    early stopping alone unless the run has no best yet (module docstring).
     """
     improved = False
     val_psnr = val_ssim = math.nan
@@ -77,20 +79,25 @@ def validate_and_save(
             trainer.model, val_set, trainer.device, skipped=trainer.val_skipped
         )
         end_of_epoch = state.step_in_epoch == 0
+        train = config.train
+        scheduled = end_of_epoch and (
+            state.epoch % train.val_every == 0 or state.epoch >= train.epochs
+        )
         # epochs count from 1, as the progress bar does: mid-epoch, the one under way
         epoch = state.epoch if end_of_epoch else state.epoch + 1
-        improved = val_psnr > state.best_psnr and (end_of_epoch or state.best_psnr == -math.inf)
+        improved = val_psnr > state.best_psnr and (scheduled or state.best_psnr == -math.inf)
         if improved:
             # a mid-epoch best lies in the epoch under way: 0 keeps meaning "no best yet"
             state.best_psnr = val_psnr
             state.best_epoch = epoch
-            if end_of_epoch:
+            if scheduled:
                 state.stale = 0
-        elif end_of_epoch:
+        elif scheduled:
             state.stale += 1
         note = ""
-        if not end_of_epoch:
-            note = "; mid-epoch: " + ("the run's first best" if improved else "not counted")
+        if not scheduled:
+            where = "mid-epoch" if not end_of_epoch else "off the val_every schedule"
+            note = f"; {where}: " + ("the run's first best" if improved else "not counted")
         write_image(paths.samples, sheet)
         log.info(
             "epoch %d step %d: loss_g %.4g loss_d %.4g | validation PSNR %.2f dB, SSIM %.4f "

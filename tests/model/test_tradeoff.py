@@ -5,6 +5,7 @@ import logging
 import shutil
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
+from lenspair.model.evaluation import tradeoff as tradeoff_module
 from lenspair.model.evaluation.evaluate import score_tensors
 from lenspair.model.evaluation.tradeoff import (
     DEFAULT_VARIANTS,
@@ -85,6 +87,16 @@ def _fixed_precisions(monkeypatch: pytest.MonkeyPatch, reduced: list[str]) -> No
         return ["fp32", *reduced] if variant == "GEA" else ["fp32"]
 
     monkeypatch.setattr("lenspair.model.evaluation.tradeoff.precisions_for", fixed)
+    _cpu_native(monkeypatch, ("int8", *reduced, "fp32"))  # timed on any CI machine's CPU
+
+
+def _cpu_native(monkeypatch: pytest.MonkeyPatch, native: tuple[str, ...]) -> None:
+    """Make ``run_tradeoff`` see ``native`` as the CPU's native precisions."""
+
+    def decision(*_: object) -> SimpleNamespace:
+        return SimpleNamespace(native=native)
+
+    monkeypatch.setattr(tradeoff_module, "choose_precision", decision)
 
 
 def test_tradeoff_int8_row_scores_against_fp32_and_target(
@@ -157,6 +169,13 @@ def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
     assert (out / "tradeoff.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (out / "tradeoff_config.yaml").is_file()
     assert (out / "runs" / "GEA-w2" / "checkpoints" / "best.pt").is_file()
+    # scored: the checkpoint the validation pairs chose (test pairs score it), with its step
+    assert payload["scored"] == tradeoff_module.SCORED["best.pt"] and "- scored: " in markdown
+    for row in result.rows:
+        best = load_model(out / "runs" / row.name / "checkpoints" / "best.pt")
+        assert (
+            row.scored_step == best.step == payload["rows"][result.rows.index(row)]["scored_step"]
+        )
 
     # A rerun reuses the finished runs (and may select a subset from the CLI).
     config = tmp_path / "base.yaml"
@@ -170,7 +189,24 @@ def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
     assert main(["tradeoff", str(dataset), "--out", str(out), "--variants", "X"]) == 2
 
 
-def test_a_single_paired_folder_is_scored_on_pairs_it_did_not_train_on(tmp_path: Path) -> None:
+def test_a_precision_the_cpu_only_emulates_gets_no_cpu_time(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # as on a GPU whose host CPU lacks bf16: the GPU runs bf16, the CPU would emulate it
+    _fixed_precisions(monkeypatch, ["bf16"])
+    _cpu_native(monkeypatch, ("int8", "fp32"))
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    gea = tuple(v for v in DEFAULT_VARIANTS if v.name == "GEA")
+    result = run_tradeoff(dataset, tmp_path / "out", torch.device("cpu"), Budget(steps=1),
+                          tiny_config(), gea, latency_runs=1)  # fmt: skip
+    times = {r.precision: r.cpu_ms for r in result.rows}
+    assert times["bf16"] is None and times["fp32"] is not None and times["fp32"] > 0
+    assert "| GEA | bf16" in (tmp_path / "out" / "tradeoff.md").read_text()
+
+
+def test_a_single_paired_folder_is_scored_on_pairs_it_did_not_train_on(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     from lenspair.model.training.datasets import paired_training_data
     from tests.model.train_fixtures import write_paired_folder
 
@@ -179,8 +215,18 @@ def test_a_single_paired_folder_is_scored_on_pairs_it_did_not_train_on(tmp_path:
     data = paired_training_data(folder, base.data, 1, base.train.seed)
     trained = {pair.name for pair in data.train.source}  # type: ignore[attr-defined]
     variant = next(v for v in DEFAULT_VARIANTS if v.name == "G")
+    loaded: list[str] = []
+    real_load = tradeoff_module.load_model
+
+    def load(path: Path, device: torch.device) -> object:
+        loaded.append(Path(path).name)
+        return real_load(path, device)
+
+    monkeypatch.setattr(tradeoff_module, "load_model", load)
     result = run_tradeoff(folder, tmp_path / "out", torch.device("cpu"), Budget(steps=1), base,
                           (variant,), latency_runs=1)  # fmt: skip
+    # the validation pairs are the scored ones: they choose no checkpoint, the end is scored
+    assert loaded == ["last.pt"] and result.meta["scored"] == tradeoff_module.SCORED["last.pt"]
     evaluated = result.meta["evaluated_on"]
     assert "held-out" in evaluated and "split test" not in evaluated
     scored = {pair.name for pair in data.val.source}  # type: ignore[attr-defined]

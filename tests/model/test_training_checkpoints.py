@@ -145,3 +145,25 @@ def test_a_checkpoint_the_disk_cannot_hold_is_one_line_naming_it(tmp_path: Path)
     assert "Traceback" not in failed.stderr
     assert line.startswith("lenspair train: error: ") and line.endswith(".pt: File too large")
     assert not list((run / "checkpoints").glob("*.pt"))  # nothing half-written under its name
+
+
+def test_last_pt_follows_every_epoch_between_validations(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 2})  # 4 steps per epoch
+    config = tiny_config(epochs=3, val_every=2, checkpoint_every_seconds=None)
+    real = Trainer.train_step
+    calls = []
+
+    def killed_in_the_second_epoch(self: Trainer, batch: object) -> object:
+        calls.append(1)
+        if len(calls) == 6:
+            raise KeyboardInterrupt
+        return real(self, batch)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Trainer, "train_step", killed_in_the_second_epoch)
+    with pytest.raises(KeyboardInterrupt):
+        _train(dataset, tmp_path / "run", config)
+    saved = load_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt")
+    assert (saved["epoch"], saved["step"], saved["step_in_epoch"]) == (1, 4, 0)
+    assert read_metrics_rows(tmp_path / "run" / "metrics.csv") == []  # no validation yet

@@ -30,13 +30,17 @@ def _train(dataset: Path, run: Path, config: RunConfig, resume: bool = False) ->
 
 
 def _validations(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, events: list[tuple[int, int, float]]
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    events: list[tuple[int, int, float]],
+    val_every: int = 1,
 ) -> tuple[RunState, RunPaths, list[float]]:
     """Run ``validate_and_save`` at ``(epoch, step_in_epoch, psnr)``; best.pt's PSNR after each."""
     scores = iter(psnr for _, _, psnr in events)
     sheet = np.zeros((8, 8, 3), np.uint8)
     monkeypatch.setattr(validation, "validate", lambda *_, **__: (next(scores), 0.9, sheet))
     config = tiny_config()
+    config = replace(config, train=replace(config.train, val_every=val_every, epochs=10))
     trainer = Trainer(config, CPU)
     paths = RunPaths(tmp_path / "run")
     state, best = RunState(), []
@@ -64,6 +68,23 @@ def test_a_mid_epoch_validation_leaves_best_and_early_stopping_alone(
     assert best == [30.0, 30.0, 30.2, 30.2]  # the mid-epoch 30.5 never reached best.pt
     assert load_checkpoint(paths.best)["step"] == 20
     assert load_checkpoint(paths.last)["step"] == 30
+
+
+def test_an_end_of_epoch_validation_off_the_val_every_schedule_is_not_counted(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # val_every 2: a straight run validates after epochs 2 and 4; stopped by a budget
+    # at the end of epoch 3 and resumed, the run validates there too
+    caplog.set_level("INFO", logger="lenspair.model.training.validation")
+    straight, _, _ = _validations(tmp_path / "a", monkeypatch, [(2, 0, 30.0), (4, 0, 29.9)], 2)
+    resumed, paths, best = _validations(
+        tmp_path / "b", monkeypatch, [(2, 0, 30.0), (3, 0, 30.5), (4, 0, 29.9)], 2
+    )
+    assert (straight.best_psnr, straight.best_epoch, straight.stale) == (30.0, 2, 1)
+    assert (resumed.best_psnr, resumed.best_epoch, resumed.stale) == (30.0, 2, 1)
+    assert best == [30.0, 30.0, 30.0] and load_checkpoint(paths.best)["step"] == 20
+    lines = [r.getMessage() for r in caplog.records if "epoch 3 " in r.getMessage()]
+    assert len(lines) == 1 and "off the val_every schedule: not counted" in lines[0]
 
 
 def test_a_run_with_no_best_yet_takes_best_pt_from_a_mid_epoch_validation(
