@@ -91,7 +91,9 @@ class BagCopy:
     Args:
         source: the bag read (decides the output kind and storage).
         destination: from :func:`output_bag_path`; must not exist.
-        suffix: when set, restored images go to ``<topic><suffix>``.
+        suffix: when set, restored images go to ``<topic><suffix>``, and every
+            other image of a chosen camera (judged clean, or failed) goes
+            there as recorded: the topic has a message for each frame.
     """
 
     def __init__(self, source: Path, destination: Path, suffix: str = "") -> None:
@@ -179,6 +181,9 @@ class BagCopy:
         original = self._connection(item.connection, item.connection.topic)
         if restored is None:
             self.writer.write(original, item.log_time_ns, item.raw)
+            if self.suffix and item.frame is not None:  # a chosen camera's frame left as is
+                target = self._connection(item.connection, item.connection.topic + self.suffix)
+                self.writer.write(target, item.log_time_ns, item.raw)
             return
         message = encode_image(item.connection.msgtype, item.message, restored)
         msgtype = item.connection.msgtype

@@ -821,3 +821,28 @@ def test_a_bare_mcap_with_an_idl_vendor_type_is_copied_with_its_own_hash(
     assert report.restored == 1 and report.problems == []
     copy = iter_bag_messages(Path(report.output), ())
     assert [m.connection.digest for m in copy if m.connection.topic == "/vendor"] == [truth]
+
+
+def test_a_suffixed_topic_has_a_message_for_every_frame_of_the_camera(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    """Frames judged clean go to ``<topic><suffix>`` as recorded: a subscriber misses none."""
+    dark = (texture((32, 48), seed=1) * 60).astype(np.uint8)
+    bright = (texture((32, 48), seed=2) * 255).astype(np.uint8)
+    times = [10**18 + k * 50_000_000 for k in range(3)]
+    frames = [(times[0], dark), (times[1], bright), (times[2], dark)]
+    bag = write_bag(tmp_path / "run", "mcap", {"front": frames})
+    options = RestoreOptions(suffix="/restored")
+    report = restore_input(bag, tmp_path / "out", backend, options, judge=ThresholdJudge(0.3))
+    assert (report.restored, report.skipped) == (2, 1)
+    copy = list(iter_bag_messages(Path(report.output), cameras=()))
+    by_topic: dict[str, list[BagMessage]] = {}
+    for message in copy:
+        by_topic.setdefault(message.connection.topic, []).append(message)
+    topic = "/front/image_raw"
+    assert sorted(by_topic) == [topic, f"{topic}/restored", "/status"]
+    source, restored = by_topic[topic], by_topic[f"{topic}/restored"]
+    assert [m.log_time_ns for m in restored] == [m.log_time_ns for m in source]
+    assert len(source) == len(times)
+    assert restored[1].raw == source[1].raw  # the clean frame, as recorded
+    assert restored[0].raw != source[0].raw and restored[2].raw != source[2].raw
