@@ -65,7 +65,12 @@ from lenspair.capture.journal import (
     remove_temporaries,
     still_valid,
 )
-from lenspair.capture.pairing import PairingResult, estimate_period_ns, pair_frames
+from lenspair.capture.pairing import (
+    PairingResult,
+    clock_offset_warning,
+    estimate_period_ns,
+    pair_frames,
+)
 from lenspair.capture.qa import QA_FILE, write_qa_sheet
 from lenspair.capture.recording import (
     FrameRef,
@@ -462,8 +467,12 @@ def ingest_recording(
         more = len(recording.problems) - MAX_LOGGED_PROBLEMS
         log.warning("%s: %d more problems (counted in report.json)", recording.path, more)
     stamps0, stamps1 = recording.timestamps("cam0"), recording.timestamps("cam1")
-    tolerance = None if estimate_period_ns(stamps0, stamps1) else SINGLE_FRAME_TOLERANCE_NS
-    pairing = pair_frames(stamps0, stamps1, tolerance)
+    period = estimate_period_ns(stamps0, stamps1)
+    pairing = pair_frames(stamps0, stamps1, None if period else SINGLE_FRAME_TOLERANCE_NS)
+    said_of_recording = [str(p) for p in recording.problems if p.camera is None]
+    if offset := clock_offset_warning(pairing.pairs, period):
+        log.warning("%s: %s", recording.path, offset)
+        said_of_recording.append(offset)  # report.json keeps it
     frame_pairs = []  # (obstructed frame, clean frame)
     for pair in pairing.pairs:
         both = (recording.frames["cam0"][pair.index0], recording.frames["cam1"][pair.index1])
@@ -590,6 +599,7 @@ def ingest_recording(
     counts["homography_frames"] = len(registration["frames"])
     counts["homography_matches"] = int(registration["matches"])
     counts["homography_inliers"] = int(registration["inliers"])
+    counts["recording_problems"] = len(said_of_recording)  # the clock warning too
     reasons = rejection_reasons(recording, ordered, rig_file.obstructed)
     homography_out = in_output_pixels(matrix, crop.x, crop.y)
     report = IngestReport(
@@ -607,7 +617,7 @@ def ingest_recording(
         side_check=side_check,
         lenspair_version=__version__,
         significant_bits=bits if bits < 16 else None,
-        recording_problems=[str(p) for p in recording.problems if p.camera is None],
+        recording_problems=said_of_recording,
     )
     write_report_if_changed(out_dir / REPORT_FILE, report)
     if not kept:

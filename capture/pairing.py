@@ -208,3 +208,34 @@ def _format_ns(nanoseconds: int) -> str:
     if nanoseconds >= 100_000:
         return f"{nanoseconds / 1e6:.1f} ms"
     return f"{nanoseconds} ns"
+
+
+OFFSET_WARNING_SHARE = 0.25
+"""Median pairing gap, in frame periods, from which :func:`clock_offset_warning` warns."""
+
+
+def clock_offset_warning(pairs: Sequence[FramePair], period_ns: int | None) -> str | None:
+    """A warning when the cameras' clocks seem to disagree by a sizeable part of a frame.
+
+    Timestamps tell a clock offset only modulo the frame period: cameras whose
+    clocks differ by 30 ms at 20 Hz pair each frame with the neighbour taken
+    20 ms the other way, one frame apart, with every gap alike. A
+    hardware-synchronised rig pairs within a small part of a period; a median
+    gap (cam1 - cam0) of a quarter period or more says the pairing may be a
+    frame off, which only the images (a moving scene) can tell.
+
+    Returns:
+        One line, or None when the pairing is tight or there is nothing to judge.
+    """
+    if not pairs or not period_ns:
+        return None
+    median = statistics.median(pair.dt_ns for pair in pairs)
+    if abs(median) < OFFSET_WARNING_SHARE * period_ns:
+        return None
+    return (
+        f"cam1's frames are {median / 1e6:+.1f} ms from cam0's on median, "
+        f"{abs(median) / period_ns:.0%} of the {_format_ns(period_ns)} frame period: the "
+        "cameras' clocks may differ by more than half a period, which timestamps cannot "
+        "tell from a one-frame offset, so pairs may be a frame apart; check a moving "
+        "scene's pairs (their input and target), and synchronise the clocks"
+    )

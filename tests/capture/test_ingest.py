@@ -146,6 +146,24 @@ def test_unpaired_duplicate_and_backward_frames_are_accounted_for(tmp_path: Path
     assert [r.t_ns for r in twice] == [int(lines[3].split(",")[0])] and twice[0].status == "kept"
 
 
+def test_cameras_whose_clocks_disagree_are_said_in_the_log_and_report(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=6)
+    csv1 = recording / "mav0" / "cam1" / "data.csv"
+    rows = csv1.read_text().splitlines()
+    period = int(rows[2].split(",")[0]) - int(rows[1].split(",")[0])
+    shifted = [f"{int(t) + period * 3 // 5},{f}" for t, f in (r.split(",") for r in rows[1:])]
+    csv1.write_text("\n".join([rows[0], *shifted]) + "\n")
+    _, _, report = _ingest(recording, tmp_path / "out")
+    (said,) = [p for p in report.recording_problems if "clocks may differ" in p]
+    assert said.startswith("cam1's frames are -")  # paired with the frame before
+    assert report.counts["recording_problems"] == len(report.recording_problems)
+    assert any("clocks may differ" in r.getMessage() for r in caplog.records)
+    _, _, synchronised = _ingest(make_recording(tmp_path / "sync", frames=6), tmp_path / "o2")
+    assert not any("clocks" in p for p in synchronised.recording_problems)
+
+
 def test_one_stamp_far_in_the_future_is_not_blamed_on_every_later_frame(tmp_path: Path) -> None:
     from lenspair.capture.recording_types import FrameProblem, FrameRef, order_frames
 

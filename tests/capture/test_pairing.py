@@ -7,6 +7,7 @@ from lenspair.capture.pairing import (
     DUPLICATE,
     TAKEN,
     PairingResult,
+    clock_offset_warning,
     estimate_period_ns,
     pair_frames,
 )
@@ -122,3 +123,20 @@ def test_default_tolerance_is_half_the_period(ts: list[int]) -> None:
     assert result.period_ns is not None
     assert result.tolerance_ns == result.period_ns // 2
     assert len(result.pairs) == len(ts)  # identical clocks: all pair with themselves
+
+
+@pytest.mark.parametrize(
+    ("offset_ms", "said"),
+    [(0, None), (3, None), (-10, None), (13, "+13.0 ms"), (30, "-20.0 ms"), (-30, "+20.0 ms")],
+)
+def test_a_clock_offset_of_a_sizeable_part_of_a_frame_is_said(offset_ms: int, said: str) -> None:
+    # at 20 Hz a 30 ms offset pairs each frame with the neighbour 20 ms the other way
+    ts0 = [i * 50 * MS for i in range(12)]
+    ts1 = [t + offset_ms * MS for t in ts0]
+    result = pair_frames(ts0, ts1)
+    warning = clock_offset_warning(result.pairs, result.period_ns)
+    if said is None:
+        assert warning is None
+    else:
+        assert warning is not None and warning.startswith(f"cam1's frames are {said} from cam0's")
+        assert "frame period" in warning and "\n" not in warning
