@@ -24,6 +24,7 @@ naming it; a missing, corrupt or mismatched (sha256) image only removes its
 pair, which is counted under its rule and logged as a warning.
 """
 
+import itertools
 import logging
 import os
 import shutil
@@ -235,6 +236,8 @@ def assemble_rows(
         for m in survivors
     }
     plan = splits.plan_splits(items.values(), config.split, earlier_mode)
+    if joins := split_sessions(sources, items, plan, config):
+        plan = replace(plan, warnings=(*plan.warnings, *joins))
     gapped = splits.gap_items(items.values(), plan, config.split)
     pairs: list[tuple[ManifestRow, Measured]] = []
     for m in survivors:
@@ -448,6 +451,64 @@ def build_dataset(
     finally:
         shutil.rmtree(temp, ignore_errors=True)
     return BuildResult(out, tuple(rows), card)
+
+
+SESSION_JOIN_PERIODS = 3
+"""Frame periods within which one recording starting after another ends reads as its sequel."""
+
+
+def split_sessions(
+    sources: Sequence[Source],
+    items: dict[tuple[int, int], splits.SplitItem],
+    plan: splits.SplitPlan,
+    config: DatasetConfig,
+) -> list[str]:
+    """Warnings for one session cut into recordings whose join straddles two splits.
+
+    ``rosbag record --split`` (or a driver's file rotation) cuts one session into
+    consecutive recordings. Each is its own split group, so the last frame of one
+    and the first of the next, a frame period apart, can land in train and val.
+    Two recordings read as one session when they share the obstructed camera and
+    the calibration and the second starts within :data:`SESSION_JOIN_PERIODS`
+    frame periods after the first ends.
+    """
+    ends = []
+    for number, source in enumerate(sources):
+        kept = sorted(
+            (r.t_ns, index) for index, r in enumerate(source.records) if (number, index) in items
+        )
+        if len(kept) < 2:
+            continue
+        gaps = sorted(b - a for (a, _), (b, _) in itertools.pairwise(kept) if b > a)
+        period = gaps[len(gaps) // 2] if gaps else 0
+        ends.append((number, kept[0], kept[-1], period))
+    warnings = []
+    for a, _, last_a, period_a in ends:
+        for b, first_b, _, period_b in ends:
+            source_a, source_b = sources[a], sources[b]
+            gap = first_b[0] - last_a[0]
+            if (
+                a == b
+                or source_a.report.obstructed != source_b.report.obstructed
+                or source_a.report.calibration != source_b.report.calibration
+                or not 0 < gap <= SESSION_JOIN_PERIODS * max(period_a, period_b)
+            ):
+                continue
+            sides = [
+                plan.assignment.get(
+                    splits.group_id(items[key].recording, items[key].index, plan.mode,
+                                    config.split.segment_frames)
+                )
+                for key in ((a, last_a[1]), (b, first_b[1]))
+            ]  # fmt: skip
+            if sides[0] != sides[1]:
+                warnings.append(
+                    f"{source_b.report.recording_id} starts {gap / 1e6:.1f} ms after "
+                    f"{source_a.report.recording_id} ends, with the same calibration: one "
+                    f"session cut in two? Their neighbouring frames are in {sides[0]} and "
+                    f"{sides[1]}; ingest the session as one recording to keep them together"
+                )
+    return warnings
 
 
 def changed_splits(earlier_manifest: Path, rows: Sequence[ManifestRow]) -> str | None:

@@ -18,10 +18,14 @@ ground-truth sides when the data allows. Adding a recording later leaves
 hashed pairs where they were; groups moved to fill a split (for the sides,
 or an empty train; named in dataset.json) can move back, and a rebuild
 warns with the count of pairs that changed split against the dataset it
-replaces. Output: DS/{train,val,test}/{input,target[,mask]}/
-<rec>_<t_ns>.png, manifest.jsonl, dataset.json (the card), removed.jsonl (each
-removed pair with its rule and reason), config.yaml and
-contact_<split>.png. Same inputs and seed give byte-identical files.
+replaces. One session cut into several recordings (rosbag record --split)
+is several groups, and the build warns when a join between them falls
+between two splits: ingest such a session as one recording.
+
+Output: DS/{train,val,test}/{input,target[,mask]}/<rec>_<t_ns>.png,
+manifest.jsonl, dataset.json (the card), removed.jsonl (each removed pair
+with its rule and reason), config.yaml and contact_<split>.png. Same inputs
+and seed give byte-identical files.
 
 Images are independent copies of the ingested ones (a reflink where the file
 system supports it, else a byte copy): editing a dataset image never changes

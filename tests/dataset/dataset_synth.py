@@ -53,12 +53,14 @@ def make_recording(
     rejected: Collection[int] = (),
     masked: bool = False,
     dtype: type = np.uint8,
+    t0_ns: int = T0_NS,
 ) -> Path:
     """Write ``root/rid`` as capture-ingest would; returns the folder.
 
     ``still`` frames repeat the previous view (plus sensor noise), ``blurred``
     frames have a motion-blurred clean view, ``clean`` frames show no anomaly,
-    ``rejected`` frames are rejected at ingest.
+    ``rejected`` frames are rejected at ingest. Frames are ``DT_NS`` apart
+    from ``t0_ns``.
     """
     rng = np.random.default_rng(seed)
     height, width = size
@@ -68,7 +70,7 @@ def make_recording(
     offset = 0
     full = float(np.iinfo(dtype).max)
     for i in range(n):
-        t_ns = T0_NS + i * DT_NS
+        t_ns = t0_ns + i * DT_NS
         if i in rejected:
             records.append(PairRecord(t_ns, "rejected", reason="too few matches", inliers=3))
             continue

@@ -26,7 +26,7 @@ from lenspair.dataset.verify import verify_dataset
 from lenspair.model.detection.data import dataset_samples
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import DetectorSpec
-from tests.dataset.dataset_synth import RecordingFactory
+from tests.dataset.dataset_synth import DT_NS, T0_NS, RecordingFactory
 from tests.processes import dead_pid
 
 SEGMENTS = DatasetConfig(split=SplitConfig(segment_frames=10, segment_gap_frames=2))
@@ -530,6 +530,31 @@ def test_a_rebuild_with_one_more_recording_keeps_the_grouping(
     assert "group_by: segment" in (out / "config.yaml").read_text()
     fresh = build_dataset(both, tmp_path / "DS2", config)
     assert fresh.card.grouping.mode == "recording"
+
+
+def test_one_session_cut_into_two_recordings_across_splits_is_said(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    first = recording("sess_0", n=8)
+    second = recording("sess_1", n=8, seed=1, t0_ns=T0_NS + 8 * DT_NS)  # the next frame on
+    later = recording("other", n=8, seed=2, t0_ns=T0_NS + 10**12)  # another session
+    seen = set()
+    for seed in range(40):
+        split = SplitConfig(fractions=(0.5, 0.5, 0.0), group_by="recording", seed=seed)
+        built = build_dataset(
+            [first, second, later], tmp_path / f"DS{seed}", DatasetConfig(split=split)
+        )
+        where = {row.recording: row.split for row in built.rows}
+        said = [w for w in built.card.grouping.warnings if "one session cut in two" in w]
+        apart = where["sess_0"] != where["sess_1"]
+        assert len(said) == apart  # and never for "other"
+        if apart:
+            assert said[0].startswith("sess_1 starts 50.0 ms after sess_0 ends")
+            assert f"in {where['sess_0']} and {where['sess_1']}" in said[0]
+        seen.add(apart)
+        if seen == {True, False}:
+            break
+    assert seen == {True, False}
 
 
 def test_a_rebuild_says_how_many_pairs_changed_split(
