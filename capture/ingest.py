@@ -374,7 +374,9 @@ def _check_same_source(out_dir: Path, source: Path) -> None:
 
     Recordings land in ``OUT/<folder name>``: two recordings of one name
     (``a/rec`` and ``b/rec``, or ``rec.bag`` beside a folder ``rec``) would
-    overwrite each other's pairs.
+    overwrite each other's pairs. An earlier source that no longer exists was
+    moved (or removed): its ingest is this one's to resume (frames are known by
+    their place, size and time, not their folder) or to replace.
 
     Raises:
         CaptureError: naming both recordings and what to do.
@@ -384,7 +386,7 @@ def _check_same_source(out_dir: Path, source: Path) -> None:
         before = read_json_field(out_dir / STALE_REPORT, "source")
     if not isinstance(before, str) or not Path(before).is_absolute():
         return  # written before sources were absolute: cannot tell
-    if Path(before) != source:
+    if Path(before) != source and os.path.lexists(before):
         raise CaptureError(
             f"{out_dir}: holds the ingest of {before}, and {source} has the same name; "
             f"ingest it into another --out, rename one of the recordings, or remove {out_dir} "

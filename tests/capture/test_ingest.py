@@ -361,6 +361,22 @@ def test_a_namesake_recording_is_refused_not_merged(tmp_path: Path) -> None:
         _ingest(second, out)
 
 
+def test_a_moved_recording_resumes_its_ingest(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    recording = make_recording(tmp_path / "a" / "rec", frames=3)
+    out_dir, _, _ = _ingest(recording, tmp_path / "out")
+    stamps = {p: p.stat().st_mtime_ns for p in (out_dir / "input").iterdir()}
+    moved = tmp_path / "b" / "rec"
+    moved.parent.mkdir()
+    recording.rename(moved)  # times kept, as mv keeps them
+    with caplog.at_level(logging.WARNING):
+        _, _, report = _ingest(moved, tmp_path / "out")
+    assert Path(report.source) == moved.resolve()
+    assert {p: p.stat().st_mtime_ns for p in (out_dir / "input").iterdir()} == stamps  # resumed
+    assert not any("processed again" in m for m in caplog.messages)
+
+
 def test_a_recording_given_as_dot_from_inside_mav0_finds_its_rig_and_calibration(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
