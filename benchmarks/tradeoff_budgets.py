@@ -112,6 +112,16 @@ def compare(small_path: Path, large_path: Path) -> str:
             f"No network changed beyond the spread between {budgets[0]} and {budgets[1]}: "
             "the accuracy columns compare networks that more training did not improve."
         )
+    alone = [
+        f"Only at {budget}: {', '.join(names)} (not compared)"
+        for budget, names in (
+            (budgets[0], [n for n in before if n not in after]),
+            (budgets[1], [n for n in after if n not in before]),
+        )
+        if names
+    ]
+    if alone:
+        verdict += " " + "; ".join(alone) + "."
     return "\n".join([*lines, "", verdict]) + "\n"
 
 

@@ -43,8 +43,9 @@ def test_a_change_is_claimed_only_beyond_either_spread(
     assert text == capsys.readouterr().out
     assert "| G | 25.00 +/- 0.10 | 26.00 +/- 0.20 | +1.00 dB | yes |" in text
     assert "| GEA | 25.20 +/- 0.20 | 25.30 +/- 0.20 | +0.10 dB | no |" in text
-    assert "GEA-b3" not in text
+    assert "| GEA-b3 |" not in text  # named below the table, not compared
     assert "changed G beyond the spread: at 800 steps those had not converged" in text
+    assert text.rstrip().endswith("Only at 2000 steps: GEA-b3 (not compared).")
 
 
 def test_runs_that_do_not_compare_are_a_one_line_error(
