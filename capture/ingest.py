@@ -406,10 +406,14 @@ def ingest_recording(
     estimation: EstimationParams | None = None,
     verify: VerifyParams | None = None,
     side_detector: ObstructedProbability | None = None,
+    time_offset_ns: int = 0,
 ) -> IngestReport:
     """Turn one stereo recording into registered, verified pairs under ``out/<recording_id>/``.
 
     Args:
+        time_offset_ns: how far cam1's clock runs ahead of cam0's: cam1's
+            stamps less this are paired with cam0's (``--time-offset``); the
+            pairs keep the recorded stamps, and report.json the offset.
         recording_path: EuRoC/ASL folder, bag, or left/right folders.
         out: output root; the recording goes to ``out/<recording_id>/``.
         calibration: calibration files (``--calib``); empty: rig.yaml / camchain.yaml.
@@ -470,7 +474,8 @@ def ingest_recording(
         log.warning("%s: %d more problems (counted in report.json)", recording.path, more)
     stamps0, stamps1 = recording.timestamps("cam0"), recording.timestamps("cam1")
     period = estimate_period_ns(stamps0, stamps1)
-    pairing = pair_frames(stamps0, stamps1, None if period else SINGLE_FRAME_TOLERANCE_NS)
+    shifted1 = [t - time_offset_ns for t in stamps1]  # on cam0's clock
+    pairing = pair_frames(stamps0, shifted1, None if period else SINGLE_FRAME_TOLERANCE_NS)
     said_of_recording = [str(p) for p in recording.problems if p.camera is None]
     if offset := clock_offset_warning(pairing.pairs, period):
         log.warning("%s: %s", recording.path, offset)
@@ -620,6 +625,7 @@ def ingest_recording(
         lenspair_version=__version__,
         significant_bits=bits if bits < 16 else None,
         recording_problems=said_of_recording,
+        time_offset_ns=time_offset_ns,
     )
     write_report_if_changed(out_dir / REPORT_FILE, report)
     if not kept:

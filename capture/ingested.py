@@ -85,7 +85,10 @@ class IngestReport:
         significant_bits: 10 or 12 when the recording's 16-bit frames held
             values of that depth (scaled to 16 bits in the outputs), else None.
         recording_problems: what was said of the recording as a whole (a bag
-            cut short, header stamps never set): ``counts`` has their number.
+            cut short, header stamps never set, clocks that seem to disagree):
+            ``counts`` has their number.
+        time_offset_ns: cam1's clock ahead of cam0's, taken off cam1's stamps
+            for pairing (``--time-offset``; 0: none).
     """
 
     recording_id: str
@@ -103,6 +106,7 @@ class IngestReport:
     lenspair_version: str = ""
     significant_bits: int | None = None
     recording_problems: list[str] = field(default_factory=list)
+    time_offset_ns: int = 0
 
 
 def write_pairs(path: Path, records: list[PairRecord]) -> None:

@@ -237,5 +237,6 @@ def clock_offset_warning(pairs: Sequence[FramePair], period_ns: int | None) -> s
         f"{abs(median) / period_ns:.0%} of the {_format_ns(period_ns)} frame period: the "
         "cameras' clocks may differ by more than half a period, which timestamps cannot "
         "tell from a one-frame offset, so pairs may be a frame apart; check a moving "
-        "scene's pairs (their input and target), and synchronise the clocks"
+        "scene's pairs (their input and target), and give the offset (--time-offset) "
+        "or synchronise the clocks"
     )

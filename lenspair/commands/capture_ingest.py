@@ -77,6 +77,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="check the obstructed side with a detector (detector.pt: the bundled one)",
     )
     add_device_option(parser, "--detector")
+    parser.add_argument(
+        "--time-offset",
+        type=float,
+        default=0.0,
+        metavar="MS",
+        help="how far cam1's clock runs ahead of cam0's, in ms: cam1's stamps less MS are "
+        "paired with cam0's (pairs keep the recorded stamps; report.json keeps MS). For "
+        "cameras without a common clock, when ingest says the clocks seem to differ (0)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -99,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
         size=args.size,
         workers=args.workers,
         side_detector=side_detector,
+        time_offset_ns=round(args.time_offset * 1e6),
     )
     counts = report.counts  # a side-check mismatch was already logged as a warning
     print(

@@ -162,6 +162,15 @@ def test_cameras_whose_clocks_disagree_are_said_in_the_log_and_report(
     assert any("clocks may differ" in r.getMessage() for r in caplog.records)
     _, _, synchronised = _ingest(make_recording(tmp_path / "sync", frames=6), tmp_path / "o2")
     assert not any("clocks" in p for p in synchronised.recording_problems)
+    # given the offset, each frame pairs with its true partner, recorded stamps kept
+    offset = period * 3 // 5
+    argv = ["capture-ingest", str(recording), "--out", str(tmp_path / "o3"), "--size", "240x160"]
+    assert main([*argv, "--time-offset", str(offset / 1e6)]) == 0
+    report = read_report(tmp_path / "o3" / "rec" / "report.json")
+    assert report.time_offset_ns == offset and report.recording_problems == []
+    records = read_pairs(tmp_path / "o3" / "rec" / "pairs.jsonl")
+    kept = [r for r in records if r.t_clean_ns is not None]
+    assert len(kept) == 6 and all(abs(r.t_ns - r.t_clean_ns - offset) < period // 4 for r in kept)
 
 
 def test_one_stamp_far_in_the_future_is_not_blamed_on_every_later_frame(tmp_path: Path) -> None:
