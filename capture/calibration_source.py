@@ -11,6 +11,7 @@ from pathlib import Path
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import Recording, find_rig_file, recording_places
 from lenspair.capture.rigfile import RigFile
+from lenspair.core.errors import LenspairError
 from lenspair.rectify.calib_io import is_euroc_sensor_file, load_calibration
 from lenspair.rectify.rig import StereoRig
 
@@ -57,4 +58,20 @@ def find_calibration(
                 f"{recording.path}: no calibration{note}: pass --calib FILE, set 'calibration:' "
                 f"in rig.yaml, or put {CAMCHAIN_FILE} (Kalibr) beside the recording"
             )
-    return load_calibration(paths)
+    return load_calibration(paths, resolution=_frame_size(recording))
+
+
+def _frame_size(recording: Recording) -> tuple[int, int] | None:
+    """``(width, height)`` of the recording's first readable frame, or None.
+
+    For an OpenCV FileStorage calibration without an image size (the
+    stereo_calib sample writes none): the frames are the size it was made at,
+    or the frame-size check refuses them later.
+    """
+    for frame in recording.frames["cam0"][:5]:
+        try:
+            image = recording.load(frame)
+        except LenspairError:
+            continue
+        return int(image.shape[1]), int(image.shape[0])
+    return None

@@ -4,7 +4,7 @@ Example::
 
     obstructed: cam1          # cam0 or cam1: the camera behind the dirty glass
     anomaly: [rain]           # rain, dust, dirt, ... (free labels, lower case)
-    calibration: camchain.yaml  # optional; relative to the recording folder
+    calibration: camchain.yaml  # optional; relative to rig.yaml
 
 The ground-truth (clean) side is the other camera. It is swapped between
 sessions on real rigs, so it is read per recording, never assumed.
@@ -28,7 +28,7 @@ class RigFile:
     Attributes:
         obstructed: the camera that looks through the glass with the anomaly.
         anomaly: anomaly labels, e.g. ``("rain",)``.
-        calibration: calibration file, relative to the recording folder.
+        calibration: calibration file, relative to the folder holding rig.yaml.
     """
 
     obstructed: CameraName

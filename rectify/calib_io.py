@@ -62,6 +62,7 @@ from lenspair.rectify.rig import (
     DistortionModel,
     StereoRig,
     camera_from_kalibr,
+    checked_transform,
     is_rotation,
     read_kalibr,
 )
@@ -80,7 +81,6 @@ _MODEL_NAMES: dict[str, DistortionModel] = {
     "radtan": "radtan", "plumb_bob": "radtan", "rational_polynomial": "radtan",
     "equidistant": "equidistant", "equi": "equidistant", "fisheye": "equidistant",
 }  # fmt: skip
-_MAX_BASELINE_M = 10.0
 
 
 def _read_text(path: Path) -> str:
@@ -110,7 +110,12 @@ def _finite(path: Path, key: str, value: np.ndarray) -> np.ndarray:
 
 def _read_filestorage(path: Path) -> dict[str, tuple[Any, Path]]:
     """Top-level FileStorage nodes as numpy arrays, floats or strings (with their file)."""
-    storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:
+        storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as exc:  # OpenCV 5 raises on a parse error
+        raise RectifyError(
+            f"{path}: not a readable OpenCV FileStorage file ({_cv_reason(exc)})"
+        ) from None
     if not storage.isOpened():
         raise RectifyError(f"{path}: not a readable OpenCV FileStorage file")
     values: dict[str, tuple[Any, Path]] = {}
@@ -124,12 +129,34 @@ def _read_filestorage(path: Path) -> dict[str, tuple[Any, Path]]:
             elif node.isInt() or node.isReal():
                 values[key] = (np.array(node.real()), path)
             elif node.isMap():
-                matrix = node.mat()
+                try:
+                    matrix = node.mat()
+                except (cv2.error, SystemError):  # a map that is not a matrix: not ours
+                    continue
                 if matrix is not None:
                     values[key] = (np.asarray(matrix, dtype=np.float64), path)
     finally:
         storage.release()
     return values
+
+
+def _cv_reason(exc: BaseException) -> str:
+    """OpenCV's own words for a failure, one line (a SystemError carries them as its cause)."""
+    cause = exc.__cause__ or exc.__context__ or exc
+    lines = [line.strip() for line in str(cause).splitlines() if line.strip()]
+    return lines[-1] if lines else type(cause).__name__
+
+
+def _square_transform(values: np.ndarray, where: str) -> np.ndarray:
+    """A 4x4 transform from 16 values, or from 12 (``[R | t]``, the last row implied)."""
+    flat = np.asarray(values, dtype=np.float64).ravel()
+    if flat.size == 12:
+        flat = np.concatenate([flat, [0.0, 0.0, 0.0, 1.0]])
+    if flat.size != 16:
+        raise RectifyError(
+            f"{where}: T_cam1_cam0 must be 4x4 (or 3x4 [R|t]), got {flat.size} values"
+        )
+    return flat.reshape(4, 4)
 
 
 def _pick(
@@ -181,31 +208,7 @@ def _transform(R: np.ndarray, T: np.ndarray, where: str) -> np.ndarray:
     matrix = np.eye(4)
     matrix[:3, :3] = R.reshape(3, 3)
     matrix[:3, 3] = T.ravel()
-    return _checked_transform(matrix, where)
-
-
-_MIN_BASELINE_M = 1e-4
-"""A tenth of a millimetre: below it the rig is a single point (OpenCV's
-stereoRectify then asserts); no stereo rig is built that tight."""
-
-
-def _checked_transform(matrix: np.ndarray, where: str) -> np.ndarray:
-    if matrix.shape != (4, 4):
-        raise RectifyError(f"{where}: T_cam1_cam0 must be 4x4, got shape {matrix.shape}")
-    baseline = float(np.linalg.norm(matrix[:3, 3]))
-    if not np.isfinite(matrix).all():
-        raise RectifyError(f"{where}: T_cam1_cam0 holds non-finite values")
-    if baseline < _MIN_BASELINE_M:
-        raise RectifyError(
-            f"{where}: baseline {baseline:g} m: the two cameras sit at one point, so the "
-            "views cannot be rectified as a stereo pair; check the extrinsics (T_cn_cnm1)"
-        )
-    if baseline > _MAX_BASELINE_M:
-        raise RectifyError(
-            f"{where}: baseline {baseline:g} is not plausible in metres (millimetres?); "
-            "translations must be in metres"
-        )
-    return matrix
+    return checked_transform(matrix, where)
 
 
 def _model(values: dict[str, tuple[Any, Path]]) -> DistortionModel:
@@ -237,6 +240,8 @@ def _from_filestorage(paths: list[Path], resolution: tuple[int, int] | None) -> 
     per_file = [_read_filestorage(p) for p in paths]
     merged = {k: v for values in per_file for k, v in values.items()}
     singles = [v for v in per_file if _pick(v, _SINGLE_KEYS[0]) and _pick(v, _SINGLE_KEYS[1])]
+    if len(singles) >= 2:  # one file a camera: in the order cam0, cam1, as for ROS files
+        _check_camera_order([p for p, v in zip(paths, per_file, strict=True) if v in singles][:2])
     cameras = []
     for index, name in enumerate(("cam0", "cam1")):
         source = singles[index] if len(singles) >= 2 else merged
@@ -253,7 +258,9 @@ def _from_filestorage(paths: list[Path], resolution: tuple[int, int] | None) -> 
         cameras.append(_camera(K[0], D[0], _model(source), size, f"{K[1]}: {name}"))
     transform = _pick(merged, ("T_cam1_cam0",))
     if transform is not None:
-        matrix = _checked_transform(transform[0].reshape(4, 4), str(transform[1]))
+        matrix = checked_transform(
+            _square_transform(transform[0], str(transform[1])), str(transform[1])
+        )
     else:
         R = _pick(merged, ("R", "R_cam1_cam0", "rotation"))
         T = _pick(merged, ("T", "t", "translation"))
@@ -325,7 +332,7 @@ def _extrinsic_file(path: Path, text: str) -> np.ndarray:
             except (TypeError, ValueError):
                 continue
     if (found := _pick(values, ("T_cam1_cam0", "T_cn_cnm1"))) is not None:
-        return _checked_transform(found[0].reshape(4, 4), str(path))
+        return checked_transform(_square_transform(found[0], str(path)), str(path))
     R, T = _pick(values, ("R", "rotation")), _pick(values, ("T", "t", "translation"))
     if R is None or T is None:
         raise RectifyError(f"{path}: expected T_cam1_cam0 (4x4), or R and T")
@@ -361,7 +368,7 @@ def _from_ros(paths: list[Path], texts: list[str]) -> tuple[StereoRig, str]:
     matrix = np.eye(4)
     matrix[:3, :3] = rect1.T @ rect0
     matrix[:3, 3] = rect1.T @ (offsets[1] - offsets[0])
-    rig = _rig(cam0, cam1, _checked_transform(matrix, where), where)
+    rig = _rig(cam0, cam1, checked_transform(matrix, where), where)
     return rig, f"ROS camera_info {where} (extrinsic from the projection matrices)"
 
 
@@ -435,7 +442,7 @@ def _from_euroc(paths: list[Path], sensors: list[dict[str, Any]]) -> tuple[Stere
         pose = _finite(path, "T_BS", _matrix_node(data["T_BS"], path, "T_BS"))
         poses.append(_rigid(path, pose))
     where = f"{paths[0]} + {paths[1]}"
-    matrix = _checked_transform(np.linalg.inv(poses[1]) @ poses[0], where)
+    matrix = checked_transform(np.linalg.inv(poses[1]) @ poses[0], where)
     return _rig(cameras[0], cameras[1], matrix, where), f"EuRoC sensor.yaml {where}"
 
 

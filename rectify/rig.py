@@ -190,6 +190,44 @@ def camera_from_kalibr(data: Any, where: str) -> CameraModel:
         raise RectifyError(f"{where}: {exc}") from None
 
 
+MAX_BASELINE_M = 10.0
+"""Larger than any stereo rig: a translation this long was written in millimetres."""
+
+MIN_BASELINE_M = 1e-4
+"""A tenth of a millimetre: below it the rig is a single point (OpenCV's
+stereoRectify then asserts); no stereo rig is built that tight."""
+
+
+def checked_transform(matrix: np.ndarray, where: str) -> np.ndarray:
+    """``T_cam1_cam0`` checked: 4x4, finite, a rigid last row, a baseline of a stereo rig.
+
+    Every calibration reader passes its extrinsic through here, so a zero
+    (placeholder) or millimetre baseline is one line naming the file, not an
+    OpenCV assertion later.
+
+    Raises:
+        RectifyError: naming ``where`` and what is wrong.
+    """
+    if matrix.shape != (4, 4):
+        raise RectifyError(f"{where}: T_cam1_cam0 must be 4x4, got shape {matrix.shape}")
+    baseline = float(np.linalg.norm(matrix[:3, 3]))
+    if not np.isfinite(matrix).all():
+        raise RectifyError(f"{where}: T_cam1_cam0 holds non-finite values")
+    if not np.allclose(matrix[3], [0.0, 0.0, 0.0, 1.0]):
+        raise RectifyError(f"{where}: T_cam1_cam0's last row is {matrix[3].tolist()}, not 0 0 0 1")
+    if baseline < MIN_BASELINE_M:
+        raise RectifyError(
+            f"{where}: baseline {baseline:g} m: the two cameras sit at one point, so the "
+            "views cannot be rectified as a stereo pair; check the extrinsics (T_cn_cnm1)"
+        )
+    if baseline > MAX_BASELINE_M:
+        raise RectifyError(
+            f"{where}: baseline {baseline:g} is not plausible in metres (millimetres?); "
+            "translations must be in metres"
+        )
+    return matrix
+
+
 def rig_from_kalibr(data: Any, source: str = "camchain") -> StereoRig:
     """Build a :class:`StereoRig` from a parsed Kalibr camchain mapping.
 
@@ -204,6 +242,9 @@ def rig_from_kalibr(data: Any, source: str = "camchain") -> StereoRig:
     cam1 = camera_from_kalibr(data["cam1"], f"{source}: cam1")
     try:
         T = np.asarray(data["cam1"]["T_cn_cnm1"], dtype=np.float64)
+        if T.shape == (3, 4):  # [R | t], the last row implied
+            T = np.vstack([T, [0.0, 0.0, 0.0, 1.0]])
+        T = checked_transform(T, f"{source}: cam1.T_cn_cnm1")
         topics = (
             str(data["cam0"].get("rostopic", "/cam0/image_raw")),
             str(data["cam1"].get("rostopic", "/cam1/image_raw")),

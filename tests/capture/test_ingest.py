@@ -265,6 +265,31 @@ def test_missing_camera_empty_recording_and_no_calibration(tmp_path: Path) -> No
         _ingest(uncalibrated, tmp_path / "out")
 
 
+def test_an_opencv_calibration_without_an_image_size_takes_the_frames(tmp_path: Path) -> None:
+    """OpenCV's stereo_calib sample writes M1 D1 M2 D2 and R T, but no image size."""
+    import cv2
+
+    from lenspair.rectify.rig import read_kalibr
+
+    recording = make_recording(tmp_path / "rec", frames=3)
+    rig = read_kalibr(recording / "camchain.yaml")
+    files = []
+    for name, values in (
+        ("intrinsics.yml", {"M1": rig.cam0.K, "D1": rig.cam0.dist_coeffs,
+                            "M2": rig.cam1.K, "D2": rig.cam1.dist_coeffs}),
+        ("extrinsics.yml", {"R": rig.R, "T": rig.t.reshape(3, 1)}),
+    ):  # fmt: skip
+        storage = cv2.FileStorage(str(tmp_path / name), cv2.FILE_STORAGE_WRITE)
+        for key, value in values.items():
+            storage.write(key, value)
+        storage.release()
+        files.append(tmp_path / name)
+    assert rig.cam0.distortion_model == "radtan"  # what the sample's files hold
+    _, records, report = _ingest(recording, tmp_path / "out", calibration=tuple(files))
+    assert report.calibration_source.startswith("OpenCV FileStorage")
+    assert sum(r.status == "kept" for r in records) == 3
+
+
 def test_nan_in_calibration_names_the_file(tmp_path: Path) -> None:
     recording = make_recording(tmp_path / "rec", frames=2)
     camchain = recording / "camchain.yaml"

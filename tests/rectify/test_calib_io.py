@@ -264,3 +264,67 @@ def _with_k3(text: str, k3: str) -> str:
         if line.startswith("distortion_coefficients: ["):
             lines[index] = line.rstrip("]") + f", {k3}]"
     return "\n".join(lines)
+
+
+def _single_camera_files(folder: Path, rig: StereoRig) -> list[Path]:
+    paths = []
+    for name, camera in (("cam0", rig.cam0), ("cam1", rig.cam1)):
+        values = {"image_width": 720, "image_height": 540, "camera_matrix": camera.K,
+                  "distortion_coefficients": camera.dist_coeffs}  # fmt: skip
+        paths.append(write_storage(folder / f"{name}.yml", values))
+    return paths
+
+
+def test_per_camera_opencv_files_given_cam1_first_are_refused(tmp_path: Path) -> None:
+    rig = make_rig()
+    cam0, cam1 = _single_camera_files(tmp_path, rig)
+    extrinsic = write_storage(tmp_path / "extr.yml", {"R": rig.R, "T": rig.t})
+    found, _ = load_calibration([cam0, cam1, extrinsic])
+    assert_same_rig(found, rig)
+    with pytest.raises(RectifyError, match=r"first is cam1's and the second cam0's"):
+        load_calibration([cam1, cam0, extrinsic])
+
+
+def test_a_broken_opencv_file_is_one_line_naming_it(tmp_path: Path) -> None:
+    rig = make_rig()
+    keys = {**opencv_stereo_keys(rig), "image_size": np.array([720, 540])}
+    whole = write_storage(tmp_path / "stereo.yml", keys).read_text()
+    cut = tmp_path / "cut.yml"
+    cut.write_text(whole[: whole.index("data:", whole.index("D1")) + 12])  # mid "data: [..."
+    with pytest.raises(RectifyError, match=r"cut\.yml: not a readable OpenCV FileStorage") as e:
+        load_calibration([cut])
+    assert "\n" not in str(e.value)
+    # a map that is not a matrix (metadata a tool wrote) is passed over, not fatal
+    storage = cv2.FileStorage(str(tmp_path / "meta.yml"), cv2.FILE_STORAGE_WRITE)
+    for key, value in keys.items():
+        storage.write(key, value)
+    storage.startWriteStruct("meta", cv2.FileNode_MAP)
+    storage.write("board_width", 9)
+    storage.endWriteStruct()
+    storage.release()
+    found, _ = load_calibration([tmp_path / "meta.yml"])
+    assert_same_rig(found, rig)
+
+
+def test_a_3x4_extrinsic_is_read_and_a_bad_one_named(tmp_path: Path) -> None:
+    rig = make_rig()
+    cam0, cam1 = _single_camera_files(tmp_path, rig)
+    extrinsic = write_storage(tmp_path / "extr.yml", {"T_cam1_cam0": rig.T_cam1_cam0[:3]})
+    found, _ = load_calibration([cam0, cam1, extrinsic])
+    assert_same_rig(found, rig)
+    write_storage(extrinsic, {"T_cam1_cam0": rig.T_cam1_cam0[:2]})
+    with pytest.raises(RectifyError, match=r"extr\.yml: T_cam1_cam0 must be 4x4 .*8 values"):
+        load_calibration([cam0, cam1, extrinsic])
+
+
+@pytest.mark.parametrize(("scale", "message"), [(0.0, "sit at one point"), (1000.0, "millimetres")])
+def test_a_kalibr_camchain_gets_the_baseline_checks_too(
+    tmp_path: Path, scale: float, message: str
+) -> None:
+    write_kalibr(tmp_path / "camchain.yaml", make_rig())
+    data = yaml.safe_load((tmp_path / "camchain.yaml").read_text())
+    for row in data["cam1"]["T_cn_cnm1"][:3]:
+        row[3] *= scale
+    (tmp_path / "camchain.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(RectifyError, match=rf"camchain\.yaml.*T_cn_cnm1.*{message}"):
+        load_calibration([tmp_path / "camchain.yaml"])
