@@ -32,9 +32,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from lenspair.capture.rigfile import RigFile, write_rig_file
-from lenspair.core.config import dump_yaml
+from lenspair.core.config import to_plain
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text, remove_path
 from lenspair.core.imageio import write_image
 from lenspair.core.leftovers import process_alive
@@ -320,8 +321,21 @@ def _write_metadata(
         calibration="camchain.yaml",
     )
     write_rig_file(out_dir / "rig.yaml", rig_file)
-    atomic_write_text(out_dir / "scene.yaml", dump_yaml(setup.resolved_spec))
+    atomic_write_text(out_dir / "scene.yaml", scene_yaml(setup.resolved_spec))
     atomic_write_json(out_dir / "truth" / "geometry.json", _geometry(setup, records))
+
+
+def scene_yaml(spec: SceneSpec) -> str:
+    """The spec as ``scene.yaml``: the effects it lists, and no null for those it does not.
+
+    Loaded back it is the same spec; a ``null`` effect reads as off, and
+    :func:`lenspair.simulate.spec.load_scene` warns of each (a bare ``dust:``
+    meant as "dust with its defaults" is one).
+    """
+    plain = to_plain(spec)
+    effects = plain["obstructed"]["effects"]
+    plain["obstructed"]["effects"] = {k: v for k, v in effects.items() if v is not None}
+    return yaml.safe_dump(plain, sort_keys=False, default_flow_style=None)
 
 
 def _frame_record(

@@ -28,6 +28,7 @@ Example (see ``calib_samples/README.md`` for every key)::
 """
 
 import dataclasses
+import logging
 import types
 import typing
 from dataclasses import dataclass, field, replace
@@ -40,6 +41,8 @@ from lenspair.simulate.boardspec import BoardSpec
 from lenspair.simulate.effects.spec import EffectsSpec
 from lenspair.simulate.rigspec import RigSpec
 from lenspair.simulate.textures import check_texture
+
+log = logging.getLogger(__name__)
 
 CameraName = Literal["cam0", "cam1"]
 Vector3 = tuple[float, float, float]
@@ -358,6 +361,15 @@ def load_scene(path: Path) -> SceneSpec:
             problem = check_texture(name, path.parent)
             if problem is not None:
                 raise ConfigError(f"{path}: planes[{index}].texture: {problem}")
+    obstructed = data.get("obstructed") if isinstance(data, dict) else None
+    effects = obstructed.get("effects") if isinstance(obstructed, dict) else None
+    for name, value in (effects or {}).items() if isinstance(effects, dict) else ():
+        if value is None:  # YAML reads a bare "dust:" as null: the effect stays off
+            log.warning(
+                "%s: obstructed.effects.%s is empty (null), which leaves %s off; write "
+                "'%s: {}' for its defaults, or remove the key",
+                path, name, name, name,
+            )  # fmt: skip
     return spec
 
 

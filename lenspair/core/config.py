@@ -120,8 +120,10 @@ def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
 
     Args:
         cls: a dataclass type; nested dataclass fields are built recursively.
-        data: a mapping (``None`` is read as an empty mapping, so that
-            ``effects: {dust: }`` enables dust with default parameters).
+        data: a mapping (``None`` is read as an empty mapping: a section
+            written as a bare key, ``motion:``, takes its defaults). A field typed
+            ``X | None`` stays ``None`` when its value is null: ``effects: {dust: }``
+            leaves dust off (``lenspair.simulate.spec.load_scene`` warns of it).
         path: dotted prefix for error messages.
 
     Raises:

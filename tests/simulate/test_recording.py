@@ -321,6 +321,19 @@ def test_the_written_scene_renders_again_from_the_recording(tmp_path: Path) -> N
     )
 
 
+def test_scene_yaml_lists_only_the_declared_effects(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    out = tmp_path / "rain"
+    assert main(["simulate", str(SAMPLES / "rain.yaml"), "--out", str(out), "--frames", "1"]) == 0
+    written = yaml.safe_load((out / "scene.yaml").read_text())["obstructed"]["effects"]
+    spec = load_scene(SAMPLES / "rain.yaml").obstructed.effects
+    assert set(written) == set(spec.listed) and None not in written.values()
+    with caplog.at_level("WARNING"):
+        again = load_scene(out / "scene.yaml").obstructed.effects
+    assert again.listed == spec.listed and not caplog.records  # nothing said of unlisted ones
+
+
 def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "clean"
     args = ["simulate", str(SAMPLES / "clean.yaml"), "--out", str(out), "--frames", "2"]

@@ -277,3 +277,15 @@ def test_a_blur_is_judged_for_the_scenes_camera_not_the_photo_default(tmp_path: 
     effects = load_scene(_write(tmp_path, data)).obstructed.effects
     assert effects.defocus is not None
     assert effects.defocus.blur_diameter_px == pytest.approx(70.0)
+
+
+def test_a_bare_effect_key_is_off_and_said(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    data = _with("obstructed", {"camera": "cam1", "effects": {"dust": None, "veil": {}}})
+    with caplog.at_level("WARNING", logger="lenspair.simulate.spec"):
+        effects = load_scene(_write(tmp_path, data)).obstructed.effects
+    assert effects.dust is None and effects.veil is not None  # null: off; {}: its defaults
+    (said,) = [r.getMessage() for r in caplog.records]
+    assert "obstructed.effects.dust is empty (null), which leaves dust off" in said
+    assert "'dust: {}'" in said
