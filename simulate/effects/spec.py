@@ -405,8 +405,10 @@ class EffectsSpec:
     def anomaly_kinds(self) -> tuple[str, ...]:
         """Anomaly labels for ``rig.yaml``: ``rain``, ``dust``, ``dirt``.
 
-        A veil is wet glass scattering light: ``rain``, also alone (a frame it
-        changes everywhere is not clean, and a detector must not learn it is).
+        A veil is glass scattering light. Alone it is wet glass, ``rain`` (a
+        frame it changes everywhere is not clean, and a detector must not learn
+        it is); beside dust or dirt it is that dirty glass's haze and adds no
+        label, as the detector's ``veiled_dust`` hard case is labelled ``dust``.
         An effect that changes no pixel gives no label: no drops, drops of
         radius 0 or of refractive index 1 (optically absent: the renderer
         gives them no footprint, so brightening has nothing to act on), no
@@ -422,13 +424,17 @@ class EffectsSpec:
             and drops.radius_px[1] > 0
             and drops.refractive_index != 1.0
         )
-        if seen or (self.veil is not None and self.veil.strength[1] > 0):
+        dust, dirt = self.dust, self.dirt
+        dusty = dust is not None and dust.coverage > 0 and dust.attenuation[0] < 1.0
+        dirty = (
+            dirt is not None and dirt.count > 0 and dirt.radius_px[1] > 0 and dirt.opacity[1] > 0
+        )
+        veiled = self.veil is not None and self.veil.strength[1] > 0
+        if seen or (veiled and not (dusty or dirty)):
             kinds.append("rain")
-        dust = self.dust
-        if dust is not None and dust.coverage > 0 and dust.attenuation[0] < 1.0:
+        if dusty:
             kinds.append("dust")
-        dirt = self.dirt
-        if dirt is not None and dirt.count > 0 and dirt.radius_px[1] > 0 and dirt.opacity[1] > 0:
+        if dirty:
             kinds.append("dirt")
         return tuple(kinds)
 

@@ -8,6 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from lenspair.core.errors import LenspairError
+from lenspair.model.detection.hard_cases import HARD_KINDS
 from lenspair.simulate import render
 from lenspair.simulate.effects import brightness, defocus, dirt, dust, raindrops, veil
 from lenspair.simulate.effects.spec import (
@@ -122,6 +123,13 @@ def test_sharp_drops_preset_is_raindrops_only_and_shares_drops_with_defocus() ->
     assert SHARP_DROPS.anomaly_kinds == ("rain",)
     assert EffectsSpec(veil=VeilSpec()).anomaly_kinds == ("rain",)  # wet glass: not clean
     assert EffectsSpec(veil=VeilSpec(strength=(0.0, 0.0))).anomaly_kinds == ()  # changes nothing
+    # beside dust or dirt a veil is that glass's haze, labelled as the detector's
+    # veiled_dust hard case is: a recording of it must not teach "rain"
+    veil = VeilSpec()
+    assert EffectsSpec(dust=DustSpec(), veil=veil).anomaly_kinds == (HARD_KINDS["veiled_dust"],)
+    assert EffectsSpec(dirt=DirtSpec(), veil=veil).anomaly_kinds == ("dirt",)
+    wet_and_dusty = EffectsSpec(raindrops=RaindropsSpec(), dust=DustSpec(), veil=veil)
+    assert wet_and_dusty.anomaly_kinds == ("rain", "dust")
     image = _image(np.uint8, 3, (120, 160))
     sharp_out, sharp_mask = render_effects(image, SHARP_DROPS, np.random.default_rng(3))
     soft = EffectsSpec(
