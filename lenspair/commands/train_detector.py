@@ -44,6 +44,13 @@ MIN_INPUT_SIDE = 8
 imported: ``--help`` would load torch)."""
 
 
+SET_PER_KIND = 3
+"""Recordings per kind of ``--simulated-set`` when ``--set-per-kind`` is not given."""
+
+SET_FRAMES = 6
+"""Frames per recording of ``--simulated-set`` when ``--set-frames`` is not given."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``train-detector``."""
     parser.add_argument("datasets", type=Path, nargs="*", metavar="DS", help="lenspair datasets")
@@ -71,8 +78,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--simulated-set", type=Path, metavar="DIR", help="render or reuse a simulated set"
     )
-    parser.add_argument("--set-per-kind", type=int, default=3, help="recordings per kind (3)")
-    parser.add_argument("--set-frames", type=int, default=6, help="frames per recording (6)")
+    parser.add_argument("--set-per-kind", type=int, help=f"recordings per kind ({SET_PER_KIND})")
+    parser.add_argument("--set-frames", type=int, help=f"frames per recording ({SET_FRAMES})")
     parser.add_argument("--steps", type=int, default=600, help="optimiser steps (600)")
     parser.add_argument("--batch-size", type=int, default=8, help="frames per step (8)")
     parser.add_argument(
@@ -106,7 +113,20 @@ def run(args: argparse.Namespace) -> int:
 
     if args.minutes is not None and args.minutes <= 0:
         raise ConfigError("--minutes must be > 0")
-    if args.synthetic < 0 or args.hard < 0 or args.set_per_kind < 2 or args.set_frames < 1:
+    unused = [
+        f"{option} is used only with {needs}"
+        for option, given, needs, present in (
+            ("--clean-images", args.clean_images, "--synthetic N", args.synthetic > 0),
+            ("--set-per-kind", args.set_per_kind, "--simulated-set", args.simulated_set),
+            ("--set-frames", args.set_frames, "--simulated-set", args.simulated_set),
+        )
+        if given is not None and not present
+    ]
+    if unused:  # said, not ignored
+        raise ConfigError("; ".join(unused))
+    per_kind = SET_PER_KIND if args.set_per_kind is None else args.set_per_kind
+    set_frames = SET_FRAMES if args.set_frames is None else args.set_frames
+    if args.synthetic < 0 or args.hard < 0 or per_kind < 2 or set_frames < 1:
         raise ConfigError(
             "--synthetic >= 0, --hard >= 0, --set-per-kind >= 2, --set-frames >= 1 expected"
         )
@@ -117,8 +137,8 @@ def run(args: argparse.Namespace) -> int:
         synthetic=args.synthetic,
         clean_folder=args.clean_images,
         simulated_set=args.simulated_set,
-        set_per_kind=args.set_per_kind,
-        set_frames=args.set_frames,
+        set_per_kind=per_kind,
+        set_frames=set_frames,
         hard=args.hard,
     )
     try:

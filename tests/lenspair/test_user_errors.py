@@ -180,6 +180,18 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["train-detector", "--out", "OUT", "--synthetic", "2", "--input-size", "0x9"], "--input-size"),
     (["train-detector", "--out", "OUT", "--synthetic", "2", "--threads", "0"], "threads"),
     (["train-detector", "--out", "OUT", "--set-per-kind", "1"], "--set-per-kind"),
+    (
+        ["train-detector", "--out", "OUT", "--simulated-set", "OUT/s", "--set-per-kind", "1"],
+        "--set-per-kind >= 2",
+    ),
+    (
+        ["train-detector", "DS", "--out", "OUT", "--clean-images", "DS"],
+        "--clean-images is used only with --synthetic N",
+    ),
+    (
+        ["train-detector", "DS", "--out", "OUT", "--set-frames", "3"],
+        "--set-frames is used only with --simulated-set",
+    ),
     (["train-detector", "--out", "OUT", "--synthetic", "2", "--hard", "-1"], "--hard"),
     (["train-detector", "--out", "OUT", "--synthetic", "2", "--hard", "5"], "hard cases need"),
     (["train-detector", "--out", "OUT", "--synthetic", "2", "--workers", "0"], "--workers"),
