@@ -62,17 +62,22 @@ results: demo bench
 # docs/results/table2.md), the weights (1500 optimiser steps per network, batch 8, crop
 # 128; then scored as shipped on the demo's test split). Each prints its table and
 # writes it beside its runs.
-TRADEOFF := table2_out/demo/dataset --budget 2000 --variants G,GE,GEA,GEA-w0.5 \
+# TRADEOFF_BUDGET and TRADEOFF_OUT choose another budget, e.g. the 4000-step run that
+# docs/results/tradeoff_budgets.md compares with 2000 (`make tradeoff-seeds
+# TRADEOFF_BUDGET=4000 TRADEOFF_OUT=tradeoff_seeds_4000_out`).
+TRADEOFF_BUDGET ?= 2000
+TRADEOFF_OUT ?= tradeoff_seeds_out
+TRADEOFF := table2_out/demo/dataset --budget $(TRADEOFF_BUDGET) --variants G,GE,GEA,GEA-w0.5 \
 	--config benchmarks/tradeoff_cpu.yaml
 tradeoff-seeds: $(VENV)/.installed
 	$(BIN)/python -m benchmarks.table2 --out table2_out --frames 60 --splits 0.6,0.15,0.25 --data-only
-	mkdir -p tradeoff_seeds_out
+	mkdir -p $(TRADEOFF_OUT)
 	pids=; for k in 0 1 2; do \
 		OMP_NUM_THREADS=1 $(BIN)/lenspair tradeoff $(TRADEOFF) --seeds $$k \
-			--out tradeoff_seeds_out/seed$$k --no-int8 --latency-runs 1 \
-			> tradeoff_seeds_out/seed$$k.log 2>&1 & pids="$$pids $$!"; done; \
+			--out $(TRADEOFF_OUT)/seed$$k --no-int8 --latency-runs 1 \
+			> $(TRADEOFF_OUT)/seed$$k.log 2>&1 & pids="$$pids $$!"; done; \
 	for pid in $$pids; do wait $$pid || exit 1; done
-	$(BIN)/lenspair tradeoff $(TRADEOFF) --seeds 0,1,2 --out tradeoff_seeds_out
+	$(BIN)/lenspair tradeoff $(TRADEOFF) --seeds 0,1,2 --out $(TRADEOFF_OUT)
 
 table2: $(VENV)/.installed
 	$(BIN)/python -m benchmarks.table2 --out table2_out --frames 60 --splits 0.6,0.15,0.25 \

@@ -264,6 +264,7 @@ def seeded_blocks(path: Path, published: bool = True) -> list[Block]:
         return _missing("the tradeoff over seeds", "lenspair tradeoff DS --seeds 0,1,2")
     meta = (load_json(path.with_suffix(".json")) or {}).get("meta", {})
     device = meta.get("device", "a device not recorded")
+    cpu = f" ({meta['cpu']})" if meta.get("cpu") else ""
     blocks = [b for b in markdown_file_blocks(path) if not isinstance(b, Heading)]
     if not published:
         starts = [
@@ -273,7 +274,7 @@ def seeded_blocks(path: Path, published: bool = True) -> list[Block]:
         blocks = blocks[: starts[0]] if starts else blocks
     intro = Paragraph(
         f"A longer run than the demo's: `lenspair tradeoff DS --seeds 0,1,2 --budget N` "
-        f"(`make tradeoff-seeds`), trained on {device}, CPU times from that machine's CPU; "
+        f"(`make tradeoff-seeds`), trained on {device}, CPU times from that machine's CPU{cpu}; "
         f"written by the command to `{path.as_posix()}`. Read the accuracy columns with "
         "the convergence column beside them. Its dataset is not the demo's (its data line "
         "names it), so its input row differs from the demo table's above."

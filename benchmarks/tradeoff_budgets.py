@@ -1,26 +1,29 @@
-"""Does the tradeoff's accuracy still change with the budget? Seeded runs at two budgets.
+"""Does the tradeoff's accuracy still change with the budget? Seeded runs at several budgets.
 
-    python -m benchmarks.tradeoff_budgets SMALL/tradeoff_seeds.json LARGE/tradeoff_seeds.json \\
-        --out docs/results/tradeoff_budgets.md
+    python -m benchmarks.tradeoff_budgets SMALL/tradeoff_seeds.json LARGER/tradeoff_seeds.json \\
+        [LARGEST/tradeoff_seeds.json ...] --out docs/results/tradeoff_budgets.md
 
 ``lenspair tradeoff --seeds`` checks convergence inside one run: the trend of
 validation PSNR over the budget's last fifth against the seed spread. Under
 the decaying learning rate that window is where the rate falls towards zero
 and the GAN settles, so the curve rises there at any budget: the check cannot
 tell a network still learning from one settling. Training again with a larger
-budget can. For each network present in both runs (the network as trained,
-fp32), this prints the test PSNR and SSIM at each budget as mean +/- spread
-over seeds and whether the larger budget changed them by more than either
-spread (the rule that claims a difference anywhere else in lenspair): where
-it did not, more training did not buy accuracy this table can see.
+budget can. For each network present in at least two runs (the network as
+trained, fp32), this prints the test PSNR and SSIM at each budget as mean +/-
+spread over seeds and, for each budget and the next, whether the larger one
+changed PSNR by more than either spread (the rule that claims a difference
+anywhere else in lenspair): where it did not, more training did not buy
+accuracy this table can see. A network missing from a run is shown as ``-``.
 
-The two runs must be scored on the same pairs with the same convention,
-crops, batch and learning rate (their ``meta``); the budgets must differ.
+The runs must be scored on the same pairs with the same convention, crops,
+batch and learning rate (their ``meta``); no two may have the same budget.
 """
 
 import argparse
 import json
 import sys
+from collections.abc import Sequence
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -60,82 +63,120 @@ def _fp32(data: dict[str, Any]) -> dict[str, tuple[SeedSummary, SeedSummary]]:
     }
 
 
-def compare(small_path: Path, large_path: Path) -> str:
-    """The comparison as Markdown (raises :class:`BudgetsError` when it cannot be made)."""
-    small, large = _load(small_path), _load(large_path)
-    mine, theirs = _settings(small["meta"]), _settings(large["meta"])
-    for key in mine:
-        if mine[key] != theirs[key]:
-            raise BudgetsError(
-                f"{large_path}: {key} is {theirs[key]!r}, but {mine[key]!r} in {small_path}: "
-                "only runs on the same pairs and settings compare"
-            )
-    budgets = (small["meta"]["budget"], large["meta"]["budget"])
-    if budgets[0] == budgets[1]:
-        raise BudgetsError(f"{large_path}: the same budget as {small_path} ({budgets[0]})")
-    before, after = _fp32(small), _fp32(large)
+def compare(paths: Sequence[Path]) -> str:
+    """The comparison as Markdown (raises :class:`BudgetsError` when it cannot be made).
+
+    Args:
+        paths: two or more ``tradeoff_seeds.json``, smallest budget first; each
+            budget is compared with the next.
+
+    """
+    if len(paths) < 2:
+        raise BudgetsError("give at least two runs to compare")
+    runs = [_load(path) for path in paths]
+    first = _settings(runs[0]["meta"])
+    for path, run in zip(paths[1:], runs[1:], strict=True):
+        theirs = _settings(run["meta"])
+        for key in first:
+            if first[key] != theirs[key]:
+                raise BudgetsError(
+                    f"{path}: {key} is {theirs[key]!r}, but {first[key]!r} in {paths[0]}: "
+                    "only runs on the same pairs and settings compare"
+                )
+    budgets = [run["meta"]["budget"] for run in runs]
+    for index, (path, budget) in enumerate(zip(paths, budgets, strict=True)):
+        if budget in budgets[:index]:
+            earlier = paths[budgets.index(budget)]
+            raise BudgetsError(f"{path}: the same budget as {earlier} ({budget})")
+    tables = [_fp32(run) for run in runs]
+    names: list[str] = []  # in order of first appearance, each in at least two runs
+    for table in tables:
+        names += [n for n in table if n not in names and sum(n in t for t in tables) > 1]
+    if not names:
+        raise BudgetsError(f"{paths[-1]}: no network in common with another run")
+    steps = list(pairwise(budgets))
+    runs_line = " and ".join(
+        f"`{path.as_posix()}` ({budget}, seeds {run['meta']['seeds']}"
+        + (f", {run['meta']['cpu']}" if run["meta"].get("cpu") else "")
+        + ")"
+        for path, budget, run in zip(paths, budgets, runs, strict=True)
+    )
     lines = [
         "# Accuracy against the training budget",
         "",
-        f"- runs: `{small_path.as_posix()}` ({budgets[0]}, seeds {small['meta']['seeds']}) "
-        f"and `{large_path.as_posix()}` ({budgets[1]}, seeds {large['meta']['seeds']})",
-        f"- data: `{small['meta']['dataset']}`, scored on {small['meta']['evaluated_on']}, "
-        f"{small['meta']['convention']} convention; fp32, as trained",
+        f"- runs: {runs_line}",
+        f"- data: `{runs[0]['meta']['dataset']}`, scored on {runs[0]['meta']['evaluated_on']}, "
+        f"{runs[0]['meta']['convention']} convention; fp32, as trained",
         "- changed: the larger budget moved the mean by more than either run's spread "
         "(sample standard deviation over seeds)",
         "",
-        f"| network | PSNR at {budgets[0]} | PSNR at {budgets[1]} | change | changed | "
-        f"SSIM at {budgets[0]} | SSIM at {budgets[1]} |",
-        "|---|---|---|---|---|---|---|",
+        "| network | "
+        + " | ".join(f"PSNR at {b}" for b in budgets)
+        + " | "
+        + " | ".join(f"{a} -> {b}" for a, b in steps)
+        + " | "
+        + " | ".join(f"SSIM at {b}" for b in budgets)
+        + " |",
+        "|---|" + "---|" * (2 * len(budgets) + len(steps)),
     ]
-    common = [name for name in before if name in after]
-    if not common:
-        raise BudgetsError(f"{large_path}: no network in common with {small_path}")
-    changed = []
-    for name in common:
-        (psnr_a, ssim_a), (psnr_b, ssim_b) = before[name], after[name]
-        change = psnr_b.mean - psnr_a.mean
-        beyond = clearly_better(psnr_b, psnr_a) or clearly_better(psnr_a, psnr_b)
-        if beyond:
-            changed.append(name)
-        lines.append(
-            f"| {name} | {psnr_a.format(2)} | {psnr_b.format(2)} | {change:+.2f} dB | "
-            f"{'yes' if beyond else 'no'} | {ssim_a.format(4)} | {ssim_b.format(4)} |"
-        )
-    if changed:
-        verdict = (
-            f"The larger budget changed {', '.join(changed)} beyond the spread: at "
-            f"{budgets[0]} those had not converged."
-        )
-    else:
-        verdict = (
-            f"No network changed beyond the spread between {budgets[0]} and {budgets[1]}: "
-            "the accuracy columns compare networks that more training did not improve."
-        )
+    changed: list[list[str]] = [[] for _ in steps]
+    compared: list[list[str]] = [[] for _ in steps]
+    for name in names:
+        psnr = [table[name][0].format(2) if name in table else "-" for table in tables]
+        ssim = [table[name][1].format(4) if name in table else "-" for table in tables]
+        moves = []
+        for index, (before, after) in enumerate(pairwise(tables)):
+            if name not in before or name not in after:
+                moves.append("-")
+                continue
+            compared[index].append(name)
+            (psnr_a, _), (psnr_b, _) = before[name], after[name]
+            beyond = clearly_better(psnr_b, psnr_a) or clearly_better(psnr_a, psnr_b)
+            if beyond:
+                changed[index].append(name)
+            moves.append(f"{psnr_b.mean - psnr_a.mean:+.2f} dB, {'yes' if beyond else 'no'}")
+        lines.append(f"| {name} | {' | '.join([*psnr, *moves, *ssim])} |")
+    verdicts = []
+    for (small, large), moved, seen in zip(steps, changed, compared, strict=True):
+        if not seen:
+            verdicts.append(f"No network was trained at both {small} and {large}.")
+        elif moved:
+            verdicts.append(
+                f"From {small} to {large} the budget changed {', '.join(moved)} beyond the "
+                f"spread: at {small} those had not converged."
+            )
+        else:
+            verdicts.append(
+                f"No network changed beyond the spread between {small} and {large} "
+                f"({', '.join(seen)}): the accuracy columns at {small} compare networks "
+                "that more training did not improve."
+            )
     alone = [
-        f"Only at {budget}: {', '.join(names)} (not compared)"
-        for budget, names in (
-            (budgets[0], [n for n in before if n not in after]),
-            (budgets[1], [n for n in after if n not in before]),
-        )
-        if names
+        f"Only at {budget}: {', '.join(left)} (not compared)"
+        for budget, table in zip(budgets, tables, strict=True)
+        if (left := [n for n in table if n not in names])
     ]
+    verdict = " ".join(verdicts)
     if alone:
         verdict += " " + "; ".join(alone) + "."
     return "\n".join([*lines, "", verdict]) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: compare two seeded tradeoff runs, print and write the table."""
+    """Entry point: compare seeded tradeoff runs, print and write the table."""
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("small", type=Path, help="tradeoff_seeds.json of the smaller budget")
-    parser.add_argument("large", type=Path, help="tradeoff_seeds.json of the larger budget")
+    parser.add_argument(
+        "runs",
+        type=Path,
+        nargs="+",
+        help="tradeoff_seeds.json of two or more budgets, smallest first",
+    )
     parser.add_argument("--out", type=Path, default=None, help="also write the table here")
     args = parser.parse_args(argv)
     try:
-        text = compare(args.small, args.large)
+        text = compare(args.runs)
     except BudgetsError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -57,7 +57,7 @@ from lenspair.model.evaluation.tradeoff_rows import TradeoffRow as TradeoffRow
 from lenspair.model.evaluation.tradeoff_rows import mark_pareto as mark_pareto
 from lenspair.model.evaluation.tradeoff_rows import pareto_front as pareto_front
 from lenspair.model.networks.complexity import describe
-from lenspair.model.precision import choose_precision
+from lenspair.model.precision import choose_precision, read_cpu_flags
 from lenspair.model.training.config import RunConfig, Variant, config_differences
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
@@ -273,6 +273,7 @@ def run_tradeoff(
         "variants": [asdict(v) for v in variants],
         "device": str(device),
         "threads": torch.get_num_threads(),
+        "cpu": read_cpu_flags()[0],  # the CPU of the CPU ms column (and of training on one)
         "size": f"{size[1]}x{size[0]}",
         "convention": convention,
         "seed": base.train.seed,

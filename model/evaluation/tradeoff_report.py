@@ -59,7 +59,9 @@ def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
         *([f"- scored: {meta['scored']}"] if "scored" in meta else []),
         f"- metric convention: {meta['convention']}",
         f"- latency: batch 1 at {meta['size']}, median after warm-up; CPU with "
-        f"{meta['threads']} threads (n/a at a precision the CPU only emulates); GPU "
+        f"{meta['threads']} threads"
+        + (f" of {meta['cpu']}" if meta.get("cpu") else "")
+        + " (n/a at a precision the CPU only emulates); GPU "
         "column only when trained on CUDA",
         "- Pareto: `*` = on the PSNR-vs-CPU-time front, `+` = on the SSIM-vs-CPU-time front",
         "",

@@ -184,7 +184,8 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
         ),
         f"- metric convention: {meta['convention']}; accuracy is mean +/- spread (sample "
         "standard deviation over seeds)",
-        f"- CPU ms: median over seeds of the median per frame (batch 1, {meta['size']})",
+        f"- CPU ms: median over seeds of the median per frame (batch 1, {meta['size']})"
+        + (f", on {meta['cpu']}" if meta.get("cpu") else ""),
         f"- converged: over the last {tail} of the budget (from the last validation at or "
         "before it) the trend (least-squares line) of validation PSNR moved less than the "
         "seed spread of the network's fp32 PSNR, on every seed (the largest change, signed, "

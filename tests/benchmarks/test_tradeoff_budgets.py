@@ -41,8 +41,8 @@ def test_a_change_is_claimed_only_beyond_either_spread(
     assert main([str(small), str(large), "--out", str(out)]) == 0
     text = out.read_text()
     assert text == capsys.readouterr().out
-    assert "| G | 25.00 +/- 0.10 | 26.00 +/- 0.20 | +1.00 dB | yes |" in text
-    assert "| GEA | 25.20 +/- 0.20 | 25.30 +/- 0.20 | +0.10 dB | no |" in text
+    assert "| G | 25.00 +/- 0.10 | 26.00 +/- 0.20 | +1.00 dB, yes |" in text
+    assert "| GEA | 25.20 +/- 0.20 | 25.30 +/- 0.20 | +0.10 dB, no |" in text
     assert "| GEA-b3 |" not in text  # named below the table, not compared
     assert "changed G beyond the spread: at 800 steps those had not converged" in text
     assert text.rstrip().endswith("Only at 2000 steps: GEA-b3 (not compared).")
@@ -59,6 +59,8 @@ def test_runs_that_do_not_compare_are_a_one_line_error(
     same_budget = _run(tmp_path / "c.json", "800 steps", {"G": [25.0, 25.1, 25.2]})
     assert main([str(small), str(same_budget)]) == 2
     assert "the same budget" in capsys.readouterr().err
+    assert main([str(small)]) == 2
+    assert "at least two runs" in capsys.readouterr().err
     (tmp_path / "d.json").write_text("{not json")
     assert main([str(small), str(tmp_path / "d.json")]) == 2
     assert "d.json: cannot read it as JSON" in capsys.readouterr().err
@@ -73,3 +75,34 @@ def test_no_change_beyond_the_spread_says_so(
     assert "No network changed beyond the spread between 800 steps and 2000 steps" in (
         capsys.readouterr().out
     )
+
+
+def test_three_budgets_compare_each_with_the_next(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # G rises from 800 to 2000 steps beyond the spread, then stays; GEA-w0.5 is absent at
+    # 4000 steps, so only its first step is compared; GEA-b3 is in one run only
+    small = _run(
+        tmp_path / "a.json", "800 steps",
+        {"G": [24.9, 25.0, 25.1], "GEA-w0.5": [24.0, 24.2, 24.4], "GEA-b3": [24.0, 24.1, 24.2]},
+    )  # fmt: skip
+    middle = _run(
+        tmp_path / "b.json", "2000 steps", {"G": [25.8, 26.0, 26.2], "GEA-w0.5": [24.1, 24.3, 24.5]}
+    )
+    large = _run(tmp_path / "c.json", "4000 steps", {"G": [25.9, 26.1, 26.3]})
+    assert main([str(small), str(middle), str(large)]) == 0
+    text = capsys.readouterr().out
+    header = next(line for line in text.splitlines() if line.startswith("| network |"))
+    assert "| 800 steps -> 2000 steps | 2000 steps -> 4000 steps |" in header
+    assert (
+        "| G | 25.00 +/- 0.10 | 26.00 +/- 0.20 | 26.10 +/- 0.20 | +1.00 dB, yes | +0.10 dB, no |"
+        in text
+    )
+    assert "| GEA-w0.5 | 24.20 +/- 0.20 | 24.30 +/- 0.20 | - | +0.10 dB, no | - |" in text
+    assert "From 800 steps to 2000 steps the budget changed G beyond the spread" in text
+    assert "No network changed beyond the spread between 2000 steps and 4000 steps (G)" in text
+    assert text.rstrip().endswith("Only at 800 steps: GEA-b3 (not compared).")
+    # the same budget twice is refused, whichever run repeats it
+    again = _run(tmp_path / "d.json", "800 steps", {"G": [25.0, 25.1, 25.2]})
+    assert main([str(small), str(middle), str(again)]) == 2
+    assert "d.json: the same budget as" in capsys.readouterr().err

@@ -123,6 +123,15 @@ def test_tradeoff_int8_row_scores_against_fp32_and_target(
     assert "| GEA | int8 (" in (tmp_path / "t" / "tradeoff.md").read_text()
 
 
+def payload_cpu(out: Path) -> str:
+    """The CPU a tradeoff recorded, checked against this machine's."""
+    from lenspair.model.precision import read_cpu_flags
+
+    cpu = json.loads((out / "tradeoff.json").read_text())["cpu"]
+    assert cpu == read_cpu_flags()[0]
+    return str(cpu)
+
+
 def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -156,6 +165,7 @@ def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
     for name, precision in expected:
         assert f"| {name} | {precision}" in markdown
     assert "skimage-gaussian" in markdown
+    assert f"threads of {payload_cpu(out)} (n/a" in markdown  # the CPU that timed the rows
     with (out / "tradeoff.csv").open() as handle:
         assert len(list(csv.DictReader(handle))) == len(expected)
     payload = json.loads((out / "tradeoff.json").read_text())
@@ -264,6 +274,11 @@ def test_seeded_tradeoff_reports_mean_spread_convergence_and_published_rows(
     assert "+/-" in markdown and "converged" in markdown
     assert "published" in markdown and "| G+E+A | 0.909 | 29.84 |" in markdown
     assert json.loads((out / "tradeoff_seeds.json").read_text())["meta"]["seeds"] == [0, 1]
+    # the CPU ms column names the CPU that timed it: runs on two machines are told apart
+    from lenspair.model.precision import read_cpu_flags
+
+    cpu = read_cpu_flags()[0]
+    assert meta["cpu"] == cpu and f"(batch 1, {meta['size']}), on {cpu}" in markdown
     # what the budget bought depends on crops, batch and schedule: the table says them
     crop, batch = base.data.crop_size, base.train.batch_size
     said = f"- training: {crop} px crops, batch {batch}, learning rate {base.train.lr:g} constant"
