@@ -16,7 +16,9 @@ anywhere else in lenspair): where it did not, more training did not buy
 accuracy this table can see. A network missing from a run is shown as ``-``.
 
 The runs must be scored on the same pairs with the same convention, crops,
-batch and learning rate (their ``meta``); no two may have the same budget.
+batch, learning rate and schedule (their ``meta``); no two may have the same budget.
+The input's own scores head the table for each run: a dataset rebuilt by
+another version can differ slightly under the same path, and that row shows it.
 """
 
 import argparse
@@ -31,7 +33,7 @@ from lenspair.core.fsutil import atomic_write_text
 from lenspair.model.evaluation.seed_statistics import SeedSummary, clearly_better, summarise_seeds
 
 SAME = ("dataset", "evaluated_on", "convention", "size")
-"""Meta fields two runs must share to be compared (plus crops, batch and base rate)."""
+"""Meta fields two runs must share to be compared (plus crops, batch, rate and its decay)."""
 
 
 class BudgetsError(ValueError):
@@ -51,7 +53,7 @@ def _load(path: Path) -> dict[str, Any]:
 def _settings(meta: dict[str, Any]) -> dict[str, Any]:
     training = meta.get("training", {})
     shared = {key: meta.get(key) for key in SAME}
-    shared |= {key: training.get(key) for key in ("crop_size", "batch_size", "lr")}
+    shared |= {key: training.get(key) for key in ("crop_size", "batch_size", "lr", "lr_decay")}
     return shared
 
 
@@ -61,6 +63,10 @@ def _fp32(data: dict[str, Any]) -> dict[str, tuple[SeedSummary, SeedSummary]]:
         for row in data["rows"]
         if row["precision"] == "fp32"
     }
+
+
+def _score(value: float | None, digits: int) -> str:
+    return "not recorded" if value is None else f"{value:.{digits}f}"
 
 
 def compare(paths: Sequence[Path]) -> str:
@@ -119,6 +125,16 @@ def compare(paths: Sequence[Path]) -> str:
         + " |",
         "|---|" + "---|" * (2 * len(budgets) + len(steps)),
     ]
+    baselines = [run["meta"].get("input_baseline") or {} for run in runs]
+    lines.append(
+        "| input, no restoration | "
+        + " | ".join(_score(b.get("psnr_db"), 2) for b in baselines)
+        + " | "
+        + " | ".join("-" for _ in steps)
+        + " | "
+        + " | ".join(_score(b.get("ssim"), 4) for b in baselines)
+        + " |"
+    )
     changed: list[list[str]] = [[] for _ in steps]
     compared: list[list[str]] = [[] for _ in steps]
     for name in names:

@@ -14,6 +14,7 @@ def _run(path: Path, budget: str, rows: dict[str, list[float]], crop: int = 128)
         "dataset": "ds", "evaluated_on": "ds split test", "convention": "skimage-gaussian",
         "size": "540x360", "budget": budget, "seeds": [0, 1, 2],
         "training": {"crop_size": crop, "batch_size": 4, "lr": 2e-4, "lr_decay": 0.5},
+        "input_baseline": {"psnr_db": 24.49, "ssim": 0.8936},
     }  # fmt: skip
     table: list[dict[str, Any]] = [
         {"name": name, "precision": precision, "psnr_db": psnr, "ssim": [0.9, 0.91, 0.92]}
@@ -44,6 +45,8 @@ def test_a_change_is_claimed_only_beyond_either_spread(
     assert "| G | 25.00 +/- 0.10 | 26.00 +/- 0.20 | +1.00 dB, yes |" in text
     assert "| GEA | 25.20 +/- 0.20 | 25.30 +/- 0.20 | +0.10 dB, no |" in text
     assert "| GEA-b3 |" not in text  # named below the table, not compared
+    # the input's scores at each budget: the same pairs score the same
+    assert "| input, no restoration | 24.49 | 24.49 | - | 0.8936 | 0.8936 |" in text
     assert "changed G beyond the spread: at 800 steps those had not converged" in text
     assert text.rstrip().endswith("Only at 2000 steps: GEA-b3 (not compared).")
 
@@ -56,6 +59,12 @@ def test_runs_that_do_not_compare_are_a_one_line_error(
     assert main([str(small), str(other_crop)]) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "b.json: crop_size is 256, but 128" in error
+    constant = _run(tmp_path / "e.json", "2000 steps", {"G": [25.0, 25.1, 25.2]})
+    meta = json.loads(constant.read_text())
+    meta["meta"]["training"]["lr_decay"] = 0.0  # another schedule: not the same training
+    constant.write_text(json.dumps(meta))
+    assert main([str(small), str(constant)]) == 2
+    assert "e.json: lr_decay is 0.0, but 0.5" in capsys.readouterr().err
     same_budget = _run(tmp_path / "c.json", "800 steps", {"G": [25.0, 25.1, 25.2]})
     assert main([str(small), str(same_budget)]) == 2
     assert "the same budget" in capsys.readouterr().err
