@@ -239,9 +239,16 @@ def _from_filestorage(paths: list[Path], resolution: tuple[int, int] | None) -> 
     where = " + ".join(str(p) for p in paths)
     per_file = [_read_filestorage(p) for p in paths]
     merged = {k: v for values in per_file for k, v in values.items()}
-    singles = [v for v in per_file if _pick(v, _SINGLE_KEYS[0]) and _pick(v, _SINGLE_KEYS[1])]
+    # files holding one camera each (by position: their values are arrays, which `in` and
+    # `==` cannot compare)
+    single_files = [
+        (path, values)
+        for path, values in zip(paths, per_file, strict=True)
+        if _pick(values, _SINGLE_KEYS[0]) and _pick(values, _SINGLE_KEYS[1])
+    ]
+    singles = [values for _, values in single_files]
     if len(singles) >= 2:  # one file a camera: in the order cam0, cam1, as for ROS files
-        _check_camera_order([p for p, v in zip(paths, per_file, strict=True) if v in singles][:2])
+        _check_camera_order([path for path, _ in single_files][:2])
     cameras = []
     for index, name in enumerate(("cam0", "cam1")):
         source = singles[index] if len(singles) >= 2 else merged

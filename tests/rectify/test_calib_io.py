@@ -266,18 +266,24 @@ def _with_k3(text: str, k3: str) -> str:
     return "\n".join(lines)
 
 
-def _single_camera_files(folder: Path, rig: StereoRig) -> list[Path]:
+def _single_camera_files(folder: Path, rig: StereoRig, matrix_first: bool = False) -> list[Path]:
     paths = []
     for name, camera in (("cam0", rig.cam0), ("cam1", rig.cam1)):
-        values = {"image_width": 720, "image_height": 540, "camera_matrix": camera.K,
-                  "distortion_coefficients": camera.dist_coeffs}  # fmt: skip
+        size = {"image_width": 720, "image_height": 540}
+        matrices = {"camera_matrix": camera.K, "distortion_coefficients": camera.dist_coeffs}
+        values = {**matrices, **size} if matrix_first else {**size, **matrices}
         paths.append(write_storage(folder / f"{name}.yml", values))
     return paths
 
 
-def test_per_camera_opencv_files_given_cam1_first_are_refused(tmp_path: Path) -> None:
+@pytest.mark.parametrize("matrix_first", [False, True])
+def test_per_camera_opencv_files_given_cam1_first_are_refused(
+    tmp_path: Path, matrix_first: bool
+) -> None:
+    # with the matrices first, the files' values compare as arrays first (which cannot be
+    # compared with `==`): the files are told apart by position, not by value
     rig = make_rig()
-    cam0, cam1 = _single_camera_files(tmp_path, rig)
+    cam0, cam1 = _single_camera_files(tmp_path, rig, matrix_first)
     extrinsic = write_storage(tmp_path / "extr.yml", {"R": rig.R, "T": rig.t})
     found, _ = load_calibration([cam0, cam1, extrinsic])
     assert_same_rig(found, rig)
