@@ -23,7 +23,7 @@ import torch
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import autocast_context, tune_allocator
-from lenspair.model.inference.options import PRECISIONS
+from lenspair.model.inference.options import MIN_TILE, PRECISIONS
 from lenspair.model.precision import choose_precision
 
 log = logging.getLogger(__name__)
@@ -118,22 +118,29 @@ class TorchBackend:
         """Run the network on a numpy batch (see :class:`Backend`).
 
         A batch that does not fit in memory runs again one frame at a time;
-        a single frame that does not fit is a :class:`ModelError` that says
-        how to restore it (tiles; a fp32 frame needs about 330 MB per
-        megapixel on the CPU), not an allocator's traceback.
+        a single frame (or tile: ``run_tiled`` calls this per tile) that does
+        not fit is a :class:`ModelError` that says how to restore it (tiles of
+        the largest power of two up to half its longer side; a fp32 frame needs about 330 MB per
+        megapixel on the CPU), not an allocator's traceback. The retry runs
+        after the failed call's frames are gone (its traceback held the batch's
+        tensors), with CUDA's cache emptied.
         """
         try:
             return self._run(batch)
-        except (torch.OutOfMemoryError, RuntimeError) as exc:
+        except (torch.cuda.OutOfMemoryError, RuntimeError) as exc:
             if not _out_of_memory(exc):
                 raise
-            if len(batch) > 1:
-                return np.concatenate([self(batch[i : i + 1]) for i in range(len(batch))])
-            height, width = batch.shape[-2:]
-            raise ModelError(
-                f"{self.path}: out of memory restoring one {width}x{height} frame on "
-                f"{self.device} ({self.precision}); restore it in tiles (--tile 512)"
-            ) from None
+        if self.device.type == "cuda":
+            torch.cuda.empty_cache()
+        if len(batch) > 1:
+            return np.concatenate([self(batch[i : i + 1]) for i in range(len(batch))])
+        height, width = batch.shape[-2:]
+        tile = max(MIN_TILE, 1 << (max(height, width) // 2).bit_length() - 1)
+        raise ModelError(
+            f"{self.path}: out of memory restoring one {width}x{height} image on "
+            f"{self.device} ({self.precision}); restore in tiles smaller than that "
+            f"(--tile {tile}, or a smaller --tile if this was one)"
+        )
 
     @torch.inference_mode()
     def _run(self, batch: np.ndarray) -> np.ndarray:
@@ -147,7 +154,7 @@ class TorchBackend:
 
 def _out_of_memory(exc: BaseException) -> bool:
     """Whether ``exc`` is an allocation failure (CUDA's, or the CPU allocator's)."""
-    if isinstance(exc, torch.OutOfMemoryError):
+    if isinstance(exc, torch.cuda.OutOfMemoryError):  # torch.OutOfMemoryError from 2.5 on
         return True
     text = str(exc)
     return "can't allocate memory" in text or "DefaultCPUAllocator" in text

@@ -6,6 +6,9 @@ PRECISIONS = ("auto", "fp32", "bf16", "fp16")
 CAMERA_CHOICES = ("auto", "cam0", "cam1", "both")
 """``--camera``: ``auto`` = the obstructed camera of ``rig.yaml``, else both."""
 
+MIN_TILE = 16
+"""Smallest tile side, pixels (``--tile``)."""
+
 DEFAULT_OVERLAP = 32
 """``--overlap``: pixels shared by neighbouring tiles."""
 

@@ -25,13 +25,10 @@ from lenspair.core.bitdepth import narrow, widen
 from lenspair.core.imageio import max_value
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
-from lenspair.model.inference.options import DEFAULT_OVERLAP
+from lenspair.model.inference.options import DEFAULT_OVERLAP, MIN_TILE
 
 ALIGN = 32
 """Tile steps are multiples of this when possible: the enhancer pools 4..32 px cells."""
-
-MIN_TILE = 16
-"""Smallest tile side, pixels (``--tile``)."""
 
 
 def check_tile(tile: int | None) -> None:

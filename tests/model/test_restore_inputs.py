@@ -473,8 +473,17 @@ def test_a_batch_out_of_memory_runs_frame_by_frame_and_one_frame_says_tile() -> 
     np.testing.assert_allclose(backend(batch), 1.0 - batch)
     assert network.sizes == [3, 1, 1, 1]
     starved = TorchBackend(_Hungry(fits=0), 1, torch.device("cpu"), path=Path("m.pt"))
-    with pytest.raises(ModelError, match=r"^m.pt: out of memory restoring one 12x8 frame .*--tile"):
+    with pytest.raises(
+        ModelError, match=r"^m.pt: out of memory restoring one 12x8 image .*--tile 16"
+    ):
         starved(batch)
+    # the tiles it suggests are at most half the image's longer side (a tile that fails
+    # suggests smaller tiles): 600 -> 256, 512 -> 256
+    for width, tile in ((600, 256), (512, 256)):
+        with pytest.raises(
+            ModelError, match=rf"one {width}x8 image .*\(--tile {tile}, or a smaller"
+        ):
+            starved(np.zeros((1, 1, 8, width), np.float32))
     with pytest.raises(RuntimeError, match="other"):  # not an allocation failure: as raised
         TorchBackend(_Raises(), 1, torch.device("cpu"))(batch)
 
