@@ -8,8 +8,9 @@ Layout::
 The timestamp is the last group of digits of the file stem, in nanoseconds
 (``left_000017_1403636579763555584.png`` works too), or seconds with a
 fraction when the stem ends in ``<digits>.<digits>`` (``1403636579.7635.png``),
-or seconds and nanoseconds when it ends in ``<9-10 digits>_<9 digits>`` (or
-``-``), as ROS tools name frames (``1403636579_763555584.png``): read as
+or seconds and nanoseconds when it ends in ``<9-10 digits>_<up to 9 digits>``
+(or ``-``), as ROS tools name frames (``1403636579_763555584.png``; an
+unpadded ``1403636579_5.png`` is 5 ns past the second): read as
 nanoseconds alone, those would lose their seconds and pair frames of
 different seconds.
 Hidden files and files that are not images are ignored. Folders have no
@@ -35,8 +36,9 @@ IMAGE_SUFFIXES = frozenset({".png", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".
 FOLDER_NAMES: dict[CameraName, str] = {"cam0": "left", "cam1": "right"}
 
 _SECONDS = re.compile(r"(\d+)\.(\d{1,9})$")
-_SECONDS_NANOSECONDS = re.compile(r"(?<!\d)(\d{9,10})[_-](\d{9})$")
-"""Unix seconds (9-10 digits: 1973 to 2286) and a 9-digit nanosecond field."""
+_SECONDS_NANOSECONDS = re.compile(r"(?<!\d)(\d{9,10})[_-](\d{1,9})$")
+"""Unix seconds (9-10 digits: 1973 to 2286) and a nanosecond field of up to 9 digits
+(export scripts that print ``f"{secs}_{nsecs}"`` do not zero-pad it)."""
 _LAST_DIGITS = re.compile(r"(\d+)\D*$")
 
 
@@ -51,10 +53,12 @@ def timestamp_from_name(name: str) -> int | None:
         seconds, or ``<s>_<ns>`` (module docstring).
     """
     stem = Path(name).stem
-    seconds = _SECONDS.search(stem) or _SECONDS_NANOSECONDS.search(stem)
-    if seconds is not None:
-        whole, fraction = seconds.groups()
-        return int(whole) * 1_000_000_000 + int(fraction.ljust(9, "0"))
+    fraction = _SECONDS.search(stem)
+    if fraction is not None:  # a decimal fraction: "5" is half a second
+        return int(fraction.group(1)) * 1_000_000_000 + int(fraction.group(2).ljust(9, "0"))
+    split = _SECONDS_NANOSECONDS.search(stem)
+    if split is not None:  # a nanosecond count: "5" is five nanoseconds
+        return int(split.group(1)) * 1_000_000_000 + int(split.group(2))
     digits = _LAST_DIGITS.search(stem)
     return int(digits.group(1)) if digits is not None else None
 

@@ -127,6 +127,21 @@ def test_euroc_names_outside_the_data_folder_are_problems(
     assert problem.source.endswith("data.csv:4") and problem.dropped
 
 
+def test_euroc_absolute_names_through_a_linked_folder_stay_inside(tmp_path: Path) -> None:
+    # data.csv names the real path; the recording is opened through a link to its parent
+    stamps = [T0 + i * 50 * MS for i in range(3)]
+    real = tmp_path / "disk" / "rec"
+    for camera in ("cam0", "cam1"):
+        folder = real / "mav0" / camera
+        _write_camera(folder, stamps)
+        rows = [f"{t},{(folder / 'data' / f'{t}.png').resolve()}" for t in stamps]
+        (folder / "data.csv").write_text("\n".join(rows) + "\n")
+    (tmp_path / "link").symlink_to(tmp_path / "disk")
+    recording = open_recording(tmp_path / "link" / "rec")
+    assert recording.timestamps("cam0") == stamps == recording.timestamps("cam1")
+    assert not [p for p in recording.problems if "outside" in p.reason]
+
+
 def test_corrupt_image_lists_but_load_names_the_file(tmp_path: Path) -> None:
     _euroc(tmp_path)
     recording = open_recording(tmp_path)
@@ -198,6 +213,8 @@ def test_left_right_folders(tmp_path: Path) -> None:
     [
         ("1700000002_001058405.png", 1_700_000_002_001_058_405),  # ROS <s>_<ns>
         ("left-1700000002-000000007.png", 1_700_000_002_000_000_007),
+        ("1700000002_7.png", 1_700_000_002_000_000_007),  # nanoseconds printed unpadded
+        ("1700000002_58405.png", 1_700_000_002_000_058_405),
         ("1700000002.5.png", 1_700_000_002_500_000_000),
         ("left_000017_1403636579763555584.png", 1_403_636_579_763_555_584),
         ("frame_000017.png", 17),  # a frame index stays an index
