@@ -96,9 +96,20 @@ def name_in_folder(folder: Path, name: str) -> str | None:
     path under ``folder`` becomes relative to it, and one that leaves ``folder``
     (``../x.png``, another folder's absolute path) is None. Symbolic links are
     not followed: a ``data/`` folder of links to elsewhere is still the folder.
+    An absolute name outside ``folder`` as written is tried once more with
+    links resolved on both sides: the recording opened through a linked
+    parent (``/mnt/link/rec``) while ``data.csv`` names the real path
+    (``/data/rec/...``), or the other way round.
     """
     root = os.path.abspath(folder)
-    target = os.path.abspath(os.path.join(root, name))
+    inside = _relative_inside(root, os.path.abspath(os.path.join(root, name)))
+    if inside is None and os.path.isabs(name):
+        inside = _relative_inside(os.path.realpath(root), os.path.realpath(name))
+    return inside
+
+
+def _relative_inside(root: str, target: str) -> str | None:
+    """``target`` relative to ``root`` when it lies strictly inside it, else None."""
     if os.path.commonpath([root, target]) != root or target == root:
         return None
     return Path(os.path.relpath(target, root)).as_posix()
