@@ -304,7 +304,7 @@ def _frame_stage(
     if redone:  # a rerun with another calibration, side or thresholds replaces them: said
         log.warning(
             "%s: %d finished frames are processed again: the calibration, obstructed side, "
-            "--size, thresholds or input frames differ from the run that wrote them",
+            "--size, --time-offset, thresholds or input frames differ from the run that wrote them",
             out_dir,
             redone,
         )
@@ -411,9 +411,6 @@ def ingest_recording(
     """Turn one stereo recording into registered, verified pairs under ``out/<recording_id>/``.
 
     Args:
-        time_offset_ns: how far cam1's clock runs ahead of cam0's: cam1's
-            stamps less this are paired with cam0's (``--time-offset``); the
-            pairs keep the recorded stamps, and report.json the offset.
         recording_path: EuRoC/ASL folder, bag, or left/right folders.
         out: output root; the recording goes to ``out/<recording_id>/``.
         calibration: calibration files (``--calib``); empty: rig.yaml / camchain.yaml.
@@ -426,6 +423,9 @@ def ingest_recording(
         side_detector: a trained detector as a function (``--detector``); when
             given, the side check uses it (:mod:`lenspair.capture.side_detector`)
             instead of the detail ratio.
+        time_offset_ns: how far cam1's clock runs ahead of cam0's: cam1's
+            stamps less this are paired with cam0's (``--time-offset``); the
+            pairs keep the recorded stamps, and report.json the offset.
 
     Returns:
         The report also written to ``report.json``.

@@ -506,7 +506,8 @@ def split_sessions(
                     f"{source_b.report.recording_id} starts {gap / 1e6:.1f} ms after "
                     f"{source_a.report.recording_id} ends, with the same calibration: one "
                     f"session cut in two? Their neighbouring frames are in {sides[0]} and "
-                    f"{sides[1]}; ingest the session as one recording to keep them together"
+                    f"{sides[1]}; ingest the session as one recording to keep them together (a "
+                    "ROS 2 bag folder is one; merge split ROS 1 bags into one .bag first)"
                 )
     return warnings
 

@@ -20,12 +20,14 @@ or an empty train; named in dataset.json) can move back, and a rebuild
 warns with the count of pairs that changed split against the dataset it
 replaces. One session cut into several recordings (rosbag record --split)
 is several groups, and the build warns when a join between them falls
-between two splits: ingest such a session as one recording.
+between two splits: ingest such a session as one recording (a ROS 2 bag
+folder is one; merge split ROS 1 bags into one .bag first).
 
 Output: DS/{train,val,test}/{input,target[,mask]}/<rec>_<t_ns>.png,
 manifest.jsonl, dataset.json (the card), removed.jsonl (each removed pair
 with its rule and reason), config.yaml and contact_<split>.png. Same inputs
-and seed give byte-identical files.
+and seed give byte-identical files (but for dataset.json's note of pairs
+that a rebuild moved against the dataset it replaced).
 
 Images are independent copies of the ingested ones (a reflink where the file
 system supports it, else a byte copy): editing a dataset image never changes

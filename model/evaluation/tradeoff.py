@@ -134,7 +134,8 @@ class TradeoffResult:
 
 
 SCORED = {
-    "best.pt": "each network's checkpoint of best validation PSNR (step: scored_step)",
+    "best.pt": "each network's checkpoint of best validation PSNR (its step: scored_step in "
+    "tradeoff.csv and tradeoff.json)",
     "last.pt": "each network at the end of its budget (the validation pairs are the "
     "scored ones, so they choose no checkpoint)",
 }
