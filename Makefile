@@ -62,12 +62,15 @@ results: demo bench
 # docs/results/table2.md), the weights (1500 optimiser steps per network, batch 8, crop
 # 128; then scored as shipped on the demo's test split). Each prints its table and
 # writes it beside its runs.
-# TRADEOFF_BUDGET and TRADEOFF_OUT choose another budget, e.g. the 4000-step run that
-# docs/results/tradeoff_budgets.md compares with 2000 (`make tradeoff-seeds
-# TRADEOFF_BUDGET=4000 TRADEOFF_OUT=tradeoff_seeds_4000_out`).
+# TRADEOFF_BUDGET, TRADEOFF_VARIANTS and TRADEOFF_OUT run another budget, e.g. the
+# 4000-step run of G and GEA that docs/results/tradeoff_budgets.md compares with 800 and
+# 2000 (`make tradeoff-seeds TRADEOFF_BUDGET=4000 TRADEOFF_VARIANTS=G,GEA
+# TRADEOFF_OUT=tradeoff_seeds_4000_out`: about 50 minutes a variant on a 2-core AMD EPYC,
+# docs/results/tradeoff_seeds_cpu_4000steps.md).
 TRADEOFF_BUDGET ?= 2000
+TRADEOFF_VARIANTS ?= G,GE,GEA,GEA-w0.5
 TRADEOFF_OUT ?= tradeoff_seeds_out
-TRADEOFF := table2_out/demo/dataset --budget $(TRADEOFF_BUDGET) --variants G,GE,GEA,GEA-w0.5 \
+TRADEOFF := table2_out/demo/dataset --budget $(TRADEOFF_BUDGET) --variants $(TRADEOFF_VARIANTS) \
 	--config benchmarks/tradeoff_cpu.yaml
 tradeoff-seeds: $(VENV)/.installed
 	$(BIN)/python -m benchmarks.table2 --out table2_out --frames 60 --splits 0.6,0.15,0.25 --data-only

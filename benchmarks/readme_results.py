@@ -248,9 +248,14 @@ def eval_blocks(demo: Path, copies: Copies) -> list[Block]:
     return blocks
 
 
-SEEDED = (FIGURES / "tradeoff_seeds_cpu.md", FIGURES / "tradeoff_seeds_h100.md")
-"""The longer tradeoffs over seeds (``tradeoff_seeds.md`` as the command wrote each): one
-trained on this project's 2-core CPU with the decaying schedule, one on a lent H100."""
+SEEDED = (
+    FIGURES / "tradeoff_seeds_cpu.md",
+    FIGURES / "tradeoff_seeds_cpu_4000steps.md",
+    FIGURES / "tradeoff_seeds_h100.md",
+)
+"""The longer tradeoffs over seeds (``tradeoff_seeds.md`` as the command wrote each): two
+trained on this project's 2-core CPUs with the decaying schedule (2000 steps, and 4000 for
+G and GEA, which ``benchmarks.tradeoff_budgets`` compares), one on a lent H100."""
 
 
 def seeded_blocks(path: Path, published: bool = True) -> list[Block]:

@@ -101,12 +101,13 @@ def compare(paths: Sequence[Path]) -> str:
     if not names:
         raise BudgetsError(f"{paths[-1]}: no network in common with another run")
     steps = list(pairwise(budgets))
-    runs_line = " and ".join(
+    described = [
         f"`{path.as_posix()}` ({budget}, seeds {run['meta']['seeds']}"
         + (f", {run['meta']['cpu']}" if run["meta"].get("cpu") else "")
         + ")"
         for path, budget, run in zip(paths, budgets, runs, strict=True)
-    )
+    ]
+    runs_line = ", ".join(described[:-1]) + " and " + described[-1]
     lines = [
         "# Accuracy against the training budget",
         "",
