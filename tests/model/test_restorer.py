@@ -72,7 +72,12 @@ def test_a_batch_whose_depth_rises_scales_each_frame_as_one_by_one(
     tmp_path: Path, checkpoint: Path
 ) -> None:
     """Two 10-bit frames, then a 12-bit one: the first two are taken as 10-bit words
-    whatever the batch (they were, one by one, before the third came)."""
+    whatever the batch (they were, one by one, before the third came).
+
+    Batched and one by one agree to one code: oneDNN may sum a batch of three in
+    another order than a batch of one (it did on an AMD EPYC: one pixel of 1536 a
+    code apart), while a frame rescaled to the later depth is four times off.
+    """
     frames = [narrow((texture((32, 48), seed=s) * 65535).astype(np.uint16), 10) for s in (7, 8)]
     frames.append(narrow((texture((32, 48), seed=9) * 65535).astype(np.uint16), 12))
     one_by_one = Restorer(checkpoint, device="cpu", precision="fp32")
@@ -80,9 +85,12 @@ def test_a_batch_whose_depth_rises_scales_each_frame_as_one_by_one(
     assert int(mine[0].max()) < 1 << 10 and int(mine[2].max()) >= 1 << 10
     batched = Restorer(checkpoint, device="cpu", precision="fp32").restore_batch(frames)
     written = _restored_by_command(tmp_path, checkpoint, frames, "--batch-size", "4")
-    for out, together, by_command in zip(mine, batched, written, strict=True):
-        np.testing.assert_array_equal(together, out)
-        np.testing.assert_array_equal(by_command, out)
+    for index, (out, together, by_command) in enumerate(zip(mine, batched, written, strict=True)):
+        for other in (together, by_command):
+            assert other.dtype == out.dtype and other.shape == out.shape
+            assert int(np.abs(other.astype(np.int64) - out).max()) <= 1
+            if index < 2:  # still 10-bit words, not rescaled to the third frame's 12 bits
+                assert int(other.max()) < 1 << 10
 
 
 def test_a_non_integer_tile_is_a_one_line_error(checkpoint: Path) -> None:
