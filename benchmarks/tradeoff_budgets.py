@@ -65,6 +65,10 @@ def _fp32(data: dict[str, Any]) -> dict[str, tuple[SeedSummary, SeedSummary]]:
     }
 
 
+def _row(cells: Sequence[str]) -> str:
+    return "| " + " | ".join(cells) + " |"
+
+
 def _score(value: float | None, digits: int) -> str:
     return "not recorded" if value is None else f"{value:.{digits}f}"
 
@@ -117,24 +121,26 @@ def compare(paths: Sequence[Path]) -> str:
         "- changed: the larger budget moved the mean by more than either run's spread "
         "(sample standard deviation over seeds)",
         "",
-        "| network | "
-        + " | ".join(f"PSNR at {b}" for b in budgets)
-        + " | "
-        + " | ".join(f"{a} -> {b}" for a, b in steps)
-        + " | "
-        + " | ".join(f"SSIM at {b}" for b in budgets)
-        + " |",
+        _row(
+            [
+                "network",
+                *(f"PSNR at {b}" for b in budgets),
+                *(f"{a} -> {b}" for a, b in steps),
+                *(f"SSIM at {b}" for b in budgets),
+            ]
+        ),
         "|---|" + "---|" * (2 * len(budgets) + len(steps)),
     ]
     baselines = [run["meta"].get("input_baseline") or {} for run in runs]
     lines.append(
-        "| input, no restoration | "
-        + " | ".join(_score(b.get("psnr_db"), 2) for b in baselines)
-        + " | "
-        + " | ".join("-" for _ in steps)
-        + " | "
-        + " | ".join(_score(b.get("ssim"), 4) for b in baselines)
-        + " |"
+        _row(
+            [
+                "input, no restoration",
+                *(_score(b.get("psnr_db"), 2) for b in baselines),
+                *("-" for _ in steps),
+                *(_score(b.get("ssim"), 4) for b in baselines),
+            ]
+        )
     )
     changed: list[list[str]] = [[] for _ in steps]
     compared: list[list[str]] = [[] for _ in steps]
@@ -152,7 +158,7 @@ def compare(paths: Sequence[Path]) -> str:
             if beyond:
                 changed[index].append(name)
             moves.append(f"{psnr_b.mean - psnr_a.mean:+.2f} dB, {'yes' if beyond else 'no'}")
-        lines.append(f"| {name} | {' | '.join([*psnr, *moves, *ssim])} |")
+        lines.append(_row([name, *psnr, *moves, *ssim]))
     verdicts = []
     for (small, large), moved, seen in zip(steps, changed, compared, strict=True):
         if not seen:
