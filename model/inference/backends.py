@@ -120,8 +120,8 @@ class TorchBackend:
         A batch that does not fit in memory runs again one frame at a time;
         a single frame (or tile: ``run_tiled`` calls this per tile) that does
         not fit is a :class:`ModelError` that says how to restore it (tiles of
-        the largest power of two up to half its longer side; a fp32 frame needs about 330 MB per
-        megapixel on the CPU), not an allocator's traceback. The retry runs
+        the largest power of two up to half its longer side; a fp32 frame needs
+        about 330 MB per megapixel on the CPU), not an allocator's traceback. The retry runs
         after the failed call's frames are gone (its traceback held the batch's
         tensors), with CUDA's cache emptied.
         """
@@ -135,7 +135,7 @@ class TorchBackend:
         if len(batch) > 1:
             return np.concatenate([self(batch[i : i + 1]) for i in range(len(batch))])
         height, width = batch.shape[-2:]
-        tile = max(MIN_TILE, 1 << (max(height, width) // 2).bit_length() - 1)
+        tile = max(MIN_TILE, 1 << (max(2, max(height, width)) // 2).bit_length() - 1)
         raise ModelError(
             f"{self.path}: out of memory restoring one {width}x{height} image on "
             f"{self.device} ({self.precision}); restore in tiles smaller than that "
