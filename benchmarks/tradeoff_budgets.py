@@ -1,7 +1,8 @@
 """Does the tradeoff's accuracy still change with the budget? Seeded runs at several budgets.
 
     python -m benchmarks.tradeoff_budgets SMALL/tradeoff_seeds.json LARGER/tradeoff_seeds.json \\
-        [LARGEST/tradeoff_seeds.json ...] --out docs/results/tradeoff_budgets.md
+        [LARGEST/tradeoff_seeds.json ...] --out docs/results/tradeoff_budgets.md \\
+        [--plot docs/results/tradeoff_budgets.png]
 
 ``lenspair tradeoff --seeds`` checks convergence inside one run: the trend of
 validation PSNR over the budget's last fifth against the seed spread. Under
@@ -27,9 +28,12 @@ import sys
 from collections.abc import Sequence
 from itertools import pairwise
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
-from lenspair.core.fsutil import atomic_write_text
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from lenspair.core.fsutil import atomic_write, atomic_write_text
 from lenspair.model.evaluation.seed_statistics import SeedSummary, clearly_better, summarise_seeds
 
 SAME = ("dataset", "evaluated_on", "convention", "size")
@@ -73,14 +77,17 @@ def _score(value: float | None, digits: int) -> str:
     return "not recorded" if value is None else f"{value:.{digits}f}"
 
 
-def compare(paths: Sequence[Path]) -> str:
-    """The comparison as Markdown (raises :class:`BudgetsError` when it cannot be made).
+class Compared(NamedTuple):
+    """Runs that passed the checks: their JSON, budgets, fp32 scores and the networks compared."""
 
-    Args:
-        paths: two or more ``tradeoff_seeds.json``, smallest budget first; each
-            budget is compared with the next.
+    runs: list[dict[str, Any]]
+    budgets: list[str]
+    tables: list[dict[str, tuple[SeedSummary, SeedSummary]]]
+    names: list[str]
 
-    """
+
+def _compared(paths: Sequence[Path]) -> Compared:
+    """Load the runs and check that they compare (:class:`BudgetsError` where not)."""
     if len(paths) < 2:
         raise BudgetsError("give at least two runs to compare")
     runs = [_load(path) for path in paths]
@@ -104,6 +111,18 @@ def compare(paths: Sequence[Path]) -> str:
         names += [n for n in table if n not in names and sum(n in t for t in tables) > 1]
     if not names:
         raise BudgetsError(f"{paths[-1]}: no network in common with another run")
+    return Compared(runs, budgets, tables, names)
+
+
+def compare(paths: Sequence[Path]) -> str:
+    """The comparison as Markdown (raises :class:`BudgetsError` when it cannot be made).
+
+    Args:
+        paths: two or more ``tradeoff_seeds.json``, smallest budget first; each
+            budget is compared with the next.
+
+    """
+    runs, budgets, tables, names = _compared(paths)
     steps = list(pairwise(budgets))
     described = [
         f"`{path.as_posix()}` ({budget}, seeds {run['meta']['seeds']}"
@@ -185,6 +204,73 @@ def compare(paths: Sequence[Path]) -> str:
     return "\n".join([*lines, "", verdict]) + "\n"
 
 
+def budget_steps(budget: str) -> float | None:
+    """The number of a budget such as ``4000 steps`` (None for another unit, such as seconds)."""
+    number, _, unit = budget.partition(" ")
+    try:
+        return float(number) if unit == "steps" else None
+    except ValueError:
+        return None
+
+
+def curves(compared: Compared) -> dict[str, list[tuple[int, SeedSummary]]]:
+    """Each compared network's fp32 test PSNR at the budgets it was trained at.
+
+    Returns:
+        network name -> ``[(budget index, PSNR over seeds), ...]``, smallest budget first.
+    """
+    return {
+        name: [(i, table[name][0]) for i, table in enumerate(compared.tables) if name in table]
+        for name in compared.names
+    }
+
+
+def plot(paths: Sequence[Path], path: Path) -> None:
+    """Test PSNR against the budget, mean +/- spread per network, the input as a dashed line.
+
+    Budgets counted in steps sit on a logarithmic axis (each doubling one step
+    to the right, so a curve still rising by the same amount per doubling is a
+    straight line); other budgets sit side by side in the order given.
+    """
+    compared = _compared(paths)
+    steps = [budget_steps(b) for b in compared.budgets]
+    numeric = [s for s in steps if s is not None]
+    positions = numeric if len(numeric) == len(steps) else list(range(len(steps)))
+    figure = Figure(figsize=(7.5, 4.5), dpi=110)
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot()
+    baselines = [(run["meta"].get("input_baseline") or {}).get("psnr_db") for run in compared.runs]
+    known = [(x, b) for x, b in zip(positions, baselines, strict=True) if b is not None]
+    if known:
+        axes.plot(*zip(*known, strict=True), color="grey", linestyle="--", marker=".",
+                  label="input, no restoration")  # fmt: skip
+    series = curves(compared)
+    for k, (name, points) in enumerate(series.items()):
+        # side by side within a budget: nudged apart so error bars do not cover each other
+        nudge = 1.0 + 0.025 * (k - (len(series) - 1) / 2)
+        xs = [positions[i] * nudge if numeric == positions else positions[i] + (nudge - 1)
+              for i, _ in points]  # fmt: skip
+        axes.errorbar(xs, [s.mean for _, s in points], yerr=[s.spread for _, s in points],
+                      marker="o", capsize=3, label=name)  # fmt: skip
+    if numeric == positions:
+        axes.set_xscale("log", base=2)
+    axes.set_xticks(positions, compared.budgets)
+    axes.minorticks_off()
+    meta = compared.runs[0]["meta"]
+    axes.set_xlabel("training budget per network and seed")
+    axes.set_ylabel(f"test PSNR (dB), {meta['convention']}")
+    axes.set_title("Accuracy against the training budget (fp32, mean +/- spread over seeds)",
+                   fontsize=10)  # fmt: skip
+    axes.grid(True, alpha=0.3)
+    axes.legend(fontsize=8)
+    figure.tight_layout()
+
+    def _write(tmp: Path) -> None:
+        figure.savefig(tmp, format="png")
+
+    atomic_write(Path(path), _write, suffix=".png")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: compare seeded tradeoff runs, print and write the table."""
     parser = argparse.ArgumentParser(
@@ -197,9 +283,14 @@ def main(argv: list[str] | None = None) -> int:
         help="tradeoff_seeds.json of two or more budgets, smallest first",
     )
     parser.add_argument("--out", type=Path, default=None, help="also write the table here")
+    parser.add_argument(
+        "--plot", type=Path, default=None, help="also draw PSNR against the budget here (PNG)"
+    )
     args = parser.parse_args(argv)
     try:
         text = compare(args.runs)
+        if args.plot is not None:
+            plot(args.runs, args.plot)
     except BudgetsError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

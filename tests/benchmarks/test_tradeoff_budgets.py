@@ -4,9 +4,10 @@ import json
 from pathlib import Path
 from typing import Any
 
+import matplotlib.pyplot as plt
 import pytest
 
-from benchmarks.tradeoff_budgets import main
+from benchmarks.tradeoff_budgets import _compared, budget_steps, curves, main
 
 
 def _run(path: Path, budget: str, rows: dict[str, list[float]], crop: int = 128) -> Path:
@@ -115,3 +116,32 @@ def test_three_budgets_compare_each_with_the_next(
     again = _run(tmp_path / "d.json", "800 steps", {"G": [25.0, 25.1, 25.2]})
     assert main([str(small), str(middle), str(again)]) == 2
     assert "d.json: the same budget as" in capsys.readouterr().err
+
+
+def test_the_plot_draws_each_network_at_the_budgets_it_was_trained_at(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    small = _run(
+        tmp_path / "a.json", "800 steps", {"G": [24.9, 25.0, 25.1], "GEA": [24.0, 24.2, 24.4]}
+    )
+    large = _run(tmp_path / "b.json", "4000 steps", {"G": [25.8, 26.0, 26.2]})
+    series = curves(_compared([small, large]))
+    assert list(series) == ["G"]  # GEA is in one run only: nothing to compare
+    assert [(i, round(s.mean, 6), round(s.spread, 6)) for i, s in series["G"]] == [
+        (0, 25.0, 0.1),
+        (1, 26.0, 0.2),
+    ]
+    png = tmp_path / "curve.png"
+    assert main([str(small), str(large), "--plot", str(png)]) == 0
+    image = plt.imread(png)
+    assert image.shape[:2] == (round(4.5 * 110), round(7.5 * 110))  # the figure, whole
+    # written atomically: nothing left beside it
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.json", "curve.png"]
+
+
+@pytest.mark.parametrize(
+    ("budget", "steps"),
+    [("4000 steps", 4000.0), ("600 s", None), ("many steps", None), ("800", None)],
+)
+def test_only_budgets_in_steps_have_a_number_of_steps(budget: str, steps: float | None) -> None:
+    assert budget_steps(budget) == steps
