@@ -251,11 +251,12 @@ def eval_blocks(demo: Path, copies: Copies) -> list[Block]:
 SEEDED = (
     FIGURES / "tradeoff_seeds_cpu.md",
     FIGURES / "tradeoff_seeds_cpu_4000steps.md",
+    FIGURES / "tradeoff_seeds_cpu_8000steps.md",
     FIGURES / "tradeoff_seeds_h100.md",
 )
-"""The longer tradeoffs over seeds (``tradeoff_seeds.md`` as the command wrote each): two
-trained on this project's 2-core CPUs with the decaying schedule (2000 steps, and 4000 for
-G and GEA, which ``benchmarks.tradeoff_budgets`` compares), one on a lent H100."""
+"""The longer tradeoffs over seeds (``tradeoff_seeds.md`` as the command wrote each): three
+trained on this project's 2-core CPUs with the decaying schedule (2000 steps, 4000 for G and
+GEA, 8000 for GEA, which ``benchmarks.tradeoff_budgets`` compares), one on a lent H100."""
 
 
 def seeded_blocks(path: Path, published: bool = True) -> list[Block]:
