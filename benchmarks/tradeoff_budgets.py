@@ -225,20 +225,20 @@ def curves(compared: Compared) -> dict[str, list[tuple[int, SeedSummary]]]:
     }
 
 
-def plot(paths: Sequence[Path], path: Path) -> None:
+def figure(compared: Compared) -> Figure:
     """Test PSNR against the budget, mean +/- spread per network, the input as a dashed line.
 
     Budgets counted in steps sit on a logarithmic axis (each doubling one step
     to the right, so a curve still rising by the same amount per doubling is a
     straight line); other budgets sit side by side in the order given.
     """
-    compared = _compared(paths)
     steps = [budget_steps(b) for b in compared.budgets]
     numeric = [s for s in steps if s is not None]
-    positions = numeric if len(numeric) == len(steps) else list(range(len(steps)))
-    figure = Figure(figsize=(7.5, 4.5), dpi=110)
-    FigureCanvasAgg(figure)
-    axes = figure.add_subplot()
+    in_steps = len(numeric) == len(steps)
+    positions = numeric if in_steps else [float(i) for i in range(len(steps))]
+    drawn = Figure(figsize=(7.5, 4.5), dpi=110)
+    FigureCanvasAgg(drawn)
+    axes = drawn.add_subplot()
     baselines = [(run["meta"].get("input_baseline") or {}).get("psnr_db") for run in compared.runs]
     known = [(x, b) for x, b in zip(positions, baselines, strict=True) if b is not None]
     if known:
@@ -248,11 +248,11 @@ def plot(paths: Sequence[Path], path: Path) -> None:
     for k, (name, points) in enumerate(series.items()):
         # side by side within a budget: nudged apart so error bars do not cover each other
         nudge = 1.0 + 0.025 * (k - (len(series) - 1) / 2)
-        xs = [positions[i] * nudge if numeric == positions else positions[i] + (nudge - 1)
+        xs = [positions[i] * nudge if in_steps else positions[i] + (nudge - 1)
               for i, _ in points]  # fmt: skip
         axes.errorbar(xs, [s.mean for _, s in points], yerr=[s.spread for _, s in points],
                       marker="o", capsize=3, label=name)  # fmt: skip
-    if numeric == positions:
+    if in_steps:
         axes.set_xscale("log", base=2)
     axes.set_xticks(positions, compared.budgets)
     axes.minorticks_off()
@@ -263,10 +263,16 @@ def plot(paths: Sequence[Path], path: Path) -> None:
                    fontsize=10)  # fmt: skip
     axes.grid(True, alpha=0.3)
     axes.legend(fontsize=8)
-    figure.tight_layout()
+    drawn.tight_layout()
+    return drawn
+
+
+def plot(paths: Sequence[Path], path: Path) -> None:
+    """Write :func:`figure` of the runs at ``paths`` as a PNG, atomically."""
+    drawn = figure(_compared(paths))
 
     def _write(tmp: Path) -> None:
-        figure.savefig(tmp, format="png")
+        drawn.savefig(tmp, format="png")
 
     atomic_write(Path(path), _write, suffix=".png")
 

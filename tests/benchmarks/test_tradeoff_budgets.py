@@ -7,7 +7,7 @@ from typing import Any
 import matplotlib.pyplot as plt
 import pytest
 
-from benchmarks.tradeoff_budgets import _compared, budget_steps, curves, main
+from benchmarks.tradeoff_budgets import _compared, budget_steps, curves, figure, main
 
 
 def _run(path: Path, budget: str, rows: dict[str, list[float]], crop: int = 128) -> Path:
@@ -145,3 +145,21 @@ def test_the_plot_draws_each_network_at_the_budgets_it_was_trained_at(
 )
 def test_only_budgets_in_steps_have_a_number_of_steps(budget: str, steps: float | None) -> None:
     assert budget_steps(budget) == steps
+
+
+def test_budgets_in_steps_sit_on_a_log_axis_and_seconds_side_by_side(tmp_path: Path) -> None:
+    # a budget of time trains another number of steps on each machine: no axis of steps
+    runs = {
+        unit: [
+            _run(tmp_path / f"{unit}{k}.json", f"{size} {unit}", {"G": [24.9 + k, 25.0 + k]})
+            for k, size in enumerate((600, 1200, 4800))
+        ]
+        for unit in ("steps", "s")
+    }
+    for unit, scale, ticks in (("steps", "log", [600, 1200, 4800]), ("s", "linear", [0, 1, 2])):
+        axes = figure(_compared(runs[unit])).axes[0]
+        assert axes.get_xscale() == scale
+        assert list(axes.get_xticks()) == ticks
+        assert [t.get_text() for t in axes.get_xticklabels()] == [
+            f"{size} {unit}" for size in (600, 1200, 4800)
+        ]
