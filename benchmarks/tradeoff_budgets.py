@@ -35,6 +35,7 @@ from matplotlib.figure import Figure
 
 from lenspair.core.fsutil import atomic_write, atomic_write_text
 from lenspair.model.evaluation.seed_statistics import SeedSummary, clearly_better, summarise_seeds
+from lenspair.model.evaluation.tradeoff import Budget
 
 SAME = ("dataset", "evaluated_on", "convention", "size")
 """Meta fields two runs must share to be compared (plus crops, batch, rate and its decay)."""
@@ -80,6 +81,7 @@ def _score(value: float | None, digits: int) -> str:
 class Compared(NamedTuple):
     """Runs that passed the checks: their JSON, budgets, fp32 scores and the networks compared."""
 
+    paths: list[Path]
     runs: list[dict[str, Any]]
     budgets: list[str]
     tables: list[dict[str, tuple[SeedSummary, SeedSummary]]]
@@ -111,18 +113,12 @@ def _compared(paths: Sequence[Path]) -> Compared:
         names += [n for n in table if n not in names and sum(n in t for t in tables) > 1]
     if not names:
         raise BudgetsError(f"{paths[-1]}: no network in common with another run")
-    return Compared(runs, budgets, tables, names)
+    return Compared(list(paths), runs, budgets, tables, names)
 
 
-def compare(paths: Sequence[Path]) -> str:
-    """The comparison as Markdown (raises :class:`BudgetsError` when it cannot be made).
-
-    Args:
-        paths: two or more ``tradeoff_seeds.json``, smallest budget first; each
-            budget is compared with the next.
-
-    """
-    runs, budgets, tables, names = _compared(paths)
+def compare(compared: Compared) -> str:
+    """The comparison as Markdown: each budget compared with the next."""
+    paths, runs, budgets, tables, names = compared
     steps = list(pairwise(budgets))
     described = [
         f"`{path.as_posix()}` ({budget}, seeds {run['meta']['seeds']}"
@@ -162,7 +158,7 @@ def compare(paths: Sequence[Path]) -> str:
         )
     )
     changed: list[list[str]] = [[] for _ in steps]
-    compared: list[list[str]] = [[] for _ in steps]
+    in_both: list[list[str]] = [[] for _ in steps]
     for name in names:
         psnr = [table[name][0].format(2) if name in table else "-" for table in tables]
         ssim = [table[name][1].format(4) if name in table else "-" for table in tables]
@@ -171,7 +167,7 @@ def compare(paths: Sequence[Path]) -> str:
             if name not in before or name not in after:
                 moves.append("-")
                 continue
-            compared[index].append(name)
+            in_both[index].append(name)
             (psnr_a, _), (psnr_b, _) = before[name], after[name]
             beyond = clearly_better(psnr_b, psnr_a) or clearly_better(psnr_a, psnr_b)
             if beyond:
@@ -179,7 +175,7 @@ def compare(paths: Sequence[Path]) -> str:
             moves.append(f"{psnr_b.mean - psnr_a.mean:+.2f} dB, {'yes' if beyond else 'no'}")
         lines.append(_row([name, *psnr, *moves, *ssim]))
     verdicts = []
-    for (small, large), moved, seen in zip(steps, changed, compared, strict=True):
+    for (small, large), moved, seen in zip(steps, changed, in_both, strict=True):
         if not seen:
             verdicts.append(f"No network was trained at both {small} and {large}.")
         elif moved:
@@ -204,15 +200,6 @@ def compare(paths: Sequence[Path]) -> str:
     return "\n".join([*lines, "", verdict]) + "\n"
 
 
-def budget_steps(budget: str) -> float | None:
-    """The number of a budget such as ``4000 steps`` (None for another unit, such as seconds)."""
-    number, _, unit = budget.partition(" ")
-    try:
-        return float(number) if unit == "steps" else None
-    except ValueError:
-        return None
-
-
 def curves(compared: Compared) -> dict[str, list[tuple[int, SeedSummary]]]:
     """Each compared network's fp32 test PSNR at the budgets it was trained at.
 
@@ -232,10 +219,9 @@ def figure(compared: Compared) -> Figure:
     to the right, so a curve still rising by the same amount per doubling is a
     straight line); other budgets sit side by side in the order given.
     """
-    steps = [budget_steps(b) for b in compared.budgets]
-    numeric = [s for s in steps if s is not None]
-    in_steps = len(numeric) == len(steps)
-    positions = numeric if in_steps else [float(i) for i in range(len(steps))]
+    steps = [(Budget.from_description(b) or Budget()).steps for b in compared.budgets]
+    in_steps = all(s is not None for s in steps)
+    positions = [float(s or 0) if in_steps else float(i) for i, s in enumerate(steps)]
     drawn = Figure(figsize=(7.5, 4.5), dpi=110)
     FigureCanvasAgg(drawn)
     axes = drawn.add_subplot()
@@ -267,9 +253,9 @@ def figure(compared: Compared) -> Figure:
     return drawn
 
 
-def plot(paths: Sequence[Path], path: Path) -> None:
-    """Write :func:`figure` of the runs at ``paths`` as a PNG, atomically."""
-    drawn = figure(_compared(paths))
+def plot(compared: Compared, path: Path) -> None:
+    """Write :func:`figure` of the runs as a PNG, atomically."""
+    drawn = figure(compared)
 
     def _write(tmp: Path) -> None:
         drawn.savefig(tmp, format="png")
@@ -294,12 +280,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     try:
-        text = compare(args.runs)
-        if args.plot is not None:
-            plot(args.runs, args.plot)
+        compared = _compared(args.runs)
     except BudgetsError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    text = compare(compared)
+    if args.plot is not None:
+        plot(compared, args.plot)
     print(text, end="")
     if args.out is not None:
         atomic_write_text(args.out, text)

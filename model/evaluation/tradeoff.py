@@ -104,6 +104,18 @@ class Budget:
         """``60 steps`` or ``90 s``."""
         return f"{self.steps} steps" if self.steps is not None else f"{self.seconds:g} s"
 
+    @classmethod
+    def from_description(cls, text: str) -> "Budget | None":
+        """The budget :meth:`describe` wrote as ``text`` (a run's ``meta``); None for other text."""
+        number, _, unit = text.partition(" ")
+        try:
+            value = float(number)
+        except ValueError:
+            return None
+        if unit == "steps" and value.is_integer():
+            return cls(steps=int(value))
+        return cls(seconds=value) if unit == "s" else None
+
 
 def parse_budget(text: str) -> Budget:
     """``"60"`` -> 60 steps; ``"90s"``, ``"2m"``, ``"1h"`` -> seconds.

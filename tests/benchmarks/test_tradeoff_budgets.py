@@ -7,7 +7,7 @@ from typing import Any
 import matplotlib.pyplot as plt
 import pytest
 
-from benchmarks.tradeoff_budgets import _compared, budget_steps, curves, figure, main
+from benchmarks.tradeoff_budgets import _compared, curves, figure, main
 
 
 def _run(path: Path, budget: str, rows: dict[str, list[float]], crop: int = 128) -> Path:
@@ -137,14 +137,6 @@ def test_the_plot_draws_each_network_at_the_budgets_it_was_trained_at(
     assert image.shape[:2] == (round(4.5 * 110), round(7.5 * 110))  # the figure, whole
     # written atomically: nothing left beside it
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.json", "curve.png"]
-
-
-@pytest.mark.parametrize(
-    ("budget", "steps"),
-    [("4000 steps", 4000.0), ("600 s", None), ("many steps", None), ("800", None)],
-)
-def test_only_budgets_in_steps_have_a_number_of_steps(budget: str, steps: float | None) -> None:
-    assert budget_steps(budget) == steps
 
 
 def test_budgets_in_steps_sit_on_a_log_axis_and_seconds_side_by_side(tmp_path: Path) -> None:

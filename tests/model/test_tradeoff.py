@@ -67,6 +67,18 @@ def test_parse_budget() -> None:
             parse_budget(bad)
 
 
+@pytest.mark.parametrize(
+    "budget", [Budget(steps=4000), Budget(steps=1), Budget(seconds=90.0), Budget(seconds=0.5)]
+)
+def test_a_described_budget_reads_back_as_itself(budget: Budget) -> None:
+    assert Budget.from_description(budget.describe()) == budget
+
+
+@pytest.mark.parametrize("text", ["many steps", "800", "4000.5 steps", "90 min", ""])
+def test_text_describe_did_not_write_is_no_budget(text: str) -> None:
+    assert Budget.from_description(text) is None
+
+
 def test_variant_set_and_precisions() -> None:
     names = [v.name for v in DEFAULT_VARIANTS]
     assert {"G", "GE", "GEA"} <= set(names)
