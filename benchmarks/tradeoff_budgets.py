@@ -219,9 +219,10 @@ def figure(compared: Compared) -> Figure:
     to the right, so a curve still rising by the same amount per doubling is a
     straight line); other budgets sit side by side in the order given.
     """
-    steps = [(Budget.from_description(b) or Budget()).steps for b in compared.budgets]
-    in_steps = all(s is not None for s in steps)
-    positions = [float(s or 0) if in_steps else float(i) for i, s in enumerate(steps)]
+    read = [Budget.from_description(b) for b in compared.budgets]
+    steps = [float(b.steps) for b in read if b is not None and b.steps is not None]
+    in_steps = len(steps) == len(read)
+    positions = steps if in_steps else [float(i) for i in range(len(read))]
     drawn = Figure(figsize=(7.5, 4.5), dpi=110)
     FigureCanvasAgg(drawn)
     axes = drawn.add_subplot()
