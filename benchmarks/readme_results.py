@@ -256,7 +256,7 @@ SEEDED = (
 )
 """The longer tradeoffs over seeds (``tradeoff_seeds.md`` as the command wrote each): three
 trained on this project's 2-core CPUs with the decaying schedule (2000 steps, 4000 for G, GE,
-GEA and GEA-w0.5, 8000 for G and GEA, which ``benchmarks.tradeoff_budgets`` compares), one on a
+GEA and GEA-w0.5, 8000 for G, GE and GEA, which ``benchmarks.tradeoff_budgets`` compares), one on a
 lent H100."""
 
 
