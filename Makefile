@@ -63,12 +63,12 @@ results: demo bench
 # 128; then scored as shipped on the demo's test split). Each prints its table and
 # writes it beside its runs.
 # TRADEOFF_BUDGET, TRADEOFF_VARIANTS and TRADEOFF_OUT run another budget, e.g. the
-# 4000-step run of G, GE, GEA and GEA-w0.5 and the 8000-step run of G, GE and GEA that
-# docs/results/tradeoff_budgets.md compares with 800 and 2000 (`make tradeoff-seeds
-# TRADEOFF_BUDGET=4000 TRADEOFF_VARIANTS=G,GE,GEA,GEA-w0.5 TRADEOFF_OUT=tradeoff_seeds_4000_out`:
-# about 50 minutes a variant on a 2-core AMD EPYC; TRADEOFF_BUDGET=8000
-# TRADEOFF_VARIANTS=G,GE,GEA TRADEOFF_OUT=tradeoff_seeds_8000_out: about 95 minutes for
-# GEA, 90 for G or GE; docs/results/tradeoff_seeds_cpu_{4000,8000}steps.md). A rerun into the
+# 4000- and 8000-step runs of G, GE, GEA and GEA-w0.5 that docs/results/tradeoff_budgets.md
+# compares with 800 and 2000 (`make tradeoff-seeds TRADEOFF_BUDGET=4000
+# TRADEOFF_VARIANTS=G,GE,GEA,GEA-w0.5 TRADEOFF_OUT=tradeoff_seeds_4000_out`: about 50 minutes
+# a variant on a 2-core AMD EPYC; TRADEOFF_BUDGET=8000 TRADEOFF_OUT=tradeoff_seeds_8000_out:
+# about 95 minutes for GEA, 90 for G or GE, 80 for GEA-w0.5;
+# docs/results/tradeoff_seeds_cpu_{4000,8000}steps.md). A rerun into the
 # same folder reuses the variants already trained there and trains only the new ones.
 TRADEOFF_BUDGET ?= 2000
 TRADEOFF_VARIANTS ?= G,GE,GEA,GEA-w0.5

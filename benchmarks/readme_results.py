@@ -255,9 +255,8 @@ SEEDED = (
     FIGURES / "tradeoff_seeds_h100.md",
 )
 """The longer tradeoffs over seeds (``tradeoff_seeds.md`` as the command wrote each): three
-trained on this project's 2-core CPUs with the decaying schedule (2000 steps, 4000 for G, GE,
-GEA and GEA-w0.5, 8000 for G, GE and GEA, which ``benchmarks.tradeoff_budgets`` compares), one on a
-lent H100."""
+trained on this project's 2-core CPUs with the decaying schedule (2000 steps, 4000 and 8000 for
+G, GE, GEA and GEA-w0.5, which ``benchmarks.tradeoff_budgets`` compares), one on a lent H100."""
 
 
 def seeded_blocks(path: Path, published: bool = True) -> list[Block]:
