@@ -1,14 +1,17 @@
 """Two-process DDP on the CPU (gloo): ranks stay in step, gradients keep their layout."""
 
+import gc
 import json
 import os
 import socket
 from pathlib import Path
+from typing import Any
 
 import pytest
 import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
+from torch.nn.parallel import DistributedDataParallel
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
@@ -28,23 +31,29 @@ def _batch(seed: int) -> dict[str, torch.Tensor]:
     return {"input": target * keep, "target": target, "valid": torch.ones(1, 1, 32, 32)}
 
 
+def _train(rank: int, world: int, out: str) -> None:
+    """A few DDP steps; the trainer (and its DDP wrappers) is gone when this returns."""
+    trainer = Trainer(tiny_config(), CPU, Distributed(rank, world, rank), decision=FP32)
+    mismatched = []
+    for step in range(STEPS):
+        # Each rank sees different data: only gradient averaging keeps them equal.
+        trainer.train_step(_batch(100 * rank + step))
+        for name, parameter in trainer.network.named_parameters():
+            if parameter.grad is not None and parameter.grad.stride() != parameter.stride():
+                mismatched.append(name)
+    state = {k: v.clone() for k, v in trainer.model.state_dict().items()}
+    torch.save(state, Path(out) / f"rank{rank}.pt")
+    (Path(out) / f"rank{rank}.json").write_text(json.dumps(sorted(set(mismatched))))
+
+
 def _worker(rank: int, world: int, port: int, out: str) -> None:
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
     torch.set_num_threads(1)
     dist.init_process_group("gloo", rank=rank, world_size=world)
     try:
-        trainer = Trainer(tiny_config(), CPU, Distributed(rank, world, rank), decision=FP32)
-        mismatched = []
-        for step in range(STEPS):
-            # Each rank sees different data: only gradient averaging keeps them equal.
-            trainer.train_step(_batch(100 * rank + step))
-            for name, parameter in trainer.network.named_parameters():
-                if parameter.grad is not None and parameter.grad.stride() != parameter.stride():
-                    mismatched.append(name)
-        state = {k: v.clone() for k, v in trainer.model.state_dict().items()}
-        torch.save(state, Path(out) / f"rank{rank}.pt")
-        (Path(out) / f"rank{rank}.json").write_text(json.dumps(sorted(set(mismatched))))
-    finally:
+        _train(rank, world, out)
+        dist.barrier()
+    finally:  # as lenspair's fit tears down: the DDP wrappers first, then the group
         dist.destroy_process_group()
 
 
@@ -78,6 +87,15 @@ def _cli_worker(rank: int, world: int, port: int, argv: list[str], out: str) -> 
     )  # fmt: skip
     os.environ.pop("LENSPAIR_VGG19_WEIGHTS", None)  # the perceptual warning is the one said
     torch.set_num_threads(1)
+    destroy = dist.destroy_process_group
+
+    def destroy_after_counting(*args: Any, **kwargs: Any) -> None:
+        # DDP wrappers still alive here are freed after the group (see fit's teardown)
+        alive = sum(isinstance(o, DistributedDataParallel) for o in gc.get_objects())
+        (Path(out) / f"rank{rank}.ddp").write_text(str(alive))
+        destroy(*args, **kwargs)
+
+    dist.destroy_process_group = destroy_after_counting
     with open(Path(out) / f"rank{rank}.txt", "w") as log:
         os.dup2(log.fileno(), 1)
         os.dup2(log.fileno(), 2)
@@ -100,6 +118,8 @@ def test_under_torchrun_only_rank_zero_says_the_run_level_lines(tmp_path: Path) 
     said = [(tmp_path / f"rank{rank}.txt").read_text() for rank in range(2)]
     for line in ("PERCEPTUAL LOSS DISABLED", "best validation PSNR", "reminder: this run trained"):
         assert line in said[0] and line not in said[1], line
+    # the group outlived every DDP wrapper that held it (freed after it, one could abort at exit)
+    assert [(tmp_path / f"rank{rank}.ddp").read_text() for rank in range(2)] == ["0", "0"]
     assert "world_size: 2" in (run / "config.yaml").read_text()
     # A resume with a changed config is warned about once, by rank 0.
     config.write_text(dump_yaml(tiny_config(max_steps=3, lr=1e-4)))
