@@ -360,11 +360,12 @@ def fit(
     finally:
         torch.use_deterministic_algorithms(deterministic_before)
         if info.active:
-            # The trainer's DDP wrappers hold the group. Freed after it was destroyed
-            # (when this frame ends), one of two gloo processes aborted at exit with its
-            # work done ("terminate called without an active exception"): 9 runs in 120
-            # of tests/model/test_ddp.py's worker in a loop on a busy 2-core machine
-            # without the barrier above, 1 in 30 with it; freed first, 0 in 80.
+            # The trainer's DDP wrappers hold the group: freed after it was destroyed
+            # (when this frame ends), one of two gloo processes could abort at exit with
+            # its work done ("terminate called without an active exception"). Looping
+            # tests/model/test_ddp.py's worker on a busy 2-core machine: 9 aborts in 120
+            # runs with neither this nor the barrier above, 0 in 80 with this alone. With
+            # both, about 1 in 30-60 remains under that load (in torch's shutdown? unproven).
             trainer = None
             torch.distributed.destroy_process_group()
 
