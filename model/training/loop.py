@@ -352,20 +352,15 @@ def fit(
             perceptual=trainer.perceptual_status,
         )
         if info.active:
-            # every rank here before any tears the group down: rank 1, done while rank 0
-            # still validated and saved, destroyed its gloo group under it and could abort
-            # at exit ("terminate called without an active exception")
+            # every rank done with its collectives before any tears the group down
             torch.distributed.barrier()
         return summary
     finally:
         torch.use_deterministic_algorithms(deterministic_before)
         if info.active:
-            # The trainer's DDP wrappers hold the group: freed after it was destroyed
-            # (when this frame ends), one of two gloo processes could abort at exit with
-            # its work done ("terminate called without an active exception"). Looping
-            # tests/model/test_ddp.py's worker on a busy 2-core machine: 9 aborts in 120
-            # runs with neither this nor the barrier above, 0 in 80 with this alone. With
-            # both, about 1 in 30-60 remains under that load (in torch's shutdown? unproven).
+            # The trainer's DDP wrappers hold the group: free them first, so that
+            # destroying it joins gloo's threads now, while Python still runs (see
+            # lenspair.model.training.step.init_process_group for what they do at exit).
             trainer = None
             torch.distributed.destroy_process_group()
 

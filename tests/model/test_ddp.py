@@ -4,6 +4,7 @@ import gc
 import json
 import os
 import socket
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ from torch.nn.parallel import DistributedDataParallel
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.model.precision import PrecisionDecision
-from lenspair.model.training.step import Distributed, Trainer
+from lenspair.model.training.step import Distributed, Trainer, init_process_group
 from tests.model.train_fixtures import tiny_config, write_split_dataset
 
 CPU = torch.device("cpu")
@@ -46,15 +47,33 @@ def _train(rank: int, world: int, out: str) -> None:
     (Path(out) / f"rank{rank}.json").write_text(json.dumps(sorted(set(mismatched))))
 
 
+def _threads() -> int:
+    return len(os.listdir("/proc/self/task"))
+
+
+def _pinned_groups() -> list[str]:
+    """Functions of loaded ``torch.distributed`` modules holding a process group as a default."""
+    return [
+        f"{name}.{attr}"
+        for name, module in list(sys.modules.items())
+        if name.startswith("torch.distributed")
+        for attr, value in list(vars(module).items())
+        if any(isinstance(d, dist.ProcessGroup) for d in getattr(value, "__defaults__", None) or ())
+    ]
+
+
 def _worker(rank: int, world: int, port: int, out: str) -> None:
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
     torch.set_num_threads(1)
-    dist.init_process_group("gloo", rank=rank, world_size=world)
+    before = _threads()
+    init_process_group("gloo", rank=rank, world_size=world)
     try:
         _train(rank, world, out)
         dist.barrier()
     finally:  # as lenspair's fit tears down: the DDP wrappers first, then the group
         dist.destroy_process_group()
+    # the group is gone, gloo's threads joined, none left to run into interpreter shutdown
+    (Path(out) / f"rank{rank}.threads").write_text(json.dumps([before, _threads()]))
 
 
 def _free_port() -> int:
@@ -76,6 +95,8 @@ def test_two_process_ddp_ends_with_identical_weights(
     assert any(not torch.equal(initial[k], weights[0][k]) for k in initial), "nothing trained"
     for rank in range(2):
         assert json.loads((tmp_path / f"rank{rank}.json").read_text()) == []
+        before, after = json.loads((tmp_path / f"rank{rank}.threads").read_text())
+        assert after <= before, f"rank {rank}: {after} threads after the group, {before} before"
     assert "grad strides do not match bucket view strides" not in capfd.readouterr().err.lower()
 
 
@@ -92,7 +113,7 @@ def _cli_worker(rank: int, world: int, port: int, argv: list[str], out: str) -> 
     def destroy_after_counting(*args: Any, **kwargs: Any) -> None:
         # DDP wrappers still alive here are freed after the group (see fit's teardown)
         alive = sum(isinstance(o, DistributedDataParallel) for o in gc.get_objects())
-        (Path(out) / f"rank{rank}.ddp").write_text(str(alive))
+        (Path(out) / f"rank{rank}.ddp").write_text(json.dumps([alive, _pinned_groups()]))
         destroy(*args, **kwargs)
 
     dist.destroy_process_group = destroy_after_counting
@@ -118,8 +139,10 @@ def test_under_torchrun_only_rank_zero_says_the_run_level_lines(tmp_path: Path) 
     said = [(tmp_path / f"rank{rank}.txt").read_text() for rank in range(2)]
     for line in ("PERCEPTUAL LOSS DISABLED", "best validation PSNR", "reminder: this run trained"):
         assert line in said[0] and line not in said[1], line
-    # the group outlived every DDP wrapper that held it (freed after it, one could abort at exit)
-    assert [(tmp_path / f"rank{rank}.ddp").read_text() for rank in range(2)] == ["0", "0"]
+    # nothing holds the group when it is destroyed: no DDP wrapper, no function default
+    # (either keeps gloo's threads running into interpreter shutdown, where they can abort)
+    for rank in range(2):
+        assert json.loads((tmp_path / f"rank{rank}.ddp").read_text()) == [0, []]
     assert "world_size: 2" in (run / "config.yaml").read_text()
     # A resume with a changed config is warned about once, by rank 0.
     config.write_text(dump_yaml(tiny_config(max_steps=3, lr=1e-4)))
