@@ -47,8 +47,10 @@ def _train(rank: int, world: int, out: str) -> None:
     (Path(out) / f"rank{rank}.json").write_text(json.dumps(sorted(set(mismatched))))
 
 
-def _threads() -> int:
-    return len(os.listdir("/proc/self/task"))
+def _threads() -> int | None:
+    """This process's OS threads (None where there is no /proc: the check is Linux's)."""
+    tasks = Path("/proc/self/task")
+    return len(os.listdir(tasks)) if tasks.is_dir() else None
 
 
 def _pinned_groups() -> list[str]:
@@ -96,7 +98,8 @@ def test_two_process_ddp_ends_with_identical_weights(
     for rank in range(2):
         assert json.loads((tmp_path / f"rank{rank}.json").read_text()) == []
         before, after = json.loads((tmp_path / f"rank{rank}.threads").read_text())
-        assert after <= before, f"rank {rank}: {after} threads after the group, {before} before"
+        if before is not None:
+            assert after <= before, f"rank {rank}: {after} threads after the group, {before} before"
     assert "grad strides do not match bucket view strides" not in capfd.readouterr().err.lower()
 
 
