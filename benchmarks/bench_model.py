@@ -13,7 +13,8 @@
   ``FLOPs / peak``;
 * bf16 latency for autocast and for bf16 weights, each NCHW and
   channels-last, the fastest one named, and the PSNR of its output against
-  the fp32 output;
+  the fp32 output (where the CPU only emulates bf16, a few runs each:
+  :data:`EMULATED_RUNS`);
 * with ``--compile``, also ``torch.compile`` (inductor, offline, C++ code
   generation with gcc, frozen weights) of the channels-last models;
 * the same with glibc's default allocator, and, as a measure that other
@@ -63,6 +64,10 @@ from lenspair.model.precision import choose_precision, read_cpu_flags
 HEIGHT, WIDTH = 360, 540
 LATENCY_TARGET_BF16_MS = 50.0
 ROOFLINE_TARGET = 1.5
+EMULATED_RUNS = 3
+"""Timed runs of each bf16 configuration where bf16 is emulated: on an AVX2-only EPYC
+one emulated pass took about 2 s (9.5x fp32), and 40 of each kept the benchmark past
+45 minutes (docs/results/cpu_amd_epyc_avx2.md); a few show the ratio."""
 
 Context = Callable[[], contextlib.AbstractContextManager[None]]
 
@@ -164,15 +169,24 @@ def run(
         return call
 
     calls = {name: caller(name) for name in configs}
+    precision = choose_precision("auto", torch.device("cpu"), "infer")
+    bf16_runs = runs if "bf16" in precision.native else min(runs, EMULATED_RUNS)
+
+    def timed(count: int, warm: int, clock: Callable[[], float]) -> dict[str, list[float]]:
+        fast = {name: call for name, call in calls.items() if not name.startswith("bf16")}
+        slow = {name: call for name, call in calls.items() if name.startswith("bf16")}
+        times = round_robin(fast, count, warm, clock)
+        return times | round_robin(slow, min(count, bf16_runs), min(warm, 1), clock)
+
     with torch.inference_mode():
         torch.set_num_threads(threads)
-        default_times = round_robin(calls, max(5, runs // 2), warmup, time.perf_counter)
+        default_times = timed(max(5, runs // 2), warmup, time.perf_counter)
         allocator_tuned = tune_allocator()
         peaks = measure_peaks(max(5, runs // 3), time.perf_counter)
-        times = round_robin(calls, runs, warmup, time.perf_counter)
+        times = timed(runs, warmup, time.perf_counter)
         torch.set_num_threads(1)
         single_peaks = measure_peaks(5, time.thread_time)
-        single_times = round_robin(calls, max(5, runs // 4), 1, time.thread_time)
+        single_times = timed(max(5, runs // 4), 1, time.thread_time)
         torch.set_num_threads(threads)
     medians = {name: median_ms(samples) for name, samples in times.items()}
     best_fp32 = min((n for n in medians if n.startswith("fp32")), key=medians.__getitem__)
@@ -243,7 +257,8 @@ def run(
         "single_thread_roofline_ms": single_roofline_ms,
         "single_thread_cpu_ms": single_ms,
         "single_thread_fp32_roofline_ratio": single_ms[fp32_name] / single_roofline_ms,
-        "precision": choose_precision("auto", torch.device("cpu"), "infer").as_dict(),
+        "precision": precision.as_dict(),
+        "bf16_runs": bf16_runs,
         "layer_profile_fp32": profile,
         "deraindrop_720x480_rgb": deraindrop,
         "load_average_start": list(load_start),
@@ -268,7 +283,7 @@ def _table(record: dict[str, object]) -> str:
     threads = record["threads"]
     lines = [
         f"GEA, mono {WIDTH}x{HEIGHT}, batch 1, {threads} threads, {record['runs']} runs "
-        f"(median), torch {record['torch']}",
+        f"(median; bf16: {record['bf16_runs']}), torch {record['torch']}",
         "",
         f"- FLOPs: {record['gflops']:.2f} G (2 per MAC); parameters: {record['parameters']:,}",
         f"- fp32 peak ({threads} threads, GFLOP/s): "

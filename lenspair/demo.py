@@ -82,7 +82,10 @@ class Budget:
     # 1.5x per fp32 training step (bench_training, batch 8, crop 256: 7.3 s
     # there, 4.81 s on that EPYC) and 1.8x per fp32 frame (253 against 138 ms),
     # which put the old budget near 16 min there and this one near 13 (an
-    # estimate: no such CPU was at hand). Pretraining starts from the shipped
+    # estimate: no such CPU was at hand). Measured on a CPU without native
+    # bf16, an AVX2-only AMD EPYC slower than that Xeon (GEA fp32 frame about
+    # 200 ms): 14.7 min, 81 % of it training (docs/results/cpu_amd_epyc_avx2.md).
+    # Pretraining starts from the shipped
     # weights, and the tradeoff's accuracy is noise at any budget the demo can
     # afford (its times are what it shows), so the cuts cost the demo little.
     pretrain_steps: int = 100
