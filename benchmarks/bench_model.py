@@ -170,13 +170,19 @@ def run(
 
     calls = {name: caller(name) for name in configs}
     precision = choose_precision("auto", torch.device("cpu"), "infer")
-    bf16_runs = runs if "bf16" in precision.native else min(runs, EMULATED_RUNS)
+    # Where bf16 is native it stays in the round-robin with fp32, timed alike;
+    # where it is emulated, its configurations run apart, a few times each.
+    emulated = (
+        {}
+        if "bf16" in precision.native
+        else {n: c for n, c in calls.items() if n.startswith("bf16")}
+    )
+    interleaved = {name: call for name, call in calls.items() if name not in emulated}
+    bf16_runs = min(runs, EMULATED_RUNS) if emulated else runs
 
     def timed(count: int, warm: int, clock: Callable[[], float]) -> dict[str, list[float]]:
-        fast = {name: call for name, call in calls.items() if not name.startswith("bf16")}
-        slow = {name: call for name, call in calls.items() if name.startswith("bf16")}
-        times = round_robin(fast, count, warm, clock)
-        return times | round_robin(slow, min(count, bf16_runs), min(warm, 1), clock)
+        times = round_robin(interleaved, count, warm, clock)
+        return times | round_robin(emulated, min(count, EMULATED_RUNS), min(warm, 1), clock)
 
     with torch.inference_mode():
         torch.set_num_threads(threads)

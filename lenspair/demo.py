@@ -85,9 +85,9 @@ class Budget:
     # estimate: no such CPU was at hand). Measured on a CPU without native
     # bf16, an AVX2-only AMD EPYC slower than that Xeon (GEA fp32 frame about
     # 200 ms): 14.7 min, 81 % of it training (docs/results/cpu_amd_epyc_avx2.md).
-    # Pretraining starts from the shipped
-    # weights, and the tradeoff's accuracy is noise at any budget the demo can
-    # afford (its times are what it shows), so the cuts cost the demo little.
+    # Pretraining starts from the shipped weights, and the tradeoff's accuracy
+    # is noise at any budget the demo can afford (its times are what it shows),
+    # so the cuts cost the demo little.
     pretrain_steps: int = 100
     finetune_steps: int = 200
     tradeoff_steps: int = 10
