@@ -54,6 +54,8 @@ from lenspair.simulate.natural_images import HELD_OUT
 
 THREADS = 2
 """CPU threads for training and timing (the project's 2-core reference machine)."""
+LATENCY_RUNS = 20
+"""Timed runs per latency figure of the card (median and p90)."""
 
 
 def _config(epochs: int, steps: int, minutes: float | None, seed: int) -> RunConfig:
@@ -99,7 +101,7 @@ def score_weights(weights: Path, clean_folder: Path, channels: int) -> dict[str,
             )
         )
     latency = measure_latency(
-        loaded.network, channels, torch.device("cpu"), FRAME, runs=20, threads=THREADS
+        loaded.network, channels, torch.device("cpu"), FRAME, runs=LATENCY_RUNS, threads=THREADS
     )
     return {
         "pairs": len(rows),
@@ -118,7 +120,9 @@ def score_weights(weights: Path, clean_folder: Path, channels: int) -> dict[str,
 
 def score_on_dataset(weights: Path, dataset: Path) -> dict[str, Any]:
     """The shipped weights as they are on ``dataset``'s test split, with their CPU time."""
-    result = evaluate_checkpoint(weights, dataset, "test", torch.device("cpu"), latency_runs=20)
+    result = evaluate_checkpoint(
+        weights, dataset, "test", torch.device("cpu"), latency_runs=LATENCY_RUNS
+    )
     assert result.input_overall is not None  # evaluate_checkpoint always scores the inputs
     cpu = next(lat for lat in result.latency if lat.device == "cpu")
     return {

@@ -71,6 +71,9 @@ class Budget:
         crop_size: training crop side, pixels.
         batch_size: training batch.
         int8: the tradeoff's int8 row where the CPU has VNNI (about a minute).
+        latency_runs: timed runs per latency figure of ``eval`` and ``tradeoff``;
+            None keeps each command's default. Timing is the tradeoff's
+            largest cost after training (six variants at 540x360).
     """
 
     frames: int = 60
@@ -94,10 +97,21 @@ class Budget:
     crop_size: int = 128
     batch_size: int = 4
     int8: bool = True
+    latency_runs: int | None = None
+
+    def latency_argv(self) -> tuple[str, ...]:
+        """``--latency-runs`` for the timing stages, or nothing for their default."""
+        return () if self.latency_runs is None else ("--latency-runs", str(self.latency_runs))
 
 
 QUICK = Budget(
-    frames=12, pretrain_steps=4, finetune_steps=4, tradeoff_steps=2, crop_size=32, int8=False
+    frames=12,
+    pretrain_steps=4,
+    finetune_steps=4,
+    tradeoff_steps=2,
+    crop_size=32,
+    int8=False,
+    latency_runs=3,
 )
 """A tiny budget for the end-to-end test: every stage runs, nothing is learnt."""
 
@@ -233,6 +247,7 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
                 "test",
                 "--out",
                 str(out / "eval"),
+                *budget.latency_argv(),
             ),
             out / "eval",
         ),
@@ -252,6 +267,7 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
                 "--seeds",
                 "0",  # one seed fits the demo's time; `make tradeoff-seeds` repeats over seeds
                 *(() if budget.int8 else ("--no-int8",)),
+                *budget.latency_argv(),
             ),
             out / "tradeoff",
         ),
