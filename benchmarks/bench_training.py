@@ -12,9 +12,10 @@ capability) is timed round-robin after warm-up, so a load spike from other
 processes hits all alike; with ``--compile`` also the fastest native one
 with the restoration network under ``torch.compile`` (compile time
 recorded). Median step time as steps/s, images/s and speed vs fp32, and
-whether ``auto``'s choice was the fastest eager precision. Inference latency as
-deployed (batch 1, 540x360, :mod:`lenspair.model.evaluation.latency`) is measured on the same
-device at every precision. The load average at start and end is recorded.
+whether ``auto``'s choice was the fastest eager precision. Inference is measured
+on the same device at every precision (:mod:`lenspair.model.evaluation.latency`):
+latency as deployed (batch 1) at 540x360 and 720x480, and throughput at batch 8
+(:data:`INFERENCE_SHAPES`). The load average at start and end is recorded.
 """
 
 import argparse
@@ -33,6 +34,11 @@ from lenspair.model.evaluation.latency import measure_latency
 from lenspair.model.precision import choose_precision
 from lenspair.model.training.config import DataConfig, ModelConfig, RunConfig, TrainConfig
 from lenspair.model.training.step import Trainer
+
+INFERENCE_SHAPES = (((360, 540), 1), ((480, 720), 1), ((360, 540), 8))
+"""``((H, W), batch)`` of the inference figures: latency as deployed at the paper's
+540x360 and at 720x480 (the Raindrop dataset's size, where the paper times
+DeRaindrop), and throughput at batch 8."""
 
 
 def _config(precision: str, batch: int) -> RunConfig:
@@ -92,11 +98,14 @@ def measure(
     medians = {name: statistics.median(values) for name, values in times.items()}
     single = _single_thread_cpu_seconds(trainers, data, steps) if device.type == "cpu" else {}
     network = trainers["fp32"].model
-    inference = choose_precision("auto", device, "infer").native
+    inference = [  # int8 inference: python -m benchmarks.bench_int8
+        p for p in choose_precision("auto", device, "infer").native if p != "int8"
+    ]
+    runs = max(10, steps)
     latency = [
-        measure_latency(network, 1, device, (360, 540), p, warmup=3, runs=max(10, steps)).as_dict()
+        measure_latency(network, 1, device, size, p, warmup=3, runs=runs, batch=n).as_dict()
+        for size, n in INFERENCE_SHAPES
         for p in inference
-        if p != "int8"  # int8 inference: python -m benchmarks.bench_int8
     ]
     fastest = min(medians, key=medians.__getitem__)
     return {
@@ -117,7 +126,7 @@ def measure(
         "compile_seconds": compile_seconds,
         "single_thread_cpu_seconds": single,
         "single_thread_speed_vs_fp32": {n: single["fp32"] / v for n, v in single.items()},
-        "latency_batch1_540x360": latency,
+        "inference": latency,
     }
 
 
@@ -169,13 +178,14 @@ def _table(result: dict[str, Any]) -> str:
             for name, seconds in result["single_thread_cpu_seconds"].items()
         ),
         "",
-        "| inference | median ms | p90 ms |",
-        "| --- | ---: | ---: |",
+        "| inference | median ms | p90 ms | images/s |",
+        "| --- | ---: | ---: | ---: |",
     ]
-    for lat in result["latency_batch1_540x360"]:
+    for lat in result["inference"]:
         lines.append(
-            f"| {lat['device']} {lat['precision']} 540x360 batch 1 | "
-            f"{lat['median_ms']:.1f} | {lat['p90_ms']:.1f} |"
+            f"| {lat['device']} {lat['precision']} {lat['size']} batch {lat['batch']} | "
+            f"{lat['median_ms']:.1f} | {lat['p90_ms']:.1f} | "
+            f"{lat['batch'] * 1000.0 / lat['median_ms']:.1f} |"
         )
     return "\n".join(lines)
 

@@ -37,7 +37,6 @@ from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write, atomic_write_bytes
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
-from lenspair.model.evaluation.latency import percentile
 
 log = logging.getLogger(__name__)
 
@@ -128,7 +127,7 @@ def _time(run: Any, runs: int, warmup: int = 3) -> tuple[float, float]:
         run()
         if index >= warmup:
             times.append((time.perf_counter() - start) * 1000.0)
-    return statistics.median(times), percentile(times, 90.0)
+    return statistics.median(times), float(np.percentile(times, 90.0))
 
 
 _EXPORTERS = {

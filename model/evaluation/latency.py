@@ -30,6 +30,7 @@ from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -75,6 +76,8 @@ class Latency:
         warmup: untimed runs before timing.
         median_ms: median wall time of one forward pass, milliseconds.
         p90_ms: 90th percentile, milliseconds.
+        batch: images per forward pass (1 as deployed on a robot; more for
+            throughput, ``batch * 1000 / median_ms`` images/s).
 
     """
 
@@ -87,6 +90,12 @@ class Latency:
     warmup: int
     median_ms: float
     p90_ms: float
+    batch: int = 1
+
+    @property
+    def images_per_second(self) -> float:
+        """Throughput at this batch: images per second at the median time."""
+        return self.batch * 1000.0 / self.median_ms
 
     def as_dict(self) -> dict[str, Any]:
         """Plain data for JSON."""
@@ -94,8 +103,9 @@ class Latency:
 
     def summary(self) -> str:
         """One line for people: ``cpu fp32 540x360: 12.3 ms median (p90 13.1), 2 threads``."""
+        batch = "" if self.batch == 1 else f" batch {self.batch}"
         return (
-            f"{self.device} {self.precision} {self.size}: {self.median_ms:.2f} ms median "
+            f"{self.device} {self.precision} {self.size}{batch}: {self.median_ms:.2f} ms median "
             f"(p90 {self.p90_ms:.2f}, {self.runs} runs, {self.threads} threads, {self.layout})"
         )
 
@@ -118,15 +128,6 @@ def autocast_context(
     return torch.autocast(device_type=device.type, dtype=_DTYPES[precision])
 
 
-def percentile(values: list[float], q: float) -> float:
-    """Linear-interpolated percentile ``q`` in [0, 100] of a non-empty list."""
-    ordered = sorted(values)
-    position = (len(ordered) - 1) * q / 100.0
-    low = int(position)
-    high = min(low + 1, len(ordered) - 1)
-    return ordered[low] + (ordered[high] - ordered[low]) * (position - low)
-
-
 @contextlib.contextmanager
 def _threads(count: int | None) -> Iterator[int]:
     before = torch.get_num_threads()
@@ -147,8 +148,9 @@ def measure_latency(
     warmup: int = 5,
     runs: int = 30,
     threads: int | None = None,
+    batch: int = 1,
 ) -> Latency:
-    """Time ``network(x)`` for one ``(1, channels, H, W)`` image on ``device``.
+    """Time ``network(x)`` for one ``(batch, channels, H, W)`` input on ``device``.
 
     The network is left on ``device`` and in eval mode. On the CPU a
     channels-last copy of it is timed, with the allocator tuned (module
@@ -163,17 +165,20 @@ def measure_latency(
         warmup: untimed runs first.
         runs: timed runs.
         threads: CPU threads to use (``None``: torch's current setting).
+        batch: images per forward pass (1: latency as deployed; more: throughput).
 
     Returns:
         Median and 90th-percentile milliseconds, with the settings used.
 
     """
-    if runs < 1 or warmup < 0:
-        raise ModelError(f"latency: need runs >= 1 and warmup >= 0, got {runs}, {warmup}")
+    if runs < 1 or warmup < 0 or batch < 1:
+        raise ModelError(
+            f"latency: need runs >= 1, warmup >= 0 and batch >= 1, got {runs}, {warmup}, {batch}"
+        )
     network.to(device).eval()
     height, width = size
     generator = torch.Generator().manual_seed(0)
-    image = torch.rand(1, channels, height, width, generator=generator).to(device)
+    image = torch.rand(batch, channels, height, width, generator=generator).to(device)
     cuda = device.type == "cuda"
     layout = "NCHW"
     if precision == "int8":  # an Int8Network: ONNX Runtime takes NCHW
@@ -204,5 +209,6 @@ def measure_latency(
         runs=runs,
         warmup=warmup,
         median_ms=statistics.median(times),
-        p90_ms=percentile(times, 90.0),
+        p90_ms=float(np.percentile(times, 90.0)),
+        batch=batch,
     )

@@ -4,7 +4,7 @@ import math
 import platform
 import shutil
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pytest
@@ -15,8 +15,9 @@ from lenspair.core.imageio import write_image
 from lenspair.dataset.manifest import ManifestRow, write_manifest
 from lenspair.dataset.readers import open_paired
 from lenspair.model.checkpoint import load_model
+from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import PSNR_CAP_DB, evaluate_checkpoint, summarize
-from lenspair.model.evaluation.latency import measure_latency, percentile, tune_allocator
+from lenspair.model.evaluation.latency import measure_latency, tune_allocator
 from lenspair.model.evaluation.report import write_report
 from lenspair.model.metrics import MetricConvention, image_metrics
 from lenspair.model.networks.variants import build_model
@@ -329,10 +330,31 @@ def test_latency_is_a_median_of_timed_runs() -> None:
     assert latency.runs == 5 and latency.warmup == 1 and latency.threads == 1
     assert 0 < latency.median_ms <= latency.p90_ms
     assert latency.size == "40x24" and latency.precision == "fp32"
-    assert "threads" in latency.summary()
-    assert percentile([1.0, 2.0, 3.0, 4.0, 5.0], 90) == pytest.approx(4.6)
+    assert "threads" in latency.summary() and "batch" not in latency.summary()
+    assert latency.batch == 1
     bf16 = measure_latency(build_model("GEA", 1, 0.25, 1), 1, CPU, (24, 40), "bf16", 1, 2)
     assert bf16.precision == "bf16"
+
+
+class _Shapes(torch.nn.Module):
+    """Records the shape of every input (in the class: the CPU times a copy); returns it."""
+
+    seen: ClassVar[list[tuple[int, ...]]] = []
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        _Shapes.seen.append(tuple(x.shape))
+        return x
+
+
+def test_a_batch_is_timed_as_one_forward_pass_and_gives_images_per_second() -> None:
+    network = _Shapes()
+    _Shapes.seen.clear()
+    latency = measure_latency(network, 3, CPU, (24, 40), runs=4, warmup=1, batch=5)
+    assert _Shapes.seen == [(5, 3, 24, 40)] * 5  # one warm-up and four timed passes
+    assert latency.batch == 5 and "batch 5" in latency.summary()
+    assert latency.images_per_second == pytest.approx(5 * 1000.0 / latency.median_ms)
+    with pytest.raises(ModelError, match="batch >= 1"):
+        measure_latency(network, 3, CPU, (24, 40), runs=1, batch=0)
 
 
 def test_cpu_latency_times_a_channels_last_copy_and_leaves_the_network_alone() -> None:
