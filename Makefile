@@ -7,7 +7,7 @@ VENV ?= .venv
 TORCH_SPEC ?= torch==2.13.0
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint typecheck unit bench results tradeoff-seeds table2 pretrained clean
+.PHONY: demo test lint typecheck unit bench results tradeoff-seeds table2 pretrained gpu-wheels clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -95,5 +95,16 @@ pretrained: demo
 	$(BIN)/python -m benchmarks.pretrain_weights --rescore --dataset demo_out/dataset
 	$(BIN)/python -m benchmarks.model_card
 
+# Issue 11's GPU checks, prepared for a lent GPU machine (benchmarks/gpu_checks.sh says
+# how to run them there): lenspair's wheel and Python 3.12 wheels of what the machine's
+# image lacks, into .whl/ (git ignores it; the device tool carries it).
+GPU_WHEELS := OpenImageIO rosbags apsw ruamel.yaml backports.zstd lz4
+gpu-wheels: $(VENV)/.installed
+	rm -rf .whl && mkdir .whl
+	$(BIN)/pip wheel -q --no-deps --no-build-isolation -w .whl .
+	$(BIN)/pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+		--implementation cp --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 \
+		--platform manylinux2014_x86_64 -d .whl $(GPU_WHEELS)
+
 clean:
-	rm -rf $(VENV) demo_out demo_out_fp32 bench_out build *.egg-info
+	rm -rf $(VENV) demo_out demo_out_fp32 bench_out build *.egg-info .whl gpu_checks_out
