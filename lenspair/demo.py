@@ -71,9 +71,11 @@ class Budget:
         crop_size: training crop side, pixels.
         batch_size: training batch.
         int8: the tradeoff's int8 row where the CPU has VNNI (about a minute).
-        latency_runs: timed runs per latency figure of ``eval`` and ``tradeoff``;
-            None keeps each command's default. Timing is the tradeoff's
-            largest cost after training (six variants at 540x360).
+        latency_runs: timed runs per latency figure of ``eval`` and ``tradeoff``
+            (their defaults are 30 and 20). Ten give a steady median on a
+            quiet machine; timing six variants at 540x360 is the tradeoff's
+            largest cost after training (GEA-w2 alone took 651 ms a frame on
+            the AVX2-only EPYC).
     """
 
     frames: int = 60
@@ -97,11 +99,7 @@ class Budget:
     crop_size: int = 128
     batch_size: int = 4
     int8: bool = True
-    latency_runs: int | None = None
-
-    def latency_argv(self) -> tuple[str, ...]:
-        """``--latency-runs`` for the timing stages, or nothing for their default."""
-        return () if self.latency_runs is None else ("--latency-runs", str(self.latency_runs))
+    latency_runs: int = 10
 
 
 QUICK = Budget(
@@ -247,7 +245,8 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
                 "test",
                 "--out",
                 str(out / "eval"),
-                *budget.latency_argv(),
+                "--latency-runs",
+                str(budget.latency_runs),
             ),
             out / "eval",
         ),
@@ -267,7 +266,8 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
                 "--seeds",
                 "0",  # one seed fits the demo's time; `make tradeoff-seeds` repeats over seeds
                 *(() if budget.int8 else ("--no-int8",)),
-                *budget.latency_argv(),
+                "--latency-runs",
+                str(budget.latency_runs),
             ),
             out / "tradeoff",
         ),
