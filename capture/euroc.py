@@ -13,6 +13,7 @@ the file names give the timestamps.
 """
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
@@ -40,13 +41,15 @@ def find_euroc_root(path: Path) -> Path | None:
     return None
 
 
-def read_euroc(path: Path, root: Path) -> Recording:
+def read_euroc(path: Path, root: Path, cameras: Sequence[CameraName] = CAMERAS) -> Recording:
     """List an EuRoC/ASL recording.
 
     Args:
         path: the path the user gave (recording id and messages use it).
         root: the folder holding ``cam0/`` and ``cam1/`` (see
             :func:`find_euroc_root`).
+        cameras: the cameras to list (a command restoring or judging one
+            camera reads a recording that holds only that one).
 
     Raises:
         CaptureError: a camera folder is missing, has neither ``data.csv``
@@ -55,7 +58,7 @@ def read_euroc(path: Path, root: Path) -> Recording:
     problems: list[FrameProblem] = []
     frames: dict[CameraName, list[FrameRef]] = {}
     sensor_files: dict[CameraName, Path] = {}
-    for camera in CAMERAS:
+    for camera in cameras:
         camera_dir = root / camera
         if not camera_dir.is_dir():
             raise CaptureError(f"{camera_dir}: missing camera folder ({camera})")

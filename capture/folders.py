@@ -19,6 +19,7 @@ timestamp keep the first by name and record the other.
 """
 
 import re
+from collections.abc import Sequence
 from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
@@ -101,8 +102,8 @@ def is_left_right(path: Path) -> bool:
     return any((Path(path) / name).is_dir() for name in FOLDER_NAMES.values())
 
 
-def read_folders(path: Path) -> Recording:
-    """List a ``left/`` + ``right/`` recording.
+def read_folders(path: Path, cameras: Sequence[CameraName] = CAMERAS) -> Recording:
+    """List a ``left/`` + ``right/`` recording (its ``cameras``: ``left/`` is cam0).
 
     Raises:
         CaptureError: one of the two folders is missing, or a camera has no
@@ -111,7 +112,7 @@ def read_folders(path: Path) -> Recording:
     path = Path(path)
     problems: list[FrameProblem] = []
     frames: dict[CameraName, list[FrameRef]] = {}
-    for camera in CAMERAS:
+    for camera in cameras:
         folder = path / FOLDER_NAMES[camera]
         if not folder.is_dir():
             raise CaptureError(

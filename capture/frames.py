@@ -54,7 +54,7 @@ import numpy as np
 from lenspair.capture import euroc, folders, rosbag
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import CAMERAS, open_recording
-from lenspair.capture.recording_types import FrameProblem
+from lenspair.capture.recording_types import DUPLICATE_TIMESTAMP, FrameProblem
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import read_image
@@ -150,15 +150,18 @@ def _is_folder_recording(path: Path) -> bool:
     """``left/`` + ``right/`` folders whose file names carry timestamps: a recording.
 
     Left and right folders of other images stay a plain folder (every image
-    restored), as before such recordings were recognised.
+    restored), as before such recordings were recognised; so do folders whose
+    names give one camera two frames at one time (``run1_000001.png`` and
+    ``run2_000001.png``: a frame index, not a timestamp), which as a recording
+    would leave the second frame unrestored as a duplicate.
     """
     if not all((path / name).is_dir() for name in folders.FOLDER_NAMES.values()):
         return False
     try:
-        folders.read_folders(path)
+        recording = folders.read_folders(path)
     except CaptureError:
         return False
-    return True
+    return not any(problem.reason.startswith(DUPLICATE_TIMESTAMP) for problem in recording.problems)
 
 
 def _folder_listing(folder: Path) -> tuple[list[Path], list[str]]:
@@ -196,6 +199,15 @@ def bag_image_topics(path: Path) -> list[str]:
     reader = rosbag._open(Path(path))
     try:
         return _image_topics(reader)
+    finally:
+        reader.close()
+
+
+def bag_topics(path: Path) -> list[str]:
+    """Every topic of a bag, whatever its message type, sorted."""
+    reader = rosbag._open(Path(path))
+    try:
+        return sorted(reader.topics)
     finally:
         reader.close()
 
@@ -350,7 +362,7 @@ def _file_entries(
         if problems is not None:
             problems.extend(passed_over)
         return [(file, None, None) for file in files]
-    recording = open_recording(path)
+    recording = open_recording(path, cameras=cameras)
     mine = [p for p in recording.problems if p.camera is None or p.camera in cameras]
     if problems is not None:
         problems.extend(str(problem) for problem in mine)

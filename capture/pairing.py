@@ -26,9 +26,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from lenspair.capture.errors import CaptureError
+from lenspair.capture.recording_types import DUPLICATE_TIMESTAMP
 from lenspair.capture.rigfile import CameraName
 
-DUPLICATE = "duplicate timestamp"
+DUPLICATE = DUPLICATE_TIMESTAMP
 TAKEN = "closer match taken by another frame"
 
 

@@ -54,6 +54,7 @@ module is the reader dispatch.
 """
 
 import os
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import get_args
@@ -92,6 +93,7 @@ __all__ = [
     "load_frame",
     "open_recording",
     "order_frames",
+    "present_cameras",
     "recording_id_for",
     "resolve_obstructed",
 ]
@@ -113,12 +115,33 @@ def load_frame(frame: FrameRef) -> np.ndarray:
     return rosbag.load_bag_frame(frame)
 
 
-def open_recording(path: Path, topics: tuple[str, str] | None = None) -> Recording:
+def present_cameras(path: Path) -> tuple[CameraName, ...]:
+    """The cameras whose folder a folder recording holds (EuRoC ``camN/``, ``left/``/``right/``).
+
+    Both cameras for anything else (a bag, a path that is no recording):
+    opening it says what is missing.
+    """
+    path = Path(path)
+    if path.is_dir() and not rosbag.is_bag(path):
+        root = euroc.find_euroc_root(path)
+        if root is not None:
+            return tuple(c for c in CAMERAS if (root / c).is_dir())
+        if folders.is_left_right(path):
+            return tuple(c for c in CAMERAS if (path / folders.FOLDER_NAMES[c]).is_dir())
+    return CAMERAS
+
+
+def open_recording(
+    path: Path, topics: tuple[str, str] | None = None, cameras: Sequence[CameraName] = CAMERAS
+) -> Recording:
     """List the frames of a stereo recording, detecting its layout.
 
     Args:
         path: a recording in one of the layouts of this module's docstring.
         topics: bags only: ``(cam0_topic, cam1_topic)``; None picks them.
+        cameras: folder layouts only: the cameras to list, for a command that
+            reads one camera of a recording that may hold only that one
+            (:func:`present_cameras`); ``frames`` then has those keys alone.
 
     Returns:
         The :class:`Recording`; no pixels are read.
@@ -138,9 +161,9 @@ def open_recording(path: Path, topics: tuple[str, str] | None = None) -> Recordi
     if path.is_dir():
         root = euroc.find_euroc_root(path)
         if root is not None:
-            return euroc.read_euroc(path, root)
+            return euroc.read_euroc(path, root, cameras)
         if folders.is_left_right(path):
-            return folders.read_folders(path)
+            return folders.read_folders(path, cameras)
     raise CaptureError(f"{path}: unknown recording layout; expected {EXPECTED_LAYOUTS}")
 
 

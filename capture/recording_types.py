@@ -93,7 +93,8 @@ class Recording:
         recording_id: folder name or bag stem (``MH_01`` for ``MH_01/mav0``).
         layout: ``euroc``, ``rosbag1``, ``rosbag2`` or ``folders``.
         frames: ``cam0``/``cam1`` -> frames sorted by ``t_ns``, timestamps
-            unique per camera, never empty.
+            unique per camera, never empty; both cameras unless the recording
+            was opened for some (``open_recording(cameras=...)``).
         problems: frames not listed (``dropped``) and warnings, in the order met.
         topics: bags only: the ``(cam0, cam1)`` topics read.
         sensor_files: EuRoC only: ``sensor.yaml`` of each camera that has one.
@@ -111,7 +112,7 @@ class Recording:
     sensor_files: dict[CameraName, Path] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for camera in CAMERAS:
+        for camera in self.frames or CAMERAS:
             if not self.frames.get(camera):
                 dropped = [p for p in self.problems if p.camera in (camera, None) and p.dropped]
                 detail = f"; first of {len(dropped)} problems: {dropped[0]}" if dropped else ""
@@ -161,6 +162,10 @@ def recording_id_for(path: Path) -> str:
     return resolved.name
 
 
+DUPLICATE_TIMESTAMP = "duplicate timestamp"
+"""How a frame dropped for its camera's repeated timestamp begins its problem's reason."""
+
+
 def order_frames(
     camera: CameraName, frames: Iterable[FrameRef], problems: list[FrameProblem]
 ) -> list[FrameRef]:
@@ -190,7 +195,7 @@ def order_frames(
                 continue
             problems.append(
                 FrameProblem(
-                    camera, frame.t_ns, frame.describe(), f"duplicate timestamp (kept {first})"
+                    camera, frame.t_ns, frame.describe(), f"{DUPLICATE_TIMESTAMP} (kept {first})"
                 )
             )
             continue

@@ -53,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=CAMERA_CHOICES,
         default="auto",
         help="recordings and bags: camera(s) to restore (auto: the obstructed one in "
-        "rig.yaml, else both)",
+        "rig.yaml, else every camera the recording holds)",
     )
     parser.add_argument(
         "--suffix",

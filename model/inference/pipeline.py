@@ -43,12 +43,13 @@ from lenspair.capture.frames import (
     InputKind,
     bag_camera_topics,
     bag_overview,
+    bag_topics,
     detect_input,
     frame_files,
     iter_bag_messages,
     iter_frames,
 )
-from lenspair.capture.recording import CAMERAS, find_rig_file
+from lenspair.capture.recording import CAMERAS, find_rig_file, present_cameras
 from lenspair.capture.rigfile import CameraName, read_rig_file
 from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.core.fsutil import atomic_write_json, inside_refusal, read_json_field, sha256_file
@@ -74,7 +75,9 @@ class RestoreOptions:
 
     Attributes:
         camera: ``auto`` (the obstructed camera named by ``rig.yaml``, else
-            both), ``cam0``, ``cam1`` or ``both``; recordings and bags only.
+            every camera the recording holds: both, or the one of a
+            recording of one camera), ``cam0``, ``cam1`` or ``both``;
+            recordings and bags only.
         batch_size: frames per network call (>= 1).
         tile: square tile side in pixels, or None for whole images.
         overlap: pixels shared by neighbouring tiles.
@@ -175,7 +178,9 @@ def resolve_cameras(
     if choice in CAMERAS:
         return ("cam0",) if choice == "cam0" else ("cam1",)
     rig = find_rig_file(path)
-    return (read_rig_file(rig).obstructed,) if rig is not None else CAMERAS
+    if rig is not None:
+        return (read_rig_file(rig).obstructed,)
+    return present_cameras(path)  # a recording of one camera: that one
 
 
 def _say_unused(input_path: Path, kind: InputKind, options: RestoreOptions) -> None:
@@ -405,12 +410,39 @@ def check_input(input_path: Path, out_dir: Path, options: RestoreOptions) -> Che
         options = replace(options, camera="auto", suffix="", topics=None)
         cameras = ()
     bag = kind in ("rosbag1", "rosbag2")
+    if bag and options.suffix:
+        check_suffix_free(input_path, cameras, options)
     files = [] if bag else frame_files(input_path, kind, cameras)
     if not bag and not files:
         # Refused before OUT is made: an empty run is a mistyped path, not a result.
         raise ModelError(f"{input_path}: no images to restore")
     check_out_dir(out_dir, options.resume)
     return CheckedInput(kind, options, cameras, files)
+
+
+def check_suffix_free(bag: Path, cameras: tuple[CameraName, ...], options: RestoreOptions) -> None:
+    """Refuse ``--suffix`` where ``<topic><suffix>`` is already one of the bag's topics.
+
+    A bag restored before with the same suffix (or recorded from a robot that
+    publishes restored frames) holds that topic already; writing the restored
+    frames into it would mix two runs' frames on one topic.
+
+    Raises:
+        ModelError: names the bag, the topic and what to do.
+    """
+    existing = set(bag_topics(bag))
+    named = bag_camera_topics(bag, options.topics)
+    taken = sorted(
+        topic + options.suffix
+        for topic, camera in named.items()
+        if camera in cameras and topic + options.suffix in existing
+    )
+    if taken:
+        raise ModelError(
+            f"{bag}: topic {taken[0]} is in the bag already; --suffix {options.suffix} would "
+            "write restored frames into it: choose another --suffix, or restore without one "
+            "to replace the camera's frames"
+        )
 
 
 def restore_input(

@@ -618,6 +618,23 @@ def test_a_bare_mcap_file_is_restored_into_a_bag_folder(
     assert all(m.connection.digest.startswith("RIHS01_") for m in copy)
 
 
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_a_suffix_whose_topic_the_bag_has_is_refused_before_out_is_made(
+    tmp_path: Path, backend: TorchBackend, kind: str
+) -> None:
+    """Restoring a restored bag again with the same --suffix would write one topic twice."""
+    bag = bag_from_recording(tmp_path, kind)
+    first = restore_input(bag, tmp_path / "once", backend, RestoreOptions(suffix="/restored"))
+    again = Path(first.output)
+    with pytest.raises(ModelError, match=r"topic /cam1/image_raw/restored is in the bag already"):
+        restore_input(again, tmp_path / "twice", backend, RestoreOptions(suffix="/restored"))
+    assert not (tmp_path / "twice").exists()
+    # another suffix, or none (the camera's frames replaced), goes ahead
+    options = RestoreOptions(suffix="/r2", camera="cam1")
+    other = restore_input(again, tmp_path / "other", backend, options)
+    assert other.restored == 3 and other.failed == 0
+
+
 def test_a_missing_model_is_the_only_line_a_user_sees(
     tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -149,6 +149,37 @@ def test_recording_frames_its_listing_dropped_are_reported(
     ).read_bytes()  # copied as it is, as every file the recording does not list
 
 
+def test_a_recording_of_one_camera_restores_that_camera(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    """A mono robot's EuRoC folder (mav0/cam0 alone) is not refused for its missing cam1."""
+    recording = make_recording(tmp_path / "rec", frames=3)
+    shutil.rmtree(recording / "mav0" / "cam1")
+    (recording / "rig.yaml").unlink()
+    for camera in ("auto", "cam0"):
+        out = tmp_path / f"out_{camera}"
+        report = restore_input(recording, out, backend, RestoreOptions(camera=camera))
+        assert report.cameras == ["cam0"] and report.restored == 3 and report.failed == 0
+        assert len(list((out / "mav0" / "cam0" / "data").glob("*.png"))) == 3
+        assert not (out / "mav0" / "cam1").exists()
+    for camera in ("cam1", "both"):  # asked for by name: the missing folder is the one line
+        with pytest.raises(CaptureError, match=r"cam1: missing camera folder \(cam1\)"):
+            restore_input(recording, tmp_path / camera, backend, RestoreOptions(camera=camera))
+
+
+def test_left_right_folders_named_by_frame_index_restore_every_frame(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    """Two runs' frame indices (run1_000001, run2_000001) are no timestamps: no duplicates."""
+    names = [f"run{run}_00000{index}.png" for run in (1, 2) for index in (1, 2, 3)]
+    root = _left_right(tmp_path / "seq", names)
+    assert detect_input(root) == "folder"
+    report = restore_input(root, tmp_path / "out", backend, RestoreOptions())
+    assert report.restored == 12 and report.failed == 0 and not report.problems
+    timestamps = _left_right(tmp_path / "ts", ["1000000000.png", "2000000000.png"])
+    assert detect_input(timestamps) == "folders"  # unique timestamps: still a recording
+
+
 def _left_right(root: Path, names: list[str]) -> Path:
     for side in ("left", "right"):
         for index, name in enumerate(names):
