@@ -12,7 +12,9 @@ covered, the probability of each kind; unreadable frames are listed with
 their error) and DIR/contact_sheet.png (frames spread over the input, covered
 tiles in red). Frames are decoded one batch at a time, so a long recording
 needs no more memory than a short one. Prints how many frames were called
-obstructed, per kind, and a warning when a bag stops part-way.
+obstructed, per kind, and a warning when a bag stops part-way, and one for
+each file of a folder INPUT that may hold frames but is not judged (a bag, a
+video, an image format that is not read), as restore names them.
 
 Example:
   lenspair detect runs/detector/detector.pt rec/rain --out detect_rain
@@ -85,10 +87,11 @@ def run(args: argparse.Namespace) -> int:
     """Judge the frames of INPUT; returns the exit code."""
     # torch and the bag readers load when the command runs, so --help stays fast
     from lenspair.capture.frames import bag_overview, detect_input, frame_files, iter_frames
-    from lenspair.capture.recording import CAMERAS
+    from lenspair.capture.recording import present_cameras
     from lenspair.capture.recording_types import FrameProblem
     from lenspair.model.detection.report import detect_frames
     from lenspair.model.detection.train import load_detector
+    from lenspair.model.detection.unjudged import unjudged_files
 
     if args.batch_size < 1 or args.sheet_frames < 0:
         raise ConfigError("--batch-size must be >= 1 and --sheet-frames >= 0")
@@ -109,14 +112,18 @@ def run(args: argparse.Namespace) -> int:
         log.warning("%s: replacing the detections of an earlier run there", out)
     # Files are counted from their listing (cheap); a bag's count is only known once read.
     bag = kind in ("rosbag1", "rosbag2")
-    total = None if bag else len(frame_files(args.input, kind, CAMERAS))
-    problems: list[str] = list(bag_overview(args.input, CAMERAS, args.topics).others) if bag else []
+    cameras = present_cameras(args.input)  # both, or the one a mono recording holds
+    files = [] if bag else frame_files(args.input, kind, cameras)
+    total = None if bag else len(files)
+    problems: list[str] = list(bag_overview(args.input, cameras, args.topics).others) if bag else []
     dropped: list[FrameProblem] = []  # images the listing left out or could not find: rows too
-    frames = iter_frames(args.input, CAMERAS, problems, args.topics, dropped)
+    frames = iter_frames(args.input, cameras, problems, args.topics, dropped)
     verdicts = detect_frames(
         network, frames, out, args.batch_size, args.sheet_frames, args.threshold, total, dropped,
         args.input,
     )  # fmt: skip
+    unjudged = unjudged_files(args.input, kind, files)  # a bag or a video among the images
+    problems += unjudged
     for problem in problems:
         print(f"lenspair detect: warning: {problem}", file=sys.stderr)
     judged = [v for v in verdicts if v.error is None]
@@ -124,9 +131,14 @@ def run(args: argparse.Namespace) -> int:
     obstructed = sum(1 for v in judged if v.obstructed)
     listed_kinds = ", ".join(f"{kind} {count}" for kind, count in sorted(counts.items()))
     kinds = f"; {listed_kinds}" if listed_kinds else ""  # none judged: no empty "; ;"
+    others = (
+        f"; {counted(len(unjudged), 'file')} that may hold frames not judged (warnings above)"
+        if unjudged
+        else ""
+    )
     print(
         f"{counted(len(judged), 'frame')} judged ({len(verdicts) - len(judged)} not: unreadable "
         "or left out by the listing): "
-        f"{obstructed} obstructed{kinds}; see {out / 'detections.csv'}"
+        f"{obstructed} obstructed{kinds}{others}; see {out / 'detections.csv'}"
     )
     return 0

@@ -73,8 +73,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="REC",
         help="simulated recordings to score the detector on, never trained on",
     )
-    parser.add_argument("--synthetic", type=int, default=0, metavar="N", help="synthetic frames")
-    parser.add_argument("--clean-images", type=Path, help="clean images for --synthetic")
+    parser.add_argument(
+        "--synthetic",
+        type=int,
+        default=0,
+        metavar="N",
+        help="synthetic frames to train on, made from clean images (--clean-images): a "
+        "quarter each clean, rain, dust and dirt (the simulator's effects, drawn at random), "
+        "every one's exposure varied and a third blurred (default 0: none)",
+    )
+    parser.add_argument(
+        "--clean-images",
+        type=Path,
+        metavar="DIR",
+        help="folder of clean images the --synthetic frames are made from: its first 200 "
+        "images, a dataset's train targets only (default: the simulator's textures)",
+    )
     parser.add_argument(
         "--simulated-set", type=Path, metavar="DIR", help="render or reuse a simulated set"
     )
@@ -101,6 +115,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="WxH",
         help="size frames are judged at (270x180; width first, as every lenspair size)",
     )
+
+
+def interrupt_hint(args: argparse.Namespace) -> str:
+    """What to do after Ctrl-C: training keeps no checkpoint; a rendered set is kept.
+
+    Nothing is written to RUN before the training ends, so the same command
+    again trains from step 0; only ``--simulated-set`` resumes, keeping the
+    recordings it finished (:func:`lenspair.model.detection.simset.simulate_kind_set`).
+    """
+    again = "training keeps no checkpoint: the same command again trains from the start"
+    if args.simulated_set is None:
+        return again
+    return f"{again}, reusing the recordings already rendered in {args.simulated_set}"
 
 
 def run(args: argparse.Namespace) -> int:

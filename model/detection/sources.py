@@ -172,6 +172,33 @@ def _distinct(sources: DetectorSources) -> DetectorSources:
     return replace(sources, datasets=datasets, recordings=recordings, test_recordings=tests)
 
 
+def distinct_names(paths: Sequence[Path]) -> list[str]:
+    """A readable name per folder, never the same for two folders: its shortest telling suffix.
+
+    Each name is the fewest trailing parts of the folder's absolute path that
+    no other folder's path ends with (``siteA/dataset`` and ``siteB/dataset``;
+    ``dataset`` alone when no other folder has that name). Named by the last
+    part alone, two datasets called ``dataset`` gave one held-out set name,
+    and the first one's scores were replaced by the second's without a word.
+
+    Args:
+        paths: distinct folders (as given: relative, ``.``, or absolute).
+
+    Returns:
+        The names, in the order of ``paths``.
+    """
+    parts = [Path(path).resolve().parts for path in paths]
+    names = []
+    for index, mine in enumerate(parts):
+        others = [theirs for other, theirs in enumerate(parts) if other != index]
+        count = next(
+            (k for k in range(1, len(mine)) if all(theirs[-k:] != mine[-k:] for theirs in others)),
+            len(mine),
+        )
+        names.append(Path(*mine[-count:]).as_posix())
+    return names
+
+
 def gather(
     sources: DetectorSources, spec: DetectorSpec, seed: int, workers: int = 1
 ) -> tuple[list[DetectorSample], dict[str, list[DetectorSample]]]:
@@ -183,6 +210,11 @@ def gather(
         seed: seeds the simulated set, the synthetic and the hard samples.
         workers: processes (1: all in this process); the samples do not depend on it.
 
+    Returns:
+        ``(train, held_out)``: the training samples, and the held-out sets by
+        name, one name each (a dataset's splits as ``dataset <name>, split
+        val``, its name from :func:`distinct_names`).
+
     Raises:
         ModelError: nothing to train on, or hard cases without recordings.
     """
@@ -191,13 +223,11 @@ def gather(
     sources = _distinct(sources)
     train: list[DetectorSample] = []
     held_out: dict[str, list[DetectorSample]] = {}
-    for root in sources.datasets:
+    for root, name in zip(sources.datasets, distinct_names(sources.datasets), strict=True):
         train += dataset_samples(root, "train", spec)
         for split in ("val", "test"):  # no model selection here: both are held out
             try:
-                held_out[f"dataset {Path(root).name}, split {split}"] = dataset_samples(
-                    root, split, spec
-                )
+                held_out[f"dataset {name}, split {split}"] = dataset_samples(root, split, spec)
             except ModelError as exc:
                 log.warning("%s: split %s not scored (%s)", root, split, exc)
     recordings = list(sources.recordings)

@@ -387,6 +387,30 @@ VIDEO_SUFFIXES = frozenset({".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".m
 UNREAD_IMAGE_SUFFIXES = frozenset({".webp", ".gif", ".heic", ".heif", ".jp2", ".exr", ".avif"})
 
 
+def unread_frames_note(source: Path, command: str, left: str) -> str | None:
+    """A line for a file of a folder input that may hold frames ``command`` did not read.
+
+    Bags, videos and images in formats that are not read; None for every other
+    file (notes, calibration files, listings hold no frame).
+
+    Args:
+        source: the file.
+        command: ``restore`` or ``detect``, for the advice.
+        left: what the command did with the file (``copied as it is``, ``not judged``).
+    """
+    suffix = source.suffix.lower()
+    if suffix in BAG_SUFFIXES:
+        return f"{source}: a bag, {left}: {command} it as an INPUT of its own"
+    if suffix in VIDEO_SUFFIXES:
+        return f"{source}: a video, {left}: {command} takes its frames as images"
+    if suffix in UNREAD_IMAGE_SUFFIXES:
+        return (
+            f"{source}: {suffix} images are not read, {left}: convert it to PNG or "
+            f"TIFF to {command} it"
+        )
+    return None
+
+
 def unrestored_note(source: Path) -> str | None:
     """A line for a file of a folder input that holds frames restore left as they were.
 
@@ -394,17 +418,7 @@ def unrestored_note(source: Path) -> str | None:
     and calibration files but lets dirty frames pass unnoticed when the file
     is a bag, a video or an image format that is not read: the report says so.
     """
-    suffix = source.suffix.lower()
-    if suffix in BAG_SUFFIXES:
-        return f"{source}: a bag, copied as it is: restore it as an INPUT of its own"
-    if suffix in VIDEO_SUFFIXES:
-        return f"{source}: a video, copied as it is: restore takes its frames as images"
-    if suffix in UNREAD_IMAGE_SUFFIXES:
-        return (
-            f"{source}: {suffix} images are not read, copied as it is: convert it to PNG or "
-            "TIFF to restore it"
-        )
-    return None
+    return unread_frames_note(source, "restore", "copied as it is")
 
 
 class BagSink:

@@ -2,6 +2,7 @@
 
 import csv
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -123,6 +124,18 @@ def test_detect_gives_a_row_to_a_listed_frame_whose_file_is_missing(
     # named relative to the input, as the judged frames are (the left-out ones carried its path)
     assert not any(row["name"].startswith(str(recording)) for row in rows)
     assert len(json.loads((out / "detections.json").read_text())) == 7
+
+
+def test_detect_judges_the_one_camera_of_a_mono_recording(
+    tiny_detector: Path, tmp_path: Path
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3)
+    shutil.rmtree(recording / "mav0" / "cam1")  # a mono robot's EuRoC folder
+    out = tmp_path / "out"
+    assert main(["detect", str(tiny_detector), str(recording), "--out", str(out)]) == 0
+    with (out / "detections.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [row["camera"] for row in rows] == ["cam0"] * 3 and not any(r["error"] for r in rows)
 
 
 def test_detect_bad_input_is_one_line(  # type: ignore[no-untyped-def]

@@ -1,0 +1,54 @@
+"""The files of a folder input that ``detect`` does not judge but that may hold frames.
+
+``detect`` judges the images a folder (or a recording) lists; a bag, a video
+or an image in a format that is not read, lying among them, would pass
+without a word, and dirty glass with it. ``restore`` names such files in its
+problems (:func:`lenspair.model.inference.sinks.unrestored_note`); this module
+names them the same way, from the same walk of the folder
+(:func:`~lenspair.model.inference.sinks.files_under`) and the same note
+(:func:`~lenspair.model.inference.sinks.unread_frames_note`), in ``detect``'s
+words: they are not judged, where ``restore`` copies them.
+"""
+
+from collections.abc import Iterable
+from pathlib import Path
+
+from lenspair.capture.frames import InputKind
+from lenspair.model.inference.sinks import files_under, unread_frames_note
+
+FOLDER_KINDS: frozenset[InputKind] = frozenset({"euroc", "folders", "folder"})
+"""Inputs that are folders, whose other files are looked through (as restore copies them)."""
+
+
+def unjudged_note(source: Path) -> str | None:
+    """A line for a file that may hold frames ``detect`` did not judge; None for other files.
+
+    Notes, calibration files and listings hold no frame: they are passed over quietly.
+    """
+    return unread_frames_note(source, "detect", "not judged")
+
+
+def unjudged_files(root: Path, kind: InputKind, judged: Iterable[Path]) -> list[str]:
+    """One line per file under a folder input, other than ``judged``, that may hold frames.
+
+    Args:
+        root: the input.
+        kind: its kind (:func:`lenspair.capture.frames.detect_input`); only
+            :data:`FOLDER_KINDS` are looked through, an image or a bag has no
+            other files.
+        judged: the image files read as frames (:func:`lenspair.capture.frames.frame_files`).
+
+    Returns:
+        The lines of :func:`unjudged_note`, in path order. A plain folder is
+        walked without following links to folders, as its images are listed;
+        a recording's folders are followed, as its listing is.
+    """
+    if kind not in FOLDER_KINDS:
+        return []
+    read = {Path(path).resolve() for path in judged}
+    notes = []
+    for relative in files_under(Path(root), follow_links=kind != "folder"):
+        source = Path(root) / relative
+        if source.resolve() not in read and (note := unjudged_note(source)) is not None:
+            notes.append(note)
+    return notes

@@ -1,0 +1,85 @@
+"""Names of the detector's held-out sets: one per dataset split, even for namesake folders."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lenspair.cli import main
+from lenspair.core.imageio import write_image
+from lenspair.dataset.manifest import ManifestRow, SplitName, write_manifest
+from lenspair.model.detection.sources import DetectorSources, distinct_names, gather
+from lenspair.model.networks.detector import DetectorSpec
+from tests.model.train_fixtures import clean_image, obstruct
+
+SPEC = DetectorSpec(input_size=(32, 48))
+COUNTS: dict[SplitName, int] = {"train": 2, "val": 1, "test": 1}
+SPLITS = ("val", "test")
+
+
+def _row(split: SplitName, name: str, index: int) -> ManifestRow:
+    """A rain pair of recording ``rec``."""
+    return ManifestRow(
+        split=split, name=name, recording="rec", group="rec", t_ns=index, obstructed="cam1",
+        clean="cam0", difficulty="easy", psnr_db=25.0, anomaly_fraction=0.1, sharpness=100.0,
+        saturated=0.0, black=0.0, mask_fraction=0.0, anomaly=("rain",),
+    )  # fmt: skip
+
+
+def _dataset(root: Path, seed: int, counts: dict[SplitName, int] = COUNTS) -> Path:
+    """A lenspair dataset of 48x32 rain pairs: ``counts`` pairs per split."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for split, count in counts.items():
+        for index in range(count):
+            name = f"rec_{index}"
+            clean = clean_image(rng)
+            write_image(root / split / "input" / f"{name}.png", obstruct(clean, rng))
+            write_image(root / split / "target" / f"{name}.png", clean)
+            rows.append(_row(split, name, index))
+    write_manifest(root / "manifest.jsonl", rows)
+    return root
+
+
+def test_distinct_names_are_the_shortest_suffix_that_tells_folders_apart(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    paths = [Path("siteA/x/dataset"), Path("siteB/x/dataset"), Path("siteC/y/dataset")]
+    assert distinct_names(paths) == ["siteA/x/dataset", "siteB/x/dataset", "y/dataset"]
+    assert distinct_names([Path("siteA/dataset"), Path("other")]) == ["dataset", "other"]
+    # "." is named by the folder it is, not by "" (Path(".").name)
+    (tmp_path / "here").mkdir()
+    monkeypatch.chdir(tmp_path / "here")
+    assert distinct_names([Path(".")]) == ["here"]
+    # a folder whose whole path ends another's: the root tells them apart
+    assert distinct_names([Path("/a/b"), Path("/x/a/b")]) == ["/a/b", "x/a/b"]
+
+
+def test_namesake_datasets_each_have_their_held_out_sets(tmp_path: Path) -> None:
+    first = _dataset(tmp_path / "siteA" / "dataset", seed=1)
+    second = _dataset(tmp_path / "siteB" / "dataset", seed=2, counts={**COUNTS, "val": 3})
+    train, held_out = gather(DetectorSources(datasets=(first, second)), SPEC, seed=0)
+    assert len(train) == 2 * 2 * 2  # two pairs each, both views
+    # both named "dataset" once: one dataset's val and test replaced the other's
+    assert {name: len(samples) for name, samples in held_out.items()} == {
+        "dataset siteA/dataset, split val": 2,
+        "dataset siteA/dataset, split test": 2,
+        "dataset siteB/dataset, split val": 6,
+        "dataset siteB/dataset, split test": 2,
+    }
+
+
+def test_train_detector_scores_namesake_datasets_apart(tmp_path: Path) -> None:
+    first = _dataset(tmp_path / "demo" / "dataset", seed=1)
+    second = _dataset(tmp_path / "dsB" / "dataset", seed=2)
+    out = tmp_path / "run"
+    argv = ["train-detector", str(first), str(second), "--out", str(out), "--steps", "1"]
+    assert main([*argv, "--batch-size", "2", "--input-size", "48x32"]) == 0
+    names = [
+        f"dataset {site}/dataset, split {split}" for site in ("demo", "dsB") for split in SPLITS
+    ]
+    assert sorted(json.loads((out / "scores.json").read_text())) == sorted(names)
+    scores = (out / "scores.md").read_text()
+    assert all(f"**{name}**" in scores for name in names)

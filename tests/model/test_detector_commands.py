@@ -1,0 +1,95 @@
+"""What ``train-detector`` and ``detect`` tell their user: stop hint, help, files not judged."""
+
+import csv
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lenspair.cli import TERMINATED, Terminated, main
+from lenspair.core.imageio import write_image
+from lenspair.model.detection.unjudged import unjudged_files, unjudged_note
+from lenspair.model.inference.sinks import unrestored_note
+from tests.images import texture
+
+
+@pytest.mark.parametrize("simulated_set", [False, True])
+def test_a_stopped_train_detector_says_a_rerun_trains_from_the_start(
+    simulated_set: bool, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # "rerun to resume": training keeps no checkpoint, a rerun starts again at step 0
+    import lenspair.commands.train_detector
+
+    def terminated(args: object) -> int:
+        raise Terminated
+
+    monkeypatch.setattr(lenspair.commands.train_detector, "run", terminated)
+    extra = ["--simulated-set", "sims"] if simulated_set else []
+    assert main(["train-detector", "--synthetic", "8", "--out", "run", *extra]) == TERMINATED
+    [said] = capsys.readouterr().err.strip().splitlines()
+    assert said.startswith("lenspair train-detector: terminated; ")
+    assert "resume" not in said and "trains from the start" in said
+    assert ("reusing the recordings already rendered in sims" in said) is simulated_set
+
+
+def test_train_detector_help_states_the_synthetic_defaults(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # "--synthetic N  synthetic frames", "--clean-images  clean images for --synthetic"
+    with pytest.raises(SystemExit) as exited:
+        main(["train-detector", "--help"])
+    assert exited.value.code == 0
+    options = " ".join(capsys.readouterr().out.split()).split("options:")[1]
+    found = re.search(r" --synthetic N (.*) --clean-images DIR (.*) --simulated-set DIR ", options)
+    assert found is not None
+    synthetic, clean = found.groups()
+    assert "(default 0: none)" in synthetic
+    assert "--synthetic" in clean and "(default: the simulator's textures)" in clean
+
+
+@pytest.fixture
+def mixed_folder(tmp_path: Path) -> Path:
+    """One frame among a bag, a video, a WebP image, a note and a recording's listing."""
+    folder = tmp_path / "in"
+    write_image(folder / "f00.png", (texture((120, 180), 0) * 255).astype(np.uint8))
+    for name in ("rain.bag", "clip.mp4", "sub/still.webp", "notes.txt", "sub/data.csv"):
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        (folder / name).write_bytes(b"not an image")
+    return folder
+
+
+def test_detect_names_the_files_of_a_folder_it_does_not_judge(
+    mixed_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # "1 frame judged (0 not: ...)", and not a word of the bag or the video
+    out = tmp_path / "out"
+    assert main(["detect", "detector.pt", str(mixed_folder), "--out", str(out)]) == 0
+    said = capsys.readouterr()
+    warnings = [line for line in said.err.splitlines() if "warning" in line]
+    assert warnings == [
+        f"lenspair detect: warning: {mixed_folder / 'clip.mp4'}: a video, not judged: detect "
+        "takes its frames as images",
+        f"lenspair detect: warning: {mixed_folder / 'rain.bag'}: a bag, not judged: detect it "
+        "as an INPUT of its own",
+        f"lenspair detect: warning: {mixed_folder / 'sub/still.webp'}: .webp images are not "
+        "read, not judged: convert it to PNG or TIFF to detect it",
+    ]
+    assert "1 frame judged" in said.out and "3 files that may hold frames not judged" in said.out
+    with (out / "detections.csv").open() as handle:
+        assert [row["name"] for row in csv.DictReader(handle)] == ["f00.png"]
+
+
+def test_detect_names_the_files_restore_names(mixed_folder: Path) -> None:
+    """The same files as restore's problems: only the wording differs (not judged, not copied)."""
+    files = sorted(p for p in mixed_folder.rglob("*") if p.is_file())
+    named = [p for p in files if unjudged_note(p) is not None]
+    assert named == [p for p in files if unrestored_note(p) is not None]
+    assert [p.name for p in named] == ["clip.mp4", "rain.bag", "still.webp"]
+
+
+def test_only_folder_inputs_are_looked_through(mixed_folder: Path) -> None:
+    judged = [mixed_folder / "f00.png"]
+    assert len(unjudged_files(mixed_folder, "folder", judged)) == 3
+    assert unjudged_files(mixed_folder / "f00.png", "image", judged) == []
+    assert unjudged_files(mixed_folder / "rain.bag", "rosbag1", []) == []
