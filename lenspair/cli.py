@@ -135,6 +135,15 @@ def build_parser(selected: str | None) -> argparse.ArgumentParser:
                 formatter_class=argparse.RawDescriptionHelpFormatter,
             )
             module.add_arguments(command)
+            # also after the command (`lenspair restore -v ...`), where users type it; SUPPRESS
+            # keeps an absent one from resetting a -v given before the command
+            command.add_argument(
+                "-v",
+                "--verbose",
+                action="store_true",
+                default=argparse.SUPPRESS,
+                help="log debug messages and show tracebacks (also before COMMAND)",
+            )
         else:
             sub.add_parser(name, help=summary, add_help=False)
     return parser

@@ -383,6 +383,22 @@ def test_a_file_system_refusal_is_one_line_naming_the_path(
     assert str(out / "rain") in lines[0]
 
 
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_verbose_shows_the_refusal_s_traceback_before_or_after_the_command(
+    tmp_path: Path, where: str
+) -> None:
+    """``-v`` is taken where users type it, also after the command, and is not reset there."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "rain").write_text("not a folder")  # a file where the recording's folder goes
+    recording = tmp_path / "rain"
+    assert main(["simulate", "rain", "--out", str(recording), "--frames", "2"]) == 0
+    argv = ["capture-ingest", str(recording), "--out", str(out)]
+    argv = ["-v", *argv] if where == "before" else [*argv, "-v"]
+    with pytest.raises(OSError):  # the traceback a bug report wants, not the one line
+        main(argv)
+
+
 @pytest.mark.parametrize(
     "argv",
     [
