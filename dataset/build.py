@@ -48,7 +48,9 @@ from lenspair.core.config import dump_yaml
 from lenspair.core.errors import ImageIOError
 from lenspair.core.fsutil import (
     atomic_write_text,
+    check_writable,
     clone_file,
+    naming_errors,
     read_json_field,
     sha256_bytes,
     temporary_folder,
@@ -385,6 +387,9 @@ def build_dataset(
         DatasetError: no sources, a bad source folder, two sources with one
             recording id, a side-check mismatch not accepted, or ``out``
             holds something that may not be replaced.
+        OSError: the file system refused a write (checked before any pair is
+            measured, and as the files are written); it names ``out``, or a
+            file's final path under it.
     """
     if not sources:
         raise DatasetError("no ingested recordings given")
@@ -440,16 +445,18 @@ def build_dataset(
         )
     out.parent.mkdir(parents=True, exist_ok=True)
     remove_leftovers(out.parent, out.name)  # of killed builds of this same output only
-    temp = temporary_folder(out.parent, out.name, ".building")
-    try:
-        gone = [
-            RemovedPair(loaded[s].report.recording_id, loaded[s].records[i].t_ns, rule, reason)
-            for (s, i), (rule, reason) in removed.items()
-        ]
-        write_dataset(temp, pairs, card, config, gone, link)
-        _place(temp, out, overwrite)
-    finally:
-        shutil.rmtree(temp, ignore_errors=True)
+    gone = [
+        RemovedPair(loaded[s].report.recording_id, loaded[s].records[i].t_ns, rule, reason)
+        for (s, i), (rule, reason) in removed.items()
+    ]
+    # a refusal names out, or a file's final path under it, never the .building folder
+    with naming_errors(out):
+        temp = temporary_folder(out.parent, out.name, ".building")
+        try:
+            write_dataset(temp, pairs, card, config, gone, link)
+            _place(temp, out, overwrite)
+        finally:
+            shutil.rmtree(temp, ignore_errors=True)
     return BuildResult(out, tuple(rows), card)
 
 
@@ -606,8 +613,14 @@ def _check_file_system(sources: Sequence[Source], out: Path, link: LinkMode) -> 
     A recording id near 255 bytes ingests (its frames are ``<t_ns>.png``) but
     its dataset files ``<id>_<t_ns>.png`` would not fit; ``--link hard`` cannot
     link across file systems. Both failed after every pair had been measured,
-    naming the build's temporary folder.
+    naming the build's temporary folder. So did a read-only or another user's
+    folder (:func:`~lenspair.core.fsutil.check_writable`).
+
+    Raises:
+        DatasetError: a file name too long, or ``--link hard`` across file systems.
+        OSError: the file system refuses to write beside ``out``; it names ``out``.
     """
+    check_writable(out)
     existing = next(folder for folder in (out, *out.parents) if folder.exists())
     try:
         limit = os.pathconf(existing, "PC_NAME_MAX")

@@ -12,9 +12,11 @@ in *rectified obstructed* pixels. It must lie entirely in the intersection of
 Among all placements that fit, the one whose centre is closest to the
 centroid of that intersection is chosen (ties: smallest ``y``, then ``x``),
 so the crop is centred in the valid intersection whenever it can be. When no
-placement fits, :class:`CropError` says how large the valid region is and by
-how much it falls short, e.g. ``valid region is 510x380 px; need 540x360:
-30 px too narrow``.
+placement fits, :class:`CropError` says by how much the valid region falls
+short, in sizes of crops that do fit, e.g. ``valid region too small; need
+720x540: 392 px too narrow at full height (328x540 px fits) or 4 px too short
+at full width (720x536 px fits); the largest crop of that shape that fits is
+714x536 px``.
 """
 
 from dataclasses import dataclass
@@ -78,19 +80,6 @@ def _max_height_at_width(valid: np.ndarray, width: int) -> int:
     return _max_width_at_height(valid.T, width)
 
 
-def _largest_fitting(valid: np.ndarray, width: int, height: int) -> tuple[int, int]:
-    """Size of the valid region, as reported when a crop does not fit.
-
-    The widest valid rectangle at the requested height (or at the tallest
-    height the region has, if less), then the tallest valid rectangle at
-    that width (capped at the requested width).
-    """
-    tallest = int(_run_lengths_down(valid).max(initial=0))
-    found_width = _max_width_at_height(valid, min(height, tallest))
-    found_height = _max_height_at_width(valid, min(width, found_width))
-    return found_width, found_height
-
-
 def _largest_of_shape(valid: np.ndarray, width: int, height: int) -> tuple[int, int]:
     """The largest all-valid rectangle of the shape ``width`` x ``height`` (scaled down)."""
     low, high = 0, min(height, valid.shape[0])  # a height that fits, one that may not
@@ -104,20 +93,41 @@ def _largest_of_shape(valid: np.ndarray, width: int, height: int) -> tuple[int, 
 
 
 def _shortfall_message(valid: np.ndarray, width: int, height: int) -> str:
-    found_width, found_height = _largest_fitting(valid, width, height)
-    parts = []
-    if found_width < width:
-        parts.append(f"{width - found_width} px too narrow")
-    if found_height < height:
-        parts.append(f"{height - found_height} px too short")
-    message = (
-        f"valid region is {found_width}x{found_height} px; need {width}x{height}: "
-        + " and ".join(parts or ["does not fit"])
-    )
-    # a region that is not a rectangle (a rectified image's) holds crops of other shapes
-    # than the one above: say how large a crop of the requested shape can be
+    """Why no ``width`` x ``height`` crop fits ``valid``, in sizes of crops that do fit.
+
+    A rectified region is not a rectangle: at the requested height it may be
+    far narrower than at a few rows less, so one "valid region is WxH" figure
+    contradicted the crop it advised. The shortfall is said at the full
+    height and at the full width, each with the crop that fits there, then
+    the largest crop of the requested shape (:func:`_largest_of_shape`).
+    """
+    wide = _max_width_at_height(valid, height)  # widest crop of the full height; 0: none
+    tall = _max_height_at_width(valid, width)  # tallest crop of the full width; 0: none
+    if wide and tall:  # each side fits alone, not both together
+        shortfall = (
+            f"{width - wide} px too narrow at full height ({wide}x{height} px fits) or "
+            f"{height - tall} px too short at full width ({width}x{tall} px fits)"
+        )
+    elif wide:
+        shortfall = (
+            f"{width - wide} px too narrow ({wide}x{height} px fits; no crop {width} px wide does)"
+        )
+    elif tall:
+        shortfall = (
+            f"{height - tall} px too short ({width}x{tall} px fits; no crop {height} px tall does)"
+        )
+    elif valid.any():
+        widest = _max_width_at_height(valid, 1)
+        tallest = _max_height_at_width(valid, 1)
+        shortfall = (
+            f"{width - widest} px too narrow and {height - tallest} px too short (no crop "
+            f"wider than {widest} px or taller than {tallest} px fits)"
+        )
+    else:
+        return f"need {width}x{height}: the valid region is empty (the views share no pixel)"
+    message = f"valid region too small; need {width}x{height}: {shortfall}"
     scaled = _largest_of_shape(valid, width, height)
-    if scaled[0] > 0 and scaled not in ((found_width, found_height), (width, height)):
+    if scaled[0] > 0:
         message += f"; the largest crop of that shape that fits is {scaled[0]}x{scaled[1]} px"
     return message
 
@@ -134,8 +144,8 @@ def choose_crop(valid: np.ndarray, size: tuple[int, int]) -> Crop:
         The crop whose centre is closest to the centroid of ``valid``.
 
     Raises:
-        CropError: no placement fits; the message gives the size of the valid
-            region and the shortfall.
+        CropError: no placement fits; the message gives the shortfall and
+            the crops that fit.
         ValueError: ``valid`` is not a 2-D array, or a side of ``size`` is under 1.
 
     """

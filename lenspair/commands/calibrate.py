@@ -39,6 +39,7 @@ from lenspair.capture.folders import IMAGE_SUFFIXES
 from lenspair.capture.rosbag import BAG_SUFFIXES
 from lenspair.commands.argtypes import add_topics_option, float_at_least, out_file
 from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import check_writable
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.calibration import MODELS, CalibrationOptions, parse_model
 from lenspair.rectify.recording_calibration import calibrate_recording, write_calibration
@@ -81,7 +82,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check_out(recording: Path, out: Path) -> None:
-    """Refuse an ``--out`` that is the recording or one of the files it is read from."""
+    """Refuse an ``--out`` that is the recording or one of the files it is read from.
+
+    Also checks, before the calibration runs, that ``out``'s folder can be
+    made and written to.
+
+    Raises:
+        ConfigError: ``out`` is a file of the recording, or its folder cannot be made.
+        OSError: the file system refuses to write there; it names ``out``.
+    """
     target, source = out.resolve(), recording.resolve()
     inside = source.is_dir() and source in target.parents
     read = target.name in _RECORDING_FILES or target.suffix.lower() in _READ_SUFFIXES
@@ -105,6 +114,9 @@ def _check_out(recording: Path, out: Path) -> None:
         raise ConfigError(
             f"--out {out}: cannot make its folder {out.parent} ({exc.strerror or exc})"
         ) from None
+    # and written to now: a read-only file system or another user's folder refused the
+    # camchain (naming its temporary) only after the whole calibration had run
+    check_writable(out)
 
 
 _RECORDING_FILES = frozenset({"data.csv", "rig.yaml", "metadata.yaml", "sensor.yaml"})

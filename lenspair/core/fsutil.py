@@ -50,10 +50,13 @@ def temporary_folder(parent: Path, name: str, suffix: str) -> Path:
     Named as :func:`lenspair.core.leftovers.temporary_prefix` says (a killed
     run's leftovers are found by it), with the mode ``mkdir()`` would give,
     not ``mkdtemp``'s owner-only 0o700, which the rename would carry over.
+    A refusal (a read-only file system, a folder of another user) names
+    ``parent / name``, the folder the user asked for, not the temporary.
     """
-    folder = Path(tempfile.mkdtemp(prefix=temporary_prefix(name), suffix=suffix, dir=parent))
-    # the set-group-ID bit a shared group folder hands down (mkdir keeps it; chmod must too)
-    os.chmod(folder, FOLDER_MODE | (folder.stat().st_mode & stat.S_ISGID))
+    with naming_errors(Path(parent) / name):
+        folder = Path(tempfile.mkdtemp(prefix=temporary_prefix(name), suffix=suffix, dir=parent))
+        # the set-group-ID bit a shared group folder hands down (mkdir keeps it; chmod must too)
+        os.chmod(folder, FOLDER_MODE | (folder.stat().st_mode & stat.S_ISGID))
     return folder
 
 
@@ -73,12 +76,17 @@ def atomic_write(
             SD card or eMMC, and the stages that write frames check them on a
             rerun instead (capture-ingest by SHA-256, restore by size).
 
+    Raises:
+        OSError: the file system refused (read-only, full, a file-size
+            limit); it names ``path``, never the temporary (:func:`naming_errors`).
+
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(
-        prefix=temporary_prefix(path.name), suffix=suffix + ".tmp", dir=path.parent
-    )
+    with naming_errors(path):
+        fd, tmp_name = tempfile.mkstemp(
+            prefix=temporary_prefix(path.name), suffix=suffix + ".tmp", dir=path.parent
+        )
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -87,7 +95,7 @@ def atomic_write(
             os.chmod(tmp, FILE_MODE)  # mkstemp creates 0o600
             if sync:
                 _sync(tmp)  # where NFS and the like report a full disk
-        os.replace(tmp, path)
+            os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -95,18 +103,93 @@ def atomic_write(
 
 @contextmanager
 def naming_errors(path: Path) -> Iterator[None]:
-    """Name ``path`` in a file-system error raised without a file name.
+    """Name ``path`` in a file-system error that names one of its temporaries, or no file.
 
-    A write or flush that fills the disk raises ``OSError(ENOSPC)`` naming no
-    file, and the CLI could then only say "No space left on device". Errors
-    that name a file already, and other exceptions, pass unchanged.
+    A refusal met while writing ``path`` through a temporary
+    (:func:`atomic_write`'s file, a dataset's ``.building`` folder: any name
+    :func:`~lenspair.core.leftovers.temporary_prefix` gives this process for
+    ``path``) named that temporary, which the user never asked for and which
+    is gone by the time the message is read: it is raised again naming the
+    user's path instead, and a file inside a temporary folder by its final
+    path under ``path``; ``errno`` and ``strerror`` are kept. A write or flush
+    that fills the disk raises ``OSError(ENOSPC)`` naming no file, and the CLI
+    could then only say "No space left on device": it names ``path`` too.
+    Errors naming other files only, and other exceptions, pass unchanged.
     """
     try:
         yield
     except OSError as exc:
-        if exc.filename is not None or exc.errno is None:
+        if exc.errno is None:
             raise
+        named = _user_path(exc, Path(path))
+        if named is None:
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(named)) from exc
+
+
+def _user_path(exc: OSError, path: Path) -> Path | None:
+    """The path ``exc`` should name for a write of ``path``; ``None``: leave it as it is."""
+    given = [n for n in (exc.filename, exc.filename2) if n is not None]
+    if not given:
+        return path
+    # a file descriptor (an int) names no path: not one of ours
+    names = [Path(os.fsdecode(n)) for n in given if isinstance(n, str | bytes | os.PathLike)]
+    moved = [_final_path(name, path) for name in names]
+    if all(final is None for final in moved):  # also when it named only a descriptor
+        return None  # a source read, another file: its own name says it
+    # a rename between a temporary and the user's path (put in place, set aside) names the latter
+    for name, final in zip(names, moved, strict=True):
+        if final is None and _absolute(name).is_relative_to(_absolute(path)):
+            return name
+    return next(final for final in moved if final is not None)
+
+
+def _final_path(name: Path, path: Path) -> Path | None:
+    """``name`` inside a temporary of ``path`` (or the temporary itself) as it will be named."""
+    try:
+        relative = _absolute(name).relative_to(_absolute(path.parent))
+    except ValueError:
+        return None
+    if not relative.parts or not relative.parts[0].startswith(temporary_prefix(path.name)):
+        return None
+    return path.joinpath(*relative.parts[1:])
+
+
+def _absolute(path: Path) -> Path:
+    """``path`` made absolute without following links (a temporary may be gone)."""
+    return Path(os.path.abspath(path))
+
+
+def check_writable(path: Path) -> None:
+    """Raise now the refusal that writing ``path`` at the end of a long run would meet.
+
+    For commands that write only once their work is done (calibrate after
+    the calibration, dataset-build after measuring every pair): a read-only
+    file system or another user's folder costs no minutes. An empty temporary
+    is made and removed at once where ``path`` (a file, or a folder built
+    beside it and renamed into place) would be written: in its folder, or,
+    where folders are still to be made, in the nearest one above that exists.
+    Nothing is left behind; space is not checked (a full disk is found as
+    the files are written, and named then).
+
+    Raises:
+        OSError: the file system refused; it names ``path``.
+
+    """
+    path = Path(path)
+    child, folder = path, path.parent
+    while not folder.exists() and folder != folder.parent:
+        child, folder = folder, folder.parent
+    if not folder.is_dir():
+        return  # a file where a folder goes: making the folders says so, naming it
+    try:
+        fd, name = tempfile.mkstemp(prefix=temporary_prefix(child.name), suffix=".tmp", dir=folder)
+    except OSError as exc:
         raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+    try:
+        os.close(fd)
+    finally:  # also on Ctrl-C (a kill -9 here leaves it, named as a leftover of path)
+        os.unlink(name)
 
 
 def _sync(path: Path) -> None:

@@ -1,14 +1,26 @@
 """Atomic writes: all or nothing, and the permissions a plain write would give."""
 
+import errno
 import os
+import shutil
 import stat
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from lenspair.core.fsutil import atomic_write, atomic_write_text, inside_refusal, remove_path
+from lenspair.core.fsutil import (
+    atomic_write,
+    atomic_write_text,
+    check_writable,
+    clone_file,
+    inside_refusal,
+    naming_errors,
+    remove_path,
+    temporary_folder,
+)
 from lenspair.core.imageio import write_image
+from tests.file_limits import REFUSALS, file_size_limit, refuse_writes
 
 
 def _mode(path: Path) -> int:
@@ -121,3 +133,73 @@ def test_a_name_near_the_file_system_s_limit_is_written_and_its_leftover_found(
     other.write_bytes(b"half")
     assert leftovers(tmp_path, name) == [dead]
     assert leftovers(tmp_path, twin) == [other]
+
+
+@pytest.mark.parametrize("code", REFUSALS)
+def test_a_refused_write_names_the_user_s_path_not_a_temporary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, code: int
+) -> None:
+    """They named ``.c.yaml.<pid>.<random>.tmp`` and ``.ds.<pid>.<random>.building``."""
+    folder = tmp_path / "mounted"
+    folder.mkdir()
+    refuse_writes(monkeypatch, folder, code)
+    deeper = folder / "new" / "deeper" / "ds"  # folders still to be made: the same name
+    for write, named in (
+        (lambda: atomic_write_text(folder / "c.yaml", "x\n"), folder / "c.yaml"),
+        (lambda: temporary_folder(folder, "ds", ".building"), folder / "ds"),
+        (lambda: check_writable(folder / "c.yaml"), folder / "c.yaml"),
+        (lambda: check_writable(deeper), deeper),
+    ):
+        with pytest.raises(OSError) as caught:
+            write()
+        assert (caught.value.errno, caught.value.strerror) == (code, os.strerror(code))
+        assert (caught.value.filename, caught.value.filename2) == (str(named), None)
+    assert list(folder.iterdir()) == []
+
+
+def test_check_writable_leaves_nothing_and_makes_no_folder(tmp_path: Path) -> None:
+    check_writable(tmp_path / "c.yaml")
+    check_writable(tmp_path / "new" / "deeper" / "ds")
+    (tmp_path / "afile").write_text("x")
+    check_writable(tmp_path / "afile" / "c.yaml")  # a file where a folder goes: said later
+    assert [p.name for p in tmp_path.iterdir()] == ["afile"]
+
+
+def test_a_file_too_large_names_its_final_path_also_inside_a_folder_being_built(
+    tmp_path: Path,
+) -> None:
+    """A copy cut short named ``source -> .DS.<pid>.<random>.building/train/input/x.png``."""
+    source = tmp_path / "source.png"
+    source.write_bytes(bytes(4096))
+    out = tmp_path / "DS"
+    temp = temporary_folder(tmp_path, out.name, ".building")
+    (temp / "train").mkdir()
+    with file_size_limit(1024), pytest.raises(OSError) as caught:
+        atomic_write(tmp_path / "copy.png", lambda tmp: shutil.copyfile(source, tmp))
+    assert (caught.value.errno, caught.value.filename) == (errno.EFBIG, str(tmp_path / "copy.png"))
+    assert caught.value.filename2 is None
+    with file_size_limit(1024), pytest.raises(OSError) as caught, naming_errors(out):
+        clone_file(source, temp / "train" / "x.png")
+    assert (caught.value.errno, caught.value.strerror) == (errno.EFBIG, os.strerror(errno.EFBIG))
+    assert (caught.value.filename, caught.value.filename2) == (str(out / "train" / "x.png"), None)
+    # a file that is nobody's temporary keeps its own name
+    with file_size_limit(1024), pytest.raises(OSError) as caught, naming_errors(out):
+        shutil.copyfile(source, tmp_path / "elsewhere.png")
+    assert caught.value.filename2 == str(tmp_path / "elsewhere.png")
+
+
+def test_errors_naming_no_temporary_keep_their_names_and_a_nameless_one_gets_the_path(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "DS"
+    descriptor = OSError(errno.EIO, "Input/output error")
+    descriptor.filename = 3  # an fd, as some calls name it: not a path, kept as it is
+    for error, named in (
+        (OSError(errno.ENOSPC, "No space left on device"), str(out)),
+        (OSError(errno.EACCES, "Permission denied", str(tmp_path / "source.png")), None),
+        (descriptor, None),
+    ):
+        with pytest.raises(OSError) as caught, naming_errors(out):
+            raise error
+        assert caught.value.errno == error.errno
+        assert caught.value.filename == (error.filename if named is None else named)

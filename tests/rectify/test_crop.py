@@ -36,8 +36,8 @@ def test_too_narrow_says_by_how_much() -> None:
     valid[50:430, 100:610] = True  # 510 x 380
     with pytest.raises(
         CropError,
-        match=r"valid region is 510x380 px; need 540x360: 30 px too narrow; the largest crop of "
-        r"that shape that fits is 510x340 px$",
+        match=r"^valid region too small; need 540x360: 30 px too narrow \(510x360 px fits; no "
+        r"crop 540 px wide does\); the largest crop of that shape that fits is 510x340 px$",
     ):
         choose_crop(valid, (540, 360))
 
@@ -53,11 +53,49 @@ def test_a_region_that_is_not_a_rectangle_says_what_crop_of_the_shape_fits() -> 
         choose_crop(valid, (800, 400))
 
 
+def test_every_size_the_shortfall_names_is_true_of_a_region_that_is_not_a_rectangle() -> None:
+    """It said "valid region is 328x540 px; ... 392 px too narrow", then advised 714x536.
+
+    A rectified region: a full-height band 328 px wide, and 720 px wide but
+    for two rows at the top and bottom. The crops it names fit; one pixel more
+    on the side it names does not.
+    """
+    valid = np.zeros((540, 720), dtype=bool)
+    valid[:, 196:524] = True  # 328 x 540
+    valid[2:538, :] = True  # 720 x 536
+    with pytest.raises(CropError) as caught:
+        choose_crop(valid, (720, 540))
+    assert str(caught.value) == (
+        "valid region too small; need 720x540: 392 px too narrow at full height (328x540 px "
+        "fits) or 4 px too short at full width (720x536 px fits); the largest crop of that "
+        "shape that fits is 714x536 px"
+    )
+    for fits, too_large in (((328, 540), (329, 540)), ((720, 536), (720, 537))):
+        crop = choose_crop(valid, fits)
+        assert valid[crop.y : crop.y + crop.height, crop.x : crop.x + crop.width].all()
+        with pytest.raises(CropError):
+            choose_crop(valid, too_large)
+    choose_crop(valid, (714, 536))
+
+
+def test_too_short_at_every_width() -> None:
+    valid = np.zeros((480, 752), dtype=bool)
+    valid[100:400, 100:700] = True  # 600 x 300
+    with pytest.raises(
+        CropError,
+        match=r"need 540x360: 60 px too short \(540x300 px fits; no crop 360 px tall does\); "
+        r"the largest crop of that shape that fits is 450x300 px$",
+    ):
+        choose_crop(valid, (540, 360))
+
+
 def test_too_short_and_too_narrow() -> None:
     valid = np.zeros((480, 752), dtype=bool)
     valid[100:400, 100:600] = True  # 500 x 300
     with pytest.raises(
-        CropError, match="500x300 px; need 540x360: 40 px too narrow and 60 px too short"
+        CropError,
+        match=r"need 540x360: 40 px too narrow and 60 px too short \(no crop wider than 500 px "
+        r"or taller than 300 px fits\)",
     ):
         choose_crop(valid, (540, 360))
 
@@ -68,7 +106,7 @@ def test_crop_larger_than_image() -> None:
 
 
 def test_empty_region() -> None:
-    with pytest.raises(CropError, match="valid region is 0x0 px"):
+    with pytest.raises(CropError, match=r"need 10x10: the valid region is empty"):
         choose_crop(np.zeros((50, 50), dtype=bool), (10, 10))
 
 
@@ -99,6 +137,33 @@ def test_the_crop_of_that_shape_said_to_fit_fits(
             if taller * width // height >= 1:  # the largest: one row more of that shape won't fit
                 with pytest.raises(CropError):
                     choose_crop(valid, (taller * width // height, taller))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(rectangles, min_size=1, max_size=4), st.integers(2, 90), st.integers(2, 60))
+def test_every_size_the_shortfall_names_is_true(
+    parts: list[tuple[int, int, int, int]], width: int, height: int
+) -> None:
+    valid = np.zeros((40, 60), dtype=bool)
+    for x, y, w, h in parts:
+        valid[y : y + h, x : x + w] = True
+    try:
+        choose_crop(valid, (width, height))
+    except CropError as error:
+        said = str(error)
+        for w, h in re.findall(r"(\d+)x(\d+) px fits", said):  # each crop said to fit, fits
+            choose_crop(valid, (int(w), int(h)))
+        for pixels, which in re.findall(r"no crop (\d+) px (wide|tall) does", said):
+            with pytest.raises(CropError):
+                choose_crop(valid, (int(pixels), 1) if which == "wide" else (1, int(pixels)))
+        if found := re.search(r"wider than (\d+) px or taller than (\d+) px", said):
+            for size in ((int(found[1]) + 1, 1), (1, int(found[2]) + 1)):
+                with pytest.raises(CropError):
+                    choose_crop(valid, size)
+        if found := re.search(r"(\d+) px too narrow at full height \((\d+)x", said):
+            assert int(found[1]) + int(found[2]) == width  # the shortfall is of the crop named
+            with pytest.raises(CropError):  # and the widest at that height
+                choose_crop(valid, (int(found[2]) + 1, height))
 
 
 def test_a_crop_without_area_is_refused() -> None:

@@ -1,5 +1,6 @@
 """The calibrate workflow as a library function: simulated board recordings, bad frames."""
 
+import os
 from pathlib import Path
 
 import cv2
@@ -19,6 +20,7 @@ from lenspair.rectify.recording_calibration import (
 from lenspair.rectify.rig import read_kalibr
 from lenspair.simulate.recording import simulate_recording
 from lenspair.simulate.spec import SceneSpec, load_scene, with_overrides
+from tests.file_limits import REFUSALS, refuse_writes, run_with_file_limit
 
 SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
 
@@ -128,6 +130,38 @@ def test_an_out_that_is_a_file_of_the_recording_is_refused(
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert f"--out {truth}: a file of the recording" in line and "no calibrate wrote" in line
     assert truth.read_text() == "{}"
+
+
+@pytest.mark.parametrize("code", REFUSALS)
+def test_a_read_only_out_is_refused_before_the_calibration_runs(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    code: int,
+) -> None:
+    """It named ``.c.yaml.<pid>.<random>.tmp``, and only once the whole calibration had run."""
+    mounted = tmp_path / "mounted"
+    mounted.mkdir()
+    refuse_writes(monkeypatch, mounted, code)
+    out = mounted / "c.yaml"
+    # no recording at all: the refusal comes first, so no minutes are spent calibrating
+    argv = ["calibrate", str(tmp_path / "absent"), "--board", "chessboard:9x6:0.06"]
+    assert main([*argv, "--model", "pinhole-equi", "--out", str(out)]) == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line == f"lenspair calibrate: error: {out}: {os.strerror(code)}"
+    assert list(mounted.iterdir()) == []
+
+
+def test_a_file_too_large_names_the_camchain(tmp_path: Path) -> None:
+    spec = _board_recording(tmp_path, 12)
+    assert spec.board is not None
+    out = tmp_path / "cal" / "camchain.yaml"
+    argv = ["calibrate", str(tmp_path / "rec"), "--board", spec.board.target.spec()]
+    failed = run_with_file_limit([*argv, "--model", "pinhole-equi", "--out", str(out)], 256)
+    assert failed.returncode == 1, failed.stderr
+    (line,) = failed.stderr.strip().splitlines()
+    assert line == f"lenspair calibrate: error: {out}: File too large"
+    assert list(out.parent.iterdir()) == []  # no temporary left behind
 
 
 def test_a_camera_none_of_whose_frames_reads_is_named_with_the_first_reason(
