@@ -25,7 +25,10 @@ Resuming (:mod:`lenspair.capture.journal`): each finished frame is appended to
 a rerun skips frames whose key matches and whose files still have the
 recorded checksums, so an interrupted run (even ``kill -9``) finishes the
 work and a full rerun leaves every file byte-identical (``report.json`` is
-only rewritten when something other than its timings changed).
+only rewritten when something other than its timings changed). One run at a
+time writes ``OUT/<recording_id>``: from before its first write to its end a
+run holds the folder's lock (:func:`lenspair.capture.journal.hold_output`), and
+a second run is refused at once.
 """
 
 import contextlib
@@ -53,12 +56,14 @@ from lenspair.capture.ingest_report import (
     rejection_reasons,
     set_report_aside,
     unlisted_records,
+    untimed_frames,
     write_report_if_changed,
 )
 from lenspair.capture.ingested import PAIRS_FILE, REPORT_FILE, IngestReport, PairRecord, write_pairs
 from lenspair.capture.journal import (
     JOURNAL_FILE,
     fingerprint,
+    hold_output,
     journal_line,
     read_journal,
     remove_stale_outputs,
@@ -67,6 +72,7 @@ from lenspair.capture.journal import (
 )
 from lenspair.capture.pairing import (
     PairingResult,
+    check_frame_period,
     clock_offset_warning,
     estimate_period_ns,
     pair_frames,
@@ -180,18 +186,32 @@ def _side_check_images(
     return images["cam0"], images["cam1"], blank
 
 
-def _recording_bits(recording: Recording, pairs: list[tuple[FrameRef, FrameRef]]) -> int:
-    """:func:`significant_bits` of up to 32 frame pairs spread over the recording.
+SampledPair = list[tuple[FrameRef, np.ndarray]]
+"""The readable frames of one sampled frame pair, obstructed first, each with its raw image."""
 
-    Unreadable frames are passed over (the frame stage reports them); a
-    recording that uses fewer than 16 bits is said in the log. A frame the
-    sample missed that holds more is rejected with that reason, not clipped.
+
+def _sampled_pairs(pairs: list[tuple[FrameRef, FrameRef]]) -> list[SampledPair]:
+    """The readable frames of up to 32 frame pairs spread over the recording, read as stored.
+
+    Unreadable frames are passed over: the frame stage reports them.
     """
-    images = []
+    sampled = []
     for index in _sample(len(pairs), BIT_DEPTH_FRAMES):
+        loaded = []
         for frame in pairs[index]:
             with contextlib.suppress(LenspairError):
-                images.append(load_frame(frame))
+                loaded.append((frame, load_frame(frame)))
+        sampled.append(loaded)
+    return sampled
+
+
+def _recording_bits(recording: Recording, sampled: list[SampledPair]) -> int:
+    """:func:`significant_bits` of the sampled frame pairs (:func:`_sampled_pairs`).
+
+    A recording that uses fewer than 16 bits is said in the log. A frame the
+    sample missed that holds more is rejected with that reason, not clipped.
+    """
+    images = [image for pair in sampled for _, image in pair]
     bits = significant_bits(images)
     if bits < 16:
         log.warning(
@@ -203,6 +223,91 @@ def _recording_bits(recording: Recording, pairs: list[tuple[FrameRef, FrameRef]]
             len(images),
         )
     return bits
+
+
+def _size_mismatch(sampled: list[SampledPair], rig: StereoRig) -> str | None:
+    """The first size mismatch when no sampled pair has the calibration's image sizes, else None.
+
+    Checked before the calibration is used: rectifying with a calibration
+    stated for another size can fail first, with a message about the
+    calibration's edges (1280x720 stated for 720x540 frames) instead of the
+    sizes. The rule is the registration stage's: a pair of other sizes among
+    usable ones is only rejected, with its reason, by the frame stage; when no
+    pair whose two frames are readable has both sizes right, nothing can be
+    registered. A sample without a readable pair is left to the registration
+    stage, which says why.
+
+    Returns:
+        ``size mismatch: <frame> is WxH px, the calibration says WxH`` (the
+        registration stage's words), or None.
+    """
+    first = None
+    for pair in sampled:
+        if len(pair) < 2:
+            continue
+        problems = [
+            frame_work.size_problem(image, frame, rig.camera(frame.camera).resolution)
+            for frame, image in pair
+        ]
+        mismatch = next((p for p in problems if p is not None), None)
+        if mismatch is None:
+            return None
+        first = first or mismatch
+    return first
+
+
+def _cached_registration(cache: Path, key: str) -> dict[str, Any] | None:
+    """The registration ``cache`` holds when it was computed from ``key``'s inputs, else None.
+
+    A file that is not a registration record (not JSON, not an object, a
+    field missing or of another kind: damaged, or edited) is said in the log
+    and computed again; one of other inputs (its fingerprint differs) is
+    simply computed again.
+    """
+    try:
+        cached = json.loads(cache.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        log.warning("%s: cannot be read (%s); computing the registration again", cache, exc)
+        return None
+    if isinstance(cached, dict) and cached.get("fingerprint") != key:
+        return None
+    problem = _registration_problem(cached)
+    if problem is not None:
+        log.warning("%s: %s; computing the registration again", cache, problem)
+        return None
+    return dict(cached)
+
+
+def _registration_problem(cached: Any) -> str | None:
+    """What makes ``cached`` (parsed JSON) not a registration record, or None."""
+    if not isinstance(cached, dict):
+        kinds = {list: "a list", str: "a string", bool: "true or false", type(None): "null"}
+        kind = kinds.get(type(cached), "a number")
+        return f"holds {kind}, not a registration record (a JSON object)"
+
+    def number(value: Any) -> bool:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+
+    def count(value: Any) -> bool:
+        return number(value) and isinstance(value, int) and value >= 0
+
+    rows = cached.get("matrix")
+    if not (
+        isinstance(rows, list)
+        and len(rows) == 3
+        and all(isinstance(row, list) and len(row) == 3 and all(map(number, row)) for row in rows)
+        and np.isfinite(np.asarray(rows, dtype=np.float64)).all()
+    ):
+        return "its 'matrix' is not a 3x3 matrix of numbers"
+    for name in ("inliers", "matches"):
+        if not count(cached.get(name)):
+            return f"its {name!r} is not a count"
+    frames = cached.get("frames")
+    if not isinstance(frames, dict) or not all(count(n) for n in frames.values()):
+        return "its 'frames' is not a table of counts"
+    return None
 
 
 def _homography(
@@ -240,12 +345,9 @@ def _homography(
         {"setup": setup, "estimation": to_plain(estimation), "frames": identity}
     )
     cache = out_dir / REGISTRATION_FILE
-    try:
-        cached = json.loads(cache.read_text(encoding="utf-8"))
-        if cached.get("fingerprint") == cache_key:
-            return dict(cached)
-    except (OSError, ValueError):
-        pass
+    cached = _cached_registration(cache, cache_key)
+    if cached is not None:
+        return cached
     tasks = [frame_work.SampleTask(o, c, estimation) for o, c in chosen]
     samples = list(_map_tasks(frame_work.sample, tasks, workers, context, "features"))
     usable = [s for s in samples if s.problem is None]
@@ -432,7 +534,8 @@ def ingest_recording(
 
     Raises:
         CaptureError: unreadable recording, no calibration, or no usable pair
-            at all (``pairs.jsonl`` and ``report.json`` are still written).
+            at all (``pairs.jsonl`` and ``report.json`` are still written);
+            another run writing ``out/<recording_id>`` now (nothing written).
         RectifyError: bad calibration, registration impossible, crop too large
             (named with the recording and the calibration; nothing can be
             paired, so nothing is written, and an ``OUT/<recording_id>`` this
@@ -474,9 +577,12 @@ def ingest_recording(
         log.warning("%s: %d more problems (counted in report.json)", recording.path, more)
     stamps0, stamps1 = recording.timestamps("cam0"), recording.timestamps("cam1")
     period = estimate_period_ns(stamps0, stamps1)
+    check_frame_period(period, recording.path)
     shifted1 = [t - time_offset_ns for t in stamps1]  # on cam0's clock
     pairing = pair_frames(stamps0, shifted1, None if period else SINGLE_FRAME_TOLERANCE_NS)
     said_of_recording = [str(p) for p in recording.problems if p.camera is None]
+    # pairs.jsonl names frames by time: one without a time is named here, with its file
+    said_of_recording += untimed_frames(recording, rig_file.obstructed)
     if offset := clock_offset_warning(pairing.pairs, period):
         log.warning("%s: %s", recording.path, offset)
         said_of_recording.append(offset)  # report.json keeps it
@@ -495,143 +601,154 @@ def ingest_recording(
     _check_same_source(out_dir, source)
     created = not out_dir.exists()
     out_dir.mkdir(parents=True, exist_ok=True)
-    remove_temporaries(out_dir)
-    lap("open")
+    with hold_output(out_dir):  # the whole run: one run at a time writes out_dir
+        remove_temporaries(out_dir)
+        lap("open")
 
-    bits = _recording_bits(recording, frame_pairs)
-    try:
-        rectification = StereoRectification.from_rig(rig)
-        context = frame_work.Context.build(
-            out_dir, rig_file.obstructed, rectification, verify, bits
-        )
-        setup = {
-            "calibration": rig_to_kalibr(rig),
-            "obstructed": rig_file.obstructed,
-            "verify": to_plain(verify),
-            "version": __version__,
-        }
-        if bits < 16:  # only then: the outputs of other recordings keep their fingerprint
-            setup["significant_bits"] = bits
-        registration = _homography(
-            recording, frame_pairs, context, estimation, workers, out_dir, setup
-        )
-    except (RectifyError, CaptureError) as exc:
-        # the views cannot be registered at all (no sampled pair is usable): no pair to write
-        if created:  # an empty OUT/<rec> would stop `dataset-build OUT/*` (no pairs.jsonl)
-            shutil.rmtree(out_dir, ignore_errors=True)
-        message = str(exc).removeprefix(f"{recording.path}: ")
-        # the calibration is named: registration that fails everywhere is
-        # as often a wrong or stale calibration as a scene that cannot be registered
-        raise type(exc)(
-            f"{recording.path}: {message} (with {calibration_source}){_earlier(out_dir, created)}"
-        ) from None
-    lap("homography")
-    share = registration["inliers"] / max(int(registration["matches"]), 1)
-    if share < MIN_INLIER_SHARE:
-        log.warning(
-            "%s: only %.0f%% of the %d feature matches agree with the homography: a "
-            "repetitive scene (a checkerboard, a fence, tiles) can register a whole period "
-            "off, which the per-frame checks cannot see; look at %s",
-            recording.path,
-            100 * share,
-            registration["matches"],
-            out_dir / QA_FILE,
-        )
+        sampled = _sampled_pairs(frame_pairs)
+        bits = _recording_bits(recording, sampled)
+        mismatch = _size_mismatch(sampled, rig)
+        del sampled  # up to 64 frames, not needed from here on
+        try:
+            if mismatch is not None:  # before the calibration is used (_size_mismatch)
+                raise CaptureError(
+                    f"{recording.path}: no usable frame pair to register: {mismatch}"
+                )
+            rectification = StereoRectification.from_rig(rig)
+            context = frame_work.Context.build(
+                out_dir, rig_file.obstructed, rectification, verify, bits
+            )
+            setup = {
+                "calibration": rig_to_kalibr(rig),
+                "obstructed": rig_file.obstructed,
+                "verify": to_plain(verify),
+                "version": __version__,
+            }
+            if bits < 16:  # only then: the outputs of other recordings keep their fingerprint
+                setup["significant_bits"] = bits
+            registration = _homography(
+                recording, frame_pairs, context, estimation, workers, out_dir, setup
+            )
+        except (RectifyError, CaptureError) as exc:
+            # the views cannot be registered at all (no sampled pair is usable): no pair to write
+            if created:  # an empty OUT/<rec> would stop `dataset-build OUT/*` (no pairs.jsonl)
+                shutil.rmtree(out_dir, ignore_errors=True)
+            message = str(exc).removeprefix(f"{recording.path}: ")
+            # the calibration is named: registration that fails everywhere is
+            # as often a wrong or stale calibration as a scene that cannot be registered
+            earlier = _earlier(out_dir, created)
+            raise type(exc)(
+                f"{recording.path}: {message} (with {calibration_source}){earlier}"
+            ) from None
+        lap("homography")
+        share = registration["inliers"] / max(int(registration["matches"]), 1)
+        if share < MIN_INLIER_SHARE:
+            log.warning(
+                "%s: only %.0f%% of the %d feature matches agree with the homography: a "
+                "repetitive scene (a checkerboard, a fence, tiles) can register a whole period "
+                "off, which the per-frame checks cannot see; look at %s",
+                recording.path,
+                100 * share,
+                registration["matches"],
+                out_dir / QA_FILE,
+            )
 
-    matrix = np.asarray(registration["matrix"], dtype=np.float64)
-    if (turned := implausible_turn(matrix)) is not None:
-        log.warning(
-            "%s: the homography from the clean to the obstructed view %s, where rectified "
-            "views of one rig differ by a shift: the calibration (%s) is likely not this "
-            "rig's (another rig's, or a camera remounted since); check it, or calibrate again",
-            recording.path,
-            turned,
-            calibration_source,
+        matrix = np.asarray(registration["matrix"], dtype=np.float64)
+        if (turned := implausible_turn(matrix)) is not None:
+            log.warning(
+                "%s: the homography from the clean to the obstructed view %s, where rectified "
+                "views of one rig differ by a shift: the calibration (%s) is likely not this "
+                "rig's (another rig's, or a camera remounted since); check it, or calibrate again",
+                recording.path,
+                turned,
+                calibration_source,
+            )
+        valid = valid_region(
+            context.rectified_to_raw_obstructed,
+            context.rectified_to_raw_clean,
+            matrix,
+            rectification.size,
+            rig.camera(rig_file.obstructed).resolution,
+            rig.camera(clean).resolution,
         )
-    valid = valid_region(
-        context.rectified_to_raw_obstructed,
-        context.rectified_to_raw_clean,
-        matrix,
-        rectification.size,
-        rig.camera(rig_file.obstructed).resolution,
-        rig.camera(clean).resolution,
-    )
-    try:
-        crop = choose_crop(valid, size)
-    except CropError as exc:
-        if created:
-            shutil.rmtree(out_dir, ignore_errors=True)
-        raise CropError(
-            f"{recording.path}: cannot crop {size[0]}x{size[1]}: {exc} (with "
-            f"{calibration_source}){_earlier(out_dir, created)}"
-        ) from None
-    margin = int(np.ceil(verify.max_shift_px)) + 2
-    context = context.with_maps(
-        crop, target_map(context.rectified_to_raw_clean, matrix, crop, margin)
-    )
-    lap("maps")
-
-    chosen = [frame_pairs[i] for i in _sample(len(frame_pairs), estimation.max_frames)]
-    images0, images1, blank = _side_check_images(chosen, context, SIDE_CHECK_FRAMES)
-    nothing = "no readable frame pair to check"
-    if blank:
-        nothing = f"every readable frame pair checked ({blank}) has a blank view; side not checked"
-    side_check: dict[str, Any] = {"message": nothing, "mismatch": False}
-    if images0:
-        side: Any = (
-            check_obstructed_side(images0, images1, rig_file.obstructed)
-            if side_detector is None
-            else check_side_with_detector(images0, images1, rig_file.obstructed, side_detector)
+        try:
+            crop = choose_crop(valid, size)
+        except CropError as exc:
+            if created:
+                shutil.rmtree(out_dir, ignore_errors=True)
+            raise CropError(
+                f"{recording.path}: cannot crop {size[0]}x{size[1]}: {exc} (with "
+                f"{calibration_source}){_earlier(out_dir, created)}"
+            ) from None
+        margin = int(np.ceil(verify.max_shift_px)) + 2
+        context = context.with_maps(
+            crop, target_map(context.rectified_to_raw_clean, matrix, crop, margin)
         )
-        side_check = to_plain(side)
-        if side.mismatch:
-            log.warning("%s: %s", recording.path, side.message)
-    elif blank:
-        log.warning("%s: %s (a camera or exposure fault?)", recording.path, nothing)
-    side_check["blank_pairs_left_out"] = blank
-    lap("side_check")
+        lap("maps")
 
-    set_report_aside(out_dir)  # until this run's report is written (its docstring)
-    state = fingerprint({**setup, "matrix": registration["matrix"], "crop": crop.as_tuple()})
-    ordered = _frame_stage(recording, pairing, rig_file, frame_pairs, context, state, workers)
-    lap("frames")
+        chosen = [frame_pairs[i] for i in _sample(len(frame_pairs), estimation.max_frames)]
+        images0, images1, blank = _side_check_images(chosen, context, SIDE_CHECK_FRAMES)
+        nothing = "no readable frame pair to check"
+        if blank:
+            nothing = (
+                f"every readable frame pair checked ({blank}) has a blank view; side not checked"
+            )
+        side_check: dict[str, Any] = {"message": nothing, "mismatch": False}
+        if images0:
+            side: Any = (
+                check_obstructed_side(images0, images1, rig_file.obstructed)
+                if side_detector is None
+                else check_side_with_detector(images0, images1, rig_file.obstructed, side_detector)
+            )
+            side_check = to_plain(side)
+            if side.mismatch:
+                log.warning("%s: %s", recording.path, side.message)
+        elif blank:
+            log.warning("%s: %s (a camera or exposure fault?)", recording.path, nothing)
+        side_check["blank_pairs_left_out"] = blank
+        lap("side_check")
 
-    kept = [r for r in ordered if r.status == "kept"]
-    if kept:
-        write_qa_sheet(out_dir / QA_FILE, out_dir, ordered)
-    lap("qa")
-    timings["total"] = round(time.perf_counter() - start, 3)
+        set_report_aside(out_dir)  # until this run's report is written (its docstring)
+        state = fingerprint({**setup, "matrix": registration["matrix"], "crop": crop.as_tuple()})
+        ordered = _frame_stage(recording, pairing, rig_file, frame_pairs, context, state, workers)
+        lap("frames")
 
-    counts = frame_counts(recording, pairing, rig_file, ordered)
-    counts["homography_frames"] = len(registration["frames"])
-    counts["homography_matches"] = int(registration["matches"])
-    counts["homography_inliers"] = int(registration["inliers"])
-    counts["recording_problems"] = len(said_of_recording)  # the clock warning too
-    reasons = rejection_reasons(recording, ordered, rig_file.obstructed)
-    homography_out = in_output_pixels(matrix, crop.x, crop.y)
-    report = IngestReport(
-        recording_id=recording.recording_id,
-        source=str(source),  # absolute: tells a namesake apart
-        obstructed=rig_file.obstructed,
-        anomaly=rig_file.anomaly,
-        calibration_source=calibration_source,
-        calibration=rig_to_kalibr(rig),
-        homography=homography_out.tolist(),
-        crop=crop.as_tuple(),
-        counts=counts,
-        rejection_reasons=dict(sorted(reasons.items())),
-        timings_s=timings,
-        side_check=side_check,
-        lenspair_version=__version__,
-        significant_bits=bits if bits < 16 else None,
-        recording_problems=said_of_recording,
-        time_offset_ns=time_offset_ns,
-    )
-    write_report_if_changed(out_dir / REPORT_FILE, report)
-    if not kept:
-        raise CaptureError(
-            f"{recording.path}: no usable pairs: all {len(ordered)} {rig_file.obstructed} frames "
-            f"rejected ({', '.join(f'{k}: {v}' for k, v in sorted(reasons.items()))}); "
-            f"see {out_dir / PAIRS_FILE}"
+        kept = [r for r in ordered if r.status == "kept"]
+        if kept:
+            write_qa_sheet(out_dir / QA_FILE, out_dir, ordered)
+        lap("qa")
+        timings["total"] = round(time.perf_counter() - start, 3)
+
+        counts = frame_counts(recording, pairing, rig_file, ordered)
+        counts["homography_frames"] = len(registration["frames"])
+        counts["homography_matches"] = int(registration["matches"])
+        counts["homography_inliers"] = int(registration["inliers"])
+        counts["recording_problems"] = len(said_of_recording)  # the clock warning too
+        reasons = rejection_reasons(recording, ordered, rig_file.obstructed)
+        homography_out = in_output_pixels(matrix, crop.x, crop.y)
+        report = IngestReport(
+            recording_id=recording.recording_id,
+            source=str(source),  # absolute: tells a namesake apart
+            obstructed=rig_file.obstructed,
+            anomaly=rig_file.anomaly,
+            calibration_source=calibration_source,
+            calibration=rig_to_kalibr(rig),
+            homography=homography_out.tolist(),
+            crop=crop.as_tuple(),
+            counts=counts,
+            rejection_reasons=dict(sorted(reasons.items())),
+            timings_s=timings,
+            side_check=side_check,
+            lenspair_version=__version__,
+            significant_bits=bits if bits < 16 else None,
+            recording_problems=said_of_recording,
+            time_offset_ns=time_offset_ns,
         )
-    return report
+        write_report_if_changed(out_dir / REPORT_FILE, report)
+        if not kept:
+            raise CaptureError(
+                f"{recording.path}: no usable pairs: all {len(ordered)} {rig_file.obstructed} "
+                f"frames rejected ({', '.join(f'{k}: {v}' for k, v in sorted(reasons.items()))}); "
+                f"see {out_dir / PAIRS_FILE}"
+            )
+        return report

@@ -168,7 +168,8 @@ def _context() -> Context:
     return _CONTEXT
 
 
-def _size_problem(image: np.ndarray, frame: FrameRef, expected: tuple[int, int]) -> str | None:
+def size_problem(image: np.ndarray, frame: FrameRef, expected: tuple[int, int]) -> str | None:
+    """``size mismatch: ...`` when ``image`` is not ``expected`` ``(width, height)``, else None."""
     height, width = image.shape[:2]
     if (width, height) == tuple(expected):
         return None
@@ -199,7 +200,7 @@ def _load_pair(
                 f"in {frame.describe()})"
             )
         image = widen(image, context.bits)
-        problem = _size_problem(image, frame, context.raw_size(camera))
+        problem = size_problem(image, frame, context.raw_size(camera))
         if problem is not None:
             return problem
         images.append(image)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lenspair.capture.ingested import REPORT_FILE, IngestReport, PairRecord
+from lenspair.capture.ingested import PAIRS_FILE, REPORT_FILE, IngestReport, PairRecord
 from lenspair.capture.pairing import PairingResult
 from lenspair.capture.recording import CAMERAS, FrameProblem, Recording
 from lenspair.capture.rigfile import CameraName, RigFile
@@ -31,11 +31,34 @@ def _has_record(problem: FrameProblem, obstructed: CameraName | None) -> bool:
 
     Every dropped obstructed frame with a timestamp does (a row that lists the
     very file and timestamp of an earlier row is not dropped but one frame:
-    :func:`lenspair.capture.recording_types.order_frames`).
+    :func:`lenspair.capture.recording_types.order_frames`); one without a
+    timestamp is named in ``report.json`` instead (:func:`untimed_frames`).
     """
     if obstructed is None or not problem.dropped or problem.camera != obstructed:
         return False
     return problem.t_ns is not None
+
+
+def _untimed(problem: FrameProblem, obstructed: CameraName) -> bool:
+    """Whether a dropped obstructed frame has no timestamp, so no line in ``pairs.jsonl``."""
+    return problem.dropped and problem.camera == obstructed and problem.t_ns is None
+
+
+def untimed_frames(recording: Recording, obstructed: CameraName) -> list[str]:
+    """What ``report.json`` says of each obstructed frame that could not be timed.
+
+    ``pairs.jsonl`` names a frame by its timestamp: a frame without one (a
+    ``data.csv`` row whose time does not parse, a ``left/``/``right/`` file
+    without a time in its name) can have no line there. It is named in the
+    report's ``recording_problems`` instead, with its file and reason, and
+    counted as rejected (:func:`frame_counts`), so that every obstructed frame
+    is accounted for.
+    """
+    return [
+        f"{obstructed} frame without a timestamp, in no line of {PAIRS_FILE}: {problem}"
+        for problem in recording.problems
+        if _untimed(problem, obstructed)
+    ]
 
 
 def unlisted_records(recording: Recording, obstructed: CameraName) -> list[PairRecord]:
@@ -107,7 +130,10 @@ def frame_counts(
         Counts keyed ``frames_<camera>``, ``listed_<camera>``,
         ``dropped_<camera>``, ``unpaired_<camera>``, ``pairs``, ``kept``,
         ``rejected``, ``rejected_paired``, ``rejected_unlisted`` (dropped
-        obstructed frames with their own line), ``masked``, ``recording_problems``.
+        obstructed frames with their own line), ``rejected_untimed`` (dropped
+        obstructed frames without a timestamp, so without a line:
+        :func:`untimed_frames`), ``masked``, ``recording_problems``.
+        ``kept + rejected`` is ``frames_<obstructed>``: every obstructed frame.
 
     """
     counts: dict[str, int] = {}
@@ -120,11 +146,13 @@ def frame_counts(
         counts[f"unpaired_{camera}"] = len(pairing.unpaired_of(camera))
     counts["pairs"] = len(pairing.pairs)
     counts["kept"] = sum(1 for r in records if r.status == "kept")
-    counts["rejected"] = sum(1 for r in records if r.status == "rejected")
+    untimed = sum(1 for p in recording.problems if _untimed(p, rig_file.obstructed))
+    counts["rejected"] = sum(1 for r in records if r.status == "rejected") + untimed
     unlisted = sum(1 for p in recording.problems if _has_record(p, rig_file.obstructed))
     counts["rejected_unlisted"] = unlisted
+    counts["rejected_untimed"] = untimed
     counts["rejected_paired"] = (
-        counts["rejected"] - counts[f"unpaired_{rig_file.obstructed}"] - unlisted
+        counts["rejected"] - counts[f"unpaired_{rig_file.obstructed}"] - unlisted - untimed
     )
     counts["masked"] = sum(1 for r in records if r.status == "kept" and "mask" in r.files)
     counts["recording_problems"] = sum(1 for p in recording.problems if p.camera is None)

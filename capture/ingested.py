@@ -85,7 +85,9 @@ class IngestReport:
         significant_bits: 10 or 12 when the recording's 16-bit frames held
             values of that depth (scaled to 16 bits in the outputs), else None.
         recording_problems: what was said of the recording as a whole (a bag
-            cut short, header stamps never set, clocks that seem to disagree):
+            cut short, header stamps never set, clocks that seem to disagree),
+            and each obstructed frame without a timestamp, which no line of
+            ``pairs.jsonl`` can name (``counts["rejected_untimed"]``):
             ``counts`` has their number.
         time_offset_ns: cam1's clock ahead of cam0's, taken off cam1's stamps
             for pairing (``--time-offset``; 0: none).

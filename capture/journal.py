@@ -9,23 +9,39 @@ recorded checksums (:func:`still_valid`), so an interrupted run (even
 byte-identical. Half-written temporaries of killed runs and frame images no
 kept record lists are deleted (:func:`remove_temporaries`,
 :func:`remove_stale_outputs`); files a user put there are left alone.
+
+One run at a time writes an output folder: :func:`hold_output` locks
+``.capture-ingest.lock`` in it for the whole run and refuses a second run.
 """
 
+import errno
+import fcntl
 import json
 import logging
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from lenspair.capture.errors import CaptureError
 from lenspair.capture.ingest_frames import OUTPUT_KINDS
 from lenspair.capture.ingested import PairRecord
 from lenspair.core.config import load_dataclass, to_plain
 from lenspair.core.errors import LenspairError
-from lenspair.core.fsutil import sha256_bytes, sha256_file
+from lenspair.core.fsutil import naming_errors, sha256_bytes, sha256_file
 from lenspair.core.leftovers import remove_leftovers
 
 logger = logging.getLogger(__name__)
 
 JOURNAL_FILE = ".journal.jsonl"
+LOCK_FILE = ".capture-ingest.lock"
+"""Locked by the run writing the folder (:func:`hold_output`); empty, and left in place.
+
+A hidden name: ``dataset-build OUT/*`` does not take it for a recording, the
+stale-output clean-up skips it, and it matches no temporary's pattern
+(:mod:`lenspair.core.leftovers`), so no clean-up removes it while it is held.
+"""
 
 
 def fingerprint(obj: Any) -> str:
@@ -70,6 +86,48 @@ def read_journal(path: Path) -> dict[int, tuple[str, PairRecord]]:
 def journal_line(key: str, record: PairRecord) -> str:
     """One journal line (newline included) recording ``record`` as done under ``key``."""
     return json.dumps({"key": key, "record": to_plain(record)}, sort_keys=True) + "\n"
+
+
+@contextmanager
+def hold_output(out_dir: Path) -> Iterator[None]:
+    """Hold the lock of ``out_dir`` (an existing folder) meanwhile; refuse it if taken.
+
+    Two runs writing one output at once removed each other's frames and left
+    a ``pairs.jsonl`` naming files of neither. The lock is ``flock`` on
+    :data:`LOCK_FILE`: the kernel releases it when its holder dies, however
+    it dies (``kill -9`` too), so a killed run never blocks its rerun, and
+    there is no stale lock to remove. The file stays (removing it while
+    another run waits to open it would let two runs hold two files). Pool
+    workers (``spawn``) do not inherit it. On a file system without locks
+    the run goes on, with a warning.
+
+    Raises:
+        CaptureError: another process holds the lock (one line naming ``out_dir``).
+        OSError: the lock file cannot be created (a read-only folder: named).
+    """
+    path = out_dir / LOCK_FILE
+    with naming_errors(path):
+        descriptor = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+    try:
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise CaptureError(
+                f"{out_dir}: another capture-ingest is writing it; run this one when that "
+                "one has finished, or with another --out"
+            ) from None
+        except OSError as exc:
+            if exc.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.EINVAL):
+                raise
+            logger.warning(
+                "%s: cannot be locked (%s): nothing stops a second capture-ingest from writing "
+                "it at the same time; run one at a time",
+                out_dir,
+                exc.strerror or exc,
+            )
+        yield
+    finally:
+        os.close(descriptor)  # releases the lock
 
 
 def remove_temporaries(out_dir: Path) -> None:

@@ -113,6 +113,33 @@ def estimate_period_ns(ts0: Sequence[int], ts1: Sequence[int]) -> int | None:
     return round(statistics.median(gaps))
 
 
+MIN_FRAME_PERIOD_NS = 100_000
+"""The shortest frame period taken as a camera's (0.1 ms: 10,000 frames/s); shorter
+steps between timestamps are frame counters read as nanoseconds."""
+
+
+def check_frame_period(period_ns: int | None, where: object) -> None:
+    """Refuse timestamps whose median step is no camera's frame period.
+
+    File names like ``frame0000.png`` (what ``image_view extract_images``
+    writes) give times 1 ns apart: pairing by them matches frame numbers, and
+    once a camera drops a frame every later pair is a frame apart, with no
+    warning (the clock-offset check sees them 1 ns apart).
+
+    Raises:
+        CaptureError: names ``where`` and says how to give real times.
+    """
+    if period_ns is not None and period_ns < MIN_FRAME_PERIOD_NS:
+        raise CaptureError(
+            f"{where}: the frames' timestamps step by {_format_ns(period_ns)} (median), faster "
+            f"than any camera ({MIN_FRAME_PERIOD_NS // 1000} us is 10,000 frames/s): they look "
+            "like frame numbers (frame0000.png), not times; pairing by them would pair frame "
+            "numbers, a frame apart after any dropped frame. Name the images by capture time "
+            "in ns or in seconds with a fraction (1403636579763555584.png, "
+            "1403636579.763555584.png), or list the times in an EuRoC data.csv"
+        )
+
+
 def pair_frames(
     ts0: Sequence[int], ts1: Sequence[int], tolerance_ns: int | None = None
 ) -> PairingResult:

@@ -27,11 +27,18 @@ its mismatches; undetermined on defocused rain), with
 --device, the GPU when there is one) by judging each camera's views; report.json's
 side_check gives the inferred side and its confidence. Rerunning resumes an interrupted
 run and leaves finished outputs untouched; a rerun with another calibration, side, --size or
-thresholds processes the frames again and says how many. Exit code 0 when at least one pair
-was kept, 2 on an error or when no usable pair remains.
+thresholds processes the frames again and says how many. One run at a time writes
+OUT/<recording>: a second one is refused at once.
+
+Exit codes: 0 when at least one pair was kept; 2 on an error in the recording, the
+calibration or the options (one line naming the file or option), when no usable pair
+remains, or when another capture-ingest is writing OUT/<recording>; 1 when the file
+system refuses a write (read-only folder, full disk: one line naming the path); 130
+after Ctrl-C and 143 after SIGTERM (rerun to resume).
 """
 
 import argparse
+import math
 from pathlib import Path
 
 from lenspair.capture.ingest import ingest_recording
@@ -39,10 +46,27 @@ from lenspair.commands.argtypes import (
     add_device_option,
     add_topics_option,
     detector_file,
+    float_at_least,
     out_folder,
     positive_int,
     size,
 )
+
+MAX_TIME_OFFSET_MS = 9.2e12
+"""The most ``--time-offset`` takes either way: stamps are 64-bit ns (2**63 ns ~ 9.22e12 ms)."""
+
+_finite = float_at_least(-math.inf)  # a finite number (NaN and inf refused), of any sign
+
+
+def time_offset_ms(text: str) -> float:
+    """Argparse type of ``--time-offset``: milliseconds, finite, within the 64-bit ns range."""
+    value = _finite(text)
+    if abs(value) > MAX_TIME_OFFSET_MS:
+        raise argparse.ArgumentTypeError(
+            f"expected at most {MAX_TIME_OFFSET_MS:g} ms either way (the range of ns stamps), "
+            f"got {text!r}"
+        )
+    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -79,7 +103,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_device_option(parser, "--detector")
     parser.add_argument(
         "--time-offset",
-        type=float,
+        type=time_offset_ms,
         default=0.0,
         metavar="MS",
         help="how far cam1's clock runs ahead of cam0's, in ms: cam1's stamps less MS are "

@@ -41,10 +41,12 @@ def _assert_counts_add_up(counts: dict[str, int], obstructed: str = "cam1") -> N
         )
         assert counts[f"listed_{camera}"] == counts["pairs"] + counts[f"unpaired_{camera}"]
     unlisted = counts["rejected_unlisted"]  # dropped obstructed frames with their own line
-    assert counts[f"listed_{obstructed}"] + unlisted == counts["kept"] + counts["rejected"]
+    untimed = counts["rejected_untimed"]  # and those without a time: named in report.json
+    assert counts[f"dropped_{obstructed}"] == unlisted + untimed
+    assert counts[f"frames_{obstructed}"] == counts["kept"] + counts["rejected"]
     assert (
         counts["rejected"]
-        == counts["rejected_paired"] + counts[f"unpaired_{obstructed}"] + unlisted
+        == counts["rejected_paired"] + counts[f"unpaired_{obstructed}"] + unlisted + untimed
     )
     assert counts[f"listed_{clean}"] >= counts["pairs"]
 

@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -5,12 +7,16 @@ from hypothesis import strategies as st
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.pairing import (
     DUPLICATE,
+    MIN_FRAME_PERIOD_NS,
     TAKEN,
     PairingResult,
+    check_frame_period,
     clock_offset_warning,
     estimate_period_ns,
     pair_frames,
 )
+from lenspair.cli import main
+from tests.capture.ingest_helpers import make_recording
 
 MS = 1_000_000
 
@@ -140,3 +146,26 @@ def test_a_clock_offset_of_a_sizeable_part_of_a_frame_is_said(offset_ms: int, sa
     else:
         assert warning is not None and warning.startswith(f"cam1's frames are {said} from cam0's")
         assert "frame period" in warning and "\n" not in warning
+
+
+def test_timestamps_a_camera_cannot_have_are_refused_naming_the_recording() -> None:
+    with pytest.raises(CaptureError, match=r"^rec/x: .* step by 1 ns .* frame numbers"):
+        check_frame_period(1, "rec/x")
+    check_frame_period(MIN_FRAME_PERIOD_NS, "rec/x")  # 10,000 frames/s: a camera can
+    check_frame_period(None, "rec/x")  # one frame per camera: no period to judge
+
+
+def test_capture_ingest_refuses_frame_numbers_read_as_times(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Names like frame0000.png: pairs a frame apart after any drop, so refused, one line."""
+    recording = make_recording(tmp_path / "rec", frames=4)
+    for camera in ("cam0", "cam1"):
+        listing = recording / "mav0" / camera / "data.csv"
+        header, *rows = listing.read_text().splitlines()
+        numbered = [f"{index},{row.split(',')[1]}" for index, row in enumerate(rows)]
+        listing.write_text("\n".join([header, *numbered]) + "\n")
+    assert main(["capture-ingest", str(recording), "--out", str(tmp_path / "out")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert str(recording) in line and "look like frame numbers" in line
+    assert not (tmp_path / "out" / "rec").exists()

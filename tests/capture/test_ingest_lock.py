@@ -1,0 +1,135 @@
+"""One capture-ingest at a time per output folder: the lock, its refusal, a killed holder."""
+
+import fcntl
+import logging
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from lenspair.capture import ingest as ingest_module
+from lenspair.capture.errors import CaptureError
+from lenspair.capture.ingest import ingest_recording
+from lenspair.capture.journal import LOCK_FILE, remove_temporaries
+from lenspair.cli import main
+from lenspair.dataset.build import build_dataset
+from lenspair.dataset.config import DatasetConfig
+from tests.capture.ingest_helpers import CROP, make_recording, tree_bytes
+
+SIZE = (240, 160)
+
+
+@contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    """Hold ``path``'s flock meanwhile, as a running capture-ingest does (another descriptor)."""
+    descriptor = os.open(path, os.O_RDWR | os.O_CREAT)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        yield
+    finally:
+        os.close(descriptor)
+
+
+def _is_locked(path: Path) -> bool:
+    descriptor = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(descriptor)
+    return False
+
+
+def test_a_second_run_into_an_output_being_written_is_refused_at_once(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3)
+    out = tmp_path / "out"
+    ingest_recording(recording, out, size=SIZE)
+    out_dir = out / "rec"
+    before = tree_bytes(out_dir)
+    command = ["capture-ingest", str(recording), "--out", str(out), "--size", "200x120"]
+    with _locked(out_dir / LOCK_FILE):  # a first run, still writing
+        capsys.readouterr()
+        assert main(command) == 2
+        error = capsys.readouterr().err.strip().splitlines()
+        with pytest.raises(CaptureError, match="another capture-ingest is writing it"):
+            ingest_recording(recording, out, size=SIZE)
+    assert len(error) == 1
+    assert error[0].startswith(
+        f"lenspair capture-ingest: error: {out_dir}: another capture-ingest is writing it"
+    )
+    assert tree_bytes(out_dir) == before  # nothing removed, nothing written
+    assert main(command) == 0  # once that run has ended: a rerun, as usual
+
+
+def test_a_refused_run_writes_nothing_into_a_new_output(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "rec", frames=2)
+    out_dir = tmp_path / "out" / "rec"
+    out_dir.mkdir(parents=True)
+    with _locked(out_dir / LOCK_FILE), pytest.raises(CaptureError, match=str(out_dir)):
+        ingest_recording(recording, tmp_path / "out", size=SIZE)
+    assert [p.name for p in out_dir.iterdir()] == [LOCK_FILE]
+
+
+def test_a_killed_run_does_not_block_its_rerun(tmp_path: Path) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3)
+    out_dir = tmp_path / "out" / "rec"
+    out_dir.mkdir(parents=True)
+    holder = subprocess.Popen(  # holds the lock as a run does, until it is killed
+        [
+            sys.executable,
+            "-c",
+            "import fcntl, os, sys, time\n"
+            "d = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT)\n"
+            "fcntl.flock(d, fcntl.LOCK_EX)\n"
+            "print('held', flush=True)\n"
+            "time.sleep(600)\n",
+            str(out_dir / LOCK_FILE),
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        with pytest.raises(CaptureError, match="another capture-ingest is writing it"):
+            ingest_recording(recording, tmp_path / "out", size=SIZE)
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    report = ingest_recording(recording, tmp_path / "out", size=SIZE)  # not blocked
+    assert report.counts["kept"] == 3
+
+
+def test_the_lock_is_held_for_the_run_and_is_nobodys_stray_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    recording = make_recording(tmp_path / "rec", frames=3)
+    out = tmp_path / "out"
+    out_dir = out / "rec"
+    seen: list[bool] = []
+    frame_stage = ingest_module._frame_stage
+
+    def watched(*args: Any) -> Any:
+        seen.append(_is_locked(out_dir / LOCK_FILE))
+        remove_temporaries(out_dir)  # the clean-up of killed runs leaves a held lock alone
+        seen.append((out_dir / LOCK_FILE).is_file())
+        return frame_stage(*args)
+
+    monkeypatch.setattr(ingest_module, "_frame_stage", watched)
+    ingest_recording(recording, out, size=SIZE)
+    assert seen == [True, True]
+    assert not _is_locked(out_dir / LOCK_FILE)  # released at the end
+    with caplog.at_level(logging.INFO):
+        assert main(["capture-ingest", str(recording), "--out", str(out), "--size", CROP]) == 0
+    assert not any(LOCK_FILE in message for message in caplog.messages)  # not stray, not removed
+    assert (out_dir / LOCK_FILE).is_file()
+    dataset = build_dataset([out_dir], tmp_path / "DS", DatasetConfig())
+    assert not any(p.name == LOCK_FILE for p in dataset.out.rglob("*"))
