@@ -12,5 +12,17 @@ MIN_TILE = 16
 DEFAULT_OVERLAP = 32
 """``--overlap``: pixels shared by neighbouring tiles."""
 
-DEFAULT_BATCH_SIZE = 4
-"""``--batch-size``: frames per network call."""
+DEFAULT_BATCH_SIZE = 1
+"""``--batch-size`` on the CPU: frames per network call. Batching buys a CPU nothing at
+camera sizes (``python -m benchmarks.bench_restore``, 540x360 on a 2-core AMD EPYC, two
+runs: batch 4 took 1.02-1.11x batch 1's time per frame), and at batch 1 restore writes
+exactly the bytes :class:`~lenspair.model.inference.restorer.Restorer` returns (the
+CPU's kernels may round a few pixels one 8-bit code apart at another batch size)."""
+
+CUDA_BATCH_SIZE = 4
+"""``--batch-size`` on a GPU, where a batch fills the device."""
+
+
+def default_batch_size(device_type: str) -> int:
+    """``--batch-size``'s default for a device type (``cpu``, ``cuda``)."""
+    return CUDA_BATCH_SIZE if device_type == "cuda" else DEFAULT_BATCH_SIZE

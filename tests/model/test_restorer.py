@@ -12,6 +12,7 @@ from lenspair.core.imageio import read_image, write_image
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.restorer import Restorer
 from lenspair.model.training.config import RunConfig
+from lenspair.model.training.pretrained import WEIGHTS_DIR, WEIGHTS_FILES
 from tests.images import texture
 from tests.model.train_fixtures import make_checkpoint, tiny_config
 
@@ -49,6 +50,20 @@ def test_a_frame_restored_in_process_is_the_frame_restore_writes(
     same = [f for f in frames if f.shape == frames[0].shape]  # a generator is a batch too
     batch = restorer.restore_batch(frame for frame in same)
     assert len(batch) == len(same) and np.array_equal(batch[0], mine[0])
+
+
+def test_restore_s_default_on_the_cpu_writes_restorer_s_bytes_with_the_shipped_network(
+    tmp_path: Path,
+) -> None:
+    """Frames of one size, the paper's GEA, torch's own thread count: at batch 4 (the old
+    default) the CPU's kernels rounded a few hundred pixels a frame one code apart from
+    Restorer's batch of one (not on one thread, so no ``one_thread`` fixture here)."""
+    weights = WEIGHTS_DIR / WEIGHTS_FILES[1]
+    frames = [(texture((120, 160), seed=seed) * 255).astype(np.uint8) for seed in range(5)]
+    restorer = Restorer(weights, device="cpu", precision="fp32")
+    written = _restored_by_command(tmp_path, weights, frames, "--device", "cpu")
+    for frame, by_command in zip(frames, written, strict=True):
+        np.testing.assert_array_equal(restorer(frame), by_command)
 
 
 def test_a_12_bit_camera_s_words_come_back_in_its_words(
