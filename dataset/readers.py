@@ -95,11 +95,22 @@ def _mask_mismatch(entry: PairEntry, mask: tuple[int, ...], image: tuple[int, ..
 class PairedDataset:
     """A list of pairs that reads its images on access (map-style, like a torch Dataset)."""
 
-    def __init__(self, root: Path, layout: Layout, entries: Sequence[PairEntry]) -> None:
-        """Wrap ``entries`` found under ``root`` in ``layout``."""
+    def __init__(
+        self,
+        root: Path,
+        layout: Layout,
+        entries: Sequence[PairEntry],
+        unpaired: Sequence[str] = (),
+    ) -> None:
+        """Wrap ``entries`` found under ``root`` in ``layout``.
+
+        ``unpaired`` names the files left without a partner (``input/c.png (no
+        target)``), which only a lenient :func:`open_paired` leaves out.
+        """
         self.root = Path(root)
         self.layout: Layout = layout
         self.entries: tuple[PairEntry, ...] = tuple(entries)
+        self.unpaired: tuple[str, ...] = tuple(unpaired)
 
     def __len__(self) -> int:
         """Number of pairs."""
@@ -206,7 +217,7 @@ def split_folders(root: Path) -> list[str]:
     return sorted(p.name for p in Path(root).iterdir() if p.is_dir() and detect_layout(p))
 
 
-def open_paired(path: Path, split: str | None = None) -> PairedDataset:
+def open_paired(path: Path, split: str | None = None, strict: bool = True) -> PairedDataset:
     """Open paired images in any supported layout.
 
     Args:
@@ -214,11 +225,14 @@ def open_paired(path: Path, split: str | None = None) -> PairedDataset:
             whose sub-folder ``split`` does.
         split: split name (``train``, ``val``, ``test``, ``test_a``, ...);
             required for a dataset root.
+        strict: refuse files without a partner (training and scoring must
+            not pass over a pair); False leaves them out and names them in
+            :attr:`PairedDataset.unpaired` (a report that lists what it skips).
 
     Raises:
         DatasetError: no folder, no recognised layout, a missing split, a
-            name that appears twice, or files without a partner (the message
-            lists a few).
+            name that appears twice, or (``strict``) files without a partner
+            (the message lists a few).
     """
     path = Path(path)
     if not path.is_dir():
@@ -251,15 +265,18 @@ def open_paired(path: Path, split: str | None = None) -> PairedDataset:
     inputs = _index(folder / input_dir, key)
     targets = _index(folder / target_dir, key)
     masks = _index(folder / "mask", key) if (folder / "mask").is_dir() else {}
-    _check_paired(folder, input_dir, target_dir, inputs, targets, masks)
+    unpaired = _unpaired(input_dir, target_dir, inputs, targets, masks)
+    if unpaired and strict:
+        names = listed(unpaired, 5, ", ")
+        raise DatasetError(f"{folder}: {len(unpaired)} unpaired file(s): {names}")
     if not inputs and layout != "lenspair":  # a lenspair split may be empty (fraction 0)
         raise DatasetError(f"{folder}: no images in {input_dir}/")
     difficulty = _difficulties(folder) if layout == "lenspair" else {}
     entries = [
         PairEntry(name, inputs[name], targets[name], masks.get(name), difficulty.get(name))
-        for name in sorted(inputs, key=natural_key)
+        for name in sorted(inputs.keys() & targets.keys(), key=natural_key)
     ]
-    return PairedDataset(folder, layout, entries)
+    return PairedDataset(folder, layout, entries, unpaired)
 
 
 def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
@@ -288,23 +305,20 @@ def _index(folder: Path, key: Callable[[Path], str]) -> dict[str, Path]:
     return found
 
 
-def _check_paired(
-    folder: Path,
+def _unpaired(
     input_dir: str,
     target_dir: str,
     inputs: dict[str, Path],
     targets: dict[str, Path],
     masks: dict[str, Path],
-) -> None:
+) -> list[str]:
+    """The files without a partner, each with what it lacks, in natural order."""
     unpaired = [f"{input_dir}/{inputs[n].name} (no {target_dir})" for n in inputs.keys() - targets]
     unpaired += [
         f"{target_dir}/{targets[n].name} (no {input_dir})" for n in targets.keys() - inputs
     ]
     unpaired += [f"mask/{masks[n].name} (no pair)" for n in masks.keys() - inputs]
-    if unpaired:
-        unpaired.sort(key=natural_key)
-        names = listed(unpaired, 5, ", ")
-        raise DatasetError(f"{folder}: {len(unpaired)} unpaired file(s): {names}")
+    return sorted(unpaired, key=natural_key)
 
 
 def _difficulties(split_folder: Path) -> dict[str, str]:

@@ -123,7 +123,12 @@ def build_parser(selected: str | None) -> argparse.ArgumentParser:
         "that removes raindrops, dust and dirt. Run 'lenspair COMMAND --help' for details.",
     )
     parser.add_argument("--version", action="version", version=f"lenspair {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="log debug messages, and a file-system refusal's traceback",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, (_, summary) in COMMANDS.items():
         if name == selected:
@@ -142,7 +147,8 @@ def build_parser(selected: str | None) -> argparse.ArgumentParser:
                 "--verbose",
                 action="store_true",
                 default=argparse.SUPPRESS,
-                help="log debug messages and show tracebacks (also before COMMAND)",
+                help="log debug messages, and a file-system refusal's traceback (also "
+                "before COMMAND)",
             )
         else:
             sub.add_parser(name, help=summary, add_help=False)

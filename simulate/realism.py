@@ -87,26 +87,39 @@ def _blur(values: np.ndarray, sigma: float) -> np.ndarray:
     return blurred
 
 
-def realism_statistics(obstructed: np.ndarray, clean: np.ndarray) -> RealismStatistics:
+def realism_statistics(
+    obstructed: np.ndarray, clean: np.ndarray, untrusted: np.ndarray | None = None
+) -> RealismStatistics:
     """The table's statistics for one (obstructed, clean) pair.
 
     Args:
         obstructed: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)``.
         clean: same height and width. Grey or RGB and 8 or 16 bits may
             differ from ``obstructed``: both are compared as grey ``[0, 1]``.
+        untrusted: ``(H, W)``, non-zero where the pair cannot be trusted (an
+            ingested recording's ``mask/``: residual parallax of near
+            objects). Those pixels are left out of every statistic (their
+            difference is taken as zero before the blurs, so it does not
+            spread into the pixels around them), so a misregistration is not
+            counted as the glass. None: every pixel counts.
 
     Returns:
         The statistics, all finite except ``input_psnr`` (``inf`` when the
-        images are identical).
+        images are identical where they are counted).
 
     Raises:
-        SimulateError: the sizes differ, or the clean image is flat
-            (its contrast ratio is undefined).
+        SimulateError: the sizes differ, every pixel is untrusted, or the
+            clean image is flat where counted (its contrast ratio is undefined).
 
     """
     if obstructed.shape[:2] != clean.shape[:2]:
         raise SimulateError(
             f"pair: obstructed {obstructed.shape[1]}x{obstructed.shape[0]} and clean "
+            f"{clean.shape[1]}x{clean.shape[0]} differ in size"
+        )
+    if untrusted is not None and untrusted.shape[:2] != clean.shape[:2]:
+        raise SimulateError(
+            f"pair: mask {untrusted.shape[1]}x{untrusted.shape[0]} and images "
             f"{clean.shape[1]}x{clean.shape[0]} differ in size"
         )
     try:
@@ -115,24 +128,30 @@ def realism_statistics(obstructed: np.ndarray, clean: np.ndarray) -> RealismStat
         grey_obstructed, grey_clean = to_grey(obstructed), to_grey(clean)
     except ValueError as exc:
         raise SimulateError(str(exc)) from None
-    clean_std = float(grey_clean.std(dtype=np.float64))
+    counted = np.ones(clean.shape[:2], bool) if untrusted is None else untrusted == 0
+    if not counted.any():
+        raise SimulateError("every pixel is marked untrustworthy in the mask: nothing to measure")
+    clean_std = float(grey_clean[counted].std(dtype=np.float64))
     if clean_std == 0.0:
         raise SimulateError("clean image is flat: its contrast ratio is undefined")
-    difference = grey_obstructed - grey_clean
-    energy = float(np.square(difference, dtype=np.float64).sum())
+    # untrusted pixels differ by nothing: neither counted nor spread by the blurs
+    difference = np.where(counted, grey_obstructed - grey_clean, 0.0).astype(np.float32)
+    energy = float(np.square(difference[counted], dtype=np.float64).sum())
     detail = difference - _blur(difference, HIGH_FREQUENCY_SIGMA)
-    high = float(np.square(detail, dtype=np.float64).sum()) / energy if energy > 0 else 0.0
+    high = float(np.square(detail[counted], dtype=np.float64).sum()) / energy if energy > 0 else 0.0
     visible = np.abs(_blur(difference, COVERAGE_SIGMA)) > COVERAGE_THRESHOLD
     psnr = (
         math.inf
         if energy == 0
-        else float(peak_signal_noise_ratio(grey_clean, grey_obstructed, data_range=1.0))
+        else float(
+            peak_signal_noise_ratio(grey_clean[counted], grey_obstructed[counted], data_range=1.0)
+        )
     )
     return RealismStatistics(
-        coverage=float(visible.mean()),
+        coverage=float(visible[counted].mean()),
         high_frequency=min(high, 1.0),
-        mean_difference=float(difference.mean(dtype=np.float64)),
-        contrast_ratio=float(grey_obstructed.std(dtype=np.float64)) / clean_std,
+        mean_difference=float(difference[counted].mean(dtype=np.float64)),
+        contrast_ratio=float(grey_obstructed[counted].std(dtype=np.float64)) / clean_std,
         input_psnr=psnr,
     )
 
@@ -231,12 +250,16 @@ class PairStatistics:
     problem: str | None = None
 
 
-def measure_pairs(pairs: Iterable[tuple[str, np.ndarray, np.ndarray]]) -> list[PairStatistics]:
-    """Statistics of ``(name, obstructed, clean)`` pairs; a bad pair is recorded, not fatal."""
+MeasuredPair = tuple[str, np.ndarray, np.ndarray, np.ndarray | None]
+"""``(name, obstructed, clean, untrusted)``: see :func:`realism_statistics`."""
+
+
+def measure_pairs(pairs: Iterable[MeasuredPair]) -> list[PairStatistics]:
+    """Statistics of ``(name, obstructed, clean, untrusted)``; a bad pair is recorded, not fatal."""
     results = []
-    for name, obstructed, clean in pairs:
+    for name, obstructed, clean, untrusted in pairs:
         try:
-            results.append(PairStatistics(name, realism_statistics(obstructed, clean)))
+            results.append(PairStatistics(name, realism_statistics(obstructed, clean, untrusted)))
         except SimulateError as exc:
             results.append(PairStatistics(name, None, str(exc)))
     return results
@@ -244,12 +267,12 @@ def measure_pairs(pairs: Iterable[tuple[str, np.ndarray, np.ndarray]]) -> list[P
 
 def rendered_pairs(
     images: dict[str, np.ndarray], effects: EffectsSpec, seed: int
-) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
-    """``(name, obstructed, clean)`` with ``effects`` rendered over each clean image.
+) -> Iterator[MeasuredPair]:
+    """``(name, obstructed, clean, None)`` with ``effects`` rendered over each clean image.
 
     Image ``i`` (in the dict's order) gets the glass of ``default_rng((seed, i))``,
     so a preset's pairs do not depend on which other presets are measured.
     """
     for index, (name, clean) in enumerate(images.items()):
         obstructed, _ = render_effects(clean, effects, np.random.default_rng((seed, index)))
-        yield name, obstructed, clean
+        yield name, obstructed, clean, None  # rendered: every pixel is the glass's doing

@@ -163,13 +163,23 @@ def simulate_recording(
         A summary of what was written.
 
     Raises:
-        SimulateError: non-empty output folder, or no board pose fits.
+        SimulateError: non-empty output folder, every frame of a camera dropped,
+            or no board pose fits.
         ConfigError: unknown texture.
         ImageIOError: unreadable texture file.
 
     """
     out_dir = Path(out_dir)
     check_output_folder(out_dir)
+    streams = _streams(spec.seed)
+    clock = make_clock(spec.recording, np.random.default_rng(streams["clock"]))
+    for camera, dropped in zip(CAMERAS, clock.dropped.T, strict=True):
+        if dropped.all():  # before anything is written: an empty camera is no recording
+            raise SimulateError(
+                f"{out_dir}: recording.drop_probability drops every one of the "
+                f"{spec.recording.frames} frame(s) of {camera} with seed {spec.seed}: "
+                "raise recording.frames or lower drop_probability"
+            )
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / INCOMPLETE).write_text(
         f"pid {os.getpid()}: removed when the simulation is complete\n"
@@ -187,8 +197,6 @@ def simulate_recording(
         clean=1 - obstructed,
         obstructed=obstructed,
     )
-    streams = _streams(spec.seed)
-    clock = make_clock(spec.recording, np.random.default_rng(streams["clock"]))
     board_poses: list[np.ndarray] = []
     board_texture = None
     if spec.board is not None:

@@ -16,8 +16,8 @@ that scikit-image and matplotlib ship, at 720x480, Raindrop's size):
     lenspair realism DS --split test --json realism.json
 
 Pairs that cannot be read or measured (a truncated file, mismatched sizes,
-a flat clean image, a clean image of a format lenspair does not read) are
-listed and skipped.
+a flat clean image, a clean image of a format lenspair does not read, an
+image without its partner) are listed and skipped.
 """
 
 import argparse
@@ -25,8 +25,6 @@ import math
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from lenspair.commands.argtypes import DEFAULT_SPLIT, out_file, random_seed, size, split_name
 from lenspair.core.errors import ConfigError, LenspairError
@@ -37,6 +35,7 @@ from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired
 from lenspair.simulate.natural_images import fit, load_natural_images
 from lenspair.simulate.presets import DROPS_PRESETS, drops_preset, find_clean_images
 from lenspair.simulate.realism import (
+    MeasuredPair,
     PairStatistics,
     format_ranges,
     measure_pairs,
@@ -104,8 +103,11 @@ def run(args: argparse.Namespace) -> int:
     results: dict[str, list[PairStatistics]] = {}
     for folder in args.pairs:
         split = None if detect_layout(folder) is not None else args.split or DEFAULT_SPLIT
-        dataset = open_paired(folder, split)
-        unread: list[PairStatistics] = []
+        dataset = open_paired(folder, split, strict=False)  # an orphan is listed and skipped
+        unread = [
+            PairStatistics(name, None, lacks.removesuffix(")"))  # "input/c.png (no target)"
+            for name, lacks in (orphan.rsplit(" (", 1) for orphan in dataset.unpaired)
+        ]
         items = progress(
             _readable(dataset, unread),
             desc=f"realism {folder.name}",
@@ -173,32 +175,39 @@ def _folder_label(folder: Path, presets: list[str]) -> str:
     return f"{label}/" if label in presets else label
 
 
-def _readable(
-    dataset: PairedDataset, unread: list[PairStatistics]
-) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
-    """``(name, obstructed, clean)`` of every pair that can be read; the others go to ``unread``.
+def _readable(dataset: PairedDataset, unread: list[PairStatistics]) -> Iterator[MeasuredPair]:
+    """``(name, obstructed, clean, untrusted)`` of every readable pair; the others go to ``unread``.
 
     The files are read as they are: a grey clean image beside a colour
     obstructed one, or 8 bits beside 16, is measured (both go to grey
-    ``[0, 1]``), where a training set would refuse the pair.
+    ``[0, 1]``), where a training set would refuse the pair. An ingested
+    recording's or a dataset's ``mask/`` leaves its untrustworthy pixels
+    (residual parallax) out of the statistics: they are the registration's,
+    not the glass's.
     """
     for entry in dataset.entries:
         try:
             obstructed, clean = read_image(entry.input_path), read_image(entry.target_path)
+            mask = None if entry.mask_path is None else read_image(entry.mask_path)
         except LenspairError as exc:  # a truncated file, an unknown format: this pair only
             unread.append(PairStatistics(entry.name, None, str(exc)))
             continue
-        if obstructed.shape[:2] != clean.shape[:2]:
+        if mask is not None and mask.ndim == 3:  # a mask saved in colour: one plane says it
+            mask = mask[..., 0]
+        others = ((entry.target_path, clean), (entry.mask_path, mask))
+        wrong = [(p, i) for p, i in others if i is not None and i.shape[:2] != obstructed.shape[:2]]
+        if wrong:
+            path, image = wrong[0]
             unread.append(
                 PairStatistics(
                     entry.name,
                     None,
                     f"{entry.input_path}: {obstructed.shape[1]}x{obstructed.shape[0]} does not "
-                    f"match {entry.target_path} {clean.shape[1]}x{clean.shape[0]}",
+                    f"match {path} {image.shape[1]}x{image.shape[0]}",
                 )
             )
             continue
-        yield entry.name, obstructed, clean
+        yield entry.name, obstructed, clean, mask
 
 
 def _row(row: PairStatistics) -> dict[str, Any]:

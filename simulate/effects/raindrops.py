@@ -145,8 +145,7 @@ def sample_radii(spec: RaindropsSpec, uniform: np.ndarray) -> np.ndarray:
     if spec.size_distribution == "uniform" or high <= low:
         uniform_radii: np.ndarray = low + (high - low) * uniform
         return uniform_radii
-    k = spec.size_exponent
-    low = max(low, 1e-3)  # r^-k has no finite mass at 0
+    k = spec.size_exponent  # low > 0: the spec refuses power-law sizes from 0
     if abs(k - 1.0) < 1e-9:
         radii: np.ndarray = low * (high / low) ** uniform
         return radii

@@ -99,11 +99,23 @@ class RaindropsSpec:
                 f"size_distribution: expected uniform or power-law, got {self.size_distribution!r}"
             )
         _check_value("size_exponent", self.size_exponent, 0.0, 10.0)
+        if self.size_distribution == "power-law" and self.radius_px[0] < MIN_POWER_LAW_RADIUS_PX:
+            raise ValueError(
+                f"radius_px: power-law sizes need a smallest radius of at least "
+                f"{MIN_POWER_LAW_RADIUS_PX} px, got {self.radius_px[0]:g}: the law piles most "
+                "drops at the smallest radius, and drops under a pixel draw nothing"
+            )
 
     @property
     def optics_focal_px(self) -> float:
         """The focal length the drop optics use, pixels (``focal_px``, else the photo default)."""
         return PHOTO_FOCAL_PX if self.focal_px is None else self.focal_px
+
+
+MIN_POWER_LAW_RADIUS_PX = 0.5
+"""Smallest ``radius_px`` lower bound of ``power-law`` drops: below it (0 included, where
+``r^-k`` has no finite mass) nearly every drop is sub-pixel and the declared rain leaves
+no trace while the recording is labelled rain."""
 
 
 @dataclass(frozen=True)

@@ -293,3 +293,12 @@ def test_power_law_gives_many_small_drops_and_few_large_ones() -> None:
         assert float((radii <= radius).mean()) == pytest.approx(expected, abs=0.015)
     flat = raindrops.sample_radii(RaindropsSpec(radius_px=(3.0, 60.0)), uniform)
     assert np.median(radii) < 0.3 * np.median(flat)
+
+
+@pytest.mark.parametrize("low", [0.0, 0.49])
+def test_power_law_from_under_half_a_pixel_is_refused_naming_radius_px(low: float) -> None:
+    """From 0 the law drew only sub-pixel drops: rain declared, a recording labelled rain,
+    and four pixels changed."""
+    with pytest.raises(ValueError, match=r"^radius_px: power-law sizes need .* at least 0.5 px"):
+        RaindropsSpec(radius_px=(low, 60.0), size_distribution="power-law")
+    RaindropsSpec(radius_px=(low, 60.0))  # uniform sizes from 0 stay allowed

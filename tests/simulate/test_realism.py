@@ -118,7 +118,7 @@ def test_bad_pairs_raise_and_are_recorded_not_fatal() -> None:
     flat = np.full((8, 8), 100, np.uint8)
     with pytest.raises(SimulateError, match="flat"):
         realism_statistics(flat, flat)
-    results = measure_pairs([("flat", flat, flat), ("good", clean, clean)])
+    results = measure_pairs([("flat", flat, flat, None), ("good", clean, clean, None)])
     assert results[0].statistics is None and "flat" in str(results[0].problem)
     assert results[1].statistics is not None and results[1].problem is None
 
@@ -204,6 +204,7 @@ def test_cli_lists_and_skips_pairs_and_images_it_cannot_read(
     cut = folder / "target" / "1.png"
     cut.write_bytes(cut.read_bytes()[:80])  # truncated
     write_image(folder / "target" / "2.png", clean[:24])  # another size
+    write_image(folder / "input" / "4.png", clean)  # no partner: listed, not the end of it
     images = tmp_path / "clean"
     write_image(images / "a.png", _clean((48, 64), seed=1))
     float_tiff = oiio.ImageBuf(oiio.ImageSpec(64, 48, 1, "float"))
@@ -214,13 +215,14 @@ def test_cli_lists_and_skips_pairs_and_images_it_cannot_read(
     printed = capsys.readouterr().out
     assert "pairs (2)" in printed and "sharp (1)" in printed
     skipped = [line for line in printed.splitlines() if "skipped" in line]
-    assert len(skipped) == 3
+    assert len(skipped) == 4
     assert any("1.png" in line for line in skipped) and any("2.png" in line for line in skipped)
     assert any("b.tif" in line for line in skipped)
+    assert any(line.endswith("skipped input/4.png: no target") for line in skipped)
     rows = json.loads(out.read_text())
-    assert len(rows[str(folder)]) == 4  # every pair accounted for, measured or not
+    assert len(rows[str(folder)]) == 5  # every pair and orphan accounted for, measured or not
     # named by their names, not by an index ("pair 1")
-    assert sorted(row["name"] for row in rows[str(folder)]) == ["0", "1", "2", "3"]
+    assert sorted(row["name"] for row in rows[str(folder)]) == ["0", "1", "2", "3", "input/4.png"]
 
 
 def test_a_folder_pair_of_grey_beside_colour_or_8_beside_16_bits_is_measured_in_grey(
@@ -298,3 +300,43 @@ def test_a_folder_given_twice_is_refused_and_a_folder_named_like_a_preset_keeps_
         assert main(["realism", *argv]) == 2
         (line,) = capsys.readouterr().err.strip().splitlines()
         assert "given twice" in line or "named twice" in line
+
+
+def test_untrusted_pixels_count_for_nothing() -> None:
+    """A misregistered block marked in mask/ (parallax) is the registration's, not the glass's."""
+    clean = _clean((96, 128))
+    obstructed = clean.copy()
+    obstructed[30:60, 40:90] = np.roll(clean, 7, axis=1)[30:60, 40:90]  # a near object, shifted
+    mask = np.zeros((96, 128), np.uint8)
+    mask[30:60, 40:90] = 255
+    assert realism_statistics(obstructed, clean).input_psnr < 40  # counted without the mask
+    masked = realism_statistics(obstructed, clean, mask)
+    assert masked.coverage == 0.0 and masked.mean_difference == 0.0
+    assert masked.input_psnr == math.inf and masked.contrast_ratio == pytest.approx(1.0)
+    brighter = obstructed.copy()
+    brighter[mask == 0] += np.uint16(3000)  # the glass brightens the counted pixels only
+    stats = realism_statistics(brighter, clean, mask)
+    assert stats.mean_difference == pytest.approx(3000 / 65535, rel=1e-3)
+    with pytest.raises(SimulateError, match="every pixel is marked untrustworthy"):
+        realism_statistics(obstructed, clean, np.ones((96, 128), np.uint8))
+
+
+def test_cli_reads_the_mask_of_a_paired_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    clean = _clean((48, 64))
+    obstructed = clean.copy()
+    obstructed[10:30, 10:40] = np.roll(clean, 5, axis=1)[10:30, 10:40]
+    mask = np.zeros((48, 64), np.uint8)
+    mask[10:30, 10:40] = 255
+    folder = tmp_path / "ingested"
+    write_image(folder / "input" / "1.png", obstructed)
+    write_image(folder / "target" / "1.png", clean)
+    write_image(folder / "mask" / "1.png", mask)
+    out = tmp_path / "realism.json"
+    assert main(["realism", str(folder), "--json", str(out)]) == 0
+    (row,) = json.loads(out.read_text())[str(folder)]
+    assert row["coverage"] == 0.0 and row["input_psnr"] is None  # identical where trusted
+    write_image(folder / "mask" / "1.png", mask[:24])  # another size: this pair skipped
+    assert main(["realism", str(folder), "--json", str(out)]) != 0
+    assert "does not match" in capsys.readouterr().out

@@ -1,5 +1,6 @@
 import hashlib
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -361,3 +362,14 @@ def test_user_texture_file_comes_back_exactly(tmp_path: Path) -> None:
     out = _render(tmp_path, _scene(tmp_path, planes=[wall], rig=SMALL))
     image = read_image(out / "mav0" / "cam0" / "data" / f"{_csv(out, 'cam0')[0]}.png")
     assert np.all(image == 200)
+
+
+def test_a_camera_whose_every_frame_is_dropped_is_refused_before_anything_is_written(
+    tmp_path: Path,
+) -> None:
+    """It was written as a recording without obstructed frames, 'effects changed no pixel'."""
+    spec = load_scene(SAMPLES / "rain.yaml")
+    spec = replace(spec, recording=replace(spec.recording, frames=2, drop_probability=(0.0, 0.999)))
+    with pytest.raises(SimulateError, match=r"drops every one of the 2 frame\(s\) of cam1"):
+        simulate_recording(spec, tmp_path / "rec")
+    assert not (tmp_path / "rec").exists()
