@@ -54,7 +54,7 @@ from lenspair.commands.argtypes import (
 )
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
-from lenspair.core.fsutil import inside_refusal, read_json_field
+from lenspair.core.fsutil import check_writable, inside_refusal, read_json_field
 
 if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
     from lenspair.model.training.pairs import PairSource
@@ -193,6 +193,12 @@ def run(args: argparse.Namespace) -> int:
         calibration = open_eval_pairs(args.calibration, "train")
     elif decision.precision == "int8":
         calibration = _default_calibration(args.data, args.split)
+    if args.out is not None:
+        out = args.out
+    else:
+        split = None if plain else args.split
+        out = default_out(args.checkpoint, args.data, split, decision.precision, args.convention)
+    check_writable(out / "eval.json")  # a read-only --out is said before the scoring, not after
     result = evaluate_checkpoint(
         loaded,
         args.data,
@@ -205,11 +211,6 @@ def run(args: argparse.Namespace) -> int:
         precision_reason=decision.reason,
     )
     result.data_path = str(scored.resolve())
-    if args.out is not None:
-        out = args.out
-    else:
-        split = None if plain else args.split
-        out = default_out(args.checkpoint, args.data, split, decision.precision, args.convention)
     files = write_report(result, out)
     print(markdown_report(result))
     print("wrote " + ", ".join(str(path) for path in files.values()))

@@ -132,6 +132,23 @@ def check_outputs(args: argparse.Namespace) -> None:
                 "choose another name"
             )
         seen[path.resolve()] = f"{option} {path}"
+        if path.is_file() and _is_checkpoint(path):  # .pt is a run's suffix too (last.pt)
+            raise ConfigError(
+                f"{option} {path}: a lenspair checkpoint, which the export would overwrite "
+                "(a run could no longer resume from it); choose another name"
+            )
+
+
+def _is_checkpoint(path: Path) -> bool:
+    """Whether ``path`` is a lenspair training checkpoint (read safely, tensors only)."""
+    from lenspair.model.checkpoint import load_checkpoint  # torch: not for --help
+    from lenspair.model.errors import ModelError
+
+    try:
+        load_checkpoint(path)
+    except ModelError:
+        return False
+    return True
 
 
 def _outputs(args: argparse.Namespace) -> dict[str, Path]:

@@ -202,8 +202,11 @@ def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) 
             )
 
 
-_DISK_REFUSALS = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS, errno.EIO})
-"""A file system refusing the write: the other exporter would fail the same."""
+_DISK_REFUSALS = frozenset(
+    {errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS, errno.EIO, errno.EACCES, errno.EPERM}
+)
+"""A file system refusing the write (full, read-only, another user's folder): the other
+exporter would fail the same."""
 
 
 def _file_system_error(exc: BaseException) -> OSError | None:

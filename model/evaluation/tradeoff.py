@@ -39,7 +39,6 @@ from typing import Any
 import torch
 
 from lenspair.core.config import dump_yaml, to_plain
-from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.dataset.readers import detect_layout
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_model
@@ -224,11 +223,13 @@ def run_tradeoff(
         variants: the networks to compare.
         convention: metric convention of the table.
         split: evaluation split of a dataset with splits (an error when it
-            cannot be opened); ``None``: ``test``, and where there is none
-            (a single paired folder, a dataset without a test split or with
-            an empty one) the
-            validation pairs held out of its training, never pairs it
-            trained on.
+            cannot be opened); ``None``: ``test`` (an error too when its folder
+            is there but cannot be opened, as with an unpaired file), and where
+            there is none (a single paired folder, a dataset without a test
+            folder or with an empty one) the validation pairs held out of its
+            training, never pairs it trained on. Pairs that chose the
+            checkpoint (held out, or the validation split) score the end of the
+            budget, never the best of their own noisy validations.
         latency_runs: timed runs per latency figure.
         int8: add the int8 row where the CPU has VNNI (quantising takes a while).
 
@@ -247,12 +248,14 @@ def run_tradeoff(
     # those same pairs it would be a best of noisy validations: the budget's end then
     checkpoint = "best.pt"
     if detect_layout(Path(dataset)) is None:  # a dataset with splits: score on ``split``
-        try:
-            pairs = open_eval_pairs(dataset, split or "test")
-            pairs_text = f"{dataset} split {split or 'test'}"
-        except LenspairError:
-            if split is not None:  # asked for: its problem is the answer, not another split
-                raise
+        wanted = split or "test"
+        # asked for, or there: its problems are the answer (an unpaired file, a bad pair),
+        # never a quiet switch to other pairs; only a dataset without a test folder falls back
+        if split is not None or (Path(dataset) / wanted).is_dir():
+            pairs = open_eval_pairs(dataset, wanted)
+            pairs_text = f"{dataset} split {wanted}"
+            if wanted == base.data.val_split:  # the pairs that chose best.pt: its end instead
+                checkpoint = "last.pt"
         if split is None and pairs is not None and len(pairs) == 0:
             pairs = None  # an empty test split (dataset-build left it empty): as if none
     if pairs is None:

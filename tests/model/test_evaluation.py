@@ -1,6 +1,7 @@
 import csv
 import json
 import math
+import os
 import platform
 import shutil
 from pathlib import Path
@@ -22,6 +23,7 @@ from lenspair.model.evaluation.report import write_report
 from lenspair.model.metrics import MetricConvention, image_metrics
 from lenspair.model.networks.variants import build_model
 from lenspair.model.training.pairs import to_tensor
+from tests.file_limits import REFUSALS, refuse_writes
 from tests.model.train_fixtures import (
     clean_image,
     make_checkpoint,
@@ -479,3 +481,25 @@ def test_a_split_eval_cannot_use_is_refused_in_one_line(
             main([*argv, str(dataset), "--split", split])
         assert stop.value.code == 2 and "not a path" in capsys.readouterr().err
     assert not any((tmp_path / "run").glob("eval_*"))
+
+
+@pytest.mark.parametrize("code", REFUSALS)
+def test_a_read_only_out_is_said_before_the_scoring(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    code: int,
+) -> None:
+    """It was said after every image was scored and timed: a large split's work lost."""
+    from lenspair.model.evaluation import evaluate
+
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    folder = write_paired_folder(tmp_path / "pairs", count=2)
+    (tmp_path / "ro").mkdir()
+    refuse_writes(monkeypatch, tmp_path / "ro", code)
+    scored: list[object] = []
+    monkeypatch.setattr(evaluate, "evaluate_checkpoint", lambda *a, **k: scored.append(a))
+    out = tmp_path / "ro" / "ev"
+    assert main(["eval", str(checkpoint), "--data", str(folder), "--out", str(out)]) == 1
+    assert not scored
+    assert capsys.readouterr().err.strip().endswith(f"{out / 'eval.json'}: {os.strerror(code)}")

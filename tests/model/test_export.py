@@ -15,6 +15,7 @@ from lenspair.model.evaluation.quantize import QUANTISED_OPS
 from lenspair.model.inference.backends import OnnxBackend
 from lenspair.model.networks.layers import InstanceNorm
 from lenspair.model.training.pretrained import pretrained_weights
+from tests.file_limits import REFUSALS, refuse_writes
 from tests.model.train_fixtures import make_checkpoint, write_paired_folder
 from tests.processes import dead_pid
 
@@ -387,3 +388,41 @@ def test_a_full_disk_is_one_line_naming_the_file_and_leaves_no_temporary(
     assert lines[-1] == f"lenspair export: error: {out}: File too large", failed.stderr
     assert "Traceback" not in failed.stderr and "terminate called" not in failed.stderr
     assert list(out.parent.iterdir()) == []
+
+
+@pytest.mark.parametrize("code", REFUSALS)
+def test_a_folder_that_refuses_the_onnx_file_is_one_line_and_no_second_exporter(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+    code: int,
+) -> None:
+    """Read-only or another user's folder: exit 1 naming the file, as every command says it."""
+    pytest.importorskip("onnxscript")
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    out = tmp_path / "ro" / "m.onnx"
+    out.parent.mkdir()
+    refuse_writes(monkeypatch, out.parent, code)
+    assert main(["export", str(checkpoint), "--onnx", str(out), "--size", "48x32"]) == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line == f"lenspair export: error: {out}: {os.strerror(code)}"
+    assert not any("trying legacy" in r.getMessage() for r in caplog.records)
+
+
+def test_an_output_that_is_a_training_checkpoint_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``.pt`` is a run's suffix too: exporting onto last.pt cost the run its resume."""
+    checkpoint = make_checkpoint(tmp_path / "run" / "best.pt")
+    last = make_checkpoint(tmp_path / "run" / "last.pt")
+    before = last.read_bytes()
+    argv = ["export", str(checkpoint), "--torchscript", str(last), "--size", "48x32"]
+    assert main(argv) == 2
+    assert "a lenspair checkpoint, which the export would overwrite" in capsys.readouterr().err
+    assert last.read_bytes() == before
+    other = tmp_path / "run" / "model.pt"  # an earlier export there is replaced, as before
+    assert (
+        main([*argv[:3], str(other), *argv[4:]]) == 0
+        and main([*argv[:3], str(other), *argv[4:]]) == 0
+    )

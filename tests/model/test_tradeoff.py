@@ -687,3 +687,36 @@ def test_places_a_tradeoff_cannot_use_are_one_line_errors(
     parser = argparse.ArgumentParser()
     tradeoff_arguments(parser)
     _check_places(parser.parse_args([str(dataset), "--out", str(dataset / "test" / "t")]))
+
+
+def test_a_test_split_with_an_unpaired_file_is_refused_not_swapped_for_another(
+    tmp_path: Path,
+) -> None:
+    """It scored the validation pairs instead, with nothing said: the test split's problem
+    is the answer, as in eval."""
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 2})
+    next((dataset / "test" / "target").glob("*.png")).unlink()
+    variant = next(v for v in DEFAULT_VARIANTS if v.name == "G")
+    with pytest.raises(LenspairError, match=r"test: 1 unpaired file\(s\)"):
+        run_tradeoff(dataset, tmp_path / "out", torch.device("cpu"), Budget(steps=1),
+                     tiny_config(), (variant,), latency_runs=1)  # fmt: skip
+
+
+def test_the_validation_split_scored_scores_the_end_of_the_budget(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """best.pt is the best of noisy validations on those very pairs: not their score."""
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    variant = next(v for v in DEFAULT_VARIANTS if v.name == "G")
+    loaded: list[str] = []
+    real_load = tradeoff_module.load_model
+
+    def load(path: Path, device: torch.device) -> object:
+        loaded.append(Path(path).name)
+        return real_load(path, device)
+
+    monkeypatch.setattr(tradeoff_module, "load_model", load)
+    result = run_tradeoff(dataset, tmp_path / "out", torch.device("cpu"), Budget(steps=1),
+                          tiny_config(), (variant,), latency_runs=1, split="val")  # fmt: skip
+    assert loaded == ["last.pt"] and result.meta["scored"] == tradeoff_module.SCORED["last.pt"]
+    assert result.meta["evaluated_on"].endswith("split val")
