@@ -205,7 +205,9 @@ def paired_training_data(
         seed: seed of crops and flips.
 
     Raises:
-        DatasetError: unreadable dataset, or pairs whose headers disagree
+        DatasetError: unreadable dataset, a validation split that is there but
+            cannot be opened (an unpaired file: refused, not replaced by train
+            pairs), or pairs whose headers disagree
             (:meth:`~lenspair.dataset.readers.PairedDataset.check_headers`);
             ModelError: too few pairs.
 
@@ -221,15 +223,18 @@ def paired_training_data(
         note = f"validation: {len(val_idx)} pairs held out by name hash"
     else:
         train_source = open_paired(path, data.train_split)
-        try:
-            val_source = open_paired(path, data.val_split)
-            if len(val_source) == 0:  # dataset-build leaves a split empty on small inputs
-                raise DatasetError(f"{path / data.val_split}: the split is empty")
-        except DatasetError as exc:
+        # A val folder that is there but broken (an unpaired file) is refused by open_paired:
+        # holding out train pairs instead cost training pairs and the real validation set.
+        val_dir = path / data.val_split
+        opened = open_paired(path, data.val_split) if val_dir.is_dir() else None
+        if opened is not None and len(opened) > 0:
+            val_source = opened
+        else:  # none, or empty (dataset-build leaves a split empty on small inputs)
+            why = f"{val_dir}: the split is empty" if opened is not None else f"no {val_dir}"
             every = train_source
             train_idx, val_idx = holdout_indices(_names(every), data.val_fraction, path)
             train_source, val_source = SubsetSource(every, train_idx), SubsetSource(every, val_idx)
-            note = f"no {data.val_split!r} split ({exc}); validation: {len(val_idx)} "
+            note = f"no {data.val_split!r} split ({why}); validation: {len(val_idx)} "
             note += f"{data.train_split!r} pairs held out by name hash"
             log.warning("%s: %s", path, note)
     headers: dict[int, list[tuple[int, int, int, str]]] = {}  # id(dataset) -> pair headers

@@ -1,5 +1,6 @@
 """Training data is checked from file headers before the first step."""
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -171,3 +172,16 @@ def test_held_out_clean_images_too_small_to_score_are_said_before_the_first_step
         write_image(path, np.zeros((10, 40), np.uint8))
     with pytest.raises(DatasetError, match=r"every one of the \d+ held-out clean image"):
         synthetic_training_data(folder, tiny_config().data, 1, 0)
+
+
+def test_a_validation_split_with_an_unpaired_file_is_refused_not_replaced(
+    tmp_path: Path,
+) -> None:
+    """Held-out train pairs took its place: fewer training pairs and no real validation."""
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 3, "test": 1})
+    next((dataset / "val" / "target").glob("*.png")).unlink()
+    with pytest.raises(DatasetError, match=r"val: 1 unpaired file\(s\)"):
+        paired_training_data(dataset, DataConfig(crop_size=24), 1, 0)
+    shutil.rmtree(dataset / "val")  # no val split at all: train pairs held out, and said
+    data = paired_training_data(dataset, DataConfig(crop_size=24), 1, 0)
+    assert "no 'val' split" in data.description and len(data.train) < 4
