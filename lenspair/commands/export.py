@@ -32,6 +32,7 @@ from lenspair.commands.argtypes import out_file, size, split_name
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.leftovers import remove_leftovers
+from lenspair.model.errors import ModelError
 
 MIN_INPUT_SIDE = 8
 """The network's smallest input side (``lenspair.model.networks.padding.MIN_SIDE``; not
@@ -142,7 +143,6 @@ def check_outputs(args: argparse.Namespace) -> None:
 def _is_checkpoint(path: Path) -> bool:
     """Whether ``path`` is a lenspair training checkpoint (read safely, tensors only)."""
     from lenspair.model.checkpoint import load_checkpoint  # torch: not for --help
-    from lenspair.model.errors import ModelError
 
     try:
         load_checkpoint(path)
