@@ -226,6 +226,19 @@ def test_a_precision_the_cpu_only_emulates_gets_no_cpu_time(
     assert "| GEA | bf16" in (tmp_path / "out" / "tradeoff.md").read_text()
 
 
+def _record_loads(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The names of the checkpoints the tradeoff scores, in the order it loads them."""
+    loaded: list[str] = []
+    real_load = tradeoff_module.load_model
+
+    def load(path: Path, device: torch.device) -> object:
+        loaded.append(Path(path).name)
+        return real_load(path, device)
+
+    monkeypatch.setattr(tradeoff_module, "load_model", load)
+    return loaded
+
+
 def test_a_single_paired_folder_is_scored_on_pairs_it_did_not_train_on(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -237,14 +250,7 @@ def test_a_single_paired_folder_is_scored_on_pairs_it_did_not_train_on(
     data = paired_training_data(folder, base.data, 1, base.train.seed)
     trained = {pair.name for pair in data.train.source}  # type: ignore[attr-defined]
     variant = next(v for v in DEFAULT_VARIANTS if v.name == "G")
-    loaded: list[str] = []
-    real_load = tradeoff_module.load_model
-
-    def load(path: Path, device: torch.device) -> object:
-        loaded.append(Path(path).name)
-        return real_load(path, device)
-
-    monkeypatch.setattr(tradeoff_module, "load_model", load)
+    loaded = _record_loads(monkeypatch)
     result = run_tradeoff(folder, tmp_path / "out", torch.device("cpu"), Budget(steps=1), base,
                           (variant,), latency_runs=1)  # fmt: skip
     # the validation pairs are the scored ones: they choose no checkpoint, the end is scored
@@ -708,14 +714,7 @@ def test_the_validation_split_scored_scores_the_end_of_the_budget(
     """best.pt is the best of noisy validations on those very pairs: not their score."""
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
     variant = next(v for v in DEFAULT_VARIANTS if v.name == "G")
-    loaded: list[str] = []
-    real_load = tradeoff_module.load_model
-
-    def load(path: Path, device: torch.device) -> object:
-        loaded.append(Path(path).name)
-        return real_load(path, device)
-
-    monkeypatch.setattr(tradeoff_module, "load_model", load)
+    loaded = _record_loads(monkeypatch)
     result = run_tradeoff(dataset, tmp_path / "out", torch.device("cpu"), Budget(steps=1),
                           tiny_config(), (variant,), latency_runs=1, split="val")  # fmt: skip
     assert loaded == ["last.pt"] and result.meta["scored"] == tradeoff_module.SCORED["last.pt"]
