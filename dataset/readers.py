@@ -92,6 +92,26 @@ def _mask_mismatch(entry: PairEntry, mask: tuple[int, ...], image: tuple[int, ..
     )
 
 
+def read_mask(entry: PairEntry, size: tuple[int, ...]) -> np.ndarray | None:
+    """The pair's untrustworthy-pixel mask, ``(H, W)`` (a colour file: any channel set), or None.
+
+    Args:
+        entry: the pair.
+        size: ``(height, width)`` of its input.
+
+    Raises:
+        ImageIOError: the mask file is missing or unreadable (names it).
+        DatasetError: the mask is not ``size`` (names the mask file).
+    """
+    if entry.mask_path is None:
+        return None
+    mask = read_image(entry.mask_path)
+    mask = mask if mask.ndim == 2 else mask.max(axis=2)
+    if mask.shape != tuple(size):
+        raise DatasetError(_mask_mismatch(entry, mask.shape[:2], tuple(size)))
+    return mask
+
+
 class PairedDataset:
     """A list of pairs that reads its images on access (map-style, like a torch Dataset)."""
 
@@ -100,17 +120,18 @@ class PairedDataset:
         root: Path,
         layout: Layout,
         entries: Sequence[PairEntry],
-        unpaired: Sequence[str] = (),
+        unpaired: Sequence[tuple[str, str]] = (),
     ) -> None:
         """Wrap ``entries`` found under ``root`` in ``layout``.
 
-        ``unpaired`` names the files left without a partner (``input/c.png (no
-        target)``), which only a lenient :func:`open_paired` leaves out.
+        ``unpaired`` holds ``(file, what it lacks)`` for each file left without
+        a partner (``("input/c.png", "no target")``), which only a lenient
+        :func:`open_paired` leaves out.
         """
         self.root = Path(root)
         self.layout: Layout = layout
         self.entries: tuple[PairEntry, ...] = tuple(entries)
-        self.unpaired: tuple[str, ...] = tuple(unpaired)
+        self.unpaired: tuple[tuple[str, str], ...] = tuple(unpaired)
 
     def __len__(self) -> int:
         """Number of pairs."""
@@ -132,12 +153,7 @@ class PairedDataset:
                 f"{entry.input_path}: {input_image.shape} {input_image.dtype} does not match "
                 f"{entry.target_path} {target.shape} {target.dtype}"
             )
-        mask = None
-        if entry.mask_path is not None:
-            mask = read_image(entry.mask_path)
-            mask = mask if mask.ndim == 2 else mask.max(axis=2)
-            if mask.shape != input_image.shape[:2]:
-                raise DatasetError(_mask_mismatch(entry, mask.shape[:2], input_image.shape[:2]))
+        mask = read_mask(entry, input_image.shape[:2])
         return PairedItem(entry.name, input_image, target, mask, entry.difficulty)
 
     def check_headers(self, most: int = 3) -> list[tuple[int, int, int, str]]:
@@ -267,7 +283,7 @@ def open_paired(path: Path, split: str | None = None, strict: bool = True) -> Pa
     masks = _index(folder / "mask", key) if (folder / "mask").is_dir() else {}
     unpaired = _unpaired(input_dir, target_dir, inputs, targets, masks)
     if unpaired and strict:
-        names = listed(unpaired, 5, ", ")
+        names = listed([f"{file} ({lacks})" for file, lacks in unpaired], 5, ", ")
         raise DatasetError(f"{folder}: {len(unpaired)} unpaired file(s): {names}")
     if not inputs and layout != "lenspair":  # a lenspair split may be empty (fraction 0)
         raise DatasetError(f"{folder}: no images in {input_dir}/")
@@ -311,14 +327,16 @@ def _unpaired(
     inputs: dict[str, Path],
     targets: dict[str, Path],
     masks: dict[str, Path],
-) -> list[str]:
-    """The files without a partner, each with what it lacks, in natural order."""
-    unpaired = [f"{input_dir}/{inputs[n].name} (no {target_dir})" for n in inputs.keys() - targets]
-    unpaired += [
-        f"{target_dir}/{targets[n].name} (no {input_dir})" for n in targets.keys() - inputs
+) -> list[tuple[str, str]]:
+    """``(file, what it lacks)`` for each file without a partner, in natural order."""
+    unpaired = [
+        (f"{input_dir}/{inputs[n].name}", f"no {target_dir}") for n in inputs.keys() - targets
     ]
-    unpaired += [f"mask/{masks[n].name} (no pair)" for n in masks.keys() - inputs]
-    return sorted(unpaired, key=natural_key)
+    unpaired += [
+        (f"{target_dir}/{targets[n].name}", f"no {input_dir}") for n in targets.keys() - inputs
+    ]
+    unpaired += [(f"mask/{masks[n].name}", "no pair") for n in masks.keys() - inputs]
+    return sorted(unpaired, key=lambda orphan: natural_key(orphan[0]))
 
 
 def _difficulties(split_folder: Path) -> dict[str, str]:

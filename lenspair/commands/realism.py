@@ -31,7 +31,8 @@ from lenspair.core.errors import ConfigError, LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
 from lenspair.core.progress import progress
-from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired, read_mask
 from lenspair.simulate.natural_images import fit, load_natural_images
 from lenspair.simulate.presets import DROPS_PRESETS, drops_preset, find_clean_images
 from lenspair.simulate.realism import (
@@ -104,10 +105,7 @@ def run(args: argparse.Namespace) -> int:
     for folder in args.pairs:
         split = None if detect_layout(folder) is not None else args.split or DEFAULT_SPLIT
         dataset = open_paired(folder, split, strict=False)  # an orphan is listed and skipped
-        unread = [
-            PairStatistics(name, None, lacks.removesuffix(")"))  # "input/c.png (no target)"
-            for name, lacks in (orphan.rsplit(" (", 1) for orphan in dataset.unpaired)
-        ]
+        unread = [PairStatistics(file, None, lacks) for file, lacks in dataset.unpaired]
         items = progress(
             _readable(dataset, unread),
             desc=f"realism {folder.name}",
@@ -188,24 +186,14 @@ def _readable(dataset: PairedDataset, unread: list[PairStatistics]) -> Iterator[
     for entry in dataset.entries:
         try:
             obstructed, clean = read_image(entry.input_path), read_image(entry.target_path)
-            mask = None if entry.mask_path is None else read_image(entry.mask_path)
-        except LenspairError as exc:  # a truncated file, an unknown format: this pair only
-            unread.append(PairStatistics(entry.name, None, str(exc)))
-            continue
-        if mask is not None and mask.ndim == 3:  # a mask saved in colour: one plane says it
-            mask = mask[..., 0]
-        others = ((entry.target_path, clean), (entry.mask_path, mask))
-        wrong = [(p, i) for p, i in others if i is not None and i.shape[:2] != obstructed.shape[:2]]
-        if wrong:
-            path, image = wrong[0]
-            unread.append(
-                PairStatistics(
-                    entry.name,
-                    None,
+            if obstructed.shape[:2] != clean.shape[:2]:
+                raise DatasetError(
                     f"{entry.input_path}: {obstructed.shape[1]}x{obstructed.shape[0]} does not "
-                    f"match {path} {image.shape[1]}x{image.shape[0]}",
+                    f"match {entry.target_path} {clean.shape[1]}x{clean.shape[0]}"
                 )
-            )
+            mask = read_mask(entry, obstructed.shape[:2])  # as training reads it
+        except LenspairError as exc:  # a truncated file, an unknown format, a size: this pair
+            unread.append(PairStatistics(entry.name, None, str(exc)))
             continue
         yield entry.name, obstructed, clean, mask
 
