@@ -203,11 +203,17 @@ def bag_image_topics(path: Path) -> list[str]:
         reader.close()
 
 
-def bag_topics(path: Path) -> list[str]:
-    """Every topic of a bag, whatever its message type, sorted."""
+def bag_topics(
+    path: Path, topics: tuple[str, str] | None = None
+) -> tuple[list[str], dict[str, CameraName]]:
+    """Every topic of a bag (any message type, sorted) and its cameras' (:func:`bag_camera_topics`).
+
+    From one opening, as :func:`bag_overview`: a bag cut short has no index and
+    is scanned whole by each opening.
+    """
     reader = rosbag._open(Path(path))
     try:
-        return sorted(reader.topics)
+        return sorted(reader.topics), _camera_topics(_image_topics(reader), Path(path), topics)
     finally:
         reader.close()
 

@@ -21,7 +21,8 @@ def positive_int(text: str) -> int:
     return value
 
 
-def _float(text: str) -> float:
+def finite_float(text: str) -> float:
+    """Argparse type: a finite number of any sign (NaN and inf refused)."""
     try:
         value = float(text)
     except ValueError:
@@ -35,7 +36,7 @@ def float_at_least(low: float, *, above: bool = False) -> Callable[[str], float]
     """Argparse type: a finite number >= ``low`` (> ``low`` with ``above``); NaN/inf refused."""
 
     def parse(text: str) -> float:
-        value = _float(text)
+        value = finite_float(text)
         if value < low or (above and value == low):
             raise argparse.ArgumentTypeError(
                 f"expected a number {'>' if above else '>='} {low:g}, got {text!r}"
@@ -78,7 +79,7 @@ def split_name(text: str) -> str:
 
 def fraction(text: str) -> float:
     """Argparse type: a finite number in [0, 1]."""
-    value = _float(text)
+    value = finite_float(text)
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}")
     return value
@@ -86,7 +87,7 @@ def fraction(text: str) -> float:
 
 def open_fraction(text: str) -> float:
     """Argparse type: a finite number strictly between 0 and 1 (a probability threshold)."""
-    value = _float(text)
+    value = finite_float(text)
     if not 0.0 < value < 1.0:
         raise argparse.ArgumentTypeError(f"expected a number in (0, 1), got {text!r}")
     return value

@@ -38,7 +38,6 @@ after Ctrl-C and 143 after SIGTERM (rerun to resume).
 """
 
 import argparse
-import math
 from pathlib import Path
 
 from lenspair.capture.ingest import ingest_recording
@@ -46,7 +45,7 @@ from lenspair.commands.argtypes import (
     add_device_option,
     add_topics_option,
     detector_file,
-    float_at_least,
+    finite_float,
     out_folder,
     positive_int,
     size,
@@ -55,12 +54,10 @@ from lenspair.commands.argtypes import (
 MAX_TIME_OFFSET_MS = 9.2e12
 """The most ``--time-offset`` takes either way: stamps are 64-bit ns (2**63 ns ~ 9.22e12 ms)."""
 
-_finite = float_at_least(-math.inf)  # a finite number (NaN and inf refused), of any sign
-
 
 def time_offset_ms(text: str) -> float:
     """Argparse type of ``--time-offset``: milliseconds, finite, within the 64-bit ns range."""
-    value = _finite(text)
+    value = finite_float(text)
     if abs(value) > MAX_TIME_OFFSET_MS:
         raise argparse.ArgumentTypeError(
             f"expected at most {MAX_TIME_OFFSET_MS:g} ms either way (the range of ns stamps), "

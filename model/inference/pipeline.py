@@ -430,8 +430,7 @@ def check_suffix_free(bag: Path, cameras: tuple[CameraName, ...], options: Resto
     Raises:
         ModelError: names the bag, the topic and what to do.
     """
-    existing = set(bag_topics(bag))
-    named = bag_camera_topics(bag, options.topics)
+    existing, named = bag_topics(bag, options.topics)
     taken = sorted(
         topic + options.suffix
         for topic, camera in named.items()
