@@ -78,25 +78,25 @@ def test_every_size_the_shortfall_names_is_true_of_a_region_that_is_not_a_rectan
     choose_crop(valid, (714, 536))
 
 
-def test_too_short_at_every_width() -> None:
+@pytest.mark.parametrize(
+    ("right", "message"),
+    [
+        (  # 600 x 300: too short at every width
+            700,
+            r"need 540x360: 60 px too short \(540x300 px fits; no crop 360 px tall does\); "
+            r"the largest crop of that shape that fits is 450x300 px$",
+        ),
+        (  # 500 x 300: too short and too narrow
+            600,
+            r"need 540x360: 40 px too narrow and 60 px too short \(no crop wider than 500 px "
+            r"or taller than 300 px fits\)",
+        ),
+    ],
+)
+def test_a_region_short_of_the_request_says_by_how_much(right: int, message: str) -> None:
     valid = np.zeros((480, 752), dtype=bool)
-    valid[100:400, 100:700] = True  # 600 x 300
-    with pytest.raises(
-        CropError,
-        match=r"need 540x360: 60 px too short \(540x300 px fits; no crop 360 px tall does\); "
-        r"the largest crop of that shape that fits is 450x300 px$",
-    ):
-        choose_crop(valid, (540, 360))
-
-
-def test_too_short_and_too_narrow() -> None:
-    valid = np.zeros((480, 752), dtype=bool)
-    valid[100:400, 100:600] = True  # 500 x 300
-    with pytest.raises(
-        CropError,
-        match=r"need 540x360: 40 px too narrow and 60 px too short \(no crop wider than 500 px "
-        r"or taller than 300 px fits\)",
-    ):
+    valid[100:400, 100:right] = True
+    with pytest.raises(CropError, match=message):
         choose_crop(valid, (540, 360))
 
 
