@@ -115,14 +115,20 @@ rectangles = st.tuples(
 )
 
 
-@settings(max_examples=60, deadline=None)
-@given(st.lists(rectangles, min_size=1, max_size=4), st.integers(2, 90), st.integers(2, 60))
-def test_the_crop_of_that_shape_said_to_fit_fits(
-    parts: list[tuple[int, int, int, int]], width: int, height: int
-) -> None:
+@st.composite
+def regions(draw: st.DrawFn) -> np.ndarray:
+    """A 60x40 valid region made of one to four rectangles (not itself a rectangle)."""
     valid = np.zeros((40, 60), dtype=bool)
-    for x, y, w, h in parts:
+    for x, y, w, h in draw(st.lists(rectangles, min_size=1, max_size=4)):
         valid[y : y + h, x : x + w] = True
+    return valid
+
+
+@settings(max_examples=60, deadline=None)
+@given(regions(), st.integers(2, 90), st.integers(2, 60))
+def test_the_crop_of_that_shape_said_to_fit_fits(
+    valid: np.ndarray, width: int, height: int
+) -> None:
     try:
         choose_crop(valid, (width, height))
     except CropError as error:
@@ -140,13 +146,8 @@ def test_the_crop_of_that_shape_said_to_fit_fits(
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(rectangles, min_size=1, max_size=4), st.integers(2, 90), st.integers(2, 60))
-def test_every_size_the_shortfall_names_is_true(
-    parts: list[tuple[int, int, int, int]], width: int, height: int
-) -> None:
-    valid = np.zeros((40, 60), dtype=bool)
-    for x, y, w, h in parts:
-        valid[y : y + h, x : x + w] = True
+@given(regions(), st.integers(2, 90), st.integers(2, 60))
+def test_every_size_the_shortfall_names_is_true(valid: np.ndarray, width: int, height: int) -> None:
     try:
         choose_crop(valid, (width, height))
     except CropError as error:
