@@ -162,7 +162,10 @@ def read_data_csv(
         except ValueError:
             t_ns = -1
         if t_ns < 0:
-            reason = f"timestamp is not a non-negative integer (ns): {fields[0][:30]!r}"
+            reason = (
+                f"timestamp is not a non-negative integer (ns): {fields[0][:30]!r}; "
+                f"the row lists {fields[1][:80]!r}"
+            )
             problems.append(FrameProblem(camera, None, where, reason))
             continue
         if inside is None:  # restore writes OUT/<name>: a name leaving data/ must not be one

@@ -39,7 +39,10 @@ def test_an_obstructed_frame_without_a_time_is_named_and_counted(
         lines = csv1.read_text().splitlines()
         lines[3] = "x" + lines[3]
         csv1.write_text("\n".join(lines) + "\n")
-        where, reason = f"{csv1}:4", "timestamp is not a non-negative integer (ns): 'x1"
+        listed = lines[3].split(",")[1]  # the image the bad row lists is named, not only the line
+        where = f"{csv1}:4"
+        reason = f"timestamp is not a non-negative integer (ns): {lines[3].split(',')[0]!r}; "
+        reason += f"the row lists {listed!r}"
         frames, timed = 5, 4
     else:
         _left_right(recording)
