@@ -36,7 +36,9 @@ reports PSNR/SSIM as mean +/- spread (standard deviation over seeds), checks
 convergence (over the last 20 % of the budget validation PSNR moved less than
 the seed spread), marks Pareto points only where a difference exceeds the
 spread, and prints the paper's published rows beside ours, labelled.
---seeds 0 runs the single table above.
+--seeds 0 runs the single table above. One DIR holds one kind: a seeded rerun
+moves a single-seed table and runs of one of its seeds into DIR/seed<k>/ and
+reuses them; a single-seed run into a seeded DIR is refused.
 
   lenspair tradeoff DS --out tradeoff --budget 400 --seeds 0,1,2
 """
@@ -230,6 +232,11 @@ def run(args: argparse.Namespace) -> int:
         print(seeded_markdown(rows, meta))
         print(f"wrote {args.out / 'tradeoff_seeds.md'} and tradeoff_seeds.json")
         return 0
+    # here, not at the top: keeps `--help` from importing torch
+    from lenspair.model.evaluation.tradeoff_seeds import seeded_output_refusal
+
+    if refusal := seeded_output_refusal(args.out):
+        raise ConfigError(refusal)
     base = dataclasses.replace(base, train=dataclasses.replace(base.train, seed=seeds[0]))
     result = run_tradeoff(
         args.dataset,

@@ -11,8 +11,18 @@ PSNR moved less than the seed spread, checked on every seed's learning
 curve ``runs/<variant>/metrics.csv``) and the Pareto front counted only
 where a difference exceeds the spread. The paper's published rows are
 printed beside, labelled. Files: ``OUT/tradeoff_seeds.md`` and ``.json``.
+
+One output folder holds one kind of table. A single-seed tradeoff in ``OUT``
+(``OUT/tradeoff.md`` + ``runs/``, seed k) that a seeded rerun includes is
+moved into ``OUT/seed<k>/``, the same layout, and reused as that seed's
+(:func:`adopt_single_seed`); a single-seed rerun into a seeded ``OUT`` is
+refused (:func:`seeded_output_refusal`): its table would sit beside a
+``tradeoff_seeds.md`` it is not part of, and its runs would train again
+what ``OUT/seed<k>/runs/`` already holds.
 """
 
+import logging
+import os
 import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -21,6 +31,8 @@ from typing import Any
 
 import torch
 
+from lenspair.core.config import read_yaml
+from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.model.evaluation.published import ABLATION, STATE_OF_THE_ART, published_markdown
 from lenspair.model.evaluation.seed_statistics import (
@@ -39,6 +51,18 @@ from lenspair.model.evaluation.tradeoff import (
 )
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.run_files import read_metrics_rows
+
+log = logging.getLogger(__name__)
+
+SINGLE_SEED_FILES = (
+    "runs",
+    "tradeoff.md",
+    "tradeoff.csv",
+    "tradeoff.json",
+    "tradeoff.png",
+    "tradeoff_config.yaml",  # last: while it is in OUT, a killed move is taken up again
+)
+"""What a single-seed tradeoff writes in ``OUT``; ``OUT/seed<k>/`` holds the same."""
 
 
 @dataclass(frozen=True)
@@ -259,6 +283,7 @@ def run_seeded_tradeoff(
 
     """
     out_dir = Path(out_dir)
+    adopt_single_seed(out_dir, seeds)
     results = []
     for seed in seeds:
         config = replace(base, train=replace(base.train, seed=seed))
@@ -304,3 +329,65 @@ def run_seeded_tradeoff(
         },
     )
     return rows, meta
+
+
+def seeded_output_refusal(out_dir: Path) -> str | None:
+    """Why a single-seed tradeoff may not write into ``out_dir``, or ``None``.
+
+    A seeded tradeoff's output (``tradeoff_seeds.json``, or a ``seed<k>/``
+    table of one killed before it was written) is refused: rerun it with its
+    seeds (its runs are reused), or write the single table elsewhere.
+    """
+    out_dir = Path(out_dir)
+    seeded = sorted(
+        path.name
+        for path in (out_dir.iterdir() if out_dir.is_dir() else ())
+        if path.name.startswith("seed") and (path / "tradeoff_config.yaml").is_file()
+    )
+    if not seeded and not (out_dir / "tradeoff_seeds.json").is_file():
+        return None
+    held = f" ({', '.join(seeded)})" if seeded else ""
+    return (
+        f"{out_dir}: holds a tradeoff over several seeds{held}; a single-seed table "
+        "would sit beside its tradeoff_seeds.md and train again what its seed folders "
+        "hold. Rerun it with its --seeds (finished runs are reused) or choose another --out"
+    )
+
+
+def adopt_single_seed(out_dir: Path, seeds: Sequence[int]) -> None:
+    """Move a single-seed tradeoff in ``out_dir`` into ``seed<k>/``, to be reused.
+
+    Raises:
+        ConfigError: ``out_dir`` holds a single-seed tradeoff whose seed is not
+            among ``seeds``, whose seed cannot be read, or whose files clash
+            with ``seed<k>/``'s: one folder must not hold two kinds of table.
+    """
+    config = out_dir / "tradeoff_config.yaml"
+    if not config.is_file():
+        return
+    stored = read_yaml(config)
+    seed = stored.get("seed") if isinstance(stored, dict) else None
+    if not isinstance(seed, int) or seed not in seeds:
+        which = f"seed {seed}" if isinstance(seed, int) else "its seed unreadable"
+        raise ConfigError(
+            f"{out_dir}: holds a single-seed tradeoff ({which}, tradeoff.md); include its "
+            "seed in --seeds to reuse it as that seed's runs, or choose another --out"
+        )
+    target = out_dir / f"seed{seed}"
+    clash = [n for n in SINGLE_SEED_FILES if (out_dir / n).exists() and (target / n).exists()]
+    if clash:
+        raise ConfigError(
+            f"{out_dir}: holds a single-seed tradeoff (seed {seed}) and {target} both hold "
+            f"{', '.join(clash)}; move one of them, or choose another --out"
+        )
+    target.mkdir(exist_ok=True)
+    for name in SINGLE_SEED_FILES:
+        if (out_dir / name).exists():
+            os.replace(out_dir / name, target / name)
+    log.info(
+        "tradeoff: %s held a single-seed tradeoff (seed %d); moved it into %s, "
+        "reused as that seed's",
+        out_dir,
+        seed,
+        target,
+    )

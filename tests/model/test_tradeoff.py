@@ -451,6 +451,43 @@ def test_per_seed_runs_are_reused_by_the_seeded_tradeoff(
     assert meta["seeds"] == [0, 1] and "seed" not in meta
 
 
+def test_one_output_holds_one_kind_of_tradeoff_table(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # A single-seed table a seeded rerun includes moves into seed<k>/ and is reused; a
+    # single-seed rerun into the seeded output, or a seeded one leaving its seed out, is
+    # refused before training, so no table sits beside one it is not part of.
+    caplog.set_level(logging.INFO, logger="lenspair.model.evaluation")
+    monkeypatch.chdir(tmp_path)
+    write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    (tmp_path / "cfg.yaml").write_text(dump_yaml(tiny_config()))
+    common = ["--budget", "1", "--variants", "G", "--config", "cfg.yaml", "--crop-size", "32"]
+    common += ["--batch-size", "2", "--latency-runs", "1", "--no-int8", "--device", "cpu"]
+    assert main(["tradeoff", "ds", "--out", "T", "--seeds", "0", *common]) == 0
+    stamp = (tmp_path / "T/runs/G/checkpoints/last.pt").stat().st_mtime_ns
+    before = sorted(p.name for p in (tmp_path / "T").iterdir())
+    assert main(["tradeoff", "ds", "--out", "T", "--seeds", "1,2", *common]) == 2
+    assert "single-seed tradeoff (seed 0" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "T").iterdir()) == before  # nothing touched
+    (tmp_path / "T/seed0").mkdir()  # as a move killed after its first file leaves it
+    (tmp_path / "T/runs").rename(tmp_path / "T/seed0/runs")
+    assert main(["tradeoff", "ds", "--out", "T", "--seeds", "0,1", *common]) == 0
+    last = tmp_path / "T/seed0/runs/G/checkpoints/last.pt"
+    assert last.stat().st_mtime_ns == stamp  # moved and reused, not trained again
+    assert not any("training it again" in r.getMessage() for r in caplog.records)
+    assert json.loads((tmp_path / "T/seed0/tradeoff.json").read_text())["seed"] == 0
+    names = {p.name for p in (tmp_path / "T").iterdir()}
+    assert names == {"seed0", "seed1", "tradeoff_seeds.md", "tradeoff_seeds.json"}
+    assert main(["tradeoff", "ds", "--out", "T", "--seeds", "0", *common]) == 2
+    [line] = capsys.readouterr().err.strip().splitlines()
+    assert "holds a tradeoff over several seeds (seed0, seed1)" in line
+    assert {p.name for p in (tmp_path / "T").iterdir()} == names
+    assert last.stat().st_mtime_ns == stamp
+
+
 def test_an_empty_split_to_score_is_a_one_line_error(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
