@@ -521,6 +521,11 @@ def _reusable(
     last = run / "checkpoints" / "last.pt"
     if not last.is_file():
         if run.exists():  # killed before its first checkpoint: train it from the start
+            log.warning(
+                "tradeoff: %s has no checkpoints/last.pt (stopped before its first); "
+                "training it from the start",
+                run,
+            )
             shutil.rmtree(run)
         return False
     checkpoint = load_checkpoint(last)

@@ -395,6 +395,13 @@ def test_a_run_trained_with_other_settings_is_not_reused(
     caplog.clear()
     assert reused(tiny_config(max_steps=60), data, best=False, best_epoch=0)
     assert not caplog.records
+    # stopped before its first checkpoint: nothing to resume, cleared and trained again,
+    # said (the time it had spent is lost)
+    (run / "checkpoints" / "last.pt").unlink()
+    assert not _reusable(run, tiny_config(max_steps=60), torch.device("cpu"), data)
+    assert not run.exists()
+    [record] = caplog.records
+    assert str(run) in record.getMessage() and "no checkpoints/last.pt" in record.getMessage()
 
 
 def test_a_rerun_with_another_seed_retrains_and_records_the_seed(
