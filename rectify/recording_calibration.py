@@ -34,7 +34,7 @@ from lenspair.capture.pairing import FramePair, estimate_period_ns, pair_frames
 from lenspair.capture.recording import open_recording
 from lenspair.capture.recording_types import Recording
 from lenspair.core.errors import LenspairError
-from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.fsutil import atomic_write_texts, json_text
 from lenspair.core.progress import progress
 from lenspair.rectify.boards import Board, Detection, detect_corners, marker_family
 from lenspair.rectify.calibration import (
@@ -44,7 +44,7 @@ from lenspair.rectify.calibration import (
     calibrate_from_detections,
 )
 from lenspair.rectify.errors import RectifyError
-from lenspair.rectify.rig import StereoRig, write_kalibr
+from lenspair.rectify.rig import StereoRig, kalibr_text
 
 log = logging.getLogger(__name__)
 
@@ -274,12 +274,15 @@ def calibrate_recording(
 
 
 def write_calibration(calibration: RecordingCalibration, camchain: Path) -> Path:
-    """Write Kalibr's camchain to ``camchain`` and the JSON report beside it (atomically).
+    """Write Kalibr's camchain to ``camchain`` and the JSON report beside it.
+
+    Both or neither: a refused write (a full disk, a file-size limit) leaves
+    the earlier pair as it was, never a camchain beside another run's report.
 
     Returns:
         The report's path: ``camchain.yaml`` -> ``camchain.report.json``.
     """
-    write_kalibr(camchain, calibration.rig)
     report_path = camchain.with_suffix(".report.json")
-    atomic_write_json(report_path, calibration.report())
+    report = json_text(calibration.report())
+    atomic_write_texts({report_path: report, camchain: kalibr_text(calibration.rig)})
     return report_path

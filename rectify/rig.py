@@ -148,10 +148,14 @@ def rig_to_kalibr(rig: StereoRig) -> dict[str, Any]:
     return {"cam0": _camera_to_kalibr(rig.cam0, rig.topics[0], 1), "cam1": cam1}
 
 
+def kalibr_text(rig: StereoRig) -> str:
+    """``rig`` as the text of a Kalibr camchain YAML file."""
+    return yaml.safe_dump(rig_to_kalibr(rig), sort_keys=False, default_flow_style=None)
+
+
 def write_kalibr(path: Path, rig: StereoRig) -> None:
     """Write ``rig`` as a Kalibr camchain YAML file (atomically)."""
-    text = yaml.safe_dump(rig_to_kalibr(rig), sort_keys=False, default_flow_style=None)
-    atomic_write_text(Path(path), text)
+    atomic_write_text(Path(path), kalibr_text(rig))
 
 
 def camera_from_kalibr(data: Any, where: str) -> CameraModel:

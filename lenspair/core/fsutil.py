@@ -82,6 +82,17 @@ def atomic_write(
 
     """
     path = Path(path)
+    tmp = _write_temporary(path, writer, suffix, sync)
+    try:
+        with naming_errors(path):
+            os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def _write_temporary(path: Path, writer: Callable[[Path], None], suffix: str, sync: bool) -> Path:
+    """The complete file ``writer`` writes, in a temporary beside ``path`` (removed on failure)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with naming_errors(path):
         fd, tmp_name = tempfile.mkstemp(
@@ -95,9 +106,43 @@ def atomic_write(
             os.chmod(tmp, FILE_MODE)  # mkstemp creates 0o600
             if sync:
                 _sync(tmp)  # where NFS and the like report a full disk
-            os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
+        raise
+    return tmp
+
+
+def _bytes_writer(data: bytes) -> Callable[[Path], None]:
+    """A writer for :func:`atomic_write` that writes ``data``."""
+
+    def _write(tmp: Path) -> None:
+        tmp.write_bytes(data)
+
+    return _write
+
+
+def atomic_write_texts(files: dict[Path, str]) -> None:
+    """Write several UTF-8 files that belong together: all of them, or none.
+
+    Each is written and flushed to a temporary beside it; only once every one
+    is complete are they renamed into place, in the order given. A refusal (a
+    full disk, a file-size limit) leaves every earlier version as it was, so a
+    product never sits beside a report of another run.
+
+    Raises:
+        OSError: as :func:`atomic_write`, naming the file refused.
+    """
+    temporaries: list[tuple[Path, Path]] = []
+    try:
+        for path, text in files.items():
+            data = text.encode("utf-8", "backslashreplace")
+            temporaries.append((_write_temporary(Path(path), _bytes_writer(data), "", True), path))
+        for tmp, path in temporaries:
+            with naming_errors(Path(path)):
+                os.replace(tmp, path)
+    except BaseException:
+        for tmp, _ in temporaries:
+            tmp.unlink(missing_ok=True)
         raise
 
 
@@ -208,11 +253,7 @@ def _sync(path: Path) -> None:
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically."""
-
-    def _write(tmp: Path) -> None:
-        tmp.write_bytes(data)
-
-    atomic_write(path, _write)
+    atomic_write(path, _bytes_writer(data))
 
 
 def atomic_write_text(path: Path, text: str) -> None:
@@ -224,9 +265,14 @@ def atomic_write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8", "backslashreplace"))
 
 
+def json_text(obj: Any) -> str:
+    """``obj`` as stable, indented JSON (sorted keys, trailing newline)."""
+    return json.dumps(obj, indent=2, sort_keys=True) + "\n"
+
+
 def atomic_write_json(path: Path, obj: Any) -> None:
-    """Write ``obj`` as stable, indented JSON (sorted keys, trailing newline)."""
-    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")
+    """Write ``obj`` as stable, indented JSON (:func:`json_text`)."""
+    atomic_write_text(path, json_text(obj))
 
 
 def remove_path(path: Path) -> None:

@@ -12,6 +12,7 @@ import pytest
 from lenspair.core.fsutil import (
     atomic_write,
     atomic_write_text,
+    atomic_write_texts,
     check_writable,
     clone_file,
     inside_refusal,
@@ -155,6 +156,28 @@ def test_a_refused_write_names_the_user_s_path_not_a_temporary(
         assert (caught.value.errno, caught.value.strerror) == (code, os.strerror(code))
         assert (caught.value.filename, caught.value.filename2) == (str(named), None)
     assert list(folder.iterdir()) == []
+
+
+@pytest.mark.parametrize("refused", ["first", "second"])
+def test_files_written_together_are_all_replaced_or_none(tmp_path: Path, refused: str) -> None:
+    product, report = tmp_path / "camchain.yaml", tmp_path / "camchain.report.json"
+    product.write_text("earlier\n")
+    report.write_text("earlier report\n")
+    small, large = "x" * 100, "y" * 4000
+    texts = (
+        {report: large, product: small} if refused == "first" else {report: small, product: large}
+    )
+    with file_size_limit(1024), pytest.raises(OSError) as caught:
+        atomic_write_texts(texts)
+    named = report if refused == "first" else product
+    assert (caught.value.errno, caught.value.filename) == (errno.EFBIG, str(named))
+    assert (product.read_text(), report.read_text()) == ("earlier\n", "earlier report\n")
+    assert sorted(tmp_path.iterdir()) == sorted([product, report])  # no temporary left
+    atomic_write_texts({report: "new report\n", product: "new\n"})
+    assert (product.read_text(), report.read_text()) == ("new\n", "new report\n")
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    assert _mode(product) == _mode(report) == _mode(plain)
 
 
 def test_check_writable_leaves_nothing_and_makes_no_folder(tmp_path: Path) -> None:

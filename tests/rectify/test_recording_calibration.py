@@ -152,16 +152,38 @@ def test_a_read_only_out_is_refused_before_the_calibration_runs(
     assert list(mounted.iterdir()) == []
 
 
-def test_a_file_too_large_names_the_camchain(tmp_path: Path) -> None:
+def test_a_file_too_large_is_named_and_writes_neither_file(tmp_path: Path) -> None:
     spec = _board_recording(tmp_path, 12)
     assert spec.board is not None
+
+    def argv(out: Path, model: str = "pinhole-equi") -> list[str]:
+        board = ["--board", spec.board.target.spec()]  # type: ignore[union-attr]
+        return ["calibrate", str(tmp_path / "rec"), *board, "--model", model, "--out", str(out)]
+
     out = tmp_path / "cal" / "camchain.yaml"
-    argv = ["calibrate", str(tmp_path / "rec"), "--board", spec.board.target.spec()]
-    failed = run_with_file_limit([*argv, "--model", "pinhole-equi", "--out", str(out)], 256)
+    report = out.with_suffix(".report.json")
+    failed = run_with_file_limit(argv(out), 256)  # nothing fits
     assert failed.returncode == 1, failed.stderr
     (line,) = failed.stderr.strip().splitlines()
-    assert line == f"lenspair calibrate: error: {out}: File too large"
+    assert line in {f"lenspair calibrate: error: {path}: File too large" for path in (out, report)}
     assert list(out.parent.iterdir()) == []  # no temporary left behind
+    # A limit the camchain fits under and its report does not: the camchain was written
+    # without its report. Now neither, named.
+    reference = tmp_path / "reference" / "camchain.yaml"
+    assert main(argv(reference)) == 0
+    sizes = [path.stat().st_size for path in (reference, reference.with_suffix(".report.json"))]
+    assert sizes[0] < sizes[1]
+    between = run_with_file_limit(argv(out), sum(sizes) // 2)
+    assert between.returncode == 1, between.stderr
+    (line,) = between.stderr.strip().splitlines()
+    assert line == f"lenspair calibrate: error: {report}: File too large"
+    assert list(out.parent.iterdir()) == []
+    # and the pair of an earlier run (another model) stays a pair
+    assert main(argv(out, "pinhole-radtan")) == 0
+    earlier = {path: path.read_bytes() for path in (out, report)}
+    assert run_with_file_limit(argv(out), sum(sizes) // 2).returncode == 1
+    assert {path: path.read_bytes() for path in (out, report)} == earlier
+    assert sorted(out.parent.iterdir()) == sorted(earlier)
 
 
 def test_a_camera_none_of_whose_frames_reads_is_named_with_the_first_reason(
