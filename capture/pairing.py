@@ -29,7 +29,6 @@ from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording_types import DUPLICATE_TIMESTAMP
 from lenspair.capture.rigfile import CameraName
 
-DUPLICATE = DUPLICATE_TIMESTAMP
 TAKEN = "closer match taken by another frame"
 
 
@@ -226,7 +225,7 @@ def _first_indices(
     first: dict[int, int] = {}
     for index, t in enumerate(stamps):
         if t in first:
-            unpaired.append(UnpairedFrame(camera, index, t, DUPLICATE))
+            unpaired.append(UnpairedFrame(camera, index, t, DUPLICATE_TIMESTAMP))
         else:
             first[t] = index
     return first

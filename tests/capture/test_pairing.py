@@ -6,7 +6,6 @@ from hypothesis import strategies as st
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.pairing import (
-    DUPLICATE,
     MIN_FRAME_PERIOD_NS,
     TAKEN,
     PairingResult,
@@ -15,6 +14,7 @@ from lenspair.capture.pairing import (
     estimate_period_ns,
     pair_frames,
 )
+from lenspair.capture.recording_types import DUPLICATE_TIMESTAMP
 from lenspair.cli import main
 from tests.capture.ingest_helpers import make_recording
 
@@ -68,7 +68,7 @@ def test_duplicates_are_recorded_not_silently_dropped() -> None:
     result = pair_frames([0, 0, 50 * MS], [0, 50 * MS, 50 * MS], tolerance_ns=5 * MS)
     assert [(p.index0, p.index1) for p in result.pairs] == [(0, 0), (2, 1)]
     reasons = {(u.camera, u.index): u.reason for u in result.unpaired}
-    assert reasons == {("cam0", 1): DUPLICATE, ("cam1", 2): DUPLICATE}
+    assert reasons == {("cam0", 1): DUPLICATE_TIMESTAMP, ("cam1", 2): DUPLICATE_TIMESTAMP}
 
 
 def test_unsorted_input_keeps_input_indices() -> None:
@@ -101,8 +101,8 @@ def test_every_frame_accounted_for_exactly_once(ts0: list[int], ts1: list[int], 
         assert abs(pair.dt_ns) <= tol
         assert (ts0[pair.index0], ts1[pair.index1]) == (pair.t0_ns, pair.t1_ns)
     # An unmatched frame never has a free partner within tolerance.
-    free0 = {u.t_ns for u in result.unpaired_of("cam0") if u.reason != DUPLICATE}
-    free1 = {u.t_ns for u in result.unpaired_of("cam1") if u.reason != DUPLICATE}
+    free0 = {u.t_ns for u in result.unpaired_of("cam0") if u.reason != DUPLICATE_TIMESTAMP}
+    free1 = {u.t_ns for u in result.unpaired_of("cam1") if u.reason != DUPLICATE_TIMESTAMP}
     assert not any(abs(a - b) <= tol for a in free0 for b in free1)
 
 
