@@ -31,6 +31,7 @@ follow OpenCV: the centre of the top-left pixel is ``(0, 0)``.
 """
 
 import functools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -88,7 +89,8 @@ class Board:
                 f"got {self.columns}x{self.rows}"
             )
         if not 0.0 < self.square_m < 1.0:
-            hint = " (sizes are in metres; did you give millimetres?)" if self.square_m else ""
+            plausible = math.isfinite(self.square_m) and self.square_m >= 1.0
+            hint = " (sizes are in metres; did you give millimetres?)" if plausible else ""
             raise RectifyError(
                 f"board square size: expected 0 < SQUARE_M < 1, got {self.square_m}{hint}"
             )

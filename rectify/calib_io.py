@@ -47,6 +47,7 @@ Radtan models keep four coefficients (Kalibr's ``k1 k2 p1 p2``); a non-zero
 checked: NaN or Inf is a one-line :class:`RectifyError` naming the file.
 """
 
+import logging
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -58,6 +59,7 @@ import yaml
 
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import (
+    ROTATION_ATOL,
     CameraModel,
     DistortionModel,
     StereoRig,
@@ -66,6 +68,8 @@ from lenspair.rectify.rig import (
     is_rotation,
     read_kalibr,
 )
+
+log = logging.getLogger(__name__)
 
 _CAMERA_KEYS = {
     "cam0": (("K1", "M1", "cameraMatrix1", "camera_matrix_1", "K_left", "camera_matrix_left"),
@@ -120,6 +124,8 @@ def _read_filestorage(path: Path) -> dict[str, tuple[Any, Path]]:
         raise RectifyError(f"{path}: not a readable OpenCV FileStorage file")
     values: dict[str, tuple[Any, Path]] = {}
     try:
+        if not storage.root().isMap():  # empty (a writer stopped after the header), or a list
+            raise RectifyError(f"{path}: holds no named values (empty, or not a mapping)")
         for key in storage.root().keys():  # noqa: SIM118 (a cv2.FileNode, not a dict)
             node = storage.getNode(key)
             if node.isString():
@@ -131,7 +137,11 @@ def _read_filestorage(path: Path) -> dict[str, tuple[Any, Path]]:
             elif node.isMap():
                 try:
                     matrix = node.mat()
-                except (cv2.error, SystemError):  # a map that is not a matrix: not ours
+                except (cv2.error, SystemError) as exc:  # a map that is not a matrix: not ours
+                    if node.getNode("dt").isString():  # an !!opencv-matrix, broken: say so
+                        raise RectifyError(
+                            f"{path}: {key}: not a readable matrix ({_cv_reason(exc)})"
+                        ) from None
                     continue
                 if matrix is not None:
                     values[key] = (np.asarray(matrix, dtype=np.float64), path)
@@ -262,7 +272,18 @@ def _from_filestorage(paths: list[Path], resolution: tuple[int, int] | None) -> 
         size = _find_size(source) or _find_size(merged) or resolution
         if size is None:
             raise RectifyError(f"{K[1]}: no image size (image_size, or image_width/image_height)")
-        cameras.append(_camera(K[0], D[0], _model(source), size, f"{K[1]}: {name}"))
+        model = _model(source)
+        stated = "distortion_model" in source or any(
+            k in source for k in ("fisheye_model", "fisheye")
+        )
+        if not stated and D[0].size == 4:  # cv2.calibrate writes 5 or more; cv2.fisheye 4
+            log.warning(
+                "%s: %s: 4 distortion coefficients and no distortion_model: read as radtan "
+                "(k1 k2 p1 p2); if cv2.fisheye wrote them, add 'distortion_model: equidistant'",
+                D[1],
+                D[2],
+            )
+        cameras.append(_camera(K[0], D[0], model, size, f"{K[1]}: {name}"))
     transform = _pick(merged, ("T_cam1_cam0",))
     if transform is not None:
         matrix = checked_transform(
@@ -285,11 +306,13 @@ def _rig(cam0: CameraModel, cam1: CameraModel, matrix: np.ndarray, where: str) -
 
 
 def _ros_matrix(data: dict[str, Any], key: str, shape: tuple[int, int], path: Path) -> np.ndarray:
+    if key not in data:
+        raise RectifyError(f"{path}: missing key {key!r}")
+    node = data[key]
+    if isinstance(node, dict) and "data" not in node:
+        raise RectifyError(f"{path}: {key}: no 'data' list")
     try:
-        node = data[key]
         values = np.asarray(node["data"] if isinstance(node, dict) else node, dtype=np.float64)
-    except KeyError:
-        raise RectifyError(f"{path}: missing key {key!r}") from None
     except (TypeError, ValueError):
         raise RectifyError(f"{path}: {key}: expected a list of numbers") from None
     _finite(path, key, values)
@@ -356,6 +379,9 @@ def _from_ros(paths: list[Path], texts: list[str]) -> tuple[StereoRig, str]:
         parsed.append(_ros_camera(path, data))
     where = f"{paths[0]} + {paths[1]}"
     (cam0, rect0, proj0), (cam1, rect1, proj1) = parsed
+    for path, rectification in ((paths[0], rect0), (paths[1], rect1)):
+        if not is_rotation(rectification, atol=ROTATION_ATOL):
+            raise RectifyError(f"{path}: rectification_matrix is not a rotation matrix")
     if len(paths) == 3:
         rig = _rig(cam0, cam1, _extrinsic_file(paths[2], texts[2]), where)
         return rig, f"ROS camera_info {where} (extrinsic from {paths[2]})"
@@ -404,7 +430,7 @@ def is_euroc_sensor_file(path: Path) -> bool:
 def _rigid(path: Path, matrix: np.ndarray) -> np.ndarray:
     """``T_BS`` checked to be a rigid transform (rotation, translation, bottom row 0 0 0 1)."""
     rigid = np.allclose(matrix[3], (0.0, 0.0, 0.0, 1.0), atol=1e-6)
-    if not (rigid and is_rotation(matrix[:3, :3], atol=1e-4)):
+    if not (rigid and is_rotation(matrix[:3, :3], atol=ROTATION_ATOL)):
         raise RectifyError(
             f"{path}: T_BS is not a rigid transform (a rotation, a translation and the bottom "
             "row 0 0 0 1)"

@@ -142,6 +142,30 @@ def _search_again(
         detections[row][index] = detect_corners(image, board, thorough=True)
 
 
+def _charuco_hint(image: np.ndarray, board: Board) -> str:
+    """Why a ChArUco board may be found in no view: its markers' family, or its size.
+
+    The chessboard corners of a ChArUco board are found through its markers;
+    a spec naming another marker family, or the squares the other way round
+    (ROWSxCOLS), finds none, and said only "found in 0 views".
+    """
+    if board.kind != "charuco" or board.dictionary is None:
+        return ""
+    family = marker_family(image)
+    if family is None:
+        return ""
+    seen = family.rsplit("_", 1)[0]  # DICT_4X4
+    if not board.dictionary.startswith(f"{seen}_"):
+        return (
+            f"; the frames show {seen} markers, not {board.dictionary}'s: give the board's "
+            "dictionary as the spec's last field"
+        )
+    return (
+        f"; {seen} markers are seen, so check COLSxROWS (squares across, then down, as the "
+        "board was generated) and the dictionary's size"
+    )
+
+
 def calibrate_recording(
     recording_path: Path,
     board: Board,
@@ -192,6 +216,7 @@ def calibrate_recording(
     where: list[list[str]] = []
     first_problem: list[str] = ["", ""]  # per camera: why its first unread frame was not read
     looked_for_markers = False
+    sample: np.ndarray | None = None  # one frame read, for a hint when the board is not found
     warnings: list[str] = []  # said here, and kept for the report
     for pair in progress(pairs, "detecting board", total=len(pairs), unit="pair"):
         found: list[Detection | None] = []
@@ -208,6 +233,7 @@ def calibrate_recording(
                 found.append(None)
                 continue
             sizes[-1][index] = (image.shape[1], image.shape[0])
+            sample = image if sample is None else sample
             found.append(detect_corners(image, board, thorough=False))
             if found[-1] is not None and board.kind == "chessboard" and not looked_for_markers:
                 looked_for_markers = True  # once, on the first view that shows the board
@@ -254,9 +280,10 @@ def calibrate_recording(
         )
     except RectifyError as exc:  # name the recording and what was found in it
         views = [sum(found[i] is not None for found in detections) for i in (0, 1)]
+        hint = _charuco_hint(sample, board) if min(views) == 0 and sample is not None else ""
         raise RectifyError(
             f"{recording_path}: {exc} ({len(pairs)} frame pairs examined; the board "
-            f"{board.spec()} was found in {views[0]} cam0 and {views[1]} cam1 views)"
+            f"{board.spec()} was found in {views[0]} cam0 and {views[1]} cam1 views){hint}"
         ) from None
     rig = result.rig
     if recording.topics is not None:

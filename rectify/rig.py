@@ -158,6 +158,17 @@ def write_kalibr(path: Path, rig: StereoRig) -> None:
     atomic_write_text(Path(path), kalibr_text(rig))
 
 
+def _numbers(value: Any, where: str, count: int) -> tuple[float, ...]:
+    """``count`` numbers from a YAML list; a string, a flag or another count is refused."""
+    if not isinstance(value, list) or not all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in value
+    ):
+        raise RectifyError(f"{where}: expected a list of {count} numbers, got {value!r}")
+    if len(value) != count:
+        raise RectifyError(f"{where}: expected {count} values, got {len(value)}")
+    return tuple(float(v) for v in value)
+
+
 def camera_from_kalibr(data: Any, where: str) -> CameraModel:
     """One camera of a Kalibr camchain; errors start with ``where``.
 
@@ -177,17 +188,22 @@ def camera_from_kalibr(data: Any, where: str) -> CameraModel:
             raise RectifyError(
                 f"{where}.distortion_model: expected radtan or equidistant, got {dist_model!r}"
             )
-        intrinsics = tuple(float(v) for v in data["intrinsics"])
-        distortion = tuple(float(v) for v in data["distortion_coeffs"])
-        resolution = tuple(int(v) for v in data["resolution"])
+        intrinsics = _numbers(data["intrinsics"], f"{where}.intrinsics", 4)
+        coefficients = data["distortion_coeffs"]
+        if dist_model == "radtan" and isinstance(coefficients, list) and len(coefficients) == 5:
+            if coefficients[4] != 0:
+                raise RectifyError(
+                    f"{where}.distortion_coeffs: radtan has 4 (k1 k2 p1 p2); a fifth (k3) "
+                    f"must be 0, got {coefficients[4]!r}"
+                )
+            coefficients = coefficients[:4]  # a zero k3, as the other readers drop it
+        distortion = _numbers(coefficients, f"{where}.distortion_coeffs", 4)
+        pixels = _numbers(data["resolution"], f"{where}.resolution", 2)
     except KeyError as exc:
         raise RectifyError(f"{where}: missing key {exc.args[0]!r}") from None
-    except (TypeError, ValueError) as exc:
-        raise RectifyError(f"{where}: {exc}") from None
-    if len(intrinsics) != 4 or len(distortion) != 4 or len(resolution) != 2:
-        raise RectifyError(
-            f"{where}: expected 4 intrinsics, 4 distortion coefficients and 2 resolution values"
-        )
+    if any(v != int(v) for v in pixels):
+        raise RectifyError(f"{where}.resolution: expected whole pixels, got {list(pixels)}")
+    resolution = (int(pixels[0]), int(pixels[1]))
     try:
         return CameraModel(intrinsics, dist_model, distortion, resolution)  # type: ignore[arg-type]
     except ValueError as exc:
@@ -202,12 +218,25 @@ MIN_BASELINE_M = 1e-4
 stereoRectify then asserts); no stereo rig is built that tight."""
 
 
+ROTATION_ATOL = 1e-3
+"""How far from orthonormal a stated rotation may be (``R @ R.T`` against the
+identity, largest element). A rotation written with 4 decimals is about 1e-4
+off; one written with 3 is about 1e-3 off and is refused (write more decimals)."""
+
+
+def orthonormality_error(rotation: np.ndarray) -> float:
+    """Largest element of ``R @ R.T - I``: 0 for an exact rotation."""
+    return float(np.abs(rotation @ rotation.T - np.eye(3)).max())
+
+
 def checked_transform(matrix: np.ndarray, where: str) -> np.ndarray:
-    """``T_cam1_cam0`` checked: 4x4, finite, a rigid last row, a baseline of a stereo rig.
+    """``T_cam1_cam0`` checked: 4x4, finite, a rotation, a rigid last row, a stereo baseline.
 
     Every calibration reader passes its extrinsic through here, so a zero
-    (placeholder) or millimetre baseline is one line naming the file, not an
-    OpenCV assertion later.
+    (placeholder) or millimetre baseline, or a matrix that is no rotation, is
+    one line naming the file, not an OpenCV assertion later. A rotation
+    rounded where it was written (within :data:`ROTATION_ATOL`) is replaced by
+    the nearest exact one (SVD), as rectification needs.
 
     Raises:
         RectifyError: naming ``where`` and what is wrong.
@@ -219,6 +248,17 @@ def checked_transform(matrix: np.ndarray, where: str) -> np.ndarray:
         raise RectifyError(f"{where}: T_cam1_cam0 holds non-finite values")
     if not np.allclose(matrix[3], [0.0, 0.0, 0.0, 1.0]):
         raise RectifyError(f"{where}: T_cam1_cam0's last row is {matrix[3].tolist()}, not 0 0 0 1")
+    rotation = matrix[:3, :3]
+    if not is_rotation(rotation, atol=ROTATION_ATOL):
+        raise RectifyError(
+            f"{where}: T_cam1_cam0's rotation part is not a proper rotation matrix (R R^T "
+            f"differs from the identity by up to {orthonormality_error(rotation):.2g}, "
+            f"determinant {np.linalg.det(rotation):+.3g})"
+        )
+    if orthonormality_error(rotation) > 1e-9:  # rounded where it was written
+        u, _, vt = np.linalg.svd(rotation)
+        matrix = matrix.copy()
+        matrix[:3, :3] = u @ vt  # det +1: checked above
     if baseline < MIN_BASELINE_M:
         raise RectifyError(
             f"{where}: baseline {baseline:g} m: the two cameras sit at one point, so the "

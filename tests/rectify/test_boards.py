@@ -46,6 +46,13 @@ def test_bad_board_specs_say_what_is_wrong(spec: str, message: str) -> None:
         parse_board_spec(spec)
 
 
+@pytest.mark.parametrize("square", ["nan", "inf", "-25"])
+def test_a_square_size_that_is_no_length_gets_no_millimetre_hint(square: str) -> None:
+    with pytest.raises(RectifyError, match=r"expected 0 < SQUARE_M < 1") as caught:
+        parse_board_spec(f"chessboard:9x6:{square}")
+    assert "millimetres" not in str(caught.value)
+
+
 def test_chessboard_symmetries_are_rotations_of_the_grid() -> None:
     board = parse_board_spec("chessboard:4x3:0.1")
     perms = board.symmetries()

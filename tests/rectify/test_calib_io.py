@@ -74,7 +74,10 @@ def test_opencv_sample_intrinsics_and_extrinsics_files(tmp_path: Path) -> None:
     assert_same_rig(found, rig)
 
 
-def test_opencv_single_camera_files_fisheye(tmp_path: Path) -> None:
+@pytest.mark.parametrize("stated", [True, False])
+def test_opencv_single_camera_files_fisheye(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, stated: bool
+) -> None:
     rig = make_rig("equidistant", rotated=True)
     paths = []
     for name, camera in (("left", rig.cam0), ("right", rig.cam1)):
@@ -85,11 +88,20 @@ def test_opencv_single_camera_files_fisheye(tmp_path: Path) -> None:
             "camera_matrix": camera.K,
             "distortion_coefficients": camera.dist_coeffs,
         }
+        if not stated:
+            del values["fisheye_model"]
         paths.append(write_storage(tmp_path / f"{name}.yml", values))
     rotation_vector = cv2.Rodrigues(rig.R)[0]
     paths.append(write_storage(tmp_path / "stereo.yml", {"R": rotation_vector, "T": rig.t}))
     found, _ = load_calibration(paths)
-    assert_same_rig(found, rig, atol=1e-9)
+    if stated:
+        assert_same_rig(found, rig, atol=1e-9)
+        assert not caplog.records
+    else:  # cv2.fisheye's 4 coefficients, no model named: read as radtan, which is said
+        assert found.cam0.distortion_model == "radtan"
+        said = [r.getMessage() for r in caplog.records if "no distortion_model" in r.getMessage()]
+        assert [line.split(":")[0] for line in said] == [str(paths[0]), str(paths[1])]
+        assert all("distortion_model: equidistant" in line for line in said)
 
 
 def test_opencv_k3_is_refused_not_dropped(tmp_path: Path) -> None:
@@ -334,3 +346,64 @@ def test_a_kalibr_camchain_gets_the_baseline_checks_too(
     (tmp_path / "camchain.yaml").write_text(yaml.safe_dump(data))
     with pytest.raises(RectifyError, match=rf"camchain\.yaml.*T_cn_cnm1.*{message}"):
         load_calibration([tmp_path / "camchain.yaml"])
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["%YAML:1.0\n", "%YAML:1.0\n---\n", "%YAML:1.0\n---\n- 1\n"],
+    ids=["header", "empty", "list"],
+)
+def test_an_opencv_file_without_named_values_is_one_line_naming_it(
+    tmp_path: Path, text: str
+) -> None:
+    # what a calibration script that stopped after opening its output leaves: an OpenCV
+    # assertion (isMap) as a traceback, exit 1 ("the file system refused")
+    path = tmp_path / "calib.yml"
+    path.write_text(text)
+    with pytest.raises(RectifyError, match=rf"^{path}: holds no named values"):
+        load_calibration([path])
+
+
+def test_an_opencv_matrix_with_the_wrong_count_is_named_not_passed_over(tmp_path: Path) -> None:
+    rig = make_rig()
+    keys = {**opencv_stereo_keys(rig), "image_size": np.array([720, 540])}
+    path = write_storage(tmp_path / "stereo.yml", keys)
+    text = path.read_text()
+    start = text.index("data:", text.index("K1:"))
+    path.write_text(text[:start] + text[start:].replace("[", "[ 1., ", 1))  # 10 values, 3x3
+    # it said "no cam0 intrinsics (keys K1/M1...)", of a file that has K1
+    with pytest.raises(RectifyError, match=rf"^{path}: K1: not a readable matrix"):
+        load_calibration([path])
+
+
+def test_ros_files_name_the_matrix_that_is_wrong(tmp_path: Path) -> None:
+    rig = make_rig()
+    left, right = ros_files(tmp_path, rig)
+    data = yaml.safe_load(right.read_text())
+    del data["camera_matrix"]["data"]
+    right.write_text(yaml.safe_dump(data))
+    with pytest.raises(RectifyError, match=rf"^{right}: camera_matrix: no 'data' list"):
+        load_calibration([left, right])  # it said "missing key 'camera_matrix'"
+    data = yaml.safe_load(ros_files(tmp_path, rig)[1].read_text())
+    data["rectification_matrix"]["data"][0] = 3.0
+    right.write_text(yaml.safe_dump(data))
+    with pytest.raises(RectifyError, match=rf"^{right}: rectification_matrix is not a rotation"):
+        load_calibration([left, right])  # it blamed T_cam1_cam0, in neither file
+
+
+def test_euroc_poses_written_with_four_decimals_give_the_rig(tmp_path: Path) -> None:
+    # each T_BS passed the rigid check at 1e-4; their composition was refused at 1e-5
+    from lenspair.simulate.euroc import write_sensor_yaml
+
+    rig = make_rig("equidistant", rotated=True)
+    turned = np.eye(4)
+    turned[:3, :3] = cv2.Rodrigues(np.array([0.2, 0.6, 0.1]))[0]
+    files = [tmp_path / "cam0.yaml", tmp_path / "cam1.yaml"]
+    pose0 = np.round(turned, 4)
+    pose1 = np.round(turned @ np.linalg.inv(rig.T_cam1_cam0), 4)
+    write_sensor_yaml(files[0], rig.cam0, pose0, 20.0, "cam0")
+    write_sensor_yaml(files[1], rig.cam1, pose1, 20.0, "cam1")
+    found, _ = load_calibration(files)
+    rotation = found.T_cam1_cam0[:3, :3]
+    assert np.abs(rotation @ rotation.T - np.eye(3)).max() < 1e-12
+    np.testing.assert_allclose(found.T_cam1_cam0, rig.T_cam1_cam0, atol=5e-4)

@@ -243,6 +243,25 @@ def test_a_charuco_board_given_a_chessboard_spec_is_said_to_be_charuco(tmp_path:
     assert not any("ArUco markers" in w for w in right.report()["warnings"])
 
 
+def test_a_charuco_board_found_in_no_view_is_said_to_have_other_markers_or_another_size(
+    tmp_path: Path,
+) -> None:
+    # both said only "found in 0 cam0 and 0 cam1 views"
+    board = _board_recording(tmp_path, 4, "charuco.yaml").board
+    assert board is not None and board.marker_m is not None
+    family = board.dictionary.rsplit("_", 1)[0]
+    other = "DICT_7X7_50" if family != "DICT_7X7" else "DICT_4X4_50"
+    size, square = f"{board.cols}x{board.rows}", f"{board.square_m}:{board.marker_m}"
+    for spec, said in (
+        (f"charuco:{size}:{square}:{other}", f"the frames show {family} markers, not {other}'s"),
+        (f"charuco:{board.rows}x{board.cols}:{square}:{board.dictionary}", "check COLSxROWS"),
+    ):
+        with pytest.raises(RectifyError) as caught:
+            calibrate_recording(tmp_path / "rec", parse_board_spec(spec), "pinhole-equi")
+        assert "found in 0 cam0 and 0 cam1 views); " in str(caught.value)
+        assert said in str(caught.value)
+
+
 def test_frames_the_quick_check_missed_are_searched_again_only_where_it_may_pay(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

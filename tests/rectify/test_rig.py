@@ -2,6 +2,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import CameraModel, StereoRig, read_kalibr, write_kalibr
@@ -44,3 +45,67 @@ def test_improper_rotation_is_rejected() -> None:
     T[0, 0] = -1.0
     with pytest.raises(ValueError, match="proper rotation"):
         StereoRig(_rig(False).cam0, _rig(False).cam1, T)
+
+
+def _rotation(degrees: float) -> np.ndarray:
+    import cv2
+
+    return cv2.Rodrigues(np.radians([degrees / 3, degrees, degrees / 5]))[0]
+
+
+def test_a_rotation_written_with_four_decimals_is_read_as_the_nearest_rotation(
+    tmp_path: Path,
+) -> None:
+    rig = _rig(False)
+    exact = rig.T_cam1_cam0.copy()
+    exact[:3, :3] = _rotation(35.0)
+    camchain = tmp_path / "c.yaml"
+    write_kalibr(camchain, StereoRig(rig.cam0, rig.cam1, exact))
+    data = yaml.safe_load(camchain.read_text())
+    data["cam1"]["T_cn_cnm1"] = np.round(exact, 4).tolist()  # ~1e-4 from orthonormal
+    camchain.write_text(yaml.safe_dump(data))
+    back = read_kalibr(camchain).T_cam1_cam0  # it was refused as "not a proper rotation"
+    assert np.abs(back[:3, :3] @ back[:3, :3].T - np.eye(3)).max() < 1e-12
+    assert np.abs(back - exact).max() < 1e-4  # the rotation meant
+    # three decimals are no longer a rotation someone measured: refused, saying by how much
+    data["cam1"]["T_cn_cnm1"] = np.round(exact, 2).tolist()
+    camchain.write_text(yaml.safe_dump(data))
+    with pytest.raises(RectifyError, match=r"c\.yaml: cam1\.T_cn_cnm1: .*not a proper rotation"):
+        read_kalibr(camchain)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "said"),
+    [
+        ("resolution", [720.6, 540], r"cam0\.resolution: expected whole pixels"),
+        ("intrinsics", "3503", r"cam0\.intrinsics: expected a list of 4 numbers, got '3503'"),
+        ("intrinsics", [True, 350, 360, 270], r"cam0\.intrinsics: expected a list of 4 numbers"),
+        ("intrinsics", [350, 351, 360], r"cam0\.intrinsics: expected 4 values, got 3"),
+        ("distortion_coeffs", [0.01, 0, 0, 0, 0.2], r"cam0\.distortion_coeffs: radtan has 4"),
+    ],
+)
+def test_a_camchain_value_of_the_wrong_kind_is_refused_not_converted(
+    tmp_path: Path, key: str, value: object, said: str
+) -> None:
+    rig = _rig(False)
+    radtan = CameraModel(rig.cam0.intrinsics, "radtan", (0.01, 0.0, 0.0, 0.0), (720, 540))
+    camchain = tmp_path / "c.yaml"
+    write_kalibr(camchain, StereoRig(radtan, radtan, rig.T_cam1_cam0))
+    data = yaml.safe_load(camchain.read_text())
+    data["cam0"][key] = value
+    camchain.write_text(yaml.safe_dump(data))
+    with pytest.raises(RectifyError, match=said):
+        read_kalibr(camchain)
+
+
+def test_a_zero_fifth_radtan_coefficient_is_read_as_the_other_readers_read_it(
+    tmp_path: Path,
+) -> None:
+    rig = _rig(False)
+    radtan = CameraModel(rig.cam0.intrinsics, "radtan", (0.01, -0.002, 0.001, 0.0), (720, 540))
+    camchain = tmp_path / "c.yaml"
+    write_kalibr(camchain, StereoRig(radtan, radtan, rig.T_cam1_cam0))
+    data = yaml.safe_load(camchain.read_text())
+    data["cam0"]["distortion_coeffs"] = [*radtan.distortion, 0.0]
+    camchain.write_text(yaml.safe_dump(data))
+    assert read_kalibr(camchain).cam0 == radtan
