@@ -33,6 +33,14 @@ and skimage's reflect-mode padding never matters. Both SSIM paths compute in
 float64, as skimage does for uint8 input (and within 1e-6 of its float32
 path), and agree with skimage to 1e-4 or better (see the tests).
 
+Untrustworthy pixels (a dataset's ``mask/``: misregistration, parallax)
+are left out when a ``valid`` map is given, as training leaves them out of
+its loss: PSNR is the MSE over the valid pixels (skimage's
+``peak_signal_noise_ratio(target[valid], output[valid])``), SSIM the mean of
+skimage's SSIM map over the windows that lie wholly on valid pixels (a
+window touching an untrustworthy pixel carries its error into the local
+statistics). A pair with no valid pixel, or no such window, is an error.
+
 Edge cases, never NaN: identical images give PSNR ``+inf`` (skimage too);
 :func:`mean_psnr` caps each value at :data:`PSNR_CAP_DB` before averaging
 so one perfect frame cannot turn a mean into ``inf``. Constant images keep
@@ -143,24 +151,48 @@ def _check_scale(output: Tensor, target: Tensor, convention: "MetricConvention")
             )
 
 
-def psnr(output: Tensor, target: Tensor, data_range: float = 1.0) -> Tensor:
+def _check_valid(valid: Tensor | None, output: Tensor) -> Tensor | None:
+    """``valid`` as ``(N, 1, H, W)`` float64 of 0/1 on ``output``'s device, or None."""
+    if valid is None:
+        return None
+    batch, _, height, width = output.shape
+    if valid.ndim != 4 or tuple(valid.shape) != (batch, 1, height, width):
+        raise ModelError(
+            f"metrics: valid map {tuple(valid.shape)} does not match the images "
+            f"{(batch, 1, height, width)}"
+        )
+    return (valid.to(output.device) > 0).to(torch.float64)
+
+
+def psnr(
+    output: Tensor, target: Tensor, data_range: float = 1.0, valid: Tensor | None = None
+) -> Tensor:
     """Peak signal-to-noise ratio per image, as ``skimage.metrics.peak_signal_noise_ratio``.
 
     Args:
         output: ``(N, C, H, W)`` restored images.
         target: ``(N, C, H, W)`` reference images.
         data_range: peak-to-peak range (1.0 for [0, 1] floats, 255 for uint8).
+        valid: ``(N, 1, H, W)``, non-zero where a pixel is trustworthy; None: all are.
 
     Returns:
         ``(N,)`` float64 ``10 log10(data_range**2 / MSE)`` in dB, MSE over all
-        channels and pixels; ``+inf`` where the images are identical.
+        channels and the valid pixels; ``+inf`` where those are identical.
 
     Raises:
-        ModelError: on mismatched shapes or non-finite values.
+        ModelError: on mismatched shapes, non-finite values, or an image with
+            no valid pixel.
     """
     _check_pair(output, target)
     difference = output.to(torch.float64) - target.to(torch.float64)
-    mse = difference.square().flatten(1).mean(dim=1)
+    weights = _check_valid(valid, output)
+    if weights is None:
+        mse = difference.square().flatten(1).mean(dim=1)
+    else:
+        counted = weights.flatten(1).sum(dim=1) * output.shape[1]
+        if bool((counted == 0).any()):
+            raise ModelError("psnr: an image has no trustworthy pixel to score (mask/ covers it)")
+        mse = (difference.square() * weights).flatten(1).sum(dim=1) / counted
     return 10.0 * torch.log10(data_range**2 / mse)
 
 
@@ -187,6 +219,7 @@ def ssim(
     gaussian_weights: bool = True,
     win_size: int | None = None,
     sample_covariance: bool = False,
+    valid: Tensor | None = None,
 ) -> Tensor:
     """Mean SSIM per image, as ``skimage.metrics.structural_similarity``.
 
@@ -202,13 +235,15 @@ def ssim(
             Gaussian weights.
         sample_covariance: normalise covariances by ``N - 1`` instead of ``N``
             (skimage's default; ``False`` matches Wang et al.).
+        valid: ``(N, 1, H, W)``, non-zero where a pixel is trustworthy: the
+            map is averaged over the windows lying wholly on such pixels.
 
     Returns:
         ``(N,)`` float64 mean SSIM.
 
     Raises:
-        ModelError: on mismatched shapes, non-finite values, an even window
-            or images smaller than the window.
+        ModelError: on mismatched shapes, non-finite values, an even window,
+            images smaller than the window, or no window wholly valid.
     """
     _check_pair(output, target)
     if gaussian_weights:
@@ -242,7 +277,20 @@ def ssim(
     numerator = (2 * mean_x * mean_y + c1) * (2 * cov_xy + c2)
     denominator = (mean_x * mean_x + mean_y * mean_y + c1) * (var_x + var_y + c2)
     ssim_map = numerator / denominator
-    return ssim_map.reshape(batch, -1).mean(dim=1)
+    weights = _check_valid(valid, output)
+    if weights is None:
+        return ssim_map.reshape(batch, -1).mean(dim=1)
+    # a window counts when every pixel under it is valid (a "valid" box sum of the map)
+    box = torch.ones(1, 1, size, size, dtype=torch.float64, device=weights.device)
+    whole = (F.conv2d(weights, box) > count - 0.5).to(torch.float64)  # (N, 1, H', W')
+    windows = whole.flatten(1).sum(dim=1)
+    if bool((windows == 0).any()):
+        raise ModelError(
+            f"ssim: an image has no {size}x{size} window wholly on trustworthy pixels "
+            "(mask/ covers too much of it)"
+        )
+    per_channel = ssim_map.reshape(batch, channels, *ssim_map.shape[-2:]) * whole
+    return per_channel.flatten(1).sum(dim=1) / (windows * channels)
 
 
 def quantize_uint8(images: Tensor) -> Tensor:
@@ -287,7 +335,9 @@ def luma_uint8(images: Tensor) -> Tensor:
     return luma.to(torch.uint8)
 
 
-def image_metrics(output: Tensor, target: Tensor, convention: MetricConvention) -> ImageMetrics:
+def image_metrics(
+    output: Tensor, target: Tensor, convention: MetricConvention, valid: Tensor | None = None
+) -> ImageMetrics:
     """PSNR and SSIM of each image pair under a convention.
 
     Args:
@@ -295,6 +345,8 @@ def image_metrics(output: Tensor, target: Tensor, convention: MetricConvention) 
             ``deraindrop-y`` also takes uint8.
         target: ``(N, C, H, W)`` clean images, the same.
         convention: see the module docstring.
+        valid: ``(N, 1, H, W)``, non-zero where a pixel is trustworthy (the
+            module docstring); None: every pixel is.
 
     Returns:
         Per-image :class:`ImageMetrics`.
@@ -307,15 +359,15 @@ def image_metrics(output: Tensor, target: Tensor, convention: MetricConvention) 
     _check_scale(output, target, convention)
     if convention is MetricConvention.SKIMAGE_GAUSSIAN:  # psnr and ssim check the pair
         return ImageMetrics(
-            psnr=psnr(output, target, data_range=1.0),
-            ssim=ssim(output, target, data_range=1.0, gaussian_weights=True),
+            psnr=psnr(output, target, data_range=1.0, valid=valid),
+            ssim=ssim(output, target, data_range=1.0, gaussian_weights=True, valid=valid),
             convention=convention,
         )
     _check_pair(output, target)
     output_y = luma_uint8(quantize_uint8(output))
     target_y = luma_uint8(quantize_uint8(target))
     return ImageMetrics(
-        psnr=psnr(output_y, target_y, data_range=255.0),
+        psnr=psnr(output_y, target_y, data_range=255.0, valid=valid),
         ssim=ssim(
             output_y,
             target_y,
@@ -323,6 +375,7 @@ def image_metrics(output: Tensor, target: Tensor, convention: MetricConvention) 
             gaussian_weights=False,
             win_size=UNIFORM_WIN_SIZE,
             sample_covariance=True,
+            valid=valid,
         ),
         convention=convention,
     )

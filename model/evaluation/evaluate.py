@@ -37,6 +37,7 @@ from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError, listed
 from lenspair.core.imageio import max_value
 from lenspair.core.progress import progress
+from lenspair.dataset.curation import channel_max
 from lenspair.model import metrics
 from lenspair.model.checkpoint import LoadedModel, load_model
 from lenspair.model.errors import ModelError
@@ -62,16 +63,28 @@ DIFFICULTY_ORDER = ("easy", "medium", "hard", "clean")
 
 
 def score_tensors(
-    output: torch.Tensor, target: torch.Tensor, convention: str
+    output: torch.Tensor,
+    target: torch.Tensor,
+    convention: str,
+    valid: torch.Tensor | None = None,
 ) -> tuple[float, float]:
     """PSNR (dB) and SSIM of one ``(1, C, H, W)`` output against its target, in [0, 1].
 
+    ``valid`` (``(1, 1, H, W)``, non-zero where trustworthy; a dataset's
+    ``mask/`` marks the others) leaves the untrustworthy pixels out, as
+    training leaves them out of its loss (:mod:`lenspair.model.metrics`).
+
     Raises:
-        ModelError: unknown convention.
+        ModelError: unknown convention; no trustworthy pixel to score.
 
     """
-    scores = image_metrics(output, target, parse_metric_convention(convention))
+    scores = image_metrics(output, target, parse_metric_convention(convention), valid)
     return float(scores.psnr[0]), float(scores.ssim[0])
+
+
+def trusted(item: PairItem) -> torch.Tensor | None:
+    """The pair's trustworthy pixels as ``(1, 1, H, W)`` (its ``mask/`` is 0), or None."""
+    return None if item.mask is None else torch.from_numpy(channel_max(item.mask) == 0)[None, None]
 
 
 def mean_psnr(values: Sequence[float]) -> float:
@@ -274,11 +287,12 @@ def score_pairs(
             if device.type == "cpu":  # as restore's backend runs it (its output, to the code)
                 x = x.contiguous(memory_format=torch.channels_last)
             target = to_tensor(item.target, channels)[None].to(device)
+            valid = trusted(item)
             with autocast_context(device, precision):
                 output = network(x)[1]
             output = _quantize(output.float(), item.target.dtype)
-            psnr, ssim = score_tensors(output, target, convention)
-            input_psnr, input_ssim = score_tensors(x.float(), target, convention)
+            psnr, ssim = score_tensors(output, target, convention, valid)
+            input_psnr, input_ssim = score_tensors(x.float(), target, convention, valid)
         except LenspairError as exc:  # e.g. smaller than the SSIM window: this pair only
             log.warning("skipped pair %d: %s: %s", index, item.name, exc)
             bad.append(Unread(index, f"{item.name}: {exc}"))
@@ -338,7 +352,7 @@ def scorable_pairs(
             continue
         try:
             x, target = (to_tensor(image, channels)[None] for image in (item.input, item.target))
-            score_tensors(x, target, convention)
+            score_tensors(x, target, convention, trusted(item))
         except LenspairError as exc:
             log.warning("skipped pair %d: %s: %s", index, item.name, exc)
             unread.append(Unread(index, f"{item.name}: {exc}"))

@@ -173,7 +173,8 @@ def validate(
             x = sample["input"][None].to(device)
             target = sample["target"][None].to(device)
             output = deployed(x)[1].float().clamp(0.0, 1.0)
-            psnr, ssim = score_tensors(output, target, VAL_CONVENTION)
+            valid = sample["valid"][None].to(device)  # mask/'s pixels, out as in the loss
+            psnr, ssim = score_tensors(output, target, VAL_CONVENTION, valid)
         except LenspairError as exc:
             skipped[index] = f"{sample['name']}: {exc}" if sample is not None else str(exc)
             log.warning("validation: left out for the rest of the run: %s", skipped[index])

@@ -7,6 +7,8 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from lenspair.model.errors import ModelError
@@ -209,3 +211,83 @@ def test_images_on_another_scale_are_refused_not_misscored(convention: MetricCon
             image_metrics(b, a, convention)
     # values a hair outside [0, 1] (rounding of a network's output) are scored
     image_metrics((b.double() / 255 * 1.01 - 0.005), a.double() / 255, convention)
+
+
+def _valid_windows(valid: np.ndarray, size: int) -> np.ndarray:
+    """Centres of the ``size`` windows lying wholly on ``valid``, cropped as skimage crops."""
+    eroded = cv2.erode(valid.astype(np.uint8), np.ones((size, size), np.uint8), borderValue=0)
+    pad = (size - 1) // 2
+    return eroded[pad:-pad, pad:-pad].astype(bool)
+
+
+@given(
+    channels=st.sampled_from([1, 3]),
+    size=st.tuples(st.integers(24, 60), st.integers(24, 60)),
+    boxes=st.lists(
+        st.tuples(st.floats(0, 0.9), st.floats(0, 0.9), st.floats(0.05, 0.5), st.floats(0.05, 0.5)),
+        max_size=3,
+    ),
+    seed=st.integers(0, 1000),
+)
+@settings(max_examples=40, deadline=None)
+def test_untrustworthy_pixels_are_left_out_as_skimage_scores_the_rest(
+    channels: int,
+    size: tuple[int, int],
+    boxes: list[tuple[float, float, float, float]],
+    seed: int,
+) -> None:
+    # PSNR over the valid pixels; SSIM: skimage's map over the windows wholly valid
+    a, b = _pair("structured", channels, size, seed)
+    valid = np.ones(size, bool)
+    for top, left, tall, wide in boxes:  # masked rectangles (misregistered regions)
+        y, x = int(top * size[0]), int(left * size[1])
+        valid[y : y + max(1, int(tall * size[0])), x : x + max(1, int(wide * size[1]))] = False
+    windows = _valid_windows(valid, 11)
+    mask = torch.from_numpy(valid)[None, None]
+    a64, b64 = a.astype(np.float64), b.astype(np.float64)
+    if not windows.any():
+        with pytest.raises(ModelError, match="no 11x11 window wholly on trustworthy pixels"):
+            image_metrics(_to_tensor(b), _to_tensor(a), MetricConvention.SKIMAGE_GAUSSIAN, mask)
+        return
+    ours = image_metrics(_to_tensor(b), _to_tensor(a), MetricConvention.SKIMAGE_GAUSSIAN, mask)
+    _, full = structural_similarity(
+        a64 if channels == 3 else a64[..., 0],
+        b64 if channels == 3 else b64[..., 0],
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        data_range=1.0,
+        channel_axis=-1 if channels == 3 else None,
+        full=True,
+    )
+    full = full if channels == 3 else full[..., None]
+    cropped = full[5:-5, 5:-5]
+    assert abs(float(ours.ssim[0]) - cropped[windows].mean()) < 1e-4
+    assert (
+        abs(float(ours.psnr[0]) - peak_signal_noise_ratio(a64[valid], b64[valid], data_range=1.0))
+        < 1e-4
+    )
+    # what lies under the mask does not count: changing it changes neither score
+    scrambled = b.copy()
+    scrambled[~valid] = 1.0 - scrambled[~valid]
+    again = image_metrics(
+        _to_tensor(scrambled), _to_tensor(a), MetricConvention.SKIMAGE_GAUSSIAN, mask
+    )
+    assert abs(float(again.psnr[0]) - float(ours.psnr[0])) < 1e-9
+    assert abs(float(again.ssim[0]) - float(ours.ssim[0])) < 1e-9
+
+
+@pytest.mark.parametrize("convention", list(MetricConvention))
+def test_an_all_trusted_map_scores_as_none_and_an_all_masked_one_is_refused(
+    convention: MetricConvention,
+) -> None:
+    a, b = _pair("structured", 3, (40, 50), 7)
+    plain = image_metrics(_to_tensor(b), _to_tensor(a), convention)
+    trusted = image_metrics(
+        _to_tensor(b), _to_tensor(a), convention, torch.ones(1, 1, 40, 50, dtype=torch.bool)
+    )
+    assert torch.allclose(plain.psnr, trusted.psnr) and torch.allclose(plain.ssim, trusted.ssim)
+    with pytest.raises(ModelError, match="no trustworthy pixel"):
+        image_metrics(_to_tensor(b), _to_tensor(a), convention, torch.zeros(1, 1, 40, 50))
+    with pytest.raises(ModelError, match="valid map"):
+        image_metrics(_to_tensor(b), _to_tensor(a), convention, torch.ones(1, 1, 40, 49))

@@ -13,7 +13,8 @@ from lenspair.model.training.validation import VAL_CONVENTION, validate
 class _Frames:
     """Whole validation frames (odd sizes, as real crops are not)."""
 
-    def __init__(self, count: int = 3) -> None:
+    def __init__(self, count: int = 3, valid: torch.Tensor | None = None) -> None:
+        self.valid = torch.ones(1, 37, 61) if valid is None else valid
         generator = torch.Generator().manual_seed(3)
         self.pairs = [
             (torch.rand(1, 37, 61, generator=generator), torch.rand(1, 37, 61, generator=generator))
@@ -25,7 +26,7 @@ class _Frames:
 
     def __getitem__(self, index: int) -> Sample:
         x, y = self.pairs[index]
-        return Sample(input=x, target=y, valid=torch.ones_like(x), name=f"{index:02d}")
+        return Sample(input=x, target=y, valid=self.valid, name=f"{index:02d}")
 
 
 def test_validation_runs_channels_last_on_a_copy_and_scores_as_the_training_layout() -> None:
@@ -59,3 +60,17 @@ def test_validation_runs_channels_last_on_a_copy_and_scores_as_the_training_layo
     assert abs(psnr - mean_psnr(psnrs)) < 1e-3
     assert abs(ssim - float(np.mean(ssims))) < 1e-5
     assert sheet.ndim == 3 and sheet.size > 0
+
+
+def test_validation_leaves_out_the_pixels_the_loss_leaves_out() -> None:
+    # best.pt was chosen partly on misregistered pixels that training never fitted
+    torch.manual_seed(0)
+    network = build_model("GEA", 1, width=0.25, num_blocks=2)
+    valid = torch.ones(1, 37, 61)
+    valid[:, :, :9] = 0.0  # mask/'s strip
+    frames, spoiled = _Frames(valid=valid), _Frames(valid=valid)
+    spoiled.pairs = [(x, torch.where(valid > 0, y, 1.0 - y)) for x, y in spoiled.pairs]
+    first = validate(network, frames, torch.device("cpu"))
+    second = validate(network, spoiled, torch.device("cpu"))
+    assert first[:2] == second[:2]
+    assert validate(network, _Frames(), torch.device("cpu"))[0] != first[0]  # the strip counted
