@@ -83,7 +83,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=PRECISIONS,
         default="auto",
         help="auto (bf16 on a CPU with avx512_bf16/AMX, else fp32; fp32 on CUDA), fp32, bf16 "
-        "or fp16 (CUDA); torch checkpoints only, ONNX models run in fp32",
+        "or fp16 (CUDA); an ONNX model runs at the precision it was exported at (fp32, or int8 "
+        "from export --int8)",
     )
     add_topics_option(parser)
     parser.add_argument("--resume", action="store_true", help="continue a killed run in OUT")

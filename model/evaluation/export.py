@@ -37,6 +37,7 @@ from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write, atomic_write_bytes
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
+from lenspair.model.inference.backends import session_options
 
 log = logging.getLogger(__name__)
 
@@ -270,9 +271,8 @@ def export_onnx(
     # here, not at the top: a missing or broken onnxruntime degrades to a note
     import onnxruntime as ort
 
-    options = ort.SessionOptions()
     threads = torch.get_num_threads()
-    options.intra_op_num_threads = threads
+    options = session_options(threads)
     session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     feed = {INPUT_NAME: image.numpy()}
     checked = check_images(channels, size)

@@ -49,7 +49,7 @@ from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import INPUT_NAME, Restorer, _onnx_export, check_image
-from lenspair.model.inference.backends import deploy
+from lenspair.model.inference.backends import deploy, session_options
 from lenspair.model.metrics import psnr
 from lenspair.model.training.pairs import Unread, read_pair, to_tensor
 
@@ -178,9 +178,7 @@ def open_session(path: Path, threads: int | None = None) -> Any:
     """An ONNX Runtime CPU session for ``path`` (``threads``: torch's count by default)."""
     import onnxruntime as ort
 
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads or torch.get_num_threads()
-    options.log_severity_level = 3
+    options = session_options(threads)  # no spinning: it is timed beside torch
     return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
 
 

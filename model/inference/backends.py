@@ -9,13 +9,15 @@ fixed ``H x W`` (``fixed_size``); the caller tiles other sizes
 
 Precision: ``--precision auto|fp32|bf16|fp16`` for checkpoints; ``auto`` is the
 hardware-driven choice that ``train``/``eval``/``tradeoff``/``export`` share
-(:func:`resolve_precision`). ONNX models run in fp32.
+(:func:`resolve_precision`). An ONNX model runs at the precision it was
+exported at: fp32, or int8 from ``lenspair export --int8``; ``--precision``
+may only name that one (or ``auto``).
 """
 
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -187,8 +189,7 @@ class OnnxBackend:
                     "(install onnxruntime-gpu) or use --device cpu"
                 )
             providers.insert(0, "CUDAExecutionProvider")
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = threads or torch.get_num_threads()
+        options = session_options(threads)
         try:
             self.session = ort.InferenceSession(str(self.path), options, providers=providers)
         except Exception as exc:  # onnxruntime raises its own assorted types
@@ -239,6 +240,24 @@ def _onnx_precision(path: Path) -> str:
     return "int8" if any(node.op_type in QUANTISED_NODES for node in graph.node) else "fp32"
 
 
+def session_options(threads: int | None = None) -> Any:
+    """ONNX Runtime CPU options: ``threads`` (torch's count by default), no spinning.
+
+    An idle ONNX Runtime worker spins for a while after each run, holding a
+    core. Beside torch (``export --int8`` times the two interleaved) that
+    made torch fp32 read 54 ms where it runs in 2.4 ms, and restore's reader
+    and writer threads compete with it for two cores; without spinning a
+    540x360 GEA ran in 106 against 156 ms on a 2-core CPU (shared load).
+    """
+    import onnxruntime as ort  # here: only ONNX paths need it, and it loads slowly
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads or torch.get_num_threads()
+    options.log_severity_level = 3
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    return options
+
+
 def open_backend(path: Path, device: torch.device | str, precision: str = "auto") -> Backend:
     """A backend for a checkpoint (``.pt``) or an ONNX model (``.onnx``).
 
@@ -246,16 +265,21 @@ def open_backend(path: Path, device: torch.device | str, precision: str = "auto"
         path: the model file; ``.onnx`` selects ONNX Runtime, anything else
             is read as a lenspair checkpoint.
         device: from ``--device`` (resolved in the CLI), or its name (``"cpu"``).
-        precision: ``auto``/``fp32``/``bf16``; ONNX models run in fp32.
+        precision: ``auto``/``fp32``/``bf16``/``fp16``; an ONNX model runs at
+            its own (fp32, or int8), which ``auto`` or that name accept.
 
     Raises:
-        ModelError: unreadable model, or ``bf16`` asked of an ONNX model.
+        ModelError: unreadable model, or another precision asked of an ONNX model.
     """
     path, device = Path(path), torch.device(device)
     if path.suffix.lower() == ".onnx":
-        if precision not in ("auto", "fp32"):
-            raise ModelError(f"--precision {precision}: ONNX models run in fp32 here")
-        return OnnxBackend(path, device)
+        backend = OnnxBackend(path, device)
+        if precision not in ("auto", backend.precision):
+            raise ModelError(
+                f"--precision {precision}: {path} is an {backend.precision} ONNX model and "
+                f"runs as one; use --precision auto, or a checkpoint (.pt) to choose"
+            )
+        return backend
     loaded = load_model(path, device)  # first: a bad file is the only line a user sees
     resolved = resolve_precision(precision, device)
     channels = loaded.config.model.channels or 1

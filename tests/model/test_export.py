@@ -10,9 +10,10 @@ import torch
 
 from lenspair.cli import main
 from lenspair.model.checkpoint import load_model
+from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import check_image, export_torchscript
-from lenspair.model.evaluation.quantize import QUANTISED_OPS
-from lenspair.model.inference.backends import OnnxBackend
+from lenspair.model.evaluation.quantize import QUANTISED_OPS, open_session
+from lenspair.model.inference.backends import OnnxBackend, open_backend
 from lenspair.model.networks.layers import InstanceNorm
 from lenspair.model.training.pretrained import pretrained_weights
 from tests.file_limits import REFUSALS, refuse_writes
@@ -214,6 +215,19 @@ def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     cpu = torch.device("cpu")
     assert OnnxBackend(Path(int8["path"]), cpu).description.endswith("(int8)")
     assert OnnxBackend(onnx_file, cpu).description.endswith("(fp32)")
+    # each runs at its own precision: asking the int8 model for fp32 ran int8, unsaid
+    assert open_backend(Path(int8["path"]), cpu, "int8").precision == "int8"
+    assert open_backend(onnx_file, cpu, "auto").precision == "fp32"
+    for path, asked in ((Path(int8["path"]), "fp32"), (onnx_file, "int8"), (onnx_file, "bf16")):
+        with pytest.raises(ModelError, match=rf"--precision {asked}: .* ONNX model and runs as"):
+            open_backend(path, cpu, asked)
+    # the sessions do not spin between runs (they are timed beside torch)
+    assert (
+        open_session(onnx_file)
+        .get_session_options()
+        .get_session_config_entry("session.intra_op.allow_spinning")
+        == "0"
+    )
 
 
 def test_int8_export_needs_calibration(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
