@@ -16,12 +16,20 @@ image never changes the recording or another dataset. ``link="hard"`` (CLI
 and says so in the card. The dataset is written into a temporary sibling folder
 and renamed into place, so ``DS`` never holds a half-written dataset. A ``DS``
 that already holds a *different* dataset is only replaced with
-``overwrite=True``; rebuilding the same dataset is always allowed. The same
-sources, configuration and seed give byte-identical files.
+``overwrite=True``; rebuilding the same dataset is always allowed, and that
+decision is taken from the manifest, card, config and file list before any
+image is copied. The same sources, configuration and seed give byte-identical
+files, whatever the folder held before: what a rebuild moved between splits
+against the dataset it replaced is logged (and returned in
+:attr:`BuildResult.changed_splits`), not written into ``dataset.json``.
 
 Bad input: a folder without ``pairs.jsonl`` or ``report.json`` is an error
 naming it; a missing, corrupt or mismatched (sha256) image only removes its
-pair, which is counted under its rule and logged as a warning.
+pair, which is counted under its rule and logged as a warning. So does a
+``pairs.jsonl`` line whose ``files`` entry points outside the recording folder
+(an absolute path, or one climbing out with ``..``): rule ``bad_image``, the
+reason naming the line. The check is on the path as written; a symbolic link
+inside the recording folder is followed as any file is.
 """
 
 import itertools
@@ -98,11 +106,18 @@ class Source:
         path: the ingested folder (absolute).
         report: its ``report.json``.
         records: its ``pairs.jsonl`` lines, in file order.
+        lines: the line number in ``pairs.jsonl`` of each record (blank lines
+            counted), for messages; empty: ``index + 1``.
     """
 
     path: Path
     report: IngestReport
     records: tuple[PairRecord, ...]
+    lines: tuple[int, ...] = ()
+
+    def line(self, index: int) -> int:
+        """Line number in ``pairs.jsonl`` of record ``index``."""
+        return self.lines[index] if self.lines else index + 1
 
     @property
     def clean(self) -> str:
@@ -112,11 +127,17 @@ class Source:
 
 @dataclass(frozen=True)
 class BuildResult:
-    """What :func:`build_dataset` made: the dataset folder, its rows and card."""
+    """What :func:`build_dataset` made: the dataset folder, its rows and card.
+
+    ``changed_splits`` says how many pairs changed split against the dataset
+    this build replaced (:func:`changed_splits`), or is None; it is logged,
+    and kept out of the card, whose bytes depend on the inputs alone.
+    """
 
     out: Path
     rows: tuple[ManifestRow, ...]
     card: DatasetCard
+    changed_splits: str | None = None
 
 
 def load_source(path: Path) -> Source:
@@ -154,14 +175,16 @@ def load_source(path: Path) -> Source:
         if record.t_ns in seen:
             raise DatasetError(f"{path / PAIRS_FILE}:{number}: timestamp {record.t_ns} repeats")
         seen.add(record.t_ns)
-    return Source(path, report, records)
+    return Source(path, report, records, tuple(number for number, _ in numbered))
 
 
 def measure_record(source: Source, position: int, index: int, anomaly_delta: float) -> Measured:
     """Read, check and measure the images of line ``index`` of ``source``.
 
     A problem with the pair's files removes the pair (rules ``missing_file``,
-    ``checksum``, ``bad_image``); it is not raised.
+    ``checksum``, ``bad_image``); it is not raised. A ``files`` entry that
+    points outside the recording folder is a ``bad_image``, its reason naming
+    the ``pairs.jsonl`` line: a dataset must not copy files it was not given.
 
     Args:
         source: the recording.
@@ -174,6 +197,13 @@ def measure_record(source: Source, position: int, index: int, anomaly_delta: flo
     base = Measured(position, index, record, files, {})
     if record.status == "rejected":
         return _removed(base, "ingest_rejected", record.reason or "unspecified")
+    for kind, relative in sorted(record.files.items()):
+        if _escapes(relative):
+            reason = (
+                f"{source.path / PAIRS_FILE}:{source.line(index)}: files.{kind} {relative!r} "
+                "points outside the recording folder"
+            )
+            return _removed(base, "bad_image", reason)
     hashes: dict[str, str] = {}
     for kind, file in files.items():
         try:
@@ -213,6 +243,12 @@ def _source_files(folder: Path, record: PairRecord) -> dict[str, Path]:
     return files
 
 
+def _escapes(relative: str) -> bool:
+    """True when a ``files`` entry of ``pairs.jsonl`` names a path outside its folder."""
+    normal = os.path.normpath(relative)
+    return os.path.isabs(normal) or normal == os.pardir or normal.startswith(os.pardir + os.sep)
+
+
 def _removed(measured: Measured, rule: str, reason: str) -> Measured:
     m = measured
     return Measured(m.source, m.index, m.record, m.files, {}, None, rule, reason)
@@ -229,6 +265,12 @@ def assemble_rows(
 
     Returns:
         ``(row, measured pair)`` in manifest order (split, then name), and the plan.
+
+    Raises:
+        DatasetError: pairs survived curation but the split gap left train
+            without any (:func:`~lenspair.dataset.splits.plan_splits` moves a
+            group that keeps pairs into train, so this is a last check, never a
+            silent empty train split).
     """
     survivors = [m for m in measured if (m.source, m.index) not in removed]
     items = {
@@ -248,6 +290,13 @@ def assemble_rows(
         else:
             pairs.append((_row(sources[m.source], m, plan, config), m))
     pairs.sort(key=lambda pair: (SPLITS.index(pair[0].split), pair[0].name))
+    if survivors and not any(row.split == "train" for row, _ in pairs):
+        split = config.split
+        raise DatasetError(
+            f"split: the gap of segment_gap_frames {split.segment_gap_frames} at split borders "
+            f"left train without pairs ({len(survivors)} survived curation); set a smaller "
+            f"split.segment_gap_frames or a larger split.segment_frames ({split.segment_frames})"
+        )
     splits_of: dict[str, set[str]] = {}
     for row, _ in pairs:
         if digest := row.sha256.get("input"):
@@ -326,6 +375,33 @@ def write_dataset(
     link: LinkMode = "copy",
 ) -> None:
     """Write the complete dataset into the empty folder ``folder`` (``link``: see module)."""
+    write_records(folder, [row for row, _ in pairs], card, config, removed)
+    write_images(folder, pairs, link)
+
+
+def write_records(
+    folder: Path,
+    rows: Sequence[ManifestRow],
+    card: DatasetCard,
+    config: DatasetConfig,
+    removed: list[RemovedPair],
+) -> None:
+    """Write the manifest, card, ``removed.jsonl`` and ``config.yaml`` into ``folder``.
+
+    They are what tells two datasets apart (with the file list the rows give),
+    so a rebuild can be compared with the dataset it would replace before a
+    single image is copied.
+    """
+    write_manifest(folder / MANIFEST_FILE, list(rows))
+    write_card(folder / CARD_FILE, card)
+    write_removed(folder / REMOVED_FILE, removed)
+    atomic_write_text(folder / CONFIG_FILE, dump_yaml(config))
+
+
+def write_images(
+    folder: Path, pairs: Sequence[tuple[ManifestRow, Measured]], link: LinkMode = "copy"
+) -> None:
+    """Place every pair's images under ``folder`` and draw the contact sheets."""
     for name in SPLITS:
         for kind in ("input", "target"):
             (folder / name / kind).mkdir(parents=True, exist_ok=True)
@@ -335,10 +411,6 @@ def write_dataset(
             destination.parent.mkdir(parents=True, exist_ok=True)
             _place_image(m.files[kind], destination, link)
     rows = [row for row, _ in pairs]
-    write_manifest(folder / MANIFEST_FILE, rows)
-    write_card(folder / CARD_FILE, card)
-    write_removed(folder / REMOVED_FILE, removed)
-    atomic_write_text(folder / CONFIG_FILE, dump_yaml(config))
     for name in SPLITS:
         selected = [row for row in rows if row.split == name]
         if selected:
@@ -419,10 +491,10 @@ def build_dataset(
     for warning in plan.warnings:
         logger.warning("split: %s", warning)
     rows = [row for row, _ in pairs]
-    split_warnings = plan.warnings
-    if changed := changed_splits(out / MANIFEST_FILE, rows):
-        logger.warning("split: %s", changed)
-        split_warnings = (*split_warnings, changed)  # in the card too
+    # said once the build has replaced that dataset (not when it is refused), and
+    # kept out of the card: a note of what was on disk before made an identical
+    # rerun's card differ, so the rerun was refused as "a different dataset"
+    changed = changed_splits(out / MANIFEST_FILE, rows)
     # as each ingest counted them: by the stable part of the reason (one entry per
     # frame, with its path, made the card unreadable), and frames it could not list
     reasons: Counter[str] = Counter()
@@ -433,7 +505,7 @@ def build_dataset(
         [_source_info(s, rows) for s in loaded],
         Counter(rule for rule, _ in removed.values()),
         reasons,
-        Grouping(plan.mode, plan.moved, split_warnings),
+        Grouping(plan.mode, plan.moved, plan.warnings),
         config,
         image_files="hard-link" if link == "hard" else "copy",
     )
@@ -453,11 +525,16 @@ def build_dataset(
     with naming_errors(out):
         temp = temporary_folder(out.parent, out.name, ".building")
         try:
-            write_dataset(temp, pairs, card, config, gone, link)
+            write_records(temp, rows, card, config, gone)
+            if not overwrite:  # refused now, not after minutes of copying images
+                _check_replaceable(out, temp, rows)
+            write_images(temp, pairs, link)
             _place(temp, out, overwrite)
         finally:
             shutil.rmtree(temp, ignore_errors=True)
-    return BuildResult(out, tuple(rows), card)
+    if changed:
+        logger.warning("split: %s", changed)
+    return BuildResult(out, tuple(rows), card, changed)
 
 
 SESSION_JOIN_PERIODS = 3
@@ -679,6 +756,29 @@ def _out_state(out: Path) -> Literal["absent", "empty", "dataset"]:
     return "dataset"
 
 
+def _check_replaceable(out: Path, temp: Path, rows: Sequence[ManifestRow] | None = None) -> None:
+    """Refuse to replace a different dataset at ``out`` (see :func:`_place`).
+
+    With ``rows``, ``temp`` need only hold the new manifest, card, config and
+    ``removed.jsonl`` (:func:`write_records`): the new file list is the rows'
+    files, so the refusal comes before any image is copied. Without, the
+    images in ``temp`` are listed.
+
+    Raises:
+        DatasetError: ``out`` holds a dataset that differs from the new one.
+    """
+    if _out_state(out) != "dataset":
+        return
+    listed = None
+    if rows is not None:
+        listed = {Path(relative) for row in rows for relative in row.files.values()}
+    difference = dataset_difference(out, temp, listed)
+    if difference is not None:
+        raise DatasetError(
+            f"{out}: holds a different dataset ({difference}); use --overwrite to replace it"
+        )
+
+
 def _place(temp: Path, out: Path, overwrite: bool) -> None:
     """Rename the finished ``temp`` to ``out``, replacing an old dataset when allowed.
 
@@ -687,12 +787,8 @@ def _place(temp: Path, out: Path, overwrite: bool) -> None:
     delete them.
     """
     state = _out_state(out)
-    if state == "dataset":
-        difference = dataset_difference(out, temp)
-        if difference is not None and not overwrite:
-            raise DatasetError(
-                f"{out}: holds a different dataset ({difference}); use --overwrite to replace it"
-            )
+    if state == "dataset" and not overwrite:
+        _check_replaceable(out, temp)
     if state == "absent":
         os.replace(temp, out)
         return

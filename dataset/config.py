@@ -125,8 +125,9 @@ class SplitConfig:
         min_groups_per_split: see ``group_by: auto``.
         segment_frames: length of a segment, in lines of ``pairs.jsonl``
             (obstructed frames, kept or rejected at ingest).
-        segment_gap_frames: frames dropped before a segment border when the
-            two segments land in different splits.
+        segment_gap_frames: pairs dropped before a border between two splits
+            within a recording, counted among the pairs that survived curation
+            (see :mod:`lenspair.dataset.splits`).
     """
 
     fractions: tuple[float, float, float] = (0.8, 0.1, 0.1)

@@ -5,7 +5,11 @@ Three layouts, detected automatically by :func:`open_paired`:
 * ``lenspair``: a dataset built by ``dataset-build``: ``DS/<split>/input/``,
   ``DS/<split>/target/`` (and ``mask/``) with identical names, plus
   ``DS/manifest.jsonl`` for each pair's difficulty. Open the dataset root
-  with a split name, or a split folder.
+  with a split name, or a split folder. A folder is one only when its
+  ``dataset.json`` is a lenspair dataset card (format ``lenspair-dataset/1``),
+  or, without a readable card, when the first row of its ``manifest.jsonl``
+  is a lenspair manifest row: another tool's ``manifest.jsonl`` or
+  ``dataset.json`` beside a paired folder leaves it a ``paired`` one.
 * ``paired``: any folder with ``input/`` and ``target/`` (or ``lq/`` and
   ``gt/``) holding files of identical names (optionally ``mask/``); the
   convention of restoration toolkits.
@@ -19,6 +23,7 @@ listed in natural order (``2`` before ``10``). Images follow
 :mod:`lenspair.core.imageio`: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB.
 """
 
+import json
 import re
 from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass
@@ -27,11 +32,12 @@ from typing import Literal
 
 import numpy as np
 
-from lenspair.core.errors import ImageIOError, listed
+from lenspair.core.config import load_dataclass
+from lenspair.core.errors import ConfigError, ImageIOError, listed
 from lenspair.core.imageio import image_header, read_image
-from lenspair.dataset.card import CARD_FILE
+from lenspair.dataset.card import CARD_FILE, CARD_FORMAT
 from lenspair.dataset.errors import DatasetError
-from lenspair.dataset.manifest import MANIFEST_FILE, read_manifest
+from lenspair.dataset.manifest import MANIFEST_FILE, ManifestRow, read_manifest
 
 Layout = Literal["lenspair", "paired", "raindrop"]
 IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
@@ -215,17 +221,48 @@ class PairedDataset:
 
 
 def detect_layout(folder: Path) -> Layout | None:
-    """Layout of a folder that directly holds the paired sub-folders, or None."""
+    """Layout of a folder that directly holds the paired sub-folders, or None.
+
+    ``input/`` + ``target/`` are a lenspair split when the parent folder is a
+    lenspair dataset (:func:`is_lenspair_dataset`): a ``manifest.jsonl`` or
+    ``dataset.json`` of another tool beside a plain paired folder made it
+    unreadable (its manifest was read strictly).
+    """
     folder = Path(folder)
     if (folder / "input").is_dir() and (folder / "target").is_dir():
-        parent = folder.parent
-        is_lenspair = (parent / MANIFEST_FILE).is_file() or (parent / CARD_FILE).is_file()
-        return "lenspair" if is_lenspair else "paired"
+        return "lenspair" if is_lenspair_dataset(folder.parent) else "paired"
     if (folder / "lq").is_dir() and (folder / "gt").is_dir():
         return "paired"
     if (folder / "data").is_dir() and (folder / "gt").is_dir():
         return "raindrop"
     return None
+
+
+def is_lenspair_dataset(root: Path) -> bool:
+    """True when ``root`` holds a dataset built by ``dataset-build``.
+
+    Its ``dataset.json`` decides when it is a JSON object: a lenspair card has
+    format ``lenspair-dataset/1``, anything else is another tool's (COCO,
+    Hugging Face). Without a card, or with one that cannot be parsed, the
+    first row of ``manifest.jsonl`` decides: a lenspair manifest row (a dataset
+    whose card was lost or never written), or not. Only that row is read, so
+    a damaged later row is still reported by the strict manifest reader.
+    """
+    try:
+        card = json.loads((Path(root) / CARD_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        card = None
+    if isinstance(card, dict):
+        return card.get("format") == CARD_FORMAT
+    try:
+        with (Path(root) / MANIFEST_FILE).open(encoding="utf-8") as manifest:
+            first = next((line for line in manifest if line.strip()), None)
+        if first is None:
+            return False
+        load_dataclass(ManifestRow, json.loads(first))
+    except (OSError, ValueError, ConfigError):
+        return False
+    return True
 
 
 def split_folders(root: Path) -> list[str]:

@@ -4,9 +4,17 @@
 neighbouring frames never land in two splits. A group is a whole recording,
 or, when there are too few recordings (``group_by: auto`` with fewer than
 ``min_groups_per_split`` recordings per non-empty split), a contiguous
-segment of ``segment_frames`` lines of a recording's ``pairs.jsonl``; the
-last ``segment_gap_frames`` frames before a border between two segments that
-land in different splits are dropped (rule ``split_gap``).
+segment of ``segment_frames`` lines of a recording's ``pairs.jsonl``.
+
+**Gaps.** In segment mode, wherever two frames of a recording that follow
+each other among the pairs that survived curation lie in different splits,
+the last ``segment_gap_frames`` surviving pairs before that border are dropped
+(rule ``split_gap``). The gap is counted in surviving pairs, not in lines of
+``pairs.jsonl``: a robot standing still at a border has its frames removed as
+near-duplicates, and a gap of lines would only have removed frames already
+gone, leaving the views on both sides of the border neighbours. So any two
+kept pairs of one recording in different splits have at least
+``segment_gap_frames`` surviving pairs of the recording between them.
 
 **Hashing.** A group goes to the split whose interval of the cumulative
 fractions holds ``u = int(sha256(f"{seed}:{group_id}")[:16], 16) / 2**64``.
@@ -14,23 +22,35 @@ The assignment of a group depends only on its id and the seed, so adding a
 recording later does not move existing pairs between splits (with
 ``group_by: auto``, a rebuild keeps the grouping of the dataset it replaces).
 
-**Side stratification.** Within each stratum (the obstructed camera, i.e.
-the ground-truth side), when the stratum has at least as many groups as there
-are non-empty splits, a deterministic fix-up makes sure every non-empty
-split gets a group of that side: while a split lacks the side, the group of
-that side whose hash ``u`` lies nearest to the split's interval (ties by id),
-taken from a split that holds at least two groups of the side, is moved to
-it. Only moved groups (listed in the card) can change split when data is
-added; a stratum with too few groups is left as hashed, with a warning.
+**Sturdy groups.** A gap can drop every pair of a segment that has no more
+surviving pairs than ``segment_gap_frames``. A group is *sturdy* when it
+keeps a pair whatever the splits of the others: a whole recording, a segment
+with more than ``segment_gap_frames`` surviving pairs, or the last segment
+(with pairs) of its recording, which no gap reaches. Only sturdy groups are
+moved by the two rules below, so that a move is not undone by the gap.
 
-**Train first.** When the hash leaves train empty (one or two short
-recordings give that often), the group nearest train's interval moves there,
-with a warning: a dataset must have something to train on, even if val or
-test then stays empty.
+**Side stratification.** Within each stratum (the obstructed camera, i.e.
+the ground-truth side), when the stratum has at least as many sturdy groups
+as there are non-empty splits, a deterministic fix-up makes sure every
+non-empty split keeps pairs of that side *after the gap*: while a split
+keeps none, the sturdy group of that side whose hash ``u`` lies nearest to
+the split's interval (ties by id), taken from a split that holds at least
+two sturdy groups of the side, is moved to it. Only moved groups (listed in
+the card) can change split when data is added; a stratum with too few sturdy
+groups is left as hashed, with a warning (its splits may then lack the side).
+
+**Train first.** When the hash (and the gap) leaves train without pairs (one
+or two short recordings give that often), the sturdy group nearest train's
+interval moves there, with a warning: a dataset must have something to train
+on, even if val or test then stays empty. A sturdy group always exists where
+there are pairs (the last segment of a recording is one), so a plan never
+leaves train empty. It never undoes the side fix-up: a stratum the fix-up
+covered already keeps pairs in train.
 """
 
 import hashlib
-from collections.abc import Iterable, Sequence
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -154,60 +174,124 @@ def plan_splits(
     assignment = {gid: hashed_split(units[gid], config.fractions) for gid in sorted(sides)}
     intervals = split_intervals(config.fractions)
     active = [name for name, f in zip(SPLITS, config.fractions, strict=True) if f > 0]
+    sturdy = sturdy_groups(items, mode, config)
     moved: list[str] = []
     for side in sorted(set(sides.values())):
         members = sorted(gid for gid, s in sides.items() if s == side)
-        if len(members) < len(active):
+        strong = [gid for gid in members if gid in sturdy]
+        if len(strong) < len(active):
             warnings.append(
                 f"obstructed {side}: {len(members)} group(s) cannot cover the {len(active)} splits"
+                + (
+                    f" (only {len(strong)} of them keep pairs whatever the split gap of "
+                    f"segment_gap_frames {config.segment_gap_frames} drops)"
+                    if len(members) >= len(active)
+                    else ""
+                )
             )
             continue
+        side_items = [item for item in items if item.side == side]
         while True:
-            by_split = {name: [g for g in members if assignment[g] == name] for name in active}
-            empty = [name for name in active if not by_split[name]]
+            kept = _kept_splits(side_items, assignment, mode, config)
+            empty = [name for name in active if name not in kept]
             if not empty:
                 break
+            by_split = {name: [g for g in strong if assignment[g] == name] for name in active}
             start, end = intervals[empty[0]]
             donors = [g for name in active if len(by_split[name]) >= 2 for g in by_split[name]]
             best = min(donors, key=lambda g: (_distance(units[g], start, end), g))
             assignment[best] = empty[0]
             moved.append(best)
-    if "train" in active and assignment and "train" not in assignment.values():
+    if (
+        "train" in active
+        and assignment
+        and "train" not in _kept_splits(items, assignment, mode, config)
+    ):
         # Too few groups for every split: a dataset without training pairs is of no
-        # use, so the group nearest the train interval moves there.
+        # use, so the sturdy group nearest the train interval moves there (a fragile
+        # one could lose its pairs to the gap at its new border).
         start, end = intervals["train"]
-        best = min(assignment, key=lambda g: (_distance(units[g], start, end), g))
+        best = min(sturdy, key=lambda g: (_distance(units[g], start, end), g))
+        if "train" in assignment.values():
+            why = (
+                f"the split gap (segment_gap_frames {config.segment_gap_frames}) dropped every "
+                "pair of train"
+            )
+        else:
+            why = f"{len(assignment)} group(s) left train empty"
         warnings.append(
-            f"{len(assignment)} group(s) left train empty; moved {best} from "
-            f"{assignment[best]} to train (add recordings to fill every split)"
+            f"{why}; moved {best} from {assignment[best]} to train (add recordings to fill "
+            "every split)"
         )
         assignment[best] = "train"
         moved.append(best)
     return SplitPlan(mode, assignment, tuple(sorted(moved)), tuple(warnings), kept_earlier)
 
 
+def sturdy_groups(items: Iterable[SplitItem], mode: GroupMode, config: SplitConfig) -> set[str]:
+    """Groups that keep a pair after the split gap, whatever split each group lands in.
+
+    A group loses at most its last ``segment_gap_frames`` surviving pairs to the
+    gap (:func:`gap_items`), and none when it is the last group of its recording
+    (no border follows it); in recording mode, or without a gap, every group
+    keeps all its pairs.
+    """
+    items = list(items)
+    groups = Counter(group_id(i.recording, i.index, mode, config.segment_frames) for i in items)
+    if mode == "recording" or config.segment_gap_frames == 0:
+        return set(groups)
+    last: dict[str, int] = {}
+    for item in items:
+        last[item.recording] = max(last.get(item.recording, item.index), item.index)
+    ends = {group_id(rid, index, mode, config.segment_frames) for rid, index in last.items()}
+    return {gid for gid, count in groups.items() if count > config.segment_gap_frames} | ends
+
+
 def gap_items(items: Iterable[SplitItem], plan: SplitPlan, config: SplitConfig) -> set[SplitItem]:
     """Pairs to drop so that no two neighbouring frames straddle a split border.
 
-    In segment mode, the last ``segment_gap_frames`` lines before the border
-    of segments ``k`` and ``k + 1`` of a recording are dropped when both
-    segments have pairs and land in different splits. Recording mode drops
-    nothing.
+    In segment mode, the pairs of each recording are taken in line order;
+    wherever one pair and the next lie in different splits, the
+    ``segment_gap_frames`` pairs before the later one are dropped. ``items``
+    are the pairs that survived curation, so the gap is counted in surviving
+    frames: frames curation already removed (a robot standing still, a
+    rejected frame) do not count towards it. Recording mode drops nothing.
     """
-    if plan.mode == "recording" or config.segment_gap_frames == 0:
+    return _gapped(list(items), plan.assignment, plan.mode, config)
+
+
+def _gapped(
+    items: Sequence[SplitItem], assignment: Mapping[str, str], mode: GroupMode, config: SplitConfig
+) -> set[SplitItem]:
+    gap = config.segment_gap_frames
+    if mode == "recording" or gap == 0:
         return set()
-    length = config.segment_frames
-    dropped = set()
+    by_recording: dict[str, list[SplitItem]] = {}
     for item in items:
-        segment = item.index // length
-        border = (segment + 1) * length
-        if item.index < border - config.segment_gap_frames:
-            continue
-        here = plan.assignment.get(group_id(item.recording, item.index, "segment", length))
-        there = plan.assignment.get(group_id(item.recording, border, "segment", length))
-        if there is not None and here != there:
-            dropped.add(item)
+        by_recording.setdefault(item.recording, []).append(item)
+    dropped: set[SplitItem] = set()
+    for recording, members in by_recording.items():
+        members.sort(key=lambda item: item.index)
+        split_of = [
+            assignment.get(group_id(recording, m.index, mode, config.segment_frames))
+            for m in members
+        ]
+        for position in range(1, len(members)):
+            if split_of[position] != split_of[position - 1]:
+                dropped.update(members[max(0, position - gap) : position])
     return dropped
+
+
+def _kept_splits(
+    items: Sequence[SplitItem], assignment: Mapping[str, str], mode: GroupMode, config: SplitConfig
+) -> set[str]:
+    """Splits that keep at least one of ``items`` after the gap."""
+    dropped = _gapped(items, assignment, mode, config)
+    return {
+        assignment[group_id(item.recording, item.index, mode, config.segment_frames)]
+        for item in items
+        if item not in dropped
+    }
 
 
 def _distance(u: float, start: float, end: float) -> float:

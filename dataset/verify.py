@@ -9,6 +9,7 @@ recomputed from the manifest.
 
 import os
 from collections import Counter
+from collections.abc import Collection
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -173,12 +174,22 @@ def _is_users(relative: Path) -> bool:
     return relative.parts[1] not in IMAGE_KINDS
 
 
-def dataset_difference(existing: Path, new: Path) -> str | None:
+def dataset_difference(
+    existing: Path, new: Path, new_files: Collection[Path] | None = None
+) -> str | None:
     """Why the dataset at ``existing`` differs from the one at ``new``; None if the same.
 
     Compares the file lists and the bytes of the manifest, card and config
     (the manifest holds the sha256 of every image). Files a user added to
     the split folders (:func:`user_files`, outside their image folders) are no difference.
+
+    Args:
+        existing: the dataset on disk.
+        new: a folder holding at least the new manifest, card, config and
+            ``removed.jsonl``.
+        new_files: the image files of the new dataset, relative to its root;
+            default: those under ``new``'s split folders. Given, the
+            comparison needs no image of ``new`` on disk.
     """
     for name in _COMPARED_FILES:
         a, b = existing / name, new / name
@@ -186,8 +197,9 @@ def dataset_difference(existing: Path, new: Path) -> str | None:
             return f"{name} differs"
     old_files = {p.relative_to(existing) for p in _split_files(existing)}
     old_files = {p for p in old_files if not _is_users(p)}
-    new_files = {p.relative_to(new) for p in _split_files(new)}
-    if old_files != new_files:
-        example = sorted(old_files ^ new_files)[0]
+    if new_files is None:
+        new_files = {p.relative_to(new) for p in _split_files(new)}
+    if old_files != set(new_files):
+        example = sorted(old_files ^ set(new_files))[0]
         return f"file lists differ, e.g. {example}"
     return None

@@ -26,8 +26,8 @@ folder is one; merge split ROS 1 bags into one .bag first).
 Output: DS/{train,val,test}/{input,target[,mask]}/<rec>_<t_ns>.png,
 manifest.jsonl, dataset.json (the card), removed.jsonl (each removed pair
 with its rule and reason), config.yaml and contact_<split>.png. Same inputs
-and seed give byte-identical files (but for dataset.json's note of pairs
-that a rebuild moved against the dataset it replaced).
+and seed give byte-identical files, whatever DS held before (the count of
+pairs a rebuild moved is printed, not written into dataset.json).
 
 Images are independent copies of the ingested ones (a reflink where the file
 system supports it, else a byte copy): editing a dataset image never changes
@@ -146,6 +146,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"  removed: {listed or 'none'}; tagged clean (kept): {card.tagged_clean}")
     for warning in card.grouping.warnings:
         print(f"  warning: {warning}")
+    if result.changed_splits:
+        print(f"  warning: {result.changed_splits}")
     wanted = dict(zip(SPLITS, card.fractions, strict=True))
     for name in ("val", "test"):
         if wanted[name] > 0 and card.counts[name].pairs == 0:

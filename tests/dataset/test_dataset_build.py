@@ -260,6 +260,40 @@ def test_corrupt_image_is_a_bad_image(recording: RecordingFactory, tmp_path: Pat
     assert {r.rule: r.removed for r in result.card.curation}["bad_image"] == 1
 
 
+@pytest.mark.parametrize("outside", ["../other/input/{t}.png", "{root}/other/input/{t}.png"])
+def test_a_file_outside_the_recording_is_a_bad_image_named_by_its_line(
+    recording: RecordingFactory,
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+    outside: str,
+) -> None:
+    """files.input "../other/input/x.png" was joined to the recording folder unchecked:
+    another recording's image (its sha256 right) was copied into the dataset."""
+    source = recording("rec_a", n=4)
+    other = recording("other", n=4, seed=3)
+    theirs = read_pairs(other / "pairs.jsonl")[1]
+    records = read_pairs(source / "pairs.jsonl")
+    relative = outside.format(t=theirs.t_ns, root=source.parent)
+    files = {**records[2].files, "input": relative}
+    sha256 = {**records[2].sha256, "input": theirs.sha256["input"]}
+    records[2] = replace(records[2], files=files, sha256=sha256)
+    write_pairs(source / "pairs.jsonl", records)
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    with caplog.at_level(logging.WARNING):
+        result = build_dataset([source], tmp_path / "DS", config)
+    assert {r.rule: r.removed for r in result.card.curation}["bad_image"] == 1
+    assert records[2].t_ns not in {row.t_ns for row in result.rows} and len(result.rows) == 3
+    said = f"{source / 'pairs.jsonl'}:3: files.input {relative!r} points outside the recording"
+    (line,) = (tmp_path / "DS" / "removed.jsonl").read_text().splitlines()
+    assert json.loads(line) == {
+        "recording": "rec_a",
+        "t_ns": records[2].t_ns,
+        "rule": "bad_image",
+        "reason": f"{said} folder",
+    }
+    assert f"pair skipped (bad_image): {said}" in caplog.text
+
+
 @pytest.mark.parametrize("missing", ["pairs.jsonl", "report.json"])
 def test_missing_contract_file_is_an_error_naming_the_folder(
     recording: RecordingFactory, tmp_path: Path, missing: str
@@ -558,21 +592,25 @@ def test_one_session_cut_into_two_recordings_across_splits_is_said(
 
 
 def test_a_rebuild_says_how_many_pairs_changed_split(
-    recording: RecordingFactory, tmp_path: Path
+    recording: RecordingFactory, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     sources = _three(recording)
     out = tmp_path / "DS"
     first = build_dataset(sources, out, SEGMENTS)
     again = build_dataset(sources, out, SEGMENTS, overwrite=True)  # the same splits
-    assert not any("changed split" in w for w in again.card.grouping.warnings)
+    assert again.changed_splits is None
     reseeded = replace(SEGMENTS, split=replace(SEGMENTS.split, seed=7))
-    moved = build_dataset(sources, out, reseeded, overwrite=True)
+    with caplog.at_level("WARNING"):
+        moved = build_dataset(sources, out, reseeded, overwrite=True)
     before = {(r.recording, r.t_ns): r.split for r in first.rows}
     changed = sum(before.get((r.recording, r.t_ns), r.split) != r.split for r in moved.rows)
     assert changed > 0
-    (said,) = [w for w in moved.card.grouping.warnings if "changed split" in w]
-    assert said.startswith(f"{changed} pair(s) changed split")
-    assert json.loads((out / "dataset.json").read_text())["grouping"]["warnings"][-1] == said
+    said = moved.changed_splits
+    assert said is not None and said.startswith(f"{changed} pair(s) changed split")
+    assert f"split: {said}" in caplog.text
+    # logged, not in the card: the card's bytes depend on the inputs alone
+    assert not any("changed split" in w for w in moved.card.grouping.warnings)
+    assert "changed split" not in (out / "dataset.json").read_text()
 
 
 def test_a_rebuild_that_fails_at_the_swap_loses_none_of_the_users_files(

@@ -161,3 +161,35 @@ def test_a_mask_of_another_size_is_found_from_headers_and_on_reading(tmp_path: P
         data.check_headers()
     with pytest.raises(DatasetError, match=rf"^{mask}: mask 5x5 does not match 2\.png 12x8$"):
         data[1]
+
+
+@pytest.mark.parametrize(
+    ("name", "text"),
+    [("manifest.jsonl", '{"image": "a.png", "label": 3}\n'), ("dataset.json", '{"images": []}')],
+)
+def test_another_tools_manifest_beside_a_paired_folder_leaves_it_paired(
+    tmp_path: Path, name: str, text: str
+) -> None:
+    """Any manifest.jsonl or dataset.json in the parent made the folder a lenspair split,
+    and the foreign manifest was then read strictly: the pairs could not be opened."""
+    _write(tmp_path / "pairs" / "input", {"1.png": 1, "2.png": 2})
+    _write(tmp_path / "pairs" / "target", {"1.png": 3, "2.png": 4})
+    (tmp_path / name).write_text(text)
+    assert detect_layout(tmp_path / "pairs") == "paired"
+    data = open_paired(tmp_path / "pairs")
+    assert data.layout == "paired" and data.names == ("1", "2")
+    assert data[0].difficulty is None
+    assert open_paired(tmp_path, "pairs").names == ("1", "2")
+
+
+def test_a_lenspair_manifest_without_a_card_still_reads_as_a_lenspair_dataset(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    """The card decides when it is there; a dataset that lost it keeps its difficulties."""
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    ds = build_dataset([recording("rec_a", n=4)], tmp_path / "DS", config).out
+    (ds / "dataset.json").unlink()
+    train = open_paired(ds, "train")
+    assert train.layout == "lenspair" and train[0].difficulty is not None
+    (ds / "dataset.json").write_text('{"images": []}')  # another tool's card: it decides
+    assert open_paired(ds, "train").layout == "paired"

@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 from lenspair.dataset.config import SplitConfig
 from lenspair.dataset.splits import (
     SplitItem,
+    SplitPlan,
     choose_mode,
     gap_items,
     group_id,
@@ -149,3 +150,53 @@ def test_a_length_under_one_is_named_alone(name: str) -> None:
     """The message named both keys when the user had set one."""
     with pytest.raises(ValueError, match=rf"^{name}: expected at least 1, got -1$"):
         SplitConfig(**{name: -1})
+
+
+def test_the_gap_is_counted_in_surviving_frames() -> None:
+    """A robot standing still at a border: its frames were removed as duplicates, and a gap
+    of pairs.jsonl lines dropped only lines already gone (frame 1 in train, 7 in val)."""
+    config = SplitConfig(group_by="segment", segment_frames=5, segment_gap_frames=2)
+    items = [SplitItem("r", index, "cam1") for index in (0, 1, 7, 8, 9, 10, 11)]
+    assignment = {"r#s00000": "train", "r#s00001": "val", "r#s00002": "val"}
+    plan = SplitPlan("segment", assignment, (), ())
+    assert {item.index for item in gap_items(items, plan, config)} == {0, 1}
+    # a segment without survivors between two splits: the gap is still two frames
+    items = [SplitItem("r", index, "cam1") for index in (3, 4, 10, 11, 12)]
+    assignment = {"r#s00000": "train", "r#s00002": "test"}
+    dropped = gap_items(items, SplitPlan("segment", assignment, (), ()), config)
+    assert {item.index for item in dropped} == {3, 4}
+
+
+@given(
+    st.lists(
+        st.tuples(st.integers(0, 2), st.integers(0, 40), st.booleans()), min_size=1, max_size=50
+    ),
+    st.integers(0, 50),
+    st.integers(1, 3),
+)
+def test_the_gap_leaves_train_and_the_side_fixup_standing(
+    raw: list[tuple[int, int, bool]], seed: int, gap: int
+) -> None:
+    """The gap ran after the plan: it could drop train's only pairs (exit 0, train empty)
+    or the only pairs of a side the fix-up had given a split."""
+    sides = {f"r{r}": "cam1" if side else "cam0" for r, _, side in raw}
+    items = sorted({SplitItem(f"r{r}", i, sides[f"r{r}"]) for r, i, _ in raw}, key=str)
+    config = SplitConfig(group_by="segment", segment_frames=5, segment_gap_frames=gap, seed=seed)
+    plan = plan_splits(items, config)
+    dropped = gap_items(items, plan, config)
+    kept = [item for item in items if item not in dropped]
+    split_of = {item: plan.assignment[group_id(item.recording, item.index, "segment", 5)]
+                for item in items}  # fmt: skip
+    assert any(split_of[item] == "train" for item in kept)
+    for side in set(sides.values()):
+        if not any(w.startswith(f"obstructed {side}:") for w in plan.warnings):
+            covered = {split_of[item] for item in kept if item.side == side}
+            assert covered == {"train", "val", "test"}, (side, plan)
+    for recording in sides:  # two kept frames in two splits: `gap` survivors between them
+        order = sorted(
+            (item for item in items if item.recording == recording), key=lambda i: i.index
+        )
+        positions = [n for n, item in enumerate(order) if item not in dropped]
+        for a, b in itertools.pairwise(positions):
+            if split_of[order[a]] != split_of[order[b]]:
+                assert b - a - 1 >= gap

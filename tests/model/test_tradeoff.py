@@ -635,7 +635,8 @@ def test_a_split_asked_for_is_scored_or_refused_never_replaced(tmp_path: Path) -
     assert "held-out validation pairs" in tradeoff(None, "t3").meta["evaluated_on"]
     for side in ("input", "target"):  # an empty one, as dataset-build may leave it: the same
         (dataset / "test" / side).mkdir(parents=True)
-    (dataset / "dataset.json").write_text("{}\n")  # a lenspair dataset: empty splits open
+    # a lenspair dataset (its card says so): empty splits open
+    (dataset / "dataset.json").write_text('{"format": "lenspair-dataset/1"}\n')
     assert "held-out validation pairs" in tradeoff(None, "t4").meta["evaluated_on"]
     with pytest.raises(LenspairError, match="no pairs to score"):
         tradeoff("test", "t5")  # asked for by name: refused, not replaced
