@@ -5,6 +5,11 @@
   lenspair train --synthetic IMAGES_DIR --out RUN [--drops ours|sharp] ...
 
 Example: lenspair train DS --out runs/gea --max-steps 2000 --precision auto
+         lenspair train DS --out runs/g --variant G       # the generator alone
+
+--variant picks the paper's ablation network: G (generator), GE (+ enhancer)
+or GEA (+ aggregation modules, the default); a --config file sets it as
+model: {variant: G}, with model.width and model.num_blocks beside it.
 
 DS is any paired layout lenspair reads: a dataset from dataset-build (trains
 on train/, validates on val/), a folder with input/ + target/ (or lq/ + gt/),
@@ -55,18 +60,17 @@ starts over. Multi-GPU: torchrun --nproc_per_node N -m lenspair train ...
 import argparse
 import dataclasses
 import logging
-import re
 from pathlib import Path
 from typing import Any
 
 from lenspair.commands.argtypes import (
     add_device_option,
-    float_at_least,
     out_folder,
     positive_int,
     random_seed,
 )
 from lenspair.core.device import resolve_device
+from lenspair.core.durations import seconds, steps_or_seconds
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal
 from lenspair.core.wording import counted
@@ -76,15 +80,18 @@ log = logging.getLogger(__name__)
 
 def _every(text: str) -> tuple[int | None, float | None]:
     """Argparse type of --checkpoint-every: ``"500"`` -> (500, None); ``"90s"`` -> (None, 90.0)."""
-    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([smh]?)\s*", text.lower())
-    if match is None or float(match.group(1)) <= 0:
-        raise argparse.ArgumentTypeError(f"expected STEPS or a time like 90s, 10m; got {text!r}")
-    value, unit = float(match.group(1)), match.group(2)
-    if not unit:
-        if value != int(value):
-            raise argparse.ArgumentTypeError(f"steps must be a whole number, got {text!r}")
-        return int(value), None
-    return None, value * {"s": 1.0, "m": 60.0, "h": 3600.0}[unit]
+    try:
+        return steps_or_seconds(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _seconds(text: str) -> float:
+    """Argparse type of --max-seconds: ``"600"``, ``"600s"`` or ``"10m"`` -> 600.0."""
+    try:
+        return seconds(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 SHIPPED_WEIGHTS = "pretrained"
@@ -123,6 +130,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--drops", choices=("ours", "sharp"), help="synthetic drops (ours)")
     group = parser.add_argument_group("overrides of the config file")
+    group.add_argument(
+        "--variant",
+        choices=("G", "GE", "GEA"),
+        help="model.variant: G (generator only), GE (+ enhancer) or GEA (+ aggregation "
+        "modules; the paper's network, default)",
+    )
     group.add_argument("--epochs", type=positive_int, help="train.epochs (200)")
     group.add_argument(
         "--max-steps",
@@ -131,8 +144,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     group.add_argument(
         "--max-seconds",
-        type=float_at_least(0.0, above=True),
-        help="train.max_seconds: stop after this much training time (no limit)",
+        type=_seconds,
+        metavar="TIME",
+        help="train.max_seconds: stop after this much training time: seconds, or 90s, 10m, "
+        "1h (no limit)",
     )
     group.add_argument("--batch-size", type=positive_int, help="train.batch_size (8)")
     group.add_argument("--crop-size", type=positive_int, help="data.crop_size (256)")
@@ -174,9 +189,13 @@ def _overrides(config: Any, args: argparse.Namespace) -> Any:
         {"checkpoint_every_steps", "checkpoint_every_seconds"} if args.checkpoint_every else set()
     )
     data = {"crop_size": args.crop_size, "drops": args.drops}
+    model = {"variant": args.variant}
     try:
         return dataclasses.replace(
             config,
+            model=dataclasses.replace(
+                config.model, **{k: v for k, v in model.items() if v is not None}
+            ),
             train=dataclasses.replace(
                 config.train, **{k: v for k, v in train.items() if v is not None or k in keep_none}
             ),
@@ -321,11 +340,14 @@ def run(args: argparse.Namespace) -> int:
         return 0  # under torchrun only rank 0 reports (the others hold no best PSNR)
     best = summary.run / "checkpoints" / "best.pt"
     validated = summary.best_epoch > 0 and best.is_file()
+    # validated within an epoch the run did not finish: "0 epochs ... (epoch 1)" read as a slip
+    during = "during " if summary.best_epoch > summary.epochs else ""
     print(
         f"{summary.run}: {summary.stop_reason}; {counted(summary.epochs, 'epoch')}, "
         f"{counted(summary.steps, 'step')}, "
         + (
-            f"best validation PSNR {summary.best_psnr:.2f} dB (epoch {summary.best_epoch}); "
+            f"best validation PSNR {summary.best_psnr:.2f} dB ({during}epoch "
+            f"{summary.best_epoch}); "
             if validated
             else ""
         )

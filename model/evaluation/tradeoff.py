@@ -29,7 +29,6 @@ folder and trains it again, with one log line naming the first difference
 """
 
 import logging
-import re
 import shutil
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
@@ -39,6 +38,7 @@ from typing import Any
 import torch
 
 from lenspair.core.config import dump_yaml, to_plain
+from lenspair.core.durations import steps_or_seconds
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.dataset.readers import detect_layout
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_model
@@ -123,17 +123,11 @@ def parse_budget(text: str) -> Budget:
         ModelError: anything else, or a non-positive budget.
 
     """
-    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([smh]?)\s*", text.lower())
-    if match is None:
-        raise ModelError(f"--budget: expected STEPS or SECONDS like 60, 90s, 2m; got {text!r}")
-    value, unit = float(match.group(1)), match.group(2)
-    if value <= 0:
-        raise ModelError(f"--budget must be positive, got {text!r}")
-    if not unit:
-        if value != int(value):
-            raise ModelError(f"--budget: steps must be a whole number, got {text!r}")
-        return Budget(steps=int(value))
-    return Budget(seconds=value * {"s": 1.0, "m": 60.0, "h": 3600.0}[unit])
+    try:
+        steps, seconds = steps_or_seconds(text)
+    except ValueError as exc:
+        raise ModelError(f"--budget: {exc}") from None
+    return Budget(steps=steps) if steps is not None else Budget(seconds=seconds)
 
 
 @dataclass(frozen=True)

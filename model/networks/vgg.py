@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
+from lenspair.model.checkpoint import read_torch_file
 from lenspair.model.errors import ModelError
 
 VGG19_WEIGHTS_ENV = "LENSPAIR_VGG19_WEIGHTS"
@@ -129,11 +130,10 @@ def load_vgg19(path: Path | None = None) -> VGG19Features | None:
     if not path.is_file():
         raise ModelError(f"VGG19 weights: no such file {origin}")
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a bad file
-        raise ModelError(
-            f"VGG19 weights: {origin} is not a state dict loadable with weights_only=True: {exc}"
-        ) from exc
+        state = read_torch_file(path, "VGG19 state dict")
+    except ModelError as exc:  # names the file; and where its name came from
+        source = f" (from ${VGG19_WEIGHTS_ENV})" if origin != str(path) else ""
+        raise ModelError(f"VGG19 weights{source}: {exc}") from None
     network = VGG19Features()
     network.load_state_dict(_select_features(state, network, origin))
     return network

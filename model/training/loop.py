@@ -264,6 +264,8 @@ def fit(
             f"{paths.root} already holds a run ({', '.join(held)}); pass --resume to continue "
             "it, or choose another --out"
         )
+    # read and checked before the run folder is made: a refused --init leaves nothing behind
+    start_from = None if init is None or checkpoint is not None else _read_init(init, config)
     deterministic_before = torch.are_deterministic_algorithms_enabled()
     trainer: Trainer | None = None
     try:
@@ -300,7 +302,7 @@ def fit(
             paths.root.mkdir(parents=True, exist_ok=True)
             remove_run_leftovers(paths)
         with run_logging(paths.log, info.is_main):
-            state = _start(trainer, config, paths, checkpoint, init)
+            state = _start(trainer, config, paths, checkpoint, start_from)
             if checkpoint is not None:
                 config = _with_history(
                     config, checkpoint, paths.last, state.step, warn=info.is_main
@@ -508,9 +510,9 @@ def _start(
     config: RunConfig,
     paths: RunPaths,
     checkpoint: dict[str, Any] | None,
-    init: Path | None,
+    init: tuple[Path, dict[str, Any]] | None,
 ) -> RunState:
-    """Restore a resumed run, or load ``--init`` weights into a new one."""
+    """Restore a resumed run, or load ``--init`` weights (:func:`_read_init`) into a new one."""
     if checkpoint is not None:
         stored = checkpoint_config(checkpoint, paths.last)
         if stored.model != config.model:
@@ -539,18 +541,46 @@ def _start(
     # those of the same run in a fresh process, and of a killed-and-resumed one.
     torch.manual_seed(config.train.seed)
     if init is not None:
-        data = load_checkpoint(init)
-        source = checkpoint_config(data, init).model
-        # Only the restoration network is loaded; the discriminator starts afresh.
-        source = dataclasses.replace(source, discriminator_width=config.model.discriminator_width)
-        if source != config.model:
-            raise ModelError(
-                f"--init {init}: it holds a {source} network, this run builds {config.model}; "
-                "the model sections must match"
-            )
-        load_weights(trainer.model, data, init)
-        log.info("initialised the network from %s (weights only)", init)
+        path, data = init
+        load_weights(trainer.model, data, path)
+        log.info("initialised the network from %s (weights only)", path)
     return RunState()
+
+
+def _read_init(init: Path, config: RunConfig) -> tuple[Path, dict[str, Any]]:
+    """``--init``'s checkpoint, checked to hold the network this run builds.
+
+    Only the restoration network is loaded; the discriminator starts afresh,
+    so its width may differ.
+
+    Raises:
+        ModelError: unreadable, or another network (naming what differs).
+    """
+    data = load_checkpoint(init)
+    source = checkpoint_config(data, init).model
+    source = dataclasses.replace(source, discriminator_width=config.model.discriminator_width)
+    if source != config.model:
+        raise ModelError(
+            f"--init {init}: it holds another network than this run builds "
+            f"({_model_difference(source, config.model)}); the model sections must match"
+        )
+    return init, data
+
+
+def _model_difference(held: Any, built: Any) -> str:
+    """What differs between two model sections, in words ("channels: 1 (mono) in it, ...")."""
+
+    def shown(field: str, value: Any) -> str:
+        if field == "channels" and value in (1, 3):
+            return f"{value} ({'mono' if value == 1 else 'RGB'})"
+        return repr(value)
+
+    return "; ".join(
+        f"{f.name}: {shown(f.name, getattr(held, f.name))} in it, "
+        f"{shown(f.name, getattr(built, f.name))} here"
+        for f in dataclasses.fields(held)
+        if getattr(held, f.name) != getattr(built, f.name)
+    )
 
 
 def _loop(

@@ -250,7 +250,9 @@ class Trainer:
         self.amp_dtype = self.decision.autocast_dtype
         self.scaler = torch.amp.GradScaler(device.type, enabled=self.amp_dtype == torch.float16)
         self.vgg_path = vgg19_weights_path(train.vgg19_weights)
-        self.vgg = None if config.loss.perceptual == 0 else load_vgg19(self.vgg_path)
+        # the config's file, else None: load_vgg19 reads the variable itself, to name it
+        wanted = train.vgg19_weights
+        self.vgg = None if config.loss.perceptual == 0 else load_vgg19(wanted)
         self.perceptual: PerceptualLoss | None = None
         if self.vgg is not None:
             self.vgg = self.vgg.to(device)

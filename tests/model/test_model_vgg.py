@@ -102,7 +102,7 @@ def test_clear_errors(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
 
     garbage = tmp_path / "garbage.pth"
     garbage.write_bytes(b"not a torch file")
-    with pytest.raises(ModelError, match="weights_only"):
+    with pytest.raises(ModelError, match="not a VGG19 state dict"):
         load_vgg19(garbage)
 
     listed = tmp_path / "list.pth"
@@ -114,3 +114,30 @@ def test_clear_errors(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
 def test_wrong_input_channels() -> None:
     with pytest.raises(ModelError, match="1 or 3"):
         VGG19Features()(torch.rand(1, 2, 16, 16))
+
+
+def test_training_names_where_a_bad_weights_file_came_from(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # train resolved the variable itself, so the error named /nonexist without saying why
+    from dataclasses import replace
+
+    from lenspair.model.training.step import Trainer
+    from tests.model.train_fixtures import tiny_config
+
+    config = tiny_config()
+    config = replace(config, loss=replace(config.loss, perceptual=0.1))
+    monkeypatch.setenv(VGG19_WEIGHTS_ENV, str(tmp_path / "missing.pth"))
+    with pytest.raises(ModelError, match=rf"missing\.pth \(from \${VGG19_WEIGHTS_ENV}\)"):
+        Trainer(config, torch.device("cpu"))
+    junk = tmp_path / "junk.pth"
+    junk.write_text("junk\n")  # it said "...weights_only=True: 174812789"
+    monkeypatch.setenv(VGG19_WEIGHTS_ENV, str(junk))
+    with pytest.raises(ModelError) as caught:
+        Trainer(config, torch.device("cpu"))
+    assert str(caught.value) == (
+        f"VGG19 weights (from ${VGG19_WEIGHTS_ENV}): {junk}: not a VGG19 state dict (not a "
+        "readable torch file: neither a torch zip archive nor a torch pickle)"
+    )
+    with pytest.raises(ModelError, match=rf"^VGG19 weights: {junk}: not a VGG19 state dict"):
+        load_vgg19(junk)

@@ -15,7 +15,7 @@ from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.core.errors import ConfigError
 from lenspair.core.imageio import write_image
-from lenspair.model.checkpoint import load_checkpoint
+from lenspair.model.checkpoint import load_checkpoint, load_model
 from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.vgg import VGG19Features
 from lenspair.model.precision import Hardware, PrecisionDecision, choose_precision
@@ -356,8 +356,13 @@ def test_init_loads_weights_and_checks_the_network(tmp_path: Path) -> None:
     saved = yaml.safe_load((tmp_path / "fine" / "config.yaml").read_text())
     assert saved["runtime"]["init"] == str(best)
     wider = replace(config, model=replace(config.model, width=0.5))
-    with pytest.raises(ModelError, match="model sections must match"):
+    with pytest.raises(ModelError, match=r"\(width: 0\.25 in it, 0\.5 here\); the model sections"):
         fit(wider, data.train, data.val, tmp_path / "bad", CPU, init=best)
+    colour = replace(config, model=replace(config.model, channels=3))
+    with pytest.raises(ModelError, match=r"\(channels: 1 \(mono\) in it, 3 \(RGB\) here\)"):
+        fit(colour, data.train, data.val, tmp_path / "bad", CPU, init=best)
+    # refused before the run folder is made (it left an empty folder and train.log)
+    assert not (tmp_path / "bad").exists()
 
 
 # --- data ----------------------------------------------------------------------------
@@ -477,6 +482,25 @@ def test_cli_synthetic_pretraining_then_fine_tune(tmp_path: Path) -> None:
     assert main(["train", str(dataset), "--out", str(fine), "--resume", "--max-steps", "2"]) == 0
     assert load_checkpoint(fine / "checkpoints" / "last.pt")["step"] == 2
     assert main(["train", "--out", str(fine)]) == 2  # neither DS nor --synthetic
+
+
+def test_cli_trains_a_variant_under_a_time_with_units_and_says_when_it_validated(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # G and GE were reachable only through a config key no help named; --max-seconds took
+    # bare numbers only (10m was refused where --checkpoint-every 10m is taken)
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 1})  # 4 steps an epoch
+    config = tmp_path / "train.yaml"
+    config.write_text(dump_yaml(tiny_config()))
+    run = tmp_path / "g"
+    args = ["train", str(dataset), "--out", str(run), "--config", str(config), "--variant", "G"]
+    assert main([*args, "--max-seconds", "10m", "--max-steps", "2"]) == 0
+    saved = yaml.safe_load((run / "config.yaml").read_text())
+    assert saved["model"]["variant"] == "G" and saved["train"]["max_seconds"] == 600.0
+    assert load_model(run / "checkpoints" / "best.pt").config.model.variant == "G"
+    # validated at step 2 of an unfinished first epoch: it read "0 epochs ... (epoch 1)"
+    line = capsys.readouterr().out.strip().splitlines()[-2]
+    assert "0 epochs, 2 steps, best validation PSNR" in line and "(during epoch 1)" in line
 
 
 def test_progress_label_names_the_budget_that_binds() -> None:

@@ -1,0 +1,46 @@
+"""Budgets and intervals as a user types them: a whole number of steps, or a time.
+
+One grammar for every command: ``500`` is 500 steps, ``90s``, ``10m`` and
+``1h`` are times (``train --checkpoint-every``, ``tradeoff --budget``);
+where only a time makes sense (``train --max-seconds``), a bare number is
+seconds.
+"""
+
+import re
+
+UNIT_SECONDS = {"s": 1.0, "m": 60.0, "h": 3600.0}
+"""Seconds in one of each unit a time may carry."""
+
+_FORM = re.compile(r"\s*(\d+(?:\.\d+)?)\s*([smh]?)\s*")
+
+
+def steps_or_seconds(text: str) -> tuple[int | None, float | None]:
+    """``"500"`` -> ``(500, None)``; ``"90s"``, ``"10m"``, ``"1h"`` -> ``(None, seconds)``.
+
+    Raises:
+        ValueError: not that form, not positive, or a fractional step count
+            (the message says which, without naming the option).
+    """
+    match = _FORM.fullmatch(text.lower())
+    if match is None:
+        raise ValueError(f"expected STEPS or a time like 90s, 10m, 1h; got {text!r}")
+    value, unit = float(match.group(1)), match.group(2)
+    if value <= 0:
+        raise ValueError(f"must be positive, got {text!r}")
+    if not unit:
+        if value != int(value):
+            raise ValueError(f"steps must be a whole number, got {text!r}")
+        return int(value), None
+    return None, value * UNIT_SECONDS[unit]
+
+
+def seconds(text: str) -> float:
+    """A positive time: ``"90"`` or ``"90s"`` -> 90.0, ``"10m"`` -> 600.0, ``"1h"`` -> 3600.0.
+
+    Raises:
+        ValueError: not a positive number with an optional unit s, m or h.
+    """
+    match = _FORM.fullmatch(text.lower())
+    if match is None or float(match.group(1)) <= 0:
+        raise ValueError(f"expected a positive time like 90, 90s, 10m, 1h; got {text!r}")
+    return float(match.group(1)) * UNIT_SECONDS[match.group(2) or "s"]
