@@ -115,12 +115,22 @@ class _OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}; see '{self.prog} --help'\n")
 
 
+EXIT_CODES = (
+    "exit codes: 0 done; 2 a user error (one line naming the file or option); 1 the file "
+    "system refused a write (read-only, full disk, permissions: one line naming the path), "
+    f"or dataset-build --verify found problems; {INTERRUPTED} after Ctrl-C and {TERMINATED} "
+    "after SIGTERM (rerun the command to resume where it can)"
+)
+"""What every command's exit status means (``lenspair --help``)."""
+
+
 def build_parser(selected: str | None) -> argparse.ArgumentParser:
     """Build the parser; only ``selected``'s module is imported for its arguments."""
     parser = _OneLineParser(
         prog="lenspair",
         description="Paired camera-anomaly datasets from stereo rigs, and a fast shallow GAN "
         "that removes raindrops, dust and dirt. Run 'lenspair COMMAND --help' for details.",
+        epilog=EXIT_CODES,
     )
     parser.add_argument("--version", action="version", version=f"lenspair {__version__}")
     parser.add_argument(

@@ -87,9 +87,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "fp32 on CUDA; int8: ONNX Runtime on the CPU)",
     )
     parser.add_argument(
-        "--calibration", type=Path, metavar="DS", help="int8: paired images to calibrate on"
+        "--calibration",
+        type=Path,
+        metavar="DS",
+        help="int8: paired images to calibrate the quantisation on (not a camera calibration)",
     )
-    parser.add_argument("--latency-runs", type=int, default=30, help="timed runs (0: no timing)")
+    parser.add_argument(
+        "--latency-runs", type=int, default=30, help="timed runs per figure (30; 0: no timing)"
+    )
     parser.add_argument("--describe", action="store_true", help="print params and FLOPs only")
 
 

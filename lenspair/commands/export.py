@@ -57,7 +57,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--int8", action="store_true", help="also write NAME.int8.onnx (needs --calibration)"
     )
-    parser.add_argument("--calibration", type=Path, metavar="DS", help="paired images for --int8")
+    parser.add_argument(
+        "--calibration",
+        type=Path,
+        metavar="DS",
+        help="paired images to calibrate --int8's quantisation on (not a camera calibration)",
+    )
     parser.add_argument(
         "--split",
         type=split_name,

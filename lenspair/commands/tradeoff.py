@@ -107,7 +107,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="evaluation split (test; where DS has none, the validation pairs held out of "
         "training)",
     )
-    parser.add_argument("--latency-runs", type=int, default=20, help="timed runs per figure")
+    parser.add_argument(
+        "--latency-runs",
+        type=int,
+        default=20,
+        help="timed runs per figure (20; at least 1: the table is accuracy against time)",
+    )
     parser.add_argument("--seeds", default="0,1,2", help="comma-separated training seeds (0,1,2)")
     parser.add_argument(
         "--no-int8", action="store_true", help="skip the int8 row (quantising takes a minute)"

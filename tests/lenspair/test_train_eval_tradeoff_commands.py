@@ -153,3 +153,24 @@ def test_the_cli_module_runs_as_a_script() -> None:
         [sys.executable, "-m", "lenspair.cli", "no-such-command"], capture_output=True, text=True
     )
     assert done.returncode == 2 and "no-such-command" in done.stderr
+
+
+def test_lenspair_help_lists_the_exit_codes_commands_return(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # only capture-ingest's help named any; dataset-build --verify's 1 clashed with the
+    # README's "1: a file system refusal" unsaid
+    from lenspair.cli import INTERRUPTED, TERMINATED
+
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for said in (
+        "0 done",
+        "2 a user error",
+        "1 the file system refused a write",
+        "or dataset-build --verify found problems",
+        f"{INTERRUPTED} after Ctrl-C",
+        f"{TERMINATED} after SIGTERM",
+    ):
+        assert said in text, said
