@@ -26,6 +26,10 @@ DICTIONARIES = (
 
 DEFAULT_DICTIONARY = "DICT_5X5_100"
 
+MAX_BOARD_TEXELS = 2**25
+"""Largest printed board texture, texels: 128 MiB as float32 mono, with its mip levels
+and an RGB copy well under the memory of a small robot computer."""
+
 
 @dataclass(frozen=True)
 class BoardSpec:
@@ -68,8 +72,8 @@ class BoardSpec:
     def __post_init__(self) -> None:
         if not (2 <= self.cols <= 64 and 2 <= self.rows <= 64):
             raise ValueError(f"cols, rows: expected 2..64, got {self.cols} x {self.rows}")
-        if not 0.002 <= self.square_m <= 1.0:
-            raise ValueError(f"square_m: expected 0.002..1 m, got {self.square_m}")
+        if not 0.002 <= self.square_m < 1.0:  # as --board SQUARE_M: under a metre
+            raise ValueError(f"square_m: expected 0.002 <= square_m < 1 m, got {self.square_m}")
         if self.kind == "chessboard" and (
             self.marker_m is not None or self.dictionary != DEFAULT_DICTIONARY
         ):  # a chessboard has no markers: the value would be ignored
@@ -89,6 +93,13 @@ class BoardSpec:
             raise ValueError(f"max_tilt_deg: expected 0..70, got {self.max_tilt_deg}")
         if not 8 <= self.pixels_per_square <= 512:
             raise ValueError(f"pixels_per_square: expected 8..512, got {self.pixels_per_square}")
+        texels = (self.cols + 3) * (self.rows + 3) * self.pixels_per_square**2
+        if texels > MAX_BOARD_TEXELS:  # 64x64 squares at 512 px: a 4.4 GiB traceback
+            raise ValueError(
+                f"pixels_per_square: a {self.cols}x{self.rows} board at {self.pixels_per_square} "
+                f"px a square is a texture of {texels / 1e6:.0f} M texels, over "
+                f"{MAX_BOARD_TEXELS / 1e6:.0f} M; use fewer pixels_per_square"
+            )
         if not (min(self.grid) >= 1 and max(self.grid) <= 100):
             raise ValueError(f"grid: expected sizes 1..100, got {self.grid}")
         try:

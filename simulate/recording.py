@@ -48,7 +48,7 @@ from lenspair.simulate.euroc import camera_folder, image_name, write_data_csv, w
 from lenspair.simulate.motion import body_pose, make_clock
 from lenspair.simulate.render import GlassState, advance_glass, apply_glass, sample_glass
 from lenspair.simulate.scene import Plane, build_planes, render_view
-from lenspair.simulate.sensor import expose
+from lenspair.simulate.sensor import add_noise, expose
 from lenspair.simulate.spec import SceneSpec
 from lenspair.simulate.stereo import body_from_cameras, rig_from_spec
 from lenspair.simulate.textures import NAMES
@@ -231,7 +231,7 @@ def simulate_recording(
         if spec.board is not None and board_texture is not None:
             T_world_board = T_world_body @ board_poses[k]
             frame_planes.append(boards.board_plane(spec.board, board_texture, T_world_board))
-        noise_rngs = [np.random.default_rng(s) for s in noise_streams[k].spawn(2)]
+        noise_seeds = noise_streams[k].spawn(2)  # a generator from one draws the same noise
         for c in range(2):
             if clock.dropped[k, c]:
                 continue
@@ -240,13 +240,22 @@ def simulate_recording(
             linear = render_view(
                 ray_maps[c], T_world_cams[c], frame_planes, spec.background, channels
             )
-            noise = camera_specs[c].noise_std
-            image = expose(linear, camera_specs[c].gain, noise, noise_rngs[c], dtype)
+            noise, gain = camera_specs[c].noise_std, camera_specs[c].gain
+            image = expose(linear, gain, noise, np.random.default_rng(noise_seeds[c]), dtype)
             if c == obstructed:
                 clear = image
                 mask = np.zeros(image.shape[:2], dtype=np.uint8)
-                if glass is not None:
+                if glass is not None and noise == 0:
                     image, mask = apply_glass(clear, glass)
+                elif glass is not None:
+                    # the sensor adds its noise behind the glass: the glass acts on the
+                    # noiseless light, then the clear view's own draw is added (drops had
+                    # refracted and blurred the noise away: a shortcut for a network)
+                    glassed, mask = apply_glass(expose(linear, gain, 0.0, None, dtype), glass)
+                    noisy = add_noise(glassed, noise, np.random.default_rng(noise_seeds[c]), dtype)
+                    inside = mask > 0 if clear.ndim == 2 else (mask > 0)[..., None]
+                    image = np.where(inside, noisy, clear)  # bit-identical outside the footprint
+                if glass is not None:
                     changed = changed or not np.array_equal(image, clear)
                 render_seconds += time.perf_counter() - started
                 write_image(out_dir / "truth" / "clear" / image_name(t_ns), clear)

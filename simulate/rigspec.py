@@ -11,11 +11,6 @@ from typing import Literal
 Vector3 = tuple[float, float, float]
 
 
-def _positive(name: str, value: float) -> None:
-    if not value > 0:
-        raise ValueError(f"{name}: expected > 0, got {value}")
-
-
 @dataclass(frozen=True)
 class CameraSpec:
     """One camera of the rig.
@@ -42,11 +37,25 @@ class CameraSpec:
     noise_std: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.intrinsics[0] <= 0 or self.intrinsics[1] <= 0:
-            raise ValueError(f"intrinsics: focal lengths must be > 0, got {self.intrinsics[:2]}")
+        fx, fy, cx, cy = self.intrinsics
+        if not (1.0 <= fx <= 1e5 and 1.0 <= fy <= 1e5):
+            raise ValueError(f"intrinsics: focal lengths expected 1..1e5 px, got {fx}, {fy}")
         if not (8 <= self.resolution[0] <= 8192 and 8 <= self.resolution[1] <= 8192):
             raise ValueError(f"resolution: expected 8..8192 pixels, got {self.resolution}")
-        _positive("gain", self.gain)
+        width, height = self.resolution
+        # a principal point off the sensor by more than its size renders nothing a lens gives
+        # (cx -1e6 rendered flat frames and a homography shifting by 1e6 px, exit 0)
+        if not (-width <= cx <= 2 * width and -height <= cy <= 2 * height):
+            raise ValueError(
+                f"intrinsics: principal point ({cx}, {cy}) lies more than the image size off "
+                f"the {width}x{height} sensor"
+            )
+        if not all(abs(k) <= 10.0 for k in self.distortion):  # 1e300 rendered background only
+            raise ValueError(
+                f"distortion: expected coefficients within -10..10, got {self.distortion}"
+            )
+        if not 0.0 < self.gain <= 100.0:  # 1e300 overflowed in linear light
+            raise ValueError(f"gain: expected 0 < gain <= 100, got {self.gain}")
         if not 0.0 <= self.noise_std <= 0.5:
             raise ValueError(f"noise_std: expected 0..0.5, got {self.noise_std}")
 

@@ -14,6 +14,7 @@ Output images are ``float32`` linear light in ``[0, 1]`` (before gain),
 happen once, later (:mod:`lenspair.simulate.recording`).
 """
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -143,8 +144,16 @@ def intersect(
     t[~(t > 0)] = np.inf
     finite_t = np.where(np.isfinite(t), t, np.float32(0.0))
     relative = origin - plane.centre
-    u = np.float32(relative @ plane.axis_u) + finite_t * projected[1]
-    v = np.float32(relative @ plane.axis_v) + finite_t * projected[2]
+    offset_u, offset_v = float(relative @ plane.axis_u), float(relative @ plane.axis_v)
+    if plane.size_m is None and plane.texture.tiled:
+        # An endless repeating plane looks the same a whole number of copies along: the
+        # offset is reduced to one copy in float64 before the float32 sum. A camera 1e5 m
+        # along it (or driven there over a long recording) lost the texture to rounding.
+        width, height = plane.texture.size
+        offset_u = math.fmod(offset_u, width * plane.texel_m[0])
+        offset_v = math.fmod(offset_v, height * plane.texel_m[1])
+    u = np.float32(offset_u) + finite_t * projected[1]
+    v = np.float32(offset_v) + finite_t * projected[2]
     return t, u, v
 
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from lenspair.core.imageio import from_float, from_linear
+from lenspair.core.imageio import from_float, from_linear, to_float, to_linear
 
 
 def expose(
@@ -34,3 +34,18 @@ def expose(
         noise = rng.standard_normal(values.shape, dtype=np.float32)
         values = values + noise * np.float32(noise_std)
     return from_float(from_linear(values), dtype)
+
+
+def add_noise(
+    encoded: np.ndarray, noise_std: float, rng: np.random.Generator, dtype: type
+) -> np.ndarray:
+    """Add :func:`expose`'s sensor noise to an image already encoded (in linear light).
+
+    For light that reached the sensor through the glass: the sensor adds its
+    noise after the glass, so the drops must not refract or blur it. With
+    the generator :func:`expose` drew the clear view's noise from, the draw
+    is the same pixel for pixel.
+    """
+    values = to_linear(to_float(encoded))
+    noise = rng.standard_normal(values.shape, dtype=np.float32)
+    return from_float(from_linear(values + noise * np.float32(noise_std)), dtype)

@@ -99,7 +99,8 @@ class PlaneSpec:
                 raise ValueError(f"{name}: expected sizes in 1e-3..1e6 m, got {value}")
         if not all(abs(v) <= 1e6 for v in self.center_xy_m):
             raise ValueError(f"center_xy_m: expected |x|, |y| <= 1e6 m, got {self.center_xy_m}")
-        _positive("brightness", self.brightness)
+        if not 0.0 < self.brightness <= 100.0:  # 1e300 overflowed in linear light
+            raise ValueError(f"brightness: expected 0 < brightness <= 100, got {self.brightness}")
 
     @property
     def textures(self) -> tuple[str, ...]:
@@ -150,8 +151,9 @@ class MotionSpec:
         for name in ("yaw_amplitude_deg", "pitch_amplitude_deg", "roll_amplitude_deg"):
             if not 0.0 <= getattr(self, name) <= 30.0:
                 raise ValueError(f"{name}: expected 0..30 degrees, got {getattr(self, name)}")
-        if self.frequency_hz < 0:
-            raise ValueError(f"frequency_hz: expected >= 0, got {self.frequency_hz}")
+        # a robot's sway, not a vibration: 1e308 overflowed to NaN poses and blank frames
+        if not 0.0 <= self.frequency_hz <= 100.0:
+            raise ValueError(f"frequency_hz: expected 0..100 Hz, got {self.frequency_hz}")
         # as the plane's centre: beyond, float32 rendering loses the texture (black frames)
         if not all(abs(v) <= 1e6 for v in self.start_m):
             raise ValueError(f"start_m: expected |x|, |y|, |z| <= 1e6 m, got {self.start_m}")

@@ -27,18 +27,26 @@ ANOMALY_SCALE = 4
 """Side in pixels of the cells :func:`anomaly_cells` compares."""
 
 
+REC601 = (0.299, 0.587, 0.114)
+"""Luma weights of R, G and B (ITU-R BT.601), as OpenCV's ``RGB2GRAY``."""
+
+
 def to_grey(image: np.ndarray) -> np.ndarray:
     """``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB -> grey ``float32`` in ``[0, 1]``.
 
     Divided, not multiplied by a rounded reciprocal: an 8-bit image and its
     16-bit copy (``x * 257``) give exactly the same grey (the quotients are
     equal and IEEE division rounds them alike), so a pair that differs only
-    in bit depth compares as identical.
+    in bit depth compares as identical. RGB is weighted (Rec. 601) in
+    float64: an RGB image of three equal channels gives exactly its grey
+    image's values (OpenCV's float32 conversion moved 49 of the 256 levels,
+    and a grey copy of a frame then read as a changed one).
     """
-    grey = image.astype(np.float32) / np.float32(max_value(image.dtype))
-    if grey.ndim == 3:
-        return np.asarray(cv2.cvtColor(grey, cv2.COLOR_RGB2GRAY))
-    return grey
+    top = max_value(image.dtype)
+    if image.ndim == 3:
+        grey = image.astype(np.float64) @ np.array(REC601) / top
+        return grey.astype(np.float32)
+    return image.astype(np.float32) / np.float32(top)
 
 
 def exposure_fractions(image: np.ndarray) -> tuple[float, float]:

@@ -191,8 +191,10 @@ class DefocusSpec:
             self.shift_px is None if self.kernel == "shifts" else self.disk_radius_px is None
         ):
             raise ValueError(
-                f"glass_distance_m: blur disk of {self.blur_diameter_px:.0f} px is over 128 px; "
-                "move the glass away or set shift_px/disk_radius_px"
+                f"glass_distance_m: blur disk of {self.blur_diameter_px:.0f} px (f_px * A / d, "
+                "set by it with focal_length_mm, f_number and the pixel size) is over 128 px; "
+                "move the glass away, give a shorter focal_length_mm, a larger f_number or "
+                "larger pixels, or set shift_px/disk_radius_px"
             )
 
     @property

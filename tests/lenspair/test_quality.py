@@ -35,3 +35,14 @@ def test_an_8_bit_image_and_its_16_bit_copy_have_the_same_grey() -> None:
     assert np.array_equal(to_grey(image[..., 0]), to_grey(wide[..., 0]))
     # so realism reads such a pair as identical (its input PSNR was about 152 dB)
     assert realism_statistics(wide, image).input_psnr == float("inf")
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
+def test_an_rgb_image_of_equal_channels_has_its_grey_image_s_grey(dtype: type) -> None:
+    # OpenCV's float32 conversion moved 49 of 256 levels: realism read a grey copy of a frame
+    # as changed (high-frequency share 0.95, 155 dB)
+    levels = np.arange(np.iinfo(dtype).max + 1, dtype=dtype).reshape(1, -1)
+    assert np.array_equal(to_grey(np.repeat(levels[..., None], 3, axis=2)), to_grey(levels))
+    rgb = np.random.default_rng(0).integers(0, np.iinfo(dtype).max + 1, (8, 9, 3)).astype(dtype)
+    expected = rgb.astype(np.float64) @ [0.299, 0.587, 0.114] / np.iinfo(dtype).max
+    assert np.abs(to_grey(rgb) - expected).max() < 1e-7

@@ -265,7 +265,8 @@ def test_an_empty_split_and_a_folder_without_pairs_say_what_is_wrong(
     dataset = tmp_path / "ds"
     for side in ("input", "target"):
         (dataset / "test" / side).mkdir(parents=True)
-    (dataset / "dataset.json").write_text("{}\n")  # a lenspair dataset: its test split is empty
+    # a lenspair dataset (its card says so): its test split is empty
+    (dataset / "dataset.json").write_text('{"format": "lenspair-dataset/1"}\n')
     assert main(["realism", str(dataset)]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "no pairs to measure (an empty folder or split)" in line  # was "could not be measured"

@@ -122,6 +122,34 @@ def test_round_trip_through_dump(tmp_path: Path) -> None:
             r"board: dictionary: unknown 'DICT_9X9'",
         ),
         ({"rig": {"baseline_m": 0.11}}, r"planes: a scene needs at least one plane or a board"),
+        # values in range of their type, but no camera or motion gives them: each rendered
+        # blank frames, NaN poses or an overflow, exit 0, and still labelled an anomaly
+        (_with("motion.frequency_hz", 1.0e308), r"motion: frequency_hz: expected 0\.\.100 Hz"),
+        (
+            _with("rig.cam0.intrinsics", [350.0, 350.0, -1.0e6, 269.5]),
+            r"rig\.cam0: intrinsics: principal point \(-1000000\.0, 269\.5\) lies more",
+        ),
+        (_with("rig.cam0.intrinsics", [1e-300, 350.0, 359.5, 269.5]), r"focal lengths expected"),
+        (_with("rig.cam0.distortion", [1e300, 0, 0, 0]), r"rig\.cam0: distortion: expected"),
+        (_with("rig.cam0.gain", 1e300), r"rig\.cam0: gain: expected 0 < gain <= 100"),
+        (_with("planes[0].brightness", 1e300), r"planes\[0\]: brightness: expected 0 <"),
+        (
+            _with(
+                "board",
+                {
+                    "kind": "chessboard",
+                    "cols": 64,
+                    "rows": 64,
+                    "square_m": 0.05,
+                    "pixels_per_square": 512,
+                },
+            ),
+            r"board: pixels_per_square: a 64x64 board at 512 px a square is a texture of 1177 M",
+        ),
+        (
+            _with("board", {"kind": "chessboard", "cols": 9, "rows": 6, "square_m": 1.0}),
+            r"board: square_m: expected 0\.002 <= square_m < 1 m",  # --board refuses 1 m
+        ),
     ],
 )
 def test_errors_name_the_key(tmp_path: Path, data: dict, message: str) -> None:
