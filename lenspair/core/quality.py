@@ -44,7 +44,7 @@ def to_grey(image: np.ndarray) -> np.ndarray:
     """
     top = max_value(image.dtype)
     if image.ndim == 3:
-        grey = image.astype(np.float64) @ np.array(REC601) / top
+        grey: np.ndarray = image.astype(np.float64) @ np.array(REC601) / top
         return grey.astype(np.float32)
     return image.astype(np.float32) / np.float32(top)
 
