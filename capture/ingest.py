@@ -66,6 +66,7 @@ from lenspair.capture.journal import (
     hold_output,
     journal_line,
     read_journal,
+    redo_reasons,
     remove_stale_outputs,
     remove_temporaries,
     still_valid,
@@ -380,8 +381,14 @@ def _frame_stage(
     context: frame_work.Context,
     state: str,
     workers: int,
+    settings: dict[str, Any],
 ) -> list[PairRecord]:
-    """Process every pair not already done (journal), record unpaired frames; in time order."""
+    """Process every pair not already done (journal), record unpaired frames; in time order.
+
+    ``settings`` (what the outputs are made with, readable) goes in the journal,
+    so that a rerun processing finished frames again names the setting that
+    differs (:func:`lenspair.capture.journal.redo_reasons`).
+    """
     out_dir = context.out_dir
     warnings = {  # the reason alone: the record names its frame, and the path as typed
         p.t_ns: p.reason  # must not change a finished frame's key (a resume from elsewhere)
@@ -392,7 +399,7 @@ def _frame_stage(
     journal = read_journal(journal_path)
     records: dict[int, PairRecord] = {}
     tasks = []
-    redone = 0
+    redone = []
     for obstructed_frame, clean_frame in frame_pairs:
         task = frame_work.FrameTask(
             obstructed_frame, clean_frame, state, warnings.get(obstructed_frame.t_ns)
@@ -401,23 +408,26 @@ def _frame_stage(
         if done and done[0] == task.key and still_valid(out_dir, done[1]):
             records[obstructed_frame.t_ns] = done[1]
         else:
-            redone += done is not None and done[0] != task.key
+            if done is not None and done[0] != task.key:
+                redone.append(obstructed_frame.t_ns)
             tasks.append(task)
     if redone:  # a rerun with another calibration, side or thresholds replaces them: said
         log.warning(
-            "%s: %d finished frames are processed again: the calibration, obstructed side, "
-            "--size, --time-offset, thresholds or input frames differ from the run that wrote them",
+            "%s: %d finished frames are processed again: %s",
             out_dir,
-            redone,
+            len(redone),
+            redo_reasons(journal_path, redone, settings),
         )
+    made_with = fingerprint(settings)  # the settings themselves on a run's first line only
     keys = {t.obstructed.t_ns: t.key for t in tasks}
     keys.update({t: journal[t][0] for t in records})
     with journal_path.open("a", encoding="utf-8") as handle:
         results = _map_tasks(frame_work.process, tasks, workers, context, "pairs")
-        for task, record in zip(tasks, results, strict=True):
+        for index, (task, record) in enumerate(zip(tasks, results, strict=True)):
             records[record.t_ns] = record
+            line = journal_line(task.key, record, made_with, None if index else settings)
             with naming_errors(journal_path):  # a full disk: the journal named, not the frames
-                handle.write(journal_line(task.key, record))
+                handle.write(line)
                 handle.flush()  # a crash loses at most the frames in flight
     for unpaired in pairing.unpaired_of(rig_file.obstructed):
         frame = recording.frames[rig_file.obstructed][unpaired.index]
@@ -429,7 +439,12 @@ def _frame_stage(
     every_frame |= {p.t_ns for p in recording.problems if p.t_ns is not None}
     every_frame |= set(journal)
     remove_stale_outputs(out_dir, ordered, every_frame)
-    lines = (journal_line(keys[r.t_ns], r) for r in ordered if r.t_ns in keys)
+    # the frames kept from the journal have this run's key: made as this run makes them
+    journaled = [r for r in ordered if r.t_ns in keys]
+    lines = (
+        journal_line(keys[r.t_ns], r, made_with, None if index else settings)
+        for index, r in enumerate(journaled)
+    )
     atomic_write_text(journal_path, "".join(lines))  # compacted: one line per frame
     # One line per obstructed frame, also for those the recording could not list
     # (a second file with an earlier frame's timestamp, a missing file): rejected.
@@ -710,7 +725,18 @@ def ingest_recording(
 
         set_report_aside(out_dir)  # until this run's report is written (its docstring)
         state = fingerprint({**setup, "matrix": registration["matrix"], "crop": crop.as_tuple()})
-        ordered = _frame_stage(recording, pairing, rig_file, frame_pairs, context, state, workers)
+        settings = {  # what `state` hashes, readable, and what pairs the frames
+            **setup,
+            "significant_bits": bits,
+            "calibration_source": calibration_source,
+            "size": list(size),
+            "time_offset_ns": time_offset_ns,
+            "matrix": registration["matrix"],
+            "crop": crop.as_tuple(),
+        }
+        ordered = _frame_stage(
+            recording, pairing, rig_file, frame_pairs, context, state, workers, settings
+        )
         lap("frames")
 
         kept = [r for r in ordered if r.status == "kept"]

@@ -3,6 +3,10 @@
 Each finished frame is appended to ``.journal.jsonl`` in the recording's
 output folder, one JSON line ``{"key": ..., "record": ...}``, where the key
 hashes everything the frame's outputs depend on (see :func:`fingerprint`).
+Each line also names the settings its frame was made with (``made_with``,
+their fingerprint; the first line a run writes holds the settings
+themselves), so a rerun that processes finished frames again can say which
+setting differs (:func:`redo_reasons`).
 A rerun skips frames whose key matches and whose files still have the
 recorded checksums (:func:`still_valid`), so an interrupted run (even
 ``kill -9``) finishes the work and a full rerun leaves every file
@@ -14,11 +18,13 @@ One run at a time writes an output folder: :func:`hold_output` locks
 ``.capture-ingest.lock`` in it for the whole run and refuses a second run.
 """
 
+import contextlib
 import errno
 import fcntl
 import json
 import logging
 import os
+from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -83,9 +89,144 @@ def read_journal(path: Path) -> dict[int, tuple[str, PairRecord]]:
     return entries
 
 
-def journal_line(key: str, record: PairRecord) -> str:
-    """One journal line (newline included) recording ``record`` as done under ``key``."""
-    return json.dumps({"key": key, "record": to_plain(record)}, sort_keys=True) + "\n"
+def journal_line(
+    key: str,
+    record: PairRecord,
+    made_with: str | None = None,
+    settings: dict[str, Any] | None = None,
+) -> str:
+    """One journal line (newline included) recording ``record`` as done under ``key``.
+
+    Args:
+        key: the frame's key (:attr:`lenspair.capture.ingest_frames.FrameTask.key`).
+        record: the frame's record.
+        made_with: the fingerprint of the settings of the run that made the frame.
+        settings: those settings (JSON-able; :func:`redo_reasons` names their
+            keys), given on the first line a run writes: later lines name them.
+    """
+    line: dict[str, Any] = {"key": key, "record": to_plain(record)}
+    if made_with is not None:
+        line["made_with"] = made_with
+    if settings is not None:
+        line["settings"] = settings
+    return json.dumps(line, sort_keys=True) + "\n"
+
+
+def _made_with(path: Path) -> tuple[dict[int, str], dict[str, dict[str, Any]]]:
+    """``({t_ns: made_with}, {made_with: settings})`` of a journal's lines that have them."""
+    frames: dict[int, str] = {}
+    settings: dict[str, dict[str, Any]] = {}
+    with contextlib.suppress(OSError):
+        for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+            try:
+                data = json.loads(line)
+                made_with = str(data["made_with"])
+                frames[int(data["record"]["t_ns"])] = made_with
+                if isinstance(data.get("settings"), dict):
+                    settings[made_with] = data["settings"]
+            except (ValueError, KeyError, TypeError, AttributeError):
+                continue  # an earlier version's line, or one cut by a crash: reason unknown
+    return frames, settings
+
+
+def _first_difference(before: Any, now: Any, where: str = "") -> tuple[str, Any, Any] | None:
+    """``(dotted key, before, now)`` of the first value that differs, in ``now``'s key order."""
+    if isinstance(before, dict) and isinstance(now, dict):
+        for key in [*now, *(k for k in before if k not in now)]:
+            found = _first_difference(before.get(key), now.get(key), f"{where}.{key}".lstrip("."))
+            if found is not None:
+                return found
+        return None
+    return None if before == now else (where, before, now)
+
+
+def _was_now(where: str, before: Any, now: Any) -> str:
+    """``KEY was A, now B``; long values (a 4x4 transform) only named."""
+    shown = [json.dumps(value) for value in (before, now)]
+    if max(map(len, shown)) > 60:
+        return f"{where} changed"
+    return f"{where} was {shown[0]}, now {shown[1]}"
+
+
+def changed_setting(before: dict[str, Any], now: dict[str, Any]) -> str | None:
+    """The first setting of :func:`redo_reasons`'s list that differs, said; None: all equal.
+
+    Args:
+        before: the settings the finished frames were made with (read back from JSON).
+        now: this run's.
+    """
+    now = json.loads(json.dumps(now))  # tuples as lists, as read back
+    if before.get("obstructed") != now.get("obstructed"):
+        return (
+            f"the obstructed side differs (was {before.get('obstructed')}, now {now['obstructed']})"
+        )
+    calibration = _first_difference(before.get("calibration"), now.get("calibration"))
+    if calibration is not None:
+        source, source_now = before.get("calibration_source"), now.get("calibration_source")
+        if source != source_now:
+            return f"the calibration differs (was {source}, now {source_now})"
+        return f"the calibration differs ({source_now} changed since: {_was_now(*calibration)})"
+    if before.get("size") != now.get("size"):
+        sizes = ["x".join(map(str, value or ("?",))) for value in (before.get("size"), now["size"])]
+        return f"--size differs (was {sizes[0]}, now {sizes[1]})"
+    if before.get("time_offset_ns") != now.get("time_offset_ns"):
+        offsets = [
+            f"{(value or 0) / 1e6:g} ms"
+            for value in (before.get("time_offset_ns"), now["time_offset_ns"])
+        ]
+        return f"--time-offset differs (was {offsets[0]}, now {offsets[1]})"
+    thresholds = _first_difference(before.get("verify"), now.get("verify"))
+    if thresholds is not None:
+        return f"the thresholds differ ({_was_now(*thresholds)})"
+    for key, name in (
+        ("significant_bits", "the frames' significant bits"),
+        ("version", "the lenspair version"),
+    ):
+        if before.get(key) != now.get(key):
+            return f"{name} differs (was {before.get(key)}, now {now[key]})"
+    if before.get("matrix") != now.get("matrix") or before.get("crop") != now.get("crop"):
+        return (
+            "the homography or crop differs (registered again: other frames sampled, or "
+            "other estimation thresholds)"
+        )
+    return None
+
+
+UNKNOWN_REASON = (
+    "the calibration, obstructed side, --size, --time-offset, thresholds or input frames "
+    "differ from the run that wrote them"
+)
+"""Said of redone frames whose journal line names no settings (an earlier version's)."""
+
+
+def redo_reasons(path: Path, redone: list[int], now: dict[str, Any]) -> str:
+    """Why finished frames are processed again: the first setting that differs, per frame.
+
+    Compares the settings each frame was made with (its journal line's
+    ``made_with``) against this run's, in the order: obstructed side,
+    calibration, ``--size``, ``--time-offset``, thresholds, significant bits,
+    lenspair version, homography and crop; a frame made with this run's very
+    settings is processed again because its input frames differ.
+
+    Args:
+        path: the journal.
+        redone: timestamps of the finished frames processed again.
+        now: this run's settings (as given to :func:`journal_line`).
+
+    Returns:
+        One reason, or several with their counts (``REASON for N frames; ...``).
+    """
+    made_with, settings = _made_with(path)
+    reasons: Counter[str] = Counter()
+    for t_ns in redone:
+        before = settings.get(made_with.get(t_ns, ""))
+        if before is None:
+            reasons[UNKNOWN_REASON] += 1
+        else:
+            reasons[changed_setting(before, now) or "their input frames differ"] += 1
+    if len(reasons) == 1:
+        return next(iter(reasons))
+    return "; ".join(f"{reason} for {count}" for reason, count in reasons.most_common())
 
 
 @contextmanager

@@ -25,6 +25,7 @@ is reused on a rerun; an unfinished stage is cleaned and run again
 
 import json
 import logging
+import shlex
 import sys
 import time
 from collections.abc import Callable
@@ -374,7 +375,12 @@ def run_stages(
 
 
 def run_demo(out: Path, budget: Budget = Budget()) -> Path:
-    """Run every stage under ``out`` and write the report; returns ``report.md``'s path."""
+    """Run every stage under ``out`` and write the report; returns ``report.md``'s path.
+
+    The report's command quotes ``out`` as given (relative or absolute), so that
+    it runs again from where it was typed.
+    """
+    given = shlex.quote(str(out))
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     # Three short recordings make too few whole-recording groups for three
@@ -388,4 +394,4 @@ def run_demo(out: Path, budget: Budget = Budget()) -> Path:
     timings = run_stages(out, plan(out, budget), cli_main)
     atomic_write_json(out / "timings.json", timings)
     flags = "" if budget == Budget() else " --quick" if budget == QUICK else " (custom budget)"
-    return write_report(out, timings, f"lenspair demo --out {out.name}{flags}")
+    return write_report(out, timings, f"lenspair demo --out {given}{flags}")

@@ -7,6 +7,7 @@ typed in by hand.
 """
 
 import json
+import shlex
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -241,7 +242,7 @@ def write_report(out: Path, timings: dict[str, dict[str, float | bool]], command
 
     ``command`` is what made the run (``--quick`` included), for its "Reproduce" section.
     """
-    command = command or f"lenspair demo --out {out.name}"
+    command = command or f"lenspair demo --out {shlex.quote(str(out))}"
     blocks: list[Block] = [
         Heading("lenspair demo report", 1),
         Paragraph(
@@ -279,7 +280,7 @@ def write_report(out: Path, timings: dict[str, dict[str, float | bool]], command
     blocks.append(Heading("Restore"))
     blocks += restore_blocks(out)
     blocks.append(Heading("Reproduce"))
-    blocks.append(Code(f"{command}\n# each stage's command is in {out.name}/.stages/*.json"))
+    blocks.append(Code(f"{command}\n# each stage's command: .stages/*.json beside report.md"))
     markdown = out / "report.md"
     atomic_write_text(markdown, to_markdown(blocks))
     atomic_write_text(out / "report.html", to_html(blocks, "lenspair demo report"))

@@ -39,7 +39,7 @@ def test_demo_runs_every_stage_and_writes_the_report(demo_out: Path) -> None:
         assert f"## {section}" in report
     assert "<table>" in (demo_out / "report.html").read_text()
     # what made it, --quick included: the full demo would not reproduce these figures
-    assert report.count(f"lenspair demo --out {demo_out.name} --quick") == 2
+    assert report.count(f"lenspair demo --out {demo_out} --quick") == 2  # --out as given
     runtime = load_run_config(demo_out / "runs" / "finetune" / "config.yaml").runtime
     assert runtime is not None  # the report says where training ran and why at that precision
     assert f"at {runtime.precision} (natively: " in report and runtime.precision_reason in report

@@ -26,8 +26,9 @@ its mismatches; undetermined on defocused rain), with
 --detector MODEL (from train-detector, or detector.pt: the bundled one; on
 --device, the GPU when there is one) by judging each camera's views; report.json's
 side_check gives the inferred side and its confidence. Rerunning resumes an interrupted
-run and leaves finished outputs untouched; a rerun with another calibration, side, --size or
-thresholds processes the frames again and says how many. One run at a time writes
+run and leaves finished outputs untouched; a rerun with another calibration, side, --size,
+--time-offset or thresholds processes the frames again and says how many, naming the first
+setting that differs (was X, now Y). One run at a time writes
 OUT/<recording>: a second one is refused at once.
 
 Exit codes: 0 when at least one pair was kept; 2 on an error in the recording, the

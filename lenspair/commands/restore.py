@@ -1,6 +1,6 @@
 """Restore images, folders, recordings and bags with a trained network: the same format out.
 
-  lenspair restore runs/rain/best.pt photos/ --out photos_clean/
+  lenspair restore runs/rain/checkpoints/best.pt photos/ --out photos_clean/
   lenspair restore model.onnx run_01/ --out run_01_clean/ --camera cam1
   lenspair restore best.pt rain_run/ --out clean_run/ --suffix /restored   # ROS 2 bag folder
 
@@ -16,6 +16,12 @@ demosaiced, restored in colour, and sampled back into its mosaic). The model
 is a lenspair checkpoint (torch, CPU or CUDA) or an ONNX file from `lenspair
 export` (ONNX Runtime; it was exported at a fixed size, so other sizes run on
 tiles of that size).
+
+Outputs keep the input's names under OUT: an image goes to OUT/<image name>,
+a folder's images to OUT/<path inside the folder>, an EuRoC/ASL recording to
+OUT/mav0/... (left/right folders to OUT/left/ and OUT/right/), a ROS 1 bag to
+OUT/<bag name>.bag, a ROS 2 bag folder to the folder OUT/<its name>/ (a bare
+.db3 or .mcap file to OUT/<its name without the suffix>/).
 
 Any size works (padded to a multiple of 4 and cropped back, as eval does);
 --tile N runs large images in overlapping N x N tiles blended without seams.
@@ -48,7 +54,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("model", type=Path, help="checkpoint (.pt) or ONNX model (.onnx)")
     parser.add_argument("input", type=Path, help="image, folder, EuRoC/ASL recording or bag")
     parser.add_argument(
-        "--out", type=out_folder, required=True, help="output folder (empty or new)"
+        "--out",
+        type=out_folder,
+        required=True,
+        help="output folder (empty or new); outputs keep the input's names: OUT/<image "
+        "name>, OUT/<path inside the folder>, OUT/mav0/... for a EuRoC recording, OUT/<bag "
+        "name> for a bag (a ROS 2 bag: the folder OUT/<bag folder name>/)",
     )
     parser.add_argument(
         "--camera",

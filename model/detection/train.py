@@ -20,16 +20,18 @@ outnumber the recorded ones; when both are present, batches draw half from
 each, so the frames of real (or simulated) cameras are not drowned. The
 learning rate decays on a cosine to 5 % of its start over ``steps`` or over
 ``max_seconds``, whichever is nearer its end, so a time-limited run still
-ends with small steps.
+ends with small steps. Training stops at whichever of the two comes first;
+``steps=None`` sets no step limit, and leaves ``max_seconds`` to end it.
 
 A checkpoint is a dict of plain values and tensors (``format``, the
 :class:`DetectorSpec` fields, the kinds, the state dict, a training summary),
 read back with ``weights_only=True``.
 """
 
+import itertools
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -52,7 +54,7 @@ class DetectorTraining:
     """Training settings.
 
     Attributes:
-        steps: optimiser steps.
+        steps: optimiser steps; None: no step limit (``max_seconds`` ends training).
         batch_size: frames per step.
         learning_rate: AdamW learning rate (cosine decay to 5 % of it).
         weight_decay: AdamW weight decay.
@@ -66,7 +68,7 @@ class DetectorTraining:
             while other jobs ran).
     """
 
-    steps: int = 600
+    steps: int | None = 600
     batch_size: int = 8
     learning_rate: float = 3e-3
     weight_decay: float = 1e-4
@@ -78,10 +80,12 @@ class DetectorTraining:
     crop_tiles: tuple[int, int] | None = (15, 22)
 
     def __post_init__(self) -> None:
-        if self.steps < 1 or self.batch_size < 1:
+        if (self.steps is not None and self.steps < 1) or self.batch_size < 1:
             raise ModelError(
                 f"steps and batch_size must be >= 1, got {self.steps}, {self.batch_size}"
             )
+        if self.steps is None and self.max_seconds is None:
+            raise ModelError("steps=None (no step limit) needs max_seconds to end training")
         if self.threads < 1:
             raise ModelError(f"--threads: expected at least 1, got {self.threads}")
 
@@ -228,8 +232,9 @@ def _train(
     losses: list[torch.Tensor] = []  # kept on the device: no synchronisation per step
     start = time.perf_counter()
     network.train()
-    for step in progress(range(settings.steps), desc="train-detector", unit="step"):
-        done = step / settings.steps
+    steps: Iterable[int] = itertools.count() if settings.steps is None else range(settings.steps)
+    for step in progress(steps, desc="train-detector", unit="step"):
+        done = 0.0 if settings.steps is None else step / settings.steps
         if settings.max_seconds is not None:
             done = max(done, (time.perf_counter() - start) / settings.max_seconds)
         factor = 0.05 + 0.95 * 0.5 * (1.0 + math.cos(math.pi * min(1.0, done)))

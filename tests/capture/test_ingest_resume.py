@@ -267,7 +267,109 @@ def test_a_rerun_with_other_thresholds_says_it_processes_finished_frames_again(
     caplog.clear()
     ingest_recording(recording, tmp_path, verify=VerifyParams(min_correlation=0.5))
     [said] = [r.getMessage() for r in caplog.records if "processed again" in r.getMessage()]
-    assert f": {kept} finished frames are processed again: the calibration" in said
+    assert said.endswith(
+        f": {kept} finished frames are processed again: the thresholds differ "
+        "(min_correlation was 0.6, now 0.5)"
+    )
     caplog.clear()
     ingest_recording(recording, tmp_path, verify=VerifyParams(min_correlation=0.5))
     assert not any("processed again" in r.getMessage() for r in caplog.records)  # unchanged
+
+
+def _processed_again(caplog: pytest.LogCaptureFixture) -> str:
+    """What the one "processed again" warning says after the count."""
+    [said] = [r.getMessage() for r in caplog.records if "processed again" in r.getMessage()]
+    caplog.clear()
+    return said.split(" finished frames are processed again: ", 1)[1]
+
+
+def test_a_rerun_names_the_calibration_or_size_that_differs(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # "the calibration, obstructed side, --size, --time-offset, thresholds or input
+    # frames differ" left the user to guess which one
+    recording, _ = reference
+    first, second = tmp_path / "first.yaml", tmp_path / "second.yaml"
+    for calibration in (first, second):
+        shutil.copy(recording / "camchain.yaml", calibration)
+    out = tmp_path / "out"
+    ingest_recording(recording, out, calibration=(first,))
+    ingest_recording(recording, out, calibration=(second,))  # the same numbers: nothing redone
+    assert not any("processed again" in r.getMessage() for r in caplog.records)
+    text = second.read_text()
+    second.write_text(text.replace("[351.6, 351.1,", "[352.6, 351.1,"))  # cam1's focal length
+    ingest_recording(recording, out, calibration=(second,))
+    assert _processed_again(caplog) == (
+        f"the calibration differs (Kalibr camchain {second} changed since: cam1.intrinsics "
+        "was [351.6, 351.1, 357.9, 271.2], now [352.6, 351.1, 357.9, 271.2])"
+    )
+    ingest_recording(recording, out, calibration=(first,))
+    assert _processed_again(caplog) == (
+        f"the calibration differs (was Kalibr camchain {second}, now Kalibr camchain {first})"
+    )
+    ingest_recording(recording, out, calibration=(first,), size=(320, 240))
+    assert _processed_again(caplog) == "--size differs (was 540x360, now 320x240)"
+
+
+def test_a_rerun_says_which_input_frame_changed_or_that_it_cannot_tell(
+    reference: tuple[Path, dict[str, bytes]], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from lenspair.rectify.registration import VerifyParams
+
+    recording, _ = reference
+    copy = tmp_path / "rain"
+    shutil.copytree(recording, copy)
+    out = tmp_path / "out"
+    ingest_recording(copy, out)
+    frame = sorted((copy / "mav0" / "cam1" / "data").glob("*.png"))[-1]  # rig.yaml: cam1
+    os.utime(frame, ns=(frame.stat().st_atime_ns, frame.stat().st_mtime_ns + 10**9))
+    ingest_recording(copy, out)
+    assert _processed_again(caplog) == "their input frames differ"
+    journal = out / "rain" / JOURNAL_FILE
+    lines = [json.loads(line) for line in journal.read_text().splitlines()]
+    assert "settings" in lines[0] and all("settings" not in line for line in lines[1:])
+    for line in lines:  # as an earlier version wrote it: no settings named
+        line.pop("settings", None), line.pop("made_with")
+    journal.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    ingest_recording(copy, out, verify=VerifyParams(min_correlation=0.5))
+    assert _processed_again(caplog) == (
+        "the calibration, obstructed side, --size, --time-offset, thresholds or input frames "
+        "differ from the run that wrote them"
+    )
+
+
+@pytest.mark.parametrize(
+    ("change", "said"),
+    [
+        ({"obstructed": "cam0"}, "the obstructed side differs (was cam1, now cam0)"),
+        ({"time_offset_ns": 2_500_000}, "--time-offset differs (was 0 ms, now 2.5 ms)"),
+        ({"version": "9.9"}, "the lenspair version differs (was 1.0, now 9.9)"),
+        (
+            {"crop": [1, 0, 540, 360]},
+            "the homography or crop differs (registered again: other frames sampled, or "
+            "other estimation thresholds)",
+        ),
+        (  # the first that differs, in the order of the old message
+            {"calibration": {"cam0": {"intrinsics": [2.0]}}, "verify": {"min_correlation": 0.5}},
+            "the calibration differs (Kalibr camchain c.yaml changed since: cam0.intrinsics was "
+            "[1.0], now [2.0])",
+        ),
+        ({}, None),
+    ],
+)
+def test_the_first_setting_that_differs_is_named(
+    change: dict[str, object], said: str | None
+) -> None:
+    from lenspair.capture.journal import changed_setting
+
+    before = {
+        "obstructed": "cam1",
+        "calibration": {"cam0": {"intrinsics": [1.0]}},
+        "calibration_source": "Kalibr camchain c.yaml",
+        "size": [540, 360],
+        "time_offset_ns": 0,
+        "verify": {"min_correlation": 0.6},
+        "version": "1.0",
+        "crop": [0, 0, 540, 360],
+    }
+    assert changed_setting(before, {**before, **change}) == said

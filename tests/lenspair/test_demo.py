@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from lenspair.core.samples import sample_path
-from lenspair.demo import Stage, board_arguments, run_stages
+from lenspair.demo import QUICK, Stage, board_arguments, run_demo, run_stages
 from lenspair.errors import DemoError
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.calibration import MODELS
@@ -95,6 +95,28 @@ def test_ctrl_c_in_a_stage_stops_the_demo_as_interrupted_not_failed(
     said = capsys.readouterr().err.strip().splitlines()[-1]
     assert said.startswith("lenspair demo: interrupted; rerun lenspair demo --out")
     assert "failed" not in said
+
+
+@pytest.mark.parametrize("given", ["w/rev-readme/demo", "ABSOLUTE", "my demo"])
+def test_the_report_quotes_out_as_given(
+    given: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `--out /tmp/w/rev-readme/demo` was reported as "lenspair demo --out demo --quick"
+    import lenspair.demo
+
+    out = str(tmp_path / "w" / "demo") if given == "ABSOLUTE" else given
+    commands: list[str] = []
+
+    def report(out: Path, timings: object, command: str) -> Path:
+        commands.append(command)
+        return out / "report.md"
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(lenspair.demo, "run_stages", lambda out, stages, cli: {})
+    monkeypatch.setattr(lenspair.demo, "write_report", report)
+    run_demo(Path(out), QUICK)
+    quoted = "'my demo'" if given == "my demo" else out
+    assert commands == [f"lenspair demo --out {quoted} --quick"]
 
 
 @pytest.mark.parametrize("scene", ["chessboard.yaml", "charuco.yaml"])

@@ -60,6 +60,16 @@ def test_training_lowers_the_loss(one_thread: None) -> None:
     assert summary.last_loss < 0.8 * summary.first_loss
 
 
+def test_without_a_step_limit_training_runs_until_the_time_limit(one_thread: None) -> None:
+    # "--minutes 5" trained 600 steps in 15 s: the default step count ended it first
+    samples = synthetic_samples(texture_images(["brick"]), 4, SMALL, np.random.default_rng(0))
+    settings = DetectorTraining(steps=None, batch_size=2, seed=1, max_seconds=0.5)
+    _, summary = train_detector(samples, SMALL, settings)
+    assert summary.seconds >= 0.5 and summary.steps > 1
+    with pytest.raises(ModelError, match="no step limit"):
+        DetectorTraining(steps=None)
+
+
 def test_training_rejects_samples_of_another_size() -> None:
     samples = synthetic_samples(texture_images(["brick"]), 2, SMALL, np.random.default_rng(0))
     with pytest.raises(ModelError, match="expected"):

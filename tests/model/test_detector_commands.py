@@ -48,6 +48,68 @@ def test_train_detector_help_states_the_synthetic_defaults(
     assert "--synthetic" in clean and "(default: the simulator's textures)" in clean
 
 
+@pytest.mark.parametrize(
+    ("options", "steps", "seconds"),
+    [
+        ([], 600, None),
+        (["--minutes", "5"], None, 300.0),  # was 600 steps: 15 s of a 5-minute budget
+        (["--steps", "50"], 50, None),
+        (["--steps", "50", "--minutes", "5"], 50, 300.0),  # whichever comes first
+    ],
+)
+def test_train_detector_minutes_alone_sets_no_step_limit(
+    options: list[str],
+    steps: int | None,
+    seconds: float | None,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import lenspair.model.detection.run
+    from lenspair.model.detection.train import DetectorTraining
+
+    given: list[DetectorTraining] = []
+
+    def recorded(
+        out: Path, sources: object, spec: object, settings: DetectorTraining, **_: object
+    ) -> dict[str, object]:
+        given.append(settings)
+        return {}
+
+    monkeypatch.setattr(lenspair.model.detection.run, "run_training", recorded)
+    argv = ["train-detector", "--synthetic", "8", "--out", str(tmp_path / "run"), *options]
+    assert main(argv) == 0
+    [settings] = given
+    assert (settings.steps, settings.max_seconds) == (steps, seconds)
+
+
+def test_train_detector_help_states_what_ends_training(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit):
+        main(["train-detector", "--help"])
+    options = " ".join(capsys.readouterr().out.split()).split("options:")[1]
+    found = re.search(
+        r" --steps N (.*) --batch-size BATCH_SIZE (.*) --minutes MINUTES (.*) --seed", options
+    )
+    assert found is not None
+    steps, _, minutes = found.groups()
+    assert "default: 600" in steps and "no step limit with --minutes" in steps
+    assert "whichever comes first" in steps and "whichever comes first" in minutes
+
+
+def test_train_detector_synthetic_given_a_folder_points_to_clean_images(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # "train --synthetic DIR" takes a folder; here the frame count: "invalid int value"
+    with pytest.raises(SystemExit) as exited:
+        main(["train-detector", "DS", "--synthetic", "DS/train/target", "--out", "run"])
+    assert exited.value.code == 2
+    [said] = capsys.readouterr().err.strip().splitlines()
+    assert said.startswith("lenspair train-detector: error: argument --synthetic: ")
+    assert "a number of frames" in said and "'DS/train/target'" in said
+    assert "goes in --clean-images DIR" in said
+
+
 @pytest.fixture
 def mixed_folder(tmp_path: Path) -> Path:
     """One frame among a bag, a video, a WebP image, a note and a recording's listing."""

@@ -551,6 +551,25 @@ def test_cli_single_image_and_one_line_errors(
         assert err[0].startswith("lenspair restore: error:") and message in err[0]
 
 
+def test_restore_help_names_trains_checkpoint_and_where_each_input_goes(
+    tmp_path: Path, checkpoint: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the example read runs/rain/best.pt (train writes RUN/checkpoints/best.pt), and
+    # "--out: output folder (empty or new)" left a bag's or a folder's outputs to be guessed
+    with pytest.raises(SystemExit):
+        main(["restore", "--help"])
+    said = " ".join(capsys.readouterr().out.split())
+    assert "restore runs/rain/checkpoints/best.pt " in said and "runs/rain/best.pt" not in said
+    out_help = said.split("options:")[1].split(" --out OUT ")[1].split(" --camera ")[0]
+    for place in ("OUT/<image name>", "OUT/<path inside the folder>", "OUT/mav0/"):
+        assert place in out_help
+    assert "OUT/<bag name> for a bag" in out_help and "OUT/<bag folder name>/" in out_help
+    image = (texture((32, 48), seed=3) * 255).astype(np.uint8)
+    bag = write_bag(tmp_path / "run", "db3", {"cam0": [(10**9, image)]})
+    assert main(["restore", str(checkpoint), str(bag), "--out", str(tmp_path / "out")]) == 0
+    assert len(list(iter_frames(tmp_path / "out" / bag.name))) == 1  # as the help says
+
+
 def test_single_topic_bag_restores_that_topic(tmp_path: Path, backend: TorchBackend) -> None:
     """A mono-camera bag: its one image topic is restored whatever rig.yaml says."""
     image = (texture((32, 48), seed=3) * 255).astype(np.uint8)
