@@ -58,6 +58,25 @@ def _to_tensor(image: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)[None]
 
 
+def _skimage_ssim_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """scikit-image's full SSIM map of two HWC float64 images, ``skimage-gaussian``, HWC.
+
+    Its mean over the map cropped by the window's radius (5) is skimage's mean SSIM.
+    """
+    colour = a.shape[2] == 3
+    _, full = structural_similarity(
+        a if colour else a[..., 0],
+        b if colour else b[..., 0],
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        data_range=1.0,
+        channel_axis=-1 if colour else None,
+        full=True,
+    )
+    return np.asarray(full if colour else full[..., None])
+
+
 @pytest.mark.parametrize("kind", ["random", "structured"])
 @pytest.mark.parametrize("channels", [1, 3])
 @pytest.mark.parametrize("size", SIZES)
@@ -65,15 +84,7 @@ def test_skimage_gaussian_matches_skimage(kind: str, channels: int, size: tuple[
     a, b = _pair(kind, channels, size, seed=sum(size) + channels)
     ours = image_metrics(_to_tensor(b), _to_tensor(a), MetricConvention.SKIMAGE_GAUSSIAN)
     a64, b64 = a.astype(np.float64), b.astype(np.float64)
-    reference_ssim = structural_similarity(
-        a64 if channels == 3 else a64[..., 0],
-        b64 if channels == 3 else b64[..., 0],
-        gaussian_weights=True,
-        sigma=1.5,
-        use_sample_covariance=False,
-        data_range=1.0,
-        channel_axis=-1 if channels == 3 else None,
-    )
+    reference_ssim = float(_skimage_ssim_map(a64, b64)[5:-5, 5:-5].mean())
     reference_psnr = peak_signal_noise_ratio(a64, b64, data_range=1.0)
     assert abs(float(ours.ssim[0]) - reference_ssim) < 1e-4
     assert abs(float(ours.psnr[0]) - reference_psnr) < 1e-4
@@ -250,18 +261,7 @@ def test_untrustworthy_pixels_are_left_out_as_skimage_scores_the_rest(
             image_metrics(_to_tensor(b), _to_tensor(a), MetricConvention.SKIMAGE_GAUSSIAN, mask)
         return
     ours = image_metrics(_to_tensor(b), _to_tensor(a), MetricConvention.SKIMAGE_GAUSSIAN, mask)
-    _, full = structural_similarity(
-        a64 if channels == 3 else a64[..., 0],
-        b64 if channels == 3 else b64[..., 0],
-        gaussian_weights=True,
-        sigma=1.5,
-        use_sample_covariance=False,
-        data_range=1.0,
-        channel_axis=-1 if channels == 3 else None,
-        full=True,
-    )
-    full = full if channels == 3 else full[..., None]
-    cropped = full[5:-5, 5:-5]
+    cropped = _skimage_ssim_map(a64, b64)[5:-5, 5:-5]
     assert abs(float(ours.ssim[0]) - cropped[windows].mean()) < 1e-4
     assert (
         abs(float(ours.psnr[0]) - peak_signal_noise_ratio(a64[valid], b64[valid], data_range=1.0))

@@ -433,17 +433,22 @@ def test_a_rerun_with_another_seed_retrains_and_records_the_seed(
     assert "seed: 5" in (out / "runs" / "G" / "config.yaml").read_text()
 
 
+def _tiny_tradeoff_here(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """In ``tmp_path``: dataset ``ds``, a tiny ``cfg.yaml``; the options of a 1-step G run."""
+    monkeypatch.chdir(tmp_path)
+    write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    (tmp_path / "cfg.yaml").write_text(dump_yaml(tiny_config()))
+    common = ["--budget", "1", "--variants", "G", "--config", "cfg.yaml", "--crop-size", "32"]
+    return [*common, "--batch-size", "2", "--latency-runs", "1", "--no-int8", "--device", "cpu"]
+
+
 def test_per_seed_runs_are_reused_by_the_seeded_tradeoff(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
     # docs/results/gpu_h100.md: one process per seed into T/seed<k>, then
     # `--seeds 0,1` into T reuses those runs (a relative DS, as there).
     caplog.set_level(logging.INFO, logger="lenspair.model.evaluation.tradeoff")
-    monkeypatch.chdir(tmp_path)
-    write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
-    (tmp_path / "cfg.yaml").write_text(dump_yaml(tiny_config()))
-    common = ["--budget", "1", "--variants", "G", "--config", "cfg.yaml", "--crop-size", "32"]
-    common += ["--batch-size", "2", "--latency-runs", "1", "--no-int8", "--device", "cpu"]
+    common = _tiny_tradeoff_here(tmp_path, monkeypatch)
     for seed in (0, 1):
         assert (
             main(["tradeoff", "ds", "--out", f"T/seed{seed}", "--seeds", str(seed), *common]) == 0
@@ -468,11 +473,7 @@ def test_one_output_holds_one_kind_of_tradeoff_table(
     # single-seed rerun into the seeded output, or a seeded one leaving its seed out, is
     # refused before training, so no table sits beside one it is not part of.
     caplog.set_level(logging.INFO, logger="lenspair.model.evaluation")
-    monkeypatch.chdir(tmp_path)
-    write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
-    (tmp_path / "cfg.yaml").write_text(dump_yaml(tiny_config()))
-    common = ["--budget", "1", "--variants", "G", "--config", "cfg.yaml", "--crop-size", "32"]
-    common += ["--batch-size", "2", "--latency-runs", "1", "--no-int8", "--device", "cpu"]
+    common = _tiny_tradeoff_here(tmp_path, monkeypatch)
     assert main(["tradeoff", "ds", "--out", "T", "--seeds", "0", *common]) == 0
     stamp = (tmp_path / "T/runs/G/checkpoints/last.pt").stat().st_mtime_ns
     before = sorted(p.name for p in (tmp_path / "T").iterdir())
