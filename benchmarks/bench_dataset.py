@@ -176,7 +176,7 @@ def markdown(result: dict[str, object]) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Command line: run, print the table, write it and the JSON to ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
-    parser.add_argument("--out", type=Path, help="folder for bench_dataset.{md,json}")
+    parser.add_argument("--out", type=Path, help="folder for dataset.md and dataset.json")
     parser.add_argument("--pairs", type=positive_int, default=200)
     parser.add_argument("--runs", type=positive_int, default=3)
     parser.add_argument("--workers", type=int, default=None)

@@ -173,7 +173,7 @@ def markdown(result: dict[str, object]) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Command line: run, print the table, write it and the JSON to ``--out``."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
-    parser.add_argument("--out", type=Path, help="folder for bench_effects.{md,json}")
+    parser.add_argument("--out", type=Path, help="folder for effects.md and effects.json")
     parser.add_argument("--runs", type=positive_int, default=30)
     args = parser.parse_args(argv)
     result = run(args.runs)

@@ -6,7 +6,10 @@
 rendered by the project's simulator-style test image with different noise.
 Timed round-robin in one run (medians):
 
-* fp32 torch, channels-last (the reference output and time);
+* fp32 torch as lenspair deploys it (channels-last, allocator tuned:
+  :func:`benchmarks.machine.as_deployed`), the reference output and time.
+  The allocator is tuned before anything is timed, so the figures are the
+  same whether this runs alone or in ``python -m benchmarks``;
 * ONNX Runtime int8: ``quantize_static`` QDQ, per-channel int8 weights,
   uint8 activations (:mod:`lenspair.model.evaluation.quantize`, what
   ``lenspair export --int8`` writes);
@@ -33,6 +36,7 @@ from typing import Any
 import torch
 
 from benchmarks.bench_model import HEIGHT, WIDTH, _structured_image, _untrained_model
+from benchmarks.machine import as_deployed
 from lenspair.commands.argtypes import positive_int
 from lenspair.model.evaluation.export import INPUT_NAME
 from lenspair.model.evaluation.quantize import open_session, quantize_network
@@ -87,8 +91,7 @@ def run(runs: int, calibration_count: int, pt2e: bool) -> dict[str, Any]:
     model = _untrained_model()
     image = _structured_image()
     calibration = _calibration(calibration_count)
-    model_cl = copy.deepcopy(model).to(memory_format=torch.channels_last)  # type: ignore[call-overload]
-    image_cl = image.contiguous(memory_format=torch.channels_last)
+    model_cl, image_cl = as_deployed(model, image)
     calls: dict[str, Callable[[], Any]] = {"fp32 torch": lambda: model_cl.restore(image_cl)}
     setup: dict[str, float] = {}
     notes: dict[str, str] = {}

@@ -17,11 +17,11 @@ and reports each process's peak resident set size (``ru_maxrss`` from
 command, the ratio of the peak at the most frames to the peak at the fewest,
 measured in the same run. Linux starts a child's ``ru_maxrss`` at its
 parent's resident size at the fork, so a heavy parent would hide the
-children's peaks: ``python -m benchmarks`` runs this after the network
-benchmarks, with torch loaded and over 1 GiB resident, and every command then
-read the same 1,232 MiB. Each command is therefore started by a small
-launcher process (a bare Python, about 10 MiB) that spawns it and reports its
-``ru_maxrss``, whatever this process holds.
+children's peaks: when ``python -m benchmarks`` ran every benchmark in one
+process, this one ran after the network benchmarks, with torch loaded and over
+1 GiB resident, and every command then read the same 1,232 MiB. Each command
+is therefore started by a small launcher process (a bare Python, about 10 MiB)
+that spawns it and reports its ``ru_maxrss``, whatever this process holds.
 
 The target: that ratio is at most 1.15 per command (a per-frame list of
 records is expected; a per-frame image buffer is not). Children run with one
@@ -155,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         payload = {"rows": rows, "ratios": ratios, "worst_ratio": worst}
-        payload["target_ratio"] = TARGET_RATIO
+        payload |= {"target_ratio": TARGET_RATIO, "threads": 1, "runs": 1}  # ENV: one thread
         (args.out / "memory.json").write_text(json.dumps(payload, indent=2) + "\n")
     return 0 if worst <= TARGET_RATIO else 1
 

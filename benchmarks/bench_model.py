@@ -17,6 +17,11 @@
   :data:`EMULATED_RUNS`);
 * with ``--compile``, also ``torch.compile`` (inductor, offline, C++ code
   generation with gcc, frozen weights) of the channels-last models;
+* each configuration's ratio to the roofline of its own precision: fp32
+  rows to the fp32 peak, bf16 rows (autocast and bf16 weights) to the peak
+  of the same three kernels in bf16, measured where bf16 is native; where it
+  is emulated no bf16 peak is measured and those cells stay empty (an fp32
+  peak would give ratios below 1);
 * the same with glibc's default allocator, and, as a measure that other
   processes disturb much less, the CPU time of one forward pass on one
   thread against a one-thread peak measured the same way;
@@ -24,14 +29,18 @@
   operator and input shape, :mod:`benchmarks.model_profile`);
 * GEA against DeRaindrop's generator (:mod:`benchmarks.deraindrop`) at
   720x480 RGB in the same run, and which precisions are native on this CPU
-  (:mod:`lenspair.model.precision`).
+  (:mod:`lenspair.model.precision`), with oneDNN's ISA cap
+  (``ONEDNN_MAX_CPU_ISA``) and the decision's reason; configurations at a
+  precision that is not native are marked emulated.
 
 Allocator: by default glibc serves the large activation tensors with fresh
 ``mmap`` calls and returns them on free, so every forward pass page-faults
 all of its memory again (measured 2-3x slower). The main numbers are taken
 after ``mallopt`` raises the mmap threshold to 32 MiB and disables trimming,
 which has the effect of deploying with jemalloc/tcmalloc, as Intel
-recommends for PyTorch on CPU.
+recommends for PyTorch on CPU. The tuning is process-wide and cannot be
+undone: where it was made before :func:`run` (another benchmark in the same
+process), the default-allocator figures are not measured and say so.
 
 Configurations are timed round-robin (interleaved) so that load from other
 processes hits them all alike; medians are quoted, and the load average and
@@ -48,6 +57,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -59,7 +69,12 @@ from lenspair.model.evaluation.latency import tune_allocator
 from lenspair.model.metrics import psnr
 from lenspair.model.networks.complexity import describe
 from lenspair.model.networks.variants import AnomalyMitigator, build_model
-from lenspair.model.precision import choose_precision, read_cpu_flags
+from lenspair.model.precision import (
+    choose_precision,
+    onednn_isa_cap,
+    probe_hardware,
+    read_cpu_flags,
+)
 
 HEIGHT, WIDTH = 360, 540
 LATENCY_TARGET_BF16_MS = 50.0
@@ -106,6 +121,34 @@ def _nothing() -> Iterator[None]:
 
 def _autocast() -> contextlib.AbstractContextManager[None]:
     return torch.autocast("cpu", dtype=torch.bfloat16)
+
+
+def precision_of(configuration: str) -> str:
+    """The precision a configuration's convolutions run at (``bf16 autocast ...``: bf16)."""
+    return configuration.split()[0]
+
+
+def roofline_ratios(
+    medians_ms: dict[str, float], flops: float, peaks_gflops: dict[str, float | None]
+) -> dict[str, float | None]:
+    """Each configuration's time over the roofline of its own precision.
+
+    Args:
+        medians_ms: milliseconds per configuration.
+        flops: the network's FLOPs per forward pass.
+        peaks_gflops: the best measured GFLOP/s per precision (``fp32``,
+            ``bf16``); ``None`` or absent where not measured.
+
+    Returns:
+        ``median / (flops / peak)`` per configuration; ``None`` where its
+        precision has no peak (never another precision's).
+
+    """
+    ratios: dict[str, float | None] = {}
+    for name, ms in medians_ms.items():
+        peak = peaks_gflops.get(precision_of(name))
+        ratios[name] = None if peak is None else ms / (flops / peak / 1e6)
+    return ratios
 
 
 def _configs(
@@ -170,13 +213,10 @@ def run(
 
     calls = {name: caller(name) for name in configs}
     precision = choose_precision("auto", torch.device("cpu"), "infer")
+    bf16_native = "bf16" in precision.native
     # Where bf16 is native it stays in the round-robin with fp32, timed alike;
     # where it is emulated, its configurations run apart, a few times each.
-    emulated = (
-        {}
-        if "bf16" in precision.native
-        else {n: c for n, c in calls.items() if n.startswith("bf16")}
-    )
+    emulated = {} if bf16_native else {n: c for n, c in calls.items() if n.startswith("bf16")}
     interleaved = {name: call for name, call in calls.items() if name not in emulated}
     bf16_runs = min(runs, EMULATED_RUNS) if emulated else runs
 
@@ -184,14 +224,24 @@ def run(
         times = round_robin(interleaved, count, warm, clock)
         return times | round_robin(emulated, min(count, EMULATED_RUNS), min(warm, 1), clock)
 
+    # tune_allocator is cached: a call before this one (another benchmark in this
+    # process) has tuned glibc already, and "default malloc" would time the tuned one
+    tuned_before = tune_allocator.cache_info().currsize > 0
+    peak_runs = max(5, runs // 3)
+    bf16_peaks: dict[str, float] = {}
+    single_bf16_peaks: dict[str, float] = {}
     with torch.inference_mode():
         torch.set_num_threads(threads)
-        default_times = timed(max(5, runs // 2), warmup, time.perf_counter)
+        default_times = {} if tuned_before else timed(max(5, runs // 2), warmup, time.perf_counter)
         allocator_tuned = tune_allocator()
-        peaks = measure_peaks(max(5, runs // 3), time.perf_counter)
+        peaks = measure_peaks(peak_runs, time.perf_counter)
+        if bf16_native:
+            bf16_peaks = measure_peaks(peak_runs, time.perf_counter, torch.bfloat16)
         times = timed(runs, warmup, time.perf_counter)
         torch.set_num_threads(1)
         single_peaks = measure_peaks(5, time.thread_time)
+        if bf16_native:
+            single_bf16_peaks = measure_peaks(5, time.thread_time, torch.bfloat16)
         single_times = timed(max(5, runs // 4), 1, time.thread_time)
         torch.set_num_threads(threads)
     medians = {name: median_ms(samples) for name, samples in times.items()}
@@ -203,6 +253,8 @@ def run(
     deraindrop = deraindrop_comparison(deraindrop_runs) if deraindrop_runs > 0 else {}
     peak = max(peaks.values())
     single_peak = max(single_peaks.values())
+    bf16_peak = max(bf16_peaks.values()) if bf16_peaks else None
+    single_bf16_peak = max(single_bf16_peaks.values()) if single_bf16_peaks else None
     roofline_ms = summary.flops / peak / 1e6
     single_roofline_ms = summary.flops / single_peak / 1e6
     fp32_name = min((n for n in medians if n.startswith("fp32")), key=medians.__getitem__)
@@ -233,10 +285,17 @@ def run(
         "flops": summary.flops,
         "gflops": summary.gflops,
         "allocator_tuned": allocator_tuned,
+        "allocator_tuned_before_run": tuned_before,
         "peaks_gflops": peaks,
         "peak_gflops": peak,
         "peak_kernel": max(peaks, key=peaks.__getitem__).removesuffix("_gflops"),
         "roofline_ms": roofline_ms,
+        "bf16_peaks_gflops": bf16_peaks,
+        "bf16_peak_gflops": bf16_peak,
+        "bf16_roofline_ms": None if bf16_peak is None else summary.flops / bf16_peak / 1e6,
+        "roofline_ratios": roofline_ratios(
+            medians, summary.flops, {"fp32": peak, "bf16": bf16_peak}
+        ),
         "medians_ms": medians,
         "min_ms": {name: min(samples) * 1e3 for name, samples in times.items()},
         "default_allocator_medians_ms": {
@@ -261,9 +320,16 @@ def run(
         "bf16_target_met": medians[bf16_name] < LATENCY_TARGET_BF16_MS,
         "single_thread_peak_gflops": single_peak,
         "single_thread_roofline_ms": single_roofline_ms,
+        "single_thread_bf16_peak_gflops": single_bf16_peak,
         "single_thread_cpu_ms": single_ms,
+        "single_thread_roofline_ratios": roofline_ratios(
+            single_ms, summary.flops, {"fp32": single_peak, "bf16": single_bf16_peak}
+        ),
         "single_thread_fp32_roofline_ratio": single_ms[fp32_name] / single_roofline_ms,
         "precision": precision.as_dict(),
+        "onednn_max_cpu_isa": onednn_isa_cap(),
+        "isa_cap": probe_hardware(torch.device("cpu")).isa_cap,
+        "emulated": sorted(name for name in medians if precision_of(name) not in precision.native),
         "bf16_runs": bf16_runs,
         "layer_profile_fp32": profile,
         "deraindrop_720x480_rgb": deraindrop,
@@ -274,19 +340,25 @@ def run(
     }
 
 
-def _table(record: dict[str, object]) -> str:
+def _ratio(value: float | None) -> str:
+    return "" if value is None else f"{value:.2f}"
+
+
+def _table(data: dict[str, object]) -> str:
+    record: dict[str, Any] = data
     medians = record["medians_ms"]
     minima = record["min_ms"]
     default = record["default_allocator_medians_ms"]
     single = record["single_thread_cpu_ms"]
     psnrs = record["bf16_psnr_vs_fp32_db"]
     peaks = record["peaks_gflops"]
-    assert isinstance(peaks, dict)
-    assert isinstance(medians, dict) and isinstance(minima, dict) and isinstance(psnrs, dict)
-    assert isinstance(default, dict) and isinstance(single, dict)
-    roofline = float(record["roofline_ms"])  # type: ignore[arg-type]
-    single_roofline = float(record["single_thread_roofline_ms"])  # type: ignore[arg-type]
+    ratios = record["roofline_ratios"]
+    single_ratios = record["single_thread_roofline_ratios"]
+    emulated = set(record["emulated"])
+    roofline = float(record["roofline_ms"])
+    single_roofline = float(record["single_thread_roofline_ms"])
     threads = record["threads"]
+    cap = record["onednn_max_cpu_isa"]
     lines = [
         f"GEA, mono {WIDTH}x{HEIGHT}, batch 1, {threads} threads, {record['runs']} runs "
         f"(median; bf16: {record['bf16_runs']}), torch {record['torch']}",
@@ -295,9 +367,39 @@ def _table(record: dict[str, object]) -> str:
         f"- fp32 peak ({threads} threads, GFLOP/s): "
         + ", ".join(f"{k.removesuffix('_gflops')} {v:.0f}" for k, v in peaks.items())
         + f"; roofline = FLOPs / best ({record['peak_kernel']}) = {roofline:.1f} ms",
+    ]
+    if record["bf16_peaks_gflops"]:
+        lines.append(
+            f"- bf16 peak ({threads} threads, GFLOP/s): "
+            + ", ".join(
+                f"{k.removesuffix('_gflops')} {v:.0f}"
+                for k, v in record["bf16_peaks_gflops"].items()
+            )
+            + f"; bf16 roofline {record['bf16_roofline_ms']:.1f} ms: bf16 rows are divided by it"
+        )
+    else:
+        lines.append(
+            "- no bf16 peak: bf16 is not native here, so bf16 rows have no roofline "
+            "(x roofline left empty; the fp32 peak is not theirs)"
+        )
+    lines += [
         f"- one thread, CPU time: peak {record['single_thread_peak_gflops']:.0f} GFLOP/s, "
-        f"roofline {single_roofline:.1f} ms",
-        f"- allocator tuned (mallopt): {record['allocator_tuned']}",
+        f"roofline {single_roofline:.1f} ms"
+        + (
+            f"; bf16 peak {record['single_thread_bf16_peak_gflops']:.0f} GFLOP/s"
+            if record["single_thread_bf16_peak_gflops"]
+            else ""
+        ),
+        f"- allocator tuned (mallopt): {record['allocator_tuned']}"
+        + (
+            "; it was tuned before this run (same process), so the default allocator was "
+            "not measured"
+            if record["allocator_tuned_before_run"]
+            else ""
+        ),
+        "- oneDNN ISA cap: "
+        + (f"ONEDNN_MAX_CPU_ISA={cap}" if cap else "none (the CPU as it is)")
+        + (f" ({record['isa_cap']})" if record["isa_cap"] else ""),
         "",
         "| configuration | median ms | min ms | x roofline | default malloc ms "
         "| 1-thread CPU ms | x 1-thread roofline | PSNR vs fp32 (dB) |",
@@ -305,14 +407,16 @@ def _table(record: dict[str, object]) -> str:
     ]
     for name, value in medians.items():
         mark = " (best)" if name in (record["fp32_best"], record["bf16_best"]) else ""
+        mark += " (emulated)" if name in emulated else ""
         quality = f"{psnrs[name]:.1f}" if name in psnrs else "reference" if mark else ""
+        malloc = f"{default[name]:.1f}" if name in default else ""
         lines.append(
-            f"| {name}{mark} | {value:.1f} | {minima[name]:.1f} | {value / roofline:.2f} "
-            f"| {default[name]:.1f} | {single[name]:.1f} | {single[name] / single_roofline:.2f} "
-            f"| {quality} |"
+            f"| {name}{mark} | {value:.1f} | {minima[name]:.1f} | {_ratio(ratios[name])} "
+            f"| {malloc} | {single[name]:.1f} | {_ratio(single_ratios[name])} | {quality} |"
         )
     fp32_met = "met" if record["fp32_target_met"] else "MISSED"
     bf16_met = "met" if record["bf16_target_met"] else "MISSED"
+    bf16_emulated = " (emulated)" if record["bf16_best"] in emulated else ""
     lines += [
         "",
         f"- fp32 best: {record['fp32_best']}, {record['fp32_ms']:.1f} ms = "
@@ -323,11 +427,11 @@ def _table(record: dict[str, object]) -> str:
         f"- fp32 eager best: {record['fp32_eager_best']}, {record['fp32_eager_ms']:.1f} ms = "
         f"{record['fp32_eager_roofline_ratio']:.2f}x roofline, "
         f"{record['fp32_eager_ratio_to_gemm_roofline']:.2f}x the plain-GEMM roofline",
-        f"- bf16 best: {record['bf16_best']}, {record['bf16_ms']:.1f} ms (target < "
-        f"{LATENCY_TARGET_BF16_MS:.0f} ms: {bf16_met})",
+        f"- bf16 best: {record['bf16_best']}{bf16_emulated}, {record['bf16_ms']:.1f} ms "
+        f"(target < {LATENCY_TARGET_BF16_MS:.0f} ms: {bf16_met})",
         f"- precisions native on this CPU ({record['cpu_model']}): "
-        f"{', '.join(record['precision']['native'])}"  # type: ignore[index]
-        f"; auto picks {record['precision']['precision']}",  # type: ignore[index]
+        f"{', '.join(record['precision']['native'])}; auto picks "
+        f"{record['precision']['precision']} ({record['precision']['reason']})",
         f"- load average start/end: {record['load_average_start']} / "
         f"{record['load_average_end']}; CPU pressure start: {record['cpu_pressure_start']}",
     ]

@@ -12,8 +12,14 @@ The tradeoff plot and the evaluation contact sheet are copied to
 ``docs/results/`` so that the README can show them.
 
 A missing input is not an error: its part of the section says which command
-produces it. ``--check`` writes nothing and exits 1 when the README's
-section differs from what the inputs give.
+produces it; benchmark files of different runs are (:func:`benchmark_run`):
+the speed table says its figures were measured in one run, so every file it
+reads must carry the same run id, which ``python -m benchmarks`` writes into
+them; each row gives its threads and timed runs where the file records them.
+Rows at a precision the CPU does not run natively (bf16 under an ISA cap of
+oneDNN, say) are marked emulated, and the cap is named. ``--check`` writes
+nothing and exits 1 when the README's section differs from what the inputs
+give.
 
 The bundled detector's figures have their own section, between
 :data:`DETECTOR_BEGIN` and :data:`DETECTOR_END` (under "How well it works"),
@@ -31,6 +37,7 @@ from itertools import chain
 from pathlib import Path
 from typing import Any
 
+from benchmarks import RUN_KEY
 from lenspair.core.fsutil import atomic_write_bytes, atomic_write_text
 from lenspair.core.report import Block, Heading, Image, Paragraph, Table, to_markdown
 from lenspair.demo import Budget, plan
@@ -57,7 +64,37 @@ Copies = list[tuple[Path, Path]]
 
 
 class ResultsError(Exception):
-    """The README cannot take the section (markers missing or out of order)."""
+    """The section cannot be written: README markers, or benchmark files of several runs.
+
+    The README's markers are missing or out of order, or the benchmark files
+    come from different runs (:func:`benchmark_run`).
+    """
+
+
+def _settings(threads: Any = None, runs: Any = None, unit: str = "run") -> str:
+    """``2 threads, 40 runs``: the settings of a row, the parts not recorded left out."""
+    parts = []
+    if threads is not None:
+        parts.append(f"{int(threads)} thread" + "s" * (int(threads) != 1))
+    if runs is not None:
+        parts.append(f"{int(runs)} {unit}" + "s" * (int(runs) != 1))
+    return ", ".join(parts)
+
+
+def _cap(record: dict[str, Any] | None, run: dict[str, Any] | None = None) -> str | None:
+    """oneDNN's ISA cap a benchmark ran under (``ONEDNN_MAX_CPU_ISA``), or None."""
+    return (record or {}).get("onednn_max_cpu_isa") or (run or {}).get("onednn_max_cpu_isa")
+
+
+def _emulated_note(precision: str, cap: str | None) -> str:
+    """``, emulated (bf16 not native under ONEDNN_MAX_CPU_ISA=AVX2)``."""
+    under = f" under ONEDNN_MAX_CPU_ISA={cap}" if cap else ""
+    return f", emulated ({precision} not native{under})"
+
+
+def _emulated(precision: str, native: Sequence[str] | None, cap: str | None) -> str:
+    """:func:`_emulated_note` for a precision not in ``native``; ``""`` if native or unknown."""
+    return "" if native is None or precision in native else _emulated_note(precision, cap)
 
 
 def _isa_cap_rows(isa_cap: dict[str, Any] | None) -> list[list[str]]:
@@ -73,34 +110,38 @@ def _isa_cap_rows(isa_cap: dict[str, Any] | None) -> list[list[str]]:
                 f"bf16 {_num(medians['bf16'], 2)} ms / fp32 {_num(medians['fp32'], 2)} ms",
                 f"fp32 in the same run; auto trains at {row['auto']}",
                 f"{_num(row['bf16_over_fp32'], 2)}x (bf16 / fp32)",
+                _settings(1, isa_cap.get("runs")),
             ]
         )
     return rows
 
 
-def _precision_rows(model: dict[str, Any] | None, int8: dict[str, Any] | None) -> list[list[str]]:
-    """Rows for int8 inference (bench_int8) and GEA vs DeRaindrop (bench_model)."""
+def _precision_rows(
+    model: dict[str, Any] | None, int8: dict[str, Any] | None, run: dict[str, Any] | None = None
+) -> list[list[str]]:
+    """Rows for int8 inference (bench_int8), GEA vs DeRaindrop and the native precisions."""
     rows = []
     if int8:
-        count = int8.get("threads")
-        threads = "threads as set" if count is None else f"{count} thread" + "s" * (count != 1)
         # against the fp32 torch timed beside it in bench_int8, not the fp32 row above
         # (bench_model's, another benchmark): its time is shown, so the ratio can be checked
         fp32 = int8["medians_ms"].get("fp32 torch")
         beside = "fp32 torch timed beside it" + (f" ({_num(fp32, 1)} ms)" if fp32 else "")
+        native = (int8.get("precision") or {}).get("native")
         for name, ms in int8["medians_ms"].items():
             if name == "fp32 torch":
                 continue
             rows.append(
                 [
-                    f"GEA 540x360 batch 1, {threads}, {name}",
+                    f"GEA 540x360 batch 1, {name}" + _emulated("int8", native, _cap(int8, run)),
                     f"{_num(ms, 1)} ms",
                     f"PSNR against fp32 output {_num(int8['psnr_vs_fp32_db'][name], 1)} dB; "
                     f"quantise/compile {_num(int8['setup_seconds'].get(name, 0.0), 0)} s",
                     _speed(int8["speed_vs_fp32"][name], beside),
+                    _settings(int8.get("threads"), int8.get("runs")),
                 ]
             )
-    deraindrop = (model or {}).get("deraindrop_720x480_rgb") or {}
+    model = model or {}
+    deraindrop = model.get("deraindrop_720x480_rgb") or {}
     if deraindrop:
         rows.append(
             [
@@ -108,16 +149,21 @@ def _precision_rows(model: dict[str, Any] | None, int8: dict[str, Any] | None) -
                 f"{_num(deraindrop['gea_ms'], 0)} ms / {_num(deraindrop['deraindrop_ms'], 0)} ms",
                 "DeRaindrop re-implemented layer for layer (the paper: 8x)",
                 f"{_num(deraindrop['speedup'], 1)}x faster",
+                _settings(model.get("threads"), deraindrop.get("runs")),
             ]
         )
-    native = ((model or {}).get("precision") or {}).get("native")
-    if native:
+    decision = model.get("precision") or {}
+    if decision.get("native"):
+        cap = _cap(model, run)
+        capped = f", oneDNN capped: ONEDNN_MAX_CPU_ISA={cap}" if cap else ""
         rows.append(
             [
-                "precisions native on this CPU",
-                ", ".join(native),
-                "lenspair.model.precision (auto never picks an emulated one)",
-                f"auto: {model['precision']['precision']}",  # type: ignore[index]
+                f"precisions native on this CPU{capped}",
+                ", ".join(decision["native"]),
+                "lenspair.model.precision (auto never picks an emulated one): "
+                + str(decision.get("reason", "reason not recorded")),
+                f"auto: {decision['precision']}",
+                "",
             ]
         )
     return rows
@@ -364,33 +410,118 @@ def calibration_section(demo: Path) -> list[Block]:
     ]
 
 
-def _bench_rows(bench: Path) -> list[list[str]]:
+BENCH_FILES = (
+    "model.json",
+    "training.json",
+    "int8.json",
+    "isa_cap.json",
+    "effects.json",
+    "ingest.json",
+    "dataset.json",
+    "memory.json",
+    "calibration.json",
+)
+"""The benchmark outputs the speed table reads, all from one ``python -m benchmarks`` run."""
+
+
+def benchmark_run(bench: Path) -> dict[str, Any] | None:
+    """The ``benchmark_run`` entry that every file of :data:`BENCH_FILES` in ``bench`` shares.
+
+    ``None`` when there is none of them. The table says its figures were
+    measured in the same run; files of different runs (a model.json from a
+    run under an ISA cap beside an int8.json from a benchmark run alone)
+    would make that untrue.
+
+    Raises:
+        ResultsError: the files carry different run ids, or one carries none
+            (written by a benchmark run on its own, or before run ids).
+
+    """
+    records = {name: load_json(bench / name) for name in BENCH_FILES}
+    runs = {
+        name: (record.get(RUN_KEY) or {}) if isinstance(record, dict) else {}
+        for name, record in records.items()
+        if record is not None
+    }
+    if not runs:
+        return None
+    ids = {name: run.get("id") for name, run in runs.items()}
+    if None in ids.values() or len(set(ids.values())) > 1:
+        listing = ", ".join(f"{name} ({ids[name] or 'no run id'})" for name in sorted(ids))
+        raise ResultsError(
+            f"{bench}: benchmark files of different runs, refused (the table would say they "
+            f"were measured in one): {listing}; rerun `python -m benchmarks --out {bench}`"
+        )
+    return next(iter(runs.values()))
+
+
+def _model_rows(model: dict[str, Any], run: dict[str, Any] | None) -> list[list[str]]:
+    """bench_model's best fp32 and bf16 configurations."""
+    fp32, bf16 = model["fp32_best"], model["bf16_best"]
+    native = (model.get("precision") or {}).get("native")
+    if model.get("emulated") is not None:  # recorded per configuration
+        mark = _emulated_note("bf16", _cap(model, run)) if bf16 in model["emulated"] else ""
+    else:  # a model.json from before: the native precisions tell
+        mark = _emulated("bf16", native, _cap(model, run))
+    frame = f"GEA {model['size'][1]}x{model['size'][0]} batch 1"
+    threads = model.get("threads")
+    return [
+        [
+            f"{frame}, {fp32}",
+            f"{_num(model['fp32_ms'], 1)} ms",
+            f"fp32 roofline {_num(model['roofline_ms'], 1)} ms (peak "
+            f"{_num(model['peak_gflops'], 0)} GFLOP/s, {model['peak_kernel']})",
+            f"{_num(model['fp32_roofline_ratio'], 2)}x",
+            _settings(threads, model.get("runs")),
+        ],
+        [
+            f"{frame}, {bf16}{mark}",
+            f"{_num(model['bf16_ms'], 1)} ms",
+            f"PSNR against fp32 output {_num(model['bf16_psnr_vs_fp32_db'][bf16], 1)} dB",
+            _speed(model["fp32_ms"] / model["bf16_ms"], "fp32"),
+            _settings(threads, model.get("bf16_runs", model.get("runs"))),
+        ],
+    ]
+
+
+def _calibration_row(case: dict[str, Any]) -> list[str]:
+    """One board/model case of bench_calibration: detection + calibration time, accuracy."""
+    if "detect_calibrate_ms" in case:  # the median of each run's detection + calibration
+        median = f"{_num(case['detect_calibrate_ms'], 0)} ms"
+    else:  # an older calibration.json: two medians added, which is not a median
+        median = (
+            f"{_num(case['detect_ms'] + case['calibrate_ms'], 0)} ms (sum of the detection "
+            "and calibration medians)"
+        )
+    return [
+        f"calibrate {case['board'].split(':')[0]} {case['model']}, {case['views']} views: "
+        "detection + calibration",
+        median,
+        f"focal error {_num(case['focal_error_pct'], 3)} %, baseline "
+        f"{_num(case['baseline_error_pct'], 3)} %, "
+        f"rows {_num(case['row_disagreement_px'], 3)} px",
+        f"stereo RMS {_num(case['stereo_rms_px'], 3)} px",
+        _settings(case.get("opencv_threads"), case.get("repeats")),
+    ]
+
+
+def _bench_rows(bench: Path, run: dict[str, Any] | None = None) -> list[list[str]]:
     rows: list[list[str]] = []
     model = load_json(bench / "model.json")
     if model:
-        fp32, bf16 = model["fp32_best"], model["bf16_best"]
-        rows += [
-            [
-                f"GEA {model['size'][1]}x{model['size'][0]} batch 1, {fp32}",
-                f"{_num(model['fp32_ms'], 1)} ms",
-                f"roofline {_num(model['roofline_ms'], 1)} ms (peak "
-                f"{_num(model['peak_gflops'], 0)} GFLOP/s, {model['peak_kernel']})",
-                f"{_num(model['fp32_roofline_ratio'], 2)}x",
-            ],
-            [
-                f"GEA {model['size'][1]}x{model['size'][0]} batch 1, {bf16}",
-                f"{_num(model['bf16_ms'], 1)} ms",
-                f"PSNR against fp32 output {_num(model['bf16_psnr_vs_fp32_db'][bf16], 1)} dB",
-                _speed(model["fp32_ms"] / model["bf16_ms"], "fp32"),
-            ],
-        ]
+        rows += _model_rows(model, run)
     training = load_json(bench / "training.json")
     if training:
         steps = training["steps_per_second"]
+        native = (training.get("precision_auto") or {}).get("native")
+        cap = _cap(training, run)
         rows.append(
             [
                 f"GEA training step, batch {training['batch']}, crop {training['crop']}",
-                " / ".join(f"{k} {_num(v, 2)} steps/s" for k, v in steps.items()),
+                " / ".join(
+                    f"{k}{_emulated(k.split()[0], native, cap)} {_num(v, 2)} steps/s"
+                    for k, v in steps.items()
+                ),
                 "fp32 step",
                 " / ".join(
                     f"{name} {_num(speed, 2)}x"
@@ -399,9 +530,10 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                     ).items()
                 )
                 + " (speed vs fp32)",
+                _settings(training.get("threads"), training.get("steps"), "step"),
             ]
         )
-    rows += _precision_rows(model, load_json(bench / "int8.json"))
+    rows += _precision_rows(model, load_json(bench / "int8.json"), run)
     rows += _isa_cap_rows(load_json(bench / "isa_cap.json"))
     effects = load_json(bench / "effects.json")
     if effects:
@@ -412,6 +544,7 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                     f"{_num(target['worst_render_ms'], 2)} ms",
                     f"target < {_num(target['target_ms'], 0)} ms",
                     "met" if target["met"] else "missed",
+                    _settings(effects.get("opencv_threads"), effects.get("runs")),
                 ]
             )
     ingest = load_json(bench / "ingest.json")
@@ -422,6 +555,7 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 f"{_num(ingest['ingest_w1_ms_per_pair'], 1)} ms/pair",
                 f"decode + remap + encode floor {_num(ingest['io_floor_ms_per_pair'], 1)} ms/pair",
                 f"{_num(ingest['ratio_w1_to_floor'], 2)}x",
+                _settings(None, ingest.get("runs")),
             ]
         )
     dataset = load_json(bench / "dataset.json")
@@ -434,6 +568,7 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 f"read + hash + link floor {_num(dataset['io_floor_pairs_per_s'], 0)} pairs/s",
                 f"{_num(dataset['build_over_decode_floor'], 2)}x / "
                 f"{_num(dataset['build_over_io_floor'], 1)}x",
+                _settings(dataset.get("workers"), dataset.get("runs")),
             ]
         )
     memory = load_json(bench / "memory.json")
@@ -449,45 +584,47 @@ def _bench_rows(bench: Path) -> list[list[str]]:
                 " / ".join(f"{_num(most[c], 0)} MiB" for c in ratios),
                 f"the same at {counts[0]} frames (target <= {memory['target_ratio']}x)",
                 " / ".join(f"{_num(ratios[c], 2)}x" for c in ratios),
+                _settings(memory.get("threads"), memory.get("runs")),
             ]
         )
     calibration = load_json(bench / "calibration.json")
     for case in (calibration or {}).get("cases", []):
-        rows.append(
-            [
-                f"calibrate {case['board'].split(':')[0]} {case['model']}, {case['views']} views",
-                f"{_num(case['detect_ms'] + case['calibrate_ms'], 0)} ms",
-                f"focal error {_num(case['focal_error_pct'], 3)} %, baseline "
-                f"{_num(case['baseline_error_pct'], 3)} %, "
-                f"rows {_num(case['row_disagreement_px'], 3)} px",
-                f"stereo RMS {_num(case['stereo_rms_px'], 3)} px",
-            ]
-        )
+        rows.append(_calibration_row(case))
     return rows
 
 
 def bench_blocks(bench: Path) -> list[Block]:
-    """Speeds against a floor or peak measured in the same run (medians)."""
-    rows = _bench_rows(bench)
+    """Speeds against a floor or peak measured in the same run (medians).
+
+    Raises:
+        ResultsError: the files come from different runs (:func:`benchmark_run`).
+
+    """
+    run = benchmark_run(bench)
+    rows = _bench_rows(bench, run)
     if not rows:
         return _missing("the benchmarks", "python -m benchmarks --out bench_out")
-    machine = load_json(bench / "effects.json") or {}
     model = load_json(bench / "model.json") or {}
+    machine = run or {}
+    cap = _cap(model, run)
     where = ", ".join(
         part
         for part in (
-            str(model.get("cpu_model") or machine.get("machine", "")),
-            f"{machine['cpu_count']} CPUs" if "cpu_count" in machine else "",
+            str(machine.get("cpu") or model.get("cpu_model") or ""),
+            f"{machine['cores']} CPUs" if machine.get("cores") else "",
             f"torch {model['torch']}" if "torch" in model else "",
+            f"oneDNN capped at ONEDNN_MAX_CPU_ISA={cap}" if cap else "",
         )
         if part
     )
+    which = f" (run {machine['id']})" if machine.get("id") else ""
     return [
         Paragraph(
-            f"`python -m benchmarks --out bench_out` on {where or 'this machine'}; medians, "
-            "each speed next to a floor or peak measured in the same run."
+            f"`python -m benchmarks --out bench_out`{which} on {where or 'this machine'}; "
+            "medians, each speed next to a floor or peak measured in the same run; the last "
+            "column gives each row's threads and timed runs."
         ),
-        Table(["what", "median", "measured against", "ratio"], rows),
+        Table(["what", "median", "measured against", "ratio", "threads, runs"], rows),
     ]
 
 

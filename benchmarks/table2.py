@@ -15,9 +15,24 @@
    (sample standard deviation); a difference is claimed only when larger
    than the spread of both sides.
 
-Writes ``OUT/table2.md`` and ``table2.json``; finished runs are reused on a
-rerun. The paper's published initialisation rows (its rig data, GPU, full
-training) are printed beside, labelled.
+Writes ``OUT/table2.md`` and ``table2.json``. The paper's published
+initialisation rows (its rig data, GPU, full training) are printed beside,
+labelled.
+
+Reruns into the same ``--out``: a run is reused only when it finished (its
+``last.pt`` exists and records a stop: the step budget reached, or early
+stopping where a ``--config`` turns it on) and its ``config.yaml`` is what
+this invocation would train: the same resolved configuration (steps, crop,
+batch, seed and every key of the ``--config`` file) on the same data. A run
+of that configuration that did not finish (killed; ``best.pt`` exists after
+its first validation, but that is not a finished run) is trained again with
+``lenspair train --resume``, which continues from its ``last.pt`` or starts
+it over without one, and one log line says so. A run folder that holds a run
+of another configuration (``--pretrain-steps 1`` then ``500`` into the same
+``--out``) is refused before anything trains, naming the keys that differ:
+its training is not thrown away, so choose another ``--out`` or move the
+folder aside. Fine-tuned runs whose pretraining has still to finish are
+refused alike, since they started from its unfinished weights.
 """
 
 import argparse
@@ -32,9 +47,10 @@ from pathlib import Path
 import torch
 
 from lenspair.cli import main as cli_main
+from lenspair.commands import train as train_command
 from lenspair.commands.argtypes import positive_int
 from lenspair.demo import Budget, plan, run_stages
-from lenspair.model.checkpoint import load_model
+from lenspair.model.checkpoint import load_checkpoint, load_model
 from lenspair.model.evaluation.evaluate import score_pairs, summarize
 from lenspair.model.evaluation.published import INITIALISATION, published_markdown
 from lenspair.model.evaluation.seed_statistics import (
@@ -42,11 +58,18 @@ from lenspair.model.evaluation.seed_statistics import (
     clearly_better,
     summarise_seeds,
 )
+from lenspair.model.training.config import RunConfig, config_differences, load_run_config
+from lenspair.model.training.loop import resolve_config
 from lenspair.model.training.pairs import open_eval_pairs
 from lenspair.model.training.pretrained import write_natural_images
 from lenspair.model.training.run_files import read_metrics_rows
+from lenspair.model.training.run_state import RunState, stop_reason
 
 INITS = ("random", "sharp", "ours")
+NEW, FINISHED, UNFINISHED = "new", "finished", "unfinished"
+"""What :func:`run_status` finds in a run folder."""
+Job = tuple[list[str], Path, str]
+"""``(lenspair train argv, run folder, status)`` of one training run."""
 
 
 def _dataset(out: Path, frames: int, splits: str | None = None) -> Path:
@@ -70,14 +93,89 @@ def _dataset(out: Path, frames: int, splits: str | None = None) -> Path:
     return demo / "dataset"
 
 
-def _train(argv: list[str], run: Path, device: str) -> float:
+def _without_init(argv: list[str]) -> list[str]:
+    """``argv`` without its ``--init CKPT`` (a resumed run keeps its own start)."""
+    if "--init" not in argv:
+        return list(argv)
+    index = argv.index("--init")
+    return argv[:index] + argv[index + 2 :]
+
+
+def wanted_config(argv: list[str], run: Path, channels: int) -> RunConfig:
+    """The configuration ``lenspair train ARGV`` would train, as its ``config.yaml`` records it.
+
+    Read with ``train``'s own parser and overrides, so that every option
+    table2 passes counts (``--init`` is left out: it names weights, not settings).
+    """
+    parser = argparse.ArgumentParser(add_help=False)
+    train_command.add_arguments(parser)
+    args = parser.parse_args([*_without_init(argv), "--out", str(run)])
+    config = train_command.with_options(load_run_config(args.config, given=True), args)
+    return resolve_config(config, channels)
+
+
+def _refuse(run: Path, why: str) -> SystemExit:
+    return SystemExit(
+        f"table2: {run} {why}; its training is kept: choose another --out, or move {run} "
+        "aside to train it again"
+    )
+
+
+def _same_data(stored: Path, data: Path, out: Path) -> bool:
+    """Whether a run that trained on ``stored`` trained on ``data``.
+
+    Data that table2 makes inside ``out`` (the demo's dataset, the natural
+    images) is compared by its place in ``out``, so that an ``--out`` folder
+    moved elsewhere keeps its runs; a ``--dataset`` elsewhere by its path.
+    """
+    data, out = data.resolve(), out.resolve()
+    if not data.is_relative_to(out):
+        return stored == data
+    inside = data.relative_to(out).parts
+    return stored.parts[-len(inside) :] == inside
+
+
+def run_status(run: Path, wanted: RunConfig, data: Path) -> str:
+    """:data:`NEW`, :data:`FINISHED` or :data:`UNFINISHED` (see the module docstring).
+
+    Raises:
+        SystemExit: ``run`` holds a run of another configuration or other data.
+
+    """
+    files = [run / "config.yaml", *(run / "checkpoints" / n for n in ("last.pt", "best.pt"))]
+    if not any(path.is_file() for path in [*files, run / "metrics.csv"]):
+        return NEW
+    if not files[0].is_file():
+        raise _refuse(run, "holds a run without its config.yaml, so what it trained is unknown")
+    stored = load_run_config(files[0], stored=True)
+    differences = config_differences(stored, wanted)
+    stored_data = stored.runtime.data_path if stored.runtime is not None else ""
+    if stored_data and not _same_data(Path(stored_data), data, run.parent):
+        differences.append(f"data: {stored_data} -> {data.resolve()}")
+    if differences:
+        raise _refuse(
+            run,
+            "was trained with another configuration than this invocation's "
+            f"({'; '.join(differences)})",
+        )
+    if not files[1].is_file():
+        return UNFINISHED
+    state = RunState.from_checkpoint(load_checkpoint(files[1]))
+    return FINISHED if stop_reason(stored, state, state.seconds) is not None else UNFINISHED
+
+
+def _train(argv: list[str], run: Path, device: str, status: str = NEW) -> float:
     """Run ``lenspair train`` unless ``run`` already finished; returns seconds spent.
 
     Each run is its own process (``python -m lenspair train``), so runs can go
     side by side (``--jobs``) without sharing torch's global seed or threads.
+    An :data:`UNFINISHED` run is resumed (``--resume``), said in one line.
     """
-    if (run / "checkpoints" / "best.pt").is_file():
+    if status == FINISHED:
         return 0.0
+    if status == UNFINISHED:
+        print(f"table2: {run} did not finish; training it again (--resume)", flush=True)
+        argv = [*_without_init(argv), "--resume"]
     start = time.monotonic()
     command = [sys.executable, "-m", "lenspair", "train", *argv, "--out", str(run)]
     code = subprocess.run([*command, "--device", device], check=False).returncode
@@ -86,11 +184,33 @@ def _train(argv: list[str], run: Path, device: str) -> float:
     return time.monotonic() - start
 
 
-def _parallel(jobs: int, work: dict[str, tuple[list[str], Path]], device: str) -> dict[str, float]:
-    """Train every ``name: (argv, run)`` of ``work``, ``jobs`` at a time; seconds per name."""
+def _parallel(jobs: int, work: dict[str, Job], device: str) -> dict[str, float]:
+    """Train every ``name: (argv, run, status)`` of ``work``, ``jobs`` at a time; seconds each."""
     with ThreadPoolExecutor(max_workers=jobs) as pool:
-        futures = {name: pool.submit(_train, *job, device) for name, job in work.items()}
+        futures = {
+            name: pool.submit(_train, argv, run, device, status)
+            for name, (argv, run, status) in work.items()
+        }
         return {name: future.result() for name, future in futures.items()}
+
+
+def _statuses(work: dict[str, tuple[list[str], Path, Path]], channels: int) -> dict[str, Job]:
+    """Each ``name: (argv, run, data)`` with its :func:`run_status` (refusals before any work)."""
+    return {
+        name: (argv, run, run_status(run, wanted_config(argv, run, channels), data))
+        for name, (argv, run, data) in work.items()
+    }
+
+
+def _check_starts(pretrain: dict[str, Job], finetune: dict[str, Job]) -> None:
+    """Refuse fine-tuned runs that started from a pretraining that has not finished."""
+    for name, (_, run, status) in pretrain.items():
+        if status == FINISHED:
+            continue
+        preset = name.removeprefix("pretrain-")
+        for _, started, held in finetune.values():
+            if started.name.startswith(f"finetune-{preset}-") and held != NEW:
+                raise _refuse(started, f"was fine-tuned from {run}, which has not finished")
 
 
 @torch.inference_mode()
@@ -135,8 +255,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--splits", help="train,val,test fractions of the demo dataset (default: the demo's)"
     )
-    parser.add_argument("--pretrain-steps", type=int, default=60)
-    parser.add_argument("--finetune-steps", type=int, default=60)
+    parser.add_argument("--pretrain-steps", type=positive_int, default=60)
+    parser.add_argument("--finetune-steps", type=positive_int, default=60)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--crop-size", type=int, default=128)
     parser.add_argument("--batch-size", type=int, default=4)
@@ -172,20 +292,24 @@ def main(argv: list[str] | None = None) -> int:
     if not args.config:  # equal budgets: early stopping off (a --config must say so itself)
         config.write_text("train:\n  patience: 0\n")
     common += ["--config", str(config)]
-    pretrain = {}
+    pretraining = {}
     for preset in ("ours", "sharp"):
         argv = ["--synthetic", str(natural / "train"), "--drops", preset, "--seed", "0"]
         argv += ["--max-steps", str(args.pretrain_steps), *common]
-        pretrain[f"pretrain-{preset}"] = (argv, out / f"pretrain-{preset}")
-    seconds = _parallel(args.jobs, pretrain, args.device)
-    finetune = {}
+        pretraining[f"pretrain-{preset}"] = (argv, out / f"pretrain-{preset}", natural / "train")
+    finetuning = {}
     for seed in args.seeds:
         for init in INITS:
             pretrained = out / f"pretrain-{init}" / "checkpoints" / "best.pt"
             start = [] if init == "random" else ["--init", str(pretrained)]
             budget = ["--seed", str(seed), "--max-steps", str(args.finetune_steps)]
             name = f"finetune-{init}-seed{seed}"
-            finetune[name] = ([str(dataset), *start, *budget, *common], out / name)
+            finetuning[name] = ([str(dataset), *start, *budget, *common], out / name, dataset)
+    # every run folder checked before anything trains: a refusal costs no training
+    pretrain = _statuses(pretraining, channels)
+    finetune = _statuses(finetuning, channels)
+    _check_starts(pretrain, finetune)
+    seconds = _parallel(args.jobs, pretrain, args.device)
     seconds |= _parallel(args.jobs, finetune, args.device)
     psnr: dict[str, list[float]] = {name: [] for name in INITS}
     ssim: dict[str, list[float]] = {name: [] for name in INITS}

@@ -168,7 +168,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _overrides(config: Any, args: argparse.Namespace) -> Any:
+def with_options(config: Any, args: argparse.Namespace) -> Any:
+    """``config`` with the options of the command line that set keys (``--max-steps`` ...).
+
+    Public: ``benchmarks.table2`` compares a run folder's config with what
+    ``lenspair train ARGV`` would train through it.
+    """
     train = {
         "epochs": args.epochs,
         "max_steps": args.max_steps,
@@ -294,11 +299,11 @@ def run(args: argparse.Namespace) -> int:
         if stored is None:
             stored = resume_config(args.out, None)
         base = with_file(stored, args.config) if args.config else stored
-        config = _overrides(base, args)
+        config = with_options(base, args)
         if args.resume:
             config = resume_config(args.out, config)
     else:
-        config = _overrides(load_run_config(args.config, given=True), args)
+        config = with_options(load_run_config(args.config, given=True), args)
     _check_out_apart(args, config.data.train_split, config.data.val_split)
     seed = config.train.seed
     if args.synthetic is not None:

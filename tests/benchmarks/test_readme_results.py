@@ -1,11 +1,12 @@
 """The README's results section is written from the commands' own output files."""
 
-import json
 import re
 from pathlib import Path
+from typing import Any
 
 import pytest
 
+from benchmarks import RUN_KEY
 from benchmarks.readme_results import (
     BEGIN,
     DETECTOR_BEGIN,
@@ -72,13 +73,22 @@ def _demo(root: Path) -> Path:
     return root
 
 
+RUN = {"id": "20250101T000000Z-abc123", "cpu": "Test CPU", "cores": 2, "threads": 2,
+       "onednn_max_cpu_isa": None, "started": "2025-01-01T00:00:00+00:00"}  # fmt: skip
+"""The ``benchmark_run`` entry ``python -m benchmarks`` writes into every JSON file."""
+
+
+def _write(path: Path, record: dict[str, Any], run: dict[str, Any] | None = RUN) -> None:
+    """A benchmark's JSON file, stamped as ``python -m benchmarks`` stamps it (None: alone)."""
+    atomic_write_json(path, record if run is None else {**record, RUN_KEY: run})
+
+
 def _bench(root: Path) -> Path:
     root.mkdir(parents=True)
-    (root / "ingest.json").write_text(
-        json.dumps(
-            {"pairs": 38, "ingest_w1_ms_per_pair": 65.05, "io_floor_ms_per_pair": 33.93,
-             "ratio_w1_to_floor": 1.917}
-        )
+    _write(
+        root / "ingest.json",
+        {"pairs": 38, "ingest_w1_ms_per_pair": 65.05, "io_floor_ms_per_pair": 33.93,
+         "ratio_w1_to_floor": 1.917, "runs": 3},
     )  # fmt: skip
     rows = [
         {"command": command, "frames": frames, "peak_mib": mib, "s": 1.0}
@@ -86,8 +96,9 @@ def _bench(root: Path) -> Path:
         for command, mib in zip(("capture-ingest", "dataset-build", "restore"), mibs, strict=True)
     ]
     ratios = {"capture-ingest": 1.0386, "dataset-build": 1.1364, "restore": 1.0085}
-    (root / "memory.json").write_text(
-        json.dumps({"rows": rows, "ratios": ratios, "worst_ratio": 1.1364, "target_ratio": 1.15})
+    _write(
+        root / "memory.json",
+        {"rows": rows, "ratios": ratios, "worst_ratio": 1.1364, "target_ratio": 1.15},
     )
     return root
 
@@ -119,8 +130,9 @@ def test_section_carries_the_figures_of_the_files(tmp_path: Path) -> None:
     assert "| simulate-rain | 7.2 |" in text and "| total | 67.2 |" in text
     assert text.index("| simulate-rain |") < text.index("| pretrain |")  # pipeline order
     assert "earlier run, with that run's time: pretrain" in text
-    # benchmark ratio against its floor; absent benchmarks name their command
-    assert "| 65.0 ms/pair |" in text and "| 1.92x |" in text
+    # benchmark ratio against its floor, with its runs; absent benchmarks name their command
+    assert "| 65.0 ms/pair |" in text and "| 1.92x | 3 runs |" in text
+    assert "(run 20250101T000000Z-abc123) on Test CPU, 2 CPUs" in text
     # peak memory at the longer recording, as ratios to the shorter one (bench_memory)
     assert (
         "| peak memory at 2000 frames: ingest / dataset-build / restore | 156 MiB / 125 MiB / "
@@ -260,7 +272,7 @@ def test_speed_table_shows_bf16_against_fp32_with_and_without_the_isa_cap(tmp_pa
          "median_ms": {"fp32": 8.98, "bf16": 24.41}, "auto": "fp32", "reason": "capped"},
     ]  # fmt: skip
     kernel = "3x3 conv 32->32 270x180, 1 thread"
-    atomic_write_json(bench / "isa_cap.json", {"kernel": kernel, "runs": 15, "rows": rows})
+    _write(bench / "isa_cap.json", {"kernel": kernel, "runs": 15, "rows": rows})
     text = to_markdown(bench_blocks(bench))
     assert (
         "| 3x3 conv 32->32 270x180, 1 thread, oneDNN as the CPU is | bf16 5.07 ms / fp32 9.17 ms "
@@ -320,3 +332,101 @@ def test_int8_rows_show_the_fp32_time_their_ratio_is_against() -> None:
     (row,) = _precision_rows(None, int8)
     assert row[1] == "150.0 ms"
     assert row[3] == "1.25x slower than fp32 torch timed beside it (120.0 ms)"
+
+
+def _model(**changes: Any) -> dict[str, Any]:
+    """bench_model's record under ``ONEDNN_MAX_CPU_ISA=AVX2`` on a bf16 CPU (the review's run)."""
+    reason = (
+        "auto: bf16 is not native on AMD EPYC (cpu) (emulated bf16 is slower than fp32); "
+        "ONEDNN_MAX_CPU_ISA=AVX2 turns off avx512_bf16"
+    )
+    record = {
+        "cpu_model": "AMD EPYC", "torch": "2.13.0+cpu", "threads": 2, "runs": 40, "bf16_runs": 3,
+        "size": [360, 540], "fp32_best": "fp32 channels-last", "fp32_ms": 95.0,
+        "roofline_ms": 76.1, "peak_gflops": 258.9, "peak_kernel": "conv3x3",
+        "fp32_roofline_ratio": 1.248, "bf16_best": "bf16 weights channels-last",
+        "bf16_ms": 2656.9, "bf16_psnr_vs_fp32_db": {"bf16 weights channels-last": 51.3},
+        "precision": {"precision": "fp32", "requested": "auto", "reason": reason,
+                      "native": ["int8", "fp32"], "device": "cpu", "hardware": "AMD EPYC"},
+        "onednn_max_cpu_isa": "AVX2", "isa_cap": "ONEDNN_MAX_CPU_ISA=AVX2 turns off avx512_bf16",
+        "emulated": ["bf16 weights channels-last"],
+    }  # fmt: skip
+    return record | changes
+
+
+def test_rows_under_an_isa_cap_say_so_and_emulated_precisions_are_marked(tmp_path: Path) -> None:
+    # rendered "precisions native on this CPU | int8, fp32" and bf16 "27.97x slower than
+    # fp32" without a word about the cap or about bf16 being emulated
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    _write(bench / "model.json", _model(), RUN | {"onednn_max_cpu_isa": "AVX2"})
+    text = to_markdown(bench_blocks(bench))
+    assert (
+        "| precisions native on this CPU, oneDNN capped: ONEDNN_MAX_CPU_ISA=AVX2 | int8, fp32 "
+        "| lenspair.model.precision (auto never picks an emulated one): auto: bf16 is not "
+        "native on AMD EPYC (cpu) (emulated bf16 is slower than fp32); ONEDNN_MAX_CPU_ISA=AVX2 "
+        "turns off avx512_bf16 | auto: fp32 |"
+    ) in text
+    assert (
+        "| GEA 540x360 batch 1, bf16 weights channels-last, emulated (bf16 not native under "
+        "ONEDNN_MAX_CPU_ISA=AVX2) | 2656.9 ms | PSNR against fp32 output 51.3 dB "
+        "| 27.97x slower than fp32 | 2 threads, 3 runs |"
+    ) in text
+    assert "| GEA 540x360 batch 1, fp32 channels-last | 95.0 ms |" in text
+    assert "| 1.25x | 2 threads, 40 runs |" in text
+    assert "oneDNN capped at ONEDNN_MAX_CPU_ISA=AVX2" in text.split("|")[0]  # said up front
+    # a model.json written before the fields: its native precisions tell
+    old = {k: v for k, v in _model().items() if k not in ("onednn_max_cpu_isa", "emulated")}
+    _write(bench / "model.json", old)
+    text = to_markdown(bench_blocks(bench))
+    assert "bf16 weights channels-last, emulated (bf16 not native) |" in text
+    # where bf16 is native, nothing is marked
+    native = _model(emulated=[], onednn_max_cpu_isa=None)
+    native["precision"] = native["precision"] | {"native": ["int8", "bf16", "fp32"]}
+    _write(bench / "model.json", native)
+    text = to_markdown(bench_blocks(bench))
+    assert "emulated (" not in text and "capped" not in text
+
+
+def test_files_of_different_runs_are_refused_naming_them(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # model.json from a run under an ISA cap beside int8.json from a run alone were
+    # combined, and the section said "measured in the same run"
+    demo, bench = _demo(tmp_path / "demo"), _bench(tmp_path / "bench")
+    readme = _readme(tmp_path / "repo")
+    before = readme.read_text()
+    args = ["--demo", str(demo), "--bench", str(bench), "--readme", str(readme)]
+    _write(bench / "model.json", _model(), RUN | {"id": "20250102T000000Z-def456"})
+    assert main(args) == 2
+    error = capsys.readouterr().err
+    assert len(error.strip().splitlines()) == 1
+    assert "model.json (20250102T000000Z-def456)" in error
+    assert "ingest.json (20250101T000000Z-abc123)" in error and "different runs" in error
+    assert readme.read_text() == before
+    # a benchmark run on its own writes no run id: not the same run either
+    _write(bench / "model.json", _model(), None)
+    assert main(args) == 2
+    assert "model.json (no run id)" in capsys.readouterr().err
+    # all of one run: written
+    _write(bench / "model.json", _model())
+    assert main(args) == 0
+
+
+def test_calibration_rows_take_the_median_of_the_per_run_sums(tmp_path: Path) -> None:
+    # the "median" column was the sum of two medians, which is not a median
+    bench = tmp_path / "bench"
+    bench.mkdir()
+    case = {"board": "chessboard:9x6:0.06", "model": "pinhole-equi", "views": 30,
+            "detect_ms": 400.0, "calibrate_ms": 350.0, "focal_error_pct": 0.019,
+            "baseline_error_pct": 0.009, "row_disagreement_px": 0.049, "stereo_rms_px": 0.06,
+            "repeats": 3, "opencv_threads": 2}  # fmt: skip
+    _write(bench / "calibration.json", {"cases": [case | {"detect_calibrate_ms": 741.0}]})
+    text = to_markdown(bench_blocks(bench))
+    assert (
+        "| calibrate chessboard pinhole-equi, 30 views: detection + calibration | 741 ms |"
+    ) in text
+    assert "| stereo RMS 0.060 px | 2 threads, 3 runs |" in text
+    _write(bench / "calibration.json", {"cases": [case]})  # written before the per-run sum
+    text = to_markdown(bench_blocks(bench))
+    assert "| 750 ms (sum of the detection and calibration medians) |" in text
