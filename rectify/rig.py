@@ -12,6 +12,7 @@ Conventions:
   rotation; nothing else in lenspair special-cases it.
 """
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -164,6 +165,8 @@ def _numbers(value: Any, where: str, count: int) -> tuple[float, ...]:
         isinstance(v, int | float) and not isinstance(v, bool) for v in value
     ):
         raise RectifyError(f"{where}: expected a list of {count} numbers, got {value!r}")
+    if not all(math.isfinite(v) for v in value):
+        raise RectifyError(f"{where}: camera parameters must be finite, got {value!r}")
     if len(value) != count:
         raise RectifyError(f"{where}: expected {count} values, got {len(value)}")
     return tuple(float(v) for v in value)
@@ -221,7 +224,9 @@ stereoRectify then asserts); no stereo rig is built that tight."""
 ROTATION_ATOL = 1e-3
 """How far from orthonormal a stated rotation may be (``R @ R.T`` against the
 identity, largest element). A rotation written with 4 decimals is about 1e-4
-off; one written with 3 is about 1e-3 off and is refused (write more decimals)."""
+off and is read as the nearest rotation; one written with 3 is up to about
+1e-3 off, mostly read so too (the nearest rotation is within a milliradian of
+what was meant) and now and then refused; one written with 2 is refused."""
 
 
 def orthonormality_error(rotation: np.ndarray) -> float:

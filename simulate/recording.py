@@ -23,6 +23,7 @@ stream per purpose (clock, board poses, glass, glass changes, per-frame
 noise), so the same spec and seed give byte-identical files.
 """
 
+import functools
 import logging
 import os
 import re
@@ -48,7 +49,7 @@ from lenspair.simulate.euroc import camera_folder, image_name, write_data_csv, w
 from lenspair.simulate.motion import body_pose, make_clock
 from lenspair.simulate.render import GlassState, advance_glass, apply_glass, sample_glass
 from lenspair.simulate.scene import Plane, build_planes, render_view
-from lenspair.simulate.sensor import add_noise, expose
+from lenspair.simulate.sensor import expose, expose_through_glass
 from lenspair.simulate.spec import SceneSpec
 from lenspair.simulate.stereo import body_from_cameras, rig_from_spec
 from lenspair.simulate.textures import NAMES
@@ -241,26 +242,17 @@ def simulate_recording(
                 ray_maps[c], T_world_cams[c], frame_planes, spec.background, channels
             )
             noise, gain = camera_specs[c].noise_std, camera_specs[c].gain
-            image = expose(linear, gain, noise, np.random.default_rng(noise_seeds[c]), dtype)
             if c == obstructed:
-                clear = image
-                mask = np.zeros(image.shape[:2], dtype=np.uint8)
-                if glass is not None and noise == 0:
-                    image, mask = apply_glass(clear, glass)
-                elif glass is not None:
-                    # the sensor adds its noise behind the glass: the glass acts on the
-                    # noiseless light, then the clear view's own draw is added (drops had
-                    # refracted and blurred the noise away: a shortcut for a network)
-                    glassed, mask = apply_glass(expose(linear, gain, 0.0, None, dtype), glass)
-                    noisy = add_noise(glassed, noise, np.random.default_rng(noise_seeds[c]), dtype)
-                    inside = mask > 0 if clear.ndim == 2 else (mask > 0)[..., None]
-                    image = np.where(inside, noisy, clear)  # bit-identical outside the footprint
-                if glass is not None:
-                    changed = changed or not np.array_equal(image, clear)
+                through = None if glass is None else functools.partial(apply_glass, glass=glass)
+                clear, image, mask = expose_through_glass(
+                    linear, gain, noise, noise_seeds[c], dtype, through
+                )
+                changed = changed or not np.array_equal(image, clear)
                 render_seconds += time.perf_counter() - started
                 write_image(out_dir / "truth" / "clear" / image_name(t_ns), clear)
                 write_image(out_dir / "truth" / "mask" / image_name(t_ns), mask)
             else:
+                image = expose(linear, gain, noise, np.random.default_rng(noise_seeds[c]), dtype)
                 render_seconds += time.perf_counter() - started
             write_image(camera_folder(out_dir, CAMERAS[c]) / "data" / image_name(t_ns), image)
             written[c].append(t_ns)

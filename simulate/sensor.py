@@ -1,5 +1,7 @@
 """The camera's response: gain, sensor noise, sRGB encoding, one quantisation."""
 
+from collections.abc import Callable
+
 import numpy as np
 
 from lenspair.core.imageio import from_float, from_linear, to_float, to_linear
@@ -49,3 +51,42 @@ def add_noise(
     values = to_linear(to_float(encoded))
     noise = rng.standard_normal(values.shape, dtype=np.float32)
     return from_float(from_linear(values + noise * np.float32(noise_std)), dtype)
+
+
+Glass = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""Encoded image -> (the image through the glass, its footprint mask)."""
+
+
+def expose_through_glass(
+    linear: np.ndarray,
+    gain: float,
+    noise_std: float,
+    seed: np.random.SeedSequence,
+    dtype: type,
+    glass: Glass | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The clear view, the view through ``glass`` and its footprint, of one exposure.
+
+    The sensor adds its noise behind the glass: the glass acts on the
+    noiseless exposure and the clear view's own noise draw (a generator from
+    ``seed``) is added to what it changed (drops had refracted and blurred
+    the noise away, a cue no real camera gives a network). Where the glass
+    changed nothing the clear view stands as exposed, and light it leaves
+    saturated stays saturated: noise added again to a clipped, quantised
+    pixel drew the footprint in saturated light. Without noise the glass acts
+    on the clear view itself.
+
+    Returns:
+        ``(clear, obstructed, mask)``; ``mask`` is 0 everywhere without glass.
+    """
+    clear = expose(linear, gain, noise_std, np.random.default_rng(seed), dtype)
+    if glass is None:
+        return clear, clear, np.zeros(clear.shape[:2], dtype=np.uint8)
+    if noise_std == 0:
+        obstructed, mask = glass(clear)
+        return clear, obstructed, mask
+    bare = expose(linear, gain, 0.0, None, dtype)
+    glassed, mask = glass(bare)
+    noisy = add_noise(glassed, noise_std, np.random.default_rng(seed), dtype)
+    noisy = np.where(glassed == np.iinfo(dtype).max, glassed, noisy)
+    return clear, np.where(glassed != bare, noisy, clear), mask

@@ -11,7 +11,9 @@ import re
 UNIT_SECONDS = {"s": 1.0, "m": 60.0, "h": 3600.0}
 """Seconds in one of each unit a time may carry."""
 
-_FORM = re.compile(r"\s*(\d+(?:\.\d+)?)\s*([smh]?)\s*")
+_FORM = re.compile(r"\s*((?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?)\s*([smh]?)\s*")
+"""A number as Python writes one (``90``, ``.5``, ``1e3``; no sign, ``inf`` or ``nan``),
+then an optional unit."""
 
 
 def steps_or_seconds(text: str) -> tuple[int | None, float | None]:

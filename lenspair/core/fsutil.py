@@ -10,6 +10,7 @@ that exists. Files get the permissions a plain ``open()`` would give them
 a dataset built by one user can be read by a training job running as another.
 """
 
+import errno
 import fcntl
 import hashlib
 import json
@@ -125,13 +126,19 @@ def atomic_write_texts(files: dict[Path, str]) -> None:
     """Write several UTF-8 files that belong together: all of them, or none.
 
     Each is written and flushed to a temporary beside it; only once every one
-    is complete are they renamed into place, in the order given. A refusal (a
-    full disk, a file-size limit) leaves every earlier version as it was, so a
-    product never sits beside a report of another run.
+    is complete, and no destination is a folder, are they renamed into place,
+    in the order given. A refusal while writing (a full disk, a file-size
+    limit) or a folder in a file's place leaves every earlier version as it
+    was, so a product never sits beside a report of another run. The renames
+    themselves (within each file's folder) are not undone if one of them
+    fails after another succeeded; give the product last.
 
     Raises:
         OSError: as :func:`atomic_write`, naming the file refused.
     """
+    for path in files:
+        if Path(path).is_dir():
+            raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
     temporaries: list[tuple[Path, Path]] = []
     try:
         for path, text in files.items():

@@ -23,6 +23,7 @@ what ``OUT/seed<k>/runs/`` already holds.
 
 import logging
 import os
+import re
 import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -342,7 +343,7 @@ def seeded_output_refusal(out_dir: Path) -> str | None:
     seeded = sorted(
         path.name
         for path in (out_dir.iterdir() if out_dir.is_dir() else ())
-        if path.name.startswith("seed") and (path / "tradeoff_config.yaml").is_file()
+        if re.fullmatch(r"seed\d+", path.name) and (path / "tradeoff_config.yaml").is_file()
     )
     if not seeded and not (out_dir / "tradeoff_seeds.json").is_file():
         return None

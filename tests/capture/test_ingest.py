@@ -296,7 +296,9 @@ def test_nan_in_calibration_names_the_file(tmp_path: Path) -> None:
     recording = make_recording(tmp_path / "rec", frames=2)
     camchain = recording / "camchain.yaml"
     camchain.write_text(camchain.read_text().replace("300.0", ".nan", 1))
-    with pytest.raises(RectifyError, match=rf"{camchain}: cam0: camera parameters must be finite"):
+    with pytest.raises(
+        RectifyError, match=rf"{camchain}: cam0\.intrinsics: camera parameters must be finite"
+    ):
         _ingest(recording, tmp_path / "out")
 
 

@@ -173,6 +173,13 @@ def test_files_written_together_are_all_replaced_or_none(tmp_path: Path, refused
     assert (caught.value.errno, caught.value.filename) == (errno.EFBIG, str(named))
     assert (product.read_text(), report.read_text()) == ("earlier\n", "earlier report\n")
     assert sorted(tmp_path.iterdir()) == sorted([product, report])  # no temporary left
+    # a folder where the product goes: refused before the report is replaced
+    (tmp_path / "blocked").mkdir()
+    with pytest.raises(IsADirectoryError):
+        atomic_write_texts({report: "newer\n", tmp_path / "blocked": "x\n"})
+    assert report.read_text() == "earlier report\n"
+    assert sorted(tmp_path.iterdir()) == sorted([product, report, tmp_path / "blocked"])
+    (tmp_path / "blocked").rmdir()
     atomic_write_texts({report: "new report\n", product: "new\n"})
     assert (product.read_text(), report.read_text()) == ("new\n", "new report\n")
     plain = tmp_path / "plain.txt"

@@ -765,3 +765,15 @@ def test_the_validation_split_scored_scores_the_end_of_the_budget(
                           tiny_config(), (variant,), latency_runs=1, split="val")  # fmt: skip
     assert loaded == ["last.pt"] and result.meta["scored"] == tradeoff_module.SCORED["last.pt"]
     assert result.meta["evaluated_on"].endswith("split val")
+
+
+def test_only_seed_numbered_folders_make_an_output_seeded(tmp_path: Path) -> None:
+    from lenspair.model.evaluation.tradeoff_seeds import seeded_output_refusal
+
+    (tmp_path / "seedling").mkdir()  # a folder of the user's, named alike
+    (tmp_path / "seedling" / "tradeoff_config.yaml").write_text("seed: 0\n")
+    assert seeded_output_refusal(tmp_path) is None
+    (tmp_path / "seed3").mkdir()
+    (tmp_path / "seed3" / "tradeoff_config.yaml").write_text("seed: 3\n")
+    refusal = seeded_output_refusal(tmp_path)
+    assert refusal is not None and "several seeds (seed3)" in refusal

@@ -208,7 +208,7 @@ def test_nan_is_a_one_line_error_naming_the_file(tmp_path: Path) -> None:
     camchain = tmp_path / "camchain.yaml"
     camchain.write_text(camchain.read_text().replace("350.0", ".nan", 1))
     with pytest.raises(
-        RectifyError, match=r"camchain\.yaml: cam0: camera parameters must be finite"
+        RectifyError, match=r"camchain\.yaml: cam0\.intrinsics: camera parameters must be finite"
     ):
         load_calibration([camchain])
 

@@ -36,7 +36,9 @@ def test_nan_in_calibration_is_a_clear_error(tmp_path: Path) -> None:
     write_kalibr(tmp_path / "c.yaml", _rig(False))
     text = (tmp_path / "c.yaml").read_text().replace("350.0", ".nan", 1)
     (tmp_path / "c.yaml").write_text(text)
-    with pytest.raises(RectifyError, match=r"c\.yaml: cam0: camera parameters must be finite"):
+    with pytest.raises(
+        RectifyError, match=r"c\.yaml: cam0\.intrinsics: camera parameters must be finite"
+    ):
         read_kalibr(tmp_path / "c.yaml")
 
 
@@ -67,7 +69,7 @@ def test_a_rotation_written_with_four_decimals_is_read_as_the_nearest_rotation(
     back = read_kalibr(camchain).T_cam1_cam0  # it was refused as "not a proper rotation"
     assert np.abs(back[:3, :3] @ back[:3, :3].T - np.eye(3)).max() < 1e-12
     assert np.abs(back - exact).max() < 1e-4  # the rotation meant
-    # three decimals are no longer a rotation someone measured: refused, saying by how much
+    # two decimals are no longer a rotation someone measured: refused, saying by how much
     data["cam1"]["T_cn_cnm1"] = np.round(exact, 2).tolist()
     camchain.write_text(yaml.safe_dump(data))
     with pytest.raises(RectifyError, match=r"c\.yaml: cam1\.T_cn_cnm1: .*not a proper rotation"):
@@ -81,6 +83,8 @@ def test_a_rotation_written_with_four_decimals_is_read_as_the_nearest_rotation(
         ("intrinsics", "3503", r"cam0\.intrinsics: expected a list of 4 numbers, got '3503'"),
         ("intrinsics", [True, 350, 360, 270], r"cam0\.intrinsics: expected a list of 4 numbers"),
         ("intrinsics", [350, 351, 360], r"cam0\.intrinsics: expected 4 values, got 3"),
+        ("resolution", [float("nan"), 480], r"cam0\.resolution: camera parameters must be finite"),
+        ("resolution", [float("inf"), 480], r"cam0\.resolution: camera parameters must be finite"),
         ("distortion_coeffs", [0.01, 0, 0, 0, 0.2], r"cam0\.distortion_coeffs: radtan has 4"),
     ],
 )
