@@ -28,7 +28,7 @@ import logging
 import shlex
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -322,12 +322,19 @@ def _fingerprint(stage: Stage) -> dict[str, str]:
 
 
 def run_stage(
-    out: Path, stage: Stage, cli_main: Callable[[list[str]], int], reuse: bool = True
+    out: Path,
+    stage: Stage,
+    cli_main: Callable[[list[str]], int],
+    reuse: bool = True,
+    later: Sequence[Stage] = (),
 ) -> tuple[float, bool]:
     """Run one stage unless ``reuse`` and a finished marker with the same arguments and inputs.
 
     Inputs are the YAML files named in the arguments: editing a sample scene
-    makes its stages run again.
+    makes its stages run again. Before a stage runs, its marker and those of
+    the ``later`` stages (which read what it writes) are removed: a demo
+    killed while it ran, or before they ran again, left an earlier run's
+    markers beside a partial or stale output, and the rerun reused them.
 
     Returns:
         (seconds spent, whether the stage was reused).
@@ -338,6 +345,8 @@ def run_stage(
         same_inputs = recorded.get("inputs", {}) == _fingerprint(stage)
         if recorded.get("argv") == list(stage.argv) and same_inputs:
             return float(recorded.get("seconds", 0.0)), True
+    for stale in (stage, *later):
+        _marker(out, stale).unlink(missing_ok=True)
     # A resumable stage picks up where it stopped, unless what it read changed.
     if stage.output.exists() and not (stage.resumable and reuse):
         remove_path(stage.output)
@@ -366,8 +375,8 @@ def run_stages(
     """
     timings: dict[str, dict[str, float | bool]] = {}
     reuse = True
-    for stage in stages:
-        seconds, reused = run_stage(out, stage, cli_main, reuse)
+    for index, stage in enumerate(stages):
+        seconds, reused = run_stage(out, stage, cli_main, reuse, stages[index + 1 :])
         reuse = reuse and reused
         timings[stage.name] = {"seconds": round(seconds, 2), "reused": reused}
         log.info("%s: %s (%.1f s)", stage.name, "reused" if reused else "done", seconds)

@@ -71,6 +71,46 @@ def test_an_unfinished_resumable_stage_resumes_and_later_stages_run(tmp_path: Pa
     assert (tmp_path / "ing" / "partial").is_file()  # resumed, not wiped
 
 
+def test_a_stage_stopped_while_it_ran_again_is_not_reused_nor_are_those_after(
+    tmp_path: Path,
+) -> None:
+    # a finished demo; then ingest's output removed and the rerun killed in train: the old
+    # markers of train (and of any stage after it) stayed beside a partial output, and the
+    # next rerun reused them ("train: reused", the report said "No tradeoff.")
+    spec = tmp_path / "scene.yaml"
+    spec.write_text("frames: 10\n")
+    stages = _stages(tmp_path, spec)
+    cli = FakeCli({s.argv[0]: s.output for s in stages})
+    run_stages(tmp_path, stages, cli)
+    (tmp_path / ".stages" / "ingest.json").unlink()
+
+    def killed_in_train(argv: list[str]) -> int:
+        if argv[0] == "train":
+            raise SystemExit("killed")  # as kill -9 ends the process, no code returned
+        return cli(argv)
+
+    with pytest.raises(SystemExit):
+        run_stages(tmp_path, stages, killed_in_train)
+    assert not (tmp_path / ".stages" / "train.json").exists()
+    timings = run_stages(tmp_path, stages, cli)
+    assert timings["ingest"]["reused"] and not timings["train"]["reused"]
+    assert cli.calls[-1] == "train"
+    # killed after ingest ran again but before train started: train read the old ingest
+    (tmp_path / ".stages" / "ingest.json").unlink()
+
+    def killed_before_train(argv: list[str]) -> int:
+        code = cli(argv)
+        if argv[0] == "ingest":
+            raise SystemExit("killed")  # ingest done, its marker not yet written
+        return code
+
+    with pytest.raises(SystemExit):
+        run_stages(tmp_path, stages, killed_before_train)
+    assert not (tmp_path / ".stages" / "train.json").exists()
+    timings = run_stages(tmp_path, stages, cli)
+    assert not timings["train"]["reused"]
+
+
 def test_ctrl_c_in_a_stage_stops_the_demo_as_interrupted_not_failed(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
