@@ -29,7 +29,7 @@ from lenspair.capture.recording_types import FrameProblem
 from lenspair.capture.rosbag import never_stamped
 from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.core.contact_sheet import make_contact_sheet, to_display
-from lenspair.core.fsutil import atomic_write_json, atomic_write_text
+from lenspair.core.fsutil import atomic_write_texts, json_text
 from lenspair.core.imageio import write_image
 from lenspair.core.progress import progress
 from lenspair.model.detection.judge import Judgement, judge
@@ -276,8 +276,14 @@ def detect_frames(
     writer = csv.DictWriter(buffer, fieldnames=FIELDS)
     writer.writeheader()
     writer.writerows(v.row() for v in verdicts)
-    atomic_write_text(out / "detections.csv", buffer.getvalue())
-    atomic_write_json(out / "detections.json", [asdict(v) for v in verdicts])
+    # an earlier run's sheet must not pass for this run's; the tables are written together
+    (out / "contact_sheet.png").unlink(missing_ok=True)
+    atomic_write_texts(
+        {
+            out / "detections.csv": buffer.getvalue(),
+            out / "detections.json": json_text([asdict(v) for v in verdicts]),
+        }
+    )
     shown = candidates.picks()
     if shown:
         columns = 4
@@ -287,6 +293,4 @@ def detect_frames(
         label_rows = [labels[i : i + columns] for i in range(0, len(labels), columns)]
         sheet = make_contact_sheet(rows, label_rows, title="detector: red = covered tiles")
         write_image(out / "contact_sheet.png", sheet)  # atomic, as every write_image
-    else:  # an earlier run's sheet would pass for this run's
-        (out / "contact_sheet.png").unlink(missing_ok=True)
     return verdicts

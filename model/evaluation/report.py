@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from lenspair.core.contact_sheet import make_contact_sheet
-from lenspair.core.fsutil import atomic_write_text
+from lenspair.core.fsutil import atomic_write_texts
 from lenspair.core.imageio import write_image
 from lenspair.model.evaluation.evaluate import EvalResult, fmt_psnr
 from lenspair.model.metrics import PSNR_CAP_DB
@@ -149,9 +149,16 @@ def write_report(result: EvalResult, out_dir: Path) -> dict[str, Path]:
         "markdown": out_dir / "metrics.md",
         "contact_sheet": out_dir / "contact_sheet.png",
     }
-    atomic_write_text(files["csv"], per_image_csv(result))
-    atomic_write_text(files["json"], json.dumps(_json_safe(result.as_dict()), indent=2) + "\n")
-    atomic_write_text(files["markdown"], markdown_report(result))
+    # an earlier run's sheet must not pass for this run's (killed before it is drawn, or
+    # none drawn); the tables are written together, so a kill leaves no mix of two runs
+    files["contact_sheet"].unlink(missing_ok=True)
+    atomic_write_texts(
+        {
+            files["csv"]: per_image_csv(result),
+            files["json"]: json.dumps(_json_safe(result.as_dict()), indent=2) + "\n",
+            files["markdown"]: markdown_report(result),
+        }
+    )
     if result.samples:
         rows: list[list[np.ndarray | None]] = [list(row.images) for row in result.samples]
         labels = [list(row.labels) for row in result.samples]

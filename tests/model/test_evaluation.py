@@ -533,3 +533,21 @@ def test_pixels_a_mask_marks_untrustworthy_are_not_scored(tmp_path: Path) -> Non
     result = evaluate_checkpoint(checkpoint, tmp_path / "spoiled", "test", CPU, latency_runs=0)
     assert [s.name for s in result.scores] == ["000", "002"]
     assert "001: psnr: an image has no trustworthy pixel" in result.unread[0].reason
+
+
+def test_a_report_without_samples_leaves_no_earlier_contact_sheet(tmp_path: Path) -> None:
+    # an earlier run's sheet stayed beside this run's tables and passed for this run's
+    from dataclasses import replace
+
+    folder = write_paired_folder(tmp_path / "pairs", count=2)
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    result = evaluate_checkpoint(checkpoint, folder, "test", CPU, latency_runs=0)
+    files = write_report(result, tmp_path / "out")
+    assert files["contact_sheet"].is_file()
+    again = write_report(replace(result, samples=[]), tmp_path / "out")
+    assert "contact_sheet" not in again and not (tmp_path / "out" / "contact_sheet.png").exists()
+    assert {p.name for p in (tmp_path / "out").iterdir()} == {
+        "per_image.csv",
+        "metrics.json",
+        "metrics.md",
+    }
