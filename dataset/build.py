@@ -366,19 +366,6 @@ def _source_info(source: Source, rows: Sequence[ManifestRow]) -> SourceInfo:
     )
 
 
-def write_dataset(
-    folder: Path,
-    pairs: Sequence[tuple[ManifestRow, Measured]],
-    card: DatasetCard,
-    config: DatasetConfig,
-    removed: list[RemovedPair],
-    link: LinkMode = "copy",
-) -> None:
-    """Write the complete dataset into the empty folder ``folder`` (``link``: see module)."""
-    write_records(folder, [row for row, _ in pairs], card, config, removed)
-    write_images(folder, pairs, link)
-
-
 def write_records(
     folder: Path,
     rows: Sequence[ManifestRow],
@@ -727,7 +714,10 @@ def _check_file_system(sources: Sequence[Source], out: Path, link: LinkMode) -> 
 
 
 def _own_entries() -> frozenset[str]:
-    """Top-level names a build writes (:func:`write_dataset`); anything else is the user's."""
+    """Top-level names a build writes (:func:`write_records`, :func:`write_images`).
+
+    Anything else is the user's.
+    """
     contact = {f"contact_{name}.png" for name in SPLITS}
     return frozenset({*SPLITS, MANIFEST_FILE, CARD_FILE, REMOVED_FILE, CONFIG_FILE, *contact})
 
