@@ -16,7 +16,7 @@ from typing import TypeVar
 import torch
 import torch.nn.functional as F
 
-from lenspair.model.evaluation.latency import tune_allocator
+from lenspair.model.inference.backends import deploy
 
 Clock = Callable[[], float]
 Network = TypeVar("Network", bound=torch.nn.Module)
@@ -29,11 +29,12 @@ def as_deployed(network: Network, image: torch.Tensor) -> tuple[Network, torch.T
     CPU (and ``eval``, ``tradeoff`` and ``restore`` run): oneDNN's preferred
     layout, and glibc told to keep freed activations. The tuning is
     process-wide and stays on, so a benchmark that times "as deployed" does it
-    before anything it times; ``network`` itself is left as it was.
+    before anything it times; ``network`` itself is left as it was (the copy
+    goes through :func:`lenspair.model.inference.backends.deploy`).
     """
-    tune_allocator()
-    deployed = copy.deepcopy(network).to(memory_format=torch.channels_last)  # type: ignore[call-overload]
-    return deployed, image.contiguous(memory_format=torch.channels_last)  # type: ignore[no-any-return]
+    deployed = copy.deepcopy(network)
+    deploy(deployed, torch.device("cpu"))  # what restore and eval run: in place, on the copy
+    return deployed, image.contiguous(memory_format=torch.channels_last)
 
 
 def round_robin(
