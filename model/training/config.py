@@ -19,7 +19,7 @@ import dataclasses
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from lenspair.core.config import MAX_SEED, load_dataclass, read_yaml, to_plain
 from lenspair.core.errors import ConfigError
@@ -419,14 +419,19 @@ def stored_run_config(data: object) -> RunConfig:
     return run_config_from_dict(data)
 
 
+def field_differences(old: Any, new: Any) -> list[tuple[str, Any, Any]]:
+    """``(field, old value, new value)`` of each field that differs between two sections."""
+    return [
+        (f.name, getattr(old, f.name), getattr(new, f.name))
+        for f in dataclasses.fields(old)
+        if getattr(old, f.name) != getattr(new, f.name)
+    ]
+
+
 def config_differences(old: RunConfig, new: RunConfig) -> list[str]:
     """Dotted keys whose values differ between two configs (``runtime`` ignored)."""
-    changed = []
-    for section in ("model", "data", "train", "loss"):
-        a, b = getattr(old, section), getattr(new, section)
-        for f in dataclasses.fields(a):
-            if getattr(a, f.name) != getattr(b, f.name):
-                changed.append(
-                    f"{section}.{f.name}: {getattr(a, f.name)!r} -> {getattr(b, f.name)!r}"
-                )
-    return changed
+    return [
+        f"{section}.{name}: {before!r} -> {after!r}"
+        for section in ("model", "data", "train", "loss")
+        for name, before, after in field_differences(getattr(old, section), getattr(new, section))
+    ]

@@ -50,7 +50,13 @@ from lenspair.core.wording import counted
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_weights
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
-from lenspair.model.training.config import RunConfig, RuntimeInfo, TrainConfig, config_differences
+from lenspair.model.training.config import (
+    RunConfig,
+    RuntimeInfo,
+    TrainConfig,
+    config_differences,
+    field_differences,
+)
 from lenspair.model.training.datasets import NAMES_DIGEST
 from lenspair.model.training.pairs import Sample
 from lenspair.model.training.periodic import CheckpointClock, save_progress
@@ -576,10 +582,8 @@ def _model_difference(held: Any, built: Any) -> str:
         return repr(value)
 
     return "; ".join(
-        f"{f.name}: {shown(f.name, getattr(held, f.name))} in it, "
-        f"{shown(f.name, getattr(built, f.name))} here"
-        for f in dataclasses.fields(held)
-        if getattr(held, f.name) != getattr(built, f.name)
+        f"{name}: {shown(name, before)} in it, {shown(name, after)} here"
+        for name, before, after in field_differences(held, built)
     )
 
 
