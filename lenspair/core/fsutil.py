@@ -142,8 +142,8 @@ def atomic_write_texts(files: dict[Path, str]) -> None:
     temporaries: list[tuple[Path, Path]] = []
     try:
         for path, text in files.items():
-            data = text.encode("utf-8", "backslashreplace")
-            temporaries.append((_write_temporary(Path(path), _bytes_writer(data), "", True), path))
+            writer = _bytes_writer(_utf8(text))
+            temporaries.append((_write_temporary(Path(path), writer, "", True), path))
         for tmp, path in temporaries:
             with naming_errors(Path(path)):
                 os.replace(tmp, path)
@@ -269,7 +269,12 @@ def atomic_write_text(path: Path, text: str) -> None:
     A file name that is not UTF-8 (surrogate escapes, as Python reads it) is
     written with backslash escapes: the report stays UTF-8.
     """
-    atomic_write_bytes(path, text.encode("utf-8", "backslashreplace"))
+    atomic_write_bytes(path, _utf8(text))
+
+
+def _utf8(text: str) -> bytes:
+    """``text`` as UTF-8, surrogate escapes (non-UTF-8 file names) as backslash escapes."""
+    return text.encode("utf-8", "backslashreplace")
 
 
 def json_text(obj: Any) -> str:

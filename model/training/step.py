@@ -251,8 +251,7 @@ class Trainer:
         self.scaler = torch.amp.GradScaler(device.type, enabled=self.amp_dtype == torch.float16)
         self.vgg_path = vgg19_weights_path(train.vgg19_weights)
         # the config's file, else None: load_vgg19 reads the variable itself, to name it
-        wanted = train.vgg19_weights
-        self.vgg = None if config.loss.perceptual == 0 else load_vgg19(wanted)
+        self.vgg = None if config.loss.perceptual == 0 else load_vgg19(train.vgg19_weights)
         self.perceptual: PerceptualLoss | None = None
         if self.vgg is not None:
             self.vgg = self.vgg.to(device)
