@@ -14,6 +14,7 @@ import errno
 import fcntl
 import hashlib
 import json
+import math
 import os
 import shutil
 import stat
@@ -275,6 +276,20 @@ def atomic_write_text(path: Path, text: str) -> None:
 def _utf8(text: str) -> bytes:
     """``text`` as UTF-8, surrogate escapes (non-UTF-8 file names) as backslash escapes."""
     return text.encode("utf-8", "backslashreplace")
+
+
+def json_safe(obj: Any) -> Any:
+    """``obj`` with non-finite floats as strings (``"inf"``, ``"-inf"``, ``"nan"``): strict JSON.
+
+    Text is never touched, so a path or a CPU name holding ``Infinity`` stays as it is.
+    """
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return str(obj)
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    return obj
 
 
 def json_text(obj: Any) -> str:

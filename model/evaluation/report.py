@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from lenspair.core.contact_sheet import make_contact_sheet
-from lenspair.core.fsutil import atomic_write_texts
+from lenspair.core.fsutil import atomic_write_texts, json_safe
 from lenspair.core.imageio import write_image
 from lenspair.model.evaluation.evaluate import EvalResult, fmt_psnr
 from lenspair.model.metrics import PSNR_CAP_DB
@@ -155,7 +155,7 @@ def write_report(result: EvalResult, out_dir: Path) -> dict[str, Path]:
     atomic_write_texts(
         {
             files["csv"]: per_image_csv(result),
-            files["json"]: json.dumps(_json_safe(result.as_dict()), indent=2) + "\n",
+            files["json"]: json.dumps(json_safe(result.as_dict()), indent=2) + "\n",
             files["markdown"]: markdown_report(result),
         }
     )
@@ -173,14 +173,3 @@ def write_report(result: EvalResult, out_dir: Path) -> dict[str, Path]:
 def _tail(path: str, parts: int = 3) -> str:
     """The last ``parts`` components of a path, for titles that must fit an image."""
     return "/".join(Path(path).parts[-parts:])
-
-
-def _json_safe(obj: Any) -> Any:
-    """Replace non-finite floats by strings (``"inf"``, ``"nan"``): strict JSON."""
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return str(obj)
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_json_safe(v) for v in obj]
-    return obj

@@ -30,7 +30,7 @@ from typing import Any
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from lenspair.core.fsutil import atomic_write, atomic_write_text
+from lenspair.core.fsutil import atomic_write, atomic_write_text, json_safe
 from lenspair.model.evaluation.tradeoff_rows import TradeoffRow
 
 
@@ -97,9 +97,15 @@ def write_tradeoff(rows: Sequence[TradeoffRow], out_dir: Path, meta: dict[str, A
         writer.writerow({k: ("" if v is None else v) for k, v in asdict(r).items()})
     atomic_write_text(out_dir / "tradeoff.csv", buffer.getvalue())
     payload = {**meta, "rows": [asdict(r) for r in rows]}
-    text = json.dumps(payload, indent=2, default=str).replace("Infinity", '"inf"')
+    # non-finite floats become strings; text (paths, names) is written as it is
+    text = json.dumps(json_safe(payload), indent=2, default=str, allow_nan=False)
     atomic_write_text(out_dir / "tradeoff.json", text + "\n")
     plot_tradeoff(rows, out_dir / "tradeoff.png", meta)
+
+
+MARKERS = {"fp32": "o", "bf16": "s", "fp16": "D", "int8": "^"}
+"""The plot's marker for each precision (matplotlib marker codes)."""
+MARKER_NAMES = {"o": "circle", "s": "square", "D": "diamond", "^": "triangle"}
 
 
 def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any]) -> None:
@@ -112,8 +118,7 @@ def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any])
     for axes, key, label, flag in panels:
         for x, r in timed:
             y = min(getattr(r, key), 100.0)
-            marker = "o" if r.precision == "fp32" else "s"
-            axes.scatter([x], [y], marker=marker, color="tab:blue", zorder=3)
+            axes.scatter([x], [y], marker=MARKERS[r.precision], color="tab:blue", zorder=3)
             # fp32 labels above, reduced precision below: the two precisions of
             # one network score alike and would print over each other
             below = r.precision != "fp32"
@@ -134,7 +139,9 @@ def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any])
         axes.set_xlabel(f"CPU time per {meta['size']} frame (ms, batch 1)")
         axes.set_ylabel(f"{label}, {meta['convention']}")
         axes.grid(True, alpha=0.3)
-    figure.suptitle(f"Accuracy vs CPU time ({meta['budget']} per variant; o fp32, s bf16)")
+    shown = [p for p in MARKERS if any(r.precision == p for _, r in timed)]
+    key_text = ", ".join(f"{MARKER_NAMES[MARKERS[p]]} {p}" for p in shown)
+    figure.suptitle(f"Accuracy vs CPU time ({meta['budget']} per variant; {key_text})")
     figure.tight_layout()
 
     def _write(tmp: Path) -> None:

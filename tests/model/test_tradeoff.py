@@ -30,6 +30,8 @@ from lenspair.model.evaluation.tradeoff import (
     precisions_for,
     run_tradeoff,
 )
+from lenspair.model.evaluation.tradeoff_report import MARKERS, write_tradeoff
+from lenspair.model.precision import PRECISIONS
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.pairs import open_eval_pairs, to_tensor
 from tests.model.train_fixtures import clean_image, tiny_config, write_split_dataset
@@ -777,3 +779,28 @@ def test_only_seed_numbered_folders_make_an_output_seeded(tmp_path: Path) -> Non
     (tmp_path / "seed3" / "tradeoff_config.yaml").write_text("seed: 3\n")
     refusal = seeded_output_refusal(tmp_path)
     assert refusal is not None and "several seeds (seed3)" in refusal
+
+
+def test_tradeoff_json_keeps_text_and_writes_non_finite_numbers_as_strings(
+    tmp_path: Path,
+) -> None:
+    # a folder named Infinity and an infinite PSNR (identical pairs): strict JSON, text untouched
+    row = TradeoffRow("GEA", "GEA", 1.0, 9, "fp32", 1, 0.1, 2.0, None, float("inf"), 1.0, "c", 1)
+    nan_row = replace(row, name="GE", psnr_db=float("nan"), psnr_vs_fp32_db=float("-inf"))
+    meta = {
+        "dataset": "/data/Infinity_rig/DS", "evaluated_on": "Infinity split test",
+        "budget": "2 steps", "convention": "c", "size": "540x360", "threads": 1,
+        "cpu": "NaN-Infinity CPU",
+    }  # fmt: skip
+    write_tradeoff([row, nan_row], tmp_path, meta)
+    text = (tmp_path / "tradeoff.json").read_text()
+    data = json.loads(text, parse_constant=lambda token: pytest.fail(f"bare {token} in JSON"))
+    assert {k: data[k] for k in meta} == meta
+    assert [r["psnr_db"] for r in data["rows"]] == ["inf", "nan"]
+    assert data["rows"][1]["psnr_vs_fp32_db"] == "-inf"
+
+
+def test_every_precision_has_its_own_marker_in_the_plot() -> None:
+    # int8 rows were drawn as bf16 squares, under a title naming only fp32 and bf16
+    assert set(MARKERS) == set(PRECISIONS)
+    assert len(set(MARKERS.values())) == len(MARKERS)
