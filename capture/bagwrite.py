@@ -37,6 +37,7 @@ from rosbags.typesys import (
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage
+from lenspair.capture.recording_types import ACTIVE_BAG_SUFFIX, is_ros1_bag
 from lenspair.capture.rosbag import COMPRESSED_IMAGE, bayer_pattern
 
 _CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
@@ -70,8 +71,13 @@ def _definition_hash(msgdef: str, msgtype: str, topic: str) -> str:
 
 
 def output_bag_path(source: Path, out_dir: Path) -> Path:
-    """Where the copy of ``source`` goes inside ``out_dir`` (same name; ROS 2 as a folder)."""
+    """Where the copy of ``source`` goes inside ``out_dir`` (same name; ROS 2 as a folder).
+
+    The copy of a ``run.bag.active`` is ``run.bag``: it is closed and indexed.
+    """
     source = Path(source)
+    if source.name.lower().endswith(ACTIVE_BAG_SUFFIX):
+        return out_dir / (source.name[: -len(ACTIVE_BAG_SUFFIX)] + ".bag")
     if source.suffix.lower() == ".bag":
         return out_dir / source.name
     return out_dir / (source.stem if source.is_file() else source.name)
@@ -97,7 +103,7 @@ class BagCopy:
     """
 
     def __init__(self, source: Path, destination: Path, suffix: str = "") -> None:
-        self.ros1 = Path(source).suffix.lower() == ".bag"
+        self.ros1 = is_ros1_bag(Path(source))
         self.typestore = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
         self.suffix = suffix
         self.writer: Any = (

@@ -5,20 +5,33 @@ Layout::
     <rec>/left/1403636579763555584.png     cam0
     <rec>/right/1403636579763555584.png    cam1
 
-The timestamp is the last group of digits of the file stem, in nanoseconds
-(``left_000017_1403636579763555584.png`` works too), or seconds with a
-fraction when the stem ends in ``<digits>.<digits>`` (``1403636579.7635.png``),
-or seconds and nanoseconds when it ends in ``<9-10 digits>_<up to 9 digits>``
-(or ``-``), as ROS tools name frames (``1403636579_763555584.png``; an
-unpadded ``1403636579_5.png`` is 5 ns past the second): read as
-nanoseconds alone, those would lose their seconds and pair frames of
-different seconds.
+The timestamp is read from the file stem, the first rule that applies:
+
+1. seconds with a fraction, ``<9-10 digits>.<up to 9 digits>`` anywhere in
+   the stem (``1403636579.7635.png``, ``1403636579.763555584_left.png``), or
+   ``<digits>.<digits>`` ending it (``12.5.png``: seconds from the start);
+2. seconds and nanoseconds, ``<9-10 digits>_<up to 9 digits>`` (or ``-``)
+   anywhere in the stem, as ROS tools name frames
+   (``1403636579_763555584.png``; an unpadded ``1403636579_5.png`` is 5 ns
+   past the second): read as nanoseconds alone, those would lose their
+   seconds and pair frames of different seconds;
+3. else the longest group of digits, in nanoseconds (the last of the longest
+   when several are as long): ``left_000017_1403636579763555584.png`` and
+   ``1403636579763555584_cam0.png`` are both at ``1403636579763555584``, not
+   at frame ``17`` or at ``0`` (the digit of ``cam0``).
+
+Seconds are Unix seconds (9-10 digits, 1973 to 2286) except at the end of
+the stem: ``v1.2_<t_ns>.png`` is not 1.2 s. A camera whose files mostly read
+as one timestamp is refused: the names hold their time in a way these rules
+do not read, and pairing would keep one frame.
+
 Hidden files and files that are not images are ignored. Folders have no
 recording order, so frames are taken in time order; two files with the same
 timestamp keep the first by name and record the other.
 """
 
 import re
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -33,14 +46,22 @@ from lenspair.capture.recording_types import (
 )
 from lenspair.capture.rigfile import CameraName
 
-IMAGE_SUFFIXES = frozenset({".png", ".tif", ".tiff", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp"})
+IMAGE_SUFFIXES = frozenset(
+    {".png", ".tif", ".tiff", ".bmp"}
+    | {".jpg", ".jpeg", ".jpe", ".jfif"}  # JPEG, by each name cameras and tools give it
+    | {".pgm", ".ppm", ".pnm", ".pbm"}  # netpbm; a 1-bit PBM reads as 8-bit grey, 0 and 255
+)
+"""Image files read as frames (OpenImageIO). Camera raw and video are not images to read
+here: :mod:`lenspair.model.inference.sinks` names them where a folder holds them."""
+
 FOLDER_NAMES: dict[CameraName, str] = {"cam0": "left", "cam1": "right"}
 
-_SECONDS = re.compile(r"(\d+)\.(\d{1,9})$")
-_SECONDS_NANOSECONDS = re.compile(r"(?<!\d)(\d{9,10})[_-](\d{1,9})$")
+_UNIX_SECONDS_FRACTION = re.compile(r"(?<![\d.])(\d{9,10})\.(\d{1,9})(?![\d])")
+_SECONDS_AT_END = re.compile(r"(\d+)\.(\d{1,9})$")
+_SECONDS_NANOSECONDS = re.compile(r"(?<!\d)(\d{9,10})[_-](\d{1,9})(?!\d)")
 """Unix seconds (9-10 digits: 1973 to 2286) and a nanosecond field of up to 9 digits
 (export scripts that print ``f"{secs}_{nsecs}"`` do not zero-pad it)."""
-_LAST_DIGITS = re.compile(r"(\d+)\D*$")
+_DIGITS = re.compile(r"\d+")
 
 
 def timestamp_from_name(name: str) -> int | None:
@@ -50,18 +71,22 @@ def timestamp_from_name(name: str) -> int | None:
         name: file name with extension, e.g. ``1403636579763555584.png``.
 
     Returns:
-        Nanoseconds: the stem's last digit group, or ``<s>.<fraction>`` read as
-        seconds, or ``<s>_<ns>`` (module docstring).
+        Nanoseconds: ``<s>.<fraction>`` read as seconds, ``<s>_<ns>``, or the
+        stem's longest digit group (module docstring).
     """
     stem = Path(name).stem
-    fraction = _SECONDS.search(stem)
+    fraction = _UNIX_SECONDS_FRACTION.search(stem) or _SECONDS_AT_END.search(stem)
     if fraction is not None:  # a decimal fraction: "5" is half a second
         return int(fraction.group(1)) * 1_000_000_000 + int(fraction.group(2).ljust(9, "0"))
     split = _SECONDS_NANOSECONDS.search(stem)
     if split is not None:  # a nanosecond count: "5" is five nanoseconds
         return int(split.group(1)) * 1_000_000_000 + int(split.group(2))
-    digits = _LAST_DIGITS.search(stem)
-    return int(digits.group(1)) if digits is not None else None
+    groups = _DIGITS.findall(stem)
+    if not groups:
+        return None
+    # a name's other digits (cam0, a frame index) are shorter than a time in ns;
+    # max() keeps the first of equals, so search from the end: the last of the longest
+    return int(max(reversed(groups), key=len))
 
 
 def image_files(folder: Path) -> list[Path]:
@@ -85,6 +110,10 @@ def list_image_folder(
 
     Returns:
         Frames sorted by ``t_ns``, unique timestamps.
+
+    Raises:
+        CaptureError: more than half of the folder's (two or more) timed files
+            read as one timestamp; names the folder and the value.
     """
     frames = []
     for file in image_files(folder):
@@ -93,8 +122,28 @@ def list_image_folder(
             problems.append(FrameProblem(camera, None, str(file), "no timestamp in file name"))
             continue
         frames.append(FrameRef(camera, t_ns, file))
+    _check_distinct_times(camera, folder, frames)
     frames.sort(key=lambda f: f.t_ns)  # stable: same timestamps keep name order
     return order_frames(camera, frames, problems)
+
+
+def _check_distinct_times(camera: CameraName, folder: Path, frames: list[FrameRef]) -> None:
+    """Refuse a folder whose files mostly read as one timestamp.
+
+    Such names hold their time some other way (or none): each would be a
+    "duplicate timestamp" of the first, and the ingest would keep one frame
+    and call the run a success.
+    """
+    if len(frames) < 2:
+        return
+    t_ns, count = Counter(f.t_ns for f in frames).most_common(1)[0]
+    if 2 * count > len(frames):
+        raise CaptureError(
+            f"{folder}: {count} of {len(frames)} {camera} file names read as one timestamp, "
+            f"t_ns={t_ns} (e.g. {frames[0].source.name}): name the images by capture time "
+            "in ns or in seconds with a fraction (1403636579763555584.png, "
+            "1403636579.763555584.png)"
+        )
 
 
 def is_left_right(path: Path) -> bool:

@@ -54,7 +54,7 @@ import numpy as np
 from lenspair.capture import euroc, folders, rosbag
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import CAMERAS, open_recording
-from lenspair.capture.recording_types import DUPLICATE_TIMESTAMP, FrameProblem
+from lenspair.capture.recording_types import DUPLICATE_TIMESTAMP, FrameProblem, is_ros1_bag
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import read_image
@@ -129,13 +129,13 @@ def detect_input(path: Path) -> InputKind:
         )
         raise CaptureError(f"{path}: no such file or folder{hint}")
     if rosbag.is_bag(path):
-        return "rosbag1" if path.suffix.lower() == ".bag" else "rosbag2"
+        return "rosbag1" if is_ros1_bag(path) else "rosbag2"
     if path.is_file():
         if path.suffix.lower() in IMAGE_SUFFIXES:
             return "image"
         raise CaptureError(
             f"{path}: not an image ({', '.join(sorted(IMAGE_SUFFIXES))}) or a bag "
-            "(.bag, .db3, .mcap)"
+            f"({', '.join(sorted(rosbag.BAG_SUFFIXES))})"
         )
     if euroc.find_euroc_root(path) is not None and (
         (path / "mav0").is_dir() or all((path / camera).is_dir() for camera in CAMERAS)

@@ -28,6 +28,7 @@ from lenspair.core.fsutil import sha256_bytes, sha256_file
 from lenspair.core.imageio import write_image
 from lenspair.core.orphans import end_with_parent
 from lenspair.core.quality import exposure_fractions, laplacian_variance, to_grey
+from lenspair.core.sourcefiles import source_fingerprint
 from lenspair.rectify.crop import Crop
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.registration import EstimationParams, VerifyParams, match_views, to_u8
@@ -279,9 +280,15 @@ def _identity(frame: FrameRef) -> list[object]:
     time) keep the work done. A frame replaced by one of the same size with
     its time set back is not noticed, unless the homography sampled it (those
     are hashed).
+
+    A ROS 2 bag folder is stated file by file
+    (:func:`lenspair.core.sourcefiles.source_fingerprint`): the folder's own
+    time stays when a storage file in it is rewritten in place.
     """
     place = [frame.camera, frame.t_ns, frame.source.name, frame.topic, frame.log_time_ns]
     place.append(frame.occurrence)
+    if frame.in_bag and frame.source.is_dir():
+        return [*place, source_fingerprint(frame.source)]
     try:
         stat = frame.source.stat()
         return [*place, stat.st_size, stat.st_mtime_ns]

@@ -81,20 +81,26 @@ def rejection_reasons(
     """How many frames were rejected or dropped, by the stable part of the reason.
 
     Args:
-        recording: the recording (its dropped problems are counted as
-            ``"<camera or 'recording'> not listed: <category>"``, except those of
-            the ``obstructed`` camera that have a record, counted once by it).
+        recording: the recording (its dropped frames are counted as
+            ``"<camera> not listed: <category>"``, except those of the
+            ``obstructed`` camera that have a record, counted once by it).
         records: the run's records, kept and rejected.
         obstructed: the obstructed camera.
 
     Returns:
         Count per reason category (the text before the first ``:`` or ``" ("``).
 
+    A problem of the whole recording (a bag cut short: "reading stopped
+    early") is no frame: it is said on its own, in the log and the report's
+    ``recording_problems``, not counted here, so that the printed
+    rejections add up to the frames rejected.
     """
     reasons = Counter(_category(r.reason) for r in records if r.status == "rejected" and r.reason)
     for problem in recording.problems:
+        if problem.camera is None:
+            continue
         if problem.dropped and not _has_record(problem, obstructed):
-            reasons[f"{problem.camera or 'recording'} not listed: {_category(problem.reason)}"] += 1
+            reasons[f"{problem.camera} not listed: {_category(problem.reason)}"] += 1
     return reasons
 
 

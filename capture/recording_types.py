@@ -152,9 +152,25 @@ class Recording:
         return load_frame(frame)
 
 
+ACTIVE_BAG_SUFFIX = ".bag.active"
+"""What ``rosbag record`` names a ROS 1 bag while it writes it: a recorder killed leaves
+it so, unindexed (the index is written, and the name changed to ``.bag``, on close)."""
+
+
+def is_ros1_bag(path: Path) -> bool:
+    """True when ``path``'s name is a ROS 1 bag's: ``.bag``, or ``.bag.active``."""
+    name = Path(path).name.lower()
+    return name.endswith(".bag") or name.endswith(ACTIVE_BAG_SUFFIX)
+
+
 def recording_id_for(path: Path) -> str:
-    """Name of a recording: the folder name or the bag's stem (``mav0`` -> parent)."""
+    """Name of a recording: the folder name or the bag's stem (``mav0`` -> parent).
+
+    ``run.bag.active`` is ``run``, as the bag it would have become.
+    """
     resolved = Path(path).resolve()
+    if resolved.name.lower().endswith(ACTIVE_BAG_SUFFIX) and resolved.is_file():
+        return resolved.name[: -len(ACTIVE_BAG_SUFFIX)]
     if resolved.is_file():
         return resolved.stem
     if resolved.name == "mav0":

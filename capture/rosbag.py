@@ -1,14 +1,17 @@
 """ROS1 and ROS2 bags through ``rosbags``: listing image topics and decoding frames.
 
-Accepted: a ROS1 ``.bag`` file, a ROS2 bag folder (``metadata.yaml`` with
-``.db3`` or ``.mcap`` storage) or a bare ``.db3``/``.mcap`` file. Messages of
+Accepted: a ROS1 ``.bag`` file (or ``.bag.active``, what a killed ``rosbag
+record`` leaves: unindexed, so always read as a bag cut short), a ROS2 bag
+folder (``metadata.yaml`` with ``.db3`` or ``.mcap`` storage) or a bare
+``.db3``/``.mcap`` file. Messages of
 type ``sensor_msgs/msg/Image`` (encodings ``mono8``/``8UC1``, ``mono16``/
 ``16UC1``, ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``, ``rgb16``, ``bgr16``, and the
 Bayer mosaics ``bayer_rggb8`` ... ``bayer_grbg16``, demosaiced by OpenCV;
 ``step`` row padding and ``is_bigendian`` respected; colour returned as RGB)
-and ``sensor_msgs/msg/CompressedImage`` (JPEG/PNG, decoded with OpenCV) are
-read. A frame's timestamp is ``header.stamp``; the bag's receive (log) time
-is kept in the :class:`FrameRef` to seek back to the message lazily.
+and ``sensor_msgs/msg/CompressedImage`` (JPEG/PNG, decoded with OpenCV; a PNG
+with an alpha channel is that frame's error) are read. A frame's timestamp is
+``header.stamp``; the bag's receive (log) time is kept in the
+:class:`FrameRef` to seek back to the message lazily.
 
 Listing reads every message of the two topics once (deserialising only to
 get the header). A bag cut short, which ``rosbags`` cannot open (or, for a
@@ -39,10 +42,12 @@ from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording_types import (
+    ACTIVE_BAG_SUFFIX,
     FrameProblem,
     FrameRef,
     Layout,
     Recording,
+    is_ros1_bag,
     order_frames,
     recording_id_for,
 )
@@ -54,7 +59,11 @@ K = TypeVar("K")
 RAW_IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 IMAGE_TYPES = (RAW_IMAGE, COMPRESSED_IMAGE)
-BAG_SUFFIXES = frozenset({".bag", ".db3", ".mcap"})
+ROS2_STORAGE_SUFFIXES = frozenset({".db3", ".mcap"})
+"""A ROS 2 bag's storage files, in its folder beside ``metadata.yaml`` or on their own."""
+BAG_SUFFIXES = frozenset({".bag", ACTIVE_BAG_SUFFIX, *ROS2_STORAGE_SUFFIXES})
+"""How bag files are named (:func:`is_bag_name`): ``.bag.active`` is two suffixes, so
+compare names with :func:`is_bag_name`, not ``Path.suffix`` with this set."""
 BagReader = AnyReader | SalvagedBag
 
 # encoding -> (dtype, channels, channel order to RGB or None)
@@ -96,11 +105,24 @@ def bayer_pattern(encoding: str) -> tuple[str, type[np.unsignedinteger[Any]]] | 
     return None
 
 
+def is_bag_name(path: Path) -> bool:
+    """True when ``path`` is named as a bag file is: one of :data:`BAG_SUFFIXES` ends it.
+
+    By name only (nothing is read): what folder listings use to name the bags among
+    their files, a killed recorder's ``.bag.active`` as well as a ``.bag``.
+    """
+    name = Path(path).name.lower()
+    return any(name.endswith(suffix) for suffix in BAG_SUFFIXES)
+
+
 def is_bag(path: Path) -> bool:
-    """True for a ``.bag``/``.db3``/``.mcap`` file or a folder with ``metadata.yaml``."""
+    """True for a ``.bag`` (or ``.bag.active``), ``.db3`` or ``.mcap`` file, or a ROS 2 bag folder.
+
+    A ROS 2 bag folder is one with ``metadata.yaml``.
+    """
     path = Path(path)
     if path.is_file():
-        return path.suffix.lower() in BAG_SUFFIXES
+        return is_bag_name(path)
     return path.is_dir() and (path / "metadata.yaml").is_file()
 
 
@@ -169,7 +191,7 @@ def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
         with suppress(Exception):
             reader.close()
     frames = {camera: order_frames(camera, listed[camera], problems) for camera in listed}
-    layout: Layout = "rosbag1" if path.suffix.lower() == ".bag" else "rosbag2"
+    layout: Layout = "rosbag1" if is_ros1_bag(path) else "rosbag2"
     return Recording(
         path, recording_id_for(path), layout, frames, problems, topics=(chosen[0], chosen[1])
     )
@@ -270,7 +292,10 @@ def decode_raw(
             height, width, "mono16" if bayer[1] == np.uint16 else "mono8", is_bigendian, step,
             data, where,
         )  # fmt: skip
-        return np.ascontiguousarray(cv2.cvtColor(mosaic, _DEMOSAIC[bayer[0]]))
+        try:
+            return np.ascontiguousarray(cv2.cvtColor(mosaic, _DEMOSAIC[bayer[0]]))
+        except cv2.error as exc:  # one bad frame is that frame's problem, not the run's
+            raise CaptureError(f"{where}: cannot demosaic {encoding} ({_one_line(exc)})") from None
     if key not in _ENCODINGS:
         supported = ", ".join([*sorted(_ENCODINGS), "bayer_<rggb|bggr|gbrg|grbg><8|16>"])
         raise CaptureError(f"{where}: unsupported encoding {encoding!r}; supported: {supported}")
@@ -298,20 +323,44 @@ def decode_raw(
 def decode_compressed(fmt: str, data: np.ndarray | bytes, where: str) -> np.ndarray:
     """Decode a ``sensor_msgs/CompressedImage`` payload (JPEG/PNG) to mono or RGB.
 
+    Returns:
+        ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB, C-contiguous.
+
     Raises:
-        CaptureError: the payload cannot be decoded or has an unsupported depth.
+        CaptureError: the payload is empty (a driver's failed frame), cannot
+            be decoded, has an unsupported depth, or has an alpha channel (a
+            PNG of grey or colour with alpha); names the message.
     """
     payload = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes) else data
-    decoded = cv2.imdecode(np.ascontiguousarray(payload, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    payload = np.ascontiguousarray(payload, dtype=np.uint8).reshape(-1)
+    if payload.size == 0:  # OpenCV asserts on an empty buffer instead of returning None
+        raise CaptureError(f"{where}: empty compressed image (format {fmt!r}, no data)")
+    try:
+        decoded = cv2.imdecode(payload, cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:  # a decoder's assertion is this frame's problem, not the run's
+        raise CaptureError(
+            f"{where}: cannot decode compressed image (format {fmt!r}: {_one_line(exc)})"
+        ) from None
     if decoded is None:
         raise CaptureError(f"{where}: cannot decode compressed image (format {fmt!r})")
     image = np.asarray(decoded)
     if image.dtype not in (np.uint8, np.uint16):
         raise CaptureError(f"{where}: unsupported compressed sample type {image.dtype}")
-    if image.ndim == 3 and image.shape[2] == 1:
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    if channels in (2, 4):
+        # Decoded without it, the alpha would be gone from a restored copy that still
+        # says bgra8, and nothing would tell: the frame fails instead, named (as a raw
+        # rgba8 frame does in restore, which cannot write that encoding back).
+        raise CaptureError(
+            f"{where}: compressed image with an alpha channel ({channels} channels, format "
+            f"{fmt!r}): not read, since its alpha would be lost"
+        )
+    if channels not in (1, 3):
+        raise CaptureError(f"{where}: compressed image of {channels} channels (format {fmt!r})")
+    if image.ndim == 3 and channels == 1:
         image = image[:, :, 0]
-    elif image.ndim == 3:  # OpenCV decodes colour as BGR(A)
-        image = image[:, :, 2::-1]
+    elif image.ndim == 3:  # OpenCV decodes colour as BGR
+        image = image[:, :, ::-1]
     return np.ascontiguousarray(image)
 
 
@@ -360,10 +409,12 @@ _CACHE = _ReaderCache(size=4)
 
 def _open(path: Path) -> BagReader:
     """Open a bag with ``rosbags``; one it cannot open is read up to its cut."""
-    store = Stores.ROS1_NOETIC if path.suffix.lower() == ".bag" else Stores.ROS2_HUMBLE
+    store = Stores.ROS1_NOETIC if is_ros1_bag(path) else Stores.ROS2_HUMBLE
     # SQLite opens a cut .db3 and fails part-way without saying where: salvage it.
     failure = "the SQLite file is shorter than its header says"
-    if not is_cut_db3(path):
+    if path.name.lower().endswith(ACTIVE_BAG_SUFFIX):  # never closed, so never indexed
+        failure = "a recording never closed: rosbag record writes the index on close"
+    elif not is_cut_db3(path):
         try:
             reader = AnyReader([path], default_typestore=get_typestore(store))
             reader.open()

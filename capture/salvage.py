@@ -280,6 +280,8 @@ def salvage_bag(path: Path) -> SalvagedBag:
         with storage.open("rb") as bio:
             magic = bio.read(16)
             bio.seek(0)
+            # the file says what it is: a ROS 1 bag's name may end in .bag.active
+            bag.is_ros1 = magic.startswith(ROS1_MAGIC)
             if magic.startswith(ROS1_MAGIC):
                 scan_ros1(bag, bio)
             elif magic.startswith(MCAP_MAGIC):

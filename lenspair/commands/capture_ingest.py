@@ -140,6 +140,8 @@ def run(args: argparse.Namespace) -> int:
     )
     for reason, count in report.rejection_reasons.items():
         print(f"  rejected {count}: {reason}")
+    for problem in report.recording_problems:  # of the whole recording (a cut bag), no frame
+        print(f"  recording: {problem}")
     if args.detector is not None:
         print(f"  side check: {report.side_check.get('message', '')}")
     return 0

@@ -14,7 +14,8 @@ tiles in red). Frames are decoded one batch at a time, so a long recording
 needs no more memory than a short one. Prints how many frames were called
 obstructed, per kind, and a warning when a bag stops part-way, and one for
 each file of a folder INPUT that may hold frames but is not judged (a bag, a
-video, an image format that is not read), as restore names them.
+killed recorder's .bag.active too, a video, a camera raw file, an image format
+that is not read), as restore names them.
 
 Example:
   lenspair detect runs/detector/detector.pt rec/rain --out detect_rain

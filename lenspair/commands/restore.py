@@ -9,10 +9,11 @@ kept), an EuRoC/ASL recording (data.csv, sensor.yaml and every other file
 copied; the chosen camera's images restored), a ROS 1 .bag or a ROS 2 bag
 (.db3 or .mcap; every message copied, restored images on the same topics or on
 <topic><suffix>, headers and log times unchanged). Images keep their bit
-depth and channels (an image file's alpha channel is written back unchanged
-beside the restored colour; 16-bit frames of 10- or 12-bit values are restored
-on the full scale and written back in the camera's words; a Bayer bag frame is
-demosaiced, restored in colour, and sampled back into its mosaic). The model
+depth, channels, orientation, colour profile and EXIF (an image file's alpha
+channel is written back unchanged beside the restored colour; 16-bit frames of
+10- or 12-bit values are restored on the full scale and written back in the
+camera's words; a Bayer bag frame is demosaiced, restored in colour, and
+sampled back into its mosaic). The model
 is a lenspair checkpoint (torch, CPU or CUDA) or an ONNX file from `lenspair
 export` (ONNX Runtime; it was exported at a fixed size, so other sizes run on
 tiles of that size).
@@ -25,9 +26,11 @@ OUT/<bag name>.bag, a ROS 2 bag folder to the folder OUT/<its name>/ (a bare
 
 Any size works (padded to a multiple of 4 and cropped back, as eval does);
 --tile N runs large images in overlapping N x N tiles blended without seams.
-Unreadable frames are copied unchanged and listed in OUT/restore_report.json;
+Unreadable frames, and frames too large for memory (the report says which
+--tile fits), are copied unchanged and listed in OUT/restore_report.json;
 a non-empty OUT is refused unless --resume, which continues a killed run and
-writes the same bytes as an uninterrupted one.
+writes the same bytes as an uninterrupted one (a bag the run finished is kept
+while its files are unchanged).
 """
 
 import argparse

@@ -105,6 +105,50 @@ def image_layout(path: Path) -> tuple[int, int]:
     return orientation, pages
 
 
+KEPT_ATTRIBUTES = frozenset(
+    {
+        "ICCProfile",  # what the colour values mean: without it, viewers take them as sRGB
+        "Make", "Model", "Software", "DateTime", "ImageDescription", "Artist", "Copyright",
+        "DocumentName", "HostComputer", "Keywords", "ExposureTime", "FNumber",
+    }
+)  # fmt: skip
+"""Descriptive attributes (OpenImageIO's names) an image written in a file's place keeps."""
+
+KEPT_PREFIXES = ("Exif:", "GPS:", "IPTC:")
+"""Attribute groups kept too: the camera's EXIF (capture time, exposure), position, captions."""
+
+GEOMETRY_ATTRIBUTES = frozenset(
+    {"Exif:PixelXDimension", "Exif:PixelYDimension", "Exif:CompressedBitsPerPixel"}
+)
+"""EXIF tags that describe the file's encoding, not the picture: the writer decides them."""
+
+Attribute = tuple[str, Any, Any]
+"""An image attribute as OpenImageIO holds it: ``(name, TypeDesc, value)``."""
+
+
+def image_metadata(path: Path) -> tuple[Attribute, ...]:
+    """The descriptive attributes of a file's header: ICC profile, EXIF, GPS, IPTC.
+
+    Whoever writes an image back in the file's place (``restore``) hands
+    them to :func:`write_image`'s ``metadata``, or the new file loses its
+    colour profile (a wide-gamut photo shown in sRGB), its camera and its
+    capture time. Attributes of the file's format and geometry (resolution,
+    compression, bit depth, the format's own ``png:``/``tiff:``/``oiio:``
+    ones, the ICC profile's decoded ``ICCProfile:`` fields) are left to the
+    writer; so is ``Orientation`` (:func:`image_layout`).
+
+    Raises:
+        ImageIOError: as :func:`image_header`.
+    """
+    with _opened(Path(path)) as handle:
+        return tuple(
+            (item.name, item.type, item.value)
+            for item in handle.spec().extra_attribs
+            if (item.name in KEPT_ATTRIBUTES or item.name.startswith(KEPT_PREFIXES))
+            and item.name not in GEOMETRY_ATTRIBUTES
+        )
+
+
 def read_alpha(path: Path) -> np.ndarray | None:
     """The alpha channel of an image file, ``(H, W)`` of its dtype; ``None`` when it has none.
 
@@ -256,6 +300,7 @@ def write_image(
     alpha: np.ndarray | None = None,
     orientation: int = 1,
     associated: bool = False,
+    metadata: Sequence[Attribute] = (),
 ) -> None:
     """Write ``image`` atomically; the format follows the file extension.
 
@@ -273,6 +318,8 @@ def write_image(
         associated: ``alpha`` is associated (the colour is premultiplied, as
             in the TIFF it came from: :func:`alpha_is_associated`), and a TIFF
             says so; the colour is written as given either way.
+        metadata: descriptive attributes to record (ICC profile, EXIF, as
+            the format holds them); see :func:`image_metadata`.
 
     """
     check_image(image, str(path))
@@ -289,6 +336,8 @@ def write_image(
 
     def _write(tmp: Path) -> None:
         spec = oiio.ImageSpec(width, height, channels, _OIIO_TYPES[image.dtype])
+        for name, kind, value in metadata:
+            spec.attribute(name, kind, value)
         if alpha is not None:
             spec.alpha_channel = channels - 1
             if not associated:  # colour as given, not divided by alpha

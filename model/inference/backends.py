@@ -171,8 +171,9 @@ class OnnxBackend:
         threads: intra-op CPU threads (``torch.get_num_threads()`` by default).
 
     Raises:
-        ModelError: unreadable model, wrong input rank, or CUDA asked for and
-            not available in onnxruntime.
+        ModelError: unreadable model, not a restoring model's signature (one
+            image batch in, batches of its channels out: see :func:`_check_signature`),
+            or CUDA asked for and not available in onnxruntime.
     """
 
     def __init__(self, path: Path, device: torch.device, threads: int | None = None) -> None:
@@ -195,9 +196,7 @@ class OnnxBackend:
         except Exception as exc:  # onnxruntime raises its own assorted types
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise ModelError(f"{path}: cannot load ONNX model ({first})") from None
-        (spec,) = self.session.get_inputs()
-        if len(spec.shape) != 4 or not isinstance(spec.shape[1], int):
-            raise ModelError(f"{path}: expected an input (N, C, H, W), got {spec.shape}")
+        spec = _check_signature(self.path, self.session.get_inputs(), self.session.get_outputs())
         self.input_name = spec.name
         self.device = device
         self._channels = int(spec.shape[1])
@@ -222,10 +221,58 @@ class OnnxBackend:
         return f"ONNX Runtime {self.path} on {self.device} ({self.precision})"
 
     def __call__(self, batch: np.ndarray) -> np.ndarray:
-        """Run the session on a numpy batch (see :class:`Backend`)."""
+        """Run the session on a numpy batch (see :class:`Backend`).
+
+        Raises:
+            ModelError: the model returned another shape than the batch's (a
+                model of any size that shrinks some sizes: its frames fail,
+                rather than being written at the wrong size or transposed into
+                a traceback).
+        """
         feed = {self.input_name: check_batch(batch, self.channels)}
-        output = self.session.run(None, feed)[0]
+        output = np.asarray(self.session.run(None, feed)[0])
+        if output.shape != batch.shape:
+            raise ModelError(
+                f"{self.path}: returned {output.shape} for a batch of {batch.shape}; a restoring "
+                "model returns its input's shape (lenspair export writes one)"
+            )
         return np.clip(np.asarray(output, dtype=np.float32), 0.0, 1.0)
+
+
+def _check_signature(path: Path, inputs: list[Any], outputs: list[Any]) -> Any:
+    """The one input of a restoring ONNX model, after checking its outputs.
+
+    A model from ``lenspair export`` takes one batch ``(N, C, H, W)`` and returns
+    one of the same channels. Any other ONNX file (a classifier, a model of two
+    inputs) failed later with a traceback from deep in the pipeline, after OUT
+    had been started.
+
+    Args:
+        path: the model, for the message.
+        inputs: the session's ``get_inputs()``.
+        outputs: the session's ``get_outputs()``.
+
+    Raises:
+        ModelError: naming ``path`` and what differs.
+    """
+    if len(inputs) != 1:
+        names = ", ".join(spec.name for spec in inputs)
+        raise ModelError(
+            f"{path}: {len(inputs)} inputs ({names}); a restoring model takes one image "
+            "batch (N, C, H, W), as lenspair export writes"
+        )
+    (spec,) = inputs
+    shape = list(spec.shape or [])
+    if len(shape) != 4 or not isinstance(shape[1], int):
+        raise ModelError(f"{path}: expected an input (N, C, H, W), got {spec.shape}")
+    for output in outputs:
+        returned = list(output.shape or [])
+        if len(returned) != 4 or returned[1] != shape[1]:
+            raise ModelError(
+                f"{path}: output {output.name} is {output.shape}, not (N, {shape[1]}, H, W) "
+                f"like its input {shape}: not a restoring model (lenspair export writes one)"
+            )
+    return spec
 
 
 QUANTISED_NODES = frozenset({"QuantizeLinear", "DequantizeLinear", "QLinearConv", "ConvInteger"})

@@ -13,18 +13,23 @@ Rules a robotics user can rely on:
   and ``--resume`` (which skips batches whose outputs all exist and recomputes
   the others) writes the same bytes as an uninterrupted run. A bag is
   written in one pass, so ``--resume`` writes it again, taking the frames an
-  earlier run restored from a cache (:class:`~lenspair.model.inference.sinks.BagSink`).
+  earlier run restored from a cache (:class:`~lenspair.model.inference.sinks.BagSink`);
+  a bag a complete run wrote is kept as it is while its files and the settings
+  are unchanged (the report records both).
 * **Channels**: a mono network on RGB images (or the reverse) is refused with
   a one-line error on the first frame: no silent conversion. A later frame
   whose channels differ is a failed frame.
 * **Failures cost only their frames**: an unreadable image or undecodable
-  message is recorded in ``OUT/restore_report.json`` with its reason and copied
-  unchanged, so the output stays complete and aligned with the input; a bag
-  cut short ends the copy where reading stopped (recorded too).
+  message, or a batch the network cannot run (a frame too large for memory:
+  the reason says which ``--tile`` would fit), is recorded in
+  ``OUT/restore_report.json`` with its reason and copied unchanged, so the
+  output stays complete and aligned with the input; a bag cut short ends the
+  copy where reading stopped (recorded too).
 * ``judge`` (``--only-obstructed``): frames judged clean are copied unchanged.
 """
 
 import contextlib
+import json
 import logging
 import os
 import re
@@ -117,6 +122,9 @@ class RestoreReport:
         seconds: wall time of the run.
         settings: what decides the output bytes (:func:`run_settings`);
             ``--resume`` refuses an OUT written with other ones.
+        source_files: bags: ``[name, size, mtime_ns]`` of the files the bag
+            was read from; ``--resume`` of a complete run keeps its bag while
+            they are unchanged (:meth:`~lenspair.model.inference.sinks.BagSink.finished`).
     """
 
     input: str
@@ -133,6 +141,7 @@ class RestoreReport:
     problems: list[dict[str, str]] = field(default_factory=list)
     seconds: float = 0.0
     settings: dict[str, Any] = field(default_factory=dict)
+    source_files: list[list[Any]] = field(default_factory=list)
 
     @property
     def frames_per_second(self) -> float:
@@ -467,7 +476,8 @@ def restore_input(
 
     Raises:
         ModelError: bad options, non-empty OUT, OUT overlapping the input (see
-            :func:`check_apart`), or a channel mismatch on the first frame.
+            :func:`check_apart`), or a channel mismatch on the first frame
+            (OUT is then left as it was).
         CaptureError: the input cannot be opened at all.
     """
     started = time.perf_counter()
@@ -486,14 +496,24 @@ def restore_input(
     remove_leftovers_under(out_dir)  # of a killed run: its half-written temporaries
     made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]
     out_dir.mkdir(parents=True, exist_ok=True)
-    # the settings go first, so that a killed run's --resume can check them
     started_report = not (out_dir / REPORT_NAME).exists()
+    sink: FileSink | BagSink = (
+        BagSink(input_path, out_dir, options.suffix, options.resume) if bag else FileSink(out_dir)
+    )
+    if isinstance(sink, BagSink) and options.resume:
+        # a bag is written in one pass, and its cache is gone once complete: without this,
+        # resuming a finished run restored every frame again
+        finished = _finished_report(out_dir)
+        if finished is not None and sink.finished(finished.get("source_files")):
+            report = _kept(finished, input_path, kind, sink, backend, cameras, settings)
+            report.seconds = time.perf_counter() - started
+            atomic_write_json(out_dir / REPORT_NAME, report.as_dict())
+            return report
+    # the settings go first, so that a killed run's --resume can check them
     atomic_write_json(out_dir / REPORT_NAME, {"settings": settings, "complete": False})
     source_problems: list[str] = []
-    sink: FileSink | BagSink
     total: int | None = None
-    if bag:
-        sink = BagSink(input_path, out_dir, options.suffix, options.resume)
+    if isinstance(sink, BagSink):
         overview = bag_overview(input_path, cameras, options.topics)
         source_problems.extend(overview.others)
         total = overview.frames  # for the progress bar
@@ -501,7 +521,6 @@ def restore_input(
             input_path, cameras, source_problems, options.topics
         )
     else:
-        sink = FileSink(out_dir)
         total = len(files)
         items = iter_frames(input_path, cameras, source_problems)
     report = RestoreReport(
@@ -510,16 +529,18 @@ def restore_input(
     report.settings = settings
     writer = Writer(sink, report, size=4 * options.batch_size)
     try:
-        _run(threaded(items, 4 * options.batch_size), backend, options, judge, writer, total)
-    except ModelError:  # refused at the first frame, before any write: leave OUT as it was
+        refused = _run(
+            threaded(items, 4 * options.batch_size), backend, options, judge, writer, total
+        )
+    finally:
+        writer.close()
+    if refused is not None:  # at the first frame, before any write: leave OUT as it was
         if started_report:
             (out_dir / REPORT_NAME).unlink(missing_ok=True)
         with contextlib.suppress(OSError):  # only the folders this run made, while empty
             for folder in made:
                 folder.rmdir()
-        raise
-    finally:
-        writer.close()
+        raise ModelError(refused)
     if kind in ("euroc", "folders", "folder"):  # after the frames: a refused run writes nothing
         assert isinstance(sink, FileSink)
         if sink.changed:
@@ -555,6 +576,7 @@ def restore_input(
             )
     sink.finish()
     if isinstance(sink, BagSink):
+        report.source_files = sink.fingerprint
         source_problems.extend(
             f"{topic}: a type neither the bag nor rosbags defines: its messages are copied "
             "byte for byte, under an empty definition whose hash is not the type's, so readers "
@@ -568,6 +590,46 @@ def restore_input(
     return report
 
 
+def _finished_report(out_dir: Path) -> dict[str, Any] | None:
+    """OUT's report when a complete run with recorded settings wrote it, else None."""
+    try:
+        data = json.loads((out_dir / REPORT_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):  # none, or cut: no run finished there
+        return None
+    if not isinstance(data, dict) or data.get("complete") is not True:
+        return None
+    return data if isinstance(data.get("settings"), dict) and data["settings"] else None
+
+
+def _kept(
+    finished: dict[str, Any],
+    input_path: Path,
+    kind: InputKind,
+    sink: BagSink,
+    backend: Backend,
+    cameras: tuple[CameraName, ...],
+    settings: dict[str, Any],
+) -> RestoreReport:
+    """The report of a ``--resume`` that keeps the bag a complete run wrote (``finished``).
+
+    Its frames count as resumed, as a resumed folder's finished frames do;
+    what it skipped, failed and found is said again, since the bag holds it.
+    """
+    log.info("%s: written by the run being resumed, from the same bag: kept", sink.output)
+    report = RestoreReport(
+        str(input_path), kind, str(sink.output), backend.description, list(cameras)
+    )
+    report.frames_read = int(finished.get("frames_read", 0))
+    report.resumed = int(finished.get("restored", 0)) + int(finished.get("resumed", 0))
+    report.skipped = int(finished.get("skipped", 0))
+    report.skipped_frames = list(finished.get("skipped_frames", []))
+    report.failed = int(finished.get("failed", 0))
+    report.problems = list(finished.get("problems", []))
+    report.settings = settings
+    report.source_files = sink.fingerprint
+    return report
+
+
 def _run(
     items: Iterator[Any],
     backend: Backend,
@@ -575,8 +637,15 @@ def _run(
     judge: FrameJudge | None,
     writer: Writer,
     total: int | None,
-) -> None:
-    """Batch frames and run the network; hands everything to ``writer`` in order."""
+) -> str | None:
+    """Batch frames and run the network; hands everything to ``writer`` in order.
+
+    Returns:
+        None; or, when the first readable frame's channels are not the
+        network's, why, with nothing handed to ``writer`` (the run is refused;
+        a later frame that does not match is a failed frame). A refusal is
+        returned, not raised, so that no other error (a judge's) is taken for one.
+    """
     report = writer.report
     pending: list[tuple[Any, InputFrame | None, int | None]] = []  # item, frame, batch slot
     batch: list[InputFrame] = []
@@ -589,10 +658,14 @@ def _run(
         # written back in the camera's words (lenspair.core.bitdepth)
         bits = depth.bits if bits is None else bits
         done = [writer.sink.done(frame) and depths.same(frame, bits) for frame in batch]
+        failure = None
         if batch and not all(done):  # the whole batch: same batches as an uninterrupted run
             images = [frame.image for frame in batch if frame.image is not None]
             depths.record(batch, bits)
-            outputs[:] = restore_images(backend, images, bits, options.tile, options.overlap)
+            try:
+                outputs[:] = restore_images(backend, images, bits, options.tile, options.overlap)
+            except ModelError as exc:  # a frame too large for memory: its batch fails, not the run
+                failure = str(exc)
         for item, frame, slot in pending:
             if slot is None:
                 writer.put(item, frame, None)
@@ -601,6 +674,11 @@ def _run(
                 cached = writer.sink.cached(batch[slot])
                 if cached is not None:
                     writer.put(item, frame, cached)
+            elif failure is not None:  # copied unchanged and listed; --resume tries it again
+                assert frame is not None
+                report.failed += 1
+                report.problems.append({"frame": frame.name, "reason": failure})
+                writer.put(item, frame, None)
             else:
                 report.restored += 1
                 writer.put(item, frame, outputs[slot])
@@ -622,7 +700,8 @@ def _run(
         if image is not None:
             reason = frame_problem(str(frame.source), image, backend.channels) or reason
             if reason is not None and _channels(image) != backend.channels and not channels_checked:
-                raise ModelError(reason)
+                bar.close()
+                return reason
         if image is None or reason is not None:
             report.failed += 1
             report.problems.append({"frame": frame.name, "reason": reason or "unreadable"})
@@ -652,6 +731,7 @@ def _run(
             "changed the bit depth they are taken at (lenspair.core.bitdepth.RunningDepth)",
             depths.redone,
         )
+    return None
 
 
 def _batch_key(frame: InputFrame, options: RestoreOptions) -> tuple[Any, ...]:

@@ -24,7 +24,6 @@ import sqlite3
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -32,7 +31,7 @@ from lenspair.capture.bagwrite import BagCopy, output_bag_path
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.folders import IMAGE_SUFFIXES
 from lenspair.capture.frames import BagMessage, InputFrame
-from lenspair.capture.rosbag import BAG_SUFFIXES
+from lenspair.capture.rosbag import ROS2_STORAGE_SUFFIXES, is_bag_name
 from lenspair.core.errors import ImageIOError
 from lenspair.core.fsutil import (
     atomic_write,
@@ -44,11 +43,14 @@ from lenspair.core.fsutil import (
 )
 from lenspair.core.imageio import (
     FAST_PNG,
+    Attribute,
     alpha_is_associated,
     image_layout,
+    image_metadata,
     read_alpha,
     write_image,
 )
+from lenspair.core.sourcefiles import source_fingerprint
 
 log = logging.getLogger(__name__)
 
@@ -137,8 +139,12 @@ def _alpha_of(source: Path, shape: tuple[int, ...]) -> np.ndarray | None:
     return alpha if alpha is not None and alpha.shape == shape else None
 
 
-def _orientation_of(source: Path) -> int:
-    """The input's EXIF/TIFF orientation, kept on its restored image.
+def _layout_of(source: Path) -> tuple[int, tuple[Attribute, ...]]:
+    """The input's EXIF/TIFF orientation and descriptive metadata, kept on its restored image.
+
+    The metadata: ICC profile, EXIF (camera, capture time), GPS
+    (:func:`~lenspair.core.imageio.image_metadata`); a restored frame
+    is the same picture, only cleaner.
 
     Raises:
         CaptureError: a file of several pages (a multi-page TIFF): the network
@@ -147,11 +153,12 @@ def _orientation_of(source: Path) -> int:
     """
     try:
         orientation, pages = image_layout(source)
+        metadata = image_metadata(source)
     except ImageIOError as exc:
         raise CaptureError(str(exc)) from None
     if pages > 1:
         raise CaptureError(f"{source}: a file of several pages; only single images are restored")
-    return orientation
+    return orientation, metadata
 
 
 def copy_file(source: Path, destination: Path) -> None:
@@ -174,12 +181,6 @@ def _changed_since(source: Path, written_ns: int) -> bool:
         return source.stat().st_ctime_ns > written_ns
     except OSError:
         return False
-
-
-def source_fingerprint(source: Path) -> list[list[Any]]:
-    """Name, size and modification time of a bag's files (its folder's, for ROS 2)."""
-    files = sorted(p for p in source.rglob("*") if p.is_file()) if source.is_dir() else [source]
-    return [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in files]
 
 
 def files_under(root: Path, follow_links: bool = True) -> list[Path]:
@@ -353,13 +354,13 @@ class FileSink:
         else:
             destination.parent.mkdir(parents=True, exist_ok=True)
             alpha = _alpha_of(Path(item.source), restored.shape[:2])
-            orientation = _orientation_of(Path(item.source))
+            orientation, metadata = _layout_of(Path(item.source))
             # a premultiplied TIFF stays marked so: its colour values mean that
             associated = alpha is not None and alpha_is_associated(Path(item.source))
             # FAST_PNG: a robot's stream wants speed
             write_image(
                 destination, restored, png_level=FAST_PNG, alpha=alpha, orientation=orientation,
-                associated=associated,
+                associated=associated, metadata=metadata,
             )  # fmt: skip
             self.copies.discard(item.name)
 
@@ -383,15 +384,47 @@ class FileSink:
             self.copies_file.unlink(missing_ok=True)
 
 
-VIDEO_SUFFIXES = frozenset({".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg"})
+VIDEO_SUFFIXES = frozenset(
+    {".avi", ".mp4", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg", ".ogv"}
+    | {".ts", ".m2ts", ".mts", ".flv", ".wmv", ".3gp"}
+)
+"""Video files: their frames are not read (split them into images first)."""
+RAW_IMAGE_SUFFIXES = frozenset(
+    {".dng", ".cr2", ".cr3", ".nef", ".arw", ".orf", ".rw2", ".raf", ".pef", ".srw"}
+)
+"""Camera raw files: the sensor's mosaic, not an image until the camera's software
+demosaics it (a DNG is a TIFF container, which OpenImageIO may open all the same)."""
 UNREAD_IMAGE_SUFFIXES = frozenset({".webp", ".gif", ".heic", ".heif", ".jp2", ".exr", ".avif"})
+"""Images in formats that are not read (convert them to PNG or TIFF)."""
+
+_MPEG_TS_SYNC = 0x47
+"""The first byte of every MPEG transport stream packet."""
+
+
+def _is_video(source: Path) -> bool:
+    """Whether ``source`` is named as a video (an MPEG-TS ``.ts`` by its first byte too).
+
+    ``.ts`` also names TypeScript sources, which a folder of a project's frames may
+    hold beside its scripts: those must not be called videos in every report.
+    """
+    suffix = source.suffix.lower()
+    if suffix not in VIDEO_SUFFIXES:
+        return False
+    if suffix != ".ts":
+        return True
+    try:
+        with source.open("rb") as stream:
+            return stream.read(1) == bytes([_MPEG_TS_SYNC])
+    except OSError:  # unreadable: named by its suffix, as the other videos are
+        return True
 
 
 def unread_frames_note(source: Path, command: str, left: str) -> str | None:
     """A line for a file of a folder input that may hold frames ``command`` did not read.
 
-    Bags, videos and images in formats that are not read; None for every other
-    file (notes, calibration files, listings hold no frame).
+    Bags (a killed recorder's ``.bag.active`` too), videos, camera raw files and
+    images in formats that are not read; None for every other file (notes,
+    calibration files, listings hold no frame).
 
     Args:
         source: the file.
@@ -399,10 +432,15 @@ def unread_frames_note(source: Path, command: str, left: str) -> str | None:
         left: what the command did with the file (``copied as it is``, ``not judged``).
     """
     suffix = source.suffix.lower()
-    if suffix in BAG_SUFFIXES:
+    if is_bag_name(source):
         return f"{source}: a bag, {left}: {command} it as an INPUT of its own"
-    if suffix in VIDEO_SUFFIXES:
+    if _is_video(source):
         return f"{source}: a video, {left}: {command} takes its frames as images"
+    if suffix in RAW_IMAGE_SUFFIXES:
+        return (
+            f"{source}: a camera raw file, {left}: it needs demosaicing by the camera's "
+            f"software; export it as PNG or TIFF to {command} it"
+        )
     if suffix in UNREAD_IMAGE_SUFFIXES:
         return (
             f"{source}: {suffix} images are not read, {left}: convert it to PNG or "
@@ -461,6 +499,17 @@ class BagSink:
     def output(self) -> Path:
         """The bag written."""
         return self.path
+
+    def finished(self, recorded: object) -> bool:
+        """Whether a complete earlier run wrote this bag from the files it reads now.
+
+        Args:
+            recorded: the source files that run's report kept (its
+                ``source_files``; :meth:`finish` drops the cache and its stamp).
+
+        The bag must still be at its name: one the user deleted is written again.
+        """
+        return bool(recorded) and recorded == self.fingerprint and self.path.exists()
 
     def _cached_path(self, frame: InputFrame) -> Path:
         return self.cache / f"{frame.index}.npy"
@@ -539,9 +588,10 @@ class BagSink:
             self.partial.parent.rmdir()
         if self.source.is_dir() and self.path.is_dir():
             for extra in sorted(self.source.iterdir()):
-                # run.db3, run.db3-wal, run.mcap: the storage and its SQLite side files
+                # run.db3, run.db3-wal, run.mcap: the storage and its SQLite side files; a
+                # ROS 1 bag kept there (.bag or .bag.active) is a file of the recording
                 suffix = extra.suffix.lower().split("-")[0]
-                storage = extra.name == "metadata.yaml" or suffix in BAG_SUFFIXES
+                storage = extra.name == "metadata.yaml" or suffix in ROS2_STORAGE_SUFFIXES
                 if extra.is_file() and not storage and not (self.path / extra.name).exists():
                     copy_file(extra, self.path / extra.name)
         if self.cache.exists():

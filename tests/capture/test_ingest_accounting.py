@@ -165,3 +165,34 @@ def test_a_refused_write_exits_1_as_the_help_says(
     text = " ".join(capsys.readouterr().out.split())
     assert "1 when the file system refuses a write (read-only folder, full disk" in text
     assert "2 on an error in the recording, the calibration or the options" in text
+
+
+def test_left_right_names_with_a_digit_after_the_time_keep_every_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # <t_ns>_cam0.png read as t=0 (the digit of cam0): "kept 1 of 4", and exit 0
+    recording = _left_right(make_recording(tmp_path / "rec", frames=4))
+    for camera, folder in (("cam0", "left"), ("cam1", "right")):
+        for path in sorted((recording / folder).iterdir()):
+            path.rename(path.with_name(f"{path.stem}_{camera}.png"))
+    out = tmp_path / "out"
+    assert main(["capture-ingest", str(recording), "--out", str(out), "--size", CROP]) == 0
+    assert "kept 4 of 4 cam1 frames" in capsys.readouterr().out
+    report = read_report(out / "rec" / "report.json")
+    assert report.counts["pairs"] == 4 and report.rejection_reasons == {}
+
+
+def test_a_camera_whose_names_mostly_read_as_one_time_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # names whose time is not read (all "1" here) kept one frame, and called it a success
+    recording = _left_right(make_recording(tmp_path / "rec", frames=4))
+    for folder in ("left", "right"):
+        for letter, path in zip("abcd", sorted((recording / folder).iterdir()), strict=True):
+            path.rename(path.with_name(f"shot_{letter}_cam1.png"))
+    out = tmp_path / "out"
+    assert main(["capture-ingest", str(recording), "--out", str(out), "--size", CROP]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"lenspair capture-ingest: error: {recording / 'left'}: 4 of 4 cam0 ")
+    assert "read as one timestamp, t_ns=1 (e.g. shot_a_cam1.png)" in line
+    assert not out.exists()

@@ -1,18 +1,28 @@
 """capture-ingest from ROS bags: whole, truncated, and with chosen topics."""
 
+import logging
+import re
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
+import numpy as np
 import pytest
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture import rosbag
+from lenspair.capture.bagwrite import output_bag_path
 from lenspair.capture.errors import CaptureError
+from lenspair.capture.frames import detect_input, iter_bag_messages
 from lenspair.capture.ingest import ingest_recording
-from lenspair.capture.ingested import read_pairs
+from lenspair.capture.ingested import read_pairs, read_report
 from lenspair.capture.rigfile import RigFile, write_rig_file
+from lenspair.capture.rosbag import COMPRESSED_IMAGE as COMPRESSED
 from lenspair.capture.rosbag import _open as open_bag
 from lenspair.cli import main
-from lenspair.core.imageio import read_image
+from lenspair.core.imageio import read_image, write_image
 from lenspair.rectify.rig import write_kalibr
 from tests.capture.ingest_helpers import CROP, frame_files, make_recording, rig
 from tests.model.restore_helpers import bag_from_recording, write_bag
@@ -136,3 +146,220 @@ def test_bag_messages_sharing_a_stamp_each_get_a_line(tmp_path: Path) -> None:
     assert report.counts["frames_cam1"] == 5
     assert len(records) == 5  # every obstructed message, the repeated one rejected
     assert sum("duplicate timestamp" in (r.reason or "") for r in records) == 1
+
+
+def _compressed_bag(
+    tmp_path: Path, frames: int, empty: set[int], alpha: frozenset[int] = frozenset()
+) -> Path:
+    """A ROS 1 bag of PNG ``CompressedImage`` frames; cam1's frames in ``empty`` carry no data.
+
+    A driver's failed frame: the message is there, its payload is not. cam1's
+    frames in ``alpha`` are grey + alpha PNGs (half transparent).
+    """
+    euroc = make_recording(tmp_path / "euroc", frames=frames)
+    store = get_typestore(Stores.ROS1_NOETIC)
+    types = store.types
+    folder = tmp_path / "bags"
+    folder.mkdir()
+    write_rig_file(folder / "rig.yaml", RigFile(obstructed="cam1", anomaly=("rain",)))
+    write_kalibr(folder / "camchain.yaml", rig())
+    messages = sorted(
+        (int(path.stem), camera, index, path)
+        for camera in ("cam0", "cam1")
+        for index, path in enumerate(frame_files(euroc, camera))
+    )
+    bag = folder / "run.bag"
+    with Writer1(bag) as writer:
+        topics = {
+            camera: writer.add_connection(f"/{camera}/compressed", COMPRESSED, typestore=store)
+            for camera in ("cam0", "cam1")
+        }
+        for t_ns, camera, index, path in messages:
+            ok, png = cv2.imencode(".png", read_image(path))
+            assert ok
+            if camera == "cam1" and index in alpha:
+                png = np.frombuffer(_png(tmp_path, read_image(path), alpha=True), np.uint8)
+            data = np.zeros(0, np.uint8) if camera == "cam1" and index in empty else png
+            stamp = types["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+            header = types["std_msgs/msg/Header"](seq=index, stamp=stamp, frame_id=camera)
+            message = types[COMPRESSED](header=header, format="png", data=data.reshape(-1))
+            raw = store.serialize_ros1(message, COMPRESSED)
+            writer.write(topics[camera], t_ns + 1_000_000, raw)
+    return bag
+
+
+def test_an_empty_compressed_image_is_one_rejected_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # cv2.imdecode asserts on an empty buffer: the ingest died with a cv2.error traceback,
+    # and every rerun died at the same frame
+    bag = _compressed_bag(tmp_path, frames=5, empty={3})
+    out = tmp_path / "out"
+    args = ["capture-ingest", str(bag), "--out", str(out), "--size", CROP, "--workers", "1"]
+    for _ in range(2):  # the rerun resumes past it too
+        assert main(args) == 0
+        assert "kept 4 of 5 cam1 frames" in capsys.readouterr().out
+    records = read_pairs(out / "run" / "pairs.jsonl")
+    (rejected,) = [r for r in records if r.status == "rejected"]
+    assert rejected.reason is not None
+    assert rejected.reason.startswith(f"cannot read input frame: {bag} /cam1/compressed @ t_ns=")
+    assert rejected.reason.endswith("empty compressed image (format 'png', no data)")
+    counts = read_report(out / "run" / "report.json").counts
+    assert (counts["kept"], counts["rejected"]) == (4, 1)
+    recording = rosbag.read_bag(bag)
+    with pytest.raises(CaptureError, match=r"/cam1/compressed @ t_ns=\d+ .*: empty compressed"):
+        recording.load(recording.frames["cam1"][3])
+    # restore and detect read the same message through the shared decoder: that frame's error
+    errors = [m.frame.error for m in iter_bag_messages(bag) if m.frame is not None]
+    assert [e for e in errors if e is not None] == [
+        f"{bag} /cam1/compressed @ log time {recording.frames['cam1'][3].log_time_ns}: "
+        "empty compressed image (format 'png', no data)"
+    ]
+
+
+def test_undecodable_compressed_bytes_are_a_capture_error() -> None:
+    with pytest.raises(CaptureError, match=r"^here: empty compressed image \(format 'jpeg'"):
+        rosbag.decode_compressed("jpeg", b"", "here")
+    with pytest.raises(CaptureError, match=r"^here: cannot decode compressed image"):
+        rosbag.decode_compressed("jpeg", b"\xff\xd8\xff" + bytes(61), "here")
+
+
+def _png(folder: Path, image: np.ndarray, alpha: bool = False) -> bytes:
+    """The PNG lenspair writes of ``image``, with a half-transparent alpha channel if asked."""
+    see_through = np.full(image.shape[:2], np.iinfo(image.dtype).max, image.dtype)
+    see_through[:, : image.shape[1] // 2] = 0
+    write_image(folder / "frame.png", image, alpha=see_through if alpha else None)
+    return (folder / "frame.png").read_bytes()
+
+
+def test_a_compressed_png_with_alpha_is_that_frames_error_naming_the_alpha(
+    tmp_path: Path,
+) -> None:
+    # the BGRA PNG of a "bgra8; png compressed bgra8" message came back as RGB without a
+    # word (restore wrote it back as three channels under the same format), and a grey +
+    # alpha PNG as a two-channel array of alpha then grey
+    grey = np.arange(48 * 64, dtype=np.uint8).reshape(48, 64)
+    colour = np.dstack([grey, grey // 2, grey // 3])
+    fmt = "bgra8; png compressed bgra8"
+    for image in (colour, grey, colour.astype(np.uint16) * 257):
+        with pytest.raises(CaptureError) as raised:
+            rosbag.decode_compressed(fmt, _png(tmp_path, image, alpha=True), "run.bag /cam0 @ 1")
+        (line,) = str(raised.value).splitlines()
+        # OpenCV decodes grey + alpha as two channels or, in some versions, as BGRA
+        assert re.fullmatch(
+            rf"run\.bag /cam0 @ 1: compressed image with an alpha channel \([24] channels, "
+            rf"format {re.escape(repr(fmt))}\): not read, since its alpha would be lost",
+            line,
+        ), line
+    # without alpha: grey stays grey, and colour comes back in RGB order
+    for image in (grey, colour):
+        decoded = rosbag.decode_compressed("png", _png(tmp_path, image), "here")
+        np.testing.assert_array_equal(decoded, image)
+
+
+def test_a_compressed_frame_with_alpha_is_one_rejected_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    bag = _compressed_bag(tmp_path, frames=5, empty=set(), alpha=frozenset({2}))
+    out = tmp_path / "out"
+    args = ["capture-ingest", str(bag), "--out", str(out), "--size", CROP, "--workers", "1"]
+    assert main(args) == 0
+    assert "kept 4 of 5 cam1 frames" in capsys.readouterr().out
+    records = read_pairs(out / "run" / "pairs.jsonl")
+    (rejected,) = [r for r in records if r.status == "rejected"]
+    assert rejected.reason is not None
+    assert rejected.reason.startswith(f"cannot read input frame: {bag} /cam1/compressed @ t_ns=")
+    assert rejected.reason.endswith(
+        "channels, format 'png'): not read, since its alpha would be lost"
+    )
+    assert "compressed image with an alpha channel (" in rejected.reason
+    counts = read_report(out / "run" / "report.json").counts
+    assert (counts["kept"], counts["rejected"]) == (4, 1)
+
+
+def test_bag_files_are_named_by_their_whole_suffix(tmp_path: Path) -> None:
+    # a killed recorder's run.bag.active was no bag to a folder's listing (its suffix is
+    # .active), so restore and detect copied or passed it over without a word
+    for name in ("run.bag", "run.BAG.active", "run.db3", "run.mcap"):
+        assert rosbag.is_bag_name(Path(name)), name
+    for name in ("run.active", "bag.txt", "run.bag.orig", "notes"):
+        assert not rosbag.is_bag_name(Path(name)), name
+    unknown = tmp_path / "run.txt"
+    unknown.write_text("x")
+    with pytest.raises(CaptureError, match=r"or a bag \(\.bag, \.bag\.active, \.db3, \.mcap\)"):
+        detect_input(unknown)
+
+
+def test_a_storage_file_rewritten_in_place_is_ingested_anew(tmp_path: Path) -> None:
+    # the folder's size and time stay when its .db3 is overwritten (cp onto the same name):
+    # the rerun kept the outputs, and the homography, of the images that were there before
+    bag = _bag_from_euroc(tmp_path, "db3")
+    out = tmp_path / "out"
+    ingest_recording(bag, out, size=SIZE, workers=1)
+    before = {p.name: read_image(p) for p in sorted((out / "run" / "input").iterdir())}
+    darker = {
+        camera: [(int(p.stem), read_image(p) // 2) for p in frame_files(tmp_path / "euroc", camera)]
+        for camera in ("cam0", "cam1")
+    }
+    other = write_bag(tmp_path / "other" / "run", "db3", darker)  # the same stamps, other pixels
+    storage = next(bag.glob("*.db3"))
+    folder_time = bag.stat().st_mtime_ns
+    shutil.copyfile(next(other.glob("*.db3")), storage)
+    assert bag.stat().st_mtime_ns == folder_time  # nothing in the folder's own stat changed
+    again = ingest_recording(bag, out, size=SIZE, workers=1)
+    fresh = ingest_recording(bag, tmp_path / "fresh", size=SIZE, workers=1)
+    assert again.counts["kept"] == fresh.counts["kept"] == 4
+    for kind in ("input", "target"):
+        for path in sorted((tmp_path / "fresh" / "run" / kind).iterdir()):
+            np.testing.assert_array_equal(
+                read_image(out / "run" / kind / path.name), read_image(path)
+            )
+    assert any(
+        not np.array_equal(image, read_image(out / "run" / "input" / name))
+        for name, image in before.items()
+    )
+    assert again.homography == fresh.homography
+
+
+def test_a_killed_recorders_bag_active_is_read_as_a_cut_ros1_bag(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # rosbag record writes run.bag.active and renames it when it closes: one killed
+    # leaves the .active file, unindexed; it was an "unknown recording layout"
+    bag = _bag_from_euroc(tmp_path, "ros1", frames=5)
+    active = bag.with_name("killed.bag.active")
+    data = bag.read_bytes()
+    active.write_bytes(data[: len(data) * 3 // 4])
+    assert rosbag.is_bag(active) and detect_input(active) == "rosbag1"
+    out = tmp_path / "out"
+    assert main(["capture-ingest", str(active), "--out", str(out), "--size", CROP]) == 0
+    report = read_report(out / "killed" / "report.json")
+    assert report.counts["kept"] >= 1 and report.counts["recording_problems"] == 1
+    (cut,) = report.recording_problems
+    assert cut.startswith(f"{active}: reading stopped early ({active}: cut short")
+    assert output_bag_path(active, out) == out / "killed.bag"  # restore's copy is closed
+
+
+def test_a_cut_is_said_on_its_own_not_among_the_rejected_frames(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    # "rejected 1: recording not listed: reading stopped early" is no frame: the printed
+    # rejections added up to more than the frames rejected
+    bag = _bag_from_euroc(tmp_path, "ros1", frames=5)
+    data = bag.read_bytes()
+    bag.write_bytes(data[: len(data) * 3 // 4])
+    out = tmp_path / "out"
+    with caplog.at_level(logging.WARNING):
+        assert main(["capture-ingest", str(bag), "--out", str(out), "--size", CROP]) == 0
+    printed = capsys.readouterr().out
+    report = read_report(out / "run" / "report.json")
+    rejected = [int(n) for n in re.findall(r"^  rejected (\d+): ", printed, re.MULTILINE)]
+    assert sum(rejected) == sum(report.rejection_reasons.values()) == report.counts["rejected"]
+    # the summary names the cut once, on a line of its own
+    cut_lines = [line for line in printed.splitlines() if "reading stopped early" in line]
+    assert len(cut_lines) == 1 and cut_lines[0].startswith("  recording: ")
+    assert not any("reading stopped early" in reason for reason in report.rejection_reasons)
+    # the cut is its own line: in the log and in the report's recording problems
+    said = [r.getMessage() for r in caplog.records if "reading stopped early" in r.getMessage()]
+    assert len(said) == 1 and "\n" not in said[0] and said[0].startswith(f"{bag}: ")
+    assert report.recording_problems == said

@@ -218,6 +218,15 @@ def test_left_right_folders(tmp_path: Path) -> None:
         ("1700000002.5.png", 1_700_000_002_500_000_000),
         ("left_000017_1403636579763555584.png", 1_403_636_579_763_555_584),
         ("frame_000017.png", 17),  # a frame index stays an index
+        # a digit after the time (cam0) was read as the time: every frame at 0
+        ("1700000000449938042_cam0.png", 1_700_000_000_449_938_042),
+        ("1700000000449938042_1.png", 1_700_000_000_449_938_042),
+        # seconds with a fraction, then more: read as nanoseconds, the seconds were lost
+        ("1700000000.449938042_left.png", 1_700_000_000_449_938_042),
+        ("1700000002_001058405_left.png", 1_700_000_002_001_058_405),
+        ("v1.2_1403636579763555584.png", 1_403_636_579_763_555_584),  # not Unix seconds
+        ("12.5.png", 12_500_000_000),  # seconds from the start, ending the name
+        ("frame_12_34.png", 34),  # as long: the last
         ("12_001058405.png", 1_058_405),  # too few digits for Unix seconds
         ("nostamp.png", None),
     ],
