@@ -227,7 +227,15 @@ def load_model(path: Path, device: torch.device | str = "cpu") -> LoadedModel:
 
 
 def load_weights(network: nn.Module, data: dict[str, Any], path: Path | str) -> None:
-    """Load a checkpoint's ``model`` state dict into ``network`` (strict)."""
+    """Load a checkpoint's ``model`` state dict into ``network`` (strict, finite).
+
+    Weights holding NaN or Inf (a run that diverged) are refused here, in one
+    line naming the tensor: such a network's outputs are not finite, and each
+    command using it would fail later, frame by frame, blaming the frames.
+
+    Raises:
+        ModelError: no state dict, another network's, or non-finite weights.
+    """
     if "model" not in data:
         raise ModelError(f"{path}: checkpoint holds no model weights")
     weights = data["model"]
@@ -236,10 +244,39 @@ def load_weights(network: nn.Module, data: dict[str, Any], path: Path | str) -> 
     problem = first_shape_difference(network.state_dict(), weights)
     if problem is not None:
         raise ModelError(f"{path}: weights do not fit the network: {problem}")
+    bad = first_non_finite(weights)
+    if bad is not None:
+        raise ModelError(f"{path}: {NON_FINITE_WEIGHTS}: {bad}; {NON_FINITE_HINT}")
     try:
         network.load_state_dict(weights)
     except RuntimeError as exc:
         raise ModelError(f"{path}: weights do not fit the network ({first_line(exc)})") from None
+
+
+NON_FINITE_WEIGHTS = "its weights hold NaN or Inf"
+"""How a checkpoint whose network weights are not finite is named (:func:`first_non_finite`)."""
+
+NON_FINITE_HINT = "the run that wrote it diverged: use an earlier checkpoint of it"
+"""What to do about such a checkpoint, after :data:`NON_FINITE_WEIGHTS` and the tensor."""
+
+
+def first_non_finite(weights: dict[str, Any]) -> str | None:
+    """The first floating-point tensor of a state dict that holds NaN or Inf, in words.
+
+    Args:
+        weights: a state dict (name -> tensor; other values are skipped).
+
+    Returns:
+        ``None`` when every value is finite, else one phrase such as
+        ``generator.head.weight (1 of 432 values)``.
+    """
+    for name, value in weights.items():
+        if not isinstance(value, torch.Tensor) or not value.is_floating_point():
+            continue
+        bad = int((~torch.isfinite(value)).sum())
+        if bad:
+            return f"{name} ({bad} of {value.numel()} values)"
+    return None
 
 
 def first_shape_difference(expected: dict[str, torch.Tensor], found: dict[str, Any]) -> str | None:

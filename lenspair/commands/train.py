@@ -59,7 +59,6 @@ starts over. Multi-GPU: torchrun --nproc_per_node N -m lenspair train ...
 
 import argparse
 import dataclasses
-import logging
 from pathlib import Path
 from typing import Any
 
@@ -74,8 +73,6 @@ from lenspair.core.durations import seconds, steps_or_seconds
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal
 from lenspair.core.wording import counted
-
-log = logging.getLogger(__name__)
 
 
 def _every(text: str) -> tuple[int | None, float | None]:
@@ -305,11 +302,13 @@ def run(args: argparse.Namespace) -> int:
     else:
         config = with_options(load_run_config(args.config, given=True), args)
     _check_out_apart(args, config.data.train_split, config.data.val_split)
-    seed = config.train.seed
+    seed, channels = config.train.seed, config.model.channels
+    # said by fit, into RUN/train.log and by rank 0 alone (the run log does not exist yet)
+    notes: list[str] = []
     if args.synthetic is not None:
-        data = synthetic_training_data(args.synthetic, config.data, config.model.channels, seed)
+        data = synthetic_training_data(args.synthetic, config.data, channels, seed, notes)
     else:
-        data = paired_training_data(args.dataset, config.data, config.model.channels, seed)
+        data = paired_training_data(args.dataset, config.data, channels, seed, notes)
     config = resolve_config(config, data.channels)
     init = args.init
     if isinstance(init, str):  # the word, as typed: the shipped weights
@@ -317,12 +316,9 @@ def run(args: argparse.Namespace) -> int:
         from lenspair.model.training.pretrained import pretrained_weights
 
         if Path(init).exists():
-            log.warning(
-                "--init %s: the weights shipped with lenspair, not the file %s here; give "
-                "./%s to start from that file",
-                init,
-                Path(init).resolve(),
-                init,
+            notes.append(
+                f"--init {init}: the weights shipped with lenspair, not the file "
+                f"{Path(init).resolve()} here; give ./{init} to start from that file"
             )
         assert config.model.channels is not None
         init = pretrained_weights(config.model.channels)
@@ -340,6 +336,7 @@ def run(args: argparse.Namespace) -> int:
         resume=args.resume,
         data_path=args.synthetic if args.synthetic is not None else args.dataset,
         restart=restart,
+        notes=notes,
     )
     if not distributed_from_env().is_main:
         return 0  # under torchrun only rank 0 reports (the others hold no best PSNR)

@@ -46,6 +46,37 @@ def score_sets(
     return results
 
 
+MORE_OF = {
+    "obstructed": "a larger --synthetic (three frames in four get rain, dust or dirt), a "
+    "dataset DS or --recordings",
+    "clean": "a larger --synthetic (every fourth frame is left clean) or a dataset DS (its "
+    "target views are clean)",
+}
+"""Where ``train-detector`` finds more frames of each class, for :func:`check_both_classes`."""
+
+
+def check_both_classes(train: list[DetectorSample]) -> None:
+    """Refuse a training set without clean or without obstructed frames.
+
+    Trained on one class, the detector learns to answer it for every frame,
+    and such a detector.pt was written without a word (``--synthetic 1``: one
+    clean frame).
+
+    Raises:
+        ModelError: naming how many frames of each class there are and what adds the missing one.
+    """
+    obstructed = sum(sample.obstructed for sample in train)
+    clean = len(train) - obstructed
+    if obstructed and clean:
+        return
+    missing = "obstructed" if not obstructed else "clean"
+    raise ModelError(
+        f"the training set holds {clean} clean and {obstructed} obstructed frames; the "
+        f"detector needs both to learn to tell them apart: add {missing} frames with "
+        f"{MORE_OF[missing]}"
+    )
+
+
 def run_training(
     out: Path,
     sources: DetectorSources,
@@ -66,7 +97,8 @@ def run_training(
         workers: processes gathering samples (:func:`gather`).
 
     Raises:
-        ModelError: ``out`` holds an earlier run; no usable samples.
+        ModelError: ``out`` holds an earlier run; no usable samples, or no
+            clean or no obstructed one (:func:`check_both_classes`).
     """
     out = Path(out)
     held = [name for name in RUN_FILES if (out / name).exists()]
@@ -76,6 +108,7 @@ def run_training(
             "or move them aside to train again there"
         )
     train, held_out = gather(sources, spec, settings.seed, workers)
+    check_both_classes(train)
     out.mkdir(parents=True, exist_ok=True)  # after the inputs are found good: none left empty
     counts = {"train": len(train), "train_obstructed": sum(s.obstructed for s in train)}
     log.info("training on %d frames (%d obstructed)", counts["train"], counts["train_obstructed"])

@@ -6,6 +6,10 @@ folder of clean images becomes synthetic drops rendered on them
 (:mod:`lenspair.model.training.synthetic`). When no validation split exists, a fraction
 is held out by a hash of the names, so the split is deterministic and stable
 as data is added.
+
+Warnings about the data are logged at once, or kept in ``notes`` for
+:func:`~lenspair.model.training.loop.fit` to log: ``lenspair train`` loads before
+``RUN/train.log`` exists, and in every ``torchrun`` process.
 """
 
 import hashlib
@@ -53,6 +57,14 @@ class TrainData:
     channels: int
     description: str
     synthetic: str | None = None
+
+
+def _say(notes: list[str] | None, message: str) -> None:
+    """Log a warning about the data now, or keep it in ``notes`` for the run to say."""
+    if notes is None:
+        log.warning("%s", message)
+    else:
+        notes.append(message)
 
 
 def first_channels(dataset: PairSource) -> int:
@@ -190,6 +202,7 @@ def paired_training_data(
     data: DataConfig,
     channels: int | None,
     seed: int,
+    notes: list[str] | None = None,
 ) -> TrainData:
     """Training pairs from any layout ``lenspair.dataset.readers`` reads.
 
@@ -203,6 +216,8 @@ def paired_training_data(
         data: the ``data`` section of the run config.
         channels: network channels; ``None`` takes the first input's.
         seed: seed of crops and flips.
+        notes: collects the warnings about the data instead of logging them
+            (module docstring); ``None`` logs them now.
 
     Raises:
         DatasetError: unreadable dataset, a validation split that is there but
@@ -236,16 +251,16 @@ def paired_training_data(
             train_source, val_source = SubsetSource(every, train_idx), SubsetSource(every, val_idx)
             note = f"no {data.val_split!r} split ({why}); validation: {len(val_idx)} "
             note += f"{data.train_split!r} pairs held out by name hash"
-            log.warning("%s: %s", path, note)
+            _say(notes, f"{path}: {note}")
     headers: dict[int, list[tuple[int, int, int, str]]] = {}  # id(dataset) -> pair headers
     for source in (train_source, val_source):  # before the first step, not in epoch 40
         paired = source.source if isinstance(source, SubsetSource) else source
         if isinstance(paired, PairedDataset) and id(paired) not in headers:
             headers[id(paired)] = paired.check_headers()
-    check_training_images(train_source, headers, data.crop_size, channels)
+    check_training_images(train_source, headers, data.crop_size, channels, notes)
     resolved = channels or first_channels(train_source)
     if channel_note := conversion_note(resolved, first_channels(train_source), path):
-        log.warning("%s", channel_note)
+        _say(notes, channel_note)
     train = PairedCrops(
         train_source,
         resolved,
@@ -268,6 +283,7 @@ def check_training_images(
     headers: dict[int, list[tuple[int, int, int, str]]],
     crop_size: int | None,
     channels: int | None,
+    notes: list[str] | None = None,
 ) -> None:
     """Every training pair holds a crop, and mixed channels are said: from headers, up front.
 
@@ -282,6 +298,7 @@ def check_training_images(
             returned them (the files are not opened again).
         crop_size: ``data.crop_size`` (``None``: whole images).
         channels: the network's channels (``None``: the first pair's).
+        notes: collects the mixed-channels warning instead of logging it.
 
     Raises:
         DatasetError: naming the first three images too small and how many there are.
@@ -302,26 +319,33 @@ def check_training_images(
             f"(data.crop_size, --crop-size): {listed(small, 3, ', ')}; lower the crop or "
             "leave them out"
         )
-    _warn_mixed(paired.root, "training pairs", counts, channels)
+    _warn_mixed(paired.root, "training pairs", counts, channels, notes)
 
 
-def _warn_mixed(root: Path, what: str, counts: dict[int, int], channels: int | None) -> None:
+def _warn_mixed(
+    root: Path,
+    what: str,
+    counts: dict[int, int],
+    channels: int | None,
+    notes: list[str] | None,
+) -> None:
     """Say that grey and colour images are mixed and how they are converted, when they are."""
     if counts.get(1) and counts.get(3):
-        log.warning(
-            "%s: the %s mix %d grey and %d colour images; the network takes %s, "
-            "so the others are converted (colour to Rec. 601 luma, grey repeated); set "
-            "model.channels to choose",
-            root,
-            what,
-            counts[1],
-            counts[3],
-            f"{channels} channel(s)" if channels else "the first image's channels",
+        takes = f"{channels} channel(s)" if channels else "the first image's channels"
+        _say(
+            notes,
+            f"{root}: the {what} mix {counts[1]} grey and {counts[3]} colour images; the "
+            f"network takes {takes}, so the others are converted (colour to Rec. 601 luma, "
+            "grey repeated); set model.channels to choose",
         )
 
 
 def _check_clean_images(
-    folder: Path, train: Sequence[Path], val: Sequence[Path], crop_size: int | None
+    folder: Path,
+    train: Sequence[Path],
+    val: Sequence[Path],
+    crop_size: int | None,
+    notes: list[str] | None,
 ) -> dict[int, int]:
     """Headers of every clean image, and training ones hold a crop: before the first step.
 
@@ -356,9 +380,7 @@ def _check_clean_images(
         what = f"held-out clean image(s) smaller than validation's {window}x{window} SSIM window"
         if len(unscored) == len(val):
             raise DatasetError(f"{folder}: every one of the {len(val)} {what}: {listed(unscored)}")
-        log.warning(
-            "%s: validation leaves out %d %s: %s", folder, len(unscored), what, listed(unscored)
-        )
+        _say(notes, f"{folder}: validation leaves out {len(unscored)} {what}: {listed(unscored)}")
     return counts
 
 
@@ -367,6 +389,7 @@ def synthetic_training_data(
     data: DataConfig,
     channels: int | None,
     seed: int,
+    notes: list[str] | None = None,
 ) -> TrainData:
     """Clean images with drops rendered on the fly, with a held-out validation subset.
 
@@ -376,14 +399,16 @@ def synthetic_training_data(
         data: the ``data`` section (``drops``, ``val_fraction``, crops, flips).
         channels: network channels; ``None`` takes the first image's.
         seed: seed of crops, flips and drops.
+        notes: collects the warnings about the images instead of logging them
+            (module docstring); ``None`` logs them now.
 
     """
     folder = Path(folder)
     images = find_clean_images(folder)
     train_images, val_images = split_holdout(images, data.val_fraction, folder)
     val_images = val_images[: data.max_val_images or len(val_images)]
-    counts = _check_clean_images(folder, train_images, val_images, data.crop_size)
-    _warn_mixed(folder, "clean images", counts, channels)
+    counts = _check_clean_images(folder, train_images, val_images, data.crop_size, notes)
+    _warn_mixed(folder, "clean images", counts, channels, notes)
     resolved = channels or image_header(images[0])[2]
     effects = drops_preset(data.drops)
     train = SyntheticDrops.for_training(

@@ -35,6 +35,7 @@ import dataclasses
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -47,7 +48,14 @@ from lenspair.core.config import dump_yaml
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.progress import progress
 from lenspair.core.wording import counted
-from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_weights
+from lenspair.model.checkpoint import (
+    NON_FINITE_HINT,
+    NON_FINITE_WEIGHTS,
+    checkpoint_config,
+    first_non_finite,
+    load_checkpoint,
+    load_weights,
+)
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
 from lenspair.model.training.config import (
@@ -219,6 +227,7 @@ def fit(
     resume: bool = False,
     data_path: Path | None = None,
     restart: bool = False,
+    notes: Sequence[str] = (),
 ) -> TrainSummary:
     """Train into the run folder ``run`` (see the module docstring).
 
@@ -237,6 +246,9 @@ def fit(
         restart: start ``run`` over (``--resume`` of a run killed before its
             first ``last.pt``): its partial ``best.pt`` and ``metrics.csv`` are
             replaced, once every check before training has passed.
+        notes: warnings found before the run (about the data: the ``notes`` of
+            :func:`~lenspair.model.training.datasets.paired_training_data`), said
+            here, into ``train.log``, by the main process alone.
 
     Returns:
         A :class:`TrainSummary`.
@@ -308,6 +320,9 @@ def fit(
             paths.root.mkdir(parents=True, exist_ok=True)
             remove_run_leftovers(paths)
         with run_logging(paths.log, info.is_main):
+            if info.is_main:
+                for note in notes:
+                    log.warning("%s", note)
             state = _start(trainer, config, paths, checkpoint, start_from)
             if checkpoint is not None:
                 config = _with_history(
@@ -530,12 +545,14 @@ def _start(
         set_rng_state(checkpoint.get("rng", {}))
         state = RunState.from_checkpoint(checkpoint)
         state.rows = _resumed_rows(paths.metrics, state)
-        if state.best_epoch and not paths.best.is_file():
+        problem = _best_problem(paths.best, state) if state.best_epoch else None
+        if problem is not None:
             # a best PSNR whose checkpoint is gone would never be written again
             log.warning(
-                "%s is missing: its best validation (%.2f dB, epoch %d) is forgotten, and the "
-                "next validation writes a new one",
+                "%s %s: its best validation (%.2f dB, epoch %d) is forgotten, and the next "
+                "validation writes a new one",
                 paths.best,
+                problem,
                 state.best_psnr,
                 state.best_epoch,
             )
@@ -553,6 +570,34 @@ def _start(
     return RunState()
 
 
+def _best_problem(path: Path, state: RunState) -> str | None:
+    """Why ``best.pt`` is not the best validation that ``last.pt`` (``state``) records, or None.
+
+    A validation writes ``best.pt`` before ``last.pt``, the commit point of a
+    resume (:func:`~lenspair.model.training.validation.validate_and_save`): a
+    run stopped between the two left a ``best.pt`` of a validation that
+    ``last.pt`` and the metrics rows it keeps know nothing of. Kept, it stayed
+    the run's best.pt beside another reported best, or a worse one replaced
+    it. Both files record the best they were written with, so they are
+    compared; writing ``last.pt`` first instead would leave a ``best.pt`` older
+    than the best ``last.pt`` records, just as wrong.
+    """
+    if not path.is_file():
+        return "is missing"
+    try:
+        best = load_checkpoint(path)
+    except ModelError as exc:
+        return f"cannot be read ({exc})"
+    vouched = (
+        best.get("best_metric") == state.best_psnr
+        and best.get("best_epoch") == state.best_epoch
+        and int(best.get("step", 0)) <= state.step
+    )
+    if not vouched:
+        return "holds a validation that last.pt does not record (stopped between the two)"
+    return None
+
+
 def _read_init(init: Path, config: RunConfig) -> tuple[Path, dict[str, Any]]:
     """``--init``'s checkpoint, checked to hold the network this run builds.
 
@@ -560,7 +605,8 @@ def _read_init(init: Path, config: RunConfig) -> tuple[Path, dict[str, Any]]:
     so its width may differ.
 
     Raises:
-        ModelError: unreadable, or another network (naming what differs).
+        ModelError: unreadable, another network (naming what differs), or
+            weights holding NaN or Inf (naming the first such tensor).
     """
     data = load_checkpoint(init)
     source = checkpoint_config(data, init).model
@@ -570,6 +616,12 @@ def _read_init(init: Path, config: RunConfig) -> tuple[Path, dict[str, Any]]:
             f"--init {init}: it holds another network than this run builds "
             f"({_model_difference(source, config.model)}); the model sections must match"
         )
+    # Checked here, before the run folder is made (load_weights checks too, too late):
+    # such weights skip every step and the run ended blaming its validation pairs.
+    weights = data.get("model")
+    bad = first_non_finite(weights) if isinstance(weights, dict) else None
+    if bad is not None:
+        raise ModelError(f"--init {init}: {NON_FINITE_WEIGHTS}: {bad}; {NON_FINITE_HINT}")
     return init, data
 
 

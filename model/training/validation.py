@@ -35,7 +35,7 @@ from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import save_checkpoint
-from lenspair.model.errors import ModelError
+from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.pairs import Sample
@@ -152,12 +152,17 @@ def validate(
     ``skipped`` (index -> reason) is kept between validations: one bad pair
     must not end a run at its first validation, after an epoch of training.
 
+    A network whose output on a finite input holds NaN or Inf has diverged:
+    that is no problem of the pair, and leaving the pairs out one by one ended
+    the run blaming the validation data.
+
     Returns:
         ``(psnr_db, ssim, contact_sheet)``; PSNR means cap identical images at
         :data:`lenspair.model.evaluation.evaluate.PSNR_CAP_DB`.
 
     Raises:
         ModelError: no validation pair can be scored (naming the first problem).
+        TrainingDivergedError: the network's output is not finite.
 
     """
     deployed = _as_deployed(network, device)
@@ -172,9 +177,19 @@ def validate(
             sample = val_set[index]
             x = sample["input"][None].to(device)
             target = sample["target"][None].to(device)
-            output = deployed(x)[1].float().clamp(0.0, 1.0)
+            output = deployed(x)[1].float()
+            # checked before the clamp, which turns Inf into 1 and lets NaN through
+            if not bool(torch.isfinite(output).all()) and bool(torch.isfinite(x).all()):
+                raise TrainingDivergedError(
+                    f"training diverged: the network's output on validation pair "
+                    f"{sample['name']} holds NaN or Inf; lower train.lr or set "
+                    "train.grad_clip, and start a new run (--init an earlier checkpoint)"
+                )
+            output = output.clamp(0.0, 1.0)
             valid = sample["valid"][None].to(device)  # mask/'s pixels, out as in the loss
             psnr, ssim = score_tensors(output, target, VAL_CONVENTION, valid)
+        except TrainingDivergedError:
+            raise  # the network's problem, not the pair's
         except LenspairError as exc:
             skipped[index] = f"{sample['name']}: {exc}" if sample is not None else str(exc)
             log.warning("validation: left out for the rest of the run: %s", skipped[index])

@@ -1,3 +1,4 @@
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -106,6 +107,20 @@ def test_weights_that_do_not_fit_are_reported(tmp_path: Path) -> None:
     torch.save(data, path)
     with pytest.raises(ModelError, match="do not fit"):
         load_model(path)
+
+
+def test_weights_holding_nan_or_inf_are_refused_naming_the_first_tensor(tmp_path: Path) -> None:
+    # a diverged run's checkpoint: restore and eval turned every frame into NaN, blaming frames
+    path = make_checkpoint(tmp_path / "a.pt")
+    data = load_checkpoint(path)
+    name = next(k for k, v in data["model"].items() if v.is_floating_point() and v.numel() > 1)
+    data["model"][name].view(-1)[:2] = torch.tensor([math.nan, math.inf])
+    torch.save(data, path)
+    with pytest.raises(ModelError) as info:
+        load_model(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: its weights hold NaN or Inf: {name} (2 of ")
+    assert "\n" not in message
 
 
 class _Pickled:

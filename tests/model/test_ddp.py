@@ -133,15 +133,17 @@ def _cli_worker(rank: int, world: int, port: int, argv: list[str], out: str) -> 
 @pytest.mark.skipif(not dist.is_available() or not dist.is_gloo_available(), reason="no gloo")
 def test_under_torchrun_only_rank_zero_says_the_run_level_lines(tmp_path: Path) -> None:
     # The real CLI path: init_distributed from torchrun's variables, fit, the summary.
-    dataset = write_split_dataset(tmp_path / "ds")
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8})  # no val split: said, once
     config = tmp_path / "tiny.yaml"
     config.write_text(dump_yaml(tiny_config(max_steps=2)))  # perceptual on, no VGG weights
     run = tmp_path / "run"
     argv = ["train", str(dataset), "--out", str(run), "--config", str(config), "--device", "cpu"]
     mp.spawn(_cli_worker, args=(2, _free_port(), argv, str(tmp_path)), nprocs=2, join=True)
     said = [(tmp_path / f"rank{rank}.txt").read_text() for rank in range(2)]
-    for line in ("PERCEPTUAL LOSS DISABLED", "best validation PSNR", "reminder: this run trained"):
+    lines = ("PERCEPTUAL LOSS DISABLED", "best validation PSNR", "reminder: this run trained")
+    for line in (*lines, "no 'val' split"):  # the data's warnings too, said while loading
         assert line in said[0] and line not in said[1], line
+    assert "no 'val' split" in (run / "train.log").read_text()
     # nothing holds the group when it is destroyed: no DDP wrapper, no function default
     # (either keeps gloo's threads running into interpreter shutdown, where they can abort)
     for rank in range(2):

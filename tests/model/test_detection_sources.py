@@ -9,6 +9,8 @@ import pytest
 from lenspair.cli import main
 from lenspair.core.imageio import write_image
 from lenspair.dataset.manifest import ManifestRow, SplitName, write_manifest
+from lenspair.model.detection import run as detection_run
+from lenspair.model.detection.data import DetectorSample
 from lenspair.model.detection.sources import DetectorSources, distinct_names, gather
 from lenspair.model.networks.detector import DetectorSpec
 from tests.model.train_fixtures import clean_image, obstruct
@@ -83,3 +85,26 @@ def test_train_detector_scores_namesake_datasets_apart(tmp_path: Path) -> None:
     assert sorted(json.loads((out / "scores.json").read_text())) == sorted(names)
     scores = (out / "scores.md").read_text()
     assert all(f"**{name}**" in scores for name in names)
+
+
+def test_train_detector_refuses_a_training_set_of_one_class(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # --synthetic 1 renders one clean frame: a detector.pt was trained on it without a word
+    out = tmp_path / "run"
+    argv = ["train-detector", "--out", str(out), "--steps", "1", "--input-size", "48x32"]
+    assert main([*argv, "--synthetic", "1"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "the training set holds 1 clean and 0 obstructed frames" in error
+    assert "add obstructed frames with a larger --synthetic" in error and "\n" not in error
+    assert not out.exists()  # refused before the run folder is made
+    # no clean frame at all (every source gives some: dataset targets, synthetic frames)
+    rain = DetectorSample(
+        np.zeros(SPEC.input_size, np.float32), 1, np.ones(SPEC.grid, np.float32),
+        np.ones(SPEC.grid, bool), "r.png", "rec",
+    )  # fmt: skip
+    monkeypatch.setattr(detection_run, "gather", lambda *args: ([rain, rain], {}))
+    assert main([*argv, "--synthetic", "2"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "holds 0 clean and 2 obstructed frames" in error and "add clean frames" in error
+    assert not out.exists()

@@ -1,4 +1,5 @@
 import logging
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -37,6 +38,7 @@ from lenspair.model.training.synthetic import OUR_DROPS, find_clean_images
 from lenspair.simulate.effects.spec import SHARP_DROPS
 from tests.model.train_fixtures import (
     clean_image,
+    make_checkpoint,
     tiny_config,
     write_paired_folder,
     write_split_dataset,
@@ -363,6 +365,25 @@ def test_init_loads_weights_and_checks_the_network(tmp_path: Path) -> None:
         fit(colour, data.train, data.val, tmp_path / "bad", CPU, init=best)
     # refused before the run folder is made (it left an empty folder and train.log)
     assert not (tmp_path / "bad").exists()
+
+
+def test_init_with_weights_holding_nan_is_refused_before_the_run_folder(tmp_path: Path) -> None:
+    # every step was skipped, and the run ended blaming its validation pairs
+    poisoned = make_checkpoint(tmp_path / "nan.pt", tiny_config())
+    data = torch.load(poisoned, weights_only=True)
+    name = next(k for k, v in data["model"].items() if v.is_floating_point() and v.numel() > 1)
+    data["model"][name].view(-1)[0] = math.nan
+    torch.save(data, poisoned)
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1})
+    config = resolve_config(tiny_config(max_steps=1), 1)
+    pairs = paired_training_data(dataset, config.data, 1, 0)
+    run = tmp_path / "run"
+    with pytest.raises(ModelError) as info:
+        fit(config, pairs.train, pairs.val, run, CPU, init=poisoned)
+    message = str(info.value)
+    assert message.startswith(f"--init {poisoned}: its weights hold NaN or Inf: {name} (1 of ")
+    assert "\n" not in message
+    assert not run.exists()
 
 
 # --- data ----------------------------------------------------------------------------

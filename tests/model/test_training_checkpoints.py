@@ -2,6 +2,7 @@
 
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import pytest
 import torch
@@ -167,3 +168,44 @@ def test_last_pt_follows_every_epoch_between_validations(
     saved = load_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt")
     assert (saved["epoch"], saved["step"], saved["step_in_epoch"]) == (1, 4, 0)
     assert read_metrics_rows(tmp_path / "run" / "metrics.csv") == []  # no validation yet
+
+
+def test_a_kill_between_best_pt_and_last_pt_leaves_no_best_pt_the_run_does_not_record(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # best.pt is written before last.pt: a kill between the two left the killed run's best.pt,
+    # which the resumed run (here at another rate: other weights) kept as its best network
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1})  # 2 steps per epoch
+    config = resolve_config(tiny_config(epochs=2, deterministic=True, seed=5), 1)
+    data = paired_training_data(dataset, config.data, 1, config.train.seed)
+    psnrs = iter([20.0, 25.0, 18.0])  # epochs 1 and 2, then epoch 2 of the resumed run
+    real_validate, real_save = validation.validate, validation.save_checkpoint
+
+    def scripted(*args: Any, **kwargs: Any) -> tuple[float, float, Any]:
+        _, ssim, sheet = real_validate(*args, **kwargs)
+        return next(psnrs), ssim, sheet
+
+    saved: list[str] = []
+
+    def killed_before_the_second_last_pt(path: Path, *args: Any, **kwargs: Any) -> None:
+        saved.append(path.name)
+        if saved.count("last.pt") == 2:
+            raise KeyboardInterrupt  # stands in for kill -9 right after best.pt
+        real_save(path, *args, **kwargs)
+
+    monkeypatch.setattr(validation, "validate", scripted)
+    monkeypatch.setattr(validation, "save_checkpoint", killed_before_the_second_last_pt)
+    run = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        fit(config, data.train, data.val, run, CPU)
+    assert saved == ["best.pt", "last.pt", "best.pt", "last.pt"]
+    monkeypatch.setattr(validation, "save_checkpoint", real_save)
+    slower = replace(config, train=replace(config.train, lr=config.train.lr / 2))
+    with caplog.at_level("WARNING"):
+        summary = fit(slower, data.train, data.val, run, CPU, resume=True)
+    best = load_checkpoint(run / "checkpoints" / "best.pt")
+    last = load_checkpoint(run / "checkpoints" / "last.pt")
+    assert (best["best_metric"], best["best_epoch"]) == (last["best_metric"], last["best_epoch"])
+    assert (summary.best_psnr, summary.best_epoch) == (18.0, 2)  # the killed 25 dB is gone
+    assert all(torch.equal(best["model"][name], value) for name, value in last["model"].items())
+    assert any("holds a validation that last.pt does not record" in m for m in caplog.messages)

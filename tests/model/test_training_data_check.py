@@ -185,3 +185,17 @@ def test_a_validation_split_with_an_unpaired_file_is_refused_not_replaced(
     shutil.rmtree(dataset / "val")  # no val split at all: train pairs held out, and said
     data = paired_training_data(dataset, DataConfig(crop_size=24), 1, 0)
     assert "no 'val' split" in data.description and len(data.train) < 4
+
+
+def test_data_warnings_reach_train_log(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    # said while loading, before the run log existed (test_ddp: by rank 0 alone)
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 6})  # no val split: held out
+    config = tmp_path / "tiny.yaml"
+    config.write_text(dump_yaml(tiny_config(max_steps=1)))
+    run = tmp_path / "run"
+    argv = ["train", str(dataset), "--config", str(config), "--device", "cpu", "--out", str(run)]
+    with caplog.at_level("WARNING"):
+        assert main(argv) == 0
+    warning = "no 'val' split"
+    assert sum(warning in r.getMessage() for r in caplog.records) == 1
+    assert (run / "train.log").read_text().count(warning) == 1

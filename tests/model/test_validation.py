@@ -1,9 +1,13 @@
 """Validation scores whole frames the way ``restore`` runs them, without touching training."""
 
+import math
+
 import numpy as np
+import pytest
 import torch
 from torch import nn
 
+from lenspair.model.errors import TrainingDivergedError
 from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
 from lenspair.model.networks.variants import build_model
 from lenspair.model.training.pairs import Sample
@@ -74,3 +78,21 @@ def test_validation_leaves_out_the_pixels_the_loss_leaves_out() -> None:
     second = validate(network, spoiled, torch.device("cpu"))
     assert first[:2] == second[:2]
     assert validate(network, _Frames(), torch.device("cpu"))[0] != first[0]  # the strip counted
+
+
+def test_a_non_finite_output_is_divergence_and_a_non_finite_pair_is_the_pairs_problem() -> None:
+    # the network's NaN was taken for each pair's problem: "no validation pair can be scored"
+    torch.manual_seed(0)
+    network = build_model("GEA", 1, width=0.25, num_blocks=2)
+    skipped: dict[int, str] = {}
+    frames = _Frames()
+    frames.pairs[1] = (frames.pairs[1][0], torch.full_like(frames.pairs[1][1], math.nan))
+    frames.pairs[2] = (torch.full_like(frames.pairs[2][0], math.nan), frames.pairs[2][1])
+    psnr, _, _ = validate(network, frames, torch.device("cpu"), skipped=skipped)
+    assert math.isfinite(psnr) and sorted(skipped) == [1, 2]  # left out; the run goes on
+    with torch.no_grad():
+        next(p for p in network.parameters() if p.ndim == 4).view(-1)[0] = math.nan
+    kept: dict[int, str] = {}
+    with pytest.raises(TrainingDivergedError, match=r"validation pair 00 holds NaN or Inf"):
+        validate(network, _Frames(), torch.device("cpu"), skipped=kept)
+    assert kept == {}  # no pair blamed for the rest of the run
