@@ -56,12 +56,8 @@ from lenspair.rectify.calib_fits import (
     view_error,
 )
 from lenspair.rectify.errors import RectifyError
-from lenspair.rectify.rectification import (
-    StereoRectification,
-    project_rays,
-    row_disagreement,
-    vertical_baseline,
-)
+from lenspair.rectify.layout import unsupported_layout
+from lenspair.rectify.rectification import StereoRectification, project_rays, row_disagreement
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
 
 log = logging.getLogger(__name__)
@@ -184,7 +180,9 @@ class CalibrationResult:
         stereo_views: indices of the views used by the stereo step.
         stereo_view_errors_px: RMS error of each of those views.
         row_disagreement_px: RMS of rectified row differences of matched corners;
-            None for a top/bottom rig, which is not rectified.
+            None for a rig that is not side by side (top/bottom, or cam1 in front
+            of cam0: :func:`~lenspair.rectify.layout.unsupported_layout`), which
+            is not rectified.
         rejected: views left out, in the order they were rejected.
         counts: ``views``, ``cam0_detected``, ``cam1_detected``, ``both_detected``.
         warnings: what the calibration warned about as it ran (a marker size
@@ -247,7 +245,7 @@ class CalibrationResult:
             f"baseline {baseline:.4f} m{spread}; intrinsics {self.refinement}"
         )
         if self.row_disagreement_px is None:
-            lines.append("rectified row disagreement: n/a (a top/bottom rig is not rectified)")
+            lines.append("rectified row disagreement: n/a (only side-by-side rigs are rectified)")
         else:
             lines.append(f"rectified row disagreement: {self.row_disagreement_px:.3f} px RMS")
         for r in self.rejected:
@@ -395,6 +393,98 @@ def _check_pose_spread(rvecs: np.ndarray, tvecs: np.ndarray, stage: str) -> None
         )
 
 
+def _distinct_poses(rvecs: np.ndarray, tvecs: np.ndarray) -> int:
+    """How many board poses differ from every other counted one (a board not held still).
+
+    Two poses are one where the board turned less than :data:`STILL_BOARD_DEG`
+    and moved less than :data:`STILL_BOARD_SHIFT` of its distance between
+    them, the measure of :func:`_check_pose_spread`. Counted greedily in view
+    order: each pose joins the first counted one it repeats.
+    """
+    rotations = [cv2.Rodrigues(np.asarray(r, np.float64).reshape(3))[0] for r in rvecs]
+    centres = np.asarray(tvecs, np.float64).reshape(-1, 3)
+    counted: list[int] = []
+    for k, (rotation, centre) in enumerate(zip(rotations, centres, strict=True)):
+        depth = float(np.linalg.norm(centre))
+        if all(
+            np.degrees(np.linalg.norm(cv2.Rodrigues(rotations[j].T @ rotation)[0]))
+            >= STILL_BOARD_DEG
+            or np.linalg.norm(centre - centres[j]) >= STILL_BOARD_SHIFT * depth
+            for j in counted
+        ):
+            counted.append(k)
+    return len(counted)
+
+
+def _check_distinct_poses(
+    rvecs: np.ndarray, tvecs: np.ndarray, stage: str, min_views: int, seen: str = "seen"
+) -> None:
+    """Refuse views that hold fewer than ``min_views`` distinct board poses.
+
+    Frames of a board held still repeat one pose: ten of them weigh like one
+    view ten times over, with its noise averaged away, and counted as ten
+    they let three poses pass ``min_views``; the fit then diverged (a rig
+    18 times too wide, fy four times fx) with small errors.
+
+    Raises:
+        RectifyError: too few distinct poses, naming them and the views.
+    """
+    distinct = _distinct_poses(rvecs, tvecs)
+    if distinct < min_views:
+        raise RectifyError(
+            f"{stage}: the board was {seen} at only {distinct} distinct poses in {len(rvecs)} "
+            f"views, need at least {min_views}: frames of a board held still count once; move "
+            f"or tilt it between views (by more than {STILL_BOARD_DEG:g} deg, or "
+            f"{100 * STILL_BOARD_SHIFT:g} % of its distance)"
+        )
+
+
+PIXEL_ASPECT_LIMIT = 1.5
+"""A camera fit with fy/fx beyond this (or below its inverse) diverged: refused.
+
+Sensors have square or nearly square pixels (the most anamorphic video
+format, widescreen PAL, has 1.46), so a fit outside is not a camera but a
+fit its views left unconstrained (three board poses gave fy/fx = 4.1)."""
+RMS_RATIO_LIMIT = 5.0
+"""A camera whose median view error exceeds this multiple of the other's (and the floor): refused.
+
+Both cameras see the same board through the same corner detector, so their
+fits leave alike errors (a wrong lens model raises both). One camera five
+times worse than the other, and above the floor below which no view is ever
+rejected (``outlier_floor_px``), is a fit that diverged or frames that are
+not what the other camera sees. The floor keeps real pairs, whose views fit
+to a few tenths of a pixel, clear of it whatever their ratio."""
+
+
+def _check_fit(camera: CameraModel, stage: str) -> None:
+    """Refuse a fit whose focal lengths are not those of a camera (:data:`PIXEL_ASPECT_LIMIT`)."""
+    fx, fy = camera.intrinsics[:2]
+    if not 1.0 / PIXEL_ASPECT_LIMIT <= fy / fx <= PIXEL_ASPECT_LIMIT:
+        raise RectifyError(
+            f"{stage}: the calibration diverged: fy/fx = {fy / fx:.2f} (fx {fx:.1f} px, fy "
+            f"{fy:.1f} px) where pixels are near square; show the board at more poses, tilted "
+            "in several directions and across the whole image, and check --model"
+        )
+
+
+def _check_rms_balance(monos: Sequence[CameraCalibration], floor_px: float) -> None:
+    """Refuse a camera that fits its views far worse than the other (:data:`RMS_RATIO_LIMIT`).
+
+    Compared by the median view error: a few noisy views (kept where rejecting
+    them would leave too few) raise a camera's RMS, not its median.
+    """
+    medians = [float(np.median(mono.view_errors_px)) for mono in monos]
+    for index, stage in enumerate(("cam0", "cam1")):
+        own, other = medians[index], medians[1 - index]
+        if own > max(RMS_RATIO_LIMIT * other, floor_px):
+            raise RectifyError(
+                f"{stage}: its calibration leaves a median view error of {own:.3f} px, "
+                f"{own / other:.1f} times cam{1 - index}'s {other:.3f} px on the same board: its "
+                "fit diverged or its lens model is wrong; show the board at more poses, tilted "
+                "in several directions, and check --model"
+            )
+
+
 @contextlib.contextmanager
 def _held(logger: logging.Logger, records: list[logging.LogRecord]) -> Iterator[None]:
     """Keep what ``logger`` is told meanwhile in ``records`` instead of saying it."""
@@ -533,6 +623,8 @@ def calibrate_camera(
             f"{stage}: {exc}" if not str(exc).startswith(stage) else str(exc)
         ) from None
     _check_pose_spread(rvecs, tvecs, stage)
+    _check_distinct_poses(rvecs, tvecs, stage, options.min_views)
+    _check_fit(camera, stage)
     residuals = np.concatenate(
         [project_rays(camera, data[v][0] @ cv2.Rodrigues(rvecs[k])[0].T + tvecs[k]) - data[v][1]
          for k, v in enumerate(views)]
@@ -684,6 +776,7 @@ def _calibrate(
             )
             monos, rejected, pairs, said = again  # the stereo step still rejects its outliers
     _release(said)
+    _check_rms_balance(monos, options.outlier_floor_px)
     cameras = (monos[0].camera, monos[1].camera)
     if len(pairs) < options.min_views:  # the stereo step needs views the two cameras share
         raise RectifyError(
@@ -717,6 +810,7 @@ def _calibrate(
             f"{first}): frames paired out of step, or a board spec or model that is wrong"
         ) from None
     rejected += dropped
+    _check_distinct_poses(rvecs, tvecs, "stereo", options.min_views, "seen by both cameras")
     stereo = [(matched[v], rvecs[k], tvecs[k]) for k, v in enumerate(views)]
     own = (monos[0].intrinsics_covariance, monos[1].intrinsics_covariance)
     fixed = rig_deviations(cameras, stereo, transform, own)
@@ -732,7 +826,7 @@ def _calibrate(
     except ValueError as exc:
         raise RectifyError(f"stereo calibration gave an invalid transform: {exc}") from None
     rows: float | None = None
-    if (vertical := vertical_baseline(rig)) is None:
+    if (layout := unsupported_layout(rig)) is None:
         rows = row_disagreement(
             StereoRectification.from_rig(rig, alpha=options.alpha),
             np.concatenate([matched[v][1] for v in views]),
@@ -740,9 +834,9 @@ def _calibrate(
         )
     else:  # a valid calibration all the same, for other tools: written, with the warning
         log.warning(
-            "stereo: the baseline %s m is mostly vertical (a top/bottom rig): the camchain is "
-            "written, but capture-ingest rectifies side-by-side rigs only",
-            vertical,
+            "stereo: %s: the camchain is written, but capture-ingest rectifies side-by-side "
+            "rigs only",
+            layout,
         )
     counts = {
         "views": len(detections),
@@ -813,8 +907,10 @@ def _refine_jointly(
         return *kept, f"not refined with the rig: {exc}"
     try:  # a degenerate set (a board barely tilted) can refine into a rig nothing rectifies
         rig = StereoRig(refined[0], refined[1], joint)
-        if vertical_baseline(rig) is None:
+        if (layout := unsupported_layout(rig)) is None:
             StereoRectification.from_rig(rig)
+        elif unsupported_layout(StereoRig(cameras[0], cameras[1], transform)) is None:
+            raise RectifyError(layout)  # the rig before refining was side by side
     except (ValueError, RectifyError) as exc:
         log.warning(
             "stereo: intrinsics not refined with the rig: the refined rig is unusable (%s)", exc

@@ -28,9 +28,16 @@ Conventions:
   from inside its raw image (no black borders; the usable region is the whole
   image); ``alpha = 1`` keeps every raw pixel (black borders); values between
   interpolate. ``cv2.fisheye.stereoRectify``'s ``balance`` has no such
-  guarantee, which is why it is not used.
+  guarantee, which is why it is not used. ``alpha = 0`` takes the least zoom
+  that keeps every pixel valid, wherever a roll between the cameras turns
+  their borders (:mod:`~lenspair.rectify.zoom`).
+* Only side-by-side rigs are rectified, judged as ``cv2.stereoRectify``
+  judges which image axis to put the baseline along
+  (:func:`~lenspair.rectify.layout.unsupported_layout`); the rectified
+  baseline is checked to lie along the rows.
 """
 
+import functools
 from dataclasses import dataclass
 from typing import Literal
 
@@ -38,7 +45,16 @@ import cv2
 import numpy as np
 
 from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.layout import quarter_turns, rotation_z, unsupported_layout
+from lenspair.rectify.layout import vertical_baseline as vertical_baseline  # importable here
 from lenspair.rectify.rig import CameraModel, StereoRig
+from lenspair.rectify.zoom import (
+    border_pixels,
+    camera_matrix,
+    inscribed_centre,
+    refine_centre,
+    smallest_valid_focal,
+)
 
 View = Literal["cam0", "cam1"]
 OUTSIDE = -1000.0
@@ -47,6 +63,7 @@ OUTSIDE = -1000.0
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 
 
+@functools.lru_cache(maxsize=64)  # asked anew for each of the zoom search's projections
 def _monotonic_limit(camera: CameraModel) -> float:
     """Largest radius (radtan: ``r``; equidistant: ``theta``) where distortion is monotonic."""
     k = camera.distortion
@@ -143,87 +160,120 @@ def pixel_rays(camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
     return rays
 
 
-def _rotation_z(quarter_turns: int) -> np.ndarray:
-    c, s = [(1, 0), (0, 1), (-1, 0), (0, -1)][quarter_turns % 4]
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+_EDGE_NAMES = ("left", "right", "top", "bottom")
 
 
-def _border(resolution: tuple[int, int], per_side: int = 64) -> dict[str, np.ndarray]:
-    """Points along the outermost pixel centres of an image, ``(per_side, 2)`` per edge.
+def _outline(camera: CameraModel, rotation: np.ndarray, name: str, turn_deg: float) -> np.ndarray:
+    """A raw image's border on the rectified plane, in order around the image.
 
-    Keyed by edge: left, right, top, bottom. Pixel centres, not pixel edges,
-    so that bilinear sources stay inside the image.
-    """
-    width, height = resolution
-    xs = np.linspace(0.0, width - 1.0, per_side)
-    ys = np.linspace(0.0, height - 1.0, per_side)
-    return {
-        "left": np.column_stack([np.zeros(per_side), ys]),
-        "right": np.column_stack([np.full(per_side, width - 1.0), ys]),
-        "top": np.column_stack([xs, np.zeros(per_side)]),
-        "bottom": np.column_stack([xs, np.full(per_side, height - 1.0)]),
-    }
+    Every pixel centre along the border (centres, not pixel edges, so that
+    bilinear sources stay inside the image); those without a ray or behind
+    the rectified plane are left out, which joins their neighbours by a chord.
 
+    Args:
+        camera: the raw camera.
+        rotation: its rectifying rotation.
+        name: ``cam0`` or ``cam1``, for errors.
+        turn_deg: how far the rectification turns the camera, for errors.
 
-def _regions(camera: CameraModel, rotation: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Inner and outer rectangles ``(x0, x1, y0, y1)`` of a raw image on the rectified plane.
+    Returns:
+        ``(N, 2)`` float64 normalised rectified coordinates: a closed polygon.
 
     Raises:
-        RectifyError: a whole edge of the image has no ray, naming ``name`` and the edge.
+        RectifyError: a whole edge of the image has no usable ray, naming ``name`` and the edge.
     """
-    sides, lost = [], []
-    for edge, points in _border(camera.resolution).items():
+    width, height = camera.resolution
+    xs, ys = np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64)
+    edges = {
+        "top": np.column_stack([xs, np.zeros(width)]),
+        "right": np.column_stack([np.full(height, width - 1.0), ys]),
+        "bottom": np.column_stack([xs[::-1], np.full(width, height - 1.0)]),
+        "left": np.column_stack([np.zeros(height), ys[::-1]]),
+    }
+    sides: list[np.ndarray] = []
+    no_ray: list[str] = []
+    behind: list[str] = []
+    for edge, points in edges.items():
         rays = pixel_rays(camera, points) @ rotation.T
         ok = rays[:, 2] > 1e-6  # False for NaN: pixels without a ray are skipped
         sides.append(rays[ok, :2] / rays[ok, 2:])
         if not ok.any():
-            lost.append(edge)
-    if lost:
+            (behind if np.isfinite(rays).all(axis=1).any() else no_ray).append(edge)
+    # named in a fixed order, whatever the walk around the image
+    no_ray, behind = ([e for e in _EDGE_NAMES if e in lost] for lost in (no_ray, behind))
+    if no_ray:
         raise RectifyError(
-            f"rectification: no pixel on {name}'s {' and '.join(lost)} "
-            f"{'edge' if len(lost) == 1 else 'edges'} has a valid ray: behind the "
-            "rectified plane, or beyond the range of its distortion model, which a "
-            "calibration extrapolates where its boards never reached (calibrate again with "
-            "views that bring the board near the image edges)"
+            f"rectification: no pixel on {name}'s {' and '.join(no_ray)} "
+            f"{'edge' if len(no_ray) == 1 else 'edges'} has a valid ray: beyond the range "
+            "of its distortion model, which a calibration extrapolates where its boards never "
+            "reached (calibrate again with views that bring the board near the image edges)"
         )
-    everything = np.concatenate(sides)
-    low, high = everything.min(axis=0), everything.max(axis=0)
-    outer = np.array([low[0], high[0], low[1], high[1]])
-    # Which raw edge ends up on which rectified side depends on cam1's mounting.
-    means = np.array([s.mean(axis=0) for s in sides])
-    left, right = np.argmin(means[:, 0]), np.argmax(means[:, 0])
-    top, bottom = np.argmin(means[:, 1]), np.argmax(means[:, 1])
-    inner = np.array(
-        [
-            sides[left][:, 0].max(),
-            sides[right][:, 0].min(),
-            sides[top][:, 1].max(),
-            sides[bottom][:, 1].min(),
-        ]
+    if behind:
+        raise RectifyError(
+            f"rectification: {name}'s {' and '.join(behind)} "
+            f"{'edge falls' if len(behind) == 1 else 'edges fall'} behind the rectified plane: "
+            f"bringing the baseline along the rows turns the cameras {turn_deg:.0f} deg, more "
+            "than their field of view allows (mount cam1 beside cam0, or check T_cn_cnm1 in "
+            "the calibration)"
+        )
+    return np.concatenate(sides)
+
+
+def _rectified_to_raw(
+    camera: CameraModel, rotation: np.ndarray, K: np.ndarray, points_xy: np.ndarray
+) -> np.ndarray:
+    """Raw pixel coordinates of rectified pixels, ``(..., 2)`` float32; NaN without a ray."""
+    points = np.asarray(points_xy, dtype=np.float64)
+    f, cx, cy = K[0, 0], K[0, 2], K[1, 2]
+    rays = np.stack(
+        [(points[..., 0] - cx) / f, (points[..., 1] - cy) / f, np.ones(points.shape[:-1])],
+        axis=-1,
     )
-    return inner, outer
+    return project_rays(camera, rays @ rotation).astype(np.float32)  # R^T on row vectors
 
 
-def _fit(rectangle: np.ndarray, size: tuple[int, int], fill: bool) -> tuple[float, float, float]:
-    """Focal length and principal point that fit ``rectangle`` to ``size`` (fill or contain)."""
-    x0, x1, y0, y1 = rectangle
-    if x1 <= x0 or y1 <= y0:
-        raise RectifyError("rectification: the two views have no common valid region")
-    scales = (size[0] / (x1 - x0), size[1] / (y1 - y0))
-    f = max(scales) if fill else min(scales)
-    cx = (size[0] - 1) / 2 - f * (x0 + x1) / 2
-    cy = (size[1] - 1) / 2 - f * (y0 + y1) / 2
-    return f, cx, cy
+def _inside(raw: np.ndarray, resolution: tuple[int, int]) -> np.ndarray:
+    """Whether raw pixel coordinates ``(..., 2)`` have a bilinear source in the image (NaN: no)."""
+    width, height = resolution
+    with np.errstate(invalid="ignore"):
+        x, y = raw[..., 0], raw[..., 1]
+        return np.asarray((x >= 0) & (x <= width - 1) & (y >= 0) & (y <= height - 1))
 
 
-def vertical_baseline(rig: StereoRig) -> list[float] | None:
-    """cam1's optical centre in cam0's frame (m, rounded) for a top/bottom rig, else None.
+def _alpha_zero(
+    rig: StereoRig, rotations: np.ndarray, outlines: list[np.ndarray], size: tuple[int, int]
+) -> np.ndarray:
+    """``K`` of the least zoom that leaves every rectified pixel of both views valid.
 
-    A top/bottom rig has cam1 more above or below cam0 than beside it;
-    rectification supports side-by-side rigs only.
+    See :mod:`~lenspair.rectify.zoom`: the centre of the largest rectangle of
+    the output's shape inside both border polygons, refined, and at each
+    centre the smallest focal length for which every pixel on the output's
+    border (and so inside it) has its source in the raw image.
     """
-    centre = -rig.R.T @ rig.t
-    return np.round(centre, 4).tolist() if abs(centre[0]) < abs(centre[1]) else None
+    centre, cell = inscribed_centre(outlines, size[0] / size[1])
+    border = border_pixels(size)
+    # the refinement's searches start from the last answer (their centres lie within
+    # cells of each other) and give up past twice the grid centre's: no candidate needs that
+    found: list[float] = []
+
+    def least_focal(at: np.ndarray) -> float:
+        def valid(f: float) -> bool:
+            K = camera_matrix(f, at, size)
+            return all(
+                bool(_inside(_rectified_to_raw(camera, rot, K, border), camera.resolution).all())
+                for camera, rot in zip((rig.cam0, rig.cam1), rotations, strict=True)
+            )
+
+        if not found:  # the grid's centre: there is an answer, or no common region
+            found.append(smallest_valid_focal(valid, float(np.mean(rig.cam0.intrinsics[:2]))))
+            return found[0]
+        answer = smallest_valid_focal(valid, found[-1], 1e-5, 1.01, ceiling=2 * found[0])
+        if np.isfinite(answer):
+            found.append(answer)
+        return answer
+
+    centre, f = refine_centre(least_focal, centre, cell)
+    return camera_matrix(f, centre, size)
 
 
 @dataclass(frozen=True, eq=False)
@@ -265,37 +315,50 @@ class StereoRectification:
             size: rectified ``(width, height)``; cam0's resolution by default.
 
         Raises:
-            RectifyError: vertical rig, no common valid region, bad ``alpha``.
+            RectifyError: a rig that is not side by side (top/bottom, or a baseline
+                along the optical axis), no common valid region, bad ``alpha``.
 
         """
         if not 0.0 <= alpha <= 1.0:
             raise RectifyError(f"rectification alpha: expected 0..1, got {alpha}")
         size = size or rig.cam0.resolution
-        # cam1's roll relative to cam0, rounded to quarter turns: trace of Rz(-k) R is largest.
-        turns = int(np.argmax([np.trace(_rotation_z(k) @ rig.R) for k in range(4)]))
-        turn = _rotation_z(turns)
-        r_virtual, t_virtual = turn @ rig.R, turn @ rig.t
-        if (vertical := vertical_baseline(rig)) is not None:
+        # decided as cv2.stereoRectify decides, on the same vector: a rig judged by cam1's
+        # centre alone was rectified top/bottom near 45 deg, its rows 50 px apart
+        if (problem := unsupported_layout(rig)) is not None:
             raise RectifyError(
-                f"rectification: the baseline {vertical} m is mostly vertical; "
-                "only side-by-side rigs are supported"
+                f"rectification: {problem}; only side-by-side rigs are rectified (mount "
+                "cam1 beside cam0, or check T_cn_cnm1 in the calibration)"
             )
+        turns = quarter_turns(rig)
+        turn = rotation_z(turns)
         zero = np.zeros(5)
         r0, r1_virtual, *_ = cv2.stereoRectify(
-            rig.cam0.K, zero, rig.cam1.K, zero, size, r_virtual, t_virtual.reshape(3, 1),
+            rig.cam0.K, zero, rig.cam1.K, zero, size, turn @ rig.R, (turn @ rig.t).reshape(3, 1),
             flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1,
         )  # fmt: skip
         rotations = np.stack([np.asarray(r0), np.asarray(r1_virtual) @ turn])
-        inner0, outer0 = _regions(rig.cam0, rotations[0], "cam0")
-        inner1, outer1 = _regions(rig.cam1, rotations[1], "cam1")
-        inner = np.array([max(inner0[0], inner1[0]), min(inner0[1], inner1[1]),
-                          max(inner0[2], inner1[2]), min(inner0[3], inner1[3])])  # fmt: skip
-        outer = np.array([min(outer0[0], outer1[0]), max(outer0[1], outer1[1]),
-                          min(outer0[2], outer1[2]), max(outer0[3], outer1[3])])  # fmt: skip
-        fit0, fit1 = _fit(inner, size, fill=True), _fit(outer, size, fill=False)
-        f, cx, cy = ((1 - alpha) * a + alpha * b for a, b in zip(fit0, fit1, strict=True))
-        K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
-        baseline = float(-(rotations[1] @ rig.t)[0])
+        rectified_t = rotations[1] @ rig.t
+        # OpenCV picks the axis itself; rows agree only if it put the baseline along x,
+        # where its x is the whole baseline (y: about none of it, whence the 0.9)
+        if abs(rectified_t[0]) < 0.9 * rig.baseline_m:
+            raise RectifyError(
+                f"rectification: cv2.stereoRectify put the {rig.baseline_m:.4f} m baseline "
+                f"at {np.round(-rectified_t, 4).tolist()} m, not along the rows; only "
+                "side-by-side rigs are rectified (check T_cn_cnm1 in the calibration)"
+            )
+        turned = float(np.degrees(np.arccos(np.clip(rotations[0][2, 2], -1.0, 1.0))))
+        outlines = [
+            _outline(rig.camera(name), rotations[index], name, turned)
+            for index, name in enumerate(("cam0", "cam1"))
+        ]
+        everything = np.concatenate(outlines)
+        low, high = everything.min(axis=0), everything.max(axis=0)
+        # alpha = 1: the bounding box of both raw images, contained whole
+        f_loose = min(size[0] / (high[0] - low[0]), size[1] / (high[1] - low[1]))
+        loose = camera_matrix(f_loose, (low + high) / 2, size)
+        tight = _alpha_zero(rig, rotations, outlines, size) if alpha < 1.0 else loose
+        K = (1 - alpha) * tight + alpha * loose
+        baseline = float(-rectified_t[0])
         return cls(rig, rotations, K, tuple(size), baseline, turns, alpha)  # type: ignore[arg-type]
 
     def _index(self, view: View) -> int:
@@ -326,14 +389,8 @@ class StereoRectification:
             ``(..., 2)`` float32 raw pixel coordinates; NaN where no raw ray exists.
 
         """
-        points = np.asarray(points_xy, dtype=np.float64)
-        f, cx, cy = self.K[0, 0], self.K[0, 2], self.K[1, 2]
-        rays = np.stack(
-            [(points[..., 0] - cx) / f, (points[..., 1] - cy) / f, np.ones(points.shape[:-1])],
-            axis=-1,
-        )
-        raw = rays @ self.rotations[self._index(view)]  # R^T applied to row vectors
-        return project_rays(self.rig.camera(view), raw).astype(np.float32)
+        index = self._index(view)
+        return _rectified_to_raw(self.rig.camera(view), self.rotations[index], self.K, points_xy)
 
     raw_coordinates = rectified_to_raw
 
@@ -377,8 +434,7 @@ class StereoRectification:
 
         """
         map_x, map_y = self.maps(view)
-        width, height = self.rig.camera(view).resolution
-        return (map_x >= 0) & (map_x <= width - 1) & (map_y >= 0) & (map_y <= height - 1)
+        return _inside(np.stack([map_x, map_y], axis=-1), self.rig.camera(view).resolution)
 
     def rectify(self, view: View, image: np.ndarray) -> np.ndarray:
         """Resample a raw image of ``view`` into its rectified view (bilinear, black outside)."""

@@ -15,6 +15,12 @@ rectification), writes Kalibr's camchain to --out and a JSON report beside it
 about: a marker size off, too little tilt, poor coverage). The workflow is the library function
 lenspair.rectify.recording_calibration.calibrate_recording.
 
+A rig that is not side by side (cam1 above or below cam0, or in front of or
+behind it) is calibrated and written all the same, with a warning that names
+its baseline: capture-ingest rectifies side-by-side rigs only. Frames of a
+board held still count once: a calibration needs the board at five distinct
+poses or more, seen by each camera and by both together.
+
 Boards (sizes in metres):
   chessboard:COLSxROWS:SQUARE_M               COLS x ROWS inner corners
   charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT]  COLS x ROWS squares, DICT default DICT_5X5_100
@@ -36,7 +42,7 @@ import argparse
 from pathlib import Path
 
 from lenspair.capture.folders import IMAGE_SUFFIXES
-from lenspair.capture.rosbag import BAG_SUFFIXES
+from lenspair.capture.rosbag import is_bag_name
 from lenspair.commands.argtypes import add_topics_option, float_at_least, out_file
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import check_writable
@@ -93,7 +99,11 @@ def _check_out(recording: Path, out: Path) -> None:
     """
     target, source = out.resolve(), recording.resolve()
     inside = source.is_dir() and source in target.parents
-    read = target.name in _RECORDING_FILES or target.suffix.lower() in _READ_SUFFIXES
+    read = (
+        target.name in _RECORDING_FILES
+        or target.suffix.lower() in IMAGE_SUFFIXES
+        or is_bag_name(target)  # a .bag.active too
+    )
     if target == source or (inside and read):
         raise ConfigError(
             f"--out {out}: is a file of the recording {recording} (its frames, index or rig "
@@ -120,7 +130,6 @@ def _check_out(recording: Path, out: Path) -> None:
 
 
 _RECORDING_FILES = frozenset({"data.csv", "rig.yaml", "metadata.yaml", "sensor.yaml"})
-_READ_SUFFIXES = IMAGE_SUFFIXES | BAG_SUFFIXES
 
 
 def interrupt_hint(args: argparse.Namespace) -> str:

@@ -1,4 +1,5 @@
 import argparse
+import dataclasses
 import json
 import logging
 from pathlib import Path
@@ -72,17 +73,33 @@ def point_views(
     distance: tuple[float, float] = (0.6, 1.4),
 ) -> list[tuple[Detection | None, Detection | None]]:
     """Projected corners of both cameras with Gaussian noise, the board ``distance`` metres away."""
+    return views_at(board, rig, board_poses(board, rig, count, seed, distance), noise_px, seed)
+
+
+def views_at(
+    board: Board,
+    rig: StereoRig,
+    poses: list[Pose],
+    noise_px: float | tuple[float, float] = 0.05,
+    seed: int = 0,
+) -> list[tuple[Detection | None, Detection | None]]:
+    """Projected corners of the board at ``poses`` (cam0 frame), with Gaussian noise of
+    ``noise_px`` (per camera when a pair) drawn anew for each view."""
     rng = np.random.default_rng(seed)
     objects = board.object_points()
     ids = np.arange(board.num_corners, dtype=np.int32)
+    noise = (noise_px, noise_px) if isinstance(noise_px, float) else noise_px
     views: list[tuple[Detection | None, Detection | None]] = []
-    for R, t in board_poses(board, rig, count, seed, distance):
+    for R, t in poses:
         in_cam0 = objects @ R.T + t
         pixels = (
             project_rays(rig.cam0, in_cam0),
             project_rays(rig.cam1, in_cam0 @ rig.R.T + rig.t),
         )
-        noisy = [(p + rng.normal(0.0, noise_px, p.shape)).astype(np.float32) for p in pixels]
+        noisy = [
+            (p + rng.normal(0.0, n, p.shape)).astype(np.float32)
+            for p, n in zip(pixels, noise, strict=True)
+        ]
         views.append((Detection(ids, noisy[0]), Detection(ids, noisy[1])))
     return views
 
@@ -350,12 +367,73 @@ def test_a_board_that_stood_still_is_refused(model: str, caplog: pytest.LogCaptu
     assert not any("turned at most" in m for m in caplog.messages)
 
 
-def test_a_top_bottom_rig_is_calibrated_with_a_warning(caplog: pytest.LogCaptureFixture) -> None:
+@pytest.mark.parametrize("model", ["radtan", "equidistant"])
+def test_a_board_held_still_at_few_poses_is_refused(model: DistortionModel) -> None:
+    # 10 frames at each of 3 poses passed min_views (5) and the still-board check:
+    # cam1's fit diverged (fy 4 x fx) and the rig came out 18 times too wide
+    truth = make_rig(model)
+    board = parse_board_spec("chessboard:9x6:0.05")
+    poses = board_poses(board, truth, 3)
+    views = views_at(board, truth, [pose for pose in poses for _ in range(10)], seed=3)
+    with pytest.raises(
+        RectifyError,
+        match=r"^cam0: the board was seen at only 3 distinct poses in 30 views, "
+        r"need at least 5: frames of a board held still count once; move or tilt it",
+    ):
+        calibrate_from_detections(views, board, MODELS[model], SIZES)
+
+
+def test_stereo_views_at_few_distinct_poses_are_refused() -> None:
+    # each camera saw the board at many poses alone, but both at once at only 3
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    alone = point_views(board, truth, count=16, seed=5)
+    together = views_at(board, truth, [p for p in board_poses(board, truth, 3) for _ in range(10)])
+    views = [(d0, None) for d0, _ in alone[:8]] + [(None, d1) for _, d1 in alone[8:]] + together
+    with pytest.raises(
+        RectifyError,
+        match=r"^stereo: the board was seen by both cameras at only 3 distinct poses in 30 views",
+    ):
+        calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+
+
+def test_a_camera_fit_with_pixels_far_from_square_is_refused() -> None:
+    # fy/fx = 1.8 is no sensor's: a fit the views left unconstrained (three poses gave 4.1)
+    side = make_rig("radtan")
+    fx, _, cx, cy = side.cam1.intrinsics
+    cam1 = dataclasses.replace(side.cam1, intrinsics=(fx, 1.8 * fx, cx, cy))
+    truth = StereoRig(side.cam0, cam1, side.T_cam1_cam0)
+    board = parse_board_spec("chessboard:9x6:0.05")
+    with pytest.raises(RectifyError, match=r"^cam1: the calibration diverged: fy/fx = 1\.80 "):
+        calibrate_from_detections(point_views(board, truth), board, "pinhole-radtan", SIZES)
+
+
+def test_a_camera_that_fits_far_worse_than_the_other_is_refused() -> None:
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = views_at(board, truth, board_poses(board, truth, 20), noise_px=(0.05, 1.0))
+    with pytest.raises(
+        RectifyError, match=r"^cam1: its calibration leaves a median view error of 1\.\d+ px, "
+    ):
+        calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+
+
+@pytest.mark.parametrize(
+    ("centre", "layout"),
+    [
+        ((0.002, 0.11, -0.001), "mostly vertical (a top/bottom rig"),  # cam1 11 cm below cam0
+        ((0.05, 0.0, 0.10), "runs mostly along the optical axis"),  # cam1 in front of cam0
+    ],
+)
+def test_a_rig_that_is_not_side_by_side_is_calibrated_with_a_warning(
+    centre: tuple[float, float, float], layout: str, caplog: pytest.LogCaptureFixture
+) -> None:
     # its calibration is valid (for other tools), but the row figure needs a
-    # side-by-side rectification: the whole calibration was thrown away
+    # side-by-side rectification: the whole calibration was thrown away, and a
+    # cam1 in front of cam0 still was, blamed on the board's coverage of the image
     side = make_rig("radtan")
     T = side.T_cam1_cam0.copy()
-    T[:3, 3] = -side.R @ np.array([0.002, 0.11, -0.001])  # cam1 11 cm below cam0
+    T[:3, 3] = -side.R @ np.array(centre)
     truth = StereoRig(side.cam0, side.cam1, T)
     board = parse_board_spec("chessboard:9x6:0.05")
     with caplog.at_level("WARNING"):
@@ -364,10 +442,12 @@ def test_a_top_bottom_rig_is_calibrated_with_a_warning(caplog: pytest.LogCapture
         )
     assert result.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.01)
     assert result.row_disagreement_px is None
-    assert "rectified row disagreement: n/a (a top/bottom rig is not rectified)" in (
+    assert "rectified row disagreement: n/a (only side-by-side rigs are rectified)" in (
         result.summary()
     )
-    assert any("mostly vertical (a top/bottom rig)" in m for m in caplog.messages)
+    said = [m for m in caplog.messages if layout in m]
+    assert len(said) == 1 and "the camchain is written" in said[0]
+    assert said == [m for m in result.report()["warnings"] if layout in m]
 
 
 def test_unknown_model_lists_the_valid_ones() -> None:

@@ -118,7 +118,9 @@ def test_an_out_that_is_a_file_of_the_recording_is_refused(
     index = recording / "mav0" / "cam0" / "data.csv"
     index.write_text("#timestamp [ns],filename\n")
     argv = ["calibrate", str(recording), "--board", "chessboard:9x6:0.06", "--model"]
-    for out in (index, recording / "mav0" / "cam0" / "data" / "1.png", recording / "rig.yaml"):
+    frames = recording / "mav0" / "cam0" / "data" / "1.png"
+    # a killed recorder's bag inside the folder is a file of it too (its suffix is .active)
+    for out in (index, frames, recording / "rig.yaml", recording / "run.bag.active"):
         assert main([*argv, "pinhole-equi", "--out", str(out)]) == 2
         (line,) = capsys.readouterr().err.strip().splitlines()
         assert f"--out {out}: is a file of the recording" in line

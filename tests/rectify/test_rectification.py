@@ -1,6 +1,10 @@
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import (
@@ -12,6 +16,20 @@ from lenspair.rectify.rectification import (
 )
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
 from tests.rectify.rigs import make_rig
+
+PINHOLE = CameraModel((350.0, 350.0, 359.5, 269.5), "radtan", (0.0, 0.0, 0.0, 0.0), (720, 540))
+
+
+def mounted(
+    cam0: CameraModel, cam1: CameraModel, rotation_deg: tuple[float, float, float], centre: tuple
+) -> StereoRig:
+    """A rig whose cam1 is turned by ``rotation_deg`` (x, y, z; z = roll) with its centre at
+    ``centre`` (metres, cam0's frame)."""
+    R = cv2.Rodrigues(np.radians(rotation_deg))[0]
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ np.asarray(centre, dtype=np.float64)
+    return StereoRig(cam0, cam1, T)
 
 
 def visible_points(rig: StereoRig, count: int = 400) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -146,3 +164,91 @@ def test_edges_without_rays_are_named() -> None:
 def test_bad_alpha_is_refused() -> None:
     with pytest.raises(RectifyError, match="alpha"):
         StereoRectification.from_rig(make_rig("radtan"), alpha=1.5)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    direction_deg=st.floats(0.0, 90.0),
+    roll_deg=st.floats(-20.0, 20.0),
+)
+@example(direction_deg=float(np.degrees(np.arctan2(0.095, 0.100))), roll_deg=8.0)
+def test_a_rig_is_rectified_with_rows_that_agree_or_refused_as_top_bottom(
+    direction_deg: float, roll_deg: float
+) -> None:
+    # near 45 deg, a rig side by side by cam1's centre was rectified top/bottom by
+    # cv2.stereoRectify (which judges after half the roll): rows 50 px apart, no error
+    angle = np.radians(direction_deg)
+    rig = mounted(
+        PINHOLE, PINHOLE, (0.0, 0.0, roll_deg), (0.138 * np.cos(angle), 0.138 * np.sin(angle), 0.0)
+    )
+    try:
+        rectification = StereoRectification.from_rig(rig)
+    except RectifyError as refused:
+        assert "mostly vertical (a top/bottom rig" in str(refused)
+        assert direction_deg > 45.0 - abs(roll_deg) / 2 - 1e-6
+        return
+    assert direction_deg < 45.0 + abs(roll_deg) / 2 + 1e-6
+    _, p0, p1 = visible_points(rig)
+    assert row_disagreement(rectification, p0, p1) < 1e-6
+    assert abs(rectification.baseline_m) == pytest.approx(rig.baseline_m, rel=1e-9)
+
+
+def test_a_baseline_along_the_optical_axis_is_named() -> None:
+    # it was refused for "no pixel on cam0's right edge has a valid ray", blaming
+    # the calibration's coverage of the image for a rig no calibration can rectify
+    side = make_rig("radtan")
+    rig = mounted(side.cam0, side.cam1, (0.0, 0.0, 0.0), (0.05, 0.0, 0.10))
+    with pytest.raises(RectifyError) as refused:
+        StereoRectification.from_rig(rig)
+    message = str(refused.value)
+    assert "the baseline [0.05, 0.0, 0.1] m runs mostly along the optical axis" in message
+    assert "valid ray" not in message and "\n" not in message
+
+
+def least_zoom_is_tight(rectification: StereoRectification) -> None:
+    """Every rectified pixel of both views is valid, and 1 % less zoom about the same
+    centre leaves some pixel without a source (alpha = 0 zooms no more than needed)."""
+    for view in ("cam0", "cam1"):
+        assert rectification.valid_region(view).all()
+    K = rectification.K.copy()
+    middle = (np.array(rectification.size) - 1) / 2
+    centre = (middle - K[:2, 2]) / K[0, 0]
+    K[0, 0] = K[1, 1] = 0.99 * K[0, 0]
+    K[:2, 2] = middle - K[0, 0] * centre
+    wider = dataclasses.replace(rectification, K=K)
+    assert not all(wider.valid_region(view).all() for view in ("cam0", "cam1"))
+
+
+@pytest.mark.parametrize(("roll_deg", "enough"), [(10, 426), (20, 489), (30, 537), (40, 569)])
+def test_alpha_zero_zooms_no_more_than_a_roll_needs(roll_deg: float, enough: float) -> None:
+    # ``enough``: a search over f and the principal point found every pixel valid at
+    # this f; the bounding boxes of each raw edge zoomed to 466, 725, 1762, 3836 px
+    rig = mounted(PINHOLE, PINHOLE, (0.0, 0.0, roll_deg), (0.11, 0.0, 0.0))
+    rectification = StereoRectification.from_rig(rig)
+    assert rectification.K[0, 0] <= enough
+    least_zoom_is_tight(rectification)
+
+
+@settings(max_examples=12, deadline=None)
+@given(
+    model=st.sampled_from(["radtan", "equidistant"]),
+    rotation_deg=st.tuples(st.floats(-8.0, 8.0), st.floats(-10.0, 10.0), st.floats(-40.0, 40.0)),
+)
+@example(model="radtan", rotation_deg=(0.0, 10.0, 40.0))  # refused: "no common valid region"
+def test_alpha_zero_keeps_every_pixel_valid_with_the_least_zoom(
+    model: DistortionModel, rotation_deg: tuple[float, float, float]
+) -> None:
+    side = make_rig(model)
+    rig = mounted(side.cam0, side.cam1, rotation_deg, (0.11, 0.0, 0.0))
+    least_zoom_is_tight(StereoRectification.from_rig(rig))
+
+
+def test_an_ideal_rig_is_rectified_to_its_own_pixels() -> None:
+    # distortion-free, parallel cameras: alpha = 0 needs no zoom at all, every rectified
+    # pixel centre lands on a raw one (a search window with no empty border around it
+    # once put the centre at the image's edge and zoomed twice over)
+    T = np.eye(4)
+    T[0, 3] = -0.11
+    rectification = StereoRectification.from_rig(StereoRig(PINHOLE, PINHOLE, T))
+    np.testing.assert_allclose(rectification.K, PINHOLE.K, atol=0.05)
+    least_zoom_is_tight(rectification)
