@@ -37,7 +37,7 @@ from rosbags.typesys import (
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage
-from lenspair.capture.recording_types import ACTIVE_BAG_SUFFIX, is_ros1_bag
+from lenspair.capture.recording_types import active_bag_stem, is_ros1_bag
 from lenspair.capture.rosbag import COMPRESSED_IMAGE, bayer_pattern
 
 _CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
@@ -76,8 +76,8 @@ def output_bag_path(source: Path, out_dir: Path) -> Path:
     The copy of a ``run.bag.active`` is ``run.bag``: it is closed and indexed.
     """
     source = Path(source)
-    if source.name.lower().endswith(ACTIVE_BAG_SUFFIX):
-        return out_dir / (source.name[: -len(ACTIVE_BAG_SUFFIX)] + ".bag")
+    if (stem := active_bag_stem(source)) is not None:
+        return out_dir / f"{stem}.bag"
     if source.suffix.lower() == ".bag":
         return out_dir / source.name
     return out_dir / (source.stem if source.is_file() else source.name)

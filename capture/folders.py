@@ -16,9 +16,13 @@ The timestamp is read from the file stem, the first rule that applies:
    past the second): read as nanoseconds alone, those would lose their
    seconds and pair frames of different seconds;
 3. else the longest group of digits, in nanoseconds (the last of the longest
-   when several are as long): ``left_000017_1403636579763555584.png`` and
+   when several are as long), when it has at least 9 digits (a time):
+   ``left_000017_1403636579763555584.png`` and
    ``1403636579763555584_cam0.png`` are both at ``1403636579763555584``, not
-   at frame ``17`` or at ``0`` (the digit of ``cam0``).
+   at frame ``17`` or at ``0`` (the digit of ``cam0``);
+4. else the last group of digits: ``rec_20240501_000001.png`` is ``1`` (a
+   frame number, which ``capture-ingest`` then refuses as no time, while
+   ``calibrate`` pairs such frames by it), not the date.
 
 Seconds are Unix seconds (9-10 digits, 1973 to 2286) except at the end of
 the stem: ``v1.2_<t_ns>.png`` is not 1.2 s. A camera whose files mostly read
@@ -62,6 +66,9 @@ _SECONDS_NANOSECONDS = re.compile(r"(?<!\d)(\d{9,10})[_-](\d{1,9})(?!\d)")
 """Unix seconds (9-10 digits: 1973 to 2286) and a nanosecond field of up to 9 digits
 (export scripts that print ``f"{secs}_{nsecs}"`` do not zero-pad it)."""
 _DIGITS = re.compile(r"\d+")
+TIME_DIGITS = 9
+"""Digits of the shortest group read as a time before a name's last group: Unix seconds
+have 9-10, milli- to nanoseconds more; a date (``20240501``) or a short serial has fewer."""
 
 
 def timestamp_from_name(name: str) -> int | None:
@@ -84,9 +91,12 @@ def timestamp_from_name(name: str) -> int | None:
     groups = _DIGITS.findall(stem)
     if not groups:
         return None
-    # a name's other digits (cam0, a frame index) are shorter than a time in ns;
-    # max() keeps the first of equals, so search from the end: the last of the longest
-    return int(max(reversed(groups), key=len))
+    # a name's other digits (cam0, a frame index) are shorter than a time in ns; max() keeps
+    # the first of equals, so search from the end: the last of the longest. Only a group as
+    # long as a time (TIME_DIGITS) wins so: a date or a serial number (rec_20240501_000001)
+    # is not one, and the last group there is the frame's number, as it always was
+    longest = max(reversed(groups), key=len)
+    return int(longest if len(longest) >= TIME_DIGITS else groups[-1])
 
 
 def image_files(folder: Path) -> list[Path]:
@@ -140,7 +150,8 @@ def _check_distinct_times(camera: CameraName, folder: Path, frames: list[FrameRe
     if 2 * count > len(frames):
         raise CaptureError(
             f"{folder}: {count} of {len(frames)} {camera} file names read as one timestamp, "
-            f"t_ns={t_ns} (e.g. {frames[0].source.name}): name the images by capture time "
+            f"t_ns={t_ns} (e.g. {next(f for f in frames if f.t_ns == t_ns).source.name}): "
+            "name the images by capture time "
             "in ns or in seconds with a fraction (1403636579763555584.png, "
             "1403636579.763555584.png)"
         )

@@ -163,14 +163,20 @@ def is_ros1_bag(path: Path) -> bool:
     return name.endswith(".bag") or name.endswith(ACTIVE_BAG_SUFFIX)
 
 
+def active_bag_stem(path: Path) -> str | None:
+    """``run`` for a ``run.bag.active`` (what the bag would have been named), else None."""
+    name = Path(path).name
+    return name[: -len(ACTIVE_BAG_SUFFIX)] if name.lower().endswith(ACTIVE_BAG_SUFFIX) else None
+
+
 def recording_id_for(path: Path) -> str:
     """Name of a recording: the folder name or the bag's stem (``mav0`` -> parent).
 
     ``run.bag.active`` is ``run``, as the bag it would have become.
     """
     resolved = Path(path).resolve()
-    if resolved.name.lower().endswith(ACTIVE_BAG_SUFFIX) and resolved.is_file():
-        return resolved.name[: -len(ACTIVE_BAG_SUFFIX)]
+    if (stem := active_bag_stem(resolved)) is not None and resolved.is_file():
+        return stem
     if resolved.is_file():
         return resolved.stem
     if resolved.name == "mav0":

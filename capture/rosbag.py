@@ -47,6 +47,7 @@ from lenspair.capture.recording_types import (
     FrameRef,
     Layout,
     Recording,
+    active_bag_stem,
     is_ros1_bag,
     order_frames,
     recording_id_for,
@@ -412,7 +413,7 @@ def _open(path: Path) -> BagReader:
     store = Stores.ROS1_NOETIC if is_ros1_bag(path) else Stores.ROS2_HUMBLE
     # SQLite opens a cut .db3 and fails part-way without saying where: salvage it.
     failure = "the SQLite file is shorter than its header says"
-    if path.name.lower().endswith(ACTIVE_BAG_SUFFIX):  # never closed, so never indexed
+    if active_bag_stem(path) is not None:  # never closed, so never indexed
         failure = "a recording never closed: rosbag record writes the index on close"
     elif not is_cut_db3(path):
         try:

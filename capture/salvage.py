@@ -103,7 +103,7 @@ class SalvagedBag:
     def __init__(self, path: Path, storage: Path) -> None:
         self.path = path
         self.storage = storage
-        self.is_ros1 = storage.suffix.lower() == ".bag"
+        self.is_ros1 = False  # told by the file's first bytes (salvage_bag), not its name
         self.connections: list[Connection] = []
         self.topics: dict[str, _Topic] = {}
         self.cut = ""

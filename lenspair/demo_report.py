@@ -288,5 +288,5 @@ def write_report(out: Path, timings: dict[str, dict[str, float | bool]], command
 
 
 def _px(value: float | None) -> str:
-    """A pixel figure; ``n/a`` where there is none (a rig that is not side by side is not rectified)."""
+    """A pixel figure; ``n/a`` where there is none (a rig not side by side is not rectified)."""
     return "n/a" if value is None else f"{value:.3f} px"

@@ -8,4 +8,4 @@ class ModelError(LenspairError):
 
 
 class TrainingDivergedError(ModelError):
-    """Too many consecutive non-finite training steps."""
+    """Training diverged: too many consecutive non-finite steps, or a NaN/Inf network output."""

@@ -51,10 +51,12 @@ class DetectorJudge:
 
     Args:
         network: a trained detector (:func:`lenspair.model.detection.train.load_detector`).
+        path: the file it was loaded from, if any: ``restore --resume`` compares its hash.
     """
 
-    def __init__(self, network: AnomalyDetector) -> None:
+    def __init__(self, network: AnomalyDetector, path: Path | None = None) -> None:
         self.network = network
+        self.path = path
 
     def __call__(self, frame: InputFrame, image: np.ndarray) -> bool:
         """True when the detector calls ``image`` obstructed."""
@@ -67,4 +69,4 @@ def default_judge(model: Path, device: torch.device) -> FrameJudge:
     Raises:
         ModelError: ``model`` is not a readable lenspair detector.
     """
-    return DetectorJudge(load_detector(model, device))
+    return DetectorJudge(load_detector(model, device), Path(model))

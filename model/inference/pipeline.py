@@ -125,6 +125,7 @@ class RestoreReport:
         source_files: bags: ``[name, size, mtime_ns]`` of the files the bag
             was read from; ``--resume`` of a complete run keeps its bag while
             they are unchanged (:meth:`~lenspair.model.inference.sinks.BagSink.finished`).
+        output_files: bags: the same of the bag written, which must be unchanged too.
     """
 
     input: str
@@ -142,6 +143,7 @@ class RestoreReport:
     seconds: float = 0.0
     settings: dict[str, Any] = field(default_factory=dict)
     source_files: list[list[Any]] = field(default_factory=list)
+    output_files: list[list[Any]] = field(default_factory=list)
 
     @property
     def frames_per_second(self) -> float:
@@ -280,7 +282,7 @@ def run_settings(
 ) -> dict[str, Any]:
     """What decides a run's output bytes: input, model (and its file's hash), batching, tiles."""
     model_file = getattr(backend, "path", None)
-    digest = sha256_file(Path(model_file)) if model_file and Path(model_file).is_file() else None
+    digest = _file_digest(model_file)
     model = backend.description
     if model_file:  # as for the input: the same file, however the path was typed
         model = model.replace(str(model_file), str(Path(model_file).resolve()), 1)
@@ -295,7 +297,14 @@ def run_settings(
         "suffix": options.suffix,
         "topics": list(options.topics) if options.topics else None,
         "only_obstructed": judge is not None,
+        # which detector judged: another one keeps other frames unrestored
+        "detector_sha256": _file_digest(getattr(judge, "path", None)),
     }
+
+
+def _file_digest(path: Path | None) -> str | None:
+    """SHA-256 of a file, or None when there is none."""
+    return sha256_file(Path(path)) if path and Path(path).is_file() else None
 
 
 def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
@@ -504,7 +513,9 @@ def restore_input(
         # a bag is written in one pass, and its cache is gone once complete: without this,
         # resuming a finished run restored every frame again
         finished = _finished_report(out_dir)
-        if finished is not None and sink.finished(finished.get("source_files")):
+        if finished is not None and sink.finished(
+            finished.get("source_files"), finished.get("output_files")
+        ):
             report = _kept(finished, input_path, kind, sink, backend, cameras, settings)
             report.seconds = time.perf_counter() - started
             atomic_write_json(out_dir / REPORT_NAME, report.as_dict())
@@ -577,6 +588,7 @@ def restore_input(
     sink.finish()
     if isinstance(sink, BagSink):
         report.source_files = sink.fingerprint
+        report.output_files = sink.written()
         source_problems.extend(
             f"{topic}: a type neither the bag nor rosbags defines: its messages are copied "
             "byte for byte, under an empty definition whose hash is not the type's, so readers "
@@ -591,12 +603,18 @@ def restore_input(
 
 
 def _finished_report(out_dir: Path) -> dict[str, Any] | None:
-    """OUT's report when a complete run with recorded settings wrote it, else None."""
+    """OUT's report when a complete run with recorded settings wrote it, else None.
+
+    A run that failed frames is not taken as finished: ``--resume`` tries them
+    again (a frame too large for memory, with ``--tile``), as in a folder.
+    """
     try:
         data = json.loads((out_dir / REPORT_NAME).read_text(encoding="utf-8"))
     except (OSError, ValueError):  # none, or cut: no run finished there
         return None
     if not isinstance(data, dict) or data.get("complete") is not True:
+        return None
+    if data.get("failed", 0) != 0:
         return None
     return data if isinstance(data.get("settings"), dict) and data["settings"] else None
 
@@ -627,6 +645,7 @@ def _kept(
     report.problems = list(finished.get("problems", []))
     report.settings = settings
     report.source_files = sink.fingerprint
+    report.output_files = sink.written()
     return report
 
 

@@ -24,6 +24,7 @@ import sqlite3
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -500,16 +501,26 @@ class BagSink:
         """The bag written."""
         return self.path
 
-    def finished(self, recorded: object) -> bool:
+    def finished(self, recorded: object, written: object) -> bool:
         """Whether a complete earlier run wrote this bag from the files it reads now.
 
         Args:
             recorded: the source files that run's report kept (its
                 ``source_files``; :meth:`finish` drops the cache and its stamp).
-
-        The bag must still be at its name: one the user deleted is written again.
+            written: the output bag's files as that run left them (its
+                ``output_files``): a bag deleted, cut or replaced since is written again.
         """
-        return bool(recorded) and recorded == self.fingerprint and self.path.exists()
+        return (
+            bool(recorded)
+            and recorded == self.fingerprint
+            and self.path.exists()
+            and bool(written)
+            and written == self.written()
+        )
+
+    def written(self) -> list[list[Any]]:
+        """Name, size and modification time of the output bag's files (after :meth:`finish`)."""
+        return source_fingerprint(self.path)
 
     def _cached_path(self, frame: InputFrame) -> Path:
         return self.cache / f"{frame.index}.npy"

@@ -227,6 +227,9 @@ def test_left_right_folders(tmp_path: Path) -> None:
         ("v1.2_1403636579763555584.png", 1_403_636_579_763_555_584),  # not Unix seconds
         ("12.5.png", 12_500_000_000),  # seconds from the start, ending the name
         ("frame_12_34.png", 34),  # as long: the last
+        # a date or a serial is no time: the frame number after it stays the number
+        ("rec_20240501_000001.png", 1),
+        ("cam0_SN12345678_000017.png", 17),
         ("12_001058405.png", 1_058_405),  # too few digits for Unix seconds
         ("nostamp.png", None),
     ],
@@ -288,3 +291,12 @@ def test_empty_left_right_folders(tmp_path: Path) -> None:
     (tmp_path / "right").mkdir()
     with pytest.raises(CaptureError, match="no cam0 frames could be listed"):
         open_recording(tmp_path)
+
+
+def test_frame_numbers_after_a_date_are_read_as_frame_numbers(tmp_path: Path) -> None:
+    # read as the date, every file of a camera had one time and the folder was refused
+    for i in range(1, 4):
+        for side in ("left", "right"):
+            write_image(tmp_path / side / f"rec_20240501_{i:06d}.png", _image(i))
+    recording = open_recording(tmp_path)
+    assert recording.timestamps("cam0") == [1, 2, 3] == recording.timestamps("cam1")

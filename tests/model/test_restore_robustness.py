@@ -156,6 +156,17 @@ def test_resuming_a_finished_bag_run_keeps_its_bag(
     rewritten = restore_input(bag, out, backend, replace(options, resume=True))
     assert (rewritten.restored, rewritten.resumed) == (3, 0)
     assert {k: v for k, v in _tree(out).items() if k != REPORT_NAME} == written
+    # an output bag cut since (a copy interrupted) was kept because it still existed
+    part = output if output.is_file() else max(output.iterdir(), key=lambda p: p.stat().st_size)
+    part.write_bytes(part.read_bytes()[:-100])
+    recut = restore_input(bag, out, backend, replace(options, resume=True))
+    assert (recut.restored, recut.resumed) == (3, 0)
+    assert {k: v for k, v in _tree(out).items() if k != REPORT_NAME} == written
+    # a finished run that failed frames is not finished: resume tries them again
+    saved = json.loads((out / REPORT_NAME).read_text())
+    (out / REPORT_NAME).write_text(json.dumps({**saved, "failed": 1}))
+    retried = restore_input(bag, out, backend, replace(options, resume=True))
+    assert (retried.restored, retried.resumed) == (3, 0)
 
 
 def _icc_profile() -> bytes:
@@ -459,3 +470,31 @@ def test_a_ros1_bag_inside_a_ros2_bag_folder_is_copied_as_a_file_of_the_recordin
     for name in ("before.bag", "killed.bag.active", "notes.txt"):
         assert (output / name).read_bytes() == (bag / name).read_bytes(), name
     assert [p.name for p in output.iterdir() if p.suffix == ".db3"] == ["run.db3"]
+
+
+class _FileJudge:
+    """A judge loaded from a file (as ``--only-obstructed DETECTOR`` is)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def __call__(self, frame: object, image: np.ndarray) -> bool:
+        return True
+
+
+def test_resume_with_another_detector_is_refused(tmp_path: Path, backend: TorchBackend) -> None:
+    # only "judged: yes" was recorded, so a run judged by another detector was resumed,
+    # and a finished bag judged by the old one kept
+    folder = tmp_path / "in"
+    write_image(folder / "a.png", _grey((24, 32), 1))
+    first, second = tmp_path / "one.pt", tmp_path / "two.pt"
+    first.write_bytes(b"one")
+    second.write_bytes(b"two")
+    out = tmp_path / "out"
+    restore_input(folder, out, backend, RestoreOptions(), judge=_FileJudge(first))
+    with pytest.raises(ModelError, match="detector_sha256"):
+        restore_input(folder, out, backend, RestoreOptions(resume=True), judge=_FileJudge(second))
+    again = restore_input(
+        folder, out, backend, RestoreOptions(resume=True), judge=_FileJudge(first)
+    )
+    assert again.resumed == 1
