@@ -24,6 +24,10 @@ At every step a view whose RMS reprojection error exceeds
 is repeated until none is; each rejection is recorded with its reason. A
 round that would leave fewer than ``min_views`` views rejects none: outlier
 rejection never fails a calibration that works without it.
+Each camera's fit and the stereo step's views are then checked
+(:mod:`~lenspair.rectify.fit_checks`): a board that stood still or was seen at
+too few distinct poses, or a fit with pixels no camera has, is refused; a
+camera that fits its views far worse than the other is warned about.
 Reprojection errors are RMS over corners of the Euclidean pixel residual.
 """
 
@@ -56,6 +60,12 @@ from lenspair.rectify.calib_fits import (
     view_error,
 )
 from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.fit_checks import (
+    check_distinct_poses,
+    check_fit,
+    check_pose_spread,
+    rms_balance_warnings,
+)
 from lenspair.rectify.layout import unsupported_layout
 from lenspair.rectify.rectification import StereoRectification, project_rays, row_disagreement
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
@@ -344,145 +354,12 @@ def _reject_outliers(
         views = [v for k, v in enumerate(views) if k not in bad]
 
 
-STILL_BOARD_DEG = 2.0
-"""A board turned less than this from the first view in every view, and moved less than
-:data:`STILL_BOARD_SHIFT` of its distance, stood still: no calibration."""
-STILL_BOARD_SHIFT = 0.02
 FOCAL_DOUBT = 0.005
 """A camera whose focal length's 1-sigma deviation exceeds this share is warned about:
 a 9x6 board 2-3 m from a 720x540 camera with f = 350 px gives about 0.6 %, 0.6-1.4 m
 about 0.1 % (after the joint refinement)."""
 BASELINE_DOUBT = 0.01
 """A baseline whose 1-sigma deviation exceeds this share is warned about."""
-FEW_TILTS_DEG = 10.0
-"""Below this largest turn from the first view the focal length is poorly determined (warning)."""
-
-
-def _check_pose_spread(rvecs: np.ndarray, tvecs: np.ndarray, stage: str) -> None:
-    """Refuse views of a board that stood still; warn when it was never tilted much.
-
-    A recording of a static board (or of the same frame many times) fits a
-    calibration whose errors look small and whose focal length and baseline
-    are unconstrained: it ended in a misleading "baseline mostly vertical" or
-    a camchain a few per cent off, without a word.
-
-    Raises:
-        RectifyError: the board barely turned or moved across the views.
-    """
-    # from the first view: linear in the views (the largest turn between any two
-    # lies between this and twice this)
-    rotations = [cv2.Rodrigues(np.asarray(r, np.float64).reshape(3))[0] for r in rvecs]
-    turned = max(
-        float(np.degrees(np.linalg.norm(cv2.Rodrigues(rotations[0].T @ r)[0]))) for r in rotations
-    )
-    centres = np.asarray(tvecs, np.float64).reshape(-1, 3)
-    moved = float(np.max(np.linalg.norm(centres - centres[0], axis=1)))
-    depth = float(np.mean(np.linalg.norm(centres, axis=1)))
-    if turned < STILL_BOARD_DEG and moved < STILL_BOARD_SHIFT * depth:
-        raise RectifyError(
-            f"{stage}: the board barely moved in the {len(centres)} views (turned "
-            f"{turned:.1f} deg and moved {100 * moved:.1f} cm at most from the first): a "
-            "calibration needs it tilted in several directions and moved across the image"
-        )
-    if turned < FEW_TILTS_DEG:
-        log.warning(
-            "%s: the board turned at most %.1f deg from the first view; tilt it by 20-40 deg in "
-            "several directions, or the focal length is poorly determined",
-            stage,
-            turned,
-        )
-
-
-def _distinct_poses(rvecs: np.ndarray, tvecs: np.ndarray) -> int:
-    """How many board poses differ from every other counted one (a board not held still).
-
-    Two poses are one where the board turned less than :data:`STILL_BOARD_DEG`
-    and moved less than :data:`STILL_BOARD_SHIFT` of its distance between
-    them, the measure of :func:`_check_pose_spread`. Counted greedily in view
-    order: each pose joins the first counted one it repeats.
-    """
-    rotations = [cv2.Rodrigues(np.asarray(r, np.float64).reshape(3))[0] for r in rvecs]
-    centres = np.asarray(tvecs, np.float64).reshape(-1, 3)
-    counted: list[int] = []
-    for k, (rotation, centre) in enumerate(zip(rotations, centres, strict=True)):
-        depth = float(np.linalg.norm(centre))
-        if all(
-            np.degrees(np.linalg.norm(cv2.Rodrigues(rotations[j].T @ rotation)[0]))
-            >= STILL_BOARD_DEG
-            or np.linalg.norm(centre - centres[j]) >= STILL_BOARD_SHIFT * depth
-            for j in counted
-        ):
-            counted.append(k)
-    return len(counted)
-
-
-def _check_distinct_poses(
-    rvecs: np.ndarray, tvecs: np.ndarray, stage: str, min_views: int, seen: str = "seen"
-) -> None:
-    """Refuse views that hold fewer than ``min_views`` distinct board poses.
-
-    Frames of a board held still repeat one pose: ten of them weigh like one
-    view ten times over, with its noise averaged away, and counted as ten
-    they let three poses pass ``min_views``; the fit then diverged (a rig
-    18 times too wide, fy four times fx) with small errors.
-
-    Raises:
-        RectifyError: too few distinct poses, naming them and the views.
-    """
-    distinct = _distinct_poses(rvecs, tvecs)
-    if distinct < min_views:
-        raise RectifyError(
-            f"{stage}: the board was {seen} at only {distinct} distinct poses in {len(rvecs)} "
-            f"views, need at least {min_views}: frames of a board held still count once; move "
-            f"or tilt it between views (by more than {STILL_BOARD_DEG:g} deg, or "
-            f"{100 * STILL_BOARD_SHIFT:g} % of its distance)"
-        )
-
-
-PIXEL_ASPECT_LIMIT = 1.5
-"""A camera fit with fy/fx beyond this (or below its inverse) diverged: refused.
-
-Sensors have square or nearly square pixels (the most anamorphic video
-format, widescreen PAL, has 1.46), so a fit outside is not a camera but a
-fit its views left unconstrained (three board poses gave fy/fx = 4.1)."""
-RMS_RATIO_LIMIT = 5.0
-"""A camera whose median view error exceeds this multiple of the other's (and the floor): refused.
-
-Both cameras see the same board through the same corner detector, so their
-fits leave alike errors (a wrong lens model raises both). One camera five
-times worse than the other, and above the floor below which no view is ever
-rejected (``outlier_floor_px``), is a fit that diverged or frames that are
-not what the other camera sees. The floor keeps real pairs, whose views fit
-to a few tenths of a pixel, clear of it whatever their ratio."""
-
-
-def _check_fit(camera: CameraModel, stage: str) -> None:
-    """Refuse a fit whose focal lengths are not those of a camera (:data:`PIXEL_ASPECT_LIMIT`)."""
-    fx, fy = camera.intrinsics[:2]
-    if not 1.0 / PIXEL_ASPECT_LIMIT <= fy / fx <= PIXEL_ASPECT_LIMIT:
-        raise RectifyError(
-            f"{stage}: the calibration diverged: fy/fx = {fy / fx:.2f} (fx {fx:.1f} px, fy "
-            f"{fy:.1f} px) where pixels are near square; show the board at more poses, tilted "
-            "in several directions and across the whole image, and check --model"
-        )
-
-
-def _check_rms_balance(monos: Sequence[CameraCalibration], floor_px: float) -> None:
-    """Refuse a camera that fits its views far worse than the other (:data:`RMS_RATIO_LIMIT`).
-
-    Compared by the median view error: a few noisy views (kept where rejecting
-    them would leave too few) raise a camera's RMS, not its median.
-    """
-    medians = [float(np.median(mono.view_errors_px)) for mono in monos]
-    for index, stage in enumerate(("cam0", "cam1")):
-        own, other = medians[index], medians[1 - index]
-        if own > max(RMS_RATIO_LIMIT * other, floor_px):
-            raise RectifyError(
-                f"{stage}: its calibration leaves a median view error of {own:.3f} px, "
-                f"{own / other:.1f} times cam{1 - index}'s {other:.3f} px on the same board: its "
-                "fit diverged or its lens model is wrong; show the board at more poses, tilted "
-                "in several directions, and check --model"
-            )
 
 
 @contextlib.contextmanager
@@ -622,9 +499,10 @@ def calibrate_camera(
         raise RectifyError(
             f"{stage}: {exc}" if not str(exc).startswith(stage) else str(exc)
         ) from None
-    _check_pose_spread(rvecs, tvecs, stage)
-    _check_distinct_poses(rvecs, tvecs, stage, options.min_views)
-    _check_fit(camera, stage)
+    if (few_tilts := check_pose_spread(rvecs, tvecs, stage)) is not None:
+        log.warning("%s", few_tilts)
+    check_distinct_poses(rvecs, tvecs, stage, options.min_views)
+    check_fit(camera, stage)
     residuals = np.concatenate(
         [project_rays(camera, data[v][0] @ cv2.Rodrigues(rvecs[k])[0].T + tvecs[k]) - data[v][1]
          for k, v in enumerate(views)]
@@ -776,8 +654,10 @@ def _calibrate(
             )
             monos, rejected, pairs, said = again  # the stereo step still rejects its outliers
     _release(said)
-    _check_rms_balance(monos, options.outlier_floor_px)
     cameras = (monos[0].camera, monos[1].camera)
+    errors_px = [mono.view_errors_px for mono in monos]
+    for warning in rms_balance_warnings(errors_px, cameras, options.outlier_floor_px):
+        log.warning("%s", warning)  # a warning, not a refusal: cameras may differ
     if len(pairs) < options.min_views:  # the stereo step needs views the two cameras share
         raise RectifyError(
             f"stereo: the board was seen by both cameras at once in {len(pairs)} usable views, "
@@ -810,7 +690,7 @@ def _calibrate(
             f"{first}): frames paired out of step, or a board spec or model that is wrong"
         ) from None
     rejected += dropped
-    _check_distinct_poses(rvecs, tvecs, "stereo", options.min_views, "seen by both cameras")
+    check_distinct_poses(rvecs, tvecs, "stereo", options.min_views, "seen by both cameras")
     stereo = [(matched[v], rvecs[k], tvecs[k]) for k, v in enumerate(views)]
     own = (monos[0].intrinsics_covariance, monos[1].intrinsics_covariance)
     fixed = rig_deviations(cameras, stereo, transform, own)

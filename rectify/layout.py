@@ -43,17 +43,6 @@ def half_turned_baseline(rig: StereoRig) -> np.ndarray:
     return np.asarray(half @ translation, dtype=np.float64)
 
 
-def vertical_baseline(rig: StereoRig) -> list[float] | None:
-    """cam1's optical centre in cam0's frame (m, rounded) for a top/bottom rig, else None.
-
-    Top/bottom as ``cv2.stereoRectify`` sees it: :func:`half_turned_baseline`
-    no longer along x than along y. A baseline along the optical axis is judged
-    by :func:`unsupported_layout`.
-    """
-    x, y, _ = np.abs(half_turned_baseline(rig))
-    return np.round(-rig.R.T @ rig.t, 4).tolist() if x <= y else None
-
-
 def unsupported_layout(rig: StereoRig) -> str | None:
     """Why ``rig`` cannot be rectified side by side, or None where it can.
 
@@ -78,7 +67,7 @@ def unsupported_layout(rig: StereoRig) -> str | None:
             f"the baseline {centre} m runs mostly along the optical axis ({tilt:.0f} deg out "
             "of the image plane: cam1 in front of or behind cam0)"
         )
-    if vertical_baseline(rig) is not None:  # OpenCV's own test: columns unless |x| > |y|
+    if x <= y:  # OpenCV's own test: columns unless |x| > |y|
         angle = np.degrees(np.arctan2(y, x))
         return (
             f"the baseline {centre} m is mostly vertical (a top/bottom rig: {angle:.1f} deg "

@@ -46,7 +46,6 @@ import numpy as np
 
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.layout import quarter_turns, rotation_z, unsupported_layout
-from lenspair.rectify.layout import vertical_baseline as vertical_baseline  # importable here
 from lenspair.rectify.rig import CameraModel, StereoRig
 from lenspair.rectify.zoom import (
     border_pixels,

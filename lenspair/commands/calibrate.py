@@ -12,14 +12,20 @@ the baseline with their 1-sigma deviations, and the rectified row
 disagreement (RMS of the row differences of matched corners after
 rectification), writes Kalibr's camchain to --out and a JSON report beside it
 (camchain.yaml -> camchain.report.json; its "warnings" keep what the run warned
-about: a marker size off, too little tilt, poor coverage). The workflow is the library function
+about: a marker size off, too little tilt, poor coverage, a camera fitting far
+worse). The workflow is the library function
 lenspair.rectify.recording_calibration.calibrate_recording.
 
 A rig that is not side by side (cam1 above or below cam0, or in front of or
 behind it) is calibrated and written all the same, with a warning that names
 its baseline: capture-ingest rectifies side-by-side rigs only. Frames of a
 board held still count once: a calibration needs the board at five distinct
-poses or more, seen by each camera and by both together.
+poses or more, seen by each camera and by both together. A camera fit with
+fy/fx above 2.5 or below 1/2.5 is refused as diverged (anamorphic lenses,
+binning and interlaced fields stay within it). A camera whose median view
+error, as an angle (pixels over fx, so the two may differ in resolution), is
+over five times the other's, and over 0.5 px, is warned about, not refused: a
+thermal camera's blurred corners fit worse legitimately.
 
 Boards (sizes in metres):
   chessboard:COLSxROWS:SQUARE_M               COLS x ROWS inner corners

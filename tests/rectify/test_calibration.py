@@ -2,6 +2,7 @@ import argparse
 import dataclasses
 import json
 import logging
+import re
 from pathlib import Path
 
 import cv2
@@ -27,6 +28,7 @@ from lenspair.rectify.calibration import (
     parse_model,
 )
 from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.fit_checks import rms_balance_warnings
 from lenspair.rectify.rectification import project_rays
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
 from tests.rectify.board_renderer import BoardRenderer
@@ -397,25 +399,96 @@ def test_stereo_views_at_few_distinct_poses_are_refused() -> None:
         calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
 
 
-def test_a_camera_fit_with_pixels_far_from_square_is_refused() -> None:
-    # fy/fx = 1.8 is no sensor's: a fit the views left unconstrained (three poses gave 4.1)
+def with_pixel_aspect(camera: CameraModel, aspect: float) -> CameraModel:
+    """``camera`` with ``fy / fx = aspect``, one focal length shortened: no corner leaves it."""
+    fx, fy, cx, cy = camera.intrinsics
+    focal = (fy / aspect, fy) if aspect > 1 else (fx, fx * aspect)
+    return dataclasses.replace(camera, intrinsics=(*focal, cx, cy))
+
+
+@pytest.mark.parametrize("aspect", [2.0, 0.5])
+def test_cameras_with_pixels_twice_as_tall_or_wide_are_calibrated(aspect: float) -> None:
+    # a 2x anamorphic lens or 2x1 binning (2.0), one field of interlaced video (0.5):
+    # real cameras, which fy/fx limited to 1.5 refused as diverged fits
     side = make_rig("radtan")
-    fx, _, cx, cy = side.cam1.intrinsics
-    cam1 = dataclasses.replace(side.cam1, intrinsics=(fx, 1.8 * fx, cx, cy))
-    truth = StereoRig(side.cam0, cam1, side.T_cam1_cam0)
+    truth = StereoRig(side.cam0, with_pixel_aspect(side.cam1, aspect), side.T_cam1_cam0)
     board = parse_board_spec("chessboard:9x6:0.05")
-    with pytest.raises(RectifyError, match=r"^cam1: the calibration diverged: fy/fx = 1\.80 "):
+    result = calibrate_from_detections(point_views(board, truth), board, "pinhole-radtan", SIZES)
+    check_accuracy(result, truth)
+    fx, fy = result.cameras[1].camera.intrinsics[:2]
+    assert fy / fx == pytest.approx(aspect, rel=0.005)
+
+
+@pytest.mark.parametrize(("aspect", "shown"), [(4.0, r"4\.00"), (0.25, r"0\.25")])
+def test_a_camera_fit_with_pixels_far_from_square_is_refused(aspect: float, shown: str) -> None:
+    # 4 is no camera's: the fit three board poses held still left unconstrained gave 4.1
+    side = make_rig("radtan")
+    truth = StereoRig(side.cam0, with_pixel_aspect(side.cam1, aspect), side.T_cam1_cam0)
+    board = parse_board_spec("chessboard:9x6:0.05")
+    with pytest.raises(
+        RectifyError,
+        match=rf"^cam1: the calibration diverged: fy/fx = {shown} \(.*\), outside the 0\.4-2\.5 ",
+    ):
         calibrate_from_detections(point_views(board, truth), board, "pinhole-radtan", SIZES)
 
 
-def test_a_camera_that_fits_far_worse_than_the_other_is_refused() -> None:
+def test_a_camera_that_fits_far_worse_than_the_other_is_calibrated_with_a_warning(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # a camera may fit worse for good reasons (a thermal camera's blurred corners): it was
+    # refused; a diverged fit is refused by the pose and fy/fx checks instead
     truth = make_rig("radtan")
     board = parse_board_spec("chessboard:9x6:0.05")
     views = views_at(board, truth, board_poses(board, truth, 20), noise_px=(0.05, 1.0))
-    with pytest.raises(
-        RectifyError, match=r"^cam1: its calibration leaves a median view error of 1\.\d+ px, "
-    ):
-        calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+    with caplog.at_level("WARNING"):
+        result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES)
+    assert result.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.01)
+    said = [m for m in caplog.messages if "its views fit with a median error" in m]
+    assert len(said) == 1
+    assert re.match(r"cam1: its views fit with a median error of 1\.\d+ px \(\d", said[0])
+    assert re.search(r"\), \d+\.\d times cam0's 0\.0\d+ px \(", said[0])
+    assert said == [m for m in result.report()["warnings"] if "median error" in m]
+
+
+def test_cameras_of_different_resolutions_that_fit_alike_are_not_warned_about(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # a VGA-like cam0 and a 12 MP cam1 (fx 6.3 times cam0's) with the same angular noise:
+    # cam1's errors in pixels are 6.3 times cam0's, which was refused
+    side = make_rig("radtan")
+    scale = 6.3
+    fx, fy, cx, cy = side.cam1.intrinsics
+    width, height = side.cam1.resolution
+    cam1 = dataclasses.replace(
+        side.cam1,
+        intrinsics=(scale * fx, scale * fy, scale * cx, scale * cy),
+        resolution=(round(scale * width), round(scale * height)),
+    )
+    truth = StereoRig(side.cam0, cam1, side.T_cam1_cam0)
+    board = parse_board_spec("chessboard:9x6:0.05")
+    poses = board_poses(board, side, 20)  # cam1 sees what it saw at VGA, 6.3 times larger
+    views = views_at(board, truth, poses, noise_px=(0.12, 0.12 * scale))
+    with caplog.at_level("WARNING"):
+        result = calibrate_from_detections(
+            views, board, "pinhole-radtan", (SIZES[0], cam1.resolution)
+        )
+    assert result.rig.baseline_m == pytest.approx(truth.baseline_m, rel=0.01)
+    medians = [float(np.median(cam.view_errors_px)) for cam in result.cameras]
+    assert medians[1] > 5 * medians[0]  # in pixels; as angles they agree
+    assert not any("median error" in m for m in caplog.messages)
+    assert not any("median error" in m for m in result.report()["warnings"])
+
+
+def test_the_balance_of_view_errors_is_warned_about_where_one_camera_fits_perfectly() -> None:
+    # a camera whose views fit exactly made the ratio a division by zero
+    cameras = [make_rig("radtan").cam0] * 2
+    warnings = rms_balance_warnings([(0.0,) * 5, (1.0,) * 5], cameras, floor_px=0.5)
+    assert len(warnings) == 1
+    assert warnings[0].startswith(
+        "cam1: its views fit with a median error of 1.000 px (2.86 mrad at fx 350 px), "
+        "while cam0's is 0.000 px (0 mrad) on the same board"
+    )
+    assert rms_balance_warnings([(0.0,) * 5, (0.4,) * 5], cameras, floor_px=0.5) == []
 
 
 @pytest.mark.parametrize(
