@@ -160,10 +160,14 @@ def _restore_rerun(source: str) -> Callable[[Path, Path], list[str]]:
 
 
 def _restore_report(content: bytes) -> object:
-    """The report less its timings and output path; a resumed frame counts as restored."""
+    """The report less its timings and output path; a resumed frame counts as restored.
+
+    The output bag's files are compared by name and size: their times are the run's.
+    """
     report = json.loads(content)
     for key in ("seconds", "frames_per_second", "output"):
         report.pop(key, None)
+    report["output_files"] = [entry[:2] for entry in report.get("output_files", [])]
     report["restored"] += report.pop("resumed")
     return report
 
