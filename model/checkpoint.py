@@ -244,20 +244,29 @@ def load_weights(network: nn.Module, data: dict[str, Any], path: Path | str) -> 
     problem = first_shape_difference(network.state_dict(), weights)
     if problem is not None:
         raise ModelError(f"{path}: weights do not fit the network: {problem}")
-    bad = first_non_finite(weights)
-    if bad is not None:
-        raise ModelError(f"{path}: {NON_FINITE_WEIGHTS}: {bad}; {NON_FINITE_HINT}")
+    check_finite_weights(weights, str(path))
     try:
         network.load_state_dict(weights)
     except RuntimeError as exc:
         raise ModelError(f"{path}: weights do not fit the network ({first_line(exc)})") from None
 
 
-NON_FINITE_WEIGHTS = "its weights hold NaN or Inf"
-"""How a checkpoint whose network weights are not finite is named (:func:`first_non_finite`)."""
+def check_finite_weights(weights: dict[str, Any], label: str) -> None:
+    """Refuse a state dict holding NaN or Inf (a run that diverged), naming the first tensor.
 
-NON_FINITE_HINT = "the run that wrote it diverged: use an earlier checkpoint of it"
-"""What to do about such a checkpoint, after :data:`NON_FINITE_WEIGHTS` and the tensor."""
+    Args:
+        weights: a state dict.
+        label: what the weights are, leading the message (a path, ``--init PATH``).
+
+    Raises:
+        ModelError: ``label: its weights hold NaN or Inf: <tensor> (<n> of <m> values); ...``.
+    """
+    bad = first_non_finite(weights)
+    if bad is not None:
+        raise ModelError(
+            f"{label}: its weights hold NaN or Inf: {bad}; the run that wrote it diverged: "
+            "use an earlier checkpoint of it"
+        )
 
 
 def first_non_finite(weights: dict[str, Any]) -> str | None:

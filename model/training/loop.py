@@ -49,10 +49,8 @@ from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.progress import progress
 from lenspair.core.wording import counted
 from lenspair.model.checkpoint import (
-    NON_FINITE_HINT,
-    NON_FINITE_WEIGHTS,
+    check_finite_weights,
     checkpoint_config,
-    first_non_finite,
     load_checkpoint,
     load_weights,
 )
@@ -619,9 +617,8 @@ def _read_init(init: Path, config: RunConfig) -> tuple[Path, dict[str, Any]]:
     # Checked here, before the run folder is made (load_weights checks too, too late):
     # such weights skip every step and the run ended blaming its validation pairs.
     weights = data.get("model")
-    bad = first_non_finite(weights) if isinstance(weights, dict) else None
-    if bad is not None:
-        raise ModelError(f"--init {init}: {NON_FINITE_WEIGHTS}: {bad}; {NON_FINITE_HINT}")
+    if isinstance(weights, dict):
+        check_finite_weights(weights, f"--init {init}")
     return init, data
 
 
