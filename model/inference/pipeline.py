@@ -631,7 +631,8 @@ def _kept(
     """The report of a ``--resume`` that keeps the bag a complete run wrote (``finished``).
 
     Its frames count as resumed, as a resumed folder's finished frames do;
-    what it skipped, failed and found is said again, since the bag holds it.
+    what it skipped and found is said again, since the bag holds it (a run
+    with failed frames is never kept: :func:`_finished_report`).
     """
     log.info("%s: written by the run being resumed, from the same bag: kept", sink.output)
     report = RestoreReport(
@@ -641,7 +642,6 @@ def _kept(
     report.resumed = int(finished.get("restored", 0)) + int(finished.get("resumed", 0))
     report.skipped = int(finished.get("skipped", 0))
     report.skipped_frames = list(finished.get("skipped_frames", []))
-    report.failed = int(finished.get("failed", 0))
     report.problems = list(finished.get("problems", []))
     report.settings = settings
     report.source_files = sink.fingerprint

@@ -510,10 +510,10 @@ class BagSink:
             written: the output bag's files as that run left them (its
                 ``output_files``): a bag deleted, cut or replaced since is written again.
         """
+        # a missing output states as [name, None, None]: unlike any recorded one
         return (
             bool(recorded)
             and recorded == self.fingerprint
-            and self.path.exists()
             and bool(written)
             and written == self.written()
         )
