@@ -188,24 +188,31 @@ def _compressed_bag(
     return bag
 
 
-def test_an_empty_compressed_image_is_one_rejected_frame(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    # cv2.imdecode asserts on an empty buffer: the ingest died with a cv2.error traceback,
-    # and every rerun died at the same frame
-    bag = _compressed_bag(tmp_path, frames=5, empty={3})
-    out = tmp_path / "out"
+def _one_of_five_rejected(
+    bag: Path, out: Path, capsys: pytest.CaptureFixture[str], runs: int = 1
+) -> str:
+    """Ingest ``bag`` (five frames) ``runs`` times; the reason of its one rejected cam1 frame."""
     args = ["capture-ingest", str(bag), "--out", str(out), "--size", CROP, "--workers", "1"]
-    for _ in range(2):  # the rerun resumes past it too
+    for _ in range(runs):
         assert main(args) == 0
         assert "kept 4 of 5 cam1 frames" in capsys.readouterr().out
     records = read_pairs(out / "run" / "pairs.jsonl")
     (rejected,) = [r for r in records if r.status == "rejected"]
     assert rejected.reason is not None
     assert rejected.reason.startswith(f"cannot read input frame: {bag} /cam1/compressed @ t_ns=")
-    assert rejected.reason.endswith("empty compressed image (format 'png', no data)")
     counts = read_report(out / "run" / "report.json").counts
     assert (counts["kept"], counts["rejected"]) == (4, 1)
+    return rejected.reason
+
+
+def test_an_empty_compressed_image_is_one_rejected_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # cv2.imdecode asserts on an empty buffer: the ingest died with a cv2.error traceback,
+    # and every rerun died at the same frame
+    bag = _compressed_bag(tmp_path, frames=5, empty={3})
+    reason = _one_of_five_rejected(bag, tmp_path / "out", capsys, runs=2)  # the rerun too
+    assert reason.endswith("empty compressed image (format 'png', no data)")
     recording = rosbag.read_bag(bag)
     with pytest.raises(CaptureError, match=r"/cam1/compressed @ t_ns=\d+ .*: empty compressed"):
         recording.load(recording.frames["cam1"][3])
@@ -261,20 +268,9 @@ def test_a_compressed_frame_with_alpha_is_one_rejected_frame(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     bag = _compressed_bag(tmp_path, frames=5, empty=set(), alpha=frozenset({2}))
-    out = tmp_path / "out"
-    args = ["capture-ingest", str(bag), "--out", str(out), "--size", CROP, "--workers", "1"]
-    assert main(args) == 0
-    assert "kept 4 of 5 cam1 frames" in capsys.readouterr().out
-    records = read_pairs(out / "run" / "pairs.jsonl")
-    (rejected,) = [r for r in records if r.status == "rejected"]
-    assert rejected.reason is not None
-    assert rejected.reason.startswith(f"cannot read input frame: {bag} /cam1/compressed @ t_ns=")
-    assert rejected.reason.endswith(
-        "channels, format 'png'): not read, since its alpha would be lost"
-    )
-    assert "compressed image with an alpha channel (" in rejected.reason
-    counts = read_report(out / "run" / "report.json").counts
-    assert (counts["kept"], counts["rejected"]) == (4, 1)
+    reason = _one_of_five_rejected(bag, tmp_path / "out", capsys)
+    assert reason.endswith("channels, format 'png'): not read, since its alpha would be lost")
+    assert "compressed image with an alpha channel (" in reason
 
 
 def test_bag_files_are_named_by_their_whole_suffix(tmp_path: Path) -> None:

@@ -14,6 +14,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.core.imageio import read_image
+from lenspair.model.inference.pipeline import REPORT_NAME
 from tests.capture.ingest_helpers import frame_files, make_recording
 
 IMAGE = "sensor_msgs/msg/Image"
@@ -154,3 +155,17 @@ def humble_bag(path: Path, images: list[tuple[int, np.ndarray]], vendor: bool = 
     }  # fmt: skip
     (path / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
     return path
+
+
+def file_tree(root: Path, without: frozenset[str] = frozenset()) -> dict[str, bytes]:
+    """Every file below ``root`` (relative POSIX path -> bytes), less those named in ``without``."""
+    return {
+        p.relative_to(root).as_posix(): p.read_bytes()
+        for p in root.rglob("*")
+        if p.is_file() and p.name not in without
+    }
+
+
+def restored_files(root: Path) -> dict[str, bytes]:
+    """:func:`file_tree` less ``restore_report.json`` (its timings differ from run to run)."""
+    return file_tree(root, without=frozenset({REPORT_NAME}))

@@ -25,7 +25,13 @@ from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
 from tests.capture.ingest_helpers import frame_files, make_recording, simulate
 from tests.file_limits import run_with_file_limit
 from tests.images import texture
-from tests.model.restore_helpers import HEALTH, bag_from_recording, humble_bag, write_bag
+from tests.model.restore_helpers import (
+    HEALTH,
+    bag_from_recording,
+    humble_bag,
+    restored_files,
+    write_bag,
+)
 from tests.model.train_fixtures import make_checkpoint, tiny_config
 
 CPU = torch.device("cpu")
@@ -47,14 +53,6 @@ def expected(backend: TorchBackend, image: np.ndarray) -> np.ndarray:
     """What restoring ``image`` alone gives (batch 1, whole image)."""
     (out,) = from_batch(run_backend(backend, to_batch([image])), image.dtype, image.ndim == 2)
     return out
-
-
-def _files(root: Path) -> dict[str, bytes]:
-    return {
-        p.relative_to(root).as_posix(): p.read_bytes()
-        for p in sorted(root.rglob("*"))
-        if p.is_file() and p.name != REPORT_NAME
-    }
 
 
 def _folder(root: Path, dtype: type = np.uint8) -> Path:
@@ -288,7 +286,7 @@ def test_recording_restores_the_obstructed_camera(tmp_path: Path, backend: Torch
     recording = simulate("rain", tmp_path / "rec", frames=2)  # rig.yaml: cam1 obstructed
     report = restore_input(recording, tmp_path / "out", backend)
     assert report.cameras == ["cam1"] and report.restored == 2
-    before, after = _files(recording), _files(tmp_path / "out")
+    before, after = restored_files(recording), restored_files(tmp_path / "out")
     assert before.keys() == after.keys()
     for name, data in before.items():
         if name.startswith("mav0/cam1/data/"):
@@ -431,15 +429,15 @@ def test_resume_writes_the_same_bytes(tmp_path: Path, backend: TorchBackend, kin
     restore_input(source, tmp_path / "whole", backend, options)
     with pytest.raises(_KilledError):
         restore_input(source, tmp_path / "resumed", _DiesAfter(backend, 2), options)  # type: ignore[arg-type]
-    partial = _files(tmp_path / "resumed")
+    partial = restored_files(tmp_path / "resumed")
     with pytest.raises(ModelError, match="not empty; pass --resume"):
         restore_input(source, tmp_path / "resumed", backend, options)
     report = restore_input(
         source, tmp_path / "resumed", backend, RestoreOptions(batch_size=2, resume=True)
     )
     assert report.resumed == 4 and report.restored == 3
-    assert len(partial) < len(_files(tmp_path / "whole"))
-    assert _files(tmp_path / "resumed") == _files(tmp_path / "whole")
+    assert len(partial) < len(restored_files(tmp_path / "whole"))
+    assert restored_files(tmp_path / "resumed") == restored_files(tmp_path / "whole")
 
 
 def test_resume_into_a_folder_no_restore_run_wrote_is_refused(
@@ -510,7 +508,8 @@ def test_bag_resume_reuses_frames_and_writes_the_same_bytes(
     resume = RestoreOptions(batch_size=2, resume=True)
     again = restore_input(bag, tmp_path / "out", backend, resume)
     assert (again.resumed, again.restored) == (2, 3)
-    assert _files(tmp_path / "out") == _files(tmp_path / "whole")  # the cache is gone too
+    # the cache is gone too
+    assert restored_files(tmp_path / "out") == restored_files(tmp_path / "whole")
     assert Path(again.output).name == Path(whole.output).name
 
 
@@ -775,7 +774,7 @@ def test_bag_resume_restores_a_bag_changed_after_the_kill_anew(
     again = restore_input(bag, tmp_path / "out", backend, replace(options, resume=True))
     assert (again.resumed, again.restored) == (0, fresh.restored)
     assert "changed since the run being resumed" in caplog.text
-    assert _files(tmp_path / "out") == _files(tmp_path / "fresh")
+    assert restored_files(tmp_path / "out") == restored_files(tmp_path / "fresh")
 
 
 def test_bag_resume_trusts_a_cache_without_a_stamp(

@@ -28,7 +28,7 @@ from lenspair.model.inference.pipeline import (
 )
 from tests.capture.ingest_helpers import make_recording
 from tests.images import texture
-from tests.model.restore_helpers import write_bag
+from tests.model.restore_helpers import file_tree, write_bag
 from tests.model.train_fixtures import make_checkpoint
 
 
@@ -48,10 +48,6 @@ def _folder(source: Path, count: int) -> Path:
     for index in range(count):
         write_image(source / f"{index}.png", _image(index))
     return source
-
-
-def _tree(root: Path) -> dict[str, bytes]:
-    return {p.relative_to(root).as_posix(): p.read_bytes() for p in root.rglob("*") if p.is_file()}
 
 
 def _inputs(root: Path) -> dict[str, tuple[Path, Path]]:
@@ -91,10 +87,10 @@ def test_out_overlapping_the_input_is_refused_and_the_input_kept(
     tmp_path: Path, backend: TorchBackend, case: str
 ) -> None:
     source, out = _inputs(tmp_path)[case]
-    before = _tree(tmp_path)
+    before = file_tree(tmp_path)
     with pytest.raises(ModelError, match=r"^--out .*(inside the input|would replace it)"):
         restore_input(source, out, backend, RestoreOptions(resume=True))
-    assert _tree(tmp_path) == before  # nothing deleted, nothing written
+    assert file_tree(tmp_path) == before  # nothing deleted, nothing written
 
 
 def test_out_beside_the_input_is_fine(tmp_path: Path, backend: TorchBackend) -> None:
@@ -197,8 +193,8 @@ def test_left_right_recording_restores_the_obstructed_camera(
     report = restore_input(recording, tmp_path / "out", backend)
     assert report.cameras == ["cam1"] and report.restored == 2
     out = tmp_path / "out"
-    assert _tree(out / "left") == _tree(recording / "left")  # the clean camera: unchanged
-    assert _tree(out / "right") != _tree(recording / "right")
+    assert file_tree(out / "left") == file_tree(recording / "left")  # the clean camera: unchanged
+    assert file_tree(out / "right") != file_tree(recording / "right")
     assert (out / "rig.yaml").read_bytes() == (recording / "rig.yaml").read_bytes()
 
 
@@ -215,10 +211,10 @@ def test_resume_with_other_settings_is_refused(tmp_path: Path, backend: TorchBac
     out = tmp_path / "out"
     first = restore_input(source, out, backend, RestoreOptions(batch_size=2))
     assert first.settings["batch_size"] == 2 and first.settings["model_sha256"]
-    written = _tree(out)
+    written = file_tree(out)
     with pytest.raises(ModelError, match=r"^--resume: .*batch_size: 2 -> 3"):
         restore_input(source, out, backend, RestoreOptions(batch_size=3, resume=True))
-    assert _tree(out) == written  # refused before anything was touched
+    assert file_tree(out) == written  # refused before anything was touched
     again = restore_input(source, out, backend, RestoreOptions(batch_size=2, resume=True))
     assert (again.resumed, again.restored) == (3, 0)
 

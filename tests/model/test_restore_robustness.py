@@ -32,7 +32,7 @@ from lenspair.model.inference.backends import TorchBackend, open_backend
 from lenspair.model.inference.pipeline import REPORT_NAME, RestoreOptions, restore_input
 from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
 from tests.images import texture
-from tests.model.restore_helpers import bag_from_recording
+from tests.model.restore_helpers import bag_from_recording, restored_files
 from tests.model.train_fixtures import make_checkpoint, tiny_config
 
 CPU = torch.device("cpu")
@@ -120,10 +120,6 @@ def test_a_channel_mismatch_on_the_first_frame_still_leaves_out_as_it_was(
     assert not (tmp_path / "out").exists()
 
 
-def _tree(root: Path) -> dict[str, bytes]:
-    return {p.relative_to(root).as_posix(): p.read_bytes() for p in root.rglob("*") if p.is_file()}
-
-
 @pytest.mark.parametrize("kind", ["ros1", "db3"])
 def test_resuming_a_finished_bag_run_keeps_its_bag(
     tmp_path: Path, backend: TorchBackend, kind: str
@@ -133,10 +129,10 @@ def test_resuming_a_finished_bag_run_keeps_its_bag(
     options = RestoreOptions(batch_size=2)
     out = tmp_path / "out"
     whole = restore_input(bag, out, backend, options)
-    written = {k: v for k, v in _tree(out).items() if k != REPORT_NAME}
+    written = restored_files(out)
     again = restore_input(bag, out, backend, replace(options, resume=True))
     assert (again.frames_read, again.restored, again.resumed) == (whole.frames_read, 0, 3)
-    assert {k: v for k, v in _tree(out).items() if k != REPORT_NAME} == written
+    assert restored_files(out) == written
     saved = json.loads((out / REPORT_NAME).read_text())
     assert saved["complete"] is True and saved["resumed"] == 3 and saved["source_files"]
     # a bag changed since, or an output bag deleted, is written again
@@ -145,7 +141,7 @@ def test_resuming_a_finished_bag_run_keeps_its_bag(
     os.utime(files[0], ns=(later, later))
     changed = restore_input(bag, out, backend, replace(options, resume=True))
     assert (changed.restored, changed.resumed) == (3, 0)
-    assert {k: v for k, v in _tree(out).items() if k != REPORT_NAME} == written
+    assert restored_files(out) == written
     output = Path(changed.output)
     if output.is_dir():
         for part in output.iterdir():
@@ -155,13 +151,13 @@ def test_resuming_a_finished_bag_run_keeps_its_bag(
         output.unlink()
     rewritten = restore_input(bag, out, backend, replace(options, resume=True))
     assert (rewritten.restored, rewritten.resumed) == (3, 0)
-    assert {k: v for k, v in _tree(out).items() if k != REPORT_NAME} == written
+    assert restored_files(out) == written
     # an output bag cut since (a copy interrupted) was kept because it still existed
     part = output if output.is_file() else max(output.iterdir(), key=lambda p: p.stat().st_size)
     part.write_bytes(part.read_bytes()[:-100])
     recut = restore_input(bag, out, backend, replace(options, resume=True))
     assert (recut.restored, recut.resumed) == (3, 0)
-    assert {k: v for k, v in _tree(out).items() if k != REPORT_NAME} == written
+    assert restored_files(out) == written
     # a finished run that failed frames is not finished: resume tries them again
     saved = json.loads((out / REPORT_NAME).read_text())
     (out / REPORT_NAME).write_text(json.dumps({**saved, "failed": 1}))
