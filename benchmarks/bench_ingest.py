@@ -32,7 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from lenspair.capture.ingest import REGISTRATION_FILE, ingest_recording
+from lenspair.capture.ingest import ingest_recording
+from lenspair.capture.ingest_registration import REGISTRATION_FILE
 from lenspair.capture.ingested import read_pairs
 from lenspair.capture.recording import load_frame, open_recording
 from lenspair.capture.rigfile import read_rig_file

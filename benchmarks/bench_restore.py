@@ -37,7 +37,8 @@ from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import build_network
 from lenspair.model.evaluation.latency import measure_latency
 from lenspair.model.inference.backends import TorchBackend, deploy
-from lenspair.model.inference.pipeline import RestoreOptions, restore_input
+from lenspair.model.inference.pipeline import restore_input
+from lenspair.model.inference.restore_options import RestoreOptions
 from lenspair.model.training.config import ModelConfig
 
 HEIGHT, WIDTH = 360, 540

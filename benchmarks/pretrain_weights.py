@@ -36,8 +36,9 @@ import yaml
 from lenspair.commands.argtypes import positive_int
 from lenspair.core.imageio import read_image
 from lenspair.model.checkpoint import load_model
-from lenspair.model.evaluation.evaluate import evaluate_checkpoint, score_tensors
+from lenspair.model.evaluation.evaluate import evaluate_checkpoint
 from lenspair.model.evaluation.latency import measure_latency
+from lenspair.model.evaluation.scoring import score_tensors
 from lenspair.model.training.config import DataConfig, RunConfig, TrainConfig
 from lenspair.model.training.pretrained import (
     FRAME,

@@ -51,13 +51,14 @@ from lenspair.commands import train as train_command
 from lenspair.commands.argtypes import positive_int
 from lenspair.demo import Budget, plan, run_stages
 from lenspair.model.checkpoint import load_checkpoint, load_model
-from lenspair.model.evaluation.evaluate import score_pairs, summarize
 from lenspair.model.evaluation.published import INITIALISATION, published_markdown
+from lenspair.model.evaluation.scoring import score_pairs
 from lenspair.model.evaluation.seed_statistics import (
     SeedSummary,
     clearly_better,
     summarise_seeds,
 )
+from lenspair.model.evaluation.summary import summarize
 from lenspair.model.training.config import RunConfig, config_differences, load_run_config
 from lenspair.model.training.loop import resolve_config
 from lenspair.model.training.pairs import open_eval_pairs

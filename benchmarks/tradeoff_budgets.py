@@ -35,7 +35,7 @@ from matplotlib.figure import Figure
 
 from lenspair.core.fsutil import atomic_write, atomic_write_text
 from lenspair.model.evaluation.seed_statistics import SeedSummary, clearly_better, summarise_seeds
-from lenspair.model.evaluation.tradeoff import Budget
+from lenspair.model.evaluation.tradeoff_variants import Budget
 
 SAME = ("dataset", "evaluated_on", "convention", "size")
 """Meta fields two runs must share to be compared (plus crops, batch, rate and its decay)."""

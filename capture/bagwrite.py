@@ -37,8 +37,8 @@ from rosbags.typesys import (
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import BagMessage
+from lenspair.capture.image_messages import COMPRESSED_IMAGE, bayer_pattern
 from lenspair.capture.recording_types import active_bag_stem, is_ros1_bag
-from lenspair.capture.rosbag import COMPRESSED_IMAGE, bayer_pattern
 
 _CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
 

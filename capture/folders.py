@@ -56,7 +56,7 @@ IMAGE_SUFFIXES = frozenset(
     | {".pgm", ".ppm", ".pnm", ".pbm"}  # netpbm; a 1-bit PBM reads as 8-bit grey, 0 and 255
 )
 """Image files read as frames (OpenImageIO). Camera raw and video are not images to read
-here: :mod:`lenspair.model.inference.sinks` names them where a folder holds them."""
+here: :mod:`lenspair.model.inference.unread_files` names them where a folder holds them."""
 
 FOLDER_NAMES: dict[CameraName, str] = {"cam0": "left", "cam1": "right"}
 

@@ -53,6 +53,7 @@ import numpy as np
 
 from lenspair.capture import euroc, folders, rosbag
 from lenspair.capture.errors import CaptureError
+from lenspair.capture.image_messages import IMAGE_TYPES, decode_message, one_line
 from lenspair.capture.recording import CAMERAS, open_recording
 from lenspair.capture.recording_types import DUPLICATE_TIMESTAMP, FrameProblem, is_ros1_bag
 from lenspair.capture.rigfile import CameraName
@@ -189,9 +190,7 @@ def _folder_listing(folder: Path) -> tuple[list[Path], list[str]]:
 
 
 def _image_topics(reader: rosbag.BagReader) -> list[str]:
-    return sorted(
-        name for name, info in reader.topics.items() if info.msgtype in rosbag.IMAGE_TYPES
-    )
+    return sorted(name for name, info in reader.topics.items() if info.msgtype in IMAGE_TYPES)
 
 
 def bag_image_topics(path: Path) -> list[str]:
@@ -438,10 +437,10 @@ def _bag_messages(
                 break
             except Exception as exc:  # storage backends raise assorted types when damaged
                 if read == 0:
-                    raise CaptureError(f"{path}: cannot read messages ({_one_line(exc)})") from None
+                    raise CaptureError(f"{path}: cannot read messages ({one_line(exc)})") from None
                 if problems is not None:
                     problems.append(
-                        f"{path}: reading stopped early after {read} messages ({_one_line(exc)})"
+                        f"{path}: reading stopped early after {read} messages ({one_line(exc)})"
                     )
                 break
             read += 1
@@ -460,11 +459,11 @@ def _bag_messages(
             try:
                 message = reader.deserialize(raw, connection.msgtype)
                 t_ns = rosbag._stamp_ns(message)
-                image, error = rosbag.decode_message(connection.msgtype, message, where), None
+                image, error = decode_message(connection.msgtype, message, where), None
             except CaptureError as exc:
                 image, error = None, str(exc)
             except Exception as exc:  # corrupt serialisation: the frame only
-                image, error = None, f"{where}: cannot deserialise ({_one_line(exc)})"
+                image, error = None, f"{where}: cannot deserialise ({one_line(exc)})"
             frame = InputFrame(index, name, camera, t_ns, where, image, error, log_time)
             index += 1
             yield BagMessage(connection, log_time, raw, frame, message)
@@ -473,8 +472,3 @@ def _bag_messages(
             problems.append(f"{path}: reading stopped early after {read} messages ({note})")
     finally:
         reader.close()
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split()) or type(exc).__name__
-    return text if len(text) <= 200 else text[:197] + "..."

@@ -1,16 +1,12 @@
-"""ROS1 and ROS2 bags through ``rosbags``: listing image topics and decoding frames.
+"""ROS1 and ROS2 bags through ``rosbags``: listing image topics and loading frames.
 
 Accepted: a ROS1 ``.bag`` file (or ``.bag.active``, what a killed ``rosbag
 record`` leaves: unindexed, so always read as a bag cut short), a ROS2 bag
 folder (``metadata.yaml`` with ``.db3`` or ``.mcap`` storage) or a bare
-``.db3``/``.mcap`` file. Messages of
-type ``sensor_msgs/msg/Image`` (encodings ``mono8``/``8UC1``, ``mono16``/
-``16UC1``, ``rgb8``, ``bgr8``, ``rgba8``, ``bgra8``, ``rgb16``, ``bgr16``, and the
-Bayer mosaics ``bayer_rggb8`` ... ``bayer_grbg16``, demosaiced by OpenCV;
-``step`` row padding and ``is_bigendian`` respected; colour returned as RGB)
-and ``sensor_msgs/msg/CompressedImage`` (JPEG/PNG, decoded with OpenCV; a PNG
-with an alpha channel is that frame's error) are read. A frame's timestamp is
-``header.stamp``; the bag's receive (log) time is kept in the
+``.db3``/``.mcap`` file. Messages of type ``sensor_msgs/msg/Image`` and
+``sensor_msgs/msg/CompressedImage`` are read; their pixels are decoded by
+:mod:`lenspair.capture.image_messages` (which lists the encodings). A frame's
+timestamp is ``header.stamp``; the bag's receive (log) time is kept in the
 :class:`FrameRef` to seek back to the message lazily.
 
 Listing reads every message of the two topics once (deserialising only to
@@ -35,12 +31,12 @@ from contextlib import suppress
 from pathlib import Path
 from typing import Any, TypeVar
 
-import cv2
 import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.errors import CaptureError
+from lenspair.capture.image_messages import IMAGE_TYPES, decode_message, one_line
 from lenspair.capture.recording_types import (
     ACTIVE_BAG_SUFFIX,
     FrameProblem,
@@ -57,53 +53,12 @@ from lenspair.capture.salvage import SalvagedBag, is_cut_db3, salvage_bag
 
 K = TypeVar("K")
 
-RAW_IMAGE = "sensor_msgs/msg/Image"
-COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
-IMAGE_TYPES = (RAW_IMAGE, COMPRESSED_IMAGE)
 ROS2_STORAGE_SUFFIXES = frozenset({".db3", ".mcap"})
 """A ROS 2 bag's storage files, in its folder beside ``metadata.yaml`` or on their own."""
 BAG_SUFFIXES = frozenset({".bag", ACTIVE_BAG_SUFFIX, *ROS2_STORAGE_SUFFIXES})
 """How bag files are named (:func:`is_bag_name`): ``.bag.active`` is two suffixes, so
 compare names with :func:`is_bag_name`, not ``Path.suffix`` with this set."""
 BagReader = AnyReader | SalvagedBag
-
-# encoding -> (dtype, channels, channel order to RGB or None)
-_ENCODINGS: dict[str, tuple[type[np.unsignedinteger[Any]], int, tuple[int, ...] | None]] = {
-    "mono8": (np.uint8, 1, None),
-    "8uc1": (np.uint8, 1, None),
-    "mono16": (np.uint16, 1, None),
-    "16uc1": (np.uint16, 1, None),
-    "rgb8": (np.uint8, 3, (0, 1, 2)),
-    "bgr8": (np.uint8, 3, (2, 1, 0)),
-    "rgba8": (np.uint8, 4, (0, 1, 2)),
-    "bgra8": (np.uint8, 4, (2, 1, 0)),
-    "rgb16": (np.uint16, 3, (0, 1, 2)),
-    "bgr16": (np.uint16, 3, (2, 1, 0)),
-}
-
-
-BAYER_PATTERNS = ("rggb", "bggr", "gbrg", "grbg")
-"""ROS Bayer encodings ``bayer_<pattern>8`` / ``bayer_<pattern>16``: the colours of the
-top-left 2x2 cell, row by row."""
-
-# OpenCV names a Bayer pattern by the second row's second and third pixels, so ROS's
-# rggb is OpenCV's BG (the mapping cv_bridge uses)
-_DEMOSAIC = {
-    "rggb": cv2.COLOR_BayerBG2RGB,
-    "bggr": cv2.COLOR_BayerRG2RGB,
-    "gbrg": cv2.COLOR_BayerGR2RGB,
-    "grbg": cv2.COLOR_BayerGB2RGB,
-}
-
-
-def bayer_pattern(encoding: str) -> tuple[str, type[np.unsignedinteger[Any]]] | None:
-    """``(pattern, dtype)`` of a ROS Bayer encoding (``bayer_rggb8``), else None."""
-    key = encoding.lower()
-    for pattern in BAYER_PATTERNS:
-        for bits, dtype in (("8", np.uint8), ("16", np.uint16)):
-            if key == f"bayer_{pattern}{bits}":
-                return pattern, dtype
-    return None
 
 
 def is_bag_name(path: Path) -> bool:
@@ -231,7 +186,7 @@ def load_bag_frame(frame: FrameRef) -> np.ndarray:
             if found is not None:
                 message: Any = reader.deserialize(found[2], found[0].msgtype)
         except Exception as exc:  # rosbags and its storage backends raise assorted types
-            raise CaptureError(f"{where}: cannot read message ({_one_line(exc)})") from None
+            raise CaptureError(f"{where}: cannot read message ({one_line(exc)})") from None
     if found is None:
         raise CaptureError(f"{where}: message not found at log time {start} ns")
     msgtype = found[0].msgtype
@@ -239,130 +194,6 @@ def load_bag_frame(frame: FrameRef) -> np.ndarray:
     if frame.t_ns != frame.log_time_ns and _stamp_ns(message) != frame.t_ns:
         raise CaptureError(f"{where}: message at log time {start} has t_ns={_stamp_ns(message)}")
     return decode_message(msgtype, message, where)
-
-
-def decode_message(msgtype: str, message: Any, where: str) -> np.ndarray:
-    """Pixels of a deserialised ``Image`` or ``CompressedImage`` message (RGB order)."""
-    if msgtype == COMPRESSED_IMAGE:
-        return decode_compressed(message.format, message.data, where)
-    return decode_raw(
-        message.height,
-        message.width,
-        message.encoding,
-        bool(message.is_bigendian),
-        message.step,
-        message.data,
-        where,
-    )
-
-
-def decode_raw(
-    height: int,
-    width: int,
-    encoding: str,
-    is_bigendian: bool,
-    step: int,
-    data: np.ndarray | bytes,
-    where: str,
-) -> np.ndarray:
-    """Decode ``sensor_msgs/Image`` fields into an array.
-
-    Args:
-        height: rows.
-        width: columns.
-        encoding: ROS image encoding (see module docstring).
-        is_bigendian: byte order of 16-bit samples.
-        step: bytes per row including padding (>= width * bytes per pixel).
-        data: the ``uint8`` payload.
-        where: names the message in errors.
-
-    Returns:
-        ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB, native byte
-        order, C-contiguous.
-
-    Raises:
-        CaptureError: unsupported encoding, zero size, ``step`` too small or
-            payload shorter than ``step * (height - 1) + row bytes``.
-    """
-    key = encoding.lower()
-    bayer = bayer_pattern(key)
-    if bayer is not None:  # the raw mosaic, demosaiced to RGB (OpenCV, bilinear)
-        if min(height, width) < 3:  # OpenCV returns black below 3 px
-            raise CaptureError(f"{where}: {width}x{height} Bayer image: too small to demosaic")
-        mosaic = decode_raw(
-            height, width, "mono16" if bayer[1] == np.uint16 else "mono8", is_bigendian, step,
-            data, where,
-        )  # fmt: skip
-        try:
-            return np.ascontiguousarray(cv2.cvtColor(mosaic, _DEMOSAIC[bayer[0]]))
-        except cv2.error as exc:  # one bad frame is that frame's problem, not the run's
-            raise CaptureError(f"{where}: cannot demosaic {encoding} ({_one_line(exc)})") from None
-    if key not in _ENCODINGS:
-        supported = ", ".join([*sorted(_ENCODINGS), "bayer_<rggb|bggr|gbrg|grbg><8|16>"])
-        raise CaptureError(f"{where}: unsupported encoding {encoding!r}; supported: {supported}")
-    dtype, channels, order = _ENCODINGS[key]
-    itemsize = np.dtype(dtype).itemsize
-    row_bytes = width * channels * itemsize
-    if height <= 0 or width <= 0:
-        raise CaptureError(f"{where}: empty image ({height}x{width})")
-    if step < row_bytes:
-        raise CaptureError(f"{where}: step {step} is smaller than a row ({row_bytes} bytes)")
-    payload = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes) else data
-    payload = np.ascontiguousarray(payload, dtype=np.uint8).reshape(-1)
-    needed = step * (height - 1) + row_bytes
-    if payload.size < needed:
-        raise CaptureError(f"{where}: truncated image data ({payload.size} of {needed} bytes)")
-    rows = np.lib.stride_tricks.as_strided(payload, (height, row_bytes), (step, 1))
-    sample = np.dtype(dtype).newbyteorder(">" if is_bigendian else "<")
-    pixels = np.ascontiguousarray(rows).view(sample).astype(dtype)
-    pixels = pixels.reshape(height, width, channels)
-    if order is None:
-        return np.ascontiguousarray(pixels[:, :, 0])
-    return np.ascontiguousarray(pixels[:, :, list(order)])
-
-
-def decode_compressed(fmt: str, data: np.ndarray | bytes, where: str) -> np.ndarray:
-    """Decode a ``sensor_msgs/CompressedImage`` payload (JPEG/PNG) to mono or RGB.
-
-    Returns:
-        ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB, C-contiguous.
-
-    Raises:
-        CaptureError: the payload is empty (a driver's failed frame), cannot
-            be decoded, has an unsupported depth, or has an alpha channel (a
-            PNG of grey or colour with alpha); names the message.
-    """
-    payload = np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes) else data
-    payload = np.ascontiguousarray(payload, dtype=np.uint8).reshape(-1)
-    if payload.size == 0:  # OpenCV asserts on an empty buffer instead of returning None
-        raise CaptureError(f"{where}: empty compressed image (format {fmt!r}, no data)")
-    try:
-        decoded = cv2.imdecode(payload, cv2.IMREAD_UNCHANGED)
-    except cv2.error as exc:  # a decoder's assertion is this frame's problem, not the run's
-        raise CaptureError(
-            f"{where}: cannot decode compressed image (format {fmt!r}: {_one_line(exc)})"
-        ) from None
-    if decoded is None:
-        raise CaptureError(f"{where}: cannot decode compressed image (format {fmt!r})")
-    image = np.asarray(decoded)
-    if image.dtype not in (np.uint8, np.uint16):
-        raise CaptureError(f"{where}: unsupported compressed sample type {image.dtype}")
-    channels = 1 if image.ndim == 2 else image.shape[2]
-    if channels in (2, 4):
-        # Decoded without it, the alpha would be gone from a restored copy that still
-        # says bgra8, and nothing would tell: the frame fails instead, named (as a raw
-        # rgba8 frame does in restore, which cannot write that encoding back).
-        raise CaptureError(
-            f"{where}: compressed image with an alpha channel ({channels} channels, format "
-            f"{fmt!r}): not read, since its alpha would be lost"
-        )
-    if channels not in (1, 3):
-        raise CaptureError(f"{where}: compressed image of {channels} channels (format {fmt!r})")
-    if image.ndim == 3 and channels == 1:
-        image = image[:, :, 0]
-    elif image.ndim == 3:  # OpenCV decodes colour as BGR
-        image = image[:, :, ::-1]
-    return np.ascontiguousarray(image)
 
 
 def close_bag_readers() -> None:
@@ -420,7 +251,7 @@ def _open(path: Path) -> BagReader:
             reader = AnyReader([path], default_typestore=get_typestore(store))
             reader.open()
         except Exception as exc:  # rosbags and its storage backends raise assorted types
-            failure = _one_line(exc)
+            failure = one_line(exc)
         else:
             return reader
     try:
@@ -428,7 +259,7 @@ def _open(path: Path) -> BagReader:
     except (CaptureError, OSError) as exc:
         raise CaptureError(
             f"{path}: cannot open bag ({failure}); reading it record by record "
-            f"found nothing to keep ({_one_line(exc)})"
+            f"found nothing to keep ({one_line(exc)})"
         ) from None
 
 
@@ -461,15 +292,15 @@ def _list_messages(
             try:
                 t_ns = _stamp_ns(reader.deserialize(raw, connection.msgtype))
             except Exception as exc:  # a corrupt message must not end the listing
-                reason = f"cannot deserialise message at log time {log_time} ({_one_line(exc)})"
+                reason = f"cannot deserialise message at log time {log_time} ({one_line(exc)})"
                 problems.append(FrameProblem(camera, None, f"{bag} {topic}", reason))
                 continue
             listed[camera].append(FrameRef(camera, t_ns, bag, topic, log_time, occurrence))
     except Exception as exc:  # storage backends raise assorted types on damaged files
         if not any(listed.values()):
-            raise CaptureError(f"{bag}: cannot read messages ({_one_line(exc)})") from None
+            raise CaptureError(f"{bag}: cannot read messages ({one_line(exc)})") from None
         read = {camera: len(frames) for camera, frames in listed.items()}
-        reason = f"reading stopped early ({_one_line(exc)}); frames read before: {read}"
+        reason = f"reading stopped early ({one_line(exc)}); frames read before: {read}"
         problems.append(FrameProblem(None, None, str(bag), reason))
     return listed
 
@@ -518,8 +349,3 @@ def _stamp_ns(message: Any) -> int:
 
 def _mentions(topic: str, word: str) -> bool:
     return re.search(rf"(?<![a-z0-9]){word}(?![0-9])", topic.lower()) is not None
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split()) or type(exc).__name__
-    return text if len(text) <= 200 else text[:197] + "..."

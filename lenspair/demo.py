@@ -38,7 +38,7 @@ from lenspair.core.fsutil import atomic_write_json, atomic_write_text, remove_pa
 from lenspair.core.samples import sample_path
 from lenspair.demo_report import write_report
 from lenspair.errors import DemoError
-from lenspair.rectify.calibration import MODELS
+from lenspair.rectify.calib_types import MODELS
 from lenspair.simulate.spec import load_scene
 
 log = logging.getLogger(__name__)

@@ -3,12 +3,13 @@
 Small reprojection errors do not make a calibration: a board held still, or
 seen at too few poses, fits a camera whose focal length and baseline the
 views leave unconstrained (three poses held for ten frames each gave a rig
-18 times too wide with fy four times fx). :mod:`~lenspair.rectify.calibration`
-runs these checks on each camera's fit and on the stereo step's views.
+18 times too wide with fy four times fx). The calibration runs these checks on
+each camera's fit (:mod:`~lenspair.rectify.calib_camera`) and on the stereo
+step's views (:mod:`~lenspair.rectify.calibration`).
 
 Each check is a plain function of the fitted poses or cameras: it raises
 ``RectifyError`` for what no camera gives, and returns what it warns of
-(:mod:`~lenspair.rectify.calibration` logs it, and its result keeps it).
+(the calibration logs it, and its result keeps it).
 """
 
 from collections.abc import Sequence

@@ -37,12 +37,8 @@ from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_texts, json_text
 from lenspair.core.progress import progress
 from lenspair.rectify.boards import Board, Detection, detect_corners, marker_family
-from lenspair.rectify.calibration import (
-    CalibrationModel,
-    CalibrationOptions,
-    CalibrationResult,
-    calibrate_from_detections,
-)
+from lenspair.rectify.calib_types import CalibrationModel, CalibrationOptions, CalibrationResult
+from lenspair.rectify.calibration import calibrate_from_detections
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import StereoRig, kalibr_text
 

@@ -53,7 +53,7 @@ from lenspair.commands.argtypes import add_topics_option, float_at_least, out_fi
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import check_writable
 from lenspair.rectify.boards import parse_board_spec
-from lenspair.rectify.calibration import MODELS, CalibrationOptions, parse_model
+from lenspair.rectify.calib_types import MODELS, CalibrationOptions, parse_model
 from lenspair.rectify.recording_calibration import calibrate_recording, write_calibration
 
 

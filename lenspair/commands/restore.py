@@ -116,13 +116,10 @@ def run(args: argparse.Namespace) -> int:
     # Imported here, not at module level: they load torch, which --help must not.
     from lenspair.core.device import resolve_device
     from lenspair.model.inference.backends import open_backend
+    from lenspair.model.inference.input_checks import check_input
     from lenspair.model.inference.judge import default_judge
-    from lenspair.model.inference.pipeline import (
-        RestoreOptions,
-        check_input,
-        check_options,
-        restore_input,
-    )
+    from lenspair.model.inference.pipeline import restore_input
+    from lenspair.model.inference.restore_options import RestoreOptions, check_options
 
     device = resolve_device(args.device)
     options = RestoreOptions(

@@ -154,13 +154,13 @@ def _check_places(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the comparison; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair tradeoff --help`.
-    from lenspair.model.evaluation.tradeoff import (
+    from lenspair.model.evaluation.tradeoff import run_tradeoff
+    from lenspair.model.evaluation.tradeoff_report import tradeoff_markdown  # as above
+    from lenspair.model.evaluation.tradeoff_variants import (  # as above
         DEFAULT_LR_DECAY,
         DEFAULT_VARIANTS,
         parse_budget,
-        run_tradeoff,
     )
-    from lenspair.model.evaluation.tradeoff_report import tradeoff_markdown  # as above
     from lenspair.model.training.config import RunConfig, with_file  # as above
 
     budget = parse_budget(args.budget)

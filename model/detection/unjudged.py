@@ -3,10 +3,10 @@
 ``detect`` judges the images a folder (or a recording) lists; a bag, a video
 or an image in a format that is not read, lying among them, would pass
 without a word, and dirty glass with it. ``restore`` names such files in its
-problems (:func:`lenspair.model.inference.sinks.unrestored_note`); this module
+problems (:func:`lenspair.model.inference.unread_files.unrestored_note`); this module
 names them the same way, from the same walk of the folder
-(:func:`~lenspair.model.inference.sinks.files_under`) and the same note
-(:func:`~lenspair.model.inference.sinks.unread_frames_note`), in ``detect``'s
+(:func:`~lenspair.model.inference.out_layout.files_under`) and the same note
+(:func:`~lenspair.model.inference.unread_files.unread_frames_note`), in ``detect``'s
 words: they are not judged, where ``restore`` copies them.
 """
 
@@ -14,7 +14,8 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from lenspair.capture.frames import InputKind
-from lenspair.model.inference.sinks import files_under, unread_frames_note
+from lenspair.model.inference.out_layout import files_under
+from lenspair.model.inference.unread_files import unread_frames_note
 
 FOLDER_KINDS: frozenset[InputKind] = frozenset({"euroc", "folders", "folder"})
 """Inputs that are folders, whose other files are looked through (as restore copies them)."""

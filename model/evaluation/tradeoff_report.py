@@ -1,8 +1,8 @@
 """Write the accuracy-against-time comparison: Markdown, CSV and JSON table, and plot.
 
 The rows come from :func:`lenspair.model.evaluation.tradeoff.run_tradeoff`
-(:class:`~lenspair.model.evaluation.tradeoff.TradeoffRow`, Pareto flags already set by
-:func:`~lenspair.model.evaluation.tradeoff.mark_pareto`); this module only
+(:class:`~lenspair.model.evaluation.tradeoff_rows.TradeoffRow`, Pareto flags already set by
+:func:`~lenspair.model.evaluation.tradeoff_rows.mark_pareto`); this module only
 formats and writes them, with the measurement conditions (``meta``) named in the
 table and the plot.
 

@@ -43,13 +43,8 @@ from lenspair.model.evaluation.seed_statistics import (
     robust_pareto,
     summarise_seeds,
 )
-from lenspair.model.evaluation.tradeoff import (
-    DEFAULT_VARIANTS,
-    Budget,
-    TradeoffResult,
-    TradeoffVariant,
-    run_tradeoff,
-)
+from lenspair.model.evaluation.tradeoff import TradeoffResult, run_tradeoff
+from lenspair.model.evaluation.tradeoff_variants import DEFAULT_VARIANTS, Budget, TradeoffVariant
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.run_files import read_metrics_rows
 

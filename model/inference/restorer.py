@@ -30,8 +30,9 @@ from lenspair.core.device import resolve_device
 from lenspair.core.imageio import check_image
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend, open_backend
+from lenspair.model.inference.input_checks import frame_problem
 from lenspair.model.inference.options import DEFAULT_OVERLAP
-from lenspair.model.inference.pipeline import RestoreOptions, check_options, frame_problem
+from lenspair.model.inference.restore_options import RestoreOptions, check_options
 from lenspair.model.inference.tiling import restore_images
 
 

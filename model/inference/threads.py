@@ -21,8 +21,9 @@ from lenspair.capture.frames import InputFrame
 from lenspair.core.errors import ImageIOError
 
 if TYPE_CHECKING:
-    from lenspair.model.inference.pipeline import RestoreReport
-    from lenspair.model.inference.sinks import BagSink, FileSink
+    from lenspair.model.inference.bag_sink import BagSink
+    from lenspair.model.inference.file_sink import FileSink
+    from lenspair.model.inference.report import RestoreReport
 
 _END = object()
 

@@ -20,7 +20,9 @@ on CUDA devices with fp16 tensor cores only, fp32 otherwise.
 
 Multi-GPU: under ``torchrun`` (``WORLD_SIZE`` > 1) both networks are wrapped
 in ``DistributedDataParallel``; the single-device path never touches
-``torch.distributed``. The loop over epochs is :func:`lenspair.model.training.loop.fit`.
+``torch.distributed``. The loop over epochs is
+:func:`lenspair.model.training.epochs.run_epochs`, started by
+:func:`lenspair.model.training.loop.fit`.
 """
 
 import contextlib

@@ -36,7 +36,8 @@ from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import save_checkpoint
 from lenspair.model.errors import ModelError, TrainingDivergedError
-from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
+from lenspair.model.evaluation.scoring import score_tensors
+from lenspair.model.evaluation.summary import mean_psnr
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.pairs import Sample
 from lenspair.model.training.run_files import RunPaths, metrics_row, write_metrics_rows

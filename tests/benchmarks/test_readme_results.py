@@ -7,27 +7,26 @@ from typing import Any
 import pytest
 
 from benchmarks import RUN_KEY
+from benchmarks.readme_demo import seeded_blocks, seeded_runs, stage_blocks
 from benchmarks.readme_results import (
     BEGIN,
     DETECTOR_BEGIN,
     DETECTOR_END,
     END,
-    bench_blocks,
     main,
     replace_section,
-    seeded_blocks,
-    seeded_runs,
-    stage_blocks,
 )
+from benchmarks.readme_speed import bench_blocks
 from lenspair.core.config import dump_yaml
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.report import to_markdown
-from lenspair.model.evaluation.evaluate import EvalResult, ImageScore, breakdown, summarize
+from lenspair.model.evaluation.evaluate import EvalResult
 from lenspair.model.evaluation.latency import Latency
 from lenspair.model.evaluation.report import write_report
 from lenspair.model.evaluation.seed_statistics import summarise_seeds
-from lenspair.model.evaluation.tradeoff import TradeoffRow, mark_pareto
+from lenspair.model.evaluation.summary import ImageScore, breakdown, summarize
 from lenspair.model.evaluation.tradeoff_report import write_tradeoff
+from lenspair.model.evaluation.tradeoff_rows import TradeoffRow, mark_pareto
 from lenspair.model.evaluation.tradeoff_seeds import SeededRow, seeded_markdown
 from lenspair.model.training.config import RunConfig, RuntimeInfo
 
@@ -312,7 +311,7 @@ def test_seeded_tradeoff_comes_in_as_the_command_wrote_it_with_its_device(tmp_pa
 
 
 def test_a_speed_ratio_below_one_reads_as_slower() -> None:
-    from benchmarks.readme_results import _speed
+    from benchmarks.readme_speed import _speed
 
     assert _speed(1.43, "fp32") == "1.43x faster than fp32"
     assert _speed(0.85, "fp32 torch") == "1.18x slower than fp32 torch"
@@ -320,7 +319,7 @@ def test_a_speed_ratio_below_one_reads_as_slower() -> None:
 
 def test_int8_rows_show_the_fp32_time_their_ratio_is_against() -> None:
     """The ratio was against bench_int8's own fp32 run, which the table never showed."""
-    from benchmarks.readme_results import _precision_rows
+    from benchmarks.readme_speed import _precision_rows
 
     int8 = {
         "threads": 2,

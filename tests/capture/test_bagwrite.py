@@ -6,7 +6,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.bagwrite import encode_image
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.rosbag import COMPRESSED_IMAGE, RAW_IMAGE, decode_message
+from lenspair.capture.image_messages import COMPRESSED_IMAGE, RAW_IMAGE, decode_message
 
 STORE = get_typestore(Stores.ROS2_HUMBLE)
 TYPES = STORE.types

@@ -585,9 +585,10 @@ def test_widening_keeps_order_black_and_full_scale(values: list[int], bits: int)
 def test_a_frame_the_bit_depth_sample_missed_is_rejected_not_clipped(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from lenspair.capture import ingest
+    from lenspair.capture import ingest_registration
 
-    monkeypatch.setattr(ingest, "BIT_DEPTH_FRAMES", 2)  # pairs 0 and 3 of 4 are sampled
+    # pairs 0 and 3 of 4 are sampled
+    monkeypatch.setattr(ingest_registration, "BIT_DEPTH_FRAMES", 2)
     low = make_recording(tmp_path / "low", frames=4, dtype=np.uint16)
     for camera in ("cam0", "cam1"):
         for path in frame_files(low, camera):

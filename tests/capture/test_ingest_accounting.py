@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.ingest import REGISTRATION_FILE, ingest_recording
+from lenspair.capture.ingest import ingest_recording
+from lenspair.capture.ingest_registration import REGISTRATION_FILE
 from lenspair.capture.ingested import read_pairs, read_report
 from lenspair.cli import main
 from tests.capture.ingest_helpers import CROP, frame_files, make_recording, simulate

@@ -16,10 +16,11 @@ from lenspair.capture import rosbag
 from lenspair.capture.bagwrite import output_bag_path
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import detect_input, iter_bag_messages
+from lenspair.capture.image_messages import COMPRESSED_IMAGE as COMPRESSED
+from lenspair.capture.image_messages import decode_compressed
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import read_pairs, read_report
 from lenspair.capture.rigfile import RigFile, write_rig_file
-from lenspair.capture.rosbag import COMPRESSED_IMAGE as COMPRESSED
 from lenspair.capture.rosbag import _open as open_bag
 from lenspair.cli import main
 from lenspair.core.imageio import read_image, write_image
@@ -226,9 +227,9 @@ def test_an_empty_compressed_image_is_one_rejected_frame(
 
 def test_undecodable_compressed_bytes_are_a_capture_error() -> None:
     with pytest.raises(CaptureError, match=r"^here: empty compressed image \(format 'jpeg'"):
-        rosbag.decode_compressed("jpeg", b"", "here")
+        decode_compressed("jpeg", b"", "here")
     with pytest.raises(CaptureError, match=r"^here: cannot decode compressed image"):
-        rosbag.decode_compressed("jpeg", b"\xff\xd8\xff" + bytes(61), "here")
+        decode_compressed("jpeg", b"\xff\xd8\xff" + bytes(61), "here")
 
 
 def _png(folder: Path, image: np.ndarray, alpha: bool = False) -> bytes:
@@ -250,7 +251,7 @@ def test_a_compressed_png_with_alpha_is_that_frames_error_naming_the_alpha(
     fmt = "bgra8; png compressed bgra8"
     for image in (colour, grey, colour.astype(np.uint16) * 257):
         with pytest.raises(CaptureError) as raised:
-            rosbag.decode_compressed(fmt, _png(tmp_path, image, alpha=True), "run.bag /cam0 @ 1")
+            decode_compressed(fmt, _png(tmp_path, image, alpha=True), "run.bag /cam0 @ 1")
         (line,) = str(raised.value).splitlines()
         # OpenCV decodes grey + alpha as two channels or, in some versions, as BGRA
         assert re.fullmatch(
@@ -260,7 +261,7 @@ def test_a_compressed_png_with_alpha_is_that_frames_error_naming_the_alpha(
         ), line
     # without alpha: grey stays grey, and colour comes back in RGB order
     for image in (grey, colour):
-        decoded = rosbag.decode_compressed("png", _png(tmp_path, image), "here")
+        decoded = decode_compressed("png", _png(tmp_path, image), "here")
         np.testing.assert_array_equal(decoded, image)
 
 

@@ -115,7 +115,7 @@ def test_the_lock_is_held_for_the_run_and_is_nobodys_stray_file(
     out = tmp_path / "out"
     out_dir = out / "rec"
     seen: list[bool] = []
-    frame_stage = ingest_module._frame_stage
+    frame_stage = ingest_module.run_frame_stage
 
     def watched(*args: Any) -> Any:
         seen.append(_is_locked(out_dir / LOCK_FILE))
@@ -123,7 +123,7 @@ def test_the_lock_is_held_for_the_run_and_is_nobodys_stray_file(
         seen.append((out_dir / LOCK_FILE).is_file())
         return frame_stage(*args)
 
-    monkeypatch.setattr(ingest_module, "_frame_stage", watched)
+    monkeypatch.setattr(ingest_module, "run_frame_stage", watched)
     ingest_recording(recording, out, size=SIZE)
     assert seen == [True, True]
     assert not _is_locked(out_dir / LOCK_FILE)  # released at the end

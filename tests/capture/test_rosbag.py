@@ -12,9 +12,10 @@ from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.errors import CaptureError
+from lenspair.capture.image_messages import decode_raw
 from lenspair.capture.recording import FrameRef, load_frame, open_recording, resolve_obstructed
 from lenspair.capture.rigfile import RigFile, write_rig_file
-from lenspair.capture.rosbag import close_bag_readers, decode_raw, read_bag, select_topics
+from lenspair.capture.rosbag import close_bag_readers, read_bag, select_topics
 
 MS = 1_000_000
 T0 = 1_700_000_000_000_000_000
@@ -313,7 +314,7 @@ def test_header_stamps_never_set_are_replaced_by_the_log_time(tmp_path: Path, ki
 
 
 def test_a_bayer_frame_too_small_to_demosaic_is_one_line() -> None:
-    from lenspair.capture.rosbag import decode_raw
+    from lenspair.capture.image_messages import decode_raw
 
     data = np.full((2, 8), 200, np.uint8).tobytes()  # OpenCV gave an all-black image
     with pytest.raises(CaptureError, match=r"^x: 8x2 Bayer image: too small to demosaic$"):
@@ -328,7 +329,7 @@ def test_bayer_frames_are_demosaiced_to_rgb_and_written_back_as_their_mosaic(
     # bayer_rggb8 and kin (raw frames of most colour machine-vision cameras) were
     # "unsupported encoding"
     from lenspair.capture.bagwrite import encode_image, mosaic
-    from lenspair.capture.rosbag import decode_message
+    from lenspair.capture.image_messages import decode_message
 
     top = np.iinfo(dtype).max
     colours = np.array([[0.9, 0.2, 0.1], [0.1, 0.8, 0.3], [0.2, 0.3, 0.9]]) * top

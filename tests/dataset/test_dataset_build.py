@@ -17,6 +17,7 @@ from lenspair.cli import main
 from lenspair.core.fsutil import sha256_file
 from lenspair.core.imageio import read_image, write_image
 from lenspair.dataset import build as build_module
+from lenspair.dataset import output as output_module
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.card import read_card
 from lenspair.dataset.config import CurationConfig, DatasetConfig, SplitConfig
@@ -437,7 +438,7 @@ def test_failed_build_leaves_nothing_half_written(
     def explode(*_: object) -> None:
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(build_module, "write_card", explode)
+    monkeypatch.setattr(output_module, "write_card", explode)
     with pytest.raises(OSError, match="No space"):
         build_dataset([source], tmp_path / "DS", DatasetConfig())
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ingested"]
@@ -624,7 +625,7 @@ def test_a_rebuild_that_fails_at_the_swap_loses_none_of_the_users_files(
             raise OSError(16, "Device or resource busy", str(src))
         real(src, dst)  # type: ignore[arg-type]
 
-    monkeypatch.setattr(build_module.os, "replace", busy)
+    monkeypatch.setattr(output_module.os, "replace", busy)
     with pytest.raises(OSError, match="busy"):
         build_dataset([source], out, config)
     # moved into the new build first, they went with its clean-up
@@ -655,7 +656,7 @@ def _killed_between_the_swaps_renames(source: Path, out: Path, config: DatasetCo
             os._exit(9)  # no finally, no clean-up: a kill
         real(src, dst)  # type: ignore[arg-type]
 
-    build_module.os.replace = dying  # type: ignore[assignment]
+    output_module.os.replace = dying  # type: ignore[assignment]
     build_dataset([source], out, config, overwrite=True)
 
 

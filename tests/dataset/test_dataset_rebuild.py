@@ -6,7 +6,7 @@ import pytest
 
 from lenspair.cli import main
 from lenspair.core.fsutil import sha256_file
-from lenspair.dataset import build as build_module
+from lenspair.dataset import output as output_module
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig, SplitConfig
 from lenspair.dataset.errors import DatasetError
@@ -59,9 +59,9 @@ def test_a_refused_rebuild_copies_no_image_and_says_no_split_moved(
     first = build_dataset(sources, out, DatasetConfig(split=SEGMENTS))
     before = _tree(out)
     placed: list[Path] = []
-    real = build_module._place_image
+    real = output_module._place_image
     monkeypatch.setattr(
-        build_module, "_place_image", lambda s, d, link: placed.append(d) or real(s, d, link)
+        output_module, "_place_image", lambda s, d, link: placed.append(d) or real(s, d, link)
     )
     reseeded = DatasetConfig(split=SplitConfig(**{**vars(SEGMENTS), "seed": 3}))
     with caplog.at_level("WARNING"), pytest.raises(DatasetError, match="holds a different"):

@@ -8,6 +8,7 @@ import pytest
 
 from lenspair.cli import main
 from lenspair.dataset import build as build_module
+from lenspair.dataset import preflight as preflight_module
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig
 from tests.dataset.dataset_synth import RecordingFactory
@@ -48,7 +49,7 @@ def test_a_refused_building_folder_is_named_as_the_dataset(
     source = recording("rec_a", n=6)
     mounted = tmp_path / "mounted"
     mounted.mkdir()
-    monkeypatch.setattr(build_module, "check_writable", lambda out: None)
+    monkeypatch.setattr(preflight_module, "check_writable", lambda out: None)
     refuse_writes(monkeypatch, mounted, code)
     with pytest.raises(OSError) as caught:
         build_dataset([source], mounted / "DS", DatasetConfig())

@@ -8,7 +8,7 @@ from lenspair.core.samples import sample_path
 from lenspair.demo import QUICK, Stage, board_arguments, run_demo, run_stages
 from lenspair.errors import DemoError
 from lenspair.rectify.boards import parse_board_spec
-from lenspair.rectify.calibration import MODELS
+from lenspair.rectify.calib_types import MODELS
 from lenspair.simulate.spec import load_scene
 
 

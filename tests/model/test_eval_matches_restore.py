@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from lenspair.core.imageio import read_image, to_float, write_image
-from lenspair.model.evaluation.evaluate import evaluate_checkpoint, score_tensors
+from lenspair.model.evaluation.evaluate import evaluate_checkpoint
+from lenspair.model.evaluation.scoring import score_tensors
 from lenspair.model.inference.backends import open_backend
 from lenspair.model.training.pretrained import pretrained_weights
 

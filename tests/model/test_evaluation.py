@@ -17,9 +17,10 @@ from lenspair.dataset.manifest import ManifestRow, write_manifest
 from lenspair.dataset.readers import open_paired
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
-from lenspair.model.evaluation.evaluate import PSNR_CAP_DB, evaluate_checkpoint, summarize
+from lenspair.model.evaluation.evaluate import PSNR_CAP_DB, evaluate_checkpoint
 from lenspair.model.evaluation.latency import measure_latency, tune_allocator
 from lenspair.model.evaluation.report import write_report
+from lenspair.model.evaluation.summary import summarize
 from lenspair.model.metrics import MetricConvention, image_metrics
 from lenspair.model.networks.variants import build_model
 from lenspair.model.training.pairs import to_tensor

@@ -346,7 +346,8 @@ def test_the_papers_gea_exports_with_a_dynamic_batch_that_restore_uses(tmp_path:
 
     from lenspair.core.imageio import write_image
     from lenspair.model.inference.backends import open_backend
-    from lenspair.model.inference.pipeline import RestoreOptions, restore_input
+    from lenspair.model.inference.pipeline import restore_input
+    from lenspair.model.inference.restore_options import RestoreOptions
     from lenspair.model.training.config import ModelConfig
     from tests.model.train_fixtures import clean_image, tiny_config
 

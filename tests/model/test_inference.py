@@ -16,7 +16,8 @@ from lenspair.model.inference.backends import (
     open_backend,
     resolve_precision,
 )
-from lenspair.model.inference.pipeline import RestoreOptions, restore_input
+from lenspair.model.inference.pipeline import restore_input
+from lenspair.model.inference.restore_options import RestoreOptions
 from lenspair.model.inference.tiling import (
     from_batch,
     run_backend,

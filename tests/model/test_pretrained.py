@@ -12,7 +12,7 @@ from lenspair.core.config import dump_yaml
 from lenspair.core.imageio import read_image
 from lenspair.model.checkpoint import load_checkpoint, load_model
 from lenspair.model.errors import ModelError
-from lenspair.model.evaluation.evaluate import score_tensors
+from lenspair.model.evaluation.scoring import score_tensors
 from lenspair.model.training.pretrained import (
     HELD_OUT_PLAIN,
     VALIDATION_DRAWS,

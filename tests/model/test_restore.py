@@ -19,7 +19,9 @@ from lenspair.model.detection.train import save_detector
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import TorchBackend, open_backend
 from lenspair.model.inference.judge import ThresholdJudge, default_judge
-from lenspair.model.inference.pipeline import REPORT_NAME, RestoreOptions, restore_input
+from lenspair.model.inference.pipeline import restore_input
+from lenspair.model.inference.report import REPORT_NAME
+from lenspair.model.inference.restore_options import RestoreOptions
 from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
 from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
 from tests.capture.ingest_helpers import frame_files, make_recording, simulate
@@ -341,7 +343,7 @@ def _header(message: Any) -> tuple[int, int, str, int]:
 
 
 def _pixels(message: Any) -> np.ndarray:
-    from lenspair.capture.rosbag import decode_message
+    from lenspair.capture.image_messages import decode_message
 
     return decode_message("sensor_msgs/msg/Image", message, "test")
 

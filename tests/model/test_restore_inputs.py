@@ -18,14 +18,11 @@ from lenspair.core import imageio
 from lenspair.core.errors import ImageIOError
 from lenspair.core.imageio import read_image, write_image
 from lenspair.model.errors import ModelError
-from lenspair.model.inference import sinks
+from lenspair.model.inference import file_sink
 from lenspair.model.inference.backends import TorchBackend, open_backend
-from lenspair.model.inference.pipeline import (
-    REPORT_NAME,
-    RestoreOptions,
-    RestoreReport,
-    restore_input,
-)
+from lenspair.model.inference.pipeline import restore_input
+from lenspair.model.inference.report import REPORT_NAME, RestoreReport
+from lenspair.model.inference.restore_options import RestoreOptions
 from tests.capture.ingest_helpers import make_recording
 from tests.images import texture
 from tests.model.restore_helpers import file_tree, write_bag
@@ -121,7 +118,7 @@ def test_an_unreadable_frame_costs_only_itself(
             raise PermissionError(errno.EACCES, "Permission denied", str(path))
         return real_open(path, *args, **kwargs)  # type: ignore[call-overload]
 
-    monkeypatch.setattr(sinks, "open", no_copy, raising=False)
+    monkeypatch.setattr(file_sink, "open", no_copy, raising=False)
     report = restore_input(source, tmp_path / "out", backend)
     assert (report.frames_read, report.restored, report.failed) == (3, 2, 1)
     assert {p["frame"] for p in report.problems} == {"1.png"}
@@ -301,7 +298,8 @@ def test_a_kill_while_naming_a_copy_leaves_a_list_resume_reads(
     source, out = _restored_folder(tmp_path, backend)
     (out / "0.png").write_bytes((source / "0.png").read_bytes())  # a copy, named ...
     (out / ".restore-copies").write_text('"0.png"\n"1.p')  # ... and a name cut mid-line
-    sink = sinks.FileSink(out)  # reading a cut list ends it cleanly, so the next name stands alone
+    # reading a cut list ends it cleanly, so the next name stands alone
+    sink = file_sink.FileSink(out)
     assert (out / ".restore-copies").read_text() == '"0.png"\n'
     assert sink.copies == {"0.png"}
     again = restore_input(source, out, backend, RestoreOptions(resume=True))
@@ -338,10 +336,10 @@ def test_a_restored_frame_that_cannot_be_written_is_copied_and_counted_once(
     tmp_path: Path, backend: TorchBackend, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     source = _folder(tmp_path / "in", 4)
-    real_write = sinks.FileSink.write
+    real_write = file_sink.FileSink.write
     writer_threads = []
 
-    def write(self: sinks.FileSink, item: object, restored: np.ndarray | None) -> None:
+    def write(self: file_sink.FileSink, item: object, restored: np.ndarray | None) -> None:
         writer_threads.append(threading.current_thread().name)
         if restored is not None and getattr(item, "name", "") == "2.png":
             raise ValueError("2.png: cannot encode")
@@ -353,7 +351,7 @@ def test_a_restored_frame_that_cannot_be_written_is_copied_and_counted_once(
         counted_in.add(threading.current_thread().name)
         object.__setattr__(self, name, value)
 
-    monkeypatch.setattr(sinks.FileSink, "write", write)
+    monkeypatch.setattr(file_sink.FileSink, "write", write)
     monkeypatch.setattr(RestoreReport, "__setattr__", count)
     report = restore_input(source, tmp_path / "out", backend, RestoreOptions(batch_size=2))
     assert set(writer_threads) == {"restore-writer"}
@@ -377,7 +375,7 @@ def test_a_frame_that_can_be_neither_read_nor_copied_is_one_problem(
             raise PermissionError(errno.EACCES, "Permission denied", str(path))
         return real_open(path, *args, **kwargs)  # type: ignore[call-overload]
 
-    monkeypatch.setattr(sinks, "open", refusing, raising=False)
+    monkeypatch.setattr(file_sink, "open", refusing, raising=False)
     report = restore_input(source, tmp_path / "out", backend)
     assert (report.restored, report.failed) == (1, 1)
     (problem,) = report.problems  # it was listed twice: unreadable, then not copied
@@ -469,7 +467,7 @@ def test_a_file_sink_writes_nothing_outside_out(tmp_path: Path, name: str) -> No
     original = tmp_path / "in.png"
     write_image(original, np.full((8, 8), 7, np.uint8))
     frame = InputFrame(0, name, None, None, str(original), None)
-    sink = sinks.FileSink(tmp_path / "OUT")
+    sink = file_sink.FileSink(tmp_path / "OUT")
     for restored in (None, np.zeros((8, 8), np.uint8)):
         with pytest.raises(CaptureError, match="leaves OUT; not written"):
             sink.write(frame, restored)

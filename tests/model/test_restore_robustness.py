@@ -22,14 +22,16 @@ from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.folders import read_folders
 from lenspair.capture.frames import CAMERAS, frame_files, iter_bag_messages
-from lenspair.capture.rosbag import COMPRESSED_IMAGE as COMPRESSED
+from lenspair.capture.image_messages import COMPRESSED_IMAGE as COMPRESSED
 from lenspair.cli import main
 from lenspair.core import imageio
 from lenspair.core.imageio import read_image, write_image
 from lenspair.model.detection.unjudged import unjudged_files
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import TorchBackend, open_backend
-from lenspair.model.inference.pipeline import REPORT_NAME, RestoreOptions, restore_input
+from lenspair.model.inference.pipeline import restore_input
+from lenspair.model.inference.report import REPORT_NAME
+from lenspair.model.inference.restore_options import RestoreOptions
 from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
 from tests.images import texture
 from tests.model.restore_helpers import bag_from_recording, restored_files

@@ -18,19 +18,17 @@ from lenspair.core.imageio import write_image
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation import tradeoff as tradeoff_module
-from lenspair.model.evaluation.evaluate import score_tensors
-from lenspair.model.evaluation.tradeoff import (
+from lenspair.model.evaluation.scoring import score_tensors
+from lenspair.model.evaluation.tradeoff import TradeoffResult, run_tradeoff
+from lenspair.model.evaluation.tradeoff_report import MARKERS, write_tradeoff
+from lenspair.model.evaluation.tradeoff_rows import TradeoffRow, mark_pareto, pareto_front
+from lenspair.model.evaluation.tradeoff_variants import (
     DEFAULT_VARIANTS,
     Budget,
-    TradeoffResult,
-    TradeoffRow,
-    mark_pareto,
-    pareto_front,
     parse_budget,
     precisions_for,
-    run_tradeoff,
+    variant_config,
 )
-from lenspair.model.evaluation.tradeoff_report import MARKERS, write_tradeoff
 from lenspair.model.precision import PRECISIONS
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.pairs import open_eval_pairs, to_tensor
@@ -149,7 +147,7 @@ def payload_cpu(out: Path) -> str:
 def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.INFO, logger="lenspair.model.evaluation.tradeoff")
+    caplog.set_level(logging.INFO, logger="lenspair.model.evaluation")
     _fixed_precisions(monkeypatch, ["bf16"])
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
     base = tiny_config()
@@ -324,11 +322,11 @@ def test_a_row_describes_itself_in_one_line() -> None:
 def test_a_run_trained_with_other_settings_is_not_reused(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    from lenspair.model.evaluation.tradeoff import RUN_MARKER, _reusable
+    from lenspair.model.evaluation.tradeoff_reuse import RUN_MARKER, reusable
     from lenspair.model.training.config import RuntimeInfo
     from tests.model.train_fixtures import make_checkpoint
 
-    caplog.set_level(logging.WARNING, logger="lenspair.model.evaluation.tradeoff")
+    caplog.set_level(logging.WARNING, logger="lenspair.model.evaluation")
     data = "/data/ds (train 2 pairs, validation 1 pairs)"
     stored = replace(tiny_config(max_steps=60), runtime=RuntimeInfo(data=data))
     run = tmp_path / "runs" / "GEA"
@@ -342,7 +340,7 @@ def test_a_run_trained_with_other_settings_is_not_reused(
             make_checkpoint(run / "checkpoints" / "best.pt", stored)
         else:
             (run / "checkpoints" / "best.pt").unlink(missing_ok=True)
-        return _reusable(run, wanted, torch.device("cpu"), dataset)
+        return reusable(run, wanted, torch.device("cpu"), dataset)
 
     # The same settings, a larger budget (extends the run) or other logging: reused.
     assert reused(tiny_config(max_steps=60))
@@ -400,7 +398,7 @@ def test_a_run_trained_with_other_settings_is_not_reused(
     # stopped before its first checkpoint: nothing to resume, cleared and trained again,
     # said (the time it had spent is lost)
     (run / "checkpoints" / "last.pt").unlink()
-    assert not _reusable(run, tiny_config(max_steps=60), torch.device("cpu"), data)
+    assert not reusable(run, tiny_config(max_steps=60), torch.device("cpu"), data)
     assert not run.exists()
     [record] = caplog.records
     assert str(run) in record.getMessage() and "no checkpoints/last.pt" in record.getMessage()
@@ -409,7 +407,7 @@ def test_a_run_trained_with_other_settings_is_not_reused(
 def test_a_rerun_with_another_seed_retrains_and_records_the_seed(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.INFO, logger="lenspair.model.evaluation.tradeoff")
+    caplog.set_level(logging.INFO, logger="lenspair.model.evaluation")
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
     base = tiny_config()
     variant = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
@@ -449,7 +447,7 @@ def test_per_seed_runs_are_reused_by_the_seeded_tradeoff(
 ) -> None:
     # docs/results/gpu_h100.md: one process per seed into T/seed<k>, then
     # `--seeds 0,1` into T reuses those runs (a relative DS, as there).
-    caplog.set_level(logging.INFO, logger="lenspair.model.evaluation.tradeoff")
+    caplog.set_level(logging.INFO, logger="lenspair.model.evaluation")
     common = _tiny_tradeoff_here(tmp_path, monkeypatch)
     for seed in (0, 1):
         assert (
@@ -574,7 +572,7 @@ def test_the_cli_anneals_step_budgets_by_default(
     def record(dataset: Path, out: Path, device: object, budget: Budget, base: RunConfig,
                *args: object, **kwargs: object) -> TradeoffResult:  # fmt: skip
         decays.append(base.train.lr_decay)
-        variant = tradeoff.variant_config(base, DEFAULT_VARIANTS[0], budget)
+        variant = variant_config(base, DEFAULT_VARIANTS[0], budget)
         decays.append(variant.train.lr_decay)
         return TradeoffResult([], {"dataset": str(dataset), "evaluated_on": "x", "budget": "b",
                                    "convention": "c", "size": "1x1", "threads": 1})  # fmt: skip

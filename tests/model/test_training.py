@@ -21,12 +21,8 @@ from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.vgg import VGG19Features
 from lenspair.model.precision import Hardware, PrecisionDecision, choose_precision
 from lenspair.model.training.config import RunConfig, TrainConfig, load_run_config
-from lenspair.model.training.datasets import (
-    holdout_group,
-    holdout_indices,
-    paired_training_data,
-    synthetic_training_data,
-)
+from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
+from lenspair.model.training.holdout import holdout_group, holdout_indices
 from lenspair.model.training.loop import fit, resolve_config
 from lenspair.model.training.step import (
     Trainer,
@@ -526,7 +522,7 @@ def test_cli_trains_a_variant_under_a_time_with_units_and_says_when_it_validated
 
 def test_progress_label_names_the_budget_that_binds() -> None:
     from lenspair.model.training.config import TrainConfig
-    from lenspair.model.training.loop import _epoch_label
+    from lenspair.model.training.epochs import _epoch_label
 
     assert _epoch_label(2, TrainConfig(epochs=200)) == "epoch 3/200"
     # a step or time budget stops long before 10**6 epochs: show the budget instead

@@ -8,7 +8,8 @@ import torch
 from torch import nn
 
 from lenspair.model.errors import TrainingDivergedError
-from lenspair.model.evaluation.evaluate import mean_psnr, score_tensors
+from lenspair.model.evaluation.scoring import score_tensors
+from lenspair.model.evaluation.summary import mean_psnr
 from lenspair.model.networks.variants import build_model
 from lenspair.model.training.pairs import Sample
 from lenspair.model.training.validation import VAL_CONVENTION, validate

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from lenspair.rectify.boards import Board, Detection, parse_board_spec
+from lenspair.rectify.calib_camera import calibrate_camera
 from lenspair.rectify.calib_fits import (
     CRITERIA,
     INTRINSIC_NAMES,
@@ -17,16 +18,9 @@ from lenspair.rectify.calib_fits import (
     fit_camera,
     intrinsic_covariance,
 )
-from lenspair.rectify.calibration import (
-    FOCAL_DOUBT,
-    MARKER_TOLERANCE,
-    CalibrationOptions,
-    CalibrationResult,
-    calibrate_camera,
-    calibrate_from_detections,
-    calibrate_stereo,
-    parse_model,
-)
+from lenspair.rectify.calib_types import CalibrationOptions, CalibrationResult, parse_model
+from lenspair.rectify.calib_warnings import FOCAL_DOUBT, MARKER_TOLERANCE
+from lenspair.rectify.calibration import calibrate_from_detections, calibrate_stereo
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.fit_checks import rms_balance_warnings
 from lenspair.rectify.rectification import project_rays
@@ -325,9 +319,9 @@ def test_warnings_reach_the_report_when_the_application_silenced_logging(
 
 
 def calibration_filters() -> list[object]:
-    from lenspair.rectify import calibration
+    from lenspair.rectify import calib_logging
 
-    return list(calibration.log.filters)
+    return list(calib_logging.log.filters)
 
 
 def test_views_kept_only_because_too_few_would_remain_are_named(

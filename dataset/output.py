@@ -1,0 +1,226 @@
+"""The dataset folder on disk: writing its files, and putting it in place of ``out``.
+
+A build writes into a temporary sibling folder: first the records that tell
+two datasets apart (:func:`write_records`), so a rebuild can be refused before
+any image is copied (:func:`check_replaceable`), then the images and contact
+sheets (:func:`write_images`). :func:`place_dataset` renames the finished
+folder into place, replacing an old dataset only when allowed and carrying the
+user's own files over; :func:`recover_swap` puts back an old dataset that a
+build killed during that swap had set aside.
+"""
+
+import logging
+import os
+import shutil
+import stat
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Literal
+
+from lenspair.core.config import dump_yaml
+from lenspair.core.fsutil import (
+    atomic_write_text,
+    clone_file,
+    read_json_field,
+    temporary_folder,
+)
+from lenspair.core.imageio import write_image
+from lenspair.core.leftovers import leftovers
+from lenspair.core.progress import progress
+from lenspair.dataset.card import CARD_FILE, CARD_FORMAT, DatasetCard, contact_sheet, write_card
+from lenspair.dataset.config import SPLITS, DatasetConfig
+from lenspair.dataset.curation import Measured
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.manifest import (
+    MANIFEST_FILE,
+    REMOVED_FILE,
+    ManifestRow,
+    RemovedPair,
+    write_manifest,
+    write_removed,
+)
+from lenspair.dataset.verify import dataset_difference, user_files
+
+logger = logging.getLogger(__name__)
+CONFIG_FILE = "config.yaml"
+LinkMode = Literal["copy", "hard"]
+_WRITE_BITS = stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH
+
+
+def write_records(
+    folder: Path,
+    rows: Sequence[ManifestRow],
+    card: DatasetCard,
+    config: DatasetConfig,
+    removed: list[RemovedPair],
+) -> None:
+    """Write the manifest, card, ``removed.jsonl`` and ``config.yaml`` into ``folder``.
+
+    They are what tells two datasets apart (with the file list the rows give),
+    so a rebuild can be compared with the dataset it would replace before a
+    single image is copied.
+    """
+    write_manifest(folder / MANIFEST_FILE, list(rows))
+    write_card(folder / CARD_FILE, card)
+    write_removed(folder / REMOVED_FILE, removed)
+    atomic_write_text(folder / CONFIG_FILE, dump_yaml(config))
+
+
+def write_images(
+    folder: Path, pairs: Sequence[tuple[ManifestRow, Measured]], link: LinkMode = "copy"
+) -> None:
+    """Place every pair's images under ``folder`` and draw the contact sheets."""
+    for name in SPLITS:
+        for kind in ("input", "target"):
+            (folder / name / kind).mkdir(parents=True, exist_ok=True)
+    for row, m in progress(pairs, desc="linking", total=len(pairs), unit="pair"):
+        for kind, relative in row.files.items():
+            destination = folder / relative
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            _place_image(m.files[kind], destination, link)
+    rows = [row for row, _ in pairs]
+    for name in SPLITS:
+        selected = [row for row in rows if row.split == name]
+        if selected:
+            write_image(folder / f"contact_{name}.png", contact_sheet(folder, name, selected))
+
+
+def _place_image(source: Path, destination: Path, link: LinkMode) -> None:
+    if link == "hard":
+        try:
+            os.link(source, destination)
+        except OSError as exc:
+            raise DatasetError(
+                f"{destination.parent}: --link hard cannot link {source} ({exc.strerror}); "
+                "the default copies instead"
+            ) from None
+        os.chmod(destination, os.stat(destination).st_mode & ~_WRITE_BITS)
+        return
+    clone_file(source, destination)
+
+
+def _own_entries() -> frozenset[str]:
+    """Top-level names a build writes (:func:`write_records`, :func:`write_images`).
+
+    Anything else is the user's.
+    """
+    contact = {f"contact_{name}.png" for name in SPLITS}
+    return frozenset({*SPLITS, MANIFEST_FILE, CARD_FILE, REMOVED_FILE, CONFIG_FILE, *contact})
+
+
+def out_state(out: Path) -> Literal["absent", "empty", "dataset"]:
+    """What ``out`` holds now; raise when it is something that must not be replaced.
+
+    A lenspair dataset is told by its card's format tag: a ``dataset.json``
+    of another tool (COCO, Hugging Face) is not one, even with ``--overwrite``.
+    """
+    if not out.exists():
+        return "absent"
+    if not out.is_dir():
+        raise DatasetError(f"{out}: exists and is not a folder")
+    if not any(out.iterdir()):
+        return "empty"
+    card = out / CARD_FILE
+    if card.is_file():
+        if read_json_field(card, "format") != CARD_FORMAT:
+            raise DatasetError(
+                f"{out}: its {CARD_FILE} is not a lenspair dataset card; refusing to replace "
+                "the folder (choose another --out)"
+            )
+    elif not (out / MANIFEST_FILE).is_file():
+        raise DatasetError(f"{out}: not empty and not a lenspair dataset; refusing to replace it")
+    return "dataset"
+
+
+def check_replaceable(out: Path, temp: Path, rows: Sequence[ManifestRow] | None = None) -> None:
+    """Refuse to replace a different dataset at ``out`` (see :func:`place_dataset`).
+
+    With ``rows``, ``temp`` need only hold the new manifest, card, config and
+    ``removed.jsonl`` (:func:`write_records`): the new file list is the rows'
+    files, so the refusal comes before any image is copied. Without, the
+    images in ``temp`` are listed.
+
+    Raises:
+        DatasetError: ``out`` holds a dataset that differs from the new one.
+    """
+    if out_state(out) != "dataset":
+        return
+    listed = None
+    if rows is not None:
+        listed = {Path(relative) for row in rows for relative in row.files.values()}
+    difference = dataset_difference(out, temp, listed)
+    if difference is not None:
+        raise DatasetError(
+            f"{out}: holds a different dataset ({difference}); use --overwrite to replace it"
+        )
+
+
+def place_dataset(temp: Path, out: Path, overwrite: bool) -> None:
+    """Rename the finished ``temp`` to ``out``, replacing an old dataset when allowed.
+
+    Files and folders the user put into an old dataset (notes, evaluations)
+    are carried over into the new one, with a warning; a rebuild used to
+    delete them.
+    """
+    state = out_state(out)
+    if state == "dataset" and not overwrite:
+        check_replaceable(out, temp)
+    if state == "absent":
+        os.replace(temp, out)
+        return
+    own = _own_entries()
+    theirs = sorted(p.name for p in out.iterdir() if p.name not in own)
+    # and what they put inside the split folders (an evaluation in train/restored/)
+    inside = [p for p in user_files(out) if not (temp / p).exists()]
+    for name in [*theirs, *map(str, inside)]:  # linked, not moved: kept until the swap
+        (temp / name).parent.mkdir(parents=True, exist_ok=True)
+        _link_tree(out / name, temp / name)
+    theirs += sorted({str(Path(*p.parts[:2])) for p in inside})  # by folder: train/restored
+    trash = temporary_folder(out.parent, out.name, ".old")
+    try:
+        os.replace(out, trash / "dataset")
+        try:
+            os.replace(temp, out)
+        except OSError:
+            os.replace(trash / "dataset", out)  # put the old dataset back
+            raise
+    finally:
+        shutil.rmtree(trash, ignore_errors=True)
+    if theirs:
+        logger.warning(
+            "%s: kept %s, not part of the dataset, in the rebuilt one", out, ", ".join(theirs)
+        )
+
+
+def recover_swap(out: Path) -> None:
+    """Put back the dataset a build killed during its swap (:func:`place_dataset`) had set aside.
+
+    Between the swap's two renames the old dataset, with the user's files in it,
+    lies in a ``.<name>.<pid>.*.old`` folder and ``out`` is missing; the rerun's
+    clean-up of leftovers would delete it. When ``out`` exists the swap finished
+    and the set-aside copy is a leftover like any other.
+    """
+    if out.exists():
+        return
+    for trash in leftovers(out.parent, out.name):
+        if trash.name.endswith(".old") and (trash / "dataset").is_dir():
+            os.replace(trash / "dataset", out)
+            logger.warning("%s: put back from %s, set aside by an interrupted rebuild", out, trash)
+            return
+
+
+def _link_tree(source: Path, destination: Path) -> None:
+    """Hard-link ``source`` (a file, or a folder's files) at ``destination``, else copy."""
+
+    def link(src: str, dst: str) -> None:
+        try:
+            os.link(src, dst)
+        except OSError:
+            shutil.copy2(src, dst)
+
+    if source.is_dir() and not source.is_symlink():
+        shutil.copytree(source, destination, symlinks=True, copy_function=link)
+    elif source.is_symlink():
+        os.symlink(os.readlink(source), destination)
+    else:
+        link(str(source), str(destination))

@@ -1,0 +1,167 @@
+"""Ingested recordings as a dataset build reads them, and the measuring of their pairs.
+
+:func:`load_source` reads a ``capture-ingest`` folder (its ``report.json`` and
+``pairs.jsonl``) into a :class:`Source`; :func:`measure_record` reads, checks
+and measures the images of one of its lines for curation. A problem with a
+pair's files removes that pair (counted under its rule), it is never raised.
+"""
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from lenspair.capture.ingested import (
+    PAIRS_FILE,
+    REPORT_FILE,
+    IngestReport,
+    PairRecord,
+    read_numbered_pairs,
+    read_report,
+)
+from lenspair.core.errors import ImageIOError
+from lenspair.core.fsutil import sha256_bytes
+from lenspair.core.imageio import read_image
+from lenspair.dataset import curation
+from lenspair.dataset.curation import Measured
+from lenspair.dataset.errors import DatasetError
+
+
+@dataclass(frozen=True)
+class Source:
+    """One ingested recording, as read from disk.
+
+    Attributes:
+        path: the ingested folder (absolute).
+        report: its ``report.json``.
+        records: its ``pairs.jsonl`` lines, in file order.
+        lines: the line number in ``pairs.jsonl`` of each record (blank lines
+            counted), for messages; empty: ``index + 1``.
+    """
+
+    path: Path
+    report: IngestReport
+    records: tuple[PairRecord, ...]
+    lines: tuple[int, ...] = ()
+
+    def line(self, index: int) -> int:
+        """Line number in ``pairs.jsonl`` of record ``index``."""
+        return self.lines[index] if self.lines else index + 1
+
+    @property
+    def clean(self) -> str:
+        """The ground-truth camera (the one that is not obstructed)."""
+        return "cam0" if self.report.obstructed == "cam1" else "cam1"
+
+
+def load_source(path: Path) -> Source:
+    """Read an ingested recording's ``report.json`` and ``pairs.jsonl``.
+
+    Raises:
+        DatasetError: the folder or one of the two files is missing, the
+            obstructed camera or recording id is invalid, or a timestamp
+            repeats; the message names the file.
+        ConfigError: a malformed line or key (names the file and line).
+    """
+    path = Path(path).resolve()
+    if not path.is_dir():
+        raise DatasetError(f"{path}: not a folder (expected an ingested recording)")
+    for name in (PAIRS_FILE, REPORT_FILE):
+        if not (path / name).is_file():
+            raise DatasetError(
+                f"{path}: missing {name} (not an ingested recording, or capture-ingest was "
+                "stopped before it finished: run it again)"
+            )
+    report = read_report(path / REPORT_FILE)
+    if report.obstructed not in ("cam0", "cam1"):
+        raise DatasetError(
+            f"{path / REPORT_FILE}: obstructed must be cam0 or cam1, got {report.obstructed!r}"
+        )
+    rid = report.recording_id
+    if not rid or rid.startswith(".") or any(c in rid for c in "/\\\0"):
+        raise DatasetError(f"{path / REPORT_FILE}: recording_id {rid!r} is not a file name")
+    numbered = read_numbered_pairs(path / PAIRS_FILE)
+    records = tuple(record for _, record in numbered)
+    seen: set[int] = set()
+    for number, record in numbered:  # the file's own line numbers, blank lines counted
+        if record.status != "kept":
+            continue  # a rejected frame may repeat a kept one's timestamp (another file)
+        if record.t_ns in seen:
+            raise DatasetError(f"{path / PAIRS_FILE}:{number}: timestamp {record.t_ns} repeats")
+        seen.add(record.t_ns)
+    return Source(path, report, records, tuple(number for number, _ in numbered))
+
+
+def measure_record(source: Source, position: int, index: int, anomaly_delta: float) -> Measured:
+    """Read, check and measure the images of line ``index`` of ``source``.
+
+    A problem with the pair's files removes the pair (rules ``missing_file``,
+    ``checksum``, ``bad_image``); it is not raised. A ``files`` entry that
+    points outside the recording folder is a ``bad_image``, its reason naming
+    the ``pairs.jsonl`` line: a dataset must not copy files it was not given.
+
+    Args:
+        source: the recording.
+        position: its index in the list of sources.
+        index: line index in ``pairs.jsonl``.
+        anomaly_delta: see :class:`lenspair.dataset.config.CurationConfig`.
+    """
+    record = source.records[index]
+    files = _source_files(source.path, record)
+    base = Measured(position, index, record, files, {})
+    if record.status == "rejected":
+        return _removed(base, "ingest_rejected", record.reason or "unspecified")
+    for kind, relative in sorted(record.files.items()):
+        if _escapes(relative):
+            reason = (
+                f"{source.path / PAIRS_FILE}:{source.line(index)}: files.{kind} {relative!r} "
+                "points outside the recording folder"
+            )
+            return _removed(base, "bad_image", reason)
+    hashes: dict[str, str] = {}
+    for kind, file in files.items():
+        try:
+            hashes[kind] = sha256_bytes(file.read_bytes())
+        except OSError:
+            return _removed(base, "missing_file", f"{file}: file missing (named in {PAIRS_FILE})")
+        expected = record.sha256.get(kind)
+        if expected is not None and expected != hashes[kind]:
+            found = hashes[kind][:12]
+            reason = f"{file}: sha256 {found}... differs from {PAIRS_FILE} ({expected[:12]}...)"
+            return _removed(base, "checksum", reason)
+    if files["input"].suffix != files["target"].suffix:
+        return _removed(base, "bad_image", f"{files['input']}: input and target file types differ")
+    try:
+        images = {kind: read_image(file) for kind, file in files.items()}
+        stats = curation.measure_pair(
+            images["input"], images["target"], images.get("mask"), anomaly_delta
+        )
+    except ImageIOError as exc:
+        return _removed(base, "bad_image", str(exc))
+    except ValueError as exc:
+        return _removed(base, "bad_image", f"{files['input']}: {exc}")
+    return Measured(position, index, record, files, hashes, stats)
+
+
+def _source_files(folder: Path, record: PairRecord) -> dict[str, Path]:
+    """Image paths of a line: from its ``files``, else the default layout."""
+    files = {
+        kind: folder / record.files.get(kind, f"{kind}/{record.t_ns}.png")
+        for kind in ("input", "target")
+    }
+    default_mask = folder / "mask" / f"{record.t_ns}.png"
+    if "mask" in record.files:
+        files["mask"] = folder / record.files["mask"]
+    elif not record.files and default_mask.is_file():
+        files["mask"] = default_mask
+    return files
+
+
+def _escapes(relative: str) -> bool:
+    """True when a ``files`` entry of ``pairs.jsonl`` names a path outside its folder."""
+    normal = os.path.normpath(relative)
+    return os.path.isabs(normal) or normal == os.pardir or normal.startswith(os.pardir + os.sep)
+
+
+def _removed(measured: Measured, rule: str, reason: str) -> Measured:
+    m = measured
+    return Measured(m.source, m.index, m.record, m.files, {}, None, rule, reason)

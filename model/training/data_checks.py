@@ -1,0 +1,160 @@
+"""Checks of a run's training images before its first step, and the data warnings.
+
+A problem with an image (too small for the crop, a format that cannot be
+read, too small for validation's SSIM window) would otherwise stop the run
+whenever the sampler first drew it, perhaps in epoch 40; the headers are read
+up front instead. A dataset of grey and colour images trains a network of
+one channel count and converts the others, which must not pass unsaid.
+
+Warnings about the data are logged at once, or kept in ``notes`` for
+:func:`~lenspair.model.training.loop.fit` to log (:func:`warn_or_note`):
+``lenspair train`` loads before ``RUN/train.log`` exists, and in every
+``torchrun`` process.
+"""
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+
+from lenspair.core.errors import ImageIOError, listed
+from lenspair.core.imageio import format_problem, image_header
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.readers import PairedDataset
+from lenspair.model.metrics import gaussian_window
+from lenspair.model.training.pairs import PairSource, SubsetSource
+
+log = logging.getLogger(__name__)
+
+
+def warn_or_note(notes: list[str] | None, message: str) -> None:
+    """Log a warning about the data now, or keep it in ``notes`` for the run to say."""
+    if notes is None:
+        log.warning("%s", message)
+    else:
+        notes.append(message)
+
+
+def check_training_images(
+    source: PairSource,
+    headers: dict[int, list[tuple[int, int, int, str]]],
+    crop_size: int | None,
+    channels: int | None,
+    notes: list[str] | None = None,
+) -> None:
+    """Every training pair holds a crop, and mixed channels are said: from headers, up front.
+
+    A smaller image would stop the run whenever the sampler first drew it; a
+    dataset of grey and colour pairs trains a network of one channel count
+    and converts the others, which must not pass unsaid.
+
+    Args:
+        source: the training pairs.
+        headers: ``id(dataset)`` -> its pairs' headers, as
+            :meth:`~lenspair.dataset.readers.PairedDataset.check_headers`
+            returned them (the files are not opened again).
+        crop_size: ``data.crop_size`` (``None``: whole images).
+        channels: the network's channels (``None``: the first pair's).
+        notes: collects the mixed-channels warning instead of logging it.
+
+    Raises:
+        DatasetError: naming the first three images too small and how many there are.
+    """
+    paired = source.source if isinstance(source, SubsetSource) else source
+    if not isinstance(paired, PairedDataset) or id(paired) not in headers:
+        return
+    indices = source.indices if isinstance(source, SubsetSource) else range(len(paired))
+    small, counts = [], {1: 0, 3: 0}
+    for index in indices:
+        height, width, have = headers[id(paired)][index][:3]
+        counts[have] = counts.get(have, 0) + 1
+        if crop_size is not None and min(height, width) < crop_size:
+            small.append(f"{paired.entries[index].input_path} ({width}x{height})")
+    if small:
+        raise DatasetError(
+            f"{len(small)} training image(s) smaller than the {crop_size} px crop "
+            f"(data.crop_size, --crop-size): {listed(small, 3, ', ')}; lower the crop or "
+            "leave them out"
+        )
+    warn_mixed(paired.root, "training pairs", counts, channels, notes)
+
+
+def warn_mixed(
+    root: Path,
+    what: str,
+    counts: dict[int, int],
+    channels: int | None,
+    notes: list[str] | None,
+) -> None:
+    """Say that grey and colour images are mixed and how they are converted, when they are."""
+    if counts.get(1) and counts.get(3):
+        takes = f"{channels} channel(s)" if channels else "the first image's channels"
+        warn_or_note(
+            notes,
+            f"{root}: the {what} mix {counts[1]} grey and {counts[3]} colour images; the "
+            f"network takes {takes}, so the others are converted (colour to Rec. 601 luma, "
+            "grey repeated); set model.channels to choose",
+        )
+
+
+def check_clean_images(
+    folder: Path,
+    train: Sequence[Path],
+    val: Sequence[Path],
+    crop_size: int | None,
+    notes: list[str] | None,
+) -> dict[int, int]:
+    """Headers of every clean image, and training ones hold a crop: before the first step.
+
+    Held-out images smaller than validation's SSIM window are said here, not
+    after the first epoch (validation leaves them out); all of them is an error.
+
+    Returns:
+        How many images have 1 and 3 channels.
+
+    Raises:
+        DatasetError: naming the first three problems and how many there are.
+    """
+    problems, training, counts = [], set(train), {1: 0, 3: 0}
+    window = gaussian_window().numel()  # the SSIM window of VAL_CONVENTION
+    unscored = []
+    for path in [*train, *val]:
+        try:
+            height, width, have, kind = image_header(path)
+        except ImageIOError as exc:
+            problems.append(str(exc))
+            continue
+        counts[have] += 1
+        if problem := format_problem(kind):
+            problems.append(f"{path}: {problem}")
+        elif crop_size is not None and path in training and min(height, width) < crop_size:
+            problems.append(f"{path}: {width}x{height}, smaller than the {crop_size} px crop")
+        elif path not in training and min(height, width) < window:
+            unscored.append(f"{path} ({width}x{height})")
+    if problems:
+        raise DatasetError(f"{folder}: {len(problems)} unusable clean image(s): {listed(problems)}")
+    if unscored:
+        what = f"held-out clean image(s) smaller than validation's {window}x{window} SSIM window"
+        if len(unscored) == len(val):
+            raise DatasetError(f"{folder}: every one of the {len(val)} {what}: {listed(unscored)}")
+        warn_or_note(
+            notes, f"{folder}: validation leaves out {len(unscored)} {what}: {listed(unscored)}"
+        )
+    return counts
+
+
+def pair_headers(sources: Sequence[PairSource]) -> dict[int, list[tuple[int, int, int, str]]]:
+    """The headers of the pairs of each paired dataset behind ``sources``, read once each.
+
+    Returns:
+        ``id(dataset)`` -> its pairs' headers, as
+        :meth:`~lenspair.dataset.readers.PairedDataset.check_headers` returns them.
+
+    Raises:
+        DatasetError: pairs whose headers disagree.
+    """
+    headers: dict[int, list[tuple[int, int, int, str]]] = {}  # id(dataset) -> pair headers
+    for source in sources:
+        paired = source.source if isinstance(source, SubsetSource) else source
+        if isinstance(paired, PairedDataset) and id(paired) not in headers:
+            headers[id(paired)] = paired.check_headers()
+    return headers
