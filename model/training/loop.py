@@ -184,19 +184,24 @@ def fit(
     """
     if len(train_set) == 0 or len(val_set) == 0:
         raise ModelError("training needs at least one training and one validation pair")
-    info, device = init_distributed(device)
-    train = config.train
-    if train.batch_size % info.world_size:
-        raise ModelError(
-            f"train.batch_size {train.batch_size} is not divisible by {info.world_size} processes"
-        )
-    paths = RunPaths(Path(run))
-    checkpoint, stale = open_run_folder(paths, resume=resume, restart=restart, synthetic=synthetic)
-    # read and checked before the run folder is made: a refused --init leaves nothing behind
-    start_from = None if init is None or checkpoint is not None else read_init(init, config)
     deterministic_before = torch.are_deterministic_algorithms_enabled()
+    info, device = init_distributed(device)
     trainer: Trainer | None = None
+    # every refusal from here on runs the finally, so a refused run under torchrun tears
+    # its process group down as a finished one does
     try:
+        train = config.train
+        if train.batch_size % info.world_size:
+            raise ModelError(
+                f"train.batch_size {train.batch_size} is not divisible by {info.world_size} "
+                "processes"
+            )
+        paths = RunPaths(Path(run))
+        checkpoint, stale = open_run_folder(
+            paths, resume=resume, restart=restart, synthetic=synthetic
+        )
+        # read and checked before the run folder is made: a refused --init leaves nothing behind
+        start_from = None if init is None or checkpoint is not None else read_init(init, config)
         if train.deterministic:
             torch.use_deterministic_algorithms(True, warn_only=True)
             torch.backends.cudnn.benchmark = False

@@ -124,6 +124,8 @@ def _cli_worker(rank: int, world: int, port: int, argv: list[str], out: str) -> 
         os.dup2(log.fileno(), 1)
         os.dup2(log.fileno(), 2)
         code = main(argv)
+    # what lenspair left behind: a group still up here would run gloo into interpreter exit
+    (Path(out) / f"rank{rank}.left").write_text(json.dumps(dist.is_initialized()))
     if dist.is_initialized():
         dist.destroy_process_group()
     if code != 0:
@@ -156,3 +158,17 @@ def test_under_torchrun_only_rank_zero_says_the_run_level_lines(tmp_path: Path) 
     said = [(tmp_path / f"rank{rank}.txt").read_text() for rank in range(2)]
     assert "--resume with a changed config: train.lr" in said[0]
     assert "--resume with a changed config" not in said[1]
+
+
+@pytest.mark.skipif(not dist.is_available() or not dist.is_gloo_available(), reason="no gloo")
+def test_a_run_refused_under_torchrun_tears_its_process_group_down(tmp_path: Path) -> None:
+    # batch 3 over 2 processes is refused after the group is up, before training starts
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 2})
+    config = tmp_path / "tiny.yaml"
+    config.write_text(dump_yaml(tiny_config(max_steps=2, batch_size=3)))
+    argv = ["train", str(dataset), "--out", str(tmp_path / "run"), "--config", str(config)]
+    with pytest.raises(mp.ProcessExitedException):
+        mp.spawn(_cli_worker, args=(2, _free_port(), argv, str(tmp_path)), nprocs=2, join=True)
+    for rank in range(2):
+        assert "not divisible by 2 processes" in (tmp_path / f"rank{rank}.txt").read_text()
+        assert json.loads((tmp_path / f"rank{rank}.left").read_text()) is False
