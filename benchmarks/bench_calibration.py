@@ -28,12 +28,12 @@ import cv2
 import numpy as np
 
 from lenspair.commands.argtypes import positive_int
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.rectify.boards import Board, parse_board_spec
 from lenspair.rectify.calib_types import CalibrationModel
 from lenspair.rectify.calibration import calibrate_from_detections, detect_views
+from lenspair.rectify.projection import project_rays
 from lenspair.rectify.recording_calibration import calibrate_recording
-from lenspair.rectify.rectification import project_rays
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
 from tests.rectify.board_renderer import BoardRenderer
 

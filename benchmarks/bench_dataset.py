@@ -35,7 +35,8 @@ import numpy as np
 from lenspair.capture.ingested import IngestReport, PairRecord, write_pairs, write_report
 from lenspair.commands.argtypes import positive_int
 from lenspair.core.fsutil import sha256_bytes, sha256_file
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig, SplitConfig
 

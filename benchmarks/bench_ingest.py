@@ -39,7 +39,7 @@ from lenspair.capture.recording import load_frame, open_recording
 from lenspair.capture.rigfile import read_rig_file
 from lenspair.cli import main as lenspair_main
 from lenspair.commands.argtypes import positive_int
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.rectify.crop import Crop
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.remap import apply, input_map, target_map

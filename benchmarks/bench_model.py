@@ -56,17 +56,23 @@ import platform
 import sys
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 
 from benchmarks.machine import cpu_pressure, median_ms, round_robin
 from benchmarks.machine import peaks as measure_peaks
-from benchmarks.model_profile import deraindrop_comparison, layer_profile, profile_table
+from benchmarks.model_profile import deraindrop_comparison, layer_profile
+from benchmarks.model_report import model_table
+from benchmarks.model_roofline import (
+    best_fields,
+    precision_of,
+    roofline_fields,
+    single_thread_fields,
+)
 from lenspair.commands.argtypes import positive_int
 from lenspair.model.evaluation.latency import tune_allocator
-from lenspair.model.metrics import psnr
 from lenspair.model.networks.complexity import describe
 from lenspair.model.networks.variants import AnomalyMitigator, build_model
 from lenspair.model.precision import (
@@ -77,14 +83,15 @@ from lenspair.model.precision import (
 )
 
 HEIGHT, WIDTH = 360, 540
-LATENCY_TARGET_BF16_MS = 50.0
-ROOFLINE_TARGET = 1.5
 EMULATED_RUNS = 3
 """Timed runs of each bf16 configuration where bf16 is emulated: on an AVX2-only EPYC
 one emulated pass took about 2 s (9.5x fp32), and 40 of each kept the benchmark past
 45 minutes (docs/results/cpu_amd_epyc_avx2.md); a few show the ratio."""
 
 Context = Callable[[], contextlib.AbstractContextManager[None]]
+Configuration = tuple[Callable[[torch.Tensor], torch.Tensor], torch.Tensor, Context]
+"""What one configuration times: the network's ``restore``, its input and a context."""
+Call = Callable[[], object]
 
 
 def _structured_image() -> torch.Tensor:
@@ -123,37 +130,7 @@ def _autocast() -> contextlib.AbstractContextManager[None]:
     return torch.autocast("cpu", dtype=torch.bfloat16)
 
 
-def precision_of(configuration: str) -> str:
-    """The precision a configuration's convolutions run at (``bf16 autocast ...``: bf16)."""
-    return configuration.split()[0]
-
-
-def roofline_ratios(
-    medians_ms: dict[str, float], flops: float, peaks_gflops: dict[str, float | None]
-) -> dict[str, float | None]:
-    """Each configuration's time over the roofline of its own precision.
-
-    Args:
-        medians_ms: milliseconds per configuration.
-        flops: the network's FLOPs per forward pass.
-        peaks_gflops: the best measured GFLOP/s per precision (``fp32``,
-            ``bf16``); ``None`` or absent where not measured.
-
-    Returns:
-        ``median / (flops / peak)`` per configuration; ``None`` where its
-        precision has no peak (never another precision's).
-
-    """
-    ratios: dict[str, float | None] = {}
-    for name, ms in medians_ms.items():
-        peak = peaks_gflops.get(precision_of(name))
-        ratios[name] = None if peak is None else ms / (flops / peak / 1e6)
-    return ratios
-
-
-def _configs(
-    model: AnomalyMitigator, compile_models: bool
-) -> dict[str, tuple[Callable[[torch.Tensor], torch.Tensor], torch.Tensor, Context]]:
+def _configs(model: AnomalyMitigator, compile_models: bool) -> dict[str, Configuration]:
     image = _structured_image()
     image_cl = image.contiguous(memory_format=torch.channels_last)
     model_cl = _channels_last(copy.deepcopy(model))
@@ -161,7 +138,7 @@ def _configs(
     model_bf16_cl = _channels_last(copy.deepcopy(model_bf16))
     image_bf16 = image.to(torch.bfloat16)
     image_bf16_cl = image_bf16.contiguous(memory_format=torch.channels_last)
-    configs: dict[str, tuple[Callable[[torch.Tensor], torch.Tensor], torch.Tensor, Context]] = {
+    configs: dict[str, Configuration] = {
         "fp32 NCHW": (model.restore, image, _nothing),
         "fp32 channels-last": (model_cl.restore, image_cl, _nothing),
         "bf16 autocast NCHW": (model.restore, image, _autocast),
@@ -170,6 +147,7 @@ def _configs(
         "bf16 weights channels-last": (model_bf16_cl.restore, image_bf16_cl, _nothing),
     }
     if compile_models:
+        # only where compiled forms are timed: importing inductor takes about a second
         import torch._inductor.config as inductor_config
 
         inductor_config.freezing = True
@@ -186,22 +164,13 @@ def _configs(
     return configs
 
 
-def run(
-    runs: int,
-    warmup: int,
-    threads: int,
-    compile_models: bool = False,
-    profile_runs: int = 3,
-    deraindrop_runs: int = 3,
-) -> dict[str, object]:
-    """Measure everything; returns the JSON record."""
-    load_start, pressure_start = os.getloadavg(), cpu_pressure()
-    model = _untrained_model()
-    summary = describe(model, (1, HEIGHT, WIDTH))
-    configs = _configs(model, compile_models)
-    outputs: dict[str, torch.Tensor] = {}
+def _callers(
+    configs: dict[str, Configuration],
+    outputs: dict[str, torch.Tensor],
+) -> dict[str, Call]:
+    """One timed call per configuration; each keeps its last output in ``outputs``."""
 
-    def caller(name: str) -> Callable[[], object]:
+    def caller(name: str) -> Call:
         network, x, context = configs[name]
 
         def call() -> object:
@@ -211,14 +180,33 @@ def run(
 
         return call
 
-    calls = {name: caller(name) for name in configs}
-    precision = choose_precision("auto", torch.device("cpu"), "infer")
-    bf16_native = "bf16" in precision.native
-    # Where bf16 is native it stays in the round-robin with fp32, timed alike;
-    # where it is emulated, its configurations run apart, a few times each.
-    emulated = {} if bf16_native else {n: c for n, c in calls.items() if n.startswith("bf16")}
-    interleaved = {name: call for name, call in calls.items() if name not in emulated}
-    bf16_runs = min(runs, EMULATED_RUNS) if emulated else runs
+    return {name: caller(name) for name in configs}
+
+
+@dataclass
+class _Timings:
+    """What the timed phase of :func:`run` measured: seconds per call, GFLOP/s per kernel."""
+
+    default_times: dict[str, list[float]]
+    times: dict[str, list[float]]
+    single_times: dict[str, list[float]]
+    peaks: dict[str, float]
+    bf16_peaks: dict[str, float]
+    single_peaks: dict[str, float]
+    single_bf16_peaks: dict[str, float]
+    allocator_tuned: bool
+    tuned_before: bool
+
+
+def _measure(
+    interleaved: dict[str, Call],
+    emulated: dict[str, Call],
+    runs: int,
+    warmup: int,
+    threads: int,
+    bf16_native: bool,
+) -> _Timings:
+    """Time every configuration and the peaks: default malloc, tuned, then one thread."""
 
     def timed(count: int, warm: int, clock: Callable[[], float]) -> dict[str, list[float]]:
         times = round_robin(interleaved, count, warm, clock)
@@ -244,33 +232,54 @@ def run(
             single_bf16_peaks = measure_peaks(5, time.thread_time, torch.bfloat16)
         single_times = timed(max(5, runs // 4), 1, time.thread_time)
         torch.set_num_threads(threads)
-    medians = {name: median_ms(samples) for name, samples in times.items()}
-    best_fp32 = min((n for n in medians if n.startswith("fp32")), key=medians.__getitem__)
+    return _Timings(
+        default_times=default_times,
+        times=times,
+        single_times=single_times,
+        peaks=peaks,
+        bf16_peaks=bf16_peaks,
+        single_peaks=single_peaks,
+        single_bf16_peaks=single_bf16_peaks,
+        allocator_tuned=allocator_tuned,
+        tuned_before=tuned_before,
+    )
+
+
+def run(
+    runs: int,
+    warmup: int,
+    threads: int,
+    compile_models: bool = False,
+    profile_runs: int = 3,
+    deraindrop_runs: int = 3,
+) -> dict[str, object]:
+    """Measure everything; returns the JSON record.
+
+    The rooflines, ratios and targets in it are worked out by
+    :mod:`benchmarks.model_roofline`; :func:`benchmarks.model_report.model_table`
+    prints it.
+    """
+    load_start, pressure_start = os.getloadavg(), cpu_pressure()
+    model = _untrained_model()
+    summary = describe(model, (1, HEIGHT, WIDTH))
+    outputs: dict[str, torch.Tensor] = {}
+    calls = _callers(_configs(model, compile_models), outputs)
+    precision = choose_precision("auto", torch.device("cpu"), "infer")
+    bf16_native = "bf16" in precision.native
+    # Where bf16 is native it stays in the round-robin with fp32, timed alike;
+    # where it is emulated, its configurations run apart, a few times each.
+    emulated = {} if bf16_native else {n: c for n, c in calls.items() if n.startswith("bf16")}
+    interleaved = {name: call for name, call in calls.items() if name not in emulated}
+    bf16_runs = min(runs, EMULATED_RUNS) if emulated else runs
+    timings = _measure(interleaved, emulated, runs, warmup, threads, bf16_native)
+    medians = {name: median_ms(samples) for name, samples in timings.times.items()}
+    fp32_name = min((n for n in medians if n.startswith("fp32")), key=medians.__getitem__)
     profile: list[dict[str, object]] = []
     if profile_runs > 0:
         with torch.inference_mode():
-            profile = layer_profile(calls[best_fp32], profile_runs)
+            profile = layer_profile(calls[fp32_name], profile_runs)
     deraindrop = deraindrop_comparison(deraindrop_runs) if deraindrop_runs > 0 else {}
-    peak = max(peaks.values())
-    single_peak = max(single_peaks.values())
-    bf16_peak = max(bf16_peaks.values()) if bf16_peaks else None
-    single_bf16_peak = max(single_bf16_peaks.values()) if single_bf16_peaks else None
-    roofline_ms = summary.flops / peak / 1e6
-    single_roofline_ms = summary.flops / single_peak / 1e6
-    fp32_name = min((n for n in medians if n.startswith("fp32")), key=medians.__getitem__)
-    bf16_name = min((n for n in medians if n.startswith("bf16")), key=medians.__getitem__)
-    eager_name = min(
-        (n for n in medians if n.startswith("fp32") and "compiled" not in n),
-        key=medians.__getitem__,
-    )
-    gemm_peak = max(peaks["mm_gflops"], peaks["conv1x1_gflops"])
-    reference = outputs[fp32_name].float()
-    bf16_psnr = {
-        name: float(psnr(outputs[name].float(), reference)[0])
-        for name in medians
-        if name.startswith("bf16")
-    }
-    single_ms = {name: median_ms(samples) for name, samples in single_times.items()}
+    single_ms = {name: median_ms(samples) for name, samples in timings.single_times.items()}
     return {
         "device": platform.processor() or platform.machine(),
         "cpu_model": read_cpu_flags()[0],
@@ -284,48 +293,18 @@ def run(
         "parameters": summary.parameters,
         "flops": summary.flops,
         "gflops": summary.gflops,
-        "allocator_tuned": allocator_tuned,
-        "allocator_tuned_before_run": tuned_before,
-        "peaks_gflops": peaks,
-        "peak_gflops": peak,
-        "peak_kernel": max(peaks, key=peaks.__getitem__).removesuffix("_gflops"),
-        "roofline_ms": roofline_ms,
-        "bf16_peaks_gflops": bf16_peaks,
-        "bf16_peak_gflops": bf16_peak,
-        "bf16_roofline_ms": None if bf16_peak is None else summary.flops / bf16_peak / 1e6,
-        "roofline_ratios": roofline_ratios(
-            medians, summary.flops, {"fp32": peak, "bf16": bf16_peak}
-        ),
+        "allocator_tuned": timings.allocator_tuned,
+        "allocator_tuned_before_run": timings.tuned_before,
+        **roofline_fields(timings.peaks, timings.bf16_peaks, summary.flops, medians),
         "medians_ms": medians,
-        "min_ms": {name: min(samples) * 1e3 for name, samples in times.items()},
+        "min_ms": {name: min(samples) * 1e3 for name, samples in timings.times.items()},
         "default_allocator_medians_ms": {
-            name: median_ms(samples) for name, samples in default_times.items()
+            name: median_ms(samples) for name, samples in timings.default_times.items()
         },
-        "fp32_best": fp32_name,
-        "fp32_ms": medians[fp32_name],
-        "fp32_roofline_ratio": medians[fp32_name] / roofline_ms,
-        "fp32_ratio_to_mm_roofline": medians[fp32_name] * peaks["mm_gflops"] * 1e6 / summary.flops,
-        "gemm_peak_gflops": gemm_peak,
-        "fp32_ratio_to_gemm_roofline": medians[fp32_name] * gemm_peak * 1e6 / summary.flops,
-        "fp32_eager_best": eager_name,
-        "fp32_eager_ms": medians[eager_name],
-        "fp32_eager_roofline_ratio": medians[eager_name] / roofline_ms,
-        "fp32_eager_ratio_to_gemm_roofline": medians[eager_name] * gemm_peak * 1e6 / summary.flops,
-        "bf16_best": bf16_name,
-        "bf16_ms": medians[bf16_name],
-        "bf16_psnr_vs_fp32_db": bf16_psnr,
-        "bf16_target_ms": LATENCY_TARGET_BF16_MS,
-        "roofline_target": ROOFLINE_TARGET,
-        "fp32_target_met": medians[fp32_name] / roofline_ms <= ROOFLINE_TARGET,
-        "bf16_target_met": medians[bf16_name] < LATENCY_TARGET_BF16_MS,
-        "single_thread_peak_gflops": single_peak,
-        "single_thread_roofline_ms": single_roofline_ms,
-        "single_thread_bf16_peak_gflops": single_bf16_peak,
-        "single_thread_cpu_ms": single_ms,
-        "single_thread_roofline_ratios": roofline_ratios(
-            single_ms, summary.flops, {"fp32": single_peak, "bf16": single_bf16_peak}
+        **best_fields(medians, outputs, summary.flops, timings.peaks),
+        **single_thread_fields(
+            timings.single_peaks, timings.single_bf16_peaks, single_ms, summary.flops, fp32_name
         ),
-        "single_thread_fp32_roofline_ratio": single_ms[fp32_name] / single_roofline_ms,
         "precision": precision.as_dict(),
         "onednn_max_cpu_isa": onednn_isa_cap(),
         "isa_cap": probe_hardware(torch.device("cpu")).isa_cap,
@@ -338,116 +317,6 @@ def run(
         "cpu_pressure_start": pressure_start,
         "cpu_pressure_end": cpu_pressure(),
     }
-
-
-def _ratio(value: float | None) -> str:
-    return "" if value is None else f"{value:.2f}"
-
-
-def _table(data: dict[str, object]) -> str:
-    record: dict[str, Any] = data
-    medians = record["medians_ms"]
-    minima = record["min_ms"]
-    default = record["default_allocator_medians_ms"]
-    single = record["single_thread_cpu_ms"]
-    psnrs = record["bf16_psnr_vs_fp32_db"]
-    peaks = record["peaks_gflops"]
-    ratios = record["roofline_ratios"]
-    single_ratios = record["single_thread_roofline_ratios"]
-    emulated = set(record["emulated"])
-    roofline = float(record["roofline_ms"])
-    single_roofline = float(record["single_thread_roofline_ms"])
-    threads = record["threads"]
-    cap = record["onednn_max_cpu_isa"]
-    lines = [
-        f"GEA, mono {WIDTH}x{HEIGHT}, batch 1, {threads} threads, {record['runs']} runs "
-        f"(median; bf16: {record['bf16_runs']}), torch {record['torch']}",
-        "",
-        f"- FLOPs: {record['gflops']:.2f} G (2 per MAC); parameters: {record['parameters']:,}",
-        f"- fp32 peak ({threads} threads, GFLOP/s): "
-        + ", ".join(f"{k.removesuffix('_gflops')} {v:.0f}" for k, v in peaks.items())
-        + f"; roofline = FLOPs / best ({record['peak_kernel']}) = {roofline:.1f} ms",
-    ]
-    if record["bf16_peaks_gflops"]:
-        lines.append(
-            f"- bf16 peak ({threads} threads, GFLOP/s): "
-            + ", ".join(
-                f"{k.removesuffix('_gflops')} {v:.0f}"
-                for k, v in record["bf16_peaks_gflops"].items()
-            )
-            + f"; bf16 roofline {record['bf16_roofline_ms']:.1f} ms: bf16 rows are divided by it"
-        )
-    else:
-        lines.append(
-            "- no bf16 peak: bf16 is not native here, so bf16 rows have no roofline "
-            "(x roofline left empty; the fp32 peak is not theirs)"
-        )
-    lines += [
-        f"- one thread, CPU time: peak {record['single_thread_peak_gflops']:.0f} GFLOP/s, "
-        f"roofline {single_roofline:.1f} ms"
-        + (
-            f"; bf16 peak {record['single_thread_bf16_peak_gflops']:.0f} GFLOP/s"
-            if record["single_thread_bf16_peak_gflops"]
-            else ""
-        ),
-        f"- allocator tuned (mallopt): {record['allocator_tuned']}"
-        + (
-            "; it was tuned before this run (same process), so the default allocator was "
-            "not measured"
-            if record["allocator_tuned_before_run"]
-            else ""
-        ),
-        "- oneDNN ISA cap: "
-        + (f"ONEDNN_MAX_CPU_ISA={cap}" if cap else "none (the CPU as it is)")
-        + (f" ({record['isa_cap']})" if record["isa_cap"] else ""),
-        "",
-        "| configuration | median ms | min ms | x roofline | default malloc ms "
-        "| 1-thread CPU ms | x 1-thread roofline | PSNR vs fp32 (dB) |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|",
-    ]
-    for name, value in medians.items():
-        mark = " (best)" if name in (record["fp32_best"], record["bf16_best"]) else ""
-        mark += " (emulated)" if name in emulated else ""
-        quality = f"{psnrs[name]:.1f}" if name in psnrs else "reference" if mark else ""
-        malloc = f"{default[name]:.1f}" if name in default else ""
-        lines.append(
-            f"| {name}{mark} | {value:.1f} | {minima[name]:.1f} | {_ratio(ratios[name])} "
-            f"| {malloc} | {single[name]:.1f} | {_ratio(single_ratios[name])} | {quality} |"
-        )
-    fp32_met = "met" if record["fp32_target_met"] else "MISSED"
-    bf16_met = "met" if record["bf16_target_met"] else "MISSED"
-    bf16_emulated = " (emulated)" if record["bf16_best"] in emulated else ""
-    lines += [
-        "",
-        f"- fp32 best: {record['fp32_best']}, {record['fp32_ms']:.1f} ms = "
-        f"{record['fp32_roofline_ratio']:.2f}x roofline (target <= {ROOFLINE_TARGET}x: "
-        f"{fp32_met}); {record['fp32_ratio_to_gemm_roofline']:.2f}x the plain-GEMM "
-        f"(mm, conv1x1) roofline; {record['fp32_ratio_to_mm_roofline']:.2f}x the torch.mm "
-        f"roofline; one thread: {record['single_thread_fp32_roofline_ratio']:.2f}x",
-        f"- fp32 eager best: {record['fp32_eager_best']}, {record['fp32_eager_ms']:.1f} ms = "
-        f"{record['fp32_eager_roofline_ratio']:.2f}x roofline, "
-        f"{record['fp32_eager_ratio_to_gemm_roofline']:.2f}x the plain-GEMM roofline",
-        f"- bf16 best: {record['bf16_best']}{bf16_emulated}, {record['bf16_ms']:.1f} ms "
-        f"(target < {LATENCY_TARGET_BF16_MS:.0f} ms: {bf16_met})",
-        f"- precisions native on this CPU ({record['cpu_model']}): "
-        f"{', '.join(record['precision']['native'])}; auto picks "
-        f"{record['precision']['precision']} ({record['precision']['reason']})",
-        f"- load average start/end: {record['load_average_start']} / "
-        f"{record['load_average_end']}; CPU pressure start: {record['cpu_pressure_start']}",
-    ]
-    deraindrop = record["deraindrop_720x480_rgb"]
-    if isinstance(deraindrop, dict) and deraindrop:
-        lines.append(
-            f"- 720x480 RGB, fp32, same run: GEA {deraindrop['gea_ms']:.0f} ms, DeRaindrop's "
-            f"generator ({deraindrop['deraindrop_parameters'] / 1e6:.2f} M parameters) "
-            f"{deraindrop['deraindrop_ms']:.0f} ms: GEA is {deraindrop['speedup']:.1f}x faster "
-            "(the paper: 8x)"
-        )
-    profile = record["layer_profile_fp32"]
-    if isinstance(profile, list) and profile:
-        lines += ["", f"Where the fp32 time goes ({record['fp32_best']}):", ""]
-        lines.append(profile_table(profile))
-    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -475,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
         profile_runs=args.profile_runs,
         deraindrop_runs=args.deraindrop_runs,
     )
-    print(_table(record))
+    print(model_table(record))
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
         (args.out / "model.json").write_text(json.dumps(record, indent=2) + "\n")

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 
 from lenspair.commands.argtypes import positive_int
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.checkpoint import build_network
 from lenspair.model.evaluation.latency import measure_latency
 from lenspair.model.inference.backends import TorchBackend, deploy

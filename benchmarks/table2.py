@@ -59,7 +59,8 @@ from lenspair.model.evaluation.seed_statistics import (
     summarise_seeds,
 )
 from lenspair.model.evaluation.summary import summarize
-from lenspair.model.training.config import RunConfig, config_differences, load_run_config
+from lenspair.model.training.config import RunConfig
+from lenspair.model.training.config_loading import config_differences, load_run_config
 from lenspair.model.training.loop import resolve_config
 from lenspair.model.training.pairs import open_eval_pairs
 from lenspair.model.training.pretrained import write_natural_images

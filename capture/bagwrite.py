@@ -1,7 +1,7 @@
 """Writing a copy of a bag with some image messages replaced, through ``rosbags``.
 
 :class:`BagCopy` receives every message of the source bag (a
-:class:`~lenspair.capture.frames.BagMessage`, in log-time order) and writes it
+:class:`~lenspair.capture.frame_types.BagMessage`, in log-time order) and writes it
 to a new bag of the same kind: a ROS 1 ``.bag`` for a ``.bag``, a ROS 2 bag
 folder with the same storage (``sqlite3`` for ``.db3``, ``mcap`` for
 ``.mcap``) for a ROS 2 input. Every connection is copied with its message
@@ -36,7 +36,7 @@ from rosbags.typesys import (
 )
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.frames import BagMessage
+from lenspair.capture.frame_types import BagMessage
 from lenspair.capture.image_messages import COMPRESSED_IMAGE, bayer_pattern
 from lenspair.capture.recording_types import active_bag_stem, is_ros1_bag
 

@@ -12,7 +12,8 @@ from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import Recording, find_rig_file, recording_places
 from lenspair.capture.rigfile import RigFile
 from lenspair.core.errors import LenspairError
-from lenspair.rectify.calib_io import is_euroc_sensor_file, load_calibration
+from lenspair.rectify.calib_euroc import is_euroc_sensor_file
+from lenspair.rectify.calib_io import load_calibration
 from lenspair.rectify.rig import StereoRig
 
 CAMCHAIN_FILE = "camchain.yaml"

@@ -1,7 +1,7 @@
 """Decoding ROS image messages (``sensor_msgs/Image``, ``CompressedImage``) into arrays.
 
 What :mod:`lenspair.capture.rosbag` reads a frame's pixels with, and what
-:mod:`lenspair.capture.frames` and :mod:`lenspair.capture.bagwrite` name message
+:mod:`lenspair.capture.bag_frames` and :mod:`lenspair.capture.bagwrite` name message
 types and Bayer encodings by. Messages of type ``sensor_msgs/msg/Image``
 (encodings ``mono8``/``8UC1``, ``mono16``/``16UC1``, ``rgb8``, ``bgr8``,
 ``rgba8``, ``bgra8``, ``rgb16``, ``bgr16``, and the Bayer mosaics

@@ -25,7 +25,7 @@ from lenspair.capture.rigfile import CameraName
 from lenspair.core.bitdepth import widen
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import sha256_bytes, sha256_file
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.core.orphans import end_with_parent
 from lenspair.core.quality import exposure_fractions, laplacian_variance, to_grey
 from lenspair.core.sourcefiles import source_fingerprint

@@ -13,7 +13,9 @@ import numpy as np
 
 from lenspair.capture.ingested import PairRecord
 from lenspair.core.contact_sheet import make_contact_sheet
-from lenspair.core.imageio import read_image, to_float, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
+from lenspair.core.pixels import to_float
 
 QA_FILE = "qa.png"
 DIFFERENCE_GAIN = 4.0

@@ -39,7 +39,7 @@ Contract of a :class:`Recording`:
   dropped without a record.
 * Pixels are read only by :meth:`Recording.load` / :func:`load_frame`; they
   return ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB arrays (the
-  :mod:`lenspair.core.imageio` convention) and raise :class:`ImageIOError` or
+  :mod:`lenspair.core.pixels` convention) and raise :class:`ImageIOError` or
   :class:`CaptureError` naming the file (or bag, topic and timestamp) for
   corrupt or truncated data. A :class:`FrameRef` is a small picklable value
   holding all that is needed to reopen its source, so worker processes can call

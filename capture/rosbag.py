@@ -125,13 +125,13 @@ def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
             missing or not an image topic, or a camera has no frames.
     """
     path = Path(path)
-    reader = _open(path)
+    reader = open_bag(path)
     try:
         available = {name: info.msgtype for name, info in reader.topics.items()}
         image_topics = [name for name, msgtype in available.items() if msgtype in IMAGE_TYPES]
         try:
             chosen = select_topics(image_topics, path) if topics is None else tuple(topics)
-            _check_chosen(chosen, image_topics, path)
+            check_chosen(chosen, image_topics, path)
         except CaptureError as exc:
             note = cut_note(reader)  # a cut may have left out a topic's first record
             raise CaptureError(str(exc) if note is None else f"{exc}; {note}") from None
@@ -191,8 +191,8 @@ def load_bag_frame(frame: FrameRef) -> np.ndarray:
         raise CaptureError(f"{where}: message not found at log time {start} ns")
     msgtype = found[0].msgtype
     # (a frame timed by its log time, as _timed_by_log does, has no stamp to check)
-    if frame.t_ns != frame.log_time_ns and _stamp_ns(message) != frame.t_ns:
-        raise CaptureError(f"{where}: message at log time {start} has t_ns={_stamp_ns(message)}")
+    if frame.t_ns != frame.log_time_ns and stamp_ns(message) != frame.t_ns:
+        raise CaptureError(f"{where}: message at log time {start} has t_ns={stamp_ns(message)}")
     return decode_message(msgtype, message, where)
 
 
@@ -221,7 +221,7 @@ class _ReaderCache:
         if bag in self.readers:
             self.readers.move_to_end(bag)
             return self.readers[bag]
-        reader = _open(bag)
+        reader = open_bag(bag)
         self.readers[bag] = reader
         while len(self.readers) > self.size:
             _, oldest = self.readers.popitem(last=False)
@@ -239,8 +239,19 @@ class _ReaderCache:
 _CACHE = _ReaderCache(size=4)
 
 
-def _open(path: Path) -> BagReader:
-    """Open a bag with ``rosbags``; one it cannot open is read up to its cut."""
+def open_bag(path: Path) -> BagReader:
+    """Open a bag with ``rosbags``; one it cannot open is read up to its cut.
+
+    Args:
+        path: ``.bag`` file, ROS 2 bag folder, or ``.db3``/``.mcap`` file.
+
+    Returns:
+        An open reader (close it); for a bag cut short a salvaged one
+        (:func:`cut_note` says where it stopped).
+
+    Raises:
+        CaptureError: neither ``rosbags`` nor salvage can read the bag.
+    """
     store = Stores.ROS1_NOETIC if is_ros1_bag(path) else Stores.ROS2_HUMBLE
     # SQLite opens a cut .db3 and fails part-way without saying where: salvage it.
     failure = "the SQLite file is shorter than its header says"
@@ -268,7 +279,13 @@ def cut_note(reader: BagReader) -> str | None:
     return reader.cut if isinstance(reader, SalvagedBag) else None
 
 
-def _check_chosen(chosen: tuple[str, ...], image_topics: list[str], bag: Path) -> None:
+def check_chosen(chosen: tuple[str, ...], image_topics: list[str], bag: Path) -> None:
+    """Check that ``chosen`` names two different image topics of ``bag``.
+
+    Raises:
+        CaptureError: not two different topics, or one that is not among
+            ``image_topics`` (lists them).
+    """
     listing = ", ".join(sorted(image_topics)) or "none"
     if len(chosen) != 2 or chosen[0] == chosen[1]:
         raise CaptureError(f"{bag}: need two different topics, got {chosen}")
@@ -290,7 +307,7 @@ def _list_messages(
             occurrence = occurrences[topic, log_time]
             occurrences[topic, log_time] += 1
             try:
-                t_ns = _stamp_ns(reader.deserialize(raw, connection.msgtype))
+                t_ns = stamp_ns(reader.deserialize(raw, connection.msgtype))
             except Exception as exc:  # a corrupt message must not end the listing
                 reason = f"cannot deserialise message at log time {log_time} ({one_line(exc)})"
                 problems.append(FrameProblem(camera, None, f"{bag} {topic}", reason))
@@ -342,7 +359,8 @@ def _timed_by_log(
     }
 
 
-def _stamp_ns(message: Any) -> int:
+def stamp_ns(message: Any) -> int:
+    """A deserialised message's ``header.stamp`` in nanoseconds."""
     stamp = message.header.stamp
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.rigfile import CameraName
-from lenspair.core.imageio import check_image, to_float
+from lenspair.core.pixels import check_image, to_float
 
 Inferred = Literal["cam0", "cam1", "undetermined"]
 
@@ -157,7 +157,7 @@ def check_obstructed_side(
 
     Raises:
         CaptureError: no frames, or different numbers of frames per camera.
-        ValueError: an image breaks the :mod:`lenspair.core.imageio` convention.
+        ValueError: an image breaks the :mod:`lenspair.core.pixels` convention.
     """
     if len(images_cam0) != len(images_cam1) or not images_cam0:
         raise CaptureError(

@@ -1,6 +1,6 @@
 """Curation rules: image figures of one pair, the filters, near-duplicates, difficulty.
 
-Pure functions on arrays (images per :mod:`lenspair.core.imageio`: ``uint8``/``uint16``,
+Pure functions on arrays (images per :mod:`lenspair.core.pixels`: ``uint8``/``uint16``,
 ``(H, W)`` or ``(H, W, 3)`` RGB) and :class:`lenspair.capture.ingested.PairRecord`.
 
 Rules run in the order of :data:`RULES`; a pair is removed by the first rule
@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from lenspair.capture.ingested import PairRecord
-from lenspair.core.imageio import check_image, max_value
+from lenspair.core.pixels import check_image, max_value
 from lenspair.core.quality import (
     anomaly_cells,
     exposure_fractions,

@@ -24,7 +24,7 @@ from lenspair.core.fsutil import (
     read_json_field,
     temporary_folder,
 )
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.core.leftovers import leftovers
 from lenspair.core.progress import progress
 from lenspair.dataset.card import CARD_FILE, CARD_FORMAT, DatasetCard, contact_sheet, write_card

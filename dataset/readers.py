@@ -20,7 +20,7 @@ Three layouts, detected automatically by :func:`open_paired`:
 
 Names are matched on the file stem (``.png`` and ``.jpg`` may pair up) and
 listed in natural order (``2`` before ``10``). Images follow
-:mod:`lenspair.core.imageio`: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB.
+:mod:`lenspair.core.pixels`: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB.
 """
 
 import json

@@ -16,8 +16,10 @@ import numpy as np
 from lenspair import __version__
 from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.fsutil import atomic_write_text
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.core.report import Block, Code, Heading, Image, Paragraph, Table, to_html, to_markdown
+from lenspair.model.training.config_loading import load_run_config
 from lenspair.rectify.rig import read_kalibr
 
 if TYPE_CHECKING:
@@ -214,9 +216,6 @@ def restore_blocks(out: Path, strips: int = 3) -> list[Block]:
 
 def finetune_runtime(out: Path) -> "RuntimeInfo | None":
     """What the demo's fine-tuning ran on and at which precision (its ``config.yaml``), if any."""
-    # Imported here: it imports torch, which `lenspair --help` must not load.
-    from lenspair.model.training.config import load_run_config
-
     config = out / "runs" / "finetune" / "config.yaml"
     return load_run_config(config).runtime if config.is_file() else None
 

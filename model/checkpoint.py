@@ -30,7 +30,8 @@ from lenspair.core.errors import ConfigError, first_line
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.variants import build_model
-from lenspair.model.training.config import ModelConfig, RunConfig, stored_run_config
+from lenspair.model.training.config import ModelConfig, RunConfig
+from lenspair.model.training.config_loading import stored_run_config
 
 CHECKPOINT_FORMAT = "lenspair-checkpoint"
 

@@ -13,8 +13,8 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from lenspair.rectify.boards import Board, Detection
-from lenspair.rectify.calib_fits import fit_camera, intrinsic_covariance, rms, view_error
+from lenspair.rectify.boards import Board
+from lenspair.rectify.calib_fits import fit_camera
 from lenspair.rectify.calib_logging import log
 from lenspair.rectify.calib_outliers import reject_outliers
 from lenspair.rectify.calib_types import (
@@ -25,9 +25,12 @@ from lenspair.rectify.calib_types import (
     RejectedView,
     parse_model,
 )
+from lenspair.rectify.calib_uncertainty import intrinsic_covariance
+from lenspair.rectify.calib_views import rms, view_error
+from lenspair.rectify.corner_detection import Detection
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.fit_checks import check_distinct_poses, check_fit, check_pose_spread
-from lenspair.rectify.rectification import project_rays
+from lenspair.rectify.projection import project_rays
 from lenspair.rectify.rig import CameraModel
 
 _COVERAGE_GRID = np.array([8, 6])

@@ -13,18 +13,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from lenspair.rectify.boards import Board, Detection
-from lenspair.rectify.calib_fits import (
-    Points,
-    RigDeviations,
-    fit_stereo,
-    refinable,
-    refit_poses,
-    rig_deviations,
-    stereo_residuals,
-)
+from lenspair.rectify.boards import Board
+from lenspair.rectify.calib_fits import fit_stereo, refinable
 from lenspair.rectify.calib_logging import log
 from lenspair.rectify.calib_types import CameraCalibration
+from lenspair.rectify.calib_uncertainty import RigDeviations, rig_deviations
+from lenspair.rectify.calib_views import Points, refit_poses, stereo_residuals
+from lenspair.rectify.corner_detection import Detection
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.layout import unsupported_layout
 from lenspair.rectify.rectification import StereoRectification
@@ -54,7 +49,7 @@ def refine_jointly(
     most views were seen by one camera alone, each camera's own fit is the
     surer one. So the refinement is kept when its baseline deviation is the
     smaller of the two (``fixed``: the fixed-intrinsics fit's, intrinsics
-    errors included, :func:`~lenspair.rectify.calib_fits.rig_deviations`),
+    errors included, :func:`~lenspair.rectify.calib_uncertainty.rig_deviations`),
     the refined rig rectifies, and each camera's own views still fit the
     refined intrinsics (:data:`JOINT_FIT_TOLERANCE`).
 

@@ -13,7 +13,7 @@ from typing import Any, Literal
 import numpy as np
 
 from lenspair.rectify.boards import Board
-from lenspair.rectify.calib_fits import INTRINSIC_NAMES, deviations
+from lenspair.rectify.calib_uncertainty import INTRINSIC_NAMES, deviations
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig
 
@@ -91,9 +91,9 @@ class CameraCalibration:
             hold a corner of a used view; where the board never went, the
             distortion is extrapolated.
         intrinsics_covariance: ``(8, 8)`` covariance of the intrinsics and
-            distortion coefficients (:data:`~lenspair.rectify.calib_fits.INTRINSIC_NAMES`)
+            distortion coefficients (:data:`~lenspair.rectify.calib_uncertainty.INTRINSIC_NAMES`)
             from the corner residuals
-            (:func:`~lenspair.rectify.calib_fits.intrinsic_covariance`).
+            (:func:`~lenspair.rectify.calib_uncertainty.intrinsic_covariance`).
 
     Where the intrinsics were refined with the rig (``CalibrationResult.refinement``),
     the camera, its covariance (of the joint fit), ``rms_px``, the view errors and
@@ -111,7 +111,7 @@ class CameraCalibration:
 
     @property
     def intrinsics_std(self) -> tuple[float, ...]:
-        """1-sigma deviations (:data:`~lenspair.rectify.calib_fits.INTRINSIC_NAMES` order)."""
+        """1-sigma deviations, in :data:`INTRINSIC_NAMES` order."""
         return tuple(float(d) for d in deviations(self.intrinsics_covariance))
 
     @property

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from lenspair.rectify.boards import Board, Detection
+from lenspair.rectify.boards import Board
 from lenspair.rectify.calib_camera import calibrate_camera
 from lenspair.rectify.calib_logging import held, log
 from lenspair.rectify.calib_types import (
@@ -23,6 +23,7 @@ from lenspair.rectify.calib_types import (
     CalibrationResult,
     CameraCalibration,
 )
+from lenspair.rectify.corner_detection import Detection
 from lenspair.rectify.errors import RectifyError
 
 FOCAL_DOUBT = 0.005
@@ -64,7 +65,7 @@ def check_marker_size(
 ) -> None:
     """Warn when the images' ChArUco markers are not the size ``--board`` states.
 
-    The measure (:func:`~lenspair.rectify.boards.measured_marker_m`) comes
+    The measure (:func:`~lenspair.rectify.corner_detection.measured_marker_m`) comes
     out a few per cent small, and a marker size a little off changes the
     calibration by less than its noise; the tolerance catches the typing
     mistakes (a third off and more) that bias the focal length unseen.

@@ -19,7 +19,7 @@ The procedure (see DESIGN.md, "Geometry notes"):
    (:func:`~lenspair.rectify.calib_refine.refine_jointly`): each camera's own
    focal error would otherwise become baseline error. The intrinsics and the
    baseline come with 1-sigma deviations from the corner residuals
-   (:mod:`~lenspair.rectify.calib_fits`).
+   (:mod:`~lenspair.rectify.calib_uncertainty`).
 
 At every step a view whose RMS reprojection error exceeds
 ``max(outlier_factor * median, outlier_floor_px)`` is rejected, and the step
@@ -45,16 +45,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from lenspair.core.progress import progress
-from lenspair.rectify.boards import Board, Detection, detect_corners
+from lenspair.rectify.boards import Board
 from lenspair.rectify.calib_camera import calibrate_camera
-from lenspair.rectify.calib_fits import (
-    Points,
-    fit_stereo,
-    match_views,
-    rig_deviations,
-    rms,
-    stereo_residuals,
-)
+from lenspair.rectify.calib_fits import fit_stereo
 from lenspair.rectify.calib_logging import held, log, noted, release
 from lenspair.rectify.calib_outliers import reject_outliers
 from lenspair.rectify.calib_refine import refine_jointly
@@ -65,7 +58,10 @@ from lenspair.rectify.calib_types import (
     CameraCalibration,
     RejectedView,
 )
+from lenspair.rectify.calib_uncertainty import rig_deviations
+from lenspair.rectify.calib_views import Points, match_views, rms, stereo_residuals
 from lenspair.rectify.calib_warnings import check_marker_size, check_model, warn_uncertain
+from lenspair.rectify.corner_detection import Detection, detect_corners
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.fit_checks import check_distinct_poses, rms_balance_warnings
 from lenspair.rectify.layout import unsupported_layout

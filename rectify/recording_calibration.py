@@ -36,9 +36,10 @@ from lenspair.capture.recording_types import Recording
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_texts, json_text
 from lenspair.core.progress import progress
-from lenspair.rectify.boards import Board, Detection, detect_corners, marker_family
+from lenspair.rectify.boards import Board
 from lenspair.rectify.calib_types import CalibrationModel, CalibrationOptions, CalibrationResult
 from lenspair.rectify.calibration import calibrate_from_detections
+from lenspair.rectify.corner_detection import Detection, detect_corners, marker_family
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import StereoRig, kalibr_text
 

@@ -24,11 +24,11 @@ import cv2
 import numpy as np
 
 from lenspair.rectify.crop import Crop
+from lenspair.rectify.rectification import OUTSIDE
 
 PointMap = Callable[[np.ndarray], np.ndarray]
 """``(N, 2)`` float64 rectified pixel coordinates -> ``(N, 2)`` float64 raw pixel coordinates."""
 
-_OUTSIDE = -1000.0  # map value for pixels without a raw source: remap yields the border
 
 INTERPOLATION = cv2.INTER_CUBIC
 """Kernel used for every output image (bicubic: sharper than bilinear, same cost class)."""
@@ -86,7 +86,7 @@ def apply_homography(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def _grid_from_points(points: np.ndarray, width: int, height: int, margin: int) -> RemapGrid:
     shape = (height + 2 * margin, width + 2 * margin)
-    points = np.where(np.isfinite(points), points, _OUTSIDE)
+    points = np.where(np.isfinite(points), points, OUTSIDE)
     map_x = np.ascontiguousarray(points[:, 0].reshape(shape), dtype=np.float32)
     map_y = np.ascontiguousarray(points[:, 1].reshape(shape), dtype=np.float32)
     return RemapGrid(map_x, map_y, margin)

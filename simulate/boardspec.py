@@ -9,7 +9,7 @@ this section adds how the simulator poses and prints it.
 from dataclasses import dataclass
 from typing import Literal
 
-from lenspair.rectify.boards import Board
+from lenspair.rectify.boards import DEFAULT_DICTIONARY, Board
 from lenspair.rectify.errors import RectifyError
 
 DICTIONARIES = (
@@ -24,7 +24,6 @@ DICTIONARIES = (
 )
 """ArUco dictionaries accepted for ChArUco boards (names of ``cv2.aruco`` constants)."""
 
-DEFAULT_DICTIONARY = "DICT_5X5_100"
 
 MAX_BOARD_TEXELS = 2**25
 """Largest printed board texture, texels: 128 MiB as float32 mono, with its mip levels

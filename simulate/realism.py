@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 from skimage.metrics import peak_signal_noise_ratio
 
-from lenspair.core.imageio import check_image
+from lenspair.core.pixels import check_image
 from lenspair.core.quality import to_grey
 from lenspair.simulate.effects.spec import EffectsSpec
 from lenspair.simulate.errors import SimulateError

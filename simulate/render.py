@@ -7,7 +7,7 @@ renders it onto each frame, and :func:`advance_glass` optionally replaces a
 ``1 - persistence`` share of the drops between frames.
 
 Image convention: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)``,
-sRGB-encoded (see :mod:`lenspair.core.imageio`); the output has the input's
+sRGB-encoded (see :mod:`lenspair.core.pixels`); the output has the input's
 dtype and shape. Rendering happens in linear light in ``float32``; values
 are clipped once, when encoded back.
 
@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from lenspair.core.imageio import check_image, from_float, from_linear, to_linear
+from lenspair.core.pixels import check_image, from_float, from_linear, to_linear
 from lenspair.simulate.effects import brightness, defocus, dirt, dust, raindrops, veil
 from lenspair.simulate.effects.layer import Placement, Sprites, composite_over, place, support_mask
 from lenspair.simulate.effects.spec import EffectsSpec

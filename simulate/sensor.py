@@ -4,7 +4,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lenspair.core.imageio import from_float, from_linear, to_float, to_linear
+from lenspair.core.pixels import from_float, from_linear, to_float, to_linear
 
 
 def expose(

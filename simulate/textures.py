@@ -20,7 +20,8 @@ import numpy as np
 import skimage.data
 
 from lenspair.core.errors import ConfigError, ImageIOError
-from lenspair.core.imageio import image_header, read_image, to_float, to_linear
+from lenspair.core.imageio import image_header, read_image
+from lenspair.core.pixels import to_float, to_linear
 
 NAMES: dict[str, Callable[[], np.ndarray]] = {
     "astronaut": skimage.data.astronaut,

@@ -11,7 +11,7 @@ from lenspair.cli import main
 from lenspair.core.imageio import read_image
 from lenspair.demo import QUICK, plan
 from lenspair.model.precision import choose_precision
-from lenspair.model.training.config import load_run_config
+from lenspair.model.training.config_loading import load_run_config
 
 pytestmark = pytest.mark.slow
 

@@ -39,7 +39,7 @@ import yaml
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.core.leftovers import LEFTOVER_SUFFIXES
 from tests.fork_server import ForkedRun, start_server
 from tests.model.restore_helpers import bag_from_recording

@@ -87,7 +87,8 @@ def _default_out(source: Path) -> Path:
 def run(args: argparse.Namespace) -> int:
     """Judge the frames of INPUT; returns the exit code."""
     # torch and the bag readers load when the command runs, so --help stays fast
-    from lenspair.capture.frames import bag_overview, detect_input, frame_files, iter_frames
+    from lenspair.capture.bag_frames import bag_overview
+    from lenspair.capture.frames import detect_input, frame_files, iter_frames
     from lenspair.capture.recording import present_cameras
     from lenspair.capture.recording_types import FrameProblem
     from lenspair.model.detection.report import detect_frames

@@ -161,7 +161,8 @@ def run(args: argparse.Namespace) -> int:
         DEFAULT_VARIANTS,
         parse_budget,
     )
-    from lenspair.model.training.config import RunConfig, with_file  # as above
+    from lenspair.model.training.config import RunConfig  # as above
+    from lenspair.model.training.config_loading import with_file  # as above
 
     budget = parse_budget(args.budget)
     variants = DEFAULT_VARIANTS

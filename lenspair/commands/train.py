@@ -260,10 +260,10 @@ def _check_out_apart(args: argparse.Namespace, train_split: str, val_split: str)
 def run(args: argparse.Namespace) -> int:
     """Train one run; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair train --help`.
-    from lenspair.model.training.config import load_run_config, with_file
+    from lenspair.model.training.config_loading import load_run_config, with_file
     from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
+    from lenspair.model.training.distributed import distributed_from_env
     from lenspair.model.training.loop import fit, resolve_config, resume_config
-    from lenspair.model.training.step import distributed_from_env
 
     if (args.dataset is None) == (args.synthetic is None):
         raise ConfigError("give a dataset DS, or --synthetic IMAGES_DIR (not both)")

@@ -73,7 +73,7 @@ def atomic_write(
         suffix: extension for the temporary name (some writers pick the format
             from it, e.g. ``.png``).
         sync: flush the data to the disk before the rename (:func:`_sync`).
-            Image frames skip it (:func:`lenspair.core.imageio.write_image`):
+            Image frames skip it (:func:`lenspair.core.imagewrite.write_image`):
             one fsync per frame can cost more than the frame on a robot's
             SD card or eMMC, and the stages that write frames check them on a
             rerun instead (capture-ingest by SHA-256, restore by size).

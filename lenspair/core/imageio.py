@@ -1,22 +1,12 @@
-"""Image files through OpenImageIO, and the pixel conventions of lenspair.
+"""Image files read through OpenImageIO: their pixels, alpha, and what their headers say.
 
-Conventions (stated once, checked where data enters):
-
-* **On disk / in arrays between stages**: ``uint8`` or ``uint16``, shape
-  ``(H, W)`` for mono or ``(H, W, 3)`` for RGB, sRGB-encoded as cameras and
-  PNG viewers expect. Bit depth is preserved end to end.
-* **Inside renderers and metrics**: ``float32`` in ``[0, 1]``; blending
-  happens in *linear* light (:func:`to_linear` / :func:`from_linear`).
-
-OpenImageIO's Python binding misreads 2-D arrays on write (rows come out
-strided and the bytes differ from run to run), so every write goes through
-an explicit ``(H, W, C)`` contiguous array; the output bytes are then a pure
-function of the pixels.
+Pixels come back in the convention of :mod:`lenspair.core.pixels` (``uint8``
+or ``uint16``, ``(H, W)`` or ``(H, W, 3)``, as stored); files are written by
+:mod:`lenspair.core.imagewrite`, which takes back what a header says here
+(orientation, alpha, descriptive attributes) when an image replaces a file.
 """
 
 import contextlib
-import errno
-import shutil
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -25,21 +15,9 @@ import numpy as np
 import OpenImageIO as oiio
 
 from lenspair.core.errors import ImageIOError, first_text_line
-from lenspair.core.fsutil import atomic_write
 from lenspair.core.pngcheck import png_problem
 
 _UNKNOWN = "unknown error"  # an OpenImageIO failure that gives no reason
-_OIIO_TYPES = {np.dtype(np.uint8): oiio.UINT8, np.dtype(np.uint16): oiio.UINT16}
-
-
-def check_image(image: np.ndarray, name: str = "image") -> None:
-    """Raise ``ValueError`` unless ``image`` is uint8/uint16 (H, W) or (H, W, 3), H, W >= 1."""
-    if image.dtype not in _OIIO_TYPES:
-        raise ValueError(f"{name}: expected dtype uint8 or uint16, got {image.dtype}")
-    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
-        raise ValueError(f"{name}: expected shape (H, W) or (H, W, 3), got {image.shape}")
-    if image.shape[0] == 0 or image.shape[1] == 0:
-        raise ValueError(f"{name}: an empty image, shape {image.shape}")
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -130,9 +108,9 @@ def image_metadata(path: Path) -> tuple[Attribute, ...]:
     """The descriptive attributes of a file's header: ICC profile, EXIF, GPS, IPTC.
 
     Whoever writes an image back in the file's place (``restore``) hands
-    them to :func:`write_image`'s ``metadata``, or the new file loses its
-    colour profile (a wide-gamut photo shown in sRGB), its camera and its
-    capture time. Attributes of the file's format and geometry (resolution,
+    them to :func:`~lenspair.core.imagewrite.write_image`'s ``metadata``, or
+    the new file loses its colour profile (a wide-gamut photo shown in sRGB),
+    its camera and its capture time. Attributes of the file's format and geometry (resolution,
     compression, bit depth, the format's own ``png:``/``tiff:``/``oiio:``
     ones, the ICC profile's decoded ``ICCProfile:`` fields) are left to the
     writer; so is ``Orientation`` (:func:`image_layout`).
@@ -154,7 +132,8 @@ def read_alpha(path: Path) -> np.ndarray | None:
 
     :func:`read_image` drops alpha (the networks see colour only); whoever
     writes an image back in the file's place (``restore``) puts it back with
-    :func:`write_image`'s ``alpha``. Only the header is read when there is none.
+    :func:`~lenspair.core.imagewrite.write_image`'s ``alpha``. Only the header
+    is read when there is none.
 
     Raises:
         ImageIOError: as :func:`read_image`.
@@ -285,183 +264,3 @@ def _read_pixels(path: Path) -> np.ndarray:
         if pixels is None or _CUT_SHORT in error:
             raise ImageIOError(f"{path}: corrupt or truncated ({first_text_line(error, _UNKNOWN)})")
     return np.asarray(pixels)
-
-
-FAST_PNG = 1
-"""zlib level for PNGs written where throughput matters (``restore``): on
-natural 540x360 frames about twice as fast to write as the default level 6,
-for files a few per cent larger (the same pixels)."""
-
-
-def write_image(
-    path: Path,
-    image: np.ndarray,
-    png_level: int | None = None,
-    alpha: np.ndarray | None = None,
-    orientation: int = 1,
-    associated: bool = False,
-    metadata: Sequence[Attribute] = (),
-) -> None:
-    """Write ``image`` atomically; the format follows the file extension.
-
-    Args:
-        path: destination; any format OpenImageIO writes, by its extension
-            (an image the format cannot hold, 16 bits or an alpha channel in
-            a JPEG, is refused: see :func:`_format_loses`).
-        image: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)``.
-        png_level: zlib compression level 0-9 of a PNG (``None``: the
-            library's default); see :data:`FAST_PNG`.
-        alpha: an alpha channel ``(H, W)`` of ``image``'s dtype to write
-            after the colour ones (grey + alpha, RGBA); see :func:`read_alpha`.
-        orientation: the EXIF/TIFF ``Orientation`` to record (1, as stored: none
-            is written); see :func:`image_layout`.
-        associated: ``alpha`` is associated (the colour is premultiplied, as
-            in the TIFF it came from: :func:`alpha_is_associated`), and a TIFF
-            says so; the colour is written as given either way.
-        metadata: descriptive attributes to record (ICC profile, EXIF, as
-            the format holds them); see :func:`image_metadata`.
-
-    """
-    check_image(image, str(path))
-    pixels = np.ascontiguousarray(image if image.ndim == 3 else image[:, :, None])
-    if alpha is not None:
-        if alpha.shape != pixels.shape[:2] or alpha.dtype != image.dtype:
-            raise ValueError(
-                f"{path}: alpha {alpha.shape} {alpha.dtype} does not match the image "
-                f"{pixels.shape[:2]} {image.dtype}"
-            )
-        pixels = np.ascontiguousarray(np.concatenate([pixels, alpha[:, :, None]], axis=2))
-    height, width, channels = pixels.shape
-    path = Path(path)
-
-    def _write(tmp: Path) -> None:
-        spec = oiio.ImageSpec(width, height, channels, _OIIO_TYPES[image.dtype])
-        for name, kind, value in metadata:
-            spec.attribute(name, kind, value)
-        if alpha is not None:
-            spec.alpha_channel = channels - 1
-            if not associated:  # colour as given, not divided by alpha
-                spec.attribute("oiio:UnassociatedAlpha", 1)
-        if png_level is not None:
-            spec.attribute("png:compressionLevel", png_level)
-        if orientation != 1:
-            spec.attribute("Orientation", orientation)
-        out = oiio.ImageOutput.create(oiio_name(path))
-        if out is None or not out.open(oiio_name(tmp), spec):
-            why = out.geterror() if out is not None else ""
-            raise ImageIOError(
-                f"{path}: cannot write ({first_text_line(why or oiio.geterror(), _UNKNOWN)})"
-            )
-        lost = _format_loses(out, spec, alpha is not None)
-        if lost:
-            out.close()
-            raise ImageIOError(f"{path}: cannot write: {lost}")
-        ok = out.write_image(pixels)
-        closed = out.close()
-        error = out.geterror()  # not always a failure: TIFFs carry a note on their Exif data
-        if not (ok and closed):
-            raise _write_failure(path, tmp, error)
-        # OpenImageIO answers True when the disk fills: its error text may say so, and a
-        # write refused while closing (the last buffer) it does not report at all
-        short = error if _SHORT_WRITE in error else ""
-        problem = short or _written_problem(tmp, path.suffix)
-        if problem:
-            raise _write_failure(path, tmp, problem)
-
-    atomic_write(path, _write, suffix=path.suffix, sync=False)  # frames: see atomic_write
-
-
-def _format_loses(out: "oiio.ImageOutput", spec: "oiio.ImageSpec", alpha: bool) -> str:
-    """What the file's format would drop of the image ("" if nothing).
-
-    OpenImageIO writes what the format holds, silently: a JPEG takes 8-bit
-    values only and no alpha, so a 16-bit or grey + alpha PNG misnamed
-    ``.jpg`` came out 8-bit, or as a colour image of grey, alpha and zero.
-    """
-    name = out.format_name().upper()
-    used = out.spec()
-    if alpha and not out.supports("alpha"):
-        return f"{name} holds no alpha channel"
-    if used.nchannels != spec.nchannels:
-        return f"{name} cannot hold {spec.nchannels} channels"
-    if used.format != spec.format:
-        return f"{name} holds {used.format} values, not the image's {spec.format}"
-    return ""
-
-
-_SHORT_WRITE = "Write error"
-"""How OpenImageIO's error text starts for a write the file system cut short."""
-
-
-def _written_problem(tmp: Path, suffix: str) -> str:
-    """Why the file just written is not whole ("" when it is): the structure read back.
-
-    A PNG's chunks are walked (:func:`~lenspair.core.pngcheck.png_problem`: lengths and
-    CRCs, 0.06-0.5 ms for a 540x360 frame, from the page cache); other formats are
-    decoded (TIFF: about 1 ms).
-    """
-    if suffix.lower() == ".png":  # the temporary's own suffix is .tmp
-        problem = png_problem(tmp.read_bytes())
-        return "" if problem is None else f"{_SHORT_WRITE}: the file written is {problem}"
-    handle = oiio.ImageInput.open(str(tmp))
-    if handle is None:
-        why = oiio.geterror()
-    else:
-        why = "" if handle.read_image() is not None else handle.geterror() or "no pixels"
-        handle.close()
-    return (
-        f"{_SHORT_WRITE}: the file written does not read back ({first_text_line(why)})"
-        if why
-        else ""
-    )
-
-
-def _write_failure(path: Path, tmp: Path, error: str) -> Exception:
-    """The exception of a failed image write: the file system's refusal, or the library's error.
-
-    A short write ("could only write N bytes") is the file system refusing
-    (a full disk or quota): an ``OSError`` naming ``path``, which the CLI says
-    in one line (exit 1). Either way the temporary is removed by
-    :func:`~lenspair.core.fsutil.atomic_write` and nothing takes ``path``.
-    """
-    if _SHORT_WRITE in error:
-        if shutil.disk_usage(tmp.parent).free < (1 << 20):
-            return OSError(errno.ENOSPC, "No space left on device", str(path))
-        # a quota or a file-size limit: OpenImageIO does not say which
-        reason = "the file system cut the write short (a quota or file-size limit?)"
-        return OSError(errno.EIO, reason, str(path))
-    return ImageIOError(f"{path}: write failed ({first_text_line(error, 'no reason given')})")
-
-
-def max_value(dtype: np.dtype | type) -> float:
-    """Largest code value of an integer image dtype (255 or 65535)."""
-    return float(np.iinfo(np.dtype(dtype)).max)
-
-
-def to_float(image: np.ndarray) -> np.ndarray:
-    """Integer image to ``float32`` in ``[0, 1]`` (still sRGB-encoded)."""
-    check_image(image)
-    return image.astype(np.float32) / np.float32(max_value(image.dtype))
-
-
-def from_float(image: np.ndarray, dtype: np.dtype | type) -> np.ndarray:
-    """``float32`` image in ``[0, 1]`` to integer codes, clipping once, rounding."""
-    scale = np.float32(max_value(dtype))
-    scaled = np.clip(np.nan_to_num(image, nan=0.0), 0.0, 1.0) * scale
-    return np.asarray(np.rint(scaled).astype(dtype))
-
-
-def to_linear(encoded: np.ndarray) -> np.ndarray:
-    """sRGB-encoded ``[0, 1]`` float32 to linear light (IEC 61966-2-1)."""
-    x = np.asarray(encoded, dtype=np.float32)
-    low = x / np.float32(12.92)
-    high = np.power((np.maximum(x, 0.04045) + np.float32(0.055)) / np.float32(1.055), 2.4)
-    return np.where(x <= 0.04045, low, high).astype(np.float32)
-
-
-def from_linear(linear: np.ndarray) -> np.ndarray:
-    """Linear-light float32 to sRGB-encoded ``[0, 1]`` float32 (input clipped to >= 0)."""
-    x = np.maximum(np.asarray(linear, dtype=np.float32), 0.0)
-    low = x * np.float32(12.92)
-    high = np.float32(1.055) * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - np.float32(0.055)
-    return np.where(x <= 0.0031308, low, high).astype(np.float32)

@@ -18,7 +18,7 @@ computed in one place:
 import cv2
 import numpy as np
 
-from lenspair.core.imageio import max_value
+from lenspair.core.pixels import max_value
 
 BLANK_STD = 1.0 / 255.0
 """Luma standard deviation (``[0, 1]`` scale) below which a frame is blank."""

@@ -94,7 +94,7 @@ def judge(
         The :class:`Judgement` (empty arrays for no images).
 
     Raises:
-        ValueError: an image breaks the :mod:`lenspair.core.imageio` convention.
+        ValueError: an image breaks the :mod:`lenspair.core.pixels` convention.
     """
     spec = network.spec
     rows, cols = spec.grid

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from lenspair.core.imageio import check_image, to_float, to_linear
+from lenspair.core.pixels import check_image, to_float, to_linear
 from lenspair.model.networks.detector import KINDS
 
 KIND_ALIASES: dict[str, str] = {"raindrops": "rain", "drops": "rain", "smudge": "dirt"}

@@ -24,13 +24,13 @@ from typing import Generic, TypeVar
 import cv2
 import numpy as np
 
-from lenspair.capture.frames import InputFrame
+from lenspair.capture.frame_types import InputFrame
 from lenspair.capture.recording_types import FrameProblem
 from lenspair.capture.rosbag import never_stamped
 from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.core.contact_sheet import make_contact_sheet, to_display
 from lenspair.core.fsutil import atomic_write_texts, json_text
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.core.progress import progress
 from lenspair.model.detection.judge import Judgement, judge
 from lenspair.model.networks.detector import KINDS, AnomalyDetector

@@ -16,7 +16,7 @@ import torch
 
 from lenspair.core.config import to_plain
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
-from lenspair.core.imageio import from_float
+from lenspair.core.pixels import from_float
 from lenspair.model.detection.data import DetectorSample
 from lenspair.model.detection.judge import judge
 from lenspair.model.detection.score import DetectionScores, score, scores_markdown

@@ -27,7 +27,7 @@ import numpy as np
 
 from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.fsutil import atomic_write_texts, json_safe
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.evaluation.evaluate import EvalResult
 from lenspair.model.evaluation.summary import fmt_psnr
 from lenspair.model.metrics import PSNR_CAP_DB

@@ -27,7 +27,7 @@ import torch
 from torch import nn
 
 from lenspair.core.errors import LenspairError, listed
-from lenspair.core.imageio import max_value
+from lenspair.core.pixels import max_value
 from lenspair.core.progress import progress
 from lenspair.dataset.curation import channel_max
 from lenspair.model.evaluation.latency import autocast_context

@@ -18,7 +18,8 @@ import torch
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint
 from lenspair.model.errors import ModelError
-from lenspair.model.training.config import RunConfig, config_differences
+from lenspair.model.training.config import RunConfig
+from lenspair.model.training.config_loading import config_differences
 from lenspair.model.training.run_files import RunPaths
 from lenspair.model.training.step import (
     describe_precision,

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from lenspair.capture.bagwrite import BagCopy, output_bag_path
-from lenspair.capture.frames import BagMessage, InputFrame
+from lenspair.capture.frame_types import BagMessage, InputFrame
 from lenspair.capture.rosbag import ROS2_STORAGE_SUFFIXES
 from lenspair.core.fsutil import (
     atomic_write,

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from lenspair.capture.frames import InputFrame
+from lenspair.capture.frame_types import InputFrame
 from lenspair.core.bitdepth import RunningDepth, widen
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
@@ -122,7 +122,7 @@ def run_batches(
     """Batch frames and run the network; hands everything to ``writer`` in order.
 
     Args:
-        items: the input's frames (:class:`~lenspair.capture.frames.InputFrame`)
+        items: the input's frames (:class:`~lenspair.capture.frame_types.InputFrame`)
             or bag messages, in order.
         backend: the network.
         options: batch size and tiling.

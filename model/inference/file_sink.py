@@ -19,18 +19,17 @@ import numpy as np
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.folders import IMAGE_SUFFIXES
-from lenspair.capture.frames import InputFrame
+from lenspair.capture.frame_types import InputFrame
 from lenspair.core.errors import ImageIOError
 from lenspair.core.fsutil import atomic_write_text, naming_errors
 from lenspair.core.imageio import (
-    FAST_PNG,
     Attribute,
     alpha_is_associated,
     image_layout,
     image_metadata,
     read_alpha,
-    write_image,
 )
+from lenspair.core.imagewrite import FAST_PNG, write_image
 from lenspair.model.inference.out_layout import (
     COPIES_NAME,
     OWN_NAMES,

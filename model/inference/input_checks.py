@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from lenspair.capture.bag_frames import bag_topics
 from lenspair.capture.bagwrite import output_bag_path
-from lenspair.capture.frames import InputKind, bag_topics, detect_input, frame_files
+from lenspair.capture.frames import InputKind, detect_input, frame_files
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.fsutil import inside_refusal
 from lenspair.model.errors import ModelError

@@ -13,7 +13,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from lenspair.capture.frames import InputFrame
+from lenspair.capture.frame_types import InputFrame
 from lenspair.model.detection.judge import judge
 from lenspair.model.detection.train import load_detector
 from lenspair.model.networks.detector import AnomalyDetector
@@ -23,7 +23,7 @@ class FrameJudge(Protocol):
     """Frames in, obstructed yes/no out."""
 
     def __call__(self, frame: InputFrame, image: np.ndarray) -> bool:
-        """True when ``image`` (``frame``'s pixels, imageio convention) is obstructed."""
+        """True when ``image`` (``frame``'s pixels, core.pixels convention) is obstructed."""
 
 
 class ThresholdJudge:

@@ -36,7 +36,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from lenspair.capture.frames import InputKind, bag_overview, iter_bag_messages, iter_frames
+from lenspair.capture.bag_frames import bag_overview, iter_bag_messages
+from lenspair.capture.frames import InputKind, iter_frames
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.leftovers import remove_leftovers_under

@@ -9,7 +9,8 @@ them (:func:`check_options`).
 from dataclasses import dataclass
 from pathlib import Path
 
-from lenspair.capture.frames import InputKind, bag_camera_topics
+from lenspair.capture.bag_frames import bag_camera_topics
+from lenspair.capture.frames import InputKind
 from lenspair.capture.recording import CAMERAS, find_rig_file, present_cameras
 from lenspair.capture.rigfile import CameraName, read_rig_file
 from lenspair.model.errors import ModelError
@@ -34,7 +35,7 @@ class RestoreOptions:
             beside the originals instead of replacing them.
         resume: continue a killed run in a non-empty OUT.
         topics: bags only: the ``(cam0, cam1)`` image topics; None picks
-            them from their names (:func:`lenspair.capture.frames.bag_camera_topics`).
+            them from their names (:func:`lenspair.capture.bag_frames.bag_camera_topics`).
     """
 
     camera: str = "auto"

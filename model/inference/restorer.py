@@ -27,7 +27,7 @@ import torch
 
 from lenspair.core.bitdepth import RunningDepth
 from lenspair.core.device import resolve_device
-from lenspair.core.imageio import check_image
+from lenspair.core.pixels import check_image
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend, open_backend
 from lenspair.model.inference.input_checks import frame_problem

@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from lenspair.capture.frames import InputFrame, InputKind
+from lenspair.capture.frame_types import InputFrame
+from lenspair.capture.frames import InputKind
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.fsutil import naming_errors, read_json_field, sha256_file
 from lenspair.core.leftovers import leftovers

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.frames import InputFrame
+from lenspair.capture.frame_types import InputFrame
 from lenspair.core.errors import ImageIOError
 
 if TYPE_CHECKING:

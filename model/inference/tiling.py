@@ -1,7 +1,7 @@
 """Running a backend on whole images or on overlapping tiles blended without seams.
 
 Array convention: batches ``(N, C, H, W)`` ``float32`` in [0, 1]. Frames
-enter as the :mod:`lenspair.core.imageio` convention (``uint8``/``uint16``,
+enter as the :mod:`lenspair.core.pixels` convention (``uint8``/``uint16``,
 ``(H, W)`` or ``(H, W, 3)`` RGB) and leave in the same dtype and shape
 (:func:`to_batch`, :func:`from_batch`).
 
@@ -22,7 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from lenspair.core.bitdepth import narrow, widen
-from lenspair.core.imageio import max_value
+from lenspair.core.pixels import max_value
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.options import DEFAULT_OVERLAP, MIN_TILE

@@ -13,18 +13,18 @@ The file saved as ``RUN/config.yaml`` is the *resolved* configuration: every
 default written out, ``model.channels`` fixed from the data, and a
 ``runtime`` section stating what the run actually did (device, precision,
 whether the perceptual loss ran, the data it read).
+
+This module holds the sections' dataclasses and their checks; reading a
+file or a checkpoint's copy, layering a ``--config`` on another
+configuration and comparing two are in
+:mod:`lenspair.model.training.config_loading`.
 """
 
-import dataclasses
-import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
-from lenspair.core.config import MAX_SEED, load_dataclass, read_yaml, to_plain
-from lenspair.core.errors import ConfigError
-
-log = logging.getLogger(__name__)
+from lenspair.core.config import MAX_SEED
 
 Variant = Literal["G", "GE", "GEA"]
 DropsPreset = Literal["ours", "sharp"]
@@ -328,110 +328,3 @@ class RunConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     runtime: RuntimeInfo | None = None
-
-
-def load_run_config(path: Path | None, given: bool = False, stored: bool = False) -> RunConfig:
-    """Read a run configuration YAML file; ``None`` gives the defaults.
-
-    ``given``: the user's ``--config``; a ``runtime`` section in it (a run's
-    ``config.yaml``, reused) is said to steer nothing. ``stored``: a run's
-    own ``config.yaml``, read as :func:`stored_run_config` does.
-
-    Raises:
-        ConfigError: unknown key, wrong type or invalid value (dotted path named).
-
-    """
-    if path is None:
-        return RunConfig()
-    data = read_yaml(path)  # its errors name the file already
-    try:
-        config = stored_run_config(data) if stored else run_config_from_dict(data)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
-    if given and config.runtime is not None:  # a run's config.yaml, reused: nothing steers
-        log.info(
-            "%s: its runtime section records what a run did and is not read as settings "
-            "(precision, device and init are train.precision, --device and --init)",
-            path,
-        )
-    return config
-
-
-def with_file(config: RunConfig, path: Path) -> RunConfig:
-    """``config`` with the keys the file ``path`` names set from it; every other key kept.
-
-    For a ``--config`` given on top of a configuration that is not the
-    defaults (the stored one of ``train --resume``, ``tradeoff``'s own): a
-    file written to set, say, ``train.patience`` changes that, and no more.
-
-    Raises:
-        ConfigError: the file alone is invalid (named, as :func:`load_run_config`),
-            or the combination is.
-    """
-    load_run_config(path, given=True)  # its own keys and types, with the file named
-    data = read_yaml(path) or {}
-    merged = to_plain(config)
-    for section, values in data.items():
-        if values is None:  # every key commented out: an empty section, as load_dataclass reads
-            continue
-        if isinstance(values, dict) and isinstance(merged.get(section), dict):
-            merged[section] = {**merged[section], **values}
-        else:
-            merged[section] = values
-    try:
-        return run_config_from_dict(merged)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
-
-
-def run_config_from_dict(data: object) -> RunConfig:
-    """Build a :class:`RunConfig` from plain data (e.g. stored in a checkpoint).
-
-    The ``runtime`` section says what a run did and steers nothing: keys that
-    a later lenspair added to it are passed over, so that a checkpoint or
-    ``config.yaml`` written by a newer version still loads (a table of runs
-    trained by a newer lenspair failed to score every one of them). The
-    other sections stay strict: a typo there changes what trains.
-    """
-    if isinstance(data, dict) and isinstance(data.get("runtime"), dict):
-        known = {f.name for f in dataclasses.fields(RuntimeInfo)}
-        data = {**data, "runtime": {k: v for k, v in data["runtime"].items() if k in known}}
-    return load_dataclass(RunConfig, data)
-
-
-EARLIER_DEFAULTS: dict[tuple[str, str], object] = {("data", "clear_share"): 0.0}
-"""Keys added later whose default changes what trains: ``(section, key)`` -> what runs did before.
-
-A configuration a run stored before the key existed (its checkpoint, its
-``config.yaml``) is read with this value, not today's default, so that
-``train --resume`` goes on as the run began, and a ``--config`` that sets
-today's default is reported as the change it is.
-"""
-
-
-def stored_run_config(data: object) -> RunConfig:
-    """:func:`run_config_from_dict` for a configuration a run stored (:data:`EARLIER_DEFAULTS`)."""
-    if isinstance(data, dict):
-        for (section, key), value in EARLIER_DEFAULTS.items():
-            part = data.get(section)
-            if isinstance(part, dict) and key not in part:
-                data = {**data, section: {**part, key: value}}
-    return run_config_from_dict(data)
-
-
-def field_differences(old: Any, new: Any) -> list[tuple[str, Any, Any]]:
-    """``(field, old value, new value)`` of each field that differs between two sections."""
-    return [
-        (f.name, getattr(old, f.name), getattr(new, f.name))
-        for f in dataclasses.fields(old)
-        if getattr(old, f.name) != getattr(new, f.name)
-    ]
-
-
-def config_differences(old: RunConfig, new: RunConfig) -> list[str]:
-    """Dotted keys whose values differ between two configs (``runtime`` ignored)."""
-    return [
-        f"{section}.{name}: {before!r} -> {after!r}"
-        for section in ("model", "data", "train", "loss")
-        for name, before, after in field_differences(getattr(old, section), getattr(new, section))
-    ]

@@ -24,11 +24,12 @@ from torch.utils.data.distributed import DistributedSampler
 
 from lenspair.core.progress import progress
 from lenspair.model.training.config import RunConfig, TrainConfig
+from lenspair.model.training.distributed import Distributed, all_true
 from lenspair.model.training.pairs import Sample
 from lenspair.model.training.periodic import CheckpointClock, save_progress
 from lenspair.model.training.run_files import RunPaths
 from lenspair.model.training.run_state import RunState, budget_reason, stop_reason
-from lenspair.model.training.step import Distributed, Trainer, all_true, scheduled_lr
+from lenspair.model.training.step import Trainer, scheduled_lr
 from lenspair.model.training.validation import validate_and_save
 
 log = logging.getLogger(__name__)

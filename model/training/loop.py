@@ -49,7 +49,9 @@ from lenspair.core.wording import counted
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
-from lenspair.model.training.config import RunConfig, RuntimeInfo, config_differences
+from lenspair.model.training.config import RunConfig, RuntimeInfo
+from lenspair.model.training.config_loading import config_differences
+from lenspair.model.training.distributed import Distributed, distributed_from_env, init_distributed
 from lenspair.model.training.epochs import EpochDataset, run_epochs
 from lenspair.model.training.resume import remove_partial_run, start_state, with_history
 from lenspair.model.training.run_files import (
@@ -60,12 +62,7 @@ from lenspair.model.training.run_files import (
 )
 from lenspair.model.training.run_state import RunState
 from lenspair.model.training.start_checks import check_resume_batch, open_run_folder, read_init
-from lenspair.model.training.step import (
-    Distributed,
-    Trainer,
-    distributed_from_env,
-    init_distributed,
-)
+from lenspair.model.training.step import Trainer
 
 log = logging.getLogger(__name__)
 
@@ -254,7 +251,7 @@ def fit(
         if info.active:
             # The trainer's DDP wrappers hold the group: free them first, so that
             # destroying it joins gloo's threads now, while Python still runs (see
-            # lenspair.model.training.step.init_process_group for what they do at exit).
+            # lenspair.model.training.distributed.init_process_group for what they do at exit).
             trainer = None
             torch.distributed.destroy_process_group()
 

@@ -25,7 +25,7 @@ import torch
 from torch.utils.data import Dataset
 
 from lenspair.core.errors import LenspairError
-from lenspair.core.imageio import to_float
+from lenspair.core.pixels import to_float
 from lenspair.core.quality import anomaly_cells, to_grey
 from lenspair.dataset.config import CurationConfig
 from lenspair.dataset.curation import channel_max

@@ -15,9 +15,10 @@ from dataclasses import dataclass
 
 from lenspair.model.checkpoint import save_checkpoint
 from lenspair.model.training.config import RunConfig, TrainConfig
+from lenspair.model.training.distributed import Distributed
 from lenspair.model.training.run_files import RunPaths
 from lenspair.model.training.run_state import RunState
-from lenspair.model.training.step import Distributed, Trainer, rng_state
+from lenspair.model.training.step import Trainer, rng_state
 
 
 @dataclass

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 import torch
 
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, save_checkpoint
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import RunConfig

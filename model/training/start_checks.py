@@ -22,7 +22,8 @@ from typing import Any
 
 from lenspair.model.checkpoint import check_finite_weights, checkpoint_config, load_checkpoint
 from lenspair.model.errors import ModelError
-from lenspair.model.training.config import RunConfig, field_differences
+from lenspair.model.training.config import RunConfig
+from lenspair.model.training.config_loading import field_differences
 from lenspair.model.training.run_files import RunPaths, read_metrics_rows
 
 

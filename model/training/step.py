@@ -19,8 +19,9 @@ where the CPU or GPU runs bf16 natively, fp16 autocast with a ``GradScaler``
 on CUDA devices with fp16 tensor cores only, fp32 otherwise.
 
 Multi-GPU: under ``torchrun`` (``WORLD_SIZE`` > 1) both networks are wrapped
-in ``DistributedDataParallel``; the single-device path never touches
-``torch.distributed``. The loop over epochs is
+in ``DistributedDataParallel`` (the process group:
+:mod:`lenspair.model.training.distributed`); the single-device path never
+touches ``torch.distributed``. The loop over epochs is
 :func:`lenspair.model.training.epochs.run_epochs`, started by
 :func:`lenspair.model.training.loop.fit`.
 """
@@ -34,7 +35,6 @@ from pathlib import Path
 from typing import Any
 
 import torch
-import torch.distributed as dist
 from torch import Tensor, nn
 from torch.nn.parallel import DistributedDataParallel as DDP
 
@@ -44,6 +44,7 @@ from lenspair.model.networks.variants import build_discriminator
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV, load_vgg19
 from lenspair.model.precision import PrecisionDecision, choose_precision
 from lenspair.model.training.config import RunConfig, TrainConfig
+from lenspair.model.training.distributed import Distributed, all_true
 from lenspair.model.training.losses import (
     PerceptualLoss,
     discriminator_loss,
@@ -54,79 +55,6 @@ from lenspair.model.training.losses import (
 log = logging.getLogger(__name__)
 
 PERCEPTUAL_DISABLED = f"disabled (no VGG19 weights: set train.vgg19_weights or {VGG19_WEIGHTS_ENV})"
-
-
-@dataclass(frozen=True)
-class Distributed:
-    """This process's place in a ``torchrun`` job (rank 0 of 1 without one)."""
-
-    rank: int = 0
-    world_size: int = 1
-    local_rank: int = 0
-
-    @property
-    def is_main(self) -> bool:
-        """Whether this process logs and writes files."""
-        return self.rank == 0
-
-    @property
-    def active(self) -> bool:
-        """Whether more than one process takes part."""
-        return self.world_size > 1
-
-
-def distributed_from_env() -> Distributed:
-    """Read ``WORLD_SIZE``, ``RANK`` and ``LOCAL_RANK`` as set by ``torchrun``."""
-    try:
-        world = int(os.environ.get("WORLD_SIZE", "1"))
-        rank = int(os.environ.get("RANK", "0"))
-        local = int(os.environ.get("LOCAL_RANK", "0"))
-    except ValueError:
-        raise ModelError("WORLD_SIZE, RANK and LOCAL_RANK must be integers") from None
-    return Distributed(rank=rank, world_size=max(world, 1), local_rank=local)
-
-
-def init_distributed(device: torch.device) -> tuple[Distributed, torch.device]:
-    """Join the ``torchrun`` process group when there is one.
-
-    Single-process runs return ``(Distributed(), device)`` untouched. Under
-    ``torchrun`` with CUDA each process takes ``cuda:LOCAL_RANK``.
-    """
-    info = distributed_from_env()
-    if not info.active:
-        return info, device
-    if device.type == "cuda":
-        device = torch.device("cuda", info.local_rank)
-        torch.cuda.set_device(device)
-    if not dist.is_initialized():
-        init_process_group("nccl" if device.type == "cuda" else "gloo")
-    return info, device
-
-
-def init_process_group(backend: str, **kwargs: Any) -> None:
-    """``dist.init_process_group``, with DDP's lazy imports done before it.
-
-    ``torch.distributed.nn.functional`` (which DDP's construction imports)
-    evaluates ``group.WORLD`` into the default arguments of its functions when
-    it is first imported. Imported after the group exists, it holds the group
-    for the life of the process: ``destroy_process_group`` then frees nothing,
-    gloo's worker threads outlive it, and one that drops a finished
-    collective while the interpreter shuts down aborts the process ("terminate
-    called without an active exception", after the run's work was saved; about
-    1 in 90 looped two-process runs here). Imported first, those defaults are ``None``.
-    """
-    import torch.distributed.nn.functional  # noqa: F401  (see above)
-
-    dist.init_process_group(backend=backend, **kwargs)
-
-
-def all_true(flag: bool, info: Distributed, device: torch.device) -> bool:
-    """``flag`` on every process (a MIN all-reduce under ``torchrun``)."""
-    if not info.active:
-        return flag
-    value = torch.tensor([1 if flag else 0], device=device)
-    dist.all_reduce(value, op=dist.ReduceOp.MIN)
-    return bool(value.item())
 
 
 def training_precision(train: TrainConfig, device: torch.device) -> PrecisionDecision:

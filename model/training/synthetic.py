@@ -16,7 +16,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from lenspair.core.imageio import from_float, read_image, to_float
+from lenspair.core.imageio import read_image
+from lenspair.core.pixels import from_float, to_float
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.pairs import (
     Sample,

@@ -33,16 +33,17 @@ from torch import nn
 
 from lenspair.core.contact_sheet import make_contact_sheet
 from lenspair.core.errors import LenspairError
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.checkpoint import save_checkpoint
 from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.evaluation.scoring import score_tensors
 from lenspair.model.evaluation.summary import mean_psnr
 from lenspair.model.training.config import RunConfig
+from lenspair.model.training.distributed import Distributed
 from lenspair.model.training.pairs import Sample
 from lenspair.model.training.run_files import RunPaths, metrics_row, write_metrics_rows
 from lenspair.model.training.run_state import RunState
-from lenspair.model.training.step import Distributed, Trainer, rng_state
+from lenspair.model.training.step import Trainer, rng_state
 
 log = logging.getLogger(__name__)
 

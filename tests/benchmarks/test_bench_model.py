@@ -5,7 +5,7 @@ from typing import Any
 import pytest
 import torch
 
-from benchmarks import bench_model
+from benchmarks import bench_model, model_report, model_roofline
 from lenspair.model import precision
 from lenspair.model.evaluation.latency import tune_allocator
 
@@ -52,7 +52,7 @@ def test_bf16_rows_are_divided_by_the_bf16_peak_where_bf16_is_native(
     assert record["emulated"] == [] and record["onednn_max_cpu_isa"] is None
     # tuned before the run (another benchmark in this process): default malloc not measured
     assert record["allocator_tuned_before_run"] and record["default_allocator_medians_ms"] == {}
-    table = bench_model._table(record)
+    table = model_report.model_table(record)
     assert "- bf16 peak" in table and "(emulated)" not in table
 
 
@@ -70,7 +70,7 @@ def test_under_an_isa_cap_bf16_is_marked_emulated_and_has_no_roofline(
     assert all(record["roofline_ratios"][name] is None for name in bf16)
     assert all(record["single_thread_roofline_ratios"][name] is None for name in bf16)
     assert record["roofline_ratios"]["fp32 NCHW"] is not None
-    table = bench_model._table(record)
+    table = model_report.model_table(record)
     assert "- oneDNN ISA cap: ONEDNN_MAX_CPU_ISA=AVX2 (turns off avx512_bf16)" not in table
     assert "- oneDNN ISA cap: ONEDNN_MAX_CPU_ISA=AVX2 (ONEDNN_MAX_CPU_ISA=AVX2 turns off" in table
     row = next(line for line in table.splitlines() if line.startswith("| bf16 weights NCHW"))
@@ -80,7 +80,7 @@ def test_under_an_isa_cap_bf16_is_marked_emulated_and_has_no_roofline(
 
 def test_roofline_ratios_never_use_another_precisions_peak() -> None:
     medians = {"fp32 NCHW": 200.0, "bf16 weights NCHW": 100.0, "bf16 autocast NCHW": 50.0}
-    ratios = bench_model.roofline_ratios(medians, 20e9, {"fp32": 100.0, "bf16": None})
+    ratios = model_roofline.roofline_ratios(medians, 20e9, {"fp32": 100.0, "bf16": None})
     assert ratios == {"fp32 NCHW": 1.0, "bf16 weights NCHW": None, "bf16 autocast NCHW": None}
-    ratios = bench_model.roofline_ratios(medians, 20e9, {"fp32": 100.0, "bf16": 400.0})
+    ratios = model_roofline.roofline_ratios(medians, 20e9, {"fp32": 100.0, "bf16": 400.0})
     assert ratios["bf16 autocast NCHW"] == pytest.approx(1.0)

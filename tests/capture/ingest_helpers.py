@@ -15,8 +15,9 @@ import numpy as np
 
 from lenspair.capture.ingested import read_pairs, read_report
 from lenspair.capture.rigfile import RigFile, write_rig_file
-from lenspair.core.imageio import write_image
-from lenspair.rectify.rectification import StereoRectification, pixel_rays, project_rays
+from lenspair.core.imagewrite import write_image
+from lenspair.rectify.projection import pixel_rays, project_rays
+from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.remap import apply_homography, pixel_grid
 from lenspair.rectify.rig import CameraModel, StereoRig, read_kalibr, write_kalibr
 from tests.images import texture

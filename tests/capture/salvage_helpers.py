@@ -20,7 +20,7 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
-from lenspair.capture.frames import iter_bag_messages
+from lenspair.capture.bag_frames import iter_bag_messages
 from lenspair.capture.recording import open_recording
 from lenspair.capture.rosbag import close_bag_readers
 

@@ -5,9 +5,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lenspair.capture.bag_frames import bag_overview
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.frames import bag_overview, detect_input, frame_files, iter_frames
-from lenspair.core.imageio import read_image, write_image
+from lenspair.capture.frames import detect_input, frame_files, iter_frames
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from tests.capture.ingest_helpers import make_recording
 from tests.model.restore_helpers import bag_from_recording, write_bag
 

@@ -17,7 +17,8 @@ from lenspair.capture.ingest_report import set_report_aside
 from lenspair.capture.ingested import IngestReport, PairRecord, read_pairs, read_report
 from lenspair.cli import main
 from lenspair.core.bitdepth import narrow, significant_bits, widen
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.rectify.errors import CropError, RectifyError
 from lenspair.rectify.registration import EstimationParams, VerifyParams
 from tests.capture.ingest_helpers import CROP, DISPARITY, frame_files, make_recording

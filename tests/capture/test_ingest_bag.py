@@ -13,17 +13,19 @@ from rosbags.rosbag1 import Writer as Writer1
 from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture import rosbag
+from lenspair.capture.bag_frames import iter_bag_messages
 from lenspair.capture.bagwrite import output_bag_path
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.frames import detect_input, iter_bag_messages
+from lenspair.capture.frames import detect_input
 from lenspair.capture.image_messages import COMPRESSED_IMAGE as COMPRESSED
 from lenspair.capture.image_messages import decode_compressed
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import read_pairs, read_report
 from lenspair.capture.rigfile import RigFile, write_rig_file
-from lenspair.capture.rosbag import _open as open_bag
+from lenspair.capture.rosbag import open_bag
 from lenspair.cli import main
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.rectify.rig import write_kalibr
 from tests.capture.ingest_helpers import CROP, frame_files, make_recording, rig
 from tests.model.restore_helpers import bag_from_recording, write_bag
@@ -108,7 +110,7 @@ def test_topics_the_other_way_round_from_the_camchain(
     write_kalibr(swapped / "camchain.yaml", replace(rig(), topics=(cam1, cam0)))
     typed = ingest_recording(swapped / bag.name, tmp_path / "typed", size=SIZE, topics=(cam1, cam0))
     opened = []
-    monkeypatch.setattr(rosbag, "_open", lambda path: opened.append(path) or open_bag(path))
+    monkeypatch.setattr(rosbag, "open_bag", lambda path: opened.append(path) or open_bag(path))
     chosen = ingest_recording(swapped / bag.name, tmp_path / "chosen", size=SIZE)
     assert opened == [swapped / bag.name]  # listed once: a bag of hours is not read twice
     assert (

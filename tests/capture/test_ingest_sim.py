@@ -10,7 +10,7 @@ import yaml
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingested import read_pairs
 from lenspair.cli import main
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.rectify.registration import EstimationParams
 from tests.capture.ingest_helpers import registration_errors, simulate, tree_bytes
 

@@ -15,7 +15,7 @@ from lenspair.capture.recording import (
 )
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.core.errors import ConfigError, ImageIOError
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 
 MS = 1_000_000
 T0 = 1_403_636_579_763_555_584

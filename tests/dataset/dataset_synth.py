@@ -8,7 +8,7 @@ import numpy as np
 
 from lenspair.capture.ingested import IngestReport, PairRecord, write_pairs, write_report
 from lenspair.core.fsutil import sha256_file
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 
 T0_NS = 1_700_000_000_000_000_000
 DT_NS = 50_000_000

@@ -15,7 +15,8 @@ import pytest
 from lenspair.capture.ingested import read_pairs, read_report, write_pairs, write_report
 from lenspair.cli import main
 from lenspair.core.fsutil import sha256_file
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.dataset import build as build_module
 from lenspair.dataset import output as output_module
 from lenspair.dataset.build import build_dataset

@@ -4,7 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig, SplitConfig
 from lenspair.dataset.errors import DatasetError

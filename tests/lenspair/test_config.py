@@ -113,7 +113,7 @@ def test_an_exponent_without_a_dot_is_a_number_as_in_yaml_1_2(
 
 @pytest.mark.parametrize("text", [None, "train: [1,\n", "train:\n  epochz: 3\n"])
 def test_a_run_config_error_names_its_file_once(tmp_path: Path, text: str | None) -> None:
-    from lenspair.model.training.config import load_run_config
+    from lenspair.model.training.config_loading import load_run_config
 
     path = tmp_path / "run.yaml"
     if text is not None:

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from lenspair.cli import main
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.detection.judge import judge
 from lenspair.model.detection.train import load_detector
 from tests.capture.ingest_helpers import make_recording

@@ -20,7 +20,7 @@ from lenspair.core.fsutil import (
     remove_path,
     temporary_folder,
 )
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from tests.file_limits import REFUSALS, file_size_limit, refuse_writes
 
 

@@ -8,15 +8,9 @@ from hypothesis import strategies as st
 
 from lenspair.core.errors import ImageIOError
 from lenspair.core.fsutil import sha256_file
-from lenspair.core.imageio import (
-    from_float,
-    from_linear,
-    read_alpha,
-    read_image,
-    to_float,
-    to_linear,
-    write_image,
-)
+from lenspair.core.imageio import read_alpha, read_image
+from lenspair.core.imagewrite import write_image
+from lenspair.core.pixels import from_float, from_linear, to_float, to_linear
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])

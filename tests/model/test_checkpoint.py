@@ -194,7 +194,7 @@ def test_a_runtime_key_of_a_newer_version_is_passed_over_but_a_section_typo_is_n
     # process that scored them: "runtime.data_path: unknown key"
     from lenspair.core.config import dump_yaml, to_plain
     from lenspair.core.errors import ConfigError
-    from lenspair.model.training.config import load_run_config, run_config_from_dict
+    from lenspair.model.training.config_loading import load_run_config, run_config_from_dict
 
     plain = to_plain(tiny_config())
     plain["runtime"] = {"precision": "fp32", "added_by_a_later_version": [1, 2]}

@@ -13,9 +13,10 @@ import pytest
 import torch
 
 from lenspair.core.config import to_plain
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.checkpoint import checkpoint_config
-from lenspair.model.training.config import DataConfig, run_config_from_dict, stored_run_config
+from lenspair.model.training.config import DataConfig
+from lenspair.model.training.config_loading import run_config_from_dict, stored_run_config
 from lenspair.model.training.datasets import synthetic_training_data
 from lenspair.model.training.loop import resume_config
 from lenspair.model.training.pretrained import (

@@ -17,7 +17,8 @@ from torch.nn.parallel import DistributedDataParallel
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.model.precision import PrecisionDecision
-from lenspair.model.training.step import Distributed, Trainer, init_process_group
+from lenspair.model.training.distributed import Distributed, init_process_group
+from lenspair.model.training.step import Trainer
 from tests.model.train_fixtures import tiny_config, write_split_dataset
 
 CPU = torch.device("cpu")

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lenspair.core.imageio import to_float, to_linear
+from lenspair.core.pixels import to_float, to_linear
 from lenspair.model.detection.data import DetectorSample
 from lenspair.model.detection.judge import Judgement
 from lenspair.model.detection.labels import (

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lenspair.cli import main
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.dataset.manifest import ManifestRow, SplitName, write_manifest
 from lenspair.model.detection import run as detection_run
 from lenspair.model.detection.data import DetectorSample

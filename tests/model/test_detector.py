@@ -131,7 +131,7 @@ def test_16_bit_frames_of_12_bit_values_are_judged_as_their_full_range_twin(
     tmp_path: Path, one_thread: None
 ) -> None:
     # mono16 words of a Mono12 camera were all but black: a blank frame, never obstructed
-    from lenspair.capture.frames import InputFrame
+    from lenspair.capture.frame_types import InputFrame
     from lenspair.core.bitdepth import narrow
     from lenspair.model.detection.report import detect_frames
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lenspair.cli import TERMINATED, Terminated, main
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.detection.unjudged import unjudged_files, unjudged_note
 from lenspair.model.inference.unread_files import unrestored_note
 from tests.images import texture

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 import torch
 
-from lenspair.core.imageio import read_image, to_float, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
+from lenspair.core.pixels import to_float
 from lenspair.model.evaluation.evaluate import evaluate_checkpoint
 from lenspair.model.evaluation.scoring import score_tensors
 from lenspair.model.inference.backends import open_backend

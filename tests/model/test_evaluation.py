@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from lenspair.cli import main
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.dataset.manifest import ManifestRow, write_manifest
 from lenspair.dataset.readers import open_paired
 from lenspair.model.checkpoint import load_model

@@ -344,7 +344,7 @@ def test_the_papers_gea_exports_with_a_dynamic_batch_that_restore_uses(tmp_path:
     pytest.importorskip("onnxruntime")
     from dataclasses import replace
 
-    from lenspair.core.imageio import write_image
+    from lenspair.core.imagewrite import write_image
     from lenspair.model.inference.backends import open_backend
     from lenspair.model.inference.pipeline import restore_input
     from lenspair.model.inference.restore_options import RestoreOptions

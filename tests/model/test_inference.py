@@ -8,7 +8,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import (
     OnnxBackend,

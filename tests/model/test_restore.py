@@ -11,9 +11,12 @@ import pytest
 import torch
 from rosbags.highlevel import AnyReader
 
-from lenspair.capture.frames import BagMessage, iter_bag_messages, iter_frames
+from lenspair.capture.bag_frames import iter_bag_messages
+from lenspair.capture.frame_types import BagMessage
+from lenspair.capture.frames import iter_frames
 from lenspair.cli import main
-from lenspair.core.imageio import alpha_is_associated, read_image, write_image
+from lenspair.core.imageio import alpha_is_associated, read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.detection.judge import judge
 from lenspair.model.detection.train import save_detector
 from lenspair.model.errors import ModelError

@@ -12,11 +12,13 @@ import pytest
 import torch
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.frames import InputFrame, detect_input
+from lenspair.capture.frame_types import InputFrame
+from lenspair.capture.frames import detect_input
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.core import imageio
 from lenspair.core.errors import ImageIOError
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.errors import ModelError
 from lenspair.model.inference import file_sink
 from lenspair.model.inference.backends import TorchBackend, open_backend

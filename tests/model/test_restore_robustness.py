@@ -20,12 +20,15 @@ from onnx import TensorProto, helper
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.typesys import Stores, get_typestore
 
+from lenspair.capture.bag_frames import iter_bag_messages
 from lenspair.capture.folders import read_folders
-from lenspair.capture.frames import CAMERAS, frame_files, iter_bag_messages
+from lenspair.capture.frames import frame_files
 from lenspair.capture.image_messages import COMPRESSED_IMAGE as COMPRESSED
+from lenspair.capture.recording import CAMERAS
 from lenspair.cli import main
 from lenspair.core import imageio
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.detection.unjudged import unjudged_files
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import TorchBackend, open_backend

@@ -8,7 +8,8 @@ import pytest
 
 from lenspair.cli import main
 from lenspair.core.bitdepth import narrow, widen
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.restorer import Restorer
 from lenspair.model.training.config import RunConfig

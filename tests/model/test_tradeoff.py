@@ -14,7 +14,7 @@ import torch
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.core.errors import LenspairError
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation import tradeoff as tradeoff_module

@@ -15,21 +15,18 @@ from hypothesis import strategies as st
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.core.errors import ConfigError
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.checkpoint import load_checkpoint, load_model
 from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.vgg import VGG19Features
 from lenspair.model.precision import Hardware, PrecisionDecision, choose_precision
-from lenspair.model.training.config import RunConfig, TrainConfig, load_run_config
+from lenspair.model.training.config import RunConfig, TrainConfig
+from lenspair.model.training.config_loading import load_run_config
 from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
+from lenspair.model.training.distributed import distributed_from_env, init_distributed
 from lenspair.model.training.holdout import holdout_group, holdout_indices
 from lenspair.model.training.loop import fit, resolve_config
-from lenspair.model.training.step import (
-    Trainer,
-    distributed_from_env,
-    init_distributed,
-    scheduled_lr,
-)
+from lenspair.model.training.step import Trainer, scheduled_lr
 from lenspair.model.training.synthetic import OUR_DROPS, find_clean_images
 from lenspair.simulate.effects.spec import SHARP_DROPS
 from tests.model.train_fixtures import (

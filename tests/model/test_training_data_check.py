@@ -9,7 +9,8 @@ import torch
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
-from lenspair.core.imageio import image_header, write_image
+from lenspair.core.imageio import image_header
+from lenspair.core.imagewrite import write_image
 from lenspair.dataset.errors import DatasetError
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.datasets import paired_training_data, synthetic_training_data

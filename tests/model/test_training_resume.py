@@ -14,10 +14,11 @@ from lenspair.model.errors import ModelError
 from lenspair.model.training import validation
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.datasets import paired_training_data
+from lenspair.model.training.distributed import Distributed
 from lenspair.model.training.loop import fit, resolve_config, resume_config
 from lenspair.model.training.run_files import RunPaths
 from lenspair.model.training.run_state import RunState
-from lenspair.model.training.step import Distributed, Trainer
+from lenspair.model.training.step import Trainer
 from tests.model.train_fixtures import tiny_config, write_split_dataset
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -154,7 +155,7 @@ def test_resuming_at_an_epoch_boundary_may_change_the_batch_size(tmp_path: Path)
 def test_a_validation_pair_that_cannot_be_scored_is_left_out_not_fatal(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    from lenspair.core.imageio import write_image
+    from lenspair.core.imagewrite import write_image
     from tests.model.train_fixtures import clean_image
 
     dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 3})

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.model.training.config import (
     DataConfig,
     LossConfig,

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from lenspair.rectify.boards import Board
-from lenspair.rectify.rectification import pixel_rays
+from lenspair.rectify.projection import pixel_rays
 from lenspair.rectify.rig import CameraModel
 
 
@@ -36,7 +36,7 @@ class BoardRenderer:
 
     Every output pixel is the area average of ``supersample**2`` samples of the
     board texture, each found by back-projecting the sample through the lens
-    (:func:`lenspair.rectify.rectification.pixel_rays`) and intersecting it with the
+    (:func:`lenspair.rectify.projection.pixel_rays`) and intersecting it with the
     board plane, so corners land where the camera model puts them.
     """
 

@@ -2,9 +2,10 @@ import cv2
 import numpy as np
 import pytest
 
-from lenspair.rectify.boards import Board, detect_corners, parse_board_spec
+from lenspair.rectify.boards import Board, parse_board_spec
+from lenspair.rectify.corner_detection import detect_corners
 from lenspair.rectify.errors import RectifyError
-from lenspair.rectify.rectification import project_rays
+from lenspair.rectify.projection import project_rays
 from lenspair.rectify.rig import CameraModel
 from tests.rectify.board_renderer import BoardRenderer, board_texture
 

@@ -9,21 +9,17 @@ import cv2
 import numpy as np
 import pytest
 
-from lenspair.rectify.boards import Board, Detection, parse_board_spec
+from lenspair.rectify.boards import Board, parse_board_spec
 from lenspair.rectify.calib_camera import calibrate_camera
-from lenspair.rectify.calib_fits import (
-    CRITERIA,
-    INTRINSIC_NAMES,
-    deviations,
-    fit_camera,
-    intrinsic_covariance,
-)
+from lenspair.rectify.calib_fits import CRITERIA, fit_camera
 from lenspair.rectify.calib_types import CalibrationOptions, CalibrationResult, parse_model
+from lenspair.rectify.calib_uncertainty import INTRINSIC_NAMES, deviations, intrinsic_covariance
 from lenspair.rectify.calib_warnings import FOCAL_DOUBT, MARKER_TOLERANCE
 from lenspair.rectify.calibration import calibrate_from_detections, calibrate_stereo
+from lenspair.rectify.corner_detection import Detection
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.fit_checks import rms_balance_warnings
-from lenspair.rectify.rectification import project_rays
+from lenspair.rectify.projection import project_rays
 from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, read_kalibr
 from tests.rectify.board_renderer import BoardRenderer
 from tests.rectify.rigs import make_rig

@@ -9,7 +9,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from lenspair.cli import main
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.recording_calibration import (
@@ -273,7 +274,7 @@ def test_frames_the_quick_check_missed_are_searched_again_only_where_it_may_pay(
 
     from lenspair.capture.pairing import FramePair
     from lenspair.rectify import recording_calibration
-    from lenspair.rectify.boards import Detection
+    from lenspair.rectify.corner_detection import Detection
 
     board = parse_board_spec("chessboard:9x6:0.05")
     seen = Detection(np.arange(3, dtype=np.int32), np.zeros((3, 2), np.float32))

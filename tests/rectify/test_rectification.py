@@ -7,10 +7,9 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.projection import pixel_rays, project_rays
 from lenspair.rectify.rectification import (
     StereoRectification,
-    pixel_rays,
-    project_rays,
     row_differences,
     row_disagreement,
 )

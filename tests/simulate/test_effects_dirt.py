@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from lenspair.core.imageio import from_float, from_linear
+from lenspair.core.pixels import from_float, from_linear
 from lenspair.simulate.effects import dirt
 from lenspair.simulate.effects.layer import Sprites
 from lenspair.simulate.effects.spec import DirtSpec, EffectsSpec

@@ -5,7 +5,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from lenspair.core.imageio import from_float, from_linear
+from lenspair.core.pixels import from_float, from_linear
 from lenspair.simulate.effects import dust
 from lenspair.simulate.effects.spec import DustSpec, EffectsSpec
 from lenspair.simulate.render import apply_glass, render_effects, sample_glass

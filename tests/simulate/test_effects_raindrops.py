@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lenspair.core.imageio import from_float, from_linear
+from lenspair.core.pixels import from_float, from_linear
 from lenspair.simulate.effects import raindrops
 from lenspair.simulate.effects.raindrops import Drops, exit_refraction
 from lenspair.simulate.effects.spec import (

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lenspair.core.imageio import to_float, to_linear
+from lenspair.core.pixels import to_float, to_linear
 from lenspair.simulate.effects import veil
 from lenspair.simulate.effects.spec import EffectsSpec, VeilSpec
 from lenspair.simulate.render import render_effects

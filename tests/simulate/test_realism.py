@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lenspair.cli import main
-from lenspair.core.imageio import write_image
+from lenspair.core.imagewrite import write_image
 from lenspair.simulate.effects.spec import SHARP_DROPS
 from lenspair.simulate.errors import SimulateError
 from lenspair.simulate.natural_images import NATURAL_IMAGES, load_natural_images

@@ -11,7 +11,8 @@ import yaml
 
 from lenspair.capture.rigfile import read_rig_file
 from lenspair.cli import main
-from lenspair.core.imageio import read_image, write_image
+from lenspair.core.imageio import read_image
+from lenspair.core.imagewrite import write_image
 from lenspair.rectify.rig import CameraModel, read_kalibr
 from lenspair.simulate.camera import undistort_maps
 from lenspair.simulate.errors import SimulateError
@@ -355,7 +356,7 @@ def test_cli(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
 
 def test_user_texture_file_comes_back_exactly(tmp_path: Path) -> None:
     # A flat sRGB texture survives decode -> linear render -> encode without a code change.
-    from lenspair.core.imageio import write_image
+    from lenspair.core.imagewrite import write_image
 
     write_image(tmp_path / "flat.png", np.full((64, 64), 200, np.uint8))
     wall = {"texture": "flat.png", "depth_m": 40.0}

@@ -163,7 +163,7 @@ def test_errors_name_the_key(tmp_path: Path, data: dict, message: str) -> None:
 def test_texture_path_relative_to_spec(tmp_path: Path) -> None:
     import numpy as np
 
-    from lenspair.core.imageio import write_image
+    from lenspair.core.imagewrite import write_image
 
     write_image(tmp_path / "wall.png", np.full((64, 64), 128, np.uint8))
     spec = load_scene(_write(tmp_path, _with("planes[0].texture", "wall.png")))

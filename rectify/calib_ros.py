@@ -1,0 +1,158 @@
+"""Stereo calibrations as a ROS camera_info pair: :func:`from_ros`.
+
+Two YAML files as written by camera_calibration: ``image_width``,
+``image_height``, ``camera_matrix``, ``distortion_model``
+``plumb_bob``/``rational_polynomial``/``equidistant``,
+``distortion_coefficients``, ``rectification_matrix``, ``projection_matrix``;
+first file cam0. The extrinsic comes from a third file when given (plain YAML
+with ``T_cam1_cam0`` 4x4, or ``R`` + ``T``; or a FileStorage with those keys),
+else from the rectified pair: ``R = R1^T R0`` and ``T = R1^T (t1 - t0)`` with
+``t_i = (Tx_i / fx', Ty_i / fy', 0)`` from each ``projection_matrix``
+(``Tx = -fx' * B``).
+"""
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from lenspair.rectify.calib_opencv import is_filestorage, read_filestorage
+from lenspair.rectify.calib_values import (
+    MODEL_NAMES,
+    camera_from_matrices,
+    finite,
+    pick,
+    square_transform,
+    stereo_rig,
+    transform_from_r_t,
+)
+from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.rig import (
+    ROTATION_ATOL,
+    CameraModel,
+    StereoRig,
+    checked_transform,
+    is_rotation,
+)
+
+
+def is_ros_camera_info(text: str) -> bool:
+    """Whether ``text`` is a ROS camera_info YAML (``camera_matrix`` and ``image_width``)."""
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return False
+    return isinstance(data, dict) and "camera_matrix" in data and "image_width" in data
+
+
+def _ros_matrix(data: dict[str, Any], key: str, shape: tuple[int, int], path: Path) -> np.ndarray:
+    if key not in data:
+        raise RectifyError(f"{path}: missing key {key!r}")
+    node = data[key]
+    if isinstance(node, dict) and "data" not in node:
+        raise RectifyError(f"{path}: {key}: no 'data' list")
+    try:
+        values = np.asarray(node["data"] if isinstance(node, dict) else node, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise RectifyError(f"{path}: {key}: expected a list of numbers") from None
+    finite(path, key, values)
+    if shape[0] * shape[1] and values.size != shape[0] * shape[1]:
+        raise RectifyError(
+            f"{path}: {key}: expected {shape[0]}x{shape[1]} values, got {values.size}"
+        )
+    return values.reshape(shape) if shape[0] * shape[1] else values.ravel()
+
+
+def _ros_camera(path: Path, data: dict[str, Any]) -> tuple[CameraModel, np.ndarray, np.ndarray]:
+    name = str(data.get("distortion_model", "plumb_bob")).lower()
+    if name not in MODEL_NAMES:
+        raise RectifyError(
+            f"{path}: distortion_model: unknown {name!r}; valid: {', '.join(MODEL_NAMES)}"
+        )
+    try:
+        size = (int(data["image_width"]), int(data["image_height"]))
+    except (KeyError, TypeError, ValueError):
+        raise RectifyError(f"{path}: image_width and image_height must be integers") from None
+    K = _ros_matrix(data, "camera_matrix", (3, 3), path)
+    D = _ros_matrix(data, "distortion_coefficients", (0, 0), path)
+    camera = camera_from_matrices(K, D, MODEL_NAMES[name], size, str(path))
+    rectification = np.eye(3)
+    if "rectification_matrix" in data:
+        rectification = _ros_matrix(data, "rectification_matrix", (3, 3), path)
+    projection = np.zeros((3, 4))
+    if "projection_matrix" in data:
+        projection = _ros_matrix(data, "projection_matrix", (3, 4), path)
+    return camera, rectification, projection
+
+
+def _extrinsic_file(path: Path, text: str) -> np.ndarray:
+    if is_filestorage(path, text):
+        values = read_filestorage(path)
+    else:
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise RectifyError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        if not isinstance(data, dict):
+            raise RectifyError(f"{path}: expected a mapping with T_cam1_cam0, or R and T")
+        values = {}
+        for key, value in data.items():
+            try:
+                values[str(key)] = (np.asarray(value, dtype=np.float64), path)
+            except (TypeError, ValueError):
+                continue
+    if (found := pick(values, ("T_cam1_cam0", "T_cn_cnm1"))) is not None:
+        return checked_transform(square_transform(found[0], str(path)), str(path))
+    R, T = pick(values, ("R", "rotation")), pick(values, ("T", "t", "translation"))
+    if R is None or T is None:
+        raise RectifyError(f"{path}: expected T_cam1_cam0 (4x4), or R and T")
+    return transform_from_r_t(R[0], T[0], str(path))
+
+
+def from_ros(paths: list[Path], texts: list[str]) -> tuple[StereoRig, str]:
+    """The rig in two ROS camera_info files (cam0, cam1) and an optional extrinsic file.
+
+    Args:
+        paths: cam0's and cam1's camera_info files, and optionally the extrinsic's.
+        texts: the files' contents, in the same order.
+
+    Returns:
+        ``(rig, description)``: the rig, and a line saying where it came from.
+
+    Raises:
+        RectifyError: missing keys, NaN/Inf, implausible values; naming the file.
+    """
+    parsed = []
+    for path, text in zip(paths[:2], texts[:2], strict=True):
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise RectifyError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        parsed.append(_ros_camera(path, data))
+    where = f"{paths[0]} + {paths[1]}"
+    (cam0, rect0, proj0), (cam1, rect1, proj1) = parsed
+    for path, rectification in ((paths[0], rect0), (paths[1], rect1)):
+        if not is_rotation(rectification, atol=ROTATION_ATOL):
+            raise RectifyError(f"{path}: rectification_matrix is not a rotation matrix")
+    if len(paths) == 3:
+        rig = stereo_rig(cam0, cam1, _extrinsic_file(paths[2], texts[2]), where)
+        return rig, f"ROS camera_info {where} (extrinsic from {paths[2]})"
+    offsets = []
+    for path, projection in ((paths[0], proj0), (paths[1], proj1)):
+        if projection[0, 0] <= 0 or projection[1, 1] <= 0:
+            raise RectifyError(
+                f"{path}: projection_matrix is missing or zero; give the extrinsic as a third file"
+            )
+        fx, fy = projection[0, 0], projection[1, 1]
+        offsets.append(np.array([projection[0, 3] / fx, projection[1, 3] / fy, 0.0]))
+    if np.linalg.norm(offsets[1] - offsets[0]) == 0:
+        raise RectifyError(
+            f"{where}: the projection matrices hold no baseline (Tx = Ty = 0); "
+            "give the extrinsic as a third file"
+        )
+    matrix = np.eye(4)
+    matrix[:3, :3] = rect1.T @ rect0
+    matrix[:3, 3] = rect1.T @ (offsets[1] - offsets[0])
+    rig = stereo_rig(cam0, cam1, checked_transform(matrix, where), where)
+    return rig, f"ROS camera_info {where} (extrinsic from the projection matrices)"
