@@ -274,7 +274,7 @@ class StereoRectification:
         """Rectified projection matrix (OpenCV's ``P1``/``P2``), ``(3, 4)`` float64."""
         P = np.zeros((3, 4))
         P[:, :3] = self.K
-        if view == "cam1":
+        if self._index(view) == 1:
             P[0, 3] = -self.K[0, 0] * self.baseline_m
         return P
 

@@ -106,6 +106,19 @@ def test_rectified_to_raw_takes_any_shape_and_inverts_raw_to_rectified() -> None
     np.testing.assert_allclose(back, grid, atol=1e-3)
 
 
+def test_every_per_view_accessor_refuses_an_unknown_view() -> None:
+    # a typo must not quietly get cam0's geometry
+    rectification = StereoRectification.from_rig(make_rig("equidistant", rotated=True))
+    accessors = (
+        rectification.rotation,
+        rectification.projection,
+        lambda view: rectification.rectified_to_raw(view, np.zeros((1, 2))),
+    )
+    for accessor in accessors:
+        with pytest.raises(ValueError, match="'cam2'"):
+            accessor("cam2")  # type: ignore[arg-type]
+
+
 def test_alpha_zero_keeps_every_pixel_valid_and_alpha_one_keeps_every_raw_pixel() -> None:
     rig = make_rig("equidistant", rotated=True)
     tight = StereoRectification.from_rig(rig, alpha=0.0)
