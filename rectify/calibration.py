@@ -168,22 +168,35 @@ def _calibrate_cameras(
         Both cameras' calibrations, the views they rejected, and the views
         both cameras kept, with their detections.
     """
-    monos, rejected, pairs, said = _each_camera(
-        detections, board, model, resolutions, names, options
-    )
+    # what each camera's calibration says is held back: only the pass that is kept
+    # speaks (the fallback calibrates each camera again, over other views)
+    said: list[logging.LogRecord] = []
+    try:
+        monos, rejected, pairs = _each_camera(
+            detections, board, model, resolutions, names, options, said
+        )
+    except RectifyError:  # this pass ends the calibration: what it said is said
+        release(said)
+        raise
     if len(pairs) < options.min_views and options.max_rounds > 0:
         # each camera rejected other views, and too few are left to both: calibrated
         # without rejecting, as it would work (a factor near 1 on evenly noisy views)
         plain = dataclasses.replace(options, max_rounds=0)
-        again = _each_camera(detections, board, model, resolutions, names, plain)
-        if len(again[2]) >= options.min_views:
+        said_again: list[logging.LogRecord] = []
+        try:
+            again = _each_camera(detections, board, model, resolutions, names, plain, said_again)
+        except RectifyError:
+            # the fallback failed too: the first pass stands, with its warnings, and the
+            # stereo step refuses its too few views (the reason that helps the user)
+            again = None
+        if again is not None and len(again[2]) >= options.min_views:
             log.warning(
                 "outlier rejection left %d views that both cameras kept (need %d): "
                 "calibrating without rejecting any; a larger --outlier-factor rejects fewer",
                 len(pairs),
                 options.min_views,
             )
-            monos, rejected, pairs, said = again  # the stereo step still rejects its outliers
+            (monos, rejected, pairs), said = again, said_again  # stereo still rejects outliers
     release(said)
     return monos, rejected, pairs
 
@@ -195,38 +208,37 @@ def _each_camera(
     resolutions: tuple[tuple[int, int], tuple[int, int]],
     names: Sequence[str],
     settings: CalibrationOptions,
-) -> tuple[
-    list[CameraCalibration],
-    list[RejectedView],
-    dict[int, tuple[Detection, Detection]],
-    list[logging.LogRecord],
-]:
-    """One pass of :func:`calibrate_camera` over both cameras, what it said held back.
+    said: list[logging.LogRecord],
+) -> tuple[list[CameraCalibration], list[RejectedView], dict[int, tuple[Detection, Detection]]]:
+    """One pass of :func:`calibrate_camera` over both cameras, what it says held back.
+
+    Args:
+        detections: per view, both cameras' detections (``None``: board not found).
+        board: the calibration board.
+        model: the lens model fitted.
+        resolutions: both cameras' image sizes ``(width, height)``, px.
+        names: the views' names, for messages.
+        settings: the options of this pass.
+        said: receives the log records held back, also when the pass raises
+            (the caller decides which pass speaks).
 
     Returns:
-        Both cameras' calibrations, the views they rejected, the views both
-        kept with their detections, and the log records held back.
+        Both cameras' calibrations, the views they rejected, and the views both
+        kept with their detections.
     """
-    # what each camera's calibration says is held back: only the pass that is kept
-    # speaks (the fallback calibrates each camera again, over other views)
-    said: list[logging.LogRecord] = []
     monos: list[CameraCalibration] = []
     dropped: list[RejectedView] = []
-    try:
-        with held(log, said):
-            for index, stage in enumerate(("cam0", "cam1")):
-                per_view = [pair[index] for pair in detections]
-                mono, left_out = calibrate_camera(
-                    per_view, board, model, resolutions[index], stage, names, settings
-                )
-                monos.append(mono)
-                dropped += left_out
-    except RectifyError:  # this pass ends the calibration: what it said is said
-        release(said)
-        raise
+    with held(log, said):
+        for index, stage in enumerate(("cam0", "cam1")):
+            per_view = [pair[index] for pair in detections]
+            mono, left_out = calibrate_camera(
+                per_view, board, model, resolutions[index], stage, names, settings
+            )
+            monos.append(mono)
+            dropped += left_out
     usable = set(monos[0].views) & set(monos[1].views)
     shared = {v: (d0, d1) for v, (d0, d1) in enumerate(detections) if v in usable and d0 and d1}
-    return monos, dropped, shared, said
+    return monos, dropped, shared
 
 
 _StereoFit = tuple[np.ndarray, list[np.ndarray], np.ndarray, np.ndarray]

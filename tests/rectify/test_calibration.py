@@ -285,6 +285,33 @@ def test_only_the_kept_calibration_of_each_camera_speaks(
     assert calibration_filters() == []
 
 
+def test_a_failed_fallback_leaves_the_first_pass_and_its_warnings(
+    caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The fallback failing is not the reason given: the first pass's too few views are."""
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = _little_tilted_views(board, 14, noise_px=0.6)  # as above: the fallback runs
+
+    def fallback_fails(*args: object) -> object:
+        stage, settings = args[4], args[6]
+        if settings.max_rounds == 0 and stage == "cam1":  # type: ignore[attr-defined]
+            logging.getLogger("lenspair.rectify.calibration").warning("cam1: fallback said")
+            raise RectifyError("cam1: the fallback failed")
+        return calibrate_camera(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr("lenspair.rectify.calibration.calibrate_camera", fallback_fails)
+    options = CalibrationOptions(outlier_factor=1.0)
+    with caplog.at_level("WARNING"), pytest.raises(RectifyError) as refused:
+        calibrate_from_detections(views, board, "pinhole-radtan", SIZES, options=options)
+    assert "fallback failed" not in str(refused.value)
+    assert "views" in str(refused.value)  # the stereo step's refusal of too few shared views
+    for camera in ("cam0", "cam1"):  # the first pass speaks: its tilt and its rejections
+        assert any(m.startswith(f"{camera}: the board turned at most") for m in caplog.messages)
+    assert any(m.startswith(("cam0: kept", "cam1: kept")) for m in caplog.messages)
+    assert "cam1: fallback said" not in caplog.messages
+    assert calibration_filters() == []
+
+
 @pytest.mark.parametrize("silenced", ["level", "disabled"])
 def test_warnings_reach_the_report_when_the_application_silenced_logging(
     caplog: pytest.LogCaptureFixture, silenced: str
