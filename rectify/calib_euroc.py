@@ -28,7 +28,7 @@ from lenspair.rectify.rig import (
 )
 
 _EUROC_MODELS = {"radial-tangential": "radtan", "equidistant": "equidistant"}
-_EUROC_KEYS = ("intrinsics", "T_BS", "distortion_coefficients", "resolution")
+_EUROC_KEYS = ("intrinsics", "T_BS", "distortion_model", "distortion_coefficients", "resolution")
 
 
 def euroc_sensor(text: str) -> dict[str, Any] | None:
@@ -63,7 +63,12 @@ def _rigid(path: Path, matrix: np.ndarray) -> np.ndarray:
 def _euroc_camera(path: Path, data: dict[str, Any]) -> CameraModel:
     if missing := [key for key in _EUROC_KEYS if key not in data]:
         raise RectifyError(f"{path}: missing key {missing[0]!r} (a EuRoC camera sensor.yaml)")
-    model = _EUROC_MODELS.get(str(data.get("distortion_model")), data.get("distortion_model"))
+    named = data["distortion_model"]
+    model = _EUROC_MODELS.get(str(named))
+    if model is None:  # named in EuRoC's words: the Kalibr reader's message would use its own
+        raise RectifyError(
+            f"{path}: distortion_model: expected {' or '.join(_EUROC_MODELS)}, got {named!r}"
+        )
     coefficients = data["distortion_coefficients"]
     if model == "radtan" and isinstance(coefficients, list) and len(coefficients) > 4:
         # k1 k2 p1 p2 [k3]: a zero k3 is dropped as for the other formats, a non-zero one refused

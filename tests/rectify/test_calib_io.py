@@ -252,6 +252,14 @@ def test_euroc_sensor_files_give_the_rig_and_a_bad_pose_names_its_file(tmp_path:
     )
     with pytest.raises(RectifyError, match=rf"^{files[1]}: missing key 'T_BS'"):
         load_calibration(files)  # it said "not a recognised calibration", naming no key
+    # a lens model named in EuRoC's words is refused in them (not Kalibr's "radtan")
+    files[1].write_text(text.replace("radial-tangential", "fov").replace("equidistant", "fov"))
+    with pytest.raises(
+        RectifyError,
+        match=rf"^{files[1]}: distortion_model: expected radial-tangential or equidistant, "
+        "got 'fov'",
+    ):
+        load_calibration(files)
 
 
 def test_euroc_radtan_with_a_zero_k3_is_read_and_a_non_zero_one_refused(tmp_path: Path) -> None:
