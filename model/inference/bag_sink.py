@@ -71,6 +71,8 @@ class BagSink:
         self.fingerprint = fingerprint
         self.copy = BagCopy(source, self.partial, suffix)
         self.opened = False
+        self.extras: list[Path] = []
+        """Files of a ROS 2 bag folder kept beside the new bag (set by :meth:`finish`)."""
 
     @property
     def output(self) -> Path:
@@ -165,8 +167,8 @@ class BagSink:
         name only now, so a killed run never leaves a bag that reads cleanly
         but lacks its last messages. A ROS 2 bag folder may hold files of the
         recording beside its storage (``rig.yaml``, a calibration): they are
-        copied; its storage files and ``metadata.yaml`` are not (the new bag
-        has its own).
+        copied (and listed in :attr:`extras`); its storage files and
+        ``metadata.yaml`` are not (the new bag has its own).
         """
         if self.partial.exists():
             remove_path(self.path)  # an earlier complete run's bag, replaced by this one
@@ -179,8 +181,10 @@ class BagSink:
                 # ROS 1 bag kept there (.bag or .bag.active) is a file of the recording
                 suffix = extra.suffix.lower().split("-")[0]
                 storage = extra.name == "metadata.yaml" or suffix in ROS2_STORAGE_SUFFIXES
-                if extra.is_file() and not storage and not (self.path / extra.name).exists():
-                    copy_file(extra, self.path / extra.name)
+                if extra.is_file() and not storage:
+                    self.extras.append(extra)
+                    if not (self.path / extra.name).exists():
+                        copy_file(extra, self.path / extra.name)
         if self.cache.exists():
             shutil.rmtree(self.cache)
         if self.cache.parent.is_dir() and not any(self.cache.parent.iterdir()):

@@ -53,6 +53,7 @@ from lenspair.model.inference.report import REPORT_NAME, RestoreReport
 from lenspair.model.inference.restore_options import RestoreOptions, check_options
 from lenspair.model.inference.resume import check_same_settings, kept_bag_report, run_settings
 from lenspair.model.inference.threads import Writer, threaded
+from lenspair.model.inference.unread_files import unrestored_note
 
 log = logging.getLogger(__name__)
 
@@ -140,6 +141,9 @@ def restore_input(
         report.source_files = sink.fingerprint
         report.output_files = sink.written()
         source_problems.extend(_undefined_types(sink))
+        # a ROS 1 bag or a video kept in the bag's folder is copied with its frames as
+        # they were: named, as a folder's are
+        source_problems.extend(n for e in sink.extras if (n := unrestored_note(e)) is not None)
     report.problems.extend({"frame": "", "reason": reason} for reason in source_problems)
     report.seconds = time.perf_counter() - started
     atomic_write_json(out_dir / REPORT_NAME, report.as_dict())

@@ -319,6 +319,26 @@ def test_a_ros2_bag_folder_keeps_its_rig_file(tmp_path: Path, backend: TorchBack
     assert (written / "rig.yaml").read_bytes() == (bag / "rig.yaml").read_bytes()
     ours = sorted(p.name for p in written.iterdir())
     assert sum(name.endswith(".db3") for name in ours) == 1 and "metadata.yaml" in ours
+    assert [p["reason"] for p in report.problems] == []  # a rig file holds no frame
+
+
+def test_a_ros1_bag_kept_in_a_ros2_bag_folder_is_copied_and_named(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    # its frames were not restored: the report says so, as for one found in a folder
+    (tmp_path / "b").mkdir()
+    frames = {"cam0": [(10**9 + k * 10**8, _image(k)) for k in range(2)]}
+    bag = write_bag(tmp_path / "b" / "run", "db3", frames)
+    write_rig_file(bag / "rig.yaml", RigFile(obstructed="cam0", anomaly=("rain",)))
+    (bag / "older.bag").write_bytes(b"#ROSBAG V2.0\n")
+    for run in range(2):  # the rerun, which finds the copy in place, says it again
+        report = restore_input(bag, tmp_path / "out", backend, RestoreOptions(resume=run > 0))
+        written = Path(report.output)
+        assert (written / "older.bag").read_bytes() == (bag / "older.bag").read_bytes()
+        reasons = [p["reason"] for p in report.problems]
+        assert reasons == [
+            f"{bag / 'older.bag'}: a bag, copied as it is: restore it as an INPUT of its own"
+        ]
 
 
 def _zlib_level(png: bytes) -> int:
