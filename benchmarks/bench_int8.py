@@ -2,7 +2,7 @@
 
 ``python -m benchmarks.bench_int8 [--out DIR] [--runs N]``: GEA, mono,
 540x360, batch 1, the benchmark's untrained-but-perturbed network
-(:func:`benchmarks.bench_model._untrained_model`), calibrated on 8 frames
+(:func:`benchmarks.bench_model.untrained_model`), calibrated on 8 frames
 rendered by the project's simulator-style test image with different noise.
 Timed round-robin in one run (medians):
 
@@ -35,7 +35,7 @@ from typing import Any
 
 import torch
 
-from benchmarks.bench_model import HEIGHT, WIDTH, _structured_image, _untrained_model
+from benchmarks.bench_model import HEIGHT, WIDTH, structured_image, untrained_model
 from benchmarks.machine import as_deployed
 from lenspair.commands.argtypes import positive_int
 from lenspair.model.evaluation.export import INPUT_NAME
@@ -45,7 +45,7 @@ from lenspair.model.precision import choose_precision, read_cpu_flags
 
 
 def _calibration(count: int) -> list[torch.Tensor]:
-    base = _structured_image()
+    base = structured_image()
     generator = torch.Generator().manual_seed(1)
     return [
         (base * (0.7 + 0.6 * k / count) + 0.05 * torch.rand(base.shape, generator=generator)).clamp(
@@ -88,8 +88,8 @@ def _pt2e(model: torch.nn.Module, calibration: list[torch.Tensor]) -> Callable[[
 
 def run(runs: int, calibration_count: int, pt2e: bool) -> dict[str, Any]:
     """Quantise both ways, time round-robin; returns the JSON record."""
-    model = _untrained_model()
-    image = _structured_image()
+    model = untrained_model()
+    image = structured_image()
     calibration = _calibration(calibration_count)
     model_cl, image_cl = as_deployed(model, image)
     calls: dict[str, Callable[[], Any]] = {"fp32 torch": lambda: model_cl.restore(image_cl)}

@@ -94,7 +94,7 @@ Configuration = tuple[Callable[[torch.Tensor], torch.Tensor], torch.Tensor, Cont
 Call = Callable[[], object]
 
 
-def _structured_image() -> torch.Tensor:
+def structured_image() -> torch.Tensor:
     """A deterministic mono test frame: gradients, stripes, a disc, fine noise."""
     yy, xx = torch.meshgrid(
         torch.linspace(0, 1, HEIGHT), torch.linspace(0, 1, WIDTH), indexing="ij"
@@ -105,7 +105,7 @@ def _structured_image() -> torch.Tensor:
     return (image + 0.03 * noise).clamp(0, 1)[None, None]
 
 
-def _untrained_model() -> AnomalyMitigator:
+def untrained_model() -> AnomalyMitigator:
     """GEA with its zero-initialised heads randomised, so outputs differ from inputs."""
     torch.manual_seed(0)
     model = build_model("GEA", 1)
@@ -131,7 +131,7 @@ def _autocast() -> contextlib.AbstractContextManager[None]:
 
 
 def _configs(model: AnomalyMitigator, compile_models: bool) -> dict[str, Configuration]:
-    image = _structured_image()
+    image = structured_image()
     image_cl = image.contiguous(memory_format=torch.channels_last)
     model_cl = _channels_last(copy.deepcopy(model))
     model_bf16 = copy.deepcopy(model).to(torch.bfloat16)
@@ -260,7 +260,7 @@ def run(
     prints it.
     """
     load_start, pressure_start = os.getloadavg(), cpu_pressure()
-    model = _untrained_model()
+    model = untrained_model()
     summary = describe(model, (1, HEIGHT, WIDTH))
     outputs: dict[str, torch.Tensor] = {}
     calls = _callers(_configs(model, compile_models), outputs)

@@ -30,7 +30,11 @@ def assemble_rows(
     config: DatasetConfig,
     earlier_mode: str | None = None,
 ) -> tuple[list[tuple[ManifestRow, Measured]], splits.SplitPlan]:
-    """Split the surviving pairs (adding ``split_gap`` removals) and make their rows.
+    """Split the surviving pairs and make their rows.
+
+    ``removed`` is updated in place: the pairs the split gap drops are added
+    to it with reason ``split_gap``, so the caller's dataset card and
+    ``removed.jsonl`` count them with the curation's removals.
 
     Returns:
         ``(row, measured pair)`` in manifest order (split, then name), and the plan.

@@ -41,6 +41,12 @@ def _check_value(name: str, value: float, low: float, high: float) -> None:
         raise ValueError(f"{name}: expected {low}..{high}, got {value}")
 
 
+MIN_POWER_LAW_RADIUS_PX = 0.5
+"""Smallest ``radius_px`` lower bound of ``power-law`` drops: below it (0 included, where
+``r^-k`` has no finite mass) nearly every drop is sub-pixel and the declared rain leaves
+no trace while the recording is labelled rain."""
+
+
 @dataclass(frozen=True)
 class RaindropsSpec:
     """Drops on the glass, rendered as small spherical-cap lenses.
@@ -110,12 +116,6 @@ class RaindropsSpec:
     def optics_focal_px(self) -> float:
         """The focal length the drop optics use, pixels (``focal_px``, else the photo default)."""
         return PHOTO_FOCAL_PX if self.focal_px is None else self.focal_px
-
-
-MIN_POWER_LAW_RADIUS_PX = 0.5
-"""Smallest ``radius_px`` lower bound of ``power-law`` drops: below it (0 included, where
-``r^-k`` has no finite mass) nearly every drop is sub-pixel and the declared rain leaves
-no trace while the recording is labelled rain."""
 
 
 @dataclass(frozen=True)

@@ -16,10 +16,10 @@ def test_fp32_is_timed_with_the_allocator_tuned_and_channels_last(
 ) -> None:
     # alone it never tuned the allocator; after bench_detector (same process) it ran tuned
     image = torch.rand(1, 1, 36, 54, generator=torch.Generator().manual_seed(0))
-    monkeypatch.setattr(bench_int8, "_structured_image", lambda: image)
+    monkeypatch.setattr(bench_int8, "structured_image", lambda: image)
     monkeypatch.setattr(bench_int8, "quantize_network", lambda *args: Path("int8.onnx"))
     layouts: list[bool] = []
-    model = bench_int8._untrained_model()
+    model = bench_int8.untrained_model()
     restore = type(model).restore
 
     def recording_restore(self: Any, x: torch.Tensor) -> torch.Tensor:
@@ -29,7 +29,7 @@ def test_fp32_is_timed_with_the_allocator_tuned_and_channels_last(
         return restore(self, x)  # type: ignore[no-any-return]
 
     monkeypatch.setattr(type(model), "restore", recording_restore)
-    monkeypatch.setattr(bench_int8, "_untrained_model", lambda: model)
+    monkeypatch.setattr(bench_int8, "untrained_model", lambda: model)
 
     class Session:
         def run(self, names: object, feed: dict[str, np.ndarray]) -> list[np.ndarray]:
