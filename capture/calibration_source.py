@@ -10,7 +10,7 @@ from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import Recording, find_rig_file, recording_places
-from lenspair.capture.rigfile import RigFile
+from lenspair.capture.rigfile import CameraName, RigFile
 from lenspair.core.errors import LenspairError
 from lenspair.rectify.calib_euroc import is_euroc_sensor_file
 from lenspair.rectify.calib_io import load_calibration
@@ -59,17 +59,23 @@ def find_calibration(
                 f"{recording.path}: no calibration{note}: pass --calib FILE, set 'calibration:' "
                 f"in rig.yaml, or put {CAMCHAIN_FILE} (Kalibr) beside the recording"
             )
-    return load_calibration(paths, resolution=_frame_size(recording))
+    return load_calibration(paths, resolutions=_frame_sizes(recording))
 
 
-def _frame_size(recording: Recording) -> tuple[int, int] | None:
-    """``(width, height)`` of the recording's first readable frame, or None.
+def _frame_sizes(recording: Recording) -> tuple[tuple[int, int] | None, ...]:
+    """``(width, height)`` of each camera's first readable frame (or None), cam0's first.
 
     For an OpenCV FileStorage calibration without an image size (the
-    stereo_calib sample writes none): the frames are the size it was made at,
-    or the frame-size check refuses them later.
+    stereo_calib sample writes none): each camera's frames are the size it
+    was calibrated at, or the frame-size check refuses them later. Each
+    camera its own: a rig's two cameras need not have one size.
     """
-    for frame in recording.frames["cam0"][:5]:
+    return tuple(_first_frame_size(recording, camera) for camera in ("cam0", "cam1"))
+
+
+def _first_frame_size(recording: Recording, camera: CameraName) -> tuple[int, int] | None:
+    """``(width, height)`` of the first of ``camera``'s first five frames that reads, or None."""
+    for frame in recording.frames[camera][:5]:
         try:
             image = recording.load(frame)
         except LenspairError:

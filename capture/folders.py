@@ -9,7 +9,9 @@ The timestamp is read from the file stem, the first rule that applies:
 
 1. seconds with a fraction, ``<9-10 digits>.<up to 9 digits>`` anywhere in
    the stem (``1403636579.7635.png``, ``1403636579.763555584_left.png``), or
-   ``<digits>.<digits>`` ending it (``12.5.png``: seconds from the start);
+   ``<up to 10 digits>.<digits>`` ending it (``12.5.png``: seconds from the
+   start; zeros in front aside, more digits are no seconds before 2286:
+   ``1700000000050164.0.png`` goes on to rule 3);
 2. seconds and nanoseconds, ``<9-10 digits>_<up to 9 digits>`` (or ``-``)
    anywhere in the stem, as ROS tools name frames
    (``1403636579_763555584.png``; an unpadded ``1403636579_5.png`` is 5 ns
@@ -25,9 +27,14 @@ The timestamp is read from the file stem, the first rule that applies:
    ``calibrate`` pairs such frames by it), not the date.
 
 Seconds are Unix seconds (9-10 digits, 1973 to 2286) except at the end of
-the stem: ``v1.2_<t_ns>.png`` is not 1.2 s. A camera whose files mostly read
-as one timestamp is refused: the names hold their time in a way these rules
-do not read, and pairing would keep one frame.
+the stem: ``v1.2_<t_ns>.png`` is not 1.2 s. A time past int64 nanoseconds
+(2262) is no time: the file is recorded as a problem with the value read. A
+camera whose files mostly read as one timestamp is refused: the names hold
+their time in a way these rules do not read, and pairing would keep one
+frame. So is a camera whose times are Unix milli- or microseconds
+(``1700000000049.png``, ``1700000000049941.png``: 13 or 16 digits, steps
+under a millisecond read as nanoseconds): scaled they would be guesses, read
+as nanoseconds they look like frame numbers.
 
 Hidden files and files that are not images are ignored. Folders have no
 recording order, so frames are taken in time order; two files with the same
@@ -35,8 +42,11 @@ timestamp keep the first by name and record the other.
 """
 
 import re
+import statistics
 from collections import Counter
 from collections.abc import Sequence
+from datetime import UTC, datetime
+from itertools import pairwise
 from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
@@ -61,7 +71,8 @@ here: :mod:`lenspair.model.inference.unread_files` names them where a folder hol
 FOLDER_NAMES: dict[CameraName, str] = {"cam0": "left", "cam1": "right"}
 
 _UNIX_SECONDS_FRACTION = re.compile(r"(?<![\d.])(\d{9,10})\.(\d{1,9})(?![\d])")
-_SECONDS_AT_END = re.compile(r"(\d+)\.(\d{1,9})$")
+_SECONDS_AT_END = re.compile(r"(?<!\d)0*(\d{1,10})\.(\d{1,9})$")
+"""Seconds ending the stem: up to 10 digits (before 2286), zeros in front aside."""
 _SECONDS_NANOSECONDS = re.compile(r"(?<!\d)(\d{9,10})[_-](\d{1,9})(?!\d)")
 """Unix seconds (9-10 digits: 1973 to 2286) and a nanosecond field of up to 9 digits
 (export scripts that print ``f"{secs}_{nsecs}"`` do not zero-pad it)."""
@@ -69,6 +80,14 @@ _DIGITS = re.compile(r"\d+")
 TIME_DIGITS = 9
 """Digits of the shortest group read as a time before a name's last group: Unix seconds
 have 9-10, milli- to nanoseconds more; a date (``20240501``) or a short serial has fewer."""
+INT64_MAX = 2**63 - 1
+"""The last nanosecond int64 holds (2262-04-11): timestamps are int64 ns everywhere."""
+SUBUNIT_DIGITS = {13: "milliseconds", 16: "microseconds"}
+"""Digits of a Unix time (2001 to 2286) in milli- and microseconds; in nanoseconds it has 19."""
+SUBUNIT_STEP_NS = 1_000_000
+"""Frames stepping under this (1 ms, 1000 frames/s) read as nanoseconds, with 13 or 16
+digits, are Unix milli- or microseconds: a 13-digit time in nanoseconds is 17 minutes to
+3 hours after 1970 (a clock since boot), and such a clock runs with a camera's period."""
 
 
 def timestamp_from_name(name: str) -> int | None:
@@ -81,13 +100,23 @@ def timestamp_from_name(name: str) -> int | None:
         Nanoseconds: ``<s>.<fraction>`` read as seconds, ``<s>_<ns>``, or the
         stem's longest digit group (module docstring).
     """
-    stem = Path(name).stem
+    read = _read_time(Path(name).stem)
+    return read[0] if read is not None and read[0] <= INT64_MAX else None
+
+
+def _read_time(stem: str) -> tuple[int, int] | None:
+    """``(value in ns, digits)`` read from a file stem by the module's rules, or None.
+
+    ``digits`` is the length of the digit group rule 3 read as nanoseconds,
+    0 when another rule read the value. The value may exceed int64.
+    """
     fraction = _UNIX_SECONDS_FRACTION.search(stem) or _SECONDS_AT_END.search(stem)
     if fraction is not None:  # a decimal fraction: "5" is half a second
-        return int(fraction.group(1)) * 1_000_000_000 + int(fraction.group(2).ljust(9, "0"))
+        seconds = int(fraction.group(1)) * 1_000_000_000
+        return seconds + int(fraction.group(2).ljust(9, "0")), 0
     split = _SECONDS_NANOSECONDS.search(stem)
     if split is not None:  # a nanosecond count: "5" is five nanoseconds
-        return int(split.group(1)) * 1_000_000_000 + int(split.group(2))
+        return int(split.group(1)) * 1_000_000_000 + int(split.group(2)), 0
     groups = _DIGITS.findall(stem)
     if not groups:
         return None
@@ -96,7 +125,9 @@ def timestamp_from_name(name: str) -> int | None:
     # long as a time (TIME_DIGITS) wins so: a date or a serial number (rec_20240501_000001)
     # is not one, and the last group there is the frame's number, as it always was
     longest = max(reversed(groups), key=len)
-    return int(longest if len(longest) >= TIME_DIGITS else groups[-1])
+    if len(longest) >= TIME_DIGITS:
+        return int(longest), len(longest.lstrip("0") or "0")
+    return int(groups[-1]), 0
 
 
 def image_files(folder: Path) -> list[Path]:
@@ -123,16 +154,24 @@ def list_image_folder(
 
     Raises:
         CaptureError: more than half of the folder's (two or more) timed files
-            read as one timestamp; names the folder and the value.
+            read as one timestamp, or as Unix milli- or microseconds; names
+            the folder and the value.
     """
     frames = []
+    digits = []
     for file in image_files(folder):
-        t_ns = timestamp_from_name(file.name)
-        if t_ns is None:
+        read = _read_time(Path(file.name).stem)
+        if read is None:
             problems.append(FrameProblem(camera, None, str(file), "no timestamp in file name"))
             continue
-        frames.append(FrameRef(camera, t_ns, file))
+        if read[0] > INT64_MAX:
+            reason = f"timestamp {read[0]} ns in file name is past 2262 (int64 nanoseconds)"
+            problems.append(FrameProblem(camera, None, str(file), reason))
+            continue
+        frames.append(FrameRef(camera, read[0], file))
+        digits.append(read[1])
     _check_distinct_times(camera, folder, frames)
+    _check_subunit_times(camera, folder, frames, digits)
     frames.sort(key=lambda f: f.t_ns)  # stable: same timestamps keep name order
     return order_frames(camera, frames, problems)
 
@@ -155,6 +194,45 @@ def _check_distinct_times(camera: CameraName, folder: Path, frames: list[FrameRe
             "in ns or in seconds with a fraction (1403636579763555584.png, "
             "1403636579.763555584.png)"
         )
+
+
+def _check_subunit_times(
+    camera: CameraName, folder: Path, frames: list[FrameRef], digits: list[int]
+) -> None:
+    """Refuse a folder whose file names hold Unix times in milli- or microseconds.
+
+    Read as nanoseconds (rule 3), ``1700000000049.png`` steps by 50 ns a
+    frame, which the frame-period check called frame numbers, and a 16-digit
+    microsecond time at 10 frames/s or slower passed as a 10,000 frames/s
+    camera. Scaling them would be a guess at the unit; the names say it.
+
+    Args:
+        camera: the folder's camera.
+        folder: the folder, named in the refusal.
+        frames: the folder's timed frames.
+        digits: each frame's rule-3 digit count (0: read by another rule).
+
+    Raises:
+        CaptureError: more than half of the times have 13 (or 16) digits and
+            they step by under :data:`SUBUNIT_STEP_NS` read as nanoseconds.
+    """
+    length, count = Counter(digits).most_common(1)[0] if digits else (0, 0)
+    if length not in SUBUNIT_DIGITS or 2 * count <= len(frames):
+        return
+    stamps = sorted({f.t_ns for f, d in zip(frames, digits, strict=True) if d == length})
+    steps = [b - a for a, b in pairwise(stamps)]
+    if not steps or statistics.median(steps) >= SUBUNIT_STEP_NS:
+        return
+    unit = SUBUNIT_DIGITS[length]
+    example = next(f for f, d in zip(frames, digits, strict=True) if d == length)
+    scale = 1_000 if length == 13 else 1_000_000
+    date = datetime.fromtimestamp(example.t_ns / scale, tz=UTC).strftime("%Y-%m-%d")
+    raise CaptureError(
+        f"{folder}: these {camera} file names look like Unix times in {unit} ({length} "
+        f"digits: {example.source.name} reads as {date} so; as nanoseconds they step by "
+        f"{round(statistics.median(steps))} ns, like frame numbers): name frames in "
+        "nanoseconds or seconds.fraction (1403636579763555584.png, 1403636579.763555584.png)"
+    )
 
 
 def is_left_right(path: Path) -> bool:

@@ -64,6 +64,7 @@ from lenspair.capture.ingest_side_check import check_side
 from lenspair.capture.ingested import PAIRS_FILE, REPORT_FILE, IngestReport, PairRecord
 from lenspair.capture.journal import fingerprint, hold_output, remove_temporaries
 from lenspair.capture.qa import QA_FILE, write_qa_sheet
+from lenspair.capture.rigfile import CameraName
 from lenspair.capture.side_detector import ObstructedProbability
 from lenspair.core.config import to_plain
 from lenspair.rectify.crop import Crop, choose_crop
@@ -72,6 +73,8 @@ from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.registration import EstimationParams, VerifyParams
 from lenspair.rectify.remap import target_map, valid_region
 from lenspair.rectify.rig import rig_to_kalibr
+
+CAMERAS = ("cam0", "cam1")
 
 
 def ingest_recording(
@@ -211,13 +214,23 @@ class _Registered:
         registration: the record of ``registration.json`` (matrix, counts).
         setup: what the registration and every frame's outputs are made with
             (calibration, side, thresholds, version; bits when under 16).
-        bits: the bits the recording's 16-bit frames use.
+        bits: the bits each camera's 16-bit frames use.
     """
 
     context: frame_work.Context
     registration: dict[str, Any]
     setup: dict[str, Any]
-    bits: int
+    bits: dict[CameraName, int]
+
+
+def _shared_bits(bits: dict[CameraName, int]) -> int | dict[CameraName, int]:
+    """The bits both cameras' 16-bit frames use, or each camera's when they differ.
+
+    One number where the two agree, as before depths were told per camera:
+    the fingerprints of such recordings' outputs stay the same.
+    """
+    depths = set(bits.values())
+    return depths.pop() if len(depths) == 1 else dict(sorted(bits.items()))
 
 
 def _register(
@@ -252,8 +265,9 @@ def _register(
             "verify": to_plain(verify),
             "version": __version__,
         }
-        if bits < 16:  # only then: the outputs of other recordings keep their fingerprint
-            setup["significant_bits"] = bits
+        shared = _shared_bits(bits)
+        if shared != 16:  # only then: the outputs of other recordings keep their fingerprint
+            setup["significant_bits"] = shared
         registration = recording_homography(
             recording, paired.frame_pairs, context, estimation, workers, out_dir, setup
         )
@@ -323,7 +337,7 @@ def _frame_settings(
     state = fingerprint({**setup, "matrix": matrix, "crop": crop.as_tuple()})
     settings = {
         **setup,
-        "significant_bits": registered.bits,
+        "significant_bits": _shared_bits(registered.bits),
         "calibration_source": paired.calibration_source,
         "size": list(size),
         "time_offset_ns": time_offset_ns,
@@ -353,7 +367,7 @@ def _report(
     reasons = rejection_reasons(recording, ordered, rig_file.obstructed)
     matrix = np.asarray(registration["matrix"], dtype=np.float64)
     homography_out = in_output_pixels(matrix, crop.x, crop.y)
-    bits = registered.bits
+    shared = _shared_bits(registered.bits)
     return IngestReport(
         recording_id=recording.recording_id,
         source=str(source),  # absolute: tells a namesake apart
@@ -368,7 +382,11 @@ def _report(
         timings_s=timings,
         side_check=side_check,
         lenspair_version=__version__,
-        significant_bits=bits if bits < 16 else None,
+        significant_bits=shared if isinstance(shared, int) and shared < 16 else None,
+        significant_bits_per_camera=dict(sorted(registered.bits.items())),
+        topics={}
+        if recording.topics is None
+        else dict(zip(CAMERAS, recording.topics, strict=True)),
         recording_problems=paired.problems,
         time_offset_ns=time_offset_ns,
     )

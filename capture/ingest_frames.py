@@ -59,9 +59,10 @@ class Context:
         input_grid: composed map of the obstructed view (rectify + crop).
         target_grid: composed map of the clean view (rectify + homography +
             crop), with a margin for per-frame shifts.
-        bits: the bits the recording's 16-bit frames use
-            (:func:`lenspair.core.bitdepth.significant_bits`); frames are read
-            through :func:`lenspair.core.bitdepth.widen` with it.
+        bits: the bits each camera's 16-bit frames use
+            (:func:`lenspair.core.bitdepth.significant_bits`; a camera not
+            named: 16); each camera's frames are read through
+            :func:`lenspair.core.bitdepth.widen` with its own (:meth:`bits_of`).
 
     """
 
@@ -76,7 +77,7 @@ class Context:
     crop: Crop | None = None
     input_grid: RemapGrid | None = None
     target_grid: RemapGrid | None = None
-    bits: int = 16
+    bits: dict[CameraName, int] = field(default_factory=dict)
 
     @classmethod
     def build(
@@ -85,7 +86,7 @@ class Context:
         obstructed: CameraName,
         rectification: StereoRectification,
         verify: VerifyParams,
-        bits: int = 16,
+        bits: dict[CameraName, int] | None = None,
     ) -> "Context":
         """Context before the crop is known (enough for :func:`sample`)."""
         clean: CameraName = "cam0" if obstructed == "cam1" else "cam1"
@@ -106,7 +107,7 @@ class Context:
             maps,
             valid(obstructed, *maps[0]),
             valid(clean, *maps[1]),
-            bits=bits,
+            bits=dict(bits or {}),
         )
 
     def rectified_to_raw_obstructed(self, points: np.ndarray) -> np.ndarray:
@@ -130,6 +131,10 @@ class Context:
             input_grid=grid,
             target_grid=target_grid,
         )
+
+    def bits_of(self, camera: CameraName) -> int:
+        """The bits ``camera``'s 16-bit frames use (16: taken as they are)."""
+        return self.bits.get(camera, 16)
 
     def raw_size(self, camera: CameraName) -> tuple[int, int]:
         """``(width, height)`` of ``camera``'s images according to the calibration."""
@@ -193,14 +198,15 @@ def _load_pair(
             image = load_frame(frame)
         except LenspairError as exc:
             return f"cannot read {role} frame: {exc}"
-        top = (1 << context.bits) - 1
-        if context.bits < 16 and image.dtype == np.uint16 and int(image.max()) > top:
+        bits = context.bits_of(camera)
+        top = (1 << bits) - 1
+        if bits < 16 and image.dtype == np.uint16 and int(image.max()) > top:
             # the frames sampled said otherwise: scaling this one would clip it
             return (
-                f"values above the recording's {context.bits} bits ({int(image.max())} > {top} "
+                f"values above {camera}'s {bits} bits ({int(image.max())} > {top} "
                 f"in {frame.describe()})"
             )
-        image = widen(image, context.bits)
+        image = widen(image, bits)
         problem = size_problem(image, frame, context.raw_size(camera))
         if problem is not None:
             return problem

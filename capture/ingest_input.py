@@ -3,8 +3,8 @@
 :func:`open_and_pair` opens the recording (:mod:`lenspair.capture.recording`),
 finds its ``rig.yaml`` and calibration (:mod:`lenspair.capture.calibration_source`),
 turns a bag read with its topics the other way round from the calibration's
-back (or refuses ``--topics`` given so), says the recording's problems in the
-log, and pairs the two cameras' frames by timestamp
+back, saying so in the log (or refuses ``--topics`` given so), says the
+recording's problems in the log, and pairs the two cameras' frames by timestamp
 (:mod:`lenspair.capture.pairing`), ``--time-offset`` applied.
 """
 
@@ -91,6 +91,15 @@ def open_and_pair(
                 "pass --topics in cam0, cam1 order, or fix the calibration's rostopic"
             )
         recording = recording.swapped()  # the calibration's order
+        # which physical camera becomes the input changes here: said, and kept in report.json
+        log.warning(
+            "%s: topic %s is read as cam0 and %s as cam1, the other way round from the "
+            "order they were picked in, because the calibration's rostopic states it (%s)",
+            recording.path,
+            rig.topics[0],
+            rig.topics[1],
+            calibration_source,
+        )
     _say_problems(recording)
     stamps0, stamps1 = recording.timestamps("cam0"), recording.timestamps("cam1")
     period = estimate_period_ns(stamps0, stamps1)

@@ -2,7 +2,7 @@
 
 Before the calibration is used, up to :data:`BIT_DEPTH_FRAMES` frame pairs
 spread over the recording are read as stored (:func:`sampled_pairs`) to tell
-the bits 16-bit frames use (:func:`recording_bits`) and whether any pair has
+the bits each camera's 16-bit frames use (:func:`recording_bits`) and whether any pair has
 the calibration's image sizes (:func:`size_mismatch`). The clean -> obstructed
 homography is then estimated from features pooled over up to
 ``EstimationParams.max_frames`` pairs (:func:`recording_homography`) and cached
@@ -24,6 +24,7 @@ from lenspair.capture.errors import CaptureError
 from lenspair.capture.ingest_pairs import map_tasks
 from lenspair.capture.journal import fingerprint
 from lenspair.capture.recording import FrameRef, Recording, load_frame
+from lenspair.capture.rigfile import CameraName
 from lenspair.core.bitdepth import significant_bits
 from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
@@ -70,23 +71,36 @@ def sampled_pairs(pairs: list[tuple[FrameRef, FrameRef]]) -> list[SampledPair]:
     return sampled
 
 
-def recording_bits(recording: Recording, sampled: list[SampledPair]) -> int:
-    """:func:`significant_bits` of the sampled frame pairs (:func:`sampled_pairs`).
+def recording_bits(recording: Recording, sampled: list[SampledPair]) -> dict[CameraName, int]:
+    """Each camera's :func:`significant_bits`, told from the sampled pairs (:func:`sampled_pairs`).
 
-    A recording that uses fewer than 16 bits is said in the log. A frame the
-    sample missed that holds more is rejected with that reason, not clipped.
+    Told per camera: a rig may pair a 16-bit camera with a 12-bit one
+    publishing ``mono16``, or a 10-bit with a 12-bit one; one depth for both
+    would scale one camera's frames by the other's, leaving input and target
+    4 to 16 times apart in brightness. A camera whose frames use fewer than
+    16 bits is said in the log. A frame the sample missed that holds more is
+    rejected with that reason, not clipped.
+
+    Returns:
+        The bits of ``cam0``'s and ``cam1``'s 16-bit frames (16: taken as they are).
     """
-    images = [image for pair in sampled for _, image in pair]
-    bits = significant_bits(images)
-    if bits < 16:
-        log.warning(
-            "%s: its 16-bit frames hold %d-bit values (none above %d in %d sampled frames): "
-            "they are scaled to the full 16-bit range",
-            recording.path,
-            bits,
-            (1 << bits) - 1,
-            len(images),
-        )
+    images: dict[CameraName, list[np.ndarray]] = {"cam0": [], "cam1": []}
+    for pair in sampled:
+        for frame, image in pair:
+            images[frame.camera].append(image)
+    bits: dict[CameraName, int] = {}
+    for camera, frames in images.items():
+        bits[camera] = significant_bits(frames)
+        if bits[camera] < 16:
+            log.warning(
+                "%s: %s's 16-bit frames hold %d-bit values (none above %d in %d sampled "
+                "frames): they are scaled to the full 16-bit range",
+                recording.path,
+                camera,
+                bits[camera],
+                (1 << bits[camera]) - 1,
+                len(frames),
+            )
     return bits
 
 

@@ -88,7 +88,7 @@ def _side_check_images(
         if len(images["cam0"]) == count:
             break
         try:
-            loaded = [widen(load_frame(frame), context.bits) for frame in pair]
+            loaded = [widen(load_frame(frame), context.bits_of(frame.camera)) for frame in pair]
         except LenspairError:
             continue
         sizes = [(image.shape[1], image.shape[0]) for image in loaded]

@@ -82,8 +82,17 @@ class IngestReport:
         timings_s: stage -> seconds.
         side_check: result of checking the declared obstructed side.
         lenspair_version: version that wrote it.
-        significant_bits: 10 or 12 when the recording's 16-bit frames held
-            values of that depth (scaled to 16 bits in the outputs), else None.
+        significant_bits: 10 or 12 when both cameras' 16-bit frames held
+            values of that depth (scaled to 16 bits in the outputs), else None
+            (cameras of different depths too: see the next field).
+        significant_bits_per_camera: ``cam0``/``cam1`` -> the bits that
+            camera's 16-bit frames held (10 or 12: scaled to 16 bits in the
+            outputs; 16: taken as they are, as are 8-bit frames); each
+            camera's frames are scaled by their own. Empty in reports of
+            before it was written.
+        topics: bags only: ``cam0``/``cam1`` -> the topic read as that camera
+            (the calibration's ``rostopic`` order where it states one); empty
+            for folders, and in reports of before it was written.
         recording_problems: what was said of the recording as a whole (a bag
             cut short, header stamps never set, clocks that seem to disagree),
             and each obstructed frame without a timestamp, which no line of
@@ -107,6 +116,8 @@ class IngestReport:
     side_check: dict[str, Any] = field(default_factory=dict)
     lenspair_version: str = ""
     significant_bits: int | None = None
+    significant_bits_per_camera: dict[str, int] = field(default_factory=dict)
+    topics: dict[str, str] = field(default_factory=dict)
     recording_problems: list[str] = field(default_factory=list)
     time_offset_ns: int = 0
 

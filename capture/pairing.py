@@ -124,6 +124,9 @@ def check_frame_period(period_ns: int | None, where: object) -> None:
     writes) give times 1 ns apart: pairing by them matches frame numbers, and
     once a camera drops a frame every later pair is a frame apart, with no
     warning (the clock-offset check sees them 1 ns apart).
+    Times in milliseconds (or microseconds) read as nanoseconds step as fast;
+    the folder reader names those itself
+    (:func:`lenspair.capture.folders.list_image_folder`), a data.csv does not.
 
     Raises:
         CaptureError: names ``where`` and says how to give real times.
@@ -132,8 +135,9 @@ def check_frame_period(period_ns: int | None, where: object) -> None:
         raise CaptureError(
             f"{where}: the frames' timestamps step by {_format_ns(period_ns)} (median), faster "
             f"than any camera ({MIN_FRAME_PERIOD_NS // 1000} us is 10,000 frames/s): they look "
-            "like frame numbers (frame0000.png), not times; pairing by them would pair frame "
-            "numbers, a frame apart after any dropped frame. Name the images by capture time "
+            "like frame numbers (frame0000.png), or Unix times in milli- or microseconds read "
+            "as nanoseconds, not times; pairing by them would pair frame numbers, a frame "
+            "apart after any dropped frame. Name the images by capture time "
             "in ns or in seconds with a fraction (1403636579763555584.png, "
             "1403636579.763555584.png), or list the times in an EuRoC data.csv"
         )

@@ -190,7 +190,8 @@ def resolve_obstructed(recording_path: Path, override: str | None = None) -> Rig
     Args:
         recording_path: the recording (folder, bag file or ROS2 bag folder).
         override: ``cam0``/``cam1`` from ``--obstructed``; it wins over
-            ``rig.yaml`` (whose anomaly labels and calibration are kept).
+            ``rig.yaml`` (whose anomaly labels and calibration are kept), which
+            may then leave ``obstructed`` out.
 
     Returns:
         The rig file contents (``calibration`` stays relative to the folder of
@@ -199,21 +200,24 @@ def resolve_obstructed(recording_path: Path, override: str | None = None) -> Rig
     Raises:
         CaptureError: ``override`` is not a camera name, or neither ``rig.yaml``
             nor ``override`` is available.
-        ConfigError: ``rig.yaml`` exists but is malformed (names file and key).
+        ConfigError: ``rig.yaml`` exists but is malformed (names file and key),
+            or leaves ``obstructed`` out and ``override`` is None.
     """
     if override is not None and override not in get_args(CameraName):
         raise CaptureError(f"--obstructed: expected cam0 or cam1, got {override!r}")
+    camera: CameraName | None = None
+    if override is not None:
+        camera = "cam0" if override == "cam0" else "cam1"
     rig_path = find_rig_file(recording_path)
     if rig_path is None:
-        if override is None:
+        if camera is None:
             raise CaptureError(
                 f"{recording_path}: which camera is obstructed? Add {RIG_FILE} beside the "
                 "recording (e.g. 'obstructed: cam1' and 'anomaly: [rain]') "
                 "or pass --obstructed cam0|cam1"
             )
-        camera: CameraName = "cam0" if override == "cam0" else "cam1"
         return RigFile(obstructed=camera)
-    rig = read_rig_file(rig_path)
-    if override is not None and override != rig.obstructed:
-        return replace(rig, obstructed="cam0" if override == "cam0" else "cam1")
+    rig = read_rig_file(rig_path, camera)  # with --obstructed, its obstructed may be left out
+    if camera is not None and camera != rig.obstructed:
+        return replace(rig, obstructed=camera)
     return rig

@@ -2,7 +2,8 @@
 
 Example::
 
-    obstructed: cam1          # cam0 or cam1: the camera behind the dirty glass
+    obstructed: cam1          # cam0 or cam1: the camera behind the dirty glass (optional
+                              # when --obstructed names it)
     anomaly: [rain]           # rain, dust, dirt, ... (free labels, lower case)
     calibration: camchain.yaml  # optional; relative to rig.yaml
 
@@ -14,7 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from lenspair.core.config import dump_yaml, load_yaml
+from lenspair.core.config import dump_yaml, load_dataclass, read_yaml
+from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_text
 
 CameraName = Literal["cam0", "cam1"]
@@ -41,9 +43,24 @@ class RigFile:
         return "cam0" if self.obstructed == "cam1" else "cam1"
 
 
-def read_rig_file(path: Path) -> RigFile:
-    """Load ``rig.yaml``; errors name the file and the key (``ConfigError``)."""
-    return load_yaml(RigFile, Path(path))
+def read_rig_file(path: Path, obstructed: CameraName | None = None) -> RigFile:
+    """Load ``rig.yaml``; errors name the file and the key (``ConfigError``).
+
+    Args:
+        path: the file.
+        obstructed: the camera ``--obstructed`` names, which wins over the
+            file's: then ``obstructed`` may be left out of the file (its
+            labels and calibration are still read). Without it, a file that
+            leaves it out is refused.
+    """
+    path = Path(path)
+    data = read_yaml(path)
+    if obstructed is not None and (data is None or isinstance(data, dict)):
+        data = {"obstructed": obstructed, **(data or {})}
+    try:
+        return load_dataclass(RigFile, data)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
 
 
 def write_rig_file(path: Path, rig: RigFile) -> None:

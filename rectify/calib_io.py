@@ -46,7 +46,7 @@ def _read_text(path: Path) -> str:
 
 
 def load_calibration(
-    paths: Sequence[Path], resolution: tuple[int, int] | None = None
+    paths: Sequence[Path], resolutions: Sequence[tuple[int, int] | None] = (None, None)
 ) -> tuple[StereoRig, str]:
     """Read a stereo calibration in any supported format (see the module docstring).
 
@@ -54,8 +54,10 @@ def load_calibration(
         paths: one Kalibr camchain; one to three OpenCV FileStorage files; or
             two ROS camera_info files (cam0, cam1) plus an optional extrinsic file;
             or two EuRoC ``sensor.yaml`` files (cam0, cam1).
-        resolution: image ``(width, height)`` to use when a FileStorage file
-            holds no image size (OpenCV's stereo_calib sample writes none).
+        resolutions: cam0's and cam1's image ``(width, height)`` (or None) to
+            use when a FileStorage file holds no image size (OpenCV's
+            stereo_calib sample writes none); each camera its own, as a rig's
+            two cameras need not have one size.
 
     Returns:
         ``(rig, description)``: the rig, and a line saying where it came from.
@@ -70,7 +72,7 @@ def load_calibration(
         raise RectifyError("calibration: no file given")
     texts = [_read_text(p) for p in files]
     if all(is_filestorage(p, t) for p, t in zip(files, texts, strict=True)) and len(files) <= 3:
-        rig = from_filestorage(files, resolution)
+        rig = from_filestorage(files, resolutions)
         return rig, f"OpenCV FileStorage {' + '.join(str(p) for p in files)}"
     if len(files) in (2, 3) and is_ros_camera_info(texts[0]) and is_ros_camera_info(texts[1]):
         check_camera_order(files[:2])

@@ -13,7 +13,8 @@ from OpenCV's stereo_calib sample. Accepted keys, first match wins:
 * Extrinsic cam0 -> cam1 (``x1 = R x0 + T``, as ``cv2.stereoCalibrate``):
   ``R`` (3x3 or a rotation vector) and ``T`` (3, **metres**), or ``T_cam1_cam0`` (4x4).
 * Image size: ``image_size``/``imageSize`` ``[w, h]``, or
-  ``image_width`` + ``image_height``; else the ``resolution`` argument.
+  ``image_width`` + ``image_height``; else each camera's own from the
+  ``resolutions`` argument (``capture-ingest``: its first frame's size).
 * Model: ``distortion_model`` (``radtan``/``plumb_bob`` or
   ``equidistant``/``fisheye``) or a non-zero ``fisheye_model``; default radtan.
 
@@ -22,6 +23,7 @@ from OpenCV's stereo_calib sample. Accepted keys, first match wins:
 """
 
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -134,12 +136,15 @@ def _find_size(values: dict[str, tuple[Any, Path]]) -> tuple[int, int] | None:
     return None
 
 
-def from_filestorage(paths: list[Path], resolution: tuple[int, int] | None) -> StereoRig:
+def from_filestorage(
+    paths: list[Path], resolutions: Sequence[tuple[int, int] | None] = (None, None)
+) -> StereoRig:
     """The rig in one to three FileStorage files (see the module docstring for the keys).
 
     Args:
         paths: the files, their keys merged; per-camera files in the order cam0, cam1.
-        resolution: image ``(width, height)`` where no file holds an image size.
+        resolutions: cam0's and cam1's image ``(width, height)`` (or None), for
+            a camera whose files hold no image size.
 
     Raises:
         RectifyError: missing keys, NaN/Inf, implausible values; naming the file.
@@ -167,7 +172,7 @@ def from_filestorage(paths: list[Path], resolution: tuple[int, int] | None) -> S
                 f"{where}: no {name} intrinsics (keys {'/'.join(keys[0][:3])}..., "
                 f"{'/'.join(keys[1][:3])}...)"
             )
-        size = _find_size(source) or _find_size(merged) or resolution
+        size = _find_size(source) or _find_size(merged) or resolutions[index]
         if size is None:
             raise RectifyError(f"{K[1]}: no image size (image_size, or image_width/image_height)")
         model = _model(source)

@@ -4,9 +4,11 @@ Two YAML files as written by camera_calibration: ``image_width``,
 ``image_height``, ``camera_matrix``, ``distortion_model``
 ``plumb_bob``/``rational_polynomial``/``equidistant``,
 ``distortion_coefficients``, ``rectification_matrix``, ``projection_matrix``;
-first file cam0. The extrinsic comes from a third file when given (plain YAML
-with ``T_cam1_cam0`` 4x4, or ``R`` + ``T``; or a FileStorage with those keys),
-else from the rectified pair: ``R = R1^T R0`` and ``T = R1^T (t1 - t0)`` with
+first file cam0, the left camera (a pair whose ``camera_name`` or
+``projection_matrix`` says the right camera came first is refused). The
+extrinsic comes from a third file when given (plain YAML with ``T_cam1_cam0``
+4x4, or ``R`` + ``T``; or a FileStorage with those keys), else from the
+rectified pair: ``R = R1^T R0`` and ``T = R1^T (t1 - t0)`` with
 ``t_i = (Tx_i / fx', Ty_i / fy', 0)`` from each ``projection_matrix``
 (``Tx = -fx' * B``).
 """
@@ -21,8 +23,10 @@ from lenspair.rectify.calib_opencv import is_filestorage, read_filestorage
 from lenspair.rectify.calib_values import (
     MODEL_NAMES,
     camera_from_matrices,
+    camera_side,
     finite,
     pick,
+    refuse_swapped,
     square_transform,
     stereo_rig,
     transform_from_r_t,
@@ -110,6 +114,34 @@ def _extrinsic_file(path: Path, text: str) -> np.ndarray:
     return transform_from_r_t(R[0], T[0], str(path))
 
 
+def _check_order(paths: list[Path], names: list[Any], projections: tuple[np.ndarray, ...]) -> None:
+    """Refuse a camera_info pair that says it was given the right camera first.
+
+    camera_calibration names the cameras ``<rig>/left`` and ``<rig>/right``
+    and gives the right camera's ``projection_matrix`` the baseline
+    (``Tx = -fx' * B``), the left's ``Tx = 0``. Given right first, each camera
+    was rectified with the other's calibration and the extrinsic inverted,
+    without a word.
+
+    Raises:
+        RectifyError: naming both files and the order expected.
+    """
+    sides = [camera_side(name) if isinstance(name, str) else None for name in names]
+    if sides == ["cam1", "cam0"]:
+        refuse_swapped(
+            paths, "their camera_name", f"{names[0]!r}", f"{names[1]!r}",
+            "left, right, as camera_calibration names them",
+        )  # fmt: skip
+    if projections[0][0, 3] != 0 and projections[1][0, 3] == 0:
+        refuse_swapped(
+            paths, "their projection_matrix",
+            f"the right camera's (Tx = {projections[0][0, 3]:g}, the baseline)",
+            "the left's (Tx = 0)",
+            "left, right: camera_calibration gives the right camera Tx = -fx' * B and the "
+            "left Tx = 0",
+        )  # fmt: skip
+
+
 def from_ros(paths: list[Path], texts: list[str]) -> tuple[StereoRig, str]:
     """The rig in two ROS camera_info files (cam0, cam1) and an optional extrinsic file.
 
@@ -123,15 +155,17 @@ def from_ros(paths: list[Path], texts: list[str]) -> tuple[StereoRig, str]:
     Raises:
         RectifyError: missing keys, NaN/Inf, implausible values; naming the file.
     """
-    parsed = []
+    parsed, loaded = [], []
     for path, text in zip(paths[:2], texts[:2], strict=True):
         try:
             data = yaml.safe_load(text)
         except yaml.YAMLError as exc:
             raise RectifyError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
         parsed.append(_ros_camera(path, data))
+        loaded.append(data)
     where = f"{paths[0]} + {paths[1]}"
     (cam0, rect0, proj0), (cam1, rect1, proj1) = parsed
+    _check_order(paths[:2], [data.get("camera_name") for data in loaded], (proj0, proj1))
     for path, rectification in ((paths[0], rect0), (paths[1], rect1)):
         if not is_rotation(rectification, atol=ROTATION_ATOL):
             raise RectifyError(f"{path}: rectification_matrix is not a rotation matrix")

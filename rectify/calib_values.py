@@ -4,13 +4,14 @@ Every reader of :mod:`~lenspair.rectify.calib_io` turns what a file holds
 into a :class:`~lenspair.rectify.rig.StereoRig` through these checks, so a
 NaN, a wrong count or an implausible value is the same one-line
 :class:`RectifyError` naming the file, whatever the format; and per-camera
-files whose paths say they came in the order cam1, cam0 are refused
-(:func:`check_camera_order`).
+files whose paths say they came in the order cam1, cam0 (or right, left)
+are refused (:func:`check_camera_order`).
 """
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import cv2
 import numpy as np
@@ -112,24 +113,62 @@ def stereo_rig(cam0: CameraModel, cam1: CameraModel, matrix: np.ndarray, where: 
         raise RectifyError(f"{where}: {exc}") from None
 
 
-def _camera_named(path: Path) -> str | None:
-    """``cam0``/``cam1`` when the path names one (``mav0/cam1/sensor.yaml``, ``cam0.yaml``)."""
+_SIDES = {"cam0": "cam0", "cam1": "cam1", "left": "cam0", "right": "cam1"}
+"""Words that say which camera a file is: cam0 is the left (reference) camera, as in ROS."""
+
+
+def _path_word(path: Path) -> str | None:
+    """The last path part that names a camera (``mav0/cam1/sensor.yaml``, ``left.yaml``)."""
     for part in reversed(Path(path).with_suffix("").parts):
-        if part in ("cam0", "cam1"):
+        if part.lower() in _SIDES:
             return part
     return None
+
+
+def camera_side(name: str) -> str | None:
+    """``cam0``/``cam1`` for a camera name that says it (``narrow_stereo/right`` is cam1).
+
+    The last word among ``left``, ``right``, ``cam0``, ``cam1`` decides; None
+    when the name holds none of them.
+    """
+    words = [word for word in re.split(r"[^a-z0-9]+", name.lower()) if word in _SIDES]
+    return _SIDES[words[-1]] if words else None
+
+
+def refuse_swapped(files: Sequence[Path], by: str, first: str, second: str, note: str) -> NoReturn:
+    """Raise the refusal of two per-camera files given cam1's first.
+
+    Args:
+        files: the two files, in the order given.
+        by: what tells, e.g. ``"their paths"``.
+        first: what the first file is by it, e.g. ``"cam1's"``.
+        second: what the second file is by it, e.g. ``"cam0's"``.
+        note: what to do if ``by`` misleads, e.g. ``"or rename them, ..."``.
+
+    Raises:
+        RectifyError: always; naming the files and the order expected.
+    """
+    raise RectifyError(
+        f"{files[0]} + {files[1]}: by {by} the first is {first} and the second {second}; "
+        f"give the per-camera files in the order cam0, cam1 ({note})"
+    )
 
 
 def check_camera_order(files: Sequence[Path]) -> None:
     """Refuse per-camera files whose paths say they were given cam1 first.
 
-    Each camera would be rectified with the other's intrinsics and the
-    extrinsic inverted, and the ingest ran on without a word.
+    A path part ``cam0`` or ``left`` names the first camera, ``cam1`` or
+    ``right`` the second. Each camera would be rectified with the other's
+    intrinsics and the extrinsic inverted, and the ingest ran on without a word.
     """
-    named = [_camera_named(path) for path in files]
-    if named == ["cam1", "cam0"]:
-        raise RectifyError(
-            f"{files[0]} + {files[1]}: by their paths the first is cam1's and the second "
-            "cam0's; give the per-camera files in the order cam0, cam1 (or rename them, if "
-            "the file named cam1 really is the first camera's)"
-        )
+    first, second = (_path_word(path) or "" for path in files[:2])
+    if _SIDES.get(first.lower()) == "cam1" and _SIDES.get(second.lower()) == "cam0":
+        said = [
+            f"{w}'s" if w.lower().startswith("cam") else f"the {w} camera's"
+            for w in (first, second)
+        ]
+        refuse_swapped(
+            files, "their paths", said[0], said[1],
+            f"left, right; or rename them, if the file named {first} really is the first "
+            "camera's",
+        )  # fmt: skip

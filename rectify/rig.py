@@ -214,7 +214,7 @@ def camera_from_kalibr(data: Any, where: str) -> CameraModel:
 
 
 MAX_BASELINE_M = 10.0
-"""Larger than any stereo rig: a translation this long was written in millimetres."""
+"""Larger than any stereo rig: a translation this long was written in milli- or centimetres."""
 
 MIN_BASELINE_M = 1e-4
 """A tenth of a millimetre: below it the rig is a single point (OpenCV's
@@ -238,10 +238,11 @@ def checked_transform(matrix: np.ndarray, where: str) -> np.ndarray:
     """``T_cam1_cam0`` checked: 4x4, finite, a rotation, a rigid last row, a stereo baseline.
 
     Every calibration reader passes its extrinsic through here, so a zero
-    (placeholder) or millimetre baseline, or a matrix that is no rotation, is
-    one line naming the file, not an OpenCV assertion later. A rotation
-    rounded where it was written (within :data:`ROTATION_ATOL`) is replaced by
-    the nearest exact one (SVD), as rectification needs.
+    (placeholder) baseline, one in millimetres or centimetres, or a matrix
+    that is no rotation, is one line naming the file, not an OpenCV assertion
+    later. A rotation rounded where it was written (within
+    :data:`ROTATION_ATOL`) is replaced by the nearest exact one (SVD), as
+    rectification needs.
 
     Raises:
         RectifyError: naming ``where`` and what is wrong.
@@ -271,8 +272,8 @@ def checked_transform(matrix: np.ndarray, where: str) -> np.ndarray:
         )
     if baseline > MAX_BASELINE_M:
         raise RectifyError(
-            f"{where}: baseline {baseline:g} is not plausible in metres (millimetres?); "
-            "translations must be in metres"
+            f"{where}: baseline {baseline:g} is not plausible in metres (millimetres or "
+            "centimetres?); translations must be in metres"
         )
     return matrix
 

@@ -555,6 +555,7 @@ def test_twelve_bit_values_in_16_bit_frames_are_scaled_not_judged_black(tmp_path
     out_full, expected, report_full = _ingest(full, tmp_path / "out")
     out_low, records, report_low = _ingest(low, tmp_path / "out")
     assert (report_full.significant_bits, report_low.significant_bits) == (None, 12)
+    assert report_low.significant_bits_per_camera == {"cam0": 12, "cam1": 12}
     assert [r.status for r in records] == [r.status for r in expected] == ["kept"] * 3
     images = sorted(out_full.glob("*/*.png"))
     assert len(images) == 6
@@ -562,6 +563,51 @@ def test_twelve_bit_values_in_16_bit_frames_are_scaled_not_judged_black(tmp_path
         reference = read_image(image).astype(np.int32)
         scaled = read_image(out_low / image.parent.name / image.name).astype(np.int32)
         assert np.abs(scaled - reference).max() <= 32  # the 4 low bits the camera lacked
+
+
+@pytest.mark.parametrize("depths", [(16, 12), (10, 12)])
+def test_cameras_of_different_bit_depths_are_each_scaled_by_their_own(
+    tmp_path: Path, depths: tuple[int, int], caplog: pytest.LogCaptureFixture
+) -> None:
+    # Both cameras' frames were pooled into one depth: a true 16-bit cam0 beside a
+    # 12-bit cam1 left cam1 unscaled (10 beside 12 scaled cam0 as 12-bit), so target
+    # and input came out 4-16x apart in brightness, every pair kept.
+    full = make_recording(tmp_path / "full", frames=3, dtype=np.uint16)
+    mixed = make_recording(tmp_path / "mixed", frames=3, dtype=np.uint16)
+    for camera, bits in zip(("cam0", "cam1"), depths, strict=True):
+        for path in frame_files(mixed, camera):
+            write_image(path, read_image(path) >> (16 - bits))
+    out_full, expected, _ = _ingest(full, tmp_path / "out")
+    with caplog.at_level(logging.WARNING):
+        out_mixed, records, report = _ingest(mixed, tmp_path / "out")
+    assert [r.status for r in records] == [r.status for r in expected] == ["kept"] * 3
+    images = sorted(out_full.glob("*/*.png"))
+    assert len(images) == 6
+    for image in images:
+        reference = read_image(image).astype(np.int32)
+        scaled = read_image(out_mixed / image.parent.name / image.name).astype(np.int32)
+        assert np.abs(scaled - reference).max() <= 1 << (16 - min(depths))  # the lacking bits
+    assert report.significant_bits_per_camera == {"cam0": depths[0], "cam1": depths[1]}
+    assert report.significant_bits is None  # no one depth of the recording
+    for camera, bits in zip(("cam0", "cam1"), depths, strict=True):
+        said = f"{camera}'s 16-bit frames hold {bits}-bit values"
+        assert any(said in m for m in caplog.messages) == (bits < 16)
+    assert read_report(out_mixed / "report.json") == report
+
+
+def test_reports_of_before_per_camera_fields_are_read(tmp_path: Path) -> None:
+    # report.json gained significant_bits_per_camera and topics: older ones still load
+    out_dir, _, report = _ingest(make_recording(tmp_path / "rec", frames=2), tmp_path / "out")
+    assert report.significant_bits_per_camera == {"cam0": 16, "cam1": 16}
+    assert report.topics == {}  # a folder: no topics
+    data = json.loads((out_dir / "report.json").read_text())
+    del data["significant_bits_per_camera"], data["topics"]
+    (out_dir / "report.json").write_text(json.dumps(data))
+    from lenspair.dataset.sources import load_source
+
+    for older in (read_report(out_dir / "report.json"), load_source(out_dir).report):
+        assert (older.significant_bits_per_camera, older.topics) == ({}, {})
+        assert older.significant_bits == report.significant_bits
 
 
 @given(
@@ -602,8 +648,8 @@ def test_a_frame_the_bit_depth_sample_missed_is_rejected_not_clipped(
     assert report.significant_bits == 12
     assert [r.status for r in records] == ["kept", "rejected", "kept", "kept"]
     assert records[1].reason is not None
-    assert records[1].reason.startswith("values above the recording's 12 bits (60000 > 4095 in ")
-    assert report.rejection_reasons == {"values above the recording's 12 bits": 1}
+    assert records[1].reason.startswith("values above cam1's 12 bits (60000 > 4095 in ")
+    assert report.rejection_reasons == {"values above cam1's 12 bits": 1}
 
 
 def test_a_bag_timed_by_its_log_time_says_so_in_report_json(tmp_path: Path) -> None:

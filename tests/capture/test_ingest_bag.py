@@ -130,6 +130,31 @@ def test_topics_the_other_way_round_from_the_camchain(
             assert read_image(other).tobytes() == read_image(image).tobytes()
 
 
+def test_topics_read_in_the_calibrations_order_are_said_and_in_report_json(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # The calibration's rostopic swapped which topic is cam0 (which physical camera
+    # became the input) without a log line or a trace in report.json.
+    bag = _bag_from_euroc(tmp_path, "ros1", frames=3)
+    cam0, cam1 = "/cam0/image_raw", "/cam1/image_raw"
+    with caplog.at_level(logging.WARNING):
+        plain = ingest_recording(bag, tmp_path / "plain", size=SIZE)
+    assert plain.topics == {"cam0": cam0, "cam1": cam1}
+    assert not any("is read as cam0" in m for m in caplog.messages)
+    write_kalibr(bag.parent / "camchain.yaml", replace(rig(), topics=(cam1, cam0)))
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        swapped = ingest_recording(bag, tmp_path / "swapped", size=SIZE)
+    said = [m for m in caplog.messages if "is read as cam0" in m]
+    assert said == [
+        f"{bag}: topic {cam1} is read as cam0 and {cam0} as cam1, the other way round from the "
+        f"order they were picked in, because the calibration's rostopic states it "
+        f"({swapped.calibration_source})"
+    ]
+    assert swapped.topics == {"cam0": cam1, "cam1": cam0}
+    assert read_report(tmp_path / "swapped" / "run" / "report.json").topics == swapped.topics
+
+
 def test_bag_messages_sharing_a_stamp_each_get_a_line(tmp_path: Path) -> None:
     """Two obstructed-camera messages with one header stamp are two frames to account for."""
     euroc = make_recording(tmp_path / "euroc", frames=4)

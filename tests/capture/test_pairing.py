@@ -169,3 +169,18 @@ def test_capture_ingest_refuses_frame_numbers_read_as_times(
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert str(recording) in line and "look like frame numbers" in line
     assert not (tmp_path / "out" / "rec").exists()
+
+
+def test_capture_ingest_says_a_data_csv_in_milliseconds_may_be_the_cause(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Unix milliseconds in data.csv step by 50 "ns": the refusal called them frame numbers only."""
+    recording = make_recording(tmp_path / "rec", frames=4)
+    for camera in ("cam0", "cam1"):
+        listing = recording / "mav0" / camera / "data.csv"
+        header, *rows = listing.read_text().splitlines()
+        in_ms = [f"{int(row.split(',')[0]) // 10**6},{row.split(',')[1]}" for row in rows]
+        listing.write_text("\n".join([header, *in_ms]) + "\n")
+    assert main(["capture-ingest", str(recording), "--out", str(tmp_path / "out")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert str(recording) in line and "Unix times in milli- or microseconds" in line

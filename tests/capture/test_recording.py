@@ -1,10 +1,13 @@
+import json
 import multiprocessing
 import pickle
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
+from lenspair.capture.calibration_source import find_calibration
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.folders import timestamp_from_name
 from lenspair.capture.recording import (
@@ -232,10 +235,75 @@ def test_left_right_folders(tmp_path: Path) -> None:
         ("cam0_SN12345678_000017.png", 17),
         ("12_001058405.png", 1_058_405),  # too few digits for Unix seconds
         ("nostamp.png", None),
+        # microseconds with a fraction were read as seconds: 1.7e24 ns, past int64
+        ("1700000000050164.0.png", 1_700_000_000_050_164),
+        ("0000012.5.png", 12_500_000_000),  # zeros in front of seconds are no digits
+        ("9999999999.5.png", None),  # 2286: past int64 nanoseconds (2262), no time
     ],
 )
 def test_timestamp_from_name(name: str, expected: int | None) -> None:
     assert timestamp_from_name(name) == expected
+
+
+@pytest.mark.parametrize(
+    ("unit", "digits", "scale", "suffix", "period_ms"),
+    [
+        ("milliseconds", 13, 10**6, "", 50),
+        ("microseconds", 16, 10**3, "", 50),
+        ("microseconds", 16, 10**3, ".0", 50),  # read as seconds: 1.7e24 ns, accepted
+        ("microseconds", 16, 10**3, "", 100),  # 100 us read as ns: a 10,000 frames/s camera
+    ],
+)
+def test_unix_milli_and_microsecond_names_are_refused_naming_the_unit(
+    tmp_path: Path, unit: str, digits: int, scale: int, suffix: str, period_ms: int
+) -> None:
+    # read as nanoseconds they were "frame numbers" (or passed, at 10 frames/s or slower)
+    stamps = [1_700_000_000_049_941_000 + i * period_ms * MS for i in range(4)]
+    for i, t in enumerate(stamps):
+        for side in ("left", "right"):
+            write_image(tmp_path / side / f"{t // scale}{suffix}.png", _image(i))
+    with pytest.raises(
+        CaptureError,
+        match=rf"^{tmp_path / 'left'}: these cam0 file names look like Unix times in {unit} "
+        rf"\({digits} digits: .* 2023-11-14 .*\): name frames in nanoseconds or seconds\.fraction",
+    ) as info:
+        open_recording(tmp_path)
+    assert "\n" not in str(info.value)
+
+
+def test_a_clock_since_boot_in_nanoseconds_is_no_millisecond_time(tmp_path: Path) -> None:
+    # 13 digits in ns: 1234 s after boot, at a camera's period, is read as nanoseconds
+    stamps = [1_234_567_890_123 + i * 33 * MS for i in range(3)]
+    for i, t in enumerate(stamps):
+        for side in ("left", "right"):
+            write_image(tmp_path / side / f"{t}.png", _image(i))
+    write_image(tmp_path / "right" / "9999999999.5.png", _image(7))  # past int64 ns: named
+    recording = open_recording(tmp_path)
+    assert recording.timestamps("cam0") == stamps == recording.timestamps("cam1")
+    [problem] = recording.problems
+    assert "timestamp 9999999999500000000 ns in file name is past 2262" in problem.reason
+
+
+def test_a_filestorage_without_an_image_size_takes_each_cameras_frame_size(
+    tmp_path: Path,
+) -> None:
+    # cam1 at twice cam0's size: both cameras were given cam0's, and cam1's frames refused
+    rec = tmp_path / "rec"
+    for i in range(2):
+        write_image(rec / "left" / f"{T0 + i * 50 * MS}.png", _image(i))
+        write_image(rec / "right" / f"{T0 + i * 50 * MS}.png", np.zeros((24, 32), np.uint8))
+    storage = cv2.FileStorage(str(tmp_path / "stereo.yml"), cv2.FILE_STORAGE_WRITE)
+    for key, value in {
+        "M1": np.array([[20.0, 0, 8], [0, 20, 6], [0, 0, 1]]), "D1": np.zeros((1, 5)),
+        "M2": np.array([[40.0, 0, 16], [0, 40, 12], [0, 0, 1]]), "D2": np.zeros((1, 5)),
+        "R": np.eye(3), "T": np.array([[-0.11], [0.0], [0.0]]),
+    }.items():  # fmt: skip
+        storage.write(key, value)
+    storage.release()
+    recording = open_recording(rec)
+    rig, source = find_calibration(recording, RigFile("cam1"), (tmp_path / "stereo.yml",))
+    assert source.startswith("OpenCV FileStorage")
+    assert rig.cam0.resolution == (16, 12) and rig.cam1.resolution == (32, 24)
 
 
 def test_seconds_nanoseconds_names_pair_within_their_second(tmp_path: Path) -> None:
@@ -284,6 +352,39 @@ def test_resolve_obstructed(tmp_path: Path) -> None:
     (bag.parent / "rig.yaml").write_text("obstructed: cam2\n")
     with pytest.raises(ConfigError, match=r"rig.yaml: obstructed"):
         resolve_obstructed(bag, None)
+
+
+def test_rig_yaml_may_leave_obstructed_to_the_option(tmp_path: Path) -> None:
+    # --obstructed wins over rig.yaml, whose labels and calibration are kept: a rig.yaml
+    # naming only those was refused ("obstructed: required key is missing") all the same
+    _euroc(tmp_path / "rec")
+    rig_yaml = tmp_path / "rec" / "rig.yaml"
+    rig_yaml.write_text("anomaly: [rain]\ncalibration: camchain.yaml\n")
+    assert resolve_obstructed(tmp_path / "rec", "cam1") == RigFile(
+        "cam1", ("rain",), "camchain.yaml"
+    )
+    assert resolve_obstructed(tmp_path / "rec", "cam0").obstructed == "cam0"
+    with pytest.raises(ConfigError, match=r"rig.yaml: obstructed: required key is missing"):
+        resolve_obstructed(tmp_path / "rec", None)
+    rig_yaml.write_text("")  # nothing in it: the option alone
+    assert resolve_obstructed(tmp_path / "rec", "cam1") == RigFile("cam1")
+    rig_yaml.write_text("obstructed: cam2\nanomaly: [rain]\n")  # a wrong value is still wrong
+    with pytest.raises(ConfigError, match=r"rig.yaml: obstructed"):
+        resolve_obstructed(tmp_path / "rec", "cam1")
+
+
+def test_capture_ingest_takes_obstructed_from_the_option_when_rig_yaml_has_none(
+    tmp_path: Path,
+) -> None:
+    from lenspair.cli import main
+    from tests.capture.ingest_helpers import CROP, make_recording
+
+    recording = make_recording(tmp_path / "rec", frames=2)
+    (recording / "rig.yaml").write_text("anomaly: [rain]\n")
+    args = ["capture-ingest", str(recording), "--out", str(tmp_path / "out"), "--size", CROP]
+    assert main([*args, "--obstructed", "cam1"]) == 0
+    report = json.loads((tmp_path / "out" / "rec" / "report.json").read_text())
+    assert (report["obstructed"], report["anomaly"]) == ("cam1", ["rain"])
 
 
 def test_empty_left_right_folders(tmp_path: Path) -> None:

@@ -1,3 +1,4 @@
+import re
 from pathlib import Path
 from typing import Any
 
@@ -70,8 +71,11 @@ def test_opencv_sample_intrinsics_and_extrinsics_files(tmp_path: Path) -> None:
     )
     with pytest.raises(RectifyError, match=r"intrinsics\.yml: no image size"):
         load_calibration([intrinsics, extrinsics])
-    found, _ = load_calibration([intrinsics, extrinsics], resolution=(720, 540))
+    found, _ = load_calibration([intrinsics, extrinsics], resolutions=[(720, 540)] * 2)
     assert_same_rig(found, rig)
+    # each camera its own size: cam1's was taken to be cam0's, and its frames refused
+    found, _ = load_calibration([intrinsics, extrinsics], resolutions=[(720, 540), (1440, 1080)])
+    assert found.cam0.resolution == (720, 540) and found.cam1.resolution == (1440, 1080)
 
 
 @pytest.mark.parametrize("stated", [True, False])
@@ -113,11 +117,14 @@ def test_opencv_k3_is_refused_not_dropped(tmp_path: Path) -> None:
         load_calibration([path])
 
 
-def test_opencv_baseline_in_millimetres_is_refused(tmp_path: Path) -> None:
+@pytest.mark.parametrize("scale", [1000.0, 100.0])
+def test_opencv_baseline_in_millimetres_or_centimetres_is_refused(
+    tmp_path: Path, scale: float
+) -> None:
     rig = make_rig()
     keys = {**opencv_stereo_keys(rig), "image_size": np.array([720, 540])}
-    keys["T"] = keys["T"] * 1000
-    with pytest.raises(RectifyError, match="millimetres"):
+    keys["T"] = keys["T"] * scale  # 0.11 m written as 110 (mm) or 11 (cm): it said "mm?" to 11
+    with pytest.raises(RectifyError, match=r"in metres \(millimetres or centimetres\?\)"):
         load_calibration([write_storage(tmp_path / "stereo.yml", keys)])
 
 
@@ -188,6 +195,38 @@ def test_ros_pair_with_explicit_extrinsic(tmp_path: Path) -> None:
     assert "extrinsic from" in source and "extrinsic.yaml" in source
     extrinsic.write_text(yaml.safe_dump({"R": rig.R.tolist(), "T": rig.t.tolist()}))
     assert_same_rig(load_calibration([left, right, extrinsic])[0], rig)
+
+
+@pytest.mark.parametrize("told_by", ["paths", "camera_name", "projection_matrix"])
+def test_ros_pair_given_right_camera_first_is_refused(tmp_path: Path, told_by: str) -> None:
+    # each camera was rectified with the other's calibration, the extrinsic inverted, unsaid
+    rig = make_rig()
+    left, right = ros_files(tmp_path, rig)
+    tx = [
+        yaml.safe_load(path.read_text())["projection_matrix"]["data"][3] for path in (left, right)
+    ]
+    assert tx[0] == 0 and tx[1] < 0  # as camera_calibration writes them: Tx = -fx' B on the right
+    first, second = right, left
+    if told_by != "paths":  # paths that say nothing: the names tell, else the matrices
+        first, second = tmp_path / "a.yaml", tmp_path / "b.yaml"
+        for source, target, name in ((right, first, "right"), (left, second, "left")):
+            data = yaml.safe_load(source.read_text())
+            data["camera_name"] = f"narrow_stereo/{name}" if told_by == "camera_name" else "cam"
+            target.write_text(yaml.safe_dump(data, sort_keys=False))
+    said = {
+        "paths": "the right camera's and the second the left camera's",
+        "camera_name": "'narrow_stereo/right' and the second 'narrow_stereo/left'",
+        "projection_matrix": f"the right camera's (Tx = {tx[1]:g}, the baseline) and the second "
+        "the left's (Tx = 0)",
+    }[told_by]
+    expected = f"{first} + {second}: by their {told_by} the first is {said}; give the "
+    extrinsic = tmp_path / "extrinsic.yaml"
+    extrinsic.write_text(yaml.safe_dump({"T_cam1_cam0": rig.T_cam1_cam0.tolist()}))
+    for files in ([first, second], [first, second, extrinsic]):
+        with pytest.raises(RectifyError, match=rf"^{re.escape(expected)}.* order cam0, cam1"):
+            load_calibration(files)
+    found, _ = load_calibration([second, first])  # the left camera's first: read
+    assert_same_rig(found, rig)
 
 
 def test_nan_is_a_one_line_error_naming_the_file(tmp_path: Path) -> None:
@@ -343,7 +382,9 @@ def test_a_3x4_extrinsic_is_read_and_a_bad_one_named(tmp_path: Path) -> None:
         load_calibration([cam0, cam1, extrinsic])
 
 
-@pytest.mark.parametrize(("scale", "message"), [(0.0, "sit at one point"), (1000.0, "millimetres")])
+@pytest.mark.parametrize(
+    ("scale", "message"), [(0.0, "sit at one point"), (1000.0, "millimetres or centimetres")]
+)
 def test_a_kalibr_camchain_gets_the_baseline_checks_too(
     tmp_path: Path, scale: float, message: str
 ) -> None:
