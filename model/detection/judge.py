@@ -10,6 +10,13 @@ ingest side check, ``restore --only-obstructed``)::
     verdict = judge(detector, [frame0, frame1])     # uint8/uint16, grey or RGB, any size
     keep = verdict.obstructed                       # bool (N,): worth restoring
 
+Colour frames are RGB: convert OpenCV's BGR first
+(``cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)``), or the luma weights fall on the
+wrong channels and the verdicts change. ``uint16`` frames holding 10- or
+12-bit values (``mono16`` words of a Mono10/Mono12 camera) are widened to the
+full 16-bit scale first, as ``detect`` does (:mod:`lenspair.core.bitdepth`);
+read as they are, they would all be nearly black, hence blank.
+
 Frames are converted to luma and resized to the detector's input size
 (``DetectorSpec.input_size``: 270x180 by default, half a 540x360 frame)
 before judging, so any camera resolution works; maps have one tile per 8
@@ -29,6 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from lenspair.core.bitdepth import LOW_BIT_DEPTHS, significant_bits, widen
+from lenspair.core.pixels import check_image
 from lenspair.core.quality import BLANK_STD
 from lenspair.model.detection.data import prepare
 from lenspair.model.networks.detector import KINDS, AnomalyDetector
@@ -81,21 +90,40 @@ def judge(
     images: Sequence[np.ndarray],
     batch_size: int = 8,
     threshold: float = OBSTRUCTED_THRESHOLD,
+    bits: int | None = None,
 ) -> Judgement:
     """Judge frames with a detector.
 
     Args:
         network: a trained detector (any device; eval mode is set here).
-        images: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` frames, sizes may differ.
+        images: ``uint8``/``uint16`` ``(H, W)`` grey or ``(H, W, 3)`` RGB frames
+            (convert OpenCV's BGR), sizes may differ.
         batch_size: frames per forward pass.
         threshold: obstructed above this probability.
+        bits: the bits the ``uint16`` frames use (10, 12 or 16); they are
+            widened to the full 16-bit scale (:func:`lenspair.core.bitdepth.widen`)
+            before judging, as ``detect`` does; ``uint8`` frames are judged as
+            they are. Default: :func:`lenspair.core.bitdepth.significant_bits`
+            of this call's frames, 10 or 12 when every frame is ``uint16`` and
+            no value exceeds that depth, else 16 (as they are). Pass 16 for
+            frames already on the full scale: a genuine 16-bit frame whose
+            brightest pixel is below 4096 would be brightened.
 
     Returns:
         The :class:`Judgement` (empty arrays for no images).
 
     Raises:
-        ValueError: an image breaks the :mod:`lenspair.core.pixels` convention.
+        ValueError: an image breaks the :mod:`lenspair.core.pixels` convention
+            (the message names its index in ``images``: ``frame 3: ...``), or
+            ``bits`` is not 10, 12 or 16.
     """
+    depths = (*LOW_BIT_DEPTHS, 16)
+    if bits is not None and bits not in depths:
+        raise ValueError(f"bits: expected one of {', '.join(map(str, depths))}, got {bits!r}")
+    for index, image in enumerate(images):
+        check_image(image, f"frame {index}")
+    if bits is None:
+        bits = significant_bits(list(images))
     spec = network.spec
     rows, cols = spec.grid
     device = next(network.parameters()).device
@@ -103,7 +131,8 @@ def judge(
     probabilities, kinds, maps, blanks = [], [], [], []
     with torch.inference_mode():
         for start in range(0, len(images), batch_size):
-            chunk = [prepare(image, spec) for image in images[start : start + batch_size]]
+            frames = images[start : start + batch_size]
+            chunk = [prepare(widen(image, bits), spec) for image in frames]
             blanks.append(np.array([float(c.std()) < BLANK_STD for c in chunk], dtype=bool))
             batch = torch.from_numpy(np.stack(chunk))[:, None].to(device)
             output = network(batch)
@@ -132,11 +161,14 @@ def obstructed_probability(
 ) -> Callable[[Sequence[np.ndarray]], np.ndarray]:
     """``judge`` as a plain function, frames -> ``(N,)`` probabilities (for ingest).
 
-    A blank frame's probability is 0: it is never called obstructed.
+    The frames are taken as they are (``bits=16``): ingest widens 16-bit frames
+    of 10- or 12-bit values with the depth told from its sampled pairs, and a
+    dim frame must not be widened a second time. A blank frame's probability
+    is 0: it is never called obstructed.
     """
 
     def probabilities(images: Sequence[np.ndarray]) -> np.ndarray:
-        verdict = judge(network, images)
+        verdict = judge(network, images, bits=16)  # already on the full scale (docstring)
         return np.where(verdict.blank, 0.0, verdict.probability)  # blank: never obstructed
 
     return probabilities

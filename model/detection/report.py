@@ -227,7 +227,7 @@ def detect_frames(
     verdicts: list[FrameVerdict] = []
     candidates: SpreadSample[tuple[np.ndarray, str]] = SpreadSample(sheet_frames)
     batch: list[InputFrame] = []
-    depth = RunningDepth("the input")
+    depth = RunningDepth(str(root) if root is not None else "the input")
 
     def flush(bits: int | None = None) -> None:
         """Judge the batch at ``bits`` (default: the depth now)."""
@@ -236,7 +236,7 @@ def detect_frames(
         # 16-bit frames of 10- or 12-bit values are judged (and shown) on the full scale
         bits = depth.bits if bits is None else bits
         images = [widen(frame.image, bits) for frame in batch if frame.image is not None]
-        result = judge(network, images, batch_size, threshold)
+        result = judge(network, images, batch_size, threshold, bits=16)  # widened above
         rows = _verdicts(batch, result)
         for position, (frame, row) in enumerate(zip(batch, rows, strict=True)):
             verdicts.append(row)

@@ -38,11 +38,15 @@ RUN_FILES = (DETECTOR_FILE, "run.json", "scores.json", "scores.md")
 def score_sets(
     network: AnomalyDetector, sets: dict[str, list[DetectorSample]]
 ) -> dict[str, DetectionScores]:
-    """Judge and score each named set (images passed as 16-bit, the judge's input)."""
+    """Judge and score each named set (images passed as 16-bit, the judge's input).
+
+    The images are on the full 16-bit scale (``bits=16``): a set of dark
+    samples must not be taken for 10- or 12-bit values and brightened.
+    """
     results = {}
     for name, samples in sets.items():
         images = [from_float(s.image, np.uint16) for s in samples]
-        results[name] = score(samples, judge(network, images))
+        results[name] = score(samples, judge(network, images, bits=16))
     return results
 
 

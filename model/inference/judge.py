@@ -59,8 +59,10 @@ class DetectorJudge:
         self.path = path
 
     def __call__(self, frame: InputFrame, image: np.ndarray) -> bool:
-        """True when the detector calls ``image`` obstructed."""
-        return bool(judge(self.network, [image]).obstructed[0])
+        """True when the detector calls ``image`` obstructed (widened already: ``bits=16``)."""
+        # the batching stage widened the frame to the run's bit depth: widening it again
+        # by its own brightest pixel would brighten a dark 16-bit frame up to 64x
+        return bool(judge(self.network, [image], bits=16).obstructed[0])
 
 
 def default_judge(model: Path, device: torch.device) -> FrameJudge:

@@ -149,7 +149,61 @@ def test_16_bit_frames_of_12_bit_values_are_judged_as_their_full_range_twin(
     assert [v.blank for v in low] == [v.blank for v in twin] == [False, False]
     for ours, theirs in zip(low, twin, strict=True):
         assert abs(ours.probability - theirs.probability) < 5e-3  # 12 of 16 bits
-    assert judge(network, [narrow(full, 12)]).blank.tolist() == [True]  # as it was read
+    assert judge(network, [narrow(full, 12)], bits=16).blank.tolist() == [True]  # as read
+
+
+def test_judge_widens_16_bit_frames_of_10_bit_values_as_detect_does(one_thread: None) -> None:
+    # mono16 words of a Mono10 camera were judged as read: all blank, never obstructed
+    from lenspair.core.bitdepth import narrow, widen
+
+    torch.manual_seed(6)
+    network = AnomalyDetector(SMALL).eval()
+    rng = np.random.default_rng(3)
+    # a textured scene, read as it is nearly black: its values vary by a third of an 8-bit level
+    full = [((0.2 + 0.3 * rng.random((60, 80))) * 65535).astype(np.uint16) for _ in range(3)]
+    low = [narrow(image, 10) for image in full]
+    twin = judge(network, [widen(image, 10) for image in low])  # on the full scale already
+    verdict = judge(network, low)
+    assert verdict.blank.tolist() == twin.blank.tolist() == [False, False, False]
+    np.testing.assert_allclose(verdict.probability, twin.probability, atol=1e-6)
+    np.testing.assert_allclose(verdict.maps, twin.maps, atol=1e-6)
+    # an 8-bit frame in the call: 16-bit ones are taken as they are, as significant_bits says
+    mixed = judge(network, [low[0], (rng.random((60, 80)) * 255).astype(np.uint8)])
+    assert mixed.blank.tolist() == [True, False]
+    with pytest.raises(ValueError, match=r"bits: expected one of 10, 12, 16, got 8"):
+        judge(network, low, bits=8)
+
+
+def test_judge_names_the_index_of_a_frame_it_cannot_take(one_thread: None) -> None:
+    network = AnomalyDetector(SMALL).eval()
+    good = np.zeros((60, 80), np.uint8)
+    with pytest.raises(ValueError, match=r"^frame 2: expected dtype uint8 or uint16, got float32"):
+        judge(network, [good, good, good.astype(np.float32)], batch_size=2)
+    with pytest.raises(ValueError, match=r"^frame 1: expected shape \(H, W\) or \(H, W, 3\)"):
+        judge(network, [good, np.zeros((60, 80, 4), np.uint8)])
+
+
+def test_detect_names_its_input_when_the_bit_depth_rises(
+    tmp_path: Path, one_thread: None, caplog: pytest.LogCaptureFixture
+) -> None:
+    # the warning said "the input", naming no file
+    from lenspair.capture.frame_types import InputFrame
+    from lenspair.model.detection.report import detect_frames
+
+    network = AnomalyDetector(SMALL).eval()
+    rng = np.random.default_rng(4)
+    twelve = (rng.random((60, 80)) * 4095).astype(np.uint16)
+    sixteen = (rng.random((60, 80)) * 65535).astype(np.uint16)
+    frames = [
+        InputFrame(i, f"f{i}.png", None, None, "x", image, None)
+        for i, image in enumerate([twelve, sixteen])
+    ]
+    root = tmp_path / "rec_mono12"
+    with caplog.at_level("WARNING", logger="lenspair.core.bitdepth"):
+        detect_frames(network, frames, tmp_path / "out", sheet_frames=0, root=root)
+    said = [r.getMessage() for r in caplog.records if r.name == "lenspair.core.bitdepth"]
+    assert len(said) == 2, said  # 12-bit values, then a frame above them
+    assert all(message.startswith(f"{root}: ") for message in said), said
 
 
 def test_training_windows_cut_maps_exactly_and_drop_kinds_without_anomaly() -> None:
@@ -219,3 +273,22 @@ def test_an_exported_model_given_as_the_detector_is_one_line(
     with pytest.raises(ModelError, match=r"ts\.pt: a TorchScript model .*not a detector"):
         load_detector(tmp_path / "ts.pt")
     assert not [w for w in recwarn if "TorchScript" in str(w.message)]
+
+
+def test_restore_judges_its_frames_as_already_widened(monkeypatch: pytest.MonkeyPatch) -> None:
+    # restore's batching widened the frame to the run's depth: judging it by its own
+    # brightest pixel would brighten a dark 16-bit frame again (up to 64x)
+    from lenspair.model.inference import judge as restore_judge  # the module, to patch
+
+    seen: list[int | None] = []
+
+    def spy(network: object, frames: object, bits: int | None = None) -> object:
+        seen.append(bits)
+        return judge(network, frames, bits=bits)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(restore_judge, "judge", spy)
+    network = load_detector(Path("detector.pt"))
+    dark = (np.random.default_rng(0).random((96, 128)) * 900).astype(np.uint16)
+    assert judge(network, [dark]).blank[0] != judge(network, [dark], bits=16).blank[0]
+    verdict = restore_judge.DetectorJudge(network)(None, dark)  # type: ignore[arg-type]
+    assert seen == [16] and verdict is bool(judge(network, [dark], bits=16).obstructed[0])

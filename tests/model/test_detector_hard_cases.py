@@ -86,9 +86,11 @@ def test_the_side_check_function_never_counts_a_blank_frame_as_obstructed(
     black = np.zeros((90, 120), np.uint8)
     texture = np.random.default_rng(0).integers(0, 255, (90, 120), dtype=np.uint8)
 
-    def certain(network: AnomalyDetector, images: list[np.ndarray]) -> Judgement:
+    def certain(
+        network: AnomalyDetector, images: list[np.ndarray], bits: int | None = None
+    ) -> Judgement:
         # a detector that (wrongly) scores every frame obstructed, blank ones too
-        verdict = judge(network, images)
+        verdict = judge(network, images, bits=bits)
         return replace(verdict, probability=np.ones_like(verdict.probability))
 
     monkeypatch.setattr(judge_module, "judge", certain)
