@@ -19,8 +19,19 @@ Three layouts, detected automatically by :func:`open_paired`:
   or the root with ``split="test_a"``.
 
 Names are matched on the file stem (``.png`` and ``.jpg`` may pair up) and
-listed in natural order (``2`` before ``10``). Images follow
-:mod:`lenspair.core.pixels`: ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB.
+listed in natural order (``2`` before ``10``). Images are the files whose
+suffix ``restore`` reads too (:data:`IMAGE_SUFFIXES`: PNG, TIFF, JPEG, BMP
+and netpbm), so that ``train``, ``eval`` and ``restore`` see the same
+images; files of other suffixes and sub-folders (not searched) are left out,
+said in one warning. Images follow :mod:`lenspair.core.pixels`:
+``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB.
+
+In a generic ``paired`` (or Raindrop) folder, ``mask/`` is taken in
+lenspair's meaning (pixels left out of the loss and the scores), and 16-bit
+images holding 10- or 12-bit values are widened to the full 16-bit range,
+input and target alike, as ``restore`` does; both are said once
+(:mod:`lenspair.dataset.folder_notes`). A ``lenspair`` dataset was widened
+when it was ingested and is read as stored.
 """
 
 import json
@@ -32,15 +43,23 @@ from typing import Literal
 
 import numpy as np
 
+from lenspair.core.bitdepth import widen
 from lenspair.core.config import load_dataclass
 from lenspair.core.errors import ConfigError, ImageIOError, listed
 from lenspair.core.imageio import image_header, read_image
 from lenspair.dataset.card import CARD_FILE, CARD_FORMAT
 from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.folder_notes import (
+    IMAGE_SUFFIXES,
+    SUFFIX_TEXT,
+    folder_bits,
+    left_out,
+    say,
+    say_masks,
+)
 from lenspair.dataset.manifest import MANIFEST_FILE, ManifestRow, read_manifest
 
 Layout = Literal["lenspair", "paired", "raindrop"]
-IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 _FOLDERS: dict[Layout, tuple[str, str]] = {
     "lenspair": ("input", "target"),
     "paired": ("input", "target"),
@@ -127,17 +146,21 @@ class PairedDataset:
         layout: Layout,
         entries: Sequence[PairEntry],
         unpaired: Sequence[tuple[str, str]] = (),
+        bits: int = 16,
     ) -> None:
         """Wrap ``entries`` found under ``root`` in ``layout``.
 
         ``unpaired`` holds ``(file, what it lacks)`` for each file left without
         a partner (``("input/c.png", "no target")``), which only a lenient
-        :func:`open_paired` leaves out.
+        :func:`open_paired` leaves out. ``bits`` (10, 12 or 16) is what the
+        16-bit images hold: below 16 they are read widened to the full 16-bit
+        range (:func:`lenspair.core.bitdepth.widen`).
         """
         self.root = Path(root)
         self.layout: Layout = layout
         self.entries: tuple[PairEntry, ...] = tuple(entries)
         self.unpaired: tuple[tuple[str, str], ...] = tuple(unpaired)
+        self.bits = bits
 
     def __len__(self) -> int:
         """Number of pairs."""
@@ -149,7 +172,8 @@ class PairedDataset:
         Raises:
             ImageIOError: a file is missing or unreadable (names it).
             DatasetError: input and target differ in shape or dtype, or the
-                mask in height and width.
+                mask in height and width; or a 16-bit image holds values above
+                :attr:`bits` (widening would clip them).
         """
         entry = self.entries[index]
         input_image = read_image(entry.input_path)
@@ -159,8 +183,21 @@ class PairedDataset:
                 f"{entry.input_path}: {input_image.shape} {input_image.dtype} does not match "
                 f"{entry.target_path} {target.shape} {target.dtype}"
             )
+        if self.bits < 16 and input_image.dtype == np.uint16:
+            input_image = self._widened(entry.input_path, input_image)
+            target = self._widened(entry.target_path, target)
         mask = read_mask(entry, input_image.shape[:2])
         return PairedItem(entry.name, input_image, target, mask, entry.difficulty)
+
+    def _widened(self, path: Path, image: np.ndarray) -> np.ndarray:
+        """``image`` on the full 16-bit scale; a value above :attr:`bits` is this pair's problem."""
+        top = (1 << self.bits) - 1
+        if int(image.max()) > top:
+            raise DatasetError(
+                f"{path}: holds values above {top}, though {self.root}'s 16-bit images were "
+                f"taken for {self.bits}-bit values from a sample (widening would clip it)"
+            )
+        return widen(image, self.bits)
 
     def check_headers(self, most: int = 3) -> list[tuple[int, int, int, str]]:
         """Check every pair's files from their headers, pixels unread (fast).
@@ -189,7 +226,7 @@ class PairedDataset:
             if have != want:
                 problems.append(
                     f"{entry.input_path}: {have[1]}x{have[0]}x{have[2]} {have[3]} does not "
-                    f"match {entry.target_path.name} {want[1]}x{want[0]}x{want[2]} {want[3]}"
+                    f"match {entry.target_path} {want[1]}x{want[0]}x{want[2]} {want[3]}"
                 )
             elif mask != have[:2]:
                 problems.append(_mask_mismatch(entry, mask, have[:2]))
@@ -213,7 +250,7 @@ class PairedDataset:
     def select(self, difficulties: Collection[str]) -> "PairedDataset":
         """The pairs whose difficulty is in ``difficulties`` (e.g. ``{"easy", "medium"}``)."""
         kept = [e for e in self.entries if e.difficulty in difficulties]
-        return PairedDataset(self.root, self.layout, kept)
+        return PairedDataset(self.root, self.layout, kept, bits=self.bits)
 
     def __repr__(self) -> str:
         """Short description."""
@@ -270,7 +307,9 @@ def split_folders(root: Path) -> list[str]:
     return sorted(p.name for p in Path(root).iterdir() if p.is_dir() and detect_layout(p))
 
 
-def open_paired(path: Path, split: str | None = None, strict: bool = True) -> PairedDataset:
+def open_paired(
+    path: Path, split: str | None = None, strict: bool = True, notes: list[str] | None = None
+) -> PairedDataset:
     """Open paired images in any supported layout.
 
     Args:
@@ -281,11 +320,16 @@ def open_paired(path: Path, split: str | None = None, strict: bool = True) -> Pa
         strict: refuse files without a partner (training and scoring must
             not pass over a pair); False leaves them out and names them in
             :attr:`PairedDataset.unpaired` (a report that lists what it skips).
+        notes: collects the warnings about the folder (files and sub-folders
+            left out, a generic ``mask/``, 10/12-bit values: module docstring)
+            instead of logging them now; a training run logs them into its own
+            log.
 
     Raises:
         DatasetError: no folder, no recognised layout, a missing split, a
-            name that appears twice, or (``strict``) files without a partner
-            (the message lists a few).
+            name that appears twice, no images in the input folder (saying
+            what it holds), or (``strict``) files without a partner (the
+            message lists a few).
     """
     path = Path(path)
     if not path.is_dir():
@@ -315,21 +359,39 @@ def open_paired(path: Path, split: str | None = None, strict: bool = True) -> Pa
         # the pair of folders detect_layout found: input/ + target/ first
         input_dir, target_dir = "lq", "gt"
     key = _raindrop_key if layout == "raindrop" else _stem
-    inputs = _index(folder / input_dir, key)
-    targets = _index(folder / target_dir, key)
-    masks = _index(folder / "mask", key) if (folder / "mask").is_dir() else {}
+    skipped: list[str] = []
+    inputs = _index(folder, input_dir, key, skipped)
+    targets = _index(folder, target_dir, key, skipped)
+    masks = _index(folder, "mask", key, skipped) if (folder / "mask").is_dir() else {}
     unpaired = _unpaired(input_dir, target_dir, inputs, targets, masks)
+    skipped_text = left_out(skipped)
     if unpaired and strict:
         names = listed([f"{file} ({lacks})" for file, lacks in unpaired], 5, ", ")
-        raise DatasetError(f"{folder}: {len(unpaired)} unpaired file(s): {names}")
+        also = f"; left out: {skipped_text}" if skipped_text else ""
+        raise DatasetError(f"{folder}: {len(unpaired)} unpaired file(s): {names}{also}")
     if not inputs and layout != "lenspair":  # a lenspair split may be empty (fraction 0)
-        raise DatasetError(f"{folder}: no images in {input_dir}/")
+        held = left_out([entry for entry in skipped if entry.startswith(f"{input_dir}/")])
+        holds = f"it holds {held}" if held else "it is empty"
+        raise DatasetError(
+            f"{folder}: no images in {input_dir}/ ({holds}; images are files ending {SUFFIX_TEXT})"
+        )
+    if skipped_text:
+        say(
+            notes,
+            f"{folder}: left out of the pairs: {skipped_text}; images are files ending "
+            f"{SUFFIX_TEXT}",
+        )
     difficulty = _difficulties(folder) if layout == "lenspair" else {}
     entries = [
         PairEntry(name, inputs[name], targets[name], masks.get(name), difficulty.get(name))
         for name in sorted(inputs.keys() & targets.keys(), key=natural_key)
     ]
-    return PairedDataset(folder, layout, entries, unpaired)
+    bits = 16
+    if layout != "lenspair":  # a lenspair dataset's 16-bit frames were widened when ingested
+        if layout == "paired":
+            say_masks(folder, sum(entry.mask_path is not None for entry in entries), notes)
+        bits = folder_bits(folder, [(e.input_path, e.target_path) for e in entries], notes)
+    return PairedDataset(folder, layout, entries, unpaired, bits)
 
 
 def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
@@ -346,10 +408,23 @@ def _raindrop_key(path: Path) -> str:
     return _RAINDROP_SUFFIX.sub("", path.stem)
 
 
-def _index(folder: Path, key: Callable[[Path], str]) -> dict[str, Path]:
+def _index(
+    folder: Path, sub: str, key: Callable[[Path], str], skipped: list[str]
+) -> dict[str, Path]:
+    """Name -> image file of ``folder/sub``; what is left out goes to ``skipped``.
+
+    ``skipped`` gets ``sub/file`` for a file of another suffix and ``sub/dir/``
+    for a sub-folder (not searched); hidden entries (``.DS_Store``) are passed over.
+    """
     found: dict[str, Path] = {}
-    for file in sorted(folder.iterdir()):
-        if file.name.startswith(".") or file.suffix.lower() not in IMAGE_SUFFIXES:
+    for file in sorted((folder / sub).iterdir()):
+        if file.name.startswith("."):
+            continue
+        if file.is_dir():
+            skipped.append(f"{sub}/{file.name}/")
+            continue
+        if file.suffix.lower() not in IMAGE_SUFFIXES:
+            skipped.append(f"{sub}/{file.name}")
             continue
         name = key(file)
         if name in found:

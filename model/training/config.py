@@ -80,8 +80,10 @@ class DataConfig:
         hflip: random horizontal flips.
         vflip: random vertical flips (off: skies stay on top).
         train_split: dataset split trained on.
-        val_split: split used for validation and early stopping.
-        max_val_images: validate on at most this many images (``None``: all).
+        val_split: split used for validation and early stopping (not
+            ``train_split``).
+        max_val_images: validate on at most this many images, spread evenly
+            over the split in name order (``None``: all).
         num_workers: DataLoader worker processes (0: load in the main process).
         drops: synthetic pretraining only: ``ours`` (defocused, brightened
             lens drops) or ``sharp`` (Porav et al.'s in-focus drops).
@@ -130,6 +132,12 @@ class DataConfig:
             raise ValueError(
                 f"data.crop_size (--crop-size): expected >= {MIN_CROP_SIZE} (the smallest "
                 f"the PatchGAN discriminator's 4x4 layers can take), got {self.crop_size}"
+            )
+        if self.val_split == self.train_split:
+            raise ValueError(
+                f"val_split: must differ from train_split ({self.train_split!r}): validating "
+                "on the training pairs picks best.pt and stops early by how well the network "
+                "fits them"
             )
         if self.max_val_images is not None and self.max_val_images < 1:
             raise ValueError(f"max_val_images: expected >= 1, got {self.max_val_images}")

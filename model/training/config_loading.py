@@ -17,7 +17,7 @@ from typing import Any
 
 from lenspair.core.config import load_dataclass, read_yaml, to_plain
 from lenspair.core.errors import ConfigError
-from lenspair.model.training.config import RunConfig, RuntimeInfo
+from lenspair.model.training.config import DataConfig, RunConfig, RuntimeInfo
 
 log = logging.getLogger(__name__)
 
@@ -102,13 +102,38 @@ today's default is reported as the change it is.
 
 
 def stored_run_config(data: object) -> RunConfig:
-    """:func:`run_config_from_dict` for a configuration a run stored (:data:`EARLIER_DEFAULTS`)."""
+    """:func:`run_config_from_dict` for a configuration a run stored (:data:`EARLIER_DEFAULTS`).
+
+    A run stored before ``data.val_split`` had to differ from ``data.train_split``
+    (it validated on its training pairs) is read with the default ``val_split``
+    and a warning: its network still restores and scores, and a resume
+    validates on pairs it does not train on.
+    """
     if isinstance(data, dict):
         for (section, key), value in EARLIER_DEFAULTS.items():
             part = data.get(section)
             if isinstance(part, dict) and key not in part:
                 data = {**data, section: {**part, key: value}}
+        data = _validation_apart(data)
     return run_config_from_dict(data)
+
+
+def _validation_apart(data: dict[str, Any]) -> dict[str, Any]:
+    """``data`` with the default ``data.val_split`` when it stored the training split's."""
+    part = data.get("data")
+    default = DataConfig()
+    if not isinstance(part, dict):
+        return data
+    train = part.get("train_split", default.train_split)
+    if part.get("val_split", default.val_split) != train or train == default.val_split:
+        return data
+    log.warning(
+        "a run's stored config validated on its training split %r (data.val_split): read "
+        "with val_split %r",
+        train,
+        default.val_split,
+    )
+    return {**data, "data": {**part, "val_split": default.val_split}}
 
 
 def field_differences(old: Any, new: Any) -> list[tuple[str, Any, Any]]:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lenspair.core.imageio import image_header
+from lenspair.dataset.folder_notes import evenly_spaced
 from lenspair.dataset.readers import detect_layout, open_paired
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import DataConfig
@@ -137,10 +138,15 @@ def paired_training_data(
         substitute_unreadable=True,
     )
     val = PairedCrops(val_source, resolved, None, seed=seed, limit=data.max_val_images)
-    description = f"{path} (train {len(train)} pairs, validation {len(val)} pairs"
+    description = f"{path} (train {len(train)} pairs, validation {_of(len(val), len(val_source))}"
     description += f"; {note}" if note else ""
     description += f"; {names_digest(train_source, val_source)})"
     return TrainData(train=train, val=val, channels=resolved, description=description)
+
+
+def _of(used: int, total: int) -> str:
+    """``5 pairs``, or ``5 of 9 pairs`` when ``data.max_val_images`` leaves some out."""
+    return f"{used} pairs" if used == total else f"{used} of {total} pairs"
 
 
 def _split_sources(
@@ -160,16 +166,16 @@ def _split_sources(
     train_source: PairSource
     val_source: PairSource
     if detect_layout(path) is not None:
-        every = open_paired(path)
+        every = open_paired(path, notes=notes)
         train_idx, val_idx = holdout_indices(_names(every), data.val_fraction, path)
         train_source, val_source = SubsetSource(every, train_idx), SubsetSource(every, val_idx)
         note = f"validation: {len(val_idx)} pairs held out by name hash"
     else:
-        train_source = open_paired(path, data.train_split)
+        train_source = open_paired(path, data.train_split, notes=notes)
         # A val folder that is there but broken (an unpaired file) is refused by open_paired:
         # holding out train pairs instead cost training pairs and the real validation set.
         val_dir = path / data.val_split
-        opened = open_paired(path, data.val_split) if val_dir.is_dir() else None
+        opened = open_paired(path, data.val_split, notes=notes) if val_dir.is_dir() else None
         if opened is not None and len(opened) > 0:
             val_source = opened
         else:  # none, or empty (dataset-build leaves a split empty on small inputs)
@@ -205,7 +211,8 @@ def synthetic_training_data(
     folder = Path(folder)
     images = find_clean_images(folder)
     train_images, val_images = split_holdout(images, data.val_fraction, folder)
-    val_images = val_images[: data.max_val_images or len(val_images)]
+    held_out = len(val_images)  # spread over the folders, as validation pairs are
+    val_images = [val_images[i] for i in evenly_spaced(held_out, data.max_val_images)]
     counts = check_clean_images(folder, train_images, val_images, data.crop_size, notes)
     warn_mixed(folder, "clean images", counts, channels, notes)
     resolved = channels or image_header(images[0])[2]
@@ -217,7 +224,8 @@ def synthetic_training_data(
     val = SyntheticDrops(val_images, effects, resolved, None, seed=seed, fixed=True)
     description = (
         f"{folder} (synthetic {data.drops} drops on {len(train_images)} clean images, "
-        f"validation {len(val)} held out by name hash)"
+        f"validation {len(val)}{'' if len(val) == held_out else f' of {held_out}'} held out "
+        "by name hash)"
     )
     return TrainData(
         train=train, val=val, channels=resolved, description=description, synthetic=data.drops

@@ -29,6 +29,7 @@ from lenspair.core.pixels import to_float
 from lenspair.core.quality import anomaly_cells, to_grey
 from lenspair.dataset.config import CurationConfig
 from lenspair.dataset.curation import channel_max
+from lenspair.dataset.folder_notes import evenly_spaced
 from lenspair.dataset.readers import detect_layout, open_paired
 from lenspair.model.errors import ModelError
 
@@ -257,7 +258,11 @@ class PairedCrops(Dataset[Sample]):
         hflip: random horizontal flips.
         vflip: random vertical flips.
         seed: seed of the crops and flips.
-        limit: use only the first ``limit`` pairs (validation budget).
+        limit: use only ``limit`` pairs, spread evenly over the source
+            (:func:`~lenspair.dataset.folder_notes.evenly_spaced`; validation's
+            budget): the first ``limit`` by name were one or two recordings of
+            ``<recording>_<t_ns>`` names, so ``best.pt`` and early stopping
+            judged the network on those alone.
         anomaly_crops: share of crops that hold a pixel where input and
             target differ (:func:`anomaly_crop_box`); the others, and every
             crop of a clean pair, lie anywhere.
@@ -293,7 +298,8 @@ class PairedCrops(Dataset[Sample]):
         self.hflip, self.vflip = hflip, vflip
         self.seed = seed
         self.epoch = 0
-        self.length = len(source) if limit is None else min(limit, len(source))
+        self.indices = evenly_spaced(len(source), limit)  # position -> index in source
+        self.length = len(self.indices)
 
     def set_epoch(self, epoch: int) -> None:
         """Select the epoch whose crops and flips ``__getitem__`` returns."""
@@ -327,8 +333,13 @@ class PairedCrops(Dataset[Sample]):
 
     def _read(self, index: int) -> PairItem:
         if not self.substitute_unreadable:
-            return self.source[index]
-        return read_substituting(self.source.__getitem__, index, self.length, self.unreadable)
+            return self.source[self.indices[index]]
+        return read_substituting(
+            lambda position: self.source[self.indices[position]],
+            index,
+            self.length,
+            self.unreadable,
+        )
 
 
 def read_substituting(

@@ -4,6 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lenspair.core.bitdepth import widen
 from lenspair.core.imagewrite import write_image
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig, SplitConfig
@@ -23,14 +24,16 @@ def _write(folder: Path, names: dict[str, int], dtype: type = np.uint8) -> None:
 
 
 def test_lenspair_layout_root_with_split_and_split_folder(
-    recording: RecordingFactory, tmp_path: Path
+    recording: RecordingFactory, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     sources = [recording("rec_a", n=6, masked=True, clean=(2,)), recording("rec_b", n=6, seed=1)]
     config = DatasetConfig(split=SplitConfig(fractions=(0.5, 0.5, 0.0), group_by="recording"))
     ds = build_dataset(sources, tmp_path / "DS", config).out
     rows = read_manifest(ds / "manifest.jsonl")
+    caplog.clear()
     for split in ("train", "val"):
         data = open_paired(ds, split)
+        assert not caplog.messages  # its own mask/ needs no word (a generic folder's does)
         assert data.layout == "lenspair"
         expected = sorted((r for r in rows if r.split == split), key=lambda r: natural_key(r.name))
         assert data.names == tuple(r.name for r in expected)
@@ -193,3 +196,85 @@ def test_a_lenspair_manifest_without_a_card_still_reads_as_a_lenspair_dataset(
     assert train.layout == "lenspair" and train[0].difficulty is not None
     (ds / "dataset.json").write_text('{"images": []}')  # another tool's card: it decides
     assert open_paired(ds, "train").layout == "paired"
+
+
+def test_a_header_mismatch_names_the_target_by_its_path(tmp_path: Path) -> None:
+    """It named the input by path and the target by bare name ("... does not match 0.png")."""
+    _write(tmp_path / "input", {"0.png": 1})
+    _write(tmp_path / "target", {"0.png": 1}, np.uint16)
+    target = re.escape(str(tmp_path / "target" / "0.png"))
+    with pytest.raises(DatasetError, match=rf"0\.png: 12x8x3 uint8 does not match {target} 12x8x3"):
+        open_paired(tmp_path).check_headers()
+
+
+def test_files_and_folders_left_out_are_said(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """.bmp files (which restore reads) and sub-folders were passed over without a word, and a
+    folder of them alone was "no images in input/"."""
+    for side in ("input", "target"):
+        _write(tmp_path / "p" / side, {"0.bmp": 1, "1.png": 2, "sub/2.png": 3})
+    (tmp_path / "p" / "input" / "notes.txt").write_text("x")
+    with caplog.at_level("WARNING"):
+        data = open_paired(tmp_path / "p")
+    assert data.names == ("0", "1") and int(data[0].input[0, 0, 0]) == 1
+    assert caplog.messages == [
+        f"{tmp_path / 'p'}: left out of the pairs: 1 file(s) not read as images (e.g. "
+        "input/notes.txt) and 2 sub-folder(s), not searched (e.g. input/sub/); images are files "
+        "ending .bmp, .jfif, .jpe, .jpeg, .jpg, .pbm, .pgm, .png, .pnm, .ppm, .tif, .tiff"
+    ]
+    notes: list[str] = []  # or kept for a training run to log
+    caplog.clear()
+    open_paired(tmp_path / "p", notes=notes)
+    assert len(notes) == 1 and not caplog.messages
+    _write(tmp_path / "q" / "input", {"sub/0.png": 1})
+    (tmp_path / "q" / "input" / "0.webp").write_bytes(b"RIFF")
+    (tmp_path / "q" / "target").mkdir()
+    with pytest.raises(
+        DatasetError,
+        match=r"no images in input/ \(it holds 1 file\(s\) not read as images \(e\.g\. "
+        r"input/0\.webp\) and 1 sub-folder\(s\), not searched \(e\.g\. input/sub/\); images "
+        r"are files ending \.bmp, ",
+    ):
+        open_paired(tmp_path / "q")
+
+
+def test_a_generic_mask_folder_is_said_once(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Another project's mask/ (often: where the rain is) was silently left out of the loss
+    and the scores, which then rose."""
+    _write(tmp_path / "p" / "input", {"1.png": 1, "2.png": 2})
+    _write(tmp_path / "p" / "target", {"1.png": 3, "2.png": 4})
+    for name in ("1.png", "2.png"):
+        write_image(tmp_path / "p" / "mask" / name, np.zeros((8, 12), np.uint8))
+    with caplog.at_level("WARNING"):
+        data = open_paired(tmp_path / "p")
+    assert data[0].mask is not None  # still used, in lenspair's meaning
+    assert caplog.messages == [
+        f"{tmp_path / 'p' / 'mask'}/: 2 masks mark pixels left out of the loss and the scores "
+        "(lenspair's meaning: pixels the registration cannot vouch for); remove or rename mask/ "
+        "if yours marks the anomaly"
+    ]
+
+
+def test_ten_or_twelve_bit_values_in_16_bit_files_are_widened(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """train and eval took them as 16-bit (near-black frames, scores inflated by ~24 dB)
+    while restore widened them: the network saw other frames than it restores."""
+    _write(tmp_path / "input", {"a.png": 100, "b.png": 4000}, np.uint16)
+    _write(tmp_path / "target", {"a.png": 200, "b.png": 4095}, np.uint16)
+    with caplog.at_level("WARNING"):
+        data = open_paired(tmp_path)
+    item = data[1]
+    assert int(item.target.max()) == 65535  # full scale stays full scale
+    assert np.array_equal(item.input, widen(np.full((8, 12, 3), 4000, np.uint16), 12))
+    assert data.bits == 12 and len(caplog.messages) == 1
+    assert "16-bit images hold 12-bit values (none above 4095 in 4 sampled" in caplog.messages[0]
+    _write(tmp_path / "input", {"b.png": 5000}, np.uint16)  # a pair the sample missed
+    with pytest.raises(DatasetError, match=r"b\.png: holds values above 4095"):
+        data[1]  # refused, not clipped
+    _write(tmp_path / "input", {"b.png": 40000}, np.uint16)  # a genuine 16-bit folder
+    assert open_paired(tmp_path).bits == 16
+    assert int(open_paired(tmp_path)[1].input.max()) == 40000

@@ -1,5 +1,6 @@
 """Training data is checked from file headers before the first step."""
 
+import re
 import shutil
 from pathlib import Path
 
@@ -9,10 +10,12 @@ import torch
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
+from lenspair.core.errors import ConfigError
 from lenspair.core.imageio import image_header
 from lenspair.core.imagewrite import write_image
 from lenspair.dataset.errors import DatasetError
 from lenspair.model.training.config import DataConfig
+from lenspair.model.training.config_loading import load_run_config, stored_run_config
 from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
 from tests.model.train_fixtures import (
     clean_image,
@@ -200,3 +203,42 @@ def test_data_warnings_reach_train_log(tmp_path: Path, caplog: pytest.LogCapture
     warning = "no 'val' split"
     assert sum(warning in r.getMessage() for r in caplog.records) == 1
     assert (run / "train.log").read_text().count(warning) == 1
+
+
+def test_validation_pairs_are_spread_over_the_split_not_a_name_prefix(tmp_path: Path) -> None:
+    """data.max_val_images kept the first pairs by name: with ``<recording>_<t_ns>`` names,
+    one recording chose best.pt and stopped the run early."""
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2})
+    rng = np.random.default_rng(5)
+    for recording in ("a", "b", "c"):
+        for t_ns in range(1000, 1004):
+            image = clean_image(rng)
+            for side in ("input", "target"):
+                write_image(dataset / "val" / side / f"{recording}_{t_ns}.png", image)
+    notes: list[str] = []
+    data = paired_training_data(dataset, DataConfig(crop_size=24, max_val_images=3), 1, 0, notes)
+    names = [data.val[i]["name"] for i in range(len(data.val))]
+    assert sorted(name.split("_")[0] for name in names) == ["a", "b", "c"]
+    assert "validation 3 of 12 pairs" in data.description and not notes
+
+
+def test_a_validation_split_equal_to_the_training_split_is_refused(tmp_path: Path) -> None:
+    """The run validated on its own training pairs: best.pt and early stopping judged fit."""
+    with pytest.raises(ValueError, match=r"^val_split: must differ from train_split \('train'\)"):
+        DataConfig(val_split="train")
+    config = tmp_path / "leak.yaml"
+    config.write_text("data: {val_split: train}\n")
+    with pytest.raises(ConfigError, match=rf"^{re.escape(str(config))}: data: val_split: must"):
+        load_run_config(config)
+    # a run stored before the check still loads (its network restores), validating apart
+    assert stored_run_config({"data": {"val_split": "train"}}).data.val_split == "val"
+
+
+def test_a_generic_folders_notes_reach_the_run(tmp_path: Path) -> None:
+    """Said by the reader: kept for the run's log, as the other data warnings are."""
+    folder = write_paired_folder(tmp_path / "pairs", count=6)
+    for index in range(6):
+        write_image(folder / "mask" / f"{index:03d}.png", np.zeros((32, 48), np.uint8))
+    notes: list[str] = []
+    paired_training_data(folder, DataConfig(crop_size=24), 1, 0, notes)
+    assert sum("6 masks mark pixels left out of the loss" in note for note in notes) == 1
