@@ -5,22 +5,26 @@
 
 Example: lenspair export runs/gea/checkpoints/best.pt --onnx gea.onnx --int8 --calibration DS
 
-The exported network takes one image (N, C, H, W) float32 in [0, 1] of the
-given size (batch dynamic in ONNX) and returns the restored image. Each file
-is run on a seeded random image and compared with torch (the largest absolute
-difference is printed) and timed at batch 1. Checking and timing ONNX needs
-onnxruntime (a dependency of lenspair; reinstall it); without it the file is written
-and the output says it was not checked. A JSON report goes next to the
-first file, its whole name and .export.json (model.onnx.export.json).
+The exported network takes one image (N, C, H, W) float32 in [0, 1] of any
+size (H, W >= 8; batch, height and width dynamic in ONNX) and returns the
+restored image, whole, as the checkpoint does. --size is where each file is
+checked and timed: it is run on a seeded random image and a flat one at that
+size and at a smaller odd size and compared with torch (the largest absolute
+difference is printed), and timed at batch 1 at that size. Checking and
+timing ONNX needs onnxruntime (a dependency of lenspair; reinstall it);
+without it the file is written and the output says it was not checked. A
+JSON report goes next to the first file, its whole name and .export.json
+(model.onnx.export.json).
 
 --int8 also writes <name>.int8.onnx: ONNX Runtime static quantisation (QDQ,
 int8 weights per channel, uint8 activations) calibrated on 16 obstructed
 images of DS (any paired layout; --split picks a dataset's split), checked
 against the fp32 network on the one with the most contrast, through a probe
 model calibrated on the other 15 (PSNR of its output against the fp32
-output), and timed against it. int8 runs natively on
-CPUs with VNNI (avx512_vnni, avx_vnni, AMX); the precision decision is printed
-(lenspair.model.precision).
+output), and timed against it, at --size. Like the fp32 file it takes any
+size; its ranges are calibrated on the images resized to --size. int8 runs
+natively on CPUs with VNNI (avx512_vnni, avx_vnni, AMX); the precision
+decision is printed (lenspair.model.precision).
 """
 
 import argparse
@@ -52,7 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=size(MIN_INPUT_SIDE),
         default=(540, 360),
         metavar="WxH",
-        help="size of the input (540x360)",
+        help="size the export is traced, checked against torch and timed at; the model "
+        "takes any size (540x360)",
     )
     parser.add_argument(
         "--int8", action="store_true", help="also write NAME.int8.onnx (needs --calibration)"

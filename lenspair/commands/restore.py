@@ -15,8 +15,9 @@ channel is written back unchanged beside the restored colour; 16-bit frames of
 camera's words; a Bayer bag frame is demosaiced, restored in colour, and
 sampled back into its mosaic). The model
 is a lenspair checkpoint (torch, CPU or CUDA) or an ONNX file from `lenspair
-export` (ONNX Runtime; it was exported at a fixed size, so other sizes run on
-tiles of that size).
+export` (ONNX Runtime; any size runs whole, as with a checkpoint; an ONNX
+file of a fixed size, from an earlier lenspair, runs other sizes on tiles of
+its size, with a warning, and the report records the tile as forced_tile).
 
 Outputs keep the input's names under OUT: an image goes to OUT/<image name>,
 a folder's images to OUT/<path inside the folder>, an EuRoC/ASL recording to

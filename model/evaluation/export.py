@@ -3,15 +3,20 @@
 The exported graph is the deployed network: one input ``image``
 ``(N, C, H, W)`` float32 in [0, 1] and one output ``restored`` (the
 enhanced image, same shape); the generator-only output used for training is
-dropped. The image size is fixed at export (``--size``, 540x360 by default),
-since the network pads to a multiple of 4 from the input's shape; the batch
-dimension stays dynamic in ONNX.
+dropped. Batch, height and width are all dynamic in ONNX: the network pads
+to a multiple of 4 from the input's shape with no branch on it
+(:func:`~lenspair.model.networks.padding.pad_to_multiple`), so one file runs
+any frame of ``H, W >= 8`` whole, as the checkpoint does. A TorchScript trace
+replays the same operations at any size too.
 
-Each export is run on a random image (seeded) and compared with the torch
-output: the maximum absolute difference is reported. ONNX files are checked
-and timed with ``onnxruntime`` when it is installed (``pip install
-'onnxruntime'``); without it the file is still written and the report says
-it could not be checked. torch's new ``dynamo`` exporter needs
+``--size`` (540x360 by default) is the size the graph is traced at and the
+size each export is checked and timed at: it is run on a random image
+(seeded) and a flat one at that size and again at a smaller odd size
+(:func:`other_size`, not a multiple of the network's stride), and compared
+with the torch output: the largest absolute difference is reported. ONNX
+files are checked and timed with ``onnxruntime`` when it is installed (``pip
+install 'onnxruntime'``); without it the file is still written and the
+report says it could not be checked. torch's new ``dynamo`` exporter needs
 ``onnxscript``; when that is missing the TorchScript-based exporter is used.
 """
 
@@ -38,6 +43,7 @@ from lenspair.core.fsutil import atomic_write, atomic_write_bytes
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import session_options
+from lenspair.model.networks.padding import MIN_SIDE
 
 log = logging.getLogger(__name__)
 
@@ -66,13 +72,15 @@ class ExportCheck:
     Attributes:
         format: ``onnx`` or ``torchscript``.
         path: the written file.
-        size: ``WxH`` it was exported (and checked) at.
+        size: ``WxH`` it was traced, checked and timed at (the file takes any size).
         exporter: which exporter wrote it.
-        max_abs_diff: largest |export - torch| on the check image (``None``: not checked).
+        max_abs_diff: largest |export - torch| on the check images at every size of
+            ``sizes_checked`` (``None``: not checked).
         runtime_median_ms: median batch-1 latency in its runtime (``None``: not timed).
         runtime_p90_ms: 90th percentile of the same.
         threads: CPU threads of the timed runtime.
         note: anything the user must know (e.g. onnxruntime missing).
+        sizes_checked: ``WxH`` of every size compared with torch (``size`` first).
 
     """
 
@@ -85,6 +93,7 @@ class ExportCheck:
     runtime_p90_ms: float | None = None
     threads: int | None = None
     note: str = ""
+    sizes_checked: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, Any]:
         """Plain data for JSON."""
@@ -93,8 +102,11 @@ class ExportCheck:
     def summary(self) -> str:
         """One line for people."""
         diff = "not checked" if self.max_abs_diff is None else f"{self.max_abs_diff:.3g}"
+        if self.max_abs_diff is not None and self.sizes_checked:
+            diff += f" (at {', '.join(self.sizes_checked)})"
         text = (
-            f"{self.format}: {self.path} ({self.size}, {self.exporter}); max |diff| vs torch {diff}"
+            f"{self.format}: {self.path} ({self.size}, any size, {self.exporter}); "
+            f"max |diff| vs torch {diff}"
         )
         if self.runtime_median_ms is not None:
             text += (
@@ -119,6 +131,24 @@ def check_images(channels: int, size: tuple[int, int]) -> Tensor:
     """
     flat = torch.full((1, channels, size[0], size[1]), 0.5)
     return torch.cat([check_image(channels, size), flat])
+
+
+def other_size(size: tuple[int, int]) -> tuple[int, int]:
+    """A second ``(H, W)`` to check exports at: about half of ``size``, both sides odd.
+
+    Odd sides are not multiples of the network's stride (4), so the check goes
+    through its padding and cropping; a side is at least ``MIN_SIDE + 1`` (9),
+    and a size whose halves are that small is checked at its sides plus 3 instead.
+    """
+    half = tuple(max(MIN_SIDE + 1, side // 2 | 1) for side in size)
+    if half == tuple(size):
+        half = tuple(side + 3 for side in size)
+    return half[0], half[1]
+
+
+def _size_text(size: tuple[int, int]) -> str:
+    """``(H, W)`` as ``WxH``, the way ``--size`` is written."""
+    return f"{size[1]}x{size[0]}"
 
 
 def _time(run: Any, runs: int, warmup: int = 3) -> tuple[float, float]:
@@ -167,17 +197,36 @@ def _quiet_exporters() -> Iterator[None]:
                 logger.setLevel(level)
 
 
-def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) -> None:
-    """Run one of torch's ONNX exporters (fixed H, W; batch dynamic).
+DYNAMIC_AXES = {0: "batch", 2: "height", 3: "width"}
+"""The exported input's and output's dynamic dimensions, by position in ``(N, C, H, W)``."""
+
+
+def _onnx_export(
+    model: nn.Module, image: Tensor, path: Path, *, exporter: str, dynamic: bool = True
+) -> None:
+    """Run one of torch's ONNX exporters (batch dynamic; H and W too when ``dynamic``).
+
+    ``image`` gives the size the graph is traced at. ``dynamic=False`` fixes H
+    and W at it: for a model only ever run at that size (a quantisation per
+    size, :class:`~lenspair.model.evaluation.quantize.Int8Network`), whose
+    export then takes about a third of the time.
 
     The graph is traced on a batch of two: traced on one, torch.export
     specialises the batch dimension to 1 wherever an operation's shape
     depends on it (the full GEA's did), whatever ``dynamic_shapes`` asks,
     and ``restore`` with the ONNX file then fails on any batch or tile set.
+    H and W were fixed too, so that ``restore`` ran every other frame size in
+    tiles of the export's, each normalised by its own statistics: up to 109
+    8-bit codes from the checkpoint's output at EuRoC's 752x480.
     """
     image = image.expand(2, *image.shape[1:]).contiguous()
+    axes = DYNAMIC_AXES if dynamic else {0: DYNAMIC_AXES[0]}
     with _quiet_exporters():
         if exporter == "dynamo":
+            dims = {0: torch.export.Dim("batch", min=1, max=64)}
+            if dynamic:
+                dims[2] = torch.export.Dim("height", min=MIN_SIDE)
+                dims[3] = torch.export.Dim("width", min=MIN_SIDE)
             torch.onnx.export(
                 model,
                 (image,),
@@ -188,7 +237,7 @@ def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) 
                 dynamo=True,
                 verbose=False,  # no "[torch.onnx] Obtain model graph..." progress lines
                 external_data=False,
-                dynamic_shapes={"x": {0: torch.export.Dim("batch", min=1, max=64)}},
+                dynamic_shapes={"x": dims},
             )
         else:
             torch.onnx.export(
@@ -199,8 +248,28 @@ def _onnx_export(model: nn.Module, image: Tensor, path: Path, *, exporter: str) 
                 output_names=[OUTPUT_NAME],
                 opset_version=ONNX_OPSET,
                 dynamo=False,
-                dynamic_axes={INPUT_NAME: {0: "batch"}, OUTPUT_NAME: {0: "batch"}},
+                dynamic_axes={INPUT_NAME: axes, OUTPUT_NAME: axes},
             )
+            _declare_output_shape(path, tuple(image.shape), axes)
+
+
+def _declare_output_shape(path: Path, shape: tuple[int, ...], axes: dict[int, str]) -> None:
+    """Declare the output's shape as the input's (``axes`` names the dynamic ones), in place.
+
+    The TorchScript-based exporter names every output dimension it cannot
+    infer (``Addrestored_dim_1``), the channels too, and ``restore`` refuses a
+    model whose output channels are not its input's.
+    """
+    import onnx  # only ONNX exports need it
+
+    model = onnx.load(str(path))
+    for output in model.graph.output:
+        for index, dim in enumerate(output.type.tensor_type.shape.dim):
+            if index in axes:
+                dim.dim_param = axes[index]
+            elif index < len(shape):
+                dim.dim_value = shape[index]
+    onnx.save(model, str(path))
 
 
 _DISK_REFUSALS = frozenset(
@@ -234,11 +303,14 @@ def export_onnx(
 ) -> ExportCheck:
     """Write ``network`` as ONNX, then check (and time) it with onnxruntime if installed.
 
+    The file takes any batch, height and width; it is checked against torch at
+    ``size`` and at :func:`other_size` of it, and timed at ``size``.
+
     Args:
         network: forward(x) -> (generator_out, enhanced_out), on the CPU.
         channels: input channels.
         path: destination ``.onnx`` file.
-        size: ``(H, W)`` of the exported input.
+        size: ``(H, W)`` the graph is traced, checked and timed at.
         runs: timed onnxruntime runs (after warm-up).
 
     Raises:
@@ -264,7 +336,7 @@ def export_onnx(
             if attempt == exporters[-1]:
                 raise ModelError(f"ONNX export failed: {first}") from exc
             log.warning("%s failed (%s); trying %s", _EXPORTERS[attempt], first, exporters[-1])
-    size_text = f"{size[1]}x{size[0]}"
+    size_text = _size_text(size)
     if importlib.util.find_spec("onnxruntime") is None:
         note = "onnxruntime is missing (a lenspair dependency): written, not checked"
         return ExportCheck("onnx", str(path), size_text, exporter, None, note=note)
@@ -275,13 +347,26 @@ def export_onnx(
     options = session_options(threads)
     session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
     feed = {INPUT_NAME: image.numpy()}
-    checked = check_images(channels, size)
-    with torch.inference_mode():
-        expected = model(checked).numpy()
-    actual = session.run(None, {INPUT_NAME: checked.numpy()})[0]
-    diff = float(np.max(np.abs(actual - expected)))
+    sizes = (size, other_size(size))
+    diff = 0.0
+    for checked_size in sizes:
+        checked = check_images(channels, checked_size)
+        with torch.inference_mode():
+            expected = model(checked).numpy()
+        actual = session.run(None, {INPUT_NAME: checked.numpy()})[0]
+        diff = max(diff, float(np.max(np.abs(actual - expected))))
     median, p90 = _time(lambda: session.run(None, feed), runs)
-    return ExportCheck("onnx", str(path), size_text, exporter, diff, median, p90, threads)
+    return ExportCheck(
+        "onnx",
+        str(path),
+        size_text,
+        exporter,
+        diff,
+        median,
+        p90,
+        threads,
+        sizes_checked=tuple(_size_text(checked_size) for checked_size in sizes),
+    )
 
 
 def export_torchscript(
@@ -292,6 +377,10 @@ def export_torchscript(
     runs: int = 20,
 ) -> ExportCheck:
     """Trace ``network`` to TorchScript, reload the file and check it against torch.
+
+    The trace records shapes as operations on the input's, so the file takes
+    any size; it is checked at ``size`` and at :func:`other_size` of it, and
+    timed at ``size``.
 
     Raises:
         ModelError: tracing failed.
@@ -316,19 +405,23 @@ def export_torchscript(
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         loaded = torch.jit.load(str(path), map_location="cpu")
+    sizes = (size, other_size(size))
     with torch.no_grad():
-        checked = check_images(channels, size)
-        diff = float((loaded(checked) - model(checked)).abs().max())
+        diff = 0.0
+        for checked_size in sizes:
+            checked = check_images(channels, checked_size)
+            diff = max(diff, float((loaded(checked) - model(checked)).abs().max()))
         median, p90 = _time(lambda: loaded(image), runs)
     return ExportCheck(
         "torchscript",
         str(path),
-        f"{size[1]}x{size[0]}",
+        _size_text(size),
         "torch.jit.trace",
         diff,
         median,
         p90,
         torch.get_num_threads(),
+        sizes_checked=tuple(_size_text(checked_size) for checked_size in sizes),
     )
 
 
@@ -361,7 +454,7 @@ def export_checkpoint(
             raise
         raise ModelError(
             f"--size {size[1]}x{size[0]}: not enough memory to export at this size "
-            f"({str(exc).splitlines()[0][:160]}); export at the camera's frame size "
-            "(restore tiles larger frames)"
+            f"({str(exc).splitlines()[0][:160]}); give a smaller --size (it is only the "
+            "size the export is checked and timed at: the model takes any size)"
         ) from None
     return checks

@@ -25,8 +25,10 @@ there, 263 s against 857 s loaded), while PT2E's artefact is code compiled
 by ``torch.compile`` in the process that runs it. Whether int8 pays on a
 given CPU is what the int8 rows of ``eval`` and ``tradeoff`` show.
 
-Shapes: every image is ``(1, C, H, W)`` float32 in [0, 1]; the quantised
-model has a fixed ``H, W`` (the export's) and a dynamic batch.
+Shapes: every image is ``(1, C, H, W)`` float32 in [0, 1]. The quantised
+model takes any batch, height and width, as the fp32 export it quantises does
+(QDQ pairs hold no shape); its activation ranges are calibrated at the
+export's size (``--size``), which is also where it is compared and timed.
 """
 
 import copy
@@ -73,7 +75,10 @@ def calibration_images(
         count: at most this many images, evenly spaced.
 
     An unreadable pair is skipped with a warning (calibration goes on with
-    the others).
+    the others). Grey images calibrating a colour network (``channels`` 3)
+    are repeated into three channels, so the ranges of colour frames are
+    never seen: one warning says so, naming the calibration folder (the
+    calibration goes on, as ``train`` goes on with mixed images).
 
     Raises:
         ModelError: no pairs, or none readable.
@@ -84,16 +89,33 @@ def calibration_images(
     indices = np.unique(np.linspace(0, len(pairs) - 1, min(count, len(pairs))).round().astype(int))
     images = []
     unread: list[Unread] = []
+    grey = 0
     for index in indices:
         if (item := read_pair(pairs, int(index), unread)) is None:
             continue
+        grey += item.input.ndim == 2 or item.input.shape[2] == 1
         x = to_tensor(item.input, channels)[None]
         if tuple(x.shape[2:]) != size:
             x = F.interpolate(x, size=size, mode="area")
         images.append(np.ascontiguousarray(x.numpy(), dtype=np.float32))
     if not images:
         raise ModelError(f"int8 calibration: no image can be read; the first: {unread[0].reason}")
+    if channels == 3 and grey:
+        _warn_grey(getattr(pairs, "root", None), grey, len(images))
     return images
+
+
+def _warn_grey(root: Path | None, grey: int, count: int) -> None:
+    """Say that grey images calibrated a colour network (:func:`calibration_images`)."""
+    where = f"{root}: " if root is not None else ""
+    which = "the" if grey == count else f"{grey} of the {count}"
+    log.warning(
+        "%sint8 calibration: %s calibration images are grey and the network takes colour "
+        "(RGB): the ranges of colour frames were not seen, so colour frames may clip or "
+        "lose precision; calibrate on colour images",
+        where,
+        which,
+    )
 
 
 class _Reader:
@@ -126,8 +148,12 @@ def quantize_network(
     path: Path,
     size: tuple[int, int],
     calibration: Sequence[np.ndarray],
+    dynamic: bool = True,
 ) -> Path:
     """Export ``network`` to ONNX and write its int8 (QDQ) quantisation to ``path``.
+
+    The model takes any height and width (``dynamic``), or only ``size``: for
+    a model run at that size alone, whose export is faster.
 
     Raises:
         ModelError: no calibration images, or the export/quantisation failed.
@@ -148,7 +174,8 @@ def quantize_network(
         fp32 = Path(folder) / "fp32.onnx"
         prepared = Path(folder) / "prepared.onnx"
         try:
-            _onnx_export(model, check_image(channels, size), fp32, exporter="dynamo")
+            image = check_image(channels, size)
+            _onnx_export(model, image, fp32, exporter="dynamo", dynamic=dynamic)
             quant_pre_process(str(fp32), str(prepared), skip_symbolic_shape=True)
         except Exception as exc:  # exporters raise many types; report one line
             raise ModelError(f"int8: ONNX export failed: {first_line(exc)}") from exc
@@ -230,7 +257,7 @@ class Int8Network(nn.Module):
                 for image in self.calibration
             ]
             path = Path(self._folder.name) / f"int8_{size[1]}x{size[0]}.onnx"
-            quantize_network(self.fp32_network, self.channels, path, size, resized)
+            quantize_network(self.fp32_network, self.channels, path, size, resized, dynamic=False)
             self._sessions[size] = open_session(path, self.threads)
         return self._sessions[size]
 
@@ -310,8 +337,9 @@ def check_int8(
     probe = None
     if held_out is not None:  # measured on a model calibrated without the image compared on
         with tempfile.TemporaryDirectory() as folder:
-            quantize_network(network, channels, Path(folder) / "probe.onnx", size, fitted)
-            probe = open_session(Path(folder) / "probe.onnx").run(None, feed)[0]
+            probe_path = Path(folder) / "probe.onnx"  # run at this size only
+            quantize_network(network, channels, probe_path, size, fitted, dynamic=False)
+            probe = open_session(probe_path).run(None, feed)[0]
     # the model written is calibrated on every image, the one with the most contrast too
     quantize_network(network, channels, path, size, list(calibration))
     session = open_session(path)

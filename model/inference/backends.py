@@ -3,9 +3,12 @@
 A backend maps a batch ``(N, C, H, W)`` ``float32`` in [0, 1] (numpy) to the
 restored batch of the same shape, dtype and range. Any ``H, W >= 8`` is
 accepted by the torch network (it reflection-pads to a multiple of 4 and
-crops back, as ``eval`` does). An ONNX file from ``lenspair export`` has a
-fixed ``H x W`` (``fixed_size``); the caller tiles other sizes
-(:mod:`lenspair.model.inference.tiling`).
+crops back, as ``eval`` does), and by an ONNX file from ``lenspair export``
+(its height and width are dynamic). An ONNX file of a fixed ``H x W``
+(``fixed_size``: exported before sizes were dynamic, or by another tool)
+runs other sizes in tiles of its own (:mod:`lenspair.model.inference.tiling`),
+which differ from the checkpoint's output at the seams: said once, and
+recorded (:class:`ForcedTiles`).
 
 Precision: ``--precision auto|fp32|bf16|fp16`` for checkpoints; ``auto`` is the
 hardware-driven choice that ``train``/``eval``/``tradeoff``/``export`` share
@@ -15,7 +18,7 @@ may only name that one (or ``auto``).
 """
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -43,11 +46,67 @@ class Backend(Protocol):
         """``(H, W)`` the model only accepts, or None for any size."""
 
     @property
+    def forced_tiles(self) -> "ForcedTiles | None":
+        """Frames run in tiles of ``fixed_size``, or None for a model of any size.
+
+        Read only where ``fixed_size`` is not None.
+        """
+
+    @property
     def description(self) -> str:
         """One line: file, runtime, device, precision."""
 
     def __call__(self, batch: np.ndarray) -> np.ndarray:
         """``(N, C, H, W)`` float32 in [0, 1] -> restored, same shape, float32 in [0, 1]."""
+
+
+@dataclass
+class ForcedTiles:
+    """The frame sizes a model of a fixed size has run in tiles of its size; the first is told.
+
+    Such a model only takes its own ``H x W``, so other sizes run in
+    overlapping tiles of it, each of which the network normalises by its own
+    statistics (instance norm): those frames differ from the checkpoint's
+    whole-frame output, most at the tile seams. :meth:`note` says so in one
+    warning line, once per run (:meth:`start`; a
+    :class:`~lenspair.model.inference.restorer.Restorer` warns once), and
+    ``restore`` records :attr:`tile` in its report.
+
+    Attributes:
+        model: the model file, for the warning.
+        tile: the model's ``(H, W)``.
+        frame_sizes: ``(H, W)`` of the frames run in tiles since :meth:`start`, in order met.
+    """
+
+    model: str
+    tile: tuple[int, int]
+    frame_sizes: list[tuple[int, int]] = field(default_factory=list)
+
+    def start(self) -> None:
+        """Begin a run: the next frame of another size is told again."""
+        self.frame_sizes.clear()
+
+    def note(self, frame_size: tuple[int, int]) -> None:
+        """Record that frames of ``frame_size`` ``(H, W)`` run in tiles; warn at the run's first."""
+        if frame_size in self.frame_sizes:
+            return
+        if not self.frame_sizes:
+            log.warning(
+                "%s: frames of %dx%d are run in tiles of the model's fixed size %dx%d, and "
+                "results differ from the checkpoint at the tile seams; export it again "
+                "(lenspair export) to run every size whole",
+                self.model,
+                frame_size[1],
+                frame_size[0],
+                self.tile[1],
+                self.tile[0],
+            )
+        self.frame_sizes.append(frame_size)
+
+    @property
+    def tile_text(self) -> str:
+        """The tile as ``WxH``."""
+        return f"{self.tile[1]}x{self.tile[0]}"
 
 
 def check_batch(batch: np.ndarray, channels: int) -> np.ndarray:
@@ -109,6 +168,11 @@ class TorchBackend:
     @property
     def fixed_size(self) -> tuple[int, int] | None:
         """Any size works (the network pads to a multiple of 4)."""
+        return None
+
+    @property
+    def forced_tiles(self) -> ForcedTiles | None:
+        """None: nothing is tiled by force."""
         return None
 
     @property
@@ -203,6 +267,7 @@ class OnnxBackend:
         height, width = spec.shape[2], spec.shape[3]
         fixed = isinstance(height, int) and isinstance(width, int)
         self._fixed = (int(height), int(width)) if fixed else None
+        self._forced = ForcedTiles(str(self.path), self._fixed) if self._fixed else None
         self.precision = _onnx_precision(self.path)
 
     @property
@@ -212,8 +277,13 @@ class OnnxBackend:
 
     @property
     def fixed_size(self) -> tuple[int, int] | None:
-        """The exported ``(H, W)``, or None when the model takes any size."""
+        """The model's only ``(H, W)``, or None when it takes any size (``lenspair export``'s)."""
         return self._fixed
+
+    @property
+    def forced_tiles(self) -> ForcedTiles | None:
+        """The frames run in tiles of :attr:`fixed_size` (None when the model takes any size)."""
+        return self._forced
 
     @property
     def description(self) -> str:

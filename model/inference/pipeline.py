@@ -27,6 +27,10 @@ Rules a robotics user can rely on:
   output stays complete and aligned with the input; a bag cut short ends the
   copy where reading stopped (recorded too).
 * ``judge`` (``--only-obstructed``): frames judged clean are copied unchanged.
+* **No silent tiles**: an ONNX model of a fixed size (exported before sizes
+  were dynamic) runs frames of other sizes in tiles of its size, which differ
+  from the checkpoint's output at the seams: the run warns once and records
+  the tile (``forced_tile`` in the report).
 """
 
 import contextlib
@@ -123,6 +127,9 @@ def restore_input(
         str(input_path), kind, str(sink.output), backend.description, list(cameras)
     )
     report.settings = settings
+    forced = backend.forced_tiles if backend.fixed_size is not None else None
+    if forced is not None:
+        forced.start()  # warned once per run
     writer = Writer(sink, report, size=4 * options.batch_size)
     try:
         refused = run_batches(
@@ -145,6 +152,8 @@ def restore_input(
         # they were: named, as a folder's are
         source_problems.extend(n for e in sink.extras if (n := unrestored_note(e)) is not None)
     report.problems.extend({"frame": "", "reason": reason} for reason in source_problems)
+    if forced is not None and forced.frame_sizes:
+        report.forced_tile = forced.tile_text
     report.seconds = time.perf_counter() - started
     atomic_write_json(out_dir / REPORT_NAME, report.as_dict())
     return report

@@ -39,6 +39,11 @@ class RestoreReport:
             was read from; ``--resume`` of a complete run keeps its bag while
             they are unchanged (:meth:`~lenspair.model.inference.bag_sink.BagSink.finished`).
         output_files: bags: the same of the bag written, which must be unchanged too.
+        forced_tile: ``WxH`` of a model of that fixed size, when this run ran
+            frames of another size in tiles of it (they differ from the
+            checkpoint's output at the tile seams:
+            :class:`~lenspair.model.inference.backends.ForcedTiles`); None when
+            every frame ran whole or in ``--tile`` tiles.
     """
 
     input: str
@@ -57,6 +62,7 @@ class RestoreReport:
     settings: dict[str, Any] = field(default_factory=dict)
     source_files: list[list[Any]] = field(default_factory=list)
     output_files: list[list[Any]] = field(default_factory=list)
+    forced_tile: str | None = None
 
     @property
     def frames_per_second(self) -> float:

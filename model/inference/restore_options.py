@@ -60,7 +60,8 @@ def check_options(options: RestoreOptions, backend: Backend | None = None) -> No
         model = getattr(backend, "path", "the model")
         raise ModelError(
             f"--tile: {model} was exported at {fixed[1]}x{fixed[0]} and runs on tiles of "
-            "that size; leave --tile out (export at another --size to change it)"
+            "that size; leave --tile out, or export it again (lenspair export) to run any "
+            "size whole and in --tile tiles"
         )
     check_tile(options.tile)
     if options.batch_size < 1:

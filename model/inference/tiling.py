@@ -5,16 +5,20 @@ enter as the :mod:`lenspair.core.pixels` convention (``uint8``/``uint16``,
 ``(H, W)`` or ``(H, W, 3)`` RGB) and leave in the same dtype and shape
 (:func:`to_batch`, :func:`from_batch`).
 
-Tiling (``--tile N``, or forced by an ONNX model exported at a fixed size):
-the image is covered by ``N x N`` tiles placed every ``N - overlap`` pixels,
-the last one flush with the border. Each tile's output is weighted by a
-linear ramp that rises over the ``overlap`` pixels of every side shared with
-a neighbour (sides on the image border keep weight 1), and the weighted sum
-is divided by the summed weights, so every pixel is a convex blend and no
-seam appears. The network normalises each tile by its own statistics
-(instance norm), so a tiled result is close to, not equal to, the whole-image
-one (tests/model/test_inference.py states the tolerance). A side shorter than
-the tile is reflected up to the tile size and cropped back.
+Tiling (``--tile N``, or forced by an ONNX model of a fixed size, which
+:class:`~lenspair.model.inference.backends.ForcedTiles` warns of once and
+records): the image is covered by ``N x N`` tiles placed every
+``N - overlap`` pixels (:func:`tile_starts`), the last one flush with the
+border, so that no tile reaches past the image. Each tile's output is
+weighted by a linear ramp that rises across the pixels it shares with its
+neighbour on that side (sides on the image border keep weight 1), and the
+weighted sum is divided by the summed weights, so every pixel is a convex
+blend and no seam appears. The network normalises each tile by its own
+statistics (instance norm), so a tiled result is close to, not equal to, the
+whole-image one (tests/model/test_inference.py states the tolerance). A
+``--tile`` longer than a side is cut to it; only a model of a fixed size
+gets a side shorter than its tile, which is reflected up to the tile's and
+cropped back.
 """
 
 from collections.abc import Sequence
@@ -73,9 +77,13 @@ def tile_starts(length: int, tile: int, overlap: int, align: int = ALIGN) -> lis
     """Start offsets of tiles of ``tile`` pixels covering ``length``, overlapping.
 
     The step between tiles is ``tile - overlap`` rounded down to a multiple of
-    ``align`` when that leaves a step of at least ``align`` (so every tile
-    sees the enhancer's pooling cells where the whole image does); the last
-    tile may reach past ``length`` (the caller pads).
+    ``align`` when that leaves a step of at least ``align`` (so every tile but
+    the last sees the enhancer's pooling cells where the whole image does).
+    The last tile is flush with the end (it starts at ``length - tile``), so
+    its last step may be shorter: a tile reaching past the image saw a mirror
+    image there, which the norms took for content (about 1.4x the mean error
+    against the whole frame, at 752x480 in tiles of 540x360). A ``length``
+    up to ``tile`` is one tile at 0 (the caller pads a shorter one).
 
     Raises:
         ModelError: ``overlap`` not in ``[0, tile)``.
@@ -89,25 +97,40 @@ def tile_starts(length: int, tile: int, overlap: int, align: int = ALIGN) -> lis
         step -= step % align
     starts = [0]
     while starts[-1] + tile < length:
-        starts.append(starts[-1] + step)
+        starts.append(min(starts[-1] + step, length - tile))
     return starts
 
 
-def ramp(tile: int, overlap: int, ramp_start: bool, ramp_end: bool) -> np.ndarray:
-    """1-D blending weight of a tile: linear ramps over ``overlap`` px on shared sides.
+def ramp(tile: int, overlap_start: int, overlap_end: int) -> np.ndarray:
+    """1-D blending weight of a tile: linear ramps across the pixels shared with each neighbour.
+
+    Args:
+        tile: the tile's side.
+        overlap_start: pixels shared with the tile before it (0: none, the image border).
+        overlap_end: pixels shared with the tile after it (0: none).
 
     Returns:
         ``(tile,)`` float32 in (0, 1].
     """
     weight = np.ones(tile, dtype=np.float32)
-    if overlap == 0:
-        return weight
     position = np.arange(tile, dtype=np.float32)
-    if ramp_start:
-        weight = np.minimum(weight, (position + 1) / np.float32(overlap + 1))
-    if ramp_end:
-        weight = np.minimum(weight, (tile - position) / np.float32(overlap + 1))
+    if overlap_start > 0:
+        weight = np.minimum(weight, (position + 1) / np.float32(overlap_start + 1))
+    if overlap_end > 0:
+        weight = np.minimum(weight, (tile - position) / np.float32(overlap_end + 1))
     return weight
+
+
+def _shared(starts: list[int], tile: int) -> list[tuple[int, int]]:
+    """Per tile of ``starts``: pixels shared with the tile before it and the one after it."""
+    last = len(starts) - 1
+    return [
+        (
+            starts[i - 1] + tile - start if i > 0 else 0,
+            start + tile - starts[i + 1] if i < last else 0,
+        )
+        for i, start in enumerate(starts)
+    ]
 
 
 def run_tiled(
@@ -133,27 +156,28 @@ def run_tiled(
     tile_h, tile_w = tile
     rows = tile_starts(height, tile_h, min(overlap, tile_h - 1))
     cols = tile_starts(width, tile_w, min(overlap, tile_w - 1))
-    full_h, full_w = max(height, rows[-1] + tile_h), max(width, cols[-1] + tile_w)
+    full_h, full_w = max(height, tile_h), max(width, tile_w)
     padded = batch
-    if (full_h, full_w) != (height, width):
+    if (full_h, full_w) != (height, width):  # a side shorter than the tile (a fixed-size model)
         pad = ((0, 0), (0, 0), (0, full_h - height), (0, full_w - width))
         padded = np.pad(batch, pad, mode="symmetric")
-    overlap_h = tile_h - (rows[1] - rows[0]) if len(rows) > 1 else 0
-    overlap_w = tile_w - (cols[1] - cols[0]) if len(cols) > 1 else 0
+    row_ramps = [ramp(tile_h, *shared) for shared in _shared(rows, tile_h)]
+    col_ramps = [ramp(tile_w, *shared) for shared in _shared(cols, tile_w)]
     total = np.zeros((n, c, full_h, full_w), dtype=np.float32)
     weights = np.zeros((full_h, full_w), dtype=np.float32)
-    places = [(top, left) for top in rows for left in cols]
+    places = [(row, col) for row in range(len(rows)) for col in range(len(cols))]
     for first in range(0, len(places), max(1, max_tiles // n)):
         chunk = places[first : first + max(1, max_tiles // n)]
         tiles = np.concatenate(
-            [padded[:, :, top : top + tile_h, left : left + tile_w] for top, left in chunk]
+            [
+                padded[:, :, rows[row] : rows[row] + tile_h, cols[col] : cols[col] + tile_w]
+                for row, col in chunk
+            ]
         )
         outputs = backend(tiles)
-        for index, (top, left) in enumerate(chunk):
-            weight = np.outer(
-                ramp(tile_h, overlap_h, top > 0, top + tile_h < full_h),
-                ramp(tile_w, overlap_w, left > 0, left + tile_w < full_w),
-            )
+        for index, (row, col) in enumerate(chunk):
+            top, left = rows[row], cols[col]
+            weight = np.outer(row_ramps[row], col_ramps[col])
             part = outputs[index * n : (index + 1) * n]
             total[:, :, top : top + tile_h, left : left + tile_w] += part * weight
             weights[top : top + tile_h, left : left + tile_w] += weight
@@ -168,8 +192,10 @@ def run_backend(
     Args:
         backend: the network.
         batch: ``(N, C, H, W)`` float32 in [0, 1], ``H, W >= 8``.
-        tile: square tile side (pixels, >= 16), or None for whole images. A
-            model exported at a fixed size always runs on tiles of that size.
+        tile: square tile side (pixels, >= 16; cut to a shorter side), or None
+            for whole images. A model of a fixed size runs other sizes on tiles
+            of its size, and says so once
+            (:class:`~lenspair.model.inference.backends.ForcedTiles`).
         overlap: pixels shared by neighbouring tiles.
 
     Raises:
@@ -181,14 +207,18 @@ def run_backend(
             f"the network takes {backend.channels} channel(s), the images have {batch.shape[1]}"
         )
     check_tile(tile)
+    height, width = batch.shape[2:]
     fixed = backend.fixed_size
     if fixed is not None:
-        if tuple(batch.shape[2:]) == fixed:
+        if (height, width) == fixed:
             return backend(batch)
+        forced = backend.forced_tiles
+        if forced is not None:
+            forced.note((height, width))
         return run_tiled(backend, batch, fixed, overlap)
-    if tile is None or (batch.shape[2] <= tile and batch.shape[3] <= tile):
+    if tile is None or (height <= tile and width <= tile):
         return backend(batch)
-    return run_tiled(backend, batch, (tile, tile), overlap)
+    return run_tiled(backend, batch, (min(tile, height), min(tile, width)), overlap)
 
 
 def restore_images(

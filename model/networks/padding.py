@@ -51,7 +51,9 @@ def pad_to_multiple(x: Tensor, multiple: int) -> Tensor:
 
     Padding only at the bottom/right keeps pixel (0, 0) in place, so cropping
     back is a plain slice. There is no branch on the size (a zero pad is a
-    cheap copy of the image), so ``torch.export`` can keep H and W dynamic.
+    cheap copy of the image), so ``torch.export`` keeps H and W dynamic: the
+    ONNX file of ``lenspair export`` takes any size
+    (:mod:`lenspair.model.evaluation.export`).
 
     Args:
         x: ``(N, C, H, W)`` batch with ``H, W >= multiple`` (reflection needs

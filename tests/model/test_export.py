@@ -49,13 +49,19 @@ def test_onnx_export_matches_torch(tmp_path: Path) -> None:
     # Each instance norm is ONNX's own InstanceNormalization (a group norm would
     # export as reshapes around it plus a scale and a shift).
     onnx = pytest.importorskip("onnx")
-    kinds = [node.op_type for node in onnx.load(str(onnx_file)).graph.node]
+    nodes = list(onnx.load(str(onnx_file)).graph.node)
+    kinds = [node.op_type for node in nodes]
     norms = sum(isinstance(m, InstanceNorm) for m in network.modules())
     assert norms > 0 and kinds.count("InstanceNormalization") == norms
-    # ... and nothing of a group norm's export is left: no shapes, and one scale per
-    # norm, by the flat-frame mask (lenspair.model.networks.layers), not by one
-    assert not {"GroupNormalization", "Shape"} & set(kinds)
-    assert kinds.count("Mul") == norms
+    # ... and nothing of a group norm's export is left: the only shapes taken are the
+    # image's (H and W are dynamic: padding to a multiple of 4 and cropping back), and
+    # each norm's output is scaled once, by the flat-frame mask
+    # (lenspair.model.networks.layers), and read by nothing else
+    assert "GroupNormalization" not in kinds
+    assert {tuple(n.input) for n in nodes if n.op_type == "Shape"} == {("image",)}
+    normalised = {n.output[0] for n in nodes if n.op_type == "InstanceNormalization"}
+    readers = [n.op_type for n in nodes for name in n.input if name in normalised]
+    assert readers == ["Mul"] * norms
 
 
 def test_onnx_export_prints_lenspair_lines_only(
@@ -88,10 +94,45 @@ def test_torchscript_export_reloads_and_matches(tmp_path: Path) -> None:
     loaded = load_model(make_checkpoint(tmp_path / "c.pt"))
     check = export_torchscript(loaded.network, 1, tmp_path / "m.pt", (33, 47), runs=2)
     assert check.max_abs_diff is not None and check.max_abs_diff < 1e-5
+    assert check.sizes_checked == ("47x33", "23x17")  # and at a second odd size
     script = torch.jit.load(str(tmp_path / "m.pt"))
     image = check_image(1, (33, 47))
     with torch.no_grad():
         assert script(image).shape == (1, 1, 33, 47)
+        other = check_image(1, (65, 97))  # any size: the trace records the padding's arithmetic
+        difference = (script(other) - loaded.network(other)[1]).abs().max()
+        assert float(difference) < 1e-5
+
+
+def test_an_onnx_export_runs_any_size_whole_and_agrees_with_the_checkpoint(
+    tmp_path: Path,
+) -> None:
+    """H and W were fixed at --size: restore ran other sizes in tiles of it (up to 109 codes off).
+
+    Sizes that are not multiples of the network's stride (4) go through its own
+    padding and cropping, in the graph.
+    """
+    onnx = pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from lenspair.model.evaluation.export import export_onnx
+
+    network = load_model(make_checkpoint(tmp_path / "c.pt")).network
+    check = export_onnx(network, 1, tmp_path / "m.onnx", (32, 48), runs=1)
+    backend = OnnxBackend(tmp_path / "m.onnx", torch.device("cpu"))
+    generator = torch.Generator().manual_seed(7)
+    for height, width in ((64, 96), (65, 97), (97, 65), (33, 47), (9, 11), (8, 8)):
+        image = torch.rand(2, 1, height, width, generator=generator)
+        with torch.no_grad():
+            expected = network(image)[1].numpy()
+        restored = backend(image.numpy())  # as restore runs it: whole
+        assert restored.shape == (2, 1, height, width)
+        assert np.abs(restored - expected).max() < 1e-4, (height, width)
+    assert backend.fixed_size is None and backend.forced_tiles is None
+    declared = onnx.load(str(tmp_path / "m.onnx")).graph.input[0].type.tensor_type.shape.dim
+    assert [d.dim_param or d.dim_value for d in declared] == ["batch", 1, "height", "width"]
+    # export's own check ran at --size and at a second, odd size
+    assert check.sizes_checked == ("48x32", "25x17") and check.size == "48x32"
+    assert check.max_abs_diff is not None and check.max_abs_diff < 1e-4
 
 
 def test_an_export_removes_what_a_killed_one_left_beside_its_file(tmp_path: Path) -> None:
@@ -156,7 +197,14 @@ def test_failing_dynamo_exporter_falls_back_to_the_legacy_one(
     network = load_model(make_checkpoint(tmp_path / "c.pt")).network
     check = export.export_onnx(network, 1, tmp_path / "m.onnx", (32, 48), runs=1)
     assert check.exporter == "torch.onnx (TorchScript-based)"
-    assert (tmp_path / "m.onnx").stat().st_size > 0
+    assert check.max_abs_diff is not None and check.max_abs_diff < 1e-4
+    # restore takes its file, of any size (it refused an output of unnamed channels)
+    backend = OnnxBackend(tmp_path / "m.onnx", torch.device("cpu"))
+    assert backend.channels == 1 and backend.fixed_size is None
+    image = torch.rand(1, 1, 33, 47, generator=torch.Generator().manual_seed(2))
+    with torch.no_grad():
+        expected = network(image)[1].numpy()
+    assert np.abs(backend(image.numpy()) - expected).max() < 1e-4
 
 
 def _quantised_ops(graph: Any) -> set[str]:
@@ -205,12 +253,13 @@ def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     # the next one's input pair. Quantising everything also caught the norms,
     # pads, pools, concatenations and adds.
     assert _quantised_ops(graph) - {"Relu", "LeakyRelu"} == set(QUANTISED_OPS)
-    image = torch.rand(2, 1, 32, 48, generator=torch.Generator().manual_seed(3))
-    (restored,) = session.run(None, {"image": image.numpy()})
-    with torch.no_grad():
-        expected = load_model(checkpoint).network(image)[1].numpy()
-    assert restored.shape == (2, 1, 32, 48)
-    assert np.abs(restored - expected).mean() < 0.05
+    for height, width in ((32, 48), (65, 97)):  # any size, as the fp32 file: it was 48x32 only
+        image = torch.rand(2, 1, height, width, generator=torch.Generator().manual_seed(3))
+        (restored,) = session.run(None, {"image": image.numpy()})
+        with torch.no_grad():
+            expected = load_model(checkpoint).network(image)[1].numpy()
+        assert restored.shape == (2, 1, height, width)
+        assert np.abs(restored - expected).mean() < 0.05
     # restore's report names what ran: it said fp32 for the int8 model
     cpu = torch.device("cpu")
     assert OnnxBackend(Path(int8["path"]), cpu).description.endswith("(int8)")
@@ -281,9 +330,9 @@ def test_int8_check_compares_on_an_image_held_out_of_the_calibration(
     fitted: list[list[np.ndarray]] = []
     real = quantize.quantize_network
 
-    def record(network: Any, channels: int, path: Path, size: Any, images: Any) -> Any:
+    def record(network: Any, channels: int, path: Path, size: Any, images: Any, **kw: Any) -> Any:
         fitted.append(list(images))
-        return real(network, channels, path, size, images)
+        return real(network, channels, path, size, images, **kw)
 
     monkeypatch.setattr(quantize, "quantize_network", record)
     network = load_model(make_checkpoint(tmp_path / "c.pt")).network
@@ -355,15 +404,16 @@ def test_the_papers_gea_exports_with_a_dynamic_batch_that_restore_uses(tmp_path:
     checkpoint = make_checkpoint(tmp_path / "gea.pt", config)
     model = tmp_path / "gea.onnx"
     assert main(["export", str(checkpoint), "--onnx", str(model), "--size", "64x48"]) == 0
-    batch = onnx.load(str(model)).graph.input[0].type.tensor_type.shape.dim[0]
-    assert batch.dim_param and not batch.dim_value  # symbolic, not 1
+    dims = onnx.load(str(model)).graph.input[0].type.tensor_type.shape.dim
+    assert dims[0].dim_param and not dims[0].dim_value  # symbolic, not 1
+    assert dims[2].dim_param and dims[3].dim_param  # so are H and W
     rng = np.random.default_rng(0)
     for index in range(3):
         write_image(tmp_path / "in" / f"{index}.png", clean_image(rng, 48, 64))
-    write_image(tmp_path / "in" / "big.png", clean_image(rng, 90, 120))  # tiles, batched
+    write_image(tmp_path / "in" / "big.png", clean_image(rng, 90, 120))  # whole, not in tiles
     backend = open_backend(model, torch.device("cpu"))
     report = restore_input(tmp_path / "in", tmp_path / "out", backend, RestoreOptions(batch_size=2))
-    assert (report.restored, report.failed) == (4, 0)
+    assert (report.restored, report.failed, report.forced_tile) == (4, 0, None)
 
 
 def test_a_flat_frame_stays_flat_through_onnx_runtime(tmp_path: Path) -> None:

@@ -886,3 +886,69 @@ def test_a_suffixed_topic_has_a_message_for_every_frame_of_the_camera(
     assert len(source) == len(times)
     assert restored[1].raw == source[1].raw  # the clean frame, as recorded
     assert restored[0].raw != source[0].raw and restored[2].raw != source[2].raw
+
+
+def _fixed_size_onnx(path: Path, height: int, width: int) -> Path:
+    """A restoring ONNX model of one size only, as ``export`` wrote them: out = sqrt(image)."""
+    onnx = pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from onnx import TensorProto, helper
+
+    def value(name: str) -> Any:
+        return helper.make_tensor_value_info(name, TensorProto.FLOAT, ["batch", 1, height, width])
+
+    node = helper.make_node("Sqrt", ["image"], ["restored"])
+    graph = helper.make_graph([node], "fixed", [value("image")], [value("restored")])
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    model.ir_version = 9  # one ONNX Runtime reads
+    onnx.save(model, str(path))
+    return path
+
+
+def test_a_fixed_size_model_warns_once_a_run_and_records_its_tile(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Frames of another size ran in tiles of the model's size without a word (report: tile null).
+
+    Tiles are normalised each by its own statistics, so they differ from the
+    checkpoint at the seams; the run says so in one line and records the tile.
+    """
+    from lenspair.model.inference.restorer import Restorer
+
+    model = open_backend(_fixed_size_onnx(tmp_path / "old.onnx", 32, 48), CPU)
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 256, (65, 97), dtype=np.uint8) for _ in range(3)]
+    for index, frame in enumerate(frames):
+        write_image(tmp_path / "in" / f"{index}.png", frame)
+    for run in ("out1", "out2"):  # once per run: the second run is told too
+        caplog.clear()
+        report = restore_input(tmp_path / "in", tmp_path / run, model)
+        warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+        assert len(warnings) == 1, warnings
+        assert (
+            "old.onnx: frames of 97x65 are run in tiles of the model's fixed size 48x32"
+            in (warnings[0])
+        )
+        assert "differ from the checkpoint at the tile seams" in warnings[0]
+        assert "\n" not in warnings[0]
+        assert report.restored == 3 and report.forced_tile == "48x32"
+        written = json.loads((tmp_path / run / REPORT_NAME).read_text())
+        assert written["forced_tile"] == "48x32" and written["settings"]["tile"] is None
+    # a context-free model: the tiles blend back into the whole frame's result
+    restored = read_image(tmp_path / "out1" / "0.png")
+    assert np.abs(restored.astype(int) - np.rint(np.sqrt(frames[0] / 255) * 255)).max() <= 1
+    # --tile cannot change its tiles: refused before anything is read (it was ignored)
+    with pytest.raises(ModelError, match=r"--tile: .*old.onnx was exported at 48x32 and runs on"):
+        restore_input(tmp_path / "in", tmp_path / "tiled", model, RestoreOptions(tile=64))
+    assert not (tmp_path / "tiled").exists()
+    # frames of the model's size run whole: nothing to say, nothing recorded
+    write_image(tmp_path / "same" / "a.png", frames[0][:32, :48])
+    caplog.clear()
+    assert restore_input(tmp_path / "same", tmp_path / "out3", model).forced_tile is None
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]
+    # a Restorer in a robot's loop says it once, not at every frame
+    restorer = Restorer(tmp_path / "old.onnx", device="cpu")
+    caplog.clear()
+    for frame in frames:
+        restorer(frame)
+    assert len([r for r in caplog.records if "run in tiles" in r.getMessage()]) == 1
