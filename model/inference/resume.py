@@ -230,6 +230,8 @@ def _kept(
     report.skipped = int(finished.get("skipped", 0))
     report.skipped_frames = list(finished.get("skipped_frames", []))
     report.problems = list(finished.get("problems", []))
+    tile = finished.get("forced_tile")  # the kept bag's frames ran on those tiles
+    report.forced_tile = tile if isinstance(tile, str) else None
     report.settings = settings
     report.source_files = sink.fingerprint
     report.output_files = sink.written()

@@ -952,3 +952,18 @@ def test_a_fixed_size_model_warns_once_a_run_and_records_its_tile(
     for frame in frames:
         restorer(frame)
     assert len([r for r in caplog.records if "run in tiles" in r.getMessage()]) == 1
+
+
+def test_a_kept_bag_keeps_the_tile_its_frames_ran_on(tmp_path: Path) -> None:
+    # --resume of a finished bag keeps it: its report still says the frames ran on tiles
+    model = open_backend(_fixed_size_onnx(tmp_path / "old.onnx", 32, 48), CPU)
+    rng = np.random.default_rng(1)
+    frames = {
+        "cam0": [(10**9 + k * 10**8, rng.integers(0, 256, (65, 97), np.uint8)) for k in range(2)]
+    }
+    bag = write_bag(tmp_path / "run", "db3", frames)
+    first = restore_input(bag, tmp_path / "out", model)
+    again = restore_input(bag, tmp_path / "out", model, RestoreOptions(resume=True))
+    assert (first.restored, again.resumed, again.restored) == (2, 2, 0)  # kept, not redone
+    assert first.forced_tile == again.forced_tile == "48x32"
+    assert json.loads((tmp_path / "out" / REPORT_NAME).read_text())["forced_tile"] == "48x32"
