@@ -8,6 +8,7 @@ detector's synthetic data all draw from here.
 
 from pathlib import Path
 
+from lenspair.capture.folders import IMAGE_SUFFIXES
 from lenspair.simulate.effects.spec import (
     SHARP_DROPS,
     BrightnessSpec,
@@ -18,7 +19,6 @@ from lenspair.simulate.effects.spec import (
 )
 from lenspair.simulate.errors import SimulateError
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff")
 CLEAN_FOLDER_NAMES = ("target", "gt", "clean")
 
 OUR_DROPS = EffectsSpec(
@@ -63,7 +63,8 @@ def find_clean_images(folder: Path) -> list[Path]:
     When the folder holds ``target/`` (or ``gt/``, ``clean/``) sub-folders, as
     a lenspair dataset does, only the images in them are used (for a dataset
     root, only those of ``train/``, so validation and test images stay
-    unseen); otherwise every PNG/JPG/TIFF below ``folder``.
+    unseen); otherwise every image below ``folder`` (the suffixes ``restore``
+    and ``train`` read: :data:`lenspair.capture.folders.IMAGE_SUFFIXES`).
 
     Raises:
         SimulateError: no image found.
@@ -80,5 +81,7 @@ def find_clean_images(folder: Path) -> list[Path]:
     clean = [p for p in images if p.parent.name.lower() in CLEAN_FOLDER_NAMES]
     chosen = clean or images
     if not chosen:
-        raise SimulateError(f"{folder}: no PNG/JPG/TIFF images found")
+        raise SimulateError(
+            f"{folder}: no images found (reads {', '.join(sorted(IMAGE_SUFFIXES))})"
+        )
     return chosen

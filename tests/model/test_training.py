@@ -458,6 +458,9 @@ def test_synthetic_drops_render_on_the_fly(tmp_path: Path) -> None:
         image = clean_image(rng, 40, 56)
         write_image(tmp_path / "clean" / f"{index}.png", np.stack([image] * 3, axis=2))
     assert len(find_clean_images(tmp_path / "clean")) == 5
+    # what train and restore read, pretraining reads too (a BMP was passed over)
+    write_image(tmp_path / "bmp" / "0.bmp", clean_image(rng, 40, 56))
+    assert [p.name for p in find_clean_images(tmp_path / "bmp")] == ["0.bmp"]
     dataset = write_split_dataset(tmp_path / "ds", {"train": 3, "val": 1, "test": 2})
     found = find_clean_images(dataset)  # a dataset root: its training targets only
     assert [p.relative_to(dataset).parts[:2] for p in found] == [("train", "target")] * 3
