@@ -34,40 +34,35 @@ input and target alike, as ``restore`` does; both are said once
 when it was ingested and is read as stored.
 """
 
-import json
-import re
-from collections.abc import Callable, Collection, Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 
 from lenspair.core.bitdepth import widen
-from lenspair.core.config import load_dataclass
-from lenspair.core.errors import ConfigError, ImageIOError, listed
+from lenspair.core.errors import ImageIOError, listed
 from lenspair.core.imageio import image_header, read_image
-from lenspair.dataset.card import CARD_FILE, CARD_FORMAT
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.folder_notes import (
-    IMAGE_SUFFIXES,
     SUFFIX_TEXT,
     folder_bits,
     left_out,
     say,
     say_masks,
 )
-from lenspair.dataset.manifest import MANIFEST_FILE, ManifestRow, read_manifest
-
-Layout = Literal["lenspair", "paired", "raindrop"]
-_FOLDERS: dict[Layout, tuple[str, str]] = {
-    "lenspair": ("input", "target"),
-    "paired": ("input", "target"),
-    "raindrop": ("data", "gt"),
-}
-IMAGE_FOLDERS: tuple[str, ...] = ("input", "target", "mask", "lq", "gt", "data")
-"""Sub-folders of a paired folder whose files the readers take as images (of any layout)."""
-_RAINDROP_SUFFIX = re.compile(r"_(rain|clean)$")
+from lenspair.dataset.layouts import (
+    FOLDERS,
+    Layout,
+    detect_layout,
+    difficulties,
+    index_images,
+    natural_key,
+    raindrop_key,
+    split_folders,
+    stem_key,
+    unpaired_files,
+)
 
 
 @dataclass(frozen=True)
@@ -257,56 +252,6 @@ class PairedDataset:
         return f"PairedDataset({str(self.root)!r}, layout={self.layout!r}, pairs={len(self)})"
 
 
-def detect_layout(folder: Path) -> Layout | None:
-    """Layout of a folder that directly holds the paired sub-folders, or None.
-
-    ``input/`` + ``target/`` are a lenspair split when the parent folder is a
-    lenspair dataset (:func:`is_lenspair_dataset`): a ``manifest.jsonl`` or
-    ``dataset.json`` of another tool beside a plain paired folder made it
-    unreadable (its manifest was read strictly).
-    """
-    folder = Path(folder)
-    if (folder / "input").is_dir() and (folder / "target").is_dir():
-        return "lenspair" if is_lenspair_dataset(folder.parent) else "paired"
-    if (folder / "lq").is_dir() and (folder / "gt").is_dir():
-        return "paired"
-    if (folder / "data").is_dir() and (folder / "gt").is_dir():
-        return "raindrop"
-    return None
-
-
-def is_lenspair_dataset(root: Path) -> bool:
-    """True when ``root`` holds a dataset built by ``dataset-build``.
-
-    Its ``dataset.json`` decides when it is a JSON object: a lenspair card has
-    format ``lenspair-dataset/1``, anything else is another tool's (COCO,
-    Hugging Face). Without a card, or with one that cannot be parsed, the
-    first row of ``manifest.jsonl`` decides: a lenspair manifest row (a dataset
-    whose card was lost or never written), or not. Only that row is read, so
-    a damaged later row is still reported by the strict manifest reader.
-    """
-    try:
-        card = json.loads((Path(root) / CARD_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        card = None
-    if isinstance(card, dict):
-        return card.get("format") == CARD_FORMAT
-    try:
-        with (Path(root) / MANIFEST_FILE).open(encoding="utf-8") as manifest:
-            first = next((line for line in manifest if line.strip()), None)
-        if first is None:
-            return False
-        load_dataclass(ManifestRow, json.loads(first))
-    except (OSError, ValueError, ConfigError):
-        return False
-    return True
-
-
-def split_folders(root: Path) -> list[str]:
-    """Names of ``root``'s sub-folders that hold paired images (a dataset's splits), sorted."""
-    return sorted(p.name for p in Path(root).iterdir() if p.is_dir() and detect_layout(p))
-
-
 def open_paired(
     path: Path, split: str | None = None, strict: bool = True, notes: list[str] | None = None
 ) -> PairedDataset:
@@ -354,16 +299,16 @@ def open_paired(
             f"{folder}: no paired images found (expected input/ + target/, lq/ + gt/, "
             "or Raindrop data/ + gt/)"
         )
-    input_dir, target_dir = _FOLDERS[layout]
+    input_dir, target_dir = FOLDERS[layout]
     if layout == "paired" and not all((folder / d).is_dir() for d in (input_dir, target_dir)):
         # the pair of folders detect_layout found: input/ + target/ first
         input_dir, target_dir = "lq", "gt"
-    key = _raindrop_key if layout == "raindrop" else _stem
+    key = raindrop_key if layout == "raindrop" else stem_key
     skipped: list[str] = []
-    inputs = _index(folder, input_dir, key, skipped)
-    targets = _index(folder, target_dir, key, skipped)
-    masks = _index(folder, "mask", key, skipped) if (folder / "mask").is_dir() else {}
-    unpaired = _unpaired(input_dir, target_dir, inputs, targets, masks)
+    inputs = index_images(folder, input_dir, key, skipped)
+    targets = index_images(folder, target_dir, key, skipped)
+    masks = index_images(folder, "mask", key, skipped) if (folder / "mask").is_dir() else {}
+    unpaired = unpaired_files(input_dir, target_dir, inputs, targets, masks)
     skipped_text = left_out(skipped)
     if unpaired and strict:
         names = listed([f"{file} ({lacks})" for file, lacks in unpaired], 5, ", ")
@@ -381,7 +326,7 @@ def open_paired(
             f"{folder}: left out of the pairs: {skipped_text}; images are files ending "
             f"{SUFFIX_TEXT}",
         )
-    difficulty = _difficulties(folder) if layout == "lenspair" else {}
+    difficulty = difficulties(folder) if layout == "lenspair" else {}
     entries = [
         PairEntry(name, inputs[name], targets[name], masks.get(name), difficulty.get(name))
         for name in sorted(inputs.keys() & targets.keys(), key=natural_key)
@@ -392,71 +337,3 @@ def open_paired(
             say_masks(folder, sum(entry.mask_path is not None for entry in entries), notes)
         bits = folder_bits(folder, [(e.input_path, e.target_path) for e in entries], notes)
     return PairedDataset(folder, layout, entries, unpaired, bits)
-
-
-def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
-    """Sort key that orders embedded numbers by value (``2`` before ``10``)."""
-    parts = re.split(r"(\d+)", name)
-    return tuple((0, int(p)) if p.isdigit() else (1, p) for p in parts if p)
-
-
-def _stem(path: Path) -> str:
-    return path.stem
-
-
-def _raindrop_key(path: Path) -> str:
-    return _RAINDROP_SUFFIX.sub("", path.stem)
-
-
-def _index(
-    folder: Path, sub: str, key: Callable[[Path], str], skipped: list[str]
-) -> dict[str, Path]:
-    """Name -> image file of ``folder/sub``; what is left out goes to ``skipped``.
-
-    ``skipped`` gets ``sub/file`` for a file of another suffix and ``sub/dir/``
-    for a sub-folder (not searched); hidden entries (``.DS_Store``) are passed over.
-    """
-    found: dict[str, Path] = {}
-    for file in sorted((folder / sub).iterdir()):
-        if file.name.startswith("."):
-            continue
-        if file.is_dir():
-            skipped.append(f"{sub}/{file.name}/")
-            continue
-        if file.suffix.lower() not in IMAGE_SUFFIXES:
-            skipped.append(f"{sub}/{file.name}")
-            continue
-        name = key(file)
-        if name in found:
-            raise DatasetError(f"{file}: name {name!r} also used by {found[name].name}")
-        found[name] = file
-    return found
-
-
-def _unpaired(
-    input_dir: str,
-    target_dir: str,
-    inputs: dict[str, Path],
-    targets: dict[str, Path],
-    masks: dict[str, Path],
-) -> list[tuple[str, str]]:
-    """``(file, what it lacks)`` for each file without a partner, in natural order."""
-    unpaired = [
-        (f"{input_dir}/{inputs[n].name}", f"no {target_dir}") for n in inputs.keys() - targets
-    ]
-    unpaired += [
-        (f"{target_dir}/{targets[n].name}", f"no {input_dir}") for n in targets.keys() - inputs
-    ]
-    unpaired += [(f"mask/{masks[n].name}", "no pair") for n in masks.keys() - inputs]
-    return sorted(unpaired, key=lambda orphan: natural_key(orphan[0]))
-
-
-def _difficulties(split_folder: Path) -> dict[str, str]:
-    manifest = split_folder.parent / MANIFEST_FILE
-    if not manifest.is_file():
-        return {}
-    return {
-        row.name: row.difficulty
-        for row in read_manifest(manifest)
-        if row.split == split_folder.name
-    }

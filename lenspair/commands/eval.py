@@ -165,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--data {args.data}: no such folder")
     device = resolve_device(args.device)
     # here, not at the top: keeps `lenspair eval --help` from importing torch
-    from lenspair.dataset.readers import detect_layout
+    from lenspair.dataset.layouts import detect_layout
     from lenspair.model.precision import choose_precision
     from lenspair.model.training.pairs import open_eval_pairs
 
@@ -230,7 +230,7 @@ def _default_calibration(data: Path, split: str) -> "PairSource | None":
     used and a line says so.
     """
     # here, not at the top: these import torch, and `lenspair eval --help` should not
-    from lenspair.dataset.readers import detect_layout, split_folders
+    from lenspair.dataset.layouts import detect_layout, split_folders
     from lenspair.model.training.pairs import open_eval_pairs
 
     if detect_layout(Path(data)) is None:

@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     calibration = None
     if args.int8:  # a bad DS or split fails here, before any file is written
         # likewise: loads torch
-        from lenspair.dataset.readers import detect_layout
+        from lenspair.dataset.layouts import detect_layout
         from lenspair.model.training.pairs import open_eval_pairs
 
         if args.split is not None and detect_layout(args.calibration) is not None:

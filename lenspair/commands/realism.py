@@ -32,7 +32,8 @@ from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
 from lenspair.core.progress import progress
 from lenspair.dataset.errors import DatasetError
-from lenspair.dataset.readers import PairedDataset, detect_layout, open_paired, read_mask
+from lenspair.dataset.layouts import detect_layout
+from lenspair.dataset.readers import PairedDataset, open_paired, read_mask
 from lenspair.simulate.natural_images import fit, load_natural_images
 from lenspair.simulate.presets import DROPS_PRESETS, drops_preset, find_clean_images
 from lenspair.simulate.realism import (

@@ -127,7 +127,7 @@ def _check_places(args: argparse.Namespace) -> None:
     folder (or a split) put the plot among the pairs, and every later command
     refused the data over an unpaired file.
     """
-    from lenspair.dataset.readers import (  # numpy, OpenImageIO
+    from lenspair.dataset.layouts import (  # the dataset package: numpy, OpenImageIO
         IMAGE_FOLDERS,
         detect_layout,
         split_folders,

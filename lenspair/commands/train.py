@@ -231,7 +231,7 @@ def _check_out_apart(args: argparse.Namespace, train_split: str, val_split: str)
     Anything else in the data's tree (DS/runs/...) is fine.
     """
     # here, not at the top: keeps torch and OpenCV out of `lenspair train --help`
-    from lenspair.dataset.readers import detect_layout
+    from lenspair.dataset.layouts import detect_layout
     from lenspair.simulate.presets import CLEAN_FOLDER_NAMES, find_clean_images
 
     why = "its samples.png would be read as an image next time"

@@ -37,7 +37,7 @@ import torch
 
 from lenspair.core.config import dump_yaml, to_plain
 from lenspair.core.fsutil import atomic_write_text
-from lenspair.dataset.readers import detect_layout
+from lenspair.dataset.layouts import detect_layout
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import measure_latency

@@ -19,7 +19,8 @@ from pathlib import Path
 
 from lenspair.core.imageio import image_header
 from lenspair.dataset.folder_notes import evenly_spaced
-from lenspair.dataset.readers import detect_layout, open_paired
+from lenspair.dataset.layouts import detect_layout
+from lenspair.dataset.readers import open_paired
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.data_checks import (

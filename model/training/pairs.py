@@ -30,7 +30,8 @@ from lenspair.core.quality import anomaly_cells, to_grey
 from lenspair.dataset.config import CurationConfig
 from lenspair.dataset.curation import channel_max
 from lenspair.dataset.folder_notes import evenly_spaced
-from lenspair.dataset.readers import detect_layout, open_paired
+from lenspair.dataset.layouts import detect_layout
+from lenspair.dataset.readers import open_paired
 from lenspair.model.errors import ModelError
 
 log = logging.getLogger(__name__)

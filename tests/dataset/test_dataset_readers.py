@@ -9,8 +9,9 @@ from lenspair.core.imagewrite import write_image
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig, SplitConfig
 from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.layouts import detect_layout, natural_key
 from lenspair.dataset.manifest import read_manifest
-from lenspair.dataset.readers import PairedDataset, detect_layout, natural_key, open_paired
+from lenspair.dataset.readers import PairedDataset, open_paired
 from tests.dataset.dataset_synth import RecordingFactory
 
 
