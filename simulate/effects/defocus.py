@@ -52,7 +52,8 @@ def blur_kernel(shifts: np.ndarray, disk_radius_px: float) -> np.ndarray:
         disk_radius_px: thin-lens disk radius, pixels (0 = none).
 
     Returns:
-        ``float32`` ``(2h + 1, 2h + 1)``, non-negative, sums to 1.
+        ``float32`` ``(2h + 1, 2h + 1)``, non-negative, sums to 1, ``h`` the
+        largest offset of a tap that is not zero (``[[1]]`` for no shift).
 
     """
     half = math.ceil(float(np.abs(shifts).max(initial=0.0))) + 1
@@ -71,6 +72,13 @@ def blur_kernel(shifts: np.ndarray, disk_radius_px: float) -> np.ndarray:
         padded = np.pad(kernel, grow)
         kernel = cv2.filter2D(padded, -1, disk, borderType=cv2.BORDER_CONSTANT)
     kernel = np.where(kernel > 1e-9, kernel, 0.0)
+    # cut to the taps that are not zero: a zero shift is [[1]], so a declared blur of
+    # nothing pads the drops by nothing and renders as no defocus (the pad reached into
+    # the rim colour of drops on the frame border)
+    centre = kernel.shape[0] // 2
+    rows, cols = np.nonzero(kernel)
+    reach = int(max(np.abs(rows - centre).max(), np.abs(cols - centre).max()))
+    kernel = kernel[centre - reach : centre + reach + 1, centre - reach : centre + reach + 1]
     normalised: np.ndarray = (kernel / kernel.sum()).astype(np.float32)
     return normalised
 

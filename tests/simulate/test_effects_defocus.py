@@ -169,3 +169,16 @@ def test_glass_too_close_for_the_kernel_is_refused() -> None:
         close.for_camera(350.0)
     assert close.for_camera(30.0).defocus is not None  # a 30 px camera blurs it 18 px
     DefocusSpec(glass_distance_m=0.002, shift_px=3.0, pixel_pitch_um=6.9)  # pixels by hand
+
+
+@given(seed=st.integers(0, 2**31 - 1))
+def test_a_declared_defocus_of_no_blur_renders_as_no_defocus(seed: int) -> None:
+    # a zero shift kept a 3x3 kernel whose pad changed the rim colour of drops on the
+    # frame border: declared zero strength must equal no effect, to the code
+    image = np.random.default_rng(0).integers(0, 256, (72, 96), dtype=np.uint8)
+    drops = RaindropsSpec(count=8, radius_px=(4.0, 12.0))
+    plain = render_effects(image, EffectsSpec(raindrops=drops), np.random.default_rng(seed))
+    zero = EffectsSpec(raindrops=drops, defocus=DefocusSpec(shift_px=0.0))
+    blurred = render_effects(image, zero, np.random.default_rng(seed))
+    assert np.array_equal(plain[0], blurred[0]) and np.array_equal(plain[1], blurred[1])
+    assert defocus.blur_kernel(np.zeros((16, 2)), 0.0).tolist() == [[1.0]]
