@@ -88,6 +88,11 @@ def check_texture(name: str, base_dir: Path) -> str | None:
         if pixel_format not in ("uint8", "uint16"):
             return f"{base_dir / name}: {pixel_format} pixels; a texture is an 8- or 16-bit image"
         return None
+    if Path(name).suffix or "/" in name or "\\" in name:  # meant as a file: say where it looked
+        return (
+            f"{base_dir / name}: no such file (a texture file is read relative to the scene "
+            "spec's folder)"
+        )
     return f"unknown texture {name!r}; use an image file or one of: {', '.join(sorted(NAMES))}"
 
 

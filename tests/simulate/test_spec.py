@@ -97,6 +97,11 @@ def test_round_trip_through_dump(tmp_path: Path) -> None:
         (_with("planes[0].depht_m", 3.0), r"planes\[0\]\.depht_m: unknown key"),
         (_with("planes[0].depth_m", "far"), r"planes\[0\]\.depth_m: expected float"),
         (_with("planes[0].texture", "bricks"), r"planes\[0\]\.texture: unknown texture 'bricks'"),
+        (  # a file name: where it was looked for, not "unknown texture"
+            _with("planes[0].texture", "walls/nofile.png"),
+            r"planes\[0\]\.texture: .*walls/nofile\.png: no such file \(a texture file is read "
+            r"relative to the scene spec's folder\)",
+        ),
         (_with("recording.jitter_us", 20000.0), r"recording: jitter_us: expected 0 <= 3 sigma"),
         (_with("recording.drop_probability", [0.0, 1.0]), r"recording: drop_probability"),
         (_with("obstructed.camera", "cam2"), r"obstructed\.camera: expected one of 'cam0', 'cam1'"),
