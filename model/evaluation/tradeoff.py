@@ -208,7 +208,7 @@ def run_tradeoff(
         meta["evaluated_on"] = f"{pairs_text}; {len(unread)} pair(s) could not be read or " + (
             "scored and are left out (listed in tradeoff.json)"
         )
-    rows = mark_pareto(rows)
+    rows = mark_pareto(rows, None if baseline is None else (baseline.psnr_db, baseline.ssim))
     write_tradeoff(rows, out_dir, meta)
     return TradeoffResult(rows, meta)
 

@@ -80,11 +80,23 @@ def pareto_front(times: Sequence[float | None], scores: Sequence[float]) -> list
     return front
 
 
-def mark_pareto(rows: Sequence[TradeoffRow]) -> list[TradeoffRow]:
-    """Set ``pareto_psnr``/``pareto_ssim`` against CPU time."""
-    times = [r.cpu_ms for r in rows]
-    on_psnr = set(pareto_front(times, [r.psnr_db for r in rows]))
-    on_ssim = set(pareto_front(times, [r.ssim for r in rows]))
+def mark_pareto(
+    rows: Sequence[TradeoffRow], baseline: tuple[float, float] | None = None
+) -> list[TradeoffRow]:
+    """Set ``pareto_psnr``/``pareto_ssim`` against CPU time.
+
+    Args:
+        rows: the table's rows.
+        baseline: the input's ``(PSNR, SSIM)`` without restoration: a choice
+            that takes no time, so a row it beats is on no front (it is not a
+            row itself and is never marked).
+    """
+    times: list[float | None] = [r.cpu_ms for r in rows]
+    psnrs, ssims = [r.psnr_db for r in rows], [r.ssim for r in rows]
+    if baseline is not None:
+        times, psnrs, ssims = [*times, 0.0], [*psnrs, baseline[0]], [*ssims, baseline[1]]
+    on_psnr = set(pareto_front(times, psnrs)) - {len(rows)}
+    on_ssim = set(pareto_front(times, ssims)) - {len(rows)}
     return [
         replace(r, pareto_psnr=i in on_psnr, pareto_ssim=i in on_ssim) for i, r in enumerate(rows)
     ]

@@ -130,6 +130,27 @@ def test_one_verdict_per_network_from_its_fp32_spread_with_the_change_signed(
     assert "not checkable" in text and "does NOT hold" not in text and "could not be made" in text
 
 
+def test_a_row_the_input_beats_beyond_its_spread_is_on_no_seeded_front(tmp_path: Path) -> None:
+    # the input scores the same in every seed: exact, 0 ms; G (20.0/20.2) and GEA
+    # (20.1/20.3) are within each other's spread, and 21.0 dB beats both beyond it
+    def results(baseline: dict[str, float] | None) -> list[TradeoffResult]:
+        meta = {} if baseline is None else {"input_baseline": baseline}
+        return [
+            TradeoffResult(
+                [_row("G", "fp32", 20.0 + seed * 0.2), _row("GEA", "fp32", 20.1 + seed * 0.2)], meta
+            )
+            for seed in (0, 1)
+        ]
+
+    rows = aggregate(results({"psnr_db": 21.0, "ssim": 0.5}), tmp_path, [0, 1], Budget(steps=100))
+    assert [(r.name, r.pareto_psnr, r.pareto_ssim) for r in rows] == [
+        ("G", False, True),  # the SSIM of 0.5 beats neither
+        ("GEA", False, True),
+    ]
+    unmarked = aggregate(results(None), tmp_path, [0, 1], Budget(steps=100))
+    assert [r.pareto_psnr for r in unmarked] == [True, True]  # same time, within the spread
+
+
 _META = {
     "dataset": "ds", "evaluated_on": "ds split test", "budget": "100 steps", "seeds": [0, 1],
     "convention": "skimage-gaussian", "size": "540x360",

@@ -55,6 +55,9 @@ def test_mark_pareto_uses_psnr_and_ssim_separately() -> None:
     rows = mark_pareto([row("a", 1, 20, 0.9), row("b", 2, 25, 0.8), row("c", 3, 24, 0.95)])
     assert [r.pareto_psnr for r in rows] == [True, True, False]
     assert [r.pareto_ssim for r in rows] == [True, False, True]
+    # doing nothing takes no time: a row the input beats is on no front, the rest stay
+    marked = mark_pareto([row("a", 1, 20, 0.9), row("b", 2, 25, 0.8)], baseline=(21.0, 0.85))
+    assert [(r.pareto_psnr, r.pareto_ssim) for r in marked] == [(False, True), (True, False)]
 
 
 def test_parse_budget() -> None:
