@@ -53,7 +53,8 @@ def markdown_report(result: EvalResult) -> str:
         "",
         f"- data: `{result.data}`",
         f"- metric convention: {convention_note(result.convention)}",
-        f"- inference precision: {result.precision}",
+        f"- inference precision: {result.precision}"
+        + (f" ({result.precision_reason})" if result.precision_reason else ""),
         *(
             [
                 f"- agreement with the fp32 output ({result.precision} against fp32, all "

@@ -63,7 +63,10 @@ def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
         + (f" of {meta['cpu']}" if meta.get("cpu") else "")
         + " (n/a at a precision the CPU only emulates); GPU "
         "column only when trained on CUDA",
-        "- Pareto: `*` = on the PSNR-vs-CPU-time front, `+` = on the SSIM-vs-CPU-time front",
+        "- Pareto: `*` = on the PSNR-vs-CPU-time front, `+` = on the SSIM-vs-CPU-time front "
+        "(the input without restoration counts as a 0 ms choice); one training per network: "
+        "a difference smaller than the spread over seeds may decide a mark (`--seeds 0,1,2` "
+        "marks only differences beyond it)",
         "",
         "| name | precision | params | GFLOPs | CPU ms | GPU ms | PSNR (dB) | SSIM | "
         "convention | Pareto |",

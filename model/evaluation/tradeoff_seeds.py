@@ -165,12 +165,22 @@ def aggregate(
                 tail_change_db=change,
             )
         )
+    return mark_seeded(rows, results[0].meta.get("input_baseline"))
+
+
+def mark_seeded(rows: Sequence[SeededRow], baseline: dict[str, float] | None) -> list[SeededRow]:
+    """Set the spread-aware Pareto flags against CPU time.
+
+    Args:
+        rows: the seeded rows.
+        baseline: the input without restoration (``psnr_db``, ``ssim``): it
+            takes no time and scores the same in every seed (the same pairs),
+            so it counts as exact; a row it beats by more than the row's
+            spread is on no front (it is never marked itself).
+    """
     row_times: list[float | None] = [r.cpu_ms for r in rows]
     psnr_rows, ssim_rows = [r.psnr for r in rows], [r.ssim for r in rows]
-    baseline = results[0].meta.get("input_baseline")
-    if baseline:
-        # no restoration takes no time and scores the same in every seed (the same
-        # pairs): exact, so a row it beats by more than the row's spread is on no front
+    if baseline and rows:
         times_seen = max(r.psnr.seeds for r in rows)
         row_times = [*row_times, 0.0]
         psnr_rows.append(summarise_seeds([baseline["psnr_db"]] * times_seen))
@@ -213,7 +223,9 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
         ),
         f"- metric convention: {meta['convention']}; accuracy is mean +/- spread (sample "
         "standard deviation over seeds)",
-        f"- CPU ms: median over seeds of the median per frame (batch 1, {meta['size']})"
+        f"- CPU ms: median over seeds of the median per frame (batch 1, {meta['size']}"
+        + (f", {meta['threads']} threads" if meta.get("threads") else "")
+        + ")"
         + (f", on {meta['cpu']}" if meta.get("cpu") else ""),
         f"- converged: over the last {tail} of the budget (from the last validation at or "
         "before it) the trend (least-squares line) of validation PSNR moved less than the "

@@ -124,6 +124,9 @@ def test_int8_eval_scores_against_target_and_fp32(tmp_path: Path) -> None:
     assert means["latency"][0]["precision"] == "int8"
     assert means["latency"][0]["layout"] == "NCHW (onnxruntime)"
     assert "agreement with the fp32 output" in (out / "metrics.md").read_text()
+    # why this precision (emulated or not) is in the report a reader opens, not only the JSON
+    said = f"- inference precision: int8 ({means['precision_reason']})"
+    assert said in (out / "metrics.md").read_text()
 
 
 def test_default_eval_folder_sits_in_the_run(tmp_path: Path) -> None:

@@ -299,7 +299,9 @@ def test_seeded_tradeoff_reports_mean_spread_convergence_and_published_rows(
     from lenspair.model.precision import read_cpu_flags
 
     cpu = read_cpu_flags()[0]
-    assert meta["cpu"] == cpu and f"(batch 1, {meta['size']}), on {cpu}" in markdown
+    # ... and the threads that timed it
+    timed = f"(batch 1, {meta['size']}, {meta['threads']} threads), on {cpu}"
+    assert meta["cpu"] == cpu and timed in markdown
     # what the budget bought depends on crops, batch and schedule: the table says them
     crop, batch = base.data.crop_size, base.train.batch_size
     said = f"- training: {crop} px crops, batch {batch}, learning rate {base.train.lr:g} constant"
