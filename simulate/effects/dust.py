@@ -9,11 +9,12 @@ transmission is ``a = exp(-tau)`` (Beer-Lambert, so overlapping patches
 multiply) and the veil of light scattered towards the camera is
 ``b = scatter (1 - a)``. Outside the union of the discs ``a = 1`` and
 ``b = 0`` exactly: that union is the dust's footprint. The number of patches
-is chosen so that the expected covered fraction of the image (Poisson
-coverage ``1 - exp(-N E[pi r^2] / (H W))``) equals ``coverage`` (capped
-at 0.99). Fine dust takes many patches (50 % of a 1920x1080 frame under 4 px
-patches: 49,000), so they are evaluated together, window by window, not one
-by one: an earlier cap of 4,096 patches silently covered half what was asked.
+is drawn from a Poisson law whose mean makes the expected covered fraction of
+the image (``1 - exp(-N a / (H W))``, ``a`` a patch's mean area inside the
+frame) equal ``coverage`` (capped at 0.99): :func:`patch_count`. Fine dust takes
+many patches (50 % of a 1920x1080 frame under 4 px patches: 49,000), so they
+are evaluated together, window by window, not one by one: an earlier cap of
+4,096 patches silently covered half what was asked.
 """
 
 import math
@@ -49,14 +50,48 @@ class DustField:
     support: np.ndarray
 
 
-def patch_count(spec: DustSpec, shape: tuple[int, int]) -> int:
-    """Number of patches whose union covers ``spec.coverage`` of the image on average."""
+def _mean_area_in_frame(scale_px: float, shape: tuple[int, int]) -> float:
+    """Mean area of one patch inside the frame, pixels: its centre uniform over the frame.
+
+    For a disc of radius ``r`` and a ``W x H`` frame this is
+    ``(1 / WH) * integral over |d| < r of (W - |d_x|)+ (H - |d_y|)+``, averaged
+    over ``r ~ U(0.5, 1) * scale_px`` (midpoint rule, 8 radii; the disc by a
+    129 x 129 grid). It is ``pi r^2`` less the parts cut off at the frame's
+    edges, and the frame's area for a patch much larger than the frame.
+    """
+    height, width = shape
+    total = 0.0
+    radii = scale_px * (0.5 + (np.arange(8) + 0.5) / 16.0)
+    for radius in radii:
+        half_x, half_y = min(radius, width), min(radius, height)
+        xs = np.linspace(-half_x, half_x, 129)
+        ys = np.linspace(-half_y, half_y, 129)
+        inside = xs[None, :] ** 2 + ys[:, None] ** 2 < radius**2
+        overlap = np.outer(
+            np.maximum(height - np.abs(ys), 0.0), np.maximum(width - np.abs(xs), 0.0)
+        )
+        cell = (xs[1] - xs[0]) * (ys[1] - ys[0])
+        total += float((overlap * inside).sum() * cell) / (height * width)
+    return total / len(radii)
+
+
+def patch_count(spec: DustSpec, shape: tuple[int, int], rng: np.random.Generator) -> int:
+    """Number of patches: Poisson, so that on average ``coverage`` of the frame is covered.
+
+    Patches are a Boolean model: a Poisson number with mean ``n`` of discs,
+    each covering ``a`` of the frame's ``A`` pixels on average, leave a share
+    ``exp(-n a / A)`` uncovered; ``n = -ln(1 - coverage) A / a``. ``a`` is the
+    area inside the frame (:func:`_mean_area_in_frame`): a patch larger than
+    the frame covers the frame, not its whole disc. A fixed count of at least
+    one patch covered several times the share asked for where one patch is
+    larger than that share (a small coverage, a small frame, a large scale).
+    """
     if spec.coverage <= 0.0:
         return 0
     height, width = shape
-    mean_area = math.pi * spec.scale_px**2 * 7.0 / 12.0  # E[r^2] for r ~ U(0.5, 1) * scale
     depth = -math.log(1.0 - min(spec.coverage, 0.99))
-    return max(1, math.ceil(depth * height * width / mean_area))
+    expected = depth * height * width / _mean_area_in_frame(spec.scale_px, shape)
+    return int(rng.poisson(expected))
 
 
 def sample_dust(spec: DustSpec, shape: tuple[int, int], rng: np.random.Generator) -> DustField:
@@ -72,7 +107,7 @@ def sample_dust(spec: DustSpec, shape: tuple[int, int], rng: np.random.Generator
 
     """
     height, width = shape
-    count = patch_count(spec, shape)
+    count = patch_count(spec, shape, rng)
     x = rng.uniform(-0.5, width - 0.5, count)
     y = rng.uniform(-0.5, height - 0.5, count)
     radii = spec.scale_px * rng.uniform(0.5, 1.0, count)

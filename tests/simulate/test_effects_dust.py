@@ -62,6 +62,23 @@ def test_coverage_sets_the_covered_fraction(coverage: float) -> None:
     assert np.mean(fractions) == pytest.approx(coverage, abs=0.12)
 
 
+@pytest.mark.parametrize(
+    ("coverage", "scale_px", "shape"),
+    [(0.01, 40.0, (270, 360)), (0.5, 2000.0, (60, 80))],  # one patch: 3x; one patch: the frame
+)
+def test_coverage_holds_where_one_patch_covers_more_than_is_asked(
+    coverage: float, scale_px: float, shape: tuple[int, int]
+) -> None:
+    # at least one whole patch per frame covered 3x the share asked for, and a patch larger
+    # than the frame counted its whole disc as covering the frame: 100 % for 50 %
+    spec = DustSpec(scale_px=scale_px, coverage=coverage)
+    fractions = [
+        dust.sample_dust(spec, shape, np.random.default_rng(seed)).support.mean()
+        for seed in range(300)
+    ]
+    assert np.mean(fractions) == pytest.approx(coverage, rel=0.3)
+
+
 def test_fine_dust_covers_what_is_asked_on_a_large_frame() -> None:
     # 50 % of 1280x720 under patches of 2-4 px radius takes about 22,000 of them; a cap of
     # 4,096 patches once covered 12 % without a word.
