@@ -133,12 +133,12 @@ def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any])
             ys = [min(getattr(r, key), 100.0) for _, r in front]
             axes.plot(xs, ys, color="tab:red", linewidth=1.5, zorder=2, label="Pareto front")
             axes.scatter(xs, ys, s=140, facecolors="none", edgecolors="tab:red", zorder=4)
-            axes.legend(loc="lower right", fontsize=8)
+            axes.legend(loc="best", fontsize=8)  # where it hides the fewest points
         baseline = meta.get("input_baseline")
         if baseline:
             axes.axhline(min(baseline[key], 100.0), color="grey", linestyle="--", linewidth=1,
                          label="input, no restoration")  # fmt: skip
-            axes.legend(loc="lower right", fontsize=8)
+            axes.legend(loc="best", fontsize=8)  # where it hides the fewest points
         axes.set_xlabel(f"CPU time per {meta['size']} frame (ms, batch 1)")
         axes.set_ylabel(f"{label}, {meta['convention']}")
         axes.grid(True, alpha=0.3)
