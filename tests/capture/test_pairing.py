@@ -1,3 +1,4 @@
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -155,32 +156,30 @@ def test_timestamps_a_camera_cannot_have_are_refused_naming_the_recording() -> N
     check_frame_period(None, "rec/x")  # one frame per camera: no period to judge
 
 
-def test_capture_ingest_refuses_frame_numbers_read_as_times(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize(
+    ("stamp", "said"),
+    [
+        # names like frame0000.png: pairs a frame apart after any drop, so refused
+        (lambda index, t_ns: index, "look like frame numbers"),
+        # Unix milliseconds step by 50 "ns": the refusal called them frame numbers only
+        (lambda index, t_ns: t_ns // 10**6, "Unix times in milli- or microseconds"),
+    ],
+    ids=["frame numbers", "milliseconds"],
+)
+def test_capture_ingest_refuses_stamps_no_camera_has_saying_what_they_may_be(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], stamp: Callable[[int, int], int], said: str
 ) -> None:
-    """Names like frame0000.png: pairs a frame apart after any drop, so refused, one line."""
+    """data.csv stamps a frame or a millisecond apart are refused in one line, nothing written."""
     recording = make_recording(tmp_path / "rec", frames=4)
     for camera in ("cam0", "cam1"):
         listing = recording / "mav0" / camera / "data.csv"
         header, *rows = listing.read_text().splitlines()
-        numbered = [f"{index},{row.split(',')[1]}" for index, row in enumerate(rows)]
-        listing.write_text("\n".join([header, *numbered]) + "\n")
+        restamped = [
+            f"{stamp(index, int(row.split(',')[0]))},{row.split(',')[1]}"
+            for index, row in enumerate(rows)
+        ]
+        listing.write_text("\n".join([header, *restamped]) + "\n")
     assert main(["capture-ingest", str(recording), "--out", str(tmp_path / "out")]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
-    assert str(recording) in line and "look like frame numbers" in line
+    assert str(recording) in line and said in line
     assert not (tmp_path / "out" / "rec").exists()
-
-
-def test_capture_ingest_says_a_data_csv_in_milliseconds_may_be_the_cause(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """Unix milliseconds in data.csv step by 50 "ns": the refusal called them frame numbers only."""
-    recording = make_recording(tmp_path / "rec", frames=4)
-    for camera in ("cam0", "cam1"):
-        listing = recording / "mav0" / camera / "data.csv"
-        header, *rows = listing.read_text().splitlines()
-        in_ms = [f"{int(row.split(',')[0]) // 10**6},{row.split(',')[1]}" for row in rows]
-        listing.write_text("\n".join([header, *in_ms]) + "\n")
-    assert main(["capture-ingest", str(recording), "--out", str(tmp_path / "out")]) == 2
-    (line,) = capsys.readouterr().err.strip().splitlines()
-    assert str(recording) in line and "Unix times in milli- or microseconds" in line
