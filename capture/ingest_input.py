@@ -74,7 +74,8 @@ def open_and_pair(
         time_offset_ns: how far cam1's clock runs ahead of cam0's, ns.
 
     Raises:
-        CaptureError: unreadable recording, no calibration, a frame period
+        CaptureError: unreadable recording, no calibration, a ``time_offset_ns``
+            that leaves no pair where the stamps pair without it, a frame period
             that cannot be paired, or ``--topics`` the other way round from
             the calibration's.
     """
@@ -106,6 +107,13 @@ def open_and_pair(
     check_frame_period(period, recording.path)
     shifted1 = [t - time_offset_ns for t in stamps1]  # on cam0's clock
     pairing = pair_frames(stamps0, shifted1, None if period else SINGLE_FRAME_TOLERANCE_NS)
+    if not pairing.pairs and time_offset_ns and pair_frames(stamps0, stamps1).pairs:
+        # the offset moved every frame out of reach: the one cause worth naming
+        raise CaptureError(
+            f"{recording.path}: --time-offset {time_offset_ns / 1e6:g} ms leaves no cam0 frame "
+            "within pairing tolerance of a cam1 frame (without it they pair): the offset is "
+            "how far cam1's clock runs ahead of cam0's, in milliseconds"
+        )
     said_of_recording = [str(p) for p in recording.problems if p.camera is None]
     # pairs.jsonl names frames by time: one without a time is named here, with its file
     said_of_recording += untimed_frames(recording, rig_file.obstructed)

@@ -183,3 +183,15 @@ def test_capture_ingest_refuses_stamps_no_camera_has_saying_what_they_may_be(
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert str(recording) in line and said in line
     assert not (tmp_path / "out" / "rec").exists()
+
+
+def test_a_time_offset_that_pairs_nothing_is_named_as_the_cause(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # it said "no frame of the two cameras could be paired", without a word of the offset
+    recording = make_recording(tmp_path / "rec", frames=4)
+    args = ["capture-ingest", str(recording), "--out", str(tmp_path / "out")]
+    assert main([*args, "--time-offset", "5000"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{recording}: --time-offset 5000 ms leaves no cam0 frame" in line
+    assert not (tmp_path / "out" / "rec").exists()
