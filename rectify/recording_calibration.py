@@ -139,6 +139,25 @@ def _search_again(
         detections[row][index] = detect_corners(image, board, thorough=True)
 
 
+def _squares_hint(image: np.ndarray, board: Board) -> str:
+    """Why a chessboard may be found in no view: its squares counted, not its inner corners.
+
+    A chessboard spec counts inner corners (OpenCV's, ROS's and Kalibr's
+    convention): a board of 10x7 squares is ``chessboard:9x6``. Given as
+    ``10x7``, it is found in no view, and that was all that was said.
+    """
+    if board.kind != "chessboard" or min(board.columns, board.rows) < 4:
+        return ""
+    corners = replace(board, columns=board.columns - 1, rows=board.rows - 1)
+    if detect_corners(image, corners, thorough=False) is None:
+        return ""
+    return (
+        f"; the frames show a chessboard of {corners.columns}x{corners.rows} inner corners: "
+        f"the spec counts inner corners, not squares (chessboard:{corners.columns}x"
+        f"{corners.rows}:...)"
+    )
+
+
 def _charuco_hint(image: np.ndarray, board: Board) -> str:
     """Why a ChArUco board may be found in no view: its markers' family, or its size.
 
@@ -277,7 +296,9 @@ def calibrate_recording(
         )
     except RectifyError as exc:  # name the recording and what was found in it
         views = [sum(found[i] is not None for found in detections) for i in (0, 1)]
-        hint = _charuco_hint(sample, board) if min(views) == 0 and sample is not None else ""
+        hint = ""
+        if min(views) == 0 and sample is not None:
+            hint = _charuco_hint(sample, board) or _squares_hint(sample, board)
         raise RectifyError(
             f"{recording_path}: {exc} ({len(pairs)} frame pairs examined; the board "
             f"{board.spec()} was found in {views[0]} cam0 and {views[1]} cam1 views){hint}"

@@ -265,6 +265,19 @@ def test_a_charuco_board_found_in_no_view_is_said_to_have_other_markers_or_anoth
         assert said in str(caught.value)
 
 
+def test_a_chessboard_given_by_its_squares_is_said_to_count_inner_corners(
+    tmp_path: Path,
+) -> None:
+    # 10x7 squares given for a 9x6 board: it said only "found in 0 cam0 and 0 cam1 views"
+    board = _board_recording(tmp_path, 4).board
+    assert board is not None and board.kind == "chessboard"
+    squares = parse_board_spec(f"chessboard:{board.cols + 1}x{board.rows + 1}:{board.square_m}")
+    with pytest.raises(RectifyError) as caught:
+        calibrate_recording(tmp_path / "rec", squares, "pinhole-equi")
+    assert "found in 0 cam0 and 0 cam1 views); " in str(caught.value)
+    assert f"a chessboard of {board.cols}x{board.rows} inner corners" in str(caught.value)
+
+
 def test_frames_the_quick_check_missed_are_searched_again_only_where_it_may_pay(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
