@@ -29,6 +29,7 @@ from lenspair.core.bitdepth import significant_bits
 from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.spread import spread_indices
 from lenspair.rectify.registration import EstimationParams, estimate_homography, implausible_turn
 from lenspair.rectify.rig import StereoRig
 
@@ -45,13 +46,6 @@ period off: 32 %.
 """
 
 
-def sample_indices(count: int, limit: int) -> list[int]:
-    """Up to ``limit`` indices spread evenly over ``range(count)``."""
-    if count <= limit:
-        return list(range(count))
-    return sorted({round(i * (count - 1) / (limit - 1)) for i in range(limit)})
-
-
 SampledPair = list[tuple[FrameRef, np.ndarray]]
 """The readable frames of one sampled frame pair, obstructed first, each with its raw image."""
 
@@ -62,7 +56,7 @@ def sampled_pairs(pairs: list[tuple[FrameRef, FrameRef]]) -> list[SampledPair]:
     Unreadable frames are passed over: the frame stage reports them.
     """
     sampled = []
-    for index in sample_indices(len(pairs), BIT_DEPTH_FRAMES):
+    for index in spread_indices(len(pairs), BIT_DEPTH_FRAMES):
         loaded = []
         for frame in pairs[index]:
             with contextlib.suppress(LenspairError):
@@ -210,7 +204,7 @@ def recording_homography(
     Raises:
         CaptureError: no sampled pair can be registered (the first one's reason).
     """
-    chosen = [pairs[i] for i in sample_indices(len(pairs), estimation.max_frames)]
+    chosen = [pairs[i] for i in spread_indices(len(pairs), estimation.max_frames)]
     contents = [(frame_work.content_id(o), frame_work.content_id(c)) for o, c in chosen]
     identity = [[o.t_ns, *content] for (o, _), content in zip(chosen, contents, strict=True)]
     if chosen and all(o == c and not o.startswith("unreadable") for o, c in contents):

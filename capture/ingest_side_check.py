@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from lenspair.capture import ingest_frames as frame_work
-from lenspair.capture.ingest_registration import sample_indices
 from lenspair.capture.recording import FrameRef, Recording, load_frame
 from lenspair.capture.rigfile import CameraName
 from lenspair.capture.side_check import check_obstructed_side
@@ -23,6 +22,7 @@ from lenspair.core.bitdepth import widen
 from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.quality import is_blank
+from lenspair.core.spread import spread_indices
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,7 @@ def check_side(
         The check as ``report.json``'s ``side_check`` holds it, with
         ``blank_pairs_left_out``; ``mismatch`` False when nothing was checked.
     """
-    chosen = [frame_pairs[i] for i in sample_indices(len(frame_pairs), max_frames)]
+    chosen = [frame_pairs[i] for i in spread_indices(len(frame_pairs), max_frames)]
     images0, images1, blank = _side_check_images(chosen, context, SIDE_CHECK_FRAMES)
     nothing = "no readable frame pair to check"
     if blank:

@@ -25,6 +25,7 @@ from lenspair.capture.folders import IMAGE_SUFFIXES as FRAME_SUFFIXES
 from lenspair.core.bitdepth import significant_bits
 from lenspair.core.errors import ImageIOError
 from lenspair.core.imageio import image_header, read_image
+from lenspair.core.spread import spread_indices
 
 log = logging.getLogger(__name__)
 
@@ -44,20 +45,6 @@ def say(notes: list[str] | None, message: str) -> None:
         log.warning("%s", message)
     else:
         notes.append(message)
-
-
-def evenly_spaced(total: int, count: int | None) -> list[int]:
-    """``count`` indices of ``range(total)``, spread evenly over it, in order.
-
-    Index ``i`` is the middle of the ``i``-th of ``count`` equal stretches:
-    deterministic, and over pairs in name order (``<recording>_<t_ns>``) it
-    takes every recording in proportion to its pairs, where the first
-    ``count`` names would be one or two recordings. All of them when
-    ``count`` is None or not below ``total``.
-    """
-    if count is None or count >= total:
-        return list(range(total))
-    return [(2 * i + 1) * total // (2 * count) for i in range(count)]
 
 
 def left_out(skipped: Sequence[str]) -> str:
@@ -101,7 +88,7 @@ def folder_bits(
     to the pair's own checks.
     """
     depths = []
-    for index in evenly_spaced(len(pairs), BIT_DEPTH_PAIRS):
+    for index in spread_indices(len(pairs), BIT_DEPTH_PAIRS):
         for path in pairs[index]:
             try:
                 if image_header(path)[3] == "uint16":

@@ -36,6 +36,7 @@ from lenspair.capture.recording_types import Recording
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_texts, json_text
 from lenspair.core.progress import progress
+from lenspair.core.spread import spread_indices
 from lenspair.rectify.boards import Board
 from lenspair.rectify.calib_types import CalibrationModel, CalibrationOptions, CalibrationResult
 from lenspair.rectify.calibration import calibrate_from_detections
@@ -97,13 +98,6 @@ class RecordingCalibration:
         report["view_names"] = list(self.view_names)
         report["warnings"] = [*self.warnings, *report["warnings"]]
         return report
-
-
-def spread_indices(count: int, limit: int) -> list[int]:
-    """``limit`` indices evenly spread over ``range(count)`` (all when ``limit`` is 0)."""
-    if limit <= 0 or count <= limit:
-        return list(range(count))
-    return sorted({round(float(i)) for i in np.linspace(0, count - 1, limit)})
 
 
 def _search_again(

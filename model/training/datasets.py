@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lenspair.core.imageio import image_header
-from lenspair.dataset.folder_notes import evenly_spaced
+from lenspair.core.spread import spread_indices
 from lenspair.dataset.layouts import detect_layout
 from lenspair.dataset.readers import open_paired
 from lenspair.model.errors import ModelError
@@ -213,7 +213,7 @@ def synthetic_training_data(
     images = find_clean_images(folder)
     train_images, val_images = split_holdout(images, data.val_fraction, folder)
     held_out = len(val_images)  # spread over the folders, as validation pairs are
-    val_images = [val_images[i] for i in evenly_spaced(held_out, data.max_val_images)]
+    val_images = [val_images[i] for i in spread_indices(held_out, data.max_val_images)]
     counts = check_clean_images(folder, train_images, val_images, data.crop_size, notes)
     warn_mixed(folder, "clean images", counts, channels, notes)
     resolved = channels or image_header(images[0])[2]

@@ -27,9 +27,9 @@ from torch.utils.data import Dataset
 from lenspair.core.errors import LenspairError
 from lenspair.core.pixels import to_float
 from lenspair.core.quality import anomaly_cells, to_grey
+from lenspair.core.spread import spread_indices
 from lenspair.dataset.config import CurationConfig
 from lenspair.dataset.curation import channel_max
-from lenspair.dataset.folder_notes import evenly_spaced
 from lenspair.dataset.layouts import detect_layout
 from lenspair.dataset.readers import open_paired
 from lenspair.model.errors import ModelError
@@ -260,7 +260,7 @@ class PairedCrops(Dataset[Sample]):
         vflip: random vertical flips.
         seed: seed of the crops and flips.
         limit: use only ``limit`` pairs, spread evenly over the source
-            (:func:`~lenspair.dataset.folder_notes.evenly_spaced`; validation's
+            (:func:`~lenspair.core.spread.spread_indices`; validation's
             budget): the first ``limit`` by name were one or two recordings of
             ``<recording>_<t_ns>`` names, so ``best.pt`` and early stopping
             judged the network on those alone.
@@ -299,7 +299,7 @@ class PairedCrops(Dataset[Sample]):
         self.hflip, self.vflip = hflip, vflip
         self.seed = seed
         self.epoch = 0
-        self.indices = evenly_spaced(len(source), limit)  # position -> index in source
+        self.indices = spread_indices(len(source), limit)  # position -> index in source
         self.length = len(self.indices)
 
     def set_epoch(self, epoch: int) -> None:

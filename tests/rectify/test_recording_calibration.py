@@ -11,11 +11,11 @@ from hypothesis import strategies as st
 from lenspair.cli import main
 from lenspair.core.imageio import read_image
 from lenspair.core.imagewrite import write_image
+from lenspair.core.spread import spread_indices
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.recording_calibration import (
     calibrate_recording,
-    spread_indices,
     write_calibration,
 )
 from lenspair.rectify.rig import read_kalibr
