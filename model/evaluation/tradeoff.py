@@ -147,6 +147,7 @@ def run_tradeoff(
         "device": str(device),
         "threads": torch.get_num_threads(),
         "cpu": read_cpu_flags()[0],  # the CPU of the CPU ms column (and of training on one)
+        **({"gpu": torch.cuda.get_device_name(device)} if device.type == "cuda" else {}),
         "size": f"{size[1]}x{size[0]}",
         "convention": convention,
         "seed": base.train.seed,

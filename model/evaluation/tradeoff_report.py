@@ -61,8 +61,8 @@ def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
         f"- latency: batch 1 at {meta['size']}, median after warm-up; CPU with "
         f"{meta['threads']} threads"
         + (f" of {meta['cpu']}" if meta.get("cpu") else "")
-        + " (n/a at a precision the CPU only emulates); GPU "
-        "column only when trained on CUDA",
+        + " (n/a at a precision the CPU only emulates); GPU column only when trained on CUDA"
+        + (f", on {meta['gpu']}" if meta.get("gpu") else ""),
         "- Pareto: `*` = on the PSNR-vs-CPU-time front, `+` = on the SSIM-vs-CPU-time front "
         "(the input without restoration counts as a 0 ms choice); one training per network: "
         "a difference smaller than the spread over seeds may decide a mark (`--seeds 0,1,2` "

@@ -71,6 +71,8 @@ class SeededRow:
         params: parameter count.
         gflops: GFLOPs per frame.
         cpu_ms: median over seeds of the median CPU ms per frame (None if unknown).
+        gpu_ms: the same on the GPU (None unless trained on CUDA, or at a precision
+            the GPU does not run).
         psnr: PSNR over seeds, dB.
         ssim: SSIM over seeds.
         converged: the convergence check held on every seed (None: not checkable).
@@ -92,6 +94,7 @@ class SeededRow:
     tail_change_db: float | None
     pareto_psnr: bool = False
     pareto_ssim: bool = False
+    gpu_ms: float | None = None
 
 
 def learning_curve(metrics_csv: Path, unit: str) -> list[tuple[float, float]]:
@@ -149,7 +152,8 @@ def aggregate(
         )
     rows = []
     for (name, precision), same in grouped.items():
-        times = [r.cpu_ms for r in same if r.cpu_ms is not None]
+        cpu_times = [r.cpu_ms for r in same if r.cpu_ms is not None]
+        gpu_times = [r.gpu_ms for r in same if r.gpu_ms is not None]
         psnr = psnrs[(name, precision)]
         ok, change = verdicts[name]
         rows.append(
@@ -158,7 +162,8 @@ def aggregate(
                 precision=precision,
                 params=same[0].params,
                 gflops=same[0].gflops,
-                cpu_ms=statistics.median(times) if times else None,
+                cpu_ms=statistics.median(cpu_times) if cpu_times else None,
+                gpu_ms=statistics.median(gpu_times) if gpu_times else None,
                 psnr=psnr,
                 ssim=summarise_seeds([r.ssim for r in same]),
                 converged=ok,
@@ -208,8 +213,13 @@ def _schedule(training: dict[str, Any]) -> str:
 
 
 def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
-    """The table, its conditions, the convergence verdict and the published rows."""
+    """The table, its conditions, the convergence verdict and the published rows.
+
+    A ``GPU ms`` column is there only when some row was timed on a GPU (a run
+    trained on CUDA); a CPU run's table keeps the columns it always had.
+    """
     tail = f"{CONVERGENCE_TAIL:.0%}"
+    gpu = any(row.gpu_ms is not None for row in rows)
     lines = [
         "# Accuracy against inference time, over seeds",
         "",
@@ -231,20 +241,33 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
         "before it) the trend (least-squares line) of validation PSNR moved less than the "
         "seed spread of the network's fp32 PSNR, on every seed (the largest change, signed, "
         "in brackets; one verdict per network, whatever the precision)",
+        *(
+            [
+                "- GPU ms: the same on "
+                + (meta.get("gpu") or "the GPU")
+                + " (n/a where the GPU did not run a precision); Pareto marks stay "
+                "against CPU time"
+            ]
+            if gpu
+            else []
+        ),
         "- Pareto: `*` PSNR-vs-time, `+` SSIM-vs-time front; a row is dominated only by a "
         "row as fast that is better by more than either spread",
         "",
-        "| name | precision | params | GFLOPs | CPU ms | PSNR (dB) | SSIM | converged | Pareto |",
-        "|---|---|---|---|---|---|---|---|---|",
+        f"| name | precision | params | GFLOPs | CPU ms |{' GPU ms |' if gpu else ''} "
+        "PSNR (dB) | SSIM | converged | Pareto |",
+        "|---|---|---|---|---|" + ("---|" if gpu else "") + "---|---|---|---|",
     ]
     baseline = meta.get("input_baseline")
     if baseline:
         lines.append(
-            f"| input, no restoration | - | 0 | 0 | 0 | {baseline['psnr_db']:.2f} | "
-            f"{baseline['ssim']:.4f} | - | |"
+            f"| input, no restoration | - | 0 | 0 | 0 |{' 0 |' if gpu else ''} "
+            f"{baseline['psnr_db']:.2f} | {baseline['ssim']:.4f} | - | |"
         )
     for row in rows:
         cpu = "n/a" if row.cpu_ms is None else f"{row.cpu_ms:.1f}"
+        if gpu:
+            cpu += " | " + ("n/a" if row.gpu_ms is None else f"{row.gpu_ms:.2f}")
         if row.converged is None:
             verdict = "not checkable"
         else:
@@ -334,6 +357,7 @@ def run_seeded_tradeoff(
                     "params": r.params,
                     "gflops": r.gflops,
                     "cpu_ms": r.cpu_ms,
+                    "gpu_ms": r.gpu_ms,
                     "psnr_db": list(r.psnr.values),
                     "ssim": list(r.ssim.values),
                     "converged": r.converged,

@@ -807,3 +807,42 @@ def test_every_precision_has_its_own_marker_in_the_plot() -> None:
     # int8 rows were drawn as bf16 squares, under a title naming only fp32 and bf16
     assert set(MARKERS) == set(PRECISIONS)
     assert len(set(MARKERS.values())) == len(MARKERS)
+
+
+def test_a_cuda_runs_seeded_table_gives_fp16_rows_their_gpu_time(tmp_path: Path) -> None:
+    from lenspair.model.evaluation.tradeoff_seeds import aggregate, seeded_markdown
+
+    def row(precision: str, cpu: float | None, gpu: float, psnr: float) -> TradeoffRow:
+        return TradeoffRow(name="GEA", variant="GEA", width=1.0, num_blocks=9,
+                           precision=precision, params=708426, gflops=19.7, cpu_ms=cpu,
+                           gpu_ms=gpu, psnr_db=psnr, ssim=0.9, convention="skimage-gaussian",
+                           steps=3)  # fmt: skip
+
+    meta = {"input_baseline": {"psnr_db": 24.0, "ssim": 0.89}}
+    results = [
+        TradeoffResult([row("fp32", 60.0, 2.0, 27.0), row("fp16", None, 1.0, 27.0)], meta),
+        TradeoffResult([row("fp32", 62.0, 4.0, 27.2), row("fp16", None, 3.0, 27.2)], meta),
+        TradeoffResult([row("fp32", 61.0, 9.0, 27.1), row("fp16", None, 2.0, 27.1)], meta),
+    ]
+    rows = aggregate(results, tmp_path, [0, 1, 2], Budget(steps=3))
+    by_precision = {r.precision: r for r in rows}
+    assert by_precision["fp32"].gpu_ms == 4.0 and by_precision["fp16"].gpu_ms == 2.0  # medians
+    assert by_precision["fp16"].cpu_ms is None
+    table_meta = {
+        "dataset": "ds", "evaluated_on": "ds split test", "budget": "3 steps", "seeds": [0, 1, 2],
+        "convention": "skimage-gaussian", "size": "540x360", "gpu": "NVIDIA H200", **meta,
+    }  # fmt: skip
+    text = seeded_markdown(rows, table_meta)
+    assert "| CPU ms | GPU ms | PSNR (dB) |" in text and "the same on NVIDIA H200" in text
+    assert "| input, no restoration | - | 0 | 0 | 0 | 0 | 24.00 |" in text
+    assert "| 19.7 | 61.0 | 4.00 | 27.10 +/- 0.10 |" in text
+    assert "| 19.7 | n/a | 2.00 | 27.10 +/- 0.10 |" in text
+    # a CPU-only run's table keeps the columns it always had
+    cpu_only = [replace(r, gpu_ms=None) for r in rows]
+    plain = seeded_markdown(cpu_only, {k: v for k, v in table_meta.items() if k != "gpu"})
+    assert "GPU ms" not in plain and "| CPU ms | PSNR (dB) |" in plain
+    # the single-seed table names the GPU of its GPU column too
+    from lenspair.model.evaluation.tradeoff_report import tradeoff_markdown
+
+    single = tradeoff_markdown(results[0].rows, {**table_meta, "threads": 2})
+    assert "GPU column only when trained on CUDA, on NVIDIA H200" in single
