@@ -38,7 +38,7 @@ import torch
 from benchmarks.bench_model import HEIGHT, WIDTH, structured_image, untrained_model
 from benchmarks.machine import as_deployed
 from lenspair.commands.argtypes import positive_int
-from lenspair.model.evaluation.export import INPUT_NAME
+from lenspair.model.evaluation.onnx_graph import INPUT_NAME
 from lenspair.model.evaluation.quantize import open_session, quantize_network
 from lenspair.model.metrics import psnr
 from lenspair.model.precision import choose_precision, read_cpu_flags

@@ -20,7 +20,6 @@ report says it could not be checked. torch's new ``dynamo`` exporter needs
 ``onnxscript``; when that is missing the TorchScript-based exporter is used.
 """
 
-import contextlib
 import errno
 import functools
 import importlib.util
@@ -29,7 +28,6 @@ import logging
 import statistics
 import time
 import warnings
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -42,27 +40,16 @@ from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write, atomic_write_bytes
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
-from lenspair.model.inference.backends import session_options
+from lenspair.model.evaluation.onnx_graph import (
+    EXPORTERS,
+    INPUT_NAME,
+    DeployedNetwork,
+    write_onnx,
+)
+from lenspair.model.inference.onnx_session import session_options
 from lenspair.model.networks.padding import MIN_SIDE
 
 log = logging.getLogger(__name__)
-
-ONNX_OPSET = 18
-INPUT_NAME = "image"
-OUTPUT_NAME = "restored"
-
-
-class Restorer(nn.Module):
-    """The deployed network: ``forward(x)`` returns only the enhanced image."""
-
-    def __init__(self, network: nn.Module) -> None:
-        super().__init__()
-        self.network = network
-
-    def forward(self, x: Tensor) -> Tensor:
-        """``(N, C, H, W)`` in [0, 1] -> restored ``(N, C, H, W)`` in [0, 1]."""
-        output: Tensor = self.network(x)[1]
-        return output
 
 
 @dataclass(frozen=True)
@@ -161,117 +148,6 @@ def _time(run: Any, runs: int, warmup: int = 3) -> tuple[float, float]:
     return statistics.median(times), float(np.percentile(times, 90.0))
 
 
-_EXPORTERS = {
-    "dynamo": "torch.onnx (dynamo)",
-    "legacy": "torch.onnx (TorchScript-based)",
-}
-
-
-# Loggers of the ONNX tool chain that narrate every export: the graph optimiser's
-# passes (about 130 INFO lines per GEA export) and torch's note that torchvision,
-# whose operators lenspair never uses, is not installed.
-_EXPORT_CHATTER = {
-    "onnxscript": logging.WARNING,
-    "onnx_ir": logging.WARNING,
-    "torch.onnx._internal.exporter._registration": logging.ERROR,
-}
-
-
-@contextlib.contextmanager
-def _quiet_exporters() -> Iterator[None]:
-    """Silence the exporters' warnings and progress lines for the duration of one export.
-
-    Their real failures still raise; only narration is dropped, so that
-    ``lenspair export`` and the tradeoff's int8 row print lenspair's own lines.
-    """
-    loggers = {logging.getLogger(name): level for name, level in _EXPORT_CHATTER.items()}
-    before = {logger: logger.level for logger in loggers}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # deprecation, tracer and shape-inference chatter
-        for logger, level in loggers.items():
-            logger.setLevel(max(level, logger.getEffectiveLevel()))
-        try:
-            yield
-        finally:
-            for logger, level in before.items():
-                logger.setLevel(level)
-
-
-DYNAMIC_AXES = {0: "batch", 2: "height", 3: "width"}
-"""The exported input's and output's dynamic dimensions, by position in ``(N, C, H, W)``."""
-
-
-def _onnx_export(
-    model: nn.Module, image: Tensor, path: Path, *, exporter: str, dynamic: bool = True
-) -> None:
-    """Run one of torch's ONNX exporters (batch dynamic; H and W too when ``dynamic``).
-
-    ``image`` gives the size the graph is traced at. ``dynamic=False`` fixes H
-    and W at it: for a model only ever run at that size (a quantisation per
-    size, :class:`~lenspair.model.evaluation.quantize.Int8Network`), whose
-    export then takes about a third of the time.
-
-    The graph is traced on a batch of two: traced on one, torch.export
-    specialises the batch dimension to 1 wherever an operation's shape
-    depends on it (the full GEA's did), whatever ``dynamic_shapes`` asks,
-    and ``restore`` with the ONNX file then fails on any batch or tile set.
-    H and W were fixed too, so that ``restore`` ran every other frame size in
-    tiles of the export's, each normalised by its own statistics: up to 109
-    8-bit codes from the checkpoint's output at EuRoC's 752x480.
-    """
-    image = image.expand(2, *image.shape[1:]).contiguous()
-    axes = DYNAMIC_AXES if dynamic else {0: DYNAMIC_AXES[0]}
-    with _quiet_exporters():
-        if exporter == "dynamo":
-            dims = {0: torch.export.Dim("batch", min=1, max=64)}
-            if dynamic:
-                dims[2] = torch.export.Dim("height", min=MIN_SIDE)
-                dims[3] = torch.export.Dim("width", min=MIN_SIDE)
-            torch.onnx.export(
-                model,
-                (image,),
-                str(path),
-                input_names=[INPUT_NAME],
-                output_names=[OUTPUT_NAME],
-                opset_version=ONNX_OPSET,
-                dynamo=True,
-                verbose=False,  # no "[torch.onnx] Obtain model graph..." progress lines
-                external_data=False,
-                dynamic_shapes={"x": dims},
-            )
-        else:
-            torch.onnx.export(
-                model,
-                (image,),
-                str(path),
-                input_names=[INPUT_NAME],
-                output_names=[OUTPUT_NAME],
-                opset_version=ONNX_OPSET,
-                dynamo=False,
-                dynamic_axes={INPUT_NAME: axes, OUTPUT_NAME: axes},
-            )
-            _declare_output_shape(path, tuple(image.shape), axes)
-
-
-def _declare_output_shape(path: Path, shape: tuple[int, ...], axes: dict[int, str]) -> None:
-    """Declare the output's shape as the input's (``axes`` names the dynamic ones), in place.
-
-    The TorchScript-based exporter names every output dimension it cannot
-    infer (``Addrestored_dim_1``), the channels too, and ``restore`` refuses a
-    model whose output channels are not its input's.
-    """
-    import onnx  # only ONNX exports need it
-
-    model = onnx.load(str(path))
-    for output in model.graph.output:
-        for index, dim in enumerate(output.type.tensor_type.shape.dim):
-            if index in axes:
-                dim.dim_param = axes[index]
-            elif index < len(shape):
-                dim.dim_value = shape[index]
-    onnx.save(model, str(path))
-
-
 _DISK_REFUSALS = frozenset(
     {errno.ENOSPC, errno.EFBIG, errno.EDQUOT, errno.EROFS, errno.EIO, errno.EACCES, errno.EPERM}
 )
@@ -317,7 +193,7 @@ def export_onnx(
         ModelError: the export failed (message from the exporter).
 
     """
-    model = Restorer(network).cpu().eval()
+    model = DeployedNetwork(network).cpu().eval()
     image = check_image(channels, size)
     exporters = ["dynamo"] if importlib.util.find_spec("onnxscript") is not None else []
     exporters.append("legacy")  # torch's TorchScript-based exporter needs no onnxscript
@@ -325,9 +201,9 @@ def export_onnx(
     for attempt in exporters:
         try:
             atomic_write(
-                Path(path), functools.partial(_onnx_export, model, image, exporter=attempt), ".onnx"
+                Path(path), functools.partial(write_onnx, model, image, exporter=attempt), ".onnx"
             )
-            exporter = _EXPORTERS[attempt]
+            exporter = EXPORTERS[attempt]
             break
         except Exception as exc:  # exporters raise many types; report one line
             if (refused := _file_system_error(exc)) is not None:
@@ -335,7 +211,7 @@ def export_onnx(
             first = first_line(exc)
             if attempt == exporters[-1]:
                 raise ModelError(f"ONNX export failed: {first}") from exc
-            log.warning("%s failed (%s); trying %s", _EXPORTERS[attempt], first, exporters[-1])
+            log.warning("%s failed (%s); trying %s", EXPORTERS[attempt], first, exporters[-1])
     size_text = _size_text(size)
     if importlib.util.find_spec("onnxruntime") is None:
         note = "onnxruntime is missing (a lenspair dependency): written, not checked"
@@ -386,7 +262,7 @@ def export_torchscript(
         ModelError: tracing failed.
 
     """
-    model = Restorer(network).cpu().eval()
+    model = DeployedNetwork(network).cpu().eval()
     image = check_image(channels, size)
     try:
         with warnings.catch_warnings(), torch.no_grad():

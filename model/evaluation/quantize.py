@@ -50,8 +50,10 @@ from torch import Tensor, nn
 from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.errors import ModelError
-from lenspair.model.evaluation.export import INPUT_NAME, Restorer, _onnx_export, check_image
-from lenspair.model.inference.backends import deploy, session_options
+from lenspair.model.evaluation.export import check_image
+from lenspair.model.evaluation.onnx_graph import INPUT_NAME, DeployedNetwork, write_onnx
+from lenspair.model.inference.backends import deploy
+from lenspair.model.inference.onnx_session import session_options
 from lenspair.model.metrics import psnr
 from lenspair.model.training.pairs import Unread, read_pair, to_tensor
 
@@ -169,13 +171,13 @@ def quantize_network(
 
     if not calibration:
         raise ModelError("int8 calibration: no images to calibrate on")
-    model = Restorer(network).cpu().eval()
+    model = DeployedNetwork(network).cpu().eval()
     with tempfile.TemporaryDirectory(prefix="lenspair-int8-") as folder:
         fp32 = Path(folder) / "fp32.onnx"
         prepared = Path(folder) / "prepared.onnx"
         try:
             image = check_image(channels, size)
-            _onnx_export(model, image, fp32, exporter="dynamo", dynamic=dynamic)
+            write_onnx(model, image, fp32, exporter="dynamo", dynamic=dynamic)
             quant_pre_process(str(fp32), str(prepared), skip_symbolic_shape=True)
         except Exception as exc:  # exporters raise many types; report one line
             raise ModelError(f"int8: ONNX export failed: {first_line(exc)}") from exc
@@ -343,7 +345,7 @@ def check_int8(
     # the model written is calibrated on every image, the one with the most contrast too
     quantize_network(network, channels, path, size, list(calibration))
     session = open_session(path)
-    model = Restorer(network).cpu().eval()
+    model = DeployedNetwork(network).cpu().eval()
     deployed = deploy(copy.deepcopy(model), torch.device("cpu"))
     deployed_image = image.contiguous(memory_format=torch.channels_last)
     with torch.inference_mode():

@@ -185,7 +185,7 @@ def test_failing_dynamo_exporter_falls_back_to_the_legacy_one(
         importlib.util, "find_spec",
         lambda name, *a: real("json") if name == "onnxscript" else real(name, *a),
     )  # fmt: skip
-    original = export._onnx_export
+    original = export.write_onnx
 
     def broken_dynamo(model: torch.nn.Module, image: torch.Tensor, path: Path, *,
                       exporter: str) -> None:  # fmt: skip
@@ -193,7 +193,7 @@ def test_failing_dynamo_exporter_falls_back_to_the_legacy_one(
             raise RuntimeError("dynamo exporter unavailable")
         original(model, image, path, exporter=exporter)
 
-    monkeypatch.setattr(export, "_onnx_export", broken_dynamo)
+    monkeypatch.setattr(export, "write_onnx", broken_dynamo)
     network = load_model(make_checkpoint(tmp_path / "c.pt")).network
     check = export.export_onnx(network, 1, tmp_path / "m.onnx", (32, 48), runs=1)
     assert check.exporter == "torch.onnx (TorchScript-based)"

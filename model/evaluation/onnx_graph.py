@@ -1,0 +1,149 @@
+"""The deployed network as an ONNX graph: its names, its dynamic axes, torch's two exporters.
+
+:class:`DeployedNetwork` is what every export holds: one input ``image``
+``(N, C, H, W)`` float32 in [0, 1], one output ``restored`` (the enhanced
+image), the generator-only output used for training dropped.
+:func:`write_onnx` runs one of torch's ONNX exporters on it with batch,
+height and width dynamic and the exporters' narration silenced; checking
+and timing the file is :mod:`lenspair.model.evaluation.export`'s, and the
+int8 graph (:mod:`lenspair.model.evaluation.quantize`) is written here too.
+"""
+
+import contextlib
+import logging
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+
+import torch
+from torch import Tensor, nn
+
+from lenspair.model.networks.padding import MIN_SIDE
+
+ONNX_OPSET = 18
+INPUT_NAME = "image"
+OUTPUT_NAME = "restored"
+
+
+class DeployedNetwork(nn.Module):
+    """The deployed network: ``forward(x)`` returns only the enhanced image."""
+
+    def __init__(self, network: nn.Module) -> None:
+        super().__init__()
+        self.network = network
+
+    def forward(self, x: Tensor) -> Tensor:
+        """``(N, C, H, W)`` in [0, 1] -> restored ``(N, C, H, W)`` in [0, 1]."""
+        output: Tensor = self.network(x)[1]
+        return output
+
+
+EXPORTERS = {
+    "dynamo": "torch.onnx (dynamo)",
+    "legacy": "torch.onnx (TorchScript-based)",
+}
+
+
+# Loggers of the ONNX tool chain that narrate every export: the graph optimiser's
+# passes (about 130 INFO lines per GEA export) and torch's note that torchvision,
+# whose operators lenspair never uses, is not installed.
+_EXPORT_CHATTER = {
+    "onnxscript": logging.WARNING,
+    "onnx_ir": logging.WARNING,
+    "torch.onnx._internal.exporter._registration": logging.ERROR,
+}
+
+
+@contextlib.contextmanager
+def _quiet_exporters() -> Iterator[None]:
+    """Silence the exporters' warnings and progress lines for the duration of one export.
+
+    Their real failures still raise; only narration is dropped, so that
+    ``lenspair export`` and the tradeoff's int8 row print lenspair's own lines.
+    """
+    loggers = {logging.getLogger(name): level for name, level in _EXPORT_CHATTER.items()}
+    before = {logger: logger.level for logger in loggers}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # deprecation, tracer and shape-inference chatter
+        for logger, level in loggers.items():
+            logger.setLevel(max(level, logger.getEffectiveLevel()))
+        try:
+            yield
+        finally:
+            for logger, level in before.items():
+                logger.setLevel(level)
+
+
+DYNAMIC_AXES = {0: "batch", 2: "height", 3: "width"}
+"""The exported input's and output's dynamic dimensions, by position in ``(N, C, H, W)``."""
+
+
+def write_onnx(
+    model: nn.Module, image: Tensor, path: Path, *, exporter: str, dynamic: bool = True
+) -> None:
+    """Run one of torch's ONNX exporters (batch dynamic; H and W too when ``dynamic``).
+
+    ``image`` gives the size the graph is traced at. ``dynamic=False`` fixes H
+    and W at it: for a model only ever run at that size (a quantisation per
+    size, :class:`~lenspair.model.evaluation.quantize.Int8Network`), whose
+    export then takes about a third of the time.
+
+    The graph is traced on a batch of two: traced on one, torch.export
+    specialises the batch dimension to 1 wherever an operation's shape
+    depends on it (the full GEA's did), whatever ``dynamic_shapes`` asks,
+    and ``restore`` with the ONNX file then fails on any batch or tile set.
+    H and W were fixed too, so that ``restore`` ran every other frame size in
+    tiles of the export's, each normalised by its own statistics: up to 109
+    8-bit codes from the checkpoint's output at EuRoC's 752x480.
+    """
+    image = image.expand(2, *image.shape[1:]).contiguous()
+    axes = DYNAMIC_AXES if dynamic else {0: DYNAMIC_AXES[0]}
+    with _quiet_exporters():
+        if exporter == "dynamo":
+            dims = {0: torch.export.Dim("batch", min=1, max=64)}
+            if dynamic:
+                dims[2] = torch.export.Dim("height", min=MIN_SIDE)
+                dims[3] = torch.export.Dim("width", min=MIN_SIDE)
+            torch.onnx.export(
+                model,
+                (image,),
+                str(path),
+                input_names=[INPUT_NAME],
+                output_names=[OUTPUT_NAME],
+                opset_version=ONNX_OPSET,
+                dynamo=True,
+                verbose=False,  # no "[torch.onnx] Obtain model graph..." progress lines
+                external_data=False,
+                dynamic_shapes={"x": dims},
+            )
+        else:
+            torch.onnx.export(
+                model,
+                (image,),
+                str(path),
+                input_names=[INPUT_NAME],
+                output_names=[OUTPUT_NAME],
+                opset_version=ONNX_OPSET,
+                dynamo=False,
+                dynamic_axes={INPUT_NAME: axes, OUTPUT_NAME: axes},
+            )
+            _declare_output_shape(path, tuple(image.shape), axes)
+
+
+def _declare_output_shape(path: Path, shape: tuple[int, ...], axes: dict[int, str]) -> None:
+    """Declare the output's shape as the input's (``axes`` names the dynamic ones), in place.
+
+    The TorchScript-based exporter names every output dimension it cannot
+    infer (``Addrestored_dim_1``), the channels too, and ``restore`` refuses a
+    model whose output channels are not its input's.
+    """
+    import onnx  # only ONNX exports need it
+
+    model = onnx.load(str(path))
+    for output in model.graph.output:
+        for index, dim in enumerate(output.type.tensor_type.shape.dim):
+            if index in axes:
+                dim.dim_param = axes[index]
+            elif index < len(shape):
+                dim.dim_value = shape[index]
+    onnx.save(model, str(path))
