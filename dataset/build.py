@@ -127,7 +127,8 @@ def build_dataset(
     check_file_system(loaded, out, link)
     measured = _measure(loaded, config.curation.anomaly_delta, workers)
     removed = curation.curate(measured, config.curation)
-    pairs, plan = assemble_rows(loaded, measured, removed, config, _earlier_mode(out))
+    recordings = {source.report.recording_id for source in loaded}
+    pairs, plan = assemble_rows(loaded, measured, removed, config, _earlier_mode(out, recordings))
     if plan.kept_earlier:
         # config.yaml says what was done: with "auto" it would rebuild other splits
         config = replace(config, split=replace(config.split, group_by=plan.mode))
@@ -184,10 +185,20 @@ def _measure(loaded: Sequence[Source], anomaly_delta: float, workers: int | None
     return measured
 
 
-def _earlier_mode(out: Path) -> str | None:
-    """The split grouping mode of the dataset being rebuilt at ``out``, or None."""
-    grouping = read_json_field(out / CARD_FILE, "grouping")
-    return grouping.get("mode") if isinstance(grouping, dict) else None
+def _earlier_mode(out: Path, recordings: set[str]) -> str | None:
+    """The split grouping mode of the dataset at ``out`` that this build extends, or None.
+
+    Only a dataset that shares a recording with ``recordings`` is extended
+    (its pairs are the ones a changed grouping would move); an unrelated
+    dataset replaced with ``--overwrite`` hands on nothing, so the build is
+    the one a fresh ``DS`` gets.
+    """
+    card = out / CARD_FILE
+    grouping, sources = read_json_field(card, "grouping"), read_json_field(card, "sources")
+    if not isinstance(grouping, dict) or not isinstance(sources, list):
+        return None
+    earlier = {source.get("recording") for source in sources if isinstance(source, dict)}
+    return grouping.get("mode") if earlier & recordings else None
 
 
 def _make_card(

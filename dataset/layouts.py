@@ -82,10 +82,16 @@ def split_folders(root: Path) -> list[str]:
     return sorted(p.name for p in Path(root).iterdir() if p.is_dir() and detect_layout(p))
 
 
-def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
-    """Sort key that orders embedded numbers by value (``2`` before ``10``)."""
+def natural_key(name: str) -> tuple[tuple[tuple[int, int | str], ...], str]:
+    """Sort key that orders embedded numbers by value (``2`` before ``10``).
+
+    Names whose numbers differ only in leading zeros (``img1``, ``img01``)
+    have the same value; the name itself then decides, so that the order is
+    total: sorted from a set, pairs came in an order that changed from run to
+    run with Python's string hashing, and a seeded shuffle drew other pairs.
+    """
     parts = re.split(r"(\d+)", name)
-    return tuple((0, int(p)) if p.isdigit() else (1, p) for p in parts if p)
+    return tuple((0, int(p)) if p.isdigit() else (1, p) for p in parts if p), name
 
 
 def stem_key(path: Path) -> str:

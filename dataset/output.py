@@ -9,6 +9,7 @@ user's own files over; :func:`recover_swap` puts back an old dataset that a
 build killed during that swap had set aside.
 """
 
+import json
 import logging
 import os
 import shutil
@@ -21,16 +22,16 @@ from lenspair.core.config import dump_yaml
 from lenspair.core.fsutil import (
     atomic_write_text,
     clone_file,
-    read_json_field,
     temporary_folder,
 )
 from lenspair.core.imagewrite import write_image
 from lenspair.core.leftovers import leftovers
 from lenspair.core.progress import progress
-from lenspair.dataset.card import CARD_FILE, CARD_FORMAT, DatasetCard, contact_sheet, write_card
+from lenspair.dataset.card import CARD_FILE, DatasetCard, contact_sheet, write_card
 from lenspair.dataset.config import SPLITS, DatasetConfig
 from lenspair.dataset.curation import Measured
 from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.layouts import is_lenspair_dataset
 from lenspair.dataset.manifest import (
     MANIFEST_FILE,
     REMOVED_FILE,
@@ -108,11 +109,22 @@ def _own_entries() -> frozenset[str]:
     return frozenset({*SPLITS, MANIFEST_FILE, CARD_FILE, REMOVED_FILE, CONFIG_FILE, *contact})
 
 
+def _json_object(path: Path) -> bool:
+    """Whether ``path`` holds a JSON object (a card, lenspair's or another tool's)."""
+    try:
+        return isinstance(json.loads(path.read_text(encoding="utf-8")), dict)
+    except (OSError, ValueError):
+        return False
+
+
 def out_state(out: Path) -> Literal["absent", "empty", "dataset"]:
     """What ``out`` holds now; raise when it is something that must not be replaced.
 
-    A lenspair dataset is told by its card's format tag: a ``dataset.json``
-    of another tool (COCO, Hugging Face) is not one, even with ``--overwrite``.
+    A lenspair dataset is told as the readers tell it
+    (:func:`~lenspair.dataset.layouts.is_lenspair_dataset`): by its card's
+    format tag, or, with a card that cannot be parsed, by its manifest's first
+    row. A ``dataset.json`` or ``manifest.jsonl`` of another tool (COCO,
+    Hugging Face) is not one, and is never replaced, even with ``--overwrite``.
     """
     if not out.exists():
         return "absent"
@@ -120,16 +132,17 @@ def out_state(out: Path) -> Literal["absent", "empty", "dataset"]:
         raise DatasetError(f"{out}: exists and is not a folder")
     if not any(out.iterdir()):
         return "empty"
-    card = out / CARD_FILE
-    if card.is_file():
-        if read_json_field(card, "format") != CARD_FORMAT:
-            raise DatasetError(
-                f"{out}: its {CARD_FILE} is not a lenspair dataset card; refusing to replace "
-                "the folder (choose another --out)"
-            )
-    elif not (out / MANIFEST_FILE).is_file():
-        raise DatasetError(f"{out}: not empty and not a lenspair dataset; refusing to replace it")
-    return "dataset"
+    if is_lenspair_dataset(out):
+        return "dataset"
+    if _json_object(out / CARD_FILE):
+        raise DatasetError(
+            f"{out}: its {CARD_FILE} is not a lenspair dataset card; refusing to replace "
+            "the folder (choose another --out)"
+        )
+    raise DatasetError(
+        f"{out}: not empty and not a lenspair dataset; refusing to replace it (choose another "
+        "--out)"
+    )
 
 
 def check_replaceable(out: Path, temp: Path, rows: Sequence[ManifestRow] | None = None) -> None:

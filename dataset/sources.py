@@ -121,8 +121,11 @@ def measure_record(source: Source, position: int, index: int, anomaly_delta: flo
     for kind, file in files.items():
         try:
             hashes[kind] = sha256_bytes(file.read_bytes())
-        except OSError:
+        except FileNotFoundError:
             return _removed(base, "missing_file", f"{file}: file missing (named in {PAIRS_FILE})")
+        except OSError as exc:  # a folder in its place, no permission, a failing disk
+            why = exc.strerror or type(exc).__name__
+            return _removed(base, "bad_image", f"{file}: cannot be read ({why})")
         expected = record.sha256.get(kind)
         if expected is not None and expected != hashes[kind]:
             found = hashes[kind][:12]

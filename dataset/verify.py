@@ -146,7 +146,7 @@ def _check_card(root: Path, rows: list[ManifestRow]) -> list[str]:
 
 
 def user_files(root: Path) -> list[Path]:
-    """Files in ``root``'s split folders outside their image folders: a user's.
+    """Files in ``root``'s split folders outside their image folders, or hidden: a user's.
 
     A build writes a split's images into ``input/``, ``target/`` and ``mask/``
     only, so anything else there (an evaluation in ``train/restored/``) is
@@ -170,8 +170,16 @@ def user_files(root: Path) -> list[Path]:
 
 
 def _is_users(relative: Path) -> bool:
-    """``split/...`` outside the split's image folders: the user's (:func:`user_files`)."""
-    return relative.parts[1] not in IMAGE_KINDS
+    """``split/...`` outside the split's image folders, or hidden: the user's (:func:`user_files`).
+
+    A hidden entry (``.DS_Store`` that macOS's Finder leaves in every folder it
+    shows, an editor's swap file) is read by no loader (lenspair's readers pass
+    over it), so in an image folder too it is neither a problem ``--verify``
+    names nor a difference that refuses a rebuild.
+    """
+    return relative.parts[1] not in IMAGE_KINDS or any(
+        part.startswith(".") for part in relative.parts[1:]
+    )
 
 
 def dataset_difference(

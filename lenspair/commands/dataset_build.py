@@ -26,8 +26,11 @@ folder is one; merge split ROS 1 bags into one .bag first).
 Output: DS/{train,val,test}/{input,target[,mask]}/<rec>_<t_ns>.png,
 manifest.jsonl, dataset.json (the card), removed.jsonl (each removed pair
 with its rule and reason), config.yaml and contact_<split>.png. Same inputs
-and seed give byte-identical files, whatever DS held before (the count of
-pairs a rebuild moved is printed, not written into dataset.json).
+and seed give byte-identical files (the count of pairs a rebuild moved is
+printed, not written into dataset.json). One thing carries over: with
+group_by auto, a build that extends DS (shares a recording with it) keeps
+DS's grouping, so that adding recordings does not reshuffle its splits
+(config.yaml names the grouping kept); an unrelated DS hands on nothing.
 
 Images are independent copies of the ingested ones (a reflink where the file
 system supports it, else a byte copy): editing a dataset image never changes

@@ -237,6 +237,24 @@ def test_missing_image_is_skipped_counted_and_warned(
     ]
 
 
+def test_an_image_that_cannot_be_read_is_not_called_missing(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    """Every OSError read as "file missing": a folder in an image's place (or no permission,
+    a failing disk) sent the user looking for a file that is there."""
+    source = recording("rec_a", n=6)
+    records = read_pairs(source / "pairs.jsonl")
+    target = source / records[2].files["target"]
+    target.unlink()
+    target.mkdir()
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    result = build_dataset([source], tmp_path / "DS", config)
+    removed = {rule.rule: rule.removed for rule in result.card.curation}
+    assert removed["missing_file"] == 0 and removed["bad_image"] == 1 and len(result.rows) == 5
+    line = json.loads((tmp_path / "DS" / "removed.jsonl").read_text())
+    assert line["reason"].startswith(f"{target}: cannot be read (Is a directory")
+
+
 def test_checksum_mismatch_rejects_the_pair(recording: RecordingFactory, tmp_path: Path) -> None:
     source = recording("rec_a", n=5)
     records = read_pairs(source / "pairs.jsonl")

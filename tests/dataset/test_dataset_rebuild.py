@@ -78,3 +78,75 @@ def test_a_refused_rebuild_copies_no_image_and_says_no_split_moved(
     assert {(r.recording, r.t_ns): r.split for r in first.rows} != {
         (r.recording, r.t_ns): r.split for r in moved.rows
     }
+
+
+def test_another_tools_manifest_is_never_replaced_even_with_overwrite(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    """A folder with a Hugging Face style ``manifest.jsonl`` (no card) was taken for a
+    lenspair dataset: refused as "a different dataset", then deleted with --overwrite."""
+    other = tmp_path / "other"
+    (other / "train" / "input").mkdir(parents=True)
+    (other / "train" / "input" / "mine.png").write_bytes(b"the user's")
+    (other / "manifest.jsonl").write_text('{"file_name": "train/input/mine.png", "text": "x"}\n')
+    for overwrite in (False, True):
+        with pytest.raises(DatasetError, match="not a lenspair dataset; refusing to replace"):
+            build_dataset([recording("a", n=6)], other, DatasetConfig(), overwrite=overwrite)
+    assert (other / "train" / "input" / "mine.png").read_bytes() == b"the user's"
+
+
+def test_a_dataset_whose_card_is_damaged_can_be_rebuilt(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    """Its manifest still says it is lenspair's (as the readers decide); the card being
+    unparsable read as another tool's card, refused even with --overwrite."""
+    sources = _two(recording)
+    out = tmp_path / "DS"
+    build_dataset(sources, out, DatasetConfig(split=SEGMENTS))
+    fresh = _tree(out)
+    card = out / "dataset.json"
+    card.write_bytes(card.read_bytes()[:300])
+    with pytest.raises(DatasetError, match="holds a different dataset"):
+        build_dataset(sources, out, DatasetConfig(split=SEGMENTS))
+    build_dataset(sources, out, DatasetConfig(split=SEGMENTS), overwrite=True)
+    assert _tree(out) == fresh
+
+
+def test_a_hidden_file_in_an_image_folder_is_no_problem_and_no_difference(
+    recording: RecordingFactory, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """macOS's Finder leaves ``.DS_Store`` in a folder it shows: --verify failed on it and the
+    same rebuild was refused as a different dataset, though no loader reads it."""
+    sources = [str(path) for path in _two(recording)]
+    out = tmp_path / "DS"
+    assert main(["dataset-build", *sources, "--out", str(out)]) == 0
+    junk = out / "train" / "input" / ".DS_Store"
+    junk.write_bytes(b"\x00\x00\x00\x01Bud1")
+    capsys.readouterr()
+    assert main(["dataset-build", "--verify", str(out)]) == 0, capsys.readouterr().out
+    assert main(["dataset-build", *sources, "--out", str(out)]) == 0, capsys.readouterr().err
+    assert junk.read_bytes() == b"\x00\x00\x00\x01Bud1"  # the user's, kept like other such files
+    # an unlisted image is still named: a folder-reading loader would take it
+    (out / "train" / "input" / "stray.png").write_bytes(b"png")
+    capsys.readouterr()
+    assert main(["dataset-build", "--verify", str(out)]) == 1
+    assert "stray.png: not listed in manifest.jsonl" in capsys.readouterr().out
+
+
+def test_an_unrelated_dataset_replaced_hands_on_no_grouping(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    """group_by auto kept the grouping of whatever DS held, even a dataset of other
+    recordings replaced with --overwrite: the build differed from one into a fresh folder."""
+    split = SplitConfig(
+        fractions=(0.5, 0.5, 0.0), min_groups_per_split=1, segment_frames=2, segment_gap_frames=0
+    )
+    config = DatasetConfig(split=split)
+    out = tmp_path / "DS"
+    assert build_dataset([recording("old", n=8)], out, config).card.grouping.mode == "segment"
+    others = [recording("a", n=8), recording("b", n=8, seed=1)]
+    replaced = build_dataset(others, out, config, overwrite=True)
+    assert replaced.card.grouping.mode == "recording"
+    assert not any("kept grouping" in w for w in replaced.card.grouping.warnings)
+    build_dataset(others, tmp_path / "fresh", config)
+    assert _tree(out) == _tree(tmp_path / "fresh")
