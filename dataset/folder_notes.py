@@ -76,7 +76,10 @@ def say_masks(folder: Path, used: int, notes: list[str] | None) -> None:
 
 
 def folder_bits(
-    folder: Path, pairs: Sequence[tuple[Path, Path]], notes: list[str] | None = None
+    folder: Path,
+    pairs: Sequence[tuple[Path, ...]],
+    notes: list[str] | None = None,
+    scaled: str = "input and target are",
 ) -> int:
     """The bits the 16-bit images of a paired folder use: 10, 12 or 16.
 
@@ -84,8 +87,8 @@ def folder_bits(
     and targets of :data:`BIT_DEPTH_PAIRS` of the ``(input, target)`` pairs,
     spread over them (headers first: a folder of 8-bit images reads no
     pixels). One depth for input and target alike, so that a pair stays
-    comparable; below 16 it is said once. A file that cannot be read is left
-    to the pair's own checks.
+    comparable; below 16 it is said once (``scaled`` names what is scaled).
+    A file that cannot be read is left to the pair's own checks.
     """
     depths = []
     for index in spread_indices(len(pairs), BIT_DEPTH_PAIRS):
@@ -100,7 +103,18 @@ def folder_bits(
         say(
             notes,
             f"{folder}: its 16-bit images hold {bits}-bit values (none above {(1 << bits) - 1} "
-            f"in {len(depths)} sampled images): input and target are scaled to the full "
-            "16-bit range, as capture-ingest and restore do",
+            f"in {len(depths)} sampled images): {scaled} scaled to the full 16-bit range, "
+            "as capture-ingest and restore do",
         )
     return bits
+
+
+def clean_bits(folder: Path, images: Sequence[Path], notes: list[str] | None = None) -> int:
+    """The bits the 16-bit images of a folder of clean images use: 10, 12 or 16.
+
+    As :func:`folder_bits`, over single images: drops rendered on a Mono12
+    camera's frames read as 16-bit data were rendered on a nearly black
+    scene (``train --synthetic``, ``realism --images``, the detector's
+    synthetic samples).
+    """
+    return folder_bits(folder, [(path,) for path in images], notes, "the clean images are")

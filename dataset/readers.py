@@ -178,14 +178,22 @@ class PairedDataset:
                 f"{entry.input_path}: {input_image.shape} {input_image.dtype} does not match "
                 f"{entry.target_path} {target.shape} {target.dtype}"
             )
-        if self.bits < 16 and input_image.dtype == np.uint16:
-            input_image = self._widened(entry.input_path, input_image)
-            target = self._widened(entry.target_path, target)
+        input_image = self.widened(entry.input_path, input_image)
+        target = self.widened(entry.target_path, target)
         mask = read_mask(entry, input_image.shape[:2])
         return PairedItem(entry.name, input_image, target, mask, entry.difficulty)
 
-    def _widened(self, path: Path, image: np.ndarray) -> np.ndarray:
-        """``image`` on the full 16-bit scale; a value above :attr:`bits` is this pair's problem."""
+    def widened(self, path: Path, image: np.ndarray) -> np.ndarray:
+        """``image`` (read from ``path``) on the full 16-bit scale, if it holds :attr:`bits`.
+
+        Only a ``uint16`` image of a folder whose 16-bit images hold 10 or 12
+        bits is widened; others are returned as they are.
+
+        Raises:
+            DatasetError: a value above :attr:`bits` (this pair's problem).
+        """
+        if self.bits >= 16 or image.dtype != np.uint16:
+            return image
         top = (1 << self.bits) - 1
         if int(image.max()) > top:
             raise DatasetError(

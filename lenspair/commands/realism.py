@@ -27,11 +27,13 @@ from pathlib import Path
 from typing import Any
 
 from lenspair.commands.argtypes import DEFAULT_SPLIT, out_file, random_seed, size, split_name
+from lenspair.core.bitdepth import widen
 from lenspair.core.errors import ConfigError, LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.imageio import read_image
 from lenspair.core.progress import progress
 from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.folder_notes import clean_bits
 from lenspair.dataset.layouts import detect_layout
 from lenspair.dataset.readers import PairedDataset, open_paired, read_mask
 from lenspair.simulate.natural_images import fit, load_natural_images
@@ -118,9 +120,11 @@ def run(args: argparse.Namespace) -> int:
         skipped: list[PairStatistics] = []
         if args.images is not None:
             images = {}
-            for path in find_clean_images(args.images):
+            paths = find_clean_images(args.images)
+            bits = clean_bits(args.images, paths)  # a Mono12 camera's frames, widened
+            for path in paths:
                 try:
-                    images[path.name] = fit(read_image(path), shape)
+                    images[path.name] = fit(widen(read_image(path), bits), shape)
                 except LenspairError as exc:  # this image only
                     skipped.append(PairStatistics(path.name, None, str(exc)))
         else:
@@ -179,14 +183,19 @@ def _readable(dataset: PairedDataset, unread: list[PairStatistics]) -> Iterator[
 
     The files are read as they are: a grey clean image beside a colour
     obstructed one, or 8 bits beside 16, is measured (both go to grey
-    ``[0, 1]``), where a training set would refuse the pair. An ingested
+    ``[0, 1]``), where a training set would refuse the pair. 16-bit images
+    holding 10- or 12-bit values are widened as the folder's reader says
+    (:meth:`~lenspair.dataset.readers.PairedDataset.widened`). An ingested
     recording's or a dataset's ``mask/`` leaves its untrustworthy pixels
     (residual parallax) out of the statistics: they are the registration's,
     not the glass's.
     """
     for entry in dataset.entries:
         try:
-            obstructed, clean = read_image(entry.input_path), read_image(entry.target_path)
+            obstructed, clean = (
+                dataset.widened(path, read_image(path))
+                for path in (entry.input_path, entry.target_path)
+            )
             if obstructed.shape[:2] != clean.shape[:2]:
                 raise DatasetError(
                     f"{entry.input_path}: {obstructed.shape[1]}x{obstructed.shape[0]} does not "

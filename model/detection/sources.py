@@ -22,8 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+from lenspair.core.bitdepth import widen
 from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import read_image
+from lenspair.dataset.folder_notes import clean_bits
 from lenspair.model.detection.data import (
     MIN_CLEAN_SIDE,
     DetectorSample,
@@ -99,9 +101,11 @@ def clean_images(folder: Path | None, say: bool = False) -> list[np.ndarray]:
     if folder is None:
         return texture_images()
     images = []
-    for path in find_clean_images(folder)[:200]:
+    paths = find_clean_images(folder)[:200]
+    bits = clean_bits(folder, paths, None if say else [])  # a Mono12 camera's frames, widened
+    for path in paths:
         try:
-            image = read_image(path)
+            image = widen(read_image(path), bits)
         except LenspairError as exc:  # this image only, as train and detect skip one
             if say:
                 log.warning("%s: left out of the synthetic samples", exc)

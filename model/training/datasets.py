@@ -19,6 +19,7 @@ from pathlib import Path
 
 from lenspair.core.imageio import image_header
 from lenspair.core.spread import spread_indices
+from lenspair.dataset.folder_notes import clean_bits
 from lenspair.dataset.layouts import detect_layout
 from lenspair.dataset.readers import open_paired
 from lenspair.model.errors import ModelError
@@ -218,11 +219,12 @@ def synthetic_training_data(
     warn_mixed(folder, "clean images", counts, channels, notes)
     resolved = channels or image_header(images[0])[2]
     effects = drops_preset(data.drops)
+    bits = clean_bits(folder, images, notes)
     train = SyntheticDrops.for_training(
-        train_images, effects, resolved, data, seed, substitute_unreadable=True
+        train_images, effects, resolved, data, seed, substitute_unreadable=True, bits=bits
     )
     # validation: drops only (see DataConfig.clear_share)
-    val = SyntheticDrops(val_images, effects, resolved, None, seed=seed, fixed=True)
+    val = SyntheticDrops(val_images, effects, resolved, None, seed=seed, fixed=True, bits=bits)
     description = (
         f"{folder} (synthetic {data.drops} drops on {len(train_images)} clean images, "
         f"validation {len(val)}{'' if len(val) == held_out else f' of {held_out}'} held out "

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from lenspair.core.bitdepth import widen
 from lenspair.core.imageio import read_image
 from lenspair.core.pixels import from_float, to_float
 from lenspair.model.training.config import DataConfig
@@ -59,6 +60,9 @@ class SyntheticDrops(Dataset[Sample]):
             next readable one, with a warning, instead of ending the run
             (training; see :func:`~lenspair.model.training.pairs.read_substituting`);
             validation reports its own.
+        bits: what the 16-bit images hold (10, 12 or 16,
+            :func:`~lenspair.dataset.folder_notes.clean_bits`): below 16 they are
+            read widened to the full 16-bit range (:func:`lenspair.core.bitdepth.widen`).
         clear_share: share of items seen through clear glass: no effect is
             rendered and the input is the target, so that the network learns
             to leave frames without an anomaly as they are (see
@@ -83,6 +87,7 @@ class SyntheticDrops(Dataset[Sample]):
         fixed: bool = False,
         substitute_unreadable: bool = False,
         clear_share: float = 0.0,
+        bits: int = 16,
     ) -> None:
         if not 0.0 <= clear_share < 1.0:
             raise ValueError(f"clear_share: expected 0 <= share < 1, got {clear_share}")
@@ -97,6 +102,7 @@ class SyntheticDrops(Dataset[Sample]):
         self.seed = seed
         self.fixed = fixed
         self.epoch = 0
+        self.bits = bits
 
     @classmethod
     def for_training(
@@ -107,6 +113,7 @@ class SyntheticDrops(Dataset[Sample]):
         data: DataConfig,
         seed: int,
         substitute_unreadable: bool = False,
+        bits: int = 16,
     ) -> "SyntheticDrops":
         """Training items as ``data`` asks for them: its crop, flips and clear share."""
         return cls(
@@ -119,6 +126,7 @@ class SyntheticDrops(Dataset[Sample]):
             seed=seed,
             substitute_unreadable=substitute_unreadable,
             clear_share=data.clear_share,
+            bits=bits,
         )
 
     def set_epoch(self, epoch: int) -> None:
@@ -165,7 +173,7 @@ class SyntheticDrops(Dataset[Sample]):
         return bool(rng.random() < self.clear_share)
 
     def _read(self, index: int) -> tuple[Path, np.ndarray]:
-        return self.images[index], read_image(self.images[index])
+        return self.images[index], widen(read_image(self.images[index]), self.bits)
 
 
 def render_crop(

@@ -155,3 +155,13 @@ def test_only_folder_inputs_are_looked_through(mixed_folder: Path) -> None:
     assert len(unjudged_files(mixed_folder, "folder", judged)) == 3
     assert unjudged_files(mixed_folder / "f00.png", "image", judged) == []
     assert unjudged_files(mixed_folder / "rain.bag", "rosbag1", []) == []
+
+
+def test_the_detectors_clean_images_of_twelve_bits_are_widened(tmp_path: Path) -> None:
+    """A Mono12 camera's frames as clean images: the detector learned drops on near black."""
+    from lenspair.model.detection.sources import clean_images
+
+    scene = np.round(texture((48, 64), seed=2) * 4095).astype(np.uint16)  # 12-bit values
+    write_image(tmp_path / "clean" / "twelve.png", scene)
+    (image,) = clean_images(tmp_path / "clean")
+    assert image.dtype == np.uint16 and int(image.max()) > 32768  # the scene's bright end

@@ -452,6 +452,20 @@ def test_crops_and_flips_depend_on_seed_epoch_and_index(tmp_path: Path) -> None:
     assert not torch.equal(first, data.train[0]["input"])
 
 
+def test_clean_images_of_twelve_bits_are_pretrained_on_widened(tmp_path: Path) -> None:
+    """A Mono12 camera's frames in 16-bit files: drops were rendered on, and the network
+    trained to restore, scenes at 6 % of full scale (4095 of 65535)."""
+    rng = np.random.default_rng(0)
+    for index in range(4):
+        image = clean_image(rng, 40, 56).astype(np.uint16) * 16  # 12-bit values, 8-bit scene
+        write_image(tmp_path / "clean" / f"{index}.png", image)
+    notes: list[str] = []
+    data = synthetic_training_data(tmp_path / "clean", tiny_config().data, None, 0, notes)
+    assert any("hold 12-bit values" in note for note in notes)
+    for item in (data.train[0], data.val[0]):
+        assert float(item["target"].max()) > 0.5  # as bright as the scene, not 1/16 of it
+
+
 def test_synthetic_drops_render_on_the_fly(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     for index in range(5):

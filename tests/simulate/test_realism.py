@@ -341,3 +341,74 @@ def test_cli_reads_the_mask_of_a_paired_folder(
     write_image(folder / "mask" / "1.png", mask[:24])  # another size: this pair skipped
     assert main(["realism", str(folder), "--json", str(out)]) != 0
     assert "does not match" in capsys.readouterr().out
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    step=st.integers(6, 40),
+    side=st.integers(1, 5),
+    offset_code=st.sampled_from([1000, 6554, 13107]),
+)
+def test_a_masks_shape_changes_nothing_where_pixels_are_counted(
+    step: int, side: int, offset_code: int
+) -> None:
+    """The untrusted pixels' difference was set to zero and blurred: beside a grid of small
+    masks a uniform brightening lost a quarter of its coverage and gained detail."""
+    clean = _clean((96, 128))
+    obstructed = clean + np.uint16(offset_code)
+    mask = np.zeros(clean.shape, np.uint8)
+    for top in range(0, 96, step):
+        for left in range(0, 128, step):
+            mask[top : top + side, left : left + side] = 255
+    whole = realism_statistics(obstructed, clean)
+    masked = realism_statistics(obstructed, clean, mask)
+    assert masked.coverage == whole.coverage
+    assert masked.high_frequency == pytest.approx(0.0, abs=1e-6)
+    assert masked.mean_difference == pytest.approx(whole.mean_difference, abs=1e-6)
+
+
+def test_twelve_bit_values_in_16_bit_files_are_measured_widened(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The folder's reader said "scaled to the full 16-bit range", and realism measured the
+    values as stored: a 0.10 brightening read as 0.006 (12-bit values on a 16-bit scale)."""
+    rng = np.random.default_rng(0)
+    clean = rng.integers(1000, 3000, (48, 64)).astype(np.uint16)  # 12-bit values
+    brighter = clean + np.uint16(410)
+    folder = tmp_path / "b12"
+    write_image(folder / "input" / "a.png", brighter)
+    write_image(folder / "target" / "a.png", clean)
+    mixed = tmp_path / "mix12"  # an 8-bit obstructed frame beside a 12-bit clean one
+    write_image(mixed / "input" / "a.png", (brighter // 16).astype(np.uint8))
+    write_image(mixed / "target" / "a.png", clean)
+    out = tmp_path / "realism.json"
+    assert main(["realism", str(folder), str(mixed), "--json", str(out)]) == 0
+    assert "hold 12-bit values" in caplog.text
+    rows = json.loads(out.read_text())
+    (row,) = rows[str(folder)]
+    assert row["mean_difference"] == pytest.approx(410 / 4095, abs=1e-3)
+    assert row["coverage"] == 1.0
+    (row,) = rows[str(mixed)]
+    assert row["mean_difference"] == pytest.approx(410 / 4095, abs=5e-3)
+    assert row["contrast_ratio"] == pytest.approx(1.0, abs=0.02)
+
+
+def test_clean_images_of_twelve_bits_are_rendered_on_widened(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A Mono12 camera's frames as clean images: drops were rendered on a nearly black
+    scene (4095 of 65535), so the statistics measured drops on black."""
+    bright = np.full((96, 128), 0.5)
+    bright[::8] = 0.8
+    images = tmp_path / "clean"
+    write_image(images / "twelve.png", np.round(bright * 4095).astype(np.uint16))
+    write_image(images / "eight.png", np.round(bright * 255).astype(np.uint8))
+    out = tmp_path / "realism.json"
+    args = ["realism", "--render", "ours", "--images", str(images), "--size", "128x96"]
+    assert main([*args, "--json", str(out), "--seed", "3"]) == 0
+    assert "the clean images are scaled to the full 16-bit range" in caplog.text
+    rows = {row["name"]: row for row in json.loads(out.read_text())["ours"]}
+    twelve = next(row for name, row in rows.items() if "twelve" in name)
+    eight = next(row for name, row in rows.items() if "eight" in name)
+    # the same scene at either depth: the same contrast the glass takes away
+    assert twelve["contrast_ratio"] == pytest.approx(eight["contrast_ratio"], abs=0.05)
