@@ -15,7 +15,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from lenspair.core.errors import ImageIOError, first_text_line
-from lenspair.core.pngcheck import png_problem
+from lenspair.core.pngcheck import HEADER_BYTES, png_header_problem, png_problem
 
 _UNKNOWN = "unknown error"  # an OpenImageIO failure that gives no reason
 
@@ -204,6 +204,10 @@ def _opened(path: Path) -> Iterator[Any]:
     # translucent pixel of what the networks and metrics see.
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)
+    if path.suffix.lower() == ".png":  # libpng prints its own line on a damaged header
+        problem = _png_header_problem(path)
+        if problem is not None:
+            raise ImageIOError(f"{path}: {problem}")
     handle = oiio.ImageInput.open(oiio_name(path), config)
     if handle is None:
         raise ImageIOError(
@@ -213,6 +217,20 @@ def _opened(path: Path) -> Iterator[Any]:
         yield handle
     finally:
         handle.close()
+
+
+def _png_header_problem(path: Path) -> str | None:
+    """:func:`~lenspair.core.pngcheck.png_header_problem` of ``path``'s first bytes.
+
+    A file that cannot be read here (missing, no permission) is left to
+    OpenImageIO, which names the reason as it always has.
+    """
+    try:
+        with path.open("rb") as file:
+            head = file.read(HEADER_BYTES)
+    except OSError:
+        return None
+    return png_header_problem(head)
 
 
 READABLE_FORMATS = frozenset({"uint8", "uint16"})

@@ -126,14 +126,17 @@ class SpreadSample(Generic[T]):
         return [self.kept[i][1] for i in sorted(set(spread))]
 
 
-def _sheet_cell(image: np.ndarray, tile_map: np.ndarray, width: int = 480) -> np.ndarray:
-    """The overlay, shrunk to at most ``width`` pixels wide (the sheet shows less)."""
-    cell = overlay(image, tile_map)
-    if cell.shape[1] <= width:
-        return cell
-    height = max(1, round(cell.shape[0] * width / cell.shape[1]))
-    resized: np.ndarray = cv2.resize(cell, (width, height), interpolation=cv2.INTER_AREA)
-    return resized
+def sheet_cell(image: np.ndarray, tile_map: np.ndarray, width: int = 480) -> np.ndarray:
+    """The overlay of ``image`` shrunk to at most ``width`` pixels wide (the sheet shows less).
+
+    The frame is shrunk first and the overlay drawn on that: drawn at full
+    size, its float copies took about 35 bytes a pixel, and one 30000x30000
+    frame in a folder ended ``detect`` killed for memory, no verdict written.
+    """
+    if image.shape[1] > width:
+        height = max(1, round(image.shape[0] * width / image.shape[1]))
+        image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+    return overlay(image, tile_map)
 
 
 def _verdicts(frames: Sequence[InputFrame], verdict: Judgement) -> list[FrameVerdict]:
@@ -243,7 +246,7 @@ def detect_frames(
             if candidates.wants(frame.index):
                 label = f"{frame.name}: {row.kind} p={row.probability:.2f}"
                 tile_map = result.maps[position] if row.obstructed else 0.0 * result.maps[position]
-                candidates.add(frame.index, (_sheet_cell(images[position], tile_map), label))
+                candidates.add(frame.index, (sheet_cell(images[position], tile_map), label))
         batch.clear()
 
     log_times: list[int | None] = []  # per verdict, in order

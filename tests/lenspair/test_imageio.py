@@ -182,3 +182,38 @@ def test_rgba_and_grey_alpha_tiffs_still_read(tmp_path: Path) -> None:
         assert read_image(path).ndim == (3 if len(names) == 4 else 2)
         alpha = read_alpha(path)
         assert alpha is not None and alpha[0, 0] == len(names) - 1
+
+
+@pytest.mark.parametrize(
+    ("damage", "expected"),
+    [
+        ("short", r"truncated \(chunk IHDR at byte 8 cut off\)"),
+        ("garbage", r"corrupt \(no chunk type at byte 12"),
+        ("crc", "chunk IHDR at byte 8: CRC mismatch"),
+    ],
+)
+def test_a_header_read_of_a_damaged_png_is_one_error_and_nothing_on_stderr(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str], damage: str, expected: str
+) -> None:
+    """Only reading pixels checked a PNG first: a header read (bit depth sampling, size
+    checks) let libpng print "libpng error: ... hit end of file" above lenspair's line."""
+    from lenspair.core.imageio import image_header
+
+    good = tmp_path / "good.png"
+    write_image(good, np.zeros((16, 24), np.uint16))
+    data = bytearray(good.read_bytes())
+    if damage == "short":
+        data = data[:20]
+    elif damage == "garbage":
+        data = data[:8] + bytearray(b"this is garbage")
+    else:
+        data[20] ^= 0xFF  # inside IHDR's width
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(bytes(data))
+    capfd.readouterr()
+    with pytest.raises(ImageIOError, match=expected) as info:
+        image_header(bad)
+    assert str(info.value).startswith(f"{bad}: ")
+    assert capfd.readouterr().err == ""
+    # a sound file's header costs no more than its first bytes and reads as before
+    assert image_header(good) == (16, 24, 1, "uint16")

@@ -292,3 +292,21 @@ def test_restore_judges_its_frames_as_already_widened(monkeypatch: pytest.Monkey
     assert judge(network, [dark]).blank[0] != judge(network, [dark], bits=16).blank[0]
     verdict = restore_judge.DetectorJudge(network)(None, dark)  # type: ignore[arg-type]
     assert seen == [16] and verdict is bool(judge(network, [dark], bits=16).obstructed[0])
+
+
+def test_a_contact_sheet_cell_is_drawn_on_the_shrunk_frame(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The overlay was drawn at full size and shrunk after: ~35 bytes a pixel, so one huge
+    frame in a folder got detect killed for memory before it wrote any verdict."""
+    from lenspair.model.detection import report
+
+    drawn: list[tuple[int, ...]] = []
+    real = report.overlay
+    monkeypatch.setattr(report, "overlay", lambda i, t: drawn.append(i.shape) or real(i, t))
+    frame = np.zeros((2400, 3600), np.uint16)
+    frame[:, :1800] = 60000  # the left half bright
+    tiles = np.zeros((150, 225), np.float32)
+    tiles[:, 200:] = 1.0  # the right edge obstructed
+    cell = report.sheet_cell(frame, tiles)
+    assert drawn == [(320, 480)] and cell.shape == (320, 480, 3)
+    assert cell[:, :200].min() > 200  # bright, untinted
+    assert tuple(cell[160, 470]) == (128, 0, 0)  # black, tinted half red
