@@ -207,7 +207,8 @@ def test_detector_only_writes_the_detector_section_from_its_json(tmp_path: Path)
     results = f"{BEGIN}\nkept as it was\n{END}\n"
     readme.write_text(f"# T\n{results}## D\n{DETECTOR_BEGIN}\nold\n{DETECTOR_END}\n")
     figures = _detector_figures(tmp_path / "detector.json")
-    argv = ["--readme", str(readme), "--detector", str(figures)]
+    bench = tmp_path / "bench"
+    argv = ["--readme", str(readme), "--detector", str(figures), "--bench", str(bench)]
     assert main([*argv, "--detector-only", "--check"]) == 1
     assert main([*argv, "--detector-only"]) == 0
     text = readme.read_text()
@@ -215,8 +216,24 @@ def test_detector_only_writes_the_detector_section_from_its_json(tmp_path: Path)
     assert "| test recordings | 128 | 48 | 0.672 | 0.667 | 0.538 | 0.875 | 0.097 |" in text
     assert "35132 steps in 30 min on `cpu`" in text
     assert "| defocused frames: clean | yes | p 0.01 |" in text
-    assert "4.17 ms with its input preparation, 0.013x GEA's 318 ms" in text
+    # the training run timed GEA in NCHW, and the line says so
+    assert "4.17 ms with its input preparation, 0.013x GEA's 318 ms (NCHW)" in text
     assert main([*argv, "--detector-only", "--check"]) == 0
+    # a benchmark run's bench_detector timed GEA as deployed: its figures are the ones shown
+    timed = {
+        "threads": 1, "runs": 40, "gea_layout": "channels-last",
+        "median_ms": {"GEA": 109.07, "detector": 2.04, "judge": 2.15},
+        "ratio_detector_to_gea": 0.0187, "ratio_judge_to_gea": 0.0197,
+        "parameters": {"GEA": 708426, "detector": 81845},
+        "benchmark_run": {"id": "20261129T102205Z-bf7043", "cpu": "AMD EPYC"},
+    }  # fmt: skip
+    atomic_write_json(bench / "detector.json", timed)
+    assert main([*argv, "--detector-only", "--check"]) == 1
+    assert main([*argv, "--detector-only"]) == 0
+    assert (
+        "median of 40 interleaved runs, benchmark run 20261129T102205Z-bf7043 on AMD EPYC): "
+        "2.15 ms with its input preparation, 0.020x GEA's 109 ms (channels-last)"
+    ) in readme.read_text()
     figures.unlink()
     assert main([*argv, "--detector-only"]) == 0
     assert "Not measured yet: this section comes from" in readme.read_text()
