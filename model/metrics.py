@@ -116,6 +116,8 @@ def _check_pair(output: Tensor, target: Tensor) -> None:
         )
     if output.ndim != 4:
         raise ModelError(f"metrics: expected (N, C, H, W) batches, got {tuple(output.shape)}")
+    if output.numel() == 0:  # its mean is NaN, its minimum a torch traceback
+        raise ModelError(f"metrics: empty images (N, C, H, W) = {tuple(output.shape)}")
     for name, tensor in (("output", output), ("target", target)):
         if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
             raise ModelError(f"metrics: {name} holds NaN or infinite values")
@@ -356,14 +358,14 @@ def image_metrics(
             or images on another scale (integer codes, 0-255 floats).
     """
     convention = parse_metric_convention(str(convention))
+    _check_pair(output, target)
     _check_scale(output, target, convention)
-    if convention is MetricConvention.SKIMAGE_GAUSSIAN:  # psnr and ssim check the pair
+    if convention is MetricConvention.SKIMAGE_GAUSSIAN:
         return ImageMetrics(
             psnr=psnr(output, target, data_range=1.0, valid=valid),
             ssim=ssim(output, target, data_range=1.0, gaussian_weights=True, valid=valid),
             convention=convention,
         )
-    _check_pair(output, target)
     output_y = luma_uint8(quantize_uint8(output))
     target_y = luma_uint8(quantize_uint8(target))
     return ImageMetrics(

@@ -202,6 +202,20 @@ def test_errors() -> None:
 
 
 @pytest.mark.parametrize("convention", list(MetricConvention))
+@pytest.mark.parametrize("shape", [(1, 1, 0, 32), (0, 1, 32, 32)])
+def test_empty_images_are_refused_never_nan(
+    convention: MetricConvention, shape: tuple[int, ...]
+) -> None:
+    """psnr gave NaN for an image of no rows (the module promises never NaN), and
+    image_metrics a torch traceback from taking the minimum of nothing."""
+    empty = torch.zeros(shape)
+    with pytest.raises(ModelError, match=r"metrics: empty images \(N, C, H, W\)"):
+        psnr(empty, empty)
+    with pytest.raises(ModelError, match="empty images"):
+        image_metrics(empty, empty, convention)
+
+
+@pytest.mark.parametrize("convention", list(MetricConvention))
 def test_images_on_another_scale_are_refused_not_misscored(convention: MetricConvention) -> None:
     rng = np.random.default_rng(11)
     codes = rng.integers(0, 256, (1, 1, 24, 24), dtype=np.uint8)
