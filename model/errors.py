@@ -9,3 +9,7 @@ class ModelError(LenspairError):
 
 class TrainingDivergedError(ModelError):
     """Training diverged: too many consecutive non-finite steps, or a NaN/Inf network output."""
+
+
+class NonFiniteOutputError(ModelError):
+    """A network gave NaN or Inf for a finite input: the network's fault, never the pair's."""

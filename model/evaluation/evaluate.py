@@ -63,6 +63,10 @@ class EvalResult:
         unread: pairs that could not be read or scored, and why (not in any mean).
         data_path: the scored folder, resolved, as ``lenspair eval`` sets it
             (it tells evaluations of namesake datasets apart by it).
+        calibration: int8 only: the images the quantisation was calibrated on
+            (the scored ones themselves make its accuracy optimistic).
+        conversion: how the pairs' channels were converted to the network's
+            (a mono network scored on colour pairs scores luma), or "".
 
     """
 
@@ -82,6 +86,8 @@ class EvalResult:
     precision_reason: str = ""
     unread: list[Unread] = field(default_factory=list)
     data_path: str = ""
+    calibration: str = ""
+    conversion: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready means (per-image scores stay in the CSV)."""
@@ -102,6 +108,8 @@ class EvalResult:
             "latency": [lat.as_dict() for lat in self.latency],
             "versus_fp32": None if self.versus_fp32 is None else asdict(self.versus_fp32),
             "precision_reason": self.precision_reason,
+            "calibration": self.calibration or None,
+            "conversion": self.conversion or None,
             "unread": [asdict(u) for u in self.unread],
         }
 
@@ -148,6 +156,14 @@ def evaluate_checkpoint(
     first = _first_readable(pairs, leading)
     if note := conversion_note(channels, channels_of(first.input), data):
         log.warning("%s", note)
+    calibrated = ""
+    if precision == "int8":
+        calibrated = (
+            "the evaluated pairs themselves: int8's accuracy here is optimistic"
+            if calibration is None
+            else f"{getattr(calibration, 'root', 'the given pairs')} (an evenly spaced "
+            f"sample of its {len(calibration)} pairs' inputs)"
+        )
     size = (int(first.input.shape[0]), int(first.input.shape[1]))
     source = pairs if calibration is None else calibration
     network = _deployed(loaded, channels, device, precision, source, size)
@@ -193,6 +209,8 @@ def evaluate_checkpoint(
         versus_fp32=versus_fp32,
         precision_reason=precision_reason,
         unread=unread,
+        calibration=calibrated,
+        conversion=note or "",
     )
 
 

@@ -64,6 +64,8 @@ def markdown_report(result: EvalResult) -> str:
             if result.versus_fp32 is not None
             else []
         ),
+        *([f"- int8 calibrated on: {result.calibration}"] if result.calibration else []),
+        *([f"- channels: {result.conversion}"] if result.conversion else []),
         "",
         "| subset | pairs | PSNR (dB) | SSIM | input PSNR (dB) | input SSIM | convention |",
         "| --- | ---: | ---: | ---: | ---: | ---: | --- |",

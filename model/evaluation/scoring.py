@@ -30,6 +30,7 @@ from lenspair.core.errors import LenspairError, listed
 from lenspair.core.pixels import max_value
 from lenspair.core.progress import progress
 from lenspair.dataset.curation import channel_max
+from lenspair.model.errors import NonFiniteOutputError
 from lenspair.model.evaluation.latency import autocast_context
 from lenspair.model.evaluation.summary import (
     DIFFICULTY_ORDER,
@@ -157,10 +158,19 @@ def score_pairs(
             target = to_tensor(item.target, channels)[None].to(device)
             valid = trusted(item)
             with autocast_context(device, precision):
-                output = network(x)[1]
-            output = _quantize(output.float(), item.target.dtype)
+                output = network(x)[1].float()
+            # checked before the quantisation, whose clamp turns Inf into 1
+            if not bool(torch.isfinite(output).all()) and bool(torch.isfinite(x).all()):
+                raise NonFiniteOutputError(
+                    f"{item.name}: the network's output at {precision} holds NaN or Inf on a "
+                    "finite input: the checkpoint (or this precision) is broken, not the pair; "
+                    "no mean over the other pairs is written"
+                )
+            output = _quantize(output, item.target.dtype)
             psnr, ssim = score_tensors(output, target, convention, valid)
             input_psnr, input_ssim = score_tensors(x.float(), target, convention, valid)
+        except NonFiniteOutputError:
+            raise  # the network's problem: a mean over the pairs it did not break would hide it
         except LenspairError as exc:  # e.g. smaller than the SSIM window: this pair only
             log.warning("skipped pair %d: %s: %s", index, item.name, exc)
             bad.append(Unread(index, f"{item.name}: {exc}"))

@@ -385,6 +385,13 @@ def test_a_mono_network_on_colour_pairs_says_so(
         evaluate_checkpoint(checkpoint, colour, "test", torch.device("cpu"), latency_runs=0)
     warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert any("1 channel(s)" in m and "have 3" in m and "luma" in m for m in warned), warned
+    # the written report says it too: read later, its scores are of luma, not of colour
+    out = tmp_path / "eval"
+    assert main(["eval", str(checkpoint), "--data", str(colour), "--out", str(out),
+                 "--latency-runs", "0"]) == 0  # fmt: skip
+    conversion = json.loads((out / "metrics.json").read_text())["conversion"]
+    assert "converted to luma" in conversion
+    assert f"- channels: {conversion}" in (out / "metrics.md").read_text()
 
 
 @pytest.mark.parametrize("layout", ["dataset", "folder"])
@@ -411,10 +418,15 @@ def test_int8_eval_calibrates_off_the_scored_images_where_it_can(
     args = ["eval", str(checkpoint), "--data", str(data), "--out", str(tmp_path / "eval")]
     assert main([*args, "--device", "cpu", "--precision", "int8", "--latency-runs", "1"]) == 0
     printed = capsys.readouterr().out
+    # the written report says what int8 was calibrated on, not only the console
+    said = json.loads((tmp_path / "eval" / "metrics.json").read_text())["calibration"]
+    assert f"- int8 calibrated on: {said}" in (tmp_path / "eval" / "metrics.md").read_text()
     if layout == "dataset":  # the train split's 5 pairs, not the 2 scored test pairs
         assert sizes == [counts["train"]] and "split train" in printed
+        assert said.startswith(str(data / "train")) and "its 5 pairs" in said
     else:  # nothing else to calibrate on: the scored pairs, and the output says so
         assert sizes == [2] and "optimistic" in printed
+        assert said.startswith("the evaluated pairs themselves") and "optimistic" in said
     if layout == "dataset":  # no train split: another unscored one, said after it opened
         shutil.rmtree(data / "train")
         sizes.clear()
@@ -555,3 +567,23 @@ def test_a_report_without_samples_leaves_no_earlier_contact_sheet(tmp_path: Path
         "metrics.json",
         "metrics.md",
     }
+
+
+def test_a_network_that_outputs_nan_is_refused_not_averaged_over_the_rest(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A NaN output on a finite input is the network's fault: eval recorded those pairs as
+    unreadable and wrote the mean of the others, exit 0, as if the data were to blame."""
+    folder = write_paired_folder(tmp_path / "pairs", count=4)
+    checkpoint = make_checkpoint(tmp_path / "ckpt.pt")
+    state = torch.load(checkpoint, weights_only=False)
+    weights = state["model"]
+    name = next(k for k in weights if k.endswith("weight") and weights[k].ndim == 4)
+    weights[name] = weights[name] * 1e38  # finite weights, an output that overflows
+    torch.save(state, checkpoint)
+    out = tmp_path / "eval"
+    args = ["eval", str(checkpoint), "--data", str(folder), "--out", str(out)]
+    assert main([*args, "--latency-runs", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "holds NaN or Inf on a finite input" in err
+    assert not (out / "metrics.json").exists()
