@@ -7,7 +7,13 @@ import torch
 
 from lenspair.model.checkpoint import load_model
 from lenspair.model.networks.enhancer import Enhancer
-from lenspair.model.networks.layers import FLAT_RAMP, FLAT_TOLERANCE, InstanceNorm, flat_keep
+from lenspair.model.networks.layers import (
+    FLAT_RAMP,
+    FLAT_RMS_RAMP,
+    FLAT_TOLERANCE,
+    InstanceNorm,
+    flat_keep,
+)
 from lenspair.model.networks.variants import build_discriminator, build_model
 from lenspair.model.training.losses import LossWeights, discriminator_loss, generator_loss
 from lenspair.model.training.pretrained import pretrained_weights
@@ -161,11 +167,45 @@ def test_only_flat_samples_are_marked() -> None:
     batch[1, 0, 3, 4] += 0.4 * FLAT_TOLERANCE  # within the tolerance
     keep = flat_keep(batch.contiguous(memory_format=torch.channels_last))
     assert keep is not None and keep.flatten().tolist() == [1.0, 0.0]
-    batch[1, 2, 5, 6] += 2 * FLAT_TOLERANCE  # one channel varies: nearly flat
-    keep = flat_keep(batch)
-    assert keep is not None and keep[0].item() == 1.0 and 0.0 < keep[1].item() < 1.0
-    batch[1, 2, 5, 6] += FLAT_RAMP  # varies as much as a camera's noise: not flat
+    # one channel varies by little everywhere: nearly flat, by either measure
+    bump = torch.where(torch.arange(320).view(16, 20) % 2 == 0, 1.0, -1.0)
+    batch[1, 2] += 1.5 * FLAT_TOLERANCE * bump
+    for layout in (torch.contiguous_format, torch.channels_last):
+        keep = flat_keep(batch.contiguous(memory_format=layout))
+        assert keep is not None and keep[0].item() == 1.0 and 0.0 < keep[1].item() < 1.0
+    batch[1, 2] += FLAT_RAMP * bump  # varies as much as a camera's noise: not flat
     assert flat_keep(batch) is None
+
+
+@pytest.mark.parametrize("layout", [torch.contiguous_format, torch.channels_last])
+def test_a_noiseless_flat_frame_with_a_speck_counts_as_flat(
+    layout: torch.memory_format,
+) -> None:
+    """Its spread at the speck passed the ramp, but its energy is that of a flat frame: the
+    norms scaled the speck up 316x, and 4 codes off mid-grey came out as a blotch of 75."""
+    frame = torch.full((1, 3, 64, 96), 0.5)
+    for speck in (4.0, 30.0):
+        for where in ((32, 48), (0, 0)):  # the corner too: the RMS is about the mean
+            specked = frame.clone()
+            specked[0, 0, where[0], where[1]] += speck / 255.0
+            keep = flat_keep(specked.contiguous(memory_format=layout))
+            assert keep is not None and keep.item() == 0.0, (speck, where)
+    # a camera's noise of about a code is not flat, whatever its spread
+    noise = torch.randn((1, 3, 64, 96), generator=torch.Generator().manual_seed(2))
+    assert flat_keep((frame + noise * FLAT_RMS_RAMP * 1.2).contiguous(memory_format=layout)) is None
+
+
+def test_the_shipped_network_leaves_a_speck_on_a_flat_frame_local() -> None:
+    """At most the speck itself changes, as with a camera's noise; a 4-code speck on mid-grey
+    made a 75-code blotch about 50 pixels wide."""
+    network = _shipped_gea()
+    frame = torch.full((1, 1, 96, 128), 0.5)
+    specked = frame.clone()
+    specked[0, 0, 48, 64] += 4 / 255
+    with torch.inference_mode():
+        change = (network(specked).enhanced - network(frame).enhanced).abs().clone()
+        change[0, 0, 48, 64] = 0.0
+    assert float(change.max()) < 1 / 255
 
 
 def test_the_output_is_continuous_across_the_flat_tolerance() -> None:
