@@ -14,6 +14,7 @@ import logging
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -98,6 +99,11 @@ def write_onnx(
     """
     image = image.expand(2, *image.shape[1:]).contiguous()
     axes = DYNAMIC_AXES if dynamic else {0: DYNAMIC_AXES[0]}
+    names: dict[str, Any] = {
+        "input_names": [INPUT_NAME],
+        "output_names": [OUTPUT_NAME],
+        "opset_version": ONNX_OPSET,
+    }
     with _quiet_exporters():
         if exporter == "dynamo":
             dims = {0: torch.export.Dim("batch", min=1, max=64)}
@@ -108,9 +114,7 @@ def write_onnx(
                 model,
                 (image,),
                 str(path),
-                input_names=[INPUT_NAME],
-                output_names=[OUTPUT_NAME],
-                opset_version=ONNX_OPSET,
+                **names,
                 dynamo=True,
                 verbose=False,  # no "[torch.onnx] Obtain model graph..." progress lines
                 external_data=False,
@@ -121,9 +125,7 @@ def write_onnx(
                 model,
                 (image,),
                 str(path),
-                input_names=[INPUT_NAME],
-                output_names=[OUTPUT_NAME],
-                opset_version=ONNX_OPSET,
+                **names,
                 dynamo=False,
                 dynamic_axes={INPUT_NAME: axes, OUTPUT_NAME: axes},
             )
