@@ -6,6 +6,7 @@ where only a time makes sense (``train --max-seconds``), a bare number is
 seconds.
 """
 
+import math
 import re
 
 UNIT_SECONDS = {"s": 1.0, "m": 60.0, "h": 3600.0}
@@ -20,8 +21,9 @@ def steps_or_seconds(text: str) -> tuple[int | None, float | None]:
     """``"500"`` -> ``(500, None)``; ``"90s"``, ``"10m"``, ``"1h"`` -> ``(None, seconds)``.
 
     Raises:
-        ValueError: not that form, not positive, or a fractional step count
-            (the message says which, without naming the option).
+        ValueError: not that form, not positive, too large to be finite
+            (``1e400``), or a fractional step count (the message says which,
+            without naming the option).
     """
     match = _FORM.fullmatch(text.lower())
     if match is None:
@@ -29,6 +31,9 @@ def steps_or_seconds(text: str) -> tuple[int | None, float | None]:
     value, unit = float(match.group(1)), match.group(2)
     if value <= 0:
         raise ValueError(f"must be positive, got {text!r}")
+    if not math.isfinite(value * UNIT_SECONDS.get(unit, 1.0)):
+        # float() reads 1e400 as inf: recorded in config.yaml, that refused the run's checkpoint
+        raise ValueError(f"too large to be a number of steps or seconds, got {text!r}")
     if not unit:
         if value != int(value):
             raise ValueError(f"steps must be a whole number, got {text!r}")
@@ -40,9 +45,13 @@ def seconds(text: str) -> float:
     """A positive time: ``"90"`` or ``"90s"`` -> 90.0, ``"10m"`` -> 600.0, ``"1h"`` -> 3600.0.
 
     Raises:
-        ValueError: not a positive number with an optional unit s, m or h.
+        ValueError: not a positive number with an optional unit s, m or h, or
+            one too large to be finite (``1e400``, which ``float`` reads as inf).
     """
     match = _FORM.fullmatch(text.lower())
     if match is None or float(match.group(1)) <= 0:
         raise ValueError(f"expected a positive time like 90, 90s, 10m, 1h; got {text!r}")
-    return float(match.group(1)) * UNIT_SECONDS[match.group(2) or "s"]
+    value = float(match.group(1)) * UNIT_SECONDS[match.group(2) or "s"]
+    if not math.isfinite(value):
+        raise ValueError(f"too large to be a number of seconds, got {text!r}")
+    return value

@@ -20,6 +20,7 @@ configuration and comparing two are in
 :mod:`lenspair.model.training.config_loading`.
 """
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -225,6 +226,12 @@ class TrainConfig:
     checkpoint_every_seconds: float | None = 600.0
 
     def __post_init__(self) -> None:
+        # the YAML loader refuses inf and NaN; a config built in Python must too, or its
+        # config.yaml (max_seconds: .inf) refuses the run's checkpoint afterwards
+        for name in ("lr", "max_seconds", "checkpoint_every_seconds", "grad_clip"):
+            value = getattr(self, name)
+            if value is not None and not math.isfinite(value):
+                raise ValueError(f"{name}: expected a finite number, got {value}")
         if self.checkpoint_every_steps is not None and self.checkpoint_every_steps < 1:
             raise ValueError(
                 f"checkpoint_every_steps: expected >= 1, got {self.checkpoint_every_steps}"

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from lenspair.core.errors import ImageIOError, listed
 from lenspair.core.imageio import format_problem, image_header
+from lenspair.core.spread import spread_indices
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.readers import PairedDataset
 from lenspair.model.metrics import gaussian_window
@@ -76,6 +77,59 @@ def check_training_images(
             "leave them out"
         )
     warn_mixed(paired.root, "training pairs", counts, channels, notes)
+
+
+def check_validation_images(
+    source: PairSource,
+    headers: dict[int, list[tuple[int, int, int, str]]],
+    limit: int | None,
+    notes: list[str] | None = None,
+) -> None:
+    """Validation pairs are large enough for SSIM's window: from headers, up front.
+
+    Validation leaves a pair under the window out (with a warning, at the
+    first validation), and refuses when it can score none: found only after
+    the first epoch of training, which was lost with no ``last.pt``. The
+    same as :func:`check_clean_images` does for held-out clean images.
+
+    Args:
+        source: the validation pairs.
+        headers: as for :func:`check_training_images`.
+        limit: ``data.max_val_images``: only the pairs validation scores
+            (:func:`~lenspair.core.spread.spread_indices`, as
+            :class:`~lenspair.model.training.pairs.PairedCrops` picks them).
+        notes: collects the warning about some pairs instead of logging it.
+
+    Raises:
+        DatasetError: every pair validation scores is under the window
+            (naming the folder, the window and the first three).
+    """
+    paired = source.source if isinstance(source, SubsetSource) else source
+    if not isinstance(paired, PairedDataset) or id(paired) not in headers:
+        return
+    indices = source.indices if isinstance(source, SubsetSource) else range(len(paired))
+    scored = [indices[position] for position in spread_indices(len(indices), limit)]
+    window = gaussian_window().numel()  # the SSIM window of VAL_CONVENTION
+    small = []
+    for index in scored:
+        height, width = headers[id(paired)][index][:2]
+        if min(height, width) < window:
+            small.append(f"{paired.entries[index].input_path} ({width}x{height})")
+    if not small:
+        return
+    where = paired.root if paired is source else f"the pairs held out of {paired.root}"
+    what = f"smaller than validation's {window}x{window} SSIM window"
+    if len(small) == len(scored):
+        raise DatasetError(
+            f"{where}: every one of the {len(scored)} validation pair(s) is {what}, so none "
+            f"can be scored: {listed(small, 3, ', ')}; give validation pairs of at least "
+            f"{window}x{window} px"
+        )
+    warn_or_note(
+        notes,
+        f"{where}: validation leaves out {len(small)} of its {len(scored)} pairs, {what}: "
+        f"{listed(small, 3, ', ')}",
+    )
 
 
 def warn_mixed(

@@ -27,6 +27,7 @@ from lenspair.model.training.config import DataConfig
 from lenspair.model.training.data_checks import (
     check_clean_images,
     check_training_images,
+    check_validation_images,
     pair_headers,
     warn_mixed,
     warn_or_note,
@@ -116,8 +117,9 @@ def paired_training_data(
     Raises:
         DatasetError: unreadable dataset, a validation split that is there but
             cannot be opened (an unpaired file: refused, not replaced by train
-            pairs), or pairs whose headers disagree
-            (:meth:`~lenspair.dataset.readers.PairedDataset.check_headers`);
+            pairs), pairs whose headers disagree
+            (:meth:`~lenspair.dataset.readers.PairedDataset.check_headers`), or
+            validation pairs all too small to score;
             ModelError: too few pairs.
 
     """
@@ -126,6 +128,7 @@ def paired_training_data(
     # read before the first step, not in epoch 40
     headers = pair_headers((train_source, val_source))
     check_training_images(train_source, headers, data.crop_size, channels, notes)
+    check_validation_images(val_source, headers, data.max_val_images, notes)
     resolved = channels or first_channels(train_source)
     if channel_note := conversion_note(resolved, first_channels(train_source), path):
         warn_or_note(notes, channel_note)

@@ -61,7 +61,13 @@ from lenspair.model.training.run_files import (
     tensorboard_writer,
 )
 from lenspair.model.training.run_state import RunState
-from lenspair.model.training.start_checks import check_resume_batch, open_run_folder, read_init
+from lenspair.model.training.start_checks import (
+    check_resume_batch,
+    check_resume_budget,
+    check_resume_perceptual,
+    open_run_folder,
+    read_init,
+)
 from lenspair.model.training.step import Trainer
 
 log = logging.getLogger(__name__)
@@ -110,8 +116,9 @@ def resume_config(run: Path, override: RunConfig | None) -> RunConfig:
     each change is logged as a warning.
 
     Raises:
-        ModelError: no checkpoint, the override changes the network, or
-            the batch size of a run stopped mid-epoch (:func:`check_resume_batch`).
+        ModelError: no checkpoint, the override changes the network or
+            the batch size of a run stopped mid-epoch (:func:`check_resume_batch`),
+            or sets a budget the run is past (:func:`check_resume_budget`).
 
     """
     paths = RunPaths(run)
@@ -127,6 +134,8 @@ def resume_config(run: Path, override: RunConfig | None) -> RunConfig:
             f"{override.model}; start a new run (or use --init) to change it"
         )
     check_resume_batch(checkpoint, paths.last, override)
+    # fit refuses it too; here, before the changes are said as if they would apply
+    check_resume_budget(checkpoint, paths.last, override)
     if distributed_from_env().is_main:  # torchrun: said once, by rank 0
         for change in config_differences(stored, override):
             log.warning("--resume with a changed config: %s", change)
@@ -175,7 +184,9 @@ def fit(
 
     Raises:
         ModelError: existing run without ``resume``, incompatible ``init``,
-            empty datasets, a mid-epoch resume at another batch size;
+            empty datasets, a mid-epoch resume at another batch size, a resume
+            past its budget or with the perceptual loss switched on or off
+            (:mod:`~lenspair.model.training.start_checks`);
             :class:`~lenspair.model.errors.TrainingDivergedError`.
 
     """
@@ -195,7 +206,7 @@ def fit(
             )
         paths = RunPaths(Path(run))
         checkpoint, stale = open_run_folder(
-            paths, resume=resume, restart=restart, synthetic=synthetic
+            paths, config, resume=resume, restart=restart, synthetic=synthetic
         )
         # read and checked before the run folder is made: a refused --init leaves nothing behind
         start_from = None if init is None or checkpoint is not None else read_init(init, config)
@@ -203,6 +214,8 @@ def fit(
             torch.use_deterministic_algorithms(True, warn_only=True)
             torch.backends.cudnn.benchmark = False
         trainer = Trainer(config, device, info)
+        if checkpoint is not None:  # known once the trainer has looked for VGG19 weights
+            check_resume_perceptual(checkpoint, paths.last, trainer.perceptual_status)
         if info.is_main and stale:  # every check passed (data, config, precision, batch)
             remove_partial_run(paths, stale)
         runtime = _runtime_info(

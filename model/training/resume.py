@@ -189,9 +189,9 @@ def with_history(
         earlier_precisions = (*earlier_precisions, f"{before.precision} until step {step}")
         if warn:
             log.warning(
-                "resuming at %s; the first %d steps trained at %s",
+                "resuming at %s; %s trained at %s",
                 runtime.precision,
-                step,
+                _steps_since(before.earlier_precisions, step),
                 before.precision,
             )
     if before.data_path and runtime.data_path and before.data_path != runtime.data_path:
@@ -221,6 +221,20 @@ def with_history(
         init=runtime.init or before.init,
     )
     return dataclasses.replace(config, runtime=runtime)
+
+
+def _steps_since(earlier: tuple[str, ...], step: int) -> str:
+    """``the first 8 steps``, or ``steps 7 to 8`` after an earlier change of precision.
+
+    The previous session's precision holds since the last change that
+    ``earlier`` (``bf16 autocast until step 6``, as :func:`with_history` writes
+    it) records: "the first 8 steps trained at fp32" was said of a run whose
+    steps 1 to 6 had trained at bf16.
+    """
+    _, found, since = earlier[-1].rpartition(" until step ") if earlier else ("", "", "")
+    if not found or not since.isdigit() or not 0 < int(since) < step:
+        return f"the first {step} steps"
+    return f"steps {int(since) + 1} to {step}"
 
 
 def _digest(data: str) -> str | None:

@@ -6,7 +6,10 @@ leaves the folder as it was:
 * a folder that already holds a run is resumed (``--resume``) or refused;
 * a mid-epoch ``last.pt`` is resumed only at its batch size and seed
   (:func:`check_resume_batch`), and only on the same kind of data, real
-  pairs or synthetic drops (:func:`check_resume_mode`);
+  pairs or synthetic drops of the same preset (:func:`check_resume_mode`);
+* a resume must leave the run within its budgets (:func:`check_resume_budget`),
+  and train with the perceptual loss if the run did, and only then
+  (:func:`check_resume_perceptual`);
 * a run killed before its first ``last.pt`` starts over (``--resume``'s
   restart), unless its metrics say a ``last.pt`` existed and was removed;
 * ``--init`` weights must be of the network this run builds, and finite
@@ -20,20 +23,23 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from lenspair.core.wording import counted
 from lenspair.model.checkpoint import check_finite_weights, checkpoint_config, load_checkpoint
 from lenspair.model.errors import ModelError
+from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.config_loading import field_differences
 from lenspair.model.training.run_files import RunPaths, read_metrics_rows
 
 
 def open_run_folder(
-    paths: RunPaths, *, resume: bool, restart: bool, synthetic: str | None
+    paths: RunPaths, config: RunConfig, *, resume: bool, restart: bool, synthetic: str | None
 ) -> tuple[dict[str, Any] | None, list[Path]]:
     """The checkpoint a run resumes from, and the files its restart replaces.
 
     Args:
         paths: the run folder.
+        config: the configuration the run trains with (its budgets).
         resume: continue from ``last.pt`` (``--resume``).
         restart: start the run over when it has no ``last.pt`` (see
             :func:`~lenspair.model.training.loop.fit`).
@@ -46,11 +52,13 @@ def open_run_folder(
 
     Raises:
         ModelError: the folder holds a run and ``resume`` is off, or the
-            resume or restart is refused (:func:`check_resume_mode`).
+            resume or restart is refused (:func:`check_resume_mode`,
+            :func:`check_resume_budget`).
     """
     checkpoint = load_checkpoint(paths.last) if resume else None
     if checkpoint is not None:
         check_resume_mode(checkpoint, paths.last, synthetic)
+        check_resume_budget(checkpoint, paths.last, config)
     stale = [paths.best, paths.metrics] if restart and not paths.last.exists() else []
     if stale:
         _check_restart(paths)
@@ -115,23 +123,116 @@ def check_resume_batch(checkpoint: dict[str, Any], path: Path, config: RunConfig
 
 
 def check_resume_mode(checkpoint: dict[str, Any], path: Path, synthetic: str | None) -> None:
-    """Refuse to resume a run on synthetic drops with real pairs, or the reverse.
+    """Refuse to resume a run on synthetic drops with real pairs, the reverse, or other drops.
 
     Its ``best.pt`` and early stopping compare validation PSNRs, which mean
     nothing across the two (a real pair scores some 10 dB above a synthetic
     one); pretraining followed by fine-tuning is a new run with ``--init``.
+    Another drops preset (``--drops``) renders other drops on the held-out
+    images, so its validation set is another one too.
 
     Raises:
         ModelError: naming the run's data and the data given.
     """
     before = checkpoint_config(checkpoint, path).runtime
-    if before is None or (before.synthetic is None) == (synthetic is None):
+    if before is None or before.synthetic == synthetic:
         return
     was = f"synthetic {before.synthetic} drops" if before.synthetic else "real pairs"
     now = f"synthetic {synthetic} drops" if synthetic else "real pairs"
+    if before.synthetic is not None and synthetic is not None:
+        raise ModelError(
+            f"--resume: {path} trained on {was} ({before.data}); resuming it on {now} would "
+            f"compare validation PSNRs of two validation sets: resume with --drops "
+            f"{before.synthetic}, or start a new run with --init {path}"
+        )
     raise ModelError(
         f"--resume: {path} trained on {was} ({before.data}); resuming it on {now} would compare "
         f"validation PSNRs across both: start a new run with --init {path}"
+    )
+
+
+def check_resume_budget(checkpoint: dict[str, Any], path: Path, config: RunConfig) -> None:
+    """Refuse to resume a run with a budget it has already gone past.
+
+    Nothing would train, yet ``config.yaml`` was rewritten with the smaller
+    budget (``max_steps: 2`` beside a ``last.pt`` at step 6) and the run said
+    "step budget of 2 reached; 6 steps". A budget the run has just reached
+    (the one it stopped at) stays allowed: that is no contradiction. A run
+    stopped by its time budget always ends a little past it, so a time
+    budget is refused only when the resume changes it.
+
+    Raises:
+        ModelError: naming where the run is and the budget it is past.
+    """
+    train, before = config.train, checkpoint_config(checkpoint, path).train
+    step, epoch = int(checkpoint.get("step", 0)), int(checkpoint.get("epoch", 0))
+    step_in_epoch = int(checkpoint.get("step_in_epoch", 0))
+    past = None
+    if train.max_steps is not None and step > train.max_steps:
+        past = f"at step {step}, past train.max_steps {train.max_steps} (--max-steps)"
+    elif epoch > train.epochs or (epoch == train.epochs and step_in_epoch):
+        where = f"{counted(epoch, 'epoch')} done"
+        if step_in_epoch:
+            where = f"{counted(step_in_epoch, 'step')} into epoch {epoch + 1}"
+        past = f"{where}, past train.epochs {train.epochs} (--epochs)"
+    elif (
+        train.max_seconds is not None
+        and train.max_seconds != before.max_seconds
+        and "seconds" in checkpoint
+        and float(checkpoint["seconds"]) > train.max_seconds
+    ):
+        past = (
+            f"at {float(checkpoint['seconds']):.1f} s of training, past train.max_seconds "
+            f"{train.max_seconds:g} (--max-seconds)"
+        )
+    if past is not None:
+        raise ModelError(
+            f"--resume: {path} is already {past}: nothing would train; give a larger budget "
+            "to go on"
+        )
+
+
+def check_resume_perceptual(checkpoint: dict[str, Any], path: Path, status: str) -> None:
+    """Refuse to resume a run with the perceptual loss switched on or off.
+
+    Without its VGG19 weights a resumed run trained on without the term,
+    said only by the general warning: ``config.yaml`` then said the whole run
+    had, and the epoch's loss means divided the sums of steps that had the
+    term by steps that had not. A run trains with it or without it
+    throughout; switching is a new run with ``--init``.
+
+    Args:
+        checkpoint: the loaded ``last.pt``.
+        path: where it was read (named in the error).
+        status: the perceptual loss of this session
+            (:attr:`~lenspair.model.training.step.Trainer.perceptual_status`).
+
+    Raises:
+        ModelError: naming what the run did, what this session would do, and
+            how to go on.
+    """
+    before = checkpoint_config(checkpoint, path).runtime
+    if before is None or not before.perceptual:  # written before it was recorded
+        return
+    was, now = before.perceptual.startswith("enabled"), status.startswith("enabled")
+    if was == now:
+        return
+    if was:
+        keep = (
+            f"give its VGG19 weights ({VGG19_WEIGHTS_ENV} or train.vgg19_weights, and "
+            "loss.perceptual > 0) to resume it with the loss"
+        )
+    elif "loss.perceptual = 0" in before.perceptual:
+        keep = "resume it with loss.perceptual: 0, as it trained"
+    else:
+        keep = (
+            f"resume it without VGG19 weights (unset {VGG19_WEIGHTS_ENV} and "
+            "train.vgg19_weights), as it trained"
+        )
+    raise ModelError(
+        f"--resume: {path} trained with the perceptual loss {before.perceptual}, and here it "
+        f"is {status}; a run trains with it or without it throughout: {keep}, or start a new "
+        f"run with --init {path}"
     )
 
 

@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -26,3 +28,30 @@ def test_a_whole_number_is_steps_and_with_a_unit_a_time(count: int) -> None:
     assert steps_or_seconds(f"{count}m") == (None, count * 60.0)
     with pytest.raises(ValueError, match="whole number"):
         steps_or_seconds(f"{count}.5")
+
+
+@pytest.mark.parametrize("text", ["1e400", "1e400s", "1e308h", "3e306m"])
+def test_a_number_too_large_to_be_finite_is_refused(text: str) -> None:
+    # float() reads 1e400 as inf; recorded as max_seconds: .inf, it made the run's
+    # checkpoint unreadable to eval and --resume
+    with pytest.raises(ValueError, match="too large"):
+        seconds(text)
+    with pytest.raises(ValueError, match="too large"):
+        steps_or_seconds(text)
+
+
+@pytest.mark.parametrize(
+    "option",
+    [["--max-seconds", "1e400"], ["--checkpoint-every", "1e400"], ["--checkpoint-every", "1e400s"]],
+)
+def test_train_refuses_a_duration_too_large_in_one_line(
+    tmp_path: Path, option: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    # --checkpoint-every 1e400 ended in an OverflowError traceback, exit 1
+    from lenspair.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["train", str(tmp_path / "ds"), "--out", str(tmp_path / "run"), *option])
+    (line,) = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert exit_.value.code == 2 and f"argument {option[0]}: too large" in line
+    assert not (tmp_path / "run").exists()

@@ -341,6 +341,17 @@ def test_the_scheduled_rate_is_positive_and_never_rises(
         TrainConfig(lr_decay=decay + 1.01)
 
 
+@pytest.mark.parametrize("field", ["max_seconds", "checkpoint_every_seconds", "lr", "grad_clip"])
+@pytest.mark.parametrize("value", [math.inf, math.nan])
+def test_a_train_config_built_in_python_refuses_what_is_not_finite(
+    field: str, value: float
+) -> None:
+    # max_seconds=inf passed "> 0" and went into config.yaml as .inf, which the loader
+    # then refused when eval or --resume read the run's checkpoint
+    with pytest.raises(ValueError, match=rf"^{field}: expected a finite number"):
+        TrainConfig(**{field: value})
+
+
 def test_init_loads_weights_and_checks_the_network(tmp_path: Path) -> None:
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1})
     _train(dataset, tmp_path / "pre", tiny_config(epochs=1))

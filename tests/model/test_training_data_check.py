@@ -242,3 +242,31 @@ def test_a_generic_folders_notes_reach_the_run(tmp_path: Path) -> None:
     notes: list[str] = []
     paired_training_data(folder, DataConfig(crop_size=24), 1, 0, notes)
     assert sum("6 masks mark pixels left out of the loss" in note for note in notes) == 1
+
+
+def test_validation_pairs_too_small_to_score_are_found_before_the_first_step(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """They were found at the first validation, after an epoch of training, with no last.pt
+    to resume; some of them are said up front, as validation leaves them out."""
+    dataset = tmp_path / "ds"
+    write_paired_folder(dataset / "train", count=4, height=64, width=64)
+    write_paired_folder(dataset / "val", count=2, height=8, width=8)
+    config = tmp_path / "tiny.yaml"
+    config.write_text(dump_yaml(tiny_config(max_steps=1)))
+    run = tmp_path / "run"
+    argv = ["train", str(dataset), "--config", str(config), "--device", "cpu", "--out", str(run)]
+    assert main(argv) == 2
+    error = capsys.readouterr().err.strip()
+    assert "\n" not in error and f"{dataset / 'val'}: every one of the 2 validation pair" in error
+    assert "11x11 SSIM window" in error and "(8x8)" in error
+    assert not run.exists()  # refused before the run folder was made
+    write_paired_folder(dataset / "val", count=3, height=16, width=16)  # 002 is large enough
+    write_paired_folder(tmp_path / "small", count=2, height=8, width=8)
+    for side in ("input", "target"):
+        shutil.copy(tmp_path / "small" / side / "001.png", dataset / "val" / side / "001.png")
+    assert main(argv) == 0
+    said = "validation leaves out 1 of its 3 pairs, smaller than validation's 11x11 SSIM window"
+    log = (run / "train.log").read_text()
+    assert said in log and "val/input/001.png (8x8)" in log
+    assert log.index(said) < log.index("training GEA")  # before the first step

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from lenspair.core.config import load_yaml
+from lenspair.dataset.errors import DatasetError
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint
 from lenspair.model.errors import ModelError
 from lenspair.model.training import validation
@@ -172,11 +173,18 @@ def test_a_validation_pair_that_cannot_be_scored_is_left_out_not_fatal(
     assert any("002.png" in m for m in left_out)
     rows = (tmp_path / "run" / "metrics.csv").read_text().splitlines()
     assert len(rows) == 3 and (tmp_path / "run" / "checkpoints" / "best.pt").is_file()
-    for name in ("000", "001", "002"):  # none can be scored: one error naming the first
+    for name in ("000", "001"):  # none can be scored: one error naming the first
+        target = dataset / "val" / "target" / f"{name}.png"
+        target.write_bytes(target.read_bytes()[:300])
+    unscored = r"no validation pair can be scored; the first: \S*000.png"
+    with pytest.raises(ModelError, match=unscored):
+        _train(dataset, tmp_path / "run2", tiny_config(epochs=1))
+    for name in ("000", "001", "002"):  # too small, all of them: refused before training
         write_image(dataset / "val" / "input" / f"{name}.png", small)
         write_image(dataset / "val" / "target" / f"{name}.png", small)
-    with pytest.raises(ModelError, match=r"no validation pair can be scored; the first: 000"):
-        _train(dataset, tmp_path / "run2", tiny_config(epochs=1))
+    with pytest.raises(DatasetError, match=r"every one of the 3 validation pair\(s\) is smaller"):
+        _train(dataset, tmp_path / "run3", tiny_config(epochs=1))
+    assert not (tmp_path / "run3").exists()
 
 
 def test_a_run_resumed_at_another_precision_keeps_what_it_trained_at_before(
