@@ -170,6 +170,8 @@ def ingest_recording(
         kept = [r for r in ordered if r.status == "kept"]
         if kept:
             write_qa_sheet(qa_sheet, out_dir, ordered)
+        else:  # an earlier run's sheet would show pairs whose files this run removed
+            qa_sheet.unlink(missing_ok=True)
         timings.lap("qa")
         timings.stop()
 

@@ -27,6 +27,7 @@ from lenspair.capture.journal import (
     read_journal,
     redo_reasons,
     remove_stale_outputs,
+    side_change,
     still_valid,
 )
 from lenspair.capture.pairing import PairingResult
@@ -160,6 +161,10 @@ def _resume(
             len(redone),
             redo_reasons(out_dir / JOURNAL_FILE, redone, settings),
         )
+    current = {obstructed_frame.t_ns for obstructed_frame, _ in frame_pairs}
+    gone = [t_ns for t_ns in journal if t_ns not in current]
+    if gone and (side := side_change(out_dir / JOURNAL_FILE, gone, settings)):
+        log.warning("%s: %d finished frames are replaced: %s", out_dir, len(gone), side)
     return records, tasks
 
 

@@ -229,6 +229,26 @@ def redo_reasons(path: Path, redone: list[int], now: dict[str, Any]) -> str:
     return "; ".join(f"{reason} for {count}" for reason, count in reasons.most_common())
 
 
+def side_change(path: Path, gone: list[int], now: dict[str, Any]) -> str | None:
+    """The change of obstructed side that left these finished frames out of this run, or None.
+
+    The journal is keyed by the obstructed camera's timestamps: after a swap of
+    sides this run's frames are the other camera's, so none of the earlier
+    ones is "processed again" and nothing said why they all went.
+
+    Args:
+        path: the journal.
+        gone: timestamps of finished frames that are not among this run's.
+        now: this run's settings (as given to :func:`journal_line`).
+    """
+    made_with, settings = _made_with(path)
+    for t_ns in gone:
+        before = settings.get(made_with.get(t_ns, ""))
+        if before is not None and before.get("obstructed") != now.get("obstructed"):
+            return changed_setting(before, now)
+    return None
+
+
 @contextmanager
 def hold_output(out_dir: Path) -> Iterator[None]:
     """Hold the lock of ``out_dir`` (an existing folder) meanwhile; refuse it if taken.

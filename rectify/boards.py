@@ -78,7 +78,7 @@ class Board:
     dictionary: str | None = None
 
     def __post_init__(self) -> None:
-        minimum = 2 if self.kind == "chessboard" else 3
+        minimum = 3  # OpenCV finds no chessboard of 2 inner corners along a side (it raises)
         if self.columns < minimum or self.rows < minimum:
             raise RectifyError(
                 f"board {self.kind}: need at least {minimum}x{minimum} "

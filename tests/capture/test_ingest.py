@@ -379,6 +379,8 @@ def test_nothing_usable_fails_after_writing_the_records(tmp_path: Path) -> None:
     assert all(r.reason and r.reason.startswith("photometric residual") for r in records)
     assert not list((out / "rec" / "input").glob("*.png"))  # no stale outputs stay behind
     assert json.loads((out / "rec" / "report.json").read_text())["counts"]["kept"] == 0
+    # nor the earlier run's qa.png, which showed pairs whose files were removed
+    assert not (out / "rec" / "qa.png").exists()
 
 
 def test_a_namesake_recording_is_refused_not_merged(tmp_path: Path) -> None:

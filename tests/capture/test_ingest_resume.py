@@ -168,9 +168,18 @@ def test_rerun_with_the_other_side_declared_replaces_the_first_runs_pairs(
 ) -> None:
     recording, files = reference  # rig.yaml: cam1 obstructed
     ingest_recording(recording, tmp_path, obstructed="cam0")  # the wrong side, first
+    first = len(read_pairs(tmp_path / "rain" / "pairs.jsonl"))
+    caplog.clear()
     ingest_recording(recording, tmp_path)  # corrected: as an ingest straight away
     _same_as(files, tmp_path / "rain")  # no pair of the wrong-side run is left
     assert not any("not written by capture-ingest" in r.getMessage() for r in caplog.records)
+    # and the swap is said, as --help promises of a rerun with another side: the journal
+    # is keyed by the obstructed camera's stamps, so no frame read as "processed again"
+    said = [r.getMessage() for r in caplog.records if "are replaced" in r.getMessage()]
+    assert len(said) == 1, said
+    count, reason = said[0].removeprefix(f"{tmp_path / 'rain'}: ").split(" finished frames ")
+    assert 0 < int(count) <= first  # the frames the first run finished
+    assert reason == "are replaced: the obstructed side differs (was cam0, now cam1)"
 
 
 def test_a_rerun_stopped_after_its_pairs_leaves_no_report_to_misread(

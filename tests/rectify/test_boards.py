@@ -34,7 +34,9 @@ def test_parse_chessboard_and_charuco_specs() -> None:
         ("chessboard:9x6:abc", r"SQUARE_M must be a length in metres, got 'abc'"),
         ("chessboard:9x6:25", r"did you give millimetres"),
         ("chessboard:9x6:1e-9", r"1e-09 m is under a millimetre"),  # OpenCV's ill-conditioned
-        ("chessboard:1x6:0.02", r"at least 2x2 inner corners, got 1x6"),
+        ("chessboard:1x6:0.02", r"at least 3x3 inner corners, got 1x6"),
+        # cv2.findChessboardCorners raised "should have bigger than 2": a traceback
+        ("chessboard:2x5:0.02", r"at least 3x3 inner corners, got 2x5"),
         ("chessboard:99999999999x6:0.06", r"at most 200 along a side"),  # an OpenCV traceback
         ("charuco:8x6:0.04", r"expected charuco:COLSxROWS:SQUARE_M:MARKER_M\[:DICT\]"),
         ("charuco:8x6:0.04:0.05", r"expected 0 < MARKER_M < SQUARE_M = 0.04"),
