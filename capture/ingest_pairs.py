@@ -12,8 +12,6 @@ both per-frame stages (the homography's feature samples and this one) run in.
 import logging
 import os
 from collections.abc import Iterator
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +33,7 @@ from lenspair.capture.recording import FrameRef, Recording
 from lenspair.capture.rigfile import RigFile
 from lenspair.core.fsutil import atomic_write_text, naming_errors
 from lenspair.core.progress import progress
+from lenspair.core.workers import spawn_pool
 
 log = logging.getLogger(__name__)
 
@@ -47,18 +46,10 @@ def map_tasks(
         frame_work.set_context(context)
         yield from progress((function(t) for t in tasks), desc=desc, total=len(tasks))
         return
-    with ProcessPoolExecutor(
-        max_workers=workers,
-        mp_context=get_context("spawn"),
-        initializer=frame_work.init_worker,
-        initargs=(context, os.getpid()),
-    ) as pool:
-        results = pool.map(function, tasks, chunksize=max(1, min(8, len(tasks) // (4 * workers))))
-        try:
-            yield from progress(results, desc=desc, total=len(tasks))
-        except BaseException:  # Ctrl-C, or a task's error: stop handing out work, now
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
+    # Ctrl-C, or a task's error: the pool stops handing out work and ends its workers
+    with spawn_pool(workers, frame_work.init_worker, (context, os.getpid())) as pool_map:
+        results = pool_map(function, tasks, chunksize=max(1, min(8, len(tasks) // (4 * workers))))
+        yield from progress(results, desc=desc, total=len(tasks))
 
 
 def run_frame_stage(

@@ -9,14 +9,13 @@ ingest's workers, they end when the command that started them dies
 
 import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from typing import TypeVar
 
 import cv2
 import torch
 
 from lenspair.core.orphans import end_with_parent
+from lenspair.core.workers import spawn_pool
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -36,10 +35,5 @@ def process_map(function: Callable[[T], R], items: Sequence[T], workers: int) ->
     """
     if workers <= 1 or len(items) <= 1:
         return [function(item) for item in items]
-    with ProcessPoolExecutor(
-        min(workers, len(items)),
-        mp_context=get_context("spawn"),
-        initializer=_init_worker,
-        initargs=(os.getpid(),),
-    ) as pool:
-        return list(pool.map(function, items))
+    with spawn_pool(min(workers, len(items)), _init_worker, (os.getpid(),)) as pool_map:
+        return list(pool_map(function, items))
