@@ -31,8 +31,8 @@ def read_image(path: Path) -> np.ndarray:
     Raises:
         ImageIOError: the file is missing, empty, corrupt or truncated (a PNG's
             chunks are checked first, so libpng prints nothing), unreadable
-            (permissions, I/O error), or has a pixel format other than
-            8/16-bit integer; the message names it.
+            (permissions, I/O error), too large for memory, or has a pixel
+            format other than 8/16-bit integer; the message names it.
 
     """
     path = Path(path)
@@ -42,10 +42,22 @@ def read_image(path: Path) -> np.ndarray:
         array = _read_pixels(path)
     except OSError as exc:  # permissions, I/O errors: this file only
         raise ImageIOError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    except MemoryError:  # OpenImageIO's std::bad_alloc: this file only, said with its size
+        size = _header_size(path)
+        raise ImageIOError(f"{path}: too large to read into memory{size}") from None
     channels = array.shape[2]
     if channels in (1, 2):  # mono, or mono + alpha
         return np.ascontiguousarray(array[:, :, 0])
     return np.ascontiguousarray(array[:, :, :3])
+
+
+def _header_size(path: Path) -> str:
+    """`` (WxH)`` from ``path``'s header, or "" when even that cannot be read."""
+    try:
+        height, width = image_header(path)[:2]
+    except (ImageIOError, MemoryError):
+        return ""
+    return f" ({width}x{height})"
 
 
 def image_header(path: Path) -> tuple[int, int, int, str]:

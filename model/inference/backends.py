@@ -18,6 +18,7 @@ may only name that one (or ``auto``).
 """
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -192,22 +193,7 @@ class TorchBackend:
         after the failed call's frames are gone (its traceback held the batch's
         tensors), with CUDA's cache emptied.
         """
-        try:
-            return self._run(batch)
-        except (torch.cuda.OutOfMemoryError, RuntimeError) as exc:
-            if not _out_of_memory(exc):
-                raise
-        if self.device.type == "cuda":
-            torch.cuda.empty_cache()
-        if len(batch) > 1:
-            return np.concatenate([self(batch[i : i + 1]) for i in range(len(batch))])
-        height, width = batch.shape[-2:]
-        tile = max(MIN_TILE, 1 << (max(2, max(height, width)) // 2).bit_length() - 1)
-        raise ModelError(
-            f"{self.path}: out of memory restoring one {width}x{height} image on "
-            f"{self.device} ({self.precision}); restore in tiles smaller than that "
-            f"(--tile {tile}, or a smaller --tile if this was one)"
-        )
+        return _frame_by_frame_on_failure(self._run, batch, self.path, self.device, self.precision)
 
     @torch.inference_mode()
     def _run(self, batch: np.ndarray) -> np.ndarray:
@@ -220,11 +206,56 @@ class TorchBackend:
 
 
 def _out_of_memory(exc: BaseException) -> bool:
-    """Whether ``exc`` is an allocation failure (CUDA's, or the CPU allocator's)."""
-    if isinstance(exc, torch.cuda.OutOfMemoryError):  # torch.OutOfMemoryError from 2.5 on
+    """Whether ``exc`` is an allocation failure (CUDA's, the CPU allocator's, numpy's, ORT's)."""
+    if isinstance(exc, (torch.cuda.OutOfMemoryError, MemoryError)):  # numpy's is a MemoryError
         return True
     text = str(exc)
-    return "can't allocate memory" in text or "DefaultCPUAllocator" in text
+    return any(
+        sign in text
+        for sign in ("can't allocate memory", "DefaultCPUAllocator", "Failed to allocate memory")
+    )
+
+
+def memory_error(where: object, height: int, width: int, runs_on: str) -> ModelError:
+    """The error of one frame (or tile) too large for memory, with the ``--tile`` to use.
+
+    Tiles of the largest power of two up to half its longer side; a fp32
+    frame needs about 330 MB per megapixel on the CPU.
+    """
+    tile = max(MIN_TILE, 1 << (max(2, max(height, width)) // 2).bit_length() - 1)
+    return ModelError(
+        f"{where}: out of memory restoring one {width}x{height} image on {runs_on}; restore "
+        f"in tiles smaller than that (--tile {tile}, or a smaller --tile if this was one)"
+    )
+
+
+def _frame_by_frame_on_failure(
+    run: Callable[[np.ndarray], np.ndarray],
+    batch: np.ndarray,
+    path: Path,
+    device: torch.device,
+    precision: str,
+) -> np.ndarray:
+    """``run(batch)``; out of memory, again one frame at a time; one frame: :func:`memory_error`.
+
+    The retry runs after the failed call's frames are gone (its traceback
+    held the batch's tensors), with CUDA's cache emptied.
+    """
+    try:
+        return run(batch)
+    except Exception as exc:  # torch, numpy and ONNX Runtime each raise their own type
+        if not _out_of_memory(exc):
+            raise
+    if device.type == "cuda":
+        torch.cuda.empty_cache()
+    if len(batch) > 1:
+        parts = [
+            _frame_by_frame_on_failure(run, batch[i : i + 1], path, device, precision)
+            for i in range(len(batch))
+        ]
+        return np.concatenate(parts)
+    height, width = batch.shape[-2:]
+    raise memory_error(path, height, width, f"{device} ({precision})")
 
 
 class OnnxBackend:
@@ -295,20 +326,28 @@ class OnnxBackend:
     def __call__(self, batch: np.ndarray) -> np.ndarray:
         """Run the session on a numpy batch (see :class:`Backend`).
 
+        Out of memory, as :meth:`TorchBackend.__call__`: frame by frame, then
+        a :class:`ModelError` with the ``--tile`` to use.
+
         Raises:
             ModelError: the model returned another shape than the batch's (a
                 model of any size that shrinks some sizes: its frames fail,
                 rather than being written at the wrong size or transposed into
                 a traceback).
         """
-        feed = {self.input_name: check_batch(batch, self.channels)}
-        output = np.asarray(self.session.run(None, feed)[0])
+        output = _frame_by_frame_on_failure(
+            self._run, batch, self.path, self.device, self.precision
+        )
         if output.shape != batch.shape:
             raise ModelError(
                 f"{self.path}: returned {output.shape} for a batch of {batch.shape}; a restoring "
                 "model returns its input's shape (lenspair export writes one)"
             )
         return np.clip(np.asarray(output, dtype=np.float32), 0.0, 1.0)
+
+    def _run(self, batch: np.ndarray) -> np.ndarray:
+        feed = {self.input_name: check_batch(batch, self.channels)}
+        return np.asarray(self.session.run(None, feed)[0])
 
 
 def open_backend(path: Path, device: torch.device | str, precision: str = "auto") -> Backend:

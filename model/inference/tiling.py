@@ -28,11 +28,15 @@ import numpy as np
 from lenspair.core.bitdepth import narrow, widen
 from lenspair.core.pixels import max_value
 from lenspair.model.errors import ModelError
-from lenspair.model.inference.backends import Backend
+from lenspair.model.inference.backends import Backend, memory_error
 from lenspair.model.inference.options import DEFAULT_OVERLAP, MIN_TILE
 
 ALIGN = 32
 """Tile steps are multiples of this when possible: the enhancer pools 4..32 px cells."""
+
+CHUNK_BYTES = 64 << 20
+"""Most float32 tile bytes handed to the network in one call (:func:`run_tiled`): eight
+512-px colour tiles, or one of 2048 px."""
 
 
 def check_tile(tile: int | None) -> None:
@@ -166,8 +170,11 @@ def run_tiled(
     total = np.zeros((n, c, full_h, full_w), dtype=np.float32)
     weights = np.zeros((full_h, full_w), dtype=np.float32)
     places = [(row, col) for row in range(len(rows)) for col in range(len(cols))]
-    for first in range(0, len(places), max(1, max_tiles // n)):
-        chunk = places[first : first + max(1, max_tiles // n)]
+    # at most CHUNK_BYTES of tiles a call: eight 2048-px colour tiles copied into one
+    # array took 384 MiB beside the frame, and --tile 2048 failed for lack of memory
+    per_call = max(1, min(max_tiles // n, CHUNK_BYTES // (4 * n * c * tile_h * tile_w)))
+    for first in range(0, len(places), per_call):
+        chunk = places[first : first + per_call]
         tiles = np.concatenate(
             [
                 padded[:, :, rows[row] : rows[row] + tile_h, cols[col] : cols[col] + tile_w]
@@ -239,7 +246,11 @@ def restore_images(
         tile: square tile side, or None for whole frames.
         overlap: pixels shared by neighbouring tiles.
     """
-    wide = [widen(image, bits) for image in images]
-    restored = run_backend(backend, to_batch(wide), tile, overlap)
     first = images[0]
-    return [narrow(image, bits) for image in from_batch(restored, first.dtype, first.ndim == 2)]
+    try:
+        wide = [widen(image, bits) for image in images]
+        restored = run_backend(backend, to_batch(wide), tile, overlap)
+        return [narrow(image, bits) for image in from_batch(restored, first.dtype, first.ndim == 2)]
+    except MemoryError:  # numpy's copies of the frames: a ModelError, as the network's
+        height, width = first.shape[:2]
+        raise memory_error(backend.description, height, width, "this machine") from None

@@ -217,3 +217,21 @@ def test_a_header_read_of_a_damaged_png_is_one_error_and_nothing_on_stderr(
     assert capfd.readouterr().err == ""
     # a sound file's header costs no more than its first bytes and reads as before
     assert image_header(good) == (16, 24, 1, "uint16")
+
+
+def test_an_image_too_large_for_memory_is_that_files_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """OpenImageIO's std::bad_alloc came out as a MemoryError that ended restore's reader
+    thread, and the run with it, where one file's error was due."""
+    from lenspair.core import imageio
+
+    image = tmp_path / "huge.png"
+    write_image(image, np.zeros((16, 24), np.uint8))
+
+    def bad_alloc(path: Path) -> np.ndarray:
+        raise MemoryError("std::bad_alloc")
+
+    monkeypatch.setattr(imageio, "_read_pixels", bad_alloc)
+    with pytest.raises(ImageIOError, match=r"huge.png: too large to read into memory \(24x16\)$"):
+        read_image(image)

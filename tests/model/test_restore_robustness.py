@@ -499,3 +499,101 @@ def test_resume_with_another_detector_is_refused(tmp_path: Path, backend: TorchB
         folder, out, backend, RestoreOptions(resume=True), judge=_FileJudge(first)
     )
     assert again.resumed == 1
+
+
+class _StarvedSession:
+    """An ONNX Runtime session on a machine whose memory holds one frame at a time."""
+
+    def __init__(self, session: object) -> None:
+        self.session, self.sizes = session, []  # type: list[int]
+
+    def run(self, names: object, feed: dict[str, np.ndarray]) -> list[np.ndarray]:
+        (batch,) = feed.values()
+        self.sizes.append(len(batch))
+        if len(batch) > 1 or batch.shape[-1] > 48:
+            raise RuntimeError(
+                "[ONNXRuntimeError] : 1 : FAIL : BFCArena::AllocateRawInternal Failed to "
+                "allocate memory for requested buffer of size 2304000000"
+            )
+        return self.session.run(names, feed)  # type: ignore[attr-defined,no-any-return]
+
+
+def test_an_onnx_model_out_of_memory_fails_only_the_frame_that_does_not_fit(
+    tmp_path: Path, one_thread: None
+) -> None:
+    """ONNX Runtime's allocation failure ended the run with its traceback, the frames that
+    fit included; Restorer raised onnxruntime's own exception."""
+    pytest.importorskip("onnxruntime")
+    from lenspair.model.evaluation.export import export_onnx
+    from lenspair.model.inference.backends import OnnxBackend
+
+    network = open_backend(make_checkpoint(tmp_path / "ck.pt"), CPU, "fp32")
+    assert isinstance(network, TorchBackend)
+    export_onnx(network.network, 1, tmp_path / "m.onnx", (32, 48), runs=1)
+    backend = OnnxBackend(tmp_path / "m.onnx", CPU)
+    starved = _StarvedSession(backend.session)
+    backend.session = starved  # type: ignore[assignment]
+    source = tmp_path / "in"
+    write_image(source / "a.png", _grey((32, 48), 1))
+    write_image(source / "b.png", _grey((64, 96), 2))  # too large for this machine
+    write_image(source / "b2.png", _grey((64, 96), 4))
+    write_image(source / "c.png", _grey((32, 48), 3))
+    report = restore_input(source, tmp_path / "out", backend, RestoreOptions(batch_size=2))
+    assert (report.restored, report.failed) == (2, 2)
+    assert [p["frame"] for p in report.problems] == ["b.png", "b2.png"]
+    problem = report.problems[0]
+    assert "out of memory restoring one 96x64 image" in problem["reason"]
+    assert "--tile 32" in problem["reason"] and str(tmp_path / "m.onnx") in problem["reason"]
+    # a batch that does not fit runs frame by frame, as a checkpoint's does
+    starved.sizes.clear()
+    frames = np.random.default_rng(0).random((3, 1, 32, 48), dtype=np.float32)
+    assert backend(frames).shape == frames.shape and starved.sizes == [3, 1, 1, 1]
+
+
+def test_numpy_out_of_memory_around_the_network_fails_the_frame_not_the_run(
+    tmp_path: Path, backend: TorchBackend, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The frames' float copies (to_batch), tiles and padding raised numpy's MemoryError,
+    which only a ModelError is caught as: the run ended, nothing restored."""
+    from lenspair.model.inference import tiling
+
+    real = tiling.to_batch
+
+    def starved(images: list[np.ndarray]) -> np.ndarray:
+        if images[0].shape[1] > 48:
+            raise MemoryError("Unable to allocate 412. MiB for an array")
+        return real(images)
+
+    monkeypatch.setattr(tiling, "to_batch", starved)
+    source = tmp_path / "in"
+    write_image(source / "a.png", _grey((32, 48), 1))
+    write_image(source / "big.png", _grey((64, 96), 2))
+    report = restore_input(source, tmp_path / "out", backend, RestoreOptions(batch_size=1))
+    assert (report.restored, report.failed) == (1, 1)
+    (problem,) = report.problems
+    assert problem["frame"] == "big.png"
+    assert "out of memory restoring one 96x64 image on this machine" in problem["reason"]
+    assert "--tile 32" in problem["reason"]
+
+
+def test_tiles_go_to_the_network_a_bounded_number_of_bytes_at_a_time(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Eight 2048-px colour tiles were copied into one 384 MiB array per call, so the
+    --tile 2048 the advice named failed for lack of memory too."""
+    from lenspair.model.inference import tiling
+
+    sizes: list[int] = []
+
+    def identity(batch: np.ndarray) -> np.ndarray:
+        sizes.append(len(batch))
+        return batch
+
+    batch = np.random.default_rng(0).random((1, 3, 96, 96), dtype=np.float32)
+    out = tiling.run_tiled(identity, batch, (32, 32), 8)  # type: ignore[arg-type]
+    np.testing.assert_allclose(out, batch, atol=1e-6)
+    assert max(sizes) == 8  # small tiles: eight a call, as before
+    sizes.clear()
+    monkeypatch.setattr(tiling, "CHUNK_BYTES", 3 * 32 * 32 * 4 * 2)  # two tiles' worth
+    np.testing.assert_allclose(tiling.run_tiled(identity, batch, (32, 32), 8), batch, atol=1e-6)  # type: ignore[arg-type]
+    assert max(sizes) == 2
