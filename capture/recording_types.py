@@ -201,14 +201,28 @@ def order_frames(
             first occurrence is kept), one warning per frame whose timestamp
             goes back from the frame before it, and one warning per frame
             listed again with its timestamp (a repeated ``data.csv`` row: one
-            frame, counted once).
+            frame, counted once), or with another one (the file counted once,
+            at its first timestamp).
 
     Returns:
         Frames sorted by ``t_ns`` with unique timestamps.
     """
     kept: dict[int, FrameRef] = {}
+    files: dict[str, FrameRef] = {}  # a file's first listing (a bag's messages are each unique)
     previous: FrameRef | None = None
     for frame in frames:
+        earlier = files.get(frame.describe())
+        if earlier is not None and earlier.t_ns != frame.t_ns:
+            # one file under two timestamps gave one output name two frames: a fresh
+            # restore counted the second as resumed, or wrote the file twice
+            reason = (
+                f"listed again with another timestamp (first at t_ns={earlier.t_ns}); "
+                "counted once, at its first"
+            )
+            problems.append(
+                FrameProblem(camera, frame.t_ns, frame.describe(), reason, dropped=False)
+            )
+            continue
         if frame.t_ns in kept:
             first = kept[frame.t_ns].describe()
             if first == frame.describe():
@@ -228,6 +242,7 @@ def order_frames(
                 FrameProblem(camera, frame.t_ns, frame.describe(), reason, dropped=False)
             )
         kept[frame.t_ns] = frame
+        files[frame.describe()] = frame
         # against the frame before it, not the latest time so far: one stamp far
         # in the future gave every later (good) frame this warning
         previous = frame

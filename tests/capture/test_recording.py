@@ -104,6 +104,26 @@ def test_euroc_problems_are_recorded(tmp_path: Path) -> None:
     assert all(p.camera == "cam0" for p in recording.problems)
 
 
+def test_a_file_listed_at_two_timestamps_is_one_frame(tmp_path: Path) -> None:
+    """Its second row made a second frame of one file (one output name): a fresh restore
+    counted it as resumed, or restored and wrote the file twice, and nothing was said."""
+    stamps = [T0 + i * 50 * MS for i in range(4)]
+    cam0 = tmp_path / "mav0" / "cam0"
+    _write_camera(cam0, stamps)
+    rows = [f"{t},{t}.png" for t in stamps] + [f"{stamps[-1] + 50 * MS},{stamps[1]}.png"]
+    (cam0 / "data.csv").write_text("#timestamp [ns],filename\n" + "\n".join(rows) + "\n")
+    _write_camera(tmp_path / "mav0" / "cam1", stamps)
+    recording = open_recording(tmp_path)
+    assert recording.timestamps("cam0") == stamps  # the file once, at its first time
+    (problem,) = recording.problems
+    assert problem.reason == (
+        f"listed again with another timestamp (first at t_ns={stamps[1]}); counted once, "
+        "at its first"
+    )
+    assert problem.t_ns == stamps[-1] + 50 * MS and not problem.dropped
+    assert problem.camera == "cam0"
+
+
 def test_euroc_names_outside_the_data_folder_are_problems(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
