@@ -28,7 +28,9 @@ OUT/<bag name>.bag, a ROS 2 bag folder to the folder OUT/<its name>/ (a bare
 Any size works (padded to a multiple of 4 and cropped back, as eval does);
 --tile N runs large images in overlapping N x N tiles blended without seams.
 Unreadable frames, and frames too large for memory (the report says which
---tile fits), are copied unchanged and listed in OUT/restore_report.json;
+--tile fits), are copied unchanged and listed in OUT/restore_report.json
+(the run goes on; when no frame at all could be restored it ends with exit
+code 2 and the first reason);
 a non-empty OUT is refused unless --resume, which continues a killed run and
 writes the same bytes as an uninterrupted one (a bag the run finished is kept
 while its files are unchanged).
@@ -43,6 +45,7 @@ from lenspair.commands.argtypes import (
     detector_file,
     out_folder,
 )
+from lenspair.core.errors import ConfigError
 from lenspair.model.inference.options import (
     CAMERA_CHOICES,
     CUDA_BATCH_SIZE,
@@ -120,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.model.inference.input_checks import check_input
     from lenspair.model.inference.judge import default_judge
     from lenspair.model.inference.pipeline import restore_input
+    from lenspair.model.inference.report import REPORT_NAME
     from lenspair.model.inference.restore_options import RestoreOptions, check_options
 
     device = resolve_device(args.device)
@@ -138,4 +142,11 @@ def run(args: argparse.Namespace) -> int:
     backend = open_backend(args.model, device, args.precision)
     report = restore_input(args.input, args.out, backend, options, judge, checked)
     print(report.summary())
+    if report.failed and not (report.restored or report.resumed or report.skipped):
+        # every frame failed: a script must not read this run as done (exit 0)
+        first = next((p["reason"] for p in report.problems if p.get("frame")), "see the report")
+        raise ConfigError(
+            f"none of the {report.failed} frame(s) could be restored (the first: {first}); "
+            f"each is listed in {args.out / REPORT_NAME}"
+        )
     return 0

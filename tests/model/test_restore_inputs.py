@@ -538,3 +538,24 @@ def test_a_batch_out_of_memory_runs_frame_by_frame_and_one_frame_says_tile() -> 
 class _Raises(torch.nn.Module):
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         raise RuntimeError("other")
+
+
+def test_a_run_that_restores_no_frame_at_all_is_not_done(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """One unreadable image (or a folder of them) exited 0, "1 failed": a script read it
+    as done. Partial failures still end 0, each listed."""
+    from lenspair.cli import main
+
+    checkpoint = make_checkpoint(tmp_path / "ck.pt")
+    (tmp_path / "junk.png").write_bytes(b"\x89PNG\r\n\x1a\nnot an image")
+    args = ["restore", str(checkpoint), str(tmp_path / "junk.png"), "--precision", "fp32"]
+    assert main([*args, "--out", str(tmp_path / "o1")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "none of the 1 frame(s) could be restored" in err[0]
+    assert "junk.png" in err[0] and str(tmp_path / "o1" / REPORT_NAME) in err[0]
+    assert json.loads((tmp_path / "o1" / REPORT_NAME).read_text())["failed"] == 1
+    source = _folder(tmp_path / "in", 2)
+    shutil.copy(tmp_path / "junk.png", source / "junk.png")
+    args = ["restore", str(checkpoint), str(source), "--precision", "fp32"]
+    assert main([*args, "--out", str(tmp_path / "o2")]) == 0  # two restored, one listed
