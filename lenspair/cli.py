@@ -192,10 +192,11 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 2
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
-        format="%(levelname)s %(name)s: %(message)s",
-    )
+    logging.basicConfig(format="%(levelname)s %(name)s: %(message)s")
+    # lenspair's own INFO lines; other libraries' only from WARNING up, unless -v: torch
+    # logged "FakeTensor cache stats" after an interrupted run's last line
+    logging.getLogger().setLevel(logging.DEBUG if args.verbose else logging.WARNING)
+    logging.getLogger("lenspair").setLevel(logging.DEBUG if args.verbose else logging.INFO)
     try:
         with _sigterm_as_interrupt():
             return int(_load(args.command).run(args))

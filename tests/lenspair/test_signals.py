@@ -76,3 +76,30 @@ def test_sigterm_mid_simulation_ends_the_process_cleanly(tmp_path: Path) -> None
     # it died on the spot (-15), with no word of how to go on
     assert process.returncode == TERMINATED
     assert stderr.strip().splitlines()[-1].startswith("lenspair simulate: terminated; ")
+
+
+def test_other_libraries_info_lines_stay_out_of_a_commands_output(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Every library logged at INFO: torch's "FakeTensor cache stats" came after an
+    interrupted run's last line. lenspair's own INFO lines stay; -v shows everything."""
+    import logging
+
+    from lenspair.commands import simulate
+
+    def chatty(args: object) -> int:
+        logging.getLogger("a_library.module").info("FakeTensor cache stats")
+        logging.getLogger("a_library.module").warning("a library's warning")
+        logging.getLogger("lenspair.simulate.recording").info("lenspair's own line")
+        return 0
+
+    monkeypatch.setattr(simulate, "run", chatty)
+    root, package = logging.getLogger(), logging.getLogger("lenspair")
+    monkeypatch.setattr(root, "level", root.level)  # put back after the test
+    monkeypatch.setattr(package, "level", package.level)
+    assert main(["simulate", "rain", "--out", "unused"]) == 0
+    said = [r.getMessage() for r in caplog.records]
+    assert said == ["a library's warning", "lenspair's own line"]
+    caplog.clear()
+    assert main(["-v", "simulate", "rain", "--out", "unused"]) == 0
+    assert "FakeTensor cache stats" in [r.getMessage() for r in caplog.records]
