@@ -53,9 +53,9 @@ from lenspair.model.networks.layers import (
     NarrowConv2d,
     cat_channels,
     clamp_unit_straight_through,
-    exporting,
     zero_init,
 )
+from lenspair.model.networks.tracing import exporting
 
 PYRAMID_SCALES: tuple[int, ...] = (4, 8, 16, 32)
 """Pooling factors of the pyramid (1/4, 1/8, 1/16 and 1/32 of the resolution)."""

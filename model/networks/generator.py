@@ -46,16 +46,16 @@ from torch import Tensor, nn
 
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.aggregation import Aggregation
+from lenspair.model.networks.flat_frames import flat_samples
 from lenspair.model.networks.layers import (
     ConvNormReLU,
     NarrowConv2d,
     clamp_unit_straight_through,
-    exporting,
-    flat_samples,
     is_channels_last,
     make_norm,
     zero_init,
 )
+from lenspair.model.networks.tracing import exporting
 
 DOWNSAMPLING_FACTOR = 4
 """Input height and width must be multiples of this (two stride-2 stages)."""
@@ -191,7 +191,7 @@ class Generator(nn.Module):
         Returns:
             ``(N, C, H, W)`` in [0, 1], same dtype as the residual sum.
         """
-        with flat_samples(x):  # a flat frame: every norm gives 0 (layers module docstring)
+        with flat_samples(x):  # a flat frame: every norm gives 0 (flat_frames module docstring)
             stem = self.stem(x)
             half = self.down1(stem)
             if self.agg1 is not None:

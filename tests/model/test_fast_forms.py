@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from lenspair.model.networks.enhancer import Enhancer
 from lenspair.model.networks.generator import Generator, _reflect_border
-from lenspair.model.networks.layers import exporting
+from lenspair.model.networks.tracing import exporting
 from lenspair.model.networks.variants import build_model
 from tests.model.network_helpers import randomise
 

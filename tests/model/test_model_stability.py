@@ -7,13 +7,8 @@ import torch
 
 from lenspair.model.checkpoint import load_model
 from lenspair.model.networks.enhancer import Enhancer
-from lenspair.model.networks.layers import (
-    FLAT_RAMP,
-    FLAT_RMS_RAMP,
-    FLAT_TOLERANCE,
-    InstanceNorm,
-    flat_keep,
-)
+from lenspair.model.networks.flat_frames import FLAT_RAMP, FLAT_RMS_RAMP, FLAT_TOLERANCE, flat_keep
+from lenspair.model.networks.layers import InstanceNorm
 from lenspair.model.networks.variants import build_discriminator, build_model
 from lenspair.model.training.losses import LossWeights, discriminator_loss, generator_loss
 from lenspair.model.training.pretrained import pretrained_weights
