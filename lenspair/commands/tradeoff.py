@@ -228,7 +228,8 @@ def run(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
     if len(seeds) > 1:
         # here, not at the top: keeps `--help` from importing torch
-        from lenspair.model.evaluation.tradeoff_seeds import run_seeded_tradeoff, seeded_markdown
+        from lenspair.model.evaluation.tradeoff_seeds import run_seeded_tradeoff
+        from lenspair.model.evaluation.tradeoff_seeds_report import seeded_markdown
 
         rows, meta = run_seeded_tradeoff(
             args.dataset, args.out, device, budget, base, seeds, variants,

@@ -27,7 +27,7 @@ from lenspair.model.evaluation.seed_statistics import summarise_seeds
 from lenspair.model.evaluation.summary import ImageScore, breakdown, summarize
 from lenspair.model.evaluation.tradeoff_report import write_tradeoff
 from lenspair.model.evaluation.tradeoff_rows import TradeoffRow, mark_pareto
-from lenspair.model.evaluation.tradeoff_seeds import SeededRow, seeded_markdown
+from lenspair.model.evaluation.tradeoff_seeds_report import SeededRow, seeded_markdown
 from lenspair.model.training.config import RunConfig, RuntimeInfo
 
 README = Path(__file__).resolve().parents[2] / "README.md"

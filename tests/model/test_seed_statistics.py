@@ -16,7 +16,8 @@ from lenspair.model.evaluation.seed_statistics import (
 )
 from lenspair.model.evaluation.tradeoff import TradeoffResult
 from lenspair.model.evaluation.tradeoff_rows import TradeoffRow
-from lenspair.model.evaluation.tradeoff_seeds import aggregate, seeded_markdown
+from lenspair.model.evaluation.tradeoff_seeds import aggregate
+from lenspair.model.evaluation.tradeoff_seeds_report import seeded_markdown
 from lenspair.model.evaluation.tradeoff_variants import Budget
 from lenspair.model.training.run_files import write_metrics_rows
 

@@ -649,7 +649,7 @@ def test_a_split_asked_for_is_scored_or_refused_never_replaced(tmp_path: Path) -
 
 
 def test_the_schedule_in_words_says_the_decay() -> None:
-    from lenspair.model.evaluation.tradeoff_seeds import _schedule
+    from lenspair.model.evaluation.tradeoff_seeds_report import _schedule
 
     training = {"crop_size": 128, "batch_size": 4, "lr": 2e-4, "lr_decay": 0.5}
     assert _schedule(training) == (
@@ -810,7 +810,8 @@ def test_every_precision_has_its_own_marker_in_the_plot() -> None:
 
 
 def test_a_cuda_runs_seeded_table_gives_fp16_rows_their_gpu_time(tmp_path: Path) -> None:
-    from lenspair.model.evaluation.tradeoff_seeds import aggregate, seeded_markdown
+    from lenspair.model.evaluation.tradeoff_seeds import aggregate
+    from lenspair.model.evaluation.tradeoff_seeds_report import seeded_markdown
 
     def row(precision: str, cpu: float | None, gpu: float, psnr: float) -> TradeoffRow:
         return TradeoffRow(name="GEA", variant="GEA", width=1.0, num_blocks=9,
