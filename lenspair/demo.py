@@ -31,6 +31,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from lenspair.cli import INTERRUPTED, TERMINATED, Terminated
 from lenspair.cli import main as cli_main
@@ -341,12 +342,16 @@ def run_stage(
     """
     marker = _marker(out, stage)
     if reuse and marker.is_file() and stage.output.exists():
-        recorded = json.loads(marker.read_text(encoding="utf-8"))
+        recorded = _read_marker(marker)
         same_inputs = recorded.get("inputs", {}) == _fingerprint(stage)
         if recorded.get("argv") == list(stage.argv) and same_inputs:
             return float(recorded.get("seconds", 0.0)), True
     for stale in (stage, *later):
         _marker(out, stale).unlink(missing_ok=True)
+    # the earlier report described outputs this stage now replaces: a stopped rerun
+    # left it beside them, every stage still marked reused
+    for name in REPORT_FILES:
+        (out / name).unlink(missing_ok=True)
     # A resumable stage picks up where it stopped, unless what it read changed.
     if stage.output.exists() and not (stage.resumable and reuse):
         remove_path(stage.output)
@@ -363,6 +368,37 @@ def run_stage(
     record = {"argv": list(stage.argv), "inputs": _fingerprint(stage), "seconds": round(seconds, 2)}
     atomic_write_json(marker, record)
     return seconds, False
+
+
+def _read_marker(marker: Path) -> dict[str, Any]:
+    """A stage's finished marker; a damaged one (a full disk, an edit) reads as none."""
+    try:
+        recorded = json.loads(marker.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return recorded if isinstance(recorded, dict) else {}
+
+
+REPORT_FILES = ("report.md", "report.html", "timings.json")
+"""What :func:`run_demo` writes once every stage has run: removed when one runs again."""
+
+
+def check_out(out: Path) -> None:
+    """Refuse an ``--out`` that holds files of its own and no earlier demo.
+
+    The demo writes ``recordings/``, ``ingested/``, ``dataset/``, ``runs/``,
+    ``eval/``, ... there and replaces any it runs again: given a project's
+    own folder, it deleted the user's ``eval/`` and recordings without a word.
+
+    Raises:
+        DemoError: ``out`` is a non-empty folder without the demo's ``.stages/``.
+    """
+    if out.is_dir() and any(out.iterdir()) and not (out / ".stages").is_dir():
+        raise DemoError(
+            f"--out {out}: holds files and no earlier demo (no .stages/); the demo writes "
+            "and replaces recordings/, ingested/, dataset/, runs/, eval/, ... there: give "
+            "a new or empty folder"
+        )
 
 
 def run_stages(
@@ -391,6 +427,7 @@ def run_demo(out: Path, budget: Budget = Budget()) -> Path:
     """
     given = shlex.quote(str(out))
     out = Path(out).resolve()
+    check_out(out)
     out.mkdir(parents=True, exist_ok=True)
     # Three short recordings make too few whole-recording groups for three
     # splits, so the demo splits by time segments; a twelfth of a recording

@@ -226,7 +226,16 @@ def machine_blocks(out: Path, timings: dict[str, dict[str, float | bool]]) -> li
     from lenspair.model.precision import read_cpu_flags
 
     total = sum(float(v["seconds"]) for v in timings.values())
-    lines = [f"Total {total / 60:.1f} min on {read_cpu_flags()[0]}."]
+    reused = [name for name, v in timings.items() if v["reused"]]
+    if not reused:
+        lines = [f"Total {total / 60:.1f} min on {read_cpu_flags()[0]}."]
+    else:  # a rerun: the reused stages' times are the run that made them
+        fresh = sum(float(v["seconds"]) for v in timings.values() if not v["reused"])
+        lines = [
+            f"Total {total / 60:.1f} min of stage time on {read_cpu_flags()[0]}; "
+            f"{len(reused)} of {len(timings)} stages were reused from an earlier run "
+            f"(their seconds are that run's), and this run spent {fresh / 60:.1f} min."
+        ]
     runtime = finetune_runtime(out)
     if runtime is not None:
         lines.append(
@@ -250,7 +259,7 @@ def write_report(out: Path, timings: dict[str, dict[str, float | bool]], command
         ),
         Heading("Stages and their time"),
         Table(
-            ["stage", "seconds", "reused from an earlier run"],
+            ["stage", "seconds (an earlier run's where reused)", "reused from an earlier run"],
             [
                 [k, f"{v['seconds']:.1f}", "yes" if v["reused"] else "no"]
                 for k, v in timings.items()

@@ -6,8 +6,9 @@ builds a dataset, pretrains on synthetic drops, fine-tunes, evaluates,
 runs a small accuracy-versus-time tradeoff and restores one recording, then
 writes OUT/report.md and OUT/report.html. Each stage prints the equivalent `lenspair` command. A
 rerun reuses finished stages (a stage whose inputs changed runs again, and
-so does every stage after it). The default budget is sized for under a
-quarter of an hour on a 2-core CPU.
+so does every stage after it). OUT must be new, empty or an earlier demo's:
+the demo replaces the folders it writes there. The default budget is sized
+for under a quarter of an hour on a 2-core CPU.
 
 Example:
   lenspair demo --out demo_out

@@ -191,3 +191,69 @@ def test_a_machine_with_other_native_precisions_reruns_the_training_stages(
     assert cli.calls == ["simulate", "ingest", "train", "train"]
     assert again["simulate"]["reused"] and again["ingest"]["reused"]
     assert not again["train"]["reused"]
+
+
+def test_a_folder_of_the_users_own_is_refused_never_emptied(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`--out myproj` deleted the project's own eval/ and recordings/ (a stage removes its
+    output before it runs) without a word."""
+    import lenspair.demo
+
+    ran: list[Path] = []
+    monkeypatch.setattr(lenspair.demo, "run_stages", lambda out, s, cli: ran.append(out) or {})
+    monkeypatch.setattr(lenspair.demo, "write_report", lambda out, t, c: out / "report.md")
+    project = tmp_path / "myproj"
+    (project / "eval").mkdir(parents=True)
+    (project / "eval" / "results.txt").write_text("precious")
+    with pytest.raises(DemoError, match=r"holds files and no earlier demo \(no \.stages/\)"):
+        run_demo(project, QUICK)
+    assert (project / "eval" / "results.txt").read_text() == "precious" and not ran
+    # a new, an empty, or an earlier demo's folder is the demo's to write
+    (tmp_path / "empty").mkdir()
+    (project / ".stages").mkdir()
+    for out in (tmp_path / "new", tmp_path / "empty", project):
+        run_demo(out, QUICK)
+    assert ran == [tmp_path / "new", tmp_path / "empty", project]
+
+
+def test_a_stage_that_runs_again_takes_the_old_report_with_it(tmp_path: Path) -> None:
+    """Stopped after its first stage ran again, a rerun left the earlier report.md beside
+    outputs already replaced, every stage in it marked reused."""
+    spec = tmp_path / "scene.yaml"
+    spec.write_text("frames: 10\n")
+    stages = _stages(tmp_path, spec)
+    cli = FakeCli({s.argv[0]: s.output for s in stages})
+    run_stages(tmp_path, stages, cli)
+    for name in ("report.md", "report.html", "timings.json"):
+        (tmp_path / name).write_text("the earlier run's")
+    run_stages(tmp_path, stages, cli)  # all reused: the report stays
+    assert (tmp_path / "report.md").read_text() == "the earlier run's"
+    spec.write_text("frames: 12\n")
+    run_stages(tmp_path, stages, cli)
+    assert not any((tmp_path / n).exists() for n in ("report.md", "report.html", "timings.json"))
+    # a damaged marker (a full disk, an edit) reads as an unfinished stage, not a traceback
+    (tmp_path / ".stages" / "train.json").write_text("")
+    again = run_stages(tmp_path, stages, cli)
+    assert again["train"]["reused"] is False and cli.calls[-1] == "train"
+
+
+def test_a_rerun_report_says_which_time_is_this_runs(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A rerun of 1.6 s reported "Total 1.5 min": the reused stages' seconds were the
+    earlier run's, added up as this run's."""
+    from lenspair import demo_report
+
+    monkeypatch.setattr(demo_report, "finetune_runtime", lambda out: None)
+    timings = {
+        "simulate": {"seconds": 60.0, "reused": True},
+        "train": {"seconds": 30.0, "reused": False},
+    }
+    (text,) = [b.text for b in demo_report.machine_blocks(tmp_path, timings)]  # type: ignore[attr-defined]
+    assert "Total 1.5 min of stage time on " in text
+    assert "1 of 2 stages were reused from an earlier run (their seconds are that run's)" in text
+    assert text.endswith("this run spent 0.5 min.")
+    fresh = {k: {**v, "reused": False} for k, v in timings.items()}
+    (text,) = [b.text for b in demo_report.machine_blocks(tmp_path, fresh)]  # type: ignore[attr-defined]
+    assert text.startswith("Total 1.5 min on ") and "reused" not in text
