@@ -5,10 +5,13 @@ repository's ``calib_samples/`` folder), so they are found the same way in an
 editable install, a wheel and an sdist, whatever the working directory.
 """
 
+import logging
 from importlib import resources
 from pathlib import Path
 
 from lenspair.core.errors import LenspairError
+
+log = logging.getLogger(__name__)
 
 SAMPLES_PACKAGE = "lenspair.calib_samples"
 
@@ -48,5 +51,14 @@ def file_or_sample(text: str, suffix: str) -> Path:
     names = sample_names(suffix)
     for candidate in (path.name, path.name + suffix):
         if candidate in names:
+            local = Path(path.name + suffix)
+            if local.is_file():  # the user's own file of that name, silently passed over
+                log.warning(
+                    "%s: the bundled sample %s; %s in this folder is not read (give %s for it)",
+                    text,
+                    candidate,
+                    local,
+                    local,
+                )
             return sample_path(candidate)
     return path
