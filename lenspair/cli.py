@@ -212,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
             f"lenspair {args.command}: error: {where + ': ' if where else ''}{reason}",
             file=sys.stderr,
         )
-        return 1
+        # a name too long is the user's to shorten, as any mistyped path: a user error
+        return 2 if exc.errno == errno.ENAMETOOLONG else 1
     except KeyboardInterrupt as exc:
         # restore and train continue only when asked; the other commands resume by themselves
         hint = "rerun with --resume to continue" if hasattr(args, "resume") else "rerun to resume"

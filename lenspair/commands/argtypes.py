@@ -9,16 +9,35 @@ from lenspair.core.config import MAX_SEED
 from lenspair.core.samples import file_or_sample
 from lenspair.core.sizes import parse_size
 
+MAX_COUNT = 2**31 - 1
+"""The largest count an option takes: C's int, which torch, OpenCV and multiprocessing
+take their counts as (a larger one ended in an OverflowError traceback)."""
 
-def positive_int(text: str) -> int:
-    """Argparse type: an integer >= 1."""
+MAX_WORKERS = 256
+"""The most worker processes or threads an option starts (2 per core on a large machine)."""
+
+
+def positive_int(text: str, most: int = MAX_COUNT) -> int:
+    """Argparse type: an integer from 1 to ``most``."""
     try:
         value = int(text)
     except ValueError:
         value = 0
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    if value > most:
+        raise argparse.ArgumentTypeError(f"expected at most {most}, got {text!r}")
     return value
+
+
+def non_negative_int(text: str) -> int:
+    """Argparse type: an integer from 0 to :data:`MAX_COUNT`."""
+    return 0 if text.strip() in ("0", "+0", "-0") else positive_int(text)
+
+
+def worker_count(text: str) -> int:
+    """Argparse type: a number of worker processes or threads, 1 to :data:`MAX_WORKERS`."""
+    return positive_int(text, MAX_WORKERS)
 
 
 def finite_float(text: str) -> float:
@@ -110,7 +129,13 @@ def _exists(path: Path, text: str) -> bool:
 
 
 def out_folder(text: str) -> Path:
-    """Argparse type: an output folder: new, or an existing folder (not a file, nor inside one)."""
+    """Argparse type: an output folder: new, or an existing folder (not a file, nor inside one).
+
+    An empty name is refused: ``Path("")`` is the current folder, and ``--out ""``
+    (an unset shell variable) wrote a run's files among the user's own.
+    """
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty name; give a folder (. for this one)")
     path = Path(text)
     for part in (path, *path.parents):
         if _exists(part, text):

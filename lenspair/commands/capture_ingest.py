@@ -48,8 +48,8 @@ from lenspair.commands.argtypes import (
     detector_file,
     finite_float,
     out_folder,
-    positive_int,
     size,
+    worker_count,
 )
 
 MAX_TIME_OFFSET_MS = 9.2e12
@@ -86,7 +86,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--obstructed", choices=("cam0", "cam1"), default=None, help="override rig.yaml"
     )
     parser.add_argument(
-        "--workers", type=positive_int, default=1, help="worker processes (default 1)"
+        "--workers", type=worker_count, default=1, help="worker processes (default 1)"
     )
     add_topics_option(parser)
     parser.add_argument(

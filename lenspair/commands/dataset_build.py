@@ -48,7 +48,12 @@ them, with a warning.
 import argparse
 from pathlib import Path
 
-from lenspair.commands.argtypes import float_at_least, out_folder, positive_int
+from lenspair.commands.argtypes import (
+    float_at_least,
+    out_folder,
+    random_seed,
+    worker_count,
+)
 from lenspair.core.errors import ConfigError
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import SPLITS, load_dataset_config, parse_fractions, with_overrides
@@ -62,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=out_folder, help="dataset folder to create")
     parser.add_argument("--verify", type=Path, metavar="DS", help="check an existing dataset")
     parser.add_argument("--splits", help="train,val,test fractions of groups (0.8,0.1,0.1)")
-    parser.add_argument("--seed", type=int, help="split seed (default 0)")
+    parser.add_argument("--seed", type=random_seed, help="split seed (default 0)")
     parser.add_argument("--config", type=Path, help="YAML with curation: and split: sections")
     parser.add_argument("--overwrite", action="store_true", help="replace a different dataset")
     parser.add_argument(
@@ -80,7 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "can, else a copy; default); hard: hard links, read-only, noted in the card",
     )
     parser.add_argument(
-        "--workers", type=positive_int, help="threads reading images (default up to 4)"
+        "--workers", type=worker_count, help="threads reading images (default up to 4)"
     )
     group = parser.add_argument_group("common thresholds (override --config)")
     group.add_argument(

@@ -234,6 +234,16 @@ def _check_out_apart(args: argparse.Namespace, train_split: str, val_split: str)
     from lenspair.dataset.layouts import detect_layout
     from lenspair.simulate.presets import CLEAN_FOLDER_NAMES, find_clean_images
 
+    data = args.dataset if args.synthetic is None else args.synthetic
+    roots = {Path(data).resolve()}
+    if args.synthetic is None:
+        roots |= {(Path(data) / split).resolve() for split in (train_split, val_split)}
+    if args.out.resolve() in roots:  # config.yaml replaced the dataset's curation config
+        raise ConfigError(
+            f"--out {args.out}: the data trained on ({data}); a run writes config.yaml, "
+            f"checkpoints/ and metrics.csv there, over the data's own: choose another "
+            f"folder (such as {Path(data) / 'runs' / 'NAME'})"
+        )
     why = "its samples.png would be read as an image next time"
     if args.synthetic is not None:
         images = find_clean_images(args.synthetic)

@@ -33,10 +33,12 @@ from pathlib import Path
 from lenspair.commands.argtypes import (
     add_device_option,
     float_at_least,
+    non_negative_int,
     out_folder,
     positive_int,
     random_seed,
     size,
+    worker_count,
 )
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
@@ -114,8 +116,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--simulated-set", type=Path, metavar="DIR", help="render or reuse a simulated set"
     )
-    parser.add_argument("--set-per-kind", type=int, help=f"recordings per kind ({SET_PER_KIND})")
-    parser.add_argument("--set-frames", type=int, help=f"frames per recording ({SET_FRAMES})")
+    parser.add_argument(
+        "--set-per-kind", type=positive_int, help=f"recordings per kind ({SET_PER_KIND})"
+    )
+    parser.add_argument(
+        "--set-frames", type=positive_int, help=f"frames per recording ({SET_FRAMES})"
+    )
     parser.add_argument(
         "--steps",
         type=positive_int,
@@ -123,7 +129,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"stop training after N optimiser steps (default: {STEPS}, or no step limit "
         "with --minutes; with both, whichever comes first)",
     )
-    parser.add_argument("--batch-size", type=int, default=8, help="frames per step (8)")
+    parser.add_argument("--batch-size", type=positive_int, default=8, help="frames per step (8)")
     parser.add_argument(
         "--minutes",
         type=float_at_least(0.0, above=True),
@@ -131,11 +137,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "whichever comes first)",
     )
     parser.add_argument("--seed", type=random_seed, default=0, help="random seed (0)")
-    parser.add_argument("--threads", type=int, default=1, help="CPU threads (1)")
-    parser.add_argument("--hard", type=int, default=0, metavar="N", help="hard cases (0)")
+    parser.add_argument("--threads", type=worker_count, default=1, help="CPU threads (1)")
+    parser.add_argument(
+        "--hard", type=non_negative_int, default=0, metavar="N", help="hard cases (0)"
+    )
     add_device_option(parser)
     parser.add_argument(
-        "--workers", type=positive_int, default=1, help="processes making samples (1)"
+        "--workers", type=worker_count, default=1, help="processes making samples (1)"
     )
     parser.add_argument(
         "--input-size",

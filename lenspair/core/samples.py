@@ -46,7 +46,11 @@ def file_or_sample(text: str, suffix: str) -> Path:
     stays the path it was (and fails later as a missing file would).
     """
     path = Path(text)
-    if path.is_file() or path.parent != Path("."):  # a folder named "rain" is not the scene
+    try:
+        is_file = path.is_file()
+    except OSError:  # a name too long for the file system: no such file, said where it is read
+        return path
+    if is_file or path.parent != Path("."):  # a folder named "rain" is not the scene
         return path
     names = sample_names(suffix)
     for candidate in (path.name, path.name + suffix):

@@ -105,6 +105,18 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["dataset-build", "DS", "--out", "x" * 300], "File name too long"),  # was a traceback
     (["eval", "CKPT", "--data", "DS", "--out", "y" * 300], "File name too long"),
     (["train", "DS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
+    # counts past C's int ended in OverflowError tracebacks (torch, multiprocessing)
+    (["train", "DS", "--out", "OUT", "--batch-size", "99999999999999999999"], "at most"),
+    (["capture-ingest", "DS", "--out", "OUT", "--workers", "99999999999999999999"], "--workers"),
+    (["train-detector", "--out", "OUT", "--synthetic", "2", "--threads", "99999"], "--threads"),
+    (
+        ["train-detector", "--out", "OUT", "--synthetic", "2", "--batch-size", "9" * 20],
+        "--batch-size",
+    ),
+    (["dataset-build", "DS", "--out", "OUT", "--seed", "-1"], "--seed"),  # was accepted
+    (["simulate", "calib_samples/rain.yaml", "--out", ""], "--out: an empty name"),
+    (["simulate", "s" * 300, "--out", "OUT"], "File name too long"),  # a traceback, then exit 1
+    (["train", "DS", "--out", "DS"], "the data trained on"),  # replaced the dataset's config
     (["train", "DS", "--out", "OUT", "--init", "OUT/none.pt"], "--init"),
     (["calibrate", "DS", "--board", "x", "--model", "pinhole-equi", "--out", "/proc/x/c"], "x/c"),
     (["detect", "IMGS", "OUT/detector.pt", "--out", "OUT/d"], "the model comes first"),
