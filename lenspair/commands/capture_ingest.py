@@ -51,6 +51,8 @@ from lenspair.commands.argtypes import (
     size,
     worker_count,
 )
+from lenspair.core.errors import ConfigError
+from lenspair.core.fsutil import inside_refusal
 
 MAX_TIME_OFFSET_MS = 9.2e12
 """The most ``--time-offset`` takes either way: stamps are 64-bit ns (2**63 ns ~ 9.22e12 ms)."""
@@ -112,6 +114,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Ingest one recording; returns the exit code."""
+    why = "restore and detect would read the ingested pairs back as frames of the recording"
+    if (problem := inside_refusal(args.out, args.recording, "the recording", why)) is not None:
+        raise ConfigError(problem)
     side_detector = None
     if args.detector is not None:
         # here, not at the top: only --detector needs torch, which ingest does not load otherwise

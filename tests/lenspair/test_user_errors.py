@@ -117,6 +117,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["simulate", "calib_samples/rain.yaml", "--out", ""], "--out: an empty name"),
     (["simulate", "s" * 300, "--out", "OUT"], "File name too long"),  # a traceback, then exit 1
     (["train", "DS", "--out", "DS"], "the data trained on"),  # replaced the dataset's config
+    (["capture-ingest", "DS", "--out", "DS"], "inside the recording"),  # restore read it back
     (["train", "DS", "--out", "OUT", "--init", "OUT/none.pt"], "--init"),
     (["calibrate", "DS", "--board", "x", "--model", "pinhole-equi", "--out", "/proc/x/c"], "x/c"),
     (["detect", "IMGS", "OUT/detector.pt", "--out", "OUT/d"], "the model comes first"),
