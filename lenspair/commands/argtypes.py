@@ -35,6 +35,17 @@ def non_negative_int(text: str) -> int:
     return 0 if text.strip() in ("0", "+0", "-0") else positive_int(text)
 
 
+MAX_TIMED_RUNS = 10_000
+"""The most timed runs a latency figure takes (a median of 10000 is as sure as it gets)."""
+
+
+def timed_runs(text: str) -> int:
+    """Argparse type: ``--latency-runs``, 0 (no timing) to :data:`MAX_TIMED_RUNS`."""
+    if text.strip() in ("0", "+0", "-0"):
+        return 0
+    return positive_int(text, MAX_TIMED_RUNS)
+
+
 def worker_count(text: str) -> int:
     """Argparse type: a number of worker processes or threads, 1 to :data:`MAX_WORKERS`."""
     return positive_int(text, MAX_WORKERS)

@@ -51,6 +51,7 @@ from lenspair.commands.argtypes import (
     add_device_option,
     out_folder,
     split_name,
+    timed_runs,
 )
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
@@ -93,7 +94,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="int8: paired images to calibrate the quantisation on (not a camera calibration)",
     )
     parser.add_argument(
-        "--latency-runs", type=int, default=30, help="timed runs per figure (30; 0: no timing)"
+        "--latency-runs",
+        type=timed_runs,
+        default=30,
+        help="timed runs per figure (30; 0: no timing)",
     )
     parser.add_argument("--describe", action="store_true", help="print params and FLOPs only")
 
@@ -159,8 +163,6 @@ def run(args: argparse.Namespace) -> int:
             return 0
     if args.data is None:
         raise ConfigError("give --data DIR (paired images), or --describe")
-    if args.latency_runs < 0:
-        raise ConfigError("--latency-runs must be >= 0")
     if not Path(args.data).exists():  # before the precision line: the error alone
         raise ConfigError(f"--data {args.data}: no such folder")
     device = resolve_device(args.device)

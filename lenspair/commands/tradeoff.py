@@ -54,6 +54,7 @@ from lenspair.commands.argtypes import (
     out_folder,
     positive_int,
     split_name,
+    timed_runs,
 )
 from lenspair.core.config import MAX_SEED
 from lenspair.core.device import resolve_device
@@ -109,7 +110,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--latency-runs",
-        type=int,
+        type=timed_runs,
         default=20,
         help="timed runs per figure (20; at least 1: the table is accuracy against time)",
     )

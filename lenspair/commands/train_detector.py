@@ -58,6 +58,10 @@ STEPS = 600
 """Optimiser steps when neither ``--steps`` nor ``--minutes`` is given."""
 
 
+MAX_SYNTHETIC = 1_000_000
+"""The most synthetic frames ``--synthetic`` makes (they are held in memory while training)."""
+
+
 def frame_count(text: str) -> int:
     """Argparse type of ``--synthetic``: a number of frames (>= 0), not a folder.
 
@@ -72,6 +76,8 @@ def frame_count(text: str) -> int:
             f"expected a number of frames (0 or more), got {text!r}; the folder of clean "
             "images they are made from goes in --clean-images DIR"
         )
+    if value > MAX_SYNTHETIC:  # held in memory: 1e19 ended in a MemoryError traceback
+        raise argparse.ArgumentTypeError(f"expected at most {MAX_SYNTHETIC} frames, got {text!r}")
     return value
 
 

@@ -118,6 +118,10 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["simulate", "s" * 300, "--out", "OUT"], "File name too long"),  # a traceback, then exit 1
     (["train", "DS", "--out", "DS"], "the data trained on"),  # replaced the dataset's config
     (["capture-ingest", "DS", "--out", "DS"], "inside the recording"),  # restore read it back
+    # counts that started endless work, or a MemoryError traceback
+    (["eval", "CKPT", "--data", "DS", "--latency-runs", "9" * 20], "--latency-runs"),
+    (["tradeoff", "DS", "--out", "OUT", "--latency-runs", "100000"], "at most 10000"),
+    (["train-detector", "--out", "OUT", "--synthetic", "9" * 20], "at most 1000000 frames"),
     (["train", "DS", "--out", "OUT", "--init", "OUT/none.pt"], "--init"),
     (["calibrate", "DS", "--board", "x", "--model", "pinhole-equi", "--out", "/proc/x/c"], "x/c"),
     (["detect", "IMGS", "OUT/detector.pt", "--out", "OUT/d"], "the model comes first"),
