@@ -30,9 +30,13 @@ def positive_int(text: str, most: int = MAX_COUNT) -> int:
     return value
 
 
-def non_negative_int(text: str) -> int:
-    """Argparse type: an integer from 0 to :data:`MAX_COUNT`."""
-    return 0 if text.strip() in ("0", "+0", "-0") else positive_int(text)
+def non_negative_int(text: str, most: int = MAX_COUNT) -> int:
+    """Argparse type: an integer from 0 to ``most`` (:func:`positive_int`'s, with 0)."""
+    try:
+        zero = int(text) == 0
+    except ValueError:
+        zero = False
+    return 0 if zero else positive_int(text, most)
 
 
 MAX_TIMED_RUNS = 10_000
@@ -41,9 +45,7 @@ MAX_TIMED_RUNS = 10_000
 
 def timed_runs(text: str) -> int:
     """Argparse type: ``--latency-runs``, 0 (no timing) to :data:`MAX_TIMED_RUNS`."""
-    if text.strip() in ("0", "+0", "-0"):
-        return 0
-    return positive_int(text, MAX_TIMED_RUNS)
+    return non_negative_int(text, MAX_TIMED_RUNS)
 
 
 def worker_count(text: str) -> int:

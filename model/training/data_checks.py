@@ -35,6 +35,16 @@ def warn_or_note(notes: list[str] | None, message: str) -> None:
         notes.append(message)
 
 
+def _dataset_of(
+    source: PairSource, headers: dict[int, list[tuple[int, int, int, str]]]
+) -> tuple[PairedDataset, Sequence[int]] | None:
+    """The paired folder behind ``source`` and the indices of its pairs, if its headers are read."""
+    paired = source.source if isinstance(source, SubsetSource) else source
+    if not isinstance(paired, PairedDataset) or id(paired) not in headers:
+        return None
+    return paired, source.indices if isinstance(source, SubsetSource) else range(len(paired))
+
+
 def check_training_images(
     source: PairSource,
     headers: dict[int, list[tuple[int, int, int, str]]],
@@ -60,10 +70,10 @@ def check_training_images(
     Raises:
         DatasetError: naming the first three images too small and how many there are.
     """
-    paired = source.source if isinstance(source, SubsetSource) else source
-    if not isinstance(paired, PairedDataset) or id(paired) not in headers:
+    found = _dataset_of(source, headers)
+    if found is None:
         return
-    indices = source.indices if isinstance(source, SubsetSource) else range(len(paired))
+    paired, indices = found
     small, counts = [], {1: 0, 3: 0}
     for index in indices:
         height, width, have = headers[id(paired)][index][:3]
@@ -104,10 +114,10 @@ def check_validation_images(
         DatasetError: every pair validation scores is under the window
             (naming the folder, the window and the first three).
     """
-    paired = source.source if isinstance(source, SubsetSource) else source
-    if not isinstance(paired, PairedDataset) or id(paired) not in headers:
+    found = _dataset_of(source, headers)
+    if found is None:
         return
-    indices = source.indices if isinstance(source, SubsetSource) else range(len(paired))
+    paired, indices = found
     scored = [indices[position] for position in spread_indices(len(indices), limit)]
     window = gaussian_window().numel()  # the SSIM window of VAL_CONVENTION
     small = []
