@@ -54,12 +54,26 @@ SET_PER_KIND = 3
 SET_FRAMES = 6
 """Frames per recording of ``--simulated-set`` when ``--set-frames`` is not given."""
 
+MAX_SET_PER_KIND = 100
+"""The most recordings per kind: recording ``k`` of kind ``i`` is seeded ``seed + 100 i + k``
+(:func:`lenspair.model.detection.simset.kind_set_specs`), so 100 keeps every seed distinct."""
+
 STEPS = 600
 """Optimiser steps when neither ``--steps`` nor ``--minutes`` is given."""
 
 
 MAX_SYNTHETIC = 1_000_000
 """The most synthetic frames ``--synthetic`` makes (they are held in memory while training)."""
+
+
+def set_per_kind(text: str) -> int:
+    """Argparse type of ``--set-per-kind``: 1 to :data:`MAX_SET_PER_KIND` (2**31-1 ran forever)."""
+    return positive_int(text, MAX_SET_PER_KIND)
+
+
+def set_frames(text: str) -> int:
+    """Argparse type of ``--set-frames``: at most :data:`MAX_SYNTHETIC`, as ``--synthetic``."""
+    return positive_int(text, MAX_SYNTHETIC)
 
 
 def frame_count(text: str) -> int:
@@ -123,10 +137,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--simulated-set", type=Path, metavar="DIR", help="render or reuse a simulated set"
     )
     parser.add_argument(
-        "--set-per-kind", type=positive_int, help=f"recordings per kind ({SET_PER_KIND})"
+        "--set-per-kind",
+        type=set_per_kind,
+        help=f"recordings per kind, at most {MAX_SET_PER_KIND} ({SET_PER_KIND})",
     )
     parser.add_argument(
-        "--set-frames", type=positive_int, help=f"frames per recording ({SET_FRAMES})"
+        "--set-frames", type=set_frames, help=f"frames per recording ({SET_FRAMES})"
     )
     parser.add_argument(
         "--steps",
@@ -178,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
     # here, not at the top: keeps `--help` from importing torch
     from lenspair.model.detection.run import DetectorSources, run_training
     from lenspair.model.detection.score import scores_markdown
+    from lenspair.model.detection.simset import SCENE_KINDS
     from lenspair.model.detection.train import DetectorTraining
     from lenspair.model.networks.detector import DetectorSpec
 
@@ -198,6 +215,12 @@ def run(args: argparse.Namespace) -> int:
     set_frames = SET_FRAMES if args.set_frames is None else args.set_frames
     if args.hard < 0 or per_kind < 2 or set_frames < 1:
         raise ConfigError("--hard >= 0, --set-per-kind >= 2, --set-frames >= 1 expected")
+    kinds = len(SCENE_KINDS)
+    if args.simulated_set is not None and kinds * per_kind * set_frames > MAX_SYNTHETIC:
+        raise ConfigError(
+            f"--simulated-set of {kinds} kinds x {per_kind} recordings x {set_frames} frames "
+            f"is over {MAX_SYNTHETIC} frames; lower --set-per-kind or --set-frames"
+        )
     steps = args.steps
     if steps is None and args.minutes is None:
         steps = STEPS

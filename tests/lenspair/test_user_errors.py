@@ -202,6 +202,14 @@ OPTION_CASES: list[tuple[list[str], str]] = [
         "--set-per-kind >= 2",
     ),
     (
+        ["train-detector", "--out", "OUT", "--simulated-set", "OUT/s", "--set-per-kind", "101"],
+        "expected at most 100",
+    ),
+    (
+        ["train-detector", "--out", "OUT", "--simulated-set", "OUT/s", "--set-frames", "300000"],
+        "over 1000000 frames",
+    ),
+    (
         ["train-detector", "DS", "--out", "OUT", "--clean-images", "DS"],
         "--clean-images is used only with --synthetic N",
     ),
