@@ -352,6 +352,11 @@ def run(args: argparse.Namespace) -> int:
         return 0  # under torchrun only rank 0 reports (the others hold no best PSNR)
     best = summary.run / "checkpoints" / "best.pt"
     validated = summary.best_epoch > 0 and best.is_file()
+    if summary.steps == 0 and not validated:  # a budget under one step: exit 0 read as trained
+        raise ConfigError(
+            f"{summary.run}: {summary.stop_reason} before the first step: nothing was trained "
+            "and no checkpoint written; give a larger budget (--max-seconds, --max-steps)"
+        )
     # validated within an epoch the run did not finish: "0 epochs ... (epoch 1)" read as a slip
     during = "during " if summary.best_epoch > summary.epochs else ""
     print(

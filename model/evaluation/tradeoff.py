@@ -299,6 +299,11 @@ def _train_variant(
         resume=resume,
         data_path=Path(dataset),
     )
+    if summary.steps == 0 and summary.best_epoch == 0:  # "best.pt: checkpoint not found" next
+        raise ModelError(
+            f"{variant.name}: {summary.stop_reason} before the first step: nothing was trained; "
+            "give a larger --budget"
+        )
     return summary.steps
 
 

@@ -323,15 +323,18 @@ def _log_end(
     trainer: Trainer, config: RunConfig, state: RunState, reason: str, info: Distributed
 ) -> None:
     """Say why and where the run stopped, its best validation, and a missing perceptual loss."""
+    best = (
+        f"best validation PSNR {state.best_psnr:.2f} dB at epoch {state.best_epoch}"
+        if state.best_epoch > 0
+        else "not validated"  # "-inf dB at epoch 0" read as a diverged network
+    )
     log.info(
-        "stopped (%s) after %s, %s, %.0f s; best validation PSNR %.2f dB "
-        "at epoch %d; %d steps skipped as non-finite",
+        "stopped (%s) after %s, %s, %.0f s; %s; %d steps skipped as non-finite",
         reason,
         counted(state.epoch, "epoch"),
         counted(state.step, "step"),
         state.seconds,
-        state.best_psnr,
-        state.best_epoch,
+        best,
         trainer.guard.total,
     )
     if info.is_main and trainer.vgg is None and config.loss.perceptual > 0:

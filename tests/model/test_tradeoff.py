@@ -214,6 +214,15 @@ def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
     assert main(["tradeoff", str(dataset), "--out", str(out), "--variants", "X"]) == 2
 
 
+def test_a_budget_under_one_step_is_named_not_a_missing_checkpoint(tmp_path: Path) -> None:
+    # it ended in "G/checkpoints/best.pt: checkpoint not found"
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    g = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
+    with pytest.raises(ModelError, match=r"^G: time budget .* before the first step.*--budget$"):
+        run_tradeoff(dataset, tmp_path / "out", torch.device("cpu"), Budget(seconds=1e-300),
+                     tiny_config(), g, latency_runs=0)  # fmt: skip
+
+
 def test_a_precision_the_cpu_only_emulates_gets_no_cpu_time(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -545,6 +545,23 @@ def test_cli_trains_a_variant_under_a_time_with_units_and_says_when_it_validated
     assert "0 epochs, 2 steps, best validation PSNR" in line and "(during epoch 1)" in line
 
 
+def test_cli_refuses_to_call_a_run_under_one_step_trained(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # --max-seconds 1e-300 trained 0 steps, exited 0 and said best.pt "went missing"
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 1})
+    config = tmp_path / "train.yaml"
+    config.write_text(dump_yaml(tiny_config()))
+    run = tmp_path / "run"
+    args = ["train", str(dataset), "--out", str(run), "--config", str(config)]
+    assert main([*args, "--max-seconds", "1e-300"]) == 2
+    error = capsys.readouterr().err
+    assert "before the first step: nothing was trained" in error and "went missing" not in error
+    assert not (run / "checkpoints" / "best.pt").exists()
+    log = (run / "train.log").read_text()
+    assert "not validated" in log and "-inf" not in log
+
+
 def test_progress_label_names_the_budget_that_binds() -> None:
     from lenspair.model.training.config import TrainConfig
     from lenspair.model.training.epochs import _epoch_label
