@@ -272,6 +272,9 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
                 str(budget.latency_runs),
             ),
             out / "tradeoff",
+            # a stopped tradeoff keeps its finished variants: tradeoff reuses or resumes a
+            # run only when what it learns is unchanged (lenspair.model.evaluation.tradeoff_reuse)
+            resumable=True,
         ),
         Stage(
             "restore",

@@ -71,6 +71,16 @@ def test_an_unfinished_resumable_stage_resumes_and_later_stages_run(tmp_path: Pa
     assert (tmp_path / "ing" / "partial").is_file()  # resumed, not wiped
 
 
+def test_the_stages_that_resume_their_own_work_keep_it_after_a_stop(tmp_path: Path) -> None:
+    # Ctrl-C in the tradeoff: the rerun deleted its finished variants and trained them again,
+    # while the demo's hint promised to resume; capture-ingest and tradeoff both reuse what
+    # they finished (and replace what changed), so their outputs are kept for them
+    from lenspair.demo import plan
+
+    resumable = {stage.argv[0] for stage in plan(tmp_path, QUICK) if stage.resumable}
+    assert resumable == {"capture-ingest", "tradeoff"}
+
+
 def test_a_stage_stopped_while_it_ran_again_is_not_reused_nor_are_those_after(
     tmp_path: Path,
 ) -> None:
