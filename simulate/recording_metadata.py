@@ -194,7 +194,11 @@ def _geometry(setup: RecordingSetup, frames: list[dict[str, Any]]) -> dict[str, 
         "far_plane": far_plane,
         "planes": [
             truth.plane_record(i, plane, s.name, list(s.textures), s.depth_m)
-            for i, (plane, s) in enumerate(zip(setup.planes, spec.planes, strict=True))
+            # texture files by absolute path, as in scene.yaml: the path as typed was relative
+            # to the spec's folder, so a re-render from scene.yaml recorded another name
+            for i, (plane, s) in enumerate(
+                zip(setup.planes, setup.resolved_spec.planes, strict=True)
+            )
         ],
         "board": board,
         "frames": frames,

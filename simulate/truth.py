@@ -33,7 +33,8 @@ frame ``b`` to frame ``a``; world = body at frame 0; body = cam0)::
     baseline_m, T_cam1_cam0, T_body_cam0, T_body_cam1
     far_plane: {index, name, depth_m, normal_world, offset_m} | null
     planes: [{index, name, texture, depth_m, centre_world, normal_world,
-              offset_m, size_m | null}]   # normal . X = offset in world
+              offset_m, size_m | null}]   # normal . X = offset in world;
+                                          # texture: [sample names or absolute file paths]
     board: null | {kind, cols, rows, square_m, marker_m, dictionary,
                    object_points: [[x, y, 0], ...], ids: [...]}
     frames: [{index, t_nominal_ns, T_world_body (at t_nominal), homography,

@@ -321,6 +321,10 @@ def test_the_written_scene_renders_again_from_the_recording(tmp_path: Path) -> N
     assert (
         frames[0].read_bytes() == (again / "mav0" / "cam0" / "data" / frames[0].name).read_bytes()
     )
+    # the truth names the same file both times (it said "tex.png", then its absolute path)
+    geometry = [json.loads((r / "truth" / "geometry.json").read_text()) for r in (first, again)]
+    assert geometry[0]["planes"] == geometry[1]["planes"]
+    assert geometry[0]["planes"][0]["texture"] == [str((specs / "tex.png").resolve())]
 
 
 def test_scene_yaml_lists_only_the_declared_effects(
