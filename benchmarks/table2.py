@@ -49,7 +49,8 @@ import torch
 from lenspair.cli import main as cli_main
 from lenspair.commands import train as train_command
 from lenspair.commands.argtypes import positive_int
-from lenspair.demo import Budget, plan, run_stages
+from lenspair.demo import Budget, plan
+from lenspair.demo_stages import run_stages
 from lenspair.model.checkpoint import load_checkpoint, load_model
 from lenspair.model.evaluation.published import INITIALISATION, published_markdown
 from lenspair.model.evaluation.scoring import score_pairs

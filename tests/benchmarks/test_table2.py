@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from benchmarks import table2
-from lenspair.demo import Stage
+from lenspair.demo_stages import Stage
 
 
 @pytest.mark.parametrize(("splits", "expected"), [(None, "0.7,0.15,0.15"), ("0.6,0.15,0.25", None)])

@@ -5,7 +5,8 @@ from pathlib import Path
 import pytest
 
 from lenspair.core.samples import sample_path
-from lenspair.demo import QUICK, Stage, board_arguments, run_demo, run_stages
+from lenspair.demo import QUICK, board_arguments, run_demo
+from lenspair.demo_stages import Stage, run_stages
 from lenspair.errors import DemoError
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.calib_types import MODELS
