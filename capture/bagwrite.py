@@ -100,10 +100,19 @@ class BagCopy:
         suffix: when set, restored images go to ``<topic><suffix>``, and every
             other image of a chosen camera (judged clean, or failed) goes
             there as recorded: the topic has a message for each frame.
+        jpeg_quality: the quality 1-100 of restored JPEG ``CompressedImage``
+            messages (``None``: OpenCV's default, 95); see :func:`encode_image`.
     """
 
-    def __init__(self, source: Path, destination: Path, suffix: str = "") -> None:
+    def __init__(
+        self,
+        source: Path,
+        destination: Path,
+        suffix: str = "",
+        jpeg_quality: int | None = None,
+    ) -> None:
         self.ros1 = is_ros1_bag(Path(source))
+        self.jpeg_quality = jpeg_quality
         self.typestore = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
         self.suffix = suffix
         self.writer: Any = (
@@ -191,7 +200,7 @@ class BagCopy:
                 target = self._connection(item.connection, item.connection.topic + self.suffix)
                 self.writer.write(target, item.log_time_ns, item.raw)
             return
-        message = encode_image(item.connection.msgtype, item.message, restored)
+        message = encode_image(item.connection.msgtype, item.message, restored, self.jpeg_quality)
         msgtype = item.connection.msgtype
         data = (
             self.typestore.serialize_ros1(message, msgtype)
@@ -220,7 +229,9 @@ def mosaic(image: np.ndarray, pattern: str) -> np.ndarray:
     return out
 
 
-def encode_image(msgtype: str, message: Any, image: np.ndarray) -> Any:
+def encode_image(
+    msgtype: str, message: Any, image: np.ndarray, jpeg_quality: int | None = None
+) -> Any:
     """A copy of an image message with ``image`` as its pixels; header and encoding kept.
 
     Args:
@@ -228,6 +239,9 @@ def encode_image(msgtype: str, message: Any, image: np.ndarray) -> Any:
         message: the deserialised original.
         image: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)`` RGB, the
             original's size and dtype.
+        jpeg_quality: the quality 1-100 a ``CompressedImage`` of a JPEG format is
+            encoded at (``None``: OpenCV's default, 95); a PNG's (lossless) and
+            raw images are unaffected.
 
     Raises:
         CaptureError: an encoding that cannot be written back (e.g. ``rgba8``).
@@ -236,7 +250,12 @@ def encode_image(msgtype: str, message: Any, image: np.ndarray) -> Any:
         fmt = str(message.format).lower()
         extension = ".png" if "png" in fmt else ".jpg"
         pixels = image if image.ndim == 2 else np.ascontiguousarray(image[:, :, ::-1])
-        ok, encoded = cv2.imencode(extension, pixels)
+        params = (
+            [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]
+            if extension == ".jpg" and jpeg_quality is not None
+            else []
+        )
+        ok, encoded = cv2.imencode(extension, pixels, params)
         if not ok:
             raise CaptureError(f"cannot encode a {image.dtype} image as {extension}")
         return replace(message, data=np.asarray(encoded, dtype=np.uint8).reshape(-1))

@@ -13,11 +13,13 @@ depth, channels, orientation, colour profile and EXIF (an image file's alpha
 channel is written back unchanged beside the restored colour; 16-bit frames of
 10- or 12-bit values are restored on the full scale and written back in the
 camera's words; a Bayer bag frame is demosaiced, restored in colour, and
-sampled back into its mosaic). The model
-is a lenspair checkpoint (torch, CPU or CUDA) or an ONNX file from `lenspair
-export` (ONNX Runtime; any size runs whole, as with a checkpoint; an ONNX
-file of a fixed size, from an earlier lenspair, runs other sizes on tiles of
-its size, with a warning, and the report records the tile as forced_tile).
+sampled back into its mosaic); restored JPEGs, files and CompressedImage
+messages, are written at --jpeg-quality (95: the input's own quality cannot be
+read to match it). The model is a lenspair checkpoint (torch, CPU or CUDA) or
+an ONNX file from `lenspair export` (ONNX Runtime; any size runs whole, as
+with a checkpoint; an ONNX file of a fixed size, from an earlier lenspair, runs
+other sizes on tiles of its size, with a warning, and the report records the
+tile as forced_tile).
 
 Outputs keep the input's names under OUT: an image goes to OUT/<image name>,
 a folder's images to OUT/<path inside the folder>, an EuRoC/ASL recording to
@@ -44,16 +46,24 @@ from lenspair.commands.argtypes import (
     add_topics_option,
     detector_file,
     out_folder,
+    positive_int,
 )
 from lenspair.core.errors import ConfigError
 from lenspair.model.inference.options import (
     CAMERA_CHOICES,
     CUDA_BATCH_SIZE,
     DEFAULT_BATCH_SIZE,
+    DEFAULT_JPEG_QUALITY,
     DEFAULT_OVERLAP,
+    MAX_JPEG_QUALITY,
     PRECISIONS,
     default_batch_size,
 )
+
+
+def jpeg_quality(text: str) -> int:
+    """Argparse type: ``--jpeg-quality``, an integer from 1 to :data:`MAX_JPEG_QUALITY`."""
+    return positive_int(text, MAX_JPEG_QUALITY)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -95,6 +105,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_OVERLAP,
         help=f"tile overlap in pixels ({DEFAULT_OVERLAP})",
     )
+    parser.add_argument(
+        "--jpeg-quality",
+        type=jpeg_quality,
+        default=DEFAULT_JPEG_QUALITY,
+        metavar="Q",
+        help=f"quality 1-{MAX_JPEG_QUALITY} of every restored JPEG: image files and JPEG "
+        f"CompressedImage messages in bags (default {DEFAULT_JPEG_QUALITY}); PNG, TIFF and "
+        "other outputs are unaffected. An input's own quality is not matched: OpenImageIO "
+        "cannot read it from the file",
+    )
     add_device_option(parser)
     parser.add_argument(
         "--precision",
@@ -135,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
         suffix=args.suffix,
         resume=args.resume,
         topics=args.topics,
+        jpeg_quality=args.jpeg_quality,
     )
     check_options(options)  # before the model loads: a bad option is the only line
     checked = check_input(args.input, args.out, options)  # and so is a mistyped path or topic

@@ -39,6 +39,7 @@ def write_image(
     orientation: int = 1,
     associated: bool = False,
     metadata: Sequence[Attribute] = (),
+    jpeg_quality: int | None = None,
 ) -> None:
     """Write ``image`` atomically; the format follows the file extension.
 
@@ -60,8 +61,17 @@ def write_image(
             says so; the colour is written as given either way.
         metadata: descriptive attributes to record (ICC profile, EXIF, as
             the format holds them); see :func:`~lenspair.core.imageio.image_metadata`.
+        jpeg_quality: JPEG quality 1-100 (``None``: the library's default, about
+            98) when the file is a JPEG, by the format OpenImageIO picks for
+            its extension; ignored for every other format (given to a TIFF,
+            ``jpeg:Q`` would ask for lossy JPEG-in-TIFF).
+
+    Raises:
+        ValueError: ``jpeg_quality`` outside 1-100.
 
     """
+    if jpeg_quality is not None and not 1 <= jpeg_quality <= 100:
+        raise ValueError(f"{path}: JPEG quality {jpeg_quality} is outside 1-100")
     check_image(image, str(path))
     pixels = np.ascontiguousarray(image if image.ndim == 3 else image[:, :, None])
     if alpha is not None:
@@ -87,6 +97,10 @@ def write_image(
         if orientation != 1:
             spec.attribute("Orientation", orientation)
         out = oiio.ImageOutput.create(oiio_name(path))
+        # by the format OpenImageIO writes, not the suffix: "Compression" means another
+        # thing to other formats (jpeg:Q asks a TIFF for lossy JPEG-in-TIFF)
+        if out is not None and jpeg_quality is not None and out.format_name() == "jpeg":
+            spec.attribute("Compression", f"jpeg:{jpeg_quality}")
         if out is None or not out.open(oiio_name(tmp), spec):
             why = out.geterror() if out is not None else ""
             raise ImageIOError(

@@ -31,6 +31,7 @@ from lenspair.core.fsutil import (
     remove_path,
 )
 from lenspair.core.sourcefiles import source_fingerprint
+from lenspair.model.inference.options import DEFAULT_JPEG_QUALITY
 from lenspair.model.inference.out_layout import CACHE_DIR, PARTIAL_DIR, SOURCE_STAMP, copy_file
 
 log = logging.getLogger(__name__)
@@ -51,9 +52,18 @@ class BagSink:
         out_dir: the output folder; the bag keeps its name inside it.
         suffix: see :class:`~lenspair.capture.bagwrite.BagCopy`.
         resume: keep the cache of an earlier run (else it is cleared).
+        jpeg_quality: the quality 1-100 of restored JPEG ``CompressedImage``
+            messages (PNG and raw images are unaffected).
     """
 
-    def __init__(self, source: Path, out_dir: Path, suffix: str = "", resume: bool = False) -> None:
+    def __init__(
+        self,
+        source: Path,
+        out_dir: Path,
+        suffix: str = "",
+        resume: bool = False,
+        jpeg_quality: int = DEFAULT_JPEG_QUALITY,
+    ) -> None:
         self.source = Path(source)
         self.path = output_bag_path(source, out_dir)
         self.cache = Path(out_dir) / CACHE_DIR / self.path.name
@@ -69,7 +79,7 @@ class BagSink:
         if not resume and self.cache.exists():
             shutil.rmtree(self.cache)
         self.fingerprint = fingerprint
-        self.copy = BagCopy(source, self.partial, suffix)
+        self.copy = BagCopy(source, self.partial, suffix, jpeg_quality)
         self.opened = False
         self.extras: list[Path] = []
         """Files of a ROS 2 bag folder kept beside the new bag (set by :meth:`finish`)."""

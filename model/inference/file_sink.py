@@ -30,6 +30,7 @@ from lenspair.core.imageio import (
     read_alpha,
 )
 from lenspair.core.imagewrite import FAST_PNG, write_image
+from lenspair.model.inference.options import DEFAULT_JPEG_QUALITY
 from lenspair.model.inference.out_layout import (
     COPIES_NAME,
     OWN_NAMES,
@@ -102,10 +103,13 @@ class FileSink:
 
     Args:
         out_dir: the output folder.
+        jpeg_quality: the quality 1-100 of every restored JPEG (other formats
+            are unaffected); see :data:`~lenspair.model.inference.options.DEFAULT_JPEG_QUALITY`.
     """
 
-    def __init__(self, out_dir: Path) -> None:
+    def __init__(self, out_dir: Path, jpeg_quality: int = DEFAULT_JPEG_QUALITY) -> None:
         self.out_dir = Path(out_dir)
+        self.jpeg_quality = jpeg_quality
         self.state_dir = self.out_dir  # where a resume's bookkeeping lives (FrameDepths)
         self.copies_file = self.out_dir / COPIES_NAME
         self.copies: set[str] = set()
@@ -247,7 +251,7 @@ class FileSink:
             # FAST_PNG: a robot's stream wants speed
             write_image(
                 destination, restored, png_level=FAST_PNG, alpha=alpha, orientation=orientation,
-                associated=associated, metadata=metadata,
+                associated=associated, metadata=metadata, jpeg_quality=self.jpeg_quality,
             )  # fmt: skip
             self.copies.discard(item.name)
 

@@ -22,6 +22,15 @@ CPU's kernels may round a few pixels one 8-bit code apart at another batch size)
 CUDA_BATCH_SIZE = 4
 """``--batch-size`` on a GPU, where a batch fills the device."""
 
+DEFAULT_JPEG_QUALITY = 95
+"""``--jpeg-quality``: the quality of every restored JPEG (files and ``CompressedImage``
+messages), 1-100. OpenImageIO does not report the quality a JPEG was written at, so the
+input's cannot be matched; its own default (about 98) wrote a quality-80 frame back about
+1.8x larger. 95 is OpenCV's default, which bags' JPEG messages were written at before."""
+
+MAX_JPEG_QUALITY = 100
+"""``--jpeg-quality``'s largest value (the smallest is 1), as libjpeg takes it."""
+
 
 def default_batch_size(device_type: str) -> int:
     """``--batch-size``'s default for a device type (``cpu``, ``cuda``)."""

@@ -111,7 +111,9 @@ def restore_input(
     out_dir.mkdir(parents=True, exist_ok=True)
     started_report = not (out_dir / REPORT_NAME).exists()
     sink: FileSink | BagSink = (
-        BagSink(input_path, out_dir, options.suffix, options.resume) if bag else FileSink(out_dir)
+        BagSink(input_path, out_dir, options.suffix, options.resume, options.jpeg_quality)
+        if bag
+        else FileSink(out_dir, options.jpeg_quality)
     )
     if isinstance(sink, BagSink) and options.resume:
         kept = kept_bag_report(out_dir, input_path, kind, sink, backend, cameras, settings)

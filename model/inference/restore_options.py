@@ -15,7 +15,13 @@ from lenspair.capture.recording import CAMERAS, find_rig_file, present_cameras
 from lenspair.capture.rigfile import CameraName, read_rig_file
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
-from lenspair.model.inference.options import CAMERA_CHOICES, DEFAULT_BATCH_SIZE, DEFAULT_OVERLAP
+from lenspair.model.inference.options import (
+    CAMERA_CHOICES,
+    DEFAULT_BATCH_SIZE,
+    DEFAULT_JPEG_QUALITY,
+    DEFAULT_OVERLAP,
+    MAX_JPEG_QUALITY,
+)
 from lenspair.model.inference.tiling import check_tile
 
 
@@ -36,6 +42,9 @@ class RestoreOptions:
         resume: continue a killed run in a non-empty OUT.
         topics: bags only: the ``(cam0, cam1)`` image topics; None picks
             them from their names (:func:`lenspair.capture.bag_frames.bag_camera_topics`).
+        jpeg_quality: the quality 1-100 of every restored JPEG: image files
+            and JPEG ``CompressedImage`` messages (PNG, TIFF and raw images are
+            unaffected; the input's own quality cannot be read to match it).
     """
 
     camera: str = "auto"
@@ -45,13 +54,15 @@ class RestoreOptions:
     suffix: str = ""
     resume: bool = False
     topics: tuple[str, str] | None = None
+    jpeg_quality: int = DEFAULT_JPEG_QUALITY
 
 
 def check_options(options: RestoreOptions, backend: Backend | None = None) -> None:
     """Refuse option values no input can use, before anything is read or written.
 
     Raises:
-        ModelError: naming the option (``--batch-size``, ``--overlap``, ``--tile``);
+        ModelError: naming the option (``--batch-size``, ``--overlap``, ``--tile``,
+            ``--jpeg-quality``);
             ``--tile`` for a model exported at a fixed size, which always runs
             on tiles of that size (the option was ignored without a word).
     """
@@ -66,6 +77,11 @@ def check_options(options: RestoreOptions, backend: Backend | None = None) -> No
     check_tile(options.tile)
     if options.batch_size < 1:
         raise ModelError(f"--batch-size: expected at least 1, got {options.batch_size}")
+    if not 1 <= options.jpeg_quality <= MAX_JPEG_QUALITY:
+        raise ModelError(
+            f"--jpeg-quality: expected an integer from 1 to {MAX_JPEG_QUALITY}, "
+            f"got {options.jpeg_quality}"
+        )
     if options.overlap < 0:
         raise ModelError(f"--overlap: expected at least 0 pixels, got {options.overlap}")
     if options.tile is not None and options.tile <= options.overlap:

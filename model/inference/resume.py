@@ -41,7 +41,14 @@ def run_settings(
     cameras: tuple[CameraName, ...],
     judge: FrameJudge | None,
 ) -> dict[str, Any]:
-    """What decides a run's output bytes: input, model (and its file's hash), batching, tiles."""
+    """What decides a run's output bytes: input, model (and its file's hash), batching, tiles.
+
+    ``jpeg_quality`` too. A run recorded before it was an option wrote its JPEG
+    files at OpenImageIO's default (about 98) and its JPEG messages at OpenCV's (95),
+    whichever the input held; its report lacks the key, which
+    :func:`check_same_settings` takes as a setting that differs: a resume would
+    otherwise finish the output at another quality than its first frames.
+    """
     model_file = getattr(backend, "path", None)
     digest = _file_digest(model_file)
     model = backend.description
@@ -56,6 +63,7 @@ def run_settings(
         "tile": options.tile,
         "overlap": options.overlap,
         "suffix": options.suffix,
+        "jpeg_quality": options.jpeg_quality,
         "topics": list(options.topics) if options.topics else None,
         "only_obstructed": judge is not None,
         # which detector judged: another one keeps other frames unrestored
@@ -92,8 +100,14 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
     before = read_json_field(out_dir / REPORT_NAME, "settings")
     if not isinstance(before, dict) or not before:
         return  # written before settings were recorded: nothing to compare with
+    # A key the report lacks (an earlier lenspair's run) counts as None: so a setting
+    # that came with None for what those runs did (topics, detector_sha256) still
+    # resumes. jpeg_quality has no such value: those runs wrote JPEGs at the libraries'
+    # defaults (files about 98, bag messages 95, by what the input held), and taking
+    # any quality for theirs could finish an output at two qualities. Refused, the
+    # safer way: a new --out costs a run again, a mixed output is not seen.
     changed = [
-        f"{key}: {before.get(key)!r} -> {value!r}"
+        f"{key}: {_recorded(before, key)} -> {value!r}"
         for key, value in settings.items()
         if before.get(key) != value and not (key == "model" and _same_model(before, settings))
     ]
@@ -102,6 +116,11 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
             f"--resume: {out_dir} was written with other settings ({'; '.join(changed)}); "
             "resume with the same ones, or choose a new --out"
         )
+
+
+def _recorded(before: dict[str, Any], key: str) -> str:
+    """A setting as the report being resumed holds it, for the refusal's words."""
+    return repr(before[key]) if key in before else "not recorded (an earlier lenspair's run)"
 
 
 def _same_model(before: dict[str, Any], settings: dict[str, Any]) -> bool:

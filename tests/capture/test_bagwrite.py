@@ -7,6 +7,7 @@ from rosbags.typesys import Stores, get_typestore
 from lenspair.capture.bagwrite import encode_image
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.image_messages import COMPRESSED_IMAGE, RAW_IMAGE, decode_message
+from tests.images import texture
 
 STORE = get_typestore(Stores.ROS2_HUMBLE)
 TYPES = STORE.types
@@ -80,3 +81,19 @@ def test_rgba_cannot_be_written_back() -> None:
     original = _raw("rgba8", (4, 4, 4), np.uint8)
     with pytest.raises(CaptureError, match="rgba8"):
         encode_image(RAW_IMAGE, original, np.zeros((4, 4, 3), np.uint8))
+
+
+def test_a_jpeg_message_is_encoded_at_the_quality_asked_and_a_png_is_not_affected() -> None:
+    # a JPEG CompressedImage was always encoded at OpenCV's default quality (95)
+    image = (texture((96, 128), seed=4) * 255).astype(np.uint8)
+
+    def encoded(fmt: str, quality: int | None) -> bytes:
+        original = TYPES[COMPRESSED_IMAGE](header=_header(), format=fmt, data=np.zeros(1, np.uint8))
+        return bytes(encode_image(COMPRESSED_IMAGE, original, image, quality).data)  # type: ignore[attr-defined]
+
+    assert encoded("jpeg", None) == encoded("jpeg", 95)  # None: OpenCV's default
+    assert len(encoded("jpeg", 30)) < 0.5 * len(encoded("jpeg", 95))
+    low = TYPES[COMPRESSED_IMAGE](header=_header(), format="jpeg", data=np.zeros(1, np.uint8))
+    decoded = decode_message(COMPRESSED_IMAGE, encode_image(COMPRESSED_IMAGE, low, image, 30), "t")
+    assert decoded.shape == image.shape and np.abs(decoded.astype(float) - image).mean() < 12
+    assert encoded("png", 1) == encoded("png", None)  # lossless whatever the quality

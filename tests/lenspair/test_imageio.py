@@ -11,6 +11,7 @@ from lenspair.core.fsutil import sha256_file
 from lenspair.core.imageio import read_alpha, read_image
 from lenspair.core.imagewrite import write_image
 from lenspair.core.pixels import from_float, from_linear, to_float, to_linear
+from tests.images import texture
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16])
@@ -69,6 +70,37 @@ def test_a_jpeg_cut_short_is_an_error_not_an_image_with_grey_rows(tmp_path: Path
     (tmp_path / "rev.jpg").write_bytes(data[:jfif] + b"\x02\x01" + data[jfif + 2 :])
     for name in ("stray.jpg", "rev.jpg"):
         np.testing.assert_array_equal(read_image(tmp_path / name), read_image(whole))
+
+
+def _natural(shape: tuple[int, int]) -> np.ndarray:
+    """A colour image with detail at every scale, as a camera frame has (8-bit)."""
+    channels = [texture(shape, seed) for seed in range(3)]
+    return (np.stack(channels, axis=2) * 255).astype(np.uint8)
+
+
+def test_jpeg_quality_sets_a_jpegs_quality_by_its_format_not_its_suffix(tmp_path: Path) -> None:
+    # restore wrote JPEGs at OpenImageIO's default (about 98): a quality-80 input came
+    # back about 1.8 times larger
+    image = _natural((120, 160))
+    sizes = {}
+    for quality, name in ((50, "low.JPEG"), (95, "high.jpg"), (None, "default.jpg")):
+        write_image(tmp_path / name, image, jpeg_quality=quality)
+        sizes[quality] = (tmp_path / name).stat().st_size
+    assert sizes[50] < 0.6 * sizes[95] and sizes[95] < sizes[None], sizes
+    low = read_image(tmp_path / "low.JPEG").astype(float)
+    assert 0 < np.abs(low - image).mean() < 10  # the same picture, at a lower quality
+    with pytest.raises(ValueError, match="outside 1-100"):
+        write_image(tmp_path / "bad.jpg", image, jpeg_quality=0)
+
+
+@pytest.mark.parametrize("ext", [".png", ".tif"])
+def test_jpeg_quality_leaves_other_formats_lossless(tmp_path: Path, ext: str) -> None:
+    """A TIFF told "jpeg:Q" as its Compression would have been lossy JPEG-in-TIFF."""
+    image = _natural((60, 80))
+    write_image(tmp_path / f"q{ext}", image, jpeg_quality=10)
+    write_image(tmp_path / f"plain{ext}", image)
+    np.testing.assert_array_equal(read_image(tmp_path / f"q{ext}"), image)
+    assert (tmp_path / f"q{ext}").read_bytes() == (tmp_path / f"plain{ext}").read_bytes()
 
 
 def test_write_rejects_float_images(tmp_path: Path) -> None:

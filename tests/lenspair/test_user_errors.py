@@ -167,6 +167,18 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["restore", "CKPT", "IMGS", "--out", "OUT", "--tile", "0"], "--tile"),
     (["restore", "CKPT", "IMGS", "--out", "OUT", "--overlap", "-2"], "--overlap"),
     (["restore", "CKPT", "IMGS", "--out", "OUT", "--batch-size", "0"], "--batch-size"),
+    (
+        ["restore", "CKPT", "IMGS", "--out", "OUT", "--jpeg-quality", "0"],
+        "--jpeg-quality: expected",
+    ),
+    (
+        ["restore", "CKPT", "IMGS", "--out", "OUT", "--jpeg-quality", "101"],
+        "--jpeg-quality: expected",
+    ),
+    (
+        ["restore", "CKPT", "IMGS", "--out", "OUT", "--jpeg-quality", "abc"],
+        "--jpeg-quality: expected",
+    ),
     (["restore", "CKPT", "IMGS", "--out", "OUT", "--camera", "cam7"], "--camera"),
     (["restore", "CKPT", "IMGS", "--out", "OUT", "--precision", "fp8"], "--precision"),
     (["restore", "CKPT", "IMGS", "--out", "OUT", "--device", "tpu"], "--device"),

@@ -555,6 +555,28 @@ def test_cli_single_image_and_one_line_errors(
         assert err[0].startswith("lenspair restore: error:") and message in err[0]
 
 
+def test_cli_jpeg_quality_sets_the_restored_jpegs_quality_and_leaves_pngs_alone(
+    tmp_path: Path, checkpoint: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # restored JPEGs were written at OpenImageIO's default (about 98), whatever the input's
+    source = tmp_path / "in"
+    for index, name in enumerate(("a.jpg", "sub/b.JPEG", "c.png")):
+        write_image(source / name, (texture((96, 128), seed=index) * 255).astype(np.uint8))
+    base = ["restore", str(checkpoint), str(source), "--device", "cpu", "--precision", "fp32"]
+    assert main([*base, "--out", str(tmp_path / "default")]) == 0
+    assert main([*base, "--out", str(tmp_path / "q60"), "--jpeg-quality", "60"]) == 0
+    capsys.readouterr()
+    for name in ("a.jpg", "sub/b.JPEG"):
+        low, high = (tmp_path / out / name for out in ("q60", "default"))
+        assert low.stat().st_size < 0.75 * high.stat().st_size, name
+        same = np.corrcoef(read_image(low).ravel(), read_image(high).ravel())[0, 1]
+        assert same > 0.95, (name, same)  # the same restored frame, at a lower quality
+    png = [(tmp_path / out / "c.png").read_bytes() for out in ("q60", "default")]
+    assert png[0] == png[1]  # a PNG is not a JPEG: the same bytes at any quality
+    saved = json.loads((tmp_path / "q60" / REPORT_NAME).read_text())
+    assert saved["restored"] == 3 and saved["settings"]["jpeg_quality"] == 60
+
+
 def test_restore_help_names_trains_checkpoint_and_where_each_input_goes(
     tmp_path: Path, checkpoint: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

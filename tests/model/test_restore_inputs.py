@@ -15,6 +15,7 @@ from lenspair.capture.errors import CaptureError
 from lenspair.capture.frame_types import InputFrame
 from lenspair.capture.frames import detect_input
 from lenspair.capture.rigfile import RigFile, write_rig_file
+from lenspair.cli import main
 from lenspair.core import imageio
 from lenspair.core.errors import ImageIOError
 from lenspair.core.imageio import read_image
@@ -216,6 +217,46 @@ def test_resume_with_other_settings_is_refused(tmp_path: Path, backend: TorchBac
     assert file_tree(out) == written  # refused before anything was touched
     again = restore_input(source, out, backend, RestoreOptions(batch_size=2, resume=True))
     assert (again.resumed, again.restored) == (3, 0)
+
+
+def test_resume_with_another_jpeg_quality_is_refused(
+    tmp_path: Path, backend: TorchBackend, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the finished frames stay at the first quality: the output would mix two
+    source = tmp_path / "in"
+    for index in range(2):
+        write_image(source / f"{index}.jpg", _image(index))
+    out = tmp_path / "out"
+    first = restore_input(source, out, backend, RestoreOptions(jpeg_quality=70))
+    assert first.settings["jpeg_quality"] == 70
+    written = file_tree(out)
+    with pytest.raises(ModelError, match=r"^--resume: .*jpeg_quality: 70 -> 95"):
+        restore_input(source, out, backend, RestoreOptions(resume=True))  # the default
+    argv = ["restore", str(tmp_path / "ck.pt"), str(source), "--out", str(out), "--resume"]
+    argv += ["--device", "cpu", "--precision", "fp32", "--jpeg-quality", "90"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "jpeg_quality: 70 -> 90" in err[0], err
+    assert file_tree(out) == written  # refused before anything was touched
+    again = restore_input(source, out, backend, RestoreOptions(jpeg_quality=70, resume=True))
+    assert (again.resumed, again.restored) == (2, 0)
+    # a run of an earlier version recorded no quality: its JPEGs are at the library's default
+    report = out / REPORT_NAME
+    recorded = json.loads(report.read_text())
+    del recorded["settings"]["jpeg_quality"]
+    report.write_text(json.dumps({**recorded, "complete": False}))
+    with pytest.raises(ModelError, match=r"jpeg_quality: not recorded \(an earlier .*\) -> 70"):
+        restore_input(source, out, backend, RestoreOptions(jpeg_quality=70, resume=True))
+
+
+@pytest.mark.parametrize("quality", [0, 101])
+def test_a_jpeg_quality_outside_1_to_100_is_refused_before_out_is_made(
+    tmp_path: Path, backend: TorchBackend, quality: int
+) -> None:
+    source = _folder(tmp_path / "in", 1)
+    with pytest.raises(ModelError, match=rf"^--jpeg-quality: expected .*1 to 100, got {quality}$"):
+        restore_input(source, tmp_path / "out", backend, RestoreOptions(jpeg_quality=quality))
+    assert not (tmp_path / "out").exists()
 
 
 def test_resume_takes_the_same_model_however_its_path_is_typed(

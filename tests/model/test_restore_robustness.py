@@ -343,30 +343,36 @@ def test_an_onnx_model_that_returns_another_size_fails_the_frame(
     assert (tmp_path / "out" / "x.png").read_bytes() == (tmp_path / "in" / "x.png").read_bytes()
 
 
-def _compressed_bag(tmp_path: Path, alpha: tuple[str, int]) -> Path:
+def _compressed_bag(
+    tmp_path: Path,
+    alpha: tuple[str, int] | None = None,
+    fmt: str = "png",
+    shape: tuple[int, int] = (32, 48),
+) -> Path:
     """A ROS 1 bag of grey PNG ``CompressedImage`` frames on ``/cam0/compressed`` and ``/cam1/...``.
 
     Two frames a camera, at log time = stamp = ``index + 1`` s (cam1 5 ns later);
     the frame ``alpha`` (camera, index) is a PNG with a half-transparent alpha
-    channel, as a camera publishing ``bgra8`` sends.
+    channel, as a camera publishing ``bgra8`` sends. ``fmt="jpeg"``: JPEG frames
+    (written at OpenImageIO's default quality) instead.
     """
     store = get_typestore(Stores.ROS1_NOETIC)
     types = store.types
     bag = tmp_path / "run.bag"
-    png = tmp_path / "frame.png"
+    png = tmp_path / ("frame.jpg" if fmt == "jpeg" else "frame.png")
     with Writer1(bag) as writer:
         for camera in ("cam0", "cam1"):
             connection = writer.add_connection(f"/{camera}/compressed", COMPRESSED, typestore=store)
             nanosec = 5 if camera == "cam1" else 0
             for index in range(2):
-                grey = _grey((32, 48), seed=10 * index + nanosec)
+                grey = _grey(shape, seed=10 * index + nanosec)
                 see_through = np.full_like(grey, 255)
                 see_through[:, :24] = 0
                 write_image(png, grey, alpha=see_through if (camera, index) == alpha else None)
                 stamp = types["builtin_interfaces/msg/Time"](sec=index + 1, nanosec=nanosec)
                 header = types["std_msgs/msg/Header"](seq=index, stamp=stamp, frame_id=camera)
                 data = np.frombuffer(png.read_bytes(), np.uint8)
-                message = types[COMPRESSED](header=header, format="png", data=data)
+                message = types[COMPRESSED](header=header, format=fmt, data=data)
                 t_ns = (index + 1) * 10**9 + nanosec
                 writer.write(connection, t_ns, store.serialize_ros1(message, COMPRESSED))
     png.unlink()
@@ -396,6 +402,34 @@ def test_a_compressed_frame_with_alpha_is_failed_copied_unchanged_and_listed(
     assert before.keys() == after.keys()
     copied = [key for key in before if before[key] == after[key]]
     assert copied == [("/cam1/compressed", 2 * 10**9 + 5)]  # the others were restored
+
+
+def test_jpeg_compressed_frames_are_written_at_the_jpeg_quality_and_pngs_stay_lossless(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    # JPEG messages were encoded at OpenCV's default quality (95) whatever was asked
+    bag = _compressed_bag(tmp_path, fmt="jpeg", shape=(96, 128))
+    sizes: dict[int | None, list[int]] = {}
+    for quality in (None, 40):  # None: the default
+        options = RestoreOptions() if quality is None else RestoreOptions(jpeg_quality=quality)
+        report = restore_input(bag, tmp_path / f"q{quality}", backend, options)
+        assert (report.restored, report.failed) == (4, 0)
+        messages = [m for m in iter_bag_messages(Path(report.output)) if m.frame is not None]
+        assert [str(m.message.format) for m in messages] == ["jpeg"] * 4
+        sizes[quality] = [len(m.message.data) for m in messages]
+    assert all(low < 0.75 * high for low, high in zip(sizes[40], sizes[None], strict=True)), sizes
+    # a PNG frame is lossless at any quality: the restored pixels exactly
+    (tmp_path / "png").mkdir()
+    png_bag = _compressed_bag(tmp_path / "png")
+    report = restore_input(png_bag, tmp_path / "png_out", backend, RestoreOptions(jpeg_quality=1))
+    for source, written in zip(
+        iter_bag_messages(png_bag), iter_bag_messages(Path(report.output)), strict=True
+    ):
+        if source.frame is not None:
+            assert written.frame is not None and source.frame.image is not None
+            np.testing.assert_array_equal(
+                written.frame.image, _expected(backend, source.frame.image)
+            )
 
 
 def _pbm(shape: tuple[int, int], seed: int) -> bytes:
