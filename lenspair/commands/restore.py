@@ -14,8 +14,8 @@ channel is written back unchanged beside the restored colour; 16-bit frames of
 10- or 12-bit values are restored on the full scale and written back in the
 camera's words; a Bayer bag frame is demosaiced, restored in colour, and
 sampled back into its mosaic); restored JPEGs, files and CompressedImage
-messages, are written at --jpeg-quality (95: the input's own quality cannot be
-read to match it). The model is a lenspair checkpoint (torch, CPU or CUDA) or
+messages, are written at --jpeg-quality (default 95; the input's own quality
+cannot be read, so it is not matched). The model is a lenspair checkpoint (torch, CPU or CUDA) or
 an ONNX file from `lenspair export` (ONNX Runtime; any size runs whole, as
 with a checkpoint; an ONNX file of a fixed size, from an earlier lenspair, runs
 other sizes on tiles of its size, with a warning, and the report records the
