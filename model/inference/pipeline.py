@@ -105,7 +105,7 @@ def restore_input(
     bag = kind in ("rosbag1", "rosbag2")
     settings = run_settings(input_path, backend, options, cameras, judge)
     if options.resume:
-        check_same_settings(out_dir, settings)
+        check_same_settings(out_dir, settings, bag)
     remove_leftovers_under(out_dir)  # of a killed run: its half-written temporaries
     made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -43,11 +43,7 @@ def run_settings(
 ) -> dict[str, Any]:
     """What decides a run's output bytes: input, model (and its file's hash), batching, tiles.
 
-    ``jpeg_quality`` too. A run recorded before it was an option wrote its JPEG
-    files at OpenImageIO's default (about 98) and its JPEG messages at OpenCV's (95),
-    whichever the input held; its report lacks the key, which
-    :func:`check_same_settings` takes as a setting that differs: a resume would
-    otherwise finish the output at another quality than its first frames.
+    ``jpeg_quality`` too (a report without it: :data:`EARLIER_JPEG_QUALITY`).
     """
     model_file = getattr(backend, "path", None)
     digest = _file_digest(model_file)
@@ -76,7 +72,14 @@ def _file_digest(path: Path | None) -> str | None:
     return sha256_file(Path(path)) if path and Path(path).is_file() else None
 
 
-def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
+EARLIER_JPEG_QUALITY = {"files": 98, "bag": 95}
+"""The JPEG quality of a run whose report records none (lenspair before ``--jpeg-quality``):
+image files were written at OpenImageIO's default, 98 (the same bytes as ``jpeg:98``), and
+bags' ``CompressedImage`` messages at OpenCV's, 95. So such a run resumes at exactly its
+own quality: by default for a bag, with ``--jpeg-quality 98`` for files (the refusal says so)."""
+
+
+def check_same_settings(out_dir: Path, settings: dict[str, Any], bag: bool = False) -> None:
     """``--resume``: refuse an OUT that a restore run with other settings wrote, or none did.
 
     A resumed run keeps the frames already written, so resuming with another
@@ -102,25 +105,20 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any]) -> None:
         return  # written before settings were recorded: nothing to compare with
     # A key the report lacks (an earlier lenspair's run) counts as None: so a setting
     # that came with None for what those runs did (topics, detector_sha256) still
-    # resumes. jpeg_quality has no such value: those runs wrote JPEGs at the libraries'
-    # defaults (files about 98, bag messages 95, by what the input held), and taking
-    # any quality for theirs could finish an output at two qualities. Refused, the
-    # safer way: a new --out costs a run again, a mixed output is not seen.
+    # resumes; the JPEG quality they wrote at is known
+    before = {"jpeg_quality": EARLIER_JPEG_QUALITY["bag" if bag else "files"], **before}
     changed = [
-        f"{key}: {_recorded(before, key)} -> {value!r}"
+        f"{key}: {before.get(key)!r} -> {value!r}"
         for key, value in settings.items()
         if before.get(key) != value and not (key == "model" and _same_model(before, settings))
     ]
     if changed:
+        quality = before["jpeg_quality"]
+        hint = f" (--jpeg-quality {quality})" if quality != settings.get("jpeg_quality") else ""
         raise ModelError(
             f"--resume: {out_dir} was written with other settings ({'; '.join(changed)}); "
-            "resume with the same ones, or choose a new --out"
+            f"resume with the same ones{hint}, or choose a new --out"
         )
-
-
-def _recorded(before: dict[str, Any], key: str) -> str:
-    """A setting as the report being resumed holds it, for the refusal's words."""
-    return repr(before[key]) if key in before else "not recorded (an earlier lenspair's run)"
 
 
 def _same_model(before: dict[str, Any], settings: dict[str, Any]) -> bool:

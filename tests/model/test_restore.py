@@ -989,3 +989,25 @@ def test_a_kept_bag_keeps_the_tile_its_frames_ran_on(tmp_path: Path) -> None:
     assert (first.restored, again.resumed, again.restored) == (2, 2, 0)  # kept, not redone
     assert first.forced_tile == again.forced_tile == "48x32"
     assert json.loads((tmp_path / "out" / REPORT_NAME).read_text())["forced_tile"] == "48x32"
+
+
+def test_a_bag_an_earlier_lenspair_restored_is_kept_at_the_default_quality(
+    tmp_path: Path,
+) -> None:
+    # its report records no jpeg_quality: its JPEG messages were at OpenCV's 95, the
+    # default now, so --resume keeps the finished bag (it was refused as "not recorded")
+    model = open_backend(_fixed_size_onnx(tmp_path / "old.onnx", 32, 48), CPU)
+    rng = np.random.default_rng(2)
+    frames = {
+        "cam0": [(10**9 + k * 10**8, rng.integers(0, 256, (32, 48), np.uint8)) for k in range(2)]
+    }
+    bag = write_bag(tmp_path / "run", "db3", frames)
+    restore_input(bag, tmp_path / "out", model)
+    report = tmp_path / "out" / REPORT_NAME
+    recorded = json.loads(report.read_text())
+    del recorded["settings"]["jpeg_quality"]
+    report.write_text(json.dumps(recorded))
+    again = restore_input(bag, tmp_path / "out", model, RestoreOptions(resume=True))
+    assert (again.resumed, again.restored) == (2, 0)
+    with pytest.raises(ModelError, match=r"jpeg_quality: 95 -> 80"):
+        restore_input(bag, tmp_path / "out", model, RestoreOptions(resume=True, jpeg_quality=80))

@@ -240,13 +240,29 @@ def test_resume_with_another_jpeg_quality_is_refused(
     assert file_tree(out) == written  # refused before anything was touched
     again = restore_input(source, out, backend, RestoreOptions(jpeg_quality=70, resume=True))
     assert (again.resumed, again.restored) == (2, 0)
-    # a run of an earlier version recorded no quality: its JPEGs are at the library's default
+    # a run of an earlier version recorded no quality: its files are at OpenImageIO's 98
     report = out / REPORT_NAME
     recorded = json.loads(report.read_text())
     del recorded["settings"]["jpeg_quality"]
     report.write_text(json.dumps({**recorded, "complete": False}))
-    with pytest.raises(ModelError, match=r"jpeg_quality: not recorded \(an earlier .*\) -> 70"):
+    written = file_tree(out)
+    with pytest.raises(
+        ModelError, match=r"jpeg_quality: 98 -> 70.*same ones \(--jpeg-quality 98\)"
+    ):
         restore_input(source, out, backend, RestoreOptions(jpeg_quality=70, resume=True))
+    assert file_tree(out) == written
+    again = restore_input(source, out, backend, RestoreOptions(jpeg_quality=98, resume=True))
+    assert again.resumed == 2
+
+
+def test_an_earlier_lenspair_s_jpeg_files_were_written_at_98(tmp_path: Path) -> None:
+    # what EARLIER_JPEG_QUALITY says of files: OpenImageIO's default is jpeg:98 to the byte
+    from lenspair.model.inference.resume import EARLIER_JPEG_QUALITY
+
+    image = _image(0)
+    write_image(tmp_path / "default.jpg", image)
+    write_image(tmp_path / "given.jpg", image, jpeg_quality=EARLIER_JPEG_QUALITY["files"])
+    assert (tmp_path / "default.jpg").read_bytes() == (tmp_path / "given.jpg").read_bytes()
 
 
 @pytest.mark.parametrize("quality", [0, 101])
