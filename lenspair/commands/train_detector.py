@@ -67,13 +67,16 @@ MAX_SYNTHETIC = 1_000_000
 
 
 def set_per_kind(text: str) -> int:
-    """Argparse type of ``--set-per-kind``: 1 to :data:`MAX_SET_PER_KIND` (2**31-1 ran forever)."""
-    return positive_int(text, MAX_SET_PER_KIND)
+    """Argparse type of ``--set-per-kind``: 2 to :data:`MAX_SET_PER_KIND` (2**31-1 ran forever).
 
-
-def set_frames(text: str) -> int:
-    """Argparse type of ``--set-frames``: at most :data:`MAX_SYNTHETIC`, as ``--synthetic``."""
-    return positive_int(text, MAX_SYNTHETIC)
+    Two at least: the last recording of each kind is held out, the others trained on.
+    """
+    value = positive_int(text, MAX_SET_PER_KIND)
+    if value < 2:
+        raise argparse.ArgumentTypeError(
+            f"expected 2 or more (one recording of each kind is held out), got {text!r}"
+        )
+    return value
 
 
 def frame_count(text: str) -> int:
@@ -139,10 +142,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--set-per-kind",
         type=set_per_kind,
-        help=f"recordings per kind, at most {MAX_SET_PER_KIND} ({SET_PER_KIND})",
+        help=f"recordings per kind, 2 to {MAX_SET_PER_KIND} ({SET_PER_KIND})",
     )
     parser.add_argument(
-        "--set-frames", type=set_frames, help=f"frames per recording ({SET_FRAMES})"
+        "--set-frames",
+        type=positive_int,
+        help=f"frames per recording ({SET_FRAMES}; the set holds at most {MAX_SYNTHETIC} frames)",
     )
     parser.add_argument(
         "--steps",
@@ -213,8 +218,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("; ".join(unused))
     per_kind = SET_PER_KIND if args.set_per_kind is None else args.set_per_kind
     set_frames = SET_FRAMES if args.set_frames is None else args.set_frames
-    if args.hard < 0 or per_kind < 2 or set_frames < 1:
-        raise ConfigError("--hard >= 0, --set-per-kind >= 2, --set-frames >= 1 expected")
     kinds = len(SCENE_KINDS)
     if args.simulated_set is not None and kinds * per_kind * set_frames > MAX_SYNTHETIC:
         raise ConfigError(

@@ -211,7 +211,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["train-detector", "--out", "OUT", "--set-per-kind", "1"], "--set-per-kind"),
     (
         ["train-detector", "--out", "OUT", "--simulated-set", "OUT/s", "--set-per-kind", "1"],
-        "--set-per-kind >= 2",
+        "--set-per-kind: expected 2 or more (one recording of each kind is held out)",
     ),
     (
         ["train-detector", "--out", "OUT", "--simulated-set", "OUT/s", "--set-per-kind", "101"],
