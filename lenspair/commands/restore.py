@@ -13,13 +13,12 @@ depth, channels, orientation, colour profile and EXIF (an image file's alpha
 channel is written back unchanged beside the restored colour; 16-bit frames of
 10- or 12-bit values are restored on the full scale and written back in the
 camera's words; a Bayer bag frame is demosaiced, restored in colour, and
-sampled back into its mosaic); restored JPEGs, files and CompressedImage
-messages, are written at --jpeg-quality (default 95; the input's own quality
-cannot be read, so it is not matched). The model is a lenspair checkpoint (torch, CPU or CUDA) or
-an ONNX file from `lenspair export` (ONNX Runtime; any size runs whole, as
-with a checkpoint; an ONNX file of a fixed size, from an earlier lenspair, runs
-other sizes on tiles of its size, with a warning, and the report records the
-tile as forced_tile).
+sampled back into its mosaic); restored JPEG files and JPEG CompressedImage
+messages are written at --jpeg-quality (default 95). The model is a lenspair
+checkpoint (torch, CPU or CUDA) or an ONNX file from `lenspair export` (ONNX
+Runtime; any size runs whole, as with a checkpoint; an ONNX file of a fixed
+size, from an earlier lenspair, runs other sizes on tiles of its size, with a
+warning, and the report records the tile as forced_tile).
 
 Outputs keep the input's names under OUT: an image goes to OUT/<image name>,
 a folder's images to OUT/<path inside the folder>, an EuRoC/ASL recording to
