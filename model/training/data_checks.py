@@ -51,7 +51,7 @@ def check_training_images(
     crop_size: int | None,
     channels: int | None,
     notes: list[str] | None = None,
-) -> None:
+) -> dict[int, int] | None:
     """Every training pair holds a crop, and mixed channels are said: from headers, up front.
 
     A smaller image would stop the run whenever the sampler first drew it; a
@@ -64,15 +64,20 @@ def check_training_images(
             :meth:`~lenspair.dataset.readers.PairedDataset.check_headers`
             returned them (the files are not opened again).
         crop_size: ``data.crop_size`` (``None``: whole images).
-        channels: the network's channels (``None``: the first pair's).
+        channels: the network's channels (``None``: those of most pairs,
+            :func:`majority_channels`).
         notes: collects the mixed-channels warning instead of logging it.
+
+    Returns:
+        How many pairs have 1 and 3 channels; None for pairs not read from a
+        paired folder (their headers are not known).
 
     Raises:
         DatasetError: naming the first three images too small and how many there are.
     """
     found = _dataset_of(source, headers)
     if found is None:
-        return
+        return None
     paired, indices = found
     small, counts = [], {1: 0, 3: 0}
     for index in indices:
@@ -87,6 +92,7 @@ def check_training_images(
             "leave them out"
         )
     warn_mixed(paired.root, "training pairs", counts, channels, notes)
+    return counts
 
 
 def check_validation_images(
@@ -142,6 +148,20 @@ def check_validation_images(
     )
 
 
+def majority_channels(counts: dict[int, int]) -> int:
+    """The channels a network built for these images takes: those of most of them.
+
+    A tie goes to colour, which holds a grey image exactly (repeated). The
+    first image's channels decided before: one grey file sorted first made a
+    network of luma for a colour dataset, and the pretraining and fine-tuning
+    steps, which sort names differently, then built networks of two kinds.
+
+    Args:
+        counts: how many images have 1 and 3 channels.
+    """
+    return 1 if counts.get(1, 0) > counts.get(3, 0) else 3
+
+
 def warn_mixed(
     root: Path,
     what: str,
@@ -151,7 +171,11 @@ def warn_mixed(
 ) -> None:
     """Say that grey and colour images are mixed and how they are converted, when they are."""
     if counts.get(1) and counts.get(3):
-        takes = f"{channels} channel(s)" if channels else "the first image's channels"
+        takes = (
+            f"{channels} channel(s)"
+            if channels
+            else f"those of most of them ({majority_channels(counts)})"
+        )
         warn_or_note(
             notes,
             f"{root}: the {what} mix {counts[1]} grey and {counts[3]} colour images; the "

@@ -17,7 +17,6 @@ import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 
-from lenspair.core.imageio import image_header
 from lenspair.core.spread import spread_indices
 from lenspair.dataset.folder_notes import clean_bits
 from lenspair.dataset.layouts import detect_layout
@@ -28,6 +27,7 @@ from lenspair.model.training.data_checks import (
     check_clean_images,
     check_training_images,
     check_validation_images,
+    majority_channels,
     pair_headers,
     warn_mixed,
     warn_or_note,
@@ -109,7 +109,7 @@ def paired_training_data(
     Args:
         path: dataset root or paired folder.
         data: the ``data`` section of the run config.
-        channels: network channels; ``None`` takes the first input's.
+        channels: network channels; ``None`` takes those of most training pairs.
         seed: seed of crops and flips.
         notes: collects the warnings about the data instead of logging them
             (module docstring); ``None`` logs them now.
@@ -127,10 +127,11 @@ def paired_training_data(
     train_source, val_source, note = _split_sources(path, data, notes)
     # read before the first step, not in epoch 40
     headers = pair_headers((train_source, val_source))
-    check_training_images(train_source, headers, data.crop_size, channels, notes)
+    counts = check_training_images(train_source, headers, data.crop_size, channels, notes)
     check_validation_images(val_source, headers, data.max_val_images, notes)
-    resolved = channels or first_channels(train_source)
-    if channel_note := conversion_note(resolved, first_channels(train_source), path):
+    found = majority_channels(counts) if counts else first_channels(train_source)
+    resolved = channels or found
+    if channel_note := conversion_note(resolved, found, path):
         warn_or_note(notes, channel_note)
     train = PairedCrops(
         train_source,
@@ -207,7 +208,7 @@ def synthetic_training_data(
         folder: any folder of clean PNG/JPG/TIFF images, or a lenspair
             dataset (its ``target/`` images are used).
         data: the ``data`` section (``drops``, ``val_fraction``, crops, flips).
-        channels: network channels; ``None`` takes the first image's.
+        channels: network channels; ``None`` takes those of most images.
         seed: seed of crops, flips and drops.
         notes: collects the warnings about the images instead of logging them
             (module docstring); ``None`` logs them now.
@@ -220,7 +221,7 @@ def synthetic_training_data(
     val_images = [val_images[i] for i in spread_indices(held_out, data.max_val_images)]
     counts = check_clean_images(folder, train_images, val_images, data.crop_size, notes)
     warn_mixed(folder, "clean images", counts, channels, notes)
-    resolved = channels or image_header(images[0])[2]
+    resolved = channels or majority_channels(counts)
     effects = drops_preset(data.drops)
     bits = clean_bits(folder, images, notes)
     train = SyntheticDrops.for_training(

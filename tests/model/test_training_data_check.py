@@ -16,6 +16,7 @@ from lenspair.core.imagewrite import write_image
 from lenspair.dataset.errors import DatasetError
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.config_loading import load_run_config, stored_run_config
+from lenspair.model.training.data_checks import majority_channels
 from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
 from tests.model.train_fixtures import (
     clean_image,
@@ -76,6 +77,20 @@ def test_mixed_grey_and_colour_pairs_are_said(
     data = paired_training_data(dataset, tiny_config().data, None, 0)
     assert data.channels == 1
     assert any("mix 2 grey and 1 colour" in r.getMessage() for r in caplog.records)
+    # the first pair no longer decides: a colour 000 among grey pairs leaves them grey
+    for name, image in (("000", colour), ("002", grey)):
+        write_image(dataset / "train" / "input" / f"{name}.png", image)
+        write_image(dataset / "train" / "target" / f"{name}.png", image)
+    assert paired_training_data(dataset, tiny_config().data, None, 0).channels == 1
+
+
+@pytest.mark.parametrize(
+    ("grey", "colour", "channels"), [(0, 5, 3), (5, 0, 1), (3, 2, 1), (2, 3, 3), (2, 2, 3)]
+)
+def test_the_network_takes_the_channels_of_most_images_and_colour_on_a_tie(
+    grey: int, colour: int, channels: int
+) -> None:
+    assert majority_channels({1: grey, 3: colour}) == channels
 
 
 def _clean_folder(folder: Path, count: int) -> Path:
@@ -96,14 +111,17 @@ def test_mixed_grey_and_colour_clean_images_are_said(
 ) -> None:
     folder = tmp_path / "photos"
     grey = clean_image(np.random.default_rng(3))
-    write_image(folder / "0_grey.png", grey)  # first by name: it sets the network's channels
+    # first by name: it set the network's channels, so one stray grey file made a colour
+    # set train a network of luma
+    write_image(folder / "0_grey.png", grey)
     for index in range(1, 5):
         write_image(folder / f"{index}.png", np.ascontiguousarray(np.stack([grey] * 3, axis=2)))
     caplog.set_level("WARNING")
     data = synthetic_training_data(folder, tiny_config().data, None, 0)
-    assert data.channels == 1
+    assert data.channels == 3
     (said,) = [r.getMessage() for r in caplog.records if "mix" in r.getMessage()]
     assert "clean images mix 1 grey and 4 colour" in said and "model.channels" in said
+    assert "the network takes those of most of them (3)" in said
     caplog.clear()
     synthetic_training_data(folder, tiny_config().data, 3, 0)  # chosen: still said, as 3
     assert any("the network takes 3 channel(s)" in r.getMessage() for r in caplog.records)
