@@ -57,6 +57,22 @@ def drops_preset(name: str) -> EffectsSpec:
         raise SimulateError(f"unknown drops preset {name!r}; valid presets: {valid}") from None
 
 
+MACOS_ARCHIVE_FOLDER = "__MACOSX"
+"""What a zip made on macOS unpacks beside its files: AppleDouble ``._<name>`` resource
+forks, binary, named like the images they belong to."""
+
+
+def _visible(path: Path, root: Path) -> bool:
+    """Whether ``path`` is a file a user put under ``root``: no hidden part, no macOS fork.
+
+    ``._0_clean.png`` and ``__MACOSX/gt/._0_clean.png`` (a Raindrop zip unpacked on
+    macOS) were read as images and refused the whole folder; ``.DS_Store`` and hidden
+    folders are passed over as the paired readers and ``restore`` pass them over.
+    """
+    parts = path.relative_to(root).parts
+    return not any(part.startswith(".") or part == MACOS_ARCHIVE_FOLDER for part in parts)
+
+
 def find_clean_images(folder: Path) -> list[Path]:
     """Clean images under ``folder`` for synthetic pretraining, sorted.
 
@@ -65,6 +81,7 @@ def find_clean_images(folder: Path) -> list[Path]:
     root, only those of ``train/``, so validation and test images stay
     unseen); otherwise every image below ``folder`` (the suffixes ``restore``
     and ``train`` read: :data:`lenspair.capture.folders.IMAGE_SUFFIXES`).
+    Hidden files and folders and macOS's ``__MACOSX`` are passed over.
 
     Raises:
         SimulateError: no image found.
@@ -77,7 +94,11 @@ def find_clean_images(folder: Path) -> list[Path]:
         (folder / "train" / name).is_dir() for name in CLEAN_FOLDER_NAMES
     ):
         folder = folder / "train"  # a dataset root: never pretrain on val/test targets
-    images = sorted(p for p in folder.rglob("*") if p.suffix.lower() in IMAGE_SUFFIXES)
+    images = sorted(
+        p
+        for p in folder.rglob("*")
+        if p.suffix.lower() in IMAGE_SUFFIXES and _visible(p, folder) and p.is_file()
+    )
     clean = [p for p in images if p.parent.name.lower() in CLEAN_FOLDER_NAMES]
     chosen = clean or images
     if not chosen:

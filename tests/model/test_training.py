@@ -489,6 +489,16 @@ def test_synthetic_drops_render_on_the_fly(tmp_path: Path) -> None:
     dataset = write_split_dataset(tmp_path / "ds", {"train": 3, "val": 1, "test": 2})
     found = find_clean_images(dataset)  # a dataset root: its training targets only
     assert [p.relative_to(dataset).parts[:2] for p in found] == [("train", "target")] * 3
+    # a Raindrop zip unpacked on macOS: AppleDouble forks beside the images and under
+    # __MACOSX/ (binary, named like images) refused the whole folder as unusable images
+    raindrop = tmp_path / "raindrop" / "train"
+    write_image(raindrop / "gt" / "0_clean.png", clean_image(rng, 40, 56))
+    for fork in ("gt/._0_clean.png", "__MACOSX/gt/._0_clean.png", ".cache/1_clean.png"):
+        (raindrop / fork).parent.mkdir(parents=True, exist_ok=True)
+        (raindrop / fork).write_bytes(b"\x00\x05\x16\x07 AppleDouble")
+    (raindrop / "gt" / "folder.png").mkdir()
+    assert find_clean_images(raindrop) == [raindrop / "gt" / "0_clean.png"]
+    assert find_clean_images(raindrop / "gt") == [raindrop / "gt" / "0_clean.png"]
     config = tiny_config().data
     ours = synthetic_training_data(tmp_path / "clean", config, None, seed=0)
     assert ours.channels == 3 and ours.synthetic == "ours"
