@@ -64,6 +64,10 @@ from lenspair.dataset.layouts import (
     unpaired_files,
 )
 
+Header = tuple[int, int, int, str]
+"""An image's ``(height, width, channels, format)``
+(:func:`~lenspair.core.imageio.image_header`)."""
+
 
 @dataclass(frozen=True)
 class PairEntry:
@@ -202,44 +206,53 @@ class PairedDataset:
             )
         return widen(image, self.bits)
 
-    def check_headers(self, most: int = 3) -> list[tuple[int, int, int, str]]:
-        """Check every pair's files from their headers, pixels unread (fast).
+    def header_problems(self) -> tuple[dict[int, Header], dict[int, str]]:
+        """Every pair's files checked from their headers, pixels unread (fast).
 
         A training run reads its pairs for minutes or hours; a pair whose input
         and target differ in size, channels or bit depth, or whose file cannot
         be opened, is better found before the first step than in epoch 40.
 
         Returns:
-            Each pair's header (:func:`~lenspair.core.imageio.image_header`:
-            height, width, channels, format), in pair order, for further checks
-            without opening the files again.
-
-        Raises:
-            DatasetError: naming the first ``most`` bad pairs and how many there are.
+            ``(headers, problems)``: by pair index, the header of each good
+            pair (:func:`~lenspair.core.imageio.image_header`: height, width,
+            channels, format), and one line naming the file and the problem
+            for each bad one.
         """
-        problems, headers = [], []
-        for entry in self.entries:
+        headers: dict[int, Header] = {}
+        problems: dict[int, str] = {}
+        for index, entry in enumerate(self.entries):
             try:
                 have = image_header(entry.input_path)
                 want = image_header(entry.target_path)
                 mask = image_header(entry.mask_path)[:2] if entry.mask_path else have[:2]
             except ImageIOError as exc:
-                problems.append(str(exc))
+                problems[index] = str(exc)
                 continue
             if have != want:
-                problems.append(
+                problems[index] = (
                     f"{entry.input_path}: {have[1]}x{have[0]}x{have[2]} {have[3]} does not "
                     f"match {entry.target_path} {want[1]}x{want[0]}x{want[2]} {want[3]}"
                 )
             elif mask != have[:2]:
-                problems.append(_mask_mismatch(entry, mask, have[:2]))
-            headers.append(have)
+                problems[index] = _mask_mismatch(entry, mask, have[:2])
+            else:
+                headers[index] = have
+        return headers, problems
+
+    def check_headers(self, most: int = 3) -> list[Header]:
+        """Each pair's header, in pair order, when every pair is good (:meth:`header_problems`).
+
+        Raises:
+            DatasetError: naming the first ``most`` bad pairs and how many there are.
+        """
+        headers, problems = self.header_problems()
         if problems:
             raise DatasetError(
                 f"{self.root}: {len(problems)} bad pair(s) of {len(self.entries)}: "
-                + listed(problems, most)
+                + listed(list(problems.values()), most)
             )
-        return headers
+        return [headers[index] for index in range(len(self.entries))]
 
     def __iter__(self) -> Iterator[PairedItem]:
         """Read the pairs in order."""

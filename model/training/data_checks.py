@@ -20,7 +20,7 @@ from lenspair.core.errors import ImageIOError, listed
 from lenspair.core.imageio import format_problem, image_header
 from lenspair.core.spread import spread_indices
 from lenspair.dataset.errors import DatasetError
-from lenspair.dataset.readers import PairedDataset
+from lenspair.dataset.readers import Header, PairedDataset
 from lenspair.model.metrics import gaussian_window
 from lenspair.model.training.pairs import PairSource, SubsetSource
 
@@ -35,9 +35,16 @@ def warn_or_note(notes: list[str] | None, message: str) -> None:
         notes.append(message)
 
 
-def _dataset_of(
-    source: PairSource, headers: dict[int, list[tuple[int, int, int, str]]]
-) -> tuple[PairedDataset, Sequence[int]] | None:
+Headers = dict[int, dict[int, Header]]
+"""``id(dataset)`` -> its good pairs' headers by pair index
+(:meth:`~lenspair.dataset.readers.PairedDataset.header_problems`)."""
+
+MOST_BAD_SHARE = 0.5
+"""Above this share of bad pairs training is refused, not run on the rest: so many is a
+folder given by mistake or a systematic fault (a resize applied to one side), not strays."""
+
+
+def _dataset_of(source: PairSource, headers: Headers) -> tuple[PairedDataset, Sequence[int]] | None:
     """The paired folder behind ``source`` and the indices of its pairs, if its headers are read."""
     paired = source.source if isinstance(source, SubsetSource) else source
     if not isinstance(paired, PairedDataset) or id(paired) not in headers:
@@ -47,7 +54,7 @@ def _dataset_of(
 
 def check_training_images(
     source: PairSource,
-    headers: dict[int, list[tuple[int, int, int, str]]],
+    headers: Headers,
     crop_size: int | None,
     channels: int | None,
     notes: list[str] | None = None,
@@ -97,7 +104,7 @@ def check_training_images(
 
 def check_validation_images(
     source: PairSource,
-    headers: dict[int, list[tuple[int, int, int, str]]],
+    headers: Headers,
     limit: int | None,
     notes: list[str] | None = None,
 ) -> None:
@@ -230,19 +237,47 @@ def check_clean_images(
     return counts
 
 
-def pair_headers(sources: Sequence[PairSource]) -> dict[int, list[tuple[int, int, int, str]]]:
+def pair_headers(
+    sources: Sequence[PairSource], notes: list[str] | None = None
+) -> tuple[list[PairSource], Headers]:
     """The headers of the pairs of each paired dataset behind ``sources``, read once each.
 
+    A pair whose files cannot be opened, or whose input and target differ
+    in size, channels or bit depth (a Raindrop pair one pixel apart), is left
+    out of the sources, with one warning per dataset naming the first three
+    and the count: one bad pair stopped the run before, where ``eval`` skips it.
+
     Returns:
-        ``id(dataset)`` -> its pairs' headers, as
-        :meth:`~lenspair.dataset.readers.PairedDataset.check_headers` returns them.
+        ``(sources, headers)``: each source without its bad pairs, in order,
+        and ``id(dataset)`` -> its good pairs' headers.
 
     Raises:
-        DatasetError: pairs whose headers disagree.
+        DatasetError: more than :data:`MOST_BAD_SHARE` of a dataset's pairs are bad.
     """
-    headers: dict[int, list[tuple[int, int, int, str]]] = {}  # id(dataset) -> pair headers
+    headers: Headers = {}
+    bad: dict[int, set[int]] = {}
     for source in sources:
         paired = source.source if isinstance(source, SubsetSource) else source
-        if isinstance(paired, PairedDataset) and id(paired) not in headers:
-            headers[id(paired)] = paired.check_headers()
-    return headers
+        if not isinstance(paired, PairedDataset) or id(paired) in headers:
+            continue
+        headers[id(paired)], problems = paired.header_problems()
+        bad[id(paired)] = set(problems)
+        if not problems:
+            continue
+        said = f"{paired.root}: {len(problems)} bad pair(s) of {len(paired)}: " + listed(
+            list(problems.values())
+        )
+        if len(problems) > MOST_BAD_SHARE * len(paired):
+            raise DatasetError(f"{said}; more than half, so none are trained on")
+        warn_or_note(notes, f"{said}; left out of training and validation")
+    return [_without(source, bad) for source in sources], headers
+
+
+def _without(source: PairSource, bad: dict[int, set[int]]) -> PairSource:
+    """``source`` without the pairs of its paired dataset listed in ``bad``."""
+    paired = source.source if isinstance(source, SubsetSource) else source
+    left_out = bad.get(id(paired))
+    if not left_out:
+        return source
+    indices = source.indices if isinstance(source, SubsetSource) else range(len(paired))
+    return SubsetSource(paired, [index for index in indices if index not in left_out])

@@ -117,8 +117,9 @@ def paired_training_data(
     Raises:
         DatasetError: unreadable dataset, a validation split that is there but
             cannot be opened (an unpaired file: refused, not replaced by train
-            pairs), pairs whose headers disagree
-            (:meth:`~lenspair.dataset.readers.PairedDataset.check_headers`), or
+            pairs), more than half of the pairs bad (a pair whose headers
+            disagree or cannot be read is otherwise left out, said:
+            :func:`~lenspair.model.training.data_checks.pair_headers`), or
             validation pairs all too small to score;
             ModelError: too few pairs.
 
@@ -126,7 +127,9 @@ def paired_training_data(
     path = Path(path)
     train_source, val_source, note = _split_sources(path, data, notes)
     # read before the first step, not in epoch 40
-    headers = pair_headers((train_source, val_source))
+    listed_pairs = len(train_source) + len(val_source)
+    (train_source, val_source), headers = pair_headers((train_source, val_source), notes)
+    left_out = listed_pairs - len(train_source) - len(val_source)
     counts = check_training_images(train_source, headers, data.crop_size, channels, notes)
     check_validation_images(val_source, headers, data.max_val_images, notes)
     found = majority_channels(counts) if counts else first_channels(train_source)
@@ -146,6 +149,7 @@ def paired_training_data(
     val = PairedCrops(val_source, resolved, None, seed=seed, limit=data.max_val_images)
     description = f"{path} (train {len(train)} pairs, validation {_of(len(val), len(val_source))}"
     description += f"; {note}" if note else ""
+    description += f"; {left_out} bad pairs left out" if left_out else ""
     description += f"; {names_digest(train_source, val_source)})"
     return TrainData(train=train, val=val, channels=resolved, description=description)
 
