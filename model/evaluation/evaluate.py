@@ -167,7 +167,7 @@ def evaluate_checkpoint(
     size = (int(first.input.shape[0]), int(first.input.shape[1]))
     source = pairs if calibration is None else calibration
     network = _deployed(loaded, channels, device, precision, source, size)
-    scores, samples, unread = score_pairs(
+    scores, samples, unread, mixed = score_pairs(
         network, pairs, channels, device, convention, precision, unread=leading
     )
     if not scores:
@@ -210,7 +210,9 @@ def evaluate_checkpoint(
         precision_reason=precision_reason,
         unread=unread,
         calibration=calibrated,
-        conversion=note or "",
+        # every converted pair counted: from the first pair alone, a grey pair among colour
+        # ones, or colour pairs after a grey first one, left no trace in the reports
+        conversion=mixed,
     )
 
 

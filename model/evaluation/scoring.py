@@ -102,6 +102,9 @@ class Scored(NamedTuple):
     scores: list[ImageScore]
     samples: list[SheetRow]
     unread: list[Unread]
+    conversion: str = ""
+    """How many scored pairs had another channel count than the network and were
+    converted, and which ("" when none): for the reports, not only the log."""
 
 
 @torch.inference_mode()
@@ -195,18 +198,18 @@ def score_pairs(
                     (_to_numpy(x), _to_numpy(output), _to_numpy(target)),
                 )
             )
-    if 0 < len(converted) < read:  # mixed; all converted is said by evaluate, from the first
-        log.warning(
-            "%d pair(s) have another channel count than the network's %d and were converted "
-            "(%s): %s",
-            len(converted),
-            channels,
-            "to luma" if channels == 1 else "grey repeated",
-            listed(converted),
+    conversion = ""
+    if converted:
+        conversion = (
+            f"{len(converted)} of {read} pair(s) have another channel count than the "
+            f"network's {channels} and were converted "
+            f"({'to luma' if channels == 1 else 'grey repeated'}): {listed(converted)}"
         )
+    if 0 < len(converted) < read:  # mixed; all converted is said by evaluate, from the first
+        log.warning("%s", conversion)
     order = {name: i for i, name in enumerate(DIFFICULTY_ORDER)}
     samples.sort(key=lambda row: order.get(row.difficulty or "", len(order)))
-    return Scored(scores, samples, sorted(bad, key=lambda u: u.index))
+    return Scored(scores, samples, sorted(bad, key=lambda u: u.index), conversion)
 
 
 @torch.inference_mode()

@@ -390,7 +390,7 @@ def test_a_mono_network_on_colour_pairs_says_so(
     assert main(["eval", str(checkpoint), "--data", str(colour), "--out", str(out),
                  "--latency-runs", "0"]) == 0  # fmt: skip
     conversion = json.loads((out / "metrics.json").read_text())["conversion"]
-    assert "converted to luma" in conversion
+    assert conversion.startswith("2 of 2 pair(s)") and "converted (to luma)" in conversion
     assert f"- channels: {conversion}" in (out / "metrics.md").read_text()
 
 
@@ -474,7 +474,14 @@ def test_colour_pairs_among_grey_ones_are_said_converted(
     with caplog.at_level("WARNING"):
         assert main(["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0"]) == 0
     said = [r.getMessage() for r in caplog.records if "were converted" in r.getMessage()]
-    assert len(said) == 1 and said[0].startswith("1 pair(s)") and "zzz" in said[0]
+    assert len(said) == 1 and said[0].startswith("1 of 3 pair(s)") and "zzz" in said[0]
+    # and the reports say it: they read as if nothing had been converted
+    out = tmp_path / "eval"
+    argv = ["eval", str(checkpoint), "--data", str(folder), "--latency-runs", "0"]
+    assert main([*argv, "--out", str(out)]) == 0
+    conversion = json.loads((out / "metrics.json").read_text())["conversion"]
+    assert conversion == said[0]
+    assert f"- channels: {conversion}" in (out / "metrics.md").read_text()
 
 
 def test_a_split_eval_cannot_use_is_refused_in_one_line(
