@@ -11,7 +11,7 @@ both per-frame stages (the homography's feature samples and this one) run in.
 
 import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -134,7 +134,12 @@ def _resume(
     records: dict[int, PairRecord] = {}
     tasks = []
     redone = []
-    for obstructed_frame, clean_frame in frame_pairs:
+    # a rerun checks every finished pair's files by SHA-256 before the pairs bar: tens of GB
+    # of a long recording, read without a word
+    listed: Iterable[tuple[FrameRef, FrameRef]] = frame_pairs
+    if journal:
+        listed = progress(frame_pairs, desc="checking finished pairs", unit="pair")
+    for obstructed_frame, clean_frame in listed:
         task = frame_work.FrameTask(
             obstructed_frame, clean_frame, state, warnings.get(obstructed_frame.t_ns)
         )

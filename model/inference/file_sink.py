@@ -30,6 +30,7 @@ from lenspair.core.imageio import (
     read_alpha,
 )
 from lenspair.core.imagewrite import FAST_PNG, write_image
+from lenspair.core.progress import progress
 from lenspair.model.inference.options import DEFAULT_JPEG_QUALITY
 from lenspair.model.inference.out_layout import (
     COPIES_NAME,
@@ -147,7 +148,10 @@ class FileSink:
         skip = {Path(p).resolve() for p in restored}
         own = {*reserved, *OWN_NAMES}
         clashes = []
-        for relative in files_under(root, follow_links):
+        # a recording's other camera and truth/: tens of GB of a long run, after the
+        # restoring bar has closed
+        others = list(files_under(root, follow_links))
+        for relative in progress(others, desc="copying the rest", unit="file"):
             source = Path(root) / relative
             if source.resolve() in skip:
                 continue
