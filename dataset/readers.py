@@ -240,20 +240,6 @@ class PairedDataset:
                 headers[index] = have
         return headers, problems
 
-    def check_headers(self, most: int = 3) -> list[Header]:
-        """Each pair's header, in pair order, when every pair is good (:meth:`header_problems`).
-
-        Raises:
-            DatasetError: naming the first ``most`` bad pairs and how many there are.
-        """
-        headers, problems = self.header_problems()
-        if problems:
-            raise DatasetError(
-                f"{self.root}: {len(problems)} bad pair(s) of {len(self.entries)}: "
-                + listed(list(problems.values()), most)
-            )
-        return [headers[index] for index in range(len(self.entries))]
-
     def __iter__(self) -> Iterator[PairedItem]:
         """Read the pairs in order."""
         return (self[i] for i in range(len(self)))

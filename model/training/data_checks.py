@@ -68,7 +68,7 @@ def check_training_images(
     Args:
         source: the training pairs.
         headers: ``id(dataset)`` -> its pairs' headers, as
-            :meth:`~lenspair.dataset.readers.PairedDataset.check_headers`
+            :meth:`~lenspair.dataset.readers.PairedDataset.header_problems`
             returned them (the files are not opened again).
         crop_size: ``data.crop_size`` (``None``: whole images).
         channels: the network's channels (``None``: those of most pairs,
