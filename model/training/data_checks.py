@@ -44,12 +44,19 @@ MOST_BAD_SHARE = 0.5
 folder given by mistake or a systematic fault (a resize applied to one side), not strays."""
 
 
+def _behind(source: PairSource) -> tuple[PairSource, Sequence[int]]:
+    """The pairs ``source`` picks from (a subset's source, else itself) and which it picks."""
+    if isinstance(source, SubsetSource):
+        return source.source, source.indices
+    return source, range(len(source))
+
+
 def _dataset_of(source: PairSource, headers: Headers) -> tuple[PairedDataset, Sequence[int]] | None:
     """The paired folder behind ``source`` and the indices of its pairs, if its headers are read."""
-    paired = source.source if isinstance(source, SubsetSource) else source
+    paired, indices = _behind(source)
     if not isinstance(paired, PairedDataset) or id(paired) not in headers:
         return None
-    return paired, source.indices if isinstance(source, SubsetSource) else range(len(paired))
+    return paired, indices
 
 
 def check_training_images(
@@ -257,7 +264,7 @@ def pair_headers(
     headers: Headers = {}
     bad: dict[int, set[int]] = {}
     for source in sources:
-        paired = source.source if isinstance(source, SubsetSource) else source
+        paired, _ = _behind(source)
         if not isinstance(paired, PairedDataset) or id(paired) in headers:
             continue
         headers[id(paired)], problems = paired.header_problems()
@@ -275,9 +282,8 @@ def pair_headers(
 
 def _without(source: PairSource, bad: dict[int, set[int]]) -> PairSource:
     """``source`` without the pairs of its paired dataset listed in ``bad``."""
-    paired = source.source if isinstance(source, SubsetSource) else source
+    paired, indices = _behind(source)
     left_out = bad.get(id(paired))
     if not left_out:
         return source
-    indices = source.indices if isinstance(source, SubsetSource) else range(len(paired))
     return SubsetSource(paired, [index for index in indices if index not in left_out])
