@@ -18,14 +18,14 @@ If reading stops part-way for another reason, frames read so far are kept and
 the stop is recorded the same way.
 
 Open readers are cached per process (a few at a time) so that loading many
-frames does not reopen the bag; a forked worker opens its own.
+frames does not reopen the bag, and each topic is read forward by a cursor so
+that loading them in order reads the bag once (:mod:`lenspair.capture.bag_cursor`);
+a forked worker opens its own.
 """
 
 import dataclasses
-import os
 import re
-import threading
-from collections import Counter, OrderedDict
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from contextlib import suppress
 from pathlib import Path
@@ -35,6 +35,7 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
+from lenspair.capture.bag_cursor import OpenBags
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.image_messages import IMAGE_TYPES, decode_message, one_line
 from lenspair.capture.recording_types import (
@@ -167,22 +168,15 @@ def load_bag_frame(frame: FrameRef) -> np.ndarray:
     if frame.topic is None or frame.log_time_ns is None:
         raise CaptureError(f"{frame.describe()}: not a bag frame")
     where = frame.describe()
+    start = frame.log_time_ns
     with _CACHE.lock:
         reader = _CACHE.get(frame.source)
         connections = [c for c in reader.connections if c.topic == frame.topic]
         if not connections:
             raise CaptureError(f"{where}: topic not found in the bag")
-        start = frame.log_time_ns
-        found = None
         try:
-            same_time = reader.messages(connections, start=start, stop=start + 1)
-            try:
-                for index, item in enumerate(same_time):
-                    if index == frame.occurrence:
-                        found = item
-                        break
-            finally:
-                same_time.close()
+            wanted = (start, frame.occurrence)
+            found = _CACHE.message(frame.source, frame.topic, connections, wanted)
             if found is not None:
                 message: Any = reader.deserialize(found[2], found[0].msgtype)
         except Exception as exc:  # rosbags and its storage backends raise assorted types
@@ -200,43 +194,6 @@ def close_bag_readers() -> None:
     """Close the bag readers this process keeps open for :func:`load_bag_frame`."""
     with _CACHE.lock:
         _CACHE.clear()
-
-
-class _ReaderCache:
-    """A few open readers per process, least recently used closed first."""
-
-    def __init__(self, size: int) -> None:
-        self.size = size
-        self.lock = threading.Lock()
-        self.readers: OrderedDict[Path, BagReader] = OrderedDict()
-        self.pid = os.getpid()
-        self.inherited: list[BagReader] = []
-
-    def get(self, bag: Path) -> BagReader:
-        if self.pid != os.getpid():
-            # A forked child must not use (or close) its parent's file handles.
-            self.inherited.extend(self.readers.values())
-            self.readers.clear()
-            self.pid = os.getpid()
-        if bag in self.readers:
-            self.readers.move_to_end(bag)
-            return self.readers[bag]
-        reader = open_bag(bag)
-        self.readers[bag] = reader
-        while len(self.readers) > self.size:
-            _, oldest = self.readers.popitem(last=False)
-            with suppress(Exception):
-                oldest.close()
-        return reader
-
-    def clear(self) -> None:
-        for reader in self.readers.values():
-            with suppress(Exception):
-                reader.close()
-        self.readers.clear()
-
-
-_CACHE = _ReaderCache(size=4)
 
 
 def open_bag(path: Path) -> BagReader:
@@ -272,6 +229,9 @@ def open_bag(path: Path) -> BagReader:
             f"{path}: cannot open bag ({failure}); reading it record by record "
             f"found nothing to keep ({one_line(exc)})"
         ) from None
+
+
+_CACHE = OpenBags(size=4, opener=open_bag)
 
 
 def cut_note(reader: BagReader) -> str | None:
