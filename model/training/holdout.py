@@ -13,6 +13,7 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
+from lenspair.dataset.layouts import Layout, detect_layout, raindrop_key
 from lenspair.model.errors import ModelError
 
 
@@ -98,20 +99,36 @@ def holdout_indices(
 def split_holdout(
     images: Sequence[Path], fraction: float, root: Path
 ) -> tuple[list[Path], list[Path]]:
-    """Split images into (train, validation) by a hash of their path below ``root``.
+    """Split clean images into (train, validation) as fine-tuning splits their pairs.
 
-    The choice depends on the file names only (not on a seed or the listing
-    order), so adding images never moves an old one across the split. At
-    least one image lands on each side when there are two or more.
+    Each image is named as the paired readers name the pair it is the target
+    of (:func:`pair_name`), and the names are split by :func:`holdout_indices`.
+    Pretraining on the targets of a paired folder (``raindrop/train/gt``, the
+    ``train/target`` of a dataset without a validation split) then holds out
+    exactly the images whose pairs fine-tuning on that folder validates on, so
+    the fine-tune's validation pairs were never pretrained on. The choice
+    depends on the names only, not on a seed or the listing order.
+
+    Raises:
+        ModelError: fewer than two images (naming ``root``).
     """
     if len(images) < 2:
         raise ModelError(f"{root}: need at least 2 clean images, found {len(images)}")
+    layouts: dict[Path, Layout | None] = {}
+    names = []
+    for image in images:
+        pairs_folder = image.parent.parent
+        if pairs_folder not in layouts:
+            layouts[pairs_folder] = detect_layout(pairs_folder)
+        names.append(pair_name(image, layouts[pairs_folder]))
+    train, val = holdout_indices(names, fraction, root)
+    return [images[i] for i in train], [images[i] for i in val]
 
-    def key(path: Path) -> str:
-        relative = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
-        return hashlib.sha256(relative.encode("utf-8")).hexdigest()
 
-    ranked = sorted(images, key=key)
-    count = min(len(images) - 1, max(1, math.ceil(fraction * len(images))))
-    holdout = set(ranked[:count])
-    return [p for p in images if p not in holdout], [p for p in images if p in holdout]
+def pair_name(image: Path, layout: Layout | None) -> str:
+    """The name of the pair ``image`` is the target of in a folder of ``layout``.
+
+    A Raindrop ``gt/0_clean.png`` is pair ``0`` (:func:`lenspair.dataset.layouts.raindrop_key`);
+    any other image, in a paired folder or not, is its stem, as the paired readers name it.
+    """
+    return raindrop_key(image) if layout == "raindrop" else image.stem
