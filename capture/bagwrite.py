@@ -9,7 +9,8 @@ definition, md5/type hash, caller id, latching and QoS profiles, and every
 message keeps its log time; messages that are not replaced are copied byte for
 byte. A replaced image keeps its header (stamp, frame id), size and encoding:
 only the pixel payload changes (:func:`encode_image`; a Bayer frame, restored
-in RGB, is sampled back into its mosaic). With a ``suffix``, the
+in RGB, is sampled back into its mosaic; an ``rgba8``/``bgra8`` frame keeps its
+recorded alpha). With a ``suffix``, the
 restored image goes to ``<topic><suffix>`` and the original stays on
 ``<topic>``.
 
@@ -37,10 +38,12 @@ from rosbags.typesys import (
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frame_types import BagMessage
-from lenspair.capture.image_messages import COMPRESSED_IMAGE, bayer_pattern
+from lenspair.capture.image_messages import COMPRESSED_IMAGE, bayer_pattern, raw_alpha
 from lenspair.capture.recording_types import active_bag_stem, is_ros1_bag
 
 _CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
+_COLOUR_ENCODINGS = frozenset({"rgb8", "bgr8", "rgb16", "bgr16", "rgba8", "bgra8"})
+"""Raw colour encodings a restored image is written back in (the alpha of the last two kept)."""
 
 
 _IDL_SEPARATOR = "=" * 80 + "\n"
@@ -244,7 +247,9 @@ def encode_image(
             raw images are unaffected.
 
     Raises:
-        CaptureError: an encoding that cannot be written back (e.g. ``rgba8``).
+        CaptureError: an encoding that cannot hold ``image`` (colour for a
+            ``mono8`` message), or an ``rgba8``/``bgra8`` original whose alpha
+            cannot be read.
     """
     if msgtype == COMPRESSED_IMAGE:
         fmt = str(message.format).lower()
@@ -264,11 +269,15 @@ def encode_image(
         image = mosaic(image, bayer[0])  # back into the camera's own mosaic
     if image.ndim == 3:
         order = _CHANNEL_ORDER.get(encoding[:3])
-        if order is None or encoding not in ("rgb8", "bgr8", "rgb16", "bgr16"):
+        if order is None or encoding not in _COLOUR_ENCODINGS:
             raise CaptureError(f"cannot write restored pixels as encoding {message.encoding!r}")
         image = image[:, :, list(order)]
+        alpha = raw_alpha(message, f"the original {message.encoding} message")
+        if alpha is not None:  # rgba8/bgra8: the colour restored, the alpha as recorded
+            image = np.dstack([image, alpha])
     little = np.ascontiguousarray(image, dtype=image.dtype.newbyteorder("<"))
-    row_bytes = little.shape[1] * (1 if little.ndim == 2 else 3) * little.dtype.itemsize
+    row_bytes = little.shape[1] * (1 if little.ndim == 2 else little.shape[2])
+    row_bytes *= little.dtype.itemsize
     return replace(
         message,
         is_bigendian=0,

@@ -4,7 +4,8 @@ What :mod:`lenspair.capture.rosbag` reads a frame's pixels with, and what
 :mod:`lenspair.capture.bag_frames` and :mod:`lenspair.capture.bagwrite` name message
 types and Bayer encodings by. Messages of type ``sensor_msgs/msg/Image``
 (encodings ``mono8``/``8UC1``, ``mono16``/``16UC1``, ``rgb8``, ``bgr8``,
-``rgba8``, ``bgra8``, ``rgb16``, ``bgr16``, and the Bayer mosaics
+``rgba8``, ``bgra8`` (colour only; :func:`raw_alpha` reads the alpha), ``rgb16``,
+``bgr16``, and the Bayer mosaics
 ``bayer_rggb8`` ... ``bayer_grbg16``, demosaiced by OpenCV; ``step`` row
 padding and ``is_bigendian`` respected; colour returned as RGB) and
 ``sensor_msgs/msg/CompressedImage`` (JPEG/PNG, decoded with OpenCV; a PNG with
@@ -121,7 +122,43 @@ def decode_raw(
     if key not in _ENCODINGS:
         supported = ", ".join([*sorted(_ENCODINGS), "bayer_<rggb|bggr|gbrg|grbg><8|16>"])
         raise CaptureError(f"{where}: unsupported encoding {encoding!r}; supported: {supported}")
-    dtype, channels, order = _ENCODINGS[key]
+    order = _ENCODINGS[key][2]
+    pixels = _samples(height, width, key, is_bigendian, step, data, where)
+    if order is None:
+        return np.ascontiguousarray(pixels[:, :, 0])
+    return np.ascontiguousarray(pixels[:, :, list(order)])
+
+
+def raw_alpha(message: Any, where: str) -> np.ndarray | None:
+    """The alpha channel of a raw ``rgba8``/``bgra8`` message, ``(H, W)``; None for others.
+
+    What a restored frame of such a camera (a ZED publishes ``bgra8``) is
+    written back with: :func:`decode_raw` returns its colour only.
+
+    Raises:
+        CaptureError: as :func:`decode_raw`, for a message too short or badly laid out.
+    """
+    key = str(message.encoding).lower()
+    if key not in _ENCODINGS or _ENCODINGS[key][1] != 4:
+        return None
+    pixels = _samples(
+        message.height, message.width, key, bool(message.is_bigendian), message.step,
+        message.data, where,
+    )  # fmt: skip
+    return np.ascontiguousarray(pixels[:, :, 3])
+
+
+def _samples(
+    height: int,
+    width: int,
+    key: str,
+    is_bigendian: bool,
+    step: int,
+    data: np.ndarray | bytes,
+    where: str,
+) -> np.ndarray:
+    """``(H, W, channels)`` samples of a raw image of encoding ``key``, in the message's order."""
+    dtype, channels, _ = _ENCODINGS[key]
     itemsize = np.dtype(dtype).itemsize
     row_bytes = width * channels * itemsize
     if height <= 0 or width <= 0:
@@ -136,10 +173,7 @@ def decode_raw(
     rows = np.lib.stride_tricks.as_strided(payload, (height, row_bytes), (step, 1))
     sample = np.dtype(dtype).newbyteorder(">" if is_bigendian else "<")
     pixels = np.ascontiguousarray(rows).view(sample).astype(dtype)
-    pixels = pixels.reshape(height, width, channels)
-    if order is None:
-        return np.ascontiguousarray(pixels[:, :, 0])
-    return np.ascontiguousarray(pixels[:, :, list(order)])
+    return pixels.reshape(height, width, channels)
 
 
 def decode_compressed(fmt: str, data: np.ndarray | bytes, where: str) -> np.ndarray:

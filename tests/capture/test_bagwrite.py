@@ -1,5 +1,7 @@
 """Re-encoding restored pixels into image messages: every writable encoding round-trips."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
@@ -77,9 +79,27 @@ def test_rgb_compressed_keeps_channel_order() -> None:
     np.testing.assert_array_equal(decoded, image)
 
 
-def test_rgba_cannot_be_written_back() -> None:
-    original = _raw("rgba8", (4, 4, 4), np.uint8)
-    with pytest.raises(CaptureError, match="rgba8"):
+@pytest.mark.parametrize("encoding", ["rgba8", "bgra8"])
+def test_rgba_frames_are_written_back_in_colour_with_their_recorded_alpha(encoding: str) -> None:
+    # restore could not write these back: every frame of a ZED (bgra8) failed, copied as it was
+    rng = np.random.default_rng(3)
+    recorded = rng.integers(0, 256, (5, 7, 4), dtype=np.uint8)  # in the message's order
+    padded = np.zeros((5, 7 * 4 + 6), np.uint8)  # rows padded, as _raw's step says
+    padded[:, : 7 * 4] = recorded.reshape(5, -1)
+    original = replace(_raw(encoding, (5, 7, 4), np.uint8), data=padded.reshape(-1))  # type: ignore[type-var]
+    restored = rng.integers(0, 256, (5, 7, 3), dtype=np.uint8)  # RGB
+    message = encode_image(RAW_IMAGE, original, restored)
+    assert (message.encoding, message.step) == (encoding, 7 * 4)  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(decode_message(RAW_IMAGE, message, "t"), restored)
+    written = np.asarray(message.data).reshape(5, 7, 4)  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(written[:, :, 3], recorded[:, :, 3])
+    colour = written[:, :, :3] if encoding == "rgba8" else written[:, :, 2::-1]
+    np.testing.assert_array_equal(colour, restored)
+
+
+def test_a_colour_image_cannot_be_written_as_a_mono_message() -> None:
+    original = _raw("mono8", (4, 4), np.uint8)
+    with pytest.raises(CaptureError, match="cannot write restored pixels as encoding 'mono8'"):
         encode_image(RAW_IMAGE, original, np.zeros((4, 4, 3), np.uint8))
 
 

@@ -28,6 +28,8 @@ from lenspair.model.inference.restore_options import RestoreOptions
 from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
 from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
 from tests.capture.ingest_helpers import frame_files, make_recording, simulate
+from tests.capture.test_rosbag import IMAGE, T0
+from tests.capture.test_rosbag import _write_bag as write_messages
 from tests.file_limits import run_with_file_limit
 from tests.images import texture
 from tests.model.restore_helpers import (
@@ -212,6 +214,31 @@ def test_frames_a_folder_holds_but_restore_does_not_read_are_named(
     said = sorted(p["reason"].split(":")[0] for p in report.problems)
     assert said == sorted(str(source / name) for name in ("day1/run.bag", "clip.mp4", "frame.webp"))
     assert all((tmp_path / "out" / name).read_bytes() == b"data" for name in ("clip.mp4",))
+
+
+def test_a_bgra8_camera_is_restored_in_colour_and_keeps_its_alpha(
+    tmp_path: Path, one_thread: None
+) -> None:
+    # a ZED publishes bgra8: every frame failed, copied as recorded ("cannot write restored
+    # pixels as encoding 'bgra8'")
+    config = tiny_config()
+    rgb_config = replace(config, model=replace(config.model, channels=3))
+    backend = open_backend(make_checkpoint(tmp_path / "rgb.pt", rgb_config), CPU, "fp32")
+    assert isinstance(backend, TorchBackend)
+    colour = (texture((32, 48, 3), seed=5) * 255).astype(np.uint8)
+    alpha = np.full((32, 48), 255, np.uint8)
+    alpha[:, :10] = 7
+    bgra = np.ascontiguousarray(np.dstack([colour[:, :, ::-1], alpha]))
+    fields = {"height": 32, "width": 48, "encoding": "bgra8", "is_bigendian": 0}
+    fields |= {"step": 48 * 4, "data": bgra.reshape(-1)}
+    bag = write_messages(tmp_path / "zed", "db3", [("/zed/left/image", IMAGE, T0, fields)])
+    report = restore_input(bag, tmp_path / "out", backend)
+    assert (report.restored, report.failed) == (1, 0)
+    (item,) = [m for m in iter_bag_messages(Path(report.output)) if m.frame is not None]
+    assert (item.message.encoding, item.message.step) == ("bgra8", 48 * 4)
+    written = np.asarray(item.message.data).reshape(32, 48, 4)
+    np.testing.assert_array_equal(written[:, :, 3], alpha)
+    np.testing.assert_array_equal(written[:, :, 2::-1], expected(backend, colour))
 
 
 def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thread: None) -> None:
