@@ -9,8 +9,8 @@ definition, md5/type hash, caller id, latching and QoS profiles, and every
 message keeps its log time; messages that are not replaced are copied byte for
 byte. A replaced image keeps its header (stamp, frame id), size and encoding:
 only the pixel payload changes (:func:`encode_image`; a Bayer frame, restored
-in RGB, is sampled back into its mosaic; an ``rgba8``/``bgra8`` frame keeps its
-recorded alpha). With a ``suffix``, the
+in RGB, is sampled back into its mosaic, a ``yuv422`` one is packed back by
+OpenCV, and an ``rgba8``/``bgra8`` frame keeps its recorded alpha). With a ``suffix``, the
 restored image goes to ``<topic><suffix>`` and the original stays on
 ``<topic>``.
 
@@ -38,7 +38,12 @@ from rosbags.typesys import (
 
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frame_types import BagMessage
-from lenspair.capture.image_messages import COMPRESSED_IMAGE, bayer_pattern, raw_alpha
+from lenspair.capture.image_messages import (
+    COMPRESSED_IMAGE,
+    YUV422_CONVERSIONS,
+    bayer_pattern,
+    raw_alpha,
+)
 from lenspair.capture.recording_types import active_bag_stem, is_ros1_bag
 
 _CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
@@ -267,7 +272,9 @@ def encode_image(
     encoding = str(message.encoding).lower()
     if image.ndim == 3 and (bayer := bayer_pattern(encoding)) is not None:
         image = mosaic(image, bayer[0])  # back into the camera's own mosaic
-    if image.ndim == 3:
+    if image.ndim == 3 and encoding in YUV422_CONVERSIONS:
+        image = cv2.cvtColor(np.ascontiguousarray(image), YUV422_CONVERSIONS[encoding][1])
+    elif image.ndim == 3:
         order = _CHANNEL_ORDER.get(encoding[:3])
         if order is None or encoding not in _COLOUR_ENCODINGS:
             raise CaptureError(f"cannot write restored pixels as encoding {message.encoding!r}")

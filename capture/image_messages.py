@@ -5,7 +5,8 @@ What :mod:`lenspair.capture.rosbag` reads a frame's pixels with, and what
 types and Bayer encodings by. Messages of type ``sensor_msgs/msg/Image``
 (encodings ``mono8``/``8UC1``, ``mono16``/``16UC1``, ``rgb8``, ``bgr8``,
 ``rgba8``, ``bgra8`` (colour only; :func:`raw_alpha` reads the alpha), ``rgb16``,
-``bgr16``, and the Bayer mosaics
+``bgr16``, the packed 4:2:2 ``yuv422``/``uyvy`` and ``yuv422_yuy2``/``yuyv``
+(:data:`YUV422_CONVERSIONS`), and the Bayer mosaics
 ``bayer_rggb8`` ... ``bayer_grbg16``, demosaiced by OpenCV; ``step`` row
 padding and ``is_bigendian`` respected; colour returned as RGB) and
 ``sensor_msgs/msg/CompressedImage`` (JPEG/PNG, decoded with OpenCV; a PNG with
@@ -38,6 +39,16 @@ _ENCODINGS: dict[str, tuple[type[np.unsignedinteger[Any]], int, tuple[int, ...] 
     "bgr16": (np.uint16, 3, (2, 1, 0)),
 }
 
+
+YUV422_CONVERSIONS: dict[str, tuple[int, int]] = {
+    "yuv422": (cv2.COLOR_YUV2RGB_UYVY, cv2.COLOR_RGB2YUV_UYVY),
+    "uyvy": (cv2.COLOR_YUV2RGB_UYVY, cv2.COLOR_RGB2YUV_UYVY),
+    "yuv422_yuy2": (cv2.COLOR_YUV2RGB_YUY2, cv2.COLOR_RGB2YUV_YUY2),
+    "yuyv": (cv2.COLOR_YUV2RGB_YUY2, cv2.COLOR_RGB2YUV_YUY2),
+}
+"""ROS's packed 4:2:2 encodings (a USB camera's raw output): OpenCV's conversions to RGB
+and back, as cv_bridge uses them. ``yuv422`` is UYVY (U Y0 V Y1), ``yuv422_yuy2`` is
+YUYV; ``uyvy`` and ``yuyv`` are the newer names of the two."""
 
 BAYER_PATTERNS = ("rggb", "bggr", "gbrg", "grbg")
 """ROS Bayer encodings ``bayer_<pattern>8`` / ``bayer_<pattern>16``: the colours of the
@@ -119,11 +130,18 @@ def decode_raw(
             return np.ascontiguousarray(cv2.cvtColor(mosaic, _DEMOSAIC[bayer[0]]))
         except cv2.error as exc:  # one bad frame is that frame's problem, not the run's
             raise CaptureError(f"{where}: cannot demosaic {encoding} ({one_line(exc)})") from None
+    if key in YUV422_CONVERSIONS:  # two bytes a pixel, a chroma pair shared by two pixels
+        if width % 2:
+            raise CaptureError(f"{where}: {encoding} image of odd width {width}")
+        packed = _samples(height, width, np.uint8, 2, False, step, data, where)
+        return np.ascontiguousarray(cv2.cvtColor(packed, YUV422_CONVERSIONS[key][0]))
     if key not in _ENCODINGS:
-        supported = ", ".join([*sorted(_ENCODINGS), "bayer_<rggb|bggr|gbrg|grbg><8|16>"])
+        supported = ", ".join(
+            [*sorted(_ENCODINGS), *YUV422_CONVERSIONS, "bayer_<rggb|bggr|gbrg|grbg><8|16>"]
+        )
         raise CaptureError(f"{where}: unsupported encoding {encoding!r}; supported: {supported}")
-    order = _ENCODINGS[key][2]
-    pixels = _samples(height, width, key, is_bigendian, step, data, where)
+    dtype, channels, order = _ENCODINGS[key]
+    pixels = _samples(height, width, dtype, channels, is_bigendian, step, data, where)
     if order is None:
         return np.ascontiguousarray(pixels[:, :, 0])
     return np.ascontiguousarray(pixels[:, :, list(order)])
@@ -142,8 +160,8 @@ def raw_alpha(message: Any, where: str) -> np.ndarray | None:
     if key not in _ENCODINGS or _ENCODINGS[key][1] != 4:
         return None
     pixels = _samples(
-        message.height, message.width, key, bool(message.is_bigendian), message.step,
-        message.data, where,
+        message.height, message.width, _ENCODINGS[key][0], 4, bool(message.is_bigendian),
+        message.step, message.data, where,
     )  # fmt: skip
     return np.ascontiguousarray(pixels[:, :, 3])
 
@@ -151,14 +169,14 @@ def raw_alpha(message: Any, where: str) -> np.ndarray | None:
 def _samples(
     height: int,
     width: int,
-    key: str,
+    dtype: type[np.unsignedinteger[Any]],
+    channels: int,
     is_bigendian: bool,
     step: int,
     data: np.ndarray | bytes,
     where: str,
 ) -> np.ndarray:
-    """``(H, W, channels)`` samples of a raw image of encoding ``key``, in the message's order."""
-    dtype, channels, _ = _ENCODINGS[key]
+    """``(H, W, channels)`` samples of a raw image, in the message's order."""
     itemsize = np.dtype(dtype).itemsize
     row_bytes = width * channels * itemsize
     if height <= 0 or width <= 0:

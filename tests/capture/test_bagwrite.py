@@ -117,3 +117,46 @@ def test_a_jpeg_message_is_encoded_at_the_quality_asked_and_a_png_is_not_affecte
     decoded = decode_message(COMPRESSED_IMAGE, encode_image(COMPRESSED_IMAGE, low, image, 30), "t")
     assert decoded.shape == image.shape and np.abs(decoded.astype(float) - image).mean() < 12
     assert encoded("png", 1) == encoded("png", None)  # lossless whatever the quality
+
+
+def _yuv_message(encoding: str, packed: np.ndarray) -> object:
+    height, width = packed.shape[0], packed.shape[1] // 2
+    return replace(
+        _raw("mono8", (height, width), np.uint8),  # type: ignore[type-var]
+        encoding=encoding,
+        step=width * 2,
+        data=np.ascontiguousarray(packed).reshape(-1),
+    )
+
+
+@pytest.mark.parametrize(
+    ("encoding", "luma_at"), [("yuv422", 1), ("uyvy", 1), ("yuv422_yuy2", 0), ("yuyv", 0)]
+)
+def test_packed_yuv422_frames_are_read_in_their_byte_order(encoding: str, luma_at: int) -> None:
+    # a USB camera's raw yuv422 frames were refused as an unsupported encoding
+    packed = np.full((2, 4), 128, np.uint8)  # no chroma: grey pixels
+    packed[:, luma_at] = 40  # the first pixel's luma
+    packed[:, luma_at + 2] = 210  # the second's
+    rgb = decode_message(RAW_IMAGE, _yuv_message(encoding, packed), "t")
+    assert rgb.shape == (2, 2, 3)
+    assert np.ptp(rgb.astype(int), axis=2).max() <= 1  # grey stays grey
+    assert rgb[0, 0, 0] < 60 and rgb[0, 1, 0] > 200  # each pixel its own luma
+
+
+@pytest.mark.parametrize("encoding", ["yuv422", "yuv422_yuy2"])
+def test_restored_yuv422_frames_are_packed_back(encoding: str) -> None:
+    # the colour of two neighbours is shared: an image whose colour changes only every two
+    # columns comes back within the rounding of the conversion
+    rng = np.random.default_rng(5)
+    image = np.repeat(rng.integers(30, 220, (6, 4, 3), dtype=np.uint8), 2, axis=1)
+    original = _yuv_message(encoding, np.zeros((6, 16), np.uint8))
+    message = encode_image(RAW_IMAGE, original, image)
+    assert (message.encoding, message.step) == (encoding, 8 * 2)  # type: ignore[attr-defined]
+    decoded = decode_message(RAW_IMAGE, message, "t")
+    assert np.abs(decoded.astype(int) - image).max() <= 3
+
+
+def test_a_yuv422_frame_of_odd_width_is_one_line_naming_it() -> None:
+    message = replace(_yuv_message("yuv422", np.zeros((2, 6), np.uint8)), width=3)  # type: ignore[type-var]
+    with pytest.raises(CaptureError, match=r"^run @ 1: yuv422 image of odd width 3$"):
+        decode_message(RAW_IMAGE, message, "run @ 1")
