@@ -63,19 +63,32 @@ def _definition_hash(msgdef: str, msgtype: str, topic: str) -> str:
     Raises:
         CaptureError: the definition cannot be parsed, naming the topic.
     """
-    store = get_typestore(Stores.EMPTY)
     try:
-        # IDL as rosbags' writer tells it (it labels the rest ros2msg): one file per section
-        if msgdef.startswith(_IDL_SEPARATOR + "IDL: "):
-            for part in msgdef.split(_IDL_SEPARATOR)[1:]:
-                store.register(get_types_from_idl(part.split("\n", 1)[1]))
-        else:
-            store.register(get_types_from_msg(msgdef, msgtype))
-        return str(store.hash_rihs01(msgtype))
+        return str(_defined_store(msgdef, msgtype).hash_rihs01(msgtype))
     except (KeyError, TypesysError, IndexError) as exc:
-        raise CaptureError(
-            f"{topic}: cannot read the message definition of {msgtype} the source stores ({exc})"
-        ) from None
+        raise _unreadable_definition(topic, msgtype, exc) from None
+
+
+def _unreadable_definition(topic: str, msgtype: str, exc: Exception) -> CaptureError:
+    return CaptureError(
+        f"{topic}: cannot read the message definition of {msgtype} the source stores ({exc})"
+    )
+
+
+def _defined_store(msgdef: str, msgtype: str) -> Any:
+    """A type store holding ``msgtype`` and its dependencies as ``msgdef`` defines them.
+
+    Raises:
+        KeyError, TypesysError, IndexError: ``msgdef`` cannot be parsed.
+    """
+    store = get_typestore(Stores.EMPTY)
+    # IDL as rosbags' writer tells it (it labels the rest ros2msg): one file per section
+    if msgdef.startswith(_IDL_SEPARATOR + "IDL: "):
+        for part in msgdef.split(_IDL_SEPARATOR)[1:]:
+            store.register(get_types_from_idl(part.split("\n", 1)[1]))
+    else:
+        store.register(get_types_from_msg(msgdef, msgtype))
+    return store
 
 
 def output_bag_path(source: Path, out_dir: Path) -> Path:
@@ -129,6 +142,8 @@ class BagCopy:
             else Writer2(destination, version=9, storage_plugin=_storage_plugin(source))
         )
         self.connections: dict[tuple[int, str], Any] = {}
+        self.stores: dict[tuple[str, str], Any] = {}
+        """Type stores by (type, definition) that re-serialise restored images (:meth:`_store`)."""
         self.undefined: list[str] = []
         """Topics whose type neither the source nor the type store defines (copied as bytes)."""
 
@@ -194,6 +209,28 @@ class BagCopy:
             digest = _definition_hash(msgdef, msgtype, topic)
         return msgdef, digest
 
+    def _store(self, connection: Any) -> Any:
+        """The type store a restored image of ``connection`` is serialised with.
+
+        The one its reader decoded it with: the definition the source stores
+        for the topic, where it stores one, else the stock ROS type store. A
+        driver's ``sensor_msgs/Image`` with a field of its own (an exposure
+        time after ``data``) was written by the stock definition, without
+        that field, and the copy's messages could not be read.
+
+        Raises:
+            CaptureError: the stored definition cannot be parsed, naming the topic.
+        """
+        msgdef, msgtype = str(connection.msgdef.data or ""), str(connection.msgtype)
+        if not msgdef:
+            return self.typestore
+        if (msgtype, msgdef) not in self.stores:
+            try:
+                self.stores[msgtype, msgdef] = _defined_store(msgdef, msgtype)
+            except (KeyError, TypesysError, IndexError) as exc:
+                raise _unreadable_definition(connection.topic, msgtype, exc) from None
+        return self.stores[msgtype, msgdef]
+
     def write(self, item: BagMessage, restored: np.ndarray | None = None) -> None:
         """Copy ``item``; with ``restored`` pixels, write them as its image too.
 
@@ -210,10 +247,11 @@ class BagCopy:
             return
         message = encode_image(item.connection.msgtype, item.message, restored, self.jpeg_quality)
         msgtype = item.connection.msgtype
+        store = self._store(item.connection)
         data = (
-            self.typestore.serialize_ros1(message, msgtype)
+            store.serialize_ros1(message, msgtype)
             if self.ros1
-            else self.typestore.serialize_cdr(message, msgtype)
+            else store.serialize_cdr(message, msgtype)
         )
         if self.suffix:
             self.writer.write(original, item.log_time_ns, item.raw)

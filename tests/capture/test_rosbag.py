@@ -53,9 +53,13 @@ def _raw_fields(
     }
 
 
-def _write_bag(path: Path, kind: str, messages: Iterable[Message]) -> Path:
-    """Write a bag; log time = stamp + 1 ms unless ``_log_ns`` is given. Returns its path."""
-    store = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
+def _write_bag(path: Path, kind: str, messages: Iterable[Message], store: Any = None) -> Path:
+    """Write a bag; log time = stamp + 1 ms unless ``_log_ns`` is given. Returns its path.
+
+    ``store``: the type store whose definitions the bag records (default: the stock one).
+    """
+    if store is None:
+        store = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
     types = store.types
     if kind == "ros1":
         writer: Any = Writer1(path.with_suffix(".bag"))

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from lenspair.capture.bag_frames import iter_bag_messages
 from lenspair.capture.frame_types import BagMessage
@@ -29,6 +30,7 @@ from lenspair.model.inference.tiling import from_batch, run_backend, to_batch
 from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
 from tests.capture.ingest_helpers import frame_files, make_recording, simulate
 from tests.capture.test_rosbag import IMAGE, T0
+from tests.capture.test_rosbag import _raw_fields as raw_fields
 from tests.capture.test_rosbag import _write_bag as write_messages
 from tests.file_limits import run_with_file_limit
 from tests.images import texture
@@ -239,6 +241,45 @@ def test_a_bgra8_camera_is_restored_in_colour_and_keeps_its_alpha(
     written = np.asarray(item.message.data).reshape(32, 48, 4)
     np.testing.assert_array_equal(written[:, :, 3], alpha)
     np.testing.assert_array_equal(written[:, :, 2::-1], expected(backend, colour))
+
+
+DRIVER_IMAGE = """std_msgs/Header header
+uint32 height
+uint32 width
+string encoding
+uint8 is_bigendian
+uint32 step
+uint8[] data
+uint32 exposure_us
+"""
+"""A driver's own ``sensor_msgs/Image``: a field after ``data``."""
+
+
+@pytest.mark.parametrize("kind", ["ros1", "db3", "mcap"])
+def test_an_image_type_with_a_drivers_own_field_is_written_back_with_it(
+    tmp_path: Path, backend: TorchBackend, kind: str
+) -> None:
+    # the copy was serialised by the stock definition: each restored message lacked the
+    # field its connection's definition names, and no reader could decode the copy
+    stock = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
+    store = get_typestore(Stores.EMPTY)
+    dependencies = ("builtin_interfaces/msg/Time", "std_msgs/msg/Header")
+    store.register({name: stock.fielddefs[name] for name in dependencies})
+    store.register(get_types_from_msg(DRIVER_IMAGE, IMAGE))
+    images = [(texture((32, 48), seed=k) * 255).astype(np.uint8) for k in range(2)]
+    fields = [raw_fields(im, "mono8", pad=0) for im in images]
+    for k, field in enumerate(fields):
+        field["exposure_us"] = 700 + k
+    messages = [("/cam0/image_raw", IMAGE, T0 + k * 50_000_000, f) for k, f in enumerate(fields)]
+    bag = write_messages(tmp_path / "drv", kind, messages, store=store)
+    report = restore_input(bag, tmp_path / "out", backend)
+    assert (report.restored, report.failed) == (2, 0)
+    with AnyReader([Path(report.output)], default_typestore=stock) as reader:
+        copied = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages()]
+    assert [m.exposure_us for m in copied] == [700, 701]
+    for message, image in zip(copied, images, strict=True):
+        pixels = np.asarray(message.data).reshape(32, 48)
+        np.testing.assert_array_equal(pixels, expected(backend, image))
 
 
 def test_rgb_network_on_rgb_images_and_mismatch_refused(tmp_path: Path, one_thread: None) -> None:
