@@ -275,6 +275,26 @@ def mosaic(image: np.ndarray, pattern: str) -> np.ndarray:
     return out
 
 
+_SIGNATURES = {b"\x89PNG": ".png", b"\xff\xd8": ".jpg", b"II*\x00": ".tif", b"MM\x00*": ".tif"}
+"""How a ``CompressedImage`` payload begins, by the codec that wrote it."""
+
+
+def compressed_codec(fmt: str, payload: Any) -> str:
+    """The codec (``.png``, ``.jpg``, ``.tif``) to write a ``CompressedImage`` back in.
+
+    The one its recorded payload was written in, told by its first bytes: the
+    ``format`` field is free text (empty, ``mono16; tiff``), and choosing by
+    whether it says "png" wrote a 16-bit PNG or TIFF back as an 8-bit JPEG
+    (OpenCV clips the samples with a warning, not an error). A payload of no
+    known signature falls back to the field: PNG when it says so, else JPEG.
+    """
+    head = bytes(np.asarray(payload, dtype=np.uint8).reshape(-1)[:4])
+    for signature, extension in _SIGNATURES.items():
+        if head.startswith(signature):
+            return extension
+    return ".png" if "png" in str(fmt).lower() else ".jpg"
+
+
 def encode_image(
     msgtype: str, message: Any, image: np.ndarray, jpeg_quality: int | None = None
 ) -> Any:
@@ -291,12 +311,15 @@ def encode_image(
 
     Raises:
         CaptureError: an encoding that cannot hold ``image`` (colour for a
-            ``mono8`` message), or an ``rgba8``/``bgra8`` original whose alpha
-            cannot be read.
+            ``mono8`` message, 16 bits for a JPEG), or an ``rgba8``/``bgra8``
+            original whose alpha cannot be read.
     """
     if msgtype == COMPRESSED_IMAGE:
-        fmt = str(message.format).lower()
-        extension = ".png" if "png" in fmt else ".jpg"
+        extension = compressed_codec(message.format, message.data)
+        if extension == ".jpg" and image.dtype != np.uint8:
+            raise CaptureError(
+                f"cannot write a {image.dtype} image as JPEG (format {message.format!r})"
+            )
         pixels = image if image.ndim == 2 else np.ascontiguousarray(image[:, :, ::-1])
         params = (
             [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]

@@ -2,6 +2,7 @@
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
@@ -160,3 +161,38 @@ def test_a_yuv422_frame_of_odd_width_is_one_line_naming_it() -> None:
     message = replace(_yuv_message("yuv422", np.zeros((2, 6), np.uint8)), width=3)  # type: ignore[type-var]
     with pytest.raises(CaptureError, match=r"^run @ 1: yuv422 image of odd width 3$"):
         decode_message(RAW_IMAGE, message, "run @ 1")
+
+
+@pytest.mark.parametrize(
+    ("fmt", "extension", "dtype"),
+    [
+        ("", ".png", np.uint16),
+        ("mono16; tiff", ".tif", np.uint16),
+        ("tiff", ".tif", np.uint8),
+        ("", ".png", np.uint8),
+    ],
+)
+def test_a_compressed_image_is_written_back_in_the_codec_its_payload_was_written_in(
+    fmt: str, extension: str, dtype: type
+) -> None:
+    # chosen by whether the format said "png", a 16-bit PNG with an empty format and a
+    # 16-bit TIFF came back as 8-bit JPEGs, their samples clipped to 255
+    rng = np.random.default_rng(7)
+    top = np.iinfo(dtype).max
+    recorded, restored = (rng.integers(0, top, (6, 9), dtype=dtype, endpoint=True) for _ in "ab")
+    payload = np.asarray(cv2.imencode(extension, recorded)[1], np.uint8).reshape(-1)
+    original = TYPES[COMPRESSED_IMAGE](header=_header(), format=fmt, data=payload)
+    message = encode_image(COMPRESSED_IMAGE, original, restored)
+    written = bytes(message.data[:4])  # type: ignore[attr-defined]
+    assert written == bytes(payload[:4]) and message.format == fmt  # type: ignore[attr-defined]
+    decoded = decode_message(COMPRESSED_IMAGE, message, "t")
+    assert decoded.dtype == dtype
+    np.testing.assert_array_equal(decoded, restored)
+
+
+def test_a_16_bit_image_is_not_written_as_a_jpeg() -> None:
+    original = TYPES[COMPRESSED_IMAGE](header=_header(), format="jpeg", data=np.zeros(1, np.uint8))
+    with pytest.raises(
+        CaptureError, match=r"^cannot write a uint16 image as JPEG \(format 'jpeg'\)$"
+    ):
+        encode_image(COMPRESSED_IMAGE, original, np.zeros((4, 4), np.uint16))
