@@ -42,6 +42,7 @@ from lenspair.capture.image_messages import (
     COMPRESSED_IMAGE,
     YUV422_CONVERSIONS,
     bayer_pattern,
+    compressed_mosaic,
     raw_alpha,
 )
 from lenspair.capture.recording_types import active_bag_stem, is_ros1_bag
@@ -320,6 +321,9 @@ def encode_image(
             raise CaptureError(
                 f"cannot write a {image.dtype} image as JPEG (format {message.format!r})"
             )
+        pattern = compressed_mosaic(message.format)
+        if image.ndim == 3 and pattern is not None:
+            image = mosaic(image, pattern)  # back into the mosaic the payload held
         pixels = image if image.ndim == 2 else np.ascontiguousarray(image[:, :, ::-1])
         params = (
             [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]

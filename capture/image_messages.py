@@ -9,8 +9,9 @@ types and Bayer encodings by. Messages of type ``sensor_msgs/msg/Image``
 (:data:`YUV422_CONVERSIONS`), and the Bayer mosaics
 ``bayer_rggb8`` ... ``bayer_grbg16``, demosaiced by OpenCV; ``step`` row
 padding and ``is_bigendian`` respected; colour returned as RGB) and
-``sensor_msgs/msg/CompressedImage`` (JPEG/PNG, decoded with OpenCV; a PNG with
-an alpha channel is that frame's error) are decoded. Images come back
+``sensor_msgs/msg/CompressedImage`` (JPEG/PNG/TIFF, decoded with OpenCV; a
+Bayer mosaic compressed as it was recorded is demosaiced; a PNG with an alpha
+channel is that frame's error) are decoded. Images come back
 ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB, C-contiguous.
 """
 
@@ -74,6 +75,47 @@ def bayer_pattern(encoding: str) -> tuple[str, type[np.unsignedinteger[Any]]] | 
     return None
 
 
+def demosaic(mosaic: np.ndarray, pattern: str, encoding: str, where: str) -> np.ndarray:
+    """A Bayer ``mosaic`` (``rggb``...) as RGB, by OpenCV's bilinear demosaic.
+
+    The mosaic is padded by two pixels, mirrored without repeating the edge
+    (which keeps the pattern), and the padding cropped afterwards: OpenCV
+    fills its outermost pixels from their neighbours, so a frame sampled back
+    into its mosaic (:func:`lenspair.capture.bagwrite.mosaic`) changed its
+    border samples even where the network changed nothing. Inside, each site
+    keeps the sample it recorded.
+
+    Raises:
+        CaptureError: a mosaic under 3 pixels a side, or one OpenCV refuses,
+            naming ``where`` and ``encoding``.
+    """
+    height, width = mosaic.shape[:2]
+    if min(height, width) < 3:  # OpenCV returns black below 3 px
+        raise CaptureError(f"{where}: {width}x{height} Bayer image: too small to demosaic")
+    padded = cv2.copyMakeBorder(mosaic, 2, 2, 2, 2, cv2.BORDER_REFLECT_101)
+    try:
+        rgb = cv2.cvtColor(padded, _DEMOSAIC[pattern])
+    except cv2.error as exc:  # one bad frame is that frame's problem, not the run's
+        raise CaptureError(f"{where}: cannot demosaic {encoding} ({one_line(exc)})") from None
+    return np.ascontiguousarray(rgb[2:-2, 2:-2])
+
+
+def compressed_mosaic(fmt: str) -> str | None:
+    """The Bayer pattern a ``CompressedImage``'s payload holds its mosaic in, or None.
+
+    ``compressed_image_transport`` names the format ``<encoding>; <codec>
+    compressed <payload encoding>``: ``bayer_rggb8; png compressed `` holds
+    the mosaic itself (demosaiced as a raw Bayer frame is), while
+    ``bayer_rggb8; jpeg compressed bgr8`` holds colour.
+    """
+    source, _, rest = str(fmt).lower().partition(";")
+    held = rest.partition("compressed")[2].strip()
+    pattern = bayer_pattern(source.strip())
+    if pattern is None or (held and bayer_pattern(held) is None):
+        return None
+    return pattern[0]
+
+
 def decode_message(msgtype: str, message: Any, where: str) -> np.ndarray:
     """Pixels of a deserialised ``Image`` or ``CompressedImage`` message (RGB order)."""
     if msgtype == COMPRESSED_IMAGE:
@@ -120,16 +162,11 @@ def decode_raw(
     key = encoding.lower()
     bayer = bayer_pattern(key)
     if bayer is not None:  # the raw mosaic, demosaiced to RGB (OpenCV, bilinear)
-        if min(height, width) < 3:  # OpenCV returns black below 3 px
-            raise CaptureError(f"{where}: {width}x{height} Bayer image: too small to demosaic")
         mosaic = decode_raw(
             height, width, "mono16" if bayer[1] == np.uint16 else "mono8", is_bigendian, step,
             data, where,
         )  # fmt: skip
-        try:
-            return np.ascontiguousarray(cv2.cvtColor(mosaic, _DEMOSAIC[bayer[0]]))
-        except cv2.error as exc:  # one bad frame is that frame's problem, not the run's
-            raise CaptureError(f"{where}: cannot demosaic {encoding} ({one_line(exc)})") from None
+        return demosaic(mosaic, bayer[0], encoding, where)
     if key in YUV422_CONVERSIONS:  # two bytes a pixel, a chroma pair shared by two pixels
         if width % 2:
             raise CaptureError(f"{where}: {encoding} image of odd width {width}")
@@ -235,6 +272,9 @@ def decode_compressed(fmt: str, data: np.ndarray | bytes, where: str) -> np.ndar
         image = image[:, :, 0]
     elif image.ndim == 3:  # OpenCV decodes colour as BGR
         image = image[:, :, ::-1]
+    pattern = compressed_mosaic(fmt)
+    if image.ndim == 2 and pattern is not None:  # a camera's mosaic, compressed as it was
+        return demosaic(image, pattern, fmt, where)
     return np.ascontiguousarray(image)
 
 

@@ -5,11 +5,19 @@ from dataclasses import replace
 import cv2
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.bagwrite import encode_image
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.image_messages import COMPRESSED_IMAGE, RAW_IMAGE, decode_message
+from lenspair.capture.image_messages import (
+    BAYER_PATTERNS,
+    COMPRESSED_IMAGE,
+    RAW_IMAGE,
+    compressed_mosaic,
+    decode_message,
+)
 from tests.images import texture
 
 STORE = get_typestore(Stores.ROS2_HUMBLE)
@@ -196,3 +204,54 @@ def test_a_16_bit_image_is_not_written_as_a_jpeg() -> None:
         CaptureError, match=r"^cannot write a uint16 image as JPEG \(format 'jpeg'\)$"
     ):
         encode_image(COMPRESSED_IMAGE, original, np.zeros((4, 4), np.uint16))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    shape=st.tuples(st.integers(3, 12), st.integers(3, 12)),
+    pattern=st.sampled_from(BAYER_PATTERNS),
+    sixteen=st.booleans(),
+    seed=st.integers(0, 2**16),
+)
+def test_a_bayer_frame_comes_back_as_recorded_border_and_all(
+    shape: tuple[int, int], pattern: str, sixteen: bool, seed: int
+) -> None:
+    # OpenCV fills the outermost pixels of its demosaic from their neighbours: sampled
+    # back, a frame the network left alone came back with its border samples changed
+    dtype = np.uint16 if sixteen else np.uint8
+    recorded = np.random.default_rng(seed).integers(0, np.iinfo(dtype).max, shape, dtype=dtype)
+    encoding = f"bayer_{pattern}{16 if sixteen else 8}"
+    original = replace(
+        _raw("mono16" if sixteen else "mono8", shape, dtype),  # type: ignore[type-var]
+        encoding=encoding,
+        step=shape[1] * recorded.itemsize,
+        data=recorded.astype(recorded.dtype.newbyteorder("<")).view(np.uint8).reshape(-1),
+    )
+    rgb = decode_message(RAW_IMAGE, original, "t")
+    assert rgb.shape == (*shape, 3)
+    message = encode_image(RAW_IMAGE, original, rgb)
+    written = np.frombuffer(bytes(message.data), dtype=recorded.dtype.newbyteorder("<"))  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(written.reshape(shape), recorded)
+
+
+def test_a_compressed_bayer_mosaic_is_demosaiced_and_written_back_as_a_mosaic() -> None:
+    # read as one grey channel, the mosaic's checkerboard was "restored" as a grey image
+    recorded = np.random.default_rng(2).integers(0, 256, (8, 10), dtype=np.uint8)
+    payload = np.asarray(cv2.imencode(".png", recorded)[1], np.uint8).reshape(-1)
+    fmt = "bayer_rggb8; png compressed "
+    original = TYPES[COMPRESSED_IMAGE](header=_header(), format=fmt, data=payload)
+    rgb = decode_message(COMPRESSED_IMAGE, original, "t")
+    raw = replace(
+        _raw("mono8", (8, 10), np.uint8),  # type: ignore[type-var]
+        encoding="bayer_rggb8",
+        step=10,
+        data=recorded.reshape(-1),
+    )
+    np.testing.assert_array_equal(rgb, decode_message(RAW_IMAGE, raw, "t"))
+    message = encode_image(COMPRESSED_IMAGE, original, rgb)
+    back = cv2.imdecode(np.asarray(message.data), cv2.IMREAD_UNCHANGED)  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(back, recorded)
+    assert compressed_mosaic(fmt) == "rggb"
+    assert compressed_mosaic("bayer_rggb8; jpeg compressed bgr8") is None  # colour inside
+    assert compressed_mosaic("bayer_gbrg16") == "gbrg"
+    assert compressed_mosaic("rgb8; png compressed rgb8") is None
