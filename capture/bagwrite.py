@@ -46,6 +46,7 @@ from lenspair.capture.image_messages import (
     raw_alpha,
 )
 from lenspair.capture.recording_types import active_bag_stem, is_ros1_bag
+from lenspair.capture.rosbag import ROS2_STORAGE_SUFFIXES
 
 _CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
 _COLOUR_ENCODINGS = frozenset({"rgb8", "bgr8", "rgb16", "bgr16", "rgba8", "bgra8"})
@@ -106,11 +107,33 @@ def output_bag_path(source: Path, out_dir: Path) -> Path:
 
 
 def _storage_plugin(source: Path) -> StoragePlugin:
+    """The storage of a ROS 2 bag: MCAP when a storage file is one, else SQLite.
+
+    A bag recorded with ``--compression-mode file`` names its files
+    ``run_0.mcap.zstd``: every suffix counts (:func:`is_storage_file`), not
+    the last (an MCAP bag was copied into SQLite).
+    """
     source = Path(source)
     files = [source] if source.is_file() else sorted(source.iterdir())
-    if any(f.suffix.lower() == ".mcap" for f in files):
+    if any(".mcap" in _suffixes(f) for f in files):
         return StoragePlugin.MCAP
     return StoragePlugin.SQLITE3
+
+
+def _suffixes(path: Path) -> list[str]:
+    # run.db3-wal and run.db3-shm are SQLite's side files of run.db3
+    return [suffix.lower().split("-")[0] for suffix in path.suffixes]
+
+
+def is_storage_file(path: Path) -> bool:
+    """Whether a file of a ROS 2 bag folder is its storage or metadata, not a file beside it.
+
+    ``metadata.yaml``, ``run.db3`` and its SQLite side files, ``run.mcap``, and
+    either compressed by ``--compression-mode file`` (``run.db3.zstd``).
+    """
+    return path.name == "metadata.yaml" or any(
+        suffix in ROS2_STORAGE_SUFFIXES for suffix in _suffixes(path)
+    )
 
 
 class BagCopy:

@@ -20,9 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from lenspair.capture.bagwrite import BagCopy, output_bag_path
+from lenspair.capture.bagwrite import BagCopy, is_storage_file, output_bag_path
 from lenspair.capture.frame_types import BagMessage, InputFrame
-from lenspair.capture.rosbag import ROS2_STORAGE_SUFFIXES
 from lenspair.core.fsutil import (
     atomic_write,
     atomic_write_json,
@@ -187,11 +186,8 @@ class BagSink:
             self.partial.parent.rmdir()
         if self.source.is_dir() and self.path.is_dir():
             for extra in sorted(self.source.iterdir()):
-                # run.db3, run.db3-wal, run.mcap: the storage and its SQLite side files; a
-                # ROS 1 bag kept there (.bag or .bag.active) is a file of the recording
-                suffix = extra.suffix.lower().split("-")[0]
-                storage = extra.name == "metadata.yaml" or suffix in ROS2_STORAGE_SUFFIXES
-                if extra.is_file() and not storage:
+                # a ROS 1 bag kept there (.bag or .bag.active) is a file of the recording
+                if extra.is_file() and not is_storage_file(extra):
                     self.extras.append(extra)
                     if not (self.path / extra.name).exists():
                         copy_file(extra, self.path / extra.name)

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import yaml
 from rosbags.rosbag1 import Writer as Writer1
-from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -27,18 +27,23 @@ def write_bag(
     images: dict[str, list[tuple[int, np.ndarray]]],
     encoding: str = "mono8",
     stamp: int | None = None,
+    compress_files: bool = False,
 ) -> Path:
     """A bag (``ros1``, ``db3`` or ``mcap``) with images on ``/<camera>/image_raw``.
 
     A ``/status`` ``std_msgs/String`` message follows every image, so copies of
     non-image topics are checked too. Log time = stamp + 1 ms; ``stamp`` set:
     every header carries it instead (a driver that never sets it).
+    ``compress_files``: a ROS 2 bag's storage file compressed whole (zstd), as
+    ``ros2 bag record --compression-mode file`` writes it.
     """
     store = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
     types = store.types
     plugin = StoragePlugin.MCAP if kind == "mcap" else StoragePlugin.SQLITE3
     bag = path.with_suffix(".bag") if kind == "ros1" else path
     writer: Any = Writer1(bag) if kind == "ros1" else Writer2(bag, version=9, storage_plugin=plugin)
+    if compress_files:
+        writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
     messages = sorted((t, camera, image) for camera, items in images.items() for t, image in items)
 
     def serialize(message: Any, msgtype: str) -> bytes:

@@ -379,6 +379,23 @@ def test_a_ros2_bag_folder_keeps_its_rig_file(tmp_path: Path, backend: TorchBack
     assert [p["reason"] for p in report.problems] == []  # a rig file holds no frame
 
 
+@pytest.mark.parametrize("kind", ["db3", "mcap"])
+def test_a_bag_recorded_with_file_compression_is_copied_into_its_own_storage(
+    tmp_path: Path, backend: TorchBackend, kind: str
+) -> None:
+    # run.mcap.zstd: the storage was told by the last suffix, so an MCAP bag came out as
+    # SQLite, and the source's compressed storage was copied beside the copy as a rig file
+    (tmp_path / "b").mkdir()
+    frames = {"cam0": [(10**9 + k * 10**8, _image(k)) for k in range(2)]}
+    bag = write_bag(tmp_path / "b" / "run", kind, frames, compress_files=True)
+    assert any(p.name.endswith(f".{kind}.zstd") for p in bag.iterdir())
+    write_rig_file(bag / "rig.yaml", RigFile(obstructed="cam0", anomaly=("rain",)))
+    report = restore_input(bag, tmp_path / "out", backend)
+    assert (report.restored, report.failed) == (2, 0)
+    ours = sorted(p.name for p in Path(report.output).iterdir())
+    assert ours == ["metadata.yaml", "rig.yaml", f"run.{kind}"], ours
+
+
 def test_a_ros1_bag_kept_in_a_ros2_bag_folder_is_copied_and_named(
     tmp_path: Path, backend: TorchBackend
 ) -> None:
