@@ -13,9 +13,9 @@ only the images), and what ``restore`` copies a bag with::
 
 A ``.bag`` file, a ROS 2 bag folder or a bare ``.db3``/``.mcap`` file is read
 once from start to end (no seeking); the chosen cameras' image topics are
-decoded (picked as in :func:`bag_camera_topics`, or passed as
-``topics=(cam0, cam1)``). A message that cannot be decoded is yielded with
-``frame.image=None`` and ``frame.error`` set. A bag cut short yields its
+decoded (picked as in :func:`bag_camera_topics`, never a depth or disparity
+topic, or passed as ``topics=(cam0, cam1)``). A message that cannot be
+decoded is yielded with ``frame.image=None`` and ``frame.error`` set. A bag cut short yields its
 complete messages (see :mod:`lenspair.capture.salvage`); that, or a bag that
 stops part-way, is appended once to the ``problems`` list passed in.
 """
@@ -69,7 +69,8 @@ class BagOverview:
         others: one line per image topic that is neither camera's: a robot's
             bag often holds more than two (a camera's ``/compressed`` twin, a
             third camera), and a command that reads only the two cameras must
-            say which it left alone, or dirty frames pass unnoticed.
+            say which it left alone, or dirty frames pass unnoticed. Depth
+            topics left out by the automatic choice share one line.
         frames: image messages of the chosen cameras, from the bag's index
             (None for a bag cut short: it has no index).
     """
@@ -86,6 +87,7 @@ def bag_overview(
     try:
         image_topics = _image_topics(reader)
         named = _camera_topics(image_topics, Path(path), topics)
+        depth = [] if topics is not None else rosbag.camera_candidates(image_topics, Path(path))[1]
         counts = None
         if rosbag.cut_note(reader) is None:
             chosen = {topic for topic, camera in named.items() if camera in cameras}
@@ -98,23 +100,28 @@ def bag_overview(
         f"{path}: image topic {topic} left as recorded (camera topics: {listed}; "
         "--topics CAM0 CAM1 chooses others)"
         for topic in image_topics
-        if topic not in named
+        if topic not in named and topic not in depth
     )
+    if depth:  # one line for them all: a RealSense bag's depth, aligned depth, ...
+        note = rosbag.depth_note(depth)
+        others += (f"{path}: {note}; left as recorded (camera topics: {listed})",)
     return BagOverview(others, counts)
 
 
 def bag_camera_topics(path: Path, topics: tuple[str, str] | None = None) -> dict[str, CameraName]:
     """Image topics of a bag and the camera each stands for.
 
-    ``topics=(cam0, cam1)`` names them. Otherwise a single image topic is the
-    camera (called ``cam0``); with two or more,
+    ``topics=(cam0, cam1)`` names them. Otherwise depth and disparity topics
+    are left out (:func:`lenspair.capture.rosbag.camera_candidates`: a depth
+    map restored or judged as an image is corrupted or nonsense); a single
+    image topic left is the camera (called ``cam0``); with two or more,
     :func:`lenspair.capture.rosbag.select_topics` picks ``(cam0, cam1)``
     among the topics that do not extend another one (``<topic>/restored``
     topics written by ``restore --suffix`` are not cameras).
 
     Raises:
-        CaptureError: no image topic, a named topic that is not an image
-            topic, or an ambiguous choice (lists topics).
+        CaptureError: no image topic, only depth topics, a named topic that is
+            not an image topic, or an ambiguous choice (lists topics).
     """
     return _camera_topics(bag_image_topics(path), Path(path), topics)
 
@@ -127,12 +134,13 @@ def _camera_topics(
         return {topics[0]: "cam0", topics[1]: "cam1"}
     if not image_topics:
         raise CaptureError(f"{path}: no image topic (sensor_msgs/Image or CompressedImage)")
-    if len(image_topics) == 1:
-        return {image_topics[0]: "cam0"}
+    cameras = rosbag.camera_candidates(image_topics, path)[0]
+    if len(cameras) == 1:
+        return {cameras[0]: "cam0"}
     # A bag written by ``restore --suffix`` holds /cam1/image_raw and
     # /cam1/image_raw/restored: the cameras are the original topics.
-    originals = [t for t in image_topics if not any(t.startswith(o + "/") for o in image_topics)]
-    cam0, cam1 = rosbag.select_topics(originals if len(originals) >= 2 else image_topics, path)
+    originals = [t for t in cameras if not any(t.startswith(o + "/") for o in cameras)]
+    cam0, cam1 = rosbag.select_topics(originals if len(originals) >= 2 else cameras, path)
     return {cam0: "cam0", cam1: "cam1"}
 
 

@@ -33,9 +33,12 @@ Inputs (:func:`detect_input`):
   message (for copying a bag), :func:`iter_frames` only the images.
 
 Anything else (another kind of file, a folder without images) is a one-line
-:class:`~lenspair.capture.errors.CaptureError`. Frames are decoded one at a
-time: a caller that needs the count up front (a progress bar) takes it from
-:func:`frame_files` (files) rather than holding the frames.
+:class:`~lenspair.capture.errors.CaptureError`; for a folder of ``.db3``/``.mcap``
+files without ``metadata.yaml`` (``ros2 bag record`` killed before it closed)
+it names them and says to pass the storage file itself or run ``ros2 bag
+reindex``. Frames are decoded one at a time: a caller that needs the count up
+front (a progress bar) takes it from :func:`frame_files` (files) rather than
+holding the frames.
 
 A frame that cannot be read (corrupt file, undecodable message) is yielded
 (an :class:`~lenspair.capture.frame_types.InputFrame`) with ``image=None``
@@ -208,10 +211,7 @@ def _file_entries(
     if kind == "folder":
         files, passed_over = _folder_listing(path)
         if not files:
-            raise CaptureError(
-                f"{path}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) found "
-                "and not a recording or a bag"
-            )
+            raise CaptureError(_no_images(path))
         if problems is not None:
             problems.extend(passed_over)
         return [(file, None, None) for file in files]
@@ -230,6 +230,15 @@ def _file_entries(
     return [
         (ref.source, camera, ref.t_ns) for camera in cameras for ref in recording.frames[camera]
     ]
+
+
+def _no_images(folder: Path) -> str:
+    """Why a folder gives no frames, in one line (a ROS 2 bag's storage left without metadata)."""
+    hint = rosbag.storage_without_metadata(folder)
+    if hint is not None:
+        return f"{folder}: no images, and {hint}"
+    suffixes = ", ".join(sorted(IMAGE_SUFFIXES))
+    return f"{folder}: no images ({suffixes}) found and not a recording or a bag"
 
 
 def _iter_files(

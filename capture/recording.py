@@ -164,6 +164,9 @@ def open_recording(
             return euroc.read_euroc(path, root, cameras)
         if folders.is_left_right(path):
             return folders.read_folders(path, cameras)
+    hint = rosbag.storage_without_metadata(path)
+    if hint is not None:
+        raise CaptureError(f"{path}: unknown recording layout: {hint}")
     raise CaptureError(f"{path}: unknown recording layout; expected {EXPECTED_LAYOUTS}")
 
 

@@ -83,22 +83,94 @@ def is_bag(path: Path) -> bool:
     return path.is_dir() and (path / "metadata.yaml").is_file()
 
 
+def storage_without_metadata(folder: Path) -> str | None:
+    """What a folder of ROS 2 bag storage without ``metadata.yaml`` is, and what to do; else None.
+
+    ``ros2 bag record`` writes ``metadata.yaml`` when it closes: killed hard, it
+    leaves a folder of ``.db3``/``.mcap`` files that is no bag folder, and "not a
+    bag" alone sent users looking for another cause.
+    """
+    if not folder.is_dir() or (folder / "metadata.yaml").exists():
+        return None
+    storage = sorted(
+        entry.name
+        for entry in folder.iterdir()
+        if entry.is_file() and entry.suffix.lower() in ROS2_STORAGE_SUFFIXES
+    )
+    if not storage:
+        return None
+    named = ", ".join(storage[:3]) + (f" and {len(storage) - 3} more" if len(storage) > 3 else "")
+    return (
+        f"not a bag folder: it holds ROS 2 bag storage ({named}) but no metadata.yaml (a "
+        f"recording killed before it closed?); pass the storage file itself "
+        f"({folder / storage[0]}) or run `ros2 bag reindex {folder}` to write metadata.yaml"
+    )
+
+
+DEPTH_WORDS = ("depth", "disparity")
+"""Words that name a depth or disparity map's topic: never chosen as a camera by itself."""
+_DEPTH_WORD = re.compile(rf"(?<![a-z0-9])(?:{'|'.join(DEPTH_WORDS)})(?![a-z])")
+_DEPTH_RULE = (
+    "a topic named depth or disparity is read as a camera only when named with --topics CAM0 CAM1"
+)
+
+
+def is_depth_topic(topic: str) -> bool:
+    """True for a topic named as a depth or disparity map (a word of its name, any case).
+
+    A RealSense or ZED bag holds ``/camera/depth/image_rect_raw`` (``16UC1``,
+    millimetres) beside its cameras; chosen as one, its depth was "restored" or
+    paired. Topics are chosen before a message is read, so the name decides:
+    the word alone or in a longer name (``aligned_depth_to_color``, ``depth2``),
+    not inside another word (``/depthai/left`` stays a camera).
+    """
+    return _DEPTH_WORD.search(topic.lower()) is not None
+
+
+def camera_candidates(image_topics: Sequence[str], bag: Path) -> tuple[list[str], list[str]]:
+    """The image topics (sorted, once each) that may be chosen as cameras, and the depth ones.
+
+    Depth topics (:func:`is_depth_topic`) are never chosen automatically;
+    ``--topics`` still names them.
+
+    Raises:
+        CaptureError: every image topic is a depth topic (names them).
+    """
+    found = sorted(set(image_topics))
+    depth = [topic for topic in found if is_depth_topic(topic)]
+    cameras = [topic for topic in found if topic not in depth]
+    if depth and not cameras:
+        raise CaptureError(
+            f"{bag}: the only image topics are depth topics ({', '.join(depth)}); {_DEPTH_RULE}"
+        )
+    return cameras, depth
+
+
+def depth_note(depth: Sequence[str]) -> str:
+    """One line saying which depth topics the automatic choice left out (without the bag)."""
+    return f"depth image topics not chosen as cameras: {', '.join(depth)} ({_DEPTH_RULE})"
+
+
 def select_topics(image_topics: Sequence[str], bag: Path) -> tuple[str, str]:
     """Choose the ``(cam0, cam1)`` topics among a bag's image topics.
 
-    Topics naming ``cam0``/``cam1`` win, then ``left``/``right`` (left = cam0);
-    otherwise exactly two image topics are taken in sorted order.
+    Depth and disparity topics are left out (:func:`camera_candidates`): a
+    depth map is no camera's image. Topics naming ``cam0``/``cam1`` win, then
+    ``left``/``right`` (left = cam0); otherwise exactly two image topics are
+    taken in sorted order.
 
     Raises:
-        CaptureError: fewer than two image topics, or more than two with no
-            unambiguous cam0/cam1 or left/right pair; lists the topics found.
+        CaptureError: fewer than two image topics besides depth topics, or
+            more than two with no unambiguous cam0/cam1 or left/right pair;
+            lists the topics found.
     """
-    found = sorted(set(image_topics))
+    found, depth = camera_candidates(image_topics, bag)
     listing = ", ".join(found) or "none"
     if len(found) < 2:
+        besides = f"; {depth_note(depth)}" if depth else ""
         raise CaptureError(
             f"{bag}: need two image topics (sensor_msgs/Image or CompressedImage), "
-            f"found {len(found)}: {listing}"
+            f"found {len(found)}: {listing}{besides}"
         )
     for first, second in (("cam0", "cam1"), ("left", "right")):
         firsts = [t for t in found if _mentions(t, first)]
@@ -138,6 +210,9 @@ def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
             raise CaptureError(str(exc) if note is None else f"{exc}; {note}") from None
         cameras: dict[str, CameraName] = {chosen[0]: "cam0", chosen[1]: "cam1"}
         problems: list[FrameProblem] = []
+        depth = camera_candidates(image_topics, path)[1] if topics is None else []
+        if depth:  # said once: logged and kept in report.json by capture-ingest
+            problems.append(FrameProblem(None, None, str(path), depth_note(depth), dropped=False))
         listed = _timed_by_log(_list_messages(reader, path, cameras, problems), path, problems)
         note = cut_note(reader)
         if note is not None:
