@@ -13,7 +13,10 @@ A :class:`Cursor` keeps one such query open instead. The next frame of the
 topic is usually the next one asked for, since ingest's workers take
 consecutive pairs, and it is then the cursor's next message. A frame behind
 the cursor, or more than :data:`AHEAD` messages ahead of it, starts a new
-query; the frames skipped on the way are read but not decoded.
+query; the frames skipped on the way are read but not decoded. A reader whose
+queries share one file position (an MCAP file without a chunk index, which
+rosbags reads by scanning it) keeps one open query at a time: two would move
+each other's place and skip messages.
 """
 
 import os
@@ -98,13 +101,23 @@ class OpenBags:
     Args:
         size: how many readers to keep open.
         opener: opens a bag (:func:`lenspair.capture.rosbag.open_bag`).
+        one_query: whether a reader's open queries share one file position,
+            so that only one may be open at a time.
 
     Callers hold :attr:`lock` around every call.
     """
 
-    def __init__(self, size: int, opener: Callable[[Path], Any]) -> None:
+    def __init__(
+        self,
+        size: int,
+        opener: Callable[[Path], Any],
+        one_query: Callable[[Any], bool] = lambda reader: False,
+    ) -> None:
         self.size = size
         self.opener = opener
+        self.one_query = one_query
+        self.single: set[Path] = set()
+        """Open bags whose reader keeps one query at a time (``one_query``)."""
         self.lock = threading.Lock()
         self.readers: OrderedDict[Path, Any] = OrderedDict()
         self.cursors: dict[tuple[Path, str], Cursor] = {}
@@ -118,12 +131,15 @@ class OpenBags:
             self.inherited.extend([*self.readers.values(), *self.cursors.values()])
             self.readers.clear()
             self.cursors.clear()
+            self.single.clear()
             self.pid = os.getpid()
         if bag in self.readers:
             self.readers.move_to_end(bag)
             return self.readers[bag]
         reader = self.opener(bag)
         self.readers[bag] = reader
+        if self.one_query(reader):
+            self.single.add(bag)
         while len(self.readers) > self.size:
             oldest = next(iter(self.readers))
             self._close(oldest)
@@ -139,6 +155,9 @@ class OpenBags:
         """
         reader = self.get(bag)
         key = (bag, topic)
+        if bag in self.single:
+            for other in [k for k in self.cursors if k[0] == bag and k != key]:
+                self._drop_cursor(other)
         try:
             cursor = self.cursors.get(key)
             if cursor is not None:
@@ -161,6 +180,7 @@ class OpenBags:
         for key in [key for key in self.cursors if key[0] == bag]:
             self._drop_cursor(key)
         reader = self.readers.pop(bag)
+        self.single.discard(bag)
         with suppress(Exception):
             reader.close()
 

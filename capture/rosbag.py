@@ -306,7 +306,23 @@ def open_bag(path: Path) -> BagReader:
         ) from None
 
 
-_CACHE = OpenBags(size=4, opener=open_bag)
+def _scans_one_file(reader: BagReader) -> bool:
+    """Whether the reader's message queries share one file position (:class:`OpenBags`).
+
+    rosbags reads an MCAP file without a chunk index (written without a
+    summary, or without chunks) by scanning it through the reader's one file
+    handle. Its storages are looked up by rosbags' attribute names; an MCAP
+    storage whose index cannot be found that way counts as one that scans.
+    """
+    for part in getattr(reader, "readers", ()):  # a bag folder's storage holds its files'
+        outer = getattr(part, "storage", None)
+        for storage in getattr(outer, "storages", None) or [outer]:
+            if hasattr(storage, "messages_scan") and not getattr(storage, "chunks", None):
+                return True
+    return False
+
+
+_CACHE = OpenBags(size=4, opener=open_bag, one_query=_scans_one_file)
 
 
 def cut_note(reader: BagReader) -> str | None:

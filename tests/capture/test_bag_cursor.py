@@ -135,3 +135,34 @@ def test_a_cursor_finds_what_a_search_from_the_start_finds(
         expected = at_time[place[1]] if place[1] < len(at_time) else None
         found = bags.message(Path("bag"), "/topic", (), place)
         assert (None if found is None else found[2][0]) == expected
+
+
+def _scans(bag: Path) -> bool:
+    reader = open_bag(bag)
+    try:
+        return rosbag._scans_one_file(reader)
+    finally:
+        reader.close()
+
+
+def test_an_mcap_without_a_summary_keeps_one_query_open(tmp_path: Path) -> None:
+    # rosbags scans such a file through one shared file handle: two open queries (cam0's
+    # and cam1's) moved each other's place, and frames went missing ("message not found")
+    messages = []
+    for i in range(30):
+        t = T0 + i * 50 * MS
+        for camera, value in (("cam0", i), ("cam1", 100 + i)):
+            image = np.full((200, 300), value, np.uint8)  # big enough for several chunks
+            messages.append((f"/{camera}/image_raw", IMAGE, t, _raw_fields(image, "mono8")))
+    bag = _write_bag(tmp_path / "run", "mcap", messages)
+    assert not _scans(bag)
+    storage = next(bag.glob("*.mcap"))
+    data = bytearray(storage.read_bytes())
+    data[-37 + 9 : -37 + 17] = (0).to_bytes(8, "little")  # the footer's summary_start: none
+    storage.write_bytes(bytes(data))
+    assert _scans(bag)  # rosbags' names for its storages still hold
+    recording = open_recording(bag)
+    close_bag_readers()
+    for cam0, cam1 in zip(recording.frames["cam0"], recording.frames["cam1"], strict=True):
+        assert int(load_frame(cam0)[0, 0]) + 100 == int(load_frame(cam1)[0, 0])
+    close_bag_readers()
