@@ -101,8 +101,10 @@ def split_holdout(
 ) -> tuple[list[Path], list[Path]]:
     """Split clean images into (train, validation) as fine-tuning splits their pairs.
 
-    Each image is named as the paired readers name the pair it is the target
-    of (:func:`pair_name`), and the names are split by :func:`holdout_indices`.
+    An image of a paired folder is named as the paired readers name the pair
+    it is the target of (:func:`pair_name`), any other by its path below
+    ``root`` (photographs in scene folders, each numbered from ``000.png``,
+    are no one pair), and the names are split by :func:`holdout_indices`.
     Pretraining on the targets of a paired folder (``raindrop/train/gt``, the
     ``train/target`` of a dataset without a validation split) then holds out
     exactly the images whose pairs fine-tuning on that folder validates on, so
@@ -120,15 +122,17 @@ def split_holdout(
         pairs_folder = image.parent.parent
         if pairs_folder not in layouts:
             layouts[pairs_folder] = detect_layout(pairs_folder)
-        names.append(pair_name(image, layouts[pairs_folder]))
+        layout = layouts[pairs_folder]
+        relative = image.relative_to(root) if image.is_relative_to(root) else image
+        names.append(relative.as_posix() if layout is None else pair_name(image, layout))
     train, val = holdout_indices(names, fraction, root)
     return [images[i] for i in train], [images[i] for i in val]
 
 
-def pair_name(image: Path, layout: Layout | None) -> str:
+def pair_name(image: Path, layout: Layout) -> str:
     """The name of the pair ``image`` is the target of in a folder of ``layout``.
 
     A Raindrop ``gt/0_clean.png`` is pair ``0`` (:func:`lenspair.dataset.layouts.raindrop_key`);
-    any other image, in a paired folder or not, is its stem, as the paired readers name it.
+    in the other layouts a pair is named by its files' stem, as the paired readers name it.
     """
     return raindrop_key(image) if layout == "raindrop" else image.stem

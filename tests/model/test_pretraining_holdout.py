@@ -8,7 +8,7 @@ import pytest
 
 from lenspair.core.imagewrite import write_image
 from lenspair.model.training.datasets import _split_sources, synthetic_training_data
-from lenspair.model.training.holdout import pair_name
+from lenspair.model.training.holdout import pair_name, split_holdout
 from tests.model.train_fixtures import tiny_config
 
 T0 = 1_700_000_000_000_000_000
@@ -48,5 +48,14 @@ def test_pretraining_never_trains_on_the_fine_tunes_validation_targets(
 
 def test_pair_names_follow_the_layout() -> None:
     assert pair_name(Path("raindrop/train/gt/12_clean.png"), "raindrop") == "12"
-    assert pair_name(Path("photos/beach_clean.jpg"), None) == "beach_clean"
+    assert pair_name(Path("pairs/target/beach_clean.jpg"), "paired") == "beach_clean"
     assert pair_name(Path("ds/train/target/rec_1.png"), "lenspair") == "rec_1"
+
+
+def test_photographs_that_share_a_name_in_scene_folders_are_held_out_one_by_one(
+    tmp_path: Path,
+) -> None:
+    # named by stem, the twenty 000.png were one group, too big to hold out: no validation
+    images = [tmp_path / f"scene_{k:02d}" / f"{i:03d}.png" for k in range(20) for i in range(3)]
+    train, val = split_holdout(images, 0.1, tmp_path)
+    assert len(val) == 6 and sorted(train + val) == sorted(images)  # the tenth asked for
