@@ -25,6 +25,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from rosbags.interfaces import MessageDefinitionFormat
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
@@ -46,7 +47,7 @@ from lenspair.capture.image_messages import (
     raw_alpha,
 )
 from lenspair.capture.recording_types import active_bag_stem, is_ros1_bag
-from lenspair.capture.rosbag import ROS2_STORAGE_SUFFIXES
+from lenspair.capture.rosbag import storage_suffix
 
 _CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
 _COLOUR_ENCODINGS = frozenset({"rgb8", "bgr8", "rgb16", "bgr16", "rgba8", "bgra8"})
@@ -56,7 +57,7 @@ _COLOUR_ENCODINGS = frozenset({"rgb8", "bgr8", "rgb16", "bgr16", "rgba8", "bgra8
 _IDL_SEPARATOR = "=" * 80 + "\n"
 
 
-def _definition_hash(msgdef: str, msgtype: str, topic: str) -> str:
+def _definition_hash(msgdef: str, msgtype: str, topic: str, idl: bool = False) -> str:
     """The RIHS01 hash of ``msgtype`` as ``msgdef`` (``.msg`` or IDL text) defines it.
 
     Computed from the definition itself, as readers check it, so a copy's
@@ -66,7 +67,7 @@ def _definition_hash(msgdef: str, msgtype: str, topic: str) -> str:
         CaptureError: the definition cannot be parsed, naming the topic.
     """
     try:
-        return str(_defined_store(msgdef, msgtype).hash_rihs01(msgtype))
+        return str(_defined_store(msgdef, msgtype, idl).hash_rihs01(msgtype))
     except (KeyError, TypesysError, IndexError) as exc:
         raise _unreadable_definition(topic, msgtype, exc) from None
 
@@ -77,17 +78,22 @@ def _unreadable_definition(topic: str, msgtype: str, exc: Exception) -> CaptureE
     )
 
 
-def _defined_store(msgdef: str, msgtype: str) -> Any:
+def _defined_store(msgdef: str, msgtype: str, idl: bool = False) -> Any:
     """A type store holding ``msgtype`` and its dependencies as ``msgdef`` defines them.
+
+    ``idl``: the bag labels the definition IDL (read whole unless it is in
+    sections, as rosbags' writer tells IDL); otherwise it is ``.msg`` text,
+    unless it begins as such sections do.
 
     Raises:
         KeyError, TypesysError, IndexError: ``msgdef`` cannot be parsed.
     """
     store = get_typestore(Stores.EMPTY)
-    # IDL as rosbags' writer tells it (it labels the rest ros2msg): one file per section
-    if msgdef.startswith(_IDL_SEPARATOR + "IDL: "):
+    if msgdef.startswith(_IDL_SEPARATOR + "IDL: "):  # one file per section
         for part in msgdef.split(_IDL_SEPARATOR)[1:]:
             store.register(get_types_from_idl(part.split("\n", 1)[1]))
+    elif idl:
+        store.register(get_types_from_idl(msgdef))
     else:
         store.register(get_types_from_msg(msgdef, msgtype))
     return store
@@ -110,19 +116,14 @@ def _storage_plugin(source: Path) -> StoragePlugin:
     """The storage of a ROS 2 bag: MCAP when a storage file is one, else SQLite.
 
     A bag recorded with ``--compression-mode file`` names its files
-    ``run_0.mcap.zstd``: every suffix counts (:func:`is_storage_file`), not
-    the last (an MCAP bag was copied into SQLite).
+    ``run_0.mcap.zstd`` (:func:`~lenspair.capture.rosbag.storage_suffix`; by
+    the last suffix alone, an MCAP bag was copied into SQLite).
     """
     source = Path(source)
     files = [source] if source.is_file() else sorted(source.iterdir())
-    if any(".mcap" in _suffixes(f) for f in files):
+    if any(storage_suffix(file) == ".mcap" for file in files):
         return StoragePlugin.MCAP
     return StoragePlugin.SQLITE3
-
-
-def _suffixes(path: Path) -> list[str]:
-    # run.db3-wal and run.db3-shm are SQLite's side files of run.db3
-    return [suffix.lower().split("-")[0] for suffix in path.suffixes]
 
 
 def is_storage_file(path: Path) -> bool:
@@ -131,9 +132,7 @@ def is_storage_file(path: Path) -> bool:
     ``metadata.yaml``, ``run.db3`` and its SQLite side files, ``run.mcap``, and
     either compressed by ``--compression-mode file`` (``run.db3.zstd``).
     """
-    return path.name == "metadata.yaml" or any(
-        suffix in ROS2_STORAGE_SUFFIXES for suffix in _suffixes(path)
-    )
+    return path.name == "metadata.yaml" or storage_suffix(path) is not None
 
 
 class BagCopy:
@@ -221,16 +220,18 @@ class BagCopy:
         """
         msgtype = connection.msgtype
         msgdef, digest = connection.msgdef.data, connection.digest
+        idl = connection.msgdef.format == MessageDefinitionFormat.IDL
         if msgdef and digest:
             return msgdef, digest
         if not msgdef:
+            idl = False
             try:
                 msgdef = self.typestore.generate_msgdef(msgtype, ros_version=2)[0]
             except (KeyError, TypesysError):  # rosbags' words for a type it does not know
                 self.undefined.append(f"{topic} ({msgtype})")
                 msgdef = ""
         if not digest:
-            digest = _definition_hash(msgdef, msgtype, topic)
+            digest = _definition_hash(msgdef, msgtype, topic, idl)
         return msgdef, digest
 
     def _store(self, connection: Any) -> Any:
@@ -250,7 +251,8 @@ class BagCopy:
             return self.typestore
         if (msgtype, msgdef) not in self.stores:
             try:
-                self.stores[msgtype, msgdef] = _defined_store(msgdef, msgtype)
+                idl = connection.msgdef.format == MessageDefinitionFormat.IDL
+                self.stores[msgtype, msgdef] = _defined_store(msgdef, msgtype, idl)
             except (KeyError, TypesysError, IndexError) as exc:
                 raise _unreadable_definition(connection.topic, msgtype, exc) from None
         return self.stores[msgtype, msgdef]
@@ -312,7 +314,7 @@ def compressed_codec(fmt: str, payload: Any) -> str:
     (OpenCV clips the samples with a warning, not an error). A payload of no
     known signature falls back to the field: PNG when it says so, else JPEG.
     """
-    head = bytes(np.asarray(payload, dtype=np.uint8).reshape(-1)[:4])
+    head = bytes(payload[:4]) if isinstance(payload, bytes) else bytes(np.asarray(payload)[:4])
     for signature, extension in _SIGNATURES.items():
         if head.startswith(signature):
             return extension

@@ -56,10 +56,25 @@ K = TypeVar("K")
 
 ROS2_STORAGE_SUFFIXES = frozenset({".db3", ".mcap"})
 """A ROS 2 bag's storage files, in its folder beside ``metadata.yaml`` or on their own."""
+FILE_COMPRESSION_SUFFIX = ".zstd"
+"""What ``ros2 bag record --compression-mode file`` adds to a storage file's name."""
 BAG_SUFFIXES = frozenset({".bag", ACTIVE_BAG_SUFFIX, *ROS2_STORAGE_SUFFIXES})
 """How bag files are named (:func:`is_bag_name`): ``.bag.active`` is two suffixes, so
 compare names with :func:`is_bag_name`, not ``Path.suffix`` with this set."""
 BagReader = AnyReader | SalvagedBag
+
+
+def storage_suffix(path: Path) -> str | None:
+    """``.db3`` or ``.mcap`` for a ROS 2 bag's storage file, else None.
+
+    Also for SQLite's side files (``run.db3-wal``) and a file compressed whole
+    (``run_0.mcap.zstd``); not for ``notes.db3.txt``.
+    """
+    suffixes = [suffix.lower() for suffix in path.suffixes]
+    if suffixes and suffixes[-1] == FILE_COMPRESSION_SUFFIX:
+        suffixes.pop()
+    last = suffixes[-1].split("-")[0] if suffixes else ""
+    return last if last in ROS2_STORAGE_SUFFIXES else None
 
 
 def is_bag_name(path: Path) -> bool:

@@ -1,15 +1,18 @@
 """Re-encoding restored pixels into image messages: every writable encoding round-trips."""
 
 from dataclasses import replace
+from pathlib import Path
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from rosbags.interfaces import MessageDefinitionFormat
 from rosbags.typesys import Stores, get_typestore
 
-from lenspair.capture.bagwrite import encode_image
+from lenspair.capture.bagwrite import BagCopy, compressed_codec, encode_image, is_storage_file
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.image_messages import (
     BAYER_PATTERNS,
@@ -18,6 +21,7 @@ from lenspair.capture.image_messages import (
     compressed_mosaic,
     decode_message,
 )
+from tests.capture.test_rosbag import _write_bag
 from tests.images import texture
 
 STORE = get_typestore(Stores.ROS2_HUMBLE)
@@ -255,3 +259,48 @@ def test_a_compressed_bayer_mosaic_is_demosaiced_and_written_back_as_a_mosaic() 
     assert compressed_mosaic("bayer_rggb8; jpeg compressed bgr8") is None  # colour inside
     assert compressed_mosaic("bayer_gbrg16") == "gbrg"
     assert compressed_mosaic("rgb8; png compressed rgb8") is None
+
+
+def test_a_definition_labelled_idl_is_read_as_idl_though_not_in_sections(
+    tmp_path: Path,
+) -> None:
+    # parsed as .msg text, a bare IDL definition (rosbags' reader takes it) failed the topic
+    idl = (
+        "module custom_msgs {\n  module msg {\n    struct Exposure {\n"
+        "      uint32 exposure_us;\n    };\n  };\n};\n"
+    )
+    source = _write_bag(tmp_path / "src", "mcap", [])
+    copy = BagCopy(source, tmp_path / "copy")
+    connection = SimpleNamespace(
+        topic="/cam0/exposure",
+        msgtype="custom_msgs/msg/Exposure",
+        msgdef=SimpleNamespace(data=idl, format=MessageDefinitionFormat.IDL),
+    )
+    store = copy._store(connection)
+    message = store.types["custom_msgs/msg/Exposure"](exposure_us=700)
+    raw = store.serialize_cdr(message, "custom_msgs/msg/Exposure")
+    assert store.deserialize_cdr(raw, "custom_msgs/msg/Exposure").exposure_us == 700
+
+
+@pytest.mark.parametrize(
+    ("name", "storage"),
+    [
+        ("run.db3", True),
+        ("run.db3-wal", True),
+        ("run_0.mcap.zstd", True),
+        ("rec.2026.11.29.mcap", True),
+        ("metadata.yaml", True),
+        ("notes.db3.txt", False),  # was taken for storage (a .db3 suffix anywhere) and not copied
+        ("run_0.mcap.sha256", False),
+        ("rig.yaml", False),
+    ],
+)
+def test_which_files_of_a_bag_folder_are_its_storage(name: str, storage: bool) -> None:
+    assert is_storage_file(Path(name)) is storage
+
+
+def test_the_codec_is_told_from_a_payload_given_as_bytes_too() -> None:
+    png = bytes(cv2.imencode(".png", np.zeros((2, 2), np.uint8))[1])
+    assert compressed_codec("", png) == ".png"
+    assert compressed_codec("jpeg", np.frombuffer(png, np.uint8)) == ".png"
+    assert compressed_codec("png", b"") == ".png" and compressed_codec("", b"\x00") == ".jpg"
