@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from lenspair.capture import rosbag
+from lenspair.capture.depth_topics import camera_candidates, depth_note, depth_topics
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frame_types import BagMessage, InputFrame
 from lenspair.capture.image_messages import IMAGE_TYPES, decode_message, one_line
@@ -35,15 +36,6 @@ from lenspair.capture.rigfile import CameraName
 
 def _image_topics(reader: rosbag.BagReader) -> list[str]:
     return sorted(name for name, info in reader.topics.items() if info.msgtype in IMAGE_TYPES)
-
-
-def bag_image_topics(path: Path) -> list[str]:
-    """Every image topic of a bag (``sensor_msgs/Image`` or ``CompressedImage``), sorted."""
-    reader = rosbag.open_bag(Path(path))
-    try:
-        return _image_topics(reader)
-    finally:
-        reader.close()
 
 
 def bag_topics(
@@ -56,7 +48,7 @@ def bag_topics(
     """
     reader = rosbag.open_bag(Path(path))
     try:
-        return sorted(reader.topics), _camera_topics(_image_topics(reader), Path(path), topics)
+        return sorted(reader.topics), _camera_topics(reader, Path(path), topics)[0]
     finally:
         reader.close()
 
@@ -86,8 +78,7 @@ def bag_overview(
     reader = rosbag.open_bag(Path(path))
     try:
         image_topics = _image_topics(reader)
-        named = _camera_topics(image_topics, Path(path), topics)
-        depth = [] if topics is not None else rosbag.camera_candidates(image_topics, Path(path))[1]
+        named, depth = _camera_topics(reader, Path(path), topics)
         counts = None
         if rosbag.cut_note(reader) is None:
             chosen = {topic for topic, camera in named.items() if camera in cameras}
@@ -103,7 +94,7 @@ def bag_overview(
         if topic not in named and topic not in depth
     )
     if depth:  # one line for them all: a RealSense bag's depth, aligned depth, ...
-        note = rosbag.depth_note(depth)
+        note = depth_note(depth)
         others += (f"{path}: {note}; left as recorded (camera topics: {listed})",)
     return BagOverview(others, counts)
 
@@ -112,7 +103,7 @@ def bag_camera_topics(path: Path, topics: tuple[str, str] | None = None) -> dict
     """Image topics of a bag and the camera each stands for.
 
     ``topics=(cam0, cam1)`` names them. Otherwise depth and disparity topics
-    are left out (:func:`lenspair.capture.rosbag.camera_candidates`: a depth
+    are left out (:mod:`lenspair.capture.depth_topics`, by name or first message: a depth
     map restored or judged as an image is corrupted or nonsense); a single
     image topic left is the camera (called ``cam0``); with two or more,
     :func:`lenspair.capture.rosbag.select_topics` picks ``(cam0, cam1)``
@@ -123,25 +114,31 @@ def bag_camera_topics(path: Path, topics: tuple[str, str] | None = None) -> dict
         CaptureError: no image topic, only depth topics, a named topic that is
             not an image topic, or an ambiguous choice (lists topics).
     """
-    return _camera_topics(bag_image_topics(path), Path(path), topics)
+    reader = rosbag.open_bag(Path(path))
+    try:
+        return _camera_topics(reader, Path(path), topics)[0]
+    finally:
+        reader.close()
 
 
 def _camera_topics(
-    image_topics: list[str], path: Path, topics: tuple[str, str] | None
-) -> dict[str, CameraName]:
+    reader: rosbag.BagReader, path: Path, topics: tuple[str, str] | None
+) -> tuple[dict[str, CameraName], list[str]]:
+    """The cameras' topics and the depth topics left out of the choice (none when named)."""
+    image_topics = _image_topics(reader)
     if topics is not None:
         rosbag.check_chosen(tuple(topics), image_topics, path)
-        return {topics[0]: "cam0", topics[1]: "cam1"}
+        return {topics[0]: "cam0", topics[1]: "cam1"}, []
     if not image_topics:
         raise CaptureError(f"{path}: no image topic (sensor_msgs/Image or CompressedImage)")
-    cameras = rosbag.camera_candidates(image_topics, path)[0]
+    cameras, depth = camera_candidates(image_topics, path, depth_topics(reader, image_topics))
     if len(cameras) == 1:
-        return {cameras[0]: "cam0"}
+        return {cameras[0]: "cam0"}, depth
     # A bag written by ``restore --suffix`` holds /cam1/image_raw and
     # /cam1/image_raw/restored: the cameras are the original topics.
     originals = [t for t in cameras if not any(t.startswith(o + "/") for o in cameras)]
     cam0, cam1 = rosbag.select_topics(originals if len(originals) >= 2 else cameras, path)
-    return {cam0: "cam0", cam1: "cam1"}
+    return {cam0: "cam0", cam1: "cam1"}, depth
 
 
 def iter_bag_messages(

@@ -26,7 +26,7 @@ a forked worker opens its own.
 import dataclasses
 import re
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from contextlib import suppress
 from pathlib import Path
 from typing import Any, TypeVar
@@ -36,6 +36,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.bag_cursor import OpenBags
+from lenspair.capture.depth_topics import camera_candidates, depth_note, depth_topics
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.image_messages import IMAGE_TYPES, decode_message, one_line
 from lenspair.capture.recording_types import (
@@ -122,67 +123,25 @@ def storage_without_metadata(folder: Path) -> str | None:
     )
 
 
-DEPTH_WORDS = ("depth", "disparity")
-"""Words that name a depth or disparity map's topic: never chosen as a camera by itself."""
-_DEPTH_WORD = re.compile(rf"(?<![a-z0-9])(?:{'|'.join(DEPTH_WORDS)})(?![a-z])")
-_DEPTH_RULE = (
-    "a topic named depth or disparity is read as a camera only when named with --topics CAM0 CAM1"
-)
-
-
-def is_depth_topic(topic: str) -> bool:
-    """True for a topic named as a depth or disparity map (a word of its name, any case).
-
-    A RealSense or ZED bag holds ``/camera/depth/image_rect_raw`` (``16UC1``,
-    millimetres) beside its cameras; chosen as one, its depth was "restored" or
-    paired. Topics are chosen before a message is read, so the name decides:
-    the word alone or in a longer name (``aligned_depth_to_color``, ``depth2``),
-    not inside another word (``/depthai/left`` stays a camera).
-    """
-    return _DEPTH_WORD.search(topic.lower()) is not None
-
-
-def camera_candidates(image_topics: Sequence[str], bag: Path) -> tuple[list[str], list[str]]:
-    """The image topics (sorted, once each) that may be chosen as cameras, and the depth ones.
-
-    Depth topics (:func:`is_depth_topic`) are never chosen automatically;
-    ``--topics`` still names them.
-
-    Raises:
-        CaptureError: every image topic is a depth topic (names them).
-    """
-    found = sorted(set(image_topics))
-    depth = [topic for topic in found if is_depth_topic(topic)]
-    cameras = [topic for topic in found if topic not in depth]
-    if depth and not cameras:
-        raise CaptureError(
-            f"{bag}: the only image topics are depth topics ({', '.join(depth)}); {_DEPTH_RULE}"
-        )
-    return cameras, depth
-
-
-def depth_note(depth: Sequence[str]) -> str:
-    """One line saying which depth topics the automatic choice left out (without the bag)."""
-    return f"depth image topics not chosen as cameras: {', '.join(depth)} ({_DEPTH_RULE})"
-
-
-def select_topics(image_topics: Sequence[str], bag: Path) -> tuple[str, str]:
+def select_topics(
+    image_topics: Sequence[str], bag: Path, depth: Collection[str] = ()
+) -> tuple[str, str]:
     """Choose the ``(cam0, cam1)`` topics among a bag's image topics.
 
-    Depth and disparity topics are left out (:func:`camera_candidates`): a
-    depth map is no camera's image. Topics naming ``cam0``/``cam1`` win, then
-    ``left``/``right`` (left = cam0); otherwise exactly two image topics are
-    taken in sorted order.
+    Depth and disparity topics are left out (those named so, and ``depth``:
+    :func:`lenspair.capture.depth_topics.camera_candidates`): a depth map is no
+    camera's image. Topics naming ``cam0``/``cam1`` win, then ``left``/``right``
+    (left = cam0); otherwise exactly two image topics are taken in sorted order.
 
     Raises:
         CaptureError: fewer than two image topics besides depth topics, or
             more than two with no unambiguous cam0/cam1 or left/right pair;
             lists the topics found.
     """
-    found, depth = camera_candidates(image_topics, bag)
+    found, left_out = camera_candidates(image_topics, bag, depth)
     listing = ", ".join(found) or "none"
     if len(found) < 2:
-        besides = f"; {depth_note(depth)}" if depth else ""
+        besides = f"; {depth_note(left_out)}" if left_out else ""
         raise CaptureError(
             f"{bag}: need two image topics (sensor_msgs/Image or CompressedImage), "
             f"found {len(found)}: {listing}{besides}"
@@ -217,15 +176,15 @@ def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
     try:
         available = {name: info.msgtype for name, info in reader.topics.items()}
         image_topics = [name for name, msgtype in available.items() if msgtype in IMAGE_TYPES]
+        depth = [] if topics is not None else depth_topics(reader, image_topics)
         try:
-            chosen = select_topics(image_topics, path) if topics is None else tuple(topics)
+            chosen = select_topics(image_topics, path, depth) if topics is None else tuple(topics)
             check_chosen(chosen, image_topics, path)
         except CaptureError as exc:
             note = cut_note(reader)  # a cut may have left out a topic's first record
             raise CaptureError(str(exc) if note is None else f"{exc}; {note}") from None
         cameras: dict[str, CameraName] = {chosen[0]: "cam0", chosen[1]: "cam1"}
         problems: list[FrameProblem] = []
-        depth = camera_candidates(image_topics, path)[1] if topics is None else []
         if depth:  # said once: logged and kept in report.json by capture-ingest
             problems.append(FrameProblem(None, None, str(path), depth_note(depth), dropped=False))
         listed = _timed_by_log(_list_messages(reader, path, cameras, problems), path, problems)

@@ -15,10 +15,11 @@ import pytest
 import torch
 
 from lenspair.capture.bag_frames import bag_camera_topics, bag_overview, iter_bag_messages
+from lenspair.capture.depth_topics import is_depth_topic
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frames import iter_frames
 from lenspair.capture.recording import open_recording
-from lenspair.capture.rosbag import is_depth_topic, select_topics
+from lenspair.capture.rosbag import select_topics
 from lenspair.cli import main
 from lenspair.model.inference.backends import TorchBackend, open_backend
 from lenspair.model.inference.pipeline import restore_input
@@ -31,8 +32,12 @@ INFRA2 = "/camera/infra2/image_rect_raw"
 DEPTH = "/camera/depth/image_rect_raw"
 ALIGNED = "/camera/aligned_depth_to_infra1/image_raw"
 RULE = (
-    "a topic named depth or disparity is read as a camera only when named with --topics CAM0 CAM1"
+    "a depth topic (named depth or disparity, or a 16UC1, 32FC1 or compressedDepth image) "
+    "is read as a camera only when named with --topics CAM0 CAM1"
 )
+OAK_LEFT = "/oak/left/image_rect"
+OAK_DEPTH = "/oak/stereo/image_raw"
+"""OAK-D's depth output: named as no depth, a 16UC1 image."""
 
 
 def _depth(seed: int) -> np.ndarray:
@@ -46,7 +51,7 @@ def _realsense(path: Path, kind: str, topics: tuple[str, ...], frames: int = 3) 
     for i in range(frames):
         t = T0 + i * 33 * MS
         for k, topic in enumerate(topics):
-            if is_depth_topic(topic):
+            if is_depth_topic(topic) or topic == OAK_DEPTH:
                 fields = _raw_fields(_depth(10 * i + k), "16UC1", pad=0)
             else:
                 infrared = (texture((32, 48), seed=10 * i + k) * 255).astype(np.uint8)
@@ -180,3 +185,15 @@ def test_restore_copies_the_depth_map_byte_for_byte(
     ]
     infra = [m.raw for m in source if m.connection.topic == INFRA1]
     assert [m.raw for m in copy if m.connection.topic == INFRA1] != infra  # restored
+
+
+@pytest.mark.parametrize("kind", ["ros1", "db3", "mcap"])
+def test_a_depth_map_named_as_none_is_told_by_its_encoding(tmp_path: Path, kind: str) -> None:
+    # OAK-D's /oak/stereo/image_raw (16UC1) was chosen as cam1 beside /oak/left/image_rect
+    bag = _realsense(tmp_path / "oak", kind, (OAK_LEFT, OAK_DEPTH))
+    assert bag_camera_topics(bag) == {OAK_LEFT: "cam0"}
+    with pytest.raises(CaptureError, match=rf"found 1: {OAK_LEFT}; depth image topics not chosen"):
+        open_recording(bag)
+    said = f"{bag}: depth image topics not chosen as cameras: {OAK_DEPTH} ({RULE})"
+    chose = f"left as recorded (camera topics: cam0 {OAK_LEFT})"
+    assert bag_overview(bag).others == (f"{said}; {chose}",)

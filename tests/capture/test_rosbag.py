@@ -207,14 +207,14 @@ def test_corrupt_messages_fail_on_load_only(tmp_path: Path) -> None:
     short = _raw_fields(_image(1), "mono8")
     short["data"] = short["data"][:-10]
     messages = [
-        ("/cam0/image_raw", IMAGE, T0, _raw_fields(_image(0), "32FC1")),
+        ("/cam0/image_raw", IMAGE, T0, _raw_fields(_image(0), "nv21")),
         ("/cam1/image_raw", IMAGE, T0, short),
     ]
     recording = open_recording(_write_bag(tmp_path / "run", "ros1", messages))
     with pytest.raises(
         CaptureError,
         match=r"run.bag /cam0/image_raw @ t_ns=\d+ \(logged \d+\): unsupported encoding "
-        r"'32FC1'; supported: .*yuv422_yuy2.*bayer_<rggb\|bggr\|gbrg\|grbg><8\|16>",
+        r"'nv21'; supported: .*yuv422_yuy2.*bayer_<rggb\|bggr\|gbrg\|grbg><8\|16>",
     ):
         recording.load(recording.frames["cam0"][0])
     with pytest.raises(
