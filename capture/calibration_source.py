@@ -3,11 +3,13 @@
 In order: the files given with ``--calib``, else the file named by
 ``rig.yaml``'s ``calibration`` key (relative to ``rig.yaml``), else a Kalibr
 ``camchain.yaml`` in or beside the recording, else a EuRoC recording's own
-``mav0/cam{0,1}/sensor.yaml`` when both hold intrinsics and ``T_BS``.
+``mav0/cam{0,1}/sensor.yaml`` when both hold intrinsics and ``T_BS``, else a
+bag's own ``camera_info`` topics (:mod:`lenspair.capture.bag_calibration`).
 """
 
 from pathlib import Path
 
+from lenspair.capture.bag_calibration import bag_calibration
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import Recording, find_rig_file, recording_places
 from lenspair.capture.rigfile import CameraName, RigFile
@@ -22,7 +24,7 @@ CAMCHAIN_FILE = "camchain.yaml"
 def find_calibration(
     recording: Recording, rig_file: RigFile, calibration: tuple[Path, ...]
 ) -> tuple[StereoRig, str]:
-    """The rig calibration: ``--calib``, ``rig.yaml``'s key, ``camchain.yaml``, ``sensor.yaml``.
+    """The rig calibration: ``--calib``, rig.yaml's key, camchain, sensor.yaml, camera_info.
 
     Args:
         recording: the recording (its folder is searched).
@@ -52,9 +54,15 @@ def find_calibration(
         sensors = [recording.sensor_files.get(camera) for camera in ("cam0", "cam1")]
         if not paths and all(p is not None and is_euroc_sensor_file(p) for p in sensors):
             paths = [p for p in sensors if p is not None]  # a EuRoC recording's own
+        topics = recording.topics if recording.layout in ("rosbag1", "rosbag2") else None
+        if not paths and topics is not None:
+            from_bag = bag_calibration(recording.path, topics)
+            if from_bag is not None:
+                return from_bag
         if not paths:
             found = [p for p in sensors if p is not None]
             note = f" ({len(found)} sensor.yaml without intrinsics and T_BS)" if found else ""
+            note += " (no camera_info topic beside its cameras' images)" if topics else ""
             raise CaptureError(
                 f"{recording.path}: no calibration{note}: pass --calib FILE, set 'calibration:' "
                 f"in rig.yaml, or put {CAMCHAIN_FILE} (Kalibr) beside the recording"
