@@ -43,16 +43,12 @@ from lenspair.capture.image_messages import (
     COMPRESSED_IMAGE,
     YUV422_CONVERSIONS,
     bayer_pattern,
+    colour_order,
     compressed_mosaic,
     raw_alpha,
 )
 from lenspair.capture.recording_types import active_bag_stem, is_ros1_bag
 from lenspair.capture.rosbag import storage_suffix
-
-_CHANNEL_ORDER = {"rgb": (0, 1, 2), "bgr": (2, 1, 0)}
-_COLOUR_ENCODINGS = frozenset({"rgb8", "bgr8", "rgb16", "bgr16", "rgba8", "bgra8"})
-"""Raw colour encodings a restored image is written back in (the alpha of the last two kept)."""
-
 
 _IDL_SEPARATOR = "=" * 80 + "\n"
 
@@ -365,8 +361,8 @@ def encode_image(
     if image.ndim == 3 and encoding in YUV422_CONVERSIONS:
         image = cv2.cvtColor(np.ascontiguousarray(image), YUV422_CONVERSIONS[encoding][1])
     elif image.ndim == 3:
-        order = _CHANNEL_ORDER.get(encoding[:3])
-        if order is None or encoding not in _COLOUR_ENCODINGS:
+        order = colour_order(encoding)
+        if order is None:
             raise CaptureError(f"cannot write restored pixels as encoding {message.encoding!r}")
         image = image[:, :, list(order)]
         alpha = raw_alpha(message, f"the original {message.encoding} message")

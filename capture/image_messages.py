@@ -184,6 +184,17 @@ def decode_raw(
     return np.ascontiguousarray(pixels[:, :, list(order)])
 
 
+def colour_order(encoding: str) -> tuple[int, ...] | None:
+    """The RGB channels of a raw colour encoding's samples (``bgr8``: ``(2, 1, 0)``), else None.
+
+    Each order is its own inverse, so it also lays RGB out in the message's
+    order (:func:`lenspair.capture.bagwrite.encode_image`); an alpha channel,
+    which ``rgba8``/``bgra8`` add after the colour, is not among them.
+    """
+    entry = _ENCODINGS.get(encoding.lower())
+    return None if entry is None else entry[2]
+
+
 def raw_alpha(message: Any, where: str) -> np.ndarray | None:
     """The alpha channel of a raw ``rgba8``/``bgra8`` message, ``(H, W)``; None for others.
 
