@@ -15,6 +15,7 @@ from typing import Any
 
 import yaml
 
+from lenspair.capture.bag_cursor import first_message
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.image_messages import one_line
 from lenspair.capture.rosbag import open_bag
@@ -78,16 +79,9 @@ def bag_calibration(bag: Path, image_topics: tuple[str, str]) -> tuple[StereoRig
 
 
 def _first_message(reader: Any, topic: str, bag: Path) -> Any:
-    connections = [c for c in reader.connections if c.topic == topic]
     try:
-        messages = reader.messages(connections)
-        first = next(messages, None)
-        close = getattr(messages, "close", None)
-        if close is not None:
-            close()
-        if first is None:
-            return None
-        return reader.deserialize(first[2], first[0].msgtype)
+        first = first_message(reader, topic)
+        return None if first is None else reader.deserialize(first[2], first[0].msgtype)
     except Exception as exc:  # rosbags and its storage backends raise assorted types
         raise CaptureError(f"{bag}: cannot read {topic} ({one_line(exc)})") from None
 

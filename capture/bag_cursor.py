@@ -89,10 +89,31 @@ class Cursor:
 
     def close(self) -> None:
         """End the query (its reader stays open)."""
-        close = getattr(self._messages, "close", None)
-        if close is not None:
-            with suppress(Exception):
-                close()
+        with suppress(Exception):
+            _end(self._messages)
+
+
+def first_message(reader: Any, topic: str) -> Message | None:
+    """The first message of ``topic`` in an open bag (its query ended), or None when it has none.
+
+    Raises:
+        Exception: whatever the reader raises.
+    """
+    connections = [c for c in reader.connections if c.topic == topic]
+    if not connections:
+        return None
+    messages = reader.messages(connections)
+    try:
+        return next(messages, None)
+    finally:
+        _end(messages)
+
+
+def _end(messages: Iterator[Message]) -> None:
+    """End a query of ``reader.messages`` (a generator holds a file position or a cursor)."""
+    close = getattr(messages, "close", None)
+    if close is not None:
+        close()
 
 
 class OpenBags:

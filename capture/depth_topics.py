@@ -15,6 +15,7 @@ from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
+from lenspair.capture.bag_cursor import first_message
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.image_messages import COMPRESSED_IMAGE, RAW_IMAGE
 
@@ -55,17 +56,8 @@ def depth_topics(reader: Any, image_topics: Sequence[str]) -> list[str]:
 
 
 def _first_is_depth(reader: Any, topic: str) -> bool:
-    connections = [c for c in reader.connections if c.topic == topic]
-    if not connections:
-        return False
     with suppress(Exception):  # rosbags and its storage backends raise assorted types
-        messages = reader.messages(connections)
-        try:
-            first = next(messages, None)
-        finally:
-            close = getattr(messages, "close", None)
-            if close is not None:
-                close()
+        first = first_message(reader, topic)
         if first is None:
             return False
         connection, _, raw = first
