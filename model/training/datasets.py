@@ -14,6 +14,7 @@ checked before the first step (:mod:`lenspair.model.training.data_checks`).
 """
 
 import hashlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,6 +64,14 @@ class TrainData:
     synthetic: str | None = None
 
 
+def _relative(images: Sequence[Path], folder: Path) -> list[str]:
+    """``images`` named by their paths under ``folder`` (as the hold-out names them)."""
+    return [
+        (image.relative_to(folder) if image.is_relative_to(folder) else image).as_posix()
+        for image in images
+    ]
+
+
 def first_channels(dataset: PairSource) -> int:
     """Channels of the first pair's input (1 or 3)."""
     if len(dataset) == 0:
@@ -80,15 +89,16 @@ def _names(source: PairSource) -> list[str]:
 NAMES_DIGEST = "pair names sha256"
 
 
-def names_digest(train: PairSource, val: PairSource) -> str:
+def names_digest(train: Sequence[str], val: Sequence[str]) -> str:
     """``pair names sha256 XXXXXXXXXXXX`` over both splits' names, for the run config.
 
     A dataset rebuilt in place (other pairs, another split) keeps its path;
     this tells a resume that its pairs changed (:func:`~lenspair.model.training.loop.fit`).
+    A synthetic run's names are its clean images' paths under its folder.
     """
     digest = hashlib.sha256()
-    for source in (train, val):
-        digest.update("\n".join(_names(source)).encode("utf-8") + b"\0")
+    for names in (train, val):
+        digest.update("\n".join(names).encode("utf-8") + b"\0")
     return f"{NAMES_DIGEST} {digest.hexdigest()[:12]}"
 
 
@@ -150,7 +160,7 @@ def paired_training_data(
     description = f"{path} (train {len(train)} pairs, validation {_of(len(val), len(val_source))}"
     description += f"; {note}" if note else ""
     description += f"; {left_out} bad pairs left out" if left_out else ""
-    description += f"; {names_digest(train_source, val_source)})"
+    description += f"; {names_digest(_names(train_source), _names(val_source))})"
     return TrainData(train=train, val=val, channels=resolved, description=description)
 
 
@@ -220,9 +230,9 @@ def synthetic_training_data(
     """
     folder = Path(folder)
     images = find_clean_images(folder)
-    train_images, val_images = split_holdout(images, data.val_fraction, folder)
-    held_out = len(val_images)  # spread over the folders, as validation pairs are
-    val_images = [val_images[i] for i in spread_indices(held_out, data.max_val_images)]
+    train_images, held = split_holdout(images, data.val_fraction, folder)
+    held_out = len(held)  # spread over the folders, as validation pairs are
+    val_images = [held[i] for i in spread_indices(held_out, data.max_val_images)]
     counts = check_clean_images(folder, train_images, val_images, data.crop_size, notes)
     warn_mixed(folder, "clean images", counts, channels, notes)
     resolved = channels or majority_channels(counts)
@@ -236,7 +246,7 @@ def synthetic_training_data(
     description = (
         f"{folder} (synthetic {data.drops} drops on {len(train_images)} clean images, "
         f"validation {len(val)}{'' if len(val) == held_out else f' of {held_out}'} held out "
-        "by name hash)"
+        f"by name hash; {names_digest(_relative(train_images, folder), _relative(held, folder))})"
     )
     return TrainData(
         train=train, val=val, channels=resolved, description=description, synthetic=data.drops

@@ -275,6 +275,36 @@ def test_a_resume_on_a_dataset_rebuilt_in_place_says_and_records_its_pairs_chang
     assert any("whose pairs changed since the run's first 4 steps" in m for m in caplog.messages)
 
 
+def test_a_synthetic_resume_on_other_clean_images_says_and_records_they_changed(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    import shutil
+
+    import yaml
+
+    from lenspair.cli import main
+    from lenspair.core.config import dump_yaml
+
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1})
+    clean = tmp_path / "clean"
+    shutil.copytree(dataset / "train" / "target", clean)
+    config = tmp_path / "tiny.yaml"
+    config.write_text(dump_yaml(tiny_config(epochs=10)))
+    run = tmp_path / "run"
+    argv = ["train", "--synthetic", str(clean), "--out", str(run), "--config", str(config)]
+    assert main([*argv, "--device", "cpu", "--max-steps", "2"]) == 0
+    resumed = ["train", "--synthetic", str(clean), "--out", str(run), "--resume"]
+    assert main([*resumed, "--max-steps", "4"]) == 0  # the same images: nothing said
+    assert yaml.safe_load((run / "config.yaml").read_text())["runtime"]["earlier_data"] == []
+    then = yaml.safe_load((run / "config.yaml").read_text())["runtime"]["data"]
+    first = sorted(clean.iterdir())[0]  # same folder, same count, another image's name
+    first.rename(first.with_name("zz_" + first.name))
+    assert main([*resumed, "--max-steps", "6"]) == 0
+    runtime = yaml.safe_load((run / "config.yaml").read_text())["runtime"]
+    assert runtime["earlier_data"] == [f"{then} until step 4"]
+    assert any("whose pairs changed since the run's first 4 steps" in m for m in caplog.messages)
+
+
 def test_only_the_pair_digest_of_the_data_line_tells_whether_the_pairs_changed() -> None:
     from lenspair.model.training.resume import _digest
 
