@@ -19,7 +19,7 @@ from lenspair.capture.bag_cursor import first_message
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.image_messages import one_line
 from lenspair.capture.rosbag import open_bag
-from lenspair.rectify.calib_ros import from_ros
+from lenspair.rectify.calib_ros import from_ros, message_as_camera_info
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import StereoRig
 
@@ -88,20 +88,9 @@ def _first_message(reader: Any, topic: str, bag: Path) -> Any:
 
 def _as_camera_info_file(message: Any, topic: str) -> dict[str, Any]:
     """A ``CameraInfo`` message as the YAML ``camera_calibration`` writes (ROS 1 or 2 names)."""
-
-    def field(name: str) -> list[float]:
+    names = ("width", "height", "distortion_model", "K", "D", "R", "P")
+    fields = {}
+    for name in names:
         value = getattr(message, name, None)
-        if value is None:
-            value = getattr(message, name.lower())
-        return [float(x) for x in value]
-
-    return {
-        "image_width": int(message.width),
-        "image_height": int(message.height),
-        "camera_name": topic,
-        "distortion_model": str(message.distortion_model) or "plumb_bob",
-        "camera_matrix": {"rows": 3, "cols": 3, "data": field("K")},
-        "distortion_coefficients": {"rows": 1, "cols": len(field("D")), "data": field("D")},
-        "rectification_matrix": {"rows": 3, "cols": 3, "data": field("R")},
-        "projection_matrix": {"rows": 3, "cols": 4, "data": field("P")},
-    }
+        fields[name] = getattr(message, name.lower()) if value is None else value
+    return message_as_camera_info(fields, topic)

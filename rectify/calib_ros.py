@@ -1,6 +1,7 @@
 """Stereo calibrations as a ROS camera_info pair: :func:`from_ros`.
 
-Two YAML files as written by camera_calibration: ``image_width``,
+Two YAML files as written by camera_calibration (or echoed ``CameraInfo``
+messages: :func:`message_as_camera_info`): ``image_width``,
 ``image_height``, ``camera_matrix``, ``distortion_model``
 ``plumb_bob``/``rational_polynomial``/``equidistant``,
 ``distortion_coefficients``, ``rectification_matrix``, ``projection_matrix``;
@@ -13,6 +14,7 @@ rectified pair: ``R = R1^T R0`` and ``T = R1^T (t1 - t0)`` with
 (``Tx = -fx' * B``).
 """
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -41,13 +43,65 @@ from lenspair.rectify.rig import (
 )
 
 
+def message_as_camera_info(message: Mapping[str, Any], name: str | None) -> dict[str, Any]:
+    """A ``CameraInfo`` message's fields as the YAML ``camera_calibration`` writes.
+
+    ``message`` maps the message's field names, ROS 1's (``K``, ``D``, ``R``,
+    ``P``) or ROS 2's (``k``, ``d``, ``r``, ``p``), as a bag's message or a
+    ``rostopic echo``/``ros2 topic echo`` of one holds them; ``name`` becomes
+    ``camera_name`` (a topic, a frame id), which tells left from right.
+    """
+    fields = {str(key).lower(): value for key, value in message.items()}
+
+    def values(key: str) -> list[float]:
+        value = fields.get(key)  # a bag's message holds numpy arrays: no truth value
+        return [] if value is None else [float(x) for x in value]
+
+    return {
+        "image_width": int(fields["width"]),
+        "image_height": int(fields["height"]),
+        "camera_name": name,
+        "distortion_model": str(fields.get("distortion_model") or "plumb_bob"),
+        "camera_matrix": {"rows": 3, "cols": 3, "data": values("k")},
+        "distortion_coefficients": {"rows": 1, "cols": len(values("d")), "data": values("d")},
+        "rectification_matrix": {"rows": 3, "cols": 3, "data": values("r")},
+        "projection_matrix": {"rows": 3, "cols": 4, "data": values("p")},
+    }
+
+
+def _camera_info(text: str) -> dict[str, Any] | None:
+    """A camera_info YAML's mapping: ``camera_calibration``'s file, or an echoed message.
+
+    An echo (``rostopic echo -n 1``, ``ros2 topic echo --once``) holds the
+    message's fields (``width``, ``height``, ``K``/``k``, ...) and ends with
+    ``---``, a second YAML document: the first is read. None when ``text`` is
+    neither.
+
+    Raises:
+        yaml.YAMLError: not YAML.
+    """
+    data = next(iter(yaml.safe_load_all(text)), None)
+    if not isinstance(data, dict):
+        return None
+    if "camera_matrix" in data and "image_width" in data:
+        return data
+    keys = {str(key).lower() for key in data}
+    if {"width", "height", "k"} <= keys:
+        try:
+            header = data.get("header")
+            frame = header.get("frame_id") if isinstance(header, dict) else None
+            return message_as_camera_info(data, str(frame) if frame else None)
+        except (KeyError, TypeError, ValueError):
+            return None
+    return None
+
+
 def is_ros_camera_info(text: str) -> bool:
-    """Whether ``text`` is a ROS camera_info YAML (``camera_matrix`` and ``image_width``)."""
+    """Whether ``text`` is a ROS camera_info YAML: ``camera_calibration``'s or an echoed message."""
     try:
-        data = yaml.safe_load(text)
+        return _camera_info(text) is not None
     except yaml.YAMLError:
         return False
-    return isinstance(data, dict) and "camera_matrix" in data and "image_width" in data
 
 
 def _ros_matrix(data: dict[str, Any], key: str, shape: tuple[int, int], path: Path) -> np.ndarray:
@@ -158,9 +212,11 @@ def from_ros(paths: list[Path], texts: list[str]) -> tuple[StereoRig, str]:
     parsed, loaded = [], []
     for path, text in zip(paths[:2], texts[:2], strict=True):
         try:
-            data = yaml.safe_load(text)
+            data = _camera_info(text)
         except yaml.YAMLError as exc:
             raise RectifyError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        if data is None:
+            raise RectifyError(f"{path}: not a ROS camera_info (no camera_matrix, no K)")
         parsed.append(_ros_camera(path, data))
         loaded.append(data)
     where = f"{paths[0]} + {paths[1]}"

@@ -179,6 +179,35 @@ def test_ros_camera_info_pair(tmp_path: Path, model: DistortionModel, rotated: b
     assert "extrinsic from the projection matrices" in source
 
 
+@pytest.mark.parametrize("ros", [1, 2])
+def test_echoed_camera_info_messages_load_as_the_camera_calibration_pair(
+    tmp_path: Path, ros: int
+) -> None:
+    # `rostopic echo -n 1 .../camera_info > left.yaml` (ROS 1: K, D, R, P) or
+    # `ros2 topic echo --once` (k, d, r, p): the message's fields, then '---'
+    rig = make_rig("equidistant", rotated=True)
+    echoed = []
+    for path in ros_files(tmp_path, rig):
+        data = yaml.safe_load(path.read_text())
+        fields = {"k": "camera_matrix", "d": "distortion_coefficients"}
+        fields |= {"r": "rectification_matrix", "p": "projection_matrix"}
+        message: dict[str, Any] = {
+            "header": {"frame_id": f"{path.stem}_optical"},
+            "height": data["image_height"],
+            "width": data["image_width"],
+            "distortion_model": data["distortion_model"],
+        }
+        for key, name in fields.items():
+            message[key.upper() if ros == 1 else key] = data[name]["data"]
+        echoed.append(tmp_path / f"echo_{path.name}")
+        echoed[-1].write_text(yaml.safe_dump(message, sort_keys=False) + "---\n")
+    found, source = load_calibration(echoed)
+    assert_same_rig(found, rig, atol=1e-9)
+    assert "extrinsic from the projection matrices" in source
+    with pytest.raises(RectifyError, match="camera_name"):  # frame ids name the sides
+        load_calibration(echoed[::-1])
+
+
 def test_ros_pair_with_explicit_extrinsic(tmp_path: Path) -> None:
     rig = make_rig("equidistant", rotated=True)
     left, right = ros_files(tmp_path, rig)
