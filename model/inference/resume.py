@@ -2,7 +2,8 @@
 
 A resumed run keeps the frames an earlier run wrote, so it must be the same
 run: :func:`run_settings` records what decides the output bytes and
-:func:`check_same_settings` refuses others; :class:`FrameDepths` notes the
+:func:`check_same_settings` refuses others (but another tiling: a frame too
+large for memory is redone with the ``--tile`` its error named); :class:`FrameDepths` notes the
 bit depth each 16-bit frame was restored at, since frames added before it
 change it; and :func:`kept_bag_report` keeps the bag a complete run wrote,
 which would otherwise be restored again frame by frame (a bag is written in
@@ -83,7 +84,8 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any], bag: bool = Fal
     """``--resume``: refuse an OUT that a restore run with other settings wrote, or none did.
 
     A resumed run keeps the frames already written, so resuming with another
-    model, batch size or tiling would mix outputs of two different runs; and
+    model or batch size would mix outputs of two different runs (another
+    tiling is allowed and recorded: :func:`_retiled`); and
     in a folder no restore run wrote (no report: every run writes its
     settings there first), files that happen to bear an input's name would
     be taken for finished frames.
@@ -110,7 +112,9 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any], bag: bool = Fal
     changed = [
         f"{key}: {before.get(key)!r} -> {value!r}"
         for key, value in settings.items()
-        if before.get(key) != value and not (key == "model" and _same_model(before, settings))
+        if key not in (*TILING, EARLIER_TILING)
+        and before.get(key) != value
+        and not (key == "model" and _same_model(before, settings))
     ]
     if changed:
         quality = before["jpeg_quality"]
@@ -119,6 +123,48 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any], bag: bool = Fal
             f"--resume: {out_dir} was written with other settings ({'; '.join(changed)}); "
             f"resume with the same ones{hint}, or choose a new --out"
         )
+    _retiled(before, settings)
+
+
+TILING = ("tile", "overlap")
+"""Settings ``--resume`` may change: how frames are cut into tiles (:func:`_retiled`)."""
+EARLIER_TILING = "earlier_tiling"
+"""The settings' record of the tilings a resumed run's earlier frames ran with."""
+
+
+def _retiled(before: dict[str, Any], settings: dict[str, Any]) -> None:
+    """Record in ``settings`` (and say once) a resume that tiles otherwise.
+
+    A frame too large for memory fails alone, and its error says which
+    ``--tile`` fits; so ``--resume --tile N`` must be allowed, or the advice
+    cost a rerun of everything. The frames already written keep the tiling
+    they ran with (whole, mostly: the better output), those not yet written
+    get the new one, and ``settings[EARLIER_TILING]`` lists the earlier ones.
+    """
+    earlier = list(before.get(EARLIER_TILING) or [])
+    then = {key: before.get(key) for key in TILING}
+    if _tiling(then) != _tiling(settings):
+        earlier.append(then)
+        log.warning(
+            "--resume with %s (before: %s): the frames already written keep the tiling "
+            "they ran with, the others run with the new one (%s in the report)",
+            _tiling_text(settings),
+            _tiling_text(then),
+            EARLIER_TILING,
+        )
+    if earlier:
+        settings[EARLIER_TILING] = earlier
+
+
+def _tiling(settings: dict[str, Any]) -> tuple[Any, Any]:
+    """``(tile, overlap)``; the overlap means nothing without tiles."""
+    tile = settings.get("tile")
+    return tile, settings.get("overlap") if tile else None
+
+
+def _tiling_text(settings: dict[str, Any]) -> str:
+    tile, overlap = _tiling(settings)
+    return f"--tile {tile} --overlap {overlap}" if tile else "whole frames"
 
 
 def _same_model(before: dict[str, Any], settings: dict[str, Any]) -> bool:

@@ -105,6 +105,34 @@ def test_a_frame_out_of_memory_costs_only_itself_and_the_run_can_resume(
     np.testing.assert_array_equal(read_image(out / "b.png"), _expected(backend, _grey((64, 96), 2)))
 
 
+def test_a_frame_out_of_memory_is_redone_in_the_tiles_its_error_named_on_resume(
+    tmp_path: Path, backend: TorchBackend, caplog: pytest.LogCaptureFixture
+) -> None:
+    # the error said "--tile 32", and `--resume --tile 32` was refused as other settings
+    source = tmp_path / "in"
+    write_image(source / "a.png", _grey((32, 48), 1))
+    write_image(source / "b.png", _grey((64, 96), 2))  # too large for this machine
+    starved = replace(backend, network=_Starved(backend.network, 32 * 48))
+    out = tmp_path / "out"
+    first = restore_input(source, out, starved, RestoreOptions(batch_size=1))
+    assert first.failed == 1 and "--tile 32" in first.problems[0]["reason"]
+    kept = (out / "a.png").read_bytes()
+    tiled = RestoreOptions(batch_size=1, resume=True, tile=32, overlap=8)
+    again = restore_input(source, out, starved, tiled)
+    assert (again.resumed, again.restored, again.failed) == (1, 1, 0)
+    assert (out / "a.png").read_bytes() == kept  # restored whole, and kept so
+    assert (out / "b.png").read_bytes() != (source / "b.png").read_bytes()
+    whole = {"tile": None, "overlap": first.settings["overlap"]}
+    saved = json.loads((out / REPORT_NAME).read_text())["settings"]
+    assert saved["tile"] == 32 and saved["earlier_tiling"] == [whole]
+    assert any("frames already written keep the tiling" in m for m in caplog.messages)
+    with pytest.raises(ModelError, match="batch_size"):  # the rest still binds a resume
+        restore_input(source, out, starved, replace(tiled, batch_size=2))
+    # resuming once more with the same tiles adds no record
+    third = restore_input(source, out, starved, tiled)
+    assert third.resumed == 2 and third.settings["earlier_tiling"] == [whole]
+
+
 def test_a_batch_out_of_memory_fails_its_frames_only(tmp_path: Path, backend: TorchBackend) -> None:
     source = tmp_path / "in"
     for index in range(4):
