@@ -52,6 +52,7 @@ from lenspair.capture.ingest_registration import (
     sampled_pairs,
     size_mismatch,
     warn_if_doubtful,
+    warn_if_enlarged,
 )
 from lenspair.capture.ingest_report import (
     frame_counts,
@@ -69,7 +70,7 @@ from lenspair.capture.side_detector import ObstructedProbability
 from lenspair.core.config import to_plain
 from lenspair.rectify.crop import Crop, choose_crop
 from lenspair.rectify.errors import CropError, RectifyError
-from lenspair.rectify.rectification import StereoRectification
+from lenspair.rectify.rectification import on_camera
 from lenspair.rectify.registration import EstimationParams, VerifyParams
 from lenspair.rectify.remap import target_map, valid_region
 from lenspair.rectify.rig import rig_to_kalibr
@@ -257,7 +258,7 @@ def _register(
     try:
         if mismatch is not None:  # before the calibration is used (size_mismatch)
             raise CaptureError(f"{recording.path}: no usable frame pair to register: {mismatch}")
-        rectification = StereoRectification.from_rig(paired.rig)
+        rectification = on_camera(paired.rig, rig_file.obstructed)
         context = frame_work.Context.build(
             out_dir, rig_file.obstructed, rectification, verify, bits
         )
@@ -318,8 +319,9 @@ def _crop_and_maps(
             f"{paired.calibration_source}){earlier}"
         ) from None
     margin = int(np.ceil(verify.max_shift_px)) + 2
-    maps = context.with_maps(crop, target_map(context.rectified_to_raw_clean, matrix, crop, margin))
-    return crop, maps
+    target = target_map(context.rectified_to_raw_clean, matrix, crop, margin)
+    warn_if_enlarged(recording, rig_file.clean, target)
+    return crop, context.with_maps(crop, target)
 
 
 def _frame_settings(

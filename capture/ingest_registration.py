@@ -31,6 +31,7 @@ from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.spread import spread_indices
 from lenspair.rectify.registration import EstimationParams, estimate_homography, implausible_turn
+from lenspair.rectify.remap import RemapGrid
 from lenspair.rectify.rig import StereoRig
 
 log = logging.getLogger(__name__)
@@ -277,4 +278,27 @@ def warn_if_doubtful(
             recording.path,
             turned,
             calibration_source,
+        )
+
+
+ENLARGED_CLEAN = 1.5
+"""A clean view enlarged more than this onto the obstructed view's pixels is warned about."""
+
+
+def warn_if_enlarged(recording: Recording, clean: CameraName, target: RemapGrid) -> None:
+    """Say in the log when the clean view is enlarged onto the obstructed camera's pixels.
+
+    The dataset is sampled at the obstructed camera's scale (its frames are
+    what the network restores); a clean camera of lower resolution is then
+    enlarged, and its targets are blurrier than the inputs. (A clean camera
+    of higher resolution is reduced, low-pass filtered first: no warning.)
+    """
+    if target.step < 1 / ENLARGED_CLEAN:
+        log.warning(
+            "%s: the clean camera %s is enlarged %.1fx onto the obstructed camera's pixels "
+            "(it has the lower resolution): the targets are blurrier than the inputs, and a "
+            "network trained on them learns to blur",
+            recording.path,
+            clean,
+            1 / target.step,
         )

@@ -11,6 +11,7 @@ A mismatch is only said (in the log and in ``report.json``), never fatal.
 import logging
 from typing import Any
 
+import cv2
 import numpy as np
 
 from lenspair.capture import ingest_frames as frame_work
@@ -78,6 +79,8 @@ def _side_check_images(
 ) -> tuple[list[np.ndarray], list[np.ndarray], int]:
     """Raw cam0 and cam1 images of the first ``count`` readable pairs among ``pairs``.
 
+    Cameras of different resolutions are compared at the coarser one's (:func:`_one_size`).
+
     A pair with a blank view (:func:`lenspair.core.quality.is_blank`: lens cap,
     exposure fault) is left out: it says nothing about the glass, and a black
     frame has less detail than any other. The third value counts those pairs.
@@ -97,6 +100,22 @@ def _side_check_images(
         if any(is_blank(image) for image in loaded):
             blank += 1
             continue
-        for frame, image in zip(pair, loaded, strict=True):
+        for frame, image in zip(pair, _one_size(loaded), strict=True):
             images[frame.camera].append(image)
     return images["cam0"], images["cam1"], blank
+
+
+def _one_size(images: list[np.ndarray]) -> list[np.ndarray]:
+    """The views at the smaller one's size (the larger reduced by pixel area).
+
+    Detail per pixel falls as resolution rises: a rig whose clean camera had
+    twice the resolution had its clean view judged the blurrier one.
+    """
+    width = min(image.shape[1] for image in images)
+    height = min(image.shape[0] for image in images)
+    return [
+        image
+        if image.shape[:2] == (height, width)
+        else np.asarray(cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA))
+        for image in images
+    ]

@@ -369,3 +369,14 @@ def row_disagreement(
     if differences.size == 0:
         raise RectifyError("row disagreement: no matched points")
     return float(np.sqrt(np.mean(differences**2)))
+
+
+def on_camera(rig: StereoRig, camera: View) -> "StereoRectification":
+    """The rectification on ``camera``'s pixels: its resolution, about its scale (alpha 0).
+
+    ``capture-ingest`` rectifies on the obstructed camera's: its frames are
+    what the network restores, at their own scale. Of a rig whose cameras
+    differ in resolution, a grid of cam0's size enlarged a coarser
+    obstructed camera or aliased a finer one.
+    """
+    return StereoRectification.from_rig(rig, size=rig.camera(camera).resolution)

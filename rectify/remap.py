@@ -9,7 +9,11 @@ where ``r_o``/``r_c`` map rectified pixel coordinates to raw pixel
 coordinates (the rectification, distortion included), ``H`` maps rectified
 clean pixels to rectified obstructed pixels (the registration) and
 ``(x0, y0)`` is the crop's corner. Coordinates are pixel centres (OpenCV's
-convention: pixel ``(0, 0)`` is centred at ``(0.0, 0.0)``).
+convention: pixel ``(0, 0)`` is centred at ``(0.0, 0.0)``). A view that the
+map reduces by about 2x or more (the clean camera of a rig whose cameras
+differ in resolution) is first low-pass filtered and halved by
+``cv2.pyrDown`` (:attr:`RemapGrid.levels`), as bicubic sampling alone would
+alias its fine detail.
 
 The target map is built with a margin of spare pixels around the crop so
 that a small per-frame translation (the refinement of
@@ -43,12 +47,20 @@ class RemapGrid:
         map_y: ``(H, W)`` float32 source row for each output pixel.
         margin: spare pixels on every side beyond the output size (see
             :func:`shifted`); 0 for a map that is used as is.
+        levels: ``cv2.pyrDown`` steps the image takes before the map samples
+            it (the map's coordinates are in that level's pixels): a view
+            reduced by about 2x or more (a camera of higher resolution than
+            the obstructed one) is low-pass filtered first, not aliased.
+        step: raw pixels per output pixel (the median over the map, at
+            level 0): above 1 the view is reduced, below 1 enlarged.
 
     """
 
     map_x: np.ndarray
     map_y: np.ndarray
     margin: int = 0
+    levels: int = 0
+    step: float = 1.0
 
     def __post_init__(self) -> None:
         if self.map_x.shape != self.map_y.shape or self.map_x.ndim != 2:
@@ -84,12 +96,30 @@ def apply_homography(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.asarray(homogeneous[:, :2] / homogeneous[:, 2:3])
 
 
+def sampling_step(points: np.ndarray, shape: tuple[int, int]) -> float:
+    """Raw pixels per output pixel of a map's ``(rows * cols, 2)`` points (median; 1 if none).
+
+    The geometric mean of the steps along rows and columns, so that a view
+    reduced 2x each way has step 2.
+    """
+    grid = points.reshape(*shape, 2)
+    along_u = np.linalg.norm(np.diff(grid, axis=1)[:-1], axis=2)
+    along_v = np.linalg.norm(np.diff(grid, axis=0)[:, :-1], axis=2)
+    steps = np.sqrt(along_u * along_v)
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    return float(np.median(steps)) if steps.size else 1.0
+
+
 def _grid_from_points(points: np.ndarray, width: int, height: int, margin: int) -> RemapGrid:
     shape = (height + 2 * margin, width + 2 * margin)
-    points = np.where(np.isfinite(points), points, OUTSIDE)
+    step = sampling_step(points, shape)
+    # pyramid steps leave a reduction of at most sqrt(2) to the bicubic kernel, which
+    # then aliases little; cv2.pyrDown's pixel i is centred on pixel 2i of its source
+    levels = max(0, int(np.floor(np.log2(step) + 0.5)))
+    points = np.where(np.isfinite(points), points / 2.0**levels, OUTSIDE)
     map_x = np.ascontiguousarray(points[:, 0].reshape(shape), dtype=np.float32)
     map_y = np.ascontiguousarray(points[:, 1].reshape(shape), dtype=np.float32)
-    return RemapGrid(map_x, map_y, margin)
+    return RemapGrid(map_x, map_y, margin, levels, step)
 
 
 def input_map(rectified_to_raw: PointMap, crop: Crop) -> RemapGrid:
@@ -142,6 +172,8 @@ def shifted(grid: RemapGrid, dx: float, dy: float) -> RemapGrid:
         return RemapGrid(
             np.ascontiguousarray(grid.map_x[m : m + height, m : m + width]),
             np.ascontiguousarray(grid.map_y[m : m + height, m : m + width]),
+            levels=grid.levels,
+            step=grid.step,
         )
     # A constant shift: bilinear weights are the same everywhere, so the map is
     # interpolated exactly in float64 instead of with remap's 1/32-px weights.
@@ -159,7 +191,7 @@ def shifted(grid: RemapGrid, dx: float, dy: float) -> RemapGrid:
         return np.ascontiguousarray(mixed, dtype=np.float32)
 
     map_x, map_y = sample(grid.map_x), sample(grid.map_y)
-    return RemapGrid(map_x, map_y)
+    return RemapGrid(map_x, map_y, levels=grid.levels, step=grid.step)
 
 
 def apply(image: np.ndarray, grid: RemapGrid) -> np.ndarray:
@@ -175,6 +207,8 @@ def apply(image: np.ndarray, grid: RemapGrid) -> np.ndarray:
     """
     if grid.margin:
         grid = shifted(grid, 0.0, 0.0)
+    for _ in range(grid.levels):
+        image = np.asarray(cv2.pyrDown(image))
     return np.asarray(
         cv2.remap(image, grid.map_x, grid.map_y, INTERPOLATION, borderMode=cv2.BORDER_CONSTANT)
     )

@@ -17,7 +17,7 @@ from lenspair.capture.ingested import read_pairs, read_report
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.core.imagewrite import write_image
 from lenspair.rectify.projection import pixel_rays, project_rays
-from lenspair.rectify.rectification import StereoRectification
+from lenspair.rectify.rectification import on_camera
 from lenspair.rectify.remap import apply_homography, pixel_grid
 from lenspair.rectify.rig import CameraModel, StereoRig, read_kalibr, write_kalibr
 from tests.images import texture
@@ -140,9 +140,9 @@ def registration_errors(recording: Path, out_dir: Path, step: int = 7) -> dict[i
     report = read_report(out_dir / "report.json")
     matrix = np.asarray(json.loads((out_dir / "registration.json").read_text())["matrix"])
     stereo = read_kalibr(recording / "camchain.yaml")
-    rectification = StereoRectification.from_rig(stereo)
-    truth = json.loads((recording / "truth" / "geometry.json").read_text())
     obstructed = report.obstructed
+    rectification = on_camera(stereo, obstructed)  # type: ignore[arg-type]
+    truth = json.loads((recording / "truth" / "geometry.json").read_text())
     clean = "cam0" if obstructed == "cam1" else "cam1"
     frames = {f[obstructed]["t_ns"]: f for f in truth["frames"]}
     K_obstructed, K_clean = np.asarray(truth["K_obstructed"]), np.asarray(truth["K_clean"])
@@ -175,7 +175,7 @@ def plane_region(recording: Path, out_dir: Path, t_ns: int, name: str) -> np.nda
     """
     report = read_report(out_dir / "report.json")
     stereo = read_kalibr(recording / "camchain.yaml")
-    rectification = StereoRectification.from_rig(stereo)
+    rectification = on_camera(stereo, report.obstructed)  # type: ignore[arg-type]
     truth = json.loads((recording / "truth" / "geometry.json").read_text())
     plane = next(p for p in truth["planes"] if p["name"] == name)
     normal = np.asarray(plane["normal_world"])
