@@ -9,7 +9,8 @@ prints and poses (a scene spec's ``board:`` section,
 Board specs (``lenspair calibrate --board``)::
 
     chessboard:COLSxROWS:SQUARE_M                  e.g. chessboard:9x6:0.025
-    charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT]     e.g. charuco:8x6:0.04:0.03:DICT_5X5_100
+    charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT][:legacy]
+                                                   e.g. charuco:8x6:0.04:0.03:DICT_5X5_100
 
 * ``chessboard`` counts **inner corners** (as OpenCV, ROS and Kalibr do): a
   ``9x6`` board has 10x7 squares. The first corner and the sense in which
@@ -18,7 +19,11 @@ Board specs (``lenspair calibrate --board``)::
 * ``charuco`` counts **squares** (as ``cv2.aruco.CharucoBoard`` does); it has
   ``(COLS-1)*(ROWS-1)`` inner corners, each identified by its id. ``DICT`` is
   an ArUco dictionary name (``DICT_`` prefix optional, any case), default
-  ``DICT_5X5_100``. Boards follow OpenCV >= 4.6 (not the legacy pattern).
+  ``DICT_5X5_100``. Boards follow OpenCV >= 4.6 unless the spec ends in
+  ``:legacy``: the pattern OpenCV < 4.6 (and other tools) printed, OpenCV's
+  ``setLegacyPattern(True)``. The two differ only for an even number of
+  ROWS, where the legacy board's top-left square is white and carries a
+  marker; corner ids and positions are the same in both.
 * Sizes are in metres.
 
 Corner ids are row-major: id ``j * columns + i`` is inner corner ``(i, j)`` at
@@ -27,7 +32,8 @@ board coordinates ``(i, j) * square`` (chessboard) or ``(i + 1, j + 1) * square`
 ``grid_origin=True`` both kinds put the origin at the outer top-left corner of
 the square grid (the frame the simulator poses boards in). The printed board
 (:meth:`Board.printed_image`) has a white border one square wide, the quiet
-zone detectors need, and a black top-left square. Pixel coordinates
+zone detectors need, and a black top-left square (white on a legacy
+ChArUco board of even ROWS). Pixel coordinates
 follow OpenCV: the centre of the top-left pixel is ``(0, 0)``.
 """
 
@@ -43,6 +49,8 @@ from lenspair.rectify.errors import RectifyError
 
 BoardKind = Literal["chessboard", "charuco"]
 DEFAULT_DICTIONARY = "DICT_5X5_100"
+LEGACY = "legacy"
+"""The last field of a ChArUco spec whose board has OpenCV < 4.6's pattern."""
 
 
 def _dictionary_names() -> list[str]:
@@ -67,6 +75,7 @@ class Board:
         square_m: side of one square, metres.
         marker_m: side of one ArUco marker, metres (ChArUco only).
         dictionary: ArUco dictionary name such as ``DICT_6X6_250`` (ChArUco only).
+        legacy: ChArUco only: the pattern of OpenCV < 4.6 (``setLegacyPattern``).
 
     """
 
@@ -76,6 +85,7 @@ class Board:
     square_m: float
     marker_m: float | None = None
     dictionary: str | None = None
+    legacy: bool = False
 
     def __post_init__(self) -> None:
         minimum = 3  # OpenCV finds no chessboard of 2 inner corners along a side (it raises)
@@ -102,6 +112,8 @@ class Board:
                 "metres (a 25 mm square is 0.025)"
             )
         if self.kind == "chessboard":
+            if self.legacy:
+                raise RectifyError("board chessboard: only a ChArUco board has a legacy pattern")
             return
         if self.marker_m is None or not 0.0 < self.marker_m < self.square_m:
             raise RectifyError(
@@ -206,20 +218,21 @@ class Board:
         size = f"{self.columns}x{self.rows}:{self.square_m:g}"
         if self.kind == "chessboard":
             return f"chessboard:{size}"
-        return f"charuco:{size}:{self.marker_m:g}:{self.dictionary}"
+        legacy = f":{LEGACY}" if self.legacy else ""
+        return f"charuco:{size}:{self.marker_m:g}:{self.dictionary}{legacy}"
 
     def charuco(self) -> "cv2.aruco.CharucoBoard":
         """The OpenCV ChArUco board object (ChArUco boards only)."""
         if self.kind != "charuco" or self.dictionary is None or self.marker_m is None:
             raise RectifyError(f"board {self.spec()} is not a ChArUco board")
         return _charuco_board(
-            self.columns, self.rows, self.square_m, self.marker_m, self.dictionary
+            self.columns, self.rows, self.square_m, self.marker_m, self.dictionary, self.legacy
         )
 
 
 @functools.lru_cache(maxsize=8)
 def _charuco_board(
-    columns: int, rows: int, square_m: float, marker_m: float, dictionary: str
+    columns: int, rows: int, square_m: float, marker_m: float, dictionary: str, legacy: bool
 ) -> "cv2.aruco.CharucoBoard":
     """The OpenCV board of a spec, built once per process.
 
@@ -227,7 +240,9 @@ def _charuco_board(
     (72 identical lines for one calibration); detection only reads it.
     """
     words = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
-    return cv2.aruco.CharucoBoard((columns, rows), square_m, marker_m, words)
+    board = cv2.aruco.CharucoBoard((columns, rows), square_m, marker_m, words)
+    board.setLegacyPattern(legacy)
+    return board
 
 
 def parse_board_spec(text: str) -> Board:
@@ -239,9 +254,12 @@ def parse_board_spec(text: str) -> Board:
     """
     forms = {
         "chessboard": "chessboard:COLSxROWS:SQUARE_M",
-        "charuco": "charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT]",
+        "charuco": "charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT][:legacy]",
     }
     parts = text.strip().split(":")
+    legacy = parts[0].lower() == "charuco" and parts[-1].strip().lower() == LEGACY
+    if legacy:
+        parts = parts[:-1]
     kind = parts[0].lower()
     if kind not in forms:
         raise RectifyError(
@@ -274,6 +292,7 @@ def parse_board_spec(text: str) -> Board:
             lengths[0],
             lengths[1] if len(lengths) > 1 else None,
             dictionary,
+            legacy,
         )
     except RectifyError as exc:
         raise RectifyError(f"board spec {text!r}: {exc}") from None

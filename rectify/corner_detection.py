@@ -5,13 +5,14 @@ and returns them as a :class:`Detection`, numbered by the board's corner ids
 (see :mod:`~lenspair.rectify.boards`); for a ChArUco board it also measures
 the markers' side on the image (:func:`measured_marker_m`).
 :func:`marker_family` tells whether an image shows ArUco markers at all, which
-a chessboard spec cannot see for itself. Images are ``uint8``/``uint16``,
-``(H, W)`` or ``(H, W, 3)`` RGB; pixel coordinates follow OpenCV: the centre
-of the top-left pixel is ``(0, 0)``.
+a chessboard spec cannot see for itself, and :func:`spec_hint` why a spec may
+find the board in no frame (another marker family, ChArUco pattern or size).
+Images are ``uint8``/``uint16``, ``(H, W)`` or ``(H, W, 3)`` RGB; pixel
+coordinates follow OpenCV: the centre of the top-left pixel is ``(0, 0)``.
 """
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -197,3 +198,80 @@ def marker_family(image: np.ndarray, at_least: int = 4) -> str | None:
         if ids is not None and len(ids) >= at_least:
             return family
     return None
+
+
+def spec_hint(images: list[np.ndarray], board: Board) -> str:
+    """Why a board spec may find the board in no view, from a few frames; ``""`` if unknown.
+
+    For ``lenspair calibrate``'s error (its ``--board``): the first cause of
+    :func:`_charuco_hint` or :func:`_squares_hint` seen, as a clause starting
+    with ``"; "``.
+
+    Args:
+        images: a few frames of the recording (the board may be in some only).
+        board: the board spec given.
+    """
+    if not images:
+        return ""
+    return _charuco_hint(images, board) or _squares_hint(images[0], board)
+
+
+def _squares_hint(image: np.ndarray, board: Board) -> str:
+    """Why a chessboard may be found in no view: its squares counted, not its inner corners.
+
+    A chessboard spec counts inner corners (OpenCV's, ROS's and Kalibr's
+    convention): a board of 10x7 squares is ``chessboard:9x6``. Given as
+    ``10x7``, it is found in no view, and that was all that was said.
+    """
+    if board.kind != "chessboard" or min(board.columns, board.rows) < 4:
+        return ""
+    corners = replace(board, columns=board.columns - 1, rows=board.rows - 1)
+    if detect_corners(image, corners, thorough=False) is None:
+        return ""
+    return (
+        f"; the frames show a chessboard of {corners.columns}x{corners.rows} inner corners: "
+        f"the spec counts inner corners, not squares (chessboard:{corners.columns}x"
+        f"{corners.rows}:...)"
+    )
+
+
+def _charuco_hint(images: list[np.ndarray], board: Board) -> str:
+    """Why a ChArUco board may be found in no view: its markers' family, pattern or size.
+
+    The chessboard corners of a ChArUco board are found through its markers;
+    a spec naming another marker family, the squares the other way round
+    (ROWSxCOLS), or a board of even ROWS printed with the other pattern
+    (OpenCV < 4.6's legacy one, or the current one given ``:legacy``) finds
+    none, and said only "found in 0 views".
+
+    Args:
+        images: a few frames of the recording (the board may be in some only).
+        board: the board spec given.
+    """
+    if board.kind != "charuco" or board.dictionary is None:
+        return ""
+    family = next((f for image in images if (f := marker_family(image)) is not None), None)
+    if family is None:
+        return ""
+    seen = family.rsplit("_", 1)[0]  # DICT_4X4
+    if not board.dictionary.startswith(f"{seen}_"):
+        return (
+            f"; the frames show {seen} markers, not {board.dictionary}'s: give the board's "
+            "dictionary as the spec's last field"
+        )
+    other = replace(board, legacy=not board.legacy)
+    # the two patterns differ only for even ROWS; otherwise the board would have been found
+    if board.rows % 2 == 0 and any(detect_corners(image, other) is not None for image in images):
+        if other.legacy:
+            return (
+                "; the board is the legacy pattern (OpenCV < 4.6): add :legacy to --board "
+                f"({other.spec()})"
+            )
+        return (
+            "; the board is not the legacy pattern (it follows OpenCV >= 4.6): drop :legacy "
+            f"from --board ({other.spec()})"
+        )
+    return (
+        f"; {seen} markers are seen, so check COLSxROWS (squares across, then down, as the "
+        "board was generated) and the dictionary's size"
+    )

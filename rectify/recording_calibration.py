@@ -13,7 +13,9 @@ Usage::
     write_calibration(calibration, Path("runs/board_01/camchain.yaml"))
 
 Steps: the two cameras' frames are paired by timestamp
-(:func:`lenspair.capture.pairing.pair_frames`), at most ``max_views`` pairs
+(:func:`lenspair.capture.pairing.pair_frames`; cam1's stamps less
+``time_offset_ns``, on cam0's clock, as ``capture-ingest --time-offset`` pairs
+them, with its warning when the pairs are far apart), at most ``max_views`` pairs
 evenly spread in time are read, the board's corners are found in each image
 and :func:`lenspair.rectify.calibration.calibrate_from_detections` calibrates
 each camera alone, then the pair. A frame that cannot be read is recorded in
@@ -23,6 +25,7 @@ this module.
 """
 
 import logging
+import statistics
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -30,7 +33,13 @@ from typing import Any
 
 import numpy as np
 
-from lenspair.capture.pairing import FramePair, estimate_period_ns, pair_frames
+from lenspair.capture.pairing import (
+    FramePair,
+    PairingResult,
+    clock_offset_warning,
+    estimate_period_ns,
+    pair_frames,
+)
 from lenspair.capture.recording import open_recording
 from lenspair.capture.recording_types import Recording
 from lenspair.core.errors import LenspairError
@@ -40,7 +49,7 @@ from lenspair.core.spread import spread_indices
 from lenspair.rectify.boards import Board
 from lenspair.rectify.calib_types import CalibrationModel, CalibrationOptions, CalibrationResult
 from lenspair.rectify.calibration import calibrate_from_detections
-from lenspair.rectify.corner_detection import Detection, detect_corners, marker_family
+from lenspair.rectify.corner_detection import Detection, detect_corners, marker_family, spec_hint
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import StereoRig, kalibr_text
 
@@ -62,8 +71,10 @@ class RecordingCalibration:
         listing: one line per problem of the recording's listing (a frame
             ``data.csv`` names that is missing, a repeated or unreadable
             timestamp): frames left out before any was read, or warned about.
-        warnings: what reading the views warned about (the calibration's own
-            are in ``result``); both go to the report.
+        warnings: what pairing and reading the views warned about (the
+            calibration's own are in ``result``); both go to the report.
+        time_offset_ns: how far cam1's clock was taken to run ahead of
+            cam0's (``--time-offset``); view names keep the recorded stamps.
     """
 
     recording: Path
@@ -74,6 +85,7 @@ class RecordingCalibration:
     unreadable: list[str] = field(default_factory=list)
     listing: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    time_offset_ns: int = 0
 
     def summary(self) -> list[str]:
         """Lines for people: RMS errors, row disagreement, rejected and unreadable frames."""
@@ -96,6 +108,7 @@ class RecordingCalibration:
             "listing": list(self.listing),
         }
         report["view_names"] = list(self.view_names)
+        report["time_offset_ns"] = self.time_offset_ns
         report["warnings"] = [*self.warnings, *report["warnings"]]
         return report
 
@@ -133,47 +146,54 @@ def _search_again(
         detections[row][index] = detect_corners(image, board, thorough=True)
 
 
-def _squares_hint(image: np.ndarray, board: Board) -> str:
-    """Why a chessboard may be found in no view: its squares counted, not its inner corners.
+def _clock_hint(pairing: PairingResult) -> str:
+    """For a failed calibration: the pairs' median gap, when the cameras' clocks may differ.
 
-    A chessboard spec counts inner corners (OpenCV's, ROS's and Kalibr's
-    convention): a board of 10x7 squares is ``chessboard:9x6``. Given as
-    ``10x7``, it is found in no view, and that was all that was said.
+    Cameras whose clocks differ by over half a frame period pair each frame
+    with the other camera's neighbour, and the views were refused as "poses
+    disagree", with no word of the clocks nor of ``--time-offset``. The
+    offset is the median gap, or the gap less or plus one period (timestamps
+    tell it only modulo the period): both are named.
     """
-    if board.kind != "chessboard" or min(board.columns, board.rows) < 4:
+    period = pairing.period_ns
+    if clock_offset_warning(pairing.pairs, period) is None or not period:
         return ""
-    corners = replace(board, columns=board.columns - 1, rows=board.rows - 1)
-    if detect_corners(image, corners, thorough=False) is None:
-        return ""
+    gap = statistics.median(pair.dt_ns for pair in pairing.pairs)
+    other = gap - period if gap > 0 else gap + period
     return (
-        f"; the frames show a chessboard of {corners.columns}x{corners.rows} inner corners: "
-        f"the spec counts inner corners, not squares (chessboard:{corners.columns}x"
-        f"{corners.rows}:...)"
+        f"; cam1's frames pair {gap / 1e6:+.1f} ms from cam0's on median, "
+        f"{abs(gap) / period:.0%} of the frame period: the cameras' clocks may differ, "
+        "pairing each frame with the other camera's neighbour; give how far cam1's clock "
+        f"runs ahead of cam0's (--time-offset {gap / 1e6:.1f} or {other / 1e6:.1f})"
     )
 
 
-def _charuco_hint(image: np.ndarray, board: Board) -> str:
-    """Why a ChArUco board may be found in no view: its markers' family, or its size.
+def _pair(
+    recording_path: Path, stamps: tuple[list[int], list[int]], time_offset_ns: int
+) -> tuple[PairingResult, str | None]:
+    """Pair the frames on cam0's clock: the pairing and the clock-offset warning, if any.
 
-    The chessboard corners of a ChArUco board are found through its markers;
-    a spec naming another marker family, or the squares the other way round
-    (ROWSxCOLS), finds none, and said only "found in 0 views".
+    Raises:
+        RectifyError: the offset leaves no pair where the stamps pair without it.
     """
-    if board.kind != "charuco" or board.dictionary is None:
-        return ""
-    family = marker_family(image)
-    if family is None:
-        return ""
-    seen = family.rsplit("_", 1)[0]  # DICT_4X4
-    if not board.dictionary.startswith(f"{seen}_"):
-        return (
-            f"; the frames show {seen} markers, not {board.dictionary}'s: give the board's "
-            "dictionary as the spec's last field"
+    shifted1 = [t - time_offset_ns for t in stamps[1]]  # on cam0's clock
+    pairing = pair_frames(stamps[0], shifted1)
+    if not pairing.pairs and time_offset_ns and pair_frames(*stamps).pairs:
+        # the offset moved every frame out of reach: the one cause worth naming
+        raise RectifyError(
+            f"{recording_path}: --time-offset {time_offset_ns / 1e6:g} ms leaves no cam0 frame "
+            "within pairing tolerance of a cam1 frame (without it they pair): the offset is "
+            "how far cam1's clock runs ahead of cam0's, in milliseconds"
         )
-    return (
-        f"; {seen} markers are seen, so check COLSxROWS (squares across, then down, as the "
-        "board was generated) and the dictionary's size"
-    )
+    warning = clock_offset_warning(pairing.pairs, pairing.period_ns)
+    if warning is not None:
+        warning = f"{recording_path}: {warning}"
+        log.warning("%s", warning)
+    return pairing, warning
+
+
+_HINT_VIEWS = 5
+"""Frames kept, spread in time, to say why a board found in no view was not found."""
 
 
 def calibrate_recording(
@@ -183,6 +203,7 @@ def calibrate_recording(
     topics: tuple[str, str] | None = None,
     max_views: int = 100,
     options: CalibrationOptions | None = None,
+    time_offset_ns: int = 0,
 ) -> RecordingCalibration:
     """Calibrate a stereo rig from a recording of a board (see the module docstring).
 
@@ -194,13 +215,16 @@ def calibrate_recording(
         topics: bags only: ``(cam0_topic, cam1_topic)``; None picks them.
         max_views: at most this many frame pairs, evenly spread in time (0: all).
         options: outlier rejection and rectification settings.
+        time_offset_ns: how far cam1's clock runs ahead of cam0's (ns): cam1's
+            stamps less it are paired with cam0's (``--time-offset``).
 
     Returns:
         The calibration; nothing is written (see :func:`write_calibration`).
 
     Raises:
-        RectifyError: ``max_views`` negative, no pairs, a camera with no
-            readable frame, or too few views with the board.
+        RectifyError: ``max_views`` negative, no pairs (or none left by
+            ``time_offset_ns``), a camera with no readable frame, or too few
+            views with the board.
         CaptureError: the recording cannot be opened.
     """
     if max_views < 0:
@@ -216,19 +240,20 @@ def calibrate_recording(
             f"{len(stamps1)} cam1 frames); calibration needs at least {needed} views "
             "of the board in different poses"
         )
-    pairing = pair_frames(stamps0, stamps1)
+    pairing, offset_warning = _pair(recording_path, (stamps0, stamps1), time_offset_ns)
     pairs = [pairing.pairs[i] for i in spread_indices(len(pairing.pairs), max_views)]
     if not pairs:
         raise RectifyError(f"{recording_path}: no cam0/cam1 frames could be paired by timestamp")
+    warnings: list[str] = [offset_warning] if offset_warning else []  # said, kept for the report
     detections: list[list[Detection | None]] = []
     unreadable: list[str] = []
     sizes: list[list[tuple[int, int] | None]] = []  # per pair, per camera (None: unread)
     where: list[list[str]] = []
     first_problem: list[str] = ["", ""]  # per camera: why its first unread frame was not read
     looked_for_markers = False
-    sample: np.ndarray | None = None  # one frame read, for a hint when the board is not found
-    warnings: list[str] = []  # said here, and kept for the report
-    for pair in progress(pairs, "detecting board", total=len(pairs), unit="pair"):
+    samples: list[np.ndarray] = []  # a few frames read, for a hint when the board is not found
+    sampled = set(spread_indices(len(pairs), _HINT_VIEWS))
+    for row, pair in enumerate(progress(pairs, "detecting board", total=len(pairs), unit="pair")):
         found: list[Detection | None] = []
         sizes.append([None, None])
         where.append(["", ""])
@@ -243,7 +268,8 @@ def calibrate_recording(
                 found.append(None)
                 continue
             sizes[-1][index] = (image.shape[1], image.shape[0])
-            sample = image if sample is None else sample
+            if not samples or (index == 0 and row in sampled):  # the first read, then spread
+                samples.append(image)
             found.append(detect_corners(image, board, thorough=False))
             if found[-1] is not None and board.kind == "chessboard" and not looked_for_markers:
                 looked_for_markers = True  # once, on the first view that shows the board
@@ -278,7 +304,7 @@ def calibrate_recording(
                     f"cam{index} are {resolution[0]}x{resolution[1]}; left out"
                 )
                 detections[row][index] = None
-    names = [f"t0={p.t0_ns} t1={p.t1_ns}" for p in pairs]
+    names = [f"t0={p.t0_ns} t1={p.t1_ns + time_offset_ns}" for p in pairs]  # as recorded
     try:
         result = calibrate_from_detections(
             [(found[0], found[1]) for found in detections],
@@ -290,9 +316,8 @@ def calibrate_recording(
         )
     except RectifyError as exc:  # name the recording and what was found in it
         views = [sum(found[i] is not None for found in detections) for i in (0, 1)]
-        hint = ""
-        if min(views) == 0 and sample is not None:
-            hint = _charuco_hint(sample, board) or _squares_hint(sample, board)
+        # the board seen by both cameras: its frames may be paired out of step
+        hint = spec_hint(samples, board) if min(views) == 0 else _clock_hint(pairing)
         raise RectifyError(
             f"{recording_path}: {exc} ({len(pairs)} frame pairs examined; the board "
             f"{board.spec()} was found in {views[0]} cam0 and {views[1]} cam1 views){hint}"
@@ -308,7 +333,15 @@ def calibrate_recording(
     }
     listing = [str(problem) for problem in recording.problems]
     return RecordingCalibration(
-        Path(recording_path), result, rig, frames, names, unreadable, listing, warnings
+        Path(recording_path),
+        result,
+        rig,
+        frames,
+        names,
+        unreadable,
+        listing,
+        warnings,
+        time_offset_ns,
     )
 
 

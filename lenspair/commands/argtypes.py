@@ -64,6 +64,21 @@ def finite_float(text: str) -> float:
     return value
 
 
+MAX_TIME_OFFSET_MS = 9.2e12
+"""The most ``--time-offset`` takes either way: stamps are 64-bit ns (2**63 ns ~ 9.22e12 ms)."""
+
+
+def time_offset_ms(text: str) -> float:
+    """Argparse type of ``--time-offset``: milliseconds, finite, within the 64-bit ns range."""
+    value = finite_float(text)
+    if abs(value) > MAX_TIME_OFFSET_MS:
+        raise argparse.ArgumentTypeError(
+            f"expected at most {MAX_TIME_OFFSET_MS:g} ms either way (the range of ns stamps), "
+            f"got {text!r}"
+        )
+    return value
+
+
 def float_at_least(low: float, *, above: bool = False) -> Callable[[str], float]:
     """Argparse type: a finite number >= ``low`` (> ``low`` with ``above``); NaN/inf refused."""
 

@@ -29,7 +29,12 @@ thermal camera's blurred corners fit worse legitimately.
 
 Boards (sizes in metres):
   chessboard:COLSxROWS:SQUARE_M               COLS x ROWS inner corners
-  charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT]  COLS x ROWS squares, DICT default DICT_5X5_100
+  charuco:COLSxROWS:SQUARE_M:MARKER_M[:DICT][:legacy]
+                                              COLS x ROWS squares, DICT default DICT_5X5_100
+A ChArUco board printed by OpenCV < 4.6 (or by a tool that follows it) has the
+legacy pattern, which differs for an even number of ROWS (its top-left square
+is white): end the spec with :legacy. A board found in no view is checked
+against the other pattern, and the error says which one the frames show.
 ChArUco markers are also measured on the images: a MARKER_M more than 15 %
 away from what they measure is reported (a wrong one biases the focal length).
 SQUARE_M alone sets the metric scale: a square size 10 % off gives a baseline
@@ -38,6 +43,14 @@ chessboard spec for a board that carries ArUco markers, and a lens model the
 other one fits far better (pinhole-radtan for a fisheye).
 
 Models (Kalibr's names): pinhole-radtan (k1 k2 p1 p2), pinhole-equi (fisheye k1..k4).
+
+Frames are paired by timestamp, each with the other camera's nearest within
+half a frame period. Cameras without a common clock that disagree by more
+than half a period pair every frame with its neighbour, and the views are
+refused as the cameras' poses disagree: when the median gap reaches a quarter
+of a period, calibrate warns (log and the report's "warnings"), as
+capture-ingest does, and its error names the gap; --time-offset MS pairs on
+cam0's clock.
 
 Example:
   lenspair calibrate runs/board_01 --board chessboard:9x6:0.05 --model pinhole-equi \
@@ -49,7 +62,7 @@ from pathlib import Path
 
 from lenspair.capture.folders import IMAGE_SUFFIXES
 from lenspair.capture.rosbag import is_bag_name
-from lenspair.commands.argtypes import add_topics_option, float_at_least, out_file
+from lenspair.commands.argtypes import add_topics_option, float_at_least, out_file, time_offset_ms
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import check_writable
 from lenspair.rectify.boards import parse_board_spec
@@ -90,6 +103,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="keep each camera's own intrinsics: no joint refinement with the rig (the "
         "baseline then carries both cameras' focal errors)",
+    )
+    parser.add_argument(
+        "--time-offset",
+        type=time_offset_ms,
+        default=0.0,
+        metavar="MS",
+        help="how far cam1's clock runs ahead of cam0's, in ms: cam1's stamps less MS are "
+        "paired with cam0's (view names keep the recorded stamps; the report keeps MS). For "
+        "cameras without a common clock, when calibrate says the clocks seem to differ (0)",
     )
 
 
@@ -156,6 +178,7 @@ def run(args: argparse.Namespace) -> int:
         options=CalibrationOptions(
             outlier_factor=args.outlier_factor, refine_jointly=not args.fixed_intrinsics
         ),
+        time_offset_ns=round(args.time_offset * 1e6),
     )
     report_path = write_calibration(calibration, args.out)
     for line in calibration.summary():

@@ -46,27 +46,13 @@ from lenspair.commands.argtypes import (
     add_device_option,
     add_topics_option,
     detector_file,
-    finite_float,
     out_folder,
     size,
+    time_offset_ms,
     worker_count,
 )
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal
-
-MAX_TIME_OFFSET_MS = 9.2e12
-"""The most ``--time-offset`` takes either way: stamps are 64-bit ns (2**63 ns ~ 9.22e12 ms)."""
-
-
-def time_offset_ms(text: str) -> float:
-    """Argparse type of ``--time-offset``: milliseconds, finite, within the 64-bit ns range."""
-    value = finite_float(text)
-    if abs(value) > MAX_TIME_OFFSET_MS:
-        raise argparse.ArgumentTypeError(
-            f"expected at most {MAX_TIME_OFFSET_MS:g} ms either way (the range of ns stamps), "
-            f"got {text!r}"
-        )
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
