@@ -23,7 +23,8 @@ Inputs (:func:`detect_input`):
   Left and right folders whose names carry no timestamps are a ``folder``.
 * ``euroc``: an EuRoC/ASL recording (``mav0/cam{0,1}/data.csv``); frames of
   the chosen cameras in time order, ``name`` relative to the recording folder
-  (``mav0/cam1/data/<t_ns>.png``).
+  (``mav0/cam1/data/<t_ns>.png``). Each camera folder holds ``data.csv`` or
+  ``data/``: ``cam0/`` and ``cam1/`` folders of images alone are a ``folder``.
 * ``rosbag1`` / ``rosbag2``: a ``.bag`` file, a ROS 2 bag folder or a bare
   ``.db3``/``.mcap`` file, read once from start to end (no seeking); the
   chosen cameras' image topics are decoded (picked as in
@@ -31,6 +32,10 @@ Inputs (:func:`detect_input`):
   ``topics=(cam0, cam1)``). :mod:`lenspair.capture.bag_frames` reads bags:
   its :func:`~lenspair.capture.bag_frames.iter_bag_messages` gives every
   message (for copying a bag), :func:`iter_frames` only the images.
+
+A recording's images that are no frame of its cameras (``mav0/cam2``, an
+overview image beside ``left/`` and ``right/``) are listed by
+:func:`images_outside_cameras`, a folder at a time, for the reports to name.
 
 Anything else (another kind of file, a folder without images) is a one-line
 :class:`~lenspair.capture.errors.CaptureError`; for a folder of ``.db3``/``.mcap``
@@ -49,9 +54,9 @@ appended once to the ``problems`` list passed in.
 """
 
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Literal, NamedTuple
 
 from lenspair.capture import euroc, folders, rosbag
 from lenspair.capture.bag_frames import iter_bag_messages
@@ -62,6 +67,7 @@ from lenspair.capture.recording_types import DUPLICATE_TIMESTAMP, FrameProblem, 
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.errors import LenspairError
 from lenspair.core.imageio import read_image
+from lenspair.core.wording import counted
 
 InputKind = Literal["image", "folder", "euroc", "folders", "rosbag1", "rosbag2"]
 IMAGE_SUFFIXES = folders.IMAGE_SUFFIXES
@@ -92,13 +98,28 @@ def detect_input(path: Path) -> InputKind:
             f"{path}: not an image ({', '.join(sorted(IMAGE_SUFFIXES))}) or a bag "
             f"({', '.join(sorted(rosbag.BAG_SUFFIXES))})"
         )
-    if euroc.find_euroc_root(path) is not None and (
-        (path / "mav0").is_dir() or all((path / camera).is_dir() for camera in CAMERAS)
-    ):
+    if _is_euroc(path):
         return "euroc"
     if _is_folder_recording(path):
         return "folders"
     return "folder"
+
+
+def _is_euroc(path: Path) -> bool:
+    """``mav0/`` (or ``cam0/`` + ``cam1/``), each camera folder holding ``data.csv`` or ``data/``.
+
+    Folders named ``cam0`` and ``cam1`` that hold images and neither of those
+    are a plain folder (every image restored), as ``left/`` + ``right/``
+    folders without timestamps are (:func:`_is_folder_recording`), rather
+    than a recording refused for the ``data.csv`` it never had.
+    """
+    root = euroc.find_euroc_root(path)
+    if root is None or not (
+        (path / "mav0").is_dir() or all((path / camera).is_dir() for camera in CAMERAS)
+    ):
+        return False
+    cameras = [root / camera for camera in CAMERAS if (root / camera).is_dir()]
+    return all((c / euroc.DATA_CSV).is_file() or (c / "data").is_dir() for c in cameras)
 
 
 def _is_folder_recording(path: Path) -> bool:
@@ -117,6 +138,115 @@ def _is_folder_recording(path: Path) -> bool:
     except CaptureError:
         return False
     return not any(problem.reason.startswith(DUPLICATE_TIMESTAMP) for problem in recording.problems)
+
+
+class OutsideImages(NamedTuple):
+    """Images of a recording that are no frame of its cameras: a folder of them, or one file."""
+
+    where: Path
+    """The folder (the topmost that holds no camera's images) or the loose image file."""
+    images: int
+    """How many images: every one under the folder, or 1."""
+    folder: bool
+    cameras: str
+    """The recording's cameras, as the line names them (``cam0, cam1``, ``left/, right/``)."""
+
+    def note(self, command: str, left: str) -> str:
+        """The line of a report: what ``command`` did with them (``left``) and what to do."""
+        amount = counted(self.images, "image") if self.folder else "an image"
+        target = "the folder" if self.folder else "it"
+        return (
+            f"{self.where}: {amount} outside the recording's cameras ({self.cameras}), {left}: "
+            f"{command} {target} as an INPUT of its own"
+        )
+
+
+def camera_folders(path: Path, kind: InputKind) -> dict[CameraName, tuple[Path, Path]]:
+    """Per camera a folder recording holds: its folder and the folder of its images.
+
+    ``mav0/cam0`` and ``mav0/cam0/data``; ``left`` and ``left`` (relative to
+    ``path``). Empty for every other kind.
+    """
+    path = Path(path)
+    homes: dict[CameraName, Path] = {}
+    if kind == "euroc" and (root := euroc.find_euroc_root(path)) is not None:
+        homes = {camera: root / camera for camera in CAMERAS}
+    elif kind == "folders":
+        homes = {camera: path / folders.FOLDER_NAMES[camera] for camera in CAMERAS}
+    return {
+        camera: (
+            home.relative_to(path),
+            (home / "data" if kind == "euroc" else home).relative_to(path),
+        )
+        for camera, home in homes.items()
+        if home.is_dir()
+    }
+
+
+def images_outside_cameras(
+    path: Path,
+    kind: InputKind,
+    cameras: Sequence[CameraName],
+    read: Iterable[Path],
+    files: Iterable[Path],
+) -> list[OutsideImages]:
+    """A recording's images that no camera of it holds (``mav0/cam2``, an overview beside them).
+
+    They are copied (``restore``) or passed over (``detect``) like any other
+    file of the recording, where a bag's third camera is named: so they are
+    named too, a folder at a time. An image in the image folder of a camera
+    read is a frame or a problem of the listing already (not in ``data.csv``,
+    no timestamp in its name), and a camera left out by choice (``--camera``,
+    ``rig.yaml``) keeps its whole folder; hidden files stay quiet, as a
+    folder's are.
+
+    Args:
+        path: the input.
+        kind: its kind; only ``euroc`` and ``folders`` are looked through.
+        cameras: the cameras read.
+        read: the image files read as frames.
+        files: every file under ``path``, relative to it.
+
+    Returns:
+        By path: each topmost folder that holds no camera's images, with
+        the images below it, and each image lying beside the cameras' folders.
+    """
+    places = camera_folders(path, kind)
+    if not places:
+        return []
+    frames = {Path(file).resolve() for file in read}
+    quiet = [home for camera, (home, _) in places.items() if camera not in cameras]
+    image_dirs = [images for _, images in places.values()]
+    groups: dict[Path, int] = {}
+    loose: set[Path] = set()  # images beside the cameras' folders, not in a folder of their own
+    for relative in map(Path, files):
+        if relative.suffix.lower() not in IMAGE_SUFFIXES or any(
+            part.startswith(".") for part in relative.parts
+        ):
+            continue
+        if relative.parent in image_dirs or any(relative.is_relative_to(q) for q in quiet):
+            continue
+        if (Path(path) / relative).resolve() in frames:
+            continue
+        # the topmost folder holding no camera's images, else the file alone
+        key = next(
+            (
+                relative.parents[depth]
+                for depth in range(len(relative.parts) - 2, -1, -1)
+                if not any(d.is_relative_to(relative.parents[depth]) for d in image_dirs)
+            ),
+            relative,
+        )
+        groups[key] = groups.get(key, 0) + 1
+        if key == relative:
+            loose.add(key)
+    names = ", ".join(
+        camera if kind == "euroc" else f"{images}/" for camera, (_, images) in places.items()
+    )
+    return [
+        OutsideImages(Path(path) / key, count, key not in loose, names)
+        for key, count in sorted(groups.items())
+    ]
 
 
 def _folder_listing(folder: Path) -> tuple[list[Path], list[str]]:

@@ -15,7 +15,10 @@ needs no more memory than a short one. Prints how many frames were called
 obstructed, per kind, and a warning when a bag stops part-way, and one for
 each file of a folder INPUT that may hold frames but is not judged (a bag, a
 killed recorder's .bag.active too, a video, a camera raw file, an image format
-that is not read), as restore names them.
+that is not read), as restore names them, and one for each folder of a
+recording's images that none of its cameras holds (mav0/cam2). When no frame
+at all could be judged, the outputs are written and the command ends with
+exit code 2 and the first reason.
 
 Example:
   lenspair detect runs/detector/detector.pt rec/rain --out detect_rain
@@ -93,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     from lenspair.capture.recording_types import FrameProblem
     from lenspair.model.detection.report import detect_frames
     from lenspair.model.detection.train import load_detector
-    from lenspair.model.detection.unjudged import unjudged_files
+    from lenspair.model.detection.unjudged import unjudged_files, unjudged_images
 
     if args.batch_size < 1 or args.sheet_frames < 0:
         raise ConfigError("--batch-size must be >= 1 and --sheet-frames >= 0")
@@ -125,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
         args.input,
     )  # fmt: skip
     unjudged = unjudged_files(args.input, kind, files)  # a bag or a video among the images
-    problems += unjudged
+    outside = unjudged_images(args.input, kind, cameras, files)  # mav0/cam2: a folder a line
+    problems += unjudged + [group.note("detect", "not judged") for group in outside]
     for problem in problems:
         print(f"lenspair detect: warning: {problem}", file=sys.stderr)
     judged = [v for v in verdicts if v.error is None]
@@ -138,9 +142,20 @@ def run(args: argparse.Namespace) -> int:
         if unjudged
         else ""
     )
+    if outside:
+        images = counted(sum(group.images for group in outside), "image")
+        others += f"; {images} outside the recording's cameras not judged (warnings above)"
     print(
         f"{counted(len(judged), 'frame')} judged ({len(verdicts) - len(judged)} not: unreadable "
         "or left out by the listing): "
         f"{obstructed} obstructed{kinds}{others}; see {out / 'detections.csv'}"
     )
+    if verdicts and not judged:
+        # no frame judged: a script must not read this run as done (exit 0), as restore's
+        first = next(v for v in verdicts if v.error is not None)
+        reason = first.error if first.name in str(first.error) else f"{first.name}: {first.error}"
+        raise ConfigError(
+            f"none of the {counted(len(verdicts), 'frame')} could be judged (the first: "
+            f"{reason}); each is listed in {out / 'detections.csv'}"
+        )
     return 0

@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from lenspair.capture.bag_frames import bag_overview, iter_bag_messages
-from lenspair.capture.frames import InputKind, iter_frames
+from lenspair.capture.frames import InputKind, images_outside_cameras, iter_frames
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.fsutil import atomic_write_json
 from lenspair.core.leftovers import remove_leftovers_under
@@ -52,7 +52,7 @@ from lenspair.model.inference.batching import run_batches
 from lenspair.model.inference.file_sink import FileSink
 from lenspair.model.inference.input_checks import CheckedInput, check_input
 from lenspair.model.inference.judge import FrameJudge
-from lenspair.model.inference.out_layout import STALE_DIR
+from lenspair.model.inference.out_layout import STALE_DIR, files_under
 from lenspair.model.inference.report import REPORT_NAME, RestoreReport
 from lenspair.model.inference.restore_options import RestoreOptions, check_options
 from lenspair.model.inference.resume import check_same_settings, kept_bag_report, run_settings
@@ -144,7 +144,9 @@ def restore_input(
         raise ModelError(refused)
     if kind in ("euroc", "folders", "folder"):  # after the frames: a refused run writes nothing
         assert isinstance(sink, FileSink)
-        source_problems.extend(_finish_files(sink, input_path, kind, files, options, out_dir))
+        source_problems.extend(
+            _finish_files(sink, input_path, kind, cameras, files, options, out_dir)
+        )
     sink.finish()
     if isinstance(sink, BagSink):
         report.source_files = sink.fingerprint
@@ -229,6 +231,7 @@ def _finish_files(
     sink: FileSink,
     input_path: Path,
     kind: InputKind,
+    cameras: tuple[CameraName, ...],
     files: list[Path],
     options: RestoreOptions,
     out_dir: Path,
@@ -237,7 +240,9 @@ def _finish_files(
 
     Returns:
         The problems to report: files not copied or holding unread frames,
-        and with ``--resume`` the outputs whose input is gone or that have none.
+        a recording's images outside its cameras (copied unrestored, a line
+        per folder of them), and with ``--resume`` the outputs whose input is
+        gone or that have none.
     """
     problems: list[str] = []
     if sink.changed:
@@ -248,6 +253,9 @@ def _finish_files(
         )
     follow = kind != "folder"  # a folder's frames are listed without following links
     problems.extend(sink.copy_others(input_path, files, (REPORT_NAME,), follow))
+    if follow:  # a recording: its images that no camera of it holds were copied just now
+        outside = images_outside_cameras(input_path, kind, cameras, files, files_under(input_path))
+        problems.extend(group.note("restore", "copied unrestored") for group in outside)
     if options.resume:
         stale, left = sink.set_aside_stale(input_path, (REPORT_NAME,), follow)
         if stale:

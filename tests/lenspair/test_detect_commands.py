@@ -266,7 +266,8 @@ def test_detect_with_nothing_judged_says_so_cleanly(
 ) -> None:
     fake = tmp_path / "notimage.png"
     fake.write_bytes(b"hello")
-    assert main(["detect", str(tiny_detector), str(fake), "--out", str(tmp_path / "d")]) == 0
+    # exit 2: no frame judged is no run to take for done (the summary is still said)
+    assert main(["detect", str(tiny_detector), str(fake), "--out", str(tmp_path / "d")]) == 2
     line = capsys.readouterr().out.strip().splitlines()[-1]
     assert line.startswith("0 frames judged (1 not") and "; ;" not in line  # it printed "; ;"
     with pytest.raises(ValueError, match="an empty image"):
