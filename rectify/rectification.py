@@ -96,9 +96,10 @@ def _outline(camera: CameraModel, rotation: np.ndarray, name: str, turn_deg: flo
     for edge, points in edges.items():
         rays = pixel_rays(camera, points) @ rotation.T
         ok = rays[:, 2] > 1e-6  # False for NaN: pixels without a ray are skipped
-        sides.append(rays[ok, :2] / rays[ok, 2:])
         if not ok.any():
             (behind if np.isfinite(rays).all(axis=1).any() else no_ray).append(edge)
+            continue
+        sides.append(_capped(rays[np.isfinite(rays).all(axis=1)]))
     # named in a fixed order, whatever the walk around the image
     no_ray, behind = ([e for e in _EDGE_NAMES if e in lost] for lost in (no_ray, behind))
     if no_ray:
@@ -106,7 +107,9 @@ def _outline(camera: CameraModel, rotation: np.ndarray, name: str, turn_deg: flo
             f"rectification: no pixel on {name}'s {' and '.join(no_ray)} "
             f"{'edge' if len(no_ray) == 1 else 'edges'} has a valid ray: beyond the range "
             "of its distortion model, which a calibration extrapolates where its boards never "
-            "reached (calibrate again with views that bring the board near the image edges)"
+            "reached (calibrate again with views that bring the board near the image edges), "
+            "or past 90 deg off-axis, where a fisheye of a field over 180 deg looks and no "
+            "rectified plane reaches"
         )
     if behind:
         raise RectifyError(
@@ -117,6 +120,31 @@ def _outline(camera: CameraModel, rotation: np.ndarray, name: str, turn_deg: flo
             "the calibration)"
         )
     return np.concatenate(sides)
+
+
+MAX_ANGLE_DEG = 75.0
+"""The most a rectified view reaches off its axis: a border beyond is drawn at this angle."""
+
+
+def _capped(rays: np.ndarray) -> np.ndarray:
+    """Rays' points on the rectified plane, those over :data:`MAX_ANGLE_DEG` off its axis pulled in.
+
+    A pinhole view spreads a fisheye's rays near 90 deg off-axis over an
+    unbounded plane: the border of a lens that sees past 90 deg in its
+    corners (a diagonal field over 180 deg) ran out to infinity along the
+    diagonals, and the zoom search put the rectified view out there (a focal
+    length of a few pixels, the centre thousands of pixels away). Each ray is
+    kept on its bearing; one beyond the angle (behind the plane too) is
+    placed at the angle, so the border is the lens's within that cone.
+    """
+    radial = np.linalg.norm(rays[:, :2], axis=1)
+    limit = np.tan(np.radians(MAX_ANGLE_DEG))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inside = (rays[:, 2] > 0) & (radial < limit * rays[:, 2])
+        planar = rays[:, :2] / rays[:, 2:]
+        pulled = rays[:, :2] * (limit / radial)[:, None]
+    keep = inside | (radial > 0)
+    return np.where(inside[:, None], planar, pulled)[keep]
 
 
 def _rectified_to_raw(

@@ -1,0 +1,78 @@
+"""Rectifying fisheye rigs whose corners see past 90 deg (a diagonal field over 180 deg).
+
+A pinhole view spreads rays near 90 deg over an unbounded plane: the raw
+border ran out to infinity along the diagonals and the zoom search put the
+rectified view there (a focal length of a few pixels, its centre thousands
+of pixels off), so ``capture-ingest`` found no feature matches.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from lenspair.capture.ingested import read_pairs
+from lenspair.cli import main
+from lenspair.rectify import rectification
+from lenspair.rectify.rectification import MAX_ANGLE_DEG, StereoRectification
+from lenspair.rectify.rig import CameraModel, StereoRig
+from lenspair.simulate.transforms import rotation_xyz_deg
+from tests.capture.ingest_helpers import registration_errors
+
+SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
+F_WIDE = 280.0  # 720x540: the corners at 92 deg off-axis, the side edges at 74 deg
+
+
+def _rig(f: float) -> StereoRig:
+    camera = CameraModel((f, f, 359.5, 269.5), "equidistant", (0.0, 0.0, 0.0, 0.0), (720, 540))
+    turn = rotation_xyz_deg((0.3, -0.4, 0.2))
+    T = np.eye(4)
+    T[:3, :3] = turn
+    T[:3, 3] = turn @ np.array([-0.11, 0.0, 0.0])
+    return StereoRig(camera, camera, T)
+
+
+@pytest.mark.parametrize("f", [F_WIDE, 260.0])
+def test_a_lens_seeing_past_90_deg_in_its_corners_rectifies_about_its_centre(f: float) -> None:
+    rectification = StereoRectification.from_rig(_rig(f))
+    K = rectification.K
+    assert abs(K[0, 2] - 359.5) < 20 and abs(K[1, 2] - 269.5) < 20
+    # the view within the side edges' field (74 deg at f 280), not a sliver of it
+    assert 0.5 * f < K[0, 0] < f
+    # every rectified border pixel has its source inside both raw images
+    width, height = rectification.size
+    xs, ys = np.meshgrid(np.arange(width), [0, height - 1])
+    border = np.concatenate(
+        [np.column_stack([xs.ravel(), ys.ravel()]), [[0, y] for y in range(height)]]
+    ).astype(np.float64)
+    for view in ("cam0", "cam1"):
+        raw = rectification.rectified_to_raw(view, border)  # type: ignore[arg-type]
+        assert np.isfinite(raw).all()
+        assert (raw >= -0.5).all() and (raw[:, 0] <= 719.5).all() and (raw[:, 1] <= 539.5).all()
+
+
+def test_a_lens_within_the_cap_rectifies_as_without_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the sample rig's corners lie within the cap: its border is not moved
+    assert np.degrees(np.hypot(360, 270) / 350) < MAX_ANGLE_DEG
+    capped = StereoRectification.from_rig(_rig(350.0)).K
+    monkeypatch.setattr(rectification, "MAX_ANGLE_DEG", 89.9)
+    np.testing.assert_array_equal(StereoRectification.from_rig(_rig(350.0)).K, capped)
+
+
+def test_a_recording_through_a_lens_seeing_past_90_deg_is_ingested_and_registered(
+    tmp_path: Path,
+) -> None:
+    spec = yaml.safe_load((SAMPLES / "rain.yaml").read_text())
+    for camera in ("cam0", "cam1"):
+        spec["rig"][camera]["intrinsics"] = [F_WIDE, F_WIDE, 359.5, 269.5]
+        spec["rig"][camera]["distortion"] = [0.0, 0.0, 0.0, 0.0]
+    path = tmp_path / "wide.yaml"
+    path.write_text(yaml.safe_dump(spec))
+    recording, out = tmp_path / "wide", tmp_path / "out"
+    assert main(["simulate", str(path), "--out", str(recording), "--frames", "6"]) == 0
+    assert main(["capture-ingest", str(recording), "--out", str(out)]) == 0
+    folder = out / "wide"
+    assert any(r.status == "kept" for r in read_pairs(folder / "pairs.jsonl"))
+    errors = registration_errors(recording, folder)
+    assert float(np.median(np.concatenate(list(errors.values())))) < 0.25
