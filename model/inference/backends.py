@@ -8,7 +8,7 @@ crops back, as ``eval`` does), and by an ONNX file from ``lenspair export``
 (``fixed_size``: exported before sizes were dynamic, or by another tool)
 runs other sizes in tiles of its own (:mod:`lenspair.model.inference.tiling`),
 which differ from the checkpoint's output at the seams: said once, and
-recorded (:class:`ForcedTiles`).
+recorded (:class:`ForcedTiles`); a fixed batch size (another tool's) runs in pieces.
 
 Precision: ``--precision auto|fp32|bf16|fp16`` for checkpoints; ``auto`` is the
 hardware-driven choice that ``train``/``eval``/``tradeoff``/``export`` share
@@ -29,7 +29,7 @@ import torch
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import autocast_context, tune_allocator
-from lenspair.model.inference.onnx_session import check_signature, onnx_precision, session_options
+from lenspair.model.inference import onnx_session
 from lenspair.model.inference.options import MIN_TILE, PRECISIONS
 from lenspair.model.precision import choose_precision
 
@@ -287,21 +287,22 @@ class OnnxBackend:
                     "(install onnxruntime-gpu) or use --device cpu"
                 )
             providers.insert(0, "CUDAExecutionProvider")
-        options = session_options(threads)
+        options = onnx_session.session_options(threads)
         try:
             self.session = ort.InferenceSession(str(self.path), options, providers=providers)
         except Exception as exc:  # onnxruntime raises its own assorted types
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise ModelError(f"{path}: cannot load ONNX model ({first})") from None
-        spec = check_signature(self.path, self.session.get_inputs(), self.session.get_outputs())
-        self.input_name = spec.name
+        inputs, outputs = self.session.get_inputs(), self.session.get_outputs()
+        spec = self.spec = onnx_session.check_signature(self.path, inputs, outputs)
+        self.input_name, self.batch_size = spec.name, onnx_session.fixed_batch(spec)
         self.device = device
         self._channels = int(spec.shape[1])
         height, width = spec.shape[2], spec.shape[3]
         fixed = isinstance(height, int) and isinstance(width, int)
         self._fixed = (int(height), int(width)) if fixed else None
         self._forced = ForcedTiles(str(self.path), self._fixed) if self._fixed else None
-        self.precision = onnx_precision(self.path)
+        self.precision = onnx_session.onnx_precision(self.path)
 
     @property
     def channels(self) -> int:
@@ -330,10 +331,10 @@ class OnnxBackend:
         a :class:`ModelError` with the ``--tile`` to use.
 
         Raises:
-            ModelError: the model returned another shape than the batch's (a
-                model of any size that shrinks some sizes: its frames fail,
-                rather than being written at the wrong size or transposed into
-                a traceback).
+            ModelError: ONNX Runtime refused the batch (``onnx_session.run_error``), or
+                the model returned another shape than the batch's (a model of any size
+                that shrinks some sizes: its frames fail, rather than being written at
+                the wrong size or transposed into a traceback).
         """
         output = _frame_by_frame_on_failure(
             self._run, batch, self.path, self.device, self.precision
@@ -346,8 +347,17 @@ class OnnxBackend:
         return np.clip(np.asarray(output, dtype=np.float32), 0.0, 1.0)
 
     def _run(self, batch: np.ndarray) -> np.ndarray:
-        feed = {self.input_name: check_batch(batch, self.channels)}
-        return np.asarray(self.session.run(None, feed)[0])
+        batch = check_batch(batch, self.channels)  # in pieces of a fixed batch size, if any
+        return onnx_session.run_in_pieces(self._run_piece, batch, self.batch_size)
+
+    def _run_piece(self, batch: np.ndarray) -> np.ndarray:
+        try:
+            return np.asarray(self.session.run(None, {self.input_name: batch})[0])
+        except Exception as exc:  # onnxruntime's own types; out of memory is the caller's
+            error = onnx_session.run_error(self.path, exc, batch.shape, self.spec.shape)
+            if error is None or _out_of_memory(exc):
+                raise
+            raise error from None
 
 
 def open_backend(path: Path, device: torch.device | str, precision: str = "auto") -> Backend:

@@ -2,14 +2,18 @@
 
 :class:`~lenspair.model.inference.backends.OnnxBackend` opens a session with
 :func:`session_options`, refuses a file that is not a restoring model
-(:func:`check_signature`) and tells an int8 file from an fp32 one
-(:func:`onnx_precision`); ``export`` and ``export --int8`` time their files
-with the same options.
+(:func:`check_signature`), tells an int8 file from an fp32 one
+(:func:`onnx_precision`), runs a model of a fixed batch size (another
+tool's export) in pieces of that size (:func:`run_in_pieces`) and makes ONNX
+Runtime's refusal of a batch one line (:func:`run_error`); ``export`` and
+``export --int8`` time their files with the same options.
 """
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from lenspair.model.errors import ModelError
@@ -41,6 +45,8 @@ def check_signature(path: Path, inputs: list[Any], outputs: list[Any]) -> Any:
     shape = list(spec.shape or [])
     if len(shape) != 4 or not isinstance(shape[1], int):
         raise ModelError(f"{path}: expected an input (N, C, H, W), got {spec.shape}")
+    if isinstance(shape[0], int) and shape[0] < 1:
+        raise ModelError(f"{path}: an input of batch size {shape[0]} ({spec.shape}) takes no image")
     for output in outputs:
         returned = list(output.shape or [])
         if len(returned) != 4 or returned[1] != shape[1]:
@@ -49,6 +55,72 @@ def check_signature(path: Path, inputs: list[Any], outputs: list[Any]) -> Any:
                 f"like its input {shape}: not a restoring model (lenspair export writes one)"
             )
     return spec
+
+
+def fixed_batch(spec: Any) -> int | None:
+    """The batch size a model's input ``spec`` fixes, or None when its batch is dynamic.
+
+    ``lenspair export`` writes a dynamic batch; other tools (and a trace on one
+    frame) fix it, most often at 1, and ONNX Runtime refuses any other count.
+    """
+    size = (spec.shape or [None])[0]
+    return size if isinstance(size, int) else None
+
+
+def run_in_pieces(
+    run: Callable[[np.ndarray], np.ndarray], batch: np.ndarray, size: int | None
+) -> np.ndarray:
+    """``run`` on ``batch`` in pieces of ``size`` frames, the outputs concatenated in order.
+
+    A model of a fixed batch size takes ``size`` frames a call, whatever
+    ``--batch-size`` and the tiles of a large frame (sent several a call)
+    make a batch: a short last piece is filled with copies of its last frame,
+    whose outputs are dropped (a restoring network treats each frame alone).
+    ``size`` None (a dynamic batch) runs the batch in one call.
+    """
+    if size is None or len(batch) == size:
+        return run(batch)
+    outputs = []
+    for first in range(0, len(batch), size):
+        piece = batch[first : first + size]
+        frames = len(piece)
+        if frames < size:
+            piece = np.concatenate([piece, np.repeat(piece[-1:], size - frames, axis=0)])
+        outputs.append(run(piece)[:frames])
+    return np.concatenate(outputs)
+
+
+RUN_ERRORS = frozenset({"InvalidArgument", "Fail", "RuntimeException"})
+"""ONNX Runtime's exception types for a batch its session cannot run (shapes, a node's
+arithmetic), as its Python binding names them."""
+
+
+def run_error(
+    path: Path, exc: BaseException, shape: tuple[int, ...], declared: Any
+) -> ModelError | None:
+    """The one-line error of ONNX Runtime refusing a batch of ``shape``, or None for another error.
+
+    A model whose input fixes a side (another tool's export) refused frames of
+    other sizes with onnxruntime's traceback, which ended the run; as a
+    :class:`ModelError` the frames fail, are copied unchanged and listed, and
+    ``Restorer`` raises it. Out-of-memory errors are left to the caller.
+
+    Args:
+        path: the model, for the message.
+        exc: what ``InferenceSession.run`` raised.
+        shape: the batch it was given.
+        declared: the model's input shape (``get_inputs()[0].shape``).
+    """
+    kind = type(exc)
+    if kind.__name__ not in RUN_ERRORS or not kind.__module__.startswith("onnxruntime"):
+        return None
+    words = " ".join(str(exc).split())
+    parts = words.split(" : ", 3)  # "[ONNXRuntimeError] : 2 : INVALID_ARGUMENT : <reason>"
+    reason = parts[3] if words.startswith("[ONNXRuntimeError]") and len(parts) == 4 else words
+    return ModelError(
+        f"{path}: ONNX Runtime cannot run a batch of {tuple(shape)} on this model, whose input "
+        f"is {list(declared)} ({reason or kind.__name__})"
+    )
 
 
 QUANTISED_NODES = frozenset({"QuantizeLinear", "DequantizeLinear", "QLinearConv", "ConvInteger"})
