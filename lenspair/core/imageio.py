@@ -98,6 +98,7 @@ def image_layout(path: Path) -> tuple[int, int]:
 KEPT_ATTRIBUTES = frozenset(
     {
         "ICCProfile",  # what the colour values mean: without it, viewers take them as sRGB
+        "oiio:ColorSpace", "oiio:Gamma",  # the same, by a PNG's gAMA (1.0: linear): not sRGB
         "Make", "Model", "Software", "DateTime", "ImageDescription", "Artist", "Copyright",
         "DocumentName", "HostComputer", "Keywords", "ExposureTime", "FNumber",
     }
@@ -112,31 +113,65 @@ GEOMETRY_ATTRIBUTES = frozenset(
 )
 """EXIF tags that describe the file's encoding, not the picture: the writer decides them."""
 
+FORMAT_TEXT = frozenset(
+    {"compression", "planarconfig", "resolutionunit", "textureformat", "wrapmodes"}
+)
+"""OpenImageIO's own text attributes without a namespace (lower case): how the file was
+stored (a JPEG-compressed TIFF's ``compression`` would make the new one lossy), not the
+picture; other text without one is the file's own (a PNG's ``tEXt``: a timestamp, a comment)."""
+
+DEFAULT_COLOUR_SPACES = frozenset({"srgb_rec709_scene", "srgb"})
+"""``oiio:ColorSpace`` values (lower case) that say what OpenImageIO assumes of a file that
+says nothing, and writes anyway: left out, or a JPEG would gain an EXIF block claiming sRGB."""
+
+BITS_ATTRIBUTE = "oiio:BitsPerSample"
+"""The bits a file stores per value: 10 or 12 in a machine-vision camera's TIFF, which
+OpenImageIO reads on the 16-bit scale; kept where between 8 and 16 (:func:`image_metadata`)."""
+
 Attribute = tuple[str, Any, Any]
 """An image attribute as OpenImageIO holds it: ``(name, TypeDesc, value)``."""
 
 
 def image_metadata(path: Path) -> tuple[Attribute, ...]:
-    """The descriptive attributes of a file's header: ICC profile, EXIF, GPS, IPTC.
+    """The descriptive attributes of a file's header: ICC profile, colour space, EXIF, GPS, IPTC.
 
     Whoever writes an image back in the file's place (``restore``) hands
     them to :func:`~lenspair.core.imagewrite.write_image`'s ``metadata``, or
     the new file loses its colour profile (a wide-gamut photo shown in sRGB),
-    its camera and its capture time. Attributes of the file's format and geometry (resolution,
-    compression, bit depth, the format's own ``png:``/``tiff:``/``oiio:``
-    ones, the ICC profile's decoded ``ICCProfile:`` fields) are left to the
-    writer; so is ``Orientation`` (:func:`image_layout`).
+    its colour space (a linear PNG, gAMA 1.0, tagged sRGB and shown brighter),
+    its camera, its capture time and its text (a PNG's ``tEXt``, such as a
+    timestamp). Attributes of the file's format and geometry (resolution,
+    compression, the format's own ``png:``/``tiff:``/``oiio:`` ones and
+    :data:`FORMAT_TEXT`, the ICC profile's decoded ``ICCProfile:`` fields) are
+    left to the writer; so is ``Orientation`` (:func:`image_layout`). The bit
+    depth is too, but for :data:`BITS_ATTRIBUTE` of a 16-bit image stored in
+    fewer bits (a 12-bit TIFF), which the writer keeps where the format holds it.
 
     Raises:
         ImageIOError: as :func:`image_header`.
     """
     with _opened(Path(path)) as handle:
-        return tuple(
+        spec = handle.spec()
+        kept = tuple(
             (item.name, item.type, item.value)
-            for item in handle.spec().extra_attribs
-            if (item.name in KEPT_ATTRIBUTES or item.name.startswith(KEPT_PREFIXES))
-            and item.name not in GEOMETRY_ATTRIBUTES
+            for item in spec.extra_attribs
+            if _kept(item.name, item.type, item.value)
         )
+        bits = int(spec.get_int_attribute(BITS_ATTRIBUTE, 16))
+        if str(spec.format) == "uint16" and 8 < bits < 16:
+            kept += ((BITS_ATTRIBUTE, oiio.TypeInt, bits),)
+        return kept
+
+
+def _kept(name: str, kind: Any, value: Any) -> bool:
+    """Whether :func:`image_metadata` keeps the attribute ``name`` (of type ``kind``, ``value``)."""
+    if name in GEOMETRY_ATTRIBUTES:
+        return False
+    if name == "oiio:ColorSpace" and str(value).lower() in DEFAULT_COLOUR_SPACES:
+        return False
+    if name in KEPT_ATTRIBUTES or name.startswith(KEPT_PREFIXES):
+        return True
+    return kind == oiio.TypeString and ":" not in name and name.lower() not in FORMAT_TEXT
 
 
 def read_alpha(path: Path) -> np.ndarray | None:

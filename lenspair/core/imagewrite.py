@@ -15,9 +15,10 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
+from lenspair.core.bitdepth import narrow, widen
 from lenspair.core.errors import ImageIOError, first_text_line
 from lenspair.core.fsutil import atomic_write
-from lenspair.core.imageio import Attribute, oiio_name
+from lenspair.core.imageio import BITS_ATTRIBUTE, Attribute, oiio_name
 from lenspair.core.pixels import check_image
 from lenspair.core.pngcheck import png_problem
 
@@ -29,6 +30,10 @@ FAST_PNG = 1
 """zlib level for PNGs written where throughput matters (``restore``): on
 natural 540x360 frames about twice as fast to write as the default level 6,
 for files a few per cent larger (the same pixels)."""
+
+DEPTH_FORMATS = frozenset({"tiff"})
+"""Formats OpenImageIO writes in the ``oiio:BitsPerSample`` of a 16-bit image (a 12-bit
+TIFF); elsewhere (a 12-bit TIFF misnamed ``.png``) it is written in 16 bits."""
 
 
 def write_image(
@@ -61,6 +66,9 @@ def write_image(
             says so; the colour is written as given either way.
         metadata: descriptive attributes to record (ICC profile, EXIF, as
             the format holds them); see :func:`~lenspair.core.imageio.image_metadata`.
+            Its ``oiio:BitsPerSample`` (10 or 12) stores a 16-bit image in those
+            bits where the format holds them (:data:`DEPTH_FORMATS`): the file
+            reads back on the 16-bit scale, as the one it replaces did.
         jpeg_quality: JPEG quality 1-100 (``None``: the library's default, about
             98) when the file is a JPEG, by the format OpenImageIO picks for
             its extension; ignored for every other format (given to a TIFF,
@@ -85,9 +93,12 @@ def write_image(
     path = Path(path)
 
     def _write(tmp: Path) -> None:
+        out = oiio.ImageOutput.create(oiio_name(path))
+        bits = _stored_bits(metadata, image.dtype, out)
         spec = oiio.ImageSpec(width, height, channels, _OIIO_TYPES[image.dtype])
         for name, kind, value in metadata:
-            spec.attribute(name, kind, value)
+            if name != BITS_ATTRIBUTE or bits is not None:
+                spec.attribute(name, kind, value)
         if alpha is not None:
             spec.alpha_channel = channels - 1
             if not associated:  # colour as given, not divided by alpha
@@ -96,7 +107,6 @@ def write_image(
             spec.attribute("png:compressionLevel", png_level)
         if orientation != 1:
             spec.attribute("Orientation", orientation)
-        out = oiio.ImageOutput.create(oiio_name(path))
         # by the format OpenImageIO writes, not the suffix: "Compression" means another
         # thing to other formats (jpeg:Q asks a TIFF for lossy JPEG-in-TIFF)
         if out is not None and jpeg_quality is not None and out.format_name() == "jpeg":
@@ -110,7 +120,7 @@ def write_image(
         if lost:
             out.close()
             raise ImageIOError(f"{path}: cannot write: {lost}")
-        ok = out.write_image(pixels)
+        ok = out.write_image(pixels if bits is None else widen(narrow(pixels, bits), bits))
         closed = out.close()
         error = out.geterror()  # not always a failure: TIFFs carry a note on their Exif data
         if not (ok and closed):
@@ -123,6 +133,23 @@ def write_image(
             raise _write_failure(path, tmp, problem)
 
     atomic_write(path, _write, suffix=path.suffix, sync=False)  # frames: see atomic_write
+
+
+def _stored_bits(
+    metadata: Sequence[Attribute], dtype: np.dtype, out: "oiio.ImageOutput | None"
+) -> int | None:
+    """The bits a 16-bit image is stored in, by ``metadata``'s ``oiio:BitsPerSample``; None: all.
+
+    OpenImageIO stores the top bits of each 16-bit value, one code below the
+    nearest for many of them: :func:`~lenspair.core.bitdepth.narrow`
+    rounds the values to the depth and :func:`~lenspair.core.bitdepth.widen`
+    puts them back on the 16-bit scale, whose top bits are the rounded value
+    (an unchanged pixel of a 12-bit file is stored as it was).
+    """
+    bits = next((int(value) for name, _, value in metadata if name == BITS_ATTRIBUTE), 16)
+    if dtype != np.uint16 or not 8 < bits < 16 or out is None:
+        return None
+    return bits if out.format_name() in DEPTH_FORMATS else None
 
 
 def _format_loses(out: "oiio.ImageOutput", spec: "oiio.ImageSpec", alpha: bool) -> str:
