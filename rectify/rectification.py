@@ -144,7 +144,7 @@ def _capped(rays: np.ndarray) -> np.ndarray:
         planar = rays[:, :2] / rays[:, 2:]
         pulled = rays[:, :2] * (limit / radial)[:, None]
     keep = inside | (radial > 0)
-    return np.where(inside[:, None], planar, pulled)[keep]
+    return np.asarray(np.where(inside[:, None], planar, pulled)[keep])
 
 
 def _rectified_to_raw(

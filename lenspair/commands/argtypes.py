@@ -249,6 +249,22 @@ def add_topics_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_time_offset_option(parser: argparse.ArgumentParser, command: str, kept: str) -> None:
+    """``--time-offset MS``, how far cam1's clock runs ahead, in every command that pairs frames.
+
+    ``command`` names who warns of differing clocks, ``kept`` what records the pairs' stamps.
+    """
+    parser.add_argument(
+        "--time-offset",
+        type=time_offset_ms,
+        default=0.0,
+        metavar="MS",
+        help="how far cam1's clock runs ahead of cam0's, in ms: cam1's stamps less MS are "
+        f"paired with cam0's ({kept} keep the recorded stamps; the report keeps MS). For "
+        f"cameras without a common clock, when {command} says the clocks seem to differ (0)",
+    )
+
+
 def add_convention_option(parser: argparse.ArgumentParser) -> None:
     """``--convention``, the metric convention, with the same help in eval and tradeoff."""
     parser.add_argument(

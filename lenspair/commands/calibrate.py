@@ -62,7 +62,12 @@ from pathlib import Path
 
 from lenspair.capture.folders import IMAGE_SUFFIXES
 from lenspair.capture.rosbag import is_bag_name
-from lenspair.commands.argtypes import add_topics_option, float_at_least, out_file, time_offset_ms
+from lenspair.commands.argtypes import (
+    add_time_offset_option,
+    add_topics_option,
+    float_at_least,
+    out_file,
+)
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import check_writable
 from lenspair.rectify.boards import parse_board_spec
@@ -104,15 +109,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="keep each camera's own intrinsics: no joint refinement with the rig (the "
         "baseline then carries both cameras' focal errors)",
     )
-    parser.add_argument(
-        "--time-offset",
-        type=time_offset_ms,
-        default=0.0,
-        metavar="MS",
-        help="how far cam1's clock runs ahead of cam0's, in ms: cam1's stamps less MS are "
-        "paired with cam0's (view names keep the recorded stamps; the report keeps MS). For "
-        "cameras without a common clock, when calibrate says the clocks seem to differ (0)",
-    )
+    add_time_offset_option(parser, "calibrate", "view names")
 
 
 def _check_out(recording: Path, out: Path) -> None:

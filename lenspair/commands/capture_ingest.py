@@ -44,11 +44,11 @@ from pathlib import Path
 from lenspair.capture.ingest import ingest_recording
 from lenspair.commands.argtypes import (
     add_device_option,
+    add_time_offset_option,
     add_topics_option,
     detector_file,
     out_folder,
     size,
-    time_offset_ms,
     worker_count,
 )
 from lenspair.core.errors import ConfigError
@@ -87,15 +87,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="check the obstructed side with a detector (detector.pt: the bundled one)",
     )
     add_device_option(parser, "--detector")
-    parser.add_argument(
-        "--time-offset",
-        type=time_offset_ms,
-        default=0.0,
-        metavar="MS",
-        help="how far cam1's clock runs ahead of cam0's, in ms: cam1's stamps less MS are "
-        "paired with cam0's (pairs keep the recorded stamps; report.json keeps MS). For "
-        "cameras without a common clock, when ingest says the clocks seem to differ (0)",
-    )
+    add_time_offset_option(parser, "ingest", "pairs")
 
 
 def run(args: argparse.Namespace) -> int:
