@@ -33,9 +33,11 @@ avx512_bf16/AMX, else fp32; fp32 on CUDA, where bf16/fp16 autocast measured
 slower for these networks; never an emulated precision), bf16, fp16
 (CUDA) or int8 (CPU only; ONNX Runtime static quantisation calibrated on 16
 obstructed images of --calibration DS, its train split for a dataset;
-default: the train split of --data when it is a dataset and another split is
-evaluated, else the evaluated images themselves, which flatters int8 and is
-said so). A reduced precision is also scored against
+default: another split of --data than the scored one when it is a dataset,
+train first, then val, then the others, passing over a split that holds no
+pairs; where there is none, a paired folder or no other split with pairs,
+the evaluated images themselves, which flatters int8 and is said so). A
+reduced precision is also scored against
 the fp32 output ("agreement with the fp32 output"): what it costs in
 accuracy, beside what it saves in time.
 """
@@ -54,8 +56,9 @@ from lenspair.commands.argtypes import (
     timed_runs,
 )
 from lenspair.core.device import resolve_device
-from lenspair.core.errors import ConfigError
+from lenspair.core.errors import ConfigError, first_line
 from lenspair.core.fsutil import check_writable, inside_refusal, read_json_field
+from lenspair.dataset.errors import DatasetError
 
 if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
     from lenspair.model.training.pairs import PairSource
@@ -198,6 +201,12 @@ def run(args: argparse.Namespace) -> int:
     calibration = None
     if args.calibration is not None:
         calibration = open_eval_pairs(args.calibration, "train")
+        if len(calibration) == 0:  # a split that dataset-build left empty
+            folder = getattr(calibration, "root", args.calibration)
+            raise ConfigError(
+                f"--calibration {args.calibration}: {folder} holds no pairs to calibrate on; "
+                "give a paired folder that does (another split's folder)"
+            )
     elif decision.precision == "int8":
         calibration = _default_calibration(args.data, args.split)
     if args.out is not None:
@@ -225,26 +234,39 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _default_calibration(data: Path, split: str) -> "PairSource | None":
-    """int8 without --calibration: another split of ``data`` than the scored one (train first).
+    """int8 without --calibration: another split of ``data`` than the scored one, with pairs.
 
-    Calibrating on the scored images would flatter int8; where there is no
-    other split (a plain paired folder, or the train split itself) they are
-    used and a line says so.
+    Calibrating on the scored images would flatter int8, so another split is
+    taken: train first, then val, then the others by name. A split that holds
+    no pairs (dataset-build leaves one of a small dataset empty) or cannot be
+    read is passed over, and a line names it and why. Where there is none (a
+    plain paired folder, or no other split with pairs) the evaluated images
+    are used and a line says so.
     """
     # here, not at the top: these import torch, and `lenspair eval --help` should not
     from lenspair.dataset.layouts import detect_layout, split_folders
     from lenspair.model.training.pairs import open_eval_pairs
 
+    other = "no other split"
     if detect_layout(Path(data)) is None:
         others = sorted(
             (name for name in split_folders(data) if name != split),
             key=lambda name: (name != "train", name != "val", name),  # train, val, others
         )
-        if others:
-            print(f"int8: calibrated on {data} split {others[0]} (--calibration to choose)")
-            return open_eval_pairs(data, others[0])
+        for name in others:
+            try:
+                pairs = open_eval_pairs(data, name)
+            except DatasetError as exc:
+                print(f"int8: not calibrated on {data} split {name}: {first_line(exc)}")
+                continue
+            if len(pairs) == 0:
+                print(f"int8: not calibrated on {data} split {name}: it holds no pairs")
+                continue
+            print(f"int8: calibrated on {data} split {name} (--calibration to choose)")
+            return pairs
+        other = "no other split with pairs" if others else other
     print(
-        "int8: calibrated on the evaluated images themselves (no other split): its accuracy "
+        f"int8: calibrated on the evaluated images themselves ({other}): its accuracy "
         "is optimistic; pass --calibration DS to calibrate on other images"
     )
     return None

@@ -56,8 +56,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=size(MIN_INPUT_SIDE),
         default=(540, 360),
         metavar="WxH",
-        help="size the export is traced, checked against torch and timed at; the model "
-        "takes any size (540x360)",
+        help="size the export is checked against torch and timed at (and traced at, ONNX "
+        "rounded up to a multiple of 4); the model takes any size (540x360)",
     )
     parser.add_argument(
         "--int8", action="store_true", help="also write NAME.int8.onnx (needs --calibration)"
@@ -104,6 +104,13 @@ def run(args: argparse.Namespace) -> int:
                 "with splits; all its pairs calibrate: leave --split out"
             )
         calibration = open_eval_pairs(args.calibration, args.split or "train")
+        if len(calibration) == 0:  # a split that dataset-build left empty
+            option = f"--calibration {args.calibration}"
+            option += f" --split {args.split}" if args.split is not None else ""
+            folder = getattr(calibration, "root", args.calibration)
+            raise ConfigError(
+                f"{option}: {folder} holds no pairs to calibrate on; choose another split"
+            )
     checks = export_checkpoint(args.checkpoint, args.onnx, args.torchscript, size)
     for check in checks:
         print(check.summary())

@@ -9,8 +9,10 @@ to a multiple of 4 from the input's shape with no branch on it
 any frame of ``H, W >= 8`` whole, as the checkpoint does. A TorchScript trace
 replays the same operations at any size too.
 
-``--size`` (540x360 by default) is the size the graph is traced at and the
-size each export is checked and timed at: it is run on a random image
+``--size`` (540x360 by default) is the size each export is traced, checked
+and timed at (an ONNX graph is traced at it padded up to a multiple of 4,
+:func:`~lenspair.model.evaluation.onnx_graph.trace_image`, the only sizes
+torch.export traces dynamic): it is run on a random image
 (seeded) and a flat one at that size and again at a smaller odd size
 (:func:`other_size`, not a multiple of the network's stride), and compared
 with the torch output: the largest absolute difference is reported. ONNX
@@ -59,7 +61,7 @@ class ExportCheck:
     Attributes:
         format: ``onnx`` or ``torchscript``.
         path: the written file.
-        size: ``WxH`` it was traced, checked and timed at (the file takes any size).
+        size: ``WxH`` it was checked and timed at (the file takes any size).
         exporter: which exporter wrote it.
         max_abs_diff: largest |export - torch| on the check images at every size of
             ``sizes_checked`` (``None``: not checked).
@@ -186,7 +188,8 @@ def export_onnx(
         network: forward(x) -> (generator_out, enhanced_out), on the CPU.
         channels: input channels.
         path: destination ``.onnx`` file.
-        size: ``(H, W)`` the graph is traced, checked and timed at.
+        size: ``(H, W)`` the graph is checked and timed at, and traced at
+            padded up to a multiple of 4 (:func:`write_onnx`).
         runs: timed onnxruntime runs (after warm-up).
 
     Raises:

@@ -19,7 +19,8 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from lenspair.model.networks.padding import MIN_SIDE
+from lenspair.model.networks.generator import DOWNSAMPLING_FACTOR
+from lenspair.model.networks.padding import MIN_SIDE, pad_to_multiple
 
 ONNX_OPSET = 18
 INPUT_NAME = "image"
@@ -79,15 +80,32 @@ DYNAMIC_AXES = {0: "batch", 2: "height", 3: "width"}
 """The exported input's and output's dynamic dimensions, by position in ``(N, C, H, W)``."""
 
 
+def trace_image(image: Tensor) -> Tensor:
+    """``image`` reflection-padded at the bottom/right to a multiple of the downsampling factor.
+
+    What a dynamic graph is traced on. Traced at a side that is not a
+    multiple (``export --size 130x98``), torch.export failed on the network's
+    own padding of that side ("Cannot create Dim with inconsistent min=0,
+    max=-oo"), the int8 export with it, and the fp32 one fell back to the
+    TorchScript-based exporter. Traced at a multiple, the padding is recorded
+    as arithmetic on the input's shape, so the graph pads and crops every
+    other size as the checkpoint does.
+    """
+    return pad_to_multiple(image, DOWNSAMPLING_FACTOR)
+
+
 def write_onnx(
     model: nn.Module, image: Tensor, path: Path, *, exporter: str, dynamic: bool = True
 ) -> None:
     """Run one of torch's ONNX exporters (batch dynamic; H and W too when ``dynamic``).
 
-    ``image`` gives the size the graph is traced at. ``dynamic=False`` fixes H
-    and W at it: for a model only ever run at that size (a quantisation per
-    size, :class:`~lenspair.model.evaluation.quantize.Int8Network`), whose
-    export then takes about a third of the time.
+    ``dynamic=False`` fixes H and W at ``image``'s size: for a model only
+    ever run at that size (a quantisation per size,
+    :class:`~lenspair.model.evaluation.quantize.Int8Network`), whose export
+    then takes about a third of the time. A dynamic graph is traced at
+    ``image`` padded up to a multiple of the network's downsampling factor
+    (:func:`trace_image`): torch.export cannot trace H and W dynamic at any
+    other size, and the graph takes every size alike.
 
     The graph is traced on a batch of two: traced on one, torch.export
     specialises the batch dimension to 1 wherever an operation's shape
@@ -97,6 +115,8 @@ def write_onnx(
     tiles of the export's, each normalised by its own statistics: up to 109
     8-bit codes from the checkpoint's output at EuRoC's 752x480.
     """
+    if dynamic:
+        image = trace_image(image)
     image = image.expand(2, *image.shape[1:]).contiguous()
     axes = DYNAMIC_AXES if dynamic else {0: DYNAMIC_AXES[0]}
     names: dict[str, Any] = {

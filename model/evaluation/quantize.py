@@ -83,11 +83,13 @@ def calibration_images(
     calibration goes on, as ``train`` goes on with mixed images).
 
     Raises:
-        ModelError: no pairs, or none readable.
+        ModelError: no pairs (naming the folder), or none readable.
 
     """
     if len(pairs) == 0:
-        raise ModelError("int8 calibration: no images to calibrate on")
+        root = getattr(pairs, "root", None)
+        where = f"{root}: " if root is not None else ""
+        raise ModelError(f"{where}int8 calibration: no pairs to calibrate on")
     indices = np.unique(np.linspace(0, len(pairs) - 1, min(count, len(pairs))).round().astype(int))
     images = []
     unread: list[Unread] = []
