@@ -42,7 +42,7 @@ import numpy as np
 
 from lenspair.core.bitdepth import widen
 from lenspair.core.errors import ImageIOError, listed
-from lenspair.core.imageio import image_header, read_image
+from lenspair.core.imageio import format_problem, image_header, read_image
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.folder_notes import (
     SUFFIX_TEXT,
@@ -114,6 +114,19 @@ def _mask_mismatch(entry: PairEntry, mask: tuple[int, ...], image: tuple[int, ..
         f"{entry.mask_path}: mask {mask[1]}x{mask[0]} does not match "
         f"{entry.input_path.name} {image[1]}x{image[0]}"
     )
+
+
+def _format_problem(
+    entry: PairEntry, have: Header, want: Header, mask: Header | None
+) -> str | None:
+    """The first file of the pair whose pixels :func:`read_image` refuses, said; or None."""
+    files = [(entry.input_path, have), (entry.target_path, want)]
+    if entry.mask_path is not None and mask is not None:
+        files.append((entry.mask_path, mask))
+    for path, header in files:
+        if problem := format_problem(header[3]):
+            return f"{path}: {problem}"
+    return None
 
 
 def read_mask(entry: PairEntry, size: tuple[int, ...]) -> np.ndarray | None:
@@ -210,8 +223,10 @@ class PairedDataset:
         """Every pair's files checked from their headers, pixels unread (fast).
 
         A training run reads its pairs for minutes or hours; a pair whose input
-        and target differ in size, channels or bit depth, or whose file cannot
-        be opened, is better found before the first step than in epoch 40.
+        and target differ in size, channels or bit depth, whose file cannot
+        be opened, or whose input, target or mask holds pixels :func:`read_image`
+        refuses (float, 32-bit: :func:`~lenspair.core.imageio.format_problem`),
+        is better found before the first step than in epoch 40.
 
         Returns:
             ``(headers, problems)``: by pair index, the header of each good
@@ -225,11 +240,14 @@ class PairedDataset:
             try:
                 have = image_header(entry.input_path)
                 want = image_header(entry.target_path)
-                mask = image_header(entry.mask_path)[:2] if entry.mask_path else have[:2]
+                mask_header = image_header(entry.mask_path) if entry.mask_path else None
             except ImageIOError as exc:
                 problems[index] = str(exc)
                 continue
-            if have != want:
+            mask = mask_header[:2] if mask_header else have[:2]
+            if unreadable := _format_problem(entry, have, want, mask_header):
+                problems[index] = unreadable
+            elif have != want:
                 problems[index] = (
                     f"{entry.input_path}: {have[1]}x{have[0]}x{have[2]} {have[3]} does not "
                     f"match {entry.target_path} {want[1]}x{want[0]}x{want[2]} {want[3]}"

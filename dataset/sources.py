@@ -18,12 +18,25 @@ from lenspair.capture.ingested import (
     read_numbered_pairs,
     read_report,
 )
+from lenspair.capture.journal import JOURNAL_FILE, LOCK_FILE
 from lenspair.core.errors import ImageIOError
 from lenspair.core.fsutil import sha256_bytes
 from lenspair.core.imageio import read_image
 from lenspair.dataset import curation
 from lenspair.dataset.curation import Measured
 from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.layouts import Layout, detect_layout
+
+_PAIRED_AS_IS = (
+    "train, eval and tradeoff read it as it is; dataset-build takes recordings ingested by "
+    "capture-ingest"
+)
+_ALREADY_PAIRED: dict[Layout, str] = {
+    "lenspair": f"already a split of a dataset built by dataset-build: {_PAIRED_AS_IS}",
+    "paired": f"already a paired folder (input/ + target/ or lq/ + gt/): {_PAIRED_AS_IS}",
+    "raindrop": f"already a paired folder (Raindrop data/ + gt/): {_PAIRED_AS_IS}",
+}
+"""What :func:`load_source` says of a folder :func:`detect_layout` recognises, by layout."""
 
 
 @dataclass(frozen=True)
@@ -57,7 +70,8 @@ def load_source(path: Path) -> Source:
     """Read an ingested recording's ``report.json`` and ``pairs.jsonl``.
 
     Raises:
-        DatasetError: the folder or one of the two files is missing, the
+        DatasetError: the folder or one of the two files is missing (a
+            folder of pairs already, which train reads as it is, said so), the
             obstructed camera or recording id is invalid, or a timestamp
             repeats; the message names the file.
         ConfigError: a malformed line or key (names the file and line).
@@ -65,6 +79,8 @@ def load_source(path: Path) -> Source:
     path = Path(path).resolve()
     if not path.is_dir():
         raise DatasetError(f"{path}: not a folder (expected an ingested recording)")
+    if (layout := _paired_folder(path)) is not None:
+        raise DatasetError(f"{path}: {_ALREADY_PAIRED[layout]}")
     for name in (PAIRS_FILE, REPORT_FILE):
         if not (path / name).is_file():
             raise DatasetError(
@@ -89,6 +105,19 @@ def load_source(path: Path) -> Source:
             raise DatasetError(f"{path / PAIRS_FILE}:{number}: timestamp {record.t_ns} repeats")
         seen.add(record.t_ns)
     return Source(path, report, records, tuple(number for number, _ in numbered))
+
+
+def _paired_folder(path: Path) -> Layout | None:
+    """The layout of a folder of pairs that holds no trace of ``capture-ingest``, or None.
+
+    An ingested recording holds ``input/`` + ``target/`` too; one whose ingest
+    was stopped before it finished still holds its lock or journal, and is
+    told to run it again.
+    """
+    traces = (PAIRS_FILE, REPORT_FILE, JOURNAL_FILE, LOCK_FILE)
+    if any((path / name).exists() for name in traces):
+        return None
+    return detect_layout(path)
 
 
 def measure_record(source: Source, position: int, index: int, anomaly_delta: float) -> Measured:
