@@ -19,8 +19,6 @@ One run at a time writes an output folder: :func:`hold_output` locks
 """
 
 import contextlib
-import errno
-import fcntl
 import json
 import logging
 import os
@@ -35,7 +33,8 @@ from lenspair.capture.ingest_frames import OUTPUT_KINDS
 from lenspair.capture.ingested import PairRecord
 from lenspair.core.config import load_dataclass, to_plain
 from lenspair.core.errors import LenspairError
-from lenspair.core.fsutil import naming_errors, sha256_bytes, sha256_file
+from lenspair.core.folderlock import lock_file
+from lenspair.core.fsutil import sha256_bytes, sha256_file
 from lenspair.core.leftovers import remove_leftovers
 
 logger = logging.getLogger(__name__)
@@ -255,10 +254,7 @@ def hold_output(out_dir: Path) -> Iterator[None]:
 
     Two runs writing one output at once removed each other's frames and left
     a ``pairs.jsonl`` naming files of neither. The lock is ``flock`` on
-    :data:`LOCK_FILE`: the kernel releases it when its holder dies, however
-    it dies (``kill -9`` too), so a killed run never blocks its rerun, and
-    there is no stale lock to remove. The file stays (removing it while
-    another run waits to open it would let two runs hold two files). Pool
+    :data:`LOCK_FILE` (:func:`~lenspair.core.folderlock.lock_file`). Pool
     workers (``spawn``) do not inherit it. On a file system without locks
     the run goes on, with a warning.
 
@@ -266,26 +262,13 @@ def hold_output(out_dir: Path) -> Iterator[None]:
         CaptureError: another process holds the lock (one line naming ``out_dir``).
         OSError: the lock file cannot be created (a read-only folder: named).
     """
-    path = out_dir / LOCK_FILE
-    with naming_errors(path):
-        descriptor = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+    descriptor = lock_file(out_dir / LOCK_FILE, "capture-ingest")
+    if descriptor is None:
+        raise CaptureError(
+            f"{out_dir}: another capture-ingest is writing it; run this one when that one has "
+            "finished, or with another --out"
+        )
     try:
-        try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise CaptureError(
-                f"{out_dir}: another capture-ingest is writing it; run this one when that "
-                "one has finished, or with another --out"
-            ) from None
-        except OSError as exc:
-            if exc.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.EINVAL):
-                raise
-            logger.warning(
-                "%s: cannot be locked (%s): nothing stops a second capture-ingest from writing "
-                "it at the same time; run one at a time",
-                out_dir,
-                exc.strerror or exc,
-            )
         yield
     finally:
         os.close(descriptor)  # releases the lock

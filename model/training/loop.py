@@ -51,11 +51,18 @@ from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
 from lenspair.model.training.config import RunConfig, RuntimeInfo
 from lenspair.model.training.config_loading import config_differences
-from lenspair.model.training.distributed import Distributed, distributed_from_env, init_distributed
+from lenspair.model.training.distributed import (
+    Distributed,
+    all_true,
+    distributed_from_env,
+    init_distributed,
+)
 from lenspair.model.training.epochs import EpochDataset, run_epochs
 from lenspair.model.training.resume import remove_partial_run, start_state, with_history
 from lenspair.model.training.run_files import (
+    RunLock,
     RunPaths,
+    busy_message,
     remove_run_leftovers,
     run_logging,
     tensorboard_writer,
@@ -195,6 +202,7 @@ def fit(
     deterministic_before = torch.are_deterministic_algorithms_enabled()
     info, device = init_distributed(device)
     trainer: Trainer | None = None
+    lock = RunLock(Path(run))
     # every refusal from here on runs the finally, so a refused run under torchrun tears
     # its process group down as a finished one does
     try:
@@ -205,6 +213,7 @@ def fit(
                 "processes"
             )
         paths = RunPaths(Path(run))
+        _lock_run(lock, paths, info, device, made=False)  # before its files are read
         checkpoint, stale = open_run_folder(
             paths, config, resume=resume, restart=restart, synthetic=synthetic
         )
@@ -230,6 +239,8 @@ def fit(
         config = dataclasses.replace(config, runtime=runtime)
         if info.is_main:
             paths.root.mkdir(parents=True, exist_ok=True)
+        _lock_run(lock, paths, info, device, made=True)  # if not held yet: a folder it made
+        if info.is_main:
             remove_run_leftovers(paths)
         with run_logging(paths.log, info.is_main):
             if info.is_main:
@@ -260,6 +271,7 @@ def fit(
             torch.distributed.barrier()
         return summary
     finally:
+        lock.release()
         torch.use_deterministic_algorithms(deterministic_before)
         if info.active:
             # The trainer's DDP wrappers hold the group: free them first, so that
@@ -267,6 +279,36 @@ def fit(
             # lenspair.model.training.distributed.init_process_group for what they do at exit).
             trainer = None
             torch.distributed.destroy_process_group()
+
+
+def _lock_run(
+    lock: RunLock, paths: RunPaths, info: Distributed, device: torch.device, *, made: bool
+) -> None:
+    """Hold the run folder's lock (:class:`~lenspair.model.training.run_files.RunLock`).
+
+    Only the writing rank (0) takes it, once the folder exists: before its
+    files are read, or as soon as this run has made it (``made``): a run
+    another process wrote into it meanwhile is refused then, too. Every rank
+    learns the outcome (:func:`all_true`), so all refuse together and none is
+    left waiting in a collective.
+
+    Raises:
+        ModelError: another process writes the folder, or wrote a run into it
+            since this run's checks (one line naming it).
+    """
+    problem = None
+    if info.is_main and not lock.held and paths.root.is_dir():
+        if not lock.take():
+            problem = busy_message(paths.root)
+        elif made and (
+            written := [p for p in (paths.last, paths.best, paths.metrics) if p.exists()]
+        ):
+            problem = (
+                f"{paths.root}: another lenspair train wrote a run into it since this one "
+                f"started ({', '.join(p.name for p in written)}); choose another --out"
+            )
+    if not all_true(problem is None, info, device):
+        raise ModelError(problem or busy_message(paths.root))
 
 
 def _runtime_info(

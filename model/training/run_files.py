@@ -9,18 +9,21 @@ A run folder (written by :func:`lenspair.model.training.loop.fit`) holds::
     RUN/train.log                the log, warnings included
     RUN/samples.png              input | output | target of a few validation images
     RUN/tensorboard/             when TensorBoard is installed
+    RUN/.lock                    held by the process writing the run (:class:`RunLock`)
 """
 
 import contextlib
 import csv
 import io
 import logging
+import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from lenspair.core.errors import first_line
+from lenspair.core.folderlock import lock_file
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.leftovers import remove_leftovers
 from lenspair.model.errors import ModelError
@@ -94,6 +97,80 @@ class RunPaths:
     def tensorboard(self) -> Path:
         """``RUN/tensorboard/`` (only when TensorBoard is installed)."""
         return self.root / "tensorboard"
+
+
+LOCK_FILE = ".lock"
+"""``RUN/.lock``: ``flock``-ed by the process writing the run, for the run's life."""
+
+_HELD: set[int] = set()
+"""Descriptors of the run locks this process holds (closed in its forked children)."""
+
+
+def _forget_held_locks() -> None:
+    """In a forked child (a DataLoader worker), close the run locks' descriptors it inherited.
+
+    The lock stays its parent's; a worker that outlives a killed run by the
+    seconds it takes to notice would otherwise hold it and refuse the resume.
+    """
+    for descriptor in _HELD:
+        with contextlib.suppress(OSError):
+            os.close(descriptor)
+    _HELD.clear()
+
+
+os.register_at_fork(after_in_child=_forget_held_locks)
+
+
+def busy_message(root: Path) -> str:
+    """The refusal of a run folder another process is writing (one line naming it)."""
+    return (
+        f"{root}: another lenspair train is writing this run folder; run this one when that "
+        "one has finished, or choose another --out"
+    )
+
+
+class RunLock:
+    """The lock of a run folder: one process at a time writes a run (``train``, ``tradeoff``).
+
+    Two processes writing one folder (a ``--resume`` started beside the run
+    it resumes) both trained to the end, overwriting each other's
+    ``last.pt``, ``best.pt`` and ``metrics.csv``. The lock is ``flock`` on
+    :data:`LOCK_FILE` (:func:`~lenspair.core.folderlock.lock_file`), as
+    ``capture-ingest`` locks its output. On a file system without locks the
+    run goes on, with a warning.
+    """
+
+    def __init__(self, root: Path) -> None:
+        """The lock of run folder ``root`` (not taken yet)."""
+        self.root = Path(root)
+        self.descriptor: int | None = None
+
+    @property
+    def held(self) -> bool:
+        """Whether this process holds it (or the file system has no locks)."""
+        return self.descriptor is not None
+
+    def take(self) -> bool:
+        """Take the lock of the existing run folder; False when another process holds it.
+
+        Raises:
+            OSError: the lock file cannot be created (a read-only folder: named).
+        """
+        if self.held:
+            return True
+        descriptor = lock_file(self.root / LOCK_FILE, "train")
+        if descriptor is None:
+            return False
+        self.descriptor = descriptor
+        _HELD.add(descriptor)
+        return True
+
+    def release(self) -> None:
+        """Let the lock go (nothing when it is not held)."""
+        if self.descriptor is not None:
+            _HELD.discard(self.descriptor)
+            os.close(self.descriptor)
+            self.descriptor = None
 
 
 def remove_run_leftovers(paths: RunPaths) -> None:

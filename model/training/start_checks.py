@@ -1,8 +1,11 @@
 """The checks before a run starts: the run folder, ``--resume`` and ``--init``.
 
 Each refusal comes before the run folder is touched, so a refused command
-leaves the folder as it was:
+leaves the folder as it was (but for its ``.lock``, which
+:func:`~lenspair.model.training.loop.fit` holds while it checks and trains):
 
+* a folder another process is writing is refused
+  (:class:`~lenspair.model.training.run_files.RunLock`);
 * a folder that already holds a run is resumed (``--resume``) or refused;
 * a mid-epoch ``last.pt`` is resumed only at its batch size and seed
   (:func:`check_resume_batch`), and only on the same kind of data, real
