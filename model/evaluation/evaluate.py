@@ -11,6 +11,7 @@ The reports (CSV, JSON, Markdown, contact sheet) are written by
 """
 
 import logging
+from collections.abc import Collection
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,9 @@ import torch
 from torch import nn
 
 from lenspair.core.config import to_plain
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.layouts import detect_layout
+from lenspair.dataset.readers import open_paired
 from lenspair.model.checkpoint import LoadedModel, load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import Latency, measure_latency
@@ -26,6 +30,7 @@ from lenspair.model.evaluation.scoring import SheetRow, agreement_with_fp32, sco
 from lenspair.model.evaluation.summary import ImageScore, Summary, breakdown, summarize
 from lenspair.model.inference.backends import deploy
 from lenspair.model.metrics import PSNR_CAP_DB, parse_metric_convention
+from lenspair.model.training.holdout import holdout_indices
 from lenspair.model.training.pairs import (
     PairItem,
     PairSource,
@@ -67,6 +72,9 @@ class EvalResult:
             (the scored ones themselves make its accuracy optimistic).
         conversion: how the pairs' channels were converted to the network's
             (a mono network scored on colour pairs scores luma), or "".
+        trained_on_scored: how many of the scored pairs the checkpoint trained
+            on (:func:`trained_on_scored`): 0 for other data, None when its
+            run recorded no dataset.
 
     """
 
@@ -88,6 +96,7 @@ class EvalResult:
     data_path: str = ""
     calibration: str = ""
     conversion: str = ""
+    trained_on_scored: int | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready means (per-image scores stay in the CSV)."""
@@ -111,6 +120,7 @@ class EvalResult:
             "calibration": self.calibration or None,
             "conversion": self.conversion or None,
             "unread": [asdict(u) for u in self.unread],
+            "trained_on_scored_pairs": self.trained_on_scored,
         }
 
 
@@ -176,6 +186,16 @@ def evaluate_checkpoint(
         )
     bad = {u.index for u in unread}
     scored = SubsetSource(pairs, [i for i in range(len(pairs)) if i not in bad]) if bad else pairs
+    trained_on = trained_on_scored(loaded, pairs, bad)
+    if trained_on:
+        log.warning(
+            "%s trained on %d of the %d scored pairs of %s, which flatter its scores; score "
+            "pairs it did not train on (a test split) for its accuracy",
+            checkpoint,
+            trained_on,
+            len(scores),
+            getattr(pairs, "root", data),
+        )
     versus_fp32 = None
     if precision != "fp32":
         versus_fp32 = agreement_with_fp32(
@@ -213,7 +233,56 @@ def evaluate_checkpoint(
         # every converted pair counted: from the first pair alone, a grey pair among colour
         # ones, or colour pairs after a grey first one, left no trace in the reports
         conversion=mixed,
+        trained_on_scored=trained_on,
     )
+
+
+def trained_on_scored(
+    loaded: LoadedModel, pairs: PairSource, unread: Collection[int]
+) -> int | None:
+    """How many of ``pairs`` (less the ``unread`` indices) ``loaded`` trained on.
+
+    Its run recorded the folder it trained on (``runtime.data_path``) and
+    its ``data`` section says how the pairs were split, as
+    :func:`~lenspair.model.training.datasets.paired_training_data` splits
+    them: a dataset's ``data.train_split`` is trained on whole, unless it has
+    no validation split, and a split-less paired folder (or that train split)
+    less the pairs held out by name hash (:func:`holdout_indices`).
+
+    Returns:
+        The count; 0 when ``pairs`` are another folder than the one trained
+        on (another split), or the run trained on synthetic drops; None when
+        the run recorded no folder (written before it was).
+    """
+    runtime = loaded.config.runtime
+    if runtime is None or not runtime.data_path:
+        return None
+    names = getattr(pairs, "names", None)
+    root = getattr(pairs, "root", None)
+    if runtime.synthetic or names is None or root is None:
+        return 0
+    data, path = loaded.config.data, Path(runtime.data_path)
+    split_less = detect_layout(path) is not None
+    trained = path if split_less else path / data.train_split
+    if Path(root).resolve() != trained.resolve():
+        return 0
+    kept: Collection[int] = range(len(names))
+    if split_less or not _has_pairs(path, data.val_split):
+        try:
+            kept, _ = holdout_indices([str(name) for name in names], data.val_fraction, trained)
+        except ModelError:  # fewer than two pairs: not what any run trained on
+            return 0
+    return len(set(kept) - set(unread))
+
+
+def _has_pairs(dataset: Path, split: str) -> bool:
+    """Whether ``dataset`` has a split ``split`` holding pairs (training validated on it)."""
+    if not (dataset / split).is_dir():
+        return False
+    try:
+        return len(open_paired(dataset, split, strict=False, notes=[])) > 0
+    except DatasetError:  # broken since: training refuses such a split, so it validated on it
+        return True
 
 
 def _first_readable(pairs: PairSource, unread: list[Unread]) -> PairItem:
