@@ -1,13 +1,9 @@
 """One capture-ingest at a time per output folder: the lock, its refusal, a killed holder."""
 
-import fcntl
 import logging
-import os
 import signal
 import subprocess
 import sys
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -21,30 +17,9 @@ from lenspair.cli import main
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig
 from tests.capture.ingest_helpers import CROP, make_recording, tree_bytes
+from tests.locks import held_lock, is_locked
 
 SIZE = (240, 160)
-
-
-@contextmanager
-def _locked(path: Path) -> Iterator[None]:
-    """Hold ``path``'s flock meanwhile, as a running capture-ingest does (another descriptor)."""
-    descriptor = os.open(path, os.O_RDWR | os.O_CREAT)
-    try:
-        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        yield
-    finally:
-        os.close(descriptor)
-
-
-def _is_locked(path: Path) -> bool:
-    descriptor = os.open(path, os.O_RDONLY)
-    try:
-        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return True
-    finally:
-        os.close(descriptor)
-    return False
 
 
 def test_a_second_run_into_an_output_being_written_is_refused_at_once(
@@ -56,7 +31,7 @@ def test_a_second_run_into_an_output_being_written_is_refused_at_once(
     out_dir = out / "rec"
     before = tree_bytes(out_dir)
     command = ["capture-ingest", str(recording), "--out", str(out), "--size", "200x120"]
-    with _locked(out_dir / LOCK_FILE):  # a first run, still writing
+    with held_lock(out_dir / LOCK_FILE):  # a first run, still writing
         capsys.readouterr()
         assert main(command) == 2
         error = capsys.readouterr().err.strip().splitlines()
@@ -74,7 +49,7 @@ def test_a_refused_run_writes_nothing_into_a_new_output(tmp_path: Path) -> None:
     recording = make_recording(tmp_path / "rec", frames=2)
     out_dir = tmp_path / "out" / "rec"
     out_dir.mkdir(parents=True)
-    with _locked(out_dir / LOCK_FILE), pytest.raises(CaptureError, match=str(out_dir)):
+    with held_lock(out_dir / LOCK_FILE), pytest.raises(CaptureError, match=str(out_dir)):
         ingest_recording(recording, tmp_path / "out", size=SIZE)
     assert [p.name for p in out_dir.iterdir()] == [LOCK_FILE]
 
@@ -118,7 +93,7 @@ def test_the_lock_is_held_for_the_run_and_is_nobodys_stray_file(
     frame_stage = ingest_module.run_frame_stage
 
     def watched(*args: Any) -> Any:
-        seen.append(_is_locked(out_dir / LOCK_FILE))
+        seen.append(is_locked(out_dir / LOCK_FILE))
         remove_temporaries(out_dir)  # the clean-up of killed runs leaves a held lock alone
         seen.append((out_dir / LOCK_FILE).is_file())
         return frame_stage(*args)
@@ -126,7 +101,7 @@ def test_the_lock_is_held_for_the_run_and_is_nobodys_stray_file(
     monkeypatch.setattr(ingest_module, "run_frame_stage", watched)
     ingest_recording(recording, out, size=SIZE)
     assert seen == [True, True]
-    assert not _is_locked(out_dir / LOCK_FILE)  # released at the end
+    assert not is_locked(out_dir / LOCK_FILE)  # released at the end
     with caplog.at_level(logging.INFO):
         assert main(["capture-ingest", str(recording), "--out", str(out), "--size", CROP]) == 0
     assert not any(LOCK_FILE in message for message in caplog.messages)  # not stray, not removed

@@ -1,6 +1,5 @@
 """One train at a time writes a run folder: the lock, its refusal, its life, torchrun."""
 
-import fcntl
 import os
 import signal
 import time
@@ -21,6 +20,7 @@ from lenspair.model.training import loop, run_files
 from lenspair.model.training.datasets import paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
 from lenspair.model.training.step import Trainer
+from tests.locks import held_lock, is_locked
 from tests.model.test_ddp import _cli_worker, _free_port
 from tests.model.train_fixtures import tiny_config, write_split_dataset
 
@@ -35,23 +35,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 def _locked(folder: Path) -> Iterator[None]:
     """Hold ``folder``'s run lock meanwhile, as a running train does (another descriptor)."""
     folder.mkdir(parents=True, exist_ok=True)
-    descriptor = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CREAT)
-    try:
-        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    with held_lock(folder / LOCK_FILE):
         yield
-    finally:
-        os.close(descriptor)
-
-
-def _is_locked(path: Path) -> bool:
-    descriptor = os.open(path, os.O_RDONLY)
-    try:
-        fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return True
-    finally:
-        os.close(descriptor)
-    return False
 
 
 def _files(run: Path) -> dict[str, bytes]:
@@ -95,7 +80,7 @@ def test_a_resume_beside_the_run_it_resumes_is_refused_at_once(
     )
     assert _files(run) == before  # nothing written, nothing removed
     assert main([*argv, "--resume"]) == 0  # once that run has ended: resumed as usual
-    assert not _is_locked(run / LOCK_FILE)  # the lock went with the run
+    assert not is_locked(run / LOCK_FILE)  # the lock went with the run
 
 
 def test_a_new_run_into_a_folder_being_written_writes_nothing(tmp_path: Path) -> None:
@@ -114,7 +99,7 @@ def test_the_lock_is_held_while_the_run_trains_and_let_go_after(
     held = []
 
     def run_epochs(*args: Any, **kwargs: Any) -> str:
-        held.append(_is_locked(run / LOCK_FILE))
+        held.append(is_locked(run / LOCK_FILE))
         return "stopped by the test"
 
     monkeypatch.setattr(loop, "run_epochs", run_epochs)
@@ -123,7 +108,7 @@ def test_the_lock_is_held_while_the_run_trains_and_let_go_after(
     data = paired_training_data(dataset, config.data, 1, 0, notes=[])
     fit(resolve_config(config, 1), data.train, data.val, run, CPU)
     assert held == [True]  # a folder the run made: locked before anything was written
-    assert not _is_locked(run / LOCK_FILE)
+    assert not is_locked(run / LOCK_FILE)
     fit(resolve_config(config, 1), data.train, data.val, run, CPU)  # no checkpoint: not a run
     assert held == [True, True]  # an existing folder: locked before its files are read
 
@@ -154,7 +139,7 @@ def test_a_forked_child_does_not_keep_the_lock(tmp_path: Path) -> None:
     """A DataLoader worker (forked) outliving a killed run by seconds held its lock."""
     assert run_files.LOCK_FILE == LOCK_FILE
     lock = run_files.RunLock(tmp_path)
-    assert lock.take() and lock.held and _is_locked(tmp_path / LOCK_FILE)
+    assert lock.take() and lock.held and is_locked(tmp_path / LOCK_FILE)
     ready, told = os.pipe()
     child = os.fork()
     if child == 0:  # pragma: no cover (the child: alive, past os.fork's hooks)
@@ -164,7 +149,7 @@ def test_a_forked_child_does_not_keep_the_lock(tmp_path: Path) -> None:
     try:
         assert os.read(ready, 1) == b"1"
         lock.release()
-        assert not _is_locked(tmp_path / LOCK_FILE)  # the child's inherited copy was closed
+        assert not is_locked(tmp_path / LOCK_FILE)  # the child's inherited copy was closed
     finally:
         os.kill(child, signal.SIGKILL)
         os.waitpid(child, 0)
