@@ -140,6 +140,11 @@ def _is_folder_recording(path: Path) -> bool:
     return not any(problem.reason.startswith(DUPLICATE_TIMESTAMP) for problem in recording.problems)
 
 
+SIMULATED_TRUTH = "truth"
+"""A simulated recording's ground truth (``truth/geometry.json``, ``clear/``, ``mask/``):
+lenspair's own, no camera's frames, so not named among the images outside the cameras."""
+
+
 class OutsideImages(NamedTuple):
     """Images of a recording that are no frame of its cameras: a folder of them, or one file."""
 
@@ -197,7 +202,8 @@ def images_outside_cameras(
     named too, a folder at a time. An image in the image folder of a camera
     read is a frame or a problem of the listing already (not in ``data.csv``,
     no timestamp in its name), and a camera left out by choice (``--camera``,
-    ``rig.yaml``) keeps its whole folder; hidden files stay quiet, as a
+    ``rig.yaml``) keeps its whole folder, as a simulated recording keeps its
+    ground truth (:data:`SIMULATED_TRUTH`); hidden files stay quiet, as a
     folder's are.
 
     Args:
@@ -216,6 +222,8 @@ def images_outside_cameras(
         return []
     frames = {Path(file).resolve() for file in read}
     quiet = [home for camera, (home, _) in places.items() if camera not in cameras]
+    if (Path(path) / SIMULATED_TRUTH / "geometry.json").is_file():
+        quiet.append(Path(SIMULATED_TRUTH))  # the simulator's clean views and masks
     image_dirs = [images for _, images in places.values()]
     groups: dict[Path, int] = {}
     loose: set[Path] = set()  # images beside the cameras' folders, not in a folder of their own

@@ -134,3 +134,17 @@ def test_images_outside_cameras_groups_by_the_topmost_folder(tmp_path: Path) -> 
         ("mav0/cam2", 3, True),
     ]
     assert images_outside_cameras(recording, "folder", (), [], files_under(recording)) == []
+
+
+@pytest.mark.parametrize("simulated", [True, False])
+def test_a_simulated_recordings_ground_truth_is_not_named_outside_its_cameras(
+    tmp_path: Path, simulated: bool
+) -> None:
+    # the demo restored a simulated recording and listed its truth/ as a problem
+    root = _euroc(tmp_path / "rec", ("cam0", "cam1"))
+    _image(root / "truth" / "clear" / f"{TIMES[0]}.png", 5)
+    if simulated:
+        (root / "truth" / "geometry.json").write_text("{}")
+    outside = images_outside_cameras(root, "euroc", ("cam1",), [], files_under(root))
+    named = [group.where.relative_to(root).as_posix() for group in outside]
+    assert named == ([] if simulated else ["truth"])
