@@ -33,7 +33,7 @@ from lenspair.model.training.data_checks import (
     warn_mixed,
     warn_or_note,
 )
-from lenspair.model.training.holdout import holdout_indices, split_holdout
+from lenspair.model.training.holdout import holdout_indices, holdout_names, split_holdout
 from lenspair.model.training.pairs import (
     PairedCrops,
     PairSource,
@@ -64,14 +64,6 @@ class TrainData:
     synthetic: str | None = None
 
 
-def _relative(images: Sequence[Path], folder: Path) -> list[str]:
-    """``images`` named by their paths under ``folder`` (as the hold-out names them)."""
-    return [
-        (image.relative_to(folder) if image.is_relative_to(folder) else image).as_posix()
-        for image in images
-    ]
-
-
 def first_channels(dataset: PairSource) -> int:
     """Channels of the first pair's input (1 or 3)."""
     if len(dataset) == 0:
@@ -94,7 +86,7 @@ def names_digest(train: Sequence[str], val: Sequence[str]) -> str:
 
     A dataset rebuilt in place (other pairs, another split) keeps its path;
     this tells a resume that its pairs changed (:func:`~lenspair.model.training.loop.fit`).
-    A synthetic run's names are its clean images' paths under its folder.
+    A synthetic run's names are its clean images' hold-out names (:func:`holdout_names`).
     """
     digest = hashlib.sha256()
     for names in (train, val):
@@ -243,10 +235,11 @@ def synthetic_training_data(
     )
     # validation: drops only (see DataConfig.clear_share)
     val = SyntheticDrops(val_images, effects, resolved, None, seed=seed, fixed=True, bits=bits)
+    digest = names_digest(holdout_names(train_images, folder), holdout_names(held, folder))
     description = (
         f"{folder} (synthetic {data.drops} drops on {len(train_images)} clean images, "
         f"validation {len(val)}{'' if len(val) == held_out else f' of {held_out}'} held out "
-        f"by name hash; {names_digest(_relative(train_images, folder), _relative(held, folder))})"
+        f"by name hash; {digest})"
     )
     return TrainData(
         train=train, val=val, channels=resolved, description=description, synthetic=data.drops

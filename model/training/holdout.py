@@ -116,6 +116,16 @@ def split_holdout(
     """
     if len(images) < 2:
         raise ModelError(f"{root}: need at least 2 clean images, found {len(images)}")
+    train, val = holdout_indices(holdout_names(images, root), fraction, root)
+    return [images[i] for i in train], [images[i] for i in val]
+
+
+def holdout_names(images: Sequence[Path], root: Path) -> list[str]:
+    """The names :func:`split_holdout` splits clean images by (and a run's digest records).
+
+    An image of a paired folder: the pair it is the target of (:func:`pair_name`);
+    any other: its path below ``root``.
+    """
     layouts: dict[Path, Layout | None] = {}
     names = []
     for image in images:
@@ -125,8 +135,7 @@ def split_holdout(
         layout = layouts[pairs_folder]
         relative = image.relative_to(root) if image.is_relative_to(root) else image
         names.append(relative.as_posix() if layout is None else pair_name(image, layout))
-    train, val = holdout_indices(names, fraction, root)
-    return [images[i] for i in train], [images[i] for i in val]
+    return names
 
 
 def pair_name(image: Path, layout: Layout) -> str:
