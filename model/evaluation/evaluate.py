@@ -22,7 +22,6 @@ from torch import nn
 from lenspair.core.config import to_plain
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.layouts import detect_layout
-from lenspair.dataset.readers import open_paired
 from lenspair.model.checkpoint import LoadedModel, load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import Latency, measure_latency
@@ -30,6 +29,8 @@ from lenspair.model.evaluation.scoring import SheetRow, agreement_with_fp32, sco
 from lenspair.model.evaluation.summary import ImageScore, Summary, breakdown, summarize
 from lenspair.model.inference.backends import deploy
 from lenspair.model.metrics import PSNR_CAP_DB, parse_metric_convention
+from lenspair.model.training.config import DataConfig
+from lenspair.model.training.datasets import validation_split
 from lenspair.model.training.holdout import holdout_indices
 from lenspair.model.training.pairs import (
     PairItem,
@@ -267,7 +268,7 @@ def trained_on_scored(
     if Path(root).resolve() != trained.resolve():
         return 0
     kept: Collection[int] = range(len(names))
-    if split_less or not _has_pairs(path, data.val_split):
+    if split_less or not _validated_on_a_split(path, data):
         try:
             kept, _ = holdout_indices([str(name) for name in names], data.val_fraction, trained)
         except ModelError:  # fewer than two pairs: not what any run trained on
@@ -275,12 +276,10 @@ def trained_on_scored(
     return len(set(kept) - set(unread))
 
 
-def _has_pairs(dataset: Path, split: str) -> bool:
-    """Whether ``dataset`` has a split ``split`` holding pairs (training validated on it)."""
-    if not (dataset / split).is_dir():
-        return False
+def _validated_on_a_split(dataset: Path, data: DataConfig) -> bool:
+    """Whether training on ``dataset`` validated on its validation split (held nothing out)."""
     try:
-        return len(open_paired(dataset, split, strict=False, notes=[])) > 0
+        return validation_split(dataset, data, notes=[]) is not None
     except DatasetError:  # broken since: training refuses such a split, so it validated on it
         return True
 

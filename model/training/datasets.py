@@ -184,14 +184,12 @@ def _split_sources(
         note = f"validation: {len(val_idx)} pairs held out by name hash"
     else:
         train_source = open_paired(path, data.train_split, notes=notes)
-        # A val folder that is there but broken (an unpaired file) is refused by open_paired:
-        # holding out train pairs instead cost training pairs and the real validation set.
         val_dir = path / data.val_split
-        opened = open_paired(path, data.val_split, notes=notes) if val_dir.is_dir() else None
-        if opened is not None and len(opened) > 0:
+        opened = validation_split(path, data, notes)
+        if opened is not None:
             val_source = opened
         else:  # none, or empty (dataset-build leaves a split empty on small inputs)
-            why = f"{val_dir}: the split is empty" if opened is not None else f"no {val_dir}"
+            why = f"{val_dir}: the split is empty" if val_dir.is_dir() else f"no {val_dir}"
             every = train_source
             train_idx, val_idx = holdout_indices(_names(every), data.val_fraction, path)
             train_source, val_source = SubsetSource(every, train_idx), SubsetSource(every, val_idx)
@@ -199,6 +197,23 @@ def _split_sources(
             note += f"{data.train_split!r} pairs held out by name hash"
             warn_or_note(notes, f"{path}: {note}")
     return train_source, val_source, note
+
+
+def validation_split(path: Path, data: DataConfig, notes: list[str] | None) -> PairSource | None:
+    """A dataset's ``data.val_split`` when it holds pairs; None: training holds its own out.
+
+    None when the split is missing or empty (dataset-build leaves a split
+    empty on small inputs): training then holds validation pairs out of its
+    train split by name hash.
+
+    Raises:
+        DatasetError: the split is there but broken (an unpaired file): holding
+            out train pairs instead cost training pairs and the real validation set.
+    """
+    if not (path / data.val_split).is_dir():
+        return None
+    opened = open_paired(path, data.val_split, notes=notes)
+    return opened if len(opened) > 0 else None
 
 
 def synthetic_training_data(
