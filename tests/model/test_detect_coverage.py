@@ -3,19 +3,17 @@
 import csv
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from lenspair.cli import main
-from lenspair.core.imagewrite import write_image
 from lenspair.model.detection.unjudged import unjudged_images
-from tests.images import texture
+from tests.model.folder_recordings import TIMES, euroc_recording, textured_image
 
-TIMES = (1_700_000_000_000_000_000, 1_700_000_000_050_000_000)
+SHAPE = (36, 54)
 
 
 def _image(path: Path, seed: int) -> None:
-    write_image(path, (texture((36, 54), seed=seed) * 255).astype(np.uint8))
+    textured_image(path, seed, SHAPE)
 
 
 def _rows(out: Path) -> list[dict[str, str]]:
@@ -75,13 +73,7 @@ def test_cam0_and_cam1_folders_of_images_alone_are_judged_as_a_folder(tmp_path: 
 def test_a_third_cameras_images_are_named_not_judged(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    recording = tmp_path / "eu"
-    for seed, camera in enumerate(("cam0", "cam1", "cam2")):
-        rows = "".join(f"{t},{t}.png\n" for t in TIMES)
-        (recording / "mav0" / camera).mkdir(parents=True)
-        (recording / "mav0" / camera / "data.csv").write_text("#timestamp [ns],filename\n" + rows)
-        for index, t_ns in enumerate(TIMES):
-            _image(recording / "mav0" / camera / "data" / f"{t_ns}.png", 10 * seed + index)
+    recording = euroc_recording(tmp_path / "eu", shape=SHAPE)
     _image(recording / "overview.png", 5)
     out = tmp_path / "out"
     assert main(["detect", "detector.pt", str(recording), "--out", str(out)]) == 0

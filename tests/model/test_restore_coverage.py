@@ -2,22 +2,18 @@
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 
 from lenspair.capture.frames import detect_input, images_outside_cameras
 from lenspair.capture.rigfile import RigFile, write_rig_file
-from lenspair.core.imagewrite import write_image
 from lenspair.model.inference.backends import TorchBackend, open_backend
 from lenspair.model.inference.out_layout import files_under
 from lenspair.model.inference.pipeline import restore_input
 from lenspair.model.inference.restore_options import RestoreOptions
-from tests.images import texture
+from tests.model.folder_recordings import TIMES, euroc_recording, textured_image
 from tests.model.restore_helpers import file_tree
 from tests.model.train_fixtures import make_checkpoint
-
-TIMES = (1_700_000_000_000_000_000, 1_700_000_000_050_000_000)
 
 
 @pytest.fixture
@@ -27,29 +23,14 @@ def backend(tmp_path: Path, one_thread: None) -> TorchBackend:
     return loaded
 
 
-def _image(path: Path, seed: int) -> None:
-    write_image(path, (texture((32, 48), seed=seed) * 255).astype(np.uint8))
-
-
-def _euroc(root: Path, cameras: tuple[str, ...] = ("cam0", "cam1", "cam2")) -> Path:
-    """An EuRoC recording of two frames a camera (a third camera too, by default)."""
-    for seed, camera in enumerate(cameras):
-        rows = "".join(f"{t},{t}.png\n" for t in TIMES)
-        (root / "mav0" / camera).mkdir(parents=True)
-        (root / "mav0" / camera / "data.csv").write_text("#timestamp [ns],filename\n" + rows)
-        for index, t_ns in enumerate(TIMES):
-            _image(root / "mav0" / camera / "data" / f"{t_ns}.png", 10 * seed + index)
-    return root
-
-
 def test_cam0_and_cam1_folders_of_images_alone_are_a_folder(
     tmp_path: Path, backend: TorchBackend
 ) -> None:
     """No data.csv, no data/: a folder of images, every one restored (was refused as EuRoC)."""
     folder = tmp_path / "cc"
-    _image(folder / "cam0" / "a.png", 1)
-    _image(folder / "cam1" / "b.png", 2)
-    _image(folder / "top.png", 3)
+    textured_image(folder / "cam0" / "a.png", 1)
+    textured_image(folder / "cam1" / "b.png", 2)
+    textured_image(folder / "top.png", 3)
     assert detect_input(folder) == "folder"
     report = restore_input(folder, tmp_path / "out", backend)
     assert (report.kind, report.restored, report.failed, report.problems) == ("folder", 3, 0, [])
@@ -62,22 +43,22 @@ def test_cam0_and_cam1_folders_of_images_alone_are_a_folder(
 
 
 def test_a_recording_is_told_by_each_camera_folders_listing(tmp_path: Path) -> None:
-    assert detect_input(_euroc(tmp_path / "eu", ("cam0", "cam1"))) == "euroc"
+    assert detect_input(euroc_recording(tmp_path / "eu", ("cam0", "cam1"))) == "euroc"
     bare = tmp_path / "bare"  # cam0/ and cam1/ beside each other, data/ without data.csv
     for camera in ("cam0", "cam1"):
-        _image(bare / camera / "data" / f"{TIMES[0]}.png", 1)
+        textured_image(bare / camera / "data" / f"{TIMES[0]}.png", 1)
     assert detect_input(bare) == "euroc"
     half = tmp_path / "half"  # one camera a recording's, the other images alone
-    _image(half / "cam0" / "data" / f"{TIMES[0]}.png", 1)
-    _image(half / "cam1" / "b.png", 2)
+    textured_image(half / "cam0" / "data" / f"{TIMES[0]}.png", 1)
+    textured_image(half / "cam1" / "b.png", 2)
     assert detect_input(half) == "folder"
 
 
 def test_a_third_cameras_images_are_copied_and_named(tmp_path: Path, backend: TorchBackend) -> None:
     """mav0/cam2 is copied as it is, as before, and now named: one line for its folder."""
-    recording = _euroc(tmp_path / "eu")
-    _image(recording / "mav0" / "overview.png", 7)
-    _image(recording / "mav0" / "cam0" / "preview.png", 8)  # beside data/: no frame either
+    recording = euroc_recording(tmp_path / "eu")
+    textured_image(recording / "mav0" / "overview.png", 7)
+    textured_image(recording / "mav0" / "cam0" / "preview.png", 8)  # beside data/: no frame either
     write_rig_file(recording / "rig.yaml", RigFile(obstructed="cam1", anomaly=("rain",)))
     out = tmp_path / "out"
     report = restore_input(recording, out, backend)
@@ -103,9 +84,9 @@ def test_images_beside_left_and_right_are_named(tmp_path: Path, backend: TorchBa
     recording = tmp_path / "lr"
     for seed, side in enumerate(("left", "right", "center")):
         for index, t_ns in enumerate(TIMES):
-            _image(recording / side / f"{t_ns}.png", 10 * seed + index)
-    _image(recording / "overview.png", 5)
-    _image(recording / ".thumbs" / "x.png", 6)  # hidden, as a folder's hidden files: quiet
+            textured_image(recording / side / f"{t_ns}.png", 10 * seed + index)
+    textured_image(recording / "overview.png", 5)
+    textured_image(recording / ".thumbs" / "x.png", 6)  # hidden, as a folder's hidden files: quiet
     assert detect_input(recording) == "folders"
     report = restore_input(recording, tmp_path / "out", backend)
     assert report.restored == 4
@@ -120,10 +101,10 @@ def test_images_beside_left_and_right_are_named(tmp_path: Path, backend: TorchBa
 
 
 def test_images_outside_cameras_groups_by_the_topmost_folder(tmp_path: Path) -> None:
-    recording = _euroc(tmp_path / "eu", ("cam0", "cam1"))
+    recording = euroc_recording(tmp_path / "eu", ("cam0", "cam1"))
     for name in ("mav0/cam2/data/1.png", "mav0/cam2/data/2.png", "mav0/cam2/x.png"):
-        _image(recording / name, 1)
-    _image(recording / "mav0/cam0/data/sub/3.png", 2)  # below a camera's images: its folder
+        textured_image(recording / name, 1)
+    textured_image(recording / "mav0/cam0/data/sub/3.png", 2)  # below a camera's images: its folder
     (recording / "mav0/cam2/notes.txt").write_text("not an image")
     read = [recording / "mav0" / c / "data" / f"{t}.png" for c in ("cam0", "cam1") for t in TIMES]
     groups = images_outside_cameras(
@@ -141,8 +122,8 @@ def test_a_simulated_recordings_ground_truth_is_not_named_outside_its_cameras(
     tmp_path: Path, simulated: bool
 ) -> None:
     # the demo restored a simulated recording and listed its truth/ as a problem
-    root = _euroc(tmp_path / "rec", ("cam0", "cam1"))
-    _image(root / "truth" / "clear" / f"{TIMES[0]}.png", 5)
+    root = euroc_recording(tmp_path / "rec", ("cam0", "cam1"))
+    textured_image(root / "truth" / "clear" / f"{TIMES[0]}.png", 5)
     if simulated:
         (root / "truth" / "geometry.json").write_text("{}")
     outside = images_outside_cameras(root, "euroc", ("cam1",), [], files_under(root))
