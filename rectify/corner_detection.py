@@ -71,8 +71,12 @@ def _refine(gray: np.ndarray, corners: np.ndarray, board: Board) -> np.ndarray:
     np.fill_diagonal(distances, np.inf)
     spacing = float(np.min(distances))
     fraction = 0.4
-    if board.marker_m is not None:  # 1.25 x the white gap between corner and marker (measured)
-        fraction = 1.25 * (board.square_m - board.marker_m) / (2 * board.square_m)
+    if board.marker_m is not None:
+        # 0.75 x the white gap between corner and marker: a window reaching the
+        # markers' edges is pulled by them (simulated boards, markers 0.6-0.8 of
+        # a square: corner errors 0.06-0.09 px at 0.75, against 0.08-0.21 px at
+        # 1.25 and 0.08-0.15 px for OpenCV's own corners)
+        fraction = 0.75 * (board.square_m - board.marker_m) / (2 * board.square_m)
     half = int(np.clip(round(fraction * spacing), 2, 11))
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-3)
     refined = cv2.cornerSubPix(gray, corners.reshape(-1, 1, 2), (half, half), (-1, -1), criteria)

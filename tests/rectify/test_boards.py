@@ -212,3 +212,30 @@ def test_a_charuco_board_object_is_built_once_per_spec(capfd: pytest.CaptureFixt
     for _ in range(3):
         parse_board_spec(spec).charuco()
     assert "Marker border" not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("marker_m", [0.06, 0.07, 0.08])
+def test_charuco_corners_are_refined_closer_to_the_truth_than_opencv_finds_them(
+    marker_m: float,
+) -> None:
+    # the refinement window must stay clear of the markers' edges, which pull
+    # the corner: one reaching them left corners farther off than OpenCV's own
+    board = parse_board_spec(f"charuco:7x5:0.1:{marker_m}")
+    renderer = BoardRenderer(board, CAMERA)
+    rng = np.random.default_rng(1)
+    parameters = cv2.aruco.CharucoParameters()
+    parameters.tryRefineMarkers = True
+    opencv = cv2.aruco.CharucoDetector(board.charuco(), parameters, cv2.aruco.DetectorParameters())
+    ours, theirs = [], []
+    for distance in (0.9, 1.1, 1.3, 1.5, 1.8):
+        rotation = cv2.Rodrigues(rng.uniform(-0.35, 0.35, 3))[0]
+        t = np.array([0.0, 0.0, distance]) - rotation @ board.object_points().mean(axis=0)
+        image = renderer.render(cv2.Rodrigues(rotation)[0], t)
+        image = np.clip(image + rng.normal(0, 2, image.shape), 0, 255).astype(np.uint8)
+        truth = project_rays(CAMERA, board.object_points() @ rotation.T + t)
+        detection = detect_corners(image, board)
+        corners, ids, _, _ = opencv.detectBoard(image)
+        assert detection is not None and ids is not None
+        ours.append(np.linalg.norm(detection.corners - truth[detection.ids], axis=1).mean())
+        theirs.append(np.linalg.norm(corners.reshape(-1, 2) - truth[ids.ravel()], axis=1).mean())
+    assert np.mean(ours) < min(np.mean(theirs), 0.1)
