@@ -47,8 +47,9 @@ def refine_jointly(
     where ``cv2.stereoCalibrate`` refining everything together gives 0.4 %
     (0.06 %). But the refinement sees only the views both cameras saw: where
     most views were seen by one camera alone, each camera's own fit is the
-    surer one. So the refinement is kept when its baseline deviation is the
-    smaller of the two (``fixed``: the fixed-intrinsics fit's, intrinsics
+    surer one. Fisheye views run only where they share a corner count
+    (:func:`_refinable_views`). So the refinement is kept when its baseline
+    deviation is the smaller of the two (``fixed``: the fixed-intrinsics fit's, intrinsics
     errors included, :func:`~lenspair.rectify.calib_uncertainty.rig_deviations`),
     the refined rig rectifies, and each camera's own views still fit the
     refined intrinsics (:data:`JOINT_FIT_TOLERANCE`).
@@ -70,10 +71,14 @@ def refine_jointly(
     cameras = (monos[0].camera, monos[1].camera)
     kept = list(monos), transform, residuals, fixed.baseline_m
     data = [item for item, _, _ in stereo]
-    if not refinable(data, cameras):
-        return *kept, "not refined with the rig: fisheye views with different corner counts"
+    used = _refinable_views(data, cameras)
+    if len(used) < MIN_REFINE_VIEWS:
+        return *kept, (
+            f"not refined with the rig: fisheye views with different corner counts "
+            f"(at most {len(used)} share one)"
+        )
     try:
-        refined, joint, rvecs, tvecs = fit_stereo(data, cameras, refine=True)
+        refined, joint, rvecs, tvecs = fit_stereo([data[v] for v in used], cameras, refine=True)
     except RectifyError as exc:
         log.warning("stereo: intrinsics not refined with the rig (%s)", exc)
         return *kept, f"not refined with the rig: {exc}"
@@ -88,10 +93,16 @@ def refine_jointly(
             "stereo: intrinsics not refined with the rig: the refined rig is unusable (%s)", exc
         )
         return *kept, "not refined with the rig: the refined rig was unusable"
-    views = list(zip(data, rvecs, tvecs, strict=True))
+    views = list(zip([data[v] for v in used], rvecs, tvecs, strict=True))
     together = rig_deviations(refined, views, joint)
+    over = (
+        ""
+        if len(used) == len(data)
+        else f"over {len(used)} of {len(data)} views, the most sharing a corner count "
+        "as OpenCV's fisheye fit needs; "
+    )
     spreads = (
-        f"baseline +/- {_share(together.baseline_m, rig.baseline_m)} refined, "
+        f"{over}baseline +/- {_share(together.baseline_m, rig.baseline_m)} refined, "
         f"+/- {_share(fixed.baseline_m, float(np.linalg.norm(transform[:3, 3])))} with each "
         "camera's own"
     )
@@ -100,7 +111,11 @@ def refine_jointly(
     updated = _own_views_fit(monos, refined, detections, board)
     if updated is None:
         return *kept, "not refined with the rig: a camera's own views disagree"
-    residuals = [stereo_residuals(item, refined, joint, r, t) for item, r, t in views]
+    poses = _cam0_poses(data, used, refined[0], rvecs, tvecs)
+    residuals = [
+        stereo_residuals(item, refined, joint, r, t)
+        for item, (r, t) in zip(data, poses, strict=True)
+    ]
     calibrations = [
         dataclasses.replace(
             mono,
@@ -116,6 +131,48 @@ def refine_jointly(
         )
     ]
     return calibrations, joint, residuals, together.baseline_m, f"refined with the rig ({spreads})"
+
+
+MIN_REFINE_VIEWS = 5
+"""Fewest views the refinement runs over (the board at five poses, as a calibration needs)."""
+
+
+def _refinable_views(data: list[Points], cameras: tuple[CameraModel, CameraModel]) -> list[int]:
+    """The views the refinement can run over, as indices into ``data``.
+
+    All of them, or for fisheye cameras the largest set holding one corner
+    count (the most corners on a tie):
+    ``cv2.fisheye.stereoCalibrate`` fails on views of different corner counts
+    (OpenCV issue 21748, :func:`~lenspair.rectify.calib_fits.refinable`): a
+    ChArUco session with a few partial views had no refinement at all. Whether
+    the views left out cost more than the refinement gains, the deviations of
+    :func:`refine_jointly` decide.
+    """
+    everything = list(range(len(data)))
+    if refinable(data, cameras):
+        return everything
+    counts = [len(obj) for obj, _, _ in data]
+    best = max(set(counts), key=lambda n: (counts.count(n), n))
+    return [v for v in everything if counts[v] == best]
+
+
+def _cam0_poses(
+    data: list[Points],
+    used: list[int],
+    camera: CameraModel,
+    rvecs: np.ndarray,
+    tvecs: np.ndarray,
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every view's cam0 board pose, ``(rvec, tvec)``.
+
+    The refinement's for the views it used, solved with the refined cam0 for
+    the others.
+    """
+    fitted = dict(zip(used, zip(rvecs, tvecs, strict=True), strict=True))
+    others = [v for v in range(len(data)) if v not in fitted]
+    solved = refit_poses(camera, [(data[v][0], data[v][1]) for v in others])
+    fitted.update(zip(others, zip(solved[0], solved[1], strict=True), strict=True))
+    return [fitted[v] for v in range(len(data))]
 
 
 _OwnFit = tuple[CameraModel, np.ndarray, np.ndarray, np.ndarray, float]

@@ -173,6 +173,32 @@ def test_partial_charuco_views_with_fisheye_model() -> None:
     assert 0 < result.baseline_std_m < 0.002 * result.rig.baseline_m
 
 
+def test_fisheye_views_of_a_few_partial_boards_still_refine_the_intrinsics_with_the_rig() -> None:
+    """OpenCV's fisheye stereo fit takes views of one corner count only: two partial views in
+    twenty had left the rig unrefined, each camera's focal error in its baseline."""
+    truth = make_rig("equidistant")
+    board = parse_board_spec("charuco:10x7:0.05:0.037")
+    misses, fixed = [], []
+    for seed in (0, 3, 4, 5):  # (1 and 2: boards too central to extrapolate the lens to its edges)
+        views = point_views(board, truth, noise_px=0.1, seed=seed)
+        for index in (4, 11):  # the board's last ten corners not found, in both cameras
+            views[index] = tuple(  # type: ignore[assignment]
+                Detection(d.ids[:-10], d.corners[:-10]) for d in views[index] if d is not None
+            )
+        result = calibrate_from_detections(views, board, "pinhole-equi", SIZES)
+        assert result.refinement.startswith(
+            "refined with the rig (over 18 of 20 views, the most sharing a corner count"
+        )
+        assert len(result.stereo_views) == 20  # the two partial views still count in the rig
+        misses.append(result.rig.baseline_m / truth.baseline_m - 1)
+        alone = calibrate_from_detections(
+            views, board, "pinhole-equi", SIZES, options=CalibrationOptions(refine_jointly=False)
+        )
+        fixed.append(alone.rig.baseline_m / truth.baseline_m - 1)
+    miss = float(np.sqrt(np.mean(np.square(misses))))
+    assert miss < 0.001 and float(np.sqrt(np.mean(np.square(fixed)))) > 2.5 * miss
+
+
 @pytest.mark.parametrize(("measured_m", "warned"), [(0.0352, False), (0.0278, True)])
 def test_charuco_markers_unlike_the_stated_size_are_reported(
     measured_m: float, warned: bool, caplog: pytest.LogCaptureFixture
