@@ -123,10 +123,12 @@ def run(args: argparse.Namespace) -> int:
             paths = find_clean_images(args.images)
             bits = clean_bits(args.images, paths)  # a Mono12 camera's frames, widened
             for path in paths:
+                # by path below DIR: test_a/gt/0_clean.png and test_b/gt/0_clean.png are two
+                name = path.relative_to(args.images).as_posix()
                 try:
-                    images[path.name] = fit(widen(read_image(path), bits), shape)
+                    images[name] = fit(widen(read_image(path), bits), shape)
                 except LenspairError as exc:  # this image only
-                    skipped.append(PairStatistics(path.name, None, str(exc)))
+                    skipped.append(PairStatistics(name, None, str(exc)))
         else:
             images = load_natural_images(shape)
         for name, spec in effects.items():

@@ -259,6 +259,25 @@ def test_a_clean_image_too_small_to_crop_is_skipped(
     assert "skipped dot.png" in printed and "sharp (1)" in printed
 
 
+def test_clean_images_of_one_name_in_two_folders_are_each_rendered(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Raindrop's test_a/gt and test_b/gt both hold 0_clean.png: keyed by file name, one was
+    # silently dropped (and a skipped one named ambiguously)
+    images = tmp_path / "raindrop"
+    for seed, split in enumerate(("test_a", "test_b")):
+        write_image(images / split / "gt" / "0_clean.png", _clean((48, 64), seed=seed))
+    (images / "test_b" / "gt" / "1_clean.png").write_bytes(b"not a png")
+    out = tmp_path / "realism.json"
+    argv = ["--render", "sharp", "--images", str(images), "--size", "64x48", "--json", str(out)]
+    assert main(["realism", *argv]) == 0
+    printed = capsys.readouterr().out
+    assert "sharp (2)" in printed and "skipped test_b/gt/1_clean.png" in printed
+    rows = {row["name"]: row["problem"] for row in json.loads(out.read_text())["sharp"]}
+    assert set(rows) == {"test_a/gt/0_clean.png", "test_b/gt/0_clean.png", "test_b/gt/1_clean.png"}
+    assert rows["test_a/gt/0_clean.png"] is None and rows["test_b/gt/0_clean.png"] is None
+
+
 def test_an_empty_split_and_a_folder_without_pairs_say_what_is_wrong(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
