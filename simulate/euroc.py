@@ -7,6 +7,7 @@ frame to the body frame; ``distortion_model`` is ``radial-tangential`` or
 ``equidistant``, as in the EuRoC and Kalibr tools).
 """
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -36,8 +37,22 @@ def write_data_csv(path: Path, stamps_ns: Sequence[int]) -> None:
 
 
 def _number(value: float) -> str:
+    """``value`` as a YAML 1.1 number, read back exactly by PyYAML.
+
+    ``repr`` gives ``5e-05``, which YAML 1.1 (PyYAML's ``safe_load``) reads
+    as a *string*: its float needs a dot, so the mantissa gets one
+    (``5.0e-05``). Whole numbers below 1e16 are written as integers, and
+    NaN and infinities as ``.nan`` and ``.inf``.
+    """
     value = float(value)
-    return str(int(value)) if value.is_integer() else repr(value)
+    if not math.isfinite(value):
+        return ".nan" if math.isnan(value) else ("-.inf" if value < 0 else ".inf")
+    if value.is_integer() and abs(value) < 1e16:
+        return str(int(value))
+    mantissa, exponent, power = repr(value).partition("e")
+    if exponent and "." not in mantissa:
+        mantissa += ".0"
+    return mantissa + exponent + power
 
 
 def _list(values: Sequence[float] | np.ndarray) -> str:
