@@ -428,7 +428,9 @@ class EffectsSpec:
         gives them no footprint, so brightening has nothing to act on), no
         dust coverage or dust that attenuates nothing, no blobs or blobs of
         radius or opacity 0, a veil of strength 0. Such a camera's frames
-        are clean, and a dataset or detector trained on them must say so.
+        are clean, and a dataset or detector trained on them must say so. A
+        recording also leaves out an effect its sampled glass holds nothing of
+        (no dust patch drawn), then applies these rules to what is left.
         """
         kinds = []
         drops = self.raindrops

@@ -158,8 +158,8 @@ def test_effects_change_only_pixels_inside_the_mask(tmp_path: Path) -> None:
 def test_effects_that_change_no_pixel_label_the_recording_clean(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    # dirt specks far below a pixel: the spec's labels said "dirt", the frames were clean
-    effects = {"dirt": {"count": 3, "radius_px": [0.01, 0.02], "opacity": [0.1, 0.2]}}
+    # dirt too faint to move a code: the spec's labels said "dirt", the frames were clean
+    effects = {"dirt": {"count": 3, "radius_px": [5.0, 10.0], "opacity": [1e-6, 2e-6]}}
     data = _scene(tmp_path, rig=SMALL, obstructed={"camera": "cam1", "effects": effects})
     with caplog.at_level("WARNING"):
         out = _render(tmp_path, data)
@@ -168,6 +168,27 @@ def test_effects_that_change_no_pixel_label_the_recording_clean(
         np.testing.assert_array_equal(image, read_image(out / "truth" / "clear" / f"{t_ns}.png"))
     assert read_rig_file(out / "rig.yaml").anomaly == ()
     assert any("changed no pixel" in m and "(dirt)" in m for m in caplog.messages)
+
+
+def test_a_declared_effect_that_drew_nothing_gives_no_label(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Large dust patches at a low coverage: with seed 0 the Poisson count is 0. The frames
+    # were bit-identical to the veil alone's, labelled "rain", yet rig.yaml said "dust".
+    dust = {"coverage": 0.3, "scale_px": 400.0}
+    veiled: dict[str, Any] = {"camera": "cam1", "effects": {"veil": {}}}
+    dusty = {"camera": "cam1", "effects": {"veil": {}, "dust": dust}}
+    common: dict[str, Any] = {"rig": SMALL, "recording": {"frames": 2}, "seed": 0}
+    veil_only = _render(tmp_path, _scene(tmp_path, obstructed=veiled, **common), "veil")
+    with caplog.at_level("WARNING"):
+        out = _render(tmp_path, _scene(tmp_path, obstructed=dusty, **common), "dusty")
+    for t_ns in _csv(out, "cam1"):  # the premise: the dust drew nothing
+        name = Path("mav0") / "cam1" / "data" / f"{t_ns}.png"
+        np.testing.assert_array_equal(read_image(out / name), read_image(veil_only / name))
+    assert read_rig_file(out / "rig.yaml").anomaly == ("rain",)
+    assert read_rig_file(veil_only / "rig.yaml").anomaly == ("rain",)
+    said = [m for m in caplog.messages if "drew nothing" in m]
+    assert len(said) == 1 and "dust is declared" in said[0] and "dust.coverage" in said[0]
 
 
 def test_sixteen_bit_rgb_recording(tmp_path: Path) -> None:
