@@ -59,7 +59,7 @@ from lenspair.dataset.output import (
     write_images,
     write_records,
 )
-from lenspair.dataset.preflight import check_file_system, check_paths, check_sides
+from lenspair.dataset.preflight import check_file_system, check_out, check_paths, check_sides
 from lenspair.dataset.rows import assemble_rows, changed_splits
 from lenspair.dataset.sources import Source, load_source, measure_record
 
@@ -110,7 +110,7 @@ def build_dataset(
     Raises:
         DatasetError: no sources, a bad source folder, two sources with one
             recording id, a side-check mismatch not accepted, or ``out``
-            holds something that may not be replaced.
+            is a mount point or holds something that may not be replaced.
         OSError: the file system refused a write (checked before any pair is
             measured, and as the files are written); it names ``out``, or a
             file's final path under it.
@@ -118,6 +118,7 @@ def build_dataset(
     if not sources:
         raise DatasetError("no ingested recordings given")
     out = Path(out).resolve()
+    check_out(out)
     recover_swap(out)
     # in recording-id order: the same recordings in another order are the same dataset
     loaded = sorted((load_source(path) for path in sources), key=lambda s: s.report.recording_id)

@@ -2,7 +2,8 @@
 
 Each refuses, with a message naming the recording or the output folder, what
 would otherwise fail (or build a wrong dataset) only after every pair had been
-measured: recordings whose images contradict their declared obstructed camera
+measured: an output folder that is a mount point (:func:`check_out`),
+recordings whose images contradict their declared obstructed camera
 (:func:`check_sides`), a recording given twice or overlapping the output
 (:func:`check_paths`), and what the output's file system would refuse
 (:func:`check_file_system`).
@@ -10,6 +11,7 @@ measured: recordings whose images contradict their declared obstructed camera
 
 import logging
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -19,6 +21,8 @@ from lenspair.dataset.output import LinkMode
 from lenspair.dataset.sources import Source
 
 logger = logging.getLogger(__name__)
+_OCTAL = re.compile(rb"\\([0-7]{3})")
+"""An octal escape of ``/proc/self/mountinfo`` (``\\040``: a space)."""
 
 SIDE_MISMATCH_CONFIDENCE = 0.5
 """Detector side-check confidence from which a mismatch refuses the build (below: a warning).
@@ -28,6 +32,53 @@ The fine-detail check only warns, whatever its confidence: refracting drops
 add detail, and on heavy rain it has named the clean camera with confidence
 0.52 (:mod:`lenspair.capture.side_check`).
 """
+
+
+def check_out(out: Path) -> None:
+    """Refuse an ``out`` that is a mount point, before any recording is read.
+
+    A build writes into a temporary sibling of ``out`` and renames it into
+    place, so ``out`` never holds a half-written dataset and a rebuild sets
+    the old one aside whole. A mount point (a Docker bind mount ``-v
+    host/DS:/DS``, a freshly mounted disk) cannot be renamed: the build
+    measured and copied every pair onto the parent's file system (which it
+    could fill), then failed the swap with ``EBUSY`` and a traceback. Writing
+    into the mount point instead would give up both guarantees; a folder
+    inside it keeps them, and the dataset on the mounted disk, so the
+    refusal names one.
+
+    Args:
+        out: the dataset folder, resolved.
+
+    Raises:
+        DatasetError: ``out`` is a mount point.
+    """
+    if _is_mount_point(out):
+        raise DatasetError(
+            f"{out}: a mount point, which a build cannot replace (it renames the finished "
+            f"dataset into place): give a folder inside it, e.g. --out {out / 'dataset'}"
+        )
+
+
+def _is_mount_point(folder: Path) -> bool:
+    """Whether ``folder`` is a mount point: :func:`os.path.ismount`, or in ``/proc/self/mountinfo``.
+
+    ``ismount`` compares the device of the folder and of its parent, which a
+    bind mount within one file system shares with its parent; Linux lists
+    every mount point of the process's namespace (its fifth field, octal-escaped).
+    """
+    if os.path.ismount(folder):
+        return True
+    try:
+        table = Path("/proc/self/mountinfo").read_bytes()
+    except OSError:  # not Linux
+        return False
+    wanted = os.fsencode(folder)
+    for line in table.splitlines():
+        fields = line.split(b" ")
+        if len(fields) > 4 and _OCTAL.sub(lambda m: bytes([int(m[1], 8)]), fields[4]) == wanted:
+            return True
+    return False
 
 
 def check_sides(sources: Sequence[Source], accept: bool) -> None:

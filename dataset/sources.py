@@ -25,7 +25,7 @@ from lenspair.core.imageio import read_image
 from lenspair.dataset import curation
 from lenspair.dataset.curation import Measured
 from lenspair.dataset.errors import DatasetError
-from lenspair.dataset.layouts import Layout, detect_layout
+from lenspair.dataset.layouts import Layout, detect_layout, is_lenspair_dataset
 
 _PAIRED_AS_IS = (
     "train, eval and tradeoff read it as it is; dataset-build takes recordings ingested by "
@@ -37,6 +37,11 @@ _ALREADY_PAIRED: dict[Layout, str] = {
     "raindrop": f"already a paired folder (Raindrop data/ + gt/): {_PAIRED_AS_IS}",
 }
 """What :func:`load_source` says of a folder :func:`detect_layout` recognises, by layout."""
+_A_DATASET = (
+    "a dataset built by dataset-build, not an ingested recording: leave it out of the sources "
+    "(a glob over the recordings' folder catches a dataset built in it: build into another "
+    "folder); train, eval and tradeoff read it as it is"
+)
 
 
 @dataclass(frozen=True)
@@ -79,8 +84,8 @@ def load_source(path: Path) -> Source:
     path = Path(path).resolve()
     if not path.is_dir():
         raise DatasetError(f"{path}: not a folder (expected an ingested recording)")
-    if (layout := _paired_folder(path)) is not None:
-        raise DatasetError(f"{path}: {_ALREADY_PAIRED[layout]}")
+    if (said := _not_a_recording(path)) is not None:
+        raise DatasetError(f"{path}: {said}")
     for name in (PAIRS_FILE, REPORT_FILE):
         if not (path / name).is_file():
             raise DatasetError(
@@ -107,17 +112,23 @@ def load_source(path: Path) -> Source:
     return Source(path, report, records, tuple(number for number, _ in numbered))
 
 
-def _paired_folder(path: Path) -> Layout | None:
-    """The layout of a folder of pairs that holds no trace of ``capture-ingest``, or None.
+def _not_a_recording(path: Path) -> str | None:
+    """What a folder with no trace of ``capture-ingest`` is instead, or None.
 
-    An ingested recording holds ``input/`` + ``target/`` too; one whose ingest
+    A dataset root (``dataset-build --out``, caught by a glob such as
+    ``ingested/*``) or a folder of pairs (:func:`detect_layout`): both were
+    told that they lacked ``pairs.jsonl`` and to run capture-ingest again. An
+    ingested recording holds ``input/`` + ``target/`` too; one whose ingest
     was stopped before it finished still holds its lock or journal, and is
     told to run it again.
     """
     traces = (PAIRS_FILE, REPORT_FILE, JOURNAL_FILE, LOCK_FILE)
     if any((path / name).exists() for name in traces):
         return None
-    return detect_layout(path)
+    if is_lenspair_dataset(path):
+        return _A_DATASET
+    layout = detect_layout(path)
+    return None if layout is None else _ALREADY_PAIRED[layout]
 
 
 def measure_record(source: Source, position: int, index: int, anomaly_delta: float) -> Measured:

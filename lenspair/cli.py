@@ -167,9 +167,14 @@ def build_parser(selected: str | None) -> argparse.ArgumentParser:
 
 REFUSALS = frozenset(
     {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EEXIST,
-     errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG, errno.EIO, errno.EFBIG}
+     errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG, errno.EIO, errno.EFBIG, errno.EBUSY,
+     errno.EXDEV}
 )  # fmt: skip
-"""``errno`` values of a file system refusing a write: one line, exit 1 (``-v``: traceback)."""
+"""``errno`` values of a file system refusing a write: one line, exit 1 (``-v``: traceback).
+
+``EBUSY`` and ``EXDEV`` are a rename refused: a mount point (a Docker volume given
+as an output folder) cannot be renamed away, nor a folder renamed across file systems.
+"""
 
 
 def main(argv: list[str] | None = None) -> int:

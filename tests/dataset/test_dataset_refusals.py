@@ -1,8 +1,10 @@
 """dataset-build on a disk that refuses: one line naming the user's path, never a temporary."""
 
+import errno
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -86,3 +88,30 @@ def test_a_killed_build_s_probe_is_a_leftover_of_its_output(
     probe.write_bytes(b"")
     build_dataset([source], tmp_path / "DS", DatasetConfig())
     assert sorted(p.name for p in tmp_path.iterdir()) == ["DS", "ingested"]
+
+
+@pytest.mark.parametrize("code", [errno.EBUSY, errno.EXDEV])
+def test_a_refused_rename_of_out_is_one_line_naming_it(
+    recording: RecordingFactory,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    code: int,
+) -> None:
+    """A mount point the early check cannot see, renamed away in the swap: it was a traceback."""
+    source = recording("rec_a", n=6)
+    out = tmp_path / "DS"
+    out.mkdir()
+    real_replace = os.replace
+
+    def replace(src: Any, dst: Any, **kwargs: Any) -> None:
+        if Path(src) == out:  # as the kernel refuses to rename a mount point
+            raise OSError(code, os.strerror(code), os.fsdecode(src), os.fsdecode(dst))
+        real_replace(src, dst, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    assert main(["dataset-build", str(source), "--out", str(out)]) == 1
+    lines = [x for x in capsys.readouterr().err.splitlines() if x.startswith("lenspair")]
+    assert lines == [f"lenspair dataset-build: error: {out}: {os.strerror(code)}"]
+    assert list(out.iterdir()) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["DS", "ingested"]  # no temporaries
