@@ -40,10 +40,9 @@ from lenspair.dataset.manifest import (
     write_manifest,
     write_removed,
 )
-from lenspair.dataset.verify import dataset_difference, user_files
+from lenspair.dataset.verify import CONFIG_FILE, dataset_difference, user_files
 
 logger = logging.getLogger(__name__)
-CONFIG_FILE = "config.yaml"
 LinkMode = Literal["copy", "hard"]
 _WRITE_BITS = stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH
 

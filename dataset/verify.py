@@ -1,12 +1,23 @@
 """Check a built dataset against its manifest and card (``dataset-build --verify``).
 
 Every problem is one line naming the file: a file the manifest lists but that
-is missing, a sha256 mismatch, a file under a split folder that the manifest
-does not list, a row whose files lie outside its split, a repeated name, a
-malformed manifest line or card, and card counts that differ from the counts
-recomputed from the manifest.
+is missing, a sha256 mismatch, a file under a split folder (or in an image
+folder outside the splits, which a reader of the dataset's splits would take
+for one) that the manifest does not list, a row whose files lie outside its
+split, a repeated name, a malformed manifest line or card, card counts that
+differ from the counts recomputed from the manifest, a card whose ``pairs_in``
+or per-rule removed counts differ from the manifest and ``removed.jsonl``,
+and a missing ``removed.jsonl`` or ``config.yaml``, or one that differs from
+the card's configuration (seed included).
+
+These records have been written by every version of ``dataset-build``, under
+the one card format ``lenspair-dataset/1``: a rule an older card does not list
+is counted as removing no pair, and ``config.yaml`` is compared as loaded (the
+defaults of keys added since filled in on both sides), so an intact dataset of
+an older version is not flagged.
 """
 
+import json
 import os
 from collections import Counter
 from collections.abc import Collection
@@ -14,19 +25,24 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+from lenspair.core.config import load_dataclass, text_lines, to_plain
+from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import sha256_file
-from lenspair.dataset.card import CARD_FILE, compare_counts, count_rows, read_card
-from lenspair.dataset.config import SPLITS
+from lenspair.dataset.card import CARD_FILE, DatasetCard, compare_counts, count_rows, read_card
+from lenspair.dataset.config import SPLITS, load_dataset_config
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.manifest import (
     IMAGE_KINDS,
     MANIFEST_FILE,
     REMOVED_FILE,
     ManifestRow,
+    RemovedPair,
     read_manifest,
 )
 
-_COMPARED_FILES = (MANIFEST_FILE, CARD_FILE, "config.yaml", REMOVED_FILE)
+CONFIG_FILE = "config.yaml"
+"""The resolved configuration a build writes beside its dataset."""
+_COMPARED_FILES = (MANIFEST_FILE, CARD_FILE, CONFIG_FILE, REMOVED_FILE)
 
 
 @dataclass(frozen=True)
@@ -81,6 +97,9 @@ def verify_dataset(root: Path, workers: int | None = None) -> VerifyResult:
     for path in sorted(_split_files(root) - set(expected)):
         if not _is_users(path.relative_to(root)):  # a folder-reading loader would take it
             problems.append(f"{path}: not listed in {MANIFEST_FILE}")
+    outside = f"an image folder outside {', '.join(f'{split}/' for split in SPLITS)}"
+    for path in sorted(_stray_image_files(root) - set(expected)):
+        problems.append(f"{path}: not listed in {MANIFEST_FILE} ({outside})")
     problems += _check_card(root, rows)
     return VerifyResult(root, len(rows), len(expected), tuple(problems))
 
@@ -122,6 +141,24 @@ def _split_files(root: Path) -> set[Path]:
     return found
 
 
+def _stray_image_files(root: Path) -> set[Path]:
+    """Files in ``input/``, ``target/`` or ``mask/`` folders of ``root`` or of a non-split folder.
+
+    No build writes them, and a reader of the dataset's splits takes such a
+    folder for one (``tradeoff`` reads every folder holding ``input/`` +
+    ``target/``; ``DS/input/`` makes ``DS`` itself a plain paired folder).
+    Hidden entries are passed over, as in the splits (:func:`_is_users`).
+    """
+    tops = [root]
+    tops += [p for p in sorted(root.iterdir()) if p.is_dir() and p.name not in SPLITS]
+    found: set[Path] = set()
+    for top in tops:
+        for kind in IMAGE_KINDS:
+            for folder, _, files in os.walk(top / kind):
+                found.update(Path(folder) / name for name in files)
+    return {p for p in found if not any(part.startswith(".") for part in p.relative_to(root).parts)}
+
+
 def _check_card(root: Path, rows: list[ManifestRow]) -> list[str]:
     try:
         card = read_card(root / CARD_FILE)
@@ -142,7 +179,100 @@ def _check_card(root: Path, rows: list[ManifestRow]) -> list[str]:
                     f"{where}: sources[{source.recording}].in_dataset.{split}: "
                     f"card says {recorded}, manifest gives {actual}"
                 )
+    return problems + _check_removed(root, card, len(rows)) + _check_config(root, card)
+
+
+def _check_removed(root: Path, card: DatasetCard, kept: int) -> list[str]:
+    """The card's ``pairs_in`` and per-rule removed counts against ``removed.jsonl``.
+
+    Every line of the sources' ``pairs.jsonl`` is either a manifest row or a
+    line of ``removed.jsonl`` (under the one rule that removed it).
+    """
+    where = root / CARD_FILE
+    try:
+        removed = _read_removed(root / REMOVED_FILE)
+    except DatasetError as exc:
+        return [str(exc)]
+    problems = []
+    if kept + len(removed) != card.pairs_in:
+        problems.append(
+            f"{where}: pairs_in: card says {card.pairs_in}, {MANIFEST_FILE} ({kept} pairs) and "
+            f"{REMOVED_FILE} ({len(removed)}) give {kept + len(removed)}"
+        )
+    recorded = {rule.rule: rule.removed for rule in card.curation}
+    actual = Counter(pair.rule for pair in removed)
+    for rule in sorted(actual.keys() - recorded.keys()):
+        problems.append(
+            f"{where}: curation: no rule {rule!r}, which removed {actual[rule]} pair(s) in "
+            f"{REMOVED_FILE}"
+        )
+    for rule, count in recorded.items():
+        if count != actual.get(rule, 0):
+            problems.append(
+                f"{where}: curation.{rule}.removed: card says {count}, {REMOVED_FILE} gives "
+                f"{actual.get(rule, 0)}"
+            )
     return problems
+
+
+def _read_removed(path: Path) -> list[RemovedPair]:
+    """``removed.jsonl``, strictly (as :func:`~lenspair.dataset.manifest.read_manifest`).
+
+    Raises:
+        DatasetError: a missing file, or a line that is not a removed pair; names the file.
+    """
+    try:
+        lines = text_lines(path)
+    except FileNotFoundError:
+        raise DatasetError(
+            f"{path}: missing (every build writes it: each pair curation removed, and why)"
+        ) from None
+    except ConfigError as exc:  # not UTF-8: names the line
+        raise DatasetError(str(exc)) from None
+    removed = []
+    for number, line in lines:
+        try:
+            removed.append(load_dataclass(RemovedPair, json.loads(line)))
+        except (json.JSONDecodeError, ConfigError) as exc:
+            raise DatasetError(f"{path}:{number}: {exc}") from None
+    return removed
+
+
+def _check_config(root: Path, card: DatasetCard) -> list[str]:
+    """``config.yaml`` against the card's configuration, and the card's seed and fractions.
+
+    Both are compared as loaded, so keys a later version added (absent from
+    an older dataset's files) are their defaults on both sides.
+    """
+    where, path = root / CARD_FILE, root / CONFIG_FILE
+    problems = []
+    split = card.config.split
+    for key, value, resolved in (
+        ("seed", card.seed, split.seed),
+        ("fractions", card.fractions, split.fractions),
+    ):
+        if value != resolved:
+            problems.append(f"{where}: {key}: card says {value}, its config.split.{key} {resolved}")
+    if not path.is_file():
+        problems.append(f"{path}: missing (every build writes its resolved configuration)")
+        return problems
+    try:
+        saved = load_dataset_config(path)
+    except ConfigError as exc:  # names the file and the key
+        return [*problems, str(exc)]
+    for key, mine, theirs in _differences(to_plain(saved), to_plain(card.config)):
+        problems.append(f"{path}: {key}: {mine}, but {CARD_FILE}'s config says {theirs}")
+    return problems
+
+
+def _differences(a: object, b: object, path: str = "") -> list[tuple[str, object, object]]:
+    """``(dotted key, a's value, b's value)`` where two plain nested dicts differ."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        found = []
+        for key in sorted(set(a) | set(b)):
+            found += _differences(a.get(key), b.get(key), f"{path}.{key}" if path else key)
+        return found
+    return [] if a == b else [(path, a, b)]
 
 
 def user_files(root: Path) -> list[Path]:

@@ -38,11 +38,16 @@ the recording or another dataset. --link hard saves the space with hard
 links instead, makes those files read-only and says so in dataset.json.
 A killed build leaves nothing the next build of the same DS does not remove.
 
---verify re-checks every file against the manifest and the card's counts and
-exits with status 1 and a list of problems when anything is off (also a file
-in an input/, target/ or mask/ folder that the manifest does not list). Files
-you add elsewhere in DS (notes, train/restored/...) are yours: a rebuild keeps
-them, with a warning.
+DS is written beside its final place and renamed into it, so it cannot be a
+mount point (a Docker volume, a mounted disk): give a folder inside one.
+
+--verify re-checks every file against the manifest, and the card's counts,
+pairs_in and per-rule removed counts against the manifest and removed.jsonl,
+its configuration (seed included) against config.yaml, and exits with status 1
+and a list of problems when anything is off (also a missing removed.jsonl or
+config.yaml, and a file in an input/, target/ or mask/ folder that the manifest
+does not list, in a split or not). Files you add elsewhere in DS (notes,
+train/restored/...) are yours: a rebuild keeps them, with a warning.
 """
 
 import argparse

@@ -1,4 +1,5 @@
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -92,3 +93,79 @@ def test_not_a_dataset(tmp_path: Path) -> None:
         verify_dataset(tmp_path / "x")  # an empty folder is a wrong argument, not a damaged dataset
     (tmp_path / "x" / "dataset.json").write_text("{}")
     assert "manifest.jsonl: file not found" in verify_dataset(tmp_path / "x").problems[0]
+
+
+@pytest.mark.parametrize(
+    ("name", "said"),
+    [
+        ("removed.jsonl", "missing (every build writes it: each pair curation removed, and why)"),
+        ("config.yaml", "missing (every build writes its resolved configuration)"),
+    ],
+)
+def test_a_deleted_record_file_is_caught(
+    ds: Path, capsys: pytest.CaptureFixture[str], name: str, said: str
+) -> None:
+    """--verify said OK without removed.jsonl or config.yaml."""
+    (ds / name).unlink()
+    assert verify_dataset(ds).problems == (f"{ds / name}: {said}",)
+    assert main(["dataset-build", "--verify", str(ds)]) == 1
+    assert f"{ds / name}: missing" in capsys.readouterr().out
+
+
+def test_edited_card_pairs_in_seed_and_rule_counts_are_caught(ds: Path) -> None:
+    """Only the card's counts, tagged_clean and in_dataset were compared: these said OK."""
+    card_file = ds / "dataset.json"
+    card = json.loads(card_file.read_text())
+    pairs_in, rule = card["pairs_in"], card["curation"][0]
+    card["pairs_in"] = 5
+    card["seed"] = 9
+    rule["removed"] = 77
+    card_file.write_text(json.dumps(card))
+    kept = len(read_manifest(ds / "manifest.jsonl"))
+    removed = len((ds / "removed.jsonl").read_text().splitlines())
+    assert kept + removed == pairs_in
+    where = ds / "dataset.json"
+    assert set(verify_dataset(ds).problems) == {
+        f"{where}: pairs_in: card says 5, manifest.jsonl ({kept} pairs) and removed.jsonl "
+        f"({removed}) give {pairs_in}",
+        f"{where}: curation.{rule['rule']}.removed: card says 77, removed.jsonl gives 0",
+        f"{where}: seed: card says 9, its config.split.seed 0",
+    }
+
+
+def test_removed_jsonl_and_config_yaml_are_compared_with_the_card(ds: Path) -> None:
+    """A line dropped from removed.jsonl, and another seed in config.yaml, said OK."""
+    removed_file = ds / "removed.jsonl"
+    lines = removed_file.read_text().splitlines()
+    gone = json.loads(lines[0])
+    removed_file.write_text("\n".join(lines[1:]) + "\n")
+    config = ds / "config.yaml"
+    config.write_text(config.read_text().replace("seed: 0", "seed: 4"))
+    kept = len(read_manifest(ds / "manifest.jsonl"))
+    by_rule = sum(json.loads(line)["rule"] == gone["rule"] for line in lines)
+    where = ds / "dataset.json"
+    assert set(verify_dataset(ds).problems) == {
+        f"{where}: pairs_in: card says {kept + len(lines)}, manifest.jsonl ({kept} pairs) and "
+        f"removed.jsonl ({len(lines) - 1}) give {kept + len(lines) - 1}",
+        f"{where}: curation.{gone['rule']}.removed: card says {by_rule}, removed.jsonl gives "
+        f"{by_rule - 1}",
+        f"{config}: split.seed: 4, but dataset.json's config says 0",
+    }
+    removed_file.write_text("{}\n")
+    assert any(p.startswith(f"{removed_file}:1: ") for p in verify_dataset(ds).problems)
+
+
+def test_image_folders_outside_the_splits_are_listed(ds: Path) -> None:
+    """The help says unlisted files in an input/, target/ or mask/ folder are reported; one
+    outside train/, val/ and test/ (a reader of the splits takes DS/extra for one) was not."""
+    shutil.copytree(ds / "train", ds / "extra")
+    (ds / "extra" / "input" / ".DS_Store").write_bytes(b"")  # hidden: read by no loader
+    (ds / "notes").mkdir()
+    (ds / "notes" / "todo.txt").write_text("the user's")  # not an image folder: the user's
+    (ds / "mask").mkdir()
+    (ds / "mask" / "m.png").write_bytes(b"x")  # DS itself read as a paired folder
+    stray = sorted(p for p in (ds / "extra").rglob("*") if p.is_file() and p.name[0] != ".")
+    stray = sorted([*stray, ds / "mask" / "m.png"])
+    assert stray and all(p.parent.name in ("input", "target", "mask") for p in stray)
+    suffix = ": not listed in manifest.jsonl (an image folder outside train/, val/, test/)"
+    assert verify_dataset(ds).problems == tuple(f"{p}{suffix}" for p in stray)
