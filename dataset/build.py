@@ -46,10 +46,10 @@ from lenspair.core.leftovers import remove_leftovers
 from lenspair.core.progress import progress
 from lenspair.dataset import curation, splits
 from lenspair.dataset.card import CARD_FILE, DatasetCard, Grouping, SourceInfo, make_card
-from lenspair.dataset.config import SPLITS, DatasetConfig
+from lenspair.dataset.config import SPLITS, DatasetConfig, SplitConfig
 from lenspair.dataset.curation import Measured, Removals
 from lenspair.dataset.errors import DatasetError
-from lenspair.dataset.manifest import MANIFEST_FILE, ManifestRow, RemovedPair
+from lenspair.dataset.manifest import MANIFEST_FILE, ManifestRow, RemovedPair, read_manifest
 from lenspair.dataset.output import (
     LinkMode,
     check_replaceable,
@@ -92,6 +92,7 @@ def build_dataset(
     workers: int | None = None,
     link: LinkMode = "copy",
     accept_side_mismatch: bool = False,
+    previous: Path | None = None,
 ) -> BuildResult:
     """Curate ingested recordings into a split dataset at ``out``.
 
@@ -106,6 +107,10 @@ def build_dataset(
             ``"hard"`` (hard links, made read-only; recorded in the card).
         accept_side_mismatch: build a recording whose side check contradicts
             its declared obstructed camera as declared (with a warning).
+        previous: an earlier version of this dataset built in another folder,
+            which the build extends instead of the one at ``out`` (see
+            :func:`_extended`): its grouping and hashed splits are kept, and
+            the pairs that changed split against it are said.
 
     Raises:
         DatasetError: no sources, a bad source folder, two sources with one
@@ -118,6 +123,7 @@ def build_dataset(
     if not sources:
         raise DatasetError("no ingested recordings given")
     out = Path(out).resolve()
+    earlier_root = out if previous is None else _previous_dataset(previous)
     check_out(out)
     recover_swap(out)
     # in recording-id order: the same recordings in another order are the same dataset
@@ -129,7 +135,8 @@ def build_dataset(
     measured = _measure(loaded, config.curation.anomaly_delta, workers)
     removed = curation.curate(measured, config.curation)
     recordings = {source.report.recording_id for source in loaded}
-    pairs, plan = assemble_rows(loaded, measured, removed, config, _earlier_mode(out, recordings))
+    earlier = _extended(earlier_root, recordings, config.split)
+    pairs, plan = assemble_rows(loaded, measured, removed, config, *earlier)
     if plan.kept_earlier:
         # config.yaml says what was done: with "auto" it would rebuild other splits
         config = replace(config, split=replace(config.split, group_by=plan.mode))
@@ -139,7 +146,7 @@ def build_dataset(
     # said once the build has replaced that dataset (not when it is refused), and
     # kept out of the card: a note of what was on disk before made an identical
     # rerun's card differ, so the rerun was refused as "a different dataset"
-    changed = changed_splits(out / MANIFEST_FILE, rows)
+    changed = changed_splits(earlier_root / MANIFEST_FILE, rows, previous is not None)
     card = _make_card(loaded, rows, removed, plan, config, link)
     if not rows:  # an empty dataset trains nothing: said now, not by train later
         why = ", ".join(f"{c.rule} {c.removed}" for c in card.curation if c.removed) or "none"
@@ -186,20 +193,47 @@ def _measure(loaded: Sequence[Source], anomaly_delta: float, workers: int | None
     return measured
 
 
-def _earlier_mode(out: Path, recordings: set[str]) -> str | None:
-    """The split grouping mode of the dataset at ``out`` that this build extends, or None.
+def _previous_dataset(previous: Path) -> Path:
+    """``--previous``, resolved, once it is a dataset ``dataset-build`` wrote."""
+    root = Path(previous).resolve()
+    if not (root / CARD_FILE).is_file() or not (root / MANIFEST_FILE).is_file():
+        raise DatasetError(
+            f"{root}: not a dataset built by dataset-build (no {CARD_FILE} and "
+            f"{MANIFEST_FILE}); --previous names an earlier version of the dataset being built"
+        )
+    return root
+
+
+def _extended(
+    root: Path, recordings: set[str], split: SplitConfig
+) -> tuple[str | None, dict[str, str] | None]:
+    """The grouping mode and group -> split of the dataset at ``root`` this build extends.
 
     Only a dataset that shares a recording with ``recordings`` is extended
     (its pairs are the ones a changed grouping would move); an unrelated
     dataset replaced with ``--overwrite`` hands on nothing, so the build is
-    the one a fresh ``DS`` gets.
+    the one a fresh ``DS`` gets. Its splits are handed on only when it was
+    built with the same seed and fractions (else every group is hashed anew
+    anyway): :func:`~lenspair.dataset.splits.plan_splits` then keeps every
+    group it held where the hash puts it.
     """
-    card = out / CARD_FILE
+    card = root / CARD_FILE
     grouping, sources = read_json_field(card, "grouping"), read_json_field(card, "sources")
     if not isinstance(grouping, dict) or not isinstance(sources, list):
-        return None
+        return None, None
     earlier = {source.get("recording") for source in sources if isinstance(source, dict)}
-    return grouping.get("mode") if earlier & recordings else None
+    if not earlier & recordings:
+        return None, None
+    same = read_json_field(card, "seed") == split.seed and read_json_field(
+        card, "fractions"
+    ) == list(split.fractions)
+    try:
+        groups: dict[str, str] | None = {
+            row.group: row.split for row in read_manifest(root / MANIFEST_FILE)
+        }
+    except DatasetError:  # unreadable: its grouping alone is handed on
+        groups = None
+    return grouping.get("mode"), groups if same else None
 
 
 def _make_card(

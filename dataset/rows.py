@@ -29,6 +29,7 @@ def assemble_rows(
     removed: Removals,
     config: DatasetConfig,
     earlier_mode: str | None = None,
+    earlier_splits: dict[str, str] | None = None,
 ) -> tuple[list[tuple[ManifestRow, Measured]], splits.SplitPlan]:
     """Split the surviving pairs and make their rows.
 
@@ -52,7 +53,7 @@ def assemble_rows(
         )
         for m in survivors
     }
-    plan = splits.plan_splits(items.values(), config.split, earlier_mode)
+    plan = splits.plan_splits(items.values(), config.split, earlier_mode, earlier_splits)
     if joins := split_sessions(sources, items, plan, config):
         plan = replace(plan, warnings=(*plan.warnings, *joins))
     gapped = splits.gap_items(items.values(), plan, config.split)
@@ -181,14 +182,17 @@ def split_sessions(
     return warnings
 
 
-def changed_splits(earlier_manifest: Path, rows: Sequence[ManifestRow]) -> str | None:
+def changed_splits(
+    earlier_manifest: Path, rows: Sequence[ManifestRow], previous: bool = False
+) -> str | None:
     """What a rebuild moves between splits, against the dataset it replaces, or None.
 
     Hashing keeps a group's split when recordings are added, but a group moved
     to fill a split (side stratification, train first) can move back once new
     groups fill it, and a network trained on the old train split would then be
     validated on its own training frames. A missing or unreadable earlier
-    manifest compares nothing.
+    manifest compares nothing. ``previous``: the earlier dataset is
+    ``--previous`` (named), not the one the build replaces.
     """
     try:
         earlier = {(r.recording, r.t_ns): r.split for r in read_manifest(earlier_manifest)}
@@ -202,7 +206,12 @@ def changed_splits(earlier_manifest: Path, rows: Sequence[ManifestRow]) -> str |
     if not moves:
         return None
     said = ", ".join(f"{n} {a} -> {b}" for (a, b), n in sorted(moves.items()))
+    against = (
+        f"the earlier dataset {earlier_manifest.parent}"
+        if previous
+        else "the dataset this build replaces"
+    )
     return (
-        f"{sum(moves.values())} pair(s) changed split against the dataset this build "
-        f"replaces ({said}): do not validate a network trained on the old splits on the new ones"
+        f"{sum(moves.values())} pair(s) changed split against {against} ({said}): do not "
+        "validate a network trained on the old splits on the new ones"
     )

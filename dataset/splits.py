@@ -38,6 +38,10 @@ the split's interval (ties by id), taken from a split that holds at least
 two sturdy groups of the side, is moved to it. Only moved groups (listed in
 the card) can change split when data is added; a stratum with too few sturdy
 groups is left as hashed, with a warning (its splits may then lack the side).
+When the stratum later gains enough groups, a rebuild moves only groups new
+to it or moved before (``earlier_splits``): the earlier dataset's hashed
+groups stay, and a split no such group can fill stays without the side,
+with a warning.
 
 **Train first.** When the hash (and the gap) leaves train without pairs (one
 or two short recordings give that often), the sturdy group nearest train's
@@ -138,7 +142,10 @@ def hashed_split(u: float, fractions: Sequence[float]) -> str:
 
 
 def plan_splits(
-    items: Iterable[SplitItem], config: SplitConfig, earlier_mode: str | None = None
+    items: Iterable[SplitItem],
+    config: SplitConfig,
+    earlier_mode: str | None = None,
+    earlier_splits: Mapping[str, str] | None = None,
 ) -> SplitPlan:
     """Assign every group of ``items`` to a split (hash, then the side fix-up).
 
@@ -150,6 +157,15 @@ def plan_splits(
             recordings once there are enough recordings, and the switch moved
             about half the existing pairs between splits (test frames into
             train). A warning says so when auto would now choose otherwise.
+        earlier_splits: group id -> split in the dataset this build extends
+            (built with the same seed and fractions). A group the earlier
+            dataset held where its hash puts it stays there: the side fix-up
+            moves only groups new to this build and groups an earlier rule
+            had moved, and leaves a split without the side (warned) rather
+            than move one (a stratum crossing the group threshold moved a
+            group that had always been where its hash put it, so a network
+            trained on the earlier train split was validated on its own
+            frames). Train first prefers such groups too, but fills train.
 
     Returns:
         The plan; use :func:`group_id` with ``plan.mode`` to find a pair's group.
@@ -176,6 +192,7 @@ def plan_splits(
     active = [name for name, f in zip(SPLITS, config.fractions, strict=True) if f > 0]
     sturdy = sturdy_groups(items, mode, config)
     moved: list[str] = []
+    pinned = {g for g, split in (earlier_splits or {}).items() if assignment.get(g) == split}
     for side in sorted(set(sides.values())):
         members = sorted(gid for gid, s in sides.items() if s == side)
         strong = [gid for gid in members if gid in sturdy]
@@ -198,7 +215,19 @@ def plan_splits(
                 break
             by_split = {name: [g for g in strong if assignment[g] == name] for name in active}
             start, end = intervals[empty[0]]
-            donors = [g for name in active if len(by_split[name]) >= 2 for g in by_split[name]]
+            donors = [
+                g
+                for name in active
+                if len(by_split[name]) >= 2
+                for g in by_split[name]
+                if g not in pinned
+            ]
+            if not donors:
+                warnings.append(
+                    f"obstructed {side}: no group can fill {empty[0]} without moving one the "
+                    "earlier dataset held where it is (add recordings of this side)"
+                )
+                break
             best = min(donors, key=lambda g: (_distance(units[g], start, end), g))
             assignment[best] = empty[0]
             moved.append(best)
@@ -211,7 +240,7 @@ def plan_splits(
         # use, so the sturdy group nearest the train interval moves there (a fragile
         # one could lose its pairs to the gap at its new border).
         start, end = intervals["train"]
-        best = min(sturdy, key=lambda g: (_distance(units[g], start, end), g))
+        best = min(sturdy, key=lambda g: (g in pinned, _distance(units[g], start, end), g))
         if "train" in assignment.values():
             why = (
                 f"the split gap (segment_gap_frames {config.segment_gap_frames}) dropped every "

@@ -1,7 +1,7 @@
 """Curate ingested recordings into a paired train/val/test dataset, or verify one.
 
   lenspair dataset-build OUT/rec_a OUT/rec_b --out DS [--splits 0.8,0.1,0.1] [--seed 0]
-                         [--config curation.yaml] [--overwrite]
+                         [--config curation.yaml] [--overwrite] [--previous DS_OLD]
   lenspair dataset-build --verify DS
 
 Curation removes, in this order and counting each: pairs rejected at ingest,
@@ -15,12 +15,15 @@ Kept pairs are tagged easy (PSNR > 25 dB), medium or hard (< 20 dB).
 Pairs are split by recording (or, with few recordings, by contiguous segment
 with a gap at the borders) via a seeded hash, and every split sees both
 ground-truth sides when the data allows. Adding a recording later leaves
-hashed pairs where they were; groups moved to fill a split (for the sides,
-or an empty train; named in dataset.json) can move back, and a rebuild
-warns with the count of pairs that changed split against the dataset it
-replaces. One session cut into several recordings (rosbag record --split)
-is several groups, and the build warns when a join between them falls
-between two splits: ingest such a session as one recording (a ROS 2 bag
+hashed pairs where they were (a side that now has groups enough for every
+split is filled from the new recordings, or left short with a warning);
+groups moved to fill a split (for the sides, or an empty train; named in
+dataset.json) can move back, and a rebuild warns with the count of pairs
+that changed split against the dataset it replaces. To get the same when
+building a new version into another folder, pass the old one as --previous
+DS_OLD. One session cut into several recordings (rosbag record --split) is
+several groups, and the build warns when a join between them falls between
+two splits: ingest such a session as one recording (a ROS 2 bag
 folder is one; merge split ROS 1 bags into one .bag first).
 
 Output: DS/{train,val,test}/{input,target[,mask]}/<rec>_<t_ns>.png,
@@ -75,6 +78,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=random_seed, help="split seed (default 0)")
     parser.add_argument("--config", type=Path, help="YAML with curation: and split: sections")
     parser.add_argument("--overwrite", action="store_true", help="replace a different dataset")
+    parser.add_argument(
+        "--previous",
+        type=Path,
+        metavar="DS_OLD",
+        help="an earlier version of this dataset in another folder (DS_v1 when building "
+        "DS_v2): its grouping and hashed splits are kept, as a rebuild in place keeps DS's, "
+        "and the pairs that changed split against it are said",
+    )
     parser.add_argument(
         "--accept-side-mismatch",
         action="store_true",
@@ -144,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         link=args.link,
         accept_side_mismatch=args.accept_side_mismatch,
+        previous=args.previous,
     )
     card = result.card
     print(f"dataset written to {result.out}: {card.counts['all'].pairs} of {card.pairs_in} pairs")

@@ -150,3 +150,35 @@ def test_an_unrelated_dataset_replaced_hands_on_no_grouping(
     assert not any("kept grouping" in w for w in replaced.card.grouping.warnings)
     build_dataset(others, tmp_path / "fresh", config)
     assert _tree(out) == _tree(tmp_path / "fresh")
+
+
+def test_a_new_recording_fills_a_side_without_moving_the_earlier_dataset_s_pairs(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    """Two cam0 recordings cannot cover three splits; a third let the side fix-up move the
+    earlier d1 from train to val, so a network trained on the first version was validated
+    on its own training frames (and into a new folder, without a word)."""
+    sources = [recording(f"c{i}", n=3, seed=i) for i in range(6)]
+    sources += [recording(f"d{i}", n=3, obstructed="cam0", seed=6 + i) for i in (1, 2)]
+    config = DatasetConfig(split=SplitConfig(group_by="recording", seed=0))
+    first = build_dataset(sources, tmp_path / "DS_v1", config)
+    before = {row.recording: row.split for row in first.rows}
+    grown = [*sources, recording("d3", n=3, obstructed="cam0", seed=9)]
+    fresh = build_dataset(grown, tmp_path / "fresh", config)  # knows no earlier version
+    assert {row.recording: row.split for row in fresh.rows}["d1"] != before["d1"]
+    for out, previous in ((tmp_path / "DS_v2", tmp_path / "DS_v1"), (tmp_path / "DS_v1", None)):
+        result = build_dataset(grown, out, config, previous=previous, overwrite=True)
+        after = {row.recording: row.split for row in result.rows}
+        assert {rid: after[rid] for rid in before} == before
+        assert result.changed_splits is None
+        assert {after[d] for d in ("d1", "d2", "d3")} == {"train", "val", "test"}
+
+
+def test_previous_must_be_a_dataset(
+    recording: RecordingFactory, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    sources = [str(path) for path in _two(recording)]
+    command = ["dataset-build", *sources, "--out", str(tmp_path / "DS")]
+    assert main([*command, "--previous", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{tmp_path}: not a dataset built by" in err

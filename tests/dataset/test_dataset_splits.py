@@ -68,6 +68,45 @@ def test_adding_a_recording_moves_no_existing_group() -> None:
     assert all(before.assignment[r] == after.assignment[r] for r in stable)
 
 
+def test_a_side_reaching_the_group_threshold_moves_a_new_recording_not_an_earlier_one() -> None:
+    # 2 recordings of cam0 cannot cover 3 splits: left as hashed. A third let the side
+    # fix-up move the earlier d1 from train to val: a network trained on the first
+    # dataset was then validated on its own training frames.
+    recordings = {f"c{i}": "cam1" for i in range(6)} | {"d1": "cam0", "d2": "cam0"}
+    config = SplitConfig(seed=0, group_by="recording")
+    before = plan_splits(_items(recordings), config)
+    assert before.warnings[0].startswith("obstructed cam0: 2 group(s) cannot cover")
+    grown = _items(recordings | {"d3": "cam0"})
+    fresh = plan_splits(grown, config)  # no earlier dataset: free to move any group
+    assert fresh.assignment["d1"] != before.assignment["d1"]
+    after = plan_splits(grown, config, earlier_splits=before.assignment)
+    assert {g: after.assignment[g] for g in recordings} == before.assignment
+    assert "d3" in after.moved and {after.assignment[g] for g in ("d1", "d2", "d3")} == {
+        "train",
+        "val",
+        "test",
+    }
+
+
+@given(
+    sides=st.lists(st.sampled_from(["cam0", "cam1"]), min_size=1, max_size=12),
+    added=st.lists(st.sampled_from(["cam0", "cam1"]), min_size=1, max_size=6),
+    seed=st.integers(0, 50),
+)
+def test_a_rebuild_keeps_every_group_the_earlier_dataset_held_where_it_hashed(
+    sides: list[str], added: list[str], seed: int
+) -> None:
+    recordings = {f"r{i:02d}": side for i, side in enumerate(sides)}
+    config = SplitConfig(seed=seed, group_by="recording")
+    before = plan_splits(_items(recordings), config)
+    grown = recordings | {f"new{i}": side for i, side in enumerate(added)}
+    after = plan_splits(_items(grown), config, earlier_splits=before.assignment)
+    for group, split in before.assignment.items():
+        if group not in before.moved:
+            assert after.assignment[group] == split, (group, after)
+    assert "train" in after.assignment.values()
+
+
 def test_auto_keeps_the_grouping_of_the_dataset_it_rebuilds() -> None:
     # 8 recordings of 150 frames: auto groups by segments; a 9th makes it group by
     # recordings, which moved half the existing pairs between splits
