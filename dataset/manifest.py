@@ -9,13 +9,15 @@ the file and line (a hand-edited manifest is caught, not trusted).
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeVar
 
 from lenspair.core.config import load_dataclass, text_lines, to_plain
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_lines
 from lenspair.dataset.config import Difficulty
 from lenspair.dataset.errors import DatasetError
+
+_Line = TypeVar("_Line")
 
 MANIFEST_FILE = "manifest.jsonl"
 REMOVED_FILE = "removed.jsonl"
@@ -122,20 +124,35 @@ def read_manifest(path: Path) -> list[ManifestRow]:
         DatasetError: the file is missing, or a line is not valid JSON or not
             a valid row; the message names the file and the line.
     """
-    path = Path(path)
+    return _read_lines(Path(path), ManifestRow, "file not found (not a lenspair dataset?)")
+
+
+def read_removed(path: Path) -> list[RemovedPair]:
+    """Read ``removed.jsonl`` strictly, as :func:`read_manifest` reads the manifest.
+
+    Raises:
+        DatasetError: the file is missing, or a line is not a removed pair;
+            the message names the file and the line.
+    """
+    missing = "missing (every build writes it: each pair curation removed, and why)"
+    return _read_lines(Path(path), RemovedPair, missing)
+
+
+def _read_lines(path: Path, kind: type[_Line], missing: str) -> list[_Line]:
+    """One ``kind`` per line of a JSON-lines file; a problem names the file and the line."""
     try:
         lines = text_lines(path)
     except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found (not a lenspair dataset?)") from None
+        raise DatasetError(f"{path}: {missing}") from None
     except ConfigError as exc:  # not UTF-8: names the line
         raise DatasetError(str(exc)) from None
-    rows = []
+    found = []
     for number, line in lines:
         try:
-            rows.append(load_dataclass(ManifestRow, json.loads(line)))
+            found.append(load_dataclass(kind, json.loads(line)))
         except (json.JSONDecodeError, ConfigError) as exc:
             raise DatasetError(f"{path}:{number}: {exc}") from None
-    return rows
+    return found
 
 
 def _round(value: object) -> object:

@@ -17,7 +17,6 @@ defaults of keys added since filled in on both sides), so an intact dataset of
 an older version is not flagged.
 """
 
-import json
 import os
 from collections import Counter
 from collections.abc import Collection
@@ -25,7 +24,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from lenspair.core.config import load_dataclass, text_lines, to_plain
+from lenspair.core.config import to_plain
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import sha256_file
 from lenspair.dataset.card import CARD_FILE, DatasetCard, compare_counts, count_rows, read_card
@@ -36,8 +35,8 @@ from lenspair.dataset.manifest import (
     MANIFEST_FILE,
     REMOVED_FILE,
     ManifestRow,
-    RemovedPair,
     read_manifest,
+    read_removed,
 )
 
 CONFIG_FILE = "config.yaml"
@@ -190,7 +189,7 @@ def _check_removed(root: Path, card: DatasetCard, kept: int) -> list[str]:
     """
     where = root / CARD_FILE
     try:
-        removed = _read_removed(root / REMOVED_FILE)
+        removed = read_removed(root / REMOVED_FILE)
     except DatasetError as exc:
         return [str(exc)]
     problems = []
@@ -213,29 +212,6 @@ def _check_removed(root: Path, card: DatasetCard, kept: int) -> list[str]:
                 f"{actual.get(rule, 0)}"
             )
     return problems
-
-
-def _read_removed(path: Path) -> list[RemovedPair]:
-    """``removed.jsonl``, strictly (as :func:`~lenspair.dataset.manifest.read_manifest`).
-
-    Raises:
-        DatasetError: a missing file, or a line that is not a removed pair; names the file.
-    """
-    try:
-        lines = text_lines(path)
-    except FileNotFoundError:
-        raise DatasetError(
-            f"{path}: missing (every build writes it: each pair curation removed, and why)"
-        ) from None
-    except ConfigError as exc:  # not UTF-8: names the line
-        raise DatasetError(str(exc)) from None
-    removed = []
-    for number, line in lines:
-        try:
-            removed.append(load_dataclass(RemovedPair, json.loads(line)))
-        except (json.JSONDecodeError, ConfigError) as exc:
-            raise DatasetError(f"{path}:{number}: {exc}") from None
-    return removed
 
 
 def _check_config(root: Path, card: DatasetCard) -> list[str]:
