@@ -68,7 +68,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="calibration file: Kalibr camchain, OpenCV FileStorage, ROS camera_info or "
         "EuRoC sensor.yaml (repeat for several files; per-camera files in the order cam0, "
         "cam1); default: rig.yaml's, else "
-        "camchain.yaml, else the EuRoC recording's sensor.yaml files",
+        "camchain.yaml, else the EuRoC recording's sensor.yaml files, else a bag's first "
+        "CameraInfo of each camera's camera_info topic",
     )
     parser.add_argument(
         "--obstructed", choices=("cam0", "cam1"), default=None, help="override rig.yaml"

@@ -26,8 +26,9 @@ real pairs with --init RUN/checkpoints/best.pt (network weights only).
 
 --init pretrained starts from the GEA weights that ship with lenspair (mono or
 RGB, chosen by the data): pretrained on 'ours' drops over the natural
-photographs that scikit-image and matplotlib ship; see
-lenspair/model/weights/MODEL_CARD.md. Example:
+photographs that scikit-image and matplotlib ship; see their model card,
+model/weights/MODEL_CARD.md in the repository (the package
+lenspair.model.weights once installed). Example:
 
   lenspair train DS --init pretrained --out runs/gea
 
