@@ -5,12 +5,15 @@ labels (:class:`DetectorSample`):
 
 * **lenspair datasets** (:func:`dataset_samples`): each manifest row of the
   split gives a positive (``input/``, the obstructed view; kind from the
-  row's anomaly labels; map from the registered pair by the rule of
-  :func:`lenspair.model.detection.labels.pair_anomaly_mask`) and a negative
-  (``target/``, the clean view; empty map). Pairs that ``dataset-build``
-  marked ``clean`` (the views barely differ) give two negatives: the glass
-  did not visibly disturb that frame, and calling it obstructed would teach
-  the detector to see anomalies where there are none.
+  row's anomaly labels, :func:`dataset_kind`; map from the registered pair
+  by the rule of :func:`lenspair.model.detection.labels.pair_anomaly_mask`)
+  and a negative (``target/``, the clean view; empty map). Pairs that
+  ``dataset-build`` marked ``clean`` (the views barely differ) give two
+  negatives: the glass did not visibly disturb that frame, and calling it
+  obstructed would teach the detector to see anomalies where there are none.
+  The difficulty, not the labels, decides obstructed or clean: a pair
+  without labels (``capture-ingest --obstructed`` without ``rig.yaml``) or
+  with none this detector knows is a positive of :data:`UNKNOWN_KIND`.
 * **simulated recordings** (:func:`recording_samples`, ``lenspair simulate``
   output): the obstructed camera's frames with their exact ``truth/mask/``
   footprint and the kind from ``rig.yaml``, and the clean camera's frames.
@@ -142,6 +145,22 @@ def labelled(
     return DetectorSample(prepare(image, spec), kind, tiles, valid, source, group)
 
 
+def dataset_kind(difficulty: str, labels: Sequence[str]) -> int:
+    """Kind of a dataset pair's input view: index into :data:`KINDS`, or :data:`UNKNOWN_KIND`.
+
+    ``dataset-build`` tags a pair ``clean`` when its views barely differ and
+    ``easy``/``medium``/``hard`` when the glass visibly disturbs the input, so
+    the difficulty decides obstructed or clean and the labels only name the
+    kind. A disturbed input without labels (``capture-ingest --obstructed``
+    without ``rig.yaml`` writes ``"anomaly": []``), or whose labels name no
+    known anomaly, is still obstructed: :data:`UNKNOWN_KIND`, never clean.
+    """
+    if difficulty == "clean":
+        return 0
+    kind = kind_index(labels)
+    return UNKNOWN_KIND if kind is None or kind == 0 else kind
+
+
 def dataset_samples(root: Path, split: str, spec: DetectorSpec) -> list[DetectorSample]:
     """Positives and negatives of one split of a lenspair dataset (module docstring).
 
@@ -169,8 +188,7 @@ def dataset_samples(root: Path, split: str, spec: DetectorSpec) -> list[Detector
                 f"{files.get('input', row.name)}: {seen.shape[1]}x{seen.shape[0]} pixels, its "
                 f"target {clean.shape[1]}x{clean.shape[0]}; check it with dataset-build --verify"
             )
-        kind = 0 if row.difficulty == "clean" else kind_index(row.anomaly)
-        kind = UNKNOWN_KIND if kind is None else kind
+        kind = dataset_kind(row.difficulty, row.anomaly)
         covered = pair_anomaly_mask(seen, clean, untrusted) if kind != 0 else None
         name = f"{split}/{row.name}"
         samples.append(labelled(seen, kind, covered, spec, f"{name}:input", row.group, untrusted))

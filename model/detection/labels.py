@@ -31,9 +31,12 @@ KIND_ALIASES: dict[str, str] = {"raindrops": "rain", "drops": "rain", "smudge": 
 def kind_index(labels: Sequence[str]) -> int | None:
     """Index into :data:`KINDS` of a recording's anomaly labels.
 
-    The first label that names a known kind wins; no label means ``clean``.
-    Returns None when labels exist but none is known (the kind is then not
-    trained on, only the obstructed/clean answer and the map).
+    The first label that names a known kind wins; no label means ``clean``
+    (a simulated recording's ``rig.yaml`` lists none when its glass changed
+    nothing). Returns None when labels exist but none is known (the kind is
+    then not trained on, only the obstructed/clean answer and the map). A
+    dataset pair is obstructed or clean by its difficulty, whatever its
+    labels: :func:`lenspair.model.detection.data.dataset_kind`.
     """
     if not labels:
         return 0

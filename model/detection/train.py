@@ -1,19 +1,23 @@
 """Training the detector, and saving/loading its checkpoints.
 
-The loss is the cross-entropy of the kind (positives whose kind is unknown
-take part only through the map) plus ``map_weight`` times the binary
+The loss is the kind loss plus ``map_weight`` times the binary
 cross-entropy of the valid tiles of the map, covered tiles weighted
 ``covered_weight`` times (they are few; unweighted, the map learns to say
-"nothing" everywhere). Each step draws a batch with a ``torch.Generator``
-seeded by ``seed``, cuts one window of ``crop_tiles`` tiles (aligned to the
-tile grid, so the map targets are cut exactly) out of every frame, which
-halves the cost of a step and stops the network from learning whole scenes
-by heart; an obstructed frame whose window holds no covered tile does not
-take part in the kind loss for that step. It flips half of the batch
-left-right and scales each image by a random exposure gain (0.5..1.2,
-clipped), so the same
-samples and seed give the same weights on one machine (with ``max_seconds``
-the number of steps, and so the weights, depend on the machine's speed).
+"nothing" everywhere). The kind loss is, per frame, the cross-entropy of
+its kind, or for a positive of unknown kind (a label that is none of
+:data:`KINDS`, or none at all on a dataset pair) the binary cross-entropy
+of the obstructed answer, ``-log(1 - p(clean))``: it says nothing of which
+anomaly, only that there is one; averaged over the frames that take part.
+Each step draws a batch with a ``torch.Generator`` seeded by ``seed``, cuts
+one window of ``crop_tiles`` tiles (aligned to the tile grid, so the map
+targets are cut exactly) out of every frame, which halves the cost of a
+step and stops the network from learning whole scenes by heart; an
+obstructed frame whose window holds no covered tile does not take part in
+the kind loss for that step (:data:`SKIPPED_KIND`). It flips half of the
+batch left-right and scales each image by a random exposure gain (0.5..1.2,
+clipped), so the same samples and seed give the same weights on one
+machine (with ``max_seconds`` the number of steps, and so the weights,
+depend on the machine's speed).
 
 Synthetic samples (group ``synthetic``) are cheap to make and easily
 outnumber the recorded ones; when both are present, batches draw half from
@@ -47,6 +51,9 @@ from lenspair.model.checkpoint import DETECTOR_FORMAT, read_torch_file
 from lenspair.model.detection.data import UNKNOWN_KIND, DetectorSample
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import KINDS, TILE_STRIDE, AnomalyDetector, DetectorSpec
+
+SKIPPED_KIND = -2
+"""Kind of an obstructed frame's training window without a covered tile: no kind loss."""
 
 
 @dataclass(frozen=True)
@@ -123,7 +130,12 @@ def sampling_weights(samples: Sequence[DetectorSample]) -> torch.Tensor:
 def crop_batch(
     batch: dict[str, torch.Tensor], crop_tiles: tuple[int, int], generator: torch.Generator
 ) -> dict[str, torch.Tensor]:
-    """One tile-aligned window of every frame (module docstring); kinds adjusted."""
+    """One tile-aligned window of every frame (module docstring); kinds adjusted.
+
+    The window of an obstructed frame (known kind or :data:`UNKNOWN_KIND`)
+    that holds no covered valid tile gets :data:`SKIPPED_KIND`: it may show
+    nothing of the anomaly, so it says neither which one nor that there is one.
+    """
     images, tiles = batch["images"], batch["tiles"]
     full_rows, full_cols = images.shape[2] // TILE_STRIDE, images.shape[3] // TILE_STRIDE
     rows, cols = min(crop_tiles[0], full_rows), min(crop_tiles[1], full_cols)
@@ -138,7 +150,7 @@ def crop_batch(
     }
     covered = ((cropped["tiles"] > 0.5) & cropped["valid"]).flatten(1).any(dim=1)
     kinds = batch["kinds"]
-    cropped["kinds"] = torch.where((kinds > 0) & ~covered, UNKNOWN_KIND, kinds)
+    cropped["kinds"] = torch.where((kinds != 0) & ~covered, SKIPPED_KIND, kinds)
     return cropped
 
 
@@ -148,15 +160,20 @@ def detector_loss(
     map_weight: float,
     covered_weight: float = 1.0,
 ) -> torch.Tensor:
-    """Kind cross-entropy + ``map_weight`` x weighted tile cross-entropy over valid tiles."""
+    """Kind loss + ``map_weight`` x weighted tile cross-entropy over valid tiles.
+
+    The kind loss (module docstring) is the mean, over the frames of a known
+    kind and those of :data:`UNKNOWN_KIND`, of the kind's cross-entropy or of
+    ``-log(1 - p(clean))``; :data:`SKIPPED_KIND` frames add nothing to it.
+    """
     output = network(batch["images"])
-    kinds = batch["kinds"]
-    known = kinds != UNKNOWN_KIND
-    kind_loss = (
-        functional.cross_entropy(output.kind_logits[known], kinds[known])
-        if bool(known.any())
-        else output.kind_logits.sum() * 0.0
-    )
+    kinds, logits = batch["kinds"], output.kind_logits
+    known, unknown = kinds >= 0, kinds == UNKNOWN_KIND
+    named = functional.cross_entropy(logits[known], kinds[known], reduction="sum")
+    # -log(1 - p(clean)) = -log(sum of the anomalies' softmax), computed without 1 - p
+    obstructed = torch.logsumexp(logits, dim=1) - torch.logsumexp(logits[:, 1:], dim=1)
+    counted = int(known.sum()) + int(unknown.sum())
+    kind_loss = (named + obstructed[unknown].sum()) / max(1, counted)
     valid = batch["valid"].float()
     tile_loss = functional.binary_cross_entropy_with_logits(
         output.tile_logits,

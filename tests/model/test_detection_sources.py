@@ -1,6 +1,7 @@
 """Names of the detector's held-out sets: one per dataset split, even for namesake folders."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -8,9 +9,9 @@ import pytest
 
 from lenspair.cli import main
 from lenspair.core.imagewrite import write_image
-from lenspair.dataset.manifest import ManifestRow, SplitName, write_manifest
+from lenspair.dataset.manifest import ManifestRow, SplitName, read_manifest, write_manifest
 from lenspair.model.detection import run as detection_run
-from lenspair.model.detection.data import DetectorSample
+from lenspair.model.detection.data import UNKNOWN_KIND, DetectorSample, dataset_samples
 from lenspair.model.detection.sources import DetectorSources, distinct_names, gather
 from lenspair.model.networks.detector import DetectorSpec
 from tests.model.train_fixtures import clean_image, obstruct
@@ -20,17 +21,24 @@ COUNTS: dict[SplitName, int] = {"train": 2, "val": 1, "test": 1}
 SPLITS = ("val", "test")
 
 
-def _row(split: SplitName, name: str, index: int) -> ManifestRow:
-    """A rain pair of recording ``rec``."""
+def _row(
+    split: SplitName, name: str, index: int, anomaly: tuple[str, ...] = ("rain",)
+) -> ManifestRow:
+    """A pair of recording ``rec`` labelled ``anomaly`` (rain)."""
     return ManifestRow(
         split=split, name=name, recording="rec", group="rec", t_ns=index, obstructed="cam1",
         clean="cam0", difficulty="easy", psnr_db=25.0, anomaly_fraction=0.1, sharpness=100.0,
-        saturated=0.0, black=0.0, mask_fraction=0.0, anomaly=("rain",),
+        saturated=0.0, black=0.0, mask_fraction=0.0, anomaly=anomaly,
     )  # fmt: skip
 
 
-def _dataset(root: Path, seed: int, counts: dict[SplitName, int] = COUNTS) -> Path:
-    """A lenspair dataset of 48x32 rain pairs: ``counts`` pairs per split."""
+def _dataset(
+    root: Path,
+    seed: int,
+    counts: dict[SplitName, int] = COUNTS,
+    anomaly: tuple[str, ...] = ("rain",),
+) -> Path:
+    """A lenspair dataset of 48x32 pairs labelled ``anomaly``: ``counts`` pairs per split."""
     rng = np.random.default_rng(seed)
     rows = []
     for split, count in counts.items():
@@ -39,7 +47,7 @@ def _dataset(root: Path, seed: int, counts: dict[SplitName, int] = COUNTS) -> Pa
             clean = clean_image(rng)
             write_image(root / split / "input" / f"{name}.png", obstruct(clean, rng))
             write_image(root / split / "target" / f"{name}.png", clean)
-            rows.append(_row(split, name, index))
+            rows.append(_row(split, name, index, anomaly))
     write_manifest(root / "manifest.jsonl", rows)
     return root
 
@@ -108,3 +116,24 @@ def test_train_detector_refuses_a_training_set_of_one_class(
     error = capsys.readouterr().err.strip()
     assert "holds 0 clean and 2 obstructed frames" in error and "add clean frames" in error
     assert not out.exists()
+
+
+def test_pairs_without_anomaly_labels_are_obstructed_unless_tagged_clean(tmp_path: Path) -> None:
+    """capture-ingest --obstructed without rig.yaml writes "anomaly": []: the difficulty decides.
+
+    Taken for clean frames, such a dataset was refused ("0 obstructed frames"),
+    or, beside other data, taught that rain is clean and scored 0 positives.
+    """
+    dataset = _dataset(tmp_path / "ds", seed=3, counts={"train": 3, "val": 1}, anomaly=())
+    rows = read_manifest(dataset / "manifest.jsonl")
+    rows[1] = replace(rows[1], difficulty="clean")  # the views barely differ: two negatives
+    write_manifest(dataset / "manifest.jsonl", rows)
+    kinds = [sample.kind for sample in dataset_samples(dataset, "train", SPEC)]
+    assert kinds == [UNKNOWN_KIND, 0, 0, 0, UNKNOWN_KIND, 0]  # input, target of each pair
+    out = tmp_path / "run"
+    argv = ["train-detector", str(dataset), "--out", str(out), "--steps", "1"]
+    assert main([*argv, "--batch-size", "2", "--input-size", "48x32"]) == 0
+    assert json.loads((out / "run.json").read_text())["counts"]["train_obstructed"] == 2
+    (scores,) = json.loads((out / "scores.json").read_text()).values()  # the val split
+    assert (scores["frames"], scores["positives"]) == (2, 1)
+    assert sum(map(sum, scores["confusion"])) == 1  # its kind unknown: only the clean view

@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from lenspair.model.detection.data import synthetic_samples, texture_images
+from lenspair.model.detection.data import UNKNOWN_KIND, synthetic_samples, texture_images
 from lenspair.model.detection.judge import judge
 from lenspair.model.detection.train import (
+    SKIPPED_KIND,
     DetectorTraining,
     crop_batch,
+    detector_loss,
     load_detector,
     save_detector,
     train_detector,
@@ -207,27 +209,75 @@ def test_detect_names_its_input_when_the_bit_depth_rises(
 
 
 def test_training_windows_cut_maps_exactly_and_drop_kinds_without_anomaly() -> None:
-    images = torch.arange(2 * 48 * 64, dtype=torch.float32).reshape(2, 1, 48, 64)
-    tiles = torch.zeros(2, 6, 8)
+    images = torch.arange(4 * 48 * 64, dtype=torch.float32).reshape(4, 1, 48, 64)
+    tiles = torch.zeros(4, 6, 8)
     tiles[0, 0, 0] = 1.0  # only in the top-left tile
+    tiles[2] = 1.0  # covered everywhere, of no known kind
     batch = {
         "images": images,
-        "kinds": torch.tensor([KINDS.index("dirt"), KINDS.index("rain")]),
+        "kinds": torch.tensor([KINDS.index("dirt"), KINDS.index("rain"), UNKNOWN_KIND, 0]),
         "tiles": tiles,
-        "valid": torch.ones(2, 6, 8, dtype=torch.bool),
+        "valid": torch.ones(4, 6, 8, dtype=torch.bool),
     }
     for seed in range(6):
         cropped = crop_batch(batch, (2, 3), torch.Generator().manual_seed(seed))
-        assert cropped["images"].shape == (2, 1, 16, 24)
-        assert cropped["tiles"].shape == (2, 2, 3)
+        assert cropped["images"].shape == (4, 1, 16, 24)
+        assert cropped["tiles"].shape == (4, 2, 3)
         # the window's first pixel is the first pixel of its first tile
         first = int(cropped["images"][0, 0, 0, 0])
         row, col = divmod(first, 64)
         assert row % 8 == 0 and col % 8 == 0
         assert float(cropped["tiles"][0].sum()) == float(tiles[0, row // 8, col // 8])
         has_dirt = bool(cropped["tiles"][0].sum() > 0)
-        assert int(cropped["kinds"][0]) == (KINDS.index("dirt") if has_dirt else -1)
-        assert int(cropped["kinds"][1]) == -1  # rain frame with no covered tile
+        assert int(cropped["kinds"][0]) == (KINDS.index("dirt") if has_dirt else SKIPPED_KIND)
+        assert int(cropped["kinds"][1]) == SKIPPED_KIND  # rain frame with no covered tile
+        assert cropped["kinds"][2:].tolist() == [UNKNOWN_KIND, 0]
+
+
+def _kind_logit_gradients(kinds: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """A small detector's kind logits on random frames, and the kind loss's gradient on them."""
+    torch.manual_seed(0)
+    network = AnomalyDetector(SMALL).eval()
+    seen: list[torch.Tensor] = []
+
+    def keep(module: torch.nn.Module, inputs: object, output: torch.Tensor) -> None:
+        output.retain_grad()
+        seen.append(output)
+
+    network.kind_head.register_forward_hook(keep)
+    count = len(kinds)
+    batch = {
+        "images": torch.rand(
+            count, 1, *SMALL.input_size, generator=torch.Generator().manual_seed(1)
+        ),
+        "kinds": torch.tensor(kinds),
+        "tiles": torch.ones(count, *SMALL.grid),
+        "valid": torch.ones(count, *SMALL.grid, dtype=torch.bool),
+    }
+    detector_loss(network, batch, map_weight=0.0).backward()
+    (logits,) = seen
+    assert logits.grad is not None
+    return logits.detach(), logits.grad
+
+
+def test_positives_of_unknown_kind_train_the_obstructed_answer(one_thread: None) -> None:
+    """p(obstructed) is 1 - p(clean): a positive labelled fog must push p(clean) down."""
+    logits, gradient = _kind_logit_gradients([UNKNOWN_KIND, 0])
+    assert float(gradient[0, 0]) > 0.0  # a step down the gradient lowers its clean logit...
+    assert bool((gradient[0, 1:] < 0.0).all())  # ...and raises every anomaly's
+    before = torch.softmax(logits, dim=1)[:, 0]
+    after = torch.softmax(logits - 0.5 * gradient, dim=1)[:, 0]
+    assert float(after[0]) < float(before[0])  # the unknown positive: less clean
+    assert float(after[1]) > float(before[1])  # the clean frame: more clean, as before
+    # d/dz_clean of -log(1 - p(clean)) is p(clean); the loss averages over the two frames
+    clean = torch.softmax(logits[0], dim=0)[0]
+    assert float(gradient[0, 0]) == pytest.approx(0.5 * float(clean), rel=1e-4)
+
+
+def test_a_skipped_training_window_takes_no_part_in_the_kind_loss(one_thread: None) -> None:
+    _, gradient = _kind_logit_gradients([SKIPPED_KIND, UNKNOWN_KIND, 0])
+    assert not gradient[0].any()  # its window showed no anomaly: neither kind nor obstructed
+    assert gradient[1:].abs().sum(dim=1).gt(0).all()
 
 
 @pytest.mark.parametrize(
