@@ -31,18 +31,18 @@ import logging
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import torch
 
 from lenspair.core.config import dump_yaml, to_plain
 from lenspair.core.fsutil import atomic_write_text
-from lenspair.dataset.layouts import detect_layout
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import measure_latency
-from lenspair.model.evaluation.scoring import agreement_with_fp32, scorable_pairs, score_pairs
+from lenspair.model.evaluation.scoring import agreement_with_fp32, score_pairs
 from lenspair.model.evaluation.summary import ImageScore, Summary, summarize
+from lenspair.model.evaluation.tradeoff_pairs import eval_pairs, note_trained_on
 from lenspair.model.evaluation.tradeoff_report import write_tradeoff
 from lenspair.model.evaluation.tradeoff_reuse import MARKER_TEXT, RUN_MARKER, reusable
 from lenspair.model.evaluation.tradeoff_rows import TradeoffRow, mark_pareto
@@ -58,7 +58,7 @@ from lenspair.model.precision import choose_precision, read_cpu_flags
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.datasets import TrainData, paired_training_data
 from lenspair.model.training.loop import fit, resolve_config
-from lenspair.model.training.pairs import SubsetSource, Unread, open_eval_pairs
+from lenspair.model.training.pairs import Unread
 
 log = logging.getLogger(__name__)
 
@@ -78,16 +78,6 @@ SCORED = {
     "scored ones, so they choose no checkpoint)",
 }
 """What ``meta["scored"]`` says for each checkpoint scored."""
-
-
-class _EvalPairs(NamedTuple):
-    """The pairs a tradeoff scores, what they are, and which checkpoint they score."""
-
-    pairs: Any
-    text: str
-    checkpoint: str
-    unread: list[Unread]
-    view: list[int]
 
 
 def run_tradeoff(
@@ -119,7 +109,10 @@ def run_tradeoff(
             folder or with an empty one) the validation pairs held out of its
             training, never pairs it trained on. Pairs that chose the
             checkpoint (held out, or the validation split) score the end of the
-            budget, never the best of their own noisy validations.
+            budget, never the best of their own noisy validations. Pairs the
+            networks trained on (``train``) are scored, and said so in the log
+            and under the table (``trained_on_scored_pairs``: they flatter the
+            scores, and the int8 row calibrated on them).
         latency_runs: timed runs per latency figure.
         int8: add the int8 row where the CPU has VNNI (quantising takes a while).
 
@@ -133,9 +126,9 @@ def run_tradeoff(
     data = paired_training_data(
         Path(dataset).resolve(), base.data, base.model.channels, base.train.seed
     )
-    pairs, pairs_text, checkpoint, unread, view = _eval_pairs(
-        dataset, split, base.data.val_split, data, convention
-    )
+    chosen = eval_pairs(dataset, split, base.data, data, convention)
+    pairs, pairs_text, checkpoint = chosen.pairs, chosen.text, chosen.checkpoint
+    unread, view = chosen.unread, chosen.view
     size = tuple(pairs[0].input.shape[:2])
     out_dir.mkdir(parents=True, exist_ok=True)
     earlier_tradeoff = (out_dir / "tradeoff_config.yaml").is_file()  # before it is written
@@ -202,6 +195,10 @@ def run_tradeoff(
                 )
             )
             log.info("tradeoff: %s", rows[-1].describe())
+        if "trained_on_scored_pairs" not in meta:  # every variant trained on the same pairs
+            note_trained_on(meta, loaded, chosen)
+    if meta.get("trained_on_scored_pairs") and any(row.precision == "int8" for row in rows):
+        meta["int8_calibrated_on_scored"] = True  # it calibrates on the training pairs
     if baseline is not None:
         meta["input_baseline"] = {"psnr_db": baseline.psnr_db, "ssim": baseline.ssim}
     if unread:
@@ -212,65 +209,6 @@ def run_tradeoff(
     rows = mark_pareto(rows, None if baseline is None else (baseline.psnr_db, baseline.ssim))
     write_tradeoff(rows, out_dir, meta)
     return TradeoffResult(rows, meta)
-
-
-def _eval_pairs(
-    dataset: Path, split: str | None, val_split: str, data: TrainData, convention: str
-) -> _EvalPairs:
-    """The pairs to score (see :func:`run_tradeoff`'s ``split``), the readable ones only.
-
-    Args:
-        dataset: the paired data, as given.
-        split: the evaluation split asked for, or None.
-        val_split: the split that validates training (``data.val_split``).
-        data: the training data opened from ``dataset``.
-        convention: metric convention the pairs are scored under.
-
-    Returns:
-        The readable pairs, their description, the checkpoint they score, the
-        pairs that cannot be read or scored, and (when some cannot) the
-        split's own index of each readable pair.
-
-    Raises:
-        ModelError: no pairs to score, or none of them can be read and scored.
-
-    """
-    pairs: Any = None
-    # the checkpoint the validation pairs chose, scored on other pairs; scored on
-    # those same pairs it would be a best of noisy validations: the budget's end then
-    checkpoint = "best.pt"
-    if detect_layout(Path(dataset)) is None:  # a dataset with splits: score on ``split``
-        wanted = split or "test"
-        # asked for, or there: its problems are the answer (an unpaired file, a bad pair),
-        # never a quiet switch to other pairs; only a dataset without a test folder falls back
-        if split is not None or (Path(dataset) / wanted).is_dir():
-            pairs = open_eval_pairs(dataset, wanted)
-            pairs_text = f"{dataset} split {wanted}"
-            if wanted == val_split:  # the pairs that chose best.pt: its end instead
-                checkpoint = "last.pt"
-        if split is None and pairs is not None and len(pairs) == 0:
-            pairs = None  # an empty test split (dataset-build left it empty): as if none
-    if pairs is None:
-        # One paired folder (input/ + target/, Raindrop's train/) trains on nine
-        # tenths of itself: score on the held-out tenth, never on training pairs.
-        pairs = getattr(data.val, "source", None)
-        if pairs is None:
-            raise ModelError(f"{dataset}: no test split and no held-out pairs to score")
-        pairs_text = f"{dataset} held-out validation pairs ({len(pairs)}, not trained on)"
-        checkpoint = "last.pt"
-    if len(pairs) == 0:
-        raise ModelError(
-            f"{pairs_text}: no pairs to score; choose another --split (e.g. val) or rebuild "
-            "the dataset with a non-empty one (dataset-build --splits)"
-        )
-    readable, unread = scorable_pairs(pairs, data.channels, convention)
-    if len(readable) == 0:
-        raise ModelError(
-            f"{pairs_text}: none can be read and scored; the first: {unread[0].reason}"
-        )
-    # scoring indexes the readable pairs; problems are reported by the split's own index
-    view = readable.indices if isinstance(readable, SubsetSource) and unread else []
-    return _EvalPairs(readable, pairs_text, checkpoint, unread, view)
 
 
 def _train_variant(

@@ -9,8 +9,9 @@ table and the plot.
 Files written by :func:`write_tradeoff` into ``OUT``::
 
     tradeoff.md    the table as Markdown, with its conditions and the input baseline
+                   (and a warning when the networks trained on the scored pairs)
     tradeoff.csv   one row per checkpoint and precision (columns: COLUMNS)
-    tradeoff.json  the conditions and the rows
+    tradeoff.json  the conditions (and that warning) and the rows
     tradeoff.png   PSNR and SSIM against CPU time, Pareto fronts marked
 
 An infinite PSNR is written as ``inf`` (the string ``"inf"`` in
@@ -47,6 +48,23 @@ COLUMNS = (
     "gpu_ms", "psnr_db", "ssim", "convention", "steps", "pareto_psnr", "pareto_ssim",
     "psnr_vs_fp32_db", "scored_step",
 )  # fmt: skip
+
+
+def trained_on_line(meta: dict[str, Any]) -> str | None:
+    """The warning under a table whose scored pairs were trained on; None when they were not."""
+    trained = meta.get("trained_on_scored_pairs")
+    if not trained:
+        return None
+    line = (
+        f"Warning: the networks trained on {trained} of the {meta['scored_pairs']} scored "
+        "pairs, which flatter their scores"
+    )
+    if meta.get("int8_calibrated_on_scored"):
+        line += "; the int8 row was calibrated on the training pairs, so on the scored ones too"
+    return line + (
+        "; score pairs they did not train on (leave --split out: the test split, or the "
+        "held-out validation pairs)."
+    )
 
 
 def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
@@ -86,6 +104,8 @@ def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
             f"Input without restoration (the baseline to beat): PSNR "
             f"{_fmt(baseline['psnr_db'], 2)} dB, SSIM {_fmt(baseline['ssim'], 4)}.",
         ]
+    if warning := trained_on_line(meta):
+        lines += ["", warning]
     return "\n".join(lines) + "\n"
 
 
@@ -99,7 +119,12 @@ def write_tradeoff(rows: Sequence[TradeoffRow], out_dir: Path, meta: dict[str, A
     for r in rows:
         writer.writerow({k: ("" if v is None else v) for k, v in asdict(r).items()})
     atomic_write_text(out_dir / "tradeoff.csv", buffer.getvalue())
-    payload = {**meta, "rows": [asdict(r) for r in rows]}
+    warning = trained_on_line(meta)
+    payload = {
+        **meta,
+        **({"warning": warning} if warning else {}),
+        "rows": [asdict(r) for r in rows],
+    }
     # non-finite floats become strings; text (paths, names) is written as it is
     text = json.dumps(json_safe(payload), indent=2, default=str, allow_nan=False)
     atomic_write_text(out_dir / "tradeoff.json", text + "\n")

@@ -12,6 +12,7 @@ from typing import Any
 
 from lenspair.model.evaluation.published import ABLATION, STATE_OF_THE_ART, published_markdown
 from lenspair.model.evaluation.seed_statistics import CONVERGENCE_TAIL, SeedSummary
+from lenspair.model.evaluation.tradeoff_report import trained_on_line
 
 
 @dataclass(frozen=True)
@@ -148,5 +149,7 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
             "not known."
         )
     lines += ["", verdict_text]
+    if warning := trained_on_line(meta):  # the first seed's count: each seed trains on the same
+        lines += ["", warning]
     lines += ["", published_markdown((ABLATION, STATE_OF_THE_ART))]
     return "\n".join(lines) + "\n"

@@ -18,10 +18,17 @@ from lenspair.core.imagewrite import write_image
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation import tradeoff as tradeoff_module
+from lenspair.model.evaluation import tradeoff_pairs
 from lenspair.model.evaluation.scoring import score_tensors
 from lenspair.model.evaluation.tradeoff import TradeoffResult, run_tradeoff
-from lenspair.model.evaluation.tradeoff_report import MARKERS, write_tradeoff
+from lenspair.model.evaluation.tradeoff_report import (
+    MARKERS,
+    tradeoff_markdown,
+    trained_on_line,
+    write_tradeoff,
+)
 from lenspair.model.evaluation.tradeoff_rows import TradeoffRow, mark_pareto, pareto_front
+from lenspair.model.evaluation.tradeoff_seeds_report import seeded_markdown
 from lenspair.model.evaluation.tradeoff_variants import (
     DEFAULT_VARIANTS,
     Budget,
@@ -272,6 +279,7 @@ def test_a_single_paired_folder_is_scored_on_pairs_it_did_not_train_on(
     scored = {pair.name for pair in data.val.source}  # type: ignore[attr-defined]
     assert scored and not scored & trained
     assert f"({len(scored)}, not trained on)" in evaluated
+    assert result.meta["trained_on_scored_pairs"] == 0  # held out by name hash: none
 
 
 def test_seeded_tradeoff_reports_mean_spread_convergence_and_published_rows(
@@ -513,18 +521,84 @@ def test_one_output_holds_one_kind_of_tradeoff_table(
 def test_an_empty_split_to_score_is_a_one_line_error(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from lenspair.model.evaluation import tradeoff
-
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
-    monkeypatch.setattr(tradeoff, "open_eval_pairs", lambda data, split: [])  # built, but empty
+    monkeypatch.setattr(tradeoff_pairs, "open_eval_pairs", lambda data, split: [])  # all empty
     gea = tuple(v for v in DEFAULT_VARIANTS if v.name == "GEA")
     # asked for by name (the default falls back to held-out pairs: see the test above)
-    with pytest.raises(ModelError, match=r"split test: no pairs to score; choose another --split"):
+    with pytest.raises(ModelError, match=r"split test: no pairs to score; no other split holds"):
         run_tradeoff(
             dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1), tiny_config(), gea,
             split="test",
         )  # fmt: skip
     assert not (tmp_path / "t").exists()  # refused before anything was trained or written
+
+
+@pytest.mark.parametrize(
+    ("empty", "said"),
+    [
+        (("val",), "splits with pairs: test (2), train (4, trained on); leave --split out to "
+         "score the test split"),
+        (("val", "test"), "splits with pairs: train (4, trained on); leave --split out to "
+         "score the held-out validation pairs"),
+    ],
+)  # fmt: skip
+def test_an_empty_split_names_the_splits_that_hold_pairs(
+    tmp_path: Path, empty: tuple[str, ...], said: str
+) -> None:
+    """It said "choose another --split (e.g. val)" when val itself was the empty split."""
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1, "test": 2})
+    (dataset / "dataset.json").write_text('{"format": "lenspair-dataset/1"}\n')  # empty ones open
+    for split in empty:  # as dataset-build leaves the splits of one recording
+        for side in ("input", "target"):
+            shutil.rmtree(dataset / split / side)
+            (dataset / split / side).mkdir()
+    g = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
+    with pytest.raises(ModelError) as raised:
+        run_tradeoff(dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1),
+                     tiny_config(), g, split="val")  # fmt: skip
+    message = str(raised.value)
+    assert message.startswith(f"{dataset} split val: no pairs to score; {said}"), message
+    assert "e.g. val" not in message and "\n" not in message
+    assert not (tmp_path / "t").exists()
+
+
+def test_scoring_the_split_trained_on_is_said_in_the_log_and_under_the_table(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """As lenspair eval says it of the same checkpoint and split."""
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 4, "val": 1, "test": 2})
+    g = tuple(v for v in DEFAULT_VARIANTS if v.name == "G")
+    with caplog.at_level(logging.WARNING):
+        result = run_tradeoff(dataset, tmp_path / "t", torch.device("cpu"), Budget(steps=1),
+                              tiny_config(), g, split="train", latency_runs=1)  # fmt: skip
+    said = [r.getMessage() for r in caplog.records if "flatter" in r.getMessage()]
+    assert len(said) == 1 and "trained on 4 of the 4 scored pairs" in said[0], said
+    assert (result.meta["trained_on_scored_pairs"], result.meta["scored_pairs"]) == (4, 4)
+    line = "Warning: the networks trained on 4 of the 4 scored pairs, which flatter their scores"
+    table = (tmp_path / "t" / "tradeoff.md").read_text()
+    assert line in table.split("| G |")[-1]  # under the table
+    saved = json.loads((tmp_path / "t" / "tradeoff.json").read_text())
+    assert saved["trained_on_scored_pairs"] == 4 and saved["warning"].startswith(line)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        other = run_tradeoff(dataset, tmp_path / "t2", torch.device("cpu"), Budget(steps=1),
+                             tiny_config(), g, split="test", latency_runs=1)  # fmt: skip
+    assert other.meta["trained_on_scored_pairs"] == 0
+    assert not any("flatter" in r.getMessage() for r in caplog.records)
+    assert "Warning" not in (tmp_path / "t2" / "tradeoff.md").read_text()
+
+
+def test_the_warning_under_the_tables_names_the_int8_calibration() -> None:
+    meta = {
+        "dataset": "ds", "evaluated_on": "ds split train", "budget": "3 steps", "seeds": [0],
+        "convention": "skimage-gaussian", "size": "48x32", "threads": 1,
+        "trained_on_scored_pairs": 6, "scored_pairs": 6, "int8_calibrated_on_scored": True,
+    }  # fmt: skip
+    line = trained_on_line(meta)
+    assert line is not None and "the int8 row was calibrated on the training pairs" in line
+    assert tradeoff_markdown([], meta).rstrip().endswith(line)
+    assert line in seeded_markdown([], meta)
+    assert trained_on_line({**meta, "trained_on_scored_pairs": 0}) is None
 
 
 def test_an_unreadable_test_pair_is_skipped_and_recorded_before_training(tmp_path: Path) -> None:
