@@ -33,8 +33,8 @@ a still-rising curve.
 With several --seeds (default 0,1,2) every variant is trained once per seed
 (DIR/seed<k>/ holds each seed's table and runs) and DIR/tradeoff_seeds.md
 reports PSNR/SSIM as mean +/- spread (standard deviation over seeds), checks
-convergence (over the last 20 % of the budget validation PSNR moved less than
-the seed spread), marks Pareto points only where a difference exceeds the
+convergence (over the last 20 % of the budget validation PSNR moved no more
+than the seed spread), marks Pareto points only where a difference exceeds the
 spread, and prints the paper's published rows beside ours, labelled.
 --seeds 0 runs the single table above. One DIR holds one kind: a seeded rerun
 moves a single-seed table and runs of one of its seeds into DIR/seed<k>/ and

@@ -73,7 +73,7 @@ def clearly_better(first: SeedSummary, second: SeedSummary) -> bool:
 def converged(
     curve: Sequence[tuple[float, float]], budget: float, spread: float
 ) -> tuple[bool, float] | None:
-    """Whether validation PSNR moved less than ``spread`` over the last 20 % of the budget.
+    """Whether validation PSNR moved no more than ``spread`` over the last 20 % of the budget.
 
     The change is read off the least-squares line through the points of the
     last 20 % (from the last point at or before 80 % of the budget to the
@@ -100,7 +100,7 @@ def converged(
     tail = points[len(before) - 1 :]
     slope, _ = statistics.linear_regression([p for p, _ in tail], [v for _, v in tail])
     change = slope * (tail[-1][0] - tail[0][0])
-    return abs(change) < spread, change
+    return abs(change) <= spread, change  # a flat curve holds when the seeds agree exactly
 
 
 def robust_pareto(times: Sequence[float | None], scores: Sequence[SeedSummary]) -> list[int]:

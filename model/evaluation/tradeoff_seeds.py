@@ -7,7 +7,7 @@ runs :func:`~lenspair.model.evaluation.tradeoff.run_tradeoff` once per seed
 precision reports PSNR and SSIM as mean +/- spread over the seeds
 (:mod:`lenspair.model.evaluation.seed_statistics`), the median CPU time,
 whether training converged (over the last 20 % of the budget, validation
-PSNR moved less than the seed spread, checked on every seed's learning
+PSNR moved no more than the seed spread, checked on every seed's learning
 curve ``runs/<variant>/metrics.csv``) and the Pareto front counted only
 where a difference exceeds the spread. The paper's published rows are
 printed beside, labelled. Files: ``OUT/tradeoff_seeds.md`` and ``.json``.

@@ -91,7 +91,7 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
         + ")"
         + (f", on {meta['cpu']}" if meta.get("cpu") else ""),
         f"- converged: over the last {tail} of the budget (from the last validation at or "
-        "before it) the trend (least-squares line) of validation PSNR moved less than the "
+        "before it) the trend (least-squares line) of validation PSNR moved no more than the "
         "seed spread of the network's fp32 PSNR, on every seed (the largest change, signed, "
         "in brackets; one verdict per network, whatever the precision)",
         *(

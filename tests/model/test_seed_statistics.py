@@ -53,6 +53,8 @@ def test_convergence_compares_the_last_fifth_with_the_spread() -> None:
     assert converged(rising, 100, spread=0.2) == (False, pytest.approx(2.0))
     assert converged([(90, 25.0), (100, 25.1)], 100, spread=1.0) is None  # no point at 80 %
     assert converged([(10, 20.0)], 100, spread=1.0) is None  # nothing after it
+    # seeds that agree exactly (spread 0) on a curve that did not move: converged, not "no"
+    assert converged([(50, 25.0), (80, 25.0), (100, 25.0)], 100, spread=0.0) == (True, 0.0)
 
 
 def test_convergence_reads_the_trend_not_the_noise_of_the_last_fifth() -> None:
