@@ -21,11 +21,25 @@ _DTYPES = frozenset({np.dtype(np.uint8), np.dtype(np.uint16)})
 def check_image(image: np.ndarray, name: str = "image") -> None:
     """Raise ``ValueError`` unless ``image`` is uint8/uint16 (H, W) or (H, W, 3), H, W >= 1."""
     if image.dtype not in _DTYPES:
+        if image.dtype.newbyteorder("=") in _DTYPES:  # a mono16 message with is_bigendian
+            raise ValueError(
+                f"{name}: {image.dtype} is uint16 in the other byte order; convert it first "
+                "(frame.astype(np.uint16))"
+            )
         raise ValueError(f"{name}: expected dtype uint8 or uint16, got {image.dtype}")
     if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] == 3)):
         raise ValueError(f"{name}: expected shape (H, W) or (H, W, 3), got {image.shape}")
     if image.shape[0] == 0 or image.shape[1] == 0:
         raise ValueError(f"{name}: an empty image, shape {image.shape}")
+
+
+def is_one_frame(images: np.ndarray) -> bool:
+    """Whether an array given for a list of frames is one frame: ``(H, W)`` or ``(H, W, 3)``.
+
+    Iterated, it would be a list of its rows, each taken for a frame (a stack
+    of mono frames, ``(N, H, W)``, is a list; one of frames 3 pixels wide is not).
+    """
+    return images.ndim == 2 or (images.ndim == 3 and images.shape[2] == 3)
 
 
 def max_value(dtype: np.dtype | type) -> float:

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from lenspair.core.bitdepth import LOW_BIT_DEPTHS, significant_bits, widen
-from lenspair.core.pixels import check_image
+from lenspair.core.pixels import check_image, is_one_frame
 from lenspair.core.quality import BLANK_STD
 from lenspair.model.detection.data import prepare
 from lenspair.model.networks.detector import KINDS, AnomalyDetector
@@ -114,9 +114,14 @@ def judge(
 
     Raises:
         ValueError: an image breaks the :mod:`lenspair.core.pixels` convention
-            (the message names its index in ``images``: ``frame 3: ...``), or
-            ``bits`` is not 10, 12 or 16.
+            (the message names its index in ``images``: ``frame 3: ...``),
+            ``images`` is one frame, not a list of them, or ``bits`` is not 10,
+            12 or 16.
     """
+    if isinstance(images, np.ndarray) and is_one_frame(images):
+        raise ValueError(
+            f"judge takes a list of frames, got one {images.shape} array: judge(detector, [frame])"
+        )
     depths = (*LOW_BIT_DEPTHS, 16)
     if bits is not None and bits not in depths:
         raise ValueError(f"bits: expected one of {', '.join(map(str, depths))}, got {bits!r}")

@@ -360,7 +360,9 @@ class OnnxBackend:
             raise error from None
 
 
-def open_backend(path: Path, device: torch.device | str, precision: str = "auto") -> Backend:
+def open_backend(
+    path: Path, device: torch.device | str, precision: str = "auto", tune: bool = True
+) -> Backend:
     """A backend for a checkpoint (``.pt``) or an ONNX model (``.onnx``).
 
     Args:
@@ -369,6 +371,8 @@ def open_backend(path: Path, device: torch.device | str, precision: str = "auto"
         device: from ``--device`` (resolved in the CLI), or its name (``"cpu"``).
         precision: ``auto``/``fp32``/``bf16``/``fp16``; an ONNX model runs at
             its own (fp32, or int8), which ``auto`` or that name accept.
+        tune: on the CPU, tune glibc's allocator for the whole process
+            (:func:`deploy`).
 
     Raises:
         ModelError: unreadable model, or another precision asked of an ONNX model.
@@ -385,17 +389,19 @@ def open_backend(path: Path, device: torch.device | str, precision: str = "auto"
     loaded = load_model(path, device)  # first: a bad file is the only line a user sees
     resolved = resolve_precision(precision, device)
     channels = loaded.config.model.channels or 1
-    return TorchBackend(deploy(loaded.network, device), channels, device, resolved, path)
+    return TorchBackend(deploy(loaded.network, device, tune), channels, device, resolved, path)
 
 
-def deploy(network: torch.nn.Module, device: torch.device) -> torch.nn.Module:
+def deploy(network: torch.nn.Module, device: torch.device, tune: bool = True) -> torch.nn.Module:
     """Prepare ``network`` to run as ``eval``'s latency measures it (in place, eval mode).
 
-    On the CPU: channels-last weights (oneDNN's preferred layout) and glibc
-    told to keep freed activations (see :mod:`lenspair.model.evaluation.latency`).
+    On the CPU: channels-last weights (oneDNN's preferred layout) and, with
+    ``tune``, glibc told to keep freed activations for the whole process
+    (see :mod:`lenspair.model.evaluation.latency`).
     """
     network.to(device).eval()
     if device.type == "cpu":
-        tune_allocator()
+        if tune:
+            tune_allocator()
         network.to(memory_format=torch.channels_last)  # type: ignore[call-overload]
     return network

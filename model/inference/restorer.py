@@ -17,6 +17,14 @@ frames in overlapping tiles. Frames are RGB (not OpenCV's BGR) when the
 network is a colour one; a mono network refuses colour frames and the
 reverse, with a one-line :class:`~lenspair.model.errors.ModelError`, as
 ``restore`` does: converting silently would hide a wrong network.
+
+One ``Restorer`` may serve several threads (two camera callbacks): calls
+hold no state but the running depth. For 16-bit cameras of different
+depths, give each camera its own ``Restorer``, or ``bits=`` its depth: a
+12-bit camera's frames after a 16-bit one's were taken as 16-bit words
+(five times too dark). The first call at a new frame size also chooses the
+CPU's kernels (about twice a call's time here); a node can restore one
+blank frame of its size at start-up.
 """
 
 from collections.abc import Iterable
@@ -25,9 +33,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lenspair.core.bitdepth import RunningDepth
+from lenspair.core.bitdepth import LOW_BIT_DEPTHS, RunningDepth
 from lenspair.core.device import resolve_device
-from lenspair.core.pixels import check_image
+from lenspair.core.pixels import check_image, is_one_frame
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend, open_backend
 from lenspair.model.inference.input_checks import frame_problem
@@ -52,6 +60,16 @@ class Restorer:
             frames; None: whole frames.
         overlap: pixels shared by neighbouring tiles (the ``--overlap`` of
             ``restore``, default 32; errors name the options as it does).
+        bits: the bits a camera's ``uint16`` frames hold (10, 12 or 16); they
+            are widened to the full scale and written back in the camera's
+            words, values above the depth saturating. None: told from the
+            frames seen so far (:class:`~lenspair.core.bitdepth.RunningDepth`),
+            so one camera per ``Restorer`` (module docstring).
+        tune_allocator: on the CPU, tell glibc to keep freed activations
+            (:func:`lenspair.model.evaluation.latency.tune_allocator`): the
+            fp32 network ran 76 -> 59 ms at 540x360 here, but the setting is
+            the whole process's, and memory the host frees stays with the
+            process. ``False`` leaves the allocator alone.
 
     Raises:
         ModelError: the model cannot be read, or a setting is invalid.
@@ -65,17 +83,25 @@ class Restorer:
         precision: str = "auto",
         tile: int | None = None,
         overlap: int = DEFAULT_OVERLAP,
+        bits: int | None = None,
+        tune_allocator: bool = True,
     ) -> None:
         """Load ``model`` on ``device``; see the class docstring."""
+        depths = (*LOW_BIT_DEPTHS, 16)
+        if bits is not None and bits not in depths:
+            raise ModelError(f"Restorer: bits must be one of {depths}, got {bits!r}")
         for name, value in (("tile", tile), ("overlap", overlap)):
             whole = isinstance(value, int | np.integer) and not isinstance(value, bool)
             if not whole and not (value is None and name == "tile"):
                 raise ModelError(f"Restorer: {name} must be a whole number of pixels: {value!r}")
-        self.backend: Backend = open_backend(Path(model), resolve_device(device), precision)
+        self.backend: Backend = open_backend(
+            Path(model), resolve_device(device), precision, tune_allocator
+        )
         check_options(RestoreOptions(tile=tile, overlap=overlap), self.backend)  # as restore's
         self.tile = None if tile is None else int(tile)
         self.overlap = int(overlap)
         self.depth = RunningDepth(f"the frames given to Restorer({Path(model).name})")
+        self.bits = bits
 
     @property
     def channels(self) -> int:
@@ -103,6 +129,11 @@ class Restorer:
             ModelError: as :meth:`__call__`, or frames that differ in shape
                 or bit depth.
         """
+        if isinstance(images, np.ndarray) and is_one_frame(images):
+            raise ModelError(
+                f"restore_batch takes a list of frames, got one {images.shape} array: "
+                "restore_batch([frame]), or restorer(frame)"
+            )
         frames = [np.asarray(image) for image in images]  # any iterable, a generator too
         if not frames:
             return []
@@ -116,7 +147,9 @@ class Restorer:
         # each frame at the depth known when it comes, as one by one: a frame that raises
         # the depth must not change how the frames before it scale
         runs: list[tuple[int, list[np.ndarray]]] = []
-        for frame in frames:
+        if self.bits is not None:
+            runs.append((self.bits, frames))
+        for frame in frames if self.bits is None else []:
             self.depth.see(frame)
             if runs and runs[-1][0] == self.depth.bits:
                 runs[-1][1].append(frame)

@@ -172,6 +172,8 @@ def test_judge_widens_16_bit_frames_of_10_bit_values_as_detect_does(one_thread: 
     # an 8-bit frame in the call: 16-bit ones are taken as they are, as significant_bits says
     mixed = judge(network, [low[0], (rng.random((60, 80)) * 255).astype(np.uint8)])
     assert mixed.blank.tolist() == [True, False]
+    with pytest.raises(ValueError, match=r"judge takes a list of frames, got one \(60, 80\)"):
+        judge(network, low[0])  # iterated, its 60 rows were judged as 60 frames
     with pytest.raises(ValueError, match=r"bits: expected one of 10, 12, 16, got 8"):
         judge(network, low, bits=8)
 

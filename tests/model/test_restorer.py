@@ -109,6 +109,40 @@ def test_a_batch_whose_depth_rises_scales_each_frame_as_one_by_one(
                 assert int(other.max()) < 1 << 10
 
 
+def test_one_restorer_with_bits_serves_a_12_bit_and_a_16_bit_camera(checkpoint: Path) -> None:
+    """Two cameras on one Restorer: after a 16-bit frame, the running depth took the 12-bit
+    camera's frames as 16-bit words (mean output five times too dark)."""
+    mono12 = narrow((texture((32, 48), seed=10) * 65535).astype(np.uint16), 12)
+    mono16 = (texture((32, 48), seed=11) * 65535).astype(np.uint16)
+    alone = Restorer(checkpoint, device="cpu", precision="fp32")(mono12)  # its own Restorer
+    for bits in (12, None):
+        shared = Restorer(checkpoint, device="cpu", precision="fp32", bits=bits)
+        first = shared(mono12)
+        shared(mono16)
+        after = shared(mono12)
+        np.testing.assert_array_equal(first, alone)
+        if bits is None:  # the running depth, raised by the 16-bit camera (module docstring)
+            assert np.abs(after.astype(np.int64) - alone).mean() > 100
+        else:
+            np.testing.assert_array_equal(after, alone)
+    with pytest.raises(ModelError, match="bits must be one of"):
+        Restorer(checkpoint, device="cpu", bits=8)
+
+
+def test_the_allocator_is_left_alone_when_asked(
+    checkpoint: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Tuning glibc is the whole host process's: a node sharing it may say no."""
+    from lenspair.model.inference import backends  # the module whose tune_allocator deploy calls
+
+    calls: list[int] = []
+    monkeypatch.setattr(backends, "tune_allocator", lambda: calls.append(1) or True)
+    Restorer(checkpoint, device="cpu", tune_allocator=False)
+    assert calls == []
+    Restorer(checkpoint, device="cpu")
+    assert calls == [1]
+
+
 def test_a_non_integer_tile_is_a_one_line_error(checkpoint: Path) -> None:
     for tile, overlap in ((64.5, 16), ("64", 16), (64, 1.5), (True, 16)):
         with pytest.raises(ModelError, match="whole number of pixels"):
@@ -145,6 +179,10 @@ def test_frames_it_cannot_restore_are_one_line_errors(tmp_path: Path, checkpoint
         restorer.restore_batch([grey, dim16])
     assert restorer.depth.bits == 16  # a refused call leaves the camera's depth as it was
     assert restorer.restore_batch([]) == []
+    with pytest.raises(ModelError, match=r"takes a list of frames, got one \(32, 48\) array"):
+        restorer.restore_batch(grey)  # iterated, its rows were taken for frames
+    with pytest.raises(ModelError, match="uint16 in the other byte order"):
+        restorer(grey.astype(">u2"))  # a mono16 message with is_bigendian, decoded by hand
     with pytest.raises(ModelError, match="--tile"):
         Restorer(checkpoint, device="cpu", tile=8)
     with pytest.raises(ModelError, match="overlap"):
