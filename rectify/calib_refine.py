@@ -21,6 +21,7 @@ from lenspair.rectify.calib_uncertainty import RigDeviations, rig_deviations
 from lenspair.rectify.calib_views import Points, refit_poses, stereo_residuals
 from lenspair.rectify.corner_detection import Detection
 from lenspair.rectify.errors import RectifyError
+from lenspair.rectify.fit_checks import distinct_poses
 from lenspair.rectify.layout import unsupported_layout
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.rig import CameraModel, StereoRig
@@ -38,6 +39,7 @@ def refine_jointly(
     transform: np.ndarray,
     residuals: list[np.ndarray],
     fixed: RigDeviations,
+    min_views: int,
 ) -> tuple[list[CameraCalibration], np.ndarray, list[np.ndarray], float, str]:
     """Refine both cameras' intrinsics with the rig over the stereo step's views, if better.
 
@@ -62,6 +64,8 @@ def refine_jointly(
         transform: the fixed-intrinsics fit's cam0 -> cam1.
         residuals: its residuals per view.
         fixed: its deviations.
+        min_views: distinct board poses a refinement over a subset of the
+            views needs (``CalibrationOptions.min_views``).
 
     Returns:
         The cameras' calibrations (refined or as given), the transform, the
@@ -72,10 +76,11 @@ def refine_jointly(
     kept = list(monos), transform, residuals, fixed.baseline_m
     data = [item for item, _, _ in stereo]
     used = _refinable_views(data, cameras)
-    if len(used) < MIN_REFINE_VIEWS:
+    shared = [np.array([stereo[v][k] for v in used]) for k in (1, 2)]  # rvecs, tvecs
+    if len(used) < len(data) and distinct_poses(*shared) < min_views:
         return *kept, (
-            f"not refined with the rig: fisheye views with different corner counts "
-            f"(at most {len(used)} share one)"
+            f"not refined with the rig: fisheye views with different corner counts (the "
+            f"{len(used)} sharing one hold fewer than {min_views} distinct board poses)"
         )
     try:
         refined, joint, rvecs, tvecs = fit_stereo([data[v] for v in used], cameras, refine=True)
@@ -133,10 +138,6 @@ def refine_jointly(
     return calibrations, joint, residuals, together.baseline_m, f"refined with the rig ({spreads})"
 
 
-MIN_REFINE_VIEWS = 5
-"""Fewest views the refinement runs over (the board at five poses, as a calibration needs)."""
-
-
 def _refinable_views(data: list[Points], cameras: tuple[CameraModel, CameraModel]) -> list[int]:
     """The views the refinement can run over, as indices into ``data``.
 
@@ -144,9 +145,11 @@ def _refinable_views(data: list[Points], cameras: tuple[CameraModel, CameraModel
     count (the most corners on a tie):
     ``cv2.fisheye.stereoCalibrate`` fails on views of different corner counts
     (OpenCV issue 21748, :func:`~lenspair.rectify.calib_fits.refinable`): a
-    ChArUco session with a few partial views had no refinement at all. Whether
-    the views left out cost more than the refinement gains, the deviations of
-    :func:`refine_jointly` decide.
+    ChArUco session with a few partial views had no refinement at all. The
+    refinement then rests on these views alone (its deviations too, which
+    :func:`refine_jointly` weighs against the fixed-intrinsics fit's over
+    every view); the others are only scored with it, their cam0 poses solved
+    anew (:func:`_cam0_poses`).
     """
     everything = list(range(len(data)))
     if refinable(data, cameras):

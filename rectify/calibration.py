@@ -137,7 +137,7 @@ def _calibrate(
     baseline_std, refinement = fixed.baseline_m, "not refined with the rig: asked not to"
     if options.refine_jointly:
         monos, transform, residuals, baseline_std, refinement = refine_jointly(
-            stereo, monos, detections, board, transform, residuals, fixed
+            stereo, monos, detections, board, transform, residuals, fixed, options.min_views
         )
     errors = np.asarray([rms(r) for r in residuals])
     try:

@@ -189,7 +189,7 @@ def test_fisheye_views_of_a_few_partial_boards_still_refine_the_intrinsics_with_
         assert result.refinement.startswith(
             "refined with the rig (over 18 of 20 views, the most sharing a corner count"
         )
-        assert len(result.stereo_views) == 20  # the two partial views still count in the rig
+        assert len(result.stereo_views) == 20  # the partial views stay stereo views, scored
         misses.append(result.rig.baseline_m / truth.baseline_m - 1)
         alone = calibrate_from_detections(
             views, board, "pinhole-equi", SIZES, options=CalibrationOptions(refine_jointly=False)
@@ -197,6 +197,17 @@ def test_fisheye_views_of_a_few_partial_boards_still_refine_the_intrinsics_with_
         fixed.append(alone.rig.baseline_m / truth.baseline_m - 1)
     miss = float(np.sqrt(np.mean(np.square(misses))))
     assert miss < 0.001 and float(np.sqrt(np.mean(np.square(fixed)))) > 2.5 * miss
+
+
+def test_few_views_allowed_by_min_views_still_refine_a_pinhole_rig() -> None:
+    """The fisheye subset's floor of views reached every rig: four views of a pinhole rig,
+    allowed by min_views 3, went unrefined, "fisheye views with different corner counts"."""
+    truth = make_rig("radtan")
+    board = parse_board_spec("chessboard:9x6:0.05")
+    views = point_views(board, truth, count=4)
+    options = CalibrationOptions(min_views=3)
+    result = calibrate_from_detections(views, board, "pinhole-radtan", SIZES, options=options)
+    assert result.refinement.startswith("refined with the rig (baseline")
 
 
 @pytest.mark.parametrize(("measured_m", "warned"), [(0.0352, False), (0.0278, True)])
