@@ -21,6 +21,8 @@ from lenspair.dataset.output import LinkMode
 from lenspair.dataset.sources import Source
 
 logger = logging.getLogger(__name__)
+MOUNT_TABLE = Path("/proc/self/mountinfo")
+"""Linux's list of the process's mount points (read by :func:`check_out`)."""
 _OCTAL = re.compile(rb"\\([0-7]{3})")
 """An octal escape of ``/proc/self/mountinfo`` (``\\040``: a space)."""
 
@@ -70,7 +72,7 @@ def _is_mount_point(folder: Path) -> bool:
     if os.path.ismount(folder):
         return True
     try:
-        table = Path("/proc/self/mountinfo").read_bytes()
+        table = MOUNT_TABLE.read_bytes()
     except OSError:  # not Linux
         return False
     wanted = os.fsencode(folder)

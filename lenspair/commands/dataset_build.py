@@ -124,7 +124,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Build (or verify) a dataset; returns the exit code."""
     if args.verify is not None:
-        if args.sources or args.out is not None:
+        if args.sources or args.out is not None or args.previous is not None:
             raise ConfigError("--verify takes only the dataset folder")
         return _verify(args.verify, args.workers)
     if not args.sources or args.out is None:

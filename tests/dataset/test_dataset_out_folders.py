@@ -7,6 +7,8 @@ import pytest
 
 from lenspair.cli import main
 from lenspair.dataset import build as build_module
+from lenspair.dataset import preflight
+from lenspair.dataset.errors import DatasetError
 from tests.dataset.dataset_synth import RecordingFactory
 
 
@@ -59,3 +61,24 @@ def test_a_dataset_caught_by_the_sources_glob_is_named_as_a_dataset(
     )
     assert "pairs.jsonl" not in line and "run it again" not in line
     assert not out.exists()
+
+
+def test_a_bind_mount_is_found_in_the_mount_table(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """os.path.ismount misses a bind mount within one file system (the same device as its
+    parent): the process's mount table names it, a space written as an octal escape."""
+    mounted = tmp_path / "host data" / "DS"
+    mounted.mkdir(parents=True)
+    escaped = str(mounted).replace(" ", "\\040")
+    table = tmp_path / "mountinfo"
+    table.write_text(
+        "22 1 8:1 / / rw,relatime shared:1 - ext4 /dev/sda1 rw\n"
+        f"95 22 8:1 /srv/ds {escaped} rw,relatime shared:1 - ext4 /dev/sda1 rw\n"
+    )
+    monkeypatch.setattr(preflight, "MOUNT_TABLE", table)
+    with pytest.raises(DatasetError, match="a mount point"):
+        preflight.check_out(mounted)
+    preflight.check_out(mounted.parent)  # its parent is no mount point
+    monkeypatch.setattr(preflight, "MOUNT_TABLE", tmp_path / "absent")  # not Linux
+    preflight.check_out(mounted)

@@ -182,3 +182,6 @@ def test_previous_must_be_a_dataset(
     assert main([*command, "--previous", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and f"{tmp_path}: not a dataset built by" in err
+    verify = ["dataset-build", "--verify", str(tmp_path / "DS"), "--previous", str(tmp_path)]
+    assert main(verify) == 2  # --previous means nothing to --verify: refused, not ignored
+    assert "--verify takes only the dataset folder" in capsys.readouterr().err
