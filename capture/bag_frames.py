@@ -134,10 +134,9 @@ def _camera_topics(
     cameras, depth = camera_candidates(image_topics, path, depth_topics(reader, image_topics))
     if len(cameras) == 1:
         return {cameras[0]: "cam0"}, depth
-    # A bag written by ``restore --suffix`` holds /cam1/image_raw and
-    # /cam1/image_raw/restored: the cameras are the original topics.
-    originals = [t for t in cameras if not any(t.startswith(o + "/") for o in cameras)]
-    cam0, cam1 = rosbag.select_topics(originals if len(originals) >= 2 else cameras, path)
+    # a bag written by ``restore --suffix`` holds /cam1/image_raw and
+    # /cam1/image_raw/restored: select_topics takes the original topics
+    cam0, cam1 = rosbag.select_topics(cameras, path)
     return {cam0: "cam0", cam1: "cam1"}, depth
 
 

@@ -130,8 +130,10 @@ def select_topics(
 
     Depth and disparity topics are left out (those named so, and ``depth``:
     :func:`lenspair.capture.depth_topics.camera_candidates`): a depth map is no
-    camera's image. Topics naming ``cam0``/``cam1`` win, then ``left``/``right``
-    (left = cam0); otherwise exactly two image topics are taken in sorted order.
+    camera's image. So is a topic extending another one (``<topic>/compressed``,
+    ``<topic>/restored``) where two others remain: a copy of that camera.
+    Topics naming ``cam0``/``cam1`` win, then ``left``/``right`` (left =
+    cam0); otherwise exactly two image topics are taken in sorted order.
 
     Raises:
         CaptureError: fewer than two image topics besides depth topics, or
@@ -140,6 +142,11 @@ def select_topics(
     """
     found, left_out = camera_candidates(image_topics, bag, depth)
     listing = ", ".join(found) or "none"
+    # a topic extending another is a copy of it: image_transport's <topic>/compressed,
+    # restore's <topic>/restored; the cameras are the originals (restore and detect chose
+    # them, capture-ingest and calibrate refused the four topics as ambiguous)
+    originals = [t for t in found if not any(t.startswith(o + "/") for o in found)]
+    found = originals if len(originals) >= 2 else found
     if len(found) < 2:
         besides = f"; {depth_note(left_out)}" if left_out else ""
         raise CaptureError(

@@ -174,6 +174,13 @@ def test_select_topics() -> None:
         select_topics(["/only"], bag)
     with pytest.raises(CaptureError, match=r"cannot tell which of 3 .* name them with --topics"):
         select_topics(["/x", "/y", "/z"], bag)
+    # image_transport records each camera twice: the raw topics are the cameras (capture-ingest
+    # and calibrate refused these four as ambiguous, while restore and detect chose the raw pair)
+    stereo = ["/stereo/left/image_raw", "/stereo/right/image_raw"]
+    twins = [*stereo, *(f"{topic}/compressed" for topic in stereo)]
+    assert select_topics(sorted(twins), bag) == tuple(stereo)
+    alone = ("/a/compressed", "/b/compressed")  # compressed topics alone are the cameras
+    assert select_topics(list(alone), bag) == alone
 
 
 def test_one_image_topic_is_a_clear_error(tmp_path: Path) -> None:
@@ -287,7 +294,8 @@ def test_empty_bag_is_a_clear_error(tmp_path: Path) -> None:
     with Writer2(tmp_path / "empty", version=9) as writer:
         for topic in ("/cam0/image_raw", "/cam1/image_raw"):
             writer.add_connection(topic, IMAGE, typestore=store)
-    with pytest.raises(CaptureError, match=r"empty: no cam0 frames could be listed"):
+    said = r"empty: no cam0 frames could be listed: its topic /cam0/image_raw holds no message"
+    with pytest.raises(CaptureError, match=said):  # it named neither the topic nor why
         open_recording(tmp_path / "empty")
 
 
