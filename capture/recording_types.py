@@ -116,6 +116,9 @@ class Recording:
             if not self.frames.get(camera):
                 dropped = [p for p in self.problems if p.camera in (camera, None) and p.dropped]
                 detail = f"; first of {len(dropped)} problems: {dropped[0]}" if dropped else ""
+                if self.topics is not None and not dropped:  # a bag: name the topic
+                    topic = self.topics[CAMERAS.index(camera)]
+                    detail = f": its topic {topic} holds no message"
                 raise CaptureError(f"{self.path}: no {camera} frames could be listed{detail}")
 
     def swapped(self) -> "Recording":
