@@ -88,9 +88,10 @@ def _first_message(reader: Any, topic: str, bag: Path) -> Any:
 
 def _as_camera_info_file(message: Any, topic: str) -> dict[str, Any]:
     """A ``CameraInfo`` message as the YAML ``camera_calibration`` writes (ROS 1 or 2 names)."""
-    names = ("width", "height", "distortion_model", "K", "D", "R", "P")
+    names = ("width", "height", "distortion_model", "K", "D", "R", "P", "binning_x", "binning_y")
     fields = {}
     for name in names:
         value = getattr(message, name, None)
-        fields[name] = getattr(message, name.lower()) if value is None else value
+        fields[name] = getattr(message, name.lower(), None) if value is None else value
+    fields["roi"] = getattr(message, "roi", None)
     return message_as_camera_info(fields, topic)

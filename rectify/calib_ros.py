@@ -50,6 +50,13 @@ def message_as_camera_info(message: Mapping[str, Any], name: str | None) -> dict
     ``P``) or ROS 2's (``k``, ``d``, ``r``, ``p``), as a bag's message or a
     ``rostopic echo``/``ros2 topic echo`` of one holds them; ``name`` becomes
     ``camera_name`` (a topic, a frame id), which tells left from right.
+
+    ``K`` and ``P`` describe the full sensor: a camera that bins pixels
+    (``binning_x``/``binning_y`` above 1) or reads a region of interest
+    (``roi``, in unbinned sensor pixels) streams smaller images, and its
+    calibration is taken to them as ROS's ``image_geometry`` does: the
+    principal point less the region's offset, then both divided by the
+    binning, and the image size the region's (or the sensor's) divided by it.
     """
     fields = {str(key).lower(): value for key, value in message.items()}
 
@@ -57,16 +64,39 @@ def message_as_camera_info(message: Mapping[str, Any], name: str | None) -> dict
         value = fields.get(key)  # a bag's message holds numpy arrays: no truth value
         return [] if value is None else [float(x) for x in value]
 
+    bins = [max(1, int(fields.get(f"binning_{axis}") or 1)) for axis in "xy"]
+    x_offset, y_offset, roi_width, roi_height = _roi(fields.get("roi"))
+    width = (roi_width or int(fields["width"])) // bins[0]
+    height = (roi_height or int(fields["height"])) // bins[1]
+    k, p = values("k"), values("p")
+    for matrix, columns in ((k, 3), (p, 4)):
+        if len(matrix) == 3 * columns:
+            for row, offset, step in ((0, x_offset, bins[0]), (1, y_offset, bins[1])):
+                row_values = slice(row * columns, (row + 1) * columns)
+                matrix[row_values] = [v / step for v in matrix[row_values]]
+                matrix[row * columns + 2] -= offset / step
     return {
-        "image_width": int(fields["width"]),
-        "image_height": int(fields["height"]),
+        "image_width": width,
+        "image_height": height,
         "camera_name": name,
         "distortion_model": str(fields.get("distortion_model") or "plumb_bob"),
-        "camera_matrix": {"rows": 3, "cols": 3, "data": values("k")},
+        "camera_matrix": {"rows": 3, "cols": 3, "data": k},
         "distortion_coefficients": {"rows": 1, "cols": len(values("d")), "data": values("d")},
         "rectification_matrix": {"rows": 3, "cols": 3, "data": values("r")},
-        "projection_matrix": {"rows": 3, "cols": 4, "data": values("p")},
+        "projection_matrix": {"rows": 3, "cols": 4, "data": p},
     }
+
+
+def _roi(value: Any) -> tuple[int, int, int, int]:
+    """``(x_offset, y_offset, width, height)`` of a ``RegionOfInterest``; zeros when unset.
+
+    A bag's message holds it as an object, an echo as a mapping.
+    """
+    if value is None:
+        return 0, 0, 0, 0
+    get = value.get if isinstance(value, Mapping) else lambda key: getattr(value, key, 0)
+    keys = ("x_offset", "y_offset", "width", "height")
+    return tuple(int(get(key) or 0) for key in keys)  # type: ignore[return-value]
 
 
 def _camera_info(text: str) -> dict[str, Any] | None:

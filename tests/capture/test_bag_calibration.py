@@ -98,13 +98,16 @@ def _bag(tmp_path: Path, kind: str, infos: list[dict[str, Any]] | None) -> Path:
                 fields = infos[0 if camera == "cam0" else 1]
                 if kind != "ros1":
                     fields = {k.lower() if len(k) == 1 else k: v for k, v in fields.items()}
-                roi = types["sensor_msgs/msg/RegionOfInterest"](
-                    x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-                )
+                region = {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0}
+                region |= fields.get("roi", {})
+                roi = types["sensor_msgs/msg/RegionOfInterest"](**region, do_rectify=False)
+                binned = {"binning_x": 0, "binning_y": 0} | {
+                    k: v for k, v in fields.items() if k.startswith("binning")
+                }
                 info_message = types["sensor_msgs/msg/CameraInfo"](
-                    header=header, binning_x=0, binning_y=0, roi=roi,
+                    header=header, roi=roi, **binned,
                     **{k: np.asarray(v, np.float64) if k.lower() in "dkrp" else v
-                       for k, v in fields.items()},
+                       for k, v in fields.items() if k != "roi" and not k.startswith("binning")},
                 )  # fmt: skip
                 writer.write(info, t_ns, serialize(info_message, "sensor_msgs/msg/CameraInfo"))
     return bag
@@ -138,6 +141,37 @@ def test_a_bag_without_a_calibration_file_is_calibrated_by_its_camera_info(
     assert by_file.calibration_source.endswith("camchain.yaml")
     assert report.counts["kept"] == by_file.counts["kept"] == 4
     np.testing.assert_allclose(report.crop, by_file.crop)
+
+
+def _on_the_sensor(info: dict[str, Any], binning: int, offset: tuple[int, int]) -> dict[str, Any]:
+    """``info`` as a camera binning ``binning`` x ``binning`` sensor pixels, read from a region
+    at ``offset`` (sensor pixels), reports it: K and P of the full sensor, image_geometry's rule."""
+    k, p = np.array(info["K"], float).reshape(3, 3), np.array(info["P"], float).reshape(3, 4)
+    for matrix in (k, p):
+        matrix[:2] *= binning
+        matrix[:2, 2] += offset
+    width, height = info["width"] * binning, info["height"] * binning
+    sensor = {"width": width + 2 * offset[0], "height": height + 2 * offset[1]}
+    roi = {"x_offset": offset[0], "y_offset": offset[1], "width": width, "height": height}
+    return {**info, **sensor, "K": k.reshape(-1), "P": p.reshape(-1), "roi": roi,
+            "binning_x": binning, "binning_y": binning}  # fmt: skip
+
+
+@pytest.mark.parametrize(("binning", "offset"), [(2, (0, 0)), (1, (40, 24)), (2, (80, 48))])
+def test_camera_info_of_a_binning_or_cropping_camera_is_taken_to_its_images(
+    tmp_path: Path, binning: int, offset: tuple[int, int]
+) -> None:
+    """K and P describe the full sensor: a 2x2-binned camera's bag was refused, "the
+    calibration says 480x320" for its 240x160 images."""
+    infos = [_on_the_sensor(info, binning, offset) for info in _camera_info(rig())]
+    bag = _bag(tmp_path, "ros2", infos)
+    found, _ = find_calibration(open_recording(bag), RigFile("cam1"), ())
+    for camera, true in ((found.cam0, rig().cam0), (found.cam1, rig().cam1)):
+        assert camera.resolution == true.resolution
+        np.testing.assert_allclose(camera.intrinsics, true.intrinsics, atol=1e-9)
+    np.testing.assert_allclose(found.T_cam1_cam0, rig().T_cam1_cam0, atol=1e-9)
+    report = ingest_recording(bag, tmp_path / "out", size=SIZE, workers=1)
+    assert report.counts["kept"] == 4
 
 
 def test_a_driver_never_calibrated_is_named_and_told_to_pass_calib(tmp_path: Path) -> None:
