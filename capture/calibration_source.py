@@ -70,6 +70,30 @@ def find_calibration(
     return load_calibration(paths, resolutions=_frame_sizes(recording))
 
 
+def stated_topics(recording_path: Path, calibration: tuple[Path, ...]) -> tuple[str, str] | None:
+    """The ``(cam0, cam1)`` topics a calibration states for a recording, or None.
+
+    The calibration is ``--calib``'s files, else a ``camchain.yaml`` beside
+    the recording (a Kalibr camchain states each camera's ``rostopic``). For a
+    bag whose topic names tell neither camera: the calibration then chooses
+    the two cameras, as it already decides their order. A calibration that
+    cannot be read states nothing here; :func:`find_calibration` says why.
+    """
+    paths = (
+        list(calibration)
+        or [
+            place / CAMCHAIN_FILE
+            for place in recording_places(recording_path)
+            if (place / CAMCHAIN_FILE).is_file()
+        ][:1]
+    )
+    try:
+        rig, _ = load_calibration(paths) if paths else (None, "")
+    except LenspairError:
+        return None
+    return rig.topics if rig is not None and rig.topics_stated else None
+
+
 def _frame_sizes(recording: Recording) -> tuple[tuple[int, int] | None, ...]:
     """``(width, height)`` of each camera's first readable frame (or None), cam0's first.
 

@@ -12,8 +12,8 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from lenspair.capture.calibration_source import find_calibration
-from lenspair.capture.errors import CaptureError
+from lenspair.capture.calibration_source import find_calibration, stated_topics
+from lenspair.capture.errors import AmbiguousTopicsError, CaptureError
 from lenspair.capture.ingest_report import untimed_frames
 from lenspair.capture.pairing import (
     PairingResult,
@@ -79,7 +79,14 @@ def open_and_pair(
             that cannot be paired, or ``--topics`` the other way round from
             the calibration's.
     """
-    recording = open_recording(recording_path, topics)
+    try:
+        recording = open_recording(recording_path, topics)
+    except AmbiguousTopicsError:
+        stated = stated_topics(Path(recording_path), calibration)
+        if stated is None:
+            raise
+        recording = open_recording(recording_path, stated)  # the calibration's cameras
+        log.info("%s: cam0 %s and cam1 %s, as the calibration states", recording.path, *stated)
     rig_file = resolve_obstructed(recording.path, obstructed)
     rig, calibration_source = find_calibration(recording, rig_file, tuple(calibration))
     if _topics_reversed(recording, rig):

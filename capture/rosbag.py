@@ -37,7 +37,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from lenspair.capture.bag_cursor import OpenBags
 from lenspair.capture.depth_topics import camera_candidates, depth_note, depth_topics
-from lenspair.capture.errors import CaptureError
+from lenspair.capture.errors import AmbiguousTopicsError, CaptureError
 from lenspair.capture.image_messages import IMAGE_TYPES, decode_message, one_line
 from lenspair.capture.recording_types import (
     ACTIVE_BAG_SUFFIX,
@@ -160,7 +160,7 @@ def select_topics(
             return firsts[0], seconds[0]
     if len(found) == 2:
         return found[0], found[1]
-    raise CaptureError(
+    raise AmbiguousTopicsError(
         f"{bag}: cannot tell which of {len(found)} image topics are cam0 and cam1 "
         f"({listing}); name them with --topics CAM0 CAM1"
     )
@@ -189,7 +189,7 @@ def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
             check_chosen(chosen, image_topics, path)
         except CaptureError as exc:
             note = cut_note(reader)  # a cut may have left out a topic's first record
-            raise CaptureError(str(exc) if note is None else f"{exc}; {note}") from None
+            raise type(exc)(str(exc) if note is None else f"{exc}; {note}") from None
         cameras: dict[str, CameraName] = {chosen[0]: "cam0", chosen[1]: "cam1"}
         problems: list[FrameProblem] = []
         if depth:  # said once: logged and kept in report.json by capture-ingest

@@ -387,3 +387,27 @@ def test_a_cut_is_said_on_its_own_not_among_the_rejected_frames(
     said = [r.getMessage() for r in caplog.records if "reading stopped early" in r.getMessage()]
     assert len(said) == 1 and "\n" not in said[0] and said[0].startswith(f"{bag}: ")
     assert report.recording_problems == said
+
+
+def test_the_calibration_s_rostopics_choose_among_topics_whose_names_tell_nothing(
+    tmp_path: Path,
+) -> None:
+    """Four image topics named neither cam0/cam1 nor left/right: it asked for --topics though
+    the camchain beside the bag names each camera's rostopic."""
+    euroc = make_recording(tmp_path / "euroc", frames=3)
+    images = {
+        camera: [(int(p.stem), read_image(p)) for p in frame_files(euroc, source)]
+        for camera, source in (("front_a", "cam0"), ("front_b", "cam1"), ("rear_a", "cam0"))
+    }
+    images["rear_b"] = images["front_b"]
+    folder = tmp_path / "bags"
+    folder.mkdir()
+    write_rig_file(folder / "rig.yaml", RigFile(obstructed="cam1", anomaly=("rain",)))
+    bag = write_bag(folder / "run", "ros1", images)
+    with pytest.raises(CaptureError, match="cannot tell which of 4 image topics"):
+        ingest_recording(bag, tmp_path / "unnamed", size=SIZE)  # nothing states them: asked
+    stated = ("/front_a/image_raw", "/front_b/image_raw")
+    write_kalibr(folder / "camchain.yaml", replace(rig(), topics=stated))
+    report = ingest_recording(bag, tmp_path / "out", size=SIZE)
+    assert (report.topics["cam0"], report.topics["cam1"]) == stated
+    assert report.counts["kept"] == 3
