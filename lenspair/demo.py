@@ -24,11 +24,13 @@ is reused on a rerun; an unfinished stage is cleaned and run again
 :mod:`lenspair.demo_stages`.
 """
 
+import os
 import shlex
 from dataclasses import dataclass
 from pathlib import Path
 
 from lenspair.cli import main as cli_main
+from lenspair.core.folderlock import lock_file
 from lenspair.core.fsutil import atomic_write_json, atomic_write_text
 from lenspair.core.samples import sample_path
 from lenspair.demo_report import write_report
@@ -188,7 +190,7 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
             ),
             dataset,
         ),
-        Stage(
+        _train_stage(
             "pretrain",
             (
                 "train",
@@ -204,7 +206,7 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
             ),
             pre,
         ),
-        Stage(
+        _train_stage(
             "finetune",
             (
                 "train",
@@ -276,6 +278,18 @@ def plan(out: Path, budget: Budget) -> list[Stage]:
     return stages
 
 
+def _train_stage(name: str, argv: tuple[str, ...], output: Path) -> Stage:
+    """A ``train`` stage that, stopped, continues with ``--resume`` (which refuses ``--init``)."""
+    at = argv.index("--init")
+    return Stage(
+        name,
+        argv,
+        output,
+        resume_argv=(*argv[:at], *argv[at + 2 :], "--resume"),
+        resume_file=output / "checkpoints" / "last.pt",
+    )
+
+
 def check_out(out: Path) -> None:
     """Refuse an ``--out`` that holds files of its own and no earlier demo.
 
@@ -298,12 +312,31 @@ def run_demo(out: Path, budget: Budget = Budget()) -> Path:
     """Run every stage under ``out`` and write the report; returns ``report.md``'s path.
 
     The report's command quotes ``out`` as given (relative or absolute), so that
-    it runs again from where it was typed.
+    it runs again from where it was typed. The whole run holds a lock on
+    ``out/.stages/.lock``: two demos writing one folder resumed and replaced
+    each other's stages.
+
+    Raises:
+        DemoError: ``out`` is not the demo's (:func:`check_out`), or another
+            demo is writing to it.
     """
     given = shlex.quote(str(out))
     out = Path(out).resolve()
     check_out(out)
-    out.mkdir(parents=True, exist_ok=True)
+    # now, not with the first finished marker: a demo stopped in its first stage
+    # left files and no .stages/, and check_out refused its rerun
+    (out / ".stages").mkdir(parents=True, exist_ok=True)
+    lock = lock_file(out / ".stages" / ".lock", "lenspair demo")
+    if lock is None:
+        raise DemoError(f"another demo is writing to {out}")
+    try:
+        return _run_locked(out, budget, given)
+    finally:
+        os.close(lock)
+
+
+def _run_locked(out: Path, budget: Budget, given: str) -> Path:
+    """:func:`run_demo` once it holds ``out``'s lock."""
     # Three short recordings make too few whole-recording groups for three
     # splits, so the demo splits by time segments; a twelfth of a recording
     # gives enough groups (36) for hashed splits near the asked fractions.

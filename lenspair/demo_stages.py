@@ -2,14 +2,18 @@
 
 A stage is one ``lenspair`` subcommand (:class:`Stage`). Once it finishes, a
 marker in ``OUT/.stages/<name>.json`` records its arguments, the hashes of the
-YAML files it read and, for stages that train or time networks, the CPU's
-native precisions; a rerun reuses the stage only when all three match
-(:func:`run_stage`). Once one stage runs, every later one runs too
-(:func:`run_stages`): they read what it wrote.
+YAML files it read, a digest of its output (:func:`output_digest`) and, for
+stages that train or time networks, the CPU's native precisions; a rerun
+reuses the stage only when all of them match (:func:`run_stage`). Once one
+stage runs, every later one runs too (:func:`run_stages`): they read what it
+wrote.
 """
 
+import hashlib
 import json
 import logging
+import os
+import shlex
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -34,16 +38,27 @@ class Stage:
         output: the folder or file it writes.
         resumable: the subcommand resumes its own unfinished work, so a
             rerun keeps ``output`` (unless what the stage reads changed).
+        resume_argv: the command that continues an unfinished run of this
+            stage (``train ... --resume``); empty: none does.
+        resume_file: what an unfinished run left to continue from (its
+            ``last.pt``); ``resume_argv`` runs only when it exists.
     """
 
     name: str
     argv: tuple[str, ...]
     output: Path
     resumable: bool = False
+    resume_argv: tuple[str, ...] = ()
+    resume_file: Path | None = None
 
 
 def _marker(out: Path, stage: Stage) -> Path:
     return out / ".stages" / f"{stage.name}.json"
+
+
+def _started(out: Path, stage: Stage) -> Path:
+    """The record of a stage that started and has not finished: what it ran with."""
+    return out / ".stages" / f"{stage.name}.started.json"
 
 
 PRECISION_STAGES = ("train", "eval", "tradeoff", "export", "restore", "train-detector", "detect")
@@ -74,6 +89,26 @@ def _fingerprint(stage: Stage) -> dict[str, str]:
     return inputs
 
 
+def output_digest(output: Path) -> str:
+    """sha256 over the relative path, size and mtime_ns of every file under ``output``.
+
+    Cheap (no file is read), so reusing an untouched demo stays instant; a file
+    changed by hand (a checkpoint copied over another) changes it, and the
+    stage runs again. ``output`` may be a file; a missing one digests as empty.
+    """
+    digest = hashlib.sha256()
+    if output.is_file():
+        files = [(output.name, output)]
+    else:
+        files = sorted(
+            (os.path.relpath(path, output), path) for path in output.rglob("*") if path.is_file()
+        )
+    for relative, path in files:
+        status = path.stat()
+        digest.update(f"{relative}\0{status.st_size}\0{status.st_mtime_ns}\n".encode())
+    return digest.hexdigest()
+
+
 def run_stage(
     out: Path,
     stage: Stage,
@@ -84,32 +119,59 @@ def run_stage(
     """Run one stage unless ``reuse`` and a finished marker with the same arguments and inputs.
 
     Inputs are the YAML files named in the arguments: editing a sample scene
-    makes its stages run again. Before a stage runs, its marker and those of
+    makes its stages run again. So does an output changed since the stage
+    finished (its digest differs), and :func:`run_stages` runs every later
+    stage again with it. Before a stage runs, its marker and those of
     the ``later`` stages (which read what it writes) are removed: a demo
     killed while it ran, or before they ran again, left an earlier run's
     markers beside a partial or stale output, and the rerun reused them.
+
+    A stage with a ``resume_argv``, stopped while it ran with the same
+    arguments and inputs (its ``.started.json`` record), continues with that
+    command instead of starting over.
 
     Returns:
         (seconds spent, whether the stage was reused).
     """
     marker = _marker(out, stage)
+    edited = False  # finished, then its output changed: nothing in it is to be resumed
     if reuse and marker.is_file() and stage.output.exists():
         recorded = _read_marker(marker)
-        same_inputs = recorded.get("inputs", {}) == _fingerprint(stage)
-        if recorded.get("argv") == list(stage.argv) and same_inputs:
+        edited = recorded.get("output") != output_digest(stage.output)
+        if (
+            recorded.get("argv") == list(stage.argv)
+            and not edited
+            and recorded.get("inputs", {}) == _fingerprint(stage)
+        ):
             return float(recorded.get("seconds", 0.0)), True
+    started = {"argv": list(stage.argv), "inputs": _fingerprint(stage)}
+    # stopped while it ran, with the same inputs since: continue it, not start over
+    resuming = (
+        reuse
+        and not edited
+        and bool(stage.resume_argv)
+        and stage.resume_file is not None
+        and stage.resume_file.is_file()
+        and _read_marker(_started(out, stage)) == started
+    )
     for stale in (stage, *later):
         _marker(out, stale).unlink(missing_ok=True)
+    for stale in later:  # they will read what this stage writes now
+        _started(out, stale).unlink(missing_ok=True)
     # the earlier report described outputs this stage now replaces: a stopped rerun
     # left it beside them, every stage still marked reused
     for name in REPORT_FILES:
         (out / name).unlink(missing_ok=True)
     # A resumable stage picks up where it stopped, unless what it read changed.
-    if stage.output.exists() and not (stage.resumable and reuse):
+    keep = resuming or (stage.resumable and reuse and not edited)
+    if stage.output.exists() and not keep:
         remove_path(stage.output)
-    print(f"\n[{stage.name}] lenspair {' '.join(stage.argv)}", file=sys.stderr, flush=True)
+    if not resuming:
+        atomic_write_json(_started(out, stage), started)
+    argv = stage.resume_argv if resuming else stage.argv
+    print(f"\n[{stage.name}] lenspair {shlex.join(argv)}", file=sys.stderr, flush=True)
     start = time.perf_counter()
-    code = cli_main(list(stage.argv))
+    code = cli_main(list(argv))
     seconds = time.perf_counter() - start
     if code == INTERRUPTED:  # Ctrl-C in the stage: the demo was stopped, nothing failed
         raise KeyboardInterrupt
@@ -117,8 +179,14 @@ def run_stage(
         raise Terminated
     if code != 0:
         raise DemoError(f"stage {stage.name} failed (exit code {code}); rerun to resume")
-    record = {"argv": list(stage.argv), "inputs": _fingerprint(stage), "seconds": round(seconds, 2)}
+    record = {
+        "argv": list(stage.argv),
+        "inputs": _fingerprint(stage),
+        "output": output_digest(stage.output),
+        "seconds": round(seconds, 2),
+    }
     atomic_write_json(marker, record)
+    _started(out, stage).unlink(missing_ok=True)
     return seconds, False
 
 

@@ -15,10 +15,11 @@ Example:
 """
 
 import argparse
+import shlex
 from pathlib import Path
 
 from lenspair.commands.argtypes import out_folder
-from lenspair.demo import QUICK, Budget, run_demo
+from lenspair.demo import QUICK, Budget, check_out, run_demo
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,11 +40,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def interrupt_hint(args: argparse.Namespace) -> str:
     """After Ctrl-C: the same command again goes on from the stage it stopped in."""
     quick = " --quick" if args.quick else ""
-    return f"rerun lenspair demo --out {args.out}{quick} to resume from the stage it stopped in"
+    out = shlex.quote(str(args.out))
+    return f"rerun lenspair demo --out {out}{quick} to resume from the stage it stopped in"
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; returns 0 on success."""
+    check_out(args.out.resolve())  # a refused folder is not written to: say so first
     print(f"lenspair demo: writing to {args.out.resolve()}", flush=True)
     report = run_demo(args.out, QUICK if args.quick else Budget())
     print(f"lenspair demo: report written to {report} (and {report.with_suffix('.html')})")
