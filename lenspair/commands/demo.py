@@ -4,10 +4,12 @@ Simulates a chessboard session and three anomaly recordings (light and
 heavy rain on cam1, dust with the sides swapped), calibrates, ingests,
 builds a dataset, pretrains on synthetic drops, fine-tunes, evaluates,
 runs a small accuracy-versus-time tradeoff and restores one recording, then
-writes OUT/report.md and OUT/report.html. Each stage prints the equivalent `lenspair` command. A
-rerun reuses finished stages (a stage whose inputs changed runs again, and
-so does every stage after it). OUT must be new, empty or an earlier demo's:
-the demo replaces the folders it writes there. The default budget is sized
+writes OUT/report.md and OUT/report.html. Each stage prints the equivalent
+`lenspair` command. A rerun reuses finished stages (a stage whose inputs or
+output changed runs again, and so does every stage after it; a stopped
+training continues where it stopped). One demo at a time writes to OUT,
+which must be new, empty or an earlier demo's: the demo replaces the
+folders it writes there. The default budget is sized
 for under a quarter of an hour on a 2-core CPU.
 
 Example:
