@@ -132,11 +132,13 @@ def _camera_topics(
     if not image_topics:
         raise CaptureError(f"{path}: no image topic (sensor_msgs/Image or CompressedImage)")
     cameras, depth = camera_candidates(image_topics, path, depth_topics(reader, image_topics))
-    if len(cameras) == 1:
-        return {cameras[0]: "cam0"}, depth
-    # a bag written by ``restore --suffix`` holds /cam1/image_raw and
-    # /cam1/image_raw/restored: select_topics takes the original topics
-    cam0, cam1 = rosbag.select_topics(cameras, path)
+    # A bag written by ``restore --suffix`` holds /cam1/image_raw and
+    # /cam1/image_raw<suffix> (any suffix): the cameras are the original topics,
+    # one of them a one-camera bag (its copy was taken for a second camera).
+    originals = [t for t in cameras if not any(t.startswith(o + "/") for o in cameras)]
+    if len(originals) == 1:
+        return {originals[0]: "cam0"}, depth
+    cam0, cam1 = rosbag.select_topics(originals, path)
     return {cam0: "cam0", cam1: "cam1"}, depth
 
 

@@ -123,6 +123,14 @@ def storage_without_metadata(folder: Path) -> str | None:
     )
 
 
+COPY_SUFFIXES = frozenset({"compressed", "compressedDepth", "theora", "ffmpeg", "zstd", "restored"})
+"""Last names of topics that copy the topic above them: image_transport's, and restore's own."""
+
+
+def _parent(topic: str) -> str:
+    return topic.rsplit("/", 1)[0]
+
+
 def select_topics(
     image_topics: Sequence[str], bag: Path, depth: Collection[str] = ()
 ) -> tuple[str, str]:
@@ -130,8 +138,8 @@ def select_topics(
 
     Depth and disparity topics are left out (those named so, and ``depth``:
     :func:`lenspair.capture.depth_topics.camera_candidates`): a depth map is no
-    camera's image. So is a topic extending another one (``<topic>/compressed``,
-    ``<topic>/restored``) where two others remain: a copy of that camera.
+    camera's image. Nor is a copy of a camera's topic (:data:`COPY_SUFFIXES`:
+    ``<topic>/compressed``, ``<topic>/restored``).
     Topics naming ``cam0``/``cam1`` win, then ``left``/``right`` (left =
     cam0); otherwise exactly two image topics are taken in sorted order.
 
@@ -141,14 +149,15 @@ def select_topics(
             lists the topics found.
     """
     found, left_out = camera_candidates(image_topics, bag, depth)
+    # image_transport's <topic>/compressed, restore's <topic>/restored: copies of a camera
+    # (restore and detect chose the originals; capture-ingest and calibrate refused the
+    # four topics of a stereo pair and its twins as ambiguous)
+    copies = [t for t in found if t.rsplit("/", 1)[-1] in COPY_SUFFIXES and _parent(t) in found]
+    found = [t for t in found if t not in copies]
     listing = ", ".join(found) or "none"
-    # a topic extending another is a copy of it: image_transport's <topic>/compressed,
-    # restore's <topic>/restored; the cameras are the originals (restore and detect chose
-    # them, capture-ingest and calibrate refused the four topics as ambiguous)
-    originals = [t for t in found if not any(t.startswith(o + "/") for o in found)]
-    found = originals if len(originals) >= 2 else found
     if len(found) < 2:
         besides = f"; {depth_note(left_out)}" if left_out else ""
+        besides += f"; copies of a camera left out: {', '.join(copies)}" if copies else ""
         raise CaptureError(
             f"{bag}: need two image topics (sensor_msgs/Image or CompressedImage), "
             f"found {len(found)}: {listing}{besides}"
@@ -162,7 +171,8 @@ def select_topics(
         return found[0], found[1]
     raise AmbiguousTopicsError(
         f"{bag}: cannot tell which of {len(found)} image topics are cam0 and cam1 "
-        f"({listing}); name them with --topics CAM0 CAM1"
+        f"({listing}); name them with --topics CAM0 CAM1",
+        tuple(found),
     )
 
 
@@ -189,7 +199,9 @@ def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
             check_chosen(chosen, image_topics, path)
         except CaptureError as exc:
             note = cut_note(reader)  # a cut may have left out a topic's first record
-            raise type(exc)(str(exc) if note is None else f"{exc}; {note}") from None
+            if note is not None:
+                exc.args = (f"{exc}; {note}",)  # the same error, its attributes kept
+            raise
         cameras: dict[str, CameraName] = {chosen[0]: "cam0", chosen[1]: "cam1"}
         problems: list[FrameProblem] = []
         if depth:  # said once: logged and kept in report.json by capture-ingest

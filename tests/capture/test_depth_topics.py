@@ -112,6 +112,13 @@ def test_capture_ingest_reads_the_two_infrared_cameras_and_says_depth_was_left_o
         open_recording(_realsense(tmp_path / "one", kind, (INFRA1, DEPTH)))
 
 
+def test_a_one_camera_bag_restored_beside_its_topic_is_still_one_camera(tmp_path: Path) -> None:
+    """restore --suffix /clean on a one-camera bag wrote <topic>/clean beside it: restored
+    again, the camera and its copy were taken for a stereo pair."""
+    bag = _realsense(tmp_path / "restored", "mcap", (INFRA1, f"{INFRA1}/clean"))
+    assert bag_camera_topics(bag) == {INFRA1: "cam0"}
+
+
 def test_restore_and_detect_choose_the_infrared_camera_alone(tmp_path: Path) -> None:
     bag = _realsense(tmp_path / "rs", "mcap", (INFRA1, DEPTH, ALIGNED))
     assert bag_camera_topics(bag) == {INFRA1: "cam0"}  # a one-camera bag

@@ -181,6 +181,12 @@ def test_select_topics() -> None:
     assert select_topics(sorted(twins), bag) == tuple(stereo)
     alone = ("/a/compressed", "/b/compressed")  # compressed topics alone are the cameras
     assert select_topics(list(alone), bag) == alone
+    # only a transport's or restore's last name makes a copy: /stereo/image/left is a camera
+    nested = ["/mono", "/stereo/image", "/stereo/image/left", "/stereo/image/right"]
+    assert select_topics(nested, bag) == ("/stereo/image/left", "/stereo/image/right")
+    # one camera and its copy are one camera, not a stereo pair of a camera and itself
+    with pytest.raises(CaptureError, match=r"found 1: /c/image_raw; copies of a camera left"):
+        select_topics(["/c/image_raw", "/c/image_raw/compressed"], bag)
 
 
 def test_one_image_topic_is_a_clear_error(tmp_path: Path) -> None:
