@@ -40,17 +40,8 @@ def find_calibration(
         RectifyError: the file is malformed (NaN, missing keys; names the file).
 
     """
-    if calibration:
-        paths = list(calibration)
-    elif rig_file.calibration is not None:
-        rig_path = find_rig_file(recording.path)
-        base = rig_path.parent if rig_path is not None else recording.path
-        paths = [base / rig_file.calibration]
-        if not paths[0].is_file():
-            raise CaptureError(f"{rig_path}: calibration {rig_file.calibration!r} not found")
-    else:
-        places = recording_places(recording.path)
-        paths = [p / CAMCHAIN_FILE for p in places if (p / CAMCHAIN_FILE).is_file()][:1]
+    paths = calibration_files(recording.path, rig_file, calibration)
+    if not calibration and rig_file.calibration is None:
         sensors = [recording.sensor_files.get(camera) for camera in ("cam0", "cam1")]
         if not paths and all(p is not None and is_euroc_sensor_file(p) for p in sensors):
             paths = [p for p in sensors if p is not None]  # a EuRoC recording's own
@@ -70,24 +61,43 @@ def find_calibration(
     return load_calibration(paths, resolutions=_frame_sizes(recording))
 
 
-def stated_topics(recording_path: Path, calibration: tuple[Path, ...]) -> tuple[str, str] | None:
-    """The ``(cam0, cam1)`` topics a calibration states for a recording, or None.
+def calibration_files(
+    recording_path: Path, rig_file: RigFile, calibration: tuple[Path, ...]
+) -> list[Path]:
+    """The calibration files a recording names: ``--calib``'s, rig.yaml's, or a camchain.
 
-    The calibration is ``--calib``'s files, else a ``camchain.yaml`` beside
-    the recording (a Kalibr camchain states each camera's ``rostopic``). For a
-    bag whose topic names tell neither camera: the calibration then chooses
-    the two cameras, as it already decides their order. A calibration that
-    cannot be read states nothing here; :func:`find_calibration` says why.
+    Empty when none is named or found (:func:`find_calibration` then looks at
+    the recording's own ``sensor.yaml`` files and a bag's ``camera_info``).
+
+    Raises:
+        CaptureError: rig.yaml names a file that does not exist.
     """
-    paths = (
-        list(calibration)
-        or [
-            place / CAMCHAIN_FILE
-            for place in recording_places(recording_path)
-            if (place / CAMCHAIN_FILE).is_file()
-        ][:1]
-    )
+    if calibration:
+        return list(calibration)
+    if rig_file.calibration is not None:
+        rig_path = find_rig_file(recording_path)
+        base = rig_path.parent if rig_path is not None else recording_path
+        path = base / rig_file.calibration
+        if not path.is_file():
+            raise CaptureError(f"{rig_path}: calibration {rig_file.calibration!r} not found")
+        return [path]
+    places = recording_places(recording_path)
+    return [p / CAMCHAIN_FILE for p in places if (p / CAMCHAIN_FILE).is_file()][:1]
+
+
+def stated_topics(
+    recording_path: Path, rig_file: RigFile, calibration: tuple[Path, ...]
+) -> tuple[str, str] | None:
+    """The ``(cam0, cam1)`` topics the recording's calibration states, or None.
+
+    The calibration :func:`find_calibration` will use (:func:`calibration_files`;
+    a Kalibr camchain states each camera's ``rostopic``). For a bag whose topic
+    names tell neither camera: the calibration then chooses the two cameras,
+    as it already decides their order. A calibration that cannot be read
+    states nothing here; :func:`find_calibration` says why.
+    """
     try:
+        paths = calibration_files(recording_path, rig_file, calibration)
         rig, _ = load_calibration(paths) if paths else (None, "")
     except LenspairError:
         return None

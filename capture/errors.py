@@ -8,4 +8,13 @@ class CaptureError(LenspairError):
 
 
 class AmbiguousTopicsError(CaptureError):
-    """A bag holds more than two camera topics and their names do not tell cam0 and cam1."""
+    """A bag holds more than two camera topics and their names do not tell cam0 and cam1.
+
+    Attributes:
+        topics: the camera topics it holds.
+    """
+
+    def __init__(self, message: str, topics: tuple[str, ...] = ()) -> None:
+        """The one-line ``message``, and the bag's camera ``topics``."""
+        super().__init__(message)
+        self.topics = topics

@@ -81,10 +81,19 @@ def open_and_pair(
     """
     try:
         recording = open_recording(recording_path, topics)
-    except AmbiguousTopicsError:
-        stated = stated_topics(Path(recording_path), calibration)
+    except AmbiguousTopicsError as exc:
+        try:
+            rig_file = resolve_obstructed(Path(recording_path), obstructed)
+        except CaptureError:  # said once the topics are named; the ambiguity first
+            raise exc from None
+        stated = stated_topics(Path(recording_path), rig_file, calibration)
         if stated is None:
             raise
+        if not set(stated) <= set(exc.topics):
+            raise AmbiguousTopicsError(
+                f"{exc} (the calibration states {stated[0]} and {stated[1]}, not both in the bag)",
+                exc.topics,
+            ) from None
         recording = open_recording(recording_path, stated)  # the calibration's cameras
         log.info("%s: cam0 %s and cam1 %s, as the calibration states", recording.path, *stated)
     rig_file = resolve_obstructed(recording.path, obstructed)

@@ -18,7 +18,8 @@ Which camera is obstructed comes from rig.yaml beside the recording or
 else camchain.yaml beside the recording, else a EuRoC recording's own
 sensor.yaml files, else a bag's own camera_info topics. Where the calibration
 names a bag's two topics (a camchain's rostopic keys) they take its cam0/cam1
-order; --topics naming them the other way round is refused.
+order, and they choose the two cameras among topics whose names tell none;
+--topics naming them the other way round is refused.
 The declared side is checked
 against the images: by default by comparing fine detail (a hint only: dust and
 defocused drops remove detail, sharp drops add it, so dataset-build only warns on

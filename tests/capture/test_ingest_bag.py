@@ -406,8 +406,19 @@ def test_the_calibration_s_rostopics_choose_among_topics_whose_names_tell_nothin
     bag = write_bag(folder / "run", "ros1", images)
     with pytest.raises(CaptureError, match="cannot tell which of 4 image topics"):
         ingest_recording(bag, tmp_path / "unnamed", size=SIZE)  # nothing states them: asked
+    absent = ("/left_x/image_raw", "/right_x/image_raw")  # a camchain of another rig
+    write_kalibr(folder / "camchain.yaml", replace(rig(), topics=absent))
+    with pytest.raises(CaptureError, match=r"calibration states /left_x/image_raw and /right_x"):
+        ingest_recording(bag, tmp_path / "absent", size=SIZE)
     stated = ("/front_a/image_raw", "/front_b/image_raw")
     write_kalibr(folder / "camchain.yaml", replace(rig(), topics=stated))
     report = ingest_recording(bag, tmp_path / "out", size=SIZE)
     assert (report.topics["cam0"], report.topics["cam1"]) == stated
     assert report.counts["kept"] == 3
+    # rig.yaml's calibration wins over a camchain beside the bag, for the topics as for the rest
+    rear = ("/rear_a/image_raw", "/rear_b/image_raw")
+    write_kalibr(folder / "rear.yaml", replace(rig(), topics=rear))
+    write_rig_file(folder / "rig.yaml", RigFile("cam1", ("rain",), calibration="rear.yaml"))
+    by_rig = ingest_recording(bag, tmp_path / "by_rig", size=SIZE)
+    assert (by_rig.topics["cam0"], by_rig.topics["cam1"]) == rear
+    assert by_rig.calibration_source.endswith("rear.yaml")
