@@ -65,7 +65,7 @@ def message_as_camera_info(message: Mapping[str, Any], name: str | None) -> dict
         return [] if value is None else [float(x) for x in value]
 
     bins = [max(1, int(fields.get(f"binning_{axis}") or 1)) for axis in "xy"]
-    x_offset, y_offset, roi_width, roi_height = _roi(fields.get("roi"))
+    x_offset, y_offset, roi_width, roi_height = _roi(fields.get("roi"), name)
     width = (roi_width or int(fields["width"])) // bins[0]
     height = (roi_height or int(fields["height"])) // bins[1]
     k, p = values("k"), values("p")
@@ -87,16 +87,24 @@ def message_as_camera_info(message: Mapping[str, Any], name: str | None) -> dict
     }
 
 
-def _roi(value: Any) -> tuple[int, int, int, int]:
+def _roi(value: Any, name: str | None) -> tuple[int, int, int, int]:
     """``(x_offset, y_offset, width, height)`` of a ``RegionOfInterest``; zeros when unset.
 
-    A bag's message holds it as an object, an echo as a mapping.
+    A bag's message holds it as an object, an echo as a mapping. As in ROS,
+    all four zero is the full sensor; a region with an offset but no size
+    is refused, not read as the full sensor shifted.
+
+    Raises:
+        RectifyError: a region with an offset and no width or height.
     """
     if value is None:
         return 0, 0, 0, 0
     get = value.get if isinstance(value, Mapping) else lambda key: getattr(value, key, 0)
     keys = ("x_offset", "y_offset", "width", "height")
-    return tuple(int(get(key) or 0) for key in keys)  # type: ignore[return-value]
+    roi = tuple(int(get(key) or 0) for key in keys)
+    if any(roi) and not (roi[2] and roi[3]):
+        raise RectifyError(f"{name}: camera_info roi {roi} has an offset but no width or height")
+    return roi  # type: ignore[return-value]
 
 
 def _camera_info(text: str) -> dict[str, Any] | None:

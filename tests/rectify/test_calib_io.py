@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from lenspair.rectify.calib_io import load_calibration
+from lenspair.rectify.calib_ros import message_as_camera_info
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.rig import DistortionModel, StereoRig, write_kalibr
@@ -485,3 +486,15 @@ def test_euroc_poses_written_with_four_decimals_give_the_rig(tmp_path: Path) -> 
     rotation = found.T_cam1_cam0[:3, :3]
     assert np.abs(rotation @ rotation.T - np.eye(3)).max() < 1e-12
     np.testing.assert_allclose(found.T_cam1_cam0, rig.T_cam1_cam0, atol=5e-4)
+
+
+def test_a_camera_info_region_needs_a_size_and_binning_divides_k() -> None:
+    """ROS reads a region as the full sensor only when all four of its fields are 0; one
+    with an offset and no size was read as the full sensor, its principal point shifted."""
+    message = {"width": 1440, "height": 1080, "K": [700, 0, 720, 0, 700, 540, 0, 0, 1]}
+    shifted = {"x_offset": 40, "y_offset": 0, "width": 0, "height": 0}
+    with pytest.raises(RectifyError, match=r"/cam: camera_info roi \(40, 0, 0, 0\) has an offset"):
+        message_as_camera_info({**message, "roi": shifted}, "/cam")
+    binned = message_as_camera_info({**message, "binning_x": 2, "binning_y": 2}, "/cam")
+    assert (binned["image_width"], binned["image_height"]) == (720, 540)
+    assert binned["camera_matrix"]["data"] == [350, 0, 360, 0, 350, 270, 0, 0, 1]
