@@ -178,6 +178,8 @@ def run_stage(
     if code == TERMINATED:  # SIGTERM, likewise
         raise Terminated
     if code != 0:
+        if resuming:  # it may fail again the same way: the rerun starts the stage over
+            _started(out, stage).unlink(missing_ok=True)
         raise DemoError(f"stage {stage.name} failed (exit code {code}); rerun to resume")
     record = {
         "argv": list(stage.argv),

@@ -221,6 +221,15 @@ def test_a_stopped_training_stage_resumes_instead_of_starting_over(tmp_path: Pat
     run_stages(tmp_path, stages, recording)
     assert argvs[-1] == list(train.argv)
 
+    # a resume that fails (train refuses a damaged last.pt) is not tried again and again
+    (tmp_path / ".stages" / "train.json").unlink()
+    with pytest.raises(KeyboardInterrupt):
+        run_stages(tmp_path, stages, stopped_in_train)
+    with pytest.raises(DemoError, match="stage train failed"):
+        run_stages(tmp_path, stages, lambda argv: 2 if "--resume" in argv else cli(argv))
+    run_stages(tmp_path, stages, recording)
+    assert argvs[-1] == list(train.argv)
+
 
 def test_the_demo_training_stages_resume_without_init(tmp_path: Path) -> None:
     training = [s for s in lenspair.demo.plan(tmp_path, QUICK) if s.argv[0] == "train"]
