@@ -140,6 +140,7 @@ def write_onnx(
                 external_data=False,
                 dynamic_shapes={"x": dims},
             )
+            _strip_trace(path)
         else:
             torch.onnx.export(
                 model,
@@ -168,4 +169,27 @@ def _declare_output_shape(path: Path, shape: tuple[int, ...], axes: dict[int, st
                 dim.dim_param = axes[index]
             elif index < len(shape):
                 dim.dim_value = shape[index]
+    onnx.save(model, str(path))
+
+
+def _strip_trace(path: Path) -> None:
+    """Drop what the dynamo exporter notes on each node of the model at ``path``, in place.
+
+    Its ``metadata_props`` hold Python stack traces (absolute paths of the
+    machine that exported, its virtual environment's too) and reprs with
+    memory addresses (``<function sym_min at 0x7f...>``): an export shipped to
+    a robot carried the build machine's layout, and two exports of one
+    checkpoint differed in bytes. The graph and weights are untouched.
+    """
+    import onnx  # only ONNX exports need it
+
+    model = onnx.load(str(path))
+    graphs = [model.graph]
+    while graphs:
+        graph = graphs.pop()
+        for node in graph.node:
+            del node.metadata_props[:]
+            node.doc_string = ""
+            graphs += [a.g for a in node.attribute if a.HasField("g")]
+            graphs += [g for a in node.attribute for g in a.graphs]
     onnx.save(model, str(path))

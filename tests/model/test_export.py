@@ -64,6 +64,24 @@ def test_onnx_export_matches_torch(tmp_path: Path) -> None:
     assert readers == ["Mul"] * norms
 
 
+def test_two_onnx_exports_of_a_checkpoint_are_the_same_bytes_and_name_no_path(
+    tmp_path: Path,
+) -> None:
+    """The dynamo exporter noted stack traces (this machine's absolute paths) and memory
+    addresses on every node: each export differed, and shipped the build machine's layout."""
+    pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    exported = []
+    for name in ("a.onnx", "b.onnx"):
+        args = ["export", str(checkpoint), "--onnx", str(tmp_path / name), "--size", "48x32"]
+        assert main(args) == 0
+        exported.append((tmp_path / name).read_bytes())
+    assert exported[0] == exported[1]
+    repository = str(Path(__file__).parents[2]).encode()
+    assert b" at 0x" not in exported[0] and repository not in exported[0]
+
+
 def test_onnx_export_prints_lenspair_lines_only(
     tmp_path: Path, capfd: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
 ) -> None:
