@@ -54,7 +54,9 @@ class Budget:
     """How much work the demo does; the defaults fit 15 minutes on 2 CPU cores.
 
     Budgets are steps, never seconds, so the same command makes the same
-    data and networks on every machine while its time adapts. Training runs
+    data and the same amount of training on every machine while its time
+    adapts (weights agree to the bit only at one precision and thread count:
+    the CPU's sums run in another order). Training runs
     at ``--precision auto`` (:mod:`lenspair.model.precision`): bf16 autocast
     on a CPU with native bf16 (``avx512_bf16``/AMX), fp32 on one without,
     which avoids the 2.6x penalty of emulated bf16 measured on an AVX-512
