@@ -11,29 +11,11 @@ from lenspair.errors import DemoError
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.calib_types import MODELS
 from lenspair.simulate.spec import load_scene
-
-
-class FakeCli:
-    """Stands in for ``lenspair.cli.main``: writes the stage's output, records the call."""
-
-    def __init__(self, outputs: dict[str, Path]) -> None:
-        self.outputs = outputs
-        self.calls: list[str] = []
-
-    def __call__(self, argv: list[str]) -> int:
-        name = argv[0]
-        self.calls.append(name)
-        self.outputs[name].mkdir(parents=True, exist_ok=True)
-        (self.outputs[name] / "done").write_text(" ".join(argv))
-        return 0
+from tests.lenspair.demo_fakes import FakeCli, three_stages
 
 
 def _stages(tmp_path: Path, spec: Path) -> list[Stage]:
-    return [
-        Stage("simulate", ("simulate", str(spec)), tmp_path / "rec"),
-        Stage("ingest", ("ingest", str(tmp_path / "rec")), tmp_path / "ing", resumable=True),
-        Stage("train", ("train", str(tmp_path / "ing")), tmp_path / "run"),
-    ]
+    return three_stages(tmp_path, spec)
 
 
 def test_rerun_reuses_and_an_edited_input_reruns_its_stage_and_all_after(tmp_path: Path) -> None:

@@ -14,29 +14,11 @@ from lenspair.core.folderlock import lock_file
 from lenspair.demo import QUICK, run_demo
 from lenspair.demo_stages import Stage, run_stage, run_stages
 from lenspair.errors import DemoError
-
-
-class FakeCli:
-    """Stands in for ``lenspair.cli.main``: writes the stage's output, records the call."""
-
-    def __init__(self, outputs: dict[str, Path]) -> None:
-        self.outputs = outputs
-        self.calls: list[str] = []
-
-    def __call__(self, argv: list[str]) -> int:
-        name = argv[0]
-        self.calls.append(name)
-        self.outputs[name].mkdir(parents=True, exist_ok=True)
-        (self.outputs[name] / "done").write_text(" ".join(argv))
-        return 0
+from tests.lenspair.demo_fakes import FakeCli, three_stages
 
 
 def _stages(out: Path) -> list[Stage]:
-    return [
-        Stage("simulate", ("simulate", str(out / "rec")), out / "rec"),
-        Stage("ingest", ("ingest", str(out / "rec")), out / "ing", resumable=True),
-        Stage("train", ("train", str(out / "ing")), out / "run"),
-    ]
+    return three_stages(out, out / "rec")
 
 
 def test_an_output_changed_by_hand_runs_its_stage_and_all_after_again(tmp_path: Path) -> None:
