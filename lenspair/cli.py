@@ -226,6 +226,8 @@ def main(argv: list[str] | None = None) -> int:
         if own_hint is not None:
             hint = own_hint(args) or hint
         stopped = "terminated" if isinstance(exc, Terminated) else "interrupted"
+        if sys.stderr.isatty():  # a progress bar left open ends its line first
+            print(file=sys.stderr)
         print(f"lenspair {args.command}: {stopped}; {hint}", file=sys.stderr)
         return TERMINATED if isinstance(exc, Terminated) else INTERRUPTED
 

@@ -159,3 +159,9 @@ def run(args: argparse.Namespace) -> int:
             f"{reason}); each is listed in {out / 'detections.csv'}"
         )
     return 0
+
+
+def interrupt_hint(args: argparse.Namespace) -> str:
+    """After Ctrl-C: detect writes its files at its end; nothing is resumed."""
+    del args
+    return "nothing was written; rerun to judge the frames again"

@@ -270,3 +270,9 @@ def _default_calibration(data: Path, split: str) -> "PairSource | None":
         "is optimistic; pass --calibration DS to calibrate on other images"
     )
     return None
+
+
+def interrupt_hint(args: argparse.Namespace) -> str:
+    """After Ctrl-C: eval writes its files at its end; nothing is resumed."""
+    del args
+    return "nothing was written; rerun to evaluate again"

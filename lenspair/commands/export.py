@@ -111,6 +111,11 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"{option}: {folder} holds no pairs to calibrate on; choose another split"
             )
+    report = report_path(args)
+    # what this export replaces goes first, its report first of all: stopped midway, an
+    # export left its new ONNX beside the last export's int8 model and report
+    for path in (report, *([int8_path(args.onnx)] if args.int8 else [])):
+        path.unlink(missing_ok=True)
     checks = export_checkpoint(args.checkpoint, args.onnx, args.torchscript, size)
     for check in checks:
         print(check.summary())
@@ -120,7 +125,6 @@ def run(args: argparse.Namespace) -> int:
     }
     if calibration is not None:
         payload["int8"] = _export_int8(args, size, calibration)
-    report = report_path(args)
     atomic_write_text(report, json.dumps(payload, indent=2) + "\n")
     print(f"wrote {report}")
     return 0
@@ -209,3 +213,8 @@ def _export_int8(
     check = check_int8(loaded.network, channels, int8_path(args.onnx), size, images)
     print(check.summary())
     return {**dataclasses.asdict(check), "precision": decision.as_dict()}
+
+
+def interrupt_hint(args: argparse.Namespace) -> str:
+    """After Ctrl-C: the report is written last, so files without one are unfinished."""
+    return f"files without {report_path(args).name} are unfinished; rerun to export again"

@@ -73,7 +73,9 @@ def test_tradeoff_refuses_a_variant_named_twice(
     ("command", "hint"),
     [
         ("restore", "--resume"),
-        ("eval", "rerun to resume"),
+        ("eval", "nothing was written; rerun to evaluate again"),  # it said "rerun to resume"
+        ("detect", "nothing was written; rerun to judge the frames again"),
+        ("export", "files without m.onnx.export.json are unfinished"),
         ("simulate", "renders the recording again"),  # neither resumes: not "rerun to resume"
         ("calibrate", "nothing was written"),  # was said of both
     ],
@@ -92,6 +94,8 @@ def test_ctrl_c_says_how_to_continue(
     argv = {
         "restore": ["restore", "m.pt", "in", "--out", "o"],
         "eval": ["eval", "m.pt"],
+        "detect": ["detect", "d.pt", "in"],
+        "export": ["export", "m.pt", "--onnx", "m.onnx"],
         "simulate": ["simulate", "rain", "--out", "o"],
         "calibrate": [
             "calibrate",

@@ -247,6 +247,33 @@ def _quantised_ops(graph: Any) -> set[str]:
     return found
 
 
+def test_an_export_stopped_midway_leaves_no_earlier_export_beside_its_files(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Stopped in the int8 calibration, an export left its new model.onnx beside the last
+    export's model.int8.onnx and report, which named the other checkpoint."""
+    pytest.importorskip("onnxruntime")
+    from lenspair.commands import export  # the module whose _export_int8 is stopped
+
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    data = write_paired_folder(tmp_path / "pairs", count=2)
+    earlier = {
+        tmp_path / "model.int8.onnx": "another network",
+        tmp_path / "model.onnx.export.json": "{}",
+    }
+    for path, text in earlier.items():
+        path.write_text(text)
+
+    def stopped(*args: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(export, "_export_int8", stopped)
+    args = ["export", str(checkpoint), "--onnx", str(tmp_path / "model.onnx"), "--size", "48x32"]
+    assert main([*args, "--int8", "--calibration", str(data)]) == 130
+    assert (tmp_path / "model.onnx").is_file() and not any(p.exists() for p in earlier)
+    assert "files without model.onnx.export.json are unfinished" in capsys.readouterr().err
+
+
 def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     ort = pytest.importorskip("onnxruntime")
     onnx = pytest.importorskip("onnx")
