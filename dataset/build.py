@@ -41,7 +41,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from lenspair.core.fsutil import naming_errors, read_json_field, temporary_folder
+from lenspair.core.fsutil import naming_errors, read_json_object, temporary_folder
 from lenspair.core.leftovers import remove_leftovers
 from lenspair.core.progress import progress
 from lenspair.dataset import curation, splits
@@ -135,7 +135,8 @@ def build_dataset(
     measured = _measure(loaded, config.curation.anomaly_delta, workers)
     removed = curation.curate(measured, config.curation)
     recordings = {source.report.recording_id for source in loaded}
-    earlier = _extended(earlier_root, recordings, config.split)
+    earlier_rows = _earlier_rows(earlier_root)  # read once: the plan and the warning use it
+    earlier = _extended(earlier_root, earlier_rows, recordings, config.split)
     pairs, plan = assemble_rows(loaded, measured, removed, config, *earlier)
     if plan.kept_earlier:
         # config.yaml says what was done: with "auto" it would rebuild other splits
@@ -146,7 +147,7 @@ def build_dataset(
     # said once the build has replaced that dataset (not when it is refused), and
     # kept out of the card: a note of what was on disk before made an identical
     # rerun's card differ, so the rerun was refused as "a different dataset"
-    changed = changed_splits(earlier_root / MANIFEST_FILE, rows, previous is not None)
+    changed = changed_splits(earlier_rows, rows, earlier_root if previous else None)
     card = _make_card(loaded, rows, removed, plan, config, link)
     if not rows:  # an empty dataset trains nothing: said now, not by train later
         why = ", ".join(f"{c.rule} {c.removed}" for c in card.curation if c.removed) or "none"
@@ -204,8 +205,19 @@ def _previous_dataset(previous: Path) -> Path:
     return root
 
 
+def _earlier_rows(root: Path) -> list[ManifestRow] | None:
+    """The manifest of the dataset at ``root`` a build extends; None if missing or unreadable."""
+    try:
+        return read_manifest(root / MANIFEST_FILE)
+    except DatasetError:
+        return None
+
+
 def _extended(
-    root: Path, recordings: set[str], split: SplitConfig
+    root: Path,
+    earlier_rows: Sequence[ManifestRow] | None,
+    recordings: set[str],
+    split: SplitConfig,
 ) -> tuple[str | None, dict[str, str] | None]:
     """The grouping mode and group -> split of the dataset at ``root`` this build extends.
 
@@ -217,23 +229,17 @@ def _extended(
     anyway): :func:`~lenspair.dataset.splits.plan_splits` then keeps every
     group it held where the hash puts it.
     """
-    card = root / CARD_FILE
-    grouping, sources = read_json_field(card, "grouping"), read_json_field(card, "sources")
+    card = read_json_object(root / CARD_FILE) or {}
+    grouping, sources = card.get("grouping"), card.get("sources")
     if not isinstance(grouping, dict) or not isinstance(sources, list):
         return None, None
     earlier = {source.get("recording") for source in sources if isinstance(source, dict)}
     if not earlier & recordings:
         return None, None
-    same = read_json_field(card, "seed") == split.seed and read_json_field(
-        card, "fractions"
-    ) == list(split.fractions)
-    try:
-        groups: dict[str, str] | None = {
-            row.group: row.split for row in read_manifest(root / MANIFEST_FILE)
-        }
-    except DatasetError:  # unreadable: its grouping alone is handed on
-        groups = None
-    return grouping.get("mode"), groups if same else None
+    same = card.get("seed") == split.seed and card.get("fractions") == list(split.fractions)
+    if not same or earlier_rows is None:  # unreadable: its grouping alone is handed on
+        return grouping.get("mode"), None
+    return grouping.get("mode"), {row.group: row.split for row in earlier_rows}
 
 
 def _make_card(

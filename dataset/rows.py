@@ -19,7 +19,7 @@ from lenspair.dataset import curation, splits
 from lenspair.dataset.config import SPLITS, DatasetConfig
 from lenspair.dataset.curation import Measured, Removals
 from lenspair.dataset.errors import DatasetError
-from lenspair.dataset.manifest import ManifestRow, read_manifest
+from lenspair.dataset.manifest import ManifestRow
 from lenspair.dataset.sources import Source
 
 
@@ -183,21 +183,23 @@ def split_sessions(
 
 
 def changed_splits(
-    earlier_manifest: Path, rows: Sequence[ManifestRow], previous: bool = False
+    earlier_rows: Sequence[ManifestRow] | None,
+    rows: Sequence[ManifestRow],
+    previous: Path | None = None,
 ) -> str | None:
     """What a rebuild moves between splits, against the dataset it replaces, or None.
 
     Hashing keeps a group's split when recordings are added, but a group moved
     to fill a split (side stratification, train first) can move back once new
     groups fill it, and a network trained on the old train split would then be
-    validated on its own training frames. A missing or unreadable earlier
-    manifest compares nothing. ``previous``: the earlier dataset is
-    ``--previous`` (named), not the one the build replaces.
+    validated on its own training frames. ``earlier_rows``: the earlier
+    dataset's manifest, None when missing or unreadable (nothing to compare).
+    ``previous``: the earlier dataset is ``--previous`` (named), not the one
+    the build replaces.
     """
-    try:
-        earlier = {(r.recording, r.t_ns): r.split for r in read_manifest(earlier_manifest)}
-    except DatasetError:
+    if earlier_rows is None:
         return None
+    earlier = {(r.recording, r.t_ns): r.split for r in earlier_rows}
     moves: Counter[tuple[str, str]] = Counter(
         (earlier[key], row.split)
         for row in rows
@@ -206,11 +208,7 @@ def changed_splits(
     if not moves:
         return None
     said = ", ".join(f"{n} {a} -> {b}" for (a, b), n in sorted(moves.items()))
-    against = (
-        f"the earlier dataset {earlier_manifest.parent}"
-        if previous
-        else "the dataset this build replaces"
-    )
+    against = f"the earlier dataset {previous}" if previous else "the dataset this build replaces"
     return (
         f"{sum(moves.values())} pair(s) changed split against {against} ({said}): do not "
         "validate a network trained on the old splits on the new ones"

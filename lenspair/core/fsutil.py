@@ -332,11 +332,20 @@ def read_json_field(path: Path, key: str) -> Any:
     For a rerun reading what an earlier run recorded (its source, its
     settings): a file it cannot parse tells nothing, and the rerun rewrites it.
     """
+    data = read_json_object(path)
+    return None if data is None else data.get(key)
+
+
+def read_json_object(path: Path) -> dict[str, Any] | None:
+    """The JSON object in ``path``; ``None`` when absent, unreadable or not an object.
+
+    :func:`read_json_field` for a caller that needs several fields of one file.
+    """
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
-    return data.get(key) if isinstance(data, dict) else None
+    return data if isinstance(data, dict) else None
 
 
 def atomic_write_lines(path: Path, lines: Iterable[str]) -> None:
