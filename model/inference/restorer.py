@@ -146,20 +146,23 @@ class Restorer:
             )
         # each frame at the depth known when it comes, as one by one: a frame that raises
         # the depth must not change how the frames before it scale
-        runs: list[tuple[int, list[np.ndarray]]] = []
-        if self.bits is not None:
-            runs.append((self.bits, frames))
-        for frame in frames if self.bits is None else []:
-            self.depth.see(frame)
-            if runs and runs[-1][0] == self.depth.bits:
-                runs[-1][1].append(frame)
-            else:
-                runs.append((self.depth.bits, [frame]))
+        runs = [(self.bits, frames)] if self.bits is not None else self._runs(frames)
         return [
             restored
             for bits, run in runs
             for restored in restore_images(self.backend, run, bits, self.tile, self.overlap)
         ]
+
+    def _runs(self, frames: list[np.ndarray]) -> list[tuple[int, list[np.ndarray]]]:
+        """``frames`` in runs of one running depth, each at the depth known when it came."""
+        runs: list[tuple[int, list[np.ndarray]]] = []
+        for frame in frames:
+            self.depth.see(frame)
+            if runs and runs[-1][0] == self.depth.bits:
+                runs[-1][1].append(frame)
+            else:
+                runs.append((self.depth.bits, [frame]))
+        return runs
 
     def _check(self, image: np.ndarray, name: str) -> None:
         try:
