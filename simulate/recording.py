@@ -53,7 +53,7 @@ from lenspair.simulate.recording_metadata import (
     frame_record,
     write_metadata,
 )
-from lenspair.simulate.render import GlassState, advance_glass, apply_glass, sample_glass
+from lenspair.simulate.render import GlassState, advance_glass, apply_glass_linear, sample_glass
 from lenspair.simulate.scene import Plane, build_planes, render_view
 from lenspair.simulate.sensor import expose, expose_through_glass
 from lenspair.simulate.spec import SceneSpec
@@ -386,7 +386,7 @@ class _FrameRenderer:
             if glass is not None and glass is not self._checked:  # the same until drops move
                 self.drawn |= _drawn(glass)
                 self._checked = glass
-            through = None if glass is None else functools.partial(apply_glass, glass=glass)
+            through = None if glass is None else functools.partial(apply_glass_linear, glass=glass)
             clear, image, mask = expose_through_glass(
                 linear, gain, noise, noise_seed, self.dtype, through
             )

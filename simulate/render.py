@@ -308,24 +308,75 @@ def apply_glass(
         check_image(image)
     except ValueError as exc:
         raise SimulateError(str(exc)) from None
+    _check_shape(image, glass)
+    out = np.array(image, copy=True, order="C")
+    values = _through_glass(_linearize(image), glass, hook)
+    if values is not None:
+        out.reshape(-1, values.shape[1])[glass.indices] = _encode(values, image.dtype)
+    return out, glass.mask.copy()
+
+
+def apply_glass_linear(
+    light: np.ndarray, glass: GlassState, hook: EffectHook | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`apply_glass` on linear light before the camera clips it.
+
+    For a simulated camera (:func:`~lenspair.simulate.sensor.expose_through_glass`):
+    light over full scale (a lamp, a sunlit sky) stays over it while drops
+    refract and the defocus blurs it, so a drop over it blooms to saturation
+    as on a real lens, and the camera clips and quantises once, after the
+    glass.
+
+    Args:
+        light: ``float32`` ``(H, W)`` or ``(H, W, C)`` linear light, ``>= 0``,
+            any level (unclipped), with ``(H, W) == glass.shape``.
+        glass: from :func:`sample_glass`.
+        hook: as :func:`apply_glass`.
+
+    Returns:
+        ``(light through the glass, mask)``: ``float32``, the input's shape,
+        bit-identical outside the mask; the mask as :func:`apply_glass`.
+
+    Raises:
+        SimulateError: wrong shape.
+
+    """
+    if light.ndim not in (2, 3):
+        raise SimulateError(f"light: expected (H, W) or (H, W, C), got shape {light.shape}")
+    _check_shape(light, glass)
+    out = np.array(light, dtype=np.float32, copy=True, order="C")
+    linear = out.reshape(out.shape[0], out.shape[1], -1)
+    values = _through_glass(linear, glass, hook)
+    if values is not None:
+        out.reshape(-1, values.shape[1])[glass.indices] = values
+    return out, glass.mask.copy()
+
+
+def _check_shape(image: np.ndarray, glass: GlassState) -> None:
     if image.shape[:2] != glass.shape:
         raise SimulateError(f"image: expected (H, W) = {glass.shape}, got {image.shape[:2]}")
-    out = np.array(image, copy=True, order="C")
-    mask = glass.mask.copy()
+
+
+def _through_glass(
+    linear: np.ndarray, glass: GlassState, hook: EffectHook | None
+) -> np.ndarray | None:
+    """Linear light at the footprint pixels after the glass, ``(M, C)``; ``None``: no footprint.
+
+    ``linear`` is the whole frame, ``float32`` ``(H, W, C)``.
+    """
     effects = glass.effects
     notify = hook if hook is not None else _ignore
     if glass.indices.size == 0:  # nothing listed, or nothing on the glass covers a pixel
         for name in effects.listed:
             notify(name)
-        return out, mask
-    channels = 1 if image.ndim == 2 else image.shape[2]
-    codes = np.take(image.reshape(-1, channels), glass.indices, axis=0)
-    values = np.take(_decode_table(image.dtype), codes)
+        return None
+    channels = linear.shape[2]
+    values = np.take(linear.reshape(-1, channels), glass.indices, axis=0)
     light = None
     if effects.veil is not None and glass.veiling is not None:
         light = veil.veil_light(values, glass.veiling)  # the footprint is the whole frame
     if glass.optics is not None or glass.dirt is not None:
-        layer = _glass_layer(image, glass, notify)
+        layer = _glass_layer(linear, glass, notify)
         values = layer[:, :channels] + (1.0 - layer[:, channels:]) * values
     else:
         for name in ("brightness", "defocus"):
@@ -337,26 +388,27 @@ def apply_glass(
     if light is not None and glass.veiling is not None:
         notify("veil")
         values = veil.apply_veil(values, light, glass.veiling.strength)
-    out.reshape(-1, channels)[glass.indices] = _encode(values, image.dtype)
-    return out, mask
+    return np.asarray(values, np.float32)
 
 
-def _glass_layer(image: np.ndarray, glass: GlassState, notify: EffectHook) -> np.ndarray:
+def _glass_layer(linear: np.ndarray, glass: GlassState, notify: EffectHook) -> np.ndarray:
     """Premultiplied glass layer (drops, brightness, dirt, defocus) at the footprint pixels.
+
+    ``linear`` is the whole frame's light, ``float32`` ``(H, W, C)``.
 
     Returns:
         ``float32`` ``(len(glass.indices), C + 1)``: colour then coverage.
 
     """
     effects = glass.effects
-    channels = 1 if image.ndim == 2 else image.shape[2]
+    channels = linear.shape[2]
     height, width = glass.shape
     margin = glass.margin
     canvas = np.zeros((height + 2 * margin, width + 2 * margin, channels + 1), np.float32)
     boxes = []
     if effects.raindrops is not None and glass.optics is not None:
         notify("raindrops")
-        colour = raindrops.shade(_linearize(image), glass.optics, effects.raindrops.rim_brightness)
+        colour = raindrops.shade(linear, glass.optics, effects.raindrops.rim_brightness)
         if effects.brightness is not None and glass.gains is not None:
             notify("brightness")
             colour = brightness.brighten(colour, glass.optics.sprites.owner, glass.gains)

@@ -1,10 +1,10 @@
-"""The camera's response: gain, sensor noise, sRGB encoding, one quantisation."""
+"""The camera's response: gain, the glass, sensor noise, sRGB encoding, one clip."""
 
 from collections.abc import Callable
 
 import numpy as np
 
-from lenspair.core.pixels import from_float, from_linear, to_float, to_linear
+from lenspair.core.pixels import from_float, from_linear
 
 
 def expose(
@@ -17,7 +17,8 @@ def expose(
     """Turn rendered scene light into the integer image the camera writes.
 
     Args:
-        linear: ``(H, W)`` or ``(H, W, 3)`` float32 linear light, ``[0, 1]``.
+        linear: ``(H, W)`` or ``(H, W, 3)`` float32 linear light, ``>= 0``
+            (full scale is 1 after ``gain``; what lies above it saturates).
         gain: exposure times gain, applied in linear light.
         noise_std: standard deviation of additive Gaussian noise in linear
             light (0 = none; ``rng`` is then not used).
@@ -38,23 +39,14 @@ def expose(
     return from_float(from_linear(values), dtype)
 
 
-def add_noise(
-    encoded: np.ndarray, noise_std: float, rng: np.random.Generator, dtype: type
-) -> np.ndarray:
-    """Add :func:`expose`'s sensor noise to an image already encoded (in linear light).
-
-    For light that reached the sensor through the glass: the sensor adds its
-    noise after the glass, so the drops must not refract or blur it. With
-    the generator :func:`expose` drew the clear view's noise from, the draw
-    is the same pixel for pixel.
-    """
-    values = to_linear(to_float(encoded))
-    noise = rng.standard_normal(values.shape, dtype=np.float32)
-    return from_float(from_linear(values + noise * np.float32(noise_std)), dtype)
-
-
 Glass = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
-"""Encoded image -> (the image through the glass, its footprint mask)."""
+"""Linear light -> (the light through the glass, its footprint mask).
+
+The light is ``float32`` ``(H, W)`` or ``(H, W, C)`` at the sensor's scale
+(exposure and gain applied) and not clipped: full scale is 1, a lamp may be
+4. The glass returns light of the same shape, unchanged outside its footprint
+(:func:`lenspair.simulate.render.apply_glass_linear`).
+"""
 
 
 def expose_through_glass(
@@ -67,14 +59,15 @@ def expose_through_glass(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The clear view, the view through ``glass`` and its footprint, of one exposure.
 
-    The sensor adds its noise behind the glass: the glass acts on the
-    noiseless exposure and the clear view's own noise draw (a generator from
-    ``seed``) is added to what it changed (drops had refracted and blurred
-    the noise away, a cue no real camera gives a network). Where the glass
-    changed nothing the clear view stands as exposed, and light it leaves
-    saturated stays saturated: noise added again to a clipped, quantised
-    pixel drew the footprint in saturated light. Without noise the glass acts
-    on the clear view itself.
+    The glass acts on the light as it reaches the sensor: exposed, unclipped
+    and without noise. Light over full scale stays over it while drops refract
+    and blur it (a defocused drop over a lamp or a sunlit sky blooms to
+    saturation, as on a real lens), and the sensor then adds its noise and
+    clips and quantises once, as :func:`expose` does for the clear view. The
+    noise is the clear view's own draw (a generator from ``seed``), so drops
+    do not refract or blur it (a cue no real camera gives a network), and
+    where the glass changed no light the obstructed view is the clear view,
+    bit for bit.
 
     Returns:
         ``(clear, obstructed, mask)``; ``mask`` is 0 everywhere without glass.
@@ -82,11 +75,6 @@ def expose_through_glass(
     clear = expose(linear, gain, noise_std, np.random.default_rng(seed), dtype)
     if glass is None:
         return clear, clear, np.zeros(clear.shape[:2], dtype=np.uint8)
-    if noise_std == 0:
-        obstructed, mask = glass(clear)
-        return clear, obstructed, mask
-    bare = expose(linear, gain, 0.0, None, dtype)
-    glassed, mask = glass(bare)
-    noisy = add_noise(glassed, noise_std, np.random.default_rng(seed), dtype)
-    noisy = np.where(glassed == np.iinfo(dtype).max, glassed, noisy)
-    return clear, np.where(glassed != bare, noisy, clear), mask
+    glassed, mask = glass(linear * np.float32(gain))
+    rng = np.random.default_rng(seed) if noise_std > 0 else None
+    return clear, expose(glassed, 1.0, noise_std, rng, dtype), mask

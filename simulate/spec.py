@@ -73,7 +73,10 @@ class PlaneSpec:
         size_m: ``(width, height)`` of a finite plane, metres; ``None`` = infinite.
         tile_m: ``(width, height)`` covered by one copy of the texture, metres.
         rotation_deg: orientation of the plane, ``(rx, ry, rz)`` degrees.
-        brightness: linear-light reflectance multiplier of the texture.
+        brightness: linear-light reflectance multiplier of the texture; above
+            1 a bright surface (a sunlit sky, a lamp) exceeds full scale, which
+            the camera clips once, after the glass: drops over it bloom to
+            saturation as on a real lens.
         name: optional label, copied to ``truth/geometry.json``.
 
     """

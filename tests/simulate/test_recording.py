@@ -155,6 +155,29 @@ def test_effects_change_only_pixels_inside_the_mask(tmp_path: Path) -> None:
     assert changed > 1000
 
 
+def test_drops_over_light_above_full_scale_stay_saturated(tmp_path: Path) -> None:
+    # a wall 20x full scale, as a sunlit sky: the camera had clipped it before the glass,
+    # so drops refracted and blurred clipped light and came out grey (11 % of the footprint
+    # over saturated light stayed saturated, mean code 225); one clip after the glass, as
+    # a real lens, keeps 94 %
+    effects = {"raindrops": {"count": 30}, "defocus": {}}
+    data = _scene(
+        tmp_path,
+        rig=SMALL,
+        planes=[{**WALL, "brightness": 20.0}],
+        obstructed={"camera": "cam0", "effects": effects},
+        recording={"frames": 1},
+    )
+    out = _render(tmp_path, data)
+    (t_ns,) = _csv(out, "cam0")
+    image = read_image(out / "mav0" / "cam0" / "data" / f"{t_ns}.png")
+    clear = read_image(out / "truth" / "clear" / f"{t_ns}.png")
+    footprint = read_image(out / "truth" / "mask" / f"{t_ns}.png") > 0
+    saturated = footprint & (clear == 255)
+    assert saturated.mean() > 0.1
+    assert (image[saturated] == 255).mean() > 0.8
+
+
 def test_effects_that_change_no_pixel_label_the_recording_clean(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
