@@ -80,7 +80,15 @@ class IngestReport:
         counts: frame counts (``frames_cam0``, ``kept``, ``rejected``, ...).
         rejection_reasons: reason -> count.
         timings_s: stage -> seconds.
-        side_check: result of checking the declared obstructed side.
+        side_check: result of checking the declared obstructed side, as the
+            check's record (``capture.side_check.SideCheck`` or
+            ``capture.side_detector.DetectorSideCheck``) plus
+            ``blank_pairs_left_out``. dataset-build reads ``mismatch`` (bool),
+            ``message`` (one line), ``method`` (``detail`` or ``detector``) and
+            ``confidence`` (``[0, 1]``): a record without the first two, or with
+            another method, is refused on reading (:func:`side_check_problem`),
+            so that a misspelt key never reads as "no mismatch". Empty: not
+            checked (reports of before the check).
         lenspair_version: version that wrote it.
         significant_bits: 10 or 12 when both cameras' 16-bit frames held
             values of that depth (scaled to 16 bits in the outputs), else None
@@ -120,6 +128,37 @@ class IngestReport:
     topics: dict[str, str] = field(default_factory=dict)
     recording_problems: list[str] = field(default_factory=list)
     time_offset_ns: int = 0
+
+    def __post_init__(self) -> None:
+        """Refuse a ``side_check`` dataset-build could misread (see the attribute)."""
+        problem = side_check_problem(self.side_check)
+        if problem:
+            raise ValueError(f"side_check: {problem}")
+
+
+SIDE_CHECK_METHODS = ("detail", "detector")
+"""The side checks capture-ingest runs: the fine-detail ratio and the trained detector."""
+
+
+def side_check_problem(check: dict[str, Any]) -> str | None:
+    """Why ``report.json``'s ``side_check`` cannot be read as a check, or None."""
+    if not check:
+        return None
+    if not isinstance(check.get("mismatch"), bool):
+        return f"expected 'mismatch' true or false, got {check.get('mismatch')!r}"
+    if not isinstance(check.get("message"), str):
+        return f"expected 'message' as text, got {check.get('message')!r}"
+    method = check.get("method", "detail")
+    if method not in SIDE_CHECK_METHODS:
+        return f"expected 'method' one of {', '.join(SIDE_CHECK_METHODS)}, got {method!r}"
+    confidence = check.get("confidence")
+    if confidence is not None and not (
+        isinstance(confidence, int | float)
+        and not isinstance(confidence, bool)
+        and 0.0 <= confidence <= 1.0
+    ):
+        return f"expected 'confidence' in [0, 1], got {confidence!r}"
+    return None
 
 
 def write_pairs(path: Path, records: list[PairRecord]) -> None:

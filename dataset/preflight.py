@@ -100,14 +100,14 @@ def check_sides(sources: Sequence[Source], accept: bool) -> None:
     strong: list[str] = []
     weak: list[str] = []
     for source in sources:
-        check = source.report.side_check
-        if check.get("mismatch") is not True:
+        check = source.report.side_check  # validated on reading (side_check_problem)
+        if not check or not check["mismatch"]:
             continue
-        said = f"{source.path}: {check.get('message', 'side check mismatch')}"
+        said = f"{source.path}: {check['message']}"
         confidence = check.get("confidence")
         sure = (
             check.get("method") == "detector"
-            and isinstance(confidence, int | float)
+            and confidence is not None
             and confidence >= SIDE_MISMATCH_CONFIDENCE
         )
         (strong if sure and not accept else weak).append(said)

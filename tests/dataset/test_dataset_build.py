@@ -540,6 +540,41 @@ def test_a_recording_whose_side_check_disagrees_is_refused_unless_accepted(
 
 
 @pytest.mark.parametrize(
+    ("key", "value", "said"),
+    [
+        ("mismatched", True, "expected 'mismatch' true or false, got None"),
+        ("method", "detector-v2", "expected 'method' one of detail, detector, got 'detector-v2'"),
+        ("confidence", "0.9", "expected 'confidence' in [0, 1], got '0.9'"),
+    ],
+)
+def test_a_side_check_it_cannot_read_is_refused_not_taken_for_no_mismatch(
+    recording: RecordingFactory,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    key: str,
+    value: object,
+    said: str,
+) -> None:
+    # the check is the only guard against a dataset with input and target swapped: a
+    # misspelt 'mismatch' or another method's name had read as "no mismatch", and a
+    # detector's sure verdict under another method name only as a warning
+    swapped = recording("rec_b", n=6, obstructed="cam0")
+    path = swapped / "report.json"
+    data = json.loads(path.read_text())
+    check = {"mismatch": True, "message": "cam1 looks obstructed", "method": "detector"}
+    check["confidence"] = 0.9
+    if key == "mismatched":
+        del check["mismatch"]
+    check[key] = value
+    data["side_check"] = check
+    path.write_text(json.dumps(data))
+    assert main(["dataset-build", str(swapped), "--out", str(tmp_path / "DS")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert str(path) in line and said in line
+    assert not (tmp_path / "DS").exists()
+
+
+@pytest.mark.parametrize(
     "damaged", ["pairs.jsonl", "report.json", "manifest.jsonl", "dataset.json"]
 )
 def test_bytes_that_are_not_utf8_are_one_line_naming_the_file(
