@@ -25,7 +25,7 @@ from lenspair.capture.ingest_pairs import map_tasks
 from lenspair.capture.journal import fingerprint
 from lenspair.capture.recording import FrameRef, Recording, load_frame
 from lenspair.capture.rigfile import CameraName
-from lenspair.core.bitdepth import significant_bits
+from lenspair.core.bitdepth import significant_bits, widen
 from lenspair.core.config import to_plain
 from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import atomic_write_json
@@ -72,9 +72,15 @@ def recording_bits(recording: Recording, sampled: list[SampledPair]) -> dict[Cam
     Told per camera: a rig may pair a 16-bit camera with a 12-bit one
     publishing ``mono16``, or a 10-bit with a 12-bit one; one depth for both
     would scale one camera's frames by the other's, leaving input and target
-    4 to 16 times apart in brightness. A camera whose frames use fewer than
-    16 bits is said in the log. A frame the sample missed that holds more is
-    rejected with that reason, not clipped.
+    4 to 16 times apart in brightness. But the depth is told from the
+    brightest value, so two cameras of one depth in a dim recording can fall
+    either side of a depth's top (12-bit cameras peaking at 1000 and 1050
+    read as 10 and 12 bits): where the two cameras' depths differ, the
+    sampled pairs decide (:func:`_agreeing_depths`): both at the deeper
+    camera's depth when that leaves the two views nearer in brightness. A
+    camera whose frames use fewer than 16 bits is said in the log. A frame
+    the sample missed that holds more is rejected with that reason, not
+    clipped.
 
     Returns:
         The bits of ``cam0``'s and ``cam1``'s 16-bit frames (16: taken as they are).
@@ -83,9 +89,10 @@ def recording_bits(recording: Recording, sampled: list[SampledPair]) -> dict[Cam
     for pair in sampled:
         for frame, image in pair:
             images[frame.camera].append(image)
-    bits: dict[CameraName, int] = {}
+    bits: dict[CameraName, int] = {camera: significant_bits(images[camera]) for camera in images}
+    if bits["cam0"] != bits["cam1"]:
+        bits = _agreeing_depths(recording, sampled, bits)
     for camera, frames in images.items():
-        bits[camera] = significant_bits(frames)
         if bits[camera] < 16:
             log.warning(
                 "%s: %s's 16-bit frames hold %d-bit values (none above %d in %d sampled "
@@ -97,6 +104,52 @@ def recording_bits(recording: Recording, sampled: list[SampledPair]) -> dict[Cam
                 len(frames),
             )
     return bits
+
+
+def _agreeing_depths(
+    recording: Recording, sampled: list[SampledPair], bits: dict[CameraName, int]
+) -> dict[CameraName, int]:
+    """``bits`` as told per camera, or both at the deeper one's: whichever the views agree on.
+
+    Each choice widens both cameras' frames of every sampled pair; the one
+    whose median ratio of mean brightness (cam0 over cam1) lies nearer 1 is
+    kept. Depths 2 bits apart differ 4x in scale, far beyond an exposure
+    difference or what the glass changes; with no pair to compare, the per
+    camera depths stand.
+    """
+    shared = max(bits.values())
+    both: dict[CameraName, int] = {"cam0": shared, "cam1": shared}
+    offsets = {}
+    for name, choice in (("per camera", bits), ("shared", both)):
+        ratios = []
+        for pair in sampled:
+            means = {
+                frame.camera: float(widen(image, choice[frame.camera]).mean())
+                for frame, image in pair
+            }
+            if len(means) == 2 and min(means.values()) > 0:
+                ratios.append(np.log(means["cam0"] / means["cam1"]))
+        if not ratios:
+            return bits
+        offsets[name] = abs(float(np.median(ratios)))
+    if offsets["shared"] >= offsets["per camera"]:
+        return bits
+    lower = min(bits, key=lambda camera: bits[camera])
+    log.warning(
+        "%s: %s's 16-bit frames peak below %d, as %d-bit values would, but read as %d-bit "
+        "like the other camera's they match its brightness (median ratio %.2f, against %.2f "
+        "as %d-bit): both are taken as %d-bit (a dim recording)",
+        recording.path,
+        lower,
+        1 << bits[lower],
+        bits[lower],
+        shared,
+        float(np.exp(offsets["shared"])),
+        float(np.exp(offsets["per camera"])),
+        bits[lower],
+        shared,
+    )
+    return both
 
 
 def size_mismatch(sampled: list[SampledPair], rig: StereoRig) -> str | None:

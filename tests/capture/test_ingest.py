@@ -597,6 +597,29 @@ def test_cameras_of_different_bit_depths_are_each_scaled_by_their_own(
     assert read_report(out_mixed / "report.json") == report
 
 
+def test_two_cameras_of_one_depth_either_side_of_a_depth_s_top_are_scaled_alike(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # two 12-bit cameras in a dim recording, cam1 exposed 5 % more: cam0 peaking at 1000
+    # read as 10-bit, cam1 at 1050 as 12-bit, and the target came out 3.8x the input's
+    # brightness (every pair kept, dataset-build called them all hard)
+    dim = make_recording(tmp_path / "dim", frames=3, dtype=np.uint16)
+    peak = max(int(read_image(path).max()) for path in frame_files(dim, "cam0"))
+    for camera, top in (("cam0", 1000), ("cam1", 1050)):
+        for path in frame_files(dim, camera):
+            write_image(path, np.rint(read_image(path) / peak * top).astype(np.uint16))
+    with caplog.at_level(logging.WARNING):
+        out_dir, records, report = _ingest(dim, tmp_path / "out")
+    assert report.significant_bits_per_camera == {"cam0": 12, "cam1": 12}
+    assert [r.status for r in records] == ["kept"] * 3
+    said = "cam0's 16-bit frames peak below 1024, as 10-bit values would"
+    assert any(said in m and "both are taken as 12-bit" in m for m in caplog.messages)
+    for name in sorted(path.name for path in (out_dir / "input").glob("*.png")):
+        source = read_image(out_dir / "input" / name).astype(np.float64).mean()
+        target = read_image(out_dir / "target" / name).astype(np.float64).mean()
+        assert 0.8 < source / target < 1.25  # the cameras' own 5 %, not 4x
+
+
 def test_reports_of_before_per_camera_fields_are_read(tmp_path: Path) -> None:
     # report.json gained significant_bits_per_camera and topics: older ones still load
     out_dir, _, report = _ingest(make_recording(tmp_path / "rec", frames=2), tmp_path / "out")
