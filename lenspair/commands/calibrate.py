@@ -54,7 +54,7 @@ cam0's clock.
 
 Example:
   lenspair calibrate runs/board_01 --board chessboard:9x6:0.05 --model pinhole-equi \
-      --out runs/board_01/camchain.yaml
+      --out runs/board_01.camchain.yaml
 """
 
 import argparse
@@ -129,17 +129,18 @@ def _check_out(recording: Path, out: Path) -> None:
         or target.suffix.lower() in IMAGE_SUFFIXES
         or is_bag_name(target)  # a .bag.active too
     )
+    beside = recording.parent / f"{source.name}.camchain.yaml"
     if target == source or (inside and read):
         raise ConfigError(
             f"--out {out}: is a file of the recording {recording} (its frames, index or rig "
-            "file); write the calibration elsewhere, e.g. beside it as camchain.yaml"
+            f"file); write the calibration elsewhere, e.g. --out {beside}"
         )
     # any other file already there (its truth, its scene) is overwritten only when it is a
     # calibration an earlier run wrote, told by its report beside it
     if inside and target.exists() and not target.with_suffix(".report.json").is_file():
         raise ConfigError(
             f"--out {out}: a file of the recording {recording} that no calibrate wrote; "
-            "write the calibration elsewhere, e.g. beside the recording as camchain.yaml"
+            f"write the calibration elsewhere, e.g. --out {beside}"
         )
     # its folder is made now, not after the calibration: a place it cannot be made
     # (a typo, another user's folder) was a traceback once everything had run

@@ -133,6 +133,9 @@ def test_an_out_that_is_a_file_of_the_recording_is_refused(
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert f"--out {truth}: a file of the recording" in line and "no calibrate wrote" in line
     assert truth.read_text() == "{}"
+    # the advice is a path outside the recording: "beside the recording as camchain.yaml"
+    # read as the folder's own camchain.yaml, the file the simulator had written there
+    assert line.endswith(f"e.g. --out {tmp_path / 'rec.camchain.yaml'}")
 
 
 @pytest.mark.parametrize("code", REFUSALS)
