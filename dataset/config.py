@@ -11,7 +11,7 @@ wrong types are rejected with their dotted path); every key is optional::
       min_sharpness: 20.0           # variance of the Laplacian, 8-bit grey scale
       max_saturated: 0.2
       max_black: 0.2
-      duplicate_threshold: 0.004    # mean |diff| of 32x24 grey thumbnails, [0, 1]
+      duplicate_threshold: 0.004    # mean |diff| of 32x24 grey thumbnails at mean grey 0.5
       anomaly_delta: 0.03
       min_anomaly_fraction: 0.002
       clean_pairs: keep             # keep (tagged difficulty "clean") or exclude
@@ -63,8 +63,10 @@ class CurationConfig:
         max_black: largest fraction of clean-view pixels at zero.
         duplicate_threshold: consecutive frames of one recording whose 32x24
             grey target thumbnails differ by less than this mean absolute
-            difference (in [0, 1]) from the last kept frame are duplicates
-            (a robot standing still); the first of such a run is kept.
+            difference (in [0, 1], each thumbnail first scaled to a mean grey
+            of 0.5, so that the camera's exposure does not move it) from the
+            last kept frame are duplicates (a robot standing still); the first
+            of such a run is kept.
         anomaly_delta: a pixel differs between input and target when its grey
             difference (at 1/4 resolution, after removing the median offset)
             exceeds this, in [0, 1].

@@ -48,6 +48,10 @@ THUMBNAIL_SIZE: tuple[int, int] = (32, 24)
 """(width, height) of the grey thumbnails compared for near-duplicates."""
 PSNR_CAP_DB = 100.0
 """PSNR reported for identical images (instead of infinity)."""
+THUMBNAIL_LEVEL = 0.5
+"""Mean grey :func:`level_normalised` scales each thumbnail to before duplicates are sought."""
+MIN_THUMBNAIL_LEVEL = 0.02
+"""Smallest mean grey :func:`level_normalised` divides by (a black frame is not amplified)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -183,6 +187,19 @@ def quality_rule(
     return None
 
 
+def level_normalised(thumbnail: np.ndarray) -> np.ndarray:
+    """``thumbnail`` scaled to a mean grey of :data:`THUMBNAIL_LEVEL`.
+
+    The difference between two views of a scene scales with the frames'
+    exposure: without this, a darker camera or a night session (half the
+    level) would call twice as many frames duplicates. A mean below
+    :data:`MIN_THUMBNAIL_LEVEL` is taken as that level.
+    """
+    level = max(float(np.mean(thumbnail)), MIN_THUMBNAIL_LEVEL)
+    scaled: np.ndarray = thumbnail * np.float32(THUMBNAIL_LEVEL / level)
+    return scaled
+
+
 def find_duplicates(thumbnails: Sequence[np.ndarray], threshold: float) -> list[bool]:
     """Mark near-duplicates in a time-ordered sequence of thumbnails of one recording.
 
@@ -280,7 +297,8 @@ def curate(measured: Sequence[Measured], config: CurationConfig) -> Removals:
             survivors.setdefault(item.source, []).append((item, item.stats))
     for items in survivors.values():
         items.sort(key=lambda pair: pair[0].record.t_ns)
-        flags = find_duplicates([stats.thumbnail for _, stats in items], config.duplicate_threshold)
+        thumbnails = [level_normalised(stats.thumbnail) for _, stats in items]
+        flags = find_duplicates(thumbnails, config.duplicate_threshold)
         for (item, stats), duplicate in zip(items, flags, strict=True):
             key = (item.source, item.index)
             if duplicate:
