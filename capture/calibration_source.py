@@ -1,7 +1,7 @@
 """Where a recording's rig calibration comes from, for ``capture-ingest``.
 
 In order: the files given with ``--calib``, else the file named by
-``rig.yaml``'s ``calibration`` key (relative to ``rig.yaml``), else a Kalibr
+``rig.yaml``'s ``calibration`` key (``~`` expanded; relative to ``rig.yaml``), else a Kalibr
 ``camchain.yaml`` in or beside the recording, else a EuRoC recording's own
 ``mav0/cam{0,1}/sensor.yaml`` when both hold intrinsics and ``T_BS``, else a
 bag's own ``camera_info`` topics (:mod:`lenspair.capture.bag_calibration`).
@@ -13,6 +13,7 @@ from lenspair.capture.bag_calibration import bag_calibration
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording import Recording, find_rig_file, recording_places
 from lenspair.capture.rigfile import CameraName, RigFile
+from lenspair.core.config import config_path
 from lenspair.core.errors import LenspairError
 from lenspair.rectify.calib_euroc import is_euroc_sensor_file
 from lenspair.rectify.calib_io import load_calibration
@@ -77,7 +78,7 @@ def calibration_files(
     if rig_file.calibration is not None:
         rig_path = find_rig_file(recording_path)
         base = rig_path.parent if rig_path is not None else recording_path
-        path = base / rig_file.calibration
+        path = config_path(rig_file.calibration, base)
         if not path.is_file():
             raise CaptureError(f"{rig_path}: calibration {rig_file.calibration!r} not found")
         return [path]

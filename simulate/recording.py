@@ -58,7 +58,7 @@ from lenspair.simulate.scene import Plane, build_planes, render_view
 from lenspair.simulate.sensor import expose, expose_through_glass
 from lenspair.simulate.spec import SceneSpec
 from lenspair.simulate.stereo import body_from_cameras, rig_from_spec
-from lenspair.simulate.textures import NAMES, Texture
+from lenspair.simulate.textures import NAMES, Texture, texture_file
 
 log = logging.getLogger(__name__)
 
@@ -274,7 +274,7 @@ def _absolute_textures(spec: SceneSpec, base_dir: Path) -> SceneSpec:
     """
 
     def absolute(name: str) -> str:
-        return name if name in NAMES else str((base_dir / name).resolve())
+        return name if name in NAMES else str(texture_file(name, base_dir).resolve())
 
     planes = tuple(
         replace(

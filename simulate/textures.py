@@ -2,9 +2,10 @@
 
 Textures are looked up by name in :data:`NAMES` (images that scikit-image
 ships inside its wheel, so nothing is downloaded) or read from an image file
-(a path relative to the scene spec's folder). They are decoded once to
-linear light ``float32`` in ``[0, 1]``, converted to the rig's colour mode,
-and pre-filtered into a Gaussian pyramid for anti-aliased sampling.
+(``~`` expanded; a relative path is relative to the scene spec's folder).
+They are decoded once to linear light ``float32`` in ``[0, 1]``, converted
+to the rig's colour mode, and pre-filtered into a Gaussian pyramid for
+anti-aliased sampling.
 
 Pyramid convention: level ``l`` texel ``j`` is centred on level-0 texel
 ``j * 2**l`` (``cv2.pyrDown``), so a level-0 coordinate ``x`` (texel centres
@@ -19,6 +20,7 @@ import cv2
 import numpy as np
 import skimage.data
 
+from lenspair.core.config import config_path
 from lenspair.core.errors import ConfigError, ImageIOError
 from lenspair.core.imageio import image_header, read_image
 from lenspair.core.pixels import to_float, to_linear
@@ -71,6 +73,15 @@ class Texture:
         return int(self.levels[0].shape[1]), int(self.levels[0].shape[0])
 
 
+def texture_file(name: str, base_dir: Path) -> Path:
+    """The image file a texture name (not one of :data:`NAMES`) stands for.
+
+    ``~`` is the home folder; a relative path is relative to ``base_dir``,
+    the scene spec's folder (:func:`lenspair.core.config.config_path`).
+    """
+    return config_path(name, base_dir)
+
+
 def check_texture(name: str, base_dir: Path) -> str | None:
     """Return ``None`` if ``name`` is a known texture or an 8/16-bit image file, else the problem.
 
@@ -80,19 +91,17 @@ def check_texture(name: str, base_dir: Path) -> str | None:
     """
     if name in NAMES:
         return None
-    if (base_dir / name).is_file():
+    file = texture_file(name, base_dir)
+    if file.is_file():
         try:
-            _, _, _, pixel_format = image_header(base_dir / name)
+            _, _, _, pixel_format = image_header(file)
         except ImageIOError as exc:
             return str(exc)
         if pixel_format not in ("uint8", "uint16"):
-            return f"{base_dir / name}: {pixel_format} pixels; a texture is an 8- or 16-bit image"
+            return f"{file}: {pixel_format} pixels; a texture is an 8- or 16-bit image"
         return None
     if Path(name).suffix or "/" in name or "\\" in name:  # meant as a file: say where it looked
-        return (
-            f"{base_dir / name}: no such file (a texture file is read relative to the scene "
-            "spec's folder)"
-        )
+        return f"{file}: no such file (a texture file is read relative to the scene spec's folder)"
     return f"unknown texture {name!r}; use an image file or one of: {', '.join(sorted(NAMES))}"
 
 
@@ -113,10 +122,11 @@ def load_texture_image(name: str, base_dir: Path) -> np.ndarray:
         problem = check_texture(name, base_dir)
         if problem is not None:
             raise ConfigError(problem)
+        file = texture_file(name, base_dir)
         try:
-            encoded = to_float(read_image(base_dir / name))
+            encoded = to_float(read_image(file))
         except ValueError as exc:
-            raise ImageIOError(f"{base_dir / name}: {exc}") from None
+            raise ImageIOError(f"{file}: {exc}") from None
     return to_linear(encoded)
 
 

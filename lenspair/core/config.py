@@ -10,7 +10,9 @@ silently becomes a default::
 
 Supported field types: ``bool``, ``int``, ``float`` (ints accepted),
 ``str``, ``pathlib.Path``, ``Literal[...]``, ``X | None``, ``tuple[X, ...]``,
-``tuple[X, Y]``, ``list[X]``, ``dict[str, X]`` and nested dataclasses.
+``tuple[X, Y]``, ``list[X]``, ``dict[str, X]`` and nested dataclasses. A
+path is read as the file means it (:func:`config_path`): ``~`` is the home
+folder, and a relative path is relative to the file's own folder.
 """
 
 import dataclasses
@@ -44,7 +46,19 @@ def _describe(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
-def _convert(tp: Any, value: Any, path: str) -> Any:
+def config_path(value: str | Path, base_dir: Path | None = None) -> Path:
+    """A path written in a config file or spec, as the file means it.
+
+    ``~`` is the user's home folder (YAML leaves it to the reader, as a shell
+    would expand it), and a relative path is relative to ``base_dir``, the
+    folder holding the file, so that a config reads the same whatever folder
+    lenspair runs from. ``base_dir=None`` leaves a relative path as written.
+    """
+    path = Path(value).expanduser()
+    return path if base_dir is None or path.is_absolute() else Path(base_dir) / path
+
+
+def _convert(tp: Any, value: Any, path: str, base_dir: Path | None = None) -> Any:
     origin = get_origin(tp)
     args = get_args(tp)
     if tp is Any:
@@ -54,10 +68,10 @@ def _convert(tp: Any, value: Any, path: str) -> Any:
             return None
         options = [a for a in args if a is not type(None)]
         if len(options) == 1:  # X | None: the error inside X is the useful one
-            return _convert(options[0], value, path)
+            return _convert(options[0], value, path, base_dir)
         for option in options:
             try:
-                return _convert(option, value, path)
+                return _convert(option, value, path, base_dir)
             except ConfigError:
                 continue
         expected = " or ".join(_type_name(a) for a in args)
@@ -68,7 +82,7 @@ def _convert(tp: Any, value: Any, path: str) -> Any:
         choices = ", ".join(repr(a) for a in args)
         raise ConfigError(f"{path}: expected one of {choices}, got {_describe(value)}")
     if dataclasses.is_dataclass(tp) and isinstance(tp, type):
-        return load_dataclass(tp, value, path)
+        return load_dataclass(tp, value, path, base_dir)
     if tp is bool:
         if isinstance(value, bool):
             return value
@@ -89,33 +103,36 @@ def _convert(tp: Any, value: Any, path: str) -> Any:
         raise ConfigError(f"{path}: expected str, got {_describe(value)}")
     if tp is Path:
         if isinstance(value, (str, Path)):
-            return Path(value)
+            return config_path(value, base_dir)
         raise ConfigError(f"{path}: expected a path, got {_describe(value)}")
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{path}: expected a list, got {_describe(value)}")
         if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(args[0], v, f"{path}[{i}]") for i, v in enumerate(value))
+            items = enumerate(value)
+            return tuple(_convert(args[0], v, f"{path}[{i}]", base_dir) for i, v in items)
         if len(value) != len(args):
             raise ConfigError(f"{path}: expected {len(args)} values, got {len(value)}")
         pairs = enumerate(zip(args, value, strict=True))
-        return tuple(_convert(a, v, f"{path}[{i}]") for i, (a, v) in pairs)
+        return tuple(_convert(a, v, f"{path}[{i}]", base_dir) for i, (a, v) in pairs)
     if origin is list:
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{path}: expected a list, got {_describe(value)}")
-        return [_convert(args[0], v, f"{path}[{i}]") for i, v in enumerate(value)]
+        return [_convert(args[0], v, f"{path}[{i}]", base_dir) for i, v in enumerate(value)]
     if origin is dict:
         if not isinstance(value, dict):
             raise ConfigError(f"{path}: expected a mapping, got {_describe(value)}")
         key_type, value_type = args
         return {
-            _convert(key_type, k, f"{path}.<key>"): _convert(value_type, v, f"{path}.{k}")
+            _convert(key_type, k, f"{path}.<key>", base_dir): _convert(
+                value_type, v, f"{path}.{k}", base_dir
+            )
             for k, v in value.items()
         }
     raise TypeError(f"config loader does not support type {tp!r} at {path}")
 
 
-def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
+def load_dataclass(cls: type[T], data: Any, path: str = "", base_dir: Path | None = None) -> T:
     """Build dataclass ``cls`` from plain data (as parsed from YAML/JSON).
 
     Args:
@@ -125,6 +142,9 @@ def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
             ``X | None`` stays ``None`` when its value is null: ``effects: {dust: }``
             leaves dust off (``lenspair.simulate.spec.load_scene`` warns of it).
         path: dotted prefix for error messages.
+        base_dir: the folder of the file ``data`` was read from: a relative
+            ``pathlib.Path`` field is read relative to it (:func:`config_path`;
+            ``None``: as written). ``~`` is expanded either way.
 
     Raises:
         ConfigError: unknown key, missing required key, wrong type, or a
@@ -146,7 +166,7 @@ def load_dataclass(cls: type[T], data: Any, path: str = "") -> T:
     kwargs = {}
     for name, field in fields.items():
         if name in data:
-            kwargs[name] = _convert(hints[name], data[name], f"{prefix}{name}")
+            kwargs[name] = _convert(hints[name], data[name], f"{prefix}{name}", base_dir)
         elif field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
             raise ConfigError(f"{prefix}{name}: required key is missing")
     try:
@@ -280,11 +300,14 @@ _UniqueKeyLoader.add_implicit_resolver(
 
 
 def load_yaml(cls: type[T], file: Path) -> T:
-    """Load a YAML file into dataclass ``cls``; errors start with the file name."""
+    """Load a YAML file into dataclass ``cls``; errors start with the file name.
+
+    Path fields are read relative to the file's folder (:func:`config_path`).
+    """
     file = Path(file)
     data = read_yaml(file)
     try:
-        return load_dataclass(cls, data)
+        return load_dataclass(cls, data, base_dir=file.parent)
     except ConfigError as exc:
         raise ConfigError(f"{file}: {exc}") from None
 

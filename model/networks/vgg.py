@@ -18,6 +18,7 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
+from lenspair.core.config import config_path
 from lenspair.model.checkpoint import read_torch_file
 from lenspair.model.errors import ModelError
 
@@ -123,7 +124,7 @@ def load_vgg19(path: Path | None = None) -> VGG19Features | None:
         value = os.environ.get(VGG19_WEIGHTS_ENV, "").strip()
         if not value:
             return None
-        path = Path(value)
+        path = config_path(value)
         origin = f"{path} (from ${VGG19_WEIGHTS_ENV})"
     else:
         origin = str(path)

@@ -185,7 +185,8 @@ class TrainConfig:
         amp: ``false`` forces fp32 whatever ``precision`` says (older configs).
         seed: seeds network initialisation, crops, flips and rendered drops.
         deterministic: ask torch for deterministic kernels (slower on CUDA).
-        vgg19_weights: VGG19 ImageNet weights for the perceptual loss;
+        vgg19_weights: VGG19 ImageNet weights for the perceptual loss (``~``
+            is the home folder; a relative path is beside the config file);
             ``None`` falls back to ``LENSPAIR_VGG19_WEIGHTS``; without either
             the perceptual term is disabled (and the run says so).
         nan_patience: stop after this many consecutive non-finite steps (each

@@ -36,8 +36,11 @@ def load_run_config(path: Path | None, given: bool = False, stored: bool = False
     if path is None:
         return RunConfig()
     data = read_yaml(path)  # its errors name the file already
+    # a user's paths are read beside the file, as absolute ones: the run's config.yaml
+    # keeps them, and a resume from another folder finds the same file
+    base_dir = None if stored else Path(path).resolve().parent
     try:
-        config = stored_run_config(data) if stored else run_config_from_dict(data)
+        config = stored_run_config(data) if stored else run_config_from_dict(data, base_dir)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
     if given and config.runtime is not None:  # a run's config.yaml, reused: nothing steers
@@ -71,13 +74,16 @@ def with_file(config: RunConfig, path: Path) -> RunConfig:
         else:
             merged[section] = values
     try:
-        return run_config_from_dict(merged)
+        return run_config_from_dict(merged, Path(path).resolve().parent)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
 
 
-def run_config_from_dict(data: object) -> RunConfig:
+def run_config_from_dict(data: object, base_dir: Path | None = None) -> RunConfig:
     """Build a :class:`RunConfig` from plain data (e.g. stored in a checkpoint).
+
+    ``base_dir``: the folder of the YAML file ``data`` came from; a relative
+    path in it (``train.vgg19_weights``) is read beside that file.
 
     The ``runtime`` section says what a run did and steers nothing: keys that
     a later lenspair added to it are passed over, so that a checkpoint or
@@ -88,7 +94,7 @@ def run_config_from_dict(data: object) -> RunConfig:
     if isinstance(data, dict) and isinstance(data.get("runtime"), dict):
         known = {f.name for f in dataclasses.fields(RuntimeInfo)}
         data = {**data, "runtime": {k: v for k, v in data["runtime"].items() if k in known}}
-    return load_dataclass(RunConfig, data)
+    return load_dataclass(RunConfig, data, base_dir=base_dir)
 
 
 EARLIER_DEFAULTS: dict[tuple[str, str], object] = {("data", "clear_share"): 0.0}

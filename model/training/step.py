@@ -38,6 +38,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn.parallel import DistributedDataParallel as DDP
 
+from lenspair.core.config import config_path
 from lenspair.model.checkpoint import build_network
 from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.variants import build_discriminator
@@ -84,11 +85,15 @@ def describe_precision(precision: str) -> str:
 
 
 def vgg19_weights_path(configured: Path | None) -> Path | None:
-    """The VGG19 weights file: the config's, else ``LENSPAIR_VGG19_WEIGHTS``, else None."""
+    """The VGG19 weights file: the config's, else ``LENSPAIR_VGG19_WEIGHTS``, else None.
+
+    ``~`` is expanded in either (:func:`lenspair.core.config.config_path`); a
+    config file's relative path was read relative to its folder when loaded.
+    """
     if configured is not None:
-        return configured
+        return config_path(configured)
     env = os.environ.get(VGG19_WEIGHTS_ENV, "").strip()
-    return Path(env) if env else None
+    return config_path(env) if env else None
 
 
 @dataclass
