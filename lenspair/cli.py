@@ -17,7 +17,7 @@ import sys
 import threading
 from collections.abc import Iterator
 from types import ModuleType
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from lenspair import __version__
 from lenspair.commands.argtypes import expand_topics
@@ -108,7 +108,23 @@ def _load(name: str) -> ModuleType:
 
 
 class _OneLineParser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line naming the option (exit code 2)."""
+    """An argument parser whose errors are one line naming the option (exit code 2).
+
+    A command's parser (``strict``) refuses the arguments it does not know
+    itself, so that its message names the command (``lenspair capture-ingest:
+    error: unrecognized arguments: --threads 2``): argparse hands a
+    subcommand's leftovers up to the top-level parser, which blamed
+    ``lenspair`` and pointed at ``lenspair --help``.
+    """
+
+    strict = False
+
+    def parse_known_args(self, *args: Any, **kwargs: Any) -> Any:
+        """As argparse's; a ``strict`` parser refuses leftovers with its own error."""
+        namespace, extras = super().parse_known_args(*args, **kwargs)
+        if self.strict and extras:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return namespace, extras
 
     def error(self, message: str) -> NoReturn:
         """Print ``PROG: error: MESSAGE`` (no usage block) and exit with code 2."""
@@ -149,6 +165,8 @@ def build_parser(selected: str | None) -> argparse.ArgumentParser:
                 description=module.__doc__,
                 formatter_class=argparse.RawDescriptionHelpFormatter,
             )
+            assert isinstance(command, _OneLineParser)  # add_parser makes the parent's class
+            command.strict = True
             module.add_arguments(command)
             # also after the command (`lenspair restore -v ...`), where users type it; SUPPRESS
             # keeps an absent one from resetting a -v given before the command

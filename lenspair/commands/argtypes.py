@@ -2,6 +2,7 @@
 
 import argparse
 import math
+import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -156,11 +157,28 @@ def _exists(path: Path, text: str) -> bool:
     return True
 
 
+def _refuse_dangling(part: Path, path: Path, text: str) -> None:
+    """Refuse ``part`` (``path`` or a folder above it) when it is a symbolic link to nothing.
+
+    A link whose target is missing (``out -> /media/ssd/run``, the disk not
+    mounted) looks absent, and creating the folder then failed with "File
+    exists", after the work (``eval`` scored every pair first).
+    """
+    if not part.is_symlink():
+        return
+    target = os.readlink(part)
+    where = f"{text!r} is" if part == path else f"{text!r} lies inside {str(part)!r},"
+    raise argparse.ArgumentTypeError(
+        f"{where} a symbolic link to {target}, which does not exist (a disk not mounted?)"
+    )
+
+
 def out_folder(text: str) -> Path:
     """Argparse type: an output folder: new, or an existing folder (not a file, nor inside one).
 
     An empty name is refused: ``Path("")`` is the current folder, and ``--out ""``
-    (an unset shell variable) wrote a run's files among the user's own.
+    (an unset shell variable) wrote a run's files among the user's own. So is
+    a symbolic link to nothing, on the way or at the end (:func:`_refuse_dangling`).
     """
     if not text.strip():
         raise argparse.ArgumentTypeError("an empty name; give a folder (. for this one)")
@@ -171,14 +189,18 @@ def out_folder(text: str) -> Path:
                 where = "is a file" if part == path else f"lies inside the file {part}"
                 raise argparse.ArgumentTypeError(f"{text!r} {where}; give a folder")
             break
+        _refuse_dangling(part, path, text)
     return path
 
 
 def out_file(text: str) -> Path:
     """Argparse type: a file to write: not an existing folder, nor inside a file."""
     path = Path(text)
-    if _exists(path, text) and path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name")
+    if _exists(path, text):
+        if path.is_dir():
+            raise argparse.ArgumentTypeError(f"{text!r} is a folder; give a file name")
+    else:  # a file written in place of a link to nothing would replace the user's link
+        _refuse_dangling(path, path, text)
     out_folder(str(path.parent))
     return path
 
