@@ -14,7 +14,6 @@ them exactly 0 (:func:`current_keep`); other samples are untouched, and a
 batch without a flat sample costs one small reduction.
 """
 
-import math
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -58,6 +57,10 @@ the same speck changes the output by about 4 codes).
 FLAT_RMS_RAMP = 0.75 / 255.0
 """RMS deviation from which a sample is not flat at all by that measure (a ramp between)."""
 
+_MEAN_SQUARE_FLOOR = 1e-20
+"""Least mean square :func:`_rms_about_channel_means` takes (an RMS of 1e-10, far below any
+tolerance): the square root's gradient at 0 is infinite, and a flat frame's input gradient NaN."""
+
 
 def flat_keep(x: Tensor) -> Tensor | None:
     """``(N, 1, 1, 1)`` 0 for each flat sample of ``x``, 1 for the others, a ramp between.
@@ -82,13 +85,14 @@ def flat_keep(x: Tensor) -> Tensor | None:
     # per sample: a per-channel reduction of a 3-channel channels-last image
     # is 15x slower
     difference = x - x[:, :, :1, :1]
+    # about each channel's mean (a speck in the corner pixel must not offset the rest),
+    # in fp32: a bf16 sum of a frame's squares loses what it measures
+    exact = difference if difference.dtype == torch.float32 else x.float() - x[:, :, :1, :1].float()
+    rms = _rms_about_channel_means(exact)
     if difference.is_contiguous(memory_format=torch.channels_last):
         difference = difference.permute(0, 2, 3, 1)
     rows = difference.reshape(x.shape[0], -1)
     spread = torch.maximum(rows.amax(dim=1), -rows.amin(dim=1))
-    # about each channel's mean (a speck in the corner pixel must not offset the rest),
-    # in fp32: a bf16 sum of a frame's squares loses what it measures
-    rms = _rms_about_channel_means(x)
     # on the CPU a batch without a (nearly) flat sample skips the masks; on a GPU the
     # test would wait for the device (a training step's overlap lost): it is applied
     nearly_flat = (spread < FLAT_RAMP) | (rms < FLAT_RMS_RAMP)
@@ -101,21 +105,28 @@ def flat_keep(x: Tensor) -> Tensor | None:
     return keep.to(x.dtype).view(-1, 1, 1, 1)
 
 
-def _rms_about_channel_means(x: Tensor) -> Tensor:
+def _rms_about_channel_means(difference: Tensor) -> Tensor:
     """``(N,)`` root-mean-square deviation of each sample's pixels from their channel's mean.
 
-    Reduced over ``(N, H*W, C)`` rows when ``x`` is channels-last (its memory
-    order), over ``(N, C, H*W)`` otherwise, in fp32 whatever ``x`` is.
+    ``difference`` is the images less each channel's corner pixel, ``float32``:
+    the deviations are the same, and values near 0 keep a frame's fp32 sums
+    exact (ONNX Runtime's mean of 2 M pixels near 0.5 was off by 0.4 codes, a
+    residual above the flat tolerance). Means over the pixels, not a norm
+    divided by a pixel count: a count taken from the shape is a constant in
+    an export, which then judged every other size by the traced one (a 1080p
+    frame with a speck read 3.3x its RMS: no longer flat, and blotched).
+    Reduced over ``(N, H*W, C)`` rows when channels-last (its memory order),
+    over ``(N, C, H*W)`` otherwise.
     """
-    n, c = x.shape[0], x.shape[1]
-    if c > 1 and x.is_contiguous(memory_format=torch.channels_last):
-        pixels = x.permute(0, 2, 3, 1).reshape(n, -1, c).float()
+    n, c = difference.shape[0], difference.shape[1]
+    if c > 1 and difference.is_contiguous(memory_format=torch.channels_last):
+        pixels = difference.permute(0, 2, 3, 1).reshape(n, -1, c)
         centred = pixels - pixels.mean(dim=1, keepdim=True)
     else:
-        pixels = x.reshape(n, c, -1).float()
+        pixels = difference.reshape(n, c, -1)
         centred = pixels - pixels.mean(dim=2, keepdim=True)
-    norm: Tensor = torch.linalg.vector_norm(centred.reshape(n, -1), dim=1)
-    rms: Tensor = norm / math.sqrt(centred[0].numel())
+    # floored below anything measured: sqrt's gradient at an exactly flat frame is infinite
+    rms: Tensor = centred.square().mean(dim=(1, 2)).clamp_min(_MEAN_SQUARE_FLOOR).sqrt()
     return rms
 
 
