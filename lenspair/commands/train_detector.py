@@ -32,7 +32,6 @@ from pathlib import Path
 
 from lenspair.commands.argtypes import (
     add_device_option,
-    float_at_least,
     non_negative_int,
     out_folder,
     positive_int,
@@ -41,6 +40,7 @@ from lenspair.commands.argtypes import (
     worker_count,
 )
 from lenspair.core.device import resolve_device
+from lenspair.core.durations import minutes
 from lenspair.core.errors import ConfigError
 
 MIN_INPUT_SIDE = 8
@@ -96,6 +96,14 @@ def frame_count(text: str) -> int:
     if value > MAX_SYNTHETIC:  # held in memory: 1e19 ended in a MemoryError traceback
         raise argparse.ArgumentTypeError(f"expected at most {MAX_SYNTHETIC} frames, got {text!r}")
     return value
+
+
+def _minutes(text: str) -> float:
+    """Argparse type of --minutes: ``"4"``, ``"4m"``, ``"90s"`` or ``"1h"``, in minutes."""
+    try:
+        return minutes(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -159,9 +167,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--batch-size", type=positive_int, default=8, help="frames per step (8)")
     parser.add_argument(
         "--minutes",
-        type=float_at_least(0.0, above=True),
-        help="stop training after this many minutes (default: no time limit; with --steps, "
-        "whichever comes first)",
+        type=_minutes,
+        metavar="TIME",
+        help="stop training after this much time: minutes, or 90s, 5m, 1h as train's "
+        "--max-seconds takes (default: no time limit; with --steps, whichever comes first)",
     )
     parser.add_argument("--seed", type=random_seed, default=0, help="random seed (0)")
     parser.add_argument("--threads", type=worker_count, default=1, help="CPU threads (1)")

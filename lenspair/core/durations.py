@@ -55,3 +55,17 @@ def seconds(text: str) -> float:
     if not math.isfinite(value):
         raise ValueError(f"too large to be a number of seconds, got {text!r}")
     return value
+
+
+def minutes(text: str) -> float:
+    """A positive time in minutes: ``"5"`` or ``"5m"`` -> 5.0, ``"90s"`` -> 1.5, ``"1h"`` -> 60.0.
+
+    A bare number is minutes; with a unit it reads as :func:`seconds` does.
+
+    Raises:
+        ValueError: as :func:`seconds`.
+    """
+    bare = _FORM.fullmatch(text.lower())
+    if bare is not None and not bare.group(2):
+        return seconds(f"{text}m") / 60.0
+    return seconds(text) / 60.0

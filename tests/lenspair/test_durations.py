@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from lenspair.core.durations import seconds, steps_or_seconds
+from lenspair.core.durations import minutes, seconds, steps_or_seconds
 
 
 @pytest.mark.parametrize(
@@ -55,3 +55,18 @@ def test_train_refuses_a_duration_too_large_in_one_line(
     (line,) = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert exit_.value.code == 2 and f"argument {option[0]}: too large" in line
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"), [("4", 4.0), ("2.5", 2.5), ("5m", 5.0), ("90s", 1.5), ("1H", 60.0)]
+)
+def test_minutes_read_a_bare_number_as_minutes_and_a_unit_as_said(
+    text: str, expected: float
+) -> None:
+    assert minutes(text) == pytest.approx(expected)
+
+
+@pytest.mark.parametrize("text", ["0", "-1", "5 min", "m", "1e400"])
+def test_minutes_refuse_what_is_not_a_positive_time(text: str) -> None:
+    with pytest.raises(ValueError):
+        minutes(text)

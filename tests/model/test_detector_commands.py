@@ -55,6 +55,11 @@ def test_train_detector_help_states_the_synthetic_defaults(
         (["--minutes", "5"], None, 300.0),  # was 600 steps: 15 s of a 5-minute budget
         (["--steps", "50"], 50, None),
         (["--steps", "50", "--minutes", "5"], 50, 300.0),  # whichever comes first
+        # units, as train's --max-seconds and tradeoff's --budget take them: '5m' was
+        # "expected a number"
+        (["--minutes", "5m"], None, 300.0),
+        (["--minutes", "90s"], None, 90.0),
+        (["--minutes", "1h"], None, 3600.0),
     ],
 )
 def test_train_detector_minutes_alone_sets_no_step_limit(
@@ -89,7 +94,7 @@ def test_train_detector_help_states_what_ends_training(
         main(["train-detector", "--help"])
     options = " ".join(capsys.readouterr().out.split()).split("options:")[1]
     found = re.search(
-        r" --steps N (.*) --batch-size BATCH_SIZE (.*) --minutes MINUTES (.*) --seed", options
+        r" --steps N (.*) --batch-size BATCH_SIZE (.*) --minutes TIME (.*) --seed", options
     )
     assert found is not None
     steps, _, minutes = found.groups()
