@@ -97,6 +97,11 @@ def run(args: argparse.Namespace) -> int:
     why = "restore and detect would read the ingested pairs back as frames of the recording"
     if (problem := inside_refusal(args.out, args.recording, "the recording", why)) is not None:
         raise ConfigError(problem)
+    if args.detector is None and args.device != "auto":  # said, not ignored
+        raise ConfigError(
+            f"--device {args.device} places the side check's detector: give --detector MODEL "
+            "(detector.pt: the bundled one), or leave --device out"
+        )
     side_detector = None
     if args.detector is not None:
         # here, not at the top: only --detector needs torch, which ingest does not load otherwise
@@ -127,6 +132,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"  rejected {count}: {reason}")
     for problem in report.recording_problems:  # of the whole recording (a cut bag), no frame
         print(f"  recording: {problem}")
+    if report.exposure is not None:  # its warnings, if any, were logged
+        exposure = report.exposure
+        print(
+            f"  exposure: target/input grey ratio {exposure.median:.2f} "
+            f"({exposure.low:.2f}-{exposure.high:.2f}, 10th-90th percentile)"
+        )
     if args.detector is not None:
         print(f"  side check: {report.side_check.get('message', '')}")
     return 0

@@ -69,3 +69,14 @@ def test_the_file_types_refuse_a_dangling_link_too(dangling: Path) -> None:
     with pytest.raises(argparse.ArgumentTypeError, match="dangling' is a symbolic link"):
         out_file(str(dangling / "model.onnx"))
     assert out_folder(str(dangling.parent / "new")) == dangling.parent / "new"
+
+
+def test_capture_ingest_refuses_a_device_without_a_detector(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # --device places only --detector's network: without one it was ignored, exit 0
+    argv = ["capture-ingest", str(tmp_path / "rec"), "--out", str(tmp_path / "ing")]
+    assert main([*argv, "--device", "cpu"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "--device cpu places the side check's detector: give --detector MODEL" in line
+    assert not (tmp_path / "ing").exists()
