@@ -96,6 +96,21 @@ def vgg19_weights_path(configured: Path | None) -> Path | None:
     return config_path(env) if env else None
 
 
+def trusted_target(target: Tensor, generated: Tensor, valid: Tensor) -> Tensor:
+    """``target`` where it is trusted, the (detached) generated image where ``valid`` is 0.
+
+    What the discriminator sees as real, in its own loss and in feature
+    matching: a mask marks target pixels that misregistration or parallax make
+    untrustworthy, and fidelity and the perceptual loss leave them out; shown
+    to ``D`` as real they trained the network through feature matching
+    (weight 10) as strongly as the trusted pixels. The generated pixels there
+    make real and fake agree, so they teach nothing. Without a mask (``valid``
+    all 1) this is ``target`` exactly.
+    """
+    valid = valid.to(target.dtype)
+    return valid * target + (1 - valid) * generated.detach().to(target.dtype)
+
+
 @dataclass
 class StepResult:
     """Outcome of one training step.
@@ -185,8 +200,10 @@ class Trainer:
         self.amp_dtype = self.decision.autocast_dtype
         self.scaler = torch.amp.GradScaler(device.type, enabled=self.amp_dtype == torch.float16)
         self.vgg_path = vgg19_weights_path(train.vgg19_weights)
-        # the config's file, else None: load_vgg19 reads the variable itself, to name it
-        self.vgg = None if config.loss.perceptual == 0 else load_vgg19(train.vgg19_weights)
+        # the config's file (~ expanded: a shell leaves --vgg19-weights=~/x as typed), else
+        # None: load_vgg19 reads the variable itself, to name it
+        configured = None if train.vgg19_weights is None else self.vgg_path
+        self.vgg = None if config.loss.perceptual == 0 else load_vgg19(configured)
         self.perceptual: PerceptualLoss | None = None
         if self.vgg is not None:
             self.vgg = self.vgg.to(device)
@@ -228,7 +245,7 @@ class Trainer:
             outputs = self.network(x)
             generated, enhanced = outputs[0], outputs[1]
             with torch.no_grad():
-                real_features = raw_d(torch.cat([x, target], dim=1))
+                real_features = raw_d(torch.cat([x, trusted_target(target, generated, valid)], 1))
             fake_features = raw_d(torch.cat([x, generated], dim=1))
         generated, enhanced = generated.float(), enhanced.float()
         fake = [f.float() for f in fake_features]
@@ -249,10 +266,17 @@ class Trainer:
         )
         return total, terms, generated
 
-    def discriminator_loss(self, x: Tensor, target: Tensor, generated: Tensor) -> Tensor:
-        """LSGAN loss of ``D`` on real pairs and detached generated pairs (fp32)."""
+    def discriminator_loss(
+        self, x: Tensor, target: Tensor, generated: Tensor, valid: Tensor | None = None
+    ) -> Tensor:
+        """LSGAN loss of ``D`` on real pairs and detached generated pairs (fp32).
+
+        The real pairs' untrusted pixels (``valid`` 0) hold the generated ones,
+        as :func:`trusted_target` gives feature matching.
+        """
+        real = target if valid is None else trusted_target(target, generated, valid)
         pairs = torch.cat(
-            [torch.cat([x, target], dim=1), torch.cat([x, generated.detach()], dim=1)], dim=0
+            [torch.cat([x, real], dim=1), torch.cat([x, generated.detach()], dim=1)], dim=0
         )
         with self._autocast():
             logits = self.discriminator(pairs)[-1]
@@ -282,7 +306,7 @@ class Trainer:
         loss_g, terms, generated = self.generator_terms(x, target, valid)
         self.scaler.scale(loss_g).backward()
         self.opt_d.zero_grad(set_to_none=True)  # D's gradients from the G loss are not D's
-        loss_d = self.discriminator_loss(x, target, generated)
+        loss_d = self.discriminator_loss(x, target, generated, valid)
         self.scaler.scale(loss_d).backward()
         # Backward always runs (DDP needs every process to take part); the update may not.
         self.scaler.unscale_(self.opt_g)

@@ -18,8 +18,9 @@ from lenspair.capture.rigfile import RigFile
 from lenspair.core.config import config_path, load_yaml
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV, VGG19Features, load_vgg19
 from lenspair.model.training.config_loading import load_run_config, with_file
-from lenspair.model.training.step import vgg19_weights_path
+from lenspair.model.training.step import Trainer, vgg19_weights_path
 from lenspair.simulate.textures import check_texture, load_texture_image
+from tests.model.train_fixtures import tiny_config
 
 
 @pytest.fixture
@@ -108,3 +109,11 @@ def test_the_environment_s_vgg19_weights_under_home_are_loaded(
     torch.save(VGG19Features().state_dict(), home / "x" / "vgg.pth")
     monkeypatch.setenv(VGG19_WEIGHTS_ENV, "~/x/vgg.pth")
     assert load_vgg19(None) is not None
+
+
+def test_train_s_vgg19_weights_option_under_home_is_loaded(home: Path) -> None:
+    # --vgg19-weights=~/x/vgg.pth reaches the config as typed (a shell expands ~ only at a
+    # word's start): the run printed the expanded path, then loaded the raw one, "no such file"
+    torch.save(VGG19Features().state_dict(), home / "x" / "vgg.pth")
+    trainer = Trainer(tiny_config(vgg19_weights=Path("~/x/vgg.pth")), torch.device("cpu"))
+    assert trainer.vgg is not None and trainer.perceptual_status.endswith(f"({home}/x/vgg.pth)")
