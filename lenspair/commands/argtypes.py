@@ -216,9 +216,29 @@ def random_seed(text: str) -> int:
     return value
 
 
+def input_path(text: str) -> Path:
+    """Argparse type: a file or folder to read; one this user may not read is refused here.
+
+    Found later, a refused read was the file system's exit 1 ("the file system
+    refused a write"), named a file the recording never had (a layout probe's
+    ``metadata.yaml``), or called a checkpoint "not a readable torch file", as
+    if damaged. A path that does not exist passes: each command says what it
+    expected there (and resolves the bundled names).
+    """
+    path = Path(text)
+    if path.exists():
+        folder = path.is_dir()
+        if not os.access(path, os.R_OK | (os.X_OK if folder else 0)):
+            kind = "folder" if folder else "file"
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: permission denied (this user may not read the {kind})"
+            )
+    return path
+
+
 def detector_file(text: str) -> Path:
     """Argparse type: a detector checkpoint; ``detector.pt`` alone is the bundled one."""
-    return file_or_sample(text, ".pt")
+    return file_or_sample(str(input_path(text)), ".pt")
 
 
 class _Topics(argparse.Action):

@@ -66,6 +66,7 @@ from lenspair.commands.argtypes import (
     add_time_offset_option,
     add_topics_option,
     float_at_least,
+    input_path,
     out_file,
 )
 from lenspair.core.errors import ConfigError
@@ -79,7 +80,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``lenspair calibrate``."""
     parser.add_argument(
         "recording",
-        type=Path,
+        type=input_path,
         metavar="BOARD_RECORDING",
         help="stereo recording of the board (EuRoC/ASL folder, ROS bag, left/right folders)",
     )

@@ -48,6 +48,7 @@ from lenspair.commands.argtypes import (
     add_time_offset_option,
     add_topics_option,
     detector_file,
+    input_path,
     out_folder,
     size,
     worker_count,
@@ -58,11 +59,11 @@ from lenspair.core.fsutil import inside_refusal
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``lenspair capture-ingest``."""
-    parser.add_argument("recording", type=Path, help="recording folder or bag")
+    parser.add_argument("recording", type=input_path, help="recording folder or bag")
     parser.add_argument("--out", type=out_folder, required=True, help="output root folder")
     parser.add_argument(
         "--calib",
-        type=Path,
+        type=input_path,
         action="append",
         default=[],
         metavar="FILE",
@@ -132,12 +133,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"  rejected {count}: {reason}")
     for problem in report.recording_problems:  # of the whole recording (a cut bag), no frame
         print(f"  recording: {problem}")
-    if report.exposure is not None:  # its warnings, if any, were logged
-        exposure = report.exposure
-        print(
-            f"  exposure: target/input grey ratio {exposure.median:.2f} "
-            f"({exposure.low:.2f}-{exposure.high:.2f}, 10th-90th percentile)"
-        )
     if args.detector is not None:
         print(f"  side check: {report.side_check.get('message', '')}")
     return 0

@@ -58,6 +58,7 @@ from pathlib import Path
 
 from lenspair.commands.argtypes import (
     float_at_least,
+    input_path,
     out_folder,
     random_seed,
     worker_count,
@@ -71,16 +72,16 @@ from lenspair.dataset.verify import verify_dataset
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``dataset-build``."""
-    parser.add_argument("sources", nargs="*", type=Path, help="ingested recording folders")
+    parser.add_argument("sources", nargs="*", type=input_path, help="ingested recording folders")
     parser.add_argument("--out", type=out_folder, help="dataset folder to create")
-    parser.add_argument("--verify", type=Path, metavar="DS", help="check an existing dataset")
+    parser.add_argument("--verify", type=input_path, metavar="DS", help="check an existing dataset")
     parser.add_argument("--splits", help="train,val,test fractions of groups (0.8,0.1,0.1)")
     parser.add_argument("--seed", type=random_seed, help="split seed (default 0)")
-    parser.add_argument("--config", type=Path, help="YAML with curation: and split: sections")
+    parser.add_argument("--config", type=input_path, help="YAML with curation: and split: sections")
     parser.add_argument("--overwrite", action="store_true", help="replace a different dataset")
     parser.add_argument(
         "--previous",
-        type=Path,
+        type=input_path,
         metavar="DS_OLD",
         help="an earlier version of this dataset in another folder (DS_v1 when building "
         "DS_v2): its grouping and hashed splits are kept, as a rebuild in place keeps DS's, "

@@ -34,6 +34,7 @@ from lenspair.commands.argtypes import (
     add_device_option,
     add_topics_option,
     detector_file,
+    input_path,
     open_fraction,
     out_folder,
 )
@@ -52,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=detector_file,
         help="detector checkpoint from train-detector (detector.pt: the bundled one)",
     )
-    parser.add_argument("input", type=Path, help="image, folder of images, recording or bag")
+    parser.add_argument("input", type=input_path, help="image, folder of images, recording or bag")
     parser.add_argument(
         "--out",
         type=out_folder,

@@ -51,6 +51,7 @@ from lenspair.commands.argtypes import (
     DEFAULT_SPLIT,
     add_convention_option,
     add_device_option,
+    input_path,
     out_folder,
     split_name,
     timed_runs,
@@ -66,8 +67,8 @@ if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``eval``."""
-    parser.add_argument("checkpoint", type=Path, help="checkpoint (.pt) from lenspair train")
-    parser.add_argument("--data", type=Path, help="paired images to score")
+    parser.add_argument("checkpoint", type=input_path, help="checkpoint (.pt) from lenspair train")
+    parser.add_argument("--data", type=input_path, help="paired images to score")
     parser.add_argument(
         "--split",
         type=split_name,
@@ -92,7 +93,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--calibration",
-        type=Path,
+        type=input_path,
         metavar="DS",
         help="int8: paired images to calibrate the quantisation on (not a camera calibration)",
     )

@@ -32,7 +32,7 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from lenspair.commands.argtypes import out_file, size, split_name
+from lenspair.commands.argtypes import input_path, out_file, size, split_name
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.leftovers import remove_leftovers
@@ -48,7 +48,7 @@ if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``export``."""
-    parser.add_argument("checkpoint", type=Path, help="checkpoint (.pt) from lenspair train")
+    parser.add_argument("checkpoint", type=input_path, help="checkpoint (.pt) from lenspair train")
     parser.add_argument("--onnx", type=out_file, help="ONNX file to write")
     parser.add_argument("--torchscript", type=out_file, help="TorchScript file to write")
     parser.add_argument(
@@ -64,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--calibration",
-        type=Path,
+        type=input_path,
         metavar="DS",
         help="paired images to calibrate --int8's quantisation on (not a camera calibration)",
     )

@@ -26,7 +26,14 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from lenspair.commands.argtypes import DEFAULT_SPLIT, out_file, random_seed, size, split_name
+from lenspair.commands.argtypes import (
+    DEFAULT_SPLIT,
+    input_path,
+    out_file,
+    random_seed,
+    size,
+    split_name,
+)
 from lenspair.core.bitdepth import widen
 from lenspair.core.errors import ConfigError, LenspairError
 from lenspair.core.fsutil import atomic_write_json
@@ -53,7 +60,7 @@ DEFAULT_SIZE = (720, 480)
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the ``realism`` arguments."""
-    parser.add_argument("pairs", type=Path, nargs="*", help="paired folders to measure")
+    parser.add_argument("pairs", type=input_path, nargs="*", help="paired folders to measure")
     parser.add_argument(
         "--split",
         type=split_name,
@@ -69,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--images",
-        type=Path,
+        type=input_path,
         metavar="DIR",
         help="clean images to render on (default: the bundled natural photographs)",
     )

@@ -38,12 +38,12 @@ while its files are unchanged).
 """
 
 import argparse
-from pathlib import Path
 
 from lenspair.commands.argtypes import (
     add_device_option,
     add_topics_option,
     detector_file,
+    input_path,
     out_folder,
     positive_int,
 )
@@ -67,8 +67,8 @@ def jpeg_quality(text: str) -> int:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``restore``."""
-    parser.add_argument("model", type=Path, help="checkpoint (.pt) or ONNX model (.onnx)")
-    parser.add_argument("input", type=Path, help="image, folder, EuRoC/ASL recording or bag")
+    parser.add_argument("model", type=input_path, help="checkpoint (.pt) or ONNX model (.onnx)")
+    parser.add_argument("input", type=input_path, help="image, folder, EuRoC/ASL recording or bag")
     parser.add_argument(
         "--out",
         type=out_folder,

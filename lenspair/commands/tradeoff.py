@@ -51,6 +51,7 @@ from lenspair.commands.argtypes import (
     add_convention_option,
     add_device_option,
     fraction,
+    input_path,
     out_folder,
     positive_int,
     split_name,
@@ -64,7 +65,7 @@ from lenspair.core.fsutil import inside_refusal
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``tradeoff``."""
-    parser.add_argument("dataset", type=Path, help="paired dataset folder (DS)")
+    parser.add_argument("dataset", type=input_path, help="paired dataset folder (DS)")
     parser.add_argument("--out", type=out_folder, required=True, help="output folder (DIR)")
     parser.add_argument(
         "--budget", default="60", help="per variant and seed: STEPS, or 90s / 5m / 1h (60 steps)"
@@ -72,7 +73,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_device_option(parser)
     parser.add_argument(
         "--config",
-        type=Path,
+        type=input_path,
         help="base run config (each variant sets the network's variant, width and blocks; "
         "model.channels and the other sections apply to every variant; crop, batch and "
         "learning-rate decay it leaves out take this command's defaults below)",

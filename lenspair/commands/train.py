@@ -65,6 +65,7 @@ from typing import Any
 
 from lenspair.commands.argtypes import (
     add_device_option,
+    input_path,
     out_folder,
     positive_int,
     random_seed,
@@ -111,9 +112,11 @@ def _init_weights(text: str) -> Path | str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``train``."""
-    parser.add_argument("dataset", nargs="?", type=Path, help="paired dataset folder (DS)")
+    parser.add_argument("dataset", nargs="?", type=input_path, help="paired dataset folder (DS)")
     parser.add_argument("--out", type=out_folder, required=True, help="run folder (RUN)")
-    parser.add_argument("--config", type=Path, help="YAML with model/data/train/loss sections")
+    parser.add_argument(
+        "--config", type=input_path, help="YAML with model/data/train/loss sections"
+    )
     parser.add_argument(
         "--init",
         type=_init_weights,
@@ -124,7 +127,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="continue RUN where it stopped")
     add_device_option(parser)
     parser.add_argument(
-        "--synthetic", type=Path, metavar="IMAGES_DIR", help="pretrain on rendered drops"
+        "--synthetic", type=input_path, metavar="IMAGES_DIR", help="pretrain on rendered drops"
     )
     parser.add_argument("--drops", choices=("ours", "sharp"), help="synthetic drops (ours)")
     group = parser.add_argument_group("overrides of the config file")
@@ -156,7 +159,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="train.precision (auto: bf16 on a CPU with avx512_bf16/AMX, else fp32; fp32 on CUDA)",
     )
     group.add_argument("--no-amp", action="store_true", help="train at fp32 (same as fp32)")
-    group.add_argument("--vgg19-weights", type=Path, help="train.vgg19_weights")
+    group.add_argument("--vgg19-weights", type=input_path, help="train.vgg19_weights")
     group.add_argument(
         "--checkpoint-every",
         type=_every,

@@ -32,6 +32,7 @@ from pathlib import Path
 
 from lenspair.commands.argtypes import (
     add_device_option,
+    input_path,
     non_negative_int,
     out_folder,
     positive_int,
@@ -108,13 +109,15 @@ def _minutes(text: str) -> float:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``train-detector``."""
-    parser.add_argument("datasets", type=Path, nargs="*", metavar="DS", help="lenspair datasets")
+    parser.add_argument(
+        "datasets", type=input_path, nargs="*", metavar="DS", help="lenspair datasets"
+    )
     parser.add_argument(
         "--out", type=out_folder, required=True, metavar="RUN", help="output folder"
     )
     parser.add_argument(
         "--recordings",
-        type=Path,
+        type=input_path,
         nargs="+",
         default=[],
         metavar="REC",
@@ -122,7 +125,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--test-recordings",
-        type=Path,
+        type=input_path,
         nargs="+",
         default=[],
         metavar="REC",
@@ -139,7 +142,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--clean-images",
-        type=Path,
+        type=input_path,
         metavar="DIR",
         help="folder of clean images the --synthetic frames are made from: its first 200 "
         "images, a dataset's train targets only (default: the simulator's textures)",

@@ -1,6 +1,7 @@
 """Argument errors of the command line: who is blamed, and output paths refused up front."""
 
 import argparse
+import os
 from pathlib import Path
 
 import pytest
@@ -80,3 +81,37 @@ def test_capture_ingest_refuses_a_device_without_a_detector(
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "--device cpu places the side check's detector: give --detector MODEL" in line
     assert not (tmp_path / "ing").exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "denied"),
+    [
+        (["capture-ingest", "REC", "--out", "OUT"], "REC"),
+        (["eval", "CK", "--data", "REC", "--out", "OUT"], "CK"),
+        (["restore", "CK", "REC", "--out", "OUT"], "REC"),
+        (["capture-ingest", "REC", "--detector", "CK", "--out", "OUT"], "CK"),
+    ],
+    ids=["recording", "checkpoint", "restore-input", "detector"],
+)
+def test_an_input_this_user_may_not_read_is_refused_as_such(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    argv: list[str],
+    denied: str,
+) -> None:
+    # a chmod 000 recording was "noperm/metadata.yaml: Permission denied", exit 1 (the code of
+    # a refused write), naming a probe file the recording never had; a checkpoint was "not a
+    # readable torch file", as if damaged. Tests run as root, whom nothing is denied: the
+    # permission check is what answers no here
+    paths = {"REC": tmp_path / "rec", "CK": tmp_path / "ck.pt", "OUT": tmp_path / "out"}
+    paths["REC"].mkdir()
+    paths["CK"].write_bytes(b"weights")
+    refused = paths[denied]
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: Path(p) != refused and real_access(p, mode))
+    line = _refused([str(paths.get(a, a)) for a in argv], capsys)
+    kind = "folder" if refused.is_dir() else "file"
+    assert f"'{refused}': permission denied (this user may not read the {kind})" in line
+    assert line.startswith(f"lenspair {argv[0]}: error: argument ")
+    assert not paths["OUT"].exists()
