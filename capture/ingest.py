@@ -43,6 +43,7 @@ import numpy as np
 from lenspair import __version__
 from lenspair.capture import ingest_frames as frame_work
 from lenspair.capture.errors import CaptureError
+from lenspair.capture.exposure import summarise_exposure
 from lenspair.capture.ingest_input import PairedRecording, open_and_pair
 from lenspair.capture.ingest_output import discard_new_output, output_folder
 from lenspair.capture.ingest_pairs import run_frame_stage
@@ -393,4 +394,5 @@ def _report(
         else dict(zip(CAMERAS, recording.topics, strict=True)),
         recording_problems=paired.problems,
         time_offset_ns=time_offset_ns,
+        exposure=summarise_exposure(recording.path, ordered),
     )

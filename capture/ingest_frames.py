@@ -27,7 +27,12 @@ from lenspair.core.errors import LenspairError
 from lenspair.core.fsutil import sha256_bytes, sha256_file
 from lenspair.core.imagewrite import write_image
 from lenspair.core.orphans import end_with_parent
-from lenspair.core.quality import exposure_fractions, laplacian_variance, to_grey
+from lenspair.core.quality import (
+    exposure_fractions,
+    exposure_ratio,
+    laplacian_variance,
+    to_grey,
+)
 from lenspair.core.sourcefiles import source_fingerprint
 from lenspair.rectify.crop import Crop
 from lenspair.rectify.rectification import StereoRectification
@@ -382,6 +387,7 @@ def process(task: FrameTask) -> PairRecord:
         photometric_residual=_figure(verdict.photometric_residual),
         inliers=verdict.inliers,
         mask_fraction=_figure(verdict.mask_fraction),
+        exposure_ratio=_figure(exposure_ratio(gray_in, gray_target, verdict.mask)),
     )
     if verdict.reason is not None:
         remove_outputs(context.out_dir, t_ns)

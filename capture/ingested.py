@@ -45,6 +45,10 @@ class PairRecord:
         saturated: fraction of clean-view pixels at full scale.
         black: fraction of clean-view pixels at zero.
         mask_fraction: fraction of pixels marked untrustworthy in ``mask/``.
+        exposure_ratio: median ratio of the target's grey levels to the
+            input's over trusted, unclipped pixels
+            (:func:`lenspair.core.quality.exposure_ratio`): 1 when the cameras
+            expose alike; a veil or brightened drops move it too.
         files: relative paths of ``input``, ``target`` and ``mask`` outputs.
         sha256: checksums of those files, same keys.
     """
@@ -60,8 +64,26 @@ class PairRecord:
     saturated: float | None = None
     black: float | None = None
     mask_fraction: float | None = None
+    exposure_ratio: float | None = None
     files: dict[str, str] = field(default_factory=dict)
     sha256: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ExposureSummary:
+    """How alike the two cameras exposed: the kept pairs' ``exposure_ratio``.
+
+    Attributes:
+        median: the median ratio of target to input grey levels.
+        low: its 10th percentile over the pairs.
+        high: its 90th percentile.
+        pairs: how many kept pairs had a ratio.
+    """
+
+    median: float
+    low: float
+    high: float
+    pairs: int
 
 
 @dataclass(frozen=True)
@@ -108,6 +130,9 @@ class IngestReport:
             ``counts`` has their number.
         time_offset_ns: cam1's clock ahead of cam0's, taken off cam1's stamps
             for pairing (``--time-offset``; 0: none).
+        exposure: the kept pairs' ``exposure_ratio`` over the recording
+            (:mod:`lenspair.capture.exposure`); None without one (reports of
+            before it was written, or no pair with enough unclipped pixels).
     """
 
     recording_id: str
@@ -128,6 +153,7 @@ class IngestReport:
     topics: dict[str, str] = field(default_factory=dict)
     recording_problems: list[str] = field(default_factory=list)
     time_offset_ns: int = 0
+    exposure: ExposureSummary | None = None
 
     def __post_init__(self) -> None:
         """Refuse a ``side_check`` dataset-build could misread (see the attribute)."""

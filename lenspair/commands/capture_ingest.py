@@ -133,6 +133,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"  rejected {count}: {reason}")
     for problem in report.recording_problems:  # of the whole recording (a cut bag), no frame
         print(f"  recording: {problem}")
+    if report.exposure is not None:  # its warnings, if any, were logged
+        exposure = report.exposure
+        print(
+            f"  exposure: target/input grey ratio {exposure.median:.2f} "
+            f"({exposure.low:.2f}-{exposure.high:.2f}, 10th-90th percentile)"
+        )
     if args.detector is not None:
         print(f"  side check: {report.side_check.get('message', '')}")
     return 0

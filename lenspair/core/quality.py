@@ -107,3 +107,32 @@ def anomaly_cells(
             trusted = small > 0.5
     offset = np.float32(np.median(diff[trusted]))
     return (np.abs(diff - offset) > delta) & trusted, trusted
+
+
+EXPOSURE_LEVELS = (0.05, 0.95)
+"""Grey levels (``[0, 1]``) between which a pixel tells the two views' exposure apart.
+
+Near black a ratio is the sensors' noise, and near full scale the light was
+clipped: neither says anything of a gain.
+"""
+
+
+def exposure_ratio(
+    grey_input: np.ndarray, grey_target: np.ndarray, untrusted: np.ndarray | None = None
+) -> float | None:
+    """Median ratio of the target's grey levels to the input's, as stored (not linear light).
+
+    Over the pixels both views hold within :data:`EXPOSURE_LEVELS` and that
+    ``untrusted`` (parallax, misregistration) leaves; None when fewer than 1 %
+    of the pixels qualify (a dark or clipped frame). 1 when the cameras expose
+    alike and the glass changes little; a gain or exposure difference
+    between the cameras moves it, and so do the anomaly's veil and
+    brightened drops, which no single pair tells apart from a gain.
+    """
+    low, high = EXPOSURE_LEVELS
+    usable = (grey_input > low) & (grey_input < high) & (grey_target > low) & (grey_target < high)
+    if untrusted is not None:
+        usable &= ~untrusted
+    if np.count_nonzero(usable) < 0.01 * usable.size:
+        return None
+    return float(np.median(grey_target[usable] / grey_input[usable]))
