@@ -58,9 +58,10 @@ results: demo bench
 # three quarters on 2 cores, docs/results/tradeoff_seeds_cpu.md); a last run reuses their training and
 # times every network alone. 800 constant-rate steps at crop 256 ran on an H100
 # (docs/results/gpu_h100.md). Then the paper's Table 2 on simulated pairs (2 pretrainings
-# of 1200 steps and 9 fine-tunings of 800: about an hour on 2 CPU cores;
-# docs/results/table2.md), the weights (1500 optimiser steps per network, batch 8, crop
-# 128; then scored as shipped on the demo's test split). Each prints its table and
+# of 1200 steps and 9 fine-tunings of 800: about an hour and a half on 2 CPU cores;
+# docs/results/table2.md), the weights (at most 1500 optimiser steps per network, batch 8,
+# crop 128: the shipped ones stopped at 800, see their model card; then scored as shipped
+# on the demo's test split). Each prints its table and
 # writes it beside its runs.
 # TRADEOFF_BUDGET, TRADEOFF_VARIANTS and TRADEOFF_OUT run another budget, e.g. the
 # 4000- and 8000-step runs of G, GE, GEA and GEA-w0.5 that docs/results/tradeoff_budgets.md
