@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lenspair.capture.ingested import PAIRS_FILE, REPORT_FILE
 from lenspair.core.bitdepth import widen
 from lenspair.core.errors import ImageIOError, listed
 from lenspair.core.imageio import format_problem, image_header, read_image
@@ -106,6 +107,11 @@ class PairedItem:
     target: np.ndarray
     mask: np.ndarray | None = None
     difficulty: str | None = None
+
+
+def is_ingested(folder: Path) -> bool:
+    """A recording capture-ingest wrote: ``pairs.jsonl`` and ``report.json`` beside the pairs."""
+    return (folder / PAIRS_FILE).is_file() and (folder / REPORT_FILE).is_file()
 
 
 def _mask_mismatch(entry: PairEntry, mask: tuple[int, ...], image: tuple[int, ...]) -> str:
@@ -357,7 +363,9 @@ def open_paired(
         for name in sorted(inputs.keys() & targets.keys(), key=natural_key)
     ]
     bits = 16
-    if layout != "lenspair":  # a lenspair dataset's 16-bit frames were widened when ingested
+    # a lenspair dataset's or ingested recording's 16-bit frames were widened when
+    # ingested, and its mask/ is lenspair's own
+    if layout != "lenspair" and not is_ingested(folder):
         if layout == "paired":
             say_masks(folder, sum(entry.mask_path is not None for entry in entries), notes)
         bits = folder_bits(folder, [(e.input_path, e.target_path) for e in entries], notes)

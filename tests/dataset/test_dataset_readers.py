@@ -261,6 +261,25 @@ def test_a_generic_mask_folder_is_said_once(
     ]
 
 
+def test_an_ingested_recording_s_own_mask_and_depth_are_lenspair_s(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """`lenspair realism ingested/rain` (the README's example) told the user to remove or
+    rename the recording's mask/ (capture-ingest's own parallax mask), and a dark ingested
+    16-bit recording (already widened) read as 12-bit and was brightened 16x again."""
+    folder = tmp_path / "ingested" / "rain"
+    _write(folder / "input", {"1.png": 1000, "2.png": 2000}, np.uint16)
+    _write(folder / "target", {"1.png": 1100, "2.png": 2100}, np.uint16)
+    write_image(folder / "mask" / "1.png", np.full((8, 12), 255, np.uint8))
+    (folder / "pairs.jsonl").write_text("")
+    (folder / "report.json").write_text("{}")
+    with caplog.at_level("WARNING"):
+        data = open_paired(folder)
+    assert caplog.messages == []
+    assert data[0].mask is not None and data.bits == 16
+    assert int(data[1].input.max()) == 2000  # as ingested: not widened a second time
+
+
 def test_ten_or_twelve_bit_values_in_16_bit_files_are_widened(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
