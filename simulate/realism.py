@@ -186,6 +186,8 @@ class StatisticRange:
         high: largest value.
         median: median value.
         real: the real range from :data:`REAL_RANGES`.
+        inside: how many of the pairs lie within the real range.
+        count: how many pairs there are.
 
     """
 
@@ -194,6 +196,8 @@ class StatisticRange:
     high: float
     median: float
     real: tuple[float, float]
+    inside: int = 0
+    count: int = 0
 
     @property
     def overlaps(self) -> bool:
@@ -209,6 +213,7 @@ def summarise(rows: Iterable[RealismStatistics]) -> list[StatisticRange]:
     ranges = []
     for name in STATISTIC_NAMES:
         values = np.array([getattr(row, name) for row in table], np.float64)
+        real_low, real_high = REAL_RANGES[name]
         ranges.append(
             StatisticRange(
                 name=name,
@@ -216,6 +221,8 @@ def summarise(rows: Iterable[RealismStatistics]) -> list[StatisticRange]:
                 high=float(values.max()),
                 median=float(np.median(values)),
                 real=REAL_RANGES[name],
+                inside=int(np.count_nonzero((values >= real_low) & (values <= real_high))),
+                count=len(values),
             )
         )
     return ranges
@@ -230,13 +237,17 @@ def _number(name: str, value: float) -> str:
 
 
 def format_ranges(columns: Sequence[tuple[str, Sequence[StatisticRange]]]) -> str:
-    """A Markdown table: the real range, then ``low - high`` of each column.
+    """A Markdown table: the real range, then each column's range, median and share inside it.
+
+    A range can overlap the real one while most pairs miss it (a wide spread
+    over different photographs): the median and how many pairs lie within
+    the real range say which.
 
     Args:
         columns: ``(label, summarise(...))`` per set of pairs (a preset, a folder).
 
     Returns:
-        The table; a cell is marked ``*`` when it misses the real range.
+        The table; a cell is marked ``*`` when its range misses the real range.
 
     """
     header = "| statistic | real adherent drops (4 pairs) | " + " | ".join(
@@ -249,7 +260,10 @@ def format_ranges(columns: Sequence[tuple[str, Sequence[StatisticRange]]]) -> st
         for _, ranges in columns:
             entry = ranges[index]
             mark = "" if entry.overlaps else " *"
-            cells.append(f"{_number(name, entry.low)} - {_number(name, entry.high)}{mark}")
+            cells.append(
+                f"{_number(name, entry.low)} - {_number(name, entry.high)}{mark}, median "
+                f"{_number(name, entry.median)} ({entry.inside}/{entry.count} within)"
+            )
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

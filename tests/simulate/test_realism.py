@@ -135,6 +135,10 @@ def test_summary_ranges_and_overlap_marks() -> None:
     assert not any(entry.overlaps for entry in missing)
     table = format_ranges([("in", summarise([inside])), ("out", missing)])
     assert table.count(" *") == len(STATISTIC_NAMES)
+    # a range over two photographs overlaps the real one while one of them misses it:
+    # the median and the count within say so
+    assert (coverage.inside, coverage.count) == (1, 2)
+    assert "0.01 - 0.30, median 0.15 (1/2 within)" in format_ranges([("both", ranges)])
     with pytest.raises(SimulateError):
         summarise([])
 
