@@ -74,29 +74,29 @@ class _WithPath:
     weights: Path
 
 
+@pytest.fixture
+def configs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A folder for config files; the test runs from a sibling folder, ``../configs``."""
+    folder = tmp_path / "configs"
+    folder.mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    return folder
+
+
 def test_a_relative_path_field_is_read_beside_its_yaml_file_from_any_folder(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    configs: Path,
 ) -> None:
-    configs = tmp_path / "configs"
-    configs.mkdir()
     (configs / "c.yaml").write_text("weights: vgg.pth\n")
-    elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
-    monkeypatch.chdir(elsewhere)
     assert load_yaml(_WithPath, Path("../configs/c.yaml")).weights == Path("../configs/vgg.pth")
 
 
 def test_the_train_config_s_relative_weights_are_beside_it_from_any_folder(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    configs: Path,
 ) -> None:
     # `vgg19_weights: vgg.pth` beside train.yaml, run from another folder: "no such file
     # vgg.pth", where rig.yaml and scene specs read their paths beside themselves
-    configs = tmp_path / "configs"
-    configs.mkdir()
     (configs / "train.yaml").write_text("train:\n  vgg19_weights: vgg.pth\n")
-    elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
-    monkeypatch.chdir(elsewhere)
     config = load_run_config(Path("../configs/train.yaml"))
     assert config.train.vgg19_weights == configs / "vgg.pth"  # absolute: a resume finds it
     assert with_file(load_run_config(None), Path("../configs/train.yaml")) == config
