@@ -16,7 +16,9 @@ failed.
 Every JSON file a benchmark writes into ``--out`` gets a ``benchmark_run``
 entry: the id of this invocation and the machine (CPU, cores, torch threads,
 oneDNN's ISA cap), so that ``benchmarks.readme_results`` can tell files of one
-run from files of several (:func:`stamp`).
+run from files of several (:func:`stamp`), and the benchmarks that started
+while other processes kept the CPU busy (``busy_at_start``: CPU pressure at
+or above :data:`benchmarks.machine.BUSY_PRESSURE`), whose ratios it refuses.
 """
 
 import argparse
@@ -35,6 +37,7 @@ import torch
 
 import benchmarks
 from benchmarks import RUN_KEY
+from benchmarks.machine import BUSY_PRESSURE, cpu_pressure, pressure_avg10
 from lenspair.model.precision import onednn_isa_cap, read_cpu_flags
 
 ROOT = Path(benchmarks.__file__).resolve().parents[1]
@@ -119,6 +122,10 @@ def main(argv: list[str] | None = None) -> int:
     environment = _environment()
     for name in names:
         print(f"\n## {name}\n", flush=True)
+        pressure = pressure_avg10(cpu_pressure())
+        if pressure is not None and pressure >= BUSY_PRESSURE:  # recorded in its own file too
+            run.setdefault("busy_at_start", {})[name] = pressure
+            print(f"warning: {name} starts on a busy CPU (pressure {pressure:.0f} %)", flush=True)
         start = time.perf_counter()
         before = _json_files(args.out)
         try:
@@ -130,6 +137,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n({name} took {time.perf_counter() - start:.0f} s)", flush=True)
         if code:
             failed.append(name)
+    if busy := run.get("busy_at_start"):
+        print(
+            f"warning: {', '.join(busy)} started with other processes keeping the CPU busy: "
+            "their ratios are inflated, and benchmarks.readme_results refuses the run; "
+            "rerun on a quiet machine",
+            file=sys.stderr,
+        )
     if failed:
         print(f"failed: {', '.join(failed)}", file=sys.stderr)
     return 1 if failed else 0

@@ -100,3 +100,24 @@ def cpu_pressure() -> str:
         return Path("/proc/pressure/cpu").read_text().splitlines()[0]
     except OSError:
         return "n/a"
+
+
+BUSY_PRESSURE = 20.0
+"""CPU pressure (``some avg10``, per cent) from which a benchmark is said to start on a busy CPU.
+
+Other processes inflate the network's many short layers far more than the
+long peak kernels it is divided by (a run at load 8 read fp32 GEA at 2.6x its
+roofline and int8 13x faster than fp32; quiet, 1.5x and 0.8x), so a ratio to
+a peak of the same run does not cancel them.
+"""
+
+
+def pressure_avg10(line: str) -> float | None:
+    """``some avg10`` of a :func:`cpu_pressure` line, per cent; None when it has none."""
+    for field in line.split():
+        if field.startswith("avg10="):
+            try:
+                return float(field.removeprefix("avg10="))
+            except ValueError:
+                return None
+    return None

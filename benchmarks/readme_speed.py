@@ -166,6 +166,16 @@ def benchmark_run(bench: Path) -> dict[str, Any] | None:
             f"{bench}: benchmark files of different runs, refused (the table would say they "
             f"were measured in one): {listing}; rerun `python -m benchmarks --out {bench}`"
         )
+    busy: dict[str, float] = {}
+    for run in runs.values():  # each file's record holds the benchmarks up to its own
+        busy.update(run.get("busy_at_start", {}))
+    if busy:
+        listing = ", ".join(f"{name} ({pressure:.0f} %)" for name, pressure in sorted(busy.items()))
+        raise ResultsError(
+            f"{bench}: benchmarks that started on a busy CPU (pressure at start: {listing}) "
+            "inflate their ratios, refused; rerun `python -m benchmarks "
+            f"--out {bench}` with nothing else running"
+        )
     return next(iter(runs.values()))
 
 

@@ -424,6 +424,12 @@ def test_files_of_different_runs_are_refused_naming_them(
     _write(bench / "model.json", _model(), None)
     assert main(args) == 2
     assert "model.json (no run id)" in capsys.readouterr().err
+    # one run, but a benchmark of it started on a busy CPU: its ratios are not the machine's
+    _write(bench / "model.json", _model(), RUN | {"busy_at_start": {"bench_model": 45.0}})
+    assert main(args) == 2
+    error = capsys.readouterr().err
+    assert "started on a busy CPU (pressure at start: bench_model (45 %))" in error
+    assert readme.read_text() == before
     # all of one run: written
     _write(bench / "model.json", _model())
     assert main(args) == 0
