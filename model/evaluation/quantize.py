@@ -12,18 +12,21 @@ the final clamp stay in float.
 
 Why ONNX Runtime and not PyTorch's PT2E ``X86InductorQuantizer`` (torchao):
 ``python -m benchmarks.bench_int8`` measures both in one run (GEA 540x360
-mono, batch 1, against fp32 torch channels-last). Which is faster depends on
-the CPU and its load. On an AMD EPYC with ``avx512_vnni`` under heavy load
-(load average ~14 on 2 cores, interleaved runs, 2 threads), ONNX Runtime int8
-ran 2.22x faster than fp32 torch and PT2E 1.25x. On a quiet AMD EPYC
-(2 threads, quantising only :data:`QUANTISED_OPS`), ONNX Runtime ran 1.15x
-faster and PT2E 1.29x. PT2E keeps more accuracy (43.6 dB PSNR against the
-fp32 output, ONNX Runtime 39.4 dB). ONNX Runtime stays the path because
-of deployment, not speed: its output is one ``.onnx`` file that a robot runs
-without PyTorch or a C++ compiler, quantised in seconds (14 s against 45 s
-there, 263 s against 857 s loaded), while PT2E's artefact is code compiled
-by ``torch.compile`` in the process that runs it. Whether int8 pays on a
-given CPU is what the int8 rows of ``eval`` and ``tradeoff`` show.
+mono, batch 1, the shipped weights on a held-out photograph, against fp32
+torch channels-last). Which is faster depends on the CPU, and single runs of
+ten on the same 2-core AMD EPYC with ``avx512_vnni`` have put either path
+between about 0.75x and 1.45x fp32's speed (the README's measured section and
+``docs/results/cpu_amd_epyc.md`` give one run each); under load from other
+processes the ratio means nothing (OpenMP's spinning threads slow fp32 torch
+far more than ONNX Runtime, which does not spin: one loaded run read int8 13x
+faster), which is why the benchmark runner records a busy start. PT2E keeps
+more accuracy against the fp32 output than ONNX Runtime. ONNX Runtime stays
+the path because of deployment, not speed: its output is one ``.onnx`` file
+that a robot runs without PyTorch or a C++ compiler, quantised in seconds,
+while PT2E's artefact is code compiled by ``torch.compile`` in the process
+that runs it (about three times ONNX Runtime's setup in the same runs).
+Whether int8 pays on a given CPU is what the int8 rows of ``eval`` and
+``tradeoff`` show.
 
 Shapes: every image is ``(1, C, H, W)`` float32 in [0, 1]. The quantised
 model takes any batch, height and width, as the fp32 export it quantises does
