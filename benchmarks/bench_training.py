@@ -168,10 +168,16 @@ def _table(result: dict[str, Any]) -> str:
             f"| {name} | {seconds:.3f} | {1 / seconds:.3f} | {result['batch'] / seconds:.2f} | "
             f"{result['speed_vs_fp32'][name]:.2f}x |"
         )
+    compiled = result.get("compile_seconds")
     lines += [
         "",
         f"{result['precision_auto']['reason']}; fastest measured: {result['fastest']}; "
-        f"auto is the fastest eager precision: {result['auto_is_fastest_eager']}",
+        f"auto is the fastest eager precision: {result['auto_is_fastest_eager']}"
+        + (
+            "; torch.compile not timed (--compile times it)"
+            if compiled is None
+            else f"; torch.compile's first step (compilation) took {compiled:.0f} s, not timed"
+        ),
         "one thread, CPU time per step (robust to load): "
         + ", ".join(
             f"{name} {seconds:.2f} s ({result['single_thread_speed_vs_fp32'][name]:.2f}x fp32)"

@@ -30,3 +30,19 @@ def test_every_native_precision_and_inference_shape_is_in_the_json(
     batch3 = next(r for r in result["inference"] if r["batch"] == 3)
     assert f"24x16 batch 3 | {batch3['median_ms']:.1f} |" in table
     assert f"{3000.0 / batch3['median_ms']:.1f} |" in table  # images/s of the batch
+    assert "torch.compile not timed (--compile times it)" in table
+
+
+def test_the_table_says_what_torch_compile_s_compilation_took() -> None:
+    # compile_seconds was in training.json only: the table, and the README from it, said
+    # nothing of the compilation that a compiled row's speed leaves out
+    result = {
+        "batch": 2, "crop": 32, "device": "cpu", "threads": 1, "steps": 1,
+        "step_seconds_median": {"fp32": 1.0, "fp32 + torch.compile": 0.8},
+        "speed_vs_fp32": {"fp32": 1.0, "fp32 + torch.compile": 1.25},
+        "precision_auto": {"reason": "auto: fp32"}, "fastest": "fp32 + torch.compile",
+        "auto_is_fastest_eager": True, "compile_seconds": 41.6,
+        "single_thread_cpu_seconds": {}, "single_thread_speed_vs_fp32": {}, "inference": [],
+    }  # fmt: skip
+    table = bench_training._table(result)
+    assert "torch.compile's first step (compilation) took 42 s, not timed" in table
