@@ -13,7 +13,8 @@
 * L2 fidelity: mean squared error between the enhanced output and the clean
   target.
 
-Where each term applies (:func:`generator_loss`): the adversarial and
+Where each term applies (``Trainer.generator_terms`` in
+:mod:`lenspair.model.training.step`, weights from ``LossConfig``): the adversarial and
 feature-matching terms to G's output (the discriminator judges
 ``cat(input, generated)``), the perceptual and fidelity terms to the enhanced,
 final output (for variant ``G`` both outputs are the same tensor).
@@ -23,7 +24,6 @@ Images are ``(N, C, H, W)`` float in [0, 1].
 """
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -97,15 +97,18 @@ def feature_matching_loss(
     return total
 
 
-def fidelity_loss(enhanced: Tensor, target: Tensor) -> Tensor:
+def fidelity_loss(enhanced: Tensor, target: Tensor, valid: Tensor | None = None) -> Tensor:
     """L2 fidelity: mean squared error between the restored and the clean image.
 
     Args:
         enhanced: ``(N, C, H, W)`` restored image in [0, 1].
         target: ``(N, C, H, W)`` clean image in [0, 1].
+        valid: ``(N, 1, H, W)``, 1 where the target is trusted and 0 where a
+            mask marks it untrustworthy; the mean is over the trusted pixels
+            (``None``: all).
 
     Returns:
-        Scalar loss.
+        Scalar loss, fp32.
 
     Raises:
         ModelError: if the shapes differ.
@@ -114,7 +117,10 @@ def fidelity_loss(enhanced: Tensor, target: Tensor) -> Tensor:
         raise ModelError(
             f"fidelity loss: shapes differ, {tuple(enhanced.shape)} vs {tuple(target.shape)}"
         )
-    return F.mse_loss(enhanced.float(), target.float())
+    if valid is None:
+        return F.mse_loss(enhanced.float(), target.float())
+    error = (enhanced.float() - target.float()) ** 2 * valid
+    return error.sum() / (valid.sum() * enhanced.shape[1]).clamp_min(1.0)
 
 
 class PerceptualLoss(nn.Module):
@@ -168,62 +174,3 @@ class PerceptualLoss(nn.Module):
         ):
             total = total + weight * F.l1_loss(out.float(), ref.float())
         return total
-
-
-@dataclass(frozen=True)
-class LossWeights:
-    """Weights of the generator's loss terms.
-
-    Defaults: pix2pixHD's ``lambda_feat = lambda_vgg = 10`` for feature
-    matching and the perceptual term; the L2 fidelity weight makes a typical
-    early error (MSE ~ 0.01) count about as much as the adversarial term.
-
-    Attributes:
-        adversarial: weight of the LSGAN generator term.
-        feature_matching: weight of the feature-matching term.
-        perceptual: weight of the VGG term (ignored when VGG is unavailable).
-        fidelity: weight of the L2 term on the enhanced output.
-    """
-
-    adversarial: float = 1.0
-    feature_matching: float = 10.0
-    perceptual: float = 10.0
-    fidelity: float = 100.0
-
-
-def generator_loss(
-    fake_features: Sequence[Tensor],
-    real_features: Sequence[Tensor],
-    enhanced: Tensor,
-    target: Tensor,
-    weights: LossWeights,
-    perceptual: PerceptualLoss | None,
-) -> dict[str, Tensor]:
-    """All generator terms, weighted, and their sum.
-
-    Adversarial and feature-matching terms apply to G's output (the
-    discriminator sees ``cat(input, generated)``); the perceptual and
-    fidelity terms apply to the enhanced (final) output.
-
-    Args:
-        fake_features: D's outputs for ``cat(input, generated)`` (not detached).
-        real_features: D's outputs for ``cat(input, target)``.
-        enhanced: the final output ``(N, C, H, W)`` in [0, 1].
-        target: the clean image ``(N, C, H, W)`` in [0, 1].
-        weights: term weights.
-        perceptual: the VGG loss, or ``None`` to leave the term out.
-
-    Returns:
-        ``{"adversarial", "feature_matching", "perceptual" (if used), "fidelity",
-        "total"}``, each a weighted scalar; ``total`` is their sum.
-    """
-    terms = {
-        "adversarial": weights.adversarial * lsgan_loss(fake_features[-1], True),
-        "feature_matching": weights.feature_matching
-        * feature_matching_loss(fake_features, real_features),
-    }
-    if perceptual is not None:
-        terms["perceptual"] = weights.perceptual * perceptual(enhanced, target)
-    terms["fidelity"] = weights.fidelity * fidelity_loss(enhanced, target)
-    terms["total"] = torch.stack(list(terms.values())).sum()
-    return terms

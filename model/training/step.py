@@ -50,6 +50,7 @@ from lenspair.model.training.losses import (
     PerceptualLoss,
     discriminator_loss,
     feature_matching_loss,
+    fidelity_loss,
     lsgan_loss,
 )
 
@@ -254,8 +255,7 @@ class Trainer:
             "adversarial": lsgan_loss(fake[-1], True),
             "feature_matching": feature_matching_loss(fake, real),
         }
-        error = (enhanced - target) ** 2 * valid
-        terms["fidelity"] = error.sum() / (valid.sum() * enhanced.shape[1]).clamp_min(1.0)
+        terms["fidelity"] = fidelity_loss(enhanced, target, valid)
         if self.perceptual is not None:
             trusted = valid * target + (1 - valid) * enhanced.detach()
             with self._autocast():

@@ -1,5 +1,7 @@
 """LSGAN, feature matching, perceptual and fidelity losses."""
 
+from dataclasses import replace
+
 import pytest
 import torch
 
@@ -7,14 +9,14 @@ from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19Features
 from lenspair.model.training.losses import (
     VGG_LAYER_WEIGHTS,
-    LossWeights,
     PerceptualLoss,
     discriminator_loss,
     feature_matching_loss,
     fidelity_loss,
-    generator_loss,
     lsgan_loss,
 )
+from lenspair.model.training.step import Trainer
+from tests.model.train_fixtures import tiny_config
 
 
 def test_lsgan_targets() -> None:
@@ -74,19 +76,33 @@ def test_perceptual_loss_weights_and_gradients() -> None:
         PerceptualLoss(vgg, layer_weights=(1.0, 1.0))
 
 
-def test_generator_loss_terms() -> None:
-    features = [torch.rand(2, 4, 4, 4), torch.rand(2, 1, 2, 2)]
-    enhanced = torch.rand(2, 1, 16, 16)
-    target = torch.rand(2, 1, 16, 16)
-    weights = LossWeights(adversarial=2.0, feature_matching=3.0, perceptual=4.0, fidelity=5.0)
-    terms = generator_loss(features, features, enhanced, target, weights, perceptual=None)
-    assert set(terms) == {"adversarial", "feature_matching", "fidelity", "total"}
-    assert float(terms["feature_matching"]) == 0.0
-    assert float(terms["fidelity"]) == pytest.approx(5.0 * float(((enhanced - target) ** 2).mean()))
-    assert float(terms["total"]) == pytest.approx(
-        float(terms["adversarial"] + terms["feature_matching"] + terms["fidelity"])
+def test_training_weights_each_term_by_its_config_weight() -> None:
+    # what training runs: Trainer.generator_terms, weights from the run config's loss section
+    # (a test-only generator_loss had stood for it, so a slip in training went unseen)
+    config = tiny_config()
+    config = replace(
+        config, loss=replace(config.loss, adversarial=2.0, feature_matching=3.0, fidelity=5.0)
     )
-    with_vgg = generator_loss(
-        features, features, enhanced, target, weights, perceptual=PerceptualLoss(VGG19Features())
+    trainer = Trainer(config, torch.device("cpu"))
+    generator = torch.Generator().manual_seed(0)
+    x, target = torch.rand(2, 1, 32, 32, generator=generator), torch.rand(2, 1, 32, 32)
+    valid = torch.ones(2, 1, 32, 32)
+    with torch.no_grad():
+        total, terms, _ = trainer.generator_terms(x, target, valid)
+        enhanced = trainer.network(x)[1]
+    assert set(terms) == {"adversarial", "feature_matching", "fidelity"}  # no VGG weights here
+    weighted = (
+        2.0 * terms["adversarial"] + 3.0 * terms["feature_matching"] + 5.0 * terms["fidelity"]
     )
-    assert "perceptual" in with_vgg and float(with_vgg["perceptual"]) > 0
+    assert float(total) == pytest.approx(float(weighted))
+    assert float(terms["fidelity"]) == pytest.approx(float(((enhanced - target) ** 2).mean()))
+
+
+def test_fidelity_is_the_mean_over_trusted_pixels() -> None:
+    enhanced, target = torch.zeros(1, 1, 2, 4), torch.ones(1, 1, 2, 4)
+    target[..., :2] = 3.0  # the untrusted half: an error of 9 that must not count
+    valid = torch.ones(1, 1, 2, 4)
+    valid[..., :2] = 0
+    assert float(fidelity_loss(enhanced, target, valid)) == pytest.approx(1.0)
+    assert float(fidelity_loss(enhanced, target)) == pytest.approx(5.0)
+    assert float(fidelity_loss(enhanced, target, torch.zeros(1, 1, 2, 4))) == 0.0  # all untrusted

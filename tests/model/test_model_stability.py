@@ -1,5 +1,6 @@
 """Hard cases stay finite: constant and saturated images, flat frames, bf16, a GAN step."""
 
+import math
 import threading
 
 import pytest
@@ -9,10 +10,11 @@ from lenspair.model.checkpoint import load_model
 from lenspair.model.networks.enhancer import Enhancer
 from lenspair.model.networks.flat_frames import FLAT_RAMP, FLAT_RMS_RAMP, FLAT_TOLERANCE, flat_keep
 from lenspair.model.networks.layers import InstanceNorm
-from lenspair.model.networks.variants import build_discriminator, build_model
-from lenspair.model.training.losses import LossWeights, discriminator_loss, generator_loss
+from lenspair.model.networks.variants import build_model
 from lenspair.model.training.pretrained import pretrained_weights
+from lenspair.model.training.step import Trainer
 from tests.model.network_helpers import randomise
+from tests.model.train_fixtures import tiny_config
 
 TINY = {"width": 0.25, "num_blocks": 2}
 
@@ -76,31 +78,18 @@ def test_bf16_weights_forward_is_finite() -> None:
 
 
 def test_fp32_gan_training_step_without_nan() -> None:
+    # what training runs (Trainer.train_step): a saturated image in the batch
     torch.manual_seed(0)
-    model = build_model("GEA", 1, **TINY)
-    discriminator = build_discriminator(1, width=0.125)
-    optimizer_g = torch.optim.Adam(model.parameters(), lr=2e-4, betas=(0.5, 0.999))
-    optimizer_d = torch.optim.Adam(discriminator.parameters(), lr=2e-4, betas=(0.5, 0.999))
+    trainer = Trainer(tiny_config(), torch.device("cpu"))
     x = torch.rand(2, 1, 48, 48)
     x[0] = 1.0  # one saturated image in the batch
-    target = (x * 0.8).clamp(0, 1)
+    batch = {"input": x, "target": (x * 0.8).clamp(0, 1), "valid": torch.ones(2, 1, 48, 48)}
     for _ in range(2):
-        out = model(x)
-        fake = discriminator(torch.cat([x, out.generator], dim=1))
-        with torch.no_grad():
-            real = discriminator(torch.cat([x, target], dim=1))
-        terms = generator_loss(fake, real, out.enhanced, target, LossWeights(), perceptual=None)
-        optimizer_g.zero_grad()
-        terms["total"].backward()
-        optimizer_g.step()
-        real_logits = discriminator(torch.cat([x, target], dim=1))[-1]
-        fake_logits = discriminator(torch.cat([x, out.generator.detach()], dim=1))[-1]
-        loss_d = discriminator_loss(real_logits, fake_logits)
-        optimizer_d.zero_grad()
-        loss_d.backward()
-        optimizer_d.step()
-        assert all(_finite(value) for value in terms.values()) and _finite(loss_d)
-    for parameter in [*model.parameters(), *discriminator.parameters()]:
+        result = trainer.train_step(batch)
+        assert not result.skipped
+        assert {"loss_g", "loss_d", "adversarial", "fidelity"} <= set(result.losses)
+        assert all(math.isfinite(value) for value in result.losses.values())
+    for parameter in [*trainer.model.parameters(), *trainer.discriminator.parameters()]:
         assert _finite(parameter)
 
 
