@@ -46,6 +46,7 @@ from lenspair.model.checkpoint import load_model
 from lenspair.model.evaluation.onnx_graph import INPUT_NAME
 from lenspair.model.evaluation.quantize import open_session, quantize_network
 from lenspair.model.metrics import psnr
+from lenspair.model.networks.variants import AnomalyMitigator
 from lenspair.model.precision import choose_precision, read_cpu_flags
 from lenspair.model.training.pretrained import pretrained_weights
 from lenspair.simulate.natural_images import HELD_OUT, load_natural_images
@@ -53,9 +54,11 @@ from lenspair.simulate.presets import OUR_DROPS
 from lenspair.simulate.render import render_effects
 
 
-def _network() -> torch.nn.Module:
+def _network() -> AnomalyMitigator:
     """The shipped mono GEA, fp32, in eval mode on the CPU."""
-    return load_model(pretrained_weights(1)).network
+    network = load_model(pretrained_weights(1)).network
+    assert isinstance(network, AnomalyMitigator)
+    return network
 
 
 def _frames(count: int) -> tuple[torch.Tensor, list[torch.Tensor]]:
