@@ -70,6 +70,7 @@ from lenspair.commands.argtypes import (
     positive_int,
     random_seed,
 )
+from lenspair.core.config import config_path
 from lenspair.core.device import resolve_device
 from lenspair.core.durations import seconds, steps_or_seconds
 from lenspair.core.errors import ConfigError
@@ -181,7 +182,11 @@ def with_options(config: Any, args: argparse.Namespace) -> Any:
         "max_seconds": args.max_seconds,
         "batch_size": args.batch_size,
         "seed": args.seed,
-        "vgg19_weights": args.vgg19_weights,
+        # absolute, as a config file's are: the run's config.yaml keeps it, and a resume
+        # from another folder finds the same file
+        "vgg19_weights": None
+        if args.vgg19_weights is None
+        else config_path(args.vgg19_weights).resolve(),
         # --precision alone also lifts a stored amp: false (a run started with --no-amp,
         # resumed at bf16); both together are refused as contradicting each other
         "amp": False if args.no_amp else (True if args.precision else None),

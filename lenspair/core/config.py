@@ -15,6 +15,7 @@ path is read as the file means it (:func:`config_path`): ``~`` is the home
 folder, and a relative path is relative to the file's own folder.
 """
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -54,7 +55,10 @@ def config_path(value: str | Path, base_dir: Path | None = None) -> Path:
     folder holding the file, so that a config reads the same whatever folder
     lenspair runs from. ``base_dir=None`` leaves a relative path as written.
     """
-    path = Path(value).expanduser()
+    path = Path(value)
+    # ~nosuchuser, or no home folder: left as written, and "not found" names it
+    with contextlib.suppress(RuntimeError):
+        path = path.expanduser()
     return path if base_dir is None or path.is_absolute() else Path(base_dir) / path
 
 

@@ -63,18 +63,21 @@ def with_file(config: RunConfig, path: Path) -> RunConfig:
         ConfigError: the file alone is invalid (named, as :func:`load_run_config`),
             or the combination is.
     """
-    load_run_config(path, given=True)  # its own keys and types, with the file named
+    # its own keys and types, with the file named; its paths read beside it, while the
+    # stored configuration's keep what they were (re-read beside this file, a run's own
+    # relative vgg19_weights moved into the folder of a file that only set patience)
+    named = to_plain(load_run_config(path, given=True))
     data = read_yaml(path) or {}
     merged = to_plain(config)
     for section, values in data.items():
         if values is None:  # every key commented out: an empty section, as load_dataclass reads
             continue
         if isinstance(values, dict) and isinstance(merged.get(section), dict):
-            merged[section] = {**merged[section], **values}
+            merged[section] = {**merged[section], **{key: named[section][key] for key in values}}
         else:
-            merged[section] = values
+            merged[section] = named.get(section, values)
     try:
-        return run_config_from_dict(merged, Path(path).resolve().parent)
+        return run_config_from_dict(merged)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
 

@@ -15,6 +15,8 @@ import torch
 
 from lenspair.capture.calibration_source import calibration_files
 from lenspair.capture.rigfile import RigFile
+from lenspair.cli import build_parser
+from lenspair.commands.train import with_options
 from lenspair.core.config import config_path, load_yaml
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV, VGG19Features, load_vgg19
 from lenspair.model.training.config_loading import load_run_config, with_file
@@ -117,3 +119,30 @@ def test_train_s_vgg19_weights_option_under_home_is_loaded(home: Path) -> None:
     torch.save(VGG19Features().state_dict(), home / "x" / "vgg.pth")
     trainer = Trainer(tiny_config(vgg19_weights=Path("~/x/vgg.pth")), torch.device("cpu"))
     assert trainer.vgg is not None and trainer.perceptual_status.endswith(f"({home}/x/vgg.pth)")
+
+
+def test_a_config_over_a_stored_one_keeps_the_stored_paths(configs: Path) -> None:
+    # train --resume RUN --config patience.yaml re-read the run's own relative
+    # vgg19_weights beside patience.yaml: "no such file cfgs/weights/vgg19.pth"
+    stored = tiny_config(vgg19_weights=Path("weights/vgg19.pth"))
+    (configs / "patience.yaml").write_text("train:\n  patience: 3\n")
+    merged = with_file(stored, Path("../configs/patience.yaml"))
+    assert merged.train.patience == 3
+    assert merged.train.vgg19_weights == Path("weights/vgg19.pth")
+    (configs / "weights.yaml").write_text("train:\n  vgg19_weights: mine.pth\n")
+    named = with_file(stored, Path("../configs/weights.yaml"))
+    assert named.train.vgg19_weights == configs.resolve() / "mine.pth"  # the file's own: beside it
+
+
+def test_a_home_folder_that_cannot_be_told_leaves_the_path_as_written() -> None:
+    # ~nosuchuser ended in "RuntimeError: Could not determine home directory" (a traceback)
+    assert config_path("~nosuchuser_lenspair/vgg.pth") == Path("~nosuchuser_lenspair/vgg.pth")
+
+
+def test_train_s_vgg19_weights_option_is_kept_absolute(configs: Path) -> None:
+    # kept as typed (relative to where train ran), a resume from another folder missed it
+    args = build_parser("train").parse_args(
+        ["train", "--synthetic", "imgs", "--out", "run", "--vgg19-weights", "w.pth"]
+    )
+    config = with_options(tiny_config(), args)
+    assert config.train.vgg19_weights == Path.cwd() / "w.pth"
