@@ -135,6 +135,7 @@ def run_tradeoff(
     meta = {
         "dataset": str(dataset),
         "evaluated_on": pairs_text,
+        "pairs_scored": len(pairs),  # two draws of one dataset's name differ in it
         "budget": budget.describe(),
         "variants": [asdict(v) for v in variants],
         "device": str(device),

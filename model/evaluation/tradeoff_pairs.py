@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from lenspair.core.errors import LenspairError
-from lenspair.core.wording import counted
 from lenspair.dataset.layouts import detect_layout, split_folders
 from lenspair.model.checkpoint import LoadedModel
 from lenspair.model.errors import ModelError
@@ -112,8 +111,6 @@ def eval_pairs(
         )
     # scoring indexes the readable pairs; problems are reported by the split's own index
     view = readable.indices if isinstance(readable, SubsetSource) and unread else []
-    if opened is not None:  # tables of two draws of one dataset's name differ in it
-        pairs_text += f" ({counted(len(pairs), 'pair')})"
     return EvalPairs(readable, pairs_text, checkpoint, unread, view, opened)
 
 

@@ -32,6 +32,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from lenspair.core.fsutil import atomic_write, atomic_write_text, json_safe
+from lenspair.core.wording import counted
 from lenspair.model.evaluation.tradeoff_rows import TradeoffRow
 
 
@@ -72,7 +73,8 @@ def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
     lines = [
         "# Accuracy against inference time",
         "",
-        f"- data: `{meta['dataset']}`, scored on {meta['evaluated_on']}",
+        f"- data: `{meta['dataset']}`, scored on {meta['evaluated_on']}"
+        + (f" ({counted(meta['pairs_scored'], 'pair')})" if "pairs_scored" in meta else ""),
         f"- training budget per variant: {meta['budget']}",
         *([f"- scored: {meta['scored']}"] if "scored" in meta else []),
         f"- metric convention: {meta['convention']}",

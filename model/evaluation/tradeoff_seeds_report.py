@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from lenspair.core.wording import counted
 from lenspair.model.evaluation.published import ABLATION, STATE_OF_THE_ART, published_markdown
 from lenspair.model.evaluation.seed_statistics import CONVERGENCE_TAIL, SeedSummary
 from lenspair.model.evaluation.tradeoff_report import trained_on_line
@@ -76,7 +77,8 @@ def seeded_markdown(rows: Sequence[SeededRow], meta: dict[str, Any]) -> str:
     lines = [
         "# Accuracy against inference time, over seeds",
         "",
-        f"- data: `{meta['dataset']}`, scored on {meta['evaluated_on']}",
+        f"- data: `{meta['dataset']}`, scored on {meta['evaluated_on']}"
+        + (f" ({counted(meta['pairs_scored'], 'pair')})" if "pairs_scored" in meta else ""),
         f"- training budget per variant and seed: {meta['budget']}; seeds {meta['seeds']}",
         *([f"- training: {_schedule(meta['training'])}"] if "training" in meta else []),
         *(

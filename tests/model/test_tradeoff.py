@@ -852,7 +852,8 @@ def test_the_validation_split_scored_scores_the_end_of_the_budget(
     result = run_tradeoff(dataset, tmp_path / "out", torch.device("cpu"), Budget(steps=1),
                           tiny_config(), (variant,), latency_runs=1, split="val")  # fmt: skip
     assert loaded == ["last.pt"] and result.meta["scored"] == tradeoff_module.SCORED["last.pt"]
-    assert result.meta["evaluated_on"].endswith("split val (1 pair)")  # the count tells draws apart
+    assert result.meta["evaluated_on"].endswith("split val")
+    assert result.meta["pairs_scored"] == 1  # the count tells two draws of one dataset apart
 
 
 def test_only_seed_numbered_folders_make_an_output_seeded(tmp_path: Path) -> None:
