@@ -130,7 +130,7 @@ def _check_out(recording: Path, out: Path) -> None:
         or target.suffix.lower() in IMAGE_SUFFIXES
         or is_bag_name(target)  # a .bag.active too
     )
-    beside = recording.parent / f"{source.name}.camchain.yaml"
+    beside = source.parent / f"{source.name}.camchain.yaml"  # resolved: "." has no parent
     if target == source or (inside and read):
         raise ConfigError(
             f"--out {out}: is a file of the recording {recording} (its frames, index or rig "

@@ -65,7 +65,14 @@ def minutes(text: str) -> float:
     Raises:
         ValueError: as :func:`seconds`.
     """
-    bare = _FORM.fullmatch(text.lower())
-    if bare is not None and not bare.group(2):
-        return seconds(f"{text}m") / 60.0
-    return seconds(text) / 60.0
+    try:
+        bare = _FORM.fullmatch(text.lower())
+        if bare is not None and not bare.group(2):
+            return seconds(f"{text}m") / 60.0
+        return seconds(text) / 60.0
+    except ValueError as exc:
+        if "too large" in str(exc):
+            raise ValueError(f"too large to be a number of minutes, got {text!r}") from None
+        raise ValueError(
+            f"expected a positive time in minutes like 4, or with a unit: 90s, 5m, 1h; got {text!r}"
+        ) from None

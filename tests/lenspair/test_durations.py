@@ -70,3 +70,9 @@ def test_minutes_read_a_bare_number_as_minutes_and_a_unit_as_said(
 def test_minutes_refuse_what_is_not_a_positive_time(text: str) -> None:
     with pytest.raises(ValueError):
         minutes(text)
+
+
+def test_a_refused_minutes_quotes_what_was_typed() -> None:
+    # it quoted '0m', which nobody typed, in the seconds' wording
+    with pytest.raises(ValueError, match=r"positive time in minutes like 4, .*; got '0'$"):
+        minutes("0")

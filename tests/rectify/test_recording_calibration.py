@@ -111,7 +111,7 @@ def test_too_few_board_views_names_the_recording_and_what_was_found(tmp_path: Pa
 
 
 def test_an_out_that_is_a_file_of_the_recording_is_refused(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # --out board/mav0/cam0/data.csv overwrote the recording's index, silently
     recording = tmp_path / "rec"
@@ -135,6 +135,11 @@ def test_an_out_that_is_a_file_of_the_recording_is_refused(
     assert truth.read_text() == "{}"
     # the advice is a path outside the recording: "beside the recording as camchain.yaml"
     # read as the folder's own camchain.yaml, the file the simulator had written there
+    assert line.endswith(f"e.g. --out {tmp_path / 'rec.camchain.yaml'}")
+    # given as "." from inside it, the advice still names a path outside it
+    monkeypatch.chdir(recording)
+    assert main(["calibrate", ".", *argv[2:], "pinhole-equi", "--out", "rig.yaml"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.endswith(f"e.g. --out {tmp_path / 'rec.camchain.yaml'}")
 
 
