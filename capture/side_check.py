@@ -21,9 +21,8 @@ flat, or contradicting evidence). The check is a hint, not a verdict: dust,
 dirt and defocused drops remove detail, but sharp, refracting drops add edges
 (their rims), so heavy rain can leave the clean camera with less detail: on
 the bundled ``heavy_rain`` scene it named the clean camera on 10 of 14 seeds
-(8 before the histogram matching), up to confidence 0.63. Its messages say
-so, a mismatch is reported and never fatal, and ``dataset-build`` refuses
-only on the detector's check
+(8 before the histogram matching), up to confidence 0.63. Its messages say so, a mismatch is reported and never
+fatal, and ``dataset-build`` refuses only on the detector's check
 (:mod:`lenspair.capture.side_detector`). The raw (unrectified) views are used,
 so the grid must be coarse compared with the disparity between the cameras.
 """
