@@ -48,13 +48,7 @@ def seconds(text: str) -> float:
         ValueError: not a positive number with an optional unit s, m or h, or
             one too large to be finite (``1e400``, which ``float`` reads as inf).
     """
-    match = _FORM.fullmatch(text.lower())
-    if match is None or float(match.group(1)) <= 0:
-        raise ValueError(f"expected a positive time like 90, 90s, 10m, 1h; got {text!r}")
-    value = float(match.group(1)) * UNIT_SECONDS[match.group(2) or "s"]
-    if not math.isfinite(value):
-        raise ValueError(f"too large to be a number of seconds, got {text!r}")
-    return value
+    return _duration(text, "s", "like 90, 90s, 10m, 1h", "seconds")
 
 
 def minutes(text: str) -> float:
@@ -63,16 +57,18 @@ def minutes(text: str) -> float:
     A bare number is minutes; with a unit it reads as :func:`seconds` does.
 
     Raises:
-        ValueError: as :func:`seconds`.
+        ValueError: as :func:`seconds`, in minutes' words.
     """
-    try:
-        bare = _FORM.fullmatch(text.lower())
-        if bare is not None and not bare.group(2):
-            return seconds(f"{text}m") / 60.0
-        return seconds(text) / 60.0
-    except ValueError as exc:
-        if "too large" in str(exc):
-            raise ValueError(f"too large to be a number of minutes, got {text!r}") from None
-        raise ValueError(
-            f"expected a positive time in minutes like 4, or with a unit: 90s, 5m, 1h; got {text!r}"
-        ) from None
+    example = "in minutes like 4, or with a unit: 90s, 5m, 1h"
+    return _duration(text, "m", example, "minutes") / 60.0
+
+
+def _duration(text: str, bare_unit: str, example: str, noun: str) -> float:
+    """Seconds of ``text``; a bare number is in ``bare_unit`` (:func:`seconds`, :func:`minutes`)."""
+    match = _FORM.fullmatch(text.lower())
+    if match is None or float(match.group(1)) <= 0:
+        raise ValueError(f"expected a positive time {example}; got {text!r}")
+    value = float(match.group(1)) * UNIT_SECONDS[match.group(2) or bare_unit]
+    if not math.isfinite(value):
+        raise ValueError(f"too large to be a number of {noun}, got {text!r}")
+    return value
