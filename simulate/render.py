@@ -310,9 +310,10 @@ def apply_glass(
         raise SimulateError(str(exc)) from None
     _check_shape(image, glass)
     out = np.array(image, copy=True, order="C")
+    if _covers_nothing(glass, hook):  # nothing to decode, change or encode
+        return out, glass.mask.copy()
     values = _through_glass(_linearize(image), glass, hook)
-    if values is not None:
-        out.reshape(-1, values.shape[1])[glass.indices] = _encode(values, image.dtype)
+    out.reshape(-1, values.shape[1])[glass.indices] = _encode(values, image.dtype)
     return out, glass.mask.copy()
 
 
@@ -345,10 +346,10 @@ def apply_glass_linear(
         raise SimulateError(f"light: expected (H, W) or (H, W, C), got shape {light.shape}")
     _check_shape(light, glass)
     out = np.array(light, dtype=np.float32, copy=True, order="C")
-    linear = out.reshape(out.shape[0], out.shape[1], -1)
-    values = _through_glass(linear, glass, hook)
-    if values is not None:
-        out.reshape(-1, values.shape[1])[glass.indices] = values
+    if _covers_nothing(glass, hook):
+        return out, glass.mask.copy()
+    values = _through_glass(out.reshape(out.shape[0], out.shape[1], -1), glass, hook)
+    out.reshape(-1, values.shape[1])[glass.indices] = values
     return out, glass.mask.copy()
 
 
@@ -357,19 +358,23 @@ def _check_shape(image: np.ndarray, glass: GlassState) -> None:
         raise SimulateError(f"image: expected (H, W) = {glass.shape}, got {image.shape[:2]}")
 
 
-def _through_glass(
-    linear: np.ndarray, glass: GlassState, hook: EffectHook | None
-) -> np.ndarray | None:
-    """Linear light at the footprint pixels after the glass, ``(M, C)``; ``None``: no footprint.
+def _covers_nothing(glass: GlassState, hook: EffectHook | None) -> bool:
+    """Whether nothing is listed or nothing on the glass covers a pixel (each listed one said)."""
+    if glass.indices.size:
+        return False
+    for name in glass.effects.listed:
+        (hook or _ignore)(name)
+    return True
 
-    ``linear`` is the whole frame, ``float32`` ``(H, W, C)``.
+
+def _through_glass(linear: np.ndarray, glass: GlassState, hook: EffectHook | None) -> np.ndarray:
+    """Linear light at the footprint pixels after the glass, ``(M, C)``.
+
+    ``linear`` is the whole frame, ``float32`` ``(H, W, C)``; the footprint is
+    not empty (:func:`_covers_nothing`).
     """
     effects = glass.effects
     notify = hook if hook is not None else _ignore
-    if glass.indices.size == 0:  # nothing listed, or nothing on the glass covers a pixel
-        for name in effects.listed:
-            notify(name)
-        return None
     channels = linear.shape[2]
     values = np.take(linear.reshape(-1, channels), glass.indices, axis=0)
     light = None
