@@ -257,7 +257,7 @@ class Trainer:
         }
         terms["fidelity"] = fidelity_loss(enhanced, target, valid)
         if self.perceptual is not None:
-            trusted = valid * target + (1 - valid) * enhanced.detach()
+            trusted = trusted_target(target, enhanced, valid)
             with self._autocast():
                 terms["perceptual"] = self.perceptual(enhanced, trusted).float()
         total = sum(
