@@ -115,7 +115,7 @@ def _precision_rows(
             [
                 f"precisions native on this CPU{capped}",
                 ", ".join(decision["native"]),
-                "lenspair.model.precision (auto never picks an emulated one): "
+                "lenspair.model.precision (auto: native and measured faster than fp32): "
                 + str(decision.get("reason", "reason not recorded")),
                 f"auto: {decision['precision']}",
                 "",

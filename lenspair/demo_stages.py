@@ -69,8 +69,9 @@ def _fingerprint(stage: Stage) -> dict[str, str]:
     """sha256 of the YAML files a stage reads (scene specs, configs), by path.
 
     Stages that train or time networks also record the CPU's native
-    precisions: the same demo rerun on a CPU without native bf16 (or under
-    ``ONEDNN_MAX_CPU_ISA``) trains at fp32 and must not reuse bf16 results.
+    precisions and the one ``auto`` trains at: the same demo rerun on a CPU
+    without native bf16, or with one slower than fp32 (or under
+    ``ONEDNN_MAX_CPU_ISA``), trains at fp32 and must not reuse bf16 results.
     """
     inputs = {
         arg: sha256_file(Path(arg))
@@ -82,10 +83,12 @@ def _fingerprint(stage: Stage) -> dict[str, str]:
         import torch
 
         # (the same reason: the precision module loads torch)
-        from lenspair.model.precision import native_precisions, probe_hardware
+        from lenspair.model.precision import choose_precision
 
-        native = native_precisions(probe_hardware(torch.device("cpu")))
-        inputs["cpu native precisions"] = ",".join(native)
+        decision = choose_precision("auto", torch.device("cpu"), "train")
+        inputs["cpu native precisions"] = ",".join(decision.native)
+        # a native bf16 that measured slower than fp32 trains at fp32 (measured once per process)
+        inputs["cpu auto training precision"] = decision.precision
     return inputs
 
 

@@ -5,7 +5,10 @@ benchmarks: ``--precision auto|fp32|bf16|fp16|int8``. ``auto`` is the fastest
 precision the device runs *natively*; a precision the device only emulates is
 never chosen by ``auto`` (bf16 on a CPU without bf16 instructions is emulated
 by oneDNN through fp32 conversions: a GEA training step measured 2.6x slower
-than fp32 on an AVX-512 Xeon without ``avx512_bf16``).
+than fp32 on an AVX-512 Xeon without ``avx512_bf16``). Native is not always
+faster either (an Intel Xeon with ``avx512_bf16`` but no AMX ran bf16 at 0.65x
+fp32's speed), so on a CPU ``auto`` takes a native bf16 only after timing it
+against fp32 (:mod:`lenspair.model.precision_measure`, :data:`BF16_MIN_SPEED`).
 
 What counts as native:
 
@@ -61,11 +64,11 @@ from typing import Literal
 import torch
 
 from lenspair.model.errors import ModelError
+from lenspair.model.precision_measure import Task, measure_bf16_speed
 
 Precision = Literal["fp32", "bf16", "fp16", "int8"]
 PRECISIONS: tuple[str, ...] = ("fp32", "bf16", "fp16", "int8")
 CHOICES: tuple[str, ...] = ("auto", *PRECISIONS)
-Task = Literal["train", "infer"]
 
 CPU_BF16_FLAGS = frozenset({"avx512_bf16", "amx_bf16", "bf16"})
 """``/proc/cpuinfo`` flags that mean bf16 arithmetic in hardware (x86 and Arm)."""
@@ -98,6 +101,16 @@ class Hardware:
 
 
 Probe = Callable[[torch.device], Hardware]
+Bf16Speed = Callable[[Task], float]
+"""bf16's speed as a multiple of fp32's on this CPU, for a task (measured; mocked in tests)."""
+
+BF16_MIN_SPEED = 1.1
+"""``auto`` takes a native bf16 on the CPU only where it measured at least this x fp32's speed.
+
+The margin keeps a CPU where the two run alike from flipping between runs;
+measured ratios sit far from it (AMD Zen 5 about 2x, an Intel Xeon without
+AMX 0.6x, :mod:`lenspair.model.precision_measure`).
+"""
 
 
 @dataclass(frozen=True)
@@ -111,6 +124,8 @@ class PrecisionDecision:
         native: the precisions the device runs natively, fastest first.
         device: the device the decision is for (``cpu``, ``cuda:0``).
         hardware: CPU model or CUDA device name.
+        bf16_speed: bf16's measured speed as a multiple of fp32's, where
+            ``auto`` measured it (a CPU with native bf16), else ``None``.
 
     """
 
@@ -120,6 +135,7 @@ class PrecisionDecision:
     native: tuple[str, ...]
     device: str
     hardware: str
+    bf16_speed: float | None = None
 
     @property
     def autocast_dtype(self) -> torch.dtype | None:
@@ -144,6 +160,7 @@ class PrecisionDecision:
             "native": list(self.native),
             "device": self.device,
             "hardware": self.hardware,
+            "bf16_speed": self.bf16_speed,
         }
 
 
@@ -256,16 +273,33 @@ def _why_native(hardware: Hardware, precision: str) -> str:
     return "CPU flag " + ", ".join(found) if found else "no CPU flag"
 
 
+_MEASURED = {
+    "train": "a 64-channel 3x3 convolution, forward and backward",
+    "infer": "a 64-channel 3x3 convolution",
+}
+
+
 def choose_precision(
-    requested: str, device: torch.device, task: Task, probe: Probe = probe_hardware
+    requested: str,
+    device: torch.device,
+    task: Task,
+    probe: Probe = probe_hardware,
+    bf16_speed: Bf16Speed | None = None,
 ) -> PrecisionDecision:
     """Resolve ``--precision`` for ``device`` and ``task``.
+
+    On a CPU with native bf16, ``auto`` times bf16 against fp32 first
+    (``bf16_speed``) and keeps fp32 unless bf16 measured at least
+    :data:`BF16_MIN_SPEED` x its speed: a flag says the instructions exist,
+    not that they are faster (:mod:`lenspair.model.precision_measure`).
 
     Args:
         requested: ``auto``, ``fp32``, ``bf16``, ``fp16`` or ``int8``.
         device: where the run computes.
         task: ``train`` (autocast training) or ``infer`` (eval, tradeoff, export).
         probe: reads the hardware (mocked in tests).
+        bf16_speed: measures bf16's speed against fp32's (default
+            :func:`~lenspair.model.precision_measure.measure_bf16_speed`; mocked in tests).
 
     Returns:
         The decision with its reason and the native set.
@@ -283,6 +317,17 @@ def choose_precision(
     if requested == "auto":
         candidates = [p for p in native if p != "int8"]
         precision = "fp32" if hardware.kind == "cuda" else candidates[0]
+        measure = bf16_speed or measure_bf16_speed
+        speed = measure(task) if precision == "bf16" else None
+        if speed is not None and speed < BF16_MIN_SPEED:
+            reason = (
+                f"auto: fp32 on {where}: bf16 is native ({_why_native(hardware, 'bf16')}) but "
+                f"measured {speed:.2f}x fp32's speed here ({_MEASURED[task]}; bf16 needs "
+                f"{BF16_MIN_SPEED}x)"
+            )
+            return PrecisionDecision(
+                "fp32", requested, reason, native, str(device), hardware.name, speed
+            )
         if precision == "fp32":
             if hardware.kind == "cuda":
                 reason = f"auto: fp32 on {where}: " + (
@@ -301,9 +346,12 @@ def choose_precision(
                     reason += f"; {hardware.isa_cap}"
         else:
             reason = (
-                f"auto: fastest native precision on {where} ({_why_native(hardware, precision)})"
+                f"auto: fastest native precision on {where} ({_why_native(hardware, precision)}; "
+                f"measured {speed:.2f}x fp32's speed, {_MEASURED[task]})"
             )
-        return PrecisionDecision(precision, requested, reason, native, str(device), hardware.name)
+        return PrecisionDecision(
+            precision, requested, reason, native, str(device), hardware.name, speed
+        )
     if requested == "fp16" and device.type == "cpu":
         raise ModelError("precision fp16 runs on CUDA only; on the CPU use bf16 or fp32")
     if requested == "int8" and task == "train":

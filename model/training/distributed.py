@@ -5,18 +5,22 @@ environment (:func:`distributed_from_env`), joins the process group
 (:func:`init_distributed`: NCCL on CUDA, gloo on the CPU), and the
 :class:`~lenspair.model.training.step.Trainer` wraps both networks in
 ``DistributedDataParallel``. Decisions every process must take together (skip
-a non-finite step, stop the run) go through :func:`all_true`. A single-process
+a non-finite step, stop the run) go through :func:`all_true`; values every
+process must share (the precision ``auto`` measured) come from rank 0 through
+:func:`from_main`. A single-process
 run never touches ``torch.distributed``.
 """
 
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 import torch.distributed as dist
 
 from lenspair.model.errors import ModelError
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -90,3 +94,15 @@ def all_true(flag: bool, info: Distributed, device: torch.device) -> bool:
     value = torch.tensor([1 if flag else 0], device=device)
     dist.all_reduce(value, op=dist.ReduceOp.MIN)
     return bool(value.item())
+
+
+def from_main(value: T, info: Distributed) -> T:
+    """Rank 0's ``value`` on every process (``value`` itself without ``torchrun``).
+
+    ``value`` must pickle; it travels by ``broadcast_object_list``.
+    """
+    if not info.active:
+        return value
+    shared = [value]
+    dist.broadcast_object_list(shared, src=0)
+    return shared[0]

@@ -45,7 +45,7 @@ from lenspair.model.networks.variants import build_discriminator
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV, load_vgg19
 from lenspair.model.precision import PrecisionDecision, choose_precision
 from lenspair.model.training.config import RunConfig, TrainConfig
-from lenspair.model.training.distributed import Distributed, all_true
+from lenspair.model.training.distributed import Distributed, all_true, from_main
 from lenspair.model.training.losses import (
     PerceptualLoss,
     discriminator_loss,
@@ -196,7 +196,8 @@ class Trainer:
         betas = (train.beta1, train.beta2)
         self.opt_g = torch.optim.Adam(self.network.parameters(), lr=train.lr, betas=betas)
         self.opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=train.lr, betas=betas)
-        self.decision = decision or training_precision(train, device)
+        # auto times bf16 in each process: all train at rank 0's choice
+        self.decision = from_main(decision or training_precision(train, device), self.info)
         self.precision = describe_precision(self.decision.precision)
         self.amp_dtype = self.decision.autocast_dtype
         self.scaler = torch.amp.GradScaler(device.type, enabled=self.amp_dtype == torch.float16)

@@ -379,9 +379,9 @@ def test_rows_under_an_isa_cap_say_so_and_emulated_precisions_are_marked(tmp_pat
     text = to_markdown(bench_blocks(bench))
     assert (
         "| precisions native on this CPU, oneDNN capped: ONEDNN_MAX_CPU_ISA=AVX2 | int8, fp32 "
-        "| lenspair.model.precision (auto never picks an emulated one): auto: bf16 is not "
-        "native on AMD EPYC (cpu) (emulated bf16 is slower than fp32); ONEDNN_MAX_CPU_ISA=AVX2 "
-        "turns off avx512_bf16 | auto: fp32 |"
+        "| lenspair.model.precision (auto: native and measured faster than fp32): auto: bf16 "
+        "is not native on AMD EPYC (cpu) (emulated bf16 is slower than fp32); "
+        "ONEDNN_MAX_CPU_ISA=AVX2 turns off avx512_bf16 | auto: fp32 |"
     ) in text
     assert (
         "| GEA 540x360 batch 1, bf16 weights channels-last, emulated (bf16 not native under "

@@ -186,6 +186,28 @@ def test_a_machine_with_other_native_precisions_reruns_the_training_stages(
     assert not again["train"]["reused"]
 
 
+def test_a_native_bf16_measured_slower_than_fp32_reruns_the_training_stages(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the same flags, but this CPU runs its bf16 slower than fp32 (AMX hidden): auto
+    # trains at fp32 here, so results trained at bf16 elsewhere must not be reused
+    from lenspair.model import precision
+
+    spec = tmp_path / "scene.yaml"
+    spec.write_text("frames: 10\n")
+    stages = _stages(tmp_path, spec)
+    cli = FakeCli({s.argv[0]: s.output for s in stages})
+    monkeypatch.setattr(precision, "native_precisions", lambda hardware: ("bf16", "fp32"))
+    monkeypatch.setattr(precision, "measure_bf16_speed", lambda task: 1.8)
+    run_stages(tmp_path, stages, cli)
+    monkeypatch.setattr(precision, "measure_bf16_speed", lambda task: 0.6)
+    again = run_stages(tmp_path, stages, cli)
+    assert cli.calls == ["simulate", "ingest", "train", "train"]
+    assert not again["train"]["reused"]
+    monkeypatch.setattr(precision, "measure_bf16_speed", lambda task: 0.7)
+    assert run_stages(tmp_path, stages, cli)["train"]["reused"]  # fp32 again: nothing to redo
+
+
 def test_a_folder_of_the_users_own_is_refused_never_emptied(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -24,6 +24,8 @@ from tests.model.train_fixtures import tiny_config, write_split_dataset
 CPU = torch.device("cpu")
 STEPS = 3
 FP32 = PrecisionDecision("fp32", "fp32", "test", ("fp32",), "cpu", "test")
+# what auto may measure in a second process while the first measured fp32 faster
+BF16 = PrecisionDecision("bf16", "auto", "measured", ("bf16", "fp32"), "cpu", "test", 1.3)
 
 
 def _batch(seed: int) -> dict[str, torch.Tensor]:
@@ -35,7 +37,8 @@ def _batch(seed: int) -> dict[str, torch.Tensor]:
 
 def _train(rank: int, world: int, out: str) -> None:
     """A few DDP steps; the trainer (and its DDP wrappers) is gone when this returns."""
-    trainer = Trainer(tiny_config(), CPU, Distributed(rank, world, rank), decision=FP32)
+    decision = FP32 if rank == 0 else BF16
+    trainer = Trainer(tiny_config(), CPU, Distributed(rank, world, rank), decision=decision)
     mismatched = []
     for step in range(STEPS):
         # Each rank sees different data: only gradient averaging keeps them equal.
@@ -46,6 +49,7 @@ def _train(rank: int, world: int, out: str) -> None:
     state = {k: v.clone() for k, v in trainer.model.state_dict().items()}
     torch.save(state, Path(out) / f"rank{rank}.pt")
     (Path(out) / f"rank{rank}.json").write_text(json.dumps(sorted(set(mismatched))))
+    (Path(out) / f"rank{rank}.precision").write_text(trainer.decision.precision)
 
 
 def _threads() -> int | None:
@@ -98,6 +102,8 @@ def test_two_process_ddp_ends_with_identical_weights(
     assert any(not torch.equal(initial[k], weights[0][k]) for k in initial), "nothing trained"
     for rank in range(2):
         assert json.loads((tmp_path / f"rank{rank}.json").read_text()) == []
+        # every rank trains at rank 0's precision, whatever its own measurement said
+        assert (tmp_path / f"rank{rank}.precision").read_text() == "fp32"
         before, after = json.loads((tmp_path / f"rank{rank}.threads").read_text())
         if before is not None:
             assert after <= before, f"rank {rank}: {after} threads after the group, {before} before"

@@ -184,11 +184,14 @@ def test_precision_auto_follows_the_hardware(monkeypatch: pytest.MonkeyPatch) ->
 
     native = probe(frozenset({"avx512_bf16", "avx512_vnni"}))
     emulated = probe(frozenset({"avx512f", "avx512_vnni"}))
-    monkeypatch.setattr(
-        "lenspair.model.inference.backends.choose_precision",
-        lambda r, d, t: precision.choose_precision(r, d, t, probe=native),
-    )
-    assert resolve_precision("auto", CPU) == "bf16"
+    for speed, expected in ((1.8, "bf16"), (0.6, "fp32")):  # native, measured faster / slower
+        monkeypatch.setattr(
+            "lenspair.model.inference.backends.choose_precision",
+            lambda r, d, t, s=speed: precision.choose_precision(
+                r, d, t, probe=native, bf16_speed=lambda task: s
+            ),
+        )
+        assert resolve_precision("auto", CPU) == expected
     monkeypatch.setattr(
         "lenspair.model.inference.backends.choose_precision",
         lambda r, d, t: precision.choose_precision(r, d, t, probe=emulated),

@@ -7,6 +7,7 @@ import torch
 
 from lenspair.model.errors import ModelError
 from lenspair.model.precision import (
+    BF16_MIN_SPEED,
     Hardware,
     apply_isa_cap,
     choose_precision,
@@ -15,6 +16,7 @@ from lenspair.model.precision import (
     probe_hardware,
     read_cpu_flags,
 )
+from lenspair.model.precision_measure import measure_bf16_speed, speed_ratio
 
 CPU = torch.device("cpu")
 CUDA = torch.device("cuda", 0)
@@ -32,15 +34,72 @@ def _probe(hardware: Hardware):  # type: ignore[no-untyped-def]
     return lambda device: hardware
 
 
-def test_native_bf16_cpu_trains_and_infers_in_bf16() -> None:
+def _speed(ratio: float, asked: list[str] | None = None):  # type: ignore[no-untyped-def]
+    def measure(task: str) -> float:
+        if asked is not None:
+            asked.append(task)
+        return ratio
+
+    return measure
+
+
+def test_native_bf16_cpu_trains_and_infers_in_bf16_where_it_measured_faster() -> None:
     hardware = _cpu("avx512_bf16", "avx512_vnni")
+    asked: list[str] = []
     for task in ("train", "infer"):
-        decision = choose_precision("auto", CPU, task, _probe(hardware))  # type: ignore[arg-type]
+        decision = choose_precision("auto", CPU, task, _probe(hardware), _speed(1.9, asked))  # type: ignore[arg-type]
         assert decision.precision == "bf16"
-        assert "avx512_bf16" in decision.reason
+        assert "avx512_bf16" in decision.reason and "1.90x" in decision.reason
         assert decision.native == ("int8", "bf16", "fp32")
         assert not decision.emulated
         assert decision.autocast_dtype == torch.bfloat16
+        assert decision.as_dict()["bf16_speed"] == 1.9
+    assert asked == ["train", "infer"]  # each task measured as itself
+
+
+@pytest.mark.parametrize("ratio", [0.57, 0.9, BF16_MIN_SPEED - 0.01])
+def test_native_bf16_that_measured_slower_than_fp32_is_not_chosen(ratio: float) -> None:
+    # an Intel Xeon whose hypervisor hides AMX: avx512_bf16 is there, and 0.6x fp32
+    hardware = _cpu("avx512_bf16", "avx512_vnni")
+    decision = choose_precision("auto", CPU, "infer", _probe(hardware), _speed(ratio))
+    assert decision.precision == "fp32" and decision.autocast_dtype is None
+    assert decision.native == ("int8", "bf16", "fp32")  # still native: on request it runs
+    assert f"measured {ratio:.2f}x fp32's speed" in decision.reason
+    assert decision.bf16_speed == ratio
+    forced = choose_precision("bf16", CPU, "train", _probe(hardware), _speed(ratio))
+    assert forced.precision == "bf16" and not forced.emulated
+
+
+def test_only_auto_on_a_bf16_cpu_measures() -> None:
+    asked: list[str] = []
+    choose_precision("auto", CPU, "train", _probe(_cpu("avx512_vnni")), _speed(2.0, asked))
+    choose_precision("bf16", CPU, "train", _probe(_cpu("avx512_bf16")), _speed(2.0, asked))
+    choose_precision("fp32", CPU, "infer", _probe(_cpu("avx512_bf16")), _speed(2.0, asked))
+    choose_precision("auto", CUDA, "train", _probe(_gpu(9, 0)), _speed(2.0, asked))
+    assert asked == []
+
+
+def test_speed_ratio_is_the_median_of_alternating_pairs() -> None:
+    now = [0.0]
+    warmup, timed = [1.0, 1.0, 1.0, 1.0], [4.0, 1.0, 4.0, 2.0, 40.0, 1.0]
+    costs = iter([*warmup, *timed])
+
+    def run() -> None:
+        now[0] += next(costs)
+
+    # timed pairs: 4/1, 4/2, 40/1 -> median 4: one disturbed pair does not move it
+    assert speed_ratio(run, run, repeats=3, warmup=2, clock=lambda: now[0]) == 4.0
+
+
+def test_measured_bf16_speed_is_a_positive_ratio_kept_per_process() -> None:
+    torch.manual_seed(7)
+    expected = torch.rand(3)
+    torch.manual_seed(7)
+    first = measure_bf16_speed("train")
+    # measuring leaves the global generator alone: a run draws the same numbers either way
+    assert torch.equal(torch.rand(3), expected)
+    assert 0.05 < first < 20.0
+    assert measure_bf16_speed("train") == first  # measured once per process
 
 
 def test_amx_counts_as_native_bf16_and_int8() -> None:
@@ -127,7 +186,7 @@ def test_auto_never_picks_int8_but_int8_is_native_with_vnni() -> None:
 
 
 def test_decision_record_is_json_ready() -> None:
-    decision = choose_precision("auto", CPU, "infer", _probe(_cpu("avx512_bf16")))
+    decision = choose_precision("auto", CPU, "infer", _probe(_cpu("avx512_bf16")), _speed(2.0))
     record = decision.as_dict()
     assert record["precision"] == "bf16" and record["requested"] == "auto"
     assert record["native"] == ["bf16", "fp32"]

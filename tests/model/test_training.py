@@ -160,7 +160,7 @@ def test_auto_precision_follows_the_probe(monkeypatch: pytest.MonkeyPatch) -> No
         monkeypatch.setattr(
             "lenspair.model.training.step.choose_precision",
             lambda requested, device, task, flags=flags: choose_precision(
-                requested, device, task, probe(flags)
+                requested, device, task, probe(flags), bf16_speed=lambda task: 1.8
             ),
         )
         trainer = Trainer(tiny_config(amp=True), CPU)
