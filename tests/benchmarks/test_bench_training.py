@@ -46,3 +46,12 @@ def test_the_table_says_what_torch_compile_s_compilation_took() -> None:
     }  # fmt: skip
     table = bench_training._table(result)
     assert "torch.compile's first step (compilation) took 42 s, not timed" in table
+
+
+def test_auto_is_fastest_within_a_tie_and_compiled_rows_do_not_count() -> None:
+    medians = {"bf16": 6.215, "fp32": 6.255, "fp32 + torch.compile": 3.0}
+    # fp32 within 1 % of bf16 (one Intel run): a tie, not a wrong choice
+    assert bench_training.auto_time_over_fastest(medians, "fp32") == pytest.approx(6.255 / 6.215)
+    assert bench_training.auto_time_over_fastest(medians, "bf16") == 1.0  # compile left out
+    slow = {"bf16": 1.51, "fp32": 3.15}  # an AMD EPYC: fp32 chosen there would be wrong
+    assert bench_training.auto_time_over_fastest(slow, "fp32") > 1.0 + bench_training.TIE
