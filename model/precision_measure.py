@@ -4,11 +4,12 @@ A CPU flag says that bf16 instructions exist, not that they are faster than
 fp32. They are on an AMD EPYC (Zen 5: a GEA training step 1.82x fp32's speed)
 and with AMX. They are not on an Intel Xeon whose hypervisor hides AMX but
 shows ``avx512_bf16`` (family 6 model 207, measured with ``python -m
-benchmarks --only model training``): there ``vdpbf16ps`` issues on one port
-where fp32 FMAs issue on two, and oneDNN's native ``avx512_core_bf16`` kernels
-ran a 1024x1024 matmul at 0.58x fp32's speed, the GEA 540x360 frame at 0.65x
-and a training step at 0.90x. ``auto`` (:func:`lenspair.model.precision.choose_precision`)
-therefore measures before it takes bf16.
+benchmarks --only model training``, docs/results/cpu_intel_xeon.md): oneDNN's
+native ``avx512_core_bf16`` kernels ran a 1024x1024 matmul at 0.58x fp32's
+speed, the GEA 540x360 frame at 0.65x and a training step at 0.90x (probably
+because ``vdpbf16ps`` issues on one port where fp32 FMAs issue on two).
+``auto`` (:func:`lenspair.model.precision.choose_precision`) therefore measures
+before it takes bf16.
 
 What is timed is the layer that takes most of the GEA's time (44 % of a
 540x360 frame, ``bench_model``'s per-layer profile): a 64-channel 3x3

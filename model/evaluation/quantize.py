@@ -15,8 +15,10 @@ Why ONNX Runtime and not PyTorch's PT2E ``X86InductorQuantizer`` (torchao):
 mono, batch 1, the shipped weights on a held-out photograph, against fp32
 torch channels-last). Which is faster depends on the CPU, and single runs of
 ten on the same 2-core AMD EPYC with ``avx512_vnni`` have put either path
-between about 0.75x and 1.45x fp32's speed (the README's measured section and
-``docs/results/cpu_amd_epyc.md`` give one run each); under load from other
+between about 0.75x and 1.45x fp32's speed (``docs/results/cpu_amd_epyc.md``
+gives one run); on an Intel Xeon without AMX, one run: ONNX Runtime 0.72x,
+PT2E 1.35x (``docs/results/cpu_intel_xeon.md``, the README's measured
+section); under load from other
 processes the ratio means nothing (OpenMP's spinning threads slow fp32 torch
 far more than ONNX Runtime, which does not spin: one loaded run read int8 13x
 faster), which is why the benchmark runner records a busy start. PT2E keeps
