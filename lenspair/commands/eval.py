@@ -29,7 +29,8 @@ elsewhere).
 --describe prints the parameter count and FLOPs at 540x360 and exits.
 
 --precision fp32 (default: the reference numbers), auto (bf16 on a CPU with
-avx512_bf16/AMX, else fp32; fp32 on CUDA, where bf16/fp16 autocast measured
+avx512_bf16/AMX where a short timing finds it faster than fp32, else fp32;
+fp32 on CUDA, where bf16/fp16 autocast measured
 slower for these networks; never an emulated precision), bf16, fp16
 (CUDA) or int8 (CPU only; ONNX Runtime static quantisation calibrated on 16
 obstructed images of --calibration DS, its train split for a dataset;
@@ -88,8 +89,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--precision",
         choices=("auto", "fp32", "bf16", "fp16", "int8"),
         default="fp32",
-        help="inference precision (fp32; auto: bf16 on a CPU with avx512_bf16/AMX, else fp32; "
-        "fp32 on CUDA; int8: ONNX Runtime on the CPU)",
+        help="inference precision (fp32; auto: bf16 on a CPU with avx512_bf16/AMX where it "
+        "measures faster than fp32, else fp32; fp32 on CUDA; int8: ONNX Runtime on the CPU)",
     )
     parser.add_argument(
         "--calibration",

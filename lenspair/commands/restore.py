@@ -119,7 +119,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--precision",
         choices=PRECISIONS,
         default="auto",
-        help="auto (bf16 on a CPU with avx512_bf16/AMX, else fp32; fp32 on CUDA), fp32, bf16 "
+        help="auto (bf16 on a CPU with avx512_bf16/AMX where it measures faster than fp32, "
+        "else fp32; fp32 on CUDA), fp32, bf16 "
         "or fp16 (CUDA); an ONNX model runs at the precision it was exported at (fp32, or int8 "
         "from export --int8)",
     )

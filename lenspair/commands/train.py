@@ -37,8 +37,9 @@ epochs, early stopping on validation PSNR (patience 10), random 256 px crops
 and flips, LSGAN + feature matching on the generator output, VGG19
 perceptual + L2 on the enhanced output. --precision auto (the default) trains
 at the precision measured fastest, never an emulated one: bf16 autocast on a
-CPU with avx512_bf16 or AMX, fp32 on one without (emulated bf16 is ~2.6x
-slower), and fp32 on CUDA (on an H100 bf16/fp16 autocast ran slower: these
+CPU with avx512_bf16 or AMX where a timing of under a second finds it faster
+than fp32 (on an Intel Xeon without AMX it ran at 0.7x), fp32 otherwise
+(emulated bf16 is ~2.6x slower), and fp32 on CUDA (on an H100 bf16/fp16 autocast ran slower: these
 networks are too small for tensor cores to repay the casts; --precision bf16
 or fp16 still runs on request, fp16 with a GradScaler); the choice and its
 reason are printed once and written to RUN/config.yaml (runtime). Without
@@ -157,7 +158,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--precision",
         choices=("auto", "fp32", "bf16", "fp16"),
-        help="train.precision (auto: bf16 on a CPU with avx512_bf16/AMX, else fp32; fp32 on CUDA)",
+        help="train.precision (auto: bf16 on a CPU with avx512_bf16/AMX where it measures "
+        "faster than fp32, else fp32; fp32 on CUDA)",
     )
     group.add_argument("--no-amp", action="store_true", help="train at fp32 (same as fp32)")
     group.add_argument("--vgg19-weights", type=input_path, help="train.vgg19_weights")
