@@ -166,46 +166,41 @@ def test_a_scene_without_a_board_is_a_demo_error() -> None:
         board_arguments("rain.yaml")
 
 
-def test_a_machine_with_other_native_precisions_reruns_the_training_stages(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+@pytest.mark.parametrize(
+    ("first", "second"),
+    [
+        # bf16 emulated on the second machine (another CPU, or ONEDNN_MAX_CPU_ISA)
+        ((("bf16", "fp32"), 1.8), (("fp32",), 1.8)),
+        # the same flags, but a CPU whose bf16 runs slower than fp32 (AMX hidden)
+        ((("bf16", "fp32"), 1.8), (("bf16", "fp32"), 0.6)),
+    ],
+)
+def test_a_machine_where_auto_trains_at_another_precision_reruns_the_training_stages(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    first: tuple[tuple[str, ...], float],
+    second: tuple[tuple[str, ...], float],
 ) -> None:
     from lenspair.model import precision
+
+    def machine(native: tuple[str, ...], bf16_speed: float) -> None:
+        monkeypatch.setattr(precision, "native_precisions", lambda hardware: native)
+        monkeypatch.setattr(precision, "measure_bf16_speed", lambda task: bf16_speed)
 
     spec = tmp_path / "scene.yaml"
     spec.write_text("frames: 10\n")
     stages = _stages(tmp_path, spec)
     cli = FakeCli({s.argv[0]: s.output for s in stages})
-    monkeypatch.setattr(precision, "native_precisions", lambda hardware: ("bf16", "fp32"))
+    machine(*first)
     run_stages(tmp_path, stages, cli)
-    # the same demo where bf16 is emulated (another CPU, or ONEDNN_MAX_CPU_ISA): auto
-    # trains at fp32, so the bf16 results must not be reused; the recording may be
-    monkeypatch.setattr(precision, "native_precisions", lambda hardware: ("fp32",))
+    # auto trains at fp32 on the second machine: the bf16 results must not be reused;
+    # the recording may be
+    machine(*second)
     again = run_stages(tmp_path, stages, cli)
     assert cli.calls == ["simulate", "ingest", "train", "train"]
     assert again["simulate"]["reused"] and again["ingest"]["reused"]
     assert not again["train"]["reused"]
-
-
-def test_a_native_bf16_measured_slower_than_fp32_reruns_the_training_stages(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    # the same flags, but this CPU runs its bf16 slower than fp32 (AMX hidden): auto
-    # trains at fp32 here, so results trained at bf16 elsewhere must not be reused
-    from lenspair.model import precision
-
-    spec = tmp_path / "scene.yaml"
-    spec.write_text("frames: 10\n")
-    stages = _stages(tmp_path, spec)
-    cli = FakeCli({s.argv[0]: s.output for s in stages})
-    monkeypatch.setattr(precision, "native_precisions", lambda hardware: ("bf16", "fp32"))
-    monkeypatch.setattr(precision, "measure_bf16_speed", lambda task: 1.8)
-    run_stages(tmp_path, stages, cli)
-    monkeypatch.setattr(precision, "measure_bf16_speed", lambda task: 0.6)
-    again = run_stages(tmp_path, stages, cli)
-    assert cli.calls == ["simulate", "ingest", "train", "train"]
-    assert not again["train"]["reused"]
-    monkeypatch.setattr(precision, "measure_bf16_speed", lambda task: 0.7)
-    assert run_stages(tmp_path, stages, cli)["train"]["reused"]  # fp32 again: nothing to redo
+    assert run_stages(tmp_path, stages, cli)["train"]["reused"]  # the same machine: reused
 
 
 def test_a_folder_of_the_users_own_is_refused_never_emptied(
