@@ -64,7 +64,7 @@ from typing import Literal
 import torch
 
 from lenspair.model.errors import ModelError
-from lenspair.model.precision_measure import Task, measure_bf16_speed
+from lenspair.model.precision_measure import TIMED, Task, measured_bf16_speed
 
 Precision = Literal["fp32", "bf16", "fp16", "int8"]
 PRECISIONS: tuple[str, ...] = ("fp32", "bf16", "fp16", "int8")
@@ -273,10 +273,13 @@ def _why_native(hardware: Hardware, precision: str) -> str:
     return "CPU flag " + ", ".join(found) if found else "no CPU flag"
 
 
-_MEASURED = {
-    "train": "a 64-channel 3x3 convolution, forward and backward",
-    "infer": "a 64-channel 3x3 convolution",
-}
+def measure_bf16_speed(task: Task) -> float:
+    """bf16's speed as a multiple of fp32's on this CPU for ``task``, under oneDNN's ISA cap.
+
+    Timed once per process, task, thread count and cap
+    (:func:`lenspair.model.precision_measure.measured_bf16_speed`).
+    """
+    return measured_bf16_speed(task, torch.get_num_threads(), onednn_isa_cap())
 
 
 def choose_precision(
@@ -299,7 +302,7 @@ def choose_precision(
         task: ``train`` (autocast training) or ``infer`` (eval, tradeoff, export).
         probe: reads the hardware (mocked in tests).
         bf16_speed: measures bf16's speed against fp32's (default
-            :func:`~lenspair.model.precision_measure.measure_bf16_speed`; mocked in tests).
+            :func:`measure_bf16_speed`; mocked in tests).
 
     Returns:
         The decision with its reason and the native set.
@@ -320,35 +323,30 @@ def choose_precision(
         measure = bf16_speed or measure_bf16_speed
         speed = measure(task) if precision == "bf16" else None
         if speed is not None and speed < BF16_MIN_SPEED:
+            precision = "fp32"
             reason = (
                 f"auto: fp32 on {where}: bf16 is native ({_why_native(hardware, 'bf16')}) but "
-                f"measured {speed:.2f}x fp32's speed here ({_MEASURED[task]}; bf16 needs "
+                f"measured {speed:.2f}x fp32's speed here ({TIMED[task]}; bf16 needs "
                 f"{BF16_MIN_SPEED}x)"
             )
-            return PrecisionDecision(
-                "fp32", requested, reason, native, str(device), hardware.name, speed
-            )
-        if precision == "fp32":
-            if hardware.kind == "cuda":
-                reason = f"auto: fp32 on {where}: " + (
-                    "measured on an H100, this network runs faster at fp32 than with "
-                    "bf16/fp16 autocast (too small for tensor cores to repay the casts)"
-                    if len(native) > 1
-                    else "no tensor-core fp16/bf16"
-                )
-            elif not hardware.cpu_flags:
-                reason = (
-                    f"auto: CPU flags unknown ({hardware.flags_source}); fp32 is never emulated"
-                )
-            else:
-                reason = f"auto: bf16 is not native on {where} (emulated bf16 is slower than fp32)"
-                if hardware.isa_cap:
-                    reason += f"; {hardware.isa_cap}"
-        else:
+        elif precision == "bf16":
             reason = (
-                f"auto: fastest native precision on {where} ({_why_native(hardware, precision)}; "
-                f"measured {speed:.2f}x fp32's speed, {_MEASURED[task]})"
+                f"auto: fastest native precision on {where} ({_why_native(hardware, 'bf16')}; "
+                f"measured {speed:.2f}x fp32's speed, {TIMED[task]})"
             )
+        elif hardware.kind == "cuda":
+            reason = f"auto: fp32 on {where}: " + (
+                "measured on an H100, this network runs faster at fp32 than with "
+                "bf16/fp16 autocast (too small for tensor cores to repay the casts)"
+                if len(native) > 1
+                else "no tensor-core fp16/bf16"
+            )
+        elif not hardware.cpu_flags:
+            reason = f"auto: CPU flags unknown ({hardware.flags_source}); fp32 is never emulated"
+        else:
+            reason = f"auto: bf16 is not native on {where} (emulated bf16 is slower than fp32)"
+            if hardware.isa_cap:
+                reason += f"; {hardware.isa_cap}"
         return PrecisionDecision(
             precision, requested, reason, native, str(device), hardware.name, speed
         )

@@ -18,11 +18,11 @@ For inference its forward pass at batch 1; for training forward and backward
 at batch 4. fp32 and bf16 autocast alternate, so a burst of load slows both;
 the ratio is the median of the per-pair ratios. The whole measurement takes
 well under a second and is kept for the process (per task, thread count and
-oneDNN ISA cap).
+oneDNN ISA cap: :func:`lenspair.model.precision.measure_bf16_speed` reads the
+last two).
 """
 
 import functools
-import os
 import statistics
 import time
 from collections.abc import Callable
@@ -35,6 +35,12 @@ Task = Literal["train", "infer"]
 
 REPEATS = 7
 """Timed fp32/bf16 pairs (after two warm-up pairs)."""
+
+TIMED: dict[str, str] = {
+    "train": "a 64-channel 3x3 convolution, forward and backward",
+    "infer": "a 64-channel 3x3 convolution",
+}
+"""What :func:`measured_bf16_speed` times for each task, in words (for the precision's reason)."""
 
 
 def speed_ratio(
@@ -93,13 +99,12 @@ def _convolution_runs(task: Task) -> tuple[Callable[[], object], Callable[[], ob
 
 
 @functools.cache
-def _measured(task: Task, threads: int, isa_cap: str) -> float:
+def measured_bf16_speed(task: Task, threads: int, isa_cap: str | None) -> float:
+    """bf16 autocast's speed as a multiple of fp32's on this CPU for ``task`` (kept per process).
+
+    ``threads`` (torch's thread count) and ``isa_cap`` (oneDNN's) are what the
+    timing ran under: they key the kept result.
+    """
     del threads, isa_cap  # cache keys only: both change what is measured
     reference, candidate = _convolution_runs(task)
     return speed_ratio(reference, candidate)
-
-
-def measure_bf16_speed(task: Task) -> float:
-    """bf16 autocast's speed as a multiple of fp32's on this CPU for ``task`` (kept per process)."""
-    cap = os.environ.get("ONEDNN_MAX_CPU_ISA") or os.environ.get("DNNL_MAX_CPU_ISA") or ""
-    return _measured(task, torch.get_num_threads(), cap)

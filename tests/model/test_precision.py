@@ -11,12 +11,13 @@ from lenspair.model.precision import (
     Hardware,
     apply_isa_cap,
     choose_precision,
+    measure_bf16_speed,
     native_precisions,
     onednn_isa_cap,
     probe_hardware,
     read_cpu_flags,
 )
-from lenspair.model.precision_measure import measure_bf16_speed, speed_ratio
+from lenspair.model.precision_measure import speed_ratio
 
 CPU = torch.device("cpu")
 CUDA = torch.device("cuda", 0)
