@@ -186,12 +186,8 @@ def _table(result: dict[str, Any]) -> str:
         "",
         f"{result['precision_auto']['reason']}; fastest measured: {result['fastest']}; "
         f"auto is the fastest eager precision (within {TIE:.0%}): "
-        f"{result['auto_is_fastest_eager']}"
-        + (
-            f" (auto's step {result['auto_over_fastest_eager']:.2f}x the fastest's time)"
-            if "auto_over_fastest_eager" in result
-            else ""
-        )
+        f"{result['auto_is_fastest_eager']} "
+        f"(auto's step {result['auto_over_fastest_eager']:.2f}x the fastest's time)"
         + (
             "; torch.compile not timed (--compile times it)"
             if compiled is None

@@ -30,8 +30,8 @@ elsewhere).
 
 --precision fp32 (default: the reference numbers), auto (bf16 on a CPU with
 avx512_bf16/AMX where a short timing finds it faster than fp32, else fp32;
-fp32 on CUDA, where bf16/fp16 autocast measured
-slower for these networks; never an emulated precision), bf16, fp16
+fp32 on CUDA, where bf16/fp16 autocast measured slower for these networks;
+never an emulated precision), bf16, fp16
 (CUDA) or int8 (CPU only; ONNX Runtime static quantisation calibrated on 16
 obstructed images of --calibration DS, its train split for a dataset;
 default: another split of --data than the scored one when it is a dataset,

@@ -39,10 +39,11 @@ perceptual + L2 on the enhanced output. --precision auto (the default) trains
 at the precision measured fastest, never an emulated one: bf16 autocast on a
 CPU with avx512_bf16 or AMX where a timing of under a second finds it faster
 than fp32 (on an Intel Xeon without AMX it ran at 0.7x), fp32 otherwise
-(emulated bf16 is ~2.6x slower), and fp32 on CUDA (on an H100 bf16/fp16 autocast ran slower: these
-networks are too small for tensor cores to repay the casts; --precision bf16
-or fp16 still runs on request, fp16 with a GradScaler); the choice and its
-reason are printed once and written to RUN/config.yaml (runtime). Without
+(emulated bf16 is ~2.6x slower), and fp32 on CUDA (on an H100 bf16/fp16
+autocast ran slower: these networks are too small for tensor cores to repay
+the casts; --precision bf16 or fp16 still runs on request, fp16 with a
+GradScaler); the choice and its reason are printed once and written to
+RUN/config.yaml (runtime). Without
 VGG19 weights (train.vgg19_weights or LENSPAIR_VGG19_WEIGHTS) the perceptual
 term is disabled, with a warning in the log and in config.yaml.
 

@@ -41,7 +41,7 @@ def test_the_table_says_what_torch_compile_s_compilation_took() -> None:
         "step_seconds_median": {"fp32": 1.0, "fp32 + torch.compile": 0.8},
         "speed_vs_fp32": {"fp32": 1.0, "fp32 + torch.compile": 1.25},
         "precision_auto": {"reason": "auto: fp32"}, "fastest": "fp32 + torch.compile",
-        "auto_is_fastest_eager": True, "compile_seconds": 41.6,
+        "auto_is_fastest_eager": True, "auto_over_fastest_eager": 1.0, "compile_seconds": 41.6,
         "single_thread_cpu_seconds": {}, "single_thread_speed_vs_fp32": {}, "inference": [],
     }  # fmt: skip
     table = bench_training._table(result)
