@@ -28,6 +28,7 @@ touches ``torch.distributed``. The loop over epochs is
 
 import contextlib
 import logging
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -59,18 +60,30 @@ log = logging.getLogger(__name__)
 PERCEPTUAL_DISABLED = f"disabled (no VGG19 weights: set train.vgg19_weights or {VGG19_WEIGHTS_ENV})"
 
 
-def training_precision(train: TrainConfig, device: torch.device) -> PrecisionDecision:
+def training_precision(
+    train: TrainConfig, device: torch.device, measure: bool = True
+) -> PrecisionDecision:
     """The precision decision for training with ``train`` on ``device``.
 
     ``train.amp: false`` forces fp32; otherwise ``train.precision`` (``auto``
     by default) is resolved against the device's native precisions.
+
+    Args:
+        train: the training config.
+        device: where the run trains.
+        measure: whether ``auto`` may time bf16 against fp32 on a CPU with
+            native bf16. Without it the decision is a placeholder that passes
+            the same checks (and raises the same errors) but times nothing:
+            what a ``torchrun`` process other than rank 0 computes before it
+            takes rank 0's decision (:class:`Trainer`).
 
     Raises:
         ModelError: ``amp: false`` (``--no-amp``) beside a precision other than
             ``auto`` or ``fp32``: the two say opposite things.
     """
     if train.amp:
-        return choose_precision(train.precision, device, "train")
+        unmeasured = None if measure else _not_measured
+        return choose_precision(train.precision, device, "train", bf16_speed=unmeasured)
     if train.precision not in ("auto", "fp32"):
         raise ModelError(
             f"train.amp: false (--no-amp) trains at fp32, but train.precision (--precision) "
@@ -78,6 +91,12 @@ def training_precision(train: TrainConfig, device: torch.device) -> PrecisionDec
         )
     decision = choose_precision("fp32", device, "train")
     return replace(decision, reason=f"train.amp: false (--no-amp); {decision.reason}")
+
+
+def _not_measured(task: str) -> float:
+    """A bf16 speed for a decision that rank 0's replaces: NaN, never compared true."""
+    del task
+    return math.nan
 
 
 def describe_precision(precision: str) -> str:
@@ -196,8 +215,11 @@ class Trainer:
         betas = (train.beta1, train.beta2)
         self.opt_g = torch.optim.Adam(self.network.parameters(), lr=train.lr, betas=betas)
         self.opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=train.lr, betas=betas)
-        # auto times bf16 in each process: all train at rank 0's choice
-        self.decision = from_main(decision or training_precision(train, device), self.info)
+        # auto times bf16 on rank 0 alone, while the other ranks wait at the broadcast
+        # rather than load the cores it times on; every rank runs the config checks,
+        # so a config error stops all of them, not rank 0 alone before the broadcast
+        own = decision or training_precision(train, device, measure=self.info.is_main)
+        self.decision = from_main(own, self.info)
         self.precision = describe_precision(self.decision.precision)
         self.amp_dtype = self.decision.autocast_dtype
         self.scaler = torch.amp.GradScaler(device.type, enabled=self.amp_dtype == torch.float16)

@@ -5,6 +5,7 @@ import json
 import os
 import socket
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -108,6 +109,58 @@ def test_two_process_ddp_ends_with_identical_weights(
         if before is not None:
             assert after <= before, f"rank {rank}: {after} threads after the group, {before} before"
     assert "grad strides do not match bucket view strides" not in capfd.readouterr().err.lower()
+
+
+def _measuring_worker(rank: int, world: int, port: int, out: str) -> None:
+    """A trainer on a CPU said to have native bf16, with auto's timing counted, not done."""
+    from lenspair.model import precision
+
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
+    torch.set_num_threads(1)
+    timed: list[str] = []
+    precision.native_precisions = lambda hardware: ("bf16", "fp32")  # type: ignore[assignment]
+    precision.measure_bf16_speed = lambda task: timed.append(task) or 0.6  # type: ignore[assignment,func-returns-value]
+    init_process_group("gloo", rank=rank, world_size=world)
+    try:
+        trainer = Trainer(tiny_config(amp=True), CPU, Distributed(rank, world, rank))
+        result = {"timed": timed, "precision": trainer.decision.precision}
+        result["speed"] = trainer.decision.bf16_speed
+        del trainer
+        dist.barrier()
+    finally:
+        dist.destroy_process_group()
+    (Path(out) / f"rank{rank}.measured").write_text(json.dumps(result))
+
+
+@pytest.mark.skipif(not dist.is_available() or not dist.is_gloo_available(), reason="no gloo")
+def test_only_rank_zero_times_bf16_and_every_rank_takes_its_choice(tmp_path: Path) -> None:
+    # ranks that timed at once would share the cores, and rank 0 would time under their load
+    mp.spawn(_measuring_worker, args=(2, _free_port(), str(tmp_path)), nprocs=2, join=True)
+    said = [json.loads((tmp_path / f"rank{r}.measured").read_text()) for r in range(2)]
+    assert said[0]["timed"] == ["train"] and said[1]["timed"] == []
+    for result in said:  # bf16 measured 0.6x fp32's speed on rank 0: everyone trains fp32
+        assert result["precision"] == "fp32" and result["speed"] == 0.6
+
+
+def test_a_decision_not_measured_still_refuses_a_contradicting_config(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # ranks other than 0 skip the timing, not the checks: a bad config stops them all
+    from lenspair.model import precision
+    from lenspair.model.errors import ModelError
+    from lenspair.model.training.step import training_precision
+
+    def never(task: str) -> float:
+        raise AssertionError("timed")
+
+    monkeypatch.setattr(precision, "native_precisions", lambda hardware: ("bf16", "fp32"))
+    monkeypatch.setattr(precision, "measure_bf16_speed", never)
+    train = tiny_config(amp=True).train
+    assert training_precision(train, CPU, measure=False).precision == "bf16"  # a placeholder
+    with pytest.raises(ModelError, match="--no-amp"):
+        training_precision(replace(train, amp=False, precision="bf16"), CPU, measure=False)
+    with pytest.raises(AssertionError, match="timed"):
+        training_precision(train, CPU)
 
 
 def _cli_worker(rank: int, world: int, port: int, argv: list[str], out: str) -> None:
