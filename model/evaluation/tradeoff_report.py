@@ -33,6 +33,7 @@ from matplotlib.figure import Figure
 
 from lenspair.core.fsutil import atomic_write, atomic_write_text, json_safe
 from lenspair.core.wording import counted
+from lenspair.model.evaluation.plot_labels import ABOVE, BELOW, label_points
 from lenspair.model.evaluation.tradeoff_rows import TradeoffRow
 
 
@@ -139,21 +140,24 @@ MARKER_NAMES = {"o": "circle", "s": "square", "D": "diamond", "^": "triangle"}
 
 
 def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any]) -> None:
-    """PSNR and SSIM against CPU time, one panel each, Pareto fronts drawn and ringed."""
+    """PSNR and SSIM against CPU time, one panel each, Pareto fronts drawn and ringed.
+
+    Every point is named; the names are placed where they print over neither
+    each other, the points nor the legend (:mod:`lenspair.model.evaluation.plot_labels`).
+    """
     figure = Figure(figsize=(11, 4.5), dpi=110)
-    FigureCanvasAgg(figure)
+    canvas = FigureCanvasAgg(figure)
     panels = ((figure.add_subplot(1, 2, 1), "psnr_db", "PSNR (dB)", "pareto_psnr"),
               (figure.add_subplot(1, 2, 2), "ssim", "SSIM", "pareto_ssim"))  # fmt: skip
     timed = [(r.cpu_ms, r) for r in rows if r.cpu_ms is not None]
+    labels = [f"{r.name} {r.precision}" for _, r in timed]
+    # fp32 labels above, reduced precision below where free: the precisions of
+    # one network score alike
+    first_choice = [ABOVE if r.precision == "fp32" else BELOW for _, r in timed]
     for axes, key, label, flag in panels:
         for x, r in timed:
             y = min(getattr(r, key), 100.0)
             axes.scatter([x], [y], marker=MARKERS[r.precision], color="tab:blue", zorder=3)
-            # fp32 labels above, reduced precision below: the two precisions of
-            # one network score alike and would print over each other
-            below = r.precision != "fp32"
-            axes.annotate(f"{r.name} {r.precision}", (x, y), textcoords="offset points",
-                          xytext=(4, -11 if below else 4), fontsize=7)  # fmt: skip
         front = sorted(((x, r) for x, r in timed if getattr(r, flag)), key=lambda p: p[0])
         if front:
             xs = [x for x, _ in front]
@@ -173,6 +177,10 @@ def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any])
     key_text = ", ".join(f"{MARKER_NAMES[MARKERS[p]]} {p}" for p in shown)
     figure.suptitle(f"Accuracy vs CPU time ({meta['budget']} per variant; {key_text})")
     figure.tight_layout()
+    canvas.draw()  # the limits, layout and legend are final: labels go where they clash least
+    for axes, key, _, _ in panels:
+        points = [(x, min(getattr(r, key), 100.0)) for x, r in timed]
+        label_points(axes, points, labels, first_choice, canvas.get_renderer())
 
     def _write(tmp: Path) -> None:
         figure.savefig(tmp, format="png")
