@@ -29,8 +29,8 @@ OUT/<bag name>.bag, a ROS 2 bag folder to the folder OUT/<its name>/ (a bare
 Any size works (padded to a multiple of 4 and cropped back, as eval does);
 --tile N runs large images in overlapping N x N tiles blended without seams.
 Unreadable frames, and frames too large for memory (the report says which
---tile fits), are copied unchanged and listed in OUT/restore_report.json
-(the run goes on; when no frame at all could be restored it ends with exit
+--tile fits), are copied unchanged, named on stderr (one line each, the
+first 20) and listed in OUT/restore_report.json (the run goes on; when no frame at all could be restored it ends with exit
 code 2 and the first reason);
 a non-empty OUT is refused unless --resume, which continues a killed run and
 writes the same bytes as an uninterrupted one (a bag the run finished is kept
@@ -38,6 +38,7 @@ while its files are unchanged).
 """
 
 import argparse
+import logging
 
 from lenspair.commands.argtypes import (
     add_device_option,
@@ -58,6 +59,8 @@ from lenspair.model.inference.options import (
     PRECISIONS,
     default_batch_size,
 )
+
+log = logging.getLogger(__name__)
 
 
 def jpeg_quality(text: str) -> int:
@@ -162,6 +165,8 @@ def run(args: argparse.Namespace) -> int:
     judge = default_judge(args.only_obstructed, device) if args.only_obstructed else None
     backend = open_backend(args.model, device, args.precision)
     report = restore_input(args.input, args.out, backend, options, judge, checked)
+    for line in report.problem_lines():
+        log.warning("%s", line)
     print(report.summary())
     if report.failed and not (report.restored or report.resumed or report.skipped):
         # every frame failed: a script must not read this run as done (exit 0)

@@ -13,6 +13,9 @@ from lenspair.core.wording import counted
 REPORT_NAME = "restore_report.json"
 """Under OUT: the report of the run (see :class:`RestoreReport`)."""
 
+SAID_PROBLEMS = 20
+"""Problems the CLI says, one line each, before it points to the report for the rest."""
+
 
 @dataclass
 class RestoreReport:
@@ -78,6 +81,22 @@ class RestoreReport:
             f"{self.frames_per_second:.1f} frames/s -> {self.output}"
             + (f"; {len(self.problems)} problem(s) in {REPORT_NAME}" if self.problems else "")
         )
+
+    def problem_lines(self, limit: int = SAID_PROBLEMS) -> list[str]:
+        """The problems as the CLI says them, at most ``limit`` and how many more.
+
+        Every one is in the report; the first ``limit`` are said, one line
+        each (``frame: reason``, or the reason alone where it names the file
+        or the problem is the input's), so that a bad frame is named where
+        the run is watched.
+        """
+        lines = [  # a reason that names its file already is not prefixed with it
+            p["reason"] if p["frame"] in p["reason"] else f"{p['frame']}: {p['reason']}"
+            for p in self.problems[:limit]
+        ]
+        if len(self.problems) > limit:
+            lines.append(f"... and {len(self.problems) - limit} more in {REPORT_NAME}")
+        return lines
 
     def as_dict(self) -> dict[str, Any]:
         """Plain data for JSON (``complete``: the run finished)."""

@@ -623,6 +623,30 @@ def test_cli_single_image_and_one_line_errors(
         assert err[0].startswith("lenspair restore: error:") and message in err[0]
 
 
+def test_cli_names_each_bad_frame_where_the_run_is_watched(
+    tmp_path: Path,
+    checkpoint: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # the summary only counted them ("2 problem(s) in restore_report.json")
+    source = tmp_path / "in"
+    source.mkdir()
+    write_image(source / "good.png", (texture((30, 41), seed=0) * 255).astype(np.uint8))
+    (source / "cut.png").write_bytes((source / "good.png").read_bytes()[:60])
+    (source / "empty.png").write_bytes(b"")
+    out = tmp_path / "out"
+    assert (
+        main(["restore", str(checkpoint), str(source), "--out", str(out), "--device", "cpu"]) == 0
+    )
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert sorted(w.split(": ")[0] for w in warned) == [
+        str(source / n) for n in ("cut.png", "empty.png")
+    ]
+    assert any("truncated" in w for w in warned) and any("empty file" in w for w in warned)
+    assert "1 restored" in capsys.readouterr().out
+
+
 def test_cli_jpeg_quality_sets_the_restored_jpegs_quality_and_leaves_pngs_alone(
     tmp_path: Path, checkpoint: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

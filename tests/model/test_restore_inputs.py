@@ -633,3 +633,18 @@ def test_a_run_that_restores_no_frame_at_all_is_not_done(
     shutil.copy(tmp_path / "junk.png", source / "junk.png")
     args = ["restore", str(checkpoint), str(source), "--precision", "fp32"]
     assert main([*args, "--out", str(tmp_path / "o2")]) == 0  # two restored, one listed
+
+
+def test_problem_lines_name_each_frame_once_and_count_the_rest() -> None:
+    report = RestoreReport(input="in", kind="folder", output="out", model="m", cameras=[])
+    report.problems = [
+        {"frame": "a.png", "reason": "in/a.png: empty file (0 bytes)"},
+        {"frame": "b.png", "reason": "1 channel(s), the network takes 3"},
+        {"frame": "", "reason": "notes.txt: copied unrestored"},
+    ]
+    assert report.problem_lines(limit=2) == [
+        "in/a.png: empty file (0 bytes)",
+        "b.png: 1 channel(s), the network takes 3",
+        f"... and 1 more in {REPORT_NAME}",
+    ]
+    assert report.problem_lines()[-1] == "notes.txt: copied unrestored"
