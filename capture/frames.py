@@ -261,24 +261,33 @@ def _folder_listing(folder: Path) -> tuple[list[Path], list[str]]:
     """Image files under ``folder`` (recursive, hidden entries skipped) and what it passes over.
 
     Both from one walk, sorted by path. The second list has one line per entry
-    the images leave out unseen: a link to a folder is not followed (a link back
+    the images leave out unseen: a folder that cannot be read (its images
+    cannot even be counted), a link to a folder is not followed (a link back
     up would never end) and a link to nothing has no image, so the commands
     reading a folder say so instead of leaving them out silently.
     """
     files: list[Path] = []
     passed_over: list[str] = []
-    for entry in sorted(Path(folder).rglob("*")):
-        if any(part.startswith(".") for part in entry.relative_to(folder).parts):
-            continue
-        if entry.is_symlink() and entry.is_dir():
-            passed_over.append(
-                f"{entry}: a link to a folder, not followed; its images are left out"
-            )
-        elif entry.is_symlink() and not entry.exists():
-            passed_over.append(f"{entry}: a link to nothing ({os.readlink(entry)}); left out")
-        elif entry.is_file() and entry.suffix.lower() in IMAGE_SUFFIXES:
-            files.append(entry)
-    return files, passed_over
+
+    def refused(error: OSError) -> None:
+        passed_over.append(
+            f"{error.filename}: cannot read this folder ({error.strerror}); its images are left out"
+        )
+
+    for here, subfolders, names in os.walk(folder, onerror=refused):
+        subfolders[:] = sorted(name for name in subfolders if not name.startswith("."))
+        for name in subfolders:
+            if (entry := Path(here) / name).is_symlink():
+                passed_over.append(
+                    f"{entry}: a link to a folder, not followed; its images are left out"
+                )
+        for name in sorted(n for n in names if not n.startswith(".")):
+            entry = Path(here) / name
+            if entry.is_symlink() and not entry.exists():
+                passed_over.append(f"{entry}: a link to nothing ({os.readlink(entry)}); left out")
+            elif entry.is_file() and entry.suffix.lower() in IMAGE_SUFFIXES:
+                files.append(entry)
+    return sorted(files), passed_over
 
 
 def iter_frames(

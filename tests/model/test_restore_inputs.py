@@ -528,6 +528,30 @@ def test_links_a_folder_listing_passes_over_are_said(tmp_path: Path, backend: To
     assert reasons[1].startswith(f"{source / 'linked'}: a link to a folder, not followed")
 
 
+def test_a_subfolder_that_cannot_be_read_is_said_not_skipped(
+    tmp_path: Path, backend: TorchBackend, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a folder its user may not read: its frames were missing from every count, unsaid
+    source = tmp_path / "in"
+    write_image(source / "a.png", (texture((32, 48), seed=1) * 255).astype(np.uint8))
+    write_image(source / "locked" / "b.png", (texture((32, 48), seed=2) * 255).astype(np.uint8))
+    scandir = os.scandir
+
+    def refuse(path: str) -> object:  # what a folder without read permission gives (not root)
+        if Path(path) == source / "locked":
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        return scandir(path)
+
+    monkeypatch.setattr(os, "scandir", refuse)
+    report = restore_input(source, tmp_path / "out", backend)
+    assert (report.frames_read, report.restored) == (1, 1)
+    (problem,) = report.problems
+    assert problem["reason"] == (
+        f"{source / 'locked'}: cannot read this folder (Permission denied); "
+        "its images are left out"
+    )
+
+
 def test_a_restored_image_keeps_its_orientation_and_a_multi_page_file_is_kept_whole(
     tmp_path: Path, backend: TorchBackend
 ) -> None:
