@@ -36,6 +36,7 @@ from lenspair.model.inference.out_layout import (
     COPIES_NAME,
     OWN_NAMES,
     STALE_DIR,
+    copied_already,
     copy_file,
     files_under,
 )
@@ -161,7 +162,8 @@ class FileSink:
                     "(rename the file to keep it beside the restored frames)"
                 )
                 continue
-            copy_file(source, self.out_dir / relative)
+            if not copied_already(source, self.out_dir / relative):  # a resumed run's
+                copy_file(source, self.out_dir / relative)
             if (note := unrestored_note(source)) is not None:
                 clashes.append(note)
         return clashes

@@ -41,13 +41,32 @@ OWN_NAMES = (COPIES_NAME, DEPTHS_NAME, CACHE_DIR, PARTIAL_DIR, STALE_DIR)
 
 
 def copy_file(source: Path, destination: Path) -> None:
-    """Copy bytes atomically (a killed run never leaves half a file)."""
+    """Copy bytes atomically (a killed run never leaves half a file), with the source's mtime.
+
+    The mtime lets a resumed run tell a finished copy from a file to copy
+    again (:func:`copied_already`), as ``rsync -t`` does.
+    """
     destination.parent.mkdir(parents=True, exist_ok=True)
 
     def _copy(tmp: Path) -> None:
         shutil.copyfile(source, tmp)
+        info = os.stat(source)
+        os.utime(tmp, ns=(info.st_atime_ns, info.st_mtime_ns))
 
     atomic_write(destination, _copy, suffix=destination.suffix, sync=False)  # as frames are
+
+
+def copied_already(source: Path, destination: Path) -> bool:
+    """Whether ``destination`` is :func:`copy_file`'s copy of ``source`` as it is now.
+
+    Same size and same mtime (to the nanosecond); a source changed since, or a
+    destination written by anything else, is copied again.
+    """
+    try:
+        have, want = os.stat(destination), os.stat(source)
+    except FileNotFoundError:
+        return False
+    return (have.st_size, have.st_mtime_ns) == (want.st_size, want.st_mtime_ns)
 
 
 def files_under(root: Path, follow_links: bool = True) -> list[Path]:

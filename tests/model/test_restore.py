@@ -513,6 +513,25 @@ def test_resume_writes_the_same_bytes(tmp_path: Path, backend: TorchBackend, kin
     assert restored_files(tmp_path / "resumed") == restored_files(tmp_path / "whole")
 
 
+def test_resume_copies_again_only_the_files_changed_since(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    # every unrestored file (the other camera, truth/: tens of GB) was copied on every resume
+    source = make_recording(tmp_path / "rec", frames=3)
+    out = tmp_path / "out"
+    restore_input(source, out, backend, RestoreOptions(camera="cam0"))
+    copies = sorted(p.relative_to(out) for p in (out / "mav0" / "cam1").rglob("*") if p.is_file())
+    assert len(copies) == 4  # data.csv and three frames
+    before = {r: (out / r).stat().st_ino for r in copies}
+    changed = copies[-1]
+    (source / changed).write_bytes((source / changed).read_bytes() + b"\0")
+    restore_input(source, out, backend, RestoreOptions(camera="cam0", resume=True))
+    after = {r: (out / r).stat().st_ino for r in copies}
+    assert [r for r in copies if after[r] != before[r]] == [changed]  # replaced: a new file
+    for relative in copies:
+        assert (out / relative).read_bytes() == (source / relative).read_bytes()
+
+
 def test_resume_into_a_folder_no_restore_run_wrote_is_refused(
     tmp_path: Path, backend: TorchBackend
 ) -> None:
