@@ -547,8 +547,7 @@ def test_a_subfolder_that_cannot_be_read_is_said_not_skipped(
     assert (report.frames_read, report.restored) == (1, 1)
     (problem,) = report.problems
     assert problem["reason"] == (
-        f"{source / 'locked'}: cannot read this folder (Permission denied); "
-        "its images are left out"
+        f"{source / 'locked'}: cannot read this folder (Permission denied); its images are left out"
     )
 
 
