@@ -65,10 +65,23 @@ class BagOverview:
             topics left out by the automatic choice share one line.
         frames: image messages of the chosen cameras, from the bag's index
             (None for a bag cut short: it has no index).
+        camera_topics: the chosen cameras' topics.
     """
 
     others: tuple[str, ...]
     frames: int | None
+    camera_topics: tuple[str, ...] = ()
+
+    def nothing_to_read(self, path: Path) -> str | None:
+        """Why a command reading these cameras has no frame (None where the index counts some).
+
+        A bag whose camera topics hold no message (a recording stopped before
+        the cameras started) would otherwise run to an empty result and exit 0;
+        a bag cut short has no index and is read as far as it goes.
+        """
+        if self.frames != 0:
+            return None
+        return f"{path}: no image messages on {', '.join(self.camera_topics)}"
 
 
 def bag_overview(
@@ -96,7 +109,8 @@ def bag_overview(
     if depth:  # one line for them all: a RealSense bag's depth, aligned depth, ...
         note = depth_note(depth)
         others += (f"{path}: {note}; left as recorded (camera topics: {listed})",)
-    return BagOverview(others, counts)
+    chosen_topics = tuple(topic for topic, camera in by_camera if camera in cameras)
+    return BagOverview(others, counts, chosen_topics)
 
 
 def bag_camera_topics(path: Path, topics: tuple[str, str] | None = None) -> dict[str, CameraName]:

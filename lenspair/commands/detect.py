@@ -40,7 +40,7 @@ from lenspair.commands.argtypes import (
 )
 from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
-from lenspair.core.fsutil import inside_refusal
+from lenspair.core.fsutil import check_writable, inside_refusal
 from lenspair.core.wording import counted
 
 log = logging.getLogger(__name__)
@@ -103,7 +103,13 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--batch-size must be >= 1 and --sheet-frames >= 0")
     kind = detect_input(args.input)  # a bad INPUT fails before anything is written
     network = load_detector(args.model, resolve_device(args.device))
-    out = args.out or _default_out(args.input)
+    if args.out is None:  # the default passes --out's checks too: a file by its name
+        try:
+            out = out_folder(str(_default_out(args.input)))
+        except argparse.ArgumentTypeError as exc:
+            raise ConfigError(f"the default --out {exc}") from None
+    else:
+        out = args.out
     why = "a later run would judge the contact sheet as a frame"
     if (problem := inside_refusal(out, args.input, "the input", why)) is not None:
         raise ConfigError(problem)
@@ -114,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
             f"--out {out}: the folder that holds {args.input}; {why} there, so choose "
             "another folder"
         )
+    check_writable(out / "detections.csv")  # a read-only --out is said before judging, not after
     if (out / "detections.csv").is_file():  # cheap to make again, but maybe another model's
         log.warning("%s: replacing the detections of an earlier run there", out)
     # Files are counted from their listing (cheap); a bag's count is only known once read.
@@ -121,7 +128,12 @@ def run(args: argparse.Namespace) -> int:
     cameras = present_cameras(args.input)  # both, or the one a mono recording holds
     files = [] if bag else frame_files(args.input, kind, cameras)
     total = None if bag else len(files)
-    problems: list[str] = list(bag_overview(args.input, cameras, args.topics).others) if bag else []
+    problems: list[str] = []
+    if bag:
+        overview = bag_overview(args.input, cameras, args.topics)
+        if empty := overview.nothing_to_read(args.input):
+            raise ConfigError(f"{empty}: nothing to judge")
+        problems += overview.others
     dropped: list[FrameProblem] = []  # images the listing left out or could not find: rows too
     frames = iter_frames(args.input, cameras, problems, args.topics, dropped)
     verdicts = detect_frames(

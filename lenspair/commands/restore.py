@@ -30,8 +30,9 @@ Any size works (padded to a multiple of 4 and cropped back, as eval does);
 --tile N runs large images in overlapping N x N tiles blended without seams.
 Unreadable frames, and frames too large for memory (the report says which
 --tile fits), are copied unchanged, named on stderr (one line each, the
-first 20) and listed in OUT/restore_report.json (the run goes on; when no frame at all could be restored it ends with exit
-code 2 and the first reason);
+first 20) and listed in OUT/restore_report.json (the run goes on; when no
+frame at all could be restored it ends with exit code 2 and the first
+reason); a bag whose camera topics hold no message is refused (exit 2);
 a non-empty OUT is refused unless --resume, which continues a killed run and
 writes the same bytes as an uninterrupted one (a bag the run finished is kept
 while its files are unchanged).

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lenspair.capture.bag_frames import bag_topics
+from lenspair.capture.bag_frames import bag_overview, bag_topics
 from lenspair.capture.bagwrite import output_bag_path
 from lenspair.capture.frames import InputKind, detect_input, frame_files
 from lenspair.capture.rigfile import CameraName
@@ -132,6 +132,10 @@ def check_input(input_path: Path, out_dir: Path, options: RestoreOptions) -> Che
     bag = kind in ("rosbag1", "rosbag2")
     if bag and options.suffix:
         check_suffix_free(input_path, cameras, options)
+    if bag and (
+        empty := bag_overview(input_path, cameras, options.topics).nothing_to_read(input_path)
+    ):
+        raise ModelError(f"{empty}: nothing to restore")
     files = [] if bag else frame_files(input_path, kind, cameras)
     if not bag and not files:
         # Refused before OUT is made: an empty run is a mistyped path, not a result.

@@ -16,6 +16,7 @@ from lenspair.model.detection.train import load_detector
 from tests.capture.ingest_helpers import make_recording
 from tests.images import texture
 from tests.model.restore_helpers import bag_from_recording, write_bag
+from tests.model.train_fixtures import make_checkpoint
 
 
 @pytest.fixture(scope="module")
@@ -272,3 +273,44 @@ def test_detect_with_nothing_judged_says_so_cleanly(
     assert line.startswith("0 frames judged (1 not") and "; ;" not in line  # it printed "; ;"
     with pytest.raises(ValueError, match="an empty image"):
         judge(load_detector(tiny_detector), [np.zeros((0, 0), np.uint8)])  # a cv2.error
+
+
+@pytest.mark.parametrize("command", ["detect", "restore"])
+def test_a_bag_whose_camera_topics_hold_no_message_is_refused(
+    command: str, tiny_detector: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a recording stopped before the cameras started: "0 frames", exit 0, outputs written
+    bag = write_bag(tmp_path / "run", "ros1", {"cam0": [], "cam1": []})
+    model = tiny_detector if command == "detect" else make_checkpoint(tmp_path / "g.pt")
+    out = tmp_path / "out"
+    assert main([command, str(model), str(bag), "--out", str(out)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.endswith(f"{bag}: no image messages on /cam0/image_raw, /cam1/image_raw: "
+                         f"nothing to {'judge' if command == 'detect' else 'restore'}")  # fmt: skip
+    assert not out.exists()
+
+
+def test_detect_checks_its_default_out_and_a_read_only_out_before_judging(
+    tiny_detector: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from lenspair.core import fsutil
+    from lenspair.model.detection import report
+
+    write_image(tmp_path / "a.png", (texture((48, 64), seed=1) * 255).astype(np.uint8))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "detect_a").write_text("a file where the default folder goes")
+    assert main(["detect", str(tiny_detector), "a.png"]) == 2
+    assert "the default --out 'detect_a' is a file; give a folder" in capsys.readouterr().err
+    judged: list[Path] = []
+    monkeypatch.setattr(report, "detect_frames", lambda *a, **k: judged.append(a[2]) or [])
+
+    def read_only(*args: object, **kwargs: object) -> None:  # what a folder of another user gives
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(fsutil.tempfile, "mkstemp", read_only)
+    assert main(["detect", str(tiny_detector), "a.png", "--out", "ro"]) == 1
+    assert "ro/detections.csv: Permission denied" in capsys.readouterr().err
+    assert judged == []  # refused before a frame was judged
