@@ -169,8 +169,13 @@ class BagSink:
                 raise
             raise OSError(errno.EIO, f"cannot write the bag ({exc})", str(self.partial)) from exc
 
-    def finish(self) -> None:
+    def finish(self, failed: int = 0) -> None:
         """After a complete run: put the bag in place, copy its folder's files, drop the cache.
+
+        With ``failed`` frames the cache is kept: ``--resume`` then takes the
+        frames restored here from it and tries only the failed ones again (a
+        frame too large for memory, with ``--tile``), as in a folder, instead
+        of restoring the whole bag anew; a run without failed frames drops it.
 
         The bag is written under ``OUT/.restore-partial/`` and moved to its
         name only now, so a killed run never leaves a bag that reads cleanly
@@ -191,7 +196,7 @@ class BagSink:
                     self.extras.append(extra)
                     if not (self.path / extra.name).exists():
                         copy_file(extra, self.path / extra.name)
-        if self.cache.exists():
+        if self.cache.exists() and not failed:
             shutil.rmtree(self.cache)
         if self.cache.parent.is_dir() and not any(self.cache.parent.iterdir()):
             self.cache.parent.rmdir()

@@ -269,8 +269,13 @@ class FileSink:
         """Nothing to close for files."""
         return
 
-    def finish(self) -> None:
-        """Rewrite ``OUT/.restore-copies`` with the copies left (remove it when none)."""
+    def finish(self, failed: int = 0) -> None:
+        """Rewrite ``OUT/.restore-copies`` with the copies left (remove it when none).
+
+        ``failed`` is the bag sink's concern: a failed frame's file is its copy,
+        which ``--resume`` restores again.
+        """
+        del failed
         self._rewrite_copies()
 
     def _rewrite_copies(self) -> None:

@@ -147,7 +147,7 @@ def restore_input(
         source_problems.extend(
             _finish_files(sink, input_path, kind, cameras, files, options, out_dir)
         )
-    sink.finish()
+    sink.finish(report.failed)
     if isinstance(sink, BagSink):
         report.source_files = sink.fingerprint
         report.output_files = sink.written()

@@ -28,8 +28,11 @@ def write_bag(
     encoding: str = "mono8",
     stamp: int | None = None,
     compress_files: bool = False,
+    cut: frozenset[int] = frozenset(),
 ) -> Path:
     """A bag (``ros1``, ``db3`` or ``mcap``) with images on ``/<camera>/image_raw``.
+
+    ``cut``: the times of messages whose pixel data is cut in half (undecodable).
 
     A ``/status`` ``std_msgs/String`` message follows every image, so copies of
     non-image topics are checked too. Log time = stamp + 1 ms; ``stamp`` set:
@@ -72,6 +75,8 @@ def write_bag(
                 step=image.shape[1] * image.itemsize * (1 if image.ndim == 2 else 3),
                 data=np.frombuffer(np.ascontiguousarray(pixels).tobytes(), dtype=np.uint8),
             )
+            if t_ns in cut:
+                message.data = message.data[: message.data.size // 2]
             writer.write(connections[camera], t_ns + 1_000_000, serialize(message, IMAGE))
             text = types[STRING](data=f"frame {t_ns}")
             writer.write(status, t_ns + 2_000_000, serialize(text, STRING))

@@ -605,6 +605,37 @@ def test_bag_resume_reuses_frames_and_writes_the_same_bytes(
     assert Path(again.output).name == Path(whole.output).name
 
 
+class _Counting:
+    """A backend that counts the frames it restores."""
+
+    def __init__(self, inner: TorchBackend) -> None:
+        self.inner, self.frames = inner, 0
+        self.channels, self.fixed_size = inner.channels, None
+        self.description, self.path = inner.description, inner.path
+
+    def __call__(self, batch: np.ndarray) -> np.ndarray:
+        self.frames += batch.shape[0]
+        return self.inner(batch)
+
+
+def test_bag_resume_after_failed_frames_restores_only_those_again(
+    tmp_path: Path, backend: TorchBackend
+) -> None:
+    # one undecodable message: every --resume restored the whole bag again
+    times = [T0 + k * 50_000_000 for k in range(4)]
+    images = [(t, (texture((32, 48), seed=k) * 255).astype(np.uint8)) for k, t in enumerate(times)]
+    bag = write_bag(tmp_path / "run", "ros1", {"cam0": images}, cut=frozenset({times[2]}))
+    options = RestoreOptions(batch_size=1)
+    first = restore_input(bag, tmp_path / "out", backend, options)
+    assert (first.restored, first.failed) == (3, 1)
+    written = restored_files(tmp_path / "out")
+    counting = _Counting(backend)
+    again = restore_input(bag, tmp_path / "out", counting, replace(options, resume=True))  # type: ignore[arg-type]
+    assert (again.resumed, again.restored, again.failed) == (3, 0, 1)
+    assert counting.frames == 0  # the three restored frames came from the cache
+    assert restored_files(tmp_path / "out") == written
+
+
 def test_only_obstructed_copies_clean_frames(tmp_path: Path, backend: TorchBackend) -> None:
     source = tmp_path / "in"
     write_image(source / "dark.png", (texture((32, 48), seed=1) * 60).astype(np.uint8))
