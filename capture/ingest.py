@@ -56,6 +56,7 @@ from lenspair.capture.ingest_registration import (
     warn_if_enlarged,
 )
 from lenspair.capture.ingest_report import (
+    camera_problems,
     frame_counts,
     in_output_pixels,
     rejection_reasons,
@@ -369,6 +370,8 @@ def _report(
     counts["homography_matches"] = int(registration["matches"])
     counts["homography_inliers"] = int(registration["inliers"])
     counts["recording_problems"] = len(paired.problems)  # the clock warning too
+    said_of_cameras = camera_problems(recording, rig_file.obstructed)
+    counts["camera_problems"] = len(said_of_cameras)
     reasons = rejection_reasons(recording, ordered, rig_file.obstructed)
     matrix = np.asarray(registration["matrix"], dtype=np.float64)
     homography_out = in_output_pixels(matrix, crop.x, crop.y)
@@ -393,6 +396,7 @@ def _report(
         if recording.topics is None
         else dict(zip(CAMERAS, recording.topics, strict=True)),
         recording_problems=paired.problems,
+        camera_problems=said_of_cameras,
         time_offset_ns=time_offset_ns,
         exposure=summarise_exposure(recording.path, ordered),
     )

@@ -151,7 +151,12 @@ def _say_problems(recording: Recording) -> None:
         log.warning("%s", problem)
     if len(recording.problems) > MAX_LOGGED_PROBLEMS:
         more = len(recording.problems) - MAX_LOGGED_PROBLEMS
-        log.warning("%s: %d more problems (counted in report.json)", recording.path, more)
+        log.warning(
+            "%s: %d more problems (each in report.json, or pairs.jsonl for the obstructed "
+            "camera's frames)",
+            recording.path,
+            more,
+        )
 
 
 def _topics_reversed(recording: Recording, rig: StereoRig) -> bool:

@@ -61,6 +61,24 @@ def untimed_frames(recording: Recording, obstructed: CameraName) -> list[str]:
     ]
 
 
+def camera_problems(recording: Recording, obstructed: CameraName) -> list[str]:
+    """Each camera's problems for ``report.json``, but the obstructed camera's dropped frames.
+
+    The log says the first few of a recording's problems; the report keeps
+    them all. The obstructed camera's dropped frames have their own lines
+    (:func:`unlisted_records`) or are named as untimed (:func:`untimed_frames`);
+    the rest are listed here: the clean camera's frames its listing left
+    out, and problems that leave no frame out (a timestamp that goes back).
+    """
+    return [
+        str(problem)
+        for problem in recording.problems
+        if problem.camera is not None
+        and not _has_record(problem, obstructed)
+        and not _untimed(problem, obstructed)
+    ]
+
+
 def unlisted_records(recording: Recording, obstructed: CameraName) -> list[PairRecord]:
     """Rejected records of the obstructed frames the recording could not list.
 

@@ -128,6 +128,14 @@ class IngestReport:
             and each obstructed frame without a timestamp, which no line of
             ``pairs.jsonl`` can name (``counts["rejected_untimed"]``):
             ``counts`` has their number.
+        camera_problems: each camera's problems but the obstructed camera's
+            frames left out (those have their own ``pairs.jsonl`` lines, or
+            are in ``recording_problems`` when untimed): the clean camera's
+            frames its listing left out (also counted by category in
+            ``rejection_reasons``) and problems that leave no frame out (a
+            timestamp that goes back; an obstructed frame's is on its
+            ``pairs.jsonl`` line too); ``counts`` has their number. Empty in
+            reports of before it was written.
         time_offset_ns: cam1's clock ahead of cam0's, taken off cam1's stamps
             for pairing (``--time-offset``; 0: none).
         exposure: the kept pairs' ``exposure_ratio`` over the recording
@@ -152,6 +160,7 @@ class IngestReport:
     significant_bits_per_camera: dict[str, int] = field(default_factory=dict)
     topics: dict[str, str] = field(default_factory=dict)
     recording_problems: list[str] = field(default_factory=list)
+    camera_problems: list[str] = field(default_factory=list)
     time_offset_ns: int = 0
     exposure: ExposureSummary | None = None
 

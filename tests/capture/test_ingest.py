@@ -147,6 +147,11 @@ def test_unpaired_duplicate_and_backward_frames_are_accounted_for(tmp_path: Path
     assert len(warned) == 1 and warned[0].status == "kept"
     twice = [r for r in records if r.reason and "listed twice" in r.reason]
     assert [r.t_ns for r in twice] == [int(lines[3].split(",")[0])] and twice[0].status == "kept"
+    # every camera problem is in the report, also the clean camera's (the log says 10)
+    said = report.camera_problems
+    assert counts["camera_problems"] == len(said) == 3
+    assert sum("cam0" in p and "image not listed in data.csv" in p for p in said) == 1, said
+    assert sum("timestamp goes back" in p for p in said) == 1
 
 
 def test_cameras_whose_clocks_disagree_are_said_in_the_log_and_report(
