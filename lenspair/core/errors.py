@@ -48,3 +48,7 @@ class ConfigError(LenspairError):
 
 class ImageIOError(LenspairError):
     """An image file could not be read or written (message names the file)."""
+
+
+class WorkerDiedError(LenspairError):
+    """A pool's worker process ended while at work (killed: out of memory, or by a user)."""

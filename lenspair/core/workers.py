@@ -21,7 +21,7 @@ traceback per process beside lenspair's one line:
   ``SIGTERM`` blocked too and unblock it once their data is read (in the
   initializer's wrapper): a ``SIGTERM`` that came meanwhile ends them then.
 * A worker killed at work (the out-of-memory killer) broke the pool: a
-  traceback and exit 1. It is :class:`WorkerDiedError`, one line.
+  traceback and exit 1. It is :class:`~lenspair.core.errors.WorkerDiedError`, one line.
 
 A ``kill -9`` of the parent is :mod:`lenspair.core.orphans`' business.
 """
@@ -36,7 +36,7 @@ from contextlib import contextmanager
 from multiprocessing import get_context
 from typing import Any
 
-from lenspair.core.errors import LenspairError
+from lenspair.core.errors import WorkerDiedError
 
 STOP_SECONDS = 5.0
 """How long a worker asked to end (``SIGTERM``) may take before it is killed."""
@@ -86,10 +86,6 @@ _HELD = (signal.SIGINT, signal.SIGTERM)
 """The signals held while workers start (:func:`_starting_workers`)."""
 
 
-class WorkerDiedError(LenspairError):
-    """A pool's worker process ended while at work (killed: out of memory, or by a user)."""
-
-
 def _started(initializer: Callable[..., None], *initargs: Any) -> None:
     """In a worker: its start-up data is read; let SIGTERM end it from now on, then initialise."""
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
@@ -120,7 +116,7 @@ def spawn_pool(
 
     The workers start with ``SIGINT`` blocked (the parent stops them on
     Ctrl-C); an error or interrupt leaving the block ends them first. A
-    worker that dies at work is :class:`WorkerDiedError`.
+    worker that dies at work is :class:`~lenspair.core.errors.WorkerDiedError`.
 
     Yields:
         ``map(function, items, chunksize=1)``: results in order, as

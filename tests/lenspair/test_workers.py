@@ -75,7 +75,8 @@ def test_a_failing_block_ends_its_workers_before_it_leaves() -> None:
 
 _GROUP_SIGTERM = """
 import multiprocessing.util as util, os, signal, sys
-from lenspair.core.workers import WorkerDiedError, spawn_pool
+from lenspair.core.errors import WorkerDiedError
+from lenspair.core.workers import spawn_pool
 from tests.lenspair.test_workers import _keep, _square
 
 spawn = util.spawnv_passfds
@@ -122,7 +123,7 @@ def test_sigterm_before_a_worker_reads_its_start_up_data_does_not_hang_its_paren
 
 
 def test_a_worker_killed_at_work_is_one_error_not_a_broken_pool() -> None:
-    from lenspair.core.workers import WorkerDiedError
+    from lenspair.core.errors import WorkerDiedError
 
     killed: list[int] = []
     with pytest.raises(WorkerDiedError, match="out of memory"), spawn_pool(1, _nothing) as pool_map:
