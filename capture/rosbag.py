@@ -52,6 +52,7 @@ from lenspair.capture.recording_types import (
 )
 from lenspair.capture.rigfile import CameraName
 from lenspair.capture.salvage import SalvagedBag, is_cut_db3, salvage_bag
+from lenspair.capture.salvage_records import ROS1_MAGIC
 
 K = TypeVar("K")
 
@@ -277,6 +278,12 @@ def open_bag(path: Path) -> BagReader:
     Raises:
         CaptureError: neither ``rosbags`` nor salvage can read the bag.
     """
+    if not is_ros1_bag(path) and path.is_file() and _starts_with(path, ROS1_MAGIC):
+        # rosbags goes by the name: the salvage read it whole but called it cut short
+        raise CaptureError(
+            f"{path}: a ROS 1 bag (it starts with {ROS1_MAGIC.strip().decode()!r}) named "
+            f"{path.suffix}; rename it to .bag"
+        )
     store = Stores.ROS1_NOETIC if is_ros1_bag(path) else Stores.ROS2_HUMBLE
     # SQLite opens a cut .db3 and fails part-way without saying where: salvage it.
     failure = "the SQLite file is shorter than its header says"
@@ -297,6 +304,11 @@ def open_bag(path: Path) -> BagReader:
             f"{path}: cannot open bag ({failure}); reading it record by record "
             f"found nothing to keep ({one_line(exc)})"
         ) from None
+
+
+def _starts_with(path: Path, magic: bytes) -> bool:
+    with open(path, "rb") as file:
+        return file.read(len(magic)) == magic
 
 
 def _scans_one_file(reader: BagReader) -> bool:

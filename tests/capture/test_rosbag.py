@@ -141,6 +141,16 @@ def test_bare_storage_file_opens_too(tmp_path: Path, kind: str) -> None:
     np.testing.assert_array_equal(recording.load(recording.frames["cam1"][2]), _image(102))
 
 
+@pytest.mark.parametrize("suffix", [".db3", ".mcap"])
+def test_a_ros1_bag_named_as_a_ros2_file_is_said_so(tmp_path: Path, suffix: str) -> None:
+    # read whole by the salvage, then reported as "cut short": a damaged recording, it said
+    bag = _write_bag(tmp_path / "run", "ros1", _stereo(2))
+    misnamed = bag.rename(tmp_path / f"run{suffix}")
+    with pytest.raises(CaptureError, match=rf"run\{suffix}: a ROS 1 bag .* rename it to \.bag$"):
+        open_recording(misnamed)
+    assert open_recording(misnamed.rename(tmp_path / "run.bag")).frames["cam0"]
+
+
 def test_topic_choice_duplicates_and_order(tmp_path: Path) -> None:
     messages = _stereo(3, ("/stereo/left/image", "/stereo/right/image"))
     messages.append(("/aux/image", IMAGE, T0, _raw_fields(_image(7), "mono8")))
