@@ -59,6 +59,7 @@ from lenspair.simulate.sensor import expose, expose_through_glass
 from lenspair.simulate.spec import SceneSpec
 from lenspair.simulate.stereo import body_from_cameras, rig_from_spec
 from lenspair.simulate.textures import NAMES, Texture, texture_file
+from lenspair.simulate.truth import plane_reached
 
 log = logging.getLogger(__name__)
 
@@ -168,12 +169,20 @@ def simulate_recording(
                 f"{spec.recording.frames} frame(s) of {camera} with seed {spec.seed}: "
                 "raise recording.frames or lower drop_probability"
             )
+    # all that can refuse the spec (textures, board poses, planes) before anything is written
+    setup = _setup(spec, Path(base_dir))
+    poses = (
+        (k, body_pose(spec.motion, _seconds(clock.stamps_ns[k, c], spec.recording.start_ns))
+         @ setup.T_body_cams[c])
+        for k in range(spec.recording.frames) for c in range(2)
+    )  # fmt: skip
+    if (reached := plane_reached(setup.planes, spec.far_plane_index, poses)) is not None:
+        raise SimulateError(reached)
+    renderer = _FrameRenderer(setup, clock, streams, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / INCOMPLETE).write_text(
         f"pid {os.getpid()}: removed when the simulation is complete\n"
     )
-    setup = _setup(spec, Path(base_dir))
-    renderer = _FrameRenderer(setup, clock, streams, out_dir)
     for k in progress(range(spec.recording.frames), desc="simulate", unit="frame"):
         renderer.render(k)
 

@@ -47,6 +47,7 @@ frame ``b`` to frame ``a``; world = body at frame 0; body = cam0)::
 inner corners in that camera, in ``object_points`` order.
 """
 
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -70,6 +71,41 @@ def plane_in_camera(plane: Plane, T_world_cam: np.ndarray) -> tuple[np.ndarray, 
     normal = T_world_cam[:3, :3].T @ plane.normal
     distance = plane.offset_m - float(plane.normal @ T_world_cam[:3, 3])
     return normal, distance
+
+
+MIN_PLANE_DISTANCE_M = 0.05
+"""How near a camera may come to an endless or the far plane (the least ``planes[].depth_m``)."""
+
+
+def plane_reached(
+    planes: Sequence[Plane], far_index: int | None, camera_poses: Iterable[tuple[int, np.ndarray]]
+) -> str | None:
+    """Where the rig comes within :data:`MIN_PLANE_DISTANCE_M` of a plane it cannot pass, or None.
+
+    A camera that reaches an endless plane drives through a wall; one that
+    reaches the far plane makes its homography (the registration's truth)
+    divide by zero or less, and the frames behind it are background. A
+    finite plane other than the far one can be passed beside.
+
+    Args:
+        planes: the scene's planes.
+        far_index: the far plane's index (its homography is the truth).
+        camera_poses: ``(frame index, 4x4 camera pose)`` of every camera at every frame.
+
+    Returns:
+        ``planes[i]: ...`` naming the first frame and the distance, or None.
+    """
+    watched = [i for i, p in enumerate(planes) if p.size_m is None or i == far_index]
+    for frame, pose in camera_poses:
+        for index in watched:
+            _, distance = plane_in_camera(planes[index], pose)
+            if distance < MIN_PLANE_DISTANCE_M - 1e-9:  # not refused for a rounding
+                return (
+                    f"planes[{index}]: at frame {frame} a camera is {distance:.3f} m in front "
+                    f"of it, less than the {MIN_PLANE_DISTANCE_M} m it must stay (the rig "
+                    "reaches or crosses it): shorten the motion or move the plane"
+                )
+    return None
 
 
 def plane_homography(

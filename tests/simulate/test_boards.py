@@ -164,3 +164,5 @@ def test_impossible_board_poses_name_the_spec_file(
     assert main(["simulate", str(spec), "--out", str(tmp_path / "out"), "--frames", "2"]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.startswith(f"lenspair simulate: error: {spec}: board: no pose")
+    # nothing written: a folder marked incomplete read as a killed run on the next try
+    assert not (tmp_path / "out").exists()

@@ -477,3 +477,45 @@ def test_a_camera_far_along_an_endless_plane_still_sees_its_texture(
 
     near, far = detail(0.0), detail(along_m)
     assert abs(far - near) < 0.1 * near
+
+
+TINY = {
+    "cam0": {"intrinsics": [60.0, 60.0, 31.5, 23.5], "resolution": [64, 48]},
+    "cam1": {"intrinsics": [60.0, 60.0, 31.5, 23.5], "resolution": [64, 48]},
+}
+
+
+@pytest.mark.parametrize(
+    ("planes", "motion", "frames", "refused"),
+    [
+        # driving 1 m/s into a wall 2 m ahead: at frame 40 (20 Hz) the rig reaches it
+        ([{"texture": "brick", "depth_m": 2.0}], {"velocity_mps": [0, 0, 1.0]}, 60, 0),
+        # a wall edge-on through the rig: every camera stands in it
+        ([WALL, {"texture": "brick", "depth_m": 5.0, "rotation_deg": [90, 0, 0]}], None, 2, 1),
+        # the same 40 frames stop short of it
+        ([{"texture": "brick", "depth_m": 2.0}], {"velocity_mps": [0, 0, 1.0]}, 40, None),
+        # a finite board beside the road is passed, not driven through
+        ([WALL, {"texture": "brick", "depth_m": 0.5, "center_xy_m": [2.0, 0.0],
+                 "size_m": [0.5, 0.5]}], {"velocity_mps": [0, 0, 1.0]}, 30, None),
+    ],
+    ids=["into-the-far-wall", "edge-on-wall", "stops-short", "passes-a-board"],
+)  # fmt: skip
+def test_a_rig_that_reaches_a_plane_it_cannot_pass_is_refused_before_writing(
+    tmp_path: Path,
+    planes: list[dict[str, Any]],
+    motion: dict[str, Any] | None,
+    frames: int,
+    refused: int | None,
+) -> None:
+    # the far plane's homography divided by a distance of 0 or less: NaN in geometry.json
+    data = _scene(tmp_path, rig={"baseline_m": 0.11, "cam0": TINY["cam0"], "cam1": TINY["cam1"]},
+                  planes=planes, recording={"frames": frames})  # fmt: skip
+    data["motion"] = motion or {"velocity_mps": [0.0, 0.0, 0.0]}
+    if refused is None:
+        out = _render(tmp_path, data)
+        homographies = [f["homography"] for f in _geometry(out)["frames"]]
+        assert np.isfinite(np.asarray(homographies, dtype=np.float64)).all()
+        return
+    with pytest.raises(SimulateError, match=rf"^planes\[{refused}\]: at frame \d+ a camera is"):
+        _render(tmp_path, data)
+    assert not (tmp_path / "rec").exists()  # nothing written
