@@ -194,6 +194,12 @@ class RecordingSpec:
         if not 0.1 <= self.rate_hz <= 1000.0:
             raise ValueError(f"rate_hz: expected 0.1..1000, got {self.rate_hz}")
         period_us = 1e6 / self.rate_hz
+        # checked first: a jitter beyond it made start_ns look wrong
+        if not 0.0 <= 3.0 * self.jitter_us < period_us / 4.0:
+            raise ValueError(
+                f"jitter_us: expected 0 <= 3 sigma < a quarter period "
+                f"({period_us / 4.0:.0f} us), got {self.jitter_us}"
+            )
         # jitter may move frame 0 up to 3 sigma earlier, and the last frame must
         # stay an int64 nanosecond count (timestamps are file names and data.csv)
         end_ns = self.start_ns + round(self.frames * period_us * 1e3) + round(3e3 * self.jitter_us)
@@ -202,11 +208,6 @@ class RecordingSpec:
                 f"start_ns: expected {3e3 * self.jitter_us:.0f} (3 sigma of jitter) .. "
                 f"{2**63 - 1 - (end_ns - self.start_ns)} (the last frame within int64 ns), "
                 f"got {self.start_ns}"
-            )
-        if not 0.0 <= 3.0 * self.jitter_us < period_us / 4.0:
-            raise ValueError(
-                f"jitter_us: expected 0 <= 3 sigma < a quarter period "
-                f"({period_us / 4.0:.0f} us), got {self.jitter_us}"
             )
         if not all(0.0 <= p < 1.0 for p in self.drop_probability):
             raise ValueError(

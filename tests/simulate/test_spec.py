@@ -103,6 +103,8 @@ def test_round_trip_through_dump(tmp_path: Path) -> None:
             r"relative to the scene spec's folder\)",
         ),
         (_with("recording.jitter_us", 20000.0), r"recording: jitter_us: expected 0 <= 3 sigma"),
+        # a jitter so large that start_ns could not hold 3 sigma of it: jitter_us is at fault
+        (_with("recording.jitter_us", 1e15), r"recording: jitter_us: expected 0 <= 3 sigma"),
         (_with("recording.drop_probability", [0.0, 1.0]), r"recording: drop_probability"),
         (_with("obstructed.camera", "cam2"), r"obstructed\.camera: expected one of 'cam0', 'cam1'"),
         (
