@@ -113,11 +113,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_time_offset_option(parser, "calibrate", "view names")
 
 
-def _check_out(recording: Path, out: Path) -> None:
+def _check_out(recording: Path, out: Path) -> list[Path]:
     """Refuse an ``--out`` that is the recording or one of the files it is read from.
 
     Also checks, before the calibration runs, that ``out``'s folder can be
     made and written to.
+
+    Returns:
+        The folders it made for ``out``, innermost first (a run that fails
+        removes them).
 
     Raises:
         ConfigError: ``out`` is a file of the recording, or its folder cannot be made.
@@ -145,6 +149,7 @@ def _check_out(recording: Path, out: Path) -> None:
         )
     # its folder is made now, not after the calibration: a place it cannot be made
     # (a typo, another user's folder) was a traceback once everything had run
+    made = [folder for folder in (out.parent, *out.parent.parents) if not folder.exists()]
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -154,6 +159,7 @@ def _check_out(recording: Path, out: Path) -> None:
     # and written to now: a read-only file system or another user's folder refused the
     # camchain (naming its temporary) only after the whole calibration had run
     check_writable(out)
+    return made
 
 
 _RECORDING_FILES = frozenset({"data.csv", "rig.yaml", "metadata.yaml", "sensor.yaml"})
@@ -167,19 +173,27 @@ def interrupt_hint(args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lenspair calibrate``; returns the exit code."""
-    _check_out(args.recording, args.out)
-    calibration = calibrate_recording(
-        args.recording,
-        parse_board_spec(args.board),
-        parse_model(args.model),
-        topics=args.topics,
-        max_views=args.max_views,
-        options=CalibrationOptions(
-            outlier_factor=args.outlier_factor, refine_jointly=not args.fixed_intrinsics
-        ),
-        time_offset_ns=round(args.time_offset * 1e6),
-    )
-    report_path = write_calibration(calibration, args.out)
+    made = _check_out(args.recording, args.out)
+    try:
+        calibration = calibrate_recording(
+            args.recording,
+            parse_board_spec(args.board),
+            parse_model(args.model),
+            topics=args.topics,
+            max_views=args.max_views,
+            options=CalibrationOptions(
+                outlier_factor=args.outlier_factor, refine_jointly=not args.fixed_intrinsics
+            ),
+            time_offset_ns=round(args.time_offset * 1e6),
+        )
+        report_path = write_calibration(calibration, args.out)
+    except BaseException:  # a failed or interrupted run: "nothing was written", no folder either
+        for folder in made:  # innermost first
+            try:
+                folder.rmdir()
+            except OSError:  # something of another's in it now: left
+                break
+        raise
     for line in calibration.summary():
         print(line)
     print(f"wrote {args.out} and {report_path}")

@@ -110,6 +110,19 @@ def test_too_few_board_views_names_the_recording_and_what_was_found(tmp_path: Pa
     assert "3 frame pairs examined" in message and board in message
 
 
+def test_a_failed_calibration_leaves_no_folder_it_made(tmp_path: Path) -> None:
+    # the out's folders were made before the calibration and left behind when it failed,
+    # beside "nothing was written"
+    spec = _board_recording(tmp_path, 3)  # too few views
+    assert spec.board is not None
+    (tmp_path / "kept").mkdir()
+    out = tmp_path / "kept" / "new" / "sub" / "camchain.yaml"
+    argv = ["calibrate", str(tmp_path / "rec"), "--board", spec.board.target.spec()]
+    assert main([*argv, "--model", "pinhole-equi", "--out", str(out)]) == 2
+    assert not (tmp_path / "kept" / "new").exists()
+    assert (tmp_path / "kept").is_dir()  # the user's own folder stays
+
+
 def test_an_out_that_is_a_file_of_the_recording_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
