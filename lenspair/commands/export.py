@@ -29,6 +29,7 @@ decision is printed (lenspair.model.precision).
 
 import argparse
 import json
+import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -37,6 +38,8 @@ from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.leftovers import remove_leftovers
 from lenspair.model.errors import ModelError
+
+log = logging.getLogger(__name__)
 
 MIN_INPUT_SIDE = 8
 """The network's smallest input side (``lenspair.model.networks.padding.MIN_SIDE``; not
@@ -113,8 +116,12 @@ def run(args: argparse.Namespace) -> int:
             )
     report = report_path(args)
     # what this export replaces goes first, its report first of all: stopped midway, an
-    # export left its new ONNX beside the last export's int8 model and report
-    for path in (report, *([int8_path(args.onnx)] if args.int8 else [])):
+    # export left its new ONNX beside the last export's int8 model and report. That int8
+    # model goes without --int8 too: beside the new ONNX it read as its quantised twin
+    stale_int8 = int8_path(args.onnx) if args.onnx is not None else None
+    if stale_int8 is not None and stale_int8.exists() and not args.int8:
+        log.warning("%s: removed: the int8 model of the ONNX file this export replaces", stale_int8)
+    for path in (report, *([stale_int8] if stale_int8 is not None else [])):
         path.unlink(missing_ok=True)
     checks = export_checkpoint(args.checkpoint, args.onnx, args.torchscript, size)
     for check in checks:

@@ -322,6 +322,10 @@ def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
         .get_session_config_entry("session.intra_op.allow_spinning")
         == "0"
     )
+    # an export without --int8 over the same name took the ONNX file, not its int8 twin:
+    # the two read as one network's pair
+    assert main(args) == 0
+    assert onnx_file.is_file() and not Path(int8["path"]).exists()
 
 
 def test_int8_export_needs_calibration(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
