@@ -243,7 +243,8 @@ def trained_on_scored(
 ) -> int | None:
     """How many of ``pairs`` (less the ``unread`` indices) ``loaded`` trained on.
 
-    Its run recorded the folder it trained on (``runtime.data_path``) and
+    Its run recorded the folder it trained on (``runtime.data_path``, and
+    those of the sessions it resumed from: ``runtime.earlier_data``) and
     its ``data`` section says how the pairs were split, as
     :func:`~lenspair.model.training.datasets.paired_training_data` splits
     them: a dataset's ``data.train_split`` is trained on whole, unless it has
@@ -262,18 +263,22 @@ def trained_on_scored(
     root = getattr(pairs, "root", None)
     if runtime.synthetic or names is None or root is None:
         return 0
-    data, path = loaded.config.data, Path(runtime.data_path)
-    split_less = detect_layout(path) is not None
-    trained = path if split_less else path / data.train_split
-    if Path(root).resolve() != trained.resolve():
-        return 0
-    kept: Collection[int] = range(len(names))
-    if split_less or not _validated_on_a_split(path, data):
-        try:
-            kept, _ = holdout_indices([str(name) for name in names], data.val_fraction, trained)
-        except ModelError:  # fewer than two pairs: not what any run trained on
-            return 0
-    return len(set(kept) - set(unread))
+    # a resumed run trained on each folder it was resumed from too ("/old/DS until step 300")
+    earlier = (entry.rsplit(" until step ", 1)[0] for entry in runtime.earlier_data)
+    for folder in (runtime.data_path, *earlier):
+        path, data = Path(folder), loaded.config.data
+        split_less = detect_layout(path) is not None
+        trained = path if split_less else path / data.train_split
+        if Path(root).resolve() != trained.resolve():
+            continue
+        kept: Collection[int] = range(len(names))
+        if split_less or not _validated_on_a_split(path, data):
+            try:
+                kept, _ = holdout_indices([str(n) for n in names], data.val_fraction, trained)
+            except ModelError:  # fewer than two pairs: not what any run trained on
+                return 0
+        return len(set(kept) - set(unread))
+    return 0
 
 
 def _validated_on_a_split(dataset: Path, data: DataConfig) -> bool:

@@ -65,6 +65,15 @@ def markdown_report(result: EvalResult) -> str:
             else []
         ),
         *([f"- int8 calibrated on: {result.calibration}"] if result.calibration else []),
+        *(
+            [
+                f"- **the checkpoint trained on {result.trained_on_scored} of the "
+                f"{result.overall.pairs} scored pairs**, which flatter its scores: score pairs "
+                "it did not train on (a test split) for its accuracy"
+            ]
+            if result.trained_on_scored
+            else []
+        ),
         *([f"- channels: {result.conversion}"] if result.conversion else []),
         "",
         "| subset | pairs | PSNR (dB) | SSIM | input PSNR (dB) | input SSIM | convention |",

@@ -59,6 +59,25 @@ def test_a_paired_folder_it_trained_on_is_scored_whole_and_said(
     assert f"{checkpoint} trained on {trained} of the 12 scored pairs of {folder}" in said
     files = write_report(result, tmp_path / "out")
     assert json.loads(files["json"].read_text())["trained_on_scored_pairs"] == trained
+    # and the Markdown report says it too: it read as a plain accuracy
+    assert f"trained on {trained} of the 12 scored pairs**" in files["markdown"].read_text()
+
+
+def test_pairs_trained_on_before_a_resume_on_other_data_count_too(tmp_path: Path) -> None:
+    # trained on pairs/ for 3 steps, resumed on copy/: eval on pairs/ said 0 pairs
+    folder = write_paired_folder(tmp_path / "pairs", count=12)
+    copy = write_paired_folder(tmp_path / "copy", count=12)
+    runtime = RuntimeInfo(
+        data_path=str(copy.resolve()), earlier_data=(f"{folder.resolve()} until step 3",)
+    )
+    checkpoint = make_checkpoint(tmp_path / "net.pt", replace(tiny_config(), runtime=runtime))
+    training = paired_training_data(folder, tiny_config().data, 1, 0, notes=[])
+    result = evaluate_checkpoint(checkpoint, folder, "test", CPU, latency_runs=0)
+    assert result.trained_on_scored == len(training.train)  # type: ignore[arg-type]
+    other = write_paired_folder(tmp_path / "other", count=12)
+    assert (
+        evaluate_checkpoint(checkpoint, other, "test", CPU, latency_runs=0).trained_on_scored == 0
+    )
 
 
 def test_a_datasets_train_split_counts_and_its_other_splits_do_not(
