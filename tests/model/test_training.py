@@ -159,7 +159,7 @@ def test_auto_precision_follows_the_probe(monkeypatch: pytest.MonkeyPatch) -> No
     ):
         monkeypatch.setattr(
             "lenspair.model.training.step.choose_precision",
-            lambda requested, device, task, flags=flags: choose_precision(
+            lambda requested, device, task, bf16_speed=None, flags=flags: choose_precision(
                 requested, device, task, probe(flags), bf16_speed=lambda task: 1.8
             ),
         )
