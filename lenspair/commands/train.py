@@ -385,5 +385,9 @@ def run(args: argparse.Namespace) -> int:
     if validated:
         print(f"best checkpoint: {best}")
     else:  # resumed without its best.pt and stopped before validating again
-        print(f"no best checkpoint: {best} went missing; resume with a larger budget to write it")
+        print(
+            f"no best checkpoint: {best} was missing or could not be used when the run "
+            "resumed (the warning above says why), and no validation ran since; resume with a "
+            "larger budget to write it"
+        )
     return 0

@@ -50,6 +50,11 @@ def remove_partial_run(paths: RunPaths, stale: list[Path]) -> None:
         path.unlink()
 
 
+FORGOTTEN_SUFFIX = ".forgotten"
+"""A ``best.pt`` a resume could not use (unreadable, or of a validation ``last.pt`` does not
+know) is moved to ``best.pt.forgotten``."""
+
+
 def start_state(
     trainer: Trainer,
     config: RunConfig,
@@ -87,14 +92,22 @@ def start_state(
         state.rows = _resumed_rows(paths.metrics, state)
         problem = _best_problem(paths.best, state) if state.best_epoch else None
         if problem is not None:
-            # a best PSNR whose checkpoint is gone would never be written again
+            # a best PSNR whose checkpoint is gone would never be written again; a file
+            # that cannot be used is moved aside, not left for eval to trip over
+            aside = paths.best.with_name(paths.best.name + FORGOTTEN_SUFFIX)
+            try:
+                paths.best.replace(aside)
+                moved = f" (moved to {aside.name})"
+            except FileNotFoundError:  # missing, or moved by another torchrun process
+                moved = ""
             log.warning(
-                "%s %s: its best validation (%.2f dB, epoch %d) is forgotten, and the next "
+                "%s %s: its best validation (%.2f dB, epoch %d) is forgotten%s, and the next "
                 "validation writes a new one",
                 paths.best,
                 problem,
                 state.best_psnr,
                 state.best_epoch,
+                moved,
             )
             state.best_psnr, state.best_epoch, state.stale = -math.inf, 0, 0
         log.info("resuming %s at epoch %d, step %d", paths.root, state.epoch + 1, state.step)

@@ -383,6 +383,26 @@ def test_a_resume_without_best_pt_writes_it_again(
     assert f"best checkpoint: {best}" in capsys.readouterr().out
 
 
+def test_a_truncated_best_pt_is_moved_aside_on_resume(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    # it stayed in place, for eval to fail on later, and the summary said it "went missing"
+    from lenspair.cli import main
+
+    dataset, run, _ = _cli_run(tmp_path)
+    best = run / "checkpoints" / "best.pt"
+    cut = best.read_bytes()[:5000]
+    best.write_bytes(cut)
+    resume = ["train", str(dataset), "--out", str(run), "--resume"]
+    last_step = load_checkpoint(run / "checkpoints" / "last.pt")["step"]
+    assert main([*resume, "--max-steps", str(last_step)]) == 0  # no step, no validation
+    aside = best.with_name("best.pt.forgotten")
+    assert not best.exists() and aside.read_bytes() == cut
+    assert any("cannot be read" in m and "moved to best.pt.forgotten" in m for m in caplog.messages)
+    said = capsys.readouterr().out
+    assert "was missing or could not be used when the run resumed" in said
+
+
 @pytest.mark.parametrize("content", [b"\x00\xff\xfe\x01", b"epoch,step,seconds\nx,y,z\n"])
 def test_a_damaged_metrics_csv_is_one_line_on_resume(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], content: bytes
