@@ -9,7 +9,8 @@ The exported network takes one image (N, C, H, W) float32 in [0, 1] of any
 size (H, W >= 8; batch, height and width dynamic in ONNX) and returns the
 restored image, whole, as the checkpoint does. --size is where each file is
 checked and timed: it is run on a seeded random image and a flat one at that
-size and at a smaller odd size and compared with torch (the largest absolute
+size and at a second size with odd sides (about half; a size too small to
+halve, 3 pixels larger) and compared with torch (the largest absolute
 difference is printed), and timed at batch 1 at that size. Checking and
 timing ONNX needs onnxruntime (a dependency of lenspair; reinstall it);
 without it the file is written and the output says it was not checked. A

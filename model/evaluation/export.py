@@ -13,8 +13,9 @@ replays the same operations at any size too.
 and timed at (an ONNX graph is traced at it padded up to a multiple of 4,
 :func:`~lenspair.model.evaluation.onnx_graph.trace_image`, the only sizes
 torch.export traces dynamic): it is run on a random image
-(seeded) and a flat one at that size and again at a smaller odd size
-(:func:`other_size`, not a multiple of the network's stride), and compared
+(seeded) and a flat one at that size and again at a second size with odd
+sides, about half of it (:func:`other_size`, not a multiple of the network's
+stride), and compared
 with the torch output: the largest absolute difference is reported. ONNX
 files are checked and timed with ``onnxruntime`` when it is installed (``pip
 install 'onnxruntime'``); without it the file is still written and the
