@@ -70,7 +70,7 @@ from lenspair.commands.argtypes import (
     out_file,
 )
 from lenspair.core.errors import ConfigError
-from lenspair.core.fsutil import check_writable
+from lenspair.core.fsutil import check_writable, make_folder, remove_made
 from lenspair.rectify.boards import parse_board_spec
 from lenspair.rectify.calib_types import MODELS, CalibrationOptions, parse_model
 from lenspair.rectify.recording_calibration import calibrate_recording, write_calibration
@@ -149,9 +149,8 @@ def _check_out(recording: Path, out: Path) -> list[Path]:
         )
     # its folder is made now, not after the calibration: a place it cannot be made
     # (a typo, another user's folder) was a traceback once everything had run
-    made = [folder for folder in (out.parent, *out.parent.parents) if not folder.exists()]
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
+        made = make_folder(out.parent)
     except OSError as exc:
         raise ConfigError(
             f"--out {out}: cannot make its folder {out.parent} ({exc.strerror or exc})"
@@ -188,11 +187,7 @@ def run(args: argparse.Namespace) -> int:
         )
         report_path = write_calibration(calibration, args.out)
     except BaseException:  # a failed or interrupted run: "nothing was written", no folder either
-        for folder in made:  # innermost first
-            try:
-                folder.rmdir()
-            except OSError:  # something of another's in it now: left
-                break
+        remove_made(made)
         raise
     for line in calibration.summary():
         print(line)

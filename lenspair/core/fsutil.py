@@ -20,7 +20,7 @@ import shutil
 import stat
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
@@ -211,6 +211,27 @@ def _final_path(name: Path, path: Path) -> Path | None:
 def _absolute(path: Path) -> Path:
     """``path`` made absolute without following links (a temporary may be gone)."""
     return Path(os.path.abspath(path))
+
+
+def make_folder(folder: Path) -> list[Path]:
+    """``folder.mkdir(parents=True, exist_ok=True)``; returns the folders it made, innermost first.
+
+    For a command that makes its output folder before its work and must leave
+    no folder of its own behind when that work fails (:func:`remove_made`).
+    """
+    made = [f for f in (folder, *folder.parents) if not f.exists()]
+    folder.mkdir(parents=True, exist_ok=True)
+    return made
+
+
+def remove_made(made: list[Path]) -> None:
+    """Remove the folders :func:`make_folder` made, innermost first, while they are empty.
+
+    One that holds something now (another's file) is left, and so are those above it.
+    """
+    with suppress(OSError):
+        for folder in made:
+            folder.rmdir()
 
 
 def check_writable(path: Path) -> None:

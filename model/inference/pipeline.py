@@ -33,7 +33,6 @@ Rules a robotics user can rely on:
   the tile (``forced_tile`` in the report).
 """
 
-import contextlib
 import logging
 import time
 from collections.abc import Iterator
@@ -43,7 +42,7 @@ from typing import Any
 from lenspair.capture.bag_frames import bag_overview, iter_bag_messages
 from lenspair.capture.frames import InputKind, images_outside_cameras, iter_frames
 from lenspair.capture.rigfile import CameraName
-from lenspair.core.fsutil import atomic_write_json
+from lenspair.core.fsutil import atomic_write_json, make_folder, remove_made
 from lenspair.core.leftovers import remove_leftovers_under
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend
@@ -107,8 +106,7 @@ def restore_input(
     if options.resume:
         check_same_settings(out_dir, settings, bag)
     remove_leftovers_under(out_dir)  # of a killed run: its half-written temporaries
-    made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]
-    out_dir.mkdir(parents=True, exist_ok=True)
+    made = make_folder(out_dir)
     started_report = not (out_dir / REPORT_NAME).exists()
     sink: FileSink | BagSink = (
         BagSink(input_path, out_dir, options.suffix, options.resume, options.jpeg_quality)
@@ -222,9 +220,7 @@ def _undo_refused(out_dir: Path, made: list[Path], started_report: bool) -> None
     """
     if started_report:
         (out_dir / REPORT_NAME).unlink(missing_ok=True)
-    with contextlib.suppress(OSError):  # only the folders this run made, while empty
-        for folder in made:
-            folder.rmdir()
+    remove_made(made)  # only the folders this run made, while empty
 
 
 def _finish_files(
