@@ -172,10 +172,8 @@ def simulate_recording(
     # all that can refuse the spec (textures, board poses, planes) before anything is written
     setup = _setup(spec, Path(base_dir))
     poses = (
-        (k, body_pose(spec.motion, _seconds(clock.stamps_ns[k, c], spec.recording.start_ns))
-         @ setup.T_body_cams[c])
-        for k in range(spec.recording.frames) for c in range(2)
-    )  # fmt: skip
+        (k, pose) for k in range(spec.recording.frames) for pose in _camera_poses(setup, clock, k)
+    )
     if (reached := plane_reached(setup.planes, spec.far_plane_index, poses)) is not None:
         raise SimulateError(reached)
     renderer = _FrameRenderer(setup, clock, streams, out_dir)
@@ -275,6 +273,15 @@ def _setup(spec: SceneSpec, base_dir: Path) -> RecordingSetup:
     )
 
 
+def _camera_poses(setup: RecordingSetup, clock: Clock, k: int) -> list[np.ndarray]:
+    """Each camera's 4x4 world pose at its own timestamp of frame ``k``."""
+    motion, start_ns = setup.spec.motion, setup.spec.recording.start_ns
+    return [
+        body_pose(motion, _seconds(clock.stamps_ns[k, c], start_ns)) @ setup.T_body_cams[c]
+        for c in range(2)
+    ]
+
+
 def _absolute_textures(spec: SceneSpec, base_dir: Path) -> SceneSpec:
     """``spec`` with texture files named by absolute path (sample names stay names).
 
@@ -351,10 +358,7 @@ class _FrameRenderer:
         spec = setup.spec
         start_ns = spec.recording.start_ns
         T_world_body = body_pose(spec.motion, _seconds(clock.nominal_ns[k], start_ns))
-        T_world_cams = [
-            body_pose(spec.motion, _seconds(clock.stamps_ns[k, c], start_ns)) @ setup.T_body_cams[c]
-            for c in range(2)
-        ]
+        T_world_cams = _camera_poses(setup, clock, k)
         frame_planes = list(setup.planes)
         T_world_board = None
         if spec.board is not None and self.board_texture is not None:

@@ -53,6 +53,11 @@ def _positive(name: str, value: float) -> None:
         raise ValueError(f"{name}: expected > 0, got {value}")
 
 
+MIN_DEPTH_M = 0.05
+"""The nearest a plane may be: ``depth_m``'s least, and how near a camera may come to one
+(:func:`lenspair.simulate.truth.plane_reached`)."""
+
+
 @dataclass(frozen=True)
 class PlaneSpec:
     """A textured plane of the scene.
@@ -91,8 +96,8 @@ class PlaneSpec:
     name: str = ""
 
     def __post_init__(self) -> None:
-        if not 0.05 <= self.depth_m <= 1e5:
-            raise ValueError(f"depth_m: expected 0.05..1e5 m, got {self.depth_m}")
+        if not MIN_DEPTH_M <= self.depth_m <= 1e5:
+            raise ValueError(f"depth_m: expected {MIN_DEPTH_M:g}..1e5 m, got {self.depth_m}")
         if isinstance(self.texture, tuple) and not self.texture:
             raise ValueError("texture: expected a name, a path or a non-empty list")
         # a plane is a physical thing in front of the rig: bounded sizes keep the

@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from lenspair.simulate.scene import Plane
+from lenspair.simulate.spec import MIN_DEPTH_M
 from lenspair.simulate.transforms import invert_transform
 
 FORMAT = "lenspair-simulate-truth/1"
@@ -73,19 +74,16 @@ def plane_in_camera(plane: Plane, T_world_cam: np.ndarray) -> tuple[np.ndarray, 
     return normal, distance
 
 
-MIN_PLANE_DISTANCE_M = 0.05
-"""How near a camera may come to an endless or the far plane (the least ``planes[].depth_m``)."""
-
-
 def plane_reached(
     planes: Sequence[Plane], far_index: int | None, camera_poses: Iterable[tuple[int, np.ndarray]]
 ) -> str | None:
-    """Where the rig comes within :data:`MIN_PLANE_DISTANCE_M` of a plane it cannot pass, or None.
+    """Where the rig comes nearer than the least plane depth to a plane it cannot pass, or None.
 
     A camera that reaches an endless plane drives through a wall; one that
     reaches the far plane makes its homography (the registration's truth)
     divide by zero or less, and the frames behind it are background. A
-    finite plane other than the far one can be passed beside.
+    finite plane other than the far one can be passed beside. The distance
+    is :data:`~lenspair.simulate.spec.MIN_DEPTH_M`, ``depth_m``'s least.
 
     Args:
         planes: the scene's planes.
@@ -99,10 +97,10 @@ def plane_reached(
     for frame, pose in camera_poses:
         for index in watched:
             _, distance = plane_in_camera(planes[index], pose)
-            if distance < MIN_PLANE_DISTANCE_M - 1e-9:  # not refused for a rounding
+            if distance < MIN_DEPTH_M - 1e-9:  # not refused for a rounding
                 return (
                     f"planes[{index}]: at frame {frame} a camera is {distance:.3f} m in front "
-                    f"of it, less than the {MIN_PLANE_DISTANCE_M} m it must stay (the rig "
+                    f"of it, less than the {MIN_DEPTH_M} m it must stay (the rig "
                     "reaches or crosses it): shorten the motion or move the plane"
                 )
     return None
