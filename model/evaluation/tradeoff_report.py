@@ -139,6 +139,11 @@ MARKERS = {"fp32": "o", "bf16": "s", "fp16": "D", "int8": "^"}
 MARKER_NAMES = {"o": "circle", "s": "square", "D": "diamond", "^": "triangle"}
 
 
+def _drawn(value: float) -> float:
+    """Where the plot draws a score: an infinite PSNR (identical images) at 100 dB."""
+    return min(value, 100.0)
+
+
 def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any]) -> None:
     """PSNR and SSIM against CPU time, one panel each, Pareto fronts drawn and ringed.
 
@@ -154,20 +159,21 @@ def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any])
     # fp32 labels above, reduced precision below where free: the precisions of
     # one network score alike
     first_choice = [ABOVE if r.precision == "fp32" else BELOW for _, r in timed]
+    plotted: dict[str, list[tuple[float, float]]] = {}  # each panel's points, for the labels
     for axes, key, label, flag in panels:
-        for x, r in timed:
-            y = min(getattr(r, key), 100.0)
+        plotted[key] = [(x, _drawn(getattr(r, key))) for x, r in timed]
+        for (x, y), (_, r) in zip(plotted[key], timed, strict=True):
             axes.scatter([x], [y], marker=MARKERS[r.precision], color="tab:blue", zorder=3)
         front = sorted(((x, r) for x, r in timed if getattr(r, flag)), key=lambda p: p[0])
         if front:
             xs = [x for x, _ in front]
-            ys = [min(getattr(r, key), 100.0) for _, r in front]
+            ys = [_drawn(getattr(r, key)) for _, r in front]
             axes.plot(xs, ys, color="tab:red", linewidth=1.5, zorder=2, label="Pareto front")
             axes.scatter(xs, ys, s=140, facecolors="none", edgecolors="tab:red", zorder=4)
             axes.legend(loc="best", fontsize=8)  # where it hides the fewest points
         baseline = meta.get("input_baseline")
         if baseline:
-            axes.axhline(min(baseline[key], 100.0), color="grey", linestyle="--", linewidth=1,
+            axes.axhline(_drawn(baseline[key]), color="grey", linestyle="--", linewidth=1,
                          label="input, no restoration")  # fmt: skip
             axes.legend(loc="best", fontsize=8)  # where it hides the fewest points
         axes.set_xlabel(f"CPU time per {meta['size']} frame (ms, batch 1)")
@@ -179,8 +185,7 @@ def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any])
     figure.tight_layout()
     canvas.draw()  # the limits, layout and legend are final: labels go where they clash least
     for axes, key, _, _ in panels:
-        points = [(x, min(getattr(r, key), 100.0)) for x, r in timed]
-        label_points(axes, points, labels, first_choice, canvas.get_renderer())
+        label_points(axes, plotted[key], labels, first_choice, canvas.get_renderer())
 
     def _write(tmp: Path) -> None:
         figure.savefig(tmp, format="png")
