@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lenspair.capture.bag_frames import bag_overview, bag_topics
+from lenspair.capture.bag_frames import BagOverview, bag_overview, bag_topics
 from lenspair.capture.bagwrite import output_bag_path
 from lenspair.capture.frames import InputKind, detect_input, frame_files
 from lenspair.capture.rigfile import CameraName
@@ -102,12 +102,16 @@ class CheckedInput:
         options: the options, with those meaning nothing for images reset.
         cameras: the cameras to restore (none for images).
         files: the image files (none for bags, read as they stream).
+        overview: a bag's :class:`~lenspair.capture.bag_frames.BagOverview`,
+            read once here (a bag cut short is scanned whole by each opening);
+            None for other inputs.
     """
 
     kind: InputKind
     options: RestoreOptions
     cameras: tuple[CameraName, ...]
     files: list[Path]
+    overview: BagOverview | None = None
 
 
 def check_input(input_path: Path, out_dir: Path, options: RestoreOptions) -> CheckedInput:
@@ -132,16 +136,15 @@ def check_input(input_path: Path, out_dir: Path, options: RestoreOptions) -> Che
     bag = kind in ("rosbag1", "rosbag2")
     if bag and options.suffix:
         check_suffix_free(input_path, cameras, options)
-    if bag and (
-        empty := bag_overview(input_path, cameras, options.topics).nothing_to_read(input_path)
-    ):
+    overview = bag_overview(input_path, cameras, options.topics) if bag else None
+    if overview is not None and (empty := overview.nothing_to_read(input_path)):
         raise ModelError(f"{empty}: nothing to restore")
     files = [] if bag else frame_files(input_path, kind, cameras)
     if not bag and not files:
         # Refused before OUT is made: an empty run is a mistyped path, not a result.
         raise ModelError(f"{input_path}: no images to restore")
     check_out_dir(out_dir, options.resume)
-    return CheckedInput(kind, options, cameras, files)
+    return CheckedInput(kind, options, cameras, files, overview)
 
 
 def check_suffix_free(bag: Path, cameras: tuple[CameraName, ...], options: RestoreOptions) -> None:

@@ -39,7 +39,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from lenspair.capture.bag_frames import bag_overview, iter_bag_messages
+from lenspair.capture.bag_frames import iter_bag_messages
 from lenspair.capture.frames import InputKind, images_outside_cameras, iter_frames
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.fsutil import atomic_write_json, make_folder, remove_made
@@ -122,7 +122,7 @@ def restore_input(
     # the settings go first, so that a killed run's --resume can check them
     atomic_write_json(out_dir / REPORT_NAME, {"settings": settings, "complete": False})
     source_problems: list[str] = []
-    items, total = _open_items(input_path, sink, cameras, files, options, source_problems)
+    items, total = _open_items(input_path, sink, checked, source_problems)
     report = RestoreReport(
         str(input_path), kind, str(sink.output), backend.description, list(cameras)
     )
@@ -184,9 +184,7 @@ def _say_unused(input_path: Path, kind: InputKind, options: RestoreOptions) -> N
 def _open_items(
     input_path: Path,
     sink: FileSink | BagSink,
-    cameras: tuple[CameraName, ...],
-    files: list[Path],
-    options: RestoreOptions,
+    checked: CheckedInput,
     source_problems: list[str],
 ) -> tuple[Iterator[Any], int | None]:
     """The input's items, read as they are iterated, and how many frames (for the progress bar).
@@ -194,20 +192,20 @@ def _open_items(
     Args:
         input_path: the input.
         sink: a :class:`BagSink` for a bag (its messages are read), else frames are.
-        cameras: the cameras to read.
-        files: the image files (frames of a folder or recording).
-        options: the bag's ``topics``.
+        checked: the checked input: its cameras, files (a folder's or
+            recording's frames), options (a bag's ``topics``) and a bag's overview.
         source_problems: extended with the input's problems: the bag's
             others at once, those met while reading as the items are read.
     """
+    cameras = checked.cameras
     if isinstance(sink, BagSink):
-        overview = bag_overview(input_path, cameras, options.topics)
-        source_problems.extend(overview.others)
+        assert checked.overview is not None  # check_input reads a bag's
+        source_problems.extend(checked.overview.others)
         items: Iterator[Any] = iter_bag_messages(
-            input_path, cameras, source_problems, options.topics
+            input_path, cameras, source_problems, checked.options.topics
         )
-        return items, overview.frames
-    return iter_frames(input_path, cameras, source_problems), len(files)
+        return items, checked.overview.frames
+    return iter_frames(input_path, cameras, source_problems), len(checked.files)
 
 
 def _undo_refused(out_dir: Path, made: list[Path], started_report: bool) -> None:
