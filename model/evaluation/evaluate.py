@@ -29,7 +29,7 @@ from lenspair.model.evaluation.scoring import SheetRow, agreement_with_fp32, sco
 from lenspair.model.evaluation.summary import ImageScore, Summary, breakdown, summarize
 from lenspair.model.inference.backends import deploy
 from lenspair.model.metrics import PSNR_CAP_DB, parse_metric_convention
-from lenspair.model.training.config import DataConfig
+from lenspair.model.training.config import DataConfig, split_until
 from lenspair.model.training.datasets import validation_split
 from lenspair.model.training.holdout import holdout_indices
 from lenspair.model.training.pairs import (
@@ -264,7 +264,7 @@ def trained_on_scored(
     if runtime.synthetic or names is None or root is None:
         return 0
     # a resumed run trained on each folder it was resumed from too ("/old/DS until step 300")
-    earlier = (entry.rsplit(" until step ", 1)[0] for entry in runtime.earlier_data)
+    earlier = (split_until(entry)[0] for entry in runtime.earlier_data)
     for folder in (runtime.data_path, *earlier):
         path, data = Path(folder), loaded.config.data
         split_less = detect_layout(path) is not None

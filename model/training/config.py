@@ -335,6 +335,24 @@ class RuntimeInfo:
     earlier_data: tuple[str, ...] = ()
 
 
+UNTIL_STEP = " until step "
+"""Joins what a resumed run's earlier sessions had to the step it lasted until
+(``RuntimeInfo.earlier_precisions``, ``earlier_data``): :func:`until_step`, :func:`split_until`."""
+
+
+def until_step(what: str, step: int) -> str:
+    """``/old/DS until step 300``: an entry of ``earlier_precisions`` or ``earlier_data``."""
+    return f"{what}{UNTIL_STEP}{step}"
+
+
+def split_until(entry: str) -> tuple[str, int | None]:
+    """An :func:`until_step` entry's ``(what, step)``; the step None where it is no number."""
+    what, found, step = entry.rpartition(UNTIL_STEP)
+    if not found:
+        return entry, None
+    return what, int(step) if step.isdigit() else None
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """A whole experiment: ``model``, ``data``, ``train``, ``loss`` (+ ``runtime``, resolved)."""

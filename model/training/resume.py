@@ -22,7 +22,7 @@ import torch
 
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_weights
 from lenspair.model.errors import ModelError
-from lenspair.model.training.config import RunConfig
+from lenspair.model.training.config import RunConfig, split_until, until_step
 from lenspair.model.training.datasets import NAMES_DIGEST
 from lenspair.model.training.run_files import RunPaths, read_metrics_rows
 from lenspair.model.training.run_state import RunState
@@ -199,7 +199,7 @@ def with_history(
         return config
     earlier_precisions, earlier_data = before.earlier_precisions, before.earlier_data
     if before.precision and before.precision != runtime.precision:
-        earlier_precisions = (*earlier_precisions, f"{before.precision} until step {step}")
+        earlier_precisions = (*earlier_precisions, until_step(before.precision, step))
         if warn:
             log.warning(
                 "resuming at %s; %s trained at %s",
@@ -208,7 +208,7 @@ def with_history(
                 before.precision,
             )
     if before.data_path and runtime.data_path and before.data_path != runtime.data_path:
-        earlier_data = (*earlier_data, f"{before.data_path} until step {step}")
+        earlier_data = (*earlier_data, until_step(before.data_path, step))
         if warn:
             log.warning(
                 "resuming on %s; the first %d steps trained on %s (its validation PSNRs and "
@@ -218,7 +218,7 @@ def with_history(
                 before.data_path,
             )
     elif (then := _digest(before.data)) and (now := _digest(runtime.data)) and then != now:
-        earlier_data = (*earlier_data, f"{before.data} until step {step}")
+        earlier_data = (*earlier_data, until_step(before.data, step))
         if warn:  # rebuilt in place: same folder, other pairs
             log.warning(
                 "resuming on %s, whose pairs changed since the run's first %d steps (then: "
@@ -244,10 +244,10 @@ def _steps_since(earlier: tuple[str, ...], step: int) -> str:
     it) records: "the first 8 steps trained at fp32" was said of a run whose
     steps 1 to 6 had trained at bf16.
     """
-    _, found, since = earlier[-1].rpartition(" until step ") if earlier else ("", "", "")
-    if not found or not since.isdigit() or not 0 < int(since) < step:
+    since = split_until(earlier[-1])[1] if earlier else None
+    if since is None or not 0 < since < step:
         return f"the first {step} steps"
-    return f"steps {int(since) + 1} to {step}"
+    return f"steps {since + 1} to {step}"
 
 
 def _digest(data: str) -> str | None:
