@@ -186,12 +186,15 @@ def build_parser(selected: str | None) -> argparse.ArgumentParser:
 REFUSALS = frozenset(
     {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EEXIST,
      errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG, errno.EIO, errno.EFBIG, errno.EBUSY,
-     errno.EXDEV}
+     errno.EXDEV, errno.ENOENT}
 )  # fmt: skip
 """``errno`` values of a file system refusing a write: one line, exit 1 (``-v``: traceback).
 
 ``EBUSY`` and ``EXDEV`` are a rename refused: a mount point (a Docker volume given
 as an output folder) cannot be renamed away, nor a folder renamed across file systems.
+``ENOENT`` is a path that does not exist and cannot be made there (``--out
+/proc/x``: such a file system refuses new folders with it); the inputs' own
+absence is checked, and named, before any work.
 """
 
 
@@ -235,8 +238,9 @@ def main(argv: list[str] | None = None) -> int:
             f"lenspair {args.command}: error: {where + ': ' if where else ''}{reason}",
             file=sys.stderr,
         )
-        # a name too long is the user's to shorten, as any mistyped path: a user error
-        return 2 if exc.errno == errno.ENAMETOOLONG else 1
+        # a name too long, or a folder that cannot be made where asked, is the user's to
+        # change, as any mistyped path: a user error
+        return 2 if exc.errno in (errno.ENAMETOOLONG, errno.ENOENT) else 1
     except KeyboardInterrupt as exc:
         # restore and train continue only when asked; the other commands resume by themselves
         hint = "rerun with --resume to continue" if hasattr(args, "resume") else "rerun to resume"

@@ -420,6 +420,18 @@ def test_a_file_system_refusal_is_one_line_naming_the_path(
     assert str(out / "rain") in lines[0]
 
 
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_an_out_folder_that_cannot_be_made_there_is_one_line_naming_it(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """/proc refuses new folders with ENOENT, not a permission error: still one line, exit 2."""
+    out = Path("/proc") / f"lenspair-test-{os.getpid()}" / "rec"
+    code = main(["simulate", "rain", "--out", str(out), "--frames", "1"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, lines
+    assert str(out.parent) in lines[0] and "No such file or directory" in lines[0]
+
+
 @pytest.mark.parametrize("where", ["before", "after"])
 def test_verbose_shows_the_refusal_s_traceback_before_or_after_the_command(
     tmp_path: Path, where: str
