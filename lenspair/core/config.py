@@ -22,6 +22,7 @@ import math
 import re
 import types
 import typing
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, Literal, TypeVar, Union, get_args, get_origin
 
@@ -179,7 +180,19 @@ def load_dataclass(cls: type[T], data: Any, path: str = "", base_dir: Path | Non
         raise
     except (ValueError, TypeError) as exc:
         # a top-level check names its keys itself ("planes: ..."): no "<root>: " before it
-        raise ConfigError(f"{path}: {exc}" if path else str(exc)) from None
+        raise ConfigError(_under(path, str(exc), fields)) from None
+
+
+def _under(path: str, message: str, fields: Iterable[str]) -> str:
+    """A check's ``message`` placed under ``path``: a dotted key where it names its field.
+
+    ``planes[0]`` and ``depth_m: expected ...`` give ``planes[0].depth_m: expected ...``;
+    a message naming no single field of the dataclass follows ``path:``.
+    """
+    if not path:
+        return message
+    key = message.split(":", 1)[0]
+    return f"{path}.{message}" if key in fields else f"{path}: {message}"
 
 
 def text_lines(path: Path) -> list[tuple[int, str]]:

@@ -517,7 +517,7 @@ def test_a_seed_too_large_for_training_is_refused_at_the_option_and_in_a_config(
     config.write_text(f"train: {{seed: {too_large}}}\n")
     argv = ["train", str(tmp_path), "--out", str(tmp_path / "r"), "--config", str(config)]
     assert main(argv) == 2
-    assert f"train: seed: expected 0 .. 4294967295, got {too_large}" in capsys.readouterr().err
+    assert f"train.seed: expected 0 .. 4294967295, got {too_large}" in capsys.readouterr().err
     assert TrainConfig(seed=2**32 - 1).seed * 100_003 + 10**6 < 2**63  # the largest still fits
 
 
