@@ -35,7 +35,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal, Union, get_args, get_origin
 
-from lenspair.core.config import load_dataclass, read_yaml
+from lenspair.core.config import MAX_SEED, load_dataclass, read_yaml
 from lenspair.core.errors import ConfigError
 from lenspair.simulate.boardspec import BoardSpec
 from lenspair.simulate.effects.spec import EffectsSpec
@@ -275,8 +275,8 @@ class SceneSpec:
             raise ValueError(f"background: expected 0..1, got {self.background}")
         if not 1 <= self.supersample <= 4:
             raise ValueError(f"supersample: expected 1..4, got {self.supersample}")
-        if not 0 <= self.seed < 2**63:
-            raise ValueError(f"seed: expected 0 <= seed < 2**63, got {self.seed}")
+        if not 0 <= self.seed <= MAX_SEED:  # every command's --seed takes the same range
+            raise ValueError(f"seed: expected 0 .. {MAX_SEED}, got {self.seed}")
         if not self.planes and self.board is None:
             raise ValueError("planes: a scene needs at least one plane or a board")
         for name in ("cam0", "cam1"):

@@ -19,7 +19,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from lenspair.commands.argtypes import out_folder, positive_int
+from lenspair.commands.argtypes import out_folder, positive_int, random_seed
 from lenspair.core.errors import ConfigError
 from lenspair.core.samples import file_or_sample, sample_names
 from lenspair.simulate.errors import SimulateError
@@ -43,7 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", type=out_folder, required=True, help="new or empty output folder")
     parser.add_argument("--frames", type=positive_int, help="number of frames (overrides the spec)")
-    parser.add_argument("--seed", type=int, help="random seed (overrides the spec)")
+    parser.add_argument(
+        "--seed", type=random_seed, help="random seed (overrides the spec; 0 .. 2**32-1)"
+    )
 
 
 def interrupt_hint(args: argparse.Namespace) -> str:

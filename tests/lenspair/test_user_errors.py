@@ -154,6 +154,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
     (["calibrate", "DS", "--board", "x", "--model", "pinhole-radtan", "--out", "DS"], "folder"),
     (["export", "CKPT", "--onnx", "DS"], "folder"),
     (["realism", "--render", "ours", "--seed", "-1"], "--seed"),
+    (["simulate", "rain", "--out", "OUT", "--seed", str(2**32)], "--seed"),  # was taken
     (["realism", "--render", "ours", "--json", "DS"], "folder"),
     (["tradeoff", "DS", "--out", "OUT", "--variants", "nope"], "nope"),
     (["eval", "DS", "--latency-runs", "many"], "--latency-runs"),

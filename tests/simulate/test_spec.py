@@ -3,7 +3,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from lenspair.core.config import dump_yaml, load_yaml
+from lenspair.core.config import MAX_SEED, dump_yaml, load_yaml
 from lenspair.core.errors import ConfigError
 from lenspair.simulate.spec import SceneSpec, load_scene, with_overrides
 from lenspair.simulate.stereo import rig_from_spec
@@ -205,8 +205,10 @@ def test_overrides() -> None:
     # named as the option typed: the spec's key meant nothing to a user of --frames
     with pytest.raises(ConfigError, match=r"^--frames expected 1\.\.100000, got 0$"):
         with_overrides(spec, frames=0)
-    with pytest.raises(ConfigError, match=r"^--seed expected 0 <= seed"):
-        with_overrides(spec, seed=-1)
+    for seed in (-1, MAX_SEED + 1):  # the range of every command's --seed
+        with pytest.raises(ConfigError, match=rf"^--seed expected 0 \.\. {MAX_SEED}, got {seed}$"):
+            with_overrides(spec, seed=seed)
+    assert with_overrides(spec, seed=MAX_SEED).seed == MAX_SEED
 
 
 @pytest.mark.parametrize(
