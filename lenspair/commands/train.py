@@ -63,7 +63,7 @@ starts over. Multi-GPU: torchrun --nproc_per_node N -m lenspair train ...
 import argparse
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lenspair.commands.argtypes import (
     add_device_option,
@@ -78,6 +78,9 @@ from lenspair.core.durations import seconds, steps_or_seconds
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal
 from lenspair.core.wording import counted
+
+if TYPE_CHECKING:  # for annotations only: keeps `--help` light
+    from lenspair.model.training.config import RunConfig
 
 
 def _every(text: str) -> tuple[int | None, float | None]:
@@ -279,6 +282,29 @@ def _check_out_apart(args: argparse.Namespace, train_split: str, val_split: str)
             )
 
 
+def _unsaved_changes(said: Path, trained: "RunConfig") -> list[str]:
+    """A warning when the run's ``config.yaml`` says settings its ``last.pt`` never trained with.
+
+    ``config.yaml`` is written when a session starts: a ``--resume --config``
+    session stopped before its first checkpoint leaves it saying settings that
+    never trained, and a later plain ``--resume`` goes on with ``last.pt``'s.
+    """
+    # here, not at the top: keeps `--help` from importing torch
+    from lenspair.model.training.config_loading import config_differences, load_run_config
+
+    try:
+        differences = config_differences(trained, load_run_config(said, stored=True))
+    except (ConfigError, OSError):  # unreadable: rewritten by this session, as before
+        return []
+    if not differences:
+        return []
+    return [
+        f"{said} said settings that never reached a checkpoint (a session stopped before "
+        f"its first): {'; '.join(differences)}; this session goes on with last.pt's, as the "
+        "new config.yaml says; give the --config again to apply them"
+    ]
+
+
 def run(args: argparse.Namespace) -> int:
     """Train one run; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair train --help`.
@@ -312,21 +338,22 @@ def run(args: argparse.Namespace) -> int:
         args.resume, restart = False, True
     else:
         stored, restart = None, False
+    # said by fit once every check has passed, into RUN/train.log and by rank 0 alone
+    notes: list[str] = []
     if args.resume or restart:
         # a --config given with it sets the keys it names on top of the run's own
         # (train.patience alone did not put crop, batch and rate back to the defaults)
         if stored is None:
             stored = resume_config(args.out, None)
+            notes.extend(_unsaved_changes(args.out / "config.yaml", stored))
         base = with_file(stored, args.config) if args.config else stored
         config = with_options(base, args)
         if args.resume:
-            config = resume_config(args.out, config)
+            config = resume_config(args.out, config, notes)
     else:
         config = with_options(load_run_config(args.config, given=True), args)
     _check_out_apart(args, config.data.train_split, config.data.val_split)
     seed, channels = config.train.seed, config.model.channels
-    # said by fit, into RUN/train.log and by rank 0 alone (the run log does not exist yet)
-    notes: list[str] = []
     if args.synthetic is not None:
         data = synthetic_training_data(args.synthetic, config.data, channels, seed, notes)
     else:

@@ -115,12 +115,16 @@ def resolve_config(config: RunConfig, channels: int) -> RunConfig:
     return dataclasses.replace(config, model=dataclasses.replace(config.model, channels=channels))
 
 
-def resume_config(run: Path, override: RunConfig | None) -> RunConfig:
+def resume_config(
+    run: Path, override: RunConfig | None, notes: list[str] | None = None
+) -> RunConfig:
     """The configuration to resume ``run`` with.
 
     The run's ``last.pt`` holds the configuration it was started with; an
     ``override`` (``--config``) may change anything but the network, and
-    each change is logged as a warning.
+    each change is said as a warning: added to ``notes`` when given (for
+    :func:`fit` to say once every check has passed, so that a refused resume
+    does not first list changes that never apply), else logged now.
 
     Raises:
         ModelError: no checkpoint, the override changes the network or
@@ -143,9 +147,12 @@ def resume_config(run: Path, override: RunConfig | None) -> RunConfig:
     check_resume_batch(checkpoint, paths.last, override)
     # fit refuses it too; here, before the changes are said as if they would apply
     check_resume_budget(checkpoint, paths.last, override)
-    if distributed_from_env().is_main:  # torchrun: said once, by rank 0
-        for change in config_differences(stored, override):
-            log.warning("--resume with a changed config: %s", change)
+    changes = [f"--resume with a changed config: {c}" for c in config_differences(stored, override)]
+    if notes is not None:
+        notes.extend(changes)
+    elif distributed_from_env().is_main:  # torchrun: said once, by rank 0
+        for change in changes:
+            log.warning("%s", change)
     return override
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
 
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
@@ -79,17 +80,41 @@ def test_a_resume_that_switches_the_perceptual_loss_is_refused(
 
 
 def test_a_resume_on_other_synthetic_drops_is_refused(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
 ) -> None:
     # --drops sharp only warned: best.pt then compared PSNRs on two validation sets
     argv, run = _argv(tmp_path)
     synthetic = ["train", "--synthetic", str(tmp_path / "ds" / "train" / "target"), *argv[2:]]
     assert main([*synthetic, "--max-steps", "1"]) == 0
     kept = _files(run)
+    caplog.clear()
     error = _refusal([*synthetic, "--resume", "--max-steps", "2", "--drops", "sharp"], capsys)
     assert "trained on synthetic ours drops" in error and "on synthetic sharp drops" in error
     assert "resume with --drops ours" in error and f"--init {run}" in error
     assert _files(run) == kept
+    # the new budget never applied: it is not said as a change before the refusal
+    assert not any("changed config" in m for m in caplog.messages), caplog.messages
+
+
+def test_a_plain_resume_says_what_config_yaml_said_but_never_trained(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # a --resume --config session stopped before its first checkpoint had written its
+    # settings into config.yaml; the next plain --resume went on with last.pt's, unsaid
+    argv, run = _argv(tmp_path)
+    assert main([*argv, "--max-steps", "2"]) == 0
+    caplog.clear()
+    assert main([*argv, "--resume", "--max-steps", "4"]) == 0  # a resume that ran: no word
+    assert not any("never reached a checkpoint" in m for m in caplog.messages)
+    said = yaml.safe_load((run / "config.yaml").read_text())
+    trained_lr = said["train"]["lr"]
+    said["train"]["lr"] = trained_lr / 10  # as the stopped session wrote it
+    (run / "config.yaml").write_text(yaml.safe_dump(said))
+    caplog.clear()
+    assert main(["train", *argv[1:4], "--device", "cpu", "--resume", "--max-steps", "6"]) == 0
+    warned = [m for m in caplog.messages if "never reached a checkpoint" in m]
+    assert len(warned) == 1 and f"train.lr: {trained_lr!r} -> {trained_lr / 10!r}" in warned[0]
+    assert yaml.safe_load((run / "config.yaml").read_text())["train"]["lr"] == trained_lr
 
 
 def test_a_resume_past_its_budget_is_refused_before_anything_is_written(
