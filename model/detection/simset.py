@@ -74,13 +74,18 @@ _TEXTURES = (
 )
 
 
+def kind_set_paths(out: Path, per_kind: int = 3) -> list[Path]:
+    """The recording folders of :func:`simulate_kind_set`, kind by kind (nothing rendered)."""
+    return [Path(out) / f"{kind}_{k}" for kind in SCENE_KINDS for k in range(per_kind)]
+
+
 def kind_set_specs(
     out: Path, per_kind: int = 3, frames: int = 6, seed: int = 0
 ) -> list[tuple[Path, SceneSpec]]:
     """The folders and scene specs of :func:`simulate_kind_set`, kind by kind."""
     base = load_scene(sample_path("rain.yaml"))
-    jobs = []
-    for kind_number, (kind, effects) in enumerate(SCENE_KINDS.items()):
+    specs = []
+    for kind_number, effects in enumerate(SCENE_KINDS.values()):
         for k in range(per_kind):
             count = 9 - k % 7  # 9 (the samples' mosaic) down to 3 textures: finer to coarser
             number = kind_number * per_kind + k
@@ -96,8 +101,8 @@ def kind_set_specs(
                 obstructed=ObstructionSpec(camera="cam1" if k % 2 else "cam0", effects=effects),
                 seed=seed + 100 * kind_number + k,
             )
-            jobs.append((Path(out) / f"{kind}_{k}", spec))
-    return jobs
+            specs.append(spec)
+    return list(zip(kind_set_paths(out, per_kind), specs, strict=True))
 
 
 def _finished(path: Path, spec: SceneSpec) -> bool:

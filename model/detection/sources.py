@@ -36,7 +36,11 @@ from lenspair.model.detection.data import (
 )
 from lenspair.model.detection.hard_cases import CleanView, clean_views, hard_samples
 from lenspair.model.detection.parallel import process_map
-from lenspair.model.detection.simset import simulate_kind_set, split_by_recording
+from lenspair.model.detection.simset import (
+    kind_set_paths,
+    simulate_kind_set,
+    split_by_recording,
+)
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import DetectorSpec
 from lenspair.model.training.synthetic import find_clean_images
@@ -160,16 +164,34 @@ def _distinct(sources: DetectorSources) -> DetectorSources:
     A folder given twice was trained on twice; one in ``--recordings`` and
     ``--test-recordings`` was scored on the frames it was trained on.
 
+    The simulated set's recordings count as given: its training ones as
+    ``--recordings`` (one given there too is used once), its held-out ones
+    as ``--test-recordings``.
+
     Raises:
         ModelError: a test recording is also a training recording.
     """
     recordings = _once(sources.recordings, "--recordings")
     tests = _once(sources.test_recordings, "--test-recordings")
-    trained = {path.resolve() for path in recordings}
-    for path in tests:
-        if path.resolve() in trained:
+    set_train: list[Path] = []
+    set_test: list[Path] = []
+    if sources.simulated_set is not None:
+        set_train, set_test = split_by_recording(
+            kind_set_paths(sources.simulated_set, sources.set_per_kind)
+        )
+        rendered = {path.resolve() for path in set_train}
+        for path in recordings:
+            if path.resolve() in rendered:
+                log.warning("%s: in --recordings and --simulated-set; used once", path)
+        recordings = tuple(path for path in recordings if path.resolve() not in rendered)
+    trained = {path.resolve(): "--recordings" for path in recordings}
+    trained |= {path.resolve(): "--simulated-set's training recordings" for path in set_train}
+    scored = {path.resolve(): ("--test-recordings", path) for path in tests}
+    scored |= {path.resolve(): ("--simulated-set's held-out recordings", path) for path in set_test}
+    for resolved, (option, path) in scored.items():
+        if resolved in trained:
             raise ModelError(
-                f"--test-recordings: {path} is also in --recordings: it would be scored on the "
+                f"{option}: {path} is also in {trained[resolved]}: it would be scored on the "
                 "frames it was trained on; hold out other recordings"
             )
     datasets = _once(sources.datasets, "the datasets")

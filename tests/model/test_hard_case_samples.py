@@ -1,6 +1,6 @@
 """Hard-case training samples (issue #14): labels, maps, sizes, determinism, parallel gathering."""
 
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -155,3 +155,21 @@ def test_a_recording_trained_on_is_not_scored_and_a_repeat_is_read_once(
         )
     assert len(twice) == len(once)
     assert any("given twice in --recordings" in m for m in caplog.messages)
+
+
+@pytest.mark.parametrize(
+    ("given", "held", "message"),
+    [  # the set's last recording of each kind is held out, the others trained on
+        ("recordings", "rain_1", r"held-out recordings: \S*rain_1 is also in --recordings"),
+        ("test_recordings", "rain_0", r"--test-recordings: \S*rain_0 is also in --simulated-set"),
+    ],
+)
+def test_a_simulated_set_recording_is_not_both_trained_on_and_scored(
+    tmp_path: Path, given: str, held: str, message: str
+) -> None:
+    """Its held-out scores came from frames it trained on; refused before anything renders."""
+    sims = tmp_path / "sims"
+    sources = DetectorSources(simulated_set=sims, set_per_kind=2, set_frames=1)
+    with pytest.raises(ModelError, match=message):
+        gather(replace(sources, **{given: (sims / held,)}), SPEC, 0)
+    assert not sims.exists()
