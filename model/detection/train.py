@@ -32,6 +32,7 @@ A checkpoint is a dict of plain values and tensors (``format``, the
 read back with ``weights_only=True``.
 """
 
+import io
 import itertools
 import math
 import time
@@ -44,10 +45,11 @@ import numpy as np
 import torch
 import torch.nn.functional as functional
 
-from lenspair.core.fsutil import atomic_write
+from lenspair.core.errors import first_line
+from lenspair.core.fsutil import atomic_write_bytes
 from lenspair.core.progress import progress
 from lenspair.core.samples import file_or_sample
-from lenspair.model.checkpoint import DETECTOR_FORMAT, read_torch_file
+from lenspair.model.checkpoint import DETECTOR_FORMAT, check_finite_weights, read_torch_file
 from lenspair.model.detection.data import UNKNOWN_KIND, DetectorSample
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import KINDS, TILE_STRIDE, AnomalyDetector, DetectorSpec
@@ -282,10 +284,14 @@ def _train(
     return network, summary
 
 
-def save_detector(
-    path: Path, network: AnomalyDetector, extra: dict[str, Any] | None = None
-) -> None:
-    """Write a detector checkpoint atomically (CPU tensors, plain values)."""
+def detector_bytes(network: AnomalyDetector, extra: dict[str, Any] | None = None) -> bytes:
+    """A detector checkpoint's bytes (CPU tensors, plain values).
+
+    Serialised in memory: the same network gives the same bytes (saved to a
+    file, torch names its entries after the file, a temporary's random name),
+    and a full disk is met by the write, which names the file, not inside
+    ``torch.save``.
+    """
     payload = {
         "format": DETECTOR_FORMAT,
         "spec": {key: list(value) for key, value in asdict(network.spec).items()},
@@ -293,8 +299,16 @@ def save_detector(
         "state_dict": {k: v.detach().cpu() for k, v in network.state_dict().items()},
         "extra": extra or {},
     }
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(Path(path), lambda temporary: torch.save(payload, temporary), suffix=".pt")
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    return buffer.getvalue()
+
+
+def save_detector(
+    path: Path, network: AnomalyDetector, extra: dict[str, Any] | None = None
+) -> None:
+    """Write a detector checkpoint atomically (:func:`detector_bytes`)."""
+    atomic_write_bytes(Path(path), detector_bytes(network, extra))
 
 
 def load_detector(path: Path, device: torch.device | str = "cpu") -> AnomalyDetector:
@@ -304,17 +318,40 @@ def load_detector(path: Path, device: torch.device | str = "cpu") -> AnomalyDete
     (as on the command line).
 
     Raises:
-        ModelError: missing file, not a detector checkpoint, or other kinds.
+        ModelError: missing file, a folder, not a detector checkpoint, other
+            kinds, or one whose parts do not make a usable detector (a key
+            missing, a spec this version does not know, weights that do not fit
+            the spec, or NaN and Inf in them): one line naming the file.
     """
     path = file_or_sample(str(path), ".pt")
+    if path.is_dir():
+        inside = path / "detector.pt"
+        hint = f"; the run's detector is {inside}" if inside.is_file() else ""
+        raise ModelError(f"{path}: a folder, not a detector checkpoint{hint}")
     if not path.is_file():
         raise ModelError(f"{path}: no such detector checkpoint")
     data = read_torch_file(path, "detector checkpoint")
     if not isinstance(data, dict) or data.get("format") != DETECTOR_FORMAT:
         raise ModelError(f"{path}: not a detector checkpoint (train one with train-detector)")
-    if tuple(data["kinds"]) != KINDS:
-        raise ModelError(f"{path}: kinds {data['kinds']} differ from this version's {KINDS}")
-    spec_fields = {key: tuple(int(v) for v in value) for key, value in data["spec"].items()}
-    network = AnomalyDetector(DetectorSpec(**spec_fields))  # type: ignore[arg-type]
-    network.load_state_dict(data["state_dict"])
+    unusable = f"{path}: not a usable detector checkpoint"
+    try:
+        kinds = tuple(data["kinds"])
+        fields = {key: tuple(int(v) for v in value) for key, value in data["spec"].items()}
+        spec = DetectorSpec(**fields)  # type: ignore[arg-type]
+        weights = dict(data["state_dict"])
+    except KeyError as exc:
+        raise ModelError(f"{unusable} (no {exc} in it)") from None
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise ModelError(f"{unusable} ({first_line(exc)})") from None
+    if kinds != KINDS:
+        raise ModelError(f"{path}: kinds {list(kinds)} differ from this version's {KINDS}")
+    check_finite_weights(weights, str(path))
+    network = AnomalyDetector(spec)
+    try:
+        network.load_state_dict(weights)
+    except RuntimeError as exc:
+        # torch's first line says only "Error(s) in loading state_dict": the first error instead
+        said = [line.strip() for line in str(exc).splitlines()[1:] if line.strip()]
+        detail = said[0] if said else first_line(exc)
+        raise ModelError(f"{unusable} (its weights do not fit its spec: {detail})") from None
     return network.to(device).eval()

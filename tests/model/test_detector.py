@@ -90,6 +90,59 @@ def test_checkpoint_round_trip(tmp_path: Path, one_thread: None) -> None:
     np.testing.assert_array_equal(first.maps, second.maps)
 
 
+def test_a_saved_detector_is_the_same_bytes_wherever_it_is_saved(tmp_path: Path) -> None:
+    # saved by torch to the file, its entries were named after the temporary beside it
+    torch.manual_seed(3)
+    network = AnomalyDetector(SMALL)
+    save_detector(tmp_path / "a.pt", network)
+    save_detector(tmp_path / "sub" / "b.pt", network)
+    assert (tmp_path / "a.pt").read_bytes() == (tmp_path / "sub" / "b.pt").read_bytes()
+
+
+def _damaged(data: dict, how: str) -> None:
+    """Damage a detector checkpoint's contents in place, as a foreign or broken writer would."""
+    if how == "no kinds":
+        del data["kinds"]
+    elif how == "unknown spec field":
+        data["spec"]["bogus"] = [1]
+    elif how == "spec too small":
+        data["spec"]["input_size"] = [4, 4]
+    elif how == "weights of another spec":
+        data["spec"]["widths"] = [8, 8, 8]
+    elif how == "NaN weights":
+        for value in data["state_dict"].values():
+            if value.is_floating_point():
+                value.fill_(float("nan"))
+
+
+@pytest.mark.parametrize(
+    ("how", "said"),
+    [
+        ("no kinds", r"not a usable detector checkpoint \(no 'kinds' in it\)"),
+        ("unknown spec field", r"not a usable detector checkpoint \(.*'bogus'"),
+        ("spec too small", r"not a usable detector checkpoint \(input_size: expected at least"),
+        ("weights of another spec", r"weights do not fit its spec: .*size mismatch"),
+        ("NaN weights", r"its weights hold NaN or Inf"),  # judged every frame NaN, exit 0
+    ],
+)
+def test_a_damaged_detector_checkpoint_is_one_line_naming_it(
+    tmp_path: Path, how: str, said: str
+) -> None:
+    save_detector(tmp_path / "d.pt", AnomalyDetector(SMALL))
+    data = torch.load(tmp_path / "d.pt", weights_only=True)
+    _damaged(data, how)
+    torch.save(data, tmp_path / "d.pt")
+    with pytest.raises(ModelError, match=rf"^{tmp_path / 'd.pt'}: .*{said}") as caught:
+        load_detector(tmp_path / "d.pt")
+    assert "\n" not in str(caught.value)
+
+
+def test_a_run_folder_given_as_the_detector_points_to_its_detector(tmp_path: Path) -> None:
+    save_detector(tmp_path / "run" / "detector.pt", AnomalyDetector(SMALL))
+    with pytest.raises(ModelError, match=r"a folder, not a detector .* is \S*run/detector\.pt$"):
+        load_detector(tmp_path / "run")
+
+
 def test_loading_something_else_is_a_one_line_error(tmp_path: Path) -> None:
     torch.save({"state_dict": {}}, tmp_path / "other.pt")
     with pytest.raises(ModelError, match="not a detector checkpoint"):
