@@ -126,6 +126,14 @@ def _bytes_writer(data: bytes) -> Callable[[Path], None]:
 def atomic_write_texts(files: dict[Path, str]) -> None:
     """Write several UTF-8 files that belong together: all of them, or none.
 
+    As :func:`atomic_write_files`, for texts.
+    """
+    atomic_write_files({path: _utf8(text) for path, text in files.items()})
+
+
+def atomic_write_files(files: dict[Path, bytes]) -> None:
+    """Write several files that belong together: all of them, or none.
+
     Each is written and flushed to a temporary beside it; only once every one
     is complete, and no destination is a folder, are they renamed into place,
     in the order given. A refusal while writing (a full disk, a file-size
@@ -142,8 +150,8 @@ def atomic_write_texts(files: dict[Path, str]) -> None:
             raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
     temporaries: list[tuple[Path, Path]] = []
     try:
-        for path, text in files.items():
-            writer = _bytes_writer(_utf8(text))
+        for path, data in files.items():
+            writer = _bytes_writer(data)
             temporaries.append((_write_temporary(Path(path), writer, "", True), path))
         for tmp, path in temporaries:
             with naming_errors(Path(path)):

@@ -8,6 +8,9 @@ sources, sample counts, training summary).
 
 import json
 import logging
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
 
@@ -15,13 +18,14 @@ import numpy as np
 import torch
 
 from lenspair.core.config import to_plain
-from lenspair.core.fsutil import atomic_write_json, atomic_write_text
+from lenspair.core.folderlock import lock_file
+from lenspair.core.fsutil import atomic_write_files, check_writable, json_text
 from lenspair.core.pixels import from_float
 from lenspair.model.detection.data import DetectorSample
 from lenspair.model.detection.judge import judge
 from lenspair.model.detection.score import DetectionScores, score, scores_markdown
 from lenspair.model.detection.sources import DetectorSources, gather
-from lenspair.model.detection.train import DetectorTraining, save_detector, train_detector
+from lenspair.model.detection.train import DetectorTraining, detector_bytes, train_detector
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
 
@@ -33,6 +37,9 @@ DETECTOR_FILE = "detector.pt"
 
 RUN_FILES = (DETECTOR_FILE, "run.json", "scores.json", "scores.md")
 """What a run writes into its folder; a folder holding any of them is refused."""
+
+LOCK_FILE = ".lock"
+"""The file a run locks in its folder while it trains there (:func:`_one_writer`)."""
 
 
 def score_sets(
@@ -101,19 +108,65 @@ def run_training(
         workers: processes gathering samples (:func:`gather`).
 
     Raises:
-        ModelError: ``out`` holds an earlier run; no usable samples, or no
-            clean or no obstructed one (:func:`check_both_classes`).
+        ModelError: ``out`` holds an earlier run, or another run is writing
+            it; no usable samples, or no clean or no obstructed one
+            (:func:`check_both_classes`).
+        OSError: ``out`` cannot be written (said before the training), or a
+            full disk while writing (none of the run's files is left).
     """
     out = Path(out)
+    _check_free(out)
+    check_writable(out / DETECTOR_FILE)  # a read-only --out is said now, not after the training
+    train, held_out = gather(sources, spec, settings.seed, workers)
+    check_both_classes(train)
+    out.mkdir(parents=True, exist_ok=True)  # after the inputs are found good: none left empty
+    with _one_writer(out):
+        _check_free(out)  # another run may have finished here while this one gathered
+        return _train_and_write(out, train, held_out, spec, settings, device, workers, sources)
+
+
+def _check_free(out: Path) -> None:
+    """Refuse a folder holding any of a run's files: a detector is never replaced unasked."""
     held = [name for name in RUN_FILES if (out / name).exists()]
-    if held:  # a detector can be half an hour of CPU: never replaced unasked
+    if held:  # a detector can be half an hour of CPU
         raise ModelError(
             f"{out} already holds a detector run ({', '.join(held)}); choose another --out, "
             "or move them aside to train again there"
         )
-    train, held_out = gather(sources, spec, settings.seed, workers)
-    check_both_classes(train)
-    out.mkdir(parents=True, exist_ok=True)  # after the inputs are found good: none left empty
+
+
+@contextmanager
+def _one_writer(out: Path) -> Iterator[None]:
+    """Hold ``out``'s lock while training into it: a second run there is refused at once.
+
+    Two runs with one ``--out`` both trained to the end and the last one's
+    files replaced the first's. The lock is ``flock`` on :data:`LOCK_FILE`
+    (:func:`~lenspair.core.folderlock.lock_file`), released however the
+    process ends.
+    """
+    descriptor = lock_file(out / LOCK_FILE, "train-detector")
+    if descriptor is None:
+        raise ModelError(
+            f"{out}: another train-detector is writing it; run this one when that one has "
+            "finished, or with another --out"
+        )
+    try:
+        yield
+    finally:
+        os.close(descriptor)  # releases the lock
+
+
+def _train_and_write(
+    out: Path,
+    train: list[DetectorSample],
+    held_out: dict[str, list[DetectorSample]],
+    spec: DetectorSpec,
+    settings: DetectorTraining,
+    device: torch.device | str,
+    workers: int,
+    sources: DetectorSources,
+) -> dict[str, DetectionScores]:
+    """Train on ``train``, score ``held_out``, and write the run's files: all of them or none."""
     counts = {"train": len(train), "train_obstructed": sum(s.obstructed for s in train)}
     log.info("training on %d frames (%d obstructed)", counts["train"], counts["train_obstructed"])
     network, summary = train_detector(train, spec, settings, device)
@@ -127,9 +180,16 @@ def run_training(
         "counts": counts | {name: len(s) for name, s in held_out.items()},
         "training": asdict(summary),
     }
-    save_detector(out / DETECTOR_FILE, network, {"run": json.dumps(run, default=str)})
-    atomic_write_json(out / "scores.json", {name: asdict(s) for name, s in scores.items()})
-    atomic_write_json(out / "run.json", json.loads(json.dumps(run, default=str)))
     text = "".join(scores_markdown(name, s) + "\n" for name, s in scores.items())
-    atomic_write_text(out / "scores.md", text or "no held-out data scored\n")
+    # the detector last: a folder holding it holds the whole run (a full disk or a
+    # file-size limit leaves none of them, and the same command can be run again)
+    files = {
+        out / "scores.json": json_text({name: asdict(s) for name, s in scores.items()}),
+        out / "run.json": json_text(json.loads(json.dumps(run, default=str))),
+        out / "scores.md": text or "no held-out data scored\n",
+    }
+    atomic_write_files(
+        {path: content.encode("utf-8") for path, content in files.items()}
+        | {out / DETECTOR_FILE: detector_bytes(network, {"run": json.dumps(run, default=str)})}
+    )
     return scores
