@@ -28,7 +28,6 @@ Example (a few CPU minutes):
 
 import argparse
 import sys
-from pathlib import Path
 
 from lenspair.commands.argtypes import (
     add_device_option,
@@ -48,6 +47,15 @@ MIN_INPUT_SIDE = 8
 """The detector's tile stride (``lenspair.model.networks.detector.TILE_STRIDE``; not
 imported: ``--help`` would load torch)."""
 
+
+MAX_INPUT_SIDE = 1920
+"""The largest side frames are judged at (a full-HD frame's width: the detector scales
+every frame down to its input size, so a larger one adds memory, not sight)."""
+
+MAX_STEP_PIXELS = 256 * 270 * 180
+"""The most pixels one training step may hold (``--batch-size`` x ``--input-size``):
+256 frames of the default size, a few GB of activations. A batch of 100000 or an
+input of 100000x100000 ended in an allocator's traceback after the data was gathered."""
 
 SET_PER_KIND = 3
 """Recordings per kind of ``--simulated-set`` when ``--set-per-kind`` is not given."""
@@ -148,7 +156,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "images, a dataset's train targets only (default: the simulator's textures)",
     )
     parser.add_argument(
-        "--simulated-set", type=Path, metavar="DIR", help="render or reuse a simulated set"
+        "--simulated-set",
+        type=out_folder,
+        metavar="DIR",
+        help="render or reuse a simulated set in this folder",
     )
     parser.add_argument(
         "--set-per-kind",
@@ -186,10 +197,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--input-size",
-        type=size(MIN_INPUT_SIDE),
+        type=size(MIN_INPUT_SIDE, MAX_INPUT_SIDE),
         default=(270, 180),
         metavar="WxH",
-        help="size frames are judged at (270x180; width first, as every lenspair size)",
+        help="size frames are judged at (270x180; width first, as every lenspair size; "
+        f"sides {MIN_INPUT_SIDE} to {MAX_INPUT_SIDE})",
     )
 
 
@@ -236,6 +248,13 @@ def run(args: argparse.Namespace) -> int:
             f"--simulated-set of {kinds} kinds x {per_kind} recordings x {set_frames} frames "
             f"is over {MAX_SYNTHETIC} frames; lower --set-per-kind or --set-frames"
         )
+    width, height = args.input_size
+    if args.batch_size * width * height > MAX_STEP_PIXELS:
+        raise ConfigError(
+            f"--batch-size {args.batch_size} of --input-size {width}x{height} is "
+            f"{args.batch_size * width * height:.3g} pixels a step, over {MAX_STEP_PIXELS:.3g} "
+            "(256 frames of 270x180); lower either"
+        )
     steps = args.steps
     if steps is None and args.minutes is None:
         steps = STEPS
@@ -261,7 +280,6 @@ def run(args: argparse.Namespace) -> int:
         )
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    width, height = args.input_size
     spec = DetectorSpec(input_size=(height, width))
     device = resolve_device(args.device)
     scores = run_training(args.out, sources, spec, settings, device=device, workers=args.workers)

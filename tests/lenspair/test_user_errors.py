@@ -113,6 +113,15 @@ OPTION_CASES: list[tuple[list[str], str]] = [
         ["train-detector", "--out", "OUT", "--synthetic", "2", "--batch-size", "9" * 20],
         "--batch-size",
     ),
+    # an allocator's traceback after the data was gathered
+    (
+        ["train-detector", "--out", "OUT", "--synthetic", "2", "--batch-size", "100000"],
+        "--batch-size 100000 of --input-size 270x180 is 4.86e+09 pixels a step",
+    ),
+    (["train-detector", "--out", "OUT", "--synthetic", "2", "--input-size", "9999x99"], "1920"),
+    # rendered into the current folder; a file given: "Not a directory" with exit 1
+    (["train-detector", "--out", "OUT", "--simulated-set", ""], "--simulated-set: an empty"),
+    (["train-detector", "--out", "OUT", "--simulated-set", "CKPT"], "--simulated-set"),
     (["dataset-build", "DS", "--out", "OUT", "--seed", "-1"], "--seed"),  # was accepted
     (["simulate", "calib_samples/rain.yaml", "--out", ""], "--out: an empty name"),
     (["simulate", "s" * 300, "--out", "OUT"], "File name too long"),  # a traceback, then exit 1
