@@ -88,7 +88,9 @@ class Restorer:
     ) -> None:
         """Load ``model`` on ``device``; see the class docstring."""
         depths = (*LOW_BIT_DEPTHS, 16)
-        if bits is not None and bits not in depths:
+        # 12.0 == 12: a float passed the membership test and failed at the first frame's shift
+        whole_bits = isinstance(bits, int | np.integer) and not isinstance(bits, bool)
+        if bits is not None and not (whole_bits and bits in depths):
             raise ModelError(f"Restorer: bits must be one of {depths}, got {bits!r}")
         for name, value in (("tile", tile), ("overlap", overlap)):
             whole = isinstance(value, int | np.integer) and not isinstance(value, bool)
@@ -101,7 +103,7 @@ class Restorer:
         self.tile = None if tile is None else int(tile)
         self.overlap = int(overlap)
         self.depth = RunningDepth(f"the frames given to Restorer({Path(model).name})")
-        self.bits = bits
+        self.bits = None if bits is None else int(bits)
 
     @property
     def channels(self) -> int:

@@ -125,8 +125,11 @@ def test_one_restorer_with_bits_serves_a_12_bit_and_a_16_bit_camera(checkpoint: 
             assert np.abs(after.astype(np.int64) - alone).mean() > 100
         else:
             np.testing.assert_array_equal(after, alone)
-    with pytest.raises(ModelError, match="bits must be one of"):
-        Restorer(checkpoint, device="cpu", bits=8)
+    # 12.0 == 12 was taken, then failed at the first 16-bit frame's shift with a TypeError
+    for wrong in (8, 12.0, np.float64(12), True, "12"):
+        with pytest.raises(ModelError, match="bits must be one of"):
+            Restorer(checkpoint, device="cpu", bits=wrong)  # type: ignore[arg-type]
+    assert Restorer(checkpoint, device="cpu", bits=np.int64(12)).bits == 12
 
 
 def test_the_allocator_is_left_alone_when_asked(
