@@ -116,7 +116,8 @@ def realism_statistics(
         obstructed: ``uint8``/``uint16`` ``(H, W)`` or ``(H, W, 3)``.
         clean: same height and width. Grey or RGB and 8 or 16 bits may
             differ from ``obstructed``: both are compared as grey ``[0, 1]``.
-        untrusted: ``(H, W)``, non-zero where the pair cannot be trusted (an
+        untrusted: ``(H, W)`` (or ``(H, W, C)``: any channel set, as a
+            dataset's mask file is read), non-zero where the pair cannot be trusted (an
             ingested recording's ``mask/``: residual parallax of near
             objects). Those pixels are left out of every statistic, the
             blurs too (:func:`_counted_blur`: their difference neither
@@ -138,7 +139,9 @@ def realism_statistics(
             f"pair: obstructed {obstructed.shape[1]}x{obstructed.shape[0]} and clean "
             f"{clean.shape[1]}x{clean.shape[0]} differ in size"
         )
-    if untrusted is not None and untrusted.shape[:2] != clean.shape[:2]:
+    if untrusted is not None and untrusted.ndim == 3:  # (H, W, 1) indexed 2-D arrays in 3-D
+        untrusted = untrusted.max(axis=2)
+    if untrusted is not None and (untrusted.ndim != 2 or untrusted.shape != clean.shape[:2]):
         raise SimulateError(
             f"pair: mask {untrusted.shape[1]}x{untrusted.shape[0]} and images "
             f"{clean.shape[1]}x{clean.shape[0]} differ in size"
@@ -250,9 +253,8 @@ def format_ranges(columns: Sequence[tuple[str, Sequence[StatisticRange]]]) -> st
         The table; a cell is marked ``*`` when its range misses the real range.
 
     """
-    header = "| statistic | real adherent drops (4 pairs) | " + " | ".join(
-        label for label, _ in columns
-    )
+    labels = [label.replace("|", "\\|") for label, _ in columns]  # a folder a|b: one cell
+    header = "| statistic | real adherent drops (4 pairs) | " + " | ".join(labels)
     lines = [header + " |", "|---|---|" + "---|" * len(columns)]
     for index, name in enumerate(STATISTIC_NAMES):
         low, high = REAL_RANGES[name]
@@ -296,6 +298,10 @@ def measure_pairs(pairs: Iterable[MeasuredPair]) -> list[PairStatistics]:
             results.append(PairStatistics(name, realism_statistics(obstructed, clean, untrusted)))
         except SimulateError as exc:
             results.append(PairStatistics(name, None, str(exc)))
+        except MemoryError:  # its float copies (about 40 bytes a pixel): the others go on
+            pixels = clean.shape[0] * clean.shape[1]
+            problem = f"too large to measure in this memory ({pixels / 1e6:.0f} megapixels)"
+            results.append(PairStatistics(name, None, problem))
     return results
 
 

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from lenspair.cli import main
 from lenspair.core.imagewrite import write_image
+from lenspair.simulate import realism
 from lenspair.simulate.effects.spec import SHARP_DROPS
 from lenspair.simulate.errors import SimulateError
 from lenspair.simulate.natural_images import NATURAL_IMAGES, load_natural_images
@@ -343,6 +344,50 @@ def test_untrusted_pixels_count_for_nothing() -> None:
     assert stats.mean_difference == pytest.approx(3000 / 65535, rel=1e-3)
     with pytest.raises(SimulateError, match="every pixel is marked untrustworthy"):
         realism_statistics(obstructed, clean, np.ones((96, 128), np.uint8))
+
+
+def test_a_mask_with_a_channel_axis_is_any_channel_set() -> None:
+    # (H, W, 1) built a 3-D mask that indexed 2-D arrays: an IndexError
+    clean = _clean((96, 128))
+    obstructed = clean.copy()
+    obstructed[30:60, 40:90] = np.roll(clean, 7, axis=1)[30:60, 40:90]
+    mask = np.zeros((96, 128), np.uint8)
+    mask[30:60, 40:90] = 255
+    expected = realism_statistics(obstructed, clean, mask)
+    assert realism_statistics(obstructed, clean, mask[..., None]) == expected
+    colour = np.zeros((96, 128, 3), np.uint8)
+    colour[30:60, 40:90, 2] = 255  # set in one channel only
+    assert realism_statistics(obstructed, clean, colour) == expected
+
+
+def test_a_pair_too_large_for_memory_is_skipped_and_the_others_measured(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # an 81-megapixel pair ended the whole report in a MemoryError traceback, exit 1
+    clean = _clean()
+    real = realism.realism_statistics
+
+    def out_of_memory_for_the_big_one(
+        obstructed: np.ndarray, clean: np.ndarray, untrusted: np.ndarray | None = None
+    ) -> RealismStatistics:
+        if obstructed.shape[0] > 100:
+            raise MemoryError
+        return real(obstructed, clean, untrusted)
+
+    monkeypatch.setattr(realism, "realism_statistics", out_of_memory_for_the_big_one)
+    big = np.zeros((4000, 3000), np.uint16)
+    big_pair = ("big", big, big, None)
+    results = measure_pairs([big_pair, ("good", clean, clean, None)])
+    assert results[0].statistics is None
+    assert results[0].problem == "too large to measure in this memory (12 megapixels)"
+    assert results[1].statistics is not None
+
+
+def test_a_label_holding_a_bar_stays_one_table_cell() -> None:
+    table = format_ranges([("p|q", summarise([RealismStatistics(0.3, 0.2, 0.05, 0.8, 18.0)]))])
+    header, rule = table.splitlines()[:2]
+    assert r"p\|q" in header
+    assert header.replace(r"\|", "").count("|") == rule.count("|")
 
 
 def test_cli_reads_the_mask_of_a_paired_folder(
