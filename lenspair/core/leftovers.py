@@ -78,10 +78,20 @@ def process_alive(pid: int) -> bool:
     return not _zombie(pid)
 
 
+RANDOM = r"[a-z0-9_]{8}"
+"""The random part ``tempfile`` puts into a temporary's name: 8 of its 37 characters."""
+
+
 def _pattern(name: str | None) -> re.Pattern[str]:
+    """Temporaries of output ``name`` (None: of any): ``.<name>.<pid>.<random>[.<ext>]<ending>``.
+
+    The random part is exactly ``tempfile``'s: with any text allowed there, a
+    sibling output ``rain.2024`` had its live build ``.rain.2024.<pid>.<random>
+    .building`` read as ``rain``'s, made by process 2024, and removed.
+    """
     stem = re.escape(_stem(name)) if name is not None else r"[^/]+?"
     endings = "|".join(re.escape(s) for s in LEFTOVER_SUFFIXES)
-    return re.compile(rf"^\.{stem}\.(?P<pid>[0-9]+)\.[^/]*(?:{endings})$")
+    return re.compile(rf"^\.{stem}\.(?P<pid>[0-9]+)\.{RANDOM}(?:\.[^./]+)?(?:{endings})$")
 
 
 def leftovers(folder: Path, name: str | None = None) -> list[Path]:

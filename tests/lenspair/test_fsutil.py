@@ -130,7 +130,10 @@ def test_a_name_near_the_file_system_s_limit_is_written_and_its_leftover_found(
     dead.write_bytes(b"half")
     # another long name cut to the same start: its temporaries are not this output's
     twin = name[:-5] + "2.png"
-    other = tmp_path / f"{temporary_prefix(twin).replace(f'.{os.getpid()}.', '.999999999.')}a.tmp"
+    other = (
+        tmp_path
+        / f"{temporary_prefix(twin).replace(f'.{os.getpid()}.', '.999999999.')}a1234567.tmp"
+    )
     other.write_bytes(b"half")
     assert leftovers(tmp_path, name) == [dead]
     assert leftovers(tmp_path, twin) == [other]

@@ -155,9 +155,9 @@ def test_an_onnx_export_runs_any_size_whole_and_agrees_with_the_checkpoint(
 
 def test_an_export_removes_what_a_killed_one_left_beside_its_file(tmp_path: Path) -> None:
     checkpoint = make_checkpoint(tmp_path / "c.pt")
-    killed = tmp_path / f".m.pt.{dead_pid()}.x1.pt.tmp"
-    running = tmp_path / f".m.pt.{os.getpid()}.x2.pt.tmp"  # a live writer's: kept
-    other = tmp_path / f".n.pt.{dead_pid()}.x3.pt.tmp"  # another output's: kept
+    killed = tmp_path / f".m.pt.{dead_pid()}.x1x1x1x1.pt.tmp"
+    running = tmp_path / f".m.pt.{os.getpid()}.x2x2x2x2.pt.tmp"  # a live writer's: kept
+    other = tmp_path / f".n.pt.{dead_pid()}.x3x3x3x3.pt.tmp"  # another output's: kept
     for path in (killed, running, other):
         path.write_bytes(b"")
     argv = ["export", str(checkpoint), "--torchscript", str(tmp_path / "m.pt"), "--size", "32x48"]

@@ -551,7 +551,7 @@ def test_resume_into_a_folder_no_restore_run_wrote_is_refused(
     assert restore_input(source, empty, backend, RestoreOptions(resume=True)).restored == 2
     killed = tmp_path / "killed"  # killed while writing its first report: only that temporary
     killed.mkdir()
-    (killed / f".{REPORT_NAME}.999999999.abcd.json.tmp").write_text("{")
+    (killed / f".{REPORT_NAME}.999999999.abcd1234.json.tmp").write_text("{")
     assert restore_input(source, killed, backend, RestoreOptions(resume=True)).restored == 2
 
 

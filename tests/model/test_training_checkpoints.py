@@ -89,7 +89,7 @@ def test_resume_before_the_first_checkpoint_starts_over(
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.yaml").write_text(dump_yaml(config))  # what a kill before step 1 leaves
-    leftover = run / "checkpoints" / f".last.pt.{2**22 + 7}.abcd.pt.tmp"
+    leftover = run / "checkpoints" / f".last.pt.{2**22 + 7}.abcd1234.pt.tmp"
     leftover.parent.mkdir()
     leftover.write_bytes(b"half a checkpoint")
     assert main(["train", str(dataset), "--out", str(run), "--resume", "--device", "cpu"]) == 0
