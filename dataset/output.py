@@ -191,13 +191,14 @@ def place_dataset(temp: Path, out: Path, overwrite: bool) -> None:
     trash = temporary_folder(out.parent, out.name, ".old")
     try:
         os.replace(out, trash / "dataset")
-        try:
-            os.replace(temp, out)
-        except OSError:
+        os.replace(temp, out)
+    except BaseException:  # a refused rename, and Ctrl-C or SIGTERM between the two
+        if not out.exists() and (trash / "dataset").is_dir():
             os.replace(trash / "dataset", out)  # put the old dataset back
-            raise
+        raise
     finally:
-        shutil.rmtree(trash, ignore_errors=True)
+        if out.exists():  # else the old dataset is still set aside: recover_swap finds it
+            shutil.rmtree(trash, ignore_errors=True)
     if theirs:
         logger.warning(
             "%s: kept %s, not part of the dataset, in the rebuilt one", out, ", ".join(theirs)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from lenspair.capture.ingested import read_pairs, read_report, write_pairs, write_report
-from lenspair.cli import main
+from lenspair.cli import Terminated, main
 from lenspair.core.fsutil import sha256_file
 from lenspair.core.imageio import read_image
 from lenspair.core.imagewrite import write_image
@@ -194,14 +194,14 @@ def test_rerun_removes_leftovers_of_killed_builds_of_the_same_output_only(
 ) -> None:
     source = recording("rec_a", n=4)
     dead = dead_pid()
-    killed = tmp_path / f".DS.{dead}.abc123.building"
+    killed = tmp_path / f".DS.{dead}.abc12345.building"
     (killed / "train").mkdir(parents=True)
     (killed / "train" / "x.png").write_bytes(b"half")
-    trash = tmp_path / f".DS.{dead}.zz.old"
+    trash = tmp_path / f".DS.{dead}.zz123456.old"
     trash.mkdir()
-    other_output = tmp_path / f".OTHER.{dead}.abc.building"
+    other_output = tmp_path / f".OTHER.{dead}.abc12345.building"
     other_output.mkdir()
-    running = tmp_path / f".DS.{os.getppid()}.abc.building"  # a live process's build
+    running = tmp_path / f".DS.{os.getppid()}.abc12345.building"  # a live process's build
     running.mkdir()
     users = tmp_path / ".DS.notes.building"
     users.mkdir()
@@ -684,6 +684,33 @@ def test_a_rebuild_that_fails_at_the_swap_loses_none_of_the_users_files(
         build_dataset([source], out, config)
     # moved into the new build first, they went with its clean-up
     assert (out / "NOTES.md").read_text() == "collected on the roof"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["DS", "ingested"]
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, Terminated])
+def test_a_rebuild_stopped_between_the_swaps_renames_puts_the_old_dataset_back(
+    recording: RecordingFactory,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    stop: type[BaseException],
+) -> None:
+    # the put-back caught OSError alone: a SIGTERM there deleted the set-aside old dataset,
+    # the user's files in it, and the new build
+    source, out, config = _dataset_with_notes(recording, tmp_path)
+    before = sorted(p.relative_to(out) for p in out.rglob("*"))
+    other = DatasetConfig(config.curation, SplitConfig(fractions=(1.0, 0.0, 0.0), seed=3))
+    real = os.replace
+
+    def stopped(src: object, dst: object) -> None:
+        real(src, dst)  # type: ignore[arg-type]
+        if Path(str(src)) == out:  # the old dataset was just set aside
+            raise stop
+
+    monkeypatch.setattr(output_module.os, "replace", stopped)
+    with pytest.raises(stop):
+        build_dataset([source], out, other, overwrite=True)
+    assert (out / "NOTES.md").read_text() == "collected on the roof"
+    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["DS", "ingested"]
 
 
