@@ -265,8 +265,8 @@ def hold_output(out_dir: Path) -> Iterator[None]:
     descriptor = lock_file(out_dir / LOCK_FILE, "capture-ingest")
     if descriptor is None:
         raise CaptureError(
-            f"{out_dir}: another capture-ingest is writing it; run this one when that one has "
-            "finished, or with another --out"
+            f"{out_dir}: another capture-ingest is writing it (or a dataset-build is reading it); "
+            "run this one when that one has finished, or with another --out"
         )
     try:
         yield

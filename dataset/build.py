@@ -61,7 +61,7 @@ from lenspair.dataset.output import (
 )
 from lenspair.dataset.preflight import check_file_system, check_out, check_paths, check_sides
 from lenspair.dataset.rows import assemble_rows, changed_splits
-from lenspair.dataset.sources import Source, load_source, measure_record
+from lenspair.dataset.sources import Source, load_source, measure_record, reading_sources
 
 logger = logging.getLogger(__name__)
 _FILE_RULES = ("missing_file", "checksum", "bad_image")
@@ -126,55 +126,57 @@ def build_dataset(
     earlier_root = out if previous is None else _previous_dataset(previous)
     check_out(out)
     recover_swap(out)
-    # in recording-id order: the same recordings in another order are the same dataset
-    loaded = sorted((load_source(path) for path in sources), key=lambda s: s.report.recording_id)
-    check_paths(loaded, out)
-    check_sides(loaded, accept_side_mismatch)
-    out_state(out)
-    check_file_system(loaded, out, link)
-    measured = _measure(loaded, config.curation.anomaly_delta, workers)
-    removed = curation.curate(measured, config.curation)
-    recordings = {source.report.recording_id for source in loaded}
-    earlier_rows = _earlier_rows(earlier_root)  # read once: the plan and the warning use it
-    earlier = _extended(earlier_root, earlier_rows, recordings, config.split)
-    pairs, plan = assemble_rows(loaded, measured, removed, config, *earlier)
-    if plan.kept_earlier:
-        # config.yaml says what was done: with "auto" it would rebuild other splits
-        config = replace(config, split=replace(config.split, group_by=plan.mode))
-    for warning in plan.warnings:
-        logger.warning("split: %s", warning)
-    rows = [row for row, _ in pairs]
-    # said once the build has replaced that dataset (not when it is refused), and
-    # kept out of the card: a note of what was on disk before made an identical
-    # rerun's card differ, so the rerun was refused as "a different dataset"
-    changed = changed_splits(earlier_rows, rows, earlier_root if previous else None)
-    card = _make_card(loaded, rows, removed, plan, config, link)
-    if not rows:  # an empty dataset trains nothing: said now, not by train later
-        why = ", ".join(f"{c.rule} {c.removed}" for c in card.curation if c.removed) or "none"
-        raise DatasetError(
-            f"no pair survived curation: {card.pairs_in} pairs in, removed: {why}; "
-            "see the sources' pairs.jsonl (and --min-* thresholds)"
-        )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    remove_leftovers(out.parent, out.name)  # of killed builds of this same output only
-    gone = [
-        RemovedPair(loaded[s].report.recording_id, loaded[s].records[i].t_ns, rule, reason)
-        for (s, i), (rule, reason) in removed.items()
-    ]
-    # a refusal names out, or a file's final path under it, never the .building folder
-    with naming_errors(out):
-        temp = temporary_folder(out.parent, out.name, ".building")
-        try:
-            write_records(temp, rows, card, config, gone)
-            if not overwrite:  # refused now, not after minutes of copying images
-                check_replaceable(out, temp, rows)
-            write_images(temp, pairs, link)
-            place_dataset(temp, out, overwrite)
-        finally:
-            shutil.rmtree(temp, ignore_errors=True)
-    if changed:
-        logger.warning("split: %s", changed)
-    return BuildResult(out, tuple(rows), card, changed)
+    # held until the dataset is in place: no capture-ingest rewrites them meanwhile
+    with reading_sources(sources):
+        # in recording-id order: the same recordings in another order are the same dataset
+        loaded = sorted(map(load_source, sources), key=lambda s: s.report.recording_id)
+        check_paths(loaded, out)
+        check_sides(loaded, accept_side_mismatch)
+        out_state(out)
+        check_file_system(loaded, out, link)
+        measured = _measure(loaded, config.curation.anomaly_delta, workers)
+        removed = curation.curate(measured, config.curation)
+        recordings = {source.report.recording_id for source in loaded}
+        earlier_rows = _earlier_rows(earlier_root)  # read once: the plan and the warning use it
+        earlier = _extended(earlier_root, earlier_rows, recordings, config.split)
+        pairs, plan = assemble_rows(loaded, measured, removed, config, *earlier)
+        if plan.kept_earlier:
+            # config.yaml says what was done: with "auto" it would rebuild other splits
+            config = replace(config, split=replace(config.split, group_by=plan.mode))
+        for warning in plan.warnings:
+            logger.warning("split: %s", warning)
+        rows = [row for row, _ in pairs]
+        # said once the build has replaced that dataset (not when it is refused), and
+        # kept out of the card: a note of what was on disk before made an identical
+        # rerun's card differ, so the rerun was refused as "a different dataset"
+        changed = changed_splits(earlier_rows, rows, earlier_root if previous else None)
+        card = _make_card(loaded, rows, removed, plan, config, link)
+        if not rows:  # an empty dataset trains nothing: said now, not by train later
+            why = ", ".join(f"{c.rule} {c.removed}" for c in card.curation if c.removed) or "none"
+            raise DatasetError(
+                f"no pair survived curation: {card.pairs_in} pairs in, removed: {why}; "
+                "see the sources' pairs.jsonl (and --min-* thresholds)"
+            )
+        out.parent.mkdir(parents=True, exist_ok=True)
+        remove_leftovers(out.parent, out.name)  # of killed builds of this same output only
+        gone = [
+            RemovedPair(loaded[s].report.recording_id, loaded[s].records[i].t_ns, rule, reason)
+            for (s, i), (rule, reason) in removed.items()
+        ]
+        # a refusal names out, or a file's final path under it, never the .building folder
+        with naming_errors(out):
+            temp = temporary_folder(out.parent, out.name, ".building")
+            try:
+                write_records(temp, rows, card, config, gone)
+                if not overwrite:  # refused now, not after minutes of copying images
+                    check_replaceable(out, temp, rows)
+                write_images(temp, pairs, link)
+                place_dataset(temp, out, overwrite)
+            finally:
+                shutil.rmtree(temp, ignore_errors=True)
+        if changed:
+            logger.warning("split: %s", changed)
+        return BuildResult(out, tuple(rows), card, changed)
 
 
 def _measure(loaded: Sequence[Source], anomaly_delta: float, workers: int | None) -> list[Measured]:
@@ -202,6 +204,13 @@ def _previous_dataset(previous: Path) -> Path:
             f"{root}: not a dataset built by dataset-build (no {CARD_FILE} and "
             f"{MANIFEST_FILE}); --previous names an earlier version of the dataset being built"
         )
+    # its splits are what it hands on: unreadable, every pair was hashed anew without a word
+    if read_json_object(root / CARD_FILE) is None:
+        raise DatasetError(f"{root / CARD_FILE}: --previous: not a readable dataset card (JSON)")
+    try:
+        read_manifest(root / MANIFEST_FILE)
+    except DatasetError as exc:
+        raise DatasetError(f"--previous: {exc}") from None
     return root
 
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
-from lenspair.core.config import load_yaml
+from lenspair.core.config import MAX_SEED, load_yaml
 
 SPLITS: tuple[str, str, str] = ("train", "val", "test")
 """Split names, in the order of :attr:`SplitConfig.fractions`."""
@@ -147,6 +147,8 @@ class SplitConfig:
             raise ValueError(f"fractions: must sum to 1, got {sum(self.fractions):.6g}")
         if self.fractions[0] <= 0:
             raise ValueError("fractions: the train fraction must be > 0")
+        if not 0 <= self.seed <= MAX_SEED:  # the range --seed takes
+            raise ValueError(f"seed: expected 0 .. {MAX_SEED}, got {self.seed}")
         for name in ("segment_frames", "min_groups_per_split"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected at least 1, got {getattr(self, name)}")

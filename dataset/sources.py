@@ -7,6 +7,8 @@ pair's files removes that pair (counted under its rule), it is never raised.
 """
 
 import os
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,6 +22,7 @@ from lenspair.capture.ingested import (
 )
 from lenspair.capture.journal import JOURNAL_FILE, LOCK_FILE
 from lenspair.core.errors import ImageIOError
+from lenspair.core.folderlock import lock_shared
 from lenspair.core.fsutil import sha256_bytes
 from lenspair.core.imageio import read_image
 from lenspair.dataset import curation
@@ -166,6 +169,9 @@ def measure_record(source: Source, position: int, index: int, anomaly_delta: flo
         except OSError as exc:  # a folder in its place, no permission, a failing disk
             why = exc.strerror or type(exc).__name__
             return _removed(base, "bad_image", f"{file}: cannot be read ({why})")
+        except ValueError as exc:  # a NUL in the name pairs.jsonl gives
+            where = f"{source.path / PAIRS_FILE}:{source.line(index)}"
+            return _removed(base, "bad_image", f"{where}: files.{kind}: not a file name ({exc})")
         expected = record.sha256.get(kind)
         if expected is not None and expected != hashes[kind]:
             found = hashes[kind][:12]
@@ -208,3 +214,35 @@ def _escapes(relative: str) -> bool:
 def _removed(measured: Measured, rule: str, reason: str) -> Measured:
     m = measured
     return Measured(m.source, m.index, m.record, m.files, {}, None, rule, reason)
+
+
+@contextmanager
+def reading_sources(paths: Iterable[Path]) -> Iterator[None]:
+    """Hold a shared lock on each ingested folder meanwhile; refuse one a capture-ingest writes.
+
+    A capture-ingest rerun (another ``--size``) writing a recording while it
+    was built from gave a dataset of its new images under a manifest of the
+    old ones' hashes, with exit 0. The lock is the one ``capture-ingest``
+    holds (:data:`~lenspair.capture.journal.LOCK_FILE`), taken shared: builds
+    read side by side, and a capture-ingest started meanwhile is refused.
+
+    Raises:
+        DatasetError: a capture-ingest is writing one of them (names it).
+    """
+    descriptors: list[int] = []
+    try:
+        for path in paths:
+            if not Path(path).is_dir():  # load_source says what it is
+                continue
+            try:
+                descriptor = lock_shared(Path(path) / LOCK_FILE)
+            except BlockingIOError:
+                raise DatasetError(
+                    f"{path}: a capture-ingest is writing it; build when it has finished"
+                ) from None
+            if descriptor is not None:
+                descriptors.append(descriptor)
+        yield
+    finally:
+        for descriptor in descriptors:
+            os.close(descriptor)  # releases the lock

@@ -30,11 +30,12 @@ side_check gives the inferred side and its confidence. Rerunning resumes an inte
 run and leaves finished outputs untouched; a rerun with another calibration, side, --size,
 --time-offset or thresholds processes the frames again and says how many, naming the first
 setting that differs (was X, now Y). One run at a time writes
-OUT/<recording>: a second one is refused at once.
+OUT/<recording>: a second one is refused at once, and so is a run while dataset-build
+reads the folder (and dataset-build while a run writes it).
 
 Exit codes: 0 when at least one pair was kept; 2 on an error in the recording, the
 calibration or the options (one line naming the file or option), when no usable pair
-remains, or when another capture-ingest is writing OUT/<recording>; 1 when the file
+remains, or when another capture-ingest (or a dataset-build) holds OUT/<recording>; 1 when the file
 system refuses a write (read-only folder, full disk: one line naming the path); 130
 after Ctrl-C and 143 after SIGTERM (rerun to resume).
 """

@@ -18,6 +18,9 @@ from lenspair.core.fsutil import naming_errors
 
 log = logging.getLogger(__name__)
 
+_NO_LOCKS = (errno.ENOLCK, errno.EOPNOTSUPP, errno.EINVAL)
+"""``flock``'s errors on a file system without locks (some NFS and FUSE mounts)."""
+
 
 def lock_file(path: Path, writer: str) -> int | None:
     """Open ``path`` and lock it, not waiting: its descriptor, or None when another holds it.
@@ -38,7 +41,7 @@ def lock_file(path: Path, writer: str) -> int | None:
         os.close(descriptor)
         return None
     except OSError as exc:
-        if exc.errno not in (errno.ENOLCK, errno.EOPNOTSUPP, errno.EINVAL):
+        if exc.errno not in _NO_LOCKS:
             os.close(descriptor)
             raise
         log.warning(
@@ -48,4 +51,34 @@ def lock_file(path: Path, writer: str) -> int | None:
             exc.strerror or exc,
             writer,
         )
+    return descriptor
+
+
+def lock_shared(path: Path) -> int | None:
+    """Take a shared lock on an existing lock file, not waiting, for a reader of the folder.
+
+    Readers share it; a writer's exclusive :func:`lock_file` is refused while
+    one holds it, and it is refused while a writer holds the exclusive one.
+
+    Returns:
+        The descriptor (closing it releases the lock); None when there is no
+        lock file (no writer has ever locked the folder), or the file system
+        has no locks.
+
+    Raises:
+        BlockingIOError: a writer holds the lock.
+        OSError: the lock file exists but cannot be opened, naming it.
+    """
+    try:
+        with naming_errors(path):
+            descriptor = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return None
+    try:
+        fcntl.flock(descriptor, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(descriptor)
+        if isinstance(exc, BlockingIOError) or exc.errno not in _NO_LOCKS:
+            raise
+        return None
     return descriptor

@@ -14,8 +14,11 @@ from lenspair.capture.errors import CaptureError
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.journal import LOCK_FILE, remove_temporaries
 from lenspair.cli import main
+from lenspair.dataset import build as build_module
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig
+from lenspair.dataset.errors import DatasetError
+from lenspair.dataset.verify import verify_dataset
 from tests.capture.ingest_helpers import CROP, make_recording, tree_bytes
 from tests.locks import held_lock, is_locked
 
@@ -108,3 +111,33 @@ def test_the_lock_is_held_for_the_run_and_is_nobodys_stray_file(
     assert (out_dir / LOCK_FILE).is_file()
     dataset = build_dataset([out_dir], tmp_path / "DS", DatasetConfig())
     assert not any(p.name == LOCK_FILE for p in dataset.out.rglob("*"))
+
+
+def test_a_recording_being_ingested_is_not_built_from_and_a_build_holds_it_meanwhile(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # a capture-ingest rerun (another --size) during a build gave a dataset of its new images
+    # under a manifest of the old ones' hashes, with exit 0
+    recording = make_recording(tmp_path / "rec", frames=3)
+    out = tmp_path / "out"
+    ingest_recording(recording, out, size=SIZE)
+    out_dir = out / "rec"
+    writing = rf"^{out_dir}: a capture-ingest is writing it"
+    with held_lock(out_dir / LOCK_FILE), pytest.raises(DatasetError, match=writing):
+        build_dataset([out_dir], tmp_path / "DS", DatasetConfig())  # while one still writes
+    assert not (tmp_path / "DS").exists()
+    refused: list[str] = []
+    real_write_images = build_module.write_images
+
+    def ingest_meanwhile(*args: Any) -> None:
+        try:
+            ingest_recording(recording, out, size=(200, 120))
+        except CaptureError as exc:
+            refused.append(str(exc))
+        real_write_images(*args)
+
+    monkeypatch.setattr(build_module, "write_images", ingest_meanwhile)
+    dataset = build_dataset([out_dir], tmp_path / "DS", DatasetConfig())
+    assert len(refused) == 1 and "or a dataset-build is reading it" in refused[0]
+    assert verify_dataset(dataset.out).ok
+    assert not is_locked(out_dir / LOCK_FILE)  # released at the end

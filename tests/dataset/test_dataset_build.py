@@ -280,6 +280,22 @@ def test_corrupt_image_is_a_bad_image(recording: RecordingFactory, tmp_path: Pat
     assert {r.rule: r.removed for r in result.card.curation}["bad_image"] == 1
 
 
+def test_a_nul_in_a_file_name_is_a_bad_image_named_by_its_line(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    # "ValueError: embedded null byte" ended the build in a traceback
+    source = recording("rec_a", n=4)
+    records = read_pairs(source / "pairs.jsonl")
+    records[1] = replace(records[1], files={**records[1].files, "input": "input/\x00x.png"})
+    write_pairs(source / "pairs.jsonl", records)
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    result = build_dataset([source], tmp_path / "DS", config)
+    assert {r.rule: r.removed for r in result.card.curation}["bad_image"] == 1
+    (line,) = (tmp_path / "DS" / "removed.jsonl").read_text().splitlines()
+    reason = json.loads(line)["reason"]
+    assert reason.startswith(f"{source / 'pairs.jsonl'}:2: files.input: not a file name")
+
+
 @pytest.mark.parametrize("outside", ["../other/input/{t}.png", "{root}/other/input/{t}.png"])
 def test_a_file_outside_the_recording_is_a_bad_image_named_by_its_line(
     recording: RecordingFactory,

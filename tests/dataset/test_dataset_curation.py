@@ -197,6 +197,12 @@ def test_config_yaml_sections_overrides_and_errors(tmp_path: Path) -> None:
     assert parse_fractions("0.7, 0.2, 0.1") == (0.7, 0.2, 0.1)
     with pytest.raises(ValueError, match="gap"):
         SplitConfig(segment_frames=3, segment_gap_frames=3)
+    for seed in (-7, 2**32):  # --seed refused them; split.seed in a --config took them
+        file.write_text(f"split:\n  seed: {seed}\n")
+        with pytest.raises(
+            ConfigError, match=rf"split\.seed: expected 0 \.\. 4294967295, got {seed}"
+        ):
+            load_dataset_config(file)
 
 
 @pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])

@@ -185,3 +185,18 @@ def test_previous_must_be_a_dataset(
     verify = ["dataset-build", "--verify", str(tmp_path / "DS"), "--previous", str(tmp_path)]
     assert main(verify) == 2  # --previous means nothing to --verify: refused, not ignored
     assert "--verify takes only the dataset folder" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("broken", ["dataset.json", "manifest.jsonl"])
+def test_a_previous_dataset_whose_card_or_manifest_cannot_be_read_is_refused(
+    recording: RecordingFactory, tmp_path: Path, broken: str
+) -> None:
+    # its splits were dropped without a word: every pair hashed anew, and "28 pair(s)
+    # changed split" said as if against that dataset
+    sources = _two(recording)
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    build_dataset(sources, tmp_path / "v1", config)
+    (tmp_path / "v1" / broken).write_text("{\n")
+    with pytest.raises(DatasetError, match=rf"{broken}"):
+        build_dataset(sources, tmp_path / "v2", config, previous=tmp_path / "v1")
+    assert not (tmp_path / "v2").exists()
