@@ -90,8 +90,8 @@ def _place_image(source: Path, destination: Path, link: LinkMode) -> None:
         try:
             os.link(source, destination)
         except OSError as exc:
-            raise DatasetError(
-                f"{destination.parent}: --link hard cannot link {source} ({exc.strerror}); "
+            raise DatasetError(  # the destination lies in the build's temporary folder
+                f"{source}: --link hard cannot link it into the dataset ({exc.strerror}); "
                 "the default copies instead"
             ) from None
         os.chmod(destination, os.stat(destination).st_mode & ~_WRITE_BITS)

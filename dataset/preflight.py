@@ -52,9 +52,20 @@ def check_out(out: Path) -> None:
     Args:
         out: the dataset folder, resolved.
 
+    The same rename takes the folder away from a shell in it: ``--out .``
+    (or a rebuild run from inside the dataset) left the shell in a deleted
+    folder, where the next command found no dataset. That is refused too.
+
     Raises:
-        DatasetError: ``out`` is a mount point.
+        DatasetError: ``out`` is a mount point, or the current folder or one above it.
     """
+    here = Path.cwd().resolve()
+    if here == out or out in here.parents:
+        raise DatasetError(
+            f"{out}: the current folder{' or one above it' if here != out else ''}; a build "
+            "replaces the dataset folder by a rename, which would leave this shell in a "
+            "deleted folder: run it from outside"
+        )
     if _is_mount_point(out):
         raise DatasetError(
             f"{out}: a mount point, which a build cannot replace (it renames the finished "
@@ -174,8 +185,31 @@ def check_file_system(sources: Sequence[Source], out: Path, link: LinkMode) -> N
                 f"(recording id {rid[:40]!r}... of {len(rid.encode())} bytes); ingest it again "
                 "from a folder or bag of a shorter name"
             )
-        if link == "hard" and os.stat(source.path).st_dev != os.stat(existing).st_dev:
+        if link == "hard":
+            _check_same_file_system(source, out, existing)
+
+
+def _check_same_file_system(source: Source, out: Path, existing: Path) -> None:
+    """Refuse ``--link hard`` when a folder of ``source``'s kept files is on another file system.
+
+    The folders the files lie in, not the recording's alone: a recording
+    whose ``input/`` is a link to another disk passed, and the build failed
+    at the first link, after every pair had been measured.
+    """
+    device = os.stat(existing).st_dev
+    folders = {source.path} | {
+        (source.path / file).parent
+        for record in source.records
+        if record.status == "kept"
+        for file in record.files.values()
+    }
+    for folder in sorted(folders):
+        try:
+            elsewhere = os.stat(folder).st_dev != device
+        except OSError:  # missing: measuring names the pair
+            continue
+        if elsewhere:
             raise DatasetError(
-                f"--link hard: {source.path} and {out} are on different file systems, "
-                "which cannot share files; leave --link out to copy"
+                f"--link hard: {folder} and {out} are on different file systems, which cannot "
+                "share files; leave --link out to copy"
             )

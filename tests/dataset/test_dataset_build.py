@@ -858,3 +858,46 @@ def test_what_the_output_file_system_refuses_is_found_before_measuring(
     finally:
         shutil.rmtree(elsewhere.parent)
     assert not measured and not out.exists()
+
+
+def test_link_hard_with_an_image_folder_on_another_file_system_is_refused_before_measuring(
+    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # input/ a link to another disk: the recording's own folder passed the check, and the
+    # build failed at the first link after measuring, naming its temporary folder
+    shm = Path("/dev/shm")
+    if not shm.is_dir() or shm.stat().st_dev == tmp_path.stat().st_dev:
+        pytest.skip("no second file system here")
+    source = recording("rec_a", n=4)
+    elsewhere = Path(tempfile.mkdtemp(dir=shm))
+    try:
+        shutil.move(source / "input", elsewhere / "input")
+        (source / "input").symlink_to(elsewhere / "input")
+        measured: list[object] = []
+        monkeypatch.setattr(build_module, "measure_record", lambda *a: measured.append(a))
+        said = rf"^--link hard: {source / 'input'} and \S+ are on different file systems"
+        with pytest.raises(DatasetError, match=said):
+            build_dataset([source], tmp_path / "DS", DatasetConfig(), link="hard")
+        assert not measured and not (tmp_path / "DS").exists()
+    finally:
+        shutil.rmtree(elsewhere)
+
+
+def test_a_build_into_the_current_folder_or_one_above_it_is_refused(
+    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the rename left the shell in a deleted folder, where --verify . found no dataset
+    source = recording("rec_a", n=4)
+    config = DatasetConfig(split=SplitConfig(fractions=(1.0, 0.0, 0.0)))
+    out = tmp_path / "DS"
+    build_dataset([source], out, config)
+    for here in (out, out / "train"):
+        monkeypatch.chdir(here)
+        with pytest.raises(DatasetError, match=rf"^{out}: the current folder"):
+            build_dataset([source], Path(".") if here == out else Path(".."), config)
+    assert verify_dataset(out).ok
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    monkeypatch.chdir(empty)
+    with pytest.raises(DatasetError, match="run it from outside"):
+        build_dataset([source], Path("."), config)
