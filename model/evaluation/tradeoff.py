@@ -36,14 +36,14 @@ from typing import Any
 import torch
 
 from lenspair.core.config import dump_yaml, to_plain
-from lenspair.core.fsutil import atomic_write_text
+from lenspair.core.fsutil import atomic_write_text, remove_path
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.latency import measure_latency
 from lenspair.model.evaluation.scoring import agreement_with_fp32, score_pairs
 from lenspair.model.evaluation.summary import ImageScore, Summary, summarize
 from lenspair.model.evaluation.tradeoff_pairs import eval_pairs, note_trained_on
-from lenspair.model.evaluation.tradeoff_report import write_tradeoff
+from lenspair.model.evaluation.tradeoff_report import TABLE_FILES, write_tradeoff
 from lenspair.model.evaluation.tradeoff_reuse import MARKER_TEXT, RUN_MARKER, reusable
 from lenspair.model.evaluation.tradeoff_rows import TradeoffRow, mark_pareto
 from lenspair.model.evaluation.tradeoff_variants import (
@@ -147,10 +147,14 @@ def run_tradeoff(
         "seed": base.train.seed,
         "scored": SCORED[checkpoint],
     }
-    atomic_write_text(
-        out_dir / "tradeoff_config.yaml",
-        dump_yaml({"base": to_plain(resolve_config(base, data.channels)), **meta}),
-    )
+    said = dump_yaml({"base": to_plain(resolve_config(base, data.channels)), **meta})
+    earlier = out_dir / "tradeoff_config.yaml"
+    if earlier_tradeoff and earlier.read_text(encoding="utf-8") != said:
+        # the table of other settings goes now: a rerun stopped before its end left it
+        # beside this config, its rows naming checkpoints the rerun had cleared
+        for name in TABLE_FILES:
+            remove_path(out_dir / name)
+    atomic_write_text(earlier, said)
     rows = []
     baseline: Summary | None = None
     cpu_native = choose_precision("auto", torch.device("cpu"), "infer").native

@@ -112,6 +112,10 @@ def tradeoff_markdown(rows: Sequence[TradeoffRow], meta: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+TABLE_FILES = ("tradeoff.md", "tradeoff.csv", "tradeoff.json", "tradeoff.png")
+"""The table and plot :func:`write_tradeoff` writes in ``OUT``."""
+
+
 def write_tradeoff(rows: Sequence[TradeoffRow], out_dir: Path, meta: dict[str, Any]) -> None:
     """Write ``tradeoff.md``, ``tradeoff.csv``, ``tradeoff.json`` and ``tradeoff.png``."""
     out_dir = Path(out_dir)

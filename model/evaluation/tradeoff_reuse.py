@@ -10,12 +10,11 @@ folder and trains it again, with one log line naming the first difference
 """
 
 import logging
-import shutil
 from pathlib import Path
 
 import torch
 
-from lenspair.core.fsutil import atomic_write_text
+from lenspair.core.fsutil import atomic_write_text, remove_path
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import RunConfig
@@ -150,7 +149,7 @@ def reusable(
                 "training it from the start",
                 run,
             )
-            shutil.rmtree(run)
+            _clear_training(run)
         return False
     checkpoint = load_checkpoint(last)
     stored = checkpoint_config(checkpoint, last)
@@ -164,8 +163,30 @@ def reusable(
     if obstacle is None:
         return True
     log.warning("tradeoff: %s cannot be resumed (%s); training it again", run, obstacle)
-    shutil.rmtree(run)
+    _clear_training(run)
     return False
+
+
+def _training_entries(run: Path) -> tuple[Path, ...]:
+    """What training writes into ``run``: its files, checkpoints/, samples/ and tensorboard/."""
+    paths = RunPaths(run)
+    return (paths.config, paths.last.parent, paths.metrics, paths.log, paths.samples,
+            paths.tensorboard)  # fmt: skip
+
+
+def _clear_training(run: Path) -> None:
+    """Remove what training wrote into ``run``; the rest stays (said when there is any).
+
+    The whole folder went: an ``eval`` of the run's checkpoint (its default
+    output lies in the run folder) and the user's notes with it.
+    """
+    for path in _training_entries(run):
+        remove_path(path)
+    kept = sorted(
+        p.name for p in run.iterdir() if p.name != RUN_MARKER and not p.name.startswith(".")
+    )
+    if kept:
+        log.warning("tradeoff: %s: kept %s, not written by its training", run, ", ".join(kept))
 
 
 def _owned(run: Path, earlier_tradeoff: bool) -> bool:
@@ -178,9 +199,7 @@ def _owned(run: Path, earlier_tradeoff: bool) -> bool:
     """
     if (run / RUN_MARKER).is_file():
         return True
-    paths = RunPaths(run)  # what training writes: its files, checkpoints/, tensorboard/
-    trained = (paths.config, paths.last.parent, paths.metrics, paths.log, paths.samples)
-    written = {path.name for path in (*trained, paths.tensorboard)}
+    written = {path.name for path in _training_entries(run)}
     theirs = [p.name for p in run.iterdir() if p.name not in written and not p.name.startswith(".")]
     if not earlier_tradeoff or theirs:
         return False

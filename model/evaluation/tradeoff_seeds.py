@@ -41,6 +41,7 @@ from lenspair.model.evaluation.seed_statistics import (
     summarise_seeds,
 )
 from lenspair.model.evaluation.tradeoff import TradeoffResult, run_tradeoff
+from lenspair.model.evaluation.tradeoff_report import TABLE_FILES
 from lenspair.model.evaluation.tradeoff_seeds_report import SeededRow, seeded_markdown
 from lenspair.model.evaluation.tradeoff_variants import DEFAULT_VARIANTS, Budget, TradeoffVariant
 from lenspair.model.training.config import RunConfig
@@ -50,10 +51,7 @@ log = logging.getLogger(__name__)
 
 SINGLE_SEED_FILES = (
     "runs",
-    "tradeoff.md",
-    "tradeoff.csv",
-    "tradeoff.json",
-    "tradeoff.png",
+    *TABLE_FILES,
     "tradeoff_config.yaml",  # last: while it is in OUT, a killed move is taken up again
 )
 """What a single-seed tradeoff writes in ``OUT``; ``OUT/seed<k>/`` holds the same."""

@@ -4,6 +4,7 @@ import json
 import logging
 import shutil
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -14,6 +15,7 @@ import torch
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.core.errors import LenspairError
+from lenspair.core.fsutil import remove_path
 from lenspair.core.imagewrite import write_image
 from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
@@ -23,6 +25,7 @@ from lenspair.model.evaluation.scoring import score_tensors
 from lenspair.model.evaluation.tradeoff import TradeoffResult, run_tradeoff
 from lenspair.model.evaluation.tradeoff_report import (
     MARKERS,
+    TABLE_FILES,
     tradeoff_markdown,
     trained_on_line,
     write_tradeoff,
@@ -221,6 +224,32 @@ def test_tradeoff_writes_one_table_with_every_variant_and_a_plot(
     assert main(["tradeoff", str(dataset), "--out", str(out), "--variants", "X"]) == 2
 
 
+def test_a_rerun_of_other_settings_takes_the_old_table_away_before_it_trains(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # stopped while retraining, it left tradeoff.md of the old budget beside a config of
+    # the new one, its rows naming checkpoints the rerun had cleared
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
+    out = tmp_path / "tradeoff"
+    g = [v for v in DEFAULT_VARIANTS if v.name == "G"]
+    run = partial(run_tradeoff, dataset, out, torch.device("cpu"), base=tiny_config(),
+                  variants=g, latency_runs=1, int8=False)  # fmt: skip
+    run(Budget(steps=1))
+    table = {name: (out / name).read_bytes() for name in TABLE_FILES}
+
+    def stopped(*args: object) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tradeoff_module, "_train_variant", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        run(Budget(steps=1))  # the same settings: the table still says what is there
+    assert {name: (out / name).read_bytes() for name in TABLE_FILES} == table
+    with pytest.raises(KeyboardInterrupt):
+        run(Budget(steps=2))
+    assert not any((out / name).exists() for name in TABLE_FILES)
+    assert "budget: 2 steps" in (out / "tradeoff_config.yaml").read_text()
+
+
 def test_a_budget_under_one_step_is_named_not_a_missing_checkpoint(tmp_path: Path) -> None:
     # it ended in "G/checkpoints/best.pt: checkpoint not found"
     dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1, "test": 1})
@@ -383,9 +412,21 @@ def test_a_run_trained_with_other_settings_is_not_reused(
     for setting, wanted in changes.items():
         caplog.clear()
         assert not reused(wanted), setting
-        assert not run.exists(), setting
+        assert not (run / "checkpoints").exists(), setting
         [record] = caplog.records
         assert str(run) in record.getMessage() and setting in record.getMessage()
+    # cleared of what training wrote alone: an eval of its checkpoint (eval's default output
+    # is in the run folder) and a note of the user's went with the whole folder
+    (run / "eval_best_ds_test").mkdir()
+    (run / "eval_best_ds_test" / "metrics.json").write_text("{}")
+    (run / "NOTES.txt").write_text("rainy day")
+    (run / "metrics.csv").write_text("step\n")
+    caplog.clear()
+    assert not reused(changes["train.seed"])
+    assert sorted(p.name for p in run.iterdir()) == ["NOTES.txt", "eval_best_ds_test", RUN_MARKER]
+    assert "kept NOTES.txt, eval_best_ds_test, not written by its training" in caplog.text
+    remove_path(run / "NOTES.txt")
+    remove_path(run / "eval_best_ds_test")
     # With a decaying learning rate a longer budget is another schedule, not an extension.
     stored = replace(tiny_config(max_steps=60, lr_decay=0.5), runtime=RuntimeInfo(data=data))
     assert reused(tiny_config(max_steps=60, lr_decay=0.5))
@@ -421,7 +462,7 @@ def test_a_run_trained_with_other_settings_is_not_reused(
     # said (the time it had spent is lost)
     (run / "checkpoints" / "last.pt").unlink()
     assert not reusable(run, tiny_config(max_steps=60), torch.device("cpu"), data)
-    assert not run.exists()
+    assert [p.name for p in run.iterdir()] == [RUN_MARKER]
     [record] = caplog.records
     assert str(run) in record.getMessage() and "no checkpoints/last.pt" in record.getMessage()
 
