@@ -82,6 +82,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Export and check; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair export --help`.
+    from lenspair.model.checkpoint import load_model
     from lenspair.model.evaluation.export import export_checkpoint
 
     if args.onnx is None and args.torchscript is None:
@@ -115,6 +116,8 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"{option}: {folder} holds no pairs to calibrate on; choose another split"
             )
+    # loaded before anything is removed: a checkpoint that cannot be read changes nothing
+    loaded = load_model(args.checkpoint, "cpu")
     report = report_path(args)
     # what this export replaces goes first, its report first of all: stopped midway, an
     # export left its new ONNX beside the last export's int8 model and report. That int8
@@ -124,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
         log.warning("%s: removed: the int8 model of the ONNX file this export replaces", stale_int8)
     for path in (report, *([stale_int8] if stale_int8 is not None else [])):
         path.unlink(missing_ok=True)
-    checks = export_checkpoint(args.checkpoint, args.onnx, args.torchscript, size)
+    checks = export_checkpoint(loaded, args.onnx, args.torchscript, size)
     for check in checks:
         print(check.summary())
     payload: dict[str, object] = {

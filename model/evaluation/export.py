@@ -41,7 +41,7 @@ from torch import Tensor, nn
 
 from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write, atomic_write_bytes
-from lenspair.model.checkpoint import load_model
+from lenspair.model.checkpoint import LoadedModel, load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.onnx_graph import (
     EXPORTERS,
@@ -306,12 +306,18 @@ def export_torchscript(
 
 
 def export_checkpoint(
-    checkpoint: Path,
+    checkpoint: Path | LoadedModel,
     onnx_path: Path | None,
     torchscript_path: Path | None,
     size: tuple[int, int] = (360, 540),
 ) -> list[ExportCheck]:
     """Export a checkpoint's network to ONNX and/or TorchScript, each checked.
+
+    Args:
+        checkpoint: its path, or the model already loaded from it (on the CPU).
+        onnx_path: where the ONNX file goes (None: none).
+        torchscript_path: where the TorchScript file goes (None: none).
+        size: ``(height, width)`` the exports are checked and timed at.
 
     Raises:
         ModelError: unreadable checkpoint, nothing to export, or a failed export.
@@ -319,7 +325,7 @@ def export_checkpoint(
     """
     if onnx_path is None and torchscript_path is None:
         raise ModelError("nothing to export: give --onnx and/or --torchscript")
-    loaded = load_model(checkpoint, "cpu")
+    loaded = checkpoint if isinstance(checkpoint, LoadedModel) else load_model(checkpoint, "cpu")
     channels = loaded.config.model.channels or 1
     checks = []
     try:

@@ -274,6 +274,24 @@ def test_an_export_stopped_midway_leaves_no_earlier_export_beside_its_files(
     assert "files without model.onnx.export.json are unfinished" in capsys.readouterr().err
 
 
+def test_an_export_of_a_checkpoint_that_cannot_be_read_changes_nothing(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the last export's int8 model and report went before the checkpoint was read, and
+    # the ONNX file left beside no report read as an unfinished export
+    earlier = {
+        tmp_path / "model.onnx": "the last export",
+        tmp_path / "model.int8.onnx": "its int8 twin",
+        tmp_path / "model.onnx.export.json": "{}",
+    }
+    for path, text in earlier.items():
+        path.write_text(text)
+    (tmp_path / "bad.pt").write_text("junk")
+    assert main(["export", str(tmp_path / "bad.pt"), "--onnx", str(tmp_path / "model.onnx")]) == 2
+    assert {path: path.read_text() for path in earlier} == earlier
+    assert "removed" not in capsys.readouterr().err
+
+
 def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     ort = pytest.importorskip("onnxruntime")
     onnx = pytest.importorskip("onnx")
