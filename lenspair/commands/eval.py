@@ -172,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--data {args.data}: no such folder")
     device = resolve_device(args.device)
     # here, not at the top: keeps `lenspair eval --help` from importing torch
-    from lenspair.dataset.layouts import detect_layout
+    from lenspair.dataset.layouts import IMAGE_FOLDERS, detect_layout, split_folders
     from lenspair.model.precision import choose_precision
     from lenspair.model.training.pairs import open_eval_pairs
 
@@ -186,10 +186,16 @@ def run(args: argparse.Namespace) -> int:
     args.split = args.split or DEFAULT_SPLIT
     scored = Path(args.data) if plain else args.data / args.split
     why = "its contact sheet would be read as an unpaired image next time"
-    if args.out is not None and (
-        problem := inside_refusal(args.out, scored, "the pairs scored", why)
-    ):
-        raise ConfigError(problem)
+    # the other splits' image folders too: DS/train/input took the report, and the
+    # next train or int8 calibration refused the dataset over an unpaired file
+    others = [] if plain else [
+        (args.data / name / kind, "the image folder")
+        for name in split_folders(args.data) if args.data / name != scored
+        for kind in IMAGE_FOLDERS
+    ]  # fmt: skip
+    for folder, what in [(scored, "the pairs scored"), *others]:
+        if args.out is not None and (problem := inside_refusal(args.out, folder, what, why)):
+            raise ConfigError(problem)
 
     # loaded once, here: a wrong file (the arguments swapped) gets its error alone
     loaded = load_model(args.checkpoint, device)

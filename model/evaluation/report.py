@@ -92,7 +92,8 @@ def markdown_report(result: EvalResult) -> str:
     capped_inputs = result.input_overall.capped if result.input_overall is not None else 0
     lines += [
         "",
-        f"PSNR means count identical images (PSNR = inf) as {PSNR_CAP_DB:g} dB; "
+        f"PSNR means count identical images (PSNR = inf), and any above {PSNR_CAP_DB:g} dB, "
+        f"as {PSNR_CAP_DB:g} dB; "
         f"{capped} output(s) and {capped_inputs} input(s) were capped. The input columns "
         "score the obstructed input itself against the target (no restoration): the "
         "baseline to beat.",

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from lenspair.model import metrics
+from lenspair.model.metrics import PSNR_CAP_DB
 
 DIFFICULTY_ORDER = ("easy", "medium", "hard", "clean")
 
@@ -51,9 +52,10 @@ class Summary:
 
     Attributes:
         pairs: number of images.
-        psnr_db: mean PSNR, infinite values capped at :data:`PSNR_CAP_DB`.
+        psnr_db: mean PSNR, values above :data:`PSNR_CAP_DB` (inf too) counted as it.
         ssim: mean SSIM.
-        capped: images whose PSNR was infinite.
+        capped: images whose PSNR was above :data:`PSNR_CAP_DB` (infinite, or a
+            difference of a few codes in a 16-bit image): their mean counts the cap.
 
     """
 
@@ -71,7 +73,7 @@ def summarize(scores: Sequence[ImageScore], of: Literal["output", "input"] = "ou
         pairs=len(scores),
         psnr_db=mean_psnr(psnrs),
         ssim=float(np.mean(ssims)) if scores else math.nan,
-        capped=sum(1 for value in psnrs if math.isinf(value)),
+        capped=sum(1 for value in psnrs if value > PSNR_CAP_DB),  # inf and finite ones above
     )
 
 

@@ -20,7 +20,7 @@ from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import PSNR_CAP_DB, evaluate_checkpoint
 from lenspair.model.evaluation.latency import measure_latency, tune_allocator
 from lenspair.model.evaluation.report import write_report
-from lenspair.model.evaluation.summary import summarize
+from lenspair.model.evaluation.summary import ImageScore, summarize
 from lenspair.model.metrics import MetricConvention, image_metrics
 from lenspair.model.networks.variants import build_model
 from lenspair.model.training.pairs import to_tensor
@@ -199,6 +199,19 @@ def test_odd_sizes_and_identical_images(tmp_path: Path) -> None:
     assert f"as {PSNR_CAP_DB:g} dB" in files["markdown"].read_text()
     # the input column's capped image is counted too (only the output's was)
     assert "1 output(s) and 1 input(s) were capped" in files["markdown"].read_text()
+
+
+def test_a_finite_psnr_above_the_cap_is_counted_as_capped() -> None:
+    # a few codes apart in a 16-bit image: 101 dB, counted as 100 in the mean, and the
+    # table said "0 output(s) were capped"
+    scores = [
+        ImageScore("near", None, 8, 8, PSNR_CAP_DB + 1.0, 1.0, PSNR_CAP_DB + 1.0, 1.0),
+        ImageScore("same", None, 8, 8, math.inf, 1.0, 30.0, 0.9),
+        ImageScore("drops", None, 8, 8, 30.0, 0.9, 20.0, 0.8),
+    ]
+    overall = summarize(scores)
+    assert overall.capped == 2 and overall.psnr_db == pytest.approx((2 * PSNR_CAP_DB + 30) / 3)
+    assert summarize(scores, "input").capped == 1
 
 
 def _spoil(folder: Path) -> None:
@@ -458,8 +471,14 @@ def test_an_eval_folder_inside_the_pairs_scored_is_refused(
     assert not (folder / "input" / "metrics.json").exists()
     dataset = tmp_path / "ds"
     write_paired_folder(dataset / "test", count=1)
+    write_paired_folder(dataset / "train", count=1)
     ds_argv = ["eval", str(checkpoint), "--data", str(dataset), "--latency-runs", "0", "--out"]
     assert main([*ds_argv, str(dataset / "eval_best")]) == 0  # beside the splits: fine
+    # another split's images took the report: the next train refused the dataset
+    capsys.readouterr()
+    assert main([*ds_argv, str(dataset / "train" / "input")]) == 2
+    assert "inside the image folder" in capsys.readouterr().err
+    assert not (dataset / "train" / "input" / "metrics.json").exists()
 
 
 def test_colour_pairs_among_grey_ones_are_said_converted(
