@@ -11,7 +11,7 @@ The reports (CSV, JSON, Markdown, contact sheet) are written by
 """
 
 import logging
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,7 +30,7 @@ from lenspair.model.evaluation.summary import ImageScore, Summary, breakdown, su
 from lenspair.model.inference.backends import deploy
 from lenspair.model.metrics import PSNR_CAP_DB, parse_metric_convention
 from lenspair.model.training.config import DataConfig, split_until
-from lenspair.model.training.datasets import validation_split
+from lenspair.model.training.datasets import pairs_digest, recorded_digest, validation_split
 from lenspair.model.training.holdout import holdout_indices
 from lenspair.model.training.pairs import (
     PairItem,
@@ -251,6 +251,9 @@ def trained_on_scored(
     no validation split, and a split-less paired folder (or that train split)
     less the pairs held out by name hash (:func:`holdout_indices`).
 
+    A copy of the folder it trained on (the same pair names in its splits,
+    by the digest the run recorded) counts as that folder.
+
     Returns:
         The count; 0 when ``pairs`` are another folder than the one trained
         on (another split), or the run trained on synthetic drops; None when
@@ -263,22 +266,36 @@ def trained_on_scored(
     root = getattr(pairs, "root", None)
     if runtime.synthetic or names is None or root is None:
         return 0
+    data = loaded.config.data
     # a resumed run trained on each folder it was resumed from too ("/old/DS until step 300")
     earlier = (split_until(entry)[0] for entry in runtime.earlier_data)
     for folder in (runtime.data_path, *earlier):
-        path, data = Path(folder), loaded.config.data
-        split_less = detect_layout(path) is not None
-        trained = path if split_less else path / data.train_split
-        if Path(root).resolve() != trained.resolve():
-            continue
-        kept: Collection[int] = range(len(names))
-        if split_less or not _validated_on_a_split(path, data):
-            try:
-                kept, _ = holdout_indices([str(n) for n in names], data.val_fraction, trained)
-            except ModelError:  # fewer than two pairs: not what any run trained on
-                return 0
-        return len(set(kept) - set(unread))
+        count = _count_trained(Path(folder), data, Path(root), names, unread)
+        if count is not None:
+            return count
+    # a copy of the data it trained on (cp -r elsewhere): another path, the same pairs
+    digest = recorded_digest(runtime.data)
+    for copy in (Path(root), Path(root).parent):
+        if digest is not None and pairs_digest(copy, data) == digest:
+            return _count_trained(copy, data, Path(root), names, unread) or 0
     return 0
+
+
+def _count_trained(
+    path: Path, data: DataConfig, root: Path, names: Sequence[object], unread: Collection[int]
+) -> int | None:
+    """How many pairs of ``root`` a run trained on ``path`` trained on; None: not ``path``'s."""
+    split_less = detect_layout(path) is not None
+    trained = path if split_less else path / data.train_split
+    if root.resolve() != trained.resolve():
+        return None
+    kept: Collection[int] = range(len(names))
+    if split_less or not _validated_on_a_split(path, data):
+        try:
+            kept, _ = holdout_indices([str(n) for n in names], data.val_fraction, trained)
+        except ModelError:  # fewer than two pairs: not what any run trained on
+            return 0
+    return len(set(kept) - set(unread))
 
 
 def _validated_on_a_split(dataset: Path, data: DataConfig) -> bool:

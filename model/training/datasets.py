@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from lenspair.core.errors import LenspairError
 from lenspair.core.spread import spread_indices
 from lenspair.dataset.folder_notes import clean_bits
 from lenspair.dataset.layouts import detect_layout
@@ -92,6 +93,31 @@ def names_digest(train: Sequence[str], val: Sequence[str]) -> str:
     for names in (train, val):
         digest.update("\n".join(names).encode("utf-8") + b"\0")
     return f"{NAMES_DIGEST} {digest.hexdigest()[:12]}"
+
+
+def recorded_digest(data: str) -> str | None:
+    """The pair-name digest in a run's data line (:func:`names_digest`), if it has one.
+
+    Only it tells whether the pairs changed: the line also holds counts that
+    other settings change (``data.max_val_images``).
+    """
+    _, found, rest = data.partition(NAMES_DIGEST + " ")
+    return rest.split(")")[0].split(";")[0].strip() if found else None
+
+
+def pairs_digest(path: Path, data: DataConfig) -> str | None:
+    """The digest :func:`paired_training_data` would record for ``path``; None if not data.
+
+    Reads the pairs' headers, not their pixels: what tells a copy of the data
+    a run trained on (another path, the same pairs) from other data.
+    """
+    notes: list[str] = []
+    try:
+        train_source, val_source, _ = _split_sources(Path(path), data, notes)
+        (train_source, val_source), _ = pair_headers((train_source, val_source), notes)
+    except LenspairError:
+        return None
+    return recorded_digest(names_digest(_names(train_source), _names(val_source)))
 
 
 def paired_training_data(

@@ -23,7 +23,7 @@ import torch
 from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, load_weights
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import RunConfig, split_until, until_step
-from lenspair.model.training.datasets import NAMES_DIGEST
+from lenspair.model.training.datasets import recorded_digest
 from lenspair.model.training.run_files import RunPaths, read_metrics_rows
 from lenspair.model.training.run_state import RunState
 from lenspair.model.training.start_checks import check_resume_batch
@@ -217,7 +217,11 @@ def with_history(
                 step,
                 before.data_path,
             )
-    elif (then := _digest(before.data)) and (now := _digest(runtime.data)) and then != now:
+    elif (
+        (then := recorded_digest(before.data))
+        and (now := recorded_digest(runtime.data))
+        and then != now
+    ):
         earlier_data = (*earlier_data, until_step(before.data, step))
         if warn:  # rebuilt in place: same folder, other pairs
             log.warning(
@@ -248,15 +252,3 @@ def _steps_since(earlier: tuple[str, ...], step: int) -> str:
     if since is None or not 0 < since < step:
         return f"the first {step} steps"
     return f"steps {since + 1} to {step}"
-
-
-def _digest(data: str) -> str | None:
-    """The pair-name digest in a run's data line, if it has one.
-
-    (:func:`lenspair.model.training.datasets.names_digest` writes it.)
-
-    Only it tells whether the pairs changed: the line also holds counts that
-    other settings change (``data.max_val_images``).
-    """
-    _, found, rest = data.partition(NAMES_DIGEST + " ")
-    return rest.split(")")[0].split(";")[0].strip() if found else None

@@ -2,6 +2,7 @@
 
 import json
 import logging
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -155,3 +156,24 @@ def test_lenspair_eval_of_a_run_on_its_own_folder(
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["trained_on_scored_pairs"] == 10
     assert metrics["overall"]["pairs"] == 12
+
+
+def test_a_copy_of_the_data_trained_on_counts_as_that_data(tmp_path: Path) -> None:
+    # cp -r of the dataset: another path, the same pairs; "trained_on_scored_pairs": 0
+    dataset = write_split_dataset(tmp_path / "ds")  # train 6, val 2, test 3
+    recorded = paired_training_data(dataset, tiny_config().data, 1, 0, notes=[]).description
+    runtime = RuntimeInfo(data_path=str(dataset.resolve()), data=recorded)
+    checkpoint = make_checkpoint(tmp_path / "net.pt", replace(tiny_config(), runtime=runtime))
+    copy = tmp_path / "elsewhere" / "ds_copy"
+    shutil.copytree(dataset, copy)
+    assert (
+        evaluate_checkpoint(checkpoint, copy, "train", CPU, latency_runs=0).trained_on_scored == 6
+    )
+    assert evaluate_checkpoint(checkpoint, copy, "test", CPU, latency_runs=0).trained_on_scored == 0
+    # the same folder with other pairs (one more training pair): not the data trained on
+    write_paired_folder(tmp_path / "extra", count=1, seed=9)
+    for side in ("input", "target"):
+        shutil.copyfile(tmp_path / "extra" / side / "000.png", copy / "train" / side / "zz.png")
+    assert (
+        evaluate_checkpoint(checkpoint, copy, "train", CPU, latency_runs=0).trained_on_scored == 0
+    )

@@ -306,7 +306,7 @@ def test_a_synthetic_resume_on_other_clean_images_says_and_records_they_changed(
 
 
 def test_only_the_pair_digest_of_the_data_line_tells_whether_the_pairs_changed() -> None:
-    from lenspair.model.training.resume import _digest
+    from lenspair.model.training.datasets import recorded_digest as _digest
 
     # the counts change with data.max_val_images, allowed on a resume: not other pairs
     then = "/d (train 40 pairs, validation 9 pairs; pair names sha256 0123456789ab)"
