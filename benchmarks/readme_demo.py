@@ -7,6 +7,7 @@ the calibration against the simulator's truth. Each function returns the
 blocks of one part; pictures to show are added to ``copies``.
 """
 
+import re
 from collections.abc import Sequence
 from itertools import chain
 from pathlib import Path
@@ -150,7 +151,8 @@ def seeded_blocks(path: Path, published: bool = True) -> list[Block]:
     meta = (load_json(path.with_suffix(".json")) or {}).get("meta", {})
     device = meta.get("device", "a device not recorded")
     cpu = f" ({meta['cpu']})" if meta.get("cpu") else ""
-    blocks = [b for b in markdown_file_blocks(path) if not isinstance(b, Heading)]
+    blocks = [_rebased(b, path.parent) for b in markdown_file_blocks(path)]
+    blocks = [b for b in blocks if not isinstance(b, Heading)]
     if not published:
         starts = [
             i for i, b in enumerate(blocks)
@@ -165,6 +167,22 @@ def seeded_blocks(path: Path, published: bool = True) -> list[Block]:
         "names it), so its input row differs from the demo table's above."
     )
     return [intro, *blocks]
+
+
+_RELATIVE_LINK = re.compile(r"\]\((?![a-z][a-z0-9+.-]*:|#|/)([^)\s]+)\)")
+"""A Markdown link to a file relative to the page it is on (not a URL, an anchor, or absolute)."""
+
+
+def _rebased(block: Block, folder: Path) -> Block:
+    """``block`` of a page in ``folder`` (beside the README), its relative links made the README's.
+
+    ``[gpu_h100.md](gpu_h100.md)`` in ``docs/results/tradeoff_seeds_h100.md``
+    pointed at a file beside the README, where there is none.
+    """
+    if not isinstance(block, Paragraph):
+        return block
+    text = _RELATIVE_LINK.sub(lambda m: f"]({(folder / m[1]).as_posix()})", block.text)
+    return Paragraph(text)
 
 
 def seeded_runs(paths: Sequence[Path]) -> list[Block]:

@@ -12,10 +12,10 @@ frames, over --clean-images DIR or the simulator's textures), and
 --simulated-set DIR, a small multi-kind set of simulated recordings rendered
 there (clean, rain, dust, dirt; its last recording of each kind is held out
 and scored; a rerun keeps recordings rendered with the same --set-frames and
---seed and renders the others again). --hard N adds N hard cases made from the clean views of the
-training recordings (defocused, dark or bright, low-texture clean frames;
-dust darkening the whole frame, light rain: see
-lenspair.model.detection.hard_cases). --workers N renders and reads samples
+--seed and renders the others again). --hard N adds N hard cases made from the clean
+views of the training recordings, so it needs --recordings or --simulated-set
+(defocused, dark or bright, low-texture clean frames; dust darkening the whole
+frame, light rain: see lenspair.model.detection.hard_cases). --workers N renders and reads samples
 in N processes (the samples do not depend on it); --device picks where to
 train and score. Training stops after --steps steps or --minutes minutes,
 whichever comes first; --minutes alone sets no step limit, and neither

@@ -245,7 +245,10 @@ def gather(
         ModelError: nothing to train on, or hard cases without recordings.
     """
     if sources.hard and not (sources.recordings or sources.simulated_set):
-        raise ModelError("train-detector: hard cases need training recordings (their views)")
+        raise ModelError(
+            "train-detector: --hard N is made from the clean views of training recordings: "
+            "give --recordings or --simulated-set (a dataset's pairs are cropped, not views)"
+        )
     sources = _distinct(sources)
     train: list[DetectorSample] = []
     held_out: dict[str, list[DetectorSample]] = {}

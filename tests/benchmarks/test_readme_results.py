@@ -452,3 +452,26 @@ def test_calibration_rows_take_the_median_of_the_per_run_sums(tmp_path: Path) ->
     _write(bench / "calibration.json", {"cases": [case]})  # written before the per-run sum
     text = to_markdown(bench_blocks(bench))
     assert "| 750 ms (sum of the detection and calibration medians) |" in text
+
+
+def test_every_relative_link_of_the_readme_and_its_docs_resolves() -> None:
+    # a run's page embedded from docs/results/ kept its link [gpu_h100.md](gpu_h100.md),
+    # which pointed beside the README, where there is no such file
+    link = re.compile(r"\]\((?![a-z][a-z0-9+.-]*:|#)([^)\s#]+)[^)]*\)")
+    pages = [README, *sorted((README.parent / "docs").rglob("*.md"))]
+    broken = [
+        f"{page.relative_to(README.parent)}: {target}"
+        for page in pages
+        for target in link.findall(page.read_text(encoding="utf-8"))
+        if not (page.parent / target).exists()
+    ]
+    assert broken == []
+
+
+def test_an_embedded_pages_relative_links_are_made_the_readmes(tmp_path: Path) -> None:
+    page = tmp_path / "docs" / "results" / "tradeoff_seeds_gpu.md"
+    page.parent.mkdir(parents=True)
+    page.write_text("# Tradeoff\n\n- data: x ([gpu.md](gpu.md)), [web](https://a.b) [here](#x)\n")
+    text = to_markdown(seeded_blocks(page))
+    assert f"([gpu.md]({page.parent.as_posix()}/gpu.md))" in text
+    assert "[web](https://a.b)" in text and "[here](#x)" in text
