@@ -131,10 +131,20 @@ def _read_time(stem: str) -> tuple[int, int] | None:
 
 
 def image_files(folder: Path) -> list[Path]:
-    """Visible image files of ``folder`` (not recursive), sorted by name."""
+    """Visible image files of ``folder`` (not recursive), sorted by name.
+
+    Raises:
+        CaptureError: the folder cannot be listed (another user's, a failing
+            disk): a problem of the input, exit 2, not the refused write that
+            the CLI's exit 1 for ``EACCES`` means.
+    """
+    try:
+        entries = list(folder.iterdir())
+    except OSError as exc:
+        raise CaptureError(f"{folder}: cannot be read ({exc.strerror or exc})") from None
     return sorted(
         p
-        for p in folder.iterdir()
+        for p in entries
         if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".") and p.is_file()
     )
 

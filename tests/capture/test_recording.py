@@ -17,6 +17,7 @@ from lenspair.capture.recording import (
     resolve_obstructed,
 )
 from lenspair.capture.rigfile import RigFile, write_rig_file
+from lenspair.cli import main
 from lenspair.core.errors import ConfigError, ImageIOError
 from lenspair.core.imagewrite import write_image
 
@@ -70,6 +71,27 @@ def test_euroc_header_and_missing_data_csv(tmp_path: Path) -> None:
     for camera in ("cam0", "cam1"):
         (tmp_path / "mav0" / camera / "data.csv").unlink()
     assert open_recording(tmp_path).timestamps("cam0") == stamps
+
+
+def test_a_camera_folder_that_cannot_be_listed_is_an_input_error_naming_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # "Permission denied" with exit 1, the code of a refused write (tests run as root,
+    # whom chmod does not stop: the listing itself is refused here)
+    _euroc(tmp_path / "rec")
+    refused = tmp_path / "rec" / "mav0" / "cam1" / "data"
+    real_iterdir = Path.iterdir
+
+    def iterdir(self: Path):  # type: ignore[no-untyped-def]
+        if self == refused:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_iterdir(self)
+
+    monkeypatch.setattr(Path, "iterdir", iterdir)
+    with pytest.raises(CaptureError, match=rf"^{refused}: cannot be read \(Permission denied\)$"):
+        open_recording(tmp_path / "rec")
+    assert main(["capture-ingest", str(tmp_path / "rec"), "--out", str(tmp_path / "out")]) == 2
+    assert f"{refused}: cannot be read" in capsys.readouterr().err
 
 
 def test_euroc_problems_are_recorded(tmp_path: Path) -> None:

@@ -240,7 +240,7 @@ OPTION_CASES: list[tuple[list[str], str]] = [
         "--set-frames is used only with --simulated-set",
     ),
     (["train-detector", "--out", "OUT", "--synthetic", "2", "--hard", "-1"], "--hard"),
-    (["train-detector", "--out", "OUT", "--synthetic", "2", "--hard", "5"], "--hard N is made from the clean views"),
+    (["train-detector", "--out", "OUT", "--synthetic", "2", "--hard", "5"], "--hard N is made"),
     (["train-detector", "--out", "OUT", "--synthetic", "2", "--workers", "0"], "--workers"),
     (["train-detector", "--out", "OUT", "--synthetic", "2", "--device", "tpu"], "--device"),
     (["capture-ingest", "DS", "--out", "OUT", "--device", "tpu"], "--device"),
