@@ -99,6 +99,10 @@ def write_image(
         for name, kind, value in metadata:
             if name != BITS_ATTRIBUTE or bits is not None:
                 spec.attribute(name, kind, value)
+        if not any(name == "DateTime" for name, _, _ in metadata):
+            # else a TIFF gets the time of writing (OpenImageIO's default): a tag its input lacked,
+            # and bytes that differ between a resumed run and an uninterrupted one
+            spec.attribute("DateTime", "")
         if alpha is not None:
             spec.alpha_channel = channels - 1
             if not associated:  # colour as given, not divided by alpha

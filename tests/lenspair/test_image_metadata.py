@@ -189,6 +189,19 @@ def test_what_describes_the_old_file_is_not_carried(tmp_path: Path) -> None:
     assert "oiio:BitsPerSample" not in {name for name, _, _ in image_metadata(one_bit)}
 
 
+def test_a_tiff_gets_no_time_of_writing_and_keeps_the_time_it_was_given(tmp_path: Path) -> None:
+    # OpenImageIO stamped each TIFF with the time it wrote it: a tag the input lacked, and a
+    # resumed restore differed from an uninterrupted one in those bytes
+    pixels = np.random.default_rng(4).integers(0, 256, (16, 16), dtype=np.uint8)
+    write_image(tmp_path / "a.tif", pixels)
+    assert "DateTime" not in {name for name, _, _ in image_metadata(tmp_path / "a.tif")}
+    given = (("DateTime", oiio.TypeDesc("string"), "2024:05:01 12:00:00"),)
+    write_image(tmp_path / "b.tif", pixels, metadata=given)
+    assert ("DateTime", "2024:05:01 12:00:00") in {
+        (name, value) for name, _, value in image_metadata(tmp_path / "b.tif")
+    }
+
+
 def test_a_12_bit_tiff_misnamed_png_comes_out_a_16_bit_png(tmp_path: Path) -> None:
     """PNG holds no 12 bits (OpenImageIO writes 16 then): its values stay on the 16-bit scale."""
     stored = np.arange(64, dtype=np.uint16).reshape(8, 8) * 60
