@@ -59,14 +59,18 @@ def copy_file(source: Path, destination: Path) -> None:
 def copied_already(source: Path, destination: Path) -> bool:
     """Whether ``destination`` is :func:`copy_file`'s copy of ``source`` as it is now.
 
-    Same size and same mtime (to the nanosecond); a source changed since, or a
-    destination written by anything else, is copied again.
+    Same size and same mtime (to the nanosecond), and the source unchanged
+    since the copy was made (its ctime, which no tool sets back, not later
+    than the copy's): a source changed since, even to the same size with
+    its mtime put back (``touch -r``), or a destination written by anything
+    else, is copied again.
     """
     try:
         have, want = os.stat(destination), os.stat(source)
     except FileNotFoundError:
         return False
-    return (have.st_size, have.st_mtime_ns) == (want.st_size, want.st_mtime_ns)
+    same = (have.st_size, have.st_mtime_ns) == (want.st_size, want.st_mtime_ns)
+    return same and want.st_ctime_ns <= have.st_ctime_ns
 
 
 def files_under(root: Path, follow_links: bool = True) -> list[Path]:

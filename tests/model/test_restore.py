@@ -1,6 +1,7 @@
 """``lenspair restore`` end to end: folders, recordings, bags, failures, resume, the CLI."""
 
 import json
+import os
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -530,6 +531,14 @@ def test_resume_copies_again_only_the_files_changed_since(
     assert [r for r in copies if after[r] != before[r]] == [changed]  # replaced: a new file
     for relative in copies:
         assert (out / relative).read_bytes() == (source / relative).read_bytes()
+    # edited to the same size with its mtime put back (touch -r): the stale copy was kept
+    edited = copies[0]
+    times = (source / edited).stat()
+    text = (source / edited).read_bytes()
+    (source / edited).write_bytes(text.swapcase() if text.swapcase() != text else text[::-1])
+    os.utime(source / edited, ns=(times.st_atime_ns, times.st_mtime_ns))
+    restore_input(source, out, backend, RestoreOptions(camera="cam0", resume=True))
+    assert (out / edited).read_bytes() == (source / edited).read_bytes() != text
 
 
 def test_resume_into_a_folder_no_restore_run_wrote_is_refused(
