@@ -257,14 +257,19 @@ def images_outside_cameras(
     ]
 
 
+DETECT_OUTPUT = "detections.csv"
+"""The table ``lenspair detect`` writes in its output folder (model.detection.report)."""
+
+
 def _folder_listing(folder: Path) -> tuple[list[Path], list[str]]:
     """Image files under ``folder`` (recursive, hidden entries skipped) and what it passes over.
 
     Both from one walk, sorted by path. The second list has one line per entry
     the images leave out unseen: a folder that cannot be read (its images
     cannot even be counted), a link to a folder is not followed (a link back
-    up would never end) and a link to nothing has no image, so the commands
-    reading a folder say so instead of leaving them out silently.
+    up would never end), a link to nothing has no image, and a ``detect``
+    output's contact sheet is no frame, so the commands reading a folder say
+    so instead of leaving them out silently.
     """
     files: list[Path] = []
     passed_over: list[str] = []
@@ -276,6 +281,12 @@ def _folder_listing(folder: Path) -> tuple[list[Path], list[str]]:
 
     for here, subfolders, names in os.walk(folder, onerror=refused):
         subfolders[:] = sorted(name for name in subfolders if not name.startswith("."))
+        for name in [n for n in subfolders if (Path(here) / n / DETECT_OUTPUT).is_file()]:
+            subfolders.remove(name)  # `detect frame.png` run beside the frame writes one here
+            passed_over.append(
+                f"{Path(here) / name}: a detect output ({DETECT_OUTPUT}); its contact sheet "
+                "is no frame, left out"
+            )
         for name in subfolders:
             if (entry := Path(here) / name).is_symlink():
                 passed_over.append(

@@ -314,3 +314,20 @@ def test_detect_checks_its_default_out_and_a_read_only_out_before_judging(
     assert main(["detect", str(tiny_detector), "a.png", "--out", "ro"]) == 1
     assert "ro/detections.csv: Permission denied" in capsys.readouterr().err
     assert judged == []  # refused before a frame was judged
+
+
+def test_a_detect_output_inside_a_folder_is_left_out_of_it_and_said(
+    tiny_detector: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `detect a.png` beside the frame wrote detect_a/ there: a later detect of the folder
+    # judged its contact sheet as a frame (restore would have restored it)
+    folder = tmp_path / "frames"
+    for seed, name in ((1, "a.png"), (2, "b.png")):
+        write_image(folder / name, (texture((48, 64), seed=seed) * 255).astype(np.uint8))
+    monkeypatch.chdir(folder)
+    assert main(["detect", str(tiny_detector), "a.png"]) == 0
+    assert (folder / "detect_a" / "contact_sheet.png").is_file()
+    out = tmp_path / "whole"
+    assert main(["detect", str(tiny_detector), str(folder), "--out", str(out)]) == 0
+    rows = list(csv.DictReader((out / "detections.csv").open()))
+    assert sorted(row["name"] for row in rows) == ["a.png", "b.png"]
