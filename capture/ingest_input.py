@@ -9,6 +9,7 @@ recording's problems in the log, and pairs the two cameras' frames by timestamp
 """
 
 import logging
+import statistics
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -130,6 +131,8 @@ def open_and_pair(
             "within pairing tolerance of a cam1 frame (without it they pair): the offset is "
             "how far cam1's clock runs ahead of cam0's, in milliseconds"
         )
+    if not pairing.pairs and stamps0 and stamps1:
+        raise CaptureError(_nothing_paired(recording.path, stamps0, shifted1, time_offset_ns))
     said_of_recording = [str(p) for p in recording.problems if p.camera is None]
     # pairs.jsonl names frames by time: one without a time is named here, with its file
     said_of_recording += untimed_frames(recording, rig_file.obstructed)
@@ -142,6 +145,23 @@ def open_and_pair(
         frame_pairs.append(both if rig_file.obstructed == "cam0" else (both[1], both[0]))
     return PairedRecording(
         recording, rig_file, rig, calibration_source, pairing, frame_pairs, said_of_recording
+    )
+
+
+def _nothing_paired(path: Path, stamps0: list[int], shifted1: list[int], offset_ns: int) -> str:
+    """Why no frame pairs: the cameras' spans on cam0's clock, and how far apart they are.
+
+    It said "no frame of the two cameras could be paired" alone, with no word
+    of the clocks, where ``calibrate`` names ``--time-offset``.
+    """
+    gap_ms = (statistics.median(shifted1) - statistics.median(stamps0)) / 1e6
+    given = f" (with --time-offset {offset_ns / 1e6:g} ms)" if offset_ns else ""
+    return (
+        f"{path}: no cam0 frame lies within pairing tolerance of a cam1 frame{given}: cam0's "
+        f"frames span {(max(stamps0) - min(stamps0)) / 1e9:.3g} s, cam1's "
+        f"{(max(shifted1) - min(shifted1)) / 1e9:.3g} s, their middles {gap_ms:+.6g} ms apart; "
+        "if the cameras' clocks differ, give how far cam1's runs ahead of cam0's in ms "
+        "with --time-offset"
     )
 
 

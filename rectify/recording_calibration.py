@@ -16,7 +16,7 @@ Steps: the two cameras' frames are paired by timestamp
 (:func:`lenspair.capture.pairing.pair_frames`; cam1's stamps less
 ``time_offset_ns``, on cam0's clock, as ``capture-ingest --time-offset`` pairs
 them, with its warning when the pairs are far apart), at most ``max_views`` pairs
-evenly spread in time are read, the board's corners are found in each image
+evenly spread over the pairs (by index) are read, the board's corners are found in each image
 and :func:`lenspair.rectify.calibration.calibrate_from_detections` calibrates
 each camera alone, then the pair. A frame that cannot be read is recorded in
 :attr:`RecordingCalibration.unreadable`, not fatal. ``lenspair calibrate``,
@@ -213,7 +213,7 @@ def calibrate_recording(
         board: the board seen.
         model: ``pinhole-radtan`` or ``pinhole-equi``.
         topics: bags only: ``(cam0_topic, cam1_topic)``; None picks them.
-        max_views: at most this many frame pairs, evenly spread in time (0: all).
+        max_views: at most this many frame pairs, evenly spread over them (0: all).
         options: outlier rejection and rectification settings.
         time_offset_ns: how far cam1's clock runs ahead of cam0's (ns): cam1's
             stamps less it are paired with cam0's (``--time-offset``).

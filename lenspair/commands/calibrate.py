@@ -92,7 +92,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=100,
         metavar="N",
-        help="use at most N frame pairs, evenly spread in time (default 100; 0 = all)",
+        help="use at most N frame pairs, evenly spread over the pairs (default 100; 0 = all)",
     )
     add_topics_option(parser)
     parser.add_argument(

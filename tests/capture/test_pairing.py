@@ -17,7 +17,7 @@ from lenspair.capture.pairing import (
 )
 from lenspair.capture.recording_types import DUPLICATE_TIMESTAMP
 from lenspair.cli import main
-from tests.capture.ingest_helpers import make_recording
+from tests.capture.ingest_helpers import CROP, make_recording
 
 MS = 1_000_000
 
@@ -195,3 +195,22 @@ def test_a_time_offset_that_pairs_nothing_is_named_as_the_cause(
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert f"{recording}: --time-offset 5000 ms leaves no cam0 frame" in line
     assert not (tmp_path / "out" / "rec").exists()
+
+
+def test_cameras_whose_clocks_pair_nothing_are_named_with_the_time_offset_option(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # it said "no usable frame pair to register: no frame of the two cameras could be
+    # paired", with no word of the clocks, where calibrate names --time-offset
+    recording = make_recording(tmp_path / "rec", frames=4)
+    listing = recording / "mav0" / "cam1" / "data.csv"
+    header, *rows = listing.read_text().splitlines()
+    ahead = [f"{int(row.split(',')[0]) + 5 * 10**9},{row.split(',')[1]}" for row in rows]
+    listing.write_text("\n".join([header, *ahead]) + "\n")  # cam1's clock 5 s ahead
+    args = ["capture-ingest", str(recording), "--out", str(tmp_path / "out")]
+    assert main(args) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{recording}: no cam0 frame lies within pairing tolerance of a cam1 frame" in line
+    assert "their middles +5000" in line and "--time-offset" in line
+    assert not (tmp_path / "out" / "rec").exists()
+    assert main([*args, "--time-offset", "5000", "--size", CROP]) == 0  # as it says
