@@ -671,3 +671,18 @@ def test_problem_lines_name_each_frame_once_and_count_the_rest() -> None:
         f"... and 1 more in {REPORT_NAME}",
     ]
     assert report.problem_lines()[-1] == "notes.txt: copied unrestored"
+
+
+def test_an_overlap_past_half_the_tile_is_said_with_its_cost(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # --tile 16 --overlap 15 stepped one pixel at a time: 124 s for five small frames, unsaid
+    from lenspair.model.inference.restore_options import RestoreOptions, check_options
+
+    with caplog.at_level("WARNING"):
+        check_options(RestoreOptions(tile=64, overlap=32))  # half: each pixel about 4 times
+        assert not caplog.records
+        check_options(RestoreOptions(tile=16, overlap=15))
+    (said,) = [r.getMessage() for r in caplog.records]
+    assert said.startswith("--overlap 15 of --tile 16: tiles step 1 px")
+    assert "computed about 256 times" in said
