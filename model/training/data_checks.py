@@ -185,11 +185,12 @@ def warn_mixed(
 ) -> None:
     """Say that grey and colour images are mixed and how they are converted, when they are."""
     if counts.get(1) and counts.get(3):
-        takes = (
-            f"{channels} channel(s)"
-            if channels
-            else f"those of most of them ({majority_channels(counts)})"
-        )
+        if channels:
+            takes = f"{channels} channel(s)"
+        elif counts[1] == counts[3]:  # "those of most of them" when there is no most
+            takes = "colour (3) on a tie, which holds a grey image exactly"
+        else:
+            takes = f"those of most of them ({majority_channels(counts)})"
         warn_or_note(
             notes,
             f"{root}: the {what} mix {counts[1]} grey and {counts[3]} colour images; the "

@@ -236,7 +236,12 @@ def validation_split(path: Path, data: DataConfig, notes: list[str] | None) -> P
         DatasetError: the split is there but broken (an unpaired file): holding
             out train pairs instead cost training pairs and the real validation set.
     """
-    if not (path / data.val_split).is_dir():
+    split = path / data.val_split
+    if not split.is_dir():
+        return None
+    # a folder holding no file at all (an empty val/, or empty input/ and target/): the
+    # reader refused it ("holds several splits; choose one of train", "no images")
+    if not any(p.is_file() and not p.name.startswith(".") for p in split.rglob("*")):
         return None
     opened = open_paired(path, data.val_split, notes=notes)
     return opened if len(opened) > 0 else None

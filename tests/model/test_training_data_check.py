@@ -141,6 +141,12 @@ def test_mixed_grey_and_colour_clean_images_are_said(
     caplog.clear()
     synthetic_training_data(folder, tiny_config().data, 3, 0)  # chosen: still said, as 3
     assert any("the network takes 3 channel(s)" in r.getMessage() for r in caplog.records)
+    for index in range(1, 4):  # 4 grey, 4 colour: "those of most of them (3)" on a tie
+        write_image(folder / f"{index}_grey.png", grey)
+    caplog.clear()
+    assert synthetic_training_data(folder, tiny_config().data, None, 0).channels == 3
+    (said,) = [r.getMessage() for r in caplog.records if "mix" in r.getMessage()]
+    assert "mix 4 grey and 4 colour" in said and "takes colour (3) on a tie" in said
 
 
 def test_a_training_image_damaged_behind_its_header_costs_only_its_pair(
@@ -223,6 +229,14 @@ def test_a_validation_split_with_an_unpaired_file_is_refused_not_replaced(
     shutil.rmtree(dataset / "val")  # no val split at all: train pairs held out, and said
     data = paired_training_data(dataset, DataConfig(crop_size=24), 1, 0)
     assert "no 'val' split" in data.description and len(data.train) < 4
+    # an empty val/, or empty val/input and val/target: the same (it was "holds several
+    # splits; choose one of train", or "no images in input/")
+    (dataset / "val").mkdir()
+    for made in ([], ["input", "target"]):
+        for name in made:
+            (dataset / "val" / name).mkdir()
+        data = paired_training_data(dataset, DataConfig(crop_size=24), 1, 0)
+        assert "the split is empty" in data.description and len(data.train) < 4
 
 
 def test_data_warnings_reach_train_log(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
