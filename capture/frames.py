@@ -258,7 +258,8 @@ def images_outside_cameras(
 
 
 DETECT_OUTPUT = "detections.csv"
-"""The table ``lenspair detect`` writes in its output folder (model.detection.report)."""
+"""The table ``lenspair detect`` writes in its output folder (``model.detection.report``
+writes it by this name); a folder holding one is a detect output, not frames."""
 
 
 def _folder_listing(folder: Path) -> tuple[list[Path], list[str]]:

@@ -21,7 +21,6 @@ One run at a time writes an output folder: :func:`hold_output` locks
 import contextlib
 import json
 import logging
-import os
 from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -33,7 +32,7 @@ from lenspair.capture.ingest_frames import OUTPUT_KINDS
 from lenspair.capture.ingested import PairRecord
 from lenspair.core.config import load_dataclass, to_plain
 from lenspair.core.errors import LenspairError
-from lenspair.core.folderlock import lock_file
+from lenspair.core.folderlock import holding
 from lenspair.core.fsutil import sha256_bytes, sha256_file
 from lenspair.core.leftovers import remove_leftovers
 
@@ -262,16 +261,12 @@ def hold_output(out_dir: Path) -> Iterator[None]:
         CaptureError: another process holds the lock (one line naming ``out_dir``).
         OSError: the lock file cannot be created (a read-only folder: named).
     """
-    descriptor = lock_file(out_dir / LOCK_FILE, "capture-ingest")
-    if descriptor is None:
-        raise CaptureError(
-            f"{out_dir}: another capture-ingest is writing it (or a dataset-build is reading it); "
-            "run this one when that one has finished, or with another --out"
-        )
-    try:
+    taken = CaptureError(
+        f"{out_dir}: another capture-ingest is writing it (or a dataset-build is reading it); "
+        "run this one when that one has finished, or with another --out"
+    )
+    with holding(out_dir / LOCK_FILE, "capture-ingest", taken):
         yield
-    finally:
-        os.close(descriptor)  # releases the lock
 
 
 def remove_temporaries(out_dir: Path) -> None:

@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     """Judge the frames of INPUT; returns the exit code."""
     # torch and the bag readers load when the command runs, so --help stays fast
     from lenspair.capture.bag_frames import bag_overview
-    from lenspair.capture.frames import detect_input, frame_files, iter_frames
+    from lenspair.capture.frames import DETECT_OUTPUT, detect_input, frame_files, iter_frames
     from lenspair.capture.recording import present_cameras
     from lenspair.capture.recording_types import FrameProblem
     from lenspair.model.detection.report import detect_frames
@@ -120,8 +120,9 @@ def run(args: argparse.Namespace) -> int:
             f"--out {out}: the folder that holds {args.input}; {why} there, so choose "
             "another folder"
         )
-    check_writable(out / "detections.csv")  # a read-only --out is said before judging, not after
-    if (out / "detections.csv").is_file():  # cheap to make again, but maybe another model's
+    table = out / DETECT_OUTPUT
+    check_writable(table)  # a read-only --out is said before judging, not after
+    if table.is_file():  # cheap to make again, but maybe another model's
         log.warning("%s: replacing the detections of an earlier run there", out)
     # Files are counted from their listing (cheap); a bag's count is only known once read.
     bag = kind in ("rosbag1", "rosbag2")
@@ -161,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{counted(len(judged), 'frame')} judged ({len(verdicts) - len(judged)} not: unreadable "
         "or left out by the listing): "
-        f"{obstructed} obstructed{kinds}{others}; see {out / 'detections.csv'}"
+        f"{obstructed} obstructed{kinds}{others}; see {table}"
     )
     if verdicts and not judged:
         # no frame judged: a script must not read this run as done (exit 0), as restore's
@@ -169,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
         reason = first.error if first.name in str(first.error) else f"{first.name}: {first.error}"
         raise ConfigError(
             f"none of the {counted(len(verdicts), 'frame')} could be judged (the first: "
-            f"{reason}); each is listed in {out / 'detections.csv'}"
+            f"{reason}); each is listed in {table}"
         )
     return 0
 

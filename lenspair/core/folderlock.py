@@ -12,6 +12,8 @@ import errno
 import fcntl
 import logging
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from lenspair.core.fsutil import naming_errors
@@ -52,6 +54,23 @@ def lock_file(path: Path, writer: str) -> int | None:
             writer,
         )
     return descriptor
+
+
+@contextmanager
+def holding(path: Path, writer: str, taken: Exception) -> Iterator[None]:
+    """Hold :func:`lock_file`'s lock of ``path`` meanwhile; raise ``taken`` when another holds it.
+
+    Raises:
+        Exception: ``taken`` (the writer's one-line refusal), when the lock is held.
+        OSError: the lock file cannot be created (a read-only folder), naming it.
+    """
+    descriptor = lock_file(path, writer)
+    if descriptor is None:
+        raise taken
+    try:
+        yield
+    finally:
+        os.close(descriptor)  # releases the lock
 
 
 def lock_shared(path: Path) -> int | None:

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from lenspair.capture.frame_types import InputFrame
+from lenspair.capture.frames import DETECT_OUTPUT
 from lenspair.capture.recording_types import FrameProblem
 from lenspair.capture.rosbag import never_stamped
 from lenspair.core.bitdepth import RunningDepth, widen
@@ -283,7 +284,7 @@ def detect_frames(
     (out / "contact_sheet.png").unlink(missing_ok=True)
     atomic_write_texts(
         {
-            out / "detections.csv": buffer.getvalue(),
+            out / DETECT_OUTPUT: buffer.getvalue(),
             out / "detections.json": json_text([asdict(v) for v in verdicts]),
         }
     )

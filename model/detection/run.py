@@ -8,7 +8,6 @@ sources, sample counts, training summary).
 
 import json
 import logging
-import os
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict
@@ -18,7 +17,7 @@ import numpy as np
 import torch
 
 from lenspair.core.config import to_plain
-from lenspair.core.folderlock import lock_file
+from lenspair.core.folderlock import holding
 from lenspair.core.fsutil import atomic_write_files, check_writable, json_text
 from lenspair.core.pixels import from_float
 from lenspair.model.detection.data import DetectorSample
@@ -141,19 +140,15 @@ def _one_writer(out: Path) -> Iterator[None]:
 
     Two runs with one ``--out`` both trained to the end and the last one's
     files replaced the first's. The lock is ``flock`` on :data:`LOCK_FILE`
-    (:func:`~lenspair.core.folderlock.lock_file`), released however the
+    (:func:`~lenspair.core.folderlock.holding`), released however the
     process ends.
     """
-    descriptor = lock_file(out / LOCK_FILE, "train-detector")
-    if descriptor is None:
-        raise ModelError(
-            f"{out}: another train-detector is writing it; run this one when that one has "
-            "finished, or with another --out"
-        )
-    try:
+    taken = ModelError(
+        f"{out}: another train-detector is writing it; run this one when that one has "
+        "finished, or with another --out"
+    )
+    with holding(out / LOCK_FILE, "train-detector", taken):
         yield
-    finally:
-        os.close(descriptor)  # releases the lock
 
 
 def _train_and_write(
@@ -180,16 +175,17 @@ def _train_and_write(
         "counts": counts | {name: len(s) for name, s in held_out.items()},
         "training": asdict(summary),
     }
+    run_json = json.dumps(run, default=str)  # the file's, and the checkpoint's record
     text = "".join(scores_markdown(name, s) + "\n" for name, s in scores.items())
     # the detector last: a folder holding it holds the whole run (a full disk or a
     # file-size limit leaves none of them, and the same command can be run again)
     files = {
         out / "scores.json": json_text({name: asdict(s) for name, s in scores.items()}),
-        out / "run.json": json_text(json.loads(json.dumps(run, default=str))),
+        out / "run.json": json_text(json.loads(run_json)),
         out / "scores.md": text or "no held-out data scored\n",
     }
     atomic_write_files(
         {path: content.encode("utf-8") for path, content in files.items()}
-        | {out / DETECTOR_FILE: detector_bytes(network, {"run": json.dumps(run, default=str)})}
+        | {out / DETECTOR_FILE: detector_bytes(network, {"run": run_json})}
     )
     return scores

@@ -35,6 +35,7 @@ from lenspair.core.fsutil import atomic_write, atomic_write_text, json_safe
 from lenspair.core.wording import counted
 from lenspair.model.evaluation.plot_labels import ABOVE, BELOW, label_points
 from lenspair.model.evaluation.tradeoff_rows import TradeoffRow
+from lenspair.model.metrics import PSNR_CAP_DB
 
 
 def _fmt(value: float | None, digits: int) -> str:
@@ -144,8 +145,8 @@ MARKER_NAMES = {"o": "circle", "s": "square", "D": "diamond", "^": "triangle"}
 
 
 def _drawn(value: float) -> float:
-    """Where the plot draws a score: an infinite PSNR (identical images) at 100 dB."""
-    return min(value, 100.0)
+    """Where the plot draws a score: an infinite PSNR (identical images) at the means' cap."""
+    return min(value, PSNR_CAP_DB)
 
 
 def plot_tradeoff(rows: Sequence[TradeoffRow], path: Path, meta: dict[str, Any]) -> None:
