@@ -99,6 +99,8 @@ class BoardSpec:
                 f"px a square is a texture of {texels / 1e6:.0f} M texels, over "
                 f"{MAX_BOARD_TEXELS / 1e6:.0f} M; use fewer pixels_per_square"
             )
+        if not 0.0 <= self.margin_px <= 1000.0:  # a negative margin let boards leave the image
+            raise ValueError(f"margin_px: expected 0..1000, got {self.margin_px}")
         if not (min(self.grid) >= 1 and max(self.grid) <= 100):
             raise ValueError(f"grid: expected sizes 1..100, got {self.grid}")
         try:

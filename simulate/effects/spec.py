@@ -46,6 +46,10 @@ MIN_POWER_LAW_RADIUS_PX = 0.5
 ``r^-k`` has no finite mass) nearly every drop is sub-pixel and the declared rain leaves
 no trace while the recording is labelled rain."""
 
+MIN_SHIFTS = 4
+"""Fewest random shifts that blur the glass layer: one translates it, two or three
+double or triple it."""
+
 
 @dataclass(frozen=True)
 class RaindropsSpec:
@@ -168,6 +172,12 @@ class DefocusSpec:
     def __post_init__(self) -> None:
         if not 1 <= self.shifts <= 256:
             raise ValueError(f"shifts: expected 1..256, got {self.shifts}")
+        shifted = (self.shift_px is None and self.kernel == "shifts") or bool(self.shift_px)
+        if shifted and self.shifts < MIN_SHIFTS:
+            raise ValueError(
+                f"shifts: expected at least {MIN_SHIFTS} where the layer is shifted (fewer move "
+                f"or double the drops instead of blurring them), got {self.shifts}"
+            )
         if self.shift_px is not None:
             _check_value("shift_px", self.shift_px, 0.0, 64.0)
         if self.disk_radius_px is not None:
@@ -256,7 +266,9 @@ class BrightnessSpec:
 
     Attributes:
         fraction: probability that a drop is brightened.
-        gain: multiplicative gain range in linear light.
+        gain: multiplicative gain range in linear light, 0..100. Gains below 1
+            darken the chosen drops instead (0: black), for glass that shades
+            rather than glows.
 
     """
 

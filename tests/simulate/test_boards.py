@@ -166,3 +166,10 @@ def test_impossible_board_poses_name_the_spec_file(
     assert line.startswith(f"lenspair simulate: error: {spec}: board: no pose")
     # nothing written: a folder marked incomplete read as a killed run on the next try
     assert not (tmp_path / "out").exists()
+
+
+def test_a_negative_margin_is_refused_at_the_spec() -> None:
+    # it was accepted and put boards partly outside both images, against its definition
+    with pytest.raises(ValueError, match=r"margin_px: expected 0\.\.1000, got -300"):
+        BoardSpec(kind="chessboard", cols=9, rows=6, square_m=0.04, margin_px=-300.0)
+    assert BoardSpec(kind="chessboard", cols=9, rows=6, square_m=0.04, margin_px=0.0)

@@ -182,3 +182,18 @@ def test_a_declared_defocus_of_no_blur_renders_as_no_defocus(seed: int) -> None:
     blurred = render_effects(image, zero, np.random.default_rng(seed))
     assert np.array_equal(plain[0], blurred[0]) and np.array_equal(plain[1], blurred[1])
     assert defocus.blur_kernel(np.zeros((16, 2)), 0.0).tolist() == [[1.0]]
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [{"shifts": 1}, {"shifts": 3, "shift_px": 2.0}, {"shifts": 2, "kernel": "shifts"}],
+)
+def test_too_few_shifts_to_blur_are_refused(spec: dict[str, object]) -> None:
+    # one shift translated the whole glass layer (sharp drops, moved), two doubled it
+    with pytest.raises(ValueError, match="shifts: expected at least 4 where the layer is shifted"):
+        DefocusSpec(**spec)  # type: ignore[arg-type]
+
+
+def test_one_shift_is_fine_where_nothing_is_shifted() -> None:
+    assert DefocusSpec(shifts=1, shift_px=0.0, disk_radius_px=4.0).shifts == 1
+    assert DefocusSpec(shifts=1, kernel="disk").shifts == 1
