@@ -65,6 +65,7 @@ from lenspair.capture import euroc, folders, rosbag
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.recording_types import (
     CAMERAS,
+    SIMULATION_INCOMPLETE,
     FrameProblem,
     FrameRef,
     Layout,
@@ -158,6 +159,7 @@ def open_recording(
         return rosbag.read_bag(path, topics)
     if topics is not None:
         raise CaptureError(f"{path}: topics can only be chosen for bags, this is a folder")
+    _refuse_unfinished_simulation(path)
     if path.is_dir():
         root = euroc.find_euroc_root(path)
         if root is not None:
@@ -168,6 +170,20 @@ def open_recording(
     if hint is not None:
         raise CaptureError(f"{path}: unknown recording layout: {hint}")
     raise CaptureError(f"{path}: unknown recording layout; expected {EXPECTED_LAYOUTS}")
+
+
+def _refuse_unfinished_simulation(path: Path) -> None:
+    """Refuse a recording ``lenspair simulate`` is still writing or was killed writing.
+
+    Read anyway, a killed simulation gave a dataset of the frames it had
+    written, with exit 0. ``path`` may be the simulation's folder or its ``mav0``.
+    """
+    for folder in (path, path.parent):
+        if (folder / SIMULATION_INCOMPLETE).exists():
+            raise CaptureError(
+                f"{path}: an unfinished simulation ({folder / SIMULATION_INCOMPLETE} is there): "
+                "wait for lenspair simulate to finish, or rerun it into that folder"
+            )
 
 
 def recording_places(recording_path: Path) -> list[Path]:

@@ -155,6 +155,10 @@ class Recording:
         return load_frame(frame)
 
 
+SIMULATION_INCOMPLETE = ".simulate-incomplete"
+"""In a folder ``lenspair simulate`` is writing, or was killed while writing: its files
+(frames, ``data.csv``, the rig and calibration files) are not all there yet."""
+
 ACTIVE_BAG_SUFFIX = ".bag.active"
 """What ``rosbag record`` names a ROS 1 bag while it writes it: a recorder killed leaves
 it so, unindexed (the index is written, and the name changed to ``.bag``, on close)."""

@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from lenspair.capture.recording_types import SIMULATION_INCOMPLETE
 from lenspair.core.fsutil import remove_path
 from lenspair.core.imagewrite import write_image
 from lenspair.core.leftovers import process_alive
@@ -85,8 +86,9 @@ class SimulationSummary:
     seconds_per_pair: float
 
 
-INCOMPLETE = ".simulate-incomplete"
-"""In OUT while a simulation runs: a rerun of a killed one starts it over (it is deterministic)."""
+INCOMPLETE = SIMULATION_INCOMPLETE
+"""In OUT while a simulation runs: a rerun of a killed one starts it over (it is deterministic),
+and the capture readers refuse the folder until it is gone."""
 
 
 def _writer(marker: Path) -> int | None:

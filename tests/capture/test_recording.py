@@ -16,6 +16,7 @@ from lenspair.capture.recording import (
     open_recording,
     resolve_obstructed,
 )
+from lenspair.capture.recording_types import SIMULATION_INCOMPLETE
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.cli import main
 from lenspair.core.errors import ConfigError, ImageIOError
@@ -47,6 +48,23 @@ def _euroc(root: Path, n: int = 4, offset: int = 2 * MS) -> list[int]:
     _write_camera(root / "mav0" / "cam0", stamps)
     _write_camera(root / "mav0" / "cam1", [t + offset for t in stamps])
     return stamps
+
+
+def test_an_unfinished_simulation_is_refused_until_it_is_done(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # a killed simulate had written some frames: read anyway, they became a dataset, exit 0
+    _euroc(tmp_path / "sim")
+    marker = tmp_path / "sim" / SIMULATION_INCOMPLETE
+    marker.write_text("pid 1: simulating\n")
+    for given in (tmp_path / "sim", tmp_path / "sim" / "mav0"):
+        with pytest.raises(CaptureError, match="unfinished simulation") as caught:
+            open_recording(given)
+        assert str(marker) in str(caught.value)
+    assert main(["capture-ingest", str(tmp_path / "sim"), "--out", str(tmp_path / "ds")]) == 2
+    assert "unfinished simulation" in capsys.readouterr().err
+    marker.unlink()
+    assert open_recording(tmp_path / "sim").layout == "euroc"
 
 
 def test_euroc_layouts_are_detected(tmp_path: Path) -> None:
