@@ -195,6 +195,8 @@ def out_folder(text: str) -> Path:
 
 def out_file(text: str) -> Path:
     """Argparse type: a file to write: not an existing folder, nor inside a file."""
+    if text.endswith(("/", os.sep)):  # Path drops the slash: a file named as the folder
+        raise argparse.ArgumentTypeError(f"{text!r} names a folder; give a file name")
     path = Path(text)
     if _exists(path, text):
         if path.is_dir():

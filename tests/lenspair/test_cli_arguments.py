@@ -115,3 +115,11 @@ def test_an_input_this_user_may_not_read_is_refused_as_such(
     assert f"'{refused}': permission denied (this user may not read the {kind})" in line
     assert line.startswith(f"lenspair {argv[0]}: error: argument ")
     assert not paths["OUT"].exists()
+
+
+def test_a_file_name_ending_in_a_slash_is_refused(tmp_path: Path) -> None:
+    # Path drops the slash: realism --json DIR/ wrote a file named DIR
+    with pytest.raises(argparse.ArgumentTypeError, match="names a folder"):
+        out_file(f"{tmp_path / 'new'}/")
+    assert not (tmp_path / "new").exists()
+    assert out_file(str(tmp_path / "new.json")) == tmp_path / "new.json"
