@@ -42,7 +42,8 @@ generator's output) clamped to [0, 1] with a straight-through gradient; its
 zero-initialised head makes it start as the identity on G's output.
 """
 
-from typing import cast
+from collections.abc import Iterator
+from typing import Any, cast
 
 import torch
 import torch.nn.functional as F
@@ -56,6 +57,8 @@ from lenspair.model.networks.layers import (
     zero_init,
 )
 from lenspair.model.networks.tracing import exporting
+
+Window = tuple[slice, slice]
 
 PYRAMID_SCALES: tuple[int, ...] = (4, 8, 16, 32)
 """Pooling factors of the pyramid (1/4, 1/8, 1/16 and 1/32 of the resolution)."""
@@ -194,29 +197,61 @@ class Enhancer(nn.Module):
         taps = taps.baddbmm_(level_weight, levels.to(taps.dtype))
         taps = taps.view(batch, 3, 3, channels, height, width)
         # summed in at least fp32 and rounded once, as a convolution does
-        out = taps[:, 1, 1].to(torch.promote_types(taps.dtype, torch.float32), copy=True)
+        summed = _ShiftedTapSum.apply(taps, torch.promote_types(taps.dtype, torch.float32))
+        out = cast(Tensor, summed)
         result_dtype = taps.dtype
         if self.fuse.bias is not None:
             out += self.fuse.bias.view(1, -1, 1, 1)
             # the convolution's output dtype: its bias promotes (fp32 bias under autocast)
             result_dtype = torch.promote_types(result_dtype, self.fuse.bias.dtype)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dy == dx == 0:
-                    continue
-                # out[y, x] += tap(dy, dx)[y + dy, x + dx] where that pixel exists (zero padding)
-                target = out[
-                    ...,
-                    max(0, -dy) : height - max(0, dy),
-                    max(0, -dx) : width - max(0, dx),
-                ]
-                source = taps[
-                    :,
-                    dy + 1,
-                    dx + 1,
-                    :,
-                    max(0, dy) : height - max(0, -dy),
-                    max(0, dx) : width - max(0, -dx),
-                ]
-                target += source
         return out.to(result_dtype)
+
+
+def _tap_windows(height: int, width: int) -> Iterator[tuple[int, int, Window, Window]]:
+    """``(dy, dx, target, source)`` of the eight off-centre taps of a 3x3 kernel.
+
+    ``out[target] += tap(dy, dx)[source]``: ``out[y, x]`` reads ``tap[y + dy, x + dx]``
+    where that pixel exists (zero padding). Windows are ``(rows, columns)`` slices.
+    """
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy == dx == 0:
+                continue
+            target = (
+                slice(max(0, -dy), height - max(0, dy)),
+                slice(max(0, -dx), width - max(0, dx)),
+            )
+            source = (
+                slice(max(0, dy), height - max(0, -dy)),
+                slice(max(0, dx), width - max(0, -dx)),
+            )
+            yield dy, dx, target, source
+
+
+class _ShiftedTapSum(torch.autograd.Function):
+    """``sum over (dy, dx) of taps[:, dy + 1, dx + 1]`` shifted by ``(dy, dx)``, zero-padded.
+
+    ``taps`` is ``(N, 3, 3, C, H, W)``; the result ``(N, C, H, W)`` in ``dtype``. Written
+    out as slices, autograd's backward built, for each of the eight shifted taps,
+    a zero tensor of all nine taps' size and added the nine up: in a training step
+    (batch 8, crop 256, one thread) filling them took 0.57 s, about 5 % of the
+    step. This backward writes the one gradient tensor once.
+    """
+
+    @staticmethod
+    def forward(ctx: Any, taps: Tensor, dtype: torch.dtype) -> Tensor:
+        out = taps[:, 1, 1].to(dtype, copy=True)
+        height, width = taps.shape[-2:]
+        for dy, dx, (rows, cols), (src_rows, src_cols) in _tap_windows(height, width):
+            out[..., rows, cols] += taps[:, dy + 1, dx + 1, :, src_rows, src_cols]
+        ctx.taps_dtype = taps.dtype
+        return out
+
+    @staticmethod
+    def backward(ctx: Any, grad: Tensor) -> tuple[Tensor, None]:
+        batch, channels, height, width = grad.shape
+        grad_taps = grad.new_zeros((batch, 3, 3, channels, height, width), dtype=ctx.taps_dtype)
+        grad_taps[:, 1, 1] = grad
+        for dy, dx, (rows, cols), (src_rows, src_cols) in _tap_windows(height, width):
+            grad_taps[:, dy + 1, dx + 1, :, src_rows, src_cols] = grad[..., rows, cols]
+        return grad_taps, None

@@ -7,7 +7,10 @@ One step: the restoration network (G, E, A) maps the obstructed batch to
     adversarial * LSGAN(D(gen)) + feature_matching * FM(D(gen), D(target))
     + perceptual * VGG19(enhanced, target) + fidelity * L2(enhanced, target)
 
-and ``D`` then takes its own LSGAN step on the detached outputs. Untrusted
+and ``D`` takes its own LSGAN step on the detached outputs. ``D`` runs over
+the real pairs once a step (its features of them serve feature matching too),
+and its weights are frozen while it judges the network's output for the
+network's loss, so it computes no weight gradient it would drop. Untrusted
 pixels (``valid`` = 0) are left out of the fidelity term and replaced by the
 (detached) output in the perceptual target, so they cost nothing.
 
@@ -30,7 +33,7 @@ import contextlib
 import logging
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -254,10 +257,34 @@ class Trainer:
             return contextlib.nullcontext()
         return torch.autocast(device_type=self.device.type, dtype=self.amp_dtype)
 
+    def generate(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """The restoration network's ``(generator_out, enhanced_out)`` for ``x`` (autocast)."""
+        with self._autocast():
+            outputs = self.network(x)
+        return outputs[0], outputs[1]
+
     def generator_terms(
-        self, x: Tensor, target: Tensor, valid: Tensor
+        self,
+        x: Tensor,
+        target: Tensor,
+        valid: Tensor,
+        outputs: tuple[Tensor, Tensor] | None = None,
+        real_features: list[Tensor] | None = None,
     ) -> tuple[Tensor, dict[str, Tensor], Tensor]:
-        """Forward pass and the restoration network's loss terms.
+        """The restoration network's loss terms (and its forward pass unless given).
+
+        Args:
+            x: the obstructed batch.
+            target: the clean batch.
+            valid: 1 where the target is trusted.
+            outputs: :meth:`generate`'s result for ``x`` (default: computed here).
+            real_features: ``D``'s features of the real pairs, as
+                :meth:`discriminator_pass` returns them (default: computed here,
+                without gradients).
+
+        ``D``'s weights take no gradient from these terms (they are frozen for
+        its pass over the generated pairs): only the restoration network learns
+        from them, and ``D`` is spared computing weight gradients it would drop.
 
         Returns:
             ``(weighted sum, {term: value}, generator_out)``, losses in fp32.
@@ -265,12 +292,14 @@ class Trainer:
         """
         weights = self.config.loss
         raw_d = _unwrap(self.discriminator)
+        generated, enhanced = outputs if outputs is not None else self.generate(x)
         with self._autocast():
-            outputs = self.network(x)
-            generated, enhanced = outputs[0], outputs[1]
-            with torch.no_grad():
-                real_features = raw_d(torch.cat([x, trusted_target(target, generated, valid)], 1))
-            fake_features = raw_d(torch.cat([x, generated], dim=1))
+            if real_features is None:
+                with torch.no_grad():
+                    real_pairs = torch.cat([x, trusted_target(target, generated, valid)], 1)
+                    real_features = raw_d(real_pairs)
+            with frozen(raw_d):
+                fake_features = raw_d(torch.cat([x, generated], dim=1))
         generated, enhanced = generated.float(), enhanced.float()
         fake = [f.float() for f in fake_features]
         real = [f.float() for f in real_features]
@@ -289,22 +318,35 @@ class Trainer:
         )
         return total, terms, generated
 
-    def discriminator_loss(
+    def discriminator_pass(
         self, x: Tensor, target: Tensor, generated: Tensor, valid: Tensor | None = None
-    ) -> Tensor:
-        """LSGAN loss of ``D`` on real pairs and detached generated pairs (fp32).
+    ) -> tuple[Tensor, list[Tensor]]:
+        """``D`` on the real and the (detached) generated pairs, in one forward pass.
 
         The real pairs' untrusted pixels (``valid`` 0) hold the generated ones,
         as :func:`trusted_target` gives feature matching.
+
+        Returns:
+            ``(LSGAN loss of D in fp32, the real pairs' features, detached)``:
+            the features are what feature matching compares the generated
+            pairs' with, so a step runs ``D`` over the real pairs once.
         """
         real = target if valid is None else trusted_target(target, generated, valid)
         pairs = torch.cat(
             [torch.cat([x, real], dim=1), torch.cat([x, generated.detach()], dim=1)], dim=0
         )
         with self._autocast():
-            logits = self.discriminator(pairs)[-1]
-        real, fake = logits.float().chunk(2, dim=0)
-        return discriminator_loss(real, fake)
+            features = self.discriminator(pairs)
+        half = x.shape[0]
+        real_features = [f[:half].detach() for f in features]
+        real_logits, fake_logits = features[-1].float().chunk(2, dim=0)
+        return discriminator_loss(real_logits, fake_logits), real_features
+
+    def discriminator_loss(
+        self, x: Tensor, target: Tensor, generated: Tensor, valid: Tensor | None = None
+    ) -> Tensor:
+        """LSGAN loss of ``D`` on real pairs and detached generated pairs (fp32)."""
+        return self.discriminator_pass(x, target, generated, valid)[0]
 
     def set_lr(self, lr: float) -> None:
         """Set the learning rate of both optimisers (the schedule: :func:`scheduled_lr`)."""
@@ -326,11 +368,13 @@ class Trainer:
         valid = batch["valid"].to(self.device, non_blocking=True)
         self.opt_g.zero_grad(set_to_none=True)
         self.opt_d.zero_grad(set_to_none=True)
-        loss_g, terms, generated = self.generator_terms(x, target, valid)
-        self.scaler.scale(loss_g).backward()
-        self.opt_d.zero_grad(set_to_none=True)  # D's gradients from the G loss are not D's
-        loss_d = self.discriminator_loss(x, target, generated, valid)
+        outputs = self.generate(x)
+        # D first, on the real and the detached generated pairs: its backward frees its
+        # graph before the network's, and its real features serve feature matching
+        loss_d, real_features = self.discriminator_pass(x, target, outputs[0], valid)
         self.scaler.scale(loss_d).backward()
+        loss_g, terms, _ = self.generator_terms(x, target, valid, outputs, real_features)
+        self.scaler.scale(loss_g).backward()
         # Backward always runs (DDP needs every process to take part); the update may not.
         self.scaler.unscale_(self.opt_g)
         self.scaler.unscale_(self.opt_d)
@@ -395,6 +439,22 @@ class Trainer:
         if state.get("scaler"):
             self.scaler.load_state_dict(state["scaler"])
         self.guard.total = int(state.get("skipped_steps", 0))
+
+
+@contextlib.contextmanager
+def frozen(module: nn.Module) -> Iterator[None]:
+    """``module``'s trainable parameters take no gradient from what runs inside.
+
+    Gradients still flow through the module to its inputs.
+    """
+    trainable = [p for p in module.parameters() if p.requires_grad]
+    for parameter in trainable:
+        parameter.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for parameter in trainable:
+            parameter.requires_grad_(True)
 
 
 def _grad_norm(module: nn.Module, clip: float | None, device: torch.device) -> Tensor:

@@ -48,6 +48,10 @@ def _train(rank: int, world: int, out: str) -> None:
             if parameter.grad is not None and parameter.grad.stride() != parameter.stride():
                 mismatched.append(name)
     state = {k: v.clone() for k, v in trainer.model.state_dict().items()}
+    # D too: its gradients are averaged only in its own backward, the network's loss
+    # leaves its weights frozen
+    discriminator = trainer.discriminator.module.state_dict()
+    state.update({f"D.{k}": v.clone() for k, v in discriminator.items()})
     torch.save(state, Path(out) / f"rank{rank}.pt")
     (Path(out) / f"rank{rank}.json").write_text(json.dumps(sorted(set(mismatched))))
     (Path(out) / f"rank{rank}.precision").write_text(trainer.decision.precision)
@@ -99,8 +103,11 @@ def test_two_process_ddp_ends_with_identical_weights(
     assert weights[0].keys() == weights[1].keys()
     for key in weights[0]:
         torch.testing.assert_close(weights[0][key], weights[1][key], rtol=0, atol=0, msg=key)
-    initial = Trainer(tiny_config(), CPU, decision=FP32).model.state_dict()
+    untrained = Trainer(tiny_config(), CPU, decision=FP32)
+    initial = untrained.model.state_dict()
     assert any(not torch.equal(initial[k], weights[0][k]) for k in initial), "nothing trained"
+    initial_d = untrained.discriminator.state_dict()
+    assert any(not torch.equal(v, weights[0][f"D.{k}"]) for k, v in initial_d.items())
     for rank in range(2):
         assert json.loads((tmp_path / f"rank{rank}.json").read_text()) == []
         # every rank trains at rank 0's precision, whatever its own measurement said

@@ -12,7 +12,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lenspair.model.networks.enhancer import Enhancer
+from lenspair.model.networks.enhancer import Enhancer, _ShiftedTapSum
 from lenspair.model.networks.generator import Generator, _reflect_border
 from lenspair.model.networks.tracing import exporting
 from lenspair.model.networks.variants import build_model
@@ -63,6 +63,29 @@ def test_enhancer_head_by_taps_has_the_layers_gradients() -> None:
     assert len(gradients[0]) == len(gradients[1]) == 1 + 2 + 2 * len(enhancer.scales)
     for by_layers, by_taps in zip(*gradients, strict=True):
         torch.testing.assert_close(by_taps, by_layers, rtol=1e-4, atol=1e-5)
+
+
+@settings(max_examples=15, deadline=None)
+@given(channels=st.sampled_from([1, 3]), height=st.integers(1, 6), width=st.integers(1, 6))
+def test_shifted_tap_sum_backward_is_the_exact_gradient(
+    channels: int, height: int, width: int
+) -> None:
+    # The head's shifted sum has its own backward (one gradient tensor instead of one
+    # per tap): checked against finite differences, one-pixel borders included.
+    taps = torch.rand(2, 3, 3, channels, height, width, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda t: _ShiftedTapSum.apply(t, torch.float64), (taps,))
+
+
+def test_shifted_tap_sum_gradient_keeps_the_taps_dtype() -> None:
+    # bf16 taps (autocast) are summed in fp32; their gradient comes back in bf16
+    taps = torch.rand(1, 3, 3, 1, 5, 4).to(torch.bfloat16).requires_grad_()
+    out = _ShiftedTapSum.apply(taps, torch.float32)
+    assert out.dtype == torch.float32
+    out.sum().backward()
+    assert taps.grad is not None and taps.grad.dtype == torch.bfloat16
+    # each tap's gradient counts the output pixels it reaches: the centre tap all 20
+    assert float(taps.grad[0, 1, 1].sum()) == 20.0
+    assert float(taps.grad[0, 0, 0].sum()) == 4 * 3
 
 
 def test_enhancer_head_by_taps_sums_bf16_taps_in_fp32() -> None:

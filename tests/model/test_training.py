@@ -112,6 +112,61 @@ def test_one_training_step_lowers_the_loss() -> None:
     assert float(after) < float(before)
 
 
+def _step_gradients(trainer: Trainer, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The gradients a training step hands its optimisers, by parameter name."""
+    named = {
+        **{f"G.{n}": p for n, p in trainer.network.named_parameters()},
+        **{f"D.{n}": p for n, p in trainer.discriminator.named_parameters()},
+    }
+    seen: dict[str, torch.Tensor] = {}
+
+    def record(optimizer: torch.optim.Optimizer) -> None:
+        ids = {id(p) for group in optimizer.param_groups for p in group["params"]}
+        for name, parameter in named.items():
+            if id(parameter) in ids and parameter.grad is not None:
+                seen[name] = parameter.grad.clone()
+
+    trainer.scaler.step = record  # type: ignore[method-assign]
+    assert not trainer.train_step(batch).skipped
+    return seen
+
+
+def _gradients(prefix: str, loss: torch.Tensor, module: torch.nn.Module) -> dict[str, torch.Tensor]:
+    named = dict(module.named_parameters())
+    gradients = torch.autograd.grad(loss, list(named.values()), retain_graph=True)
+    return {f"{prefix}.{n}": g for n, g in zip(named, gradients, strict=True)}
+
+
+def test_a_step_has_the_gradients_of_the_two_losses_taken_apart() -> None:
+    # The step shares D's pass over the real pairs between both losses and freezes D
+    # while it judges the network's output; the gradients must be those of the
+    # textbook step: the network's from its loss alone, D's from its own loss alone.
+    batch = _batch(seed=4)
+    trainer, reference = Trainer(tiny_config(), CPU), Trainer(tiny_config(), CPU)
+    reference.load_state_dict(trainer.state_dict())
+    x, target, valid = batch["input"], batch["target"], batch["valid"]
+    loss_g, _, generated = reference.generator_terms(x, target, valid)
+    loss_d = reference.discriminator_loss(x, target, generated, valid)
+    expected = {
+        **_gradients("G", loss_g, reference.network),
+        **_gradients("D", loss_d, reference.discriminator),
+    }
+    actual = _step_gradients(trainer, batch)
+    assert actual.keys() == expected.keys()
+    for name, gradient in expected.items():
+        torch.testing.assert_close(actual[name], gradient, rtol=1e-5, atol=1e-7, msg=name)
+
+
+def test_a_step_runs_the_discriminator_over_three_batches_not_four() -> None:
+    # real pairs once (both losses use them), generated pairs twice (detached for D,
+    # with gradient for the network)
+    trainer = Trainer(tiny_config(), CPU)
+    seen: list[int] = []
+    trainer.discriminator.register_forward_pre_hook(lambda _, args: seen.append(len(args[0])))
+    trainer.train_step(_batch())
+    assert sum(seen) == 3 * 2
+
+
 def test_untrusted_target_pixels_reach_no_loss_term_nor_the_discriminator() -> None:
     # fidelity and the perceptual loss left masked pixels out, but feature matching (weight
     # 10) and the discriminator saw the whole target as real: two targets differing only
