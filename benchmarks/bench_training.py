@@ -28,7 +28,9 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torch.utils.flop_counter import FlopCounterMode
 
+from benchmarks.machine import peaks as measure_peaks
 from lenspair.commands.argtypes import positive_int
 from lenspair.model.evaluation.latency import measure_latency
 from lenspair.model.precision import choose_precision
@@ -121,7 +123,12 @@ def measure(
     ]
     fastest = min(medians, key=medians.__getitem__)
     auto_vs_fastest = auto_time_over_fastest(medians, auto.precision)
-    return {
+    roofline = (
+        _fp32_roofline(trainers["fp32"], data, medians["fp32"], single["fp32"])
+        if device.type == "cpu"
+        else {}
+    )
+    return roofline | {
         "device": str(device) if device.type == "cpu" else torch.cuda.get_device_name(device),
         "threads": torch.get_num_threads(),
         "batch": batch,
@@ -168,6 +175,44 @@ def _single_thread_cpu_seconds(
     return {name: statistics.median(values) for name, values in cpu.items()}
 
 
+def step_flops(trainer: Trainer, data: dict[str, torch.Tensor]) -> float:
+    """FLOPs of one training step (convolutions and matrix products, forward and backward).
+
+    Counted by :class:`torch.utils.flop_counter.FlopCounterMode` over a real
+    step (which also trains the trainer one step further).
+    """
+    with FlopCounterMode(display=False) as counter:
+        trainer.train_step(data)
+    return float(counter.get_total_flops())
+
+
+def _fp32_roofline(
+    trainer: Trainer, data: dict[str, torch.Tensor], seconds: float, single_seconds: float
+) -> dict[str, Any]:
+    """The fp32 step against the fp32 peaks measured now, at the run's threads and at one.
+
+    The roofline is the step's FLOPs at the best GEMM-like peak
+    (:func:`benchmarks.machine.peaks`); the one-thread figure divides the
+    one-thread CPU time by the one-thread peak (CPU time as well).
+    """
+    flops = step_flops(trainer, data)
+    peak = max(measure_peaks(5, time.perf_counter).values())
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        single_peak = max(measure_peaks(5, time.thread_time).values())
+    finally:
+        torch.set_num_threads(threads)
+    return {
+        "fp32_step_gflop": flops / 1e9,
+        "fp32_peak_gflops": peak,
+        "fp32_roofline_seconds": flops / peak / 1e9,
+        "fp32_roofline_ratio": seconds / (flops / peak / 1e9),
+        "single_thread_fp32_peak_gflops": single_peak,
+        "single_thread_fp32_roofline_ratio": single_seconds / (flops / single_peak / 1e9),
+    }
+
+
 def _table(result: dict[str, Any]) -> str:
     lines = [
         f"Training step, GEA mono, batch {result['batch']}, crop {result['crop']}, "
@@ -192,6 +237,18 @@ def _table(result: dict[str, Any]) -> str:
             "; torch.compile not timed (--compile times it)"
             if compiled is None
             else f"; torch.compile's first step (compilation) took {compiled:.0f} s, not timed"
+        ),
+        *(
+            [
+                f"fp32 step: {result['fp32_step_gflop']:.0f} GFLOP (forward and backward, "
+                f"FlopCounterMode); at the fp32 peak measured in this run "
+                f"({result['fp32_peak_gflops']:.0f} GFLOP/s) that is "
+                f"{result['fp32_roofline_seconds']:.2f} s: the step takes "
+                f"{result['fp32_roofline_ratio']:.2f}x its roofline "
+                f"({result['single_thread_fp32_roofline_ratio']:.2f}x on one thread)",
+            ]
+            if "fp32_step_gflop" in result
+            else []
         ),
         "one thread, CPU time per step (robust to load): "
         + ", ".join(

@@ -1,13 +1,16 @@
 """The training benchmark times every native precision and the inference shapes it names."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import torch
+from torch.utils.flop_counter import FlopCounterMode
 
 from benchmarks import bench_training
 from lenspair.model.precision import choose_precision
+from lenspair.model.training.config import RunConfig
 
 
 def test_every_native_precision_and_inference_shape_is_in_the_json(
@@ -31,6 +34,32 @@ def test_every_native_precision_and_inference_shape_is_in_the_json(
     assert f"24x16 batch 3 | {batch3['median_ms']:.1f} |" in table
     assert f"{3000.0 / batch3['median_ms']:.1f} |" in table  # images/s of the batch
     assert "torch.compile not timed (--compile times it)" in table
+    # the fp32 step against the peak measured in the same run, as the table says it
+    roofline = result["fp32_step_gflop"] / result["fp32_peak_gflops"]
+    assert result["fp32_roofline_seconds"] == pytest.approx(roofline)
+    ratio = result["step_seconds_median"]["fp32"] / roofline
+    assert result["fp32_roofline_ratio"] == pytest.approx(ratio)
+    assert f"the step takes {ratio:.2f}x its roofline" in table
+
+
+def test_a_step_s_flops_grow_with_the_batch_and_count_the_backward() -> None:
+    cpu = torch.device("cpu")
+    batches = {n: bench_training._batch(n, 32, cpu) for n in (2, 4)}
+    flops = {
+        n: bench_training.step_flops(bench_training.Trainer(_tiny(n), cpu), data)
+        for n, data in batches.items()
+    }
+    assert flops[4] == 2 * flops[2] > 0
+    trainer = bench_training.Trainer(_tiny(2), cpu)
+    with FlopCounterMode(display=False) as forward_only, torch.no_grad():
+        trainer.network(batches[2]["input"])
+    # the network's forward is a small part: D's three passes and every backward count too
+    assert flops[2] > 3 * forward_only.get_total_flops()
+
+
+def _tiny(batch: int) -> RunConfig:
+    config = bench_training._config("fp32", batch)
+    return replace(config, model=replace(config.model, width=0.25, num_blocks=1))
 
 
 def test_the_table_says_what_torch_compile_s_compilation_took() -> None:
