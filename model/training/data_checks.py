@@ -115,7 +115,11 @@ def check_validation_images(
     limit: int | None,
     notes: list[str] | None = None,
 ) -> None:
-    """Validation pairs are large enough for SSIM's window: from headers, up front.
+    """Validation pairs are large enough for SSIM's window and readable, up front.
+
+    Sizes come from the headers; the pairs validation scores (at most
+    ``data.max_val_images``) are also decoded once, so a file cut off after
+    its header is found before training, not after the first epoch.
 
     Validation leaves a pair under the window out (with a warning, at the
     first validation), and refuses when it can score none: found only after
@@ -131,8 +135,8 @@ def check_validation_images(
         notes: collects the warning about some pairs instead of logging it.
 
     Raises:
-        DatasetError: every pair validation scores is under the window
-            (naming the folder, the window and the first three).
+        DatasetError: every pair validation scores is under the window or
+            unreadable (naming the folder and the first three).
     """
     found = _dataset_of(source, headers)
     if found is None:
@@ -140,26 +144,41 @@ def check_validation_images(
     paired, indices = found
     scored = [indices[position] for position in spread_indices(len(indices), limit)]
     window = gaussian_window().numel()  # the SSIM window of VAL_CONVENTION
-    small = []
+    small, unreadable = [], []
     for index in scored:
         height, width = headers[id(paired)][index][:2]
         if min(height, width) < window:
             small.append(f"{paired.entries[index].input_path} ({width}x{height})")
-    if not small:
-        return
+            continue
+        try:  # a pair whose header reads but whose pixels do not (a cut-off file)
+            paired[index]
+        except (ImageIOError, DatasetError) as exc:
+            unreadable.append(str(exc))
     where = paired.root if paired is source else f"the pairs held out of {paired.root}"
     what = f"smaller than validation's {window}x{window} SSIM window"
-    if len(small) == len(scored):
+    if len(small) + len(unreadable) == len(scored):
+        if not unreadable:
+            raise DatasetError(
+                f"{where}: every one of the {len(scored)} validation pair(s) is {what}, so "
+                f"none can be scored: {listed(small, 3, ', ')}; give validation pairs of at "
+                f"least {window}x{window} px"
+            )
         raise DatasetError(
-            f"{where}: every one of the {len(scored)} validation pair(s) is {what}, so none "
-            f"can be scored: {listed(small, 3, ', ')}; give validation pairs of at least "
-            f"{window}x{window} px"
+            f"{where}: none of the {len(scored)} validation pair(s) can be scored: "
+            f"{listed(unreadable + small, 3, '; ')}"
         )
-    warn_or_note(
-        notes,
-        f"{where}: validation leaves out {len(small)} of its {len(scored)} pairs, {what}: "
-        f"{listed(small, 3, ', ')}",
-    )
+    if small:
+        warn_or_note(
+            notes,
+            f"{where}: validation leaves out {len(small)} of its {len(scored)} pairs, {what}: "
+            f"{listed(small, 3, ', ')}",
+        )
+    if unreadable:
+        warn_or_note(
+            notes,
+            f"{where}: validation leaves out {len(unreadable)} of its {len(scored)} pairs, "
+            f"unreadable: {listed(unreadable, 3, '; ')}",
+        )
 
 
 def majority_channels(counts: dict[int, int]) -> int:

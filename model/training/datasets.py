@@ -26,6 +26,7 @@ from lenspair.dataset.readers import open_paired
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.data_checks import (
+    Headers,
     check_clean_images,
     check_training_images,
     check_validation_images,
@@ -113,8 +114,7 @@ def pairs_digest(path: Path, data: DataConfig) -> str | None:
     """
     notes: list[str] = []
     try:
-        train_source, val_source, _ = _split_sources(Path(path), data, notes)
-        (train_source, val_source), _ = pair_headers((train_source, val_source), notes)
+        train_source, val_source, _, _ = _good_split(Path(path), data, notes)
     except LenspairError:
         return None
     return recorded_digest(names_digest(_names(train_source), _names(val_source)))
@@ -153,11 +153,8 @@ def paired_training_data(
 
     """
     path = Path(path)
-    train_source, val_source, note = _split_sources(path, data, notes)
     # read before the first step, not in epoch 40
-    listed_pairs = len(train_source) + len(val_source)
-    (train_source, val_source), headers = pair_headers((train_source, val_source), notes)
-    left_out = listed_pairs - len(train_source) - len(val_source)
+    train_source, val_source, note, (headers, left_out) = _good_split(path, data, notes)
     counts = check_training_images(train_source, headers, data.crop_size, channels, notes)
     check_validation_images(val_source, headers, data.max_val_images, notes)
     found = majority_channels(counts) if counts else first_channels(train_source)
@@ -180,6 +177,37 @@ def paired_training_data(
     description += f"; {left_out} bad pairs left out" if left_out else ""
     description += f"; {names_digest(_names(train_source), _names(val_source))})"
     return TrainData(train=train, val=val, channels=resolved, description=description)
+
+
+def _good_split(
+    path: Path, data: DataConfig, notes: list[str] | None
+) -> tuple[PairSource, PairSource, str, tuple[Headers, int]]:
+    """:func:`_split_sources` without the bad pairs, and the good pairs' headers.
+
+    Where every pair held out by name hash is bad, the hold-out is chosen
+    again among the good pairs, and this is said: validation had been left
+    empty, and the run refused with "needs at least one validation pair"
+    while the warning naming the bad pairs went unsaid.
+
+    Returns:
+        ``(train, validation, note, (headers, bad pairs left out))``.
+    """
+    train_source, val_source, note = _split_sources(path, data, notes)
+    listed_pairs = len(train_source) + len(val_source)
+    (train_source, val_source), headers = pair_headers((train_source, val_source), notes)
+    left_out = listed_pairs - len(train_source) - len(val_source)
+    if note and len(val_source) == 0 and len(train_source) > 1:
+        paired, indices = (
+            (train_source.source, train_source.indices)
+            if isinstance(train_source, SubsetSource)
+            else (train_source, range(len(train_source)))
+        )
+        train_idx, val_idx = holdout_indices(_names(train_source), data.val_fraction, path)
+        train_source = SubsetSource(paired, [indices[i] for i in train_idx])
+        val_source = SubsetSource(paired, [indices[i] for i in val_idx])
+        note = f"validation: {len(val_idx)} pairs held out by name hash among the good ones"
+        warn_or_note(notes, f"{path}: every pair held out for validation is bad; {note}")
+    return train_source, val_source, note, (headers, left_out)
 
 
 def _of(used: int, total: int) -> str:

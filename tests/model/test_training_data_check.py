@@ -17,7 +17,11 @@ from lenspair.dataset.errors import DatasetError
 from lenspair.model.training.config import DataConfig
 from lenspair.model.training.config_loading import load_run_config, stored_run_config
 from lenspair.model.training.data_checks import majority_channels
-from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
+from lenspair.model.training.datasets import (
+    paired_training_data,
+    pairs_digest,
+    synthetic_training_data,
+)
 from tests.model.train_fixtures import (
     clean_image,
     tiny_config,
@@ -59,6 +63,42 @@ def test_a_bad_pair_is_found_before_training_and_left_out(tmp_path: Path, bad: s
         spoil(name)  # 6 of 8
     with pytest.raises(DatasetError, match=r"6 bad pair\(s\) of 8: .*more than half"):
         paired_training_data(folder, DataConfig(crop_size=24), None, seed=0)
+
+
+def test_a_bad_held_out_pair_moves_the_hold_out_to_good_pairs(tmp_path: Path) -> None:
+    # the pairs held out by name hash were all bad: validation was left empty and the run
+    # refused with "needs at least one validation pair", the warning naming them unsaid
+    folder = write_paired_folder(tmp_path / "pairs", count=6)
+    first = paired_training_data(folder, DataConfig(crop_size=24), None, seed=0)
+    held = [first.val.source[i].name for i in range(len(first.val))]
+    for name in held:
+        (folder / "target" / f"{name}.png").write_bytes(b"not an image")
+    notes: list[str] = []
+    data = paired_training_data(folder, DataConfig(crop_size=24), None, seed=0, notes=notes)
+    names = {data.val.source[i].name for i in range(len(data.val))}
+    assert len(data.val) >= 1 and not names & set(held)
+    assert len(data.train) + len(data.val) == 6 - len(held)
+    assert any("every pair held out for validation is bad" in note for note in notes)
+    assert "among the good ones" in data.description
+    assert pairs_digest(folder, DataConfig(crop_size=24)) in data.description
+
+
+def test_a_validation_pair_cut_off_after_its_header_is_found_before_training(
+    tmp_path: Path,
+) -> None:
+    # found only at the first validation: the epoch was trained, then lost with no last.pt
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 3, "val": 2})
+    target = dataset / "val" / "target" / "000.png"
+    whole = target.read_bytes()
+    target.write_bytes(whole[:300])  # the header reads, the pixels do not
+    notes: list[str] = []
+    paired_training_data(dataset, tiny_config().data, 1, 0, notes=notes)
+    (said,) = [note for note in notes if "unreadable" in note]
+    assert "validation leaves out 1 of its 2 pairs" in said and "000.png" in said
+    other = dataset / "val" / "target" / "001.png"
+    other.write_bytes(other.read_bytes()[:300])
+    with pytest.raises(DatasetError, match=r"none of the 2 validation pair\(s\) can be scored"):
+        paired_training_data(dataset, tiny_config().data, 1, 0)
 
 
 def test_a_training_image_smaller_than_the_crop_is_found_before_the_first_step(

@@ -173,12 +173,13 @@ def test_a_validation_pair_that_cannot_be_scored_is_left_out_not_fatal(
     assert any("002.png" in m for m in left_out)
     rows = (tmp_path / "run" / "metrics.csv").read_text().splitlines()
     assert len(rows) == 3 and (tmp_path / "run" / "checkpoints" / "best.pt").is_file()
-    for name in ("000", "001"):  # none can be scored: one error naming the first
+    for name in ("000", "001"):  # none can be scored: refused before training, naming them
         target = dataset / "val" / "target" / f"{name}.png"
         target.write_bytes(target.read_bytes()[:300])
-    unscored = r"no validation pair can be scored; the first: \S*000.png"
-    with pytest.raises(ModelError, match=unscored):
+    unscored = r"none of the 3 validation pair\(s\) can be scored: \S*000.png: truncated"
+    with pytest.raises(DatasetError, match=unscored):  # it was after the epoch, unsaved
         _train(dataset, tmp_path / "run2", tiny_config(epochs=1))
+    assert not (tmp_path / "run2").exists()
     for name in ("000", "001", "002"):  # too small, all of them: refused before training
         write_image(dataset / "val" / "input" / f"{name}.png", small)
         write_image(dataset / "val" / "target" / f"{name}.png", small)
@@ -401,6 +402,20 @@ def test_a_truncated_best_pt_is_moved_aside_on_resume(
     assert any("cannot be read" in m and "moved to best.pt.forgotten" in m for m in caplog.messages)
     said = capsys.readouterr().out
     assert "was missing or could not be used when the run resumed" in said
+
+
+@pytest.mark.parametrize("content", [b"", b"epoch,step,seconds\n"])
+def test_an_emptied_metrics_csv_is_said_on_resume(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, content: bytes
+) -> None:
+    # a missing file was said; an empty or header-only one lost the rows without a word
+    from lenspair.cli import main
+
+    dataset, run, _ = _cli_run(tmp_path)
+    (run / "metrics.csv").write_bytes(content)
+    assert main(["train", str(dataset), "--out", str(run), "--resume", "--max-steps", "4"]) == 0
+    said = [m for m in caplog.messages if "holds none of the run's rows" in m]
+    assert said and "are lost" in said[0]
 
 
 @pytest.mark.parametrize("content", [b"\x00\xff\xfe\x01", b"epoch,step,seconds\nx,y,z\n"])
