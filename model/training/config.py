@@ -88,9 +88,10 @@ class DataConfig:
         num_workers: DataLoader worker processes (0: load in the main process).
         drops: synthetic pretraining only: ``ours`` (defocused, brightened
             lens drops) or ``sharp`` (Porav et al.'s in-focus drops).
-        val_fraction: synthetic pretraining only: fraction of the clean
-            images held out for validation (chosen by a hash of the file
-            name, so the choice is deterministic and stable).
+        val_fraction: fraction held out for validation where there is no
+            validation split: of the clean images in synthetic pretraining,
+            of the pairs of a split-less paired folder (chosen by a hash of the
+            names, so the choice is deterministic and stable).
         anomaly_crops: real pairs only: share of training crops drawn to hold
             pixels where input and target differ
             (:func:`lenspair.model.training.pairs.anomaly_crop_box`); the rest
@@ -193,7 +194,8 @@ class TrainConfig:
             one is skipped without updating any weight).
         grad_clip: optional max gradient norm of the restoration network.
         val_every: validate (and maybe save ``best.pt``) every N epochs.
-        log_every: progress-bar / TensorBoard update interval, steps.
+        log_every: TensorBoard update interval, steps (unused without
+            TensorBoard; the progress bar updates every step).
         tensorboard: also log to ``RUN/tensorboard`` when it is installed.
         checkpoint_every_steps: also write ``last.pt`` every N optimiser steps
             within an epoch (``None``: by time only).
@@ -262,6 +264,10 @@ class TrainConfig:
             raise ValueError(f"grad_clip: expected > 0, got {self.grad_clip}")
 
 
+UNTRAINED_WITHOUT = ("adversarial", "feature_matching", "perceptual", "fidelity")
+"""The network's loss terms: with every weight 0 it learns nothing."""
+
+
 @dataclass(frozen=True)
 class LossConfig:
     """Weights of the loss terms.
@@ -289,6 +295,12 @@ class LossConfig:
         for f in ("adversarial", "feature_matching", "perceptual", "fidelity"):
             if getattr(self, f) < 0:
                 raise ValueError(f"{f}: expected >= 0, got {getattr(self, f)}")
+        if not any(getattr(self, f) > 0 for f in UNTRAINED_WITHOUT):
+            # all four 0: the network never changed while D trained on, exit 0
+            raise ValueError(
+                f"{', '.join(UNTRAINED_WITHOUT)}: all 0 leave the network untrained; give at "
+                "least one a weight above 0"
+            )
         if len(self.perceptual_layers) != 5:
             raise ValueError(
                 f"perceptual_layers: expected 5 weights, got {len(self.perceptual_layers)}"

@@ -96,6 +96,22 @@ def all_true(flag: bool, info: Distributed, device: torch.device) -> bool:
     return bool(value.item())
 
 
+def mean_over_processes(
+    values: dict[str, float], info: Distributed, device: torch.device
+) -> dict[str, float]:
+    """The mean of each of ``values`` over every process (``values`` without ``torchrun``).
+
+    Every process must hold the same keys (the same loss terms).
+    """
+    if not info.active or not values:
+        return values
+    names = sorted(values)
+    stacked = torch.tensor([values[name] for name in names], dtype=torch.float64, device=device)
+    dist.all_reduce(stacked, op=dist.ReduceOp.SUM)
+    means = (stacked / info.world_size).tolist()
+    return dict(zip(names, means, strict=True))
+
+
 def from_main(value: T, info: Distributed) -> T:
     """Rank 0's ``value`` on every process (``value`` itself without ``torchrun``).
 

@@ -24,7 +24,7 @@ from torch.utils.data.distributed import DistributedSampler
 
 from lenspair.core.progress import progress
 from lenspair.model.training.config import RunConfig, TrainConfig
-from lenspair.model.training.distributed import Distributed, all_true
+from lenspair.model.training.distributed import Distributed, all_true, mean_over_processes
 from lenspair.model.training.pairs import Sample
 from lenspair.model.training.periodic import CheckpointClock, save_progress
 from lenspair.model.training.run_files import RunPaths
@@ -205,7 +205,9 @@ def _train_epoch(
             reason = reason or "time budget reached on another process"
             break
     state.loss_sums, state.loss_steps = dict(sums), counted  # for a budget-stop checkpoint
-    return reason, {name: total / max(counted, 1) for name, total in sums.items()}
+    # each process saw its share of the batch: the epoch's loss is their mean, not rank 0's
+    means = {name: total / max(counted, 1) for name, total in sums.items()}
+    return reason, mean_over_processes(means, info, trainer.device)
 
 
 def _epoch_label(epoch: int, train: TrainConfig) -> str:

@@ -141,7 +141,7 @@ def resume_config(
     override = resolve_config(override, stored.model.channels or 1)
     if override.model != stored.model:
         raise ModelError(
-            f"--resume: the network of {run} is {stored.model}; --config asks for "
+            f"--resume: the network of {run} is {stored.model}; this command asks for "
             f"{override.model}; start a new run (or use --init) to change it"
         )
     check_resume_batch(checkpoint, paths.last, override)

@@ -129,7 +129,7 @@ def _resumed_rows(path: Path, state: RunState) -> list[dict[str, str]]:
     None past its step, and none of an epoch it has not completed (a
     checkpoint written on an epoch's last step precedes that epoch's
     validation row, which has the same step). A run that has validated but
-    whose file is gone loses those rows: said as a warning.
+    whose file is gone or emptied loses those rows: said as a warning.
 
     Raises:
         ModelError: the file is not a metrics table (one line naming it).
@@ -146,10 +146,9 @@ def _resumed_rows(path: Path, state: RunState) -> list[dict[str, str]]:
             f"{path}: a row without a whole-number epoch and step; move the file aside to "
             "resume without the run's earlier rows"
         ) from None
-    if not path.exists() and state.best_epoch:
-        log.warning(
-            "%s is missing: the rows of the run's first %d steps are lost", path, state.step
-        )
+    if not kept and state.best_epoch:  # an emptied file too, not only a missing one
+        what = "holds none of the run's rows" if path.exists() else "is missing"
+        log.warning("%s %s: the rows of the run's first %d steps are lost", path, what, state.step)
     return kept
 
 

@@ -94,7 +94,7 @@ def stop_reason(config: RunConfig, state: RunState, seconds: float) -> str | Non
     """
     train = config.train
     if state.epoch >= train.epochs:
-        return f"{train.epochs} epochs done"
+        return f"{train.epochs} epoch{'' if train.epochs == 1 else 's'} done"
     if train.patience and state.stale >= train.patience:
         return (
             f"early stopping: no better validation PSNR in {train.patience} validations "

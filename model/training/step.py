@@ -48,7 +48,7 @@ from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.variants import build_discriminator
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV, load_vgg19
 from lenspair.model.precision import PrecisionDecision, choose_precision
-from lenspair.model.training.config import RunConfig, TrainConfig
+from lenspair.model.training.config import UNTRAINED_WITHOUT, RunConfig, TrainConfig
 from lenspair.model.training.distributed import Distributed, all_true, from_main
 from lenspair.model.training.losses import (
     PerceptualLoss,
@@ -235,6 +235,13 @@ class Trainer:
         if self.vgg is not None:
             self.vgg = self.vgg.to(device)
             self.perceptual = PerceptualLoss(self.vgg, config.loss.perceptual_layers)
+        if self.perceptual is None and not any(
+            getattr(config.loss, name) > 0 for name in UNTRAINED_WITHOUT if name != "perceptual"
+        ):
+            raise ModelError(
+                f"loss: perceptual is the only term with a weight, and it is {PERCEPTUAL_DISABLED}"
+                "; without it the network would not train: give another term a weight above 0"
+            )
         self.guard = _Guard()
         self.val_skipped: dict[int, str] = {}  # validation pairs that cannot be scored
 

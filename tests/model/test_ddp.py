@@ -18,7 +18,11 @@ from torch.nn.parallel import DistributedDataParallel
 from lenspair.cli import main
 from lenspair.core.config import dump_yaml
 from lenspair.model.precision import PrecisionDecision
-from lenspair.model.training.distributed import Distributed, init_process_group
+from lenspair.model.training.distributed import (
+    Distributed,
+    init_process_group,
+    mean_over_processes,
+)
 from lenspair.model.training.step import Trainer
 from tests.model.train_fixtures import tiny_config, write_split_dataset
 
@@ -239,3 +243,24 @@ def test_a_run_refused_under_torchrun_tears_its_process_group_down(tmp_path: Pat
     for rank in range(2):
         assert "not divisible by 2 processes" in (tmp_path / f"rank{rank}.txt").read_text()
         assert json.loads((tmp_path / f"rank{rank}.left").read_text()) is False
+
+
+def _mean_worker(rank: int, world: int, port: int, out: str) -> None:
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
+    init_process_group("gloo", rank=rank, world_size=world)
+    try:
+        losses = {"loss_g": 4.0 + 2.0 * rank, "loss_d": 0.5 * (rank + 1)}
+        mean = mean_over_processes(losses, Distributed(rank, world, rank), CPU)
+    finally:
+        dist.destroy_process_group()
+    (Path(out) / f"rank{rank}.mean").write_text(json.dumps(mean))
+
+
+@pytest.mark.skipif(not dist.is_available() or not dist.is_gloo_available(), reason="no gloo")
+def test_the_epoch_losses_are_the_mean_over_processes(tmp_path: Path) -> None:
+    # metrics.csv and the log had rank 0's half of the batch alone: 4.310 under torchrun
+    # against 3.924 for the same run in one process
+    mp.spawn(_mean_worker, args=(2, _free_port(), str(tmp_path)), nprocs=2, join=True)
+    for rank in range(2):
+        said = json.loads((tmp_path / f"rank{rank}.mean").read_text())
+        assert said == {"loss_d": 0.75, "loss_g": 5.0}

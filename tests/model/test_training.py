@@ -20,7 +20,7 @@ from lenspair.model.checkpoint import load_checkpoint, load_model
 from lenspair.model.errors import ModelError, TrainingDivergedError
 from lenspair.model.networks.vgg import VGG19Features
 from lenspair.model.precision import Hardware, PrecisionDecision, choose_precision
-from lenspair.model.training.config import RunConfig, TrainConfig
+from lenspair.model.training.config import LossConfig, RunConfig, TrainConfig
 from lenspair.model.training.config_loading import load_run_config
 from lenspair.model.training.datasets import paired_training_data, synthetic_training_data
 from lenspair.model.training.distributed import distributed_from_env, init_distributed
@@ -98,6 +98,21 @@ def test_a_runtime_section_in_a_config_file_is_said_to_steer_nothing(
 
 
 # --- the step ----------------------------------------------------------------------
+
+
+def test_loss_weights_that_leave_the_network_untrained_are_refused(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # all four at 0 was accepted: loss_g 0, the network never changed, D trained on, exit 0
+    with pytest.raises(ValueError, match="leave the network untrained"):
+        LossConfig(adversarial=0, feature_matching=0, fidelity=0, perceptual=0)
+    assert LossConfig(adversarial=0, feature_matching=0, perceptual=0).fidelity > 0
+    # perceptual alone trains, where VGG19's weights are there; here they are not
+    monkeypatch.delenv("LENSPAIR_VGG19_WEIGHTS", raising=False)
+    config = tiny_config()
+    perceptual_only = LossConfig(adversarial=0, feature_matching=0, fidelity=0)
+    with pytest.raises(ModelError, match="perceptual is the only term with a weight"):
+        Trainer(replace(config, loss=perceptual_only), CPU)
 
 
 def test_one_training_step_lowers_the_loss() -> None:
