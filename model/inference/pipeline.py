@@ -98,7 +98,7 @@ def restore_input(
     if checked is None:  # restore's CLI checked it before loading the model
         checked = check_input(input_path, out_dir, options)
     kind, cameras, files = checked.kind, checked.cameras, checked.files
-    if kind in ("image", "folder"):
+    if kind not in ("rosbag1", "rosbag2"):
         _say_unused(input_path, kind, options)
     options = checked.options
     bag = kind in ("rosbag1", "rosbag2")
@@ -161,23 +161,39 @@ def restore_input(
     return report
 
 
+_KIND_NAMES = {
+    "image": "an image",
+    "folder": "a folder of images",
+    "euroc": "a EuRoC recording",
+    "folders": "a left/right recording",
+}
+
+
 def _say_unused(input_path: Path, kind: InputKind, options: RestoreOptions) -> None:
-    """Warn of options that mean nothing for an image or a folder of images."""
-    unused = [
-        option
-        for option, given in (
-            ("--camera", options.camera != "auto"),
-            ("--suffix", bool(options.suffix)),
-            ("--topics", options.topics is not None),
+    """Warn of options that mean nothing for this kind of input (not a bag).
+
+    ``--suffix`` and ``--topics`` are for bags alone; ``--camera`` for
+    recordings and bags.
+    """
+    given = [
+        (option, scope)
+        for option, scope, set_ in (
+            ("--camera", "recordings and bags", options.camera != "auto"),
+            ("--suffix", "bags", bool(options.suffix)),
+            ("--topics", "bags", options.topics is not None),
         )
-        if given
+        if set_ and not (scope == "recordings and bags" and kind in ("euroc", "folders"))
     ]
-    if unused:
+    for scope in dict.fromkeys(scope for _, scope in given):
+        options_said = " and ".join(option for option, s in given if s == scope)
+        verb = "applies" if len([o for o, s in given if s == scope]) == 1 else "apply"
         log.warning(
-            "%s: %s apply to recordings and bags; ignored for %s",
+            "%s: %s %s only to %s; ignored for %s",
             input_path,
-            " and ".join(unused),
-            "an image" if kind == "image" else "a folder of images",
+            options_said,
+            verb,
+            scope,
+            _KIND_NAMES.get(kind, kind),
         )
 
 

@@ -489,6 +489,19 @@ def test_a_frame_its_extension_s_format_cannot_hold_is_failed_and_copied_not_man
         np.testing.assert_array_equal(read_image(tmp_path / "out" / name), expected(backend, grey))
 
 
+def test_bag_options_on_a_recording_are_said_unused(
+    tmp_path: Path, backend: TorchBackend, caplog: pytest.LogCaptureFixture
+) -> None:
+    # on a EuRoC or left/right recording they were ignored without a word, exit 0
+    source = make_recording(tmp_path / "rec", frames=2)
+    options = RestoreOptions(camera="cam1", suffix="/r", topics=("/a", "/b"))
+    with caplog.at_level("WARNING"):
+        restore_input(source, tmp_path / "out", backend, options)
+    said = [m for m in caplog.messages if "ignored for a EuRoC recording" in m]
+    assert len(said) == 1 and "--suffix and --topics apply only to bags" in said[0]
+    assert "--camera" not in said[0]
+
+
 @pytest.mark.parametrize("kind", ["folder", "euroc"])
 def test_resume_writes_the_same_bytes(tmp_path: Path, backend: TorchBackend, kind: str) -> None:
     if kind == "folder":
@@ -574,7 +587,9 @@ def test_camera_options_on_a_folder_are_said_unused_and_do_not_bind_a_resume(
             source, tmp_path / "out", backend, RestoreOptions(camera="cam1", suffix="/r")
         )
     assert report.cameras == [] and report.restored == 3
-    assert any("--camera and --suffix apply to recordings and bags" in m for m in caplog.messages)
+    said = [m for m in caplog.messages if "ignored for a folder of images" in m]
+    assert any("--camera applies only to recordings and bags" in m for m in said)
+    assert any("--suffix applies only to bags" in m for m in said)
     again = restore_input(source, tmp_path / "out", backend, RestoreOptions(resume=True))
     assert again.resumed == 3
 
