@@ -283,12 +283,13 @@ def remove_stale_outputs(
     Only ``<t_ns>.png`` files named after a frame of this recording are ingest's
     own: a frame of ``records`` or of ``own_frames`` (every frame of both
     cameras, so that the outputs of a run with the other side declared
-    obstructed go too). Each deletion is logged. Any other file under
-    ``input/``, ``target/``, ``mask/`` was not written by ``capture-ingest``:
-    it is left in place with a warning.
+    obstructed go too). The deletions are counted in one line (each file at
+    debug level). Any other file under ``input/``, ``target/``, ``mask/`` was
+    not written by ``capture-ingest``: it is left in place with a warning.
     """
     listed = {out_dir / name for record in records for name in record.files.values()}
     frames = {str(record.t_ns) for record in records} | {str(t) for t in own_frames or ()}
+    removed: dict[str, int] = {}
     for kind in OUTPUT_KINDS:
         folder = out_dir / kind
         if not folder.is_dir():
@@ -298,9 +299,13 @@ def remove_stale_outputs(
                 continue
             if path.suffix == ".png" and path.stem in frames and path.is_file():
                 path.unlink()
-                logger.info("removed %s: written by an earlier run, not kept now", path)
+                removed[kind] = removed.get(kind, 0) + 1
+                logger.debug("removed %s: written by an earlier run, not kept now", path)
             else:
                 logger.warning("%s: not written by capture-ingest; left in place", path)
+    if removed:  # one line: a file each buried the warning that said why, on long recordings
+        counts = ", ".join(f"{count} from {kind}/" for kind, count in removed.items())
+        logger.info("%s: removed %s, written by an earlier run and not kept now", out_dir, counts)
 
 
 def still_valid(out_dir: Path, record: PairRecord) -> bool:

@@ -15,6 +15,7 @@ from lenspair.capture.errors import CaptureError
 from lenspair.capture.ingest import ingest_recording
 from lenspair.capture.ingest_report import set_report_aside
 from lenspair.capture.ingested import IngestReport, PairRecord, read_pairs, read_report
+from lenspair.capture.journal import remove_stale_outputs
 from lenspair.cli import main
 from lenspair.core.bitdepth import narrow, significant_bits, widen
 from lenspair.core.imageio import read_image
@@ -706,3 +707,20 @@ def test_a_bag_timed_by_its_log_time_says_so_in_report_json(tmp_path: Path) -> N
     (said,) = report.recording_problems
     assert said.startswith(f"{bag}: every header.stamp of /cam0/image_raw 0 ns")
     assert report.counts["recording_problems"] == 1
+
+
+def test_stale_outputs_are_removed_with_one_line_not_one_per_file(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # a rerun with the other side obstructed logged a line per file: tens of thousands on
+    # a long recording, burying the warning that said why
+    for kind, frames in (("input", (1, 2, 3)), ("target", (1, 2))):
+        for t in frames:
+            write_image(tmp_path / kind / f"{t}.png", np.zeros((4, 4), np.uint8))
+    write_image(tmp_path / "input" / "mine.png", np.zeros((4, 4), np.uint8))
+    with caplog.at_level(logging.INFO, logger="lenspair.capture.journal"):
+        remove_stale_outputs(tmp_path, [], own_frames={1, 2, 3})
+    removed = [r.getMessage() for r in caplog.records if ": removed " in r.getMessage()]
+    assert removed == [f"{tmp_path}: removed 3 from input/, 2 from target/, written by an "
+                       "earlier run and not kept now"]  # fmt: skip
+    assert sorted(p.name for p in tmp_path.rglob("*.png")) == ["mine.png"]
