@@ -21,7 +21,7 @@ from lenspair.capture.ingested import (
     read_report,
 )
 from lenspair.capture.journal import JOURNAL_FILE, LOCK_FILE
-from lenspair.core.errors import ImageIOError
+from lenspair.core.errors import ImageIOError, listed
 from lenspair.core.folderlock import lock_shared
 from lenspair.core.fsutil import sha256_bytes
 from lenspair.core.imageio import read_image
@@ -74,6 +74,15 @@ class Source:
         return "cam0" if self.report.obstructed == "cam1" else "cam1"
 
 
+def _ingested_inside(path: Path) -> list[str]:
+    """Names of the ingested recordings directly inside ``path`` (capture-ingest's ``--out``)."""
+    try:
+        children = sorted(path.iterdir())
+    except OSError:
+        return []
+    return [child.name for child in children if (child / PAIRS_FILE).is_file()]
+
+
 def load_source(path: Path) -> Source:
     """Read an ingested recording's ``report.json`` and ``pairs.jsonl``.
 
@@ -91,6 +100,11 @@ def load_source(path: Path) -> Source:
         raise DatasetError(f"{path}: {said}")
     for name in (PAIRS_FILE, REPORT_FILE):
         if not (path / name).is_file():
+            if recordings := _ingested_inside(path):
+                raise DatasetError(
+                    f"{path}: holds ingested recordings ({listed(recordings, 3, ', ')}), not "
+                    f"one: give those as sources, e.g. {path}/*"
+                )
             raise DatasetError(
                 f"{path}: missing {name} (not an ingested recording, or capture-ingest was "
                 "stopped before it finished: run it again)"

@@ -72,6 +72,6 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"simulate: {summary.frames} frames -> {summary.out_dir} "
         f"(cam0 {summary.images[0]} images, cam1 {summary.images[1]}; "
-        f"{summary.seconds_per_pair * 1000:.0f} ms per frame pair)"
+        f"{summary.seconds_per_pair * 1000:.0f} ms to render a frame pair, not counting writing)"
     )
     return 0

@@ -340,6 +340,16 @@ def test_missing_contract_file_is_an_error_naming_the_folder(
         build_dataset([source], tmp_path / "DS", DatasetConfig())
 
 
+def test_capture_ingest_s_out_given_as_a_source_points_to_its_recordings(
+    recording: RecordingFactory, tmp_path: Path
+) -> None:
+    # it said "missing pairs.jsonl ... capture-ingest was stopped: run it again"
+    source = recording("rec_a", n=2)
+    recording("rec_b", n=2)
+    with pytest.raises(DatasetError, match=r"holds ingested recordings \(rec_a, rec_b\), not one"):
+        build_dataset([source.parent], tmp_path / "DS", DatasetConfig())
+
+
 def test_bad_sources_are_errors(recording: RecordingFactory, tmp_path: Path) -> None:
     source = recording("rec_a", n=2)
     with pytest.raises(DatasetError, match="not a folder"):
