@@ -21,9 +21,11 @@ metrics.md and metrics.json, and the others are scored.
 
 Latency is measured as deployed: one image of the data's size, batch 1,
 after warm-up, median and p90 of --latency-runs runs, thread count stated;
-on the CPU, and on CUDA when the device is CUDA. EVAL_DIR defaults to
+on the CPU, and on CUDA when the device is CUDA; a precision other than fp32
+is timed beside fp32, what it saves beside what it costs. EVAL_DIR defaults to
 RUN/eval_<checkpoint>_<data>[_<split>][_<precision>][_<convention>] for
-RUN/checkpoints/<checkpoint>.pt (the precision named unless fp32, the convention
+RUN/checkpoints/<checkpoint>.pt, and to <checkpoint>_eval_<data>... beside any
+other checkpoint file (the precision named unless fp32, the convention
 unless skimage-gaussian; _2, _3, ... after it for a dataset of the same name
 elsewhere).
 --describe prints the parameter count and FLOPs at 540x360 and exits.
@@ -82,8 +84,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=out_folder,
         metavar="EVAL_DIR",
         help="report folder (default: RUN/eval_<checkpoint>_<data>[_<split>][_<precision>]"
-        "[_<convention>] for RUN/checkpoints/<checkpoint>.pt; _2, _3, ... for a namesake "
-        "dataset elsewhere)",
+        "[_<convention>] for RUN/checkpoints/<checkpoint>.pt, <checkpoint>_eval_<data>... "
+        "beside any other checkpoint; _2, _3, ... for a namesake dataset elsewhere)",
     )
     parser.add_argument(
         "--precision",

@@ -170,6 +170,21 @@ def test_default_eval_folder_sits_in_the_run(tmp_path: Path) -> None:
     assert not (tmp_path / "run" / "eval_best_ds_val_3").exists()
 
 
+def test_a_reduced_precision_is_timed_beside_fp32(tmp_path: Path) -> None:
+    # eval --precision int8 or bf16 showed its cost against fp32, not what it saves in time:
+    # the fp32 row needed a second eval
+    folder = write_paired_folder(tmp_path / "pairs", count=2)
+    checkpoint = make_checkpoint(tmp_path / "gea.pt")
+    cpu = {"bf16": [], "fp32": []}
+    for precision in cpu:
+        result = evaluate_checkpoint(checkpoint, folder, "test", CPU, precision=precision,
+                                     latency_runs=2)  # fmt: skip
+        cpu[precision] = [lat.precision for lat in result.latency if lat.device == "cpu"]
+    assert cpu == {"bf16": ["bf16", "fp32"], "fp32": ["fp32"]}
+    table = write_report(result, tmp_path / "out")["markdown"].read_text()
+    assert table.count("| cpu | fp32 |") == 1
+
+
 def test_odd_sizes_and_identical_images(tmp_path: Path) -> None:
     folder = tmp_path / "odd"
     rng = np.random.default_rng(0)
