@@ -10,7 +10,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from lenspair.model.training.pretrained import WEIGHTS_DIR
+from lenspair.model.checkpoint import WEIGHTS_DIR
 
 ROWS: list[tuple[str, str, str]] = [
     ("file", "file", "{}"),

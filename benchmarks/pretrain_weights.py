@@ -35,7 +35,7 @@ import yaml
 
 from lenspair.commands.argtypes import positive_int
 from lenspair.core.imageio import read_image
-from lenspair.model.checkpoint import load_model
+from lenspair.model.checkpoint import WEIGHTS_DIR, WEIGHTS_FILES, load_model
 from lenspair.model.evaluation.evaluate import evaluate_checkpoint
 from lenspair.model.evaluation.latency import measure_latency
 from lenspair.model.evaluation.scoring import score_tensors
@@ -43,8 +43,6 @@ from lenspair.model.training.config import DataConfig, RunConfig, TrainConfig
 from lenspair.model.training.pretrained import (
     FRAME,
     HELD_OUT_PLAIN,
-    WEIGHTS_DIR,
-    WEIGHTS_FILES,
     pretrain_on_natural_images,
     ship_weights,
     validation_drops,

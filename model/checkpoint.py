@@ -40,6 +40,13 @@ DETECTOR_FORMAT = "lenspair-detector-1"
 CHECKPOINT_VERSION = 1
 
 
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+"""Package data folder of the shipped weights (``lenspair/model/weights``)."""
+
+WEIGHTS_FILES: dict[int, str] = {1: "gea_ours_mono.pt", 3: "gea_ours_rgb.pt"}
+"""Shipped checkpoint per channel count."""
+
+
 def to_cpu(obj: Any) -> Any:
     """Copy every tensor inside nested dicts/lists/tuples to the CPU (detached)."""
     if isinstance(obj, torch.Tensor):
@@ -141,7 +148,11 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     if not path.is_file():
         hint = ""
         if str(path) == "pretrained":
-            hint = " ('pretrained' names the shipped weights for train --init only)"
+            shipped = " and ".join(str(WEIGHTS_DIR / name) for name in WEIGHTS_FILES.values())
+            hint = (
+                " ('pretrained' names the shipped weights for train --init only; elsewhere "
+                f"give the file: {shipped})"
+            )
         raise ModelError(f"{path}: checkpoint not found{hint}")
     other = _exported_kind(path) if path.stat().st_size else None
     if other is not None:

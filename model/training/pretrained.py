@@ -22,19 +22,19 @@ import numpy as np
 import torch
 
 from lenspair.core.imagewrite import write_image
-from lenspair.model.checkpoint import checkpoint_config, load_checkpoint, save_checkpoint
+from lenspair.model.checkpoint import (
+    WEIGHTS_DIR,
+    WEIGHTS_FILES,
+    checkpoint_config,
+    load_checkpoint,
+    save_checkpoint,
+)
 from lenspair.model.errors import ModelError
 from lenspair.model.training.config import RunConfig
 from lenspair.model.training.loop import TrainSummary, fit, resolve_config
 from lenspair.model.training.synthetic import OUR_DROPS, SyntheticDrops
 from lenspair.simulate.natural_images import HELD_OUT, NATURAL_IMAGES, load_natural_images
 from lenspair.simulate.natural_images import fit as fit_image
-
-WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
-"""Package data folder of the shipped weights (``lenspair/model/weights``)."""
-
-WEIGHTS_FILES: dict[int, str] = {1: "gea_ours_mono.pt", 3: "gea_ours_rgb.pt"}
-"""Shipped checkpoint per channel count."""
 
 FRAME = (480, 720)
 """Size the natural images are rendered at (Raindrop's 720x480)."""

@@ -12,7 +12,7 @@ from skimage.metrics import peak_signal_noise_ratio
 
 from benchmarks import model_card, pretrain_weights
 from lenspair.core.imageio import read_image
-from lenspair.model.training.pretrained import WEIGHTS_DIR, WEIGHTS_FILES
+from lenspair.model.checkpoint import WEIGHTS_DIR, WEIGHTS_FILES
 from tests.model.train_fixtures import write_split_dataset
 
 

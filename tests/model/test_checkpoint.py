@@ -183,8 +183,10 @@ def test_exported_models_are_named_for_what_they_are(tmp_path: Path) -> None:
     (tmp_path / "m.onnx").write_bytes(b"\x08\x07")  # any bytes: the suffix says what it is
     with pytest.raises(ModelError, match=r"an ONNX model .*restore also runs the \.onnx"):
         load_checkpoint(tmp_path / "m.onnx")
-    with pytest.raises(ModelError, match=r"shipped weights for train --init only"):
+    with pytest.raises(ModelError, match=r"shipped weights for train --init only") as shipped:
         load_checkpoint(Path("pretrained"))
+    named = str(shipped.value).split("give the file: ")[1].rstrip(")").split(" and ")
+    assert len(named) == 2 and all(load_checkpoint(Path(name)) for name in named)
 
 
 def test_a_runtime_key_of_a_newer_version_is_passed_over_but_a_section_typo_is_not(

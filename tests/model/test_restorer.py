@@ -10,10 +10,10 @@ from lenspair.cli import main
 from lenspair.core.bitdepth import narrow, widen
 from lenspair.core.imageio import read_image
 from lenspair.core.imagewrite import write_image
+from lenspair.model.checkpoint import WEIGHTS_DIR, WEIGHTS_FILES
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.restorer import Restorer
 from lenspair.model.training.config import RunConfig
-from lenspair.model.training.pretrained import WEIGHTS_DIR, WEIGHTS_FILES
 from tests.images import texture
 from tests.model.train_fixtures import make_checkpoint, tiny_config
 
