@@ -221,6 +221,12 @@ def _export_int8(
     loaded = load_model(args.checkpoint, "cpu")
     channels = loaded.config.model.channels or 1
     images = calibration_images(calibration, channels, size)
+    log.info(
+        "int8: calibrating %s on %d images of %s, then checking and timing it (minutes)",
+        int8_path(args.onnx),
+        len(images),
+        args.calibration,
+    )
     check = check_int8(loaded.network, channels, int8_path(args.onnx), size, images)
     print(check.summary())
     return {**dataclasses.asdict(check), "precision": decision.as_dict()}

@@ -329,10 +329,13 @@ def export_checkpoint(
     channels = loaded.config.model.channels or 1
     checks = []
     try:
+        sizes = f"{_size_text(size)} and {_size_text(other_size(size))}"
         if onnx_path is not None:
+            log.info("exporting %s, then checking and timing it at %s", onnx_path, sizes)
             checks.append(export_onnx(loaded.network, channels, onnx_path, size))
             log.debug("%s", checks[-1].summary())  # the CLI prints it
         if torchscript_path is not None:
+            log.info("exporting %s, then checking and timing it at %s", torchscript_path, sizes)
             checks.append(export_torchscript(loaded.network, channels, torchscript_path, size))
             log.debug("%s", checks[-1].summary())  # the CLI prints it
     except (RuntimeError, MemoryError) as exc:

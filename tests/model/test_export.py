@@ -106,6 +106,10 @@ def test_onnx_export_prints_lenspair_lines_only(
     # its own line stays, printed once (it was also logged, so it showed twice)
     assert printed.out.count("onnx: ") == 1
     assert not any("onnx: " in r.getMessage() for r in caplog.records if r.levelno >= logging.INFO)
+    # what it is doing is said before the long silent part (tens of seconds on a CPU)
+    stages = [r.getMessage() for r in caplog.records if r.getMessage().startswith("exporting ")]
+    assert stages == [f"exporting {tmp_path / 'm.onnx'}, then checking and timing it at 48x32 "
+                      "and 25x17"]  # fmt: skip
 
 
 def test_torchscript_export_reloads_and_matches(tmp_path: Path) -> None:
