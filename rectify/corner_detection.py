@@ -205,7 +205,7 @@ def marker_family(image: np.ndarray, at_least: int = 4) -> str | None:
 
 
 def spec_hint(images: list[np.ndarray], board: Board) -> str:
-    """Why a board spec may find the board in no view, from a few frames; ``""`` if unknown.
+    """Why a board spec may find the board in few or no views, from a few frames; ``""`` if unknown.
 
     For ``lenspair calibrate``'s error (its ``--board``): the first cause of
     :func:`_charuco_hint` or :func:`_squares_hint` seen, as a clause starting
@@ -217,26 +217,42 @@ def spec_hint(images: list[np.ndarray], board: Board) -> str:
     """
     if not images:
         return ""
-    return _charuco_hint(images, board) or _squares_hint(images[0], board)
+    return _charuco_hint(images, board) or next(
+        (hint for image in images if (hint := _squares_hint(image, board))), ""
+    )
 
 
 def _squares_hint(image: np.ndarray, board: Board) -> str:
-    """Why a chessboard may be found in no view: its squares counted, not its inner corners.
+    """Why a chessboard may be found in few or no views: its corners miscounted.
 
     A chessboard spec counts inner corners (OpenCV's, ROS's and Kalibr's
     convention): a board of 10x7 squares is ``chessboard:9x6``. Given as
-    ``10x7``, it is found in no view, and that was all that was said.
+    ``10x7``, it is found in no view, and that was all that was said; given a
+    corner short (``8x6``), OpenCV still finds that sub-grid in a few views,
+    and the calibration failed for "too few views". Nothing is said where the
+    spec itself is found in ``image``.
     """
-    if board.kind != "chessboard" or min(board.columns, board.rows) < 4:
+    if board.kind != "chessboard" or detect_corners(image, board, thorough=False) is not None:
         return ""
-    corners = replace(board, columns=board.columns - 1, rows=board.rows - 1)
-    if detect_corners(image, corners, thorough=False) is None:
-        return ""
-    return (
-        f"; the frames show a chessboard of {corners.columns}x{corners.rows} inner corners: "
-        f"the spec counts inner corners, not squares (chessboard:{corners.columns}x"
-        f"{corners.rows}:...)"
-    )
+    columns, rows = board.columns, board.rows
+    for other_columns, other_rows in (
+        (columns - 1, rows - 1),
+        (columns + 1, rows),
+        (columns, rows + 1),
+        (columns + 1, rows + 1),
+    ):
+        if min(other_columns, other_rows) < 3:
+            continue
+        corners = replace(board, columns=other_columns, rows=other_rows)
+        if detect_corners(image, corners, thorough=False) is None:
+            continue
+        squares = other_columns < columns
+        why = "counts inner corners, not squares" if squares else "counts every inner corner"
+        return (
+            f"; the frames show a chessboard of {other_columns}x{other_rows} inner corners: "
+            f"the spec {why} (chessboard:{other_columns}x{other_rows}:...)"
+        )
+    return ""
 
 
 def _charuco_hint(images: list[np.ndarray], board: Board) -> str:

@@ -316,8 +316,10 @@ def calibrate_recording(
         )
     except RectifyError as exc:  # name the recording and what was found in it
         views = [sum(found[i] is not None for found in detections) for i in (0, 1)]
-        # the board seen by both cameras: its frames may be paired out of step
-        hint = spec_hint(samples, board) if min(views) == 0 else _clock_hint(pairing)
+        # a miscounted board is found in a few views or none; seen by both cameras, the
+        # frames may also be paired out of step
+        hint = spec_hint(samples, board)
+        hint = hint or ("" if min(views) == 0 else _clock_hint(pairing))
         raise RectifyError(
             f"{recording_path}: {exc} ({len(pairs)} frame pairs examined; the board "
             f"{board.spec()} was found in {views[0]} cam0 and {views[1]} cam1 views){hint}"

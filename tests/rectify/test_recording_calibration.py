@@ -297,6 +297,13 @@ def test_a_chessboard_given_by_its_squares_is_said_to_count_inner_corners(
         calibrate_recording(tmp_path / "rec", squares, "pinhole-equi")
     assert "found in 0 cam0 and 0 cam1 views); " in str(caught.value)
     assert f"a chessboard of {board.cols}x{board.rows} inner corners" in str(caught.value)
+    # a corner short, OpenCV finds that sub-grid in a few views: "too few views", no hint
+    short = parse_board_spec(f"chessboard:{board.cols - 1}x{board.rows}:{board.square_m}")
+    with pytest.raises(RectifyError) as caught:
+        calibrate_recording(tmp_path / "rec", short, "pinhole-equi")
+    said = str(caught.value)
+    assert f"the frames show a chessboard of {board.cols}x{board.rows} inner corners" in said
+    assert "counts every inner corner" in said
 
 
 def test_frames_the_quick_check_missed_are_searched_again_only_where_it_may_pay(
