@@ -44,12 +44,12 @@ def map_tasks(
     """Run ``function`` over ``tasks`` in order, in a process pool when ``workers > 1``."""
     if workers <= 1 or len(tasks) <= 1:
         frame_work.set_context(context)
-        yield from progress((function(t) for t in tasks), desc=desc, total=len(tasks))
+        yield from progress((function(t) for t in tasks), desc=desc, total=len(tasks), unit="pair")
         return
     # Ctrl-C, or a task's error: the pool stops handing out work and ends its workers
     with spawn_pool(workers, frame_work.init_worker, (context, os.getpid())) as pool_map:
         results = pool_map(function, tasks, chunksize=max(1, min(8, len(tasks) // (4 * workers))))
-        yield from progress(results, desc=desc, total=len(tasks))
+        yield from progress(results, desc=desc, total=len(tasks), unit="pair")
 
 
 def run_frame_stage(

@@ -28,7 +28,8 @@ its mismatches; undetermined on defocused rain), with
 --device, the GPU when there is one) by judging each camera's views; report.json's
 side_check gives the inferred side and its confidence. Rerunning resumes an interrupted
 run and leaves finished outputs untouched; a rerun with another calibration, side, --size,
---time-offset or thresholds processes the frames again and says how many, naming the first
+--time-offset (or, from Python, other registration thresholds: ingest_recording's
+estimation and verify settings) processes the frames again and says how many, naming the first
 setting that differs (was X, now Y). One run at a time writes
 OUT/<recording>: a second one is refused at once, and so is a run while dataset-build
 reads the folder (and dataset-build while a run writes it).
