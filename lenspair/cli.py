@@ -248,7 +248,9 @@ def main(argv: list[str] | None = None) -> int:
         if own_hint is not None:
             hint = own_hint(args) or hint
         stopped = "terminated" if isinstance(exc, Terminated) else "interrupted"
-        if sys.stderr.isatty():  # a progress bar left open ends its line first
+        # a progress bar left open ends its line first (none shown: its module is not loaded)
+        bars = sys.modules.get("lenspair.core.progress")
+        if sys.stderr.isatty() or (bars is not None and bars.bar_shown()):
             print(file=sys.stderr)
         print(f"lenspair {args.command}: {stopped}; {hint}", file=sys.stderr)
         return TERMINATED if isinstance(exc, Terminated) else INTERRUPTED

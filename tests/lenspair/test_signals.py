@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from lenspair.cli import TERMINATED, Terminated, _sigterm_as_interrupt, main
+from lenspair.cli import INTERRUPTED, TERMINATED, Terminated, _sigterm_as_interrupt, main
 
 SAMPLES = Path(__file__).resolve().parents[2] / "calib_samples"
 
@@ -103,3 +103,28 @@ def test_other_libraries_info_lines_stay_out_of_a_commands_output(
     caplog.clear()
     assert main(["-v", "simulate", "rain", "--out", "unused"]) == 0
     assert "FakeTensor cache stats" in [r.getMessage() for r in caplog.records]
+
+
+def test_an_interruption_after_a_bar_starts_its_own_line_in_a_log_file(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # in a log file (not a terminal) the message continued the bar's last line:
+    # "...14/38 [00:04<00:09, 2.56frame/s]lenspair restore: terminated; ..."
+    import lenspair.commands.simulate as command
+    from lenspair.core import progress
+
+    def interrupted(args: object) -> int:
+        for _ in progress.progress(range(3), "rendering"):
+            pass
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(progress, "_SHOWN", [])
+    monkeypatch.setattr(command, "run", interrupted)
+    said = "lenspair simulate: interrupted; a rerun renders the recording again from its start\n"
+    monkeypatch.setenv("LENSPAIR_QUIET", "1")  # no bar shown, no line to end
+    assert main(["simulate", "rain", "--out", "unused"]) == INTERRUPTED
+    assert capsys.readouterr().err == said
+    monkeypatch.setenv("LENSPAIR_QUIET", "")
+    assert main(["simulate", "rain", "--out", "unused"]) == INTERRUPTED
+    err = capsys.readouterr().err
+    assert "rendering" in err and err.endswith(f"\n{said}")
