@@ -194,7 +194,10 @@ SCENARIOS = [
             "checkpoints/best.pt": _checkpoint_without_timings,
             "metrics.csv": _metrics_without_timings,
         },
-        skip=frozenset({"train.log"}),  # one section per session, with times
+        # train.log: one section per session, with times; best.pt.forgotten: a kill between
+        # a validation's best.pt and its last.pt leaves a best.pt the resume cannot vouch
+        # for, set aside by design (README) before the resumed run writes best.pt again
+        skip=frozenset({"train.log", "checkpoints/best.pt.forgotten"}),
     ),
     Scenario(
         "restore-folder",
