@@ -44,7 +44,7 @@ MOST_BAD_SHARE = 0.5
 folder given by mistake or a systematic fault (a resize applied to one side), not strays."""
 
 
-def _behind(source: PairSource) -> tuple[PairSource, Sequence[int]]:
+def pairs_behind(source: PairSource) -> tuple[PairSource, Sequence[int]]:
     """The pairs ``source`` picks from (a subset's source, else itself) and which it picks."""
     if isinstance(source, SubsetSource):
         return source.source, source.indices
@@ -53,7 +53,7 @@ def _behind(source: PairSource) -> tuple[PairSource, Sequence[int]]:
 
 def _dataset_of(source: PairSource, headers: Headers) -> tuple[PairedDataset, Sequence[int]] | None:
     """The paired folder behind ``source`` and the indices of its pairs, if its headers are read."""
-    paired, indices = _behind(source)
+    paired, indices = pairs_behind(source)
     if not isinstance(paired, PairedDataset) or id(paired) not in headers:
         return None
     return paired, indices
@@ -284,7 +284,7 @@ def pair_headers(
     headers: Headers = {}
     bad: dict[int, set[int]] = {}
     for source in sources:
-        paired, _ = _behind(source)
+        paired, _ = pairs_behind(source)
         if not isinstance(paired, PairedDataset) or id(paired) in headers:
             continue
         headers[id(paired)], problems = paired.header_problems()
@@ -302,7 +302,7 @@ def pair_headers(
 
 def _without(source: PairSource, bad: dict[int, set[int]]) -> PairSource:
     """``source`` without the pairs of its paired dataset listed in ``bad``."""
-    paired, indices = _behind(source)
+    paired, indices = pairs_behind(source)
     left_out = bad.get(id(paired))
     if not left_out:
         return source

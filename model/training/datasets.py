@@ -32,6 +32,7 @@ from lenspair.model.training.data_checks import (
     check_validation_images,
     majority_channels,
     pair_headers,
+    pairs_behind,
     warn_mixed,
     warn_or_note,
 )
@@ -197,11 +198,7 @@ def _good_split(
     (train_source, val_source), headers = pair_headers((train_source, val_source), notes)
     left_out = listed_pairs - len(train_source) - len(val_source)
     if note and len(val_source) == 0 and len(train_source) > 1:
-        paired, indices = (
-            (train_source.source, train_source.indices)
-            if isinstance(train_source, SubsetSource)
-            else (train_source, range(len(train_source)))
-        )
+        paired, indices = pairs_behind(train_source)
         train_idx, val_idx = holdout_indices(_names(train_source), data.val_fraction, path)
         train_source = SubsetSource(paired, [indices[i] for i in train_idx])
         val_source = SubsetSource(paired, [indices[i] for i in val_idx])
