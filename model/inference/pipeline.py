@@ -175,23 +175,20 @@ def _say_unused(input_path: Path, kind: InputKind, options: RestoreOptions) -> N
     ``--suffix`` and ``--topics`` are for bags alone; ``--camera`` for
     recordings and bags.
     """
-    given = [
-        (option, scope)
-        for option, scope, set_ in (
-            ("--camera", "recordings and bags", options.camera != "auto"),
-            ("--suffix", "bags", bool(options.suffix)),
-            ("--topics", "bags", options.topics is not None),
-        )
-        if set_ and not (scope == "recordings and bags" and kind in ("euroc", "folders"))
-    ]
-    for scope in dict.fromkeys(scope for _, scope in given):
-        options_said = " and ".join(option for option, s in given if s == scope)
-        verb = "applies" if len([o for o, s in given if s == scope]) == 1 else "apply"
+    unused: dict[str, list[str]] = {}  # scope -> the options given outside it
+    for option, scope, given in (
+        ("--camera", "recordings and bags", options.camera != "auto"),
+        ("--suffix", "bags", bool(options.suffix)),
+        ("--topics", "bags", options.topics is not None),
+    ):
+        if given and not (scope == "recordings and bags" and kind in ("euroc", "folders")):
+            unused.setdefault(scope, []).append(option)
+    for scope, said in unused.items():
         log.warning(
             "%s: %s %s only to %s; ignored for %s",
             input_path,
-            options_said,
-            verb,
+            " and ".join(said),
+            "applies" if len(said) == 1 else "apply",
             scope,
             _KIND_NAMES.get(kind, kind),
         )
