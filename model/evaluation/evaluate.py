@@ -207,10 +207,8 @@ def evaluate_checkpoint(
         first = scored[0]
         size = (int(first.input.shape[0]), int(first.input.shape[1]))
     if latency_runs > 0:
-        latency = _deployed_latency(network, channels, device, size, precision, latency_runs)
-        # what the precision saves in time, beside what it costs (versus_fp32)
-        latency += _deployed_latency(
-            loaded.network, channels, device, size, "fp32", latency_runs, beside=latency
+        latency = _deployed_latency(
+            network, loaded.network, channels, device, size, precision, latency_runs
         )
         loaded.network.to(device)
     split_text = (
@@ -350,44 +348,28 @@ def _deployed(
 
 def _deployed_latency(
     network: nn.Module,
+    fp32_network: nn.Module,
     channels: int,
     device: torch.device,
     size: tuple[int, int],
     precision: str,
     runs: int,
-    beside: list[Latency] | None = None,
 ) -> list[Latency]:
     """Batch-1 timings at ``size`` = (H, W): on the CPU, and on CUDA when available.
 
     ``device`` is the CUDA device to time on when it is one. fp16 is timed
-    at fp32 on the CPU; int8 (ONNX Runtime) on the CPU only. With ``beside``
-    (the timings of another precision) only the devices where ``beside``
-    has no row at ``precision`` are timed: the fp32 reference of a reduced
-    precision, where one is missing.
+    at fp32 on the CPU; int8 (ONNX Runtime) on the CPU only. Where a device
+    ran a reduced precision, ``fp32_network`` is timed there too: what the
+    precision saves in time, beside what it costs (``versus_fp32``).
     """
     cuda = device if device.type == "cuda" else torch.device("cuda")
     devices = [torch.device("cpu")] + ([cuda] if torch.cuda.is_available() else [])
     latency = []
     for where in devices:
-        timed_precision = "fp32" if (precision == "fp16" and where.type == "cpu") else precision
         if precision == "int8" and where.type != "cpu":
             continue
-        if beside is not None and (
-            not any(lat.device.startswith(where.type) for lat in beside)
-            or any(
-                lat.device.startswith(where.type) and lat.precision == timed_precision
-                for lat in beside
-            )
-        ):
-            continue
-        latency.append(
-            measure_latency(
-                network,
-                channels,
-                where,
-                (size[0], size[1]),
-                timed_precision,
-                runs=runs,
-            )
-        )
+        timed_precision = "fp32" if (precision == "fp16" and where.type == "cpu") else precision
+        latency.append(measure_latency(network, channels, where, size, timed_precision, runs=runs))
+        if timed_precision != "fp32":
+            latency.append(measure_latency(fp32_network, channels, where, size, "fp32", runs=runs))
     return latency
