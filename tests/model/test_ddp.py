@@ -6,6 +6,8 @@ import os
 import socket
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -32,6 +34,20 @@ STEPS = 3
 FP32 = PrecisionDecision("fp32", "fp32", "test", ("fp32",), "cpu", "test")
 # what auto may measure in a second process while the first measured fp32 faster
 BF16 = PrecisionDecision("bf16", "auto", "measured", ("bf16", "fp32"), "cpu", "test", 1.3)
+NEEDS_GLOO = pytest.mark.skipif(
+    not dist.is_available() or not dist.is_gloo_available(), reason="no gloo"
+)
+
+
+@contextmanager
+def _gloo_group(rank: int, world: int, port: int) -> Iterator[None]:
+    """A gloo process group on localhost for the ``with`` block, destroyed however it ends."""
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
+    init_process_group("gloo", rank=rank, world_size=world)
+    try:
+        yield
+    finally:  # as lenspair's fit tears down: the DDP wrappers first, then the group
+        dist.destroy_process_group()
 
 
 def _batch(seed: int) -> dict[str, torch.Tensor]:
@@ -95,15 +111,11 @@ def _pinned_groups() -> list[str]:
 
 
 def _worker(rank: int, world: int, port: int, out: str) -> None:
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
     torch.set_num_threads(1)
     before = _threads()
-    init_process_group("gloo", rank=rank, world_size=world)
-    try:
+    with _gloo_group(rank, world, port):
         _train(rank, world, out)
         dist.barrier()
-    finally:  # as lenspair's fit tears down: the DDP wrappers first, then the group
-        dist.destroy_process_group()
     # the group is gone, gloo's threads joined, none left to run into interpreter shutdown
     (Path(out) / f"rank{rank}.threads").write_text(json.dumps([before, _threads_down_to(before)]))
 
@@ -114,7 +126,7 @@ def _free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-@pytest.mark.skipif(not dist.is_available() or not dist.is_gloo_available(), reason="no gloo")
+@NEEDS_GLOO
 def test_two_process_ddp_ends_with_identical_weights(
     tmp_path: Path, capfd: pytest.CaptureFixture[str]
 ) -> None:
@@ -142,24 +154,20 @@ def _measuring_worker(rank: int, world: int, port: int, out: str) -> None:
     """A trainer on a CPU said to have native bf16, with auto's timing counted, not done."""
     from lenspair.model import precision
 
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
     torch.set_num_threads(1)
     timed: list[str] = []
     precision.native_precisions = lambda hardware: ("bf16", "fp32")  # type: ignore[assignment]
     precision.measure_bf16_speed = lambda task: timed.append(task) or 0.6  # type: ignore[assignment,func-returns-value]
-    init_process_group("gloo", rank=rank, world_size=world)
-    try:
+    with _gloo_group(rank, world, port):
         trainer = Trainer(tiny_config(amp=True), CPU, Distributed(rank, world, rank))
         result = {"timed": timed, "precision": trainer.decision.precision}
         result["speed"] = trainer.decision.bf16_speed
         del trainer
         dist.barrier()
-    finally:
-        dist.destroy_process_group()
     (Path(out) / f"rank{rank}.measured").write_text(json.dumps(result))
 
 
-@pytest.mark.skipif(not dist.is_available() or not dist.is_gloo_available(), reason="no gloo")
+@NEEDS_GLOO
 def test_only_rank_zero_times_bf16_and_every_rank_takes_its_choice(tmp_path: Path) -> None:
     # ranks that timed at once would share the cores, and rank 0 would time under their load
     mp.spawn(_measuring_worker, args=(2, _free_port(), str(tmp_path)), nprocs=2, join=True)
@@ -219,7 +227,7 @@ def _cli_worker(rank: int, world: int, port: int, argv: list[str], out: str) -> 
         raise SystemExit(code)
 
 
-@pytest.mark.skipif(not dist.is_available() or not dist.is_gloo_available(), reason="no gloo")
+@NEEDS_GLOO
 def test_under_torchrun_only_rank_zero_says_the_run_level_lines(tmp_path: Path) -> None:
     # The real CLI path: init_distributed from torchrun's variables, fit, the summary.
     dataset = write_split_dataset(tmp_path / "ds", {"train": 8})  # no val split: said, once
@@ -247,7 +255,7 @@ def test_under_torchrun_only_rank_zero_says_the_run_level_lines(tmp_path: Path) 
     assert "--resume with a changed config" not in said[1]
 
 
-@pytest.mark.skipif(not dist.is_available() or not dist.is_gloo_available(), reason="no gloo")
+@NEEDS_GLOO
 def test_a_run_refused_under_torchrun_tears_its_process_group_down(tmp_path: Path) -> None:
     # batch 3 over 2 processes is refused after the group is up, before training starts
     dataset = write_split_dataset(tmp_path / "ds", {"train": 8, "val": 2})
@@ -262,17 +270,13 @@ def test_a_run_refused_under_torchrun_tears_its_process_group_down(tmp_path: Pat
 
 
 def _mean_worker(rank: int, world: int, port: int, out: str) -> None:
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
-    init_process_group("gloo", rank=rank, world_size=world)
-    try:
+    with _gloo_group(rank, world, port):
         losses = {"loss_g": 4.0 + 2.0 * rank, "loss_d": 0.5 * (rank + 1)}
         mean = mean_over_processes(losses, Distributed(rank, world, rank), CPU)
-    finally:
-        dist.destroy_process_group()
     (Path(out) / f"rank{rank}.mean").write_text(json.dumps(mean))
 
 
-@pytest.mark.skipif(not dist.is_available() or not dist.is_gloo_available(), reason="no gloo")
+@NEEDS_GLOO
 def test_the_epoch_losses_are_the_mean_over_processes(tmp_path: Path) -> None:
     # metrics.csv and the log had rank 0's half of the batch alone: 4.310 under torchrun
     # against 3.924 for the same run in one process
