@@ -34,10 +34,6 @@ from lenspair.capture.recording import CAMERAS
 from lenspair.capture.rigfile import CameraName
 
 
-def _image_topics(reader: rosbag.BagReader) -> list[str]:
-    return sorted(name for name, info in reader.topics.items() if info.msgtype in IMAGE_TYPES)
-
-
 def bag_topics(
     path: Path, topics: tuple[str, str] | None = None
 ) -> tuple[list[str], dict[str, CameraName]]:
@@ -90,12 +86,14 @@ def bag_overview(
     """The :class:`BagOverview` of a bag, from one opening (a cut bag is scanned once)."""
     reader = rosbag.open_bag(Path(path))
     try:
-        image_topics = _image_topics(reader)
+        image_topics = sorted(
+            name for name, info in reader.topics.items() if info.msgtype in IMAGE_TYPES
+        )
         named, depth = _camera_topics(reader, Path(path), topics)
         counts = None
-        if rosbag.cut_note(reader) is None:
+        if (by_topic := rosbag.topic_counts(reader)) is not None:
             chosen = {topic for topic, camera in named.items() if camera in cameras}
-            counts = sum(int(c.msgcount) for c in reader.connections if c.topic in chosen)
+            counts = sum(by_topic.get(topic, 0) for topic in chosen)
     finally:
         reader.close()
     by_camera = sorted(named.items(), key=lambda item: item[1])
@@ -139,12 +137,14 @@ def _camera_topics(
     reader: rosbag.BagReader, path: Path, topics: tuple[str, str] | None
 ) -> tuple[dict[str, CameraName], list[str]]:
     """The cameras' topics and the depth topics left out of the choice (none when named)."""
-    image_topics = _image_topics(reader)
     if topics is not None:
-        rosbag.check_chosen(tuple(topics), image_topics, path)
+        rosbag.check_chosen(tuple(topics), rosbag.topic_types(reader), path)
         return {topics[0]: "cam0", topics[1]: "cam1"}, []
+    image_topics, empty = rosbag.image_topics_of(reader)
+    if not image_topics and not empty:
+        raise rosbag.no_image_topic(path, rosbag.topic_types(reader))
     if not image_topics:
-        raise CaptureError(f"{path}: no image topic (sensor_msgs/Image or CompressedImage)")
+        raise CaptureError(f"{path}: every image topic is empty: {', '.join(empty)}")
     cameras, depth = camera_candidates(image_topics, path, depth_topics(reader, image_topics))
     # A bag written by ``restore --suffix`` holds /cam1/image_raw and
     # /cam1/image_raw<suffix> (any suffix): the cameras are the original topics,
@@ -152,7 +152,7 @@ def _camera_topics(
     originals = [t for t in cameras if not any(t.startswith(o + "/") for o in cameras)]
     if len(originals) == 1:
         return {originals[0]: "cam0"}, depth
-    cam0, cam1 = rosbag.select_topics(originals, path)
+    cam0, cam1 = rosbag.select_topics(originals, path, empty=empty)
     return {cam0: "cam0", cam1: "cam1"}, depth
 
 
@@ -229,5 +229,7 @@ def _bag_messages(
         note = rosbag.cut_note(reader)
         if note is not None and problems is not None:
             problems.append(f"{path}: reading stopped early after {read} messages ({note})")
+        elif (note := rosbag.salvage_note(reader)) is not None and problems is not None:
+            problems.append(f"{path}: {note}")
     finally:
         reader.close()

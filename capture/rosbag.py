@@ -133,7 +133,10 @@ def _parent(topic: str) -> str:
 
 
 def select_topics(
-    image_topics: Sequence[str], bag: Path, depth: Collection[str] = ()
+    image_topics: Sequence[str],
+    bag: Path,
+    depth: Collection[str] = (),
+    empty: Sequence[str] = (),
 ) -> tuple[str, str]:
     """Choose the ``(cam0, cam1)`` topics among a bag's image topics.
 
@@ -143,6 +146,8 @@ def select_topics(
     ``<topic>/compressed``, ``<topic>/restored``).
     Topics naming ``cam0``/``cam1`` win, then ``left``/``right`` (left =
     cam0); otherwise exactly two image topics are taken in sorted order.
+    ``empty`` names the image topics already left out as holding no message
+    (:func:`image_topics_of`), for the error.
 
     Raises:
         CaptureError: fewer than two image topics besides depth topics, or
@@ -159,6 +164,7 @@ def select_topics(
     if len(found) < 2:
         besides = f"; {depth_note(left_out)}" if left_out else ""
         besides += f"; copies of a camera left out: {', '.join(copies)}" if copies else ""
+        besides += f"; empty image topics left out: {', '.join(empty)}" if empty else ""
         raise CaptureError(
             f"{bag}: need two image topics (sensor_msgs/Image or CompressedImage), "
             f"found {len(found)}: {listing}{besides}"
@@ -192,12 +198,14 @@ def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
     path = Path(path)
     reader = open_bag(path)
     try:
-        available = {name: info.msgtype for name, info in reader.topics.items()}
-        image_topics = [name for name, msgtype in available.items() if msgtype in IMAGE_TYPES]
-        depth = [] if topics is not None else depth_topics(reader, image_topics)
+        available = topic_types(reader)
+        candidates, empty = image_topics_of(reader)
+        depth = [] if topics is not None else depth_topics(reader, candidates)
         try:
-            chosen = select_topics(image_topics, path, depth) if topics is None else tuple(topics)
-            check_chosen(chosen, image_topics, path)
+            if topics is None and not candidates and not empty:
+                raise no_image_topic(path, available)
+            chosen = select_topics(candidates, path, depth, empty) if topics is None else topics
+            check_chosen(chosen, available, path)
         except CaptureError as exc:
             note = cut_note(reader)  # a cut may have left out a topic's first record
             if note is not None:
@@ -213,6 +221,8 @@ def read_bag(path: Path, topics: tuple[str, str] | None = None) -> Recording:
             read = {camera: len(frames) for camera, frames in listed.items()}
             reason = f"reading stopped early ({note}); frames read before: {read}"
             problems.append(FrameProblem(None, None, str(path), reason))
+        elif (note := salvage_note(reader)) is not None:
+            problems.append(FrameProblem(None, None, str(path), note, dropped=False))
     finally:
         with suppress(Exception):
             reader.close()
@@ -297,13 +307,21 @@ def open_bag(path: Path) -> BagReader:
             failure = one_line(exc)
         else:
             return reader
+    if path.is_dir() and sum(p.suffix.lower() in ROS2_STORAGE_SUFFIXES for p in path.iterdir()) > 1:
+        # a split bag: only its metadata.yaml says how its files go together
+        raise CaptureError(
+            f"{path}: cannot open bag ({failure}); its storage files are read through "
+            f"metadata.yaml: run `ros2 bag reindex {path}` to write it again"
+        )
     try:
-        return salvage_bag(path)
+        salvaged = salvage_bag(path)
     except (CaptureError, OSError) as exc:
         raise CaptureError(
             f"{path}: cannot open bag ({failure}); reading it record by record "
             f"found nothing to keep ({one_line(exc)})"
         ) from None
+    salvaged.refused = failure
+    return salvaged
 
 
 def _starts_with(path: Path, magic: bytes) -> bool:
@@ -332,22 +350,91 @@ _CACHE = OpenBags(size=4, opener=open_bag, one_query=_scans_one_file)
 
 def cut_note(reader: BagReader) -> str | None:
     """One line saying where a bag cut short stopped, or None for a whole bag."""
-    return reader.cut if isinstance(reader, SalvagedBag) else None
+    return reader.cut if isinstance(reader, SalvagedBag) and not reader.whole else None
 
 
-def check_chosen(chosen: tuple[str, ...], image_topics: list[str], bag: Path) -> None:
+def salvage_note(reader: BagReader) -> str | None:
+    """One line for a whole bag that ``rosbags`` refused and was read record by record, else None.
+
+    Such a bag lost nothing (a message definition naming a type it never
+    defines, as rosjava writes them; an unreadable ``metadata.yaml``), but
+    why ``rosbags`` refused it is worth a line: a split bag missing one of
+    its files says so here.
+    """
+    if not isinstance(reader, SalvagedBag) or not reader.whole:
+        return None
+    return f"rosbags could not open the bag ({reader.refused}); {reader.cut}"
+
+
+def topic_types(reader: BagReader) -> dict[str, str]:
+    """Every topic of the bag and its message type (a type the bag does not say: "unknown")."""
+    return {name: info.msgtype or "unknown type" for name, info in reader.topics.items()}
+
+
+def topic_counts(reader: BagReader) -> dict[str, int] | None:
+    """Messages per topic from the bag's index (or a whole scan); None for a bag cut short."""
+    if cut_note(reader) is not None:
+        return None
+    return {name: int(info.msgcount) for name, info in reader.topics.items()}
+
+
+def image_topics_of(reader: BagReader) -> tuple[list[str], list[str]]:
+    """A bag's image topics that may hold a camera (sorted), and those left out as empty.
+
+    A topic the index counts no message on is left out of the automatic
+    choice: ``ros2 bag record -a`` often records a camera's raw topic empty
+    (never published, or a QoS mismatch) beside its ``/compressed`` twin,
+    which holds the frames. Where no topic counts any message (an empty
+    bag, a storage that keeps no counts) or the bag is cut short, none is
+    left out.
+    """
+    found = sorted(name for name, info in reader.topics.items() if info.msgtype in IMAGE_TYPES)
+    counts = topic_counts(reader)
+    if not counts or not any(counts.values()):
+        return found, []
+    empty = [topic for topic in found if counts.get(topic, 0) == 0]
+    return [topic for topic in found if topic not in empty], empty
+
+
+def check_chosen(chosen: tuple[str, ...], available: Mapping[str, str], bag: Path) -> None:
     """Check that ``chosen`` names two different image topics of ``bag``.
 
+    Args:
+        chosen: the topics given (``--topics``).
+        available: every topic of the bag and its message type.
+        bag: the bag, for the message.
+
     Raises:
-        CaptureError: not two different topics, or one that is not among
-            ``image_topics`` (lists them).
+        CaptureError: not two different topics, or one that is not in the bag
+            or not of an image type (says which, and lists the image topics).
     """
-    listing = ", ".join(sorted(image_topics)) or "none"
+    images = sorted(name for name, msgtype in available.items() if msgtype in IMAGE_TYPES)
+    listing = ", ".join(images) or f"none ({_all_topics(available)})"
     if len(chosen) != 2 or chosen[0] == chosen[1]:
         raise CaptureError(f"{bag}: need two different topics, got {chosen}")
     for topic in chosen:
-        if topic not in image_topics:
-            raise CaptureError(f"{bag}: {topic} is not an image topic; image topics: {listing}")
+        if topic not in available:
+            raise CaptureError(f"{bag}: no topic {topic} in the bag; image topics: {listing}")
+        if topic not in images:
+            raise CaptureError(
+                f"{bag}: {topic} is a {available[topic]}, not an image; image topics: {listing}"
+            )
+
+
+def no_image_topic(bag: Path, available: Mapping[str, str]) -> CaptureError:
+    """The error for a bag without any image topic: it lists the topics the bag does hold."""
+    return CaptureError(
+        f"{bag}: no image topic (sensor_msgs/Image or CompressedImage); {_all_topics(available)}"
+    )
+
+
+def _all_topics(available: Mapping[str, str], most: int = 8) -> str:
+    """The bag's topics with their types, for a bag holding no image topic (at most ``most``)."""
+    if not available:
+        return "the bag holds no topic"
+    named = [f"{name} ({msgtype})" for name, msgtype in sorted(available.items())[:most]]
+    more = f" and {len(available) - most} more" if len(available) > most else ""
+    return "its topics: " + ", ".join(named) + more
 
 
 def _list_messages(

@@ -36,10 +36,9 @@ gigabytes was read from end to end each time.
 import copy
 import hashlib
 import os
-import struct
 import threading
 from bisect import bisect_left
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from collections.abc import Collection, Generator
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -54,7 +53,12 @@ from rosbags.rosbag2.storage_mcap import decompress
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.salvage_db3 import Db3Layout, read_db3_data, scan_db3
+from lenspair.capture.salvage_db3 import (
+    Db3Layout,
+    read_db3_data,
+    scan_db3,
+    shorter_than_header,
+)
 from lenspair.capture.salvage_records import (
     CUT_CHUNK,
     MCAP_MAGIC,
@@ -67,9 +71,10 @@ from lenspair.capture.salvage_records import (
 
 
 class _Topic(NamedTuple):
-    """What :mod:`lenspair.capture.rosbag` reads of a topic."""
+    """What :mod:`lenspair.capture.rosbag` reads of a topic (as ``rosbags``' ``TopicInfo``)."""
 
     msgtype: str
+    msgcount: int = 0
 
 
 class _Entry(NamedTuple):
@@ -97,6 +102,9 @@ class SalvagedBag:
         connections: connections seen before the cut.
         topics: topic -> info with ``msgtype``.
         cut: one line: file, byte where reading stopped, messages kept, why.
+        whole: the scan read the file to its end: nothing was cut (``rosbags``
+            refused the bag for another reason, such as a message definition
+            naming an undefined type or an unreadable ``metadata.yaml``).
         db3: for a ``.db3``, its page layout (rows are read from the file).
     """
 
@@ -107,6 +115,8 @@ class SalvagedBag:
         self.connections: list[Connection] = []
         self.topics: dict[str, _Topic] = {}
         self.cut = ""
+        self.whole = False
+        self.refused = ""  # why rosbags could not open it (lenspair.capture.rosbag.open_bag)
         self._entries: list[_Entry] = []
         self.chunks: list[tuple[int, int, str, int, int]] = []  # pos, size, codec, usize, crc
         self._cached: tuple[int, bytes] = (-1, b"")
@@ -179,14 +189,19 @@ class SalvagedBag:
         """Complete messages found."""
         return len(self._entries)
 
-    def finish(self, stopped_at: int, why: str) -> None:
-        """Order the messages by log time, write :attr:`cut`, build the typestore."""
+    def finish(self, stopped_at: int, why: str, whole: bool = False) -> None:
+        """Order the messages, write :attr:`cut` (or :attr:`whole`), count topics, build types."""
         self._entries.sort(key=lambda e: (e.log_time, e.order))
         size = self.storage.stat().st_size
+        self.whole = whole
         self.cut = (
-            f"{self.storage}: cut short ({size} bytes): kept the {len(self._entries)} complete "
-            f"messages before byte {stopped_at}; {why}"
+            f"{self.storage}: read record by record: all {len(self._entries)} messages ({why})"
+            if whole
+            else f"{self.storage}: cut short ({size} bytes): kept the {len(self._entries)} "
+            f"complete messages before byte {stopped_at}; {why}"
         )
+        counts = Counter(entry.connection.topic for entry in self._entries)
+        self.topics = {name: _Topic(t.msgtype, counts[name]) for name, t in self.topics.items()}
         self._typestore = _typestore(self.connections, self.is_ros1)
         if not self.is_ros1:
             # Writers (restore's copy of the bag) need a definition and hash per
@@ -311,13 +326,7 @@ def is_cut_db3(path: Path) -> bool:
             head = bio.read(100)
     except (CaptureError, OSError):
         return False
-    if len(head) < 100 or not head.startswith(SQLITE_MAGIC):
-        return False
-    if head[24:28] != head[92:96]:  # SQLite ignores a page count not kept up to date
-        return False
-    (page_size,) = struct.unpack_from(">H", head, 16)
-    (pages,) = struct.unpack_from(">L", head, 28)
-    return storage.stat().st_size < (65536 if page_size == 1 else int(page_size)) * int(pages)
+    return head.startswith(SQLITE_MAGIC) and shorter_than_header(head, storage.stat().st_size)
 
 
 def _storage_file(path: Path) -> Path:

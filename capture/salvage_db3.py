@@ -51,6 +51,20 @@ class Db3Layout(NamedTuple):
     size: int  # bytes in the file
 
 
+def shorter_than_header(head: bytes, size: int) -> bool:
+    """Whether a ``.db3`` of ``size`` bytes whose first 100 bytes are ``head`` is cut short.
+
+    SQLite's header counts the file's pages; a count not kept up to date (its
+    change counter differs from the one stored beside it) is ignored, as
+    SQLite ignores it.
+    """
+    if len(head) < 100 or head[24:28] != head[92:96]:
+        return False
+    (page_size,) = struct.unpack_from(">H", head, 16)
+    (pages,) = struct.unpack_from(">L", head, 28)
+    return size < (65536 if page_size == 1 else int(page_size)) * int(pages)
+
+
 class _Row(NamedTuple):
     rowid: int
     topic_id: int
@@ -79,7 +93,8 @@ def scan_db3(bag: "SalvagedBag") -> None:
     for row in sorted(rows.values()):
         if row.topic_id in known:
             bag.add_message(known[row.topic_id], row.log_time, -2, row.cell, row.data_size)
-    bag.finish(size, "a row with a byte past the cut is lost")
+    whole = not shorter_than_header(head, size)
+    bag.finish(size, "a row with a byte past the cut is lost", whole=whole)
 
 
 def read_db3_data(bio: IO[bytes], layout: Db3Layout, cell: int) -> bytes:

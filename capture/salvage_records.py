@@ -71,6 +71,7 @@ def scan_ros1(bag: "SalvagedBag", bio: Any) -> None:
     bio.readline()
     known: dict[int, Connection] = {}
     stopped_at, why = bio.tell(), "end of the records"
+    index_pos = 0
     while bio.tell() < size:
         start = bio.tell()
         try:
@@ -111,12 +112,26 @@ def scan_ros1(bag: "SalvagedBag", bio: Any) -> None:
             bag.add_message(connection, header.get_time("time"), -1, datapos, length)
             stopped_at = datapos + length
         elif complete:
+            if op == RecordType.BAGHEADER:  # where the index starts (0: never closed)
+                index_pos = header.get_uint64("index_pos")
             stopped_at = datapos + length
         if not complete:
             why = f"the {RecordType(op).name.lower()} record at byte {start} is incomplete"
             break
         bio.seek(datapos + length)
+    else:  # every record complete; cut only where it ended before the index said it begins
+        bag.finish(stopped_at, why, whole=index_pos <= size)
+        return
     bag.finish(stopped_at, why)
+
+
+def _ends_with(bio: Any, size: int, magic: bytes) -> bool:
+    """Whether the ``size``-byte file open as ``bio`` ends with ``magic`` (position kept)."""
+    where = bio.tell()
+    bio.seek(size - len(magic))
+    found = bio.read(len(magic)) == magic
+    bio.seek(where)
+    return bool(found)
 
 
 def _cut_chunk(start: int, codec: str, got: int, decoded: int, kept: int) -> str:
@@ -194,6 +209,10 @@ def scan_mcap(bag: "SalvagedBag", bio: Any) -> None:
         op, length = struct.unpack("<BQ", head)
         if op in (0x02, 0x0F):  # footer, data end: the data section is whole
             why = "the cut lies after the data section"
+            if size >= len(MCAP_MAGIC) and _ends_with(bio, size, MCAP_MAGIC):
+                why = "the data section is whole"  # and the file ends as one written whole
+                bag.finish(stopped_at, why, whole=True)
+                return
             break
         content = bio.read(min(length, size - start - 9))
         complete = len(content) == length
