@@ -166,10 +166,21 @@ def open_recording(
             return euroc.read_euroc(path, root, cameras)
         if folders.is_left_right(path):
             return folders.read_folders(path, cameras)
-    hint = rosbag.storage_without_metadata(path)
+    hint = rosbag.storage_without_metadata(path) or _bags_inside(path)
     if hint is not None:
         raise CaptureError(f"{path}: unknown recording layout: {hint}")
     raise CaptureError(f"{path}: unknown recording layout; expected {EXPECTED_LAYOUTS}")
+
+
+def _bags_inside(folder: Path) -> str | None:
+    """What to pass instead of a folder of bags (a robot's ``bags/``), or None for no bag in it."""
+    if not folder.is_dir():
+        return None
+    bags = sorted(entry.name for entry in folder.iterdir() if rosbag.is_bag(entry))
+    if not bags:
+        return None
+    named = ", ".join(bags[:3]) + (f" and {len(bags) - 3} more" if len(bags) > 3 else "")
+    return f"a folder of bags ({named}); pass each bag itself (one recording per run)"
 
 
 def _refuse_unfinished_simulation(path: Path) -> None:

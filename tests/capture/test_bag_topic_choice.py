@@ -186,3 +186,14 @@ def test_a_split_bag_without_readable_metadata_says_to_reindex(tmp_path: Path) -
     # it said "cannot salvage: need one .db3/.mcap file, found 2", and no way out
     with pytest.raises(CaptureError, match=rf"metadata.yaml: run `ros2 bag reindex {bag}` to"):
         open_recording(bag)
+
+
+def test_a_folder_of_bags_says_to_pass_each_bag(tmp_path: Path) -> None:
+    # a robot's bags/ folder got "unknown recording layout; expected ..." with no word of bags
+    folder = tmp_path / "bags"
+    folder.mkdir()
+    _write_bag(folder / "morning", "ros1", _stereo(2))
+    _write_bag(folder / "noon", "db3", _stereo(2))
+    said = r"a folder of bags \(morning.bag, noon\); pass each bag itself"
+    with pytest.raises(CaptureError, match=said):
+        open_recording(folder)
