@@ -4,6 +4,7 @@ import os
 import subprocess
 import sys
 import sysconfig
+import tarfile
 import tomllib
 import venv
 import zipfile
@@ -68,6 +69,10 @@ def test_sdist_wheel_installs_one_name_and_demo_runs_from_any_folder(tmp_path: P
         cwd=ROOT,
     )
     (sdist,) = dist.glob("lenspair-*.tar.gz")
+    with tarfile.open(sdist) as archive:
+        in_sdist = archive.getnames()
+    # setuptools added tests/test_*.py without the helpers they import: they could not run
+    assert not [name for name in in_sdist if "/tests/" in name or "/benchmarks/" in name]
     _run(
         [
             sys.executable,
@@ -92,6 +97,8 @@ def test_sdist_wheel_installs_one_name_and_demo_runs_from_any_folder(tmp_path: P
     assert "lenspair/calib_samples/rain.yaml" in names
     assert "lenspair/capture/ingest.py" in names
     assert "lenspair/model/weights/gea_ours_mono.pt" in names  # --init pretrained works installed
+    assert "lenspair/py.typed" in names  # Restorer & co. are typed for a user's mypy
+    assert any(name.endswith(".dist-info/licenses/LICENSE") for name in names)
 
     env_dir = tmp_path / "venv"
     venv.create(env_dir, with_pip=False)
