@@ -26,7 +26,6 @@ from dataclasses import dataclass, fields
 
 import cv2
 import numpy as np
-from skimage.metrics import peak_signal_noise_ratio
 
 from lenspair.core.pixels import check_image
 from lenspair.core.quality import to_grey
@@ -134,6 +133,10 @@ def realism_statistics(
             clean image is flat where counted (its contrast ratio is undefined).
 
     """
+    # Imported here: skimage.metrics pulls in scipy.stats (about 2 s), which
+    # `lenspair realism --help` and the commands importing this module should not pay.
+    from skimage.metrics import peak_signal_noise_ratio
+
     if obstructed.shape[:2] != clean.shape[:2]:
         raise SimulateError(
             f"pair: obstructed {obstructed.shape[1]}x{obstructed.shape[0]} and clean "

@@ -24,6 +24,20 @@ quarter of the range, common at dusk), which would be brightened fourfold;
 below 4096 (12 bits) a genuine 16-bit frame is nearly black."""
 
 
+BIT_DEPTHS = (*LOW_BIT_DEPTHS, 16)
+"""The depths a caller may name for 16-bit frames (``bits=``)."""
+
+
+def is_bit_depth(bits: object) -> bool:
+    """Whether ``bits`` is one of :data:`BIT_DEPTHS` as a whole number.
+
+    ``12.0 == 12``: a float passed a plain membership test and failed at the
+    first frame's shift; ``True == 1`` is no depth either.
+    """
+    whole = isinstance(bits, int | np.integer) and not isinstance(bits, bool)
+    return whole and bits in BIT_DEPTHS
+
+
 def significant_bits(images: list[np.ndarray]) -> int:
     """The bits that 16-bit frames really use: 10, 12, or 16.
 

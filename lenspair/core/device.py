@@ -26,7 +26,7 @@ def resolve_device(choice: "str | torch.device") -> "torch.device":
     text = str(choice)
     if text == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if text == "cpu":
+    if text == "cpu" or re.fullmatch(r"cpu:\d+", text):  # torch.device("cpu", 0) says cpu:0
         return torch.device("cpu")
     if text == "cuda" or re.fullmatch(r"cuda:\d+", text):
         if not torch.cuda.is_available():

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from lenspair.core.bitdepth import LOW_BIT_DEPTHS, significant_bits, widen
+from lenspair.core.bitdepth import BIT_DEPTHS, is_bit_depth, significant_bits, widen
 from lenspair.core.pixels import check_image, is_one_frame
 from lenspair.core.quality import BLANK_STD
 from lenspair.model.detection.data import prepare
@@ -122,9 +122,8 @@ def judge(
         raise ValueError(
             f"judge takes a list of frames, got one {images.shape} array: judge(detector, [frame])"
         )
-    depths = (*LOW_BIT_DEPTHS, 16)
-    if bits is not None and bits not in depths:
-        raise ValueError(f"bits: expected one of {', '.join(map(str, depths))}, got {bits!r}")
+    if bits is not None and not is_bit_depth(bits):
+        raise ValueError(f"bits: expected one of {', '.join(map(str, BIT_DEPTHS))}, got {bits!r}")
     for index, image in enumerate(images):
         check_image(image, f"frame {index}")
     if bits is None:

@@ -45,6 +45,7 @@ import numpy as np
 import torch
 import torch.nn.functional as functional
 
+from lenspair.core.device import resolve_device
 from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write_bytes
 from lenspair.core.progress import progress
@@ -322,6 +323,8 @@ def load_detector(path: Path, device: torch.device | str = "cpu") -> AnomalyDete
             kinds, or one whose parts do not make a usable detector (a key
             missing, a spec this version does not know, weights that do not fit
             the spec, or NaN and Inf in them): one line naming the file.
+        LenspairError: a device this machine does not have (``cuda`` without
+            one); ``device`` takes ``auto``, as the command line does.
     """
     path = file_or_sample(str(path), ".pt")
     if path.is_dir():
@@ -354,4 +357,4 @@ def load_detector(path: Path, device: torch.device | str = "cpu") -> AnomalyDete
         said = [line.strip() for line in str(exc).splitlines()[1:] if line.strip()]
         detail = said[0] if said else first_line(exc)
         raise ModelError(f"{unusable} (its weights do not fit its spec: {detail})") from None
-    return network.to(device).eval()
+    return network.to(resolve_device(device)).eval()

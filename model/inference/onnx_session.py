@@ -49,7 +49,9 @@ def check_signature(path: Path, inputs: list[Any], outputs: list[Any]) -> Any:
         raise ModelError(f"{path}: an input of batch size {shape[0]} ({spec.shape}) takes no image")
     for output in outputs:
         returned = list(output.shape or [])
-        if len(returned) != 4 or returned[1] != shape[1]:
+        # a channel count named, not numbered (torch's classic exporter with dynamic
+        # axes), is checked on the first frame's output instead (OnnxBackend.__call__)
+        if len(returned) != 4 or (isinstance(returned[1], int) and returned[1] != shape[1]):
             raise ModelError(
                 f"{path}: output {output.name} is {output.shape}, not (N, {shape[1]}, H, W) "
                 f"like its input {shape}: not a restoring model (lenspair export writes one)"

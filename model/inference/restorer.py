@@ -22,7 +22,7 @@ One ``Restorer`` may serve several threads (two camera callbacks): calls
 hold no state but the running depth. For 16-bit cameras of different
 depths, give each camera its own ``Restorer``, or ``bits=`` its depth: a
 12-bit camera's frames after a 16-bit one's were taken as 16-bit words
-(five times too dark). The first call at a new frame size also chooses the
+(sixteen times too dark). The first call at a new frame size also chooses the
 CPU's kernels (about twice a call's time here); a node can restore one
 blank frame of its size at start-up.
 """
@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lenspair.core.bitdepth import LOW_BIT_DEPTHS, RunningDepth
+from lenspair.core.bitdepth import BIT_DEPTHS, RunningDepth, is_bit_depth
 from lenspair.core.device import resolve_device
 from lenspair.core.pixels import check_image, is_one_frame
 from lenspair.model.errors import ModelError
@@ -87,11 +87,8 @@ class Restorer:
         tune_allocator: bool = True,
     ) -> None:
         """Load ``model`` on ``device``; see the class docstring."""
-        depths = (*LOW_BIT_DEPTHS, 16)
-        # 12.0 == 12: a float passed the membership test and failed at the first frame's shift
-        whole_bits = isinstance(bits, int | np.integer) and not isinstance(bits, bool)
-        if bits is not None and not (whole_bits and bits in depths):
-            raise ModelError(f"Restorer: bits must be one of {depths}, got {bits!r}")
+        if bits is not None and not is_bit_depth(bits):
+            raise ModelError(f"Restorer: bits must be one of {BIT_DEPTHS}, got {bits!r}")
         for name, value in (("tile", tile), ("overlap", overlap)):
             whole = isinstance(value, int | np.integer) and not isinstance(value, bool)
             if not whole and not (value is None and name == "tile"):

@@ -84,6 +84,11 @@ def test_checkpoint_round_trip(tmp_path: Path, one_thread: None) -> None:
     save_detector(tmp_path / "d.pt", network)
     loaded = load_detector(tmp_path / "d.pt")
     assert loaded.spec == SMALL
+    # a device as Restorer and the command line take it: "auto" was torch's RuntimeError
+    assert next(load_detector(tmp_path / "d.pt", "auto").parameters()).device.type in (
+        "cpu",
+        "cuda",
+    )
     image = (np.random.default_rng(0).random((60, 80)) * 255).astype(np.uint8)
     first, second = judge(network, [image]), judge(loaded, [image])
     np.testing.assert_array_equal(first.probability, second.probability)
@@ -229,6 +234,9 @@ def test_judge_widens_16_bit_frames_of_10_bit_values_as_detect_does(one_thread: 
         judge(network, low[0])  # iterated, its 60 rows were judged as 60 frames
     with pytest.raises(ValueError, match=r"bits: expected one of 10, 12, 16, got 8"):
         judge(network, low, bits=8)
+    # 12.0 == 12 passed the check and failed in the shift with a TypeError
+    with pytest.raises(ValueError, match=r"bits: expected one of 10, 12, 16, got 12.0"):
+        judge(network, low, bits=12.0)  # type: ignore[arg-type]
 
 
 def test_judge_names_the_index_of_a_frame_it_cannot_take(one_thread: None) -> None:

@@ -33,6 +33,17 @@ def test_cuda_on_a_machine_without_one_is_a_one_line_error(no_cuda: None, choice
 def test_auto_and_cpu_without_cuda(no_cuda: None) -> None:
     assert resolve_device("auto") == torch.device("cpu")
     assert resolve_device(torch.device("cpu")) == torch.device("cpu")
+    assert resolve_device(torch.device("cpu", 0)) == torch.device("cpu")  # said "cpu:0"
+
+
+def test_a_detector_asked_onto_a_missing_gpu_is_a_one_line_error(
+    no_cuda: None, tmp_path: Path
+) -> None:
+    # load_detector handed the device to torch: "Torch not compiled with CUDA enabled"
+    from lenspair.model.detection.train import load_detector  # the detector's own tests own it
+
+    with pytest.raises(LenspairError, match="no CUDA device is available"):
+        load_detector(Path("detector.pt"), "cuda")
 
 
 def test_a_gpu_is_named_by_index_and_one_beyond_the_machine_s_is_refused(two_gpus: None) -> None:

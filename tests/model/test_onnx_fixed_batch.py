@@ -24,8 +24,13 @@ helper, TensorProto = onnx.helper, onnx.TensorProto
 CPU = torch.device("cpu")
 
 
-def _affine_model(path: Path, shape: list[int | str]) -> Path:
-    """A restoring model ``0.5 * x + 0.25`` whose input and output are declared ``shape``."""
+def _affine_model(
+    path: Path, shape: list[int | str], out_shape: list[int | str] | None = None
+) -> Path:
+    """A restoring model ``0.5 * x + 0.25`` whose input is declared ``shape``.
+
+    Its output is declared ``out_shape`` (default: ``shape``).
+    """
     half = helper.make_tensor("half", TensorProto.FLOAT, [], [0.5])
     quarter = helper.make_tensor("quarter", TensorProto.FLOAT, [], [0.25])
     nodes = [
@@ -36,7 +41,7 @@ def _affine_model(path: Path, shape: list[int | str]) -> Path:
         nodes,
         "affine",
         [helper.make_tensor_value_info("image", TensorProto.FLOAT, shape)],
-        [helper.make_tensor_value_info("restored", TensorProto.FLOAT, shape)],
+        [helper.make_tensor_value_info("restored", TensorProto.FLOAT, out_shape or shape)],
         initializer=[half, quarter],
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
@@ -133,3 +138,52 @@ def test_a_batch_onnx_runtime_refuses_is_a_one_line_model_error_and_fails_its_fr
     assert (report.restored, report.failed) == (2, 1)
     (problem,) = [p for p in report.problems if p["frame"] == "b.png"]
     assert str(model) in problem["reason"] and "(1, 1, 40, 48)" in problem["reason"]
+
+
+def test_a_model_whose_output_channels_are_named_not_numbered_runs(tmp_path: Path) -> None:
+    """torch's classic exporter with dynamic axes names the output's channel axis
+    (``Addrestored_dim_1``): the model was refused as "not a restoring model"."""
+    import warnings  # the classic exporter's deprecation warning is not this test's
+
+    from lenspair.model.checkpoint import load_model
+    from tests.model.train_fixtures import make_checkpoint
+
+    network = load_model(make_checkpoint(tmp_path / "tiny.pt"), CPU).network.eval()
+
+    class _Restored(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.network = network  # a submodule: its weights are the export's parameters
+
+        def forward(self, image: torch.Tensor) -> torch.Tensor:
+            return self.network(image)[1]  # type: ignore[no-any-return]
+
+    axes = {0: "n", 2: "h", 3: "w"}
+    model = tmp_path / "classic.onnx"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            _Restored(), (torch.rand(1, 1, 32, 40),), str(model), input_names=["image"],
+            output_names=["restored"], dynamo=False, opset_version=17,
+            dynamic_axes={"image": axes, "restored": axes},
+        )  # fmt: skip
+    restorer = Restorer(model, device="cpu")
+    frame = np.random.default_rng(2).integers(0, 256, (24, 40), dtype=np.uint8)
+    with torch.no_grad():
+        expected = _Restored()(torch.from_numpy(frame / 255.0).float()[None, None])
+    restored = restorer(frame)
+    assert restored.shape == frame.shape
+    assert np.abs(restored - np.rint(expected[0, 0].numpy() * 255)).max() <= 1
+    # a number that differs is still refused: a mono input whose output is three channels
+    node = helper.make_node("Concat", ["image"] * 3, ["restored"], axis=1)
+    graph = helper.make_graph(
+        [node],
+        "three",
+        [helper.make_tensor_value_info("image", TensorProto.FLOAT, ["n", 1, "h", "w"])],
+        [helper.make_tensor_value_info("restored", TensorProto.FLOAT, ["n", 3, "h", "w"])],
+    )
+    three = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    three.ir_version = 8
+    onnx.save(three, str(tmp_path / "three.onnx"))
+    with pytest.raises(ModelError, match=r"not \(N, 1, H, W\) like its input"):
+        Restorer(tmp_path / "three.onnx", device="cpu")
