@@ -9,6 +9,7 @@ depth from the values, :func:`widen` scales to the full 16-bit range and
 """
 
 import logging
+import threading
 
 import numpy as np
 
@@ -95,6 +96,9 @@ class RunningDepth:
         """Nothing seen yet: :attr:`bits` is 16 until a frame says otherwise."""
         self.source = source
         self._bits = 0
+        # two camera callbacks share one Restorer: a check-then-set without it could
+        # lower the depth (12 written after 16), which must only rise
+        self._lock = threading.Lock()
 
     @property
     def bits(self) -> int:
@@ -115,9 +119,13 @@ class RunningDepth:
         """Take one more frame into account (an 8-bit one tells nothing of 16-bit ones)."""
         if image.dtype != np.uint16:
             return  # it would read as 16 bits, which never drops again
+        if not image.any():
+            return  # a black frame (a node's warm-up call) holds no value to tell a depth by
         bits = significant_bits([image])
-        if bits <= self._bits:
-            return
+        with self._lock:
+            if bits <= self._bits:
+                return
+            before, self._bits = self._bits, bits
         if bits < 16:
             log.warning(
                 "%s: its 16-bit frames hold %d-bit values (none above %d so far): taken on "
@@ -126,11 +134,10 @@ class RunningDepth:
                 bits,
                 (1 << bits) - 1,
             )
-        elif self._bits:
+        elif before:
             log.warning(
                 "%s: a frame holds values above %d: 16-bit frames are taken as they are from "
                 "here on",
                 self.source,
-                (1 << self._bits) - 1,
+                (1 << before) - 1,
             )
-        self._bits = bits

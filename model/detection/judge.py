@@ -30,7 +30,7 @@ check is not swayed by it. The robot should treat a run of blank frames as a
 camera or exposure fault, which is a different alarm.
 """
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,7 +87,7 @@ class Judgement:
 
 def judge(
     network: AnomalyDetector,
-    images: Sequence[np.ndarray],
+    images: Iterable[np.ndarray],
     batch_size: int = 8,
     threshold: float = OBSTRUCTED_THRESHOLD,
     bits: int | None = None,
@@ -97,8 +97,8 @@ def judge(
     Args:
         network: a trained detector (any device; eval mode is set here).
         images: ``uint8``/``uint16`` ``(H, W)`` grey or ``(H, W, 3)`` RGB frames
-            (convert OpenCV's BGR), sizes may differ.
-        batch_size: frames per forward pass.
+            (convert OpenCV's BGR), sizes may differ; a list or any iterable.
+        batch_size: frames per forward pass (at least 1).
         threshold: obstructed above this probability.
         bits: the bits the ``uint16`` frames use (10, 12 or 16); they are
             widened to the full 16-bit scale (:func:`lenspair.core.bitdepth.widen`)
@@ -115,13 +115,16 @@ def judge(
     Raises:
         ValueError: an image breaks the :mod:`lenspair.core.pixels` convention
             (the message names its index in ``images``: ``frame 3: ...``),
-            ``images`` is one frame, not a list of them, or ``bits`` is not 10,
-            12 or 16.
+            ``images`` is one frame, not a list of them, ``bits`` is not 10,
+            12 or 16, or ``batch_size`` is not a whole number >= 1.
     """
     if isinstance(images, np.ndarray) and is_one_frame(images):
         raise ValueError(
             f"judge takes a list of frames, got one {images.shape} array: judge(detector, [frame])"
         )
+    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"batch_size: expected a whole number of frames >= 1, got {batch_size!r}")
+    images = list(images)  # a generator too: the frames are gone over more than once
     if bits is not None and not is_bit_depth(bits):
         raise ValueError(f"bits: expected one of {', '.join(map(str, BIT_DEPTHS))}, got {bits!r}")
     for index, image in enumerate(images):

@@ -234,6 +234,11 @@ def test_judge_widens_16_bit_frames_of_10_bit_values_as_detect_does(one_thread: 
         judge(network, low[0])  # iterated, its 60 rows were judged as 60 frames
     with pytest.raises(ValueError, match=r"bits: expected one of 10, 12, 16, got 8"):
         judge(network, low, bits=8)
+    # a generator had no len(); batch_size 0 was range()'s "arg 3 must not be zero"
+    from_generator = judge(network, (image for image in low))
+    np.testing.assert_array_equal(from_generator.probability, verdict.probability)
+    with pytest.raises(ValueError, match=r"batch_size: expected a whole number of frames >= 1"):
+        judge(network, low, batch_size=0)
     # 12.0 == 12 passed the check and failed in the shift with a TypeError
     with pytest.raises(ValueError, match=r"bits: expected one of 10, 12, 16, got 12.0"):
         judge(network, low, bits=12.0)  # type: ignore[arg-type]

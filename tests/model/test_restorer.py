@@ -84,6 +84,24 @@ def test_a_12_bit_camera_s_words_come_back_in_its_words(
     assert np.abs(out.astype(np.int64) - narrow(reference, 12).astype(np.int64)).max() <= 1
 
 
+def test_a_black_warm_up_frame_tells_no_depth(
+    checkpoint: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The README has a node restore one blank frame at start-up: a black 16-bit frame set
+    the depth to 10 bits with a warning, and the camera's first real frame raised it."""
+    restorer = Restorer(checkpoint, device="cpu", precision="fp32")
+    def depth_lines() -> list[str]:
+        return [r.getMessage() for r in caplog.records if r.name == "lenspair.core.bitdepth"]
+
+    with caplog.at_level("WARNING"):
+        assert not restorer(np.zeros((32, 48), np.uint16)).any()
+        assert restorer.depth.bits == 16 and not depth_lines()
+        restorer(narrow((texture((32, 48), seed=4) * 65535).astype(np.uint16), 12))
+    assert restorer.depth.bits == 12
+    (said,) = depth_lines()
+    assert "12-bit values" in said
+
+
 def test_a_batch_whose_depth_rises_scales_each_frame_as_one_by_one(
     tmp_path: Path, checkpoint: Path
 ) -> None:
