@@ -205,7 +205,13 @@ def recording_places(recording_path: Path) -> list[Path]:
     for ``./rig.yaml`` twice and missed the one beside ``mav0``.
     """
     path = Path(os.path.abspath(recording_path))
-    return [path, path.parent] if path.is_dir() else [path.parent]
+    if path.is_dir():
+        return [path, path.parent]
+    if rosbag.storage_suffix(path) and rosbag.storage_without_metadata(path.parent):
+        # the storage file of a `ros2 bag record` killed before it wrote metadata.yaml,
+        # passed as the error says: the rig's files lie beside its folder, as for the bag
+        return [path.parent, path.parent.parent]
+    return [path.parent]
 
 
 def find_rig_file(recording_path: Path) -> Path | None:

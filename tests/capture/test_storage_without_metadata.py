@@ -112,3 +112,21 @@ def test_capture_ingest_names_the_storage_too(tmp_path: Path) -> None:
         open_recording(folder)
     hint = _message(folder, "rec.mcap", "rec.mcap").split("no images, and ", 1)[1]
     assert str(caught.value) == f"{folder}: unknown recording layout: {hint}"
+
+
+def test_the_storage_file_passed_as_said_finds_the_rig_file_beside_its_folder(
+    tmp_path: Path,
+) -> None:
+    # capture-ingest of the bare .db3 the message names then asked for a rig.yaml, though
+    # it lay beside the bag folder, where the bag's own is found
+    from lenspair.capture.recording import find_rig_file, resolve_obstructed
+    from lenspair.capture.rigfile import RigFile, write_rig_file
+
+    folder = _killed_recording(tmp_path / "rec", "db3")
+    (storage,) = folder.iterdir()
+    write_rig_file(tmp_path / "rig.yaml", RigFile("cam1", ("rain",)))
+    assert find_rig_file(storage) == tmp_path / "rig.yaml"
+    assert resolve_obstructed(storage).obstructed == "cam1"
+    inside = folder / "rig.yaml"  # one inside the folder is nearer, as for a bag folder
+    write_rig_file(inside, RigFile("cam0"))
+    assert find_rig_file(storage) == inside
