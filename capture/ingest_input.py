@@ -9,6 +9,7 @@ recording's problems in the log, and pairs the two cameras' frames by timestamp
 """
 
 import logging
+import re
 import statistics
 from dataclasses import dataclass
 from pathlib import Path
@@ -139,6 +140,9 @@ def open_and_pair(
     if offset := clock_offset_warning(pairing.pairs, period):
         log.warning("%s: %s", recording.path, offset)
         said_of_recording.append(offset)  # report.json keeps it
+    if rectified := rectified_topics_note(recording.topics):
+        log.warning("%s: %s", recording.path, rectified)
+        said_of_recording.append(rectified)
     frame_pairs = []  # (obstructed frame, clean frame)
     for pair in pairing.pairs:
         both = (recording.frames["cam0"][pair.index0], recording.frames["cam1"][pair.index1])
@@ -162,6 +166,29 @@ def _nothing_paired(path: Path, stamps0: list[int], shifted1: list[int], offset_
         f"{(max(shifted1) - min(shifted1)) / 1e9:.3g} s, their middles {gap_ms:+.6g} ms apart; "
         "if the cameras' clocks differ, give how far cam1's runs ahead of cam0's in ms "
         "with --time-offset"
+    )
+
+
+RECTIFIED_NAME = re.compile(r"(^|[/_])rect(ified)?([/_]|$)")
+"""A topic named as rectified already: ``image_rect``, ``image_rect_color``, ``image_rect_raw``."""
+
+
+def rectified_topics_note(topics: tuple[str, str] | None) -> str | None:
+    """A warning for camera topics named as rectified already, or None.
+
+    stereo_image_proc and a RealSense's infrared streams publish rectified
+    images (``image_rect``, ``image_rect_raw``); a calibration of the raw
+    cameras (as Kalibr's camchain is) would undistort and rectify them a
+    second time, warping every frame, with no error to tell. Said, not refused:
+    a calibration made for the rectified images is right for them.
+    """
+    named = [topic for topic in topics or () if RECTIFIED_NAME.search(topic)]
+    if not named:
+        return None
+    return (
+        f"camera topic(s) {', '.join(named)} named as rectified already: capture-ingest "
+        "undistorts and rectifies them with the calibration again; record the raw topics "
+        "(image_raw), or calibrate the rectified images themselves"
     )
 
 

@@ -20,6 +20,7 @@ from lenspair.capture.frames import detect_input
 from lenspair.capture.image_messages import COMPRESSED_IMAGE as COMPRESSED
 from lenspair.capture.image_messages import decode_compressed
 from lenspair.capture.ingest import ingest_recording
+from lenspair.capture.ingest_input import rectified_topics_note
 from lenspair.capture.ingested import read_pairs, read_report
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.capture.rosbag import open_bag
@@ -45,6 +46,35 @@ def test_bag_ingests_like_folders(tmp_path: Path, kind: str) -> None:
     report = ingest_recording(bag, tmp_path / "out", size=SIZE, workers=1)
     assert report.recording_id == "run" and report.counts["kept"] == 4
     assert report.calibration_source.endswith("camchain.yaml")
+
+
+def test_topics_named_as_rectified_already_are_said_to_be_rectified_again(
+    tmp_path: Path,
+) -> None:
+    # stereo_image_proc's image_rect through a raw camchain: warped twice, with no word
+    bag = bag_from_recording(tmp_path, "db3", 3, topic="/{camera}/image_rect")
+    write_kalibr(bag.parent / "camchain.yaml", rig())
+    report = ingest_recording(bag, tmp_path / "out", size=SIZE, workers=1)
+    (said,) = [line for line in report.recording_problems if "rectified already" in line]
+    assert said.startswith("camera topic(s) /cam0/image_rect, /cam1/image_rect named as")
+    raw = ingest_recording(_bag_from_euroc(tmp_path / "raw", "db3"), tmp_path / "o2", size=SIZE)
+    assert not [line for line in raw.recording_problems if "rectified" in line]
+
+
+@pytest.mark.parametrize(
+    ("topic", "rectified"),
+    [
+        ("/stereo/left/image_rect", True),
+        ("/stereo/left/image_rect_color/compressed", True),
+        ("/camera/infra1/image_rect_raw", True),
+        ("/rectified/left", True),
+        ("/cam0/image_raw", False),
+        ("/direct/cam0", False),
+        ("/rectangle_detector/image", False),
+    ],
+)
+def test_which_topic_names_say_rectified(topic: str, rectified: bool) -> None:
+    assert (rectified_topics_note((topic, "/cam1/image_raw")) is not None) is rectified
 
 
 def test_truncated_db3_keeps_what_was_read(tmp_path: Path) -> None:

@@ -29,8 +29,9 @@ def write_bag(
     stamp: int | None = None,
     compress_files: bool = False,
     cut: frozenset[int] = frozenset(),
+    topic: str = "/{camera}/image_raw",
 ) -> Path:
-    """A bag (``ros1``, ``db3`` or ``mcap``) with images on ``/<camera>/image_raw``.
+    """A bag (``ros1``, ``db3`` or ``mcap``) with images on ``/<camera>/image_raw`` (``topic``).
 
     ``cut``: the times of messages whose pixel data is cut in half (undecodable).
 
@@ -56,7 +57,7 @@ def write_bag(
 
     with writer:
         connections = {
-            camera: writer.add_connection(f"/{camera}/image_raw", IMAGE, typestore=store)
+            camera: writer.add_connection(topic.format(camera=camera), IMAGE, typestore=store)
             for camera in sorted(images)
         }
         status = writer.add_connection("/status", STRING, typestore=store)
@@ -83,7 +84,13 @@ def write_bag(
     return bag
 
 
-def bag_from_recording(tmp_path: Path, kind: str, frames: int = 3, colour: bool = False) -> Path:
+def bag_from_recording(
+    tmp_path: Path,
+    kind: str,
+    frames: int = 3,
+    colour: bool = False,
+    topic: str = "/{camera}/image_raw",
+) -> Path:
     """A stereo bag from a simulated-style EuRoC recording, rig.yaml beside it (cam1)."""
     euroc = make_recording(tmp_path / "euroc", frames=frames, colour=colour)
     images = {
@@ -93,7 +100,7 @@ def bag_from_recording(tmp_path: Path, kind: str, frames: int = 3, colour: bool 
     folder = tmp_path / "bags"
     folder.mkdir()
     write_rig_file(folder / "rig.yaml", RigFile(obstructed="cam1", anomaly=("rain",)))
-    return write_bag(folder / "run", kind, images, "rgb8" if colour else "mono8")
+    return write_bag(folder / "run", kind, images, "rgb8" if colour else "mono8", topic=topic)
 
 
 HEALTH = "my_msgs/msg/Health"

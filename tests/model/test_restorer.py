@@ -90,6 +90,7 @@ def test_a_black_warm_up_frame_tells_no_depth(
     """The README has a node restore one blank frame at start-up: a black 16-bit frame set
     the depth to 10 bits with a warning, and the camera's first real frame raised it."""
     restorer = Restorer(checkpoint, device="cpu", precision="fp32")
+
     def depth_lines() -> list[str]:
         return [r.getMessage() for r in caplog.records if r.name == "lenspair.core.bitdepth"]
 
