@@ -214,3 +214,11 @@ def test_cameras_whose_clocks_pair_nothing_are_named_with_the_time_offset_option
     assert "their middles +5000" in line and "--time-offset" in line
     assert not (tmp_path / "out" / "rec").exists()
     assert main([*args, "--time-offset", "5000", "--size", CROP]) == 0  # as it says
+
+
+def test_the_period_ignores_repeated_stamps() -> None:
+    # a repeated stamp is a zero gap: counted, it pulled the median (and the pairing
+    # tolerance) down, and check_frame_period could call a camera's stamps frame numbers
+    ms = 1_000_000
+    thrice = [t * ms for t in (0, 50, 100, 150) for _ in range(3)]  # a driver repeating them
+    assert estimate_period_ns(thrice, [t + 2 * ms for t in thrice]) == 50 * ms

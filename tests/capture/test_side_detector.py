@@ -31,7 +31,8 @@ def test_flags_a_swapped_declaration() -> None:
     assert "check rig.yaml" in result.message
 
 
-@pytest.mark.parametrize(("level0", "level1"), [(20, 40), (200, 230), (100, 120)])
+# (13, 90): p 0.05 and 0.35, far apart but neither camera called obstructed: no side
+@pytest.mark.parametrize(("level0", "level1"), [(20, 40), (200, 230), (100, 120), (13, 90)])
 def test_undetermined_when_both_agree_or_too_close(level0: int, level1: int) -> None:
     result = check_side_with_detector(_frames(level0), _frames(level1), "cam1", _by_level)
     assert result.inferred == "undetermined"

@@ -14,6 +14,7 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 from lenspair.model.errors import ModelError
 from lenspair.model.metrics import (
     PSNR_CAP_DB,
+    SCALE_SLACK,
     MetricConvention,
     gaussian_window,
     image_metrics,
@@ -305,3 +306,15 @@ def test_an_all_trusted_map_scores_as_none_and_an_all_masked_one_is_refused(
         image_metrics(_to_tensor(b), _to_tensor(a), convention, torch.zeros(1, 1, 40, 50))
     with pytest.raises(ModelError, match="valid map"):
         image_metrics(_to_tensor(b), _to_tensor(a), convention, torch.ones(1, 1, 40, 49))
+
+
+@pytest.mark.parametrize("top", [1.5, 1.0 + SCALE_SLACK + 0.01])
+def test_values_above_the_slack_are_refused_not_scored(top: float) -> None:
+    # scored with data_range 1, an image in [0, 2] gave a PSNR that meant nothing
+    target = torch.rand(1, 1, 16, 16, generator=torch.Generator().manual_seed(0))
+    output = target.clone()
+    output[0, 0, 0, 0] = top
+    with pytest.raises(ModelError, match=r"values span \[.*\]; expected \[0, 1\]"):
+        image_metrics(output, target, MetricConvention.SKIMAGE_GAUSSIAN)
+    output[0, 0, 0, 0] = 1.0 + SCALE_SLACK / 2  # rounding and int8 stray this far: scored
+    assert image_metrics(output, target, MetricConvention.SKIMAGE_GAUSSIAN).psnr.shape == (1,)

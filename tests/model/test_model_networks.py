@@ -14,6 +14,7 @@ from lenspair.model.networks.layers import (
     InstanceNorm,
     NarrowConv2d,
     cat_channels,
+    clamp_unit_straight_through,
     make_norm,
     scaled_channels,
 )
@@ -164,6 +165,16 @@ def test_straight_through_clamp_passes_gradient_back_into_range() -> None:
     loss.backward()
     assert model.generator.head.bias is not None and model.generator.head.bias.grad is not None
     assert float(model.generator.head.bias.grad.abs().sum()) > 0
+
+
+def test_straight_through_clamp_gradient_is_the_identity_s_out_of_range() -> None:
+    # at exactly 1.0 a plain clamp passes gradient too: beyond the range only the
+    # straight-through form does (the reason it exists: an overshoot can be pulled back)
+    x = torch.tensor([-0.3, 0.4, 1.2], requires_grad=True)
+    out = clamp_unit_straight_through(x)
+    assert out.tolist() == pytest.approx([0.0, 0.4, 1.0])
+    out.sum().backward()
+    assert x.grad is not None and x.grad.tolist() == [1.0, 1.0, 1.0]
 
 
 def test_instance_norm_matches_torch_and_handles_constants() -> None:

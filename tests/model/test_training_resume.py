@@ -499,3 +499,15 @@ def test_a_no_amp_run_resumes_at_the_precision_given(
     capsys.readouterr()
     both = [*resumed, "--max-steps", "6", "--precision", "bf16", "--no-amp"]
     assert main(both) == 2 and "give one of them" in capsys.readouterr().err
+
+
+def test_a_checkpoint_s_progress_comes_back_whole() -> None:
+    # early stopping's count and the time spent must survive a resume: with either
+    # reset, a run resumed again and again never stopped early or ran past max_seconds
+    from lenspair.model.training.run_state import RunState
+
+    state = RunState(
+        epoch=4, step=130, step_in_epoch=7, best_psnr=27.5, best_epoch=3, stale=2,
+        seconds=812.25, loss_sums={"loss_g": 3.5, "loss_d": 1.25}, loss_steps=7,
+    )  # fmt: skip
+    assert RunState.from_checkpoint(state.payload()) == state
