@@ -97,6 +97,19 @@ def test_sharpness_drops_with_blur_and_exposure_is_counted() -> None:
     assert stats.black == pytest.approx(0.25, abs=0.01)
 
 
+def test_sharpness_exposure_and_thumbnail_are_the_clean_view_s() -> None:
+    # the drops are the anomaly, not the scene: measured on the input, defocused drops
+    # failed pairs as motion blur, bright drops as overexposure, and duplicates followed them
+    obstructed, target = _pair(0.9)
+    stats = measure_pair(obstructed, target, None, 0.03)
+    reference = measure_pair(target, target, None, 0.03)
+    assert stats.sharpness == reference.sharpness
+    assert (stats.saturated, stats.black) == (reference.saturated, reference.black)
+    np.testing.assert_array_equal(stats.thumbnail, reference.thumbnail)
+    burnt = np.full_like(obstructed, 255)  # an input burnt out whole: the target is fine
+    assert measure_pair(burnt, target, None, 0.03).saturated == reference.saturated < 0.01
+
+
 def test_sixteen_bit_pairs_measure_like_eight_bit() -> None:
     obstructed, target = _pair()
     eight = measure_pair(obstructed, target, None, 0.03)

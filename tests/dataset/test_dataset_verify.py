@@ -72,6 +72,24 @@ def test_hand_edited_manifest_and_card_are_caught(ds: Path) -> None:
     assert len(problems) == 1 and "manifest.jsonl:1: difficulty: expected one of" in problems[0]
 
 
+def test_input_and_target_listed_the_other_way_round_are_caught(ds: Path) -> None:
+    # each file is where a file of its pair belongs, with the right hash: only the kind
+    # in its path tells that the network would have been trained to add the anomaly
+    manifest = ds / "manifest.jsonl"
+    lines = manifest.read_text().splitlines()
+    row = json.loads(lines[0])
+    row["files"] = {"input": row["files"]["target"], "target": row["files"]["input"]}
+    row["sha256"] = {"input": row["sha256"]["target"], "target": row["sha256"]["input"]}
+    manifest.write_text("\n".join([json.dumps(row), *lines[1:]]) + "\n")
+    problems = verify_dataset(ds).problems
+    name, split = row["name"], row["split"]
+    assert any(
+        p.startswith(f"{manifest}:1: ") and f"is not at {split}/input/{name}.*" in p
+        for p in problems
+    )
+    assert any(f"is not at {split}/target/{name}.*" in p for p in problems)
+
+
 def test_edited_card_counts_are_caught(ds: Path) -> None:
     card_file = ds / "dataset.json"
     card = json.loads(card_file.read_text())

@@ -149,6 +149,21 @@ def test_vertical_misalignment_is_never_kept() -> None:
     assert verdict.reason is not None and "registration" in verdict.reason
 
 
+def test_a_pair_most_of_whose_corners_disagree_is_refused_however_many_agree() -> None:
+    # 110 corners agree (enough by count), but the left 300 columns sit 1.5 px lower:
+    # with the share rule gone the pair was kept, misregistered over most of the frame
+    obstructed, clean, _ = _pair()
+    moved = cv2.warpAffine(
+        BIG, np.float32([[1, 0, 40], [0, 1, 31.5]]), (540, 360),
+        flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+    )  # fmt: skip
+    clean[:, :300] = np.clip(moved[:, :300] * 0.8 + 0.05, 0, 1)
+    verdict = verify_pair(obstructed, clean, np.zeros(clean.shape, bool), PARAMS)
+    assert verdict.inliers >= PARAMS.min_inliers
+    assert verdict.reason is not None
+    assert verdict.reason.startswith("registration failed: only ")
+
+
 def test_near_object_is_masked() -> None:
     x, y, w, h = 200, 100, 120, 100
     obstructed, clean, _ = _pair(near=(x, y, w, h, 6.0))
