@@ -243,17 +243,35 @@ def _training_rows(training: dict[str, Any] | None, run: dict[str, Any] | None) 
                 f"{k}{_emulated(k.split()[0], native, cap)} {number(v, 2)} steps/s"
                 for k, v in steps.items()
             ),
-            "fp32 step",
+            _step_roofline(training),
             " / ".join(
                 f"{name} {number(speed, 2)}x"
                 for name, speed in training.get(
                     "speed_vs_fp32", {"mixed": training.get("mixed_over_fp32_speed")}
                 ).items()
             )
-            + " (speed vs fp32)",
+            + " (speed vs fp32)"
+            + _roofline_ratio(training),
             _settings(training.get("threads"), training.get("steps"), "step"),
         ]
     ]
+
+
+def _step_roofline(training: dict[str, Any]) -> str:
+    """The fp32 step's roofline (its counted FLOPs at the run's peak), where the run measured it."""
+    if "fp32_roofline_seconds" not in training:
+        return "fp32 step"
+    return (
+        f"fp32 step; its roofline {number(training['fp32_roofline_seconds'], 2)} s "
+        f"({number(training['fp32_step_gflop'], 0)} GFLOP at the run's peak)"
+    )
+
+
+def _roofline_ratio(training: dict[str, Any]) -> str:
+    """``; fp32 1.45x its roofline``, where the run measured it."""
+    if "fp32_roofline_ratio" not in training:
+        return ""
+    return f"; fp32 {number(training['fp32_roofline_ratio'], 2)}x its roofline"
 
 
 def _effects_rows(effects: dict[str, Any] | None) -> list[list[str]]:
@@ -370,7 +388,9 @@ def bench_blocks(bench: Path) -> list[Block]:
         Paragraph(
             f"`python -m benchmarks --out bench_out`{which} on {where or 'this machine'}; "
             "medians, each speed next to a floor or peak measured in the same run; the last "
-            "column gives each row's threads and timed runs."
+            "column gives each row's threads and timed runs. Where runs alternate with their "
+            "floor (ingest, dataset-build), the ratio is the median of the per-round ratios, "
+            "which other load disturbs less than the quotient of the two medians."
         ),
         Table(["what", "median", "measured against", "ratio", "threads, runs"], rows),
     ]

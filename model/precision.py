@@ -6,7 +6,7 @@ precision the device runs *natively*; a precision the device only emulates is
 never chosen by ``auto`` (bf16 on a CPU without bf16 instructions is emulated
 by oneDNN through fp32 conversions: a GEA training step measured 2.6x slower
 than fp32 on an AVX-512 Xeon without ``avx512_bf16``). Native is not always
-faster either (an Intel Xeon with ``avx512_bf16`` but no AMX ran bf16 at 0.65x
+faster either (an Intel Xeon with ``avx512_bf16`` but no AMX ran the GEA in bf16 at 0.60x
 fp32's speed), so on a CPU ``auto`` takes a native bf16 only after timing it
 against fp32 (:mod:`lenspair.model.precision_measure`, :data:`BF16_MIN_SPEED`).
 

@@ -5,9 +5,10 @@ fp32. They are on an AMD EPYC (Zen 5: a GEA training step 1.82x fp32's speed)
 and with AMX. They are not on an Intel Xeon whose hypervisor hides AMX but
 shows ``avx512_bf16`` (family 6 model 207, measured with ``python -m
 benchmarks --only model training``, docs/results/cpu_intel_xeon.md): oneDNN's
-native ``avx512_core_bf16`` kernels ran a 1024x1024 matmul at 0.58x fp32's
-speed, the GEA 540x360 frame at 0.65x and a training step at 0.90x (probably
-because ``vdpbf16ps`` issues on one port where fp32 FMAs issue on two).
+native ``avx512_core_bf16`` kernels ran a 2048x2048 matmul at 0.53x fp32's
+speed, the GEA 540x360 frame at 0.60x and a training step at 0.84x on one
+thread (probably because ``vdpbf16ps`` issues on one port where fp32 FMAs
+issue on two).
 ``auto`` (:func:`lenspair.model.precision.choose_precision`) therefore measures
 before it takes bf16.
 

@@ -475,3 +475,20 @@ def test_an_embedded_pages_relative_links_are_made_the_readmes(tmp_path: Path) -
     text = to_markdown(seeded_blocks(page))
     assert f"([gpu.md]({page.parent.as_posix()}/gpu.md))" in text
     assert "[web](https://a.b)" in text and "[here](#x)" in text
+
+
+def test_the_training_row_sets_the_fp32_step_against_its_roofline() -> None:
+    # bench_training measured the step's roofline, and the README's row left it out
+    from benchmarks.readme_speed import _training_rows
+
+    training = {
+        "batch": 8, "crop": 256, "threads": 2, "steps": 5,
+        "steps_per_second": {"fp32": 0.2}, "speed_vs_fp32": {"fp32": 1.0},
+        "fp32_roofline_seconds": 3.4, "fp32_step_gflop": 561.2, "fp32_roofline_ratio": 1.45,
+    }  # fmt: skip
+    (row,) = _training_rows(training, None)
+    assert row[2] == "fp32 step; its roofline 3.40 s (561 GFLOP at the run's peak)"
+    assert row[3].endswith("(speed vs fp32); fp32 1.45x its roofline")
+    older = {k: v for k, v in training.items() if "roofline" not in k and "gflop" not in k}
+    (row,) = _training_rows(older, None)  # a run before the roofline was measured
+    assert row[2] == "fp32 step" and row[3].endswith("(speed vs fp32)")
