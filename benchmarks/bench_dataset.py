@@ -27,6 +27,7 @@ import statistics
 import tempfile
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -93,14 +94,23 @@ def _images(folders: list[Path]) -> list[Path]:
     return sorted(p for f in folders for kind in ("input", "target") for p in (f / kind).glob("*"))
 
 
-def io_floor(images: list[Path], out: Path, decode: bool) -> None:
-    """Read and hash every image (and decode it when asked), hard-link it into ``out``."""
+def io_floor(images: list[Path], out: Path, decode: bool, workers: int = 1) -> None:
+    """Read and hash every image (and decode it when asked), hard-link it into ``out``.
+
+    In ``workers`` threads, as many as the build measures its pairs in
+    (``dataset.build._measure``): one thread was no floor for a build on two.
+    """
     out.mkdir()
-    for number, image in enumerate(images):
+
+    def one(item: tuple[int, Path]) -> None:
+        number, image = item
         sha256_bytes(image.read_bytes())
         if decode:
             read_image(image)
         os.link(image, out / f"{number}.png")
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        list(pool.map(one, enumerate(images)))
 
 
 def _once(action: Callable[[Path], object], target: Path) -> float:
@@ -124,10 +134,11 @@ def run(pairs: int = 200, runs: int = 3, workers: int | None = None) -> dict[str
         folders = write_recordings(root / "ingested", pairs)
         images = _images(folders)
         config = DatasetConfig(split=SplitConfig(segment_frames=10, segment_gap_frames=1))
+        threads = workers or min(4, os.cpu_count() or 1)  # the build's own default
         actions: dict[str, Callable[[Path], object]] = {
             "build": lambda p: build_dataset(folders, p, config, workers=workers),
-            "io_floor": lambda p: io_floor(images, p, decode=False),
-            "decode_floor": lambda p: io_floor(images, p, decode=True),
+            "io_floor": lambda p: io_floor(images, p, decode=False, workers=threads),
+            "decode_floor": lambda p: io_floor(images, p, decode=True, workers=threads),
         }
         _once(actions["build"], root / "warmup")  # warm the page cache and imports
         for number in range(runs):
