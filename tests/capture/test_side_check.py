@@ -97,3 +97,37 @@ def test_disparity_between_views_does_not_decide() -> None:
     assert check_obstructed_side(left, right, "cam0").inferred == "undetermined"
     dirty = [_obstruct(r, rng) for r in right]
     assert check_obstructed_side(left, dirty, "cam1").agrees is True
+
+
+def _tiles(image: np.ndarray, tiles: list[tuple[int, int]], flat: bool = False) -> np.ndarray:
+    """``image`` with the given tiles of the 6x8 grid (20x20 px) blurred, or made flat."""
+    out = image.copy()
+    blurred = cv2.GaussianBlur(image, (0, 0), 4.0)
+    for row, col in tiles:
+        if flat:  # a pixel beyond the tile too: its edge pixels' Laplacian sees no texture
+            out[max(20 * row - 2, 0) : 20 * row + 22, max(20 * col - 2, 0) : 20 * col + 22] = 128
+        else:
+            y, x = slice(20 * row, 20 * row + 20), slice(20 * col, 20 * col + 20)
+            out[y, x] = blurred[y, x]
+    return out
+
+
+def test_near_even_contradictory_votes_decide_nothing() -> None:
+    # 10 % of the tiles lose detail on cam0 and 8 % on cam1: no side is obstructed more
+    # than the other, and without the dominance rule cam0 was named
+    rng = np.random.default_rng(3)
+    clean = [_textured(rng) for _ in range(3)]
+    cam0 = [_tiles(c, [(1, 1), (1, 3), (2, 5), (3, 2), (4, 6)]) for c in clean]
+    cam1 = [_tiles(c, [(0, 7), (2, 1), (3, 4), (5, 0)]) for c in clean]
+    result = check_obstructed_side(cam0, cam1, "cam1")
+    assert result.inferred == "undetermined" and result.agrees is None
+
+
+def test_a_tile_flat_in_one_view_only_votes() -> None:
+    # opaque dirt leaves no detail at all in its tiles: the strongest evidence, and the
+    # tiles were dropped as "flat" when either view (not both) was
+    rng = np.random.default_rng(4)
+    clean = [_textured(rng) for _ in range(3)]
+    dirty = [_tiles(c, [(1, 1), (1, 2), (3, 4), (4, 6)], flat=True) for c in clean]
+    result = check_obstructed_side(clean, dirty, "cam1")
+    assert result.inferred == "cam1" and result.agrees
