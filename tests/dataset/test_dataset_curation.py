@@ -23,6 +23,7 @@ from lenspair.dataset.curation import (
     difficulty,
     find_duplicates,
     is_clean,
+    level_normalised,
     measure_pair,
     quality_rule,
 )
@@ -225,3 +226,23 @@ def test_a_non_finite_threshold_is_refused_however_it_is_given(name: str, value:
     # silently switched the rule off (and wrote NaN into dataset.json).
     with pytest.raises(ValueError, match=f"{name}: expected a finite number"):
         with_overrides(DatasetConfig(), curation={name: value})
+
+
+def test_duplicates_are_found_in_time_order_whatever_the_file_order() -> None:
+    # pairs.jsonl out of time order (a merged or hand-edited file): duplicates were
+    # compared in file order, so a slow drift kept other frames than in time order
+    halves = np.ones((24, 32), np.float32)
+    halves[:, 16:] = -1  # the scene drifts, its level stays
+    thumbnails = [0.5 + 0.003 * i * halves for i in range(6)]
+    config = CurationConfig(duplicate_threshold=0.004)
+    flags = find_duplicates([level_normalised(t) for t in thumbnails], 0.004)
+    assert 0 < sum(flags) < len(flags)  # a drift: some frames kept, some not
+    items = [
+        Measured(0, i, PairRecord(10 * (i + 1), "kept"), {}, {}, _stats(thumbnail=t))  # type: ignore[arg-type]
+        for i, t in enumerate(thumbnails)
+    ]
+    in_order = curate(items, config)
+    assert sorted(k for k, v in in_order.items() if v[0] == "duplicate") == [
+        (0, i) for i, flag in enumerate(flags) if flag
+    ]
+    assert curate(items[::-1], config) == in_order
