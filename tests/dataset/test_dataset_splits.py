@@ -239,3 +239,18 @@ def test_the_gap_leaves_train_and_the_side_fixup_standing(
         for a, b in itertools.pairwise(positions):
             if split_of[order[a]] != split_of[order[b]]:
                 assert b - a - 1 >= gap
+
+
+def test_train_first_moves_a_group_the_earlier_dataset_did_not_hold() -> None:
+    # Seed 57 hashes both recordings to test, and rA lies nearer the train interval: on
+    # a rebuild whose earlier dataset held rA in test, moving rA would put pairs the old
+    # test split scored into the new train split; rB (new) goes instead.
+    items = [SplitItem("rA", 0, "cam1"), SplitItem("rB", 0, "cam1")]
+    config = SplitConfig(group_by="recording", seed=57)
+    assert {r: hashed_split(hash_unit(57, r), (0.8, 0.1, 0.1)) for r in ("rA", "rB")} == {
+        "rA": "test",
+        "rB": "test",
+    }
+    assert plan_splits(items, config).assignment == {"rA": "train", "rB": "test"}
+    rebuilt = plan_splits(items, config, earlier_splits={"rA": "test"})
+    assert rebuilt.assignment == {"rA": "test", "rB": "train"} and rebuilt.moved == ("rB",)
