@@ -47,7 +47,9 @@ MIN_INPUT_SIDE = 8
 imported: ``--help`` would load torch)."""
 
 if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
-    from lenspair.model.training.pairs import PairSource
+    import numpy as np
+
+    from lenspair.model.checkpoint import LoadedModel
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -118,6 +120,16 @@ def run(args: argparse.Namespace) -> int:
             )
     # loaded before anything is removed: a checkpoint that cannot be read changes nothing
     loaded = load_model(args.checkpoint, "cpu")
+    images = None
+    if calibration is not None:  # decoded before too: unreadable images change nothing
+        from lenspair.model.evaluation.quantize import calibration_images  # torch, as above
+
+        images = calibration_images(calibration, loaded.config.model.channels or 1, size)
+        calibrated_on = {  # in the report: what the int8 ranges were fitted to
+            "data": str(getattr(calibration, "root", args.calibration)),  # the split's folder
+            "images": len(images),
+            "size": [size[1], size[0]],  # WxH, as --size: the ranges fit frames of this size
+        }
     report = report_path(args)
     # what this export replaces goes first, its report first of all: stopped midway, an
     # export left its new ONNX beside the last export's int8 model and report. That int8
@@ -134,8 +146,8 @@ def run(args: argparse.Namespace) -> int:
         "checkpoint": str(args.checkpoint),
         "exports": [c.as_dict() for c in checks],
     }
-    if calibration is not None:
-        payload["int8"] = _export_int8(args, size, calibration)
+    if images is not None:
+        payload["int8"] = _export_int8(args, size, loaded, images) | {"calibration": calibrated_on}
     atomic_write_text(report, json.dumps(payload, indent=2) + "\n")
     print(f"wrote {report}")
     return 0
@@ -167,20 +179,28 @@ def check_outputs(args: argparse.Namespace) -> None:
         seen[path.resolve()] = f"{option} {path}"
         if path.is_file() and _is_checkpoint(path):  # .pt is a run's suffix too (last.pt)
             raise ConfigError(
-                f"{option} {path}: a lenspair checkpoint, which the export would overwrite "
-                "(a run could no longer resume from it); choose another name"
+                f"{option} {path}: a lenspair checkpoint or detector, which the export would "
+                "overwrite (a run could no longer resume from it); choose another name"
             )
 
 
 def _is_checkpoint(path: Path) -> bool:
-    """Whether ``path`` is a lenspair training checkpoint (read safely, tensors only)."""
-    from lenspair.model.checkpoint import load_checkpoint  # torch: not for --help
+    """Whether ``path`` is a lenspair training checkpoint or detector (read safely, tensors only).
 
-    try:
-        load_checkpoint(path)
-    except ModelError:
-        return False
-    return True
+    A detector (``train-detector``'s ``detector.pt``) was taken for any other file and
+    overwritten by ``--torchscript`` without a word.
+    """
+    # torch: not for --help
+    from lenspair.model.checkpoint import load_checkpoint
+    from lenspair.model.detection.train import load_detector
+
+    for load in (load_checkpoint, load_detector):
+        try:
+            load(path)
+        except ModelError:
+            continue
+        return True
+    return False
 
 
 def _outputs(args: argparse.Namespace) -> dict[str, Path]:
@@ -204,7 +224,10 @@ def report_path(args: argparse.Namespace) -> Path:
 
 
 def _export_int8(
-    args: argparse.Namespace, size: tuple[int, int], calibration: "PairSource"
+    args: argparse.Namespace,
+    size: tuple[int, int],
+    loaded: "LoadedModel",
+    images: "list[np.ndarray]",
 ) -> dict[str, object]:
     import dataclasses
 
@@ -212,15 +235,12 @@ def _export_int8(
     import torch
 
     # likewise: these import torch
-    from lenspair.model.checkpoint import load_model
-    from lenspair.model.evaluation.quantize import calibration_images, check_int8
+    from lenspair.model.evaluation.quantize import check_int8
     from lenspair.model.precision import choose_precision
 
     decision = choose_precision("int8", torch.device("cpu"), "infer")
     print(decision.summary())
-    loaded = load_model(args.checkpoint, "cpu")
     channels = loaded.config.model.channels or 1
-    images = calibration_images(calibration, channels, size)
     log.info(
         "int8: calibrating %s on %d images of %s, then checking and timing it (minutes)",
         int8_path(args.onnx),

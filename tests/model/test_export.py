@@ -10,10 +10,12 @@ import torch
 
 from lenspair.cli import main
 from lenspair.model.checkpoint import load_model
+from lenspair.model.detection.train import save_detector
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import check_image, export_torchscript
 from lenspair.model.evaluation.quantize import QUANTISED_OPS, open_session
 from lenspair.model.inference.backends import OnnxBackend, open_backend
+from lenspair.model.networks.detector import AnomalyDetector, DetectorSpec
 from lenspair.model.networks.layers import InstanceNorm
 from lenspair.model.training.pretrained import pretrained_weights
 from tests.file_limits import REFUSALS, refuse_writes
@@ -309,6 +311,8 @@ def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     # 4 pairs: the model written is calibrated on all 4 (the comparison with fp32 is on
     # the one with the most contrast, held out of a probe model's calibration)
     assert int8["calibration_images"] == 4 and int8["precision"]["precision"] == "int8"
+    # what the ranges were fitted to: the data and the size (they fit frames of that size)
+    assert int8["calibration"] == {"data": str(data), "images": 4, "size": [48, 32]}
     assert 25.0 < int8["psnr_vs_fp32_db"] < 100.0  # quantised: close, yet not identical
     session = ort.InferenceSession(int8["path"], providers=["CPUExecutionProvider"])
     graph = onnx.load(int8["path"]).graph
@@ -358,7 +362,14 @@ def test_int8_export_needs_calibration(tmp_path: Path, capsys: pytest.CaptureFix
 
 @pytest.mark.parametrize(
     "problem",
-    ["missing folder", "missing split", "without --int8", "split alone", "split of a folder"],
+    [
+        "missing folder",
+        "missing split",
+        "without --int8",
+        "split alone",
+        "split of a folder",
+        "unreadable images",
+    ],
 )
 def test_a_bad_calibration_is_refused_before_anything_is_written(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], problem: str
@@ -376,8 +387,12 @@ def test_a_bad_calibration_is_refused_before_anything_is_written(
         args += ["--calibration", str(dataset)]  # it was ignored without a word
     elif problem == "split alone":  # so was this
         args += ["--split", "val"]
-    else:  # and this: a paired folder has no splits, all of it calibrated
+    elif problem == "split of a folder":  # and this: a paired folder has no splits
         args += ["--int8", "--calibration", str(dataset), "--split", "val"]
+    else:  # decoded only after the earlier export's files had gone and the new ONNX was in
+        for image in (dataset / "input").iterdir():
+            image.write_bytes(image.read_bytes()[:40])
+        args += ["--int8", "--calibration", str(dataset)]
     assert main(args) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert {
@@ -386,6 +401,7 @@ def test_a_bad_calibration_is_refused_before_anything_is_written(
         "without --int8": "--int8 only",
         "split alone": "--split is the split of --calibration DS",
         "split of a folder": "is a paired folder, not a dataset with splits",
+        "unreadable images": "int8 calibration: no image can be read",
     }[problem] in line
     # the fp32 export used to be written (overwriting this file) before the refusal
     assert onnx_file.read_bytes() == b"an earlier export"
@@ -555,8 +571,17 @@ def test_an_output_that_is_a_training_checkpoint_is_refused(
     before = last.read_bytes()
     argv = ["export", str(checkpoint), "--torchscript", str(last), "--size", "48x32"]
     assert main(argv) == 2
-    assert "a lenspair checkpoint, which the export would overwrite" in capsys.readouterr().err
+    assert "a lenspair checkpoint or detector, which the export would overwrite" in (
+        capsys.readouterr().err
+    )
     assert last.read_bytes() == before
+    # a detector too: train-detector's detector.pt was overwritten without a word
+    detector = tmp_path / "run" / "detector.pt"
+    save_detector(detector, AnomalyDetector(DetectorSpec()))
+    kept = detector.read_bytes()
+    assert main([*argv[:3], str(detector), *argv[4:]]) == 2
+    assert "a lenspair checkpoint or detector" in capsys.readouterr().err
+    assert detector.read_bytes() == kept
     other = tmp_path / "run" / "model.pt"  # an earlier export there is replaced, as before
     assert (
         main([*argv[:3], str(other), *argv[4:]]) == 0
