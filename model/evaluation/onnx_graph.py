@@ -151,6 +151,45 @@ def write_onnx(
                 dynamic_axes={INPUT_NAME: axes, OUTPUT_NAME: axes},
             )
             _declare_output_shape(path, tuple(image.shape), axes)
+    document_contract(path, int(image.shape[1]))
+
+
+def document_contract(path: Path, channels: int, precision: str = "fp32") -> None:
+    """Write what a caller must feed the model at ``path`` into it, in place.
+
+    The ONNX file goes where lenspair is not installed (a robot's node in
+    C++): its ``doc_string`` says the contract in words and ``metadata_props``
+    holds it as keys (``lenspair_version``, ``channels``, ``layout``,
+    ``input_range``, ``min_side``, ``precision``), which ONNX Runtime shows as
+    the session's ``get_modelmeta().custom_metadata_map``. An export carried
+    none of it.
+    """
+    import onnx  # only ONNX exports need it
+
+    from lenspair import __version__
+
+    model = onnx.load(str(path))
+    colours = "mono" if channels == 1 else "RGB"
+    model.doc_string = (
+        f"lenspair {__version__} restoring network ({colours}, {precision}). Input "
+        f"'{INPUT_NAME}': float32 (N, {channels}, H, W), values in [0, 1], H and W at "
+        f"least {MIN_SIDE} (any size: it pads inside). Output '{OUTPUT_NAME}': the same "
+        "shape, values in [0, 1]."
+    )
+    properties = {
+        "lenspair_version": __version__,
+        "channels": str(channels),
+        "layout": "NCHW",
+        "input_range": "0..1",
+        "min_side": str(MIN_SIDE),
+        "precision": precision,
+    }
+    kept = [p for p in model.metadata_props if p.key not in properties]
+    del model.metadata_props[:]
+    model.metadata_props.extend(kept)
+    for key, value in properties.items():
+        model.metadata_props.add(key=key, value=value)
+    onnx.save(model, str(path))
 
 
 def _declare_output_shape(path: Path, shape: tuple[int, ...], axes: dict[int, str]) -> None:

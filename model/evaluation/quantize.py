@@ -56,7 +56,12 @@ from lenspair.core.errors import first_line
 from lenspair.core.fsutil import atomic_write
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.export import check_image
-from lenspair.model.evaluation.onnx_graph import INPUT_NAME, DeployedNetwork, write_onnx
+from lenspair.model.evaluation.onnx_graph import (
+    INPUT_NAME,
+    DeployedNetwork,
+    document_contract,
+    write_onnx,
+)
 from lenspair.model.inference.backends import deploy
 from lenspair.model.inference.onnx_session import session_options
 from lenspair.model.metrics import psnr
@@ -202,6 +207,7 @@ def quantize_network(
                 calibrate_method=CalibrationMethod.MinMax,
                 op_types_to_quantize=QUANTISED_OPS,
             )
+            document_contract(tmp, channels, "int8")  # quantize_static drops the fp32 file's
 
         try:
             atomic_write(Path(path), write, ".onnx")

@@ -315,6 +315,17 @@ def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     assert int8["calibration"] == {"data": str(data), "images": 4, "size": [48, 32]}
     assert 25.0 < int8["psnr_vs_fp32_db"] < 100.0  # quantised: close, yet not identical
     session = ort.InferenceSession(int8["path"], providers=["CPUExecutionProvider"])
+    # the contract travels with the files (a C++ node reads it without lenspair): they
+    # carried none of it
+    fp32_session = ort.InferenceSession(str(onnx_file), providers=["CPUExecutionProvider"])
+    for each, precision in ((fp32_session, "fp32"), (session, "int8")):
+        meta = each.get_modelmeta()
+        said = meta.custom_metadata_map
+        assert {k: said[k] for k in ("channels", "layout", "input_range", "precision")} == {
+            "channels": "1", "layout": "NCHW", "input_range": "0..1", "precision": precision,
+        }  # fmt: skip
+        assert said["min_side"] == "8" and said["lenspair_version"]
+        assert "float32 (N, 1, H, W), values in [0, 1]" in meta.description
     graph = onnx.load(int8["path"]).graph
     kinds = {node.op_type for node in graph.node}
     assert "QuantizeLinear" in kinds and "DequantizeLinear" in kinds
