@@ -299,6 +299,8 @@ class Int8Check:
         fp32_median_ms: torch fp32 batch-1 latency as deployed (channels-last),
             same run, interleaved.
         threads: CPU threads.
+        compared_on: what the comparison ran on: ``a held-out image``, or
+            ``random noise`` when one image calibrated (none to hold out).
 
     """
 
@@ -310,13 +312,15 @@ class Int8Check:
     median_ms: float
     fp32_median_ms: float
     threads: int
+    compared_on: str = "a held-out image"
 
     def summary(self) -> str:
         """One line for people."""
         return (
             f"int8 onnx: {self.path} ({self.size}, onnxruntime static QDQ, "
             f"{self.calibration_images} calibration images); PSNR vs fp32 "
-            f"{self.psnr_vs_fp32_db:.1f} dB, max |diff| {self.max_abs_diff:.3g}; "
+            f"{self.psnr_vs_fp32_db:.1f} dB on {self.compared_on}, max |diff| "
+            f"{self.max_abs_diff:.3g}; "
             f"{self.median_ms:.1f} ms median vs torch fp32 {self.fp32_median_ms:.1f} ms "
             f"({self.threads} threads)"
         )
@@ -336,8 +340,9 @@ def check_int8(
     one with the most contrast, when there are two or more): agreement
     measured on an image the ranges were fitted to would flatter int8, and so
     would a flat one (a sky frame gave 76.7 dB where textured frames differ by
-    up to 75 codes). The model written at ``path`` is calibrated on every
-    image; it is the one timed.
+    up to 75 codes). With one image there is none to hold out: the check runs
+    on seeded random noise, and says so (``compared_on``). The model written
+    at ``path`` is calibrated on every image; it is the one timed.
     fp32 is timed as
     ``restore`` runs it on the CPU (a copy prepared by
     :func:`~lenspair.model.inference.backends.deploy`: channels-last, the
@@ -384,6 +389,7 @@ def check_int8(
         median_ms=statistics.median(times["int8"]),
         fp32_median_ms=statistics.median(times["fp32"]),
         threads=torch.get_num_threads(),
+        compared_on="a held-out image" if held_out is not None else "random noise",
     )
 
 

@@ -311,6 +311,7 @@ def test_int8_export_is_close_to_fp32_and_reloads(tmp_path: Path) -> None:
     # 4 pairs: the model written is calibrated on all 4 (the comparison with fp32 is on
     # the one with the most contrast, held out of a probe model's calibration)
     assert int8["calibration_images"] == 4 and int8["precision"]["precision"] == "int8"
+    assert int8["compared_on"] == "a held-out image"
     # what the ranges were fitted to: the data and the size (they fit frames of that size)
     assert int8["calibration"] == {"data": str(data), "images": 4, "size": [48, 32]}
     assert 25.0 < int8["psnr_vs_fp32_db"] < 100.0  # quantised: close, yet not identical
@@ -446,6 +447,10 @@ def test_int8_check_compares_on_an_image_held_out_of_the_calibration(
     assert any(image is images[3] for image in fitted[0])
     # the model written is calibrated on every image, that one too (it was left out)
     assert check.calibration_images == 4 and len(fitted[1]) == 4
+    assert check.compared_on == "a held-out image" and "on a held-out image" in check.summary()
+    # one image leaves none to hold out: the check runs on noise, and says so (it did not)
+    alone = quantize.check_int8(network, 1, tmp_path / "one.int8.onnx", (32, 48), images[:1], 1)
+    assert alone.compared_on == "random noise" and "dB on random noise" in alone.summary()
 
 
 def test_an_output_on_the_checkpoint_or_on_another_output_is_refused(
