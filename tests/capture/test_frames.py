@@ -70,7 +70,7 @@ def test_bag_topics_can_be_named(tmp_path: Path) -> None:
         ("cam1", "/cam0/image_raw"),
         ("cam0", "/cam2/image_raw"),
     ]
-    with pytest.raises(CaptureError, match="/status is not an image topic"):
+    with pytest.raises(CaptureError, match="/status is a std_msgs/msg/String, not an image"):
         iter_frames(bag, topics=("/status", "/cam0/image_raw"))
     # the progress bar's total, from the bag's index: the chosen cameras' messages only
     assert bag_overview(bag, ("cam0", "cam1")).frames == 4
