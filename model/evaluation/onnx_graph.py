@@ -19,6 +19,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
+from lenspair import __version__
 from lenspair.model.networks.generator import DOWNSAMPLING_FACTOR
 from lenspair.model.networks.padding import MIN_SIDE, pad_to_multiple
 
@@ -165,8 +166,6 @@ def document_contract(path: Path, channels: int, precision: str = "fp32") -> Non
     none of it.
     """
     import onnx  # only ONNX exports need it
-
-    from lenspair import __version__
 
     model = onnx.load(str(path))
     colours = "mono" if channels == 1 else "RGB"
