@@ -29,7 +29,7 @@ from lenspair.capture import rosbag
 from lenspair.capture.depth_topics import camera_candidates, depth_note, depth_topics
 from lenspair.capture.errors import CaptureError
 from lenspair.capture.frame_types import BagMessage, InputFrame
-from lenspair.capture.image_messages import IMAGE_TYPES, decode_message, one_line
+from lenspair.capture.image_messages import decode_message, one_line
 from lenspair.capture.recording import CAMERAS
 from lenspair.capture.rigfile import CameraName
 
@@ -86,9 +86,7 @@ def bag_overview(
     """The :class:`BagOverview` of a bag, from one opening (a cut bag is scanned once)."""
     reader = rosbag.open_bag(Path(path))
     try:
-        image_topics = sorted(
-            name for name, info in reader.topics.items() if info.msgtype in IMAGE_TYPES
-        )
+        image_topics = rosbag.image_topics(reader)
         named, depth = _camera_topics(reader, Path(path), topics)
         counts = None
         if (by_topic := rosbag.topic_counts(reader)) is not None:

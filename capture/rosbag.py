@@ -100,6 +100,15 @@ def is_bag(path: Path) -> bool:
     return path.is_dir() and (path / "metadata.yaml").is_file()
 
 
+def storage_files(folder: Path) -> list[Path]:
+    """The ``.db3``/``.mcap`` files directly in ``folder``, sorted (a ROS 2 bag's storage)."""
+    return sorted(
+        entry
+        for entry in folder.iterdir()
+        if entry.is_file() and entry.suffix.lower() in ROS2_STORAGE_SUFFIXES
+    )
+
+
 def storage_without_metadata(folder: Path) -> str | None:
     """What a folder of ROS 2 bag storage without ``metadata.yaml`` is, and what to do; else None.
 
@@ -109,11 +118,7 @@ def storage_without_metadata(folder: Path) -> str | None:
     """
     if not folder.is_dir() or (folder / "metadata.yaml").exists():
         return None
-    storage = sorted(
-        entry.name
-        for entry in folder.iterdir()
-        if entry.is_file() and entry.suffix.lower() in ROS2_STORAGE_SUFFIXES
-    )
+    storage = [entry.name for entry in storage_files(folder)]
     if not storage:
         return None
     named = ", ".join(storage[:3]) + (f" and {len(storage) - 3} more" if len(storage) > 3 else "")
@@ -307,7 +312,7 @@ def open_bag(path: Path) -> BagReader:
             failure = one_line(exc)
         else:
             return reader
-    if path.is_dir() and sum(p.suffix.lower() in ROS2_STORAGE_SUFFIXES for p in path.iterdir()) > 1:
+    if path.is_dir() and len(storage_files(path)) > 1:
         # a split bag: only its metadata.yaml says how its files go together
         raise CaptureError(
             f"{path}: cannot open bag ({failure}); its storage files are read through "
@@ -378,6 +383,11 @@ def topic_counts(reader: BagReader) -> dict[str, int] | None:
     return {name: int(info.msgcount) for name, info in reader.topics.items()}
 
 
+def image_topics(reader: BagReader) -> list[str]:
+    """Every image topic of the bag (``sensor_msgs`` Image or CompressedImage), sorted."""
+    return sorted(name for name, info in reader.topics.items() if info.msgtype in IMAGE_TYPES)
+
+
 def image_topics_of(reader: BagReader) -> tuple[list[str], list[str]]:
     """A bag's image topics that may hold a camera (sorted), and those left out as empty.
 
@@ -388,7 +398,7 @@ def image_topics_of(reader: BagReader) -> tuple[list[str], list[str]]:
     bag, a storage that keeps no counts) or the bag is cut short, none is
     left out.
     """
-    found = sorted(name for name, info in reader.topics.items() if info.msgtype in IMAGE_TYPES)
+    found = image_topics(reader)
     counts = topic_counts(reader)
     if not counts or not any(counts.values()):
         return found, []
