@@ -141,7 +141,6 @@ def write_onnx(
                 external_data=False,
                 dynamic_shapes={"x": dims},
             )
-            _strip_trace(path)
         else:
             torch.onnx.export(
                 model,
@@ -151,12 +150,28 @@ def write_onnx(
                 dynamo=False,
                 dynamic_axes={INPUT_NAME: axes, OUTPUT_NAME: axes},
             )
-            _declare_output_shape(path, tuple(image.shape), axes)
-    document_contract(path, int(image.shape[1]))
+    import onnx  # only ONNX exports need it
+
+    graph = onnx.load(str(path))  # each exporter's file is mended in one load and save
+    if exporter == "dynamo":
+        _strip_trace(graph)
+    else:
+        _declare_output_shape(graph, tuple(image.shape), axes)
+    _describe(graph, int(image.shape[1]), "fp32")
+    onnx.save(graph, str(path))
 
 
-def document_contract(path: Path, channels: int, precision: str = "fp32") -> None:
-    """Write what a caller must feed the model at ``path`` into it, in place.
+def document_contract(path: Path, channels: int, precision: str) -> None:
+    """Write what a caller must feed the model at ``path`` into it, in place (:func:`_describe`)."""
+    import onnx  # only ONNX exports need it
+
+    graph = onnx.load(str(path))
+    _describe(graph, channels, precision)
+    onnx.save(graph, str(path))
+
+
+def _describe(model: Any, channels: int, precision: str) -> None:
+    """Put what a caller must feed the ONNX ``model`` into it.
 
     The ONNX file goes where lenspair is not installed (a robot's node in
     C++): its ``doc_string`` says the contract in words and ``metadata_props``
@@ -165,9 +180,6 @@ def document_contract(path: Path, channels: int, precision: str = "fp32") -> Non
     the session's ``get_modelmeta().custom_metadata_map``. An export carried
     none of it.
     """
-    import onnx  # only ONNX exports need it
-
-    model = onnx.load(str(path))
     colours = "mono" if channels == 1 else "RGB"
     model.doc_string = (
         f"lenspair {__version__} restoring network ({colours}, {precision}). Input "
@@ -188,30 +200,25 @@ def document_contract(path: Path, channels: int, precision: str = "fp32") -> Non
     model.metadata_props.extend(kept)
     for key, value in properties.items():
         model.metadata_props.add(key=key, value=value)
-    onnx.save(model, str(path))
 
 
-def _declare_output_shape(path: Path, shape: tuple[int, ...], axes: dict[int, str]) -> None:
-    """Declare the output's shape as the input's (``axes`` names the dynamic ones), in place.
+def _declare_output_shape(model: Any, shape: tuple[int, ...], axes: dict[int, str]) -> None:
+    """Declare the ONNX ``model``'s output shape as the input's (``axes``: the dynamic ones).
 
     The TorchScript-based exporter names every output dimension it cannot
     infer (``Addrestored_dim_1``), the channels too, and ``restore`` refuses a
     model whose output channels are not its input's.
     """
-    import onnx  # only ONNX exports need it
-
-    model = onnx.load(str(path))
     for output in model.graph.output:
         for index, dim in enumerate(output.type.tensor_type.shape.dim):
             if index in axes:
                 dim.dim_param = axes[index]
             elif index < len(shape):
                 dim.dim_value = shape[index]
-    onnx.save(model, str(path))
 
 
-def _strip_trace(path: Path) -> None:
-    """Drop what the dynamo exporter notes on each node of the model at ``path``, in place.
+def _strip_trace(model: Any) -> None:
+    """Drop what the dynamo exporter notes on each node of the ONNX ``model``.
 
     Its ``metadata_props`` hold Python stack traces (absolute paths of the
     machine that exported, its virtual environment's too) and reprs with
@@ -219,9 +226,6 @@ def _strip_trace(path: Path) -> None:
     a robot carried the build machine's layout, and two exports of one
     checkpoint differed in bytes. The graph and weights are untouched.
     """
-    import onnx  # only ONNX exports need it
-
-    model = onnx.load(str(path))
     graphs = [model.graph]
     while graphs:
         graph = graphs.pop()
@@ -230,4 +234,3 @@ def _strip_trace(path: Path) -> None:
             node.doc_string = ""
             graphs += [a.g for a in node.attribute if a.HasField("g")]
             graphs += [g for a in node.attribute for g in a.graphs]
-    onnx.save(model, str(path))
