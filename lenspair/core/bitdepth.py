@@ -119,9 +119,9 @@ class RunningDepth:
         """Take one more frame into account (an 8-bit one tells nothing of 16-bit ones)."""
         if image.dtype != np.uint16:
             return  # it would read as 16 bits, which never drops again
-        if not image.any():
-            return  # a black frame (a node's warm-up call) holds no value to tell a depth by
         bits = significant_bits([image])
+        if bits == LOW_BIT_DEPTHS[0] and not image.any():  # only dark frames pay this pass
+            return  # a black frame (a node's warm-up call) holds no value to tell a depth by
         with self._lock:
             if bits <= self._bits:
                 return
