@@ -65,6 +65,24 @@ def test_conflict_goes_to_the_closer_frame() -> None:
     assert loser.nearest_dt_ns == 4 * MS + 1
 
 
+@pytest.mark.parametrize(
+    ("ts0", "ts1"),
+    [
+        # cam1 frames 8 ms and 3.5 ms from cam0's 100 ms: the nearer is the second it meets
+        ([93 * MS, 100 * MS, 104 * MS], [92 * MS, 103 * MS + MS // 2]),
+        # 3.5 ms and 8 ms: the nearer is the first
+        ([95 * MS + MS // 2, 100 * MS, 108 * MS + MS // 2], [96 * MS + MS // 2, 108 * MS]),
+    ],
+)
+def test_a_loser_with_two_candidates_is_told_the_nearer_one(ts0: list[int], ts1: list[int]) -> None:
+    # each cam1 frame is taken by a closer cam0 frame
+    result = pair_frames(ts0, ts1, tolerance_ns=10 * MS)
+    assert [(p.index0, p.index1) for p in result.pairs] == [(0, 0), (2, 1)]
+    (loser,) = result.unpaired
+    assert (loser.camera, loser.index, loser.reason) == ("cam0", 1, TAKEN)
+    assert loser.nearest_dt_ns == 3 * MS + MS // 2
+
+
 def test_duplicates_are_recorded_not_silently_dropped() -> None:
     result = pair_frames([0, 0, 50 * MS], [0, 50 * MS, 50 * MS], tolerance_ns=5 * MS)
     assert [(p.index0, p.index1) for p in result.pairs] == [(0, 0), (2, 1)]
