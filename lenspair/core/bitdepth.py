@@ -13,6 +13,8 @@ import threading
 
 import numpy as np
 
+from lenspair.core.numbers import is_whole_number
+
 log = logging.getLogger(__name__)
 
 LOW_BIT_DEPTHS = (10, 12)
@@ -35,8 +37,7 @@ def is_bit_depth(bits: object) -> bool:
     ``12.0 == 12``: a float passed a plain membership test and failed at the
     first frame's shift; ``True == 1`` is no depth either.
     """
-    whole = isinstance(bits, int | np.integer) and not isinstance(bits, bool)
-    return whole and bits in BIT_DEPTHS
+    return is_whole_number(bits) and bits in BIT_DEPTHS
 
 
 def significant_bits(images: list[np.ndarray]) -> int:

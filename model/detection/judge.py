@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from lenspair.core.bitdepth import BIT_DEPTHS, is_bit_depth, significant_bits, widen
+from lenspair.core.numbers import is_whole_number
 from lenspair.core.pixels import check_image, is_one_frame
 from lenspair.core.quality import BLANK_STD
 from lenspair.model.detection.data import prepare
@@ -122,7 +123,7 @@ def judge(
         raise ValueError(
             f"judge takes a list of frames, got one {images.shape} array: judge(detector, [frame])"
         )
-    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
+    if not is_whole_number(batch_size) or batch_size < 1:
         raise ValueError(f"batch_size: expected a whole number of frames >= 1, got {batch_size!r}")
     images = list(images)  # a generator too: the frames are gone over more than once
     if bits is not None and not is_bit_depth(bits):

@@ -35,6 +35,7 @@ import torch
 
 from lenspair.core.bitdepth import BIT_DEPTHS, RunningDepth, is_bit_depth
 from lenspair.core.device import resolve_device
+from lenspair.core.numbers import is_whole_number
 from lenspair.core.pixels import check_image, is_one_frame
 from lenspair.model.errors import ModelError
 from lenspair.model.inference.backends import Backend, open_backend
@@ -90,8 +91,7 @@ class Restorer:
         if bits is not None and not is_bit_depth(bits):
             raise ModelError(f"Restorer: bits must be one of {BIT_DEPTHS}, got {bits!r}")
         for name, value in (("tile", tile), ("overlap", overlap)):
-            whole = isinstance(value, int | np.integer) and not isinstance(value, bool)
-            if not whole and not (value is None and name == "tile"):
+            if not is_whole_number(value) and not (value is None and name == "tile"):
                 raise ModelError(f"Restorer: {name} must be a whole number of pixels: {value!r}")
         self.backend: Backend = open_backend(
             Path(model), resolve_device(device), precision, tune_allocator
