@@ -37,6 +37,7 @@ from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.rig import (
     ROTATION_ATOL,
     CameraModel,
+    DistortionModel,
     StereoRig,
     checked_transform,
     is_rotation,
@@ -160,6 +161,19 @@ def _ros_matrix(data: dict[str, Any], key: str, shape: tuple[int, int], path: Pa
     return values.reshape(shape) if shape[0] * shape[1] else values.ravel()
 
 
+def _distortion(data: dict[str, Any], path: Path, model: DistortionModel) -> np.ndarray:
+    """``distortion_coefficients``; an empty list is no distortion.
+
+    Drivers of rectified or simulated streams publish ``D: []``, which ROS's
+    ``image_geometry`` reads as no distortion.
+    """
+    node = data.get("distortion_coefficients")
+    values = node.get("data") if isinstance(node, dict) else node
+    if isinstance(values, list | tuple) and len(values) == 0:
+        return np.zeros(4 if model == "equidistant" else 5)
+    return _ros_matrix(data, "distortion_coefficients", (0, 0), path)
+
+
 def _ros_camera(path: Path, data: dict[str, Any]) -> tuple[CameraModel, np.ndarray, np.ndarray]:
     name = str(data.get("distortion_model", "plumb_bob")).lower()
     if name not in MODEL_NAMES:
@@ -171,7 +185,7 @@ def _ros_camera(path: Path, data: dict[str, Any]) -> tuple[CameraModel, np.ndarr
     except (KeyError, TypeError, ValueError):
         raise RectifyError(f"{path}: image_width and image_height must be integers") from None
     K = _ros_matrix(data, "camera_matrix", (3, 3), path)
-    D = _ros_matrix(data, "distortion_coefficients", (0, 0), path)
+    D = _distortion(data, path, MODEL_NAMES[name])
     camera = camera_from_matrices(K, D, MODEL_NAMES[name], size, str(path))
     rectification = np.eye(3)
     if "rectification_matrix" in data:

@@ -17,7 +17,13 @@ import cv2
 import numpy as np
 
 from lenspair.rectify.errors import RectifyError
-from lenspair.rectify.rig import CameraModel, DistortionModel, StereoRig, checked_transform
+from lenspair.rectify.rig import (
+    CameraModel,
+    DistortionModel,
+    StereoRig,
+    checked_transform,
+    refuse_implausible,
+)
 
 MODEL_NAMES: dict[str, DistortionModel] = {
     "radtan": "radtan", "plumb_bob": "radtan", "rational_polynomial": "radtan",
@@ -85,12 +91,14 @@ def camera_from_matrices(
                 "radtan model (as Kalibr's) has k1 k2 p1 p2 only: recalibrate with k3 fixed to 0"
             )
     try:
-        return CameraModel(
+        camera = CameraModel(
             (float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])),
             model, tuple(float(v) for v in d[:4]), size,  # type: ignore[arg-type]
         )  # fmt: skip
     except ValueError as exc:
         raise RectifyError(f"{where}: {exc}") from None
+    refuse_implausible(camera, where)
+    return camera
 
 
 def transform_from_r_t(R: np.ndarray, T: np.ndarray, where: str) -> np.ndarray:

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from lenspair.rectify.errors import RectifyError
-from lenspair.rectify.rig import CameraModel
+from lenspair.rectify.rig import PIXEL_ASPECT_LIMIT, CameraModel
 
 STILL_BOARD_DEG = 2.0
 """A board turned less than this from the first view in every view, and moved less than
@@ -129,18 +129,13 @@ def check_distinct_poses(
         )
 
 
-PIXEL_ASPECT_LIMIT = 2.5
-"""A camera fit with fy/fx beyond this (or below its inverse) diverged: refused.
-
-Real cameras reach 2: one field of interlaced video has fy/fx near 0.5,
-2x1 binning 0.5 or 2, anamorphic lenses squeeze 1.33-2x. The fits this
-catches go well past that: three board poses held still gave fy/fx = 4.1.
-The poses themselves are checked first (:func:`check_distinct_poses`), so
-this is the last guard against a fit the views left unconstrained."""
-
-
 def check_fit(camera: CameraModel, stage: str) -> None:
     """Refuse a fit whose focal lengths are not those of a camera (:data:`PIXEL_ASPECT_LIMIT`).
+
+    The fits this catches go well past the limit: three board poses held still
+    gave fy/fx = 4.1. The poses themselves are checked first
+    (:func:`check_distinct_poses`), so this is the last guard against a fit the
+    views left unconstrained.
 
     Raises:
         RectifyError: ``fy / fx`` outside ``[1 / PIXEL_ASPECT_LIMIT, PIXEL_ASPECT_LIMIT]``.

@@ -12,6 +12,7 @@ Conventions:
   rotation; nothing else in lenspair special-cases it.
 """
 
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,8 @@ import yaml
 
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.rectify.errors import RectifyError
+
+log = logging.getLogger(__name__)
 
 DistortionModel = Literal["radtan", "equidistant"]
 
@@ -208,13 +211,67 @@ def camera_from_kalibr(data: Any, where: str) -> CameraModel:
         raise RectifyError(f"{where}.resolution: expected whole pixels, got {list(pixels)}")
     resolution = (int(pixels[0]), int(pixels[1]))
     try:
-        return CameraModel(intrinsics, dist_model, distortion, resolution)  # type: ignore[arg-type]
+        camera = CameraModel(intrinsics, dist_model, distortion, resolution)  # type: ignore[arg-type]
     except ValueError as exc:
         raise RectifyError(f"{where}: {exc}") from None
+    refuse_implausible(camera, where)
+    return camera
+
+
+PIXEL_ASPECT_LIMIT = 2.5
+"""A camera with fy/fx beyond this (or below its inverse) is none that is built.
+
+Real cameras reach 2: one field of interlaced video has fy/fx near 0.5,
+2x1 binning 0.5 or 2, anamorphic lenses squeeze 1.33-2x. A calibration fit
+that goes past it diverged (:func:`lenspair.rectify.fit_checks.check_fit`);
+a file that states it holds a typing error."""
+
+MIN_FOCAL_FRACTION = 0.05
+"""The least focal length, as a fraction of the image's longer side. A fisheye
+seeing 220 degrees has about 0.26 (equidistant: half the side over 1.9 rad), a
+pinhole's 157 degrees 0.1: below 0.05 no lens maps the image, and the number
+is in another unit (millimetres) or of another camera."""
+
+
+def refuse_implausible(camera: CameraModel, where: str) -> None:
+    """Refuse intrinsics that a calibration file may hold but no camera has.
+
+    A file's fy typed as 4 instead of 400, a focal length in millimetres, or a
+    calibration of the full sensor used for a binned stream loaded and
+    rectified without a word: the rectified view was made of five raw rows, of
+    a fraction of a pixel, or around a principal point in the image's corner.
+
+    Raises:
+        RectifyError: one line naming ``where`` and the value.
+    """
+    fx, fy, cx, cy = camera.intrinsics
+    width, height = camera.resolution
+    if not 1.0 / PIXEL_ASPECT_LIMIT <= fy / fx <= PIXEL_ASPECT_LIMIT:
+        raise RectifyError(
+            f"{where}: fy/fx = {fy / fx:.3g} (fx {fx:g} px, fy {fy:g} px): no camera's pixels "
+            f"are that far from square (limit {PIXEL_ASPECT_LIMIT:g}); check the intrinsics"
+        )
+    if min(fx, fy) < MIN_FOCAL_FRACTION * max(width, height):
+        raise RectifyError(
+            f"{where}: focal length {min(fx, fy):g} px in a {width}x{height} image: under "
+            f"{MIN_FOCAL_FRACTION:g} of its longer side, wider than any lens sees; intrinsics "
+            "are in pixels (a focal length in millimetres?)"
+        )
+    if not (0 < cx < width and 0 < cy < height):
+        raise RectifyError(
+            f"{where}: principal point ({cx:g}, {cy:g}) is not inside the {width}x{height} "
+            "image: the calibration is of another resolution (binning, a region of interest, "
+            "a resized stream)?"
+        )
 
 
 MAX_BASELINE_M = 10.0
-"""Larger than any stereo rig: a translation this long was written in milli- or centimetres."""
+"""Larger than any stereo rig: a translation this long was written in millimetres."""
+
+WIDE_BASELINE_M = 1.0
+"""Wider than the rigs lenspair records with (two cameras behind one window, a few
+centimetres apart): a baseline above it is warned of, as one in centimetres reads
+(a RealSense's 5 cm written as 5)."""
 
 MIN_BASELINE_M = 1e-4
 """A tenth of a millimetre: below it the rig is a single point (OpenCV's
@@ -238,11 +295,12 @@ def checked_transform(matrix: np.ndarray, where: str) -> np.ndarray:
     """``T_cam1_cam0`` checked: 4x4, finite, a rotation, a rigid last row, a stereo baseline.
 
     Every calibration reader passes its extrinsic through here, so a zero
-    (placeholder) baseline, one in millimetres or centimetres, or a matrix
-    that is no rotation, is one line naming the file, not an OpenCV assertion
-    later. A rotation rounded where it was written (within
-    :data:`ROTATION_ATOL`) is replaced by the nearest exact one (SVD), as
-    rectification needs.
+    (placeholder) baseline, one in millimetres, or a matrix that is no
+    rotation, is one line naming the file, not an OpenCV assertion later. A
+    baseline in centimetres reads as one of a few metres, which long-baseline
+    rigs have: it is warned of (:data:`WIDE_BASELINE_M`), not refused. A
+    rotation rounded where it was written (within :data:`ROTATION_ATOL`) is
+    replaced by the nearest exact one (SVD), as rectification needs.
 
     Raises:
         RectifyError: naming ``where`` and what is wrong.
@@ -274,6 +332,13 @@ def checked_transform(matrix: np.ndarray, where: str) -> np.ndarray:
         raise RectifyError(
             f"{where}: baseline {baseline:g} is not plausible in metres (millimetres or "
             "centimetres?); translations must be in metres"
+        )
+    if baseline > WIDE_BASELINE_M:
+        log.warning(
+            "%s: baseline %g m, wider than two cameras behind one window; if the "
+            "translation is in centimetres, write it in metres",
+            where,
+            baseline,
         )
     return matrix
 

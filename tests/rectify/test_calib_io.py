@@ -209,6 +209,34 @@ def test_echoed_camera_info_messages_load_as_the_camera_calibration_pair(
         load_calibration(echoed[::-1])
 
 
+@pytest.mark.parametrize("model", ["radtan", "equidistant"])
+def test_an_empty_camera_info_distortion_is_no_distortion(
+    tmp_path: Path, model: DistortionModel
+) -> None:
+    # drivers of rectified or simulated streams publish D: [], which ROS's image_geometry
+    # reads as no distortion; it was "distortion_coefficients is empty or contains NaN"
+    rig = make_rig(model)
+    for path in ros_files(tmp_path, rig):
+        data = yaml.safe_load(path.read_text())
+        data["distortion_coefficients"] = {"rows": 1, "cols": 0, "data": []}
+        path.write_text(yaml.safe_dump(data))
+    found, _ = load_calibration([tmp_path / "left.yaml", tmp_path / "right.yaml"])
+    for camera, given in ((found.cam0, rig.cam0), (found.cam1, rig.cam1)):
+        assert camera.distortion_model == model
+        assert camera.distortion == (0.0, 0.0, 0.0, 0.0)
+        np.testing.assert_allclose(camera.K, given.K, atol=1e-9)
+    np.testing.assert_allclose(found.T_cam1_cam0, rig.T_cam1_cam0, atol=1e-9)
+
+
+def test_a_camera_info_of_the_full_sensor_on_a_binned_stream_is_refused(tmp_path: Path) -> None:
+    left, right = ros_files(tmp_path, make_rig())
+    data = yaml.safe_load(right.read_text())
+    data["image_width"], data["image_height"] = 360, 270  # the stream, 2x2 binned
+    right.write_text(yaml.safe_dump(data))
+    with pytest.raises(RectifyError, match=rf"^{right}: principal point \(358, 271\) is not"):
+        load_calibration([left, right])
+
+
 def test_ros_pair_with_explicit_extrinsic(tmp_path: Path) -> None:
     rig = make_rig("equidistant", rotated=True)
     left, right = ros_files(tmp_path, rig)

@@ -113,3 +113,40 @@ def test_a_zero_fifth_radtan_coefficient_is_read_as_the_other_readers_read_it(
     data["cam0"]["distortion_coeffs"] = [*radtan.distortion, 0.0]
     camchain.write_text(yaml.safe_dump(data))
     assert read_kalibr(camchain).cam0 == radtan
+
+
+@pytest.mark.parametrize(
+    ("intrinsics", "said"),
+    [
+        # fy typed as 4 for 400: the rectified view was made of five raw rows
+        ((400.0, 4.0, 360.0, 270.0), r"fy/fx = 0\.01 \(fx 400 px, fy 4 px\)"),
+        # a focal length in millimetres: a fraction of a pixel's patch, stretched
+        ((3.6, 3.6, 360.0, 270.0), r"focal length 3\.6 px in a 720x540 image"),
+        # the full sensor's calibration on a 2x2-binned stream: the centre in a corner
+        ((700.0, 700.0, 720.0, 540.0), r"principal point \(720, 540\) is not inside"),
+    ],
+)
+def test_intrinsics_no_camera_has_are_refused_naming_the_file(
+    tmp_path: Path, intrinsics: tuple[float, float, float, float], said: str
+) -> None:
+    rig = _rig(False)
+    camchain = tmp_path / "c.yaml"
+    write_kalibr(camchain, rig)
+    data = yaml.safe_load(camchain.read_text())
+    data["cam1"]["intrinsics"] = list(intrinsics)
+    camchain.write_text(yaml.safe_dump(data))
+    with pytest.raises(RectifyError, match=rf"c\.yaml: cam1.*: {said}"):
+        read_kalibr(camchain)
+
+
+def test_a_baseline_of_metres_is_warned_of_as_centimetres_written_as_metres(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    rig = _rig(False)
+    for baseline, warned in ((0.064, False), (6.4, True)):
+        T = rig.T_cam1_cam0.copy()
+        T[:3, 3] = [-baseline, 0.0, 0.0]
+        write_kalibr(tmp_path / "c.yaml", StereoRig(rig.cam0, rig.cam1, T))
+        caplog.clear()
+        assert read_kalibr(tmp_path / "c.yaml").baseline_m == pytest.approx(baseline)
+        assert ("baseline 6.4 m" in caplog.text and "centimetres" in caplog.text) == warned
