@@ -73,18 +73,55 @@ def fit_camera(
                 objects, images, size, None, None, flags=flags, criteria=CRITERIA
             )
         else:
-            objects = [o.reshape(1, -1, 3).astype(np.float64) for o, _ in points]
-            images = [i.reshape(1, -1, 2).astype(np.float64) for _, i in points]
-            flags = fisheye_flag("CALIB_RECOMPUTE_EXTRINSIC") | fisheye_flag("CALIB_FIX_SKEW")
-            _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
-                objects, images, size, np.eye(3), np.zeros(4), flags=flags, criteria=CRITERIA
-            )
+            K, D, rvecs, tvecs = _fit_fisheye(points, size)
     except cv2.error as exc:
         raise RectifyError(
             f"single-camera calibration failed: {str(exc).strip().splitlines()[-1]}"
         ) from None
     camera = _as_camera(K, D, model, size)
     return camera, np.asarray(rvecs).reshape(-1, 3), np.asarray(tvecs).reshape(-1, 3)
+
+
+FISHEYE_FOCAL_GUESSES = (1.0, 1.3, 0.8)
+"""Starting focal lengths tried when ``cv2.fisheye.calibrate``'s own start fails, as
+multiples of ``max(width, height) / pi`` (an equidistant lens seeing 180 degrees across
+the longer side)."""
+
+
+def _fit_fisheye(
+    points: list[tuple[np.ndarray, np.ndarray]], size: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray, Any, Any]:
+    """``cv2.fisheye.calibrate``: ``K, D, rvecs, tvecs``; raises ``cv2.error`` when no start fits.
+
+    OpenCV starts from its own guess, which fails on lenses wider than about
+    165 degrees once the board reaches far off axis, as the coverage advice
+    asks (``InitExtrinsics``: "fabs(norm_u1) > 0"). Then the fit starts again
+    from focal lengths such lenses have (:data:`FISHEYE_FOCAL_GUESSES`),
+    centred; the first that converges is taken, and the later checks of the
+    fit judge it as any other.
+    """
+    objects = [o.reshape(1, -1, 3).astype(np.float64) for o, _ in points]
+    images = [i.reshape(1, -1, 2).astype(np.float64) for _, i in points]
+    flags = fisheye_flag("CALIB_RECOMPUTE_EXTRINSIC") | fisheye_flag("CALIB_FIX_SKEW")
+    try:
+        _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
+            objects, images, size, np.eye(3), np.zeros(4), flags=flags, criteria=CRITERIA
+        )
+        return K, D, rvecs, tvecs
+    except cv2.error as exc:
+        first = exc
+    guess = flags | fisheye_flag("CALIB_USE_INTRINSIC_GUESS")
+    for scale in FISHEYE_FOCAL_GUESSES:
+        focal = scale * max(size) / np.pi
+        start = np.array([[focal, 0, (size[0] - 1) / 2], [0, focal, (size[1] - 1) / 2], [0, 0, 1]])
+        try:
+            _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
+                objects, images, size, start, np.zeros(4), flags=guess, criteria=CRITERIA
+            )
+            return K, D, rvecs, tvecs
+        except cv2.error:
+            continue
+    raise first
 
 
 def refinable(data: list[Points], cameras: tuple[CameraModel, CameraModel]) -> bool:
