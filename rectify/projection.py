@@ -21,7 +21,7 @@ _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
 
 
 @functools.lru_cache(maxsize=64)  # asked anew for each of the zoom search's projections
-def _monotonic_limit(camera: CameraModel) -> float:
+def monotonic_limit(camera: CameraModel) -> float:
     """Largest radius (radtan: ``r``; equidistant: ``theta``) where distortion is monotonic."""
     k = camera.distortion
     if camera.distortion_model == "radtan":
@@ -56,7 +56,7 @@ def project_rays(camera: CameraModel, rays: np.ndarray) -> np.ndarray:
         y = np.where(z > 0, rays[..., 1] / z, np.nan)
     k = camera.distortion
     r2 = x * x + y * y
-    limit = _monotonic_limit(camera)
+    limit = monotonic_limit(camera)
     if camera.distortion_model == "radtan":
         radial = 1.0 + k[0] * r2 + k[1] * r2 * r2
         xd = x * radial + 2 * k[2] * x * y + k[3] * (r2 + 2 * x * x)

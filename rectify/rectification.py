@@ -44,6 +44,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from lenspair.rectify import outline
 from lenspair.rectify.errors import RectifyError
 from lenspair.rectify.layout import quarter_turns, rotation_z, unsupported_layout
 from lenspair.rectify.projection import pixel_rays, project_rays
@@ -59,92 +60,6 @@ from lenspair.rectify.zoom import (
 View = Literal["cam0", "cam1"]
 OUTSIDE = -1000.0
 """Map value for rectified pixels with no raw source (remap then yields the border value)."""
-
-_EDGE_NAMES = ("left", "right", "top", "bottom")
-
-
-def _outline(camera: CameraModel, rotation: np.ndarray, name: str, turn_deg: float) -> np.ndarray:
-    """A raw image's border on the rectified plane, in order around the image.
-
-    Every pixel centre along the border (centres, not pixel edges, so that
-    bilinear sources stay inside the image); those without a ray or behind
-    the rectified plane are left out, which joins their neighbours by a chord.
-
-    Args:
-        camera: the raw camera.
-        rotation: its rectifying rotation.
-        name: ``cam0`` or ``cam1``, for errors.
-        turn_deg: how far the rectification turns the camera, for errors.
-
-    Returns:
-        ``(N, 2)`` float64 normalised rectified coordinates: a closed polygon.
-
-    Raises:
-        RectifyError: a whole edge of the image has no usable ray, naming ``name`` and the edge.
-    """
-    width, height = camera.resolution
-    xs, ys = np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64)
-    edges = {
-        "top": np.column_stack([xs, np.zeros(width)]),
-        "right": np.column_stack([np.full(height, width - 1.0), ys]),
-        "bottom": np.column_stack([xs[::-1], np.full(width, height - 1.0)]),
-        "left": np.column_stack([np.zeros(height), ys[::-1]]),
-    }
-    sides: list[np.ndarray] = []
-    no_ray: list[str] = []
-    behind: list[str] = []
-    for edge, points in edges.items():
-        rays = pixel_rays(camera, points) @ rotation.T
-        ok = rays[:, 2] > 1e-6  # False for NaN: pixels without a ray are skipped
-        if not ok.any():
-            (behind if np.isfinite(rays).all(axis=1).any() else no_ray).append(edge)
-            continue
-        sides.append(_capped(rays[np.isfinite(rays).all(axis=1)]))
-    # named in a fixed order, whatever the walk around the image
-    no_ray, behind = ([e for e in _EDGE_NAMES if e in lost] for lost in (no_ray, behind))
-    if no_ray:
-        raise RectifyError(
-            f"rectification: no pixel on {name}'s {' and '.join(no_ray)} "
-            f"{'edge' if len(no_ray) == 1 else 'edges'} has a valid ray: beyond the range "
-            "of its distortion model, which a calibration extrapolates where its boards never "
-            "reached (calibrate again with views that bring the board near the image edges), "
-            "or past 90 deg off-axis, where a fisheye of a field over 180 deg looks and no "
-            "rectified plane reaches"
-        )
-    if behind:
-        raise RectifyError(
-            f"rectification: {name}'s {' and '.join(behind)} "
-            f"{'edge falls' if len(behind) == 1 else 'edges fall'} behind the rectified plane: "
-            f"bringing the baseline along the rows turns the cameras {turn_deg:.0f} deg, more "
-            "than their field of view allows (mount cam1 beside cam0, or check T_cn_cnm1 in "
-            "the calibration)"
-        )
-    return np.concatenate(sides)
-
-
-MAX_ANGLE_DEG = 75.0
-"""The most a rectified view reaches off its axis: a border beyond is drawn at this angle."""
-
-
-def _capped(rays: np.ndarray) -> np.ndarray:
-    """Rays' points on the rectified plane, those over :data:`MAX_ANGLE_DEG` off its axis pulled in.
-
-    A pinhole view spreads a fisheye's rays near 90 deg off-axis over an
-    unbounded plane: the border of a lens that sees past 90 deg in its
-    corners (a diagonal field over 180 deg) ran out to infinity along the
-    diagonals, and the zoom search put the rectified view out there (a focal
-    length of a few pixels, the centre thousands of pixels away). Each ray is
-    kept on its bearing; one beyond the angle (behind the plane too) is
-    placed at the angle, so the border is the lens's within that cone.
-    """
-    radial = np.linalg.norm(rays[:, :2], axis=1)
-    limit = np.tan(np.radians(MAX_ANGLE_DEG))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inside = (rays[:, 2] > 0) & (radial < limit * rays[:, 2])
-        planar = rays[:, :2] / rays[:, 2:]
-        pulled = rays[:, :2] * (limit / radial)[:, None]
-    keep = inside | (radial > 0)
-    return np.asarray(np.where(inside[:, None], planar, pulled)[keep])
 
 
 def _rectified_to_raw(
@@ -176,10 +91,16 @@ def _alpha_zero(
     See :mod:`~lenspair.rectify.zoom`: the centre of the largest rectangle of
     the output's shape inside both border polygons, refined, and at each
     centre the smallest focal length for which every pixel on the output's
-    border (and so inside it) has its source in the raw image.
+    border (and so inside it) has its source in the raw image and lies within
+    :data:`~lenspair.rectify.outline.MAX_ANGLE_DEG` of the axis. A fisheye
+    squeezes the rays near 90 deg into a ring inside its image, so every
+    border pixel of a view reaching 87 deg had its source (a RealSense T265
+    rectified to a focal length of 22 px at 848x800): the angle, not the
+    image, bounds such a view.
     """
     centre, cell = inscribed_centre(outlines, size[0] / size[1])
     border = border_pixels(size)
+    reach = np.tan(np.radians(outline.MAX_ANGLE_DEG))
     # the refinement's searches start from the last answer (their centres lie within
     # cells of each other) and give up past twice the grid centre's: no candidate needs that
     found: list[float] = []
@@ -187,6 +108,8 @@ def _alpha_zero(
     def least_focal(at: np.ndarray) -> float:
         def valid(f: float) -> bool:
             K = camera_matrix(f, at, size)
+            if np.hypot(*((border - K[:2, 2]) / f).T).max() > reach:
+                return False
             return all(
                 bool(_inside(_rectified_to_raw(camera, rot, K, border), camera.resolution).all())
                 for camera, rot in zip((rig.cam0, rig.cam1), rotations, strict=True)
@@ -276,7 +199,7 @@ class StereoRectification:
             )
         turned = float(np.degrees(np.arccos(np.clip(rotations[0][2, 2], -1.0, 1.0))))
         outlines = [
-            _outline(rig.camera(name), rotations[index], name, turned)
+            outline.raw_border(rig.camera(name), rotations[index], name, turned)
             for index, name in enumerate(("cam0", "cam1"))
         ]
         everything = np.concatenate(outlines)

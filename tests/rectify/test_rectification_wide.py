@@ -14,8 +14,9 @@ import yaml
 
 from lenspair.capture.ingested import read_pairs
 from lenspair.cli import main
-from lenspair.rectify import rectification
-from lenspair.rectify.rectification import MAX_ANGLE_DEG, StereoRectification
+from lenspair.rectify import outline
+from lenspair.rectify.outline import MAX_ANGLE_DEG
+from lenspair.rectify.rectification import StereoRectification
 from lenspair.rectify.rig import CameraModel, StereoRig
 from lenspair.simulate.transforms import rotation_xyz_deg
 from tests.capture.ingest_helpers import registration_errors
@@ -56,8 +57,35 @@ def test_a_lens_within_the_cap_rectifies_as_without_it(monkeypatch: pytest.Monke
     # the sample rig's corners lie within the cap: its border is not moved
     assert np.degrees(np.hypot(360, 270) / 350) < MAX_ANGLE_DEG
     capped = StereoRectification.from_rig(_rig(350.0)).K
-    monkeypatch.setattr(rectification, "MAX_ANGLE_DEG", 89.9)
+    monkeypatch.setattr(outline, "MAX_ANGLE_DEG", 89.9)
     np.testing.assert_array_equal(StereoRectification.from_rig(_rig(350.0)).K, capped)
+
+
+T265 = (-0.008, 0.045, -0.043, 0.008)
+"""A RealSense T265's published equidistant coefficients (848x800, f about 286 px)."""
+
+
+@pytest.mark.parametrize("f", [286.0, 300.0])
+def test_a_lens_seeing_past_90_deg_on_whole_edges_rectifies_within_the_cap(f: float) -> None:
+    # at f 286 the T265's side edges lie wholly past 90 deg: it was refused ("no pixel on
+    # cam0's left and right edges has a valid ray"); at f 300 it rectified to an 87 deg
+    # view of focal length 70 px, every border pixel found in the ring near 90 deg
+    camera = CameraModel((f, f, 423.5, 399.5), "equidistant", T265, (848, 800))
+    T = np.eye(4)
+    T[0, 3] = -0.064
+    rectified = StereoRectification.from_rig(StereoRig(camera, camera, T))
+    width, height = rectified.size
+    K = rectified.K
+    corner = np.hypot(max(K[0, 2], width - 1 - K[0, 2]), max(K[1, 2], height - 1 - K[1, 2]))
+    reach = np.degrees(np.arctan(corner / K[0, 0]))
+    assert MAX_ANGLE_DEG - 0.5 < reach <= MAX_ANGLE_DEG + 1e-6  # as wide as the cap, no wider
+    assert abs(K[0, 2] - 423.5) < 5 and abs(K[1, 2] - 399.5) < 5
+    xs, ys = np.meshgrid(np.arange(0, width, 7), np.arange(0, height, 7))
+    grid = np.column_stack([xs.ravel(), ys.ravel()]).astype(np.float64)
+    for view in ("cam0", "cam1"):
+        raw = rectified.rectified_to_raw(view, grid)  # type: ignore[arg-type]
+        assert np.isfinite(raw).all() and (raw >= -0.5).all()
+        assert (raw[:, 0] <= 847.5).all() and (raw[:, 1] <= 799.5).all()
 
 
 def test_a_recording_through_a_lens_seeing_past_90_deg_is_ingested_and_registered(
