@@ -5,8 +5,10 @@ Pure functions on arrays (images per :mod:`lenspair.core.pixels`: ``uint8``/``ui
 
 Rules run in the order of :data:`RULES`; a pair is removed by the first rule
 it fails, so the removed counts of the rules add up to the pairs removed.
-Quality rules come before the duplicate rule, so that the frame that stands
-for a run of identical frames is one that passed them.
+Quality rules, and the clean rule where clean pairs are excluded, come before
+the duplicate rule, so that the frame that stands for a run of identical
+frames is one that passed them: a clean frame standing for a run of frames
+that show the anomaly took the whole run with it when it was excluded.
 """
 
 from collections.abc import Sequence
@@ -37,8 +39,8 @@ RULES: tuple[tuple[str, str], ...] = (
     ("mask", "fraction of untrustworthy (masked) pixels > max_mask_fraction"),
     ("sharpness", "clean-view variance of Laplacian < min_sharpness (motion blur)"),
     ("exposure", "clean view saturated > max_saturated or black > max_black"),
-    ("duplicate", "near-identical to the last kept frame of its recording (robot standing still)"),
     ("clean", "no visible anomaly (removed only with clean_pairs: exclude, else tagged)"),
+    ("duplicate", "near-identical to the last kept frame of its recording (robot standing still)"),
     ("split_gap", "dropped before a segment border between two splits (no leakage)"),
 )
 """(rule name, what it removes), in the order the rules are applied."""
@@ -273,7 +275,7 @@ Removals = dict[tuple[int, int], tuple[str, str]]
 
 
 def curate(measured: Sequence[Measured], config: CurationConfig) -> Removals:
-    """Apply the quality, duplicate and clean rules to measured pairs.
+    """Apply the quality, clean and duplicate rules to measured pairs.
 
     Args:
         measured: every line of every source (any order).
@@ -291,6 +293,8 @@ def curate(measured: Sequence[Measured], config: CurationConfig) -> Removals:
             removed[key] = (item.rule or "bad_image", item.reason or "")
             continue
         failed = quality_rule(item.record, item.stats, config)
+        if failed is None and config.clean_pairs == "exclude" and is_clean(item.stats, config):
+            failed = ("clean", "no visible anomaly")
         if failed is not None:
             removed[key] = failed
         else:
@@ -299,10 +303,10 @@ def curate(measured: Sequence[Measured], config: CurationConfig) -> Removals:
         items.sort(key=lambda pair: pair[0].record.t_ns)
         thumbnails = [level_normalised(stats.thumbnail) for _, stats in items]
         flags = find_duplicates(thumbnails, config.duplicate_threshold)
-        for (item, stats), duplicate in zip(items, flags, strict=True):
-            key = (item.source, item.index)
+        for (item, _), duplicate in zip(items, flags, strict=True):
             if duplicate:
-                removed[key] = ("duplicate", "near-identical to the last kept frame")
-            elif config.clean_pairs == "exclude" and is_clean(stats, config):
-                removed[key] = ("clean", "no visible anomaly")
+                removed[(item.source, item.index)] = (
+                    "duplicate",
+                    "near-identical to the last kept frame",
+                )
     return removed

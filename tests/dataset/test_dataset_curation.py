@@ -189,6 +189,24 @@ def test_curate_counts_each_pair_once_in_rule_order() -> None:
     assert set(RULE_NAMES) >= {rule for rule, _ in removed.values()}
 
 
+def test_an_excluded_clean_frame_does_not_stand_for_a_run_that_shows_the_anomaly() -> None:
+    # the robot stands still while drops form: frame 0 shows none yet, 1-3 do. Duplicates
+    # were sought among all, so 1-3 went as duplicates of 0, and 0 went as clean: no pair
+    obstructed, target = _pair()
+    clean = measure_pair(target, target, None, 0.03)
+    drops = measure_pair(obstructed, target, None, 0.03)  # the same clean view: same thumbnail
+    items = [Measured(0, 0, PairRecord(10, "kept"), {}, {}, clean)]
+    items += [Measured(0, i, PairRecord(10 * (i + 1), "kept"), {}, {}, drops) for i in (1, 2, 3)]
+    removed = curate(items, CurationConfig(clean_pairs="exclude"))
+    assert {key: rule for key, (rule, _) in removed.items()} == {
+        (0, 0): "clean",
+        (0, 2): "duplicate",
+        (0, 3): "duplicate",
+    }
+    # kept, clean frames stand for their runs as any other
+    assert set(curate(items, CurationConfig())) == {(0, 1), (0, 2), (0, 3)}
+
+
 def test_config_yaml_sections_overrides_and_errors(tmp_path: Path) -> None:
     assert load_dataset_config(None) == DatasetConfig()
     file = tmp_path / "curation.yaml"
