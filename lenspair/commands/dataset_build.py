@@ -122,11 +122,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+BUILD_ONLY = {
+    "out": "--out",
+    "splits": "--splits",
+    "seed": "--seed",
+    "config": "--config",
+    "overwrite": "--overwrite",
+    "previous": "--previous",
+    "accept_side_mismatch": "--accept-side-mismatch",
+    "max_residual_px": "--max-residual-px",
+    "min_sharpness": "--min-sharpness",
+    "duplicate_threshold": "--duplicate-threshold",
+    "exclude_clean": "--exclude-clean",
+    "group_by": "--group-by",
+}
+"""Options of a build, by ``argparse`` dest: none means anything to ``--verify``."""
+
+
 def run(args: argparse.Namespace) -> int:
     """Build (or verify) a dataset; returns the exit code."""
     if args.verify is not None:
-        if args.sources or args.out is not None or args.previous is not None:
-            raise ConfigError("--verify takes only the dataset folder")
+        given = [
+            flag for dest, flag in BUILD_ONLY.items() if getattr(args, dest) not in (None, False)
+        ]
+        given += ["recording folders"] if args.sources else []
+        given += ["--link"] if args.link != "copy" else []
+        if given:
+            # checked against its own config.yaml and seed: a --seed or --splits given here
+            # was ignored, and "OK" read as the dataset checked against them
+            raise ConfigError(
+                f"--verify takes only the dataset folder (and --workers): {', '.join(given)} "
+                "would change nothing it checks; it checks DS against the config and seed "
+                "it was built with"
+            )
         return _verify(args.verify, args.workers)
     if not args.sources or args.out is None:
         raise ConfigError("give ingested recording folders and --out DS (or --verify DS)")
