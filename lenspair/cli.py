@@ -227,6 +227,7 @@ def main(argv: list[str] | None = None) -> int:
         with _sigterm_as_interrupt():
             return int(_load(args.command).run(args))
     except LenspairError as exc:
+        _end_bar_line(interrupted=False)
         print(f"lenspair {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # the file system refused: read-only, full, a file where a folder goes
@@ -234,6 +235,7 @@ def main(argv: list[str] | None = None) -> int:
             raise  # anything else may be a bug: its traceback is wanted
         where = " -> ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
         reason = exc.strerror or str(exc)
+        _end_bar_line(interrupted=False)
         print(
             f"lenspair {args.command}: error: {where + ': ' if where else ''}{reason}",
             file=sys.stderr,
@@ -248,12 +250,26 @@ def main(argv: list[str] | None = None) -> int:
         if own_hint is not None:
             hint = own_hint(args) or hint
         stopped = "terminated" if isinstance(exc, Terminated) else "interrupted"
-        # a progress bar left open ends its line first (none shown: its module is not loaded)
-        bars = sys.modules.get("lenspair.core.progress")
-        if sys.stderr.isatty() or (bars is not None and bars.bar_shown()):
-            print(file=sys.stderr)
+        _end_bar_line(interrupted=True)
         print(f"lenspair {args.command}: {stopped}; {hint}", file=sys.stderr)
         return TERMINATED if isinstance(exc, Terminated) else INTERRUPTED
+
+
+def _end_bar_line(interrupted: bool) -> None:
+    """Start the command's last line on a line of its own.
+
+    In a log file a progress bar's last state stays on its line, unterminated
+    (:func:`lenspair.core.progress.bar_shown`), and an error read on after it:
+    "...2/12 [00:02<00:12, 1.25s/frame]lenspair restore: error: ...". In a
+    terminal a closed bar clears its line; only Ctrl-C's echoed ``^C`` is left.
+    """
+    if sys.stderr.isatty():
+        if interrupted:
+            print(file=sys.stderr)
+        return
+    bars = sys.modules.get("lenspair.core.progress")  # none shown: its module is not loaded
+    if bars is not None and bars.bar_shown():
+        print(file=sys.stderr)
 
 
 if __name__ == "__main__":  # python -m lenspair.cli, as torchrun -m runs it

@@ -128,3 +128,32 @@ def test_an_interruption_after_a_bar_starts_its_own_line_in_a_log_file(
     assert main(["simulate", "rain", "--out", "unused"]) == INTERRUPTED
     err = capsys.readouterr().err
     assert "rendering" in err and err.endswith(f"\n{said}")
+
+
+@pytest.mark.parametrize("failure", ["user error", "full disk"])
+def test_an_error_after_a_bar_starts_its_own_line_in_a_log_file(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], failure: str
+) -> None:
+    # "...| 2/12 [00:02<00:12, 1.25s/frame]lenspair restore: error: rs_full/...png: the file
+    # system cut the write short": only an interruption ended the bar's line
+    import errno
+
+    import lenspair.commands.simulate as command
+    from lenspair.core import progress
+    from lenspair.core.errors import ConfigError
+
+    def failing(args: object) -> int:
+        for _ in progress.progress(range(3), "rendering"):
+            pass
+        if failure == "full disk":
+            raise OSError(errno.ENOSPC, "No space left on device", "out/frame.png")
+        raise ConfigError("out/frame.png: cannot be written")
+
+    monkeypatch.setattr(progress, "_SHOWN", [])
+    monkeypatch.setattr(command, "run", failing)
+    monkeypatch.setenv("LENSPAIR_QUIET", "")
+    assert main(["simulate", "rain", "--out", "unused"]) in (1, 2)
+    err = capsys.readouterr().err
+    assert "rendering" in err
+    last = err.rstrip("\n").split("\n")[-1]
+    assert last.startswith("lenspair simulate: error: out/frame.png: ")
