@@ -355,15 +355,16 @@ def _deployed_latency(
     precision: str,
     runs: int,
 ) -> list[Latency]:
-    """Batch-1 timings at ``size`` = (H, W): on the CPU, and on CUDA when available.
+    """Batch-1 timings at ``size`` = (H, W): on the CPU, and on ``device`` when it is CUDA.
 
-    ``device`` is the CUDA device to time on when it is one. fp16 is timed
+    ``--device cpu`` on a machine with a GPU times the CPU only: the GPU may be
+    busy, or kept from this run (it was timed, and the network moved onto it,
+    whenever one was there). fp16 is timed
     at fp32 on the CPU; int8 (ONNX Runtime) on the CPU only. Where a device
     ran a reduced precision, ``fp32_network`` is timed there too: what the
     precision saves in time, beside what it costs (``versus_fp32``).
     """
-    cuda = device if device.type == "cuda" else torch.device("cuda")
-    devices = [torch.device("cpu")] + ([cuda] if torch.cuda.is_available() else [])
+    devices = [torch.device("cpu")] + ([device] if device.type == "cuda" else [])
     latency = []
     for where in devices:
         if precision == "int8" and where.type != "cpu":

@@ -370,6 +370,26 @@ def test_latency_is_a_median_of_timed_runs() -> None:
     assert bf16.precision == "bf16"
 
 
+@pytest.mark.parametrize(("device", "timed"), [("cpu", ["cpu"]), ("cuda:1", ["cpu", "cuda:1"])])
+def test_latency_is_timed_on_cuda_only_when_the_device_is(
+    monkeypatch: pytest.MonkeyPatch, device: str, timed: list[str]
+) -> None:
+    # --device cpu on a machine with a GPU timed the GPU too, moving the network onto it
+    from lenspair.model.evaluation import evaluate
+
+    seen: list[str] = []
+
+    def measure(network: object, channels: int, where: torch.device, *rest: object, **kw: object):
+        seen.append(str(where))
+        return where
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(evaluate, "measure_latency", measure)
+    network = build_model("G", 1, 0.25, 1)
+    evaluate._deployed_latency(network, network, 1, torch.device(device), (24, 40), "fp32", 2)
+    assert seen == timed
+
+
 class _Shapes(torch.nn.Module):
     """Records the shape of every input (in the class: the CPU times a copy); returns it."""
 
