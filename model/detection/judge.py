@@ -42,6 +42,7 @@ from lenspair.core.pixels import check_image, is_one_frame
 from lenspair.core.quality import BLANK_STD
 from lenspair.model.detection.data import prepare
 from lenspair.model.networks.detector import KINDS, AnomalyDetector
+from lenspair.model.networks.padding import MIN_SIDE
 
 OBSTRUCTED_THRESHOLD = 0.5
 """Probability above which a frame is called obstructed."""
@@ -84,6 +85,18 @@ class Judgement:
         """``float32`` ``(N,)``: fraction of tiles called covered (map > 0.5); 0 when clean."""
         share = (self.maps > 0.5).mean(axis=(1, 2)).astype(np.float32)
         return np.where(self.obstructed, share, np.float32(0.0))
+
+
+def size_problem(image: np.ndarray) -> str | None:
+    """Why ``image`` is too small to judge, or None: restore's minimum, ``MIN_SIDE`` a side.
+
+    The detector scales every frame to its input size: a 5x5 or 1x40 frame came
+    back with a confident "clean" that restore, reading the same folder, refused.
+    """
+    height, width = image.shape[:2]
+    if min(height, width) < MIN_SIDE:
+        return f"{width}x{height} pixels, smaller than the {MIN_SIDE}x{MIN_SIDE} minimum"
+    return None
 
 
 def judge(
@@ -130,6 +143,8 @@ def judge(
         raise ValueError(f"bits: expected one of {', '.join(map(str, BIT_DEPTHS))}, got {bits!r}")
     for index, image in enumerate(images):
         check_image(image, f"frame {index}")
+        if (problem := size_problem(image)) is not None:
+            raise ValueError(f"frame {index}: {problem}")
     if bits is None:
         bits = significant_bits(list(images))
     spec = network.spec

@@ -33,7 +33,7 @@ from lenspair.core.contact_sheet import make_contact_sheet, to_display
 from lenspair.core.fsutil import atomic_write_texts, json_text
 from lenspair.core.imagewrite import write_image
 from lenspair.core.progress import progress
-from lenspair.model.detection.judge import Judgement, judge
+from lenspair.model.detection.judge import Judgement, judge, size_problem
 from lenspair.model.networks.detector import KINDS, AnomalyDetector
 
 log = logging.getLogger(__name__)
@@ -253,16 +253,17 @@ def detect_frames(
     log_times: list[int | None] = []  # per verdict, in order
     for frame in progress(frames, desc="detect", total=total, unit="frame"):
         log_times.append(frame.log_time_ns)
-        if frame.image is None:
+        image = frame.image
+        error = (frame.error or "unreadable") if image is None else size_problem(image)
+        if image is None or error is not None:
             flush()
-            log.warning("%s: %s", frame.name, frame.error)
-            error = frame.error or "unreadable"
+            log.warning("%s: %s", frame.name, error)
             failed = FrameVerdict(
                 frame.name, frame.camera, frame.t_ns, None, None, None, None, None, error=error
             )
             verdicts.append(failed)
             continue
-        if (before := depth.rise(frame.image)) is not None and batch:
+        if (before := depth.rise(image)) is not None and batch:
             flush(before)  # the frames batched so far, at the depth they were seen at
         batch.append(frame)
         if len(batch) == batch_size:

@@ -43,16 +43,21 @@ def test_detect_folder_writes_rows_sheet_and_records_bad_frames(
         image = (texture((120, 180), index) * 255).astype(np.uint8)
         write_image(frames / "sub" / f"{index}.png", image)
     (frames / "broken.png").write_bytes(b"\x89PNG not really")
+    # restore refuses a frame under 8x8; detect gave it a confident verdict
+    write_image(frames / "tiny.png", np.full((5, 5), 128, np.uint8))
     out = tmp_path / "out"
     assert main(["detect", str(tiny_detector), str(frames), "--out", str(out)]) == 0
     with (out / "detections.csv").open() as handle:
         rows = list(csv.DictReader(handle))
-    assert [row["name"] for row in rows] == ["broken.png", "sub/0.png", "sub/1.png", "sub/2.png"]
+    names = ["broken.png", "sub/0.png", "sub/1.png", "sub/2.png", "tiny.png"]
+    assert [row["name"] for row in rows] == names
     assert rows[0]["error"] and rows[0]["probability"] == ""
-    for row in rows[1:]:
+    assert rows[4]["error"] == "5x5 pixels, smaller than the 8x8 minimum"
+    assert rows[4]["probability"] == ""
+    for row in rows[1:4]:
         assert 0.0 <= float(row["probability"]) <= 1.0 and not row["error"]
         assert row["kind"] in ("clean", "rain", "dust", "dirt")
-    assert len(json.loads((out / "detections.json").read_text())) == 4
+    assert len(json.loads((out / "detections.json").read_text())) == 5
     assert read_image(out / "contact_sheet.png").ndim == 3
 
 

@@ -239,6 +239,8 @@ def test_judge_widens_16_bit_frames_of_10_bit_values_as_detect_does(one_thread: 
     np.testing.assert_array_equal(from_generator.probability, verdict.probability)
     with pytest.raises(ValueError, match=r"batch_size: expected a whole number of frames >= 1"):
         judge(network, low, batch_size=0)
+    with pytest.raises(ValueError, match=r"^frame 1: 40x1 pixels, smaller than the 8x8 min"):
+        judge(network, [low[0], low[0][:1, :40]])
     # a NumPy integer (an array's length, a value read with NumPy) is a whole number too
     by_numpy = judge(network, low, batch_size=np.int64(2))  # type: ignore[arg-type]
     np.testing.assert_array_equal(by_numpy.probability, verdict.probability)
