@@ -2,7 +2,8 @@
 
 For :mod:`~lenspair.rectify.rectification`: the border of each raw image,
 as rays turned into the rectified frame, is the outline the rectified view
-must stay inside (alpha 0) or contain (alpha 1). Two things keep a wide fisheye's outline finite:
+must stay inside (alpha 0) or contain (alpha 1). Two things keep a wide
+fisheye's outline finite:
 
 * a border pixel that a fisheye sees past 90 deg off its axis is pulled in
   onto 89.9 deg along its bearing (:func:`within_90_deg`), where the lens
@@ -74,9 +75,7 @@ def raw_border(camera: CameraModel, rotation: np.ndarray, name: str, turn_deg: f
             f"rectification: no pixel on {name}'s {' and '.join(no_ray)} "
             f"{'edge' if len(no_ray) == 1 else 'edges'} has a valid ray: beyond the range "
             "of its distortion model, which a calibration extrapolates where its boards never "
-            "reached (calibrate again with views that bring the board near the image edges), "
-            "or past 90 deg off-axis, where a fisheye of a field over 180 deg looks and no "
-            "rectified plane reaches"
+            "reached (calibrate again with views that bring the board near the image edges)"
         )
     if behind:
         raise RectifyError(
