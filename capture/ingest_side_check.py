@@ -77,8 +77,12 @@ def check_side(
 def _side_check_images(
     pairs: list[tuple[FrameRef, FrameRef]], context: frame_work.Context, count: int
 ) -> tuple[list[np.ndarray], list[np.ndarray], int]:
-    """Raw cam0 and cam1 images of the first ``count`` readable pairs among ``pairs``.
+    """Raw cam0 and cam1 images of ``count`` readable pairs spread over ``pairs``.
 
+    ``count`` pairs spread over the whole list are read first, then the others
+    in order in place of unreadable or blank ones: the first ``count`` of 30
+    sampled pairs lay in a recording's first quarter, and glass that got wet
+    later went unseen (the declared side confirmed, input and target swapped).
     Cameras of different resolutions are compared at the coarser one's (:func:`_one_size`).
 
     A pair with a blank view (:func:`lenspair.core.quality.is_blank`: lens cap,
@@ -87,7 +91,9 @@ def _side_check_images(
     """
     images: dict[str, list[np.ndarray]] = {"cam0": [], "cam1": []}
     blank = 0
-    for pair in pairs:
+    first = spread_indices(len(pairs), count)
+    order = first + sorted(set(range(len(pairs))) - set(first))
+    for pair in (pairs[index] for index in order):
         if len(images["cam0"]) == count:
             break
         try:
