@@ -91,6 +91,14 @@ def calibrate_camera(
         [project_rays(camera, data[v][0] @ cv2.Rodrigues(rvecs[k])[0].T + tvecs[k]) - data[v][1]
          for k, v in enumerate(views)]
     )  # fmt: skip
+    if not np.isfinite(residuals).all():
+        # a fit whose lens model folds back before some corners (their projection: NaN)
+        # passed with an RMS error of NaN, which no threshold refuses
+        raise RectifyError(
+            f"{stage}: the calibration diverged: the fitted lens model cannot project "
+            f"{int((~np.isfinite(residuals).all(axis=1)).sum())} of the board corners; show "
+            "the board at more poses, across the whole image"
+        )
     corners = np.concatenate([data[v][1] for v in views])
     cells = np.floor(corners / resolution * _COVERAGE_GRID).astype(int)
     inside = np.all((cells >= 0) & (cells < _COVERAGE_GRID), axis=1)

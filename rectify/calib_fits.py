@@ -87,6 +87,21 @@ FISHEYE_FOCAL_GUESSES = (1.0, 1.3, 0.8)
 multiples of ``max(width, height) / pi`` (an equidistant lens seeing 180 degrees across
 the longer side)."""
 
+RETRY_MAX_RMS_PX = 5.0
+"""A fit from another start with a larger RMS reprojection error is no fit: started far
+from the lens, ``cv2.fisheye.calibrate`` also "converges" to errors of tens of pixels."""
+
+Fit = tuple[float, np.ndarray, np.ndarray, Any, Any]
+"""``cv2.fisheye.calibrate``'s answer: RMS, ``K``, ``D``, ``rvecs``, ``tvecs``."""
+
+
+def _sound(fit: Fit) -> bool:
+    rms_px, K, D, _, _ = fit
+    return bool(
+        np.isfinite(rms_px) and np.isfinite(K).all() and np.isfinite(D).all()
+        and K[0, 0] > 0 and K[1, 1] > 0
+    )  # fmt: skip
+
 
 def _fit_fisheye(
     points: list[tuple[np.ndarray, np.ndarray]], size: tuple[int, int]
@@ -95,33 +110,44 @@ def _fit_fisheye(
 
     OpenCV starts from its own guess, which fails on lenses wider than about
     165 degrees once the board reaches far off axis, as the coverage advice
-    asks (``InitExtrinsics``: "fabs(norm_u1) > 0"). Then the fit starts again
-    from focal lengths such lenses have (:data:`FISHEYE_FOCAL_GUESSES`),
-    centred; the first that converges is taken, and the later checks of the
-    fit judge it as any other.
+    asks (``InitExtrinsics``: "fabs(norm_u1) > 0"), or ends at a camera with
+    a negative focal length or no finite error. Then the fit starts again
+    from each focal length such lenses have (:data:`FISHEYE_FOCAL_GUESSES`,
+    centred), and the fit with the least RMS error is taken among those that
+    give a camera and an error under :data:`RETRY_MAX_RMS_PX`; the later
+    checks of the fit judge it as any other. With none, OpenCV's own answer
+    stands: its error, or its unsound camera for those checks to refuse.
     """
     objects = [o.reshape(1, -1, 3).astype(np.float64) for o, _ in points]
     images = [i.reshape(1, -1, 2).astype(np.float64) for _, i in points]
     flags = fisheye_flag("CALIB_RECOMPUTE_EXTRINSIC") | fisheye_flag("CALIB_FIX_SKEW")
+    first: Fit | cv2.error
     try:
-        _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
+        first = cv2.fisheye.calibrate(
             objects, images, size, np.eye(3), np.zeros(4), flags=flags, criteria=CRITERIA
         )
-        return K, D, rvecs, tvecs
     except cv2.error as exc:
         first = exc
+    if not isinstance(first, cv2.error) and _sound(first):
+        return first[1:]
     guess = flags | fisheye_flag("CALIB_USE_INTRINSIC_GUESS")
+    fits: list[Fit] = []
     for scale in FISHEYE_FOCAL_GUESSES:
         focal = scale * max(size) / np.pi
         start = np.array([[focal, 0, (size[0] - 1) / 2], [0, focal, (size[1] - 1) / 2], [0, 0, 1]])
         try:
-            _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
+            fit = cv2.fisheye.calibrate(
                 objects, images, size, start, np.zeros(4), flags=guess, criteria=CRITERIA
             )
-            return K, D, rvecs, tvecs
         except cv2.error:
             continue
-    raise first
+        if _sound(fit) and fit[0] <= RETRY_MAX_RMS_PX:
+            fits.append(fit)
+    if fits:
+        return min(fits, key=lambda fit: fit[0])[1:]
+    if isinstance(first, cv2.error):
+        raise first
+    return first[1:]
 
 
 def refinable(data: list[Points], cameras: tuple[CameraModel, CameraModel]) -> bool:
