@@ -7,9 +7,10 @@
 Curation removes, in this order and counting each: pairs rejected at ingest,
 pairs whose images are missing, corrupt or fail their sha256, poor
 registration (residual, photometric residual, inliers, mask fraction),
-motion blur (sharpness of the clean view), bad exposure, near-duplicate
-frames (robot standing still), and, with clean_pairs: exclude, pairs without
-a visible anomaly (by default they are kept and tagged difficulty "clean").
+motion blur (sharpness of the clean view), bad exposure, with clean_pairs:
+exclude pairs without a visible anomaly (by default they are kept and tagged
+difficulty "clean"), and near-duplicate frames (robot standing still; the
+frame that stands for a run is one that passed every rule above).
 Kept pairs are tagged easy (PSNR > 25 dB), medium or hard (< 20 dB).
 
 Pairs are split by recording (or, with few recordings, by contiguous segment
@@ -97,7 +98,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--link",
         choices=("copy", "hard"),
-        default="copy",
         help="copy: images independent of the ingested ones (reflink where the file system "
         "can, else a copy; default); hard: hard links, read-only, noted in the card",
     )
@@ -135,18 +135,21 @@ BUILD_ONLY = {
     "duplicate_threshold": "--duplicate-threshold",
     "exclude_clean": "--exclude-clean",
     "group_by": "--group-by",
+    "link": "--link",
 }
 """Options of a build, by ``argparse`` dest: none means anything to ``--verify``."""
+
+
+def _given(value: object) -> bool:
+    return value is not None and value is not False
 
 
 def run(args: argparse.Namespace) -> int:
     """Build (or verify) a dataset; returns the exit code."""
     if args.verify is not None:
-        given = [
-            flag for dest, flag in BUILD_ONLY.items() if getattr(args, dest) not in (None, False)
-        ]
+        # 0 == False: a --seed 0 or a zero threshold is given all the same
+        given = [flag for dest, flag in BUILD_ONLY.items() if _given(getattr(args, dest))]
         given += ["recording folders"] if args.sources else []
-        given += ["--link"] if args.link != "copy" else []
         if given:
             # checked against its own config.yaml and seed: a --seed or --splits given here
             # was ignored, and "OK" read as the dataset checked against them
@@ -182,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
         config,
         overwrite=args.overwrite,
         workers=args.workers,
-        link=args.link,
+        link=args.link or "copy",
         accept_side_mismatch=args.accept_side_mismatch,
         previous=args.previous,
     )

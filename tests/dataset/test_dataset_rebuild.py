@@ -186,7 +186,8 @@ def test_previous_must_be_a_dataset(
     assert main(verify) == 2  # --previous means nothing to --verify: refused, not ignored
     assert "--verify takes only the dataset folder" in capsys.readouterr().err
     # nor do a seed, splits or a config: "OK" read as checked against them
-    for extra in (["--seed", "3"], ["--splits", "0.5,0.5,0"], ["--config", str(tmp_path)]):
+    given = (["--seed", "3"], ["--seed", "0"], ["--min-sharpness", "0"], ["--link", "copy"])
+    for extra in (*given, ["--splits", "0.5,0.5,0"], ["--config", str(tmp_path)]):
         assert main(["dataset-build", "--verify", str(tmp_path / "DS"), *extra]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and f"(and --workers): {extra[0]} would" in err
