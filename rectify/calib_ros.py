@@ -76,7 +76,10 @@ def message_as_camera_info(message: Mapping[str, Any], name: str | None) -> dict
                 row_values = slice(row * columns, (row + 1) * columns)
                 matrix[row_values] = [v / step for v in matrix[row_values]]
                 matrix[row * columns + 2] -= offset / step
+    full = (int(fields["width"]), int(fields["height"]))
+    region = bool(roi_width and roi_height) and (roi_width, roi_height) != full
     return {
+        **({"region_of_interest": [x_offset, y_offset, roi_width, roi_height]} if region else {}),
         "image_width": width,
         "image_height": height,
         "camera_name": name,
@@ -186,7 +189,9 @@ def _ros_camera(path: Path, data: dict[str, Any]) -> tuple[CameraModel, np.ndarr
         raise RectifyError(f"{path}: image_width and image_height must be integers") from None
     K = _ros_matrix(data, "camera_matrix", (3, 3), path)
     D = _distortion(data, path, MODEL_NAMES[name])
-    camera = camera_from_matrices(K, D, MODEL_NAMES[name], size, str(path))
+    # a part of the sensor need not hold the principal point (refuse_implausible)
+    region = "region_of_interest" in data
+    camera = camera_from_matrices(K, D, MODEL_NAMES[name], size, str(path), region)
     rectification = np.eye(3)
     if "rectification_matrix" in data:
         rectification = _ros_matrix(data, "rectification_matrix", (3, 3), path)

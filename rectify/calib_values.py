@@ -63,7 +63,12 @@ def square_transform(values: np.ndarray, where: str) -> np.ndarray:
 
 
 def camera_from_matrices(
-    K: np.ndarray, D: np.ndarray, model: DistortionModel, size: tuple[int, int], where: str
+    K: np.ndarray,
+    D: np.ndarray,
+    model: DistortionModel,
+    size: tuple[int, int],
+    where: str,
+    region: bool = False,
 ) -> CameraModel:
     """A camera from its 3x3 matrix ``K`` and distortion ``D``; radtan keeps k1 k2 p1 p2.
 
@@ -97,7 +102,7 @@ def camera_from_matrices(
         )  # fmt: skip
     except ValueError as exc:
         raise RectifyError(f"{where}: {exc}") from None
-    refuse_implausible(camera, where)
+    refuse_implausible(camera, where, region)
     return camera
 
 

@@ -233,13 +233,16 @@ pinhole's 157 degrees 0.1: below 0.05 no lens maps the image, and the number
 is in another unit (millimetres) or of another camera."""
 
 
-def refuse_implausible(camera: CameraModel, where: str) -> None:
+def refuse_implausible(camera: CameraModel, where: str, region: bool = False) -> None:
     """Refuse intrinsics that a calibration file may hold but no camera has.
 
     A file's fy typed as 4 instead of 400, a focal length in millimetres, or a
     calibration of the full sensor used for a binned stream loaded and
     rectified without a word: the rectified view was made of five raw rows, of
     a fraction of a pixel, or around a principal point in the image's corner.
+    A stream read from a ``region`` of the sensor (a ROS camera_info ``roi``,
+    already taken to its images) may well hold no principal point: a band
+    read off-centre for frame rate; its principal point is not checked.
 
     Raises:
         RectifyError: one line naming ``where`` and the value.
@@ -257,7 +260,7 @@ def refuse_implausible(camera: CameraModel, where: str) -> None:
             f"{MIN_FOCAL_FRACTION:g} of its longer side, wider than any lens sees; intrinsics "
             "are in pixels (a focal length in millimetres?)"
         )
-    if not (0 < cx < width and 0 < cy < height):
+    if not region and not (0 < cx < width and 0 < cy < height):
         raise RectifyError(
             f"{where}: principal point ({cx:g}, {cy:g}) is not inside the {width}x{height} "
             "image: the calibration is of another resolution (binning, a region of interest, "

@@ -516,6 +516,28 @@ def test_euroc_poses_written_with_four_decimals_give_the_rig(tmp_path: Path) -> 
     np.testing.assert_allclose(found.T_cam1_cam0, rig.T_cam1_cam0, atol=5e-4)
 
 
+@pytest.mark.parametrize(("y_offset", "cy"), [(412, 100.0), (0, 512.0)])
+def test_a_band_read_off_the_sensors_centre_keeps_its_principal_point_outside(
+    tmp_path: Path, y_offset: int, cy: float
+) -> None:
+    # a 1280x200 band read for frame rate: at the top of the sensor it holds no principal
+    # point, which the region explains (it was refused as "not inside the 1280x200 image")
+    files = []
+    for name, tx in (("left", 0.0), ("right", -70.0)):
+        message = {
+            "header": {"frame_id": f"{name}_camera"}, "width": 1280, "height": 1024,
+            "distortion_model": "plumb_bob", "d": [0.0] * 5,
+            "k": [700.0, 0, 640.0, 0, 700.0, 512.0, 0, 0, 1], "r": [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1],
+            "p": [700.0, 0, 640.0, tx, 0, 700.0, 512.0, 0, 0, 0, 1.0, 0],
+            "roi": {"x_offset": 0, "y_offset": y_offset, "width": 1280, "height": 200},
+        }  # fmt: skip
+        files.append(tmp_path / f"{name}.yaml")
+        files[-1].write_text(yaml.safe_dump(message) + "---\n")
+    rig, _ = load_calibration(files)
+    assert rig.cam0.intrinsics == (700.0, 700.0, 640.0, cy)
+    assert rig.cam0.resolution == (1280, 200)
+
+
 def test_a_camera_info_region_needs_a_size_and_binning_divides_k() -> None:
     """ROS reads a region as the full sensor only when all four of its fields are 0; one
     with an offset and no size was read as the full sensor, its principal point shifted."""
