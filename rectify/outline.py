@@ -92,8 +92,9 @@ def within_90_deg(camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
     """``pixels`` of an equidistant camera, those past 90 deg off-axis moved onto 89.9 deg.
 
     Each moves towards the principal point along its bearing (in normalised
-    distorted coordinates) to the radius the model gives 89.9 deg; the others
-    stay where they are, exactly. For a model monotonic up to 90 deg
+    distorted coordinates) to the radius the model gives 89.9 deg, or to
+    pi / 2 where that is less (the most OpenCV inverts); the others stay where
+    they are, exactly. For a model monotonic up to 90 deg
     (:func:`~lenspair.rectify.projection.monotonic_limit`).
     """
     fx, fy, cx, cy = camera.intrinsics
@@ -102,6 +103,9 @@ def within_90_deg(camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
     t2 = theta * theta
     k = camera.distortion
     limit = theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+    # cv2.fisheye.undistortPoints (behind pixel_rays) takes no distorted angle over 90 deg:
+    # a lens whose distortion widens near the rim is pulled in a little further
+    limit = min(limit, np.pi / 2 - 1e-6)
     radius = np.hypot(x, y)
     scale = np.where(radius > limit, limit / np.maximum(radius, 1e-12), 1.0)
     return np.column_stack([cx + fx * x * scale, cy + fy * y * scale])

@@ -65,12 +65,18 @@ T265 = (-0.008, 0.045, -0.043, 0.008)
 """A RealSense T265's published equidistant coefficients (848x800, f about 286 px)."""
 
 
-@pytest.mark.parametrize("f", [286.0, 300.0])
-def test_a_lens_seeing_past_90_deg_on_whole_edges_rectifies_within_the_cap(f: float) -> None:
+@pytest.mark.parametrize(
+    ("f", "distortion"), [(286.0, T265), (300.0, T265), (250.0, (0.02, 0.0, 0.0, 0.0))]
+)
+def test_a_lens_seeing_past_90_deg_on_whole_edges_rectifies_within_the_cap(
+    f: float, distortion: tuple[float, float, float, float]
+) -> None:
     # at f 286 the T265's side edges lie wholly past 90 deg: it was refused ("no pixel on
     # cam0's left and right edges has a valid ray"); at f 300 it rectified to an 87 deg
-    # view of focal length 70 px, every border pixel found in the ring near 90 deg
-    camera = CameraModel((f, f, 423.5, 399.5), "equidistant", T265, (848, 800))
+    # view of focal length 70 px, every border pixel found in the ring near 90 deg. A lens
+    # whose distortion widens near the rim (k1 > 0) puts 90 deg past the distorted angle
+    # OpenCV inverts (pi / 2): pulled onto 89.9 deg, its edges still had no ray
+    camera = CameraModel((f, f, 423.5, 399.5), "equidistant", distortion, (848, 800))
     T = np.eye(4)
     T[0, 3] = -0.064
     rectified = StereoRectification.from_rig(StereoRig(camera, camera, T))
