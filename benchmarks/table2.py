@@ -48,7 +48,7 @@ import torch
 
 from lenspair.cli import main as cli_main
 from lenspair.commands import train as train_command
-from lenspair.commands.argtypes import positive_int
+from lenspair.commands.argtypes import positive_int, random_seed
 from lenspair.demo import Budget, plan
 from lenspair.demo_stages import run_stages
 from lenspair.model.checkpoint import load_checkpoint, load_model
@@ -260,11 +260,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--pretrain-steps", type=positive_int, default=60)
     parser.add_argument("--finetune-steps", type=positive_int, default=60)
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--crop-size", type=int, default=128)
-    parser.add_argument("--batch-size", type=int, default=4)
+    parser.add_argument("--seeds", type=random_seed, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--crop-size", type=positive_int, default=128)
+    parser.add_argument("--batch-size", type=positive_int, default=4)
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
-    parser.add_argument("--jobs", type=int, default=1, help="training runs side by side (1)")
+    parser.add_argument(
+        "--jobs", type=positive_int, default=1, help="training runs side by side (1)"
+    )
     parser.add_argument(
         "--config", type=Path, help="run config for every `train` (default: early stopping off)"
     )
@@ -275,6 +277,9 @@ def main(argv: list[str] | None = None) -> int:
         "(`make tradeoff-seeds` trains its variants on it)",
     )
     args = parser.parse_args(argv)
+    if len(set(args.seeds)) != len(args.seeds):
+        # a repeated seed trained once and was scored twice: a spread of 0 claimed everything
+        parser.error(f"--seeds: each seed once, got {' '.join(map(str, args.seeds))}")
     if args.data_only:
         print(_dataset(args.out.resolve(), args.frames, args.splits))
         return 0

@@ -174,3 +174,26 @@ def test_runs_of_a_moved_out_folder_are_still_its_own(tmp_path: Path) -> None:
     assert table2._same_data(Path("/elsewhere/out/demo/dataset"), data, out)
     assert not table2._same_data(Path("/data/raindrop"), data, out)  # --dataset before
     assert table2._same_data(Path("/data/raindrop"), Path("/data/raindrop"), out)
+
+
+@pytest.mark.parametrize(
+    ("argv", "said"),
+    [
+        # one run trained, scored twice: a spread of 0, and every difference claimed
+        (["--seeds", "0", "0"], "--seeds: each seed once, got 0 0"),
+        # ThreadPoolExecutor's traceback, after the demo dataset was built
+        (["--jobs", "0"], "--jobs: "),
+        (["--batch-size", "0"], "--batch-size: "),
+    ],
+)
+def test_arguments_that_cannot_make_a_table_are_refused_before_any_work(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    argv: list[str],
+    said: str,
+) -> None:
+    monkeypatch.setattr(table2, "run_stages", lambda *args: pytest.fail("built a dataset"))
+    with pytest.raises(SystemExit) as stopped:
+        table2.main(["--out", str(tmp_path), *argv])
+    assert stopped.value.code == 2 and said in capsys.readouterr().err
