@@ -37,8 +37,9 @@ from lenspair.core.fsutil import atomic_write, atomic_write_text
 from lenspair.model.evaluation.seed_statistics import SeedSummary, clearly_better, summarise_seeds
 from lenspair.model.evaluation.tradeoff_variants import Budget
 
-SAME = ("dataset", "evaluated_on", "convention", "size")
-"""Meta fields two runs must share to be compared (plus crops, batch, rate and its decay)."""
+SAME = ("dataset", "evaluated_on", "convention", "size", "pairs_scored")
+"""Meta fields two runs must share to be compared (plus crops, batch, rate and its decay):
+two draws of one dataset's name differ in the pairs they scored."""
 
 
 class BudgetsError(ValueError):
@@ -97,6 +98,8 @@ def _compared(paths: Sequence[Path]) -> Compared:
     for path, run in zip(paths[1:], runs[1:], strict=True):
         theirs = _settings(run["meta"])
         for key in first:
+            if key == "pairs_scored" and None in (first[key], theirs[key]):
+                continue  # runs written before tradeoff recorded it: unknown, not different
             if first[key] != theirs[key]:
                 raise BudgetsError(
                     f"{path}: {key} is {theirs[key]!r}, but {first[key]!r} in {paths[0]}: "
@@ -107,6 +110,7 @@ def _compared(paths: Sequence[Path]) -> Compared:
         if budget in budgets[:index]:
             earlier = paths[budgets.index(budget)]
             raise BudgetsError(f"{path}: the same budget as {earlier} ({budget})")
+    _check_order(paths, budgets)
     tables = [_fp32(run) for run in runs]
     names: list[str] = []  # in order of first appearance, each in at least two runs
     for table in tables:
@@ -114,6 +118,22 @@ def _compared(paths: Sequence[Path]) -> Compared:
     if not names:
         raise BudgetsError(f"{paths[-1]}: no network in common with another run")
     return Compared(list(paths), runs, budgets, tables, names)
+
+
+def _check_order(paths: Sequence[Path], budgets: Sequence[str]) -> None:
+    """Refuse runs given out of budget order: each is read as the next one's smaller budget.
+
+    8000 steps then 800 steps read "at 8000 steps those had not converged".
+    """
+    read = [Budget.from_description(budget) for budget in budgets]
+    for (path, budget, ours), (later, theirs, next_) in pairwise(zip(paths, budgets, read)):
+        if ours is None or next_ is None or (ours.steps is None) != (next_.steps is None):
+            continue  # budgets that do not order (unknown text, steps beside seconds)
+        if (ours.steps or ours.seconds or 0) > (next_.steps or next_.seconds or 0):
+            raise BudgetsError(
+                f"{later}: {theirs}, less than {path}'s {budget}: give the runs smallest "
+                "budget first, each compared with the next"
+            )
 
 
 def compare(compared: Compared) -> str:

@@ -71,6 +71,18 @@ def test_runs_that_do_not_compare_are_a_one_line_error(
     assert "the same budget" in capsys.readouterr().err
     assert main([str(small)]) == 2
     assert "at least two runs" in capsys.readouterr().err
+    # the larger first: read as 8000 -> 800 steps, "at 8000 steps those had not converged"
+    larger = _run(tmp_path / "f.json", "8000 steps", {"G": [27.0, 27.1, 27.2]})
+    assert main([str(larger), str(small)]) == 2
+    said = capsys.readouterr().err
+    assert "a.json: 800 steps, less than" in said and "smallest budget first" in said
+    # another draw of the dataset under the same name: other pairs scored
+    for path, pairs in ((small, 26), (larger, 10)):
+        data = json.loads(path.read_text())
+        data["meta"]["pairs_scored"] = pairs
+        path.write_text(json.dumps(data))
+    assert main([str(small), str(larger)]) == 2
+    assert "f.json: pairs_scored is 10, but 26 in" in capsys.readouterr().err
     (tmp_path / "d.json").write_text("{not json")
     assert main([str(small), str(tmp_path / "d.json")]) == 2
     assert "d.json: cannot read it as JSON" in capsys.readouterr().err
