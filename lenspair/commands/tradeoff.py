@@ -22,8 +22,8 @@ one trained otherwise is trained again, and the log names the setting that
 differs. A larger step --budget under the default --lr-decay is another
 schedule, so it trains again; a larger time budget (which trains at a
 constant rate) or --lr-decay 0 extends the run. The defaults (60 steps, 128 px
-crops, batch 4, --precision auto: bf16 only where the CPU runs it natively and
-faster; roughly 0.5-1 s per GEA step on two cores,
+crops, batch 4, training precision chosen as train's auto: bf16 only where the
+CPU runs it natively and faster; roughly 0.5-1 s per GEA step on two cores,
 three times that for GEA-w2) are sized for a demonstration, not for
 conclusions; use e.g. --budget 30m --crop-size 256 --batch-size 8 on a GPU
 for a real comparison. Under a step budget the learning rate falls linearly

@@ -60,7 +60,7 @@ class EvalResult:
         by_difficulty: means per difficulty (empty when unknown).
         input_overall: means of the inputs themselves (no restoration).
         input_by_difficulty: the same per difficulty.
-        latency: timings (CPU, and CUDA when present).
+        latency: timings (CPU, and CUDA when the device is CUDA).
         samples: contact-sheet rows (input, output, target).
         model: the checkpoint's ``model`` config section (plain data).
         versus_fp32: means of the output scored against the fp32 output
