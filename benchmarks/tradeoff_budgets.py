@@ -126,7 +126,8 @@ def _check_order(paths: Sequence[Path], budgets: Sequence[str]) -> None:
     8000 steps then 800 steps read "at 8000 steps those had not converged".
     """
     read = [Budget.from_description(budget) for budget in budgets]
-    for (path, budget, ours), (later, theirs, next_) in pairwise(zip(paths, budgets, read)):
+    runs = zip(paths, budgets, read, strict=True)
+    for (path, budget, ours), (later, theirs, next_) in pairwise(runs):
         if ours is None or next_ is None or (ours.steps is None) != (next_.steps is None):
             continue  # budgets that do not order (unknown text, steps beside seconds)
         if (ours.steps or ours.seconds or 0) > (next_.steps or next_.seconds or 0):
