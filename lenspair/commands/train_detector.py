@@ -50,7 +50,8 @@ imported: ``--help`` would load torch)."""
 
 MAX_INPUT_SIDE = 1920
 """The largest side frames are judged at (a full-HD frame's width: the detector scales
-every frame down to its input size, so a larger one adds memory, not sight)."""
+every frame down to its input size, so a larger one adds memory, not sight); the
+detector's own ``MAX_INPUT_SIDE``, not imported: ``--help`` would load torch."""
 
 MAX_STEP_PIXELS = 256 * 270 * 180
 """The most pixels one training step may hold (``--batch-size`` x ``--input-size``):

@@ -35,6 +35,7 @@ read back with ``weights_only=True``.
 import io
 import itertools
 import math
+import operator
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
@@ -339,7 +340,8 @@ def load_detector(path: Path, device: torch.device | str = "cpu") -> AnomalyDete
     unusable = f"{path}: not a usable detector checkpoint"
     try:
         kinds = tuple(data["kinds"])
-        fields = {key: tuple(int(v) for v in value) for key, value in data["spec"].items()}
+        # operator.index: a float size is refused, not cut to a whole number
+        fields = {key: tuple(map(operator.index, value)) for key, value in data["spec"].items()}
         spec = DetectorSpec(**fields)  # type: ignore[arg-type]
         weights = dict(data["state_dict"])
     except KeyError as exc:

@@ -37,6 +37,11 @@ TILE_STRIDE = 8
 """Input pixels per map tile along each axis (16 pixels of the full-size frame)."""
 
 
+MAX_INPUT_SIDE = 1920
+"""The largest input side (``train-detector --input-size`` allows no more): a full-HD
+frame's width; the detector scales every frame down to its input size."""
+
+
 @dataclass(frozen=True)
 class DetectorSpec:
     """Architecture of :class:`AnomalyDetector` (saved in its checkpoint).
@@ -53,10 +58,26 @@ class DetectorSpec:
     input_size: tuple[int, int] = (180, 270)
 
     def __post_init__(self) -> None:
+        # a checkpoint's spec comes from a file: a hand-edited or other version's value
+        # failed deep in torch (non-positive dilation) or in OpenCV (out of memory)
+        whole = all(isinstance(v, int) and not isinstance(v, bool) for v in self._numbers())
+        if not whole:
+            raise ValueError(f"expected whole numbers, got {self}")
         if len(self.widths) != 3 or min(self.widths) < 1:
             raise ValueError(f"widths: expected 3 positive channel counts, got {self.widths}")
-        if min(self.input_size) < TILE_STRIDE:
+        if not self.context_dilations or min(self.context_dilations) < 1:
+            raise ValueError(
+                f"context_dilations: expected positive dilations, got {self.context_dilations}"
+            )
+        if len(self.input_size) != 2 or min(self.input_size) < TILE_STRIDE:
             raise ValueError(f"input_size: expected at least 8x8, got {self.input_size}")
+        if max(self.input_size) > MAX_INPUT_SIDE:
+            raise ValueError(
+                f"input_size: expected sides up to {MAX_INPUT_SIDE}, got {self.input_size}"
+            )
+
+    def _numbers(self) -> tuple[object, ...]:
+        return (*self.widths, *self.context_dilations, *self.input_size)
 
     @property
     def grid(self) -> tuple[int, int]:

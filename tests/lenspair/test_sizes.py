@@ -45,8 +45,9 @@ def test_every_size_option_says_its_name_and_the_size_as_typed(
 def test_the_commands_minimum_sides_are_the_networks() -> None:
     """Written out in the commands (importing them would load torch for --help)."""
     from lenspair.commands import export, train_detector
-    from lenspair.model.networks.detector import TILE_STRIDE
+    from lenspair.model.networks.detector import MAX_INPUT_SIDE, TILE_STRIDE
     from lenspair.model.networks.padding import MIN_SIDE
 
     assert train_detector.MIN_INPUT_SIDE == TILE_STRIDE
+    assert train_detector.MAX_INPUT_SIDE == MAX_INPUT_SIDE
     assert export.MIN_INPUT_SIDE == MIN_SIDE

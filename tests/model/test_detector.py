@@ -112,6 +112,12 @@ def _damaged(data: dict, how: str) -> None:
         data["spec"]["bogus"] = [1]
     elif how == "spec too small":
         data["spec"]["input_size"] = [4, 4]
+    elif how == "spec too large":
+        data["spec"]["input_size"] = [100000, 100000]  # OpenCV's out-of-memory traceback
+    elif how == "zero dilation":
+        data["spec"]["context_dilations"] = [0, 4, 8]  # torch's traceback, after registration
+    elif how == "fractional size":
+        data["spec"]["input_size"] = [180.5, 270.0]  # was cut to 180 without a word
     elif how == "weights of another spec":
         data["spec"]["widths"] = [8, 8, 8]
     elif how == "NaN weights":
@@ -126,6 +132,9 @@ def _damaged(data: dict, how: str) -> None:
         ("no kinds", r"not a usable detector checkpoint \(no 'kinds' in it\)"),
         ("unknown spec field", r"not a usable detector checkpoint \(.*'bogus'"),
         ("spec too small", r"not a usable detector checkpoint \(input_size: expected at least"),
+        ("spec too large", r"not a usable detector checkpoint \(input_size: expected sides up"),
+        ("zero dilation", r"not a usable detector checkpoint \(context_dilations: expected pos"),
+        ("fractional size", r"not a usable detector checkpoint \(.*float"),
         ("weights of another spec", r"weights do not fit its spec: .*size mismatch"),
         ("NaN weights", r"its weights hold NaN or Inf"),  # judged every frame NaN, exit 0
     ],
