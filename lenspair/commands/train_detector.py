@@ -11,8 +11,9 @@ truth/mask), synthetic rain/dust/dirt over clean images (--synthetic N
 frames, over --clean-images DIR or the simulator's textures), and
 --simulated-set DIR, a small multi-kind set of simulated recordings rendered
 there (clean, rain, dust, dirt; its last recording of each kind is held out
-and scored; a rerun keeps recordings rendered with the same --set-frames and
---seed and renders the others again). --hard N adds N hard cases made from the clean
+and scored; a rerun keeps recordings rendered with the same --set-per-kind,
+--set-frames and --seed and renders the others again: the textures of each
+recording follow from the number per kind). --hard N adds N hard cases made from the clean
 views of the training recordings, so it needs --recordings or --simulated-set
 (defocused, dark or bright, low-texture clean frames; dust darkening the whole
 frame, light rain: see lenspair.model.detection.hard_cases). --workers N renders and reads samples

@@ -126,7 +126,8 @@ def simulate_kind_set(
     """Render ``per_kind`` recordings of every kind under ``out/<kind>_<k>/``.
 
     Finished recordings of the same spec are kept, so a rerun resumes; one
-    rendered with other settings (``--set-frames``, ``--seed``) is rendered
+    rendered with other settings (``--set-per-kind``, whose count picks each
+    recording's textures, ``--set-frames``, ``--seed``) is rendered
     again (said in the log), since a set mixing both would train on what the
     command line no longer says.
 
@@ -145,7 +146,10 @@ def simulate_kind_set(
     todo = [job for job in jobs if not _finished(*job)]
     for path, _ in todo:
         if (path / "scene.yaml").is_file() and not (path / INCOMPLETE).exists():
-            log.warning("%s: rendered with other settings (frames, seed): rendering it again", path)
+            log.warning(
+                "%s: rendered with other settings (per kind, frames, seed): rendering it again",
+                path,
+            )
             for child in path.iterdir():
                 remove_path(child)
     process_map(_simulate, todo, workers)

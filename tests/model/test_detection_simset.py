@@ -62,3 +62,5 @@ def test_a_rerun_with_other_frames_or_seed_renders_again_and_one_alike_resumes(
     assert load_scene(first / "scene.yaml").seed == 105  # seed + 100 x kind number
     assert len(list((first / "mav0" / "cam0" / "data").glob("*.png"))) == 2
     assert sum("rendering it again" in m for m in caplog.messages) == 4  # every kind
+    # the count per kind picks each recording's textures: it was left out of what is said
+    assert all("(per kind, frames, seed)" in m for m in caplog.messages if "again" in m)
