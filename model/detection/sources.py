@@ -169,7 +169,8 @@ def _distinct(sources: DetectorSources) -> DetectorSources:
     as ``--test-recordings``.
 
     Raises:
-        ModelError: a test recording is also a training recording.
+        ModelError: a test recording is also a training recording, or the
+            clean images of synthetic samples are (or hold, or lie in) one.
     """
     recordings = _once(sources.recordings, "--recordings")
     tests = _once(sources.test_recordings, "--test-recordings")
@@ -194,6 +195,18 @@ def _distinct(sources: DetectorSources) -> DetectorSources:
                 f"{option}: {path} is also in {trained[resolved]}: it would be scored on the "
                 "frames it was trained on; hold out other recordings"
             )
+        clean = sources.clean_folder.resolve() if sources.clean_folder is not None else None
+        if clean is not None and (clean == resolved or resolved in clean.parents):
+            where = "is" if clean == resolved else "lies in"
+        elif clean is not None and clean in resolved.parents:
+            where = "holds"
+        else:
+            continue
+        # synthetic frames cut from a scored recording flattered its scores, unsaid
+        raise ModelError(
+            f"--clean-images {sources.clean_folder}: {where} the {option} {path}: its synthetic "
+            "frames would be cut from frames it is scored on; give clean images from elsewhere"
+        )
     datasets = _once(sources.datasets, "the datasets")
     return replace(sources, datasets=datasets, recordings=recordings, test_recordings=tests)
 

@@ -173,3 +173,16 @@ def test_a_simulated_set_recording_is_not_both_trained_on_and_scored(
     with pytest.raises(ModelError, match=message):
         gather(replace(sources, **{given: (sims / held,)}), SPEC, 0)
     assert not sims.exists()
+
+
+@pytest.mark.parametrize(("clean", "said"), [("", "is"), ("mav0", "lies in"), ("..", "holds")])
+def test_clean_images_from_a_scored_recording_are_refused(
+    tmp_path: Path, clean: str, said: str
+) -> None:
+    """Synthetic frames cut from the recording then scored flattered its scores, unsaid."""
+    scored = tmp_path / "rec_clean"
+    (scored / "mav0").mkdir(parents=True)
+    folder = scored / clean
+    sources = DetectorSources(synthetic=2, clean_folder=folder, test_recordings=(scored,))
+    with pytest.raises(ModelError, match=rf"^--clean-images {folder}: {said} the --test-rec"):
+        gather(sources, SPEC, 0)
