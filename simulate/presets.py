@@ -19,7 +19,9 @@ from lenspair.simulate.effects.spec import (
 )
 from lenspair.simulate.errors import SimulateError
 
-CLEAN_FOLDER_NAMES = ("target", "gt", "clean")
+CLEAN_FOLDER_NAMES = ("target", "gt", "clean", "clear")
+"""Folders of clean images: a dataset's targets, Raindrop's ground truth, a simulated
+recording's ``truth/clear`` (beside its obstructed camera's frames and its masks)."""
 
 OUR_DROPS = EffectsSpec(
     raindrops=RaindropsSpec(
@@ -76,8 +78,9 @@ def _visible(path: Path, root: Path) -> bool:
 def find_clean_images(folder: Path) -> list[Path]:
     """Clean images under ``folder`` for synthetic pretraining, sorted.
 
-    When the folder holds ``target/`` (or ``gt/``, ``clean/``) sub-folders, as
-    a lenspair dataset does, only the images in them are used (for a dataset
+    When the folder holds ``target/`` (or ``gt/``, ``clean/``, ``clear/``)
+    sub-folders, as a lenspair dataset or a simulated recording does, only the
+    images in them are used (for a dataset
     root, only those of ``train/``, so validation and test images stay
     unseen); otherwise every image below ``folder`` (the suffixes ``restore``
     and ``train`` read: :data:`lenspair.capture.folders.IMAGE_SUFFIXES`).

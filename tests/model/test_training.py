@@ -595,6 +595,11 @@ def test_synthetic_drops_render_on_the_fly(tmp_path: Path) -> None:
     (raindrop / "gt" / "folder.png").mkdir()
     assert find_clean_images(raindrop) == [raindrop / "gt" / "0_clean.png"]
     assert find_clean_images(raindrop / "gt") == [raindrop / "gt" / "0_clean.png"]
+    # a simulated recording: its obstructed camera's frames and its masks were taken as clean
+    recording = tmp_path / "rec"
+    for part in ("truth/clear", "truth/mask", "mav0/cam0/data", "mav0/cam1/data"):
+        write_image(recording / part / "1.png", clean_image(rng, 40, 56))
+    assert find_clean_images(recording) == [recording / "truth" / "clear" / "1.png"]
     config = tiny_config().data
     ours = synthetic_training_data(tmp_path / "clean", config, None, seed=0)
     assert ours.channels == 3 and ours.synthetic == "ours"
