@@ -15,7 +15,7 @@ fisheye's outline finite:
 import numpy as np
 
 from lenspair.rectify.errors import RectifyError
-from lenspair.rectify.projection import monotonic_limit, pixel_rays
+from lenspair.rectify.projection import distorted_angle, monotonic_limit, pixel_rays
 from lenspair.rectify.rig import CameraModel
 
 _EDGE_NAMES = ("left", "right", "top", "bottom")
@@ -99,10 +99,7 @@ def within_90_deg(camera: CameraModel, pixels: np.ndarray) -> np.ndarray:
     """
     fx, fy, cx, cy = camera.intrinsics
     x, y = (pixels[:, 0] - cx) / fx, (pixels[:, 1] - cy) / fy
-    theta = np.radians(89.9)
-    t2 = theta * theta
-    k = camera.distortion
-    limit = theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+    limit = float(distorted_angle(camera, np.radians(89.9)))
     # cv2.fisheye.undistortPoints (behind pixel_rays) takes no distorted angle over 90 deg:
     # a lens whose distortion widens near the rim is pulled in a little further
     limit = min(limit, np.pi / 2 - 1e-6)

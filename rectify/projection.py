@@ -36,6 +36,13 @@ def monotonic_limit(camera: CameraModel) -> float:
     return min(limit, np.pi / 2) if camera.distortion_model == "equidistant" else limit
 
 
+def distorted_angle(camera: CameraModel, theta: np.ndarray | float) -> np.ndarray:
+    """The equidistant model's ``theta_d`` of off-axis angles ``theta`` (radians)."""
+    k = camera.distortion
+    t2 = np.square(theta)
+    return np.asarray(theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3])))))
+
+
 def project_rays(camera: CameraModel, rays: np.ndarray) -> np.ndarray:
     """Project camera-frame rays to raw (distorted) pixel coordinates.
 
@@ -65,8 +72,7 @@ def project_rays(camera: CameraModel, rays: np.ndarray) -> np.ndarray:
     else:
         r = np.sqrt(r2)
         theta = np.arctan(r)
-        t2 = theta * theta
-        theta_d = theta * (1.0 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+        theta_d = distorted_angle(camera, theta)
         with np.errstate(divide="ignore", invalid="ignore"):
             scale = np.where(r > 1e-12, theta_d / np.maximum(r, 1e-12), 1.0)
         xd, yd = x * scale, y * scale
