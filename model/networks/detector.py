@@ -60,8 +60,8 @@ class DetectorSpec:
     def __post_init__(self) -> None:
         # a checkpoint's spec comes from a file: a hand-edited or other version's value
         # failed deep in torch (non-positive dilation) or in OpenCV (out of memory)
-        whole = all(isinstance(v, int) and not isinstance(v, bool) for v in self._numbers())
-        if not whole:
+        numbers = (*self.widths, *self.context_dilations, *self.input_size)
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in numbers):
             raise ValueError(f"expected whole numbers, got {self}")
         if len(self.widths) != 3 or min(self.widths) < 1:
             raise ValueError(f"widths: expected 3 positive channel counts, got {self.widths}")
@@ -75,9 +75,6 @@ class DetectorSpec:
             raise ValueError(
                 f"input_size: expected sides up to {MAX_INPUT_SIDE}, got {self.input_size}"
             )
-
-    def _numbers(self) -> tuple[object, ...]:
-        return (*self.widths, *self.context_dilations, *self.input_size)
 
     @property
     def grid(self) -> tuple[int, int]:
