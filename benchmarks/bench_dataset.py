@@ -6,19 +6,23 @@ Writes synthetic ingested recordings (540x360 RGB, both ground-truth sides)
 into a temporary folder, then times, in the same run:
 
 * ``build``: :func:`lenspair.dataset.build.build_dataset` end to end (read, hash,
-  decode, measure, curate, split, link, manifest, card, contact sheets);
+  decode, measure, curate, split, link, manifest, card, contact sheets), each
+  round with an empty measurement cache (:mod:`lenspair.dataset.stats_cache`);
+* ``rebuild``: the same build again with the figures cached, as a rerun after
+  a kill or with other thresholds is: it reads and hashes, but decodes nothing;
 * ``io floor``: reading and hashing every image and hard-linking it into a
   fresh folder, which any build must do;
 * ``decode floor``: the I/O floor plus decoding every image (PNG inflate),
   which a build that measures pixels must also do.
 
 Medians of ``--runs`` interleaved rounds; ratios are medians of the per-round
-ratios of build time over floor time. The
+ratios of build (and rebuild) time over floor time. The
 Markdown table goes to stdout and, with ``--out``, to ``dataset.md``
 beside ``dataset.json``.
 """
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -26,7 +30,7 @@ import shutil
 import statistics
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -40,6 +44,7 @@ from lenspair.core.imageio import read_image
 from lenspair.core.imagewrite import write_image
 from lenspair.dataset.build import build_dataset
 from lenspair.dataset.config import DatasetConfig, SplitConfig
+from lenspair.dataset.stats_cache import CACHE_ENV
 
 HEIGHT, WIDTH = 360, 540
 
@@ -113,7 +118,9 @@ def io_floor(images: list[Path], out: Path, decode: bool, workers: int = 1) -> N
         list(pool.map(one, enumerate(images)))
 
 
-def _once(action: Callable[[Path], object], target: Path) -> float:
+def _once(action: Callable[[Path], object], target: Path, cache: str = "") -> float:
+    """Seconds of ``action(target)`` with the measurement cache in ``cache`` ("": none)."""
+    os.environ[CACHE_ENV] = cache
     start = time.perf_counter()
     action(target)
     seconds = time.perf_counter() - start
@@ -128,22 +135,31 @@ def run(pairs: int = 200, runs: int = 3, workers: int | None = None) -> dict[str
     medians of per-round ratios, so that load from other processes hits all
     three alike.
     """
-    times: dict[str, list[float]] = {"build": [], "io_floor": [], "decode_floor": []}
-    with tempfile.TemporaryDirectory(prefix="bench_dataset_") as tmp:
+    times: dict[str, list[float]] = {"build": [], "rebuild": [], "io_floor": [], "decode_floor": []}
+    cache_before = os.environ.get(CACHE_ENV)
+    with tempfile.TemporaryDirectory(prefix="bench_dataset_") as tmp, _restored(cache_before):
         root = Path(tmp)
         folders = write_recordings(root / "ingested", pairs)
         images = _images(folders)
         config = DatasetConfig(split=SplitConfig(segment_frames=10, segment_gap_frames=1))
         threads = workers or min(4, os.cpu_count() or 1)  # the build's own default
+
+        def build(out: Path) -> object:
+            return build_dataset(folders, out, config, workers=workers)
+
         actions: dict[str, Callable[[Path], object]] = {
-            "build": lambda p: build_dataset(folders, p, config, workers=workers),
+            "build": build,
+            "rebuild": build,
             "io_floor": lambda p: io_floor(images, p, decode=False, workers=threads),
             "decode_floor": lambda p: io_floor(images, p, decode=True, workers=threads),
         }
-        _once(actions["build"], root / "warmup")  # warm the page cache and imports
+        warm = str(root / "cache_warm")
+        _once(build, root / "warmup", warm)  # the page cache, imports and the rebuilds' cache
         for number in range(runs):
             for name, action in actions.items():
-                times[name].append(_once(action, root / f"{name}_{number}"))
+                # a cold build gets a cache of its own, which it fills as a first build does
+                cache = {"build": str(root / f"cache_{number}"), "rebuild": warm}.get(name, "")
+                times[name].append(_once(action, root / f"{name}_{number}", cache))
     result: dict[str, object] = {
         "pairs": pairs,
         "image_size": [WIDTH, HEIGHT],
@@ -156,10 +172,22 @@ def run(pairs: int = 200, runs: int = 3, workers: int | None = None) -> dict[str
     for name, values in times.items():
         result[f"{name}_s"] = statistics.median(values)
         result[f"{name}_pairs_per_s"] = pairs / statistics.median(values)
-    for floor in ("io_floor", "decode_floor"):
-        ratios = [b / f for b, f in zip(times["build"], times[floor], strict=True)]
-        result[f"build_over_{floor}"] = statistics.median(ratios)
+    for built, floor in (("build", "io_floor"), ("build", "decode_floor"), ("rebuild", "io_floor")):
+        ratios = [b / f for b, f in zip(times[built], times[floor], strict=True)]
+        result[f"{built}_over_{floor}"] = statistics.median(ratios)
     return result
+
+
+@contextlib.contextmanager
+def _restored(value: str | None) -> Iterator[None]:
+    """Put :data:`CACHE_ENV` back as it was (``value``; None: unset) afterwards."""
+    try:
+        yield
+    finally:
+        if value is None:
+            os.environ.pop(CACHE_ENV, None)
+        else:
+            os.environ[CACHE_ENV] = value
 
 
 def markdown(result: dict[str, object]) -> str:
@@ -175,6 +203,7 @@ def markdown(result: dict[str, object]) -> str:
     ]
     for label, key, ratio in (
         ("build (end to end)", "build", None),
+        ("rebuild, figures cached (rerun / other thresholds)", "rebuild", None),
         ("I/O floor (read + sha256 + link)", "io_floor", "build_over_io_floor"),
         ("decode floor (I/O floor + PNG decode)", "decode_floor", "build_over_decode_floor"),
     ):
@@ -182,6 +211,8 @@ def markdown(result: dict[str, object]) -> str:
         speed = float(result[f"{key}_pairs_per_s"])  # type: ignore[arg-type]
         shown = f"{float(result[ratio]):.2f}x" if ratio else ""  # type: ignore[arg-type]
         lines.append(f"| {label} | {seconds:.3f} | {speed:.1f} | {shown} |")
+    rebuild = float(result["rebuild_over_io_floor"])  # type: ignore[arg-type]
+    lines += ["", f"rebuild / I/O floor: {rebuild:.2f}x"]
     return "\n".join(lines) + "\n"
 
 

@@ -62,6 +62,7 @@ from lenspair.dataset.output import (
 from lenspair.dataset.preflight import check_file_system, check_out, check_paths, check_sides
 from lenspair.dataset.rows import assemble_rows, changed_splits
 from lenspair.dataset.sources import Source, load_source, measure_record, reading_sources
+from lenspair.dataset.stats_cache import open_cache
 
 logger = logging.getLogger(__name__)
 _FILE_RULES = ("missing_file", "checksum", "bad_image")
@@ -182,14 +183,22 @@ def build_dataset(
 def _measure(loaded: Sequence[Source], anomaly_delta: float, workers: int | None) -> list[Measured]:
     """Measure every line of every recording in threads, warning of each unusable pair.
 
+    Figures measured by an earlier build of the same files are read back from
+    the user's cache (:mod:`lenspair.dataset.stats_cache`) instead.
+
     Returns:
         One :class:`~lenspair.dataset.curation.Measured` per ``pairs.jsonl``
         line, in recording then line order, whatever ``workers`` is.
     """
     jobs = [(p, i) for p, s in enumerate(loaded) for i in range(len(s.records))]
+    cache = open_cache()
     with ThreadPoolExecutor(max_workers=workers or min(4, os.cpu_count() or 1)) as pool:
-        results = pool.map(lambda j: measure_record(loaded[j[0]], j[0], j[1], anomaly_delta), jobs)
+        results = pool.map(
+            lambda j: measure_record(loaded[j[0]], j[0], j[1], anomaly_delta, cache), jobs
+        )
         measured = list(progress(results, desc="measuring", total=len(jobs), unit="pair"))
+    if cache is not None and cache.hits:
+        logger.info("measuring: %d pair(s) read back from %s", cache.hits, cache.folder)
     for m in measured:
         if m.rule in _FILE_RULES:
             logger.warning("pair skipped (%s): %s", m.rule, m.reason)

@@ -29,6 +29,7 @@ from lenspair.dataset import curation
 from lenspair.dataset.curation import Measured
 from lenspair.dataset.errors import DatasetError
 from lenspair.dataset.layouts import Layout, detect_layout, is_lenspair_dataset
+from lenspair.dataset.stats_cache import StatsCache
 
 _PAIRED_AS_IS = (
     "train, eval and tradeoff read it as it is; dataset-build takes recordings ingested by "
@@ -148,7 +149,13 @@ def _not_a_recording(path: Path) -> str | None:
     return None if layout is None else _ALREADY_PAIRED[layout]
 
 
-def measure_record(source: Source, position: int, index: int, anomaly_delta: float) -> Measured:
+def measure_record(
+    source: Source,
+    position: int,
+    index: int,
+    anomaly_delta: float,
+    cache: StatsCache | None = None,
+) -> Measured:
     """Read, check and measure the images of line ``index`` of ``source``.
 
     A problem with the pair's files removes the pair (rules ``missing_file``,
@@ -161,6 +168,9 @@ def measure_record(source: Source, position: int, index: int, anomaly_delta: flo
         position: its index in the list of sources.
         index: line index in ``pairs.jsonl``.
         anomaly_delta: see :class:`lenspair.dataset.config.CurationConfig`.
+        cache: figures measured before, by the files' checksums
+            (:mod:`lenspair.dataset.stats_cache`): a pair found there is not
+            decoded again; one measured here is added.
     """
     record = source.records[index]
     files = _source_files(source.path, record)
@@ -193,6 +203,9 @@ def measure_record(source: Source, position: int, index: int, anomaly_delta: flo
             return _removed(base, "checksum", reason)
     if files["input"].suffix != files["target"].suffix:
         return _removed(base, "bad_image", f"{files['input']}: input and target file types differ")
+    key = "" if cache is None else cache.key(hashes, anomaly_delta)
+    if cache is not None and (kept := cache.get(key)) is not None:
+        return Measured(position, index, record, files, hashes, kept)
     try:
         images = {kind: read_image(file) for kind, file in files.items()}
         stats = curation.measure_pair(
@@ -202,6 +215,8 @@ def measure_record(source: Source, position: int, index: int, anomaly_delta: flo
         return _removed(base, "bad_image", str(exc))
     except ValueError as exc:
         return _removed(base, "bad_image", f"{files['input']}: {exc}")
+    if cache is not None:
+        cache.put(key, stats)
     return Measured(position, index, record, files, hashes, stats)
 
 

@@ -1,5 +1,6 @@
-"""bench_dataset's floors: the same work for every image, in the build's threads."""
+"""bench_dataset: floors doing the build's work in its threads; builds that measure."""
 
+import os
 import threading
 from pathlib import Path
 
@@ -8,6 +9,8 @@ import pytest
 
 from benchmarks import bench_dataset
 from lenspair.core.imagewrite import write_image
+from lenspair.dataset import curation
+from lenspair.dataset.stats_cache import CACHE_ENV
 
 
 def test_the_floors_link_every_image_in_the_build_s_threads(
@@ -32,3 +35,18 @@ def test_the_floors_link_every_image_in_the_build_s_threads(
     assert linked == [f"{n}.png" for n in range(6)]
     assert all((tmp_path / "out" / f"{n}.png").samefile(images[n]) for n in range(6))
     assert threads and threading.get_ident() not in threads  # the pool's, not the caller's
+
+
+def test_each_cold_build_measures_every_pair_and_a_rebuild_none(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # with the measurement cache, every round after the warm-up read the figures back, and
+    # "build over decode floor" timed a build that decoded nothing
+    monkeypatch.setenv(CACHE_ENV, "/the/user's/cache")
+    measured: list[int] = []
+    real = curation.measure_pair
+    monkeypatch.setattr(curation, "measure_pair", lambda *a: measured.append(1) or real(*a))
+    result = bench_dataset.run(pairs=8, runs=2, workers=1)
+    assert len(measured) == 8 * (1 + 2)  # the warm-up and each cold build; no rebuild
+    assert os.environ[CACHE_ENV] == "/the/user's/cache"
+    assert float(result["rebuild_s"]) > 0 and "rebuild_over_io_floor" in result  # type: ignore[arg-type]
