@@ -50,6 +50,7 @@ convention's (:func:`image_metrics`: integer codes, 0-255 floats).
 """
 
 import enum
+import math
 from dataclasses import dataclass
 
 import torch
@@ -166,15 +167,37 @@ def _check_valid(valid: Tensor | None, output: Tensor) -> Tensor | None:
     return (valid.to(output.device) > 0).to(torch.float64)
 
 
+def _data_range(output: Tensor, target: Tensor, data_range: float | None, what: str) -> float:
+    """The peak-to-peak range to score with: ``data_range``, else as skimage takes it.
+
+    None gives 1.0 for floats and the dtype's span for integers (255 for
+    uint8), as skimage's ``dtype_range`` does; uint8 scored as if in [0, 1]
+    gave -9.5 dB where 38.6 dB was right.
+    """
+    if data_range is None:
+        if output.is_floating_point() and target.is_floating_point():
+            return 1.0
+        if output.dtype != target.dtype:
+            raise ModelError(
+                f"{what}: output is {output.dtype} and target {target.dtype}; give data_range"
+            )
+        info = torch.iinfo(output.dtype)
+        return float(info.max - info.min)
+    if not (math.isfinite(data_range) and data_range > 0):
+        raise ModelError(f"{what}: data_range must be a finite positive number, got {data_range}")
+    return float(data_range)
+
+
 def psnr(
-    output: Tensor, target: Tensor, data_range: float = 1.0, valid: Tensor | None = None
+    output: Tensor, target: Tensor, data_range: float | None = None, valid: Tensor | None = None
 ) -> Tensor:
     """Peak signal-to-noise ratio per image, as ``skimage.metrics.peak_signal_noise_ratio``.
 
     Args:
         output: ``(N, C, H, W)`` restored images.
         target: ``(N, C, H, W)`` reference images.
-        data_range: peak-to-peak range (1.0 for [0, 1] floats, 255 for uint8).
+        data_range: peak-to-peak range; None: 1.0 for floats, the dtype's span
+            for integers (255 for uint8), as skimage.
         valid: ``(N, 1, H, W)``, non-zero where a pixel is trustworthy; None: all are.
 
     Returns:
@@ -182,10 +205,11 @@ def psnr(
         channels and the valid pixels; ``+inf`` where those are identical.
 
     Raises:
-        ModelError: on mismatched shapes, non-finite values, or an image with
-            no valid pixel.
+        ModelError: on mismatched shapes, non-finite values, an image with
+            no valid pixel, or a data range that is not a positive number.
     """
     _check_pair(output, target)
+    data_range = _data_range(output, target, data_range, "psnr")
     difference = output.to(torch.float64) - target.to(torch.float64)
     weights = _check_valid(valid, output)
     if weights is None:
@@ -217,7 +241,7 @@ def gaussian_window(sigma: float = GAUSSIAN_SIGMA, truncate: float = GAUSSIAN_TR
 def ssim(
     output: Tensor,
     target: Tensor,
-    data_range: float = 1.0,
+    data_range: float | None = None,
     gaussian_weights: bool = True,
     win_size: int | None = None,
     sample_covariance: bool = False,
@@ -230,7 +254,8 @@ def ssim(
     Args:
         output: ``(N, C, H, W)`` restored images (float or integer).
         target: ``(N, C, H, W)`` reference images.
-        data_range: peak-to-peak range (1.0 for [0, 1] floats, 255 for uint8).
+        data_range: peak-to-peak range; None: 1.0 for floats, the dtype's span
+            for integers (255 for uint8), as skimage.
         gaussian_weights: Gaussian window (sigma 1.5, 11 taps) if True, else a
             uniform ``win_size`` window.
         win_size: uniform window side (odd); default 7. Ignored (11) with
@@ -245,9 +270,12 @@ def ssim(
 
     Raises:
         ModelError: on mismatched shapes, non-finite values, an even window,
-            images smaller than the window, or no window wholly valid.
+            a one-pixel window with ``sample_covariance``, images smaller than
+            the window, no window wholly valid, or a data range that is not a
+            positive number.
     """
     _check_pair(output, target)
+    data_range = _data_range(output, target, data_range, "ssim")
     if gaussian_weights:
         taps = gaussian_window()
     else:
@@ -256,6 +284,8 @@ def ssim(
             raise ModelError(f"ssim: win_size must be odd and positive, got {size}")
         taps = torch.full((size,), 1.0 / size, dtype=torch.float64)
     size = taps.numel()
+    if sample_covariance and size == 1:
+        raise ModelError("ssim: sample_covariance needs a window of more than one pixel")
     if min(output.shape[-2:]) < size:
         raise ModelError(
             f"ssim: images of {tuple(output.shape[-2:])} are smaller than the {size}x{size} window"

@@ -318,3 +318,40 @@ def test_values_above_the_slack_are_refused_not_scored(top: float) -> None:
         image_metrics(output, target, MetricConvention.SKIMAGE_GAUSSIAN)
     output[0, 0, 0, 0] = 1.0 + SCALE_SLACK / 2  # rounding and int8 stray this far: scored
     assert image_metrics(output, target, MetricConvention.SKIMAGE_GAUSSIAN).psnr.shape == (1,)
+
+
+@pytest.mark.parametrize("dtype", [torch.uint8, torch.int16])
+def test_integer_images_take_their_dtype_s_range_as_skimage_does(dtype: torch.dtype) -> None:
+    # uint8 scored as if in [0, 1] gave -9.5 dB where skimage gives 38.6 dB
+    rng = np.random.default_rng(3)
+    numpy_dtype = {torch.uint8: np.uint8, torch.int16: np.int16}[dtype]
+    info = np.iinfo(numpy_dtype)
+    target = rng.integers(info.min, info.max, (40, 50), endpoint=True).astype(numpy_dtype)
+    noise = rng.integers(-3, 4, target.shape)
+    output = np.clip(target.astype(np.int64) + noise, info.min, info.max).astype(numpy_dtype)
+    as_tensor = lambda a: torch.from_numpy(a)[None, None]  # noqa: E731
+    ours = float(psnr(as_tensor(output), as_tensor(target))[0])
+    span = float(info.max) - float(info.min)  # skimage's own default, said explicitly
+    assert ours == pytest.approx(peak_signal_noise_ratio(target, output, data_range=span), abs=1e-9)
+    theirs = structural_similarity(
+        target,
+        output,
+        data_range=span,
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+    )
+    assert float(ssim(as_tensor(output), as_tensor(target))[0]) == pytest.approx(theirs, abs=1e-9)
+
+
+def test_data_ranges_that_cannot_score_are_refused() -> None:
+    image = torch.rand(1, 1, 16, 16)
+    for bad in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(ModelError, match="data_range must be a finite positive number"):
+            psnr(image, image * 0.5, data_range=bad)
+        with pytest.raises(ModelError, match="data_range must be a finite positive number"):
+            ssim(image, image * 0.5, data_range=bad)
+    with pytest.raises(ModelError, match=r"output is torch\.uint8 and target torch\.float32"):
+        psnr((image * 255).to(torch.uint8), image)
+    with pytest.raises(ModelError, match="sample_covariance needs a window of more than one"):
+        ssim(image, image, gaussian_weights=False, win_size=1, sample_covariance=True)
