@@ -177,6 +177,17 @@ def test_straight_through_clamp_gradient_is_the_identity_s_out_of_range() -> Non
     assert x.grad is not None and x.grad.tolist() == [1.0, 1.0, 1.0]
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16, torch.float16])
+def test_straight_through_clamp_is_exact_far_out_of_range(dtype: torch.dtype) -> None:
+    # x + (clamp(x) - x).detach() rounds 1 - x away once x is large: 1.7e7 came out 0
+    big = torch.finfo(dtype).max / 4
+    x = torch.tensor([-big, -1.7e4, 0.25, 1.7e4, big], dtype=dtype, requires_grad=True)
+    out = clamp_unit_straight_through(x)
+    assert out.tolist() == [0.0, 0.0, 0.25, 1.0, 1.0]
+    out.sum().backward()
+    assert x.grad is not None and x.grad.tolist() == [1.0] * 5
+
+
 def test_instance_norm_matches_torch_and_handles_constants() -> None:
     x = torch.randn(2, 5, 9, 7) * 3 + 1
     reference = torch.nn.InstanceNorm2d(5, affine=False, eps=1e-5)
