@@ -124,6 +124,9 @@ class StatsCache:
     def __init__(self, folder: Path) -> None:
         """Use ``folder`` (created on the first write)."""
         self.folder = folder
+        # here, before the build's threads: ast.parse from two threads at once raised
+        # "SystemError: AST constructor recursion depth mismatch" (CPython 3.11)
+        self.code = code_fingerprint()
         self.hits = 0
         self._lock = threading.Lock()
         self._off = False
@@ -131,7 +134,7 @@ class StatsCache:
     def key(self, hashes: Mapping[str, str], anomaly_delta: float) -> str:
         """The key of a pair: its files' SHA-256s by kind, the anomaly delta, the code."""
         return fingerprint(
-            {"files": dict(hashes), "anomaly_delta": anomaly_delta, "code": code_fingerprint()}
+            {"files": dict(hashes), "anomaly_delta": anomaly_delta, "code": self.code}
         )
 
     def _path(self, key: str) -> Path:

@@ -3,6 +3,7 @@
 import logging
 import math
 import struct
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -98,6 +99,19 @@ def test_a_change_of_the_measuring_code_measures_again(
     calls = _counting(monkeypatch)
     build_dataset([source], tmp_path / "DS", DatasetConfig())
     assert len(calls) == 6
+
+
+def test_the_code_is_fingerprinted_once_before_the_measuring_threads(
+    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # ast.parse in several threads at once raised "SystemError: AST constructor recursion
+    # depth mismatch" (CPython 3.11): the first pairs of a build failed at random
+    threads: list[threading.Thread] = []
+    monkeypatch.setattr(
+        stats_cache, "code_fingerprint", lambda: threads.append(threading.current_thread()) or "c"
+    )
+    build_dataset([recording("rec_a", n=8)], tmp_path / "DS", DatasetConfig(), workers=4)
+    assert threads == [threading.current_thread()]
 
 
 def test_an_entry_cut_short_is_measured_again_and_rewritten(
