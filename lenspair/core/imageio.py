@@ -7,6 +7,7 @@ or ``uint16``, ``(H, W)`` or ``(H, W, 3)``, as stored); files are written by
 """
 
 import contextlib
+import logging
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,8 @@ import OpenImageIO as oiio
 
 from lenspair.core.errors import ImageIOError, first_text_line
 from lenspair.core.pngcheck import HEADER_BYTES, png_header_problem, png_problem
+
+logger = logging.getLogger(__name__)
 
 _UNKNOWN = "unknown error"  # an OpenImageIO failure that gives no reason
 
@@ -152,15 +155,47 @@ def image_metadata(path: Path) -> tuple[Attribute, ...]:
     """
     with _opened(Path(path)) as handle:
         spec = handle.spec()
+        colours = spec.nchannels - (1 if spec.alpha_channel >= 0 else 0)
         kept = tuple(
             (item.name, item.type, item.value)
             for item in spec.extra_attribs
             if _kept(item.name, item.type, item.value)
+            and not (item.name == "ICCProfile" and _foreign_profile(path, item.value, colours))
         )
         bits = int(spec.get_int_attribute(BITS_ATTRIBUTE, 16))
         if str(spec.format) == "uint16" and 8 < bits < 16:
             kept += ((BITS_ATTRIBUTE, oiio.TypeInt, bits),)
         return kept
+
+
+ICC_SPACES = {1: b"GRAY", 3: b"RGB "}
+"""The ICC colour space signature (header bytes 16-19) of grey and of RGB pixels."""
+
+
+def _foreign_profile(path: Path, profile: Any, colours: int) -> bool:
+    """Whether an ICC profile describes other colours than the pixels read (said once a space).
+
+    OpenImageIO reads a CMYK JPEG or TIFF as RGB: its CMYK profile, written on
+    the RGB image in the file's place, made colour-managed viewers reject the
+    file or misread every colour.
+    """
+    space = bytes(np.asarray(profile, dtype=np.uint8)[16:20].tobytes())
+    if space == ICC_SPACES.get(colours):
+        return False
+    said = space.decode("ascii", "replace").strip() or "unknown"
+    if said not in _SAID_FOREIGN:
+        _SAID_FOREIGN.add(said)
+        logger.warning(
+            "%s: its ICC profile is for %s colours, and the image is read as %s: the profile "
+            "is left out of the image written in its place (so for every such file)",
+            path,
+            said,
+            "grey" if colours == 1 else "RGB",
+        )
+    return True
+
+
+_SAID_FOREIGN: set[str] = set()
 
 
 def _kept(name: str, kind: Any, value: Any) -> bool:
@@ -289,8 +324,21 @@ def format_problem(kind: str) -> str:
     return "" if kind in READABLE_FORMATS else f"unsupported pixel format {kind} (need 8/16-bit)"
 
 
-_CUT_SHORT = "Premature end"
-"""How libjpeg (through OpenImageIO) says a file ended before its image did."""
+def _pixels_lost(error: str) -> bool:
+    """Whether libjpeg's words (through OpenImageIO) say rows were made up.
+
+    A file cut short ("Premature end of JPEG file") or whose data segment
+    ends early, as an interrupted copy leaves it with zeros to its end marker
+    ("Corrupt JPEG data: premature end of data segment"), or holds a bad
+    Huffman code or a misplaced marker ("Corrupt JPEG data: ..."), decodes
+    with its missing rows grey or smeared. Stray bytes before a marker
+    ("Corrupt JPEG data: 3 extraneous bytes before marker") and an unknown
+    JFIF revision are said of files whose pixels are whole: those are read.
+    """
+    said = error.lower()
+    if "premature end" in said:
+        return True
+    return "corrupt jpeg data" in said and "extraneous bytes" not in said
 
 
 def _channel_problem(channels: int, alpha: int, names: Sequence[str]) -> str | None:
@@ -323,9 +371,7 @@ def _read_pixels(path: Path) -> np.ndarray:
             raise ImageIOError(f"{path}: {problem}")
         pixels = handle.read_image(spec.format)
         error = handle.geterror()
-        # A JPEG cut short decodes: its missing rows come back grey, and libjpeg says the
-        # data ended. Its other complaints (extraneous bytes, an unknown JFIF revision)
-        # are warnings about files whose pixels are whole: those are read.
-        if pixels is None or _CUT_SHORT in error:
+        # a damaged JPEG decodes, its missing rows made up: only libjpeg's words tell
+        if pixels is None or _pixels_lost(error):
             raise ImageIOError(f"{path}: corrupt or truncated ({first_text_line(error, _UNKNOWN)})")
     return np.asarray(pixels)

@@ -1,6 +1,7 @@
 import re
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given
@@ -61,6 +62,17 @@ def test_a_jpeg_cut_short_is_an_error_not_an_image_with_grey_rows(tmp_path: Path
     cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
     with pytest.raises(ImageIOError, match=r"cut\.jpg: corrupt or truncated \(.*Premature end"):
         read_image(cut)
+    # the right length, zeros from the middle to the end marker: libjpeg says "Corrupt JPEG
+    # data: premature end of data segment" of this frame (of others, where zeros decode as
+    # valid codes, it says nothing, and nothing can tell)
+    noise = (np.random.default_rng(0).random((360, 480)) * 255).astype(np.uint8)
+    smooth = cv2.normalize(cv2.GaussianBlur(noise, (0, 0), 3), None, 0, 255, cv2.NORM_MINMAX)
+    data = bytearray(cv2.imencode(".jpg", smooth)[1].tobytes())
+    data[len(data) // 2 : -2] = bytes(len(data) - 2 - len(data) // 2)
+    (tmp_path / "zeros.jpg").write_bytes(bytes(data))
+    said = r"zeros\.jpg: corrupt or truncated \(.*Corrupt JPEG data: premature end of data segment"
+    with pytest.raises(ImageIOError, match=said):
+        read_image(tmp_path / "zeros.jpg")
     # libjpeg's warnings about whole files are not errors: three stray bytes before a
     # marker, an unknown JFIF revision; the pixels are those of the intact file
     data = whole.read_bytes()

@@ -659,3 +659,36 @@ def test_tiles_go_to_the_network_a_bounded_number_of_bytes_at_a_time(
     monkeypatch.setattr(tiling, "CHUNK_BYTES", 3 * 32 * 32 * 4 * 2)  # two tiles' worth
     np.testing.assert_allclose(tiling.run_tiled(identity, batch, (32, 32), 8), batch, atol=1e-6)  # type: ignore[arg-type]
     assert max(sizes) == 2
+
+
+def test_a_colour_profile_for_other_colours_than_those_read_is_left_out_said_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # a CMYK JPEG reads as RGB: its CMYK profile on the restored RGB file made viewers
+    # reject it or misread every colour. Here: an RGB profile on a grey image.
+    import OpenImageIO as oiio  # the test writes metadata that lenspair's writer only passes on
+
+    monkeypatch.setattr(imageio, "_SAID_FOREIGN", set())
+    profile = _icc_profile()
+    for name, channels in (("grey1.tif", 1), ("grey2.tif", 1), ("rgb.tif", 3)):
+        spec = oiio.ImageSpec(16, 8, channels, "uint8")
+        spec.attribute(
+            "ICCProfile", oiio.TypeDesc(f"uint8[{len(profile)}]"), np.frombuffer(profile, np.uint8)
+        )
+        image = oiio.ImageOutput.create(str(tmp_path / name))
+        assert image.open(str(tmp_path / name), spec)
+        assert image.write_image(np.zeros((8, 16, channels), np.uint8))
+        image.close()
+    with caplog.at_level("WARNING"):
+        kept = {
+            n: {a for a, _, _ in imageio.image_metadata(tmp_path / n)}
+            for n in ("grey1.tif", "grey2.tif", "rgb.tif")
+        }
+    assert "ICCProfile" not in kept["grey1.tif"] | kept["grey2.tif"]
+    assert "ICCProfile" in kept["rgb.tif"]
+    said = [r.getMessage() for r in caplog.records if "ICC profile" in r.getMessage()]
+    assert said == [
+        f"{tmp_path / 'grey1.tif'}: its ICC profile is for RGB colours, and the image is read "
+        "as grey: the profile is left out of the image written in its place (so for every such "
+        "file)"
+    ]
