@@ -51,6 +51,16 @@ class EstimationParams:
     max_row_offset_fraction: float = 0.1
     inlier_threshold_px: float = 1.5
     min_inliers: int = 30
+    min_span_fraction: float = 0.08
+    """Least extent of the inliers (5th to 95th percentile) along each side, as a share of it.
+
+    A homography fitted to matches in a narrow band (texture along a horizon
+    only) fits them to a fraction of a pixel and is undetermined away from
+    them: with 0.2 px match noise its corners drift about 1 px for a band of
+    a tenth of the height, 3 px at a fiftieth, 20 px at a hundredth. The
+    extent of a uniform band is nine tenths of it, so this refuses bands
+    under about an eleventh of a side.
+    """
 
 
 @dataclass(frozen=True)
@@ -183,7 +193,9 @@ def estimate_homography(
             (e.g. in worker processes); computed here when None.
 
     Raises:
-        RegistrationError: too few matches or inliers; the message says how many.
+        RegistrationError: too few matches or inliers (the message says how
+            many), or inliers that cover too narrow a part of the view
+            (:attr:`EstimationParams.min_span_fraction`).
 
     """
     params = params or EstimationParams()
@@ -215,9 +227,25 @@ def estimate_homography(
     matrix = np.asarray(matrix / matrix[2, 2], dtype=np.float64)
     error = _transfer_error(matrix, src, dst)
     final = error <= params.inlier_threshold_px
+    if frames:
+        _check_span(dst[final], frames[0][0].shape, params.min_span_fraction)
     per_frame = tuple(int(np.sum(final & (owner == i))) for i in range(len(frames)))
     rms = float(np.sqrt(np.mean(error[final] ** 2))) if final.any() else float("nan")
     return HomographyEstimate(matrix, int(final.sum()), len(src), per_frame, rms)
+
+
+def _check_span(points: np.ndarray, shape: tuple[int, ...], least: float) -> None:
+    """Refuse inliers whose 5th to 95th percentile extent is under ``least`` of a side."""
+    height, width = shape[:2]
+    low, high = np.percentile(points, [5.0, 95.0], axis=0)
+    across, down = (high - low) / (width, height)
+    if min(across, down) < least:
+        raise RegistrationError(
+            f"the {len(points)} matches that support the homography span {across:.0%} of the "
+            f"view's width and {down:.0%} of its height (need >= {least:.0%} of each): away "
+            "from them it is not determined, and its corners could be pixels off; record "
+            "where the scene has texture across more of the view"
+        )
 
 
 MAX_TURN_DEG = 10.0

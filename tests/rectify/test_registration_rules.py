@@ -91,3 +91,28 @@ def test_the_reported_inliers_and_rms_use_the_inlier_threshold() -> None:
     assert estimate.matches == 430
     assert estimate.inliers == 420 and estimate.inliers_per_frame == (420,)
     assert estimate.rms_px == pytest.approx(1.4 * np.sqrt(20 / 420), abs=0.01)
+
+
+@pytest.mark.parametrize(("band", "refused"), [(4, True), (25, True), (40, False), (120, False)])
+def test_inliers_in_a_band_narrower_than_an_eleventh_of_the_view_are_refused(
+    band: int, refused: bool
+) -> None:
+    # matches along a horizon only: the fit is within a fraction of a pixel there and
+    # undetermined away from it (a 4 px band put the corners 10-20 px off, unsaid)
+    rng = np.random.default_rng(1)
+    rows = 180 + rng.uniform(-band / 2, band / 2, 400)
+    src = np.stack([rng.uniform(10, WIDTH - 10, 400), rows], axis=1)
+    dst = src + np.array([4.0, 0.0]) + rng.normal(0.0, 0.2, src.shape)
+    view = SCENE[:HEIGHT]
+    frames = [(view, view, VALID, VALID)]
+    if refused:
+        with pytest.raises(RegistrationError, match=r"of its height \(need >= 8% of each\)"):
+            estimate_homography(frames, matches=[(src, dst)])
+        return
+    estimate = estimate_homography(frames, matches=[(src, dst)])
+    corners = np.array(
+        [[0, 0, 1], [WIDTH - 1, 0, 1], [0, HEIGHT - 1, 1], [WIDTH - 1, HEIGHT - 1, 1]]
+    )
+    mapped = corners @ estimate.matrix.T
+    drift = np.abs(mapped[:, :2] / mapped[:, 2:] - corners[:, :2] - (4.0, 0.0))
+    assert drift.max() < 1.5
