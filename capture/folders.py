@@ -41,6 +41,7 @@ recording order, so frames are taken in time order; two files with the same
 timestamp keep the first by name and record the other.
 """
 
+import os
 import re
 import statistics
 from collections import Counter
@@ -67,6 +68,13 @@ IMAGE_SUFFIXES = frozenset(
 )
 """Image files read as frames (OpenImageIO). Camera raw and video are not images to read
 here: :mod:`lenspair.model.inference.unread_files` names them where a folder holds them."""
+RAW_IMAGE_SUFFIXES = frozenset(
+    {".dng", ".cr2", ".cr3", ".nef", ".arw", ".orf", ".rw2", ".raf", ".pef", ".srw"}
+)
+"""Camera raw files: the sensor's mosaic, not an image until the camera's software
+demosaics it (a DNG is a TIFF container, which OpenImageIO may open all the same)."""
+UNREAD_IMAGE_SUFFIXES = frozenset({".webp", ".gif", ".heic", ".heif", ".jp2", ".exr", ".avif"})
+"""Images in formats that are not read (convert them to PNG or TIFF)."""
 
 FOLDER_NAMES: dict[CameraName, str] = {"cam0": "left", "cam1": "right"}
 
@@ -149,6 +157,39 @@ def image_files(folder: Path) -> list[Path]:
     )
 
 
+def passed_over_frames(folder: Path) -> list[tuple[Path, str]]:
+    """``(file, why)`` for each visible file of ``folder`` that looks like a frame but is not read.
+
+    :func:`image_files` leaves out an image in a format that is not read (a
+    WebP, an EXR), a camera raw file, and a link to nothing or a folder named
+    as an image: each such frame vanished from a recording without a word.
+    Sorted by name; an unlistable folder gives nothing (:func:`image_files`
+    says so).
+    """
+    try:
+        entries = sorted(p for p in folder.iterdir() if not p.name.startswith("."))
+    except OSError:
+        return []
+    found = []
+    for entry in entries:
+        suffix = entry.suffix.lower()
+        if suffix in UNREAD_IMAGE_SUFFIXES:
+            found.append((entry, f"{suffix} images are not read: convert it to PNG or TIFF"))
+        elif suffix in RAW_IMAGE_SUFFIXES:
+            found.append((entry, "a camera raw file: export it as PNG or TIFF"))
+        elif suffix in IMAGE_SUFFIXES and entry.is_symlink() and not entry.exists():
+            found.append((entry, f"a link to nothing ({os.readlink(entry)}); left out"))
+        elif suffix in IMAGE_SUFFIXES and entry.is_dir():
+            found.append((entry, "a folder named as an image; left out"))
+    return found
+
+
+def note_passed_over(camera: CameraName, folder: Path, problems: list[FrameProblem]) -> None:
+    """Append a problem for each of ``folder``'s :func:`passed_over_frames`."""
+    for file, why in passed_over_frames(folder):
+        problems.append(FrameProblem(camera, timestamp_from_name(file.name), str(file), why))
+
+
 def list_image_folder(
     camera: CameraName, folder: Path, problems: list[FrameProblem]
 ) -> list[FrameRef]:
@@ -169,6 +210,7 @@ def list_image_folder(
     """
     frames = []
     digits = []
+    note_passed_over(camera, folder, problems)
     for file in image_files(folder):
         read = _read_time(Path(file.name).stem)
         if read is None:

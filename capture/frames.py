@@ -375,7 +375,15 @@ def _file_entries(
             problems.extend(passed_over)
         return [(file, None, None) for file in files]
     recording = open_recording(path, cameras=cameras)
-    mine = [p for p in recording.problems if p.camera is None or p.camera in cameras]
+    # an image restore copies and detect leaves unjudged is named by them, with what they
+    # did with it (lenspair.model.inference.unread_files): said once, not twice
+    mine = [
+        p
+        for p in recording.problems
+        if (p.camera is None or p.camera in cameras)
+        and Path(p.source).suffix.lower() not in folders.UNREAD_IMAGE_SUFFIXES
+        and Path(p.source).suffix.lower() not in folders.RAW_IMAGE_SUFFIXES
+    ]
     if problems is not None:
         problems.extend(str(problem) for problem in mine)
     if dropped is not None:  # images, not rows of a listing: a frame each

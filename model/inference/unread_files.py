@@ -8,6 +8,7 @@ an image format that is not read: the report names each such file.
 
 from pathlib import Path
 
+from lenspair.capture.folders import RAW_IMAGE_SUFFIXES, UNREAD_IMAGE_SUFFIXES
 from lenspair.capture.rosbag import is_bag_name
 
 VIDEO_SUFFIXES = frozenset(
@@ -15,14 +16,6 @@ VIDEO_SUFFIXES = frozenset(
     | {".ts", ".m2ts", ".mts", ".flv", ".wmv", ".3gp"}
 )
 """Video files: their frames are not read (split them into images first)."""
-RAW_IMAGE_SUFFIXES = frozenset(
-    {".dng", ".cr2", ".cr3", ".nef", ".arw", ".orf", ".rw2", ".raf", ".pef", ".srw"}
-)
-"""Camera raw files: the sensor's mosaic, not an image until the camera's software
-demosaics it (a DNG is a TIFF container, which OpenImageIO may open all the same)."""
-UNREAD_IMAGE_SUFFIXES = frozenset({".webp", ".gif", ".heic", ".heif", ".jp2", ".exr", ".avif"})
-"""Images in formats that are not read (convert them to PNG or TIFF)."""
-
 _MPEG_TS_SYNC = 0x47
 """The first byte of every MPEG transport stream packet."""
 

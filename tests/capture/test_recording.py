@@ -461,3 +461,37 @@ def test_frame_numbers_after_a_date_are_read_as_frame_numbers(tmp_path: Path) ->
             write_image(tmp_path / side / f"rec_20240501_{i:06d}.png", _image(i))
     recording = open_recording(tmp_path)
     assert recording.timestamps("cam0") == [1, 2, 3] == recording.timestamps("cam1")
+
+
+@pytest.mark.parametrize("layout", ["folders", "euroc", "euroc with data.csv"])
+def test_frames_that_are_not_read_are_named_not_passed_over(tmp_path: Path, layout: str) -> None:
+    # a WebP, a raw file, a link to nothing or a folder named as a frame vanished from the
+    # recording without a word: "kept 8 of 8", and nothing in report.json
+    stamps = [T0 + i * 50 * MS for i in range(3)]
+    if layout == "folders":
+        for camera in ("left", "right"):
+            for t in stamps:
+                write_image(tmp_path / camera / f"{t}.png", _image(t % 97))
+        folder = tmp_path / "right"
+    else:
+        for camera in ("cam0", "cam1"):
+            _write_camera(tmp_path / "mav0" / camera, stamps)
+            if layout == "euroc":
+                (tmp_path / "mav0" / camera / "data.csv").unlink()
+        folder = tmp_path / "mav0" / "cam1" / "data"
+    late = [T0 + i * 50 * MS for i in range(3, 7)]
+    (folder / f"{late[0]}.webp").write_bytes(b"RIFF")
+    (folder / f"{late[1]}.DNG").write_bytes(b"II*\x00")
+    (folder / f"{late[2]}.png").symlink_to(tmp_path / "gone.png")
+    (folder / f"{late[3]}.png").mkdir()
+    (folder / ".hidden.webp").write_bytes(b"RIFF")  # hidden files are not frames
+    (folder / "notes.txt").write_text("not a frame")
+    recording = open_recording(tmp_path)
+    said = sorted((p.t_ns, p.reason, p.dropped) for p in recording.problems)
+    assert said == [
+        (late[0], ".webp images are not read: convert it to PNG or TIFF", True),
+        (late[1], "a camera raw file: export it as PNG or TIFF", True),
+        (late[2], f"a link to nothing ({tmp_path / 'gone.png'}); left out", True),
+        (late[3], "a folder named as an image; left out", True),
+    ]
+    assert recording.timestamps("cam1") == stamps
