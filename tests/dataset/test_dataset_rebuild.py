@@ -1,10 +1,12 @@
 """Rebuilding into an existing dataset: identical reruns accepted, refusals taken early."""
 
+import argparse
 from pathlib import Path
 
 import pytest
 
-from lenspair.cli import main
+from lenspair.cli import build_parser, main
+from lenspair.commands.dataset_build import BUILD_ONLY
 from lenspair.core.fsutil import sha256_file
 from lenspair.dataset import output as output_module
 from lenspair.dataset.build import build_dataset
@@ -206,3 +208,18 @@ def test_a_previous_dataset_whose_card_or_manifest_cannot_be_read_is_refused(
     with pytest.raises(DatasetError, match=rf"{broken}"):
         build_dataset(sources, tmp_path / "v2", config, previous=tmp_path / "v1")
     assert not (tmp_path / "v2").exists()
+
+
+def test_every_build_option_is_refused_by_verify() -> None:
+    # BUILD_ONLY is kept by hand: an option added to dataset-build without it would be
+    # ignored by --verify, which then says "OK" as if it had checked against it
+    parser = build_parser("dataset-build")
+    (sub,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    command = sub.choices["dataset-build"]
+    options = {
+        action.dest: action.option_strings[-1]
+        for action in command._actions
+        if action.option_strings and action.dest not in ("help", "verbose")
+    }
+    verify_takes = {"verify", "workers"}
+    assert {d: f for d, f in options.items() if d not in verify_takes} == BUILD_ONLY
