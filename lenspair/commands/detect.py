@@ -17,8 +17,8 @@ each file of a folder INPUT that may hold frames but is not judged (a bag, a
 killed recorder's .bag.active too, a video, a camera raw file, an image format
 that is not read), as restore names them, and one for each folder of a
 recording's images that none of its cameras holds (mav0/cam2). When no frame
-at all could be judged, the outputs are written and the command ends with
-exit code 2 and the first reason.
+at all could be judged, the two tables are written (no contact sheet: it has
+no frame to show) and the command ends with exit code 2 and the first reason.
 
 Example:
   lenspair detect runs/detector/detector.pt rec/rain --out detect_rain
