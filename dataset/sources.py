@@ -185,8 +185,10 @@ def measure_record(
             )
             return _removed(base, "bad_image", reason)
     hashes: dict[str, str] = {}
+    before: dict[str, tuple[int, ...]] = {}
     for kind, file in files.items():
         try:
+            before[kind] = _identity(file)
             hashes[kind] = sha256_bytes(file.read_bytes())
         except FileNotFoundError:
             return _removed(base, "missing_file", f"{file}: file missing (named in {PAIRS_FILE})")
@@ -215,9 +217,25 @@ def measure_record(
         return _removed(base, "bad_image", str(exc))
     except ValueError as exc:
         return _removed(base, "bad_image", f"{files['input']}: {exc}")
-    if cache is not None:
+    if cache is not None and _unchanged(files, before):
+        # a file replaced between hashing and decoding (a re-ingest meanwhile) would keep
+        # the new pixels' figures under the old bytes' key, for every later build
         cache.put(key, stats)
     return Measured(position, index, record, files, hashes, stats)
+
+
+def _unchanged(files: dict[str, Path], before: dict[str, tuple[int, ...]]) -> bool:
+    """Whether every file is still the one whose identity ``before`` holds."""
+    try:
+        return all(_identity(files[kind]) == identity for kind, identity in before.items())
+    except OSError:  # gone meanwhile
+        return False
+
+
+def _identity(file: Path) -> tuple[int, ...]:
+    """What changes when a file is rewritten or replaced: inode, size, modification time."""
+    status = file.stat()
+    return status.st_ino, status.st_size, status.st_mtime_ns
 
 
 def _source_files(folder: Path, record: PairRecord) -> dict[str, Path]:

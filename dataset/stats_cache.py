@@ -11,12 +11,15 @@ everything the figures depend on, so a cached figure is the one measuring would
 give, bit for bit, and the dataset is byte-identical with or without the cache.
 
 Where: ``$LENSPAIR_CACHE_DIR/pair-stats`` when that is set, else
-``$XDG_CACHE_HOME/lenspair/pair-stats``, else ``~/.cache/lenspair/pair-stats``;
-one small JSON file per measured pair (about 4 KB). ``LENSPAIR_CACHE_DIR=``
-(set, empty) turns the cache off. Deleting the folder is always safe. An entry
-that does not read back (cut by a power loss, edited) is measured again and
-rewritten; a cache folder that cannot be written is said once, and the build
-measures without it.
+``$XDG_CACHE_HOME/lenspair/pair-stats``, else ``~/.cache/lenspair/pair-stats``
+(off where there is no home folder); one small JSON file per measured pair
+(about 4 KB), in a folder per code fingerprint: a build removes the folders of
+other versions, which no key of its own finds, so an upgrade does not leave
+the old entries on a robot's disk. ``LENSPAIR_CACHE_DIR=`` (set, empty) turns
+the cache off. Deleting the folder is always safe. An entry that does not
+read back (cut by a power loss, edited) is measured again and rewritten; a
+cache folder that cannot be written is said once, and the build measures
+without it. A pair whose files change while it is measured is not kept.
 """
 
 import ast
@@ -26,6 +29,7 @@ import importlib.util
 import json
 import logging
 import os
+import shutil
 import threading
 from collections.abc import Iterator, Mapping
 from dataclasses import fields
@@ -48,6 +52,8 @@ FORMAT = 1
 """Version of an entry's layout: bumped when :func:`_encode` changes."""
 MEASURING_MODULES = ("lenspair.dataset.curation", "lenspair.core.imageio")
 """Where measuring starts; :func:`code_fingerprint` follows their lenspair imports."""
+VERSION_DIGITS = 16
+"""Hexadecimal digits of :func:`code_fingerprint` naming a version's folder."""
 _FLOAT_FIELDS = tuple(f.name for f in fields(PairStats) if f.name != "thumbnail")
 
 
@@ -56,7 +62,13 @@ def cache_folder() -> Path | None:
     chosen = os.environ.get(CACHE_ENV)
     if chosen is not None:
         return Path(chosen).expanduser() / "pair-stats" if chosen else None
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    base = os.environ.get("XDG_CACHE_HOME")
+    if not base:
+        try:
+            base = str(Path.home() / ".cache")
+        except RuntimeError:  # no HOME, and a user id without a passwd entry (a container)
+            logger.info("measurement cache off: no home folder (set %s)", CACHE_ENV)
+            return None
     return Path(base) / "lenspair" / "pair-stats"
 
 
@@ -137,8 +149,40 @@ class StatsCache:
             {"files": dict(hashes), "anomaly_delta": anomaly_delta, "code": self.code}
         )
 
+    @property
+    def version_folder(self) -> Path:
+        """Where this code's entries live: one folder per :func:`code_fingerprint`."""
+        return self.folder / self.code[:VERSION_DIGITS]
+
     def _path(self, key: str) -> Path:
-        return self.folder / key[:2] / f"{key}.json"
+        return self.version_folder / key[:2] / f"{key}.json"
+
+    def prune(self) -> None:
+        """Remove the entries of other code or library versions: no key of this one finds them.
+
+        Only folders named as :attr:`version_folder` is (hexadecimal digits) are
+        touched. A build of another version running meanwhile loses its entries
+        and measures again.
+        """
+        try:
+            others = [
+                p
+                for p in self.folder.iterdir()
+                if p.is_dir()
+                and p != self.version_folder
+                and len(p.name) == VERSION_DIGITS
+                and all(c in "0123456789abcdef" for c in p.name)
+            ]
+        except OSError:  # absent until the first write, or not listable: nothing to prune
+            return
+        for other in others:
+            shutil.rmtree(other, ignore_errors=True)
+        if others:
+            logger.info(
+                "measurement cache: removed the figures of %d earlier version(s) from %s",
+                len(others),
+                self.folder,
+            )
 
     def get(self, key: str) -> PairStats | None:
         """The figures kept under ``key``; None when absent or not readable as figures."""
@@ -182,7 +226,11 @@ class StatsCache:
 def open_cache() -> StatsCache | None:
     """The user's cache (:func:`cache_folder`), or None where it is turned off."""
     folder = cache_folder()
-    return None if folder is None else StatsCache(folder)
+    if folder is None:
+        return None
+    cache = StatsCache(folder)
+    cache.prune()
+    return cache
 
 
 def _encode(stats: PairStats) -> str:

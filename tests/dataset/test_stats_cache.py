@@ -47,6 +47,61 @@ def _entries() -> list[Path]:
     return sorted(folder.rglob("*.json"))
 
 
+def test_a_pair_whose_file_changes_while_it_is_measured_is_not_kept(
+    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # the new pixels' figures were kept under the old bytes' key: a later build that read
+    # the old file again took psnr 12.6 dB for a pair of 21.7
+    source = recording("rec_a", n=4)
+    real = curation.measure_pair
+    touched: list[Path] = []
+
+    def measure(*args: object) -> PairStats:
+        if not touched:  # a re-ingest rewrites a target between hashing and decoding
+            target = sorted((source / "target").iterdir())[0]
+            fresh = target.with_suffix(".new")  # as capture-ingest writes: a new file, renamed
+            fresh.write_bytes(target.read_bytes())
+            fresh.replace(target)
+            touched.append(target)
+        return real(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(curation, "measure_pair", measure)
+    build_dataset([source], tmp_path / "DS1", DatasetConfig(), workers=1)
+    assert len(_entries()) == 3
+    monkeypatch.undo()
+    calls = _counting(monkeypatch)
+    build_dataset([source], tmp_path / "DS2", DatasetConfig(), workers=1)
+    assert len(calls) == 1
+
+
+def test_entries_of_other_versions_are_removed_when_a_build_opens_the_cache(
+    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    source = recording("rec_a", n=3)
+    build_dataset([source], tmp_path / "DS", DatasetConfig())
+    folder = cache_folder()
+    assert folder is not None
+    (old,) = folder.iterdir()
+    mine = folder / "notes"  # not a version's folder: left alone
+    mine.mkdir()
+    monkeypatch.setattr(stats_cache, "code_fingerprint", lambda: "0123456789abcdef" * 4)
+    build_dataset([source], tmp_path / "DS", DatasetConfig())
+    assert sorted(p.name for p in folder.iterdir()) == ["0123456789abcdef", "notes"]
+    assert not old.exists() and len(_entries()) == 3
+
+
+def test_no_home_folder_turns_the_cache_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Path.home() raised RuntimeError: dataset-build failed in a container without HOME
+    for name in ("LENSPAIR_CACHE_DIR", "XDG_CACHE_HOME", "HOME"):
+        monkeypatch.delenv(name, raising=False)
+
+    def no_home() -> Path:
+        raise RuntimeError("Could not determine home directory.")
+
+    monkeypatch.setattr(Path, "home", staticmethod(no_home))
+    assert cache_folder() is None
+
+
 def test_a_rebuild_reads_every_figure_back_and_writes_the_same_dataset(
     recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
