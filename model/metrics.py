@@ -170,22 +170,32 @@ def _check_valid(valid: Tensor | None, output: Tensor) -> Tensor | None:
 def _data_range(output: Tensor, target: Tensor, data_range: float | None, what: str) -> float:
     """The peak-to-peak range to score with: ``data_range``, else as skimage takes it.
 
-    None gives 1.0 for floats and the dtype's span for integers (255 for
-    uint8), as skimage's ``dtype_range`` does; uint8 scored as if in [0, 1]
-    gave -9.5 dB where 38.6 dB was right.
+    None gives 1.0 for floats and, for integers, what skimage's ``dtype_range``
+    gives (uint8 scored as if in [0, 1] gave -9.5 dB where 38.6 dB was right):
+    ``ssim`` the dtype's span (255 for uint8, 65535 for int16), as
+    ``structural_similarity``; ``psnr``, as ``peak_signal_noise_ratio``, reads
+    the target: the dtype's maximum when it has no negative value, else the span
+    (and 2 for floats with negative values, their range being [-1, 1]).
     """
-    if data_range is None:
-        if output.is_floating_point() and target.is_floating_point():
-            return 1.0
-        if output.dtype != target.dtype:
+    if data_range is not None:
+        if not (math.isfinite(data_range) and data_range > 0):
             raise ModelError(
-                f"{what}: output is {output.dtype} and target {target.dtype}; give data_range"
+                f"{what}: data_range must be a finite positive number, got {data_range}"
             )
-        info = torch.iinfo(output.dtype)
-        return float(info.max - info.min)
-    if not (math.isfinite(data_range) and data_range > 0):
-        raise ModelError(f"{what}: data_range must be a finite positive number, got {data_range}")
-    return float(data_range)
+        return float(data_range)
+    negative = what == "psnr" and bool((target < 0).any())
+    if target.is_floating_point():
+        if what == "ssim" and not output.is_floating_point():
+            raise ModelError(
+                f"ssim: output is {output.dtype} and target {target.dtype}; give data_range"
+            )
+        return 2.0 if negative else 1.0
+    if what == "ssim" and output.dtype != target.dtype:
+        raise ModelError(
+            f"ssim: output is {output.dtype} and target {target.dtype}; give data_range"
+        )
+    info = torch.iinfo(target.dtype)
+    return float(info.max - info.min) if what == "ssim" or negative else float(info.max)
 
 
 def psnr(
@@ -196,8 +206,9 @@ def psnr(
     Args:
         output: ``(N, C, H, W)`` restored images.
         target: ``(N, C, H, W)`` reference images.
-        data_range: peak-to-peak range; None: 1.0 for floats, the dtype's span
-            for integers (255 for uint8), as skimage.
+        data_range: peak-to-peak range; None: as skimage's
+            ``peak_signal_noise_ratio`` takes it from the target (1.0 for
+            floats in [0, 1], 255 for uint8; :func:`_data_range`).
         valid: ``(N, 1, H, W)``, non-zero where a pixel is trustworthy; None: all are.
 
     Returns:
@@ -255,7 +266,7 @@ def ssim(
         output: ``(N, C, H, W)`` restored images (float or integer).
         target: ``(N, C, H, W)`` reference images.
         data_range: peak-to-peak range; None: 1.0 for floats, the dtype's span
-            for integers (255 for uint8), as skimage.
+            for integers (255 for uint8), as skimage's ``structural_similarity``.
         gaussian_weights: Gaussian window (sigma 1.5, 11 taps) if True, else a
             uniform ``win_size`` window.
         win_size: uniform window side (odd); default 7. Ignored (11) with

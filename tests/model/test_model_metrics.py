@@ -320,28 +320,34 @@ def test_values_above_the_slack_are_refused_not_scored(top: float) -> None:
     assert image_metrics(output, target, MetricConvention.SKIMAGE_GAUSSIAN).psnr.shape == (1,)
 
 
-@pytest.mark.parametrize("dtype", [torch.uint8, torch.int16])
-def test_integer_images_take_their_dtype_s_range_as_skimage_does(dtype: torch.dtype) -> None:
-    # uint8 scored as if in [0, 1] gave -9.5 dB where skimage gives 38.6 dB
+@pytest.mark.parametrize(
+    ("dtype", "low", "high"),
+    [(np.uint8, 0, 255), (np.int16, 0, 4095), (np.int16, -3000, 3000), (np.float64, -1, 1)],
+)
+def test_the_default_data_range_is_skimage_s(dtype: type, low: float, high: float) -> None:
+    # uint8 scored as if in [0, 1] gave -9.5 dB where skimage gives 38.6 dB; skimage's psnr
+    # reads the target (the dtype's maximum when it has no negative value, else the span)
     rng = np.random.default_rng(3)
-    numpy_dtype = {torch.uint8: np.uint8, torch.int16: np.int16}[dtype]
-    info = np.iinfo(numpy_dtype)
-    target = rng.integers(info.min, info.max, (40, 50), endpoint=True).astype(numpy_dtype)
-    noise = rng.integers(-3, 4, target.shape)
-    output = np.clip(target.astype(np.int64) + noise, info.min, info.max).astype(numpy_dtype)
-    as_tensor = lambda a: torch.from_numpy(a)[None, None]  # noqa: E731
-    ours = float(psnr(as_tensor(output), as_tensor(target))[0])
-    span = float(info.max) - float(info.min)  # skimage's own default, said explicitly
-    assert ours == pytest.approx(peak_signal_noise_ratio(target, output, data_range=span), abs=1e-9)
-    theirs = structural_similarity(
-        target,
-        output,
-        data_range=span,
-        gaussian_weights=True,
-        sigma=1.5,
-        use_sample_covariance=False,
+    if np.issubdtype(dtype, np.integer):
+        target = rng.integers(low, high, (40, 50), endpoint=True).astype(dtype)
+        output = np.clip(target.astype(np.int64) + rng.integers(-3, 4, target.shape), low, high)
+        output = output.astype(dtype)
+    else:
+        target = rng.uniform(low, high, (40, 50))
+        output = np.clip(target + rng.normal(0, 0.01, target.shape), low, high)
+    ours = float(
+        psnr(torch.from_numpy(output)[None, None], torch.from_numpy(target)[None, None])[0]
     )
-    assert float(ssim(as_tensor(output), as_tensor(target))[0]) == pytest.approx(theirs, abs=1e-9)
+    assert ours == pytest.approx(peak_signal_noise_ratio(target, output), abs=1e-9)
+    if not np.issubdtype(dtype, np.integer):
+        return  # skimage's ssim refuses floats without a data_range
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # "Setting data_range based on im1.dtype"
+        theirs = structural_similarity(
+            target, output, gaussian_weights=True, sigma=1.5, use_sample_covariance=False
+        )
+    pair = (torch.from_numpy(output)[None, None], torch.from_numpy(target)[None, None])
+    assert float(ssim(*pair)[0]) == pytest.approx(theirs, abs=1e-9)
 
 
 def test_data_ranges_that_cannot_score_are_refused() -> None:
@@ -352,6 +358,6 @@ def test_data_ranges_that_cannot_score_are_refused() -> None:
         with pytest.raises(ModelError, match="data_range must be a finite positive number"):
             ssim(image, image * 0.5, data_range=bad)
     with pytest.raises(ModelError, match=r"output is torch\.uint8 and target torch\.float32"):
-        psnr((image * 255).to(torch.uint8), image)
+        ssim((image * 255).to(torch.uint8), image)
     with pytest.raises(ModelError, match="sample_covariance needs a window of more than one"):
         ssim(image, image, gaussian_weights=False, win_size=1, sample_covariance=True)
