@@ -20,7 +20,6 @@ from lenspair.capture.errors import CaptureError
 from lenspair.capture.folders import (
     image_files,
     list_image_folder,
-    passed_over_frames,
     timestamp_from_name,
 )
 from lenspair.capture.recording_types import (
@@ -86,10 +85,6 @@ def _list_camera(
         return list_image_folder(camera, data_dir, problems)
     frames, named = read_data_csv(camera, csv_path, data_dir, problems)
     if data_dir.is_dir():
-        for file, why in passed_over_frames(data_dir):
-            if file.name not in named:
-                t_ns = timestamp_from_name(file.name)
-                problems.append(FrameProblem(camera, t_ns, str(file), why))
         for file in image_files(data_dir):
             if file.name not in named:  # its name is its timestamp: pairs.jsonl names it
                 t_ns = timestamp_from_name(file.name)

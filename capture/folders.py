@@ -184,10 +184,20 @@ def passed_over_frames(folder: Path) -> list[tuple[Path, str]]:
     return found
 
 
-def note_passed_over(camera: CameraName, folder: Path, problems: list[FrameProblem]) -> None:
-    """Append a problem for each of ``folder``'s :func:`passed_over_frames`."""
+def note_passed_over(
+    camera: CameraName, folder: Path, frames: list[FrameRef], problems: list[FrameProblem]
+) -> None:
+    """Append a problem for each of ``folder``'s :func:`passed_over_frames` that is a frame.
+
+    A file whose name holds the time of a frame that is read is that frame's
+    companion (a camera's raw file beside its PNG, a depth EXR), not a frame
+    lost: left out of the problems, as a note beside the frames is.
+    """
+    times = {frame.t_ns for frame in frames}
     for file, why in passed_over_frames(folder):
-        problems.append(FrameProblem(camera, timestamp_from_name(file.name), str(file), why))
+        t_ns = timestamp_from_name(file.name)
+        if t_ns is None or t_ns not in times:
+            problems.append(FrameProblem(camera, t_ns, str(file), why))
 
 
 def list_image_folder(
@@ -210,7 +220,6 @@ def list_image_folder(
     """
     frames = []
     digits = []
-    note_passed_over(camera, folder, problems)
     for file in image_files(folder):
         read = _read_time(Path(file.name).stem)
         if read is None:
@@ -224,6 +233,7 @@ def list_image_folder(
         digits.append(read[1])
     _check_distinct_times(camera, folder, frames)
     _check_subunit_times(camera, folder, frames, digits)
+    note_passed_over(camera, folder, frames, problems)
     frames.sort(key=lambda f: f.t_ns)  # stable: same timestamps keep name order
     return order_frames(camera, frames, problems)
 

@@ -466,7 +466,8 @@ def test_frame_numbers_after_a_date_are_read_as_frame_numbers(tmp_path: Path) ->
 @pytest.mark.parametrize("layout", ["folders", "euroc", "euroc with data.csv"])
 def test_frames_that_are_not_read_are_named_not_passed_over(tmp_path: Path, layout: str) -> None:
     # a WebP, a raw file, a link to nothing or a folder named as a frame vanished from the
-    # recording without a word: "kept 8 of 8", and nothing in report.json
+    # recording without a word: "kept 8 of 8", and nothing in report.json; a file beside a
+    # frame that is read, named by its time, is no frame lost
     stamps = [T0 + i * 50 * MS for i in range(3)]
     if layout == "folders":
         for camera in ("left", "right"):
@@ -486,8 +487,14 @@ def test_frames_that_are_not_read_are_named_not_passed_over(tmp_path: Path, layo
     (folder / f"{late[3]}.png").mkdir()
     (folder / ".hidden.webp").write_bytes(b"RIFF")  # hidden files are not frames
     (folder / "notes.txt").write_text("not a frame")
+    for t in stamps:  # a frame's companions (raw + PNG, a depth EXR): no frame is lost
+        (folder / f"{t}.dng").write_bytes(b"II*\x00")
+        (folder / f"{t}_depth.exr").write_bytes(b"v/1\x01")
     recording = open_recording(tmp_path)
     said = sorted((p.t_ns, p.reason, p.dropped) for p in recording.problems)
+    if layout == "euroc with data.csv":  # data.csv says what the frames are
+        assert said == []
+        return
     assert said == [
         (late[0], ".webp images are not read: convert it to PNG or TIFF", True),
         (late[1], "a camera raw file: export it as PNG or TIFF", True),
