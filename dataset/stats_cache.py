@@ -79,11 +79,19 @@ def code_fingerprint() -> str:
     The source of :data:`MEASURING_MODULES` and of every lenspair module they
     import, directly or not (found by reading the import statements, those
     inside functions too), with the versions of OpenCV, NumPy and
-    OpenImageIO. Editing any of those files, or upgrading a library, gives
-    new keys: a cached figure never outlives the code that measured it.
+    OpenImageIO and of the decoders OpenImageIO uses. Editing any of those
+    files, or upgrading a library, gives new keys: a cached figure never
+    outlives the code that measured it.
     """
     sources = dict(_module_sources(MEASURING_MODULES))
-    libraries = {"opencv": cv2.__version__, "numpy": np.__version__, "oiio": oiio.__version__}
+    libraries = {
+        "opencv": cv2.__version__,
+        "numpy": np.__version__,
+        "oiio": oiio.__version__,
+        # the decoders OpenImageIO was built with (libjpeg-turbo, libpng): a shared build
+        # can pick up another without OpenImageIO's own version changing
+        "oiio_libraries": oiio.get_string_attribute("library_list"),
+    }
     return fingerprint({"format": FORMAT, "modules": sources, "libraries": libraries})
 
 
