@@ -1,7 +1,7 @@
 """The middle stage of restore: frames batched, run through the network, handed on in order.
 
 :func:`run_batches` takes the reader thread's items, refuses a network whose
-channels the first frame does not have, records failed and skipped frames,
+channels the first frames do not have, records failed and skipped frames,
 and batches the others (:class:`_Batches`): frames ``k*B .. k*B+B-1`` of the
 same size and dtype form a batch, so a frame is always computed in the same
 batch and ``--resume`` writes the same bytes as an uninterrupted run. Every
@@ -9,6 +9,7 @@ item goes to the writer thread (:class:`~lenspair.model.inference.threads.Writer
 in input order, with restored pixels or None (copied unchanged).
 """
 
+import itertools
 import logging
 import os
 from collections.abc import Iterator
@@ -131,15 +132,18 @@ def run_batches(
         total: frames expected, for the progress bar (None: unknown).
 
     Returns:
-        None; or, when the first readable frame's channels are not the
-        network's, why, with nothing handed to ``writer`` (the run is refused;
-        a later frame that does not match is a failed frame). A refusal is
+        None; or, when none of the first :data:`REFUSE_AFTER` readable frames
+        has the network's channels, why (the first's reason), with nothing
+        handed to ``writer``: the run is refused (:func:`_settle_channels`).
+        A frame that does not match is otherwise a failed frame. A refusal is
         returned, not raised, so that no other error (a judge's) is taken for one.
     """
+    items, refused = _settle_channels(items, backend.channels)
+    if refused is not None:
+        return refused
     report = writer.report
     bar = tqdm(total=total, desc="restoring", unit="frame", leave=False, disable=_quiet())
     batches = _Batches(backend, options, writer)
-    channels_checked = False
     for item in items:
         frame: InputFrame | None = item if isinstance(item, InputFrame) else item.frame
         if frame is None:
@@ -151,19 +155,11 @@ def run_batches(
         reason = frame.error
         if image is not None:
             reason = frame_problem(str(frame.source), image, backend.channels) or reason
-            if (
-                reason is not None
-                and image_channels(image) != backend.channels
-                and not channels_checked
-            ):
-                bar.close()
-                return reason
         if image is None or reason is not None:
             report.failed += 1
             report.problems.append({"frame": frame.name, "reason": reason or "unreadable"})
             batches.pass_on(item, frame)
             continue
-        channels_checked = True
         # every readable frame, finished ones too: a resume decides alike; the frames
         # batched so far are restored at the depth they were seen at, as one by one
         if (before := batches.depth.rise(image)) is not None and batches.batch:
@@ -183,6 +179,36 @@ def run_batches(
             batches.depths.redone,
         )
     return None
+
+
+REFUSE_AFTER = 3
+"""Readable frames in a row, from the first, whose channels are not the network's that refuse
+the run: the wrong network for the input, most likely. Fewer are failed frames once a frame
+that matches comes (a stray thumbnail named first in a folder stopped the whole run)."""
+
+
+def _settle_channels(items: Iterator[Any], channels: int) -> tuple[Iterator[Any], str | None]:
+    """Read ahead until a frame has ``channels`` or :data:`REFUSE_AFTER` frames in a row do not.
+
+    Returns:
+        The items, those read ahead first, in order; and None, or why the run
+        is refused (the first frame's reason) when no readable frame matched.
+    """
+    ahead: list[Any] = []
+    refusal: str | None = None
+    mismatched = 0
+    for item in items:
+        ahead.append(item)
+        frame = item if isinstance(item, InputFrame) else item.frame
+        if frame is None or frame.image is None:
+            continue
+        if image_channels(frame.image) == channels:
+            return itertools.chain(ahead, items), None
+        refusal = refusal or frame_problem(str(frame.source), frame.image, channels)
+        mismatched += 1
+        if mismatched == REFUSE_AFTER:
+            break
+    return iter(ahead), refusal
 
 
 def _batch_key(frame: InputFrame, options: RestoreOptions) -> tuple[Any, ...]:

@@ -18,8 +18,9 @@ Rules a robotics user can rely on:
   a bag a complete run wrote is kept as it is while its files and the settings
   are unchanged (the report records both).
 * **Channels**: a mono network on RGB images (or the reverse) is refused with
-  a one-line error on the first frame: no silent conversion. A later frame
-  whose channels differ is a failed frame.
+  a one-line error when none of the first frames match
+  (:data:`~lenspair.model.inference.batching.REFUSE_AFTER`): no silent
+  conversion. Any other frame whose channels differ is a failed frame.
 * **Failures cost only their frames**: an unreadable image or undecodable
   message, or a batch the network cannot run (a frame too large for memory:
   the reason says which ``--tile`` would fit), is recorded in
@@ -88,7 +89,7 @@ def restore_input(
     Raises:
         ModelError: bad options, non-empty OUT, OUT overlapping the input (see
             :func:`~lenspair.model.inference.input_checks.check_apart`), or a channel
-            mismatch on the first frame
+            mismatch on every one of the first frames
             (OUT is then left as it was).
         CaptureError: the input cannot be opened at all.
     """
@@ -137,7 +138,7 @@ def restore_input(
         )
     finally:
         writer.close()
-    if refused is not None:  # at the first frame, before any write: leave OUT as it was
+    if refused is not None:  # at the first frames, before any write: leave OUT as it was
         _undo_refused(out_dir, made, started_report)
         raise ModelError(refused)
     if kind in ("euroc", "folders", "folder"):  # after the frames: a refused run writes nothing

@@ -686,3 +686,30 @@ def test_an_overlap_past_half_the_tile_is_said_with_its_cost(
     (said,) = [r.getMessage() for r in caplog.records]
     assert said.startswith("--overlap 15 of --tile 16: tiles step 1 px")
     assert "computed about 256 times" in said
+
+
+@pytest.mark.parametrize(("stray", "refused"), [(1, False), (2, False), (3, True)])
+def test_frames_of_other_channels_first_in_a_folder_refuse_the_run_only_when_three(
+    tmp_path: Path, backend: TorchBackend, stray: int, refused: bool
+) -> None:
+    # a grey thumbnail named first in a folder of the mono network's... RGB frames here:
+    # whether it was one failed frame or stopped the run depended on its name's order
+    source = tmp_path / "in"
+    for index in range(stray):
+        rgb = np.repeat(_image(10 + index)[..., None], 3, axis=2)
+        write_image(source / f"a_{index}.png", rgb)
+    for index in range(3):  # named after the strays: the order the folder is read in
+        write_image(source / f"f_{index}.png", _image(index))
+    out = tmp_path / "out"
+    if refused:
+        with pytest.raises(ModelError, match=r"a_0\.png: 3 channel\(s\) but the network takes 1"):
+            restore_input(source, out, backend)
+        assert not out.exists() or not any(out.iterdir())  # nothing written
+        return
+    report = restore_input(source, out, backend)
+    assert (report.restored, report.failed) == (3, stray)
+    failed = sorted(p["frame"] for p in report.problems if "network takes 1" in p["reason"])
+    assert failed == [f"a_{index}.png" for index in range(stray)]
+    assert sorted(p.name for p in out.glob("*.png")) == [
+        *(f"a_{i}.png" for i in range(stray)), "f_0.png", "f_1.png", "f_2.png"
+    ]  # fmt: skip
