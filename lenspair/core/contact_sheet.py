@@ -81,6 +81,10 @@ def fit_into(image: np.ndarray, width: int, height: int, background: int = 0) ->
     return canvas
 
 
+ASPECT_RANGE = (0.25, 2.0)
+"""Height over width of a default cell: a frame of another shape is fitted in, not the sheet."""
+
+
 def make_contact_sheet(
     rows: Sequence[Sequence[np.ndarray | None]],
     labels: Sequence[Sequence[str]] | None = None,
@@ -102,7 +106,8 @@ def make_contact_sheet(
             blank); drawn in a band above each image, cut to fit the cell.
         title: optional line of text across the top of the sheet.
         cell_width: width of a cell in pixels.
-        cell_height: height of a cell; default keeps the first image's aspect.
+        cell_height: height of a cell; default: the median image's aspect,
+            within :data:`ASPECT_RANGE` (each image is fitted into its cell).
         padding: pixels between cells and around the sheet.
         font_scale: OpenCV Hershey font scale (0.4 is about 9 px high).
         background: grey level of the background and empty cells.
@@ -118,8 +123,11 @@ def make_contact_sheet(
     if not images:
         raise ValueError("make_contact_sheet: no images given")
     if cell_height is None:
-        first = np.asarray(images[0])
-        cell_height = max(1, round(cell_width * first.shape[0] / max(1, first.shape[1])))
+        # the median image's shape: a strip listed first (11x12420) made a 980x542034 sheet,
+        # and a wide one shrank every other frame to a few pixels
+        aspects = sorted(np.shape(image)[0] / max(1, np.shape(image)[1]) for image in images)
+        aspect = min(max(aspects[len(aspects) // 2], ASPECT_RANGE[0]), ASPECT_RANGE[1])
+        cell_height = max(1, round(cell_width * aspect))
     if cell_width < 1 or cell_height < 1:
         raise ValueError(f"cell size must be positive, got {cell_width}x{cell_height}")
     (_, text_h), baseline = cv2.getTextSize("Ag", _FONT, font_scale, 1)

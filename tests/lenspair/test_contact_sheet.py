@@ -66,3 +66,14 @@ def test_sheet_handles_empty_cells_and_long_labels() -> None:
         make_contact_sheet([[None]])
     with pytest.raises(ValueError, match="cell size"):
         make_contact_sheet([[image]], cell_width=0)
+
+
+@pytest.mark.parametrize("first", [(11, 2000), (2000, 11)])
+def test_a_strip_listed_first_does_not_set_the_cells(first: tuple[int, int]) -> None:
+    # the first image's aspect set every cell: an 11x12420 strip made a 980x542034 sheet
+    # (eval ran out of memory), and a 4000x100 frame shrank every other to a few pixels
+    frame = np.full((360, 540), 200, np.uint8)
+    rows = [[np.zeros(first, np.uint8), frame], [frame, frame]]
+    sheet = make_contact_sheet(rows, cell_width=120, padding=0, background=0)
+    assert sheet.shape[:2] == (2 * 80, 2 * 120)  # the frames' 2:3, not the strip's
+    assert (sheet[80:, :120] == 200).all()  # a frame fills its cell
