@@ -13,3 +13,19 @@ class TrainingDivergedError(ModelError):
 
 class NonFiniteOutputError(ModelError):
     """A network gave NaN or Inf for a finite input: the network's fault, never the pair's."""
+
+
+def is_out_of_memory(exc: BaseException) -> bool:
+    """Whether ``exc`` is an allocation failure (CUDA's, the CPU allocator's, numpy's, ORT's).
+
+    By name and message, so that this module needs no torch: ``torch.OutOfMemoryError``
+    (CUDA), numpy's ``MemoryError``, and the CPU allocator's and ONNX Runtime's
+    ``RuntimeError`` text.
+    """
+    if isinstance(exc, MemoryError) or type(exc).__name__ == "OutOfMemoryError":
+        return True
+    text = str(exc)
+    return any(
+        sign in text
+        for sign in ("can't allocate memory", "DefaultCPUAllocator", "Failed to allocate memory")
+    )

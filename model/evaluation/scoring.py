@@ -30,7 +30,7 @@ from lenspair.core.errors import LenspairError, listed
 from lenspair.core.pixels import max_value
 from lenspair.core.progress import progress
 from lenspair.dataset.curation import channel_max
-from lenspair.model.errors import NonFiniteOutputError
+from lenspair.model.errors import NonFiniteOutputError, is_out_of_memory
 from lenspair.model.evaluation.latency import autocast_context
 from lenspair.model.evaluation.summary import (
     DIFFICULTY_ORDER,
@@ -178,6 +178,14 @@ def score_pairs(
             log.warning("skipped pair %d: %s: %s", index, item.name, exc)
             bad.append(Unread(index, f"{item.name}: {exc}"))
             continue
+        except Exception as exc:  # torch's, numpy's allocator: a pair too large costs itself
+            if not is_out_of_memory(exc):
+                raise
+            why = _out_of_memory_reason(item.input.shape, device, precision)
+            log.warning("skipped pair %d: %s: %s", index, item.name, why)
+            bad.append(Unread(index, f"{item.name}: {why}"))
+            _release(device)
+            continue
         height, width = item.input.shape[:2]
         scores.append(
             ImageScore(
@@ -242,6 +250,21 @@ def scorable_pairs(
     return (pairs if not unread else SubsetSource(pairs, good)), unread
 
 
+def _out_of_memory_reason(shape: tuple[int, ...], device: torch.device, precision: str) -> str:
+    """Why a pair was left out: the network ran out of memory on a frame of ``shape``."""
+    height, width = shape[:2]
+    return (
+        f"out of memory scoring one {width}x{height} frame on {device} ({precision}): eval "
+        "scores whole frames; score a crop of it, or restore it in tiles (restore --tile)"
+    )
+
+
+def _release(device: torch.device) -> None:
+    """Give back what a failed pair held on a GPU (its tensors are gone with the exception)."""
+    if device.type == "cuda":
+        torch.cuda.empty_cache()
+
+
 @torch.inference_mode()
 def agreement_with_fp32(
     network: nn.Module,
@@ -269,6 +292,11 @@ def agreement_with_fp32(
             expected = reference(x)[1].float().clamp(0, 1)
             psnr, ssim = score_tensors(output, expected, convention)
         except LenspairError:  # said by score_pairs, which met it first
+            continue
+        except Exception as exc:  # out of memory: said by score_pairs too
+            if not is_out_of_memory(exc):
+                raise
+            _release(device)
             continue
         height, width = item.input.shape[:2]
         rows.append(ImageScore(item.name, item.difficulty, height, width, psnr, ssim, 0, 0))

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from lenspair.model.checkpoint import load_model
-from lenspair.model.errors import ModelError
+from lenspair.model.errors import ModelError, is_out_of_memory
 from lenspair.model.evaluation.latency import autocast_context, tune_allocator
 from lenspair.model.inference import onnx_session
 from lenspair.model.inference.options import MIN_TILE, PRECISIONS
@@ -205,17 +205,6 @@ class TorchBackend:
         return np.asarray(output.float().clamp(0.0, 1.0).cpu().numpy(), dtype=np.float32)
 
 
-def _out_of_memory(exc: BaseException) -> bool:
-    """Whether ``exc`` is an allocation failure (CUDA's, the CPU allocator's, numpy's, ORT's)."""
-    if isinstance(exc, (torch.cuda.OutOfMemoryError, MemoryError)):  # numpy's is a MemoryError
-        return True
-    text = str(exc)
-    return any(
-        sign in text
-        for sign in ("can't allocate memory", "DefaultCPUAllocator", "Failed to allocate memory")
-    )
-
-
 def memory_error(where: object, height: int, width: int, runs_on: str) -> ModelError:
     """The error of one frame (or tile) too large for memory, with the ``--tile`` to use.
 
@@ -244,7 +233,7 @@ def _frame_by_frame_on_failure(
     try:
         return run(batch)
     except Exception as exc:  # torch, numpy and ONNX Runtime each raise their own type
-        if not _out_of_memory(exc):
+        if not is_out_of_memory(exc):
             raise
     if device.type == "cuda":
         torch.cuda.empty_cache()
@@ -355,7 +344,7 @@ class OnnxBackend:
             return np.asarray(self.session.run(None, {self.input_name: batch})[0])
         except Exception as exc:  # onnxruntime's own types; out of memory is the caller's
             error = onnx_session.run_error(self.path, exc, batch.shape, self.spec.shape)
-            if error is None or _out_of_memory(exc):
+            if error is None or is_out_of_memory(exc):
                 raise
             raise error from None
 

@@ -20,6 +20,7 @@ from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import PSNR_CAP_DB, evaluate_checkpoint
 from lenspair.model.evaluation.latency import measure_latency, tune_allocator
 from lenspair.model.evaluation.report import write_report
+from lenspair.model.evaluation.scoring import score_pairs
 from lenspair.model.evaluation.summary import ImageScore, summarize
 from lenspair.model.metrics import MetricConvention, image_metrics
 from lenspair.model.networks.variants import build_model
@@ -648,3 +649,35 @@ def test_a_network_that_outputs_nan_is_refused_not_averaged_over_the_rest(
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "holds NaN or Inf on a finite input" in err
     assert not (out / "metrics.json").exists()
+
+
+class _Hungry(torch.nn.Module):
+    """The network, running out of memory (as the CPU allocator says it) on wide frames."""
+
+    def __init__(self, inner: torch.nn.Module, message: str) -> None:
+        super().__init__()
+        self.inner, self.message = inner, message
+
+    def forward(self, x: torch.Tensor) -> Any:
+        if x.shape[-1] > 60:
+            raise RuntimeError(self.message)
+        return self.inner(x)
+
+
+def test_a_pair_too_large_for_memory_costs_only_itself(tmp_path: Path) -> None:
+    # torch's allocator error went up as a traceback: nothing was written, not even the
+    # other pairs' scores (restore fails such a frame alone and names a --tile)
+    folder = write_paired_folder(tmp_path / "pairs", count=4)
+    rng = np.random.default_rng(9)
+    wide = clean_image(rng, 40, 96)
+    write_image(folder / "input" / "002.png", obstruct(wide, rng))
+    write_image(folder / "target" / "002.png", wide)
+    network = load_model(make_checkpoint(tmp_path / "ckpt.pt")).network
+    oom = "DefaultCPUAllocator: can't allocate memory: you tried to allocate 3200000000 bytes"
+    scored = score_pairs(_Hungry(network, oom), open_paired(folder), 1, CPU)
+    assert sorted(s.name for s in scored.scores) == ["000", "001", "003"]
+    (unread,) = scored.unread
+    assert unread.index == 2
+    assert unread.reason.startswith("002: out of memory scoring one 96x40 frame on cpu (fp32)")
+    with pytest.raises(RuntimeError, match="a bug, not memory"):
+        score_pairs(_Hungry(network, "a bug, not memory"), open_paired(folder), 1, CPU)
