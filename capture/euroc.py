@@ -17,11 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from lenspair.capture.errors import CaptureError
-from lenspair.capture.folders import (
-    image_files,
-    list_image_folder,
-    timestamp_from_name,
-)
+from lenspair.capture.folders import image_files, list_image_folder, timestamp_from_name
 from lenspair.capture.recording_types import (
     CAMERAS,
     FrameProblem,
