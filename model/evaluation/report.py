@@ -57,9 +57,9 @@ def markdown_report(result: EvalResult) -> str:
         + (f" ({result.precision_reason})" if result.precision_reason else ""),
         *(
             [
-                f"- agreement with the fp32 output ({result.precision} against fp32, all "
-                f"pairs): PSNR {fmt_psnr(result.versus_fp32.psnr_db)} dB, SSIM "
-                f"{result.versus_fp32.ssim:.4f}"
+                f"- agreement with the fp32 output ({result.precision} against fp32, "
+                f"{_agreement_pairs(result.versus_fp32.pairs, result.overall.pairs)}): PSNR "
+                f"{fmt_psnr(result.versus_fp32.psnr_db)} dB, SSIM {result.versus_fp32.ssim:.4f}"
             ]
             if result.versus_fp32 is not None
             else []
@@ -186,3 +186,10 @@ def write_report(result: EvalResult, out_dir: Path) -> dict[str, Path]:
 def _tail(path: str, parts: int = 3) -> str:
     """The last ``parts`` components of a path, for titles that must fit an image."""
     return "/".join(Path(path).parts[-parts:])
+
+
+def _agreement_pairs(agreed: int, scored: int) -> str:
+    """Which pairs the agreement with fp32 covers: all, or how many of the scored ones."""
+    if agreed == scored:
+        return "all pairs"
+    return f"{agreed} of the {scored} scored pairs: fp32 ran out of memory on the others"

@@ -30,7 +30,7 @@ from lenspair.core.errors import LenspairError, listed
 from lenspair.core.pixels import max_value
 from lenspair.core.progress import progress
 from lenspair.dataset.curation import channel_max
-from lenspair.model.errors import NonFiniteOutputError, is_out_of_memory
+from lenspair.model.errors import ModelError, NonFiniteOutputError, is_out_of_memory
 from lenspair.model.evaluation.latency import autocast_context
 from lenspair.model.evaluation.summary import (
     DIFFICULTY_ORDER,
@@ -118,6 +118,8 @@ def score_pairs(
     samples_per_difficulty: int = 2,
     max_samples: int = 6,
     unread: Sequence[Unread] = (),
+    *,
+    skip_out_of_memory: bool = True,
 ) -> Scored:
     """Score ``network`` on every pair, one whole image at a time (batch 1).
 
@@ -133,6 +135,10 @@ def score_pairs(
         samples_per_difficulty: contact-sheet rows per difficulty, when known.
         max_samples: contact-sheet rows when difficulties are unknown.
         unread: pairs already known to be unreadable: skipped, and returned.
+        skip_out_of_memory: a pair the network runs out of memory on is
+            skipped and returned with the unread ones; False: a
+            :class:`~lenspair.model.errors.ModelError` naming it (the
+            tradeoff, whose rows must cover the same pairs).
 
     Returns:
         Per-image scores, contact-sheet rows in easy/medium/hard order, and
@@ -182,6 +188,10 @@ def score_pairs(
             if not is_out_of_memory(exc):
                 raise
             why = _out_of_memory_reason(item.input.shape, device, precision)
+            if not skip_out_of_memory:
+                raise ModelError(
+                    f"{item.name}: {why}; every row scores the same pairs, so none is left out"
+                ) from None
             log.warning("skipped pair %d: %s: %s", index, item.name, why)
             bad.append(Unread(index, f"{item.name}: {why}"))
             _release(device)
@@ -274,12 +284,17 @@ def agreement_with_fp32(
     device: torch.device,
     convention: str,
     precision: str,
+    *,
+    skip_out_of_memory: bool = True,
 ) -> Summary:
     """Means of ``network``'s output (at ``precision``) scored against fp32 ``reference``'s.
 
     Both outputs are clamped to [0, 1] and kept in float (no rounding to the
     target's bit depth), so this isolates what the precision changes. Pairs
-    that cannot be read or scored are left out (:func:`score_pairs` names them).
+    that cannot be read or scored are left out (:func:`score_pairs` names them);
+    so is a pair either network runs out of memory on, said here (fp32 needs
+    more than a reduced precision), or, with ``skip_out_of_memory`` False, a
+    :class:`~lenspair.model.errors.ModelError` naming it.
     """
     reference.to(device).eval()
     rows = []
@@ -293,9 +308,15 @@ def agreement_with_fp32(
             psnr, ssim = score_tensors(output, expected, convention)
         except LenspairError:  # said by score_pairs, which met it first
             continue
-        except Exception as exc:  # out of memory: said by score_pairs too
+        except Exception as exc:  # out of memory: fp32 may need more than the precision did
             if not is_out_of_memory(exc):
                 raise
+            why = _out_of_memory_reason(item.input.shape, device, f"fp32 and {precision}")
+            if not skip_out_of_memory:
+                raise ModelError(
+                    f"{item.name}: {why}; every row scores the same pairs, so none is left out"
+                ) from None
+            log.warning("pair %d: %s left out of the fp32 agreement: %s", index, item.name, why)
             _release(device)
             continue
         height, width = item.input.shape[:2]

@@ -271,7 +271,9 @@ def _score(
         against ``reference``'s (None at fp32).
 
     """
-    scored = score_pairs(network, pairs, channels, device, convention, precision, 0, 0)
+    scored = score_pairs(
+        network, pairs, channels, device, convention, precision, 0, 0, skip_out_of_memory=False
+    )
     for problem in scored.unread:  # indices of the view: back to the split's own
         index = view[problem.index] if view else problem.index
         if index not in {u.index for u in unread}:
@@ -280,7 +282,14 @@ def _score(
     versus = None
     if precision != "fp32":
         versus = agreement_with_fp32(
-            network, reference, pairs, channels, device, convention, precision
+            network,
+            reference,
+            pairs,
+            channels,
+            device,
+            convention,
+            precision,
+            skip_out_of_memory=False,
         ).psnr_db
     return scored.scores, means, versus
 

@@ -19,8 +19,8 @@ from lenspair.model.checkpoint import load_model
 from lenspair.model.errors import ModelError
 from lenspair.model.evaluation.evaluate import PSNR_CAP_DB, evaluate_checkpoint
 from lenspair.model.evaluation.latency import measure_latency, tune_allocator
-from lenspair.model.evaluation.report import write_report
-from lenspair.model.evaluation.scoring import score_pairs
+from lenspair.model.evaluation.report import _agreement_pairs, write_report
+from lenspair.model.evaluation.scoring import agreement_with_fp32, score_pairs
 from lenspair.model.evaluation.summary import ImageScore, summarize
 from lenspair.model.metrics import MetricConvention, image_metrics
 from lenspair.model.networks.variants import build_model
@@ -681,3 +681,37 @@ def test_a_pair_too_large_for_memory_costs_only_itself(tmp_path: Path) -> None:
     assert unread.reason.startswith("002: out of memory scoring one 96x40 frame on cpu (fp32)")
     with pytest.raises(RuntimeError, match="a bug, not memory"):
         score_pairs(_Hungry(network, "a bug, not memory"), open_paired(folder), 1, CPU)
+
+
+def test_out_of_memory_in_the_fp32_agreement_is_said_and_counted(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # fp32 needs more memory than bf16: a pair scored at bf16 was left out of the agreement
+    # without a word, and metrics.md said "all pairs"
+    folder = write_paired_folder(tmp_path / "pairs", count=4)
+    rng = np.random.default_rng(9)
+    wide = clean_image(rng, 40, 96)
+    write_image(folder / "input" / "002.png", obstruct(wide, rng))
+    write_image(folder / "target" / "002.png", wide)
+    network = load_model(make_checkpoint(tmp_path / "ckpt.pt")).network
+    oom = "DefaultCPUAllocator: can't allocate memory: you tried to allocate 3200000000 bytes"
+    hungry = _Hungry(network, oom)
+    with caplog.at_level("WARNING"):
+        versus = agreement_with_fp32(
+            network, hungry, open_paired(folder), 1, CPU, "skimage-gaussian", "bf16"
+        )
+    assert versus.pairs == 3
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and said[0].startswith("pair 2: 002 left out of the fp32 agreement: out")
+    assert _agreement_pairs(3, 4) == (
+        "3 of the 4 scored pairs: fp32 ran out of memory on the others"
+    )
+    assert _agreement_pairs(4, 4) == "all pairs"
+    # the tradeoff compares rows over the same pairs: there it is an error naming the pair
+    with pytest.raises(ModelError, match=r"^002: out of memory .* every row scores the same"):
+        agreement_with_fp32(
+            network, hungry, open_paired(folder), 1, CPU, "skimage-gaussian", "bf16",
+            skip_out_of_memory=False,
+        )  # fmt: skip
+    with pytest.raises(ModelError, match=r"^002: out of memory .* every row scores the same"):
+        score_pairs(hungry, open_paired(folder), 1, CPU, skip_out_of_memory=False)
