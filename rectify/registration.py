@@ -292,8 +292,11 @@ def _check_determined(
     """Refuse a homography its inliers leave undetermined at the view's corners."""
     rms = float(np.sqrt(np.mean(residuals**2))) if len(residuals) else 0.0
     sigma = max(rms, params.match_std_floor_px)
-    spread = corner_std_px(matrix, src, sigma, shape)
-    if spread > params.max_corner_std_px:
+    # matches pooled over the frames of a still recording are the same scene points, whose
+    # errors do not average out: counted once (30 copies made a 6 px band look determined)
+    _, distinct = np.unique(np.round(src), axis=0, return_index=True)
+    spread = corner_std_px(matrix, src[np.sort(distinct)], sigma, shape)
+    if not spread <= params.max_corner_std_px:  # NaN (a corner mapped to infinity) too
         low, high = np.percentile(src, [5.0, 95.0], axis=0)
         across, down = (high - low) / (shape[1], shape[0])
         raise RegistrationError(

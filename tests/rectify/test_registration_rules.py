@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from lenspair.rectify import registration
 from lenspair.rectify.errors import RegistrationError
 from lenspair.rectify.registration import (
     EstimationParams,
@@ -163,3 +164,29 @@ def test_the_predicted_corner_error_is_the_one_noise_gives(place: str) -> None:
         assert predicted > 5.0
     else:
         assert predicted == pytest.approx(measured, rel=0.15)
+
+
+def test_matches_repeated_over_the_frames_of_a_still_recording_count_once() -> None:
+    # the same band's matches pooled from 30 frames of a robot standing still: the
+    # prediction shrank by the square root of 30 and the fit (corners 6 px off) passed
+    (x0, x1), (y0, y1), _ = PLACES["a band 4 px tall"]
+    rng = np.random.default_rng(3)
+    src = np.stack([rng.uniform(x0, x1, 300), rng.uniform(y0, y1, 300)], axis=1)
+    dst = src + np.array([4.0, 0.0]) + rng.normal(0.0, 0.2, src.shape)
+    view = SCENE[:HEIGHT]
+    frames = [(view, view, VALID, VALID)] * 30
+    with pytest.raises(RegistrationError, match="px uncertain"):
+        estimate_homography(frames, matches=[(src, dst)] * 30)
+
+
+def test_a_fit_whose_predicted_error_is_not_a_number_is_refused(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # a corner mapped to infinity gives NaN, and NaN > 1.5 is False: it was accepted
+    src = np.stack(np.meshgrid(np.linspace(10, 500, 12), np.linspace(10, 350, 8)), -1)
+    src = src.reshape(-1, 2)
+    monkeypatch.setattr(registration, "corner_std_px", lambda *args: float("nan"))
+    with pytest.raises(RegistrationError, match="nan px uncertain"):
+        registration._check_determined(
+            np.eye(3), src, np.full(len(src), 0.1), (HEIGHT, WIDTH), EstimationParams()
+        )
