@@ -81,9 +81,12 @@ def _list_camera(
         return list_image_folder(camera, data_dir, problems)
     frames, named = read_data_csv(camera, csv_path, data_dir, problems)
     if data_dir.is_dir():
+        listed = {frame.t_ns for frame in frames}
         for file in image_files(data_dir):
-            if file.name not in named:  # its name is its timestamp: pairs.jsonl names it
-                t_ns = timestamp_from_name(file.name)
+            t_ns = timestamp_from_name(file.name)
+            # a listed frame's companion (<t>_depth.png beside <t>.png) is no frame lost
+            if file.name not in named and t_ns not in listed:
+                # its name is its timestamp: pairs.jsonl names it
                 problems.append(
                     FrameProblem(
                         camera, t_ns, str(file), f"image not listed in data.csv ({csv_path})"

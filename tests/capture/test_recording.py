@@ -487,9 +487,11 @@ def test_frames_that_are_not_read_are_named_not_passed_over(tmp_path: Path, layo
     (folder / f"{late[3]}.png").mkdir()
     (folder / ".hidden.webp").write_bytes(b"RIFF")  # hidden files are not frames
     (folder / "notes.txt").write_text("not a frame")
-    for t in stamps:  # a frame's companions (raw + PNG, a depth EXR): no frame is lost
+    for t in stamps:  # a frame's companions (raw + PNG, a depth map): no frame is lost
         (folder / f"{t}.dng").write_bytes(b"II*\x00")
         (folder / f"{t}_depth.exr").write_bytes(b"v/1\x01")
+        if layout == "euroc with data.csv":  # a readable one too, where data.csv tells
+            write_image(folder / f"{t}_depth.png", _image(5))
     recording = open_recording(tmp_path)
     said = sorted((p.t_ns, p.reason, p.dropped) for p in recording.problems)
     if layout == "euroc with data.csv":  # data.csv says what the frames are
