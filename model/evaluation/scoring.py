@@ -187,14 +187,9 @@ def score_pairs(
         except Exception as exc:  # torch's, numpy's allocator: a pair too large costs itself
             if not is_out_of_memory(exc):
                 raise
-            why = _out_of_memory_reason(item.input.shape, device, precision)
-            if not skip_out_of_memory:
-                raise ModelError(
-                    f"{item.name}: {why}; every row scores the same pairs, so none is left out"
-                ) from None
+            why = _left_out(item.name, item.input.shape, device, precision, skip_out_of_memory)
             log.warning("skipped pair %d: %s: %s", index, item.name, why)
             bad.append(Unread(index, f"{item.name}: {why}"))
-            _release(device)
             continue
         height, width = item.input.shape[:2]
         scores.append(
@@ -260,19 +255,24 @@ def scorable_pairs(
     return (pairs if not unread else SubsetSource(pairs, good)), unread
 
 
-def _out_of_memory_reason(shape: tuple[int, ...], device: torch.device, precision: str) -> str:
-    """Why a pair was left out: the network ran out of memory on a frame of ``shape``."""
+def _left_out(
+    name: str, shape: tuple[int, ...], device: torch.device, precision: str, skip: bool
+) -> str:
+    """Why a pair the network ran out of memory on is left out; or, unless ``skip``, an error.
+
+    Raises:
+        ModelError: ``skip`` False (the tradeoff: every row scores the same pairs).
+    """
     height, width = shape[:2]
-    return (
+    why = (
         f"out of memory scoring one {width}x{height} frame on {device} ({precision}): eval "
         "scores whole frames; score a crop of it, or restore it in tiles (restore --tile)"
     )
-
-
-def _release(device: torch.device) -> None:
-    """Give back what a failed pair held on a GPU (its tensors are gone with the exception)."""
-    if device.type == "cuda":
+    if not skip:
+        raise ModelError(f"{name}: {why}; every row scores the same pairs, so none is left out")
+    if device.type == "cuda":  # what the failed pair held (its tensors went with the exception)
         torch.cuda.empty_cache()
+    return why
 
 
 @torch.inference_mode()
@@ -311,13 +311,9 @@ def agreement_with_fp32(
         except Exception as exc:  # out of memory: fp32 may need more than the precision did
             if not is_out_of_memory(exc):
                 raise
-            why = _out_of_memory_reason(item.input.shape, device, f"fp32 and {precision}")
-            if not skip_out_of_memory:
-                raise ModelError(
-                    f"{item.name}: {why}; every row scores the same pairs, so none is left out"
-                ) from None
+            both = f"fp32 and {precision}"
+            why = _left_out(item.name, item.input.shape, device, both, skip_out_of_memory)
             log.warning("pair %d: %s left out of the fp32 agreement: %s", index, item.name, why)
-            _release(device)
             continue
         height, width = item.input.shape[:2]
         rows.append(ImageScore(item.name, item.difficulty, height, width, psnr, ssim, 0, 0))
