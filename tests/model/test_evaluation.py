@@ -664,17 +664,24 @@ class _Hungry(torch.nn.Module):
         return self.inner(x)
 
 
-def test_a_pair_too_large_for_memory_costs_only_itself(tmp_path: Path) -> None:
-    # torch's allocator error went up as a traceback: nothing was written, not even the
-    # other pairs' scores (restore fails such a frame alone and names a --tile)
+OOM = "DefaultCPUAllocator: can't allocate memory: you tried to allocate 3200000000 bytes"
+
+
+def _with_a_wide_pair(tmp_path: Path) -> tuple[Path, torch.nn.Module]:
+    """Four pairs, the third 96x40 (the one _Hungry runs out of memory on), and a network."""
     folder = write_paired_folder(tmp_path / "pairs", count=4)
     rng = np.random.default_rng(9)
     wide = clean_image(rng, 40, 96)
     write_image(folder / "input" / "002.png", obstruct(wide, rng))
     write_image(folder / "target" / "002.png", wide)
-    network = load_model(make_checkpoint(tmp_path / "ckpt.pt")).network
-    oom = "DefaultCPUAllocator: can't allocate memory: you tried to allocate 3200000000 bytes"
-    scored = score_pairs(_Hungry(network, oom), open_paired(folder), 1, CPU)
+    return folder, load_model(make_checkpoint(tmp_path / "ckpt.pt")).network
+
+
+def test_a_pair_too_large_for_memory_costs_only_itself(tmp_path: Path) -> None:
+    # torch's allocator error went up as a traceback: nothing was written, not even the
+    # other pairs' scores (restore fails such a frame alone and names a --tile)
+    folder, network = _with_a_wide_pair(tmp_path)
+    scored = score_pairs(_Hungry(network, OOM), open_paired(folder), 1, CPU)
     assert sorted(s.name for s in scored.scores) == ["000", "001", "003"]
     (unread,) = scored.unread
     assert unread.index == 2
@@ -688,14 +695,8 @@ def test_out_of_memory_in_the_fp32_agreement_is_said_and_counted(
 ) -> None:
     # fp32 needs more memory than bf16: a pair scored at bf16 was left out of the agreement
     # without a word, and metrics.md said "all pairs"
-    folder = write_paired_folder(tmp_path / "pairs", count=4)
-    rng = np.random.default_rng(9)
-    wide = clean_image(rng, 40, 96)
-    write_image(folder / "input" / "002.png", obstruct(wide, rng))
-    write_image(folder / "target" / "002.png", wide)
-    network = load_model(make_checkpoint(tmp_path / "ckpt.pt")).network
-    oom = "DefaultCPUAllocator: can't allocate memory: you tried to allocate 3200000000 bytes"
-    hungry = _Hungry(network, oom)
+    folder, network = _with_a_wide_pair(tmp_path)
+    hungry = _Hungry(network, OOM)
     with caplog.at_level("WARNING"):
         versus = agreement_with_fp32(
             network, hungry, open_paired(folder), 1, CPU, "skimage-gaussian", "bf16"
