@@ -381,8 +381,8 @@ def _file_entries(
         p
         for p in recording.problems
         if (p.camera is None or p.camera in cameras)
-        and Path(p.source).suffix.lower() not in folders.UNREAD_IMAGE_SUFFIXES
-        and Path(p.source).suffix.lower() not in folders.RAW_IMAGE_SUFFIXES
+        and Path(p.source).suffix.lower()
+        not in folders.UNREAD_IMAGE_SUFFIXES | folders.RAW_IMAGE_SUFFIXES
     ]
     if problems is not None:
         problems.extend(str(problem) for problem in mine)

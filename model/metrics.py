@@ -183,17 +183,14 @@ def _data_range(output: Tensor, target: Tensor, data_range: float | None, what: 
                 f"{what}: data_range must be a finite positive number, got {data_range}"
             )
         return float(data_range)
-    negative = what == "psnr" and bool((target < 0).any())
-    if target.is_floating_point():
-        if what == "ssim" and not output.is_floating_point():
-            raise ModelError(
-                f"ssim: output is {output.dtype} and target {target.dtype}; give data_range"
-            )
-        return 2.0 if negative else 1.0
-    if what == "ssim" and output.dtype != target.dtype:
+    both_float = output.is_floating_point() and target.is_floating_point()
+    if what == "ssim" and output.dtype != target.dtype and not both_float:
         raise ModelError(
             f"ssim: output is {output.dtype} and target {target.dtype}; give data_range"
         )
+    negative = what == "psnr" and bool((target < 0).any())
+    if target.is_floating_point():
+        return 2.0 if negative else 1.0
     info = torch.iinfo(target.dtype)
     return float(info.max - info.min) if what == "ssim" or negative else float(info.max)
 
