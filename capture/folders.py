@@ -38,7 +38,10 @@ as nanoseconds they look like frame numbers.
 
 Hidden files and files that are not images are ignored. Folders have no
 recording order, so frames are taken in time order; two files with the same
-timestamp keep the first by name and record the other.
+timestamp keep the first by name and record the other. A file named as a
+frame of its time and more (``<t>_depth.png``, ``<t>-thumb.jpg`` beside
+``<t>.png``) is that frame's companion, not a frame: left out, like a raw
+file or a depth EXR beside it.
 """
 
 import os
@@ -231,11 +234,38 @@ def list_image_folder(
             continue
         frames.append(FrameRef(camera, read[0], file))
         digits.append(read[1])
+    frames, digits = _without_companions(frames, digits)
     _check_distinct_times(camera, folder, frames)
     _check_subunit_times(camera, folder, frames, digits)
     note_passed_over(camera, folder, frames, problems)
     frames.sort(key=lambda f: f.t_ns)  # stable: same timestamps keep name order
     return order_frames(camera, frames, problems)
+
+
+def _without_companions(
+    frames: list[FrameRef], digits: list[int]
+) -> tuple[list[FrameRef], list[int]]:
+    """``frames`` (and their ``digits``) less the companions of another frame of their time.
+
+    A file whose stem is another same-time file's stem, a separator (``_``,
+    ``-``, ``.``) and more (``<t>_depth.png`` beside ``<t>.png``) goes with
+    that frame: a depth map or a thumbnail, not a second frame of the time.
+    Kept, each was a "duplicate timestamp", and ``<t>-depth.png``, which
+    sorts first, was the frame and the camera's image the duplicate.
+    """
+    stems: dict[int, set[str]] = {}
+    for frame in frames:
+        stems.setdefault(frame.t_ns, set()).add(frame.source.stem)
+
+    def companion(frame: FrameRef) -> bool:
+        stem = frame.source.stem
+        return any(
+            len(stem) > len(base) and stem.startswith(base) and stem[len(base)] in "_-."
+            for base in stems[frame.t_ns]
+        )
+
+    kept = [(f, d) for f, d in zip(frames, digits, strict=True) if not companion(f)]
+    return [f for f, _ in kept], [d for _, d in kept]
 
 
 def _check_distinct_times(camera: CameraName, folder: Path, frames: list[FrameRef]) -> None:

@@ -504,3 +504,33 @@ def test_frames_that_are_not_read_are_named_not_passed_over(tmp_path: Path, layo
         (late[3], "a folder named as an image; left out", True),
     ]
     assert recording.timestamps("cam1") == stamps
+
+
+@pytest.mark.parametrize("separator", ["_", "-", "."])
+def test_readable_companions_named_by_a_frames_time_are_not_frames(
+    tmp_path: Path, separator: str
+) -> None:
+    # a depth map or a thumbnail beside each frame, named by the frame's name and a word,
+    # was a "duplicate timestamp" of its frame; "<t>-depth.png" sorts before "<t>.png", so
+    # it became the frame and the camera image was dropped
+    stamps = [T0 + i * 50 * MS for i in range(3)]
+    frames = {}
+    for camera in ("left", "right"):
+        for t in stamps:
+            frames[camera, t] = _image(t % 97 + len(camera))
+            write_image(tmp_path / camera / f"{t}.png", frames[camera, t])
+            write_image(tmp_path / camera / f"{t}{separator}depth.png", _image(5, np.uint16))
+    write_image(tmp_path / "right" / f"{stamps[0]}.tif", _image(6))  # the same stem: a twin
+    recording = open_recording(tmp_path)
+    assert recording.timestamps("cam0") == stamps == recording.timestamps("cam1")
+    for camera, name in (("cam0", "left"), ("cam1", "right")):
+        for frame in recording.frames[camera]:
+            assert frame.source == tmp_path / name / f"{frame.t_ns}.png"
+    said = [(p.t_ns, Path(p.source).name, p.reason) for p in recording.problems]
+    assert said == [
+        (
+            stamps[0],
+            f"{stamps[0]}.tif",
+            f"duplicate timestamp (kept {tmp_path}/right/{stamps[0]}.png)",
+        )
+    ]
