@@ -160,6 +160,11 @@ def image_files(folder: Path) -> list[Path]:
     )
 
 
+def dangling_link(entry: Path) -> str:
+    """Why a symbolic link to nothing named as a frame is left out, with where it points."""
+    return f"a link to nothing ({os.readlink(entry)}); left out"
+
+
 def passed_over_frames(folder: Path) -> list[tuple[Path, str]]:
     """``(file, why)`` for each visible file of ``folder`` that looks like a frame but is not read.
 
@@ -181,7 +186,7 @@ def passed_over_frames(folder: Path) -> list[tuple[Path, str]]:
         elif suffix in RAW_IMAGE_SUFFIXES:
             found.append((entry, "a camera raw file: export it as PNG or TIFF"))
         elif suffix in IMAGE_SUFFIXES and entry.is_symlink() and not entry.exists():
-            found.append((entry, f"a link to nothing ({os.readlink(entry)}); left out"))
+            found.append((entry, dangling_link(entry)))
         elif suffix in IMAGE_SUFFIXES and entry.is_dir():
             found.append((entry, "a folder named as an image; left out"))
     return found

@@ -296,7 +296,7 @@ def _folder_listing(folder: Path) -> tuple[list[Path], list[str]]:
         for name in sorted(n for n in names if not n.startswith(".")):
             entry = Path(here) / name
             if entry.is_symlink() and not entry.exists():
-                passed_over.append(f"{entry}: a link to nothing ({os.readlink(entry)}); left out")
+                passed_over.append(f"{entry}: {folders.dangling_link(entry)}")
             elif entry.is_file() and entry.suffix.lower() in IMAGE_SUFFIXES:
                 files.append(entry)
     return sorted(files), passed_over
