@@ -216,3 +216,25 @@ def test_a_registration_that_turns_mirrors_or_scales_the_view_is_doubted() -> No
         implausible_turn(2.0 * _turned(90.0, 0.5))
         == "turns the view by 90 deg and scales it by 0.50"
     )
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_inliers_are_the_matches_within_the_threshold_of_the_final_fit(seed: int) -> None:
+    # the count and the RMS are of the final least-squares fit, not of the robust fit's
+    # inlier mask: near the threshold the two disagree, and an RMS over the mask's matches
+    # could exceed the threshold it reports against
+    params = EstimationParams()
+    rng = np.random.default_rng(seed)
+    truth = np.array([[1.01, 0.002, 3.0], [0.001, 0.99, -2.0], [1e-6, 2e-6, 1.0]])
+    src = rng.uniform([30, 30], [510, 330], (400, 2))
+    dst = cv2.perspectiveTransform(src.reshape(-1, 1, 2), truth).reshape(-1, 2)
+    angle, radius = rng.uniform(0, 2 * np.pi, 400), rng.uniform(0, 2.0, 400)
+    dst += np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)
+    view, valid = np.full((360, 540), 0.5, np.float32), np.ones((360, 540), bool)
+    estimate = estimate_homography([(view, view, valid, valid)], matches=[(src, dst)])
+    projected = cv2.perspectiveTransform(src.reshape(-1, 1, 2), estimate.matrix).reshape(-1, 2)
+    error = np.linalg.norm(projected - dst, axis=1)
+    within = error <= params.inlier_threshold_px
+    assert estimate.matches == 400
+    assert estimate.inliers == within.sum() == estimate.inliers_per_frame[0]
+    assert estimate.rms_px == pytest.approx(np.sqrt(np.mean(error[within] ** 2)), rel=1e-9)
