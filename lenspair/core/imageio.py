@@ -29,7 +29,8 @@ def read_image(path: Path) -> np.ndarray:
     Returns:
         ``uint8``/``uint16`` array, ``(H, W)`` for one channel, ``(H, W, 3)``
         for colour, as stored (an alpha channel is dropped, see :func:`read_alpha`;
-        colour is not premultiplied by it).
+        colour is not premultiplied by it). A TIFF of several pages gives its
+        first, and the first such file is named in a warning.
 
     Raises:
         ImageIOError: the file is missing, empty, corrupt or truncated (a PNG's
@@ -183,19 +184,15 @@ def _foreign_profile(path: Path, profile: Any, colours: int) -> bool:
     if space == ICC_SPACES.get(colours):
         return False
     said = space.decode("ascii", "replace").strip() or "unknown"
-    if said not in _SAID_FOREIGN:
-        _SAID_FOREIGN.add(said)
-        logger.warning(
-            "%s: its ICC profile is for %s colours, and the image is read as %s: the profile "
-            "is left out of the image written in its place (so for every such file)",
-            path,
-            said,
-            "grey" if colours == 1 else "RGB",
-        )
+    _say_once(
+        f"profile {said}",
+        "%s: its ICC profile is for %s colours, and the image is read as %s: the profile "
+        "is left out of the image written in its place (so for every such file)",
+        path,
+        said,
+        "grey" if colours == 1 else "RGB",
+    )
     return True
-
-
-_SAID_FOREIGN: set[str] = set()
 
 
 def _kept(name: str, kind: Any, value: Any) -> bool:
@@ -374,4 +371,24 @@ def _read_pixels(path: Path) -> np.ndarray:
         # a damaged JPEG decodes, its missing rows made up: only libjpeg's words tell
         if pixels is None or _pixels_lost(error):
             raise ImageIOError(f"{path}: corrupt or truncated ({first_text_line(error, _UNKNOWN)})")
+        if path.suffix.lower() in TIFF_SUFFIXES and handle.seek_subimage(1, 0):
+            _say_once(
+                "pages",
+                "%s: a TIFF of several images (pages): only the first is read (so for every "
+                "such file); save one frame a file to use the others",
+                path,
+            )
     return np.asarray(pixels)
+
+
+TIFF_SUFFIXES = frozenset({".tif", ".tiff"})
+
+
+def _say_once(kind: str, message: str, *args: object) -> None:
+    """Log ``message`` as a warning the first time a file shows ``kind`` in this process."""
+    if kind not in _SAID:
+        _SAID.add(kind)
+        logger.warning(message, *args)
+
+
+_SAID: set[str] = set()

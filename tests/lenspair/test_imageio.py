@@ -279,3 +279,34 @@ def test_an_image_too_large_for_memory_is_that_files_error(
     monkeypatch.setattr(imageio, "_read_pixels", bad_alloc)
     with pytest.raises(ImageIOError, match=r"huge.png: too large to read into memory \(24x16\)$"):
         read_image(image)
+
+
+def test_a_tiff_of_several_pages_reads_its_first_and_says_so_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # a camera SDK's stack of frames in one TIFF gave its first frame, the rest lost unsaid
+    import OpenImageIO as oiio  # only this test writes a file of several pages
+
+    from lenspair.core import imageio
+
+    monkeypatch.setattr(imageio, "_SAID", set())
+    pages = [np.full((6, 8), value, np.uint8) for value in (10, 20, 30)]
+    spec = oiio.ImageSpec(8, 6, 1, "uint8")
+    for name in ("a.tif", "b.tif"):
+        output = oiio.ImageOutput.create(str(tmp_path / name))
+        assert output.open(str(tmp_path / name), [spec] * 3)
+        for index, page in enumerate(pages):
+            if index:
+                assert output.open(str(tmp_path / name), spec, "AppendSubimage")
+            assert output.write_image(page[..., None])
+        output.close()
+    write_image(tmp_path / "single.tif", pages[1])
+    with caplog.at_level("WARNING", logger="lenspair.core.imageio"):
+        np.testing.assert_array_equal(read_image(tmp_path / "single.tif"), pages[1])
+        assert caplog.messages == []
+        for name in ("a.tif", "b.tif"):
+            np.testing.assert_array_equal(read_image(tmp_path / name), pages[0])
+    assert caplog.messages == [
+        f"{tmp_path / 'a.tif'}: a TIFF of several images (pages): only the first is read (so "
+        "for every such file); save one frame a file to use the others"
+    ]

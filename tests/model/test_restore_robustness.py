@@ -668,7 +668,7 @@ def test_a_colour_profile_for_other_colours_than_those_read_is_left_out_said_onc
     # reject it or misread every colour. Here: an RGB profile on a grey image.
     import OpenImageIO as oiio  # the test writes metadata that lenspair's writer only passes on
 
-    monkeypatch.setattr(imageio, "_SAID_FOREIGN", set())
+    monkeypatch.setattr(imageio, "_SAID", set())
     profile = _icc_profile()
     for name, channels in (("grey1.tif", 1), ("grey2.tif", 1), ("rgb.tif", 3)):
         spec = oiio.ImageSpec(16, 8, channels, "uint8")
