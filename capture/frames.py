@@ -415,7 +415,8 @@ def _iter_files(
     for index, (file, camera, t_ns) in enumerate(entries):
         name = file.relative_to(base).as_posix()
         try:
-            image, error = read_image(file), None
+            # restore copies a file of several pages whole and lists it (file_sink)
+            image, error = read_image(file, say_pages=False), None
         except LenspairError as exc:
             image, error = None, str(exc)
         yield InputFrame(index, name, camera, t_ns, str(file), image, error)

@@ -23,14 +23,15 @@ logger = logging.getLogger(__name__)
 _UNKNOWN = "unknown error"  # an OpenImageIO failure that gives no reason
 
 
-def read_image(path: Path) -> np.ndarray:
+def read_image(path: Path, *, say_pages: bool = True) -> np.ndarray:
     """Read an 8- or 16-bit image file (PNG, TIFF, ...).
 
     Returns:
         ``uint8``/``uint16`` array, ``(H, W)`` for one channel, ``(H, W, 3)``
         for colour, as stored (an alpha channel is dropped, see :func:`read_alpha`;
         colour is not premultiplied by it). A TIFF of several pages gives its
-        first, and the first such file is named in a warning.
+        first, and with ``say_pages`` the first such file is named in a warning
+        (``restore``, which copies such a file whole and lists it, says it its way).
 
     Raises:
         ImageIOError: the file is missing, empty, corrupt or truncated (a PNG's
@@ -43,7 +44,7 @@ def read_image(path: Path) -> np.ndarray:
     if not path.is_file():
         raise ImageIOError(f"{path}: file not found")
     try:
-        array = _read_pixels(path)
+        array = _read_pixels(path, say_pages)
     except OSError as exc:  # permissions, I/O errors: this file only
         raise ImageIOError(f"{path}: cannot read ({exc.strerror or exc})") from exc
     except MemoryError:  # OpenImageIO's std::bad_alloc: this file only, said with its size
@@ -351,7 +352,7 @@ def _channel_problem(channels: int, alpha: int, names: Sequence[str]) -> str | N
     return f"{channels} channels ({', '.join(names)}); lenspair reads {what}"
 
 
-def _read_pixels(path: Path) -> np.ndarray:
+def _read_pixels(path: Path, say_pages: bool = False) -> np.ndarray:
     """The pixels of an existing file as OpenImageIO returns them, ``(H, W, C)``."""
     if path.stat().st_size == 0:
         raise ImageIOError(f"{path}: empty file (0 bytes)")
@@ -371,7 +372,7 @@ def _read_pixels(path: Path) -> np.ndarray:
         # a damaged JPEG decodes, its missing rows made up: only libjpeg's words tell
         if pixels is None or _pixels_lost(error):
             raise ImageIOError(f"{path}: corrupt or truncated ({first_text_line(error, _UNKNOWN)})")
-        if path.suffix.lower() in TIFF_SUFFIXES and handle.seek_subimage(1, 0):
+        if say_pages and path.suffix.lower() in TIFF_SUFFIXES and handle.seek_subimage(1, 0):
             _say_once(
                 "pages",
                 "%s: a TIFF of several images (pages): only the first is read (so for every "

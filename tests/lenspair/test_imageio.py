@@ -273,7 +273,7 @@ def test_an_image_too_large_for_memory_is_that_files_error(
     image = tmp_path / "huge.png"
     write_image(image, np.zeros((16, 24), np.uint8))
 
-    def bad_alloc(path: Path) -> np.ndarray:
+    def bad_alloc(path: Path, *args: bool) -> np.ndarray:
         raise MemoryError("std::bad_alloc")
 
     monkeypatch.setattr(imageio, "_read_pixels", bad_alloc)
