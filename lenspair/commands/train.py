@@ -194,9 +194,10 @@ def with_options(config: Any, args: argparse.Namespace) -> Any:
         if args.vgg19_weights is None
         else config_path(args.vgg19_weights).resolve(),
         # --precision alone also lifts a stored amp: false (a run started with --no-amp,
-        # resumed at bf16); both together are refused as contradicting each other
+        # resumed at bf16), and --no-amp alone a stored or configured precision; both
+        # together are refused as contradicting each other
         "amp": False if args.no_amp else (True if args.precision else None),
-        "precision": args.precision,
+        "precision": args.precision or ("fp32" if args.no_amp else None),
     }
     if args.checkpoint_every is not None:
         steps, seconds = args.checkpoint_every

@@ -499,6 +499,12 @@ def test_a_no_amp_run_resumes_at_the_precision_given(
     capsys.readouterr()
     both = [*resumed, "--max-steps", "6", "--precision", "bf16", "--no-amp"]
     assert main(both) == 2 and "give one of them" in capsys.readouterr().err
+    # and the mirror: --no-amp alone lifts the stored bf16 (it was refused for a
+    # --precision not given)
+    assert main([*resumed, "--max-steps", "6", "--no-amp"]) == 0
+    runtime = load_yaml(RunConfig, tmp_path / "na" / "config.yaml").runtime
+    assert runtime is not None and runtime.precision == "fp32"
+    assert runtime.earlier_precisions == ("fp32 until step 2", "bf16 autocast until step 4")
 
 
 def test_a_checkpoint_s_progress_comes_back_whole() -> None:
