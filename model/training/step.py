@@ -441,8 +441,14 @@ class Trainer:
         """Restore what :meth:`state_dict` returned (from a CPU checkpoint)."""
         self.model.load_state_dict(state["model"])
         _unwrap(self.discriminator).load_state_dict(state["discriminator"])
-        self.opt_g.load_state_dict(state["optimizer_g"])
-        self.opt_d.load_state_dict(state["optimizer_d"])
+        for optimizer, key in ((self.opt_g, "optimizer_g"), (self.opt_d, "optimizer_d")):
+            # the checkpoint's param_groups bring back its betas: a resume that changes
+            # them (said as a config change) trained on with the old ones. The config's
+            # are put back; the learning rate is set every step (Trainer.set_lr)
+            betas = [group["betas"] for group in optimizer.param_groups]
+            optimizer.load_state_dict(state[key])
+            for group, configured in zip(optimizer.param_groups, betas, strict=True):
+                group["betas"] = configured
         if state.get("scaler"):
             self.scaler.load_state_dict(state["scaler"])
         self.guard.total = int(state.get("skipped_steps", 0))

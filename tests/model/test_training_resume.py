@@ -517,3 +517,28 @@ def test_a_checkpoint_s_progress_comes_back_whole() -> None:
         seconds=812.25, loss_sums={"loss_g": 3.5, "loss_d": 1.25}, loss_steps=7,
     )  # fmt: skip
     assert RunState.from_checkpoint(state.payload()) == state
+
+
+def test_betas_changed_on_resume_are_the_ones_trained_with(tmp_path: Path) -> None:
+    # the checkpoint's optimiser state brought back its betas: config.yaml said 0.9, the
+    # optimiser kept 0.5
+    import dataclasses
+
+    from lenspair.cli import main
+    from lenspair.core.config import dump_yaml
+
+    dataset, run, _ = _cli_run(tmp_path)
+    config = tiny_config(epochs=10)
+    changed = tmp_path / "betas.yaml"
+    changed.write_text(
+        dump_yaml(
+            dataclasses.replace(
+                config, train=dataclasses.replace(config.train, beta1=0.9, beta2=0.99)
+            )
+        )
+    )
+    resumed = ["train", str(dataset), "--out", str(run), "--resume", "--config", str(changed)]
+    assert main([*resumed, "--max-steps", "4"]) == 0
+    state = torch.load(run / "checkpoints" / "last.pt", weights_only=True)
+    for key in ("optimizer_g", "optimizer_d"):
+        assert [tuple(g["betas"]) for g in state[key]["param_groups"]] == [(0.9, 0.99)]
