@@ -542,3 +542,19 @@ def test_betas_changed_on_resume_are_the_ones_trained_with(tmp_path: Path) -> No
     state = torch.load(run / "checkpoints" / "last.pt", weights_only=True)
     for key in ("optimizer_g", "optimizer_d"):
         assert [tuple(g["betas"]) for g in state[key]["param_groups"]] == [(0.9, 0.99)]
+
+
+def test_a_resume_that_trains_nothing_leaves_config_yaml_as_it_was(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # at a budget just reached no step runs, yet config.yaml took the new seed and bf16,
+    # and its runtime said bf16 from step 2 on, a precision no step was trained at
+    from lenspair.cli import main
+
+    dataset, run, _ = _cli_run(tmp_path)
+    before = (run / "config.yaml").read_bytes()
+    resumed = ["train", str(dataset), "--out", str(run), "--resume", "--max-steps", "2"]
+    with caplog.at_level("WARNING"):
+        assert main([*resumed, "--seed", "5", "--precision", "bf16"]) == 0
+    assert (run / "config.yaml").read_bytes() == before
+    assert any("nothing was trained" in message for message in caplog.messages)
