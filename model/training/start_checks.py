@@ -26,8 +26,16 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from lenspair.core.wording import counted
-from lenspair.model.checkpoint import check_finite_weights, checkpoint_config, load_checkpoint
+from lenspair.model.checkpoint import (
+    build_network,
+    check_finite_weights,
+    checkpoint_config,
+    first_shape_difference,
+    load_checkpoint,
+)
 from lenspair.model.errors import ModelError
 from lenspair.model.networks.vgg import VGG19_WEIGHTS_ENV
 from lenspair.model.training.config import RunConfig
@@ -60,6 +68,7 @@ def open_run_folder(
     """
     checkpoint = load_checkpoint(paths.last) if resume else None
     if checkpoint is not None:
+        check_resume_state(checkpoint, paths.last)
         check_resume_mode(checkpoint, paths.last, synthetic)
         check_resume_budget(checkpoint, paths.last, config)
     stale = [paths.best, paths.metrics] if restart and not paths.last.exists() else []
@@ -74,6 +83,24 @@ def open_run_folder(
             "it, or choose another --out"
         )
     return checkpoint, stale
+
+
+TRAINING_STATE = ("discriminator", "optimizer_g", "optimizer_d")
+"""What a checkpoint holds beside the network's weights when a run can go on from it."""
+
+
+def check_resume_state(checkpoint: dict[str, Any], path: Path) -> None:
+    """Refuse to resume from weights alone (a shipped network, an export's checkpoint).
+
+    Raises:
+        ModelError: naming what is missing and how such weights are used instead.
+    """
+    missing = [key for key in TRAINING_STATE if key not in checkpoint]
+    if missing:
+        raise ModelError(
+            f"--resume: {path} holds a network's weights but no training state "
+            f"({', '.join(missing)}): start a new run from it with --init {path}"
+        )
 
 
 def check_resume_batch(checkpoint: dict[str, Any], path: Path, config: RunConfig) -> None:
@@ -281,6 +308,11 @@ def read_init(init: Path, config: RunConfig) -> tuple[Path, dict[str, Any]]:
     # such weights skip every step and the run ended blaming its validation pairs.
     weights = data.get("model")
     if isinstance(weights, dict):
+        with torch.device("meta"):  # names and shapes only: no memory, no draws
+            expected = build_network(config.model).state_dict()
+        problem = first_shape_difference(expected, weights)
+        if problem is not None:
+            raise ModelError(f"--init {init}: weights do not fit the network: {problem}")
         check_finite_weights(weights, f"--init {init}")
     return init, data
 

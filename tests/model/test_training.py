@@ -486,6 +486,25 @@ def test_init_with_weights_holding_nan_is_refused_before_the_run_folder(tmp_path
     assert not run.exists()
 
 
+def test_init_with_weights_of_another_shape_is_refused_before_the_run_folder(
+    tmp_path: Path,
+) -> None:
+    # the config in the file matched, the weights did not: refused once the run folder held
+    # its lock and train.log, against "a refused --init leaves nothing behind"
+    odd = make_checkpoint(tmp_path / "odd.pt", tiny_config())
+    data = torch.load(odd, weights_only=True)
+    name = next(k for k, v in data["model"].items() if v.ndim == 4 and v.shape[1] > 1)
+    data["model"][name] = data["model"][name][:, :1].clone()
+    torch.save(data, odd)
+    dataset = write_split_dataset(tmp_path / "ds", {"train": 2, "val": 1})
+    config = resolve_config(tiny_config(max_steps=1), 1)
+    pairs = paired_training_data(dataset, config.data, 1, 0)
+    run = tmp_path / "run"
+    with pytest.raises(ModelError, match=rf"^--init {odd}: weights do not fit the network: {name}"):
+        fit(config, pairs.train, pairs.val, run, CPU, init=odd)
+    assert not run.exists()
+
+
 # --- data ----------------------------------------------------------------------------
 
 

@@ -558,3 +558,26 @@ def test_a_resume_that_trains_nothing_leaves_config_yaml_as_it_was(
         assert main([*resumed, "--seed", "5", "--precision", "bf16"]) == 0
     assert (run / "config.yaml").read_bytes() == before
     assert any("nothing was trained" in message for message in caplog.messages)
+
+
+def test_a_last_pt_of_weights_alone_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the shipped weights copied to last.pt: a KeyError traceback ('discriminator')
+    from lenspair.cli import main
+
+    dataset, run, _ = _cli_run(tmp_path)
+    last = run / "checkpoints" / "last.pt"
+    state = torch.load(last, weights_only=True)
+    torch.save(
+        {k: v for k, v in state.items() if k in ("format", "version", "config", "model")}, last
+    )
+    capsys.readouterr()
+    code = main(["train", str(dataset), "--out", str(run), "--resume", "--max-steps", "4"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert err[-1].endswith(
+        f"--resume: {last} holds a network's weights but no training state (discriminator, "
+        f"optimizer_g, optimizer_d): start a new run from it with --init {last}"
+    )
+    assert "Traceback" not in "\n".join(err)
