@@ -100,6 +100,16 @@ def _exported_kind(path: Path) -> str | None:
     return None
 
 
+def _cut_short(path: Path) -> bool:
+    """Whether ``path`` begins as a zip archive (as torch saves) but has no end to read."""
+    try:
+        with path.open("rb") as file:
+            head = file.read(4)
+    except OSError:
+        return False
+    return head == b"PK\x03\x04" and not zipfile.is_zipfile(path)
+
+
 def read_torch_file(path: Path, what: str) -> Any:
     """``torch.load`` with ``weights_only=True`` onto the CPU; every failure is one line.
 
@@ -128,6 +138,8 @@ def read_torch_file(path: Path, what: str) -> Any:
         detail = first_line(exc)
         if "weights_only" in detail:  # torch's advice to unpickle anything: never right here
             detail = "it holds more than tensors and plain data"
+        elif _cut_short(path):  # torch says "[Errno 22] Invalid argument" of it
+            detail = "a torch zip archive cut short: an interrupted copy or download?"
         elif detail.isdigit() or len(detail) < 4:  # a bare key or code (KeyError: 101) says nothing
             detail = "neither a torch zip archive nor a torch pickle"
         raise ModelError(f"{path}: not a {what} (not a readable torch file: {detail})") from None

@@ -92,6 +92,10 @@ def test_unreadable_and_foreign_files_raise(tmp_path: Path) -> None:
         load_checkpoint(junk)
     foreign = tmp_path / "foreign.pt"
     torch.save({"weights": torch.zeros(1)}, foreign)
+    cut = tmp_path / "cut.pt"  # torch said "[Errno 22] Invalid argument" of it
+    cut.write_bytes(foreign.read_bytes()[: foreign.stat().st_size // 2])
+    with pytest.raises(ModelError, match=r"\(not a readable torch file: a torch zip archive cut"):
+        load_checkpoint(cut)
     with pytest.raises(ModelError, match="not a lenspair checkpoint"):
         load_checkpoint(foreign)
     # the bundled detector is a lenspair checkpoint, of the other kind: said so
