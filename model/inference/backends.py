@@ -186,7 +186,8 @@ class TorchBackend:
         """Run the network on a numpy batch (see :class:`Backend`).
 
         A batch that does not fit in memory runs again one frame at a time;
-        a single frame (or tile: ``run_tiled`` calls this per tile) that does
+        a single frame (or tile: ``run_tiled`` calls this with one tile of each
+        frame, or a few small ones) that does
         not fit is a :class:`ModelError` that says how to restore it (tiles of
         the largest power of two up to half its longer side; a fp32 frame needs
         about 330 MB per megapixel on the CPU), not an allocator's traceback. The retry runs

@@ -34,9 +34,11 @@ from lenspair.model.inference.options import DEFAULT_OVERLAP, MIN_TILE
 ALIGN = 32
 """Tile steps are multiples of this when possible: the enhancer pools 4..32 px cells."""
 
-CHUNK_BYTES = 64 << 20
-"""Most float32 tile bytes handed to the network in one call (:func:`run_tiled`): eight
-512-px colour tiles, or one of 2048 px."""
+CHUNK_PIXELS = 512 * 512
+"""Most pixels (over all tiles and frames) handed to the network in one call
+(:func:`run_tiled`), unless one tile of the batch holds more: the network's working
+memory grows with them (about 330 MB per megapixel at fp32 on the CPU), so a call
+of eight 1024-px tiles took more memory than the 3-megapixel frame they tiled."""
 
 
 def check_tile(tile: int | None) -> None:
@@ -151,7 +153,7 @@ def run_tiled(
         batch: ``(N, C, H, W)`` float32 in [0, 1].
         tile: ``(tile_height, tile_width)``.
         overlap: pixels shared by neighbouring tiles (capped below the tile).
-        max_tiles: tiles per backend call.
+        max_tiles: most tiles per backend call (small ones; see :data:`CHUNK_PIXELS`).
 
     Returns:
         ``(N, C, H, W)`` float32 in [0, 1].
@@ -170,9 +172,9 @@ def run_tiled(
     total = np.zeros((n, c, full_h, full_w), dtype=np.float32)
     weights = np.zeros((full_h, full_w), dtype=np.float32)
     places = [(row, col) for row in range(len(rows)) for col in range(len(cols))]
-    # at most CHUNK_BYTES of tiles a call: eight 2048-px colour tiles copied into one
-    # array took 384 MiB beside the frame, and --tile 2048 failed for lack of memory
-    per_call = max(1, min(max_tiles // n, CHUNK_BYTES // (4 * n * c * tile_h * tile_w)))
+    # at most CHUNK_PIXELS a call, what bounds the network's memory: tiles are for
+    # frames too large for it, and a call of several tiles undid what they save
+    per_call = max(1, min(max_tiles // n, CHUNK_PIXELS // (n * tile_h * tile_w)))
     for first in range(0, len(places), per_call):
         chunk = places[first : first + per_call]
         tiles = np.concatenate(
