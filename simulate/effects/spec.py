@@ -197,15 +197,18 @@ class DefocusSpec:
         Raises:
             ValueError: naming ``glass_distance_m``.
         """
-        if self.blur_diameter_px / 2 > 64.0 and (
-            self.shift_px is None if self.kernel == "shifts" else self.disk_radius_px is None
-        ):
+        if self.blur_diameter_px / 2 > 64.0 and self.sized_by_optics:
             raise ValueError(
                 f"glass_distance_m: blur disk of {self.blur_diameter_px:.0f} px (f_px * A / d, "
                 "set by it with focal_length_mm, f_number and the pixel size) is over 128 px; "
                 "move the glass away, give a shorter focal_length_mm, a larger f_number or "
                 "larger pixels, or set shift_px/disk_radius_px"
             )
+
+    @property
+    def sized_by_optics(self) -> bool:
+        """Whether the optics size the kernel (``shift_px``/``disk_radius_px`` unset)."""
+        return self.shift_px is None if self.kernel == "shifts" else self.disk_radius_px is None
 
     @property
     def focal_px(self) -> float:
@@ -388,12 +391,15 @@ class EffectsSpec:
 
         Raises:
             ValueError: the camera makes the defocus impossible (a blur disk
-                over 128 px, a pitch out of range), named by its key.
+                over 128 px, a pitch out of range where the optics size the
+                blur), named by its key.
         """
         pitch = None
         if self.defocus is not None and self.defocus.pixel_pitch_um is None:
             pitch = self.defocus.focal_length_mm * 1e3 / fx
-            if not 0.1 <= pitch <= 100.0:
+            if not 0.1 <= pitch <= 100.0 and not self.defocus.sized_by_optics:
+                pitch = None  # a blur sized by hand: the camera's pixel is not used
+            elif not 0.1 <= pitch <= 100.0:
                 raise ValueError(
                     f"defocus.pixel_pitch_um: focal_length_mm {self.defocus.focal_length_mm:g} "
                     f"over the camera's fx {fx:g} px is a {pitch:.3g} um pixel, outside "

@@ -171,6 +171,19 @@ def test_glass_too_close_for_the_kernel_is_refused() -> None:
     DefocusSpec(glass_distance_m=0.002, shift_px=3.0, pixel_pitch_um=6.9)  # pixels by hand
 
 
+@pytest.mark.parametrize("fx", [20.0, 5e4])
+@pytest.mark.parametrize("by_hand", [{"shift_px": 2.0}, {"kernel": "disk", "disk_radius_px": 2.0}])
+def test_a_blur_sized_by_hand_does_not_need_the_camera_s_pixel(
+    fx: float, by_hand: dict[str, object]
+) -> None:
+    # fx 20 px is a 120 um pixel at the default focal length: refused, though the blur
+    # was given in pixels and the pixel size is not used
+    effects = EffectsSpec(defocus=DefocusSpec(**by_hand)).for_camera(fx)  # type: ignore[arg-type]
+    assert effects.defocus is not None and effects.defocus.pixel_pitch_um is None
+    with pytest.raises(ValueError, match=r"defocus\.pixel_pitch_um: .* outside 0\.1\.\.100"):
+        EffectsSpec(defocus=DefocusSpec()).for_camera(fx)  # sized by the optics
+
+
 @given(seed=st.integers(0, 2**31 - 1))
 def test_a_declared_defocus_of_no_blur_renders_as_no_defocus(seed: int) -> None:
     # a zero shift kept a 3x3 kernel whose pad changed the rim colour of drops on the
