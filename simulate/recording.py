@@ -43,10 +43,9 @@ from lenspair.core.leftovers import process_alive
 from lenspair.core.progress import progress
 from lenspair.simulate import boards
 from lenspair.simulate.camera import ray_map
-from lenspair.simulate.effects.layer import Sprites
-from lenspair.simulate.effects.spec import EffectsSpec
 from lenspair.simulate.errors import SimulateError
 from lenspair.simulate.euroc import camera_folder, image_name
+from lenspair.simulate.labels import Seen, labels
 from lenspair.simulate.motion import Clock, body_pose, make_clock
 from lenspair.simulate.recording_metadata import (
     CAMERAS,
@@ -186,15 +185,7 @@ def simulate_recording(
     for k in progress(range(spec.recording.frames), desc="simulate", unit="frame"):
         renderer.render(k)
 
-    anomaly = _labels(spec.obstructed.effects, renderer.drawn, out_dir)
-    if anomaly and not renderer.changed:
-        log.warning(
-            "%s: the effects (%s) changed no pixel of any frame (too small or faint at this "
-            "resolution and bit depth): rig.yaml labels the recording clean",
-            out_dir,
-            ", ".join(anomaly),
-        )
-        anomaly = ()
+    anomaly = labels(spec.obstructed.effects, renderer.seen, out_dir)
     write_metadata(setup, out_dir, renderer.written, renderer.records, anomaly)
     (out_dir / INCOMPLETE).unlink()
     images = (len(renderer.written[0]), len(renderer.written[1]))
@@ -204,55 +195,6 @@ def simulate_recording(
         images=images,
         seconds_per_pair=renderer.render_seconds / max(1.0, sum(images) / 2),
     )
-
-
-_DRAWS_NOTHING = {
-    "raindrops": "no drop covers a pixel; raise raindrops.radius_px",
-    "dirt": "no blob covers a pixel; raise dirt.radius_px",
-    "dust": "no patch was drawn; raise dust.coverage, lower dust.scale_px or change the seed",
-    "veil": "its strength drew 0; raise veil.strength",
-}  # the effects whose sampled glass can hold nothing, and what to change then
-
-
-def _drawn(glass: GlassState) -> frozenset[str]:
-    """The effects of :data:`_DRAWS_NOTHING` that ``glass`` holds something of in the frame."""
-    height, width = glass.shape
-
-    def covers(sprites: Sprites | None) -> bool:
-        if sprites is None:
-            return False
-        rows, cols = sprites.ys, sprites.xs
-        return bool(((rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)).any())
-
-    held = {
-        "raindrops": glass.optics is not None and covers(glass.optics.sprites),
-        "dirt": covers(glass.dirt),
-        "dust": glass.dust is not None and bool(glass.dust.support.any()),
-        "veil": glass.veiling is not None and glass.veiling.strength > 0,
-    }
-    return frozenset(name for name, holds in held.items() if holds)
-
-
-def _labels(effects: EffectsSpec, drawn: frozenset[str], out_dir: Path) -> tuple[str, ...]:
-    """rig.yaml's anomaly kinds: those of the declared effects the sampled glass holds.
-
-    The glass is sampled once per recording (dust, dirt, veil stay; drops, a
-    fixed count, may be replaced between frames); ``drawn`` is the union over
-    the obstructed camera's rendered frames (an effect counts if it held
-    something in any), so one label holds for every frame. A declared effect
-    that drew nothing (a Poisson draw of no dust patch) is still computed, but
-    left out of the labels with a warning, and the veil rule of
-    :attr:`EffectsSpec.anomaly_kinds` applies to what is left.
-    """
-    missing = [name for name in effects.listed if name in _DRAWS_NOTHING and name not in drawn]
-    for name in missing:
-        log.warning(
-            "%s: %s is declared but drew nothing on the glass (%s): rig.yaml omits it",
-            out_dir,
-            name,
-            _DRAWS_NOTHING[name],
-        )
-    return replace(effects, **dict.fromkeys(missing)).anomaly_kinds
 
 
 def _channels(spec: SceneSpec) -> int:
@@ -312,9 +254,7 @@ class _FrameRenderer:
     Attributes:
         written: timestamps of the images written, per camera ``(cam0, cam1)``, ns.
         records: the ``geometry.json`` entry of each frame rendered so far.
-        changed: whether the glass changed a pixel of any obstructed frame.
-        drawn: the effects the glass held something of in any obstructed frame
-            rendered (see :func:`_labels`).
+        seen: what the obstructed frames showed of each effect (its labels).
         render_seconds: wall time spent rendering and exposing, file writes excluded.
 
     """
@@ -349,9 +289,7 @@ class _FrameRenderer:
         self.noise_streams = streams["noise"].spawn(spec.recording.frames)
         self.written: tuple[list[int], list[int]] = ([], [])
         self.records: list[dict[str, Any]] = []
-        self.changed = False
-        self.drawn: frozenset[str] = frozenset()
-        self._checked: GlassState | None = None  # the glass `drawn` last looked at
+        self.seen = Seen()
         self.render_seconds = 0.0
 
     def render(self, k: int) -> None:
@@ -398,14 +336,16 @@ class _FrameRenderer:
         noise, gain = camera_spec.noise_std, camera_spec.gain
         if c == self.setup.obstructed:
             glass = self.glass
-            if glass is not None and glass is not self._checked:  # the same until drops move
-                self.drawn |= _drawn(glass)
-                self._checked = glass
-            through = None if glass is None else functools.partial(apply_glass_linear, glass=glass)
-            clear, image, mask = expose_through_glass(
-                linear, gain, noise, noise_seed, self.dtype, through
-            )
-            self.changed = self.changed or not np.array_equal(image, clear)
+
+            def through(glass: GlassState | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                applied = (
+                    None if glass is None else functools.partial(apply_glass_linear, glass=glass)
+                )
+                return expose_through_glass(linear, gain, noise, noise_seed, self.dtype, applied)
+
+            clear, image, mask = through(glass)
+            if glass is not None:
+                self.seen.note(glass, clear, image, lambda other: through(other)[1])
             self.render_seconds += time.perf_counter() - started
             write_image(self.out_dir / "truth" / "clear" / image_name(t_ns), clear)
             write_image(self.out_dir / "truth" / "mask" / image_name(t_ns), mask)

@@ -38,7 +38,7 @@ variant show the same drops); :func:`apply_glass` draws nothing.
 """
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -192,6 +192,31 @@ def advance_glass(glass: GlassState, rng: np.random.Generator) -> GlassState:
         glass.dust,
         glass.veiling,
     )
+
+
+def without_effect(glass: GlassState, name: str) -> GlassState:
+    """``glass`` as if ``name`` (``raindrops``, ``dirt``, ``dust`` or ``veil``) were not listed.
+
+    Everything else sampled stays as drawn; the drops go with their
+    brightness gains. What a frame through it lacks is what ``name`` did
+    (:mod:`lenspair.simulate.labels`).
+
+    Raises:
+        ValueError: ``name`` is not one of the four.
+    """
+    effects, drops, gains = glass.effects, glass.drops, glass.gains
+    blobs, field, veiling = glass.blobs, glass.dust, glass.veiling
+    if name == "raindrops":
+        effects, drops, gains = replace(effects, raindrops=None, brightness=None), None, None
+    elif name == "dirt":
+        effects, blobs = replace(effects, dirt=None), None
+    elif name == "dust":
+        effects, field = replace(effects, dust=None), None
+    elif name == "veil":
+        effects, veiling = replace(effects, veil=None), None
+    else:
+        raise ValueError(f"not an effect that can be left out: {name!r}")
+    return _assemble(effects, glass.shape, drops, gains, blobs, glass.kernel, field, veiling)
 
 
 def _assemble(

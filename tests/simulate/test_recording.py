@@ -214,6 +214,32 @@ def test_a_declared_effect_that_drew_nothing_gives_no_label(
     assert len(said) == 1 and "dust is declared" in said[0] and "dust.coverage" in said[0]
 
 
+def test_an_effect_that_changed_no_pixel_beside_one_that_did_gives_no_label(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # drops of a thousandth of a pixel beside dust: the frames were the dust alone's to the
+    # bit, yet rig.yaml said [rain, dust] (one flag for all the effects: "some changed")
+    tiny = {"count": 40, "radius_px": [0.001, 0.002]}
+    dust = {"coverage": 0.3, "scale_px": 20.0}
+    common: dict[str, Any] = {"rig": SMALL, "recording": {"frames": 2}, "seed": 0}
+    dusty = {"camera": "cam1", "effects": {"dust": dust}}
+    both = {"camera": "cam1", "effects": {"raindrops": tiny, "dust": dust}}
+    dust_only = _render(tmp_path, _scene(tmp_path, obstructed=dusty, **common), "dust")
+    with caplog.at_level("WARNING"):
+        out = _render(tmp_path, _scene(tmp_path, obstructed=both, **common), "both")
+    for t_ns in _csv(out, "cam1"):  # the premise: the drops changed nothing
+        name = Path("mav0") / "cam1" / "data" / f"{t_ns}.png"
+        np.testing.assert_array_equal(read_image(out / name), read_image(dust_only / name))
+    assert read_rig_file(out / "rig.yaml").anomaly == ("dust",)
+    assert any("changed no pixel" in m and "(raindrops)" in m for m in caplog.messages)
+    caplog.clear()
+    visible = {**both, "effects": {"raindrops": {"count": 40}, "dust": dust}}
+    with caplog.at_level("WARNING"):
+        out = _render(tmp_path, _scene(tmp_path, obstructed=visible, **common), "visible")
+    assert read_rig_file(out / "rig.yaml").anomaly == ("rain", "dust")
+    assert not caplog.messages
+
+
 def test_sixteen_bit_rgb_recording(tmp_path: Path) -> None:
     out = _render(tmp_path, _scene(tmp_path, rig={"bit_depth": 16, "color": "rgb", **SMALL}))
     image = read_image(out / "mav0" / "cam0" / "data" / f"{_csv(out, 'cam0')[0]}.png")

@@ -1,5 +1,6 @@
 """Renderer API: only listed effects run, outside-mask identity, determinism, stability."""
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -369,3 +370,21 @@ def test_an_effect_that_changes_no_pixel_is_no_anomaly(effects: EffectsSpec) -> 
     out, _ = render_effects(image, effects, np.random.default_rng(1))
     np.testing.assert_array_equal(out, image)
     assert effects.anomaly_kinds == ()
+
+
+@pytest.mark.parametrize("names", [c for c in COMBINATIONS if len(c) > 1])
+def test_a_glass_without_an_effect_renders_as_the_spec_without_it(names: tuple[str, ...]) -> None:
+    # what simulate's labels compare against: the frame as if the effect were not listed,
+    # everything else as drawn (the effects' draws come from streams of their own)
+    image = np.random.default_rng(3).integers(0, 256, (48, 64), dtype=np.uint8)
+    effects = EffectsSpec(**{name: EFFECTS[name] for name in names})
+    glass = sample_glass(effects, image.shape, np.random.default_rng(7))
+    for name in set(names) & {"raindrops", "dirt", "dust", "veil"}:
+        gone = {name: None} | ({"brightness": None} if name == "raindrops" else {})
+        fewer = dataclasses.replace(effects, **gone)
+        alone = sample_glass(fewer, image.shape, np.random.default_rng(7))
+        without = render.without_effect(glass, name)
+        np.testing.assert_array_equal(without.mask, alone.mask)
+        np.testing.assert_array_equal(apply_glass(image, without), apply_glass(image, alone))
+    with pytest.raises(ValueError, match="'defocus'"):
+        render.without_effect(glass, "defocus")
