@@ -192,6 +192,13 @@ def render_crop(
     256 px crop of a 720x480 frame costs about half of the whole frame.
     The veil's light is the mean of that window, not of the frame.
 
+    Each count and the glass draw from streams of their own, so an effect
+    that does nothing (dirt of opacity 0, a defocus of no blur, dust that
+    lets all light through) leaves the crop as it was. One that does
+    something and reaches further (a defocus, large dirt) widens the window,
+    so the crop shows other drops, drawn alike: the same drops under two
+    presets hold for whole frames (:func:`~lenspair.simulate.render.render_effects`).
+
     Returns:
         The obstructed crop, ``clean``'s dtype, ``(height, width[, C])``.
 
@@ -201,10 +208,13 @@ def render_crop(
     reach = 0.0
     if effects.raindrops is not None:
         reach = max(reach, effects.raindrops.radius_px[1])
-    if effects.dirt is not None:
-        reach = max(reach, effects.dirt.radius_px[1] * (1 + effects.dirt.irregularity))
-    if effects.defocus is not None:
-        reach += effects.defocus.shift_radius_px + effects.defocus.disk_px + 2.0
+    dirt = effects.dirt
+    if dirt is not None and dirt.count > 0 and dirt.opacity[1] > 0:
+        reach = max(reach, dirt.radius_px[1] * (1 + dirt.irregularity))
+    defocus = effects.defocus
+    blur = 0.0 if defocus is None else defocus.shift_radius_px + defocus.disk_px
+    if blur > 0:  # a defocus of no blur is no defocus: the same window, the same drops
+        reach += blur + 2.0
     margin = math.ceil(reach) + 1
     y0, x0 = max(top - margin, 0), max(left - margin, 0)
     y1, x1 = min(top + height + margin, frame_h), min(left + width + margin, frame_w)
@@ -213,15 +223,18 @@ def render_crop(
         obstructed, _ = render_effects(clean, effects, rng)
         crop: np.ndarray = obstructed[top : top + height, left : left + width]
         return crop
+    drop_rng, dirt_rng, glass_rng = (
+        np.random.default_rng(seed) for seed in rng.integers(0, 2**63, 3)
+    )
     local = effects
     if effects.raindrops is not None:
-        count = int(rng.binomial(effects.raindrops.count, share))
+        count = int(drop_rng.binomial(effects.raindrops.count, share))
         local = dataclasses.replace(
             local, raindrops=dataclasses.replace(effects.raindrops, count=count)
         )
     if effects.dirt is not None:
-        count = int(rng.binomial(effects.dirt.count, share))
+        count = int(dirt_rng.binomial(effects.dirt.count, share))
         local = dataclasses.replace(local, dirt=dataclasses.replace(effects.dirt, count=count))
-    obstructed, _ = render_effects(np.ascontiguousarray(clean[y0:y1, x0:x1]), local, rng)
+    obstructed, _ = render_effects(np.ascontiguousarray(clean[y0:y1, x0:x1]), local, glass_rng)
     window: np.ndarray = obstructed[top - y0 : top - y0 + height, left - x0 : left - x0 + width]
     return window

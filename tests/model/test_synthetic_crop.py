@@ -1,10 +1,18 @@
 """Rendering only a crop's window keeps the drops' density of the whole frame."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from lenspair.model.training.synthetic import OUR_DROPS, render_crop
-from lenspair.simulate.effects.spec import DefocusSpec, EffectsSpec, RaindropsSpec
+from lenspair.simulate.effects.spec import (
+    DefocusSpec,
+    DirtSpec,
+    DustSpec,
+    EffectsSpec,
+    RaindropsSpec,
+)
 from lenspair.simulate.render import render_effects
 
 EFFECTS = EffectsSpec(
@@ -39,3 +47,29 @@ def test_crop_shape_dtype_and_whole_frame_equivalence(box: tuple[int, int, int, 
     if box[2:] == clean.shape:
         whole, _ = render_effects(clean, OUR_DROPS, np.random.default_rng(3))
         np.testing.assert_array_equal(crop, whole)
+
+
+@pytest.mark.parametrize(
+    "idle",
+    [
+        {"dirt": DirtSpec(count=5, opacity=(0.0, 0.0))},
+        {"defocus": DefocusSpec(shift_px=0.0)},
+        {"dust": DustSpec(attenuation=(1.0, 1.0))},
+    ],
+    ids=["dirt of opacity 0", "defocus of no blur", "dust of attenuation 1"],
+)
+@pytest.mark.parametrize("seed", range(3))
+def test_an_effect_that_does_nothing_leaves_the_drops_of_a_crop_as_they_were(
+    idle: dict[str, object], seed: int
+) -> None:
+    # listing dirt drew its count from the drops' generator and moved every later draw;
+    # a zero-size defocus grew the window by 2 px, which changed the drops' binomial count
+    clean = _clean(seed)
+    drops = EffectsSpec(raindrops=RaindropsSpec(count=100, radius_px=(3.0, 20.0)))
+    box = (60, 100, 96, 96)
+    plain = render_crop(clean, drops, box, np.random.default_rng(seed))
+    assert (plain != clean[60:156, 100:196]).any()  # the premise: drops in the crop
+    listed = dataclasses.replace(drops, **idle)
+    np.testing.assert_array_equal(
+        render_crop(clean, listed, box, np.random.default_rng(seed)), plain
+    )
