@@ -129,6 +129,36 @@ def check_output_folder(out_dir: Path) -> None:
         raise SimulateError(f"{out_dir}: output folder is not empty; choose a new or empty folder")
 
 
+def _claim(out_dir: Path) -> None:
+    """Write the :data:`INCOMPLETE` marker, refusing a folder claimed since it was checked.
+
+    The folder was found empty before the spec was set up (a second or more):
+    a second simulate started meanwhile wrote its marker over the first's, and
+    both wrote their frames into one folder. The marker is created only where
+    none is (``O_EXCL``), and the folder must still hold nothing else.
+
+    Raises:
+        SimulateError: another simulate is writing the folder, or one has filled it.
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    text = f"pid {os.getpid()}: removed when the simulation is complete\n"
+    for attempt in range(2):
+        try:
+            with (out_dir / INCOMPLETE).open("x", encoding="utf-8") as marker:
+                marker.write(text)
+            break
+        except FileExistsError:
+            if attempt:
+                message = f"{out_dir}: another simulate claimed it; choose another --out"
+                raise SimulateError(message) from None
+            check_output_folder(out_dir)  # a live writer is refused, a killed one's removed
+    if any(child.name != INCOMPLETE for child in out_dir.iterdir()):
+        (out_dir / INCOMPLETE).unlink()
+        raise SimulateError(
+            f"{out_dir}: another simulate filled it meanwhile; choose a new or empty folder"
+        )
+
+
 def _streams(seed: int) -> dict[str, np.random.SeedSequence]:
     children = np.random.SeedSequence(seed).spawn(len(_STREAMS))
     return dict(zip(_STREAMS, children, strict=True))
@@ -178,10 +208,7 @@ def simulate_recording(
     if (reached := plane_reached(setup.planes, spec.far_plane_index, poses)) is not None:
         raise SimulateError(reached)
     renderer = _FrameRenderer(setup, clock, streams, out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / INCOMPLETE).write_text(
-        f"pid {os.getpid()}: removed when the simulation is complete\n"
-    )
+    _claim(out_dir)
     for k in progress(range(spec.recording.frames), desc="simulate", unit="frame"):
         renderer.render(k)
 

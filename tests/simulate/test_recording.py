@@ -545,3 +545,43 @@ def test_a_rig_that_reaches_a_plane_it_cannot_pass_is_refused_before_writing(
     with pytest.raises(SimulateError, match=rf"^planes\[{refused}\]: at frame \d+ a camera is"):
         _render(tmp_path, data)
     assert not (tmp_path / "rec").exists()  # nothing written
+
+
+@pytest.mark.parametrize("meanwhile", ["another is writing", "another has finished"])
+def test_a_folder_claimed_while_the_spec_was_set_up_is_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, meanwhile: str
+) -> None:
+    # two simulate runs started together both found the folder empty, then wrote their
+    # frames into it: 16 images beside an 8-row data.csv, and no marker left to say so
+    import subprocess
+    import sys
+
+    from lenspair.simulate import recording
+
+    out = tmp_path / "rec"
+    setup = recording._setup
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+
+    def racing(spec: Any, base_dir: Path) -> Any:
+        out.mkdir()
+        if meanwhile == "another is writing":
+            (out / recording.INCOMPLETE).write_text(f"pid {other.pid}: removed when ...\n")
+        else:
+            (out / "rig.yaml").write_text("another recording\n")
+        return setup(spec, base_dir)
+
+    monkeypatch.setattr(recording, "_setup", racing)
+    spec_file = tmp_path / "rec.yaml"
+    spec_file.write_text(yaml.safe_dump(_scene(tmp_path, rig=SMALL)))
+    try:
+        expected = (
+            rf"another simulate \(process {other.pid}\) is writing it"
+            if meanwhile == "another is writing"
+            else "another simulate filled it meanwhile"
+        )
+        with pytest.raises(SimulateError, match=expected):
+            simulate_recording(load_scene(spec_file), out, base_dir=tmp_path)
+    finally:
+        other.kill()
+        other.wait()
+    assert not (out / "mav0").exists()  # nothing of this run was written
