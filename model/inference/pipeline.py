@@ -34,6 +34,7 @@ Rules a robotics user can rely on:
   the tile (``forced_tile`` in the report).
 """
 
+import contextlib
 import logging
 import time
 from collections.abc import Iterator
@@ -43,6 +44,7 @@ from typing import Any
 from lenspair.capture.bag_frames import iter_bag_messages
 from lenspair.capture.frames import InputKind, images_outside_cameras, iter_frames
 from lenspair.capture.rigfile import CameraName
+from lenspair.core.folderlock import holding
 from lenspair.core.fsutil import atomic_write_json, make_folder, remove_made
 from lenspair.core.leftovers import remove_leftovers_under
 from lenspair.model.errors import ModelError
@@ -60,6 +62,10 @@ from lenspair.model.inference.threads import Writer, threaded
 from lenspair.model.inference.unread_files import unrestored_note
 
 log = logging.getLogger(__name__)
+
+RESTORE_LOCK = ".lenspair-restore.lock"
+"""The file in OUT whose ``flock`` a restore holds while it writes OUT (hidden: no frame)."""
+
 
 _DEFAULT_OPTIONS = RestoreOptions()  # frozen, so one instance can be every call's default
 
@@ -98,7 +104,7 @@ def restore_input(
     check_options(options, backend)
     if checked is None:  # restore's CLI checked it before loading the model
         checked = check_input(input_path, out_dir, options)
-    kind, cameras, files = checked.kind, checked.cameras, checked.files
+    kind, cameras = checked.kind, checked.cameras
     if kind not in ("rosbag1", "rosbag2"):
         _say_unused(input_path, kind, options)
     options = checked.options
@@ -108,6 +114,65 @@ def restore_input(
         check_same_settings(out_dir, settings, bag)
     remove_leftovers_under(out_dir)  # of a killed run: its half-written temporaries
     made = make_folder(out_dir)
+    with _one_writer(out_dir, options.resume, made) as made_lock:
+        return _restore_locked(
+            (input_path, out_dir, started),
+            backend,
+            options,
+            judge,
+            checked,
+            settings,
+            (made, made_lock),
+        )
+
+
+@contextlib.contextmanager
+def _one_writer(out_dir: Path, resume: bool, made: list[Path]) -> Iterator[bool]:
+    """Hold OUT's :data:`RESTORE_LOCK` meanwhile: one restore writes a folder at a time.
+
+    Two runs started together both found OUT empty, then both wrote it (23
+    images beside a 12-row ``data.csv``), and a ``--resume`` retry ran beside
+    the live run. Without ``resume`` OUT is checked again once held: a run
+    that finished meanwhile has filled it. Yields whether this run made the
+    lock file (removed with OUT's folders when the run is refused at its first
+    frames).
+
+    Raises:
+        ModelError: another restore holds OUT, or filled it meanwhile.
+    """
+    lock = out_dir / RESTORE_LOCK
+    mine = not lock.exists()
+    taken = ModelError(
+        f"--out {out_dir}: another restore is writing it; wait for it to finish or choose "
+        "another --out"
+    )
+    with holding(lock, "restore", taken):
+        if not resume and any(p.name != RESTORE_LOCK for p in out_dir.iterdir()):
+            _remove_made(out_dir, made, mine)
+            raise ModelError(
+                f"--out {out_dir}: another restore filled it meanwhile; pass --resume to "
+                "continue that run or choose a new folder"
+            )
+        yield mine
+
+
+def _restore_locked(
+    paths: tuple[Path, Path, float],
+    backend: Backend,
+    options: RestoreOptions,
+    judge: FrameJudge | None,
+    checked: CheckedInput,
+    settings: dict[str, Any],
+    made: tuple[list[Path], bool],
+) -> RestoreReport:
+    """:func:`restore_input` once OUT is this run's: the frames, the files beside them.
+
+    ``paths`` is ``(input_path, out_dir, started)``, ``started`` the run's start
+    (``time.perf_counter``); ``made`` as :func:`_undo_refused` takes it.
+    """
+    input_path, out_dir, started = paths
+    kind, cameras, files = checked.kind, checked.cameras, checked.files
+    bag = kind in ("rosbag1", "rosbag2")
     started_report = not (out_dir / REPORT_NAME).exists()
     sink: FileSink | BagSink = (
         BagSink(input_path, out_dir, options.suffix, options.resume, options.jpeg_quality)
@@ -222,17 +287,25 @@ def _open_items(
     return iter_frames(input_path, cameras, source_problems), len(checked.files)
 
 
-def _undo_refused(out_dir: Path, made: list[Path], started_report: bool) -> None:
+def _undo_refused(out_dir: Path, made: tuple[list[Path], bool], started_report: bool) -> None:
     """Leave OUT as it was before a run refused at its first frame (nothing else was written).
 
     Args:
         out_dir: the output folder.
-        made: the folders this run made, innermost first: removed while empty.
+        made: the folders this run made, innermost first (removed while empty),
+            and whether it made OUT's lock file.
         started_report: this run wrote the first report in OUT: removed.
     """
     if started_report:
         (out_dir / REPORT_NAME).unlink(missing_ok=True)
-    remove_made(made)  # only the folders this run made, while empty
+    _remove_made(out_dir, *made)
+
+
+def _remove_made(out_dir: Path, folders: list[Path], lock: bool) -> None:
+    """Remove the lock file this run made (``lock``), then its ``folders`` while empty."""
+    if lock:
+        (out_dir / RESTORE_LOCK).unlink(missing_ok=True)
+    remove_made(folders)
 
 
 def _finish_files(
@@ -260,12 +333,12 @@ def _finish_files(
             sink.changed,
         )
     follow = kind != "folder"  # a folder's frames are listed without following links
-    problems.extend(sink.copy_others(input_path, files, (REPORT_NAME,), follow))
+    problems.extend(sink.copy_others(input_path, files, (REPORT_NAME, RESTORE_LOCK), follow))
     if follow:  # a recording: its images that no camera of it holds were copied just now
         outside = images_outside_cameras(input_path, kind, cameras, files, files_under(input_path))
         problems.extend(group.note("restore", "copied unrestored") for group in outside)
     if options.resume:
-        stale, left = sink.set_aside_stale(input_path, (REPORT_NAME,), follow)
+        stale, left = sink.set_aside_stale(input_path, (REPORT_NAME, RESTORE_LOCK), follow)
         if stale:
             log.warning(
                 "%d image(s) whose input is gone since the resumed run (the first: %s) moved to %s",

@@ -14,6 +14,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.core.imageio import read_image
+from lenspair.model.inference.pipeline import RESTORE_LOCK
 from lenspair.model.inference.report import REPORT_NAME
 from tests.capture.ingest_helpers import frame_files, make_recording
 
@@ -184,5 +185,6 @@ def file_tree(root: Path, without: frozenset[str] = frozenset()) -> dict[str, by
 
 
 def restored_files(root: Path) -> dict[str, bytes]:
-    """:func:`file_tree` less ``restore_report.json`` (its timings differ from run to run)."""
-    return file_tree(root, without=frozenset({REPORT_NAME}))
+    """:func:`file_tree` less ``restore_report.json`` (its timings differ from run to run)
+    and the run's lock file (empty, hidden)."""
+    return file_tree(root, without=frozenset({REPORT_NAME, RESTORE_LOCK}))

@@ -35,6 +35,7 @@ def test_cam0_and_cam1_folders_of_images_alone_are_a_folder(
     report = restore_input(folder, tmp_path / "out", backend)
     assert (report.kind, report.restored, report.failed, report.problems) == ("folder", 3, 0, [])
     assert sorted(file_tree(tmp_path / "out")) == [
+        ".lenspair-restore.lock",  # one restore writes OUT at a time (empty, hidden)
         "cam0/a.png",
         "cam1/b.png",
         "restore_report.json",

@@ -719,3 +719,59 @@ def test_frames_of_other_channels_first_in_a_folder_refuse_the_run_only_when_thr
     assert sorted(p.name for p in out.glob("*.png")) == [
         *(f"a_{i}.png" for i in range(stray)), "f_0.png", "f_1.png", "f_2.png"
     ]  # fmt: skip
+
+
+def test_one_restore_writes_an_out_at_a_time(
+    tmp_path: Path, backend: TorchBackend, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # two runs started together both found OUT empty and both wrote it (23 images beside
+    # a 12-row data.csv); a --resume retry ran beside the live run
+    from lenspair.core.folderlock import lock_file
+    from lenspair.model.inference import pipeline
+
+    source, out = _folder(tmp_path / "in", 2), tmp_path / "out"
+    restore_input(source, out, backend)
+    before = file_tree(out)
+    held = lock_file(out / pipeline.RESTORE_LOCK, "restore")  # a --resume of it, running
+    assert held is not None
+    try:
+        with pytest.raises(ModelError, match=r"^--out .*out: another restore is writing it"):
+            restore_input(source, out, backend, RestoreOptions(resume=True))
+    finally:
+        os.close(held)
+    assert file_tree(out) == before
+    make_folder, taken = pipeline.make_folder, []
+
+    def started_together(folder: Path) -> list[Path]:  # the other run, a moment ahead
+        made = make_folder(folder)
+        taken.append(lock_file(folder / pipeline.RESTORE_LOCK, "restore"))
+        return made
+
+    monkeypatch.setattr(pipeline, "make_folder", started_together)
+    try:
+        with pytest.raises(ModelError, match=r"another restore is writing it"):
+            restore_input(source, tmp_path / "new", backend)
+    finally:
+        os.close(taken[0])
+    assert [p.name for p in (tmp_path / "new").iterdir()] == [pipeline.RESTORE_LOCK]
+
+
+def test_an_out_filled_while_the_model_loaded_is_refused_and_left_as_it_was(
+    tmp_path: Path, backend: TorchBackend, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from lenspair.model.inference import pipeline
+    from lenspair.model.inference.input_checks import check_input
+
+    source, out = _folder(tmp_path / "in", 2), tmp_path / "out"
+    checked = check_input(source, out, RestoreOptions())  # OUT empty then (it is not there)
+    make_folder = pipeline.make_folder
+
+    def finished_meanwhile(folder: Path) -> list[Path]:
+        made = make_folder(folder)
+        (folder / "0.png").write_bytes(b"another run's output")
+        return made
+
+    monkeypatch.setattr(pipeline, "make_folder", finished_meanwhile)
+    with pytest.raises(ModelError, match=r"another restore filled it meanwhile; pass --resume"):
+        restore_input(source, out, backend, checked=checked)
+    assert sorted(p.name for p in out.iterdir()) == ["0.png"]
