@@ -256,17 +256,18 @@ def fit(
             state = start_state(trainer, config, paths, checkpoint, start_from)
             if checkpoint is not None:
                 config = with_history(config, checkpoint, paths.last, state.step, warn=info.is_main)
-            kept = _config_text(paths) if checkpoint is not None and info.is_main else None
             if info.is_main:
                 atomic_write_text(paths.config, dump_yaml(config))
             _log_start(trainer, config, paths, device, info)
             first_step = state.step
             with tensorboard_writer(paths.tensorboard, info.is_main and train.tensorboard) as board:
                 reason = run_epochs(trainer, config, train_set, val_set, paths, state, info, board)
-            if kept is not None and state.step == first_step:
+            if checkpoint is not None and info.is_main and state.step == first_step:
                 # a resume at the budget it had reached: config.yaml says what its
-                # checkpoints ran, not a seed or a precision no step ran with
-                atomic_write_text(paths.config, kept)
+                # checkpoints ran, not a seed or a precision no step ran with (nor
+                # what an earlier session stopped before its first checkpoint said)
+                ran = checkpoint_config(checkpoint, paths.last)
+                atomic_write_text(paths.config, dump_yaml(ran))
                 log.warning(
                     "--resume: nothing was trained (%s at step %d): %s left as it was",
                     reason,
@@ -298,14 +299,6 @@ def fit(
             # lenspair.model.training.distributed.init_process_group for what they do at exit).
             trainer = None
             torch.distributed.destroy_process_group()
-
-
-def _config_text(paths: RunPaths) -> str | None:
-    """The run's ``config.yaml`` as it is, or None when there is none to read."""
-    try:
-        return paths.config.read_text(encoding="utf-8")
-    except OSError:
-        return None
 
 
 def _lock_run(

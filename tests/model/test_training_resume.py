@@ -558,6 +558,12 @@ def test_a_resume_that_trains_nothing_leaves_config_yaml_as_it_was(
         assert main([*resumed, "--seed", "5", "--precision", "bf16"]) == 0
     assert (run / "config.yaml").read_bytes() == before
     assert any("nothing was trained" in message for message in caplog.messages)
+    # a session stopped before its first checkpoint left its settings in config.yaml:
+    # one that trains nothing then puts back what the checkpoints ran, not those
+    assert b"seed: 0" in before
+    (run / "config.yaml").write_text(before.decode().replace("seed: 0", "seed: 7"))
+    assert main(resumed) == 0
+    assert (run / "config.yaml").read_bytes() == before
 
 
 def test_a_last_pt_of_weights_alone_is_refused_in_one_line(
