@@ -308,6 +308,7 @@ def iter_frames(
     problems: list[str] | None = None,
     topics: tuple[str, str] | None = None,
     dropped: list[FrameProblem] | None = None,
+    say_pages: bool = True,
 ) -> Iterator[InputFrame]:
     """Every frame of ``path`` (any kind, see the module docstring), decoded.
 
@@ -322,6 +323,9 @@ def iter_frames(
             leave an image out (a file ``data.csv`` lists but that is missing,
             an image it does not list, a second file with a repeated
             timestamp), so that a caller can account for those frames too.
+        say_pages: name the first TIFF of several pages, whose first page is
+            the frame (:func:`~lenspair.core.imageio.read_image`); ``restore``,
+            which copies such a file whole and lists it, says it its way.
 
     Returns:
         An iterator of :class:`~lenspair.capture.frame_types.InputFrame` in
@@ -341,7 +345,7 @@ def iter_frames(
     if topics is not None:
         raise CaptureError(f"{path}: topics can only be chosen for bags, this is a {kind}")
     entries = _file_entries(path, kind, cameras, problems, dropped)
-    return _iter_files(Path(path), kind, entries)
+    return _iter_files(Path(path), kind, entries, say_pages)
 
 
 def frame_files(path: Path, kind: InputKind, cameras: Sequence[CameraName]) -> list[Path]:
@@ -409,14 +413,16 @@ def _no_images(folder: Path) -> str:
 
 
 def _iter_files(
-    path: Path, kind: InputKind, entries: list[tuple[Path, CameraName | None, int | None]]
+    path: Path,
+    kind: InputKind,
+    entries: list[tuple[Path, CameraName | None, int | None]],
+    say_pages: bool,
 ) -> Iterator[InputFrame]:
     base = path.parent if kind == "image" else path
     for index, (file, camera, t_ns) in enumerate(entries):
         name = file.relative_to(base).as_posix()
         try:
-            # restore copies a file of several pages whole and lists it (file_sink)
-            image, error = read_image(file, say_pages=False), None
+            image, error = read_image(file, say_pages=say_pages), None
         except LenspairError as exc:
             image, error = None, str(exc)
         yield InputFrame(index, name, camera, t_ns, str(file), image, error)

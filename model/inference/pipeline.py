@@ -284,7 +284,9 @@ def _open_items(
             input_path, cameras, source_problems, checked.options.topics
         )
         return items, checked.overview.frames
-    return iter_frames(input_path, cameras, source_problems), len(checked.files)
+    # a file of several pages is copied whole and listed (file_sink): not "its first page"
+    frames = iter_frames(input_path, cameras, source_problems, say_pages=False)
+    return frames, len(checked.files)
 
 
 def _undo_refused(out_dir: Path, made: tuple[list[Path], bool], started_report: bool) -> None:

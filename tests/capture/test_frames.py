@@ -95,3 +95,32 @@ def test_bad_inputs_are_one_line_errors_raised_before_any_frame(tmp_path: Path) 
         with pytest.raises(CaptureError, match=message) as caught:
             iter_frames(path, topics=topics)  # not iterated: the call itself checks
         assert "\n" not in str(caught.value)
+
+
+@pytest.mark.parametrize("say_pages", [True, False])
+def test_a_tiff_of_several_pages_is_said_by_detect_not_by_restore(
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+    say_pages: bool,
+) -> None:
+    # detect judged the first page of a stack and said nothing of the others; restore,
+    # which copies such a file whole and lists it, must not say "only the first is read"
+    import OpenImageIO as oiio  # the test writes a file of pages, which lenspair does not
+
+    from lenspair.core import imageio
+
+    monkeypatch.setattr(imageio, "_SAID", set())
+    page = np.full((16, 24, 1), 9, np.uint8)
+    spec = oiio.ImageSpec(24, 16, 1, "uint8")
+    output = oiio.ImageOutput.create(str(tmp_path / "stack.tif"))
+    assert output.open(str(tmp_path / "stack.tif"), [spec, spec])
+    assert output.write_image(page)
+    assert output.open(str(tmp_path / "stack.tif"), spec, "AppendSubimage")
+    assert output.write_image(page)
+    output.close()
+    with caplog.at_level("WARNING", logger="lenspair.core.imageio"):
+        (frame,) = iter_frames(tmp_path, say_pages=say_pages)
+    assert frame.image is not None and frame.image.shape == (16, 24)
+    said = [m for m in caplog.messages if "several images (pages)" in m]
+    assert len(said) == (1 if say_pages else 0)
