@@ -39,9 +39,10 @@ as nanoseconds they look like frame numbers.
 Hidden files and files that are not images are ignored. Folders have no
 recording order, so frames are taken in time order; two files with the same
 timestamp keep the first by name and record the other. A file named as a
-frame of its time and more (``<t>_depth.png``, ``<t>-thumb.jpg`` beside
-``<t>.png``) is that frame's companion, not a frame: left out, like a raw
-file or a depth EXR beside it.
+frame of its time, a separator and a word (``<t>_depth.png``,
+``<t>-thumb.jpg`` beside ``<t>.png``) is that frame's companion, not a
+frame: left out, like a raw file or a depth EXR beside it, and counted in
+one note of the folder.
 """
 
 import os
@@ -63,6 +64,7 @@ from lenspair.capture.recording_types import (
     recording_id_for,
 )
 from lenspair.capture.rigfile import CameraName
+from lenspair.core.wording import counted
 
 IMAGE_SUFFIXES = frozenset(
     {".png", ".tif", ".tiff", ".bmp"}
@@ -239,7 +241,7 @@ def list_image_folder(
             continue
         frames.append(FrameRef(camera, read[0], file))
         digits.append(read[1])
-    frames, digits = _without_companions(frames, digits)
+    frames, digits = _without_companions(camera, folder, frames, digits, problems)
     _check_distinct_times(camera, folder, frames)
     _check_subunit_times(camera, folder, frames, digits)
     note_passed_over(camera, folder, frames, problems)
@@ -248,15 +250,22 @@ def list_image_folder(
 
 
 def _without_companions(
-    frames: list[FrameRef], digits: list[int]
+    camera: CameraName,
+    folder: Path,
+    frames: list[FrameRef],
+    digits: list[int],
+    problems: list[FrameProblem],
 ) -> tuple[list[FrameRef], list[int]]:
     """``frames`` (and their ``digits``) less the companions of another frame of their time.
 
     A file whose stem is another same-time file's stem, a separator (``_``,
-    ``-``, ``.``) and more (``<t>_depth.png`` beside ``<t>.png``) goes with
+    ``-``, ``.``) and a word (``<t>_depth.png`` beside ``<t>.png``) goes with
     that frame: a depth map or a thumbnail, not a second frame of the time.
     Kept, each was a "duplicate timestamp", and ``<t>-depth.png``, which
-    sorts first, was the frame and the camera's image the duplicate.
+    sorts first, was the frame and the camera's image the duplicate. A
+    number after the separator (``<t>_1.png``, a second save) is no word: that
+    file stays a duplicate. The companions are counted in one note of the
+    folder (``problems``), not one a file.
     """
     stems: dict[int, set[str]] = {}
     for frame in frames:
@@ -265,11 +274,22 @@ def _without_companions(
     def companion(frame: FrameRef) -> bool:
         stem = frame.source.stem
         return any(
-            len(stem) > len(base) and stem.startswith(base) and stem[len(base)] in "_-."
+            len(stem) > len(base) + 1
+            and stem.startswith(base)
+            and stem[len(base)] in "_-."
+            and stem[len(base) + 1].isalpha()
             for base in stems[frame.t_ns]
         )
 
     kept = [(f, d) for f, d in zip(frames, digits, strict=True) if not companion(f)]
+    if len(kept) < len(frames):
+        first = next(f for f in frames if companion(f)).source.name
+        reason = (
+            f"{counted(len(frames) - len(kept), 'file')} named as a frame of the same time "
+            f"and a word (the first: {first}): companions of those frames (depth maps, "
+            "thumbnails), not frames"
+        )
+        problems.append(FrameProblem(camera, None, str(folder), reason, dropped=False))
     return [f for f, _ in kept], [d for _, d in kept]
 
 

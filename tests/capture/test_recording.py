@@ -521,16 +521,35 @@ def test_readable_companions_named_by_a_frames_time_are_not_frames(
             write_image(tmp_path / camera / f"{t}.png", frames[camera, t])
             write_image(tmp_path / camera / f"{t}{separator}depth.png", _image(5, np.uint16))
     write_image(tmp_path / "right" / f"{stamps[0]}.tif", _image(6))  # the same stem: a twin
+    write_image(tmp_path / "right" / f"{stamps[1]}_1.png", _image(7))  # a second save: a twin
     recording = open_recording(tmp_path)
     assert recording.timestamps("cam0") == stamps == recording.timestamps("cam1")
     for camera, name in (("cam0", "left"), ("cam1", "right")):
         for frame in recording.frames[camera]:
             assert frame.source == tmp_path / name / f"{frame.t_ns}.png"
-    said = [(p.t_ns, Path(p.source).name, p.reason) for p in recording.problems]
-    assert said == [
-        (
-            stamps[0],
-            f"{stamps[0]}.tif",
-            f"duplicate timestamp (kept {tmp_path}/right/{stamps[0]}.png)",
-        )
-    ]
+    said = [(p.t_ns, Path(p.source).name, p.reason, p.dropped) for p in recording.problems]
+    first = sorted(f"{t}{separator}depth.png" for t in stamps)[0]
+    companions = (
+        f"3 files named as a frame of the same time and a word (the first: {first}): "
+        "companions of those frames (depth maps, thumbnails), not frames"
+    )
+    kept = f"{tmp_path}/right"
+    assert sorted(said, key=str) == sorted(
+        [
+            (None, "left", companions, False),
+            (None, "right", companions, False),
+            (
+                stamps[0],
+                f"{stamps[0]}.tif",
+                f"duplicate timestamp (kept {kept}/{stamps[0]}.png)",
+                True,
+            ),
+            (
+                stamps[1],
+                f"{stamps[1]}_1.png",
+                f"duplicate timestamp (kept {kept}/{stamps[1]}.png)",
+                True,
+            ),
+        ],
+        key=str,
+    )
