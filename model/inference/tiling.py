@@ -160,6 +160,10 @@ def run_tiled(
     """
     n, c, height, width = batch.shape
     tile_h, tile_w = tile
+    frames = max(1, CHUNK_PIXELS // (tile_h * tile_w))
+    if n > frames:  # a tile of every frame of a batch of 4 was 4 tiles' memory a call
+        parts = [batch[i : i + frames] for i in range(0, n, frames)]
+        return np.concatenate([run_tiled(backend, p, tile, overlap, max_tiles) for p in parts])
     rows = tile_starts(height, tile_h, min(overlap, tile_h - 1))
     cols = tile_starts(width, tile_w, min(overlap, tile_w - 1))
     full_h, full_w = max(height, tile_h), max(width, tile_w)
