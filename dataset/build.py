@@ -56,6 +56,7 @@ from lenspair.dataset.output import (
     out_state,
     place_dataset,
     recover_swap,
+    replacing,
     write_images,
     write_records,
 )
@@ -127,6 +128,8 @@ def build_dataset(
     earlier_root = out if previous is None else _previous_dataset(previous)
     check_out(out)
     recover_swap(out)
+    with replacing(out, probe=True):  # refused now, not after measuring every pair
+        pass
     # held until the dataset is in place: no capture-ingest rewrites them meanwhile
     with reading_sources(sources):
         # in recording-id order: the same recordings in another order are the same dataset

@@ -9,16 +9,18 @@ user's own files over; :func:`recover_swap` puts back an old dataset that a
 build killed during that swap had set aside.
 """
 
+import contextlib
 import json
 import logging
 import os
 import shutil
 import stat
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Literal
 
 from lenspair.core.config import dump_yaml
+from lenspair.core.folderlock import holding, lock_shared
 from lenspair.core.fsutil import (
     atomic_write_text,
     clone_file,
@@ -99,13 +101,66 @@ def _place_image(source: Path, destination: Path, link: LinkMode) -> None:
     clone_file(source, destination)
 
 
+DATASET_LOCK = ".lenspair-dataset.lock"
+"""The file of a dataset whose ``flock`` its readers (``train``) share and a rebuild takes."""
+
+
 def _own_entries() -> frozenset[str]:
     """Top-level names a build writes (:func:`write_records`, :func:`write_images`).
 
     Anything else is the user's.
     """
     contact = {f"contact_{name}.png" for name in SPLITS}
-    return frozenset({*SPLITS, MANIFEST_FILE, CARD_FILE, REMOVED_FILE, CONFIG_FILE, *contact})
+    own = {*SPLITS, MANIFEST_FILE, CARD_FILE, REMOVED_FILE, CONFIG_FILE, DATASET_LOCK}
+    return frozenset(own | contact)
+
+
+@contextlib.contextmanager
+def reading_dataset(path: Path) -> Iterator[None]:
+    """Hold a shared lock on a lenspair dataset meanwhile, so that no rebuild replaces it.
+
+    ``dataset-build --overwrite`` swapped ``DS`` under a running ``train``,
+    which then died blaming a missing pair, or went on over a mix of the two
+    datasets where their file names agreed. Other layouts (a Raindrop folder)
+    get no lock file: nothing of lenspair rewrites them.
+
+    Raises:
+        DatasetError: a dataset-build is replacing it now.
+    """
+    descriptor = None
+    if Path(path).is_dir() and is_lenspair_dataset(Path(path)):
+        try:
+            descriptor = lock_shared(Path(path) / DATASET_LOCK, create=True)
+        except BlockingIOError:
+            raise DatasetError(
+                f"{path}: a dataset-build is replacing it; train when it has finished"
+            ) from None
+    try:
+        yield
+    finally:
+        if descriptor is not None:
+            os.close(descriptor)  # releases the lock
+
+
+@contextlib.contextmanager
+def replacing(out: Path, probe: bool = False) -> Iterator[None]:
+    """Hold a dataset's lock exclusively meanwhile: refused while a ``train`` reads it.
+
+    With ``probe`` (a build's early check, before minutes of measuring) a
+    dataset without a lock file, which no reader holds, is left without one:
+    a refused build writes nothing into it.
+
+    Raises:
+        DatasetError: a reader holds it.
+    """
+    if out_state(out) != "dataset" or (probe and not (out / DATASET_LOCK).exists()):
+        yield
+        return
+    taken = DatasetError(
+        f"{out}: a train is reading it; rebuild it when that has finished, or give another --out"
+    )
+    with holding(out / DATASET_LOCK, "dataset-build", taken):
+        yield
 
 
 def _json_object(path: Path) -> bool:
@@ -190,8 +245,9 @@ def place_dataset(temp: Path, out: Path, overwrite: bool) -> None:
     theirs += sorted({str(Path(*p.parts[:2])) for p in inside})  # by folder: train/restored
     trash = temporary_folder(out.parent, out.name, ".old")
     try:
-        os.replace(out, trash / "dataset")
-        os.replace(temp, out)
+        with replacing(out):  # not under a train reading it
+            os.replace(out, trash / "dataset")
+            os.replace(temp, out)
     except BaseException:  # a refused rename, and Ctrl-C or SIGTERM between the two
         if not out.exists() and (trash / "dataset").is_dir():
             os.replace(trash / "dataset", out)  # put the old dataset back

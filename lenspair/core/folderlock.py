@@ -73,26 +73,34 @@ def holding(path: Path, writer: str, taken: Exception) -> Iterator[None]:
         os.close(descriptor)  # releases the lock
 
 
-def lock_shared(path: Path) -> int | None:
-    """Take a shared lock on an existing lock file, not waiting, for a reader of the folder.
+def lock_shared(path: Path, create: bool = False) -> int | None:
+    """Take a shared lock on a lock file, not waiting, for a reader of the folder.
 
     Readers share it; a writer's exclusive :func:`lock_file` is refused while
     one holds it, and it is refused while a writer holds the exclusive one.
+    With ``create``, a missing lock file is made (a writer that comes later
+    must find the readers' lock); one that cannot be made (a read-only
+    folder, which nothing rewrites) gives None.
 
     Returns:
         The descriptor (closing it releases the lock); None when there is no
-        lock file (no writer has ever locked the folder), or the file system
-        has no locks.
+        lock file (no writer has ever locked the folder) and ``create`` is off
+        or it cannot be made, or the file system has no locks.
 
     Raises:
         BlockingIOError: a writer holds the lock.
         OSError: the lock file exists but cannot be opened, naming it.
     """
+    flags = os.O_RDONLY | os.O_CLOEXEC | (os.O_CREAT if create else 0)
     try:
         with naming_errors(path):
-            descriptor = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+            descriptor = os.open(path, flags, 0o666)
     except FileNotFoundError:
         return None
+    except OSError as exc:
+        if create and exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            return None  # nothing rewrites a folder this process may not even add a file to
+        raise
     try:
         fcntl.flock(descriptor, fcntl.LOCK_SH | fcntl.LOCK_NB)
     except OSError as exc:

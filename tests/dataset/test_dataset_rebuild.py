@@ -223,3 +223,46 @@ def test_every_build_option_is_refused_by_verify() -> None:
     }
     verify_takes = {"verify", "workers"}
     assert {d: f for d, f in options.items() if d not in verify_takes} == BUILD_ONLY
+
+
+def test_a_dataset_a_train_reads_is_not_replaced_under_it(
+    recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `dataset-build --overwrite` swapped DS under a running train: it died blaming a missing
+    # pair, or went on over a mix of the two datasets where their file names agreed
+    import argparse as ap
+
+    from lenspair.commands import train as train_command
+
+    sources = _two(recording)
+    out = tmp_path / "DS"
+    other = DatasetConfig(split=SplitConfig(seed=3))
+    build_dataset(sources, out, DatasetConfig())
+    before = _tree(out)
+    with (
+        output_module.reading_dataset(out),
+        output_module.reading_dataset(out),  # readers share it
+        pytest.raises(DatasetError, match=r"DS: a train is reading it"),
+    ):
+        build_dataset(sources, out, other, overwrite=True)
+    lock = output_module.DATASET_LOCK
+    assert {k: v for k, v in _tree(out).items() if k != lock} == before  # nothing moved
+    with (
+        output_module.replacing(out),
+        pytest.raises(DatasetError, match=r"DS: a dataset-build is replacing it"),
+        output_module.reading_dataset(out),
+    ):
+        pass
+    seen: list[str] = []
+
+    def training(args: ap.Namespace) -> int:  # what `lenspair train DS` holds while it trains
+        with pytest.raises(DatasetError, match="a train is reading it"):
+            build_dataset(sources, out, other, overwrite=True)
+        seen.append("refused")
+        return 0
+
+    monkeypatch.setattr(train_command, "_run", training)
+    assert train_command.run(ap.Namespace(dataset=out)) == 0 and seen == ["refused"]
+    build_dataset(sources, out, other, overwrite=True)  # once no train reads it
+    assert lock not in _tree(out)  # the rebuilt dataset: its lock is its readers' to make
+    assert _tree(out) != before
