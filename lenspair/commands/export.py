@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING
 
 from lenspair.commands.argtypes import input_path, out_file, size, split_name
 from lenspair.core.errors import ConfigError
+from lenspair.core.folderlock import holding
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.leftovers import remove_leftovers
 from lenspair.model.errors import ModelError
@@ -85,7 +86,6 @@ def run(args: argparse.Namespace) -> int:
     """Export and check; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair export --help`.
     from lenspair.model.checkpoint import load_model
-    from lenspair.model.evaluation.export import export_checkpoint
 
     if args.onnx is None and args.torchscript is None:
         raise ConfigError("give --onnx FILE and/or --torchscript FILE")
@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
             )
     # loaded before anything is removed: a checkpoint that cannot be read changes nothing
     loaded = load_model(args.checkpoint, "cpu")
-    images = None
+    images, calibrated_on = None, None
     if calibration is not None:  # decoded before too: unreadable images change nothing
         from lenspair.model.evaluation.quantize import calibration_images  # torch, as above
 
@@ -131,6 +131,30 @@ def run(args: argparse.Namespace) -> int:
             "size": [size[1], size[0]],  # WxH, as --size: the ranges fit frames of this size
         }
     report = report_path(args)
+    lock = report.with_name(f".{report.name}.lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    taken = ConfigError(
+        f"{report.parent / report.name.removesuffix('.export.json')}: another export is "
+        "writing it; wait for it to finish or write another file"
+    )
+    # one export of these files at a time: two at once left one's ONNX under the other's
+    # report (a G network beside a report naming the GEA checkpoint and its check)
+    with holding(lock, "export", taken):
+        return _export(args, loaded, size, images, calibrated_on, report)
+
+
+def _export(
+    args: argparse.Namespace,
+    loaded: "LoadedModel",
+    size: tuple[int, int],
+    images: "list[np.ndarray] | None",
+    calibrated_on: dict[str, object] | None,
+    report: Path,
+) -> int:
+    """Write the exports and their report, checked (:func:`run`, holding the lock)."""
+    # Imported here, not at the top: keeps torch out of `lenspair export --help`.
+    from lenspair.model.evaluation.export import export_checkpoint
+
     # what this export replaces goes first, its report first of all: stopped midway, an
     # export left its new ONNX beside the last export's int8 model and report. That int8
     # model goes without --int8 too: beside the new ONNX it read as its quantised twin

@@ -603,3 +603,27 @@ def test_an_output_that_is_a_training_checkpoint_is_refused(
         main([*argv[:3], str(other), *argv[4:]]) == 0
         and main([*argv[:3], str(other), *argv[4:]]) == 0
     )
+
+
+def test_an_export_to_files_another_export_is_writing_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # two exports to one --onnx left one's network under the other's report (a G network
+    # beside a report naming the GEA checkpoint and claiming its check)
+    from lenspair.core.folderlock import lock_file
+
+    checkpoint = make_checkpoint(tmp_path / "c.pt")
+    onnx = tmp_path / "m.onnx"
+    held = lock_file(tmp_path / ".m.onnx.export.json.lock", "export")  # the other export
+    assert held is not None
+    try:
+        capsys.readouterr()
+        args = ["export", str(checkpoint), "--onnx", str(onnx), "--size", "48x32"]
+        assert main(args) == 2
+    finally:
+        os.close(held)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith(
+        f"{onnx}: another export is writing it; wait for it to finish or write another file"
+    )
+    assert not onnx.exists() and not (tmp_path / "m.onnx.export.json").exists()
