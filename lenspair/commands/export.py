@@ -31,12 +31,13 @@ decision is printed (lenspair.model.precision).
 import argparse
 import json
 import logging
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from lenspair.commands.argtypes import input_path, out_file, size, split_name
 from lenspair.core.errors import ConfigError
-from lenspair.core.folderlock import holding
+from lenspair.core.folderlock import lock_file
 from lenspair.core.fsutil import atomic_write_text
 from lenspair.core.leftovers import remove_leftovers
 from lenspair.model.errors import ModelError
@@ -139,8 +140,17 @@ def run(args: argparse.Namespace) -> int:
     )
     # one export of these files at a time: two at once left one's ONNX under the other's
     # report (a G network beside a report naming the GEA checkpoint and its check)
-    with holding(lock, "export", taken):
+    try:
+        descriptor = lock_file(lock, "export")
+    except OSError as exc:  # a folder that refuses files: named by the file asked for
+        first = args.onnx if args.onnx is not None else args.torchscript
+        raise OSError(exc.errno, exc.strerror or str(exc), str(first)) from None
+    if descriptor is None:
+        raise taken
+    try:
         return _export(args, loaded, size, images, calibrated_on, report)
+    finally:
+        os.close(descriptor)  # releases the lock
 
 
 def _export(
