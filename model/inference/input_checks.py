@@ -18,6 +18,7 @@ from lenspair.capture.frames import InputKind, detect_input, frame_files
 from lenspair.capture.rigfile import CameraName
 from lenspair.core.fsutil import inside_refusal
 from lenspair.model.errors import ModelError
+from lenspair.model.inference.report import RESTORE_LOCK
 from lenspair.model.inference.restore_options import RestoreOptions, resolve_cameras
 from lenspair.model.networks.padding import MIN_SIDE
 
@@ -54,7 +55,8 @@ def check_out_dir(out_dir: Path, resume: bool) -> None:
     """
     if out_dir.exists() and not out_dir.is_dir():
         raise ModelError(f"--out {out_dir}: exists and is not a folder")
-    if not resume and out_dir.is_dir() and any(out_dir.iterdir()):
+    # the lock a run killed before its first report left is no output
+    if not resume and out_dir.is_dir() and any(p.name != RESTORE_LOCK for p in out_dir.iterdir()):
         raise ModelError(
             f"--out {out_dir}: not empty; pass --resume to continue a run or choose a new folder"
         )

@@ -55,17 +55,13 @@ from lenspair.model.inference.file_sink import FileSink
 from lenspair.model.inference.input_checks import CheckedInput, check_input
 from lenspair.model.inference.judge import FrameJudge
 from lenspair.model.inference.out_layout import STALE_DIR, files_under
-from lenspair.model.inference.report import REPORT_NAME, RestoreReport
+from lenspair.model.inference.report import REPORT_NAME, RESTORE_LOCK, RestoreReport
 from lenspair.model.inference.restore_options import RestoreOptions, check_options
 from lenspair.model.inference.resume import check_same_settings, kept_bag_report, run_settings
 from lenspair.model.inference.threads import Writer, threaded
 from lenspair.model.inference.unread_files import unrestored_note
 
 log = logging.getLogger(__name__)
-
-RESTORE_LOCK = ".lenspair-restore.lock"
-"""The file in OUT whose ``flock`` a restore holds while it writes OUT (hidden: no frame)."""
-
 
 _DEFAULT_OPTIONS = RestoreOptions()  # frozen, so one instance can be every call's default
 

@@ -11,6 +11,9 @@ from typing import Any
 from lenspair.core.wording import counted
 
 REPORT_NAME = "restore_report.json"
+RESTORE_LOCK = ".lenspair-restore.lock"
+"""The file in OUT whose ``flock`` a restore holds while it writes OUT (hidden: no frame,
+no output: the checks of OUT pass over it)."""
 """Under OUT: the report of the run (see :class:`RestoreReport`)."""
 
 SAID_PROBLEMS = 20

@@ -29,7 +29,7 @@ from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.bag_sink import BagSink
 from lenspair.model.inference.judge import FrameJudge
 from lenspair.model.inference.out_layout import DEPTHS_NAME
-from lenspair.model.inference.report import REPORT_NAME, RestoreReport
+from lenspair.model.inference.report import REPORT_NAME, RESTORE_LOCK, RestoreReport
 from lenspair.model.inference.restore_options import RestoreOptions
 
 log = logging.getLogger(__name__)
@@ -95,6 +95,7 @@ def check_same_settings(out_dir: Path, settings: dict[str, Any], bag: bool = Fal
     """
     if not (out_dir / REPORT_NAME).is_file():
         stale = set(leftovers(out_dir))  # a run killed while writing its first report
+        stale.add(out_dir / RESTORE_LOCK)  # and the lock it held
         if out_dir.is_dir() and any(entry not in stale for entry in out_dir.iterdir()):
             # its files would pass for finished frames (a name, a newer time)
             raise ModelError(

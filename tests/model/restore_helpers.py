@@ -14,8 +14,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from lenspair.capture.rigfile import RigFile, write_rig_file
 from lenspair.core.imageio import read_image
-from lenspair.model.inference.pipeline import RESTORE_LOCK
-from lenspair.model.inference.report import REPORT_NAME
+from lenspair.model.inference.report import REPORT_NAME, RESTORE_LOCK
 from tests.capture.ingest_helpers import frame_files, make_recording
 
 IMAGE = "sensor_msgs/msg/Image"

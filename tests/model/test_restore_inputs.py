@@ -775,3 +775,18 @@ def test_an_out_filled_while_the_model_loaded_is_refused_and_left_as_it_was(
     with pytest.raises(ModelError, match=r"another restore filled it meanwhile; pass --resume"):
         restore_input(source, out, backend, checked=checked)
     assert sorted(p.name for p in out.iterdir()) == ["0.png"]
+
+
+@pytest.mark.parametrize("resume", [False, True])
+def test_a_run_killed_before_its_first_report_leaves_an_out_a_rerun_takes(
+    tmp_path: Path, backend: TorchBackend, resume: bool
+) -> None:
+    # killed before its first report, a run left OUT holding its lock alone: the rerun
+    # was refused as "not empty", and --resume as "no restore run wrote it"
+    from lenspair.model.inference.report import RESTORE_LOCK
+
+    source, out = _folder(tmp_path / "in", 2), tmp_path / "out"
+    out.mkdir()
+    (out / RESTORE_LOCK).touch()
+    report = restore_input(source, out, backend, RestoreOptions(resume=resume))
+    assert (report.restored, report.failed) == (2, 0)
