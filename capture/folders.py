@@ -259,29 +259,34 @@ def _without_companions(
     """``frames`` (and their ``digits``) less the companions of another frame of their time.
 
     A file whose stem is another same-time file's stem, a separator (``_``,
-    ``-``, ``.``) and a word (``<t>_depth.png`` beside ``<t>.png``) goes with
-    that frame: a depth map or a thumbnail, not a second frame of the time.
-    Kept, each was a "duplicate timestamp", and ``<t>-depth.png``, which
-    sorts first, was the frame and the camera's image the duplicate. A
-    number after the separator (``<t>_1.png``, a second save) is no word: that
-    file stays a duplicate. The companions are counted in one note of the
+    ``-``, ``.``) and a word (``<t>_depth.png``, ``<t>-8bit.png`` beside
+    ``<t>.png``) goes with that frame: a depth map or a preview, not a second
+    frame of the time. Kept, each was a "duplicate timestamp", and
+    ``<t>-depth.png``, which sorts first, was the frame and the camera's image
+    the duplicate. A number alone after the separator (``<t>_1.png``, a second
+    save) is no word: that file stays a duplicate. The companions are counted in one note of the
     folder (``problems``), not one a file.
     """
     stems: dict[int, set[str]] = {}
     for frame in frames:
         stems.setdefault(frame.t_ns, set()).add(frame.source.stem)
 
-    def companion(frame: FrameRef) -> bool:
+    def extension(frame: FrameRef) -> str | None:
+        """What ``frame``'s stem adds to a same-time stem after a separator, or None."""
         stem = frame.source.stem
-        return any(
-            len(stem) > len(base) + 1
-            and stem.startswith(base)
-            and stem[len(base)] in "_-."
-            and stem[len(base) + 1].isalpha()
-            for base in stems[frame.t_ns]
-        )
+        for base in stems[frame.t_ns]:
+            if len(stem) > len(base) + 1 and stem.startswith(base) and stem[len(base)] in "_-.":
+                return stem[len(base) + 1 :]
+        return None
+
+    def companion(frame: FrameRef) -> bool:
+        added = extension(frame)
+        return added is not None and not added.isdigit()
 
     kept = [(f, d) for f, d in zip(frames, digits, strict=True) if not companion(f)]
+    # of a frame and its second save (<t>.png, <t>-2.png) the frame is kept, though the
+    # save's name sorts first; twins of one stem keep name order (stable)
+    kept.sort(key=lambda item: (item[0].t_ns, extension(item[0]) is not None))
     if len(kept) < len(frames):
         first = next(f for f in frames if companion(f)).source.name
         reason = (

@@ -553,3 +553,21 @@ def test_readable_companions_named_by_a_frames_time_are_not_frames(
         ],
         key=str,
     )
+
+
+def test_a_companion_named_by_a_word_that_starts_with_a_digit_is_no_frame(tmp_path: Path) -> None:
+    # an 8-bit preview "<t>-8bit.png" beside a 16-bit frame sorted first and became the
+    # frame, the camera's image a duplicate; "<t>-2.png" (a second save) stays a duplicate
+    stamps = [T0 + i * 50 * MS for i in range(4)]
+    for camera in ("left", "right"):
+        for t in stamps:
+            write_image(tmp_path / camera / f"{t}.png", _image(t % 89, np.uint16))
+            write_image(tmp_path / camera / f"{t}-8bit.png", _image(t % 89))
+    write_image(tmp_path / "left" / f"{stamps[0]}-2.png", _image(3, np.uint16))
+    recording = open_recording(tmp_path)
+    for camera, name in (("cam0", "left"), ("cam1", "right")):
+        assert [f.source for f in recording.frames[camera]] == [
+            tmp_path / name / f"{t}.png" for t in stamps
+        ]
+    dropped = [Path(p.source).name for p in recording.problems if p.dropped]
+    assert dropped == [f"{stamps[0]}-2.png"]
