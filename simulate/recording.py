@@ -99,6 +99,18 @@ def _writer(marker: Path) -> int | None:
     return int(match[1]) if match else None
 
 
+def _claiming(marker: Path) -> bool:
+    """Whether ``marker`` is empty: made by a run that has yet to write its pid in it.
+
+    A killed run's marker holds its pid (written with the marker, :func:`_claim`),
+    so an empty one is a live run's between the two, not a killed run's to remove.
+    """
+    try:
+        return marker.stat().st_size == 0
+    except OSError:
+        return False
+
+
 def check_output_folder(out_dir: Path) -> None:
     """Refuse an output folder that exists with content (or is a file).
 
@@ -114,6 +126,10 @@ def check_output_folder(out_dir: Path) -> None:
     if out_dir.exists() and not out_dir.is_dir():
         raise SimulateError(f"{out_dir}: is a file, not a folder; choose a new or empty folder")
     if (out_dir / INCOMPLETE).is_file():
+        if _claiming(out_dir / INCOMPLETE):
+            raise SimulateError(
+                f"{out_dir}: another simulate is claiming it this instant; choose another --out"
+            )
         writer = _writer(out_dir / INCOMPLETE)
         # not killed but still writing (this process's own marker is of a failed attempt)
         if writer is not None and writer != os.getpid() and process_alive(writer):
@@ -144,8 +160,13 @@ def _claim(out_dir: Path) -> None:
     text = f"pid {os.getpid()}: removed when the simulation is complete\n"
     for attempt in range(2):
         try:
-            with (out_dir / INCOMPLETE).open("x", encoding="utf-8") as marker:
-                marker.write(text)
+            # made and written in two calls, not through a buffer written at close: another
+            # run that reads it between the two finds it empty (_claiming), not a pid
+            descriptor = os.open(out_dir / INCOMPLETE, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            try:
+                os.write(descriptor, text.encode())
+            finally:
+                os.close(descriptor)
             break
         except FileExistsError:
             if attempt:

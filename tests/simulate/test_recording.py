@@ -585,3 +585,19 @@ def test_a_folder_claimed_while_the_spec_was_set_up_is_refused(
         other.kill()
         other.wait()
     assert not (out / "mav0").exists()  # nothing of this run was written
+
+
+def test_a_marker_made_this_instant_is_not_taken_for_a_killed_run(tmp_path: Path) -> None:
+    # a run that read another's marker between its creation and its pid took it for a
+    # killed run's, emptied the folder and claimed it too
+    from lenspair.simulate import recording
+
+    out = tmp_path / "rec"
+    out.mkdir()
+    (out / recording.INCOMPLETE).touch()
+    (out / "frame.png").write_bytes(b"the other run's")
+    spec_file = tmp_path / "rec.yaml"
+    spec_file.write_text(yaml.safe_dump(_scene(tmp_path, rig=SMALL)))
+    with pytest.raises(SimulateError, match="another simulate is claiming it this instant"):
+        simulate_recording(load_scene(spec_file), out, base_dir=tmp_path)
+    assert sorted(p.name for p in out.iterdir()) == sorted([recording.INCOMPLETE, "frame.png"])
