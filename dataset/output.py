@@ -102,7 +102,8 @@ def _place_image(source: Path, destination: Path, link: LinkMode) -> None:
 
 
 DATASET_LOCK = ".lenspair-dataset.lock"
-"""The file of a dataset whose ``flock`` its readers (``train``) share and a rebuild takes."""
+"""The file of a dataset whose ``flock`` its readers (``train``, ``tradeoff``) share and a
+rebuild takes."""
 
 
 def _own_entries() -> frozenset[str]:
@@ -157,7 +158,8 @@ def replacing(out: Path, probe: bool = False) -> Iterator[None]:
         yield
         return
     taken = DatasetError(
-        f"{out}: a train is reading it; rebuild it when that has finished, or give another --out"
+        f"{out}: a train or tradeoff is reading it; rebuild it when that has finished, or "
+        "give another --out"
     )
     with holding(out / DATASET_LOCK, "dataset-build", taken):
         yield

@@ -155,7 +155,21 @@ def _check_places(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the comparison; returns the exit code."""
+    """Run the comparison; returns the exit code.
+
+    The dataset is read under its shared lock, as ``train`` reads it
+    (:func:`~lenspair.dataset.output.reading_dataset`): no rebuild replaces
+    it under the variants' training.
+    """
+    # Imported here, not at the top: keeps the dataset package out of `--help`.
+    from lenspair.dataset.output import reading_dataset
+
+    with reading_dataset(args.dataset):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    """:func:`run` itself."""
     # Imported here, not at the top: keeps torch out of `lenspair tradeoff --help`.
     from lenspair.model.evaluation.tradeoff import run_tradeoff
     from lenspair.model.evaluation.tradeoff_report import tradeoff_markdown  # as above

@@ -232,6 +232,7 @@ def test_a_dataset_a_train_reads_is_not_replaced_under_it(
     # pair, or went on over a mix of the two datasets where their file names agreed
     import argparse as ap
 
+    from lenspair.commands import tradeoff as tradeoff_command
     from lenspair.commands import train as train_command
 
     sources = _two(recording)
@@ -242,7 +243,7 @@ def test_a_dataset_a_train_reads_is_not_replaced_under_it(
     with (
         output_module.reading_dataset(out),
         output_module.reading_dataset(out),  # readers share it
-        pytest.raises(DatasetError, match=r"DS: a train is reading it"),
+        pytest.raises(DatasetError, match=r"DS: a train or tradeoff is reading it"),
     ):
         build_dataset(sources, out, other, overwrite=True)
     lock = output_module.DATASET_LOCK
@@ -256,13 +257,15 @@ def test_a_dataset_a_train_reads_is_not_replaced_under_it(
     seen: list[str] = []
 
     def training(args: ap.Namespace) -> int:  # what `lenspair train DS` holds while it trains
-        with pytest.raises(DatasetError, match="a train is reading it"):
+        with pytest.raises(DatasetError, match="a train or tradeoff is reading it"):
             build_dataset(sources, out, other, overwrite=True)
         seen.append("refused")
         return 0
 
     monkeypatch.setattr(train_command, "_run", training)
     assert train_command.run(ap.Namespace(dataset=out)) == 0 and seen == ["refused"]
+    monkeypatch.setattr(tradeoff_command, "_run", training)  # its variants train alike
+    assert tradeoff_command.run(ap.Namespace(dataset=out)) == 0 and seen == ["refused"] * 2
     build_dataset(sources, out, other, overwrite=True)  # once no train reads it
     assert lock not in _tree(out)  # the rebuilt dataset: its lock is its readers' to make
     assert _tree(out) != before
