@@ -150,6 +150,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         return _export(args, loaded, size, images, calibrated_on, report)
     finally:
+        # removed while held, so that no file is left beside the exports (a failed export
+        # leaves nothing); a third export in the instant between could take the lock of
+        # the removed file beside a fourth's new one: a window of microseconds, not seconds
+        lock.unlink(missing_ok=True)
         os.close(descriptor)  # releases the lock
 
 
