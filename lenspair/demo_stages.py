@@ -98,18 +98,27 @@ def output_digest(output: Path) -> str:
     Cheap (no file is read), so reusing an untouched demo stays instant; a file
     changed by hand (a checkpoint copied over another) changes it, and the
     stage runs again. ``output`` may be a file; a missing one digests as empty.
+    The empty lock files lenspair's readers make (``DS/.lenspair-dataset.lock``,
+    made by the train stage after the dataset stage) are no output.
     """
     digest = hashlib.sha256()
     if output.is_file():
         files = [(output.name, output)]
     else:
         files = sorted(
-            (os.path.relpath(path, output), path) for path in output.rglob("*") if path.is_file()
+            (os.path.relpath(path, output), path)
+            for path in output.rglob("*")
+            if path.is_file() and not _lock_file(path)
         )
     for relative, path in files:
         status = path.stat()
         digest.update(f"{relative}\0{status.st_size}\0{status.st_mtime_ns}\n".encode())
     return digest.hexdigest()
+
+
+def _lock_file(path: Path) -> bool:
+    """Whether ``path`` is one of lenspair's lock files (``.lenspair-*.lock``)."""
+    return path.name.startswith(".lenspair-") and path.name.endswith(".lock")
 
 
 def run_stage(

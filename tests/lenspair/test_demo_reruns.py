@@ -55,6 +55,11 @@ def test_the_output_digest_sees_paths_sizes_and_times_and_reads_no_file(tmp_path
     assert lenspair.demo_stages.output_digest(
         tmp_path / "missing"
     ) == lenspair.demo_stages.output_digest(tmp_path / "empty")
+    # the lock a later stage's reader makes in it (train in DS) is no change of the output:
+    # the whole demo ran again on every rerun
+    after = lenspair.demo_stages.output_digest(folder)
+    (folder / ".lenspair-dataset.lock").touch()
+    assert lenspair.demo_stages.output_digest(folder) == after
 
 
 def _fake_demo(monkeypatch: pytest.MonkeyPatch, out: Path, cli: object) -> list[Stage]:
