@@ -193,6 +193,13 @@ def test_effects_that_change_no_pixel_label_the_recording_clean(
     assert any("changed no pixel" in m and "(dirt)" in m for m in caplog.messages)
 
 
+def _assert_same_cam1_frames(out: Path, other: Path) -> None:
+    """Every cam1 frame of ``out`` equals ``other``'s of the same time, to the bit."""
+    for t_ns in _csv(out, "cam1"):
+        name = Path("mav0") / "cam1" / "data" / f"{t_ns}.png"
+        np.testing.assert_array_equal(read_image(out / name), read_image(other / name))
+
+
 def test_a_declared_effect_that_drew_nothing_gives_no_label(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -205,9 +212,7 @@ def test_a_declared_effect_that_drew_nothing_gives_no_label(
     veil_only = _render(tmp_path, _scene(tmp_path, obstructed=veiled, **common), "veil")
     with caplog.at_level("WARNING"):
         out = _render(tmp_path, _scene(tmp_path, obstructed=dusty, **common), "dusty")
-    for t_ns in _csv(out, "cam1"):  # the premise: the dust drew nothing
-        name = Path("mav0") / "cam1" / "data" / f"{t_ns}.png"
-        np.testing.assert_array_equal(read_image(out / name), read_image(veil_only / name))
+    _assert_same_cam1_frames(out, veil_only)  # the premise: the dust drew nothing
     assert read_rig_file(out / "rig.yaml").anomaly == ("rain",)
     assert read_rig_file(veil_only / "rig.yaml").anomaly == ("rain",)
     said = [m for m in caplog.messages if "drew nothing" in m]
@@ -227,9 +232,7 @@ def test_an_effect_that_changed_no_pixel_beside_one_that_did_gives_no_label(
     dust_only = _render(tmp_path, _scene(tmp_path, obstructed=dusty, **common), "dust")
     with caplog.at_level("WARNING"):
         out = _render(tmp_path, _scene(tmp_path, obstructed=both, **common), "both")
-    for t_ns in _csv(out, "cam1"):  # the premise: the drops changed nothing
-        name = Path("mav0") / "cam1" / "data" / f"{t_ns}.png"
-        np.testing.assert_array_equal(read_image(out / name), read_image(dust_only / name))
+    _assert_same_cam1_frames(out, dust_only)  # the premise: the drops changed nothing
     assert read_rig_file(out / "rig.yaml").anomaly == ("dust",)
     assert any("changed no pixel" in m and "(raindrops)" in m for m in caplog.messages)
     caplog.clear()
