@@ -55,11 +55,19 @@ def check_out_dir(out_dir: Path, resume: bool) -> None:
     """
     if out_dir.exists() and not out_dir.is_dir():
         raise ModelError(f"--out {out_dir}: exists and is not a folder")
-    # the lock a run killed before its first report left is no output
-    if not resume and out_dir.is_dir() and any(p.name != RESTORE_LOCK for p in out_dir.iterdir()):
+    if not resume and holds_output(out_dir):
         raise ModelError(
             f"--out {out_dir}: not empty; pass --resume to continue a run or choose a new folder"
         )
+
+
+def holds_output(out_dir: Path) -> bool:
+    """Whether the folder OUT holds anything but a restore's lock file.
+
+    The lock a run killed before its first report left (or that the running
+    run holds) is no output.
+    """
+    return out_dir.is_dir() and any(p.name != RESTORE_LOCK for p in out_dir.iterdir())
 
 
 def check_apart(input_path: Path, kind: InputKind, out_dir: Path) -> None:

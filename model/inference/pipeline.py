@@ -52,7 +52,7 @@ from lenspair.model.inference.backends import Backend
 from lenspair.model.inference.bag_sink import BagSink
 from lenspair.model.inference.batching import run_batches
 from lenspair.model.inference.file_sink import FileSink
-from lenspair.model.inference.input_checks import CheckedInput, check_input
+from lenspair.model.inference.input_checks import CheckedInput, check_input, holds_output
 from lenspair.model.inference.judge import FrameJudge
 from lenspair.model.inference.out_layout import STALE_DIR, files_under
 from lenspair.model.inference.report import REPORT_NAME, RESTORE_LOCK, RestoreReport
@@ -143,7 +143,7 @@ def _one_writer(out_dir: Path, resume: bool, made: list[Path]) -> Iterator[bool]
         "another --out"
     )
     with holding(lock, "restore", taken):
-        if not resume and any(p.name != RESTORE_LOCK for p in out_dir.iterdir()):
+        if not resume and holds_output(out_dir):
             _remove_made(out_dir, made, mine)
             raise ModelError(
                 f"--out {out_dir}: another restore filled it meanwhile; pass --resume to "

@@ -11,10 +11,11 @@ from typing import Any
 from lenspair.core.wording import counted
 
 REPORT_NAME = "restore_report.json"
+"""Under OUT: the report of the run (see :class:`RestoreReport`)."""
+
 RESTORE_LOCK = ".lenspair-restore.lock"
 """The file in OUT whose ``flock`` a restore holds while it writes OUT (hidden: no frame,
 no output: the checks of OUT pass over it)."""
-"""Under OUT: the report of the run (see :class:`RestoreReport`)."""
 
 SAID_PROBLEMS = 20
 """Problems the CLI says, one line each, before it points to the report for the rest."""
