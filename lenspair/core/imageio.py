@@ -21,6 +21,7 @@ from lenspair.core.pngcheck import HEADER_BYTES, png_header_problem, png_problem
 logger = logging.getLogger(__name__)
 
 _UNKNOWN = "unknown error"  # an OpenImageIO failure that gives no reason
+TIFF_SUFFIXES = frozenset({".tif", ".tiff"})
 
 
 def read_image(path: Path, *, say_pages: bool = True) -> np.ndarray:
@@ -243,7 +244,7 @@ def alpha_is_associated(path: Path) -> bool:
         ImageIOError: as :func:`read_image`.
     """
     path = Path(path)
-    if path.suffix.lower() not in (".tif", ".tiff"):
+    if path.suffix.lower() not in TIFF_SUFFIXES:
         return False
     with _opened(path) as handle:
         spec = handle.spec()
@@ -380,9 +381,6 @@ def _read_pixels(path: Path, say_pages: bool = False) -> np.ndarray:
                 path,
             )
     return np.asarray(pixels)
-
-
-TIFF_SUFFIXES = frozenset({".tif", ".tiff"})
 
 
 def _say_once(kind: str, message: str, *args: object) -> None:
