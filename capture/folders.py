@@ -264,8 +264,8 @@ def _without_companions(
     frame of the time. Kept, each was a "duplicate timestamp", and
     ``<t>-depth.png``, which sorts first, was the frame and the camera's image
     the duplicate. A number alone after the separator (``<t>_1.png``, a second
-    save) is no word: that file stays a duplicate. The companions are counted in one note of the
-    folder (``problems``), not one a file.
+    save) is no word: that file stays a duplicate. The companions are counted
+    in one note of the folder (``problems``), not one a file.
     """
     stems: dict[int, set[str]] = {}
     for frame in frames:
@@ -279,23 +279,21 @@ def _without_companions(
                 return stem[len(base) + 1 :]
         return None
 
-    def companion(frame: FrameRef) -> bool:
-        added = extension(frame)
-        return added is not None and not added.isdigit()
-
-    kept = [(f, d) for f, d in zip(frames, digits, strict=True) if not companion(f)]
+    added = [extension(frame) for frame in frames]
+    companion = [a is not None and not a.isdigit() for a in added]
+    companions = [f for f, c in zip(frames, companion, strict=True) if c]
+    kept = [(f, d, a) for f, d, a, c in zip(frames, digits, added, companion, strict=True) if not c]
     # of a frame and its second save (<t>.png, <t>-2.png) the frame is kept, though the
     # save's name sorts first; twins of one stem keep name order (stable)
-    kept.sort(key=lambda item: (item[0].t_ns, extension(item[0]) is not None))
-    if len(kept) < len(frames):
-        first = next(f for f in frames if companion(f)).source.name
+    kept.sort(key=lambda item: (item[0].t_ns, item[2] is not None))
+    if companions:
         reason = (
-            f"{counted(len(frames) - len(kept), 'file')} named as a frame of the same time "
-            f"and a word (the first: {first}): companions of those frames (depth maps, "
-            "thumbnails), not frames"
+            f"{counted(len(companions), 'file')} named as a frame of the same time and a word "
+            f"(the first: {companions[0].source.name}): companions of those frames (depth "
+            "maps, thumbnails), not frames"
         )
         problems.append(FrameProblem(camera, None, str(folder), reason, dropped=False))
-    return [f for f, _ in kept], [d for _, d in kept]
+    return [f for f, _, _ in kept], [d for _, d, _ in kept]
 
 
 def _check_distinct_times(camera: CameraName, folder: Path, frames: list[FrameRef]) -> None:

@@ -397,14 +397,15 @@ class EffectsSpec:
         pitch = None
         if self.defocus is not None and self.defocus.pixel_pitch_um is None:
             pitch = self.defocus.focal_length_mm * 1e3 / fx
-            if not 0.1 <= pitch <= 100.0 and not self.defocus.sized_by_optics:
+            if not 0.1 <= pitch <= 100.0:
+                if self.defocus.sized_by_optics:
+                    raise ValueError(
+                        f"defocus.pixel_pitch_um: focal_length_mm "
+                        f"{self.defocus.focal_length_mm:g} over the camera's fx {fx:g} px is a "
+                        f"{pitch:.3g} um pixel, outside 0.1..100; set focal_length_mm or "
+                        "pixel_pitch_um"
+                    )
                 pitch = None  # a blur sized by hand: the camera's pixel is not used
-            elif not 0.1 <= pitch <= 100.0:
-                raise ValueError(
-                    f"defocus.pixel_pitch_um: focal_length_mm {self.defocus.focal_length_mm:g} "
-                    f"over the camera's fx {fx:g} px is a {pitch:.3g} um pixel, outside "
-                    "0.1..100; set focal_length_mm or pixel_pitch_um"
-                )
         try:
             return self._with_optics(min(max(fx, 1.0), 1e5), pitch)
         except ValueError as exc:
