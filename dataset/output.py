@@ -15,7 +15,7 @@ import logging
 import os
 import shutil
 import stat
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Literal
 
@@ -102,8 +102,11 @@ def _place_image(source: Path, destination: Path, link: LinkMode) -> None:
 
 
 DATASET_LOCK = ".lenspair-dataset.lock"
-"""The file of a dataset whose ``flock`` its readers (``train``, ``tradeoff``) share and a
-rebuild takes."""
+"""The file of a dataset whose ``flock`` its readers share and a rebuild takes.
+
+Its readers are the commands that name a dataset among their inputs
+(``train``, ``tradeoff``, ``eval``, ``export --calibration``,
+``train-detector``): see :func:`reading_datasets`."""
 
 
 def _own_entries() -> frozenset[str]:
@@ -116,31 +119,49 @@ def _own_entries() -> frozenset[str]:
     return frozenset(own | contact)
 
 
+def dataset_root(path: Path) -> Path | None:
+    """The lenspair dataset ``path`` is, or whose split folder it is (``DS/test``).
+
+    Returns:
+        That dataset's root; ``None`` for any other folder or layout (a
+        Raindrop folder, a paired folder: nothing of lenspair rewrites them).
+    """
+    path = Path(path)
+    if path.is_dir() and is_lenspair_dataset(path):
+        return path
+    if path.name in SPLITS and path.parent.is_dir() and is_lenspair_dataset(path.parent):
+        return path.parent
+    return None
+
+
 @contextlib.contextmanager
-def reading_dataset(path: Path) -> Iterator[None]:
-    """Hold a shared lock on a lenspair dataset meanwhile, so that no rebuild replaces it.
+def reading_datasets(paths: Iterable[Path]) -> Iterator[None]:
+    """Hold a shared lock on each lenspair dataset among ``paths`` meanwhile.
 
     ``dataset-build --overwrite`` swapped ``DS`` under a running ``train``,
     which then died blaming a missing pair, or went on over a mix of the two
-    datasets where their file names agreed. Other layouts (a Raindrop folder)
-    get no lock file: nothing of lenspair rewrites them.
+    datasets where their file names agreed. Every command reading a dataset
+    holds its lock while it runs (``lenspair.cli``), so no rebuild replaces
+    it meanwhile; a split folder (``DS/test``) locks its dataset. Other
+    layouts get no lock file.
 
     Raises:
-        DatasetError: a dataset-build is replacing it now.
+        DatasetError: a dataset-build is replacing one of them now.
     """
-    descriptor = None
-    if Path(path).is_dir() and is_lenspair_dataset(Path(path)):
-        try:
-            descriptor = lock_shared(Path(path) / DATASET_LOCK, create=True)
-        except BlockingIOError:
-            raise DatasetError(
-                f"{path}: a dataset-build is replacing it; train when it has finished"
-            ) from None
-    try:
+    with contextlib.ExitStack() as held:
+        for path in paths:
+            root = dataset_root(path)
+            if root is None:
+                continue
+            try:
+                descriptor = lock_shared(root / DATASET_LOCK, create=True)
+            except BlockingIOError:
+                raise DatasetError(
+                    f"{path}: a dataset-build is replacing it; run again when it has finished"
+                ) from None
+            if descriptor is not None:  # None: a read-only dataset, which nothing rebuilds
+                held.callback(os.close, descriptor)  # closing releases the lock
         yield
-    finally:
-        if descriptor is not None:
-            os.close(descriptor)  # releases the lock
 
 
 @contextlib.contextmanager
@@ -158,8 +179,8 @@ def replacing(out: Path, probe: bool = False) -> Iterator[None]:
         yield
         return
     taken = DatasetError(
-        f"{out}: a train or tradeoff is reading it; rebuild it when that has finished, or "
-        "give another --out"
+        f"{out}: another lenspair command (train, tradeoff, eval, export, train-detector) "
+        "is reading it; rebuild it when that has finished, or give another --out"
     )
     with holding(out / DATASET_LOCK, "dataset-build", taken):
         yield

@@ -16,6 +16,7 @@ import signal
 import sys
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 from types import ModuleType
 from typing import Any, NoReturn
 
@@ -224,8 +225,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger().setLevel(logging.DEBUG if args.verbose else logging.WARNING)
     logging.getLogger("lenspair").setLevel(logging.DEBUG if args.verbose else logging.INFO)
     try:
-        with _sigterm_as_interrupt():
-            return int(_load(args.command).run(args))
+        module = _load(args.command)
+        with _sigterm_as_interrupt(), reading_inputs(module, args):
+            return int(module.run(args))
     except LenspairError as exc:
         _end_bar_line(interrupted=False)
         print(f"lenspair {args.command}: error: {exc}", file=sys.stderr)
@@ -253,6 +255,29 @@ def main(argv: list[str] | None = None) -> int:
         _end_bar_line(interrupted=True)
         print(f"lenspair {args.command}: {stopped}; {hint}", file=sys.stderr)
         return TERMINATED if isinstance(exc, Terminated) else INTERRUPTED
+
+
+def reading_inputs(
+    module: ModuleType, args: argparse.Namespace
+) -> contextlib.AbstractContextManager[None]:
+    """Hold the lock of each lenspair dataset the command reads, while it runs.
+
+    A command lists the arguments that name datasets it reads in
+    ``DATASET_ARGUMENTS`` (a path, or a list of paths, each); no
+    ``dataset-build --overwrite`` replaces those meanwhile
+    (:func:`lenspair.dataset.output.reading_datasets`).
+    """
+    names: tuple[str, ...] = getattr(module, "DATASET_ARGUMENTS", ())
+    paths: list[Path | None] = []
+    for name in names:
+        value = getattr(args, name, None)
+        paths.extend(value if isinstance(value, list) else [value])
+    if not any(path is not None for path in paths):
+        return contextlib.nullcontext()
+    # Imported here, not at the top: only commands reading a dataset load the package.
+    from lenspair.dataset.output import reading_datasets
+
+    return reading_datasets(path for path in paths if path is not None)
 
 
 def _end_bar_line(interrupted: bool) -> None:

@@ -70,6 +70,10 @@ from lenspair.dataset.config import SPLITS, load_dataset_config, parse_fractions
 from lenspair.dataset.curation import RULE_NAMES
 from lenspair.dataset.verify import verify_dataset
 
+DATASET_ARGUMENTS = ("verify",)
+"""Arguments naming datasets this command reads (``--verify``): ``lenspair.cli`` holds their
+locks meanwhile (a build itself takes its --out's lock exclusively, for the swap)."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``dataset-build``."""

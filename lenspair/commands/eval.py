@@ -68,6 +68,10 @@ if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
     from lenspair.model.training.pairs import PairSource
 
 
+DATASET_ARGUMENTS = ("data", "calibration")
+"""Arguments naming datasets this command reads: ``lenspair.cli`` holds their locks meanwhile."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``eval``."""
     parser.add_argument("checkpoint", type=input_path, help="checkpoint (.pt) from lenspair train")

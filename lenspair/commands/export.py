@@ -54,6 +54,10 @@ if TYPE_CHECKING:  # torch-free at import, so that --help stays fast
     from lenspair.model.checkpoint import LoadedModel
 
 
+DATASET_ARGUMENTS = ("calibration",)
+"""Arguments naming datasets this command reads: ``lenspair.cli`` holds their locks meanwhile."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``export``."""
     parser.add_argument("checkpoint", type=input_path, help="checkpoint (.pt) from lenspair train")

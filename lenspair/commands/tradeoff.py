@@ -63,6 +63,9 @@ from lenspair.core.device import resolve_device
 from lenspair.core.errors import ConfigError
 from lenspair.core.fsutil import inside_refusal
 
+DATASET_ARGUMENTS = ("dataset",)
+"""Arguments naming datasets this command reads: ``lenspair.cli`` holds their locks meanwhile."""
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``tradeoff``."""
@@ -155,21 +158,7 @@ def _check_places(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the comparison; returns the exit code.
-
-    The dataset is read under its shared lock, as ``train`` reads it
-    (:func:`~lenspair.dataset.output.reading_dataset`): no rebuild replaces
-    it under the variants' training.
-    """
-    # Imported here, not at the top: keeps the dataset package out of `--help`.
-    from lenspair.dataset.output import reading_dataset
-
-    with reading_dataset(args.dataset):
-        return _run(args)
-
-
-def _run(args: argparse.Namespace) -> int:
-    """:func:`run` itself."""
+    """Run the comparison; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair tradeoff --help`.
     from lenspair.model.evaluation.tradeoff import run_tradeoff
     from lenspair.model.evaluation.tradeoff_report import tradeoff_markdown  # as above

@@ -116,6 +116,10 @@ def _init_weights(text: str) -> Path | str:
     return Path(text)
 
 
+DATASET_ARGUMENTS = ("dataset",)
+"""Arguments naming datasets this command reads: ``lenspair.cli`` holds their locks meanwhile."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``train``."""
     parser.add_argument("dataset", nargs="?", type=input_path, help="paired dataset folder (DS)")
@@ -307,23 +311,7 @@ def _unsaved_changes(said: Path, trained: "RunConfig") -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Train one run; returns the exit code.
-
-    A lenspair dataset is read under its shared lock, so that no
-    ``dataset-build`` replaces it meanwhile
-    (:func:`~lenspair.dataset.output.reading_dataset`).
-    """
-    if args.dataset is None:
-        return _run(args)
-    # Imported here, not at the top: keeps the dataset package out of `--help`.
-    from lenspair.dataset.output import reading_dataset
-
-    with reading_dataset(args.dataset):
-        return _run(args)
-
-
-def _run(args: argparse.Namespace) -> int:
-    """:func:`run` itself."""
+    """Train one run; returns the exit code."""
     # Imported here, not at the top: keeps torch out of `lenspair train --help`.
     from lenspair.model.training.config_loading import load_run_config, with_file
     from lenspair.model.training.datasets import paired_training_data, synthetic_training_data

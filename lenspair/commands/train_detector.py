@@ -117,6 +117,10 @@ def _minutes(text: str) -> float:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+DATASET_ARGUMENTS = ("datasets",)
+"""Arguments naming datasets this command reads: ``lenspair.cli`` holds their locks meanwhile."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the arguments of ``train-detector``."""
     parser.add_argument(

@@ -1,11 +1,12 @@
 """Rebuilding into an existing dataset: identical reruns accepted, refusals taken early."""
 
 import argparse
+import importlib
 from pathlib import Path
 
 import pytest
 
-from lenspair.cli import build_parser, main
+from lenspair.cli import COMMANDS, build_parser, main
 from lenspair.commands.dataset_build import BUILD_ONLY
 from lenspair.core.fsutil import sha256_file
 from lenspair.dataset import output as output_module
@@ -225,25 +226,32 @@ def test_every_build_option_is_refused_by_verify() -> None:
     assert {d: f for d, f in options.items() if d not in verify_takes} == BUILD_ONLY
 
 
-def test_a_dataset_a_train_reads_is_not_replaced_under_it(
+READERS = {
+    "train": ["train", "{DS}", "--out", "{tmp}/run"],
+    "tradeoff": ["tradeoff", "{DS}", "--out", "{tmp}/trade"],
+    "eval": ["eval", "{ckpt}", "--data", "{DS}/test"],  # a split folder locks its dataset
+    "export": ["export", "{ckpt}", "--onnx", "{tmp}/m.onnx", "--int8", "--calibration", "{DS}"],
+    "train_detector": ["train-detector", "{DS}", "--out", "{tmp}/detector"],
+}
+"""Each command reading a dataset, as a user types it (``DATASET_ARGUMENTS``)."""
+
+
+def test_a_dataset_a_command_reads_is_not_replaced_under_it(
     recording: RecordingFactory, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # `dataset-build --overwrite` swapped DS under a running train: it died blaming a missing
-    # pair, or went on over a mix of the two datasets where their file names agreed
-    import argparse as ap
-
-    from lenspair.commands import tradeoff as tradeoff_command
-    from lenspair.commands import train as train_command
-
+    # pair, or went on over a mix of the two datasets where their file names agreed; eval,
+    # export --calibration and train-detector read a dataset for minutes too
     sources = _two(recording)
     out = tmp_path / "DS"
     other = DatasetConfig(split=SplitConfig(seed=3))
     build_dataset(sources, out, DatasetConfig())
     before = _tree(out)
+    refused = r"DS: another lenspair command \(train, .*\) is reading it"
     with (
-        output_module.reading_dataset(out),
-        output_module.reading_dataset(out),  # readers share it
-        pytest.raises(DatasetError, match=r"DS: a train or tradeoff is reading it"),
+        output_module.reading_datasets([out]),
+        output_module.reading_datasets([out, out / "test"]),  # readers share it
+        pytest.raises(DatasetError, match=refused),
     ):
         build_dataset(sources, out, other, overwrite=True)
     lock = output_module.DATASET_LOCK
@@ -251,21 +259,38 @@ def test_a_dataset_a_train_reads_is_not_replaced_under_it(
     with (
         output_module.replacing(out),
         pytest.raises(DatasetError, match=r"DS: a dataset-build is replacing it"),
-        output_module.reading_dataset(out),
+        output_module.reading_datasets([out]),
     ):
         pass
     seen: list[str] = []
 
-    def training(args: ap.Namespace) -> int:  # what `lenspair train DS` holds while it trains
-        with pytest.raises(DatasetError, match="a train or tradeoff is reading it"):
+    def reading(args: argparse.Namespace) -> int:  # what the command holds while it runs
+        with pytest.raises(DatasetError, match=refused):
             build_dataset(sources, out, other, overwrite=True)
         seen.append("refused")
         return 0
 
-    monkeypatch.setattr(train_command, "_run", training)
-    assert train_command.run(ap.Namespace(dataset=out)) == 0 and seen == ["refused"]
-    monkeypatch.setattr(tradeoff_command, "_run", training)  # its variants train alike
-    assert tradeoff_command.run(ap.Namespace(dataset=out)) == 0 and seen == ["refused"] * 2
-    build_dataset(sources, out, other, overwrite=True)  # once no train reads it
+    checkpoint = tmp_path / "best.pt"
+    checkpoint.write_bytes(b"")
+    for name, argv in READERS.items():
+        monkeypatch.setattr(importlib.import_module(f"lenspair.commands.{name}"), "run", reading)
+        assert main([a.format(DS=out, tmp=tmp_path, ckpt=checkpoint) for a in argv]) == 0, name
+    assert seen == ["refused"] * len(READERS)
+    build_dataset(sources, out, other, overwrite=True)  # once no command reads it
     assert lock not in _tree(out)  # the rebuilt dataset: its lock is its readers' to make
     assert _tree(out) != before
+
+
+def test_every_command_naming_a_dataset_declares_it() -> None:
+    # a command left out of DATASET_ARGUMENTS would read a dataset without its lock
+    for name, (module_name, _) in COMMANDS.items():
+        parser = build_parser(name)
+        (sub,) = (a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        named = {
+            action.dest
+            for action in sub.choices[name]._actions
+            if action.metavar == "DS" or action.dest in ("dataset", "data")
+        }
+        declared = getattr(importlib.import_module(module_name), "DATASET_ARGUMENTS", ())
+        assert named == set(declared), name
+    assert set(READERS) < {m.rsplit(".", 1)[1] for m, _ in COMMANDS.values()}
