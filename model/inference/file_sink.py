@@ -11,6 +11,7 @@ original unchanged: a frame judged clean, a frame that failed).
 """
 
 import json
+import logging
 import os
 from collections.abc import Iterable
 from pathlib import Path
@@ -40,7 +41,10 @@ from lenspair.model.inference.out_layout import (
     copy_file,
     files_under,
 )
+from lenspair.model.inference.report import is_restore_output
 from lenspair.model.inference.unread_files import unrestored_note
+
+logger = logging.getLogger(__name__)
 
 
 def _alpha_of(source: Path, shape: tuple[int, ...]) -> np.ndarray | None:
@@ -145,16 +149,22 @@ class FileSink:
         would be overwritten by it: it is not copied, and one line per such
         file is returned; so is one per copied file that holds frames left
         unrestored (:func:`~lenspair.model.inference.unread_files.unrestored_note`).
+        When ``root`` is an earlier restore's OUT, those files are that run's
+        report and bookkeeping: they are passed over in one logged line.
         """
         skip = {Path(p).resolve() for p in restored}
         own = {*reserved, *OWN_NAMES}
-        clashes = []
+        earlier = is_restore_output(root)
+        clashes, passed_over = [], set()
         # a recording's other camera and truth/: tens of GB of a long run, after the
         # restoring bar has closed
         others = list(files_under(root, follow_links))
         for relative in progress(others, desc="copying the rest", unit="file"):
             source = Path(root) / relative
             if source.resolve() in skip:
+                continue
+            if relative.parts[0] in own and earlier:
+                passed_over.add(relative.parts[0])
                 continue
             if relative.parts[0] in own:
                 clashes.append(
@@ -166,6 +176,12 @@ class FileSink:
                 copy_file(source, self.out_dir / relative)
             if (note := unrestored_note(source)) is not None:
                 clashes.append(note)
+        if passed_over:
+            logger.info(
+                "%s is an earlier restore's output: its %s not copied",
+                root,
+                ", ".join(sorted(passed_over)),
+            )
         return clashes
 
     def set_aside_stale(

@@ -5,7 +5,9 @@ files of an earlier run (:mod:`lenspair.model.inference.resume`); its
 :meth:`~RestoreReport.summary` is the line the CLI prints last.
 """
 
+import json
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 from lenspair.core.wording import counted
@@ -16,6 +18,19 @@ REPORT_NAME = "restore_report.json"
 RESTORE_LOCK = ".lenspair-restore.lock"
 """The file in OUT whose ``flock`` a restore holds while it writes OUT (hidden: no frame,
 no output: the checks of OUT pass over it)."""
+
+
+def is_restore_output(folder: Path) -> bool:
+    """Whether ``folder`` is an earlier restore's OUT: it holds a restore's report.
+
+    Its report and lock are then that run's, not the user's files.
+    """
+    try:
+        report = json.loads((Path(folder) / REPORT_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(report, dict) and {"kind", "restored", "output"} <= report.keys()
+
 
 SAID_PROBLEMS = 20
 """Problems the CLI says, one line each, before it points to the report for the rest."""

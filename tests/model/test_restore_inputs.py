@@ -2,6 +2,7 @@
 
 import errno
 import json
+import logging
 import os
 import shutil
 import threading
@@ -24,7 +25,7 @@ from lenspair.model.errors import ModelError
 from lenspair.model.inference import file_sink
 from lenspair.model.inference.backends import TorchBackend, open_backend
 from lenspair.model.inference.pipeline import restore_input
-from lenspair.model.inference.report import REPORT_NAME, RestoreReport
+from lenspair.model.inference.report import REPORT_NAME, RESTORE_LOCK, RestoreReport
 from lenspair.model.inference.restore_options import RestoreOptions
 from tests.capture.ingest_helpers import make_recording
 from tests.images import texture
@@ -493,6 +494,27 @@ def test_input_files_named_like_restores_own_are_said_not_overwritten(
     assert ".restore-copies: not copied" in clashes[0] and "restore_report.json: not" in clashes[1]
     assert "mine" not in (tmp_path / "out" / "restore_report.json").read_text()
     assert (tmp_path / "out" / "sub" / "restore_report.json").read_text() == '{"deeper": 1}'
+
+
+def test_an_earlier_restores_output_restores_without_problems(
+    tmp_path: Path, backend: TorchBackend, caplog: pytest.LogCaptureFixture
+) -> None:
+    # restoring a restore's OUT listed its report and lock as two problems, each
+    # advising to rename a file lenspair wrote
+    source = tmp_path / "in"
+    write_image(source / "a.png", (texture((32, 48), seed=1) * 255).astype(np.uint8))
+    restore_input(source, tmp_path / "first", backend)
+    assert (tmp_path / "first" / RESTORE_LOCK).exists()
+    with caplog.at_level(logging.INFO, logger="lenspair"):
+        report = restore_input(tmp_path / "first", tmp_path / "second", backend)
+    assert (report.restored, report.problems) == (1, [])
+    said = [r.getMessage() for r in caplog.records if "earlier restore" in r.getMessage()]
+    assert said == [
+        f"{tmp_path / 'first'} is an earlier restore's output: its "
+        f"{RESTORE_LOCK}, restore_report.json not copied"
+    ]
+    second = json.loads((tmp_path / "second" / "restore_report.json").read_text())
+    assert second["input"] == str(tmp_path / "first")  # its own report, not the first's
 
 
 def test_a_file_name_that_is_not_utf8_costs_only_its_frame(
